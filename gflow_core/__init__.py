@@ -1,0 +1,1 @@
+"""gflow_core package."""

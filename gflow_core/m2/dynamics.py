@@ -1,0 +1,104 @@
+"""Dynamics p(X_t | X_{t-1}) for X = (alpha, k) (Toyama & Blake 2002, sec. 4.3).
+
+Two independent parts:
+
+1. a Markov matrix M over exemplars, p(k_t = j | k_{t-1} = i) = M[i, j];
+2. a first-order auto-regressive process on the transform,
+
+       beta_t - mean = A (beta_{t-1} - mean) + B w_t,   w_t ~ N(0, I_4),
+
+   where beta = (ux, uy, theta, log s). The scale runs in log space so that it stays
+   positive; translation and rotation are unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["ARDynamics", "random_walk", "to_beta", "from_beta", "sample_markov"]
+
+
+def to_beta(alpha: np.ndarray) -> np.ndarray:
+    """(..., 4) alpha = (ux, uy, theta, s) -> beta = (ux, uy, theta, log s)."""
+    b = np.array(alpha, dtype=np.float64, copy=True)
+    b[..., 3] = np.log(b[..., 3])
+    return b
+
+
+def from_beta(beta: np.ndarray) -> np.ndarray:
+    """(..., 4) beta = (ux, uy, theta, log s) -> alpha = (ux, uy, theta, s)."""
+    a = np.array(beta, dtype=np.float64, copy=True)
+    a[..., 3] = np.exp(a[..., 3])
+    return a
+
+
+@dataclass(frozen=True)
+class ARDynamics:
+    """First-order AR process on beta = (ux, uy, theta, log s).
+
+    Attributes
+    ----------
+    A : (4, 4) float64
+        Transition matrix.
+    mean : (4,) float64
+        Process mean (irrelevant where the corresponding row of A is the identity).
+    B : (4, 4) float64
+        Noise gain; the process noise covariance is B B^T.
+    """
+
+    A: np.ndarray
+    mean: np.ndarray
+    B: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name, shape in (("A", (4, 4)), ("mean", (4,)), ("B", (4, 4))):
+            v = np.asarray(getattr(self, name), dtype=np.float64)
+            if v.shape != shape:
+                raise ValueError(f"ARDynamics.{name} must have shape {shape}, got {v.shape}")
+            if not np.isfinite(v).all():
+                raise ValueError(f"ARDynamics.{name} contains NaN or inf")
+            object.__setattr__(self, name, v)
+
+    def predict(self, alpha: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Sample alpha_t ~ p(alpha_t | alpha_{t-1}) for N particles. (N, 4) -> (N, 4)."""
+        beta = to_beta(alpha)
+        w = rng.standard_normal(beta.shape)
+        # beta_t = mean + A (beta_{t-1} - mean) + B w
+        beta_t = self.mean + (beta - self.mean) @ self.A.T + w @ self.B.T
+        return from_beta(beta_t)
+
+    def log_density(self, alpha_t: np.ndarray, alpha_prev: np.ndarray) -> np.ndarray:
+        """log p(alpha_t | alpha_{t-1}) up to a constant, in beta coordinates. (N, 4) x (N, 4) -> (N,)."""
+        r = to_beta(alpha_t) - (self.mean + (to_beta(alpha_prev) - self.mean) @ self.A.T)
+        cov = self.B @ self.B.T + 1e-12 * np.eye(4)
+        sol = np.linalg.solve(cov, r.T).T
+        return -0.5 * np.einsum("ij,ij->i", r, sol)
+
+
+def random_walk(std_xy: float, std_theta: float, std_log_s: float) -> ARDynamics:
+    """A random walk (A = I) with independent noise on each component."""
+    return ARDynamics(A=np.eye(4), mean=np.zeros(4), B=np.diag([std_xy, std_xy, std_theta, std_log_s]))
+
+
+def sample_markov(k: np.ndarray, markov: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Sample k_t ~ M[k_{t-1}, :] for each particle.
+
+    Parameters
+    ----------
+    k : (N,) int64, previous exemplar indices.
+    markov : (K, K) float64, rows sum to 1.
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    (N,) int64
+    """
+    k = np.asarray(k, dtype=np.int64)
+    if markov.shape[0] == 1:
+        return np.zeros_like(k)
+    cdf = np.cumsum(markov[k], axis=1)
+    cdf[:, -1] = 1.0
+    u = rng.uniform(size=(k.size, 1))
+    return (u > cdf).sum(axis=1).astype(np.int64)
