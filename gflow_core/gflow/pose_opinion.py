@@ -1,0 +1,477 @@
+"""Pose opinion of an expert (sec. 3.2): Gauss-Newton peak, Laplace covariance, samples.
+
+For expert ``d`` with previous pose ``u_{t-1}`` and predicted textures (eq. 9, 10)
+the pose opinion peak is (eq. 14)::
+
+    u_hat = argmin_u  -log p(u | u_{t-1})
+            + 1/2 sum_i [ (y_t(x_i(u)) - mu_v(i))^2 / (sigma_v(i) + sigma_w)        (foreground)
+                        - (y_t(x_i(u)) - mu_b(x_i(u)))^2 / (sigma_b(x_i(u)) + sigma_w)  (background 1)
+                        - log(sigma_b(x_i(u)) + sigma_w) ]                            (background 2)
+
+Gauss-Newton ignores the second background term, as the paper does (sec. 3.2.2);
+the importance weights (eq. 16) use the full likelihood of eq. 13. The Laplace
+covariance is ``Sigma_hat = H^-1`` with ``H`` the Gauss-Newton Hessian at ``u_hat``,
+and ``s`` samples are drawn from ``N(u_hat, alpha Sigma_hat)``.
+
+Everything is vectorised over a batch of ``E`` experts, and the result for one
+expert does not depend on which other experts are in the batch (the per-expert
+computations are the same array operations on that expert's slice, and the only
+randomness comes from that expert's own ``numpy.random.Generator``).
+
+Tangent space
+-------------
+Poses are stepped, sampled and compared in the tangent space of
+:mod:`.geometry` (``u [+] d``). ``Sigma_hat`` is the covariance of the increment
+``d`` at ``u_hat``; a sample is ``u_hat [+] d``, ``d ~ N(0, alpha Sigma_hat)``, and
+``g(u | u_hat, alpha Sigma_hat)`` (eq. 16) is the Gaussian density of that ``d``.
+
+Pose transition prior
+---------------------
+``p(u_t | u_{t-1})`` is a Gaussian random walk in the tangent space at ``u_{t-1}``:
+``box_minus(u_{t-1}, u_t) ~ N(0, diag(std^2))``, with ``std`` per component
+(``inf`` = uninformative, that component contributes nothing). Inside Gauss-Newton
+the tangent difference is linearised as ``d(u [+] delta) ~ d(u) + delta`` (the
+right Jacobian of the rotation log is taken as the identity, exact at ``d = 0`` and
+accurate to ``O(|d_w|^2)`` for the small inter-frame rotations the prior allows).
+
+Departures from the paper (all numerical safeguards)
+----------------------------------------------------
+* Gauss-Newton with step control: a step is taken only if it decreases the
+  Gauss-Newton objective, otherwise the step length for that expert is halved
+  (and doubled again, up to 1, after a success). A fixed number of iterations is
+  run for every expert so that results do not depend on the batch.
+* The background curvature ``-J_b^T W_b J_b`` is negative; to keep the Hessian
+  positive definite it is limited so that it removes at most
+  ``1 - MIN_CURVATURE_FRACTION`` (90 %) of the foreground-plus-prior curvature in any
+  direction (eigenvalue clamp in the metric of the foreground-plus-prior Hessian).
+* A ridge ``1e-10 * diag(H) + 1e-12 * max(diag(H))`` (plus ``1e-12``) is added to the
+  foreground-plus-prior Hessian so that it is invertible on a blank frame with an
+  uninformative prior. It changes step lengths, not the stationary point.
+* ``alpha = 0`` (the paper's limit, samples = ``u_hat``): the ``s`` samples are all
+  ``u_hat`` and ``log g`` is replaced by the ``alpha = 1`` density at its mode,
+  ``-P/2 log 2 pi + 1/2 log |H|``, so that ``w = f(u_hat) (2 pi)^{P/2} |Sigma_hat|^{1/2}``,
+  the Laplace estimate of the integral in eq. 18.
+* The image gradient at a vertex is the bilinear sample of the central-difference
+  gradient images of ``y_t``; the gradient of the background mean is the derivative
+  of its bilinear interpolant. The background texel weights ``1/(sigma_b + sigma_w)``
+  are held fixed within a Gauss-Newton step.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from .geometry import box_minus, box_plus, project, projection_jacobian
+from .image import BilinearStencil, FrameData, bilinear_stencil
+
+__all__ = [
+    "MIN_CURVATURE_FRACTION",
+    "TextureView",
+    "GaussNewtonResult",
+    "log_pose_prior",
+    "gauss_newton_objective",
+    "gauss_newton_peak",
+    "laplace_proposal",
+    "background_image_terms",
+    "log_likelihood",
+    "log_importance_weights",
+]
+
+#: Fraction of foreground-plus-prior curvature the background term may not remove.
+MIN_CURVATURE_FRACTION = 0.1
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+
+
+@dataclass(frozen=True)
+class TextureView:
+    """Predicted texture opinions (eq. 9, 10) of a batch of ``E`` experts.
+
+    Attributes
+    ----------
+    mean, var : (E, n) float64
+        Predicted object texel means ``mu_v`` and variances ``sigma_v`` (posterior at
+        ``t - 1`` plus ``Psi_v``).
+    bg_mean, bg_var : (R, H, W) float64 or None
+        Background texel posterior at ``t - 1`` for all ``R`` experts of the state
+        (``None``: uninformative background). Not copied.
+    bg_rows : (E,) intp or None
+        Row of ``bg_mean`` / ``bg_var`` of each expert in the batch.
+    psi_b : float
+        ``Psi_b``; the predicted background variance is ``bg_var + psi_b`` (eq. 10).
+    """
+
+    mean: np.ndarray
+    var: np.ndarray
+    bg_mean: np.ndarray | None = None
+    bg_var: np.ndarray | None = None
+    bg_rows: np.ndarray | None = None
+    psi_b: float = 0.0
+
+    @property
+    def has_background(self) -> bool:
+        return self.bg_mean is not None
+
+    def bg_at(self, st: BilinearStencil, rows: np.ndarray, with_grad: bool = False):
+        """Background mean (and its x/y derivative) and predicted variance at points."""
+        fm = self.bg_mean.reshape(-1)  # type: ignore[union-attr]
+        fv = self.bg_var.reshape(-1)  # type: ignore[union-attr]
+        var = st.sample(fv, rows) + self.psi_b
+        if with_grad:
+            m, mx, my = st.sample_with_gradient(fm, rows)
+            return m, mx, my, var
+        return st.sample(fm, rows), var
+
+
+@dataclass(frozen=True)
+class GaussNewtonResult:
+    """Peak of the pose opinions of a batch of experts.
+
+    Attributes
+    ----------
+    u_hat : (E, P) float64
+        Peak of eq. 14 (without its second background term).
+    hessian : (E, P, P) float64
+        Gauss-Newton Hessian at ``u_hat`` (positive definite); ``Sigma_hat = hessian^-1``.
+    objective : (E,) float64
+        Gauss-Newton objective at ``u_hat``.
+    """
+
+    u_hat: np.ndarray
+    hessian: np.ndarray
+    objective: np.ndarray
+
+
+def _prior_precision(prior_std: np.ndarray) -> np.ndarray:
+    std = np.asarray(prior_std, dtype=np.float64)
+    return np.where(np.isinf(std), 0.0, 1.0 / np.where(np.isinf(std), 1.0, std) ** 2)
+
+
+def log_pose_prior(prev: np.ndarray, poses: np.ndarray, prior_std: np.ndarray) -> np.ndarray:
+    """Log of the pose transition density ``p(u_t | u_{t-1})`` (Gaussian random walk).
+
+    Parameters
+    ----------
+    prev : (E, P) float64
+        ``u_{t-1}`` of each expert.
+    poses : (E, s, P) float64
+        Candidate ``u_t``.
+    prior_std : (P,) float64
+        Standard deviation per tangent component (``inf`` = flat; omitted).
+
+    Returns
+    -------
+    (E, s) float64
+    """
+    std = np.asarray(prior_std, dtype=np.float64)
+    fin = np.isfinite(std)
+    d = box_minus(prev[:, None, :], poses)[..., fin]
+    sd = std[fin]
+    # log N(d; 0, diag(std^2)) = -1/2 sum (d/std)^2 - sum log std - P'/2 log 2 pi
+    const = -np.sum(np.log(sd)) - 0.5 * sd.size * _LOG_2PI
+    return -0.5 * np.sum((d / sd) ** 2, axis=-1) + const
+
+
+def _fg_weights(tv: TextureView, sigma_w: float) -> np.ndarray:
+    # 1 / (sigma_v(i) + sigma_w)
+    return 1.0 / (tv.var + sigma_w)
+
+
+def gauss_newton_objective(
+    bases: np.ndarray,
+    fd: FrameData,
+    prev: np.ndarray,
+    poses: np.ndarray,
+    tv: TextureView,
+    sigma_w: float,
+    prior_std: np.ndarray,
+) -> np.ndarray:
+    """The Gauss-Newton objective: eq. 14 without its second background term.
+
+    Parameters
+    ----------
+    bases : (n, 3, k) float64
+    fd : FrameData
+    prev : (E, P) float64
+        ``u_{t-1}``.
+    poses : (E, P) float64
+        Candidate ``u_t``.
+    tv : TextureView
+    sigma_w : float
+    prior_std : (P,) float64
+
+    Returns
+    -------
+    (E,) float64
+        ``1/2 d^T Lambda d + 1/2 sum_i [w_v (y - mu_v)^2 - w_b (y - mu_b)^2]``
+        (``-log p(u|u_{t-1})`` without its constant).
+    """
+    lam = _prior_precision(prior_std)
+    x = project(bases, poses)
+    st = bilinear_stencil(x, fd.shape)
+    y = st.sample(fd.flat)
+    r = y - tv.mean
+    f = np.sum(_fg_weights(tv, sigma_w) * r * r, axis=-1)
+    if tv.has_background:
+        mb, vb = tv.bg_at(st, tv.bg_rows[:, None])  # type: ignore[index]
+        rb = y - mb
+        f = f - np.sum(rb * rb / (vb + sigma_w), axis=-1)
+    d = box_minus(prev, poses)
+    return 0.5 * f + 0.5 * np.sum(lam * d * d, axis=-1)
+
+
+def _safe_hessian(h_pos: np.ndarray, h_bg: np.ndarray) -> np.ndarray:
+    """``h_pos - h_bg`` with its eigenvalues (in the metric of ``h_pos``) floored."""
+    L = np.linalg.cholesky(h_pos)
+    Li = np.linalg.inv(L)
+    A = Li @ h_bg @ Li.transpose(0, 2, 1)
+    A = 0.5 * (A + A.transpose(0, 2, 1))
+    lam, V = np.linalg.eigh(A)
+    m = np.maximum(1.0 - lam, MIN_CURVATURE_FRACTION)
+    M = (V * m[:, None, :]) @ V.transpose(0, 2, 1)
+    H = L @ M @ L.transpose(0, 2, 1)
+    return 0.5 * (H + H.transpose(0, 2, 1))
+
+
+def _linearise(bases, fd, prev, u, tv, sigma_w, lam):
+    """Gradient, Hessian and objective of the GN objective at ``u`` (tangent increments)."""
+    E, P = u.shape
+    x = project(bases, u)
+    st = bilinear_stencil(x, fd.shape)
+    y = st.sample(fd.flat)
+    gx, gy = st.sample_gradient_images(fd)
+    Jx = projection_jacobian(bases, u)  # (E, n, 2, P)
+    # d y_t(x_i(u [+] delta)) / d delta = grad y_t(x_i)^T dx_i/d delta
+    Jf = gx[..., None] * Jx[:, :, 0, :] + gy[..., None] * Jx[:, :, 1, :]  # (E, n, P)
+    wf = _fg_weights(tv, sigma_w)
+    r = y - tv.mean
+    wr = wf * r
+    # foreground: g = J^T W r,  H = J^T W J
+    g = (wr[:, None, :] @ Jf)[:, 0, :]
+    H = (Jf * wf[..., None]).transpose(0, 2, 1) @ Jf
+    f = np.sum(wr * r, axis=-1)
+    # prior: -log p(u|u_{t-1}) = 1/2 d^T Lambda d,  d(u [+] delta) ~ d(u) + delta
+    d = box_minus(prev, u)
+    g = g + lam * d
+    H = H + np.eye(P) * lam
+    f_prior = np.sum(lam * d * d, axis=-1)
+    # ridge (numerical guard, see module docstring)
+    dg = np.diagonal(H, axis1=1, axis2=2)
+    ridge = 1e-10 * dg + 1e-12 * dg.max(axis=1, keepdims=True) + 1e-12
+    H = H + ridge[:, :, None] * np.eye(P)
+    if tv.has_background:
+        mb, mbx, mby, vb = tv.bg_at(st, tv.bg_rows[:, None], with_grad=True)  # type: ignore[index]
+        wb = 1.0 / (vb + sigma_w)
+        rb = y - mb
+        # d (y_t(x) - mu_b(x)) / d delta
+        Jb = (gx - mbx)[..., None] * Jx[:, :, 0, :] + (gy - mby)[..., None] * Jx[:, :, 1, :]
+        wrb = wb * rb
+        # background term 1 enters with a minus sign: g -= J_b^T W_b r_b, H -= J_b^T W_b J_b
+        g = g - (wrb[:, None, :] @ Jb)[:, 0, :]
+        Hb = (Jb * wb[..., None]).transpose(0, 2, 1) @ Jb
+        H = _safe_hessian(H, Hb)
+        f = f - np.sum(wrb * rb, axis=-1)
+    return g, H, 0.5 * f + 0.5 * f_prior
+
+
+def gauss_newton_peak(
+    bases: np.ndarray,
+    fd: FrameData,
+    prev: np.ndarray,
+    tv: TextureView,
+    sigma_w: float,
+    prior_std: np.ndarray,
+    n_iter: int,
+    start: np.ndarray | None = None,
+) -> GaussNewtonResult:
+    """Gauss-Newton to the peak ``u_hat`` of each expert's pose opinion (eq. 12, 14).
+
+    Parameters
+    ----------
+    bases : (n, 3, k) float64
+        Morph bases.
+    fd : FrameData
+        ``y_t`` and its gradient images.
+    prev : (E, P) float64
+        ``u_{t-1}`` of each expert (also the starting point unless ``start`` is given).
+    tv : TextureView
+        Predicted textures.
+    sigma_w : float
+        Observation noise variance.
+    prior_std : (P,) float64
+        Pose random-walk standard deviations (``inf`` allowed).
+    n_iter : int
+        Number of Gauss-Newton steps (the same for every expert).
+    start : (E, P) float64, optional
+
+    Returns
+    -------
+    GaussNewtonResult
+    """
+    lam = _prior_precision(prior_std)
+    u = np.array(prev if start is None else start, dtype=np.float64)
+    E = u.shape[0]
+    scale = np.ones(E)
+    g, H, f = _linearise(bases, fd, prev, u, tv, sigma_w, lam)
+    for _ in range(int(n_iter)):
+        # Gauss-Newton step: delta = -H^-1 g
+        step = -np.linalg.solve(H, g[..., None])[..., 0] * scale[:, None]
+        cand = box_plus(u, step)
+        f_c = gauss_newton_objective(bases, fd, prev, cand, tv, sigma_w, prior_std)
+        ok = np.isfinite(f_c) & (f_c <= f)
+        scale = np.where(ok, np.minimum(1.0, 2.0 * scale), 0.5 * scale)
+        u = np.where(ok[:, None], cand, u)
+        # relinearise (for experts whose step was rejected this recomputes the same values)
+        g, H, f = _linearise(bases, fd, prev, u, tv, sigma_w, lam)
+    return GaussNewtonResult(u, H, f)
+
+
+def laplace_proposal(
+    u_hat: np.ndarray,
+    hessian: np.ndarray,
+    alpha: float,
+    n_samples: int,
+    rngs: Sequence[np.random.Generator],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Draw ``s`` samples per expert from ``g(. | u_hat, alpha Sigma_hat)`` (sec. 3.2.2).
+
+    Parameters
+    ----------
+    u_hat : (E, P) float64
+    hessian : (E, P, P) float64
+        ``Sigma_hat^-1``, positive definite.
+    alpha : float
+        Sharpness, ``>= 0`` (``0``: every sample is ``u_hat``; see the module docstring).
+    n_samples : int
+        ``s``.
+    rngs : sequence of E numpy.random.Generator
+        Expert ``e`` draws ``rngs[e].standard_normal((s, P))`` and nothing else.
+
+    Returns
+    -------
+    samples : (E, s, P) float64
+        ``u_hat [+] d``, ``d ~ N(0, alpha Sigma_hat)``.
+    log_g : (E, s) float64
+        Log proposal density of each sample.
+    sigma_hat : (E, P, P) float64
+        Laplace covariance ``hessian^-1``.
+    """
+    E, P = u_hat.shape
+    if len(rngs) != E:
+        raise ValueError(f"need one rng per expert: got {len(rngs)} rngs for {E} experts")
+    L = np.linalg.cholesky(hessian)  # H = L L^T
+    Li = np.linalg.inv(L)
+    # Sigma_hat = H^-1 = L^-T L^-1
+    sigma_hat = Li.transpose(0, 2, 1) @ Li
+    half_logdet_h = np.sum(np.log(np.diagonal(L, axis1=1, axis2=2)), axis=-1)  # 1/2 log|H|
+    s = int(n_samples)
+    if alpha > 0.0:
+        z = np.stack([np.asarray(r.standard_normal((s, P)), dtype=np.float64) for r in rngs])
+        # d = sqrt(alpha) L^-T z  ~ N(0, alpha H^-1)   (row vectors: d^T = sqrt(alpha) z^T L^-1)
+        d = np.sqrt(alpha) * (z @ Li)
+        samples = box_plus(u_hat[:, None, :], d)
+        # log g = -P/2 log(2 pi alpha) + 1/2 log|H| - 1/2 |z|^2
+        log_g = -0.5 * P * (_LOG_2PI + np.log(alpha)) + half_logdet_h[:, None] - 0.5 * np.sum(z * z, axis=-1)
+    else:
+        samples = np.repeat(u_hat[:, None, :], s, axis=1)
+        log_g = np.repeat((-0.5 * P * _LOG_2PI + half_logdet_h)[:, None], s, axis=1)
+    return samples, log_g, 0.5 * (sigma_hat + sigma_hat.transpose(0, 2, 1))
+
+
+def background_image_terms(frame: np.ndarray, tv: TextureView, sigma_w: float) -> np.ndarray:
+    """Whole-image background terms of eq. 13 for each expert of the batch.
+
+    ``B_d = sum_j [(y_t(j) - mu_b(j))^2 / (sigma_b(j) + sigma_w) + log(sigma_b(j) + sigma_w)]``
+    over all ``m`` pixels, with the predicted ``sigma_b`` (eq. 10). Computed one expert
+    at a time (no ``(E, H, W)`` temporary).
+
+    Returns
+    -------
+    (E,) float64
+    """
+    rows = tv.bg_rows
+    out = np.empty(len(rows))  # type: ignore[arg-type]
+    for j, r in enumerate(rows):  # type: ignore[arg-type]
+        v = tv.bg_var[r] + (tv.psi_b + sigma_w)  # type: ignore[index]
+        d = frame - tv.bg_mean[r]  # type: ignore[index]
+        d *= d
+        d /= v
+        np.log(v, out=v)
+        out[j] = d.sum() + v.sum()
+    return out
+
+
+def log_likelihood(
+    bases: np.ndarray,
+    fd: FrameData,
+    poses: np.ndarray,
+    tv: TextureView,
+    sigma_w: float,
+    bg_image_terms: np.ndarray | None = None,
+) -> np.ndarray:
+    """Predictive log-likelihood ``log p(y_t | u_{1:t}, y_{1:t-1})`` (eq. 13) at poses.
+
+    With the background model::
+
+        -m/2 log 2pi - 1/2 sum_i [log(sigma_v(i)+sigma_w) + (y(x_i) - mu_v(i))^2/(sigma_v(i)+sigma_w)]
+        - 1/2 B_d + 1/2 sum_i [(y(x_i) - mu_b(x_i))^2/(sigma_b(x_i)+sigma_w) + log(sigma_b(x_i)+sigma_w)]
+
+    (the sum over ``j not in X(u)`` of eq. 13 written as the whole-image sum ``B_d``
+    minus the vertex pixels). Without it (uninformative background) the background
+    terms are an additive constant common to all experts and poses and are dropped,
+    and ``m`` is replaced by ``n``.
+
+    Parameters
+    ----------
+    bases : (n, 3, k) float64
+    fd : FrameData
+    poses : (E, s, P) float64
+    tv : TextureView
+    sigma_w : float
+    bg_image_terms : (E,) float64, optional
+        :func:`background_image_terms`; required with a background model.
+
+    Returns
+    -------
+    (E, s) float64
+    """
+    E, s, P = poses.shape
+    n = bases.shape[0]
+    x = project(bases, poses)  # (E, s, n, 2)
+    st = bilinear_stencil(x, fd.shape)
+    y = st.sample(fd.flat)
+    vv = tv.var + sigma_w  # (E, n)
+    r = y - tv.mean[:, None, :]
+    fg = np.sum(r * r / vv[:, None, :], axis=-1)
+    logdet_v = np.sum(np.log(vv), axis=-1)
+    if not tv.has_background:
+        return -0.5 * n * _LOG_2PI - 0.5 * (fg + logdet_v[:, None])
+    if bg_image_terms is None:
+        raise ValueError("bg_image_terms is required with a background model")
+    m = fd.image.size
+    mb, vb = tv.bg_at(st, tv.bg_rows[:, None, None])  # type: ignore[index]
+    vb = vb + sigma_w
+    rb = y - mb
+    bgv = np.sum(rb * rb / vb + np.log(vb), axis=-1)
+    return -0.5 * m * _LOG_2PI - 0.5 * (fg + logdet_v[:, None]) - 0.5 * bg_image_terms[:, None] + 0.5 * bgv
+
+
+def log_importance_weights(log_prior: np.ndarray, log_lik: np.ndarray, log_g: np.ndarray) -> np.ndarray:
+    """Log importance weights (eq. 16).
+
+    ``log w(d, e) = log p(u^(d,e) | u_{t-1}^(d)) + log p(y_t | u_{1:t-1}^(d), u^(d,e), y_{1:t-1})
+    - log g(u^(d,e) | u_hat^(d), alpha Sigma_hat^(d))``
+
+    Parameters
+    ----------
+    log_prior, log_lik, log_g : (E, s) float64
+
+    Returns
+    -------
+    (E, s) float64
+    """
+    # w_t(d,e) = p(u | u_{t-1}) p(y_t | u_{1:t-1}, u, y_{1:t-1}) / g(u | u_hat, alpha Sigma_hat)   (eq. 16)
+    return log_prior + log_lik - log_g

@@ -1,0 +1,172 @@
+"""Reading gflow recordings: records in file order, metadata, and a summary for ``gflow info``.
+
+A recording whose writer was killed has no footer; ``make_reader`` recovers nothing from
+it, so :func:`iter_records` falls back to ``NonSeekingReader`` which yields every complete
+chunk before the torn end (and reports that it stopped early).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+
+__all__ = ["Record", "iter_records", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording"]
+
+
+class TruncatedRecording(Exception):
+    """Raised (or reported) when a recording ends in the middle of a record."""
+
+
+@dataclass(frozen=True)
+class Record:
+    topic: str
+    type: str
+    log_ns: int
+    publish_ns: int
+    seq: int
+    data: bytes
+
+
+def _check(path: str | Path) -> Path:
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"recording not found: {p}")
+    with open(p, "rb") as f:
+        magic = f.read(8)
+    if magic != b"\x89MCAP0\r\n":
+        raise ValueError(f"{p} is not an MCAP file (bad magic bytes {magic!r})")
+    return p
+
+
+def iter_records(path: str | Path, topics: list[str] | None = None, *, strict: bool = False,
+                 on_truncated=None) -> Iterator[Record]:
+    """Every message of a recording in file (write) order.
+
+    Parameters
+    ----------
+    topics : keep only these topics (exact names).
+    strict : raise :class:`TruncatedRecording` at a torn end instead of stopping quietly.
+    on_truncated : callable(str) told when the file ended early.
+    """
+    p = _check(path)
+    want = set(topics) if topics else None
+    with open(p, "rb") as f:
+        reader = NonSeekingReader(f, validate_crcs=True)
+        try:
+            for schema, channel, msg in reader.iter_messages(log_time_order=False):
+                if want is not None and channel.topic not in want:
+                    continue
+                yield Record(channel.topic, channel.metadata.get("gflow.type", schema.name if schema else ""),
+                             msg.log_time, msg.publish_time, msg.sequence, msg.data)
+        except (McapError, EOFError, ValueError, Exception) as e:  # the mcap reader raises several kinds at a torn end
+            text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
+            if strict:
+                raise TruncatedRecording(text) from None
+            if on_truncated is not None:
+                on_truncated(text)
+
+
+def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """The MCAP metadata records, by name. Works on truncated files too."""
+    p = _check(path)
+    out: dict[str, dict[str, str]] = {}
+    with open(p, "rb") as f:
+        try:
+            for md in make_reader(f).iter_metadata():
+                out[md.name] = dict(md.metadata)
+            return out
+        except Exception:
+            pass
+    from mcap.records import Metadata
+    with open(p, "rb") as f:
+        try:
+            for rec in NonSeekingReader(f).iter_records():
+                if isinstance(rec, Metadata):
+                    out[rec.name] = dict(rec.metadata)
+        except Exception:
+            pass
+    return out
+
+
+@dataclass
+class TopicSummary:
+    type: str
+    count: int = 0
+    first_ns: int = 0
+    last_ns: int = 0
+    first_seq: int = -1
+    last_seq: int = -1
+    bytes: int = 0
+    seqs: list[int] = field(default_factory=list)
+
+    @property
+    def rate_hz(self) -> float:
+        if self.count < 2 or self.last_ns <= self.first_ns:
+            return 0.0
+        return (self.count - 1) * 1e9 / (self.last_ns - self.first_ns)
+
+
+@dataclass
+class RecordingSummary:
+    path: str
+    messages: int
+    start_ns: int
+    end_ns: int
+    topics: dict[str, TopicSummary]
+    schemas: dict[str, str]
+    metadata: dict[str, dict[str, str]]
+    truncated: str = ""
+
+    @property
+    def duration_s(self) -> float:
+        return max(0, self.end_ns - self.start_ns) / 1e9
+
+    def to_json(self) -> dict:
+        return {
+            "path": self.path, "messages": self.messages, "duration_s": round(self.duration_s, 3),
+            "truncated": self.truncated or None,
+            "topics": {t: {"type": s.type, "count": s.count, "rate_hz": round(s.rate_hz, 2), "bytes": s.bytes,
+                           "first_seq": s.first_seq, "last_seq": s.last_seq} for t, s in self.topics.items()},
+            "schemas": self.schemas,
+            "metadata": {k: {kk: (json.loads(vv) if vv[:1] in "[{" else vv) for kk, vv in v.items()}
+                         for k, v in self.metadata.items()},
+        }
+
+
+def summarize(path: str | Path) -> RecordingSummary:
+    """Walk a recording once: per-topic counts, rates, bytes, sequence ranges; schemas; metadata."""
+    truncated: list[str] = []
+    topics: dict[str, TopicSummary] = {}
+    n = 0
+    start = end = 0
+    for r in iter_records(path, on_truncated=truncated.append):
+        key = f"{r.topic}"
+        s = topics.get(key)
+        if s is None:
+            s = topics[key] = TopicSummary(type=r.type, first_ns=r.log_ns, first_seq=r.seq)
+        elif r.type != s.type and r.type not in s.type.split("+"):
+            s.type = f"{s.type}+{r.type}"
+        s.count += 1
+        s.last_ns = r.log_ns
+        s.last_seq = r.seq
+        s.bytes += len(r.data)
+        n += 1
+        start = r.log_ns if start == 0 else min(start, r.log_ns)
+        end = max(end, r.log_ns)
+    schemas: dict[str, str] = {}
+    p = _check(path)
+    with open(p, "rb") as f:
+        from mcap.records import Schema
+        try:
+            for rec in NonSeekingReader(f).iter_records():
+                if isinstance(rec, Schema):
+                    schemas[rec.name] = rec.encoding
+        except Exception:
+            pass
+    return RecordingSummary(str(path), n, start, end, topics, schemas, read_metadata(path),
+                            truncated[0] if truncated else "")

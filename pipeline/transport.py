@@ -1,0 +1,151 @@
+"""The one module that owns zenoh: session configuration, publishers and subscribers.
+
+Defaults: peer mode on loopback, multicast scouting off, explicit endpoints. Stages find
+each other through the launcher's listening endpoint (gossip scouting then links every
+peer directly, so large payloads take zenoh's shared-memory path on one host).
+
+Quality of service per topic:
+
+* ``reliable`` (default, every recorded topic): reliable delivery, congestion control
+  BLOCK. Nothing is dropped; a slow subscriber slows the publisher down.
+* ``drop`` (live video that may drop under load): congestion control DROP. Drops are not
+  silent: every subscriber counts gaps in the sequence numbers (``SeqJoin.gaps``) and the
+  stage status reports them.
+
+Facts measured with eclipse-zenoh 1.10 (see GUIDE.md): ``transport/unicast/lowlatency``
+loses messages over ~60 KB without error, so it is never enabled here; sessions do not
+survive ``fork``, so stage processes are started with ``subprocess`` and open their own.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import struct
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Literal
+
+import zenoh
+
+__all__ = ["ZenohSettings", "open_session", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment"]
+
+Mode = Literal["peer", "client", "router"]
+
+
+@dataclass(frozen=True)
+class ZenohSettings:
+    """How a process joins the zenoh network.
+
+    mode : peer (default), client or router.
+    listen : endpoints to listen on, e.g. ``["tcp/127.0.0.1:7447"]``.
+    connect : endpoints to connect to.
+    multicast : enable multicast scouting (off by default: explicit endpoints only).
+    shm_pool_mb : shared-memory pool size (zenoh's default is 16 MiB; large colour
+        frames were sometimes slow with it and never with 64 MiB).
+    """
+
+    mode: Mode = "peer"
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
+    connect: tuple[str, ...] = ()
+    multicast: bool = False
+    shm_pool_mb: int = 64
+
+    def to_config(self) -> zenoh.Config:
+        if self.mode not in ("peer", "client", "router"):
+            raise ValueError(f"zenoh mode must be peer, client or router, got {self.mode!r}")
+        c = zenoh.Config()
+        c.insert_json5("mode", json.dumps(self.mode))
+        c.insert_json5("scouting/multicast/enabled", json.dumps(bool(self.multicast)))
+        if self.mode != "client":
+            c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
+        c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        try:
+            c.insert_json5("transport/shared_memory/transport_optimization/pool_size",
+                           json.dumps(self.shm_pool_mb * 1024 * 1024))
+        except Exception:  # older zenoh without this key: keep its default pool
+            pass
+        return c
+
+    def to_json(self) -> dict:
+        return {"mode": self.mode, "listen": list(self.listen), "connect": list(self.connect),
+                "multicast": self.multicast, "shm_pool_mb": self.shm_pool_mb}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "ZenohSettings":
+        return cls(mode=d.get("mode", "peer"), listen=tuple(d.get("listen", ("tcp/127.0.0.1:0",))),
+                   connect=tuple(d.get("connect", ())), multicast=bool(d.get("multicast", False)),
+                   shm_pool_mb=int(d.get("shm_pool_mb", 64)))
+
+
+def free_port() -> int:
+    """A TCP port on 127.0.0.1 that was free a moment ago."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def open_session(settings: ZenohSettings) -> zenoh.Session:
+    """Open a zenoh session; errors name the endpoints that failed."""
+    try:
+        return zenoh.open(settings.to_config())
+    except Exception as e:  # zenoh raises ZError with a terse message
+        raise RuntimeError(f"could not open a zenoh session ({settings.mode}, listen={list(settings.listen)}, "
+                           f"connect={list(settings.connect)}): {e}") from None
+
+
+def topic_key(stream: str, topic: str) -> str:
+    """Key expression ``gflow/<stream>/<topic>``."""
+    if not stream or "/" in stream or "*" in stream:
+        raise ValueError(f"stream id must be a non-empty name without '/' or '*', got {stream!r}")
+    return f"gflow/{stream}/{topic}"
+
+
+_ATT = struct.Struct("<qq")
+
+
+def pack_attachment(publish_ns: int, seq: int) -> bytes:
+    """Attachment carried by every gflow sample: publish time (ns) and sequence number."""
+    return _ATT.pack(publish_ns, seq)
+
+
+def unpack_attachment(b: bytes | None) -> tuple[int, int]:
+    if not b or len(b) != _ATT.size:
+        return 0, -1
+    return _ATT.unpack(b)
+
+
+@dataclass
+class Bus:
+    """Publishers and subscribers of one process on one session.
+
+    ``publish(topic, payload, seq)`` declares publishers lazily, with the QoS of the topic.
+    ``subscribe(key, callback)`` delivers ``(key, payload, publish_ns, seq)`` on zenoh's
+    thread: callbacks must only hand the data over (to a queue), never block.
+    """
+
+    session: zenoh.Session
+    drop_topics: frozenset[str] = frozenset()
+    _pubs: dict[str, zenoh.Publisher] = field(default_factory=dict)
+    _subs: list = field(default_factory=list)
+    sent: int = 0
+
+    def publisher(self, key: str) -> zenoh.Publisher:
+        pub = self._pubs.get(key)
+        if pub is None:
+            cc = zenoh.CongestionControl.DROP if key in self.drop_topics else zenoh.CongestionControl.BLOCK
+            pub = self.session.declare_publisher(key, congestion_control=cc, reliability=zenoh.Reliability.RELIABLE)
+            self._pubs[key] = pub
+        return pub
+
+    def publish(self, key: str, payload: bytes, seq: int) -> None:
+        self.publisher(key).put(payload, attachment=pack_attachment(time.time_ns(), seq))
+        self.sent += 1
+
+    def subscribe(self, key: str, callback: Callable[[str, bytes, int, int], None]) -> None:
+        def _cb(sample: zenoh.Sample) -> None:
+            att = sample.attachment
+            pub_ns, seq = unpack_attachment(att.to_bytes() if att is not None else None)
+            callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq)
+
+        self._subs.append(self.session.declare_subscriber(key, _cb))

@@ -1,0 +1,109 @@
+"""The stage contract: a plain class whose ``step()`` maps input messages to output messages.
+
+A stage knows nothing about zenoh, files or clocks. The runner in ``pipeline/`` joins its
+inputs by sequence number, calls ``step(seq, inputs)`` in ascending ``seq`` order, and
+publishes what it returns. The same stage object therefore runs in-process (tests,
+``--inline``), as its own process over zenoh, and fed from an MCAP recording.
+
+Join semantics (implemented by ``pipeline.join.SeqJoin``)
+---------------------------------------------------------
+* ``inputs`` maps port name -> message type. Each port carries increasing ``seq``.
+* ``required(seq)`` names the ports that must be present for ``seq`` to run (default:
+  all). A port that has moved past ``seq`` without delivering it counts as *missing*;
+  the stage then gets ``None`` for it (a dropped or skipped message) and decides what to do.
+* ``drivers`` are the ports whose end-of-stream ends the stage (default: all ports).
+* Errors in one input are reported with ``self.report(...)`` (or by raising
+  :class:`StageInputError`); the runner publishes them on the error topic and the stage
+  keeps running.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Mapping
+
+import msgspec
+
+from .messages import Header, Message
+
+__all__ = ["Stage", "StageContext", "StageInputError", "Output", "Params"]
+
+
+class StageInputError(ValueError):
+    """An input a stage cannot use (bad shape, NaNs, empty edge map...). The stage skips it."""
+
+
+class Params(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Base of every stage's parameter struct: unknown keys are errors, not silently ignored."""
+
+
+@dataclass(frozen=True)
+class StageContext:
+    """Where a stage instance sits: its name in the graph and the stream it serves.
+
+    ``resources`` holds what the pipeline loaded for the stage from files named in its
+    parameters (a learned model as a dict of arrays, for example): stages never open files.
+    """
+
+    name: str
+    stream: str
+    resources: Mapping[str, Any] = field(default_factory=dict)
+
+
+# (output port, message)
+Output = tuple[str, Message]
+
+
+@dataclass
+class _Reports:
+    items: list[tuple[str, str, int]] = field(default_factory=list)
+
+
+class Stage(ABC):
+    """Base class of every stage. Subclasses set ``kind``, ``Params``, ``inputs``, ``outputs``."""
+
+    kind: ClassVar[str]
+    Params: ClassVar[type[Params]]
+    inputs: ClassVar[Mapping[str, type]] = {}
+    outputs: ClassVar[Mapping[str, type]] = {}
+    drivers: ClassVar[frozenset[str] | None] = None
+
+    def __init__(self, params: Params, ctx: StageContext) -> None:
+        self.params = params
+        self.ctx = ctx
+        self._reports = _Reports()
+
+    # -- called by the runner -------------------------------------------------------------
+    def required(self, seq: int) -> frozenset[str]:
+        """Ports that must be present for ``seq`` to run. Default: every input port."""
+        return frozenset(self.inputs)
+
+    @abstractmethod
+    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
+        """Map the joined inputs of ``seq`` to outputs ``[(port, message), ...]``."""
+
+    def finish(self) -> list[Output]:
+        """Called once when the inputs have ended; may return final outputs."""
+        return []
+
+    def summary(self) -> dict[str, Any]:
+        """A small, printable summary of the internal state (for stepping and status)."""
+        return {}
+
+    def drain_reports(self) -> list[tuple[str, str, int]]:
+        """Return and clear the ``(kind, message, seq)`` problems reported since the last call."""
+        out, self._reports.items = self._reports.items, []
+        return out
+
+    # -- helpers for subclasses -------------------------------------------------------------
+    def report(self, kind: str, message: str, seq: int = -1) -> None:
+        """Record a problem with an input; the runner publishes it on the error topic."""
+        self._reports.items.append((kind, message, seq))
+
+    def header(self, seq: int, stamp_ns: int) -> Header:
+        return Header(stream=self.ctx.stream, seq=seq, stamp_ns=stamp_ns)
+
+    @classmethod
+    def driver_ports(cls) -> frozenset[str]:
+        return frozenset(cls.inputs) if cls.drivers is None else cls.drivers

@@ -1,0 +1,229 @@
+"""Every message that crosses a topic, as msgspec Structs.
+
+Messages are the contract of every stage's ``step()``, so they live at the stage layer;
+``pipeline/`` encodes them for zenoh and MCAP, ``gflow_core/`` never sees them.
+
+Rules
+-----
+* Each message has a :class:`Header`: stream id, sequence number (the frame index) and
+  capture time in ns. Inputs are joined by ``seq``, never by arrival time.
+* ndarrays travel as :class:`NDArray` (dtype string + shape + raw bytes, C order) and come
+  back with ``np.frombuffer``. No pickle anywhere.
+* The wire format is MessagePack with a ``type`` tag, so any payload can be decoded
+  without knowing its topic (``decode``). Schema evolution follows msgspec's rules: new
+  fields get defaults and go at the end; fields are never renamed or retyped.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Union
+
+import msgspec
+import numpy as np
+
+__all__ = [
+    "Header", "NDArray", "Frame", "Features", "Particles", "Estimate", "ErrorReport", "EndOfStream",
+    "StageStatus", "Control", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
+    "MessageError",
+]
+
+_ALLOWED_DTYPES = frozenset(
+    ["uint8", "int8", "uint16", "int16", "uint32", "int32", "int64", "uint64", "float32", "float64", "bool"]
+)
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid gflow message (malformed bytes, wrong schema, bad array)."""
+
+
+class Header(msgspec.Struct, frozen=True):
+    """Stream id, sequence number (frame index, 0-based) and capture time in ns."""
+
+    stream: str
+    seq: int
+    stamp_ns: int
+
+
+class NDArray(msgspec.Struct, frozen=True):
+    """An ndarray as dtype + shape + raw C-order bytes."""
+
+    dtype: str
+    shape: tuple[int, ...]
+    data: bytes
+
+    @classmethod
+    def of(cls, arr: np.ndarray) -> "NDArray":
+        """Pack an array (copied to C order; byte order native little-endian)."""
+        a = np.ascontiguousarray(arr)
+        if a.dtype.name not in _ALLOWED_DTYPES:
+            raise MessageError(f"dtype {a.dtype} cannot travel in a message; allowed: {sorted(_ALLOWED_DTYPES)}")
+        return cls(dtype=a.dtype.name, shape=tuple(int(s) for s in a.shape), data=a.tobytes())
+
+    def array(self) -> np.ndarray:
+        """Unpack to a read-only ndarray view of the bytes, checking dtype and size."""
+        if self.dtype not in _ALLOWED_DTYPES:
+            raise MessageError(f"array dtype {self.dtype!r} is not allowed")
+        if any(s < 0 for s in self.shape):
+            raise MessageError(f"array shape {self.shape} has a negative dimension")
+        dt = np.dtype(self.dtype)
+        n = int(np.prod(self.shape, dtype=np.int64))
+        if n * dt.itemsize != len(self.data):
+            raise MessageError(
+                f"array of dtype {self.dtype} and shape {self.shape} needs {n * dt.itemsize} bytes, got {len(self.data)}"
+            )
+        return np.frombuffer(self.data, dtype=dt).reshape(self.shape)
+
+
+Box = tuple[float, float, float, float]
+
+
+class Frame(msgspec.Struct, frozen=True, tag=True):
+    """One video frame. ``image`` is (H, W, 3) uint8 BGR or (H, W) uint8 grey.
+
+    ``truth`` is the known box (x, y, w, h) of a synthetic scene, else None.
+    """
+
+    header: Header
+    image: NDArray
+    source: str = ""
+    truth: Box | None = None
+
+
+class Features(msgspec.Struct, frozen=True, tag=True):
+    """Preprocessed frame: grey (H, W) uint8, Canny edges (H, W) uint8, chamfer image (H, W) float32.
+
+    ``grad_x`` / ``grad_y`` are Sobel gradients (H, W) float32 when the stage is asked for them.
+    ``profile`` and ``g0`` say how the chamfer image was made (M2 eq. 4-5).
+    """
+
+    header: Header
+    grey: NDArray
+    edges: NDArray
+    chamfer: NDArray
+    profile: str
+    g0: float
+    grad_x: NDArray | None = None
+    grad_y: NDArray | None = None
+
+
+class Particles(msgspec.Struct, frozen=True, tag=True):
+    """A particle cloud over X = (alpha, k): alpha (N, 4) float64, k (N,) int64, log_w (N,) float64.
+
+    ``kind`` is ``"proposal"`` (drawn from the dynamics for frame ``seq``) or
+    ``"posterior"`` (resampled after weighing frame ``seq``).
+    """
+
+    header: Header
+    kind: str
+    alpha: NDArray
+    k: NDArray
+    log_w: NDArray
+
+
+class Estimate(msgspec.Struct, frozen=True, tag=True):
+    """The tracker's answer for one frame.
+
+    box : (x, y, w, h) 0-based pixels, top-left corner and size.
+    alpha : MAP transform (ux, uy, theta, s); k : MAP exemplar.
+    mean / std : posterior mean and standard deviation of alpha.
+    ess : effective sample size before resampling; n : number of particles.
+    contour : (P, 2) float32 MAP contour in image (x, y) pixels, for drawing.
+    state : "init", "track", or "coast" (no hypothesis explained the frame).
+    """
+
+    header: Header
+    box: Box
+    alpha: tuple[float, float, float, float]
+    k: int
+    mean: tuple[float, float, float, float]
+    std: tuple[float, float, float, float]
+    ess: float
+    n: int
+    log_evidence: float
+    contour: NDArray
+    state: str = "track"
+
+
+class ErrorReport(msgspec.Struct, frozen=True, tag=True):
+    """A stage could not use an input (or failed on it). The stage keeps running."""
+
+    header: Header
+    stage: str
+    kind: str
+    message: str
+    topic: str = ""
+
+
+class EndOfStream(msgspec.Struct, frozen=True, tag=True):
+    """No message with ``seq >= header.seq`` will follow on this topic."""
+
+    header: Header
+    reason: str = "end"
+
+
+class StageStatus(msgspec.Struct, frozen=True, tag=True):
+    """Heartbeat of a stage process: progress, rate, drops, last error."""
+
+    header: Header
+    stage: str
+    pid: int
+    state: str
+    steps: int
+    fps: float
+    dropped: dict[str, int] = {}
+    errors: int = 0
+    last_error: str = ""
+    rss_mb: float = 0.0
+
+
+class Control(msgspec.Struct, frozen=True, tag=True):
+    """Launcher -> stages: ``start`` (all peers are ready) or ``stop``."""
+
+    header: Header
+    command: str
+
+
+Message = Union[Frame, Features, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control]
+MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in Message.__args__}  # type: ignore[attr-defined]
+
+_encoder = msgspec.msgpack.Encoder()
+_decoder = msgspec.msgpack.Decoder(Message)
+_typed_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+
+
+def encode(msg: Any) -> bytes:
+    """Encode a message to MessagePack bytes (deterministic for equal messages)."""
+    return _encoder.encode(msg)
+
+
+def decode(buf: bytes | memoryview) -> Message:
+    """Decode any gflow message. Raises :class:`MessageError` naming what was wrong."""
+    try:
+        return _decoder.decode(buf)
+    except msgspec.DecodeError as e:
+        raise MessageError(f"malformed message ({len(buf)} bytes): {e}") from None
+
+
+def decode_as(buf: bytes | memoryview, typ: type) -> Any:
+    """Decode a payload that must be of one message type."""
+    dec = _typed_decoders.get(typ)
+    if dec is None:
+        dec = _typed_decoders[typ] = msgspec.msgpack.Decoder(typ)
+    try:
+        return dec.decode(buf)
+    except msgspec.DecodeError as e:
+        raise MessageError(f"malformed {typ.__name__} ({len(buf)} bytes): {e}") from None
+
+
+def json_schema(typ: type) -> dict[str, Any]:
+    """JSON schema of one message type, with its definitions inlined under ``$defs``."""
+    schema = msgspec.json.schema(typ)
+    ref = schema.get("$ref")
+    if ref:  # inline the top-level $ref (Foxglove and other readers want the object itself)
+        name = ref.rsplit("/", 1)[-1]
+        defs = dict(schema.get("$defs", {}))
+        body = dict(defs.pop(name))
+        if defs:
+            body["$defs"] = defs
+        return body
+    return schema
