@@ -28,6 +28,7 @@ raise :class:`GraphError` naming the file and line.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from dataclasses import dataclass, field
@@ -150,7 +151,7 @@ class Plan:
         return json.dumps({
             "name": self.name, "stream": self.stream, "base_dir": self.base_dir, "zenoh": self.zenoh,
             "source_text": self.source_text,
-            "stages": {n: s.__dict__ for n, s in self.stages.items()},
+            "stages": {n: dataclasses.asdict(s) for n, s in self.stages.items()},
         })
 
     @classmethod

@@ -41,7 +41,9 @@ class ZenohSettings:
     listen : endpoints to listen on, e.g. ``["tcp/127.0.0.1:7447"]``.
     connect : endpoints to connect to.
     multicast : enable multicast scouting (off by default: explicit endpoints only).
-    shm_pool_mb : shared-memory pool size (zenoh's default is 16 MiB; large colour
+    shm_pool_mb : shared-memory pool size in MiB (zenoh's default, 16). Every receiver maps each
+        sender's pool, which counts in its RSS; flow control bounds the frames in flight, so
+        16 MiB holds them (the guide saw large colour frames slow with 16 MiB under no flow control).
         frames were sometimes slow with it and never with 64 MiB).
     """
 
@@ -49,7 +51,7 @@ class ZenohSettings:
     listen: tuple[str, ...] = ("tcp/127.0.0.1:0",)
     connect: tuple[str, ...] = ()
     multicast: bool = False
-    shm_pool_mb: int = 64
+    shm_pool_mb: int = 16
 
     def to_config(self) -> zenoh.Config:
         if self.mode not in ("peer", "client", "router"):
@@ -75,7 +77,7 @@ class ZenohSettings:
     def from_json(cls, d: dict) -> "ZenohSettings":
         return cls(mode=d.get("mode", "peer"), listen=tuple(d.get("listen", ("tcp/127.0.0.1:0",))),
                    connect=tuple(d.get("connect", ())), multicast=bool(d.get("multicast", False)),
-                   shm_pool_mb=int(d.get("shm_pool_mb", 64)))
+                   shm_pool_mb=int(d.get("shm_pool_mb", 16)))
 
 
 def free_port() -> int:

@@ -174,6 +174,8 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     errors: int = 0
     last_error: str = ""
     rss_mb: float = 0.0
+    last_seq: int = -1
+    queued: int = 0
 
 
 class Control(msgspec.Struct, frozen=True, tag=True):

@@ -27,12 +27,17 @@ class SourceParams(Params):
 
     kind: ``synthetic`` (built-in scene with ground truth), ``folder`` (image files sorted
     by name), ``video`` (any file OpenCV reads) or ``mcap`` (the Frame topic of a recording).
+    realtime: pace frames at ``fps`` (live playback) instead of as fast as the pipeline allows.
+    max_ahead: in a multi-process run, the source stays at most this many frames ahead of
+    the slowest stage (flow control; 0 = unbounded). It bounds memory and latency and does
+    not change any result.
     """
 
     kind: Literal["synthetic", "folder", "video", "mcap"] = "synthetic"
     path: str = ""
     fps: float = 25.0
     realtime: bool = False
+    max_ahead: int = 8
     start: int = 0
     stop: int | None = None
     # synthetic scene

@@ -76,6 +76,11 @@ COEF = slice(5, None)
 N_RIGID = 5
 
 
+def _rv(a: np.ndarray) -> np.ndarray:
+    """(N, 3) writable float64 copy (scipy's Rotation rejects read-only buffers)."""
+    return np.array(a.reshape(-1, 3), dtype=np.float64, order="C", copy=True)
+
+
 def pose_size(k: int) -> int:
     """Length ``P = 5 + k`` of a pose vector for a model with ``k`` morph bases."""
     if k < 1:
@@ -108,7 +113,7 @@ def make_pose(rotation: np.ndarray | None, translation: np.ndarray, coefficients
     else:
         rot = np.asarray(rotation, dtype=np.float64)
         if rot.shape == (3, 3):
-            w = Rotation.from_matrix(rot).as_rotvec()
+            w = Rotation.from_matrix(np.array(rot, copy=True)).as_rotvec()
         elif rot.shape == (3,):
             w = rot
         else:
@@ -138,7 +143,7 @@ def rotation_matrices(poses: np.ndarray) -> np.ndarray:
     """
     poses = np.asarray(poses, dtype=np.float64)
     lead = poses.shape[:-1]
-    w = poses[..., ROT].reshape(-1, 3)
+    w = _rv(poses[..., ROT])
     return Rotation.from_rotvec(w).as_matrix().reshape(lead + (3, 3))
 
 
@@ -146,7 +151,7 @@ def rotvec_from_matrices(r: np.ndarray) -> np.ndarray:
     """Rotation vectors ``log(r)`` of rotation matrices, ``(..., 3, 3) -> (..., 3)``."""
     r = np.asarray(r, dtype=np.float64)
     lead = r.shape[:-2]
-    return Rotation.from_matrix(r.reshape(-1, 3, 3)).as_rotvec().reshape(lead + (3,))
+    return Rotation.from_matrix(np.array(r.reshape(-1, 3, 3), copy=True)).as_rotvec().reshape(lead + (3,))
 
 
 def skew(v: np.ndarray) -> np.ndarray:
@@ -181,7 +186,7 @@ def box_plus(poses: np.ndarray, deltas: np.ndarray) -> np.ndarray:
     lead = poses.shape[:-1]
     out = poses + deltas
     # r <- r exp([d_w]x)
-    rot = Rotation.from_rotvec(poses[..., ROT].reshape(-1, 3)) * Rotation.from_rotvec(deltas[..., ROT].reshape(-1, 3))
+    rot = Rotation.from_rotvec(_rv(poses[..., ROT])) * Rotation.from_rotvec(_rv(deltas[..., ROT]))
     out[..., ROT] = rot.as_rotvec().reshape(lead + (3,))
     return out
 
@@ -205,7 +210,7 @@ def box_minus(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     lead = a.shape[:-1]
     out = b - a
     # d_w = log(r_a^T r_b)
-    rel = Rotation.from_rotvec(a[..., ROT].reshape(-1, 3)).inv() * Rotation.from_rotvec(b[..., ROT].reshape(-1, 3))
+    rel = Rotation.from_rotvec(_rv(a[..., ROT])).inv() * Rotation.from_rotvec(_rv(b[..., ROT]))
     out[..., ROT] = rel.as_rotvec().reshape(lead + (3,))
     return out
 

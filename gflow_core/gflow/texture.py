@@ -94,7 +94,7 @@ def kalman_update(
     return new_mean, new_var
 
 
-def object_mask(points: np.ndarray, shape: tuple[int, int], mode: str) -> np.ndarray:
+def object_mask(points: np.ndarray, shape: tuple[int, int], mode: str, margin: float = 0.0) -> np.ndarray:
     """Pixels rendered by the object, ``X(u)`` (sec. 2), for one pose.
 
     Parameters
@@ -105,6 +105,8 @@ def object_mask(points: np.ndarray, shape: tuple[int, int], mode: str) -> np.nda
     mode : {"vertices", "hull"}
         ``"vertices"``: the pixel nearest each vertex (the paper's ``a_v``);
         ``"hull"``: the filled convex hull of the vertices.
+    margin : float
+        ``"hull"`` only: the hull is scaled by ``1 + margin`` about the vertices' mean.
 
     Returns
     -------
@@ -124,6 +126,8 @@ def object_mask(points: np.ndarray, shape: tuple[int, int], mode: str) -> np.nda
     elif mode == "hull":
         lim = 4.0 * max(H, W)
         p = np.clip(pts, -lim, lim)
+        centre = p.mean(axis=0)
+        p = centre + (1.0 + margin) * (p - centre)
         hull = cv2.convexHull(p.astype(np.float32)).reshape(-1, 2)
         shift = 4
         fixed = np.rint(hull.astype(np.float64) * (1 << shift)).astype(np.int32)

@@ -1,0 +1,618 @@
+"""G-flow filter: one step is :func:`propose` (per expert) then :func:`update` (all experts).
+
+The filtering distribution (eq. 5) is a weighted set of ``E`` experts. Each expert
+holds a pose ``u_{t-1}`` and diagonal Gaussian texture opinions (sec. 3.1). A frame
+is processed in two calls, both pure (they return new values and never modify their
+inputs):
+
+1. :func:`propose` -- for each expert independently: Gauss-Newton peak of its pose
+   opinion (eq. 14), Laplace covariance, ``s`` samples, importance weights (eq. 16)
+   and its likelihood estimate (eq. 19). It can be run on any subset of experts
+   (``expert_indices``), e.g. in several processes: :func:`concatenate_proposals` of
+   the shards is bit-for-bit the same as one call for all experts, provided each
+   expert gets the same generator. Use :func:`expert_rngs`, which gives expert ``i``
+   ``numpy.random.default_rng([seed, stream_hash, t, i])``.
+2. :func:`update` -- credibilities (eq. 17, 19), resampling (sec. 3.4), posterior mean
+   pose, and the Kalman update of each child's textures (eq. 7-10). Its randomness is
+   the single generator passed in, e.g. ``numpy.random.default_rng([seed, stream_hash, t])``.
+
+Frames are grey ``(H, W)`` float64 in ``[0, 1]`` (see :mod:`.image`); ``sigma_w``,
+``Psi_v``, ``Psi_b`` and the texel variances are in those units squared.
+
+Departures from the paper
+-------------------------
+* The state stores texture *posteriors* at ``t - 1``; the prediction (eq. 9, 10) is
+  applied on the fly in :func:`propose` and again before the update in :func:`update`
+  (the same arithmetic, so the two agree).
+* ``resample_ess_fraction < 1`` resamples only when the ESS of the credibilities is
+  below that fraction of ``E`` (otherwise each expert keeps its credibility as a
+  weight and picks its own child pose). The default ``1.0`` resamples at every frame,
+  as in sec. 3.4.
+* Texels never observed get the finite variance ``unknown_var`` rather than infinity:
+  object texels whose vertex is outside the first frame, and background texels under
+  the object in the first frame (the object hides them). Object texels whose vertex
+  projects outside the image are not updated (prediction only).
+* Vertices outside the image sample the replicated border (see :mod:`.image`).
+* Self-occlusion is not modelled (every vertex is assumed visible, as in the paper's
+  one-to-one ``a_v``).
+* See also :mod:`.pose_opinion` (Gauss-Newton safeguards, ``alpha = 0``),
+  :mod:`.texture` (``object_mask="hull"``) and :mod:`.credibility` (systematic
+  resampling).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from .credibility import (
+    ess,
+    log_credibility,
+    log_evidence,
+    normalize_rows,
+    pick_samples,
+    pose_spread,
+    posterior_mean_pose,
+    resample_experts,
+)
+from .geometry import COEF, ROT, TRANS, box_plus, project, rotation_matrices
+from .head_model import MorphableModel, bounding_box
+from .image import bilinear_stencil, prepare_frame, validate_frame
+from .pose_opinion import (
+    TextureView,
+    background_image_terms,
+    gauss_newton_peak,
+    laplace_proposal,
+    log_importance_weights,
+    log_likelihood,
+    log_pose_prior,
+)
+from .texture import background_predict_update, kalman_update, object_mask
+
+__all__ = [
+    "GFlowConfig",
+    "ExpertState",
+    "Proposals",
+    "Estimate",
+    "expert_rngs",
+    "init_state",
+    "propose",
+    "concatenate_proposals",
+    "update",
+    "step",
+]
+
+
+def _ro(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+def _as_std_tuple(name: str, v, n: int | None) -> tuple[float, ...]:
+    t = tuple(float(x) for x in np.atleast_1d(np.asarray(v, dtype=np.float64)))
+    if n is not None and len(t) not in (1, n):
+        raise ValueError(f"{name} must be one number or {n} numbers, got {len(t)}")
+    for x in t:
+        if math.isnan(x) or x <= 0.0:
+            raise ValueError(f"{name} must be positive (inf = uninformative), got {v!r}")
+    return t
+
+
+@dataclass(frozen=True)
+class GFlowConfig:
+    """Parameters of the G-flow filter (no seed: randomness is passed in).
+
+    Attributes
+    ----------
+    n_experts : int
+        Number of experts ``E``.
+    n_samples : int
+        Samples ``s`` per expert's pose opinion (sec. 3.2.2).
+    alpha : float
+        Proposal sharpness ``alpha >= 0`` (``g(. | u_hat, alpha Sigma_hat)``).
+    gn_iterations : int
+        Gauss-Newton steps per frame (>= 0).
+    sigma_w : float
+        Observation noise variance ``sigma_w > 0`` (eq. 4).
+    psi_v, psi_b : float
+        Object / background texel process noise variances ``Psi_v``, ``Psi_b`` (eq. 4),
+        finite, ``>= 0``.
+    v_init_var : float
+        ``Var(V_1) = kappa I`` (``>= 0``; ``0`` = known template).
+    b_init_var : float
+        ``Var(B_1)`` of background pixels visible in the first frame (``>= 0``).
+    unknown_var : float
+        Variance of texels not observed at initialisation (> 0, finite).
+    background : bool
+        Use the background texture model. False = uninformative background (the
+        background terms are dropped), as in the paper's experiments (sec. 5).
+    object_mask : {"hull", "vertices"}
+        Pixels rendered by the object, excluded from the background update (:mod:`.texture`).
+    object_mask_margin : float
+        With ``"hull"``: the hull is enlarged by this fraction about its centre, so that
+        object pixels outside the mesh's vertices (e.g. the rim of a head whose mesh
+        covers only its front) are not learned as background.
+    prior_std_rotation : float or (3,)
+        Std of the pose random walk per frame, rotation (radians, body frame).
+    prior_std_translation : float or (2,)
+        Translation (pixels).
+    prior_std_coefficients : float or (k,)
+        Morph coefficients (their units: pixels per model unit). ``inf`` anywhere =
+        uninformative component.
+    resample_ess_fraction : float in (0, 1]
+        Resample experts when ESS < fraction * E; ``1`` = every frame (sec. 3.4).
+    """
+
+    n_experts: int = 20
+    n_samples: int = 10
+    alpha: float = 1.0
+    gn_iterations: int = 5
+    sigma_w: float = 1e-3
+    psi_v: float = 1e-4
+    psi_b: float = 1e-4
+    v_init_var: float = 1e-3
+    b_init_var: float = 1e-3
+    unknown_var: float = 1.0
+    background: bool = False
+    object_mask: str = "hull"
+    object_mask_margin: float = 0.15
+    prior_std_rotation: float | tuple[float, ...] = 0.05
+    prior_std_translation: float | tuple[float, ...] = 5.0
+    prior_std_coefficients: float | tuple[float, ...] = 2.0
+    resample_ess_fraction: float = 1.0
+
+    def __post_init__(self) -> None:
+        for nm in ("n_experts", "n_samples"):
+            v = getattr(self, nm)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"{nm} must be an integer >= 1, got {v!r}")
+        v = self.gn_iterations
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"gn_iterations must be an integer >= 0, got {v!r}")
+        if not (math.isfinite(self.alpha) and self.alpha >= 0.0):
+            raise ValueError(f"alpha must be finite and >= 0, got {self.alpha!r}")
+        if not (math.isfinite(self.sigma_w) and self.sigma_w > 0.0):
+            raise ValueError(f"sigma_w must be finite and > 0, got {self.sigma_w!r}")
+        for nm in ("psi_v", "psi_b", "v_init_var", "b_init_var"):
+            v = getattr(self, nm)
+            if not (math.isfinite(v) and v >= 0.0):
+                raise ValueError(f"{nm} must be finite and >= 0, got {v!r}")
+        if not (math.isfinite(self.unknown_var) and self.unknown_var > 0.0):
+            raise ValueError(f"unknown_var must be finite and > 0, got {self.unknown_var!r}")
+        if not isinstance(self.background, (bool, np.bool_)):
+            raise ValueError(f"background must be True or False, got {self.background!r}")
+        if self.object_mask not in ("hull", "vertices"):
+            raise ValueError(f"object_mask must be 'hull' or 'vertices', got {self.object_mask!r}")
+        if not (math.isfinite(self.object_mask_margin) and self.object_mask_margin >= 0.0):
+            raise ValueError(f"object_mask_margin must be finite and >= 0, got {self.object_mask_margin!r}")
+        if not (0.0 < self.resample_ess_fraction <= 1.0):
+            raise ValueError(f"resample_ess_fraction must be in (0, 1], got {self.resample_ess_fraction!r}")
+        object.__setattr__(
+            self, "prior_std_rotation", _as_std_tuple("prior_std_rotation", self.prior_std_rotation, 3)
+        )
+        object.__setattr__(
+            self, "prior_std_translation", _as_std_tuple("prior_std_translation", self.prior_std_translation, 2)
+        )
+        object.__setattr__(
+            self, "prior_std_coefficients", _as_std_tuple("prior_std_coefficients", self.prior_std_coefficients, None)
+        )
+
+    def prior_std(self, k: int) -> np.ndarray:
+        """Random-walk standard deviations ``(5 + k,)`` in the pose vector layout."""
+        c = self.prior_std_coefficients
+        if len(c) not in (1, k):
+            raise ValueError(f"prior_std_coefficients has {len(c)} values but the model has k={k} morph bases")
+        out = np.empty(5 + k)
+        out[ROT] = self.prior_std_rotation
+        out[TRANS] = self.prior_std_translation
+        out[COEF] = c
+        return out
+
+
+@dataclass(frozen=True)
+class ExpertState:
+    """The experts at time ``t - 1`` (read-only arrays).
+
+    Attributes
+    ----------
+    poses : (E, P) float64
+        ``u_{t-1}`` of each expert (layout in :mod:`.geometry`).
+    tex_mean, tex_var : (E, n) float64
+        Object texel posterior means and variances (eq. 7, 8).
+    bg_mean, bg_var : (E, H, W) float64 or None
+        Background texel posteriors; None for an uninformative background.
+    log_credibility : (E,) float64
+        Normalised log credibilities (uniform after resampling).
+    image_shape : (H, W)
+    """
+
+    poses: np.ndarray
+    tex_mean: np.ndarray
+    tex_var: np.ndarray
+    bg_mean: np.ndarray | None
+    bg_var: np.ndarray | None
+    log_credibility: np.ndarray
+    image_shape: tuple[int, int]
+
+    @property
+    def n_experts(self) -> int:
+        return self.poses.shape[0]
+
+    def check(self, model: MorphableModel) -> None:
+        """Raise ValueError if the state does not fit ``model``."""
+        E, P = self.poses.shape
+        if P != model.pose_size:
+            raise ValueError(f"state poses have P={P} but the model needs P={model.pose_size}")
+        if self.tex_mean.shape != (E, model.n_vertices) or self.tex_var.shape != (E, model.n_vertices):
+            raise ValueError(
+                f"state textures have shape {self.tex_mean.shape} but the model has n={model.n_vertices} vertices"
+            )
+
+
+@dataclass(frozen=True)
+class Proposals:
+    """Pose opinions of a set of experts (sec. 3.2) and their likelihoods (eq. 19).
+
+    Attributes
+    ----------
+    expert_indices : (E',) int64
+    u_hat : (E', P) float64
+        Peak of the pose opinion (eq. 14).
+    sigma_hat : (E', P, P) float64
+        Laplace covariance (tangent space at ``u_hat``).
+    samples : (E', s, P) float64
+        ``u^(d,e)`` drawn from ``N(u_hat, alpha Sigma_hat)``.
+    log_weights : (E', s) float64
+        ``log w_t(d, e)`` (eq. 16).
+    log_evidence : (E',) float64
+        ``log p(y_t | u_{1:t-1}^(d), y_{1:t-1})`` estimated by eq. 19.
+    gn_objective : (E',) float64
+        Gauss-Newton objective at ``u_hat`` (diagnostic).
+    """
+
+    expert_indices: np.ndarray
+    u_hat: np.ndarray
+    sigma_hat: np.ndarray
+    samples: np.ndarray
+    log_weights: np.ndarray
+    log_evidence: np.ndarray
+    gn_objective: np.ndarray
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What the filter reports for frame ``t``.
+
+    Attributes
+    ----------
+    pose : (P,) float64
+        Posterior mean pose: the importance-weighted mean over every expert's samples,
+        weighted by credibility (eq. 5, 15); chordal mean for the rotation.
+    rotation : (3, 3) float64
+        Its rotation matrix.
+    pose_std : (P,) float64
+        Posterior standard deviation in the tangent space at ``pose``.
+    spread_px : float
+        RMS distance (pixels) of the experts' projected vertices from those of ``pose``.
+    ess : float
+        Effective sample size of the credibilities, before resampling.
+    expert_points : (E, n, 2) float64
+        Projected vertices of every expert after the update (figure 2).
+    mean_points : (n, 2) float64
+        Projected vertices of ``pose``.
+    bbox : (4,) float64
+        ``(x, y, w, h)`` of ``mean_points``.
+    log_credibility : (E,) float64
+        Normalised log credibility of each (parent) expert (eq. 17).
+    parents : (E,) int64
+        Parent of each new expert.
+    resampled : bool
+    """
+
+    pose: np.ndarray
+    rotation: np.ndarray
+    pose_std: np.ndarray
+    spread_px: float
+    ess: float
+    expert_points: np.ndarray
+    mean_points: np.ndarray
+    bbox: np.ndarray
+    log_credibility: np.ndarray
+    parents: np.ndarray
+    resampled: bool
+
+
+def expert_rngs(seed: int, stream_hash: int, t: int, indices: Sequence[int]) -> list[np.random.Generator]:
+    """Per-expert generators ``numpy.random.default_rng([seed, stream_hash, t, i])``.
+
+    All four numbers must be non-negative integers.
+    """
+    return [np.random.default_rng([int(seed), int(stream_hash), int(t), int(i)]) for i in indices]
+
+
+def init_state(
+    model: MorphableModel,
+    pose0: np.ndarray,
+    frame: np.ndarray,
+    cfg: GFlowConfig,
+    *,
+    rng: np.random.Generator | None = None,
+    pose_jitter_std: np.ndarray | float | None = None,
+) -> ExpertState:
+    """Experts at the first frame: poses near ``pose0``, textures from the frame.
+
+    Object texels start at the frame sampled at each expert's projected vertices with
+    variance ``v_init_var`` (``Var(V_1) = kappa I``); the background starts at the frame
+    with variance ``b_init_var``, except under the object (``unknown_var``).
+
+    Parameters
+    ----------
+    model : MorphableModel
+    pose0 : (P,) float64
+    frame : (H, W) float64 in [0, 1]
+    cfg : GFlowConfig
+    rng : numpy.random.Generator, optional
+        Needed with ``pose_jitter_std``: one ``standard_normal((E, P))`` draw.
+    pose_jitter_std : float or (P,), optional
+        Experts start at ``pose0 [+] N(0, diag(std^2))`` (the paper initialises them
+        "randomly near the correct pose"); None = all at ``pose0``.
+
+    Returns
+    -------
+    ExpertState
+    """
+    img = validate_frame(frame)
+    u0 = model.check_poses(pose0, "pose0")
+    if u0.shape != (model.pose_size,):
+        raise ValueError(f"pose0 must have shape ({model.pose_size},), got {u0.shape}")
+    E, P = cfg.n_experts, model.pose_size
+    cfg.prior_std(model.n_bases)  # validates the coefficient stds against k
+    poses = np.tile(u0, (E, 1))
+    if pose_jitter_std is not None:
+        std = np.broadcast_to(np.asarray(pose_jitter_std, dtype=np.float64), (P,))
+        if not np.isfinite(std).all() or (std < 0).any():
+            raise ValueError(f"pose_jitter_std must be finite and >= 0, got {pose_jitter_std!r}")
+        if rng is None:
+            raise ValueError("pose_jitter_std needs an rng")
+        poses = box_plus(poses, rng.standard_normal((E, P)) * std)
+    pts = project(model.bases, poses)
+    st = bilinear_stencil(pts, img.shape)
+    y = st.sample(img.reshape(-1))
+    tex_mean = np.where(st.inside, y, 0.5)
+    tex_var = np.where(st.inside, cfg.v_init_var, cfg.unknown_var)
+    bg_mean = bg_var = None
+    if cfg.background:
+        bg_mean = np.empty((E,) + img.shape)
+        bg_mean[:] = img
+        bg_var = np.full((E,) + img.shape, cfg.b_init_var)
+        for e in range(E):
+            bg_var[e][object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin)] = cfg.unknown_var
+        _ro(bg_mean)
+        _ro(bg_var)
+    return ExpertState(
+        poses=_ro(poses),
+        tex_mean=_ro(tex_mean),
+        tex_var=_ro(tex_var),
+        bg_mean=bg_mean,
+        bg_var=bg_var,
+        log_credibility=_ro(np.full(E, -np.log(E))),
+        image_shape=tuple(img.shape),  # type: ignore[arg-type]
+    )
+
+
+def _texture_view(state: ExpertState, idx: np.ndarray, cfg: GFlowConfig) -> TextureView:
+    # predicted texture (eq. 9, 10): mean unchanged, variance + Psi
+    return TextureView(
+        mean=state.tex_mean[idx],
+        var=state.tex_var[idx] + cfg.psi_v,
+        bg_mean=state.bg_mean,
+        bg_var=state.bg_var,
+        bg_rows=idx if state.bg_mean is not None else None,
+        psi_b=cfg.psi_b,
+    )
+
+
+def propose(
+    state: ExpertState,
+    frame: np.ndarray,
+    model: MorphableModel,
+    cfg: GFlowConfig,
+    rngs: Sequence[np.random.Generator],
+    expert_indices: Sequence[int] | np.ndarray | None = None,
+) -> Proposals:
+    """Pose opinions (sec. 3.2) and likelihoods (eq. 19) of some or all experts.
+
+    Parameters
+    ----------
+    state : ExpertState
+        Experts at ``t - 1``.
+    frame : (H, W) float64 in [0, 1]
+        ``y_t``.
+    model : MorphableModel
+    cfg : GFlowConfig
+    rngs : sequence of numpy.random.Generator
+        One per proposed expert, in the order of ``expert_indices`` (see
+        :func:`expert_rngs`); expert ``i`` draws ``standard_normal((s, P))`` from its
+        own generator only (nothing when ``alpha == 0``).
+    expert_indices : sequence of int, optional
+        Which experts (default: all, ``0 .. E-1``).
+
+    Returns
+    -------
+    Proposals
+    """
+    state.check(model)
+    fd = prepare_frame(frame, shape=state.image_shape)
+    E = state.n_experts
+    if expert_indices is None:
+        idx = np.arange(E, dtype=np.int64)
+    else:
+        idx = np.asarray(expert_indices)
+        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+            raise ValueError(f"expert_indices must be a 1-D integer sequence, got {idx!r}")
+        if idx.size and (idx.min() < 0 or idx.max() >= E):
+            raise ValueError(f"expert_indices must lie in [0, {E}), got {idx.tolist()}")
+        if np.unique(idx).size != idx.size:
+            raise ValueError("expert_indices contain duplicates")
+        idx = idx.astype(np.int64)
+    if len(rngs) != idx.size:
+        raise ValueError(f"need one rng per proposed expert: got {len(rngs)} rngs for {idx.size} experts")
+    prior_std = cfg.prior_std(model.n_bases)
+    prev = state.poses[idx]
+    tv = _texture_view(state, idx, cfg)
+    # u_hat = argmin eq. 14 (Gauss-Newton, second background term ignored)
+    gn = gauss_newton_peak(model.bases, fd, prev, tv, cfg.sigma_w, prior_std, cfg.gn_iterations)
+    # u^(d,e) ~ g(. | u_hat, alpha Sigma_hat),  Sigma_hat = inverse Hessian of eq. 14
+    samples, log_g, sigma_hat = laplace_proposal(gn.u_hat, gn.hessian, cfg.alpha, cfg.n_samples, rngs)
+    log_prior = log_pose_prior(prev, samples, prior_std)
+    bgt = background_image_terms(fd.image, tv, cfg.sigma_w) if tv.has_background else None
+    # full likelihood, eq. 13
+    log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt)
+    # importance weights, eq. 16
+    log_w = log_importance_weights(log_prior, log_lik, log_g)
+    # likelihood of the expert, eq. 19
+    log_ev = log_evidence(log_w)
+    return Proposals(
+        expert_indices=_ro(idx),
+        u_hat=_ro(gn.u_hat),
+        sigma_hat=_ro(sigma_hat),
+        samples=_ro(samples),
+        log_weights=_ro(log_w),
+        log_evidence=_ro(log_ev),
+        gn_objective=_ro(gn.objective),
+    )
+
+
+def concatenate_proposals(parts: Sequence[Proposals]) -> Proposals:
+    """Join proposals of disjoint expert shards, ordered by expert index."""
+    if not parts:
+        raise ValueError("no proposals to concatenate")
+    idx = np.concatenate([p.expert_indices for p in parts])
+    order = np.argsort(idx, kind="stable")
+
+    def cat(name: str) -> np.ndarray:
+        return _ro(np.concatenate([getattr(p, name) for p in parts])[order])
+
+    return Proposals(**{f: cat(f) for f in Proposals.__dataclass_fields__})
+
+
+def update(
+    state: ExpertState,
+    proposals: Proposals,
+    frame: np.ndarray,
+    model: MorphableModel,
+    cfg: GFlowConfig,
+    rng: np.random.Generator,
+) -> tuple[ExpertState, Estimate]:
+    """Credibility, resampling and texture update (sec. 3.3, 3.4, eq. 7-10).
+
+    Parameters
+    ----------
+    state : ExpertState
+        Experts at ``t - 1`` (the state ``proposals`` were computed from).
+    proposals : Proposals
+        For all experts, ``0 .. E-1`` in order (see :func:`concatenate_proposals`).
+    frame : (H, W) float64 in [0, 1]
+        ``y_t``.
+    model : MorphableModel
+    cfg : GFlowConfig
+    rng : numpy.random.Generator
+        Resampling: one uniform draw (if resampling) then ``random(E)``.
+
+    Returns
+    -------
+    state : ExpertState
+        Experts at ``t``.
+    estimate : Estimate
+    """
+    state.check(model)
+    img = validate_frame(frame, shape=state.image_shape)
+    E = state.n_experts
+    if not np.array_equal(proposals.expert_indices, np.arange(E)):
+        raise ValueError(
+            f"update needs proposals for all {E} experts in order; got indices {proposals.expert_indices.tolist()}"
+        )
+    samples, log_w = proposals.samples, proposals.log_weights
+    if not (np.isfinite(log_w).all() and np.isfinite(samples).all()):
+        raise ValueError("proposals contain NaN or infinite values")
+    s = samples.shape[1]
+    # credibility, eq. 17 with eq. 19
+    log_cred = log_credibility(state.log_credibility, proposals.log_evidence)
+    ess_val = ess(log_cred)
+    # posterior (eq. 5): expert credibility x normalised importance weight of each sample (eq. 15)
+    log_post = (log_cred[:, None] + normalize_rows(log_w)).reshape(-1)
+    flat = samples.reshape(E * s, -1)
+    mean_pose = posterior_mean_pose(flat, log_post)
+    pose_std = pose_spread(flat, log_post, mean_pose)
+    resampled = bool(cfg.resample_ess_fraction >= 1.0 or ess_val < cfg.resample_ess_fraction * E)
+    if resampled:
+        # children drawn from parents in proportion to credibility, u_t from the parent's samples (sec. 3.4)
+        parents, picks = resample_experts(log_cred, log_w, rng)
+        new_log_cred = np.full(E, -np.log(E))
+    else:
+        parents = np.arange(E, dtype=np.int64)
+        picks = pick_samples(normalize_rows(log_w), rng)
+        new_log_cred = log_cred
+    poses = samples[parents, picks]
+    pts = project(model.bases, poses)
+    st = bilinear_stencil(pts, img.shape)
+    y = st.sample(img.reshape(-1))
+    # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
+    tex_mean, tex_var = kalman_update(
+        state.tex_mean[parents], state.tex_var[parents] + cfg.psi_v, y, cfg.sigma_w, observed=st.inside
+    )
+    bg_mean = bg_var = None
+    if state.bg_mean is not None:
+        bg_mean = state.bg_mean[parents]  # new arrays (fancy indexing copies)
+        bg_var = state.bg_var[parents]  # type: ignore[index]
+        masks = [object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin) for e in range(E)]
+        background_predict_update(bg_mean, bg_var, img, cfg.psi_b, cfg.sigma_w, masks)
+        _ro(bg_mean)
+        _ro(bg_var)
+    mean_pts = project(model.bases, mean_pose)
+    W = np.exp(new_log_cred)
+    d2 = np.sum((pts - mean_pts[None]) ** 2, axis=-1).mean(axis=-1)
+    new_state = ExpertState(
+        poses=_ro(np.ascontiguousarray(poses)),
+        tex_mean=_ro(tex_mean),
+        tex_var=_ro(tex_var),
+        bg_mean=bg_mean,
+        bg_var=bg_var,
+        log_credibility=_ro(new_log_cred),
+        image_shape=state.image_shape,
+    )
+    est = Estimate(
+        pose=_ro(mean_pose),
+        rotation=_ro(rotation_matrices(mean_pose)),
+        pose_std=_ro(pose_std),
+        spread_px=float(np.sqrt(W @ d2 / W.sum())),
+        ess=float(ess_val),
+        expert_points=_ro(pts),
+        mean_points=_ro(mean_pts),
+        bbox=_ro(bounding_box(mean_pts)),
+        log_credibility=_ro(log_cred),
+        parents=_ro(parents),
+        resampled=resampled,
+    )
+    return new_state, est
+
+
+def step(
+    state: ExpertState,
+    frame: np.ndarray,
+    model: MorphableModel,
+    cfg: GFlowConfig,
+    seed: int,
+    t: int,
+    stream_hash: int = 0,
+) -> tuple[ExpertState, Estimate]:
+    """One filter step with the documented generators (:func:`propose` then :func:`update`).
+
+    Expert ``i`` uses ``default_rng([seed, stream_hash, t, i])``; the update uses
+    ``default_rng([seed, stream_hash, t])``.
+    """
+    props = propose(state, frame, model, cfg, expert_rngs(seed, stream_hash, t, range(state.n_experts)))
+    return update(state, props, frame, model, cfg, np.random.default_rng([int(seed), int(stream_hash), int(t)]))

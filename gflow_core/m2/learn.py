@@ -1,0 +1,225 @@
+"""Learning a complete M2 model from training items (Toyama & Blake 2002, sec. 4).
+
+:func:`learn` runs, in order:
+
+1. exemplars (sec. 4.1, :mod:`.exemplars`): minimax datum, alignment by direct descent,
+   evenly spaced initial centres, k-medoids (eq. 8-9), pi_k proportional to N_k;
+2. validation distances (sec. 4.2): the validation set is the training set less the
+   exemplars; for each z_v the best exemplar and transform
+   min_{alpha, k} rho(T_alpha x~_k, z_v) by direct descent (:func:`.align.refine_alpha`)
+   give rho_v;
+3. kernel parameters d_k, sigma_k by moments (eq. 10) or MLE (eq. 11), :mod:`.kernel`;
+4. dynamics (sec. 4.3, :mod:`.learn_dynamics`) from the training states
+   X_t = (alpha_t, k_t): alpha_t is the item's image placement composed with its
+   best-exemplar transform, k_t its best exemplar; Markov matrix by histogramming and
+   AR(1) on beta by Yule-Walker.
+
+Departures from the paper
+-------------------------
+* Sec. 4.2's search over *all* exemplars and alpha is restricted to the
+  ``n_candidates`` exemplars nearest in the aligned distance matrix (which is already
+  computed), each refined over alpha from the item's alignment alpha_t*. With patch
+  metrics there is no alpha (sec. 5.2) and the nearest exemplar is exact.
+* The cluster of a validation item for eq. 10-11 is its best exemplar from this search
+  (the exemplar whose kernel rho_v measures), which is normally its k-medoids cluster.
+* See also :mod:`.align`, :mod:`.exemplars`, :mod:`.kernel`, :mod:`.learn_dynamics`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Literal
+
+import numpy as np
+
+from .. import similarity
+from .align import DEFAULT_BOUNDS, DEFAULT_STEP, refine_alpha
+from .curves import Curves
+from .distances import Items, Metric, make_metric
+from .exemplars import ExemplarFit, check_k, learn_exemplars
+from .kernel import KERNEL_METHODS, KernelFit, fit_kernels
+from .learn_dynamics import DEFAULT_NOISE_FLOOR, learn_ar, learn_markov, split_runs
+from .model import M2Model
+from .training import TrainingSet
+
+__all__ = ["learn", "learn_detailed", "Validation", "LearnResult", "validation_distances"]
+
+Progress = Callable[[str, int, int], None]
+
+
+@dataclass(frozen=True)
+class Validation:
+    """Sec. 4.2 output for every training item.
+
+    Attributes
+    ----------
+    is_validation : (T,) bool, False for the exemplars themselves.
+    k : (T,) int64, best exemplar of each item (an exemplar's own index for exemplars).
+    alpha : (T, 4) float64, z_t ~ T_alpha x~_k (item frame).
+    rho : (T,) float64, rho(T_alpha x~_k, z_t) (0 for exemplars).
+    """
+
+    is_validation: np.ndarray
+    k: np.ndarray
+    alpha: np.ndarray
+    rho: np.ndarray
+
+
+@dataclass(frozen=True)
+class LearnResult:
+    """Everything :func:`learn_detailed` computed (for diagnostics and benchmarks)."""
+
+    model: M2Model
+    exemplar_fit: ExemplarFit
+    validation: Validation
+    kernel: KernelFit
+    states_alpha: np.ndarray  # (T, 4) image alpha_t
+    states_k: np.ndarray  # (T,) k_t
+
+
+def validation_distances(metric: Metric, items: Items, fit: ExemplarFit, n_candidates: int = 3,
+                         aligned: bool = True, step: np.ndarray = DEFAULT_STEP, bounds: np.ndarray = DEFAULT_BOUNDS,
+                         progress: Progress | None = None) -> Validation:
+    """rho_v = min_{alpha, k} rho(T_alpha x~_k, z_v) for the training set less the exemplars (sec. 4.2).
+
+    Parameters
+    ----------
+    metric : Metric
+    items : T (unaligned) training items z_t.
+    fit : ExemplarFit from :func:`.exemplars.learn_exemplars`.
+    n_candidates : int, exemplars refined over alpha per item (nearest first).
+    aligned : bool, refine alpha (curves); False uses the aligned distance matrix only (patches).
+    """
+    T = metric.n_items(items)
+    med = fit.clusters.medoids
+    K = med.size
+    is_val = np.ones(T, dtype=bool)
+    is_val[med] = False
+    k_out = fit.clusters.labels.copy()
+    alpha_out = fit.alpha_star.copy()
+    rho_out = np.zeros(T)
+    # rho(x~_k, x_t*) for every exemplar and item, (K, T)
+    Dk = fit.D[med]
+    val = np.nonzero(is_val)[0]
+    if progress:
+        progress("validation", 0, val.size)
+    for i, v in enumerate(val):
+        order = np.argsort(Dk[:, v], kind="stable")
+        if not aligned:
+            k_out[v], rho_out[v] = order[0], Dk[order[0], v]
+            continue
+        cand = order[: max(1, min(n_candidates, K))]
+        # alpha_v = argmin_alpha rho(T_alpha x~_k, z_v), starting from alpha_v* (z_v ~ T_alpha* x_v*)
+        a, r = refine_alpha(metric, fit.exemplars, cand, items, int(v), fit.alpha_star[v], step=step, bounds=bounds)
+        b = int(np.argmin(r))
+        k_out[v], alpha_out[v], rho_out[v] = cand[b], a[b], r[b]
+        if progress and (i + 1) % 16 == 0:
+            progress("validation", i + 1, val.size)
+    if progress:
+        progress("validation", val.size, val.size)
+    return Validation(is_validation=is_val, k=k_out, alpha=alpha_out, rho=rho_out)
+
+
+def _as_training(items: Any, metric: Metric) -> TrainingSet:
+    if isinstance(items, TrainingSet):
+        if items.kind != metric.kind:
+            raise ValueError(f"metric {metric.name!r} works on {metric.kind}s but the training set holds {items.kind}s")
+        return items
+    if metric.kind == "curve":
+        if isinstance(items, np.ndarray) and items.ndim == 3 and items.shape[-1] != 2:
+            raise ValueError(f"metric {metric.name!r} works on curves; got an array of shape {items.shape}")
+        its = metric.check_items(items)
+        lo, hi = its.bounds()
+        ref = np.maximum(hi - lo + 1.0, 1.0)
+    else:
+        if isinstance(items, Curves):
+            raise ValueError(f"metric {metric.name!r} works on patches, got curves")
+        its = metric.check_items(items)
+        ref = np.array([its.shape[2], its.shape[1]], dtype=np.float64)
+    n = metric.n_items(its)
+    return TrainingSet(items=its, placement=np.tile(similarity.IDENTITY, (n, 1)), frame_index=np.arange(n),
+                       sequence=np.zeros(n, dtype=np.int64), ref_size=ref, kind=metric.kind)
+
+
+def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric = "chamfer", K: int = 10,
+                   kernel: Literal["moments", "mle"] = "moments", *, metric_params: dict | None = None,
+                   align: bool | None = None, n_candidates: int = 3, max_iter: int = 50, min_samples: int = 4,
+                   d_range: tuple[float, float] = (0.5, 1000.0), trivial_ratio: float | None = None,
+                   markov_prior: float = 1.0, translation: Literal["random_walk", "ar"] = "random_walk",
+                   noise_floor: np.ndarray = DEFAULT_NOISE_FLOOR, step: np.ndarray = DEFAULT_STEP,
+                   bounds: np.ndarray = DEFAULT_BOUNDS, progress: Progress | None = None) -> LearnResult:
+    """:func:`learn`, returning the intermediate results too (see :class:`LearnResult`)."""
+    if kernel not in KERNEL_METHODS:
+        raise ValueError(f"unknown kernel estimator {kernel!r}; choose one of {KERNEL_METHODS}")
+    m = make_metric(metric, **(metric_params or {}))
+    ts = _as_training(items, m)
+    z = m.check_items(ts.items)
+    T = m.n_items(z)
+    check_k(T, K)
+    if K == T:
+        raise ValueError(f"K={K} equals the number of training items: no validation items are left to learn the "
+                         "kernel widths (sec. 4.2); use fewer exemplars or more frames")
+    aligned = m.kind == "curve" if align is None else bool(align)
+    fit = learn_exemplars(m, z, K, align=aligned, max_iter=max_iter, step=step, bounds=bounds, progress=progress)
+    val = validation_distances(m, z, fit, n_candidates=n_candidates, aligned=aligned, step=step, bounds=bounds,
+                               progress=progress)
+    if progress:
+        progress("kernel", 0, 1)
+    kf = fit_kernels(val.rho[val.is_validation], val.k[val.is_validation], K, method=kernel,
+                     min_samples=min_samples, d_range=d_range, trivial_ratio=trivial_ratio)
+    if progress:
+        progress("kernel", 1, 1)
+        progress("dynamics", 0, 1)
+    # X_t = (alpha_t, k_t): image point = T_placement T_alpha (exemplar point)
+    states_alpha = np.array([similarity.compose(p, a) for p, a in zip(ts.placement, val.alpha)])
+    runs = split_runs(ts.frame_index, ts.sequence)
+    markov = learn_markov([val.k[r] for r in runs], K, prior=markov_prior)
+    if sum(max(r.size - 1, 0) for r in runs) >= 2:
+        dyn = learn_ar([states_alpha[r] for r in runs], translation=translation, noise_floor=noise_floor)
+    else:
+        raise ValueError("need at least 2 consecutive-frame transitions in the training items to learn dynamics "
+                         "(sec. 4.3); are the frames a sequence?")
+    if progress:
+        progress("dynamics", 1, 1)
+    mp = m.params()
+    model = M2Model(metric=m.name, kernel=kernel, exemplars=fit.exemplars, d=kf.d, sigma=kf.sigma, pi=fit.pi,
+                    markov=markov, dynamics=dyn, ref_size=ts.ref_size, exemplar_index=fit.clusters.medoids,
+                    profile=str(mp.get("profile", "quadratic")), g0=float(mp.get("g0", 100.0)),
+                    upsample=int(mp.get("upsample", 2)), shuffle_radius=int(mp.get("radius", 1)))
+    return LearnResult(model=model, exemplar_fit=fit, validation=val, kernel=kf, states_alpha=states_alpha,
+                       states_k=val.k)
+
+
+def learn(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric = "chamfer", K: int = 10,
+          kernel: Literal["moments", "mle"] = "moments", *, progress: Progress | None = None,
+          **options: Any) -> M2Model:
+    """Learn an M2 model (exemplars, kernels, dynamics) from training items (sec. 4).
+
+    Parameters
+    ----------
+    items : TrainingSet (from :mod:`.training`, carries image placements and frame indices),
+        or bare items in time order: Curves / a list of (P_i, 2) point sets for the chamfer
+        metric, (T, h, w) patches for "shuffle" / "l2" (placements then default to identity).
+    metric : "chamfer", "shuffle", "l2" or a :class:`.distances.Metric` instance.
+    K : int, number of exemplars, 1 <= K < T.
+    kernel : "moments" (eq. 10, default) or "mle" (eq. 11).
+    progress : callable(stage, done, total), optional; stages in order are "datum", "align",
+        "distances" (curves), "kmedoids", "validation", "kernel", "dynamics".
+    **options
+        metric_params (dict, e.g. ``{"profile": "truncated", "g0": 50}``), align (bool),
+        n_candidates (3), max_iter (50), min_samples (4), d_range ((0.5, 1000)),
+        trivial_ratio (None), markov_prior (1.0), translation ("random_walk" | "ar"),
+        noise_floor ((4,)), step, bounds (alignment search, beta units);
+        see :func:`learn_detailed` and the modules it calls.
+
+    Returns
+    -------
+    M2Model
+
+    Raises
+    ------
+    ValueError
+        No training items, a single item, K > T or K == T (no validation set), a metric
+        that does not match the items, or no consecutive frames to learn dynamics from.
+    """
+    return learn_detailed(items, metric, K, kernel, progress=progress, **options).model
