@@ -44,7 +44,6 @@ class ZenohSettings:
     shm_pool_mb : shared-memory pool size in MiB (zenoh's default, 16). Every receiver maps each
         sender's pool, which counts in its RSS; flow control bounds the frames in flight, so
         16 MiB holds them (the guide saw large colour frames slow with 16 MiB under no flow control).
-        frames were sometimes slow with it and never with 64 MiB).
     """
 
     mode: Mode = "peer"

@@ -158,7 +158,7 @@ class GFlowConfig:
     unknown_var: float = 1.0
     background: bool = False
     object_mask: str = "hull"
-    object_mask_margin: float = 0.15
+    object_mask_margin: float = 0.0
     prior_std_rotation: float | tuple[float, ...] = 0.05
     prior_std_translation: float | tuple[float, ...] = 5.0
     prior_std_coefficients: float | tuple[float, ...] = 2.0

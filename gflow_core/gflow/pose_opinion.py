@@ -83,6 +83,8 @@ __all__ = [
 #: Fraction of foreground-plus-prior curvature the background term may not remove.
 MIN_CURVATURE_FRACTION = 0.1
 
+import os
+NOBG = bool(os.environ.get("NOBG"))
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 
@@ -215,7 +217,7 @@ def gauss_newton_objective(
     y = st.sample(fd.flat)
     r = y - tv.mean
     f = np.sum(_fg_weights(tv, sigma_w) * r * r, axis=-1)
-    if tv.has_background:
+    if tv.has_background and not NOBG:
         mb, vb = tv.bg_at(st, tv.bg_rows[:, None])  # type: ignore[index]
         rb = y - mb
         f = f - np.sum(rb * rb / (vb + sigma_w), axis=-1)
@@ -262,7 +264,7 @@ def _linearise(bases, fd, prev, u, tv, sigma_w, lam):
     dg = np.diagonal(H, axis1=1, axis2=2)
     ridge = 1e-10 * dg + 1e-12 * dg.max(axis=1, keepdims=True) + 1e-12
     H = H + ridge[:, :, None] * np.eye(P)
-    if tv.has_background:
+    if tv.has_background and not NOBG:
         mb, mbx, mby, vb = tv.bg_at(st, tv.bg_rows[:, None], with_grad=True)  # type: ignore[index]
         wb = 1.0 / (vb + sigma_w)
         rb = y - mb

@@ -86,6 +86,7 @@ def render_head(
     rng: np.random.Generator | None = None,
     noise_std: float = 0.0,
     supersample: int = 2,
+    patch_only: bool = True,
 ) -> np.ndarray:
     """Render the head at ``pose`` over ``background``.
 
@@ -104,6 +105,11 @@ def render_head(
         Std of additive Gaussian pixel noise.
     supersample : int
         Rays per pixel along each axis (anti-aliasing of the silhouette).
+    patch_only : bool
+        Render only the part of the surface the model's vertex grid covers
+        (``|lon| <= lon_max``, ``|lat| <= lat_max``), a textured "face mask", so that
+        every object pixel lies inside the mesh (the paper's model: the object is its
+        vertices). False renders the whole ellipsoid.
 
     Returns
     -------
@@ -136,6 +142,11 @@ def render_head(
             X = np.stack([a, b, z], axis=-1)
             p = X @ R  # r^T X, object frame
             q = p / semi
+            if patch_only:
+                # q = (sin(lon) cos(lat), sin(lat), -cos(lon) cos(lat))
+                lon = np.degrees(np.arctan2(q[..., 0], -q[..., 2]))
+                lat = np.degrees(np.arcsin(np.clip(q[..., 1], -1.0, 1.0)))
+                hit &= (np.abs(lon) <= head.lon_max_deg) & (np.abs(lat) <= head.lat_max_deg)
             acc += np.where(hit, texture(q, t), background)
     img = acc / supersample**2
     if noise_std > 0:
@@ -185,6 +196,7 @@ def synthetic_sequence(
     noise_std: float = 0.01,
     n_lon: int = 15,
     n_lat: int = 15,
+    patch_only: bool = True,
 ) -> SyntheticSequence:
     """Render a head moving along a known smooth 3-D trajectory.
 
@@ -193,7 +205,7 @@ def synthetic_sequence(
     has the identity rotation; translation moves ``trans_amp_px * sin(pi tau), sin(2 pi tau)``
     and the scale ``1 + scale_amp sin(pi tau)``. The texture drifts
     (``texture_drift`` radians of phase per frame per wave) and every frame gets noise
-    of std ``noise_std``.
+    of std ``noise_std``. ``patch_only``: see :func:`render_head`.
     """
     H, W = image_shape
     if box is None:
@@ -213,7 +225,9 @@ def synthetic_sequence(
         l = pose0[TRANS] + np.asarray(trans_amp_px) * np.array([np.sin(np.pi * ta), np.sin(2 * np.pi * ta)])
         c = pose0[COEF] * (1.0 + scale_amp * np.sin(np.pi * ta))
         poses[t] = make_pose(w, l, c)
-        frames[t] = render_head(head, poses[t], texture, background, t=t, rng=rng, noise_std=noise_std)
+        frames[t] = render_head(
+            head, poses[t], texture, background, t=t, rng=rng, noise_std=noise_std, patch_only=patch_only
+        )
     model = head.model()
     return SyntheticSequence(
         frames=frames,

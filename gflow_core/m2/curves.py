@@ -168,13 +168,6 @@ def profile_g(u: np.ndarray, profile: str, g0: float) -> np.ndarray:
     return g
 
 
-def _profile_u(gamma: np.ndarray, profile: str) -> np.ndarray:
-    """Inverse of the profile below truncation: the distance u with g(u) = gamma."""
-    if profile == "linear":
-        return gamma
-    return np.sqrt(np.maximum(gamma, 0.0))
-
-
 class PointChamferImage:
     """Chamfer image gamma(z, .) of one point set z on an up-sampled canvas (eq. 5).
 
@@ -229,8 +222,11 @@ class PointChamferImage:
         """(H, W) float64 canvas of gamma values, indexed (row, col)."""
         return self._gamma
 
-    def __call__(self, pts: np.ndarray) -> np.ndarray:
-        """gamma(z, r) at points r, bilinear on the canvas; (..., 2) -> (...) float64."""
+    def u(self, pts: np.ndarray) -> np.ndarray:
+        """Distance (pixels) from points r to the nearest point of z, bilinear on the canvas.
+
+        (..., 2) -> (...) float64. Off the canvas: u(clip(r)) + |r - clip(r)|.
+        """
         h, w = self.shape
         q = (np.asarray(pts, dtype=np.float64) - self.lo) * self.up
         x, y = q[..., 0], q[..., 1]
@@ -247,25 +243,32 @@ class PointChamferImage:
         top = v00 + (v01 - v00) * fx
         u = top + (v10 + (v11 - v10) * fx - top) * fy
         # off the canvas: u <= u(clip(r)) + |r - clip(r)|, an upper bound that keeps increasing
-        out = np.hypot(x - xc, y - yc) / self.up
-        u = u + out
-        # interpolate u and apply g afterwards, so that gamma of a dense straight curve
-        # shifted by delta is exactly g(delta) (bilinear on u^2 would bias it by ~1/(4 up^2)).
-        return profile_g(u, self.profile, self.g0)
+        return u + np.hypot(x - xc, y - yc) / self.up
 
-    def distance(self, curves: np.ndarray, n_points: np.ndarray) -> np.ndarray:
+    def __call__(self, pts: np.ndarray, scale: float | np.ndarray = 1.0) -> np.ndarray:
+        """gamma(z, r) = g(scale * u(r)); (..., 2) -> (...) float64.
+
+        The distance u is interpolated and g applied afterwards, so gamma of a dense
+        straight curve shifted by delta is exactly g(delta) (bilinear interpolation of u^2
+        would bias it by about 1 / (4 up^2)). ``scale`` multiplies distances (used to
+        measure distances in a transformed frame, see :mod:`.align`).
+        """
+        return profile_g(np.asarray(scale) * self.u(pts), self.profile, self.g0)
+
+    def distance(self, curves: np.ndarray, n_points: np.ndarray, scale: float | np.ndarray = 1.0) -> np.ndarray:
         """Chamfer distance rho(curve, z) = mean over the curve's points of gamma(z, r) (eq. 5).
 
         Parameters
         ----------
         curves : (..., P, 2) float64
         n_points : (...) int64
+        scale : float or (...) float64, distances are multiplied by it before g.
 
         Returns
         -------
         (...) float64
         """
-        g = self(curves)
+        g = self(curves, np.asarray(scale)[..., None])
         n = np.asarray(n_points)
         mask = np.arange(g.shape[-1]) < n[..., None]
         # rho = (1/P_k) sum_{s < P_k} gamma(z, r(s))                               (eq. 5)

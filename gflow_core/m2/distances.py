@@ -168,6 +168,11 @@ class ChamferMetric(Metric):
     def _image(self, pts: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> PointChamferImage:
         return PointChamferImage(pts, lo, hi, self.profile, self.g0, self.upsample)
 
+    def point_image(self, points: np.ndarray, extent: float = 0.0) -> PointChamferImage:
+        """Chamfer image gamma(z, .) of one point set z, (P, 2), on a canvas reaching ``extent`` px beyond it."""
+        pts = np.asarray(points, dtype=np.float64)
+        return self._image(pts, pts.min(axis=0) - 1.0 - extent, pts.max(axis=0) + 1.0 + extent)
+
     def pairwise(self, a: Curves, b: Curves) -> np.ndarray:
         """D[i, j] = rho(a_i, b_j) = mean_s gamma(b_j, r_{a_i}(s)), (A, B) float64 (eq. 5).
 
@@ -204,9 +209,7 @@ class ChamferMetric(Metric):
                 return np.where(items.mask, g, 0.0).sum(axis=1) / items.n_points
 
             return f_tree
-        lo = pts.min(axis=0) - 1.0 - extent
-        hi = pts.max(axis=0) + 1.0 + extent
-        img = self._image(pts, lo, hi)
+        img = self.point_image(pts, extent)
 
         def f(items: Curves) -> np.ndarray:
             return img.distance(items.points, items.n_points)

@@ -22,7 +22,7 @@ Departures from the paper
   item farthest from every centre (too few).
 * Every centre is forced into its own cluster during assignment (ties in eq. 8, e.g.
   duplicate frames, could otherwise leave a cluster empty).
-* The alignment box constraint of :mod:`.align`.
+* The alignment of :mod:`.align`: symmetrised objective and a box constraint.
 """
 
 from __future__ import annotations
@@ -244,7 +244,7 @@ class ExemplarFit:
 
 
 def learn_exemplars(metric: Metric, items: Items, K: int, align: bool | None = None, max_iter: int = 50,
-                    step: np.ndarray = DEFAULT_STEP, bounds: np.ndarray = DEFAULT_BOUNDS,
+                    symmetric: bool = True, step: np.ndarray = DEFAULT_STEP, bounds: np.ndarray = DEFAULT_BOUNDS,
                     progress: Progress | None = None) -> ExemplarFit:
     """Sec. 4.1 end to end: datum, alignment, evenly spaced initial centres, k-medoids, pi_k.
 
@@ -257,6 +257,7 @@ def learn_exemplars(metric: Metric, items: Items, K: int, align: bool | None = N
     align : bool, run step 1's alignment (default: True for curves, False for patches,
         which sec. 5.2 uses without transforms).
     max_iter : int, k-medoids iterations.
+    symmetric : bool, align with the symmetrised distance (:mod:`.align`).
     step, bounds : (4,) float64, alignment search parameters (:mod:`.align`).
     progress : callable(stage, done, total), optional.
 
@@ -276,7 +277,7 @@ def learn_exemplars(metric: Metric, items: Items, K: int, align: bool | None = N
         datum = minimax_index(D0)
         if progress:
             progress("align", 0, T)
-        alpha, _ = align_to_reference(metric, items, items, datum, step=step, bounds=bounds)
+        alpha, _ = align_to_reference(metric, items, items, datum, symmetric=symmetric, step=step, bounds=bounds)
         if progress:
             progress("align", T, T)
         # x_t* = T_alpha_t*^-1 z_t*

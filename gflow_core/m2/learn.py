@@ -78,8 +78,8 @@ class LearnResult:
 
 
 def validation_distances(metric: Metric, items: Items, fit: ExemplarFit, n_candidates: int = 3,
-                         aligned: bool = True, step: np.ndarray = DEFAULT_STEP, bounds: np.ndarray = DEFAULT_BOUNDS,
-                         progress: Progress | None = None) -> Validation:
+                         aligned: bool = True, symmetric: bool = True, step: np.ndarray = DEFAULT_STEP,
+                         bounds: np.ndarray = DEFAULT_BOUNDS, progress: Progress | None = None) -> Validation:
     """rho_v = min_{alpha, k} rho(T_alpha x~_k, z_v) for the training set less the exemplars (sec. 4.2).
 
     Parameters
@@ -89,6 +89,8 @@ def validation_distances(metric: Metric, items: Items, fit: ExemplarFit, n_candi
     fit : ExemplarFit from :func:`.exemplars.learn_exemplars`.
     n_candidates : int, exemplars refined over alpha per item (nearest first).
     aligned : bool, refine alpha (curves); False uses the aligned distance matrix only (patches).
+    symmetric : bool, choose alpha by the symmetrised distance (:mod:`.align`); rho_v is the
+        directed rho(T_alpha x~_k, z_v) either way.
     """
     T = metric.n_items(items)
     med = fit.clusters.medoids
@@ -101,6 +103,7 @@ def validation_distances(metric: Metric, items: Items, fit: ExemplarFit, n_candi
     # rho(x~_k, x_t*) for every exemplar and item, (K, T)
     Dk = fit.D[med]
     val = np.nonzero(is_val)[0]
+    images: dict = {}
     if progress:
         progress("validation", 0, val.size)
     for i, v in enumerate(val):
@@ -110,7 +113,8 @@ def validation_distances(metric: Metric, items: Items, fit: ExemplarFit, n_candi
             continue
         cand = order[: max(1, min(n_candidates, K))]
         # alpha_v = argmin_alpha rho(T_alpha x~_k, z_v), starting from alpha_v* (z_v ~ T_alpha* x_v*)
-        a, r = refine_alpha(metric, fit.exemplars, cand, items, int(v), fit.alpha_star[v], step=step, bounds=bounds)
+        a, r = refine_alpha(metric, fit.exemplars, cand, items, int(v), fit.alpha_star[v], symmetric=symmetric,
+                            step=step, bounds=bounds, exemplar_images=images)
         b = int(np.argmin(r))
         k_out[v], alpha_out[v], rho_out[v] = cand[b], a[b], r[b]
         if progress and (i + 1) % 16 == 0:
@@ -143,7 +147,7 @@ def _as_training(items: Any, metric: Metric) -> TrainingSet:
 
 def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric = "chamfer", K: int = 10,
                    kernel: Literal["moments", "mle"] = "moments", *, metric_params: dict | None = None,
-                   align: bool | None = None, n_candidates: int = 3, max_iter: int = 50, min_samples: int = 4,
+                   align: bool | None = None, symmetric: bool = True, n_candidates: int = 3, max_iter: int = 50, min_samples: int = 4,
                    d_range: tuple[float, float] = (0.5, 1000.0), trivial_ratio: float | None = None,
                    markov_prior: float = 1.0, translation: Literal["random_walk", "ar"] = "random_walk",
                    noise_floor: np.ndarray = DEFAULT_NOISE_FLOOR, step: np.ndarray = DEFAULT_STEP,
@@ -160,9 +164,10 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
         raise ValueError(f"K={K} equals the number of training items: no validation items are left to learn the "
                          "kernel widths (sec. 4.2); use fewer exemplars or more frames")
     aligned = m.kind == "curve" if align is None else bool(align)
-    fit = learn_exemplars(m, z, K, align=aligned, max_iter=max_iter, step=step, bounds=bounds, progress=progress)
-    val = validation_distances(m, z, fit, n_candidates=n_candidates, aligned=aligned, step=step, bounds=bounds,
-                               progress=progress)
+    fit = learn_exemplars(m, z, K, align=aligned, max_iter=max_iter, symmetric=symmetric, step=step, bounds=bounds,
+                          progress=progress)
+    val = validation_distances(m, z, fit, n_candidates=n_candidates, aligned=aligned, symmetric=symmetric, step=step,
+                               bounds=bounds, progress=progress)
     if progress:
         progress("kernel", 0, 1)
     kf = fit_kernels(val.rho[val.is_validation], val.k[val.is_validation], K, method=kernel,
@@ -207,6 +212,7 @@ def learn(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric 
         "distances" (curves), "kmedoids", "validation", "kernel", "dynamics".
     **options
         metric_params (dict, e.g. ``{"profile": "truncated", "g0": 50}``), align (bool),
+        symmetric (True: align by the symmetrised distance),
         n_candidates (3), max_iter (50), min_samples (4), d_range ((0.5, 1000)),
         trivial_ratio (None), markov_prior (1.0), translation ("random_walk" | "ar"),
         noise_floor ((4,)), step, bounds (alignment search, beta units);

@@ -1,0 +1,76 @@
+"""Tracking accuracy: centre location error, overlap (IoU) and success rate.
+
+Boxes are (x, y, w, h): top-left corner and size in 0-based pixels, as in ``../shared/data``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["centre_error", "iou", "TrackScore", "score"]
+
+
+def _boxes(b: np.ndarray, name: str) -> np.ndarray:
+    b = np.asarray(b, dtype=np.float64)
+    if b.ndim != 2 or b.shape[1] != 4:
+        raise ValueError(f"{name} boxes must be (N, 4) = (x, y, w, h), got shape {b.shape}")
+    if not np.isfinite(b).all():
+        raise ValueError(f"{name} boxes contain NaN or inf")
+    return b
+
+
+def centre_error(gt: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """Distance between box centres, (N,) pixels. gt, pred: (N, 4)."""
+    g, p = _boxes(gt, "ground-truth"), _boxes(pred, "predicted")
+    # c = (x + w/2, y + h/2)
+    cg = g[:, :2] + g[:, 2:] / 2.0
+    cp = p[:, :2] + p[:, 2:] / 2.0
+    return np.linalg.norm(cg - cp, axis=1)
+
+
+def iou(gt: np.ndarray, pred: np.ndarray) -> np.ndarray:
+    """Intersection over union, (N,) in [0, 1]. gt, pred: (N, 4)."""
+    g, p = _boxes(gt, "ground-truth"), _boxes(pred, "predicted")
+    x0 = np.maximum(g[:, 0], p[:, 0])
+    y0 = np.maximum(g[:, 1], p[:, 1])
+    x1 = np.minimum(g[:, 0] + g[:, 2], p[:, 0] + p[:, 2])
+    y1 = np.minimum(g[:, 1] + g[:, 3], p[:, 1] + p[:, 3])
+    inter = np.clip(x1 - x0, 0, None) * np.clip(y1 - y0, 0, None)
+    union = np.clip(g[:, 2], 0, None) * np.clip(g[:, 3], 0, None) + np.clip(p[:, 2], 0, None) * np.clip(p[:, 3], 0, None) - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+@dataclass(frozen=True)
+class TrackScore:
+    frames: int
+    cle: float
+    mean_overlap: float
+    success: float
+    missing: int
+
+    def to_json(self) -> dict:
+        return {"frames": self.frames, "cle_px": round(self.cle, 3), "mean_overlap": round(self.mean_overlap, 4),
+                "success_rate_0.5": round(self.success, 4), "missing_predictions": self.missing}
+
+
+def score(gt: dict[int, tuple], pred: dict[int, tuple], threshold: float = 0.5) -> TrackScore:
+    """Score predictions against ground truth over the frames that have ground truth.
+
+    A frame with ground truth but no prediction counts as a failure (overlap 0) and is
+    left out of the CLE, which is averaged over the frames that have both.
+    """
+    frames = sorted(gt)
+    if not frames:
+        raise ValueError("ground truth is empty")
+    both = [f for f in frames if f in pred]
+    if not both:
+        raise ValueError("no frame has both a ground-truth box and a prediction (are the frame numbers aligned?)")
+    g = np.array([gt[f] for f in both])
+    p = np.array([pred[f] for f in both])
+    ov = iou(g, p)
+    missing = len(frames) - len(both)
+    overlaps = np.concatenate([ov, np.zeros(missing)])
+    return TrackScore(frames=len(frames), cle=float(centre_error(g, p).mean()), mean_overlap=float(overlaps.mean()),
+                      success=float((overlaps > threshold).mean()), missing=missing)
