@@ -16,7 +16,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-__all__ = ["to_grey", "gradients", "edge_map", "distance_transform", "chamfer_image", "PROFILES"]
+__all__ = ["to_grey", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image", "PROFILES"]
 
 PROFILES = ("linear", "quadratic", "truncated")
 Profile = Literal["linear", "quadratic", "truncated"]
@@ -77,14 +77,47 @@ def gradients(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
-def edge_map(grey: np.ndarray, low: float = 50.0, high: float = 150.0, blur: float = 1.0) -> np.ndarray:
+def auto_canny_thresholds(grey: np.ndarray, percentile: float = 85.0, ratio: float = 0.4,
+                          box: tuple[float, float, float, float] | None = None) -> tuple[float, float]:
+    """Adaptive Canny thresholds: ``high`` is a percentile of the Sobel gradient magnitude
+    (the same 3x3 L2 magnitude that Canny thresholds), ``low = ratio * high``.
+
+    With ``box`` = (x, y, w, h) the percentile is taken over the pixels of that box only:
+    the thresholds are calibrated on the target. Fixed thresholds find no edge on a dim,
+    low-contrast target (OTB "Crossing"), and a whole-image percentile floods a smooth
+    textured background with edges; calibrating on the target avoids both.
+    """
+    g = np.asarray(grey, dtype=np.float32)
+    gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
+    mag = cv2.magnitude(gx, gy)
+    if box is not None:
+        x, y, w, h = box
+        H, W = mag.shape
+        c0, r0 = max(int(x), 0), max(int(y), 0)
+        c1, r1 = min(int(np.ceil(x + w)), W), min(int(np.ceil(y + h)), H)
+        if c1 - c0 < 2 or r1 - r0 < 2:
+            raise ValueError(f"calibration box {box} does not overlap the {W}x{H} image")
+        mag = mag[r0:r1, c0:c1]
+    high = max(float(np.percentile(mag, percentile)), 1.0)
+    return ratio * high, high
+
+
+def gaussian_blur(grey: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian blur of a grey image with standard deviation ``sigma`` pixels (0: unchanged)."""
+    return cv2.GaussianBlur(grey, (0, 0), sigma) if sigma > 0 else grey
+
+
+def edge_map(grey: np.ndarray, low: float | None = None, high: float | None = None, blur: float = 1.0,
+             percentile: float = 85.0) -> np.ndarray:
     """Canny edge map.
 
     Parameters
     ----------
     grey : (H, W) uint8
-    low, high : float
-        Canny hysteresis thresholds on the Sobel magnitude (0-255 scale).
+    low, high : float or None
+        Canny hysteresis thresholds on the L2 Sobel magnitude. ``None`` (both) chooses
+        them per frame with :func:`auto_canny_thresholds` at ``percentile``.
     blur : float
         Standard deviation (pixels) of a Gaussian pre-blur; 0 disables it.
 
@@ -92,11 +125,11 @@ def edge_map(grey: np.ndarray, low: float = 50.0, high: float = 150.0, blur: flo
     -------
     (H, W) uint8, 255 on edges and 0 elsewhere.
     """
-    g = to_grey(grey)
+    g = gaussian_blur(to_grey(grey), blur)
+    if low is None or high is None:
+        low, high = auto_canny_thresholds(g, percentile)
     if not (0 <= low <= high):
         raise ValueError(f"Canny thresholds must satisfy 0 <= low <= high, got low={low}, high={high}")
-    if blur > 0:
-        g = cv2.GaussianBlur(g, (0, 0), blur)
     return cv2.Canny(g, low, high, L2gradient=True)
 
 

@@ -36,6 +36,8 @@ class SyntheticScene:
     n_frames : number of frames.
     seed : scene seed.
     noise : std of additive Gaussian sensor noise (grey levels).
+    period : frames for the target to go once round its path (motion per frame does not
+        depend on ``n_frames``).
     """
 
     width: int = 320
@@ -43,6 +45,7 @@ class SyntheticScene:
     n_frames: int = 120
     seed: int = 0
     noise: float = 4.0
+    period: int = 120
 
     def __post_init__(self) -> None:
         if self.width < 64 or self.height < 64:
@@ -71,7 +74,7 @@ class SyntheticScene:
     def alpha(self, t: int) -> np.ndarray:
         """True transform (ux, uy, theta, s) of the target at frame t, (4,) float64."""
         w, h = self.width, self.height
-        phase = 2 * np.pi * t / max(self.n_frames, 2)
+        phase = 2 * np.pi * t / max(self.period, 2)
         ux = w / 2 + 0.30 * w * np.sin(phase)
         uy = h / 2 + 0.18 * h * np.sin(2 * phase)
         theta = 0.25 * np.sin(phase)
@@ -92,7 +95,7 @@ class SyntheticScene:
         img = self._background.copy()  # type: ignore[attr-defined]
         w, h = self.width, self.height
         for i, (poly, ph) in enumerate(self._distractors):  # type: ignore[attr-defined]
-            x = (w * (0.1 + 0.8 * ((t / max(self.n_frames, 1) + 0.5 * i + ph / 6.3) % 1.0)))
+            x = (w * (0.1 + 0.8 * ((t / max(self.period, 1) + 0.5 * i + ph / 6.3) % 1.0)))
             y = h * (0.25 + 0.5 * i)
             pts = (poly + [x, y]).round().astype(np.int32)
             mask = np.zeros((h, w), np.uint8)

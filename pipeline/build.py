@@ -34,17 +34,21 @@ def make_stage(plan: Plan, name: str) -> Stage:
 
 
 def apply_defaults(plan: Plan) -> Plan:
-    """Fill what can be known from the graph itself: a filter with no initial box on a
-    synthetic source starts from the scene's ground-truth box at the first frame."""
+    """Fill what can be known from the graph itself: on a synthetic source, a filter with no
+    initial box starts from the scene's ground-truth box at the first frame, and the edge
+    thresholds are calibrated on that box."""
     from gflow_core.synthetic import SyntheticScene
 
     src = next((s for s in plan.stages.values() if s.is_source()), None)
     if src is None or src.params.get("kind") != "synthetic":
         return plan
     p = src.params
+    scene = SyntheticScene(width=p["width"], height=p["height"], n_frames=p["frames"], seed=p["scene_seed"],
+                           noise=p["noise"])
+    box = list(scene.truth_box(p["start"]))
     for s in plan.stages.values():
         if "init" in s.params and s.params.get("init") is None:
-            scene = SyntheticScene(width=p["width"], height=p["height"], n_frames=p["frames"], seed=p["scene_seed"],
-                                   noise=p["noise"])
-            s.params["init"] = list(scene.truth_box(p["start"]))
+            s.params["init"] = box
+        if "calibrate_box" in s.params and s.params.get("calibrate_box") is None:
+            s.params["calibrate_box"] = box
     return plan

@@ -191,6 +191,7 @@ def cmd_track(args) -> int:
         "source": _source_params(args.source, args),
         "filter": {"init": list(args.init), "particles": args.particles, "seed": args.seed},
         "proposal": {"seed": args.seed},
+        "preprocess": {"calibrate_box": list(args.init)},
     }
     for stage, kv in _parse_sets(args.set).items():
         overrides.setdefault(stage, {}).update(kv)

@@ -30,6 +30,8 @@ class Record:
     publish_ns: int
     seq: int
     data: bytes
+    schema: str = ""
+    schema_encoding: str = ""
 
 
 def _check(path: str | Path) -> Path:
@@ -62,7 +64,8 @@ def iter_records(path: str | Path, topics: list[str] | None = None, *, strict: b
                 if want is not None and channel.topic not in want:
                     continue
                 yield Record(channel.topic, channel.metadata.get("gflow.type", schema.name if schema else ""),
-                             msg.log_time, msg.publish_time, msg.sequence, msg.data)
+                             msg.log_time, msg.publish_time, msg.sequence, msg.data,
+                             schema.name if schema else "", schema.encoding if schema else "")
         except (McapError, EOFError, ValueError, Exception) as e:  # the mcap reader raises several kinds at a torn end
             text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
             if strict:
@@ -141,6 +144,7 @@ class RecordingSummary:
 def summarize(path: str | Path) -> RecordingSummary:
     """Walk a recording once: per-topic counts, rates, bytes, sequence ranges; schemas; metadata."""
     truncated: list[str] = []
+    schemas: dict[str, str] = {}
     topics: dict[str, TopicSummary] = {}
     n = 0
     start = end = 0
@@ -155,18 +159,10 @@ def summarize(path: str | Path) -> RecordingSummary:
         s.last_ns = r.log_ns
         s.last_seq = r.seq
         s.bytes += len(r.data)
+        if r.schema:
+            schemas[r.schema] = r.schema_encoding
         n += 1
         start = r.log_ns if start == 0 else min(start, r.log_ns)
         end = max(end, r.log_ns)
-    schemas: dict[str, str] = {}
-    p = _check(path)
-    with open(p, "rb") as f:
-        from mcap.records import Schema
-        try:
-            for rec in NonSeekingReader(f).iter_records():
-                if isinstance(rec, Schema):
-                    schemas[rec.name] = rec.encoding
-        except Exception:
-            pass
     return RecordingSummary(str(path), n, start, end, topics, schemas, read_metadata(path),
                             truncated[0] if truncated else "")

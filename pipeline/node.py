@@ -126,7 +126,8 @@ class Node:
         now = time.monotonic()
         if now - self._last_status >= min_interval:
             self._last_status = now
-            self.bus.publish(self.plan.status_topic(self.name), encode(self.status()), self.steps)
+            st = self.status()
+            self.bus.publish(self.plan.status_topic(self.name), encode(st), st.header.seq)
 
     def _heartbeat(self) -> None:
         while not self._hb_stop.is_set():

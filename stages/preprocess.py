@@ -15,10 +15,19 @@ __all__ = ["PreprocessStage", "PreprocessParams"]
 
 
 class PreprocessParams(Params):
-    """Edge and chamfer settings. ``profile``: quadratic g(u)=u^2 or truncated min(u^2, g0)."""
+    """Edge and chamfer settings.
 
-    canny_low: float = 50.0
-    canny_high: float = 150.0
+    canny_low / canny_high: fixed Canny thresholds. Unset, they are chosen from the
+    gradient magnitude (``canny_percentile``): once, from the pixels of ``calibrate_box``
+    in the first frame (the tracked target; ``gflow track`` sets it to the initial box),
+    or, with no box, afresh on every frame over the whole image.
+    profile: quadratic g(u) = u^2 or truncated min(u^2, g0) (M2 eq. 4).
+    """
+
+    canny_low: float | None = None
+    canny_high: float | None = None
+    canny_percentile: float = 80.0
+    calibrate_box: tuple[float, float, float, float] | None = None
     blur: float = 1.0
     profile: Literal["quadratic", "truncated", "linear"] = "truncated"
     g0: float = 100.0
@@ -34,6 +43,9 @@ class PreprocessStage(Stage):
     def __init__(self, params: PreprocessParams, ctx) -> None:
         super().__init__(params, ctx)
         self.done = 0
+        self.thresholds: tuple[float, float] | None = (
+            (params.canny_low, params.canny_high) if params.canny_low is not None and params.canny_high is not None
+            else None)
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         p: PreprocessParams = self.params  # type: ignore[assignment]
@@ -44,7 +56,14 @@ class PreprocessStage(Stage):
             grey = features.to_grey(img)
         except (MessageError, ValueError) as e:
             raise StageInputError(f"frame {seq}: {e}") from None
-        edges = features.edge_map(grey, p.canny_low, p.canny_high, p.blur)
+        if self.thresholds is None and p.calibrate_box is not None:
+            blurred = features.gaussian_blur(grey, p.blur)
+            try:
+                self.thresholds = features.auto_canny_thresholds(blurred, p.canny_percentile, box=p.calibrate_box)
+            except ValueError as e:
+                raise StageInputError(f"frame {seq}: {e}") from None
+        low, high = self.thresholds if self.thresholds is not None else (None, None)
+        edges = features.edge_map(grey, low, high, p.blur, p.canny_percentile)
         cham = features.chamfer_image(edges, p.profile, p.g0)
         gx = gy = None
         if p.gradients:
@@ -57,4 +76,4 @@ class PreprocessStage(Stage):
         return [("features", msg)]
 
     def summary(self) -> dict:
-        return {"frames": self.done}
+        return {"frames": self.done, "canny_thresholds": self.thresholds}
