@@ -31,8 +31,24 @@ def _folder_files(path: Path) -> list[Path]:
     return files
 
 
+def _indexed(files: list[Path]) -> list[tuple[int, Path | None]]:
+    """Frame index of each file: its number when every name is a number (000017.jpg -> 17),
+    so a file missing from the middle of the folder is a gap, not a shift; else the position."""
+    stems = [f.stem for f in files]
+    if all(s.isdigit() for s in stems):
+        by_index = {int(s): f for s, f in zip(stems, files)}
+        first, last = min(by_index), max(by_index)
+        return [(i, by_index.get(i)) for i in range(first, last + 1)]
+    return list(enumerate(files))
+
+
 def _read_folder(files: list[Path], start: int, stop: int | None) -> Iterator[RawFrame]:
-    for i, f in enumerate(files[start:stop], start=start):
+    for i, f in _indexed(files):
+        if i < start or (stop is not None and i >= stop):
+            continue
+        if f is None:
+            yield RawFrame(i, None, f"image file for frame {i} is missing from the folder", name=f"#{i}")
+            continue
         try:
             data = np.fromfile(f, dtype=np.uint8)
         except OSError as e:
@@ -51,12 +67,17 @@ def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise ValueError(f"OpenCV cannot open {path} as a video")
+    expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     try:
         i = 0
         while stop is None or i < stop:
             ok, img = cap.read()
             if not ok:
-                break  # end of the video, or a truncated file: stop cleanly
+                if expected > 0 and i < expected and (stop is None or i < stop):
+                    # a truncated or corrupt file: say so once, then end the stream cleanly
+                    yield RawFrame(i, None, f"{path.name}: video ends at frame {i} but its header says {expected} "
+                                            f"frames (truncated or corrupt file)", name=f"{path.name}#{i}")
+                break
             if i >= start:
                 yield RawFrame(i, img, name=f"{path.name}#{i}")
             i += 1
@@ -113,7 +134,7 @@ def count_frames(p: SourceParams, base_dir: str | os.PathLike = ".") -> int | No
     if p.kind == "synthetic":
         n = p.frames
     elif p.kind == "folder":
-        n = len(_folder_files(Path(base_dir, p.path)))
+        n = len(_indexed(_folder_files(Path(base_dir, p.path))))
     elif p.kind == "video":
         cap = cv2.VideoCapture(str(Path(base_dir, p.path)))
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0

@@ -1,0 +1,140 @@
+"""Bad input gets a clear error on the error topic, and the pipeline and the recording go on."""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.build import apply_defaults
+from pipeline.graph import load_graph
+from pipeline.inline import run_inline
+from pipeline.launcher import Launcher
+from pipeline.mcap_io import iter_records
+from pipeline.results import estimates, read_boxes
+from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+from stages.messages import ErrorReport, decode
+
+
+def _errors(path) -> list[ErrorReport]:
+    return [decode(r.data) for r in iter_records(path) if r.type == "ErrorReport"]
+
+
+def _crossing_copy(crossing: Path, tmp: Path, n: int = 30) -> Path:
+    out = tmp / "frames"
+    out.mkdir()
+    for i in range(n):
+        shutil.copy(crossing / "frames" / f"{i:06d}.jpg", out / f"{i:06d}.jpg")
+    return out
+
+
+def test_corrupt_and_missing_images_in_a_folder(crossing, tmp_path, gflow_cmd):
+    frames = _crossing_copy(crossing, tmp_path)
+    (frames / "000010.jpg").write_bytes(b"\xff\xd8 this is not a jpeg")
+    (frames / "000015.jpg").unlink()
+    init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
+    rec = tmp_path / "run.mcap"
+    out = subprocess.run([*gflow_cmd, "track", str(frames), "--init", init, "--out", str(tmp_path / "b.csv"),
+                          "--record", str(rec), "-q"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    errs = _errors(rec)
+    texts = [f"{e.stage}:{e.kind}:{e.message}" for e in errs]
+    assert any("source:missing_frame" in t and "000010.jpg" in t for t in texts), texts
+    assert any("source:missing_frame" in t and "frame 15" in t for t in texts), texts
+    est = estimates(rec)
+    # every frame has an estimate; the two lost ones coasted on the dynamics
+    assert sorted(est) == list(range(30))
+    assert est[10].state == "coast" and est[15].state == "coast" and est[20].state == "track"
+
+
+def test_truncated_video(crossing, tmp_path, gflow_cmd):
+    video = tmp_path / "clip.avi"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (360, 240))
+    assert w.isOpened(), "OpenCV cannot write MJPG video here"
+    for i in range(40):
+        w.write(cv2.imread(str(crossing / "frames" / f"{i:06d}.jpg")))
+    w.release()
+    data = video.read_bytes()
+    video.write_bytes(data[: int(len(data) * 0.5)])
+    init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
+    rec = tmp_path / "run.mcap"
+    out = subprocess.run([*gflow_cmd, "track", str(video), "--init", init, "--out", str(tmp_path / "b.csv"),
+                          "--record", str(rec), "-q", "--inline"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    est = estimates(rec)
+    assert 5 <= len(est) < 40  # what could be decoded was tracked
+    msgs = [e.message for e in _errors(rec)]
+    assert any("truncated or corrupt" in m for m in msgs), msgs
+
+
+def test_malformed_messages_injected_on_a_live_topic(tmp_path):
+    port = free_port()
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 45, "realtime": True, "fps": 30},
+                                                        "filter": {"particles": 200}}))
+    rec = tmp_path / "run.mcap"
+    launcher = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",)), recording=str(rec),
+                        progress=False)
+    result = {}
+    t = threading.Thread(target=lambda: result.setdefault("r", launcher.run()))
+    t.start()
+    deadline = time.monotonic() + 60
+    while not (launcher.status.get("source") and launcher.status["source"].state == "running"):
+        assert time.monotonic() < deadline, "pipeline did not start"
+        time.sleep(0.05)
+    s = open_session(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)))
+    bus = Bus(s)
+    time.sleep(0.5)  # let the injector's declarations reach every peer
+    bus.publish("gflow/demo/features", b"\x01\x02 not msgpack", 5)
+    bus.publish("gflow/demo/proposals", b"\x81\xa4type\xa5Frame", 6)  # a tag with no body
+    s.close()
+    t.join(120)
+    r = result["r"]
+    assert r.ok, r.exits
+    kinds = {(e.stage, e.kind) for e in _errors(rec)}
+    assert ("filter", "malformed_message") in kinds, kinds
+    # the pipeline carried on: every frame was tracked, and the garbage itself was recorded
+    assert sorted(estimates(rec)) == list(range(45))
+    raw = [r.data for r in iter_records(rec) if r.topic == "gflow/demo/features" and r.type == "unknown"]
+    assert b"\x01\x02 not msgpack" in raw
+
+
+def test_graph_with_a_typo_fails_before_launch(tmp_path, gflow_cmd):
+    text = (Path(__file__).parent.parent / "pipeline" / "graphs" / "demo.yaml").read_text()
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(text.replace("kind: particle.filter", "kind: particle.filtre"))
+    out = subprocess.run([*gflow_cmd, "run", str(bad)], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "bad.yaml:" in out.stderr and "particle.filtre" in out.stderr and "known:" in out.stderr
+
+
+def test_nan_and_wrong_shape_features_make_the_filter_coast():
+    from stages.base import StageContext
+    from stages.messages import Features, Header, NDArray
+    from stages.particle_filter import FilterParams, FilterStage
+
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 3}}))
+    r = run_inline(plan, recording=None)
+    assert r.frames == 3
+    st = FilterStage(FilterParams(init=(10, 10, 20, 20), particles=50), StageContext("filter", "t"))
+    e = np.zeros((60, 60), np.uint8)
+    e[10:30, 10] = 255
+    from gflow_core.features import chamfer_image
+
+    good = Features(Header("t", 0, 0), NDArray.of(e), NDArray.of(e), NDArray.of(chamfer_image(e)), "truncated", 100.0)
+    outs = dict(st.step(0, {"features": good, "proposals": None}))
+    nan = np.full((60, 60), np.nan, np.float32)
+    bad = Features(Header("t", 1, 0), NDArray.of(e), NDArray.of(e), NDArray.of(nan), "truncated", 100.0)
+    from stages.messages import Particles
+
+    prop = outs["particles"]
+    prop = Particles(Header("t", 1, 0), "proposal", prop.alpha, prop.k, prop.log_w)
+    outs2 = dict(st.step(1, {"features": bad, "proposals": prop}))
+    assert outs2["estimate"].state == "coast"
+    reports = st.drain_reports()
+    assert reports and reports[0][0] == "bad_features" and "non-finite" in reports[0][1]

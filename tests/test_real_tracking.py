@@ -1,0 +1,44 @@
+"""Real video: `gflow track` then `gflow eval` on ../shared/data sequences. The bounds are
+ones a broken tracker fails: each must beat a box that never moves by a wide margin."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import pytest
+
+from gflow_core.metrics import score
+from pipeline.results import read_boxes
+
+
+def _track_and_eval(seq_dir, tmp_path, gflow_cmd, extra=()):
+    gt = read_boxes(seq_dir / "groundtruth.csv")
+    init = ",".join(str(v) for v in gt[min(gt)])
+    pred = tmp_path / "boxes.csv"
+    out = subprocess.run([*gflow_cmd, "track", str(seq_dir), "--init", init, "--out", str(pred),
+                          "--record", str(tmp_path / "run.mcap"), "-q", *extra],
+                         capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    ev = subprocess.run([*gflow_cmd, "eval", "--gt", str(seq_dir / "groundtruth.csv"), "--pred", str(pred), "--json"],
+                        capture_output=True, text=True, timeout=60)
+    assert ev.returncode == 0, ev.stderr
+    res = json.loads(ev.stdout)
+    still = score(gt, {k: gt[min(gt)] for k in gt})
+    print(f"{seq_dir.name}: CLE {res['cle_px']:.2f} px, success {res['success_rate_0.5']:.3f} "
+          f"(box that never moves: CLE {still.cle:.1f}, success {still.success:.2f})")
+    return res, still
+
+
+def test_caviar1_multi_process(caviar1, tmp_path, gflow_cmd):
+    res, still = _track_and_eval(caviar1, tmp_path, gflow_cmd)
+    assert res["frames"] == 382 and res["missing_predictions"] == 0
+    assert res["cle_px"] < 5.0 and res["success_rate_0.5"] > 0.9
+    assert res["cle_px"] < still.cle / 5
+
+
+def test_crossing_inline(crossing, tmp_path, gflow_cmd):
+    res, still = _track_and_eval(crossing, tmp_path, gflow_cmd, extra=("--inline",))
+    assert res["frames"] == 120 and res["missing_predictions"] == 0
+    assert res["cle_px"] < still.cle / 2.5
+    assert res["success_rate_0.5"] > 3 * still.success
