@@ -53,6 +53,10 @@ class LaunchResult:
     peak_rss_mb: dict[str, float] = field(default_factory=dict)
 
 
+class _StageLost(Exception):
+    """A stage died and the graph does not restart it."""
+
+
 class _Proc:
     def __init__(self, name: str, popen: subprocess.Popen) -> None:
         self.name = name
@@ -276,6 +280,10 @@ class Launcher:
                             running = True
                             continue
                         ok = False
+                        self._record_exit(n)
+                        # the graph cannot go on without it: stop the others cleanly
+                        self._print(f"stopping the pipeline: {n} is not restarted (restart: {sp.restart})")
+                        raise _StageLost(n)
                     self._record_exit(n)
                 if self.on_status is not None:
                     with self._lock:
@@ -292,9 +300,11 @@ class Launcher:
                     break
                 time.sleep(0.05)
             interrupted = False
-        except KeyboardInterrupt:
-            interrupted = True
-            self._print("stopping: asking every stage to finish")
+        except (KeyboardInterrupt, _StageLost) as e:
+            interrupted = isinstance(e, KeyboardInterrupt)
+            ok = ok and interrupted
+            if interrupted:
+                self._print("stopping: asking every stage to finish")
             self._signal_all(workers, signal.SIGINT)
             if not self._wait(workers, 10.0):
                 self._signal_all(workers, signal.SIGKILL)

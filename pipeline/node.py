@@ -39,6 +39,8 @@ __all__ = ["main", "run_node"]
 
 log = logging.getLogger("gflow.node")
 
+FLOW_STALL_S = 1.0
+
 
 class Node:
     def __init__(self, plan: Plan, name: str) -> None:
@@ -63,6 +65,7 @@ class Node:
         self.flow_window = int(self.sp.params.get("max_ahead", 0)) if self.sp.is_source() else 0
         self.flow_stages = {n for n, s in plan.stages.items() if s.kind != "recorder" and not s.is_source()}
         self.progress_of: dict[str, int] = {}
+        self.first_pid: dict[str, int] = {}
         self.progress_changed = threading.Event()
         self._last_status = 0.0
         # every worker reports progress quickly when some source applies flow control
@@ -75,7 +78,12 @@ class Node:
             try:
                 st = decode(payload)
                 if isinstance(st, StageStatus):
-                    self.progress_of[other] = st.last_seq if st.state != "done" else 1 << 60
+                    first_pid = self.first_pid.setdefault(other, st.pid)
+                    if st.state == "done" or (st.pid != first_pid and st.last_seq < 0):
+                        # finished, or restarted and not yet caught up: do not hold the source back
+                        self.progress_of[other] = 1 << 60
+                    else:
+                        self.progress_of[other] = st.last_seq
                     self.progress_changed.set()
             except ValueError:
                 pass
@@ -192,12 +200,7 @@ class Node:
                 delay = due - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
-            while self.flow_window and not self.stop.is_set():
-                slowest = min((self.progress_of.get(n, -1) for n in self.flow_stages), default=1 << 60)
-                if raw.index - slowest <= self.flow_window:
-                    break
-                self.progress_changed.clear()
-                self.progress_changed.wait(0.05)
+            self._flow_wait(raw.index)
             outs = stage.emit(raw)
             host._flush_reports()
             host._emit(outs)
@@ -207,6 +210,25 @@ class Node:
             host.stats.last_step_ns = now
         host.close("end")
         return 0
+
+    def _flow_wait(self, index: int) -> None:
+        """Stay at most ``max_ahead`` frames in front of the slowest stage. A stage that makes
+        no progress for FLOW_STALL_S (it lost frames while restarting, say, and waits for a
+        later one to tell it so) does not hold the source back forever."""
+        stalled_since = time.monotonic()
+        last = None
+        while self.flow_window and not self.stop.is_set():
+            slowest = min((self.progress_of.get(n, -1) for n in self.flow_stages), default=1 << 60)
+            if index - slowest <= self.flow_window:
+                return
+            if slowest != last:
+                last, stalled_since = slowest, time.monotonic()
+            elif time.monotonic() - stalled_since > FLOW_STALL_S:
+                log.warning("[%s] flow control: no progress past frame %d for %.1f s; sending frame %d anyway",
+                            self.name, slowest, FLOW_STALL_S, index)
+                return
+            self.progress_changed.clear()
+            self.progress_changed.wait(0.05)
 
     def _run_stage(self) -> int:
         host = self.host

@@ -1,0 +1,109 @@
+"""Supervision (a stage killed mid-run), live inspection (topics / echo / hz) and replay,
+against a real multi-process pipeline on loopback."""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from pipeline.build import apply_defaults
+from pipeline.graph import parse_graph
+from pipeline.launcher import Launcher
+from pipeline.mcap_io import iter_records
+from pipeline.results import estimates
+from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+
+DEMO = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "demo.yaml").read_text()
+
+
+def _start(tmp_path, frames=60, fps=30, graph=DEMO):
+    plan = apply_defaults(parse_graph(graph, "demo.yaml", overrides={
+        "source": {"frames": frames, "realtime": True, "fps": fps}, "filter": {"particles": 200}}))
+    port = free_port()
+    rec = tmp_path / "run.mcap"
+    launcher = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",)), recording=str(rec),
+                        progress=False)
+    result: dict = {}
+    th = threading.Thread(target=lambda: result.setdefault("r", launcher.run()), daemon=True)
+    th.start()
+    deadline = time.monotonic() + 60
+    while not (launcher.status.get("source") and launcher.status["source"].state == "running"):
+        assert time.monotonic() < deadline, "pipeline did not start"
+        time.sleep(0.02)
+    return launcher, th, result, port, rec
+
+
+def _wait_steps(launcher, stage, n, timeout=30):
+    deadline = time.monotonic() + timeout
+    while not (launcher.status.get(stage) and launcher.status[stage].steps >= n):
+        assert time.monotonic() < deadline, f"{stage} did not reach {n} steps"
+        time.sleep(0.02)
+
+
+def test_a_killed_stage_is_reported_and_restarted(tmp_path):
+    graph = DEMO.replace("    inputs: {frames: frames}\n", "    inputs: {frames: frames}\n    restart: on-failure\n")
+    launcher, th, result, _, rec = _start(tmp_path, frames=90, graph=graph)
+    _wait_steps(launcher, "preprocess", 20)
+    os.kill(launcher.pids["preprocess"][0], signal.SIGKILL)
+    th.join(120)
+    r = result["r"]
+    assert r.ok, r.exits
+    assert len(r.pids["preprocess"]) == 2 and r.exits["preprocess"].restarts == 1
+    est = estimates(rec)
+    # frames lost while preprocess was down coast; the stream reached its end
+    assert max(est) == 89 and est[89].state == "track"
+    assert any(e.state == "coast" for e in est.values())
+
+
+def test_a_stage_that_dies_for_good_stops_the_run_and_the_recording_closes(tmp_path, capsys):
+    launcher, th, result, _, rec = _start(tmp_path, frames=300)
+    _wait_steps(launcher, "proposal", 10)
+    os.kill(launcher.pids["proposal"][0], signal.SIGKILL)
+    th.join(120)
+    assert not th.is_alive(), "the launcher hung after a stage died"
+    r = result["r"]
+    assert not r.ok and r.exits["proposal"].returncode == -signal.SIGKILL
+    with open(rec, "rb") as f:  # closed properly: the summary is there
+        assert make_reader(f).get_summary() is not None
+
+
+def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
+    launcher, th, result, port, rec = _start(tmp_path, frames=90)
+    conn = ["--connect", f"tcp/127.0.0.1:{port}"]
+    echo = subprocess.run([*gflow_cmd, "echo", "gflow/demo/estimate", "-n", "3", "--timeout", "20", *conn],
+                          capture_output=True, text=True, timeout=60)
+    assert echo.returncode == 0, echo.stderr
+    lines = [ln for ln in echo.stdout.splitlines() if ln.startswith("gflow/demo/estimate: Estimate seq=")]
+    assert len(lines) == 3, echo.stdout
+    hz = subprocess.run([*gflow_cmd, "hz", "gflow/demo/frames", "--duration", "1.5", *conn],
+                        capture_output=True, text=True, timeout=60)
+    assert hz.returncode == 0 and " Hz over " in hz.stdout, hz.stdout + hz.stderr
+    rate = float(hz.stdout.split(": ")[1].split(" Hz")[0])
+    assert 15 < rate < 45  # the source plays at 30 fps in real time
+    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "1.0", *conn], capture_output=True, text=True, timeout=60)
+    assert "gflow/demo/features" in topics.stdout and "Features" in topics.stdout
+    th.join(120)
+    assert result["r"].ok
+
+    # replay the recording on a fresh network; a subscriber gets every payload byte for byte
+    port2 = free_port()
+    s = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port2}",)))
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    Bus(s).subscribe("gflow/demo/estimate", lambda k, p, ns, seq: q.put(p))
+    rp = subprocess.run([*gflow_cmd, "replay", str(rec), "--max", "--topics", "gflow/demo/estimate",
+                         "--connect", f"tcp/127.0.0.1:{port2}"], capture_output=True, text=True, timeout=120)
+    assert rp.returncode == 0, rp.stderr
+    time.sleep(0.3)
+    got = []
+    while not q.empty():
+        got.append(q.get())
+    s.close()
+    want = [r.data for r in iter_records(rec, topics=["gflow/demo/estimate"])]
+    assert got == want
