@@ -75,8 +75,10 @@ def test_a_stage_that_dies_for_good_stops_the_run_and_the_recording_closes(tmp_p
 
 
 def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
-    launcher, th, result, port, rec = _start(tmp_path, frames=90)
+    launcher, th, result, port, rec = _start(tmp_path, frames=240)
     conn = ["--connect", f"tcp/127.0.0.1:{port}"]
+    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "1.5", *conn], capture_output=True, text=True, timeout=60)
+    assert "gflow/demo/features" in topics.stdout and "Features" in topics.stdout, topics.stdout
     echo = subprocess.run([*gflow_cmd, "echo", "gflow/demo/estimate", "-n", "3", "--timeout", "20", *conn],
                           capture_output=True, text=True, timeout=60)
     assert echo.returncode == 0, echo.stderr
@@ -87,8 +89,6 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
     assert hz.returncode == 0 and " Hz over " in hz.stdout, hz.stdout + hz.stderr
     rate = float(hz.stdout.split(": ")[1].split(" Hz")[0])
     assert 15 < rate < 45  # the source plays at 30 fps in real time
-    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "1.0", *conn], capture_output=True, text=True, timeout=60)
-    assert "gflow/demo/features" in topics.stdout and "Features" in topics.stdout
     th.join(120)
     assert result["r"].ok
 
