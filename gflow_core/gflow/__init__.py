@@ -36,6 +36,7 @@ from .head_model import (
     fit_head_to_box,
     model_from_arrays,
     model_to_arrays,
+    pose_for_box,
 )
 
 __all__ = [
@@ -61,6 +62,7 @@ __all__ = [
     "model_from_arrays",
     "model_to_arrays",
     "pose_names",
+    "pose_for_box",
     "pose_size",
     "project",
     "propose",

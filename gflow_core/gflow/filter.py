@@ -35,15 +35,15 @@ Departures from the paper
 * Vertices outside the image sample the replicated border (see :mod:`.image`).
 * Self-occlusion is not modelled (every vertex is assumed visible, as in the paper's
   one-to-one ``a_v``).
-* See also :mod:`.pose_opinion` (Gauss-Newton safeguards, ``alpha = 0``),
-  :mod:`.texture` (``object_mask="hull"``) and :mod:`.credibility` (systematic
-  resampling).
+* See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
+  default, safeguards, ``alpha = 0``), :mod:`.texture` (``object_mask="hull"`` with a
+  margin) and :mod:`.credibility` (systematic resampling).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
@@ -129,12 +129,16 @@ class GFlowConfig:
     background : bool
         Use the background texture model. False = uninformative background (the
         background terms are dropped), as in the paper's experiments (sec. 5).
+    gn_background : bool
+        Gauss-Newton includes the first background term of eq. 14, as in the paper
+        (sec. 3.2.2). Default False: foreground and prior only; see :mod:`.pose_opinion`.
     object_mask : {"hull", "vertices"}
         Pixels rendered by the object, excluded from the background update (:mod:`.texture`).
     object_mask_margin : float
         With ``"hull"``: the hull is enlarged by this fraction about its centre, so that
         object pixels outside the mesh's vertices (e.g. the rim of a head whose mesh
-        covers only its front) are not learned as background.
+        covers only its front) and the object's edge under a slightly wrong pose are
+        not learned as background (see :mod:`.texture`).
     prior_std_rotation : float or (3,)
         Std of the pose random walk per frame, rotation (radians, body frame).
     prior_std_translation : float or (2,)
@@ -157,10 +161,11 @@ class GFlowConfig:
     b_init_var: float = 1e-3
     unknown_var: float = 1.0
     background: bool = False
+    gn_background: bool = False
     object_mask: str = "hull"
-    object_mask_margin: float = 0.0
-    prior_std_rotation: float | tuple[float, ...] = 0.05
-    prior_std_translation: float | tuple[float, ...] = 5.0
+    object_mask_margin: float = 0.2
+    prior_std_rotation: float | tuple[float, ...] = 0.1
+    prior_std_translation: float | tuple[float, ...] = 10.0
     prior_std_coefficients: float | tuple[float, ...] = 2.0
     resample_ess_fraction: float = 1.0
 
@@ -184,6 +189,8 @@ class GFlowConfig:
             raise ValueError(f"unknown_var must be finite and > 0, got {self.unknown_var!r}")
         if not isinstance(self.background, (bool, np.bool_)):
             raise ValueError(f"background must be True or False, got {self.background!r}")
+        if not isinstance(self.gn_background, (bool, np.bool_)):
+            raise ValueError(f"gn_background must be True or False, got {self.gn_background!r}")
         if self.object_mask not in ("hull", "vertices"):
             raise ValueError(f"object_mask must be 'hull' or 'vertices', got {self.object_mask!r}")
         if not (math.isfinite(self.object_mask_margin) and self.object_mask_margin >= 0.0):
@@ -385,13 +392,7 @@ def init_state(
     tex_var = np.where(st.inside, cfg.v_init_var, cfg.unknown_var)
     bg_mean = bg_var = None
     if cfg.background:
-        bg_mean = np.empty((E,) + img.shape)
-        bg_mean[:] = img
-        bg_var = np.full((E,) + img.shape, cfg.b_init_var)
-        for e in range(E):
-            bg_var[e][object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin)] = cfg.unknown_var
-        _ro(bg_mean)
-        _ro(bg_var)
+        bg_mean, bg_var = initial_background(model, poses, img, cfg)
     return ExpertState(
         poses=_ro(poses),
         tex_mean=_ro(tex_mean),
@@ -463,8 +464,10 @@ def propose(
     prior_std = cfg.prior_std(model.n_bases)
     prev = state.poses[idx]
     tv = _texture_view(state, idx, cfg)
-    # u_hat = argmin eq. 14 (Gauss-Newton, second background term ignored)
-    gn = gauss_newton_peak(model.bases, fd, prev, tv, cfg.sigma_w, prior_std, cfg.gn_iterations)
+    # u_hat = argmin eq. 14 (Gauss-Newton; second background term ignored, first one too unless gn_background)
+    gn = gauss_newton_peak(
+        model.bases, fd, prev, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, use_background=cfg.gn_background
+    )
     # u^(d,e) ~ g(. | u_hat, alpha Sigma_hat),  Sigma_hat = inverse Hessian of eq. 14
     samples, log_g, sigma_hat = laplace_proposal(gn.u_hat, gn.hessian, cfg.alpha, cfg.n_samples, rngs)
     log_prior = log_pose_prior(prev, samples, prior_std)
@@ -566,12 +569,8 @@ def update(
     )
     bg_mean = bg_var = None
     if state.bg_mean is not None:
-        bg_mean = state.bg_mean[parents]  # new arrays (fancy indexing copies)
-        bg_var = state.bg_var[parents]  # type: ignore[index]
-        masks = [object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin) for e in range(E)]
-        background_predict_update(bg_mean, bg_var, img, cfg.psi_b, cfg.sigma_w, masks)
-        _ro(bg_mean)
-        _ro(bg_var)
+        assert state.bg_var is not None
+        bg_mean, bg_var = advance_background(state.bg_mean, state.bg_var, poses, parents, img, model, cfg)
     mean_pts = project(model.bases, mean_pose)
     W = np.exp(new_log_cred)
     d2 = np.sum((pts - mean_pts[None]) ** 2, axis=-1).mean(axis=-1)
@@ -598,6 +597,63 @@ def update(
         resampled=resampled,
     )
     return new_state, est
+
+
+def initial_background(model: MorphableModel, poses: np.ndarray, frame: np.ndarray,
+                       cfg: GFlowConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Background texels at the first frame: the frame itself with variance ``b_init_var``,
+    except under each expert's object, ``unknown_var``.
+
+    Parameters
+    ----------
+    poses : (E, P) float64, the experts' first poses.
+    frame : (H, W) float64 in [0, 1]
+
+    Returns
+    -------
+    bg_mean, bg_var : (E, H, W) float64, read-only.
+    """
+    img = validate_frame(frame)
+    pts = project(model.bases, poses)
+    E = poses.shape[0]
+    bg_mean = np.empty((E,) + img.shape)
+    bg_mean[:] = img
+    bg_var = np.full((E,) + img.shape, cfg.b_init_var)
+    for e in range(E):
+        bg_var[e][object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin)] = cfg.unknown_var
+    return _ro(bg_mean), _ro(bg_var)
+
+
+def advance_background(bg_mean: np.ndarray, bg_var: np.ndarray, poses: np.ndarray, parents: np.ndarray,
+                       frame: np.ndarray, model: MorphableModel, cfg: GFlowConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Background texels at ``t`` from those at ``t - 1`` (sec. 3.1, eq. 7-10).
+
+    Each new expert ``e`` starts from its parent's background ``parents[e]``, which is
+    predicted (eq. 9, 10) and updated with ``frame`` outside the object it renders at
+    ``poses[e]`` (eq. 7, 8). This needs only the parents, the new poses and the frame, so a
+    proposal process can keep its own bit-identical copy of the backgrounds instead of
+    receiving (E, H, W) arrays every frame.
+
+    Parameters
+    ----------
+    bg_mean, bg_var : (E, H, W) float64, posterior at ``t - 1``.
+    poses : (E, P) float64, ``u_t`` of the new experts.
+    parents : (E,) int64
+    frame : (H, W) float64 in [0, 1], ``y_t``.
+
+    Returns
+    -------
+    bg_mean, bg_var : (E, H, W) float64 at ``t``, read-only, new arrays.
+    """
+    img = validate_frame(frame, shape=bg_mean.shape[1:])
+    pts = project(model.bases, poses)
+    masks = [object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin) for e in range(poses.shape[0])]
+    # each child: its parent's background, predicted (eq. 9, 10) and updated (eq. 7, 8)
+    mean, var = background_predict_update(
+        bg_mean, bg_var, img, cfg.psi_b, cfg.sigma_w, masks, parents=np.asarray(parents),
+        out=(np.empty_like(bg_mean), np.empty_like(bg_mean)),
+    )
+    return _ro(mean), _ro(var)
 
 
 def step(

@@ -287,13 +287,15 @@ def projection_jacobian(bases: np.ndarray, poses: np.ndarray) -> np.ndarray:
     g_r = rotation_matrices(poses)[:, :2, :]  # (E, 2, 3)
     s = shape_vertices(bases, poses[:, COEF])  # (E, n, 3)
     J = np.zeros((E, n, 2, P))
-    # dx_i/dd_w = -g r [s_i]x
-    J[..., ROT] = -(g_r[:, None] @ skew(s))
+    # dx_i/dd_w = -g r [s_i]x ; row a of -r [s]x is s x r_a (r_a = row a of r)
+    J[:, :, 0, ROT] = np.cross(s, g_r[:, None, 0, :])
+    J[:, :, 1, ROT] = np.cross(s, g_r[:, None, 1, :])
     # dx_i/dd_l = I_2
     J[:, :, 0, 3] = 1.0
     J[:, :, 1, 4] = 1.0
-    # dx_i/dd_c = g r h_i
-    J[..., COEF] = g_r[:, None] @ bases[None]
+    # dx_i/dd_c = g r h_i :  (E, 2, 3) @ (3, n*k) -> (E, 2, n, k)
+    hc = (g_r @ bases.transpose(1, 0, 2).reshape(3, n * k)).reshape(E, 2, n, k)
+    J[..., COEF] = hc.transpose(0, 2, 1, 3)
     return J
 
 

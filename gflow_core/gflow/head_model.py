@@ -54,6 +54,7 @@ __all__ = [
     "model_to_arrays",
     "model_from_arrays",
     "bounding_box",
+    "pose_for_box",
 ]
 
 #: Version of the model array format written by :func:`model_to_arrays`.
@@ -297,6 +298,47 @@ def fit_head_model_to_box(
     """
     head, pose0 = fit_head_to_box(box, image_shape, **kwargs)
     return head.model(), pose0
+
+
+def pose_for_box(
+    model: MorphableModel,
+    box: np.ndarray,
+    image_shape: tuple[int, int],
+    coefficients: np.ndarray | None = None,
+) -> np.ndarray:
+    """Initial pose placing any morphable model (e.g. a user-supplied one) in a box.
+
+    Identity rotation; coefficients ``s * c0`` with ``c0`` = ``coefficients`` (default
+    ``(1, 0, ..., 0)``) and the scale ``s`` fitting the projected bounding box's width
+    and height to the box's in the least-squares sense; translation putting the
+    bounding box's centre at the box's centre. Exact when the aspect ratios agree.
+
+    Parameters
+    ----------
+    model : MorphableModel
+    box : (4,) float64
+        ``(x, y, w, h)`` pixels, top-left corner, origin at the top-left pixel centre.
+    image_shape : (H, W)
+    coefficients : (k,) float64, optional
+
+    Returns
+    -------
+    (5 + k,) float64
+    """
+    b = validate_box(box, image_shape)
+    k = model.n_bases
+    c0 = np.zeros(k) if coefficients is None else np.asarray(coefficients, dtype=np.float64).reshape(-1)
+    if coefficients is None:
+        c0[0] = 1.0
+    if c0.shape != (k,) or not np.isfinite(c0).all():
+        raise ValueError(f"coefficients must be {k} finite numbers, got {coefficients!r}")
+    bb = bounding_box(project(model.bases, make_pose(None, [0.0, 0.0], c0)))
+    bw, bh = bb[2], bb[3]
+    if bw <= 0 and bh <= 0:
+        raise ValueError("the model projects to a single point with these coefficients")
+    s = (b[2] * bw + b[3] * bh) / (bw * bw + bh * bh)
+    centre = bb[:2] + bb[2:] / 2
+    return make_pose(None, b[:2] + b[2:] / 2 - s * centre, s * c0)
 
 
 def bounding_box(points: np.ndarray) -> np.ndarray:

@@ -4,7 +4,11 @@ The head (:class:`.head_model.EllipsoidHead`) is rendered exactly under weak
 perspective (orthographic projection scaled by ``c``, eq. 1) by casting one ray per
 pixel (optionally several per pixel, averaged) against the ellipsoid with semi-axes
 ``a * (stretch @ c)`` (pixels), rotation ``r`` and translation ``l``; the nearest
-intersection is the visible surface. Its texture is a smooth function of the
+intersection is the visible surface. By default only the patch of the surface that
+the model's vertex grid covers (plus a 5 degree margin) is drawn -- a textured
+"face mask" -- so that the object is what the model describes (the paper's
+generative model has no object pixels outside its vertices); the whole ellipsoid
+can be drawn instead. Its texture is a smooth function of the
 unit-sphere direction ``q`` of the surface point (so it moves with the surface), and
 it may drift over time (texture change, the ``Psi_v`` of eq. 4). Everything else is
 the background image. Gaussian pixel noise (``W_t`` of eq. 4) comes from an explicit
@@ -87,6 +91,7 @@ def render_head(
     noise_std: float = 0.0,
     supersample: int = 2,
     patch_only: bool = True,
+    patch_margin_deg: float = 5.0,
 ) -> np.ndarray:
     """Render the head at ``pose`` over ``background``.
 
@@ -110,6 +115,9 @@ def render_head(
         (``|lon| <= lon_max``, ``|lat| <= lat_max``), a textured "face mask", so that
         every object pixel lies inside the mesh (the paper's model: the object is its
         vertices). False renders the whole ellipsoid.
+    patch_margin_deg : float
+        The rendered patch extends this far (degrees of longitude / latitude) beyond
+        the vertex grid, so the outermost vertices lie inside the object.
 
     Returns
     -------
@@ -146,7 +154,9 @@ def render_head(
                 # q = (sin(lon) cos(lat), sin(lat), -cos(lon) cos(lat))
                 lon = np.degrees(np.arctan2(q[..., 0], -q[..., 2]))
                 lat = np.degrees(np.arcsin(np.clip(q[..., 1], -1.0, 1.0)))
-                hit &= (np.abs(lon) <= head.lon_max_deg) & (np.abs(lat) <= head.lat_max_deg)
+                hit &= (np.abs(lon) <= head.lon_max_deg + patch_margin_deg) & (
+                    np.abs(lat) <= head.lat_max_deg + patch_margin_deg
+                )
             acc += np.where(hit, texture(q, t), background)
     img = acc / supersample**2
     if noise_std > 0:

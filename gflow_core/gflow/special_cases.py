@@ -12,9 +12,13 @@ Direct, independent implementations used to check that G-flow reduces to them:
   a fixed template. G-flow reduces to it with ``Var(V_1) = 0`` and ``Psi_v = 0``
   (:func:`template_matching_config`): the texture never changes.
 
-The direct solvers take plain Gauss-Newton steps (least squares on the stacked
-residual Jacobian), without G-flow's step control; at convergence they reach the
-same stationary point.
+The direct solvers are written separately from G-flow (least squares on the stacked
+residual Jacobian of eq. 21 / 22, the template read straight from the previous frame)
+but use the same step rule as G-flow's Gauss-Newton (:mod:`.pose_opinion`): a step
+is kept only if it lowers the sum of squares, otherwise the step length is halved.
+Plain Gauss-Newton with the central-difference image gradient does not stop at the
+minimum of the sampled objective, so without the same rule the two would stop at
+different points of the flat rotation/translation valley.
 """
 
 from __future__ import annotations
@@ -53,18 +57,28 @@ def template_matching(
     (P,) float64
     """
     fd = prepare_frame(frame)
+    template = np.asarray(template, dtype=np.float64)
+
+    def residuals(u: np.ndarray) -> np.ndarray:
+        # y_t(x_i(u)) - mu_1(i)
+        return _sample(fd.image, project(bases, u[None]))[0] - template
+
     u = np.asarray(pose_init, dtype=np.float64).copy()
+    r = residuals(u)
+    step = 1.0
     for _ in range(int(n_iter)):
-        x = project(bases, u[None])  # (1, n, 2)
-        st = bilinear_stencil(x, fd.shape)
-        y = st.sample(fd.flat)[0]
+        st = bilinear_stencil(project(bases, u[None]), fd.shape)
         gx, gy = st.sample_gradient_images(fd)
         J = projection_jacobian(bases, u[None])[0]  # (n, 2, P)
         Jr = gx[0, :, None] * J[:, 0, :] + gy[0, :, None] * J[:, 1, :]
-        r = y - template
-        # Gauss-Newton: delta = argmin |r + J delta|^2
+        # Gauss-Newton: delta = argmin_d |r + J d|^2
         delta = np.linalg.lstsq(Jr, -r, rcond=None)[0]
-        u = box_plus(u, delta)
+        cand = box_plus(u, step * delta)
+        rc = residuals(cand)
+        if rc @ rc <= r @ r:
+            u, r, step = cand, rc, min(1.0, 2.0 * step)
+        else:
+            step *= 0.5
     return u
 
 

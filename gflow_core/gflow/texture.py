@@ -19,9 +19,16 @@ inside the image; background texel ``j`` is observed unless pixel ``j`` is rende
 by the object (``a_b = I - a_v a_v^T``, sec. 2). The *object mask* used for the
 background update is either the paper's literal set ``X(u)`` (the pixels nearest the
 projected vertices, ``"vertices"``) or the filled convex hull of the projected
-vertices (``"hull"``). ``"hull"`` departs from the paper: object pixels between
-sparse vertices are treated as unobserved by the background rather than as
-background observations, so the background texture does not learn the object.
+vertices (``"hull"``), optionally enlarged by a margin about its centre. ``"hull"``
+departs from the paper: object pixels between sparse vertices (and, with a margin,
+pixels just around the object) are treated as unobserved by the background rather
+than as background observations, so the background texture does not learn the
+object. The margin matters: when the chosen pose lags the object by a pixel or two,
+the background otherwise learns the object's edge with a small variance, its
+vertices there are then explained by the background, and the object shrinks frame
+after frame (measured on a 320x240 synthetic sequence with 20 experts: mean
+rotation / translation error 17.4 deg / 12.2 px with no margin, 3.5 deg / 3.6 px with
+the default margin of 0.2).
 """
 
 from __future__ import annotations
@@ -144,33 +151,61 @@ def background_predict_update(
     psi_b: float,
     sigma_w: float,
     masks: list[np.ndarray],
-) -> None:
-    """In place: predict (eq. 9, 10) and update (eq. 7, 8) background texels of each expert.
+    parents: np.ndarray | None = None,
+    out: tuple[np.ndarray, np.ndarray] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Predict (eq. 9, 10) and update (eq. 7, 8) the background texels of each expert.
 
-    Works one expert at a time on ``(H, W)`` slices so that no ``(E, H, W)`` temporary is
-    made (memory: with 100 experts at 320x240 one such array is 61 MB).
+    Works one expert at a time on ``(H, W)`` slices so that no ``(E, H, W)``
+    temporary is made (with 100 experts at 320x240 one such array is 61 MB).
 
     Parameters
     ----------
-    mean, var : (E, H, W) float64
-        Posterior at ``t - 1``; overwritten with the posterior at ``t``.
+    mean, var : (R, H, W) float64
+        Posterior at ``t - 1``.
     frame : (H, W) float64
         ``y_t``.
     psi_b : float
         ``Psi_b``.
     sigma_w : float
     masks : list of E (H, W) bool
-        Object pixels ``X(u_t)`` of each expert: not observed by the background.
+        Object pixels ``X(u_t)`` of each (new) expert: not observed by the background.
+    parents : (E,) int, optional
+        New expert ``e`` starts from row ``parents[e]`` of ``mean`` / ``var``
+        (default: ``e``).
+    out : pair of (E, H, W) float64, optional
+        Where to write the posterior at ``t``; default: in place (``mean``, ``var``),
+        which requires ``parents`` to be None.
+
+    Returns
+    -------
+    mean, var : (E, H, W) float64
+        Posterior at ``t``.
     """
-    for e in range(mean.shape[0]):
-        m = mean[e]
-        v = var[e]
+    if out is None:
+        if parents is not None:
+            raise ValueError("background_predict_update: in-place update needs parents=None")
+        out = (mean, var)
+    new_mean, new_var = out
+    E = new_mean.shape[0]
+    if len(masks) != E:
+        raise ValueError(f"need one object mask per expert: got {len(masks)} for {E} experts")
+    gain = np.empty(frame.shape)
+    diff = np.empty(frame.shape)
+    for e in range(E):
+        p = e if parents is None else int(parents[e])
+        m0, m, v = mean[p], new_mean[e], new_var[e]
         # Var(B_t | u_{1:t-1}, y_{1:t-1}) = Var(B_{t-1} | ...) + Psi_b          (eq. 10)
-        v += psi_b
+        np.add(var[p], psi_b, out=v)
         # K = sigma / (sigma + sigma_w), 0 on object pixels (a_b = I - a_v a_v^T)
-        gain = v / (v + sigma_w)
+        np.add(v, sigma_w, out=gain)
+        np.divide(v, gain, out=gain)
         gain[masks[e]] = 0.0
         # mu' = mu + K (y - mu)                                                  (eq. 8)
-        m += gain * (frame - m)
+        np.subtract(frame, m0, out=diff)
+        diff *= gain
+        np.add(m0, diff, out=m)
         # sigma' = (1 - K) sigma  = (sigma^-1 + sigma_w^-1)^-1                   (eq. 7)
-        v *= 1.0 - gain
+        np.subtract(1.0, gain, out=gain)
+        v *= gain
+    return new_mean, new_var

@@ -8,16 +8,16 @@ exemplar, by "direct descent" on
 
 Here direct descent is a *compass (pattern) search* in beta = (ux, uy, theta, log s):
 each iteration polls the 8 points beta +- step_i e_i, moves to the best one if it
-lowers rho, and otherwise halves the step; it stops when every step is below
-``min_step``. It needs no gradients (rho need not be differentiable: chamfer distance,
+lowers rho, and otherwise halves the step; it stops when the step is below
+``min_step_ratio`` times the initial one. It needs no gradients (rho need not be differentiable: chamfer distance,
 shuffle distance) and is vectorised over many independent searches at once: all
 searches that are still running are polled in one call of the objective.
 
 Departures from the paper
 -------------------------
 * The chamfer distance is not symmetric: shrinking a curve onto a dense part of the
-  reference lowers rho(T_alpha a, b) without aligning anything (on caviar1 every item
-  ran to the scale bound). By default (``symmetric=True``) the descent therefore
+  reference lowers rho(T_alpha a, b) without aligning anything (on caviar1 the median
+  item ran to the scale bound of the directed search). By default (``symmetric=True``) the descent therefore
   minimises rho(T_alpha a, b) + rho(b, T_alpha a), which a shrunken or displaced curve
   cannot game; the *directed* rho(T_alpha a, b) at that alpha is what is returned and
   what the kernel statistics of sec. 4.2 use. For curves the reverse term is computed
@@ -176,7 +176,7 @@ def align_pairs(metric: Metric, moving: Items, fixed: Items, j: int, alpha0: np.
 
     b, _ = pattern_search(objective, b0, step, b0 - bounds, b0 + bounds, min_step_ratio)
     alpha = from_beta(b)
-    return alpha, forward(np.arange(n), alpha)
+    return alpha, forward(np.arange(n), alpha)[:, 0]
 
 
 def align_to_reference(metric: Metric, items: Items, reference: Items, j: int = 0,

@@ -6,13 +6,12 @@ relative to the item's reference point. A batch of N curves with different numbe
 points is stored padded to a common P, with the true lengths alongside.
 
 The chamfer image gamma(z, r) = min_s' g(|r_z(s') - r|) of a point set z (eq. 5) is
-built by rasterising the points onto a canvas ``upsample`` times finer than the pixel
-grid and taking OpenCV's exact Euclidean distance transform, so that a point set with
-sub-pixel coordinates (after centring or a similarity transform) is represented to
-1 / (2 upsample) pixel. Points that fall outside the canvas get the chamfer value
-g(u_edge + |r - clip(r)|), where u_edge is the distance at the nearest canvas point: an
-upper bound on the true distance that keeps gamma continuous and increasing off the
-canvas, so that direct descent (:mod:`.align`) never stalls on a flat plateau.
+built on a canvas ``upsample`` times finer than the pixel grid with OpenCV's labelled
+distance transform, which finds the nearest point of z; the distance to it is then
+computed exactly in floating point (:class:`PointChamferImage`), so point sets with
+sub-pixel coordinates (after centring or a similarity transform) keep their accuracy.
+Points off the canvas get an upper bound of the true distance that keeps increasing
+away from the canvas, so direct descent (:mod:`.align`) never stalls on a plateau.
 """
 
 from __future__ import annotations
@@ -171,6 +170,17 @@ def profile_g(u: np.ndarray, profile: str, g0: float) -> np.ndarray:
 class PointChamferImage:
     """Chamfer image gamma(z, .) of one point set z on an up-sampled canvas (eq. 5).
 
+    The canvas holds, for every canvas pixel, the label of its nearest *seed* (a canvas
+    pixel holding points of z) from OpenCV's labelled distance transform; each seed
+    keeps the mean of the points of z that fall in it (so z is resolved to one point per
+    canvas pixel, 1 / upsample image pixels). The distance at a query point r
+    is the exact Euclidean distance from r to the nearest of the seed points labelled at
+    the 4 canvas pixels around r. This avoids both the thickening of a rasterised curve
+    (a dense diagonal curve covers two canvas pixels, which would bias distances down by
+    a quarter of a canvas pixel) and the overshoot of bilinear interpolation across the
+    curve; points off the canvas use the labels at the nearest canvas pixels and get an
+    upper bound of the true distance.
+
     Parameters
     ----------
     points : (P, 2) float64
@@ -196,54 +206,58 @@ class PointChamferImage:
         pts = np.asarray(points, dtype=np.float64)
         if pts.ndim != 2 or pts.shape[1] != 2 or pts.shape[0] < 1:
             raise ValueError(f"point set must be (P, 2) with P >= 1, got shape {pts.shape}")
+        if not np.isfinite(pts).all():
+            raise ValueError("point set contains NaN or inf")
         self.profile = profile
         self.g0 = float(g0)
         self.up = int(upsample)
         self.lo = np.asarray(lo, dtype=np.float64)
         hi = np.asarray(hi, dtype=np.float64)
         # canvas pixel (col, row) = (r - lo) * up
-        w = int(np.ceil((hi[0] - self.lo[0]) * self.up)) + 1
-        h = int(np.ceil((hi[1] - self.lo[1]) * self.up)) + 1
+        w = max(int(np.ceil((hi[0] - self.lo[0]) * self.up)) + 1, 2)
+        h = max(int(np.ceil((hi[1] - self.lo[1]) * self.up)) + 1, 2)
         if max(w, h) > MAX_CANVAS:
             raise ValueError(f"chamfer canvas {w}x{h} is too large; are the curves centred on their reference point?")
         c = np.rint((pts - self.lo) * self.up).astype(np.intp)
         c[:, 0] = np.clip(c[:, 0], 0, w - 1)
         c[:, 1] = np.clip(c[:, 1], 0, h - 1)
-        inv = np.full((h, w), 255, dtype=np.uint8)
-        inv[c[:, 1], c[:, 0]] = 0
-        # distance in canvas pixels to the nearest point, then in image pixels
-        u = cv2.distanceTransform(inv, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64) / self.up
+        lin = c[:, 1] * w + c[:, 0]
+        # seeds in row-major order, which is OpenCV's DIST_LABEL_PIXEL numbering (1-based)
+        seeds, inv_idx = np.unique(lin, return_inverse=True)
+        cnt = np.bincount(inv_idx).astype(np.float64)
+        self._seed_x = np.bincount(inv_idx, weights=pts[:, 0]) / cnt
+        self._seed_y = np.bincount(inv_idx, weights=pts[:, 1]) / cnt
+        inv = np.full(h * w, 255, dtype=np.uint8)
+        inv[seeds] = 0
+        _, lab = cv2.distanceTransformWithLabels(inv.reshape(h, w), cv2.DIST_L2, cv2.DIST_MASK_5,
+                                                 labelType=cv2.DIST_LABEL_PIXEL)
+        self._lab = (lab.ravel() - 1).astype(np.intp)
         self.shape = (h, w)
-        self._u = u
-        self._gamma = profile_g(u, profile, self.g0)
 
     @property
     def gamma(self) -> np.ndarray:
-        """(H, W) float64 canvas of gamma values, indexed (row, col)."""
-        return self._gamma
+        """(H, W) float64 canvas of gamma values at the canvas pixel centres, indexed (row, col)."""
+        h, w = self.shape
+        rows, cols = np.mgrid[0:h, 0:w]
+        pts = np.stack([cols, rows], axis=-1) / self.up + self.lo
+        return self(pts)
 
     def u(self, pts: np.ndarray) -> np.ndarray:
-        """Distance (pixels) from points r to the nearest point of z, bilinear on the canvas.
-
-        (..., 2) -> (...) float64. Off the canvas: u(clip(r)) + |r - clip(r)|.
-        """
+        """Distance (pixels) from points r to the nearest point of z; (..., 2) -> (...) float64."""
         h, w = self.shape
-        q = (np.asarray(pts, dtype=np.float64) - self.lo) * self.up
-        x, y = q[..., 0], q[..., 1]
-        xc = np.clip(x, 0.0, w - 1.000001)
-        yc = np.clip(y, 0.0, h - 1.000001)
-        x0 = xc.astype(np.intp)
-        y0 = yc.astype(np.intp)
-        fx = xc - x0
-        fy = yc - y0
-        flat = self._u.ravel()
+        r = np.asarray(pts, dtype=np.float64)
+        rx, ry = r[..., 0], r[..., 1]
+        x0 = np.clip((rx - self.lo[0]) * self.up, 0, w - 2).astype(np.intp)
+        y0 = np.clip((ry - self.lo[1]) * self.up, 0, h - 2).astype(np.intp)
         i00 = y0 * w + x0
-        v00, v01 = flat[i00], flat[i00 + 1]
-        v10, v11 = flat[i00 + w], flat[i00 + w + 1]
-        top = v00 + (v01 - v00) * fx
-        u = top + (v10 + (v11 - v10) * fx - top) * fy
-        # off the canvas: u <= u(clip(r)) + |r - clip(r)|, an upper bound that keeps increasing
-        return u + np.hypot(x - xc, y - yc) / self.up
+        best = None
+        for off in (0, 1, w, w + 1):
+            lab = self._lab.take(i00 + off)
+            dx = rx - self._seed_x.take(lab)
+            dy = ry - self._seed_y.take(lab)
+            d2 = dx * dx + dy * dy
+            best = d2 if best is None else np.minimum(best, d2, out=best)
+        return np.sqrt(best)
 
     def __call__(self, pts: np.ndarray, scale: float | np.ndarray = 1.0) -> np.ndarray:
         """gamma(z, r) = g(scale * u(r)); (..., 2) -> (...) float64.

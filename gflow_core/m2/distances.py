@@ -158,7 +158,7 @@ class ChamferMetric(Metric):
         if isinstance(items, Curves):
             c = items
         else:
-            if isinstance(items, np.ndarray) and items.ndim == 3 and items.shape[0] == 0:
+            if items is None or len(items) == 0:
                 raise ValueError("no training curves given")
             c = Curves.from_list(list(items))
         if len(c) == 0:

@@ -20,15 +20,29 @@ Departures from the paper
   bisected so that the walk gives as close to K centres as possible; the result is then
   made *exactly* K by merging the closest consecutive centres (too many) or adding the
   item farthest from every centre (too few).
+* ``init="best"`` (the default) also runs k-medoids from a farthest-point (maximin)
+  initialisation started at the datum and keeps whichever result has the lower total
+  distance sum_t rho(x~_{k_t}, x_t). A spaced walk along a sequence that revisits
+  poses can miss a pose entirely (e.g. poses A B C B A C with K = 3 gives centres in
+  A and C only), and minimax k-medoids cannot move a centre across to it.
+  ``init="spaced"`` is the paper's initialisation alone.
 * Every centre is forced into its own cluster during assignment (ties in eq. 8, e.g.
   duplicate frames, could otherwise leave a cluster empty).
+* With ``symmetric=True`` (the default) the datum, the initial spacing, the assignment
+  (eq. 8) and the minimax representative (eq. 9) use the symmetrised distance
+  (rho(a, b) + rho(b, a)) / 2 instead of the directed chamfer distance. With the directed
+  distance the minimax rule prefers items whose few points lie on everybody else's
+  edges: on caviar1 the datum was a frame in which an occluder left only the left edge
+  of the pedestrian, and everything was then aligned to that fragment. The kernel
+  statistics (sec. 4.2) still use the directed distance of eq. 7. ``symmetric=False``
+  follows the paper literally.
 * The alignment of :mod:`.align`: symmetrised objective and a box constraint.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Literal
 
 import numpy as np
 
@@ -36,8 +50,8 @@ from ..similarity import invert
 from .align import DEFAULT_BOUNDS, DEFAULT_STEP, align_to_reference
 from .distances import Items, Metric
 
-__all__ = ["minimax_index", "spaced_walk", "evenly_spaced_centres", "kmedoids", "KMedoids",
-           "ExemplarFit", "learn_exemplars", "pairwise_with_progress", "check_k"]
+__all__ = ["minimax_index", "spaced_walk", "evenly_spaced_centres", "maximin_centres", "kmedoids", "kmedoids_cost",
+           "KMedoids", "ExemplarFit", "learn_exemplars", "pairwise_with_progress", "check_k"]
 
 Progress = Callable[[str, int, int], None]
 
@@ -140,6 +154,28 @@ def evenly_spaced_centres(D: np.ndarray, K: int, n_bisect: int = 60) -> tuple[np
     return np.sort(np.array(centres, dtype=np.int64)), best_rc
 
 
+def maximin_centres(D: np.ndarray, K: int, first: int = 0) -> np.ndarray:
+    """Farthest-point initialisation: start at ``first``, then repeatedly add the item whose
+    distance from its nearest centre, rho(x~_k, x_t), is largest. Returns (K,) int64 distinct indices."""
+    D = _check_square(D)
+    if not 1 <= K <= D.shape[0]:
+        raise ValueError(f"need 1 <= K <= {D.shape[0]}, got K={K}")
+    centres = [int(first)]
+    near = D[first].copy()
+    near[first] = -np.inf
+    for _ in range(K - 1):
+        c = int(np.argmax(near))
+        centres.append(c)
+        near = np.minimum(near, D[c])
+        near[centres] = -np.inf
+    return np.array(centres, dtype=np.int64)
+
+
+def kmedoids_cost(D: np.ndarray, res: "KMedoids") -> float:
+    """Total distance sum_t rho(x~_{k_t}, x_t) of a clustering."""
+    return float(D[res.medoids[res.labels], np.arange(D.shape[0])].sum())
+
+
 @dataclass(frozen=True)
 class KMedoids:
     """Result of :func:`kmedoids`.
@@ -224,8 +260,9 @@ class ExemplarFit:
     aligned : T aligned items x_t* (same type as the input).
     alpha_star : (T, 4) float64, z_t ~ T_alpha_t* x_t*.
     datum : int, index of z_0*.
-    D : (T, T) float64, rho between aligned items, D[i, j] = rho(x_i*, x_j*).
-    init : (K,) int64, initial centres (step 2).
+    D : (T, T) float64, rho between aligned items, D[i, j] = rho(x_i*, x_j*) (directed).
+    D_cluster : (T, T) float64, the matrix clustering used: D, or (D + D^T) / 2 if symmetric.
+    init : (K,) int64, initial centres of the clustering kept (step 2 or maximin).
     rho_c : float, their spacing.
     clusters : KMedoids
     exemplars : K items x~_k = aligned[clusters.medoids].
@@ -236,6 +273,7 @@ class ExemplarFit:
     alpha_star: np.ndarray
     datum: int
     D: np.ndarray
+    D_cluster: np.ndarray
     init: np.ndarray
     rho_c: float
     clusters: KMedoids
@@ -244,7 +282,8 @@ class ExemplarFit:
 
 
 def learn_exemplars(metric: Metric, items: Items, K: int, align: bool | None = None, max_iter: int = 50,
-                    symmetric: bool = True, step: np.ndarray = DEFAULT_STEP, bounds: np.ndarray = DEFAULT_BOUNDS,
+                    symmetric: bool = True, init: Literal["best", "spaced"] = "best",
+                    step: np.ndarray = DEFAULT_STEP, bounds: np.ndarray = DEFAULT_BOUNDS,
                     progress: Progress | None = None) -> ExemplarFit:
     """Sec. 4.1 end to end: datum, alignment, evenly spaced initial centres, k-medoids, pi_k.
 
@@ -257,15 +296,19 @@ def learn_exemplars(metric: Metric, items: Items, K: int, align: bool | None = N
     align : bool, run step 1's alignment (default: True for curves, False for patches,
         which sec. 5.2 uses without transforms).
     max_iter : int, k-medoids iterations.
-    symmetric : bool, align with the symmetrised distance (:mod:`.align`).
+    symmetric : bool, use the symmetrised distance for the datum, alignment (:mod:`.align`)
+        and clustering (module notes).
+    init : {"best", "spaced"}, k-medoids initialisation (module notes).
     step, bounds : (4,) float64, alignment search parameters (:mod:`.align`).
     progress : callable(stage, done, total), optional.
 
     Raises
     ------
     ValueError
-        No items, a single item, or K larger than the number of items.
+        No items, a single item, K larger than the number of items, or an unknown ``init``.
     """
+    if init not in ("best", "spaced"):
+        raise ValueError(f"unknown k-medoids initialisation {init!r}; choose 'best' or 'spaced'")
     items = metric.check_items(items)
     T = metric.n_items(items)
     check_k(T, K)
@@ -273,6 +316,8 @@ def learn_exemplars(metric: Metric, items: Items, K: int, align: bool | None = N
     alpha = np.tile(np.array([0.0, 0.0, 0.0, 1.0]), (T, 1))
     if align:
         D0 = pairwise_with_progress(metric, items, items, "datum", progress)
+        if symmetric:
+            D0 = 0.5 * (D0 + D0.T)
         # z_0* = argmin_z max_{z' != z} rho(z, z')
         datum = minimax_index(D0)
         if progress:
@@ -286,14 +331,21 @@ def learn_exemplars(metric: Metric, items: Items, K: int, align: bool | None = N
     else:
         aligned = items
         D = pairwise_with_progress(metric, aligned, aligned, "distances", progress)
-        datum = minimax_index(D)
-    init, rho_c = evenly_spaced_centres(D, K)
+    Dc = 0.5 * (D + D.T) if symmetric else D
+    if not align:
+        datum = minimax_index(Dc)
+    init_c, rho_c = evenly_spaced_centres(Dc, K)
     if progress:
         progress("kmedoids", 0, 1)
-    clusters = kmedoids(D, init, max_iter=max_iter)
+    clusters = kmedoids(Dc, init_c, max_iter=max_iter)
+    if init == "best":
+        alt_init = maximin_centres(Dc, K, first=datum)
+        alt = kmedoids(Dc, alt_init, max_iter=max_iter)
+        if kmedoids_cost(Dc, alt) < kmedoids_cost(Dc, clusters):
+            clusters, init_c = alt, alt_init
     if progress:
         progress("kmedoids", 1, 1)
     # pi_k proportional to N_k
     pi = clusters.sizes / clusters.sizes.sum()
-    return ExemplarFit(aligned=aligned, alpha_star=alpha, datum=datum, D=D, init=init, rho_c=rho_c,
+    return ExemplarFit(aligned=aligned, alpha_star=alpha, datum=datum, D=D, D_cluster=Dc, init=init_c, rho_c=rho_c,
                        clusters=clusters, exemplars=metric.subset(aligned, clusters.medoids), pi=pi)

@@ -22,7 +22,17 @@ Departures from the paper
   metrics there is no alpha (sec. 5.2) and the nearest exemplar is exact.
 * The cluster of a validation item for eq. 10-11 is its best exemplar from this search
   (the exemplar whose kernel rho_v measures), which is normally its k-medoids cluster.
-* See also :mod:`.align`, :mod:`.exemplars`, :mod:`.kernel`, :mod:`.learn_dynamics`.
+* Sec. 4.2 takes the validation set "z_v" unaligned; the descent starts from the
+  item's alignment alpha_t*, and with ``symmetric=True`` alpha is chosen by the
+  symmetrised distance while rho_v is the directed rho(T_alpha x~_k, z_v) of eq. 7.
+* The dynamics are learned on the states of *all* training items (exemplars included,
+  each with its own alignment), in frame order, within runs of consecutive frames.
+* Summary of the other departures, detailed in each module: symmetrised alignment and
+  clustering (:mod:`.align`, :mod:`.exemplars`), a maximin k-medoids start kept when
+  better (:mod:`.exemplars`), pooled kernels for clusters with fewer than 10 validation
+  items and eq. 11 applied exactly instead of note 4.2.1(1)'s 4/e rule (:mod:`.kernel`),
+  a Dirichlet prior on the Markov counts and a random walk on translation
+  (:mod:`.learn_dynamics`), means instead of sums in rho (:mod:`.distances`).
 """
 
 from __future__ import annotations
@@ -100,17 +110,19 @@ def validation_distances(metric: Metric, items: Items, fit: ExemplarFit, n_candi
     k_out = fit.clusters.labels.copy()
     alpha_out = fit.alpha_star.copy()
     rho_out = np.zeros(T)
-    # rho(x~_k, x_t*) for every exemplar and item, (K, T)
-    Dk = fit.D[med]
+    # rho(x~_k, x_t*) for every exemplar and item, (K, T): nearest candidates first
+    Dk = fit.D_cluster[med]
     val = np.nonzero(is_val)[0]
     images: dict = {}
     if progress:
         progress("validation", 0, val.size)
     for i, v in enumerate(val):
-        order = np.argsort(Dk[:, v], kind="stable")
         if not aligned:
-            k_out[v], rho_out[v] = order[0], Dk[order[0], v]
+            # min_k rho(x~_k, z_v), directed (no alpha)
+            kb = int(np.argmin(fit.D[med, v]))
+            k_out[v], rho_out[v] = kb, fit.D[med[kb], v]
             continue
+        order = np.argsort(Dk[:, v], kind="stable")
         cand = order[: max(1, min(n_candidates, K))]
         # alpha_v = argmin_alpha rho(T_alpha x~_k, z_v), starting from alpha_v* (z_v ~ T_alpha* x_v*)
         a, r = refine_alpha(metric, fit.exemplars, cand, items, int(v), fit.alpha_star[v], symmetric=symmetric,
@@ -127,7 +139,8 @@ def validation_distances(metric: Metric, items: Items, fit: ExemplarFit, n_candi
 def _as_training(items: Any, metric: Metric) -> TrainingSet:
     if isinstance(items, TrainingSet):
         if items.kind != metric.kind:
-            raise ValueError(f"metric {metric.name!r} works on {metric.kind}s but the training set holds {items.kind}s")
+            raise ValueError(f"metric {metric.name!r} works on {metric.kind} items but the training set holds "
+                             f"{items.kind} items")
         return items
     if metric.kind == "curve":
         if isinstance(items, np.ndarray) and items.ndim == 3 and items.shape[-1] != 2:
@@ -147,7 +160,8 @@ def _as_training(items: Any, metric: Metric) -> TrainingSet:
 
 def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric = "chamfer", K: int = 10,
                    kernel: Literal["moments", "mle"] = "moments", *, metric_params: dict | None = None,
-                   align: bool | None = None, symmetric: bool = True, n_candidates: int = 3, max_iter: int = 50, min_samples: int = 4,
+                   align: bool | None = None, symmetric: bool = True, init: Literal["best", "spaced"] = "best",
+                   n_candidates: int = 3, max_iter: int = 50, min_samples: int = 10,
                    d_range: tuple[float, float] = (0.5, 1000.0), trivial_ratio: float | None = None,
                    markov_prior: float = 1.0, translation: Literal["random_walk", "ar"] = "random_walk",
                    noise_floor: np.ndarray = DEFAULT_NOISE_FLOOR, step: np.ndarray = DEFAULT_STEP,
@@ -164,8 +178,8 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
         raise ValueError(f"K={K} equals the number of training items: no validation items are left to learn the "
                          "kernel widths (sec. 4.2); use fewer exemplars or more frames")
     aligned = m.kind == "curve" if align is None else bool(align)
-    fit = learn_exemplars(m, z, K, align=aligned, max_iter=max_iter, symmetric=symmetric, step=step, bounds=bounds,
-                          progress=progress)
+    fit = learn_exemplars(m, z, K, align=aligned, max_iter=max_iter, symmetric=symmetric, init=init, step=step,
+                          bounds=bounds, progress=progress)
     val = validation_distances(m, z, fit, n_candidates=n_candidates, aligned=aligned, symmetric=symmetric, step=step,
                                bounds=bounds, progress=progress)
     if progress:
@@ -188,7 +202,8 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
         progress("dynamics", 1, 1)
     mp = m.params()
     model = M2Model(metric=m.name, kernel=kernel, exemplars=fit.exemplars, d=kf.d, sigma=kf.sigma, pi=fit.pi,
-                    markov=markov, dynamics=dyn, ref_size=ts.ref_size, exemplar_index=fit.clusters.medoids,
+                    markov=markov, dynamics=dyn, ref_size=ts.ref_size,
+                    exemplar_frame=ts.frame_index[fit.clusters.medoids],
                     profile=str(mp.get("profile", "quadratic")), g0=float(mp.get("g0", 100.0)),
                     upsample=int(mp.get("upsample", 2)), shuffle_radius=int(mp.get("radius", 1)))
     return LearnResult(model=model, exemplar_fit=fit, validation=val, kernel=kf, states_alpha=states_alpha,
@@ -212,8 +227,8 @@ def learn(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric 
         "distances" (curves), "kmedoids", "validation", "kernel", "dynamics".
     **options
         metric_params (dict, e.g. ``{"profile": "truncated", "g0": 50}``), align (bool),
-        symmetric (True: align by the symmetrised distance),
-        n_candidates (3), max_iter (50), min_samples (4), d_range ((0.5, 1000)),
+        symmetric (True: align and cluster by the symmetrised distance), init ("best" | "spaced"),
+        n_candidates (3), max_iter (50), min_samples (10), d_range ((0.5, 1000)),
         trivial_ratio (None), markov_prior (1.0), translation ("random_walk" | "ar"),
         noise_floor ((4,)), step, bounds (alignment search, beta units);
         see :func:`learn_detailed` and the modules it calls.

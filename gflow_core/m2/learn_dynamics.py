@@ -24,7 +24,7 @@ Departures from the paper
   subject walked; the random walk is translation invariant. ``"ar"`` fits all four.
 * Q gets ``noise_floor**2`` added to its diagonal before the Cholesky factorisation, so
   that a component constant in training (e.g. theta = 0) keeps a usable noise level, and
-  a ridge of 1e-10 trace(C0) regularises C0^-1.
+  a ridge of max(1e-10 trace(C0) / D, 1e-12) regularises C0^-1.
 """
 
 from __future__ import annotations
@@ -94,7 +94,8 @@ def learn_markov(label_runs: Sequence[np.ndarray], K: int, prior: float = 1.0) -
     if int(K) != K or K < 1:
         raise ValueError(f"K must be a positive integer, got {K}")
     if not prior > 0:
-        raise ValueError(f"the Markov prior count must be positive (unseen transitions must stay possible), got {prior}")
+        raise ValueError(f"the Markov prior count must be positive (unseen transitions must stay possible), "
+                         f"got {prior}")
     n = transition_counts(label_runs, K)
     # M_ij = (n_ij + a) / (n_i + K a)
     return (n + prior) / (n.sum(axis=1, keepdims=True) + K * prior)
@@ -138,7 +139,7 @@ def yule_walker(runs: Sequence[np.ndarray], ridge: float = 1e-10) -> tuple[np.nd
         # C1 = (1/n) sum_t (x_{t+1} - m)(x_t - m)^T
         C1 += rc[1:].T @ rc[:-1]
     C1 /= n
-    reg = C0 + ridge * (np.trace(C0) / dim + 1e-300) * np.eye(dim)
+    reg = C0 + max(ridge * np.trace(C0) / dim, 1e-12) * np.eye(dim)
     # A = C1 C0^-1   (solve A C0 = C1)
     A = np.linalg.solve(reg.T, C1.T).T
     res = np.concatenate([(r[1:] - mean) - (r[:-1] - mean) @ A.T for r in runs if r.shape[0] >= 2])

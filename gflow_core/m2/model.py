@@ -22,7 +22,7 @@ shuffle_radius  () int64           shuffle neighbourhood radius r
 exemplar_curves (K, P, 2) float64  curve metrics only: x~_k points (x, y), item frame
 exemplar_n_points (K,) int64       curve metrics only
 exemplar_patches (K, h, w) float64 patch metrics only
-exemplar_index  (K,) int64         training item index of each exemplar (-1 if unknown)
+exemplar_frame  (K,) int64         frame index of each exemplar in its training sequence (-1 if unknown)
 d, sigma, pi    (K,) float64
 markov          (K, K) float64
 ar_A, ar_B      (4, 4) float64;  ar_mean (4,) float64
@@ -50,7 +50,7 @@ FORMAT_VERSION = 1
 
 _SCALARS = {"format_version": "i", "metric": "U", "kernel": "U", "profile": "U", "g0": "f", "upsample": "i",
             "shuffle_radius": "i"}
-_COMMON = ("exemplar_index", "d", "sigma", "pi", "markov", "ar_A", "ar_mean", "ar_B", "ref_size")
+_COMMON = ("exemplar_frame", "d", "sigma", "pi", "markov", "ar_A", "ar_mean", "ar_B", "ref_size")
 _CURVE = ("exemplar_curves", "exemplar_n_points")
 _PATCH = ("exemplar_patches",)
 
@@ -68,7 +68,7 @@ class M2Model:
     markov : (K, K) float64, rows sum to 1.
     dynamics : ARDynamics on beta = (ux, uy, theta, log s).
     ref_size : (2,) float64, (w, h) of the reference box in item coordinates.
-    exemplar_index : (K,) int64, training item of each exemplar (-1 if unknown).
+    exemplar_frame : (K,) int64, frame index (TrainingSet.frame_index) of each exemplar (-1 if unknown).
     profile, g0, upsample : chamfer parameters.
     shuffle_radius : int, shuffle neighbourhood radius.
     """
@@ -82,7 +82,7 @@ class M2Model:
     markov: np.ndarray
     dynamics: ARDynamics
     ref_size: np.ndarray
-    exemplar_index: np.ndarray | None = None
+    exemplar_frame: np.ndarray | None = None
     profile: str = "quadratic"
     g0: float = 100.0
     upsample: int = 2
@@ -141,10 +141,10 @@ class M2Model:
         if rs.shape != (2,) or not np.isfinite(rs).all() or (rs <= 0).any():
             raise ValueError(f"ref_size must be (2,) positive, got {rs}")
         object.__setattr__(self, "ref_size", rs)
-        ei = np.full(K, -1, dtype=np.int64) if self.exemplar_index is None else np.asarray(self.exemplar_index)
+        ei = np.full(K, -1, dtype=np.int64) if self.exemplar_frame is None else np.asarray(self.exemplar_frame)
         if ei.shape != (K,) or not np.issubdtype(ei.dtype, np.integer):
-            raise ValueError(f"exemplar_index must be ({K},) integers, got shape {ei.shape} dtype {ei.dtype}")
-        object.__setattr__(self, "exemplar_index", ei.astype(np.int64))
+            raise ValueError(f"exemplar_frame must be ({K},) integers, got shape {ei.shape} dtype {ei.dtype}")
+        object.__setattr__(self, "exemplar_frame", ei.astype(np.int64))
         object.__setattr__(self, "g0", float(self.g0))
         object.__setattr__(self, "upsample", int(self.upsample))
         object.__setattr__(self, "shuffle_radius", int(self.shuffle_radius))
@@ -204,7 +204,7 @@ class M2Model:
             "g0": np.array(self.g0, dtype=np.float64),
             "upsample": np.array(self.upsample, dtype=np.int64),
             "shuffle_radius": np.array(self.shuffle_radius, dtype=np.int64),
-            "exemplar_index": self.exemplar_index.copy(),
+            "exemplar_frame": self.exemplar_frame.copy(),
             "d": self.d.copy(),
             "sigma": self.sigma.copy(),
             "pi": self.pi.copy(),
@@ -290,5 +290,5 @@ class M2Model:
         return cls(metric=metric, kernel=str(scal["kernel"]), exemplars=exemplars, d=d,
                    sigma=get("sigma", "fiu", (K,)), pi=get("pi", "fiu", (K,)), markov=get("markov", "f", (K, K)),
                    dynamics=dyn, ref_size=get("ref_size", "fiu", (2,)),
-                   exemplar_index=get("exemplar_index", "iu", (K,)), profile=str(scal["profile"]),
+                   exemplar_frame=get("exemplar_frame", "iu", (K,)), profile=str(scal["profile"]),
                    g0=float(scal["g0"]), upsample=int(scal["upsample"]), shuffle_radius=int(scal["shuffle_radius"]))

@@ -166,7 +166,8 @@ def forward_step(p_prev: np.ndarray, model: PatchExemplars, observation: np.ndar
 
     Parameters
     ----------
-    p_prev : (K,) float64, p_{t-1}(k) (use ``model.pi`` at t = 0 with the identity prediction).
+    p_prev : (K,) float64, p_{t-1}(k); for the first frame pass ``model.pi`` (the prior is
+        then pi M, as for particles drawn from pi and propagated by :func:`propose_k`).
 
     Returns
     -------
