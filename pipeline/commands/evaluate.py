@@ -1,0 +1,32 @@
+"""``gflow eval``: score predicted boxes against ground truth."""
+
+from __future__ import annotations
+
+import json
+
+
+def cmd_eval(args) -> int:
+    from gflow_core.metrics import score
+
+    from ..results import read_boxes
+
+    gt, pred = read_boxes(args.gt), read_boxes(args.pred)
+    s = score(gt, pred, threshold=args.threshold)
+    if args.json:
+        print(json.dumps(s.to_json()))
+    else:
+        print(f"frames with ground truth: {s.frames} (missing predictions: {s.missing})")
+        print(f"centre location error (CLE): {s.cle:.2f} px")
+        print(f"mean overlap (IoU):          {s.mean_overlap:.3f}")
+        print(f"success rate (IoU > {args.threshold}):   {s.success:.3f}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("eval", help="score predicted boxes against ground truth",
+                       description="Centre location error (px), mean overlap (IoU) and success rate (IoU > 0.5).")
+    p.add_argument("--gt", required=True, help="ground truth CSV (frame,x,y,w,h)")
+    p.add_argument("--pred", required=True, help="predicted CSV (frame,x,y,w,h)")
+    p.add_argument("--threshold", type=float, default=0.5, help="overlap threshold of the success rate")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_eval)

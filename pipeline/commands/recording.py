@@ -1,0 +1,75 @@
+"""``gflow info`` and ``gflow replay``: what a file holds, and putting a recording back on zenoh."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from .common import CliError, add_zenoh_args, zenoh_from_args
+
+# file suffix -> callable(path, as_json) printing a description; other modules add to it
+DESCRIBERS: dict = {}
+
+
+def describe_recording(path: str, as_json: bool) -> None:
+    from ..mcap_io import summarize
+
+    s = summarize(path)
+    if as_json:
+        print(json.dumps(s.to_json(), indent=1))
+        return
+    print(f"file:      {s.path}")
+    print(f"messages:  {s.messages}   duration: {s.duration_s:.3f} s")
+    if s.truncated:
+        print(f"WARNING:   {s.truncated}")
+    print("topics:")
+    for t, ts in sorted(s.topics.items()):
+        seqs = f"seq {ts.first_seq}..{ts.last_seq}" if ts.first_seq >= 0 else ""
+        print(f"  {t:42s} {ts.type:20s} {ts.count:7d} msgs {ts.rate_hz:8.1f} Hz {ts.bytes / 2**20:9.2f} MiB  {seqs}")
+    print("schemas:  " + ", ".join(f"{n} ({e})" for n, e in sorted(s.schemas.items())))
+    for name, md in s.metadata.items():
+        print(f"metadata {name}:")
+        for k, v in md.items():
+            v1 = v if len(v) < 200 else v[:200] + f"... ({len(v)} chars)"
+            print(f"  {k}: {v1}" if "\n" not in v1 else f"  {k}: |\n    " + v1.replace("\n", "\n    "))
+
+
+DESCRIBERS[".mcap"] = describe_recording
+
+
+def cmd_info(args) -> int:
+    suffix = Path(args.file).suffix.lower()
+    fn = DESCRIBERS.get(suffix)
+    if fn is None:
+        raise CliError(f"do not know how to describe {args.file} (known: {', '.join(sorted(DESCRIBERS))})")
+    fn(args.file, args.json)
+    return 0
+
+
+def cmd_replay(args) -> int:
+    from ..live import replay
+
+    speed = None if args.max else args.speed
+    n = replay(zenoh_from_args(args, default_connect=True), args.file, speed, args.topics)
+    print(f"replayed {n} messages from {args.file}", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("info", help="what a recording (.mcap) or a learned model (.npz) holds",
+                       description="For a recording: topics, counts, rates, duration, schemas and metadata.")
+    p.add_argument("file", help="MCAP recording or model file")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("replay", help="republish a recording on zenoh",
+                       description="Republishes every recorded message byte for byte on its topic, so live stages "
+                                   "or a viewer can consume it. Heartbeats and control messages are not replayed.")
+    p.add_argument("file", help="MCAP recording")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--speed", type=float, default=1.0, help="timing factor (2 = twice as fast; default 1)")
+    g.add_argument("--max", action="store_true", help="as fast as possible")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (full names)")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_replay)

@@ -1,0 +1,25 @@
+"""``gflow run GRAPH``: any graph file, as processes over zenoh or ``--inline``."""
+
+from __future__ import annotations
+
+from ..build import apply_defaults
+from ..graph import builtin_graphs, load_graph
+from .common import add_zenoh_args, parse_sets, run_plan
+
+
+def cmd_run(args) -> int:
+    plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
+    path, secs, frames, info = run_plan(plan, args, args.record, None)
+    print(f"{plan.name}: {frames} frames in {secs:.2f} s; recording: {path}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run a graph file (every stage its own process, or --inline)",
+                       description=f"Run a YAML graph. Built-in graphs: {', '.join(builtin_graphs())}.")
+    p.add_argument("graph", help="graph file, or the name of a built-in graph")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="override a stage parameter")
+    p.add_argument("--record", metavar="FILE", help="recording path (default: the recorder's path pattern)")
+    p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_run)
