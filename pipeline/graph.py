@@ -223,6 +223,7 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
             raise GraphError(f"{filename}: override for stage {sname!r}, which the graph does not have "
                              f"(stages: {', '.join(stages_doc)})")
     plans: dict[str, StagePlan] = {}
+    port_types: dict[str, tuple] = {}
     for sname, spec in stages_doc.items():
         where = f"{filename}:{_line(stages_doc, sname)}"
         if not isinstance(spec, dict):
@@ -241,20 +242,21 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
         params = validate_params(kind, params, pwhere)
         cls = None if kind == RECORDER_KIND else STAGES[kind]
+        in_types, out_types = cls.ports(msgspec.convert(params, cls.Params)) if cls else ({}, {})
         inputs_doc = spec.get("inputs") or {}
         outputs_doc = spec.get("outputs") or {}
         if not isinstance(inputs_doc, dict) or not isinstance(outputs_doc, dict):
             raise GraphError(f"{where}: stage {sname!r}: inputs and outputs must be mappings port -> topic")
         if cls is not None:
             for port in inputs_doc:
-                if port not in cls.inputs:
+                if port not in in_types:
                     raise GraphError(f"{filename}:{_line(inputs_doc, port)}: stage {sname!r} ({kind}) has no input "
-                                     f"port {port!r} (ports: {', '.join(cls.inputs) or 'none'})")
+                                     f"port {port!r} (ports: {', '.join(in_types) or 'none'})")
             for port in outputs_doc:
-                if port not in cls.outputs:
+                if port not in out_types:
                     raise GraphError(f"{filename}:{_line(outputs_doc, port)}: stage {sname!r} ({kind}) has no output "
-                                     f"port {port!r} (ports: {', '.join(cls.outputs) or 'none'})")
-            for port in cls.inputs:
+                                     f"port {port!r} (ports: {', '.join(out_types) or 'none'})")
+            for port in in_types:
                 if port not in inputs_doc:
                     raise GraphError(f"{where}: stage {sname!r} ({kind}): input port {port!r} is not connected "
                                      f"(add inputs: {{{port}: <topic>}})")
@@ -265,12 +267,13 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         for port, q in qos.items():
             if q not in ("reliable", "drop"):
                 raise GraphError(f"{filename}:{_line(spec, 'qos')}: stage {sname!r}: qos of {port!r} must be reliable or drop")
-        outs = {p: topic_key(stream, str(outputs_doc.get(p, p))) for p in (cls.outputs if cls else {})}
+        outs = {p: topic_key(stream, str(outputs_doc.get(p, p))) for p in out_types}
         ins = {p: topic_key(stream, str(t)) for p, t in inputs_doc.items()}
         plans[sname] = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
                                  max_restarts=int(spec.get("max_restarts", 3)), qos=qos)
         plans[sname]._line = _line(stages_doc, sname)  # type: ignore[attr-defined]
         plans[sname]._input_lines = {p: _line(inputs_doc, p) for p in inputs_doc}  # type: ignore[attr-defined]
+        port_types[sname] = (in_types, out_types)
     # every input must be produced by some stage, with the same message type
     producers: dict[str, tuple[str, str, type]] = {}
     for s in plans.values():
@@ -280,18 +283,17 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
             if topic in producers:
                 other = producers[topic][0]
                 raise GraphError(f"{filename}:{s._line}: stages {other!r} and {s.name!r} both publish {topic}")  # type: ignore[attr-defined]
-            producers[topic] = (s.name, port, STAGES[s.kind].outputs[port])
+            producers[topic] = (s.name, port, port_types[s.name][1][port])
     for s in plans.values():
         if s.kind == RECORDER_KIND:
             continue
-        cls = STAGES[s.kind]
         for port, topic in s.inputs.items():
             line = s._input_lines.get(port, s._line)  # type: ignore[attr-defined]
             if topic not in producers:
                 raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is not connected: no stage "
                                  f"publishes {topic} (published: {', '.join(sorted(producers)) or 'nothing'})")
             pname, pport, ptype = producers[topic]
-            want = cls.inputs[port]
+            want = port_types[s.name][0][port]
             if ptype is not want:
                 raise GraphError(f"{filename}:{line}: type mismatch: stage {s.name!r} input {port!r} expects "
                                  f"{want.__name__}, but {topic} carries {ptype.__name__} from {pname}.{pport}")

@@ -102,8 +102,9 @@ class StageHost:
         except MessageError as e:
             self.report("malformed_message", f"on {topic}: {e}", topic=topic)
             return
+        offset = self.stage.input_offsets.get(port, 0)
         if isinstance(msg, EndOfStream):
-            self.join.end(port, msg.header.seq)
+            self.join.end(port, msg.header.seq + offset)
         else:
             want = self.stage.inputs[port]
             if not isinstance(msg, want):
@@ -113,7 +114,7 @@ class StageHost:
             if msg.header.seq < 0:
                 self.report("bad_header", f"on {topic}: negative seq {msg.header.seq}", topic=topic)
                 return
-            self.join.push(port, msg.header.seq, msg)
+            self.join.push(port, msg.header.seq + offset, msg)
         self.pump()
 
     def pump(self) -> None:

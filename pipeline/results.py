@@ -6,7 +6,7 @@ import csv
 import math
 from pathlib import Path
 
-from stages.messages import Estimate, Frame, MessageError, decode
+from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
 from .mcap_io import iter_records
 
@@ -56,13 +56,13 @@ def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Est
     """Every Estimate in a recording, by frame (the last one wins if a frame repeats)."""
     out: dict[int, Estimate] = {}
     for r in iter_records(recording):
-        if r.type != "Estimate" or (stream and not r.topic.startswith(f"gflow/{stream}/")):
+        if r.type not in ("Estimate", "PoseEstimate") or (stream and not r.topic.startswith(f"gflow/{stream}/")):
             continue
         try:
             m = decode(r.data)
         except MessageError:
             continue
-        if isinstance(m, Estimate):
+        if isinstance(m, (Estimate, PoseEstimate)):
             out[m.header.seq] = m
     return out
 

@@ -12,6 +12,10 @@ Join semantics (implemented by ``pipeline.join.SeqJoin``)
   all). A port that has moved past ``seq`` without delivering it counts as *missing*;
   the stage then gets ``None`` for it (a dropped or skipped message) and decides what to do.
 * ``drivers`` are the ports whose end-of-stream ends the stage (default: all ports).
+* ``input_offsets`` shifts a port's sequence numbers before the join: with
+  ``{"state": 1}``, the state message of frame t-1 is joined with the frames of t.
+* ``ports(params)`` may give an instance its own ports (a filter fed by N proposal
+  shards has N proposal ports); by default they are the class's ``inputs``/``outputs``.
 * Errors in one input are reported with ``self.report(...)`` (or by raising
   :class:`StageInputError`); the runner publishes them on the error topic and the stage
   keeps running.
@@ -68,11 +72,20 @@ class Stage(ABC):
     inputs: ClassVar[Mapping[str, type]] = {}
     outputs: ClassVar[Mapping[str, type]] = {}
     drivers: ClassVar[frozenset[str] | None] = None
+    input_offsets: ClassVar[Mapping[str, int]] = {}
 
     def __init__(self, params: Params, ctx: StageContext) -> None:
         self.params = params
         self.ctx = ctx
         self._reports = _Reports()
+        ins, outs = type(self).ports(params)
+        self.inputs = dict(ins)  # type: ignore[misc]
+        self.outputs = dict(outs)  # type: ignore[misc]
+
+    @classmethod
+    def ports(cls, params: Params) -> tuple[Mapping[str, type], Mapping[str, type]]:
+        """(inputs, outputs) of an instance with these parameters: {port: message type}."""
+        return cls.inputs, cls.outputs
 
     # -- called by the runner -------------------------------------------------------------
     def required(self, seq: int) -> frozenset[str]:
@@ -104,6 +117,5 @@ class Stage(ABC):
     def header(self, seq: int, stamp_ns: int) -> Header:
         return Header(stream=self.ctx.stream, seq=seq, stamp_ns=stamp_ns)
 
-    @classmethod
-    def driver_ports(cls) -> frozenset[str]:
-        return frozenset(cls.inputs) if cls.drivers is None else cls.drivers
+    def driver_ports(self) -> frozenset[str]:
+        return frozenset(self.inputs) if self.drivers is None else self.drivers

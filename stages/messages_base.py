@@ -1,0 +1,59 @@
+"""The building blocks every message uses: the header and arrays as dtype + shape + bytes."""
+
+from __future__ import annotations
+
+import msgspec
+import numpy as np
+
+__all__ = ["Header", "NDArray", "MessageError", "Box"]
+
+_ALLOWED_DTYPES = frozenset(
+    ["uint8", "int8", "uint16", "int16", "uint32", "int32", "int64", "uint64", "float32", "float64", "bool"]
+)
+
+
+class MessageError(ValueError):
+    """A payload that is not a valid gflow message (malformed bytes, wrong schema, bad array)."""
+
+
+class Header(msgspec.Struct, frozen=True):
+    """Stream id, sequence number (frame index, 0-based) and capture time in ns."""
+
+    stream: str
+    seq: int
+    stamp_ns: int
+
+
+class NDArray(msgspec.Struct, frozen=True):
+    """An ndarray as dtype + shape + raw C-order bytes."""
+
+    dtype: str
+    shape: tuple[int, ...]
+    data: bytes
+
+    @classmethod
+    def of(cls, arr: np.ndarray) -> "NDArray":
+        """Pack an array (copied to C order; byte order native little-endian)."""
+        a = np.ascontiguousarray(arr)
+        if a.dtype.name not in _ALLOWED_DTYPES:
+            raise MessageError(f"dtype {a.dtype} cannot travel in a message; allowed: {sorted(_ALLOWED_DTYPES)}")
+        return cls(dtype=a.dtype.name, shape=tuple(int(s) for s in a.shape), data=a.tobytes())
+
+    def array(self) -> np.ndarray:
+        """Unpack to a read-only ndarray view of the bytes, checking dtype and size."""
+        if self.dtype not in _ALLOWED_DTYPES:
+            raise MessageError(f"array dtype {self.dtype!r} is not allowed")
+        if any(s < 0 for s in self.shape):
+            raise MessageError(f"array shape {self.shape} has a negative dimension")
+        dt = np.dtype(self.dtype)
+        n = int(np.prod(self.shape, dtype=np.int64))
+        if n * dt.itemsize != len(self.data):
+            raise MessageError(
+                f"array of dtype {self.dtype} and shape {self.shape} needs {n * dt.itemsize} bytes, got {len(self.data)}"
+            )
+        return np.frombuffer(self.data, dtype=dt).reshape(self.shape)
+
+
+Box = tuple[float, float, float, float]
+
+

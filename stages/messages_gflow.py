@@ -1,0 +1,95 @@
+"""Messages of the G-flow tracker (Marks, Hershey, Roddey & Movellan, NIPS 2004).
+
+Size budget. The experts' background textures are (E, H, W) per mean and variance: with
+20 experts at 320x240 that is 24.6 MB per frame in float64, which must not cross a topic
+every frame. The filter never reads the background (only the proposals' likelihood,
+eq. 13, does), and advancing it needs only the parents, the new poses and the frame
+(``gflow_core.gflow.filter.advance_background``). So :class:`ExpertStates` carries poses,
+object textures, credibilities and parents (about 20 x (6 + 2 x n) x 8 bytes); each
+proposal process keeps a bit-identical replica of the backgrounds. ``bg_mean`` /
+``bg_var`` are filled only in snapshots (for seeking and for a restarted proposal).
+"""
+
+from __future__ import annotations
+
+import msgspec
+
+from .messages_base import Box, Header, NDArray
+
+__all__ = ["ExpertStates", "PoseProposals", "PoseEstimate"]
+
+
+class ExpertStates(msgspec.Struct, frozen=True, tag=True):
+    """The G-flow experts after frame ``header.seq`` (sec. 3.3, 3.4).
+
+    poses : (E, P) float64, u_t of each expert (layout: gflow_core.gflow.geometry).
+    tex_mean, tex_var : (E, n) float64, object texel posteriors (eq. 7, 8).
+    log_credibility : (E,) float64, normalised (eq. 17).
+    parents : (E,) int64, the parent of each expert at this frame (identity at the first).
+    image_shape : (H, W) of the frames.
+    config_digest : digest of the G-flow configuration and model; proposal and filter must agree.
+    first : True for the state made from the first frame (the backgrounds start from it).
+    bg_mean, bg_var : (E, H, W) float64 background posteriors, only in snapshots.
+    """
+
+    header: Header
+    poses: NDArray
+    tex_mean: NDArray
+    tex_var: NDArray
+    log_credibility: NDArray
+    parents: NDArray
+    image_shape: tuple[int, int]
+    config_digest: str
+    first: bool = False
+    bg_mean: NDArray | None = None
+    bg_var: NDArray | None = None
+
+
+class PoseProposals(msgspec.Struct, frozen=True, tag=True):
+    """Pose opinions of a shard of experts for frame ``header.seq`` (sec. 3.2, eq. 14-19).
+
+    expert_indices : (E',) int64; u_hat : (E', P); sigma_hat : (E', P, P); samples : (E', s, P);
+    log_weights : (E', s) (eq. 16); log_evidence : (E',) (eq. 19); gn_objective : (E',).
+    shard / shards : which shard of how many produced it.
+    """
+
+    header: Header
+    expert_indices: NDArray
+    u_hat: NDArray
+    sigma_hat: NDArray
+    samples: NDArray
+    log_weights: NDArray
+    log_evidence: NDArray
+    gn_objective: NDArray
+    shard: int = 0
+    shards: int = 1
+    config_digest: str = ""
+
+
+class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
+    """G-flow's answer for one frame.
+
+    box : (x, y, w, h), bounding box of the projected vertices of the posterior mean pose.
+    pose / pose_std : (P,) posterior mean and standard deviation (tangent space).
+    rotation : (3, 3) float64 rotation of the mean pose, row-major.
+    spread_px : RMS distance of the experts' projected vertices from the mean's.
+    ess : effective sample size of the credibilities before resampling.
+    expert_points : (E, n, 2) float32, every expert's projected vertices (the paper's fig. 2).
+    mean_points : (n, 2) float32.
+    log_credibility : (E,) float64; parents : (E,) int64.
+    state : "init", "track" or "coast".
+    """
+
+    header: Header
+    box: Box
+    pose: tuple[float, ...]
+    pose_std: tuple[float, ...]
+    rotation: tuple[float, ...]
+    spread_px: float
+    ess: float
+    expert_points: NDArray
+    mean_points: NDArray
+    log_credibility: NDArray
+    parents: NDArray
+    resampled: bool = True
+    state: str = "track"
