@@ -15,13 +15,11 @@ import argparse
 import logging
 import sys
 
-from .commands import demo, evaluate, inspect, recording, run, track
+from .commands import command_modules
 from .commands.common import CliError
 from .graph import GraphError
 
 __all__ = ["main", "build_parser"]
-
-COMMANDS = (demo, track, evaluate, run, recording, inspect)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -32,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Run 'gflow COMMAND --help' for the options of one command. Docs: README.md.")
     ap.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
-    for mod in COMMANDS:
+    for mod in command_modules():
         mod.register(sub)
     return ap
 

@@ -16,6 +16,7 @@ A graph is YAML::
         params: {init: [10, 20, 30, 40], seed: 0}
         inputs: {features: features, proposals: proposals}
         restart: on-failure           # or never (default); max_restarts: 3
+        snapshot_every: 25            # publish the stage's state every 25 frames (for seeking)
       recorder:
         kind: recorder
         params: {path: recordings/run-{time}.mcap}
@@ -46,7 +47,7 @@ from .transport import topic_key
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
 
 RECORDER_KIND = "recorder"
-_STAGE_KEYS = {"kind", "params", "inputs", "outputs", "restart", "max_restarts", "qos"}
+_STAGE_KEYS = {"kind", "params", "inputs", "outputs", "restart", "max_restarts", "qos", "snapshot_every"}
 
 
 class RecorderParams(Params):
@@ -111,6 +112,7 @@ class StagePlan:
     restart: str = "never"
     max_restarts: int = 3
     qos: dict[str, str] = field(default_factory=dict)
+    snapshot_every: int = 0
 
     def is_source(self) -> bool:
         return self.kind == "source"
@@ -133,6 +135,9 @@ class Plan:
 
     def status_topic(self, stage: str) -> str:
         return topic_key(self.stream, f"_status/{stage}")
+
+    def snapshot_topic(self, stage: str) -> str:
+        return topic_key(self.stream, f"_snapshot/{stage}")
 
     @property
     def control_topic(self) -> str:
@@ -269,8 +274,12 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
                 raise GraphError(f"{filename}:{_line(spec, 'qos')}: stage {sname!r}: qos of {port!r} must be reliable or drop")
         outs = {p: topic_key(stream, str(outputs_doc.get(p, p))) for p in out_types}
         ins = {p: topic_key(stream, str(t)) for p, t in inputs_doc.items()}
+        snap = spec.get("snapshot_every", 0)
+        if not isinstance(snap, int) or snap < 0:
+            raise GraphError(f"{filename}:{_line(spec, 'snapshot_every')}: stage {sname!r}: snapshot_every must be "
+                             f"a whole number of frames >= 0, got {snap!r}")
         plans[sname] = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
-                                 max_restarts=int(spec.get("max_restarts", 3)), qos=qos)
+                                 max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap)
         plans[sname]._line = _line(stages_doc, sname)  # type: ignore[attr-defined]
         plans[sname]._input_lines = {p: _line(inputs_doc, p) for p in inputs_doc}  # type: ignore[attr-defined]
         port_types[sname] = (in_types, out_types)

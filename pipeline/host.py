@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from stages.base import Stage, StageInputError
-from stages.messages import EndOfStream, ErrorReport, Header, MessageError, decode, encode
+from stages.messages import EndOfStream, ErrorReport, Header, MessageError, Snapshot, decode, encode
 
 __all__ = ["StageHost", "Publish"]
 
@@ -52,7 +52,7 @@ class StageHost:
     """
 
     def __init__(self, stage: Stage, topics_in: dict[str, str], topics_out: dict[str, str], error_topic: str,
-                 publish: Publish) -> None:
+                 publish: Publish, snapshot_every: int = 0, snapshot_topic: str = "") -> None:
         from .join import SeqJoin
 
         self.stage = stage
@@ -66,6 +66,8 @@ class StageHost:
         self.stats = HostStats()
         self.closed = False
         self.max_out: dict[str, int] = {}
+        self.snapshot_every = snapshot_every
+        self.snapshot_topic = snapshot_topic
 
     # -- errors ------------------------------------------------------------------------------
     def report(self, kind: str, message: str, seq: int = -1, topic: str = "") -> None:
@@ -134,6 +136,8 @@ class StageHost:
             t1 = time.perf_counter_ns()
             self._flush_reports()
             self._emit(outputs)
+            if self.snapshot_every and seq % self.snapshot_every == 0:
+                self._snapshot(seq)
             st = self.stats
             st.steps += 1
             st.busy_ns += t1 - t0
@@ -142,6 +146,13 @@ class StageHost:
                 st.first_step_ns = t1
         if self.join.finished:
             self.close("end")
+
+    def _snapshot(self, seq: int) -> None:
+        data = self.stage.snapshot()
+        if data is None:
+            return
+        snap = Snapshot(header=Header(self.stage.ctx.stream, seq, 0), stage=self.name, kind=self.stage.kind, data=data)
+        self.publish(self.snapshot_topic, encode(snap), seq)
 
     def close(self, reason: str = "end") -> None:
         """Finish the stage and publish an end of stream on each output (once)."""

@@ -55,7 +55,8 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
         if sp.kind == "recorder":
             continue
         stage = make_stage(plan, name)
-        hosts[name] = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, publish)
+        hosts[name] = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, publish,
+                                     sp.snapshot_every, plan.snapshot_topic(name))
         if isinstance(stage, SourceStage):
             source_name = name
     assert source_name is not None

@@ -154,7 +154,8 @@ class Node:
             self.bus.subscribe(f"gflow/{plan.stream}/**", self._on_data)
         else:
             stage = make_stage(plan, self.name)
-            self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish)
+            self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,
+                                  sp.snapshot_every, plan.snapshot_topic(self.name))
             for topic in sp.inputs.values():
                 self.bus.subscribe(topic, self._on_data)
         hb = threading.Thread(target=self._heartbeat, daemon=True)

@@ -104,6 +104,17 @@ class Stage(ABC):
         """A small, printable summary of the internal state (for stepping and status)."""
         return {}
 
+    def snapshot(self) -> bytes | None:
+        """The whole internal state after the last ``step``, as bytes (msgpack of a
+        stage-specific struct, never pickle), or None for a stage that keeps no state
+        between frames. ``restore(snapshot())`` on a fresh instance with the same
+        parameters, then the inputs that follow, must give the same outputs bit for bit."""
+        return None
+
+    def restore(self, data: bytes) -> None:
+        """Load a state made by :meth:`snapshot`. Stateless stages accept only ``None``."""
+        raise TypeError(f"stage kind {self.kind!r} keeps no state, so it has nothing to restore")
+
     def drain_reports(self) -> list[tuple[str, str, int]]:
         """Return and clear the ``(kind, message, seq)`` problems reported since the last call."""
         out, self._reports.items = self._reports.items, []

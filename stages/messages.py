@@ -23,7 +23,7 @@ import numpy as np
 
 __all__ = [
     "Header", "NDArray", "Frame", "Features", "Particles", "Estimate", "ErrorReport", "EndOfStream",
-    "StageStatus", "Control", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
+    "StageStatus", "Control", "Snapshot", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
     "MessageError",
 ]
 
@@ -130,6 +130,19 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     queued: int = 0
 
 
+class Snapshot(msgspec.Struct, frozen=True, tag=True):
+    """A stage's whole internal state after frame ``header.seq`` (``Stage.snapshot()``).
+
+    Restoring it and feeding the inputs of the frames after ``header.seq`` gives the same
+    outputs as running from the start; ``gflow rerun --from SEQ`` relies on it.
+    """
+
+    header: Header
+    stage: str
+    kind: str
+    data: bytes
+
+
 class Control(msgspec.Struct, frozen=True, tag=True):
     """Launcher -> stages: ``start`` (all peers are ready) or ``stop``."""
 
@@ -139,7 +152,7 @@ class Control(msgspec.Struct, frozen=True, tag=True):
 
 from .messages_gflow import ExpertStates, PoseEstimate, PoseProposals  # noqa: E402
 
-Message = Union[Frame, Features, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control,
+Message = Union[Frame, Features, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control, Snapshot,
                 ExpertStates, PoseProposals, PoseEstimate]
 MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in Message.__args__}  # type: ignore[attr-defined]
 

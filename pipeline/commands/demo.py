@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+ORDER = 10
+
 import sys
 
 from ..build import apply_defaults

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+ORDER = 60
+
 from .common import add_zenoh_args, zenoh_from_args
 
 

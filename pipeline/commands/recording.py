@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+ORDER = 50
+
 import json
 import sys
 from pathlib import Path

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+ORDER = 40
+
 from ..build import apply_defaults
 from ..graph import builtin_graphs, load_graph
 from .common import add_zenoh_args, parse_sets, run_plan

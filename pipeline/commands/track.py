@@ -6,6 +6,8 @@ Each tracker is a module in ``pipeline/trackers/`` with ``NAME``, ``add_args(par
 
 from __future__ import annotations
 
+ORDER = 20
+
 import time
 from pathlib import Path
 

@@ -1,9 +1,17 @@
-"""Trackers that ``gflow track`` can run: each module builds the overrides of its graph."""
+"""Trackers that ``gflow track --tracker NAME`` can run.
+
+Each module here has ``NAME``, ``add_args(group)`` and ``overrides(args) -> (graph, {stage:
+{param: value}})``; every module of this package is registered, so a tracker is one module.
+"""
 
 from __future__ import annotations
 
-from . import chamfer
+import importlib
+import pkgutil
 
-TRACKERS = {m.NAME: m for m in (chamfer,)}
+TRACKERS = {}
+for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
+    _mod = importlib.import_module(f"{__name__}.{_info.name}")
+    TRACKERS[_mod.NAME] = _mod
 
 __all__ = ["TRACKERS"]
