@@ -167,12 +167,27 @@ class Plan:
                    stages={n: StagePlan(**s) for n, s in d["stages"].items()})
 
     def config_metadata(self) -> dict[str, str]:
-        """MCAP metadata ``gflow.config``: every stage's kind, parameters and wiring, as JSON strings."""
-        out = {"stream": self.stream, "graph_name": self.name}
+        """MCAP metadata ``gflow.config``: every stage's resolved plan (kind, parameters with
+        their defaults, wiring, restart and snapshot policy) as JSON, plus the stream and the
+        base folder of relative paths. :meth:`from_metadata` rebuilds the plan from it."""
+        out = {"stream": self.stream, "graph_name": self.name, "base_dir": str(Path(self.base_dir).resolve())}
         for n, s in self.stages.items():
-            out[f"stage.{n}"] = json.dumps({"kind": s.kind, "params": s.params, "inputs": s.inputs,
-                                            "outputs": s.outputs}, sort_keys=True)
+            out[f"stage.{n}"] = json.dumps(dataclasses.asdict(s), sort_keys=True)
         return out
+
+    @classmethod
+    def from_metadata(cls, graph: dict[str, str], config: dict[str, str]) -> "Plan":
+        """The plan a recording was made with (see :meth:`config_metadata`)."""
+        stages = {}
+        for key, val in config.items():
+            if key.startswith("stage."):
+                d = json.loads(val)
+                d.setdefault("name", key[len("stage."):])
+                stages[d["name"]] = StagePlan(**{k: v for k, v in d.items() if k in StagePlan.__dataclass_fields__})
+        if not stages:
+            raise GraphError("the recording's gflow.config metadata names no stage")
+        return cls(name=config.get("graph_name", graph.get("name", "recorded")), stream=config["stream"],
+                   stages=stages, source_text=graph.get("yaml", ""), base_dir=config.get("base_dir", "."))
 
     def recording_path(self) -> str | None:
         rec = self.recorder()
