@@ -66,7 +66,7 @@ def iter_records(path: str | Path, topics: list[str] | None = None, *, strict: b
                 yield Record(channel.topic, channel.metadata.get("gflow.type", schema.name if schema else ""),
                              msg.log_time, msg.publish_time, msg.sequence, msg.data,
                              schema.name if schema else "", schema.encoding if schema else "")
-        except (McapError, EOFError, ValueError, Exception) as e:  # the mcap reader raises several kinds at a torn end
+        except (McapError, EOFError, ValueError) as e:  # what the mcap reader raises at a torn or corrupt end
             text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
             if strict:
                 raise TruncatedRecording(text) from None
@@ -86,12 +86,14 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
         except Exception:
             pass
     from mcap.records import Metadata
+    from mcap.stream_reader import StreamReader
+
     with open(p, "rb") as f:
         try:
-            for rec in NonSeekingReader(f).iter_records():
+            for rec in StreamReader(f).records:
                 if isinstance(rec, Metadata):
                     out[rec.name] = dict(rec.metadata)
-        except Exception:
+        except (McapError, EOFError, ValueError):  # the torn end of a truncated file
             pass
     return out
 
