@@ -22,7 +22,8 @@ A graph is YAML::
         params: {path: recordings/run-{time}.mcap}
 
 Outputs default to topics named after their ports; ``outputs: {port: topic}`` renames
-them. The graph is validated before anything starts: an unknown stage kind, an unknown
+them. ``external: {frames: Frame}`` declares topics fed from outside the graph (by
+``gflow replay``, say), so a graph of live stages can run without a source. The graph is validated before anything starts: an unknown stage kind, an unknown
 parameter, an unconnected input and a type mismatch between producer and consumer each
 raise :class:`GraphError` naming the file and line.
 """
@@ -224,10 +225,11 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         raise GraphError(f"{filename}: not valid YAML: {e}") from None
     if not isinstance(doc, dict):
         raise GraphError(f"{filename}: a graph must be a mapping with 'name', 'stream' and 'stages'")
-    unknown = set(doc) - {"name", "stream", "stages", "description"}
+    unknown = set(doc) - {"name", "stream", "stages", "description", "external"}
     if unknown:
         k = sorted(unknown)[0]
-        raise GraphError(f"{filename}:{_line(doc, k)}: unknown top-level key {k!r} (expected name, stream, stages, description)")
+        raise GraphError(f"{filename}:{_line(doc, k)}: unknown top-level key {k!r} "
+                         f"(expected name, stream, stages, external, description)")
     name = str(doc.get("name", Path(filename).stem))
     stream = str(doc.get("stream", "cam0"))
     try:
@@ -298,8 +300,18 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         plans[sname]._line = _line(stages_doc, sname)  # type: ignore[attr-defined]
         plans[sname]._input_lines = {p: _line(inputs_doc, p) for p in inputs_doc}  # type: ignore[attr-defined]
         port_types[sname] = (in_types, out_types)
-    # every input must be produced by some stage, with the same message type
+    # every input must be produced by some stage (or come from outside), with the same message type
     producers: dict[str, tuple[str, str, type]] = {}
+    from stages.messages import MESSAGE_TYPES
+
+    external = doc.get("external") or {}
+    if not isinstance(external, dict):
+        raise GraphError(f"{filename}:{_line(doc, 'external')}: 'external' must map topic -> message type")
+    for topic, tname in external.items():
+        if tname not in MESSAGE_TYPES:
+            raise GraphError(f"{filename}:{_line(external, topic)}: external topic {topic!r}: unknown message type "
+                             f"{tname!r} (known: {', '.join(sorted(MESSAGE_TYPES))})")
+        producers[topic_key(stream, str(topic))] = ("outside the graph", "external", MESSAGE_TYPES[tname])
     for s in plans.values():
         if s.kind == RECORDER_KIND:
             continue
@@ -321,8 +333,8 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
             if ptype is not want:
                 raise GraphError(f"{filename}:{line}: type mismatch: stage {s.name!r} input {port!r} expects "
                                  f"{want.__name__}, but {topic} carries {ptype.__name__} from {pname}.{pport}")
-    if not any(s.is_source() for s in plans.values()):
-        raise GraphError(f"{filename}: the graph has no source stage")
+    if not any(s.is_source() for s in plans.values()) and not external:
+        raise GraphError(f"{filename}: the graph has no source stage and no external topics")
     if sum(1 for s in plans.values() if s.kind == RECORDER_KIND) > 1:
         raise GraphError(f"{filename}: at most one recorder per graph")
     return Plan(name=name, stream=stream, stages=plans, source_text=text, base_dir=base_dir)

@@ -4,15 +4,17 @@ from __future__ import annotations
 
 import queue
 import sys
+import threading
 import time
+from dataclasses import dataclass
 from typing import TextIO
 
-from stages.messages import MessageError, NDArray, decode
+from stages.messages import MessageError, NDArray, StageStatus, decode
 
 from .mcap_io import iter_records
 from .transport import Bus, ZenohSettings, open_session
 
-__all__ = ["list_topics", "echo", "hz", "replay", "describe"]
+__all__ = ["list_topics", "echo", "hz", "replay", "ReplayOptions", "describe"]
 
 
 def describe(payload: bytes, full: bool = False) -> str:
@@ -120,36 +122,113 @@ def hz(settings: ZenohSettings, key: str, duration: float, out: TextIO = sys.std
     return rate
 
 
-def replay(settings: ZenohSettings, path: str, speed: float | None, topics: list[str] | None,
-           out: TextIO = sys.stderr, settle: float = 1.0) -> int:
-    """Republish a recording on zenoh with its original timing scaled by ``speed`` (None: as fast as possible).
+@dataclass
+class ReplayOptions:
+    """What to replay and how fast.
 
-    Payloads go out byte for byte as recorded, on their recorded topics, with their sequence numbers.
+    speed : timing factor on the recorded log times; None = as fast as possible.
+    topics : only these topics (full names); None = all but heartbeats and control.
+    start_seq / end_seq : only frames with start_seq <= seq < end_seq.
+    start_s / end_s : only messages logged in [start_s, end_s) seconds after the first one.
+    loops : how many times to play the file (0 = until interrupted).
+    lockstep : stage names; before sending a frame with a new sequence number, wait until
+        each of them has reported (on its heartbeat) that it has processed the previous one.
+    ack_timeout : seconds to wait for an acknowledgement before giving up.
+    """
+
+    speed: float | None = 1.0
+    topics: list[str] | None = None
+    start_seq: int | None = None
+    end_seq: int | None = None
+    start_s: float | None = None
+    end_s: float | None = None
+    loops: int = 1
+    lockstep: tuple[str, ...] = ()
+    ack_timeout: float = 10.0
+    settle: float = 1.0
+
+
+class _Acks:
+    """Last sequence number each live stage reports in its heartbeat."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, int] = {}
+        self.changed = threading.Event()
+
+    def on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+        try:
+            m = decode(payload)
+        except MessageError:
+            return
+        if isinstance(m, StageStatus):
+            self.last[m.stage] = (1 << 60) if m.state in ("done", "stopped") else m.last_seq
+            self.changed.set()
+
+    def wait(self, stages: tuple[str, ...], seq: int, timeout: float) -> None:
+        end = time.monotonic() + timeout
+        while True:
+            behind = [s for s in stages if self.last.get(s, -1) < seq]
+            if not behind:
+                return
+            left = end - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"lockstep: no acknowledgement of frame {seq} from {', '.join(behind)} "
+                                   f"within {timeout:.0f} s (are they running, on this network?)")
+            self.changed.clear()
+            self.changed.wait(min(left, 0.05))
+
+
+def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr) -> int:
+    """Republish a recording on zenoh, byte for byte, on its recorded topics with its sequence numbers.
+
+    Returns the number of messages sent. Heartbeats and control messages of the recorded
+    pipeline are never replayed (they would confuse a live one).
     """
     s = _session(settings)
     bus = Bus(s)
-    time.sleep(settle)  # let subscribers' declarations arrive before the first sample
+    acks = _Acks()
+    records = [r for r in iter_records(path, topics=opts.topics)
+               if "/_status/" not in r.topic and not r.topic.endswith("/_control")]
+    if not records:
+        s.close()
+        raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else ""))
+    t_first = min(r.log_ns for r in records)
+    keep = []
+    for r in records:
+        rel = (r.log_ns - t_first) / 1e9
+        if opts.start_s is not None and rel < opts.start_s or opts.end_s is not None and rel >= opts.end_s:
+            continue
+        if r.type != "EndOfStream" and (opts.start_seq is not None and r.seq < opts.start_seq
+                                        or opts.end_seq is not None and r.seq >= opts.end_seq):
+            continue
+        keep.append(r)
+    if opts.lockstep:
+        stream = keep[0].topic.split("/")[1]
+        bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
+    time.sleep(opts.settle)  # let subscribers' declarations arrive before the first sample
     n = 0
-    t_first = None
-    wall0 = time.monotonic()
-    truncated: list[str] = []
+    loop = 0
     try:
-        for r in iter_records(path, topics=topics, on_truncated=truncated.append):
-            if "/_status/" in r.topic or r.topic.endswith("/_control"):
-                continue  # the recorded pipeline's own heartbeats would confuse a live one
-            if speed is not None:
-                t_first = r.log_ns if t_first is None else t_first
-                due = wall0 + (r.log_ns - t_first) / 1e9 / speed
-                delay = due - time.monotonic()
-                if delay > 0:
-                    time.sleep(delay)
-            bus.publish(r.topic, r.data, r.seq)
-            n += 1
+        while opts.loops == 0 or loop < opts.loops:
+            loop += 1
+            wall0 = time.monotonic()
+            t0 = keep[0].log_ns if keep else 0
+            sent_seq = -1
+            for r in keep:
+                if opts.lockstep and r.seq > sent_seq >= 0:
+                    acks.wait(opts.lockstep, sent_seq, opts.ack_timeout)
+                if opts.speed is not None:
+                    due = wall0 + (r.log_ns - t0) / 1e9 / opts.speed
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                bus.publish(r.topic, r.data, r.seq)
+                if r.type != "EndOfStream":
+                    sent_seq = max(sent_seq, r.seq)
+                n += 1
     except KeyboardInterrupt:
         pass
     finally:
         time.sleep(0.2)
         s.close()
-    for t in truncated:
-        print(t, file=out)
     return n

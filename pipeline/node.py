@@ -68,6 +68,7 @@ class Node:
         self.first_pid: dict[str, int] = {}
         self.progress_changed = threading.Event()
         self._last_status = 0.0
+        self._reported_steps = 0
         # every worker reports progress quickly when some source applies flow control
         self.flow_stages_waiting = any(s.is_source() and s.params.get("max_ahead", 0) for s in plan.stages.values())
 
@@ -247,6 +248,10 @@ class Node:
             host.deliver(key, payload)
             if self.flow_stages_waiting:
                 self.send_status(0.02)
+            if host.stats.steps != self._reported_steps and self.inbox.empty():
+                # idle after work: say how far we got at once (replay --lockstep waits for it)
+                self._reported_steps = host.stats.steps
+                self.send_status()
         return 0
 
     def _run_recorder(self) -> int:

@@ -40,6 +40,15 @@ def describe_recording(path: str, as_json: bool) -> None:
 DESCRIBERS[".mcap"] = describe_recording
 
 
+def describe_model(path: str, as_json: bool) -> None:
+    from ..modelfile import describe  # lazy: numpy model code only when a model is described
+
+    describe(path, as_json)
+
+
+DESCRIBERS[".npz"] = describe_model
+
+
 def cmd_info(args) -> int:
     suffix = Path(args.file).suffix.lower()
     fn = DESCRIBERS.get(suffix)
@@ -50,10 +59,16 @@ def cmd_info(args) -> int:
 
 
 def cmd_replay(args) -> int:
-    from ..live import replay
+    from ..live import ReplayOptions, replay
 
-    speed = None if args.max else args.speed
-    n = replay(zenoh_from_args(args, default_connect=True), args.file, speed, args.topics)
+    opts = ReplayOptions(speed=None if args.max else args.speed, topics=args.topics, start_seq=args.from_seq,
+                         end_seq=args.to_seq, start_s=args.start, end_s=args.end, loops=args.loop,
+                         lockstep=tuple(s for s in (args.lockstep or "").split(",") if s),
+                         ack_timeout=args.ack_timeout)
+    try:
+        n = replay(zenoh_from_args(args, default_connect=True), args.file, opts)
+    except TimeoutError as e:
+        raise CliError(str(e)) from None
     print(f"replayed {n} messages from {args.file}", file=sys.stderr)
     return 0
 
@@ -66,12 +81,25 @@ def register(sub) -> None:
     p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("replay", help="republish a recording on zenoh",
-                       description="Republishes every recorded message byte for byte on its topic, so live stages "
-                                   "or a viewer can consume it. Heartbeats and control messages are not replayed.")
+                       description="Republishes recorded messages byte for byte on their topics, so live stages or a "
+                                   "viewer can consume them. Heartbeats and control messages are not replayed.",
+                       epilog="examples:\n  gflow replay run.mcap --speed 2\n"
+                              "  gflow replay run.mcap --max --topics gflow/cam0/frames --from-seq 100 --to-seq 200\n"
+                              "  gflow replay run.mcap --topics gflow/cam0/frames --lockstep preprocess,filter --max\n"
+                              "  gflow replay run.mcap --loop 0   (until Ctrl-C)",
+                       formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
     p.add_argument("file", help="MCAP recording")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--speed", type=float, default=1.0, help="timing factor (2 = twice as fast; default 1)")
+    g.add_argument("--speed", type=float, default=1.0, help="timing factor on the original timing (default 1)")
     g.add_argument("--max", action="store_true", help="as fast as possible")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (full names)")
+    p.add_argument("--from-seq", type=int, metavar="SEQ", help="first frame to replay")
+    p.add_argument("--to-seq", type=int, metavar="SEQ", help="stop before this frame")
+    p.add_argument("--start", type=float, metavar="S", help="start this many seconds into the recording")
+    p.add_argument("--end", type=float, metavar="S", help="stop this many seconds into the recording")
+    p.add_argument("--loop", type=int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
+    p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
+                   help="before each new frame, wait until these live stages acknowledge the previous one")
+    p.add_argument("--ack-timeout", type=float, default=10.0, help="seconds to wait for an acknowledgement")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_replay)
