@@ -1,6 +1,6 @@
 """Host one stage: decode payloads, join by seq, call ``step``, encode and publish outputs.
 
-The host is transport-free: it is given a ``publish(topic, payload, seq)`` callable. The
+The host is transport-free: it is given a ``publish(topic, payload, seq, type_name)`` callable. The
 inline executor and the zenoh node process both use it, so a stage behaves identically
 in-process, over zenoh, and when fed from an MCAP recording.
 """
@@ -14,13 +14,14 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from stages.base import Stage, StageInputError
+from stages.messages_foxglove import FOXGLOVE_SCHEMAS
 from stages.messages import EndOfStream, ErrorReport, Header, MessageError, Snapshot, decode, encode
 
 __all__ = ["StageHost", "Publish"]
 
 log = logging.getLogger("gflow.host")
 
-Publish = Callable[[str, bytes, int], None]
+Publish = Callable[[str, bytes, int, str], None]
 
 
 @dataclass
@@ -48,7 +49,7 @@ class StageHost:
     topics_in : {port: topic} for every input port.
     topics_out : {port: topic} for every output port.
     error_topic : where :class:`ErrorReport` messages go.
-    publish : ``publish(topic, payload, seq)``.
+    publish : ``publish(topic, payload, seq, type_name)``.
     """
 
     def __init__(self, stage: Stage, topics_in: dict[str, str], topics_out: dict[str, str], error_topic: str,
@@ -76,19 +77,21 @@ class StageHost:
         log.warning("[%s] %s: %s", self.name, kind, message)
         err = ErrorReport(header=Header(self.stage.ctx.stream, max(seq, 0), 0), stage=self.name, kind=kind,
                           message=message, topic=topic)
-        self.publish(self.error_topic, encode(err), max(seq, 0))
+        self.publish(self.error_topic, encode(err), max(seq, 0), "ErrorReport")
 
     def _flush_reports(self) -> None:
         for kind, message, seq in self.stage.drain_reports():
             self.report(kind, message, seq)
 
-    def _emit(self, outputs) -> None:
+    def _emit(self, outputs, seq: int = -1) -> None:
         for port, msg in outputs:
             topic = self.topics_out.get(port)
             if topic is None:
                 raise RuntimeError(f"stage {self.name} produced output on unknown port {port!r}")
-            self.publish(topic, encode(msg), msg.header.seq)
-            self.max_out[port] = max(self.max_out.get(port, -1), msg.header.seq)
+            # gflow messages carry their frame in the header; Foxglove ones take the step's
+            s = msg.header.seq if hasattr(msg, "header") else seq
+            self.publish(topic, encode(msg), s, type(msg).__name__)
+            self.max_out[port] = max(self.max_out.get(port, -1), s)
 
     # -- input -------------------------------------------------------------------------------
     def deliver(self, topic: str, payload: bytes) -> None:
@@ -135,7 +138,7 @@ class StageHost:
                 continue
             t1 = time.perf_counter_ns()
             self._flush_reports()
-            self._emit(outputs)
+            self._emit(outputs, seq)
             if self.snapshot_every and seq % self.snapshot_every == 0:
                 self._snapshot(seq)
             st = self.stats
@@ -152,7 +155,7 @@ class StageHost:
         if data is None:
             return
         snap = Snapshot(header=Header(self.stage.ctx.stream, seq, 0), stage=self.name, kind=self.stage.kind, data=data)
-        self.publish(self.snapshot_topic, encode(snap), seq)
+        self.publish(self.snapshot_topic, encode(snap), seq, "Snapshot")
 
     def close(self, reason: str = "end") -> None:
         """Finish the stage and publish an end of stream on each output (once)."""
@@ -165,6 +168,8 @@ class StageHost:
             self.report("stage_exception", f"finish: {type(e).__name__}: {e}")
         self._flush_reports()
         for port, topic in self.topics_out.items():
+            if self.stage.outputs.get(port) in FOXGLOVE_SCHEMAS:
+                continue  # viewer topics stay pure Foxglove JSON; no gflow stage consumes them
             end = self.max_out.get(port, -1) + 1
             eos = EndOfStream(header=Header(self.stage.ctx.stream, end, 0), reason=reason)
-            self.publish(topic, encode(eos), end)
+            self.publish(topic, encode(eos), end, "EndOfStream")

@@ -44,10 +44,10 @@ class InlineResult:
 def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, recording: str | None = None,
                metadata: dict[str, dict[str, str]] | None = None) -> InlineResult:
     """Run ``plan`` to the end of its source. Returns counts, wall time and the recording path."""
-    queue: deque[tuple[str, bytes, int]] = deque()
+    queue: deque[tuple[str, bytes, int, str]] = deque()
 
-    def publish(topic: str, payload: bytes, seq: int) -> None:
-        queue.append((topic, payload, seq))
+    def publish(topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
+        queue.append((topic, payload, seq, type_name))
 
     hosts: dict[str, StageHost] = {}
     source_name = None
@@ -77,9 +77,9 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
 
     def drain() -> None:
         while queue:
-            topic, payload, seq = queue.popleft()
+            topic, payload, seq, type_name = queue.popleft()
             if rec is not None:
-                rec.write(topic, payload, seq, publish_ns=time.time_ns())
+                rec.write(topic, payload, seq, publish_ns=time.time_ns(), type_name=type_name)
             for h in subscribers.get(topic, ()):
                 h.deliver(topic, payload)
 

@@ -222,7 +222,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
                     delay = due - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
-                bus.publish(r.topic, r.data, r.seq)
+                bus.publish(r.topic, r.data, r.seq, r.type if r.type != "unknown" else "")
                 if r.type != "EndOfStream":
                     sent_seq = max(sent_seq, r.seq)
                 n += 1

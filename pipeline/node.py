@@ -104,17 +104,17 @@ class Node:
             elif msg.command == "stop":
                 self.stop.set()
 
-    def _on_data(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
-        self.inbox.put((key, payload, pub_ns, seq))
+    def _on_data(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str = "") -> None:
+        self.inbox.put((key, payload, pub_ns, seq, type_name))
 
-    def publish(self, topic: str, payload: bytes, seq: int) -> None:
+    def publish(self, topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
         if not self.peers_ready.is_set():
             while not self.peers_ready.wait(5.0):
                 missing = sorted(set(self.plan.stages) - self.seen)
                 log.warning("[%s] still waiting to hear from %s before publishing", self.name, ", ".join(missing))
                 if self.stop.is_set():
                     return
-        self.bus.publish(topic, payload, seq)
+        self.bus.publish(topic, payload, seq, type_name)
 
     def status(self) -> StageStatus:
         h = self.host
@@ -136,7 +136,7 @@ class Node:
         if now - self._last_status >= min_interval:
             self._last_status = now
             st = self.status()
-            self.bus.publish(self.plan.status_topic(self.name), encode(st), st.header.seq)
+            self.bus.publish(self.plan.status_topic(self.name), encode(st), st.header.seq, "StageStatus")
 
     def _heartbeat(self) -> None:
         while not self._hb_stop.is_set():
@@ -152,13 +152,13 @@ class Node:
         self.bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         self.bus.subscribe(plan.control_topic, self._on_control)
         if sp.kind == "recorder":
-            self.bus.subscribe(f"gflow/{plan.stream}/**", self._on_data)
+            self.bus.subscribe(f"gflow/{plan.stream}/**", self._on_data, with_type=True)
         else:
             stage = make_stage(plan, self.name)
             self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,
                                   sp.snapshot_every, plan.snapshot_topic(self.name))
             for topic in sp.inputs.values():
-                self.bus.subscribe(topic, self._on_data)
+                self.bus.subscribe(topic, self._on_data, with_type=True)
         hb = threading.Thread(target=self._heartbeat, daemon=True)
         hb.start()
         self.state = "ready"
@@ -242,7 +242,7 @@ class Node:
                 self.state = "stopped"
                 return 0
             try:
-                key, payload, _, _ = self.inbox.get(timeout=0.1)
+                key, payload, _, _, _ = self.inbox.get(timeout=0.1)
             except queue.Empty:
                 continue
             host.deliver(key, payload)
@@ -270,22 +270,22 @@ class Node:
         try:
             while True:
                 try:
-                    key, payload, pub_ns, seq = self.inbox.get(timeout=0.05)
+                    key, payload, pub_ns, seq, type_name = self.inbox.get(timeout=0.05)
                 except queue.Empty:
                     rec.maybe_flush()
                     if self.stop.is_set():
                         break
                     continue
-                rec.write(key, payload, seq, publish_ns=pub_ns)
+                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
             # keep what is still arriving until the network goes quiet (at most 2 s), then close
             quiet_until = time.monotonic() + 0.3
             deadline = time.monotonic() + 2.0
             while time.monotonic() < min(quiet_until, deadline):
                 try:
-                    key, payload, pub_ns, seq = self.inbox.get(timeout=0.05)
+                    key, payload, pub_ns, seq, type_name = self.inbox.get(timeout=0.05)
                 except queue.Empty:
                     continue
-                rec.write(key, payload, seq, publish_ns=pub_ns)
+                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
                 if "/_status/" not in key:
                     quiet_until = time.monotonic() + 0.3
         finally:

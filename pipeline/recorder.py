@@ -22,7 +22,8 @@ from typing import IO, Any
 import msgspec
 from mcap.writer import CompressionType, Writer
 
-from stages.messages import MESSAGE_TYPES, json_schema
+from stages.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
+from stages.messages_foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
 
 __all__ = ["McapRecorder", "peek_type", "MESSAGE_ENCODING", "SCHEMA_ENCODING"]
 
@@ -103,23 +104,32 @@ class McapRecorder:
             return cid
         assert self._w is not None
         sid = self._schemas.get(type_name)
+        fox = FOXGLOVE_TYPES.get(type_name)
         if sid is None:
             typ = MESSAGE_TYPES.get(type_name)
-            if typ is None:  # unreadable payload: keep it, under a schema-less channel
+            if fox is not None:  # Foxglove well-known schema, JSON
+                sid = self._w.register_schema(FOXGLOVE_SCHEMAS[fox], SCHEMA_ENCODING,
+                                              json.dumps(foxglove_schema(fox)).encode())
+            elif typ is None:  # unreadable payload: keep it, under a schema-less channel
                 sid = 0
             else:
                 sid = self._w.register_schema(SCHEMA_PREFIX + type_name, SCHEMA_ENCODING,
                                               json.dumps(json_schema(typ)).encode())
             self._schemas[type_name] = sid
-        cid = self._w.register_channel(topic, MESSAGE_ENCODING, sid, metadata={"gflow.type": type_name or "unknown"})
+        cid = self._w.register_channel(topic, "json" if fox is not None else MESSAGE_ENCODING, sid,
+                                       metadata={"gflow.type": type_name or "unknown"})
         self._channels[key] = cid
         return cid
 
-    def write(self, topic: str, payload: bytes, seq: int, publish_ns: int = 0, log_ns: int | None = None) -> None:
-        """Record one payload exactly as received."""
+    def write(self, topic: str, payload: bytes, seq: int, publish_ns: int = 0, log_ns: int | None = None,
+              type_name: str = "") -> None:
+        """Record one payload exactly as received. ``type_name`` comes with the sample; without
+        it the MessagePack type tag is read."""
         assert self._w is not None, "recorder is not open"
         log_ns = time.time_ns() if log_ns is None else log_ns
-        cid = self._channel(topic, peek_type(payload))
+        if not type_name or (type_name not in MESSAGE_TYPES and type_name not in FOXGLOVE_TYPES):
+            type_name = peek_type(payload)
+        cid = self._channel(topic, type_name)
         self._w.add_message(cid, log_time=log_ns, data=payload, publish_time=publish_ns or log_ns,
                             sequence=max(seq, 0) & 0xFFFFFFFF)
         self.messages += 1

@@ -105,15 +105,17 @@ def topic_key(stream: str, topic: str) -> str:
 _ATT = struct.Struct("<qq")
 
 
-def pack_attachment(publish_ns: int, seq: int) -> bytes:
-    """Attachment carried by every gflow sample: publish time (ns) and sequence number."""
-    return _ATT.pack(publish_ns, seq)
+def pack_attachment(publish_ns: int, seq: int, type_name: str = "") -> bytes:
+    """Attachment carried by every gflow sample: publish time (ns), sequence number and the
+    message type name (so a recorder can file JSON payloads, which carry no type tag)."""
+    return _ATT.pack(publish_ns, seq) + type_name.encode("utf-8")
 
 
-def unpack_attachment(b: bytes | None) -> tuple[int, int]:
-    if not b or len(b) != _ATT.size:
-        return 0, -1
-    return _ATT.unpack(b)
+def unpack_attachment(b: bytes | None) -> tuple[int, int, str]:
+    if not b or len(b) < _ATT.size:
+        return 0, -1, ""
+    ns, seq = _ATT.unpack_from(b)
+    return ns, seq, b[_ATT.size:].decode("utf-8", "replace")
 
 
 @dataclass
@@ -139,14 +141,18 @@ class Bus:
             self._pubs[key] = pub
         return pub
 
-    def publish(self, key: str, payload: bytes, seq: int) -> None:
-        self.publisher(key).put(payload, attachment=pack_attachment(time.time_ns(), seq))
+    def publish(self, key: str, payload: bytes, seq: int, type_name: str = "") -> None:
+        self.publisher(key).put(payload, attachment=pack_attachment(time.time_ns(), seq, type_name))
         self.sent += 1
 
-    def subscribe(self, key: str, callback: Callable[[str, bytes, int, int], None]) -> None:
+    def subscribe(self, key: str, callback: Callable[..., None], with_type: bool = False) -> None:
+        """``callback(key, payload, publish_ns, seq)``, plus ``type_name`` with ``with_type``."""
         def _cb(sample: zenoh.Sample) -> None:
             att = sample.attachment
-            pub_ns, seq = unpack_attachment(att.to_bytes() if att is not None else None)
-            callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq)
+            pub_ns, seq, type_name = unpack_attachment(att.to_bytes() if att is not None else None)
+            if with_type:
+                callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq, type_name)
+            else:
+                callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq)
 
         self._subs.append(self.session.declare_subscriber(key, _cb))

@@ -23,7 +23,7 @@ import numpy as np
 
 __all__ = [
     "Header", "NDArray", "Frame", "Features", "Particles", "Estimate", "ErrorReport", "EndOfStream",
-    "StageStatus", "Control", "Snapshot", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
+    "StageStatus", "Control", "Snapshot", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
     "MessageError",
 ]
 
@@ -156,18 +156,34 @@ Message = Union[Frame, Features, Particles, Estimate, ErrorReport, EndOfStream, 
                 ExpertStates, PoseProposals, PoseEstimate]
 MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in Message.__args__}  # type: ignore[attr-defined]
 
+from .messages_foxglove import FOXGLOVE_SCHEMAS, CompressedImage, ImageAnnotations  # noqa: E402
+
 _encoder = msgspec.msgpack.Encoder()
+_json_encoder = msgspec.json.Encoder()
 _decoder = msgspec.msgpack.Decoder(Message)
 _typed_decoders: dict[type, msgspec.msgpack.Decoder] = {}
+FOXGLOVE_TYPES: dict[str, type] = {t.__name__: t for t in FOXGLOVE_SCHEMAS}
 
 
 def encode(msg: Any) -> bytes:
-    """Encode a message to MessagePack bytes (deterministic for equal messages)."""
+    """Encode a message: MessagePack (deterministic for equal messages), or JSON for the
+    Foxglove well-known schemas, which a viewer decodes without gflow."""
+    if type(msg) in FOXGLOVE_SCHEMAS:
+        return _json_encoder.encode(msg)
     return _encoder.encode(msg)
 
 
-def decode(buf: bytes | memoryview) -> Message:
-    """Decode any gflow message. Raises :class:`MessageError` naming what was wrong."""
+def decode(buf: bytes | memoryview) -> Any:
+    """Decode any gflow message (or Foxglove JSON message). Raises :class:`MessageError`
+    naming what was wrong. gflow's own messages are MessagePack maps, so a payload that
+    starts with ``{`` is JSON."""
+    if bytes(buf[:1]) == b"{":
+        try:
+            obj = msgspec.json.decode(buf)
+            typ = CompressedImage if isinstance(obj, dict) and "format" in obj else ImageAnnotations
+            return msgspec.convert(obj, typ)
+        except (msgspec.DecodeError, msgspec.ValidationError) as e:
+            raise MessageError(f"malformed JSON message ({len(buf)} bytes): {e}") from None
     try:
         return _decoder.decode(buf)
     except msgspec.DecodeError as e:

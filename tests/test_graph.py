@@ -59,4 +59,4 @@ def test_missing_input_is_unconnected():
 def test_builtin_graphs_are_valid():
     for name in ("demo", "chamfer"):
         plan = load_graph(name, overrides={"filter": {"init": [1, 2, 3, 4]}})
-        assert set(plan.stages) == {"source", "preprocess", "proposal", "filter", "recorder"}
+        assert {"source", "preprocess", "proposal", "filter", "recorder"} <= set(plan.stages)

@@ -1,0 +1,131 @@
+"""Render stage: the frame and the tracker's state as Foxglove well-known messages.
+
+Outputs, for every frame that has an estimate:
+
+* ``image``: ``foxglove.CompressedImage`` (JPEG of the frame);
+* ``annotations``: ``foxglove.ImageAnnotations`` with the estimated box (green), the
+  ground-truth box when the source knows it (white), the particles' positions (red) or
+  every G-flow expert's projected vertices (the paper's fig. 2, cyan), the MAP contour or
+  mean mesh points (yellow), and a text line with the frame, ESS and state.
+
+The same annotations are drawn into videos by ``gflow render``.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, Mapping
+
+import cv2
+import numpy as np
+
+from .base import Output, Params, Stage, StageInputError
+from .messages import Estimate, Frame, Message, MessageError, Particles, PoseEstimate
+from .messages_foxglove import (LINE_LOOP, POINTS, Color, CompressedImage, ImageAnnotations, PointsAnnotation,
+                                TextAnnotation, point, time_of)
+
+__all__ = ["RenderStage", "RenderParams", "annotations_for"]
+
+GREEN = Color(0.1, 0.9, 0.2, 1.0)
+WHITE = Color(1.0, 1.0, 1.0, 0.9)
+RED = Color(1.0, 0.2, 0.2, 0.8)
+CYAN = Color(0.2, 0.9, 1.0, 0.6)
+YELLOW = Color(1.0, 0.9, 0.1, 1.0)
+CLEAR = Color(0.0, 0.0, 0.0, 0.0)
+SHADE = Color(0.0, 0.0, 0.0, 0.6)
+
+
+class RenderParams(Params):
+    """estimate: which estimate type the tracker publishes (``particle`` for chamfer / M2,
+    ``gflow`` for G-flow). particles: also draw the posterior particles (chamfer / M2).
+    max_points: at most this many particles or expert points drawn per frame.
+    jpeg_quality: 1-100."""
+
+    estimate: Literal["particle", "gflow"] = "particle"
+    particles: bool = False
+    max_points: int = 400
+    jpeg_quality: int = 85
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.jpeg_quality <= 100:
+            raise ValueError(f"jpeg_quality must be in 1..100, got {self.jpeg_quality}")
+        if self.max_points < 0:
+            raise ValueError("max_points must be >= 0")
+
+
+def _box(b, color: Color, ts, thickness: float = 2.0) -> PointsAnnotation:
+    x, y, w, h = (float(v) for v in b)
+    # corners of the box around pixel centres x..x+w-1, in pixel-edge coordinates
+    pts = [point(x - 0.5, y - 0.5), point(x + w - 0.5, y - 0.5), point(x + w - 0.5, y + h - 0.5),
+           point(x - 0.5, y + h - 0.5)]
+    return PointsAnnotation(ts, LINE_LOOP, pts, color, [], CLEAR, thickness)
+
+
+def _points(xy: np.ndarray, color: Color, ts, size: float, limit: int) -> PointsAnnotation:
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    if limit and xy.shape[0] > limit:
+        xy = xy[np.linspace(0, xy.shape[0] - 1, limit).round().astype(np.intp)]
+    return PointsAnnotation(ts, POINTS, [point(x, y) for x, y in xy], color, [], color, size)
+
+
+def annotations_for(frame: Frame, est: Estimate | PoseEstimate, particles: Particles | None,
+                    max_points: int = 400) -> ImageAnnotations:
+    """The overlays of one frame (pure; also used by ``gflow render``)."""
+    ts = time_of(frame.header.stamp_ns)
+    pts: list[PointsAnnotation] = []
+    if frame.truth is not None:
+        pts.append(_box(frame.truth, WHITE, ts, 1.0))
+    if isinstance(est, PoseEstimate):
+        experts = est.expert_points.array()
+        pts.append(_points(experts.reshape(-1, 2), CYAN, ts, 2.0, max_points))
+        pts.append(_points(est.mean_points.array(), YELLOW, ts, 3.0, 0))
+        label = f"frame {est.header.seq}  ESS {est.ess:.1f}/{experts.shape[0]}  spread {est.spread_px:.1f}px  {est.state}"
+    else:
+        if particles is not None:
+            pts.append(_points(particles.alpha.array()[:, :2], RED, ts, 2.0, max_points))
+        pts.append(_points(est.contour.array(), YELLOW, ts, 2.0, 0))
+        label = f"frame {est.header.seq}  ESS {est.ess:.0f}/{est.n}  k={est.k}  {est.state}"
+    pts.append(_box(est.box, GREEN, ts, 2.0))
+    text = TextAnnotation(ts, point(4, 14), label, 12.0, WHITE, SHADE)
+    return ImageAnnotations(circles=[], points=pts, texts=[text])
+
+
+class RenderStage(Stage):
+    kind = "render"
+    Params = RenderParams
+    inputs = {"frames": Frame, "estimate": Estimate}
+    outputs = {"image": CompressedImage, "annotations": ImageAnnotations}
+
+    @classmethod
+    def ports(cls, params: RenderParams):  # type: ignore[override]
+        ins: dict[str, type] = {"frames": Frame, "estimate": PoseEstimate if params.estimate == "gflow" else Estimate}
+        if params.particles:
+            ins["particles"] = Particles
+        return ins, cls.outputs
+
+    def __init__(self, params: RenderParams, ctx) -> None:
+        super().__init__(params, ctx)
+        self.drawn = 0
+
+    def required(self, seq: int) -> frozenset[str]:
+        return frozenset({"frames", "estimate"})
+
+    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
+        p: RenderParams = self.params  # type: ignore[assignment]
+        frame, est = inputs.get("frames"), inputs.get("estimate")
+        if not isinstance(frame, Frame) or est is None:
+            return []  # nothing to draw for this frame (the frame or the estimate was lost)
+        try:
+            img = frame.image.array()
+        except MessageError as e:
+            raise StageInputError(f"frame {seq}: {e}") from None
+        ok, jpg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, p.jpeg_quality])
+        if not ok:
+            raise StageInputError(f"frame {seq}: OpenCV could not encode a {img.shape} image as JPEG")
+        part = inputs.get("particles") if p.particles else None
+        ann = annotations_for(frame, est, part if isinstance(part, Particles) else None, p.max_points)  # type: ignore[arg-type]
+        self.drawn += 1
+        image = CompressedImage(time_of(frame.header.stamp_ns), "camera", jpg.tobytes(), "jpeg")
+        return [("image", image), ("annotations", ann)]
+
+    def summary(self) -> dict:
+        return {"drawn": self.drawn}
