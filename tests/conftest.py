@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -10,6 +13,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("GFLOW_DATA", ROOT.parent / "shared" / "data"))
+JS = ROOT / "tests" / "js"
 
 
 def data_dir(name: str) -> Path:
@@ -35,3 +39,25 @@ def caviar1() -> Path:
 def gflow_cmd() -> list[str]:
     """The gflow command as the user runs it (the console script), falling back to python -m."""
     return [sys.executable, "-m", "pipeline.cli"]
+
+
+def _node_reader() -> list[str]:
+    """The command that runs the TypeScript reader, installing @mcap/core on first use."""
+    node, npm = shutil.which("node"), shutil.which("npm")
+    if node is None or npm is None:
+        pytest.skip("node/npm not found: the independent @mcap/core reader cannot run here")
+    if not (JS / "node_modules" / "@mcap" / "core").is_dir():
+        r = subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=JS, capture_output=True, text=True, timeout=300)
+        if r.returncode != 0:
+            pytest.skip(f"npm could not install @mcap/core (no registry?): {r.stderr.strip()[-300:]}")
+    return [node, str(JS / "read_mcap.mjs")]
+
+
+def read_mcap_js(path: Path, stream: bool = False) -> dict:
+    """Summary of an MCAP file read by @mcap/core (TypeScript), an independent implementation."""
+    out = subprocess.run([*_node_reader(), str(path), *(["--stream"] if stream else [])],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+

@@ -81,3 +81,15 @@ def test_recorded_render_messages_conform_and_decode(tmp_path):
     channels = {(r.topic, r.schema) for r in iter_records(rec) if r.schema.startswith("foxglove.")}
     assert channels == {("gflow/demo/image", "foxglove.CompressedImage"),
                         ("gflow/demo/annotations", "foxglove.ImageAnnotations")}
+
+
+def test_independent_reader_sees_json_foxglove_channels(tmp_path):
+    from tests.conftest import read_mcap_js
+
+    rec = tmp_path / "demo.mcap"
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 3}, "filter": {"particles": 50}}))
+    run_inline(plan, recording=str(rec))
+    js = read_mcap_js(rec)
+    assert js["topics"]["gflow/demo/image"] == {"count": 3, "encoding": "json", "schemas": ["foxglove.CompressedImage"]}
+    assert js["topics"]["gflow/demo/annotations"]["schemas"] == ["foxglove.ImageAnnotations"]
+    assert js["topics"]["gflow/demo/estimate"]["encoding"] == "msgpack"

@@ -19,28 +19,7 @@ from pipeline.graph import load_graph
 from pipeline.launcher import Launcher
 from pipeline.mcap_io import iter_records
 from pipeline.transport import ZenohSettings, free_port
-
-JS = Path(__file__).resolve().parent / "js"
-
-
-def _node_reader() -> list[str]:
-    """The command that runs the TypeScript reader, installing @mcap/core on first use."""
-    node, npm = shutil.which("node"), shutil.which("npm")
-    if node is None or npm is None:
-        pytest.skip("node/npm not found: the independent @mcap/core reader cannot run here")
-    if not (JS / "node_modules" / "@mcap" / "core").is_dir():
-        r = subprocess.run([npm, "ci", "--no-audit", "--no-fund"], cwd=JS, capture_output=True, text=True, timeout=300)
-        if r.returncode != 0:
-            pytest.skip(f"npm could not install @mcap/core (no registry?): {r.stderr.strip()[-300:]}")
-    return [node, str(JS / "read_mcap.mjs")]
-
-
-def _read_js(path: Path, stream: bool = False) -> dict:
-    out = subprocess.run([*_node_reader(), str(path), *(["--stream"] if stream else [])],
-                         capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
-    return json.loads(out.stdout)
-
+from tests.conftest import read_mcap_js as _read_js
 
 @pytest.fixture(scope="module")
 def crossing_run(tmp_path_factory, gflow_cmd_module):
@@ -53,8 +32,8 @@ def crossing_run(tmp_path_factory, gflow_cmd_module):
     init = ",".join(str(v) for v in read_boxes(seq / "groundtruth.csv")[0])
     graph = tmp / "chamfer.yaml"
     text = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "chamfer.yaml").read_text()
-    graph.write_text(text.replace("    inputs: {features: features, proposals: proposals}\n",
-                                  "    inputs: {features: features, proposals: proposals}\n    snapshot_every: 20\n"))
+    assert "snapshot_every: 25" in text
+    graph.write_text(text.replace("snapshot_every: 25", "snapshot_every: 20"))
     rec = tmp / "run.mcap"
     out = subprocess.run([*gflow_cmd_module, "track", str(seq), "--init", init, "--out", str(tmp / "b.csv"),
                           "--record", str(rec), "--graph", str(graph), "-q"], capture_output=True, text=True, timeout=300)
