@@ -1,6 +1,8 @@
 """Join a stage's input ports by sequence number (see ``stages/base.py`` for the contract).
 
-Messages on one port arrive in increasing ``seq``. ``SeqJoin`` keeps what has arrived per
+Messages on one port arrive in increasing ``seq``. A stage whose output must not depend on
+arrival timing requires every port it reads (the default): a port it does not require may
+or may not have arrived when its frame is released. ``SeqJoin`` keeps what has arrived per
 ``seq`` and releases sequence numbers strictly in ascending order, each one as soon as every
 port the stage requires for it is *decided*: either its message is here, or the port has
 moved past that ``seq`` (a later message or an end of stream arrived), in which case the
@@ -31,12 +33,15 @@ class SeqJoin:
         if port not in self.ports:
             raise KeyError(f"unknown port {port!r}")
         prev = self.high.get(port)
+        if prev is not None and seq <= prev:
+            self.stale += 1  # out of order or repeated on this port
+            return
         if prev is not None and seq > prev + 1:
             self.gaps[port] = self.gaps.get(port, 0) + (seq - prev - 1)
-        if seq <= self.done_below or (prev is not None and seq <= prev):
-            self.stale += 1
-            return
         self.high[port] = seq
+        if seq <= self.done_below:
+            self.stale += 1  # its frame was already released without it
+            return
         self.pending.setdefault(seq, {})[port] = msg
 
     def end(self, port: str, seq: int) -> None:

@@ -13,6 +13,7 @@ shut everything down cleanly.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import os
 import signal
 import subprocess
@@ -98,7 +99,10 @@ class Launcher:
         self.plan = plan
         if zenoh is None:
             zenoh = ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",))
-        self.zenoh = zenoh
+        # the stages connect to the launcher's endpoints, so an ephemeral port must be made concrete
+        listen = tuple(f"{e[:-2]}:{free_port()}" if e.startswith("tcp/127.0.0.1") and e.endswith(":0") else e
+                       for e in zenoh.listen)
+        self.zenoh = dataclasses.replace(zenoh, listen=listen)
         self.recording = recording or plan.recording_path()
         self.out = out or sys.stderr
         self.progress = progress

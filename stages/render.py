@@ -106,9 +106,6 @@ class RenderStage(Stage):
         super().__init__(params, ctx)
         self.drawn = 0
 
-    def required(self, seq: int) -> frozenset[str]:
-        return frozenset({"frames", "estimate"})
-
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         p: RenderParams = self.params  # type: ignore[assignment]
         frame, est = inputs.get("frames"), inputs.get("estimate")

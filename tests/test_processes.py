@@ -87,10 +87,11 @@ def test_inline_and_processes_give_identical_estimates(mp_run, tmp_path):
     run_inline(_plan(), recording=str(inline_path))
 
     def payloads(p):
-        return {(r.topic, r.seq): r.data for r in iter_records(p) if r.type in ("Estimate", "Particles")}
+        return {(r.topic, r.seq): r.data for r in iter_records(p)
+                if r.type in ("Frame", "Features", "Estimate", "Particles", "CompressedImage", "ImageAnnotations")}
 
     a, b = payloads(path), payloads(inline_path)
-    assert set(a) == set(b) and len(a) == 3 * FRAMES
+    assert set(a) == set(b) and len(a) == 7 * FRAMES  # frames, features, proposals, particles, estimate, image, annotations
     diff = [k for k in a if a[k] != b[k]]
     assert not diff, f"{len(diff)} messages differ, first {sorted(diff)[:3]}"
 

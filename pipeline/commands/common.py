@@ -112,7 +112,8 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     src = next(n for n, s in plan.stages.items() if s.is_source())
     frames = res.status[src].steps if src in res.status else 0
     info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
-            "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()}}
+            "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()},
+            "interrupted": res.interrupted}
     if not res.ok and not res.interrupted:
         raise CliError("the pipeline did not finish cleanly (see the messages above)")
     return res.recording, res.seconds, frames, info

@@ -32,7 +32,7 @@ def cmd_demo(args) -> int:
         print("stage fps: " + ", ".join(f"{n} {v:.1f}" for n, v in info["fps"].items() if v))
     print(f"tracking error vs ground truth: CLE {s.cle:.2f} px, mean overlap {s.mean_overlap:.3f}, "
           f"success@0.5 {s.success:.3f} over {s.frames} frames")
-    return 0
+    return 130 if info.get("interrupted") else 0
 
 
 def register(sub) -> None:

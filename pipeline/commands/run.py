@@ -13,7 +13,7 @@ def cmd_run(args) -> int:
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     path, secs, frames, info = run_plan(plan, args, args.record, None)
     print(f"{plan.name}: {frames} frames in {secs:.2f} s; recording: {path}")
-    return 0
+    return 130 if info.get("interrupted") else 0
 
 
 def register(sub) -> None:

@@ -1,7 +1,8 @@
 """``gflow track``: one target through an image folder, a video or a recording.
 
 Each tracker is a module in ``pipeline/trackers/`` with ``NAME``, ``add_args(parser)``
-(its own options) and ``overrides(args) -> (graph name, {stage: {param: value}})``.
+(its own options) and ``overrides(args) -> (graph name, {stage: {param: value}})``; it may
+also have ``make_plan(graph, overrides) -> Plan`` when its graph is generated (gflow shards).
 """
 
 from __future__ import annotations
@@ -45,7 +46,11 @@ def cmd_track(args) -> int:
     overrides.setdefault("source", {}).update(source_params(args.source, args))
     for stage, kv in parse_sets(args.set).items():
         overrides.setdefault(stage, {}).update(kv)
-    plan = load_graph(args.graph or graph, overrides=overrides)
+    make_plan = getattr(tracker, "make_plan", None)
+    if make_plan is not None:  # a tracker that generates its graph (gflow: K proposal shards)
+        plan = make_plan(args.graph or graph, overrides)
+    else:
+        plan = load_graph(args.graph or graph, overrides=overrides)
     total = count_frames(msgspec.convert(plan.stages["source"].params, SourceParams))
     rec = args.record or str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
     path, secs, frames, info = run_plan(plan, args, rec, total, quiet=args.quiet)
@@ -58,7 +63,7 @@ def cmd_track(args) -> int:
         print(f"  {states.count('coast')} frame(s) coasted on the dynamics (no usable image)")
     if info.get("errors"):
         print(f"  errors reported: {info['errors']} (see `gflow info {path}`)")
-    return 0
+    return 130 if info.get("interrupted") else 0
 
 
 def register(sub) -> None:
