@@ -22,6 +22,17 @@ class TruncatedRecording(Exception):
     """Raised (or reported) when a recording ends in the middle of a record."""
 
 
+# What reading a torn or corrupt file raises: the mcap reader's own errors, and the
+# decompressors' (lz4 raises RuntimeError on an incomplete frame; zstandard ZstdError).
+TORN_END_ERRORS: tuple[type[BaseException], ...] = (McapError, EOFError, ValueError, RuntimeError)
+try:
+    import zstandard as _zstd
+
+    TORN_END_ERRORS += (_zstd.ZstdError,)
+except ImportError:  # zstandard is optional for reading lz4 files
+    pass
+
+
 @dataclass(frozen=True)
 class Record:
     topic: str
@@ -66,7 +77,7 @@ def iter_records(path: str | Path, topics: list[str] | None = None, *, strict: b
                 yield Record(channel.topic, channel.metadata.get("gflow.type", schema.name if schema else ""),
                              msg.log_time, msg.publish_time, msg.sequence, msg.data,
                              schema.name if schema else "", schema.encoding if schema else "")
-        except (McapError, EOFError, ValueError) as e:  # what the mcap reader raises at a torn or corrupt end
+        except TORN_END_ERRORS as e:  # a torn or corrupt end
             text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
             if strict:
                 raise TruncatedRecording(text) from None
@@ -83,8 +94,8 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
             for md in make_reader(f).iter_metadata():
                 out[md.name] = dict(md.metadata)
             return out
-        except Exception:
-            pass
+        except TORN_END_ERRORS:  # no footer (a killed writer): fall back to reading the records
+            out.clear()
     from mcap.records import Metadata
     from mcap.stream_reader import StreamReader
 
@@ -93,7 +104,7 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
             for rec in StreamReader(f).records:
                 if isinstance(rec, Metadata):
                     out[rec.name] = dict(rec.metadata)
-        except (McapError, EOFError, ValueError):  # the torn end of a truncated file
+        except TORN_END_ERRORS:  # the torn end of a truncated file
             pass
     return out
 

@@ -11,10 +11,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from mcap.exceptions import EndOfFile, McapError
+from mcap.exceptions import EndOfFile
 from mcap.stream_reader import StreamReader
 from mcap.records import Channel, Message, Metadata, Schema
 from mcap.writer import CompressionType, Writer
+
+from .mcap_io import TORN_END_ERRORS
 
 __all__ = ["recover", "RecoverResult"]
 
@@ -71,7 +73,7 @@ def recover(broken: str | Path, fixed: str | Path) -> RecoverResult:
         except EndOfFile:  # the torn end: every record before it has been copied
             complete = False
             why = "it ends in the middle of a record: the writer was killed"
-        except (McapError, ValueError, EOFError) as e:  # a corrupt record: keep what came before it
+        except TORN_END_ERRORS as e:  # a corrupt record: keep what came before it
             complete = False
             why = f"a corrupt record ({type(e).__name__}: {e})"
         w.finish()
