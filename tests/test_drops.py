@@ -1,0 +1,57 @@
+"""Drops are not silent: a live stage that misses frames reports how many, per input, on its
+heartbeat (and so in the recording and in the launcher's progress line)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+
+from pipeline.graph import parse_graph
+from pipeline.launcher import Launcher
+from pipeline.mcap_io import iter_records
+from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+from stages.messages import EndOfStream, Frame, Header, NDArray, StageStatus, decode, encode
+
+GRAPH = """
+name: drops
+stream: cam0
+external: {frames: Frame}
+stages:
+  preprocess:
+    kind: preprocess
+    inputs: {frames: frames}
+    qos: {features: drop}
+  recorder:
+    kind: recorder
+"""
+
+
+def test_missing_frames_are_counted_on_the_heartbeat(tmp_path):
+    plan = parse_graph(GRAPH, "drops.yaml")
+    assert plan.drop_topics() == {"gflow/cam0/features"}
+    port = free_port()
+    rec = tmp_path / "drops.mcap"
+    launcher = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",)), recording=str(rec),
+                        progress=False)
+    result = {}
+    th = threading.Thread(target=lambda: result.setdefault("r", launcher.run()), daemon=True)
+    th.start()
+    while set(launcher.status) < set(plan.stages):
+        th.join(0.05)
+    s = open_session(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)))
+    bus = Bus(s)
+    time.sleep(0.5)
+    img = NDArray.of(np.random.default_rng(0).integers(0, 255, (60, 80), dtype=np.uint8))
+    for seq in (0, 1, 2, 5, 6, 9):  # frames 3, 4, 7 and 8 never arrive
+        bus.publish("gflow/cam0/frames", encode(Frame(Header("cam0", seq, seq), img)), seq, "Frame")
+    bus.publish("gflow/cam0/frames", encode(EndOfStream(Header("cam0", 10, 0))), 10, "EndOfStream")
+    th.join(60)
+    s.close()
+    assert result["r"].ok, result["r"].exits
+    last = [decode(r.data) for r in iter_records(rec, topics=["gflow/cam0/_status/preprocess"])][-1]
+    assert isinstance(last, StageStatus) and last.dropped == {"frames": 4}
+    assert result["r"].status["preprocess"].dropped == {"frames": 4}
+    feats = [r.seq for r in iter_records(rec, topics=["gflow/cam0/features"]) if r.type == "Features"]
+    assert feats == [0, 1, 2, 5, 6, 9]
