@@ -7,31 +7,49 @@ the proposals of t+1) and ``estimate`` (MAP state, box, posterior summary, ESS).
 Initialisation (first frame): with no learned model this is the chamfer tracker of the
 runtime issue: the template contour is the edge pixels inside ``init`` (x, y, w, h), the
 model is M2 with K = 1 and likelihood exp(-lambda rho). With a learned M2 model (resource
-``model``) the exemplars, sigma_k and d_k come from the model and ``init`` places it.
+``model``, contour exemplars) the exemplars, sigma_k and d_k come from the model and
+``init`` places it: alpha_0 = (box centre, 0, s) with s the box size over the model's
+reference size, exemplar indices drawn from pi, and the first frame is weighed at once.
+The estimate's box is then the bounding box of the MAP exemplar under its transform,
+T_alpha x~_k (sec. 5.1.2: X^_t = argmax p_t(X_t), taken over the particles).
 
-Bad input: a missing or unusable feature frame makes the filter coast (the proposals
-become the posterior unweighted) and the problem is reported; it never stops the stream.
+Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
+edge pixels carries no evidence; the particles coast on the dynamics (state ``coast``),
+"forced to rely on the prior". Weighing such a frame by eq. 7 would not be neutral with a
+learned model: every rho is the same large value, and -rho / 2 sigma_k^2 - d_k log sigma_k
+then favours the exemplars with the widest kernels.
+
+Bad input: a missing or unusable feature frame makes the filter coast as well, and the
+problem is reported; it never stops the stream.
+
+State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
+model), the resampled particle cloud, and counters, as msgpack of a small Struct.
 """
 
 from __future__ import annotations
 
 from typing import Mapping
 
+import msgspec
 import numpy as np
 
 from gflow_core import similarity
 from gflow_core.m2 import dynamics as dyn
-from gflow_core.m2.tracking import ContourExemplars, ParticleCloud, init_particles, posterior, template_from_edges, weigh
+from gflow_core.m2.model import M2Model
+from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
+                                    template_from_edges, weigh)
 
 from .base import Output, Params, Stage, StageInputError
 from .messages import Estimate, Features, Message, MessageError, NDArray, Particles
 from .particle_proposal import cloud_of, particles_msg
 from .rng import frame_rng
 
-__all__ = ["FilterStage", "FilterParams"]
+__all__ = ["FilterStage", "FilterParams", "draw_k"]
 
 PURPOSE_INIT = 0x1417
 PURPOSE_RESAMPLE = 0x2E5A
+PURPOSE_INIT_K = 0x1418
+SNAPSHOT_VERSION = 1
 
 
 class FilterParams(Params):
@@ -39,9 +57,11 @@ class FilterParams(Params):
 
     init : (x, y, w, h) initial box of the target, 0-based pixels.
     particles : number of particles N.
-    lam : lambda of the K = 1 chamfer likelihood exp(-lambda rho).
-    max_points : template points kept from the edges inside the box.
+    lam : lambda of the K = 1 chamfer likelihood exp(-lambda rho) (no learned model).
+    max_points : template points kept from the edges inside the box (no learned model).
     init_spread : std of (ux, uy, theta, log s) of the initial cloud.
+    model : path of a learned M2 model with contour exemplars (empty: the K = 1 chamfer tracker).
+    min_edges : a frame with fewer edge pixels is blank: no evidence, coast on the dynamics.
     """
 
     init: tuple[float, float, float, float] | None = None
@@ -51,6 +71,7 @@ class FilterParams(Params):
     init_spread: tuple[float, float, float, float] = (2.0, 2.0, 0.01, 0.01)
     seed: int = 0
     model: str = ""
+    min_edges: int = 1
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -59,6 +80,37 @@ class FilterParams(Params):
             raise ValueError(f"lam must be positive, got {self.lam}")
         if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
             raise ValueError(f"init box must have positive width and height, got {self.init}")
+        if self.min_edges < 0:
+            raise ValueError(f"min_edges must be >= 0, got {self.min_edges}")
+
+
+class _LastSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    seq: int
+    alpha: list[float]
+    ess: float
+    state: str
+    k: int
+
+
+class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Everything the filter carries from one frame to the next."""
+
+    version: int
+    initialised: bool
+    template: NDArray | None  # (P, 2) float64, K = 1 chamfer template; None with a learned model
+    alpha: NDArray | None  # (N, 4) float64 resampled posterior
+    k: NDArray | None  # (N,) int64
+    log_w: NDArray | None  # (N,) float64
+    steps: int
+    warned: bool
+    last: _LastSummary | None
+
+
+def draw_k(pi: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """n exemplar indices k ~ pi (inverse CDF). (K,) -> (n,) int64."""
+    cdf = np.cumsum(np.asarray(pi, dtype=np.float64))
+    cdf[-1] = 1.0
+    return np.searchsorted(cdf, rng.uniform(size=n), side="right").astype(np.int64)
 
 
 class FilterStage(Stage):
@@ -72,11 +124,23 @@ class FilterStage(Stage):
         super().__init__(params, ctx)
         if params.init is None:
             raise ValueError("the filter stage needs an initial box: set init: [x, y, w, h]")
-        self.model: ContourExemplars | None = None
+        learned = ctx.resources.get("model")
+        if learned is not None:
+            if not isinstance(learned, M2Model):
+                raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(learned).__name__}, "
+                                 "not an M2 model")
+            if learned.kind != "curve":
+                raise ValueError(f"stage {ctx.name!r}: model {params.model!r} has {learned.metric} patch "
+                                 "exemplars; use the patch.filter stage (graph m2_patch) for patch models")
+        self.learned: M2Model | None = learned
+        self.learned_ex: ContourExemplars | None = learned.to_contour_exemplars() if learned is not None else None
+        self.model: ContourExemplars | None = None  # set on the first frame
+        self.template: np.ndarray | None = None
         self.last_cloud: ParticleCloud | None = None
         self.ref_size = np.array(params.init[2:], dtype=np.float64)
         self.last: dict = {}
         self.steps = 0
+        self.warned = False
 
     # the first frame only needs features; afterwards both
     def required(self, seq: int) -> frozenset[str]:
@@ -97,6 +161,27 @@ class FilterStage(Stage):
             return None
         return cham
 
+    def _blank(self, feat: Features) -> bool:
+        """Fewer than ``min_edges`` edge pixels: a blank frame (sec. 5.1.2, fig. 7)."""
+        p: FilterParams = self.params  # type: ignore[assignment]
+        if p.min_edges <= 0:
+            return False
+        try:
+            edges = feat.edges.array()
+        except MessageError:
+            return False  # the chamfer image decides whether the frame is usable
+        return int(np.count_nonzero(edges)) < p.min_edges
+
+    def _check_profile(self, feat: Features, seq: int) -> None:
+        m = self.learned
+        if m is None or self.warned:
+            return
+        if feat.profile != m.profile or (m.profile == "truncated" and not np.isclose(feat.g0, m.g0)):
+            self.warned = True
+            self.report("profile_mismatch", f"frame {seq}: features use the {feat.profile} chamfer profile "
+                        f"(g0 {feat.g0:g}) but the model was learned with {m.profile} (g0 {m.g0:g}); sigma_k and "
+                        "d_k do not match these distances (set preprocess.profile / g0)", seq)
+
     def _initialise(self, seq: int, feat: Features) -> list[Output]:
         p: FilterParams = self.params  # type: ignore[assignment]
         x, y, w, h = p.init  # type: ignore[misc]
@@ -107,10 +192,13 @@ class FilterStage(Stage):
         H, W = edges.shape
         if x >= W or y >= H or x + w <= 0 or y + h <= 0:
             raise StageInputError(f"initial box {p.init} lies outside the {W}x{H} frame")
+        if self.learned is not None:
+            return self._initialise_learned(seq, feat)
         try:
             pts = template_from_edges(edges, p.init, p.max_points)  # type: ignore[arg-type]
         except ValueError as e:
             raise StageInputError(f"frame {seq}: {e}") from None
+        self.template = pts
         self.model = ContourExemplars.single(pts, p.lam, dyn.random_walk(1.0, 0.01, 0.01))
         alpha0 = np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0, 0.0, 1.0])
         rng = frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT)
@@ -119,7 +207,25 @@ class FilterStage(Stage):
         est = self._estimate(feat.header, alpha0, 0, alpha0, np.zeros(4), float(p.particles), 0.0, "init")
         return [("particles", particles_msg(feat.header, "posterior", cloud)), ("estimate", est)]
 
-    def _box(self, alpha: np.ndarray) -> tuple[float, float, float, float]:
+    def _initialise_learned(self, seq: int, feat: Features) -> list[Output]:
+        """Place the learned model on the initial box, draw k ~ pi, and weigh the first frame."""
+        p: FilterParams = self.params  # type: ignore[assignment]
+        assert self.learned is not None and self.learned_ex is not None
+        self._check_profile(feat, seq)
+        self.model = self.learned_ex
+        alpha0 = self.learned.alpha_from_box(p.init)  # type: ignore[arg-type]
+        rng = frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT)
+        cloud = init_particles(alpha0, 0, p.particles, np.array(p.init_spread), rng)
+        # k_0 ~ pi (sec. 4.1, step 6: the mixture weights are the prior over exemplars)
+        k0 = draw_k(self.model.pi, p.particles, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT_K))
+        cloud = ParticleCloud(alpha=cloud.alpha, k=k0, log_w=np.zeros(p.particles))
+        return self._update(seq, feat, cloud, first=True)
+
+    def _box(self, alpha: np.ndarray, k: int) -> tuple[float, float, float, float]:
+        if self.learned is not None:
+            # the bounding box of the MAP exemplar under its transform, T_alpha x~_k
+            assert self.model is not None
+            return curve_box(similarity.apply(alpha, self.model.curves[k, : self.model.n_points[k]]))
         # the initial box carried by T_alpha: centre u, size s * (w0, h0)
         w, h = self.ref_size * alpha[3]
         return (float(alpha[0] - (w - 1) / 2.0), float(alpha[1] - (h - 1) / 2.0), float(w), float(h))
@@ -127,10 +233,38 @@ class FilterStage(Stage):
     def _estimate(self, header, alpha, k, mean, std, ess, log_ev, state) -> Estimate:
         assert self.model is not None
         contour = similarity.apply(alpha, self.model.curves[k, : self.model.n_points[k]]).astype(np.float32)
-        self.last = {"seq": header.seq, "alpha": np.round(alpha, 3).tolist(), "ess": round(ess, 1), "state": state}
-        return Estimate(header=header, box=self._box(alpha), alpha=tuple(float(v) for v in alpha), k=int(k),
+        self.last = {"seq": header.seq, "alpha": np.round(alpha, 3).tolist(), "ess": round(ess, 1), "state": state,
+                     "k": int(k)}
+        return Estimate(header=header, box=self._box(alpha, k), alpha=tuple(float(v) for v in alpha), k=int(k),
                         mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std), ess=float(ess),
                         n=self.params.particles, log_evidence=float(log_ev), contour=NDArray.of(contour), state=state)  # type: ignore[attr-defined]
+
+    def _update(self, seq: int, feat: Features | None, cloud: ParticleCloud, first: bool = False) -> list[Output]:
+        """Weigh ``cloud`` on the frame by eq. 7 (or coast), summarise, resample."""
+        p: FilterParams = self.params  # type: ignore[assignment]
+        assert self.model is not None
+        rng = frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_RESAMPLE)
+        cham = self._chamfer(feat, seq)
+        if cham is None:
+            log_lik = np.zeros(cloud.n)
+            state = "coast"
+        elif feat is not None and self._blank(feat):
+            # no evidence: p(y_t | X_t) is the same for every X_t, so the posterior is the prior
+            log_lik = np.zeros(cloud.n)
+            state = "coast"
+        else:
+            # log p(y | alpha, k) = -rho / (2 sigma_k^2) - d_k log sigma_k            (eq. 7)
+            log_lik, _ = weigh(cloud, self.model, cham)
+            state = "track"
+        if first:
+            state = "init"
+        post = posterior(cloud, log_lik, self.model.K, rng, p.particles)
+        header = feat.header if feat is not None else self.header(seq, 0)
+        self.last_cloud = post.resampled
+        self.steps += 1
+        est = self._estimate(header, post.map_alpha, post.map_k, post.mean_alpha, post.std_alpha, post.ess,
+                             post.log_evidence, state)
+        return [("particles", particles_msg(header, "posterior", post.resampled)), ("estimate", est)]
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         feat = inputs.get("features")
@@ -146,22 +280,60 @@ class FilterStage(Stage):
             # proposal -> filter cycle keeps turning.
             self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
             cloud = self.last_cloud
-        p: FilterParams = self.params  # type: ignore[assignment]
-        rng = frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_RESAMPLE)
-        cham = self._chamfer(feat if isinstance(feat, Features) else None, seq)
-        if cham is None:
-            log_lik = np.zeros(cloud.n)
-            state = "coast"
-        else:
-            log_lik, _ = weigh(cloud, self.model, cham)
-            state = "track"
-        post = posterior(cloud, log_lik, self.model.K, rng, p.particles)
-        header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
-        self.last_cloud = post.resampled
-        self.steps += 1
-        est = self._estimate(header, post.map_alpha, post.map_k, post.mean_alpha, post.std_alpha, post.ess,
-                             post.log_evidence, state)
-        return [("particles", particles_msg(header, "posterior", post.resampled)), ("estimate", est)]
+        if cloud.k.size and cloud.k.max() >= self.model.K:
+            raise StageInputError(f"proposals {seq}: exemplar index {int(cloud.k.max())} beyond the model's "
+                                  f"K={self.model.K}")
+        return self._update(seq, feat if isinstance(feat, Features) else None, cloud)
 
     def summary(self) -> dict:
         return dict(self.last, steps=self.steps)
+
+    # -- snapshot / restore ---------------------------------------------------------------
+    def snapshot(self) -> bytes:
+        c = self.last_cloud
+        last = (_LastSummary(seq=int(self.last["seq"]), alpha=list(self.last["alpha"]), ess=float(self.last["ess"]),
+                             state=str(self.last["state"]), k=int(self.last["k"])) if self.last else None)
+        snap = _FilterSnapshot(
+            version=SNAPSHOT_VERSION, initialised=self.model is not None,
+            template=NDArray.of(self.template) if self.template is not None else None,
+            alpha=NDArray.of(c.alpha) if c is not None else None, k=NDArray.of(c.k) if c is not None else None,
+            log_w=NDArray.of(c.log_w) if c is not None else None, steps=self.steps, warned=self.warned, last=last)
+        return msgspec.msgpack.encode(snap)
+
+    def restore(self, data: bytes) -> None:
+        p: FilterParams = self.params  # type: ignore[assignment]
+        name = self.ctx.name
+        try:
+            snap = msgspec.msgpack.decode(data, type=_FilterSnapshot)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {name!r}: not a particle.filter snapshot: {e}") from None
+        if snap.version != SNAPSHOT_VERSION:
+            raise ValueError(f"stage {name!r}: filter snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
+        if snap.initialised and (snap.template is None) != (self.learned is not None):
+            raise ValueError(f"stage {name!r}: the snapshot was taken " +
+                             ("without" if snap.template is not None else "with") + " a learned model, but this "
+                             "stage runs " + ("with" if self.learned is not None else "without") + " one")
+        try:
+            cloud = (ParticleCloud(alpha=snap.alpha.array().copy(), k=snap.k.array().copy(),
+                                   log_w=snap.log_w.array().copy())
+                     if snap.alpha is not None and snap.k is not None and snap.log_w is not None else None)
+            template = snap.template.array().copy() if snap.template is not None else None
+        except (MessageError, ValueError) as e:
+            raise ValueError(f"stage {name!r}: bad filter snapshot: {e}") from None
+        if snap.initialised and cloud is None:
+            raise ValueError(f"stage {name!r}: filter snapshot is initialised but holds no particles")
+        if not snap.initialised:
+            self.model = None
+        elif template is not None:
+            self.model = ContourExemplars.single(template, p.lam, dyn.random_walk(1.0, 0.01, 0.01))
+        else:
+            self.model = self.learned_ex
+        if self.model is not None and cloud is not None and cloud.k.size and cloud.k.max() >= self.model.K:
+            raise ValueError(f"stage {name!r}: snapshot particles use exemplar {int(cloud.k.max())} but the model "
+                             f"has K={self.model.K}")
+        self.template = template
+        self.last_cloud = cloud
+        self.steps = snap.steps
+        self.warned = snap.warned
+        self.last = ({"seq": snap.last.seq, "alpha": list(snap.last.alpha), "ess": snap.last.ess,
+                      "state": snap.last.state, "k": snap.last.k} if snap.last is not None else {})

@@ -6,17 +6,23 @@ random stream ``frame_rng(seed, stream, t, PURPOSE)``.
 
 With no learned model (the chamfer tracker, K = 1) the dynamics are a random walk on
 beta = (ux, uy, theta, log s) with the given standard deviations; with a learned M2
-model (resource ``model``) they are its Markov matrix and AR(1) process.
+model (resource ``model``) they are its Markov matrix and AR(1) process. A model with
+patch exemplars (the mouth tracker, sec. 5.2) is tracked "with no alpha transformations":
+k follows the Markov matrix and alpha is passed through unchanged.
+
+The stage keeps no state that its outputs depend on; its snapshot holds the step counter.
 """
 
 from __future__ import annotations
 
 from typing import Mapping
 
+import msgspec
 import numpy as np
 
 from gflow_core.m2 import dynamics as dyn
 from gflow_core.m2.dynamics import sample_markov
+from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 
 from .base import Output, Params, Stage, StageInputError
@@ -26,6 +32,12 @@ from .rng import frame_rng
 __all__ = ["ProposalStage", "ProposalParams", "cloud_of", "particles_msg"]
 
 PURPOSE = 0x9209
+SNAPSHOT_VERSION = 1
+
+
+class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    version: int
+    done: int
 
 
 class ProposalParams(Params):
@@ -60,9 +72,15 @@ class ProposalStage(Stage):
     def __init__(self, params: ProposalParams, ctx) -> None:
         super().__init__(params, ctx)
         model = ctx.resources.get("model")
+        self.fixed_alpha = False
         if model is not None:
+            if not isinstance(model, M2Model):
+                raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
+                                 "not an M2 model")
             self.markov = model.markov
             self.dynamics = model.dynamics
+            # patch exemplars are tracked with no alpha transformations (sec. 5.2)
+            self.fixed_alpha = model.kind == "patch"
         else:
             self.markov = np.ones((1, 1))
             self.dynamics = dyn.random_walk(params.std_xy, params.std_theta, params.std_log_s)
@@ -78,10 +96,23 @@ class ProposalStage(Stage):
             raise StageInputError(f"particles {seq}: exemplar index beyond the model's K={self.markov.shape[0]}")
         # k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1})
         k = sample_markov(cloud.k, self.markov, rng)
-        alpha = self.dynamics.predict(cloud.alpha, rng)
+        alpha = cloud.alpha.copy() if self.fixed_alpha else self.dynamics.predict(cloud.alpha, rng)
         out = ParticleCloud(alpha=alpha, k=k, log_w=np.zeros(cloud.n))
         self.done += 1
         return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]
 
     def summary(self) -> dict:
         return {"proposed": self.done}
+
+    def snapshot(self) -> bytes:
+        return msgspec.msgpack.encode(_ProposalSnapshot(version=SNAPSHOT_VERSION, done=self.done))
+
+    def restore(self, data: bytes) -> None:
+        try:
+            snap = msgspec.msgpack.decode(data, type=_ProposalSnapshot)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {self.ctx.name!r}: not a proposal snapshot: {e}") from None
+        if snap.version != SNAPSHOT_VERSION:
+            raise ValueError(f"stage {self.ctx.name!r}: proposal snapshot version {snap.version}, expected "
+                             f"{SNAPSHOT_VERSION}")
+        self.done = snap.done
