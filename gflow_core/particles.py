@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LogWeights", "log_normalize", "ess", "systematic_resample"]
+__all__ = ["LogWeights", "log_normalize", "ess", "systematic_resample", "weight_histogram"]
 
 
 def log_normalize(log_w: np.ndarray) -> tuple[np.ndarray, float]:
@@ -97,6 +97,28 @@ def systematic_resample(log_w: np.ndarray, rng: np.random.Generator, n: int | No
     # u_i = (U + i) / n,  U ~ Uniform[0, 1)
     u = (rng.uniform() + np.arange(n)) / n
     return np.searchsorted(cdf, u, side="right").astype(np.int64)
+
+
+def weight_histogram(log_w: np.ndarray, edges: tuple[float, ...] = (0.0, 0.1, 0.5, 1.0, 2.0, 5.0, 10.0)) -> dict[str, int]:
+    """How many particles have a relative weight N W_i in each bin (1 = an average particle).
+
+    Parameters
+    ----------
+    log_w : (N,) float64 log-weights.
+    edges : bin edges of N W_i; the last bin is open-ended.
+
+    Returns
+    -------
+    {"[a, b)": count, ..., ">= last": count}
+    """
+    log_W, _ = log_normalize(log_w)
+    rel = np.exp(log_W) * log_W.size
+    bounds = list(edges) + [np.inf]
+    out = {}
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        key = f">= {a:g}" if np.isinf(b) else f"[{a:g}, {b:g})"
+        out[key] = int(np.count_nonzero((rel >= a) & (rel < b)))
+    return out
 
 
 @dataclass(frozen=True)

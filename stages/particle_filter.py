@@ -38,6 +38,7 @@ from gflow_core.m2 import dynamics as dyn
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
                                     template_from_edges, weigh)
+from gflow_core.particles import weight_histogram
 
 from .base import Output, Params, Stage, StageInputError
 from .messages import Estimate, Features, Message, MessageError, NDArray, Particles
@@ -259,6 +260,7 @@ class FilterStage(Stage):
         if first:
             state = "init"
         post = posterior(cloud, log_lik, self.model.K, rng, p.particles)
+        self._diagnose(cloud, log_lik)
         header = feat.header if feat is not None else self.header(seq, 0)
         self.last_cloud = post.resampled
         self.steps += 1
@@ -285,8 +287,24 @@ class FilterStage(Stage):
                                   f"K={self.model.K}")
         return self._update(seq, feat if isinstance(feat, Features) else None, cloud)
 
+    def _diagnose(self, cloud: ParticleCloud, log_lik: np.ndarray) -> None:
+        """Weights before resampling, for ``summary()`` (stepping); not part of any output."""
+        lw = cloud.log_w + log_lik
+        if not np.isfinite(lw).any():
+            self.diagnostics = {}
+            return
+        best = int(np.argmax(lw))
+        self.diagnostics = {
+            "weights_N*W": weight_histogram(lw),
+            "best_particle": {"alpha": np.round(cloud.alpha[best], 3).tolist(), "k": int(cloud.k[best]),
+                              "log_lik": round(float(log_lik[best]), 4)},
+            "log_lik_range": [round(float(log_lik.min()), 4), round(float(log_lik.max()), 4)],
+        }
+
     def summary(self) -> dict:
-        return dict(self.last, steps=self.steps)
+        """The last estimate (seq, MAP alpha, ESS, state), the histogram of the relative weights
+        N W_i before resampling, and the best particle with its log-likelihood."""
+        return dict(self.last, steps=self.steps, **getattr(self, "diagnostics", {}))
 
     # -- snapshot / restore ---------------------------------------------------------------
     def snapshot(self) -> bytes:

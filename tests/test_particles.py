@@ -48,3 +48,11 @@ def test_systematic_resampling_is_deterministic_given_rng():
     a = systematic_resample(lw, np.random.default_rng([1, 2, 3]))
     b = systematic_resample(lw, np.random.default_rng([1, 2, 3]))
     assert np.array_equal(a, b)
+
+
+def test_weight_histogram_counts_relative_weights():
+    from gflow_core.particles import weight_histogram
+
+    # N = 4, W = (0.7, 0.1, 0.1, 0.1): relative weights 2.8, 0.4, 0.4, 0.4
+    h = weight_histogram(np.log([0.7, 0.1, 0.1, 0.1]))
+    assert h["[0.1, 0.5)"] == 3 and h["[2, 5)"] == 1 and sum(h.values()) == 4

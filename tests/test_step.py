@@ -23,4 +23,5 @@ def test_step_next_jump_and_state(tmp_path, gflow_cmd):
     assert "jumped from the snapshot at frame 25" in text
     assert "proposals  (missing)" in text  # the first frame has no proposals: the filter initialises
     assert "Estimate seq=40" in text and '"ess"' in text
+    assert '"weights_N*W"' in text and '"best_particle"' in text  # weights histogram and best particle
     assert "unknown command 'bogus'" in text
