@@ -17,9 +17,11 @@ Z_k proportional to sigma_k^{d_k}, sec. 3.3.3) is
 The chamfer tracker of the runtime is this model with K = 1, d = 0 and lambda given
 directly: log p = -lambda rho.
 
-A frame that no hypothesis explains (blank or occluded, sec. 5.1.2 fig. 7) makes every
-rho large and nearly equal, so the normalised weights stay flat and the particles coast
-on the dynamics; nothing divides by the likelihood's absolute size.
+A frame that no hypothesis explains (blank or occluded, sec. 5.1.2 fig. 7): with K = 1
+every rho is the same large value and the normalised weights stay flat, so the particles
+coast on the dynamics. With learned sigma_k and d_k, eq. 7 on an empty image is *not*
+neutral (it favours the widest kernels), so the filter stage detects a frame with no
+evidence and passes zero log-likelihoods to :func:`posterior`: the posterior is the prior.
 """
 
 from __future__ import annotations
