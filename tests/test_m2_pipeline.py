@@ -143,3 +143,23 @@ def test_mouths_shuffle_model_tracks_without_alpha(tmp_path, gflow_cmd) -> None:
           f"{np.unique(k).size} exemplars used; d_k {np.round(m.d, 1)}")
     assert np.unique(k).size >= 3
     assert hit > chance
+
+
+def test_m2_recording_reruns_bit_for_bit(caviar1_model, tmp_path, gflow_cmd) -> None:
+    """Issue 5's determinism checks on a multi-process M2 run: every stage, --from a middle
+    snapshot, and a changed parameter that --check catches with the first differing frame."""
+    caviar1, model = caviar1_model
+    gt = read_boxes(caviar1 / "groundtruth.csv")
+    init = ",".join(str(v) for v in gt[TEST[0]])
+    rec = tmp_path / "m2.mcap"
+    _run([*gflow_cmd, "track", str(caviar1), "--tracker", "m2", "--model", str(model), "--init", init, "--start",
+          str(TEST[0]), "--stop", str(TEST[0] + 40), "--out", str(tmp_path / "b.csv"), "--record", str(rec), "-q",
+          "--particles", "200"])
+    for stage in ("preprocess", "proposal", "filter"):
+        out = _run([*gflow_cmd, "rerun", str(rec), "--stage", stage, "--check"])
+        assert "all identical bit for bit" in out.stdout
+    out = _run([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--from", str(TEST[0] + 30), "--check"])
+    assert f"from the snapshot at frame {TEST[0] + 25}" in out.stdout and "all identical" in out.stdout
+    bad = subprocess.run([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--set", "particles=150", "--check"],
+                         capture_output=True, text=True, timeout=300)
+    assert bad.returncode == 1 and f"first difference at frame {TEST[0]}" in bad.stdout
