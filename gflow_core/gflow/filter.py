@@ -69,6 +69,7 @@ from .pose_opinion import (
     log_importance_weights,
     log_likelihood,
     log_pose_prior,
+    prior_mean,
 )
 from .texture import background_predict_update, kalman_update, object_mask
 
@@ -146,6 +147,10 @@ class GFlowConfig:
     prior_std_coefficients : float or (k,)
         Morph coefficients (their units: pixels per model unit). ``inf`` anywhere =
         uninformative component.
+    prior_rotation_decay : float in (0, 1]
+        ``a`` of the pose prior's mean: the rotation of ``u_{t-1}`` shrunk toward the
+        identity, ``exp(a log r_{t-1})`` (:func:`.pose_opinion.prior_mean`); ``1`` = a pure
+        random walk (default).
     resample_ess_fraction : float in (0, 1]
         Resample experts when ESS < fraction * E; ``1`` = every frame (sec. 3.4).
     """
@@ -168,6 +173,7 @@ class GFlowConfig:
     prior_std_translation: float | tuple[float, ...] = 10.0
     prior_std_coefficients: float | tuple[float, ...] = 2.0
     resample_ess_fraction: float = 1.0
+    prior_rotation_decay: float = 1.0
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -195,6 +201,8 @@ class GFlowConfig:
             raise ValueError(f"object_mask must be 'hull' or 'vertices', got {self.object_mask!r}")
         if not (math.isfinite(self.object_mask_margin) and self.object_mask_margin >= 0.0):
             raise ValueError(f"object_mask_margin must be finite and >= 0, got {self.object_mask_margin!r}")
+        if not (0.0 < self.prior_rotation_decay <= 1.0):
+            raise ValueError(f"prior_rotation_decay must be in (0, 1], got {self.prior_rotation_decay!r}")
         if not (0.0 < self.resample_ess_fraction <= 1.0):
             raise ValueError(f"resample_ess_fraction must be in (0, 1], got {self.resample_ess_fraction!r}")
         object.__setattr__(
@@ -463,14 +471,18 @@ def propose(
         raise ValueError(f"need one rng per proposed expert: got {len(rngs)} rngs for {idx.size} experts")
     prior_std = cfg.prior_std(model.n_bases)
     prev = state.poses[idx]
+    # mean of p(u_t | u_{t-1}): u_{t-1} itself unless its rotation decays toward the identity
+    centre = prior_mean(prev, cfg.prior_rotation_decay)
     tv = _texture_view(state, idx, cfg)
-    # u_hat = argmin eq. 14 (Gauss-Newton; second background term ignored, first one too unless gn_background)
+    # u_hat = argmin eq. 14 (Gauss-Newton from u_{t-1}; second background term ignored, first one too
+    # unless gn_background)
     gn = gauss_newton_peak(
-        model.bases, fd, prev, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, use_background=cfg.gn_background
+        model.bases, fd, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
+        use_background=cfg.gn_background,
     )
     # u^(d,e) ~ g(. | u_hat, alpha Sigma_hat),  Sigma_hat = inverse Hessian of eq. 14
     samples, log_g, sigma_hat = laplace_proposal(gn.u_hat, gn.hessian, cfg.alpha, cfg.n_samples, rngs)
-    log_prior = log_pose_prior(prev, samples, prior_std)
+    log_prior = log_pose_prior(centre, samples, prior_std)
     bgt = background_image_terms(fd.image, tv, cfg.sigma_w) if tv.has_background else None
     # full likelihood, eq. 13
     log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt)

@@ -27,10 +27,14 @@ Poses are stepped, sampled and compared in the tangent space of
 
 Pose transition prior
 ---------------------
-``p(u_t | u_{t-1})`` is a Gaussian random walk in the tangent space at ``u_{t-1}``:
-``box_minus(u_{t-1}, u_t) ~ N(0, diag(std^2))``, with ``std`` per component
-(``inf`` = uninformative, that component contributes nothing). Inside Gauss-Newton
-the tangent difference is linearised as ``d(u [+] delta) ~ d(u) + delta`` (the
+``p(u_t | u_{t-1})`` is a Gaussian in the tangent space at its mean ``m(u_{t-1})``:
+``box_minus(m, u_t) ~ N(0, diag(std^2))``, with ``std`` per component
+(``inf`` = uninformative, that component contributes nothing). By default ``m = u_{t-1}``
+(a random walk). The paper leaves the pose dynamics unspecified (sec. 2); optionally
+(:func:`prior_mean`, ``rotation_decay = a < 1``) the rotation of the mean is pulled
+toward the identity (the initial, frontal orientation): ``r_m = exp(a log r_{t-1})``, an
+AR(1) process on the rotation vector whose stationary spread is ``std / sqrt(1 - a^2)``;
+Gauss-Newton still starts from ``u_{t-1}``. Inside Gauss-Newton the tangent difference is linearised as ``d(u [+] delta) ~ d(u) + delta`` (the
 right Jacobian of the rotation log is taken as the identity, exact at ``d = 0`` and
 accurate to ``O(|d_w|^2)`` for the small inter-frame rotations the prior allows).
 
@@ -89,7 +93,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .geometry import box_minus, box_plus, project, projection_jacobian
+from .geometry import ROT, box_minus, box_plus, project, projection_jacobian
 from .image import BilinearStencil, FrameData, bilinear_stencil
 
 __all__ = [
@@ -101,6 +105,7 @@ __all__ = [
     "gauss_newton_peak",
     "linearise_objective",
     "prior_precision",
+    "prior_mean",
     "laplace_proposal",
     "background_image_terms",
     "log_likelihood",
@@ -178,13 +183,37 @@ def prior_precision(prior_std: np.ndarray) -> np.ndarray:
     return np.where(np.isinf(std), 0.0, 1.0 / np.where(np.isinf(std), 1.0, std) ** 2)
 
 
+def prior_mean(prev: np.ndarray, rotation_decay: float = 1.0) -> np.ndarray:
+    """Mean ``m(u_{t-1})`` of the pose transition ``p(u_t | u_{t-1})``.
+
+    Parameters
+    ----------
+    prev : (..., P) float64
+        ``u_{t-1}``.
+    rotation_decay : float in (0, 1]
+        ``a``: the mean's rotation is ``exp(a log r_{t-1})`` (rotation vector times ``a``);
+        translation and coefficients are those of ``u_{t-1}``. ``1`` returns ``prev`` itself.
+
+    Returns
+    -------
+    (..., P) float64
+    """
+    if rotation_decay == 1.0:
+        return prev
+    m = np.array(prev, dtype=np.float64)
+    # w_m = a w_{t-1}  (geodesic from the identity to r_{t-1}, at fraction a)
+    m[..., ROT] *= rotation_decay
+    return m
+
+
 def log_pose_prior(prev: np.ndarray, poses: np.ndarray, prior_std: np.ndarray) -> np.ndarray:
     """Log of the pose transition density ``p(u_t | u_{t-1})`` (Gaussian random walk).
 
     Parameters
     ----------
     prev : (E, P) float64
-        ``u_{t-1}`` of each expert.
+        Mean of the transition for each expert (``u_{t-1}`` for a random walk; see
+        :func:`prior_mean`).
     poses : (E, s, P) float64
         Candidate ``u_t``.
     prior_std : (P,) float64

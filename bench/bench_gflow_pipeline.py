@@ -1,0 +1,115 @@
+"""G-flow through the pipeline at 320x240: frames/s for 1, 20 and 100 experts with the
+background model off and on, inline and as processes over zenoh (1 and 2 proposal shards),
+the size of each message type, and the peak memory (RSS) of the proposal and filter processes.
+
+One command: ``python bench/bench_gflow_pipeline.py [--frames 60] [--experts 1,20,100]``
+
+The frames are a rendered textured head (``gflow_core.gflow.render``) written once as PNGs
+(rendering is not timed); the source reads them as fast as the pipeline takes them. Frames/s
+counts the tracked frames over the time from the first to the last estimate, from the
+recording's log times (start-up excluded). Message sizes are the mean encoded payloads in
+the recording. RSS is what each stage process's heartbeat reports (sampled at up to 50 Hz),
+peak over the run. Targets (issue 4): 30 fps with 20 experts, < 500 MB per process with 100.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _util import table  # noqa: E402
+
+from gflow_core.gflow.render import synthetic_sequence  # noqa: E402
+from pipeline.inline import run_inline  # noqa: E402
+from pipeline.launcher import Launcher  # noqa: E402
+from pipeline.mcap_io import iter_records  # noqa: E402
+from pipeline.trackers.gflow import make_plan  # noqa: E402
+from pipeline.transport import ZenohSettings, free_port  # noqa: E402
+
+SIZE_TYPES = ("Frame", "Features", "ExpertStates", "PoseProposals", "PoseEstimate")
+
+
+def render(folder: Path, n: int) -> np.ndarray:
+    seq = synthetic_sequence(np.random.default_rng(11), n, (240, 320), rot_amp_deg=(8, 15, 6), trans_amp_px=(30, 15))
+    folder.mkdir(parents=True, exist_ok=True)
+    for t, f in enumerate(seq.frames):
+        cv2.imwrite(str(folder / f"{t:06d}.png"), np.rint(f * 255).astype(np.uint8))
+    return seq.box
+
+
+def plan(folder: Path, box, experts: int, background: bool, shards: int):
+    shared = {"init": [float(v) for v in box], "n_experts": experts, "background": background, "seed": 0}
+    return make_plan("gflow", {"source": {"kind": "folder", "path": str(folder)}, "proposal": dict(shared),
+                               "filter": dict(shared, shards=shards)})
+
+
+def measure(path: str) -> tuple[int, float, dict[str, float]]:
+    """(tracked frames, fps from first to last estimate, mean payload bytes per message type)."""
+    t, sizes = [], {}
+    for r in iter_records(path):
+        if r.type == "PoseEstimate":
+            t.append(r.log_ns)
+        if r.type in SIZE_TYPES:
+            sizes.setdefault(r.type, []).append(len(r.data))
+    fps = (len(t) - 1) / ((max(t) - min(t)) / 1e9) if len(t) > 1 else float("nan")
+    return len(t), fps, {k: float(np.mean(v)) for k, v in sizes.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=60, help="frames per run (default 60)")
+    ap.add_argument("--experts", default="1,20,100", help="comma-separated expert counts")
+    ap.add_argument("--modes", default="inline,processes,processes-2", help="inline, processes, processes-K (K shards)")
+    ap.add_argument("--out", default=None, help="folder for frames and recordings (default: a temporary one)")
+    args = ap.parse_args()
+    tmp = Path(args.out or tempfile.mkdtemp(prefix="gflow-bench-"))
+    box = render(tmp / "frames", args.frames)
+    print(f"G-flow pipeline, 320x240, {args.frames} frames, s=10 samples, 5 Gauss-Newton iterations, "
+          f"n=225 vertices; {tmp}")
+    rows, size_rows, mem_rows = [], [], []
+    for E in (int(v) for v in args.experts.split(",")):
+        for bg in (False, True):
+            for mode in args.modes.split(","):
+                shards = int(mode.split("-")[1]) if "-" in mode else 1
+                if shards > E:
+                    continue
+                rec = str(tmp / f"E{E}-bg{int(bg)}-{mode}.mcap")
+                p = plan(tmp / "frames", box, E, bg, shards)
+                if mode == "inline":
+                    run_inline(p, recording=rec)
+                    rss = {}
+                else:
+                    res = Launcher(p, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",)), recording=rec,
+                                   progress=False, startup_timeout=120).run()
+                    if not res.ok:
+                        raise SystemExit(f"run failed: {res.exits}")
+                    rss = res.peak_rss_mb
+                n, fps, sizes = measure(rec)
+                rows.append([E, "on" if bg else "off", mode, n, f"{fps:.1f}"])
+                if mode == "inline":
+                    size_rows.append([E, "on" if bg else "off"] + [f"{sizes.get(k, 0) / 1024:.1f}" for k in SIZE_TYPES])
+                if rss:
+                    prop = max(v for k, v in rss.items() if k.startswith("proposal"))
+                    mem_rows.append([E, "on" if bg else "off", mode, f"{prop:.0f}", f"{rss.get('filter', 0):.0f}",
+                                     f"{rss.get('preprocess', 0):.0f}", f"{rss.get('source', 0):.0f}",
+                                     f"{rss.get('recorder', 0):.0f}"])
+                print(f"  E={E} background={'on' if bg else 'off'} {mode}: {fps:.1f} fps", file=sys.stderr)
+    print("\nframes/s (first to last estimate)")
+    print(table(rows, ["experts", "background", "mode", "frames", "fps"]))
+    print("\nmean message size (KiB, encoded payload)")
+    print(table(size_rows, ["experts", "background", *SIZE_TYPES]))
+    print("\npeak RSS per process (MB)")
+    print(table(mem_rows, ["experts", "background", "mode", "proposal (max over shards)", "filter", "preprocess",
+                           "source", "recorder"]))
+
+
+if __name__ == "__main__":
+    main()

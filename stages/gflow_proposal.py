@@ -1,0 +1,273 @@
+"""G-flow proposal stage: the experts' pose opinions for frame t (Marks et al. 2004, sec. 3.2).
+
+Inputs: ``features`` of frame t (the grey image is ``y_t``) and ``state``, the experts
+after frame t - 1 (:class:`ExpertStates` from the filter; ``input_offsets = {"state": 1}``
+joins it with frame t). Output: ``proposals`` (:class:`PoseProposals`) of this stage's
+shard of experts for frame t. For each expert ``d`` of the shard
+(:func:`gflow_core.gflow.propose`):
+
+* the peak ``u_hat`` of its pose opinion by Gauss-Newton on eq. 14 and the Laplace
+  covariance ``Sigma_hat`` (inverse Hessian);
+* ``s`` samples from ``N(u_hat, alpha Sigma_hat)``;
+* their importance weights (eq. 16) with the full likelihood of eq. 13;
+* the expert's likelihood estimate (eq. 19).
+
+Sharding: with ``shards = K`` the experts are split into K contiguous blocks and this
+stage proposes for block ``shard``. Expert ``i`` of frame ``t`` draws only from
+``default_rng([seed, crc32(stream), t, i])``, so the filter's concatenation of K shards is
+bit for bit the proposals of one stage with ``shards = 1``.
+
+The background replica. With ``background: true`` the likelihood (eq. 13) needs each
+expert's background texels (E, H, W), which never travel (see ``stages/messages_gflow.py``).
+The stage keeps its own copy of all E backgrounds (every shard needs all of them, since
+any expert can be a parent) and advances it from the state message (new poses and
+parents) and the previous frame it saw, with
+:func:`gflow_core.gflow.filter.advance_background` (eq. 7-10), exactly as the filter
+would. If frame t - 1 was missing or unusable here, the replica is only predicted
+(eq. 9, 10: means kept, variances + Psi_b). If the replica does not describe frame t - 2
+when state t - 1 arrives (a lost state message), it restarts from frame t - 1 and the
+problem is reported.
+
+No usable frame t or no state t - 1: the stage publishes an *empty* proposal message
+(no experts) for frame t and reports why, so the filter coasts instead of waiting.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping
+
+import msgspec
+import numpy as np
+
+from gflow_core.gflow import ExpertState, expert_rngs, propose
+from gflow_core.gflow.filter import advance_background, initial_background
+
+from .base import Output, Stage, StageInputError
+from .gflow_common import (
+    GFlowParams,
+    ModelSetup,
+    frame_of,
+    prepare_model,
+    proposals_msg,
+    shard_indices,
+    unpack_states,
+)
+from .messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
+from .rng import stream_hash
+
+__all__ = ["GFlowProposalStage", "GFlowProposalParams"]
+
+SNAPSHOT_VERSION = 1
+
+
+class GFlowProposalParams(GFlowParams):
+    """The G-flow parameters (:class:`~stages.gflow_common.GFlowParams`, equal to the
+    filter's) and which shard of the experts this stage proposes for.
+
+    shard : index of this shard, ``0 <= shard < shards``.
+    shards : number of proposal stages the experts are split across (``<= n_experts``).
+    """
+
+    shard: int = 0
+    shards: int = 1
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not 1 <= self.shards <= self.n_experts:
+            raise ValueError(f"shards must be in [1, n_experts={self.n_experts}], got {self.shards}")
+        if not 0 <= self.shard < self.shards:
+            raise ValueError(f"shard must be in [0, shards={self.shards}), got {self.shard}")
+
+
+class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Everything a proposal stage keeps between frames (msgpack; arrays as NDArray)."""
+
+    version: int
+    image_shape: tuple[int, int] | None
+    digest: str
+    init_seq: int  # -1: not initialised
+    prev_seq: int  # -1: no previous frame
+    prev_grey: NDArray | None
+    bg_seq: int  # frame the background replica describes; -1: none
+    bg_mean: NDArray | None
+    bg_var: NDArray | None
+    steps: int
+    init_error: str
+
+
+class GFlowProposalStage(Stage):
+    kind = "gflow.proposal"
+    Params = GFlowProposalParams
+    inputs = {"features": Features, "state": ExpertStates}
+    outputs = {"proposals": PoseProposals}
+    drivers = frozenset({"features"})
+    input_offsets = {"state": 1}
+
+    def __init__(self, params: GFlowProposalParams, ctx) -> None:
+        super().__init__(params, ctx)
+        self.indices = shard_indices(params.n_experts, params.shard, params.shards)
+        self.setup: ModelSetup | None = None
+        self.init_seq: int | None = None
+        self.prev: tuple[int, np.ndarray] | None = None  # (seq, grey uint8) of the last usable frame
+        self.bg: tuple[np.ndarray, np.ndarray] | None = None
+        self.bg_seq = -1
+        self.steps = 0
+        self.init_error = ""
+        self.last: dict = {}
+
+    def required(self, seq: int) -> frozenset[str]:
+        # before (and at) the frame the filter starts from there is no state to wait for
+        if self.init_seq is None or seq <= self.init_seq:
+            return frozenset({"features"})
+        return frozenset({"features", "state"})
+
+    # -- one frame ---------------------------------------------------------------------------
+    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
+        p: GFlowProposalParams = self.params  # type: ignore[assignment]
+        feat = inputs.get("features")
+        grey = frame = None
+        if isinstance(feat, Features):
+            try:
+                grey, frame = frame_of(feat, seq, self.setup.image_shape if self.setup else None)
+            except StageInputError as e:
+                self.report("bad_features", f"{e}; no proposals for this frame", seq)
+        elif self.init_seq is not None:
+            self.report("missing_features", f"frame {seq}: no features arrived; no proposals for this frame", seq)
+        if self.init_seq is None:
+            self._initialise(seq, grey)
+            return []
+        assert self.setup is not None
+        header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
+        out = self._propose(seq, frame, inputs.get("state"))
+        if grey is not None:
+            self.prev = (seq, grey)
+        self.steps += 1
+        msg = proposals_msg(header, out, p.shard, p.shards, self.setup.digest)
+        self.last = {"seq": seq, "experts": int(self.indices.size) if out is not None else 0}
+        return [("proposals", msg)]
+
+    def _initialise(self, seq: int, grey: np.ndarray | None) -> None:
+        """Build the model on the first usable frame, as the filter does on the same frame."""
+        if grey is None:
+            return
+        try:
+            self.setup = prepare_model(self.params, self.ctx.resources, grey.shape)  # type: ignore[arg-type]
+        except (StageInputError, ValueError) as e:
+            if str(e) != self.init_error:  # say it once, not on every frame
+                self.init_error = str(e)
+                self.report("init_failed", f"frame {seq}: {e}", seq)
+            return
+        self.init_seq = seq
+        self.prev = (seq, grey)
+
+    def _propose(self, seq: int, frame: np.ndarray | None, state_msg: Message | None):
+        """Advance the background replica to t - 1, then propose for frame t (None: no proposals)."""
+        assert self.setup is not None
+        s = self.setup
+        if not isinstance(state_msg, ExpertStates):
+            self.report("missing_state", f"frame {seq}: the expert state of frame {seq - 1} did not arrive; "
+                                         f"no proposals for this frame", seq)
+            return None
+        try:
+            st = unpack_states(state_msg, s, f"expert state {seq - 1}")
+        except StageInputError as e:
+            self.report("bad_state", f"{e}; no proposals for frame {seq}", seq)
+            return None
+        bg_mean = bg_var = None
+        if s.cfg.background:
+            if not self._advance_background(seq, st, state_msg.first):
+                return None
+            assert self.bg is not None
+            bg_mean, bg_var = self.bg
+        if frame is None:
+            return None
+        state = ExpertState(poses=st["poses"], tex_mean=st["tex_mean"], tex_var=st["tex_var"], bg_mean=bg_mean,
+                            bg_var=bg_var, log_credibility=st["log_credibility"], image_shape=s.image_shape)
+        p: GFlowProposalParams = self.params  # type: ignore[assignment]
+        rngs = expert_rngs(p.seed, stream_hash(self.ctx.stream), seq, self.indices)
+        try:
+            props = propose(state, frame, s.model, s.cfg, rngs, self.indices)
+        except (ValueError, np.linalg.LinAlgError) as e:
+            self.report("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals", seq)
+            return None
+        bad = [f for f in ("u_hat", "sigma_hat", "samples", "log_weights", "log_evidence", "gn_objective")
+               if not np.isfinite(getattr(props, f)).all()]
+        if bad:
+            self.report("propose_failed", f"frame {seq}: non-finite {', '.join(bad)}; no proposals", seq)
+            return None
+        return props
+
+    def _advance_background(self, seq: int, st: dict, first: bool) -> bool:
+        """Bring the replica from frame t - 2 to t - 1 (eq. 7-10). False if it cannot be had."""
+        s = self.setup
+        assert s is not None
+        t1 = seq - 1
+        prev = self.prev[1].astype(np.float64) / 255.0 if self.prev is not None and self.prev[0] == t1 else None
+        poses, parents = st["poses"], st["parents"]
+        if first or self.bg is None or self.bg_seq != t1 - 1:
+            if prev is None:
+                self.report("no_background", f"frame {seq}: the background model cannot start without frame "
+                                             f"{t1}; no proposals for this frame", seq)
+                self.bg, self.bg_seq = None, -1
+                return False
+            if not first:
+                self.report("background_reset", f"frame {seq}: the background replica was at frame {self.bg_seq}, "
+                                                f"not {t1 - 1}; restarted from frame {t1}", seq)
+            # B_1 = the frame, unknown under each expert's object
+            self.bg = initial_background(s.model, poses, prev, s.cfg)
+        elif prev is not None:
+            # each child: its parent's background predicted (eq. 9, 10) and updated with y_{t-1} (eq. 7, 8)
+            self.bg = advance_background(self.bg[0], self.bg[1], poses, parents, prev, s.model, s.cfg)
+        else:
+            # frame t - 1 was not seen here: prediction only, mu unchanged (eq. 9), sigma + Psi_b (eq. 10)
+            self.bg = (self.bg[0][parents], self.bg[1][parents] + s.cfg.psi_b)
+        self.bg_seq = t1
+        return True
+
+    # -- state ------------------------------------------------------------------------------------
+    def summary(self) -> dict:
+        return dict(self.last, steps=self.steps, shard=f"{self.params.shard}/{self.params.shards}",  # type: ignore[attr-defined]
+                    background_at=self.bg_seq)
+
+    def snapshot(self) -> bytes:
+        bg = self.bg
+        snap = _Snapshot(
+            version=SNAPSHOT_VERSION,
+            image_shape=None if self.setup is None else tuple(self.setup.image_shape),  # type: ignore[arg-type]
+            digest="" if self.setup is None else self.setup.digest,
+            init_seq=-1 if self.init_seq is None else self.init_seq,
+            prev_seq=-1 if self.prev is None else self.prev[0],
+            prev_grey=None if self.prev is None else NDArray.of(self.prev[1]),
+            bg_seq=self.bg_seq if bg is not None else -1,
+            bg_mean=None if bg is None else NDArray.of(bg[0]),
+            bg_var=None if bg is None else NDArray.of(bg[1]),
+            steps=self.steps, init_error=self.init_error)
+        return msgspec.msgpack.encode(snap)
+
+    def restore(self, data: bytes) -> None:
+        try:
+            snap = msgspec.msgpack.decode(data, type=_Snapshot)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"not a gflow.proposal snapshot: {e}") from None
+        if snap.version != SNAPSHOT_VERSION:
+            raise ValueError(f"gflow.proposal snapshot version {snap.version}, this code reads {SNAPSHOT_VERSION}")
+        self.setup = None
+        if snap.image_shape is not None:
+            self.setup = prepare_model(self.params, self.ctx.resources, snap.image_shape)  # type: ignore[arg-type]
+            if self.setup.digest != snap.digest:
+                raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
+                                 f"{snap.digest}, this stage has {self.setup.digest})")
+        try:
+            self.prev = None if snap.prev_grey is None else (snap.prev_seq, snap.prev_grey.array().copy())
+            self.bg = None
+            if snap.bg_mean is not None and snap.bg_var is not None:
+                m, v = snap.bg_mean.array().copy(), snap.bg_var.array().copy()
+                m.setflags(write=False)
+                v.setflags(write=False)
+                self.bg = (m, v)
+        except MessageError as e:
+            raise ValueError(f"corrupt gflow.proposal snapshot: {e}") from None
+        self.init_seq = None if snap.init_seq < 0 else snap.init_seq
+        self.bg_seq = snap.bg_seq
+        self.steps = snap.steps
+        self.init_error = snap.init_error
