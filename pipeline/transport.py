@@ -41,6 +41,7 @@ class ZenohSettings:
     listen : endpoints to listen on, e.g. ``["tcp/127.0.0.1:7447"]``.
     connect : endpoints to connect to.
     multicast : enable multicast scouting (off by default: explicit endpoints only).
+    shm : use zenoh's shared-memory transport between processes of one host (default on).
     shm_pool_mb : shared-memory pool size in MiB (zenoh's default, 16). Every receiver maps each
         sender's pool, which counts in its RSS; flow control bounds the frames in flight, so
         16 MiB holds them (the guide saw large colour frames slow with 16 MiB under no flow control).
@@ -51,6 +52,7 @@ class ZenohSettings:
     connect: tuple[str, ...] = ()
     multicast: bool = False
     shm_pool_mb: int = 16
+    shm: bool = True
 
     def to_config(self) -> zenoh.Config:
         if self.mode not in ("peer", "client", "router"):
@@ -61,22 +63,20 @@ class ZenohSettings:
         if self.mode != "client":
             c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
-        try:
-            c.insert_json5("transport/shared_memory/transport_optimization/pool_size",
-                           json.dumps(self.shm_pool_mb * 1024 * 1024))
-        except Exception:  # older zenoh without this key: keep its default pool
-            pass
+        c.insert_json5("transport/shared_memory/enabled", json.dumps(bool(self.shm)))
+        c.insert_json5("transport/shared_memory/transport_optimization/pool_size",
+                       json.dumps(self.shm_pool_mb * 1024 * 1024))
         return c
 
     def to_json(self) -> dict:
         return {"mode": self.mode, "listen": list(self.listen), "connect": list(self.connect),
-                "multicast": self.multicast, "shm_pool_mb": self.shm_pool_mb}
+                "multicast": self.multicast, "shm_pool_mb": self.shm_pool_mb, "shm": self.shm}
 
     @classmethod
     def from_json(cls, d: dict) -> "ZenohSettings":
         return cls(mode=d.get("mode", "peer"), listen=tuple(d.get("listen", ("tcp/127.0.0.1:0",))),
                    connect=tuple(d.get("connect", ())), multicast=bool(d.get("multicast", False)),
-                   shm_pool_mb=int(d.get("shm_pool_mb", 16)))
+                   shm_pool_mb=int(d.get("shm_pool_mb", 16)), shm=bool(d.get("shm", True)))
 
 
 def free_port() -> int:
