@@ -129,7 +129,8 @@ class Node:
         return StageStatus(header=Header(self.plan.stream, steps, time.time_ns()), stage=self.name, pid=os.getpid(),
                            state=self.state, steps=steps, fps=round(fps, 2), dropped=dropped, errors=errors,
                            last_error=last[-300:], rss_mb=round(self.proc.memory_info().rss / 2**20, 1),
-                           last_seq=last_seq, queued=self.inbox.qsize())
+                           last_seq=last_seq, queued=self.inbox.qsize(),
+                           busy_ms=round(h.stats.busy_ns / h.stats.steps / 1e6, 3) if h and h.stats.steps else 0.0)
 
     def send_status(self, min_interval: float = 0.0) -> None:
         now = time.monotonic()
@@ -295,6 +296,11 @@ class Node:
 
 
 def run_node(plan_path: str, name: str) -> int:
+    threads = os.environ.get("GFLOW_CV_THREADS")
+    if threads:  # set by the launcher: one compute thread per stage process by default
+        import cv2
+
+        cv2.setNumThreads(int(threads))
     plan = Plan.from_json(Path(plan_path).read_text())
     if name not in plan.stages:
         print(f"gflow node: no stage {name!r} in {plan_path}", file=sys.stderr)

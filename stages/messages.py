@@ -114,7 +114,8 @@ class EndOfStream(msgspec.Struct, frozen=True, tag=True):
 
 
 class StageStatus(msgspec.Struct, frozen=True, tag=True):
-    """Heartbeat of a stage process: progress, rate, drops, last error."""
+    """Heartbeat of a stage process: progress, rate, drops, last error, memory, the last frame
+    done (``last_seq``), the input queue length and the mean compute time of a step."""
 
     header: Header
     stage: str
@@ -128,6 +129,7 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     rss_mb: float = 0.0
     last_seq: int = -1
     queued: int = 0
+    busy_ms: float = 0.0
 
 
 class Snapshot(msgspec.Struct, frozen=True, tag=True):
