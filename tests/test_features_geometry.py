@@ -61,3 +61,22 @@ def test_metrics_closed_form():
     assert iou(g, p)[0] == pytest.approx(50 / 150)
     s = score({0: (0, 0, 10, 10), 1: (0, 0, 10, 10)}, {0: (0, 0, 10, 10)})
     assert s.missing == 1 and s.success == pytest.approx(0.5) and s.cle == pytest.approx(0.0)
+
+
+def test_distance_transform_does_not_depend_on_opencv_threads():
+    """Bit-exact re-execution on any machine: the chamfer image must not change with the
+    number of OpenCV threads (OpenCV's precise transform alone does)."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    e = (rng.uniform(size=(240, 320)) > 0.97).astype(np.uint8) * 255
+    prev = cv2.getNumThreads()
+    try:
+        outs = []
+        for n in (1, 2, 4):
+            cv2.setNumThreads(n)
+            outs.append(features.chamfer_image(e, "quadratic"))
+    finally:
+        cv2.setNumThreads(prev)
+    assert all(np.array_equal(outs[0], o) for o in outs[1:])
+    assert cv2.getNumThreads() == prev

@@ -75,9 +75,9 @@ def test_a_stage_that_dies_for_good_stops_the_run_and_the_recording_closes(tmp_p
 
 
 def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
-    launcher, th, result, port, rec = _start(tmp_path, frames=240)
+    launcher, th, result, port, rec = _start(tmp_path, frames=360)
     conn = ["--connect", f"tcp/127.0.0.1:{port}"]
-    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "1.5", *conn], capture_output=True, text=True, timeout=60)
+    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "3", *conn], capture_output=True, text=True, timeout=60)
     assert "gflow/demo/features" in topics.stdout and "Features" in topics.stdout, topics.stdout
     echo = subprocess.run([*gflow_cmd, "echo", "gflow/demo/estimate", "-n", "3", "--timeout", "20", *conn],
                           capture_output=True, text=True, timeout=60)

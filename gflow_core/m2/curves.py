@@ -6,7 +6,7 @@ relative to the item's reference point. A batch of N curves with different numbe
 points is stored padded to a common P, with the true lengths alongside.
 
 The chamfer image gamma(z, r) = min_s' g(|r_z(s') - r|) of a point set z (eq. 5) is
-built on a canvas ``upsample`` times finer than the pixel grid with OpenCV's labelled
+built on a canvas ``upsample`` times finer than the pixel grid with SciPy's exact (labelled)
 distance transform, which finds the nearest point of z; the distance to it is then
 computed exactly in floating point (:class:`PointChamferImage`), so point sets with
 sub-pixel coordinates (after centring or a similarity transform) keep their accuracy.
@@ -19,8 +19,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Sequence
 
-import cv2
 import numpy as np
+from scipy import ndimage
 
 from .. import similarity
 from ..features import PROFILES
@@ -171,7 +171,7 @@ class PointChamferImage:
     """Chamfer image gamma(z, .) of one point set z on an up-sampled canvas (eq. 5).
 
     The canvas holds, for every canvas pixel, the label of its nearest *seed* (a canvas
-    pixel holding points of z) from OpenCV's labelled distance transform; each seed
+    pixel holding points of z) from SciPy's exact distance transform with indices; each seed
     keeps the mean of the points of z that fall in it (so z is resolved to one point per
     canvas pixel, 1 / upsample image pixels). The distance at a query point r
     is the exact Euclidean distance from r to the nearest of the seed points labelled at
@@ -222,16 +222,20 @@ class PointChamferImage:
         c[:, 0] = np.clip(c[:, 0], 0, w - 1)
         c[:, 1] = np.clip(c[:, 1], 0, h - 1)
         lin = c[:, 1] * w + c[:, 0]
-        # seeds in row-major order, which is OpenCV's DIST_LABEL_PIXEL numbering (1-based)
+        # the distinct seed pixels, in row-major order
         seeds, inv_idx = np.unique(lin, return_inverse=True)
         cnt = np.bincount(inv_idx).astype(np.float64)
         self._seed_x = np.bincount(inv_idx, weights=pts[:, 0]) / cnt
         self._seed_y = np.bincount(inv_idx, weights=pts[:, 1]) / cnt
-        inv = np.full(h * w, 255, dtype=np.uint8)
-        inv[seeds] = 0
-        _, lab = cv2.distanceTransformWithLabels(inv.reshape(h, w), cv2.DIST_L2, cv2.DIST_MASK_5,
-                                                 labelType=cv2.DIST_LABEL_PIXEL)
-        self._lab = (lab.ravel() - 1).astype(np.intp)
+        # the nearest seed of every canvas pixel, by SciPy's exact EDT (no thread pool, so the
+        # same on every machine; OpenCV's labelled transform is not, see features.distance_transform)
+        not_seed = np.ones(h * w, dtype=bool)
+        not_seed[seeds] = False
+        nearest = ndimage.distance_transform_edt(not_seed.reshape(h, w), return_distances=False,
+                                                 return_indices=True)
+        seed_of_pixel = np.full(h * w, -1, dtype=np.intp)
+        seed_of_pixel[seeds] = np.arange(seeds.size)
+        self._lab = seed_of_pixel[(nearest[0] * w + nearest[1]).ravel()]
         self.shape = (h, w)
 
     @property
