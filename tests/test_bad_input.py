@@ -113,13 +113,13 @@ def test_graph_with_a_typo_fails_before_launch(tmp_path, gflow_cmd):
     assert "bad.yaml:" in out.stderr and "particle.filtre" in out.stderr and "known:" in out.stderr
 
 
-def test_nan_and_wrong_shape_features_make_the_filter_coast():
+def test_nan_and_wrong_shape_features_make_the_filter_coast(tmp_path):
     from stages.base import StageContext
     from stages.messages import Features, Header, NDArray
     from stages.particle_filter import FilterParams, FilterStage
 
     plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 3}}))
-    r = run_inline(plan, recording=None)
+    r = run_inline(plan, recording=str(tmp_path / "demo.mcap"))
     assert r.frames == 3
     st = FilterStage(FilterParams(init=(10, 10, 20, 20), particles=50), StageContext("filter", "t"))
     e = np.zeros((60, 60), np.uint8)
