@@ -174,9 +174,9 @@ class Node:
             self._hb_stop.set()
             hb.join(timeout=1.0)
             try:
-                self.send_status()
-            except Exception:
-                pass
+                self.send_status()  # the final heartbeat says "done"; best effort
+            except Exception as e:  # the session may already be closing on interrupt
+                log.debug("[%s] final heartbeat not sent: %s", self.name, e)
             time.sleep(0.1)  # let the last samples leave before the session closes
             self.session.close()
 
