@@ -35,6 +35,7 @@ import numpy as np
 
 from gflow_core import similarity
 from gflow_core.m2 import dynamics as dyn
+from gflow_core.m2.dynamics import sample_categorical
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
                                     template_from_edges, weigh)
@@ -45,7 +46,7 @@ from .messages import Estimate, Features, Message, MessageError, NDArray, Partic
 from .particle_proposal import cloud_of, particles_msg
 from .rng import frame_rng
 
-__all__ = ["FilterStage", "FilterParams", "draw_k"]
+__all__ = ["FilterStage", "FilterParams"]
 
 PURPOSE_INIT = 0x1417
 PURPOSE_RESAMPLE = 0x2E5A
@@ -105,13 +106,6 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     steps: int
     warned: bool
     last: _LastSummary | None
-
-
-def draw_k(pi: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """n exemplar indices k ~ pi (inverse CDF). (K,) -> (n,) int64."""
-    cdf = np.cumsum(np.asarray(pi, dtype=np.float64))
-    cdf[-1] = 1.0
-    return np.searchsorted(cdf, rng.uniform(size=n), side="right").astype(np.int64)
 
 
 class FilterStage(Stage):
@@ -218,7 +212,7 @@ class FilterStage(Stage):
         rng = frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT)
         cloud = init_particles(alpha0, 0, p.particles, np.array(p.init_spread), rng)
         # k_0 ~ pi (sec. 4.1, step 6: the mixture weights are the prior over exemplars)
-        k0 = draw_k(self.model.pi, p.particles, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT_K))
+        k0 = sample_categorical(self.model.pi, p.particles, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT_K))
         cloud = ParticleCloud(alpha=cloud.alpha, k=k0, log_w=np.zeros(p.particles))
         return self._update(seq, feat, cloud, first=True)
 

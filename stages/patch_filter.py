@@ -34,12 +34,11 @@ import numpy as np
 
 from gflow_core import similarity
 from gflow_core.m2.model import M2Model
-from gflow_core.m2.patch_tracking import PatchExemplars, patch_posterior, weigh_patches
+from gflow_core.m2.patch_tracking import PatchExemplars, init_k, patch_posterior, weigh_patches
 from gflow_core.m2.tracking import ParticleCloud
 
 from .base import Output, Params, Stage, StageInputError
 from .messages import Estimate, Features, Message, MessageError, NDArray, Particles
-from .particle_filter import draw_k
 from .particle_proposal import cloud_of, particles_msg
 from .rng import frame_rng
 
@@ -182,7 +181,7 @@ class PatchFilterStage(Stage):
             if z is None:
                 raise StageInputError(f"frame {seq}: cannot initialise on unusable features")
             # k_0 ~ pi
-            k = draw_k(self.model.pi, p.particles, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT_K))
+            k = init_k(p.particles, self.model, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT_K))
         else:
             prop = inputs.get("proposals")
             if isinstance(prop, Particles):

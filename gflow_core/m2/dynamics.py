@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ARDynamics", "random_walk", "to_beta", "from_beta", "sample_markov"]
+__all__ = ["ARDynamics", "random_walk", "to_beta", "from_beta", "sample_markov", "sample_categorical"]
 
 
 def to_beta(alpha: np.ndarray) -> np.ndarray:
@@ -80,6 +80,25 @@ class ARDynamics:
 def random_walk(std_xy: float, std_theta: float, std_log_s: float) -> ARDynamics:
     """A random walk (A = I) with independent noise on each component."""
     return ARDynamics(A=np.eye(4), mean=np.zeros(4), B=np.diag([std_xy, std_xy, std_theta, std_log_s]))
+
+
+def sample_categorical(p: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """n draws of k ~ p by the inverse CDF (one ``rng.uniform(size=n)`` call).
+
+    Parameters
+    ----------
+    p : (K,) float64, probabilities summing to 1 (the mixture weights pi_k, say).
+    n : int >= 1
+
+    Returns
+    -------
+    (n,) int64
+    """
+    if n < 1:
+        raise ValueError(f"number of draws must be >= 1, got {n}")
+    cdf = np.cumsum(np.asarray(p, dtype=np.float64))
+    cdf[-1] = 1.0  # guard against round-off so every draw finds a category
+    return np.searchsorted(cdf, rng.uniform(size=n), side="right").astype(np.int64)
 
 
 def sample_markov(k: np.ndarray, markov: np.ndarray, rng: np.random.Generator) -> np.ndarray:

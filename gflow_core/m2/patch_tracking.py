@@ -26,7 +26,7 @@ import numpy as np
 
 from ..particles import LogWeights, systematic_resample
 from .distances import Metric, check_patches
-from .dynamics import sample_markov
+from .dynamics import sample_categorical, sample_markov
 from .kernel import log_kernel
 
 __all__ = ["PatchExemplars", "PatchPosterior", "exemplar_log_likelihood", "init_k", "propose_k", "weigh_patches",
@@ -114,11 +114,7 @@ def exemplar_log_likelihood(model: PatchExemplars, observation: np.ndarray) -> t
 
 def init_k(n: int, model: PatchExemplars, rng: np.random.Generator) -> np.ndarray:
     """n particles with k ~ pi. Returns (n,) int64."""
-    if n < 1:
-        raise ValueError(f"number of particles must be >= 1, got {n}")
-    cdf = np.cumsum(model.pi)
-    cdf[-1] = 1.0
-    return np.searchsorted(cdf, rng.uniform(size=n), side="right").astype(np.int64)
+    return sample_categorical(model.pi, n, rng)
 
 
 def propose_k(k: np.ndarray, model: PatchExemplars, rng: np.random.Generator) -> np.ndarray:
