@@ -74,7 +74,8 @@ def register(sub) -> None:
     p.add_argument("source", help="image folder (or a dataset folder with frames/), video file, or .mcap recording")
     p.add_argument("--init", type=parse_box, required=True, metavar="X,Y,W,H", help="initial box in frame --start")
     p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h)")
-    p.add_argument("--tracker", default="chamfer", choices=sorted(TRACKERS), help="tracking method (default chamfer)")
+    p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
+                   help="tracking method (default appearance; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--record", metavar="FILE", help="recording path (default recordings/track-TIME.mcap)")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")

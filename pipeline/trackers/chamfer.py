@@ -7,13 +7,14 @@ GRAPH = "chamfer"
 
 
 def add_args(g) -> None:
-    g.add_argument("--particles", type=int, default=500, help="number of particles (chamfer, m2; default 500)")
+    g.add_argument("--particles", type=int, default=None,
+                   help="number of particles (chamfer, m2, appearance; default 500, 500, 300)")
 
 
 def overrides(args) -> tuple[str, dict[str, dict]]:
     box = list(args.init)
     return GRAPH, {
-        "filter": {"init": box, "particles": args.particles, "seed": args.seed},
+        "filter": {"init": box, "particles": args.particles or 500, "seed": args.seed},
         "proposal": {"seed": args.seed},
         "preprocess": {"calibrate_box": box},
     }

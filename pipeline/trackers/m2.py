@@ -35,7 +35,7 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     meta = load_meta(path)
     mpath = str(path.resolve())
     box = list(args.init)
-    particles = getattr(args, "particles", 500)
+    particles = getattr(args, "particles", None) or 500
     pre: dict = {}
     if "canny_low" in meta and "canny_high" in meta:
         pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))

@@ -1,0 +1,35 @@
+"""``--tracker appearance`` (the default): M2 with online exemplars of edge-orientation channels.
+
+See :mod:`gflow_core.m2.appearance` for the method and its departures from Toyama & Blake.
+"""
+
+from __future__ import annotations
+
+import math
+
+NAME = "appearance"
+GRAPH = "appearance"
+
+#: random walk of the centre per frame, in units of sqrt(w h) of the initial box
+STD_XY_REL = 0.08
+
+
+def add_args(g) -> None:
+    g.add_argument("--track-scale", action="store_true",
+                   help="also track the size of the box (3 observed scales); better on pedestrians walking "
+                        "towards or away from the camera, but it lost the face of david_indoor (README, 'Results')")
+
+
+def overrides(args) -> tuple[str, dict[str, dict]]:
+    box = list(args.init)
+    particles = getattr(args, "particles", None) or 300
+    filt: dict = {"init": box, "particles": particles, "seed": args.seed}
+    std_log_s = 0.0
+    if getattr(args, "track_scale", False):
+        std_log_s = 0.01
+        filt.update(n_scales=3, std_log_s=std_log_s)
+    return GRAPH, {
+        "filter": filt,
+        "proposal": {"seed": args.seed, "std_xy": STD_XY_REL * math.sqrt(max(box[2] * box[3], 1.0)),
+                     "std_log_s": std_log_s},
+    }

@@ -1,0 +1,257 @@
+"""Filter stage of the appearance tracker: M2 with online exemplars (the default tracker).
+
+The mathematics is :mod:`gflow_core.m2.appearance` (its docstring lists the departures from
+Toyama & Blake 2002). This stage adapts it to the pipeline's particle messages:
+
+* Inputs: ``frames`` of frame t (colour or grey; the appearance channels are computed here
+  from the grey levels) and ``proposals`` for frame t from ``particle.proposal`` (a random
+  walk on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)).
+* Outputs: ``particles`` (the resampled posterior of t, alpha = (x, y, 0, s)) and
+  ``estimate``: the box, the posterior mean and std of alpha, the ESS, and the state
+  ``init``, ``track``, ``occluded`` (the target was judged hidden: the exemplars were not
+  updated and the velocity decays) or ``coast`` (no usable frame: the particles and the
+  model are carried over unchanged).
+
+Bad input -- a missing, undecodable, uniform or wrongly sized frame, or missing proposals --
+makes the filter coast and is reported; it never stops the stream.
+
+State for ``snapshot()`` / ``restore()``: the exemplars, the particle cloud, the velocity,
+the confidence level and counters, as msgpack of a small Struct.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Mapping
+
+import msgspec
+import numpy as np
+
+from gflow_core import features
+from gflow_core.m2 import appearance as ap
+from gflow_core.m2.tracking import ParticleCloud
+
+from .base import Output, Params, Stage, StageInputError
+from .messages import Estimate, Frame, Message, MessageError, NDArray, Particles
+from .particle_proposal import cloud_of, particles_msg
+from .rng import frame_rng
+
+__all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
+
+PURPOSE_INIT = 0x51A1
+PURPOSE_STEP = 0x51A2
+SNAPSHOT_VERSION = 1
+_DEFAULTS = ap.AppearanceParams()
+
+
+class AppearanceFilterParams(Params):
+    """Appearance filter settings; every field but ``init`` and ``seed`` is the field of the
+    same name of :class:`gflow_core.m2.appearance.AppearanceParams` (see it for meanings)."""
+
+    init: tuple[float, float, float, float] | None = None
+    seed: int = 0
+    particles: int = _DEFAULTS.particles
+    lam: float = _DEFAULTS.lam
+    max_area: int = _DEFAULTS.max_area
+    update_rate: float = _DEFAULTS.update_rate
+    n_scales: int = _DEFAULTS.n_scales
+    scale_step: float = _DEFAULTS.scale_step
+    std_log_s: float = _DEFAULTS.std_log_s
+    detect_fraction: float = _DEFAULTS.detect_fraction
+    detect_std: float = _DEFAULTS.detect_std
+    motion_prior: float = _DEFAULTS.motion_prior
+    search: float = _DEFAULTS.search
+    velocity_memory: float = _DEFAULTS.velocity_memory
+    occlusion_drop: float = _DEFAULTS.occlusion_drop
+    occlusion_patience: int = _DEFAULTS.occlusion_patience
+    max_log_scale: float = _DEFAULTS.max_log_scale
+
+    def __post_init__(self) -> None:
+        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
+            raise ValueError(f"init box must have positive width and height, got {self.init}")
+        self.core()  # the core's own checks, before anything starts
+
+    def core(self) -> ap.AppearanceParams:
+        return ap.AppearanceParams(**{f.name: getattr(self, f.name) for f in fields(ap.AppearanceParams)})
+
+
+class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    version: int
+    initialised: bool
+    size0: tuple[float, float] = (0.0, 0.0)
+    res: tuple[int, int] = (0, 0)
+    anchor: NDArray | None = None
+    recent: NDArray | None = None
+    particles: NDArray | None = None
+    centre: tuple[float, float] = (0.0, 0.0)
+    log_s: float = 0.0
+    velocity: tuple[float, float] = (0.0, 0.0)
+    level: float | None = None
+    occluded_run: int = 0
+    steps: int = 0
+    last: dict = {}
+
+
+def _alpha(parts: np.ndarray) -> np.ndarray:
+    """(N, 3) (x, y, log s) -> (N, 4) alpha = (x, y, 0, s)."""
+    return np.column_stack([parts[:, 0], parts[:, 1], np.zeros(len(parts)), np.exp(parts[:, 2])])
+
+
+class AppearanceFilterStage(Stage):
+    kind = "appearance.filter"
+    Params = AppearanceFilterParams
+    inputs = {"frames": Frame, "proposals": Particles}
+    outputs = {"particles": Particles, "estimate": Estimate}
+    drivers = frozenset({"frames"})
+
+    def __init__(self, params: AppearanceFilterParams, ctx) -> None:
+        super().__init__(params, ctx)
+        if params.init is None:
+            raise ValueError("the appearance filter needs an initial box: set init: [x, y, w, h]")
+        self.core = params.core()
+        self.state: ap.AppearanceState | None = None
+        self.shape: tuple[int, int] | None = None
+        self.steps = 0
+        self.last: dict = {}
+
+    def required(self, seq: int) -> frozenset[str]:
+        return frozenset({"frames"}) if self.state is None else frozenset(self.inputs)
+
+    def _grey(self, frame: Frame | None, seq: int) -> np.ndarray | None:
+        """The frame's grey levels, or None (reported) when the frame cannot be used."""
+        if frame is None:
+            self.report("missing_frame", f"frame {seq}: no frame arrived; coasting", seq)
+            return None
+        try:
+            grey = features.to_grey(frame.image.array())
+        except (MessageError, ValueError) as e:
+            self.report("bad_frame", f"frame {seq}: {e}; coasting", seq)
+            return None
+        if self.shape is not None and grey.shape != self.shape:
+            self.report("bad_frame", f"frame {seq}: {grey.shape[1]}x{grey.shape[0]} but the stream is "
+                        f"{self.shape[1]}x{self.shape[0]}; coasting", seq)
+            return None
+        if grey.size == 0 or int(grey.max()) == int(grey.min()):
+            self.report("blank_frame", f"frame {seq}: uniform frame, no evidence; coasting", seq)
+            return None
+        return grey
+
+    def _estimate(self, header, box, alpha, mean, std, ess, log_ev, state, score) -> Estimate:
+        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
+        x, y, w, h = box
+        outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+        self.last = {"seq": header.seq, "box": [round(v, 2) for v in box], "ess": round(float(ess), 1),
+                     "state": state, "score": round(float(score), 4)}
+        return Estimate(header=header, box=tuple(float(v) for v in box), alpha=tuple(float(v) for v in alpha), k=0,
+                        mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std), ess=float(ess),
+                        n=p.particles, log_evidence=float(log_ev), contour=NDArray.of(outline), state=state)
+
+    def _initialise(self, seq: int, frame: Frame | None) -> list[Output]:
+        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
+        grey = self._grey(frame, seq)
+        if grey is None or frame is None:
+            raise StageInputError(f"frame {seq}: cannot initialise on this frame")
+        try:
+            st = ap.initialise(ap.features(grey), p.init, self.core, frame_rng(p.seed, self.ctx.stream, seq,  # type: ignore[arg-type]
+                                                                                 PURPOSE_INIT))
+        except ValueError as e:
+            raise StageInputError(f"frame {seq}: {e}") from None
+        self.state, self.shape = st, grey.shape
+        a = np.array([st.centre[0], st.centre[1], 0.0, 1.0])
+        box = ap.box_of(st.centre, st.log_s, st.size0)
+        est = self._estimate(frame.header, box, a, a, np.zeros(4), float(p.particles), 0.0, "init", 1.0)
+        cloud = ParticleCloud(alpha=_alpha(st.particles), k=np.zeros(p.particles, np.int64),
+                              log_w=np.zeros(p.particles))
+        self.steps += 1
+        return [("particles", particles_msg(frame.header, "posterior", cloud)), ("estimate", est)]
+
+    def _coast(self, seq: int, frame: Frame | None) -> list[Output]:
+        """No usable frame: carry the posterior over unchanged."""
+        st = self.state
+        assert st is not None
+        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
+        header = frame.header if frame is not None else self.header(seq, 0)
+        a = np.array([st.centre[0], st.centre[1], 0.0, float(np.exp(st.log_s))])
+        box = ap.box_of(st.centre, st.log_s, st.size0)
+        est = self._estimate(header, box, a, a, np.zeros(4), float(p.particles), 0.0, "coast", 0.0)
+        cloud = ParticleCloud(alpha=_alpha(st.particles), k=np.zeros(p.particles, np.int64),
+                              log_w=np.zeros(p.particles))
+        self.steps += 1
+        return [("particles", particles_msg(header, "posterior", cloud)), ("estimate", est)]
+
+    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
+        frame = inputs.get("frames")
+        frame = frame if isinstance(frame, Frame) else None
+        if self.state is None:
+            return self._initialise(seq, frame)
+        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
+        st = self.state
+        prop = inputs.get("proposals")
+        if isinstance(prop, Particles):
+            cloud = cloud_of(prop)
+            alpha = cloud.alpha
+            if alpha.shape[0] != p.particles or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
+                self.report("bad_proposals", f"proposals {seq}: {alpha.shape[0]} particles (expected "
+                            f"{p.particles}), non-finite or non-positive scale; reusing the last posterior", seq)
+                proposed = st.particles
+            else:
+                proposed = np.column_stack([alpha[:, 0], alpha[:, 1], np.log(alpha[:, 3])])
+        else:
+            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
+            proposed = st.particles
+        grey = self._grey(frame, seq)
+        if grey is None:
+            return self._coast(seq, frame)
+        assert frame is not None
+        res = ap.step(st, ap.features(grey), proposed, self.core, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_STEP))
+        self.state = res.state
+        self.steps += 1
+        nst = res.state
+        a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
+        mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])
+        std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
+        est = self._estimate(frame.header, res.box, a, mean, std, res.ess, res.log_evidence,
+                             "occluded" if res.occluded else "track", res.score)
+        cloud = ParticleCloud(alpha=_alpha(nst.particles), k=np.zeros(p.particles, np.int64),
+                              log_w=np.zeros(p.particles))
+        return [("particles", particles_msg(frame.header, "posterior", cloud)), ("estimate", est)]
+
+    def summary(self) -> dict:
+        """The last estimate (seq, box, ESS, state, appearance score r) and the step count."""
+        return dict(self.last, steps=self.steps)
+
+    # -- snapshot / restore ---------------------------------------------------------------
+    def snapshot(self) -> bytes:
+        st = self.state
+        if st is None:
+            return msgspec.msgpack.encode(_Snapshot(version=SNAPSHOT_VERSION, initialised=False, steps=self.steps))
+        return msgspec.msgpack.encode(_Snapshot(
+            version=SNAPSHOT_VERSION, initialised=True, size0=(float(st.size0[0]), float(st.size0[1])),
+            res=(int(st.res[0]), int(st.res[1])), anchor=NDArray.of(st.anchor), recent=NDArray.of(st.recent),
+            particles=NDArray.of(st.particles), centre=(float(st.centre[0]), float(st.centre[1])),
+            log_s=float(st.log_s), velocity=(float(st.velocity[0]), float(st.velocity[1])), level=st.level,
+            occluded_run=int(st.occluded_run), steps=self.steps, last=self.last))
+
+    def restore(self, data: bytes) -> None:
+        name = self.ctx.name
+        try:
+            snap = msgspec.msgpack.decode(data, type=_Snapshot)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {name!r}: not an appearance.filter snapshot: {e}") from None
+        if snap.version != SNAPSHOT_VERSION:
+            raise ValueError(f"stage {name!r}: appearance snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
+        self.steps, self.last = snap.steps, dict(snap.last)
+        if not snap.initialised:
+            self.state, self.shape = None, None
+            return
+        try:
+            assert snap.anchor is not None and snap.recent is not None and snap.particles is not None
+            anchor, recent = snap.anchor.array().copy(), snap.recent.array().copy()
+            parts = snap.particles.array().copy()
+        except (AssertionError, MessageError, ValueError) as e:
+            raise ValueError(f"stage {name!r}: bad appearance snapshot: {e}") from None
+        self.state = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
+                                        recent=recent, particles=parts, centre=np.array(snap.centre),
+                                        log_s=snap.log_s, velocity=np.array(snap.velocity), level=snap.level,
+                                        occluded_run=snap.occluded_run)
+        self.shape = None

@@ -1,0 +1,152 @@
+"""The appearance tracker (gflow_core.m2.appearance) on synthetic scenes with ground truth:
+a target that grows and shrinks by 2x, an occluder that crosses the target, fast jumps and
+a change of light. Bounds are loose but each fails for a tracker that loses the target or
+lets its box collapse (a box that never moves is checked to fail them)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from gflow_core.m2 import appearance as ap
+from gflow_core.m2.dynamics import random_walk
+from gflow_core.metrics import centre_error, iou
+from gflow_core.orientation import N_BINS, orientation_channels
+
+H, W = 240, 320
+
+
+def _texture(rng: np.random.Generator, h: int, w: int, cell: float) -> np.ndarray:
+    small = rng.uniform(0, 255, size=(max(2, int(h / cell)), max(2, int(w / cell)))).astype(np.float32)
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+
+
+class Scene:
+    """A textured target box on a textured background; ``path(t)`` gives (cx, cy, scale)."""
+
+    def __init__(self, path, n: int, size=(30.0, 40.0), seed: int = 0, occluder=None, gain=None):
+        rng = np.random.default_rng(seed)
+        self.bg = _texture(rng, H, W, 8.0)
+        self.target = _texture(rng, 200, 150, 12.0)
+        self.occ_tex = _texture(rng, 200, 60, 6.0)
+        self.path, self.n, self.size, self.seed = path, n, np.array(size), seed
+        self.occluder, self.gain = occluder, gain
+
+    def truth(self, t: int) -> tuple[float, float, float, float]:
+        cx, cy, s = self.path(t)
+        w, h = self.size * s
+        return (cx - (w - 1) / 2, cy - (h - 1) / 2, w, h)
+
+    def grey(self, t: int) -> np.ndarray:
+        img = self.bg.copy()
+        x, y, w, h = self.truth(t)
+        tex = cv2.resize(self.target, (int(round(w)), int(round(h))), interpolation=cv2.INTER_AREA)
+        x0, y0 = int(round(x)), int(round(y))
+        img[y0:y0 + tex.shape[0], x0:x0 + tex.shape[1]] = tex[: H - y0, : W - x0]
+        if self.occluder is not None:
+            ox = self.occluder(t)
+            if ox is not None:
+                a, b = int(ox), int(ox) + 24
+                img[:, max(a, 0):max(min(b, W), 0)] = cv2.resize(self.occ_tex, (24, H))[:, max(0, -a): min(24, W - a)]
+        if self.gain is not None:
+            img = img * self.gain(t) + 20.0 * (1 - self.gain(t))
+        img = img + np.random.default_rng([self.seed, t]).normal(0, 3.0, img.shape)
+        return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _run(scene: Scene, params: ap.AppearanceParams, seed: int = 1):
+    box0 = scene.truth(0)
+    dyn = random_walk(0.08 * np.sqrt(box0[2] * box0[3]), 0.0, params.std_log_s)
+    st = ap.initialise(ap.features(scene.grey(0)), box0, params, np.random.default_rng([seed, 0]))
+    boxes, occluded = [box0], [False]
+    for t in range(1, scene.n):
+        a = np.column_stack([st.particles[:, :2], np.zeros(len(st.particles)), np.exp(st.particles[:, 2])])
+        a = dyn.predict(a, np.random.default_rng([seed, 1, t]))
+        prop = np.column_stack([a[:, :2], np.log(a[:, 3])])
+        res = ap.step(st, ap.features(scene.grey(t)), prop, params, np.random.default_rng([seed, 2, t]))
+        st = res.state
+        boxes.append(res.box)
+        occluded.append(res.occluded)
+    truth = np.array([scene.truth(t) for t in range(scene.n)])
+    return np.array(boxes), truth, np.array(occluded)
+
+
+def test_orientation_channels_shape_and_light_invariance():
+    rng = np.random.default_rng(0)
+    g = _texture(rng, 60, 80, 5.0)
+    c = orientation_channels(g)
+    assert c.shape == (60, 80, N_BINS) and c.dtype == np.float32 and np.isfinite(c).all()
+    # a change of gain and bias changes the locally normalised channels little
+    c2 = orientation_channels(g * 0.5 + 40.0)
+    inner = (slice(8, -8), slice(8, -8))
+    corr = np.corrcoef(c[inner].ravel(), c2[inner].ravel())[0, 1]
+    assert corr > 0.95
+    with pytest.raises(ValueError, match="2-D grey"):
+        orientation_channels(np.zeros((2, 2)))
+
+
+def test_follows_a_target_that_grows_and_shrinks_by_2x_with_scale_tracking():
+    # scale 1 -> 2 -> 1 -> 0.6 over 160 frames while moving across the frame
+    def path(t):
+        s = float(np.interp(t, [0, 60, 110, 160], [1.0, 2.0, 1.0, 0.6]))
+        return 100.0 + 0.6 * t, 120.0 + 20.0 * np.sin(t / 25.0), s
+    scene = Scene(path, 160)
+    p = ap.AppearanceParams(n_scales=3, std_log_s=0.01, scale_step=0.04)
+    boxes, truth, _ = _run(scene, p)
+    ratio = (boxes[:, 2] * boxes[:, 3]) / (truth[:, 2] * truth[:, 3])
+    assert np.mean((ratio > 0.5) & (ratio < 2.0)) >= 0.9, ratio
+    assert np.mean(iou(truth, boxes) > 0.5) >= 0.8
+    assert centre_error(truth, boxes).mean() < 6.0
+    # the first-frame box held still fails the same bounds
+    still = np.repeat(truth[:1], len(truth), axis=0)
+    assert np.mean(iou(truth, still) > 0.5) < 0.5
+
+
+def test_default_fixed_size_follows_the_centre_of_a_scaling_target():
+    def path(t):
+        return 100.0 + 0.8 * t, 120.0, float(np.interp(t, [0, 50, 100], [1.0, 1.4, 1.0]))
+    boxes, truth, _ = _run(Scene(path, 100), ap.AppearanceParams())
+    assert centre_error(truth, boxes).mean() < 4.0
+    assert np.allclose(boxes[:, 2], truth[0, 2]) and np.allclose(boxes[:, 3], truth[0, 3])
+
+
+def test_an_occluder_crossing_the_target_does_not_take_the_track():
+    # the target drifts right; a textured bar sweeps left across it over frames 30-70
+    def path(t):
+        return 120.0 + 0.5 * t, 120.0, 1.0
+    def bar(t):
+        return None if not 30 <= t <= 70 else 260.0 - 5.0 * (t - 30)
+    scene = Scene(path, 110, occluder=bar)
+    boxes, truth, occluded = _run(scene, ap.AppearanceParams())
+    err = centre_error(truth, boxes)
+    after = err[75:]
+    assert after.mean() < 4.0 and after.max() < 10.0, err
+    assert occluded[30:71].any()  # the hidden target was noticed
+    assert not occluded[80:].any()
+
+
+def test_fast_jumps_and_a_change_of_light():
+    # 30 px jumps up and down every 4 frames (jumping has up to 36), the light dims to 40 % and back
+    def path(t):
+        return 160.0 + 0.5 * t, 120.0 + (15.0 if (t // 4) % 2 else -15.0) * (t > 5), 1.0
+    def gain(t):
+        return float(np.interp(t, [0, 40, 80, 120], [1.0, 0.4, 0.4, 1.0]))
+    scene = Scene(path, 120, gain=gain)
+    boxes, truth, _ = _run(scene, ap.AppearanceParams())
+    assert np.mean(centre_error(truth, boxes) < 5.0) > 0.9
+
+
+def test_bad_parameters_and_boxes_are_refused():
+    with pytest.raises(ValueError, match="n_scales"):
+        ap.AppearanceParams(n_scales=2)
+    with pytest.raises(ValueError, match="particles"):
+        ap.AppearanceParams(particles=0)
+    feat = ap.features(np.full((50, 60), 100, np.uint8))
+    with pytest.raises(ValueError, match="outside"):
+        ap.initialise(feat, (70, 10, 10, 10), ap.AppearanceParams(), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="positive"):
+        ap.initialise(feat, (5, 5, 0, 10), ap.AppearanceParams(), np.random.default_rng(0))
+    st = ap.initialise(feat, (5, 5, 20, 20), ap.AppearanceParams(), np.random.default_rng(0))
+    with pytest.raises(ValueError, match="finite"):
+        ap.step(st, feat, np.full((300, 3), np.nan), ap.AppearanceParams(), np.random.default_rng(1))
