@@ -1,0 +1,202 @@
+"""``gflow benchmark DATASET...``: every tracker on every sequence folder, in one table.
+
+The logic (finding sequences, scoring, the table, JSON and plots) is in :mod:`pipeline.benchmark`;
+each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`.track.run_track`).
+"""
+
+from __future__ import annotations
+
+ORDER = 31
+
+import json
+import tempfile
+from pathlib import Path
+
+from ..trackers import TRACKERS
+from .common import CliError
+
+
+def _names(text: str | None, known: list[str], what: str) -> list[str]:
+    if text is None:
+        return list(known)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise CliError(f"--{what} needs at least one name (known: {', '.join(known)})")
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise CliError(f"unknown {what[:-1]} {bad[0]!r} (known: {', '.join(known)})")
+    return list(dict.fromkeys(names))
+
+
+def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path) -> list[str]:
+    """The ``gflow track`` command line this benchmark run is (the box of frame ``start``, one seed)."""
+    box = ",".join(repr(float(v)) for v in seq.groundtruth[start])
+    argv = [str(seq.path), "--init", box, "--out", str(folder / f"{name}.csv"), "--tracker", name,
+            "--seed", str(args.seed), "--start", str(start), "--record", str(folder / f"{name}.mcap")]
+    if stop is not None:
+        argv += ["--stop", str(stop)]
+    if args.inline:
+        argv.append("--inline")
+    if args.quiet:
+        argv.append("--quiet")
+    model = {"m2": args.m2_model, "gflow": args.gflow_model}.get(name)
+    if model:
+        argv += ["--model", model]
+    for s in args.set or []:
+        argv += ["--set", s]
+    return argv
+
+
+def cmd_benchmark(args) -> int:
+    from ..benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
+                             plot_success, published_rows, run_opencv, score_row, static_box, to_json,
+                             tracking_seconds)
+    from ..datasets import parse_range
+    from ..results import write_boxes
+    from .track import run_track, track_args, track_plan
+
+    names = _names(args.trackers, sorted(TRACKERS), "trackers")
+    cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
+    start, stop = parse_range(args.frames)
+    for opt in ("m2_model", "gflow_model"):
+        v = getattr(args, opt)
+        if v and not Path(v).is_file():
+            raise CliError(f"--{opt.replace('_', '-')}: model file not found: {v}")
+    seqs, skipped = find_sequences(args.datasets)
+    for s in skipped:
+        note(s)
+    for seq in seqs:
+        if start not in seq.groundtruth:
+            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {start}, the first frame to track")
+    mode = "inline" if args.inline else "processes"
+    rows: list[Row] = []
+    interrupted = False
+    with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
+        work = Path(args.out_dir) if args.out_dir else Path(tmp)
+        # every plan first: a bad model file or option fails here, before any tracking
+        plans: dict[tuple[str, str], tuple] = {}
+        skip: dict[tuple[str, str], str] = {}
+        for seq in seqs:
+            for name in names:
+                targs = track_args(_track_argv(args, seq, name, start, stop, work / seq.name))
+                try:
+                    plans[seq.name, name] = (targs, track_plan(targs))
+                except CliError as e:
+                    if getattr(targs, "model", None):
+                        raise
+                    skip[seq.name, name] = f"skipped: {e}"
+        runs = len(plans) + len(seqs) * sum(opencv_tracker(c)[0] is not None for c in cv_names)
+        k = 0
+        try:
+            for seq in seqs:
+                gt = seq.truth(start, stop)
+                folder = work / seq.name
+                folder.mkdir(parents=True, exist_ok=True)
+                for name in names:
+                    row = Row(seq.name, name, "tracker")
+                    rows.append(row)
+                    if (seq.name, name) in skip:
+                        row.note = skip[seq.name, name]
+                        note(f"{seq.name} / {name}: {row.note}")
+                        continue
+                    targs, plan = plans[seq.name, name]
+                    k += 1
+                    total = plan[1]
+                    note(f"[{k}/{runs}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
+                         + (f" ({total} frames)" if total else "") + f", {mode}, seed {args.seed}")
+                    try:
+                        run = run_track(targs, plan)
+                    except (CliError, RuntimeError, OSError, ValueError) as e:
+                        row.note = f"failed: {e}"
+                        note(f"{seq.name} / {name}: {row.note}")
+                        continue
+                    if run.info.get("interrupted"):
+                        raise KeyboardInterrupt
+                    write_boxes(targs.out, run.boxes)
+                    row.boxes_csv = targs.out if args.out_dir else None
+                    try:
+                        score_row(row, gt, Path(targs.out))
+                    except ValueError as e:
+                        row.note = f"not scored: {e}"
+                    secs = tracking_seconds(run.recording) or run.seconds
+                    row.seconds, row.seconds_total = secs, run.seconds
+                    row.fps = len(run.boxes) / secs if secs > 0 else None
+                    errs = run.info.get("errors")
+                    if errs:
+                        row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {errs}"
+                    note(f"{seq.name} / {name}: {len(run.boxes)} frames in {secs:.2f} s"
+                         + (f" ({row.fps:.1f} fps)" if row.fps else "")
+                         + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
+                for cv in cv_names:
+                    row = Row(seq.name, f"opencv {cv}", "opencv")
+                    rows.append(row)
+                    factory, why = opencv_tracker(cv)
+                    if factory is None:
+                        row.note = why
+                        continue
+                    k += 1
+                    note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
+                    out = folder / f"opencv_{cv}.csv"
+                    try:
+                        n, secs = run_opencv(factory, seq, start, stop, out)
+                        score_row(row, gt, out)
+                    except (ValueError, OSError) as e:
+                        row.note = f"failed: {e}"
+                        continue
+                    row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
+                    row.boxes_csv = str(out) if args.out_dir else None
+                rows.extend(published_rows(seq, gt))
+                rows.append(static_box(seq, gt, start, folder))
+                if not args.out_dir:
+                    rows[-1].boxes_csv = None
+        except KeyboardInterrupt:
+            interrupted = True
+            note("interrupted: stopped; the table holds the runs that finished")
+    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "frames": [start, stop],
+            "seed": args.seed, "mode": mode, "skipped": skipped, "interrupted": interrupted}
+    if args.json:
+        print(json.dumps(to_json(rows, meta)))
+    else:
+        print(format_table(rows, markdown=args.markdown))
+        for s in skipped:
+            print(s)
+    if not interrupted:
+        if args.plot:
+            plot_success(rows, args.plot)
+            note(f"success plot: {args.plot}")
+        if args.precision_plot:
+            plot_precision(rows, args.precision_plot)
+            note(f"precision plot: {args.precision_plot}")
+    return 130 if interrupted else 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "benchmark", help="run trackers on sequence folders and score them in one table",
+        description="Run every selected tracker on every sequence folder (frames/ and groundtruth.csv, "
+                    "optionally results/*.csv of published trackers) from the ground-truth box of the first frame, "
+                    "exactly as `gflow track` does, and score it as `gflow eval` does. Prints one table: CLE (px), "
+                    "success (IoU > 0.5), AUC of the success plot and fps (frames / wall time of tracking), with "
+                    "the published trackers and a box that never moves scored over the same frames.",
+        epilog="example: gflow benchmark ../shared/data --trackers chamfer --plot success.png")
+    p.add_argument("datasets", nargs="+", metavar="DATASET",
+                   help="a sequence folder (frames/ + groundtruth.csv) or a folder of them")
+    p.add_argument("--trackers", metavar="NAME,...",
+                   help=f"trackers to run (default all: {', '.join(sorted(TRACKERS))})")
+    p.add_argument("--seed", type=int, default=1, help="random seed of every run (default 1)")
+    p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A")
+    p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")
+    p.add_argument("--m2-model", metavar="MODEL.npz", help="model for --tracker m2 (without one, m2 is skipped)")
+    p.add_argument("--gflow-model", metavar="MODEL.npz", help="morphable model for the gflow tracker (default: generic head)")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="stage parameter for every tracker run")
+    p.add_argument("--opencv", metavar="NAME,...",
+                   help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them")
+    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    p.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    p.add_argument("--plot", metavar="PNG", help="write the success plot (success rate against overlap threshold)")
+    p.add_argument("--precision-plot", metavar="PNG", help="write the precision plot (against centre error)")
+    p.add_argument("--out-dir", metavar="DIR",
+                   help="keep every run's boxes (DIR/SEQUENCE/TRACKER.csv) and recording (.mcap); "
+                        "default: a temporary folder, removed at the end")
+    p.add_argument("-q", "--quiet", action="store_true", help="no per-frame progress (one line per run still)")
+    p.set_defaults(func=cmd_benchmark)
