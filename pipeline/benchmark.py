@@ -169,8 +169,7 @@ def opencv_tracker(name: str) -> tuple[Callable | None, str]:
     return None, f"unavailable: this OpenCV ({cv2.__version__}) has no {cls} (it is in opencv-contrib-python)"
 
 
-def run_opencv(factory: Callable, seq: Sequence, start: int, stop: int | None, out_csv: Path,
-               interrupted: Callable[[], bool] = lambda: False) -> tuple[int, float]:
+def run_opencv(factory: Callable, seq: Sequence, start: int, stop: int | None, out_csv: Path) -> tuple[int, float]:
     """Run an OpenCV tracker over the frames from the ground-truth box of ``start``; write its
     boxes (a frame where it reports failure keeps its last box). Returns (frames, seconds)."""
     from stages.source import SourceParams
@@ -183,8 +182,6 @@ def run_opencv(factory: Callable, seq: Sequence, start: int, stop: int | None, o
     last: Box = seq.groundtruth[start]
     secs = 0.0
     for raw in open_reader(params):
-        if interrupted():
-            raise KeyboardInterrupt
         if raw.image is None:
             boxes[raw.index] = last
             continue
