@@ -171,7 +171,7 @@ def opencv_tracker(name: str) -> tuple[Callable | None, str]:
 
 def run_opencv(factory: Callable, seq: Sequence, start: int, stop: int | None, out_csv: Path) -> tuple[int, float]:
     """Run an OpenCV tracker over the frames from the ground-truth box of ``start``; write its
-    boxes (a frame where it reports failure keeps its last box). Returns (frames, seconds)."""
+    boxes (a frame where it reports failure keeps its last box). Returns (frames, seconds reading and tracking)."""
     from stages.source import SourceParams
 
     from .sources import open_reader
@@ -180,22 +180,19 @@ def run_opencv(factory: Callable, seq: Sequence, start: int, stop: int | None, o
     boxes: dict[int, Box] = {}
     tracker = None
     last: Box = seq.groundtruth[start]
-    secs = 0.0
+    t0 = time.perf_counter()  # reading the frames is timed too, as in the pipeline's source stage
     for raw in open_reader(params):
-        if raw.image is None:
-            boxes[raw.index] = last
-            continue
-        t0 = time.perf_counter()
-        if tracker is None:
-            tracker = factory()
-            x, y, w, h = last
-            tracker.init(raw.image, (int(round(x)), int(round(y)), max(1, int(round(w))), max(1, int(round(h)))))
-        else:
-            ok, b = tracker.update(raw.image)
-            if ok:
-                last = tuple(float(v) for v in b)  # type: ignore[assignment]
-        secs += time.perf_counter() - t0
+        if raw.image is not None:
+            if tracker is None:
+                tracker = factory()
+                x, y, w, h = last
+                tracker.init(raw.image, (int(round(x)), int(round(y)), max(1, int(round(w))), max(1, int(round(h)))))
+            else:
+                ok, b = tracker.update(raw.image)
+                if ok:
+                    last = tuple(float(v) for v in b)  # type: ignore[assignment]
         boxes[raw.index] = last
+    secs = time.perf_counter() - t0
     write_boxes(out_csv, boxes)
     return len(boxes), secs
 

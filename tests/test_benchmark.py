@@ -135,7 +135,7 @@ def test_processes_table_matches_inline(seq, inline_run):
 
 
 @pytest.mark.parametrize("case", ["missing", "no_frames", "no_truth", "tracker", "opencv", "model", "frames",
-                                  "no_first_box"])
+                                  "no_first_box", "plot_folder", "plot_format"])
 def test_bad_input_is_one_line(case, seq, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -149,9 +149,12 @@ def test_bad_input_is_one_line(case, seq, tmp_path, capsys):
             "opencv": [str(seq), "--opencv", "nosuch"],
             "model": [str(seq), "--m2-model", str(tmp_path / "missing.npz")],
             "frames": [str(seq), "--frames", "20:10"],
-            "no_first_box": [str(seq), "--frames", f"{FRAMES + 5}:{FRAMES + 9}"]}[case]
+            "no_first_box": [str(seq), "--frames", f"{FRAMES + 5}:{FRAMES + 9}"],
+            "plot_folder": [str(seq), "--plot", str(tmp_path / "nodir" / "s.png")],
+            "plot_format": [str(seq), "--plot", str(tmp_path / "s.xyz")]}[case]
     want = {"missing": "not found", "no_frames": "no frames/", "no_truth": "no groundtruth.csv", "tracker": "nosuch",
-            "opencv": "nosuch", "model": "missing.npz", "frames": "20:10", "no_first_box": f"frame {FRAMES + 5}"}[case]
+            "opencv": "nosuch", "model": "missing.npz", "frames": "20:10", "no_first_box": f"frame {FRAMES + 5}",
+            "plot_folder": "does not exist", "plot_format": ".png"}[case]
     assert main(["benchmark", *argv, "--inline"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("gflow benchmark: error:") and want in err[0], err
@@ -200,3 +203,25 @@ def test_crossing_first_40_frames(tmp_path):
     for row, pred in ((chamfer, read_boxes(chamfer["boxes"])), (static, {f: gt[0] for f in gt})):
         want = score(gt, pred).to_json()
         assert {k: row[k] for k in want} == want, row["tracker"]
+
+
+def test_folder_of_sequences(seq, tmp_path):
+    """A parent folder runs each sequence in it, notes what it skips, and starts each sequence at its
+    first ground-truth box (here frame 5)."""
+    late = tmp_path / "late"
+    late.mkdir()
+    (late / "frames").symlink_to(seq / "frames", target_is_directory=True)
+    gt = {f: b for f, b in read_boxes(seq / "groundtruth.csv").items() if f >= 5}
+    write_boxes(late / "groundtruth.csv", gt)
+    (tmp_path / "avletters").mkdir()
+    (tmp_path / "avletters" / "anya.npz").write_bytes(b"")
+    r = _run([str(tmp_path), "--trackers", "chamfer", "--inline", "--json", "--out-dir", str(tmp_path / "out")])
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["sequences"] == ["late"] and res["frames"] == [None, None]
+    assert any("avletters" in s and "not a sequence folder" in s for s in res["skipped"])
+    assert "avletters" in r.stderr
+    chamfer = _row(res["rows"], "chamfer")
+    assert chamfer["frames"] == FRAMES - 5 and chamfer["missing_predictions"] == 0
+    assert min(read_boxes(chamfer["boxes"])) == 5
+    assert read_boxes(chamfer["boxes"])[5] == pytest.approx(gt[5], abs=0.01)  # started from the first box

@@ -57,17 +57,27 @@ def cmd_benchmark(args) -> int:
 
     names = _names(args.trackers, sorted(TRACKERS), "trackers")
     cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
-    start, stop = parse_range(args.frames)
+    first_frame, stop = parse_range(args.frames)
     for opt in ("m2_model", "gflow_model"):
         v = getattr(args, opt)
         if v and not Path(v).is_file():
             raise CliError(f"--{opt.replace('_', '-')}: model file not found: {v}")
+    for opt in ("plot", "precision_plot"):
+        v = getattr(args, opt)
+        if v and Path(v).suffix.lower() not in (".png", ".pdf", ".svg", ".jpg", ".jpeg"):
+            raise CliError(f"--{opt.replace('_', '-')} {v}: give a .png (or .pdf, .svg, .jpg) file name")
+        if v and not Path(v).resolve().parent.is_dir():
+            raise CliError(f"--{opt.replace('_', '-')} {v}: folder {Path(v).parent} does not exist")
+    if args.out_dir and Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
+        raise CliError(f"--out-dir {args.out_dir} is a file, not a folder")
     seqs, skipped = find_sequences(args.datasets)
     for s in skipped:
         note(s)
+    # the first frame to track: A of --frames A:B, else each sequence's first ground-truth frame
+    first = {seq.name: first_frame if args.frames else min(seq.groundtruth) for seq in seqs}
     for seq in seqs:
-        if start not in seq.groundtruth:
-            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {start}, the first frame to track")
+        if first[seq.name] not in seq.groundtruth:
+            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, the first frame to track")
     mode = "inline" if args.inline else "processes"
     rows: list[Row] = []
     interrupted = False
@@ -78,7 +88,7 @@ def cmd_benchmark(args) -> int:
         skip: dict[tuple[str, str], str] = {}
         for seq in seqs:
             for name in names:
-                targs = track_args(_track_argv(args, seq, name, start, stop, work / seq.name))
+                targs = track_args(_track_argv(args, seq, name, first[seq.name], stop, work / seq.name))
                 try:
                     plans[seq.name, name] = (targs, track_plan(targs))
                 except CliError as e:
@@ -89,6 +99,7 @@ def cmd_benchmark(args) -> int:
         k = 0
         try:
             for seq in seqs:
+                start = first[seq.name]
                 gt = seq.truth(start, stop)
                 folder = work / seq.name
                 folder.mkdir(parents=True, exist_ok=True)
@@ -152,7 +163,7 @@ def cmd_benchmark(args) -> int:
         except KeyboardInterrupt:
             interrupted = True
             note("interrupted: stopped; the table holds the runs that finished")
-    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "frames": [start, stop],
+    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "frames": [first_frame if args.frames else None, stop],
             "seed": args.seed, "mode": mode, "skipped": skipped, "interrupted": interrupted}
     if args.json:
         print(json.dumps(to_json(rows, meta)))
@@ -184,7 +195,8 @@ def register(sub) -> None:
     p.add_argument("--trackers", metavar="NAME,...",
                    help=f"trackers to run (default all: {', '.join(sorted(TRACKERS))})")
     p.add_argument("--seed", type=int, default=1, help="random seed of every run (default 1)")
-    p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A")
+    p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A "
+                                                    "(default: every frame from the first ground-truth box)")
     p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")
     p.add_argument("--m2-model", metavar="MODEL.npz", help="model for --tracker m2 (without one, m2 is skipped)")
     p.add_argument("--gflow-model", metavar="MODEL.npz", help="morphable model for the gflow tracker (default: generic head)")
