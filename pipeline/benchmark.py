@@ -296,7 +296,7 @@ def _plot(rows: list[Row], path: str, attr: str, x: np.ndarray, xlabel: str, yla
         ax.set_xlim(x[0], x[-1])
         ax.set_ylim(0, 1.02)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower left" if attr == "curve" else "lower right")
+        ax.legend(fontsize=7, loc="best")
     for ax in list(axes.flat)[len(seqs):]:
         ax.axis("off")
     fig.tight_layout()

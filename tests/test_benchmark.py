@@ -93,7 +93,7 @@ def test_inline_scores_equal_gflow_eval(seq, inline_run):
     # the tracker's boxes were read back from its recording, kept with --out-dir
     assert Path(chamfer["boxes"]).with_suffix(".mcap").is_file()
     m2 = _row(rows, "m2")
-    assert "score" not in m2 and "cle_px" not in m2 and "--model" in m2["note"]
+    assert "cle_px" not in m2 and "--m2-model" in m2["note"]
 
 
 def test_opencv_rows(inline_run):

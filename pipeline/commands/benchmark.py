@@ -16,6 +16,10 @@ from ..trackers import TRACKERS
 from .common import CliError
 
 
+#: the benchmark option that gives each tracker its ``gflow track --model`` file
+MODEL_OPTIONS = {"m2": "--m2-model", "gflow": "--gflow-model"}
+
+
 def _names(text: str | None, known: list[str], what: str) -> list[str]:
     if text is None:
         return list(known)
@@ -39,7 +43,7 @@ def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path
         argv.append("--inline")
     if args.quiet:
         argv.append("--quiet")
-    model = {"m2": args.m2_model, "gflow": args.gflow_model}.get(name)
+    model = getattr(args, MODEL_OPTIONS[name][2:].replace("-", "_")) if name in MODEL_OPTIONS else None
     if model:
         argv += ["--model", model]
     for s in args.set or []:
@@ -94,7 +98,9 @@ def cmd_benchmark(args) -> int:
                 except CliError as e:
                     if getattr(targs, "model", None):
                         raise
-                    skip[seq.name, name] = f"skipped: {e}"
+                    needs_model = name in MODEL_OPTIONS and "--model" in str(e)
+                    skip[seq.name, name] = f"skipped: needs {MODEL_OPTIONS[name]} MODEL.npz" if needs_model \
+                        else f"skipped: {e}"
         runs = len(plans) + len(seqs) * sum(opencv_tracker(c)[0] is not None for c in cv_names)
         k = 0
         try:
@@ -162,6 +168,8 @@ def cmd_benchmark(args) -> int:
                     rows[-1].boxes_csv = None
         except KeyboardInterrupt:
             interrupted = True
+            if rows and rows[-1].score is None and not rows[-1].note:
+                rows[-1].note = "interrupted"
             note("interrupted: stopped; the table holds the runs that finished")
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "frames": [first_frame if args.frames else None, stop],
             "seed": args.seed, "mode": mode, "skipped": skipped, "interrupted": interrupted}
