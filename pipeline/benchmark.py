@@ -169,13 +169,67 @@ def opencv_tracker(name: str) -> tuple[Callable | None, str]:
     return None, f"unavailable: this OpenCV ({cv2.__version__}) has no {cls} (it is in opencv-contrib-python)"
 
 
-def run_opencv(factory: Callable, seq: Sequence, start: int, stop: int | None, out_csv: Path) -> tuple[int, float]:
-    """Run an OpenCV tracker over the frames from the ground-truth box of ``start``; write its
-    boxes (a frame where it reports failure keeps its last box). Returns (frames, seconds reading and tracking)."""
+def run_opencv(name: str, seq: Sequence, start: int, stop: int | None, out_csv: Path,
+               seed: int = 1) -> tuple[int, float]:
+    """Run OpenCV's tracker ``name`` over the frames from the ground-truth box of ``start`` in a
+    fresh process, and write its boxes. Returns (frames, seconds reading and tracking).
+
+    A fresh process because OpenCV's trackers keep state between runs in one process (MIL gives
+    another result on its second run even with ``cv2.setRNGSeed``), so a row would depend on
+    what ran before it. Raises RuntimeError if the tracker fails.
+    """
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_opencv_child, args=(send, name, seq, start, stop, str(out_csv), seed), daemon=True)
+    proc.start()
+    send.close()
+    try:
+        res = recv.recv()
+    except EOFError:
+        proc.join(5.0)
+        raise RuntimeError(f"the OpenCV {name} process died (exit status {proc.exitcode})") from None
+    except BaseException:  # Ctrl-C: stop it now
+        proc.terminate()
+        raise
+    finally:
+        proc.join(5.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        recv.close()
+    if isinstance(res, str):
+        raise RuntimeError(res)
+    return res
+
+
+def _opencv_child(conn, name: str, seq: Sequence, start: int, stop: int | None, out_csv: str, seed: int) -> None:
+    """The body of :func:`run_opencv`'s process: sends (frames, seconds) or an error message."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops this process on Ctrl-C
+    try:
+        conn.send(_track_opencv(name, seq, start, stop, Path(out_csv), seed))
+    except Exception as e:  # reported as the row's note
+        conn.send(f"{type(e).__name__}: {e}")
+    finally:
+        conn.close()
+
+
+def _track_opencv(name: str, seq: Sequence, start: int, stop: int | None, out_csv: Path,
+                  seed: int) -> tuple[int, float]:
+    """An OpenCV tracker from the box of ``start``; a frame where it reports failure keeps its last box."""
+    import cv2
+
     from stages.source import SourceParams
 
     from .sources import open_reader
 
+    factory, why = opencv_tracker(name)
+    if factory is None:
+        raise RuntimeError(why)
+    cv2.setRNGSeed(seed)  # MIL and Boosting draw from OpenCV's global RNG
     params = SourceParams(kind="folder", path=str((seq.path / "frames").resolve()), start=start, stop=stop)
     boxes: dict[int, Box] = {}
     tracker = None

@@ -225,3 +225,19 @@ def test_folder_of_sequences(seq, tmp_path):
     assert chamfer["frames"] == FRAMES - 5 and chamfer["missing_predictions"] == 0
     assert min(read_boxes(chamfer["boxes"])) == 5
     assert read_boxes(chamfer["boxes"])[5] == pytest.approx(gt[5], abs=0.01)  # started from the first box
+
+
+def test_rows_do_not_depend_on_order(seq, tmp_path):
+    """Two copies of one sequence in one run score the same, OpenCV's MIL included (it draws from
+    OpenCV's global RNG, which every OpenCV run reseeds)."""
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        for entry in ("frames", "groundtruth.csv"):
+            (tmp_path / name / entry).symlink_to(seq / entry)
+    r = _run([str(tmp_path), "--trackers", "chamfer", "--opencv", "mil", "--inline", "--json"])
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(r.stdout)["rows"]
+    for tracker in ("chamfer", "opencv mil", "static box"):
+        a, b = ({k: v for k, v in row.items() if k not in ("sequence", "fps", "seconds", "seconds_total")}
+                for row in rows if row["tracker"] == tracker)
+        assert a == b, tracker

@@ -147,17 +147,16 @@ def cmd_benchmark(args) -> int:
                 for cv in cv_names:
                     row = Row(seq.name, f"opencv {cv}", "opencv")
                     rows.append(row)
-                    factory, why = opencv_tracker(cv)
-                    if factory is None:
-                        row.note = why
+                    if opencv_tracker(cv)[0] is None:
+                        row.note = opencv_tracker(cv)[1]
                         continue
                     k += 1
                     note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
                     out = folder / f"opencv_{cv}.csv"
                     try:
-                        n, secs = run_opencv(factory, seq, start, stop, out)
+                        n, secs = run_opencv(cv, seq, start, stop, out, seed=args.seed)
                         score_row(row, gt, out)
-                    except (ValueError, OSError) as e:
+                    except (RuntimeError, ValueError, OSError) as e:
                         row.note = f"failed: {e}"
                         continue
                     row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
