@@ -51,21 +51,12 @@ def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path
     return argv
 
 
-def cmd_benchmark(args) -> int:
-    from ..benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
-                             plot_success, published_rows, run_opencv, score_row, static_box, to_json,
-                             tracking_seconds)
-    from ..datasets import parse_range
-    from ..results import write_boxes
-    from .track import run_track, track_args, track_plan
-
-    names = _names(args.trackers, sorted(TRACKERS), "trackers")
-    cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
-    first_frame, stop = parse_range(args.frames)
-    for opt in ("m2_model", "gflow_model"):
-        v = getattr(args, opt)
+def _check_paths(args) -> None:
+    """Model files, plot names and --out-dir, before any work."""
+    for opt in MODEL_OPTIONS.values():
+        v = getattr(args, opt[2:].replace("-", "_"))
         if v and not Path(v).is_file():
-            raise CliError(f"--{opt.replace('_', '-')}: model file not found: {v}")
+            raise CliError(f"{opt}: model file not found: {v}")
     for opt in ("plot", "precision_plot"):
         v = getattr(args, opt)
         if v and Path(v).suffix.lower() not in (".png", ".pdf", ".svg", ".jpg", ".jpeg"):
@@ -74,6 +65,86 @@ def cmd_benchmark(args) -> int:
             raise CliError(f"--{opt.replace('_', '-')} {v}: folder {Path(v).parent} does not exist")
     if args.out_dir and Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
         raise CliError(f"--out-dir {args.out_dir} is a file, not a folder")
+
+
+def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None, work: Path):
+    """``gflow track`` options and plan of every (sequence, tracker), or why it is skipped.
+
+    Building every plan first makes a bad model file or option fail before any tracking. A
+    tracker that cannot run without a model nobody gave is skipped with a note.
+    """
+    from .track import track_args, track_plan
+
+    plans: dict[tuple[str, str], tuple] = {}
+    skip: dict[tuple[str, str], str] = {}
+    for seq in seqs:
+        for name in names:
+            targs = track_args(_track_argv(args, seq, name, first[seq.name], stop, work / seq.name))
+            try:
+                plans[seq.name, name] = (targs, track_plan(targs))
+            except CliError as e:
+                if getattr(targs, "model", None):
+                    raise
+                needs_model = name in MODEL_OPTIONS and "--model" in str(e)
+                skip[seq.name, name] = f"skipped: needs {MODEL_OPTIONS[name]} MODEL.npz" if needs_model \
+                    else f"skipped: {e}"
+    return plans, skip
+
+
+def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
+    """Run one tracker as ``gflow track`` does, and score its boxes as ``gflow eval`` does."""
+    from ..benchmark import note, score_row, tracking_seconds
+    from ..results import write_boxes
+    from .track import run_track
+
+    try:
+        run = run_track(targs, plan)
+    except Exception as e:  # noqa: BLE001 - a tracker that fails is a result of the benchmark, not its end
+        row.note = f"failed: {e}"
+        note(f"{row.sequence} / {row.tracker}: {row.note}")
+        return
+    if run.info.get("interrupted"):
+        raise KeyboardInterrupt
+    write_boxes(targs.out, run.boxes)
+    row.boxes_csv = targs.out if keep else None
+    try:
+        score_row(row, gt, Path(targs.out))
+    except ValueError as e:
+        row.note = f"not scored: {e}"
+    secs = tracking_seconds(run.recording) or run.seconds
+    row.seconds, row.seconds_total = secs, run.seconds
+    row.fps = len(run.boxes) / secs if secs > 0 else None
+    if run.info.get("errors"):
+        row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
+    note(f"{row.sequence} / {row.tracker}: {len(run.boxes)} frames in {secs:.2f} s"
+         + (f" ({row.fps:.1f} fps)" if row.fps else "")
+         + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
+
+
+def _opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out: Path, seed: int,
+                keep: bool) -> None:
+    """Run one OpenCV tracker (in its own process) and score it."""
+    from ..benchmark import run_opencv, score_row
+
+    try:
+        n, secs = run_opencv(name, seq, start, stop, out, seed=seed)
+        score_row(row, gt, out)
+    except (RuntimeError, ValueError, OSError) as e:
+        row.note = f"failed: {e}"
+        return
+    row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
+    row.boxes_csv = str(out) if keep else None
+
+
+def cmd_benchmark(args) -> int:
+    from ..benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
+                             plot_success, published_rows, static_box, to_json)
+    from ..datasets import parse_range
+
+    names = _names(args.trackers, sorted(TRACKERS), "trackers")
+    cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
+    first_frame, stop = parse_range(args.frames)
+    _check_paths(args)
     seqs, skipped = find_sequences(args.datasets)
     for s in skipped:
         note(s)
@@ -81,27 +152,17 @@ def cmd_benchmark(args) -> int:
     first = {seq.name: first_frame if args.frames else min(seq.groundtruth) for seq in seqs}
     for seq in seqs:
         if first[seq.name] not in seq.groundtruth:
-            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, the first frame to track")
+            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, "
+                           "the first frame to track")
+    cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
     mode = "inline" if args.inline else "processes"
+    keep = bool(args.out_dir)
     rows: list[Row] = []
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
-        work = Path(args.out_dir) if args.out_dir else Path(tmp)
-        # every plan first: a bad model file or option fails here, before any tracking
-        plans: dict[tuple[str, str], tuple] = {}
-        skip: dict[tuple[str, str], str] = {}
-        for seq in seqs:
-            for name in names:
-                targs = track_args(_track_argv(args, seq, name, first[seq.name], stop, work / seq.name))
-                try:
-                    plans[seq.name, name] = (targs, track_plan(targs))
-                except CliError as e:
-                    if getattr(targs, "model", None):
-                        raise
-                    needs_model = name in MODEL_OPTIONS and "--model" in str(e)
-                    skip[seq.name, name] = f"skipped: needs {MODEL_OPTIONS[name]} MODEL.npz" if needs_model \
-                        else f"skipped: {e}"
-        runs = len(plans) + len(seqs) * sum(opencv_tracker(c)[0] is not None for c in cv_names)
+        work = Path(args.out_dir) if keep else Path(tmp)
+        plans, skip = _plans(args, seqs, names, first, stop, work)
+        runs = len(plans) + len(seqs) * (len(cv_names) - len(cv_missing))
         k = 0
         try:
             for seq in seqs:
@@ -118,66 +179,34 @@ def cmd_benchmark(args) -> int:
                         continue
                     targs, plan = plans[seq.name, name]
                     k += 1
-                    total = plan[1]
                     note(f"[{k}/{runs}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
-                         + (f" ({total} frames)" if total else "") + f", {mode}, seed {args.seed}")
-                    try:
-                        run = run_track(targs, plan)
-                    except (CliError, RuntimeError, OSError, ValueError) as e:
-                        row.note = f"failed: {e}"
-                        note(f"{seq.name} / {name}: {row.note}")
-                        continue
-                    if run.info.get("interrupted"):
-                        raise KeyboardInterrupt
-                    write_boxes(targs.out, run.boxes)
-                    row.boxes_csv = targs.out if args.out_dir else None
-                    try:
-                        score_row(row, gt, Path(targs.out))
-                    except ValueError as e:
-                        row.note = f"not scored: {e}"
-                    secs = tracking_seconds(run.recording) or run.seconds
-                    row.seconds, row.seconds_total = secs, run.seconds
-                    row.fps = len(run.boxes) / secs if secs > 0 else None
-                    errs = run.info.get("errors")
-                    if errs:
-                        row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {errs}"
-                    note(f"{seq.name} / {name}: {len(run.boxes)} frames in {secs:.2f} s"
-                         + (f" ({row.fps:.1f} fps)" if row.fps else "")
-                         + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
+                         + (f" ({plan[1]} frames)" if plan[1] else "") + f", {mode}, seed {args.seed}")
+                    _tracker_row(row, targs, plan, gt, keep)
                 for cv in cv_names:
-                    row = Row(seq.name, f"opencv {cv}", "opencv")
+                    row = Row(seq.name, f"opencv {cv}", "opencv", note=cv_missing.get(cv, ""))
                     rows.append(row)
-                    if opencv_tracker(cv)[0] is None:
-                        row.note = opencv_tracker(cv)[1]
-                        continue
-                    k += 1
-                    note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
-                    out = folder / f"opencv_{cv}.csv"
-                    try:
-                        n, secs = run_opencv(cv, seq, start, stop, out, seed=args.seed)
-                        score_row(row, gt, out)
-                    except (RuntimeError, ValueError, OSError) as e:
-                        row.note = f"failed: {e}"
-                        continue
-                    row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
-                    row.boxes_csv = str(out) if args.out_dir else None
+                    if cv not in cv_missing:
+                        k += 1
+                        note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
+                        _opencv_row(row, cv, seq, start, stop, gt, folder / f"opencv_{cv}.csv", args.seed, keep)
                 rows.extend(published_rows(seq, gt))
                 rows.append(static_box(seq, gt, start, folder))
-                if not args.out_dir:
+                if not keep:
                     rows[-1].boxes_csv = None
         except KeyboardInterrupt:
             interrupted = True
             if rows and rows[-1].score is None and not rows[-1].note:
                 rows[-1].note = "interrupted"
             note("interrupted: stopped; the table holds the runs that finished")
-    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "frames": [first_frame if args.frames else None, stop],
-            "seed": args.seed, "mode": mode, "skipped": skipped, "interrupted": interrupted}
+    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs],
+            "frames": [first_frame if args.frames else None, stop], "seed": args.seed, "mode": mode,
+            "skipped": skipped, "interrupted": interrupted}
     if args.json:
         print(json.dumps(to_json(rows, meta)))
     else:
         print(format_table(rows, markdown=args.markdown))
-        for s in skipped:
-            print(s)
+        if skipped:
+            print("\n" + "\n".join(skipped))
     if not interrupted:
         if args.plot:
             plot_success(rows, args.plot)
