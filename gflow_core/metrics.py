@@ -9,7 +9,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["centre_error", "iou", "TrackScore", "score"]
+__all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve"]
+
+#: overlap thresholds of the OTB success plot (Wu, Lim & Yang, CVPR 2013); its AUC is the mean over them
+OVERLAP_THRESHOLDS = np.linspace(0.0, 1.0, 21)
 
 
 def _boxes(b: np.ndarray, name: str) -> np.ndarray:
@@ -74,3 +77,34 @@ def score(gt: dict[int, tuple], pred: dict[int, tuple], threshold: float = 0.5) 
     overlaps = np.concatenate([ov, np.zeros(missing)])
     return TrackScore(frames=len(frames), cle=float(centre_error(g, p).mean()), mean_overlap=float(overlaps.mean()),
                       success=float((overlaps > threshold).mean()), missing=missing)
+
+
+def _per_frame(gt: dict[int, tuple], pred: dict[int, tuple]) -> tuple[np.ndarray, np.ndarray]:
+    """Overlap and centre error on every ground-truth frame, (F,) each; a frame without a
+    prediction has overlap 0 and centre error inf."""
+    frames = sorted(gt)
+    if not frames:
+        raise ValueError("ground truth is empty")
+    g = np.array([gt[f] for f in frames], dtype=np.float64)
+    has = np.array([f in pred for f in frames])
+    p = np.array([pred.get(f, gt[f]) for f in frames], dtype=np.float64)
+    ov = np.where(has, iou(g, p), 0.0)
+    err = np.where(has, centre_error(g, p), np.inf)
+    return ov, err
+
+
+def success_curve(gt: dict[int, tuple], pred: dict[int, tuple],
+                  thresholds: np.ndarray = OVERLAP_THRESHOLDS) -> np.ndarray:
+    """Success rate (fraction of ground-truth frames with overlap > t) for each threshold t, (T,).
+
+    Frames without a prediction count as failures, as in :func:`score` (whose success rate is
+    this curve at t = 0.5). The area under the curve is its mean over ``OVERLAP_THRESHOLDS``.
+    """
+    ov, _ = _per_frame(gt, pred)
+    return (ov[None, :] > np.asarray(thresholds, dtype=np.float64)[:, None]).mean(axis=1)
+
+
+def precision_curve(gt: dict[int, tuple], pred: dict[int, tuple], thresholds: np.ndarray) -> np.ndarray:
+    """Precision (fraction of ground-truth frames with centre error <= t pixels) per threshold, (T,)."""
+    _, err = _per_frame(gt, pred)
+    return (err[None, :] <= np.asarray(thresholds, dtype=np.float64)[:, None]).mean(axis=1)

@@ -9,14 +9,16 @@ from __future__ import annotations
 
 ORDER = 20
 
+import argparse
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import msgspec
 
 from stages.source import SourceParams
 
-from ..graph import load_graph
+from ..graph import Plan, load_graph
 from ..results import estimates, write_boxes
 from ..sources import count_frames
 from ..trackers import TRACKERS
@@ -40,7 +42,23 @@ def source_params(source: str, args) -> dict:
     return params
 
 
-def cmd_track(args) -> int:
+@dataclass
+class TrackRun:
+    """What one ``gflow track`` run produced: boxes by frame and how the run went."""
+
+    boxes: dict[int, tuple[float, float, float, float]]
+    states: list[str]
+    recording: str
+    seconds: float
+    frames: int
+    info: dict
+
+
+def track_plan(args) -> tuple[Plan, int | None]:
+    """The plan ``gflow track`` runs for ``args`` and its number of frames (None if unknown).
+
+    Bad options or model files raise here, before anything starts.
+    """
     tracker = TRACKERS[args.tracker]
     graph, overrides = tracker.overrides(args)
     overrides.setdefault("source", {}).update(source_params(args.source, args))
@@ -51,26 +69,34 @@ def cmd_track(args) -> int:
         plan = make_plan(args.graph or graph, overrides)
     else:
         plan = load_graph(args.graph or graph, overrides=overrides)
-    total = count_frames(msgspec.convert(plan.stages["source"].params, SourceParams))
+    return plan, count_frames(msgspec.convert(plan.stages["source"].params, SourceParams))
+
+
+def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
+    """Run the tracker of ``args`` (inline or as processes) and read its boxes back from the recording."""
+    plan_, total = plan or track_plan(args)
     rec = args.record or str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
-    path, secs, frames, info = run_plan(plan, args, rec, total, quiet=args.quiet)
+    path, secs, frames, info = run_plan(plan_, args, rec, total, quiet=args.quiet)
     est = estimates(path)
-    write_boxes(args.out, {k: v.box for k, v in est.items()})
-    states = [v.state for v in est.values()]
-    print(f"tracked {len(est)} frames in {secs:.2f} s ({len(est) / max(secs, 1e-9):.1f} fps); "
-          f"boxes: {args.out}; recording: {path}")
+    return TrackRun(boxes={k: v.box for k, v in est.items()}, states=[v.state for v in est.values()],
+                    recording=path, seconds=secs, frames=frames, info=info)
+
+
+def cmd_track(args) -> int:
+    run = run_track(args)
+    write_boxes(args.out, run.boxes)
+    n, states, info = len(run.boxes), run.states, run.info
+    print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
+          f"boxes: {args.out}; recording: {run.recording}")
     if states.count("coast"):
         print(f"  {states.count('coast')} frame(s) coasted on the dynamics (no usable image)")
     if info.get("errors"):
-        print(f"  errors reported: {info['errors']} (see `gflow info {path}`)")
+        print(f"  errors reported: {info['errors']} (see `gflow info {run.recording}`)")
     return 130 if info.get("interrupted") else 0
 
 
-def register(sub) -> None:
-    p = sub.add_parser("track", help="track one target through an image folder, a video or a recording",
-                       description="Track one target from an initial box. Writes frame,x,y,w,h per frame (0-based "
-                                   "pixels, top-left corner and size) and records every message to MCAP.",
-                       epilog="example: gflow track ../shared/data/crossing --init 204,150,17,50 --out boxes.csv")
+def add_track_args(p: argparse.ArgumentParser) -> None:
+    """The options of ``gflow track`` (also parsed by ``gflow benchmark`` to run a tracker the same way)."""
     p.add_argument("source", help="image folder (or a dataset folder with frames/), video file, or .mcap recording")
     p.add_argument("--init", type=parse_box, required=True, metavar="X,Y,W,H", help="initial box in frame --start")
     p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h)")
@@ -90,4 +116,24 @@ def register(sub) -> None:
         g = p.add_argument_group(f"--tracker {t.NAME}")
         t.add_args(g)
     add_zenoh_args(p)
+
+
+def track_args(argv: list[str]) -> argparse.Namespace:
+    """``gflow track`` options parsed from ``argv`` (a bad option raises CliError, not SystemExit)."""
+    p = _Parser(prog="gflow track", add_help=False)
+    add_track_args(p)
+    return p.parse_args(argv)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # type: ignore[override]
+        raise CliError(message)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("track", help="track one target through an image folder, a video or a recording",
+                       description="Track one target from an initial box. Writes frame,x,y,w,h per frame (0-based "
+                                   "pixels, top-left corner and size) and records every message to MCAP.",
+                       epilog="example: gflow track ../shared/data/crossing --init 204,150,17,50 --out boxes.csv")
+    add_track_args(p)
     p.set_defaults(func=cmd_track)

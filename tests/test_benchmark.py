@@ -1,0 +1,243 @@
+"""``gflow benchmark``: the real CLI on a short synthetic sequence folder and on ../shared/data/crossing."""
+
+from __future__ import annotations
+
+import json
+import os
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from gflow_core.metrics import score
+from gflow_core.synthetic import SyntheticScene
+from pipeline.cli import main
+from pipeline.datasets import write_frames
+from pipeline.results import read_boxes, write_boxes
+
+from conftest import data_dir
+
+GFLOW = [sys.executable, "-m", "pipeline.cli"]
+FRAMES = 30
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory) -> Path:
+    """A sequence folder: 30 synthetic frames, their ground truth and a fake published tracker
+    (the truth shifted by 6 px, one frame missing)."""
+    root = tmp_path_factory.mktemp("bench") / "synth"
+    scene = SyntheticScene(n_frames=FRAMES, seed=3, period=60)
+    write_frames(root / "frames", [scene.render(t) for t in range(FRAMES)])
+    truth = {t: scene.truth_box(t) for t in range(FRAMES)}
+    write_boxes(root / "groundtruth.csv", truth)
+    other = {t: (b[0] + 6.0, b[1], b[2], b[3]) for t, b in truth.items() if t != 7}
+    write_boxes(root / "results" / "other.csv", other)
+    return root
+
+
+def _run(args: list[str], timeout: float = 120) -> subprocess.CompletedProcess:
+    return subprocess.run([*GFLOW, "benchmark", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def _eval(gt: Path, pred: str) -> dict:
+    out = subprocess.run([*GFLOW, "eval", "--gt", str(gt), "--pred", pred, "--json"], capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def _row(rows: list[dict], tracker: str) -> dict:
+    found = [r for r in rows if r["tracker"] == tracker]
+    assert len(found) == 1, f"expected one row {tracker!r} in {[r['tracker'] for r in rows]}"
+    return found[0]
+
+
+@pytest.fixture(scope="module")
+def inline_run(seq, tmp_path_factory) -> tuple[dict, Path]:
+    out = tmp_path_factory.mktemp("inline")
+    r = _run([str(seq), "--trackers", "chamfer,m2", "--inline", "--json", "--out-dir", str(out / "runs"),
+              "--plot", str(out / "success.png"), "--precision-plot", str(out / "precision.png"),
+              "--opencv", "mil,csrt"])
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    return json.loads(r.stdout), out
+
+
+def test_inline_scores_equal_gflow_eval(seq, inline_run):
+    res, out = inline_run
+    rows = res["rows"]
+    assert res["mode"] == "inline" and res["seed"] == 1 and res["sequences"] == ["synth"]
+    chamfer = _row(rows, "chamfer")
+    assert chamfer["kind"] == "tracker" and chamfer["frames"] == FRAMES and chamfer["fps"] > 0
+    # every scored row (ours, published, baseline) equals `gflow eval` on the same CSV
+    for name in ("chamfer", "other", "static box"):
+        row = _row(rows, name)
+        ev = _eval(seq / "groundtruth.csv", row["boxes"])
+        assert {k: row[k] for k in ev} == ev, name
+        assert row["auc"] == pytest.approx(np.mean(row["success_curve"]), abs=1e-4)
+        assert row["success_curve"][10] == pytest.approx(row["success_rate_0.5"], abs=1e-4)  # threshold 0.5
+    other = _row(rows, "other")
+    assert other["kind"] == "published" and other["missing_predictions"] == 1
+    assert other["boxes"] == str(seq / "results" / "other.csv")
+    static = _row(rows, "static box")
+    assert static["kind"] == "baseline"
+    assert set(read_boxes(static["boxes"]).values()) == {read_boxes(seq / "groundtruth.csv")[0]}
+    # the tracker's boxes were read back from its recording, kept with --out-dir
+    assert Path(chamfer["boxes"]).with_suffix(".mcap").is_file()
+    m2 = _row(rows, "m2")
+    assert "cle_px" not in m2 and "--m2-model" in m2["note"]
+
+
+def test_opencv_rows(inline_run):
+    res, _ = inline_run
+    for name in ("opencv mil", "opencv csrt"):
+        row = _row(res["rows"], name)
+        assert row["kind"] == "opencv"
+        if "cle_px" in row:
+            assert row["frames"] == FRAMES and row["fps"] > 0
+        else:
+            assert "unavailable" in row["note"]
+
+
+def test_plots_are_images(inline_run):
+    _, out = inline_run
+    for name in ("success.png", "precision.png"):
+        p = out / name
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        img = cv2.imread(str(p))
+        assert img is not None and img.shape[0] > 100 and img.shape[1] > 100
+
+
+def test_processes_table_matches_inline(seq, inline_run):
+    """The default (multi-process) run prints one table whose scores equal the inline run's."""
+    res, _ = inline_run
+    r = _run([str(seq), "--trackers", "chamfer"])
+    assert r.returncode == 0, r.stderr
+    assert "benchmark: [1/1] synth / chamfer" in r.stderr  # progress on stderr
+    header, *body = [re.split(r"\s{2,}", ln) for ln in r.stdout.splitlines() if ln.strip()]
+    assert header[:8] == ["sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "fps"]
+    table = {c[1]: c for c in body if c[0] == "synth"}
+    assert set(table) == {"chamfer", "other", "static box"}
+    for name, cells in table.items():
+        row = _row(res["rows"], name)
+        assert cells[2] == row["kind"] and int(cells[3]) == row["frames"]
+        got = tuple(float(v) for v in cells[4:7])
+        assert got == (round(row["cle_px"], 2), round(row["success_rate_0.5"], 3), round(row["auc"], 3)), name
+    assert float(table["chamfer"][7]) > 0 and table["other"][7] == "-"  # fps
+
+
+@pytest.mark.parametrize("case", ["missing", "no_frames", "no_truth", "tracker", "opencv", "model", "frames",
+                                  "no_first_box", "plot_folder", "plot_format"])
+def test_bad_input_is_one_line(case, seq, tmp_path, capsys):
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (tmp_path / "nogt" / "frames").mkdir(parents=True)
+    (tmp_path / "noframes").mkdir()
+    write_boxes(tmp_path / "noframes" / "groundtruth.csv", {0: (1, 2, 3, 4)})
+    argv = {"missing": [str(tmp_path / "nope")],
+            "no_frames": [str(tmp_path / "noframes")],
+            "no_truth": [str(tmp_path / "nogt")],
+            "tracker": [str(seq), "--trackers", "chamfer,nosuch"],
+            "opencv": [str(seq), "--opencv", "nosuch"],
+            "model": [str(seq), "--m2-model", str(tmp_path / "missing.npz")],
+            "frames": [str(seq), "--frames", "20:10"],
+            "no_first_box": [str(seq), "--frames", f"{FRAMES + 5}:{FRAMES + 9}"],
+            "plot_folder": [str(seq), "--plot", str(tmp_path / "nodir" / "s.png")],
+            "plot_format": [str(seq), "--plot", str(tmp_path / "s.xyz")]}[case]
+    want = {"missing": "not found", "no_frames": "no frames/", "no_truth": "no groundtruth.csv", "tracker": "nosuch",
+            "opencv": "nosuch", "model": "missing.npz", "frames": "20:10", "no_first_box": f"frame {FRAMES + 5}",
+            "plot_folder": "does not exist", "plot_format": ".png"}[case]
+    assert main(["benchmark", *argv, "--inline"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("gflow benchmark: error:") and want in err[0], err
+
+
+def test_empty_parent_folder_is_an_error(tmp_path, capsys):
+    (tmp_path / "a").mkdir()
+    assert main(["benchmark", str(tmp_path)]) == 2
+    assert "holds none" in capsys.readouterr().err
+
+
+def test_ctrl_c_stops_cleanly(seq, tmp_path):
+    """SIGINT during a multi-process run: exit 130, the runs' temporary folder removed."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    env = dict(os.environ, TMPDIR=str(tmp))
+    # frames paced at 5 fps, so the run is still going when the signal comes
+    p = subprocess.Popen([*GFLOW, "benchmark", str(seq), "--trackers", "chamfer", "--set", "source.realtime=true",
+                          "--set", "source.fps=5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    lines: queue.Queue[str] = queue.Queue()
+    threading.Thread(target=lambda: [lines.put(ln) for ln in p.stderr], daemon=True).start()  # type: ignore[union-attr]
+    seen = []
+    deadline = time.monotonic() + 90
+    while not any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen):
+        assert time.monotonic() < deadline and p.poll() is None, "".join(seen)
+        try:
+            seen.append(lines.get(timeout=1.0))
+        except queue.Empty:
+            pass
+    p.send_signal(signal.SIGINT)
+    p.wait(timeout=60)
+    assert p.returncode == 130, "".join(seen)
+    assert not list(tmp.glob("gflow-benchmark-*")), "the temporary folder was left behind"
+
+
+def test_crossing_first_40_frames(tmp_path):
+    """Real data: chamfer on crossing frames 0:40 (multi-process), its row scored like `gflow eval` over those frames."""
+    crossing = data_dir("crossing")
+    r = _run([str(crossing), "--trackers", "chamfer", "--frames", "0:40", "--json", "--out-dir", str(tmp_path)])
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["mode"] == "processes" and res["frames"] == [0, 40]
+    gt = {f: b for f, b in read_boxes(crossing / "groundtruth.csv").items() if f < 40}
+    chamfer, static = _row(res["rows"], "chamfer"), _row(res["rows"], "static box")
+    assert chamfer["frames"] == 40 and chamfer["fps"] > 0
+    for row, pred in ((chamfer, read_boxes(chamfer["boxes"])), (static, {f: gt[0] for f in gt})):
+        want = score(gt, pred).to_json()
+        assert {k: row[k] for k in want} == want, row["tracker"]
+
+
+def test_folder_of_sequences(seq, tmp_path):
+    """A parent folder runs each sequence in it, notes what it skips, and starts each sequence at its
+    first ground-truth box (here frame 5)."""
+    late = tmp_path / "late"
+    late.mkdir()
+    (late / "frames").symlink_to(seq / "frames", target_is_directory=True)
+    gt = {f: b for f, b in read_boxes(seq / "groundtruth.csv").items() if f >= 5}
+    write_boxes(late / "groundtruth.csv", gt)
+    (tmp_path / "avletters").mkdir()
+    (tmp_path / "avletters" / "anya.npz").write_bytes(b"")
+    r = _run([str(tmp_path), "--trackers", "chamfer", "--inline", "--json", "--out-dir", str(tmp_path / "out")])
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    assert res["sequences"] == ["late"] and res["frames"] == [None, None]
+    assert any("avletters" in s and "not a sequence folder" in s for s in res["skipped"])
+    assert "avletters" in r.stderr
+    chamfer = _row(res["rows"], "chamfer")
+    assert chamfer["frames"] == FRAMES - 5 and chamfer["missing_predictions"] == 0
+    assert min(read_boxes(chamfer["boxes"])) == 5
+    assert read_boxes(chamfer["boxes"])[5] == pytest.approx(gt[5], abs=0.01)  # started from the first box
+
+
+def test_rows_do_not_depend_on_order(seq, tmp_path):
+    """Two copies of one sequence in one run score the same, OpenCV's MIL included (it draws from
+    OpenCV's global RNG, which every OpenCV run reseeds)."""
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        for entry in ("frames", "groundtruth.csv"):
+            (tmp_path / name / entry).symlink_to(seq / entry)
+    r = _run([str(tmp_path), "--trackers", "chamfer", "--opencv", "mil", "--inline", "--json"])
+    assert r.returncode == 0, r.stderr
+    rows = json.loads(r.stdout)["rows"]
+    for tracker in ("chamfer", "opencv mil", "static box"):
+        a, b = ({k: v for k, v in row.items() if k not in ("sequence", "fps", "seconds", "seconds_total")}
+                for row in rows if row["tracker"] == tracker)
+        assert a == b, tracker
