@@ -29,7 +29,8 @@ video it was never trained on:
   (x, y, log s) plus the velocity of the last estimates (constant-velocity prediction).
 * **Motion prior.** Every particle is also weighed by a broad Gaussian around the
   prediction, std ``motion_prior`` box sizes, so a distant look-alike must explain the
-  image much better than the target to win.
+  image much better than the target to win; while the target is judged hidden the std is
+  ``hidden_prior`` box sizes, so the track does not jump to whatever passes in front.
 * **Occlusion.** When the posterior mean of r falls more than ``occlusion_drop`` below its
   running level, the target is taken to be hidden: the exemplars are not updated and the
   velocity decays (the estimate's state is ``occluded``). After ``occlusion_patience``
@@ -81,6 +82,7 @@ class AppearanceParams:
     velocity_memory: float = 0.5  # v <- m v + (1 - m) (c_t - c_{t-1})
     occlusion_drop: float = 0.15
     occlusion_patience: int = 10
+    hidden_prior: float = 0.3  # motion prior (box sizes) while the target is judged hidden
     max_log_scale: float = 1.3862943611198906  # |log s| bound: the box stays within [1/4, 4] x its first size
 
     def __post_init__(self) -> None:
@@ -280,8 +282,9 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     r = _lookup(levels, parts)
     # log p(z | X) = -lambda rho = lambda (r - 1)                          (eq. 7, K exemplars, MAP k)
     log_lik = p.lam * (r - 1.0)
-    # motion prior: N(x; x_pred, (motion_prior * box)^2)
-    d2 = ((parts[:, 0] - pred[0]) ** 2 + (parts[:, 1] - pred[1]) ** 2) / (2.0 * (p.motion_prior * box_size) ** 2)
+    # motion prior: N(x; x_pred, (prior * box)^2), tighter while the target is judged hidden
+    prior = p.hidden_prior if st.occluded_run > 0 else p.motion_prior
+    d2 = ((parts[:, 0] - pred[0]) ** 2 + (parts[:, 1] - pred[1]) ** 2) / (2.0 * (prior * box_size) ** 2)
     lw = LogWeights(log_lik - d2)
     W = lw.W
     mean = W @ parts
