@@ -66,6 +66,7 @@ class AppearanceFilterParams(Params):
     occlusion_patience: int = _DEFAULTS.occlusion_patience
     max_log_scale: float = _DEFAULTS.max_log_scale
     hidden_prior: float = _DEFAULTS.hidden_prior
+    scale_from_recent: bool = _DEFAULTS.scale_from_recent
 
     def __post_init__(self) -> None:
         if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
