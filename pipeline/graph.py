@@ -333,6 +333,11 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
             if ptype is not want:
                 raise GraphError(f"{filename}:{line}: type mismatch: stage {s.name!r} input {port!r} expects "
                                  f"{want.__name__}, but {topic} carries {ptype.__name__} from {pname}.{pport}")
+            if pname == s.name:
+                # frame t would wait for the stage's own output of frame t: it can never start
+                raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is fed by its own output "
+                                 f"{pport!r} ({topic}): a cycle that can never start (feed it through a stage "
+                                 f"that predicts the next frame, as particle.proposal does)")
     if not any(s.is_source() for s in plans.values()) and not external:
         raise GraphError(f"{filename}: the graph has no source stage and no external topics")
     if sum(1 for s in plans.values() if s.kind == RECORDER_KIND) > 1:

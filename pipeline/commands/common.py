@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 import time
 
@@ -30,6 +31,48 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
     if vals[2] <= 0 or vals[3] <= 0:
         raise argparse.ArgumentTypeError(f"box width and height must be positive, got W={vals[2]}, H={vals[3]}")
     return vals  # type: ignore[return-value]
+
+
+_ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^\s?#]+)(\?[^\s#]*)?(#\S*)?$")
+_HOST_PORT = re.compile(r"^(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+
+
+def parse_endpoint(text: str) -> str:
+    """A zenoh endpoint ``PROTO/HOST:PORT`` (e.g. tcp/127.0.0.1:7447), checked before zenoh sees it."""
+    m = _ENDPOINT.match(text.strip())
+    if m is None:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a zenoh endpoint; expected PROTO/HOST:PORT, "
+                                         f"e.g. tcp/127.0.0.1:7447")
+    if m["proto"] in ("tcp", "udp", "tls", "quic", "ws"):
+        hp = _HOST_PORT.match(m["addr"])
+        if hp is None or not 0 <= int(hp.group(2)) <= 65535:
+            raise argparse.ArgumentTypeError(f"{text!r}: a {m['proto']} endpoint needs HOST:PORT with a port "
+                                             f"0..65535, e.g. {m['proto']}/127.0.0.1:7447")
+    return text.strip()
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text}")
+    return v
+
+
+def check_outputs(**paths: str | None) -> None:
+    """Refuse, before any work, output paths that are folders or cannot be written.
+
+    ``check_outputs(out=args.out, record=args.record)``: each keyword names the option (an
+    upper-case keyword, ``FIXED=...``, names a positional argument).
+    """
+    from ..preflight import check_writable
+
+    for opt, path in paths.items():
+        if path:
+            check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
 
 
 def parse_sets(items: list[str]) -> dict[str, dict]:
@@ -75,9 +118,9 @@ def launcher_zenoh(args) -> ZenohSettings:
 def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("zenoh network (default: peer mode on loopback, multicast scouting off)")
     g.add_argument("--mode", choices=["peer", "client", "router"], default="peer", help="zenoh session mode")
-    g.add_argument("--listen", action="append", metavar="ENDPOINT",
+    g.add_argument("--listen", action="append", metavar="ENDPOINT", type=parse_endpoint,
                    help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
-    g.add_argument("--connect", action="append", metavar="ENDPOINT",
+    g.add_argument("--connect", action="append", metavar="ENDPOINT", type=parse_endpoint,
                    help="endpoint to connect to, e.g. tcp/10.0.0.5:7447 for a zenoh router (repeatable)")
     g.add_argument("--multicast", action="store_true", help="enable multicast scouting (off by default)")
 

@@ -8,7 +8,7 @@ import sys
 
 from ..build import apply_defaults
 from ..graph import load_graph
-from .common import add_zenoh_args, run_plan
+from .common import add_zenoh_args, check_outputs, run_plan
 
 
 def cmd_demo(args) -> int:
@@ -16,6 +16,7 @@ def cmd_demo(args) -> int:
 
     from ..results import estimates, truth_boxes
 
+    check_outputs(record=args.record)
     overrides = {"source": {"frames": args.frames}, "filter": {"particles": args.particles, "seed": args.seed},
                  "proposal": {"seed": args.seed}}
     plan = apply_defaults(load_graph("demo", overrides=overrides))

@@ -172,6 +172,9 @@ def training_set(args):
 
 
 def cmd_learn(args) -> int:
+    from .common import check_outputs
+
+    check_outputs(out=args.out)
     from gflow_core.m2.learn import learn
 
     from ..modelfile import save_model

@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from .common import CliError, add_zenoh_args, zenoh_from_args
+from .common import CliError, add_zenoh_args, positive_float, zenoh_from_args
 
 # file suffix -> callable(path, as_json) printing a description; other modules add to it
 DESCRIBERS: dict = {}
@@ -90,7 +90,8 @@ def register(sub) -> None:
                        formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
     p.add_argument("file", help="MCAP recording")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--speed", type=float, default=1.0, help="timing factor on the original timing (default 1)")
+    g.add_argument("--speed", type=positive_float, default=1.0,
+                   help="timing factor on the original timing, > 0 (default 1; 2 = twice as fast)")
     g.add_argument("--max", action="store_true", help="as fast as possible")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (full names)")
     p.add_argument("--from-seq", type=int, metavar="SEQ", help="first frame to replay")

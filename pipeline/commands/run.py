@@ -6,10 +6,11 @@ ORDER = 40
 
 from ..build import apply_defaults
 from ..graph import builtin_graphs, load_graph
-from .common import add_zenoh_args, parse_sets, run_plan
+from .common import add_zenoh_args, check_outputs, parse_sets, run_plan
 
 
 def cmd_run(args) -> int:
+    check_outputs(record=args.record)
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     path, secs, frames, info = run_plan(plan, args, args.record, None)
     print(f"{plan.name}: {frames} frames in {secs:.2f} s; recording: {path}")

@@ -20,7 +20,26 @@ from ..graph import load_graph
 from ..results import estimates, write_boxes
 from ..sources import count_frames
 from ..trackers import TRACKERS
-from .common import CliError, add_zenoh_args, parse_box, parse_sets, run_plan
+from ..preflight import check_source
+from .common import CliError, add_zenoh_args, check_outputs, parse_box, parse_sets, run_plan
+
+#: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
+_OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
+#: options one tracker adds that others read too (m2 reads chamfer's --particles, gflow m2's --model)
+_ALSO_USED_BY = {"particles": ("m2",), "model": ("gflow",)}
+
+
+def check_tracker_options(args) -> None:
+    """An option of another tracker (``--particles`` with gflow, ``--model`` with chamfer) is an error,
+    not silently ignored."""
+    for owner, opts in _OWN_OPTIONS.items():
+        for dest, (opt, default) in opts.items():
+            if owner == args.tracker or args.tracker in _ALSO_USED_BY.get(dest, ()):
+                continue
+            if getattr(args, dest, default) != default:
+                users = sorted({owner, *_ALSO_USED_BY.get(dest, ())})
+                raise CliError(f"{opt} is an option of --tracker {' / '.join(users)}, not of --tracker "
+                               f"{args.tracker}")
 
 
 def source_params(source: str, args) -> dict:
@@ -42,6 +61,8 @@ def source_params(source: str, args) -> dict:
 
 def cmd_track(args) -> int:
     tracker = TRACKERS[args.tracker]
+    check_tracker_options(args)
+    check_outputs(out=args.out, record=args.record)
     graph, overrides = tracker.overrides(args)
     overrides.setdefault("source", {}).update(source_params(args.source, args))
     for stage, kv in parse_sets(args.set).items():
@@ -51,7 +72,9 @@ def cmd_track(args) -> int:
         plan = make_plan(args.graph or graph, overrides)
     else:
         plan = load_graph(args.graph or graph, overrides=overrides)
-    total = count_frames(msgspec.convert(plan.stages["source"].params, SourceParams))
+    sp = msgspec.convert(plan.stages["source"].params, SourceParams)
+    check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
+    total = count_frames(sp)
     rec = args.record or str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
     path, secs, frames, info = run_plan(plan, args, rec, total, quiet=args.quiet)
     est = estimates(path)
@@ -88,5 +111,6 @@ def register(sub) -> None:
     for t in TRACKERS.values():
         g = p.add_argument_group(f"--tracker {t.NAME}")
         t.add_args(g)
+        _OWN_OPTIONS[t.NAME] = {a.dest: (a.option_strings[0], a.default) for a in g._group_actions}
     add_zenoh_args(p)
     p.set_defaults(func=cmd_track)
