@@ -99,6 +99,34 @@ def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:
     return ZenohSettings(mode=args.mode, listen=listen, connect=connect, multicast=args.multicast)
 
 
+def tool_zenoh(args, stream: str | None = None, require: bool = True) -> tuple[ZenohSettings, list[dict]]:
+    """Settings for a tool joining a live pipeline, and the announcements it connects to.
+
+    With ``--connect`` (or in router / client mode with explicit endpoints) the user's endpoints
+    are used. Otherwise the tool connects to every pipeline announced on this machine (of
+    ``stream`` when given: see :mod:`pipeline.running`); with ``require`` and none running it is
+    a :class:`CliError` saying so.
+    """
+    from ..running import describe_none, running
+
+    if args.connect or args.mode == "router" or args.multicast:
+        return zenoh_from_args(args, default_connect=False), []
+    found = running(stream)
+    if not found and require:
+        raise CliError(describe_none(stream))
+    endpoints = tuple(dict.fromkeys(e for i in found for e in i.get("endpoints", [])))
+    listen = tuple(args.listen or ()) or ("tcp/127.0.0.1:0",)
+    return ZenohSettings(mode=args.mode, listen=listen, connect=endpoints, multicast=False), found
+
+
+def stream_of(key: str) -> str | None:
+    """The stream named by a key expression ``gflow/<stream>/...`` (None for a wildcard)."""
+    parts = key.split("/")
+    if len(parts) >= 2 and parts[0] == "gflow" and parts[1] and "*" not in parts[1] and "$" not in parts[1]:
+        return parts[1]
+    return None
+
+
 def launcher_zenoh(args) -> ZenohSettings:
     """The launcher listens on 7447 (so `gflow topics` finds it) unless busy or told otherwise."""
     if args.listen:
@@ -144,9 +172,16 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
         bad = {n: e for n, e in r.errors.items() if e}
         return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
     from ..launcher import Launcher
+    from ..running import announce
 
-    res = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
-                   total_frames=total).run()
+    launcher = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
+                        total_frames=total)
+    endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
+    print(f"{plan.name}: listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo and hz "
+          f"find it)", file=sys.stderr)
+    with announce(plan.stream, endpoints, name=plan.name, stages=list(plan.stages), recording=launcher.recording
+                  if plan.recorder() else None):
+        res = launcher.run()
     if res.interrupted:
         print("interrupted: stages stopped, recording closed", file=sys.stderr)
     for n, e in res.exits.items():
