@@ -55,9 +55,13 @@ class RecorderParams(Params):
     """The recorder: every message on ``gflow/<stream>/**`` to one MCAP file.
 
     path may contain ``{time}`` (YYYYmmdd-HHMMSS) and ``{name}`` (the graph name).
+    topics: which topics to keep, as shell patterns on the name after ``gflow/<stream>/``
+    (``estimate``, ``_snapshot/*``, ``*``); errors, heartbeats and control are always kept, so
+    a recording always says what went wrong.
     """
 
     path: str = "recordings/{name}-{time}.mcap"
+    topics: tuple[str, ...] = ("*",)
     flush_interval: float = 0.5
     compression: str = "lz4"
     chunk_size: int = 4 * 1024 * 1024
@@ -196,6 +200,21 @@ class Plan:
             return None
         path = rec.params.get("path", RecorderParams().path)
         return str(Path(self.base_dir, path.format(name=self.name, time=time.strftime("%Y%m%d-%H%M%S"))))
+
+
+#: topics every recording keeps, whatever ``topics`` says
+ALWAYS_RECORDED = ("errors", "_status/*", "_control")
+
+
+def recorded_topic_filter(params: dict, stream: str):
+    """``keep(topic) -> bool`` for the recorder's ``topics`` patterns (see :class:`RecorderParams`)."""
+    import fnmatch
+
+    pats = tuple(params.get("topics") or ["*"]) + ALWAYS_RECORDED
+    if "*" in pats:
+        return lambda topic: True
+    prefix = f"gflow/{stream}/"
+    return lambda topic: topic.startswith(prefix) and any(fnmatch.fnmatchcase(topic[len(prefix):], p) for p in pats)
 
 
 def _params_struct(kind: str) -> type[Params]:

@@ -7,6 +7,8 @@ import re
 import sys
 import time
 
+from pathlib import Path
+
 import numpy as np
 
 from ..graph import Plan
@@ -141,6 +143,66 @@ def launcher_zenoh(args) -> ZenohSettings:
             except OSError:
                 listen = (f"tcp/127.0.0.1:{free_port()}",)
     return ZenohSettings(mode=args.mode, listen=listen, connect=tuple(args.connect or ()), multicast=args.multicast)
+
+
+def add_record_args(p: argparse.ArgumentParser, default: str) -> None:
+    """``--record FILE``, ``--no-record`` and ``--record-topics PATTERN``."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--record", metavar="FILE", help=f"recording path (default {default})")
+    g.add_argument("--no-record", action="store_true",
+                   help="keep no recording (results are still written; a re-run, replay or render needs one)")
+    p.add_argument("--record-topics", action="append", metavar="PATTERN[,PATTERN]",
+                   help="record only these topics, as shell patterns on the name after gflow/STREAM/, e.g. "
+                        "'estimate,particles' or '*' (errors and heartbeats are always kept; raw frames are "
+                        "most of a recording's size)")
+
+
+class Recording:
+    """Where a run records, from ``--record / --no-record / --record-topics``.
+
+    ``needed`` are topics the command reads back after the run (``track`` reads the estimates):
+    they are always recorded, and with ``--no-record`` they go to a temporary file that
+    :meth:`cleanup` deletes. ``path`` is what to pass to the launcher (None: no recorder).
+    """
+
+    def __init__(self, plan: Plan, args, default: str | None, needed: tuple[str, ...] = ()) -> None:
+        import tempfile
+
+        self.tmpdir: str | None = None
+        self.temporary = False
+        rec = plan.recorder()
+        pats = [p.strip() for item in (getattr(args, "record_topics", None) or []) for p in item.split(",") if p.strip()]
+        if rec is None:
+            if pats or needed:
+                raise CliError(f"the graph {plan.name!r} has no recorder stage, so there is nothing to "
+                               + ("select topics of" if pats else "read the results from"))
+            self.path = None
+            return
+        if getattr(args, "no_record", False):
+            if not needed:
+                del plan.stages[rec.name]
+                self.path = None
+                return
+            self.tmpdir = tempfile.mkdtemp(prefix="gflow-norecord-")
+            self.temporary = True
+            self.path = str(Path(self.tmpdir) / "run.mcap")
+            rec.params["topics"] = list(needed)
+            return
+        if pats:
+            rec.params["topics"] = pats + [t for t in needed if t not in pats]
+        self.path = getattr(args, "record", None) or default
+
+    @property
+    def kept(self) -> str:
+        """How to name the recording to the user."""
+        return "none (--no-record)" if self.temporary or self.path is None else str(self.path)
+
+    def cleanup(self) -> None:
+        if self.tmpdir:
+            import shutil
+
+            shutil.rmtree(self.tmpdir, ignore_errors=True)
+            self.tmpdir = None
 
 
 def add_zenoh_args(p: argparse.ArgumentParser) -> None:

@@ -21,7 +21,8 @@ from ..results import estimates, write_boxes
 from ..sources import count_frames
 from ..trackers import TRACKERS
 from ..preflight import check_source
-from .common import CliError, add_zenoh_args, check_outputs, parse_box, parse_sets, run_plan
+from .common import (CliError, Recording, add_record_args, add_zenoh_args, check_outputs, parse_box, parse_sets,
+                     run_plan)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -75,13 +76,17 @@ def cmd_track(args) -> int:
     sp = msgspec.convert(plan.stages["source"].params, SourceParams)
     check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
     total = count_frames(sp)
-    rec = args.record or str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
-    path, secs, frames, info = run_plan(plan, args, rec, total, quiet=args.quiet)
-    est = estimates(path)
+    recording = Recording(plan, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
+                          needed=("estimate",))
+    try:
+        path, secs, frames, info = run_plan(plan, args, recording.path, total, quiet=args.quiet)
+        est = estimates(path)
+    finally:
+        recording.cleanup()
     write_boxes(args.out, {k: v.box for k, v in est.items()})
     states = [v.state for v in est.values()]
     print(f"tracked {len(est)} frames in {secs:.2f} s ({len(est) / max(secs, 1e-9):.1f} fps); "
-          f"boxes: {args.out}; recording: {path}")
+          f"boxes: {args.out}; recording: {recording.kept}")
     if states.count("coast"):
         print(f"  {states.count('coast')} frame(s) coasted on the dynamics (no usable image)")
     if info.get("errors"):
@@ -99,7 +104,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h)")
     p.add_argument("--tracker", default="chamfer", choices=sorted(TRACKERS), help="tracking method (default chamfer)")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--record", metavar="FILE", help="recording path (default recordings/track-TIME.mcap)")
+    add_record_args(p, "recordings/track-TIME.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     p.add_argument("--fps", type=float, default=25.0, help="source frame rate, for time stamps and --realtime")
     p.add_argument("--realtime", action="store_true", help="play the source at --fps instead of as fast as possible")
