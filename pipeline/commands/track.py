@@ -89,8 +89,12 @@ def cmd_track(args) -> int:
           f"boxes: {args.out}; recording: {recording.kept}")
     if states.count("coast"):
         print(f"  {states.count('coast')} frame(s) coasted on the dynamics (no usable image)")
-    if info.get("errors"):
-        print(f"  errors reported: {info['errors']} (see `gflow info {path}`)")
+    errs = info.get("errors")
+    if errs:  # a count (processes) or {stage: count} (inline)
+        n = sum(errs.values()) if isinstance(errs, dict) else errs
+        per = (" (" + ", ".join(f"{k} {v}" for k, v in sorted(errs.items())) + ")") if isinstance(errs, dict) else ""
+        where = f"see `gflow info {path}`" if not recording.temporary else "kept in no recording: --no-record"
+        print(f"  errors reported: {n}{per}; {where}")
     return 130 if info.get("interrupted") else 0
 
 
