@@ -72,3 +72,16 @@ def test_plot_names_the_file_it_wrote(tmp_path: Path) -> None:
     r = gflow(tmp_path, "plot", "r.mcap", "out")
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip() == "wrote out.png" and (tmp_path / "out.png").is_file()
+
+
+def test_eval_frames_scores_only_the_tracked_frames(tmp_path: Path) -> None:
+    rows = "\n".join(f"{i},10,10,20,20" for i in range(10))
+    (tmp_path / "gt.csv").write_text(rows + "\n")
+    (tmp_path / "p.csv").write_text("\n".join(f"{i},10,10,20,20" for i in range(4, 10)) + "\n")
+    every = gflow(tmp_path, "eval", "--gt", "gt.csv", "--pred", "p.csv", "--json")
+    tracked = gflow(tmp_path, "eval", "--gt", "gt.csv", "--pred", "p.csv", "--json", "--frames", "4:")
+    import json
+
+    assert json.loads(every.stdout)["success_rate_0.5"] == 0.6 and json.loads(tracked.stdout)["success_rate_0.5"] == 1.0
+    bad = gflow(tmp_path, "eval", "--gt", "gt.csv", "--pred", "p.csv", "--frames", "x:y")
+    assert bad.returncode == 2 and "--frames" in bad.stderr and "Traceback" not in bad.stderr
