@@ -6,7 +6,9 @@
     gflow run GRAPH.yaml               any graph, as processes over zenoh (or --inline)
     gflow info FILE.mcap               what a recording holds
     gflow replay FILE.mcap             republish a recording on zenoh
-    gflow topics | echo TOPIC | hz TOPIC   inspect a live pipeline
+    gflow frame SOURCE N OUT.png       a frame with a pixel grid, to read --init off
+    gflow ps | topics | echo TOPIC | hz TOPIC | pub TOPIC TYPE JSON   a live pipeline
+    gflow view                         a live pipeline in Foxglove (ws://127.0.0.1:8765)
 """
 
 from __future__ import annotations

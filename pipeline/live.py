@@ -84,7 +84,12 @@ def to_plain(msg, max_items: int = 64):
             n *= d
         if n <= max_items:
             try:
-                return {"dtype": msg.dtype, "shape": list(msg.shape), "values": msg.array().tolist()}
+                a = msg.array()
+                if a.dtype.kind == "f":  # JSON has no NaN / inf
+                    import numpy as np
+
+                    a = np.where(np.isfinite(a), a, None)
+                return {"dtype": msg.dtype, "shape": list(msg.shape), "values": a.tolist()}
             except MessageError:
                 pass
         return {"dtype": msg.dtype, "shape": list(msg.shape)}
@@ -99,7 +104,7 @@ def to_plain(msg, max_items: int = 64):
         return {str(k): to_plain(v, max_items) for k, v in msg.items()}
     if isinstance(msg, bytes):
         return {"bytes": len(msg)}
-    if isinstance(msg, float) and msg != msg:
+    if isinstance(msg, float) and (msg != msg or msg in (float("inf"), float("-inf"))):
         return None
     return msg
 
