@@ -140,3 +140,17 @@ def test_version(tmp_path: Path) -> None:
     r = gflow("--version", cwd=tmp_path)
     assert r.returncode == 0
     assert r.stdout.startswith("gflow ") and "zenoh" in r.stdout
+
+
+def test_whole_frame_model_on_other_video(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    for name, shape in (("small", (24, 32)), ("big", (48, 64))):
+        (tmp_path / name).mkdir()
+        for i in range(8):
+            cv2.imwrite(str(tmp_path / name / f"{i:03d}.png"), rng.integers(0, 255, shape, dtype=np.uint8))
+    r = gflow("learn", "m2", "small", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = gflow("track", "big", "--tracker", "m2", "--model", "m.npz", "--init", "1,1,10,10", "--out", "o.csv",
+              "--inline", cwd=tmp_path)
+    assert_one_line_error(r, "m.npz", "32x24", "64x48")
+    _no_recording(tmp_path)

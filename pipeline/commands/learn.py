@@ -116,6 +116,7 @@ def training_set(args):
         for i, why in seq.skipped:
             _log(args, f"  warning: frame {i} skipped: {why}")
     meta["frames"] = f"{int(seq.frame_index[0])}:{int(seq.frame_index[-1]) + 1}"
+    meta["frame_size"] = f"{seq.frames[0].shape[1]}x{seq.frames[0].shape[0]}"  # checked by track (crop: frame)
     n = len(seq)
     _log(args, f"read {n} training frame(s) from {path} ({seq.frames[0].shape[1]}x{seq.frames[0].shape[0]})")
     if n < 2:

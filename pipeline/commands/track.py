@@ -30,6 +30,27 @@ _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
 _ALSO_USED_BY = {"particles": ("m2",), "model": ("gflow",)}
 
 
+def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
+    """A whole-frame patch model (crop: frame, e.g. AVLetters mouths) sees the frame itself as the
+    patch: on video not cropped like its training frames it cannot track anything."""
+    import sys
+
+    from ..modelfile import load_meta
+
+    meta = load_meta(Path(model))
+    if meta.get("crop") != "frame":
+        return
+    size = f"{shape[1]}x{shape[0]}"
+    trained = str(meta.get("frame_size", ""))
+    if trained and trained != size:
+        raise CliError(f"{model} was learned on whole {trained} frames (a patch model with crop: frame, e.g. cropped "
+                       f"mouths); {source} has {size} frames. Such a model only fits video cropped like its training "
+                       f"frames: learn one on this video (gflow learn m2 ... --boxes GT.csv)")
+    print(f"note: {model} is a whole-frame patch model: the state is the exemplar, the box is the whole frame and "
+          f"does not move" + ("" if trained else " (the model does not record its training frame size)"),
+          file=sys.stderr)
+
+
 def check_tracker_options(args) -> None:
     """An option of another tracker (``--particles`` with gflow, ``--model`` with chamfer) is an error,
     not silently ignored."""
@@ -74,7 +95,9 @@ def cmd_track(args) -> int:
     else:
         plan = load_graph(args.graph or graph, overrides=overrides)
     sp = msgspec.convert(plan.stages["source"].params, SourceParams)
-    check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
+    first = check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
+    if args.tracker == "m2":
+        check_whole_frame_model(args.model, args.source, first.image.shape)
     total = count_frames(sp)
     recording = Recording(plan, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
                           needed=("estimate",))
