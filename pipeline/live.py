@@ -44,14 +44,17 @@ def _session(settings: ZenohSettings):
     return open_session(settings)
 
 
-def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdout) -> dict[str, int]:
-    """Listen on ``gflow/**`` for ``duration`` seconds and print each topic with its count and rate."""
+def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdout, key: str = "gflow/**",
+                as_json: bool = False) -> dict[str, int]:
+    """Listen on ``key`` for ``duration`` seconds and print each topic with its type, count, rate and
+    bandwidth (one JSON object with ``as_json``)."""
     s = _session(settings)
     counts: dict[str, int] = {}
+    nbytes: dict[str, int] = {}
     types: dict[str, str] = {}
     q: queue.SimpleQueue = queue.SimpleQueue()
     bus = Bus(s)
-    bus.subscribe("gflow/**", lambda k, p, ns, seq: q.put((k, p)))
+    bus.subscribe(key, lambda k, p, ns, seq: q.put((k, p)))
     end = time.monotonic() + duration
     while time.monotonic() < end:
         try:
@@ -59,17 +62,25 @@ def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdo
         except queue.Empty:
             continue
         counts[k] = counts.get(k, 0) + 1
+        nbytes[k] = nbytes.get(k, 0) + len(p)
         if k not in types:
             try:
                 types[k] = type(decode(p)).__name__
             except MessageError:
                 types[k] = "?"
     s.close()
+    if as_json:
+        import json
+
+        print(json.dumps({k: {"type": types[k], "messages": counts[k], "rate_hz": counts[k] / duration,
+                              "bytes_per_s": nbytes[k] / duration} for k in sorted(counts)}, indent=1), file=out)
+        return counts
     if not counts:
-        print(f"no messages on gflow/** in {duration:.1f} s (is a pipeline running, and reachable at "
-              f"{', '.join(settings.connect) or 'the default endpoint'}?)", file=out)
+        print(f"no messages on {key} in {duration:.1f} s (is a pipeline running, and reachable at "
+              f"{', '.join(settings.connect) or 'the default endpoint'}?)", file=sys.stderr)
     for k in sorted(counts):
-        print(f"{k:45s} {types[k]:18s} {counts[k]:6d} msgs  {counts[k] / duration:7.1f} Hz", file=out)
+        print(f"{k:45s} {types[k]:18s} {counts[k]:6d} msgs  {counts[k] / duration:7.1f} Hz  "
+              f"{nbytes[k] / duration / 1024:9.1f} KiB/s", file=out)
     return counts
 
 
@@ -128,10 +139,14 @@ def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | 
     Bus(s).subscribe(key, lambda k, p, ns, seq: q.put((k, p, ns)))
     n = 0
     start = time.monotonic()
+    told = False
     try:
         while count is None or n < count:
             if timeout is not None and time.monotonic() - start > timeout:
                 break
+            if not told and n == 0 and time.monotonic() - start > 2.0:
+                print(f"waiting for messages on {key} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+                told = True
             try:
                 k, p, ns = q.get(timeout=0.1)
             except queue.Empty:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -78,7 +79,9 @@ def test_tools_find_the_running_pipeline(pipeline) -> None:
 
     topics = _gflow(rt, "topics", "--duration", "2")
     assert topics.returncode == 0, topics.stderr
-    assert "gflow/demo/estimate" in topics.stdout and "Estimate" in topics.stdout
+    assert "gflow/demo/estimate" in topics.stdout and "Estimate" in topics.stdout and "KiB/s" in topics.stdout
+    tj = json.loads(_gflow(rt, "topics", "--duration", "2", "--json").stdout)
+    assert tj["gflow/demo/frames"]["type"] == "Frame" and tj["gflow/demo/frames"]["bytes_per_s"] > 0
 
     echo = _gflow(rt, "echo", "gflow/demo/estimate", "-n", "2", "--timeout", "30")
     assert echo.returncode == 0, echo.stderr
@@ -132,3 +135,21 @@ def test_rate_stats() -> None:
     last2 = rate_stats([0.0, 0.1, 0.2, 0.4], window=1)
     assert last2.rate_hz == pytest.approx(5.0) and last2.std_ms == pytest.approx(0.0)
     assert rate_stats([1.0]) is None
+
+
+def test_a_replay_is_found_without_a_launcher(tmp_path: Path) -> None:
+    rt = tmp_path / "rt"
+    rec = tmp_path / "r.mcap"
+    r = _gflow(rt, "run", "demo", "--inline", "--set", "source.frames=10", "--record", str(rec))
+    assert r.returncode == 0, r.stderr
+    rp = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "replay", str(rec), "--loop", "0", "--speed", "1"],
+                          env=_env(rt), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        files = _wait(lambda: list(rt.glob("*.json")) if rt.is_dir() else [], "the replay's announcement")
+        assert json.loads(files[0].read_text())["kind"] == "replay"
+        echo = _gflow(rt, "echo", "gflow/demo/estimate", "-n", "1", "--timeout", "30")
+        assert echo.returncode == 0 and "Estimate seq=" in echo.stdout, echo.stderr
+    finally:
+        rp.send_signal(signal.SIGINT)  # Ctrl-C: the replay stops and removes its announcement
+        rp.wait(30)
+    assert not list(rt.glob("*.json"))

@@ -32,7 +32,8 @@ def cmd_topics(args) -> int:
 
     settings, found = tool_zenoh(args, args.stream)
     _say_where(found)
-    counts = list_topics(settings, args.duration, out=sys.stdout)
+    key = f"gflow/{args.stream}/**" if args.stream else "gflow/**"
+    counts = list_topics(settings, args.duration, out=sys.stdout, key=key, as_json=args.json)
     return 0 if counts else 1
 
 
@@ -193,9 +194,11 @@ def register(sub) -> None:
 
     p = sub.add_parser("topics", help="list the topics of a live pipeline",
                        description="Listens on gflow/** for a while and prints each topic with its message type, "
-                                   "count and rate. Without --connect it joins the pipelines running on this machine.")
+                                   "count, rate and bandwidth. Without --connect it joins the pipelines running on "
+                                   "this machine.")
     p.add_argument("--duration", type=positive_float, default=2.0, help="seconds to listen (default 2)")
     p.add_argument("--stream", help="only the pipeline of this stream (when several run)")
+    p.add_argument("--json", action="store_true", help="print JSON: type, messages, rate_hz, bytes_per_s per topic")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_topics)
 
