@@ -154,3 +154,10 @@ def test_whole_frame_model_on_other_video(tmp_path: Path) -> None:
               "--inline", cwd=tmp_path)
     assert_one_line_error(r, "m.npz", "32x24", "64x48")
     _no_recording(tmp_path)
+
+
+def test_default_recording_folder_unusable(tmp_path: Path, frames: Path) -> None:
+    (tmp_path / "recordings").write_text("a file where the default recordings/ folder would go")
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", cwd=tmp_path)
+    assert_one_line_error(r, "the recording", "recordings")
+    assert not (tmp_path / "b.csv").exists()

@@ -191,6 +191,10 @@ class Recording:
         if pats:
             rec.params["topics"] = pats + [t for t in needed if t not in pats]
         self.path = getattr(args, "record", None) or default
+        from ..preflight import check_writable
+
+        check_writable(self.path or plan.recording_path(), "--record" if getattr(args, "record", None)
+                       else "the recording")  # before any work, also the default path
 
     @property
     def kept(self) -> str:
