@@ -56,6 +56,8 @@ def cmd_hz(args) -> int:
     from ..live import hz
 
     key = _key(args.topic)
+    if args.window is not None and args.window < 1:
+        raise CliError(f"--window must be at least 1 gap, got {args.window}")
     settings, found = tool_zenoh(args, stream_of(key))
     _say_where(found)
     st = hz(settings, key, args.duration, wait=args.wait, window=args.window)

@@ -67,7 +67,10 @@ def cmd_replay(args) -> int:
                          ack_timeout=args.ack_timeout)
     import dataclasses
 
+    from ..mcap_io import _check as check_mcap
     from ..transport import free_port
+
+    check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
 
     settings, found = tool_zenoh(args, require=False)  # joins the running pipelines, if any
     if not args.listen and settings.mode != "client":
