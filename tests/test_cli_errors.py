@@ -161,3 +161,16 @@ def test_default_recording_folder_unusable(tmp_path: Path, frames: Path) -> None
     r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", cwd=tmp_path)
     assert_one_line_error(r, "the recording", "recordings")
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["replay", "junk.mcap"], "not an MCAP file"),
+    (["replay", "missing.mcap"], "not found"),
+    (["hz", "demo/frames", "--window", "0"], "--window"),
+    (["pub", "gflow/demo/_control", "Control", "{not json"], "JSON"),
+    (["pub", "gflow/demo/_control", "NoSuchType", "{}"], "NoSuchType"),
+])
+def test_live_tool_mistakes(tmp_path: Path, argv: list[str], named: str) -> None:
+    (tmp_path / "junk.mcap").write_text("junk\n")
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named)
