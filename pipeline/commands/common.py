@@ -243,8 +243,9 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     launcher = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
                         total_frames=total)
     endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
-    print(f"{plan.name}: listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo and hz "
-          f"find it)", file=sys.stderr)
+    if not quiet:
+        print(f"{plan.name}: listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo and hz "
+              f"find it)", file=sys.stderr)
     with announce(plan.stream, endpoints, name=plan.name, stages=list(plan.stages), recording=launcher.recording
                   if plan.recorder() else None):
         res = launcher.run()
