@@ -48,6 +48,8 @@ class FoxgloveBridge:
     host: str = "127.0.0.1"
     port: int = 8765
     forwarded: dict[str, int] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
+    dropped: int = 0
 
     def start(self) -> "FoxgloveBridge":
         import foxglove
@@ -74,7 +76,7 @@ class FoxgloveBridge:
         try:
             self._q.put_nowait((key, payload, pub_ns, type_name))
         except queue.Full:
-            pass
+            self.dropped += 1
 
     def _channel(self, topic: str, type_name: str):
         ch = self._channels.get(topic)
@@ -116,8 +118,8 @@ class FoxgloveBridge:
                 continue
             try:
                 self._forward(*item)
-            except Exception:  # a message the viewer cannot take must not stop the bridge
-                continue
+            except Exception as e:  # a message the viewer cannot take must not stop the bridge
+                self.failed["/" + item[0]] = f"{type(e).__name__}: {e}"
 
     def stop(self) -> None:
         self._stop.set()

@@ -36,7 +36,11 @@ def cmd_view(args) -> int:
     finally:
         bridge.stop()
     n = sum(bridge.forwarded.values())
-    print(f"forwarded {n} messages on {len(bridge.forwarded)} topics", file=sys.stderr)
+    print(f"forwarded {n} messages on {len(bridge.forwarded)} topics ("
+          + ", ".join(f"{t} {c}" for t, c in sorted(bridge.forwarded.items())) + ")"
+          + (f"; dropped {bridge.dropped} while busy" if bridge.dropped else ""), file=sys.stderr)
+    for t, e in sorted(bridge.failed.items()):
+        print(f"could not forward {t}: {e}", file=sys.stderr)
     return 0
 
 
