@@ -60,3 +60,16 @@ def test_no_record_on_run_removes_the_recorder(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     assert "recording: none" in r.stdout
     assert not list(tmp_path.rglob("*.mcap"))
+
+
+def test_a_zstd_recording_reruns_bit_for_bit(tmp_path: Path) -> None:
+    r = gflow(tmp_path, "run", "demo", "--inline", "--set", "source.frames=10", "--set", "recorder.compression=zstd",
+              "--record", "z.mcap")
+    assert r.returncode == 0, r.stderr
+    from mcap.reader import make_reader
+
+    with open(tmp_path / "z.mcap", "rb") as f:
+        assert {c.compression for c in make_reader(f).get_summary().chunk_indexes} == {"zstd"}
+    for stage in ("preprocess", "filter"):
+        r = gflow(tmp_path, "rerun", "z.mcap", "--stage", stage, "--check")
+        assert r.returncode == 0 and "all identical bit for bit" in r.stdout, r.stdout + r.stderr
