@@ -89,7 +89,7 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
                         capture_output=True, text=True, timeout=60)
     assert hz.returncode == 0 and "average rate" in hz.stdout, hz.stdout + hz.stderr
     rate = float(hz.stdout.splitlines()[-1].split("average rate ")[1].split(" Hz")[0])
-    assert 10 < rate < 60  # the source plays at 30 fps in real time; loose for a busy machine
+    assert 2 < rate < 60  # the source plays at 30 fps in real time: never above; loose below for a busy machine
     launcher.request_stop()
     th.join(120)
     r = result["r"]

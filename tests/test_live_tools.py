@@ -99,7 +99,7 @@ def test_tools_find_the_running_pipeline(pipeline) -> None:
     lines = [ln for ln in hz.stdout.splitlines() if "average rate" in ln]
     assert lines, hz.stdout
     rate = float(lines[-1].split("average rate ")[1].split(" Hz")[0])
-    assert 5 < rate < 60, lines[-1]  # 20 fps in real time; loose for a busy machine
+    assert 1 < rate < 60, lines[-1]  # 20 fps in real time: never above; loose below for a busy machine
     assert "std dev" in lines[-1] and "min" in lines[-1] and "max" in lines[-1]
 
     silent = _gflow(rt, "echo", "gflow/demo/no_such_topic", "--timeout", "1")
