@@ -76,6 +76,8 @@ def test_tools_find_the_running_pipeline(pipeline) -> None:
 
     out = _wait(running, "gflow ps to show the source running")
     assert f"pid {proc.pid}" in out and "filter" in out and "recorder" in out
+    ps = json.loads(_gflow(rt, "ps", "--json").stdout)
+    assert ps[0]["pid"] == proc.pid and ps[0]["states"]["filter"]["state"] in ("running", "ready")
 
     topics = _gflow(rt, "topics", "--duration", "2")
     assert topics.returncode == 0, topics.stderr
