@@ -15,3 +15,22 @@ def table(rows: list[list], header: list[str]) -> str:
     lines = ["  ".join(h.ljust(w) for h, w in zip(header, widths)), "  ".join("-" * w for w in widths)]
     lines += ["  ".join(c.ljust(w) for c, w in zip(r, widths)) for r in cols[1:]]
     return "\n".join(lines)
+
+
+def scratch(prefix: str, keep: str | None = None):
+    """A temporary folder for what a benchmark writes (frames, recordings, models), deleted when
+    the benchmark exits, also on an error or Ctrl-C. ``keep`` (or GFLOW_BENCH_KEEP=1) keeps it."""
+    import atexit
+    import os
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    if keep:
+        p = Path(keep)
+        p.mkdir(parents=True, exist_ok=True)
+        return p
+    p = Path(tempfile.mkdtemp(prefix=prefix))
+    if not os.environ.get("GFLOW_BENCH_KEEP"):
+        atexit.register(shutil.rmtree, p, ignore_errors=True)
+    return p

@@ -22,7 +22,6 @@ import argparse
 import math
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -31,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 from gflow_core.metrics import centre_error, score  # noqa: E402
 from pipeline.inline import run_inline  # noqa: E402
@@ -86,7 +85,7 @@ def main() -> None:
     gt = read_boxes(DATA / "groundtruth.csv")
     gt = {k: v for k, v in gt.items() if k < args.frames}
     box0 = gt[0]
-    tmp = Path(tempfile.mkdtemp(prefix="gflow-david-"))
+    tmp = scratch("gflow-david-")
     if not args.skip_track:
         init = ",".join(f"{v:g}" for v in box0)
         cmd = ["gflow", "track", str(DATA), "--tracker", "gflow", "--init", init, "--out", str(tmp / "david.csv"),

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -25,7 +24,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 from gflow_core.gflow.render import synthetic_sequence  # noqa: E402
 from pipeline.inline import run_inline  # noqa: E402
@@ -70,7 +69,7 @@ def main() -> None:
     ap.add_argument("--modes", default="inline,processes,processes-2", help="inline, processes, processes-K (K shards)")
     ap.add_argument("--out", default=None, help="folder for frames and recordings (default: a temporary one)")
     args = ap.parse_args()
-    tmp = Path(args.out or tempfile.mkdtemp(prefix="gflow-bench-"))
+    tmp = scratch("gflow-bench-", keep=args.out)
     box = render(tmp / "frames", args.frames)
     print(f"G-flow pipeline, 320x240, {args.frames} frames, s=10 samples, 5 Gauss-Newton iterations, "
           f"n=225 vertices; {tmp}")

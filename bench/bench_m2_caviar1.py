@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _m2cli import DATA, box_arg, evaluate, gflow, write_gt  # noqa: E402
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 PUBLISHED = {"srpca": ("SRPCA", 1.7, 1.00), "vtd": ("VTD", 3.9, 0.96), "pn": ("TLD", 5.6, 0.95),
              "frag": ("Frag", 5.7, 0.91), "pca": ("IVT", 45.2, 0.30), "mil": ("MIL", 48.5, 0.28),
@@ -57,7 +56,7 @@ def main() -> int:
     a, b = (int(v) for v in args.train.split(":"))
     n = max(gt_all) + 1
     test = range(b, n)
-    tmp = Path(tempfile.mkdtemp(prefix="m2-caviar1-"))
+    tmp = scratch("m2-caviar1-")
     gt_test = write_gt(tmp / "gt_test.csv", gt_all, test)
     init = box_arg(gt_all[b])
     mode = ["--inline"] if args.inline else []
@@ -117,7 +116,7 @@ def main() -> int:
     print("\n" + table(rows, ["tracker", "frames", "CLE px", "success (IoU>0.5)", "mean IoU"]))
     cles = np.array([r["cle_px"] for r in res_m2])
     print(f"\nM2 over {len(cles)} seeds: CLE mean {cles.mean():.2f} px (min {cles.min():.2f}, max {cles.max():.2f}); "
-          f"outputs in {tmp}")
+          f"outputs in {tmp}, deleted at exit unless GFLOW_BENCH_KEEP=1")
     return 0
 
 

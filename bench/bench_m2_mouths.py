@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _m2cli import DATA, gflow  # noqa: E402
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 
 def d_summary(d: np.ndarray) -> str:
@@ -64,7 +63,7 @@ def main() -> int:
     from pipeline.modelfile import load_model
     from pipeline.results import estimates
 
-    tmp = Path(tempfile.mkdtemp(prefix="m2-mouths-"))
+    tmp = scratch("m2-mouths-")
     test, av = read_avletters(src, [3])
     folder = write_frames(tmp / "rep3", test.frames)
     train, _ = read_avletters(src, [1, 2])
@@ -116,7 +115,7 @@ def main() -> int:
     print(f"\nL2 and shuffle trackers pick exemplars of the same letter on {100 * same.mean():.1f}% of the "
           f"{len(test)} frames (the same exemplar frame on "
           f"{100 * np.mean(models['shuffle'].exemplar_frame[ks['shuffle']] == models['l2'].exemplar_frame[ks['l2']]):.1f}%)")
-    print(f"outputs in {tmp}")
+    print(f"outputs in {tmp}, deleted at exit unless GFLOW_BENCH_KEEP=1")
     return 0
 
 

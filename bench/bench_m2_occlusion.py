@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +29,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _m2cli import DATA, box_arg, gflow  # noqa: E402
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 
 def analyse(rec: Path, gt: dict) -> dict:
@@ -86,7 +85,7 @@ def main() -> int:
 
     gt = read_boxes(data / "groundtruth.csv")
     b = int(args.train.split(":")[1])
-    tmp = Path(tempfile.mkdtemp(prefix="m2-occlusion-"))
+    tmp = scratch("m2-occlusion-")
     model = tmp / "m2.npz"
     gflow("learn", "m2", str(data), "--boxes", str(data / "groundtruth.csv"), "--frames", args.train, "-K", str(args.K),
           "--out", str(model), "-q")
@@ -111,7 +110,7 @@ def main() -> int:
     print("\n" + table(rows, ["run", "frames", "blank", "CLE seen", "succ seen", "CLE blank", "succ blank",
                               "err 1st/2nd/3rd after (mean)", "(max)", "lost"]))
     print(f"\n(frames {b}-{max(gt)}; 'seen' = frames with an image, 'blank' = frames bridged by the dynamics; "
-          f"'lost' = blank runs after which the centre error is still > 10 px on the 3rd frame; outputs in {tmp})")
+          f"'lost' = blank runs after which the centre error is still > 10 px on the 3rd frame; outputs in {tmp}, deleted at exit unless GFLOW_BENCH_KEEP=1)")
     return 0
 
 

@@ -17,7 +17,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 from pipeline.build import apply_defaults  # noqa: E402
 from pipeline.graph import load_graph  # noqa: E402
@@ -50,9 +50,9 @@ def tracked_fps(path: str) -> tuple[int, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--particles", type=int, default=500)
-    ap.add_argument("--out", default="/tmp/gflow-bench")
+    ap.add_argument("--out", default=None, help="keep the recordings in this folder (default: a temporary one, deleted)")
     args = ap.parse_args()
-    Path(args.out).mkdir(parents=True, exist_ok=True)
+    args.out = str(scratch("gflow-bench-", keep=args.out))
     name, plan = plan_for(args.particles)
     rec_i = f"{args.out}/inline.mcap"
     t0 = time.perf_counter()

@@ -14,7 +14,6 @@ import argparse
 import os
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 from pipeline.mcap_io import iter_records  # noqa: E402
 from pipeline.recorder import McapRecorder  # noqa: E402
@@ -65,7 +64,7 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=2000)
     ap.add_argument("--compression", default="lz4", choices=["lz4", "zstd", "none"])
     args = ap.parse_args()
-    tmp = tempfile.mkdtemp(prefix="gflow-bench-rec-")
+    tmp = str(scratch("gflow-bench-rec-"))
     msgs = payloads(args.n)
     size = sum(len(m) for m in msgs)
     path = os.path.join(tmp, "inproc.mcap")

@@ -14,13 +14,12 @@ from __future__ import annotations
 
 import argparse
 import sys
-import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import table  # noqa: E402
+from _util import scratch, table  # noqa: E402
 
 from pipeline.launcher import Launcher  # noqa: E402
 from pipeline.mcap_io import iter_records  # noqa: E402
@@ -40,7 +39,7 @@ def main() -> None:
     ap.add_argument("--particles", type=int, default=500)
     args = ap.parse_args()
     name, plan = plan_for(args.particles)
-    rec = str(Path(tempfile.mkdtemp(prefix="gflow-bench-rerun-")) / "live.mcap")
+    rec = str(scratch("gflow-bench-rerun-") / "live.mcap")
     res = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",)), recording=rec,
                    progress=False).run()
     assert res.ok, res.exits

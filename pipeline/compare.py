@@ -22,6 +22,11 @@ class FieldDiff:
     magnitude: float = float("nan")
 
 
+def _num(v: Any) -> str:
+    """A number as a user reads it: ``0.25``, not ``np.float64(0.25)``."""
+    return repr(v.item()) if isinstance(v, np.generic) else repr(v)
+
+
 def _array_diff(path: str, a: NDArray, b: NDArray) -> FieldDiff | None:
     if a.dtype != b.dtype or tuple(a.shape) != tuple(b.shape):
         return FieldDiff(path, f"{a.dtype}{list(a.shape)} vs {b.dtype}{list(b.shape)}")
@@ -36,7 +41,7 @@ def _array_diff(path: str, a: NDArray, b: NDArray) -> FieldDiff | None:
         n = int(np.count_nonzero(d))
         return FieldDiff(f"{path}[{', '.join(map(str, idx))}]",
                          f"{n} of {d.size} elements differ, max |diff| {float(d.max()):.6g} "
-                         f"({xf[idx]!r} vs {yf[idx]!r})", float(d.max()))
+                         f"({_num(xf[idx])} vs {_num(yf[idx])})", float(d.max()))
     return FieldDiff(path, "bytes differ")
 
 
@@ -62,7 +67,7 @@ def _walk(path: str, a: Any, b: Any, out: list[FieldDiff]) -> None:
             _walk(f"{path}.{k}", a.get(k), b.get(k), out)
     elif a != b and not (isinstance(a, float) and isinstance(b, float) and np.isnan(a) and np.isnan(b)):
         mag = abs(a - b) if isinstance(a, (int, float)) and isinstance(b, (int, float)) else float("nan")
-        out.append(FieldDiff(path, f"{a!r} vs {b!r}", float(mag)))
+        out.append(FieldDiff(path, f"{_num(a)} vs {_num(b)}", float(mag)))
 
 
 def field_diffs(a: bytes, b: bytes) -> list[FieldDiff]:

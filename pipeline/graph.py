@@ -55,9 +55,13 @@ class RecorderParams(Params):
     """The recorder: every message on ``gflow/<stream>/**`` to one MCAP file.
 
     path may contain ``{time}`` (YYYYmmdd-HHMMSS) and ``{name}`` (the graph name).
+    topics: which topics to keep, as shell patterns on the name after ``gflow/<stream>/``
+    (``estimate``, ``_snapshot/*``, ``*``); errors, heartbeats and control are always kept, so
+    a recording always says what went wrong.
     """
 
     path: str = "recordings/{name}-{time}.mcap"
+    topics: tuple[str, ...] = ("*",)
     flush_interval: float = 0.5
     compression: str = "lz4"
     chunk_size: int = 4 * 1024 * 1024
@@ -198,6 +202,21 @@ class Plan:
         return str(Path(self.base_dir, path.format(name=self.name, time=time.strftime("%Y%m%d-%H%M%S"))))
 
 
+#: topics every recording keeps, whatever ``topics`` says
+ALWAYS_RECORDED = ("errors", "_status/*", "_control")
+
+
+def recorded_topic_filter(params: dict, stream: str):
+    """``keep(topic) -> bool`` for the recorder's ``topics`` patterns (see :class:`RecorderParams`)."""
+    import fnmatch
+
+    pats = tuple(params.get("topics") or ["*"]) + ALWAYS_RECORDED
+    if "*" in pats:
+        return lambda topic: True
+    prefix = f"gflow/{stream}/"
+    return lambda topic: topic.startswith(prefix) and any(fnmatch.fnmatchcase(topic[len(prefix):], p) for p in pats)
+
+
 def _params_struct(kind: str) -> type[Params]:
     if kind == RECORDER_KIND:
         return RecorderParams
@@ -333,6 +352,11 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
             if ptype is not want:
                 raise GraphError(f"{filename}:{line}: type mismatch: stage {s.name!r} input {port!r} expects "
                                  f"{want.__name__}, but {topic} carries {ptype.__name__} from {pname}.{pport}")
+            if pname == s.name:
+                # frame t would wait for the stage's own output of frame t: it can never start
+                raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is fed by its own output "
+                                 f"{pport!r} ({topic}): a cycle that can never start (feed it through a stage "
+                                 f"that predicts the next frame, as particle.proposal does)")
     if not any(s.is_source() for s in plans.values()) and not external:
         raise GraphError(f"{filename}: the graph has no source stage and no external topics")
     if sum(1 for s in plans.values() if s.kind == RECORDER_KIND) > 1:

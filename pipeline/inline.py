@@ -17,7 +17,7 @@ from typing import Callable
 from stages.source import SourceStage
 
 from .build import make_stage
-from .graph import Plan, RecorderParams
+from .graph import Plan, RecorderParams, recorded_topic_filter
 from .host import StageHost
 from .recorder import McapRecorder
 from .sources import open_reader
@@ -68,6 +68,7 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     rec_plan = plan.recorder()
     rec: McapRecorder | None = None
     path = recording or plan.recording_path()
+    keep = recorded_topic_filter(rec_plan.params if rec_plan else {}, plan.stream)
     if rec_plan is not None and path:
         rp = RecorderParams(**rec_plan.params)
         rec = McapRecorder(path, flush_interval=rp.flush_interval, compression=rp.compression,
@@ -78,7 +79,7 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     def drain() -> None:
         while queue:
             topic, payload, seq, type_name = queue.popleft()
-            if rec is not None:
+            if rec is not None and keep(topic):
                 rec.write(topic, payload, seq, publish_ns=time.time_ns(), type_name=type_name)
             for h in subscribers.get(topic, ()):
                 h.deliver(topic, payload)

@@ -157,6 +157,9 @@ class Launcher:
     def _progress_line(self) -> str:
         parts = []
         with self._lock:
+            # heartbeats arrive at different times: the source has sent at least what any stage did
+            done = max((st.steps for n, st in self.status.items() if n in self.plan.stages
+                        and self.plan.stages[n].kind != "recorder"), default=0)
             for name in self.plan.stages:
                 st = self.status.get(name)
                 if st is None:
@@ -165,7 +168,8 @@ class Launcher:
                     parts.append(f"{name}: {st.steps} msgs")
                 else:
                     drop = sum(st.dropped.values())
-                    parts.append(f"{name}: {st.steps}" + (f"/{self.total_frames}" if self.total_frames and
+                    steps = max(st.steps, done) if self.plan.stages[name].is_source() else st.steps
+                    parts.append(f"{name}: {steps}" + (f"/{self.total_frames}" if self.total_frames and
                                  self.plan.stages[name].is_source() else "") + f" @{st.fps:.1f}fps"
                                  + (f" drop={drop}" if drop else ""))
         return " | ".join(parts)

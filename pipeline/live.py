@@ -7,6 +7,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TextIO
 
 from stages.messages import MessageError, NDArray, StageStatus, decode
@@ -14,7 +15,7 @@ from stages.messages import MessageError, NDArray, StageStatus, decode
 from .mcap_io import iter_records
 from .transport import Bus, ZenohSettings, open_session
 
-__all__ = ["list_topics", "echo", "hz", "replay", "ReplayOptions", "describe"]
+__all__ = ["list_topics", "echo", "hz", "rate_stats", "RateStats", "to_plain", "json_line", "replay", "ReplayOptions", "describe"]
 
 
 def describe(payload: bytes, full: bool = False) -> str:
@@ -43,14 +44,17 @@ def _session(settings: ZenohSettings):
     return open_session(settings)
 
 
-def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdout) -> dict[str, int]:
-    """Listen on ``gflow/**`` for ``duration`` seconds and print each topic with its count and rate."""
+def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdout, key: str = "gflow/**",
+                as_json: bool = False) -> dict[str, int]:
+    """Listen on ``key`` for ``duration`` seconds and print each topic with its type, count, rate and
+    bandwidth (one JSON object with ``as_json``)."""
     s = _session(settings)
     counts: dict[str, int] = {}
+    nbytes: dict[str, int] = {}
     types: dict[str, str] = {}
     q: queue.SimpleQueue = queue.SimpleQueue()
     bus = Bus(s)
-    bus.subscribe("gflow/**", lambda k, p, ns, seq: q.put((k, p)))
+    bus.subscribe(key, lambda k, p, ns, seq: q.put((k, p)))
     end = time.monotonic() + duration
     while time.monotonic() < end:
         try:
@@ -58,36 +62,96 @@ def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdo
         except queue.Empty:
             continue
         counts[k] = counts.get(k, 0) + 1
+        nbytes[k] = nbytes.get(k, 0) + len(p)
         if k not in types:
             try:
                 types[k] = type(decode(p)).__name__
             except MessageError:
                 types[k] = "?"
     s.close()
+    if as_json:
+        import json
+
+        print(json.dumps({k: {"type": types[k], "messages": counts[k], "rate_hz": counts[k] / duration,
+                              "bytes_per_s": nbytes[k] / duration} for k in sorted(counts)}, indent=1), file=out)
+        return counts
     if not counts:
-        print(f"no messages on gflow/** in {duration:.1f} s (is a pipeline running, and reachable at "
-              f"{', '.join(settings.connect) or 'the default endpoint'}?)", file=out)
+        print(f"no messages on {key} in {duration:.1f} s (is a pipeline running, and reachable at "
+              f"{', '.join(settings.connect) or 'the default endpoint'}?)", file=sys.stderr)
     for k in sorted(counts):
-        print(f"{k:45s} {types[k]:12s} {counts[k]:6d} msgs  {counts[k] / duration:7.1f} Hz", file=out)
+        print(f"{k:45s} {types[k]:18s} {counts[k]:6d} msgs  {counts[k] / duration:7.1f} Hz  "
+              f"{nbytes[k] / duration / 1024:9.1f} KiB/s", file=out)
     return counts
 
 
-def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | None, out: TextIO = sys.stdout) -> int:
-    """Print messages on ``key`` (a key expression) as they arrive."""
+def to_plain(msg, max_items: int = 64):
+    """A message as JSON-ready data: structs as dicts with their ``type``; arrays of up to
+    ``max_items`` values as lists, larger ones as ``{dtype, shape}`` (no pixel dumps)."""
+    import msgspec
+
+    if isinstance(msg, NDArray):
+        n = 1
+        for d in msg.shape:
+            n *= d
+        if n <= max_items:
+            try:
+                a = msg.array()
+                if a.dtype.kind == "f":  # JSON has no NaN / inf
+                    import numpy as np
+
+                    a = np.where(np.isfinite(a), a, None)
+                return {"dtype": msg.dtype, "shape": list(msg.shape), "values": a.tolist()}
+            except MessageError:
+                pass
+        return {"dtype": msg.dtype, "shape": list(msg.shape)}
+    if isinstance(msg, msgspec.Struct):
+        d = {"type": type(msg).__name__} if type(msg).__struct_config__.tag else {}
+        for name in msg.__struct_fields__:
+            d[name] = to_plain(getattr(msg, name), max_items)
+        return d
+    if isinstance(msg, (list, tuple)):
+        return [to_plain(v, max_items) for v in msg]
+    if isinstance(msg, dict):
+        return {str(k): to_plain(v, max_items) for k, v in msg.items()}
+    if isinstance(msg, bytes):
+        return {"bytes": len(msg)}
+    if isinstance(msg, float) and (msg != msg or msg in (float("inf"), float("-inf"))):
+        return None
+    return msg
+
+
+def json_line(key: str, payload: bytes, pub_ns: int) -> str:
+    """One JSON object per message: topic, publish time and the decoded message."""
+    import json
+
+    try:
+        m = to_plain(decode(payload))
+    except MessageError as e:
+        m = {"error": str(e)}
+    return json.dumps({"topic": key, "publish_ns": pub_ns, "message": m}, allow_nan=False, default=str)
+
+
+def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | None, out: TextIO = sys.stdout,
+         as_json: bool = False) -> int:
+    """Print messages on ``key`` (a key expression) as they arrive; returns how many."""
     s = _session(settings)
     q: queue.SimpleQueue = queue.SimpleQueue()
-    Bus(s).subscribe(key, lambda k, p, ns, seq: q.put((k, p)))
+    Bus(s).subscribe(key, lambda k, p, ns, seq: q.put((k, p, ns)))
     n = 0
     start = time.monotonic()
+    told = False
     try:
         while count is None or n < count:
             if timeout is not None and time.monotonic() - start > timeout:
                 break
+            if not told and n == 0 and time.monotonic() - start > 2.0:
+                print(f"waiting for messages on {key} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+                told = True
             try:
-                k, p = q.get(timeout=0.1)
+                k, p, ns = q.get(timeout=0.1)
             except queue.Empty:
                 continue
-            print(f"{k}: {describe(p)}", file=out, flush=True)
+            print(json_line(k, p, ns) if as_json else f"{k}: {describe(p)}", file=out, flush=True)
             n += 1
     except KeyboardInterrupt:
         pass
@@ -96,30 +160,74 @@ def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | 
     return n
 
 
-def hz(settings: ZenohSettings, key: str, duration: float, out: TextIO = sys.stdout) -> float:
-    """Measure the message rate on ``key`` for ``duration`` seconds."""
+@dataclass
+class RateStats:
+    """Rate over a window of arrival gaps (what ``ros2 topic hz`` prints)."""
+
+    messages: int
+    rate_hz: float
+    min_ms: float
+    max_ms: float
+    std_ms: float
+    window: int
+
+    def line(self, key: str) -> str:
+        return (f"{key}: average rate {self.rate_hz:.2f} Hz  min {self.min_ms:.1f} ms  max {self.max_ms:.1f} ms  "
+                f"std dev {self.std_ms:.2f} ms  window {self.window}")
+
+
+def rate_stats(times: list[float], window: int | None = None) -> RateStats | None:
+    """Statistics of the last ``window`` gaps between arrival ``times`` (seconds); None under 2 messages."""
+    import numpy as np
+
+    if len(times) < 2:
+        return None
+    t = np.asarray(times[-(window + 1):] if window else times, dtype=float)
+    gaps = np.diff(t)
+    mean = float(gaps.mean())
+    return RateStats(messages=len(times), rate_hz=1.0 / mean if mean > 0 else float("inf"),
+                     min_ms=float(gaps.min()) * 1e3, max_ms=float(gaps.max()) * 1e3, std_ms=float(gaps.std()) * 1e3,
+                     window=len(gaps))
+
+
+def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: TextIO = sys.stdout,
+       wait: float = 10.0, window: int | None = None, every: float = 1.0) -> RateStats | None:
+    """A rolling rate on ``key``: wait up to ``wait`` s for the first message, then print the rate,
+    min / max / std of the gaps over the last ``window`` messages every ``every`` s, for
+    ``duration`` s (None: until Ctrl-C). Returns the last statistics (None: fewer than 2 messages)."""
     s = _session(settings)
     q: queue.SimpleQueue = queue.SimpleQueue()
     Bus(s).subscribe(key, lambda k, p, ns, seq: q.put(time.monotonic()))
     times: list[float] = []
-    end = time.monotonic() + duration
+    last: RateStats | None = None
     try:
-        while time.monotonic() < end:
+        t_wait = time.monotonic()
+        while not times:
+            try:
+                times.append(q.get(timeout=0.05))
+            except queue.Empty:
+                if time.monotonic() - t_wait > wait:
+                    return None
+        end = None if duration is None else times[0] + duration
+        next_print = times[0] + every
+        while end is None or time.monotonic() < end:
             try:
                 times.append(q.get(timeout=0.05))
             except queue.Empty:
                 pass
+            if window:
+                del times[:-(window + 1)]
+            if time.monotonic() >= next_print:
+                next_print += every
+                st = rate_stats(times, window)
+                if st is not None:
+                    last = st
+                    print(st.line(key), file=out, flush=True)
     except KeyboardInterrupt:
         pass
-    s.close()
-    if len(times) < 2:
-        print(f"{key}: {len(times)} message(s) in {duration:.1f} s", file=out)
-        return 0.0
-    rate = (len(times) - 1) / (times[-1] - times[0])
-    gaps = [b - a for a, b in zip(times, times[1:])]
-    print(f"{key}: {rate:.2f} Hz over {len(times)} msgs, gap min {min(gaps) * 1e3:.1f} ms max {max(gaps) * 1e3:.1f} ms",
-          file=out)
-    return rate
+    finally:
+        s.close()
+    return rate_stats(times, window) or last
 
 
 @dataclass
@@ -178,11 +286,14 @@ class _Acks:
             self.changed.wait(min(left, 0.05))
 
 
-def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr) -> int:
+def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr,
+           announce_endpoints: list[str] | None = None) -> int:
     """Republish a recording on zenoh, byte for byte, on its recorded topics with its sequence numbers.
 
     Returns the number of messages sent. Heartbeats and control messages of the recorded
-    pipeline are never replayed (they would confuse a live one).
+    pipeline are never replayed (they would confuse a live one). With ``announce_endpoints``
+    the replay announces itself (:mod:`pipeline.running`) there while it plays, so
+    ``gflow topics`` and friends find it without a launcher.
     """
     s = _session(settings)
     bus = Bus(s)
@@ -202,9 +313,15 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
                                         or opts.end_seq is not None and r.seq >= opts.end_seq):
             continue
         keep.append(r)
+    stream = keep[0].topic.split("/")[1] if keep else ""
     if opts.lockstep:
-        stream = keep[0].topic.split("/")[1]
         bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
+    announcement = None
+    if announce_endpoints and stream:
+        from .running import announce
+
+        announcement = announce(stream, announce_endpoints, name=f"replay {Path(path).name}", kind="replay",
+                                recording=str(path))
     time.sleep(opts.settle)  # let subscribers' declarations arrive before the first sample
     n = 0
     loop = 0
@@ -230,5 +347,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
         pass
     finally:
         time.sleep(0.2)
+        if announcement is not None:
+            announcement.close()
         s.close()
     return n

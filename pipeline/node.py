@@ -29,7 +29,7 @@ from stages.messages import Control, Header, StageStatus, decode, encode
 from stages.source import SourceStage
 
 from .build import make_stage
-from .graph import Plan, RecorderParams
+from .graph import Plan, RecorderParams, recorded_topic_filter
 from .host import StageHost
 from .recorder import McapRecorder
 from .sources import open_reader
@@ -153,7 +153,8 @@ class Node:
         self.bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         self.bus.subscribe(plan.control_topic, self._on_control)
         if sp.kind == "recorder":
-            self.bus.subscribe(f"gflow/{plan.stream}/**", self._on_data, with_type=True)
+            keep = recorded_topic_filter(sp.params, plan.stream)  # --record-topics
+            self.bus.subscribe(f"gflow/{plan.stream}/**", lambda k, *a: keep(k) and self._on_data(k, *a), with_type=True)
         else:
             stage = make_stage(plan, self.name)
             self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,

@@ -28,7 +28,7 @@ from typing import Callable, Literal
 
 import zenoh
 
-__all__ = ["ZenohSettings", "open_session", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment"]
+__all__ = ["ZenohSettings", "SessionError", "open_session", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment"]
 
 Mode = Literal["peer", "client", "router"]
 
@@ -86,12 +86,16 @@ def free_port() -> int:
         return int(s.getsockname()[1])
 
 
+class SessionError(RuntimeError):
+    """A zenoh session could not be opened (a bad or busy endpoint); the message is one line."""
+
+
 def open_session(settings: ZenohSettings) -> zenoh.Session:
     """Open a zenoh session; errors name the endpoints that failed."""
     try:
         return zenoh.open(settings.to_config())
     except Exception as e:  # zenoh raises ZError with a terse message
-        raise RuntimeError(f"could not open a zenoh session ({settings.mode}, listen={list(settings.listen)}, "
+        raise SessionError(f"could not open a zenoh session ({settings.mode}, listen={list(settings.listen)}, "
                            f"connect={list(settings.connect)}): {e}") from None
 
 

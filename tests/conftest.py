@@ -25,6 +25,20 @@ def data_dir(name: str) -> Path:
     return p
 
 
+@pytest.fixture(autouse=True, scope="session")
+def _private_runtime_dir(tmp_path_factory):
+    """Pipelines started by the tests announce themselves (pipeline.running) in a folder of the
+    test session's own, so the live tools in a test never see a user's (or another session's)
+    pipeline, and the tests never clutter the user's runtime folder."""
+    old = os.environ.get("GFLOW_RUNTIME_DIR")
+    os.environ["GFLOW_RUNTIME_DIR"] = str(tmp_path_factory.mktemp("gflow-runtime"))
+    yield
+    if old is None:
+        os.environ.pop("GFLOW_RUNTIME_DIR", None)
+    else:
+        os.environ["GFLOW_RUNTIME_DIR"] = old
+
+
 @pytest.fixture
 def crossing() -> Path:
     return data_dir("crossing")

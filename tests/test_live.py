@@ -75,7 +75,8 @@ def test_a_stage_that_dies_for_good_stops_the_run_and_the_recording_closes(tmp_p
 
 
 def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
-    launcher, th, result, port, rec = _start(tmp_path, frames=360)
+    # long enough to outlast the tools on a busy machine; stopped when they are done
+    launcher, th, result, port, rec = _start(tmp_path, frames=3000)
     conn = ["--connect", f"tcp/127.0.0.1:{port}"]
     topics = subprocess.run([*gflow_cmd, "topics", "--duration", "3", *conn], capture_output=True, text=True, timeout=60)
     assert "gflow/demo/features" in topics.stdout and "Features" in topics.stdout, topics.stdout
@@ -84,13 +85,17 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
     assert echo.returncode == 0, echo.stderr
     lines = [ln for ln in echo.stdout.splitlines() if ln.startswith("gflow/demo/estimate: Estimate seq=")]
     assert len(lines) == 3, echo.stdout
-    hz = subprocess.run([*gflow_cmd, "hz", "gflow/demo/frames", "--duration", "1.5", *conn],
+    hz = subprocess.run([*gflow_cmd, "hz", "gflow/demo/frames", "--duration", "2.5", *conn],
                         capture_output=True, text=True, timeout=60)
-    assert hz.returncode == 0 and " Hz over " in hz.stdout, hz.stdout + hz.stderr
-    rate = float(hz.stdout.split(": ")[1].split(" Hz")[0])
-    assert 15 < rate < 45  # the source plays at 30 fps in real time
+    assert hz.returncode == 0 and "average rate" in hz.stdout, hz.stdout + hz.stderr
+    rate = float(hz.stdout.splitlines()[-1].split("average rate ")[1].split(" Hz")[0])
+    assert 2 < rate < 60  # the source plays at 30 fps in real time: never above; loose below for a busy machine
+    launcher.request_stop()
     th.join(120)
-    assert result["r"].ok
+    r = result["r"]
+    assert r.interrupted and all(e.returncode == 0 for e in r.exits.values()), r.exits
+    with open(rec, "rb") as f:  # stopped cleanly: the recording is closed
+        assert make_reader(f).get_summary() is not None
 
     # replay the recording on a fresh network; a subscriber gets every payload byte for byte
     port2 = free_port()
@@ -100,10 +105,13 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
     rp = subprocess.run([*gflow_cmd, "replay", str(rec), "--max", "--topics", "gflow/demo/estimate",
                          "--connect", f"tcp/127.0.0.1:{port2}"], capture_output=True, text=True, timeout=120)
     assert rp.returncode == 0, rp.stderr
-    time.sleep(0.3)
-    got = []
-    while not q.empty():
-        got.append(q.get())
-    s.close()
     want = [r.data for r in iter_records(rec, topics=["gflow/demo/estimate"])]
-    assert got == want
+    got = []
+    deadline = time.monotonic() + 30
+    while len(got) < len(want) and time.monotonic() < deadline:
+        try:
+            got.append(q.get(timeout=0.1))
+        except queue.Empty:
+            pass
+    s.close()
+    assert want and got == want

@@ -91,11 +91,17 @@ def test_sigkilled_recorder_is_recovered(tmp_path, gflow_cmd):
                         progress=False)
     th = threading.Thread(target=launcher.run, daemon=True)
     th.start()
-    deadline = time.monotonic() + 60
-    while not (launcher.status.get("source") and launcher.status["source"].steps >= 45):
-        assert time.monotonic() < deadline
-        time.sleep(0.02)
-    killed_at = time.time_ns()
+    # wait for a condition, not a time: until the file on disk (read as a truncated file) holds
+    # at least 30 frames; whatever was on disk then must survive the kill and the recovery
+    deadline = time.monotonic() + 120
+    on_disk = 0
+    while on_disk < 30:
+        assert time.monotonic() < deadline, f"the recorder flushed only {on_disk} frames"
+        time.sleep(0.1)
+        try:
+            on_disk = sum(1 for r in iter_records(rec) if r.topic == "gflow/demo/frames")
+        except Exception:  # the file is being written; its header may not be complete yet
+            on_disk = 0
     os.kill(launcher.pids["recorder"][0], signal.SIGKILL)
     th.join(120)
     fixed = tmp_path / "fixed.mcap"
@@ -105,11 +111,8 @@ def test_sigkilled_recorder_is_recovered(tmp_path, gflow_cmd):
     frames = [r for r in iter_records(fixed) if r.topic == "gflow/demo/frames"]
     seqs = [r.seq for r in frames]
     assert seqs == list(range(len(seqs)))
-    # the source plays at 30 fps: every frame published more than flush_interval (0.5 s, plus 0.2 s
-    # for scheduling) before the kill must be in the recovered file
-    t0 = frames[0].publish_ns
-    must_have = int(((killed_at - t0) / 1e9 - 0.7) * 30)
-    assert len(seqs) >= must_have > 10, (len(seqs), must_have)
+    assert len(seqs) >= on_disk >= 30, (len(seqs), on_disk)
+    assert len(seqs) < 150, "the recorder was killed before the end, so the file must end early"
     # metadata survived and an independent implementation reads the recovered file
     js = _read_js(fixed)
     assert js["topics"]["gflow/demo/frames"]["count"] == len(seqs)

@@ -116,6 +116,7 @@ def training_set(args):
         for i, why in seq.skipped:
             _log(args, f"  warning: frame {i} skipped: {why}")
     meta["frames"] = f"{int(seq.frame_index[0])}:{int(seq.frame_index[-1]) + 1}"
+    meta["frame_size"] = f"{seq.frames[0].shape[1]}x{seq.frames[0].shape[0]}"  # checked by track (crop: frame)
     n = len(seq)
     _log(args, f"read {n} training frame(s) from {path} ({seq.frames[0].shape[1]}x{seq.frames[0].shape[0]})")
     if n < 2:
@@ -172,6 +173,9 @@ def training_set(args):
 
 
 def cmd_learn(args) -> int:
+    from .common import check_outputs
+
+    check_outputs(out=args.out)
     from gflow_core.m2.learn import learn
 
     from ..modelfile import save_model

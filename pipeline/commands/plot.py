@@ -52,7 +52,15 @@ def cmd_plot(args) -> int:
     from gflow_core.metrics import centre_error
 
     from ..results import estimates, read_boxes, truth_boxes
+    from .common import check_outputs
 
+    if Path(args.out).is_dir():
+        check_outputs(OUT=args.out)  # says it is a folder
+    out = args.out if Path(args.out).suffix else args.out + ".png"
+    if Path(out).suffix.lower().lstrip(".") not in plt.gcf().canvas.get_supported_filetypes():
+        raise CliError(f"{args.out}: matplotlib cannot write {Path(out).suffix!r} files (use .png, .svg or .pdf)")
+    plt.close("all")
+    check_outputs(OUT=out)
     est = estimates(args.file)
     if not est:
         raise CliError(f"{args.file} has no estimates to plot")
@@ -92,15 +100,19 @@ def cmd_plot(args) -> int:
     ax.grid(alpha=0.3)
     fig.suptitle(Path(args.file).name)
     fig.tight_layout()
-    fig.savefig(args.out, dpi=args.dpi)
-    print(f"wrote {args.out}")
+    fig.savefig(out, dpi=args.dpi)
+    print(f"wrote {out}")
     return 0
 
 
 def register(sub) -> None:
-    p = sub.add_parser("plot", help="plot error, ESS and per-stage latency of a recording against frame")
+    p = sub.add_parser("plot", help="plot error, ESS and per-stage latency of a recording against frame",
+                       description="Three panels against the frame index: the centre location error against ground "
+                                   "truth, the effective sample size (with the frames where the filter coasted), and "
+                                   "each stage's latency from its last input to its output.",
+                       epilog="example: gflow plot run.mcap --gt ../shared/data/caviar1/groundtruth.csv plot.png")
     p.add_argument("file", help="MCAP recording")
-    p.add_argument("out", help="output image (PNG, SVG, PDF)")
+    p.add_argument("out", help="output image: .png, .svg or .pdf (no suffix: .png is added)")
     p.add_argument("--gt", help="ground truth CSV (default: the synthetic scene's truth, if recorded)")
-    p.add_argument("--dpi", type=int, default=100)
+    p.add_argument("--dpi", type=int, default=100, help="resolution of a PNG in dots per inch (default 100)")
     p.set_defaults(func=cmd_plot)

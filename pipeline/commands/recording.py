@@ -8,7 +8,7 @@ import json
 import sys
 from pathlib import Path
 
-from .common import CliError, add_zenoh_args, zenoh_from_args
+from .common import CliError, add_zenoh_args, positive_float, tool_zenoh
 
 # file suffix -> callable(path, as_json) printing a description; other modules add to it
 DESCRIBERS: dict = {}
@@ -65,8 +65,21 @@ def cmd_replay(args) -> int:
                          end_seq=args.to_seq, start_s=args.start, end_s=args.end, loops=args.loop,
                          lockstep=tuple(s for s in (args.lockstep or "").split(",") if s),
                          ack_timeout=args.ack_timeout)
+    import dataclasses
+
+    from ..mcap_io import _check as check_mcap
+    from ..transport import free_port
+
+    check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+
+    settings, found = tool_zenoh(args, require=False)  # joins the running pipelines, if any
+    if not args.listen and settings.mode != "client":
+        settings = dataclasses.replace(settings, listen=(f"tcp/127.0.0.1:{free_port()}",))
+    where = [e for e in settings.listen if not e.endswith(":0")]
+    print(f"replaying {args.file}; listening on {', '.join(where)}"
+          + (f"; joined {', '.join(str(i['pid']) for i in found)}" if found else ""), file=sys.stderr)
     try:
-        n = replay(zenoh_from_args(args, default_connect=True), args.file, opts)
+        n = replay(settings, args.file, opts, announce_endpoints=where)
     except TimeoutError as e:
         raise CliError(str(e)) from None
     print(f"replayed {n} messages from {args.file}", file=sys.stderr)
@@ -90,7 +103,8 @@ def register(sub) -> None:
                        formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
     p.add_argument("file", help="MCAP recording")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--speed", type=float, default=1.0, help="timing factor on the original timing (default 1)")
+    g.add_argument("--speed", type=positive_float, default=1.0,
+                   help="timing factor on the original timing, > 0 (default 1; 2 = twice as fast)")
     g.add_argument("--max", action="store_true", help="as fast as possible")
     p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (full names)")
     p.add_argument("--from-seq", type=int, metavar="SEQ", help="first frame to replay")

@@ -4,10 +4,16 @@ from __future__ import annotations
 
 ORDER = 56
 
+import os
+
 
 def cmd_recover(args) -> int:
     from ..recover import recover
+    from .common import CliError, check_outputs
 
+    if os.path.abspath(args.broken) == os.path.abspath(args.fixed):
+        raise CliError("FIXED must be a new file, not the broken recording itself")
+    check_outputs(FIXED=args.fixed)
     r = recover(args.broken, args.fixed)
     state = "the file was complete" if r.complete else f"the file ends early ({r.stopped_because})"
     print(f"recovered {r.messages} messages on {r.channels} channels and {r.metadata} metadata records "

@@ -9,6 +9,8 @@ from .common import CliError
 
 ORDER = 58
 
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov")
+
 
 def _messages(path: str):
     """Per frame: Frame, estimate, posterior particles (decoded), in frame order."""
@@ -43,6 +45,17 @@ def cmd_render(args) -> int:
 
     from ..draw import draw_annotations
 
+    out = Path(args.out)
+    video = out.suffix.lower() in VIDEO_SUFFIXES
+    if out.suffix and not video and not out.is_dir():
+        raise CliError(f"{args.out}: unknown output kind {out.suffix!r}; give a video ({', '.join(VIDEO_SUFFIXES)}) "
+                       f"or a folder name for PNG frames")
+    if video:
+        from .common import check_outputs
+
+        check_outputs(OUT=args.out)
+    elif out.exists() and not out.is_dir():
+        raise CliError(f"{args.out} exists and is not a folder")
     frames, est, parts = _messages(args.file)
     seqs = [s for s in sorted(frames) if s in est]
     if args.frames:
@@ -50,8 +63,6 @@ def cmd_render(args) -> int:
         seqs = [s for s in seqs if (not a or s >= int(a)) and (not b or s < int(b))]
     if not seqs:
         raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)")
-    out = Path(args.out)
-    video = out.suffix.lower() in (".mp4", ".avi", ".mkv", ".mov")
     writer = None
     if not video:
         out.mkdir(parents=True, exist_ok=True)

@@ -42,6 +42,9 @@ def cmd_rerun(args) -> int:
 
     if not Path(args.file).is_file():
         raise CliError(f"recording not found: {args.file}")
+    from .common import check_outputs as check_output_paths
+
+    check_output_paths(out=args.out)
     if args.graph:
         if args.from_seq is not None:
             raise CliError("--from works with --stage (a whole-graph re-run starts at the first frame)")

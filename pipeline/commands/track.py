@@ -22,7 +22,48 @@ from ..graph import Plan, load_graph
 from ..results import estimates, write_boxes
 from ..sources import count_frames
 from ..trackers import TRACKERS
-from .common import CliError, add_zenoh_args, parse_box, parse_sets, run_plan
+from ..preflight import check_source
+from .common import (CliError, Recording, add_record_args, add_zenoh_args, check_outputs, parse_box, parse_sets,
+                     run_plan)
+
+#: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
+_OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
+#: options one tracker adds that others read too (m2 reads chamfer's --particles, gflow m2's --model)
+_ALSO_USED_BY = {"particles": ("m2", "appearance"), "model": ("gflow",)}
+
+
+def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
+    """A whole-frame patch model (crop: frame, e.g. AVLetters mouths) sees the frame itself as the
+    patch: on video not cropped like its training frames it cannot track anything."""
+    import sys
+
+    from ..modelfile import load_meta
+
+    meta = load_meta(Path(model))
+    if meta.get("crop") != "frame":
+        return
+    size = f"{shape[1]}x{shape[0]}"
+    trained = str(meta.get("frame_size", ""))
+    if trained and trained != size:
+        raise CliError(f"{model} was learned on whole {trained} frames (a patch model with crop: frame, e.g. cropped "
+                       f"mouths); {source} has {size} frames. Such a model only fits video cropped like its training "
+                       f"frames: learn one on this video (gflow learn m2 ... --boxes GT.csv)")
+    print(f"note: {model} is a whole-frame patch model: the state is the exemplar, the box is the whole frame and "
+          f"does not move" + ("" if trained else " (the model does not record its training frame size)"),
+          file=sys.stderr)
+
+
+def check_tracker_options(args) -> None:
+    """An option of another tracker (``--particles`` with gflow, ``--model`` with chamfer) is an error,
+    not silently ignored."""
+    for owner, opts in _OWN_OPTIONS.items():
+        for dest, (opt, default) in opts.items():
+            if owner == args.tracker or args.tracker in _ALSO_USED_BY.get(dest, ()):
+                continue
+            if getattr(args, dest, default) != default:
+                users = sorted({owner, *_ALSO_USED_BY.get(dest, ())})
+                raise CliError(f"{opt} is an option of --tracker {' / '.join(users)}, not of --tracker "
+                               f"{args.tracker}")
 
 
 def source_params(source: str, args) -> dict:
@@ -52,6 +93,8 @@ class TrackRun:
     seconds: float
     frames: int
     info: dict
+    kept: str = ""  # what the user is told about the recording
+    temporary: bool = False  # --no-record: the recording was removed
 
 
 def track_plan(args) -> tuple[Plan, int | None]:
@@ -60,6 +103,8 @@ def track_plan(args) -> tuple[Plan, int | None]:
     Bad options or model files raise here, before anything starts.
     """
     tracker = TRACKERS[args.tracker]
+    check_tracker_options(args)
+    check_outputs(out=args.out, record=args.record)
     graph, overrides = tracker.overrides(args)
     overrides.setdefault("source", {}).update(source_params(args.source, args))
     for stage, kv in parse_sets(args.set).items():
@@ -69,17 +114,27 @@ def track_plan(args) -> tuple[Plan, int | None]:
         plan = make_plan(args.graph or graph, overrides)
     else:
         plan = load_graph(args.graph or graph, overrides=overrides)
-    return plan, count_frames(msgspec.convert(plan.stages["source"].params, SourceParams))
+    sp = msgspec.convert(plan.stages["source"].params, SourceParams)
+    first = check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
+    if args.tracker == "m2":
+        check_whole_frame_model(args.model, args.source, first.image.shape)
+    return plan, count_frames(sp)
 
 
 def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
-    """Run the tracker of ``args`` (inline or as processes) and read its boxes back from the recording."""
+    """Run the tracker of ``args`` (inline or as processes) and read its boxes back from the recording
+    (a temporary one with ``--no-record``, removed here)."""
     plan_, total = plan or track_plan(args)
-    rec = args.record or str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
-    path, secs, frames, info = run_plan(plan_, args, rec, total, quiet=args.quiet)
-    est = estimates(path)
+    recording = Recording(plan_, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
+                          needed=("estimate",))
+    try:
+        path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet)
+        est = estimates(path)
+    finally:
+        recording.cleanup()
     return TrackRun(boxes={k: v.box for k, v in est.items()}, states=[v.state for v in est.values()],
-                    recording=path, seconds=secs, frames=frames, info=info)
+                    recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
+                    temporary=recording.temporary)
 
 
 def cmd_track(args) -> int:
@@ -87,11 +142,15 @@ def cmd_track(args) -> int:
     write_boxes(args.out, run.boxes)
     n, states, info = len(run.boxes), run.states, run.info
     print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
-          f"boxes: {args.out}; recording: {run.recording}")
+          f"boxes: {args.out}; recording: {run.kept}")
     if states.count("coast"):
         print(f"  {states.count('coast')} frame(s) coasted on the dynamics (no usable image)")
-    if info.get("errors"):
-        print(f"  errors reported: {info['errors']} (see `gflow info {run.recording}`)")
+    errs = info.get("errors")
+    if errs:  # a count (processes) or {stage: count} (inline)
+        n = sum(errs.values()) if isinstance(errs, dict) else errs
+        per = (" (" + ", ".join(f"{k} {v}" for k, v in sorted(errs.items())) + ")") if isinstance(errs, dict) else ""
+        where = f"see `gflow info {run.recording}`" if not run.temporary else "kept in no recording: --no-record"
+        print(f"  errors reported: {n}{per}; {where}")
     return 130 if info.get("interrupted") else 0
 
 
@@ -103,7 +162,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
                    help="tracking method (default appearance; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--record", metavar="FILE", help="recording path (default recordings/track-TIME.mcap)")
+    add_record_args(p, "recordings/track-TIME.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     p.add_argument("--fps", type=float, default=25.0, help="source frame rate, for time stamps and --realtime")
     p.add_argument("--realtime", action="store_true", help="play the source at --fps instead of as fast as possible")
@@ -115,6 +174,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     for t in TRACKERS.values():
         g = p.add_argument_group(f"--tracker {t.NAME}")
         t.add_args(g)
+        _OWN_OPTIONS[t.NAME] = {a.dest: (a.option_strings[0], a.default) for a in g._group_actions}
     add_zenoh_args(p)
 
 

@@ -1,0 +1,176 @@
+"""A user's mistakes on the real ``gflow`` command line: each is one line on stderr naming what
+was wrong, a non-zero exit, no traceback, and nothing run or written before it is found.
+
+Every case runs the CLI as a subprocess, as a user would; the sources are tiny image folders
+written into tmp_path, so no case needs ../shared/data.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def gflow(*args: str, cwd: Path, timeout: float = 60.0) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def assert_one_line_error(r: subprocess.CompletedProcess, *words: str) -> str:
+    assert r.returncode != 0, (r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1, r.stderr
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.fixture()
+def frames(tmp_path: Path) -> Path:
+    """Five 64x48 textured frames in a folder."""
+    d = tmp_path / "frames"
+    d.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(5):
+        cv2.imwrite(str(d / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    return d
+
+
+def _no_recording(cwd: Path) -> None:
+    assert not list(cwd.rglob("*.mcap")), "a mistake found before the start must not leave a recording"
+
+
+@pytest.mark.parametrize("opt", ["--out", "--record"])
+def test_track_output_is_a_folder(tmp_path: Path, frames: Path, opt: str) -> None:
+    other = ["--out", "b.csv"] if opt == "--record" else []
+    r = gflow("track", str(frames), "--init", "10,10,20,20", opt, str(tmp_path), *other, cwd=tmp_path)
+    assert_one_line_error(r, opt, "folder")
+    _no_recording(tmp_path)
+
+
+def test_track_output_unwritable_is_refused_before_tracking(tmp_path: Path, frames: Path) -> None:
+    (tmp_path / "afile").write_text("x")
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", str(tmp_path / "afile" / "b.csv"), cwd=tmp_path)
+    assert_one_line_error(r, "--out", "cannot")
+    _no_recording(tmp_path)
+
+
+def test_box_outside_the_first_frame(tmp_path: Path, frames: Path) -> None:
+    r = gflow("track", str(frames), "--init", "100,10,20,20", "--out", "b.csv", "--inline", cwd=tmp_path)
+    assert_one_line_error(r, "--init", "outside", "64x48")
+    assert not (tmp_path / "b.csv").exists()
+    _no_recording(tmp_path)
+
+
+def test_start_beyond_the_source(tmp_path: Path, frames: Path) -> None:
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--start", "500", cwd=tmp_path)
+    assert_one_line_error(r, "--start 500", "5 frames")
+    _no_recording(tmp_path)
+
+
+def test_text_file_named_mp4(tmp_path: Path) -> None:
+    (tmp_path / "clip.mp4").write_text("not a video\n")
+    r = gflow("track", "clip.mp4", "--init", "10,10,20,20", "--out", "b.csv", cwd=tmp_path)
+    line = assert_one_line_error(r, "clip.mp4")
+    assert "moov" not in r.stderr and "video" in line
+    _no_recording(tmp_path)
+
+
+@pytest.mark.parametrize("tracker,extra,named", [
+    ("chamfer", ["--model", "m.npz"], "--model"),
+    ("chamfer", ["--experts", "3"], "--experts"),
+    ("gflow", ["--particles", "300"], "--particles"),
+    ("m2", ["--experts", "3", "--model", "m.npz"], "--experts"),
+])
+def test_option_of_another_tracker(tmp_path: Path, frames: Path, tracker: str, extra: list[str], named: str) -> None:
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--tracker", tracker, *extra,
+              cwd=tmp_path)
+    assert_one_line_error(r, named, f"not of --tracker {tracker}")
+
+
+def test_graph_feeding_a_stage_its_own_output(tmp_path: Path) -> None:
+    (tmp_path / "cycle.yaml").write_text(
+        "name: cyc\nstream: cam0\nstages:\n"
+        "  source: {kind: source, params: {kind: synthetic, frames: 5}}\n"
+        "  preprocess: {kind: preprocess, inputs: {frames: frames}}\n"
+        "  filter:\n    kind: particle.filter\n    inputs: {features: features, proposals: particles}\n"
+        "    params: {init: [10, 20, 30, 40]}\n")
+    r = gflow("run", "cycle.yaml", cwd=tmp_path, timeout=30)
+    assert_one_line_error(r, "cycle.yaml:", "filter", "its own output", "never start")
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["run", "demo", "--record", "{tmp}"], "--record"),
+    (["demo", "--record", "{tmp}"], "--record"),
+    (["recover", "x.mcap", "{tmp}"], "folder"),
+    (["rerun", "x.mcap", "--graph", "--out", "{tmp}"], "--out"),
+    (["render", "x.mcap", "{tmp}/out.xyz"], ".xyz"),
+    (["plot", "x.mcap", "{tmp}"], "folder"),
+])
+def test_other_commands_refuse_bad_outputs_first(tmp_path: Path, argv: list[str], named: str) -> None:
+    (tmp_path / "x.mcap").write_bytes(b"")  # the input exists; the output is what is wrong
+    r = gflow(*(a.replace("{tmp}", str(tmp_path)) for a in argv), cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert not (tmp_path / "out.xyz").exists()
+
+
+@pytest.mark.parametrize("speed", ["0", "-1", "nan"])
+def test_replay_speed_must_be_positive(tmp_path: Path, speed: str) -> None:
+    r = gflow("replay", "x.mcap", f"--speed={speed}", cwd=tmp_path)
+    assert_one_line_error(r, "--speed", "> 0")
+
+
+@pytest.mark.parametrize("endpoint", ["foo", "tcp/127.0.0.1", "tcp/127.0.0.1:99999"])
+def test_malformed_endpoint(tmp_path: Path, endpoint: str) -> None:
+    r = gflow("topics", "--connect", endpoint, cwd=tmp_path)
+    assert_one_line_error(r, "--connect", repr(endpoint)[1:-1])
+
+
+def test_version(tmp_path: Path) -> None:
+    r = gflow("--version", cwd=tmp_path)
+    assert r.returncode == 0
+    assert r.stdout.startswith("gflow ") and "zenoh" in r.stdout
+
+
+def test_whole_frame_model_on_other_video(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    for name, shape in (("small", (24, 32)), ("big", (48, 64))):
+        (tmp_path / name).mkdir()
+        for i in range(8):
+            cv2.imwrite(str(tmp_path / name / f"{i:03d}.png"), rng.integers(0, 255, shape, dtype=np.uint8))
+    r = gflow("learn", "m2", "small", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = gflow("track", "big", "--tracker", "m2", "--model", "m.npz", "--init", "1,1,10,10", "--out", "o.csv",
+              "--inline", cwd=tmp_path)
+    assert_one_line_error(r, "m.npz", "32x24", "64x48")
+    _no_recording(tmp_path)
+
+
+def test_default_recording_folder_unusable(tmp_path: Path, frames: Path) -> None:
+    (tmp_path / "recordings").write_text("a file where the default recordings/ folder would go")
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", cwd=tmp_path)
+    assert_one_line_error(r, "the recording", "recordings")
+    assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["replay", "junk.mcap"], "not an MCAP file"),
+    (["replay", "missing.mcap"], "not found"),
+    (["hz", "demo/frames", "--window", "0"], "--window"),
+    (["pub", "gflow/demo/_control", "Control", "{not json"], "JSON"),
+    (["pub", "gflow/demo/_control", "NoSuchType", "{}"], "NoSuchType"),
+])
+def test_live_tool_mistakes(tmp_path: Path, argv: list[str], named: str) -> None:
+    (tmp_path / "junk.mcap").write_text("junk\n")
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named)

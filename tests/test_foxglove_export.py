@@ -1,0 +1,49 @@
+"""``gflow foxglove``: every exported message decodes the way Foxglove decodes it (JSON, with the
+Foxglove schema where one is named), read back with the mcap library."""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+from mcap.reader import make_reader
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def gflow(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=120)
+
+
+def test_export_is_all_json_with_images_and_estimates(tmp_path: Path) -> None:
+    r = gflow(tmp_path, "run", "demo", "--inline", "--set", "source.frames=8", "--record", "run.mcap")
+    assert r.returncode == 0, r.stderr
+    r = gflow(tmp_path, "foxglove", "run.mcap", "fox.mcap")
+    assert r.returncode == 0, r.stderr
+    assert "left out" in r.stdout and "gflow/demo/features" in r.stdout
+    seen: dict[str, list] = {}
+    with open(tmp_path / "fox.mcap", "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            assert channel.message_encoding == "json"
+            obj = json.loads(message.data)  # every message is JSON
+            seen.setdefault(channel.topic, []).append((schema.name if schema else "", obj))
+    frames = seen["gflow/demo/frames"]
+    assert len(frames) == 8 and frames[0][0] == "foxglove.CompressedImage"
+    img = cv2.imdecode(np.frombuffer(base64.b64decode(frames[0][1]["data"]), np.uint8), cv2.IMREAD_COLOR)
+    assert img is not None and img.shape[:2] == (240, 320)
+    assert seen["gflow/demo/annotations"][0][0] == "foxglove.ImageAnnotations"
+    est = [o for _, o in seen["gflow/demo/estimate"] if o["type"] == "Estimate"]
+    assert len(est) == 8 and all(len(e["box"]) == 4 and e["ess"] > 0 for e in est)
+    assert "gflow/demo/features" not in seen and "gflow/demo/particles" not in seen
+    with open(tmp_path / "fox.mcap", "rb") as f:
+        assert "gflow.graph" in {m.name for m in make_reader(f).iter_metadata()}
+    r = gflow(tmp_path, "foxglove", "run.mcap", "run.mcap")
+    assert r.returncode == 2 and "new file" in r.stderr

@@ -1,0 +1,124 @@
+"""``gflow view`` against a real pipeline and a real WebSocket client speaking Foxglove's
+published protocol (subprotocol foxglove.sdk.v1, the successor of foxglove.websocket.v1 with
+the same messages): advertise -> subscribe -> binary message data."""
+
+from __future__ import annotations
+
+import base64
+import json
+import os
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("foxglove", reason="gflow view needs foxglove-sdk (pip install foxglove-sdk)")
+ws_client = pytest.importorskip("websockets.sync.client", reason="the test client needs the websockets package")
+
+from pipeline.transport import free_port  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+WANT = {"/gflow/demo/image", "/gflow/demo/annotations", "/gflow/demo/estimate", "/gflow/demo/_status/filter"}
+
+
+def _env(rt: Path) -> dict:
+    return dict(os.environ, GFLOW_RUNTIME_DIR=str(rt),
+                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def _stop(p: subprocess.Popen) -> None:
+    if p.poll() is None:
+        p.terminate()
+        try:
+            p.wait(60)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait(10)
+
+
+def test_foxglove_client_receives_video_overlays_and_estimates(tmp_path: Path) -> None:
+    rt = tmp_path / "rt"
+    run = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", "demo", "--set", "source.realtime=true",
+                            "--set", "source.fps=20", "--set", "source.frames=3000", "--set", "filter.particles=100",
+                            "--no-record", "--listen", "tcp/127.0.0.1:0"],
+                           env=_env(rt), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    view = None
+    try:
+        deadline = time.monotonic() + 60
+        while not (rt.is_dir() and list(rt.glob("*.json"))):
+            assert time.monotonic() < deadline, "the pipeline did not announce itself"
+            time.sleep(0.1)
+        port = free_port()
+        view = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "view", "--port", str(port)], env=_env(rt),
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        ws = None
+        while ws is None:
+            assert view.poll() is None, view.stderr.read()
+            assert time.monotonic() < deadline + 30, "gflow view did not listen"
+            try:
+                ws = ws_client.connect(f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1", "foxglove.websocket.v1"],
+                                       open_timeout=5)
+            except OSError:
+                time.sleep(0.2)
+        got: dict[str, dict] = {}
+        channels: dict[int, dict] = {}
+        subs: dict[int, str] = {}
+        next_sid = [1]
+
+        def subscribe(chans: list[dict]) -> None:
+            new = []
+            for ch in chans:
+                subs[next_sid[0]] = ch["id"]
+                new.append({"id": next_sid[0], "channelId": ch["id"]})
+                next_sid[0] += 1
+            if new:
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": new}))
+
+        with ws:
+            end = time.monotonic() + 90
+            retry = time.monotonic() + 15
+            while not WANT <= set(got):
+                if time.monotonic() > end:
+                    _stop(view)
+                    raise AssertionError(f"received only {sorted(got)} (advertised "
+                                         f"{sorted(c['topic'] for c in channels.values())}); gflow view said: "
+                                         f"{view.stderr.read()[-2000:]}")
+                if time.monotonic() > retry:  # a subscription that delivered nothing for a while: ask again
+                    retry = time.monotonic() + 10
+                    again = [c for c in channels.values() if c["topic"] in WANT and c["topic"] not in got]
+                    if again:
+                        ws.send(json.dumps({"op": "unsubscribe", "subscriptionIds":
+                                            [s for s, c in subs.items() if channels[c]["topic"] not in got]}))
+                        subscribe(again)
+                try:
+                    frame = ws.recv(timeout=1.0)
+                except TimeoutError:
+                    continue
+                if isinstance(frame, str):
+                    op = json.loads(frame)
+                    if op.get("op") == "advertise":
+                        for ch in op["channels"]:
+                            channels[ch["id"]] = ch
+                        subscribe([ch for ch in op["channels"] if ch["topic"] in WANT])
+                    continue
+                assert frame[0] == 0x01  # message data: opcode, subscription id, receive time, payload
+                sid, _ts = struct.unpack_from("<IQ", frame, 1)
+                ch = channels[subs[sid]]
+                got.setdefault(ch["topic"], {"channel": ch, "msg": json.loads(frame[13:])})
+    finally:
+        if view is not None:
+            _stop(view)
+        _stop(run)
+    img = got["/gflow/demo/image"]
+    assert img["channel"]["schemaName"] == "foxglove.CompressedImage" and img["channel"]["encoding"] == "json"
+    assert img["msg"]["format"] == "jpeg" and base64.b64decode(img["msg"]["data"])[:2] == b"\xff\xd8"
+    ann = got["/gflow/demo/annotations"]
+    assert ann["channel"]["schemaName"] == "foxglove.ImageAnnotations"
+    assert ann["msg"]["points"] and len(ann["msg"]["points"][0]["points"]) >= 4
+    est = got["/gflow/demo/estimate"]["msg"]
+    assert est["type"] == "Estimate" and len(est["box"]) == 4 and est["ess"] > 0 and est["state"] in ("track", "coast")
+    st = got["/gflow/demo/_status/filter"]["msg"]
+    assert st["type"] == "StageStatus" and st["stage"] == "filter"
