@@ -15,7 +15,7 @@ Toyama & Blake 2002). This stage adapts it to the pipeline's particle messages:
 Bad input -- a missing, undecodable, uniform or wrongly sized frame, or missing proposals --
 makes the filter coast and is reported; it never stops the stream.
 
-State for ``snapshot()`` / ``restore()``: the exemplars, the particle cloud, the velocity,
+State for ``snapshot()`` / ``restore()``: the three exemplars, the particle cloud, the velocity,
 the confidence level and counters, as msgpack of a small Struct.
 """
 
@@ -67,6 +67,8 @@ class AppearanceFilterParams(Params):
     max_log_scale: float = _DEFAULTS.max_log_scale
     hidden_prior: float = _DEFAULTS.hidden_prior
     scale_from_recent: bool = _DEFAULTS.scale_from_recent
+    adapt_max: float = _DEFAULTS.adapt_max
+    slow_rate: float = _DEFAULTS.slow_rate
 
     def __post_init__(self) -> None:
         if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
@@ -84,6 +86,7 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     res: tuple[int, int] = (0, 0)
     anchor: NDArray | None = None
     recent: NDArray | None = None
+    slow: NDArray | None = None
     particles: NDArray | None = None
     centre: tuple[float, float] = (0.0, 0.0)
     log_s: float = 0.0
@@ -230,7 +233,7 @@ class AppearanceFilterStage(Stage):
         return msgspec.msgpack.encode(_Snapshot(
             version=SNAPSHOT_VERSION, initialised=True, size0=(float(st.size0[0]), float(st.size0[1])),
             res=(int(st.res[0]), int(st.res[1])), anchor=NDArray.of(st.anchor), recent=NDArray.of(st.recent),
-            particles=NDArray.of(st.particles), centre=(float(st.centre[0]), float(st.centre[1])),
+            slow=NDArray.of(st.slow), particles=NDArray.of(st.particles), centre=(float(st.centre[0]), float(st.centre[1])),
             log_s=float(st.log_s), velocity=(float(st.velocity[0]), float(st.velocity[1])), level=st.level,
             occluded_run=int(st.occluded_run), steps=self.steps, last=self.last))
 
@@ -247,13 +250,14 @@ class AppearanceFilterStage(Stage):
             self.state, self.shape = None, None
             return
         try:
-            assert snap.anchor is not None and snap.recent is not None and snap.particles is not None
-            anchor, recent = snap.anchor.array().copy(), snap.recent.array().copy()
+            assert (snap.anchor is not None and snap.recent is not None and snap.slow is not None
+                    and snap.particles is not None)
+            anchor, recent, slow = snap.anchor.array().copy(), snap.recent.array().copy(), snap.slow.array().copy()
             parts = snap.particles.array().copy()
         except (AssertionError, MessageError, ValueError) as e:
             raise ValueError(f"stage {name!r}: bad appearance snapshot: {e}") from None
         self.state = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
                                         recent=recent, particles=parts, centre=np.array(snap.centre),
                                         log_s=snap.log_s, velocity=np.array(snap.velocity), level=snap.level,
-                                        occluded_run=snap.occluded_run)
+                                        occluded_run=snap.occluded_run, slow=slow)
         self.shape = None

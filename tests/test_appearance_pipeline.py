@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import subprocess
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -84,6 +85,16 @@ def test_a_snapshot_of_another_stage_is_refused(scene):
     filt, _ = _stages(sc.truth_box(0))
     with pytest.raises(ValueError, match="not an appearance.filter snapshot"):
         filt.restore(b"\x01\x02garbage")
+
+
+def test_stage_parameters_are_the_core_parameters():
+    from dataclasses import fields
+
+    from gflow_core.m2.appearance import AppearanceParams
+
+    core = {f.name: f.default for f in fields(AppearanceParams)}
+    stage = {k: v for k, v in msgspec.structs.asdict(AppearanceFilterParams()).items() if k not in ("init", "seed")}
+    assert stage == core
 
 
 def test_bad_parameters_are_refused_before_anything_runs():

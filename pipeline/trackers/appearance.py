@@ -16,8 +16,9 @@ STD_XY_REL = 0.08
 
 def add_args(g) -> None:
     g.add_argument("--track-scale", action="store_true",
-                   help="also track the size of the box (3 observed scales); better on pedestrians walking "
-                        "towards or away from the camera, but it lost the face of david_indoor (README, 'Results')")
+                   help="also track the size of the box (3 observed scales). Better on crossing (a pedestrian "
+                        "walking away), worse on caviar1 and david_indoor, where the box drifts smaller "
+                        "(README, 'Which tracker')")
 
 
 def overrides(args) -> tuple[str, dict[str, dict]]:
