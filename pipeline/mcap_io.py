@@ -3,6 +3,10 @@
 A recording whose writer was killed has no footer; ``make_reader`` recovers nothing from
 it, so :func:`iter_records` falls back to ``NonSeekingReader`` which yields every complete
 chunk before the torn end (and reports that it stopped early).
+
+A recorder restarted after a crash writes the rest of the run to a new segment file beside
+the first one, ``NAME.part1.mcap``, ``NAME.part2.mcap``, ...; :func:`iter_records` reads a
+recording's segments after it, as one recording (:func:`segments`).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from typing import Iterator
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
-__all__ = ["Record", "iter_records", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording"]
+__all__ = ["Record", "iter_records", "segments", "segment_path", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording"]
 
 
 class TruncatedRecording(Exception):
@@ -56,8 +60,31 @@ def _check(path: str | Path) -> Path:
     return p
 
 
+def segment_path(path: str | Path, n: int) -> Path:
+    """The n-th segment of a recording (0: the recording itself)."""
+    p = Path(path)
+    return p if n == 0 else p.with_name(f"{p.stem}.part{n}{p.suffix}")
+
+
+def segments(path: str | Path) -> list[Path]:
+    """The files of one recording: itself, then the segments a restarted recorder wrote."""
+    out = [Path(path)]
+    n = 1
+    while segment_path(path, n).is_file():
+        out.append(segment_path(path, n))
+        n += 1
+    return out
+
+
 def iter_records(path: str | Path, topics: list[str] | None = None, *, strict: bool = False,
                  on_truncated=None) -> Iterator[Record]:
+    """Every message of a recording and its segments, in file (write) order (see :func:`_iter_file`)."""
+    for seg in segments(path):
+        yield from _iter_file(seg, topics, strict=strict, on_truncated=on_truncated)
+
+
+def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: bool = False,
+               on_truncated=None) -> Iterator[Record]:
     """Every message of a recording in file (write) order.
 
     Parameters

@@ -10,19 +10,42 @@ no early message can miss a subscriber. Sources additionally wait for the launch
 Shutdown: SIGINT or SIGTERM makes a stage abandon what is queued, publish end of stream
 on its outputs and exit 0; the recorder closes its MCAP file properly. A Python exception
 exits 1 with the traceback on stderr (the launcher shows its last line).
+
+Faults:
+
+* Nothing outlives the launcher: on Linux every node asks for SIGTERM when its parent dies
+  (``prctl(PR_SET_PDEATHSIG)``), and a watchdog thread also checks the parent pid; an
+  orphaned node stops at once (the recorder closes its file first) and removes the run's
+  temporary folder (``GFLOW_RUN_DIR``).
+* Resume, not restart: a stage the graph restarts writes a checkpoint after every step
+  (``GFLOW_STATE_DIR``: its snapshot, the last frame done, its last outputs). Started
+  again (``GFLOW_RESTARTS`` > 0), it restores the checkpoint and resumes from the next frame
+  it has not consumed: the source from the frame after the last one it sent, a filter from
+  its state, re-seeding from it on the first frame whose driver inputs are here.
+* The cycle never deadlocks: an input that does not come is given up when the stream is
+  ``lag`` frames further on (twice the flow-control window, plus 4) or after
+  ``GFLOW_LATE_S`` seconds (default 3) while the source is ahead; the stage then coasts.
+* The source announces each frame (its heartbeat's ``last_seq`` and ``frame_shape``)
+  before sending it; every stage rejects messages more than the flow-control window ahead
+  of it, and images of another size.
+* The source waits while the recorder is not there (its heartbeat is older than
+  ``RECORDER_GONE_S``), so a recorder restart loses no more than the frames in flight.
 """
 
 from __future__ import annotations
 
+import ctypes
 import logging
 import os
 import queue
+import shutil
 import signal
 import sys
 import threading
 import time
 from pathlib import Path
 
+import msgspec
 import psutil
 
 from stages.messages import Control, Header, StageStatus, decode, encode
@@ -40,6 +63,28 @@ __all__ = ["main", "run_node"]
 log = logging.getLogger("gflow.node")
 
 FLOW_STALL_S = 1.0
+RECORDER_GONE_S = 1.5
+PR_SET_PDEATHSIG = 1
+
+
+class Checkpoint(msgspec.Struct, frozen=True):
+    """What a restarted stage resumes from: its snapshot after frame ``seq`` (None for a
+    stateless stage), and the last seq it sent on each output port."""
+
+    seq: int
+    data: bytes | None
+    max_out: dict[str, int]
+
+
+def die_with_parent() -> None:
+    """Ask Linux to send SIGTERM when the parent (the launcher) dies. A no-op elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    except (OSError, AttributeError) as e:  # the watchdog thread still notices
+        log.debug("prctl(PR_SET_PDEATHSIG) unavailable: %s", e)
 
 
 class Node:
@@ -71,10 +116,36 @@ class Node:
         self._reported_steps = 0
         # every worker reports progress quickly when some source applies flow control
         self.flow_stages_waiting = any(s.is_source() and s.params.get("max_ahead", 0) for s in plan.stages.values())
+        self.sources = {n for n, s in plan.stages.items() if s.is_source()}
+        self.window = max([int(plan.stages[n].params.get("max_ahead", 8)) for n in self.sources] or [0])
+        self.recorders = {n for n, s in plan.stages.items() if s.kind == "recorder"}
+        self.recorder_seen = 0.0  # monotonic time of the recorder's last heartbeat
+        self.announced = -1  # sources: the last frame announced
+        self.frame_shape: tuple[int, ...] = ()
+        self.late_s = float(os.environ.get("GFLOW_LATE_S", "3.0"))
+        self.orphaned = threading.Event()
+        self.parent = int(os.environ.get("GFLOW_LAUNCHER_PID", "0") or 0)
+        self.restarts = int(os.environ.get("GFLOW_RESTARTS", "0") or 0)
+        state_dir = os.environ.get("GFLOW_STATE_DIR", "")
+        self.checkpoint_path = (Path(state_dir) / f"{name}.ckpt"
+                                if state_dir and self.sp.restart == "on-failure" else None)
 
     # -- handshake ---------------------------------------------------------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         other = key.rsplit("/", 1)[-1]
+        if other in self.recorders:
+            self.recorder_seen = time.monotonic()
+        if other in self.sources and self.host is not None and other != self.name:
+            try:
+                st = decode(payload)
+            except ValueError:
+                st = None
+            if isinstance(st, StageStatus):
+                h = self.host
+                h.source_seq = max(h.source_seq, st.last_seq)
+                h.join.horizon = h.source_seq
+                if len(st.frame_shape) >= 2 and h.frame_shape is None:
+                    h.frame_shape = (int(st.frame_shape[0]), int(st.frame_shape[1]))
         if self.flow_window and other in self.flow_stages:
             try:
                 st = decode(payload)
@@ -103,6 +174,10 @@ class Node:
                 self.started.set()
             elif msg.command == "stop":
                 self.stop.set()
+            else:
+                log.warning("[%s] unknown control command %r ignored", self.name, msg.command[:40])
+        else:
+            log.warning("[%s] a %s on the control topic ignored", self.name, type(msg).__name__)
 
     def _on_data(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str = "") -> None:
         self.inbox.put((key, payload, pub_ns, seq, type_name))
@@ -126,11 +201,16 @@ class Node:
         if self.recorder is not None:
             steps = self.recorder.messages
         last_seq = h.join.done_below if h else -1
+        if self.sp.is_source():
+            last_seq = self.announced
         return StageStatus(header=Header(self.plan.stream, steps, time.time_ns()), stage=self.name, pid=os.getpid(),
                            state=self.state, steps=steps, fps=round(fps, 2), dropped=dropped, errors=errors,
                            last_error=last[-300:], rss_mb=round(self.proc.memory_info().rss / 2**20, 1),
                            last_seq=last_seq, queued=self.inbox.qsize(),
-                           busy_ms=round(h.stats.busy_ns / h.stats.steps / 1e6, 3) if h and h.stats.steps else 0.0)
+                           busy_ms=round(h.stats.busy_ns / h.stats.steps / 1e6, 3) if h and h.stats.steps else 0.0,
+                           rejected=dict(h.stats.rejected) if h else {}, lost=h.stats.lost if h else 0,
+                           waiting=h.waiting() if h and not h.closed and not self.sp.is_source() else "",
+                           frame_shape=self.frame_shape)
 
     def send_status(self, min_interval: float = 0.0) -> None:
         now = time.monotonic()
@@ -147,6 +227,47 @@ class Node:
                 return
             self._hb_stop.wait(0.5)
 
+    def _watch_parent(self) -> None:
+        """Stop when the launcher is gone (backs up the parent-death signal)."""
+        while not self._hb_stop.is_set():
+            if self.parent and os.getppid() != self.parent:
+                self.orphaned.set()
+                self.stop.set()
+                return
+            self._hb_stop.wait(0.2)
+
+    # -- checkpoints -----------------------------------------------------------------------
+    def _checkpoint(self, seq: int) -> None:
+        """Write what a restart resumes from (atomically: a kill leaves the previous one)."""
+        path = self.checkpoint_path
+        if path is None:
+            return
+        h = self.host
+        data = h.stage.snapshot() if h is not None and not self.sp.is_source() else None
+        ck = Checkpoint(seq=seq, data=data, max_out=dict(h.max_out) if h else {})
+        tmp = path.with_suffix(".tmp")
+        tmp.write_bytes(msgspec.msgpack.encode(ck))
+        os.replace(tmp, path)
+
+    def _restore(self) -> int:
+        """Load the checkpoint of a restarted stage; return the last frame it had done (-1: none)."""
+        path = self.checkpoint_path
+        if path is None or self.restarts == 0 or not path.is_file() or self.host is None:
+            return -1
+        h = self.host
+        try:
+            ck = msgspec.msgpack.decode(path.read_bytes(), type=Checkpoint)
+            if ck.data is not None:
+                h.stage.restore(ck.data)
+        except (msgspec.DecodeError, ValueError, TypeError) as e:
+            log.warning("[%s] checkpoint %s unusable (%s); starting afresh", self.name, path, e)
+            return -1
+        h.max_out.update(ck.max_out)
+        h.join.done_below = ck.seq
+        h.join.resumed = True
+        log.warning("[%s] restart %d: resumed after frame %d", self.name, self.restarts, ck.seq)
+        return ck.seq
+
     # -- run ---------------------------------------------------------------------------------
     def run(self) -> int:
         plan, sp = self.plan, self.sp
@@ -156,18 +277,22 @@ class Node:
             self.bus.subscribe(f"gflow/{plan.stream}/**", self._on_data, with_type=True)
         else:
             stage = make_stage(plan, self.name)
+            lag = 2 * self.window + 4 if self.window else 0
             self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,
-                                  sp.snapshot_every, plan.snapshot_topic(self.name))
+                                  sp.snapshot_every, plan.snapshot_topic(self.name), lag=lag,
+                                  window=self.window or (1 << 40), on_step=self._checkpoint)
+            resumed_after = self._restore()
             for topic in sp.inputs.values():
                 self.bus.subscribe(topic, self._on_data, with_type=True)
         hb = threading.Thread(target=self._heartbeat, daemon=True)
         hb.start()
+        threading.Thread(target=self._watch_parent, daemon=True).start()
         self.state = "ready"
         try:
             if sp.kind == "recorder":
                 return self._run_recorder()
             if isinstance(self.host.stage, SourceStage):  # type: ignore[union-attr]
-                return self._run_source()
+                return self._run_source(resumed_after)
             return self._run_stage()
         finally:
             self.state = "done" if self.state != "stopped" else "stopped"
@@ -179,11 +304,26 @@ class Node:
                 log.debug("[%s] final heartbeat not sent: %s", self.name, e)
             time.sleep(0.1)  # let the last samples leave before the session closes
             self.session.close()
+            self._cleanup_if_orphaned()
 
-    def _run_source(self) -> int:
+    def _cleanup_if_orphaned(self) -> None:
+        """The launcher died: nobody else will remove the run's temporary folder."""
+        if self.parent and os.getppid() != self.parent:
+            run_dir = os.environ.get("GFLOW_RUN_DIR", "")
+            if run_dir and Path(run_dir).name.startswith("gflow-run-"):
+                shutil.rmtree(run_dir, ignore_errors=True)
+
+    def _run_source(self, resumed_after: int = -1) -> int:
         host = self.host
         assert host is not None
         stage: SourceStage = host.stage  # type: ignore[assignment]
+        if resumed_after >= 0:  # restarted: go on from the frame after the last one sent
+            p0 = stage.params
+            if p0.stop is not None and resumed_after + 1 >= p0.stop:  # type: ignore[attr-defined]
+                host.close("end")
+                return 0
+            stage.params = msgspec.structs.replace(p0, start=max(p0.start, resumed_after + 1))  # type: ignore[arg-type]
+            self.announced = resumed_after
         while not (self.started.is_set() and self.peers_ready.is_set()):
             if self.stop.wait(0.01):
                 self.state = "stopped"
@@ -206,7 +346,14 @@ class Node:
             self._flow_wait(raw.index)
             outs = stage.emit(raw)
             host._flush_reports()
+            if outs:  # announce the frame (and its size) before sending it
+                self.announced = max(self.announced, raw.index)
+                shape = getattr(stage, "_shape", None)
+                self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
+                self.send_status()
             host._emit(outs)
+            if outs:
+                self._checkpoint(raw.index)
             host.stats.steps += len(outs)
             now = time.perf_counter_ns()
             host.stats.first_step_ns = host.stats.first_step_ns or now
@@ -220,6 +367,12 @@ class Node:
         later one to tell it so) does not hold the source back forever."""
         stalled_since = time.monotonic()
         last = None
+        warned = False
+        while self.recorders and not self.stop.is_set() and time.monotonic() - self.recorder_seen > RECORDER_GONE_S:
+            if not warned:  # the recorder is gone (restarting): nothing would be recorded
+                log.warning("[%s] the recorder is not there: pausing before frame %d", self.name, index)
+                warned = True
+            self.stop.wait(0.05)
         while self.flow_window and not self.stop.is_set():
             slowest = min((self.progress_of.get(n, -1) for n in self.flow_stages), default=1 << 60)
             if index - slowest <= self.flow_window:
@@ -245,6 +398,7 @@ class Node:
             try:
                 key, payload, _, _, _ = self.inbox.get(timeout=0.1)
             except queue.Empty:
+                host.tick(self.late_s)
                 continue
             host.deliver(key, payload)
             if self.flow_stages_waiting:
@@ -278,9 +432,11 @@ class Node:
                         break
                     continue
                 rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
-            # keep what is still arriving until the network goes quiet (at most 2 s), then close
-            quiet_until = time.monotonic() + 0.3
-            deadline = time.monotonic() + 2.0
+            # keep what is still arriving until the network goes quiet (at most 2 s, or 0.5 s
+            # when the launcher is gone and every process must be gone within 1 s), then close
+            quick = self.orphaned.is_set()
+            quiet_until = time.monotonic() + (0.15 if quick else 0.3)
+            deadline = time.monotonic() + (0.5 if quick else 2.0)
             while time.monotonic() < min(quiet_until, deadline):
                 try:
                     key, payload, pub_ns, seq, type_name = self.inbox.get(timeout=0.05)
@@ -301,6 +457,7 @@ def run_node(plan_path: str, name: str) -> int:
         import cv2
 
         cv2.setNumThreads(int(threads))
+    die_with_parent()
     plan = Plan.from_json(Path(plan_path).read_text())
     if name not in plan.stages:
         print(f"gflow node: no stage {name!r} in {plan_path}", file=sys.stderr)
@@ -308,10 +465,16 @@ def run_node(plan_path: str, name: str) -> int:
     node = Node(plan, name)
 
     def _signal(signum, frame) -> None:
+        if node.parent and os.getppid() != node.parent:
+            node.orphaned.set()
         node.stop.set()
 
     signal.signal(signal.SIGINT, _signal)
     signal.signal(signal.SIGTERM, _signal)
+    signal.signal(signal.SIGHUP, _signal)
+    if node.parent and os.getppid() != node.parent:  # the launcher died before we got here
+        node.orphaned.set()
+        node.stop.set()
     return node.run()
 
 

@@ -10,7 +10,7 @@ from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
 from .mcap_io import iter_records
 
-__all__ = ["read_boxes", "write_boxes", "estimates", "truth_boxes"]
+__all__ = ["read_boxes", "write_boxes", "estimates", "truth_boxes", "frame_ranges", "completeness"]
 
 Box = tuple[float, float, float, float]
 
@@ -80,3 +80,33 @@ def truth_boxes(recording: str | Path) -> dict[int, Box]:
         if isinstance(m, Frame) and m.truth is not None:
             out[m.header.seq] = tuple(m.truth)  # type: ignore[assignment]
     return out
+
+
+def frame_ranges(frames) -> str:
+    """Frame numbers as compact ranges: ``3, 7-9, 12``."""
+    out: list[str] = []
+    fs = sorted(set(frames))
+    i = 0
+    while i < len(fs):
+        j = i
+        while j + 1 < len(fs) and fs[j + 1] == fs[j] + 1:
+            j += 1
+        out.append(str(fs[i]) if i == j else f"{fs[i]}-{fs[j]}")
+        i = j + 1
+    return ", ".join(out)
+
+
+def completeness(est: dict, expected: range | None) -> list[str]:
+    """Lines saying which frames have no estimate and which coasted (empty: every frame tracked).
+
+    expected : the frames the source was to send (None: from the first to the last estimate)."""
+    if expected is None:
+        expected = range(min(est), max(est) + 1) if est else range(0)
+    missing = [f for f in expected if f not in est]
+    coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast"]
+    lines = []
+    if missing:
+        lines.append(f"{len(missing)} frame(s) have no estimate: {frame_ranges(missing)}")
+    if coasted:
+        lines.append(f"{len(coasted)} frame(s) coasted on the dynamics (no usable input): {frame_ranges(coasted)}")
+    return lines

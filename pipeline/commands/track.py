@@ -9,6 +9,7 @@ from __future__ import annotations
 
 ORDER = 20
 
+import sys
 import time
 from pathlib import Path
 
@@ -17,7 +18,7 @@ import msgspec
 from stages.source import SourceParams
 
 from ..graph import load_graph
-from ..results import estimates, write_boxes
+from ..results import completeness, estimates, write_boxes
 from ..sources import count_frames
 from ..trackers import TRACKERS
 from .common import CliError, add_zenoh_args, parse_box, parse_sets, run_plan
@@ -53,17 +54,28 @@ def cmd_track(args) -> int:
         plan = load_graph(args.graph or graph, overrides=overrides)
     total = count_frames(msgspec.convert(plan.stages["source"].params, SourceParams))
     rec = args.record or str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
-    path, secs, frames, info = run_plan(plan, args, rec, total, quiet=args.quiet)
-    est = estimates(path)
+    path, secs, frames, info = run_plan(plan, args, rec, total, quiet=args.quiet, strict=False)
+    # whatever happened, the boxes of every frame that was tracked are written
+    est = estimates(path) if path and Path(path).is_file() else {}
     write_boxes(args.out, {k: v.box for k, v in est.items()})
-    states = [v.state for v in est.values()]
     print(f"tracked {len(est)} frames in {secs:.2f} s ({len(est) / max(secs, 1e-9):.1f} fps); "
           f"boxes: {args.out}; recording: {path}")
-    if states.count("coast"):
-        print(f"  {states.count('coast')} frame(s) coasted on the dynamics (no usable image)")
+    expected = range(args.start, args.start + total) if total is not None else None
+    gaps = completeness(est, expected)
+    for line in gaps:
+        print(f"  {line}")
+    for n, k in info.get("restarts", {}).items():
+        print(f"  stage {n} was restarted {k} time(s) and resumed from its checkpoint")
     if info.get("errors"):
         print(f"  errors reported: {info['errors']} (see `gflow info {path}`)")
-    return 130 if info.get("interrupted") else 0
+    if info.get("interrupted"):
+        return 130
+    incomplete = not info.get("ok", True) or (expected is not None and len(est) < len(expected))
+    if incomplete:
+        print("the run is incomplete: " + (gaps[0] if gaps else "the pipeline did not finish cleanly"),
+              file=sys.stderr)
+        return 3
+    return 0
 
 
 def register(sub) -> None:
