@@ -82,6 +82,7 @@ class StageHost:
         self.source_seq = -1  # the last frame the source announced (-1: not known, no check)
         self.frame_shape: tuple[int, int] | None = None  # (H, W) the source declared
         self.on_step = on_step
+        self.replayed_upto: dict[str, int] = {}  # after a restart: inputs already taken from the recording
         self.stats = HostStats()
         self.closed = False
         self.max_out: dict[str, int] = {}
@@ -191,8 +192,9 @@ class StageHost:
         self.pump()
 
     # -- input -------------------------------------------------------------------------------
-    def deliver(self, topic: str, payload: bytes) -> None:
-        """Take one payload that arrived on ``topic``; run every step that became ready."""
+    def deliver(self, topic: str, payload: bytes, pump: bool = True) -> None:
+        """Take one payload that arrived on ``topic``; run every step that became ready
+        (with ``pump=False``, only store it: a batch is then released by :meth:`pump`)."""
         if self.closed:
             return
         port = self.port_of.get(topic)
@@ -216,13 +218,16 @@ class StageHost:
             if msg.header.seq < 0:
                 self.reject("bad_header", f"on {topic}: negative seq {msg.header.seq}", topic=topic)
                 return
+            if msg.header.seq + offset <= self.replayed_upto.get(port, -1):
+                return  # the live copy of an input already replayed from the recording
             bad = self.check(port, msg.header.seq + offset, msg)
             if bad:
                 kind, _, why = bad.partition(": ")
                 self.reject(kind, f"on {topic}: {why}", msg.header.seq, topic)
                 return
             self.join.push(port, msg.header.seq + offset, msg)
-        self.pump()
+        if pump:
+            self.pump()
 
     def pump(self) -> None:
         for seq, inputs in self.join.ready(self.stage.required):

@@ -62,6 +62,7 @@ class LaunchResult:
     interrupted: bool = False
     peak_rss_mb: dict[str, float] = field(default_factory=dict)
     stall: str = ""  # why the run was stopped as stalled ('' if it was not)
+    estimates: dict[int, bytes] = field(default_factory=dict)  # every estimate payload heard, by frame
 
 
 class _StageLost(Exception):
@@ -131,6 +132,7 @@ class Launcher:
         self.stall: str = ""  # the stall report, when the run stopped for one
         self.run_dir: str = ""
         self._progress_at: dict[str, tuple[tuple, float]] = {}
+        self.estimates: dict[int, bytes] = {}
         self.status: dict[str, StageStatus] = {}
         self.errors: list[ErrorReport] = []
         self.procs: dict[str, _Proc] = {}
@@ -164,6 +166,11 @@ class Launcher:
                 self._print(f"error from {msg.stage} [{msg.kind}] {msg.message}")
             elif n == 21:
                 self._print("more errors: counting them without printing (see the recording's errors topic)")
+
+    def _on_estimate(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+        # a copy of every estimate: what the recording lost (a recorder restart) is still known
+        if seq >= 0 and not payload.startswith(b"{"):
+            self.estimates[seq] = payload
 
     # -- output ----------------------------------------------------------------------------
     def _print(self, text: str) -> None:
@@ -200,7 +207,8 @@ class Launcher:
         env.setdefault("GFLOW_CV_THREADS", str(self.threads_per_stage))
         if self.recording:
             # a restarted recorder starts a new segment: the first file stays as it was closed or torn
-            env["GFLOW_RECORDING"] = str(segment_path(self.recording, restarts)) if restarts else self.recording
+            recorder = self.plan.stages[name].kind == "recorder"
+            env["GFLOW_RECORDING"] = str(segment_path(self.recording, restarts)) if restarts and recorder else self.recording
         env["GFLOW_RUN_DIR"] = self.run_dir
         env["GFLOW_STATE_DIR"] = os.path.join(self.run_dir, "state")
         env["GFLOW_LAUNCHER_PID"] = str(os.getpid())
@@ -277,6 +285,9 @@ class Launcher:
         bus = Bus(session)
         bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         bus.subscribe(plan.error_topic, self._on_error)
+        for sp in plan.stages.values():
+            if "estimate" in sp.outputs and sp.kind != "recorder":
+                bus.subscribe(sp.outputs["estimate"], self._on_estimate)
         self.run_dir = tempfile.mkdtemp(prefix="gflow-run-")
         os.makedirs(os.path.join(self.run_dir, "state"))
         plan_file = os.path.join(self.run_dir, "plan.json")
@@ -408,7 +419,7 @@ class Launcher:
         return LaunchResult(ok=ok and not interrupted, seconds=time.monotonic() - t0, recording=self.recording if recorder else None,
                             status=dict(self.status), exits=dict(self.exits), errors=list(self.errors),
                             pids=dict(self.pids), interrupted=interrupted, peak_rss_mb=dict(self.peak_rss),
-                            stall=self.stall)
+                            stall=self.stall, estimates=dict(self.estimates))
 
     def _record_exit(self, n: str) -> None:
         p = self.procs[n]

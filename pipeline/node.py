@@ -20,16 +20,21 @@ Faults:
 * Resume, not restart: a stage the graph restarts writes a checkpoint after every step
   (``GFLOW_STATE_DIR``: its snapshot, the last frame done, its last outputs). Started
   again (``GFLOW_RESTARTS`` > 0), it restores the checkpoint and resumes from the next frame
-  it has not consumed: the source from the frame after the last one it sent, a filter from
-  its state, re-seeding from it on the first frame whose driver inputs are here.
+  it has not consumed: the source from the frame after the last one it sent; any other
+  stage first takes the inputs it missed from the recording (every message that reached
+  the recorder while it was down, read up to the recorder's last flush), then goes on live,
+  so its outputs are those of an undisturbed run. Inputs that are in no recording are
+  given up (a filter coasts on them, or re-seeds from its own restored state on the first
+  frame whose driver inputs are here).
 * The cycle never deadlocks: an input that does not come is given up when the stream is
   ``lag`` frames further on (twice the flow-control window, plus 4) or after
   ``GFLOW_LATE_S`` seconds (default 3) while the source is ahead; the stage then coasts.
 * The source announces each frame (its heartbeat's ``last_seq`` and ``frame_shape``)
   before sending it; every stage rejects messages more than the flow-control window ahead
   of it, and images of another size.
-* The source waits while the recorder is not there (its heartbeat is older than
-  ``RECORDER_GONE_S``), so a recorder restart loses no more than the frames in flight.
+* Every node holds a zenoh liveliness token ``gflow/<stream>/_alive/<stage>``, which
+  vanishes within milliseconds of the process's death. The source waits while the
+  recorder's token is gone, so a recorder restart loses no more than the frames in flight.
 """
 
 from __future__ import annotations
@@ -47,6 +52,7 @@ from pathlib import Path
 
 import msgspec
 import psutil
+import zenoh
 
 from stages.messages import Control, Header, StageStatus, decode, encode
 from stages.source import SourceStage
@@ -63,7 +69,6 @@ __all__ = ["main", "run_node"]
 log = logging.getLogger("gflow.node")
 
 FLOW_STALL_S = 1.0
-RECORDER_GONE_S = 1.5
 PR_SET_PDEATHSIG = 1
 
 
@@ -119,7 +124,7 @@ class Node:
         self.sources = {n for n, s in plan.stages.items() if s.is_source()}
         self.window = max([int(plan.stages[n].params.get("max_ahead", 8)) for n in self.sources] or [0])
         self.recorders = {n for n, s in plan.stages.items() if s.kind == "recorder"}
-        self.recorder_seen = 0.0  # monotonic time of the recorder's last heartbeat
+        self.recorder_alive = threading.Event()  # the recorder's liveliness token is there
         self.announced = -1  # sources: the last frame announced
         self.frame_shape: tuple[int, ...] = ()
         self.late_s = float(os.environ.get("GFLOW_LATE_S", "3.0"))
@@ -133,8 +138,6 @@ class Node:
     # -- handshake ---------------------------------------------------------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         other = key.rsplit("/", 1)[-1]
-        if other in self.recorders:
-            self.recorder_seen = time.monotonic()
         if other in self.sources and self.host is not None and other != self.name:
             try:
                 st = decode(payload)
@@ -163,6 +166,13 @@ class Node:
             self.seen.add(other)
             if self.seen >= set(self.plan.stages):
                 self.peers_ready.set()
+
+    def _on_alive(self, sample) -> None:
+        if str(sample.key_expr).rsplit("/", 1)[-1] in self.recorders:
+            if sample.kind == zenoh.SampleKind.DELETE:
+                self.recorder_alive.clear()
+            else:
+                self.recorder_alive.set()
 
     def _on_control(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         try:
@@ -268,11 +278,39 @@ class Node:
         log.warning("[%s] restart %d: resumed after frame %d", self.name, self.restarts, ck.seq)
         return ck.seq
 
+    def _catch_up(self, after: int) -> None:
+        """Feed the inputs after frame ``after`` that reached the recording while this stage
+        was down (live copies of them are then ignored as already replayed)."""
+        h = self.host
+        path = os.environ.get("GFLOW_RECORDING", "")
+        if h is None or not path or not Path(path).is_file():
+            return
+        rec = self.plan.recorder()
+        flush = float(rec.params.get("flush_interval", 0.5)) if rec is not None else 0.5
+        time.sleep(flush + 0.3)  # what came before our subscribers reaches the file at the next flush
+        from .mcap_io import iter_records
+
+        topics = sorted(h.topics_in.values())
+        n = 0
+        for r in iter_records(path, topics=topics):
+            port = h.port_of[r.topic]
+            if r.seq + h.stage.input_offsets.get(port, 0) <= after and r.type != "EndOfStream":
+                continue
+            h.deliver(r.topic, r.data, pump=False)  # all of it first: the recorder's order is not causal
+            h.replayed_upto[port] = max(h.replayed_upto.get(port, -1), h.join.high.get(port, -1))
+            n += 1
+        h.pump()
+        log.warning("[%s] caught up on %d input message(s) from the recording", self.name, n)
+
     # -- run ---------------------------------------------------------------------------------
     def run(self) -> int:
         plan, sp = self.plan, self.sp
         self.bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         self.bus.subscribe(plan.control_topic, self._on_control)
+        alive = f"gflow/{plan.stream}/_alive"
+        self._token = self.session.liveliness().declare_token(f"{alive}/{self.name}")
+        if sp.is_source() and self.recorders:
+            self._alive_sub = self.session.liveliness().declare_subscriber(f"{alive}/*", self._on_alive, history=True)
         if sp.kind == "recorder":
             self.bus.subscribe(f"gflow/{plan.stream}/**", self._on_data, with_type=True)
         else:
@@ -281,9 +319,9 @@ class Node:
             self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,
                                   sp.snapshot_every, plan.snapshot_topic(self.name), lag=lag,
                                   window=self.window or (1 << 40), on_step=self._checkpoint)
-            resumed_after = self._restore()
             for topic in sp.inputs.values():
                 self.bus.subscribe(topic, self._on_data, with_type=True)
+            resumed_after = self._restore()
         hb = threading.Thread(target=self._heartbeat, daemon=True)
         hb.start()
         threading.Thread(target=self._watch_parent, daemon=True).start()
@@ -293,7 +331,7 @@ class Node:
                 return self._run_recorder()
             if isinstance(self.host.stage, SourceStage):  # type: ignore[union-attr]
                 return self._run_source(resumed_after)
-            return self._run_stage()
+            return self._run_stage(resumed_after)
         finally:
             self.state = "done" if self.state != "stopped" else "stopped"
             self._hb_stop.set()
@@ -368,11 +406,10 @@ class Node:
         stalled_since = time.monotonic()
         last = None
         warned = False
-        while self.recorders and not self.stop.is_set() and time.monotonic() - self.recorder_seen > RECORDER_GONE_S:
+        while self.recorders and not self.stop.is_set() and not self.recorder_alive.wait(0.05):
             if not warned:  # the recorder is gone (restarting): nothing would be recorded
                 log.warning("[%s] the recorder is not there: pausing before frame %d", self.name, index)
                 warned = True
-            self.stop.wait(0.05)
         while self.flow_window and not self.stop.is_set():
             slowest = min((self.progress_of.get(n, -1) for n in self.flow_stages), default=1 << 60)
             if index - slowest <= self.flow_window:
@@ -386,10 +423,12 @@ class Node:
             self.progress_changed.clear()
             self.progress_changed.wait(0.05)
 
-    def _run_stage(self) -> int:
+    def _run_stage(self, resumed_after: int = -1) -> int:
         host = self.host
         assert host is not None
         self.state = "running"
+        if resumed_after >= 0:
+            self._catch_up(resumed_after)  # what it missed, before what is queued live
         while not host.closed:
             if self.stop.is_set():
                 host.close("interrupted")

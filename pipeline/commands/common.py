@@ -116,7 +116,7 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
             "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()},
             "interrupted": res.interrupted, "stall": res.stall,
-            "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}}
+            "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
     if res.stall:
         print(res.stall, file=sys.stderr)
     if strict and not res.ok and not res.interrupted:
