@@ -129,6 +129,8 @@ class McapRecorder:
         log_ns = time.time_ns() if log_ns is None else log_ns
         if not type_name or (type_name not in MESSAGE_TYPES and type_name not in FOXGLOVE_TYPES):
             type_name = peek_type(payload)
+            if type_name not in MESSAGE_TYPES:
+                type_name = ""  # an unknown tag: the topic's one `unknown` channel, not a channel per tag
         cid = self._channel(topic, type_name)
         self._w.add_message(cid, log_time=log_ns, data=payload, publish_time=publish_ns or log_ns,
                             sequence=max(seq, 0) & 0xFFFFFFFF)

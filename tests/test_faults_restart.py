@@ -1,0 +1,81 @@
+"""Resume, not restart: SIGKILL one stage of the shipped chamfer graph mid-run on caviar1
+(`gflow track`, processes). The run completes, the CSV has one row per frame, and at most
+the frames in flight at the kill differ from an undisturbed run, named in the report."""
+
+from __future__ import annotations
+
+import csv
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from pipeline.mcap_io import segments
+from pipeline.results import estimates
+
+STOP = 60  # frames: enough to kill mid-run, few enough to keep the test fast
+KILL_AT = 20  # estimates in the recording when the stage is killed
+WINDOW = 8  # the source's flow-control window: at most this many frames are in flight
+
+
+def _track(caviar1: Path, tmp: Path, name: str) -> list[str]:
+    return [sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", "129,71,30,79",
+            "--out", str(tmp / f"{name}.csv"), "--record", str(tmp / f"{name}.mcap"), "--stop", str(STOP),
+            "--listen", "tcp/127.0.0.1:0"]
+
+
+def _rows(path: Path) -> dict[int, tuple[str, ...]]:
+    with open(path) as f:
+        return {int(r[0]): tuple(r[1:]) for r in list(csv.reader(f))[1:]}
+
+
+def _named_frames(report: str) -> set[int]:
+    """Every frame number the report lists in a 'frame(s) ...: 3, 7-9' line."""
+    out: set[int] = set()
+    for line in report.splitlines():
+        m = re.search(r"frame\(s\)[^:]*: ([0-9, -]+)$", line.strip())
+        if not m:
+            continue
+        for part in m.group(1).split(","):
+            a, _, b = part.strip().partition("-")
+            out.update(range(int(a), int(b or a) + 1))
+    return out
+
+
+@pytest.fixture(scope="module")
+def undisturbed(tmp_path_factory) -> dict[int, tuple[str, ...]]:
+    from conftest import data_dir
+
+    caviar1 = data_dir("caviar1")
+    tmp = tmp_path_factory.mktemp("undisturbed")
+    out = subprocess.run([*_track(caviar1, tmp, "base"), "-q"], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return _rows(tmp / "base.csv")
+
+
+@pytest.mark.parametrize("stage", ["source", "preprocess", "proposal", "filter", "recorder"])
+def test_a_killed_stage_resumes_and_the_result_is_unchanged(caviar1, tmp_path, undisturbed, stage):
+    rec = tmp_path / "run.mcap"
+    p = subprocess.Popen(_track(caviar1, tmp_path, "run"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (rec.exists() and rec.stat().st_size > 64 and len(estimates(rec)) >= KILL_AT):
+        assert time.monotonic() < deadline and p.poll() is None, "the pipeline did not get going"
+        time.sleep(0.1)
+    victim = [c for c in psutil.Process(p.pid).children() if c.cmdline()[-1] == stage]
+    assert len(victim) == 1
+    victim[0].send_signal(signal.SIGKILL)
+    out, err = p.communicate(timeout=180)
+    assert p.returncode == 0, out + err
+    assert f"stage {stage} was restarted 1 time(s)" in out
+    rows = _rows(tmp_path / "run.csv")
+    assert sorted(rows) == list(range(STOP))  # one row per frame
+    differ = {f for f in rows if rows[f] != undisturbed[f]}
+    assert len(differ) <= WINDOW, f"frames {sorted(differ)} differ after killing {stage}"
+    assert differ <= _named_frames(out), f"frames {sorted(differ)} differ but the report does not name them:\n{out}"
+    if stage == "recorder":
+        assert len(segments(rec)) == 2  # the restarted recorder wrote a second segment, read as one
