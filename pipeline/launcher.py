@@ -228,6 +228,8 @@ class Launcher:
             if p is not None and p.popen.poll() is None:
                 try:
                     os.killpg(p.popen.pid, sig)
+                    if sig in (signal.SIGINT, signal.SIGTERM):
+                        os.killpg(p.popen.pid, signal.SIGCONT)  # a stopped (SIGSTOP) stage must see it too
                 except ProcessLookupError:
                     pass
 

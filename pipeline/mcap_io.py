@@ -164,6 +164,7 @@ class RecordingSummary:
     schemas: dict[str, str]
     metadata: dict[str, dict[str, str]]
     truncated: str = ""
+    segments: list[str] = field(default_factory=list)  # the files of the recording, when more than one
 
     @property
     def duration_s(self) -> float:
@@ -172,7 +173,7 @@ class RecordingSummary:
     def to_json(self) -> dict:
         return {
             "path": self.path, "messages": self.messages, "duration_s": round(self.duration_s, 3),
-            "truncated": self.truncated or None,
+            "truncated": self.truncated or None, "segments": self.segments or None,
             "topics": {t: {"type": s.type, "count": s.count, "rate_hz": round(s.rate_hz, 2), "bytes": s.bytes,
                            "first_seq": s.first_seq, "last_seq": s.last_seq} for t, s in self.topics.items()},
             "schemas": self.schemas,
@@ -204,5 +205,6 @@ def summarize(path: str | Path) -> RecordingSummary:
         n += 1
         start = r.log_ns if start == 0 else min(start, r.log_ns)
         end = max(end, r.log_ns)
+    segs = segments(path)
     return RecordingSummary(str(path), n, start, end, topics, schemas, read_metadata(path),
-                            truncated[0] if truncated else "")
+                            "; ".join(truncated), [str(p) for p in segs] if len(segs) > 1 else [])

@@ -45,3 +45,34 @@ def test_stages_die_with_the_launcher(tmp_path, sig):
     while os.path.exists(run_dir):  # removed by the last stage to go (or by the launcher on SIGHUP)
         assert time.monotonic() < deadline, f"{run_dir} was left behind"
         time.sleep(0.05)
+
+
+def test_a_stalled_stage_is_named_and_the_run_stops(tmp_path):
+    from pipeline.build import apply_defaults
+    from pipeline.graph import load_graph
+    from pipeline.launcher import Launcher
+    from pipeline.transport import ZenohSettings, free_port
+
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 400}, "filter": {"particles": 100}}))
+    rec = tmp_path / "run.mcap"
+    launcher = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",)), recording=str(rec),
+                        progress=False, stall_timeout=3.0)
+    import threading
+
+    result: dict = {}
+    th = threading.Thread(target=lambda: result.setdefault("r", launcher.run()), daemon=True)
+    th.start()
+    deadline = time.monotonic() + 60
+    while not (launcher.status.get("filter") and launcher.status["filter"].steps >= 10):
+        assert time.monotonic() < deadline and th.is_alive(), "pipeline did not start"
+        time.sleep(0.02)
+    os.kill(launcher.pids["filter"][0], signal.SIGSTOP)  # alive, but makes no progress
+    th.join(90)
+    assert not th.is_alive(), "the launcher did not notice the stall"
+    r = result["r"]
+    assert not r.ok and "filter after frame" in r.stall and "no progress for 3 s" in r.stall, r.stall
+    assert all(e.returncode == 0 for e in r.exits.values()), r.exits  # stopped cleanly, the filter too
+    from mcap.reader import make_reader
+
+    with open(rec, "rb") as f:
+        assert make_reader(f).get_summary() is not None
