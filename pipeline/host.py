@@ -148,8 +148,8 @@ class StageHost:
     def _check_array(self, name: str, arr: NDArray, image: bool) -> str:
         """Shape against size and the declared frame, in Python integers (no overflow, no allocation)."""
         shape = arr.shape
-        if len(shape) > 4 or any((not isinstance(d, int)) or d < 0 for d in shape):
-            return f"shape {shape} is not a shape"
+        if len(shape) > 4 or any((not isinstance(d, int)) or not 0 <= d < 2**31 for d in shape):
+            return f"shape {shape} is not a shape (at most 4 dimensions, each below 2^31)"
         try:
             itemsize = np.dtype(arr.dtype).itemsize
         except TypeError:
