@@ -37,6 +37,8 @@ from stages.messages import Control, ErrorReport, Header, StageStatus, decode, e
 
 from .graph import Plan
 from .mcap_io import segment_path
+
+EXIT_DISK_FULL = 28  # pipeline.node's recorder exit status on a full disk
 from .transport import Bus, ZenohSettings, free_port, open_session
 
 __all__ = ["Launcher", "LaunchResult", "StageExit"]
@@ -350,6 +352,11 @@ class Launcher:
                     if rc != 0 or n in recorder:
                         sp = plan.stages[n]
                         self._print(f"stage {n} died with exit status {rc}: {p.last_error() or 'no message'}")
+                        if n in recorder and rc == EXIT_DISK_FULL:
+                            ok = False
+                            self._record_exit(n)
+                            self._print(f"stopping the pipeline: the recording's disk is full ({p.last_error()})")
+                            raise _StageLost(n)
                         if sp.restart == "on-failure" and p.restarts < sp.max_restarts:
                             self._print(f"restarting {n} ({p.restarts + 1}/{sp.max_restarts})"
                                         + (f": recording the rest to {segment_path(self.recording, p.restarts + 1)}"

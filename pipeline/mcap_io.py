@@ -79,7 +79,11 @@ def segments(path: str | Path) -> list[Path]:
 def iter_records(path: str | Path, topics: list[str] | None = None, *, strict: bool = False,
                  on_truncated=None) -> Iterator[Record]:
     """Every message of a recording and its segments, in file (write) order (see :func:`_iter_file`)."""
-    for seg in segments(path):
+    for i, seg in enumerate(segments(path)):
+        if i > 0 and seg.stat().st_size < 8:  # a restarted recorder that could not write (a full disk, say)
+            if on_truncated is not None:
+                on_truncated(f"{seg}: an empty segment")
+            continue
         yield from _iter_file(seg, topics, strict=strict, on_truncated=on_truncated)
 
 

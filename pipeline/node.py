@@ -60,7 +60,7 @@ from stages.source import SourceStage
 from .build import make_stage
 from .graph import Plan, RecorderParams
 from .host import StageHost
-from .recorder import McapRecorder
+from .recorder import DiskFull, McapRecorder
 from .sources import open_reader
 from .transport import Bus, ZenohSettings, open_session
 
@@ -70,6 +70,7 @@ log = logging.getLogger("gflow.node")
 
 FLOW_STALL_S = 1.0
 PR_SET_PDEATHSIG = 1
+EXIT_DISK_FULL = 28  # the recorder's exit status when its disk is full (ENOSPC): not worth a restart
 
 
 class Checkpoint(msgspec.Struct, frozen=True):
@@ -457,8 +458,12 @@ class Node:
 
         meta = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
                 "gflow.config": plan.config_metadata()}
-        self.recorder = rec = McapRecorder(path, flush_interval=rp.flush_interval, compression=rp.compression,
-                                           chunk_size=rp.chunk_size, metadata=meta).open()
+        try:
+            self.recorder = rec = McapRecorder(path, flush_interval=rp.flush_interval, compression=rp.compression,
+                                               chunk_size=rp.chunk_size, metadata=meta).open()
+        except DiskFull as e:
+            print(f"recorder: {e.strerror}", file=sys.stderr)
+            return EXIT_DISK_FULL
         log.info("[%s] recording to %s", self.name, path)
         self.state = "running"
         try:
@@ -484,8 +489,16 @@ class Node:
                 rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
                 if "/_status/" not in key:
                     quiet_until = time.monotonic() + 0.3
-        finally:
             rec.close()
+        except DiskFull as e:
+            print(f"recorder: {e.strerror}", file=sys.stderr)
+            self.state = "stopped"
+            return EXIT_DISK_FULL
+        finally:
+            try:
+                rec.close()  # after an exception; a no-op once closed
+            except DiskFull:
+                pass
             self.state = "stopped" if self.state == "stopped" else "done"
         return 0
 

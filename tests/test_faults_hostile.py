@@ -19,7 +19,7 @@ from pipeline.results import estimates
 from pipeline.transport import Bus, ZenohSettings, free_port, open_session
 from stages.messages import ErrorReport, Estimate, Frame, Header, NDArray, Particles, decode, encode
 
-STOP = 90
+STOP = 120
 REJECTED = {"malformed_message", "wrong_type", "future_seq", "old_seq", "duplicate_seq", "bad_array", "bad_values",
             "bad_header"}
 
