@@ -169,9 +169,9 @@ class Launcher:
             elif n == 21:
                 self._print("more errors: counting them without printing (see the recording's errors topic)")
 
-    def _on_estimate(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+    def _on_estimate(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str) -> None:
         # a copy of every estimate: what the recording lost (a recorder restart) is still known
-        if seq >= 0 and not payload.startswith(b"{"):
+        if seq >= 0 and type_name in ("Estimate", "PoseEstimate"):
             self.estimates[seq] = payload
 
     # -- output ----------------------------------------------------------------------------
@@ -291,7 +291,7 @@ class Launcher:
         bus.subscribe(plan.error_topic, self._on_error)
         for sp in plan.stages.values():
             if "estimate" in sp.outputs and sp.kind != "recorder":
-                bus.subscribe(sp.outputs["estimate"], self._on_estimate)
+                bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True)
         self.run_dir = tempfile.mkdtemp(prefix="gflow-run-")
         os.makedirs(os.path.join(self.run_dir, "state"))
         plan_file = os.path.join(self.run_dir, "plan.json")
