@@ -215,6 +215,8 @@ class Launcher:
         env["GFLOW_STATE_DIR"] = os.path.join(self.run_dir, "state")
         env["GFLOW_LAUNCHER_PID"] = str(os.getpid())
         env["GFLOW_RESTARTS"] = str(restarts)
+        if restarts:  # the peers a restarted stage can still hear from
+            env["GFLOW_PEERS"] = ",".join(n for n, p in self.procs.items() if n != name and p.popen.poll() is None)
         self._progress_at.pop(name, None)
         root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")

@@ -132,6 +132,13 @@ class Node:
         self.orphaned = threading.Event()
         self.parent = int(os.environ.get("GFLOW_LAUNCHER_PID", "0") or 0)
         self.restarts = int(os.environ.get("GFLOW_RESTARTS", "0") or 0)
+        self.bad_control = 0
+        # who must be heard from before publishing: every stage; a restarted stage only those
+        # the launcher saw running when it restarted it (the others may have finished), for at most 3 s
+        peers = os.environ.get("GFLOW_PEERS")
+        self.required_peers = (set(plan.stages) if not self.restarts or peers is None
+                               else {p for p in peers.split(",") if p in plan.stages} | {name})
+        self.ready_deadline = time.monotonic() + 3.0
         state_dir = os.environ.get("GFLOW_STATE_DIR", "")
         self.checkpoint_path = (Path(state_dir) / f"{name}.ckpt"
                                 if state_dir and self.sp.restart == "on-failure" else None)
@@ -165,7 +172,7 @@ class Node:
                 pass
         if other not in self.seen:
             self.seen.add(other)
-            if self.seen >= set(self.plan.stages):
+            if self.seen >= self.required_peers:
                 self.peers_ready.set()
 
     def _on_alive(self, sample) -> None:
@@ -178,7 +185,9 @@ class Node:
     def _on_control(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         try:
             msg = decode(payload)
-        except ValueError:
+        except ValueError as e:
+            self.bad_control += 1  # counted in the heartbeat's rejected["bad_control"]
+            log.warning("[%s] garbage on the control topic ignored: %s", self.name, str(e)[:100])
             return
         if isinstance(msg, Control):
             if msg.command == "start":
@@ -186,8 +195,10 @@ class Node:
             elif msg.command == "stop":
                 self.stop.set()
             else:
+                self.bad_control += 1
                 log.warning("[%s] unknown control command %r ignored", self.name, msg.command[:40])
         else:
+            self.bad_control += 1
             log.warning("[%s] a %s on the control topic ignored", self.name, type(msg).__name__)
 
     def _on_data(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str = "") -> None:
@@ -195,9 +206,13 @@ class Node:
 
     def publish(self, topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
         if not self.peers_ready.is_set():
-            while not self.peers_ready.wait(5.0):
-                missing = sorted(set(self.plan.stages) - self.seen)
-                log.warning("[%s] still waiting to hear from %s before publishing", self.name, ", ".join(missing))
+            while not self.peers_ready.wait(0.2 if self.restarts else 5.0):
+                if self.restarts and time.monotonic() > self.ready_deadline:
+                    self.peers_ready.set()  # restarted: a peer may have finished meanwhile
+                    break
+                if not self.restarts:
+                    missing = sorted(self.required_peers - self.seen)
+                    log.warning("[%s] still waiting to hear from %s before publishing", self.name, ", ".join(missing))
                 if self.stop.is_set():
                     return
         self.bus.publish(topic, payload, seq, type_name)
@@ -219,9 +234,15 @@ class Node:
                            last_error=last[-300:], rss_mb=round(self.proc.memory_info().rss / 2**20, 1),
                            last_seq=last_seq, queued=self.inbox.qsize(),
                            busy_ms=round(h.stats.busy_ns / h.stats.steps / 1e6, 3) if h and h.stats.steps else 0.0,
-                           rejected=dict(h.stats.rejected) if h else {}, lost=h.stats.lost if h else 0,
+                           rejected=self._rejected(), lost=h.stats.lost if h else 0,
                            waiting=h.waiting() if h and not h.closed and not self.sp.is_source() else "",
                            frame_shape=self.frame_shape)
+
+    def _rejected(self) -> dict[str, int]:
+        out = dict(self.host.stats.rejected) if self.host is not None else {}
+        if self.bad_control:
+            out["bad_control"] = self.bad_control
+        return out
 
     def send_status(self, min_interval: float = 0.0) -> None:
         now = time.monotonic()

@@ -79,3 +79,33 @@ def test_a_killed_stage_resumes_and_the_result_is_unchanged(caviar1, tmp_path, u
     assert differ <= _named_frames(out), f"frames {sorted(differ)} differ but the report does not name them:\n{out}"
     if stage == "recorder":
         assert len(segments(rec)) == 2  # the restarted recorder wrote a second segment, read as one
+
+
+def test_a_stage_killed_after_its_last_frame_restarts_and_the_run_ends(caviar1, tmp_path):
+    """The peers it would wait to hear from may have finished: it must not wait for them."""
+    import os
+    import threading
+
+    from pipeline.graph import load_graph
+    from pipeline.launcher import Launcher
+    from pipeline.transport import ZenohSettings, free_port
+
+    box = [129, 71, 30, 79]
+    plan = load_graph("chamfer", overrides={"source": {"kind": "folder", "path": str(caviar1 / "frames"), "stop": 30},
+                                            "filter": {"init": box}, "preprocess": {"calibrate_box": box}})
+    rec = tmp_path / "run.mcap"
+    la = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",)), recording=str(rec),
+                  progress=False)
+    out: dict = {}
+    th = threading.Thread(target=lambda: out.setdefault("r", la.run()), daemon=True)
+    th.start()
+    deadline = time.monotonic() + 120
+    while not (la.status.get("filter") and la.status["filter"].last_seq >= 29):
+        assert time.monotonic() < deadline and th.is_alive()
+        time.sleep(0.001)
+    os.kill(la.pids["filter"][0], signal.SIGKILL)
+    th.join(120)
+    assert not th.is_alive(), "the run hung after the restart"
+    r = out["r"]
+    assert r.ok and r.exits["filter"].restarts == 1, r.exits
+    assert sorted(estimates(rec)) == list(range(30))
