@@ -251,13 +251,14 @@ class Launcher:
 
     def _check_stall(self, workers: list[str], now: float) -> None:
         """Raise :class:`_Stalled` when a live stage has not moved for ``stall_timeout`` s
-        while the source is ahead of it."""
+        while the source is ahead of it, it waits for an input, or the sources have finished."""
         if self.stall_timeout <= 0:
             return
         with self._lock:
             status = dict(self.status)
         sources = [n for n in workers if self.plan.stages[n].is_source()]
         src = max((status[n].last_seq for n in sources if n in status), default=-1)
+        sources_done = bool(sources) and all(n in status and status[n].state == "done" for n in sources)
         stuck = []
         for n in workers:
             st = status.get(n)
@@ -268,7 +269,7 @@ class Launcher:
             if prev is None or prev[0] != key:
                 self._progress_at[n] = (key, now)
                 continue
-            if now - prev[1] >= self.stall_timeout and (src > st.last_seq or st.waiting):
+            if now - prev[1] >= self.stall_timeout and (src > st.last_seq or st.waiting or sources_done):
                 stuck.append(f"{n} after frame {st.last_seq}" + (f" ({st.waiting})" if st.waiting else ""))
         if stuck:
             self.stall = (f"stalled: no progress for {self.stall_timeout:.0f} s while the source is at frame {src}: "
