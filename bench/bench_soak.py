@@ -9,10 +9,12 @@ Each stream is the demo tracker (synthetic 320x240 scene, source -> preprocess -
 <-> filter) launched as its own processes, with its own stream id. No recorder: half an hour
 of four streams would be tens of GB on disk (the recorder's own throughput is measured by
 bench_recorder.py). Instead this process subscribes to every stream's ``estimate`` topic and
-counts, per stream, the frames with no estimate (lost), the repeated ones, and the stages'
-own counts of sequence gaps (``dropped``) and rejected messages. Every topic of the graph is
-reliable, so every lost count should be 0. RSS comes from each stage's heartbeat, sampled
-every ``--every`` seconds; the table shows, per stage kind, the largest RSS over the streams.
+counts, per stream, the frames with no estimate (lost), the repeated ones, the estimates that
+coasted after the first (the scene has no blank frames: a coast means the filter gave up an
+input that came late), and the stages' own counts of sequence gaps (``dropped``) and
+rejected messages. Every topic of the graph is reliable, so every lost count should be 0.
+RSS comes from each stage's heartbeat, sampled every ``--every`` seconds; the table shows,
+per stage kind, the largest RSS over the streams.
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import msgspec  # noqa: E402
 from _util import table  # noqa: E402
 
 from pipeline.build import apply_defaults  # noqa: E402
@@ -34,6 +37,21 @@ from pipeline.launcher import Launcher  # noqa: E402
 from pipeline.transport import Bus, ZenohSettings, free_port, open_session  # noqa: E402
 
 STAGES = ("source", "preprocess", "proposal", "filter")
+
+
+class _State(msgspec.Struct):
+    state: str = "track"
+
+
+_state = msgspec.msgpack.Decoder(_State)
+
+
+def peek_state(payload: bytes) -> str:
+    """An Estimate's state (init, track, coast) without decoding the rest."""
+    try:
+        return _state.decode(payload).state
+    except msgspec.DecodeError:
+        return "?"
 
 
 def plan_for(i: int, frames: int, fps: float):
@@ -63,6 +81,7 @@ def main() -> None:
           f"(about {frames / play_fps / 60:.1f} min of wall time)")
 
     seen: list[dict[int, int]] = [dict() for _ in range(args.streams)]
+    coasted = [0] * args.streams  # the synthetic scene has no blank frames: a coast means an input was given up
     launchers, results, threads = [], [None] * args.streams, []
     for i in range(args.streams):
         plan = plan_for(i, frames, play_fps)
@@ -83,6 +102,8 @@ def main() -> None:
         def count(key, payload, pub_ns, seq, type_name, i=i) -> None:
             if type_name == "Estimate":  # not the end of stream
                 seen[i][seq] = seen[i].get(seq, 0) + 1
+                if peek_state(payload) != "track":
+                    coasted[i] += 1
 
         Bus(s).subscribe(f"gflow/soak{i}/estimate", count, with_type=True)
     for th in threads:
@@ -117,9 +138,9 @@ def main() -> None:
         dropped = sum(sum(st.dropped.values()) for st in r.status.values()) if r else -1
         rejected = sum(sum(st.rejected.values()) for st in r.status.values()) if r else -1
         peak = max(r.peak_rss_mb.values()) if r and r.peak_rss_mb else 0.0
-        out.append([f"soak{i}", "yes" if r and r.ok else "NO", frames, len(got), lost, repeated, dropped, rejected,
-                    f"{peak:.0f}"])
-    print(table(out, ["stream", "ok", "frames", "estimates", "lost", "repeated", "seq gaps", "rejected",
+        out.append([f"soak{i}", "yes" if r and r.ok else "NO", frames, len(got), lost, repeated, max(0, coasted[i] - 1),
+                    dropped, rejected, f"{peak:.0f}"])
+    print(table(out, ["stream", "ok", "frames", "estimates", "lost", "repeated", "coasted", "seq gaps", "rejected",
                       "peak RSS MB"]))
     achieved = sum(len(x) for x in seen) / args.streams / wall
     print(f"\nwall time {wall:.0f} s; {achieved:.1f} frames/s per stream achieved (asked: {play_fps:g}); "

@@ -66,7 +66,7 @@ def small_disk(tmp_path):
 def test_a_full_disk_stops_the_pipeline_cleanly(caviar1, tmp_path, small_disk):
     rec = small_disk / "run.mcap"
     out = subprocess.run([sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", "129,71,30,79",
-                          "--out", str(tmp_path / "b.csv"), "--record", str(rec), "--stop", "120",
+                          "--tracker", "chamfer", "--out", str(tmp_path / "b.csv"), "--record", str(rec), "--stop", "120",
                           "--listen", "tcp/127.0.0.1:0"], capture_output=True, text=True, timeout=180)
     assert out.returncode == 3, out.stdout + out.stderr
     assert "the recording's disk is full" in out.stderr and "Traceback" not in out.stderr

@@ -25,7 +25,7 @@ WINDOW = 8  # the source's flow-control window: at most this many frames are in 
 
 def _track(caviar1: Path, tmp: Path, name: str) -> list[str]:
     return [sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", "129,71,30,79",
-            "--out", str(tmp / f"{name}.csv"), "--record", str(tmp / f"{name}.mcap"), "--stop", str(STOP),
+            "--tracker", "chamfer", "--out", str(tmp / f"{name}.csv"), "--record", str(tmp / f"{name}.mcap"), "--stop", str(STOP),
             "--listen", "tcp/127.0.0.1:0"]
 
 

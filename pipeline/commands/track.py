@@ -18,10 +18,7 @@ import msgspec
 from stages.source import SourceParams
 
 from ..graph import load_graph
-from ..mcap_io import iter_records
-from stages.messages import Estimate, MessageError, PoseEstimate, decode
-
-from ..results import completeness, estimates, frame_ranges, write_boxes
+from ..results import run_outcome, write_boxes
 from ..sources import count_frames
 from ..trackers import TRACKERS
 from .common import CliError, add_zenoh_args, parse_box, parse_sets, run_plan
@@ -58,43 +55,19 @@ def cmd_track(args) -> int:
     total = count_frames(msgspec.convert(plan.stages["source"].params, SourceParams))
     rec = args.record or str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap")
     path, secs, frames, info = run_plan(plan, args, rec, total, quiet=args.quiet, strict=False)
-    # whatever happened, the boxes of every frame that was tracked are written
-    est = estimates(path) if path and Path(path).is_file() else {}
-    heard = {}  # estimates the launcher heard that the recording lost (while the recorder restarted)
-    for seq, payload in info.get("estimates", {}).items():
-        if seq not in est:
-            try:
-                m = decode(payload)
-            except MessageError:
-                continue
-            if isinstance(m, (Estimate, PoseEstimate)) and m.header.seq == seq:
-                heard[seq] = m
-    est.update(heard)
+    out = run_outcome(path, plan, info, args.start)  # whatever happened, every frame that was tracked
+    est = out.estimates
     write_boxes(args.out, {k: v.box for k, v in est.items()})
     print(f"tracked {len(est)} frames in {secs:.2f} s ({len(est) / max(secs, 1e-9):.1f} fps); "
           f"boxes: {args.out}; recording: {path}")
-    # the frames the source sent (a truncated video sends fewer than its header says)
-    frames_topic = plan.stages["source"].outputs.get("frames", "")
-    sent = {r.seq for r in iter_records(path, topics=[frames_topic]) if r.type == "Frame"} if est else set()
-    last = max(sent | set(est), default=args.start - 1)
-    expected = range(args.start, last + 1)
-    gaps = completeness(est, expected)
-    for line in gaps:
+    for line in out.lines:
         print(f"  {line}")
-    if heard:
-        print(f"  {len(heard)} frame(s) missing from the recording were kept from the live stream: "
-              f"{frame_ranges(heard)}")
-    for n, k in info.get("restarts", {}).items():
-        print(f"  stage {n} was restarted {k} time(s)" + (" (the recording continues in segment files NAME.partN.mcap)"
-                                                       if plan.stages[n].kind == "recorder" else ", and resumed from its checkpoint"))
     if info.get("errors"):
         print(f"  errors reported: {info['errors']} (see `gflow info {path}`)")
     if info.get("interrupted"):
         return 130
-    incomplete = not info.get("ok", True) or any(f not in est for f in expected)
-    if incomplete:
-        print("the run is incomplete: " + (gaps[0] if gaps else "the pipeline did not finish cleanly"),
-              file=sys.stderr)
+    if out.incomplete:
+        print(f"the run is incomplete: {out.why}", file=sys.stderr)
         return 3
     return 0
 
