@@ -83,6 +83,7 @@ class StageHost:
         self.frame_shape: tuple[int, int] | None = None  # (H, W) the source declared
         self.on_step = on_step
         self.replayed_upto: dict[str, int] = {}  # after a restart: inputs already taken from the recording
+        self.hold = False  # a peer is restarting: do not give inputs up for lateness (see tick)
         self.stats = HostStats()
         self.closed = False
         self.max_out: dict[str, int] = {}
@@ -177,7 +178,7 @@ class StageHost:
         """Wall-time rule: the lowest pending frame has waited ``wait_s`` while the source is
         ahead of it (or a driver port has ended): give up its missing inputs and go on."""
         j = self.join
-        if self.closed or not j.pending:
+        if self.closed or not j.pending or self.hold:
             return
         seq = min(j.pending)
         if time.monotonic() - j.since.get(seq, time.monotonic()) < wait_s:

@@ -49,6 +49,7 @@ class SeqJoin:
     force_below: int = -1  # every seq <= force_below is decided on every port
     resumed: bool = False
     fill_gaps: bool = False
+    hold: bool = False  # suspend the lag rule (a producer is restarting and will catch up)
     timed_out: int = 0  # (seq, port) pairs given up by the lag, force or resume rules
     since: dict[int, float] = field(default_factory=dict)  # when each pending seq first arrived (monotonic s)
 
@@ -95,7 +96,7 @@ class SeqJoin:
 
     def _given_up(self, seq: int, resume_upto: int) -> bool:
         return (seq <= self.force_below or seq <= resume_upto
-                or (self.lag > 0 and self.top() - seq >= self.lag))
+                or (self.lag > 0 and not self.hold and self.top() - seq >= self.lag))
 
     def _resume_upto(self) -> int:
         """After a restart: the first pending seq whose drivers are all here (-1 if none yet)."""

@@ -126,6 +126,9 @@ class Node:
         self.window = max([int(plan.stages[n].params.get("max_ahead", 8)) for n in self.sources] or [0])
         self.recorders = {n for n, s in plan.stages.items() if s.kind == "recorder"}
         self.recorder_alive = threading.Event()  # the recorder's liveliness token is there
+        self.alive_peers: set[str] = set()  # stages whose liveliness token is there
+        self.ever_alive: set[str] = set()
+        self.peer_done: set[str] = set()  # stages that said they finished
         self.announced = -1  # sources: the last frame announced
         self.frame_shape: tuple[int, ...] = ()
         self.late_s = float(os.environ.get("GFLOW_LATE_S", "3.0"))
@@ -146,6 +149,14 @@ class Node:
     # -- handshake ---------------------------------------------------------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         other = key.rsplit("/", 1)[-1]
+        if other not in self.peer_done and other != self.name and b"done" in payload:
+            try:
+                st = decode(payload)
+            except ValueError:
+                st = None
+            if isinstance(st, StageStatus) and st.state == "done":
+                self.peer_done.add(other)  # finished: its token going away is no fault
+                self._update_hold()
         if other in self.sources and self.host is not None and other != self.name:
             try:
                 st = decode(payload)
@@ -176,11 +187,26 @@ class Node:
                 self.peers_ready.set()
 
     def _on_alive(self, sample) -> None:
-        if str(sample.key_expr).rsplit("/", 1)[-1] in self.recorders:
-            if sample.kind == zenoh.SampleKind.DELETE:
+        other = str(sample.key_expr).rsplit("/", 1)[-1]
+        gone = sample.kind == zenoh.SampleKind.DELETE
+        if other in self.recorders:
+            if gone:
                 self.recorder_alive.clear()
             else:
                 self.recorder_alive.set()
+        if gone:
+            self.alive_peers.discard(other)
+        else:
+            self.alive_peers.add(other)
+            self.ever_alive.add(other)
+        self._update_hold()
+
+    def _update_hold(self) -> None:
+        """While a peer is down (its liveliness token gone, not finished: it is restarting), no
+        input is given up for lateness: what it would have sent comes when it is back."""
+        down = {n for n in self.ever_alive - self.alive_peers if n != self.name and n not in self.peer_done}
+        if self.host is not None:
+            self.host.hold = self.host.join.hold = bool(down)
 
     def _on_control(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         try:
@@ -331,8 +357,7 @@ class Node:
         self.bus.subscribe(plan.control_topic, self._on_control)
         alive = f"gflow/{plan.stream}/_alive"
         self._token = self.session.liveliness().declare_token(f"{alive}/{self.name}")
-        if sp.is_source() and self.recorders:
-            self._alive_sub = self.session.liveliness().declare_subscriber(f"{alive}/*", self._on_alive, history=True)
+        self._alive_sub = self.session.liveliness().declare_subscriber(f"{alive}/*", self._on_alive, history=True)
         if sp.kind == "recorder":
             self.bus.subscribe(f"gflow/{plan.stream}/**", self._on_data, with_type=True)
         else:
@@ -344,6 +369,7 @@ class Node:
             for topic in sp.inputs.values():
                 self.bus.subscribe(topic, self._on_data, with_type=True)
             resumed_after = self._restore()
+            self._update_hold()
         hb = threading.Thread(target=self._heartbeat, daemon=True)
         hb.start()
         threading.Thread(target=self._watch_parent, daemon=True).start()
