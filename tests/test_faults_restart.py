@@ -109,3 +109,31 @@ def test_a_stage_killed_after_its_last_frame_restarts_and_the_run_ends(caviar1, 
     r = out["r"]
     assert r.ok and r.exits["filter"].restarts == 1, r.exits
     assert sorted(estimates(rec)) == list(range(30))
+
+
+@pytest.mark.parametrize("stage", ["filter"])
+def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stage):
+    """The G-flow graph too (its filter's restart is slow: the proposal stage must wait for it)."""
+    from conftest import data_dir
+
+    david = data_dir("david_indoor")
+    cmd = [sys.executable, "-m", "pipeline.cli", "track", str(david), "--tracker", "gflow", "--init", "169,76,46,60",
+           "--stop", "40", "--listen", "tcp/127.0.0.1:0"]
+    base = subprocess.run([*cmd, "--out", str(tmp_path / "base.csv"), "--record", str(tmp_path / "base.mcap"), "-q"],
+                          capture_output=True, text=True, timeout=300)
+    assert base.returncode == 0, base.stderr
+    rec = tmp_path / "run.mcap"
+    p = subprocess.Popen([*cmd, "--out", str(tmp_path / "run.csv"), "--record", str(rec)], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not (rec.exists() and rec.stat().st_size > 64 and len(estimates(rec)) >= 15):
+        assert time.monotonic() < deadline and p.poll() is None, "the pipeline did not get going"
+        time.sleep(0.1)
+    [victim] = [c for c in psutil.Process(p.pid).children() if c.cmdline()[-1] == stage]
+    victim.send_signal(signal.SIGKILL)
+    out, err = p.communicate(timeout=300)
+    assert p.returncode == 0, out + err
+    rows, undisturbed = _rows(tmp_path / "run.csv"), _rows(tmp_path / "base.csv")
+    assert sorted(rows) == sorted(undisturbed) == list(range(40))
+    differ = {f for f in rows if rows[f] != undisturbed[f]}
+    assert len(differ) <= WINDOW and differ <= _named_frames(out), (sorted(differ), out)
