@@ -7,7 +7,14 @@ shut everything down cleanly.
 * The launcher's zenoh session listens on one loopback endpoint; the stages connect to
   it and, through gossip, to each other.
 * A stage that exits non-zero is reported with its exit status and its last error line,
-  and restarted when the graph says ``restart: on-failure`` (up to ``max_restarts``).
+  and restarted when the graph says ``restart: on-failure`` (up to ``max_restarts``). The
+  restarted stage resumes from its checkpoint (see ``pipeline/node.py``); a restarted
+  recorder writes the rest of the run to a new segment file (``NAME.part1.mcap``...).
+* Stall detection: a stage that makes no progress for ``stall_timeout`` seconds while the
+  source is ahead of it is named, with what it waits for, and the run stops (not ok).
+* The plan, the checkpoints and nothing else live in one temporary folder
+  (``gflow-run-*``), removed at the end; if the launcher itself is killed, its stages die
+  with it (parent-death signal) and remove the folder.
 """
 
 from __future__ import annotations
@@ -15,6 +22,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -28,6 +36,9 @@ from typing import Callable, TextIO
 from stages.messages import Control, ErrorReport, Header, StageStatus, decode, encode
 
 from .graph import Plan
+from .mcap_io import segment_path
+
+EXIT_DISK_FULL = 28  # pipeline.node's recorder exit status on a full disk
 from .transport import Bus, ZenohSettings, free_port, open_session
 
 __all__ = ["Launcher", "LaunchResult", "StageExit"]
@@ -52,10 +63,16 @@ class LaunchResult:
     pids: dict[str, list[int]] = field(default_factory=dict)
     interrupted: bool = False
     peak_rss_mb: dict[str, float] = field(default_factory=dict)
+    stall: str = ""  # why the run was stopped as stalled ('' if it was not)
+    estimates: dict[int, bytes] = field(default_factory=dict)  # every estimate payload heard, by frame
 
 
 class _StageLost(Exception):
     """A stage died and the graph does not restart it."""
+
+
+class _Stalled(Exception):
+    """No stage made progress for ``stall_timeout`` seconds while the source was ahead."""
 
 
 class _Proc:
@@ -97,7 +114,7 @@ class Launcher:
     def __init__(self, plan: Plan, zenoh: ZenohSettings | None = None, recording: str | None = None,
                  out: TextIO | None = None, progress: bool = True, startup_timeout: float = 60.0,
                  total_frames: int | None = None, on_status: Callable[[dict[str, StageStatus]], None] | None = None,
-                 threads_per_stage: int = 1) -> None:
+                 threads_per_stage: int = 1, stall_timeout: float | None = None) -> None:
         self.plan = plan
         if zenoh is None:
             zenoh = ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",))
@@ -112,6 +129,12 @@ class Launcher:
         self.total_frames = total_frames
         self.on_status = on_status
         self.threads_per_stage = threads_per_stage
+        self.stall_timeout = (float(os.environ.get("GFLOW_STALL_S", "30")) if stall_timeout is None
+                              else stall_timeout)
+        self.stall: str = ""  # the stall report, when the run stopped for one
+        self.run_dir: str = ""
+        self._progress_at: dict[str, tuple[tuple, float]] = {}
+        self.estimates: dict[int, bytes] = {}
         self.status: dict[str, StageStatus] = {}
         self.errors: list[ErrorReport] = []
         self.procs: dict[str, _Proc] = {}
@@ -146,6 +169,11 @@ class Launcher:
             elif n == 21:
                 self._print("more errors: counting them without printing (see the recording's errors topic)")
 
+    def _on_estimate(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str) -> None:
+        # a copy of every estimate: what the recording lost (a recorder restart) is still known
+        if seq >= 0 and type_name in ("Estimate", "PoseEstimate"):
+            self.estimates[seq] = payload
+
     # -- output ----------------------------------------------------------------------------
     def _print(self, text: str) -> None:
         if self.progress:
@@ -175,7 +203,7 @@ class Launcher:
         return " | ".join(parts)
 
     # -- processes -------------------------------------------------------------------------
-    def _spawn(self, name: str, plan_file: str) -> _Proc:
+    def _spawn(self, name: str, plan_file: str, restarts: int = 0) -> _Proc:
         env = dict(os.environ)
         # Parallelism comes from the stage processes: one compute thread each. Several processes
         # each running a thread per core for BLAS / OpenMP oversubscribe the cores (measured:
@@ -184,7 +212,16 @@ class Launcher:
             env.setdefault(var, str(self.threads_per_stage))
         env.setdefault("GFLOW_CV_THREADS", str(self.threads_per_stage))
         if self.recording:
-            env["GFLOW_RECORDING"] = self.recording
+            # a restarted recorder starts a new segment: the first file stays as it was closed or torn
+            recorder = self.plan.stages[name].kind == "recorder"
+            env["GFLOW_RECORDING"] = str(segment_path(self.recording, restarts)) if restarts and recorder else self.recording
+        env["GFLOW_RUN_DIR"] = self.run_dir
+        env["GFLOW_STATE_DIR"] = os.path.join(self.run_dir, "state")
+        env["GFLOW_LAUNCHER_PID"] = str(os.getpid())
+        env["GFLOW_RESTARTS"] = str(restarts)
+        if restarts:  # the peers a restarted stage can still hear from
+            env["GFLOW_PEERS"] = ",".join(n for n, p in self.procs.items() if n != name and p.popen.poll() is None)
+        self._progress_at.pop(name, None)
         root = str(Path(__file__).resolve().parent.parent)
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
         popen = subprocess.Popen([sys.executable, "-m", "pipeline.node", plan_file, name], env=env,
@@ -199,6 +236,8 @@ class Launcher:
             if p is not None and p.popen.poll() is None:
                 try:
                     os.killpg(p.popen.pid, sig)
+                    if sig in (signal.SIGINT, signal.SIGTERM):
+                        os.killpg(p.popen.pid, signal.SIGCONT)  # a stopped (SIGSTOP) stage must see it too
                 except ProcessLookupError:
                     pass
 
@@ -213,6 +252,33 @@ class Launcher:
             except subprocess.TimeoutExpired:
                 return False
         return True
+
+    def _check_stall(self, workers: list[str], now: float) -> None:
+        """Raise :class:`_Stalled` when a live stage has not moved for ``stall_timeout`` s
+        while the source is ahead of it, it waits for an input, or the sources have finished."""
+        if self.stall_timeout <= 0:
+            return
+        with self._lock:
+            status = dict(self.status)
+        sources = [n for n in workers if self.plan.stages[n].is_source()]
+        src = max((status[n].last_seq for n in sources if n in status), default=-1)
+        sources_done = bool(sources) and all(n in status and status[n].state == "done" for n in sources)
+        stuck = []
+        for n in workers:
+            st = status.get(n)
+            if st is None or n in sources or st.state in ("done", "stopped") or self.procs[n].popen.poll() is not None:
+                continue
+            key = (st.pid, st.steps, st.last_seq)
+            prev = self._progress_at.get(n)
+            if prev is None or prev[0] != key:
+                self._progress_at[n] = (key, now)
+                continue
+            if now - prev[1] >= self.stall_timeout and (src > st.last_seq or st.waiting or sources_done):
+                stuck.append(f"{n} after frame {st.last_seq}" + (f" ({st.waiting})" if st.waiting else ""))
+        if stuck:
+            self.stall = (f"stalled: no progress for {self.stall_timeout:.0f} s while the source is at frame {src}: "
+                          + "; ".join(stuck))
+            raise _Stalled(self.stall)
 
     def request_stop(self) -> None:
         """Ask the run to stop (what SIGINT / SIGTERM do)."""
@@ -230,11 +296,15 @@ class Launcher:
         bus = Bus(session)
         bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         bus.subscribe(plan.error_topic, self._on_error)
-        tmp = tempfile.NamedTemporaryFile("w", suffix=".json", prefix=f"gflow-{plan.name}-", delete=False)
-        tmp.write(plan.to_json())
-        tmp.close()
+        for sp in plan.stages.values():
+            if "estimate" in sp.outputs and sp.kind != "recorder":
+                bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True)
+        self.run_dir = tempfile.mkdtemp(prefix="gflow-run-")
+        os.makedirs(os.path.join(self.run_dir, "state"))
+        plan_file = os.path.join(self.run_dir, "plan.json")
+        Path(plan_file).write_text(plan.to_json())
 
-        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
         if threading.current_thread() is threading.main_thread():
             for s in old:
                 signal.signal(s, lambda *_: self._interrupt.set())
@@ -244,7 +314,7 @@ class Launcher:
         ok = True
         try:
             for n in recorder + workers:
-                self.procs[n] = self._spawn(n, tmp.name)
+                self.procs[n] = self._spawn(n, plan_file)
             if recorder and self.recording:
                 self._print(f"recording to {self.recording}")
             # wait for every heartbeat, then tell the sources to start
@@ -278,20 +348,27 @@ class Launcher:
                     bus.publish(plan.control_topic, start, 0)  # a source missed the first start
                     last_start = now
                 running = False
-                for n in workers:
+                for n in recorder + workers:
                     p = self.procs[n]
                     rc = p.popen.poll()
                     if rc is None:
-                        running = True
+                        running = running or n in workers
                         continue
                     if n in self.exits:
                         continue
-                    if rc != 0:
+                    if rc != 0 or n in recorder:
                         sp = plan.stages[n]
                         self._print(f"stage {n} died with exit status {rc}: {p.last_error() or 'no message'}")
+                        if n in recorder and rc == EXIT_DISK_FULL:
+                            ok = False
+                            self._record_exit(n)
+                            self._print(f"stopping the pipeline: the recording's disk is full ({p.last_error()})")
+                            raise _StageLost(n)
                         if sp.restart == "on-failure" and p.restarts < sp.max_restarts:
-                            self._print(f"restarting {n} ({p.restarts + 1}/{sp.max_restarts})")
-                            new = self._spawn(n, tmp.name)
+                            self._print(f"restarting {n} ({p.restarts + 1}/{sp.max_restarts})"
+                                        + (f": recording the rest to {segment_path(self.recording, p.restarts + 1)}"
+                                           if n in recorder and self.recording else ""))
+                            new = self._spawn(n, plan_file, p.restarts + 1)
                             new.restarts = p.restarts + 1
                             self.procs[n] = new
                             running = True
@@ -302,6 +379,7 @@ class Launcher:
                         self._print(f"stopping the pipeline: {n} is not restarted (restart: {sp.restart})")
                         raise _StageLost(n)
                     self._record_exit(n)
+                self._check_stall(workers, now)
                 if self.on_status is not None:
                     with self._lock:
                         self.on_status(dict(self.status))
@@ -317,11 +395,14 @@ class Launcher:
                     break
                 time.sleep(0.05)
             interrupted = False
-        except (KeyboardInterrupt, _StageLost) as e:
+        except (KeyboardInterrupt, _StageLost, _Stalled) as e:
             interrupted = isinstance(e, KeyboardInterrupt)
             ok = ok and interrupted
             if interrupted:
                 self._print("stopping: asking every stage to finish")
+            if isinstance(e, _Stalled):
+                ok = False
+                self._print(f"{e}; stopping the pipeline")
             self._signal_all(workers, signal.SIGINT)
             if not self._wait(workers, 10.0):
                 self._signal_all(workers, signal.SIGKILL)
@@ -346,14 +427,15 @@ class Launcher:
             if self.progress and self.out.isatty():
                 self.out.write("\n")
             session.close()
-            os.unlink(tmp.name)
+            shutil.rmtree(self.run_dir, ignore_errors=True)
             if threading.current_thread() is threading.main_thread():
                 for s, h in old.items():
                     signal.signal(s, h)
         ok = ok and all(e.returncode == 0 for e in self.exits.values())
         return LaunchResult(ok=ok and not interrupted, seconds=time.monotonic() - t0, recording=self.recording if recorder else None,
                             status=dict(self.status), exits=dict(self.exits), errors=list(self.errors),
-                            pids=dict(self.pids), interrupted=interrupted, peak_rss_mb=dict(self.peak_rss))
+                            pids=dict(self.pids), interrupted=interrupted, peak_rss_mb=dict(self.peak_rss),
+                            stall=self.stall, estimates=dict(self.estimates))
 
     def _record_exit(self, n: str) -> None:
         p = self.procs[n]

@@ -3,6 +3,10 @@
 A recording whose writer was killed has no footer; ``make_reader`` recovers nothing from
 it, so :func:`iter_records` falls back to ``NonSeekingReader`` which yields every complete
 chunk before the torn end (and reports that it stopped early).
+
+A recorder restarted after a crash writes the rest of the run to a new segment file beside
+the first one, ``NAME.part1.mcap``, ``NAME.part2.mcap``, ...; :func:`iter_records` reads a
+recording's segments after it, as one recording (:func:`segments`).
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ from typing import Iterator
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
-__all__ = ["Record", "iter_records", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording"]
+__all__ = ["Record", "iter_records", "segments", "segment_path", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording"]
 
 
 class TruncatedRecording(Exception):
@@ -56,8 +60,35 @@ def _check(path: str | Path) -> Path:
     return p
 
 
+def segment_path(path: str | Path, n: int) -> Path:
+    """The n-th segment of a recording (0: the recording itself)."""
+    p = Path(path)
+    return p if n == 0 else p.with_name(f"{p.stem}.part{n}{p.suffix}")
+
+
+def segments(path: str | Path) -> list[Path]:
+    """The files of one recording: itself, then the segments a restarted recorder wrote."""
+    out = [Path(path)]
+    n = 1
+    while segment_path(path, n).is_file():
+        out.append(segment_path(path, n))
+        n += 1
+    return out
+
+
 def iter_records(path: str | Path, topics: list[str] | None = None, *, strict: bool = False,
                  on_truncated=None) -> Iterator[Record]:
+    """Every message of a recording and its segments, in file (write) order (see :func:`_iter_file`)."""
+    for i, seg in enumerate(segments(path)):
+        if i > 0 and seg.stat().st_size < 8:  # a restarted recorder that could not write (a full disk, say)
+            if on_truncated is not None:
+                on_truncated(f"{seg}: an empty segment")
+            continue
+        yield from _iter_file(seg, topics, strict=strict, on_truncated=on_truncated)
+
+
+def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: bool = False,
+               on_truncated=None) -> Iterator[Record]:
     """Every message of a recording in file (write) order.
 
     Parameters
@@ -137,6 +168,7 @@ class RecordingSummary:
     schemas: dict[str, str]
     metadata: dict[str, dict[str, str]]
     truncated: str = ""
+    segments: list[str] = field(default_factory=list)  # the files of the recording, when more than one
 
     @property
     def duration_s(self) -> float:
@@ -145,7 +177,7 @@ class RecordingSummary:
     def to_json(self) -> dict:
         return {
             "path": self.path, "messages": self.messages, "duration_s": round(self.duration_s, 3),
-            "truncated": self.truncated or None,
+            "truncated": self.truncated or None, "segments": self.segments or None,
             "topics": {t: {"type": s.type, "count": s.count, "rate_hz": round(s.rate_hz, 2), "bytes": s.bytes,
                            "first_seq": s.first_seq, "last_seq": s.last_seq} for t, s in self.topics.items()},
             "schemas": self.schemas,
@@ -177,5 +209,6 @@ def summarize(path: str | Path) -> RecordingSummary:
         n += 1
         start = r.log_ns if start == 0 else min(start, r.log_ns)
         end = max(end, r.log_ns)
+    segs = segments(path)
     return RecordingSummary(str(path), n, start, end, topics, schemas, read_metadata(path),
-                            truncated[0] if truncated else "")
+                            "; ".join(truncated), [str(p) for p in segs] if len(segs) > 1 else [])

@@ -8,10 +8,17 @@ bit for bit), the topic, the log time (when the recorder received it), the publi
 ``Writer.flush()`` (mcap >= 1.2) closes the open chunk; calling it at least every
 ``flush_interval`` seconds bounds what a killed recorder loses. The graph and the
 configuration are stored as MCAP metadata records named ``gflow.graph`` and ``gflow.config``.
+
+Disk full: the recorder keeps a small reserve file beside the recording. When a write fails
+for lack of space (ENOSPC, EDQUOT, EFBIG), it frees the reserve, cuts the file back to the
+end of the last chunk it flushed, ends it with a data-end record, a footer and the closing
+magic (a valid MCAP file without a summary, readable to that point) and raises
+:class:`DiskFull`.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import time
@@ -20,12 +27,22 @@ from pathlib import Path
 from typing import IO, Any
 
 import msgspec
+from mcap.data_stream import RecordBuilder
+from mcap.records import DataEnd, Footer
 from mcap.writer import CompressionType, Writer
 
 from stages.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
 from stages.messages_foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
 
-__all__ = ["McapRecorder", "peek_type", "MESSAGE_ENCODING", "SCHEMA_ENCODING"]
+__all__ = ["McapRecorder", "DiskFull", "peek_type", "MESSAGE_ENCODING", "SCHEMA_ENCODING"]
+
+MAGIC = b"\x89MCAP0\r\n"
+RESERVE_BYTES = 256 * 1024
+_FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+class DiskFull(OSError):
+    """The recording's disk is full: the file was closed at its last complete chunk."""
 
 MESSAGE_ENCODING = "msgpack"
 SCHEMA_ENCODING = "jsonschema"
@@ -72,6 +89,9 @@ class McapRecorder:
     messages: int = 0
     bytes: int = 0
     per_topic: dict[str, int] = field(default_factory=dict)
+    _good: int = 0  # file offset after the last complete flush
+    _good_messages: int = 0
+    _reserve: Path | None = None
 
     def open(self) -> "McapRecorder":
         comp = {"lz4": CompressionType.LZ4, "zstd": CompressionType.ZSTD, "none": CompressionType.NONE}.get(self.compression)
@@ -79,13 +99,60 @@ class McapRecorder:
             raise ValueError(f"unknown MCAP compression {self.compression!r}; use lz4, zstd or none")
         p = Path(self.path)
         p.parent.mkdir(parents=True, exist_ok=True)
+        reserve = p.with_name(f".{p.name}.reserve")
+        try:
+            with open(reserve, "wb") as f:
+                f.write(b"\0" * RESERVE_BYTES)
+        except OSError as e:
+            reserve.unlink(missing_ok=True)
+            if e.errno in _FULL:
+                raise DiskFull(e.errno, f"no space left for a recording in {p.parent}") from None
+            raise
+        self._reserve = reserve
         self._f = open(p, "wb")
         self._w = Writer(self._f, chunk_size=self.chunk_size, compression=comp)
+        self._guard(self._start)
+        self._last_flush = time.monotonic()
+        return self
+
+    def _start(self) -> None:
+        assert self._w is not None and self._f is not None
         self._w.start(profile="", library="gflow")
         for name, data in self.metadata.items():
             self._w.add_metadata(name, data)
-        self._last_flush = time.monotonic()
-        return self
+        self._f.flush()
+        self._good = self._f.tell()
+
+    def _guard(self, fn, *args, **kw):
+        """Run a write; on a full disk, close the file at its last good chunk and raise DiskFull."""
+        try:
+            return fn(*args, **kw)
+        except OSError as e:
+            if e.errno not in _FULL:
+                raise
+            self._close_at_good()
+            raise DiskFull(e.errno, f"the disk is full: {self.path} closed after {self._good_messages} messages "
+                                    f"({self._good} bytes), readable to there") from None
+
+    def _close_at_good(self) -> None:
+        """Cut the file back to the last complete chunk and end it (no summary) with the space the reserve held."""
+        if self._reserve is not None:
+            self._reserve.unlink(missing_ok=True)
+            self._reserve = None
+        f, self._f, self._w = self._f, None, None
+        if f is None:
+            return
+        try:
+            f.close()  # its buffer may fail to flush: that part is cut off below anyway
+        except OSError:
+            pass
+        b = RecordBuilder()
+        DataEnd(0).write(b)
+        Footer(0, 0, 0).write(b)
+        with open(self.path, "r+b") as g:
+            g.truncate(self._good)
+            g.seek(self._good)
+            g.write(b.end() + MAGIC)
 
     def __enter__(self) -> "McapRecorder":
         return self.open() if self._w is None else self
@@ -129,9 +196,11 @@ class McapRecorder:
         log_ns = time.time_ns() if log_ns is None else log_ns
         if not type_name or (type_name not in MESSAGE_TYPES and type_name not in FOXGLOVE_TYPES):
             type_name = peek_type(payload)
-        cid = self._channel(topic, type_name)
-        self._w.add_message(cid, log_time=log_ns, data=payload, publish_time=publish_ns or log_ns,
-                            sequence=max(seq, 0) & 0xFFFFFFFF)
+            if type_name not in MESSAGE_TYPES:
+                type_name = ""  # an unknown tag: the topic's one `unknown` channel, not a channel per tag
+        cid = self._guard(self._channel, topic, type_name)
+        self._guard(self._w.add_message, cid, log_time=log_ns, data=payload, publish_time=publish_ns or log_ns,
+                    sequence=max(seq, 0) & 0xFFFFFFFF)
         self.messages += 1
         self.bytes += len(payload)
         self.per_topic[topic] = self.per_topic.get(topic, 0) + 1
@@ -145,15 +214,29 @@ class McapRecorder:
 
     def flush(self) -> None:
         assert self._w is not None and self._f is not None
+        self._guard(self._flush)
+        self._last_flush = time.monotonic()
+
+    def _flush(self) -> None:
+        assert self._w is not None and self._f is not None
         self._w.flush()
         self._f.flush()
-        self._last_flush = time.monotonic()
+        self._good = self._f.tell()
+        self._good_messages = self.messages
 
     def close(self) -> None:
         """Write the summary and footer. Safe to call twice."""
         if self._w is not None:
-            self._w.finish()
-            self._w = None
+            self._guard(self._finish)
         if self._f is not None:
             self._f.close()
             self._f = None
+        if self._reserve is not None:
+            self._reserve.unlink(missing_ok=True)
+            self._reserve = None
+
+    def _finish(self) -> None:
+        assert self._w is not None and self._f is not None
+        self._w.finish()
+        self._w = None
+        self._f.flush()

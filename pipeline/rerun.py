@@ -18,14 +18,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from stages.messages import Snapshot, decode
+from stages.messages import EndOfStream, MessageError, Snapshot, decode
 
 from .build import make_stage
 from .compare import FieldDiff, first_field_diff
 from .graph import GraphError, Plan, validate_params
 from .host import StageHost
 from .mcap_io import Record, iter_records, read_metadata
-from .recorder import McapRecorder
+from .recorder import McapRecorder, peek_type
 from .sources import open_reader
 
 __all__ = ["recorded_plan", "rerun_stage", "rerun_graph", "check_outputs", "RerunResult", "Mismatch"]
@@ -160,9 +160,50 @@ def recorded_outputs(path: str | Path, topics: set[str], start_after: int = -1) 
             if r.seq > start_after and r.type != "ErrorReport"]
 
 
+def _eos(data: bytes) -> EndOfStream | None:
+    if peek_type(data) != "EndOfStream":
+        return None
+    try:
+        m = decode(data)
+    except MessageError:
+        return None
+    return m if isinstance(m, EndOfStream) else None
+
+
+def recording_ends(recorded: list[tuple[str, int, bytes]]) -> dict[str, int]:
+    """The last frame each output topic has in the recording, for a recording that ends early
+    (interrupted, or torn by a killed recorder): {topic: last seq}. Empty when the outputs ran to
+    a normal end of stream."""
+    last: dict[str, int] = {}
+    reasons: set[str] = set()
+    for topic, seq, data in recorded:
+        eos = _eos(data)
+        if eos is not None:
+            reasons.add(eos.reason)
+            continue
+        last[topic] = max(last.get(topic, -1), seq)
+    if reasons == {"end"}:  # the stage's outputs ran to their end (topics with no end of stream, like snapshots, too)
+        return {}
+    return last
+
+
 def check_outputs(recorded: list[tuple[str, int, bytes]], rerun: list[tuple[str, int, bytes]],
                   start_after: int = -1) -> list[Mismatch]:
-    """Compare outputs per (topic, seq, occurrence). Returns mismatches in recorded order."""
+    """Compare outputs per (topic, seq, occurrence). Returns mismatches in recorded order.
+
+    Only the frames the recording has are compared: where it ends early (an interrupted run, a
+    torn file), what the re-run produced after its last frame is not a difference, and nor is
+    the end of stream (whose reason and position record when the run was stopped)."""
+    ends = recording_ends(recorded)
+
+    def keep(topic: str, seq: int, data: bytes) -> bool:
+        if topic in ends and (seq > ends[topic] or _eos(data) is not None):
+            return False
+        return True
+
+    recorded = [r for r in recorded if keep(*r)]
+    rerun = [r for r in rerun if keep(*r)]
+
     def index(items):
         out: dict[tuple[str, int, int], bytes] = {}
         order = []
@@ -189,6 +230,15 @@ def check_outputs(recorded: list[tuple[str, int, bytes]], rerun: list[tuple[str,
         if key not in rec:
             bad.append(Mismatch(key[0], key[1], "extra"))
     return bad
+
+
+def ends_note(recorded: list[tuple[str, int, bytes]]) -> str:
+    """'' for a recording that ran to its end, else where it ends (for the check's report)."""
+    ends = recording_ends(recorded)
+    if not ends:
+        return ""
+    return ("the recording ends early (interrupted or torn): compared up to frame "
+            + ", ".join(f"{s} on {t.split('/', 2)[-1]}" for t, s in sorted(ends.items())))
 
 
 def write_rerun(path_in: str | Path, path_out: str | Path, plan: Plan, result: RerunResult, sets: dict) -> None:

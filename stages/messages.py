@@ -115,7 +115,9 @@ class EndOfStream(msgspec.Struct, frozen=True, tag=True):
 
 class StageStatus(msgspec.Struct, frozen=True, tag=True):
     """Heartbeat of a stage process: progress, rate, drops, last error, memory, the last frame
-    done (``last_seq``), the input queue length and the mean compute time of a step."""
+    done (``last_seq``; for a source, the frame it announces before sending it), the input
+    queue length, the mean compute time of a step, the rejected input messages by kind,
+    the frames lost to faults, what it waits for, and a source's frame size."""
 
     header: Header
     stage: str
@@ -130,6 +132,10 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     last_seq: int = -1
     queued: int = 0
     busy_ms: float = 0.0
+    rejected: dict[str, int] = {}  # input messages not joined, by kind (future_seq, old_seq, bad_array...)
+    lost: int = 0  # frames stepped with no input or given up after a fault
+    waiting: str = ""  # what the stage waits for, when it waits (for stall reports)
+    frame_shape: tuple[int, ...] = ()  # sources: (H, W) of the frames they send
 
 
 class Snapshot(msgspec.Struct, frozen=True, tag=True):

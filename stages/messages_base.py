@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import msgspec
 import numpy as np
 
@@ -46,12 +48,15 @@ class NDArray(msgspec.Struct, frozen=True):
         if any(s < 0 for s in self.shape):
             raise MessageError(f"array shape {self.shape} has a negative dimension")
         dt = np.dtype(self.dtype)
-        n = int(np.prod(self.shape, dtype=np.int64))
+        n = math.prod(self.shape)  # Python integers: a huge shape cannot wrap around to a small size
         if n * dt.itemsize != len(self.data):
             raise MessageError(
                 f"array of dtype {self.dtype} and shape {self.shape} needs {n * dt.itemsize} bytes, got {len(self.data)}"
             )
-        return np.frombuffer(self.data, dtype=dt).reshape(self.shape)
+        try:
+            return np.frombuffer(self.data, dtype=dt).reshape(self.shape)
+        except ValueError as e:  # an empty array with absurd dimensions, say
+            raise MessageError(f"array of dtype {self.dtype} and shape {self.shape}: {e}") from None
 
 
 Box = tuple[float, float, float, float]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Literal, Mapping
 
+import msgspec
 import numpy as np
 
 from gflow_core import features
@@ -12,6 +13,16 @@ from .base import Output, Params, Stage, StageInputError
 from .messages import Features, Frame, Message, MessageError, NDArray
 
 __all__ = ["PreprocessStage", "PreprocessParams"]
+
+SNAPSHOT_VERSION = 1
+
+
+class _PreprocessSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """The Canny thresholds calibrated on the first frame, and the frame counter."""
+
+    version: int
+    done: int
+    thresholds: tuple[float, float] | None
 
 
 class PreprocessParams(Params):
@@ -77,3 +88,20 @@ class PreprocessStage(Stage):
 
     def summary(self) -> dict:
         return {"frames": self.done, "canny_thresholds": self.thresholds}
+
+    def snapshot(self) -> bytes:
+        """The thresholds calibrated on the first frame: a restarted stage must not calibrate
+        them again on a later frame."""
+        th = (float(self.thresholds[0]), float(self.thresholds[1])) if self.thresholds is not None else None
+        return msgspec.msgpack.encode(_PreprocessSnapshot(version=SNAPSHOT_VERSION, done=self.done, thresholds=th))
+
+    def restore(self, data: bytes) -> None:
+        try:
+            snap = msgspec.msgpack.decode(data, type=_PreprocessSnapshot)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {self.ctx.name!r}: not a preprocess snapshot: {e}") from None
+        if snap.version != SNAPSHOT_VERSION:
+            raise ValueError(f"stage {self.ctx.name!r}: preprocess snapshot version {snap.version}, expected "
+                             f"{SNAPSHOT_VERSION}")
+        self.done = snap.done
+        self.thresholds = snap.thresholds

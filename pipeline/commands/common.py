@@ -219,8 +219,10 @@ def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--multicast", action="store_true", help="enable multicast scouting (off by default)")
 
 
-def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: bool = False):
-    """Run a plan inline or as processes; return (recording path, seconds, frames, per-stage info)."""
+def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: bool = False, strict: bool = True):
+    """Run a plan inline or as processes; return (recording path, seconds, frames, per-stage info).
+    With ``strict=False`` a run that did not finish cleanly returns (``info["ok"]`` False) instead of
+    raising, so the caller can keep what was tracked."""
     if getattr(args, "inline", False):
         from ..inline import run_inline
 
@@ -258,8 +260,11 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     frames = res.status[src].steps if src in res.status else 0
     info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
             "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()},
-            "interrupted": res.interrupted}
-    if not res.ok and not res.interrupted:
+            "interrupted": res.interrupted, "stall": res.stall,
+            "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
+    if res.stall:
+        print(res.stall, file=sys.stderr)
+    if strict and not res.ok and not res.interrupted:
         raise CliError("the pipeline did not finish cleanly (see the messages above)")
     return res.recording, res.seconds, frames, info
 

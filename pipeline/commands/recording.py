@@ -23,6 +23,8 @@ def describe_recording(path: str, as_json: bool) -> None:
         return
     print(f"file:      {s.path}")
     print(f"messages:  {s.messages}   duration: {s.duration_s:.3f} s")
+    if s.segments:
+        print(f"segments:  {', '.join(s.segments)} (a restarted recorder; read as one recording)")
     if s.truncated:
         print(f"WARNING:   {s.truncated}")
     print("topics:")

@@ -23,7 +23,9 @@ def _stage_sets(items: list[str] | None) -> dict[str, object]:
     return out
 
 
-def _report(mismatches, compared: int, label: str) -> int:
+def _report(mismatches, compared: int, label: str, note: str = "") -> int:
+    if note:
+        print(f"{label}: {note}")
     if not mismatches:
         print(f"{label}: {compared} outputs compared, all identical bit for bit")
         return 0
@@ -38,7 +40,8 @@ def _report(mismatches, compared: int, label: str) -> int:
 
 
 def cmd_rerun(args) -> int:
-    from ..rerun import check_outputs, recorded_outputs, recorded_plan, rerun_graph, rerun_stage, write_rerun
+    from ..rerun import (check_outputs, ends_note, recorded_outputs, recorded_plan, rerun_graph, rerun_stage,
+                         write_rerun)
 
     if not Path(args.file).is_file():
         raise CliError(f"recording not found: {args.file}")
@@ -60,7 +63,7 @@ def cmd_rerun(args) -> int:
         new = [(r.topic, r.seq, r.data) for r in iter_records(out, topics=sorted(topics)) if r.type != "ErrorReport"]
         old = recorded_outputs(args.file, topics)
         bad = check_outputs(old, new)
-        rc = _report(bad, len(old), "graph")
+        rc = _report(bad, len(old), "graph", ends_note(old))
         return rc if args.check else 0
     if not args.stage:
         raise CliError("say which stage to re-run with --stage NAME, or --graph for all of them")
@@ -85,7 +88,7 @@ def cmd_rerun(args) -> int:
         topics.add(plan.snapshot_topic(args.stage))
     old = recorded_outputs(args.file, topics, res.start_after)
     bad = check_outputs(old, res.outputs, res.start_after)
-    rc = _report(bad, len(old), args.stage)
+    rc = _report(bad, len(old), args.stage, ends_note(old))
     return rc if (args.check or not sets) and rc else 0
 
 

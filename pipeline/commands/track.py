@@ -10,8 +10,9 @@ from __future__ import annotations
 ORDER = 20
 
 import argparse
+import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import msgspec
@@ -19,7 +20,7 @@ import msgspec
 from stages.source import SourceParams
 
 from ..graph import Plan, load_graph
-from ..results import estimates, write_boxes
+from ..results import run_outcome, write_boxes
 from ..sources import count_frames
 from ..trackers import TRACKERS
 from ..preflight import check_source
@@ -95,6 +96,8 @@ class TrackRun:
     info: dict
     kept: str = ""  # what the user is told about the recording
     temporary: bool = False  # --no-record: the recording was removed
+    lines: list[str] = field(default_factory=list)  # what is missing, coasted, restarted
+    incomplete: str = ""  # why the run is incomplete, or ""
 
 
 def track_plan(args) -> tuple[Plan, int | None]:
@@ -122,19 +125,21 @@ def track_plan(args) -> tuple[Plan, int | None]:
 
 
 def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
-    """Run the tracker of ``args`` (inline or as processes) and read its boxes back from the recording
-    (a temporary one with ``--no-record``, removed here)."""
+    """Run the tracker of ``args`` (inline or as processes) and gather its boxes from the recording
+    (a temporary one with ``--no-record``, removed here) and the live stream, whatever happened."""
     plan_, total = plan or track_plan(args)
     recording = Recording(plan_, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
                           needed=("estimate",))
     try:
-        path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet)
-        est = estimates(path)
+        path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet, strict=False)
+        out = run_outcome(path, plan_, info, args.start)  # every frame that was tracked, and what is missing
     finally:
         recording.cleanup()
+    est = out.estimates
     return TrackRun(boxes={k: v.box for k, v in est.items()}, states=[v.state for v in est.values()],
                     recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
-                    temporary=recording.temporary)
+                    temporary=recording.temporary, lines=list(out.lines),
+                    incomplete=out.why if out.incomplete else "")
 
 
 def cmd_track(args) -> int:
@@ -143,15 +148,20 @@ def cmd_track(args) -> int:
     n, states, info = len(run.boxes), run.states, run.info
     print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
           f"boxes: {args.out}; recording: {run.kept}")
-    if states.count("coast"):
-        print(f"  {states.count('coast')} frame(s) coasted on the dynamics (no usable image)")
+    for line in run.lines:
+        print(f"  {line}")
     errs = info.get("errors")
     if errs:  # a count (processes) or {stage: count} (inline)
         n = sum(errs.values()) if isinstance(errs, dict) else errs
         per = (" (" + ", ".join(f"{k} {v}" for k, v in sorted(errs.items())) + ")") if isinstance(errs, dict) else ""
         where = f"see `gflow info {run.recording}`" if not run.temporary else "kept in no recording: --no-record"
         print(f"  errors reported: {n}{per}; {where}")
-    return 130 if info.get("interrupted") else 0
+    if info.get("interrupted"):
+        return 130
+    if run.incomplete:
+        print(f"the run is incomplete: {run.incomplete}", file=sys.stderr)
+        return 3
+    return 0
 
 
 def add_track_args(p: argparse.ArgumentParser) -> None:
