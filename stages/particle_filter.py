@@ -36,8 +36,8 @@ import numpy as np
 
 from gflow_core import similarity
 from gflow_core.m2 import dynamics as dyn
-from gflow_core.m2.appearance_metric import (OnlineBank, appearance_log_lik, bank_update, frame_features, new_bank,
-                                             sample_patches)
+from gflow_core.m2.appearance_metric import (OnlineBank, appearance_log_lik, bank_update, new_bank,
+                                             sample_patches_near)
 from gflow_core.m2.dynamics import sample_categorical
 from gflow_core.m2.kernel import calibrate_sigma
 from gflow_core.m2.model import M2Model
@@ -253,7 +253,7 @@ class FilterStage(Stage):
             grey = self._grey(feat, seq)
             if grey is not None:
                 # online slot 0: the region of the user's box, kept for the whole track
-                z0 = sample_patches(frame_features(grey), alpha0, self.learned.ref_size, self.app.res)[0]
+                z0 = sample_patches_near(grey, alpha0, self.learned.ref_size, self.app.res)[0]
                 self.bank = new_bank(z0, seq)
         return self._update(seq, feat, cloud, first=True)
 
@@ -272,7 +272,7 @@ class FilterStage(Stage):
             self.model = replace(self.model, sigma=calibrate_sigma(self.model.sigma, self.model.d, rho0))
         grey = self._grey(feat, seq) if self.app is not None else None
         if grey is not None and self.app is not None:
-            z = sample_patches(frame_features(grey), alpha0, self.learned.ref_size, self.app.res)
+            z = sample_patches_near(grey, alpha0, self.learned.ref_size, self.app.res)
             rho_a0 = float(1.0 - appearance_log_lik(np.repeat(z, K, axis=0), np.arange(K), self.app, None)[1].max())
             self.app = replace(self.app, sigma=calibrate_sigma(self.app.sigma, self.app.d, rho_a0))
 
@@ -328,20 +328,19 @@ class FilterStage(Stage):
             # log p(y | alpha, k) = -rho / (2 sigma_k^2) - d_k log sigma_k            (eq. 7)
             log_lik, _ = weigh(cloud, self.model, cham)
             state = "track"
-        F = None
+        grey = None
         if state == "track" and self.app is not None and feat is not None:
             grey = self._grey(feat, seq)
             if grey is not None:
                 # x log K_app(rho_a(a_k or the online bank, z_alpha))      (product of the two kernels)
-                F = frame_features(grey)
                 assert self.learned is not None
-                Z = sample_patches(F, cloud.alpha, self.learned.ref_size, self.app.res)
+                Z = sample_patches_near(grey, cloud.alpha, self.learned.ref_size, self.app.res)
                 log_lik = log_lik + appearance_log_lik(Z, cloud.k, self.app, self.bank)[0]
         if first:
             state = "init"
         post = posterior(cloud, log_lik, self.model.K, rng, p.particles)
-        if F is not None and self.bank is not None and not first:
-            self._update_bank(seq, F, post.map_alpha, post.map_k)
+        if grey is not None and self.bank is not None and not first:
+            self._update_bank(seq, grey, post.map_alpha, post.map_k)
         self._diagnose(cloud, log_lik)
         header = feat.header if feat is not None else self.header(seq, 0)
         self.last_cloud = post.resampled
@@ -350,11 +349,11 @@ class FilterStage(Stage):
                              post.log_evidence, state)
         return [("particles", particles_msg(header, "posterior", post.resampled)), ("estimate", est)]
 
-    def _update_bank(self, seq: int, F: np.ndarray, alpha: np.ndarray, k: int) -> None:
+    def _update_bank(self, seq: int, grey: np.ndarray, alpha: np.ndarray, k: int) -> None:
         """Count the estimate's nearest online exemplar; add its region when confident."""
         p: FilterParams = self.params  # type: ignore[assignment]
         assert self.learned is not None and self.app is not None and self.bank is not None
-        z = sample_patches(F, alpha, self.learned.ref_size, self.app.res)
+        z = sample_patches_near(grey, alpha, self.learned.ref_size, self.app.res)
         _, r_best, nearest = appearance_log_lik(z, np.array([k]), self.app, self.bank)
         self.bank = bank_update(self.bank, z[0], int(nearest[0]), bool(r_best[0] >= p.confident_r), seq,
                                 bound=p.online, every=p.online_every)
