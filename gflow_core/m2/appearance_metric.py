@@ -258,7 +258,7 @@ def bank_update(bank: OnlineBank, patch: np.ndarray, nearest: int, confident: bo
 
 
 def appearance_log_lik(patches: np.ndarray, k: np.ndarray, kernels: AppearanceKernels,
-                       bank: OnlineBank | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       bank: OnlineBank | None, per_exemplar: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """log K_app for N particles: the larger of exemplar k's kernel and the best online kernel.
 
     Parameters
@@ -274,16 +274,24 @@ def appearance_log_lik(patches: np.ndarray, k: np.ndarray, kernels: AppearanceKe
     """
     k = np.asarray(k, dtype=np.intp)
     u = _unit(patches)
-    r_k = (u @ _unit(kernels.patches).T)[np.arange(len(k)), k].astype(np.float64)
-    # log K(rho_a; sigma'_k, d'_k), rho_a = 1 - r                         (eq. 7 with the appearance metric)
-    ll = log_kernel(1.0 - r_k, kernels.sigma[k], kernels.d[k])
+    r_all = (u @ _unit(kernels.patches).T).astype(np.float64)  # (N, K)
+    if per_exemplar:
+        r_k = r_all[np.arange(len(k)), k]
+        # log K(rho_a; sigma'_k, d'_k), rho_a = 1 - r                     (eq. 7 with the appearance metric)
+        ll = log_kernel(1.0 - r_k, kernels.sigma[k], kernels.d[k])
+    else:
+        r_k = r_all.max(axis=1)
+    s, d = kernels.online_kernel
     r_best = r_k
     nearest = np.full(k.shape, -1, dtype=np.int64)
     if bank is not None and bank.n:
         r_on = (u @ _unit(bank.patches).T).astype(np.float64)  # (N, B)
         nearest = np.argmax(r_on, axis=1).astype(np.int64)
-        r_max = r_on[np.arange(len(k)), nearest]
-        s, d = kernels.online_kernel
-        ll = np.maximum(ll, log_kernel(1.0 - r_max, s, d))
-        r_best = np.maximum(r_k, r_max)
+        r_best = np.maximum(r_k, r_on[np.arange(len(k)), nearest])
+    if per_exemplar:
+        ll = np.maximum(ll, log_kernel(1.0 - r_best, s, d))
+    else:
+        # one pooled kernel on the nearest exemplar, learned or online: the appearance term
+        # informs alpha and leaves the choice of k to chamfer
+        ll = log_kernel(1.0 - r_best, s, d)
     return ll, r_best, nearest
