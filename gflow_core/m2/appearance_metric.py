@@ -128,6 +128,16 @@ def sample_patches_near(grey: np.ndarray, alpha: np.ndarray, ref_size: np.ndarra
     return out.reshape(a.shape[0], th, tw, -1)
 
 
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """a @ b.T without BLAS: (N, D) x (M, D) -> (N, M) float64.
+
+    BLAS results can depend on the thread count (``--inline`` runs with more threads than a
+    stage process), and the multi-process and inline runs must agree bit for bit; numpy's
+    own einsum loops sum in a fixed order.
+    """
+    return np.einsum("nd,md->nm", a, b, optimize=False).astype(np.float64)
+
+
 def _unit(patches: np.ndarray) -> np.ndarray:
     """Rows centred and scaled to unit norm (float32: r is a dot product of two rows)."""
     v = np.asarray(patches, dtype=np.float32).reshape(len(patches), -1)
@@ -141,7 +151,7 @@ def correlation_distances(patches: np.ndarray, exemplars: np.ndarray) -> np.ndar
 
     A flat patch (no variation) has r = 0 with everything (rho_a = 1).
     """
-    return 1.0 - (_unit(patches) @ _unit(exemplars).T).astype(np.float64)
+    return 1.0 - _dot(_unit(patches), _unit(exemplars))
 
 
 @dataclass(frozen=True)
@@ -274,7 +284,7 @@ def appearance_log_lik(patches: np.ndarray, k: np.ndarray, kernels: AppearanceKe
     """
     k = np.asarray(k, dtype=np.intp)
     u = _unit(patches)
-    r_all = (u @ _unit(kernels.patches).T).astype(np.float64)  # (N, K)
+    r_all = _dot(u, _unit(kernels.patches))  # (N, K)
     if per_exemplar:
         r_k = r_all[np.arange(len(k)), k]
         # log K(rho_a; sigma'_k, d'_k), rho_a = 1 - r                     (eq. 7 with the appearance metric)
@@ -285,7 +295,7 @@ def appearance_log_lik(patches: np.ndarray, k: np.ndarray, kernels: AppearanceKe
     r_best = r_k
     nearest = np.full(k.shape, -1, dtype=np.int64)
     if bank is not None and bank.n:
-        r_on = (u @ _unit(bank.patches).T).astype(np.float64)  # (N, B)
+        r_on = _dot(u, _unit(bank.patches))  # (N, B)
         nearest = np.argmax(r_on, axis=1).astype(np.int64)
         r_best = np.maximum(r_k, r_on[np.arange(len(k)), nearest])
     if per_exemplar:
