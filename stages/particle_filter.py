@@ -13,6 +13,15 @@ reference size, exemplar indices drawn from pi, and the first frame is weighed a
 The estimate's box is then the bounding box of the MAP exemplar under its transform,
 T_alpha x~_k (sec. 5.1.2: X^_t = argmax p_t(X_t), taken over the particles).
 
+Transfer to video the model was not learned on (departures, :mod:`gflow_core.m2.appearance_metric`):
+frame 0's estimate is the ``init`` box itself; on frame 0 the learned kernels are widened so
+the init box is a typical match (``calibrate``, :func:`gflow_core.m2.kernel.calibrate_sigma`);
+with a model that has appearance exemplars (``appearance``) each particle's chamfer kernel is
+multiplied by an appearance kernel (orientation-channel correlation under T_alpha of the
+reference box, nearest of the learned exemplars and a bounded online bank that starts with
+the init box's region and adds the estimate's region on confident frames, ``online``,
+``online_every``, ``confident_r``). The widened sigmas and the bank are part of the snapshot.
+
 Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
 edge pixels carries no evidence; the particles coast on the dynamics (state ``coast``),
 "forced to rely on the prior". Weighing such a frame by eq. 7 would not be neutral with a
@@ -23,7 +32,8 @@ Bad input: a missing or unusable feature frame makes the filter coast as well, a
 problem is reported; it never stops the stream.
 
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
-model), the resampled particle cloud, and counters, as msgpack of a small Struct.
+model), the resampled particle cloud, the calibrated kernel widths and the online bank,
+and counters, as msgpack of a small Struct (version 2; version-1 snapshots still restore).
 """
 
 from __future__ import annotations

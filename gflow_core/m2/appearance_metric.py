@@ -8,7 +8,7 @@ second, appearance, metric to a contour model, so the observation likelihood of 
 X = (alpha, k) is the product of two kernels (eq. 6-7, each with its own d, sigma):
 
     log p(y | alpha, k) = log K_chamfer(rho_c(T_alpha x~_k, z); sigma_k, d_k)
-                        + log K_app(rho_a(a_k, z_alpha); sigma'_k, d'_k).
+                        + log K_app(min_j rho_a(a_j, z_alpha); sigma', d').
 
 **The appearance distance** (departure: the paper's shuffle distance is on grey levels).
 z_alpha is the region of the frame's locally normalised edge-orientation channels
@@ -28,10 +28,21 @@ at most ``bound`` appearance exemplars cut from the tracked video: slot 0 is the
 most one every ``every`` frames, the estimate's region is added; beyond the bound it
 replaces the least used online slot (usage: an exponentially decaying count of the frames
 on which the slot was the estimate's nearest online exemplar). The learned exemplars are
-never changed. The online slots share one kernel, the median of the learned d'_k, sigma'_k.
-A particle's appearance term is the larger of its own exemplar's kernel and the best online
-kernel (departure: the online exemplars are not states of the Markov chain over k; k keeps
-indexing the learned exemplars, so the learned dynamics are untouched).
+never changed.
+
+**One appearance kernel on the nearest exemplar** (departure). The appearance factor uses the
+distance to the nearest appearance exemplar, learned or online, under one pooled kernel
+(sigma', d') = the medians of the learned d'_k, sigma'_k. With each exemplar's own kernel the
+normalisers -d'_k log sigma'_k chose k (narrow exemplars won on caviar1: 3.5 px instead of
+1.6 px); pooled, the appearance factor informs alpha and chamfer alone chooses k. The online
+exemplars are not states of the Markov chain over k: k keeps indexing the learned exemplars,
+so the learned dynamics are untouched. (``per_exemplar=True`` in :func:`appearance_log_lik`
+gives the per-exemplar form.) The tracker also widens the learned kernels on frame 0
+(:func:`.kernel.calibrate_sigma`).
+
+Correlations are dot products computed by ``np.einsum`` rather than BLAS, whose sums depend on
+the thread count: a stage process runs with one thread, ``--inline`` with more, and both
+must give the same bits.
 
 Coordinates: image (x, y) pixels, origin at the top-left pixel centre; item coordinates are
 centred on the reference point, the reference box spans ref_size = (w, h) around it.
@@ -269,7 +280,10 @@ def bank_update(bank: OnlineBank, patch: np.ndarray, nearest: int, confident: bo
 
 def appearance_log_lik(patches: np.ndarray, k: np.ndarray, kernels: AppearanceKernels,
                        bank: OnlineBank | None, per_exemplar: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """log K_app for N particles: the larger of exemplar k's kernel and the best online kernel.
+    """log K_app for N particles (see the module docstring).
+
+    Default: the pooled kernel on the nearest exemplar, learned or online. ``per_exemplar``:
+    the larger of exemplar k's own kernel and the pooled kernel on the best online slot.
 
     Parameters
     ----------
@@ -279,7 +293,8 @@ def appearance_log_lik(patches: np.ndarray, k: np.ndarray, kernels: AppearanceKe
     Returns
     -------
     log_lik : (N,) float64
-    r_best : (N,) float64, the largest correlation over the particle's exemplar and the bank.
+    r_best : (N,) float64, the largest correlation over the learned exemplars (only exemplar k
+        with ``per_exemplar``) and the bank.
     nearest : (N,) int64, index of the nearest online slot (-1 with no bank).
     """
     k = np.asarray(k, dtype=np.intp)

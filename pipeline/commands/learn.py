@@ -9,6 +9,13 @@ Training input (sec. 4.1, 5.1, 5.2):
 * patch exemplars (``--metric shuffle`` or ``l2``): whole frames (pre-cropped video such
   as the AVLetters mouths), or the ``--boxes`` contents, resampled to ``--patch-size``.
 
+Several sources (``gflow learn m2 SEQ1 SEQ2 ...``) are learned as one model: one exemplar set
+by k-medoids over all items, kernels over all validation items, dynamics within each
+sequence; with ``--boxes`` and no file each source folder's ``groundtruth.csv`` is used, and
+every sequence is cut to one common reference box (the median box over all of them).
+Contour models learned from boxes also get appearance exemplars (edge-orientation patches,
+:mod:`gflow_core.m2.appearance_metric`) unless ``--no-appearance``.
+
 The model file (``pipeline.modelfile``, kind ``m2``) also records how the features were
 made (Canny thresholds, blur, crop), so ``gflow track --tracker m2`` preprocesses alike.
 """
