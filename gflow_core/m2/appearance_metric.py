@@ -124,15 +124,16 @@ def sample_patches_near(grey: np.ndarray, alpha: np.ndarray, ref_size: np.ndarra
     """
     a = np.atleast_2d(np.asarray(alpha, dtype=np.float64))
     H, W = grey.shape
+    tw, th = res
     pts = grid_points(ref_size, res)
     img = similarity.apply_many(a, np.broadcast_to(pts, (a.shape[0],) + pts.shape))
-    flat = img.reshape(-1, 2)
-    lo = np.floor(flat.min(axis=0)) - margin
-    hi = np.ceil(flat.max(axis=0)) + margin
+    # the grid is a rectangle: its image lies within the images of its 4 corners
+    c = similarity.apply_many(a, pts[[0, tw - 1, -tw, -1]]).reshape(-1, 2)
+    lo = np.floor(c.min(axis=0)) - margin
+    hi = np.ceil(c.max(axis=0)) + margin
     x0, y0 = int(np.clip(lo[0], 0, W - 3)), int(np.clip(lo[1], 0, H - 3))
     x1, y1 = int(np.clip(hi[0] + 1, x0 + 3, W)), int(np.clip(hi[1] + 1, y0 + 3, H))
     feat = frame_features(grey[y0:y1, x0:x1])
-    tw, th = res
     mx = (img[..., 0] - x0).reshape(-1, tw).astype(np.float32)
     my = (img[..., 1] - y0).reshape(-1, tw).astype(np.float32)
     out = cv2.remap(feat, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
