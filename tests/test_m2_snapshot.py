@@ -157,3 +157,16 @@ def test_appearance_filter_restore_is_bit_exact_and_starts_on_the_box(scene_feat
     f = make_f()
     _run(f, make_p(), feats, 0, None)
     assert f.bank is not None and f.bank.n == 3 and f.bank.frame[0] == 0
+
+
+def test_proposal_reverts_log_s_to_the_start_box(contour_model) -> None:
+    """With init, the AR(1) on log s reverts to the start box's scale, not the training mean."""
+    box = (40.0, 30.0, 11.0, 23.0)
+    res = {"model": contour_model}
+    p = ProposalStage(ProposalParams(seed=1, model="m.npz", init=box), StageContext("proposal", "s", res))
+    learned = ProposalStage(ProposalParams(seed=1, model="m.npz"), StageContext("proposal", "s", res))
+    assert p.dynamics.mean[3] == pytest.approx(np.log(contour_model.alpha_from_box(box)[3]))
+    assert np.array_equal(p.dynamics.mean[:3], contour_model.dynamics.mean[:3])
+    assert np.array_equal(learned.dynamics.mean, contour_model.dynamics.mean)
+    with pytest.raises(ValueError, match="positive width"):
+        ProposalParams(init=(0.0, 0.0, 0.0, 5.0))
