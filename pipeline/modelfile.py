@@ -229,6 +229,10 @@ def _describe_m2(model) -> dict[str, Any]:
     if model.kind == "curve":
         info["points_per_exemplar"] = _stats(model.exemplars.n_points)
         info["chamfer"] = {"profile": model.profile, "g0": model.g0, "upsample": model.upsample}
+        if model.appearance is not None:
+            a = model.appearance
+            info["appearance"] = {"grid": [int(a.patches.shape[2]), int(a.patches.shape[1])],
+                                  "channels": int(a.patches.shape[3]), "d": _stats(a.d), "sigma": _stats(a.sigma)}
     else:
         info["patch_shape"] = list(model.exemplars.shape[1:])
         if model.metric == "shuffle":
@@ -268,6 +272,10 @@ def describe(path: str | os.PathLike, as_json: bool = False) -> None:
             c = info["chamfer"]
             print(f"chamfer:   profile {c['profile']}, g0 {c['g0']:g}, upsample {c['upsample']}; points per "
                   f"exemplar: {_fmt_stats(info['points_per_exemplar'], '.0f')}")
+            if "appearance" in info:
+                a = info["appearance"]
+                print(f"appearance: orientation-channel patches {a['grid'][0]}x{a['grid'][1]}x{a['channels']}; "
+                      f"d'_k median {a['d']['median']:.3g}, sigma'_k median {a['sigma']['median']:.3g}")
         else:
             extra = f", shuffle radius {info['shuffle_radius']}" if "shuffle_radius" in info else ""
             print(f"patches:   {info['patch_shape'][0]}x{info['patch_shape'][1]} (rows x cols){extra}")

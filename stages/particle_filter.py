@@ -13,6 +13,15 @@ reference size, exemplar indices drawn from pi, and the first frame is weighed a
 The estimate's box is then the bounding box of the MAP exemplar under its transform,
 T_alpha x~_k (sec. 5.1.2: X^_t = argmax p_t(X_t), taken over the particles).
 
+Transfer to video the model was not learned on (departures, :mod:`gflow_core.m2.appearance_metric`):
+frame 0's estimate is the ``init`` box itself; on frame 0 the learned kernels are widened so
+the init box is a typical match (``calibrate``, :func:`gflow_core.m2.kernel.calibrate_sigma`);
+with a model that has appearance exemplars (``appearance``) each particle's chamfer kernel is
+multiplied by an appearance kernel (orientation-channel correlation under T_alpha of the
+reference box, nearest of the learned exemplars and a bounded online bank that starts with
+the init box's region and adds the estimate's region on confident frames, ``online``,
+``online_every``, ``confident_r``). The widened sigmas and the bank are part of the snapshot.
+
 Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
 edge pixels carries no evidence; the particles coast on the dynamics (state ``coast``),
 "forced to rely on the prior". Weighing such a frame by eq. 7 would not be neutral with a
@@ -23,11 +32,13 @@ Bad input: a missing or unusable feature frame makes the filter coast as well, a
 problem is reported; it never stops the stream.
 
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
-model), the resampled particle cloud, and counters, as msgpack of a small Struct.
+model), the resampled particle cloud, the calibrated kernel widths and the online bank,
+and counters, as msgpack of a small Struct (version 2; version-1 snapshots still restore).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Mapping
 
 import msgspec
@@ -35,7 +46,10 @@ import numpy as np
 
 from gflow_core import similarity
 from gflow_core.m2 import dynamics as dyn
+from gflow_core.m2.appearance_metric import (OnlineBank, appearance_log_lik, bank_update, new_bank,
+                                             sample_patches_near)
 from gflow_core.m2.dynamics import sample_categorical
+from gflow_core.m2.kernel import calibrate_sigma
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
                                     template_from_edges, weigh)
@@ -51,7 +65,7 @@ __all__ = ["FilterStage", "FilterParams"]
 PURPOSE_INIT = 0x1417
 PURPOSE_RESAMPLE = 0x2E5A
 PURPOSE_INIT_K = 0x1418
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2
 
 
 class FilterParams(Params):
@@ -64,6 +78,14 @@ class FilterParams(Params):
     init_spread : std of (ux, uy, theta, log s) of the initial cloud.
     model : path of a learned M2 model with contour exemplars (empty: the K = 1 chamfer tracker).
     min_edges : a frame with fewer edge pixels is blank: no evidence, coast on the dynamics.
+    appearance : with a learned model that has appearance exemplars, multiply the chamfer
+        kernel by the appearance kernel (:mod:`gflow_core.m2.appearance_metric`).
+    online : bound of the online appearance exemplar bank (0: no online exemplars).
+    online_every : at most one online exemplar added every this many frames.
+    confident_r : the estimate is confident (its region may become an online exemplar) when
+        its appearance correlation with the nearest exemplar is at least this.
+    calibrate : widen the learned kernels so the initial box is a typical match on frame 0
+        (:func:`gflow_core.m2.kernel.calibrate_sigma`).
     """
 
     init: tuple[float, float, float, float] | None = None
@@ -74,8 +96,17 @@ class FilterParams(Params):
     seed: int = 0
     model: str = ""
     min_edges: int = 1
+    appearance: bool = True
+    online: int = 6
+    online_every: int = 5
+    confident_r: float = 0.6
+    calibrate: bool = True
 
     def __post_init__(self) -> None:
+        if self.online < 0 or self.online_every < 1:
+            raise ValueError(f"online must be >= 0 and online_every >= 1, got {self.online}, {self.online_every}")
+        if not -1.0 <= self.confident_r <= 1.0:
+            raise ValueError(f"confident_r must be a correlation in [-1, 1], got {self.confident_r}")
         if self.particles < 1:
             raise ValueError(f"particles must be >= 1, got {self.particles}")
         if not self.lam > 0:
@@ -94,6 +125,13 @@ class _LastSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     k: int
 
 
+class _BankSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    patches: NDArray  # (n, th, tw, C) float32
+    usage: NDArray  # (n,) float64
+    frame: NDArray  # (n,) int64
+    last_add: int
+
+
 class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     """Everything the filter carries from one frame to the next."""
 
@@ -106,6 +144,9 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     steps: int
     warned: bool
     last: _LastSummary | None
+    bank: _BankSnapshot | None = None  # online appearance exemplars (version 2)
+    sigma: NDArray | None = None  # (K,) chamfer kernel widths after calibration on frame 0
+    app_sigma: NDArray | None = None  # (K,) appearance kernel widths after calibration
 
 
 class FilterStage(Stage):
@@ -129,6 +170,9 @@ class FilterStage(Stage):
                                  "exemplars; use the patch.filter stage (graph m2_patch) for patch models")
         self.learned: M2Model | None = learned
         self.learned_ex: ContourExemplars | None = learned.to_contour_exemplars() if learned is not None else None
+        # the appearance kernels beside chamfer, and the online bank (set on the first frame)
+        self.app = learned.appearance if learned is not None and params.appearance else None
+        self.bank: OnlineBank | None = None
         self.model: ContourExemplars | None = None  # set on the first frame
         self.template: np.ndarray | None = None
         self.last_cloud: ParticleCloud | None = None
@@ -214,7 +258,44 @@ class FilterStage(Stage):
         # k_0 ~ pi (sec. 4.1, step 6: the mixture weights are the prior over exemplars)
         k0 = sample_categorical(self.model.pi, p.particles, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT_K))
         cloud = ParticleCloud(alpha=cloud.alpha, k=k0, log_w=np.zeros(p.particles))
+        self._calibrate(seq, feat, alpha0)
+        if self.app is not None and p.online > 0:
+            grey = self._grey(feat, seq)
+            if grey is not None:
+                # online slot 0: the region of the user's box, kept for the whole track
+                z0 = sample_patches_near(grey, alpha0, self.learned.ref_size, self.app.res)[0]
+                self.bank = new_bank(z0, seq)
         return self._update(seq, feat, cloud, first=True)
+
+    def _calibrate(self, seq: int, feat: Features, alpha0: np.ndarray) -> None:
+        """Widen the kernels so the user's box on frame 0 is a typical match (:func:`calibrate_sigma`)."""
+        p: FilterParams = self.params  # type: ignore[assignment]
+        assert self.learned is not None and self.model is not None
+        if not p.calibrate:
+            return
+        K = self.model.K
+        at = ParticleCloud(alpha=np.tile(alpha0, (K, 1)), k=np.arange(K), log_w=np.zeros(K))
+        cham = self._chamfer(feat, seq)
+        if cham is not None and not self._blank(feat):
+            # rho_0 = min_k rho(T_alpha0 x~_k, z_0)
+            rho0 = float(weigh(at, self.model, cham)[1].min())
+            self.model = replace(self.model, sigma=calibrate_sigma(self.model.sigma, self.model.d, rho0))
+        grey = self._grey(feat, seq) if self.app is not None else None
+        if grey is not None and self.app is not None:
+            z = sample_patches_near(grey, alpha0, self.learned.ref_size, self.app.res)
+            rho_a0 = float(1.0 - appearance_log_lik(np.repeat(z, K, axis=0), np.arange(K), self.app, None)[1].max())
+            self.app = replace(self.app, sigma=calibrate_sigma(self.app.sigma, self.app.d, rho_a0))
+
+    def _grey(self, feat: Features, seq: int) -> np.ndarray | None:
+        try:
+            grey = feat.grey.array()
+        except MessageError as e:
+            self.report("bad_features", f"frame {seq}: {e}; chamfer only", seq)
+            return None
+        if grey.ndim != 2 or min(grey.shape) < 3:
+            self.report("bad_features", f"frame {seq}: grey image has shape {grey.shape}; chamfer only", seq)
+            return None
+        return grey
 
     def _box(self, alpha: np.ndarray, k: int) -> tuple[float, float, float, float]:
         if self.learned is not None:
@@ -227,10 +308,16 @@ class FilterStage(Stage):
 
     def _estimate(self, header, alpha, k, mean, std, ess, log_ev, state) -> Estimate:
         assert self.model is not None
+        p: FilterParams = self.params  # type: ignore[assignment]
+        if state == "init" and self.learned is not None:
+            # frame 0's estimate is the box the user gave, placed by alpha_0 (the posterior
+            # of frame 0 only chooses the exemplar)
+            alpha = self.learned.alpha_from_box(p.init)  # type: ignore[arg-type]
+        box = tuple(float(v) for v in p.init) if state == "init" else self._box(alpha, k)  # type: ignore[union-attr]
         contour = similarity.apply(alpha, self.model.curves[k, : self.model.n_points[k]]).astype(np.float32)
         self.last = {"seq": header.seq, "alpha": np.round(alpha, 3).tolist(), "ess": round(ess, 1), "state": state,
                      "k": int(k)}
-        return Estimate(header=header, box=self._box(alpha, k), alpha=tuple(float(v) for v in alpha), k=int(k),
+        return Estimate(header=header, box=box, alpha=tuple(float(v) for v in alpha), k=int(k),
                         mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std), ess=float(ess),
                         n=self.params.particles, log_evidence=float(log_ev), contour=NDArray.of(contour), state=state)  # type: ignore[attr-defined]
 
@@ -251,9 +338,19 @@ class FilterStage(Stage):
             # log p(y | alpha, k) = -rho / (2 sigma_k^2) - d_k log sigma_k            (eq. 7)
             log_lik, _ = weigh(cloud, self.model, cham)
             state = "track"
+        grey = None
+        if state == "track" and self.app is not None and feat is not None:
+            grey = self._grey(feat, seq)
+            if grey is not None:
+                # x log K_app(rho_a(a_k or the online bank, z_alpha))      (product of the two kernels)
+                assert self.learned is not None
+                Z = sample_patches_near(grey, cloud.alpha, self.learned.ref_size, self.app.res)
+                log_lik = log_lik + appearance_log_lik(Z, cloud.k, self.app, self.bank)[0]
         if first:
             state = "init"
         post = posterior(cloud, log_lik, self.model.K, rng, p.particles)
+        if grey is not None and self.bank is not None and not first:
+            self._update_bank(seq, grey, post.map_alpha, post.map_k)
         self._diagnose(cloud, log_lik)
         header = feat.header if feat is not None else self.header(seq, 0)
         self.last_cloud = post.resampled
@@ -261,6 +358,15 @@ class FilterStage(Stage):
         est = self._estimate(header, post.map_alpha, post.map_k, post.mean_alpha, post.std_alpha, post.ess,
                              post.log_evidence, state)
         return [("particles", particles_msg(header, "posterior", post.resampled)), ("estimate", est)]
+
+    def _update_bank(self, seq: int, grey: np.ndarray, alpha: np.ndarray, k: int) -> None:
+        """Count the estimate's nearest online exemplar; add its region when confident."""
+        p: FilterParams = self.params  # type: ignore[assignment]
+        assert self.learned is not None and self.app is not None and self.bank is not None
+        z = sample_patches_near(grey, alpha, self.learned.ref_size, self.app.res)
+        _, r_best, nearest = appearance_log_lik(z, np.array([k]), self.app, self.bank)
+        self.bank = bank_update(self.bank, z[0], int(nearest[0]), bool(r_best[0] >= p.confident_r), seq,
+                                bound=p.online, every=p.online_every)
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         feat = inputs.get("features")
@@ -309,7 +415,12 @@ class FilterStage(Stage):
             version=SNAPSHOT_VERSION, initialised=self.model is not None,
             template=NDArray.of(self.template) if self.template is not None else None,
             alpha=NDArray.of(c.alpha) if c is not None else None, k=NDArray.of(c.k) if c is not None else None,
-            log_w=NDArray.of(c.log_w) if c is not None else None, steps=self.steps, warned=self.warned, last=last)
+            log_w=NDArray.of(c.log_w) if c is not None else None, steps=self.steps, warned=self.warned, last=last,
+            bank=None if self.bank is None else _BankSnapshot(
+                patches=NDArray.of(self.bank.patches), usage=NDArray.of(self.bank.usage),
+                frame=NDArray.of(self.bank.frame), last_add=self.bank.last_add),
+            sigma=NDArray.of(self.model.sigma) if self.learned is not None and self.model is not None else None,
+            app_sigma=NDArray.of(self.app.sigma) if self.app is not None else None)
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
@@ -319,7 +430,7 @@ class FilterStage(Stage):
             snap = msgspec.msgpack.decode(data, type=_FilterSnapshot)
         except msgspec.DecodeError as e:
             raise ValueError(f"stage {name!r}: not a particle.filter snapshot: {e}") from None
-        if snap.version != SNAPSHOT_VERSION:
+        if snap.version not in (1, SNAPSHOT_VERSION):  # version 1: no online bank, learned widths
             raise ValueError(f"stage {name!r}: filter snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
         if snap.initialised and (snap.template is None) != (self.learned is not None):
             raise ValueError(f"stage {name!r}: the snapshot was taken " +
@@ -330,20 +441,37 @@ class FilterStage(Stage):
                                    log_w=snap.log_w.array().copy())
                      if snap.alpha is not None and snap.k is not None and snap.log_w is not None else None)
             template = snap.template.array().copy() if snap.template is not None else None
+            bank = None
+            if snap.bank is not None:
+                bank = OnlineBank(patches=snap.bank.patches.array().copy(), usage=snap.bank.usage.array().copy(),
+                                  frame=snap.bank.frame.array().copy(), last_add=snap.bank.last_add)
+                if self.app is None or bank.patches.shape[1:] != self.app.patches.shape[1:]:
+                    raise ValueError("online exemplars that do not fit this model's appearance exemplars")
+            sigma = snap.sigma.array().copy() if snap.sigma is not None else None
+            app_sigma = snap.app_sigma.array().copy() if snap.app_sigma is not None else None
         except (MessageError, ValueError) as e:
             raise ValueError(f"stage {name!r}: bad filter snapshot: {e}") from None
         if snap.initialised and cloud is None:
             raise ValueError(f"stage {name!r}: filter snapshot is initialised but holds no particles")
         if not snap.initialised:
             self.model = None
+            self.app = self.learned.appearance if self.learned is not None and p.appearance else None
         elif template is not None:
             self.model = ContourExemplars.single(template, p.lam, dyn.random_walk(1.0, 0.01, 0.01))
         else:
             self.model = self.learned_ex
+            app0 = self.learned.appearance if self.learned is not None and p.appearance else None
+            try:
+                if sigma is not None and self.model is not None:
+                    self.model = replace(self.model, sigma=sigma)
+                self.app = replace(app0, sigma=app_sigma) if app0 is not None and app_sigma is not None else app0
+            except ValueError as e:
+                raise ValueError(f"stage {name!r}: bad filter snapshot: {e}") from None
         if self.model is not None and cloud is not None and cloud.k.size and cloud.k.max() >= self.model.K:
             raise ValueError(f"stage {name!r}: snapshot particles use exemplar {int(cloud.k.max())} but the model "
                              f"has K={self.model.K}")
         self.template = template
+        self.bank = bank
         self.last_cloud = cloud
         self.steps = snap.steps
         self.warned = snap.warned

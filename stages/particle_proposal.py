@@ -10,6 +10,12 @@ model (resource ``model``) they are its Markov matrix and AR(1) process. A model
 patch exemplars (the mouth tracker, sec. 5.2) is tracked "with no alpha transformations":
 k follows the Markov matrix and alpha is passed through unchanged.
 
+Departure from the paper (sec. 4.3): with ``init`` set (``gflow track --tracker m2`` sets it
+to the start box), the AR(1) process on log s reverts to the initial box's scale, not to
+the learned mean. The learned mean is the training person's distance from the training
+camera: a model learned on caviar1 (people about 28x73 px) pulled a 17x50 px pedestrian of
+crossing to 28x73 within three frames. Translation is a random walk, theta's mean is ~0.
+
 The stage keeps no state that its outputs depend on; its snapshot holds the step counter.
 """
 
@@ -29,7 +35,7 @@ from .base import Output, Params, Stage, StageInputError
 from .messages import Message, MessageError, NDArray, Particles
 from .rng import frame_rng
 
-__all__ = ["ProposalStage", "ProposalParams", "cloud_of", "particles_msg"]
+__all__ = ["ProposalStage", "ProposalParams", "cloud_of", "particles_msg", "scale_mean_at"]
 
 PURPOSE = 0x9209
 SNAPSHOT_VERSION = 1
@@ -41,13 +47,33 @@ class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True)
 
 
 class ProposalParams(Params):
-    """Dynamics of the proposal. ``model``: path of a learned M2 model (empty: random walk)."""
+    """Dynamics of the proposal. ``model``: path of a learned M2 model (empty: random walk).
+
+    ``init`` (x, y, w, h), with a learned contour model: the AR(1) process on log s reverts
+    to the scale of this box instead of the learned mean (see the module docstring).
+    """
 
     seed: int = 0
     std_xy: float = 4.0
     std_theta: float = 0.02
     std_log_s: float = 0.02
     model: str = ""
+    init: tuple[float, float, float, float] | None = None
+
+    def __post_init__(self) -> None:
+        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
+            raise ValueError(f"init box must have positive width and height, got {self.init}")
+
+
+def scale_mean_at(dynamics: dyn.ARDynamics, log_s: float) -> dyn.ARDynamics:
+    """The AR(1) process with the mean of log s moved to ``log_s`` (A and B unchanged).
+
+    The learned mean of log s is the training target's distance from the training camera;
+    on another video the target's own size (the initial box) is the level to revert to.
+    """
+    mean = dynamics.mean.copy()
+    mean[3] = log_s
+    return dyn.ARDynamics(A=dynamics.A, mean=mean, B=dynamics.B)
 
 
 def cloud_of(msg: Particles) -> ParticleCloud:
@@ -79,6 +105,8 @@ class ProposalStage(Stage):
                                  "not an M2 model")
             self.markov = model.markov
             self.dynamics = model.dynamics
+            if params.init is not None and model.kind == "curve":
+                self.dynamics = scale_mean_at(model.dynamics, float(np.log(model.alpha_from_box(params.init)[3])))
             # patch exemplars are tracked with no alpha transformations (sec. 5.2)
             self.fixed_alpha = model.kind == "patch"
         else:

@@ -134,3 +134,39 @@ def test_patch_filter_restore_is_bit_exact(scene_features) -> None:
     (_, parts), _ = f.step(0, {"features": feats[0]})
     (_, prop), = p.step(0, {"particles": parts})
     assert np.array_equal(prop.alpha.array(), parts.alpha.array())
+
+
+def test_appearance_filter_restore_is_bit_exact_and_starts_on_the_box(scene_features) -> None:
+    """Chamfer x appearance likelihood with a busy online bank (added every 2 frames, bound 3):
+    restore is bit exact, and frame 0's estimate is the init box itself."""
+    from gflow_core.features import to_grey
+
+    feats, frames, box, scene = scene_features
+    boxes = np.array([scene.truth_box(t) for t in range(N_FRAMES)])
+    ts = training.curves_from_boxes(frames, boxes, max_points=60)
+    model = learn(ts, "chamfer", K=3, frames=[to_grey(frames[int(t)]) for t in ts.frame_index])
+    assert model.appearance is not None and model.appearance.patches.shape[0] == 3
+    res = {"model": model}
+    params = FilterParams(init=box, particles=150, seed=2, model="m.npz", online=3, online_every=2, confident_r=-1.0)
+    make_f = lambda: FilterStage(params, StageContext("filter", "s", res))  # noqa: E731
+    make_p = lambda: ProposalStage(ProposalParams(seed=2, model="m.npz", init=box),  # noqa: E731
+                                   StageContext("proposal", "s", res))
+    outs = _check_restore(make_f, make_p, feats)
+    first = next(m for m in map(decode, outs) if isinstance(m, Estimate))
+    assert first.box == tuple(float(v) for v in box) and first.state == "init"
+    f = make_f()
+    _run(f, make_p(), feats, 0, None)
+    assert f.bank is not None and f.bank.n == 3 and f.bank.frame[0] == 0
+
+
+def test_proposal_reverts_log_s_to_the_start_box(contour_model) -> None:
+    """With init, the AR(1) on log s reverts to the start box's scale, not the training mean."""
+    box = (40.0, 30.0, 11.0, 23.0)
+    res = {"model": contour_model}
+    p = ProposalStage(ProposalParams(seed=1, model="m.npz", init=box), StageContext("proposal", "s", res))
+    learned = ProposalStage(ProposalParams(seed=1, model="m.npz"), StageContext("proposal", "s", res))
+    assert p.dynamics.mean[3] == pytest.approx(np.log(contour_model.alpha_from_box(box)[3]))
+    assert np.array_equal(p.dynamics.mean[:3], contour_model.dynamics.mean[:3])
+    assert np.array_equal(learned.dynamics.mean, contour_model.dynamics.mean)
+    with pytest.raises(ValueError, match="positive width"):
+        ProposalParams(init=(0.0, 0.0, 0.0, 5.0))

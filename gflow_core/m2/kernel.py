@@ -236,3 +236,23 @@ def log_kernel(rho: np.ndarray, sigma: np.ndarray, d: np.ndarray) -> np.ndarray:
     sigma = np.asarray(sigma, dtype=np.float64)
     # log p(y | alpha, k) = -rho / (2 sigma_k^2) - d_k log sigma_k                       (7)
     return -np.asarray(rho, dtype=np.float64) / (2.0 * sigma**2) - np.asarray(d, dtype=np.float64) * np.log(sigma)
+
+
+def calibrate_sigma(sigma: np.ndarray, d: np.ndarray, rho0: float) -> np.ndarray:
+    """Kernel widths widened so that a known true match at distance ``rho0`` is typical.
+
+    Under kernel k a true match has rho / sigma_k^2 distributed as chi^2 with d_k degrees of
+    freedom (sec. 3.3.3), mean d_k sigma_k^2. On video the model was not learned on, the
+    target in the user's box is a true match; if its distance rho0 exceeds d_k sigma_k^2,
+    sigma_k^2 becomes rho0 / d_k (departure from the paper, which keeps the learned widths).
+    Never narrows a kernel.
+
+    Returns
+    -------
+    (K,) float64, max(sigma_k, sqrt(rho0 / d_k)).
+    """
+    sigma = np.asarray(sigma, dtype=np.float64)
+    d = np.asarray(d, dtype=np.float64)
+    if not np.isfinite(rho0) or rho0 <= 0:
+        return sigma.copy()
+    return np.maximum(sigma, np.sqrt(rho0 / d))

@@ -27,6 +27,10 @@ Departures from the paper
   symmetrised distance while rho_v is the directed rho(T_alpha x~_k, z_v) of eq. 7.
 * The dynamics are learned on the states of *all* training items (exemplars included,
   each with its own alignment), in frame order, within runs of consecutive frames.
+* With ``frames`` (contour models), an appearance metric is learned beside chamfer
+  (:mod:`.appearance_metric`): a_k is exemplar k's region at its training state, and
+  d'_k, sigma'_k are fitted to rho_a of the validation items to their best exemplar (the
+  one the chamfer search chose), by the same estimator as the chamfer kernels.
 * Summary of the other departures, detailed in each module: symmetrised alignment and
   clustering (:mod:`.align`, :mod:`.exemplars`), a maximin k-medoids start kept when
   better (:mod:`.exemplars`), pooled kernels for clusters with fewer than 10 validation
@@ -38,11 +42,12 @@ Departures from the paper
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, Literal
+from typing import Any, Callable, Literal, Sequence
 
 import numpy as np
 
 from .. import similarity
+from .appearance_metric import DEFAULT_MAX_AREA, learn_appearance
 from .align import DEFAULT_BOUNDS, DEFAULT_STEP, refine_alpha
 from .curves import Curves
 from .distances import Items, Metric, make_metric
@@ -165,7 +170,8 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
                    d_range: tuple[float, float] = (0.5, 1000.0), trivial_ratio: float | None = None,
                    markov_prior: float = 1.0, translation: Literal["random_walk", "ar"] = "random_walk",
                    noise_floor: np.ndarray = DEFAULT_NOISE_FLOOR, step: np.ndarray = DEFAULT_STEP,
-                   bounds: np.ndarray = DEFAULT_BOUNDS, progress: Progress | None = None) -> LearnResult:
+                   bounds: np.ndarray = DEFAULT_BOUNDS, frames: Sequence[np.ndarray] | None = None,
+                   appearance_area: int = DEFAULT_MAX_AREA, progress: Progress | None = None) -> LearnResult:
     """:func:`learn`, returning the intermediate results too (see :class:`LearnResult`)."""
     if kernel not in KERNEL_METHODS:
         raise ValueError(f"unknown kernel estimator {kernel!r}; choose one of {KERNEL_METHODS}")
@@ -200,12 +206,26 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
                          "(sec. 4.3); are the frames a sequence?")
     if progress:
         progress("dynamics", 1, 1)
+    appearance = None
+    if frames is not None:
+        if m.kind != "curve":
+            raise ValueError("appearance exemplars (frames=...) go with contour metrics only")
+        if len(frames) != T:
+            raise ValueError(f"frames: need the grey frame of each of the {T} training items, got {len(frames)}")
+        if progress:
+            progress("appearance", 0, 1)
+        appearance = learn_appearance(frames, states_alpha, fit.clusters.medoids, val.is_validation, val.k,
+                                      ts.ref_size, method=kernel, max_area=appearance_area,
+                                      min_samples=min_samples, d_range=d_range)
+        if progress:
+            progress("appearance", 1, 1)
     mp = m.params()
     model = M2Model(metric=m.name, kernel=kernel, exemplars=fit.exemplars, d=kf.d, sigma=kf.sigma, pi=fit.pi,
                     markov=markov, dynamics=dyn, ref_size=ts.ref_size,
                     exemplar_frame=ts.frame_index[fit.clusters.medoids],
                     profile=str(mp.get("profile", "quadratic")), g0=float(mp.get("g0", 100.0)),
-                    upsample=int(mp.get("upsample", 2)), shuffle_radius=int(mp.get("radius", 1)))
+                    upsample=int(mp.get("upsample", 2)), shuffle_radius=int(mp.get("radius", 1)),
+                    appearance=appearance)
     return LearnResult(model=model, exemplar_fit=fit, validation=val, kernel=kf, states_alpha=states_alpha,
                        states_k=val.k)
 
@@ -231,6 +251,8 @@ def learn(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric 
         n_candidates (3), max_iter (50), min_samples (10), d_range ((0.5, 1000)),
         trivial_ratio (None), markov_prior (1.0), translation ("random_walk" | "ar"),
         noise_floor ((4,)), step, bounds (alignment search, beta units);
+        frames (the grey frame of every training item: also learn appearance exemplars and
+        kernels, :mod:`.appearance_metric`), appearance_area (grid points per appearance exemplar);
         see :func:`learn_detailed` and the modules it calls.
 
     Returns

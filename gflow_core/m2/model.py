@@ -10,8 +10,8 @@ fixed-width unicode arrays only (``np.savez`` / ``np.load(allow_pickle=False)`` 
 :meth:`M2Model.from_arrays` checks the format version, every key, shape, dtype and value
 and raises ``ValueError`` naming what is wrong.
 
-Array keys (format version 1)
------------------------------
+Array keys (format version 2; version 1 files, which have no ``app_*`` arrays, are read too)
+--------------------------------------------------------------------------------------------
 format_version  () int64           FORMAT_VERSION
 metric          () str             "chamfer" | "shuffle" | "l2"
 kernel          () str             "moments" | "mle"
@@ -27,6 +27,8 @@ d, sigma, pi    (K,) float64
 markov          (K, K) float64
 ar_A, ar_B      (4, 4) float64;  ar_mean (4,) float64
 ref_size        (2,) float64       (w, h) of the reference box in item coordinates
+app_patches     (K, th, tw, 4) float32  optional (curve metrics): appearance exemplars a_k
+                                   (:mod:`.appearance_metric`); with it app_sigma, app_d (K,) float64
 """
 
 from __future__ import annotations
@@ -41,18 +43,22 @@ from .curves import Curves
 from .distances import METRICS, Metric, make_metric
 from .dynamics import ARDynamics
 from .kernel import KERNEL_METHODS
+from .appearance_metric import AppearanceKernels
 from .patch_tracking import PatchExemplars
 from .tracking import ContourExemplars
 
 __all__ = ["M2Model", "FORMAT_VERSION"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+#: format versions this code reads
+READS_VERSIONS = (1, 2)
 
 _SCALARS = {"format_version": "i", "metric": "U", "kernel": "U", "profile": "U", "g0": "f", "upsample": "i",
             "shuffle_radius": "i"}
 _COMMON = ("exemplar_frame", "d", "sigma", "pi", "markov", "ar_A", "ar_mean", "ar_B", "ref_size")
 _CURVE = ("exemplar_curves", "exemplar_n_points")
 _PATCH = ("exemplar_patches",)
+_APPEARANCE = ("app_patches", "app_sigma", "app_d")
 
 
 @dataclass(frozen=True)
@@ -71,6 +77,8 @@ class M2Model:
     exemplar_frame : (K,) int64, frame index (TrainingSet.frame_index) of each exemplar (-1 if unknown).
     profile, g0, upsample : chamfer parameters.
     shuffle_radius : int, shuffle neighbourhood radius.
+    appearance : AppearanceKernels or None, appearance exemplars and kernels beside chamfer
+        (curve metrics only, :mod:`.appearance_metric`).
     """
 
     metric: str
@@ -87,6 +95,7 @@ class M2Model:
     g0: float = 100.0
     upsample: int = 2
     shuffle_radius: int = 1
+    appearance: AppearanceKernels | None = None
 
     def __post_init__(self) -> None:
         if self.metric not in METRICS:
@@ -148,6 +157,25 @@ class M2Model:
         object.__setattr__(self, "g0", float(self.g0))
         object.__setattr__(self, "upsample", int(self.upsample))
         object.__setattr__(self, "shuffle_radius", int(self.shuffle_radius))
+        if self.appearance is not None:
+            self._check_appearance(K)
+
+    def _check_appearance(self, K: int) -> None:
+        a = self.appearance
+        if self.kind != "curve":
+            raise ValueError("appearance exemplars go with contour (chamfer) models only")
+        p = np.asarray(a.patches)
+        if p.ndim != 4 or p.shape[0] != K or min(p.shape[1:3]) < 2 or p.shape[3] < 1:
+            raise ValueError(f"appearance patches must be ({K}, th, tw, C), got shape {p.shape}")
+        if not np.isfinite(p).all():
+            raise ValueError("appearance patches contain NaN or inf")
+        sig = np.asarray(a.sigma, dtype=np.float64)
+        d = np.asarray(a.d, dtype=np.float64)
+        if sig.shape != (K,) or d.shape != (K,) or not (np.isfinite(sig).all() and np.isfinite(d).all()):
+            raise ValueError(f"appearance sigma and d must be ({K},) and finite")
+        if (sig <= 0).any() or (d <= 0).any():
+            raise ValueError("appearance sigma and d must be positive")
+        object.__setattr__(self, "appearance", AppearanceKernels(patches=p.astype(np.float32), sigma=sig, d=d))
 
     # ----------------------------------------------------------------------------------
 
@@ -217,6 +245,10 @@ class M2Model:
         if self.kind == "curve":
             out["exemplar_curves"] = self.exemplars.points.copy()
             out["exemplar_n_points"] = self.exemplars.n_points.copy()
+            if self.appearance is not None:
+                out["app_patches"] = self.appearance.patches.copy()
+                out["app_sigma"] = self.appearance.sigma.copy()
+                out["app_d"] = self.appearance.d.copy()
         else:
             out["exemplar_patches"] = np.array(self.exemplars, dtype=np.float64)
         return out
@@ -241,9 +273,9 @@ class M2Model:
             version = int(version)
         except (TypeError, ValueError):
             raise ValueError("M2 model 'format_version' must be a scalar integer") from None
-        if version != FORMAT_VERSION:
-            raise ValueError(f"M2 model format version {version} is not supported (this code reads version "
-                             f"{FORMAT_VERSION}); re-learn the model")
+        if version not in READS_VERSIONS:
+            raise ValueError(f"M2 model format version {version} is not supported (this code reads versions "
+                             f"{', '.join(map(str, READS_VERSIONS))}); re-learn the model")
 
         def get(name: str, kind: str | None = None, shape: tuple | None = None) -> np.ndarray:
             if name not in keys:
@@ -265,6 +297,12 @@ class M2Model:
         missing = sorted(expected - keys)
         if missing:
             raise ValueError(f"M2 model is missing the array(s) {missing}")
+        has_app = version >= 2 and kind == "curve" and bool(keys & set(_APPEARANCE))
+        if has_app:
+            missing = sorted(set(_APPEARANCE) - keys)
+            if missing:
+                raise ValueError(f"M2 model has appearance exemplars but is missing the array(s) {missing}")
+            expected |= set(_APPEARANCE)
         extra = sorted(keys - expected)
         if extra:
             raise ValueError(f"M2 model has unexpected array(s) {extra} for metric {metric!r}")
@@ -283,6 +321,10 @@ class M2Model:
             exemplars = get("exemplar_patches", "f")
             if exemplars.ndim != 3 or exemplars.shape[0] != K:
                 raise ValueError(f"M2 model array 'exemplar_patches' must be ({K}, h, w), got {exemplars.shape}")
+        appearance = None
+        if has_app:
+            appearance = AppearanceKernels(patches=get("app_patches", "f"), sigma=get("app_sigma", "fiu", (K,)),
+                                           d=get("app_d", "fiu", (K,)))
         try:
             dyn = ARDynamics(A=get("ar_A", "f", (4, 4)), mean=get("ar_mean", "f", (4,)), B=get("ar_B", "f", (4, 4)))
         except ValueError as e:
@@ -291,4 +333,5 @@ class M2Model:
                    sigma=get("sigma", "fiu", (K,)), pi=get("pi", "fiu", (K,)), markov=get("markov", "f", (K, K)),
                    dynamics=dyn, ref_size=get("ref_size", "fiu", (2,)),
                    exemplar_frame=get("exemplar_frame", "iu", (K,)), profile=str(scal["profile"]),
-                   g0=float(scal["g0"]), upsample=int(scal["upsample"]), shuffle_radius=int(scal["shuffle_radius"]))
+                   g0=float(scal["g0"]), upsample=int(scal["upsample"]), shuffle_radius=int(scal["shuffle_radius"]),
+                   appearance=appearance)

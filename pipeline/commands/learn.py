@@ -9,6 +9,13 @@ Training input (sec. 4.1, 5.1, 5.2):
 * patch exemplars (``--metric shuffle`` or ``l2``): whole frames (pre-cropped video such
   as the AVLetters mouths), or the ``--boxes`` contents, resampled to ``--patch-size``.
 
+Several sources (``gflow learn m2 SEQ1 SEQ2 ...``) are learned as one model: one exemplar set
+by k-medoids over all items, kernels over all validation items, dynamics within each
+sequence; with ``--boxes`` and no file each source folder's ``groundtruth.csv`` is used, and
+every sequence is cut to one common reference box (the median box over all of them).
+Contour models learned from boxes also get appearance exemplars (edge-orientation patches,
+:mod:`gflow_core.m2.appearance_metric`) unless ``--no-appearance``.
+
 The model file (``pipeline.modelfile``, kind ``m2``) also records how the features were
 made (Canny thresholds, blur, crop), so ``gflow track --tracker m2`` preprocesses alike.
 """
@@ -85,19 +92,90 @@ def _box_array(path: str, index: np.ndarray) -> np.ndarray:
     return boxes
 
 
+def _sources_and_boxes(args) -> list[tuple[str, str | None]]:
+    """(source, boxes CSV or None) per training sequence, from SOURCE... and --boxes [CSV...]."""
+    sources = list(args.source)
+    boxes = args.boxes
+    if boxes is None:
+        return [(s, None) for s in sources]
+    if not boxes:
+        # --boxes as a flag: each sequence folder's groundtruth.csv
+        out = []
+        for s in sources:
+            gt = Path(s) / "groundtruth.csv"
+            if not gt.is_file():
+                raise CliError(f"--boxes without a file needs SOURCE/groundtruth.csv; {gt} does not exist")
+            out.append((s, str(gt)))
+        return out
+    if len(boxes) != len(sources):
+        raise CliError(f"--boxes lists {len(boxes)} file(s) for {len(sources)} source(s): give one per source, or "
+                       "--boxes alone to use each folder's groundtruth.csv")
+    return list(zip(sources, boxes))
+
+
 def training_set(args):
-    """Read the training frames and turn them into a TrainingSet; returns (set, metadata)."""
+    """Read the training frames and turn them into a TrainingSet; returns (set, metadata, grey frames).
+
+    The grey frames are those of the training items, in item order (None where the items
+    are not contours cut from boxes): the appearance exemplars are learned from them.
+    """
+    pairs = _sources_and_boxes(args)
+    if len(pairs) == 1:
+        return _training_set_one(args, *pairs[0], sequence=0, ref_size=None)
+    from gflow_core.m2 import training
+
+    from ..datasets import parse_range, read_frames, resolve_source
+
+    kinds = [resolve_source(s)[0] for s, _ in pairs]
+    if "avletters" in kinds:
+        raise CliError("several sources: each must be a video or an image folder (AVLetters .npz files are "
+                       "selected with --reps / --letters, one file at a time)")
+    ref = None
+    if all(b is not None for _, b in pairs):
+        # one reference box for every sequence: the median box over all training frames
+        start, stop = parse_range(args.frames)
+        sizes = []
+        for s, b in pairs:
+            idx = read_frames(resolve_source(s)[1], start, stop).frame_index
+            bx = _box_array(b, idx)
+            sizes.append(bx[np.isfinite(bx).all(axis=1), 2:])
+        ref = np.median(np.concatenate(sizes), axis=0)
+    sets, metas, greys = [], [], []
+    for i, (s, b) in enumerate(pairs):
+        _log(args, f"sequence {i}: {s}" + (f" (boxes {b})" if b else ""))
+        ts, meta, g = _training_set_one(args, s, b, sequence=i, ref_size=ref)
+        sets.append(ts)
+        metas.append(meta)
+        greys.append(g)
+    try:
+        ts = training.concat_training_sets(sets)
+    except ValueError as e:
+        raise CliError(f"cannot combine the training sequences: {e}") from None
+    meta = dict(metas[0])
+    for key in ("source", "frames"):
+        meta[key] = ";".join(str(m[key]) for m in metas)
+    meta["sequences"] = len(pairs)
+    if any(b is not None for _, b in pairs):
+        meta["boxes"] = ";".join(b or "" for _, b in pairs)
+    g_all = None if any(g is None for g in greys) else [f for g in greys for f in g]
+    return ts, meta, g_all
+
+
+def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, ref_size):
+    """One training sequence: (TrainingSet, metadata, grey frames of the items or None)."""
+    from gflow_core.features import to_grey
     from gflow_core.m2 import training
     from gflow_core.m2.distances import METRICS
 
     from ..datasets import parse_range, read_avletters, read_frames, resolve_source
 
-    kind, path = resolve_source(args.source)
+    kind, path = resolve_source(source)
     metric_kind = METRICS[args.metric].kind
     start, stop = parse_range(args.frames)
-    meta: dict = {"source": str(Path(args.source).resolve()), "metric": args.metric}
+    meta: dict = {"source": str(Path(source).resolve()), "metric": args.metric}
+    greys = None
     if kind == "avletters":
-        if args.boxes:
+        if box_csv:
             raise CliError("--boxes does not apply to an AVLetters file (its frames are cropped mouths)")
         reps = None if not args.reps else [int(r) for r in args.reps.split(",")]
         seq, _ = read_avletters(path, reps, args.letters)
@@ -124,7 +202,7 @@ def training_set(args):
                        "frames, and more than K) to learn exemplars, kernel widths and dynamics")
     canny = parse_pair(args.canny, "--canny")
     meta.update(canny_low=canny[0], canny_high=canny[1], blur=args.blur)
-    boxes = _box_array(args.boxes, seq.frame_index) if args.boxes else None
+    boxes = _box_array(box_csv, seq.frame_index) if box_csv else None
     if metric_kind == "curve":
         if args.background_frames:
             if kind == "avletters":
@@ -136,7 +214,8 @@ def training_set(args):
             bg = training.median_background(seq.frames)
         common = dict(max_points=args.max_points, canny_low=canny[0], canny_high=canny[1], blur=args.blur)
         if boxes is None:
-            ts = training.curves_from_background(seq.frames, bg, threshold=args.threshold, first_frame=0, **common)
+            ts = training.curves_from_background(seq.frames, bg, threshold=args.threshold, first_frame=0,
+                                                 sequence=sequence, **common)
             # frames were read with their source indices: put them back (runs break at gaps)
             ts = training.TrainingSet(items=ts.items, placement=ts.placement,
                                       frame_index=seq.frame_index[ts.frame_index], sequence=ts.sequence,
@@ -145,8 +224,11 @@ def training_set(args):
         else:
             ts = training.curves_from_boxes(seq.frames, boxes, frame_index=seq.frame_index,
                                             background=None if args.no_background_mask else bg,
-                                            threshold=args.threshold, **common)
+                                            threshold=args.threshold, ref_size=ref_size, sequence=sequence, **common)
             meta["training"] = "boxes"
+            if args.appearance:
+                at = {int(f): i for i, f in enumerate(seq.frame_index)}
+                greys = [to_grey(seq.frames[at[int(f)]]) for f in ts.frame_index]
         meta["crop"] = "none"
     else:
         if boxes is None:
@@ -163,13 +245,14 @@ def training_set(args):
             if args.patch_size:
                 shape = parse_size(args.patch_size)
             else:
-                w, h = np.median(boxes[ok, 2:], axis=0)
+                w, h = np.median(boxes[ok, 2:], axis=0) if ref_size is None else ref_size
                 shape = (max(int(round(h)), 2), max(int(round(w)), 2))
-            ts = training.patches_from_boxes(seq.frames, boxes, shape, frame_index=seq.frame_index)
+            ts = training.patches_from_boxes(seq.frames, boxes, shape, frame_index=seq.frame_index,
+                                             sequence=sequence)
             meta.update(training="boxes", crop="box")
     _log(args, f"training items: {len(ts)} {'curves' if ts.kind == 'curve' else 'patches'} "
                f"(reference size {ts.ref_size[0]:.1f} x {ts.ref_size[1]:.1f})")
-    return ts, meta
+    return ts, meta, greys
 
 
 def cmd_learn(args) -> int:
@@ -182,7 +265,7 @@ def cmd_learn(args) -> int:
 
     if args.K < 1:
         raise CliError(f"-K must be a positive number of exemplars, got {args.K}")
-    ts, meta = training_set(args)
+    ts, meta, greys = training_set(args)
     n = len(ts)
     if args.K >= n:
         raise CliError(f"-K {args.K} exemplars but only {n} training item(s): K must be smaller than the number of "
@@ -195,13 +278,15 @@ def cmd_learn(args) -> int:
     else:
         metric_params = {}
     t0 = time.monotonic()
-    model = learn(ts, args.metric, K=args.K, kernel=args.kernel, metric_params=metric_params,
+    model = learn(ts, args.metric, K=args.K, kernel=args.kernel, metric_params=metric_params, frames=greys,
                   progress=_Progress(args.quiet))
     out = save_model(args.out, model, meta=meta)
     d = model.d
     print(f"learned M2 model: K={model.K} {model.metric} exemplars from {n} items in {time.monotonic() - t0:.1f} s; "
           f"d_k median {np.median(d):.1f} (range {d.min():.1f}-{d.max():.1f}), sigma_k median "
-          f"{np.median(model.sigma):.3g}; written to {out}")
+          f"{np.median(model.sigma):.3g}" + ("" if model.appearance is None else
+          f"; appearance d'_k median {np.median(model.appearance.d):.1f}, sigma'_k median "
+          f"{np.median(model.appearance.sigma):.3g}") + f"; written to {out}")
     return 0
 
 
@@ -220,14 +305,20 @@ def register(sub) -> None:
         epilog="examples:\n"
                "  gflow learn m2 ../shared/data/caviar1 --boxes ../shared/data/caviar1/groundtruth.csv "
                "--frames 0:150 -K 20 --out caviar1-m2.npz\n"
+               "  gflow learn m2 ../shared/data/caviar1 ../shared/data/other --boxes --frames 0:150 -K 30 "
+               "--out people.npz   # two sequences, each folder's groundtruth.csv\n"
                "  gflow learn m2 walk.mp4 -K 30 --out walk.npz            # background subtraction (fixed camera)\n"
                "  gflow learn m2 ../shared/data/avletters/anya.npz --reps 1,2 --metric shuffle -K 30 "
                "--patch-size 40x30 --out mouth.npz",
         formatter_class=argparse.RawDescriptionHelpFormatter)
-    q.add_argument("source", help="image folder (or dataset folder with frames/), video file, or AVLetters .npz")
+    q.add_argument("source", nargs="+", help="image folder (or dataset folder with frames/), video file, or "
+                   "AVLetters .npz; several sources are learned as one model (one exemplar set, dynamics within "
+                   "each sequence)")
     q.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
-    q.add_argument("--boxes", metavar="GT.csv", help="ground-truth boxes (frame,x,y,w,h): supervised training items "
-                                                       "cut from the boxes instead of background subtraction")
+    q.add_argument("--boxes", metavar="GT.csv", nargs="*",
+                   help="ground-truth boxes (frame,x,y,w,h), one file per source, or no file: each source folder's "
+                        "groundtruth.csv; supervised training items cut from the boxes instead of background "
+                        "subtraction")
     q.add_argument("--frames", metavar="A:B", help="train on frames A <= index < B (default: all)")
     q.add_argument("--metric", choices=["chamfer", "shuffle", "l2"], default="chamfer",
                    help="distance: chamfer on edge curves (default), shuffle or l2 on grey patches")
@@ -248,6 +339,8 @@ def register(sub) -> None:
     g.add_argument("--background-frames", metavar="A:B",
                    help="frames whose per-pixel median is the background (default: the training frames; a target "
                         "that barely moves in them is part of that median)")
+    g.add_argument("--no-appearance", dest="appearance", action="store_false",
+                   help="with --boxes: do not learn appearance exemplars (edge-orientation patches) beside chamfer")
     g.add_argument("--no-background-mask", action="store_true",
                    help="with --boxes: keep every edge in the box (default: only the moving foreground's)")
     g = q.add_argument_group("patch exemplars (shuffle, l2)")

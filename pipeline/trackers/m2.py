@@ -51,6 +51,6 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     pre.update(profile=model.profile, g0=model.g0)
     return "m2", {
         "filter": {"model": mpath, "init": box, "particles": particles, "seed": args.seed},
-        "proposal": {"model": mpath, "seed": args.seed},
+        "proposal": {"model": mpath, "seed": args.seed, "init": box},
         "preprocess": pre,
     }

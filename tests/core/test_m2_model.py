@@ -81,7 +81,7 @@ def test_alpha_from_box() -> None:
 def test_from_arrays_rejects_wrong_version() -> None:
     arrays = curve_model().to_arrays()
     arrays["format_version"] = np.array(FORMAT_VERSION + 1)
-    with pytest.raises(ValueError, match="version 2 is not supported"):
+    with pytest.raises(ValueError, match=f"version {FORMAT_VERSION + 1} is not supported"):
         M2Model.from_arrays(arrays)
     arrays["format_version"] = np.array("1")
     with pytest.raises(ValueError, match="scalar integer"):
@@ -131,3 +131,34 @@ def test_from_arrays_rejects_unexpected_keys() -> None:
     arrays["exemplar_curves"] = np.zeros((2, 4, 2))
     with pytest.raises(ValueError, match="unexpected"):
         M2Model.from_arrays(arrays)
+
+
+def test_appearance_round_trip_and_version_1_files_still_read() -> None:
+    from dataclasses import replace
+
+    from gflow_core.m2.appearance_metric import AppearanceKernels
+
+    rng = np.random.default_rng(3)
+    app = AppearanceKernels(patches=rng.normal(size=(3, 8, 5, 4)).astype(np.float32), sigma=np.array([0.2, 0.3, 0.4]),
+                            d=np.array([3.0, 4.0, 5.0]))
+    m = replace(curve_model(), appearance=app)
+    arrays = m.to_arrays()
+    assert int(arrays["format_version"]) == FORMAT_VERSION == 2
+    back = M2Model.from_arrays(arrays)
+    assert np.array_equal(back.appearance.patches, app.patches) and np.array_equal(back.appearance.d, app.d)
+    # a version-1 file (written before appearance exemplars existed) reads as a chamfer-only model
+    v1 = curve_model().to_arrays()
+    v1["format_version"] = np.array(1)
+    old = M2Model.from_arrays(v1)
+    assert old.appearance is None and old.K == 3
+    # appearance arrays are all or nothing, and only in version 2
+    bad = dict(arrays)
+    del bad["app_d"]
+    with pytest.raises(ValueError, match="app_d"):
+        M2Model.from_arrays(bad)
+    bad = dict(arrays)
+    bad["format_version"] = np.array(1)
+    with pytest.raises(ValueError, match="unexpected array"):
+        M2Model.from_arrays(bad)
+    with pytest.raises(ValueError, match="appearance patches"):
+        replace(curve_model(), appearance=replace(app, patches=app.patches[:2]))
