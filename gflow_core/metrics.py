@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve"]
+__all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve",
+           "size_kept"]
 
 #: overlap thresholds of the OTB success plot (Wu, Lim & Yang, CVPR 2013); its AUC is the mean over them
 OVERLAP_THRESHOLDS = np.linspace(0.0, 1.0, 21)
@@ -108,3 +109,23 @@ def precision_curve(gt: dict[int, tuple], pred: dict[int, tuple], thresholds: np
     """Precision (fraction of ground-truth frames with centre error <= t pixels) per threshold, (T,)."""
     _, err = _per_frame(gt, pred)
     return (err[None, :] <= np.asarray(thresholds, dtype=np.float64)[:, None]).mean(axis=1)
+
+
+def size_kept(gt: dict[int, tuple], pred: dict[int, tuple], factor: float = 2.0) -> float | None:
+    """Fraction of the frames where the tracker is on target (its box overlaps the true one,
+    IoU > 0) on which the box's area is within ``factor`` of the true area: 1/f <= a / a* <= f.
+
+    A box that collapses (or balloons) while its centre stays on the target fails this even
+    when the centre error looks moderate. None when the tracker is never on target.
+    """
+    frames = [f for f in sorted(gt) if f in pred]
+    if not frames:
+        return None
+    g = np.array([gt[f] for f in frames], dtype=np.float64)
+    p = np.array([pred[f] for f in frames], dtype=np.float64)
+    on = iou(g, p) > 0
+    if not on.any():
+        return None
+    # a / a* = (w h) / (w* h*)
+    ratio = (p[on, 2] * p[on, 3]) / np.maximum(g[on, 2] * g[on, 3], 1e-12)
+    return float(np.mean((ratio >= 1.0 / factor) & (ratio <= factor)))

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from gflow_core.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, success_curve
+from gflow_core.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
 
 from .results import read_boxes, write_boxes
 
@@ -67,6 +67,7 @@ class Row:
     score: TrackScore | None = None
     curve: np.ndarray | None = None  # success rate at OVERLAP_THRESHOLDS
     precision: np.ndarray | None = None  # precision at PRECISION_THRESHOLDS
+    size_2x: float | None = None  # on-target frames with the box area within 2x of the truth
     fps: float | None = None
     seconds: float | None = None  # wall time of tracking
     seconds_total: float | None = None  # including start-up
@@ -130,6 +131,7 @@ def score_row(row: Row, gt: dict[int, Box], csv_path: Path) -> Row:
     row.score = score(gt, pred)
     row.curve = success_curve(gt, pred)
     row.precision = precision_curve(gt, pred, PRECISION_THRESHOLDS)
+    row.size_2x = size_kept(gt, pred)
     return row
 
 
@@ -270,13 +272,13 @@ def _f(v: float | None, fmt: str) -> str:
     return "-" if v is None or not math.isfinite(v) else format(v, fmt)
 
 
-COLUMNS = ("sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "fps", "note")
+COLUMNS = ("sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "size 2x", "fps", "note")
 
 
 def _cells(r: Row) -> list[str]:
     s = r.score
     return [r.sequence, r.tracker, r.kind, "-" if s is None else str(s.frames), _f(s and s.cle, ".2f"),
-            _f(s and s.success, ".3f"), _f(r.auc, ".3f"), _f(r.fps, ".1f"), r.note]
+            _f(s and s.success, ".3f"), _f(r.auc, ".3f"), _f(r.size_2x, ".2f"), _f(r.fps, ".1f"), r.note]
 
 
 def format_table(rows: list[Row], markdown: bool = False) -> str:
@@ -287,7 +289,7 @@ def format_table(rows: list[Row], markdown: bool = False) -> str:
         out += ["| " + " | ".join(c) + " |" for c in cells]
         return "\n".join(out)
     widths = [max(len(h), *(len(c[i]) for c in cells)) if cells else len(h) for i, h in enumerate(COLUMNS)]
-    right = {3, 4, 5, 6, 7}
+    right = {3, 4, 5, 6, 7, 8}
 
     def line(c: list[str]) -> str:
         return "  ".join(v.rjust(w) if i in right else v.ljust(w) for i, (v, w) in enumerate(zip(c, widths))).rstrip()
@@ -304,6 +306,7 @@ def to_json(rows: list[Row], meta: dict) -> dict:
             d.update(r.score.to_json())
             d["auc"] = round(r.auc, 4)  # type: ignore[arg-type]
             d["success_curve"] = [round(float(v), 4) for v in r.curve]  # type: ignore[union-attr]
+            d["size_within_2x"] = None if r.size_2x is None else round(r.size_2x, 4)
         d["fps"] = None if r.fps is None else round(r.fps, 2)
         if r.seconds is not None:
             d["seconds"] = round(r.seconds, 3)

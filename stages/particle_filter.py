@@ -86,6 +86,7 @@ class FilterParams(Params):
         its appearance correlation with the nearest exemplar is at least this.
     calibrate : widen the learned kernels so the initial box is a typical match on frame 0
         (:func:`gflow_core.m2.kernel.calibrate_sigma`).
+    scale_prior : std of a prior N(0, .) on log s of the K = 1 chamfer tracker (0: none).
     """
 
     init: tuple[float, float, float, float] | None = None
@@ -101,6 +102,7 @@ class FilterParams(Params):
     online_every: int = 5
     confident_r: float = 0.6
     calibrate: bool = True
+    scale_prior: float = 0.0
 
     def __post_init__(self) -> None:
         if self.online < 0 or self.online_every < 1:
@@ -338,6 +340,10 @@ class FilterStage(Stage):
             # log p(y | alpha, k) = -rho / (2 sigma_k^2) - d_k log sigma_k            (eq. 7)
             log_lik, _ = weigh(cloud, self.model, cham)
             state = "track"
+            if p.scale_prior > 0 and self.learned is None:
+                # explicit prior on the size, log s ~ N(0, scale_prior^2) (s relative to the first box):
+                # the directed chamfer distance alone is smallest for a template shrunk onto dense edges
+                log_lik = log_lik - np.log(cloud.alpha[:, 3]) ** 2 / (2.0 * p.scale_prior ** 2)
         grey = None
         if state == "track" and self.app is not None and feat is not None:
             grey = self._grey(feat, seq)

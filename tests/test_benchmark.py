@@ -123,7 +123,7 @@ def test_processes_table_matches_inline(seq, inline_run):
     assert r.returncode == 0, r.stderr
     assert "benchmark: [1/1] synth / chamfer" in r.stderr  # progress on stderr
     header, *body = [re.split(r"\s{2,}", ln) for ln in r.stdout.splitlines() if ln.strip()]
-    assert header[:8] == ["sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "fps"]
+    assert header[:9] == ["sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "size 2x", "fps"]
     table = {c[1]: c for c in body if c[0] == "synth"}
     assert set(table) == {"chamfer", "other", "static box"}
     for name, cells in table.items():
@@ -131,7 +131,9 @@ def test_processes_table_matches_inline(seq, inline_run):
         assert cells[2] == row["kind"] and int(cells[3]) == row["frames"]
         got = tuple(float(v) for v in cells[4:7])
         assert got == (round(row["cle_px"], 2), round(row["success_rate_0.5"], 3), round(row["auc"], 3)), name
-    assert float(table["chamfer"][7]) > 0 and table["other"][7] == "-"  # fps
+        size = row["size_within_2x"]
+        assert cells[7] == ("-" if size is None else f"{size:.2f}"), name
+    assert float(table["chamfer"][8]) > 0 and table["other"][8] == "-"  # fps
 
 
 @pytest.mark.parametrize("case", ["missing", "no_frames", "no_truth", "tracker", "opencv", "model", "frames",

@@ -223,7 +223,9 @@ def register(sub) -> None:
         description="Run every selected tracker on every sequence folder (frames/ and groundtruth.csv, "
                     "optionally results/*.csv of published trackers) from the ground-truth box of the first frame, "
                     "exactly as `gflow track` does, and score it as `gflow eval` does. Prints one table: CLE (px), "
-                    "success (IoU > 0.5), AUC of the success plot and fps (frames / wall time of tracking), with "
+                    "success (IoU > 0.5), AUC of the success plot, size 2x (of the frames where the box overlaps the "
+                    "truth, the fraction whose area is within a factor 2 of the true area) and fps (frames / wall "
+                    "time of tracking), with "
                     "the published trackers and a box that never moves scored over the same frames.",
         epilog="example: gflow benchmark ../shared/data --trackers chamfer --plot success.png")
     p.add_argument("datasets", nargs="+", metavar="DATASET",

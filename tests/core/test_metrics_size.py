@@ -1,0 +1,28 @@
+"""size_kept: the fraction of on-target frames whose box area is within a factor of the truth."""
+
+from __future__ import annotations
+
+import pytest
+
+from gflow_core.metrics import size_kept
+
+
+def test_a_collapsing_box_on_the_target_fails_while_its_centre_stays():
+    gt = {t: (100.0, 100.0, 40.0, 60.0) for t in range(10)}
+    # the same centre, the area shrinking by 1.25x per frame: areas 1, 0.8, 0.64, 0.51, 0.41, ...
+    pred = {}
+    for t in range(10):
+        k = 0.8 ** (t / 2)  # side factor: area factor 0.8^t
+        w, h = 40.0 * k, 60.0 * k
+        pred[t] = (120.0 - w / 2, 130.0 - h / 2, w, h)
+    assert size_kept(gt, pred) == pytest.approx(4 / 10)  # 1, 0.8, 0.64, 0.512 are within 2x
+    assert size_kept(gt, pred, factor=4.0) == pytest.approx(7 / 10)
+
+
+def test_only_frames_on_target_count():
+    gt = {0: (0.0, 0.0, 10.0, 10.0), 1: (0.0, 0.0, 10.0, 10.0), 2: (0.0, 0.0, 10.0, 10.0)}
+    pred = {0: (0.0, 0.0, 10.0, 10.0), 1: (50.0, 50.0, 1.0, 1.0), 2: (2.0, 2.0, 30.0, 30.0)}
+    # frame 1 is off target (no overlap) and ignored; frame 2 is on target and 9x too large
+    assert size_kept(gt, pred) == pytest.approx(0.5)
+    assert size_kept(gt, {1: (50.0, 50.0, 1.0, 1.0)}) is None
+    assert size_kept(gt, {}) is None
