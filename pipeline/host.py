@@ -53,6 +53,22 @@ class HostStats:
         return (self.steps - 1) * 1e9 / (self.last_step_ns - self.first_step_ns)
 
 
+def one_compute_thread() -> None:
+    """Give OpenCV the thread count a stage process has (``GFLOW_CV_THREADS``, 1 by default).
+
+    Some OpenCV results depend on the number of threads: Canny with per-frame thresholds
+    marks a few pixels differently where its parallel stripes meet (measured on crossing:
+    up to 34 of 86400 pixels between 1 and 2 threads). Every way of running a stage --
+    as a process, ``--inline``, ``gflow rerun``, ``gflow step`` -- builds a StageHost, so
+    setting it here makes them compute with the same bits.
+    """
+    import os
+
+    import cv2
+
+    cv2.setNumThreads(int(os.environ.get("GFLOW_CV_THREADS", "1")))
+
+
 class StageHost:
     """Runs one :class:`~stages.base.Stage` behind topics.
 
@@ -70,6 +86,7 @@ class StageHost:
                  window: int = 0, on_step: Callable[[int], None] | None = None) -> None:
         from .join import SeqJoin
 
+        one_compute_thread()
         self.stage = stage
         self.name = stage.ctx.name
         self.topics_in = dict(topics_in)
