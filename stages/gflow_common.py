@@ -71,7 +71,8 @@ class GFlowParams(Params):
     ``sigma_w``, ``psi_v``, ``psi_b``, ``v_init_var``, ``b_init_var``, ``unknown_var``,
     ``background``, ``gn_background``, ``object_mask``, ``object_mask_margin``,
     ``prior_std_rotation``, ``prior_std_translation``, ``prior_std_coefficients``,
-    ``resample_ess_fraction``, ``prior_rotation_decay``); see its docstring for their meaning. Grey levels are in
+    ``resample_ess_fraction``, ``prior_rotation_decay``, ``pyramid_levels``, ``search_radius``,
+    ``search_step``, ``photometric``, ``photometric_gain_max``, ``max_rotation_deg``, ``search_stride``); see its docstring for their meaning. Grey levels are in
     ``[0, 1]``, so variances are in those units squared. Also:
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
@@ -101,6 +102,13 @@ class GFlowParams(Params):
     prior_std_coefficients: float | tuple[float, ...] = 2.0
     resample_ess_fraction: float = 1.0
     prior_rotation_decay: float = 1.0
+    pyramid_levels: int = 1
+    search_radius: float = 0.0
+    search_step: float = 4.0
+    photometric: bool = False
+    photometric_gain_max: float = 2.0
+    max_rotation_deg: float = math.inf
+    search_stride: int = 1
     seed: int = 0
     init: tuple[float, float, float, float] | None = None
     model: str = ""
