@@ -35,6 +35,13 @@ Departures from the paper
 * Vertices outside the image sample the replicated border (see :mod:`.image`).
 * Self-occlusion is not modelled (every vertex is assumed visible, as in the paper's
   one-to-one ``a_v``).
+* Robustness options (off by default in :class:`GFlowConfig`, on in the graph
+  ``pipeline/graphs/gflow.yaml``): coarse-to-fine Gauss-Newton with a coarse translation
+  search (``pyramid_levels``, ``search_radius``), a per-frame gain and bias in the texture
+  observation (``photometric``; the texel Kalman update then observes ``(y - b) / a``), a
+  soft wall on the rotation (``max_rotation_deg``) and an outlier process per vertex
+  (``outlier_sigmas``; outlier texels are predicted, not updated, so an occluder is not
+  learned). See :mod:`.pose_opinion` and :mod:`.photometric`.
 * See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
   default, safeguards, ``alpha = 0``), :mod:`.texture` (``object_mask="hull"`` with a
   margin) and :mod:`.credibility` (systematic resampling).
@@ -173,6 +180,17 @@ class GFlowConfig:
         (:func:`.pose_opinion.rotation_wall`), part of the pose prior; ``inf`` = none (paper).
     search_stride : int >= 1
         The search evaluates every ``search_stride``-th vertex.
+    outlier_sigmas : float > 0
+        ``tau``: a vertex whose residual exceeds ``tau`` standard deviations is an outlier
+        (:func:`.pose_opinion.robust_cost`): capped cost in Gauss-Newton and the likelihood, and
+        its texel is not updated (prediction only), so an occluder is not learned into the
+        texture. ``inf`` = the paper's Gaussian (default).
+    max_scale_change : float > 1
+        Soft wall on the scale ``|c|`` outside ``[|c_0| / max, |c_0| max]``
+        (:func:`.pose_opinion.scale_wall`); ``inf`` = none (default).
+    scale_reference : tuple of float
+        ``c_0``, the initial morph coefficients, needed by ``max_scale_change`` (the G-flow
+        stages set it from the initial box; empty = no wall).
     """
 
     n_experts: int = 20
@@ -201,6 +219,9 @@ class GFlowConfig:
     photometric_gain_max: float = 2.0
     max_rotation_deg: float = math.inf
     search_stride: int = 1
+    outlier_sigmas: float = math.inf
+    max_scale_change: float = math.inf
+    scale_reference: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -246,6 +267,14 @@ class GFlowConfig:
             raise ValueError(f"photometric_gain_max must be finite and > 1, got {self.photometric_gain_max!r}")
         if math.isnan(self.max_rotation_deg) or self.max_rotation_deg <= 0.0:
             raise ValueError(f"max_rotation_deg must be > 0 (inf = no limit), got {self.max_rotation_deg!r}")
+        if math.isnan(self.outlier_sigmas) or self.outlier_sigmas <= 0.0:
+            raise ValueError(f"outlier_sigmas must be > 0 (inf = no outlier process), got {self.outlier_sigmas!r}")
+        if math.isnan(self.max_scale_change) or self.max_scale_change <= 1.0:
+            raise ValueError(f"max_scale_change must be > 1 (inf = no limit), got {self.max_scale_change!r}")
+        ref = tuple(float(x) for x in self.scale_reference)
+        if ref and not (all(math.isfinite(x) for x in ref) and math.hypot(*ref) > 0.0):
+            raise ValueError(f"scale_reference must be finite and not all zero, got {self.scale_reference!r}")
+        object.__setattr__(self, "scale_reference", ref)
         v = self.search_stride
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"search_stride must be an integer >= 1, got {v!r}")
@@ -260,6 +289,12 @@ class GFlowConfig:
         object.__setattr__(
             self, "prior_std_coefficients", _as_std_tuple("prior_std_coefficients", self.prior_std_coefficients, None)
         )
+
+    def scale_limits(self) -> tuple[float, float] | None:
+        """``(|c_0|, log max_scale_change)`` for :func:`.pose_opinion.scale_wall`, or None."""
+        if not (math.isfinite(self.max_scale_change) and self.scale_reference):
+            return None
+        return math.hypot(*self.scale_reference), math.log(self.max_scale_change)
 
     def photometric_model(self) -> Photometric | None:
         """The gain/bias settings, or None when ``photometric`` is off."""
@@ -528,7 +563,10 @@ def propose(
     # unless gn_background)
     ph = cfg.photometric_model()
     max_rot = math.radians(cfg.max_rotation_deg)
-    if cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot):
+    osq = cfg.outlier_sigmas ** 2
+    scale = cfg.scale_limits()
+    if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
+            and not math.isfinite(osq) and scale is None):
         gn = gauss_newton_peak(
             model.bases, fd, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
             use_background=cfg.gn_background,
@@ -539,14 +577,14 @@ def propose(
             model.bases, frame_pyramid(fd, cfg.pyramid_levels), centre, tv, cfg.sigma_w, prior_std,
             cfg.gn_iterations, start=prev, use_background=cfg.gn_background, photometric=ph,
             offsets=search_offsets(cfg.search_radius, cfg.search_step), max_rotation=max_rot,
-            search_stride=cfg.search_stride,
+            search_stride=cfg.search_stride, outlier_sq=osq, scale=scale,
         )
     # u^(d,e) ~ g(. | u_hat, alpha Sigma_hat),  Sigma_hat = inverse Hessian of eq. 14
     samples, log_g, sigma_hat = laplace_proposal(gn.u_hat, gn.hessian, cfg.alpha, cfg.n_samples, rngs)
-    log_prior = log_pose_prior(centre, samples, prior_std, max_rot)
+    log_prior = log_pose_prior(centre, samples, prior_std, max_rot, scale)
     bgt = background_image_terms(fd.image, tv, cfg.sigma_w) if tv.has_background else None
     # full likelihood, eq. 13
-    log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt, photometric=ph)
+    log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt, photometric=ph, outlier_sq=osq)
     # importance weights, eq. 16
     log_w = log_importance_weights(log_prior, log_lik, log_g)
     # likelihood of the expert, eq. 19
@@ -642,8 +680,12 @@ def update(
         # the texels observe the light-corrected frame (y - b) / a (see photometric)
         a, b = gain_bias(y, pred_mean, 1.0 / (pred_var + cfg.sigma_w), ph)
         y = correct(y, a, b)
+    observed = st.inside
+    if math.isfinite(cfg.outlier_sigmas):
+        # outlier vertices (occluder, highlight) are not learned: prediction only
+        observed = observed & ((y - pred_mean) ** 2 <= cfg.outlier_sigmas ** 2 * (pred_var + cfg.sigma_w))
     # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
-    tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=st.inside)
+    tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=observed)
     bg_mean = bg_var = None
     if state.bg_mean is not None:
         assert state.bg_var is not None
