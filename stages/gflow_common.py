@@ -60,7 +60,7 @@ __all__ = [
 PURPOSE_INIT = 0x6F10
 
 #: GFlowConfig fields that are parameters of both stages, under the same names.
-CONFIG_FIELDS = tuple(f for f in GFlowConfig.__dataclass_fields__ if f != "scale_reference")
+CONFIG_FIELDS = tuple(GFlowConfig.__dataclass_fields__)
 
 
 class GFlowParams(Params):
@@ -73,8 +73,8 @@ class GFlowParams(Params):
     ``background``, ``gn_background``, ``object_mask``, ``object_mask_margin``,
     ``prior_std_rotation``, ``prior_std_translation``, ``prior_std_coefficients``,
     ``resample_ess_fraction``, ``prior_rotation_decay``, ``pyramid_levels``, ``search_radius``,
-    ``search_step``, ``photometric``, ``photometric_gain_max``, ``max_rotation_deg``, ``search_stride``, ``outlier_sigmas``, ``max_scale_change``; ``scale_reference`` is set
-    from the initial pose by :func:`prepare_model`); see its docstring for their meaning. Grey levels are in
+    ``search_step``, ``photometric``, ``photometric_gain_max``, ``max_rotation_deg``, ``search_stride``, ``outlier_sigmas``, ``max_scale_change``, ``scale_reference``; left empty,
+    :func:`prepare_model` sets it from the initial pose); see its docstring for their meaning. Grey levels are in
     ``[0, 1]``, so variances are in those units squared. Also:
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
@@ -113,6 +113,7 @@ class GFlowParams(Params):
     search_stride: int = 1
     outlier_sigmas: float = math.inf
     max_scale_change: float = math.inf
+    scale_reference: tuple[float, ...] = ()
     seed: int = 0
     init: tuple[float, float, float, float] | None = None
     model: str = ""
@@ -221,7 +222,7 @@ def prepare_model(p: GFlowParams, resources: Mapping[str, Any], shape: tuple[int
             model, pose0 = fit_head_model_to_box(box, shape, n_lon=p.head_grid[0], n_lat=p.head_grid[1],
                                                  depth_ratio=p.depth_ratio)
         cfg.prior_std(model.n_bases)  # the coefficient stds must match k
-        if math.isfinite(cfg.max_scale_change):
+        if math.isfinite(cfg.max_scale_change) and not cfg.scale_reference:
             # the scale wall is relative to the initial box's scale
             cfg = dataclasses.replace(cfg, scale_reference=tuple(float(v) for v in pose0[COEF]))
     except ValueError as e:
