@@ -25,6 +25,7 @@ pipeline equals :func:`gflow_core.gflow.step` run in a loop):
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 from dataclasses import asdict
@@ -32,7 +33,7 @@ from typing import Any, Literal, Mapping
 
 import numpy as np
 
-from gflow_core.gflow import GFlowConfig, MorphableModel, fit_head_model_to_box, pose_for_box
+from gflow_core.gflow import COEF, GFlowConfig, MorphableModel, fit_head_model_to_box, pose_for_box
 
 from .base import Params, StageInputError
 from .messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
@@ -71,7 +72,9 @@ class GFlowParams(Params):
     ``sigma_w``, ``psi_v``, ``psi_b``, ``v_init_var``, ``b_init_var``, ``unknown_var``,
     ``background``, ``gn_background``, ``object_mask``, ``object_mask_margin``,
     ``prior_std_rotation``, ``prior_std_translation``, ``prior_std_coefficients``,
-    ``resample_ess_fraction``, ``prior_rotation_decay``); see its docstring for their meaning. Grey levels are in
+    ``resample_ess_fraction``, ``prior_rotation_decay``, ``pyramid_levels``, ``search_radius``,
+    ``search_step``, ``photometric``, ``photometric_gain_max``, ``max_rotation_deg``, ``search_stride``, ``outlier_sigmas``, ``max_scale_change``, ``scale_reference``; left empty,
+    :func:`prepare_model` sets it from the initial pose); see its docstring for their meaning. Grey levels are in
     ``[0, 1]``, so variances are in those units squared. Also:
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
@@ -101,6 +104,16 @@ class GFlowParams(Params):
     prior_std_coefficients: float | tuple[float, ...] = 2.0
     resample_ess_fraction: float = 1.0
     prior_rotation_decay: float = 1.0
+    pyramid_levels: int = 1
+    search_radius: float = 0.0
+    search_step: float = 4.0
+    photometric: bool = False
+    photometric_gain_max: float = 2.0
+    max_rotation_deg: float = math.inf
+    search_stride: int = 1
+    outlier_sigmas: float = math.inf
+    max_scale_change: float = math.inf
+    scale_reference: tuple[float, ...] = ()
     seed: int = 0
     init: tuple[float, float, float, float] | None = None
     model: str = ""
@@ -209,6 +222,9 @@ def prepare_model(p: GFlowParams, resources: Mapping[str, Any], shape: tuple[int
             model, pose0 = fit_head_model_to_box(box, shape, n_lon=p.head_grid[0], n_lat=p.head_grid[1],
                                                  depth_ratio=p.depth_ratio)
         cfg.prior_std(model.n_bases)  # the coefficient stds must match k
+        if math.isfinite(cfg.max_scale_change) and not cfg.scale_reference:
+            # the scale wall is relative to the initial box's scale
+            cfg = dataclasses.replace(cfg, scale_reference=tuple(float(v) for v in pose0[COEF]))
     except ValueError as e:
         raise StageInputError(f"cannot place the G-flow model in the initial box {tuple(box.round(2))}: {e}") from None
     return ModelSetup(model, pose0, cfg, config_digest(cfg, model, p.seed), box, clipped, shape)

@@ -35,6 +35,13 @@ Departures from the paper
 * Vertices outside the image sample the replicated border (see :mod:`.image`).
 * Self-occlusion is not modelled (every vertex is assumed visible, as in the paper's
   one-to-one ``a_v``).
+* Robustness options (off by default in :class:`GFlowConfig`, on in the graph
+  ``pipeline/graphs/gflow.yaml``): coarse-to-fine Gauss-Newton with a coarse translation
+  search (``pyramid_levels``, ``search_radius``), a per-frame gain and bias in the texture
+  observation (``photometric``; the texel Kalman update then observes ``(y - b) / a``), a
+  soft wall on the rotation (``max_rotation_deg``) and an outlier process per vertex
+  (``outlier_sigmas``; outlier texels are predicted, not updated, so an occluder is not
+  learned). See :mod:`.pose_opinion` and :mod:`.photometric`.
 * See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
   default, safeguards, ``alpha = 0``), :mod:`.texture` (``object_mask="hull"`` with a
   margin) and :mod:`.credibility` (systematic resampling).
@@ -60,11 +67,14 @@ from .credibility import (
 )
 from .geometry import COEF, ROT, TRANS, box_plus, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box
-from .image import bilinear_stencil, prepare_frame, validate_frame
+from .image import bilinear_stencil, frame_pyramid, prepare_frame, validate_frame
+from .photometric import Photometric, correct, gain_bias
 from .pose_opinion import (
     TextureView,
     background_image_terms,
+    coarse_to_fine_peak,
     gauss_newton_peak,
+    search_offsets,
     laplace_proposal,
     log_importance_weights,
     log_likelihood,
@@ -153,6 +163,34 @@ class GFlowConfig:
         random walk (default).
     resample_ess_fraction : float in (0, 1]
         Resample experts when ESS < fraction * E; ``1`` = every frame (sec. 3.4).
+    pyramid_levels : int >= 1
+        Levels of the image pyramid for coarse-to-fine Gauss-Newton
+        (:func:`.pose_opinion.coarse_to_fine_peak`); ``1`` = the paper's single scale.
+    search_radius, search_step : float
+        Pixels. On the coarsest level each expert first tries its previous pose translated
+        on a grid ``{-radius .. radius}^2`` with spacing ``step`` and starts Gauss-Newton at the
+        best (:func:`.pose_opinion.search_offsets`); ``radius 0`` = no search.
+    photometric : bool
+        Fit a gain and bias per expert, pose and frame and observe the texels through
+        ``(y - b) / a`` (:mod:`.photometric`); False = the paper's ``y = v + w``.
+    photometric_gain_max : float > 1
+        The gain is clamped to ``[1 / max, max]``.
+    max_rotation_deg : float
+        Soft wall on the rotation angle from the initial orientation
+        (:func:`.pose_opinion.rotation_wall`), part of the pose prior; ``inf`` = none (paper).
+    search_stride : int >= 1
+        The search evaluates every ``search_stride``-th vertex.
+    outlier_sigmas : float > 0
+        ``tau``: a vertex whose residual exceeds ``tau`` standard deviations is an outlier
+        (:func:`.pose_opinion.robust_cost`): capped cost in Gauss-Newton and the likelihood, and
+        its texel is not updated (prediction only), so an occluder is not learned into the
+        texture. ``inf`` = the paper's Gaussian (default).
+    max_scale_change : float > 1
+        Soft wall on the scale ``|c|`` outside ``[|c_0| / max, |c_0| max]``
+        (:func:`.pose_opinion.scale_wall`); ``inf`` = none (default).
+    scale_reference : tuple of float
+        ``c_0``, the initial morph coefficients, needed by ``max_scale_change`` (the G-flow
+        stages set it from the initial box; empty = no wall).
     """
 
     n_experts: int = 20
@@ -174,6 +212,16 @@ class GFlowConfig:
     prior_std_coefficients: float | tuple[float, ...] = 2.0
     resample_ess_fraction: float = 1.0
     prior_rotation_decay: float = 1.0
+    pyramid_levels: int = 1
+    search_radius: float = 0.0
+    search_step: float = 4.0
+    photometric: bool = False
+    photometric_gain_max: float = 2.0
+    max_rotation_deg: float = math.inf
+    search_stride: int = 1
+    outlier_sigmas: float = math.inf
+    max_scale_change: float = math.inf
+    scale_reference: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -203,6 +251,33 @@ class GFlowConfig:
             raise ValueError(f"object_mask_margin must be finite and >= 0, got {self.object_mask_margin!r}")
         if not (0.0 < self.prior_rotation_decay <= 1.0):
             raise ValueError(f"prior_rotation_decay must be in (0, 1], got {self.prior_rotation_decay!r}")
+        v = self.pyramid_levels
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v <= 6:
+            raise ValueError(f"pyramid_levels must be an integer in [1, 6], got {v!r}")
+        if not (math.isfinite(self.search_radius) and self.search_radius >= 0.0):
+            raise ValueError(f"search_radius must be finite and >= 0, got {self.search_radius!r}")
+        if not (math.isfinite(self.search_step) and self.search_step > 0.0):
+            raise ValueError(f"search_step must be finite and > 0, got {self.search_step!r}")
+        if self.search_radius / self.search_step > 20:
+            raise ValueError(f"search_radius / search_step must be <= 20 (at most 41 x 41 starts), got "
+                             f"{self.search_radius!r} / {self.search_step!r}")
+        if not isinstance(self.photometric, (bool, np.bool_)):
+            raise ValueError(f"photometric must be True or False, got {self.photometric!r}")
+        if not (math.isfinite(self.photometric_gain_max) and self.photometric_gain_max > 1.0):
+            raise ValueError(f"photometric_gain_max must be finite and > 1, got {self.photometric_gain_max!r}")
+        if math.isnan(self.max_rotation_deg) or self.max_rotation_deg <= 0.0:
+            raise ValueError(f"max_rotation_deg must be > 0 (inf = no limit), got {self.max_rotation_deg!r}")
+        if math.isnan(self.outlier_sigmas) or self.outlier_sigmas <= 0.0:
+            raise ValueError(f"outlier_sigmas must be > 0 (inf = no outlier process), got {self.outlier_sigmas!r}")
+        if math.isnan(self.max_scale_change) or self.max_scale_change <= 1.0:
+            raise ValueError(f"max_scale_change must be > 1 (inf = no limit), got {self.max_scale_change!r}")
+        ref = tuple(float(x) for x in self.scale_reference)
+        if ref and not (all(math.isfinite(x) for x in ref) and math.hypot(*ref) > 0.0):
+            raise ValueError(f"scale_reference must be finite and not all zero, got {self.scale_reference!r}")
+        object.__setattr__(self, "scale_reference", ref)
+        v = self.search_stride
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"search_stride must be an integer >= 1, got {v!r}")
         if not (0.0 < self.resample_ess_fraction <= 1.0):
             raise ValueError(f"resample_ess_fraction must be in (0, 1], got {self.resample_ess_fraction!r}")
         object.__setattr__(
@@ -214,6 +289,16 @@ class GFlowConfig:
         object.__setattr__(
             self, "prior_std_coefficients", _as_std_tuple("prior_std_coefficients", self.prior_std_coefficients, None)
         )
+
+    def scale_limits(self) -> tuple[float, float] | None:
+        """``(|c_0|, log max_scale_change)`` for :func:`.pose_opinion.scale_wall`, or None."""
+        if not (math.isfinite(self.max_scale_change) and self.scale_reference):
+            return None
+        return math.hypot(*self.scale_reference), math.log(self.max_scale_change)
+
+    def photometric_model(self) -> Photometric | None:
+        """The gain/bias settings, or None when ``photometric`` is off."""
+        return Photometric(gain_max=self.photometric_gain_max) if self.photometric else None
 
     def prior_std(self, k: int) -> np.ndarray:
         """Random-walk standard deviations ``(5 + k,)`` in the pose vector layout."""
@@ -476,16 +561,30 @@ def propose(
     tv = _texture_view(state, idx, cfg)
     # u_hat = argmin eq. 14 (Gauss-Newton from u_{t-1}; second background term ignored, first one too
     # unless gn_background)
-    gn = gauss_newton_peak(
-        model.bases, fd, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
-        use_background=cfg.gn_background,
-    )
+    ph = cfg.photometric_model()
+    max_rot = math.radians(cfg.max_rotation_deg)
+    osq = cfg.outlier_sigmas ** 2
+    scale = cfg.scale_limits()
+    if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
+            and not math.isfinite(osq) and scale is None):
+        gn = gauss_newton_peak(
+            model.bases, fd, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
+            use_background=cfg.gn_background,
+        )
+    else:
+        # departures (see pose_opinion.coarse_to_fine_peak and photometric): pyramid, search, gain/bias
+        gn = coarse_to_fine_peak(
+            model.bases, frame_pyramid(fd, cfg.pyramid_levels), centre, tv, cfg.sigma_w, prior_std,
+            cfg.gn_iterations, start=prev, use_background=cfg.gn_background, photometric=ph,
+            offsets=search_offsets(cfg.search_radius, cfg.search_step), max_rotation=max_rot,
+            search_stride=cfg.search_stride, outlier_sq=osq, scale=scale,
+        )
     # u^(d,e) ~ g(. | u_hat, alpha Sigma_hat),  Sigma_hat = inverse Hessian of eq. 14
     samples, log_g, sigma_hat = laplace_proposal(gn.u_hat, gn.hessian, cfg.alpha, cfg.n_samples, rngs)
-    log_prior = log_pose_prior(centre, samples, prior_std)
+    log_prior = log_pose_prior(centre, samples, prior_std, max_rot, scale)
     bgt = background_image_terms(fd.image, tv, cfg.sigma_w) if tv.has_background else None
     # full likelihood, eq. 13
-    log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt)
+    log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt, photometric=ph, outlier_sq=osq)
     # importance weights, eq. 16
     log_w = log_importance_weights(log_prior, log_lik, log_g)
     # likelihood of the expert, eq. 19
@@ -575,10 +674,18 @@ def update(
     pts = project(model.bases, poses)
     st = bilinear_stencil(pts, img.shape)
     y = st.sample(img.reshape(-1))
+    pred_mean, pred_var = state.tex_mean[parents], state.tex_var[parents] + cfg.psi_v
+    ph = cfg.photometric_model()
+    if ph is not None:
+        # the texels observe the light-corrected frame (y - b) / a (see photometric)
+        a, b = gain_bias(y, pred_mean, 1.0 / (pred_var + cfg.sigma_w), ph)
+        y = correct(y, a, b)
+    observed = st.inside
+    if math.isfinite(cfg.outlier_sigmas):
+        # outlier vertices (occluder, highlight) are not learned: prediction only
+        observed = observed & ((y - pred_mean) ** 2 <= cfg.outlier_sigmas ** 2 * (pred_var + cfg.sigma_w))
     # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
-    tex_mean, tex_var = kalman_update(
-        state.tex_mean[parents], state.tex_var[parents] + cfg.psi_v, y, cfg.sigma_w, observed=st.inside
-    )
+    tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=observed)
     bg_mean = bg_var = None
     if state.bg_mean is not None:
         assert state.bg_var is not None

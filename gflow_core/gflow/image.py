@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["validate_frame", "FrameData", "prepare_frame", "BilinearStencil", "bilinear_stencil"]
+__all__ = [
+    "validate_frame", "FrameData", "prepare_frame", "frame_pyramid", "BilinearStencil", "bilinear_stencil",
+]
 
 
 def validate_frame(frame: np.ndarray, name: str = "frame", shape: tuple[int, int] | None = None) -> np.ndarray:
@@ -85,6 +87,31 @@ def prepare_frame(frame: np.ndarray, shape: tuple[int, int] | None = None) -> Fr
     img = validate_frame(frame, shape=shape)
     gy, gx = np.gradient(img)
     return FrameData(img, img.reshape(-1), np.ascontiguousarray(gx).reshape(-1), np.ascontiguousarray(gy).reshape(-1))
+
+
+def frame_pyramid(fd: FrameData, levels: int) -> list[FrameData]:
+    """Image pyramid ``[level 0 = fd, level 1, ...]`` for coarse-to-fine Gauss-Newton.
+
+    Level ``l + 1`` is ``cv2.pyrDown`` of level ``l`` (5x5 binomial blur, every second
+    pixel), so its pixel ``(x, y)`` is centred on level-``l`` pixel ``(2x, 2y)`` and a point
+    ``x`` of level 0 is at ``x / 2^l`` on level ``l``. Levels stop early when the image
+    would be smaller than 8 pixels on a side. Deterministic (integer-free float64 arithmetic
+    in a fixed order).
+    """
+    import cv2
+
+    if levels < 1:
+        raise ValueError(f"levels must be >= 1, got {levels}")
+    out = [fd]
+    img = fd.image
+    for _ in range(levels - 1):
+        if min(img.shape) < 16:
+            break
+        img = cv2.pyrDown(img)
+        gy, gx = np.gradient(img)
+        out.append(FrameData(img, img.reshape(-1), np.ascontiguousarray(gx).reshape(-1),
+                             np.ascontiguousarray(gy).reshape(-1)))
+    return out
 
 
 @dataclass(frozen=True)

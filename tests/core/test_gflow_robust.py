@@ -1,0 +1,206 @@
+"""Departures that make G-flow robust: coarse-to-fine Gauss-Newton with a coarse search
+(pose_opinion.coarse_to_fine_peak), per-frame gain/bias (photometric) and the rotation wall."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gflow_core.gflow.filter import GFlowConfig, init_state, step
+from gflow_core.gflow.geometry import ROT, TRANS, box_plus, make_pose
+from gflow_core.gflow.head_model import fit_head_to_box
+from gflow_core.gflow.image import frame_pyramid, prepare_frame
+from gflow_core.gflow.photometric import Photometric, gain_bias
+from gflow_core.gflow.pose_opinion import (
+    TextureView,
+    coarse_to_fine_peak,
+    gauss_newton_objective,
+    gauss_newton_peak,
+    log_pose_prior,
+    rotation_wall,
+    search_offsets,
+)
+from gflow_core.gflow.render import SphereTexture, render_head, smooth_background
+
+PRIOR = np.array([0.05, 0.05, 0.05, 50.0, 50.0, 1.0])
+
+
+def _scene(offset_px: float, gain: float = 1.0, bias: float = 0.0):
+    """A rendered head moved by ``offset_px`` (x and y, pixels) from the start pose."""
+    rng = np.random.default_rng(7)
+    shape = (160, 200)
+    head, pose0 = fit_head_to_box(np.array([70.0, 40.0, 50.0, 60.0]), shape)
+    model = head.model()
+    tex = SphereTexture.random(rng, min_freq=1.0, max_freq=3.0)
+    true = make_pose(None, pose0[TRANS] + offset_px / np.sqrt(2.0), pose0[5:])
+    frame = render_head(head, true, tex, smooth_background(shape, rng, sigma_px=12.0), rng=rng, noise_std=0.005)
+    frame = np.clip(gain * frame + bias, 0.0, 1.0)
+    tv = TextureView(tex(head.directions())[None], np.full((1, model.n_vertices), 1e-4))
+    return model, pose0[None], true, frame, tv
+
+
+def _trans_error(u: np.ndarray, true: np.ndarray) -> float:
+    return float(np.hypot(*(u[0, TRANS] - true[TRANS])))
+
+
+def test_pyramid_gauss_newton_converges_from_30px_where_single_scale_does_not() -> None:
+    model, start, true, frame, tv = _scene(30.0)
+    fd = prepare_frame(frame)
+    single = gauss_newton_peak(model.bases, fd, start, tv, 1e-3, PRIOR, 15)
+    pyr = coarse_to_fine_peak(model.bases, frame_pyramid(fd, 4), start, tv, 1e-3, PRIOR, 5)
+    assert _trans_error(single.u_hat, true) > 10.0
+    assert _trans_error(pyr.u_hat, true) < 1.0
+    assert np.all(np.linalg.eigvalsh(pyr.hessian) > 0)
+
+
+def test_coarse_search_reaches_a_36px_jump() -> None:
+    model, start, true, frame, tv = _scene(36.0 * np.sqrt(2.0))  # 51 px diagonal
+    fd = prepare_frame(frame)
+    pyr = coarse_to_fine_peak(model.bases, frame_pyramid(fd, 3), start, tv, 1e-3, PRIOR, 5)
+    found = coarse_to_fine_peak(model.bases, frame_pyramid(fd, 3), start, tv, 1e-3, PRIOR, 5,
+                                offsets=search_offsets(40.0, 8.0))
+    assert _trans_error(pyr.u_hat, true) > 10.0
+    assert _trans_error(found.u_hat, true) < 1.0
+
+
+def test_one_level_without_search_is_plain_gauss_newton() -> None:
+    model, start, _, frame, tv = _scene(3.0)
+    fd = prepare_frame(frame)
+    a = gauss_newton_peak(model.bases, fd, start, tv, 1e-3, PRIOR, 5)
+    b = coarse_to_fine_peak(model.bases, [fd], start, tv, 1e-3, PRIOR, 5)
+    assert np.array_equal(a.u_hat, b.u_hat) and np.array_equal(a.hessian, b.hessian)
+
+
+def test_search_offsets_start_at_zero_and_cover_the_square() -> None:
+    off = search_offsets(16.0, 8.0)
+    assert off.shape == (25, 2) and np.array_equal(off[0], [0.0, 0.0])
+    assert np.abs(off).max() == 16.0
+    assert search_offsets(0.0, 8.0).shape == (1, 2)
+
+
+def test_gain_bias_recovers_a_known_gain_and_bias() -> None:
+    rng = np.random.default_rng(3)
+    mu = rng.uniform(0.1, 0.9, (4, 200))
+    a_true, b_true = np.array([0.6, 1.0, 1.3, 1.8]), np.array([0.1, 0.0, -0.2, 0.05])
+    y = a_true[:, None] * mu + b_true[:, None] + rng.normal(0.0, 0.005, mu.shape)
+    a, b = gain_bias(y, mu, np.full(mu.shape, 1e3), Photometric(gain_max=2.0))
+    np.testing.assert_allclose(a, a_true, atol=0.01)
+    np.testing.assert_allclose(b, b_true, atol=0.01)
+    # the clamp
+    a2, _ = gain_bias(3.0 * mu, mu, np.ones(mu.shape), Photometric(gain_max=2.0))
+    assert np.all(a2 == 2.0)
+
+
+def test_photometric_gauss_newton_is_not_moved_by_a_change_of_light() -> None:
+    model, start, true, frame, tv = _scene(4.0, gain=0.6, bias=0.15)
+    fd = prepare_frame(frame)
+    plain = gauss_newton_peak(model.bases, fd, start, tv, 1e-3, PRIOR, 10)
+    robust = gauss_newton_peak(model.bases, fd, start, tv, 1e-3, PRIOR, 10, photometric=Photometric())
+    assert _trans_error(robust.u_hat, true) < 0.5
+    assert _trans_error(robust.u_hat, true) < _trans_error(plain.u_hat, true)
+
+
+def test_rotation_wall_is_zero_inside_and_its_gradient_is_right() -> None:
+    u = make_pose(np.radians([10.0, 0.0, 0.0]), [0.0, 0.0], [1.0])[None]
+    pen, g, h = rotation_wall(u, np.radians(30.0))
+    assert pen[0] == 0.0 and not g.any() and not h.any()
+    u = make_pose(np.radians([30.0, 25.0, -5.0]), [0.0, 0.0], [1.0])[None]
+    pen, g, _ = rotation_wall(u, np.radians(30.0))
+    assert pen[0] > 0
+    for p in range(3):
+        e = np.zeros(6)
+        e[p] = 1e-6
+        fp = rotation_wall(box_plus(u, e), np.radians(30.0))[0]
+        fm = rotation_wall(box_plus(u, -e), np.radians(30.0))[0]
+        np.testing.assert_allclose(g[0, p], (fp - fm)[0] / 2e-6, rtol=1e-4)
+    prev = u.copy()
+    assert log_pose_prior(prev, u[:, None], PRIOR, np.radians(30.0))[0, 0] < log_pose_prior(prev, u[:, None], PRIOR)[0, 0]
+    f_wall = gauss_newton_objective(np.zeros((3, 3, 1)) + 1.0, prepare_frame(np.full((8, 8), 0.5)), prev, u,
+                                    TextureView(np.full((1, 3), 0.5), np.full((1, 3), 1e-3)), 1e-3, PRIOR,
+                                    max_rotation=np.radians(30.0))
+    assert f_wall[0] == pytest.approx(pen[0])
+
+
+def test_robust_filter_shards_equal_one_batch() -> None:
+    """Experts stay independent (so proposal shards concatenate bit for bit) with every option on."""
+    from gflow_core.gflow.filter import concatenate_proposals, expert_rngs, propose
+
+    model, start, _, frame, _ = _scene(20.0)
+    cfg = GFlowConfig(n_experts=4, n_samples=3, pyramid_levels=3, search_radius=16.0, search_step=8.0,
+                      photometric=True, max_rotation_deg=30.0, outlier_sigmas=3.0, max_scale_change=1.5,
+                      scale_reference=tuple(start[0, 5:]))
+    st = init_state(model, start[0], frame, cfg, rng=np.random.default_rng(0), pose_jitter_std=1.0)
+    whole = propose(st, frame, model, cfg, expert_rngs(1, 0, 1, range(4)))
+    parts = [propose(st, frame, model, cfg, expert_rngs(1, 0, 1, ix), ix) for ix in ([2, 3], [0, 1])]
+    joined = concatenate_proposals(parts)
+    for f in ("u_hat", "samples", "log_weights", "log_evidence"):
+        assert np.array_equal(getattr(whole, f), getattr(joined, f)), f
+    st2, est = step(st, frame, model, cfg, 1, 1)
+    assert np.isfinite(est.pose).all()
+
+
+def test_config_rejects_bad_robust_options() -> None:
+    for kw in ({"pyramid_levels": 0}, {"search_radius": -1.0}, {"search_step": 0.0}, {"photometric_gain_max": 1.0},
+               {"max_rotation_deg": 0.0}, {"search_stride": 0}, {"max_scale_change": 1.0}, {"outlier_sigmas": 0.0},
+               {"search_radius": 100.0, "search_step": 1.0}):
+        with pytest.raises(ValueError, match=next(iter(kw)).split("_")[0]):
+            GFlowConfig(**kw)
+
+
+def test_outlier_process_caps_the_cost_and_ignores_an_occluded_patch() -> None:
+    from gflow_core.gflow.pose_opinion import log_likelihood, robust_cost
+
+    e2 = np.array([0.5, 4.0, 100.0])
+    assert np.array_equal(robust_cost(e2, 9.0), [0.5, 4.0, 9.0])
+    assert robust_cost(e2, np.inf) is e2
+    model, start, true, frame, tv = _scene(1.0)
+    # a dark occluder over the upper left of the head (box 70..120 x 40..100)
+    occluded = frame.copy()
+    occluded[40:60, 70:90] = 0.05
+    fd = prepare_frame(occluded)
+    plain = gauss_newton_peak(model.bases, fd, start, tv, 1e-3, PRIOR, 10)
+    robust = gauss_newton_peak(model.bases, fd, start, tv, 1e-3, PRIOR, 10, outlier_sq=9.0)
+    assert _trans_error(plain.u_hat, true) > 2.0
+    assert _trans_error(robust.u_hat, true) < 0.6
+    ll = log_likelihood(model.bases, fd, true[None, None], tv, 1e-3, outlier_sq=9.0)
+    assert np.isfinite(ll).all() and ll[0, 0] > log_likelihood(model.bases, fd, true[None, None], tv, 1e-3)[0, 0]
+
+
+def test_outlier_texels_are_not_updated() -> None:
+    model, start, _, frame, _ = _scene(0.0)
+    cfg = GFlowConfig(n_experts=2, n_samples=2, alpha=0.0, outlier_sigmas=3.0)
+    st = init_state(model, start[0], frame, cfg)
+    occluded = frame.copy()
+    occluded[30:60, 60:90] = 0.0
+    st2, _ = step(st, occluded, model, cfg, 1, 1)
+    changed = np.abs(st2.tex_mean - st.tex_mean) > 0.05
+    assert not changed.any()
+    assert (st2.tex_var > st.tex_var).any()  # those texels were only predicted
+
+
+def test_scale_wall_is_zero_inside_and_its_gradient_is_right() -> None:
+    from gflow_core.gflow.pose_opinion import scale_wall
+
+    lim = (40.0, np.log(1.5))
+    inside = make_pose(None, [0.0, 0.0], [50.0])[None]
+    pen, g, h = scale_wall(inside, lim)
+    assert pen[0] == 0.0 and not g.any() and not h.any()
+    for c in (20.0, 75.0):
+        u = make_pose(None, [0.0, 0.0], [c])[None]
+        pen, g, _ = scale_wall(u, lim)
+        assert pen[0] > 0
+        e = 1e-5
+        fp = scale_wall(make_pose(None, [0.0, 0.0], [c + e])[None], lim)[0]
+        fm = scale_wall(make_pose(None, [0.0, 0.0], [c - e])[None], lim)[0]
+        np.testing.assert_allclose(g[0, 0], (fp - fm)[0] / (2 * e), rtol=1e-5)
+    assert scale_wall(inside, None)[0][0] == 0.0
+
+
+def test_stages_set_the_scale_reference_from_the_initial_box() -> None:
+    from stages.gflow_common import GFlowParams, prepare_model
+
+    p = GFlowParams(init=(40.0, 30.0, 30.0, 40.0), max_scale_change=1.5)
+    setup = prepare_model(p, {}, (120, 160))
+    assert setup.cfg.scale_reference == (pytest.approx(40.0),)
+    assert setup.cfg.scale_limits() == (pytest.approx(40.0), pytest.approx(np.log(1.5)))
+    assert prepare_model(GFlowParams(init=(40.0, 30.0, 30.0, 40.0)), {}, (120, 160)).cfg.scale_limits() is None
