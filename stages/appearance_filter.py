@@ -102,6 +102,13 @@ def _alpha(parts: np.ndarray) -> np.ndarray:
     return np.column_stack([parts[:, 0], parts[:, 1], np.zeros(len(parts)), np.exp(parts[:, 2])])
 
 
+def _posterior(header, parts: np.ndarray) -> Particles:
+    """The resampled posterior (N, 3) as a Particles message (k = 0, equal weights)."""
+    n = len(parts)
+    return particles_msg(header, "posterior", ParticleCloud(alpha=_alpha(parts), k=np.zeros(n, np.int64),
+                                                            log_w=np.zeros(n)))
+
+
 class AppearanceFilterStage(Stage):
     kind = "appearance.filter"
     Params = AppearanceFilterParams
@@ -165,10 +172,8 @@ class AppearanceFilterStage(Stage):
         a = np.array([st.centre[0], st.centre[1], 0.0, 1.0])
         box = ap.box_of(st.centre, st.log_s, st.size0)
         est = self._estimate(frame.header, box, a, a, np.zeros(4), float(p.particles), 0.0, "init", 1.0)
-        cloud = ParticleCloud(alpha=_alpha(st.particles), k=np.zeros(p.particles, np.int64),
-                              log_w=np.zeros(p.particles))
         self.steps += 1
-        return [("particles", particles_msg(frame.header, "posterior", cloud)), ("estimate", est)]
+        return [("particles", _posterior(frame.header, st.particles)), ("estimate", est)]
 
     def _coast(self, seq: int, frame: Frame | None) -> list[Output]:
         """No usable frame: carry the posterior over unchanged."""
@@ -179,10 +184,8 @@ class AppearanceFilterStage(Stage):
         a = np.array([st.centre[0], st.centre[1], 0.0, float(np.exp(st.log_s))])
         box = ap.box_of(st.centre, st.log_s, st.size0)
         est = self._estimate(header, box, a, a, np.zeros(4), float(p.particles), 0.0, "coast", 0.0)
-        cloud = ParticleCloud(alpha=_alpha(st.particles), k=np.zeros(p.particles, np.int64),
-                              log_w=np.zeros(p.particles))
         self.steps += 1
-        return [("particles", particles_msg(header, "posterior", cloud)), ("estimate", est)]
+        return [("particles", _posterior(header, st.particles)), ("estimate", est)]
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         frame = inputs.get("frames")
@@ -217,9 +220,7 @@ class AppearanceFilterStage(Stage):
         std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
         est = self._estimate(frame.header, res.box, a, mean, std, res.ess, res.log_evidence,
                              "occluded" if res.occluded else "track", res.score)
-        cloud = ParticleCloud(alpha=_alpha(nst.particles), k=np.zeros(p.particles, np.int64),
-                              log_w=np.zeros(p.particles))
-        return [("particles", particles_msg(frame.header, "posterior", cloud)), ("estimate", est)]
+        return [("particles", _posterior(frame.header, nst.particles)), ("estimate", est)]
 
     def summary(self) -> dict:
         """The last estimate (seq, box, ESS, state, appearance score r) and the step count."""
