@@ -87,6 +87,7 @@ class StageHost:
         from .join import SeqJoin
 
         one_compute_thread()
+        self.last_sent: list[tuple[str, bytes, int, str]] = []  # what the last step published
         self.stage = stage
         self.name = stage.ctx.name
         self.topics_in = dict(topics_in)
@@ -121,13 +122,16 @@ class StageHost:
             self.report(kind, message, seq)
 
     def _emit(self, outputs, seq: int = -1) -> None:
+        self.last_sent = []
         for port, msg in outputs:
             topic = self.topics_out.get(port)
             if topic is None:
                 raise RuntimeError(f"stage {self.name} produced output on unknown port {port!r}")
             # gflow messages carry their frame in the header; Foxglove ones take the step's
             s = msg.header.seq if hasattr(msg, "header") else seq
-            self.publish(topic, encode(msg), s, type(msg).__name__)
+            payload = encode(msg)
+            self.publish(topic, payload, s, type(msg).__name__)
+            self.last_sent.append((topic, payload, s, type(msg).__name__))
             self.max_out[port] = max(self.max_out.get(port, -1), s)
 
     def reject(self, kind: str, message: str, seq: int = -1, topic: str = "") -> None:

@@ -75,11 +75,14 @@ EXIT_DISK_FULL = 28  # the recorder's exit status when its disk is full (ENOSPC)
 
 class Checkpoint(msgspec.Struct, frozen=True):
     """What a restarted stage resumes from: its snapshot after frame ``seq`` (None for a
-    stateless stage), and the last seq it sent on each output port."""
+    stateless stage), the last seq it sent on each output port, and the messages that step
+    published ((topic, payload, seq, type name)): a kill can come before zenoh has put them
+    on the wire, so a restarted stage sends them again (downstream counts a duplicate)."""
 
     seq: int
     data: bytes | None
     max_out: dict[str, int]
+    sent: list[tuple[str, bytes, int, str]] = []
 
 
 def die_with_parent() -> None:
@@ -143,6 +146,7 @@ class Node:
                                else {p for p in peers.split(",") if p in plan.stages} | {name})
         self.ready_deadline = time.monotonic() + 3.0
         state_dir = os.environ.get("GFLOW_STATE_DIR", "")
+        self.resend: list[tuple[str, bytes, int, str]] = []
         self.checkpoint_path = (Path(state_dir) / f"{name}.ckpt"
                                 if state_dir and self.sp.restart == "on-failure" else None)
 
@@ -302,7 +306,8 @@ class Node:
             return
         h = self.host
         data = h.stage.snapshot() if h is not None and not self.sp.is_source() else None
-        ck = Checkpoint(seq=seq, data=data, max_out=dict(h.max_out) if h else {})
+        ck = Checkpoint(seq=seq, data=data, max_out=dict(h.max_out) if h else {},
+                        sent=list(h.last_sent) if h is not None else [])
         tmp = path.with_suffix(".tmp")
         tmp.write_bytes(msgspec.msgpack.encode(ck))
         os.replace(tmp, path)
@@ -321,6 +326,7 @@ class Node:
             log.warning("[%s] checkpoint %s unusable (%s); starting afresh", self.name, path, e)
             return -1
         h.max_out.update(ck.max_out)
+        self.resend = list(ck.sent)  # the last step's outputs may not have left: sent again on resuming
         h.join.done_below = ck.seq
         h.join.resumed = True
         log.warning("[%s] restart %d: resumed after frame %d", self.name, self.restarts, ck.seq)
@@ -416,6 +422,7 @@ class Node:
                 self.state = "stopped"
                 return 0
         self.state = "running"
+        self._resend_last()
         p = stage.params
         t0 = time.monotonic()
         first: int | None = None
@@ -472,11 +479,18 @@ class Node:
             self.progress_changed.clear()
             self.progress_changed.wait(0.05)
 
+    def _resend_last(self) -> None:
+        """Publish again what the step before a kill published (duplicates are counted downstream)."""
+        for topic, payload, seq, type_name in self.resend:
+            self.publish(topic, payload, seq, type_name)
+        self.resend = []
+
     def _run_stage(self, resumed_after: int = -1) -> int:
         host = self.host
         assert host is not None
         self.state = "running"
         if resumed_after >= 0:
+            self._resend_last()
             self._catch_up(resumed_after)  # what it missed, before what is queued live
         while not host.closed:
             if self.stop.is_set():
