@@ -11,7 +11,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data"
-GFLOW = [sys.executable, "-m", "pipeline.cli"]
+GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 
 
 def gflow(*args: str, quiet: bool = False) -> tuple[str, float]:
@@ -31,7 +31,7 @@ def gflow(*args: str, quiet: bool = False) -> tuple[str, float]:
 
 def write_gt(path: Path, gt: dict[int, tuple], frames: range) -> Path:
     """Ground truth restricted to ``frames`` (so ``gflow eval`` scores only those)."""
-    from pipeline.results import write_boxes
+    from pipeline.recording.results import write_boxes
 
     write_boxes(path, {f: gt[f] for f in frames if f in gt})
     return path

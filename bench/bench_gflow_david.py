@@ -33,9 +33,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import scratch, table  # noqa: E402
 
 from gflow_core.metrics import centre_error, score  # noqa: E402
-from pipeline.inline import run_inline  # noqa: E402
-from pipeline.results import estimates, read_boxes  # noqa: E402
-from pipeline.trackers.gflow import make_plan  # noqa: E402
+from pipeline.runtime.inline import run_inline  # noqa: E402
+from pipeline.recording.results import estimates, read_boxes  # noqa: E402
+from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
 

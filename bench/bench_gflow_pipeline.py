@@ -27,11 +27,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import scratch, table  # noqa: E402
 
 from gflow_core.gflow.render import synthetic_sequence  # noqa: E402
-from pipeline.inline import run_inline  # noqa: E402
-from pipeline.launcher import Launcher  # noqa: E402
-from pipeline.mcap_io import iter_records  # noqa: E402
-from pipeline.trackers.gflow import make_plan  # noqa: E402
-from pipeline.transport import ZenohSettings, free_port  # noqa: E402
+from pipeline.runtime.inline import run_inline  # noqa: E402
+from pipeline.runtime.launcher import Launcher  # noqa: E402
+from pipeline.io.mcap_io import iter_records  # noqa: E402
+from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
+from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
 
 SIZE_TYPES = ("Frame", "Features", "ExpertStates", "PoseProposals", "PoseEstimate")
 

@@ -36,7 +36,7 @@ from _util import pct, table  # noqa: E402
 SUB = r"""
 import sys, json, time, queue
 sys.path.insert(0, sys.argv[3])
-from pipeline.transport import Bus, ZenohSettings, open_session
+from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 from stages.messages import decode
 n_expect, endpoint = int(sys.argv[1]), sys.argv[2]
 s = open_session(ZenohSettings(listen=(endpoint,), shm=sys.argv[4] == "1"))
@@ -70,7 +70,7 @@ def frame_payload(w: int, h: int) -> bytes:
 
 
 def zenoh_hop(w: int, h: int, n_lat: int, n_thr: int, rate: float, shm: bool = True) -> dict:
-    from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+    from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 
     port = free_port()
     ep = f"tcp/127.0.0.1:{port}"

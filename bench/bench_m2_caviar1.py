@@ -50,7 +50,7 @@ def main() -> int:
     if not (data / "frames").is_dir():
         print(f"SKIP: caviar1 not found at {data}")
         return 0
-    from pipeline.results import read_boxes
+    from pipeline.recording.results import read_boxes
 
     gt_all = read_boxes(data / "groundtruth.csv")
     a, b = (int(v) for v in args.train.split(":"))

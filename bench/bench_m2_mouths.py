@@ -59,9 +59,9 @@ def main() -> int:
     if not src.is_file():
         print(f"SKIP: AVLetters speaker file not found: {src}")
         return 0
-    from pipeline.datasets import read_avletters, write_frames
-    from pipeline.modelfile import load_model
-    from pipeline.results import estimates
+    from pipeline.io.datasets import read_avletters, write_frames
+    from pipeline.io.modelfile import load_model
+    from pipeline.recording.results import estimates
 
     tmp = scratch("m2-mouths-")
     test, av = read_avletters(src, [3])

@@ -34,7 +34,7 @@ from _util import scratch, table  # noqa: E402
 
 def analyse(rec: Path, gt: dict) -> dict:
     from gflow_core.metrics import centre_error, iou
-    from pipeline.results import estimates
+    from pipeline.recording.results import estimates
 
     est = estimates(rec)
     fr = [f for f in sorted(est) if f in gt]
@@ -81,7 +81,7 @@ def main() -> int:
     if not (data / "frames").is_dir():
         print(f"SKIP: caviar1 not found at {data}")
         return 0
-    from pipeline.results import read_boxes
+    from pipeline.recording.results import read_boxes
 
     gt = read_boxes(data / "groundtruth.csv")
     b = int(args.train.split(":")[1])

@@ -19,13 +19,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import scratch, table  # noqa: E402
 
-from pipeline.build import apply_defaults  # noqa: E402
-from pipeline.graph import load_graph  # noqa: E402
-from pipeline.inline import run_inline  # noqa: E402
-from pipeline.launcher import Launcher  # noqa: E402
-from pipeline.mcap_io import iter_records  # noqa: E402
-from pipeline.results import read_boxes  # noqa: E402
-from pipeline.transport import ZenohSettings, free_port  # noqa: E402
+from pipeline.runtime.build import apply_defaults  # noqa: E402
+from pipeline.runtime.graph import load_graph  # noqa: E402
+from pipeline.runtime.inline import run_inline  # noqa: E402
+from pipeline.runtime.launcher import Launcher  # noqa: E402
+from pipeline.io.mcap_io import iter_records  # noqa: E402
+from pipeline.recording.results import read_boxes  # noqa: E402
+from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 

@@ -4,7 +4,7 @@
 1. in-process: McapRecorder.write of 640x480 grey Frame messages (lz4 chunks, flushed
    every 0.5 s), then the file is read back and every message counted;
 2. over zenoh: a publisher process sends the same messages as fast as congestion control
-   BLOCK allows to a recorder node (the real ``pipeline.node`` code path: zenoh callback ->
+   BLOCK allows to a recorder node (the real ``pipeline.runtime.node`` code path: zenoh callback ->
    queue -> MCAP), and the recording is read back and counted.
 """
 
@@ -24,15 +24,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import scratch, table  # noqa: E402
 
-from pipeline.mcap_io import iter_records  # noqa: E402
-from pipeline.recorder import McapRecorder  # noqa: E402
+from pipeline.io.mcap_io import iter_records  # noqa: E402
+from pipeline.io.recorder import McapRecorder  # noqa: E402
 from stages.messages import Frame, Header, NDArray, encode  # noqa: E402
 
 PUB = r"""
 import sys, time
 sys.path.insert(0, sys.argv[3])
 import numpy as np
-from pipeline.transport import Bus, ZenohSettings, open_session
+from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 from stages.messages import Frame, Header, NDArray, encode
 n, ep = int(sys.argv[1]), sys.argv[2]
 s = open_session(ZenohSettings(connect=(ep,)))
@@ -78,7 +78,7 @@ def main() -> None:
              f"{os.path.getsize(path) / 1e6:.0f}"]]
 
     # over zenoh, into the recorder's own loop
-    from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+    from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
     import queue
 
     port = free_port()

@@ -2,7 +2,7 @@
 
 Records a real multi-process run of the chamfer tracker (caviar1, or the synthetic scene
 when the data is absent), then re-runs every stage from the recording with
-``pipeline.rerun.rerun_stage`` and checks the outputs are identical.
+``pipeline.recording.rerun.rerun_stage`` and checks the outputs are identical.
 
 * live rate: frames the stage handled / time between its first and last output in the
   recording (publish times) - the rate the live pipeline sustained;
@@ -21,10 +21,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import scratch, table  # noqa: E402
 
-from pipeline.launcher import Launcher  # noqa: E402
-from pipeline.mcap_io import iter_records  # noqa: E402
-from pipeline.rerun import check_outputs, recorded_outputs, rerun_stage  # noqa: E402
-from pipeline.transport import ZenohSettings, free_port  # noqa: E402
+from pipeline.runtime.launcher import Launcher  # noqa: E402
+from pipeline.io.mcap_io import iter_records  # noqa: E402
+from pipeline.recording.rerun import check_outputs, recorded_outputs, rerun_stage  # noqa: E402
+from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
 
 from bench_pipeline import plan_for  # noqa: E402
 

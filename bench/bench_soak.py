@@ -31,10 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import msgspec  # noqa: E402
 from _util import table  # noqa: E402
 
-from pipeline.build import apply_defaults  # noqa: E402
-from pipeline.graph import load_graph  # noqa: E402
-from pipeline.launcher import Launcher  # noqa: E402
-from pipeline.transport import Bus, ZenohSettings, free_port, open_session  # noqa: E402
+from pipeline.runtime.build import apply_defaults  # noqa: E402
+from pipeline.runtime.graph import load_graph  # noqa: E402
+from pipeline.runtime.launcher import Launcher  # noqa: E402
+from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session  # noqa: E402
 
 STAGES = ("source", "preprocess", "proposal", "filter")
 

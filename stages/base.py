@@ -5,7 +5,7 @@ inputs by sequence number, calls ``step(seq, inputs)`` in ascending ``seq`` orde
 publishes what it returns. The same stage object therefore runs in-process (tests,
 ``--inline``), as its own process over zenoh, and fed from an MCAP recording.
 
-Join semantics (implemented by ``pipeline.join.SeqJoin``)
+Join semantics (implemented by ``pipeline.runtime.join.SeqJoin``)
 ---------------------------------------------------------
 * ``inputs`` maps port name -> message type. Each port carries increasing ``seq``.
 * ``required(seq)`` names the ports that must be present for ``seq`` to run (default:

@@ -79,7 +79,7 @@ class GFlowParams(Params):
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
     init : (x, y, w, h) initial box of the face in the first usable frame, 0-based pixels.
-    model : path of a morphable model file (``pipeline.modelfile``, kind ``morphable``);
+    model : path of a morphable model file (``pipeline.io.modelfile``, kind ``morphable``);
         empty: the generic ellipsoid head fitted into ``init``.
     depth_ratio : generic head only, depth semi-axis over width semi-axis.
     head_grid : generic head only, (longitudes, latitudes) of its vertex grid; n = product.

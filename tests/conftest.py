@@ -27,7 +27,7 @@ def data_dir(name: str) -> Path:
 
 @pytest.fixture(autouse=True, scope="session")
 def _private_runtime_dir(tmp_path_factory):
-    """Pipelines started by the tests announce themselves (pipeline.running) in a folder of the
+    """Pipelines started by the tests announce themselves (pipeline.runtime.running) in a folder of the
     test session's own, so the live tools in a test never see a user's (or another session's)
     pipeline, and the tests never clutter the user's runtime folder."""
     old = os.environ.get("GFLOW_RUNTIME_DIR")
@@ -52,7 +52,7 @@ def caviar1() -> Path:
 @pytest.fixture
 def gflow_cmd() -> list[str]:
     """The gflow command as the user runs it (the console script), falling back to python -m."""
-    return [sys.executable, "-m", "pipeline.cli"]
+    return [sys.executable, "-m", "pipeline.cli.main"]
 
 
 def _node_reader() -> list[str]:

@@ -10,9 +10,9 @@ import msgspec
 import numpy as np
 
 from gflow_core.gflow.render import SyntheticSequence, synthetic_sequence
-from pipeline.graph import Plan
-from pipeline.mcap_io import iter_records
-from pipeline.trackers.gflow import make_plan
+from pipeline.runtime.graph import Plan
+from pipeline.io.mcap_io import iter_records
+from pipeline.cli.trackers.gflow import make_plan
 from stages.base import StageContext
 from stages.gflow_filter import GFlowFilterParams, GFlowFilterStage
 from stages.gflow_proposal import GFlowProposalParams, GFlowProposalStage

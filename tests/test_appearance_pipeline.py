@@ -13,7 +13,7 @@ import pytest
 
 from gflow_core.metrics import score
 from gflow_core.synthetic import SyntheticScene
-from pipeline.results import read_boxes
+from pipeline.recording.results import read_boxes
 from stages.appearance_filter import AppearanceFilterParams, AppearanceFilterStage
 from stages.base import StageContext
 from stages.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode

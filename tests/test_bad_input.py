@@ -12,13 +12,13 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph
-from pipeline.inline import run_inline
-from pipeline.launcher import Launcher
-from pipeline.mcap_io import iter_records
-from pipeline.results import estimates, read_boxes
-from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.inline import run_inline
+from pipeline.runtime.launcher import Launcher
+from pipeline.io.mcap_io import iter_records
+from pipeline.recording.results import estimates, read_boxes
+from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 from stages.messages import ErrorReport, decode
 
 

@@ -19,13 +19,13 @@ import pytest
 
 from gflow_core.metrics import score
 from gflow_core.synthetic import SyntheticScene
-from pipeline.cli import main
-from pipeline.datasets import write_frames
-from pipeline.results import read_boxes, write_boxes
+from pipeline.cli.main import main
+from pipeline.io.datasets import write_frames
+from pipeline.recording.results import read_boxes, write_boxes
 
 from conftest import data_dir
 
-GFLOW = [sys.executable, "-m", "pipeline.cli"]
+GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 FRAMES = 30
 
 

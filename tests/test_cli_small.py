@@ -12,10 +12,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline.build import apply_defaults
-from pipeline.compare import field_diffs
-from pipeline.graph import load_graph
-from pipeline.launcher import Launcher
+from pipeline.runtime.build import apply_defaults
+from pipeline.recording.compare import field_diffs
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.launcher import Launcher
 from stages.messages import Header, NDArray, Particles, StageStatus, encode
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def gflow(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], cwd=cwd, env=env, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=120)
 
 

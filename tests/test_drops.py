@@ -8,10 +8,10 @@ import time
 
 import numpy as np
 
-from pipeline.graph import parse_graph
-from pipeline.launcher import Launcher
-from pipeline.mcap_io import iter_records
-from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+from pipeline.runtime.graph import parse_graph
+from pipeline.runtime.launcher import Launcher
+from pipeline.io.mcap_io import iter_records
+from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 from stages.messages import EndOfStream, Frame, Header, NDArray, StageStatus, decode, encode
 
 GRAPH = """

@@ -11,12 +11,12 @@ import uuid
 import pytest
 from mcap.reader import make_reader
 
-from pipeline.results import estimates, read_boxes
+from pipeline.recording.results import estimates, read_boxes
 
 _CHILD = r"""
 import resource, signal, sys
 import numpy as np
-from pipeline.recorder import DiskFull, McapRecorder
+from pipeline.io.recorder import DiskFull, McapRecorder
 from stages.messages import Frame, Header, NDArray, encode
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail with EFBIG instead
 resource.setrlimit(resource.RLIMIT_FSIZE, (600_000, 600_000))
@@ -65,7 +65,7 @@ def small_disk(tmp_path):
 
 def test_a_full_disk_stops_the_pipeline_cleanly(caviar1, tmp_path, small_disk):
     rec = small_disk / "run.mcap"
-    out = subprocess.run([sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", "129,71,30,79",
+    out = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", "129,71,30,79",
                           "--tracker", "chamfer", "--out", str(tmp_path / "b.csv"), "--record", str(rec), "--stop", "120",
                           "--listen", "tcp/127.0.0.1:0"], capture_output=True, text=True, timeout=180)
     assert out.returncode == 3, out.stdout + out.stderr

@@ -11,12 +11,12 @@ import time
 import msgspec
 import numpy as np
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph
-from pipeline.launcher import Launcher
-from pipeline.mcap_io import iter_records
-from pipeline.results import estimates
-from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.launcher import Launcher
+from pipeline.io.mcap_io import iter_records
+from pipeline.recording.results import estimates
+from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 from stages.messages import ErrorReport, Estimate, Frame, Header, NDArray, Particles, decode, encode
 
 STOP = 120

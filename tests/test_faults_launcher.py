@@ -12,7 +12,7 @@ import time
 import psutil
 import pytest
 
-from pipeline.results import estimates
+from pipeline.recording.results import estimates
 
 
 def _running(p: psutil.Process) -> bool:
@@ -25,7 +25,7 @@ def _running(p: psutil.Process) -> bool:
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])
 def test_stages_die_with_the_launcher(tmp_path, sig):
     rec = tmp_path / "run.mcap"
-    p = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", "demo", "--set", "source.realtime=true",
+    p = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
                           "--set", "source.frames=600", "--set", "filter.particles=100", "--record", str(rec),
                           "--listen", "tcp/127.0.0.1:0"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 90
@@ -58,10 +58,10 @@ def test_stages_die_with_the_launcher(tmp_path, sig):
 
 
 def test_a_stalled_stage_is_named_and_the_run_stops(tmp_path):
-    from pipeline.build import apply_defaults
-    from pipeline.graph import load_graph
-    from pipeline.launcher import Launcher
-    from pipeline.transport import ZenohSettings, free_port
+    from pipeline.runtime.build import apply_defaults
+    from pipeline.runtime.graph import load_graph
+    from pipeline.runtime.launcher import Launcher
+    from pipeline.runtime.transport import ZenohSettings, free_port
 
     plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 400}, "filter": {"particles": 100}}))
     rec = tmp_path / "run.mcap"

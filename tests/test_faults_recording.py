@@ -10,14 +10,14 @@ import time
 
 import pytest
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph
-from pipeline.inline import run_inline
-from pipeline.mcap_io import iter_records, read_metadata, segment_path, segments
-from pipeline.recorder import McapRecorder
-from pipeline.results import estimates, read_boxes
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.inline import run_inline
+from pipeline.io.mcap_io import iter_records, read_metadata, segment_path, segments
+from pipeline.io.recorder import McapRecorder
+from pipeline.recording.results import estimates, read_boxes
 
-GFLOW = [sys.executable, "-m", "pipeline.cli"]
+GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 
 
 @pytest.fixture(scope="module")

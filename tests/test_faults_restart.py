@@ -15,8 +15,8 @@ from pathlib import Path
 import psutil
 import pytest
 
-from pipeline.mcap_io import segments
-from pipeline.results import estimates
+from pipeline.io.mcap_io import segments
+from pipeline.recording.results import estimates
 
 STOP = 60  # frames: enough to kill mid-run, few enough to keep the test fast
 KILL_AT = 20  # estimates in the recording when the stage is killed
@@ -24,7 +24,7 @@ WINDOW = 8  # the source's flow-control window: at most this many frames are in 
 
 
 def _track(caviar1: Path, tmp: Path, name: str) -> list[str]:
-    return [sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", "129,71,30,79",
+    return [sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", "129,71,30,79",
             "--tracker", "chamfer", "--out", str(tmp / f"{name}.csv"), "--record", str(tmp / f"{name}.mcap"), "--stop", str(STOP),
             "--listen", "tcp/127.0.0.1:0"]
 
@@ -86,9 +86,9 @@ def test_a_stage_killed_after_its_last_frame_restarts_and_the_run_ends(caviar1, 
     import os
     import threading
 
-    from pipeline.graph import load_graph
-    from pipeline.launcher import Launcher
-    from pipeline.transport import ZenohSettings, free_port
+    from pipeline.runtime.graph import load_graph
+    from pipeline.runtime.launcher import Launcher
+    from pipeline.runtime.transport import ZenohSettings, free_port
 
     box = [129, 71, 30, 79]
     plan = load_graph("chamfer", overrides={"source": {"kind": "folder", "path": str(caviar1 / "frames"), "stop": 30},
@@ -117,7 +117,7 @@ def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stag
     from conftest import data_dir
 
     david = data_dir("david_indoor")
-    cmd = [sys.executable, "-m", "pipeline.cli", "track", str(david), "--tracker", "gflow", "--init", "169,76,46,60",
+    cmd = [sys.executable, "-m", "pipeline.cli.main", "track", str(david), "--tracker", "gflow", "--init", "169,76,46,60",
            "--stop", "40", "--listen", "tcp/127.0.0.1:0"]
     base = subprocess.run([*cmd, "--out", str(tmp_path / "base.csv"), "--record", str(tmp_path / "base.mcap"), "-q"],
                           capture_output=True, text=True, timeout=300)

@@ -9,10 +9,10 @@ import json
 import cv2
 import numpy as np
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph
-from pipeline.inline import run_inline
-from pipeline.mcap_io import iter_records
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.inline import run_inline
+from pipeline.io.mcap_io import iter_records
 from stages.messages_foxglove import CompressedImage, ImageAnnotations, foxglove_schema
 
 # The published schemas, reduced to their structure: property -> JSON type (or nested structure).

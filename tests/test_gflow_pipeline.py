@@ -11,7 +11,7 @@ from gflow_core.gflow import fit_head_model_to_box, init_state, step
 from gflow_core.gflow.geometry import TRANS, project, rotation_angle_deg
 from gflow_core.gflow.head_model import bounding_box
 from gflow_scenes import SYNTH, Cycle, features_msg, payloads, plan_for, pose_estimates, render_folder
-from pipeline.inline import run_inline
+from pipeline.runtime.inline import run_inline
 from stages.gflow_common import config_of
 from stages.gflow_filter import GFlowFilterParams
 from stages.rng import stream_hash

@@ -11,10 +11,10 @@ import pytest
 
 from gflow_core.gflow import EllipsoidHead
 from gflow_scenes import SYNTH, Cycle, errors, features_msg, plan_for, pose_estimates, render_folder
-from pipeline.graph import GraphError
-from pipeline.inline import run_inline
-from pipeline.mcap_io import iter_records
-from pipeline.modelfile import save_model
+from pipeline.runtime.graph import GraphError
+from pipeline.runtime.inline import run_inline
+from pipeline.io.mcap_io import iter_records
+from pipeline.io.modelfile import save_model
 from stages.messages import decode
 
 FRAMES = 10

@@ -8,10 +8,10 @@ import subprocess
 import numpy as np
 
 from gflow_scenes import SYNTH, payloads, plan_for, pose_estimates, render_folder
-from pipeline.inline import run_inline
-from pipeline.launcher import Launcher
-from pipeline.results import read_boxes
-from pipeline.transport import ZenohSettings, free_port
+from pipeline.runtime.inline import run_inline
+from pipeline.runtime.launcher import Launcher
+from pipeline.recording.results import read_boxes
+from pipeline.runtime.transport import ZenohSettings, free_port
 
 FRAMES = 12
 

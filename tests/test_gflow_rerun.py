@@ -8,7 +8,7 @@ import subprocess
 import pytest
 
 from conftest import data_dir
-from pipeline.results import read_boxes
+from pipeline.recording.results import read_boxes
 
 
 @pytest.fixture(scope="module")
@@ -19,7 +19,7 @@ def gflow_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("gflow")
     init = ",".join(str(v) for v in read_boxes(seq / "groundtruth.csv")[0])
     rec = tmp / "gflow.mcap"
-    cmd = [sys.executable, "-m", "pipeline.cli", "track", str(seq), "--tracker", "gflow", "--init", init,
+    cmd = [sys.executable, "-m", "pipeline.cli.main", "track", str(seq), "--tracker", "gflow", "--init", init,
            "--stop", "60", "--experts", "6", "--samples", "4", "--background", "--out", str(tmp / "b.csv"),
            "--record", str(rec), "-q"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=600)

@@ -4,7 +4,7 @@ import textwrap
 
 import pytest
 
-from pipeline.graph import GraphError, load_graph, parse_graph
+from pipeline.runtime.graph import GraphError, load_graph, parse_graph
 
 GOOD = textwrap.dedent("""\
     name: t

@@ -1,6 +1,6 @@
-"""Joining inputs by sequence number (pipeline/join.py)."""
+"""Joining inputs by sequence number (pipeline/runtime/join.py)."""
 
-from pipeline.join import SeqJoin
+from pipeline.runtime.join import SeqJoin
 
 
 def _run(join, required=None):

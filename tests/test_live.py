@@ -13,12 +13,12 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-from pipeline.build import apply_defaults
-from pipeline.graph import parse_graph
-from pipeline.launcher import Launcher
-from pipeline.mcap_io import iter_records
-from pipeline.results import estimates
-from pipeline.transport import Bus, ZenohSettings, free_port, open_session
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import parse_graph
+from pipeline.runtime.launcher import Launcher
+from pipeline.io.mcap_io import iter_records
+from pipeline.recording.results import estimates
+from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 
 DEMO = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "demo.yaml").read_text()
 

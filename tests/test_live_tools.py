@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.live import rate_stats
+from pipeline.cli.live import rate_stats
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -26,7 +26,7 @@ def _env(rt: Path) -> dict:
 
 
 def _gflow(rt: Path, *args: str, timeout: float = 90) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], env=_env(rt), capture_output=True,
+    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], env=_env(rt), capture_output=True,
                           text=True, timeout=timeout)
 
 
@@ -45,7 +45,7 @@ def pipeline(tmp_path: Path):
     """A demo pipeline playing in real time (long enough to outlast the test), stopped at the end."""
     rt = tmp_path / "runtime"
     rec = tmp_path / "run.mcap"
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", "demo", "--set", "source.realtime=true",
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
                              "--set", "source.fps=20", "--set", "source.frames=3000", "--set", "filter.particles=100",
                              "--record", str(rec), "--listen", "tcp/127.0.0.1:0"],
                             env=_env(rt), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -144,7 +144,7 @@ def test_a_replay_is_found_without_a_launcher(tmp_path: Path) -> None:
     rec = tmp_path / "r.mcap"
     r = _gflow(rt, "run", "demo", "--inline", "--set", "source.frames=10", "--record", str(rec))
     assert r.returncode == 0, r.stderr
-    rp = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "replay", str(rec), "--loop", "0", "--speed", "1"],
+    rp = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "replay", str(rec), "--loop", "0", "--speed", "1"],
                           env=_env(rt), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         files = _wait(lambda: list(rt.glob("*.json")) if rt.is_dir() else [], "the replay's announcement")

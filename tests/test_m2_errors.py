@@ -18,8 +18,8 @@ import pytest
 from gflow_core.gflow.head_model import EllipsoidHead
 from gflow_core.m2.learn import learn
 from gflow_core.m2.model import FORMAT_VERSION
-from pipeline.cli import main
-from pipeline.modelfile import load_meta, load_model, save_model
+from pipeline.cli.main import main
+from pipeline.io.modelfile import load_meta, load_model, save_model
 
 
 def blob_frames(n: int, seed: int = 0) -> list[np.ndarray]:

@@ -10,8 +10,8 @@ import cv2
 import numpy as np
 
 from gflow_core.synthetic import SyntheticScene
-from pipeline.modelfile import load_meta, load_model
-from pipeline.results import write_boxes
+from pipeline.io.modelfile import load_meta, load_model
+from pipeline.recording.results import write_boxes
 
 N = 12
 

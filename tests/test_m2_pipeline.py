@@ -13,9 +13,9 @@ import pytest
 
 from conftest import data_dir
 from gflow_core.metrics import score
-from pipeline.datasets import read_avletters, write_frames
-from pipeline.modelfile import load_model
-from pipeline.results import estimates, read_boxes, write_boxes
+from pipeline.io.datasets import read_avletters, write_frames
+from pipeline.io.modelfile import load_model
+from pipeline.recording.results import estimates, read_boxes, write_boxes
 
 TRAIN = (0, 150)
 TEST = (150, 200)
@@ -34,7 +34,7 @@ def caviar1_model(tmp_path_factory):
 
     caviar1 = data_dir("caviar1")
     out = tmp_path_factory.mktemp("m2") / "caviar1.npz"
-    gflow = [sys.executable, "-m", "pipeline.cli"]
+    gflow = [sys.executable, "-m", "pipeline.cli.main"]
     r = _run([*gflow, "learn", "m2", str(caviar1), "--boxes", str(caviar1 / "groundtruth.csv"), "--frames",
               f"{TRAIN[0]}:{TRAIN[1]}", "-K", "8", "--max-points", "100", "--out", str(out)])
     # progress on stderr, one summary line on stdout

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph
-from pipeline.inline import run_inline
-from pipeline.launcher import Launcher
-from pipeline.mcap_io import iter_records, summarize
-from pipeline.transport import ZenohSettings, free_port
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.inline import run_inline
+from pipeline.runtime.launcher import Launcher
+from pipeline.io.mcap_io import iter_records, summarize
+from pipeline.runtime.transport import ZenohSettings, free_port
 
 FRAMES = 30
 
@@ -98,7 +98,7 @@ def test_inline_and_processes_give_identical_estimates(mp_run, tmp_path):
 
 def test_demo_tracks_the_synthetic_target(mp_run):
     from gflow_core.metrics import score
-    from pipeline.results import estimates, truth_boxes
+    from pipeline.recording.results import estimates, truth_boxes
 
     _, path = mp_run
     truth = truth_boxes(path)

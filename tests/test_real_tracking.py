@@ -9,7 +9,7 @@ import subprocess
 import pytest
 
 from gflow_core.metrics import score
-from pipeline.results import read_boxes
+from pipeline.recording.results import read_boxes
 
 
 def _track_and_eval(seq_dir, tmp_path, gflow_cmd, extra=()):

@@ -10,11 +10,11 @@ import sys
 import textwrap
 import time
 
-from pipeline.mcap_io import iter_records
+from pipeline.io.mcap_io import iter_records
 
 WRITER = textwrap.dedent("""
     import sys, time, numpy as np
-    from pipeline.recorder import McapRecorder
+    from pipeline.io.recorder import McapRecorder
     from stages.messages import Frame, Header, NDArray, encode
     rec = McapRecorder(sys.argv[1], flush_interval=0.5).open()
     img = NDArray.of(np.zeros((120, 160), np.uint8))

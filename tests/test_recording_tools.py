@@ -14,18 +14,18 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph
-from pipeline.launcher import Launcher
-from pipeline.mcap_io import iter_records
-from pipeline.transport import ZenohSettings, free_port
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.launcher import Launcher
+from pipeline.io.mcap_io import iter_records
+from pipeline.runtime.transport import ZenohSettings, free_port
 from tests.conftest import read_mcap_js as _read_js
 
 @pytest.fixture(scope="module")
 def crossing_run(tmp_path_factory, gflow_cmd_module):
     """A real multi-process run of the chamfer tracker on crossing, with filter snapshots every 20 frames."""
     from tests.conftest import data_dir
-    from pipeline.results import read_boxes
+    from pipeline.recording.results import read_boxes
 
     seq = data_dir("crossing")
     tmp = tmp_path_factory.mktemp("crossing")
@@ -46,7 +46,7 @@ def crossing_run(tmp_path_factory, gflow_cmd_module):
 def gflow_cmd_module():
     import sys
 
-    return [sys.executable, "-m", "pipeline.cli"]
+    return [sys.executable, "-m", "pipeline.cli.main"]
 
 
 @pytest.mark.parametrize("stage", ["source", "preprocess", "proposal", "filter"])
@@ -58,7 +58,7 @@ def test_rerun_check_passes_for_every_stage(crossing_run, gflow_cmd, stage):
 
 
 def test_rerun_from_a_middle_frame_matches_the_full_rerun(crossing_run):
-    from pipeline.rerun import check_outputs, rerun_stage
+    from pipeline.recording.rerun import check_outputs, rerun_stage
 
     full = rerun_stage(crossing_run, "filter")
     part = rerun_stage(crossing_run, "filter", from_seq=70)
@@ -121,7 +121,7 @@ def test_sigkilled_recorder_is_recovered(tmp_path, gflow_cmd):
 
 
 def test_independent_reader_reads_recordings(crossing_run):
-    from pipeline.mcap_io import summarize
+    from pipeline.io.mcap_io import summarize
 
     ours = summarize(crossing_run)
     for stream in (False, True):

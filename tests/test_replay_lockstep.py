@@ -7,13 +7,13 @@ import threading
 
 import yaml
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph, parse_graph
-from pipeline.inline import run_inline
-from pipeline.launcher import Launcher
-from pipeline.mcap_io import iter_records
-from pipeline.rerun import recorded_plan
-from pipeline.transport import ZenohSettings, free_port
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph, parse_graph
+from pipeline.runtime.inline import run_inline
+from pipeline.runtime.launcher import Launcher
+from pipeline.io.mcap_io import iter_records
+from pipeline.recording.rerun import recorded_plan
+from pipeline.runtime.transport import ZenohSettings, free_port
 
 
 def test_lockstep_replay_into_live_stages_reproduces_the_recording(tmp_path, gflow_cmd):
@@ -60,7 +60,7 @@ def test_lockstep_replay_into_live_stages_reproduces_the_recording(tmp_path, gfl
 def test_replay_window_and_loop(tmp_path, gflow_cmd):
     import queue
 
-    from pipeline.transport import Bus, open_session
+    from pipeline.runtime.transport import Bus, open_session
 
     original = tmp_path / "original.mcap"
     plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 20}, "filter": {"particles": 100}}))

@@ -12,7 +12,7 @@ import psutil
 import pytest
 from mcap.reader import make_reader
 
-from pipeline.results import estimates
+from pipeline.recording.results import estimates
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import subprocess
 
-from pipeline.build import apply_defaults
-from pipeline.graph import load_graph
-from pipeline.inline import run_inline
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.inline import run_inline
 
 
 def test_step_next_jump_and_state(tmp_path, gflow_cmd):

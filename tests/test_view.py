@@ -18,7 +18,7 @@ import pytest
 pytest.importorskip("foxglove", reason="gflow view needs foxglove-sdk (pip install foxglove-sdk)")
 ws_client = pytest.importorskip("websockets.sync.client", reason="the test client needs the websockets package")
 
-from pipeline.transport import free_port  # noqa: E402
+from pipeline.runtime.transport import free_port  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 WANT = {"/gflow/demo/image", "/gflow/demo/annotations", "/gflow/demo/estimate", "/gflow/demo/_status/filter"}
@@ -41,7 +41,7 @@ def _stop(p: subprocess.Popen) -> None:
 
 def test_foxglove_client_receives_video_overlays_and_estimates(tmp_path: Path) -> None:
     rt = tmp_path / "rt"
-    run = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", "demo", "--set", "source.realtime=true",
+    run = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
                             "--set", "source.fps=20", "--set", "source.frames=3000", "--set", "filter.particles=100",
                             "--no-record", "--listen", "tcp/127.0.0.1:0"],
                            env=_env(rt), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -52,7 +52,7 @@ def test_foxglove_client_receives_video_overlays_and_estimates(tmp_path: Path) -
             assert time.monotonic() < deadline, "the pipeline did not announce itself"
             time.sleep(0.1)
         port = free_port()
-        view = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "view", "--port", str(port)], env=_env(rt),
+        view = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "view", "--port", str(port)], env=_env(rt),
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         ws = None
         while ws is None:

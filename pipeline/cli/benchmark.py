@@ -1,0 +1,380 @@
+"""``gflow benchmark``: every tracker on every sequence folder, scored like ``gflow eval``.
+
+A sequence folder holds ``frames/`` and ``groundtruth.csv`` (``frame,x,y,w,h``), and
+optionally ``results/TRACKER.csv``, other trackers' published per-frame boxes (the layout of
+``../shared/data``). Each selected tracker runs through the same code as ``gflow track``
+(:func:`pipeline.cli.commands.track.run_track`), from the ground-truth box of the first frame,
+with one seed; its boxes are written with the same CSV writer and scored by the same
+function as ``gflow eval`` (:func:`gflow_core.metrics.score`). Published results, a box that
+never moves ("static box") and, where OpenCV has them, OpenCV's trackers are scored the same
+way over the same frames.
+
+fps is frames tracked / wall time of tracking: from the first frame the source published to
+the last estimate, read from the run's recording, so process start-up is left out (it is in
+``seconds_total`` of the JSON).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from gflow_core.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
+
+from pipeline.recording.results import read_boxes, write_boxes
+
+__all__ = ["Sequence", "Row", "find_sequences", "score_row", "static_box", "published_rows", "opencv_tracker",
+           "run_opencv", "tracking_seconds", "format_table", "to_json", "plot_success", "plot_precision",
+           "PRECISION_THRESHOLDS"]
+
+Box = tuple[float, float, float, float]
+
+#: centre-error thresholds (px) of the precision plot; the legend gives precision at 20 px (OTB)
+PRECISION_THRESHOLDS = np.arange(0.0, 51.0)
+
+#: OpenCV tracker names for ``--opencv`` and the class each one is
+OPENCV_TRACKERS = {"csrt": "TrackerCSRT", "kcf": "TrackerKCF", "mil": "TrackerMIL", "boosting": "TrackerBoosting",
+                   "medianflow": "TrackerMedianFlow", "mosse": "TrackerMOSSE", "tld": "TrackerTLD"}
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """One sequence folder: its frames, its ground truth and its published results files."""
+
+    name: str
+    path: Path
+    groundtruth: dict[int, Box]
+    results: tuple[Path, ...]
+
+    def truth(self, start: int, stop: int | None) -> dict[int, Box]:
+        """Ground truth of the frames ``start <= f < stop``."""
+        return {f: b for f, b in self.groundtruth.items() if f >= start and (stop is None or f < stop)}
+
+
+@dataclass
+class Row:
+    """One line of the table: a tracker (ours, published, baseline or OpenCV) on one sequence."""
+
+    sequence: str
+    tracker: str
+    kind: str  # "tracker" | "published" | "baseline" | "opencv"
+    score: TrackScore | None = None
+    curve: np.ndarray | None = None  # success rate at OVERLAP_THRESHOLDS
+    precision: np.ndarray | None = None  # precision at PRECISION_THRESHOLDS
+    size_2x: float | None = None  # on-target frames with the box area within 2x of the truth
+    fps: float | None = None
+    seconds: float | None = None  # wall time of tracking
+    seconds_total: float | None = None  # including start-up
+    note: str = ""
+    boxes_csv: str | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def auc(self) -> float | None:
+        return None if self.curve is None else float(self.curve.mean())
+
+
+def _is_sequence(p: Path) -> bool:
+    return (p / "frames").is_dir() and (p / "groundtruth.csv").is_file()
+
+
+def _load(p: Path) -> Sequence:
+    gt = read_boxes(p / "groundtruth.csv")
+    res = tuple(sorted((p / "results").glob("*.csv"))) if (p / "results").is_dir() else ()
+    return Sequence(name=p.name, path=p, groundtruth=gt, results=res)
+
+
+def find_sequences(paths: list[str]) -> tuple[list[Sequence], list[str]]:
+    """Sequence folders among ``paths`` (each a sequence or a folder of sequences) and notes on
+    the entries skipped. A path that is neither raises FileNotFoundError / ValueError (one line)."""
+    seqs: list[Sequence] = []
+    notes: list[str] = []
+    for text in paths:
+        p = Path(text)
+        if not p.exists():
+            raise FileNotFoundError(f"dataset folder not found: {text}")
+        if not p.is_dir():
+            raise ValueError(f"{text} is not a folder (give a sequence folder with frames/ and groundtruth.csv, "
+                             "or a folder of them)")
+        if _is_sequence(p):
+            seqs.append(_load(p))
+            continue
+        if (p / "frames").is_dir():
+            raise ValueError(f"{text} has frames/ but no groundtruth.csv (frame,x,y,w,h per line)")
+        if (p / "groundtruth.csv").is_file():
+            raise ValueError(f"{text} has groundtruth.csv but no frames/ folder")
+        children = sorted(c for c in p.iterdir() if c.is_dir() and not c.name.startswith("."))
+        found = [c for c in children if _is_sequence(c)]
+        if not found:
+            raise ValueError(f"{text} is not a sequence folder (frames/ and groundtruth.csv) and holds none")
+        for c in children:
+            if c in found:
+                seqs.append(_load(c))
+            else:
+                notes.append(f"skipped {c}: not a sequence folder (needs frames/ and groundtruth.csv)")
+    names = [s.name for s in seqs]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"two sequences are named {dup[0]}; give each sequence once")
+    return seqs, notes
+
+
+def score_row(row: Row, gt: dict[int, Box], csv_path: Path) -> Row:
+    """Score the boxes in ``csv_path`` as ``gflow eval --gt ... --pred csv_path`` does, over ``gt``'s frames."""
+    pred = read_boxes(csv_path)
+    row.score = score(gt, pred)
+    row.curve = success_curve(gt, pred)
+    row.precision = precision_curve(gt, pred, PRECISION_THRESHOLDS)
+    row.size_2x = size_kept(gt, pred)
+    return row
+
+
+def static_box(seq: Sequence, gt: dict[int, Box], start: int, folder: Path) -> Row:
+    """The baseline: the first frame's ground-truth box held still on every frame."""
+    path = folder / "static_box.csv"
+    write_boxes(path, {f: seq.groundtruth[start] for f in gt})
+    return score_row(Row(seq.name, "static box", "baseline", boxes_csv=str(path)), gt, path)
+
+
+def published_rows(seq: Sequence, gt: dict[int, Box]) -> list[Row]:
+    """``results/*.csv`` scored over the same frames (a file that cannot be read gets a note)."""
+    rows = []
+    for p in seq.results:
+        row = Row(seq.name, p.stem, "published", boxes_csv=str(p))
+        try:
+            score_row(row, gt, p)
+        except (ValueError, FileNotFoundError) as e:
+            row.note = f"not scored: {e}"
+        rows.append(row)
+    return rows
+
+
+def opencv_tracker(name: str) -> tuple[Callable | None, str]:
+    """(factory, "") for an OpenCV tracker, or (None, why it is unavailable)."""
+    import cv2
+
+    cls = OPENCV_TRACKERS.get(name)
+    if cls is None:
+        return None, f"unknown OpenCV tracker (known: {', '.join(OPENCV_TRACKERS)})"
+    for mod in (cv2, getattr(cv2, "legacy", None)):
+        if mod is None:
+            continue
+        f = getattr(mod, f"{cls}_create", None) or getattr(getattr(mod, cls, None), "create", None)
+        if f is not None:
+            return f, ""
+    return None, f"unavailable: this OpenCV ({cv2.__version__}) has no {cls} (it is in opencv-contrib-python)"
+
+
+def run_opencv(name: str, seq: Sequence, start: int, stop: int | None, out_csv: Path,
+               seed: int = 1) -> tuple[int, float]:
+    """Run OpenCV's tracker ``name`` over the frames from the ground-truth box of ``start`` in a
+    fresh process, and write its boxes. Returns (frames, seconds reading and tracking).
+
+    A fresh process because OpenCV's trackers keep state between runs in one process (MIL gives
+    another result on its second run even with ``cv2.setRNGSeed``), so a row would depend on
+    what ran before it. Raises RuntimeError if the tracker fails.
+    """
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_opencv_child, args=(send, name, seq, start, stop, str(out_csv), seed), daemon=True)
+    proc.start()
+    send.close()
+    try:
+        res = recv.recv()
+    except EOFError:
+        proc.join(5.0)
+        raise RuntimeError(f"the OpenCV {name} process died (exit status {proc.exitcode})") from None
+    except BaseException:  # Ctrl-C: stop it now
+        proc.terminate()
+        raise
+    finally:
+        proc.join(5.0)
+        if proc.is_alive():
+            proc.kill()
+            proc.join()
+        recv.close()
+    if isinstance(res, str):
+        raise RuntimeError(res)
+    return res
+
+
+def _opencv_child(conn, name: str, seq: Sequence, start: int, stop: int | None, out_csv: str, seed: int) -> None:
+    """The body of :func:`run_opencv`'s process: sends (frames, seconds) or an error message."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent stops this process on Ctrl-C
+    try:
+        conn.send(_track_opencv(name, seq, start, stop, Path(out_csv), seed))
+    except Exception as e:  # reported as the row's note
+        conn.send(f"{type(e).__name__}: {e}")
+    finally:
+        conn.close()
+
+
+def _track_opencv(name: str, seq: Sequence, start: int, stop: int | None, out_csv: Path,
+                  seed: int) -> tuple[int, float]:
+    """An OpenCV tracker from the box of ``start``; a frame where it reports failure keeps its last box."""
+    import cv2
+
+    from stages.source import SourceParams
+
+    from pipeline.io.sources import open_reader
+
+    factory, why = opencv_tracker(name)
+    if factory is None:
+        raise RuntimeError(why)
+    cv2.setRNGSeed(seed)  # MIL and Boosting draw from OpenCV's global RNG
+    params = SourceParams(kind="folder", path=str((seq.path / "frames").resolve()), start=start, stop=stop)
+    boxes: dict[int, Box] = {}
+    tracker = None
+    last: Box = seq.groundtruth[start]
+    t0 = time.perf_counter()  # reading the frames is timed too, as in the pipeline's source stage
+    for raw in open_reader(params):
+        if raw.image is not None:
+            if tracker is None:
+                tracker = factory()
+                x, y, w, h = last
+                tracker.init(raw.image, (int(round(x)), int(round(y)), max(1, int(round(w))), max(1, int(round(h)))))
+            else:
+                ok, b = tracker.update(raw.image)
+                if ok:
+                    last = tuple(float(v) for v in b)  # type: ignore[assignment]
+        boxes[raw.index] = last
+    secs = time.perf_counter() - t0
+    write_boxes(out_csv, boxes)
+    return len(boxes), secs
+
+
+def tracking_seconds(recording: str | Path) -> float | None:
+    """Wall time from the first Frame published to the last estimate, from a recording."""
+    from pipeline.io.mcap_io import iter_records
+
+    first = last = None
+    for r in iter_records(recording):
+        if r.type == "Frame" and first is None:
+            first = r.publish_ns
+        elif r.type in ("Estimate", "PoseEstimate"):
+            last = r.publish_ns if last is None else max(last, r.publish_ns)
+    if first is None or last is None or last <= first:
+        return None
+    return (last - first) / 1e9
+
+
+def _f(v: float | None, fmt: str) -> str:
+    return "-" if v is None or not math.isfinite(v) else format(v, fmt)
+
+
+COLUMNS = ("sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "size 2x", "fps", "note")
+
+
+def _cells(r: Row) -> list[str]:
+    s = r.score
+    return [r.sequence, r.tracker, r.kind, "-" if s is None else str(s.frames), _f(s and s.cle, ".2f"),
+            _f(s and s.success, ".3f"), _f(r.auc, ".3f"), _f(r.size_2x, ".2f"), _f(r.fps, ".1f"), r.note]
+
+
+def format_table(rows: list[Row], markdown: bool = False) -> str:
+    """One table of every row: CLE (px), success (IoU > 0.5), success-plot AUC, fps."""
+    cells = [_cells(r) for r in rows]
+    if markdown:
+        out = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+        out += ["| " + " | ".join(c) + " |" for c in cells]
+        return "\n".join(out)
+    widths = [max(len(h), *(len(c[i]) for c in cells)) if cells else len(h) for i, h in enumerate(COLUMNS)]
+    right = {3, 4, 5, 6, 7, 8}
+
+    def line(c: list[str]) -> str:
+        return "  ".join(v.rjust(w) if i in right else v.ljust(w) for i, (v, w) in enumerate(zip(c, widths))).rstrip()
+
+    return "\n".join([line(list(COLUMNS)), line(["-" * w for w in widths])] + [line(c) for c in cells])
+
+
+def to_json(rows: list[Row], meta: dict) -> dict:
+    """The benchmark as JSON: ``meta`` plus one object per row (scores as ``gflow eval --json``)."""
+    out = []
+    for r in rows:
+        d: dict = {"sequence": r.sequence, "tracker": r.tracker, "kind": r.kind}
+        if r.score is not None:
+            d.update(r.score.to_json())
+            d["auc"] = round(r.auc, 4)  # type: ignore[arg-type]
+            d["success_curve"] = [round(float(v), 4) for v in r.curve]  # type: ignore[union-attr]
+            d["size_within_2x"] = None if r.size_2x is None else round(r.size_2x, 4)
+        d["fps"] = None if r.fps is None else round(r.fps, 2)
+        if r.seconds is not None:
+            d["seconds"] = round(r.seconds, 3)
+        if r.seconds_total is not None:
+            d["seconds_total"] = round(r.seconds_total, 3)
+        if r.note:
+            d["note"] = r.note
+        if r.boxes_csv:
+            d["boxes"] = r.boxes_csv
+        d.update(r.extra)
+        out.append(d)
+    return dict(meta, overlap_thresholds=[round(float(t), 4) for t in OVERLAP_THRESHOLDS], rows=out)
+
+
+_STYLE = {"tracker": "-", "opencv": "-.", "published": "--", "baseline": ":"}
+
+
+def _plot(rows: list[Row], path: str, attr: str, x: np.ndarray, xlabel: str, ylabel: str, label: Callable[[Row], str],
+          title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    seqs = list(dict.fromkeys(r.sequence for r in rows))
+    # one colour per tracker across every subplot; ours first, the static box grey
+    names = list(dict.fromkeys(r.tracker for r in sorted(rows, key=lambda r: r.kind != "tracker")
+                               if r.kind != "baseline"))
+    cmap = plt.get_cmap("tab10" if len(names) <= 10 else "tab20")
+    colour = {n: cmap(i % cmap.N) for i, n in enumerate(names)}
+    n = max(1, len(seqs))
+    cols = min(n, 3)
+    nrows = math.ceil(n / cols)
+    fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 4.2 * nrows), squeeze=False)
+    for ax, seq in zip(axes.flat, seqs):
+        mine = [r for r in rows if r.sequence == seq and getattr(r, attr) is not None]
+        mine.sort(key=lambda r: -(r.auc or 0.0) if attr == "curve" else -(float(r.precision[20]) if r.precision is not None else 0.0))
+        for r in mine:
+            ax.plot(x, getattr(r, attr), _STYLE.get(r.kind, "-"), lw=2.0 if r.kind == "tracker" else 1.2,
+                    color=colour.get(r.tracker, "0.5"), label=label(r))
+        ax.set_title(f"{title}: {seq}")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_xlim(x[0], x[-1])
+        ax.set_ylim(0, 1.02)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="best")
+    for ax in list(axes.flat)[len(seqs):]:
+        ax.axis("off")
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def plot_success(rows: list[Row], path: str) -> None:
+    """The OTB success plot: success rate against overlap threshold, one subplot per sequence,
+    one curve per tracker, AUC in the legend."""
+    _plot(rows, path, "curve", OVERLAP_THRESHOLDS, "overlap threshold", "success rate",
+          lambda r: f"{r.tracker} [{r.auc:.3f}]", "success plot")
+
+
+def plot_precision(rows: list[Row], path: str) -> None:
+    """The OTB precision plot: fraction of frames within a centre error, precision at 20 px in the legend."""
+    _plot(rows, path, "precision", PRECISION_THRESHOLDS, "location error threshold (px)", "precision",
+          lambda r: f"{r.tracker} [{float(r.precision[20]):.3f}]", "precision plot")  # type: ignore[index]
+
+
+def note(text: str) -> None:
+    """A progress line on stderr."""
+    print(f"benchmark: {text}", file=sys.stderr, flush=True)

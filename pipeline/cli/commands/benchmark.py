@@ -1,0 +1,252 @@
+"""``gflow benchmark DATASET...``: every tracker on every sequence folder, in one table.
+
+The logic (finding sequences, scoring, the table, JSON and plots) is in :mod:`pipeline.cli.benchmark`;
+each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`.track.run_track`).
+"""
+
+from __future__ import annotations
+
+ORDER = 31
+
+import json
+import tempfile
+from pathlib import Path
+
+from pipeline.cli.trackers import TRACKERS
+from pipeline.cli.commands.common import CliError
+
+
+#: the benchmark option that gives each tracker its ``gflow track --model`` file
+MODEL_OPTIONS = {"m2": "--m2-model", "gflow": "--gflow-model"}
+
+
+def _names(text: str | None, known: list[str], what: str) -> list[str]:
+    if text is None:
+        return list(known)
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise CliError(f"--{what} needs at least one name (known: {', '.join(known)})")
+    bad = [n for n in names if n not in known]
+    if bad:
+        raise CliError(f"unknown {what[:-1]} {bad[0]!r} (known: {', '.join(known)})")
+    return list(dict.fromkeys(names))
+
+
+def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path) -> list[str]:
+    """The ``gflow track`` command line this benchmark run is (the box of frame ``start``, one seed)."""
+    box = ",".join(repr(float(v)) for v in seq.groundtruth[start])
+    argv = [str(seq.path), "--init", box, "--out", str(folder / f"{name}.csv"), "--tracker", name,
+            "--seed", str(args.seed), "--start", str(start), "--record", str(folder / f"{name}.mcap")]
+    if stop is not None:
+        argv += ["--stop", str(stop)]
+    if args.inline:
+        argv.append("--inline")
+    if args.quiet:
+        argv.append("--quiet")
+    model = getattr(args, MODEL_OPTIONS[name][2:].replace("-", "_")) if name in MODEL_OPTIONS else None
+    if model:
+        argv += ["--model", model]
+    for s in args.set or []:
+        argv += ["--set", s]
+    return argv
+
+
+def _check_paths(args) -> None:
+    """Model files, plot names and --out-dir, before any work."""
+    for opt in MODEL_OPTIONS.values():
+        v = getattr(args, opt[2:].replace("-", "_"))
+        if v and not Path(v).is_file():
+            raise CliError(f"{opt}: model file not found: {v}")
+    for opt in ("plot", "precision_plot"):
+        v = getattr(args, opt)
+        if v and Path(v).suffix.lower() not in (".png", ".pdf", ".svg", ".jpg", ".jpeg"):
+            raise CliError(f"--{opt.replace('_', '-')} {v}: give a .png (or .pdf, .svg, .jpg) file name")
+        if v and not Path(v).resolve().parent.is_dir():
+            raise CliError(f"--{opt.replace('_', '-')} {v}: folder {Path(v).parent} does not exist")
+    if args.out_dir and Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
+        raise CliError(f"--out-dir {args.out_dir} is a file, not a folder")
+
+
+def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None, work: Path):
+    """``gflow track`` options and plan of every (sequence, tracker), or why it is skipped.
+
+    Building every plan first makes a bad model file or option fail before any tracking. A
+    tracker that cannot run without a model nobody gave is skipped with a note.
+    """
+    from pipeline.cli.commands.track import track_args, track_plan
+
+    plans: dict[tuple[str, str], tuple] = {}
+    skip: dict[tuple[str, str], str] = {}
+    for seq in seqs:
+        for name in names:
+            targs = track_args(_track_argv(args, seq, name, first[seq.name], stop, work / seq.name))
+            try:
+                plans[seq.name, name] = (targs, track_plan(targs))
+            except CliError as e:
+                if getattr(targs, "model", None):
+                    raise
+                needs_model = name in MODEL_OPTIONS and "--model" in str(e)
+                skip[seq.name, name] = f"skipped: needs {MODEL_OPTIONS[name]} MODEL.npz" if needs_model \
+                    else f"skipped: {e}"
+    return plans, skip
+
+
+def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
+    """Run one tracker as ``gflow track`` does, and score its boxes as ``gflow eval`` does."""
+    from pipeline.cli.benchmark import note, score_row, tracking_seconds
+    from pipeline.recording.results import write_boxes
+    from pipeline.cli.commands.track import run_track
+
+    try:
+        run = run_track(targs, plan)
+    except Exception as e:  # noqa: BLE001 - a tracker that fails is a result of the benchmark, not its end
+        row.note = f"failed: {e}"
+        note(f"{row.sequence} / {row.tracker}: {row.note}")
+        return
+    if run.info.get("interrupted"):
+        raise KeyboardInterrupt
+    write_boxes(targs.out, run.boxes)
+    row.boxes_csv = targs.out if keep else None
+    try:
+        score_row(row, gt, Path(targs.out))
+    except ValueError as e:
+        row.note = f"not scored: {e}"
+    secs = tracking_seconds(run.recording) or run.seconds
+    row.seconds, row.seconds_total = secs, run.seconds
+    row.fps = len(run.boxes) / secs if secs > 0 else None
+    if run.info.get("errors"):
+        row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
+    note(f"{row.sequence} / {row.tracker}: {len(run.boxes)} frames in {secs:.2f} s"
+         + (f" ({row.fps:.1f} fps)" if row.fps else "")
+         + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
+
+
+def _opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out: Path, seed: int,
+                keep: bool) -> None:
+    """Run one OpenCV tracker (in its own process) and score it."""
+    from pipeline.cli.benchmark import run_opencv, score_row
+
+    try:
+        n, secs = run_opencv(name, seq, start, stop, out, seed=seed)
+        score_row(row, gt, out)
+    except (RuntimeError, ValueError, OSError) as e:
+        row.note = f"failed: {e}"
+        return
+    row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
+    row.boxes_csv = str(out) if keep else None
+
+
+def cmd_benchmark(args) -> int:
+    from pipeline.cli.benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
+                             plot_success, published_rows, static_box, to_json)
+    from pipeline.io.datasets import parse_range
+
+    names = _names(args.trackers, sorted(TRACKERS), "trackers")
+    cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
+    first_frame, stop = parse_range(args.frames)
+    _check_paths(args)
+    seqs, skipped = find_sequences(args.datasets)
+    for s in skipped:
+        note(s)
+    # the first frame to track: A of --frames A:B, else each sequence's first ground-truth frame
+    first = {seq.name: first_frame if args.frames else min(seq.groundtruth) for seq in seqs}
+    for seq in seqs:
+        if first[seq.name] not in seq.groundtruth:
+            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, "
+                           "the first frame to track")
+    cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
+    mode = "inline" if args.inline else "processes"
+    keep = bool(args.out_dir)
+    rows: list[Row] = []
+    interrupted = False
+    with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
+        work = Path(args.out_dir) if keep else Path(tmp)
+        plans, skip = _plans(args, seqs, names, first, stop, work)
+        runs = len(plans) + len(seqs) * (len(cv_names) - len(cv_missing))
+        k = 0
+        try:
+            for seq in seqs:
+                start = first[seq.name]
+                gt = seq.truth(start, stop)
+                folder = work / seq.name
+                folder.mkdir(parents=True, exist_ok=True)
+                for name in names:
+                    row = Row(seq.name, name, "tracker")
+                    rows.append(row)
+                    if (seq.name, name) in skip:
+                        row.note = skip[seq.name, name]
+                        note(f"{seq.name} / {name}: {row.note}")
+                        continue
+                    targs, plan = plans[seq.name, name]
+                    k += 1
+                    note(f"[{k}/{runs}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
+                         + (f" ({plan[1]} frames)" if plan[1] else "") + f", {mode}, seed {args.seed}")
+                    _tracker_row(row, targs, plan, gt, keep)
+                for cv in cv_names:
+                    row = Row(seq.name, f"opencv {cv}", "opencv", note=cv_missing.get(cv, ""))
+                    rows.append(row)
+                    if cv not in cv_missing:
+                        k += 1
+                        note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
+                        _opencv_row(row, cv, seq, start, stop, gt, folder / f"opencv_{cv}.csv", args.seed, keep)
+                rows.extend(published_rows(seq, gt))
+                rows.append(static_box(seq, gt, start, folder))
+                if not keep:
+                    rows[-1].boxes_csv = None
+        except KeyboardInterrupt:
+            interrupted = True
+            if rows and rows[-1].score is None and not rows[-1].note:
+                rows[-1].note = "interrupted"
+            note("interrupted: stopped; the table holds the runs that finished")
+    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs],
+            "frames": [first_frame if args.frames else None, stop], "seed": args.seed, "mode": mode,
+            "skipped": skipped, "interrupted": interrupted}
+    if args.json:
+        print(json.dumps(to_json(rows, meta)))
+    else:
+        print(format_table(rows, markdown=args.markdown))
+        if skipped:
+            print("\n" + "\n".join(skipped))
+    if not interrupted:
+        if args.plot:
+            plot_success(rows, args.plot)
+            note(f"success plot: {args.plot}")
+        if args.precision_plot:
+            plot_precision(rows, args.precision_plot)
+            note(f"precision plot: {args.precision_plot}")
+    return 130 if interrupted else 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "benchmark", help="run trackers on sequence folders and score them in one table",
+        description="Run every selected tracker on every sequence folder (frames/ and groundtruth.csv, "
+                    "optionally results/*.csv of published trackers) from the ground-truth box of the first frame, "
+                    "exactly as `gflow track` does, and score it as `gflow eval` does. Prints one table: CLE (px), "
+                    "success (IoU > 0.5), AUC of the success plot, size 2x (of the frames where the box overlaps the "
+                    "truth, the fraction whose area is within a factor 2 of the true area) and fps (frames / wall "
+                    "time of tracking), with "
+                    "the published trackers and a box that never moves scored over the same frames.",
+        epilog="example: gflow benchmark ../shared/data --trackers chamfer --plot success.png")
+    p.add_argument("datasets", nargs="+", metavar="DATASET",
+                   help="a sequence folder (frames/ + groundtruth.csv) or a folder of them")
+    p.add_argument("--trackers", metavar="NAME,...",
+                   help=f"trackers to run (default all: {', '.join(sorted(TRACKERS))})")
+    p.add_argument("--seed", type=int, default=1, help="random seed of every run (default 1)")
+    p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A "
+                                                    "(default: every frame from the first ground-truth box)")
+    p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")
+    p.add_argument("--m2-model", metavar="MODEL.npz", help="model for --tracker m2 (without one, m2 is skipped)")
+    p.add_argument("--gflow-model", metavar="MODEL.npz", help="morphable model for the gflow tracker (default: generic head)")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="stage parameter for every tracker run")
+    p.add_argument("--opencv", metavar="NAME,...",
+                   help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them")
+    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    p.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    p.add_argument("--plot", metavar="PNG", help="write the success plot (success rate against overlap threshold)")
+    p.add_argument("--precision-plot", metavar="PNG", help="write the precision plot (against centre error)")
+    p.add_argument("--out-dir", metavar="DIR",
+                   help="keep every run's boxes (DIR/SEQUENCE/TRACKER.csv) and recording (.mcap); "
+                        "default: a temporary folder, removed at the end")
+    p.add_argument("-q", "--quiet", action="store_true", help="no per-frame progress (one line per run still)")
+    p.set_defaults(func=cmd_benchmark)

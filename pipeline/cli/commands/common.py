@@ -1,0 +1,271 @@
+"""Helpers shared by the commands: errors, zenoh options, running a plan."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+import time
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.runtime.graph import Plan
+from pipeline.runtime.transport import ZenohSettings, free_port
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+class CliError(Exception):
+    """A user error: printed as one line, exit status 2."""
+
+
+def parse_box(text: str) -> tuple[float, float, float, float]:
+    try:
+        vals = tuple(float(v) for v in text.replace(" ", "").split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected X,Y,W,H numbers, got {text!r}") from None
+    if len(vals) != 4:
+        raise argparse.ArgumentTypeError(f"expected 4 numbers X,Y,W,H, got {len(vals)}")
+    if not all(np.isfinite(vals)):
+        raise argparse.ArgumentTypeError("box has NaN or inf")
+    if vals[2] <= 0 or vals[3] <= 0:
+        raise argparse.ArgumentTypeError(f"box width and height must be positive, got W={vals[2]}, H={vals[3]}")
+    return vals  # type: ignore[return-value]
+
+
+_ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^\s?#]+)(\?[^\s#]*)?(#\S*)?$")
+_HOST_PORT = re.compile(r"^(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+
+
+def parse_endpoint(text: str) -> str:
+    """A zenoh endpoint ``PROTO/HOST:PORT`` (e.g. tcp/127.0.0.1:7447), checked before zenoh sees it."""
+    m = _ENDPOINT.match(text.strip())
+    if m is None:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a zenoh endpoint; expected PROTO/HOST:PORT, "
+                                         f"e.g. tcp/127.0.0.1:7447")
+    if m["proto"] in ("tcp", "udp", "tls", "quic", "ws"):
+        hp = _HOST_PORT.match(m["addr"])
+        if hp is None or not 0 <= int(hp.group(2)) <= 65535:
+            raise argparse.ArgumentTypeError(f"{text!r}: a {m['proto']} endpoint needs HOST:PORT with a port "
+                                             f"0..65535, e.g. {m['proto']}/127.0.0.1:7447")
+    return text.strip()
+
+
+def positive_float(text: str) -> float:
+    """A finite number > 0 (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (np.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text}")
+    return v
+
+
+def check_outputs(**paths: str | None) -> None:
+    """Refuse, before any work, output paths that are folders or cannot be written.
+
+    ``check_outputs(out=args.out, record=args.record)``: each keyword names the option (an
+    upper-case keyword, ``FIXED=...``, names a positional argument).
+    """
+    from pipeline.runtime.preflight import check_writable
+
+    for opt, path in paths.items():
+        if path:
+            check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
+
+
+def parse_sets(items: list[str]) -> dict[str, dict]:
+    """``stage.param=value`` (value parsed as YAML: numbers, lists, true/false) -> overrides."""
+    import yaml
+
+    out: dict[str, dict] = {}
+    for it in items or []:
+        if "=" not in it or "." not in it.split("=", 1)[0]:
+            raise CliError(f"--set expects stage.param=value, got {it!r}")
+        key, val = it.split("=", 1)
+        stage, param = key.split(".", 1)
+        out.setdefault(stage, {})[param] = yaml.safe_load(val)
+    return out
+
+
+def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:
+    listen = tuple(args.listen or ())
+    connect = tuple(args.connect or ())
+    if default_connect and not connect and args.mode != "router":
+        connect = (DEFAULT_ENDPOINT,)
+    if not listen:
+        listen = ("tcp/127.0.0.1:0",)
+    return ZenohSettings(mode=args.mode, listen=listen, connect=connect, multicast=args.multicast)
+
+
+def tool_zenoh(args, stream: str | None = None, require: bool = True) -> tuple[ZenohSettings, list[dict]]:
+    """Settings for a tool joining a live pipeline, and the announcements it connects to.
+
+    With ``--connect`` (or in router / client mode with explicit endpoints) the user's endpoints
+    are used. Otherwise the tool connects to every pipeline announced on this machine (of
+    ``stream`` when given: see :mod:`pipeline.runtime.running`); with ``require`` and none running it is
+    a :class:`CliError` saying so.
+    """
+    from pipeline.runtime.running import describe_none, running
+
+    if args.connect or args.mode == "router" or args.multicast:
+        return zenoh_from_args(args, default_connect=False), []
+    found = running(stream)
+    if not found and require:
+        raise CliError(describe_none(stream))
+    endpoints = tuple(dict.fromkeys(e for i in found for e in i.get("endpoints", [])))
+    listen = tuple(args.listen or ()) or ("tcp/127.0.0.1:0",)
+    return ZenohSettings(mode=args.mode, listen=listen, connect=endpoints, multicast=False), found
+
+
+def stream_of(key: str) -> str | None:
+    """The stream named by a key expression ``gflow/<stream>/...`` (None for a wildcard)."""
+    parts = key.split("/")
+    if len(parts) >= 2 and parts[0] == "gflow" and parts[1] and "*" not in parts[1] and "$" not in parts[1]:
+        return parts[1]
+    return None
+
+
+def launcher_zenoh(args) -> ZenohSettings:
+    """The launcher listens on 7447 (so `gflow topics` finds it) unless busy or told otherwise."""
+    if args.listen:
+        listen = tuple(args.listen)
+    else:
+        import socket
+
+        with socket.socket() as s:
+            try:
+                s.bind(("127.0.0.1", 7447))
+                listen = (DEFAULT_ENDPOINT,)
+            except OSError:
+                listen = (f"tcp/127.0.0.1:{free_port()}",)
+    return ZenohSettings(mode=args.mode, listen=listen, connect=tuple(args.connect or ()), multicast=args.multicast)
+
+
+def add_record_args(p: argparse.ArgumentParser, default: str) -> None:
+    """``--record FILE``, ``--no-record`` and ``--record-topics PATTERN``."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--record", metavar="FILE", help=f"recording path (default {default})")
+    g.add_argument("--no-record", action="store_true",
+                   help="keep no recording (results are still written; a re-run, replay or render needs one)")
+    p.add_argument("--record-topics", action="append", metavar="PATTERN[,PATTERN]",
+                   help="record only these topics, as shell patterns on the name after gflow/STREAM/, e.g. "
+                        "'estimate,particles' or '*' (errors and heartbeats are always kept; raw frames are "
+                        "most of a recording's size)")
+
+
+class Recording:
+    """Where a run records, from ``--record / --no-record / --record-topics``.
+
+    ``needed`` are topics the command reads back after the run (``track`` reads the estimates):
+    they are always recorded, and with ``--no-record`` they go to a temporary file that
+    :meth:`cleanup` deletes. ``path`` is what to pass to the launcher (None: no recorder).
+    """
+
+    def __init__(self, plan: Plan, args, default: str | None, needed: tuple[str, ...] = ()) -> None:
+        import tempfile
+
+        self.tmpdir: str | None = None
+        self.temporary = False
+        rec = plan.recorder()
+        pats = [p.strip() for item in (getattr(args, "record_topics", None) or []) for p in item.split(",") if p.strip()]
+        if rec is None:
+            if pats or needed:
+                raise CliError(f"the graph {plan.name!r} has no recorder stage, so there is nothing to "
+                               + ("select topics of" if pats else "read the results from"))
+            self.path = None
+            return
+        if getattr(args, "no_record", False):
+            if not needed:
+                del plan.stages[rec.name]
+                self.path = None
+                return
+            self.tmpdir = tempfile.mkdtemp(prefix="gflow-norecord-")
+            self.temporary = True
+            self.path = str(Path(self.tmpdir) / "run.mcap")
+            rec.params["topics"] = list(needed)
+            return
+        if pats:
+            rec.params["topics"] = pats + [t for t in needed if t not in pats]
+        self.path = getattr(args, "record", None) or default
+        from pipeline.runtime.preflight import check_writable
+
+        check_writable(self.path or plan.recording_path(), "--record" if getattr(args, "record", None)
+                       else "the recording")  # before any work, also the default path
+
+    @property
+    def kept(self) -> str:
+        """How to name the recording to the user."""
+        return "none (--no-record)" if self.temporary or self.path is None else str(self.path)
+
+    def cleanup(self) -> None:
+        if self.tmpdir:
+            import shutil
+
+            shutil.rmtree(self.tmpdir, ignore_errors=True)
+            self.tmpdir = None
+
+
+def add_zenoh_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("zenoh network (default: peer mode on loopback, multicast scouting off)")
+    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer", help="zenoh session mode")
+    g.add_argument("--listen", action="append", metavar="ENDPOINT", type=parse_endpoint,
+                   help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    g.add_argument("--connect", action="append", metavar="ENDPOINT", type=parse_endpoint,
+                   help="endpoint to connect to, e.g. tcp/10.0.0.5:7447 for a zenoh router (repeatable)")
+    g.add_argument("--multicast", action="store_true", help="enable multicast scouting (off by default)")
+
+
+def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: bool = False, strict: bool = True):
+    """Run a plan inline or as processes; return (recording path, seconds, frames, per-stage info).
+    With ``strict=False`` a run that did not finish cleanly returns (``info["ok"]`` False) instead of
+    raising, so the caller can keep what was tracked."""
+    if getattr(args, "inline", False):
+        from pipeline.runtime.inline import run_inline
+
+        last = [0.0]
+
+        def progress(n: int) -> None:
+            now = time.monotonic()
+            if not quiet and now - last[0] > 1.0:
+                last[0] = now
+                print(f"  {n}" + (f"/{total}" if total else "") + " frames", file=sys.stderr)
+
+        md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
+              "gflow.config": plan.config_metadata()}
+        r = run_inline(plan, progress=progress, recording=recording, metadata=md)
+        bad = {n: e for n, e in r.errors.items() if e}
+        return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
+    from pipeline.runtime.launcher import Launcher
+    from pipeline.runtime.running import announce
+
+    launcher = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
+                        total_frames=total)
+    endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
+    if not quiet:
+        print(f"{plan.name}: listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo and hz "
+              f"find it)", file=sys.stderr)
+    with announce(plan.stream, endpoints, name=plan.name, stages=list(plan.stages), recording=launcher.recording
+                  if plan.recorder() else None):
+        res = launcher.run()
+    if res.interrupted:
+        print("interrupted: stages stopped, recording closed", file=sys.stderr)
+    for n, e in res.exits.items():
+        if e.returncode != 0:
+            print(f"stage {n} exited with status {e.returncode}: {e.last_error}", file=sys.stderr)
+    src = next(n for n, s in plan.stages.items() if s.is_source())
+    frames = res.status[src].steps if src in res.status else 0
+    info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
+            "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()},
+            "interrupted": res.interrupted, "stall": res.stall,
+            "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
+    if res.stall:
+        print(res.stall, file=sys.stderr)
+    if strict and not res.ok and not res.interrupted:
+        raise CliError("the pipeline did not finish cleanly (see the messages above)")
+    return res.recording, res.seconds, frames, info
+
+

@@ -1,0 +1,40 @@
+"""``gflow foxglove IN.mcap OUT.mcap``: a copy of a recording the Foxglove app reads entirely."""
+
+from __future__ import annotations
+
+ORDER = 59
+
+import os
+from pathlib import Path
+
+from pipeline.cli.commands.common import CliError, check_outputs
+
+
+def cmd_foxglove(args) -> int:
+    from pipeline.recording.foxglove_export import export_for_foxglove
+
+    if not Path(args.recording).is_file():
+        raise CliError(f"recording not found: {args.recording}")
+    if os.path.abspath(args.recording) == os.path.abspath(args.out):
+        raise CliError("OUT must be a new file, not the recording itself")
+    check_outputs(OUT=args.out)
+    s = export_for_foxglove(args.recording, args.out, image_format=args.image_format, quality=args.quality)
+    print(f"wrote {args.out}: {s.messages} messages on {len(s.by_topic)} topics, as JSON Foxglove decodes"
+          + (f"; left out {sum(s.left_out.values())} binary messages ({', '.join(sorted(s.left_out))})"
+             if s.left_out else ""))
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("foxglove", help="copy a recording into one the Foxglove app reads entirely",
+                       description="gflow records its messages as MessagePack, which Foxglove cannot decode. This "
+                                   "writes a copy with the frames as foxglove.CompressedImage, the render stage's "
+                                   "images and annotations as they are, and the estimates (box, pose, ESS, state), "
+                                   "errors and heartbeats as JSON for the Plot panel. Features, particles and "
+                                   "snapshots are left out. Keep the original for rerun, diff and step.",
+                       epilog="example: gflow foxglove run.mcap run-foxglove.mcap   (then open it in Foxglove)")
+    p.add_argument("recording", help="gflow MCAP recording")
+    p.add_argument("out", help="the copy to write (.mcap)")
+    p.add_argument("--image-format", choices=["jpeg", "png"], default="jpeg", help="frames as (default jpeg)")
+    p.add_argument("--quality", type=int, default=90, help="JPEG quality 1-100 (default 90)")
+    p.set_defaults(func=cmd_foxglove)

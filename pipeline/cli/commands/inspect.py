@@ -1,0 +1,245 @@
+"""``gflow ps``, ``gflow topics``, ``gflow echo``, ``gflow hz``, ``gflow pub``: look at (and poke)
+a live pipeline.
+
+Without ``--connect`` the tools join the pipelines announced on this machine (see
+:mod:`pipeline.runtime.running`) and say so, with a non-zero exit, when none is running.
+"""
+
+from __future__ import annotations
+
+ORDER = 60
+
+import argparse
+import json
+import sys
+import time
+
+from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, stream_of, tool_zenoh
+
+
+def _key(topic: str) -> str:
+    return topic if topic.startswith("gflow/") else f"gflow/{topic}"
+
+
+def _say_where(found: list[dict]) -> None:
+    for i in found:
+        print(f"(pipeline {i.get('name')}, stream {i.get('stream')}, pid {i.get('pid')}, "
+              f"at {', '.join(i.get('endpoints', []))})", file=sys.stderr)
+
+
+def cmd_topics(args) -> int:
+    from pipeline.cli.live import list_topics
+
+    settings, found = tool_zenoh(args, args.stream)
+    _say_where(found)
+    key = f"gflow/{args.stream}/**" if args.stream else "gflow/**"
+    counts = list_topics(settings, args.duration, out=sys.stdout, key=key, as_json=args.json)
+    return 0 if counts else 1
+
+
+def cmd_echo(args) -> int:
+    from pipeline.cli.live import echo
+
+    key = _key(args.topic)
+    settings, found = tool_zenoh(args, stream_of(key))
+    if not args.json:
+        _say_where(found)
+    n = echo(settings, key, args.count, args.timeout, as_json=args.json)
+    if n == 0:
+        print(f"gflow echo: no message on {key}" + (f" in {args.timeout:g} s" if args.timeout else ""),
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_hz(args) -> int:
+    from pipeline.cli.live import hz
+
+    key = _key(args.topic)
+    if args.window is not None and args.window < 1:
+        raise CliError(f"--window must be at least 1 gap, got {args.window}")
+    settings, found = tool_zenoh(args, stream_of(key))
+    _say_where(found)
+    st = hz(settings, key, args.duration, wait=args.wait, window=args.window)
+    if st is None:
+        print(f"gflow hz: fewer than 2 messages on {key} (waited {args.wait:g} s for the first)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _stage_states(settings, streams: list[str], seconds: float) -> dict[str, dict]:
+    """{stream: {stage: StageStatus}} heard on the heartbeats within ``seconds``."""
+    import queue
+
+    from stages.messages import MessageError, StageStatus, decode
+
+    from pipeline.runtime.transport import Bus, open_session
+
+    s = open_session(settings)
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    bus = Bus(s)
+    for st in streams:
+        bus.subscribe(f"gflow/{st}/_status/*", lambda k, p, ns, seq: q.put(p))
+    out: dict[str, dict] = {st: {} for st in streams}
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        try:
+            p = q.get(timeout=0.05)
+        except queue.Empty:
+            continue
+        try:
+            m = decode(p)
+        except MessageError:
+            continue
+        if isinstance(m, StageStatus):
+            out.setdefault(m.header.stream, {})[m.stage] = m
+    s.close()
+    return out
+
+
+def cmd_ps(args) -> int:
+    from pipeline.runtime.running import describe_none, running, runtime_dir
+
+    found = running(args.stream)
+    if not found:
+        print(describe_none(args.stream), file=sys.stderr)
+        return 1
+    if args.json:
+        rows = []
+    for info in found:
+        settings, _ = tool_zenoh(argparse.Namespace(connect=info["endpoints"], listen=None, mode="peer",
+                                                    multicast=False), require=False)
+        states = _stage_states(settings, [info["stream"]], args.listen_for).get(info["stream"], {})
+        if args.json:
+            rows.append(dict(info, states={n: {"state": st.state, "steps": st.steps, "fps": st.fps,
+                                                "last_seq": st.last_seq, "errors": st.errors, "rss_mb": st.rss_mb,
+                                                "pid": st.pid} for n, st in states.items()}))
+            continue
+        up = time.time() - float(info.get("started", time.time()))
+        print(f"{info.get('kind', 'pipeline')} {info.get('name')}  stream {info['stream']}  pid {info['pid']}  "
+              f"up {up:.0f} s  at {', '.join(info['endpoints'])}"
+              + (f"  recording {info['recording']}" if info.get("recording") else ""))
+        for name in info.get("stages") or sorted(states):
+            st = states.get(name)
+            if st is None:
+                print(f"  {name:14s} {'(no heartbeat)':10s}")
+            else:
+                print(f"  {name:14s} {st.state:10s} steps {st.steps:6d}  last frame {st.last_seq:6d}  "
+                      f"{st.fps:6.1f} fps  {st.rss_mb:6.0f} MB  pid {st.pid}"
+                      + (f"  errors {st.errors}" if st.errors else ""))
+    if args.json:
+        print(json.dumps(rows, indent=1))
+    if args.verbose_dir:
+        print(f"(announcements in {runtime_dir()})", file=sys.stderr)
+    return 0
+
+
+def cmd_pub(args) -> int:
+    import msgspec
+
+    from stages.messages import MESSAGE_TYPES, Header, encode
+
+    from pipeline.runtime.transport import Bus, open_session
+
+    key = _key(args.topic)
+    typ = MESSAGE_TYPES.get(args.type)
+    if typ is None:
+        raise CliError(f"unknown message type {args.type!r} (known: {', '.join(sorted(MESSAGE_TYPES))})")
+    try:
+        fields = json.loads(args.fields) if args.fields else {}
+    except json.JSONDecodeError as e:
+        raise CliError(f"FIELDS is not valid JSON: {e}") from None
+    if not isinstance(fields, dict):
+        raise CliError("FIELDS must be a JSON object, e.g. '{\"command\": \"stop\"}'")
+    stream = stream_of(key)
+    if stream is None:
+        raise CliError(f"publish on a concrete topic gflow/<stream>/<name>, not {key!r}")
+    fields.setdefault("header", {})
+    fields["header"] = dict({"stream": stream, "seq": args.seq, "stamp_ns": time.time_ns()}, **fields["header"])
+    try:
+        msg = msgspec.convert(fields, typ)
+    except msgspec.ValidationError as e:
+        raise CliError(f"not a valid {args.type}: {e}") from None
+    assert isinstance(msg.header, Header)
+    settings, found = tool_zenoh(args, stream)
+    s = open_session(settings)
+    try:
+        bus = Bus(s)
+        pub = bus.publisher(key)
+        end = time.monotonic() + args.wait
+        while not pub.matching_status.matching:
+            if time.monotonic() > end:
+                raise CliError(f"no subscriber of {key} appeared within {args.wait:g} s; nothing sent")
+            time.sleep(0.02)
+        for i in range(args.count):
+            if i:
+                time.sleep(1.0 / args.rate)
+            bus.publish(key, encode(msg), msg.header.seq, args.type)
+        time.sleep(0.2)  # let the samples leave before the session closes
+    finally:
+        s.close()
+    print(f"published {args.count} {args.type} on {key}", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("ps", help="list the running pipelines and the state of their stages",
+                       description="Lists the pipelines (and replays) running on this machine, as announced in the "
+                                   "user's runtime folder, with each stage's state, progress, rate and memory from "
+                                   "its heartbeat.")
+    p.add_argument("--stream", help="only the pipeline of this stream")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.add_argument("--listen-for", type=positive_float, default=1.2, metavar="S",
+                   help="seconds to collect heartbeats (default 1.2; stages beat every 0.5 s)")
+    p.add_argument("--where", dest="verbose_dir", action="store_true", help="also say where the announcements are")
+    p.set_defaults(func=cmd_ps)
+
+    p = sub.add_parser("topics", help="list the topics of a live pipeline",
+                       description="Listens on gflow/** for a while and prints each topic with its message type, "
+                                   "count, rate and bandwidth. Without --connect it joins the pipelines running on "
+                                   "this machine.")
+    p.add_argument("--duration", type=positive_float, default=2.0, help="seconds to listen (default 2)")
+    p.add_argument("--stream", help="only the pipeline of this stream (when several run)")
+    p.add_argument("--json", action="store_true", help="print JSON: type, messages, rate_hz, bytes_per_s per topic")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_topics)
+
+    p = sub.add_parser("echo", help="print the messages on a live topic",
+                       description="Prints each message on a topic as it arrives: its type, frame number and small "
+                                   "fields (arrays as dtype and shape), or one JSON object per line with --json. "
+                                   "Exits 1 when no message came.",
+                       epilog="examples:\n  gflow echo gflow/demo/estimate -n 5\n  gflow echo demo/_status/* --json "
+                              "--timeout 2", formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("topic", help="key expression, e.g. gflow/cam0/estimate or cam0/**")
+    p.add_argument("-n", "--count", type=int, help="stop after N messages")
+    p.add_argument("--timeout", type=positive_float, help="stop after this many seconds")
+    p.add_argument("--json", action="store_true", help="one JSON object per message (small arrays as lists)")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_echo)
+
+    p = sub.add_parser("hz", help="measure the rate of a live topic",
+                       description="Waits for the first message, then prints every second the average rate and the "
+                                   "min / max / standard deviation of the gaps between messages, over a rolling "
+                                   "window (like ros2 topic hz). Exits 1 when fewer than 2 messages came.")
+    p.add_argument("topic", help="key expression, e.g. gflow/cam0/frames")
+    p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--window", type=int, metavar="N", help="statistics over the last N gaps (default: all)")
+    p.add_argument("--wait", type=positive_float, default=10.0, help="seconds to wait for the first message (default 10)")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_hz)
+
+    p = sub.add_parser("pub", help="publish one message (or a few) on a live topic",
+                       description="Builds a gflow message from JSON fields (the header is filled in: stream from the "
+                                   "topic, --seq, the current time), waits until the topic has a subscriber, and "
+                                   "publishes it.",
+                       epilog="example: gflow pub gflow/demo/_control Control '{\"command\": \"stop\"}'",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("topic", help="topic, e.g. gflow/cam0/_control")
+    p.add_argument("type", help="message type, e.g. Control, Estimate")
+    p.add_argument("fields", nargs="?", help="JSON object of the message's fields (default {})")
+    p.add_argument("--seq", type=int, default=0, help="header sequence number (default 0)")
+    p.add_argument("-n", "--count", type=int, default=1, help="how many times to publish (default 1)")
+    p.add_argument("--rate", type=positive_float, default=1.0, help="messages per second with -n > 1 (default 1)")
+    p.add_argument("--wait", type=positive_float, default=5.0, help="seconds to wait for a subscriber (default 5)")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_pub)

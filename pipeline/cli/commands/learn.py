@@ -1,0 +1,352 @@
+"""``gflow learn m2``: learn a Metric Mixture model (Toyama & Blake 2002, sec. 4) from video.
+
+Training input (sec. 4.1, 5.1, 5.2):
+
+* contour exemplars (``--metric chamfer``): with no ``--boxes``, the paper's pipeline: a
+  median background of the training frames, background subtraction, and the Canny edges
+  of the foreground; with ``--boxes GT.csv``, the edges inside each ground-truth box
+  (masked by the foreground unless ``--no-background-mask``), roughly aligned by the box;
+* patch exemplars (``--metric shuffle`` or ``l2``): whole frames (pre-cropped video such
+  as the AVLetters mouths), or the ``--boxes`` contents, resampled to ``--patch-size``.
+
+Several sources (``gflow learn m2 SEQ1 SEQ2 ...``) are learned as one model: one exemplar set
+by k-medoids over all items, kernels over all validation items, dynamics within each
+sequence; with ``--boxes`` and no file each source folder's ``groundtruth.csv`` is used, and
+every sequence is cut to one common reference box (the median box over all of them).
+Contour models learned from boxes also get appearance exemplars (edge-orientation patches,
+:mod:`gflow_core.m2.appearance_metric`) unless ``--no-appearance``.
+
+The model file (``pipeline.io.modelfile``, kind ``m2``) also records how the features were
+made (Canny thresholds, blur, crop), so ``gflow track --tracker m2`` preprocesses alike.
+"""
+
+from __future__ import annotations
+
+ORDER = 25
+
+import argparse
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.cli.commands.common import CliError
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"WxH"`` -> (rows, cols) = (H, W)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--patch-size must look like WxH (e.g. 40x30), got {text!r}") from None
+    if w < 2 or h < 2:
+        raise ValueError(f"--patch-size must be at least 2x2, got {text!r}")
+    return h, w
+
+
+def parse_pair(text: str, name: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ValueError(f"{name} must look like LOW,HIGH (e.g. 50,150), got {text!r}") from None
+    if not 0 <= a <= b:
+        raise ValueError(f"{name} needs 0 <= LOW <= HIGH, got {text!r}")
+    return a, b
+
+
+class _Progress:
+    """Prints ``learn: STAGE done/total`` on stderr, at most about twice a second per stage."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.quiet = quiet
+        self.t0 = time.monotonic()
+        self.last = (None, 0.0)
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if self.quiet:
+            return
+        now = time.monotonic()
+        if stage == self.last[0] and done < total and now - self.last[1] < 0.5:
+            return
+        self.last = (stage, now)
+        print(f"  learn: {stage:10s} {done}/{total}   ({now - self.t0:.1f} s)", file=sys.stderr, flush=True)
+
+
+def _log(args, msg: str) -> None:
+    if not args.quiet:
+        print(msg, file=sys.stderr, flush=True)
+
+
+def _box_array(path: str, index: np.ndarray) -> np.ndarray:
+    from pipeline.recording.results import read_boxes
+
+    gt = read_boxes(path)
+    boxes = np.full((index.size, 4), np.nan)
+    for i, f in enumerate(index):
+        if int(f) in gt:
+            boxes[i] = gt[int(f)]
+    if not np.isfinite(boxes[:, 0]).any():
+        raise CliError(f"{path} has no box for any of the training frames {int(index[0])}..{int(index[-1])}")
+    return boxes
+
+
+def _sources_and_boxes(args) -> list[tuple[str, str | None]]:
+    """(source, boxes CSV or None) per training sequence, from SOURCE... and --boxes [CSV...]."""
+    sources = list(args.source)
+    boxes = args.boxes
+    if boxes is None:
+        return [(s, None) for s in sources]
+    if not boxes:
+        # --boxes as a flag: each sequence folder's groundtruth.csv
+        out = []
+        for s in sources:
+            gt = Path(s) / "groundtruth.csv"
+            if not gt.is_file():
+                raise CliError(f"--boxes without a file needs SOURCE/groundtruth.csv; {gt} does not exist")
+            out.append((s, str(gt)))
+        return out
+    if len(boxes) != len(sources):
+        raise CliError(f"--boxes lists {len(boxes)} file(s) for {len(sources)} source(s): give one per source, or "
+                       "--boxes alone to use each folder's groundtruth.csv")
+    return list(zip(sources, boxes))
+
+
+def training_set(args):
+    """Read the training frames and turn them into a TrainingSet; returns (set, metadata, grey frames).
+
+    The grey frames are those of the training items, in item order (None where the items
+    are not contours cut from boxes): the appearance exemplars are learned from them.
+    """
+    pairs = _sources_and_boxes(args)
+    if len(pairs) == 1:
+        return _training_set_one(args, *pairs[0], sequence=0, ref_size=None)
+    from gflow_core.m2 import training
+
+    from pipeline.io.datasets import parse_range, read_frames, resolve_source
+
+    kinds = [resolve_source(s)[0] for s, _ in pairs]
+    if "avletters" in kinds:
+        raise CliError("several sources: each must be a video or an image folder (AVLetters .npz files are "
+                       "selected with --reps / --letters, one file at a time)")
+    ref = None
+    if all(b is not None for _, b in pairs):
+        # one reference box for every sequence: the median box over all training frames
+        start, stop = parse_range(args.frames)
+        sizes = []
+        for s, b in pairs:
+            idx = read_frames(resolve_source(s)[1], start, stop).frame_index
+            bx = _box_array(b, idx)
+            sizes.append(bx[np.isfinite(bx).all(axis=1), 2:])
+        ref = np.median(np.concatenate(sizes), axis=0)
+    sets, metas, greys = [], [], []
+    for i, (s, b) in enumerate(pairs):
+        _log(args, f"sequence {i}: {s}" + (f" (boxes {b})" if b else ""))
+        ts, meta, g = _training_set_one(args, s, b, sequence=i, ref_size=ref)
+        sets.append(ts)
+        metas.append(meta)
+        greys.append(g)
+    try:
+        ts = training.concat_training_sets(sets)
+    except ValueError as e:
+        raise CliError(f"cannot combine the training sequences: {e}") from None
+    meta = dict(metas[0])
+    for key in ("source", "frames"):
+        meta[key] = ";".join(str(m[key]) for m in metas)
+    meta["sequences"] = len(pairs)
+    if any(b is not None for _, b in pairs):
+        meta["boxes"] = ";".join(b or "" for _, b in pairs)
+    g_all = None if any(g is None for g in greys) else [f for g in greys for f in g]
+    return ts, meta, g_all
+
+
+def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, ref_size):
+    """One training sequence: (TrainingSet, metadata, grey frames of the items or None)."""
+    from gflow_core.features import to_grey
+    from gflow_core.m2 import training
+    from gflow_core.m2.distances import METRICS
+
+    from pipeline.io.datasets import parse_range, read_avletters, read_frames, resolve_source
+
+    kind, path = resolve_source(source)
+    metric_kind = METRICS[args.metric].kind
+    start, stop = parse_range(args.frames)
+    meta: dict = {"source": str(Path(source).resolve()), "metric": args.metric}
+    greys = None
+    if kind == "avletters":
+        if box_csv:
+            raise CliError("--boxes does not apply to an AVLetters file (its frames are cropped mouths)")
+        reps = None if not args.reps else [int(r) for r in args.reps.split(",")]
+        seq, _ = read_avletters(path, reps, args.letters)
+        meta.update(reps=args.reps or "all", letters=args.letters or "all")
+        if args.frames:
+            keep = (seq.frame_index >= start) & (seq.frame_index < (stop if stop is not None else 1 << 62))
+            idx = np.nonzero(keep)[0]
+            if idx.size == 0:
+                raise CliError(f"no selected AVLetters frame lies in --frames {args.frames}")
+            seq = type(seq)(frames=[seq.frames[i] for i in idx], frame_index=seq.frame_index[idx],
+                            sequence=seq.sequence[idx], labels=None if seq.labels is None else seq.labels[idx])
+    else:
+        if args.reps or args.letters:
+            raise CliError("--reps and --letters select AVLetters utterances; the source is not an .npz file")
+        seq = read_frames(path, start, stop)
+        for i, why in seq.skipped:
+            _log(args, f"  warning: frame {i} skipped: {why}")
+    meta["frames"] = f"{int(seq.frame_index[0])}:{int(seq.frame_index[-1]) + 1}"
+    meta["frame_size"] = f"{seq.frames[0].shape[1]}x{seq.frames[0].shape[0]}"  # checked by track (crop: frame)
+    n = len(seq)
+    _log(args, f"read {n} training frame(s) from {path} ({seq.frames[0].shape[1]}x{seq.frames[0].shape[0]})")
+    if n < 2:
+        raise CliError(f"a single training frame ({meta['frames']}): M2 needs a training sequence (at least 2 "
+                       "frames, and more than K) to learn exemplars, kernel widths and dynamics")
+    canny = parse_pair(args.canny, "--canny")
+    meta.update(canny_low=canny[0], canny_high=canny[1], blur=args.blur)
+    boxes = _box_array(box_csv, seq.frame_index) if box_csv else None
+    if metric_kind == "curve":
+        if args.background_frames:
+            if kind == "avletters":
+                raise CliError("--background-frames needs a video or an image folder")
+            b0, b1 = parse_range(args.background_frames)
+            bg = training.median_background(read_frames(path, b0, b1).frames)
+            meta["background_frames"] = args.background_frames
+        else:
+            bg = training.median_background(seq.frames)
+        common = dict(max_points=args.max_points, canny_low=canny[0], canny_high=canny[1], blur=args.blur)
+        if boxes is None:
+            ts = training.curves_from_background(seq.frames, bg, threshold=args.threshold, first_frame=0,
+                                                 sequence=sequence, **common)
+            # frames were read with their source indices: put them back (runs break at gaps)
+            ts = training.TrainingSet(items=ts.items, placement=ts.placement,
+                                      frame_index=seq.frame_index[ts.frame_index], sequence=ts.sequence,
+                                      ref_size=ts.ref_size, kind="curve")
+            meta["training"] = "background"
+        else:
+            ts = training.curves_from_boxes(seq.frames, boxes, frame_index=seq.frame_index,
+                                            background=None if args.no_background_mask else bg,
+                                            threshold=args.threshold, ref_size=ref_size, sequence=sequence, **common)
+            meta["training"] = "boxes"
+            if args.appearance:
+                at = {int(f): i for i, f in enumerate(seq.frame_index)}
+                greys = [to_grey(seq.frames[at[int(f)]]) for f in ts.frame_index]
+        meta["crop"] = "none"
+    else:
+        if boxes is None:
+            shape = parse_size(args.patch_size) if args.patch_size else None
+            sets = []
+            for s in np.unique(seq.sequence):
+                at = np.nonzero(seq.sequence == s)[0]
+                sets.append(training.patches_from_frames([seq.frames[i] for i in at], shape,
+                                                         frame_index=seq.frame_index[at], sequence=int(s)))
+            ts = training.concat_training_sets(sets)
+            meta.update(training="frames", crop="frame")
+        else:
+            ok = np.isfinite(boxes).all(axis=1)
+            if args.patch_size:
+                shape = parse_size(args.patch_size)
+            else:
+                w, h = np.median(boxes[ok, 2:], axis=0) if ref_size is None else ref_size
+                shape = (max(int(round(h)), 2), max(int(round(w)), 2))
+            ts = training.patches_from_boxes(seq.frames, boxes, shape, frame_index=seq.frame_index,
+                                             sequence=sequence)
+            meta.update(training="boxes", crop="box")
+    _log(args, f"training items: {len(ts)} {'curves' if ts.kind == 'curve' else 'patches'} "
+               f"(reference size {ts.ref_size[0]:.1f} x {ts.ref_size[1]:.1f})")
+    return ts, meta, greys
+
+
+def cmd_learn(args) -> int:
+    from pipeline.cli.commands.common import check_outputs
+
+    check_outputs(out=args.out)
+    from gflow_core.m2.learn import learn
+
+    from pipeline.io.modelfile import save_model
+
+    if args.K < 1:
+        raise CliError(f"-K must be a positive number of exemplars, got {args.K}")
+    ts, meta, greys = training_set(args)
+    n = len(ts)
+    if args.K >= n:
+        raise CliError(f"-K {args.K} exemplars but only {n} training item(s): K must be smaller than the number of "
+                       "items (the items that are not exemplars are the validation set of sec. 4.2); use a smaller "
+                       "-K or more frames")
+    if args.metric == "chamfer":
+        metric_params = {"profile": args.profile, "g0": args.g0}
+    elif args.metric == "shuffle":
+        metric_params = {"radius": args.shuffle_radius}
+    else:
+        metric_params = {}
+    t0 = time.monotonic()
+    model = learn(ts, args.metric, K=args.K, kernel=args.kernel, metric_params=metric_params, frames=greys,
+                  progress=_Progress(args.quiet))
+    out = save_model(args.out, model, meta=meta)
+    d = model.d
+    print(f"learned M2 model: K={model.K} {model.metric} exemplars from {n} items in {time.monotonic() - t0:.1f} s; "
+          f"d_k median {np.median(d):.1f} (range {d.min():.1f}-{d.max():.1f}), sigma_k median "
+          f"{np.median(model.sigma):.3g}" + ("" if model.appearance is None else
+          f"; appearance d'_k median {np.median(model.appearance.d):.1f}, sigma'_k median "
+          f"{np.median(model.appearance.sigma):.3g}") + f"; written to {out}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("learn", help="learn a model from training video (m2: Metric Mixture exemplars)",
+                       description="Learn a model from training video and write it to a model file (.npz).")
+    ms = p.add_subparsers(dest="model_kind", metavar="MODEL", required=True)
+    q = ms.add_parser(
+        "m2", help="Metric Mixture exemplars, kernels and dynamics (Toyama & Blake 2002)",
+        description=textwrap.fill(
+            "Learn an M2 model (Toyama & Blake, IJCV 2002, sec. 4): exemplars by k-medoids under the chosen "
+            "distance, the kernel parameters d_k, sigma_k of each exemplar (eq. 10 or 11), mixture weights, a "
+            "Markov matrix over exemplars and an AR(1) process on the similarity transform. Progress is printed "
+            "on stderr. Inspect the result with `gflow info MODEL.npz`; track with `gflow track SOURCE --tracker "
+            "m2 --model MODEL.npz --init X,Y,W,H`.", 90),
+        epilog="examples:\n"
+               "  gflow learn m2 ../shared/data/caviar1 --boxes ../shared/data/caviar1/groundtruth.csv "
+               "--frames 0:150 -K 20 --out caviar1-m2.npz\n"
+               "  gflow learn m2 ../shared/data/caviar1 ../shared/data/other --boxes --frames 0:150 -K 30 "
+               "--out people.npz   # two sequences, each folder's groundtruth.csv\n"
+               "  gflow learn m2 walk.mp4 -K 30 --out walk.npz            # background subtraction (fixed camera)\n"
+               "  gflow learn m2 ../shared/data/avletters/anya.npz --reps 1,2 --metric shuffle -K 30 "
+               "--patch-size 40x30 --out mouth.npz",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    q.add_argument("source", nargs="+", help="image folder (or dataset folder with frames/), video file, or "
+                   "AVLetters .npz; several sources are learned as one model (one exemplar set, dynamics within "
+                   "each sequence)")
+    q.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
+    q.add_argument("--boxes", metavar="GT.csv", nargs="*",
+                   help="ground-truth boxes (frame,x,y,w,h), one file per source, or no file: each source folder's "
+                        "groundtruth.csv; supervised training items cut from the boxes instead of background "
+                        "subtraction")
+    q.add_argument("--frames", metavar="A:B", help="train on frames A <= index < B (default: all)")
+    q.add_argument("--metric", choices=["chamfer", "shuffle", "l2"], default="chamfer",
+                   help="distance: chamfer on edge curves (default), shuffle or l2 on grey patches")
+    q.add_argument("-K", type=int, default=20, help="number of exemplars (default 20)")
+    q.add_argument("--kernel", choices=["moments", "mle"], default="moments",
+                   help="estimator of d_k, sigma_k: moments (eq. 10, default) or MLE with integer d (eq. 11)")
+    q.add_argument("--patch-size", metavar="WxH", help="patch metrics: resample items to W x H pixels "
+                                                        "(default: frame size, or the median box size)")
+    g = q.add_argument_group("contour exemplars (chamfer)")
+    g.add_argument("--max-points", type=int, default=150, help="points kept per training curve (default 150)")
+    g.add_argument("--canny", default="50,150", metavar="LOW,HIGH", help="Canny thresholds (default 50,150); "
+                   "gflow track --tracker m2 uses the same")
+    g.add_argument("--blur", type=float, default=1.0, help="Gaussian blur before Canny, pixels (default 1)")
+    g.add_argument("--profile", choices=["quadratic", "truncated"], default="quadratic",
+                   help="chamfer profile g(u): u^2 (default) or min(u^2, g0) (eq. 4)")
+    g.add_argument("--g0", type=float, default=100.0, help="truncation level of the truncated profile, px^2")
+    g.add_argument("--threshold", type=float, default=30.0, help="background subtraction threshold, grey levels")
+    g.add_argument("--background-frames", metavar="A:B",
+                   help="frames whose per-pixel median is the background (default: the training frames; a target "
+                        "that barely moves in them is part of that median)")
+    g.add_argument("--no-appearance", dest="appearance", action="store_false",
+                   help="with --boxes: do not learn appearance exemplars (edge-orientation patches) beside chamfer")
+    g.add_argument("--no-background-mask", action="store_true",
+                   help="with --boxes: keep every edge in the box (default: only the moving foreground's)")
+    g = q.add_argument_group("patch exemplars (shuffle, l2)")
+    g.add_argument("--shuffle-radius", type=int, default=1, help="shuffle neighbourhood radius r (default 1: 3x3)")
+    g = q.add_argument_group("AVLetters (.npz source)")
+    g.add_argument("--reps", metavar="1,2", help="repetitions to train on (default: all)")
+    g.add_argument("--letters", metavar="A-Z", help="letters to train on, e.g. A-E or A,B,C (default: all)")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    q.set_defaults(func=cmd_learn)

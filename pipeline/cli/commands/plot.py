@@ -1,0 +1,118 @@
+"""``gflow plot FILE.mcap [--gt GT.csv] OUT.png``: error, ESS and per-stage latency against frame."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.cli.commands.common import CliError
+
+ORDER = 59
+
+
+def stage_latency(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per stage: (frame, latency in ms) where latency is the time from the last input that
+    reached the stage's topics before an output to that output (publish times)."""
+    from pipeline.io.mcap_io import iter_records
+    from pipeline.recording.rerun import recorded_plan
+
+    plan = recorded_plan(path)
+    pub: dict[str, list[tuple[int, int]]] = {}
+    for r in iter_records(path):
+        if r.type in ("EndOfStream", "ErrorReport", "StageStatus", "Control", "Snapshot", "unknown"):
+            continue
+        pub.setdefault(r.topic, []).append((r.publish_ns, r.seq))
+    out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    for name, sp in plan.stages.items():
+        if sp.kind == "recorder" or not sp.inputs or not sp.outputs:
+            continue
+        ins = sorted(t for topic in sp.inputs.values() for t, _ in pub.get(topic, []))
+        first_out = next(iter(sp.outputs.values()))
+        outs = sorted(pub.get(first_out, []))
+        if not ins or not outs:
+            continue
+        ins_a = np.array(ins)
+        frames, lat = [], []
+        for t, seq in outs:
+            i = np.searchsorted(ins_a, t, side="right") - 1
+            if i >= 0:
+                frames.append(seq)
+                lat.append((t - ins_a[i]) / 1e6)
+        out[name] = (np.array(frames), np.array(lat))
+    return out
+
+
+def cmd_plot(args) -> int:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from gflow_core.metrics import centre_error
+
+    from pipeline.recording.results import estimates, read_boxes, truth_boxes
+    from pipeline.cli.commands.common import check_outputs
+
+    if Path(args.out).is_dir():
+        check_outputs(OUT=args.out)  # says it is a folder
+    out = args.out if Path(args.out).suffix else args.out + ".png"
+    if Path(out).suffix.lower().lstrip(".") not in plt.gcf().canvas.get_supported_filetypes():
+        raise CliError(f"{args.out}: matplotlib cannot write {Path(out).suffix!r} files (use .png, .svg or .pdf)")
+    plt.close("all")
+    check_outputs(OUT=out)
+    est = estimates(args.file)
+    if not est:
+        raise CliError(f"{args.file} has no estimates to plot")
+    gt = read_boxes(args.gt) if args.gt else truth_boxes(args.file)
+    seqs = sorted(est)
+    fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
+    ax = axes[0]
+    both = [s for s in seqs if s in gt]
+    if both:
+        err = centre_error(np.array([gt[s] for s in both]), np.array([est[s].box for s in both]))
+        ax.plot(both, err, lw=1.2, color="C3")
+        ax.set_title(f"centre location error (mean {err.mean():.2f} px over {len(both)} frames)")
+    else:
+        ax.set_title("centre location error: no ground truth (give --gt GT.csv)")
+    ax.set_ylabel("CLE (px)")
+    ax.grid(alpha=0.3)
+    ax = axes[1]
+    ess = np.array([est[s].ess for s in seqs])
+    n = np.array([e.n if hasattr(e, "n") else e.log_credibility.array().size for e in (est[s] for s in seqs)], float)
+    ax.plot(seqs, ess / n, lw=1.2, color="C0")
+    coast = [s for s in seqs if est[s].state == "coast"]
+    if coast:
+        ax.plot(coast, [0.02] * len(coast), "|", color="k", label="coasting (no usable image)")
+        ax.legend(loc="upper right")
+    ax.set_ylabel("ESS / N")
+    ax.set_ylim(0, 1.05)
+    ax.set_title("effective sample size before resampling")
+    ax.grid(alpha=0.3)
+    ax = axes[2]
+    for name, (f, lat) in stage_latency(args.file).items():
+        ax.plot(f, lat, lw=1.0, label=f"{name} (median {np.median(lat):.1f} ms)")
+    ax.set_ylabel("latency (ms)")
+    ax.set_xlabel("frame")
+    ax.set_yscale("log")
+    ax.set_title("per-stage latency: last input to output (publish times)")
+    ax.legend(loc="upper right", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.suptitle(Path(args.file).name)
+    fig.tight_layout()
+    fig.savefig(out, dpi=args.dpi)
+    print(f"wrote {out}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("plot", help="plot error, ESS and per-stage latency of a recording against frame",
+                       description="Three panels against the frame index: the centre location error against ground "
+                                   "truth, the effective sample size (with the frames where the filter coasted), and "
+                                   "each stage's latency from its last input to its output.",
+                       epilog="example: gflow plot run.mcap --gt ../shared/data/caviar1/groundtruth.csv plot.png")
+    p.add_argument("file", help="MCAP recording")
+    p.add_argument("out", help="output image: .png, .svg or .pdf (no suffix: .png is added)")
+    p.add_argument("--gt", help="ground truth CSV (default: the synthetic scene's truth, if recorded)")
+    p.add_argument("--dpi", type=int, default=100, help="resolution of a PNG in dots per inch (default 100)")
+    p.set_defaults(func=cmd_plot)

@@ -1,0 +1,121 @@
+"""``gflow info`` and ``gflow replay``: what a file holds, and putting a recording back on zenoh."""
+
+from __future__ import annotations
+
+ORDER = 50
+
+import json
+import sys
+from pathlib import Path
+
+from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, tool_zenoh
+
+# file suffix -> callable(path, as_json) printing a description; other modules add to it
+DESCRIBERS: dict = {}
+
+
+def describe_recording(path: str, as_json: bool) -> None:
+    from pipeline.io.mcap_io import summarize
+
+    s = summarize(path)
+    if as_json:
+        print(json.dumps(s.to_json(), indent=1))
+        return
+    print(f"file:      {s.path}")
+    print(f"messages:  {s.messages}   duration: {s.duration_s:.3f} s")
+    if s.segments:
+        print(f"segments:  {', '.join(s.segments)} (a restarted recorder; read as one recording)")
+    if s.truncated:
+        print(f"WARNING:   {s.truncated}")
+    print("topics:")
+    for t, ts in sorted(s.topics.items()):
+        seqs = f"seq {ts.first_seq}..{ts.last_seq}" if ts.first_seq >= 0 else ""
+        print(f"  {t:42s} {ts.type:20s} {ts.count:7d} msgs {ts.rate_hz:8.1f} Hz {ts.bytes / 2**20:9.2f} MiB  {seqs}")
+    print("schemas:  " + ", ".join(f"{n} ({e})" for n, e in sorted(s.schemas.items())))
+    for name, md in s.metadata.items():
+        print(f"metadata {name}:")
+        for k, v in md.items():
+            v1 = v if len(v) < 200 else v[:200] + f"... ({len(v)} chars)"
+            print(f"  {k}: {v1}" if "\n" not in v1 else f"  {k}: |\n    " + v1.replace("\n", "\n    "))
+
+
+DESCRIBERS[".mcap"] = describe_recording
+
+
+def describe_model(path: str, as_json: bool) -> None:
+    from pipeline.io.modelfile import describe  # lazy: numpy model code only when a model is described
+
+    describe(path, as_json)
+
+
+DESCRIBERS[".npz"] = describe_model
+
+
+def cmd_info(args) -> int:
+    suffix = Path(args.file).suffix.lower()
+    fn = DESCRIBERS.get(suffix)
+    if fn is None:
+        raise CliError(f"do not know how to describe {args.file} (known: {', '.join(sorted(DESCRIBERS))})")
+    fn(args.file, args.json)
+    return 0
+
+
+def cmd_replay(args) -> int:
+    from pipeline.cli.live import ReplayOptions, replay
+
+    opts = ReplayOptions(speed=None if args.max else args.speed, topics=args.topics, start_seq=args.from_seq,
+                         end_seq=args.to_seq, start_s=args.start, end_s=args.end, loops=args.loop,
+                         lockstep=tuple(s for s in (args.lockstep or "").split(",") if s),
+                         ack_timeout=args.ack_timeout)
+    import dataclasses
+
+    from pipeline.io.mcap_io import _check as check_mcap
+    from pipeline.runtime.transport import free_port
+
+    check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+
+    settings, found = tool_zenoh(args, require=False)  # joins the running pipelines, if any
+    if not args.listen and settings.mode != "client":
+        settings = dataclasses.replace(settings, listen=(f"tcp/127.0.0.1:{free_port()}",))
+    where = [e for e in settings.listen if not e.endswith(":0")]
+    print(f"replaying {args.file}; listening on {', '.join(where)}"
+          + (f"; joined {', '.join(str(i['pid']) for i in found)}" if found else ""), file=sys.stderr)
+    try:
+        n = replay(settings, args.file, opts, announce_endpoints=where)
+    except TimeoutError as e:
+        raise CliError(str(e)) from None
+    print(f"replayed {n} messages from {args.file}", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("info", help="what a recording (.mcap) or a learned model (.npz) holds",
+                       description="For a recording: topics, counts, rates, duration, schemas and metadata.")
+    p.add_argument("file", help="MCAP recording or model file")
+    p.add_argument("--json", action="store_true", help="print JSON")
+    p.set_defaults(func=cmd_info)
+
+    p = sub.add_parser("replay", help="republish a recording on zenoh",
+                       description="Republishes recorded messages byte for byte on their topics, so live stages or a "
+                                   "viewer can consume them. Heartbeats and control messages are not replayed.",
+                       epilog="examples:\n  gflow replay run.mcap --speed 2\n"
+                              "  gflow replay run.mcap --max --topics gflow/cam0/frames --from-seq 100 --to-seq 200\n"
+                              "  gflow replay run.mcap --topics gflow/cam0/frames --lockstep preprocess,filter --max\n"
+                              "  gflow replay run.mcap --loop 0   (until Ctrl-C)",
+                       formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
+    p.add_argument("file", help="MCAP recording")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--speed", type=positive_float, default=1.0,
+                   help="timing factor on the original timing, > 0 (default 1; 2 = twice as fast)")
+    g.add_argument("--max", action="store_true", help="as fast as possible")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (full names)")
+    p.add_argument("--from-seq", type=int, metavar="SEQ", help="first frame to replay")
+    p.add_argument("--to-seq", type=int, metavar="SEQ", help="stop before this frame")
+    p.add_argument("--start", type=float, metavar="S", help="start this many seconds into the recording")
+    p.add_argument("--end", type=float, metavar="S", help="stop this many seconds into the recording")
+    p.add_argument("--loop", type=int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
+    p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
+                   help="before each new frame, wait until these live stages acknowledge the previous one")
+    p.add_argument("--ack-timeout", type=float, default=10.0, help="seconds to wait for an acknowledgement")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_replay)

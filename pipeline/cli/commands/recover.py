@@ -1,0 +1,30 @@
+"""``gflow recover BROKEN.mcap FIXED.mcap``: salvage a recording whose writer was killed."""
+
+from __future__ import annotations
+
+ORDER = 56
+
+import os
+
+
+def cmd_recover(args) -> int:
+    from pipeline.recording.recover import recover
+    from pipeline.cli.commands.common import CliError, check_outputs
+
+    if os.path.abspath(args.broken) == os.path.abspath(args.fixed):
+        raise CliError("FIXED must be a new file, not the broken recording itself")
+    check_outputs(FIXED=args.fixed)
+    r = recover(args.broken, args.fixed)
+    state = "the file was complete" if r.complete else f"the file ends early ({r.stopped_because})"
+    print(f"recovered {r.messages} messages on {r.channels} channels and {r.metadata} metadata records "
+          f"into {args.fixed}; {state}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("recover", help="salvage every complete chunk of a recording whose writer was killed",
+                       description="Copies every message of every complete chunk, with its channel, schema, times "
+                                   "and sequence number, and the metadata, into a new, properly closed MCAP file.")
+    p.add_argument("broken", help="the truncated recording")
+    p.add_argument("fixed", help="where to write the recovered recording (a new file)")
+    p.set_defaults(func=cmd_recover)

@@ -1,0 +1,103 @@
+"""``gflow render FILE.mcap OUT.mp4|OUT_DIR/``: the tracking overlays drawn into a video or PNGs."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from pipeline.cli.commands.common import CliError
+
+ORDER = 58
+
+VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov")
+
+
+def _messages(path: str):
+    """Per frame: Frame, estimate, posterior particles (decoded), in frame order."""
+    from stages.messages import Estimate, Frame, MessageError, Particles, PoseEstimate, decode
+
+    from pipeline.io.mcap_io import iter_records
+
+    frames: dict[int, Frame] = {}
+    est: dict[int, object] = {}
+    parts: dict[int, Particles] = {}
+    for r in iter_records(path):
+        if r.type not in ("Frame", "Estimate", "PoseEstimate", "Particles"):
+            continue
+        try:
+            m = decode(r.data)
+        except MessageError:
+            continue
+        if isinstance(m, Frame):
+            frames[m.header.seq] = m
+        elif isinstance(m, (Estimate, PoseEstimate)):
+            est[m.header.seq] = m
+        elif isinstance(m, Particles) and m.kind == "posterior":
+            parts[m.header.seq] = m
+    return frames, est, parts
+
+
+def cmd_render(args) -> int:
+    import cv2
+
+    from stages.messages_foxglove import ImageAnnotations
+    from stages.render import annotations_for
+
+    from pipeline.cli.draw import draw_annotations
+
+    out = Path(args.out)
+    video = out.suffix.lower() in VIDEO_SUFFIXES
+    if out.suffix and not video and not out.is_dir():
+        raise CliError(f"{args.out}: unknown output kind {out.suffix!r}; give a video ({', '.join(VIDEO_SUFFIXES)}) "
+                       f"or a folder name for PNG frames")
+    if video:
+        from pipeline.cli.commands.common import check_outputs
+
+        check_outputs(OUT=args.out)
+    elif out.exists() and not out.is_dir():
+        raise CliError(f"{args.out} exists and is not a folder")
+    frames, est, parts = _messages(args.file)
+    seqs = [s for s in sorted(frames) if s in est]
+    if args.frames:
+        a, _, b = args.frames.partition(":")
+        seqs = [s for s in seqs if (not a or s >= int(a)) and (not b or s < int(b))]
+    if not seqs:
+        raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)")
+    writer = None
+    if not video:
+        out.mkdir(parents=True, exist_ok=True)
+    for i, s in enumerate(seqs):
+        ann: ImageAnnotations = annotations_for(frames[s], est[s], parts.get(s) if args.particles else None)  # type: ignore[arg-type]
+        img = frames[s].image.array()
+        if img.ndim == 2:
+            img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+        pic = draw_annotations(img, ann, args.scale)
+        if video:
+            if writer is None:
+                fourcc = cv2.VideoWriter_fourcc(*("mp4v" if out.suffix.lower() in (".mp4", ".mov") else "MJPG"))
+                writer = cv2.VideoWriter(str(out), fourcc, args.fps, (pic.shape[1], pic.shape[0]))
+                if not writer.isOpened():
+                    raise CliError(f"OpenCV cannot write {out} (try an .avi or a folder of PNGs)")
+            writer.write(pic)
+        else:
+            cv2.imwrite(str(out / f"{s:06d}.png"), pic)
+        if not args.quiet and (i % 50 == 0 or i == len(seqs) - 1):
+            print(f"  {i + 1}/{len(seqs)} frames", file=sys.stderr)
+    if writer is not None:
+        writer.release()
+    print(f"drew {len(seqs)} frames into {out}")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("render", help="draw the tracking overlays of a recording into a video or PNG frames",
+                       description="Draws what the render stage sends to Foxglove (estimated box, ground truth, "
+                                   "particles or experts, MAP contour or mesh, a status line) into each frame.")
+    p.add_argument("file", help="MCAP recording")
+    p.add_argument("out", help="OUT.mp4 / OUT.avi for a video, or a folder for PNG frames")
+    p.add_argument("--frames", metavar="A:B", help="only frames A..B-1")
+    p.add_argument("--scale", type=int, default=2, help="upscale factor (default 2)")
+    p.add_argument("--fps", type=float, default=25.0, help="video frame rate (default 25)")
+    p.add_argument("--no-particles", dest="particles", action="store_false", help="do not draw the particles")
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_render)

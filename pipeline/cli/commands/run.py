@@ -1,0 +1,29 @@
+"""``gflow run GRAPH``: any graph file, as processes over zenoh or ``--inline``."""
+
+from __future__ import annotations
+
+ORDER = 40
+
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import builtin_graphs, load_graph
+from pipeline.cli.commands.common import Recording, add_record_args, add_zenoh_args, check_outputs, parse_sets, run_plan
+
+
+def cmd_run(args) -> int:
+    check_outputs(record=args.record)
+    plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
+    recording = Recording(plan, args, None)
+    path, secs, frames, info = run_plan(plan, args, recording.path, None)
+    print(f"{plan.name}: {frames} frames in {secs:.2f} s; recording: {path or recording.kept}")
+    return 130 if info.get("interrupted") else 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("run", help="run a graph file (every stage its own process, or --inline)",
+                       description=f"Run a YAML graph. Built-in graphs: {', '.join(builtin_graphs())}.")
+    p.add_argument("graph", help="graph file, or the name of a built-in graph")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="override a stage parameter")
+    add_record_args(p, "the recorder's path pattern")
+    p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_run)

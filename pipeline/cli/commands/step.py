@@ -1,0 +1,95 @@
+"""``gflow step FILE.mcap --stage NAME``: step a stage through a recording, one frame at a time."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+ORDER = 53
+
+HELP = """commands:
+  n, <enter>   next frame                 j SEQ   jump to frame SEQ
+  s            the stage's state summary  o       the last outputs, in full
+  h            this help                  q       quit"""
+
+
+def _show(view, out) -> None:
+    print(f"--- frame {view.seq} " + "-" * 50, file=out)
+    print("inputs:", file=out)
+    for p, d in view.inputs.items():
+        print(f"  {p:10s} {d}", file=out)
+    print("outputs:", file=out)
+    for p, d in view.outputs:
+        print(f"  {p:10s} {d}", file=out)
+    for e in view.errors:
+        print(f"  error    {e}", file=out)
+    print("state:   " + json.dumps(view.summary, default=str), file=out)
+
+
+def cmd_step(args) -> int:
+    from pipeline.recording.stepper import Stepper
+
+    st = Stepper(args.file, args.stage)
+    out = sys.stdout
+    interactive = sys.stdin.isatty()
+    print(f"stepping {args.stage} ({st.sp.kind}) through {args.file}: {len(st.records)} input messages, "
+          f"snapshots at {sorted(st.snapshots) or 'none'}", file=out)
+    print(HELP, file=out)
+    if args.start:
+        print(f"jumped to frame {args.start} {st.jump(args.start)}", file=out)
+    last = None
+    while True:
+        if interactive:
+            try:
+                line = input("step> ").strip()
+            except EOFError:
+                break
+        else:
+            line = sys.stdin.readline()
+            if not line:
+                break
+            line = line.strip()
+            print(f"step> {line}", file=out)
+        cmd, _, arg = line.partition(" ")
+        if cmd in ("", "n", "next"):
+            last = st.next()
+            if last is None:
+                print("end of the recording", file=out)
+            else:
+                _show(last, out)
+        elif cmd in ("j", "jump"):
+            try:
+                seq = int(arg)
+            except ValueError:
+                print("usage: j SEQ", file=out)
+                continue
+            print(f"jumped {st.jump(seq)}", file=out)
+            last = st.next()
+            if last is not None:
+                _show(last, out)
+        elif cmd in ("s", "state"):
+            print(json.dumps(st.stage.summary(), indent=1, default=str), file=out)
+        elif cmd in ("o", "outputs"):
+            from pipeline.recording.plain import describe
+
+            for topic, seq, data in st.outputs[-len(last.outputs):] if last else []:
+                print(f"{topic} seq {seq}: {describe(data, full=True)}", file=out)
+        elif cmd in ("h", "help", "?"):
+            print(HELP, file=out)
+        elif cmd in ("q", "quit", "exit"):
+            break
+        else:
+            print(f"unknown command {cmd!r}; h for help", file=out)
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("step", help="step a stage through a recording, one frame at a time (interactive)",
+                       description="Rebuilds a stage with its recorded configuration and feeds it its recorded "
+                                   "inputs one frame at a time, printing the inputs it joined, its outputs and its "
+                                   "state summary. Commands are read from the terminal (or from standard input).\n\n"
+                                   + HELP, formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
+    p.add_argument("file", help="MCAP recording made by gflow")
+    p.add_argument("--stage", required=True, help="stage to step (e.g. filter)")
+    p.add_argument("--start", type=int, help="jump to this frame first")
+    p.set_defaults(func=cmd_step)

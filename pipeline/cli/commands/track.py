@@ -1,0 +1,209 @@
+"""``gflow track``: one target through an image folder, a video or a recording.
+
+Each tracker is a module in ``pipeline/cli/trackers/`` with ``NAME``, ``add_args(parser)``
+(its own options) and ``overrides(args) -> (graph name, {stage: {param: value}})``; it may
+also have ``make_plan(graph, overrides) -> Plan`` when its graph is generated (gflow shards).
+"""
+
+from __future__ import annotations
+
+ORDER = 20
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import msgspec
+
+from stages.source import SourceParams
+
+from pipeline.runtime.graph import Plan, load_graph
+from pipeline.recording.results import run_outcome, write_boxes
+from pipeline.io.sources import count_frames
+from pipeline.cli.trackers import TRACKERS
+from pipeline.runtime.preflight import check_source
+from pipeline.cli.commands.common import (CliError, Recording, add_record_args, add_zenoh_args, check_outputs, parse_box, parse_sets,
+                     run_plan)
+
+#: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
+_OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
+#: options one tracker adds that others read too (m2 reads chamfer's --particles, gflow m2's --model)
+_ALSO_USED_BY = {"particles": ("m2", "appearance"), "model": ("gflow",)}
+
+
+def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
+    """A whole-frame patch model (crop: frame, e.g. AVLetters mouths) sees the frame itself as the
+    patch: on video not cropped like its training frames it cannot track anything."""
+    import sys
+
+    from pipeline.io.modelfile import load_meta
+
+    meta = load_meta(Path(model))
+    if meta.get("crop") != "frame":
+        return
+    size = f"{shape[1]}x{shape[0]}"
+    trained = str(meta.get("frame_size", ""))
+    if trained and trained != size:
+        raise CliError(f"{model} was learned on whole {trained} frames (a patch model with crop: frame, e.g. cropped "
+                       f"mouths); {source} has {size} frames. Such a model only fits video cropped like its training "
+                       f"frames: learn one on this video (gflow learn m2 ... --boxes GT.csv)")
+    print(f"note: {model} is a whole-frame patch model: the state is the exemplar, the box is the whole frame and "
+          f"does not move" + ("" if trained else " (the model does not record its training frame size)"),
+          file=sys.stderr)
+
+
+def check_tracker_options(args) -> None:
+    """An option of another tracker (``--particles`` with gflow, ``--model`` with chamfer) is an error,
+    not silently ignored."""
+    for owner, opts in _OWN_OPTIONS.items():
+        for dest, (opt, default) in opts.items():
+            if owner == args.tracker or args.tracker in _ALSO_USED_BY.get(dest, ()):
+                continue
+            if getattr(args, dest, default) != default:
+                users = sorted({owner, *_ALSO_USED_BY.get(dest, ())})
+                raise CliError(f"{opt} is an option of --tracker {' / '.join(users)}, not of --tracker "
+                               f"{args.tracker}")
+
+
+def source_params(source: str, args) -> dict:
+    """Source stage parameters for a path: image folder (or dataset folder with frames/), video, or .mcap."""
+    p = Path(source)
+    params: dict = {"fps": args.fps, "realtime": args.realtime, "start": args.start}
+    if args.stop is not None:
+        params["stop"] = args.stop
+    if p.is_dir():
+        if (p / "frames").is_dir() and not any(q.suffix.lower() in (".jpg", ".png", ".jpeg", ".bmp") for q in p.iterdir()):
+            p = p / "frames"  # a dataset folder like ../shared/data/caviar1
+        params.update(kind="folder", path=str(p.resolve()))
+    elif p.is_file():
+        params.update(kind="mcap" if p.suffix == ".mcap" else "video", path=str(p.resolve()))
+    else:
+        raise CliError(f"source not found: {source} (give an image folder, a video file or an .mcap recording)")
+    return params
+
+
+@dataclass
+class TrackRun:
+    """What one ``gflow track`` run produced: boxes by frame and how the run went."""
+
+    boxes: dict[int, tuple[float, float, float, float]]
+    states: list[str]
+    recording: str
+    seconds: float
+    frames: int
+    info: dict
+    kept: str = ""  # what the user is told about the recording
+    temporary: bool = False  # --no-record: the recording was removed
+    lines: list[str] = field(default_factory=list)  # what is missing, coasted, restarted
+    incomplete: str = ""  # why the run is incomplete, or ""
+
+
+def track_plan(args) -> tuple[Plan, int | None]:
+    """The plan ``gflow track`` runs for ``args`` and its number of frames (None if unknown).
+
+    Bad options or model files raise here, before anything starts.
+    """
+    tracker = TRACKERS[args.tracker]
+    check_tracker_options(args)
+    check_outputs(out=args.out, record=args.record)
+    graph, overrides = tracker.overrides(args)
+    overrides.setdefault("source", {}).update(source_params(args.source, args))
+    for stage, kv in parse_sets(args.set).items():
+        overrides.setdefault(stage, {}).update(kv)
+    make_plan = getattr(tracker, "make_plan", None)
+    if make_plan is not None:  # a tracker that generates its graph (gflow: K proposal shards)
+        plan = make_plan(args.graph or graph, overrides)
+    else:
+        plan = load_graph(args.graph or graph, overrides=overrides)
+    sp = msgspec.convert(plan.stages["source"].params, SourceParams)
+    first = check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
+    if args.tracker == "m2":
+        check_whole_frame_model(args.model, args.source, first.image.shape)
+    return plan, count_frames(sp)
+
+
+def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
+    """Run the tracker of ``args`` (inline or as processes) and gather its boxes from the recording
+    (a temporary one with ``--no-record``, removed here) and the live stream, whatever happened."""
+    plan_, total = plan or track_plan(args)
+    recording = Recording(plan_, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
+                          needed=("estimate",))
+    try:
+        path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet, strict=False)
+        out = run_outcome(path, plan_, info, args.start)  # every frame that was tracked, and what is missing
+    finally:
+        recording.cleanup()
+    est = out.estimates
+    return TrackRun(boxes={k: v.box for k, v in est.items()}, states=[v.state for v in est.values()],
+                    recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
+                    temporary=recording.temporary, lines=list(out.lines),
+                    incomplete=out.why if out.incomplete else "")
+
+
+def cmd_track(args) -> int:
+    run = run_track(args)
+    write_boxes(args.out, run.boxes)
+    n, states, info = len(run.boxes), run.states, run.info
+    print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
+          f"boxes: {args.out}; recording: {run.kept}")
+    for line in run.lines:
+        print(f"  {line}")
+    errs = info.get("errors")
+    if errs:  # a count (processes) or {stage: count} (inline)
+        n = sum(errs.values()) if isinstance(errs, dict) else errs
+        per = (" (" + ", ".join(f"{k} {v}" for k, v in sorted(errs.items())) + ")") if isinstance(errs, dict) else ""
+        where = f"see `gflow info {run.recording}`" if not run.temporary else "kept in no recording: --no-record"
+        print(f"  errors reported: {n}{per}; {where}")
+    if info.get("interrupted"):
+        return 130
+    if run.incomplete:
+        print(f"the run is incomplete: {run.incomplete}", file=sys.stderr)
+        return 3
+    return 0
+
+
+def add_track_args(p: argparse.ArgumentParser) -> None:
+    """The options of ``gflow track`` (also parsed by ``gflow benchmark`` to run a tracker the same way)."""
+    p.add_argument("source", help="image folder (or a dataset folder with frames/), video file, or .mcap recording")
+    p.add_argument("--init", type=parse_box, required=True, metavar="X,Y,W,H", help="initial box in frame --start")
+    p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h)")
+    p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
+                   help="tracking method (default appearance; README 'Which tracker')")
+    p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    add_record_args(p, "recordings/track-TIME.mcap")
+    p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
+    p.add_argument("--fps", type=float, default=25.0, help="source frame rate, for time stamps and --realtime")
+    p.add_argument("--realtime", action="store_true", help="play the source at --fps instead of as fast as possible")
+    p.add_argument("--start", type=int, default=0, help="first frame index")
+    p.add_argument("--stop", type=int, help="stop before this frame index")
+    p.add_argument("--graph", help="graph file to use instead of the tracker's built-in one")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="override a stage parameter")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    for t in TRACKERS.values():
+        g = p.add_argument_group(f"--tracker {t.NAME}")
+        t.add_args(g)
+        _OWN_OPTIONS[t.NAME] = {a.dest: (a.option_strings[0], a.default) for a in g._group_actions}
+    add_zenoh_args(p)
+
+
+def track_args(argv: list[str]) -> argparse.Namespace:
+    """``gflow track`` options parsed from ``argv`` (a bad option raises CliError, not SystemExit)."""
+    p = _Parser(prog="gflow track", add_help=False)
+    add_track_args(p)
+    return p.parse_args(argv)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # type: ignore[override]
+        raise CliError(message)
+
+
+def register(sub) -> None:
+    p = sub.add_parser("track", help="track one target through an image folder, a video or a recording",
+                       description="Track one target from an initial box. Writes frame,x,y,w,h per frame (0-based "
+                                   "pixels, top-left corner and size) and records every message to MCAP.",
+                       epilog="example: gflow track ../shared/data/crossing --init 204,150,17,50 --out boxes.csv")
+    add_track_args(p)
+    p.set_defaults(func=cmd_track)

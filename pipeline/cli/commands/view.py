@@ -1,0 +1,59 @@
+"""``gflow view``: serve a live pipeline to the Foxglove app over its WebSocket protocol."""
+
+from __future__ import annotations
+
+ORDER = 62
+
+import sys
+import time
+
+from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, tool_zenoh
+
+
+def cmd_view(args) -> int:
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        raise CliError("gflow view needs the foxglove-sdk package: pip install foxglove-sdk") from None
+    from pipeline.cli.view import FoxgloveBridge
+
+    settings, found = tool_zenoh(args, args.stream)
+    streams = sorted({i["stream"] for i in found})
+    stream = args.stream or (streams[0] if len(streams) == 1 else None)
+    try:
+        bridge = FoxgloveBridge(settings, stream=stream, host=args.host, port=args.port).start()
+    except RuntimeError as e:  # the port is taken, say
+        raise CliError(f"cannot serve on {args.host}:{args.port}: {e}") from None
+    print(f"Foxglove: open {bridge.url} (Open connection -> Foxglove WebSocket); Image panel on "
+          f"/gflow/{stream or 'STREAM'}/image with annotations /gflow/{stream or 'STREAM'}/annotations; "
+          f"Ctrl-C stops", file=sys.stderr, flush=True)
+    end = None if args.duration is None else time.monotonic() + args.duration
+    try:
+        while end is None or time.monotonic() < end:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        bridge.stop()
+    n = sum(bridge.forwarded.values())
+    print(f"forwarded {n} messages on {len(bridge.forwarded)} topics ("
+          + ", ".join(f"{t} {c}" for t, c in sorted(bridge.forwarded.items())) + ")"
+          + (f"; dropped {bridge.dropped} while busy" if bridge.dropped else ""), file=sys.stderr)
+    for t, e in sorted(bridge.failed.items()):
+        print(f"could not forward {t}: {e}", file=sys.stderr)
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("view", help="show a live pipeline in Foxglove (WebSocket server, ws://127.0.0.1:8765)",
+                       description="Serves the live topics over Foxglove's WebSocket protocol (foxglove-sdk): the "
+                                   "render stage's video and overlays, and the estimate, errors and every stage's "
+                                   "heartbeat as JSON (plot e.g. /gflow/demo/estimate.ess). Frames, features and "
+                                   "particles are not forwarded. In the Foxglove app: Open connection -> Foxglove "
+                                   "WebSocket -> ws://HOST:PORT.")
+    p.add_argument("--stream", help="the pipeline's stream (default: the one running)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0 for other machines)")
+    p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765, Foxglove's)")
+    p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
+    add_zenoh_args(p)
+    p.set_defaults(func=cmd_view)

@@ -1,0 +1,296 @@
+"""Inspect a live pipeline: ``gflow topics``, ``gflow echo``, ``gflow hz``, and ``gflow replay``."""
+
+from __future__ import annotations
+
+import queue
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+from stages.messages import MessageError, StageStatus, decode
+
+from pipeline.io.mcap_io import iter_records
+from pipeline.recording.plain import describe, to_plain
+from pipeline.runtime.transport import Bus, ZenohSettings, open_session
+
+__all__ = ["list_topics", "echo", "hz", "rate_stats", "RateStats", "json_line", "replay", "ReplayOptions"]
+
+
+def _session(settings: ZenohSettings):
+    return open_session(settings)
+
+
+def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdout, key: str = "gflow/**",
+                as_json: bool = False) -> dict[str, int]:
+    """Listen on ``key`` for ``duration`` seconds and print each topic with its type, count, rate and
+    bandwidth (one JSON object with ``as_json``)."""
+    s = _session(settings)
+    counts: dict[str, int] = {}
+    nbytes: dict[str, int] = {}
+    types: dict[str, str] = {}
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    bus = Bus(s)
+    bus.subscribe(key, lambda k, p, ns, seq: q.put((k, p)))
+    end = time.monotonic() + duration
+    while time.monotonic() < end:
+        try:
+            k, p = q.get(timeout=0.05)
+        except queue.Empty:
+            continue
+        counts[k] = counts.get(k, 0) + 1
+        nbytes[k] = nbytes.get(k, 0) + len(p)
+        if k not in types:
+            try:
+                types[k] = type(decode(p)).__name__
+            except MessageError:
+                types[k] = "?"
+    s.close()
+    if as_json:
+        import json
+
+        print(json.dumps({k: {"type": types[k], "messages": counts[k], "rate_hz": counts[k] / duration,
+                              "bytes_per_s": nbytes[k] / duration} for k in sorted(counts)}, indent=1), file=out)
+        return counts
+    if not counts:
+        print(f"no messages on {key} in {duration:.1f} s (is a pipeline running, and reachable at "
+              f"{', '.join(settings.connect) or 'the default endpoint'}?)", file=sys.stderr)
+    for k in sorted(counts):
+        print(f"{k:45s} {types[k]:18s} {counts[k]:6d} msgs  {counts[k] / duration:7.1f} Hz  "
+              f"{nbytes[k] / duration / 1024:9.1f} KiB/s", file=out)
+    return counts
+
+
+def json_line(key: str, payload: bytes, pub_ns: int) -> str:
+    """One JSON object per message: topic, publish time and the decoded message."""
+    import json
+
+    try:
+        m = to_plain(decode(payload))
+    except MessageError as e:
+        m = {"error": str(e)}
+    return json.dumps({"topic": key, "publish_ns": pub_ns, "message": m}, allow_nan=False, default=str)
+
+
+def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | None, out: TextIO = sys.stdout,
+         as_json: bool = False) -> int:
+    """Print messages on ``key`` (a key expression) as they arrive; returns how many."""
+    s = _session(settings)
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    Bus(s).subscribe(key, lambda k, p, ns, seq: q.put((k, p, ns)))
+    n = 0
+    start = time.monotonic()
+    told = False
+    try:
+        while count is None or n < count:
+            if timeout is not None and time.monotonic() - start > timeout:
+                break
+            if not told and n == 0 and time.monotonic() - start > 2.0:
+                print(f"waiting for messages on {key} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+                told = True
+            try:
+                k, p, ns = q.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            print(json_line(k, p, ns) if as_json else f"{k}: {describe(p)}", file=out, flush=True)
+            n += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        s.close()
+    return n
+
+
+@dataclass
+class RateStats:
+    """Rate over a window of arrival gaps (what ``ros2 topic hz`` prints)."""
+
+    messages: int
+    rate_hz: float
+    min_ms: float
+    max_ms: float
+    std_ms: float
+    window: int
+
+    def line(self, key: str) -> str:
+        return (f"{key}: average rate {self.rate_hz:.2f} Hz  min {self.min_ms:.1f} ms  max {self.max_ms:.1f} ms  "
+                f"std dev {self.std_ms:.2f} ms  window {self.window}")
+
+
+def rate_stats(times: list[float], window: int | None = None) -> RateStats | None:
+    """Statistics of the last ``window`` gaps between arrival ``times`` (seconds); None under 2 messages."""
+    import numpy as np
+
+    if len(times) < 2:
+        return None
+    t = np.asarray(times[-(window + 1):] if window else times, dtype=float)
+    gaps = np.diff(t)
+    mean = float(gaps.mean())
+    return RateStats(messages=len(times), rate_hz=1.0 / mean if mean > 0 else float("inf"),
+                     min_ms=float(gaps.min()) * 1e3, max_ms=float(gaps.max()) * 1e3, std_ms=float(gaps.std()) * 1e3,
+                     window=len(gaps))
+
+
+def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: TextIO = sys.stdout,
+       wait: float = 10.0, window: int | None = None, every: float = 1.0) -> RateStats | None:
+    """A rolling rate on ``key``: wait up to ``wait`` s for the first message, then print the rate,
+    min / max / std of the gaps over the last ``window`` messages every ``every`` s, for
+    ``duration`` s (None: until Ctrl-C). Returns the last statistics (None: fewer than 2 messages)."""
+    s = _session(settings)
+    q: queue.SimpleQueue = queue.SimpleQueue()
+    Bus(s).subscribe(key, lambda k, p, ns, seq: q.put(time.monotonic()))
+    times: list[float] = []
+    last: RateStats | None = None
+    try:
+        t_wait = time.monotonic()
+        while not times:
+            try:
+                times.append(q.get(timeout=0.05))
+            except queue.Empty:
+                if time.monotonic() - t_wait > wait:
+                    return None
+        end = None if duration is None else times[0] + duration
+        next_print = times[0] + every
+        while end is None or time.monotonic() < end:
+            try:
+                times.append(q.get(timeout=0.05))
+            except queue.Empty:
+                pass
+            if window:
+                del times[:-(window + 1)]
+            if time.monotonic() >= next_print:
+                next_print += every
+                st = rate_stats(times, window)
+                if st is not None:
+                    last = st
+                    print(st.line(key), file=out, flush=True)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        s.close()
+    return rate_stats(times, window) or last
+
+
+@dataclass
+class ReplayOptions:
+    """What to replay and how fast.
+
+    speed : timing factor on the recorded log times; None = as fast as possible.
+    topics : only these topics (full names); None = all but heartbeats and control.
+    start_seq / end_seq : only frames with start_seq <= seq < end_seq.
+    start_s / end_s : only messages logged in [start_s, end_s) seconds after the first one.
+    loops : how many times to play the file (0 = until interrupted).
+    lockstep : stage names; before sending a frame with a new sequence number, wait until
+        each of them has reported (on its heartbeat) that it has processed the previous one.
+    ack_timeout : seconds to wait for an acknowledgement before giving up.
+    """
+
+    speed: float | None = 1.0
+    topics: list[str] | None = None
+    start_seq: int | None = None
+    end_seq: int | None = None
+    start_s: float | None = None
+    end_s: float | None = None
+    loops: int = 1
+    lockstep: tuple[str, ...] = ()
+    ack_timeout: float = 10.0
+    settle: float = 1.0
+
+
+class _Acks:
+    """Last sequence number each live stage reports in its heartbeat."""
+
+    def __init__(self) -> None:
+        self.last: dict[str, int] = {}
+        self.changed = threading.Event()
+
+    def on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+        try:
+            m = decode(payload)
+        except MessageError:
+            return
+        if isinstance(m, StageStatus):
+            self.last[m.stage] = (1 << 60) if m.state in ("done", "stopped") else m.last_seq
+            self.changed.set()
+
+    def wait(self, stages: tuple[str, ...], seq: int, timeout: float) -> None:
+        end = time.monotonic() + timeout
+        while True:
+            behind = [s for s in stages if self.last.get(s, -1) < seq]
+            if not behind:
+                return
+            left = end - time.monotonic()
+            if left <= 0:
+                raise TimeoutError(f"lockstep: no acknowledgement of frame {seq} from {', '.join(behind)} "
+                                   f"within {timeout:.0f} s (are they running, on this network?)")
+            self.changed.clear()
+            self.changed.wait(min(left, 0.05))
+
+
+def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr,
+           announce_endpoints: list[str] | None = None) -> int:
+    """Republish a recording on zenoh, byte for byte, on its recorded topics with its sequence numbers.
+
+    Returns the number of messages sent. Heartbeats and control messages of the recorded
+    pipeline are never replayed (they would confuse a live one). With ``announce_endpoints``
+    the replay announces itself (:mod:`pipeline.runtime.running`) there while it plays, so
+    ``gflow topics`` and friends find it without a launcher.
+    """
+    s = _session(settings)
+    bus = Bus(s)
+    acks = _Acks()
+    records = [r for r in iter_records(path, topics=opts.topics)
+               if "/_status/" not in r.topic and not r.topic.endswith("/_control")]
+    if not records:
+        s.close()
+        raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else ""))
+    t_first = min(r.log_ns for r in records)
+    keep = []
+    for r in records:
+        rel = (r.log_ns - t_first) / 1e9
+        if opts.start_s is not None and rel < opts.start_s or opts.end_s is not None and rel >= opts.end_s:
+            continue
+        if r.type != "EndOfStream" and (opts.start_seq is not None and r.seq < opts.start_seq
+                                        or opts.end_seq is not None and r.seq >= opts.end_seq):
+            continue
+        keep.append(r)
+    stream = keep[0].topic.split("/")[1] if keep else ""
+    if opts.lockstep:
+        bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
+    announcement = None
+    if announce_endpoints and stream:
+        from pipeline.runtime.running import announce
+
+        announcement = announce(stream, announce_endpoints, name=f"replay {Path(path).name}", kind="replay",
+                                recording=str(path))
+    time.sleep(opts.settle)  # let subscribers' declarations arrive before the first sample
+    n = 0
+    loop = 0
+    try:
+        while opts.loops == 0 or loop < opts.loops:
+            loop += 1
+            wall0 = time.monotonic()
+            t0 = keep[0].log_ns if keep else 0
+            sent_seq = -1
+            for r in keep:
+                if opts.lockstep and r.seq > sent_seq >= 0:
+                    acks.wait(opts.lockstep, sent_seq, opts.ack_timeout)
+                if opts.speed is not None:
+                    due = wall0 + (r.log_ns - t0) / 1e9 / opts.speed
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        time.sleep(delay)
+                bus.publish(r.topic, r.data, r.seq, r.type if r.type != "unknown" else "")
+                if r.type != "EndOfStream":
+                    sent_seq = max(sent_seq, r.seq)
+                n += 1
+    except KeyboardInterrupt:
+        pass
+    finally:
+        time.sleep(0.2)
+        if announcement is not None:
+            announcement.close()
+        s.close()
+    return n

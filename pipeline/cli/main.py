@@ -1,0 +1,87 @@
+"""The ``gflow`` command line. Each command lives in ``pipeline/cli/commands/``.
+
+    gflow demo                         synthetic scene through the multi-process pipeline
+    gflow track SOURCE --init X,Y,W,H  track one target through an image folder or video
+    gflow eval --gt GT.csv --pred P.csv
+    gflow run GRAPH.yaml               any graph, as processes over zenoh (or --inline)
+    gflow info FILE.mcap               what a recording holds
+    gflow replay FILE.mcap             republish a recording on zenoh
+    gflow frame SOURCE N OUT.png       a frame with a pixel grid, to read --init off
+    gflow ps | topics | echo TOPIC | hz TOPIC | pub TOPIC TYPE JSON   a live pipeline
+    gflow view                         a live pipeline in Foxglove (ws://127.0.0.1:8765)
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+
+from pipeline.cli.commands import command_modules
+from pipeline.cli.commands.common import CliError
+from pipeline.runtime.graph import GraphError
+from pipeline.runtime.transport import SessionError
+
+__all__ = ["main", "build_parser"]
+
+
+def version_text() -> str:
+    """``gflow X.Y.Z (python A.B, eclipse-zenoh V, mcap V)``: what a bug report needs."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    def v(name: str) -> str:
+        try:
+            return version(name)
+        except PackageNotFoundError:
+            return "not installed"
+
+    py = ".".join(map(str, sys.version_info[:3]))
+    return f"gflow {v('gflow')} (python {py}, eclipse-zenoh {v('eclipse-zenoh')}, mcap {v('mcap')})"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a usage mistake reported in one line (the usage is one --help away)."""
+
+    def error(self, message: str):  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = _Parser(
+        prog="gflow",
+        description="gflow: a streaming dataflow tracker for video. Every stage is its own process, "
+                    "stages talk over Eclipse Zenoh, and every message is recorded to MCAP.",
+        epilog="Run 'gflow COMMAND --help' for the options of one command. Docs: README.md.")
+    ap.add_argument("--version", action="version", version=version_text())
+    ap.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = ap.add_subparsers(dest="command", metavar="COMMAND")
+    for mod in command_modules():
+        mod.register(sub)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
+                        format="%(levelname)s %(name)s: %(message)s")
+    if args.command is None:
+        ap.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except (CliError, GraphError, FileNotFoundError, ValueError, SessionError) as e:
+        msg = " ".join(str(e).split())  # one line, whatever the library wrote
+        print(f"gflow {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+    except OSError as e:  # a file that cannot be read or written: name it, no traceback
+        where = f"{e.filename}: " if e.filename else ""
+        print(f"gflow {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"gflow {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

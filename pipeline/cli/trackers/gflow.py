@@ -1,0 +1,144 @@
+"""``--tracker gflow``: G-flow (Marks, Hershey, Roddey & Movellan, NIPS 2004) on the graph ``gflow``.
+
+The G-flow parameters must be equal in the proposal stage(s) and the filter, so every
+option here sets all of them (``--gflow-set NAME=VALUE`` does the same for any parameter of
+:class:`stages.gflow_common.GFlowParams`; ``--set filter.X=...`` alone would make the two
+disagree, which the stages report). ``--shards K`` builds K proposal stages
+``proposal0 .. proposal{K-1}``, each proposing for one block of experts, all feeding the
+filter: :func:`make_plan` generates that graph from the graph file.
+
+``--model FILE`` (the option is shared with ``--tracker m2``) is a morphable model file
+(``pipeline.io.modelfile``, kind ``morphable``); without it the generic ellipsoid head is
+fitted into ``--init``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+from pathlib import Path
+
+import yaml
+
+from pipeline.runtime.graph import GRAPHS_DIR, GraphError, Plan, load_graph, parse_graph
+
+NAME = "gflow"
+GRAPH = "gflow"
+
+#: stage names of the graph
+PROPOSAL, FILTER = "proposal", "filter"
+
+
+def add_args(g) -> None:
+    g.add_argument("--experts", type=int, metavar="N", help="gflow: number of experts E (default 20)")
+    g.add_argument("--samples", type=int, metavar="S", help="gflow: pose samples per expert s (default 10)")
+    g.add_argument("--alpha", type=float, metavar="A",
+                   help="gflow: sharpness of the Laplace proposal N(u_hat, alpha Sigma_hat); 0 = the peak (default 1)")
+    g.add_argument("--shards", type=int, default=1, metavar="K",
+                   help="gflow: split the experts across K proposal processes (default 1)")
+    g.add_argument("--background", action=argparse.BooleanOptionalAction, default=None,
+                   help="gflow: model the background texture (one Kalman filter per pixel and expert); "
+                        "default off (uninformative background, as in the paper's experiments)")
+    g.add_argument("--gflow-set", action="append", metavar="NAME=VALUE", default=None,
+                   help="gflow: set a G-flow parameter in every proposal stage and the filter, e.g. psi_v=3e-4")
+
+
+def _gflow_sets(items: list[str] | None) -> dict:
+    from pipeline.cli.commands.common import CliError
+
+    out: dict = {}
+    for it in items or []:
+        if "=" not in it:
+            raise CliError(f"--gflow-set expects NAME=VALUE, got {it!r}")
+        k, v = it.split("=", 1)
+        out[k.strip()] = yaml.safe_load(v)
+    return out
+
+
+def overrides(args) -> tuple[str, dict[str, dict]]:
+    """Both stages get the same G-flow parameters; the filter also gets the number of shards."""
+    from pipeline.cli.commands.common import CliError
+
+    shared: dict = {"init": list(args.init), "seed": args.seed}
+    for opt, param in (("experts", "n_experts"), ("samples", "n_samples"), ("alpha", "alpha"),
+                       ("background", "background")):
+        v = getattr(args, opt, None)
+        if v is not None:
+            shared[param] = v
+    model = getattr(args, "model", None)
+    if model:
+        from gflow_core.gflow import MorphableModel
+
+        from pipeline.io.modelfile import load_model
+
+        path = Path(model)
+        obj = load_model(path)  # a missing or corrupt file fails here, before anything starts
+        if not isinstance(obj, MorphableModel):
+            raise CliError(f"{path} holds a {type(obj).__name__}; --tracker gflow needs a morphable model file "
+                           f"(kind 'morphable')")
+        shared["model"] = str(path.resolve())
+    shared.update(_gflow_sets(getattr(args, "gflow_set", None)))
+    shards = int(getattr(args, "shards", 1) or 1)
+    if shards < 1:
+        raise CliError(f"--shards must be >= 1, got {shards}")
+    return GRAPH, {PROPOSAL: dict(shared), FILTER: dict(shared, shards=shards)}
+
+
+def make_plan(graph: str, over: dict[str, dict]) -> Plan:
+    """The plan of ``graph`` (a file or a built-in name) with the filter's ``shards`` proposal stages.
+
+    With one shard this is the graph as written. With K > 1 its stage ``proposal`` becomes
+    ``proposal0 .. proposal{K-1}`` (params ``shard: k, shards: K``; output topic
+    ``proposals{k}``) and the filter gets inputs ``proposals0 .. proposals{K-1}``;
+    overrides for ``proposal`` apply to every shard.
+    """
+    shards = int(over.get(FILTER, {}).get("shards", 1))
+    if shards == 1:
+        return load_graph(graph, overrides=over)
+    p = Path(graph)
+    if not p.is_file():
+        p = GRAPHS_DIR / (p.name if p.suffix else p.name + ".yaml")
+        if not p.is_file():
+            raise GraphError(f"graph file not found: {graph}")
+    return parse_graph(sharded_graph_text(p.read_text(), shards, str(p)), f"{p} ({shards} proposal shards)", ".",
+                       shard_overrides(over, shards))
+
+
+def sharded_graph_text(text: str, shards: int, filename: str = "<graph>") -> str:
+    """The YAML of a G-flow graph with its ``proposal`` stage split into ``shards`` stages."""
+    doc = yaml.safe_load(text)
+    stages = doc.get("stages") if isinstance(doc, dict) else None
+    if not isinstance(stages, dict) or PROPOSAL not in stages or FILTER not in stages:
+        raise GraphError(f"{filename}: to split the proposals into {shards} shards the graph needs stages named "
+                         f"{PROPOSAL!r} and {FILTER!r}")
+    spec = stages[PROPOSAL]
+    filt = copy.deepcopy(stages[FILTER])
+    new: dict = {}
+    for name, s in stages.items():
+        if name == PROPOSAL:
+            for k in range(shards):
+                sk = copy.deepcopy(spec)
+                sk["params"] = dict(sk.get("params") or {}, shard=k, shards=shards)
+                sk["outputs"] = {"proposals": f"proposals{k}"}
+                new[f"{PROPOSAL}{k}"] = sk
+        elif name == FILTER:
+            ins = {p: t for p, t in (filt.get("inputs") or {}).items() if not p.startswith("proposals")}
+            ins.update({f"proposals{k}": f"proposals{k}" for k in range(shards)})
+            filt["inputs"] = ins
+            filt["params"] = dict(filt.get("params") or {}, shards=shards)
+            new[name] = filt
+        else:
+            new[name] = s
+    doc["stages"] = new
+    return yaml.safe_dump(doc, sort_keys=False)
+
+
+def shard_overrides(over: dict[str, dict], shards: int) -> dict[str, dict]:
+    """Overrides for ``proposal`` copied to ``proposal0 .. proposal{K-1}`` (their shard numbers kept)."""
+    out = {k: dict(v) for k, v in over.items() if k != PROPOSAL}
+    for k in range(shards):
+        kv = dict(over.get(PROPOSAL, {}))
+        kv.update(out.get(f"{PROPOSAL}{k}", {}))
+        kv.update(shard=k, shards=shards)
+        out[f"{PROPOSAL}{k}"] = kv
+    return out

@@ -1,0 +1,56 @@
+"""``--tracker m2``: the Metric Mixture tracker with a learned model (``gflow learn m2``).
+
+Contour models run the graph ``m2`` (particle filter over X = (alpha, k)); patch models
+(shuffle / L2, e.g. mouths) run ``m2_patch`` (no alpha transform, sec. 5.2). The
+preprocessing the model was learned with (chamfer profile and g0, Canny thresholds and
+blur, the patch crop) is read from the model file and applied.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+NAME = "m2"
+
+
+def add_args(g) -> None:
+    # --particles is shared with the chamfer tracker (it adds the option); --model is shared
+    # with --tracker gflow (a morphable model file there)
+    g.add_argument("--model", metavar="MODEL.npz",
+                   help="model file: m2 needs one learned by `gflow learn m2`; gflow takes a morphable model")
+
+
+def overrides(args) -> tuple[str, dict[str, dict]]:
+    from gflow_core.m2.model import M2Model
+
+    from pipeline.cli.commands.common import CliError
+    from pipeline.io.modelfile import load_meta, load_model
+
+    if not args.model:
+        raise CliError("--tracker m2 needs --model MODEL.npz (learn one with `gflow learn m2`)")
+    path = Path(args.model)
+    model = load_model(path)  # a missing or bad file fails here, before anything starts
+    if not isinstance(model, M2Model):
+        raise CliError(f"{path} holds a {type(model).__name__}, not an M2 model")
+    meta = load_meta(path)
+    mpath = str(path.resolve())
+    box = list(args.init)
+    particles = getattr(args, "particles", None) or 500
+    pre: dict = {}
+    if "canny_low" in meta and "canny_high" in meta:
+        pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))
+    if "blur" in meta:
+        pre["blur"] = float(meta["blur"])
+    if model.kind == "patch":
+        crop = "box" if meta.get("crop") == "box" else "frame"
+        return "m2_patch", {
+            "filter": {"model": mpath, "init": box, "particles": particles, "seed": args.seed, "crop": crop},
+            "proposal": {"model": mpath, "seed": args.seed},
+            "preprocess": pre,
+        }
+    pre.update(profile=model.profile, g0=model.g0)
+    return "m2", {
+        "filter": {"model": mpath, "init": box, "particles": particles, "seed": args.seed},
+        "proposal": {"model": mpath, "seed": args.seed, "init": box},
+        "preprocess": pre,
+    }

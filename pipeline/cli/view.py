@@ -1,0 +1,130 @@
+"""``gflow view``: a live pipeline in the Foxglove app, over Foxglove's WebSocket protocol
+(served by the ``foxglove-sdk`` package).
+
+A bridge subscribes to ``gflow/<stream>/**`` on zenoh and republishes, on channels named
+like the topics:
+
+* the render stage's ``image`` and ``annotations`` as they are (JSON messages of the
+  well-known schemas ``foxglove.CompressedImage`` / ``foxglove.ImageAnnotations``): an Image
+  panel shows the video with the overlays;
+* the messages a user plots (``estimate``: box, pose, ESS, state; ``errors``; every stage's
+  heartbeat ``_status/<stage>``; ``_control``) as JSON objects (small arrays as lists, large
+  ones as dtype and shape: :func:`pipeline.recording.plain.to_plain`), which the Plot and Raw Messages
+  panels read (e.g. ``/gflow/demo/estimate.ess``).
+
+Frames, features, particles and snapshots (large binary arrays) are not forwarded.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import threading
+import time
+from dataclasses import dataclass, field
+
+from stages.messages import MessageError, decode
+from stages.messages_foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
+
+from pipeline.recording.plain import to_plain
+from pipeline.runtime.transport import Bus, ZenohSettings, open_session
+
+__all__ = ["FoxgloveBridge", "FORWARDED_TYPES"]
+
+#: gflow message types forwarded as JSON (besides the Foxglove image / annotation messages)
+FORWARDED_TYPES = ("Estimate", "PoseEstimate", "ErrorReport", "StageStatus", "Control", "EndOfStream")
+_FOXGLOVE_BY_NAME = {t.__name__: (t, name) for t, name in FOXGLOVE_SCHEMAS.items()}
+
+
+@dataclass
+class FoxgloveBridge:
+    """zenoh -> Foxglove WebSocket server. ``start()``, then ``stop()``.
+
+    host / port: where the WebSocket server listens (Foxglove's default is 8765; 0 picks one).
+    """
+
+    settings: ZenohSettings
+    stream: str | None = None
+    host: str = "127.0.0.1"
+    port: int = 8765
+    forwarded: dict[str, int] = field(default_factory=dict)
+    failed: dict[str, str] = field(default_factory=dict)
+    dropped: int = 0
+
+    def start(self) -> "FoxgloveBridge":
+        import foxglove
+
+        self._fx = foxglove
+        self._ctx = foxglove.Context()
+        self._channels: dict[str, object] = {}
+        self._q: queue.Queue = queue.Queue(maxsize=256)
+        self._stop = threading.Event()
+        self.server = foxglove.start_server(name="gflow", host=self.host, port=self.port, context=self._ctx)
+        self.port = self.server.port
+        self._session = open_session(self.settings)
+        Bus(self._session).subscribe(f"gflow/{self.stream or '*'}/**", self._on_sample, with_type=True)
+        self._worker = threading.Thread(target=self._run, name="foxglove-bridge", daemon=True)
+        self._worker.start()
+        return self
+
+    @property
+    def url(self) -> str:
+        return f"ws://{self.host}:{self.port}"
+
+    # zenoh's thread: hand over, never block (a slow viewer drops frames, not the pipeline)
+    def _on_sample(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str) -> None:
+        try:
+            self._q.put_nowait((key, payload, pub_ns, type_name))
+        except queue.Full:
+            self.dropped += 1
+
+    def _channel(self, topic: str, type_name: str):
+        ch = self._channels.get(topic)
+        if ch is None:
+            fx = self._fx
+            if type_name in _FOXGLOVE_BY_NAME:
+                typ, name = _FOXGLOVE_BY_NAME[type_name]
+                schema = fx.Schema(name=name, encoding="jsonschema",
+                                   data=json.dumps(foxglove_schema(typ)).encode("utf-8"))
+                ch = fx.Channel(topic, schema=schema, message_encoding="json", context=self._ctx)
+            else:
+                ch = fx.Channel(topic, message_encoding="json", context=self._ctx)  # schemaless JSON
+            self._channels[topic] = ch
+        return ch
+
+    def _forward(self, key: str, payload: bytes, pub_ns: int, type_name: str) -> None:
+        topic = "/" + key
+        if type_name in _FOXGLOVE_BY_NAME:  # already Foxglove JSON: byte for byte
+            self._channel(topic, type_name).log(payload, log_time=pub_ns or time.time_ns())
+        else:
+            if type_name and type_name not in FORWARDED_TYPES:
+                return
+            try:
+                msg = decode(payload)
+            except MessageError:
+                return
+            name = type(msg).__name__
+            if name not in FORWARDED_TYPES:
+                return
+            body = json.dumps(to_plain(msg), allow_nan=False, default=str).encode("utf-8")
+            self._channel(topic, name).log(body, log_time=pub_ns or time.time_ns())
+        self.forwarded[topic] = self.forwarded.get(topic, 0) + 1
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                item = self._q.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            try:
+                self._forward(*item)
+            except Exception as e:  # a message the viewer cannot take must not stop the bridge
+                self.failed["/" + item[0]] = f"{type(e).__name__}: {e}"
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._worker.join(timeout=2.0)
+        try:
+            self._session.close()
+        finally:
+            self.server.stop()

@@ -1,0 +1,271 @@
+"""Re-execute stages from a recording, bit for bit (``gflow rerun``).
+
+A stage's outputs depend only on its configuration, its seed and the ordered inputs it
+consumed. The recording holds all three: the resolved plan as metadata, and every input
+payload as it travelled. So one stage can be fed its recorded inputs in the recorded
+order and its new outputs compared with the recorded ones byte for byte, or, with new
+parameters, written to a new recording to diff against the old one.
+
+Seeking: a stage with ``snapshot_every: N`` publishes its state every N frames on
+``gflow/<stream>/_snapshot/<stage>``. ``--from SEQ`` restores the nearest snapshot before
+SEQ and feeds only the inputs after it; the outputs must equal those of a full re-run.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+from stages.messages import EndOfStream, MessageError, Snapshot, decode
+
+from pipeline.runtime.build import make_stage
+from pipeline.recording.compare import FieldDiff, first_field_diff
+from pipeline.runtime.graph import GraphError, Plan, validate_params
+from pipeline.runtime.host import StageHost
+from pipeline.io.mcap_io import Record, iter_records, read_metadata
+from pipeline.io.recorder import McapRecorder, peek_type
+from pipeline.io.sources import open_reader
+
+__all__ = ["recorded_plan", "rerun_stage", "rerun_graph", "check_outputs", "RerunResult", "Mismatch"]
+
+
+@dataclass(frozen=True)
+class Mismatch:
+    """The first place where a re-run and the recording disagree."""
+
+    topic: str
+    seq: int
+    kind: str  # "differs", "missing" (recorded, not re-made), "extra" (re-made, not recorded)
+    field: FieldDiff | None = None
+
+    def describe(self) -> str:
+        where = f"{self.topic} seq {self.seq}"
+        if self.kind == "differs" and self.field is not None:
+            return f"{where}: field {self.field.path} differs: {self.field.detail}"
+        if self.kind == "missing":
+            return f"{where}: recorded, but the re-run did not produce it"
+        return f"{where}: produced by the re-run, but not in the recording"
+
+
+@dataclass
+class RerunResult:
+    stage: str
+    outputs: list[tuple[str, int, bytes]]
+    start_after: int
+    seconds: float
+    steps: int
+    inputs: list[Record] = field(default_factory=list)
+    restored_from: int | None = None
+    note: str = ""
+
+
+def recorded_plan(path: str | Path) -> Plan:
+    """The plan (graph, parameters, wiring) a recording was made with."""
+    md = read_metadata(path)
+    if "gflow.config" not in md:
+        raise GraphError(f"{path} has no gflow.config metadata: it was not written by gflow's recorder")
+    return Plan.from_metadata(md.get("gflow.graph", {}), md["gflow.config"])
+
+
+def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
+    """Override parameters of one stage, validated like a graph file."""
+    sp = plan.stages[stage]
+    params = dict(sp.params)
+    params.update(sets)
+    sp.params = validate_params(sp.kind, params, f"--set for stage {stage!r}")
+
+
+def _snapshot_before(path: str | Path, topic: str, seq: int) -> Snapshot | None:
+    best = None
+    for r in iter_records(path, topics=[topic]):
+        if r.seq < seq:
+            m = decode(r.data)
+            if isinstance(m, Snapshot) and (best is None or m.header.seq > best.header.seq):
+                best = m
+    return best
+
+
+def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = None, from_seq: int | None = None,
+                progress: Callable[[int], None] | None = None) -> RerunResult:
+    """Feed one stage the inputs it consumed in the recording and collect its outputs.
+
+    Parameters
+    ----------
+    path : the recording.
+    stage : stage name in the recorded graph.
+    sets : parameter overrides (none: the recorded configuration and seed).
+    from_seq : start from the nearest snapshot before this frame.
+    """
+    plan = recorded_plan(path)
+    if stage not in plan.stages:
+        raise GraphError(f"the recording has no stage {stage!r} (stages: {', '.join(plan.stages)})")
+    sp = plan.stages[stage]
+    if sp.kind == "recorder":
+        raise GraphError("the recorder has no outputs to re-run")
+    if sets:
+        apply_sets(plan, stage, sets)
+    outputs: list[tuple[str, int, bytes]] = []
+    snap_topic = plan.snapshot_topic(stage)
+
+    def collect(topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
+        outputs.append((topic, seq, payload))
+
+    st = make_stage(plan, stage)
+    host = StageHost(st, sp.inputs, sp.outputs, plan.error_topic, collect, sp.snapshot_every, snap_topic)
+    start_after = -1
+    restored = None
+    note = ""
+    if from_seq is not None and from_seq > 0:
+        probe = st.snapshot()
+        if probe is None and not hasattr(st, "emit"):
+            start_after = from_seq - 1  # a stateless stage can start anywhere
+        else:
+            snap = _snapshot_before(path, snap_topic, from_seq)
+            if snap is None:
+                note = f"no snapshot of {stage} before frame {from_seq}; re-running from the start"
+            else:
+                st.restore(snap.data)
+                start_after = restored = snap.header.seq
+        host.join.done_below = start_after
+    t0 = time.perf_counter()
+    consumed: list[Record] = []
+    if sp.is_source():
+        from stages.source import SourceParams
+        import msgspec
+
+        for raw in open_reader(msgspec.convert(sp.params, SourceParams), plan.base_dir):
+            if raw.index <= start_after:
+                continue
+            host._emit(st.emit(raw))  # type: ignore[attr-defined]
+            host._flush_reports()
+            host.stats.steps += 1
+        host.close("end")
+    else:
+        wanted = set(sp.inputs.values())
+        for r in iter_records(path):
+            if r.topic in wanted:
+                consumed.append(r)
+                host.deliver(r.topic, r.data)
+                if progress is not None:
+                    progress(host.stats.steps)
+        host.close("end")
+    return RerunResult(stage=stage, outputs=outputs, start_after=start_after, seconds=time.perf_counter() - t0,
+                       steps=host.stats.steps, inputs=consumed, restored_from=restored, note=note)
+
+
+def recorded_outputs(path: str | Path, topics: set[str], start_after: int = -1) -> list[tuple[str, int, bytes]]:
+    return [(r.topic, r.seq, r.data) for r in iter_records(path, topics=sorted(topics))
+            if r.seq > start_after and r.type != "ErrorReport"]
+
+
+def _eos(data: bytes) -> EndOfStream | None:
+    if peek_type(data) != "EndOfStream":
+        return None
+    try:
+        m = decode(data)
+    except MessageError:
+        return None
+    return m if isinstance(m, EndOfStream) else None
+
+
+def recording_ends(recorded: list[tuple[str, int, bytes]]) -> dict[str, int]:
+    """The last frame each output topic has in the recording, for a recording that ends early
+    (interrupted, or torn by a killed recorder): {topic: last seq}. Empty when the outputs ran to
+    a normal end of stream."""
+    last: dict[str, int] = {}
+    reasons: set[str] = set()
+    for topic, seq, data in recorded:
+        eos = _eos(data)
+        if eos is not None:
+            reasons.add(eos.reason)
+            continue
+        last[topic] = max(last.get(topic, -1), seq)
+    if reasons == {"end"}:  # the stage's outputs ran to their end (topics with no end of stream, like snapshots, too)
+        return {}
+    return last
+
+
+def check_outputs(recorded: list[tuple[str, int, bytes]], rerun: list[tuple[str, int, bytes]],
+                  start_after: int = -1) -> list[Mismatch]:
+    """Compare outputs per (topic, seq, occurrence). Returns mismatches in recorded order.
+
+    Only the frames the recording has are compared: where it ends early (an interrupted run, a
+    torn file), what the re-run produced after its last frame is not a difference, and nor is
+    the end of stream (whose reason and position record when the run was stopped)."""
+    ends = recording_ends(recorded)
+
+    def keep(topic: str, seq: int, data: bytes) -> bool:
+        if topic in ends and (seq > ends[topic] or _eos(data) is not None):
+            return False
+        return True
+
+    recorded = [r for r in recorded if keep(*r)]
+    rerun = [r for r in rerun if keep(*r)]
+
+    def index(items):
+        out: dict[tuple[str, int, int], bytes] = {}
+        order = []
+        count: dict[tuple[str, int], int] = {}
+        for topic, seq, data in items:
+            if seq <= start_after:
+                continue
+            k = (topic, seq)
+            n = count.get(k, 0)
+            count[k] = n + 1
+            out[(topic, seq, n)] = data
+            order.append((topic, seq, n))
+        return out, order
+
+    rec, rec_order = index(recorded)
+    new, new_order = index(rerun)
+    bad: list[Mismatch] = []
+    for key in rec_order:
+        if key not in new:
+            bad.append(Mismatch(key[0], key[1], "missing"))
+        elif new[key] != rec[key]:
+            bad.append(Mismatch(key[0], key[1], "differs", first_field_diff(rec[key], new[key])))
+    for key in new_order:
+        if key not in rec:
+            bad.append(Mismatch(key[0], key[1], "extra"))
+    return bad
+
+
+def ends_note(recorded: list[tuple[str, int, bytes]]) -> str:
+    """'' for a recording that ran to its end, else where it ends (for the check's report)."""
+    ends = recording_ends(recorded)
+    if not ends:
+        return ""
+    return ("the recording ends early (interrupted or torn): compared up to frame "
+            + ", ".join(f"{s} on {t.split('/', 2)[-1]}" for t, s in sorted(ends.items())))
+
+
+def write_rerun(path_in: str | Path, path_out: str | Path, plan: Plan, result: RerunResult, sets: dict) -> None:
+    """A new recording with the stage's inputs (as recorded) and its new outputs, for `gflow diff`."""
+    md = read_metadata(path_in)
+    meta = {"gflow.graph": md.get("gflow.graph", {}), "gflow.config": plan.config_metadata(),
+            "gflow.rerun": {"from": str(path_in), "stage": result.stage,
+                            "set": ", ".join(f"{k}={v}" for k, v in sets.items())}}
+    now = time.time_ns()
+    with McapRecorder(path_out, metadata=meta) as rec:
+        for r in result.inputs:
+            rec.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns)
+        for i, (topic, seq, data) in enumerate(result.outputs):
+            rec.write(topic, data, seq, log_ns=now + i)
+
+
+def rerun_graph(path: str | Path, out: str | Path, sets: dict[str, dict] | None = None):
+    """Re-run every stage inline from the recorded source frames; returns (plan, InlineResult)."""
+    from pipeline.runtime.inline import run_inline
+
+    plan = recorded_plan(path)
+    for stage, kv in (sets or {}).items():
+        if stage not in plan.stages:
+            raise GraphError(f"--set names stage {stage!r}, which the recording does not have")
+        apply_sets(plan, stage, kv)
+    src = next(s for s in plan.stages.values() if s.is_source())
+    src.params = validate_params("source", dict(src.params, kind="mcap", path=str(Path(path).resolve()),
+                                                realtime=False), "recorded source")
+    md = {"gflow.graph": read_metadata(path).get("gflow.graph", {}), "gflow.config": plan.config_metadata()}
+    return plan, run_inline(plan, recording=str(out), metadata=md)

@@ -1,0 +1,167 @@
+"""Results files: box CSVs (``frame,x,y,w,h``) and what a recording says about tracking."""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
+
+from pipeline.io.mcap_io import iter_records
+
+__all__ = ["read_boxes", "write_boxes", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
+           "RunOutcome"]
+
+Box = tuple[float, float, float, float]
+
+
+def read_boxes(path: str | Path) -> dict[int, Box]:
+    """Read ``frame,x,y,w,h`` rows (a header line is optional). Errors name the file and line."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"box file not found: {p}")
+    out: dict[int, Box] = {}
+    with open(p, newline="") as f:
+        for lineno, row in enumerate(csv.reader(f), start=1):
+            if not row or not "".join(row).strip():
+                continue
+            if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
+                continue  # header
+            if len(row) < 5:
+                raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h, got {len(row)} column(s)")
+            try:
+                frame = int(row[0])
+                box = tuple(float(v) for v in row[1:5])
+            except ValueError:
+                raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+            if not all(math.isfinite(v) for v in box):
+                raise ValueError(f"{p}:{lineno}: box has NaN or inf")
+            out[frame] = box  # type: ignore[assignment]
+    if not out:
+        raise ValueError(f"{p}: no boxes")
+    return out
+
+
+def write_boxes(path: str | Path, boxes: dict[int, Box]) -> None:
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    with open(p, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "w", "h"])
+        for k in sorted(boxes):
+            w.writerow([k, *(f"{v:.2f}" for v in boxes[k])])
+
+
+def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate]:
+    """Every Estimate in a recording, by frame (the last one wins if a frame repeats)."""
+    out: dict[int, Estimate] = {}
+    for r in iter_records(recording):
+        if r.type not in ("Estimate", "PoseEstimate") or (stream and not r.topic.startswith(f"gflow/{stream}/")):
+            continue
+        try:
+            m = decode(r.data)
+        except MessageError:
+            continue
+        if isinstance(m, (Estimate, PoseEstimate)):
+            out[m.header.seq] = m
+    return out
+
+
+def truth_boxes(recording: str | Path) -> dict[int, Box]:
+    """Ground-truth boxes carried by Frame messages (synthetic scenes)."""
+    out: dict[int, Box] = {}
+    for r in iter_records(recording):
+        if r.type != "Frame":
+            continue
+        try:
+            m = decode(r.data)
+        except MessageError:
+            continue
+        if isinstance(m, Frame) and m.truth is not None:
+            out[m.header.seq] = tuple(m.truth)  # type: ignore[assignment]
+    return out
+
+
+def frame_ranges(frames) -> str:
+    """Frame numbers as compact ranges: ``3, 7-9, 12``."""
+    out: list[str] = []
+    fs = sorted(set(frames))
+    i = 0
+    while i < len(fs):
+        j = i
+        while j + 1 < len(fs) and fs[j + 1] == fs[j] + 1:
+            j += 1
+        out.append(str(fs[i]) if i == j else f"{fs[i]}-{fs[j]}")
+        i = j + 1
+    return ", ".join(out)
+
+
+def completeness(est: dict, expected: range | None) -> list[str]:
+    """Lines saying which frames have no estimate and which coasted (empty: every frame tracked).
+
+    expected : the frames the source was to send (None: from the first to the last estimate)."""
+    if expected is None:
+        expected = range(min(est), max(est) + 1) if est else range(0)
+    missing = [f for f in expected if f not in est]
+    coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast"]
+    lines = []
+    if missing:
+        lines.append(f"{len(missing)} frame(s) have no estimate: {frame_ranges(missing)}")
+    if coasted:
+        lines.append(f"{len(coasted)} frame(s) coasted on the dynamics (no usable input): {frame_ranges(coasted)}")
+    return lines
+
+
+@dataclass
+class RunOutcome:
+    """What a run tracked, whatever happened to it: the estimates by frame (from the recording
+    and its segments, plus those the launcher heard that the recording lost), report lines,
+    and whether the run was incomplete (and why)."""
+
+    estimates: dict[int, Any]
+    expected: range
+    lines: list[str] = field(default_factory=list)
+    incomplete: bool = False
+    why: str = ""
+
+
+def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunOutcome:
+    """Gather a finished run's estimates and say what is missing.
+
+    ``info`` is what ``run_plan`` returns (``ok``, ``estimates`` heard live, ``restarts``). The
+    frames expected are those the source sent (a truncated video sends fewer than its header
+    says), from ``start`` to the last frame seen."""
+    est = estimates(recording) if recording and Path(recording).is_file() else {}
+    heard = []
+    for seq, payload in info.get("estimates", {}).items():
+        if seq in est:
+            continue
+        try:
+            m = decode(payload)
+        except MessageError:
+            continue
+        if isinstance(m, (Estimate, PoseEstimate)) and m.header.seq == seq:
+            est[seq] = m
+            heard.append(seq)
+    src = next((s for s in plan.stages.values() if s.is_source()), None)
+    topic = src.outputs.get("frames", "") if src is not None else ""
+    sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
+            if est and topic and recording else set())
+    expected = range(start, max(sent | set(est), default=start - 1) + 1)
+    lines = completeness(est, expected)
+    if heard:
+        lines.append(f"{len(heard)} frame(s) missing from the recording were kept from the live stream: "
+                     f"{frame_ranges(heard)}")
+    for n, k in info.get("restarts", {}).items():
+        kind = plan.stages[n].kind if n in plan.stages else ""
+        lines.append(f"stage {n} was restarted {k} time(s)" + (
+            " (the recording continues in segment files NAME.partN.mcap)" if kind == "recorder"
+            else ", and resumed from its checkpoint"))
+    missing = [f for f in expected if f not in est]
+    incomplete = not info.get("ok", True) or bool(missing)
+    why = (f"{len(missing)} frame(s) have no estimate: {frame_ranges(missing)}" if missing
+           else "the pipeline did not finish cleanly" if incomplete else "")
+    return RunOutcome(est, expected, lines, incomplete, why)

@@ -1,0 +1,54 @@
+"""Build stage objects from a plan: convert parameters, load resources named in them."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import msgspec
+
+from stages.base import Stage, StageContext
+from stages.registry import get_stage_class
+
+from pipeline.runtime.graph import Plan, StagePlan
+
+__all__ = ["make_stage", "apply_defaults"]
+
+
+def load_resources(plan: Plan, sp: StagePlan) -> dict[str, Any]:
+    """Files a stage's parameters name (a learned model), loaded here so stages never open files."""
+    res: dict[str, Any] = {}
+    model = sp.params.get("model")
+    if model:
+        from pipeline.io.modelfile import load_model  # imported lazily: only trackers with models need it
+
+        res["model"] = load_model(Path(plan.base_dir, model))
+    return res
+
+
+def make_stage(plan: Plan, name: str) -> Stage:
+    sp = plan.stages[name]
+    cls = get_stage_class(sp.kind)
+    params = msgspec.convert(sp.params, cls.Params)
+    return cls(params, StageContext(name=name, stream=plan.stream, resources=load_resources(plan, sp)))
+
+
+def apply_defaults(plan: Plan) -> Plan:
+    """Fill what can be known from the graph itself: on a synthetic source, a filter with no
+    initial box starts from the scene's ground-truth box at the first frame, and the edge
+    thresholds are calibrated on that box."""
+    from gflow_core.synthetic import SyntheticScene
+
+    src = next((s for s in plan.stages.values() if s.is_source()), None)
+    if src is None or src.params.get("kind") != "synthetic":
+        return plan
+    p = src.params
+    scene = SyntheticScene(width=p["width"], height=p["height"], n_frames=p["frames"], seed=p["scene_seed"],
+                           noise=p["noise"])
+    box = list(scene.truth_box(p["start"]))
+    for s in plan.stages.values():
+        if "init" in s.params and s.params.get("init") is None:
+            s.params["init"] = box
+        if "calibrate_box" in s.params and s.params.get("calibrate_box") is None:
+            s.params["calibrate_box"] = box
+    return plan

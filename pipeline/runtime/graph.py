@@ -1,0 +1,384 @@
+"""Graph files: which stages run, with which parameters, and which topics feed which inputs.
+
+A graph is YAML::
+
+    name: chamfer-tracker
+    stream: cam0                      # topics become gflow/<stream>/<topic>
+    stages:
+      source:
+        kind: source
+        params: {kind: folder, path: frames/, fps: 25}
+      preprocess:
+        kind: preprocess
+        inputs: {frames: frames}      # port: topic
+      filter:
+        kind: particle.filter
+        params: {init: [10, 20, 30, 40], seed: 0}
+        inputs: {features: features, proposals: proposals}
+        restart: on-failure           # or never (default); max_restarts: 3
+        snapshot_every: 25            # publish the stage's state every 25 frames (for seeking)
+      recorder:
+        kind: recorder
+        params: {path: recordings/run-{time}.mcap}
+
+Outputs default to topics named after their ports; ``outputs: {port: topic}`` renames
+them. ``external: {frames: Frame}`` declares topics fed from outside the graph (by
+``gflow replay``, say), so a graph of live stages can run without a source. The graph is validated before anything starts: an unknown stage kind, an unknown
+parameter, an unconnected input and a type mismatch between producer and consumer each
+raise :class:`GraphError` naming the file and line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import msgspec
+import yaml
+
+from stages.base import Params
+from stages.registry import STAGES
+
+from pipeline.runtime.transport import topic_key
+
+__all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
+
+RECORDER_KIND = "recorder"
+_STAGE_KEYS = {"kind", "params", "inputs", "outputs", "restart", "max_restarts", "qos", "snapshot_every"}
+
+
+class RecorderParams(Params):
+    """The recorder: every message on ``gflow/<stream>/**`` to one MCAP file.
+
+    path may contain ``{time}`` (YYYYmmdd-HHMMSS) and ``{name}`` (the graph name).
+    topics: which topics to keep, as shell patterns on the name after ``gflow/<stream>/``
+    (``estimate``, ``_snapshot/*``, ``*``); errors, heartbeats and control are always kept, so
+    a recording always says what went wrong.
+    """
+
+    path: str = "recordings/{name}-{time}.mcap"
+    topics: tuple[str, ...] = ("*",)
+    flush_interval: float = 0.5
+    compression: str = "lz4"
+    chunk_size: int = 4 * 1024 * 1024
+
+
+class GraphError(ValueError):
+    """A graph file that cannot run. The message names the file and line."""
+
+
+class _LineLoader(yaml.SafeLoader):
+    pass
+
+
+def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+    mapping = _LineDict()
+    for key_node, value_node in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        if key in mapping:
+            raise GraphError(f"line {key_node.start_mark.line + 1}: duplicate key {key!r}")
+        mapping[key] = loader.construct_object(value_node, deep=True)
+        mapping.lines[key] = key_node.start_mark.line + 1
+    mapping.line = node.start_mark.line + 1
+    return mapping
+
+
+class _LineDict(dict):
+    """A dict that remembers the line of each key (and its own)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lines: dict[Any, int] = {}
+        self.line = 0
+
+
+_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def _line(d: Any, key: Any | None = None) -> int:
+    if isinstance(d, _LineDict):
+        return d.lines.get(key, d.line) if key is not None else d.line
+    return 0
+
+
+@dataclass
+class StagePlan:
+    """One stage, resolved: full topic keys, validated parameters."""
+
+    name: str
+    kind: str
+    params: dict[str, Any]
+    inputs: dict[str, str]
+    outputs: dict[str, str]
+    restart: str = "never"
+    max_restarts: int = 3
+    qos: dict[str, str] = field(default_factory=dict)
+    snapshot_every: int = 0
+
+    def is_source(self) -> bool:
+        return self.kind == "source"
+
+
+@dataclass
+class Plan:
+    """A validated graph: what the launcher, the node processes and the inline executor run."""
+
+    name: str
+    stream: str
+    stages: dict[str, StagePlan]
+    source_text: str = ""
+    base_dir: str = "."
+    zenoh: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def error_topic(self) -> str:
+        return topic_key(self.stream, "errors")
+
+    def status_topic(self, stage: str) -> str:
+        return topic_key(self.stream, f"_status/{stage}")
+
+    def snapshot_topic(self, stage: str) -> str:
+        return topic_key(self.stream, f"_snapshot/{stage}")
+
+    @property
+    def control_topic(self) -> str:
+        return topic_key(self.stream, "_control")
+
+    def recorder(self) -> StagePlan | None:
+        for s in self.stages.values():
+            if s.kind == RECORDER_KIND:
+                return s
+        return None
+
+    def drop_topics(self) -> frozenset[str]:
+        return frozenset(t for s in self.stages.values() for port, t in s.outputs.items() if s.qos.get(port) == "drop")
+
+    def to_json(self) -> str:
+        return json.dumps({
+            "name": self.name, "stream": self.stream, "base_dir": self.base_dir, "zenoh": self.zenoh,
+            "source_text": self.source_text,
+            "stages": {n: dataclasses.asdict(s) for n, s in self.stages.items()},
+        })
+
+    @classmethod
+    def from_json(cls, text: str) -> "Plan":
+        d = json.loads(text)
+        return cls(name=d["name"], stream=d["stream"], base_dir=d.get("base_dir", "."), zenoh=d.get("zenoh", {}),
+                   source_text=d.get("source_text", ""),
+                   stages={n: StagePlan(**s) for n, s in d["stages"].items()})
+
+    def config_metadata(self) -> dict[str, str]:
+        """MCAP metadata ``gflow.config``: every stage's resolved plan (kind, parameters with
+        their defaults, wiring, restart and snapshot policy) as JSON, plus the stream and the
+        base folder of relative paths. :meth:`from_metadata` rebuilds the plan from it."""
+        out = {"stream": self.stream, "graph_name": self.name, "base_dir": str(Path(self.base_dir).resolve())}
+        for n, s in self.stages.items():
+            out[f"stage.{n}"] = json.dumps(dataclasses.asdict(s), sort_keys=True)
+        return out
+
+    @classmethod
+    def from_metadata(cls, graph: dict[str, str], config: dict[str, str]) -> "Plan":
+        """The plan a recording was made with (see :meth:`config_metadata`)."""
+        stages = {}
+        for key, val in config.items():
+            if key.startswith("stage."):
+                d = json.loads(val)
+                d.setdefault("name", key[len("stage."):])
+                stages[d["name"]] = StagePlan(**{k: v for k, v in d.items() if k in StagePlan.__dataclass_fields__})
+        if not stages:
+            raise GraphError("the recording's gflow.config metadata names no stage")
+        return cls(name=config.get("graph_name", graph.get("name", "recorded")), stream=config["stream"],
+                   stages=stages, source_text=graph.get("yaml", ""), base_dir=config.get("base_dir", "."))
+
+    def recording_path(self) -> str | None:
+        rec = self.recorder()
+        if rec is None:
+            return None
+        path = rec.params.get("path", RecorderParams().path)
+        return str(Path(self.base_dir, path.format(name=self.name, time=time.strftime("%Y%m%d-%H%M%S"))))
+
+
+#: topics every recording keeps, whatever ``topics`` says
+ALWAYS_RECORDED = ("errors", "_status/*", "_control")
+
+
+def recorded_topic_filter(params: dict, stream: str):
+    """``keep(topic) -> bool`` for the recorder's ``topics`` patterns (see :class:`RecorderParams`)."""
+    import fnmatch
+
+    pats = tuple(params.get("topics") or ["*"]) + ALWAYS_RECORDED
+    if "*" in pats:
+        return lambda topic: True
+    prefix = f"gflow/{stream}/"
+    return lambda topic: topic.startswith(prefix) and any(fnmatch.fnmatchcase(topic[len(prefix):], p) for p in pats)
+
+
+def _params_struct(kind: str) -> type[Params]:
+    if kind == RECORDER_KIND:
+        return RecorderParams
+    return STAGES[kind].Params
+
+
+def validate_params(kind: str, params: dict[str, Any], where: str) -> dict[str, Any]:
+    """Convert params to the stage's struct (unknown keys and wrong types are errors); return plain data."""
+    typ = _params_struct(kind)
+    try:
+        obj = msgspec.convert(dict(params), typ, strict=False)
+    except (msgspec.ValidationError, ValueError, TypeError) as e:
+        known = ", ".join(f.name for f in msgspec.structs.fields(typ))
+        raise GraphError(f"{where}: bad parameter for stage kind {kind!r}: {e} (known parameters: {known})") from None
+    return msgspec.to_builtins(obj)
+
+
+def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overrides: dict[str, dict] | None = None) -> Plan:
+    """Parse and validate a graph. ``overrides`` = {stage: {param: value}} is applied before validation."""
+    try:
+        doc = yaml.load(text, Loader=_LineLoader)
+    except GraphError as e:
+        raise GraphError(f"{filename}: {e}") from None
+    except yaml.YAMLError as e:
+        raise GraphError(f"{filename}: not valid YAML: {e}") from None
+    if not isinstance(doc, dict):
+        raise GraphError(f"{filename}: a graph must be a mapping with 'name', 'stream' and 'stages'")
+    unknown = set(doc) - {"name", "stream", "stages", "description", "external"}
+    if unknown:
+        k = sorted(unknown)[0]
+        raise GraphError(f"{filename}:{_line(doc, k)}: unknown top-level key {k!r} "
+                         f"(expected name, stream, stages, external, description)")
+    name = str(doc.get("name", Path(filename).stem))
+    stream = str(doc.get("stream", "cam0"))
+    try:
+        topic_key(stream, "x")
+    except ValueError as e:
+        raise GraphError(f"{filename}:{_line(doc, 'stream')}: {e}") from None
+    stages_doc = doc.get("stages")
+    if not isinstance(stages_doc, dict) or not stages_doc:
+        raise GraphError(f"{filename}:{_line(doc, 'stages')}: 'stages' must be a non-empty mapping of stage name -> spec")
+    overrides = overrides or {}
+    for sname in overrides:
+        if sname not in stages_doc:
+            raise GraphError(f"{filename}: override for stage {sname!r}, which the graph does not have "
+                             f"(stages: {', '.join(stages_doc)})")
+    plans: dict[str, StagePlan] = {}
+    port_types: dict[str, tuple] = {}
+    for sname, spec in stages_doc.items():
+        where = f"{filename}:{_line(stages_doc, sname)}"
+        if not isinstance(spec, dict):
+            raise GraphError(f"{where}: stage {sname!r} must be a mapping with at least 'kind'")
+        bad = set(spec) - _STAGE_KEYS
+        if bad:
+            k = sorted(bad)[0]
+            raise GraphError(f"{filename}:{_line(spec, k)}: stage {sname!r}: unknown key {k!r} "
+                             f"(expected {', '.join(sorted(_STAGE_KEYS))})")
+        kind = spec.get("kind")
+        if kind != RECORDER_KIND and kind not in STAGES:
+            known = ", ".join(sorted([*STAGES, RECORDER_KIND]))
+            raise GraphError(f"{filename}:{_line(spec, 'kind')}: stage {sname!r}: unknown stage kind {kind!r} (known: {known})")
+        params = dict(spec.get("params") or {})
+        params.update(overrides.get(sname, {}))
+        pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
+        params = validate_params(kind, params, pwhere)
+        cls = None if kind == RECORDER_KIND else STAGES[kind]
+        in_types, out_types = cls.ports(msgspec.convert(params, cls.Params)) if cls else ({}, {})
+        inputs_doc = spec.get("inputs") or {}
+        outputs_doc = spec.get("outputs") or {}
+        if not isinstance(inputs_doc, dict) or not isinstance(outputs_doc, dict):
+            raise GraphError(f"{where}: stage {sname!r}: inputs and outputs must be mappings port -> topic")
+        if cls is not None:
+            for port in inputs_doc:
+                if port not in in_types:
+                    raise GraphError(f"{filename}:{_line(inputs_doc, port)}: stage {sname!r} ({kind}) has no input "
+                                     f"port {port!r} (ports: {', '.join(in_types) or 'none'})")
+            for port in outputs_doc:
+                if port not in out_types:
+                    raise GraphError(f"{filename}:{_line(outputs_doc, port)}: stage {sname!r} ({kind}) has no output "
+                                     f"port {port!r} (ports: {', '.join(out_types) or 'none'})")
+            for port in in_types:
+                if port not in inputs_doc:
+                    raise GraphError(f"{where}: stage {sname!r} ({kind}): input port {port!r} is not connected "
+                                     f"(add inputs: {{{port}: <topic>}})")
+        restart = spec.get("restart", "never")
+        if restart not in ("never", "on-failure"):
+            raise GraphError(f"{filename}:{_line(spec, 'restart')}: stage {sname!r}: restart must be 'never' or 'on-failure'")
+        qos = dict(spec.get("qos") or {})
+        for port, q in qos.items():
+            if q not in ("reliable", "drop"):
+                raise GraphError(f"{filename}:{_line(spec, 'qos')}: stage {sname!r}: qos of {port!r} must be reliable or drop")
+        outs = {p: topic_key(stream, str(outputs_doc.get(p, p))) for p in out_types}
+        ins = {p: topic_key(stream, str(t)) for p, t in inputs_doc.items()}
+        snap = spec.get("snapshot_every", 0)
+        if not isinstance(snap, int) or snap < 0:
+            raise GraphError(f"{filename}:{_line(spec, 'snapshot_every')}: stage {sname!r}: snapshot_every must be "
+                             f"a whole number of frames >= 0, got {snap!r}")
+        plans[sname] = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
+                                 max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap)
+        plans[sname]._line = _line(stages_doc, sname)  # type: ignore[attr-defined]
+        plans[sname]._input_lines = {p: _line(inputs_doc, p) for p in inputs_doc}  # type: ignore[attr-defined]
+        port_types[sname] = (in_types, out_types)
+    # every input must be produced by some stage (or come from outside), with the same message type
+    producers: dict[str, tuple[str, str, type]] = {}
+    from stages.messages import MESSAGE_TYPES
+
+    external = doc.get("external") or {}
+    if not isinstance(external, dict):
+        raise GraphError(f"{filename}:{_line(doc, 'external')}: 'external' must map topic -> message type")
+    for topic, tname in external.items():
+        if tname not in MESSAGE_TYPES:
+            raise GraphError(f"{filename}:{_line(external, topic)}: external topic {topic!r}: unknown message type "
+                             f"{tname!r} (known: {', '.join(sorted(MESSAGE_TYPES))})")
+        producers[topic_key(stream, str(topic))] = ("outside the graph", "external", MESSAGE_TYPES[tname])
+    for s in plans.values():
+        if s.kind == RECORDER_KIND:
+            continue
+        for port, topic in s.outputs.items():
+            if topic in producers:
+                other = producers[topic][0]
+                raise GraphError(f"{filename}:{s._line}: stages {other!r} and {s.name!r} both publish {topic}")  # type: ignore[attr-defined]
+            producers[topic] = (s.name, port, port_types[s.name][1][port])
+    for s in plans.values():
+        if s.kind == RECORDER_KIND:
+            continue
+        for port, topic in s.inputs.items():
+            line = s._input_lines.get(port, s._line)  # type: ignore[attr-defined]
+            if topic not in producers:
+                raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is not connected: no stage "
+                                 f"publishes {topic} (published: {', '.join(sorted(producers)) or 'nothing'})")
+            pname, pport, ptype = producers[topic]
+            want = port_types[s.name][0][port]
+            if ptype is not want:
+                raise GraphError(f"{filename}:{line}: type mismatch: stage {s.name!r} input {port!r} expects "
+                                 f"{want.__name__}, but {topic} carries {ptype.__name__} from {pname}.{pport}")
+            if pname == s.name:
+                # frame t would wait for the stage's own output of frame t: it can never start
+                raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is fed by its own output "
+                                 f"{pport!r} ({topic}): a cycle that can never start (feed it through a stage "
+                                 f"that predicts the next frame, as particle.proposal does)")
+    if not any(s.is_source() for s in plans.values()) and not external:
+        raise GraphError(f"{filename}: the graph has no source stage and no external topics")
+    if sum(1 for s in plans.values() if s.kind == RECORDER_KIND) > 1:
+        raise GraphError(f"{filename}: at most one recorder per graph")
+    return Plan(name=name, stream=stream, stages=plans, source_text=text, base_dir=base_dir)
+
+
+#: The graphs that ship with gflow (package data, ``pipeline/graphs/*.yaml``).
+GRAPHS_DIR = Path(__file__).resolve().parent.parent / "graphs"
+
+
+def load_graph(path: str | Path, overrides: dict[str, dict] | None = None, base_dir: str | None = None) -> Plan:
+    """Read and validate a graph file. Relative paths inside it resolve against ``base_dir`` (default: cwd)."""
+    p = Path(path)
+    if not p.is_file():
+        builtin = GRAPHS_DIR / (p.name if p.suffix else p.name + ".yaml")
+        if builtin.is_file():
+            p = builtin
+        else:
+            raise GraphError(f"graph file not found: {path} (built-in graphs: {', '.join(builtin_graphs())})")
+    return parse_graph(p.read_text(), str(p), base_dir or ".", overrides)
+
+
+def builtin_graphs() -> list[str]:
+    return sorted(q.stem for q in GRAPHS_DIR.glob("*.yaml"))

@@ -1,0 +1,606 @@
+"""One stage as its own OS process on zenoh: ``python -m pipeline.runtime.node PLAN.json STAGE``.
+
+Start-up handshake: every node publishes a heartbeat (:class:`StageStatus`) on
+``gflow/<stream>/_status/<stage>`` twice a second, after declaring its subscribers. A node
+publishes data only once it has heard a heartbeat from every other node of the graph: the
+heartbeat came over the direct peer link after that node's subscriber declarations, so
+no early message can miss a subscriber. Sources additionally wait for the launcher's
+``start`` on ``gflow/<stream>/_control``.
+
+Shutdown: SIGINT or SIGTERM makes a stage abandon what is queued, publish end of stream
+on its outputs and exit 0; the recorder closes its MCAP file properly. A Python exception
+exits 1 with the traceback on stderr (the launcher shows its last line).
+
+Faults:
+
+* Nothing outlives the launcher: on Linux every node asks for SIGTERM when its parent dies
+  (``prctl(PR_SET_PDEATHSIG)``), and a watchdog thread also checks the parent pid; an
+  orphaned node stops at once (the recorder closes its file first) and removes the run's
+  temporary folder (``GFLOW_RUN_DIR``).
+* Resume, not restart: a stage the graph restarts writes a checkpoint after every step
+  (``GFLOW_STATE_DIR``: its snapshot, the last frame done, its last outputs). Started
+  again (``GFLOW_RESTARTS`` > 0), it restores the checkpoint and resumes from the next frame
+  it has not consumed: the source from the frame after the last one it sent; any other
+  stage first takes the inputs it missed from the recording (every message that reached
+  the recorder while it was down, read up to the recorder's last flush), then goes on live,
+  so its outputs are those of an undisturbed run. Inputs that are in no recording are
+  given up (a filter coasts on them, or re-seeds from its own restored state on the first
+  frame whose driver inputs are here).
+* The cycle never deadlocks: an input that does not come is given up when the stream is
+  ``lag`` frames further on (twice the flow-control window, plus 4) or after
+  ``GFLOW_LATE_S`` seconds (default 3) while the source is ahead; the stage then coasts.
+* The source announces each frame (its heartbeat's ``last_seq`` and ``frame_shape``)
+  before sending it; every stage rejects messages more than the flow-control window ahead
+  of it, and images of another size.
+* Every node holds a zenoh liveliness token ``gflow/<stream>/_alive/<stage>``, which
+  vanishes within milliseconds of the process's death. The source waits while the
+  recorder's token is gone, so a recorder restart loses no more than the frames in flight.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import os
+import queue
+import shutil
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import msgspec
+import psutil
+import zenoh
+
+from stages.messages import Control, Header, StageStatus, decode, encode
+from stages.source import SourceStage
+
+from pipeline.runtime.build import make_stage
+from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
+from pipeline.runtime.host import StageHost
+from pipeline.io.recorder import DiskFull, McapRecorder
+from pipeline.io.sources import open_reader
+from pipeline.runtime.transport import Bus, ZenohSettings, open_session
+
+__all__ = ["main", "run_node"]
+
+log = logging.getLogger("gflow.node")
+
+FLOW_STALL_S = 1.0
+PR_SET_PDEATHSIG = 1
+EXIT_DISK_FULL = 28  # the recorder's exit status when its disk is full (ENOSPC): not worth a restart
+
+
+class Checkpoint(msgspec.Struct, frozen=True):
+    """What a restarted stage resumes from: its snapshot after frame ``seq`` (None for a
+    stateless stage), the last seq it sent on each output port, and the messages that step
+    published ((topic, payload, seq, type name)): a kill can come before zenoh has put them
+    on the wire, so a restarted stage sends them again (downstream counts a duplicate)."""
+
+    seq: int
+    data: bytes | None
+    max_out: dict[str, int]
+    sent: list[tuple[str, bytes, int, str]] = []
+
+
+def die_with_parent() -> None:
+    """Ask Linux to send SIGTERM when the parent (the launcher) dies. A no-op elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    except (OSError, AttributeError) as e:  # the watchdog thread still notices
+        log.debug("prctl(PR_SET_PDEATHSIG) unavailable: %s", e)
+
+
+class Node:
+    def __init__(self, plan: Plan, name: str) -> None:
+        self.plan = plan
+        self.name = name
+        self.sp = plan.stages[name]
+        self.stop = threading.Event()
+        self._hb_stop = threading.Event()
+        self.started = threading.Event()
+        self.peers_ready = threading.Event()
+        self.seen: set[str] = set()
+        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        self.state = "starting"
+        self.steps = 0
+        self.proc = psutil.Process()
+        self.session = open_session(ZenohSettings.from_json(plan.zenoh))
+        self.bus = Bus(self.session, plan.drop_topics())
+        self._status_pub = self.bus.publisher(plan.status_topic(name))
+        self.host: StageHost | None = None
+        self.recorder: McapRecorder | None = None
+        # flow control (sources only): how far each worker stage has got
+        self.flow_window = int(self.sp.params.get("max_ahead", 0)) if self.sp.is_source() else 0
+        self.flow_stages = {n for n, s in plan.stages.items() if s.kind != "recorder" and not s.is_source()}
+        self.progress_of: dict[str, int] = {}
+        self.first_pid: dict[str, int] = {}
+        self.progress_changed = threading.Event()
+        self._last_status = 0.0
+        self._reported_steps = 0
+        # every worker reports progress quickly when some source applies flow control
+        self.flow_stages_waiting = any(s.is_source() and s.params.get("max_ahead", 0) for s in plan.stages.values())
+        self.sources = {n for n, s in plan.stages.items() if s.is_source()}
+        self.window = max([int(plan.stages[n].params.get("max_ahead", 8)) for n in self.sources] or [0])
+        self.recorders = {n for n, s in plan.stages.items() if s.kind == "recorder"}
+        self.recorder_alive = threading.Event()  # the recorder's liveliness token is there
+        self.alive_peers: set[str] = set()  # stages whose liveliness token is there
+        self.ever_alive: set[str] = set()
+        self.peer_done: set[str] = set()  # stages that said they finished
+        self.announced = -1  # sources: the last frame announced
+        self.frame_shape: tuple[int, ...] = ()
+        self.late_s = float(os.environ.get("GFLOW_LATE_S", "3.0"))
+        self.orphaned = threading.Event()
+        self.parent = int(os.environ.get("GFLOW_LAUNCHER_PID", "0") or 0)
+        self.restarts = int(os.environ.get("GFLOW_RESTARTS", "0") or 0)
+        self.bad_control = 0
+        # who must be heard from before publishing: every stage; a restarted stage only those
+        # the launcher saw running when it restarted it (the others may have finished), for at most 3 s
+        peers = os.environ.get("GFLOW_PEERS")
+        self.required_peers = (set(plan.stages) if not self.restarts or peers is None
+                               else {p for p in peers.split(",") if p in plan.stages} | {name})
+        self.ready_deadline = time.monotonic() + 3.0
+        state_dir = os.environ.get("GFLOW_STATE_DIR", "")
+        self.resend: list[tuple[str, bytes, int, str]] = []
+        self.checkpoint_path = (Path(state_dir) / f"{name}.ckpt"
+                                if state_dir and self.sp.restart == "on-failure" else None)
+
+    # -- handshake ---------------------------------------------------------------------------
+    def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+        other = key.rsplit("/", 1)[-1]
+        if other not in self.peer_done and other != self.name and b"done" in payload:
+            try:
+                st = decode(payload)
+            except ValueError:
+                st = None
+            if isinstance(st, StageStatus) and st.state == "done":
+                self.peer_done.add(other)  # finished: its token going away is no fault
+                self._update_hold()
+        if other in self.sources and self.host is not None and other != self.name:
+            try:
+                st = decode(payload)
+            except ValueError:
+                st = None
+            if isinstance(st, StageStatus):
+                h = self.host
+                h.source_seq = max(h.source_seq, st.last_seq)
+                h.join.horizon = h.source_seq
+                if len(st.frame_shape) >= 2 and h.frame_shape is None:
+                    h.frame_shape = (int(st.frame_shape[0]), int(st.frame_shape[1]))
+        if self.flow_window and other in self.flow_stages:
+            try:
+                st = decode(payload)
+                if isinstance(st, StageStatus):
+                    first_pid = self.first_pid.setdefault(other, st.pid)
+                    if st.state == "done" or (st.pid != first_pid and st.last_seq < 0):
+                        # finished, or restarted and not yet caught up: do not hold the source back
+                        self.progress_of[other] = 1 << 60
+                    else:
+                        self.progress_of[other] = st.last_seq
+                    self.progress_changed.set()
+            except ValueError:
+                pass
+        if other not in self.seen:
+            self.seen.add(other)
+            if self.seen >= self.required_peers:
+                self.peers_ready.set()
+
+    def _on_alive(self, sample) -> None:
+        other = str(sample.key_expr).rsplit("/", 1)[-1]
+        gone = sample.kind == zenoh.SampleKind.DELETE
+        if other in self.recorders:
+            if gone:
+                self.recorder_alive.clear()
+            else:
+                self.recorder_alive.set()
+        if gone:
+            self.alive_peers.discard(other)
+        else:
+            self.alive_peers.add(other)
+            self.ever_alive.add(other)
+        self._update_hold()
+
+    def _update_hold(self) -> None:
+        """While a peer is down (its liveliness token gone, not finished: it is restarting), no
+        input is given up for lateness: what it would have sent comes when it is back."""
+        down = {n for n in self.ever_alive - self.alive_peers if n != self.name and n not in self.peer_done}
+        if self.host is not None:
+            self.host.hold = self.host.join.hold = bool(down)
+
+    def _on_control(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+        try:
+            msg = decode(payload)
+        except ValueError as e:
+            self.bad_control += 1  # counted in the heartbeat's rejected["bad_control"]
+            log.warning("[%s] garbage on the control topic ignored: %s", self.name, str(e)[:100])
+            return
+        if isinstance(msg, Control):
+            if msg.command == "start":
+                self.started.set()
+            elif msg.command == "stop":
+                self.stop.set()
+            else:
+                self.bad_control += 1
+                log.warning("[%s] unknown control command %r ignored", self.name, msg.command[:40])
+        else:
+            self.bad_control += 1
+            log.warning("[%s] a %s on the control topic ignored", self.name, type(msg).__name__)
+
+    def _on_data(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str = "") -> None:
+        self.inbox.put((key, payload, pub_ns, seq, type_name))
+
+    def publish(self, topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
+        if not self.peers_ready.is_set():
+            while not self.peers_ready.wait(0.2 if self.restarts else 5.0):
+                if self.restarts and time.monotonic() > self.ready_deadline:
+                    self.peers_ready.set()  # restarted: a peer may have finished meanwhile
+                    break
+                if not self.restarts:
+                    missing = sorted(self.required_peers - self.seen)
+                    log.warning("[%s] still waiting to hear from %s before publishing", self.name, ", ".join(missing))
+                if self.stop.is_set():
+                    return
+        self.bus.publish(topic, payload, seq, type_name)
+
+    def status(self) -> StageStatus:
+        h = self.host
+        dropped = dict(h.join.gaps) if h else {}
+        fps = h.stats.fps() if h else 0.0
+        errors = h.stats.errors if h else 0
+        last = h.stats.last_error if h else ""
+        steps = h.stats.steps if h else self.steps
+        if self.recorder is not None:
+            steps = self.recorder.messages
+        last_seq = h.join.done_below if h else -1
+        if self.sp.is_source():
+            last_seq = self.announced
+        return StageStatus(header=Header(self.plan.stream, steps, time.time_ns()), stage=self.name, pid=os.getpid(),
+                           state=self.state, steps=steps, fps=round(fps, 2), dropped=dropped, errors=errors,
+                           last_error=last[-300:], rss_mb=round(self.proc.memory_info().rss / 2**20, 1),
+                           last_seq=last_seq, queued=self.inbox.qsize(),
+                           busy_ms=round(h.stats.busy_ns / h.stats.steps / 1e6, 3) if h and h.stats.steps else 0.0,
+                           rejected=self._rejected(), lost=h.stats.lost if h else 0,
+                           waiting=h.waiting() if h and not h.closed and not self.sp.is_source() else "",
+                           frame_shape=self.frame_shape)
+
+    def _rejected(self) -> dict[str, int]:
+        out = dict(self.host.stats.rejected) if self.host is not None else {}
+        if self.bad_control:
+            out["bad_control"] = self.bad_control
+        return out
+
+    def send_status(self, min_interval: float = 0.0) -> None:
+        now = time.monotonic()
+        if now - self._last_status >= min_interval:
+            self._last_status = now
+            st = self.status()
+            self.bus.publish(self.plan.status_topic(self.name), encode(st), st.header.seq, "StageStatus")
+
+    def _heartbeat(self) -> None:
+        while not self._hb_stop.is_set():
+            try:
+                self.send_status()
+            except Exception:  # session closing
+                return
+            self._hb_stop.wait(0.5)
+
+    def _watch_parent(self) -> None:
+        """Stop when the launcher is gone (backs up the parent-death signal)."""
+        while not self._hb_stop.is_set():
+            if self.parent and os.getppid() != self.parent:
+                self.orphaned.set()
+                self.stop.set()
+                return
+            self._hb_stop.wait(0.2)
+
+    # -- checkpoints -----------------------------------------------------------------------
+    def _checkpoint(self, seq: int) -> None:
+        """Write what a restart resumes from (atomically: a kill leaves the previous one)."""
+        path = self.checkpoint_path
+        if path is None:
+            return
+        h = self.host
+        data = h.stage.snapshot() if h is not None and not self.sp.is_source() else None
+        ck = Checkpoint(seq=seq, data=data, max_out=dict(h.max_out) if h else {},
+                        sent=list(h.last_sent) if h is not None else [])
+        tmp = path.with_suffix(".tmp")
+        tmp.write_bytes(msgspec.msgpack.encode(ck))
+        os.replace(tmp, path)
+
+    def _restore(self) -> int:
+        """Load the checkpoint of a restarted stage; return the last frame it had done (-1: none)."""
+        path = self.checkpoint_path
+        if path is None or self.restarts == 0 or not path.is_file() or self.host is None:
+            return -1
+        h = self.host
+        try:
+            ck = msgspec.msgpack.decode(path.read_bytes(), type=Checkpoint)
+            if ck.data is not None:
+                h.stage.restore(ck.data)
+        except (msgspec.DecodeError, ValueError, TypeError) as e:
+            log.warning("[%s] checkpoint %s unusable (%s); starting afresh", self.name, path, e)
+            return -1
+        h.max_out.update(ck.max_out)
+        self.resend = list(ck.sent)  # the last step's outputs may not have left: sent again on resuming
+        h.join.done_below = ck.seq
+        h.join.resumed = True
+        log.warning("[%s] restart %d: resumed after frame %d", self.name, self.restarts, ck.seq)
+        return ck.seq
+
+    def _catch_up(self, after: int) -> None:
+        """Feed the inputs after frame ``after`` that reached the recording while this stage
+        was down (live copies of them are then ignored as already replayed)."""
+        h = self.host
+        path = os.environ.get("GFLOW_RECORDING", "")
+        if h is None or not path or not Path(path).is_file():
+            return
+        rec = self.plan.recorder()
+        flush = float(rec.params.get("flush_interval", 0.5)) if rec is not None else 0.5
+        time.sleep(flush + 0.3)  # what came before our subscribers reaches the file at the next flush
+        from pipeline.io.mcap_io import iter_records
+
+        topics = sorted(h.topics_in.values())
+        n = 0
+        for r in iter_records(path, topics=topics):
+            port = h.port_of[r.topic]
+            if r.seq + h.stage.input_offsets.get(port, 0) <= after and r.type != "EndOfStream":
+                continue
+            h.deliver(r.topic, r.data, pump=False)  # all of it first: the recorder's order is not causal
+            h.replayed_upto[port] = max(h.replayed_upto.get(port, -1), h.join.high.get(port, -1))
+            n += 1
+        h.pump()
+        log.warning("[%s] caught up on %d input message(s) from the recording", self.name, n)
+
+    # -- run ---------------------------------------------------------------------------------
+    def run(self) -> int:
+        plan, sp = self.plan, self.sp
+        self.bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
+        self.bus.subscribe(plan.control_topic, self._on_control)
+        alive = f"gflow/{plan.stream}/_alive"
+        self._token = self.session.liveliness().declare_token(f"{alive}/{self.name}")
+        self._alive_sub = self.session.liveliness().declare_subscriber(f"{alive}/*", self._on_alive, history=True)
+        if sp.kind == "recorder":
+            keep = recorded_topic_filter(sp.params, plan.stream)  # --record-topics
+            self.bus.subscribe(f"gflow/{plan.stream}/**", lambda k, *a: keep(k) and self._on_data(k, *a), with_type=True)
+        else:
+            stage = make_stage(plan, self.name)
+            lag = 2 * self.window + 4 if self.window else 0
+            self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,
+                                  sp.snapshot_every, plan.snapshot_topic(self.name), lag=lag,
+                                  window=self.window or (1 << 40), on_step=self._checkpoint)
+            for topic in sp.inputs.values():
+                self.bus.subscribe(topic, self._on_data, with_type=True)
+            resumed_after = self._restore()
+            self._update_hold()
+        hb = threading.Thread(target=self._heartbeat, daemon=True)
+        hb.start()
+        threading.Thread(target=self._watch_parent, daemon=True).start()
+        self.state = "ready"
+        try:
+            if sp.kind == "recorder":
+                return self._run_recorder()
+            if isinstance(self.host.stage, SourceStage):  # type: ignore[union-attr]
+                return self._run_source(resumed_after)
+            return self._run_stage(resumed_after)
+        finally:
+            self.state = "done" if self.state != "stopped" else "stopped"
+            self._hb_stop.set()
+            hb.join(timeout=1.0)
+            try:
+                self.send_status()  # the final heartbeat says "done"; best effort
+            except Exception as e:  # the session may already be closing on interrupt
+                log.debug("[%s] final heartbeat not sent: %s", self.name, e)
+            time.sleep(0.1)  # let the last samples leave before the session closes
+            self.session.close()
+            self._cleanup_if_orphaned()
+
+    def _cleanup_if_orphaned(self) -> None:
+        """The launcher died: nobody else will remove the run's temporary folder."""
+        if self.parent and os.getppid() != self.parent:
+            run_dir = os.environ.get("GFLOW_RUN_DIR", "")
+            if run_dir and Path(run_dir).name.startswith("gflow-run-"):
+                shutil.rmtree(run_dir, ignore_errors=True)
+
+    def _run_source(self, resumed_after: int = -1) -> int:
+        host = self.host
+        assert host is not None
+        stage: SourceStage = host.stage  # type: ignore[assignment]
+        if resumed_after >= 0:  # restarted: go on from the frame after the last one sent
+            p0 = stage.params
+            if p0.stop is not None and resumed_after + 1 >= p0.stop:  # type: ignore[attr-defined]
+                host.close("end")
+                return 0
+            stage.params = msgspec.structs.replace(p0, start=max(p0.start, resumed_after + 1))  # type: ignore[arg-type]
+            self.announced = resumed_after
+        while not (self.started.is_set() and self.peers_ready.is_set()):
+            if self.stop.wait(0.01):
+                self.state = "stopped"
+                return 0
+        self.state = "running"
+        self._resend_last()
+        p = stage.params
+        t0 = time.monotonic()
+        first: int | None = None
+        for raw in open_reader(p, self.plan.base_dir):  # type: ignore[arg-type]
+            if self.stop.is_set():
+                host.close("interrupted")
+                self.state = "stopped"
+                return 0
+            if p.realtime:  # type: ignore[attr-defined]
+                first = raw.index if first is None else first
+                due = t0 + (raw.index - first) / p.fps  # type: ignore[attr-defined]
+                delay = due - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            self._flow_wait(raw.index)
+            outs = stage.emit(raw)
+            host._flush_reports()
+            if outs:  # announce the frame (and its size) before sending it
+                self.announced = max(self.announced, raw.index)
+                shape = getattr(stage, "_shape", None)
+                self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
+                self.send_status()
+            host._emit(outs)
+            if outs:
+                self._checkpoint(raw.index)
+            host.stats.steps += len(outs)
+            now = time.perf_counter_ns()
+            host.stats.first_step_ns = host.stats.first_step_ns or now
+            host.stats.last_step_ns = now
+        host.close("end")
+        return 0
+
+    def _flow_wait(self, index: int) -> None:
+        """Stay at most ``max_ahead`` frames in front of the slowest stage. A stage that makes
+        no progress for FLOW_STALL_S (it lost frames while restarting, say, and waits for a
+        later one to tell it so) does not hold the source back forever."""
+        stalled_since = time.monotonic()
+        last = None
+        warned = False
+        while self.recorders and not self.stop.is_set() and not self.recorder_alive.wait(0.05):
+            if not warned:  # the recorder is gone (restarting): nothing would be recorded
+                log.warning("[%s] the recorder is not there: pausing before frame %d", self.name, index)
+                warned = True
+        while self.flow_window and not self.stop.is_set():
+            slowest = min((self.progress_of.get(n, -1) for n in self.flow_stages), default=1 << 60)
+            if index - slowest <= self.flow_window:
+                return
+            if slowest != last:
+                last, stalled_since = slowest, time.monotonic()
+            elif time.monotonic() - stalled_since > FLOW_STALL_S:
+                log.warning("[%s] flow control: no progress past frame %d for %.1f s; sending frame %d anyway",
+                            self.name, slowest, FLOW_STALL_S, index)
+                return
+            self.progress_changed.clear()
+            self.progress_changed.wait(0.05)
+
+    def _resend_last(self) -> None:
+        """Publish again what the step before a kill published (duplicates are counted downstream)."""
+        for topic, payload, seq, type_name in self.resend:
+            self.publish(topic, payload, seq, type_name)
+        self.resend = []
+
+    def _run_stage(self, resumed_after: int = -1) -> int:
+        host = self.host
+        assert host is not None
+        self.state = "running"
+        if resumed_after >= 0:
+            self._resend_last()
+            self._catch_up(resumed_after)  # what it missed, before what is queued live
+        while not host.closed:
+            if self.stop.is_set():
+                host.close("interrupted")
+                self.state = "stopped"
+                return 0
+            try:
+                key, payload, _, _, _ = self.inbox.get(timeout=0.1)
+            except queue.Empty:
+                host.tick(self.late_s)
+                continue
+            host.deliver(key, payload)
+            if self.flow_stages_waiting:
+                self.send_status(0.02)
+            if host.stats.steps != self._reported_steps and self.inbox.empty():
+                # idle after work: say how far we got at once (replay --lockstep waits for it)
+                self._reported_steps = host.stats.steps
+                self.send_status()
+        return 0
+
+    def _run_recorder(self) -> int:
+        plan = self.plan
+        rp = RecorderParams(**self.sp.params)
+        path = os.environ.get("GFLOW_RECORDING") or plan.recording_path()
+        assert path is not None
+        from pipeline.runtime.graph import Plan as _P  # noqa: F401  (metadata helpers live on Plan)
+
+        meta = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
+                "gflow.config": plan.config_metadata()}
+        try:
+            self.recorder = rec = McapRecorder(path, flush_interval=rp.flush_interval, compression=rp.compression,
+                                               chunk_size=rp.chunk_size, metadata=meta).open()
+        except DiskFull as e:
+            print(f"recorder: {e.strerror}", file=sys.stderr)
+            return EXIT_DISK_FULL
+        log.info("[%s] recording to %s", self.name, path)
+        self.state = "running"
+        try:
+            while True:
+                try:
+                    key, payload, pub_ns, seq, type_name = self.inbox.get(timeout=0.05)
+                except queue.Empty:
+                    rec.maybe_flush()
+                    if self.stop.is_set():
+                        break
+                    continue
+                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
+            # keep what is still arriving until the network goes quiet (at most 2 s, or 0.5 s
+            # when the launcher is gone and every process must be gone within 1 s), then close
+            quick = self.orphaned.is_set()
+            quiet_until = time.monotonic() + (0.15 if quick else 0.3)
+            deadline = time.monotonic() + (0.5 if quick else 2.0)
+            while time.monotonic() < min(quiet_until, deadline):
+                try:
+                    key, payload, pub_ns, seq, type_name = self.inbox.get(timeout=0.05)
+                except queue.Empty:
+                    continue
+                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
+                if "/_status/" not in key:
+                    quiet_until = time.monotonic() + 0.3
+            rec.close()
+        except DiskFull as e:
+            print(f"recorder: {e.strerror}", file=sys.stderr)
+            self.state = "stopped"
+            return EXIT_DISK_FULL
+        finally:
+            try:
+                rec.close()  # after an exception; a no-op once closed
+            except DiskFull:
+                pass
+            self.state = "stopped" if self.state == "stopped" else "done"
+        return 0
+
+
+def run_node(plan_path: str, name: str) -> int:
+    threads = os.environ.get("GFLOW_CV_THREADS")
+    if threads:  # set by the launcher: one compute thread per stage process by default
+        import cv2
+
+        cv2.setNumThreads(int(threads))
+    die_with_parent()
+    plan = Plan.from_json(Path(plan_path).read_text())
+    if name not in plan.stages:
+        print(f"gflow node: no stage {name!r} in {plan_path}", file=sys.stderr)
+        return 2
+    node = Node(plan, name)
+
+    def _signal(signum, frame) -> None:
+        if node.parent and os.getppid() != node.parent:
+            node.orphaned.set()
+        node.stop.set()
+
+    signal.signal(signal.SIGINT, _signal)
+    signal.signal(signal.SIGTERM, _signal)
+    signal.signal(signal.SIGHUP, _signal)
+    if node.parent and os.getppid() != node.parent:  # the launcher died before we got here
+        node.orphaned.set()
+        node.stop.set()
+    return node.run()
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if len(argv) != 2:
+        print("usage: python -m pipeline.runtime.node PLAN.json STAGE", file=sys.stderr)
+        return 2
+    logging.basicConfig(level=os.environ.get("GFLOW_LOG", "WARNING"), format="%(levelname)s %(message)s",
+                        stream=sys.stderr)
+    return run_node(argv[0], argv[1])
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,99 @@
+"""Checks run before a pipeline starts, so a user's mistake costs a second, not a run.
+
+* :func:`check_writable`: an output path that is a folder, or under a folder that does not
+  exist or cannot be written, is refused before any tracking (a run whose result cannot be
+  saved is lost work).
+* :func:`first_frame`: decode the first frame the source would produce, which proves the
+  file is readable (a text file named ``.mp4`` is refused here, without FFmpeg's noise) and
+  that ``start`` is inside the source, and gives the image size.
+* :func:`check_box_in_image`: an initial box that does not overlap the first frame.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from stages.source import RawFrame, SourceParams
+
+__all__ = ["PreflightError", "check_writable", "first_frame", "check_box_in_image", "check_source"]
+
+# FFmpeg's own log ("moov atom not found") would precede our one-line error; silence it in
+# this process (the stage processes report decoding problems on the errors topic).
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+
+
+class PreflightError(ValueError):
+    """A mistake found before the pipeline starts; the message is one line for the user."""
+
+
+def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
+    """Refuse ``path`` unless a file can be written there; never leaves a file behind.
+
+    A missing parent folder is created (as every writer here would), so the check is the
+    same one the writer will face later.
+    """
+    p = Path(path)
+    if str(path).endswith(("/", os.sep)) or p.is_dir():
+        raise PreflightError(f"{what} {path} is a folder; give a file name")
+    parent = p.parent if str(p.parent) else Path(".")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise PreflightError(f"{what} {path}: cannot create its folder {parent}: {e.strerror}") from None
+    try:
+        if p.exists():
+            with open(p, "ab"):
+                pass
+        else:
+            with open(p, "xb"):
+                pass
+            p.unlink()
+    except OSError as e:
+        raise PreflightError(f"{what} {path} cannot be written: {e.strerror}") from None
+    return p
+
+
+def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawFrame:
+    """The first frame the source stage would emit (at ``params.start``).
+
+    Raises :class:`PreflightError` when the source cannot be opened, holds no frame at or
+    after ``start``, or its first frame cannot be decoded.
+    """
+    from pipeline.io.sources import count_frames, open_reader
+
+    where = params.path or "the synthetic scene"
+    try:
+        reader = open_reader(params, base_dir)
+        frame = next(iter(reader), None)
+    except (FileNotFoundError, ValueError, OSError) as e:
+        raise PreflightError(str(e)) from None
+    if frame is None:
+        n = count_frames(SourceParams(kind=params.kind, path=params.path, frames=params.frames), base_dir) \
+            if params.kind != "mcap" else None
+        if n is not None and params.start >= n:
+            raise PreflightError(f"--start {params.start} is beyond the end of {where} ({n} frames: 0..{n - 1})")
+        if params.kind == "video":
+            raise PreflightError(f"{where}: no frame can be read (not a video OpenCV can decode, or empty)")
+        raise PreflightError(f"{where}: no frame at or after --start {params.start}")
+    if frame.image is None:
+        raise PreflightError(f"{where}: the first frame cannot be read: {frame.error}")
+    return frame
+
+
+def check_box_in_image(box, width: int, height: int, what: str = "--init") -> None:
+    """Refuse a box with no overlap with a ``width`` x ``height`` image (partly outside is fine)."""
+    x, y, w, h = (float(v) for v in box)
+    if x >= width or y >= height or x + w <= 0 or y + h <= 0:
+        raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} lies outside the {width}x{height} image "
+                             f"(x in 0..{width - 1}, y in 0..{height - 1}; `gflow frame SOURCE N out.png` "
+                             f"draws a frame with a pixel grid)")
+
+
+def check_source(params: SourceParams, box=None, base_dir: str | os.PathLike = ".") -> RawFrame:
+    """:func:`first_frame`, and the box against its size when given."""
+    frame = first_frame(params, base_dir)
+    if box is not None:
+        h, w = frame.image.shape[:2]
+        check_box_in_image(box, w, h)
+    return frame

@@ -1,0 +1,56 @@
+"""The package layers import downwards only: gflow_core < stages < pipeline.io < pipeline.runtime
+< pipeline.recording < pipeline.cli. A violation names the file, the line and the import."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+ORDER = ["gflow_core", "stages", "pipeline.io", "pipeline.runtime", "pipeline.recording", "pipeline.cli"]
+
+
+def layer(module: str) -> int | None:
+    """The index in ORDER of the layer a dotted module name belongs to (None: outside the project)."""
+    best = None
+    for i, name in enumerate(ORDER):
+        if module == name or module.startswith(name + "."):
+            best = i
+    return best
+
+
+def imports(path: Path) -> list[tuple[int, str]]:
+    tree = ast.parse(path.read_text(), str(path))
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(node.lineno, a.name) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out += [(node.lineno, f"{node.module}.{a.name}") for a in node.names]
+    return out
+
+
+def test_imports_point_down():
+    bad = []
+    files = [p for top in ("gflow_core", "stages", "pipeline") for p in (ROOT / top).rglob("*.py")]
+    assert len(files) > 50
+    for path in files:
+        own = layer(".".join(path.relative_to(ROOT).with_suffix("").parts))
+        if own is None:  # pipeline/__init__.py itself
+            continue
+        for line, name in imports(path):
+            target = layer(name)
+            if target is not None and target > own:
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {name} ({ORDER[own]} may not import {ORDER[target]})")
+    assert not bad, "\n".join(bad)
+
+
+def test_no_relative_imports_cross_packages():
+    """Relative imports hide which layer a name comes from; only absolute imports are used."""
+    bad = []
+    for top in ("pipeline",):
+        for path in (ROOT / top).rglob("*.py"):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.ImportFrom) and node.level > 1:
+                    bad.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not bad, "relative imports reaching a parent package: " + ", ".join(bad)
