@@ -40,6 +40,7 @@ from pipeline.io.mcap_io import segment_path
 
 EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full disk
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
+from pipeline.runtime.security import Signer
 
 __all__ = ["Launcher", "LaunchResult", "StageExit"]
 
@@ -290,10 +291,11 @@ class Launcher:
                                       listen=("tcp/127.0.0.1:0",) if self.zenoh.mode != "client" else (),
                                       connect=tuple(e.replace("0.0.0.0", "127.0.0.1") for e in self.zenoh.listen
                                                     if not e.endswith(":0")) + tuple(self.zenoh.connect),
-                                      multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb)
+                                      multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb,
+                                      security=self.zenoh.security)
         plan.zenoh = node_settings.to_json()
         session = open_session(self.zenoh)
-        bus = Bus(session)
+        bus = Bus(session, signer=Signer.of(self.zenoh.security))
         bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         bus.subscribe(plan.error_topic, self._on_error)
         for sp in plan.stages.values():
