@@ -170,7 +170,8 @@ def load_router_config(path: str | None = None, **options) -> RouterConfig:
     if bool(cfg.tls_cert) != bool(cfg.tls_key):
         raise _fail(where, "tls: the router's certificate needs its private key and the other way round (cert and key)")
     if any(e.startswith(("tls/", "quic/")) for e in listen) and not cfg.tls_cert:
-        raise _fail(where, "a tls/ listen endpoint needs the router's certificate and key (tls.cert, tls.key)")
+        raise _fail(where, "a tls/ listen endpoint needs the router's certificate and key ("
+                    + ("tls.cert, tls.key)" if path else "--tls-cert, --tls-key)"))
     if cfg.tls_cert and not any(e.startswith(("tls/", "quic/")) for e in listen):
         raise _fail(where, "tls.cert is given but no listen endpoint is tls/HOST:PORT: the certificate would not be used")
     if cfg.mtls and not cfg.tls_ca:
@@ -231,7 +232,7 @@ def load_router_config(path: str | None = None, **options) -> RouterConfig:
     return cfg
 
 
-_ENDPOINT = re.compile(r"^(tcp|tls|udp|quic|ws|unixsock-stream)/(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
+_ENDPOINT = re.compile(r"^(tcp|tls|udp|quic|ws)/(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 
 
 def _endpoint(e: str, where: str) -> str:
@@ -262,7 +263,10 @@ def _read_users(path: str) -> dict[str, str]:
 
 def acl_config(cfg: RouterConfig) -> dict:
     """zenoh's ``access_control`` section for ``cfg`` (default deny; see the module doc)."""
-    rules: list[dict] = []
+    # a publisher of one stream must still learn of a reader's subscription to gflow/** (zenoh's ACL
+    # matches a declaration only when its key lies inside the rule's), or it never sends to it
+    rules: list[dict] = [{"id": "see-subscribers", "permission": "allow", "flows": ["egress"],
+                          "messages": ["declare_subscriber", "declare_liveliness_subscriber"], "key_exprs": ["gflow/**"]}]
     subjects: list[dict] = []
     policies: list[dict] = []
     for i, p in enumerate(cfg.publishers):
@@ -271,7 +275,8 @@ def acl_config(cfg: RouterConfig) -> dict:
         rules.append({"id": f"publish{i}", "permission": "allow", "flows": ["ingress", "egress"],
                       "messages": list(_ALL_MESSAGES), "key_exprs": keys})
         subjects.append({"id": f"publisher{i}", **{k: v for k, v in p.items() if k != "streams"}})
-        policies.append({"id": f"publishers{i}", "rules": [f"publish{i}"], "subjects": [f"publisher{i}"]})
+        policies.append({"id": f"publishers{i}", "rules": [f"publish{i}", "see-subscribers"],
+                         "subjects": [f"publisher{i}"]})
     if cfg.readers != "none":
         rules.append({"id": "read-in", "permission": "allow", "flows": ["ingress"],
                       "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"],

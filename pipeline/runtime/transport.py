@@ -182,19 +182,20 @@ class Bus:
             att = sample.attachment
             raw = att.to_bytes() if att is not None else None
             pub_ns, seq, type_name = unpack_attachment(raw)
-            if self.signer is not None and not self._signed(str(sample.key_expr), seq, pub_ns, sample, raw):
+            payload = sample.payload.to_bytes()
+            if self.signer is not None and not self._signed(str(sample.key_expr), seq, pub_ns, payload, raw):
                 return
             if with_type:
-                callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq, type_name)
+                callback(str(sample.key_expr), payload, pub_ns, seq, type_name)
             else:
-                callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq)
+                callback(str(sample.key_expr), payload, pub_ns, seq)
 
         self._subs.append(self.session.declare_subscriber(key, _cb))
 
-    def _signed(self, key: str, seq: int, pub_ns: int, sample: zenoh.Sample, raw: bytes | None) -> bool:
+    def _signed(self, key: str, seq: int, pub_ns: int, payload: bytes, raw: bytes | None) -> bool:
         """Whether a sample carries this run's signature; a foreign one is counted and logged once."""
         assert self.signer is not None
-        if self.signer.valid(key, seq, pub_ns, sample.payload.to_bytes(), attachment_tag(raw)):
+        if self.signer.valid(key, seq, pub_ns, payload, attachment_tag(raw)):
             return True
         n = self.foreign[key] = self.foreign.get(key, 0) + 1
         if n == 1:
