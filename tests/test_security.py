@@ -6,6 +6,7 @@ undisturbed run's, and what arrived is counted."""
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import ipaddress
 import queue
@@ -458,3 +459,23 @@ def test_client_security_file(tmp_path, certs, capsys):
         rc = main(["topics", "--security", str(f), "--duration", "0.1"])
         err = capsys.readouterr().err
         assert rc == 2 and err.count("\n") == 1 and msg in err, err
+
+
+def test_login_in_peer_mode():
+    """Peers with a login link to each other (each accepts its own login); a peer without it is refused."""
+    port = free_port()
+    sec = Security(user="cam", password="s3cret")
+    a = ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), security=sec)
+    b = ZenohSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{port}",), security=sec)
+    _roundtrip(b, a)
+    sa = open_session(a)
+    try:
+        for settings in (dataclasses.replace(b, security=None),
+                         dataclasses.replace(b, security=Security(user="cam", password="guess"))):
+            outsider = open_session(settings)  # zenoh's peer mode opens anyway, with no link
+            try:
+                assert list(outsider.info.peers_zid()) == []
+            finally:
+                outsider.close()
+    finally:
+        sa.close()

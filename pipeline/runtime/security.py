@@ -67,9 +67,14 @@ class Security:
     def tls(self) -> bool:
         return bool(self.tls_ca or self.tls_cert)
 
-    def zenoh_entries(self) -> dict[str, object]:
+    def zenoh_entries(self, listening: bool = False) -> dict[str, object]:
         """``{config path: value}`` for ``zenoh.Config.insert_json5`` (paths of eclipse-zenoh 1.x,
-        tried against 1.10: ``transport/link/tls/*``, ``transport/auth/usrpwd/*``)."""
+        tried against 1.10: ``transport/link/tls/*``, ``transport/auth/usrpwd/*``).
+
+        ``listening`` (peer mode): zenoh refuses a link when either side presents a login the other
+        side's user list lacks, so a listening process with a login also accepts that login (a
+        private user file of its own): the stages of a run link to each other with the login, and
+        a peer without it is refused."""
         out: dict[str, object] = {}
         tls = "transport/link/tls/"
         if self.tls_ca:
@@ -84,6 +89,8 @@ class Security:
         if self.user:
             out["transport/auth/usrpwd/user"] = self.user
             out["transport/auth/usrpwd/password"] = self.password
+            if listening:
+                out["transport/auth/usrpwd/dictionary_file"] = _own_user_file(self.user, self.password)
         return out
 
     def check(self, listening_tls: bool = False) -> None:
@@ -111,6 +118,24 @@ class Security:
             return None
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in names})
+
+
+_USER_FILES: dict[tuple[str, str], str] = {}
+
+
+def _own_user_file(user: str, password: str) -> str:
+    """A private file ``user:password`` for this process (removed at exit)."""
+    key = (user, password)
+    if key not in _USER_FILES:
+        import atexit
+        import tempfile
+
+        fd, path = tempfile.mkstemp(prefix="gflow-login-", text=True)  # mode 0600
+        with os.fdopen(fd, "w") as f:
+            f.write(f"{user}:{password}\n")
+        atexit.register(lambda: os.path.exists(path) and os.unlink(path))
+        _USER_FILES[key] = path
+    return _USER_FILES[key]
 
 
 def check_pem_files(ca: str = "", cert: str = "", key: str = "") -> None:

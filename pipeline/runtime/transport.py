@@ -70,7 +70,7 @@ class ZenohSettings:
         c.insert_json5("transport/shared_memory/enabled", json.dumps(bool(self.shm)))
         c.insert_json5("transport/shared_memory/transport_optimization/pool_size",
                        json.dumps(self.shm_pool_mb * 1024 * 1024))
-        for path, value in (self.security.zenoh_entries() if self.security else {}).items():
+        for path, value in (self.security.zenoh_entries(self.mode != "client") if self.security else {}).items():
             c.insert_json5(path, json.dumps(value))
         return c
 
