@@ -64,14 +64,15 @@ def _make_certs(d: Path) -> dict[str, Path]:
              .sign(k, hashes.SHA256()))
         return k, n, c
 
-    def leaf(name, cn, ca_key, ca_name):
+    def leaf(name, cn, ca_key, ca_name, expired=False, names=("localhost", "127.0.0.1")):
         k = ec.generate_private_key(ec.SECP256R1())
+        end = now - datetime.timedelta(minutes=5) if expired else now + datetime.timedelta(days=1)
+        san = [x509.IPAddress(ipaddress.ip_address(n)) if n[0].isdigit() else x509.DNSName(n) for n in names]
         c = (x509.CertificateBuilder().subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, cn)]))
              .issuer_name(ca_name).public_key(k.public_key()).serial_number(x509.random_serial_number())
-             .not_valid_before(now - datetime.timedelta(hours=1)).not_valid_after(now + datetime.timedelta(days=1))
+             .not_valid_before(now - datetime.timedelta(hours=1)).not_valid_after(end)
              .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-             .add_extension(x509.SubjectAlternativeName([x509.DNSName("localhost"),
-                                                         x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), False)
+             .add_extension(x509.SubjectAlternativeName(san), False)
              .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]),
                             False)
              .sign(ca_key, hashes.SHA256()))
@@ -82,6 +83,8 @@ def _make_certs(d: Path) -> dict[str, Path]:
     leaf("router", "router", ca_key, ca_name)
     leaf("pipeline", "gflow-pipeline", ca_key, ca_name)
     leaf("outsider", "outsider", ca_key, ca_name)
+    leaf("expired", "router", ca_key, ca_name, expired=True)
+    leaf("elsewhere", "router", ca_key, ca_name, names=("router.example.org",))
     rogue_key, rogue_name, rogue_cert = ca("rogue CA")
     save("rogue_ca", rogue_key, rogue_cert)
     return out
@@ -195,6 +198,16 @@ def test_tls_endpoint(tmp_path, certs, capsys):
         rc = main(["echo", "gflow/t/x", "--mode", "client", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.1"])
         err = capsys.readouterr().err
         assert rc == 2 and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("cert, msg", [("expired", "has expired"), ("elsewhere", "is not issued for 127.0.0.1")])
+def test_router_certificate_that_does_not_fit(tmp_path, certs, cert, msg):
+    port = free_port()
+    cfg = load_router_config(_router_file(tmp_path, f"listen: [tls/127.0.0.1:{port}]\n"
+                                                    f"tls: {{cert: {certs[cert]}, key: {certs[cert + '_key']}}}\n"))
+    with Router(cfg):
+        with pytest.raises(SessionError, match=msg):
+            open_session(_client(port, certs, None))
 
 
 def test_mtls_endpoint(tmp_path, certs, capsys):

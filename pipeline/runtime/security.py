@@ -233,8 +233,7 @@ def explain_refusal(connect: tuple[str, ...] | list[str], security: Security | N
                     return f"{ep} refused the session: wrong user name or password for user {sec.user!r}?"
                 return (f"{ep} refused the session: the router may require a login (--user, --password-file) "
                         f"or TLS (a tls/ endpoint)")
-            ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)
-            ctx.check_hostname = False  # zenoh checks names its own way; the CA is what matters here
+            ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)  # checks the CA and the name, as zenoh does
             try:
                 if sec.tls_ca:
                     ctx.load_verify_locations(cafile=sec.tls_ca)
@@ -251,7 +250,13 @@ def explain_refusal(connect: tuple[str, ...] | list[str], security: Security | N
                         tls.recv(1)  # TLS 1.3: a refused client certificate shows on the first read
                     except socket.timeout:
                         pass
-            except ssl.SSLCertVerificationError:
+            except ssl.SSLCertVerificationError as e:
+                why = (e.verify_message or "").lower()
+                if "expired" in why or "not yet valid" in why:
+                    return f"the certificate of {ep} {'has expired' if 'expired' in why else 'is not valid yet'}"
+                if "mismatch" in why:
+                    return (f"the certificate of {ep} is not issued for {host} (connect by a name or address "
+                            f"its certificate lists)")
                 return (f"the certificate of {ep} is not signed by "
                         + (f"the CA in {sec.tls_ca}" if sec.tls_ca else "a known CA (give --tls-ca)"))
             except ssl.SSLError as e:

@@ -46,6 +46,10 @@ def cmd_router(args) -> int:
     if args.print_config:
         print(json.dumps(zenoh_config(cfg), indent=2))
         return 0
+    if args.zenoh_log:
+        import zenoh
+
+        zenoh.init_log_from_env_or(args.zenoh_log)  # refused handshakes and logins show at warn
     stop = threading.Event()
     old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     for s in old:
@@ -76,5 +80,7 @@ def register(sub) -> None:
     p.add_argument("--tls-ca", metavar="FILE", help="CA certificate that signed the clients' certificates")
     p.add_argument("--mtls", action="store_true", help="require client certificates signed by --tls-ca")
     p.add_argument("--users-file", metavar="FILE", help="user:password lines: refuse sessions without a listed login")
+    p.add_argument("--zenoh-log", choices=["error", "warn", "info", "debug"],
+                   help="show zenoh's own log at this level (refused TLS handshakes and logins show at warn)")
     p.add_argument("--print-config", action="store_true", help="print the zenoh configuration and exit")
     p.set_defaults(func=cmd_router)
