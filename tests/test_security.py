@@ -253,8 +253,19 @@ def test_user_password(tmp_path, capsys):
 
 
 def test_acl_only_the_pipeline_publishes(tmp_path, certs):
+    """Readers read; an outsider's puts are dropped by the router itself: here it is even told of
+    the run's subscriptions (a policy added through the file's ``zenoh:`` entries), so it sends."""
+    from pipeline.runtime.router import acl_config
+
     port = free_port()
-    with _tls_router(tmp_path, certs, port, mtls=True, acl=True):
+    cfg = load_router_config(_router_file(tmp_path, f"listen: [tls/127.0.0.1:{port}]\n"
+                                                    f"tls: {{cert: {certs['router']}, key: {certs['router_key']}, "
+                                                    f"ca: {certs['ca']}, mtls: true}}\n"
+                                                    f"acl:\n  publishers:\n    - {{cert_common_names: [gflow-pipeline]}}\n"))
+    acl = acl_config(cfg)
+    acl["policies"].append({"id": "tell-readers", "rules": ["see-subscribers"], "subjects": ["readers"]})
+    cfg.zenoh = {"access_control": acl}
+    with Router(cfg):
         pipe, outsider = open_session(_client(port, certs, "pipeline")), open_session(_client(port, certs, "outsider"))
         reader = open_session(_client(port, certs, "outsider"))
         try:
@@ -262,13 +273,13 @@ def test_acl_only_the_pipeline_publishes(tmp_path, certs):
             reader.declare_subscriber("gflow/t/**", lambda s: seen.put(s.payload.to_bytes()))  # readers: anyone
             inside: queue.SimpleQueue = queue.SimpleQueue()
             pipe.declare_subscriber("gflow/t/**", lambda s: inside.put(s.payload.to_bytes()))
-            ppub = pipe.declare_publisher("gflow/t/x")
-            _wait(lambda: ppub.matching_status.matching, what="the reader's subscription")
+            ppub, opub = pipe.declare_publisher("gflow/t/x"), outsider.declare_publisher("gflow/t/x")
+            _wait(lambda: ppub.matching_status.matching and opub.matching_status.matching, what="the subscriptions")
             ppub.put(b"one")
             assert seen.get(timeout=10) == b"one"  # a reader reads
             assert inside.get(timeout=10) == b"one"
             for _ in range(5):
-                outsider.put("gflow/t/x", b"fake")
+                opub.put(b"fake")
             ppub.put(b"two")
             assert inside.get(timeout=10) == b"two"  # the outsider's puts, sent before, never came
             assert seen.get(timeout=10) == b"two"
