@@ -289,8 +289,11 @@ class Launcher:
         plan = self.plan
         node_settings = ZenohSettings(mode=self.zenoh.mode if self.zenoh.mode != "router" else "peer",
                                       listen=("tcp/127.0.0.1:0",) if self.zenoh.mode != "client" else (),
+                                      # a client launcher listens nowhere: its stages go to the router only
+                                      # (not to whatever else may listen on the launcher's would-be port)
                                       connect=tuple(e.replace("0.0.0.0", "127.0.0.1") for e in self.zenoh.listen
-                                                    if not e.endswith(":0")) + tuple(self.zenoh.connect),
+                                                    if not e.endswith(":0") and self.zenoh.mode != "client")
+                                      + tuple(self.zenoh.connect),
                                       multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb,
                                       security=self.zenoh.security)
         plan.zenoh = node_settings.to_json()
