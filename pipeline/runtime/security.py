@@ -230,7 +230,7 @@ def explain_refusal(connect: tuple[str, ...] | list[str], security: Security | N
         with raw:
             if proto == "tcp":
                 if sec.user:
-                    return f"{ep} refused the session: wrong user name or password for user {sec.user!r}?"
+                    return f"{ep} refused the login of user {sec.user!r} (a wrong password, or a user it does not list)"
                 return (f"{ep} refused the session: the router may require a login (--user, --password-file) "
                         f"or TLS (a tls/ endpoint)")
             ctx = ssl.SSLContext(ssl.PROTOCOL_TLS_CLIENT)  # checks the CA and the name, as zenoh does
@@ -271,6 +271,6 @@ def explain_refusal(connect: tuple[str, ...] | list[str], security: Security | N
             except OSError as e:
                 return f"{ep} closed the connection ({e.strerror or e})"
             if sec.user:
-                return f"{ep} refused the session: wrong user name or password for user {sec.user!r}?"
+                return f"{ep} refused the login of user {sec.user!r} (a wrong password, or a user it does not list)"
             return f"{ep} accepted TLS but refused the session: the router may require a login (--user)"
     return ""

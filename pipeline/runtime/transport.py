@@ -101,13 +101,33 @@ class SessionError(RuntimeError):
 def open_session(settings: ZenohSettings) -> zenoh.Session:
     """Open a zenoh session; errors name the endpoints that failed (and why, when it can be told)."""
     try:
-        return zenoh.open(settings.to_config())
+        session = zenoh.open(settings.to_config())
+        if settings.mode == "peer" and settings.connect and settings.security is not None:
+            _check_linked(session, settings)
+        return session
+    except SessionError:
+        raise
     except Exception as e:  # zenoh raises ZError with a terse message
         why = explain_refusal(settings.connect, settings.security) if settings.mode == "client" else ""
         if why:
             raise SessionError(f"could not connect to {', '.join(settings.connect)}: {why}") from None
         raise SessionError(f"could not open a zenoh session ({settings.mode}, listen={list(settings.listen)}, "
                            f"connect={list(settings.connect)}): {str(e).split(' at /')[0]}") from None
+
+
+def _check_linked(session: zenoh.Session, settings: ZenohSettings, wait: float = 1.0) -> None:
+    """In peer mode zenoh opens a session even when every ``connect`` endpoint refused it (a TLS or
+    login mismatch): with security settings, that is an error, said in one line. (An endpoint where
+    nothing listens yet is not: zenoh keeps trying it, as without security.)"""
+    end = time.monotonic() + wait
+    while not (list(session.info.peers_zid()) or list(session.info.routers_zid())):
+        if time.monotonic() > end:
+            why = explain_refusal(settings.connect, settings.security)
+            if why and not why.startswith("nothing accepts connections"):
+                session.close()
+                raise SessionError(f"could not connect to {', '.join(settings.connect)}: {why}")
+            return
+        time.sleep(0.02)
 
 
 def topic_key(stream: str, topic: str) -> str:
