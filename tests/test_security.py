@@ -409,6 +409,7 @@ def test_outsider_cannot_stop_end_or_feed_a_run(tmp_path, certs):
     assert all(unsigned[n] >= 1 for n in r2.status), unsigned
     assert unsigned["preprocess"] >= 2 and unsigned["recorder"] >= 22, unsigned
     assert _max_unsigned(tmp_path / "peer.mcap")["filter"] >= 1  # and the recording keeps the count
+    assert signed.security.run_key.encode() not in (tmp_path / "peer.mcap").read_bytes()  # the key stays private
 
 
 def test_gflow_router_command_stops_cleanly(tmp_path, certs):
