@@ -478,6 +478,9 @@ def test_client_security_file(tmp_path, certs, capsys):
     assert args.connect == ["tls/10.0.0.5:7447"] and args.mode == "client"
     assert sec is not None and sec.password == "s3cret" and sec.tls_cert == str(certs["pipeline"])
     assert sec.zenoh_entries()["transport/link/tls/enable_mtls"] is True
+    rc = main(["topics", "--connect", "tcp/10.0.0.5:7447", "--tls-ca", str(certs["ca"]), "--duration", "0.1"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "the link would not be encrypted" in err, err
     for text, msg in (("conect: [a:1]\n", "unknown key 'conect'"), ("tls: {ca: nope.pem}\n", "not found"),
                       ("mode: router\n", "mode must be peer or client"), ("user: cam\n", "has no password")):
         f.write_text(text)

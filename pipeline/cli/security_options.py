@@ -148,6 +148,10 @@ def apply_security(args) -> Security | None:
         args.connect = [_endpoint(e, tls) for e in args.connect]
     if get("listen"):
         args.listen = [_endpoint(e, tls) for e in args.listen]
+    eps = list(get("connect") or ()) + list(get("listen") or ())
+    if tls and eps and not any(e.startswith(("tls/", "quic/")) for e in eps):
+        raise SecurityError(f"TLS options are given but no endpoint is tls/ ({', '.join(eps)}): the link would not be "
+                            f"encrypted; write tls/HOST:PORT, or just HOST:PORT")
     sec = None
     if ca or cert or key or user or run_key:
         sec = Security(tls_ca=ca, tls_cert=cert, tls_key=key, user=user, password=password,
