@@ -300,10 +300,15 @@ def test_run_key_file(tmp_path):
     good.write_text("0123456789abcdef0123\n")
     assert load_run_key(str(good)) == load_run_key(str(good)) != load_run_key("auto")
     s = Signer(load_run_key(str(good)))
-    tag = s.tag("gflow/a/b", 3, 7, b"payload")
-    assert s.valid("gflow/a/b", 3, 7, b"payload", tag)
-    assert not s.valid("gflow/a/b", 3, 7, b"payloaD", tag) and not s.valid("gflow/a/c", 3, 7, b"payload", tag)
-    assert not Signer(load_run_key("auto")).valid("gflow/a/b", 3, 7, b"payload", tag)
+    now = time.time_ns()
+    tag = s.tag("gflow/a/b", 3, now, b"payload")
+    assert s.valid("gflow/a/b", 3, now, b"payload", tag)
+    assert not s.valid("gflow/a/b", 3, now, b"payloaD", tag) and not s.valid("gflow/a/c", 3, now, b"payload", tag)
+    assert not s.valid("gflow/a/b", 4, now, b"payload", tag) and not s.valid("gflow/a/b", 3, now + 1, b"payload", tag)
+    assert not Signer(load_run_key("auto")).valid("gflow/a/b", 3, now, b"payload", s.tag("gflow/a/b", 3, now, b"payload"))
+    # a message of an earlier run under the same key (recorded by a reader, sent again) is stale
+    old = now - int(400e9)
+    assert not s.valid("gflow/a/b", 3, old, b"payload", s.tag("gflow/a/b", 3, old, b"payload"))
 
 
 # -- a run that an outsider tries to stop, end and feed --------------------------------------------

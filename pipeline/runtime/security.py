@@ -193,11 +193,21 @@ def load_run_key(spec: str) -> str:
 _HEAD = struct.Struct("<qq")
 
 
+#: a signed sample published this long before the receiving process started is stale: a replay of
+#: an earlier run's message (a reader may have recorded it) under the same key file; the margin
+#: allows for clocks of different hosts that disagree by less than this
+STALE_S = 300.0
+
+
 class Signer:
-    """Signs and checks samples with a run key (HMAC-SHA256, truncated to 16 bytes)."""
+    """Signs and checks samples with a run key (HMAC-SHA256, truncated to 16 bytes). A sample
+    published more than :data:`STALE_S` before this signer was made is refused as a replay."""
 
     def __init__(self, key_hex: str) -> None:
+        import time
+
         self._key = bytes.fromhex(key_hex)
+        self.not_before_ns = time.time_ns() - int(STALE_S * 1e9)
 
     def tag(self, key_expr: str, seq: int, publish_ns: int, payload: bytes) -> bytes:
         h = hmac.new(self._key, key_expr.encode("utf-8") + _HEAD.pack(seq, publish_ns), hashlib.sha256)
@@ -205,7 +215,8 @@ class Signer:
         return h.digest()[:TAG_SIZE]
 
     def valid(self, key_expr: str, seq: int, publish_ns: int, payload: bytes, tag: bytes) -> bool:
-        return len(tag) == TAG_SIZE and hmac.compare_digest(self.tag(key_expr, seq, publish_ns, payload), tag)
+        return (len(tag) == TAG_SIZE and publish_ns >= self.not_before_ns
+                and hmac.compare_digest(self.tag(key_expr, seq, publish_ns, payload), tag))
 
     @classmethod
     def of(cls, security: Security | None) -> "Signer | None":
