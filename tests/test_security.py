@@ -387,7 +387,7 @@ def _max_unsigned(rec: Path) -> dict[str, int]:
 
 def test_outsider_cannot_stop_end_or_feed_a_run(tmp_path, certs):
     """Over TLS through a router with ACL (the outsider holds a valid certificate of another name),
-    and in peer mode with a run key (the outsider connects straight to the launcher)."""
+    and against `gflow run` in peer mode with a run key (the outsider connects straight to the launcher)."""
     port = free_port()
     with _tls_router(tmp_path, certs, port, mtls=True, acl=True):
         pipe = _client(port, certs, "pipeline")
@@ -400,21 +400,32 @@ def test_outsider_cannot_stop_end_or_feed_a_run(tmp_path, certs):
         assert seen["first"] < FRAMES - 22 and seen["last_heard"] >= FRAMES - 1, seen  # it read the whole run (and its end)
         assert _boxes(tmp_path / "acl.mcap") == quiet
 
+    # the same attack on `gflow run` in peer mode with a run key: the outsider links to the launcher
     key = tmp_path / "run.key"
     key.write_text("a shared secret of the deployment\n")
     lport = free_port()
-    signed = ZenohSettings(listen=(f"tcp/127.0.0.1:{lport}",), security=Security(run_key=load_run_key(str(key))))
-    outsider = ZenohSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{lport}",))
-    r2, seen = _run(_plan(), signed, tmp_path / "peer.mcap",
-                    lambda launcher: _attack(outsider, launcher.plan, wait_matching=True))
+    cmd = [sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", f"source.frames={FRAMES}",
+           "--set", "source.realtime=true", "--set", "source.fps=30", "--set", "filter.particles=150",
+           "--record", str(tmp_path / "peer.mcap"), "--listen", f"tcp/127.0.0.1:{lport}", "--run-key", str(key)]
+    proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        outsider = ZenohSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{lport}",))
+        seen = _attack(outsider, _plan(), wait_matching=True)
+        err = proc.communicate(timeout=120)[1]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
     assert seen["first"] < FRAMES - 22, seen
     assert _boxes(tmp_path / "peer.mcap") == quiet
-    # what arrived was dropped and counted: every stage heard the stop; the source's consumers the end
-    unsigned = {n: st.rejected.get("unsigned", 0) for n, st in r2.status.items()}
-    assert all(unsigned[n] >= 1 for n in r2.status), unsigned
-    assert unsigned["preprocess"] >= 2 and unsigned["recorder"] >= 22, unsigned
-    assert _max_unsigned(tmp_path / "peer.mcap")["filter"] >= 1  # and the recording keeps the count
-    assert signed.security.run_key.encode() not in (tmp_path / "peer.mcap").read_bytes()  # the key stays private
+    # what arrived was dropped, counted and reported: every stage heard the stop; preprocess the end;
+    # the recorder (which hears everything) the stop, the end and the 20 estimates
+    line = next(x for x in err.splitlines() if x.startswith("ignored messages not signed with the run key"))
+    unsigned = {n: int(c) for n, c in (part.split() for part in line.split("by stage: ")[1].split(", "))}
+    assert set(unsigned) == set(_plan().stages) and all(c >= 1 for c in unsigned.values()), line
+    assert unsigned["preprocess"] >= 2 and unsigned["recorder"] >= 22, line
+    assert _max_unsigned(tmp_path / "peer.mcap")["filter"] >= 1  # the recording keeps the count
+    assert load_run_key(str(key)).encode() not in (tmp_path / "peer.mcap").read_bytes()  # and not the key
 
 
 def test_gflow_router_command_stops_cleanly(tmp_path, certs):

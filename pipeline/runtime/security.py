@@ -29,7 +29,7 @@ import secrets
 import socket
 import ssl
 import struct
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 __all__ = ["Security", "SecurityError", "Signer", "load_run_key", "check_pem_files", "explain_refusal", "TAG_SIZE"]
@@ -60,8 +60,8 @@ class Security:
     tls_key: str = ""
     mtls: bool = False
     user: str = ""
-    password: str = ""
-    run_key: str = ""
+    password: str = field(default="", repr=False)
+    run_key: str = field(default="", repr=False)
 
     @property
     def tls(self) -> bool:
