@@ -15,6 +15,7 @@ from stages.messages import MessageError, StageStatus, decode
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.plain import describe, to_plain
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
+from pipeline.runtime.security import Signer
 
 __all__ = ["list_topics", "echo", "hz", "rate_stats", "RateStats", "json_line", "replay", "ReplayOptions"]
 
@@ -239,7 +240,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
     ``gflow topics`` and friends find it without a launcher.
     """
     s = _session(settings)
-    bus = Bus(s)
+    bus = Bus(s, signer=Signer.of(settings.security))
     acks = _Acks()
     records = [r for r in iter_records(path, topics=opts.topics)
                if "/_status/" not in r.topic and not r.topic.endswith("/_control")]

@@ -9,6 +9,7 @@
     gflow frame SOURCE N OUT.png       a frame with a pixel grid, to read --init off
     gflow ps | topics | echo TOPIC | hz TOPIC | pub TOPIC TYPE JSON   a live pipeline
     gflow view                         a live pipeline in Foxglove (ws://127.0.0.1:8765)
+    gflow router ROUTER.yaml           a zenoh router: TLS, logins, access control (docs/security.md)
 """
 
 from __future__ import annotations

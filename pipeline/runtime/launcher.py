@@ -40,6 +40,7 @@ from pipeline.io.mcap_io import segment_path
 
 EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full disk
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
+from pipeline.runtime.security import Signer
 
 __all__ = ["Launcher", "LaunchResult", "StageExit"]
 
@@ -288,12 +289,16 @@ class Launcher:
         plan = self.plan
         node_settings = ZenohSettings(mode=self.zenoh.mode if self.zenoh.mode != "router" else "peer",
                                       listen=("tcp/127.0.0.1:0",) if self.zenoh.mode != "client" else (),
+                                      # a client launcher listens nowhere: its stages go to the router only
+                                      # (not to whatever else may listen on the launcher's would-be port)
                                       connect=tuple(e.replace("0.0.0.0", "127.0.0.1") for e in self.zenoh.listen
-                                                    if not e.endswith(":0")) + tuple(self.zenoh.connect),
-                                      multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb)
+                                                    if not e.endswith(":0") and self.zenoh.mode != "client")
+                                      + tuple(self.zenoh.connect),
+                                      multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb,
+                                      security=self.zenoh.security)
         plan.zenoh = node_settings.to_json()
         session = open_session(self.zenoh)
-        bus = Bus(session)
+        bus = Bus(session, signer=Signer.of(self.zenoh.security))
         bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         bus.subscribe(plan.error_topic, self._on_error)
         for sp in plan.stages.values():

@@ -63,6 +63,7 @@ from pipeline.runtime.host import StageHost
 from pipeline.io.recorder import DiskFull, McapRecorder
 from pipeline.io.sources import open_reader
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
+from pipeline.runtime.security import Signer
 
 __all__ = ["main", "run_node"]
 
@@ -110,8 +111,9 @@ class Node:
         self.state = "starting"
         self.steps = 0
         self.proc = psutil.Process()
-        self.session = open_session(ZenohSettings.from_json(plan.zenoh))
-        self.bus = Bus(self.session, plan.drop_topics())
+        settings = ZenohSettings.from_json(plan.zenoh)
+        self.session = open_session(settings)
+        self.bus = Bus(self.session, plan.drop_topics(), signer=Signer.of(settings.security))
         self._status_pub = self.bus.publisher(plan.status_topic(name))
         self.host: StageHost | None = None
         self.recorder: McapRecorder | None = None
@@ -272,6 +274,8 @@ class Node:
         out = dict(self.host.stats.rejected) if self.host is not None else {}
         if self.bad_control:
             out["bad_control"] = self.bad_control
+        if self.bus.foreign:  # samples not signed with the run key: from outside the run
+            out["unsigned"] = sum(self.bus.foreign.values())
         return out
 
     def send_status(self, min_interval: float = 0.0) -> None:

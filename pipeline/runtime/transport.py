@@ -28,6 +28,8 @@ from typing import Callable, Literal
 
 import zenoh
 
+from pipeline.runtime.security import Security, Signer, explain_refusal
+
 __all__ = ["ZenohSettings", "SessionError", "open_session", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment"]
 
 Mode = Literal["peer", "client", "router"]
@@ -45,6 +47,7 @@ class ZenohSettings:
     shm_pool_mb : shared-memory pool size in MiB (zenoh's default, 16). Every receiver maps each
         sender's pool, which counts in its RSS; flow control bounds the frames in flight, so
         16 MiB holds them (the guide saw large colour frames slow with 16 MiB under no flow control).
+    security : TLS / mTLS, user/password and run key (see :mod:`pipeline.runtime.security`).
     """
 
     mode: Mode = "peer"
@@ -53,6 +56,7 @@ class ZenohSettings:
     multicast: bool = False
     shm_pool_mb: int = 16
     shm: bool = True
+    security: Security | None = None
 
     def to_config(self) -> zenoh.Config:
         if self.mode not in ("peer", "client", "router"):
@@ -66,17 +70,21 @@ class ZenohSettings:
         c.insert_json5("transport/shared_memory/enabled", json.dumps(bool(self.shm)))
         c.insert_json5("transport/shared_memory/transport_optimization/pool_size",
                        json.dumps(self.shm_pool_mb * 1024 * 1024))
+        for path, value in (self.security.zenoh_entries(self.mode != "client") if self.security else {}).items():
+            c.insert_json5(path, json.dumps(value))
         return c
 
     def to_json(self) -> dict:
         return {"mode": self.mode, "listen": list(self.listen), "connect": list(self.connect),
-                "multicast": self.multicast, "shm_pool_mb": self.shm_pool_mb, "shm": self.shm}
+                "multicast": self.multicast, "shm_pool_mb": self.shm_pool_mb, "shm": self.shm,
+                "security": self.security.to_json() if self.security else None}
 
     @classmethod
     def from_json(cls, d: dict) -> "ZenohSettings":
         return cls(mode=d.get("mode", "peer"), listen=tuple(d.get("listen", ("tcp/127.0.0.1:0",))),
                    connect=tuple(d.get("connect", ())), multicast=bool(d.get("multicast", False)),
-                   shm_pool_mb=int(d.get("shm_pool_mb", 16)), shm=bool(d.get("shm", True)))
+                   shm_pool_mb=int(d.get("shm_pool_mb", 16)), shm=bool(d.get("shm", True)),
+                   security=Security.from_json(d.get("security")))
 
 
 def free_port() -> int:
@@ -91,12 +99,35 @@ class SessionError(RuntimeError):
 
 
 def open_session(settings: ZenohSettings) -> zenoh.Session:
-    """Open a zenoh session; errors name the endpoints that failed."""
+    """Open a zenoh session; errors name the endpoints that failed (and why, when it can be told)."""
     try:
-        return zenoh.open(settings.to_config())
+        session = zenoh.open(settings.to_config())
+        if settings.mode == "peer" and settings.connect and settings.security is not None:
+            _check_linked(session, settings)
+        return session
+    except SessionError:
+        raise
     except Exception as e:  # zenoh raises ZError with a terse message
+        why = explain_refusal(settings.connect, settings.security) if settings.mode == "client" else ""
+        if why:
+            raise SessionError(f"could not connect to {', '.join(settings.connect)}: {why}") from None
         raise SessionError(f"could not open a zenoh session ({settings.mode}, listen={list(settings.listen)}, "
-                           f"connect={list(settings.connect)}): {e}") from None
+                           f"connect={list(settings.connect)}): {str(e).split(' at /')[0]}") from None
+
+
+def _check_linked(session: zenoh.Session, settings: ZenohSettings, wait: float = 1.0) -> None:
+    """In peer mode zenoh opens a session even when every ``connect`` endpoint refused it (a TLS or
+    login mismatch): with security settings, that is an error, said in one line. (An endpoint where
+    nothing listens yet is not: zenoh keeps trying it, as without security.)"""
+    end = time.monotonic() + wait
+    while not (list(session.info.peers_zid()) or list(session.info.routers_zid())):
+        if time.monotonic() > end:
+            why = explain_refusal(settings.connect, settings.security)
+            if why and not why.startswith("nothing accepts connections"):
+                session.close()
+                raise SessionError(f"could not connect to {', '.join(settings.connect)}: {why}")
+            return
+        time.sleep(0.02)
 
 
 def topic_key(stream: str, topic: str) -> str:
@@ -109,17 +140,27 @@ def topic_key(stream: str, topic: str) -> str:
 _ATT = struct.Struct("<qq")
 
 
-def pack_attachment(publish_ns: int, seq: int, type_name: str = "") -> bytes:
+def pack_attachment(publish_ns: int, seq: int, type_name: str = "", tag: bytes = b"") -> bytes:
     """Attachment carried by every gflow sample: publish time (ns), sequence number and the
-    message type name (so a recorder can file JSON payloads, which carry no type tag)."""
-    return _ATT.pack(publish_ns, seq) + type_name.encode("utf-8")
+    message type name (so a recorder can file JSON payloads, which carry no type tag), then, in
+    a signed run, a NUL and the sample's tag (:class:`pipeline.runtime.security.Signer`)."""
+    return _ATT.pack(publish_ns, seq) + type_name.encode("utf-8") + (b"\0" + tag if tag else b"")
 
 
 def unpack_attachment(b: bytes | None) -> tuple[int, int, str]:
     if not b or len(b) < _ATT.size:
         return 0, -1, ""
     ns, seq = _ATT.unpack_from(b)
-    return ns, seq, b[_ATT.size:].decode("utf-8", "replace")
+    return ns, seq, b[_ATT.size:].split(b"\0", 1)[0].decode("utf-8", "replace")
+
+
+def attachment_tag(b: bytes | None) -> bytes:
+    """The signature tag of an attachment (b"" when unsigned)."""
+    if not b or len(b) <= _ATT.size:
+        return b""
+    rest = b[_ATT.size:]
+    i = rest.find(b"\0")
+    return rest[i + 1:] if i >= 0 else b""
 
 
 @dataclass
@@ -129,6 +170,8 @@ class Bus:
     ``publish(topic, payload, seq)`` declares publishers lazily, with the QoS of the topic.
     ``subscribe(key, callback)`` delivers ``(key, payload, publish_ns, seq)`` on zenoh's
     thread: callbacks must only hand the data over (to a queue), never block.
+    With a ``signer`` (a run key) every sample published is signed and every sample received
+    without a valid tag is dropped and counted in ``foreign`` (by key expression).
     """
 
     session: zenoh.Session
@@ -136,6 +179,8 @@ class Bus:
     _pubs: dict[str, zenoh.Publisher] = field(default_factory=dict)
     _subs: list = field(default_factory=list)
     sent: int = 0
+    signer: Signer | None = None
+    foreign: dict[str, int] = field(default_factory=dict)
 
     def publisher(self, key: str) -> zenoh.Publisher:
         pub = self._pubs.get(key)
@@ -146,17 +191,36 @@ class Bus:
         return pub
 
     def publish(self, key: str, payload: bytes, seq: int, type_name: str = "") -> None:
-        self.publisher(key).put(payload, attachment=pack_attachment(time.time_ns(), seq, type_name))
+        ns = time.time_ns()
+        tag = self.signer.tag(key, seq, ns, payload) if self.signer is not None else b""
+        self.publisher(key).put(payload, attachment=pack_attachment(ns, seq, type_name, tag))
         self.sent += 1
 
     def subscribe(self, key: str, callback: Callable[..., None], with_type: bool = False) -> None:
         """``callback(key, payload, publish_ns, seq)``, plus ``type_name`` with ``with_type``."""
         def _cb(sample: zenoh.Sample) -> None:
             att = sample.attachment
-            pub_ns, seq, type_name = unpack_attachment(att.to_bytes() if att is not None else None)
+            raw = att.to_bytes() if att is not None else None
+            pub_ns, seq, type_name = unpack_attachment(raw)
+            payload = sample.payload.to_bytes()
+            if self.signer is not None and not self._signed(str(sample.key_expr), seq, pub_ns, payload, raw):
+                return
             if with_type:
-                callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq, type_name)
+                callback(str(sample.key_expr), payload, pub_ns, seq, type_name)
             else:
-                callback(str(sample.key_expr), sample.payload.to_bytes(), pub_ns, seq)
+                callback(str(sample.key_expr), payload, pub_ns, seq)
 
         self._subs.append(self.session.declare_subscriber(key, _cb))
+
+    def _signed(self, key: str, seq: int, pub_ns: int, payload: bytes, raw: bytes | None) -> bool:
+        """Whether a sample carries this run's signature; a foreign one is counted and logged once."""
+        assert self.signer is not None
+        if self.signer.valid(key, seq, pub_ns, payload, attachment_tag(raw)):
+            return True
+        n = self.foreign[key] = self.foreign.get(key, 0) + 1
+        if n == 1:
+            import logging
+
+            logging.getLogger(__name__).warning("ignored a message on %s that is not signed with this run's key "
+                                                "(a sender outside the run)", key)
+        return False

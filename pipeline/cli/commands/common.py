@@ -13,6 +13,7 @@ import numpy as np
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import ZenohSettings, free_port
+from pipeline.cli.security_options import add_security_args, apply_security
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
 
@@ -40,7 +41,12 @@ _HOST_PORT = re.compile(r"^(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
 
 
 def parse_endpoint(text: str) -> str:
-    """A zenoh endpoint ``PROTO/HOST:PORT`` (e.g. tcp/127.0.0.1:7447), checked before zenoh sees it."""
+    """A zenoh endpoint ``PROTO/HOST:PORT`` (e.g. tcp/127.0.0.1:7447), checked before zenoh sees it.
+    A bare ``HOST:PORT`` is kept as it is: :func:`pipeline.cli.security_options.apply_security` makes it
+    ``tls/`` or ``tcp/``."""
+    hp = _HOST_PORT.match(text.strip())
+    if hp is not None and "/" not in text and 0 <= int(hp.group(2)) <= 65535:
+        return text.strip()
     m = _ENDPOINT.match(text.strip())
     if m is None:
         raise argparse.ArgumentTypeError(f"{text!r} is not a zenoh endpoint; expected PROTO/HOST:PORT, "
@@ -92,13 +98,14 @@ def parse_sets(items: list[str]) -> dict[str, dict]:
 
 
 def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:
+    security = apply_security(args)
     listen = tuple(args.listen or ())
     connect = tuple(args.connect or ())
     if default_connect and not connect and args.mode != "router":
         connect = (DEFAULT_ENDPOINT,)
     if not listen:
         listen = ("tcp/127.0.0.1:0",)
-    return ZenohSettings(mode=args.mode, listen=listen, connect=connect, multicast=args.multicast)
+    return ZenohSettings(mode=args.mode, listen=listen, connect=connect, multicast=args.multicast, security=security)
 
 
 def tool_zenoh(args, stream: str | None = None, require: bool = True) -> tuple[ZenohSettings, list[dict]]:
@@ -111,6 +118,7 @@ def tool_zenoh(args, stream: str | None = None, require: bool = True) -> tuple[Z
     """
     from pipeline.runtime.running import describe_none, running
 
+    security = apply_security(args)
     if args.connect or args.mode == "router" or args.multicast:
         return zenoh_from_args(args, default_connect=False), []
     found = running(stream)
@@ -118,7 +126,7 @@ def tool_zenoh(args, stream: str | None = None, require: bool = True) -> tuple[Z
         raise CliError(describe_none(stream))
     endpoints = tuple(dict.fromkeys(e for i in found for e in i.get("endpoints", [])))
     listen = tuple(args.listen or ()) or ("tcp/127.0.0.1:0",)
-    return ZenohSettings(mode=args.mode, listen=listen, connect=endpoints, multicast=False), found
+    return ZenohSettings(mode=args.mode, listen=listen, connect=endpoints, multicast=False, security=security), found
 
 
 def stream_of(key: str) -> str | None:
@@ -131,6 +139,7 @@ def stream_of(key: str) -> str | None:
 
 def launcher_zenoh(args) -> ZenohSettings:
     """The launcher listens on 7447 (so `gflow topics` finds it) unless busy or told otherwise."""
+    security = apply_security(args)
     if args.listen:
         listen = tuple(args.listen)
     else:
@@ -142,7 +151,8 @@ def launcher_zenoh(args) -> ZenohSettings:
                 listen = (DEFAULT_ENDPOINT,)
             except OSError:
                 listen = (f"tcp/127.0.0.1:{free_port()}",)
-    return ZenohSettings(mode=args.mode, listen=listen, connect=tuple(args.connect or ()), multicast=args.multicast)
+    return ZenohSettings(mode=args.mode, listen=listen, connect=tuple(args.connect or ()), multicast=args.multicast,
+                         security=security)
 
 
 def add_record_args(p: argparse.ArgumentParser, default: str) -> None:
@@ -217,6 +227,7 @@ def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--connect", action="append", metavar="ENDPOINT", type=parse_endpoint,
                    help="endpoint to connect to, e.g. tcp/10.0.0.5:7447 for a zenoh router (repeatable)")
     g.add_argument("--multicast", action="store_true", help="enable multicast scouting (off by default)")
+    add_security_args(p.add_argument_group("security (TLS, login, signed runs: docs/security.md)"))
 
 
 def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: bool = False, strict: bool = True):
@@ -264,6 +275,11 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
             "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
     if res.stall:
         print(res.stall, file=sys.stderr)
+    unsigned = {n: st.rejected["unsigned"] for n, st in res.status.items() if st.rejected.get("unsigned")}
+    if unsigned:  # --run-key: what came from outside the run was dropped; say so
+        info["unsigned"] = unsigned
+        print("ignored messages not signed with the run key (from outside the run), by stage: "
+              + ", ".join(f"{n} {c}" for n, c in sorted(unsigned.items())), file=sys.stderr)
     if strict and not res.ok and not res.interrupted:
         raise CliError("the pipeline did not finish cleanly (see the messages above)")
     return res.recording, res.seconds, frames, info

@@ -139,6 +139,7 @@ def cmd_pub(args) -> int:
 
     from stages.messages import MESSAGE_TYPES, Header, encode
 
+    from pipeline.runtime.security import Signer
     from pipeline.runtime.transport import Bus, open_session
 
     key = _key(args.topic)
@@ -164,7 +165,7 @@ def cmd_pub(args) -> int:
     settings, found = tool_zenoh(args, stream)
     s = open_session(settings)
     try:
-        bus = Bus(s)
+        bus = Bus(s, signer=Signer.of(settings.security))
         pub = bus.publisher(key)
         end = time.monotonic() + args.wait
         while not pub.matching_status.matching:
