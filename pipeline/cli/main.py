@@ -82,6 +82,15 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"gflow {args.command}: interrupted", file=sys.stderr)
         return 130
+    except RuntimeError as e:  # a run that could not start or went wrong (e.g. a stage never came up)
+        print(f"gflow {args.command}: error: {' '.join(str(e).split())}", file=sys.stderr)
+        return 1
+    except Exception as e:  # a bug: one line for the user, the traceback with -vv
+        if args.verbose >= 2:
+            raise
+        print(f"gflow {args.command}: internal error: {type(e).__name__}: {' '.join(str(e).split())} "
+              f"(a bug in gflow; run with -vv for the traceback)", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":
