@@ -169,8 +169,8 @@ class Net:
         """Drop ``percent`` % of the packets leaving and entering the router's namespace, at random
         (nftables ``numgen random``)."""
         n = max(1, int(round(percent)))
-        rules = (f"table inet gfloss {{\n chain in {{ type filter hook input priority 0; numgen random mod 100 < {n} drop\n }}\n"
-                 f" chain out {{ type filter hook output priority 0; numgen random mod 100 < {n} drop\n }}\n}}\n")
+        rules = (f"table inet gfloss {{\n chain in {{ type filter hook input priority 0; numgen random mod 100 < {n} counter drop\n }}\n"
+                 f" chain out {{ type filter hook output priority 0; numgen random mod 100 < {n} counter drop\n }}\n}}\n")
         subprocess.run(["ip", "netns", "exec", self.router_ns, "nft", "-f", "-"], input=rules, text=True,
                        capture_output=True, check=True, timeout=30)
         self.nft = True
@@ -179,7 +179,9 @@ class Net:
         """Packets the loss rules dropped so far (from nft's counters), or -1 if unknown."""
         r = subprocess.run(["ip", "netns", "exec", self.router_ns, "nft", "list", "table", "inet", "gfloss"],
                            capture_output=True, text=True)
-        return -1 if r.returncode != 0 else r.stdout.count("drop")
+        import re
+
+        return -1 if r.returncode != 0 else sum(int(n) for n in re.findall(r"counter packets (\d+)", r.stdout))
 
     def rx_bytes(self, host: str) -> int:
         """Bytes the router's side of ``host``'s link has sent to it (what ``host`` received)."""

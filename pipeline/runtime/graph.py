@@ -143,6 +143,13 @@ class Plan:
     base_dir: str = "."
     zenoh: dict[str, Any] = field(default_factory=dict)
     on_host_lost: str = "stop"  # stop the run, or wait for the host to come back
+    #: the graph's own stream (the camera): what stages seed their random draws and stamp their
+    #: headers with, so a run's results do not depend on its run id ('' : the same as ``stream``)
+    camera: str = ""
+
+    @property
+    def seed_stream(self) -> str:
+        return self.camera or self.stream
 
     @property
     def error_topic(self) -> str:
@@ -170,7 +177,7 @@ class Plan:
     def to_json(self) -> str:
         return json.dumps({
             "name": self.name, "stream": self.stream, "base_dir": self.base_dir, "zenoh": self.zenoh,
-            "source_text": self.source_text, "on_host_lost": self.on_host_lost,
+            "source_text": self.source_text, "on_host_lost": self.on_host_lost, "camera": self.camera,
             "stages": {n: dataclasses.asdict(s) for n, s in self.stages.items()},
         })
 
@@ -179,6 +186,7 @@ class Plan:
         d = json.loads(text)
         return cls(name=d["name"], stream=d["stream"], base_dir=d.get("base_dir", "."), zenoh=d.get("zenoh", {}),
                    source_text=d.get("source_text", ""), on_host_lost=d.get("on_host_lost", "stop"),
+                   camera=d.get("camera", ""),
                    stages={n: StagePlan(**s) for n, s in d["stages"].items()})
 
     def config_metadata(self) -> dict[str, str]:
@@ -186,6 +194,8 @@ class Plan:
         their defaults, wiring, restart and snapshot policy) as JSON, plus the stream and the
         base folder of relative paths. :meth:`from_metadata` rebuilds the plan from it."""
         out = {"stream": self.stream, "graph_name": self.name, "base_dir": str(Path(self.base_dir).resolve())}
+        if self.camera and self.camera != self.stream:
+            out["camera"] = self.camera
         for n, s in self.stages.items():
             out[f"stage.{n}"] = json.dumps(dataclasses.asdict(s), sort_keys=True)
         return out
@@ -202,6 +212,7 @@ class Plan:
         if not stages:
             raise GraphError("the recording's gflow.config metadata names no stage")
         return cls(name=config.get("graph_name", graph.get("name", "recorded")), stream=config["stream"],
+                   camera=config.get("camera", ""),
                    stages=stages, source_text=graph.get("yaml", ""), base_dir=config.get("base_dir", "."))
 
     def recording_path(self) -> str | None:

@@ -25,7 +25,9 @@ def new_run_id() -> str:
 
 def choose_stream(plan: Plan, stream: str | None, placed: bool) -> str:
     """Set and return ``plan.stream``: ``stream`` if given, the graph's own for a placed run,
-    else the graph's stream with a new run id."""
+    else the graph's stream with a new run id. The graph's own stream stays the plan's ``camera``:
+    stages seed their random draws with it, so a run's results do not depend on its run id."""
+    plan.camera = plan.camera or plan.stream
     if stream:
         try:
             topic_key(stream, "x")
