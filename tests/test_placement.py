@@ -1,0 +1,45 @@
+"""Placement and run ids, without a network: which stages a host starts, the one-line errors,
+and the stream every run gets."""
+
+from __future__ import annotations
+
+import pytest
+
+from pipeline.runtime.graph import GraphError, load_graph, parse_graph
+from pipeline.runtime.placement import describe_hosts, host_labels, local_stages
+from pipeline.runtime.runid import choose_stream
+
+
+def test_host_picks_the_stages_placed_there():
+    plan = load_graph("demo_hosts")
+    assert host_labels(plan) == ["cam", "edge", "ops"]
+    assert local_stages(plan, ("edge",)) == {"preprocess", "proposal", "filter"}
+    assert local_stages(plan, ("cam", "ops")) == {"source", "render", "recorder"}
+    assert local_stages(plan, ()) == set(plan.stages)  # no --host: everything here
+    assert describe_hosts(plan, {"source", "recorder"}) == "cam (source); ops (recorder)"
+
+
+def test_unknown_or_missing_host_labels_are_one_line_errors():
+    plan = load_graph("demo_hosts")
+    with pytest.raises(GraphError, match=r"no stage .* placed on 'edg' \(its hosts: cam, edge, ops\)"):
+        local_stages(plan, ("edg",))
+    with pytest.raises(GraphError, match="places no stage on a host"):
+        local_stages(load_graph("demo"), ("edge",))
+    text = load_graph("demo_hosts").source_text.replace("  render:\n    host: ops\n", "  render:\n")
+    with pytest.raises(GraphError, match="stage 'render' has no host, but other stages do"):
+        parse_graph(text, "g.yaml")
+    with pytest.raises(GraphError, match="on_host_lost must be stop or wait"):
+        parse_graph(text.replace("on_host_lost: stop", "on_host_lost: later"), "g.yaml")
+
+
+def test_every_run_gets_its_own_stream_and_keeps_its_random_draws():
+    a, b = load_graph("demo"), load_graph("demo")
+    sa, sb = choose_stream(a, None, placed=False), choose_stream(b, None, placed=False)
+    assert sa != sb and sa.startswith("demo-") and sb.startswith("demo-")
+    assert all(t.startswith(f"gflow/{sa}/") for s in a.stages.values() for t in [*s.inputs.values(), *s.outputs.values()])
+    assert a.seed_stream == b.seed_stream == "demo"  # the stages' random draws do not depend on the run id
+    c = load_graph("demo_hosts")
+    assert choose_stream(c, None, placed=True) == "demo"  # every host reads the same file
+    assert choose_stream(load_graph("demo_hosts"), "site4", placed=True) == "site4"
+    with pytest.raises(GraphError, match="--stream"):
+        choose_stream(load_graph("demo"), "a/b", placed=False)
