@@ -43,3 +43,16 @@ def test_every_run_gets_its_own_stream_and_keeps_its_random_draws():
     assert choose_stream(load_graph("demo_hosts"), "site4", placed=True) == "site4"
     with pytest.raises(GraphError, match="--stream"):
         choose_stream(load_graph("demo"), "a/b", placed=False)
+
+
+@pytest.mark.parametrize("tool", [["topics", "--duration", "1"], ["echo", "gflow/x/estimate", "--timeout", "1"]])
+def test_live_tools_that_reach_nothing_say_so(tool, tmp_path):
+    import subprocess
+    import sys
+
+    from pipeline.runtime.transport import free_port
+
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", *tool, "--connect", f"tcp/127.0.0.1:{free_port()}"],
+                       cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "reached nothing at tcp/127.0.0.1:" in r.stderr, r.stderr
