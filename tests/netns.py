@@ -165,6 +165,15 @@ class Net:
         """Cut (or restore) ``host``'s link to the router."""
         _run("ip", "-n", self.router_ns, "link", "set", self.veth_router_side(host), "up" if up else "down")
 
+    def kill_host(self, host: str) -> None:
+        """The host dies: every process in its namespace is killed at once (SIGKILL)."""
+        r = _run("ip", "netns", "pids", self.ns(host), check=False)
+        for pid in r.stdout.split():
+            try:
+                os.kill(int(pid), signal.SIGKILL)
+            except (ProcessLookupError, ValueError):
+                pass
+
     def loss(self, percent: float) -> None:
         """Drop ``percent`` % of the packets leaving and entering the router's namespace, at random
         (nftables ``numgen random``)."""

@@ -160,3 +160,25 @@ def test_two_runs_on_one_router_stay_apart(net, baseline, tmp_path):
     # same graph stream (the random draws), so run a is the baseline; run b's other seed differs
     assert _estimates(tmp_path / "a.mcap") == _estimates(baseline)
     assert _estimates(tmp_path / "b.mcap") != _estimates(baseline)
+
+
+def test_a_host_that_dies_is_named_and_the_others_stop_cleanly(net, tmp_path):
+    procs = _start(net, tmp_path, "lost", extra=["--set", "source.realtime=true", "--set", "source.fps=12"])
+    cam_err = procs["cam"][1] / "stderr.txt"
+    wait_for(lambda: any(int(m) >= 5 for m in re.findall(r"source: (\d+)", cam_err.read_text())),
+             "the source to pass frame 5", timeout=60)
+    # a second run on the same stream is refused before it starts anything
+    again = net.popen("cam", [*GFLOW, "run", "demo_hosts", "--host", "cam", "--connect", net.router_endpoint("cam"),
+                              "--stream", "lost", *SETS], env=_env(GFLOW_RUNTIME_DIR=str(tmp_path / "rt2")), cwd=tmp_path)
+    out, err = again.communicate(timeout=60)
+    assert again.returncode == 2 and "stream 'lost' is in use: stage(s) source already run" in err, err
+    net.kill_host("edge")
+    for host in ("cam", "ops"):
+        p, d = procs[host]
+        p.wait(60)
+        err = (d / "stderr.txt").read_text()
+        assert p.returncode != 0, f"{host} must not report success:\n{err[-1500:]}"
+        assert "host lost: edge (preprocess, proposal, filter)" in err, err[-1500:]
+        assert "Traceback" not in err
+    # the recording on ops was closed properly and says how far the run got
+    assert any(r.type == "Frame" for r in iter_records(tmp_path / "ops.mcap"))

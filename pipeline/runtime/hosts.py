@@ -109,17 +109,25 @@ class HostWatch:
             self.say(f"waiting for {describe_hosts(self.plan, remote)} to start")
 
     def check(self, states: dict[str, str]) -> bool:
-        """Report hosts lost or back; True when one is lost and the graph says stop."""
+        """Report hosts lost or back; True when one is lost and the graph says stop. A stage of
+        another host is lost when its token is gone before it finished: its host died or was cut
+        off for longer than the session lease, or it was stopped there (its last heartbeat says
+        ``stopped``: interrupted, or its launcher died)."""
         with self._lock:
-            gone = {n for n in self.remote if n in self.ever and n not in self.alive and states.get(n) not in _FINISHED}
+            gone = {n for n in self.remote if n in self.ever and n not in self.alive
+                    and states.get(n) not in ("done", "draining")}
         new, back = gone - self.lost, self.lost - gone
         self.lost = gone
         if back:
             self.say(f"host back: {describe_hosts(self.plan, back)}")
         if new:
-            what = f"host lost: {describe_hosts(self.plan, new)} stopped answering (liveliness token gone)"
+            stopped = {n for n in new if states.get(n) == "stopped"}
+            what = "host lost: " + "; ".join(
+                f"{describe_hosts(self.plan, grp)} {why}" for grp, why in
+                ((new - stopped, "stopped answering (liveliness token gone)"),
+                 (stopped, "stopped before the end of the stream")) if grp)
+            self.lost_report = what
             if self.plan.on_host_lost == "stop":
-                self.lost_report = what
                 self.say(what + "; stopping this host's stages (on_host_lost: stop)")
                 return True
             self.say(what + "; waiting for it to come back (on_host_lost: wait)")

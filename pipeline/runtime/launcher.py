@@ -459,7 +459,7 @@ class Launcher:
             if threading.current_thread() is threading.main_thread():
                 for s, h in old.items():
                     signal.signal(s, h)
-        ok = ok and all(e.returncode == 0 for e in self.exits.values())
+        ok = ok and all(e.returncode == 0 for e in self.exits.values()) and not watch.lost
         return LaunchResult(ok=ok and not interrupted, seconds=time.monotonic() - t0, recording=self.recording if recorder else None,
                             status=dict(self.status), exits=dict(self.exits), errors=list(self.errors),
                             pids=dict(self.pids), interrupted=interrupted, peak_rss_mb=dict(self.peak_rss),
