@@ -56,3 +56,42 @@ def test_live_tools_that_reach_nothing_say_so(tool, tmp_path):
                        cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "reached nothing at tcp/127.0.0.1:" in r.stderr, r.stderr
+
+
+def test_a_recorder_only_graph_records_until_the_end_of_stream(tmp_path):
+    """A graph fed from outside (external topics, a recorder and nothing else) records every
+    message until the end of each stream, then exits 0 by itself."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    from pipeline.io.mcap_io import iter_records
+
+    gflow = [sys.executable, "-m", "pipeline.cli.main"]
+    env = dict(os.environ, GFLOW_RUNTIME_DIR=str(tmp_path / "rt"))
+    base = tmp_path / "base.mcap"
+    r = subprocess.run([*gflow, "run", "demo", "--inline", "--set", "source.frames=10", "--set", "filter.particles=50",
+                        "--record", str(base)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    (tmp_path / "rec.yaml").write_text("name: rec\nstream: demo\nexternal: {frames: Frame, estimate: Estimate}\n"
+                                       "stages:\n  recorder:\n    kind: recorder\n")
+    out = tmp_path / "out.mcap"
+    p = subprocess.Popen([*gflow, "run", "rec.yaml", "--stream", "demo", "--record", str(out)], cwd=tmp_path, env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not out.exists():  # the recorder opens its file after declaring its subscriber
+            assert p.poll() is None and time.monotonic() < deadline, p.stderr.read() if p.poll() is not None else ""
+            time.sleep(0.05)
+        rp = subprocess.run([*gflow, "replay", str(base), "--max", "--topics", "gflow/demo/frames",
+                             "gflow/demo/estimate"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+        assert rp.returncode == 0, rp.stderr
+        _, err = p.communicate(timeout=60)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 0 and "Traceback" not in err, err
+    want = [(r.topic, r.type, r.seq) for r in iter_records(base) if r.topic in ("gflow/demo/frames", "gflow/demo/estimate")]
+    got = [(r.topic, r.type, r.seq) for r in iter_records(out) if r.topic in ("gflow/demo/frames", "gflow/demo/estimate")]
+    assert sorted(got) == sorted(want) and len(want) == 22  # 10 frames, 10 estimates, 2 ends of stream

@@ -146,6 +146,7 @@ class Plan:
     #: the graph's own stream (the camera): what stages seed their random draws and stamp their
     #: headers with, so a run's results do not depend on its run id ('' : the same as ``stream``)
     camera: str = ""
+    external: list[str] = field(default_factory=list)  # topic keys fed from outside the graph
 
     @property
     def seed_stream(self) -> str:
@@ -178,6 +179,7 @@ class Plan:
         return json.dumps({
             "name": self.name, "stream": self.stream, "base_dir": self.base_dir, "zenoh": self.zenoh,
             "source_text": self.source_text, "on_host_lost": self.on_host_lost, "camera": self.camera,
+            "external": self.external,
             "stages": {n: dataclasses.asdict(s) for n, s in self.stages.items()},
         })
 
@@ -186,7 +188,7 @@ class Plan:
         d = json.loads(text)
         return cls(name=d["name"], stream=d["stream"], base_dir=d.get("base_dir", "."), zenoh=d.get("zenoh", {}),
                    source_text=d.get("source_text", ""), on_host_lost=d.get("on_host_lost", "stop"),
-                   camera=d.get("camera", ""),
+                   camera=d.get("camera", ""), external=list(d.get("external", [])),
                    stages={n: StagePlan(**s) for n, s in d["stages"].items()})
 
     def config_metadata(self) -> dict[str, str]:
@@ -396,7 +398,7 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         raise GraphError(f"{filename}:{s._line}: stage {s.name!r} has no host, but other stages do: in a graph "  # type: ignore[attr-defined]
                          f"placed on hosts every stage needs one (host: {placed[0].host}, say)")
     return Plan(name=name, stream=stream, stages=plans, source_text=text, base_dir=base_dir,
-                on_host_lost=str(on_host_lost))
+                on_host_lost=str(on_host_lost), external=[topic_key(stream, str(t)) for t in external])
 
 
 #: The graphs that ship with gflow (package data, ``pipeline/graphs/*.yaml``).

@@ -408,6 +408,8 @@ class Launcher:
                     raise _StageLost(watch.lost_report)
                 if recorder and any(states.get(n) not in ("done", "stopped") for n in remote):
                     running = True  # the local recorder records until the other hosts have finished
+                if recorder and not workers and not remote and not self._external_ended(recorder[0]):
+                    running = True  # a graph fed from outside only: record until each of its ends
                 if self.on_status is not None:
                     with self._lock:
                         self.on_status(dict(self.status))
@@ -464,6 +466,15 @@ class Launcher:
                             status=dict(self.status), exits=dict(self.exits), errors=list(self.errors),
                             pids=dict(self.pids), interrupted=interrupted, peak_rss_mb=dict(self.peak_rss),
                             stall=self.stall, estimates=dict(self.estimates))
+
+    def _external_ended(self, recorder: str) -> bool:
+        """Whether the recorder has recorded the end of stream of every external topic it keeps."""
+        from pipeline.runtime.drain import recorder_needs
+
+        with self._lock:
+            st = self.status.get(recorder)
+        _, need = recorder_needs(self.plan, self.plan.external)
+        return st is not None and need <= set(st.ended)
 
     def _record_exit(self, n: str) -> None:
         p = self.procs[n]

@@ -45,6 +45,7 @@ def _retopic(plan: Plan) -> None:
     for sp in plan.stages.values():
         sp.inputs = {p: _move(t, plan.stream) for p, t in sp.inputs.items()}
         sp.outputs = {p: _move(t, plan.stream) for p, t in sp.outputs.items()}
+    plan.external = [_move(t, plan.stream) for t in plan.external]
 
 
 def _move(key: str, stream: str) -> str:
