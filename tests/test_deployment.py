@@ -182,3 +182,49 @@ def test_a_host_that_dies_is_named_and_the_others_stop_cleanly(net, tmp_path):
         assert "Traceback" not in err
     # the recording on ops was closed properly and says how far the run got
     assert any(r.type == "Frame" for r in iter_records(tmp_path / "ops.mcap"))
+
+
+def _placed_yaml(plan, hosts: dict[str, str]) -> str:
+    """A graph file of a validated plan, each stage placed on ``hosts[stage]``."""
+    import yaml
+
+    prefix = f"gflow/{plan.stream}/"
+    stages = {}
+    for n, s in plan.stages.items():
+        st = {"kind": s.kind, "host": hosts[n], "params": s.params}
+        if s.inputs:
+            st["inputs"] = {p: t[len(prefix):] for p, t in s.inputs.items()}
+        if s.outputs:
+            st["outputs"] = {p: t[len(prefix):] for p, t in s.outputs.items()}
+        stages[n] = st
+    return yaml.safe_dump({"name": plan.name, "stream": plan.stream, "stages": stages}, sort_keys=False)
+
+
+def test_proposal_shards_on_two_hosts_equal_one_shard_bit_for_bit(net, tmp_path):
+    from gflow_scenes import SYNTH, payloads, plan_for, render_folder
+
+    from pipeline.runtime.inline import run_inline
+
+    frames = 10
+    seq, _ = render_folder(tmp_path / "frames", frames)
+    params = dict(SYNTH, background=True, seed=1)
+    inline = tmp_path / "inline.mcap"
+    run_inline(plan_for(tmp_path / "frames", seq.box, shards=1, **params), recording=str(inline))
+    plan = plan_for(tmp_path / "frames", seq.box, shards=2, **params)
+    hosts = {"source": "cam", "preprocess": "cam", "proposal0": "edge", "filter": "edge", "proposal1": "ops",
+             "recorder": "ops"}
+    (tmp_path / "sharded.yaml").write_text(_placed_yaml(plan, hosts))
+    procs = {}
+    for host in ("ops", "edge", "cam"):
+        d = tmp_path / host
+        d.mkdir()
+        args = [*GFLOW, "run", str(tmp_path / "sharded.yaml"), "--host", host, "--connect", net.router_endpoint(host)]
+        if host == "ops":
+            args += ["--record", str(tmp_path / "placed.mcap")]
+        procs[host] = (net.popen(host, args, env=_env(GFLOW_RUNTIME_DIR=str(d / "rt")), cwd=d,
+                                 stderr=open(d / "stderr.txt", "w")), d)
+    _finish(procs, timeout=120)
+    a, b = payloads(tmp_path / "placed.mcap"), payloads(inline)
+    assert len(a) == 2 * frames
+    diff = sorted(k for k in a if a[k] != b.get(k))
+    assert not diff and set(a) == set(b), f"{len(diff)} messages differ, first {diff[:3]}"
