@@ -165,6 +165,13 @@ class Net:
         """Cut (or restore) ``host``'s link to the router."""
         _run("ip", "-n", self.router_ns, "link", "set", self.veth_router_side(host), "up" if up else "down")
 
+    def forward(self, on: bool) -> None:
+        """IP forwarding in the router's namespace: hosts reach each other's addresses directly
+        (without a zenoh router in the middle)."""
+        _run("ip", "netns", "exec", self.router_ns, "sysctl", "-qw", f"net.ipv4.ip_forward={int(on)}")
+        for h in self.hosts:
+            _run("ip", "-n", self.ns(h), "route", "replace", "default", "via", self.router_ip(h))
+
     def kill_host(self, host: str) -> None:
         """The host dies: every process in its namespace is killed at once (SIGKILL)."""
         r = _run("ip", "netns", "pids", self.ns(host), check=False)

@@ -228,3 +228,23 @@ def test_proposal_shards_on_two_hosts_equal_one_shard_bit_for_bit(net, tmp_path)
     assert len(a) == 2 * frames
     diff = sorted(k for k in a if a[k] != b.get(k))
     assert not diff and set(a) == set(b), f"{len(diff)} messages differ, first {diff[:3]}"
+
+
+def test_without_a_router_one_launcher_listens_and_the_others_connect(net, baseline, tmp_path):
+    """No zenoh router: ops listens on every address, cam and edge connect to it (IP routed)."""
+    net.forward(True)
+    try:
+        procs = {}
+        for host in ("ops", "edge", "cam"):
+            d = tmp_path / host
+            d.mkdir()
+            args = [*GFLOW, "run", "demo_hosts", "--host", host, *SETS]
+            args += (["--listen", "tcp/0.0.0.0:7447", "--record", str(tmp_path / "ops.mcap")] if host == "ops"
+                     else ["--connect", f"tcp/{net.ip('ops')}:7447"])
+            procs[host] = (net.popen(host, args, env=_env(GFLOW_RUNTIME_DIR=str(d / "rt")), cwd=d,
+                                     stderr=open(d / "stderr.txt", "w")), d)
+        _finish(procs)
+    finally:
+        net.forward(False)
+    _check_complete(tmp_path / "ops.mcap", baseline)
+    assert _estimates(tmp_path / "ops.mcap") == _estimates(baseline)
