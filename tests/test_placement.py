@@ -95,3 +95,36 @@ def test_a_recorder_only_graph_records_until_the_end_of_stream(tmp_path):
     want = [(r.topic, r.type, r.seq) for r in iter_records(base) if r.topic in ("gflow/demo/frames", "gflow/demo/estimate")]
     got = [(r.topic, r.type, r.seq) for r in iter_records(out) if r.topic in ("gflow/demo/frames", "gflow/demo/estimate")]
     assert sorted(got) == sorted(want) and len(want) == 22  # 10 frames, 10 estimates, 2 ends of stream
+
+
+def test_a_tool_given_the_graphs_stream_finds_the_one_run_of_it(tmp_path):
+    """Every run has its own stream (demo-3f9c2a); `gflow echo gflow/demo/estimate` still finds it
+    while it is the only run of that graph, and says which run it took."""
+    import json
+    import os
+    import subprocess
+    import sys
+    import time
+
+    gflow = [sys.executable, "-m", "pipeline.cli.main"]
+    rt = tmp_path / "rt"
+    env = dict(os.environ, GFLOW_RUNTIME_DIR=str(rt))
+    p = subprocess.Popen([*gflow, "run", "demo", "--set", "source.realtime=true", "--set", "source.fps=20",
+                          "--set", "source.frames=3000", "--set", "filter.particles=100", "--no-record",
+                          "--listen", "tcp/127.0.0.1:0"], env=env, cwd=tmp_path,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while not (rt.is_dir() and list(rt.glob("*.json"))):
+            assert time.monotonic() < deadline and p.poll() is None, "the pipeline did not announce itself"
+            time.sleep(0.05)
+        info = json.loads(next(rt.glob("*.json")).read_text())
+        assert info["stream"].startswith("demo-") and info["camera"] == "demo"
+        r = subprocess.run([*gflow, "echo", "gflow/demo/estimate", "-n", "1", "--timeout", "60"], env=env,
+                           capture_output=True, text=True, timeout=120)
+        assert r.returncode == 0, r.stderr
+        assert f"(stream demo: the running run {info['stream']})" in r.stderr
+        assert r.stdout.startswith(f"gflow/{info['stream']}/estimate: Estimate seq=")
+    finally:
+        p.terminate()
+        p.wait(60)

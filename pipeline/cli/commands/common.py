@@ -280,6 +280,7 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
         print(f"{plan.name}: {where}listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo "
               f"and hz find it)", file=sys.stderr)
     with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
+                  camera=plan.seed_stream,
                   recording=launcher.recording if plan.recorder() and plan.recorder().name in launcher.local else None):
         try:
             res = launcher.run()
