@@ -248,3 +248,38 @@ def test_without_a_router_one_launcher_listens_and_the_others_connect(net, basel
         net.forward(False)
     _check_complete(tmp_path / "ops.mcap", baseline)
     assert _estimates(tmp_path / "ops.mcap") == _estimates(baseline)
+
+
+def test_on_host_lost_wait_keeps_the_others_waiting(net, tmp_path):
+    """With on_host_lost: wait the other hosts name the lost host and wait (until interrupted)."""
+    import signal
+
+    from pipeline.runtime.graph import GRAPHS_DIR
+
+    graph = tmp_path / "wait.yaml"
+    graph.write_text((GRAPHS_DIR / "demo_hosts.yaml").read_text().replace("on_host_lost: stop", "on_host_lost: wait"))
+    procs = {}
+    for host in ("ops", "edge", "cam"):
+        d = tmp_path / host
+        d.mkdir()
+        args = [*GFLOW, "run", str(graph), "--host", host, "--connect", net.router_endpoint(host), "--stream", "wait",
+                *SETS, "--set", "source.realtime=true", "--set", "source.fps=12", "--set", "source.frames=400"]
+        if host == "ops":
+            args += ["--record", str(tmp_path / "ops.mcap")]
+        procs[host] = (net.popen(host, args, env=_env(GFLOW_RUNTIME_DIR=str(d / "rt")), cwd=d,
+                                 stderr=open(d / "stderr.txt", "w")), d)
+    ops_err = tmp_path / "ops" / "stderr.txt"
+    wait_for(lambda: any(int(m) >= 5 for m in re.findall(r"source: (\d+)", ops_err.read_text())),
+             "the source to pass frame 5", timeout=60)
+    net.kill_host("edge")
+    wait_for(lambda: "host lost: edge (preprocess, proposal, filter)" in ops_err.read_text(), "ops to name edge")
+    assert "waiting for it to come back (on_host_lost: wait)" in ops_err.read_text()
+    assert procs["ops"][0].poll() is None, "ops must wait, not stop"
+    for host in ("cam", "ops"):
+        procs[host][0].send_signal(signal.SIGINT)
+    for host in ("cam", "ops"):
+        p, d = procs[host]
+        p.wait(60)
+        assert "Traceback" not in (d / "stderr.txt").read_text()
+    assert procs["ops"][0].returncode == 130
+    assert any(r.type == "Frame" for r in iter_records(tmp_path / "ops.mcap"))  # closed properly, readable
