@@ -163,7 +163,8 @@ def test_two_runs_on_one_router_stay_apart(net, baseline, tmp_path):
 
 
 def test_a_host_that_dies_is_named_and_the_others_stop_cleanly(net, tmp_path):
-    procs = _start(net, tmp_path, "lost", extra=["--set", "source.realtime=true", "--set", "source.fps=12"])
+    procs = _start(net, tmp_path, "lost", extra=["--set", "source.realtime=true", "--set", "source.fps=12",
+                                                 "--set", "source.frames=400"])  # outlasts the test
     cam_err = procs["cam"][1] / "stderr.txt"
     wait_for(lambda: any(int(m) >= 5 for m in re.findall(r"source: (\d+)", cam_err.read_text())),
              "the source to pass frame 5", timeout=60)
