@@ -68,8 +68,9 @@ def _start(net: Net, tmp: Path, stream: str, extra: list[str] = (), record: str 
     for host in ("ops", "edge", "cam"):
         d = tmp / f"{stream}-{host}"
         d.mkdir()
+        # two launchers of two runs on one host must not both take the default port 7447
         args = [*GFLOW, "run", "demo_hosts", "--host", host, "--connect", net.router_endpoint(host),
-                "--stream", stream, *SETS, *extra]
+                "--stream", stream, "--listen", "tcp/127.0.0.1:0", *SETS, *extra]
         if host == "ops":
             args += ["--record", str(tmp / record)]
         err = open(d / "stderr.txt", "w")
