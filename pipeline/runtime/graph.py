@@ -274,7 +274,8 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
                          f"(expected name, stream, stages, external, on_host_lost, description)")
     on_host_lost = doc.get("on_host_lost", "stop")
     if on_host_lost not in ON_HOST_LOST:
-        raise GraphError(f"{filename}:{_line(doc, 'on_host_lost')}: on_host_lost must be stop or wait, got {on_host_lost!r}")
+        raise GraphError(f"{filename}:{_line(doc, 'on_host_lost')}: on_host_lost must be stop or wait, "
+                         f"got {on_host_lost!r}")
     name = str(doc.get("name", Path(filename).stem))
     stream = str(doc.get("stream", "cam0"))
     try:

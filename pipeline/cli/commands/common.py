@@ -276,7 +276,8 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
                         total_frames=total, hosts=hosts)
     endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
     if not quiet:
-        where = f"host {', '.join(hosts)} ({', '.join(n for n in plan.stages if n in launcher.local)}); " if hosts else ""
+        here = ", ".join(n for n in plan.stages if n in launcher.local)
+        where = f"host {', '.join(hosts)} ({here}); " if hosts else ""
         print(f"{plan.name}: {where}listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo "
               f"and hz find it)", file=sys.stderr)
     with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
