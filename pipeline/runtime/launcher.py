@@ -41,6 +41,8 @@ from pipeline.runtime.hosts import HostWatch, host_gateway, node_listen, stream_
 from pipeline.io.mcap_io import segment_path
 
 EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full disk
+#: seconds before a stage of a run placed on hosts gives up a late input (3 s on one host)
+LATE_S_ACROSS_HOSTS = 10.0
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 
 __all__ = ["Launcher", "LaunchResult", "StageExit"]
@@ -217,6 +219,8 @@ class Launcher:
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             env.setdefault(var, str(self.threads_per_stage))
         env.setdefault("GFLOW_CV_THREADS", str(self.threads_per_stage))
+        if self.hosts:  # across hosts a link may stall for seconds (TCP retransmits after a cut)
+            env.setdefault("GFLOW_LATE_S", str(LATE_S_ACROSS_HOSTS))
         if self.recording:
             # a restarted recorder starts a new segment: the first file stays as it was closed or torn
             recorder = self.plan.stages[name].kind == "recorder"
