@@ -117,7 +117,8 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     """Heartbeat of a stage process: progress, rate, drops, last error, memory, the last frame
     done (``last_seq``; for a source, the frame it announces before sending it), the input
     queue length, the mean compute time of a step, the rejected input messages by kind,
-    the frames lost to faults, what it waits for, and a source's frame size."""
+    the frames lost to faults, what it waits for, a source's frame size, and the topics whose
+    end of stream the recorder has written."""
 
     header: Header
     stage: str
@@ -136,6 +137,7 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     lost: int = 0  # frames stepped with no input or given up after a fault
     waiting: str = ""  # what the stage waits for, when it waits (for stall reports)
     frame_shape: tuple[int, ...] = ()  # sources: (H, W) of the frames they send
+    ended: tuple[str, ...] = ()  # the recorder: topics whose end of stream it has recorded
 
 
 class Snapshot(msgspec.Struct, frozen=True, tag=True):

@@ -47,7 +47,7 @@ def pipeline(tmp_path: Path):
     rec = tmp_path / "run.mcap"
     proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
                              "--set", "source.fps=20", "--set", "source.frames=3000", "--set", "filter.particles=100",
-                             "--record", str(rec), "--listen", "tcp/127.0.0.1:0"],
+                             "--record", str(rec), "--listen", "tcp/127.0.0.1:0", "--stream", "demo"],
                             env=_env(rt), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         files = _wait(lambda: list(rt.glob("*.json")) if rt.is_dir() else [], "the launcher's announcement")

@@ -36,7 +36,8 @@ def crossing_run(tmp_path_factory, gflow_cmd_module):
     graph.write_text(text.replace("snapshot_every: 25", "snapshot_every: 20"))
     rec = tmp / "run.mcap"
     out = subprocess.run([*gflow_cmd_module, "track", str(seq), "--init", init, "--out", str(tmp / "b.csv"),
-                          "--record", str(rec), "--graph", str(graph), "--tracker", "chamfer", "-q"],
+                          "--record", str(rec), "--graph", str(graph), "--tracker", "chamfer", "-q",
+                          "--stream", "cam0"],  # the topic names the tests look for (default: a run id)
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     return rec

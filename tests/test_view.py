@@ -43,7 +43,7 @@ def test_foxglove_client_receives_video_overlays_and_estimates(tmp_path: Path) -
     rt = tmp_path / "rt"
     run = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
                             "--set", "source.fps=20", "--set", "source.frames=3000", "--set", "filter.particles=100",
-                            "--no-record", "--listen", "tcp/127.0.0.1:0"],
+                            "--no-record", "--listen", "tcp/127.0.0.1:0", "--stream", "demo"],
                            env=_env(rt), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     view = None
     try:

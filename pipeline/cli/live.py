@@ -14,14 +14,15 @@ from stages.messages import MessageError, StageStatus, decode
 
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.plain import describe, to_plain
-from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 from pipeline.runtime.security import Signer
+from pipeline.runtime.transport import Bus, ZenohSettings, open_reaching
 
 __all__ = ["list_topics", "echo", "hz", "rate_stats", "RateStats", "json_line", "replay", "ReplayOptions"]
 
 
 def _session(settings: ZenohSettings):
-    return open_session(settings)
+    """A session for a live tool; reaching nothing at its ``connect`` endpoints is an error."""
+    return open_reaching(settings)
 
 
 def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdout, key: str = "gflow/**",

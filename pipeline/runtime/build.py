@@ -30,7 +30,7 @@ def make_stage(plan: Plan, name: str) -> Stage:
     sp = plan.stages[name]
     cls = get_stage_class(sp.kind)
     params = msgspec.convert(sp.params, cls.Params)
-    return cls(params, StageContext(name=name, stream=plan.stream, resources=load_resources(plan, sp)))
+    return cls(params, StageContext(name=name, stream=plan.seed_stream, resources=load_resources(plan, sp)))
 
 
 def apply_defaults(plan: Plan) -> Plan:

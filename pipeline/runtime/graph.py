@@ -17,13 +17,17 @@ A graph is YAML::
         inputs: {features: features, proposals: proposals}
         restart: on-failure           # or never (default); max_restarts: 3
         snapshot_every: 25            # publish the stage's state every 25 frames (for seeking)
+        host: edge                    # placement: `gflow run GRAPH --host edge` starts it (optional;
+                                      # all stages or none have one; see docs/deployment.md)
       recorder:
         kind: recorder
         params: {path: recordings/run-{time}.mcap}
 
 Outputs default to topics named after their ports; ``outputs: {port: topic}`` renames
 them. ``external: {frames: Frame}`` declares topics fed from outside the graph (by
-``gflow replay``, say), so a graph of live stages can run without a source. The graph is validated before anything starts: an unknown stage kind, an unknown
+``gflow replay``, say), so a graph of live stages can run without a source.
+``on_host_lost: stop`` (default) or ``wait``: what a run placed on several hosts does when one
+of them disappears. The graph is validated before anything starts: an unknown stage kind, an unknown
 parameter, an unconnected input and a type mismatch between producer and consumer each
 raise :class:`GraphError` naming the file and line.
 """
@@ -32,6 +36,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -48,7 +53,10 @@ from pipeline.runtime.transport import topic_key
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
 
 RECORDER_KIND = "recorder"
-_STAGE_KEYS = {"kind", "params", "inputs", "outputs", "restart", "max_restarts", "qos", "snapshot_every"}
+_HOST_LABEL = re.compile(r"^[A-Za-z0-9_-]+$")
+_STAGE_KEYS = {"kind", "params", "inputs", "outputs", "restart", "max_restarts", "qos", "snapshot_every", "host"}
+#: what a run does when a host of the graph disappears (``on_host_lost:`` in the graph)
+ON_HOST_LOST = ("stop", "wait")
 
 
 class RecorderParams(Params):
@@ -118,6 +126,7 @@ class StagePlan:
     max_restarts: int = 3
     qos: dict[str, str] = field(default_factory=dict)
     snapshot_every: int = 0
+    host: str = ""  # the host label the stage is placed on ('' : wherever the graph runs)
 
     def is_source(self) -> bool:
         return self.kind == "source"
@@ -133,6 +142,15 @@ class Plan:
     source_text: str = ""
     base_dir: str = "."
     zenoh: dict[str, Any] = field(default_factory=dict)
+    on_host_lost: str = "stop"  # stop the run, or wait for the host to come back
+    #: the graph's own stream (the camera): what stages seed their random draws and stamp their
+    #: headers with, so a run's results do not depend on its run id ('' : the same as ``stream``)
+    camera: str = ""
+    external: list[str] = field(default_factory=list)  # topic keys fed from outside the graph
+
+    @property
+    def seed_stream(self) -> str:
+        return self.camera or self.stream
 
     @property
     def error_topic(self) -> str:
@@ -160,7 +178,8 @@ class Plan:
     def to_json(self) -> str:
         return json.dumps({
             "name": self.name, "stream": self.stream, "base_dir": self.base_dir, "zenoh": self.zenoh,
-            "source_text": self.source_text,
+            "source_text": self.source_text, "on_host_lost": self.on_host_lost, "camera": self.camera,
+            "external": self.external,
             "stages": {n: dataclasses.asdict(s) for n, s in self.stages.items()},
         })
 
@@ -168,7 +187,8 @@ class Plan:
     def from_json(cls, text: str) -> "Plan":
         d = json.loads(text)
         return cls(name=d["name"], stream=d["stream"], base_dir=d.get("base_dir", "."), zenoh=d.get("zenoh", {}),
-                   source_text=d.get("source_text", ""),
+                   source_text=d.get("source_text", ""), on_host_lost=d.get("on_host_lost", "stop"),
+                   camera=d.get("camera", ""), external=list(d.get("external", [])),
                    stages={n: StagePlan(**s) for n, s in d["stages"].items()})
 
     def config_metadata(self) -> dict[str, str]:
@@ -176,6 +196,8 @@ class Plan:
         their defaults, wiring, restart and snapshot policy) as JSON, plus the stream and the
         base folder of relative paths. :meth:`from_metadata` rebuilds the plan from it."""
         out = {"stream": self.stream, "graph_name": self.name, "base_dir": str(Path(self.base_dir).resolve())}
+        if self.camera and self.camera != self.stream:
+            out["camera"] = self.camera
         for n, s in self.stages.items():
             out[f"stage.{n}"] = json.dumps(dataclasses.asdict(s), sort_keys=True)
         return out
@@ -192,6 +214,7 @@ class Plan:
         if not stages:
             raise GraphError("the recording's gflow.config metadata names no stage")
         return cls(name=config.get("graph_name", graph.get("name", "recorded")), stream=config["stream"],
+                   camera=config.get("camera", ""),
                    stages=stages, source_text=graph.get("yaml", ""), base_dir=config.get("base_dir", "."))
 
     def recording_path(self) -> str | None:
@@ -244,11 +267,15 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         raise GraphError(f"{filename}: not valid YAML: {e}") from None
     if not isinstance(doc, dict):
         raise GraphError(f"{filename}: a graph must be a mapping with 'name', 'stream' and 'stages'")
-    unknown = set(doc) - {"name", "stream", "stages", "description", "external"}
+    unknown = set(doc) - {"name", "stream", "stages", "description", "external", "on_host_lost"}
     if unknown:
         k = sorted(unknown)[0]
         raise GraphError(f"{filename}:{_line(doc, k)}: unknown top-level key {k!r} "
-                         f"(expected name, stream, stages, external, description)")
+                         f"(expected name, stream, stages, external, on_host_lost, description)")
+    on_host_lost = doc.get("on_host_lost", "stop")
+    if on_host_lost not in ON_HOST_LOST:
+        raise GraphError(f"{filename}:{_line(doc, 'on_host_lost')}: on_host_lost must be stop or wait, "
+                         f"got {on_host_lost!r}")
     name = str(doc.get("name", Path(filename).stem))
     stream = str(doc.get("stream", "cam0"))
     try:
@@ -314,8 +341,13 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         if not isinstance(snap, int) or snap < 0:
             raise GraphError(f"{filename}:{_line(spec, 'snapshot_every')}: stage {sname!r}: snapshot_every must be "
                              f"a whole number of frames >= 0, got {snap!r}")
+        host = spec.get("host", "")
+        if not isinstance(host, str) or (host and not _HOST_LABEL.match(host)):
+            raise GraphError(f"{filename}:{_line(spec, 'host')}: stage {sname!r}: host must be a label of letters, "
+                             f"digits, '-' or '_', got {host!r}")
         plans[sname] = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
-                                 max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap)
+                                 max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap,
+                                 host=host)
         plans[sname]._line = _line(stages_doc, sname)  # type: ignore[attr-defined]
         plans[sname]._input_lines = {p: _line(inputs_doc, p) for p in inputs_doc}  # type: ignore[attr-defined]
         port_types[sname] = (in_types, out_types)
@@ -361,7 +393,13 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         raise GraphError(f"{filename}: the graph has no source stage and no external topics")
     if sum(1 for s in plans.values() if s.kind == RECORDER_KIND) > 1:
         raise GraphError(f"{filename}: at most one recorder per graph")
-    return Plan(name=name, stream=stream, stages=plans, source_text=text, base_dir=base_dir)
+    placed = [s for s in plans.values() if s.host]
+    if placed and len(placed) != len(plans):
+        s = next(s for s in plans.values() if not s.host)
+        raise GraphError(f"{filename}:{s._line}: stage {s.name!r} has no host, but other stages do: in a graph "  # type: ignore[attr-defined]
+                         f"placed on hosts every stage needs one (host: {placed[0].host}, say)")
+    return Plan(name=name, stream=stream, stages=plans, source_text=text, base_dir=base_dir,
+                on_host_lost=str(on_host_lost), external=[topic_key(stream, str(t)) for t in external])
 
 
 #: The graphs that ship with gflow (package data, ``pipeline/graphs/*.yaml``).

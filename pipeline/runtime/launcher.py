@@ -36,9 +36,13 @@ from typing import Callable, TextIO
 from stages.messages import Control, ErrorReport, Header, StageStatus, decode, encode
 
 from pipeline.runtime.graph import Plan
+from pipeline.runtime.placement import describe_hosts, local_stages
+from pipeline.runtime.hosts import HostWatch, host_gateway, node_listen, stream_in_use
 from pipeline.io.mcap_io import segment_path
 
 EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full disk
+#: seconds before a stage of a run placed on hosts gives up a late input (3 s on one host)
+LATE_S_ACROSS_HOSTS = 10.0
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 from pipeline.runtime.security import Signer
 
@@ -115,8 +119,12 @@ class Launcher:
     def __init__(self, plan: Plan, zenoh: ZenohSettings | None = None, recording: str | None = None,
                  out: TextIO | None = None, progress: bool = True, startup_timeout: float = 60.0,
                  total_frames: int | None = None, on_status: Callable[[dict[str, StageStatus]], None] | None = None,
-                 threads_per_stage: int = 1, stall_timeout: float | None = None) -> None:
+                 threads_per_stage: int = 1, stall_timeout: float | None = None,
+                 hosts: tuple[str, ...] = ()) -> None:
         self.plan = plan
+        # placement: the stages this host starts (all of them without ``hosts``)
+        self.local = local_stages(plan, hosts)
+        self.hosts = tuple(hosts)
         if zenoh is None:
             zenoh = ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",))
         # the stages connect to the launcher's endpoints, so an ephemeral port must be made concrete
@@ -212,6 +220,8 @@ class Launcher:
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             env.setdefault(var, str(self.threads_per_stage))
         env.setdefault("GFLOW_CV_THREADS", str(self.threads_per_stage))
+        if self.hosts:  # across hosts a link may stall for seconds (TCP retransmits after a cut)
+            env.setdefault("GFLOW_LATE_S", str(LATE_S_ACROSS_HOSTS))
         if self.recording:
             # a restarted recorder starts a new segment: the first file stays as it was closed or torn
             recorder = self.plan.stages[name].kind == "recorder"
@@ -267,7 +277,8 @@ class Launcher:
         stuck = []
         for n in workers:
             st = status.get(n)
-            if st is None or n in sources or st.state in ("done", "stopped") or self.procs[n].popen.poll() is not None:
+            if (st is None or n in sources or st.state in ("done", "stopped", "draining")
+                    or self.procs[n].popen.poll() is not None):
                 continue
             key = (st.pid, st.steps, st.last_seq)
             prev = self._progress_at.get(n)
@@ -287,18 +298,27 @@ class Launcher:
 
     def run(self) -> LaunchResult:
         plan = self.plan
+        gateway = host_gateway(self.zenoh, bool(self.hosts))
+        if gateway is not None:  # this host's stages reach the others through the launcher
+            self.zenoh = gateway
         node_settings = ZenohSettings(mode=self.zenoh.mode if self.zenoh.mode != "router" else "peer",
-                                      listen=("tcp/127.0.0.1:0",) if self.zenoh.mode != "client" else (),
+                                      listen=node_listen(self.zenoh) if self.zenoh.mode != "client" else (),
                                       # a client launcher listens nowhere: its stages go to the router only
                                       # (not to whatever else may listen on the launcher's would-be port)
                                       connect=tuple(e.replace("0.0.0.0", "127.0.0.1") for e in self.zenoh.listen
                                                     if not e.endswith(":0") and self.zenoh.mode != "client")
-                                      + tuple(self.zenoh.connect),
+                                      + (tuple(self.zenoh.connect) if gateway is None else ()),
                                       multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb,
                                       security=self.zenoh.security)
         plan.zenoh = node_settings.to_json()
         session = open_session(self.zenoh)
         bus = Bus(session, signer=Signer.of(self.zenoh.security))
+        if self.hosts or self.zenoh.connect:  # another run may hold this stream on the network
+            busy = stream_in_use(session, plan.stream, self.local)
+            if busy:
+                session.close()
+                raise RuntimeError(busy)
+        watch = HostWatch(session, plan, self.local, self._print)
         bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
         bus.subscribe(plan.error_topic, self._on_error)
         for sp in plan.stages.values():
@@ -314,8 +334,10 @@ class Launcher:
             for s in old:
                 signal.signal(s, lambda *_: self._interrupt.set())
         t0 = time.monotonic()
-        recorder = [n for n, s in plan.stages.items() if s.kind == "recorder"]
-        workers = [n for n in plan.stages if n not in recorder]
+        recorder = [n for n, s in plan.stages.items() if s.kind == "recorder" and n in self.local]
+        workers = [n for n in plan.stages if n not in recorder and n in self.local]
+        # stages on other hosts: a local recorder keeps recording until they are all finished
+        remote = [n for n in plan.stages if n not in self.local and plan.stages[n].kind != "recorder"]
         ok = True
         try:
             for n in recorder + workers:
@@ -337,9 +359,11 @@ class Launcher:
                         for n in dead))
                 if self._interrupt.is_set():
                     raise KeyboardInterrupt
+                missing = [n for n in plan.stages if n not in seen]
+                watch.waiting_for(missing, time.monotonic() - t0)
                 if time.monotonic() - t0 > self.startup_timeout:
-                    missing = sorted(set(plan.stages) - seen)
-                    raise RuntimeError(f"no heartbeat from {', '.join(missing)} after {self.startup_timeout:.0f} s")
+                    raise RuntimeError(f"no heartbeat from {describe_hosts(plan, missing)} after "
+                                       f"{self.startup_timeout:.0f} s")
                 time.sleep(0.02)
             start = encode(Control(header=Header(plan.stream, 0, time.time_ns()), command="start"))
             bus.publish(plan.control_topic, start, 0)
@@ -385,6 +409,15 @@ class Launcher:
                         raise _StageLost(n)
                     self._record_exit(n)
                 self._check_stall(workers, now)
+                with self._lock:
+                    states = {n: st.state for n, st in self.status.items()}
+                if watch.check(states):  # a host of the graph is gone and the graph says stop
+                    ok = False
+                    raise _StageLost(watch.lost_report)
+                if recorder and any(states.get(n) not in ("done", "stopped") for n in remote):
+                    running = True  # the local recorder records until the other hosts have finished
+                if recorder and not workers and not remote and not self._external_ended(recorder[0]):
+                    running = True  # a graph fed from outside only: record until each of its ends
                 if self.on_status is not None:
                     with self._lock:
                         self.on_status(dict(self.status))
@@ -436,11 +469,20 @@ class Launcher:
             if threading.current_thread() is threading.main_thread():
                 for s, h in old.items():
                     signal.signal(s, h)
-        ok = ok and all(e.returncode == 0 for e in self.exits.values())
+        ok = ok and all(e.returncode == 0 for e in self.exits.values()) and not watch.lost
         return LaunchResult(ok=ok and not interrupted, seconds=time.monotonic() - t0, recording=self.recording if recorder else None,
                             status=dict(self.status), exits=dict(self.exits), errors=list(self.errors),
                             pids=dict(self.pids), interrupted=interrupted, peak_rss_mb=dict(self.peak_rss),
                             stall=self.stall, estimates=dict(self.estimates))
+
+    def _external_ended(self, recorder: str) -> bool:
+        """Whether the recorder has recorded the end of stream of every external topic it keeps."""
+        from pipeline.runtime.drain import recorder_needs
+
+        with self._lock:
+            st = self.status.get(recorder)
+        _, need = recorder_needs(self.plan, self.plan.external)
+        return st is not None and need <= set(st.ended)
 
     def _record_exit(self, n: str) -> None:
         p = self.procs[n]

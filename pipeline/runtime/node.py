@@ -58,6 +58,7 @@ from stages.messages import Control, Header, StageStatus, decode, encode
 from stages.source import SourceStage
 
 from pipeline.runtime.build import make_stage
+from pipeline.runtime.drain import FINISHED, consumers_of, recorder_needs
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
 from pipeline.runtime.host import StageHost
 from pipeline.io.recorder import DiskFull, McapRecorder
@@ -134,6 +135,10 @@ class Node:
         self.alive_peers: set[str] = set()  # stages whose liveliness token is there
         self.ever_alive: set[str] = set()
         self.peer_done: set[str] = set()  # stages that said they finished
+        self.peer_state: dict[str, str] = {}  # the last heartbeat state of every other stage
+        self.recorder_ended: set[str] = set()  # topics whose end of stream the recorder has recorded
+        self.ended: set[str] = set()  # the recorder: the same, for its own heartbeat
+        self.drained = threading.Event()
         self.announced = -1  # sources: the last frame announced
         self.frame_shape: tuple[int, ...] = ()
         self.late_s = float(os.environ.get("GFLOW_LATE_S", "3.0"))
@@ -155,6 +160,7 @@ class Node:
     # -- handshake ---------------------------------------------------------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         other = key.rsplit("/", 1)[-1]
+        self._note_state(other, payload)
         if other not in self.peer_done and other != self.name and b"done" in payload:
             try:
                 st = decode(payload)
@@ -179,7 +185,7 @@ class Node:
                 st = decode(payload)
                 if isinstance(st, StageStatus):
                     first_pid = self.first_pid.setdefault(other, st.pid)
-                    if st.state == "done" or (st.pid != first_pid and st.last_seq < 0):
+                    if st.state in FINISHED or (st.pid != first_pid and st.last_seq < 0):
                         # finished, or restarted and not yet caught up: do not hold the source back
                         self.progress_of[other] = 1 << 60
                     else:
@@ -268,7 +274,7 @@ class Node:
                            busy_ms=round(h.stats.busy_ns / h.stats.steps / 1e6, 3) if h and h.stats.steps else 0.0,
                            rejected=self._rejected(), lost=h.stats.lost if h else 0,
                            waiting=h.waiting() if h and not h.closed and not self.sp.is_source() else "",
-                           frame_shape=self.frame_shape)
+                           frame_shape=self.frame_shape, ended=tuple(sorted(self.ended)))
 
     def _rejected(self) -> dict[str, int]:
         out = dict(self.host.stats.rejected) if self.host is not None else {}
@@ -389,8 +395,11 @@ class Node:
             if sp.kind == "recorder":
                 return self._run_recorder()
             if isinstance(self.host.stage, SourceStage):  # type: ignore[union-attr]
-                return self._run_source(resumed_after)
-            return self._run_stage(resumed_after)
+                rc = self._run_source(resumed_after)
+            else:
+                rc = self._run_stage(resumed_after)
+            self._drain()
+            return rc
         finally:
             self.state = "done" if self.state != "stopped" else "stopped"
             self._hb_stop.set()
@@ -402,6 +411,48 @@ class Node:
             time.sleep(0.1)  # let the last samples leave before the session closes
             self.session.close()
             self._cleanup_if_orphaned()
+
+    def _note_state(self, other: str, payload: bytes) -> None:
+        """Remember each peer's heartbeat state (and the recorder's recorded ends of stream)."""
+        if other == self.name:
+            return
+        try:
+            st = decode(payload)
+        except ValueError:
+            return
+        if isinstance(st, StageStatus):
+            self.peer_state[other] = st.state
+            if other in self.recorders:
+                self.recorder_ended = set(st.ended)
+            if self.state == "draining":
+                self.drained.set()
+
+    def _drain(self) -> None:
+        """After a normal end, wait until what this stage sent has arrived (see ``pipeline.runtime.drain``)."""
+        if self.host is None or self.state == "stopped" or self.stop.is_set():
+            return
+        from stages.messages_foxglove import FOXGLOVE_SCHEMAS
+
+        h = self.host
+        consumers = consumers_of(self.plan, self.name)
+        eos = [t for p, t in h.topics_out.items() if h.stage.outputs.get(p) not in FOXGLOVE_SCHEMAS]
+        rec, need = recorder_needs(self.plan, eos)
+        self.state = "draining"
+        self.send_status()
+        deadline = time.monotonic() + float(os.environ.get("GFLOW_DRAIN_S", "30"))
+        while not self.stop.is_set() and time.monotonic() < deadline:
+            # a peer that never held a token here (another host, not yet heard) counts as there
+            waiting = [c for c in consumers if self.peer_state.get(c) not in FINISHED
+                       and not (c in self.ever_alive and c not in self.alive_peers)]
+            if rec is not None and need - self.recorder_ended and not (rec in self.ever_alive
+                                                                       and rec not in self.alive_peers):
+                waiting.append(rec)
+            if not waiting:
+                return
+            self.drained.clear()
+            self.drained.wait(0.05)
+        if not self.stop.is_set():
+            log.warning("[%s] finished, but its last messages were not confirmed within GFLOW_DRAIN_S", self.name)
 
     def _cleanup_if_orphaned(self) -> None:
         """The launcher died: nobody else will remove the run's temporary folder."""
@@ -542,6 +593,9 @@ class Node:
                         break
                     continue
                 rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
+                if type_name == "EndOfStream":
+                    self.ended.add(key)
+                    self.send_status()  # the stage that sent it waits for this before it exits
             # keep what is still arriving until the network goes quiet (at most 2 s, or 0.5 s
             # when the launcher is gone and every process must be gone within 1 s), then close
             quick = self.orphaned.is_set()

@@ -7,7 +7,10 @@ Folder: ``$GFLOW_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/gflow``, else
 
     {"kind": "pipeline", "name": "demo", "stream": "demo", "pid": 1234,
      "endpoints": ["tcp/127.0.0.1:7447"], "stages": ["source", ...], "started": 1763870000.1,
-     "recording": "recordings/demo-....mcap"}
+     "recording": "recordings/demo-....mcap", "camera": "demo"}
+
+``stream`` is the run's own stream (``demo-3f9c2a``: see ``pipeline.runtime.runid``), ``camera``
+the graph's; the tools accept a topic named by the graph's stream when one run of it is running.
 
 The file is written when the launcher listens and removed when it exits (also on an
 exception or Ctrl-C). A file left by a killed process is recognised by its dead PID, ignored
@@ -24,7 +27,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["runtime_dir", "Announcement", "announce", "running", "describe_none"]
+__all__ = ["runtime_dir", "Announcement", "announce", "running", "describe_none", "runs_of_camera"]
 
 
 def runtime_dir() -> Path:
@@ -68,14 +71,14 @@ class Announcement:
 
 
 def announce(stream: str, endpoints: list[str] | tuple[str, ...], *, name: str = "", stages: list[str] | None = None,
-             kind: str = "pipeline", recording: str | None = None) -> Announcement:
+             kind: str = "pipeline", recording: str | None = None, camera: str = "") -> Announcement:
     """Write this process's file (atomically) and return the handle that removes it."""
     d = runtime_dir()
     d.mkdir(parents=True, exist_ok=True, mode=0o700)
     pid = os.getpid()
     info = {"kind": kind, "name": name or stream, "stream": stream, "pid": pid,
             "endpoints": [e.replace("0.0.0.0", "127.0.0.1") for e in endpoints], "stages": list(stages or []),
-            "started": time.time(), "recording": recording}
+            "started": time.time(), "recording": recording, "camera": camera or stream}
     path = d / f"{stream}-{pid}.json"
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(info))
@@ -111,3 +114,9 @@ def describe_none(stream: str | None = None) -> str:
     what = f"no running gflow pipeline with stream {stream!r}" if stream else "no running gflow pipeline"
     return (f"{what} on this machine (none announced in {runtime_dir()}); start one (gflow demo, track, run, "
             f"replay) or give --connect ENDPOINT")
+
+
+def runs_of_camera(camera: str) -> list[dict]:
+    """The running pipelines whose graph's stream is ``camera`` (each run has its own stream,
+    ``demo-3f9c2a`` for the graph stream ``demo``)."""
+    return [i for i in running() if i.get("camera") == camera and i.get("stream") != camera]

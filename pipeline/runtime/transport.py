@@ -30,7 +30,7 @@ import zenoh
 
 from pipeline.runtime.security import Security, Signer, explain_refusal
 
-__all__ = ["ZenohSettings", "SessionError", "open_session", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment"]
+__all__ = ["ZenohSettings", "SessionError", "open_session", "open_reaching", "reached", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment"]
 
 Mode = Literal["peer", "client", "router"]
 
@@ -128,6 +128,30 @@ def _check_linked(session: zenoh.Session, settings: ZenohSettings, wait: float =
                 raise SessionError(f"could not connect to {', '.join(settings.connect)}: {why}")
             return
         time.sleep(0.02)
+
+
+def reached(session: zenoh.Session, timeout: float = 3.0) -> bool:
+    """True once the session is linked to some other zenoh peer or router (within ``timeout`` s).
+    A session whose ``connect`` endpoints lead nowhere opens without error in peer mode: this is
+    how a tool tells "nothing there" from "nothing said"."""
+    end = time.monotonic() + timeout
+    while True:
+        if any(True for _ in session.info.peers_zid()) or any(True for _ in session.info.routers_zid()):
+            return True
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.02)
+
+
+def open_reaching(settings: ZenohSettings, timeout: float = 3.0) -> zenoh.Session:
+    """:func:`open_session`, then, when it has ``connect`` endpoints, a :class:`SessionError` if it
+    reaches nothing there within ``timeout`` s (a one-line message naming them)."""
+    s = open_session(settings)
+    if settings.connect and not reached(s, timeout):
+        s.close()
+        raise SessionError(f"reached nothing at {', '.join(settings.connect)} within {timeout:g} s (is a gflow "
+                           f"pipeline or a zenoh router listening there, on an address this host can reach?)")
+    return s
 
 
 def topic_key(stream: str, topic: str) -> str:

@@ -230,10 +230,40 @@ def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     add_security_args(p.add_argument_group("security (TLS, login, signed runs: docs/security.md)"))
 
 
+def add_placement_args(p: argparse.ArgumentParser, hosts: bool = True) -> None:
+    """``--stream NAME`` (the run's stream; default: the graph's plus a new run id) and, for
+    ``gflow run``, ``--host LABEL`` (repeatable: start only the stages placed there)."""
+    g = p.add_argument_group("placement and run id (docs/deployment.md)")
+    g.add_argument("--stream", metavar="NAME",
+                   help="this run's stream: topics are gflow/NAME/... (default: the graph's stream plus a new run id, "
+                        "so two runs never mix; with --host, the graph's stream: give every host the same NAME)")
+    if hosts:
+        g.add_argument("--host", action="append", metavar="LABEL", dest="hosts",
+                       help="start only the stages placed on this host (host: LABEL in the graph; repeatable); "
+                            "without it every stage runs here")
+
+
+def place(plan: Plan, args) -> tuple[str, ...]:
+    """Check ``--host`` against the whole graph and choose the run's stream (see
+    :mod:`pipeline.runtime.runid`); return the host labels this process runs."""
+    from pipeline.runtime.placement import local_stages
+    from pipeline.runtime.runid import choose_stream
+
+    hosts = tuple(getattr(args, "hosts", None) or ())
+    local_stages(plan, hosts)  # an unknown label: one line naming the graph's labels
+    if hosts and getattr(args, "inline", False):
+        raise CliError("--host runs the stages placed on this host as processes; it cannot be combined with --inline")
+    if getattr(args, "inline", False) and not getattr(args, "stream", None):
+        return hosts  # one process, no network: nothing to mix with
+    choose_stream(plan, getattr(args, "stream", None), placed=bool(hosts))
+    return hosts
+
+
 def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: bool = False, strict: bool = True):
     """Run a plan inline or as processes; return (recording path, seconds, frames, per-stage info).
     With ``strict=False`` a run that did not finish cleanly returns (``info["ok"]`` False) instead of
     raising, so the caller can keep what was tracked."""
+    hosts = place(plan, args)
     if getattr(args, "inline", False):
         from pipeline.runtime.inline import run_inline
 
@@ -254,20 +284,26 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     from pipeline.runtime.running import announce
 
     launcher = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
-                        total_frames=total)
+                        total_frames=total, hosts=hosts)
     endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
     if not quiet:
-        print(f"{plan.name}: listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo and hz "
-              f"find it)", file=sys.stderr)
-    with announce(plan.stream, endpoints, name=plan.name, stages=list(plan.stages), recording=launcher.recording
-                  if plan.recorder() else None):
-        res = launcher.run()
+        here = ", ".join(n for n in plan.stages if n in launcher.local)
+        where = f"host {', '.join(hosts)} ({here}); " if hosts else ""
+        print(f"{plan.name}: {where}listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo "
+              f"and hz find it)", file=sys.stderr)
+    with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
+                  camera=plan.seed_stream,
+                  recording=launcher.recording if plan.recorder() and plan.recorder().name in launcher.local else None):
+        try:
+            res = launcher.run()
+        except RuntimeError as e:  # start-up: a stage died, a host did not come, the stream is taken
+            raise CliError(str(e)) from None
     if res.interrupted:
         print("interrupted: stages stopped, recording closed", file=sys.stderr)
     for n, e in res.exits.items():
         if e.returncode != 0:
             print(f"stage {n} exited with status {e.returncode}: {e.last_error}", file=sys.stderr)
-    src = next(n for n, s in plan.stages.items() if s.is_source())
+    src = next((n for n, s in plan.stages.items() if s.is_source()), None)  # a graph fed from outside has none
     frames = res.status[src].steps if src in res.status else 0
     info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
             "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()},

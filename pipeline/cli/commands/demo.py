@@ -8,7 +8,8 @@ import sys
 
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
-from pipeline.cli.commands.common import Recording, add_record_args, add_zenoh_args, check_outputs, run_plan
+from pipeline.cli.commands.common import (Recording, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
+                                          run_plan)
 
 
 def cmd_demo(args) -> int:
@@ -57,5 +58,6 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="random seed of the filter and proposal stages")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     add_record_args(p, "recordings/demo-TIME.mcap")
+    add_placement_args(p, hosts=False)
     add_zenoh_args(p)
     p.set_defaults(func=cmd_demo)

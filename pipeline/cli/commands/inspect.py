@@ -17,8 +17,32 @@ import time
 from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, stream_of, tool_zenoh
 
 
+def _run_stream(stream: str) -> str:
+    """A stream as given, or, when it names a graph's stream (``demo``) while one run of that
+    graph runs (``demo-3f9c2a``: every run has its own stream), that run's stream."""
+    from pipeline.runtime.running import runs_of_camera, running
+
+    if running(stream):
+        return stream
+    runs = runs_of_camera(stream)
+    if len(runs) > 1:
+        raise CliError(f"several runs of stream {stream!r} are running ({', '.join(r['stream'] for r in runs)}): "
+                       f"name one")
+    if runs:
+        print(f"(stream {stream}: the running run {runs[0]['stream']})", file=sys.stderr)
+        return runs[0]["stream"]
+    return stream
+
+
 def _key(topic: str) -> str:
-    return topic if topic.startswith("gflow/") else f"gflow/{topic}"
+    """``gflow/STREAM/NAME`` for a topic given with or without ``gflow/``, STREAM resolved by
+    :func:`_run_stream`."""
+    key = topic if topic.startswith("gflow/") else f"gflow/{topic}"
+    stream = stream_of(key)
+    if stream is None:
+        return key
+    parts = key.split("/", 2)
+    return "/".join(["gflow", _run_stream(stream), *parts[2:]])
 
 
 def _say_where(found: list[dict]) -> None:
@@ -30,6 +54,8 @@ def _say_where(found: list[dict]) -> None:
 def cmd_topics(args) -> int:
     from pipeline.cli.live import list_topics
 
+    if args.stream:
+        args.stream = _run_stream(args.stream)
     settings, found = tool_zenoh(args, args.stream)
     _say_where(found)
     key = f"gflow/{args.stream}/**" if args.stream else "gflow/**"

@@ -6,7 +6,8 @@ ORDER = 40
 
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import builtin_graphs, load_graph
-from pipeline.cli.commands.common import Recording, add_record_args, add_zenoh_args, check_outputs, parse_sets, run_plan
+from pipeline.cli.commands.common import (Recording, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
+                                          parse_sets, run_plan)
 
 
 def cmd_run(args) -> int:
@@ -14,7 +15,12 @@ def cmd_run(args) -> int:
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     recording = Recording(plan, args, None)
     path, secs, frames, info = run_plan(plan, args, recording.path, None)
-    print(f"{plan.name}: {frames} frames in {secs:.2f} s; recording: {path or recording.kept}")
+    hosts = f" (host {', '.join(args.hosts)})" if args.hosts else ""
+    rec = path or recording.kept
+    held = plan.recorder()
+    if args.hosts and held is not None and held.host not in args.hosts:
+        rec = f"on host {held.host}"
+    print(f"{plan.name}{hosts}: {frames} frames in {secs:.2f} s; stream {plan.stream}; recording: {rec}")
     return 130 if info.get("interrupted") else 0
 
 
@@ -25,5 +31,6 @@ def register(sub) -> None:
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="override a stage parameter")
     add_record_args(p, "the recorder's path pattern")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
+    add_placement_args(p)
     add_zenoh_args(p)
     p.set_defaults(func=cmd_run)

@@ -24,8 +24,8 @@ from pipeline.recording.results import run_outcome, write_boxes
 from pipeline.io.sources import count_frames
 from pipeline.cli.trackers import TRACKERS
 from pipeline.runtime.preflight import check_source
-from pipeline.cli.commands.common import (CliError, Recording, add_record_args, add_zenoh_args, check_outputs, parse_box, parse_sets,
-                     run_plan)
+from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
+                                          check_outputs, parse_box, parse_sets, run_plan)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -185,6 +185,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
         g = p.add_argument_group(f"--tracker {t.NAME}")
         t.add_args(g)
         _OWN_OPTIONS[t.NAME] = {a.dest: (a.option_strings[0], a.default) for a in g._group_actions}
+    add_placement_args(p, hosts=False)
     add_zenoh_args(p)
 
 
