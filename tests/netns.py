@@ -8,8 +8,9 @@ host gets its own /dev/shm (a private tmpfs in its mount namespace), so no share
 crosses hosts. ``close()`` kills what was started and deletes the namespaces; tests call it
 from a fixture finalizer, so nothing is left behind after a failure.
 
-Needs root and ``ip netns`` (``available()`` says why not, for a skip); packet loss needs
-``nft`` (nftables: netem is missing from many kernels).
+Needs root and ``ip netns`` (``available()`` says why not, for a skip); packet loss uses
+``nft`` where installed, else an eBPF program attached with ``tc`` (netem is missing from many
+kernels; ``tests/bpf_loss.py``).
 """
 
 from __future__ import annotations
@@ -121,6 +122,7 @@ class Net:
         return self
 
     def close(self) -> None:
+        self.clear_loss()
         for p in self.procs:
             if p.poll() is None:
                 try:
@@ -182,17 +184,36 @@ class Net:
                 pass
 
     def loss(self, percent: float) -> None:
-        """Drop ``percent`` % of the packets leaving and entering the router's namespace, at random
-        (nftables ``numgen random``)."""
-        n = max(1, int(round(percent)))
-        rules = (f"table inet gfloss {{\n chain in {{ type filter hook input priority 0; numgen random mod 100 < {n} counter drop\n }}\n"
-                 f" chain out {{ type filter hook output priority 0; numgen random mod 100 < {n} counter drop\n }}\n}}\n")
-        subprocess.run(["ip", "netns", "exec", self.router_ns, "nft", "-f", "-"], input=rules, text=True,
-                       capture_output=True, check=True, timeout=30)
-        self.nft = True
+        """Drop ``percent`` % of the packets leaving and entering the router's namespace, at random:
+        with nftables' ``numgen random`` where ``nft`` is installed, else with an eBPF classifier
+        attached by ``tc`` to every router-side link (``tests/bpf_loss.py``)."""
+        if shutil.which("nft"):
+            n = max(1, int(round(percent)))
+            rules = (f"table inet gfloss {{\n chain in {{ type filter hook input priority 0; numgen random mod 100 < {n} counter drop\n }}\n"
+                     f" chain out {{ type filter hook output priority 0; numgen random mod 100 < {n} counter drop\n }}\n}}\n")
+            subprocess.run(["ip", "netns", "exec", self.router_ns, "nft", "-f", "-"], input=rules, text=True,
+                           capture_output=True, check=True, timeout=30)
+            self.nft = True
+            return
+        from bpf_loss import BpfLoss
+
+        self.bpf = BpfLoss(self.router_ns, max(1, int(round(100.0 / percent))))
+        for h in self.hosts:
+            self.bpf.attach(self.veth_router_side(h))
+
+    def clear_loss(self) -> None:
+        if self.nft:
+            subprocess.run(["ip", "netns", "exec", self.router_ns, "nft", "delete", "table", "inet", "gfloss"],
+                           capture_output=True)
+            self.nft = False
+        if getattr(self, "bpf", None) is not None:
+            self.bpf.close()
+            self.bpf = None
 
     def dropped(self) -> int:
-        """Packets the loss rules dropped so far (from nft's counters), or -1 if unknown."""
+        """Packets the loss rules dropped so far (nft's counters or the clsact qdiscs'), or -1 if unknown."""
+        if getattr(self, "bpf", None) is not None:
+            return self.bpf.dropped()
         r = subprocess.run(["ip", "netns", "exec", self.router_ns, "nft", "list", "table", "inet", "gfloss"],
                            capture_output=True, text=True)
         import re
