@@ -406,7 +406,8 @@ def test_outsider_cannot_stop_end_or_feed_a_run(tmp_path, certs):
     lport = free_port()
     cmd = [sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", f"source.frames={FRAMES}",
            "--set", "source.realtime=true", "--set", "source.fps=30", "--set", "filter.particles=150",
-           "--record", str(tmp_path / "peer.mcap"), "--listen", f"tcp/127.0.0.1:{lport}", "--run-key", str(key)]
+           "--record", str(tmp_path / "peer.mcap"), "--listen", f"tcp/127.0.0.1:{lport}", "--run-key", str(key),
+           "--stream", _plan().stream]  # the outsider knows the run's stream (runs get a random one by default)
     proc = subprocess.Popen(cmd, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
         outsider = ZenohSettings(listen=("tcp/127.0.0.1:0",), connect=(f"tcp/127.0.0.1:{lport}",))
