@@ -22,6 +22,14 @@ reference box, nearest of the learned exemplars and a bounded online bank that s
 the init box's region and adds the estimate's region on confident frames, ``online``,
 ``online_every``, ``confident_r``). The widened sigmas and the bank are part of the snapshot.
 
+Lost target (departure: the paper is silent; :mod:`gflow_core.m2.lost`): each tracked frame's
+estimate is verified against the initial box by the correlation of edge-orientation channels;
+below half its running level (``lost_ratio``) the target is judged lost (state ``lost``): the
+estimate of the last found frame is held, the particles are kept within ``lost_window`` box
+sizes of it, and the initial box is searched for over that window; a match at 0.9 of the
+level resumes tracking from it (state ``redetect``). The online bank is not updated while
+lost. ``lost_ratio: 0`` is the paper's filter.
+
 Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
 edge pixels carries no evidence; the particles coast on the dynamics (state ``coast``),
 "forced to rely on the prior". Weighing such a frame by eq. 7 would not be neutral with a
@@ -33,7 +41,8 @@ problem is reported; it never stops the stream.
 
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
-and counters, as msgpack of a small Struct (version 2; version-1 snapshots still restore).
+the lost guard's level, held estimate and anchor, and counters, as msgpack of a small Struct
+(version 2; version-1 snapshots still restore).
 """
 
 from __future__ import annotations
