@@ -69,6 +69,17 @@ class AppearanceFilterParams(Params):
     scale_from_recent: bool = _DEFAULTS.scale_from_recent
     adapt_max: float = _DEFAULTS.adapt_max
     slow_rate: float = _DEFAULTS.slow_rate
+    scale_search: int = _DEFAULTS.scale_search
+    scale_search_step: float = _DEFAULTS.scale_search_step
+    scale_change_std: float = _DEFAULTS.scale_change_std
+    scale_anchor_weight: float = _DEFAULTS.scale_anchor_weight
+    scale_lam: float = _DEFAULTS.scale_lam
+    scale_refine: int = _DEFAULTS.scale_refine
+    scale_gain: float = _DEFAULTS.scale_gain
+    refine_position: bool = _DEFAULTS.refine_position
+    scale_consistency: float = _DEFAULTS.scale_consistency
+    scale_min_score: float = _DEFAULTS.scale_min_score
+    scale_gate: float = _DEFAULTS.scale_gate
 
     def __post_init__(self) -> None:
         if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):

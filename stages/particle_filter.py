@@ -22,6 +22,14 @@ reference box, nearest of the learned exemplars and a bounded online bank that s
 the init box's region and adds the estimate's region on confident frames, ``online``,
 ``online_every``, ``confident_r``). The widened sigmas and the bank are part of the snapshot.
 
+Lost target (departure: the paper is silent; :mod:`gflow_core.m2.lost`): each tracked frame's
+estimate is verified against the initial box by the correlation of edge-orientation channels;
+below half its running level (``lost_ratio``) the target is judged lost (state ``lost``): the
+estimate of the last found frame is held, the particles are kept within ``lost_window`` box
+sizes of it, and the initial box is searched for over that window; a match at 0.9 of the
+level resumes tracking from it (state ``redetect``). The online bank is not updated while
+lost. ``lost_ratio: 0`` is the paper's filter.
+
 Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
 edge pixels carries no evidence; the particles coast on the dynamics (state ``coast``),
 "forced to rely on the prior". Weighing such a frame by eq. 7 would not be neutral with a
@@ -33,7 +41,8 @@ problem is reported; it never stops the stream.
 
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
-and counters, as msgpack of a small Struct (version 2; version-1 snapshots still restore).
+the lost guard's level, held estimate and anchor, and counters, as msgpack of a small Struct
+(version 2; version-1 snapshots still restore).
 """
 
 from __future__ import annotations
@@ -50,6 +59,8 @@ from gflow_core.m2.appearance_metric import (OnlineBank, appearance_log_lik, ban
                                              sample_patches_near)
 from gflow_core.m2.dynamics import sample_categorical
 from gflow_core.m2.kernel import calibrate_sigma
+from gflow_core.m2 import lost as lostmod
+from gflow_core.m2.lost import Anchor, LostParams, LostState
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
                                     template_from_edges, weigh)
@@ -87,6 +98,13 @@ class FilterParams(Params):
     calibrate : widen the learned kernels so the initial box is a typical match on frame 0
         (:func:`gflow_core.m2.kernel.calibrate_sigma`).
     scale_prior : std of a prior N(0, .) on log s of the K = 1 chamfer tracker (0: none).
+    lost_ratio : the target is judged lost when the estimate's correlation with the initial box
+        (orientation channels) falls under this fraction of its running level (and under
+        ``lost_accept``); the estimate is then held, the particles kept within ``lost_window``
+        box sizes of it, and the initial box searched for over that window
+        (:mod:`gflow_core.m2.lost`; 0: no guard, the paper's filter).
+    lost_accept : a correlation at or above this is never judged lost.
+    lost_window : half-width of the hold and re-detection window, in box sizes.
     """
 
     init: tuple[float, float, float, float] | None = None
@@ -103,8 +121,14 @@ class FilterParams(Params):
     confident_r: float = 0.6
     calibrate: bool = True
     scale_prior: float = 0.0
+    lost_ratio: float = 0.5
+    lost_accept: float = 0.5
+    lost_window: float = 1.5
 
     def __post_init__(self) -> None:
+        if not 0 <= self.lost_ratio < 1 or not self.lost_window > 0:
+            raise ValueError(f"lost_ratio must be in [0, 1) and lost_window positive, got {self.lost_ratio}, "
+                             f"{self.lost_window}")
         if self.online < 0 or self.online_every < 1:
             raise ValueError(f"online must be >= 0 and online_every >= 1, got {self.online}, {self.online_every}")
         if not -1.0 <= self.confident_r <= 1.0:
@@ -149,6 +173,9 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     bank: _BankSnapshot | None = None  # online appearance exemplars (version 2)
     sigma: NDArray | None = None  # (K,) chamfer kernel widths after calibration on frame 0
     app_sigma: NDArray | None = None  # (K,) appearance kernel widths after calibration
+    lost: tuple[float, float, int, int] | None = None  # lost guard: level, var, found, lost_run
+    held: tuple[float, ...] | None = None  # lost guard: box (x, y, w, h), alpha (4) and k of the last found frame
+    anchor: NDArray | None = None  # lost guard: (th, tw, 4) channels of the initial box
 
 
 class FilterStage(Stage):
@@ -182,6 +209,63 @@ class FilterStage(Stage):
         self.last: dict = {}
         self.steps = 0
         self.warned = False
+        self.lost = LostState()
+        self.anchor: Anchor | None = None
+
+    def _guard_params(self) -> LostParams | None:
+        p: FilterParams = self.params  # type: ignore[assignment]
+        return LostParams(ratio=p.lost_ratio, window=p.lost_window, accept=p.lost_accept) if p.lost_ratio > 0 else None
+
+    def _set_anchor(self, feat: Features, seq: int) -> None:
+        """The lost guard's anchor: orientation channels of the initial box on the first frame."""
+        p: FilterParams = self.params  # type: ignore[assignment]
+        gp = self._guard_params()
+        grey = self._grey(feat, seq) if gp is not None else None
+        if gp is not None and grey is not None:
+            self.anchor = lostmod.anchor_of(lostmod.channels(grey), p.init, gp)  # type: ignore[arg-type]
+
+    def _guard(self, seq: int, feat: Features, post, state: str):
+        """Verify the estimate against the initial box; hold, bound and re-detect while lost
+        (:mod:`gflow_core.m2.lost`). Returns the (possibly changed) posterior and state."""
+        gp = self._guard_params()
+        if gp is None or self.anchor is None or state != "track":
+            return post, state
+        grey = self._grey(feat, seq)
+        if grey is None:
+            return post, state
+        ch = lostmod.channels(grey)
+        box = self._box(post.map_alpha, post.map_k)
+        r = lostmod.verify(ch, self.anchor, box)
+        self.lost, lost = lostmod.guard(self.lost, r, (*box, *post.map_alpha, post.map_k), gp)
+        if not lost:
+            return post, state
+        held = self.lost.held
+        assert held is not None
+        h_box, h_alpha, h_k = held[:4], np.array(held[4:8]), int(held[8])
+        r_re, peak = lostmod.redetect(ch, self.anchor, h_box, gp.window)  # type: ignore[arg-type]
+        alpha = post.resampled.alpha.copy()
+        centre = np.array([h_box[0] + (h_box[2] - 1) / 2.0, h_box[1] + (h_box[3] - 1) / 2.0])
+        if lostmod.reacquired(self.lost, r_re, gp):
+            # re-detected: the held state moved onto the peak, the particles with it
+            shift = peak - centre
+            new_alpha = h_alpha.copy()
+            new_alpha[:2] += shift
+            alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - post.mean_alpha[:2] + new_alpha[:2],
+                                                   (float(new_alpha[0]), float(new_alpha[1])),
+                                                   (0.25 * h_box[2], 0.25 * h_box[3]))
+            new_box = (h_box[0] + shift[0], h_box[1] + shift[1], h_box[2], h_box[3])
+            self.lost, _ = lostmod.guard(self.lost, r_re, (*new_box, *new_alpha, h_k), gp)
+            state = "redetect"
+        else:
+            # hold the last found estimate; keep the particles within the window around it
+            new_alpha = h_alpha
+            half = (gp.window * h_box[2], gp.window * h_box[3])
+            alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - centre + h_alpha[:2],
+                                                   (float(h_alpha[0]), float(h_alpha[1])), half)
+            state = "lost"
+        post = replace(post, map_alpha=new_alpha, map_k=h_k,
+                       resampled=ParticleCloud(alpha=alpha, k=post.resampled.k, log_w=post.resampled.log_w))
+        return post, state
 
     # the first frame only needs features; afterwards both
     def required(self, seq: int) -> frozenset[str]:
@@ -245,6 +329,7 @@ class FilterStage(Stage):
         rng = frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT)
         cloud = init_particles(alpha0, 0, p.particles, np.array(p.init_spread), rng)
         self.last_cloud = cloud
+        self._set_anchor(feat, seq)
         est = self._estimate(feat.header, alpha0, 0, alpha0, np.zeros(4), float(p.particles), 0.0, "init")
         return [("particles", particles_msg(feat.header, "posterior", cloud)), ("estimate", est)]
 
@@ -261,6 +346,7 @@ class FilterStage(Stage):
         k0 = sample_categorical(self.model.pi, p.particles, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_INIT_K))
         cloud = ParticleCloud(alpha=cloud.alpha, k=k0, log_w=np.zeros(p.particles))
         self._calibrate(seq, feat, alpha0)
+        self._set_anchor(feat, seq)
         if self.app is not None and p.online > 0:
             grey = self._grey(feat, seq)
             if grey is not None:
@@ -355,7 +441,9 @@ class FilterStage(Stage):
         if first:
             state = "init"
         post = posterior(cloud, log_lik, self.model.K, rng, p.particles)
-        if grey is not None and self.bank is not None and not first:
+        if feat is not None and not first:
+            post, state = self._guard(seq, feat, post, state)
+        if grey is not None and self.bank is not None and not first and state == "track":
             self._update_bank(seq, grey, post.map_alpha, post.map_k)
         self._diagnose(cloud, log_lik)
         header = feat.header if feat is not None else self.header(seq, 0)
@@ -426,7 +514,9 @@ class FilterStage(Stage):
                 patches=NDArray.of(self.bank.patches), usage=NDArray.of(self.bank.usage),
                 frame=NDArray.of(self.bank.frame), last_add=self.bank.last_add),
             sigma=NDArray.of(self.model.sigma) if self.learned is not None and self.model is not None else None,
-            app_sigma=NDArray.of(self.app.sigma) if self.app is not None else None)
+            app_sigma=NDArray.of(self.app.sigma) if self.app is not None else None,
+            lost=(self.lost.level, self.lost.var, self.lost.found, self.lost.lost_run),
+            held=self.lost.held, anchor=None if self.anchor is None else NDArray.of(self.anchor.channels))
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
@@ -481,5 +571,17 @@ class FilterStage(Stage):
         self.last_cloud = cloud
         self.steps = snap.steps
         self.warned = snap.warned
+        self.lost = (LostState() if snap.lost is None else
+                     LostState(level=snap.lost[0], var=snap.lost[1], found=snap.lost[2], lost_run=snap.lost[3],
+                               held=None if snap.held is None else tuple(snap.held)))
+        self.anchor = None
+        if snap.anchor is not None and p.init is not None:
+            try:
+                ch = snap.anchor.array().copy()
+            except MessageError as e:
+                raise ValueError(f"stage {name!r}: bad filter snapshot: {e}") from None
+            if ch.ndim != 3:
+                raise ValueError(f"stage {name!r}: bad filter snapshot: anchor of shape {ch.shape}")
+            self.anchor = Anchor(channels=ch, size=(float(p.init[2]), float(p.init[3])), res=(ch.shape[1], ch.shape[0]))
         self.last = ({"seq": snap.last.seq, "alpha": list(snap.last.alpha), "ess": snap.last.ess,
                       "state": snap.last.state, "k": snap.last.k} if snap.last is not None else {})

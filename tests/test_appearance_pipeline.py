@@ -102,6 +102,27 @@ def test_bad_parameters_are_refused_before_anything_runs():
         AppearanceFilterParams(init=(1, 1, 5, 5), n_scales=2)
     with pytest.raises(ValueError, match="positive"):
         AppearanceFilterParams(init=(1, 1, 0, 5))
+    with pytest.raises(ValueError, match="scale_anchor_weight"):
+        AppearanceFilterParams(init=(1, 1, 5, 5), scale_anchor_weight=1.5)
+    with pytest.raises(ValueError, match="scale_search"):
+        AppearanceFilterParams(init=(1, 1, 5, 5), scale_search=-1)
+
+
+def test_size_options_of_gflow_track():
+    """The default searches scale; --fixed-size turns the search off; --track-scale puts the
+    scale in the particle state instead (and turns the search off)."""
+    from argparse import Namespace
+
+    from pipeline.cli.trackers import appearance as cli
+
+    base = dict(init=[1.0, 2.0, 30.0, 40.0], seed=1, particles=None)
+    _, default = cli.overrides(Namespace(**base))
+    assert "scale_search" not in default["filter"] and AppearanceFilterParams().scale_search > 0
+    _, fixed = cli.overrides(Namespace(**base, fixed_size=True))
+    assert fixed["filter"]["scale_search"] == 0
+    _, state = cli.overrides(Namespace(**base, track_scale=True))
+    assert state["filter"]["scale_search"] == 0 and state["filter"]["n_scales"] == 3
+    assert state["proposal"]["std_log_s"] > 0
 
 
 @pytest.mark.slow

@@ -103,12 +103,48 @@ def test_follows_a_target_that_grows_and_shrinks_by_2x_with_scale_tracking():
     assert np.mean(iou(truth, still) > 0.5) < 0.5
 
 
-def test_default_fixed_size_follows_the_centre_of_a_scaling_target():
+def test_fixed_size_follows_the_centre_of_a_scaling_target():
     def path(t):
         return 100.0 + 0.8 * t, 120.0, float(np.interp(t, [0, 50, 100], [1.0, 1.4, 1.0]))
-    boxes, truth, _ = _run(Scene(path, 100), ap.AppearanceParams())
+    boxes, truth, _ = _run(Scene(path, 100), ap.AppearanceParams(scale_search=0))
     assert centre_error(truth, boxes).mean() < 4.0
     assert np.allclose(boxes[:, 2], truth[0, 2]) and np.allclose(boxes[:, 3], truth[0, 3])
+
+
+def test_default_scale_search_follows_a_target_that_grows_and_shrinks_by_2x():
+    # the default tracker (scale searched at the response peak): scale 1 -> 2 -> 1 -> 0.6
+    def path(t):
+        s = float(np.interp(t, [0, 60, 110, 160], [1.0, 2.0, 1.0, 0.6]))
+        return 100.0 + 0.6 * t, 120.0 + 20.0 * np.sin(t / 25.0), s
+    boxes, truth, _ = _run(Scene(path, 160), ap.AppearanceParams())
+    ratio = (boxes[:, 2] * boxes[:, 3]) / (truth[:, 2] * truth[:, 3])
+    assert np.mean((ratio > 0.5) & (ratio < 2.0)) >= 0.9, ratio
+    # and the size is really followed, not only kept within 2x: at the largest, the box grew
+    assert ratio[55:65].min() > 0.6 and boxes[60, 2] > 1.5 * truth[0, 2]
+    assert np.mean(iou(truth, boxes) > 0.5) >= 0.9
+    assert centre_error(truth, boxes).mean() < 4.0
+
+
+def test_scale_search_keeps_the_size_while_the_match_is_poor():
+    # a target whose look is replaced (a new texture from frame 20): r falls below
+    # scale_min_score, so the scale is not searched and the box keeps its size
+    def path(t):
+        return 150.0, 120.0, 1.0
+    scene = Scene(path, 40)
+    other = _texture(np.random.default_rng(7), 200, 150, 12.0)
+    grey = scene.grey
+    scene.grey = lambda t: grey(t) if t < 20 else _swap(scene, t, other)
+    boxes, truth, _ = _run(scene, ap.AppearanceParams(update_rate=0.0, slow_rate=0.0))
+    assert np.allclose(boxes[20:, 2], boxes[19, 2]) and np.allclose(boxes[20:, 3], boxes[19, 3])
+
+
+def _swap(scene: Scene, t: int, tex_src: np.ndarray) -> np.ndarray:
+    keep = scene.target
+    scene.target = tex_src
+    try:
+        return Scene.grey(scene, t)
+    finally:
+        scene.target = keep
 
 
 def test_an_occluder_crossing_the_target_does_not_take_the_track():

@@ -1,0 +1,104 @@
+"""The lost-target guard of the contour particle filter (gflow_core.m2.lost): verification
+against the initial box, the lost decision, re-detection over a window, and, on the filter
+stage, a target that jumps beyond the reach of the proposals is found again (the paper's
+filter, with the guard off, stays behind)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gflow_core.m2 import lost
+from gflow_core.metrics import centre_error
+from stages.base import StageContext
+from stages.messages import Frame, Header, NDArray
+from stages.particle_filter import FilterParams, FilterStage
+from stages.particle_proposal import ProposalParams, ProposalStage
+from stages.preprocess import PreprocessParams, PreprocessStage
+
+from test_appearance import Scene
+
+P = lost.LostParams()
+
+
+class FramedScene(Scene):
+    """The target pasted inside a plain 10 px frame, so its neighbourhood (which the local
+    normalisation of the channels sees) is the same wherever it goes."""
+
+    def grey(self, t: int) -> np.ndarray:
+        img = Scene.grey(self, t).astype(np.float32)
+        x, y, w, h = self.truth(t)
+        x0, y0 = int(round(x)), int(round(y))
+        inner = img[y0:y0 + int(round(h)), x0:x0 + int(round(w))].copy()
+        img[max(y0 - 10, 0):y0 + int(round(h)) + 10, max(x0 - 10, 0):x0 + int(round(w)) + 10] = 128.0
+        img[y0:y0 + inner.shape[0], x0:x0 + inner.shape[1]] = inner
+        return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _jump_path(t: int):
+    # still, then 80 px to the right at frame 12 (the chamfer proposals move ~1 px a frame)
+    return (100.0 if t < 12 else 180.0), 120.0, 1.0
+
+
+def test_verify_redetect_and_the_lost_decision() -> None:
+    scene = FramedScene(_jump_path, 20)
+    box0 = scene.truth(0)
+    ch0 = lost.channels(scene.grey(0))
+    anchor = lost.anchor_of(ch0, box0, P)
+    assert lost.verify(ch0, anchor, box0) > 0.9
+    ch = lost.channels(scene.grey(15))
+    # the target left the box: r is low there; the re-detection finds it 45 px away
+    assert lost.verify(ch, anchor, box0) < 0.3
+    r, peak = lost.redetect(ch, anchor, box0, window=3.0)
+    truth = scene.truth(15)
+    assert r > 0.8 and np.hypot(*(peak - (truth[0] + (truth[2] - 1) / 2, truth[1] + (truth[3] - 1) / 2))) < 2.0
+    # a box whose centre left the frame does not verify
+    assert lost.verify(ch, anchor, (-80.0, 10.0, 30.0, 40.0)) == -1.0
+    # the decision: found frames set the level; a drop below ratio * level is lost and holds
+    st = lost.LostState()
+    for i in range(P.warmup):
+        st, is_lost = lost.guard(st, 0.8, (1.0, 2.0, 3.0, 4.0, float(i)), P)
+        assert not is_lost
+    st, is_lost = lost.guard(st, 0.1, (9.0, 9.0, 9.0, 9.0, 9.0), P)
+    assert is_lost and st.held == (1.0, 2.0, 3.0, 4.0, float(P.warmup - 1)) and st.lost_run == 1
+    assert lost.reacquired(st, 0.78, P) and not lost.reacquired(st, 0.5, P)
+    with pytest.raises(ValueError, match="lost guard"):
+        lost.LostParams(ratio=1.5)
+
+
+def _track(scene: Scene, lost_ratio: float) -> tuple[np.ndarray, list[str]]:
+    box0 = scene.truth(0)
+    ctx = lambda name: StageContext(name, "s")  # noqa: E731
+    pre = PreprocessStage(PreprocessParams(calibrate_box=box0), ctx("preprocess"))
+    prop = ProposalStage(ProposalParams(seed=1), ctx("proposal"))
+    filt = FilterStage(FilterParams(init=box0, seed=1, particles=300, lost_ratio=lost_ratio, lost_window=3.0),
+                       ctx("filter"))
+    boxes, states, parts = [], [], None
+    for t in range(scene.n):
+        img = scene.grey(t)
+        (_, feat), = pre.step(t, {"frames": Frame(Header("s", t, t * 40_000_000), NDArray.of(img))})
+        if t == 0:
+            out = filt.step(0, {"features": feat})
+        else:
+            (_, proposals), = prop.step(t - 1, {"particles": parts})
+            out = filt.step(t, {"features": feat, "proposals": proposals})
+        for port, msg in out:
+            if port == "particles":
+                parts = msg
+            else:
+                boxes.append(msg.box)
+                states.append(msg.state)
+    return np.array(boxes), states
+
+
+def test_the_filter_finds_a_target_that_jumped_beyond_its_proposals() -> None:
+    scene = FramedScene(_jump_path, 30)
+    truth = np.array([scene.truth(t) for t in range(scene.n)])
+    boxes, states = _track(scene, lost_ratio=P.ratio)
+    err = centre_error(truth, boxes)
+    assert "redetect" in states[12:]
+    assert err[20:].max() < 4.0, err
+    # the paper's filter (no guard) does not follow the jump
+    boxes0, states0 = _track(scene, lost_ratio=0.0)
+    assert centre_error(truth, boxes0)[20:].mean() > 20.0
+    assert "redetect" not in states0 and "lost" not in states0
