@@ -60,6 +60,7 @@ from stages.source import SourceStage
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
 from pipeline.runtime.host import StageHost
+from pipeline.runtime.memory import keep_freed_memory
 from pipeline.io.recorder import DiskFull, McapRecorder
 from pipeline.io.sources import open_reader
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
@@ -566,6 +567,7 @@ class Node:
 
 
 def run_node(plan_path: str, name: str) -> int:
+    keep_freed_memory()  # frame-sized buffers reused, not faulted in afresh every frame
     threads = os.environ.get("GFLOW_CV_THREADS")
     if threads:  # set by the launcher: one compute thread per stage process by default
         import cv2
