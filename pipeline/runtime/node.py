@@ -106,6 +106,7 @@ class Node:
         self._hb_stop = threading.Event()
         self.started = threading.Event()
         self.peers_ready = threading.Event()
+        self.declared = threading.Event()  # every subscriber of this node is declared
         self.seen: set[str] = set()
         self.inbox: queue.SimpleQueue = queue.SimpleQueue()
         self.state = "starting"
@@ -190,6 +191,17 @@ class Node:
             self.seen.add(other)
             if self.seen >= self.required_peers:
                 self.peers_ready.set()
+            self._answer_newcomer()
+
+    def _answer_newcomer(self) -> None:
+        """A peer was heard for the first time: send a heartbeat now rather than at the next
+        tick (up to 0.5 s), so that it hears from everyone as soon as everyone is there. Only
+        once this node's own subscribers are declared (the heartbeat promises they are)."""
+        if self.declared.is_set():
+            try:
+                self.send_status()
+            except Exception as e:  # the session is closing
+                log.debug("[%s] heartbeat to a newcomer not sent: %s", self.name, e)
 
     def _on_alive(self, sample) -> None:
         other = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -378,6 +390,7 @@ class Node:
                 self.bus.subscribe(topic, self._on_data, with_type=True)
             resumed_after = self._restore()
             self._update_hold()
+        self.declared.set()
         hb = threading.Thread(target=self._heartbeat, daemon=True)
         hb.start()
         threading.Thread(target=self._watch_parent, daemon=True).start()
