@@ -70,6 +70,7 @@ __all__ = ["main", "run_node"]
 log = logging.getLogger("gflow.node")
 
 FLOW_STALL_S = 1.0
+REPORT_EVERY_S = 0.02  # a worker's progress heartbeats: at most 50 a second (measured: ~130 us of CPU per receiver each)
 PR_SET_PDEATHSIG = 1
 EXIT_DISK_FULL = 28  # the recorder's exit status when its disk is full (ENOSPC): not worth a restart
 
@@ -155,38 +156,36 @@ class Node:
     # -- handshake ---------------------------------------------------------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         other = key.rsplit("/", 1)[-1]
-        if other not in self.peer_done and other != self.name and b"done" in payload:
+        st = None  # decoded once, when some use below needs it
+        if ((other not in self.peer_done and other != self.name and b"done" in payload)
+                or (other in self.sources and self.host is not None and other != self.name)
+                or (self.flow_window and other in self.flow_stages)):
             try:
                 st = decode(payload)
             except ValueError:
                 st = None
-            if isinstance(st, StageStatus) and st.state == "done":
+            if not isinstance(st, StageStatus):
+                st = None
+        if other not in self.peer_done and other != self.name and b"done" in payload:
+            if st is not None and st.state == "done":
                 self.peer_done.add(other)  # finished: its token going away is no fault
                 self._update_hold()
         if other in self.sources and self.host is not None and other != self.name:
-            try:
-                st = decode(payload)
-            except ValueError:
-                st = None
-            if isinstance(st, StageStatus):
+            if st is not None:
                 h = self.host
                 h.source_seq = max(h.source_seq, st.last_seq)
                 h.join.horizon = h.source_seq
                 if len(st.frame_shape) >= 2 and h.frame_shape is None:
                     h.frame_shape = (int(st.frame_shape[0]), int(st.frame_shape[1]))
         if self.flow_window and other in self.flow_stages:
-            try:
-                st = decode(payload)
-                if isinstance(st, StageStatus):
-                    first_pid = self.first_pid.setdefault(other, st.pid)
-                    if st.state == "done" or (st.pid != first_pid and st.last_seq < 0):
-                        # finished, or restarted and not yet caught up: do not hold the source back
-                        self.progress_of[other] = 1 << 60
-                    else:
-                        self.progress_of[other] = st.last_seq
-                    self.progress_changed.set()
-            except ValueError:
-                pass
+            if st is not None:
+                first_pid = self.first_pid.setdefault(other, st.pid)
+                if st.state == "done" or (st.pid != first_pid and st.last_seq < 0):
+                    # finished, or restarted and not yet caught up: do not hold the source back
+                    self.progress_of[other] = 1 << 60
+                else:
+                    self.progress_of[other] = st.last_seq
+                self.progress_changed.set()
         if other not in self.seen:
             self.seen.add(other)
             if self.seen >= self.required_peers:
@@ -287,12 +286,15 @@ class Node:
             out["bad_control"] = self.bad_control
         return out
 
-    def send_status(self, min_interval: float = 0.0) -> None:
+    def send_status(self, min_interval: float = 0.0) -> bool:
+        """Publish this node's heartbeat (unless one went out less than ``min_interval`` s ago)."""
         now = time.monotonic()
         if now - self._last_status >= min_interval:
             self._last_status = now
             st = self.status()
             self.bus.publish(self.plan.status_topic(self.name), encode(st), st.header.seq, "StageStatus")
+            return True
+        return False
 
     def _heartbeat(self) -> None:
         while not self._hb_stop.is_set():
@@ -511,18 +513,21 @@ class Node:
                 host.close("interrupted")
                 self.state = "stopped"
                 return 0
+            # idle after work: say how far we got (replay --lockstep waits for it), but at most
+            # every REPORT_EVERY_S: every heartbeat wakes every process of the graph
+            unreported = host.stats.steps != self._reported_steps
+            wait = max(0.0, self._last_status + REPORT_EVERY_S - time.monotonic()) if unreported else 0.1
             try:
-                key, payload, _, _, _ = self.inbox.get(timeout=0.1)
+                key, payload, _, _, _ = self.inbox.get(timeout=wait) if wait > 0 else self.inbox.get_nowait()
             except queue.Empty:
+                if unreported:
+                    self._reported_steps = host.stats.steps
+                    self.send_status()
                 host.tick(self.late_s)
                 continue
             host.deliver(key, payload)
-            if self.flow_stages_waiting:
-                self.send_status(0.02)
-            if host.stats.steps != self._reported_steps and self.inbox.empty():
-                # idle after work: say how far we got at once (replay --lockstep waits for it)
+            if self.flow_stages_waiting and self.send_status(REPORT_EVERY_S):
                 self._reported_steps = host.stats.steps
-                self.send_status()
         return 0
 
     def _run_recorder(self) -> int:
