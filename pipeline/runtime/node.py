@@ -60,6 +60,7 @@ from stages.source import SourceStage
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
 from pipeline.runtime.host import StageHost
+from pipeline.runtime.inbox import BoundedInbox
 from pipeline.runtime.memory import keep_freed_memory
 from pipeline.io.recorder import DiskFull, McapRecorder
 from pipeline.io.sources import open_reader
@@ -70,6 +71,7 @@ __all__ = ["main", "run_node"]
 log = logging.getLogger("gflow.node")
 
 FLOW_STALL_S = 1.0
+RECORDER_INBOX_BYTES = 32 * 2**20  # what the recorder holds unwritten before the publishers wait (pipeline/runtime/inbox.py)
 REPORT_EVERY_S = 0.02  # a worker's progress heartbeats: at most 50 a second (measured: ~130 us of CPU per receiver each)
 PR_SET_PDEATHSIG = 1
 EXIT_DISK_FULL = 28  # the recorder's exit status when its disk is full (ENOSPC): not worth a restart
@@ -109,7 +111,9 @@ class Node:
         self.peers_ready = threading.Event()
         self.declared = threading.Event()  # every subscriber of this node is declared
         self.seen: set[str] = set()
-        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # the recorder is outside flow control: its inbox is bounded, and a full one holds the publishers back
+        self.inbox: queue.SimpleQueue | BoundedInbox = (BoundedInbox(RECORDER_INBOX_BYTES) if self.sp.kind == "recorder"
+                                                        else queue.SimpleQueue())
         self.state = "starting"
         self.steps = 0
         self.proc = psutil.Process()
