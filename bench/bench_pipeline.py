@@ -140,6 +140,28 @@ def run_once(tracker: str, particles: int | None, out: str, k: int) -> dict:
             "startup_p": (t_p[0] - start_ns) / 1e9, "cpu_stage": per_stage, "rss": res.peak_rss_mb}
 
 
+def cli_startup(out: str, runs: int) -> list[float]:
+    """Seconds from starting ``gflow track`` (a new Python process, default tracker, processes)
+    on caviar1 to the first estimate in its recording."""
+    import subprocess
+
+    seq = DATA / "caviar1"
+    if not seq.is_dir():
+        return []
+    init = ",".join(f"{v:g}" for v in read_boxes(seq / "groundtruth.csv")[0])
+    times = []
+    for k in range(runs):
+        rec = f"{out}/cli-{k}.mcap"
+        t0 = time.time_ns()
+        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(seq), "--init", init, "--stop", "10",
+                            "--record", rec, "--out", f"{out}/cli-{k}.csv", "-q"], capture_output=True, text=True)
+        if r.returncode != 0:
+            print(f"gflow track failed: {r.stderr.strip()[-300:]}", file=sys.stderr)
+            continue
+        times.append((estimate_times(rec)[0] - t0) / 1e9)
+    return times
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--particles", type=int, default=None, help="default: each tracker's own (500 chamfer, 300 appearance)")
@@ -184,6 +206,10 @@ def main() -> None:
     print("per stage process (last run): CPU ms per frame while tracking, CPU s over the whole run, peak RSS MB "
           "(budget 250)")
     print(table(rows, ["stage"] + [h for t in trackers for h in (f"{t} CPU ms/f", f"{t} CPU s", f"{t} RSS MB")]))
+    starts = cli_startup(out, max(2, args.repeat))
+    if starts:
+        print(f"\nstart-up of `gflow track caviar1 --stop 10` (new process, appearance, processes) to its first "
+              f"estimate: {', '.join(f'{t:.2f}' for t in starts)} s")
     print(f"load after: {' '.join(f'{x:.2f}' for x in psutil.getloadavg())}")
 
 
