@@ -15,7 +15,8 @@ and in a burst (as fast as the sender can go, reliable delivery):
   zenoh's ``ShmProvider`` and publishes that (zenoh's Python shared-memory API).
 * ``gflow``: gflow's full path: encode a ``Frame`` message, ``Bus.publish`` (reliable,
   BLOCK), ``Bus.subscribe`` on the receiver, the hand-over to its main thread and
-  ``decode`` back to an ndarray.
+  ``decode`` back to an ndarray; both ends tune malloc as stage processes do
+  (``pipeline/runtime/memory.py``).
 
 Latency is receive time - send time (one host, one clock): p50 and p99 in microseconds.
 Burst throughput is frames/s at the receiver, first to last frame. CPU is the receiver
@@ -107,6 +108,10 @@ def receiver(mode: str, n: int, arg: str, nbytes: int) -> None:
     from pipeline.runtime.transport import Bus, ZenohSettings, open_session
     from stages.messages import decode
 
+    if mode == "gflow":  # as every stage process does (pipeline/runtime/node.py)
+        from pipeline.runtime.memory import keep_freed_memory
+
+        keep_freed_memory()
     s = open_session(ZenohSettings(listen=(arg,)))
     if mode == "gflow":
         q: queue.SimpleQueue = queue.SimpleQueue()
@@ -227,6 +232,10 @@ def hop(mode: str, img: np.ndarray, n: int, fps: float) -> dict:
 
             provider = ShmProvider.default_backend(32 * 2**20)
             policy = BlockOn(GarbageCollect())
+        if mode == "gflow":
+            from pipeline.runtime.memory import keep_freed_memory
+
+            keep_freed_memory()
         payload = img.tobytes()
         matched = time.monotonic() + 10
         while not pub.matching_status.matching and time.monotonic() < matched:
