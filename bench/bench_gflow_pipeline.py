@@ -62,6 +62,13 @@ def measure(path: str) -> tuple[int, float, dict[str, float]]:
     return len(t), fps, {k: float(np.mean(v)) for k, v in sizes.items()}
 
 
+BUDGET_MB = 250
+
+
+def _mb(v: float) -> str:
+    return f"{v:.0f}" + ("*" if v > BUDGET_MB else "")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=60, help="frames per run (default 60)")
@@ -97,15 +104,15 @@ def main() -> None:
                     size_rows.append([E, "on" if bg else "off"] + [f"{sizes.get(k, 0) / 1024:.1f}" for k in SIZE_TYPES])
                 if rss:
                     prop = max(v for k, v in rss.items() if k.startswith("proposal"))
-                    mem_rows.append([E, "on" if bg else "off", mode, f"{prop:.0f}", f"{rss.get('filter', 0):.0f}",
-                                     f"{rss.get('preprocess', 0):.0f}", f"{rss.get('source', 0):.0f}",
-                                     f"{rss.get('recorder', 0):.0f}"])
+                    mem_rows.append([E, "on" if bg else "off", mode, *(_mb(v) for v in (
+                        prop, rss.get('filter', 0), rss.get('preprocess', 0), rss.get('source', 0),
+                        rss.get('recorder', 0)))])
                 print(f"  E={E} background={'on' if bg else 'off'} {mode}: {fps:.1f} fps", file=sys.stderr)
     print("\nframes/s (first to last estimate)")
     print(table(rows, ["experts", "background", "mode", "frames", "fps"]))
     print("\nmean message size (KiB, encoded payload)")
     print(table(size_rows, ["experts", "background", *SIZE_TYPES]))
-    print("\npeak RSS per process (MB)")
+    print(f"\npeak RSS per process (MB; budget {BUDGET_MB} MB each, * = over it)")
     print(table(mem_rows, ["experts", "background", "mode", "proposal (max over shards)", "filter", "preprocess",
                            "source", "recorder"]))
 

@@ -15,7 +15,6 @@ from typing import Literal
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 __all__ = ["to_grey", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image", "PROFILES"]
 
@@ -160,6 +159,8 @@ def distance_transform(edges: np.ndarray) -> np.ndarray:
         diag = float(np.hypot(*e.shape))
         return np.full(e.shape, diag, dtype=np.float32)
     # distance to the nearest zero of the input: the edges are the zeros
+    from scipy import ndimage  # imported here: 0.3 s at start-up for the processes that never need it
+
     return ndimage.distance_transform_edt(e == 0).astype(np.float32)
 
 

@@ -33,6 +33,9 @@ class PreprocessParams(Params):
     in the first frame (the tracked target; ``gflow track`` sets it to the initial box),
     or, with no box, afresh on every frame over the whole image.
     profile: quadratic g(u) = u^2 or truncated min(u^2, g0) (M2 eq. 4).
+    edges: compute the Canny edges and the chamfer image (default). Off, ``edges`` and
+    ``chamfer`` travel as empty arrays: for trackers that read only the grey image (G-flow),
+    which saves the distance transform and 450 KB a frame at 320x240 on every hop.
     """
 
     canny_low: float | None = None
@@ -43,6 +46,7 @@ class PreprocessParams(Params):
     profile: Literal["quadratic", "truncated", "linear"] = "truncated"
     g0: float = 100.0
     gradients: bool = False
+    edges: bool = True
 
 
 class PreprocessStage(Stage):
@@ -67,6 +71,8 @@ class PreprocessStage(Stage):
             grey = features.to_grey(img)
         except (MessageError, ValueError) as e:
             raise StageInputError(f"frame {seq}: {e}") from None
+        if not p.edges:
+            return [("features", self._grey_only(frame, grey))]
         if self.thresholds is None and p.calibrate_box is not None:
             blurred = features.gaussian_blur(grey, p.blur)
             try:
@@ -76,15 +82,25 @@ class PreprocessStage(Stage):
         low, high = self.thresholds if self.thresholds is not None else (None, None)
         edges = features.edge_map(grey, low, high, p.blur, p.canny_percentile)
         cham = features.chamfer_image(edges, p.profile, p.g0)
-        gx = gy = None
-        if p.gradients:
-            gxa, gya = features.gradients(grey)
-            gx, gy = NDArray.of(gxa), NDArray.of(gya)
+        gx, gy = self._gradients(grey)
         self.done += 1
         msg = Features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(edges),
                        chamfer=NDArray.of(cham.astype(np.float32)), profile=p.profile, g0=p.g0,
                        grad_x=gx, grad_y=gy)
         return [("features", msg)]
+
+    def _gradients(self, grey: np.ndarray) -> tuple[NDArray | None, NDArray | None]:
+        if not self.params.gradients:  # type: ignore[attr-defined]
+            return None, None
+        gxa, gya = features.gradients(grey)
+        return NDArray.of(gxa), NDArray.of(gya)
+
+    def _grey_only(self, frame: Frame, grey: np.ndarray) -> Features:
+        p: PreprocessParams = self.params  # type: ignore[assignment]
+        gx, gy = self._gradients(grey)
+        self.done += 1
+        return Features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(np.zeros(0, np.uint8)),
+                        chamfer=NDArray.of(np.zeros(0, np.float32)), profile=p.profile, g0=p.g0, grad_x=gx, grad_y=gy)
 
     def summary(self) -> dict:
         return {"frames": self.done, "canny_thresholds": self.thresholds}

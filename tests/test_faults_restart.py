@@ -61,7 +61,10 @@ def undisturbed(tmp_path_factory) -> dict[int, tuple[str, ...]]:
 @pytest.mark.parametrize("stage", ["source", "preprocess", "proposal", "filter", "recorder"])
 def test_a_killed_stage_resumes_and_the_result_is_unchanged(caviar1, tmp_path, undisturbed, stage):
     rec = tmp_path / "run.mcap"
-    p = subprocess.Popen(_track(caviar1, tmp_path, "run"), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # played at 25 fps: a fast pipeline would otherwise finish before the kill (the estimates
+    # reach the recording at its 0.5 s flushes); the results do not depend on the pace
+    p = subprocess.Popen([*_track(caviar1, tmp_path, "run"), "--realtime"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     while not (rec.exists() and rec.stat().st_size > 64 and len(estimates(rec)) >= KILL_AT):
         assert time.monotonic() < deadline and p.poll() is None, "the pipeline did not get going"

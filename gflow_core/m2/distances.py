@@ -38,7 +38,6 @@ from abc import ABC, abstractmethod
 from typing import Any, Callable, ClassVar, Literal
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .. import similarity
 from ..features import PROFILES, chamfer_image, edge_map, to_grey
@@ -181,6 +180,8 @@ class ChamferMetric(Metric):
         a, b = self.check_items(a), self.check_items(b)
         out = np.empty((len(a), len(b)))
         if self.method == "kdtree":
+            from scipy.spatial import cKDTree  # imported here: most processes never need it
+
             mask = a.mask
             for j in range(len(b)):
                 u, _ = cKDTree(b.curve(j)).query(a.points.reshape(-1, 2))
@@ -201,6 +202,8 @@ class ChamferMetric(Metric):
         b = self.check_items(b)
         pts = b.curve(j)
         if self.method == "kdtree":
+            from scipy.spatial import cKDTree
+
             tree = cKDTree(pts)
 
             def f_tree(items: Curves) -> np.ndarray:

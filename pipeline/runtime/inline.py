@@ -19,6 +19,7 @@ from stages.source import SourceStage
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
 from pipeline.runtime.host import StageHost
+from pipeline.runtime.memory import keep_freed_memory
 from pipeline.io.recorder import McapRecorder
 from pipeline.io.sources import open_reader
 
@@ -44,6 +45,7 @@ class InlineResult:
 def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, recording: str | None = None,
                metadata: dict[str, dict[str, str]] | None = None) -> InlineResult:
     """Run ``plan`` to the end of its source. Returns counts, wall time and the recording path."""
+    keep_freed_memory()  # as every stage process does (pipeline/runtime/memory.py)
     queue: deque[tuple[str, bytes, int, str]] = deque()
 
     def publish(topic: str, payload: bytes, seq: int, type_name: str = "") -> None:

@@ -72,6 +72,22 @@ class LaunchResult:
     estimates: dict[int, bytes] = field(default_factory=dict)  # every estimate payload heard, by frame
 
 
+def run_dir_parent(min_free: int = 2 * 2**30) -> str | None:
+    """Where the run's folder goes: /dev/shm (memory) when it is there with room to spare,
+    else the default temporary folder. Every restartable stage rewrites its checkpoint
+    there after every step (a frame, features: up to 660 KB a step on caviar1); measured
+    on a shared disk, 410 us a write against 110 us in memory (GFLOW_RUN_PARENT overrides)."""
+    explicit = os.environ.get("GFLOW_RUN_PARENT")
+    if explicit:
+        return explicit
+    try:
+        if os.access("/dev/shm", os.W_OK) and shutil.disk_usage("/dev/shm").free >= min_free:
+            return "/dev/shm"
+    except OSError:
+        pass
+    return None
+
+
 class _StageLost(Exception):
     """A stage died and the graph does not restart it."""
 
@@ -324,7 +340,7 @@ class Launcher:
         for sp in plan.stages.values():
             if "estimate" in sp.outputs and sp.kind != "recorder":
                 bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True)
-        self.run_dir = tempfile.mkdtemp(prefix="gflow-run-")
+        self.run_dir = tempfile.mkdtemp(prefix="gflow-run-", dir=run_dir_parent())
         os.makedirs(os.path.join(self.run_dir, "state"))
         plan_file = os.path.join(self.run_dir, "plan.json")
         Path(plan_file).write_text(plan.to_json())

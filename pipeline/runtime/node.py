@@ -61,6 +61,8 @@ from pipeline.runtime.build import make_stage
 from pipeline.runtime.drain import FINISHED, consumers_of, recorder_needs
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
 from pipeline.runtime.host import StageHost
+from pipeline.runtime.inbox import BoundedInbox
+from pipeline.runtime.memory import keep_freed_memory
 from pipeline.io.recorder import DiskFull, McapRecorder
 from pipeline.io.sources import open_reader
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
@@ -71,6 +73,8 @@ __all__ = ["main", "run_node"]
 log = logging.getLogger("gflow.node")
 
 FLOW_STALL_S = 1.0
+RECORDER_INBOX_BYTES = 32 * 2**20  # what the recorder holds unwritten before the publishers wait (pipeline/runtime/inbox.py)
+REPORT_EVERY_S = 0.02  # a worker's progress heartbeats: at most 50 a second (measured: ~130 us of CPU per receiver each)
 PR_SET_PDEATHSIG = 1
 EXIT_DISK_FULL = 28  # the recorder's exit status when its disk is full (ENOSPC): not worth a restart
 
@@ -107,8 +111,11 @@ class Node:
         self._hb_stop = threading.Event()
         self.started = threading.Event()
         self.peers_ready = threading.Event()
+        self.declared = threading.Event()  # every subscriber of this node is declared
         self.seen: set[str] = set()
-        self.inbox: queue.SimpleQueue = queue.SimpleQueue()
+        # the recorder is outside flow control: its inbox is bounded, and a full one holds the publishers back
+        self.inbox: queue.SimpleQueue | BoundedInbox = (BoundedInbox(RECORDER_INBOX_BYTES) if self.sp.kind == "recorder"
+                                                        else queue.SimpleQueue())
         self.state = "starting"
         self.steps = 0
         self.proc = psutil.Process()
@@ -160,43 +167,48 @@ class Node:
     # -- handshake ---------------------------------------------------------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         other = key.rsplit("/", 1)[-1]
-        self._note_state(other, payload)
-        if other not in self.peer_done and other != self.name and b"done" in payload:
+        st = None  # decoded once: every use below reads the same StageStatus
+        if other != self.name:
             try:
                 st = decode(payload)
             except ValueError:
                 st = None
-            if isinstance(st, StageStatus) and st.state == "done":
-                self.peer_done.add(other)  # finished: its token going away is no fault
-                self._update_hold()
-        if other in self.sources and self.host is not None and other != self.name:
-            try:
-                st = decode(payload)
-            except ValueError:
+            if not isinstance(st, StageStatus):
                 st = None
-            if isinstance(st, StageStatus):
-                h = self.host
-                h.source_seq = max(h.source_seq, st.last_seq)
-                h.join.horizon = h.source_seq
-                if len(st.frame_shape) >= 2 and h.frame_shape is None:
-                    h.frame_shape = (int(st.frame_shape[0]), int(st.frame_shape[1]))
-        if self.flow_window and other in self.flow_stages:
-            try:
-                st = decode(payload)
-                if isinstance(st, StageStatus):
-                    first_pid = self.first_pid.setdefault(other, st.pid)
-                    if st.state in FINISHED or (st.pid != first_pid and st.last_seq < 0):
-                        # finished, or restarted and not yet caught up: do not hold the source back
-                        self.progress_of[other] = 1 << 60
-                    else:
-                        self.progress_of[other] = st.last_seq
-                    self.progress_changed.set()
-            except ValueError:
-                pass
+        if st is not None:
+            self._note_state(other, st)
+        if other not in self.peer_done and st is not None and st.state == "done":
+            self.peer_done.add(other)  # finished: its token going away is no fault
+            self._update_hold()
+        if other in self.sources and self.host is not None and st is not None:
+            h = self.host
+            h.source_seq = max(h.source_seq, st.last_seq)
+            h.join.horizon = h.source_seq
+            if len(st.frame_shape) >= 2 and h.frame_shape is None:
+                h.frame_shape = (int(st.frame_shape[0]), int(st.frame_shape[1]))
+        if self.flow_window and other in self.flow_stages and st is not None:
+            first_pid = self.first_pid.setdefault(other, st.pid)
+            if st.state in FINISHED or (st.pid != first_pid and st.last_seq < 0):
+                # finished, or restarted and not yet caught up: do not hold the source back
+                self.progress_of[other] = 1 << 60
+            else:
+                self.progress_of[other] = st.last_seq
+            self.progress_changed.set()
         if other not in self.seen:
             self.seen.add(other)
             if self.seen >= self.required_peers:
                 self.peers_ready.set()
+            self._answer_newcomer()
+
+    def _answer_newcomer(self) -> None:
+        """A peer was heard for the first time: send a heartbeat now rather than at the next
+        tick (up to 0.5 s), so that it hears from everyone as soon as everyone is there. Only
+        once this node's own subscribers are declared (the heartbeat promises they are)."""
+        if self.declared.is_set():
+            try:
+                self.send_status()
+            except Exception as e:  # the session is closing
+                log.debug("[%s] heartbeat to a newcomer not sent: %s", self.name, e)
 
     def _on_alive(self, sample) -> None:
         other = str(sample.key_expr).rsplit("/", 1)[-1]
@@ -284,12 +296,15 @@ class Node:
             out["unsigned"] = sum(self.bus.foreign.values())
         return out
 
-    def send_status(self, min_interval: float = 0.0) -> None:
+    def send_status(self, min_interval: float = 0.0) -> bool:
+        """Publish this node's heartbeat (unless one went out less than ``min_interval`` s ago)."""
         now = time.monotonic()
         if now - self._last_status >= min_interval:
             self._last_status = now
             st = self.status()
             self.bus.publish(self.plan.status_topic(self.name), encode(st), st.header.seq, "StageStatus")
+            return True
+        return False
 
     def _heartbeat(self) -> None:
         while not self._hb_stop.is_set():
@@ -387,6 +402,7 @@ class Node:
                 self.bus.subscribe(topic, self._on_data, with_type=True)
             resumed_after = self._restore()
             self._update_hold()
+        self.declared.set()
         hb = threading.Thread(target=self._heartbeat, daemon=True)
         hb.start()
         threading.Thread(target=self._watch_parent, daemon=True).start()
@@ -412,20 +428,13 @@ class Node:
             self.session.close()
             self._cleanup_if_orphaned()
 
-    def _note_state(self, other: str, payload: bytes) -> None:
+    def _note_state(self, other: str, st: StageStatus) -> None:
         """Remember each peer's heartbeat state (and the recorder's recorded ends of stream)."""
-        if other == self.name:
-            return
-        try:
-            st = decode(payload)
-        except ValueError:
-            return
-        if isinstance(st, StageStatus):
-            self.peer_state[other] = st.state
-            if other in self.recorders:
-                self.recorder_ended = set(st.ended)
-            if self.state == "draining":
-                self.drained.set()
+        self.peer_state[other] = st.state
+        if other in self.recorders:
+            self.recorder_ended = set(st.ended)
+        if self.state == "draining":
+            self.drained.set()
 
     def _drain(self) -> None:
         """After a normal end, wait until what this stage sent has arrived (see ``pipeline.runtime.drain``)."""
@@ -552,18 +561,21 @@ class Node:
                 host.close("interrupted")
                 self.state = "stopped"
                 return 0
+            # idle after work: say how far we got (replay --lockstep waits for it), but at most
+            # every REPORT_EVERY_S: every heartbeat wakes every process of the graph
+            unreported = host.stats.steps != self._reported_steps
+            wait = max(0.0, self._last_status + REPORT_EVERY_S - time.monotonic()) if unreported else 0.1
             try:
-                key, payload, _, _, _ = self.inbox.get(timeout=0.1)
+                key, payload, _, _, _ = self.inbox.get(timeout=wait) if wait > 0 else self.inbox.get_nowait()
             except queue.Empty:
+                if unreported:
+                    self._reported_steps = host.stats.steps
+                    self.send_status()
                 host.tick(self.late_s)
                 continue
             host.deliver(key, payload)
-            if self.flow_stages_waiting:
-                self.send_status(0.02)
-            if host.stats.steps != self._reported_steps and self.inbox.empty():
-                # idle after work: say how far we got at once (replay --lockstep waits for it)
+            if self.flow_stages_waiting and self.send_status(REPORT_EVERY_S):
                 self._reported_steps = host.stats.steps
-                self.send_status()
         return 0
 
     def _run_recorder(self) -> int:
@@ -624,6 +636,7 @@ class Node:
 
 
 def run_node(plan_path: str, name: str) -> int:
+    keep_freed_memory()  # frame-sized buffers reused, not faulted in afresh every frame
     threads = os.environ.get("GFLOW_CV_THREADS")
     if threads:  # set by the launcher: one compute thread per stage process by default
         import cv2
