@@ -233,13 +233,12 @@ class FilterStage(Stage):
         grey = self._grey(feat, seq)
         if grey is None:
             return post, state
+        ch = lostmod.channels(grey)
         box = self._box(post.map_alpha, post.map_k)
-        # verified in the target's frame (turned by the estimate's angle, alpha[2])
-        r = lostmod.verify_rotated(grey, self.anchor, box, float(post.map_alpha[2]))
+        r = lostmod.verify(ch, self.anchor, box)
         self.lost, lost = lostmod.guard(self.lost, r, (*box, *post.map_alpha, post.map_k), gp)
         if not lost:
             return post, state
-        ch = lostmod.channels(grey)  # the whole frame, for the re-detection search
         held = self.lost.held
         assert held is not None
         h_box, h_alpha, h_k = held[:4], np.array(held[4:8]), int(held[8])
