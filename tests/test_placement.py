@@ -3,6 +3,8 @@ and the stream every run gets."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from pipeline.runtime.graph import GraphError, load_graph, parse_graph
@@ -128,3 +130,17 @@ def test_a_tool_given_the_graphs_stream_finds_the_one_run_of_it(tmp_path):
     finally:
         p.terminate()
         p.wait(60)
+
+
+def test_record_on_a_host_without_the_recorder_is_refused_before_anything_starts(tmp_path):
+    """`--record` on a host whose stages do not include the recorder used to be ignored
+    without a word; now it is a one-line error naming the recorder's host."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parent.parent
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", "demo_hosts", "--host", "cam",
+                        "--record", str(tmp_path / "x.mcap")], cwd=root, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert "recorder runs on host ops" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "x.mcap").exists()

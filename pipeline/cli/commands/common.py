@@ -289,8 +289,10 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     if not quiet:
         here = ", ".join(n for n in plan.stages if n in launcher.local)
         where = f"host {', '.join(hosts)} ({here}); " if hosts else ""
-        print(f"{plan.name}: {where}listening on {', '.join(endpoints)} (stream {plan.stream}; gflow ps, topics, echo "
-              f"and hz find it)", file=sys.stderr)
+        reach = (f"a client of {', '.join(launcher.zenoh.connect)}" if launcher.zenoh.mode == "client"
+                 else f"listening on {', '.join(endpoints)}")
+        print(f"{plan.name}: {where}{reach} (stream {plan.stream}; gflow ps, topics, echo and hz find it)",
+              file=sys.stderr)
     with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
                   camera=plan.seed_stream,
                   recording=launcher.recording if plan.recorder() and plan.recorder().name in launcher.local else None):

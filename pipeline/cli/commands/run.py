@@ -6,18 +6,23 @@ ORDER = 40
 
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import builtin_graphs, load_graph
-from pipeline.cli.commands.common import (Recording, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          parse_sets, run_plan)
+from pipeline.runtime.placement import local_stages
+from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
+                                          check_outputs, parse_sets, run_plan)
 
 
 def cmd_run(args) -> int:
     check_outputs(record=args.record)
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
+    held = plan.recorder()
+    local_stages(plan, args.hosts)  # an unknown --host label is the first thing to say
+    if args.record and args.hosts and held is not None and held.host not in args.hosts:
+        raise CliError(f"--record: the recorder runs on host {held.host}, not on {', '.join(args.hosts)}; "
+                       f"give --record to the command of host {held.host}")
     recording = Recording(plan, args, None)
     path, secs, frames, info = run_plan(plan, args, recording.path, None)
     hosts = f" (host {', '.join(args.hosts)})" if args.hosts else ""
     rec = path or recording.kept
-    held = plan.recorder()
     if args.hosts and held is not None and held.host not in args.hosts:
         rec = f"on host {held.host}"
     print(f"{plan.name}{hosts}: {frames} frames in {secs:.2f} s; stream {plan.stream}; recording: {rec}")
