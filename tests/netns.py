@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Callable
 
 ROUTER_PORT = 7447
+RELAY_PORT = 7448  # tests/delay_relay.py in front of the router: a delayed link
 
 #: a zenoh router in one Python process (the eclipse-zenoh wheel ships no zenohd)
 ROUTER_CODE = """
@@ -161,6 +162,20 @@ class Net:
         if "router ready" not in line:
             raise AssertionError(f"the zenoh router did not start: {line} {p.stderr.read() if p.stderr else ''}")
         return p
+
+    def start_delay_relay(self, delay_s: float, env: dict | None = None) -> subprocess.Popen:
+        """A relay in the router's namespace that delays each direction by ``delay_s`` before the
+        router (tests/delay_relay.py); hosts that connect to :meth:`relay_endpoint` see a long link."""
+        relay = str(Path(__file__).resolve().parent / "delay_relay.py")
+        p = self.popen(None, [sys.executable, relay, str(RELAY_PORT), f"127.0.0.1:{ROUTER_PORT}", str(delay_s)], env=env)
+        assert p.stdout is not None
+        line = p.stdout.readline()
+        if "relay ready" not in line:
+            raise AssertionError(f"the delay relay did not start: {line} {p.stderr.read() if p.stderr else ''}")
+        return p
+
+    def relay_endpoint(self, host: str) -> str:
+        return f"tcp/{self.router_ip(host)}:{RELAY_PORT}"
 
     # -- faults -----------------------------------------------------------------------------
     def link(self, host: str, up: bool) -> None:

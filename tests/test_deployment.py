@@ -62,14 +62,15 @@ def _estimates(path: Path) -> dict[int, tuple]:
     return {r.seq: decode(r.data).box for r in iter_records(path) if r.type == "Estimate"}
 
 
-def _start(net: Net, tmp: Path, stream: str, extra: list[str] = (), record: str = "ops.mcap") -> dict:
+def _start(net: Net, tmp: Path, stream: str, extra: list[str] = (), record: str = "ops.mcap",
+           endpoint=None) -> dict:
     """The three hosts' launchers of one run; stderr of each goes to a file the test can watch."""
     procs = {}
     for host in ("ops", "edge", "cam"):
         d = tmp / f"{stream}-{host}"
         d.mkdir()
         # two launchers of two runs on one host must not both take the default port 7447
-        args = [*GFLOW, "run", "demo_hosts", "--host", host, "--connect", net.router_endpoint(host),
+        args = [*GFLOW, "run", "demo_hosts", "--host", host, "--connect", (endpoint or net.router_endpoint)(host),
                 "--stream", stream, "--listen", "tcp/127.0.0.1:0", *SETS, *extra]
         if host == "ops":
             args += ["--record", str(tmp / record)]
@@ -156,6 +157,28 @@ def test_one_percent_packet_loss_completes_with_identical_output(net, baseline, 
         net.clear_loss()
     _check_complete(tmp_path / "ops.mcap", baseline)
     assert _estimates(tmp_path / "ops.mcap") == _estimates(baseline)
+
+
+@pytest.mark.skipif(bool(_no_loss_tool()), reason="cannot drop packets here: " + (_no_loss_tool() or "-"))
+def test_one_percent_loss_and_20_ms_each_way_complete_with_identical_output(net, baseline, tmp_path):
+    """The issue's worst link: every host reaches the router through a relay that delays each
+    direction by 20 ms, and 1% of the packets on the router's links are dropped."""
+    relay = net.start_delay_relay(0.020, env=_env())
+    net.loss(1.0)
+    try:
+        t0 = time.monotonic()
+        _finish(_start(net, tmp_path, "demo", endpoint=net.relay_endpoint), timeout=150)
+        took = time.monotonic() - t0
+        assert net.dropped() > 0, "the loss rule dropped nothing: the test would prove nothing"
+    finally:
+        net.clear_loss()
+        relay.terminate()
+        out = relay.communicate(timeout=30)[0]
+    _check_complete(tmp_path / "ops.mcap", baseline)
+    assert _estimates(tmp_path / "ops.mcap") == _estimates(baseline)
+    # the frames alone (40 of 320x240 grey) are 3 MB: they went through the delayed relay
+    relayed = int(re.findall(r"relayed (\d+)", out)[-1])
+    assert relayed > 40 * 320 * 240, (relayed, took)
 
 
 def test_two_runs_on_one_router_stay_apart(net, baseline, tmp_path):
