@@ -66,6 +66,7 @@ class AppearanceFilterParams(Params):
     occlusion_patience: int = _DEFAULTS.occlusion_patience
     max_log_scale: float = _DEFAULTS.max_log_scale
     hidden_prior: float = _DEFAULTS.hidden_prior
+    hidden_speed: float = _DEFAULTS.hidden_speed
     scale_from_recent: bool = _DEFAULTS.scale_from_recent
     adapt_max: float = _DEFAULTS.adapt_max
     slow_rate: float = _DEFAULTS.slow_rate

@@ -178,6 +178,8 @@ def test_bad_parameters_and_boxes_are_refused():
         ap.AppearanceParams(n_scales=2)
     with pytest.raises(ValueError, match="particles"):
         ap.AppearanceParams(particles=0)
+    with pytest.raises(ValueError, match="hidden_speed"):
+        ap.AppearanceParams(hidden_speed=-1.0)
     feat = ap.features(np.full((50, 60), 100, np.uint8))
     with pytest.raises(ValueError, match="outside"):
         ap.initialise(feat, (70, 10, 10, 10), ap.AppearanceParams(), np.random.default_rng(0))
