@@ -62,6 +62,7 @@ from gflow_core.m2.kernel import calibrate_sigma
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.lost import Anchor, LostParams, LostState
 from gflow_core.m2.model import M2Model
+from gflow_core.m2.target_shape import fit_to_box
 from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
                                     template_from_edges, weigh)
 from gflow_core.particles import weight_histogram
@@ -124,6 +125,8 @@ class FilterParams(Params):
     lost_ratio: float = 0.5
     lost_accept: float = 0.5
     lost_window: float = 1.5
+    fit_shape: bool = True
+    box: str = "reference"
 
     def __post_init__(self) -> None:
         if not 0 <= self.lost_ratio < 1 or not self.lost_window > 0:
@@ -141,6 +144,8 @@ class FilterParams(Params):
             raise ValueError(f"init box must have positive width and height, got {self.init}")
         if self.min_edges < 0:
             raise ValueError(f"min_edges must be >= 0, got {self.min_edges}")
+        if self.box not in ("reference", "exemplar"):
+            raise ValueError(f"box must be 'reference' or 'exemplar', got {self.box!r}")
 
 
 class _LastSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -197,6 +202,9 @@ class FilterStage(Stage):
             if learned.kind != "curve":
                 raise ValueError(f"stage {ctx.name!r}: model {params.model!r} has {learned.metric} patch "
                                  "exemplars; use the patch.filter stage (graph m2_patch) for patch models")
+            if params.fit_shape:
+                # the model's item frame stretched to the user's box shape (gflow_core.m2.target_shape)
+                learned = fit_to_box(learned, params.init)
         self.learned: M2Model | None = learned
         self.learned_ex: ContourExemplars | None = learned.to_contour_exemplars() if learned is not None else None
         # the appearance kernels beside chamfer, and the online bank (set on the first frame)
@@ -386,6 +394,11 @@ class FilterStage(Stage):
         return grey
 
     def _box(self, alpha: np.ndarray, k: int) -> tuple[float, float, float, float]:
+        p: FilterParams = self.params  # type: ignore[assignment]
+        if self.learned is not None and p.box == "reference":
+            # the reference box under alpha (its centre u and size s * ref_size; theta is left out)
+            w, h = self.learned.ref_size * alpha[3]
+            return (float(alpha[0] - (w - 1) / 2.0), float(alpha[1] - (h - 1) / 2.0), float(w), float(h))
         if self.learned is not None:
             # the bounding box of the MAP exemplar under its transform, T_alpha x~_k
             assert self.model is not None
