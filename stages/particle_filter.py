@@ -125,6 +125,9 @@ class FilterParams(Params):
     lost_ratio: float = 0.5
     lost_accept: float = 0.5
     lost_window: float = 1.5
+    lost_scales: tuple[float, ...] = (1.0,)
+    lost_near: float = 0.0
+    lost_reacquire: float = 0.9
     fit_shape: bool = True
     box: str = "reference"
 
@@ -222,7 +225,8 @@ class FilterStage(Stage):
 
     def _guard_params(self) -> LostParams | None:
         p: FilterParams = self.params  # type: ignore[assignment]
-        return LostParams(ratio=p.lost_ratio, window=p.lost_window, accept=p.lost_accept) if p.lost_ratio > 0 else None
+        return (LostParams(ratio=p.lost_ratio, window=p.lost_window, accept=p.lost_accept, reacquire=p.lost_reacquire)
+                if p.lost_ratio > 0 else None)
 
     def _set_anchor(self, feat: Features, seq: int) -> None:
         """The lost guard's anchor: orientation channels of the initial box on the first frame."""
@@ -250,18 +254,23 @@ class FilterStage(Stage):
         held = self.lost.held
         assert held is not None
         h_box, h_alpha, h_k = held[:4], np.array(held[4:8]), int(held[8])
-        r_re, peak = lostmod.redetect(ch, self.anchor, h_box, gp.window)  # type: ignore[arg-type]
+        p: FilterParams = self.params  # type: ignore[assignment]
+        r_re, peak, f = lostmod.redetect_scales(ch, self.anchor, h_box, gp.window,  # type: ignore[arg-type]
+                                                tuple(p.lost_scales), p.lost_near)
         alpha = post.resampled.alpha.copy()
         centre = np.array([h_box[0] + (h_box[2] - 1) / 2.0, h_box[1] + (h_box[3] - 1) / 2.0])
         if lostmod.reacquired(self.lost, r_re, gp):
-            # re-detected: the held state moved onto the peak, the particles with it
+            # re-detected: the held state moved onto the peak (and to its size), the particles with it
             shift = peak - centre
             new_alpha = h_alpha.copy()
             new_alpha[:2] += shift
+            new_alpha[3] *= f
+            alpha[:, 3] *= f
             alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - post.mean_alpha[:2] + new_alpha[:2],
                                                    (float(new_alpha[0]), float(new_alpha[1])),
-                                                   (0.25 * h_box[2], 0.25 * h_box[3]))
-            new_box = (h_box[0] + shift[0], h_box[1] + shift[1], h_box[2], h_box[3])
+                                                   (0.25 * h_box[2] * f, 0.25 * h_box[3] * f))
+            w, h = h_box[2] * f, h_box[3] * f
+            new_box = (h_box[0] + shift[0] + (h_box[2] - w) / 2.0, h_box[1] + shift[1] + (h_box[3] - h) / 2.0, w, h)
             self.lost, _ = lostmod.guard(self.lost, r_re, (*new_box, *new_alpha, h_k), gp)
             state = "redetect"
         else:
