@@ -22,12 +22,20 @@ reference box, nearest of the learned exemplars and a bounded online bank that s
 the init box's region and adds the estimate's region on confident frames, ``online``,
 ``online_every``, ``confident_r``). The widened sigmas and the bank are part of the snapshot.
 
+Shape of the target (departure, :mod:`gflow_core.m2.target_shape`): with ``fit_shape`` the
+learned model's item frame (exemplar contours, reference box, appearance grid) is stretched
+to the ``init`` box's aspect ratio, area kept (a caviar1 pedestrian model on a face kept a
+tall box: success 0.02 on jumping). With ``box: reference`` (default) the estimate's box is
+the reference box under the MAP alpha (centre u, size s * ref_size, so frame 0's box is the
+init box); ``box: exemplar`` is the paper's bounding box of T_alpha x~_k.
+
 Lost target (departure: the paper is silent; :mod:`gflow_core.m2.lost`): each tracked frame's
 estimate is verified against the initial box by the correlation of edge-orientation channels;
 below half its running level (``lost_ratio``) the target is judged lost (state ``lost``): the
 estimate of the last found frame is held, the particles are kept within ``lost_window`` box
 sizes of it, and the initial box is searched for over that window; a match at 0.9 of the
-level resumes tracking from it (state ``redetect``). The online bank is not updated while
+level resumes tracking from it (state ``redetect``); with ``lost_scales`` the search is also
+made at those multiples of the held size and the re-found target takes the best one's size. The online bank is not updated while
 lost. ``lost_ratio: 0`` is the paper's filter.
 
 Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
@@ -106,6 +114,11 @@ class FilterParams(Params):
         (:mod:`gflow_core.m2.lost`; 0: no guard, the paper's filter).
     lost_accept : a correlation at or above this is never judged lost.
     lost_window : half-width of the hold and re-detection window, in box sizes.
+    lost_scales : sizes (multiples of the held size) searched when re-detecting (1.0 first).
+    lost_near : distance prior of the re-detection, r - lost_near * (distance in box sizes)^2 (0: none).
+    lost_reacquire : a re-detection needs r at least this fraction of the running level.
+    fit_shape : stretch a learned model's item frame to the init box's aspect ratio.
+    box : "reference" (the reference box under alpha) or "exemplar" (bounding box of T_alpha x~_k).
     """
 
     init: tuple[float, float, float, float] | None = None
