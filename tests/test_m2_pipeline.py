@@ -73,10 +73,11 @@ def test_track_m2_with_blanked_frames(caviar1_model, tmp_path, gflow_cmd) -> Non
     blank = {f for f in est if f % 10 >= 8}
     assert {f for f, e in est.items() if e.state == "coast"} == blank
     assert est[TEST[0]].state == "init"
-    # the box is the bounding box of the MAP exemplar under its transform
+    # the box is the reference box (stretched to the init box's shape) under the MAP alpha
     e = est[TEST[0] + 3]
-    c = e.contour.array()
-    assert e.box[0] == pytest.approx(c[:, 0].min(), abs=1e-3) and e.box[2] == pytest.approx(np.ptp(c[:, 0]) + 1, abs=1e-3)
+    assert e.box[0] + (e.box[2] - 1) / 2 == pytest.approx(e.alpha[0], abs=1e-6)
+    assert e.box[1] + (e.box[3] - 1) / 2 == pytest.approx(e.alpha[1], abs=1e-6)
+    assert e.box[2] / e.box[3] == pytest.approx(gt[TEST[0]][2] / gt[TEST[0]][3], rel=1e-6)
     assert 0 <= e.k < 8 and 1.0 <= e.ess <= 300
     # tracking on the frames it sees, and resumes after every blank pair
     gt_test = {f: gt[f] for f in range(*TEST)}
