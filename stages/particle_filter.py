@@ -22,12 +22,20 @@ reference box, nearest of the learned exemplars and a bounded online bank that s
 the init box's region and adds the estimate's region on confident frames, ``online``,
 ``online_every``, ``confident_r``). The widened sigmas and the bank are part of the snapshot.
 
+Shape of the target (departure, :mod:`gflow_core.m2.target_shape`): with ``fit_shape`` the
+learned model's item frame (exemplar contours, reference box, appearance grid) is stretched
+to the ``init`` box's aspect ratio, area kept (a caviar1 pedestrian model on a face kept a
+tall box: success 0.02 on jumping). With ``box: reference`` (default) the estimate's box is
+the reference box under the MAP alpha (centre u, size s * ref_size, so frame 0's box is the
+init box); ``box: exemplar`` is the paper's bounding box of T_alpha x~_k.
+
 Lost target (departure: the paper is silent; :mod:`gflow_core.m2.lost`): each tracked frame's
 estimate is verified against the initial box by the correlation of edge-orientation channels;
 below half its running level (``lost_ratio``) the target is judged lost (state ``lost``): the
 estimate of the last found frame is held, the particles are kept within ``lost_window`` box
 sizes of it, and the initial box is searched for over that window; a match at 0.9 of the
-level resumes tracking from it (state ``redetect``). The online bank is not updated while
+level resumes tracking from it (state ``redetect``); with ``lost_scales`` the search is also
+made at those multiples of the held size and the re-found target takes the best one's size. The online bank is not updated while
 lost. ``lost_ratio: 0`` is the paper's filter.
 
 Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
@@ -62,6 +70,7 @@ from gflow_core.m2.kernel import calibrate_sigma
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.lost import Anchor, LostParams, LostState
 from gflow_core.m2.model import M2Model
+from gflow_core.m2.target_shape import fit_to_box
 from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
                                     template_from_edges, weigh)
 from gflow_core.particles import weight_histogram
@@ -105,6 +114,11 @@ class FilterParams(Params):
         (:mod:`gflow_core.m2.lost`; 0: no guard, the paper's filter).
     lost_accept : a correlation at or above this is never judged lost.
     lost_window : half-width of the hold and re-detection window, in box sizes.
+    lost_scales : sizes (multiples of the held size) searched when re-detecting (1.0 first).
+    lost_near : distance prior of the re-detection, r - lost_near * (distance in box sizes)^2 (0: none).
+    lost_reacquire : a re-detection needs r at least this fraction of the running level.
+    fit_shape : stretch a learned model's item frame to the init box's aspect ratio.
+    box : "reference" (the reference box under alpha) or "exemplar" (bounding box of T_alpha x~_k).
     """
 
     init: tuple[float, float, float, float] | None = None
@@ -124,6 +138,11 @@ class FilterParams(Params):
     lost_ratio: float = 0.5
     lost_accept: float = 0.5
     lost_window: float = 1.5
+    lost_scales: tuple[float, ...] = (1.0,)
+    lost_near: float = 0.0
+    lost_reacquire: float = 0.9
+    fit_shape: bool = True
+    box: str = "reference"
 
     def __post_init__(self) -> None:
         if not 0 <= self.lost_ratio < 1 or not self.lost_window > 0:
@@ -141,6 +160,8 @@ class FilterParams(Params):
             raise ValueError(f"init box must have positive width and height, got {self.init}")
         if self.min_edges < 0:
             raise ValueError(f"min_edges must be >= 0, got {self.min_edges}")
+        if self.box not in ("reference", "exemplar"):
+            raise ValueError(f"box must be 'reference' or 'exemplar', got {self.box!r}")
 
 
 class _LastSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -197,6 +218,9 @@ class FilterStage(Stage):
             if learned.kind != "curve":
                 raise ValueError(f"stage {ctx.name!r}: model {params.model!r} has {learned.metric} patch "
                                  "exemplars; use the patch.filter stage (graph m2_patch) for patch models")
+            if params.fit_shape:
+                # the model's item frame stretched to the user's box shape (gflow_core.m2.target_shape)
+                learned = fit_to_box(learned, params.init)
         self.learned: M2Model | None = learned
         self.learned_ex: ContourExemplars | None = learned.to_contour_exemplars() if learned is not None else None
         # the appearance kernels beside chamfer, and the online bank (set on the first frame)
@@ -214,7 +238,8 @@ class FilterStage(Stage):
 
     def _guard_params(self) -> LostParams | None:
         p: FilterParams = self.params  # type: ignore[assignment]
-        return LostParams(ratio=p.lost_ratio, window=p.lost_window, accept=p.lost_accept) if p.lost_ratio > 0 else None
+        return (LostParams(ratio=p.lost_ratio, window=p.lost_window, accept=p.lost_accept, reacquire=p.lost_reacquire)
+                if p.lost_ratio > 0 else None)
 
     def _set_anchor(self, feat: Features, seq: int) -> None:
         """The lost guard's anchor: orientation channels of the initial box on the first frame."""
@@ -242,18 +267,23 @@ class FilterStage(Stage):
         held = self.lost.held
         assert held is not None
         h_box, h_alpha, h_k = held[:4], np.array(held[4:8]), int(held[8])
-        r_re, peak = lostmod.redetect(ch, self.anchor, h_box, gp.window)  # type: ignore[arg-type]
+        p: FilterParams = self.params  # type: ignore[assignment]
+        r_re, peak, f = lostmod.redetect_scales(ch, self.anchor, h_box, gp.window,  # type: ignore[arg-type]
+                                                tuple(p.lost_scales), p.lost_near)
         alpha = post.resampled.alpha.copy()
         centre = np.array([h_box[0] + (h_box[2] - 1) / 2.0, h_box[1] + (h_box[3] - 1) / 2.0])
         if lostmod.reacquired(self.lost, r_re, gp):
-            # re-detected: the held state moved onto the peak, the particles with it
+            # re-detected: the held state moved onto the peak (and to its size), the particles with it
             shift = peak - centre
             new_alpha = h_alpha.copy()
             new_alpha[:2] += shift
+            new_alpha[3] *= f
+            alpha[:, 3] *= f
             alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - post.mean_alpha[:2] + new_alpha[:2],
                                                    (float(new_alpha[0]), float(new_alpha[1])),
-                                                   (0.25 * h_box[2], 0.25 * h_box[3]))
-            new_box = (h_box[0] + shift[0], h_box[1] + shift[1], h_box[2], h_box[3])
+                                                   (0.25 * h_box[2] * f, 0.25 * h_box[3] * f))
+            w, h = h_box[2] * f, h_box[3] * f
+            new_box = (h_box[0] + shift[0] + (h_box[2] - w) / 2.0, h_box[1] + shift[1] + (h_box[3] - h) / 2.0, w, h)
             self.lost, _ = lostmod.guard(self.lost, r_re, (*new_box, *new_alpha, h_k), gp)
             state = "redetect"
         else:
@@ -386,6 +416,11 @@ class FilterStage(Stage):
         return grey
 
     def _box(self, alpha: np.ndarray, k: int) -> tuple[float, float, float, float]:
+        p: FilterParams = self.params  # type: ignore[assignment]
+        if self.learned is not None and p.box == "reference":
+            # the reference box under alpha (its centre u and size s * ref_size; theta is left out)
+            w, h = self.learned.ref_size * alpha[3]
+            return (float(alpha[0] - (w - 1) / 2.0), float(alpha[1] - (h - 1) / 2.0), float(w), float(h))
         if self.learned is not None:
             # the bounding box of the MAP exemplar under its transform, T_alpha x~_k
             assert self.model is not None

@@ -102,3 +102,27 @@ def test_the_filter_finds_a_target_that_jumped_beyond_its_proposals() -> None:
     boxes0, states0 = _track(scene, lost_ratio=0.0)
     assert centre_error(truth, boxes0)[20:].mean() > 20.0
     assert "redetect" not in states0 and "lost" not in states0
+
+
+def test_redetect_at_several_sizes_finds_a_grown_target() -> None:
+    """A textured square that grew by 15% and moved is re-found at the larger size."""
+    import cv2
+
+    rng = np.random.default_rng(3)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (40, 40)).astype(np.float32), (0, 0), 1.5)
+
+    def frame(cx: float, cy: float, size: float) -> np.ndarray:
+        img = np.full((160, 200), 128, np.float32)
+        t = cv2.resize(tex, (int(round(size)), int(round(size))), interpolation=cv2.INTER_LINEAR)
+        x0, y0 = int(round(cx - size / 2)), int(round(cy - size / 2))
+        img[y0 : y0 + t.shape[0], x0 : x0 + t.shape[1]] = t
+        return img
+
+    p = lost.LostParams(window=1.5)
+    box0 = (60.0, 50.0, 40.0, 40.0)
+    anchor = lost.anchor_of(lost.channels(frame(79.5, 69.5, 40)), box0, p)
+    ch = lost.channels(frame(95.0, 75.0, 46))
+    r1, _, f1 = lost.redetect_scales(ch, anchor, box0, p.window, (1.0,))
+    r, peak, f = lost.redetect_scales(ch, anchor, box0, p.window, (1.0, 0.87, 1.15))
+    assert f == 1.15 and r > r1 + 0.05 and f1 == 1.0
+    assert np.hypot(*(peak - [95.0, 75.0])) < 3.0
