@@ -141,6 +141,10 @@ MIN_CURVATURE_FRACTION = 0.1
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
+#: The translation search of :func:`coarse_to_fine_peak` evaluates at most this many
+#: (expert, offset, vertex) triples at once (about 100 bytes of temporaries each).
+SEARCH_BLOCK_VERTICES = 1 << 18
+
 
 @dataclass(frozen=True)
 class TextureView:
@@ -151,7 +155,7 @@ class TextureView:
     mean, var : (E, n) float64
         Predicted object texel means ``mu_v`` and variances ``sigma_v`` (posterior at
         ``t - 1`` plus ``Psi_v``).
-    bg_mean, bg_var : (R, H, W) float64 or None
+    bg_mean, bg_var : (R, H, W) float64, :class:`.background.TiledTexels` or None
         Background texel posterior at ``t - 1`` for all ``R`` experts of the state
         (``None``: uninformative background). Not copied.
     bg_rows : (E,) intp or None
@@ -173,13 +177,18 @@ class TextureView:
 
     def bg_at(self, st: BilinearStencil, rows: np.ndarray, with_grad: bool = False):
         """Background mean (and its x/y derivative) and predicted variance at points."""
-        fm = self.bg_mean.reshape(-1)  # type: ignore[union-attr]
-        fv = self.bg_var.reshape(-1)  # type: ignore[union-attr]
+        fm, fv = _flat(self.bg_mean), _flat(self.bg_var)
         var = st.sample(fv, rows) + self.psi_b
         if with_grad:
             m, mx, my = st.sample_with_gradient(fm, rows)
             return m, mx, my, var
         return st.sample(fm, rows), var
+
+
+def _flat(stack):
+    """An ``(R, H, W)`` stack as a flat array for :class:`BilinearStencil` (an ndarray, or
+    :class:`.background.TiledTexels` read tile by tile)."""
+    return stack.reshape(-1) if isinstance(stack, np.ndarray) else stack.flat_view()
 
 
 @dataclass(frozen=True)
@@ -712,12 +721,19 @@ def coarse_to_fine_peak(
         # the search compares raw intensities with an uncapped cost: with a gain and bias fitted
         # at every grid point low-contrast patches matched too, and with the outlier cap most
         # vertices of a motion-blurred face were outliers everywhere (see the module docstring)
-        sv = TextureView(mean=np.repeat(tv.mean[:, sub], G, axis=0), var=np.repeat(tv.var[:, sub], G, axis=0))
-        f = gauss_newton_objective(
-            bases[sub], pyramid[L - 1], np.repeat(prev, G, axis=0), cand.reshape(E * G, -1), sv,
-            sigma_w, prior_std, False, level_scale=0.5 ** (L - 1), photometric=None, max_rotation=max_rotation,
-            scale=scale,
-        ).reshape(E, G)
+        # in blocks of experts: E x G x n vertices at once took 180 MB with 100 experts (the
+        # experts are independent, so the blocks give the same numbers as one batch)
+        n_sub = bases[sub].shape[0]
+        block = max(1, SEARCH_BLOCK_VERTICES // max(1, G * n_sub))
+        f = np.empty((E, G))
+        for b0 in range(0, E, block):
+            bs = slice(b0, min(E, b0 + block))
+            sv = TextureView(mean=np.repeat(tv.mean[bs, sub], G, axis=0), var=np.repeat(tv.var[bs, sub], G, axis=0))
+            f[bs] = gauss_newton_objective(
+                bases[sub], pyramid[L - 1], np.repeat(prev[bs], G, axis=0), cand[bs].reshape(-1, u.shape[1]), sv,
+                sigma_w, prior_std, False, level_scale=0.5 ** (L - 1), photometric=None, max_rotation=max_rotation,
+                scale=scale,
+            ).reshape(-1, G)
         f = np.where(np.isfinite(f), f, np.inf)
         best = cand[np.arange(E), np.argmin(f, axis=1)]
         # two chains per expert, refined alike: from u_{t-1} and from the search's best start
