@@ -736,11 +736,13 @@ def coarse_to_fine_peak(
             ).reshape(-1, G)
         f = np.where(np.isfinite(f), f, np.inf)
         best = cand[np.arange(E), np.argmin(f, axis=1)]
-        # two chains per expert, refined alike: from u_{t-1} and from the search's best start
-        local = _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background,
-                        photometric, max_rotation, outlier_sq, scale)
-        far = _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, best, use_background,
-                      photometric, max_rotation, outlier_sq, scale)
+        # two chains per expert, refined alike: from u_{t-1} and from the search's best start, in
+        # one batch of 2E rows (the rows are independent, so this is bit for bit two batches of E,
+        # at half the per-call cost, which dominates for a shard of a few experts)
+        both = _refine(bases, pyramid, _twice(prev), _twice_view(tv), _twice_view(fg), sigma_w, prior_std, n_iter,
+                       np.concatenate([u, best]), use_background, photometric, max_rotation, outlier_sq, scale)
+        local = GaussNewtonResult(both.u_hat[:E], both.hessian[:E], both.objective[:E])
+        far = GaussNewtonResult(both.u_hat[E:], both.hessian[E:], both.objective[E:])
         # keep the lower level-0 objective (eq. 14); the local chain on a tie
         pick = far.objective < local.objective
         return GaussNewtonResult(
@@ -750,6 +752,16 @@ def coarse_to_fine_peak(
         )
     return _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
                    max_rotation, outlier_sq, scale)
+
+
+def _twice(a: np.ndarray | None) -> np.ndarray | None:
+    return None if a is None else np.concatenate([a, a])
+
+
+def _twice_view(tv: TextureView) -> TextureView:
+    """The same texture opinions for a batch of every expert twice (rows ``e`` and ``E + e``)."""
+    return TextureView(mean=_twice(tv.mean), var=_twice(tv.var), bg_mean=tv.bg_mean, bg_var=tv.bg_var,
+                       bg_rows=_twice(tv.bg_rows), psi_b=tv.psi_b)
 
 
 def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
