@@ -111,7 +111,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .geometry import COEF, ROT, TRANS, box_minus, box_plus, project, projection_jacobian
+from .geometry import COEF, ROT, TRANS, box_minus, box_plus, project, project_untranslated, projection_jacobian
 from .image import BilinearStencil, FrameData, bilinear_stencil
 from .photometric import Photometric, gain_bias, predict
 
@@ -390,6 +390,7 @@ def gauss_newton_objective(
     max_rotation: float = np.inf,
     outlier_sq: float = np.inf,
     scale: tuple[float, float] | None = None,
+    points: np.ndarray | None = None,
 ) -> np.ndarray:
     """The Gauss-Newton objective: eq. 14 without its second background term.
 
@@ -412,6 +413,8 @@ def gauss_newton_objective(
     photometric : Photometric, optional
         Fit a gain and bias per expert; the residual is ``y - (a mu_v + b)`` (see
         :mod:`.photometric`).
+    points : (E, n, 2) float64, optional
+        ``project(bases, poses)`` when the caller has it (level 0 pixels).
 
     Returns
     -------
@@ -420,7 +423,7 @@ def gauss_newton_objective(
         (``-log p(u|u_{t-1})`` without its constant).
     """
     lam = prior_precision(prior_std)
-    x = project(bases, poses)
+    x = project(bases, poses) if points is None else points
     if level_scale != 1.0:
         x = x * level_scale
     st = bilinear_stencil(x, fd.shape)
@@ -729,10 +732,14 @@ def coarse_to_fine_peak(
         for b0 in range(0, E, block):
             bs = slice(b0, min(E, b0 + block))
             sv = TextureView(mean=np.repeat(tv.mean[bs, sub], G, axis=0), var=np.repeat(tv.var[bs, sub], G, axis=0))
+            # the candidates differ from u only in l: g r (h_i c) once per expert, plus each l
+            # (exactly project(bases, candidate), see project_untranslated)
+            rot = project_untranslated(bases[sub], u[bs])
+            pts = (rot[:, None] + cand[bs][:, :, None, TRANS]).reshape(-1, n_sub, 2)
             f[bs] = gauss_newton_objective(
                 bases[sub], pyramid[L - 1], np.repeat(prev[bs], G, axis=0), cand[bs].reshape(-1, u.shape[1]), sv,
                 sigma_w, prior_std, False, level_scale=0.5 ** (L - 1), photometric=None, max_rotation=max_rotation,
-                scale=scale,
+                scale=scale, points=pts,
             ).reshape(-1, G)
         f = np.where(np.isfinite(f), f, np.inf)
         best = cand[np.arange(E), np.argmin(f, axis=1)]
