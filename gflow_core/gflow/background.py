@@ -271,9 +271,9 @@ class TiledTexels:
         return self.bank.n_experts
 
     def __getitem__(self, e) -> np.ndarray:
-        if isinstance(e, (int, np.integer)):
-            return self.bank.layout.from_tiles(self.pool[self.bank.table[int(e)]])
-        return np.asarray(self)[e]
+        if not isinstance(e, (int, np.integer)):  # a whole (E, H, W) copy must be asked for: np.asarray
+            raise TypeError(f"tiled background texels are indexed by one expert, not {type(e).__name__}")
+        return self.bank.layout.from_tiles(self.pool[self.bank.table[int(e)]])
 
     def take_flat(self, index: np.ndarray) -> np.ndarray:
         return self.bank.take(self.pool, index)
