@@ -324,7 +324,10 @@ class ExpertState:
     tex_mean, tex_var : (E, n) float64
         Object texel posterior means and variances (eq. 7, 8).
     bg_mean, bg_var : (E, H, W) float64 or None
-        Background texel posteriors; None for an uninformative background.
+        Background texel posteriors; None for an uninformative background. Made by
+        :func:`init_state` / :func:`update` as :class:`.background.TiledTexels` (each distinct
+        16 x 16 tile stored once, ``np.asarray`` gives the dense array); plain arrays are
+        accepted too.
     log_credibility : (E,) float64
         Normalised log credibilities (uniform after resampling).
     image_shape : (H, W)
