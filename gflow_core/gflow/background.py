@@ -31,6 +31,9 @@ __all__ = ["TILE", "TileLayout", "TiledBackground", "TiledTexels"]
 #: Tile side in pixels.
 TILE = 16
 
+#: :meth:`TiledBackground.advance` updates at most this many tiles at once (2 MB per temporary).
+ADVANCE_BLOCK_TILES = 1024
+
 
 @dataclass(frozen=True)
 class TileLayout:
@@ -178,23 +181,29 @@ class TiledBackground:
         mt = lay.to_tiles(masks, False)
         first, inverse = _unique_tiles(ptab, mt)
         src = ptab.reshape(-1)[first]
-        mask = mt.reshape(E * K, -1)[first]
-        m0 = self.pool_mean[src]
-        y = lay.to_tiles(frame)[first % K]
-        # Var(B_t | u_{1:t-1}, y_{1:t-1}) = Var(B_{t-1} | ...) + Psi_b          (eq. 10)
-        v = np.add(self.pool_var[src], psi_b)
-        # K = sigma / (sigma + sigma_w), 0 on object pixels (a_b = I - a_v a_v^T)
-        gain = np.add(v, sigma_w)
-        np.divide(v, gain, out=gain)
-        gain[mask] = 0.0
-        # mu' = mu + K (y - mu)                                                  (eq. 8)
-        np.subtract(y, m0, out=y)
-        y *= gain
-        np.add(m0, y, out=m0)
-        # sigma' = (1 - K) sigma  = (sigma^-1 + sigma_w^-1)^-1                   (eq. 7)
-        np.subtract(1.0, gain, out=gain)
-        v *= gain
-        return TiledBackground(lay, inverse.reshape(E, K).astype(np.int32), m0, v)
+        frame_tiles = lay.to_tiles(frame)
+        mt = mt.reshape(E * K, -1)
+        U = first.size
+        new_mean, new_var = np.empty((U, lay.tile_size)), np.empty((U, lay.tile_size))
+        # in blocks of tiles, so that the temporaries stay small whatever the number of tiles
+        for b0 in range(0, U, ADVANCE_BLOCK_TILES):
+            b = slice(b0, min(U, b0 + ADVANCE_BLOCK_TILES))
+            m0, v, m = self.pool_mean[src[b]], new_var[b], new_mean[b]
+            # Var(B_t | u_{1:t-1}, y_{1:t-1}) = Var(B_{t-1} | ...) + Psi_b          (eq. 10)
+            np.add(self.pool_var[src[b]], psi_b, out=v)
+            # K = sigma / (sigma + sigma_w), 0 on object pixels (a_b = I - a_v a_v^T)
+            gain = np.add(v, sigma_w)
+            np.divide(v, gain, out=gain)
+            gain[mt[first[b]]] = 0.0
+            # mu' = mu + K (y - mu)                                                  (eq. 8)
+            diff = frame_tiles[first[b] % K]
+            np.subtract(diff, m0, out=diff)
+            diff *= gain
+            np.add(m0, diff, out=m)
+            # sigma' = (1 - K) sigma  = (sigma^-1 + sigma_w^-1)^-1                   (eq. 7)
+            np.subtract(1.0, gain, out=gain)
+            v *= gain
+        return TiledBackground(lay, inverse.reshape(E, K).astype(np.int32), new_mean, new_var)
 
     def predict(self, parents: np.ndarray, psi_b: float) -> "TiledBackground":
         """Prediction only (eq. 9, 10): child ``e`` gets its parent's means and variances + ``Psi_b``."""

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gflow_core.gflow import GFlowConfig, expert_rngs, fit_head_model_to_box, init_state, propose, step
-from gflow_core.gflow import pose_opinion
+from gflow_core.gflow import background, pose_opinion
 from gflow_core.gflow.background import TileLayout, TiledBackground
 from gflow_core.gflow.image import bilinear_stencil
 from gflow_core.gflow.render import synthetic_sequence
@@ -27,8 +27,9 @@ def _masks(rng, E, H, W):
     return m
 
 
-@pytest.mark.parametrize("shape", [(37, 45), (32, 48)])
-def test_advance_and_predict_equal_the_dense_update_bit_for_bit(shape) -> None:
+@pytest.mark.parametrize("shape,block", [((37, 45), 1024), ((32, 48), 5)])
+def test_advance_and_predict_equal_the_dense_update_bit_for_bit(shape, block, monkeypatch) -> None:
+    monkeypatch.setattr(background, "ADVANCE_BLOCK_TILES", block)  # 5: the update runs in several blocks
     rng = np.random.default_rng(0)
     E, (H, W) = 7, shape
     frame0 = rng.random((H, W))
