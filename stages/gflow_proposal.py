@@ -23,7 +23,10 @@ The stage keeps its own copy of all E backgrounds (every shard needs all of them
 any expert can be a parent) and advances it from the state message (new poses and
 parents) and the previous frame it saw, with
 :func:`gflow_core.gflow.filter.advance_background` (eq. 7-10), exactly as the filter
-would. If frame t - 1 was missing or unusable here, the replica is only predicted
+would. The copy stores each distinct 16 x 16 tile once (:mod:`gflow_core.gflow.background`;
+bit for bit the dense arrays' values): 100 experts at 320x240 hold a few MB instead of
+123 MB of float64 (and its second copy while a frame is advanced), which also keeps the
+snapshot, taken after every frame for a restart, small. If frame t - 1 was missing or unusable here, the replica is only predicted
 (eq. 9, 10: means kept, variances + Psi_b). If the replica does not describe frame t - 2
 when state t - 1 arrives (a lost state message), it restarts from frame t - 1 and the
 problem is reported.
@@ -40,7 +43,8 @@ import msgspec
 import numpy as np
 
 from gflow_core.gflow import ExpertState, expert_rngs, propose
-from gflow_core.gflow.filter import advance_background, initial_background
+from gflow_core.gflow.background import TileLayout, TiledBackground
+from gflow_core.gflow.filter import advance_background, initial_background, predict_background
 
 from .base import Output, Stage, StageInputError
 from .gflow_common import (
@@ -57,7 +61,7 @@ from .rng import stream_hash
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2  # 2: the background replica as distinct tiles (1: dense (E, H, W) arrays)
 
 
 class GFlowProposalParams(GFlowParams):
@@ -89,7 +93,9 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     prev_seq: int  # -1: no previous frame
     prev_grey: NDArray | None
     bg_seq: int  # frame the background replica describes; -1: none
-    bg_mean: NDArray | None
+    bg_tile: int  # tile side of the replica (gflow_core.gflow.background)
+    bg_table: NDArray | None  # (E, K) int32 tile ids
+    bg_mean: NDArray | None  # (U, T*T) float64 distinct tiles
     bg_var: NDArray | None
     steps: int
     init_error: str
@@ -220,7 +226,7 @@ class GFlowProposalStage(Stage):
             self.bg = advance_background(self.bg[0], self.bg[1], poses, parents, prev, s.model, s.cfg)
         else:
             # frame t - 1 was not seen here: prediction only, mu unchanged (eq. 9), sigma + Psi_b (eq. 10)
-            self.bg = (self.bg[0][parents], self.bg[1][parents] + s.cfg.psi_b)
+            self.bg = predict_background(self.bg[0], self.bg[1], parents, s.cfg)
         self.bg_seq = t1
         return True
 
@@ -230,7 +236,7 @@ class GFlowProposalStage(Stage):
                     background_at=self.bg_seq)
 
     def snapshot(self) -> bytes:
-        bg = self.bg
+        bank = None if self.bg is None else self.bg[0].bank
         snap = _Snapshot(
             version=SNAPSHOT_VERSION,
             image_shape=None if self.setup is None else tuple(self.setup.image_shape),  # type: ignore[arg-type]
@@ -238,9 +244,11 @@ class GFlowProposalStage(Stage):
             init_seq=-1 if self.init_seq is None else self.init_seq,
             prev_seq=-1 if self.prev is None else self.prev[0],
             prev_grey=None if self.prev is None else NDArray.of(self.prev[1]),
-            bg_seq=self.bg_seq if bg is not None else -1,
-            bg_mean=None if bg is None else NDArray.of(bg[0]),
-            bg_var=None if bg is None else NDArray.of(bg[1]),
+            bg_seq=self.bg_seq if bank is not None else -1,
+            bg_tile=0 if bank is None else bank.layout.tile,
+            bg_table=None if bank is None else NDArray.of(bank.table),
+            bg_mean=None if bank is None else NDArray.of(bank.pool_mean),
+            bg_var=None if bank is None else NDArray.of(bank.pool_var),
             steps=self.steps, init_error=self.init_error)
         return msgspec.msgpack.encode(snap)
 
@@ -260,11 +268,16 @@ class GFlowProposalStage(Stage):
         try:
             self.prev = None if snap.prev_grey is None else (snap.prev_seq, snap.prev_grey.array().copy())
             self.bg = None
-            if snap.bg_mean is not None and snap.bg_var is not None:
-                m, v = snap.bg_mean.array().copy(), snap.bg_var.array().copy()
-                m.setflags(write=False)
-                v.setflags(write=False)
-                self.bg = (m, v)
+            if snap.bg_table is not None and snap.bg_mean is not None and snap.bg_var is not None:
+                if self.setup is None:
+                    raise ValueError("corrupt gflow.proposal snapshot: a background replica without a frame size")
+                bank = TiledBackground(TileLayout(tuple(self.setup.image_shape), snap.bg_tile),  # type: ignore[arg-type]
+                                       snap.bg_table.array().astype(np.int32), snap.bg_mean.array().copy(),
+                                       snap.bg_var.array().copy())
+                if bank.n_experts != self.setup.cfg.n_experts:
+                    raise ValueError(f"corrupt gflow.proposal snapshot: a background replica of {bank.n_experts} "
+                                     f"experts, this stage has {self.setup.cfg.n_experts}")
+                self.bg = (bank.mean, bank.var)
         except MessageError as e:
             raise ValueError(f"corrupt gflow.proposal snapshot: {e}") from None
         self.init_seq = None if snap.init_seq < 0 else snap.init_seq

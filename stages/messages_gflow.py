@@ -7,7 +7,8 @@ eq. 13, does), and advancing it needs only the parents, the new poses and the fr
 (``gflow_core.gflow.filter.advance_background``). So :class:`ExpertStates` carries poses,
 object textures, credibilities and parents (about 20 x (6 + 2 x n) x 8 bytes); each
 proposal process keeps a bit-identical replica of the backgrounds. ``bg_mean`` /
-``bg_var`` are filled only in snapshots (for seeking and for a restarted proposal).
+``bg_var`` are never filled by the G-flow stages (the proposal stage's own snapshot holds
+its replica as distinct tiles, see ``stages/gflow_proposal.py``).
 """
 
 from __future__ import annotations

@@ -114,14 +114,15 @@ def test_a_stage_killed_after_its_last_frame_restarts_and_the_run_ends(caviar1, 
     assert sorted(estimates(rec)) == list(range(30))
 
 
-@pytest.mark.parametrize("stage", ["filter"])
-def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stage):
-    """The G-flow graph too (its filter's restart is slow: the proposal stage must wait for it)."""
+@pytest.mark.parametrize("stage,extra", [("filter", []), ("proposal", ["--background", "--experts", "8"])])
+def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stage, extra):
+    """The G-flow graph too (its filter's restart is slow: the proposal stage must wait for it);
+    a killed proposal stage resumes with its background replica from its checkpoint."""
     from conftest import data_dir
 
     david = data_dir("david_indoor")
     cmd = [sys.executable, "-m", "pipeline.cli.main", "track", str(david), "--tracker", "gflow", "--init", "169,76,46,60",
-           "--stop", "40", "--listen", "tcp/127.0.0.1:0"]
+           "--stop", "40", "--listen", "tcp/127.0.0.1:0", *extra]
     base = subprocess.run([*cmd, "--out", str(tmp_path / "base.csv"), "--record", str(tmp_path / "base.mcap"), "-q"],
                           capture_output=True, text=True, timeout=300)
     assert base.returncode == 0, base.stderr

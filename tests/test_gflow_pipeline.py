@@ -112,3 +112,24 @@ def test_stage_parameters_mirror_the_core_config_defaults() -> None:
     for f in dataclasses.fields(GFlowConfig):
         assert f.name in p_defaults, f"GFlowConfig.{f.name} has no stage parameter"
         assert p_defaults[f.name] == f.default, f"default of {f.name}: stage {p_defaults[f.name]!r} vs core {f.default!r}"
+
+
+def test_the_proposal_snapshot_holds_its_background_replica_compactly(scene) -> None:
+    """The proposal stage snapshots after every frame (for a restart); its background replica is
+    stored as distinct tiles, a fraction of the dense (E, H, W) float64 arrays, and a snapshot
+    whose tile table is damaged is refused with a one-line reason."""
+    from stages import gflow_proposal
+
+    _, seq, frames = scene
+    grey = np.rint(frames * 255).astype(np.uint8)
+    params = dict(SYNTH, n_experts=24, background=True, seed=4, init=[float(v) for v in seq.box])
+    cyc = Cycle(params)
+    for t in range(8):
+        cyc.step(t, features_msg(grey[t], t))
+    snap = cyc.proposal.snapshot()
+    dense = 2 * 24 * grey[0].size * 8
+    assert len(snap) < dense / 4, (len(snap), dense)
+    s = msgspec.msgpack.decode(snap, type=gflow_proposal._Snapshot)
+    bad = msgspec.structs.replace(s, bg_table=type(s.bg_table).of(np.full((24, 80), 10**6, np.int32)))
+    with pytest.raises(ValueError, match="tile ids|do not fit"):
+        Cycle(params).proposal.restore(msgspec.msgpack.encode(bad))

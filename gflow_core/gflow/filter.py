@@ -81,7 +81,8 @@ from .pose_opinion import (
     log_pose_prior,
     prior_mean,
 )
-from .texture import background_predict_update, kalman_update, object_mask
+from .background import TiledBackground, TiledTexels
+from .texture import kalman_update, object_mask
 
 __all__ = [
     "GFlowConfig",
@@ -323,7 +324,10 @@ class ExpertState:
     tex_mean, tex_var : (E, n) float64
         Object texel posterior means and variances (eq. 7, 8).
     bg_mean, bg_var : (E, H, W) float64 or None
-        Background texel posteriors; None for an uninformative background.
+        Background texel posteriors; None for an uninformative background. Made by
+        :func:`init_state` / :func:`update` as :class:`.background.TiledTexels` (each distinct
+        16 x 16 tile stored once, ``np.asarray`` gives the dense array); plain arrays are
+        accepted too.
     log_credibility : (E,) float64
         Normalised log credibilities (uniform after resampling).
     image_shape : (H, W)
@@ -718,8 +722,17 @@ def update(
     return new_state, est
 
 
+def _masks(model: MorphableModel, poses: np.ndarray, shape: tuple[int, int], cfg: GFlowConfig) -> np.ndarray:
+    """Object pixels ``X(u)`` of each pose, (E, H, W) bool (:func:`.texture.object_mask`)."""
+    pts = project(model.bases, poses)
+    out = np.empty((poses.shape[0],) + tuple(shape), dtype=bool)
+    for e in range(poses.shape[0]):
+        out[e] = object_mask(pts[e], shape, cfg.object_mask, cfg.object_mask_margin)
+    return out
+
+
 def initial_background(model: MorphableModel, poses: np.ndarray, frame: np.ndarray,
-                       cfg: GFlowConfig) -> tuple[np.ndarray, np.ndarray]:
+                       cfg: GFlowConfig) -> tuple[TiledTexels, TiledTexels]:
     """Background texels at the first frame: the frame itself with variance ``b_init_var``,
     except under each expert's object, ``unknown_var``.
 
@@ -730,49 +743,55 @@ def initial_background(model: MorphableModel, poses: np.ndarray, frame: np.ndarr
 
     Returns
     -------
-    bg_mean, bg_var : (E, H, W) float64, read-only.
+    bg_mean, bg_var : (E, H, W) float64 texels stored once per distinct tile
+        (:class:`.background.TiledTexels`; ``np.asarray`` gives the dense arrays).
     """
     img = validate_frame(frame)
-    pts = project(model.bases, poses)
-    E = poses.shape[0]
-    bg_mean = np.empty((E,) + img.shape)
-    bg_mean[:] = img
-    bg_var = np.full((E,) + img.shape, cfg.b_init_var)
-    for e in range(E):
-        bg_var[e][object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin)] = cfg.unknown_var
-    return _ro(bg_mean), _ro(bg_var)
+    bank = TiledBackground.initial(img, _masks(model, poses, img.shape, cfg), cfg.b_init_var, cfg.unknown_var)
+    return bank.mean, bank.var
 
 
-def advance_background(bg_mean: np.ndarray, bg_var: np.ndarray, poses: np.ndarray, parents: np.ndarray,
-                       frame: np.ndarray, model: MorphableModel, cfg: GFlowConfig) -> tuple[np.ndarray, np.ndarray]:
+def _bank(bg_mean, bg_var) -> TiledBackground:
+    if isinstance(bg_mean, TiledTexels) and isinstance(bg_var, TiledTexels) and bg_mean.bank is bg_var.bank:
+        return bg_mean.bank
+    return TiledBackground.from_dense(bg_mean, bg_var)
+
+
+def advance_background(bg_mean, bg_var, poses: np.ndarray, parents: np.ndarray, frame: np.ndarray,
+                       model: MorphableModel, cfg: GFlowConfig) -> tuple[TiledTexels, TiledTexels]:
     """Background texels at ``t`` from those at ``t - 1`` (sec. 3.1, eq. 7-10).
 
     Each new expert ``e`` starts from its parent's background ``parents[e]``, which is
     predicted (eq. 9, 10) and updated with ``frame`` outside the object it renders at
     ``poses[e]`` (eq. 7, 8). This needs only the parents, the new poses and the frame, so a
     proposal process can keep its own bit-identical copy of the backgrounds instead of
-    receiving (E, H, W) arrays every frame.
+    receiving (E, H, W) arrays every frame. Computed on distinct tiles
+    (:meth:`.background.TiledBackground.advance`), texel for texel the arithmetic of
+    :func:`.texture.background_predict_update`.
 
     Parameters
     ----------
-    bg_mean, bg_var : (E, H, W) float64, posterior at ``t - 1``.
+    bg_mean, bg_var : (E, H, W) posterior at ``t - 1`` (:class:`.background.TiledTexels` of one
+        bank, or float64 arrays).
     poses : (E, P) float64, ``u_t`` of the new experts.
     parents : (E,) int64
     frame : (H, W) float64 in [0, 1], ``y_t``.
 
     Returns
     -------
-    bg_mean, bg_var : (E, H, W) float64 at ``t``, read-only, new arrays.
+    bg_mean, bg_var : (E, H, W) at ``t``, :class:`.background.TiledTexels`, new objects.
     """
-    img = validate_frame(frame, shape=bg_mean.shape[1:])
-    pts = project(model.bases, poses)
-    masks = [object_mask(pts[e], img.shape, cfg.object_mask, cfg.object_mask_margin) for e in range(poses.shape[0])]
-    # each child: its parent's background, predicted (eq. 9, 10) and updated (eq. 7, 8)
-    mean, var = background_predict_update(
-        bg_mean, bg_var, img, cfg.psi_b, cfg.sigma_w, masks, parents=np.asarray(parents),
-        out=(np.empty_like(bg_mean), np.empty_like(bg_mean)),
-    )
-    return _ro(mean), _ro(var)
+    bank = _bank(bg_mean, bg_var)
+    img = validate_frame(frame, shape=bank.layout.shape)
+    new = bank.advance(np.asarray(parents), _masks(model, poses, img.shape, cfg), img, cfg.psi_b, cfg.sigma_w)
+    return new.mean, new.var
+
+
+def predict_background(bg_mean, bg_var, parents: np.ndarray, cfg: GFlowConfig) -> tuple[TiledTexels, TiledTexels]:
+    """Prediction only (eq. 9, 10), for a frame that was not seen: each new expert takes its
+    parent's means, and its variances plus ``Psi_b``."""
+    new = _bank(bg_mean, bg_var).predict(np.asarray(parents), cfg.psi_b)
+    return new.mean, new.var
 
 
 def step(

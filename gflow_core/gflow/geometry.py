@@ -254,11 +254,28 @@ def project(bases: np.ndarray, poses: np.ndarray) -> np.ndarray:
     poses = np.asarray(poses, dtype=np.float64)
     lead = poses.shape[:-1]
     u = poses.reshape(-1, poses.shape[-1])
-    s = shape_vertices(bases, u[:, COEF])  # (N, n, 3)
-    g_r = rotation_matrices(u)[:, :2, :]  # (N, 2, 3) = g r
     # x_i = g r (h_i c) + l
-    x = s @ g_r.transpose(0, 2, 1) + u[:, None, TRANS]
+    x = project_untranslated(bases, u) + u[:, None, TRANS]
     return x.reshape(lead + (bases.shape[0], 2))
+
+
+def project_untranslated(bases: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """``g r (h_i c)``, the projection of eq. 1 before the translation ``l`` is added:
+    ``project(bases, u) == project_untranslated(bases, u) + l`` exactly, so poses that differ
+    only in ``l`` can share it.
+
+    Parameters
+    ----------
+    bases : (n, 3, k) float64
+    poses : (N, P) float64
+
+    Returns
+    -------
+    (N, n, 2) float64
+    """
+    s = shape_vertices(bases, poses[:, COEF])  # (N, n, 3)
+    g_r = rotation_matrices(poses)[:, :2, :]  # (N, 2, 3) = g r
+    return s @ g_r.transpose(0, 2, 1)
 
 
 def projection_jacobian(bases: np.ndarray, poses: np.ndarray) -> np.ndarray:

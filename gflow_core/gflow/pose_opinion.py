@@ -111,7 +111,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .geometry import COEF, ROT, TRANS, box_minus, box_plus, project, projection_jacobian
+from .geometry import COEF, ROT, TRANS, box_minus, box_plus, project, project_untranslated, projection_jacobian
 from .image import BilinearStencil, FrameData, bilinear_stencil
 from .photometric import Photometric, gain_bias, predict
 
@@ -141,6 +141,10 @@ MIN_CURVATURE_FRACTION = 0.1
 
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
+#: The translation search of :func:`coarse_to_fine_peak` evaluates at most this many
+#: (expert, offset, vertex) triples at once (about 100 bytes of temporaries each).
+SEARCH_BLOCK_VERTICES = 1 << 18
+
 
 @dataclass(frozen=True)
 class TextureView:
@@ -151,7 +155,7 @@ class TextureView:
     mean, var : (E, n) float64
         Predicted object texel means ``mu_v`` and variances ``sigma_v`` (posterior at
         ``t - 1`` plus ``Psi_v``).
-    bg_mean, bg_var : (R, H, W) float64 or None
+    bg_mean, bg_var : (R, H, W) float64, :class:`.background.TiledTexels` or None
         Background texel posterior at ``t - 1`` for all ``R`` experts of the state
         (``None``: uninformative background). Not copied.
     bg_rows : (E,) intp or None
@@ -173,13 +177,18 @@ class TextureView:
 
     def bg_at(self, st: BilinearStencil, rows: np.ndarray, with_grad: bool = False):
         """Background mean (and its x/y derivative) and predicted variance at points."""
-        fm = self.bg_mean.reshape(-1)  # type: ignore[union-attr]
-        fv = self.bg_var.reshape(-1)  # type: ignore[union-attr]
+        fm, fv = _flat(self.bg_mean), _flat(self.bg_var)
         var = st.sample(fv, rows) + self.psi_b
         if with_grad:
             m, mx, my = st.sample_with_gradient(fm, rows)
             return m, mx, my, var
         return st.sample(fm, rows), var
+
+
+def _flat(stack):
+    """An ``(R, H, W)`` stack as a flat array for :class:`BilinearStencil` (an ndarray, or
+    :class:`.background.TiledTexels` read tile by tile)."""
+    return stack.reshape(-1) if isinstance(stack, np.ndarray) else stack.flat_view()
 
 
 @dataclass(frozen=True)
@@ -381,6 +390,7 @@ def gauss_newton_objective(
     max_rotation: float = np.inf,
     outlier_sq: float = np.inf,
     scale: tuple[float, float] | None = None,
+    points: np.ndarray | None = None,
 ) -> np.ndarray:
     """The Gauss-Newton objective: eq. 14 without its second background term.
 
@@ -403,6 +413,8 @@ def gauss_newton_objective(
     photometric : Photometric, optional
         Fit a gain and bias per expert; the residual is ``y - (a mu_v + b)`` (see
         :mod:`.photometric`).
+    points : (E, n, 2) float64, optional
+        ``project(bases, poses)`` when the caller has it (level 0 pixels).
 
     Returns
     -------
@@ -411,7 +423,7 @@ def gauss_newton_objective(
         (``-log p(u|u_{t-1})`` without its constant).
     """
     lam = prior_precision(prior_std)
-    x = project(bases, poses)
+    x = project(bases, poses) if points is None else points
     if level_scale != 1.0:
         x = x * level_scale
     st = bilinear_stencil(x, fd.shape)
@@ -712,19 +724,32 @@ def coarse_to_fine_peak(
         # the search compares raw intensities with an uncapped cost: with a gain and bias fitted
         # at every grid point low-contrast patches matched too, and with the outlier cap most
         # vertices of a motion-blurred face were outliers everywhere (see the module docstring)
-        sv = TextureView(mean=np.repeat(tv.mean[:, sub], G, axis=0), var=np.repeat(tv.var[:, sub], G, axis=0))
-        f = gauss_newton_objective(
-            bases[sub], pyramid[L - 1], np.repeat(prev, G, axis=0), cand.reshape(E * G, -1), sv,
-            sigma_w, prior_std, False, level_scale=0.5 ** (L - 1), photometric=None, max_rotation=max_rotation,
-            scale=scale,
-        ).reshape(E, G)
+        # in blocks of experts: E x G x n vertices at once took 180 MB with 100 experts (the
+        # experts are independent, so the blocks give the same numbers as one batch)
+        n_sub = bases[sub].shape[0]
+        block = max(1, SEARCH_BLOCK_VERTICES // max(1, G * n_sub))
+        f = np.empty((E, G))
+        for b0 in range(0, E, block):
+            bs = slice(b0, min(E, b0 + block))
+            sv = TextureView(mean=np.repeat(tv.mean[bs, sub], G, axis=0), var=np.repeat(tv.var[bs, sub], G, axis=0))
+            # the candidates differ from u only in l: g r (h_i c) once per expert, plus each l
+            # (exactly project(bases, candidate), see project_untranslated)
+            rot = project_untranslated(bases[sub], u[bs])
+            pts = (rot[:, None] + cand[bs][:, :, None, TRANS]).reshape(-1, n_sub, 2)
+            f[bs] = gauss_newton_objective(
+                bases[sub], pyramid[L - 1], np.repeat(prev[bs], G, axis=0), cand[bs].reshape(-1, u.shape[1]), sv,
+                sigma_w, prior_std, False, level_scale=0.5 ** (L - 1), photometric=None, max_rotation=max_rotation,
+                scale=scale, points=pts,
+            ).reshape(-1, G)
         f = np.where(np.isfinite(f), f, np.inf)
         best = cand[np.arange(E), np.argmin(f, axis=1)]
-        # two chains per expert, refined alike: from u_{t-1} and from the search's best start
-        local = _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background,
-                        photometric, max_rotation, outlier_sq, scale)
-        far = _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, best, use_background,
-                      photometric, max_rotation, outlier_sq, scale)
+        # two chains per expert, refined alike: from u_{t-1} and from the search's best start, in
+        # one batch of 2E rows (the rows are independent, so this is bit for bit two batches of E,
+        # at half the per-call cost, which dominates for a shard of a few experts)
+        both = _refine(bases, pyramid, _twice(prev), _twice_view(tv), _twice_view(fg), sigma_w, prior_std, n_iter,
+                       np.concatenate([u, best]), use_background, photometric, max_rotation, outlier_sq, scale)
+        local = GaussNewtonResult(both.u_hat[:E], both.hessian[:E], both.objective[:E])
+        far = GaussNewtonResult(both.u_hat[E:], both.hessian[E:], both.objective[E:])
         # keep the lower level-0 objective (eq. 14); the local chain on a tie
         pick = far.objective < local.objective
         return GaussNewtonResult(
@@ -734,6 +759,16 @@ def coarse_to_fine_peak(
         )
     return _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
                    max_rotation, outlier_sq, scale)
+
+
+def _twice(a: np.ndarray | None) -> np.ndarray | None:
+    return None if a is None else np.concatenate([a, a])
+
+
+def _twice_view(tv: TextureView) -> TextureView:
+    """The same texture opinions for a batch of every expert twice (rows ``e`` and ``E + e``)."""
+    return TextureView(mean=_twice(tv.mean), var=_twice(tv.var), bg_mean=tv.bg_mean, bg_var=tv.bg_var,
+                       bg_rows=_twice(tv.bg_rows), psi_b=tv.psi_b)
 
 
 def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
