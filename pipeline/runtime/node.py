@@ -1,7 +1,11 @@
 """One stage as its own OS process on zenoh: ``python -m pipeline.runtime.node PLAN.json STAGE``.
 
 Start-up handshake: every node publishes a heartbeat (:class:`StageStatus`) on
-``gflow/<stream>/_status/<stage>`` twice a second, after declaring its subscribers. A node
+``gflow/<stream>/_status/<stage>`` twice a second and at every change of state, after
+declaring its subscribers. A worker's report of each step it finished (what flow control
+needs) goes on ``gflow/<stream>/@progress/<stage>`` instead, which only the sources
+subscribe to: every message costs every process that receives it ~150-280 us of CPU, and
+no worker needs another's per-step progress. A node
 publishes data only once it has heard a heartbeat from every other node of the graph: the
 heartbeat came over the direct peer link after that node's subscriber declarations, so
 no early message can miss a subscriber. Sources additionally wait for the launcher's
@@ -29,9 +33,11 @@ Faults:
 * The cycle never deadlocks: an input that does not come is given up when the stream is
   ``lag`` frames further on (twice the flow-control window, plus 4) or after
   ``GFLOW_LATE_S`` seconds (default 3) while the source is ahead; the stage then coasts.
-* The source announces each frame (its heartbeat's ``last_seq`` and ``frame_shape``)
-  before sending it; every stage rejects messages more than the flow-control window ahead
-  of it, and images of another size.
+* The source announces its frames (its heartbeat's ``last_seq`` and ``frame_shape``)
+  before sending them: the first frame, then every ``max(1, window // 2)`` frames (every
+  frame without flow control), so the announced position is never more than half a window
+  behind a frame in flight; every stage rejects messages more than the flow-control window
+  ahead of it, and images of another size.
 * Every node holds a zenoh liveliness token ``gflow/<stream>/_alive/<stage>``, which
   vanishes within milliseconds of the process's death. The source waits while the
   recorder's token is gone, so a recorder restart loses no more than the frames in flight.
@@ -296,13 +302,15 @@ class Node:
             out["unsigned"] = sum(self.bus.foreign.values())
         return out
 
-    def send_status(self, min_interval: float = 0.0) -> bool:
-        """Publish this node's heartbeat (unless one went out less than ``min_interval`` s ago)."""
+    def send_status(self, min_interval: float = 0.0, progress: bool = False) -> bool:
+        """Publish this node's heartbeat (unless one went out less than ``min_interval`` s ago);
+        with ``progress``, on the progress key that only sources and lockstep tools hear."""
         now = time.monotonic()
         if now - self._last_status >= min_interval:
             self._last_status = now
             st = self.status()
-            self.bus.publish(self.plan.status_topic(self.name), encode(st), st.header.seq, "StageStatus")
+            topic = self.plan.progress_topic(self.name) if progress else self.plan.status_topic(self.name)
+            self.bus.publish(topic, encode(st), st.header.seq, "StageStatus")
             return True
         return False
 
@@ -385,6 +393,8 @@ class Node:
     def run(self) -> int:
         plan, sp = self.plan, self.sp
         self.bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
+        if self.flow_window:  # flow control: how far each worker has got, step by step
+            self.bus.subscribe(plan.progress_topic("*"), self._on_status)
         self.bus.subscribe(plan.control_topic, self._on_control)
         alive = f"gflow/{plan.stream}/_alive"
         self._token = self.session.liveliness().declare_token(f"{alive}/{self.name}")
@@ -490,6 +500,8 @@ class Node:
         p = stage.params
         t0 = time.monotonic()
         first: int | None = None
+        every = max(1, self.flow_window // 2)  # announcements: each one costs every other process
+        announce_at = -1
         for raw in open_reader(p, self.plan.base_dir):  # type: ignore[arg-type]
             if self.stop.is_set():
                 host.close("interrupted")
@@ -504,11 +516,13 @@ class Node:
             self._flow_wait(raw.index)
             outs = stage.emit(raw)
             host._flush_reports()
-            if outs:  # announce the frame (and its size) before sending it
+            if outs:  # announce the frame (and its size) before sending it: every half window
                 self.announced = max(self.announced, raw.index)
                 shape = getattr(stage, "_shape", None)
                 self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
-                self.send_status()
+                if raw.index >= announce_at:
+                    announce_at = raw.index + every
+                    self.send_status()
             host._emit(outs)
             if outs:
                 self._checkpoint(raw.index)
@@ -570,11 +584,11 @@ class Node:
             except queue.Empty:
                 if unreported:
                     self._reported_steps = host.stats.steps
-                    self.send_status()
+                    self.send_status(progress=True)
                 host.tick(self.late_s)
                 continue
             host.deliver(key, payload)
-            if self.flow_stages_waiting and self.send_status(REPORT_EVERY_S):
+            if self.flow_stages_waiting and self.send_status(REPORT_EVERY_S, progress=True):
                 self._reported_steps = host.stats.steps
         return 0
 
