@@ -33,11 +33,9 @@ Faults:
 * The cycle never deadlocks: an input that does not come is given up when the stream is
   ``lag`` frames further on (twice the flow-control window, plus 4) or after
   ``GFLOW_LATE_S`` seconds (default 3) while the source is ahead; the stage then coasts.
-* The source announces its frames (its heartbeat's ``last_seq`` and ``frame_shape``)
-  before sending them: the first frame, then every ``max(1, window // 2)`` frames (every
-  frame without flow control), so the announced position is never more than half a window
-  behind a frame in flight; every stage rejects messages more than the flow-control window
-  ahead of it, and images of another size.
+* The source announces each frame (its heartbeat's ``last_seq`` and ``frame_shape``)
+  before sending it; every stage rejects messages more than the flow-control window ahead
+  of it, and images of another size.
 * Every node holds a zenoh liveliness token ``gflow/<stream>/_alive/<stage>``, which
   vanishes within milliseconds of the process's death. The source waits while the
   recorder's token is gone, so a recorder restart loses no more than the frames in flight.
@@ -500,8 +498,6 @@ class Node:
         p = stage.params
         t0 = time.monotonic()
         first: int | None = None
-        every = max(1, self.flow_window // 2)  # announcements: each one costs every other process
-        announce_at = -1
         for raw in open_reader(p, self.plan.base_dir):  # type: ignore[arg-type]
             if self.stop.is_set():
                 host.close("interrupted")
@@ -516,13 +512,11 @@ class Node:
             self._flow_wait(raw.index)
             outs = stage.emit(raw)
             host._flush_reports()
-            if outs:  # announce the frame (and its size) before sending it: every half window
+            if outs:  # announce the frame (and its size) before sending it
                 self.announced = max(self.announced, raw.index)
                 shape = getattr(stage, "_shape", None)
                 self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
-                if raw.index >= announce_at:
-                    announce_at = raw.index + every
-                    self.send_status()
+                self.send_status()
             host._emit(outs)
             if outs:
                 self._checkpoint(raw.index)
