@@ -14,6 +14,7 @@ from stages.messages import MessageError, StageStatus, decode
 
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.plain import describe, to_plain
+from pipeline.runtime.graph import PROGRESS
 from pipeline.runtime.security import Signer
 from pipeline.runtime.transport import Bus, ZenohSettings, open_reaching
 
@@ -261,6 +262,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
     stream = keep[0].topic.split("/")[1] if keep else ""
     if opts.lockstep:
         bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
+        bus.subscribe(f"gflow/{stream}/{PROGRESS}/*", acks.on_status)  # each step a worker finished
     announcement = None
     if announce_endpoints and stream:
         from pipeline.runtime.running import announce

@@ -159,6 +159,13 @@ class Plan:
     def status_topic(self, stage: str) -> str:
         return topic_key(self.stream, f"_status/{stage}")
 
+    def progress_topic(self, stage: str) -> str:
+        """Where a worker reports each step it finished (``gflow/<stream>/@progress/<stage>``).
+        A verbatim chunk (``@``): no wildcard matches it, so only the sources (flow control)
+        and tools that ask for it by name (``replay --lockstep``) receive these, not every
+        process of the graph and not the recorder (measured: ~150-280 us of CPU per receipt)."""
+        return topic_key(self.stream, f"{PROGRESS}/{stage}")
+
     def snapshot_topic(self, stage: str) -> str:
         return topic_key(self.stream, f"_snapshot/{stage}")
 
@@ -224,6 +231,9 @@ class Plan:
         path = rec.params.get("path", RecorderParams().path)
         return str(Path(self.base_dir, path.format(name=self.name, time=time.strftime("%Y%m%d-%H%M%S"))))
 
+
+#: the key chunk of the per-step progress heartbeats (:meth:`Plan.progress_topic`)
+PROGRESS = "@progress"
 
 #: topics every recording keeps, whatever ``topics`` says
 ALWAYS_RECORDED = ("errors", "_status/*", "_control")

@@ -261,28 +261,35 @@ def _read_users(path: str) -> dict[str, str]:
     return users
 
 
+def _with_progress(keys: list[str]) -> list[str]:
+    """``keys`` plus the progress keys under them: ``**`` does not match a verbatim chunk such as
+    ``@progress`` (``gflow/<stream>/@progress/<stage>``, :meth:`Plan.progress_topic`)."""
+    return keys + [k[: -len("**")] + "*/@progress/*" if k == "gflow/**" else k[: -len("**")] + "@progress/*"
+                   for k in keys if k.endswith("/**")]
+
+
 def acl_config(cfg: RouterConfig) -> dict:
     """zenoh's ``access_control`` section for ``cfg`` (default deny; see the module doc)."""
     # a publisher of one stream must still learn of a reader's subscription to gflow/** (zenoh's ACL
     # matches a declaration only when its key lies inside the rule's), or it never sends to it
     rules: list[dict] = [{"id": "see-subscribers", "permission": "allow", "flows": ["egress"],
-                          "messages": ["declare_subscriber", "declare_liveliness_subscriber"], "key_exprs": ["gflow/**"]}]
+                          "messages": ["declare_subscriber", "declare_liveliness_subscriber"], "key_exprs": _with_progress(["gflow/**"])}]
     subjects: list[dict] = []
     policies: list[dict] = []
     for i, p in enumerate(cfg.publishers):
         streams = p.get("streams", ["*"])
         keys = ["gflow/**"] if "*" in streams else [f"gflow/{s}/**" for s in streams]
         rules.append({"id": f"publish{i}", "permission": "allow", "flows": ["ingress", "egress"],
-                      "messages": list(_ALL_MESSAGES), "key_exprs": keys})
+                      "messages": list(_ALL_MESSAGES), "key_exprs": _with_progress(keys)})
         subjects.append({"id": f"publisher{i}", **{k: v for k, v in p.items() if k != "streams"}})
         policies.append({"id": f"publishers{i}", "rules": [f"publish{i}", "see-subscribers"],
                          "subjects": [f"publisher{i}"]})
     if cfg.readers != "none":
         rules.append({"id": "read-in", "permission": "allow", "flows": ["ingress"],
                       "messages": ["declare_subscriber", "declare_liveliness_subscriber", "liveliness_query", "query"],
-                      "key_exprs": ["gflow/**"]})
+                      "key_exprs": _with_progress(["gflow/**"])})
         rules.append({"id": "read-out", "permission": "allow", "flows": ["egress"],
-                      "messages": ["put", "delete", "reply", "liveliness_token"], "key_exprs": ["gflow/**"]})
+                      "messages": ["put", "delete", "reply", "liveliness_token"], "key_exprs": _with_progress(["gflow/**"])})
         subjects.append({"id": "readers", **({} if cfg.readers == "anyone" else cfg.readers)})
         policies.append({"id": "readers", "rules": ["read-in", "read-out"], "subjects": ["readers"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
