@@ -151,6 +151,30 @@ def test_the_wall_time_rule_releases_a_frame_when_the_source_is_ahead():
     assert sink.seqs("estimate", "Estimate") == [0, 1]
 
 
+def test_the_wall_time_rule_counts_from_when_a_frame_became_next_not_from_its_first_input():
+    """Inputs that run ahead (a cycle-bound stage's frames, a whole window early) must not
+    make a healthy cycle give up its next frame at once."""
+    sink = Sink()
+    h = _filter(sink)
+    h.source_seq = 3
+    for s in range(3):
+        h.deliver("features", encode(_features(s)))
+    h.tick(0.2)  # frame 1 becomes the next frame now
+    t_first = time.monotonic()
+    while time.monotonic() - t_first < 0.3:  # frame 2's features have waited 0.3 s ...
+        time.sleep(0.05)
+    h.deliver("proposals", encode(_particles(1)))  # ... and frame 1 is done: frame 2 is next
+    assert sink.seqs("estimate", "Estimate") == [0, 1]
+    h.tick(0.2)
+    assert sink.seqs("estimate", "Estimate") == [0, 1], "frame 2 was given up the moment it became next"
+    deadline = time.monotonic() + 5
+    while sink.seqs("estimate", "Estimate") == [0, 1]:  # its own wait then releases it
+        assert time.monotonic() < deadline
+        h.tick(0.2)
+        time.sleep(0.01)
+    assert sink.seqs("estimate", "Estimate") == [0, 1, 2]
+
+
 def test_a_resumed_filter_fills_the_frames_it_missed_and_reseeds_on_the_first_one_it_has():
     sink = Sink()
     a = _filter(sink)

@@ -102,6 +102,7 @@ class StageHost:
         self.on_step = on_step
         self.replayed_upto: dict[str, int] = {}  # after a restart: inputs already taken from the recording
         self.hold = False  # a peer is restarting: do not give inputs up for lateness (see tick)
+        self._head: tuple[int, float] = (-1, 0.0)  # (lowest pending seq, when tick first saw it lowest)
         self.stats = HostStats()
         self.closed = False
         self.max_out: dict[str, int] = {}
@@ -196,13 +197,18 @@ class StageHost:
                 + (f" (has {', '.join(have)})" if have else ""))
 
     def tick(self, wait_s: float) -> None:
-        """Wall-time rule: the lowest pending frame has waited ``wait_s`` while the source is
-        ahead of it (or a driver port has ended): give up its missing inputs and go on."""
+        """Wall-time rule: the lowest pending frame has waited ``wait_s`` since it became the
+        next frame to step (not since its first input came: inputs that run ahead, like the
+        frames of a cycle-bound G-flow proposal stage, arrive a whole flow-control window early)
+        while the source is ahead of it (or a driver port has ended): give up its missing inputs
+        and go on."""
         j = self.join
         if self.closed or not j.pending or self.hold:
             return
-        seq = min(j.pending)
-        if time.monotonic() - j.since.get(seq, time.monotonic()) < wait_s:
+        seq, now = min(j.pending), time.monotonic()
+        if self._head[0] != seq:
+            self._head = (seq, now)
+        if now - max(j.since.get(seq, now), self._head[1]) < wait_s:
             return
         ahead = self.source_seq > seq or bool(j.eos) or j.top() > seq
         if not ahead:

@@ -31,8 +31,11 @@ Faults:
   given up (a filter coasts on them, or re-seeds from its own restored state on the first
   frame whose driver inputs are here).
 * The cycle never deadlocks: an input that does not come is given up when the stream is
-  ``lag`` frames further on (twice the flow-control window, plus 4) or after
-  ``GFLOW_LATE_S`` seconds (default 3) while the source is ahead; the stage then coasts.
+  ``lag`` frames further on (twice the flow-control window, plus 4) or once its frame has
+  been the next one to step for ``GFLOW_LATE_S`` seconds (default 3) while the source is
+  ahead; the stage then coasts. (Counted from when its first input came, a G-flow proposal
+  stage whose frames arrive a window ahead of its cycle gave inputs up on a loaded machine,
+  and the multi-process result then differed from --inline.)
 * The source announces each frame (its heartbeat's ``last_seq`` and ``frame_shape``)
   before sending it; every stage rejects messages more than the flow-control window ahead
   of it, and images of another size.
