@@ -19,8 +19,10 @@ Faults:
 
 * Nothing outlives the launcher: on Linux every node asks for SIGTERM when its parent dies
   (``prctl(PR_SET_PDEATHSIG)``), and a watchdog thread also checks the parent pid; an
-  orphaned node stops at once (the recorder closes its file first) and removes the run's
-  temporary folder (``GFLOW_RUN_DIR``).
+  orphaned node stops at once (the recorder closes its file first), removes the run's
+  temporary folder (``GFLOW_RUN_DIR``) and leaves with ``os._exit``: its session is not
+  closed (zenoh-python's callback threads would hold the interpreter's teardown) and its
+  stdout/stderr are pipes to the dead launcher.
 * Resume, not restart: a stage the graph restarts writes a checkpoint after every step
   (``GFLOW_STATE_DIR``: its snapshot, the last frame done, its last outputs). Started
   again (``GFLOW_RESTARTS`` > 0), it restores the checkpoint and resumes from the next frame
@@ -430,14 +432,20 @@ class Node:
         finally:
             self.state = "done" if self.state != "stopped" else "stopped"
             self._hb_stop.set()
-            hb.join(timeout=1.0)
-            try:
-                self.send_status()  # the final heartbeat says "done"; best effort
-            except Exception as e:  # the session may already be closing on interrupt
-                log.debug("[%s] final heartbeat not sent: %s", self.name, e)
-            time.sleep(0.1)  # let the last samples leave before the session closes
-            self.session.close()
-            self._cleanup_if_orphaned()
+            if self.orphaned.is_set():
+                # the launcher (this host's router) is gone: nobody to say goodbye to, and a
+                # session closing towards a vanished router can take seconds; run_node exits
+                # at once (the recorder has closed its file, checkpoints are written atomically)
+                self._cleanup_if_orphaned()
+            else:
+                hb.join(timeout=1.0)
+                try:
+                    self.send_status()  # the final heartbeat says "done"; best effort
+                except Exception as e:  # the session may already be closing on interrupt
+                    log.debug("[%s] final heartbeat not sent: %s", self.name, e)
+                time.sleep(0.1)  # let the last samples leave before the session closes
+                self.session.close()
+                self._cleanup_if_orphaned()
 
     def _note_state(self, other: str, st: StageStatus) -> None:
         """Remember each peer's heartbeat state (and the recorder's recorded ends of stream)."""
@@ -671,7 +679,20 @@ def run_node(plan_path: str, name: str) -> int:
     if node.parent and os.getppid() != node.parent:  # the launcher died before we got here
         node.orphaned.set()
         node.stop.set()
-    return node.run()
+    try:
+        rc = node.run()
+    finally:
+        if node.orphaned.is_set():
+            # exit at once: the session was left open (zenoh's callback threads would keep the
+            # interpreter's teardown waiting), and stdout/stderr are pipes to a dead launcher,
+            # so flushing them may raise
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except (OSError, ValueError):
+                    pass
+            os._exit(0)
+    return rc
 
 
 def main(argv: list[str] | None = None) -> int:
