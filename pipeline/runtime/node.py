@@ -331,8 +331,29 @@ class Node:
             if self.parent and os.getppid() != self.parent:
                 self.orphaned.set()
                 self.stop.set()
+                self._force_exit_when_orphaned()
                 return
             self._hb_stop.wait(0.2)
+
+    def _force_exit_when_orphaned(self, grace_s: float = 1.0) -> None:
+        """The launcher is gone and the main thread was told to stop; if it is stuck (a signal
+        handler cannot run while it waits inside zenoh, e.g. in a blocking put towards the
+        vanished router), leave after ``grace_s`` anyway -- except while a recording is open:
+        the recorder goes only once its file is closed."""
+        deadline = time.monotonic() + grace_s
+        while True:
+            rec = self.recorder
+            recording = rec is not None and getattr(rec, "_f", None) is not None
+            if not recording and time.monotonic() >= deadline:
+                break
+            time.sleep(0.05)
+        self._cleanup_if_orphaned()
+        for stream in (sys.stdout, sys.stderr):
+            try:
+                stream.flush()
+            except (OSError, ValueError):
+                pass
+        os._exit(0)
 
     # -- checkpoints -----------------------------------------------------------------------
     def _checkpoint(self, seq: int) -> None:
