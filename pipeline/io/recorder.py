@@ -224,6 +224,11 @@ class McapRecorder:
         self._good = self._f.tell()
         self._good_messages = self.messages
 
+    @property
+    def is_open(self) -> bool:
+        """True from :meth:`open` until :meth:`close` has closed the file."""
+        return self._f is not None
+
     def close(self) -> None:
         """Write the summary and footer. Safe to call twice."""
         if self._w is not None:

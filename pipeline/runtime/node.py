@@ -343,17 +343,12 @@ class Node:
         deadline = time.monotonic() + grace_s
         while True:
             rec = self.recorder
-            recording = rec is not None and getattr(rec, "_f", None) is not None
+            recording = rec is not None and rec.is_open
             if not recording and time.monotonic() >= deadline:
                 break
             time.sleep(0.05)
         self._cleanup_if_orphaned()
-        for stream in (sys.stdout, sys.stderr):
-            try:
-                stream.flush()
-            except (OSError, ValueError):
-                pass
-        os._exit(0)
+        _exit_now()
 
     # -- checkpoints -----------------------------------------------------------------------
     def _checkpoint(self, seq: int) -> None:
@@ -675,6 +670,9 @@ class Node:
         return 0
 
 
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
+
+
 def run_node(plan_path: str, name: str) -> int:
     keep_freed_memory()  # frame-sized buffers reused, not faulted in afresh every frame
     threads = os.environ.get("GFLOW_CV_THREADS")
@@ -682,21 +680,32 @@ def run_node(plan_path: str, name: str) -> int:
         import cv2
 
         cv2.setNumThreads(int(threads))
+    # Signals go to a thread of their own, never to a Python handler: a handler runs on the
+    # main thread between two bytecodes, and setting an Event there deadlocks when the signal
+    # lands while the main thread holds that Event's lock (seen: a stage alive for good after
+    # its launcher's SIGKILL). Blocked before any thread starts, so every thread, zenoh's too,
+    # inherits the mask and only the relay's sigwait takes them.
+    signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    holder: list[Node] = []
+
+    def _relay() -> None:
+        while True:
+            signal.sigwait(_STOP_SIGNALS)
+            if not holder:  # before the node exists there is nothing to stop cleanly
+                _exit_now()
+            node = holder[0]
+            if node.parent and os.getppid() != node.parent:
+                node.orphaned.set()
+            node.stop.set()
+
+    threading.Thread(target=_relay, name="signals", daemon=True).start()
     die_with_parent()
     plan = Plan.from_json(Path(plan_path).read_text())
     if name not in plan.stages:
         print(f"gflow node: no stage {name!r} in {plan_path}", file=sys.stderr)
         return 2
     node = Node(plan, name)
-
-    def _signal(signum, frame) -> None:
-        if node.parent and os.getppid() != node.parent:
-            node.orphaned.set()
-        node.stop.set()
-
-    signal.signal(signal.SIGINT, _signal)
-    signal.signal(signal.SIGTERM, _signal)
-    signal.signal(signal.SIGHUP, _signal)
+    holder.append(node)
     if node.parent and os.getppid() != node.parent:  # the launcher died before we got here
         node.orphaned.set()
         node.stop.set()
@@ -704,16 +713,19 @@ def run_node(plan_path: str, name: str) -> int:
         rc = node.run()
     finally:
         if node.orphaned.is_set():
-            # exit at once: the session was left open (zenoh's callback threads would keep the
-            # interpreter's teardown waiting), and stdout/stderr are pipes to a dead launcher,
-            # so flushing them may raise
-            for stream in (sys.stdout, sys.stderr):
-                try:
-                    stream.flush()
-                except (OSError, ValueError):
-                    pass
-            os._exit(0)
+            _exit_now()  # the session was left open: zenoh's callback threads would hold the teardown
     return rc
+
+
+def _exit_now() -> None:
+    """Leave at once, without the interpreter's teardown. stdout/stderr may be pipes to a
+    dead launcher, so flushing them may raise."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(0)
 
 
 def main(argv: list[str] | None = None) -> int:
