@@ -5,7 +5,7 @@ Each record keeps the payload bytes exactly as they travelled (so a re-run can b
 bit for bit), the topic, the log time (when the recorder received it), the publish time
 (from the sample's attachment) and the sequence number (the frame index).
 
-``Writer.flush()`` (mcap >= 1.2) closes the open chunk; calling it at least every
+``ChunkWriter.flush()`` (``pipeline/io/mcap_writer.py``) closes the open chunk; calling it at least every
 ``flush_interval`` seconds bounds what a killed recorder loses. The graph and the
 configuration are stored as MCAP metadata records named ``gflow.graph`` and ``gflow.config``.
 
@@ -16,7 +16,7 @@ magic (a valid MCAP file without a summary, readable to that point) and raises
 :class:`DiskFull`.
 
 Page cache: a recording is written once and not read back while it is written, so the
-recorder drops what it has written from the page cache as it goes (``posix_fadvise``
+writer (``pipeline/io/mcap_writer.py``) drops what it has written from the page cache as it goes (``posix_fadvise``
 DONTNEED on the last ``DROP_WINDOW`` bytes every ``DROP_EVERY`` bytes: the first call
 starts the write-back, a later one frees the pages once they are clean). The recording then
 holds a bounded amount of page cache whatever its length, and the kernel recycles the same
@@ -39,7 +39,8 @@ from typing import IO, Any
 import msgspec
 from mcap.data_stream import RecordBuilder
 from mcap.records import DataEnd, Footer
-from mcap.writer import CompressionType, Writer
+
+from pipeline.io.mcap_writer import ChunkWriter
 
 from stages.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
 from stages.messages_foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
@@ -48,8 +49,6 @@ __all__ = ["McapRecorder", "DiskFull", "peek_type", "MESSAGE_ENCODING", "SCHEMA_
 
 MAGIC = b"\x89MCAP0\r\n"
 RESERVE_BYTES = 256 * 1024
-DROP_EVERY = 4 * 2**20  # bytes written between two page-cache drops
-DROP_WINDOW = 64 * 2**20  # the span before the write position that each drop covers
 _FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 
 
@@ -94,7 +93,7 @@ class McapRecorder:
     chunk_size: int = 4 * 1024 * 1024
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
     _f: IO[bytes] | None = None
-    _w: Writer | None = None
+    _w: ChunkWriter | None = None
     _schemas: dict[str, int] = field(default_factory=dict)
     _channels: dict[tuple[str, str], int] = field(default_factory=dict)
     _last_flush: float = 0.0
@@ -104,11 +103,10 @@ class McapRecorder:
     _good: int = 0  # file offset after the last complete flush
     _good_messages: int = 0
     _reserve: Path | None = None
-    drop_cache: bool = True
-    _dropped_at: int = 0  # file offset at the last page-cache drop
+    drop_cache: bool = True  # drop what was written from the page cache (see the module docstring)
 
     def open(self) -> "McapRecorder":
-        comp = {"lz4": CompressionType.LZ4, "zstd": CompressionType.ZSTD, "none": CompressionType.NONE}.get(self.compression)
+        comp = {"lz4": "lz4", "zstd": "zstd", "none": ""}.get(self.compression)
         if comp is None:
             raise ValueError(f"unknown MCAP compression {self.compression!r}; use lz4, zstd or none")
         p = Path(self.path)
@@ -124,7 +122,7 @@ class McapRecorder:
             raise
         self._reserve = reserve
         self._f = open(p, "wb")
-        self._w = Writer(self._f, chunk_size=self.chunk_size, compression=comp)
+        self._w = ChunkWriter(self._f, chunk_size=self.chunk_size, compression=comp, drop_cache=self.drop_cache)
         self._guard(self._start)
         self._last_flush = time.monotonic()
         return self
@@ -134,8 +132,8 @@ class McapRecorder:
         self._w.start(profile="", library="gflow")
         for name, data in self.metadata.items():
             self._w.add_metadata(name, data)
-        self._f.flush()
-        self._good = self._f.tell()
+        self._w.flush()
+        self._good = self._w.good_offset
 
     def _guard(self, fn, *args, **kw):
         """Run a write; on a full disk, close the file at its last good chunk and raise DiskFull."""
@@ -153,7 +151,9 @@ class McapRecorder:
         if self._reserve is not None:
             self._reserve.unlink(missing_ok=True)
             self._reserve = None
-        f, self._f, self._w = self._f, None, None
+        f, w, self._f, self._w = self._f, self._w, None, None
+        if w is not None:
+            self._good, self._good_messages = w.good_offset, w.good_messages
         if f is None:
             return
         try:
@@ -219,22 +219,6 @@ class McapRecorder:
         self.bytes += len(payload)
         self.per_topic[topic] = self.per_topic.get(topic, 0) + 1
         self.maybe_flush()
-        self._drop_written()
-
-    def _drop_written(self) -> None:
-        """Every ``DROP_EVERY`` bytes, ask the kernel to write back and forget what was written."""
-        f = self._f
-        if not self.drop_cache or f is None:
-            return
-        end = f.tell()
-        if end - self._dropped_at < DROP_EVERY:
-            return
-        self._dropped_at = end
-        lo = max(0, end - DROP_WINDOW)
-        try:
-            os.posix_fadvise(f.fileno(), lo, end - lo, os.POSIX_FADV_DONTNEED)
-        except (OSError, AttributeError):  # no fadvise here (not Linux): the page cache keeps it
-            self.drop_cache = False
 
     def maybe_flush(self) -> None:
         """Close the open chunk if ``flush_interval`` has passed."""
@@ -248,11 +232,8 @@ class McapRecorder:
         self._last_flush = time.monotonic()
 
     def _flush(self) -> None:
-        assert self._w is not None and self._f is not None
-        self._w.flush()
-        self._f.flush()
-        self._good = self._f.tell()
-        self._good_messages = self.messages
+        assert self._w is not None
+        self._w.flush()  # the chunk, the file's flush, then the writer's good offset
 
     @property
     def is_open(self) -> bool:
