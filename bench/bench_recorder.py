@@ -43,7 +43,7 @@ from pipeline.runtime.memory import keep_freed_memory  # noqa: E402
 from stages.messages import Frame, Header, NDArray, encode  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-CAVIAR = ROOT.parent / "shared" / "data" / "caviar1" / "frames"
+CAVIAR = Path(os.environ.get("GFLOW_DATA") or ROOT.parent / "shared" / "data") / "caviar1" / "frames"
 KINDS = 50  # distinct images per kind, cycled
 
 PUB = r"""
@@ -148,20 +148,23 @@ q = BoundedInbox(RECORDER_INBOX_BYTES)
 Bus(s).subscribe("gflow/bench/**", lambda k, p, ns, seq, t: q.put((k, p, ns, seq, t)), with_type=True)
 print("ready", flush=True)
 got, first, last, c0, c1 = 0, 0.0, 0.0, 0.0, 0.0
-with McapRecorder(path, compression=compression) as rec:
-    while got < n:
-        try:
-            k, p, ns, seq, t = q.get(timeout=30)
-        except queue.Empty:
-            break
-        if got == 0:
-            first, c0 = time.perf_counter(), time.process_time()
-        rec.write(k, p, seq, publish_ns=ns, type_name=t)
-        got += 1
-        if got == n:
-            last, c1 = time.perf_counter(), time.process_time()
-s.close()
-print(json.dumps({"got": got, "s": last - first, "cpu": c1 - c0}), flush=True)
+try:
+    with McapRecorder(path, compression=compression) as rec:
+        while got < n:
+            try:
+                k, p, ns, seq, t = q.get(timeout=30)
+            except queue.Empty:
+                break
+            if got == 0:
+                first, c0 = time.perf_counter(), time.process_time()
+            rec.write(k, p, seq, publish_ns=ns, type_name=t)
+            got += 1
+            if got == n:
+                last, c1 = time.perf_counter(), time.process_time()
+    print(json.dumps({"got": got, "s": last - first, "cpu": c1 - c0}), flush=True)
+finally:  # zenoh's callback thread may wait for room in the inbox for good: do not wait for it
+    sys.stdout.flush()
+    os._exit(0)
 """
 
 
@@ -174,10 +177,13 @@ def over_zenoh(tmp: str, kind: str, n: int, size: int, compression: str) -> list
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     path = os.path.join(tmp, f"zenoh-{kind}.mcap")
+    # one BLAS thread per process, as the launcher gives each stage (pipeline/runtime/launcher.py)
+    env = dict(os.environ, **{v: os.environ.get(v, "1") for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")})
     rec = subprocess.Popen([sys.executable, "-c", REC, str(n), ep, path, compression, str(ROOT)],
-                           stdout=subprocess.PIPE, text=True)
+                           stdout=subprocess.PIPE, text=True, env=env)
     assert rec.stdout is not None and rec.stdout.readline().strip() == "ready"
-    pub = subprocess.Popen([sys.executable, "-c", PUB, str(n), ep, kind, str(ROOT)], stdout=subprocess.PIPE, text=True)
+    pub = subprocess.Popen([sys.executable, "-c", PUB, str(n), ep, kind, str(ROOT)], stdout=subprocess.PIPE, text=True,
+                           env=env)
     rss = PeakRss([rec.pid, pub.pid])
     out = json.loads(rec.stdout.readline() or "{}")
     pub_cpu = json.loads(pub.communicate(timeout=60)[0].strip().splitlines()[-1])["cpu"]
