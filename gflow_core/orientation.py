@@ -21,6 +21,7 @@ __all__ = ["N_BINS", "orientation_channels"]
 
 #: Orientation bins over [0, pi) (unsigned orientation).
 N_BINS = 4
+_PI = np.float32(np.pi)
 
 
 def orientation_channels(grey: np.ndarray, blur: float = 1.0, pool: float = 1.5, norm_sigma: float = 4.0,
@@ -53,16 +54,30 @@ def orientation_channels(grey: np.ndarray, blur: float = 1.0, pool: float = 1.5,
         g = cv2.GaussianBlur(g, (0, 0), blur)
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
-    mag, ang = cv2.cartToPolar(gx, gy)
-    # unsigned orientation in bin units: a = (angle mod pi) / (pi / N_BINS), in [0, N_BINS)
-    a = np.mod(ang, np.float32(np.pi)) * np.float32(N_BINS / np.pi)
+    mag, a = cv2.cartToPolar(gx, gy)  # angle in [0, 2 pi)
+    # unsigned orientation in bin units: a = (angle mod pi) / (pi / N_BINS), in [0, N_BINS).
+    # angle mod pi by subtracting pi where angle >= pi: for angle in [pi, 2 pi] that difference
+    # is exact (Sterbenz), as np.mod's fmod is, so the bits are np.mod's at a ninth of its
+    # cost (np.mod of float32 is a libm call per element: 1.1 ms of 5 on a 384x288 frame)
+    for _ in range(2):
+        a -= _PI * (a >= _PI).astype(np.float32)
+    a *= np.float32(N_BINS / np.pi)
     # |g| / (G_norm * |g| + floor): the block normaliser
-    norm = cv2.GaussianBlur(mag, (0, 0), norm_sigma) + np.float32(norm_floor)
-    out = np.empty(g.shape + (N_BINS,), dtype=np.float32)
+    norm = cv2.GaussianBlur(mag, (0, 0), norm_sigma)
+    norm += np.float32(norm_floor)
+    planes = []
+    t = np.empty_like(a)
     for b in range(N_BINS):
-        # circular distance to bin centre b, in bins: d = min(|a - b|, N_BINS - |a - b|)
-        d = np.abs(a - np.float32(b))
-        d = np.minimum(d, np.float32(N_BINS) - d)
-        weight = np.maximum(np.float32(0.0), np.float32(1.0) - d)
-        out[..., b] = cv2.GaussianBlur(mag * weight, (0, 0), pool) / norm
-    return out
+        # circular distance to bin centre b, in bins: d = min(|a - b|, N_BINS - |a - b|);
+        # weight max(0, 1 - d), times |g|, pooled and normalised (in place: one buffer per bin)
+        d = np.subtract(a, np.float32(b))
+        np.abs(d, out=d)
+        np.subtract(np.float32(N_BINS), d, out=t)
+        np.minimum(d, t, out=d)
+        np.subtract(np.float32(1.0), d, out=d)
+        np.maximum(np.float32(0.0), d, out=d)
+        np.multiply(mag, d, out=d)
+        pooled = cv2.GaussianBlur(d, (0, 0), pool, dst=d)
+        np.divide(pooled, norm, out=pooled)
+        planes.append(pooled)
+    return cv2.merge(planes)

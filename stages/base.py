@@ -16,6 +16,12 @@ Join semantics (implemented by ``pipeline.runtime.join.SeqJoin``)
   ``{"state": 1}``, the state message of frame t-1 is joined with the frames of t.
 * ``ports(params)`` may give an instance its own ports (a filter fed by N proposal
   shards has N proposal ports); by default they are the class's ``inputs``/``outputs``.
+* ``prepare_ports`` / ``prepare(port, msg)``: per-message work that depends on that one
+  message alone (the features of a frame, say). ``step`` asks for it with
+  ``self.prepared(port, msg)``; a runner may have computed it ahead, on another thread, as
+  soon as the message arrived -- while ``step`` ran for an earlier frame -- and otherwise it is
+  computed there and then. Either way the result is the same, so outputs do not depend on
+  whether, or when, the runner prepared anything.
 * Errors in one input are reported with ``self.report(...)`` (or by raising
   :class:`StageInputError`); the runner publishes them on the error topic and the stage
   keeps running.
@@ -25,7 +31,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import msgspec
 
@@ -73,11 +79,16 @@ class Stage(ABC):
     outputs: ClassVar[Mapping[str, type]] = {}
     drivers: ClassVar[frozenset[str] | None] = None
     input_offsets: ClassVar[Mapping[str, int]] = {}
+    #: input ports whose messages ``prepare`` may be called on ahead of their step
+    prepare_ports: ClassVar[frozenset[str]] = frozenset()
 
     def __init__(self, params: Params, ctx: StageContext) -> None:
         self.params = params
         self.ctx = ctx
         self._reports = _Reports()
+        # (port, header seq) -> a callable giving prepare(port, msg)'s result (or raising its
+        # exception): what a runner computed ahead (pipeline.runtime.host.StageHost)
+        self.ahead: dict[tuple[str, int], Callable[[], Any]] = {}
         ins, outs = type(self).ports(params)
         self.inputs = dict(ins)  # type: ignore[misc]
         self.outputs = dict(outs)  # type: ignore[misc]
@@ -95,6 +106,18 @@ class Stage(ABC):
     @abstractmethod
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         """Map the joined inputs of ``seq`` to outputs ``[(port, message), ...]``."""
+
+    def prepare(self, port: str, msg: Message) -> Any:
+        """The work on one input message of a port in ``prepare_ports`` that depends on that
+        message alone, never on the stage's state (it may run on another thread while ``step``
+        runs). Exceptions propagate to :meth:`prepared`."""
+        raise NotImplementedError(f"stage kind {self.kind!r} prepares nothing")
+
+    def prepared(self, port: str, msg: Message) -> Any:
+        """``prepare(port, msg)``: the result a runner computed ahead when there is one, else
+        computed now. Call it from ``step`` (with the message ``step`` was given)."""
+        ahead = self.ahead.pop((port, msg.header.seq), None)  # type: ignore[attr-defined]
+        return ahead() if ahead is not None else self.prepare(port, msg)
 
     def finish(self) -> list[Output]:
         """Called once when the inputs have ended; may return final outputs."""

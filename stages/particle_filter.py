@@ -230,6 +230,9 @@ class FilterStage(Stage):
         self.template: np.ndarray | None = None
         self.last_cloud: ParticleCloud | None = None
         self.ref_size = np.array(params.init[2:], dtype=np.float64)
+        # the lost guard's orientation channels of a frame depend on the frame alone: a stage
+        # process computes them ahead, on the host's second thread (stages.base, Stage.prepare)
+        self.prepare_ports = frozenset({"features"}) if params.lost_ratio > 0 else frozenset()  # type: ignore[misc]
         self.last: dict = {}
         self.steps = 0
         self.warned = False
@@ -241,13 +244,18 @@ class FilterStage(Stage):
         return (LostParams(ratio=p.lost_ratio, window=p.lost_window, accept=p.lost_accept, reacquire=p.lost_reacquire)
                 if p.lost_ratio > 0 else None)
 
+    def prepare(self, port: str, msg: Message) -> np.ndarray:
+        """The lost guard's (H, W, 4) orientation channels of a feature frame's grey image."""
+        assert isinstance(msg, Features)
+        return lostmod.channels(msg.grey.array())
+
     def _set_anchor(self, feat: Features, seq: int) -> None:
         """The lost guard's anchor: orientation channels of the initial box on the first frame."""
         p: FilterParams = self.params  # type: ignore[assignment]
         gp = self._guard_params()
         grey = self._grey(feat, seq) if gp is not None else None
         if gp is not None and grey is not None:
-            self.anchor = lostmod.anchor_of(lostmod.channels(grey), p.init, gp)  # type: ignore[arg-type]
+            self.anchor = lostmod.anchor_of(self.prepared("features", feat), p.init, gp)  # type: ignore[arg-type]
 
     def _guard(self, seq: int, feat: Features, post, state: str):
         """Verify the estimate against the initial box; hold, bound and re-detect while lost
@@ -258,7 +266,7 @@ class FilterStage(Stage):
         grey = self._grey(feat, seq)
         if grey is None:
             return post, state
-        ch = lostmod.channels(grey)
+        ch = self.prepared("features", feat)
         box = self._box(post.map_alpha, post.map_k)
         r = lostmod.verify(ch, self.anchor, box)
         self.lost, lost = lostmod.guard(self.lost, r, (*box, *post.map_alpha, post.map_k), gp)

@@ -148,3 +148,41 @@ def test_crossing_processes_equal_inline_and_rerun_is_bit_exact(crossing, tmp_pa
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "differ" not in r.stdout.replace("no output differs", "")
+
+
+def test_channels_prepared_ahead_on_a_second_thread_give_the_same_bytes(scene):
+    """As a process, the host computes the channels of a frame on its second thread as soon as
+    the frame arrives (Stage.prepare); the step then takes them. The outputs are the bytes of
+    a host that prepares nothing (--inline), and at most AHEAD_LIMIT results wait at once."""
+    import threading
+
+    from pipeline.runtime.host import AHEAD_LIMIT, StageHost
+
+    sc, frames = scene
+    runs = {}
+    for ahead in (False, True):
+        filt, prop = _stages(sc.truth_box(0))
+        threads: list[int] = []
+        real = filt.prepare
+        filt.prepare = lambda port, msg: threads.append(threading.get_ident()) or real(port, msg)  # type: ignore[method-assign]
+        out: list[tuple[str, bytes]] = []
+        hf = StageHost(filt, {"frames": "f", "proposals": "q"}, {"particles": "p", "estimate": "e"}, "err",
+                       lambda t, b, s, n="": out.append((t, b)), ahead=ahead)
+        hp = StageHost(prop, {"particles": "p"}, {"proposals": "q"}, "err",
+                       lambda t, b, s, n="": out.append((t, b)), ahead=ahead)
+        for fr in frames:  # every frame first, as a source running ahead sends them
+            hf.deliver("f", encode(fr))
+            assert len(filt.ahead) <= AHEAD_LIMIT
+        sent = 0
+        while sent < len(out):  # then the particle -> proposal -> filter cycle
+            topic, payload = out[sent]
+            sent += 1
+            (hp if topic == "p" else hf).deliver(topic, payload)
+        hf.close()
+        runs[ahead] = [b for t, b in out if t in ("p", "e")]
+        assert hf.stats.steps == N_FRAMES
+        if ahead:
+            assert threads and threading.get_ident() not in threads and not filt.ahead
+        else:
+            assert set(threads) == {threading.get_ident()}
+    assert runs[True] == runs[False]

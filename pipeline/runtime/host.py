@@ -11,6 +11,16 @@ flow-control window ahead of the source when the source's position is known), it
 larger than the frame size the source declared) and, for particles, finite values. A
 message that fails is counted per kind (``HostStats.rejected``, sent in the heartbeat),
 reported on the error topic, and never joined.
+
+Preparing ahead (``ahead``, on in a stage process, off in ``--inline``): a message on one of
+the stage's ``prepare_ports`` is handed, once joined, to ``stage.prepare`` on a second
+thread, so that the per-frame work of frame t+1 that needs nothing but its own input (the
+appearance filter's orientation channels of the whole frame) runs while ``step`` works on
+frame t or waits for its proposals. numpy and OpenCV release the GIL, so the two threads
+use two cores. The step then takes the result (``Stage.prepared``) or, when nothing was
+prepared, computes it itself: the outputs are the same bits either way. At most
+``AHEAD_LIMIT`` results wait at once (the source runs up to ``max_ahead`` frames ahead, and
+``gflow rerun`` feeds a recording as fast as it reads it), so memory stays bounded.
 """
 
 from __future__ import annotations
@@ -18,6 +28,7 @@ from __future__ import annotations
 import logging
 import time
 import traceback
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -28,11 +39,14 @@ from stages.messages_foxglove import FOXGLOVE_SCHEMAS
 from stages.messages import (EndOfStream, ErrorReport, Features, Frame, Header, MessageError, NDArray, Particles,
                              Snapshot, decode, encode)
 
-__all__ = ["StageHost", "Publish"]
+__all__ = ["StageHost", "Publish", "AHEAD_LIMIT"]
 
 log = logging.getLogger("gflow.host")
 
 Publish = Callable[[str, bytes, int, str], None]
+
+#: prepared results a host holds at most (each may be a frame's features: 1.8 MB at 384x288x4 float32)
+AHEAD_LIMIT = 4
 
 
 @dataclass
@@ -83,7 +97,7 @@ class StageHost:
 
     def __init__(self, stage: Stage, topics_in: dict[str, str], topics_out: dict[str, str], error_topic: str,
                  publish: Publish, snapshot_every: int = 0, snapshot_topic: str = "", lag: int = 0,
-                 window: int = 0, on_step: Callable[[int], None] | None = None) -> None:
+                 window: int = 0, on_step: Callable[[int], None] | None = None, ahead: bool = True) -> None:
         from pipeline.runtime.join import SeqJoin
 
         one_compute_thread()
@@ -108,6 +122,10 @@ class StageHost:
         self.max_out: dict[str, int] = {}
         self.snapshot_every = snapshot_every
         self.snapshot_topic = snapshot_topic
+        # preparing ahead: a thread of its own, started at the first message there is to prepare
+        self.ahead = ahead and bool(stage.prepare_ports)
+        self._pool = None
+        self._unprepared: deque[tuple[str, Any]] = deque()  # joined, waiting for room to be prepared
 
     # -- errors ------------------------------------------------------------------------------
     def report(self, kind: str, message: str, seq: int = -1, topic: str = "") -> None:
@@ -254,8 +272,37 @@ class StageHost:
                 self.reject(kind, f"on {topic}: {why}", msg.header.seq, topic)
                 return
             self.join.push(port, msg.header.seq + offset, msg)
+            if self.ahead and port in self.stage.prepare_ports:
+                self._prepare_ahead(port, msg)
         if pump:
             self.pump()
+
+    def _prepare_ahead(self, port: str, msg: Any) -> None:
+        """Queue ``stage.prepare(port, msg)`` for the host's second thread."""
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"prepare-{self.name}")
+        self._unprepared.append((port, msg))
+        self._submit_prepare()
+
+    def _submit_prepare(self) -> None:
+        """Start the oldest queued preparations while fewer than AHEAD_LIMIT results wait (a
+        message whose frame was stepped or given up meanwhile is dropped from the queue)."""
+        pending, queued = self.stage.ahead, self._unprepared
+        while queued and len(pending) < AHEAD_LIMIT:
+            port, msg = queued.popleft()
+            if msg.header.seq + self.stage.input_offsets.get(port, 0) <= self.join.done_below:
+                continue
+            pending[(port, msg.header.seq)] = self._pool.submit(self.stage.prepare, port, msg).result  # type: ignore[union-attr]
+
+    def _forget_prepared(self, upto: int) -> None:
+        """Drop what was prepared for frames stepped or given up (a step that did not ask for
+        it), and start preparing what waited for room."""
+        pending = self.stage.ahead
+        for key in [k for k in pending if k[1] + self.stage.input_offsets.get(k[0], 0) <= upto]:
+            del pending[key]
+        self._submit_prepare()
 
     def pump(self) -> None:
         for seq, inputs in self.join.ready(self.stage.required):
@@ -264,6 +311,8 @@ class StageHost:
             try:
                 outputs = self.stage.step(seq, inputs)
             except Exception as e:
+                if self.ahead:
+                    self._forget_prepared(seq)
                 if not nothing:
                     self._step_failed(seq, e)
                     continue
@@ -281,6 +330,8 @@ class StageHost:
                 self._snapshot(seq)
             if self.on_step is not None:
                 self.on_step(seq)
+            if self.ahead:
+                self._forget_prepared(seq)
             st = self.stats
             st.steps += 1
             st.busy_ns += t1 - t0
@@ -310,6 +361,10 @@ class StageHost:
         if self.closed:
             return
         self.closed = True
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self.stage.ahead.clear()
+            self._unprepared.clear()
         try:
             self._emit(self.stage.finish())
         except Exception as e:

@@ -57,8 +57,9 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
         if sp.kind == "recorder":
             continue
         stage = make_stage(plan, name)
+        # one thread: nothing is prepared ahead (Stage.prepare), every step computes what it needs
         hosts[name] = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, publish,
-                                     sp.snapshot_every, plan.snapshot_topic(name))
+                                sp.snapshot_every, plan.snapshot_topic(name), ahead=False)
         if isinstance(stage, SourceStage):
             source_name = name
     assert source_name is not None

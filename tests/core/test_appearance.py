@@ -86,6 +86,35 @@ def test_orientation_channels_shape_and_light_invariance():
         orientation_channels(np.zeros((2, 2)))
 
 
+def _channels_reference(grey: np.ndarray) -> np.ndarray:
+    """orientation_channels as first written (np.mod, one strided store per bin): the faster
+    version must give these bits, or every recording made before it would re-run differently."""
+    g = cv2.GaussianBlur(np.asarray(grey, dtype=np.float32), (0, 0), 1.0)
+    mag, ang = cv2.cartToPolar(cv2.Sobel(g, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3))
+    a = np.mod(ang, np.float32(np.pi)) * np.float32(N_BINS / np.pi)
+    norm = cv2.GaussianBlur(mag, (0, 0), 4.0) + np.float32(4.0)
+    out = np.empty(g.shape + (N_BINS,), dtype=np.float32)
+    for b in range(N_BINS):
+        d = np.abs(a - np.float32(b))
+        d = np.minimum(d, np.float32(N_BINS) - d)
+        out[..., b] = cv2.GaussianBlur(mag * np.maximum(np.float32(0.0), np.float32(1.0) - d), (0, 0), 1.5) / norm
+    return out
+
+
+def test_orientation_channels_keep_the_bits_of_the_first_version():
+    from tests.conftest import data_dir
+
+    rng = np.random.default_rng(3)
+    # synthetic: every gradient direction, including the axes where the angle is 0, pi/2, pi, 3 pi/2
+    yy, xx = np.mgrid[0:64, 0:96].astype(np.float32)
+    images = [_texture(rng, 60, 80, 5.0), 127.0 + 100.0 * np.sin(np.hypot(xx - 40, yy - 30) / 3.0),
+              np.where(xx > 50, 200.0, 20.0) + np.where(yy > 30, 30.0, 0.0)]
+    frames = sorted((data_dir("caviar1") / "frames").glob("*.jpg"))[::60]
+    images += [cv2.imread(str(f), cv2.IMREAD_GRAYSCALE) for f in frames]
+    for g in images:
+        assert orientation_channels(g).tobytes() == _channels_reference(g).tobytes()
+
+
 def test_follows_a_target_that_grows_and_shrinks_by_2x_with_scale_tracking():
     # scale 1 -> 2 -> 1 -> 0.6 over 160 frames while moving across the frame
     def path(t):

@@ -1,0 +1,26 @@
+"""What the process pipeline sends per frame besides the data: the source announces its
+position every few frames, not every frame (each announcement wakes every process)."""
+
+from __future__ import annotations
+
+from pipeline.io.mcap_io import iter_records
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.launcher import Launcher
+from pipeline.runtime.transport import ZenohSettings, free_port
+
+FRAMES = 60
+
+
+def test_the_source_announces_every_few_frames_not_every_frame(tmp_path):
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": FRAMES}, "filter": {"particles": 100}}))
+    path = tmp_path / "run.mcap"
+    res = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",)), recording=str(path),
+                   progress=False, startup_timeout=60).run()
+    assert res.ok, res.exits
+    recs = list(iter_records(path))
+    assert sum(r.type == "Estimate" for r in recs) == FRAMES
+    status = [r for r in recs if r.topic.endswith("/_status/source")]
+    span_s = (max(r.log_ns for r in recs) - min(r.log_ns for r in recs)) / 1e9
+    # one announcement every 4 frames, the 2 Hz heartbeat over the run, and the changes of state
+    assert len(status) <= FRAMES / 4 + 2 * span_s * 1.5 + 6, (len(status), span_s)
