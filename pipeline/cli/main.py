@@ -21,6 +21,7 @@ import sys
 from pipeline.cli.commands import command_modules
 from pipeline.cli.commands.common import CliError
 from pipeline.runtime.graph import GraphError
+from pipeline.runtime.trace import mark
 from pipeline.runtime.transport import SessionError
 
 __all__ = ["main", "build_parser"]
@@ -64,6 +65,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
+    mark("cli parsed")
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
                         format="%(levelname)s %(name)s: %(message)s")
     if args.command is None:

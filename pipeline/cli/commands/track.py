@@ -24,6 +24,7 @@ from pipeline.recording.results import run_outcome, write_boxes
 from pipeline.io.sources import count_frames
 from pipeline.cli.trackers import TRACKERS
 from pipeline.runtime.preflight import check_source
+from pipeline.runtime.trace import mark
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
                                           check_outputs, parse_box, parse_sets, run_plan)
 
@@ -128,6 +129,7 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
     """Run the tracker of ``args`` (inline or as processes) and gather its boxes from the recording
     (a temporary one with ``--no-record``, removed here) and the live stream, whatever happened."""
     plan_, total = plan or track_plan(args)
+    mark("cli plan checked")
     recording = Recording(plan_, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
                           needed=("estimate",))
     try:
