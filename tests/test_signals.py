@@ -1,4 +1,4 @@
-"""SIGINT / SIGTERM / SIGHUP are taken on a sigwait thread (pipeline/runtime/signals.py), never by a
+"""SIGINT / SIGTERM / SIGHUP are taken on a thread of their own (pipeline/runtime/signals.py), never by a
 Python handler that sets an Event: such a handler runs on the main thread, and deadlocks when the
 signal lands while the main thread holds that Event's lock. Each test makes exactly that happen:
 the Event of the launcher, of ``gflow router`` or of the helper itself sends the signal to its own
@@ -76,10 +76,27 @@ def test_the_helper_takes_a_signal_while_the_event_lock_is_held():
         assert stop.wait(30), "the signal never reached the callback"
         signals.close()
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # handlers restored
-        assert not signal.pthread_sigmask(signal.SIG_BLOCK, []) & {signal.SIGINT, signal.SIGTERM}  # mask too
+        assert signal.getsignal(signal.SIGTERM) == signal.SIG_DFL
+        assert signal.set_wakeup_fd(-1) == -1  # and the wakeup fd
         print("ok")
     """, ("__main__",), signal.SIGINT, timeout=30)
     assert r.returncode == 0 and r.stdout.strip() == "ok", r.stderr
+
+
+def test_gflow_router_stops_on_sigterm_while_waiting():
+    """The main thread waits on the stop Event without a timeout; the signal lands on whichever
+    thread the kernel picks (numpy's and OpenCV's threads take signals too)."""
+    p = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "router", "--listen", f"tcp/127.0.0.1:{free_port()}"],
+                         cwd=ROOT, stderr=subprocess.PIPE, text=True,
+                         env=dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")))
+    try:
+        assert "listening on" in p.stderr.readline()
+        p.send_signal(signal.SIGTERM)
+        assert p.wait(30) == 0
+        assert p.stderr.read().strip().splitlines()[-1] == "gflow router: stopped"
+    finally:
+        if p.poll() is None:
+            p.kill()
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])

@@ -62,6 +62,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 import psutil
@@ -76,11 +77,12 @@ from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
 from pipeline.runtime.host import StageHost
 from pipeline.runtime.inbox import BoundedInbox
 from pipeline.runtime.memory import keep_freed_memory
-from pipeline.io.recorder import DiskFull, McapRecorder
-from pipeline.io.sources import open_reader
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 from pipeline.runtime.security import Signer
 from pipeline.runtime.signals import StopSignals
+
+if TYPE_CHECKING:
+    from pipeline.io.recorder import McapRecorder
 
 __all__ = ["main", "run_node"]
 
@@ -542,6 +544,8 @@ class Node:
         p = stage.params
         t0 = time.monotonic()
         first: int | None = None
+        from pipeline.io.sources import open_reader  # the source's own import (cv2, the readers)
+
         for raw in open_reader(p, self.plan.base_dir):  # type: ignore[arg-type]
             if self.stop.is_set():
                 host.close("interrupted")
@@ -631,6 +635,8 @@ class Node:
         return 0
 
     def _run_recorder(self) -> int:
+        from pipeline.io.recorder import DiskFull, McapRecorder  # the recorder's own import (mcap)
+
         plan = self.plan
         rp = RecorderParams(**self.sp.params)
         path = os.environ.get("GFLOW_RECORDING") or plan.recording_path()
@@ -689,11 +695,6 @@ class Node:
 
 def run_node(plan_path: str, name: str) -> int:
     keep_freed_memory()  # frame-sized buffers reused, not faulted in afresh every frame
-    threads = os.environ.get("GFLOW_CV_THREADS")
-    if threads:  # set by the launcher: one compute thread per stage process by default
-        import cv2
-
-        cv2.setNumThreads(int(threads))
     # Signals go to a thread of their own (pipeline/runtime/signals.py), never to a Python
     # handler that sets an Event: started before any other thread, so zenoh's inherit the mask.
     holder: list[Node] = []

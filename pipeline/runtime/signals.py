@@ -1,19 +1,22 @@
-"""SIGINT / SIGTERM / SIGHUP taken on a thread of their own (``sigwait``), never in a Python
-signal handler: a handler runs on the main thread between two bytecodes, and one that sets an
-``Event`` deadlocks when the signal lands while the main thread holds that Event's lock
+"""SIGINT / SIGTERM / SIGHUP handled on a thread of their own, never in a Python signal handler
+that takes a lock: a Python handler runs on the main thread between two bytecodes, and one that
+sets an ``Event`` deadlocks when the signal lands while the main thread holds that Event's lock
 (seen: a stage process alive for good after its launcher's SIGKILL). Shared by the stage
 processes (``pipeline/runtime/node.py``), the launcher and ``gflow router``.
 
-The signals are blocked in the thread that calls :meth:`StopSignals.start` (the main thread),
-so every thread started after it, zenoh's runtime threads too, inherits the mask and only the
-``sigwait`` thread takes them. A thread started before may still be picked by the kernel for a
-process-directed signal; the Python handler installed meanwhile then only forwards the signal
-to the ``sigwait`` thread (``pthread_kill``: no lock taken), so the callback still runs there.
+How: Python's C-level signal handler writes the signal's number to a pipe
+(``signal.set_wakeup_fd``) in whichever thread the kernel picked, at once and without a lock; a
+``signals`` thread reads the pipe and calls back. The Python-level handler installed meanwhile
+does nothing. (A ``sigwait`` thread with the signals blocked in the main thread is not enough:
+the threads that numpy's BLAS and OpenCV start at import do not block them, the kernel hands a
+process-directed signal to one of those, and then only the main thread's Python handler sees it,
+which never runs while the main thread waits on a lock without a timeout.)
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import signal
 import threading
 from typing import Callable
@@ -23,62 +26,73 @@ __all__ = ["STOP_SIGNALS", "StopSignals"]
 log = logging.getLogger("gflow.signals")
 
 STOP_SIGNALS = frozenset({signal.SIGINT, signal.SIGTERM, signal.SIGHUP})
+_CLOSE = 0  # the byte that tells the ``signals`` thread to end (no signal has number 0)
+
+
+def _ignore(signum: int, frame) -> None:
+    """The Python-level handler: the ``signals`` thread does the work (see the module doc)."""
 
 
 class StopSignals:
     """Call ``on_signal(signum)`` on a ``signals`` thread for every SIGINT, SIGTERM and SIGHUP
-    that reaches this process, from :meth:`start` until :meth:`close` (which restores the
-    signal mask and the Python handlers as they were). Use it as a context manager, or call
-    :meth:`start` only when the process keeps it to its end (a stage process)."""
+    that reaches this process, from :meth:`start` until :meth:`close` (which puts the handlers
+    and the wakeup fd back as they were). Use it as a context manager, or call :meth:`start`
+    only when the process keeps it to its end (a stage process). Only the main thread can take
+    signals: from another thread :meth:`start` does nothing."""
 
     def __init__(self, on_signal: Callable[[int], None]) -> None:
         self.on_signal = on_signal
         self._thread: threading.Thread | None = None
-        self._closing = False
-        self._old_mask: set[int] | None = None
+        self._fds: tuple[int, int] | None = None
+        self._old_fd = -1
         self._old_handlers: dict[int, object] = {}
 
     def start(self) -> "StopSignals":
-        self._old_mask = set(signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS))
-        self._thread = threading.Thread(target=self._wait, name="signals", daemon=True)
+        if threading.current_thread() is not threading.main_thread():
+            return self
+        r, w = os.pipe()
+        os.set_blocking(w, False)  # the C handler must never block
+        self._fds = (r, w)
+        self._thread = threading.Thread(target=self._read, args=(r,), name="signals", daemon=True)
         self._thread.start()
-        if threading.current_thread() is threading.main_thread():
-            for s in STOP_SIGNALS:
-                self._old_handlers[s] = signal.getsignal(s)
-                signal.signal(s, self._forward)
+        self._old_fd = signal.set_wakeup_fd(w, warn_on_full_buffer=False)
+        for s in STOP_SIGNALS:
+            self._old_handlers[s] = signal.getsignal(s)
+            signal.signal(s, _ignore)
         return self
 
-    def _forward(self, signum: int, frame) -> None:
-        """A thread that does not block the signals took one: hand it to the ``sigwait`` thread."""
-        t = self._thread
-        if t is not None and t.ident is not None and t.is_alive():
-            signal.pthread_kill(t.ident, signum)
-
-    def _wait(self) -> None:
+    def _read(self, r: int) -> None:
         while True:
-            signum = signal.sigwait(STOP_SIGNALS)
-            if self._closing:
-                return
             try:
-                self.on_signal(signum)
-            except Exception:  # the next signal must still be taken
-                log.exception("handling signal %d", signum)
+                data = os.read(r, 64)
+            except OSError:
+                return
+            for signum in data:
+                if signum == _CLOSE:
+                    return
+                if signum not in STOP_SIGNALS:
+                    continue
+                try:
+                    self.on_signal(signum)
+                except Exception:  # the next signal must still be taken
+                    log.exception("handling signal %d", signum)
 
     def close(self) -> None:
-        """Stop taking the signals: the ``sigwait`` thread ends, the mask and handlers are restored."""
-        t = self._thread
-        if t is None:
+        """Stop taking the signals: the handlers and the wakeup fd are restored, the thread ends."""
+        if self._fds is None:
             return
-        self._closing = True
-        if t.is_alive() and t.ident is not None:
-            signal.pthread_kill(t.ident, signal.SIGHUP)  # wakes the sigwait; taken as the closing signal
-            t.join()
-        self._thread = None
         for s, h in self._old_handlers.items():
             signal.signal(s, h)  # type: ignore[arg-type]
         self._old_handlers = {}
-        if self._old_mask is not None:
-            signal.pthread_sigmask(signal.SIG_SETMASK, self._old_mask)
+        signal.set_wakeup_fd(self._old_fd)
+        r, w = self._fds
+        self._fds = None
+        os.write(w, bytes([_CLOSE]))
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        os.close(r)
+        os.close(w)
 
     def __enter__(self) -> "StopSignals":
         return self.start()
