@@ -47,6 +47,7 @@ from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_sessi
 from pipeline.runtime.security import Signer
 from pipeline.runtime.signals import StopSignals
 from pipeline.runtime.trace import mark
+from pipeline.runtime.zygote import ForkedStage, Zygote, take
 
 __all__ = ["Launcher", "LaunchResult", "StageExit"]
 
@@ -170,6 +171,7 @@ class Launcher:
         self.peak_rss: dict[str, float] = {}
         self._interrupt = threading.Event()
         self._lock = threading.Lock()
+        self._zygote: Zygote | None = None
 
     # -- zenoh callbacks (zenoh threads: hand over, never block) -----------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
@@ -253,11 +255,30 @@ class Launcher:
         self._progress_at.pop(name, None)
         root = str(Path(__file__).resolve().parents[2])
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        if self._zygote is not None and not restarts:
+            # forked from the warm zygote (pipeline/runtime/zygote.py): no interpreter start, shared imports paid once
+            r, w = os.pipe()
+            try:
+                pid = self._zygote.spawn(plan_file, name, env, w)
+            except OSError as e:
+                self._close_zygote()
+                os.close(r)
+                mark(f"launcher zygote failed: {e}")
+            else:
+                self.pids.setdefault(name, []).append(pid)
+                return _Proc(name, ForkedStage(pid, os.fdopen(r, "r", errors="replace")))  # type: ignore[arg-type]
+            finally:
+                os.close(w)
         popen = subprocess.Popen([sys.executable, "-m", "pipeline.runtime.node", plan_file, name], env=env,
                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                  text=True, start_new_session=True)
         self.pids.setdefault(name, []).append(popen.pid)
         return _Proc(name, popen)
+
+    def _close_zygote(self) -> None:
+        if self._zygote is not None:
+            z, self._zygote = self._zygote, None
+            z.close()
 
     def _signal_all(self, names, sig: int) -> None:
         for n in names:
@@ -365,9 +386,14 @@ class Launcher:
         remote = [n for n in plan.stages if n not in self.local and plan.stages[n].kind != "recorder"]
         ok = True
         try:
-            for n in recorder + workers:
-                self.procs[n] = self._spawn(n, plan_file)
-                mark(f"launcher spawned {n} {self.procs[n].popen.pid}")
+            # the stage processes fork from the zygote the gflow command started first, when there is one
+            self._zygote = take() if self.threads_per_stage == 1 else None
+            try:
+                for n in recorder + workers:
+                    self.procs[n] = self._spawn(n, plan_file)
+                    mark(f"launcher spawned {n} {self.procs[n].popen.pid}")
+            finally:
+                self._close_zygote()  # restarts start `python -m pipeline.runtime.node`
             if recorder and self.recording:
                 self._print(f"recording to {self.recording}")
             # wait for every heartbeat, then tell the sources to start
