@@ -31,6 +31,7 @@ import time
 __all__ = ["Zygote", "start_early", "take", "ForkedStage"]
 
 PR_SET_PDEATHSIG = 1
+PR_SET_NAME = 15
 PR_SET_CHILD_SUBREAPER = 36
 #: the environment a stage process gets by default (the launcher's ``threads_per_stage`` = 1)
 ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
@@ -264,6 +265,10 @@ def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> Non
         os.close(stderr_fd)
         for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(s, signal.SIG_DFL if s != signal.SIGINT else signal.default_int_handler)
+        try:  # `ps -o comm`, top: the stage's name (its command line is the gflow command's)
+            ctypes.CDLL(None).prctl(PR_SET_NAME, f"gflow-{req['name']}"[:15].encode(), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
         os.environ.clear()
         os.environ.update(req["env"])
         deadline = time.monotonic() + 5.0
