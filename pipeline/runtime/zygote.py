@@ -27,6 +27,7 @@ import signal
 import socket
 import sys
 import time
+from pathlib import Path
 
 __all__ = ["Zygote", "start_early", "take", "ForkedStage"]
 
@@ -248,6 +249,27 @@ def _preload(kinds: list[str]) -> None:
             pass
 
 
+def _set_title(plan: str, name: str) -> None:
+    """Show the stage process as ``python -m pipeline.runtime.node PLAN NAME`` (ps, psutil, py-spy),
+    as when it is started that way: a fork would show the gflow command's line."""
+    try:
+        import setproctitle
+
+        setproctitle.setproctitle(f"{sys.executable} -m pipeline.runtime.node {plan} {name}")
+        # it pads the rest of the argument area with NULs, which /proc/PID/cmdline then shows as
+        # empty arguments; a non-NUL last byte makes Linux show the title up to its NUL only
+        stat = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        arg_end = int(stat[49 - 3])  # field 49 of proc(5); the first after the ')' is field 3
+        last = ctypes.c_char.from_address(arg_end - 1)
+        if last.value == b"\x00":
+            last.value = b" "
+    except ImportError:  # at least the short name (ps -o comm, top)
+        try:
+            ctypes.CDLL(None).prctl(PR_SET_NAME, f"gflow-{name}"[:15].encode(), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+
+
 def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> None:
     """The stage process: what ``python -m pipeline.runtime.node PLAN NAME`` does, in a fork."""
     code = 1
@@ -255,6 +277,7 @@ def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> Non
         from pipeline.runtime.trace import mark
 
         mark("node begin")
+        mark("node forked")
         sock.close()
         os.setsid()  # its own process group, as the launcher's start_new_session
         null = os.open(os.devnull, os.O_RDWR)
@@ -265,10 +288,7 @@ def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> Non
         os.close(stderr_fd)
         for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
             signal.signal(s, signal.SIG_DFL if s != signal.SIGINT else signal.default_int_handler)
-        try:  # `ps -o comm`, top: the stage's name (its command line is the gflow command's)
-            ctypes.CDLL(None).prctl(PR_SET_NAME, f"gflow-{req['name']}"[:15].encode(), 0, 0, 0)
-        except (OSError, AttributeError):
-            pass
+        _set_title(req["plan"], req["name"])
         os.environ.clear()
         os.environ.update(req["env"])
         deadline = time.monotonic() + 5.0
