@@ -2,6 +2,8 @@
 shut everything down cleanly.
 
 * Each stage runs ``python -m pipeline.runtime.node PLAN.json NAME`` in its own process group
+  (started from the ``gflow`` command, it is forked from a warm zygote instead, with the same
+  command line, parent and process group: ``pipeline/runtime/zygote.py``)
   (so a Ctrl-C in the terminal reaches the launcher only, which then stops the stages in
   order: sources and stages first, the recorder last, so the MCAP file keeps everything).
 * The launcher's zenoh session listens on one loopback endpoint; the stages connect to
