@@ -7,12 +7,21 @@ import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import psutil
 import pytest
 
 from pipeline.recording.results import estimates
+
+
+def _read(path: Path) -> str:
+    try:
+        return path.read_text()
+    except OSError:
+        return ""
 
 
 def _running(p: psutil.Process) -> bool:
@@ -25,16 +34,23 @@ def _running(p: psutil.Process) -> bool:
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])
 def test_stages_die_with_the_launcher(tmp_path, sig):
     rec = tmp_path / "run.mcap"
+    stream = f"faults-{os.getpid()}-{time.monotonic_ns()}"  # finds the run's folder (a forked stage's environ is its zygote's)
     p = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
                           "--set", "source.frames=600", "--set", "filter.particles=100", "--record", str(rec),
-                          "--listen", "tcp/127.0.0.1:0"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                          "--listen", "tcp/127.0.0.1:0", "--stream", stream],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 90
     while not (rec.exists() and rec.stat().st_size > 64 and len(estimates(rec)) >= 10):
         assert time.monotonic() < deadline and p.poll() is None, "the pipeline did not get going"
         time.sleep(0.1)
     children = psutil.Process(p.pid).children()
     assert len(children) == 6
-    run_dir = children[0].environ()["GFLOW_RUN_DIR"]
+    from pipeline.runtime.launcher import run_dir_parent
+
+    run_dirs = [d for d in Path(run_dir_parent() or tempfile.gettempdir()).glob("gflow-run-*")
+                if f'"stream": "{stream}"' in _read(d / "plan.json") or f'"stream":"{stream}"' in _read(d / "plan.json")]
+    assert len(run_dirs) == 1, run_dirs
+    run_dir = str(run_dirs[0])
     assert os.path.isdir(run_dir)
     p.send_signal(sig)
     t0 = time.monotonic()

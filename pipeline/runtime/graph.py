@@ -43,7 +43,6 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
-import yaml
 
 from stages.base import Params
 from stages.registry import STAGES
@@ -79,11 +78,25 @@ class GraphError(ValueError):
     """A graph file that cannot run. The message names the file and line."""
 
 
-class _LineLoader(yaml.SafeLoader):
-    pass
+def _line_loader():
+    """A yaml SafeLoader whose mappings remember their lines. Made on first use: a stage
+    process reads its plan from JSON and never pays for importing yaml."""
+    global _LINE_LOADER
+    if _LINE_LOADER is None:
+        import yaml
+
+        class _LineLoader(yaml.SafeLoader):
+            pass
+
+        _LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+        _LINE_LOADER = _LineLoader
+    return _LINE_LOADER
 
 
-def _construct_mapping(loader: yaml.SafeLoader, node: yaml.MappingNode) -> dict:
+_LINE_LOADER = None
+
+
+def _construct_mapping(loader, node) -> dict:
     mapping = _LineDict()
     for key_node, value_node in node.value:
         key = loader.construct_object(key_node, deep=True)
@@ -102,9 +115,6 @@ class _LineDict(dict):
         super().__init__()
         self.lines: dict[Any, int] = {}
         self.line = 0
-
-
-_LineLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 
 
 def _line(d: Any, key: Any | None = None) -> int:
@@ -269,8 +279,10 @@ def validate_params(kind: str, params: dict[str, Any], where: str) -> dict[str, 
 
 def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overrides: dict[str, dict] | None = None) -> Plan:
     """Parse and validate a graph. ``overrides`` = {stage: {param: value}} is applied before validation."""
+    import yaml
+
     try:
-        doc = yaml.load(text, Loader=_LineLoader)
+        doc = yaml.load(text, Loader=_line_loader())
     except GraphError as e:
         raise GraphError(f"{filename}: {e}") from None
     except yaml.YAMLError as e:

@@ -2,6 +2,8 @@
 shut everything down cleanly.
 
 * Each stage runs ``python -m pipeline.runtime.node PLAN.json NAME`` in its own process group
+  (started from the ``gflow`` command, it is forked from a warm zygote instead, with the same
+  command line, parent and process group: ``pipeline/runtime/zygote.py``)
   (so a Ctrl-C in the terminal reaches the launcher only, which then stops the stages in
   order: sources and stages first, the recorder last, so the MCAP file keeps everything).
 * The launcher's zenoh session listens on one loopback endpoint; the stages connect to
@@ -45,6 +47,9 @@ EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full di
 LATE_S_ACROSS_HOSTS = 10.0
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 from pipeline.runtime.security import Signer
+from pipeline.runtime.signals import StopSignals
+from pipeline.runtime.trace import mark
+from pipeline.runtime.zygote import ForkedStage, Zygote, take
 
 __all__ = ["Launcher", "LaunchResult", "StageExit"]
 
@@ -168,6 +173,7 @@ class Launcher:
         self.peak_rss: dict[str, float] = {}
         self._interrupt = threading.Event()
         self._lock = threading.Lock()
+        self._zygote: Zygote | None = None
 
     # -- zenoh callbacks (zenoh threads: hand over, never block) -----------------------------
     def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
@@ -251,11 +257,30 @@ class Launcher:
         self._progress_at.pop(name, None)
         root = str(Path(__file__).resolve().parents[2])
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        if self._zygote is not None and not restarts:
+            # forked from the warm zygote (pipeline/runtime/zygote.py): no interpreter start, shared imports paid once
+            r, w = os.pipe()
+            try:
+                pid = self._zygote.spawn(plan_file, name, env, w)
+            except OSError as e:
+                self._close_zygote()
+                os.close(r)
+                mark(f"launcher zygote failed: {e}")
+            else:
+                self.pids.setdefault(name, []).append(pid)
+                return _Proc(name, ForkedStage(pid, os.fdopen(r, "r", errors="replace")))  # type: ignore[arg-type]
+            finally:
+                os.close(w)
         popen = subprocess.Popen([sys.executable, "-m", "pipeline.runtime.node", plan_file, name], env=env,
                                  stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                                  text=True, start_new_session=True)
         self.pids.setdefault(name, []).append(popen.pid)
         return _Proc(name, popen)
+
+    def _close_zygote(self) -> None:
+        if self._zygote is not None:
+            z, self._zygote = self._zygote, None
+            z.close()
 
     def _signal_all(self, names, sig: int) -> None:
         for n in names:
@@ -327,28 +352,35 @@ class Launcher:
                                       multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb,
                                       security=self.zenoh.security)
         plan.zenoh = node_settings.to_json()
-        session = open_session(self.zenoh)
-        bus = Bus(session, signer=Signer.of(self.zenoh.security))
-        if self.hosts or self.zenoh.connect:  # another run may hold this stream on the network
-            busy = stream_in_use(session, plan.stream, self.local)
-            if busy:
-                session.close()
-                raise RuntimeError(busy)
-        watch = HostWatch(session, plan, self.local, self._print)
-        bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
-        bus.subscribe(plan.error_topic, self._on_error)
-        for sp in plan.stages.values():
-            if "estimate" in sp.outputs and sp.kind != "recorder":
-                bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True)
-        self.run_dir = tempfile.mkdtemp(prefix="gflow-run-", dir=run_dir_parent())
-        os.makedirs(os.path.join(self.run_dir, "state"))
-        plan_file = os.path.join(self.run_dir, "plan.json")
-        Path(plan_file).write_text(plan.to_json())
+        mark("launcher run")
+        # SIGINT / SIGTERM / SIGHUP on a sigwait thread, never a Python handler setting the Event
+        # (pipeline/runtime/signals.py); taken before the session opens, so zenoh's threads block them
+        signals = (StopSignals(lambda _: self._interrupt.set()).start()
+                   if threading.current_thread() is threading.main_thread() else None)
+        try:
+            session = open_session(self.zenoh)
+            mark("launcher session")
+            bus = Bus(session, signer=Signer.of(self.zenoh.security))
+            if self.hosts or self.zenoh.connect:  # another run may hold this stream on the network
+                busy = stream_in_use(session, plan.stream, self.local)
+                if busy:
+                    session.close()
+                    raise RuntimeError(busy)
+            watch = HostWatch(session, plan, self.local, self._print)
+            bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
+            bus.subscribe(plan.error_topic, self._on_error)
+            for sp in plan.stages.values():
+                if "estimate" in sp.outputs and sp.kind != "recorder":
+                    bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True)
+            self.run_dir = tempfile.mkdtemp(prefix="gflow-run-", dir=run_dir_parent())
+            os.makedirs(os.path.join(self.run_dir, "state"))
+            plan_file = os.path.join(self.run_dir, "plan.json")
+            Path(plan_file).write_text(plan.to_json())
+        except BaseException:
+            if signals is not None:
+                signals.close()
+            raise
 
-        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
-        if threading.current_thread() is threading.main_thread():
-            for s in old:
-                signal.signal(s, lambda *_: self._interrupt.set())
         t0 = time.monotonic()
         recorder = [n for n, s in plan.stages.items() if s.kind == "recorder" and n in self.local]
         workers = [n for n in plan.stages if n not in recorder and n in self.local]
@@ -356,8 +388,14 @@ class Launcher:
         remote = [n for n in plan.stages if n not in self.local and plan.stages[n].kind != "recorder"]
         ok = True
         try:
-            for n in recorder + workers:
-                self.procs[n] = self._spawn(n, plan_file)
+            # the stage processes fork from the zygote the gflow command started first, when there is one
+            self._zygote = take() if self.threads_per_stage == 1 else None
+            try:
+                for n in recorder + workers:
+                    self.procs[n] = self._spawn(n, plan_file)
+                    mark(f"launcher spawned {n} {self.procs[n].popen.pid}")
+            finally:
+                self._close_zygote()  # restarts start `python -m pipeline.runtime.node`
             if recorder and self.recording:
                 self._print(f"recording to {self.recording}")
             # wait for every heartbeat, then tell the sources to start
@@ -381,8 +419,10 @@ class Launcher:
                     raise RuntimeError(f"no heartbeat from {describe_hosts(plan, missing)} after "
                                        f"{self.startup_timeout:.0f} s")
                 time.sleep(0.02)
+            mark("launcher heard all")
             start = encode(Control(header=Header(plan.stream, 0, time.time_ns()), command="start"))
             bus.publish(plan.control_topic, start, 0)
+            mark("launcher start sent")
             last_print = last_start = time.monotonic()
             while True:
                 if self._interrupt.is_set():
@@ -482,9 +522,8 @@ class Launcher:
                 self.out.write("\n")
             session.close()
             shutil.rmtree(self.run_dir, ignore_errors=True)
-            if threading.current_thread() is threading.main_thread():
-                for s, h in old.items():
-                    signal.signal(s, h)
+            if signals is not None:
+                signals.close()
         ok = ok and all(e.returncode == 0 for e in self.exits.values()) and not watch.lost
         return LaunchResult(ok=ok and not interrupted, seconds=time.monotonic() - t0, recording=self.recording if recorder else None,
                             status=dict(self.status), exits=dict(self.exits), errors=list(self.errors),

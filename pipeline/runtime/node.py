@@ -51,7 +51,12 @@ Faults:
 
 from __future__ import annotations
 
-import ctypes
+from pipeline.runtime.trace import mark
+
+mark("node begin")  # before the imports: bench/bench_startup.py tells interpreter start from imports
+
+import ctypes  # noqa: E402
+import dataclasses
 import logging
 import os
 import queue
@@ -61,6 +66,7 @@ import sys
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import msgspec
 import psutil
@@ -75,10 +81,12 @@ from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
 from pipeline.runtime.host import StageHost
 from pipeline.runtime.inbox import BoundedInbox
 from pipeline.runtime.memory import keep_freed_memory
-from pipeline.io.recorder import DiskFull, McapRecorder
-from pipeline.io.sources import open_reader
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 from pipeline.runtime.security import Signer
+from pipeline.runtime.signals import StopSignals
+
+if TYPE_CHECKING:
+    from pipeline.io.recorder import McapRecorder
 
 __all__ = ["main", "run_node"]
 
@@ -131,8 +139,11 @@ class Node:
         self.state = "starting"
         self.steps = 0
         self.proc = psutil.Process()
-        settings = ZenohSettings.from_json(plan.zenoh)
+        # the handshake below waits for every peer's heartbeat: opening need not wait for them too
+        settings = dataclasses.replace(ZenohSettings.from_json(plan.zenoh), connect_scouted=False)
+        mark(f"node {name} opening session")
         self.session = open_session(settings)
+        mark(f"node {name} session")
         self.bus = Bus(self.session, plan.drop_topics(), signer=Signer.of(settings.security))
         self._status_pub = self.bus.publisher(plan.status_topic(name))
         self.host: StageHost | None = None
@@ -165,6 +176,7 @@ class Node:
         self.parent = int(os.environ.get("GFLOW_LAUNCHER_PID", "0") or 0)
         self.restarts = int(os.environ.get("GFLOW_RESTARTS", "0") or 0)
         self.bad_control = 0
+        self._published = False  # for the start-up trace only
         # who must be heard from before publishing: every stage; a restarted stage only those
         # the launcher saw running when it restarted it (the others may have finished), for at most 3 s
         peers = os.environ.get("GFLOW_PEERS")
@@ -209,6 +221,8 @@ class Node:
         if other not in self.seen:
             self.seen.add(other)
             if self.seen >= self.required_peers:
+                if not self.peers_ready.is_set():
+                    mark(f"node {self.name} heard all")
                 self.peers_ready.set()
             self._answer_newcomer()
 
@@ -253,6 +267,8 @@ class Node:
             return
         if isinstance(msg, Control):
             if msg.command == "start":
+                if not self.started.is_set():
+                    mark(f"node {self.name} got start")
                 self.started.set()
             elif msg.command == "stop":
                 self.stop.set()
@@ -277,6 +293,9 @@ class Node:
                     log.warning("[%s] still waiting to hear from %s before publishing", self.name, ", ".join(missing))
                 if self.stop.is_set():
                     return
+        if not self._published:
+            self._published = True
+            mark(f"node {self.name} first publish {topic.rsplit('/', 1)[-1]}")
         self.bus.publish(topic, payload, seq, type_name)
 
     def status(self) -> StageStatus:
@@ -426,6 +445,7 @@ class Node:
             self.bus.subscribe(f"gflow/{plan.stream}/**", lambda k, *a: keep(k) and self._on_data(k, *a), with_type=True)
         else:
             stage = make_stage(plan, self.name)
+            mark(f"node {self.name} stage built")
             lag = 2 * self.window + 4 if self.window else 0
             self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,
                                   sp.snapshot_every, plan.snapshot_topic(self.name), lag=lag,
@@ -435,6 +455,7 @@ class Node:
             resumed_after = self._restore()
             self._update_hold()
         self.declared.set()
+        mark(f"node {self.name} declared")
         hb = threading.Thread(target=self._heartbeat, daemon=True)
         hb.start()
         threading.Thread(target=self._watch_parent, daemon=True).start()
@@ -529,6 +550,8 @@ class Node:
         t0 = time.monotonic()
         first: int | None = None
         next_announce = -1
+        from pipeline.io.sources import open_reader  # the source's own import (cv2, the readers)
+
         for raw in open_reader(p, self.plan.base_dir):  # type: ignore[arg-type]
             if self.stop.is_set():
                 host.close("interrupted")
@@ -620,6 +643,8 @@ class Node:
         return 0
 
     def _run_recorder(self) -> int:
+        from pipeline.io.recorder import DiskFull, McapRecorder  # the recorder's own import (mcap)
+
         plan = self.plan
         rp = RecorderParams(**self.sp.params)
         path = os.environ.get("GFLOW_RECORDING") or plan.recording_path()
@@ -676,36 +701,23 @@ class Node:
         return 0
 
 
-_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
-
-
 def run_node(plan_path: str, name: str) -> int:
     keep_freed_memory()  # frame-sized buffers reused, not faulted in afresh every frame
-    threads = os.environ.get("GFLOW_CV_THREADS")
-    if threads:  # set by the launcher: one compute thread per stage process by default
-        import cv2
-
-        cv2.setNumThreads(int(threads))
-    # Signals go to a thread of their own, never to a Python handler: a handler runs on the
-    # main thread between two bytecodes, and setting an Event there deadlocks when the signal
-    # lands while the main thread holds that Event's lock (seen: a stage alive for good after
-    # its launcher's SIGKILL). Blocked before any thread starts, so every thread, zenoh's too,
-    # inherits the mask and only the relay's sigwait takes them.
-    signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    # Signals go to a thread of their own (pipeline/runtime/signals.py), never to a Python
+    # handler that sets an Event: started before any other thread, so zenoh's inherit the mask.
     holder: list[Node] = []
 
-    def _relay() -> None:
-        while True:
-            signal.sigwait(_STOP_SIGNALS)
-            if not holder:  # before the node exists there is nothing to stop cleanly
-                _exit_now()
-            node = holder[0]
-            if node.parent and os.getppid() != node.parent:
-                node.orphaned.set()
-            node.stop.set()
+    def _on_signal(signum: int) -> None:
+        if not holder:  # before the node exists there is nothing to stop cleanly
+            _exit_now()
+        node = holder[0]
+        if node.parent and os.getppid() != node.parent:
+            node.orphaned.set()
+        node.stop.set()
 
-    threading.Thread(target=_relay, name="signals", daemon=True).start()
+    StopSignals(_on_signal).start()
     die_with_parent()
+    mark(f"node {name} imported")
     plan = Plan.from_json(Path(plan_path).read_text())
     if name not in plan.stages:
         print(f"gflow node: no stage {name!r} in {plan_path}", file=sys.stderr)

@@ -57,6 +57,10 @@ class ZenohSettings:
     shm_pool_mb: int = 16
     shm: bool = True
     security: Security | None = None
+    #: peer mode: whether opening waits to connect to the peers it heard of (zenoh's default, up to
+    #: its 500 ms scouting delay when they are still starting); a stage process's handshake waits
+    #: for every peer's heartbeat itself, so it opens at once (pipeline/runtime/node.py)
+    connect_scouted: bool = True
 
     def to_config(self) -> zenoh.Config:
         if self.mode not in ("peer", "client", "router"):
@@ -67,6 +71,8 @@ class ZenohSettings:
         if self.mode != "client":
             c.insert_json5("listen/endpoints", json.dumps(list(self.listen)))
         c.insert_json5("connect/endpoints", json.dumps(list(self.connect)))
+        if not self.connect_scouted:
+            c.insert_json5("open/return_conditions/connect_scouted", "false")
         c.insert_json5("transport/shared_memory/enabled", json.dumps(bool(self.shm)))
         c.insert_json5("transport/shared_memory/transport_optimization/pool_size",
                        json.dumps(self.shm_pool_mb * 1024 * 1024))

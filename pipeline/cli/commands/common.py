@@ -282,6 +282,9 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
         return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
     from pipeline.runtime.launcher import Launcher
     from pipeline.runtime.running import announce
+    from pipeline.runtime.zygote import preload
+
+    preload(s.kind for s in plan.stages.values())  # the stage processes' zygote imports their modules (once)
 
     launcher = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
                         total_frames=total, hosts=hosts)

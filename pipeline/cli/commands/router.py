@@ -5,11 +5,11 @@ from __future__ import annotations
 ORDER = 75
 
 import argparse
-import signal
 import sys
 import threading
 
 from pipeline.cli.commands.common import CliError
+from pipeline.runtime.signals import StopSignals
 
 EXAMPLE = """\
 example (router.yaml; paths are relative to the file):
@@ -51,17 +51,12 @@ def cmd_router(args) -> int:
 
         zenoh.init_log_from_env_or(args.zenoh_log)  # refused handshakes and logins show at warn
     stop = threading.Event()
-    old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
-    for s in old:
-        signal.signal(s, lambda *_: stop.set())
-    try:
-        with Router(cfg):
-            print(f"gflow router: {cfg.describe()} (Ctrl-C to stop)", file=sys.stderr, flush=True)
-            while not stop.wait(0.5):
-                pass
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
+    # Ctrl-C, SIGTERM, SIGHUP on a sigwait thread, not a Python handler setting the Event (which
+    # deadlocks when the signal lands while this thread holds the Event's lock, in stop.wait);
+    # taken before the router opens, so zenoh's threads block them too
+    with StopSignals(lambda _: stop.set()), Router(cfg):
+        print(f"gflow router: {cfg.describe()} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+        stop.wait()
     print("gflow router: stopped", file=sys.stderr)
     return 0
 

@@ -24,6 +24,8 @@ from pipeline.recording.results import run_outcome, write_boxes
 from pipeline.io.sources import count_frames
 from pipeline.cli.trackers import TRACKERS
 from pipeline.runtime.preflight import check_source
+from pipeline.runtime.trace import mark
+from pipeline.runtime.zygote import preload
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
                                           check_outputs, parse_box, parse_sets, run_plan)
 
@@ -117,6 +119,8 @@ def track_plan(args) -> tuple[Plan, int | None]:
         plan = make_plan(args.graph or graph, overrides)
     else:
         plan = load_graph(args.graph or graph, overrides=overrides)
+    if not getattr(args, "inline", False):  # the stage processes' zygote imports their modules meanwhile
+        preload(s.kind for s in plan.stages.values())
     sp = msgspec.convert(plan.stages["source"].params, SourceParams)
     first = check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
     if args.tracker == "m2":
@@ -128,6 +132,7 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
     """Run the tracker of ``args`` (inline or as processes) and gather its boxes from the recording
     (a temporary one with ``--no-record``, removed here) and the live stream, whatever happened."""
     plan_, total = plan or track_plan(args)
+    mark("cli plan checked")
     recording = Recording(plan_, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
                           needed=("estimate",))
     try:

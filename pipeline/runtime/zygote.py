@@ -1,0 +1,313 @@
+"""Stage processes forked from a warm process, so that ``gflow track`` pays for the interpreter and
+the shared imports (numpy, msgspec, zenoh, the runtime: about 0.3 s of CPU) once, not once per stage.
+
+The ``gflow`` command forks the *zygote* as its first act (:func:`start_early`, before its own
+imports), when its command will start stage processes. The zygote imports what every stage
+process needs, while the command goes on with its own imports, parsing and checks, and then waits
+on a socket. The launcher asks it for each stage (:meth:`Zygote.spawn`): the zygote forks, the fork
+forks the stage process and exits, so the stage process is re-parented to the launcher (which is a
+child subreaper, ``PR_SET_CHILD_SUBREAPER``): the launcher waits for it, signals its process group
+and reads its stderr exactly as for a stage it started with ``python -m pipeline.runtime.node``.
+
+Forking is safe here because the zygote has one thread when it forks: it forks before any zenoh
+session exists in it, with BLAS limited to one thread (``OMP_NUM_THREADS`` etc., as the launcher
+gives every stage), and without OpenCV (which starts a thread at import; measured: a fork of a
+process that had run OpenCV and BLAS work hangs in ``cv2.setNumThreads``). Anything else -- no
+zygote, a launcher not in the ``gflow`` process, a restart -- starts ``python -m
+pipeline.runtime.node`` as before. ``GFLOW_ZYGOTE=0`` turns it off.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import json
+import os
+import select
+import signal
+import socket
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["Zygote", "start_early", "take", "ForkedStage"]
+
+PR_SET_PDEATHSIG = 1
+PR_SET_NAME = 15
+PR_SET_CHILD_SUBREAPER = 36
+#: the environment a stage process gets by default (the launcher's ``threads_per_stage`` = 1)
+ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: commands of ``gflow`` that start stage processes
+LAUNCHING = ("track", "run", "demo")
+
+_EARLY: "Zygote | None" = None
+
+
+def _prctl(option: int, arg: int) -> bool:
+    try:
+        return ctypes.CDLL(None, use_errno=True).prctl(option, arg, 0, 0, 0) == 0
+    except (OSError, AttributeError):
+        return False
+
+
+def wants_stages(argv: list[str]) -> bool:
+    """Whether ``gflow ARGV`` will start stage processes (a launching command, not --inline / --help)."""
+    words = [a for a in argv if not a.startswith("-")]
+    return (bool(words) and words[0] in LAUNCHING and not {"--inline", "-h", "--help", "--version"} & set(argv)
+            and os.environ.get("GFLOW_ZYGOTE", "1") != "0")
+
+
+def start_early(argv: list[str]) -> None:
+    """Fork the zygote now if ``gflow ARGV`` will start stage processes (see the module doc)."""
+    global _EARLY
+    if _EARLY is None and sys.platform.startswith("linux") and wants_stages(argv):
+        _EARLY = Zygote.fork()
+
+
+def preload(kinds) -> None:
+    """Have the zygote import the modules of these stage kinds (while this process goes on), so
+    that each stage process forks with its own stage's imports done too. A no-op without one."""
+    if _EARLY is not None:
+        _EARLY.preload(kinds)
+
+
+def take() -> "Zygote | None":
+    """The zygote forked at start-up (once: the launcher that takes it closes it), or None."""
+    global _EARLY
+    z, _EARLY = _EARLY, None
+    return z
+
+
+class ForkedStage:
+    """What the launcher holds of a stage process it did not start itself (the ``subprocess.Popen``
+    calls it uses): ``pid``, ``stderr``, ``returncode``, ``poll()``, ``wait(timeout)``."""
+
+    def __init__(self, pid: int, stderr) -> None:
+        self.pid = pid
+        self.stderr = stderr
+        self.returncode: int | None = None
+        try:
+            self._pidfd = os.pidfd_open(pid)
+        except (AttributeError, OSError):
+            self._pidfd = -1
+
+    def _reap(self, flags: int) -> int | None:
+        if self.returncode is None:
+            try:
+                pid, status = os.waitpid(self.pid, flags)
+            except ChildProcessError:
+                return self.returncode
+            if pid == self.pid:
+                self.returncode = os.waitstatus_to_exitcode(status)
+                if self._pidfd >= 0:
+                    os.close(self._pidfd)
+                    self._pidfd = -1
+        return self.returncode
+
+    def poll(self) -> int | None:
+        return self._reap(os.WNOHANG)
+
+    def wait(self, timeout: float | None = None) -> int:
+        import subprocess
+
+        if timeout is None:
+            return self._reap(0)  # type: ignore[return-value]
+        end = time.monotonic() + timeout
+        while self.poll() is None:
+            left = end - time.monotonic()
+            if left <= 0:
+                raise subprocess.TimeoutExpired(str(self.pid), timeout)
+            if self._pidfd >= 0:
+                select.select([self._pidfd], [], [], left)  # readable when the process has exited
+            else:
+                time.sleep(min(left, 0.01))
+        return self.returncode  # type: ignore[return-value]
+
+
+class Zygote:
+    """A forked process that forks stage processes on request (see the module doc)."""
+
+    def __init__(self, pid: int, sock: socket.socket) -> None:
+        self.pid = pid
+        self.sock = sock
+
+    @classmethod
+    def fork(cls) -> "Zygote | None":
+        if len(os.listdir("/proc/self/task")) != 1:  # a thread could hold a lock the fork would keep
+            return None
+        if not _prctl(PR_SET_CHILD_SUBREAPER, 1):  # the stage processes must come back to us
+            return None
+        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        parent = os.getpid()
+        pid = os.fork()
+        if pid == 0:
+            ours.close()
+            code = 0
+            try:
+                _serve(theirs, parent)
+            except BaseException:  # noqa: BLE001  (never back into the caller's code)
+                code = 1
+            os._exit(code)
+        theirs.close()
+        return cls(pid, ours)
+
+    def preload(self, kinds) -> None:
+        """Ask for the modules of these stage kinds to be imported now (no answer is waited for)."""
+        req = json.dumps({"preload": sorted(set(kinds))}).encode()
+        try:
+            self.sock.sendall(len(req).to_bytes(4, "big") + req)
+        except OSError:
+            pass
+
+    def spawn(self, plan_file: str, name: str, env: dict[str, str], stderr_fd: int, timeout: float = 30.0) -> int:
+        """Start stage ``name``; its stderr goes to ``stderr_fd``. Returns its pid, once it is our child."""
+        req = json.dumps({"plan": plan_file, "name": name, "env": env}).encode()
+        self.sock.settimeout(timeout)
+        socket.send_fds(self.sock, [len(req).to_bytes(4, "big") + req], [stderr_fd])
+        line = b""
+        while not line.endswith(b"\n"):
+            chunk = self.sock.recv(64)
+            if not chunk:
+                raise OSError("the zygote is gone")
+            line += chunk
+        pid = int(line)
+        if pid <= 0:
+            raise OSError("the zygote has threads now: it does not fork")
+        return pid
+
+    def close(self) -> None:
+        try:
+            self.sock.close()  # the zygote sees the end of its socket and exits
+        finally:
+            try:
+                os.waitpid(self.pid, 0)
+            except ChildProcessError:
+                pass
+
+
+def _recv_exact(sock: socket.socket, n: int) -> bytes:
+    data = b""
+    while len(data) < n:
+        chunk = sock.recv(n - len(data))
+        if not chunk:
+            raise EOFError
+        data += chunk
+    return data
+
+
+def _serve(sock: socket.socket, parent: int) -> None:
+    """The zygote: import what every stage needs, then fork one stage per request until the socket ends."""
+    os.setsid()  # out of the terminal's process group: Ctrl-C goes to the launcher, which stops the run
+    _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:
+        return
+    for var in ONE_THREAD:  # before numpy: BLAS starts no thread, as in every stage process
+        os.environ.setdefault(var, "1")
+    import pipeline.runtime.node  # noqa: F401  (numpy, msgspec, zenoh, the runtime: paid once, here)
+
+    while True:
+        try:
+            msg, fds, _, _ = socket.recv_fds(sock, 4, 1)
+            if not msg:
+                return
+            if len(msg) < 4:
+                msg += _recv_exact(sock, 4 - len(msg))
+            req = json.loads(_recv_exact(sock, int.from_bytes(msg, "big")))
+        except (EOFError, OSError, ValueError):
+            return
+        if "preload" in req:
+            _preload(req["preload"])
+            continue
+        if not fds:
+            return
+        if len(os.listdir("/proc/self/task")) != 1:  # a preloaded module started a thread: not safe to fork
+            os.close(fds[0])
+            sock.sendall(b"-1\n")
+            continue
+        pid = os.fork()
+        if pid == 0:
+            grandchild = os.fork()
+            if grandchild == 0:
+                _stage(req, fds[0], parent, sock)
+            sock.sendall(f"{grandchild}\n".encode())
+            os._exit(0)
+        os.close(fds[0])
+        os.waitpid(pid, 0)  # once it has exited, its child is the launcher's
+
+
+def _preload(kinds: list[str]) -> None:
+    from stages.registry import get_stage_class
+
+    for kind in kinds:
+        try:
+            if kind == "recorder":
+                import pipeline.io.recorder  # noqa: F401  (mcap: what the recorder imports when it starts)
+            else:
+                get_stage_class(kind)
+            if kind == "source":
+                import pipeline.io.sources  # noqa: F401  (the readers: what the source imports when it starts)
+        except Exception:  # noqa: BLE001  (the stage process reports it, as without a zygote)
+            pass
+
+
+def _set_title(plan: str, name: str) -> None:
+    """Show the stage process as ``python -m pipeline.runtime.node PLAN NAME`` (ps, psutil, py-spy),
+    as when it is started that way: a fork would show the gflow command's line."""
+    try:
+        import setproctitle
+
+        setproctitle.setproctitle(f"{sys.executable} -m pipeline.runtime.node {plan} {name}")
+        # it pads the rest of the argument area with NULs, which /proc/PID/cmdline then shows as
+        # empty arguments; a non-NUL last byte makes Linux show the title up to its NUL only
+        stat = Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()
+        arg_end = int(stat[49 - 3])  # field 49 of proc(5); the first after the ')' is field 3
+        last = ctypes.c_char.from_address(arg_end - 1)
+        if last.value == b"\x00":
+            last.value = b" "
+    except ImportError:  # at least the short name (ps -o comm, top)
+        try:
+            ctypes.CDLL(None).prctl(PR_SET_NAME, f"gflow-{name}"[:15].encode(), 0, 0, 0)
+        except (OSError, AttributeError):
+            pass
+
+
+def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> None:
+    """The stage process: what ``python -m pipeline.runtime.node PLAN NAME`` does, in a fork."""
+    code = 1
+    try:
+        from pipeline.runtime.trace import mark
+
+        mark("node begin")
+        mark("node forked")
+        sock.close()
+        os.setsid()  # its own process group, as the launcher's start_new_session
+        null = os.open(os.devnull, os.O_RDWR)
+        os.dup2(null, 0)
+        os.dup2(null, 1)
+        os.dup2(stderr_fd, 2)
+        os.close(null)
+        os.close(stderr_fd)
+        for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(s, signal.SIG_DFL if s != signal.SIGINT else signal.default_int_handler)
+        _set_title(req["plan"], req["name"])
+        os.environ.clear()
+        os.environ.update(req["env"])
+        deadline = time.monotonic() + 5.0
+        while os.getppid() != launcher and time.monotonic() < deadline:  # re-parented when the middle fork exits
+            time.sleep(0.0005)
+        sys.argv = ["pipeline.runtime.node", req["plan"], req["name"]]
+        from pipeline.runtime.node import main
+
+        code = main([req["plan"], req["name"]])
+    except SystemExit as e:
+        code = e.code if isinstance(e.code, int) else 1
+    except BaseException:  # noqa: BLE001  (as the interpreter would: the traceback on stderr, exit 1)
+        import traceback
+
+        traceback.print_exc()
+        code = 1
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):
+            pass
+    os._exit(code)
