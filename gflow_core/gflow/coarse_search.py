@@ -34,7 +34,7 @@ __all__ = ["translation_costs"]
 
 
 def translation_costs(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: np.ndarray, mu: np.ndarray,
-                      w: np.ndarray, block_vertices: int = 1 << 18) -> np.ndarray:
+                      w: np.ndarray, block_vertices: int = 1 << 16) -> np.ndarray:
     """``C(e, g) = sum_i w_i (y(x_i + o_g) - mu_i)^2`` for every expert and translation.
 
     Parameters
@@ -50,6 +50,9 @@ def translation_costs(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: n
     block_vertices : int
         At most this many (expert, translation, vertex) triples are sampled at once (about 80
         bytes of temporaries each); blocks of experts give the same numbers as one batch.
+        Small blocks are faster: 2^16 took 5.4 ms for 20 experts x 81 translations x 225
+        vertices against 14 ms for 2^18 (temporaries of 0.5 rather than 2 MB, which the
+        allocator reuses and the cache holds, instead of fresh pages every block).
 
     Returns
     -------
@@ -71,8 +74,9 @@ def translation_costs(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: n
                               image.shape).sample(image.reshape(-1))
         r = vals - mu[bs, None, :]
         r *= r
-        # sum_i w_i r_i^2 for each translation, expert by expert (einsum: its own loops, one order)
-        out[bs] = np.einsum("egm,em->eg", r, w[bs])
+        # sum_i w_i r_i^2 for each translation: one (G, m) x (m,) product per expert, the same
+        # call whatever the block
+        out[bs] = (r @ w[bs, :, None])[:, :, 0]
     return out
 
 

@@ -144,8 +144,9 @@ MIN_CURVATURE_FRACTION = 0.1
 _LOG_2PI = float(np.log(2.0 * np.pi))
 
 #: The translation search of :func:`coarse_to_fine_peak` evaluates at most this many
-#: (expert, offset, vertex) triples at once (about 100 bytes of temporaries each).
-SEARCH_BLOCK_VERTICES = 1 << 18
+#: (expert, offset, vertex) triples at once (about 80 bytes of temporaries each; see
+#: :func:`.coarse_search.translation_costs`).
+SEARCH_BLOCK_VERTICES = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -471,10 +472,16 @@ class _Evaluation:
         d[:, ROT] = relative_rotvecs(fit.q_prev, qu)
         self.d = d
         out = 0.5 * f + 0.5 * (fit.lam * d * d).sum(axis=-1)
+        # the soft walls; their gradient and curvature are needed only where they are touched
+        self.wall_r = self.wall_s = False
         if np.isfinite(fit.max_rotation):
-            out = out + rotation_wall(u, fit.max_rotation)[0]
+            pen = rotation_wall(u, fit.max_rotation)[0]
+            out = out + pen
+            self.wall_r = bool(pen.any())
         if fit.scale is not None:
-            out = out + scale_wall(u, fit.scale)[0]
+            pen = scale_wall(u, fit.scale)[0]
+            out = out + pen
+            self.wall_s = bool(pen.any())
         self.f = out
 
     def _jacobian(self, gx: np.ndarray, gy: np.ndarray, sel) -> np.ndarray:
@@ -507,7 +514,7 @@ class _Evaluation:
         sl = slice(None) if sel is None else sel
         st = self.st
         if sel is not None:
-            st = stencil_xy(st._x[sel], st._y[sel], fit.fd.shape)
+            st = BilinearStencil(st.idx[sel], st.fx[sel], st.fy[sel], st._x[sel], st._y[sel], fit.fd.shape)
         ls = fit.level_scale
         # d y_t(x_i(u [+] delta)) / d delta = grad y_t(x_i)^T dx_i/d delta  (the gradient images, see module doc)
         gx, gy = st.sample_gradient_images(fit.fd)
@@ -524,11 +531,11 @@ class _Evaluation:
         lam, u = fit.lam, self.u[sl]
         g += lam * self.d[sl]
         H += np.diag(lam)
-        if np.isfinite(fit.max_rotation):
+        if self.wall_r:
             _, gw, hw = rotation_wall(u, fit.max_rotation)
             g[:, ROT] += gw
             H[:, ROT, ROT] += hw
-        if fit.scale is not None:
+        if self.wall_s:
             _, gc, hc = scale_wall(u, fit.scale)
             g[:, COEF] += gc
             H[:, COEF, COEF] += hc
