@@ -1047,16 +1047,33 @@ def log_likelihood(
     """
     E, s, P = poses.shape
     n = bases.shape[0]
-    x = project(bases, poses)  # (E, s, n, 2)
-    st = bilinear_stencil(x, fd.shape)
+    flat = poses.reshape(E * s, P)
+    # x_i = g r (h_i c) + l (eq. 1), as in _Evaluation
+    g_r = quaternion_matrices(pose_quaternions(flat), rows=2)
+    xy = g_r @ np.einsum("xnk,ek->exn", np.ascontiguousarray(bases.transpose(1, 0, 2)), flat[:, COEF])
+    x = (xy[:, 0] + flat[:, 3, None]).reshape(E, s, n)
+    yy = (xy[:, 1] + flat[:, 4, None]).reshape(E, s, n)
+    st = stencil_xy(x, yy, fd.shape)
     y = st.sample(fd.flat)
     vv = tv.var + sigma_w  # (E, n)
+    mu = tv.mean[:, None, :]
     if photometric is not None:
-        a, b = gain_bias(y, tv.mean[:, None, :], 1.0 / vv[:, None, :], photometric)
-        r = y - predict(tv.mean[:, None, :], a, b)
+        # gain_bias with the sums that do not involve y taken once per expert (the same values)
+        w = 1.0 / vv
+        wmu = w * tv.mean
+        la = 1.0 / photometric.gain_std ** 2
+        sm = wmu.sum(axis=-1)[:, None]
+        a11 = (wmu * tv.mean).sum(axis=-1)[:, None] + la
+        a22 = w.sum(axis=-1)[:, None] + 1.0 / photometric.bias_std ** 2
+        det = a11 * a22 - sm * sm
+        sy = (y * w[:, None, :]).sum(axis=-1)
+        smy = (y * wmu[:, None, :]).sum(axis=-1)
+        a = np.clip(((smy + la) * a22 - sm * sy) / det, 1.0 / photometric.gain_max, photometric.gain_max)
+        b = (sy - a * sm) / a22
+        r = y - (a[..., None] * mu + b[..., None])
     else:
-        r = y - tv.mean[:, None, :]
-    fg = np.sum(robust_cost(r * r / vv[:, None, :], outlier_sq), axis=-1)
+        r = y - mu
+    fg = robust_cost(r * r / vv[:, None, :], outlier_sq).sum(axis=-1)
     logdet_v = np.sum(np.log(vv), axis=-1)
     if not tv.has_background:
         return -0.5 * n * _LOG_2PI - 0.5 * (fg + logdet_v[:, None])
