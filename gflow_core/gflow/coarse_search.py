@@ -74,9 +74,10 @@ def translation_costs(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: n
                               image.shape).sample(image.reshape(-1))
         r = vals - mu[bs, None, :]
         r *= r
-        # sum_i w_i r_i^2 for each translation: one (G, m) x (m,) product per expert, the same
-        # call whatever the block
-        out[bs] = (r @ w[bs, :, None])[:, :, 0]
+        # sum_i w_i r_i^2 for each translation (numpy's own reduction, not a BLAS gemv: the same
+        # order whatever the block, and no BLAS threads spinning in the proposal process)
+        r *= w[bs, None, :]
+        out[bs] = r.sum(axis=-1)
     return out
 
 
