@@ -73,6 +73,23 @@ Departures from the paper
     likelihood; not in the coarse search, where a capped cost lost jumping: CLE 42 px
     against 27.5 px).
 
+Implementation (speed; the same mathematics, results equal to the straightforward
+version to about 1e-14 relative, measured over 20-30 frames of each shared sequence):
+
+* One evaluation of the objective per Gauss-Newton step (:class:`_Evaluation`) serves both
+  the step's acceptance test and, for the experts whose step is accepted only, the
+  linearisation at the new point (gradient images sampled with the same stencil); a
+  rejected expert keeps the linearisation it had. Rotations go through quaternions in
+  plain numpy (:mod:`.geometry`), the Jacobian is built with the vertices last.
+* :func:`coarse_to_fine_peak` computes the peak once for experts that are exact copies of
+  one another (resampled children of one parent that drew the same sample: on jumping
+  about 9 distinct of 20), and runs the second chain only for the experts the search moved
+  (where the search keeps the start, the second chain would repeat the first bit for bit).
+  The search itself (:mod:`.coarse_search`) shares each vertex's bilinear weights across
+  the whole-pixel translations.
+* Every step is per expert, so any split of the experts (shards, blocks, distinct rows)
+  gives the same numbers bit for bit (tested).
+
 Numerical safeguards:
 
 * Gauss-Newton with step control: a step is taken only if it decreases the
@@ -115,7 +132,7 @@ from .geometry import (COEF, ROT, TRANS, box_minus, box_plus, pose_quaternions, 
                        quaternion_matrices, relative_rotvecs)
 from .coarse_search import translation_costs
 from .image import BilinearStencil, FrameData, bilinear_stencil, stencil_xy
-from .photometric import Photometric, gain_bias, predict
+from .photometric import Photometric
 
 __all__ = [
     "MIN_CURVATURE_FRACTION",
