@@ -304,3 +304,6 @@ class _FlatView:
 
     def __getitem__(self, index: np.ndarray) -> np.ndarray:
         return self.texels.take_flat(index)
+
+    def take(self, index: np.ndarray) -> np.ndarray:
+        return self.texels.take_flat(index)

@@ -20,6 +20,7 @@ import numpy as np
 
 __all__ = [
     "validate_frame", "FrameData", "prepare_frame", "frame_pyramid", "BilinearStencil", "bilinear_stencil",
+    "stencil_xy",
 ]
 
 
@@ -114,7 +115,6 @@ def frame_pyramid(fd: FrameData, levels: int) -> list[FrameData]:
     return out
 
 
-@dataclass(frozen=True)
 class BilinearStencil:
     """Precomputed bilinear interpolation stencil for a set of points.
 
@@ -125,26 +125,49 @@ class BilinearStencil:
     fx, fy : (...) float64
         Fractional offsets in ``[0, 1]``.
     dx_ok, dy_ok : (...) bool
-        False where the coordinate was clamped (the derivative along it is 0).
+        False where the coordinate was clamped (the derivative along it is 0). Computed on
+        first use (most callers need only the values).
     inside : (...) bool
-        Point lies in ``[0, W - 1] x [0, H - 1]``.
+        Point lies in ``[0, W - 1] x [0, H - 1]`` (computed on first use).
     width, size : int
         ``W`` and ``H * W``.
     """
 
-    idx: np.ndarray
-    fx: np.ndarray
-    fy: np.ndarray
-    dx_ok: np.ndarray
-    dy_ok: np.ndarray
-    inside: np.ndarray
-    width: int
-    size: int
+    __slots__ = ("idx", "fx", "fy", "width", "size", "_x", "_y", "_H", "_dx_ok", "_dy_ok", "_inside")
+
+    def __init__(self, idx: np.ndarray, fx: np.ndarray, fy: np.ndarray, x: np.ndarray, y: np.ndarray,
+                 shape: tuple[int, int]) -> None:
+        self.idx, self.fx, self.fy = idx, fx, fy
+        self._x, self._y = x, y  # the points (non-finite ones as given)
+        self._H, self.width = int(shape[0]), int(shape[1])
+        self.size = self._H * self.width
+        self._dx_ok = self._dy_ok = self._inside = None
+
+    @property
+    def dx_ok(self) -> np.ndarray:
+        if self._dx_ok is None:
+            # NaN and +-inf compare False on one side, so they are never ok (nor inside)
+            self._dx_ok = (self._x > 0.0) & (self._x < self.width - 1)
+        return self._dx_ok
+
+    @property
+    def dy_ok(self) -> np.ndarray:
+        if self._dy_ok is None:
+            self._dy_ok = (self._y > 0.0) & (self._y < self._H - 1)
+        return self._dy_ok
+
+    @property
+    def inside(self) -> np.ndarray:
+        if self._inside is None:
+            x, y = self._x, self._y
+            self._inside = (x >= 0.0) & (x <= self.width - 1) & (y >= 0.0) & (y <= self._H - 1)
+        return self._inside
 
     def _corners(self, flat: np.ndarray, offset: np.ndarray | int = 0):
-        i = self.idx + offset
+        i = self.idx + offset if not isinstance(offset, int) or offset else self.idx
         W = self.width
-        return flat[i], flat[i + 1], flat[i + W], flat[i + W + 1]
+        # take: the same values as flat[i], at about half the cost of fancy indexing
+        return flat.take(i), flat.take(i + 1), flat.take(i + W), flat.take(i + (W + 1))
 
     def sample(self, flat: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Bilinear values of a flattened image ``(H*W,)`` or image stack ``(R*H*W,)``.
@@ -190,18 +213,23 @@ def bilinear_stencil(points: np.ndarray, shape: tuple[int, int]) -> BilinearSten
 
     Non-finite coordinates are treated as outside (clamped to the centre of pixel 0).
     """
+    return stencil_xy(points[..., 0], points[..., 1], shape)
+
+
+def stencil_xy(x: np.ndarray, y: np.ndarray, shape: tuple[int, int]) -> BilinearStencil:
+    """:func:`bilinear_stencil` of points given as separate ``x`` and ``y`` arrays ``(...)``."""
     H, W = int(shape[0]), int(shape[1])
-    x = points[..., 0]
-    y = points[..., 1]
-    finite = np.isfinite(x) & np.isfinite(y)
-    x = np.where(finite, x, 0.0)
-    y = np.where(finite, y, 0.0)
-    inside = finite & (x >= 0.0) & (x <= W - 1) & (y >= 0.0) & (y <= H - 1)
-    dx_ok = finite & (x > 0.0) & (x < W - 1)
-    dy_ok = finite & (y > 0.0) & (y < H - 1)
-    xc = np.clip(x, 0.0, W - 1.0)
-    yc = np.clip(y, 0.0, H - 1.0)
-    x0 = np.minimum(np.floor(xc), W - 2.0)
-    y0 = np.minimum(np.floor(yc), H - 2.0)
-    idx = (y0 * W + x0).astype(np.intp)
-    return BilinearStencil(idx, xc - x0, yc - y0, dx_ok, dy_ok, inside, W, H * W)
+    if not (np.isfinite(x).all() and np.isfinite(y).all()):
+        finite = np.isfinite(x) & np.isfinite(y)
+        xs, ys = np.where(finite, x, 0.0), np.where(finite, y, 0.0)
+        # keep the masks of the points as given (non-finite: outside, no derivative)
+        xm, ym = np.where(finite, x, np.nan), np.where(finite, y, np.nan)
+    else:
+        xs, ys = xm, ym = x, y
+    xc = np.minimum(np.maximum(xs, 0.0), W - 1.0)
+    yc = np.minimum(np.maximum(ys, 0.0), H - 1.0)
+    # floor of a number >= 0 is its truncation; the last column / row uses the cell before it
+    x0 = np.minimum(xc.astype(np.intp), W - 2)
+    y0 = np.minimum(yc.astype(np.intp), H - 2)
+    idx = y0 * W + x0
+    return BilinearStencil(idx, xc - x0, yc - y0, xm, ym, (H, W))

@@ -204,3 +204,52 @@ def test_stages_set_the_scale_reference_from_the_initial_box() -> None:
     assert setup.cfg.scale_reference == (pytest.approx(40.0),)
     assert setup.cfg.scale_limits() == (pytest.approx(40.0), pytest.approx(np.log(1.5)))
     assert prepare_model(GFlowParams(init=(40.0, 30.0, 30.0, 40.0)), {}, (120, 160)).cfg.scale_limits() is None
+
+
+def test_copied_experts_and_one_expert_shards_equal_one_batch() -> None:
+    """The peak is computed once for experts that are copies of one another, the search's second
+    chain only for the experts it moved, and Gauss-Newton relinearises only the experts whose
+    step was taken: none of this may change any expert's numbers, alone or in a batch."""
+    from gflow_core.gflow.filter import ExpertState, concatenate_proposals, expert_rngs, propose
+
+    model, start, _, frame, _ = _scene(20.0)
+    cfg = GFlowConfig(n_experts=4, n_samples=3, pyramid_levels=3, search_radius=32.0, search_step=8.0,
+                      photometric=True, max_rotation_deg=30.0, outlier_sigmas=3.0, max_scale_change=1.5,
+                      scale_reference=tuple(start[0, 5:]))
+    st = init_state(model, start[0], frame, cfg, rng=np.random.default_rng(0), pose_jitter_std=1.0)
+    # experts 0-2 copies of one, 3-4 of another, 5 alone (a resampled population)
+    rows = np.array([0, 0, 0, 1, 1, 3])
+    st = ExpertState(poses=st.poses[rows], tex_mean=st.tex_mean[rows], tex_var=st.tex_var[rows], bg_mean=None,
+                     bg_var=None, log_credibility=np.full(6, -np.log(6)), image_shape=st.image_shape)
+    cfg = GFlowConfig(**{**{f: getattr(cfg, f) for f in cfg.__dataclass_fields__}, "n_experts": 6})
+    whole = propose(st, frame, model, cfg, expert_rngs(1, 0, 1, range(6)))
+    assert np.array_equal(whole.u_hat[0], whole.u_hat[2]) and not np.array_equal(whole.u_hat[0], whole.u_hat[5])
+    alone = concatenate_proposals([propose(st, frame, model, cfg, expert_rngs(1, 0, 1, [i]), [i]) for i in range(6)])
+    for f in ("u_hat", "sigma_hat", "samples", "log_weights", "log_evidence", "gn_objective"):
+        assert np.array_equal(getattr(whole, f), getattr(alone, f)), f
+
+
+def test_whole_pixel_search_samples_as_the_stencil_does() -> None:
+    """coarse_search's shared bilinear weights and padded border give the values of sampling
+    every translated vertex through image.stencil_xy (clamped border), far outside the image too."""
+    from gflow_core.gflow.coarse_search import _Lattice, translation_costs
+    from gflow_core.gflow.image import stencil_xy
+
+    rng = np.random.default_rng(4)
+    img = rng.random((30, 40))
+    x = rng.uniform(-60.0, 100.0, (3, 50))
+    y = rng.uniform(-50.0, 80.0, (3, 50))
+    x[0, :5] = [0.0, 39.0, 39.5, -0.25, 38.999]
+    shifts = search_offsets(4.0, 2.0)
+    got = _Lattice(img, shifts.astype(np.intp)).sample(x, y)
+    want = stencil_xy(x[:, None, :] + shifts[None, :, 0, None], y[:, None, :] + shifts[None, :, 1, None],
+                      img.shape).sample(img.reshape(-1))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    mu, w = rng.random((3, 50)), rng.random((3, 50))
+    c = translation_costs(img, x, y, shifts, mu, w)
+    np.testing.assert_allclose(c, ((want - mu[:, None]) ** 2 * w[:, None]).sum(-1), rtol=1e-12)
+    # translations that are not whole pixels take the general path, with the same result form
+    c2 = translation_costs(img, x, y, shifts + 0.5, mu, w)
+    want2 = stencil_xy(x[:, None, :] + shifts[None, :, 0, None] + 0.5, y[:, None, :] + shifts[None, :, 1, None] + 0.5,
+                       img.shape).sample(img.reshape(-1))
+    np.testing.assert_allclose(c2, ((want2 - mu[:, None]) ** 2 * w[:, None]).sum(-1), rtol=1e-12)
