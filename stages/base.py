@@ -111,7 +111,7 @@ class Stage(ABC):
         """The work on one input message of a port in ``prepare_ports`` that depends on that
         message alone, never on the stage's state (it may run on another thread while ``step``
         runs). Exceptions propagate to :meth:`prepared`."""
-        raise NotImplementedError(f"stage kind {self.kind!r} prepares nothing")
+        raise NotImplementedError(f"stage kind {self.kind!r} lists prepare_ports {sorted(self.prepare_ports)} but does not implement prepare()")
 
     def prepared(self, port: str, msg: Message) -> Any:
         """``prepare(port, msg)``: the result a runner computed ahead when there is one, else
