@@ -3,7 +3,7 @@
 Run: ``python bench/bench_gflow_core.py [--frames N] [--experts 1,20,100]``
 
 For each number of experts and with the background model off and on, it renders a
-synthetic sequence (:mod:`gflow_core.gflow.render`), initialises the experts from the
+synthetic sequence (:mod:`gflow_core.gflow.synthetic_head`), initialises the experts from the
 first frame, runs two untimed warm-up frames (the first touch of new memory is slow),
 then times ``propose`` + ``update`` (via ``step``) over ``--frames`` frames (rendering
 is not timed). It also prints the size of the expert state, the peak memory allocated
@@ -21,7 +21,7 @@ import numpy as np
 
 from gflow_core.gflow import GFlowConfig, fit_head_model_to_box, init_state, step
 from gflow_core.gflow.geometry import rotation_angle_deg
-from gflow_core.gflow.render import synthetic_sequence
+from gflow_core.gflow.synthetic_head import synthetic_sequence
 
 
 def main() -> None:

@@ -4,7 +4,7 @@ the size of each message type, and the peak memory (RSS) of the proposal and fil
 
 One command: ``python bench/bench_gflow_pipeline.py [--frames 60] [--experts 1,20,100]``
 
-The frames are a rendered textured head (``gflow_core.gflow.render``) written once as PNGs
+The frames are a rendered textured head (``gflow_core.gflow.synthetic_head``) written once as PNGs
 (rendering is not timed); the source reads them as fast as the pipeline takes them. Frames/s
 counts the tracked frames over the time from the first to the last estimate, from the
 recording's log times (start-up excluded). Message sizes are the mean encoded payloads in
@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import scratch, table  # noqa: E402
 
-from gflow_core.gflow.render import synthetic_sequence  # noqa: E402
+from gflow_core.gflow.synthetic_head import synthetic_sequence  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
 from pipeline.runtime.launcher import Launcher  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402

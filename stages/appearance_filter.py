@@ -1,6 +1,6 @@
 """Filter stage of the appearance tracker: M2 with online exemplars (the default tracker).
 
-The mathematics is :mod:`gflow_core.m2.appearance` (its docstring lists the departures from
+The mathematics is :mod:`gflow_core.appearance` (its docstring lists the departures from
 Toyama & Blake 2002). This stage adapts it to the pipeline's particle messages:
 
 * Inputs: ``frames`` of frame t (colour or grey; the appearance channels are computed here
@@ -34,7 +34,7 @@ import msgspec
 import numpy as np
 
 from gflow_core import features
-from gflow_core.m2 import appearance as ap
+from gflow_core import appearance as ap
 from gflow_core.m2.tracking import ParticleCloud
 
 from .base import Output, Params, Stage, StageInputError
@@ -52,7 +52,7 @@ _DEFAULTS = ap.AppearanceParams()
 
 class AppearanceFilterParams(Params):
     """Appearance filter settings; every field but ``init`` and ``seed`` is the field of the
-    same name of :class:`gflow_core.m2.appearance.AppearanceParams` (see it for meanings)."""
+    same name of :class:`gflow_core.appearance.AppearanceParams` (see it for meanings)."""
 
     init: tuple[float, float, float, float] | None = None
     seed: int = 0

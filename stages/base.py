@@ -87,7 +87,7 @@ class Stage(ABC):
         self.ctx = ctx
         self._reports = _Reports()
         # (port, header seq) -> a callable giving prepare(port, msg)'s result (or raising its
-        # exception): what a runner computed ahead (pipeline.runtime.host.StageHost)
+        # exception): what a runner computed ahead (pipeline.runtime.stage_host.StageHost)
         self.ahead: dict[tuple[str, int], Callable[[], Any]] = {}
         ins, outs = type(self).ports(params)
         self.inputs = dict(ins)  # type: ignore[misc]

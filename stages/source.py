@@ -1,7 +1,7 @@
 """The frame source stage: validates decoded frames and stamps them as :class:`Frame` messages.
 
 Decoding (image folders, video files, MCAP, the synthetic scene) is I/O and lives in
-``pipeline/io/sources.py``; the runner hands each decoded frame to :meth:`SourceStage.emit`.
+``pipeline/io/frame_readers.py``; the runner hands each decoded frame to :meth:`SourceStage.emit`.
 The capture stamp is media time, ``index * 1e9 / fps``, never the wall clock, so a re-run
 gives the same messages.
 

@@ -9,7 +9,7 @@ import cv2
 import msgspec
 import numpy as np
 
-from gflow_core.gflow.render import SyntheticSequence, synthetic_sequence
+from gflow_core.gflow.synthetic_head import SyntheticSequence, synthetic_sequence
 from pipeline.runtime.graph import Plan
 from pipeline.io.mcap_io import iter_records
 from pipeline.cli.trackers.gflow import make_plan

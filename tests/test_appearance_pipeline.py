@@ -90,7 +90,7 @@ def test_a_snapshot_of_another_stage_is_refused(scene):
 def test_stage_parameters_are_the_core_parameters():
     from dataclasses import fields
 
-    from gflow_core.m2.appearance import AppearanceParams
+    from gflow_core.appearance import AppearanceParams
 
     core = {f.name: f.default for f in fields(AppearanceParams)}
     stage = {k: v for k, v in msgspec.structs.asdict(AppearanceFilterParams()).items() if k not in ("init", "seed")}
@@ -156,7 +156,7 @@ def test_channels_prepared_ahead_on_a_second_thread_give_the_same_bytes(scene):
     a host that prepares nothing (--inline), and at most AHEAD_LIMIT results wait at once."""
     import threading
 
-    from pipeline.runtime.host import AHEAD_LIMIT, StageHost
+    from pipeline.runtime.stage_host import AHEAD_LIMIT, StageHost
 
     sc, frames = scene
     runs = {}

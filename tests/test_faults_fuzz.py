@@ -9,7 +9,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from pipeline.runtime.host import StageHost
+from pipeline.runtime.stage_host import StageHost
 from stages.base import StageContext
 from stages.messages import MESSAGE_TYPES, Frame, Header, MessageError, NDArray, Particles, decode, encode
 from stages.particle_filter import FilterParams, FilterStage

@@ -1,4 +1,4 @@
-"""Hostile and missing input at the stage host (pipeline/runtime/host.py, pipeline/runtime/join.py), without
+"""Hostile and missing input at the stage host (pipeline/runtime/stage_host.py, pipeline/runtime/join.py), without
 processes: every bad message is rejected and counted before it is joined, and the
 proposal -> filter cycle never waits for ever."""
 
@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from pipeline.runtime.host import StageHost
+from pipeline.runtime.stage_host import StageHost
 from pipeline.runtime.join import SeqJoin
 from stages.base import StageContext
 from stages.messages import Features, Frame, Header, NDArray, Particles, encode

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.runtime.host import StageHost
+from pipeline.runtime.stage_host import StageHost
 from stages.base import StageContext
 from stages.messages import Features, Frame, Header, NDArray, decode, encode
 from stages.preprocess import PreprocessParams, PreprocessStage

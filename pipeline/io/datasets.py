@@ -1,7 +1,7 @@
 """Reading whole training sequences into memory (the I/O half of ``gflow learn``).
 
 * :func:`read_frames`: an image folder (or a dataset folder holding ``frames/``) or a
-  video file, through the same readers as the source stage (:mod:`pipeline.io.sources`);
+  video file, through the same readers as the source stage (:mod:`pipeline.io.frame_readers`);
 * :func:`read_avletters`: an AVLetters speaker file (``NAME.npz`` with ``frames`` (N, 60, 80)
   uint8, ``starts``, ``letters``, ``repetitions``), selecting utterances by repetition
   and letter. Each utterance is its own sequence, so dynamics are not learned across
@@ -22,7 +22,7 @@ import numpy as np
 
 from stages.source import SourceParams
 
-from pipeline.io.sources import IMAGE_EXTENSIONS, open_reader
+from pipeline.io.frame_readers import IMAGE_EXTENSIONS, open_reader
 
 __all__ = ["FrameSequence", "read_frames", "resolve_source", "AVLetters", "read_avletters", "write_frames",
            "parse_range"]

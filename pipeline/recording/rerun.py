@@ -23,10 +23,10 @@ from stages.messages import EndOfStream, MessageError, Snapshot, decode
 from pipeline.runtime.build import make_stage
 from pipeline.recording.compare import FieldDiff, first_field_diff
 from pipeline.runtime.graph import GraphError, Plan, validate_params
-from pipeline.runtime.host import StageHost
+from pipeline.runtime.stage_host import StageHost
 from pipeline.io.mcap_io import Record, iter_records, read_metadata
 from pipeline.io.recorder import McapRecorder, peek_type
-from pipeline.io.sources import open_reader
+from pipeline.io.frame_readers import open_reader
 
 __all__ = ["recorded_plan", "rerun_stage", "rerun_graph", "check_outputs", "RerunResult", "Mismatch"]
 

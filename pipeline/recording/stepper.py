@@ -16,7 +16,7 @@ from stages.messages import Snapshot, decode
 
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.graph import GraphError
-from pipeline.runtime.host import StageHost
+from pipeline.runtime.stage_host import StageHost
 from pipeline.recording.plain import describe
 from pipeline.io.mcap_io import Record, iter_records
 from pipeline.recording.rerun import recorded_plan

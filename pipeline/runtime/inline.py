@@ -18,10 +18,10 @@ from stages.source import SourceStage
 
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
-from pipeline.runtime.host import StageHost
+from pipeline.runtime.stage_host import StageHost
 from pipeline.runtime.memory import keep_freed_memory
 from pipeline.io.recorder import McapRecorder
-from pipeline.io.sources import open_reader
+from pipeline.io.frame_readers import open_reader
 
 __all__ = ["run_inline", "InlineResult"]
 

@@ -39,7 +39,7 @@ from stages.messages import Control, ErrorReport, Header, StageStatus, decode, e
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.placement import describe_hosts, local_stages
-from pipeline.runtime.hosts import HostWatch, host_gateway, node_listen, stream_in_use
+from pipeline.runtime.multihost import HostWatch, host_gateway, node_listen, stream_in_use
 from pipeline.io.mcap_io import segment_path
 
 EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full disk

@@ -78,7 +78,7 @@ from stages.source import SourceStage
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.drain import FINISHED, consumers_of, recorder_needs
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
-from pipeline.runtime.host import StageHost
+from pipeline.runtime.stage_host import StageHost
 from pipeline.runtime.inbox import BoundedInbox
 from pipeline.runtime.memory import keep_freed_memory
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
@@ -550,7 +550,7 @@ class Node:
         t0 = time.monotonic()
         first: int | None = None
         next_announce = -1
-        from pipeline.io.sources import open_reader  # the source's own import (cv2, the readers)
+        from pipeline.io.frame_readers import open_reader  # the source's own import (cv2, the readers)
 
         for raw in open_reader(p, self.plan.base_dir):  # type: ignore[arg-type]
             if self.stop.is_set():

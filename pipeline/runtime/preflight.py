@@ -60,7 +60,7 @@ def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawF
     Raises :class:`PreflightError` when the source cannot be opened, holds no frame at or
     after ``start``, or its first frame cannot be decoded.
     """
-    from pipeline.io.sources import count_frames, open_reader
+    from pipeline.io.frame_readers import count_frames, open_reader
 
     where = params.path or "the synthetic scene"
     try:

@@ -244,7 +244,7 @@ def _preload(kinds: list[str]) -> None:
             else:
                 get_stage_class(kind)
             if kind == "source":
-                import pipeline.io.sources  # noqa: F401  (the readers: what the source imports when it starts)
+                import pipeline.io.frame_readers  # noqa: F401  (the readers: what the source imports when it starts)
         except Exception:  # noqa: BLE001  (the stage process reports it, as without a zygote)
             pass
 

@@ -11,7 +11,7 @@ from gflow_core.gflow import GFlowConfig, expert_rngs, fit_head_model_to_box, in
 from gflow_core.gflow import background, pose_opinion
 from gflow_core.gflow.background import TileLayout, TiledBackground
 from gflow_core.gflow.image import bilinear_stencil
-from gflow_core.gflow.render import synthetic_sequence
+from gflow_core.gflow.synthetic_head import synthetic_sequence
 from gflow_core.gflow.texture import background_predict_update
 
 

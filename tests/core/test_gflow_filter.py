@@ -17,7 +17,7 @@ from gflow_core.gflow import (
     step,
     update,
 )
-from gflow_core.gflow.render import synthetic_sequence
+from gflow_core.gflow.synthetic_head import synthetic_sequence
 
 
 @pytest.fixture(scope="module")

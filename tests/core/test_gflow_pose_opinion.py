@@ -21,7 +21,7 @@ from gflow_core.gflow.pose_opinion import (
     log_pose_prior,
     prior_precision,
 )
-from gflow_core.gflow.render import SphereTexture, render_head, smooth_background
+from gflow_core.gflow.synthetic_head import SphereTexture, render_head, smooth_background
 
 
 def vertex_model(pix: np.ndarray) -> MorphableModel:

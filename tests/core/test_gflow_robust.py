@@ -20,7 +20,7 @@ from gflow_core.gflow.pose_opinion import (
     rotation_wall,
     search_offsets,
 )
-from gflow_core.gflow.render import SphereTexture, render_head, smooth_background
+from gflow_core.gflow.synthetic_head import SphereTexture, render_head, smooth_background
 
 PRIOR = np.array([0.05, 0.05, 0.05, 50.0, 50.0, 1.0])
 

@@ -8,7 +8,7 @@ import pytest
 from gflow_core.gflow import init_state, step
 from gflow_core.gflow.geometry import project, rotation_angle_deg
 from gflow_core.gflow.image import bilinear_stencil
-from gflow_core.gflow.render import synthetic_sequence
+from gflow_core.gflow.synthetic_head import synthetic_sequence
 from gflow_core.gflow.special_cases import (
     constrained_optic_flow,
     optic_flow_config,

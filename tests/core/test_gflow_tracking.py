@@ -1,6 +1,6 @@
 """G-flow tracks a synthetic head along a known 3-D trajectory (texture change and noise).
 
-The sequence (:func:`gflow_core.gflow.render.synthetic_sequence`): 30 frames of 120x160,
+The sequence (:func:`gflow_core.gflow.synthetic_head.synthetic_sequence`): 30 frames of 120x160,
 a textured ellipsoid "face" (48x60 px) over a textured background, rotating by up to
 (10, 20, 8) degrees about (x, y, z), moving by up to (15, 8) pixels and 5 % in scale,
 its texture drifting, with pixel noise of std 0.01. Standing still at the first pose
@@ -18,7 +18,7 @@ import pytest
 
 from gflow_core.gflow import GFlowConfig, fit_head_model_to_box, init_state, step
 from gflow_core.gflow.geometry import TRANS, rotation_angle_deg
-from gflow_core.gflow.render import synthetic_sequence
+from gflow_core.gflow.synthetic_head import synthetic_sequence
 
 MEAN_ROT_DEG, MAX_ROT_DEG = 6.0, 12.0
 MEAN_PX, MAX_PX = 1.5, 3.0

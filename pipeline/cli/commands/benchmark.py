@@ -1,6 +1,6 @@
 """``gflow benchmark DATASET...``: every tracker on every sequence folder, in one table.
 
-The logic (finding sequences, scoring, the table, JSON and plots) is in :mod:`pipeline.cli.benchmark`;
+The logic (finding sequences, scoring, the table, JSON and plots) is in :mod:`pipeline.cli.sequence_benchmark`;
 each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`.track.run_track`).
 """
 
@@ -93,7 +93,7 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
 
 def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
     """Run one tracker as ``gflow track`` does, and score its boxes as ``gflow eval`` does."""
-    from pipeline.cli.benchmark import note, score_row, tracking_seconds
+    from pipeline.cli.sequence_benchmark import note, score_row, tracking_seconds
     from pipeline.recording.results import write_boxes
     from pipeline.cli.commands.track import run_track
 
@@ -124,7 +124,7 @@ def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
 def _opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out: Path, seed: int,
                 keep: bool) -> None:
     """Run one OpenCV tracker (in its own process) and score it."""
-    from pipeline.cli.benchmark import run_opencv, score_row
+    from pipeline.cli.sequence_benchmark import run_opencv, score_row
 
     try:
         n, secs = run_opencv(name, seq, start, stop, out, seed=seed)
@@ -137,7 +137,7 @@ def _opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out
 
 
 def cmd_benchmark(args) -> int:
-    from pipeline.cli.benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
+    from pipeline.cli.sequence_benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
                              plot_success, published_rows, static_box, to_json)
     from pipeline.io.datasets import parse_range
 

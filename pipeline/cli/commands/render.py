@@ -41,7 +41,7 @@ def cmd_render(args) -> int:
     import cv2
 
     from stages.messages_foxglove import ImageAnnotations
-    from stages.render import annotations_for
+    from stages.overlay import annotations_for
 
     from pipeline.cli.draw import draw_annotations
 

@@ -21,7 +21,7 @@ from stages.source import SourceParams
 
 from pipeline.runtime.graph import Plan, load_graph
 from pipeline.recording.results import run_outcome, write_boxes
-from pipeline.io.sources import count_frames
+from pipeline.io.frame_readers import count_frames
 from pipeline.cli.trackers import TRACKERS
 from pipeline.runtime.preflight import check_source
 from pipeline.runtime.trace import mark

@@ -15,7 +15,7 @@ def cmd_view(args) -> int:
         import foxglove  # noqa: F401
     except ImportError:
         raise CliError("gflow view needs the foxglove-sdk package: pip install foxglove-sdk") from None
-    from pipeline.cli.view import FoxgloveBridge
+    from pipeline.cli.foxglove_bridge import FoxgloveBridge
 
     settings, found = tool_zenoh(args, args.stream)
     streams = sorted({i["stream"] for i in found})

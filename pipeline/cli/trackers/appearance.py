@@ -1,6 +1,6 @@
 """``--tracker appearance`` (the default): M2 with online exemplars of edge-orientation channels.
 
-See :mod:`gflow_core.m2.appearance` for the method and its departures from Toyama & Blake.
+See :mod:`gflow_core.appearance` for the method and its departures from Toyama & Blake.
 """
 
 from __future__ import annotations

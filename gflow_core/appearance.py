@@ -94,8 +94,8 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from ..orientation import orientation_channels
-from ..particles import LogWeights, systematic_resample
+from .orientation import orientation_channels
+from .particles import LogWeights, systematic_resample
 
 __all__ = ["AppearanceParams", "AppearanceState", "StepResult", "initialise", "step", "features",
            "region", "box_of"]

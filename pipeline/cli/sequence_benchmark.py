@@ -226,7 +226,7 @@ def _track_opencv(name: str, seq: Sequence, start: int, stop: int | None, out_cs
 
     from stages.source import SourceParams
 
-    from pipeline.io.sources import open_reader
+    from pipeline.io.frame_readers import open_reader
 
     factory, why = opencv_tracker(name)
     if factory is None:
