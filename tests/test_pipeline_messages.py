@@ -4,6 +4,7 @@ position every few frames, not every frame (each announcement wakes every proces
 from __future__ import annotations
 
 from pipeline.io.mcap_io import iter_records
+from stages.messages import decode
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.launcher import Launcher
@@ -20,7 +21,9 @@ def test_the_source_announces_every_few_frames_not_every_frame(tmp_path):
     assert res.ok, res.exits
     recs = list(iter_records(path))
     assert sum(r.type == "Estimate" for r in recs) == FRAMES
-    status = [r for r in recs if r.topic.endswith("/_status/source")]
-    span_s = (max(r.log_ns for r in recs) - min(r.log_ns for r in recs)) / 1e9
-    # one announcement every 4 frames, the 2 Hz heartbeat over the run, and the changes of state
-    assert len(status) <= FRAMES / 4 + 2 * span_s * 1.5 + 6, (len(status), span_s)
+    status = [decode(r.data) for r in recs if r.topic.endswith("/_status/source")]
+    # the heartbeat repeats the last announced frame; an announcement is a new one. Counting
+    # distinct positions (not heartbeats) keeps the machine's load out of the count: with an
+    # announcement per frame there would be FRAMES of them.
+    announced = {s.last_seq for s in status if s.last_seq >= 0}
+    assert len(announced) <= FRAMES / 4 + 3, sorted(announced)
