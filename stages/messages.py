@@ -80,7 +80,12 @@ class Estimate(msgspec.Struct, frozen=True, tag=True):
     mean / std : posterior mean and standard deviation of alpha.
     ess : effective sample size before resampling; n : number of particles.
     contour : (P, 2) float32 MAP contour in image (x, y) pixels, for drawing.
-    state : "init", "track", or "coast" (no hypothesis explained the frame).
+    state : "init", "track", or "coast" (no hypothesis explained the frame): the filter's
+        data path.
+    confidence : in [0, 1], how sure the tracker is that ``box`` holds the target.
+    target_state : the target as the tracker judges it: ``"tracked"`` (seen in the box),
+        ``"occluded"`` (hidden, the box is where it is expected) or ``"lost"`` (being
+        searched for).
     """
 
     header: Header
@@ -94,6 +99,8 @@ class Estimate(msgspec.Struct, frozen=True, tag=True):
     log_evidence: float
     contour: NDArray
     state: str = "track"
+    confidence: float = 1.0
+    target_state: str = "tracked"
 
 
 class ErrorReport(msgspec.Struct, frozen=True, tag=True):

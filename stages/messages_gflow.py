@@ -79,6 +79,7 @@ class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
     mean_points : (n, 2) float32.
     log_credibility : (E,) float64; parents : (E,) int64.
     state : "init", "track" or "coast".
+    confidence, target_state : as in :class:`stages.messages.Estimate`.
     """
 
     header: Header
@@ -94,3 +95,5 @@ class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
     parents: NDArray
     resampled: bool = True
     state: str = "track"
+    confidence: float = 1.0
+    target_state: str = "tracked"
