@@ -310,8 +310,10 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
             print(f"stage {n} exited with status {e.returncode}: {e.last_error}", file=sys.stderr)
     src = next((n for n, s in plan.stages.items() if s.is_source()), None)  # a graph fed from outside has none
     frames = res.status[src].steps if src in res.status else 0
+    from pipeline.recording.live_record import LIVE_REPORTS  # a live source's reconnects and end: not errors
+
     info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
-            "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()},
+            "errors": sum(e.kind not in LIVE_REPORTS for e in res.errors), "fps": {n: s.fps for n, s in res.status.items()},
             "interrupted": res.interrupted, "stall": res.stall,
             "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
     if res.stall:
