@@ -88,11 +88,12 @@ def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
         cap.release()
 
 
-def _recorded_captures(path: Path) -> dict[int, tuple[int, int, float]]:
-    """{seq: (camera frame, skipped, gap_s)} of a live run's Capture messages."""
+def _recorded_captures(path: Path) -> tuple[dict[int, tuple[int, int, float]], dict[int, tuple[int, np.ndarray]]]:
+    """A live run's Capture messages, {seq: (camera frame, skipped, gap_s)}, and the skipped
+    frames it recorded, {camera frame: (stamp, image)}."""
     from pipeline.io.mcap_io import iter_records
 
-    out = {}
+    captures, skipped = {}, {}
     for rec in iter_records(path):
         if rec.type == "Capture" and rec.topic.endswith("/captures"):
             try:
@@ -100,16 +101,24 @@ def _recorded_captures(path: Path) -> dict[int, tuple[int, int, float]]:
             except MessageError:
                 continue
             if isinstance(c, Capture):
-                out[c.header.seq] = (c.frame, c.skipped, c.gap_s)
-    return out
+                captures[c.header.seq] = (c.frame, c.skipped, c.gap_s)
+        elif rec.type == "Frame" and rec.topic.endswith("/skipped"):
+            try:
+                f = decode(rec.data)
+                skipped[f.header.seq] = (f.header.stamp_ns, f.image.array())
+            except (MessageError, AttributeError):
+                continue
+    return captures, skipped
 
 
 def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = False) -> Iterator[RawFrame]:
     """The recorded frames; with ``host_clock``, with their recorded stamps and what the live
-    source said about each (its Capture), so a live run re-runs as it was tracked."""
+    source said about each (its Capture, and the skipped frames recorded before it), so a live
+    run re-runs as it was tracked."""
     from pipeline.io.mcap_io import iter_records
 
-    captures = _recorded_captures(path) if host_clock else {}
+    captures, skipped = _recorded_captures(path) if host_clock else ({}, {})
+    prev_frame = -1
     for rec in iter_records(path):
         if not rec.topic.endswith("/frames"):
             continue
@@ -122,8 +131,11 @@ def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = Fals
         s = msg.header.seq
         if s < start or (stop is not None and s >= stop):
             continue
-        frame, skipped, gap = captures.get(s, (-1, 0, 0.0))
-        live = dict(frame=frame, stamp_ns=msg.header.stamp_ns, skipped=skipped, gap_s=gap) if host_clock else {}
+        frame, n_skipped, gap = captures.get(s, (-1, 0, 0.0))
+        kept = tuple((f, *skipped[f]) for f in sorted(skipped) if prev_frame < f < frame)
+        prev_frame = max(prev_frame, frame)
+        live = (dict(frame=frame, stamp_ns=msg.header.stamp_ns, skipped=n_skipped, gap_s=gap, skipped_frames=kept)
+                if host_clock else {})
         try:
             yield RawFrame(s, msg.image.array(), truth=msg.truth, name=msg.source, **live)
         except MessageError as e:

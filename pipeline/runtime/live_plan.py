@@ -19,7 +19,7 @@ from stages.source import SourceParams
 from pipeline.runtime.graph import RECORDER_KIND, Plan
 from pipeline.runtime.transport import topic_key
 
-__all__ = ["prepare_live", "live_source", "SKIPPED_TOPIC"]
+__all__ = ["prepare_live", "live_source", "recorded_source", "SKIPPED_TOPIC"]
 
 #: the topic name (after gflow/STREAM/) of the frames a live source skips
 SKIPPED_TOPIC = "skipped"
@@ -53,3 +53,14 @@ def prepare_live(plan: Plan) -> Plan:
         src.params["keep_skipped"] = True
         src.outputs.setdefault(SKIPPED_TOPIC, topic_key(plan.stream, SKIPPED_TOPIC))
     return plan
+
+
+def recorded_source(params: dict, path: str) -> dict:
+    """Source parameters that read a recording's frames instead of the source it was made from
+    (``gflow rerun``). The frames of a live source keep their recorded host stamps and what the
+    source said about each (``clock: host``), so the stages see exactly what they saw."""
+    p = msgspec.convert(params, SourceParams)
+    out = dict(params, kind="mcap", path=path, realtime=False)
+    if p.host_clock:
+        out.update(clock="host", start=0)
+    return out
