@@ -15,7 +15,7 @@ the frame the tracker starts on, the one ``--init`` describes.
   abandoned after ``open_timeout`` plus a second. A failure is a :class:`LiveSourceError`
   of one line naming the source and what FFmpeg said (:mod:`pipeline.io.ffmpeg_messages`).
 * **Reconnecting.** A read that fails (the server closed, a read timeout of
-  ``READ_TIMEOUT_S``) is retried with back-off (0.25 s doubling to 2 s) for ``reconnect``
+  ``READ_TIMEOUT_S``) is retried with back-off (0.25 s doubling to 1 s) for ``reconnect``
   seconds; the next frame taken carries the gap (seconds, frames missed at the nominal
   rate). Not back in time, the capture ends and says why.
 
@@ -43,7 +43,7 @@ LIVE_SCHEMES = ("rtsp", "rtsps", "rtmp", "rtmps", "http", "https", "tcp", "udp",
 #: a stream that delivers nothing for this long is taken as lost (FFmpeg's read timeout)
 READ_TIMEOUT_S = 5.0
 #: back-off between reconnection attempts: first wait, and the most it grows to
-BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.25, 2.0
+BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.25, 1.0
 _DEVICE = re.compile(r"^/dev/video\d+$")
 
 

@@ -299,15 +299,17 @@ class Node:
 
     def publish(self, topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
         if not self.peers_ready.is_set():
-            while not self.peers_ready.wait(0.2 if self.restarts else 5.0):
+            warn_at = time.monotonic() + 5.0
+            while not self.peers_ready.wait(0.2):
+                if self.stop.is_set():  # stopped before everyone was there (a source that could not open)
+                    return
                 if self.restarts and time.monotonic() > self.ready_deadline:
                     self.peers_ready.set()  # restarted: a peer may have finished meanwhile
                     break
-                if not self.restarts:
+                if not self.restarts and time.monotonic() > warn_at:
+                    warn_at = time.monotonic() + 5.0
                     missing = sorted(self.required_peers - self.seen)
                     log.warning("[%s] still waiting to hear from %s before publishing", self.name, ", ".join(missing))
-                if self.stop.is_set():
-                    return
         if not self._published:
             self._published = True
             mark(f"node {self.name} first publish {topic.rsplit('/', 1)[-1]}")
@@ -474,10 +476,9 @@ class Node:
             self._update_hold()
             if self.live:
                 bad = self._open_live()
-                if bad:
-                    print(bad, file=sys.stderr)
-                    self.session.close()
-                    return EXIT_BAD_SOURCE
+                if bad:  # nothing was sent: leave at once (closing the session took seconds)
+                    print(bad, file=sys.stderr, flush=True)
+                    os._exit(EXIT_BAD_SOURCE)
         self.declared.set()
         mark(f"node {self.name} declared")
         hb = threading.Thread(target=self._heartbeat, daemon=True)
