@@ -142,14 +142,16 @@ def test_server_killed_and_restarted_reconnects_and_reports_the_gap(tmp_path: Pa
     assert "reconnected" in out
 
 
-def test_stream_faster_than_the_tracker_skips_and_keeps_latency_bounded(tmp_path: Path, caviar1: Path) -> None:
-    """200 frames/s into the tracker: most frames are skipped, every one counted (in the heartbeats
-    and the recording), latency stays far below the stream's length, and with
+@pytest.mark.parametrize("tracker, fps", [("appearance", 200), ("gflow", 100)])
+def test_stream_faster_than_the_tracker_skips_and_keeps_latency_bounded(tmp_path: Path, caviar1: Path, tracker: str,
+                                                                        fps: int) -> None:
+    """A stream faster than the tracker: many frames are skipped, every one counted (in the
+    heartbeats and the recording), latency stays far below the stream's length, and with
     --record-topics '*,skipped' the recording keeps every frame captured and re-runs bit for bit."""
-    n = 300  # 1.5 s of stream; queued, the last frames would wait for seconds
-    with StreamServer(caviar1 / "frames", "tcp", fps=200, count=n) as srv:
-        r = gflow("track", srv.url, "--init", INIT, "--out", "f.csv", "--record", "f.mcap", "--fps", "200",
-                  "--reconnect", "0.5", "--record-topics", "*,skipped", cwd=tmp_path)
+    n = 300  # 1.5 s (3 s) of stream; queued, the last frames would wait for seconds
+    with StreamServer(caviar1 / "frames", "tcp", fps=fps, count=n) as srv:
+        r = gflow("track", srv.url, "--tracker", tracker, "--init", INIT, "--out", "f.csv", "--record", "f.mcap",
+                  "--fps", str(fps), "--reconnect", "0.5", "--record-topics", "*,skipped", cwd=tmp_path)
     assert r.returncode == 0, r.stderr[-2000:]
     s = live_of(tmp_path / "f.mcap")
     assert s.captured == n and s.skipped > n // 3 and s.sent + s.skipped == n, (s.captured, s.sent, s.skipped)
