@@ -591,24 +591,33 @@ class Node:
                 if delay > 0:
                     time.sleep(delay)
             self._flow_wait(raw.index)
-            outs = stage.emit(raw)
-            host._flush_reports()
-            if outs:  # announce the frame (and its size) before sending it, every few frames
-                self.announced = max(self.announced, raw.index)
-                shape = getattr(stage, "_shape", None)
-                self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
-                if raw.index >= next_announce:
-                    next_announce = raw.index + max(1, min(4, self.window // 2))
-                    self.send_status()
-            host._emit(outs)
-            if outs:
-                self._checkpoint(raw.index)
-            host.stats.steps += len(outs)
-            now = time.perf_counter_ns()
-            host.stats.first_step_ns = host.stats.first_step_ns or now
-            host.stats.last_step_ns = now
+            next_announce = self._send(raw, next_announce)
         host.close("end")
         return 0
+
+    def _send(self, raw, next_announce: int) -> int:
+        """Emit one decoded frame: announce it (and its size) before sending it, every few
+        frames; publish; checkpoint. Returns the frame to announce next."""
+        host = self.host
+        assert host is not None
+        stage: SourceStage = host.stage  # type: ignore[assignment]
+        outs = stage.emit(raw)
+        host._flush_reports()
+        if outs:
+            self.announced = max(self.announced, raw.index)
+            shape = stage._shape
+            self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
+            if raw.index >= next_announce:
+                next_announce = raw.index + max(1, min(4, self.window // 2))
+                self.send_status()
+        host._emit(outs)
+        if outs:
+            self._checkpoint(raw.index)
+            host.stats.steps += 1
+        now = time.perf_counter_ns()
+        host.stats.first_step_ns = host.stats.first_step_ns or now
+        host.stats.last_step_ns = now
+        return next_announce
 
     def _open_live(self) -> str:
         """Open the live source (before the first heartbeat); '' or the one-line reason it cannot run."""
@@ -657,22 +666,7 @@ class Node:
             raw = next(frames, None)
             if raw is None or self.stop.is_set():
                 break
-            outs = stage.emit(raw)
-            host._flush_reports()
-            if outs:
-                self.announced = max(self.announced, raw.index)
-                shape = stage._shape
-                self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
-                if raw.index >= next_announce:
-                    next_announce = raw.index + max(1, min(4, self.window // 2))
-                    self.send_status()
-            host._emit(outs)
-            if outs:
-                self._checkpoint(raw.index)
-            host.stats.steps += 1 if outs else 0
-            now = time.perf_counter_ns()
-            host.stats.first_step_ns = host.stats.first_step_ns or now
-            host.stats.last_step_ns = now
+            next_announce = self._send(raw, next_announce)
             seq = raw.index + 1
         frames.close()
         if self.stop.is_set():
