@@ -156,11 +156,16 @@ def test_stream_faster_than_the_tracker_skips_and_keeps_latency_bounded(tmp_path
     s = live_of(tmp_path / "f.mcap")
     assert s.captured == n and s.skipped > n // 3 and s.sent + s.skipped == n, (s.captured, s.sent, s.skipped)
     assert "skipped=" in r.stderr  # the progress line
-    p99 = float(np.percentile(s.latency_ms, 99))
-    assert p99 < 1000.0, s.latency_ms  # queued frames would reach several seconds
     from pipeline.io.mcap_io import iter_records
 
     recs = list(iter_records(tmp_path / "f.mcap"))
+    # bounded latency: a frame waits at most for the step in progress, then takes its own step, so
+    # no estimate comes later than a few steps after its capture. The step is measured in this run
+    # (the gap between estimates), since the machine may be loaded; queued frames would instead
+    # wait for every frame before them, and the run would last until all n were tracked.
+    logged = sorted(x.log_ns for x in recs if x.type in ("Estimate", "PoseEstimate"))
+    step_ms = float(np.median(np.diff(logged))) / 1e6 if len(logged) > 1 else 1000.0
+    assert max(s.latency_ms) < 3 * step_ms + 500.0, (s.latency_ms, step_ms)
     frames = sum(1 for x in recs if x.type == "Frame" and x.topic.endswith("/frames"))
     kept = sum(1 for x in recs if x.type == "Frame" and x.topic.endswith("/skipped"))
     assert frames == s.sent and frames + kept == n  # every frame captured is in the recording

@@ -45,6 +45,7 @@ READ_TIMEOUT_S = 5.0
 #: back-off between reconnection attempts: first wait, and the most it grows to
 BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.25, 1.0
 _DEVICE = re.compile(r"^/dev/video\d+$")
+CAP_PROP_FPS = 5  # cv2.CAP_PROP_FPS (this module imports cv2 only when it opens a source)
 
 
 class LiveSourceError(ValueError):
@@ -108,7 +109,8 @@ class LiveCapture:
     Parameters
     ----------
     source : stream URL or V4L2 device path.
-    fps : nominal frame rate, used to say how many frames a gap missed.
+    fps : nominal frame rate, used to say how many frames a gap missed when the stream does not
+        declare its own.
     open_timeout : seconds an open (and its first frame) may take.
     reconnect : seconds to keep trying after the stream is lost (0: end at once).
     keep_skipped : keep the images of skipped frames (for the recording).
@@ -154,7 +156,7 @@ class LiveCapture:
             raise
         self._cap = cap
         self.shape = tuple(first.shape)
-        fps = float(cap.get(5))  # cv2.CAP_PROP_FPS
+        fps = float(cap.get(CAP_PROP_FPS))
         self.declared_fps = fps if 0 < fps < 1000 else 0.0
         self._put(first, stamp)
         self._thread = threading.Thread(target=self._read_loop, name="live-capture", daemon=True)
@@ -278,13 +280,14 @@ class LiveCapture:
                 wait = min(2 * wait, BACKOFF_MAX_S)
                 continue
             gap = (stamp - self._last_ns) / 1e9
-            missed = max(0, int(round(gap * self.fps)) - 1)
+            rate = self.declared_fps or self.fps  # the stream's own rate when it says it
+            missed = max(0, int(round(gap * rate)) - 1)
             self.reconnects += 1
             with self._cond:
                 self._slot.gap_s += gap
                 self._slot.events.append(("reconnected", (
                     f"{self.source}: lost after frame {last} ({why}); back after {gap:.2f} s "
-                    f"(attempt {attempts}), about {missed} frames missed at {self.fps:g} frames/s; "
+                    f"(attempt {attempts}), about {missed} frames missed at {rate:g} frames/s; "
                     f"tracking resumes at frame {self.captured} with the motion model's uncertainty "
                     f"grown for the {gap:.2f} s")))
             self._put(img, stamp)
