@@ -58,6 +58,7 @@ from .gflow_common import (
 )
 from .messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
 from .rng import stream_hash
+from .time_step import time_step
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 
@@ -144,7 +145,7 @@ class GFlowProposalStage(Stage):
             return []
         assert self.setup is not None
         header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
-        out = self._propose(seq, frame, inputs.get("state"))
+        out = self._propose(seq, frame, inputs.get("state"), header.stamp_ns)
         if grey is not None:
             self.prev = (seq, grey)
         self.steps += 1
@@ -166,7 +167,7 @@ class GFlowProposalStage(Stage):
         self.init_seq = seq
         self.prev = (seq, grey)
 
-    def _propose(self, seq: int, frame: np.ndarray | None, state_msg: Message | None):
+    def _propose(self, seq: int, frame: np.ndarray | None, state_msg: Message | None, stamp_ns: int = 0):
         """Advance the background replica to t - 1, then propose for frame t (None: no proposals)."""
         assert self.setup is not None
         s = self.setup
@@ -192,7 +193,8 @@ class GFlowProposalStage(Stage):
         p: GFlowProposalParams = self.params  # type: ignore[assignment]
         rngs = expert_rngs(p.seed, stream_hash(self.ctx.stream), seq, self.indices)
         try:
-            props = propose(state, frame, s.model, s.cfg, rngs, self.indices)
+            dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
+            props = propose(state, frame, s.model, s.cfg, rngs, self.indices, dt)
         except (ValueError, np.linalg.LinAlgError) as e:
             self.report("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals", seq)
             return None

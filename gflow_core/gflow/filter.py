@@ -520,6 +520,7 @@ def propose(
     cfg: GFlowConfig,
     rngs: Sequence[np.random.Generator],
     expert_indices: Sequence[int] | np.ndarray | None = None,
+    dt: float = 1.0,
 ) -> Proposals:
     """Pose opinions (sec. 3.2) and likelihoods (eq. 19) of some or all experts.
 
@@ -537,6 +538,9 @@ def propose(
         own generator only (nothing when ``alpha == 0``).
     expert_indices : sequence of int, optional
         Which experts (default: all, ``0 .. E-1``).
+    dt : float
+        Frame periods since ``t - 1`` (1: the next frame; a live source skips frames): the
+        prior's standard deviations grow as sqrt(dt). With dt = 1 the bits are the one-step model's.
 
     Returns
     -------
@@ -558,7 +562,7 @@ def propose(
         idx = idx.astype(np.int64)
     if len(rngs) != idx.size:
         raise ValueError(f"need one rng per proposed expert: got {len(rngs)} rngs for {idx.size} experts")
-    prior_std = cfg.prior_std(model.n_bases)
+    prior_std = cfg.prior_std(model.n_bases) * math.sqrt(dt)  # p(u_t | u_{t-1}) over dt periods
     prev = state.poses[idx]
     # mean of p(u_t | u_{t-1}): u_{t-1} itself unless its rotation decays toward the identity
     centre = prior_mean(prev, cfg.prior_rotation_decay)
