@@ -237,11 +237,11 @@ def visible_fraction(box: np.ndarray, image_size: tuple[int, int], occluder: np.
         return 0.0
     inside = (x1 - x0) * (y1 - y0)
     if occluder is None or np.isnan(occluder[0]):
-        return inside / area
+        return min(inside / area, 1.0)
     ox, oy, ow, oh = (float(v) for v in occluder)
     cx0, cy0, cx1, cy1 = max(x0, ox), max(y0, oy), min(x1, ox + ow), min(y1, oy + oh)
     covered = max(cx1 - cx0, 0.0) * max(cy1 - cy0, 0.0)
-    return max(inside - covered, 0.0) / area
+    return min(max(inside - covered, 0.0) / area, 1.0)
 
 
 def _source_frames(case: StressCase, n: int, lead: int, tail: int) -> tuple[np.ndarray, tuple[int, int]]:
@@ -351,7 +351,8 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
         # out through the nearer side edge, far enough to leave a margin; out for the middle half
         c = x[w0] + w[w0] / 2
         left = c < W / 2
-        dist = (x[w0] + w[w0] + 0.2 * w[w0] + 4) if left else (W - x[w0] + 0.2 * w[w0] + 4)
+        margin = 0.2 * w[w0:w1].max() + 4
+        dist = ((x + w)[w0:w1].max() + margin) if left else (W - x[w0:w1].min() + margin)
         ramp = np.clip(np.minimum(u, 1 - u) / 0.25, 0.0, 1.0)
         # the image moves, the target moves with it; smoothstep keeps the start and end gentle
         s = dist * ramp * ramp * (3 - 2 * ramp)

@@ -44,7 +44,7 @@ AFTER_GAP = 10
 #: a tracker got the target back when its success after the window is at least this
 BACK_AT = 0.8
 #: bumped whenever a derived sequence would come out differently (invalidates caches)
-VERSION = 1
+VERSION = 2
 
 
 def select_cases(text: str | None) -> list[StressCase]:
@@ -254,8 +254,8 @@ def _rate(a: int, b: int) -> str:
     return "-" if b == 0 else f"{a / b:.2f}"
 
 
-COLUMNS = ("sequence", "case", "CLE px", "success", "after", "back in", "hidden ok", "shown ok",
-           "CSRT CLE", "CSRT success", "CSRT after", "CSRT back in", "still box after", "note")
+COLUMNS = ("sequence", "case", "CLE px", "success", "after", "back in", "hidden ok", "shown ok")
+OTHER_COLUMNS = ("CLE", "success", "after", "back in")
 
 
 def _table(head: tuple[str, ...], cells: list[list[str]], markdown: bool, right_from: int = 2) -> str:
@@ -280,9 +280,10 @@ def _summary(rows: list[StressRow]) -> dict:
         return [sum(bool(r.back) for r in sel), len(sel)]
 
     groups = {
-        "full occlusion <= 60 frames": lambda r: r.extra["kind"] in ("occlude", "sweep") and r.extra["length"] <= 60,
-        "roll <= 35 degrees": lambda r: r.extra["kind"].startswith("roll") and r.extra["amount"] <= 35,
-        "fast motion": lambda r: r.extra["kind"] == "fast",
+        "full occlusion <= 60 frames": lambda r: r.extra["case_kind"] in ("occlude", "sweep")
+        and r.extra["case_length"] <= 60,
+        "roll <= 35 degrees": lambda r: r.extra["case_kind"].startswith("roll") and r.extra["case_amount"] <= 35,
+        "fast motion": lambda r: r.extra["case_kind"] == "fast",
         "every case": lambda r: True,
     }
     st = [r.state for r in rows if r.state is not None]
@@ -313,12 +314,15 @@ def format_stress(rows: list[StressRow], markdown: bool = False) -> str:
             st = r.state
             cells.append([r.sequence, r.case, _f(r.cle, ".1f"), _f(r.success, ".2f"), _f(r.after, ".2f"), _back_in(r),
                           "-" if st is None else _rate(st.hidden_right, st.hidden),
-                          "-" if st is None else _rate(st.shown_right, st.shown),
-                          _f(c and c.cle, ".1f"), _f(c and c.success, ".2f"), _f(c and c.after, ".2f"), _back_in(c),
-                          _f(s and s.after, ".2f"), r.note])
+                          "-" if st is None else _rate(st.shown_right, st.shown)]
+                         + ([_f(c and c.cle, ".1f"), _f(c and c.success, ".2f"), _f(c and c.after, ".2f"),
+                             _back_in(c)] if cv else [])
+                         + [_f(s and s.after, ".2f"), r.note])
+        head = COLUMNS + (tuple(f"{cv.removeprefix('opencv ').upper()} {h}" for h in OTHER_COLUMNS) if cv else ()) \
+            + ("still box after", "note")
         out.append(f"{'### ' if markdown else ''}{name}" + (f" (beside it: {cv})" if cv else ""))
         out.append("")
-        out.append(_table(COLUMNS, cells, markdown))
+        out.append(_table(head, cells, markdown))
         out.append("")
         out += _summary_lines(name, mine, [r for r in rows if r.tracker == cv] if cv else [], cv)
         out.append("")
@@ -365,9 +369,9 @@ def stress_json(rows: list[StressRow], meta: dict, cases: list[StressCase]) -> d
                 rows=out, summary={n: _summary([r for r in rows if r.tracker == n]) for n in names})
 
 
-def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str], cv_missing: dict[str, str]
+def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                ) -> tuple[list[StressRow], bool, list[StressCase]]:
-    """Every tracker, OpenCV tracker and the still box on every case of every sequence.
+    """Every tracker, OpenCV tracker (each available) and the still box on every case of every sequence.
 
     Returns the rows, whether Ctrl-C stopped it, and the cases."""
     from pipeline.cli.commands.benchmark import _opencv_row, _tracker_row, _track_argv
@@ -396,7 +400,7 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                          f"{d.plan.window[0]}:{d.plan.window[1]}" + (" (cached)" if d.cached else "")
                          + ("" if eta is None else f", about {eta / 60:.0f} min left" if eta >= 120
                             else f", about {eta:.0f} s left"))
-                    extra = {"kind": case.kind, "length": case.length, "amount": case.amount}
+                    extra = {"case_kind": case.kind, "case_length": case.length, "case_amount": case.amount}
                     folder = work / seq.name / case.name
                     for name in names:
                         row = StressRow(seq.name, case.name, name, "tracker", extra=dict(extra))
@@ -413,11 +417,8 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                         if r.score is not None and r.boxes_csv:
                             stress_scores(row, d, r.boxes_csv)
                     for cvn in cv_names:
-                        row = StressRow(seq.name, case.name, f"opencv {cvn}", "opencv", extra=dict(extra),
-                                        note=cv_missing.get(cvn, ""))
+                        row = StressRow(seq.name, case.name, f"opencv {cvn}", "opencv", extra=dict(extra))
                         rows.append(row)
-                        if cvn in cv_missing:
-                            continue
                         r = Row(d.seq.name, row.tracker, "opencv")
                         out = folder / f"opencv_{cvn}.csv"
                         _opencv_row(r, cvn, d.seq, 0, None, d.seq.groundtruth, out, args.seed, True)

@@ -176,8 +176,7 @@ def _cmd_stress(args, names: list[str], seqs) -> int:
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
-    cv_names = [c for c in cv_names if c not in cv_missing] if runnable else cv_names
-    rows, interrupted, cases = run_stress(args, seqs, runnable, cv_names, cv_missing)
+    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing])
     mode = "inline" if args.inline else "processes"
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "seed": args.seed, "mode": mode,
             "lead": args.lead, "tail": args.tail, "interrupted": interrupted,
