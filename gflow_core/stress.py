@@ -28,15 +28,15 @@ import numpy as np
 
 from .metrics import HIDDEN_BELOW
 
-__all__ = ["KINDS", "StressCase", "CASES", "StressPlan", "plan_case", "render_frame", "visible_fraction",
+__all__ = ["KINDS", "StressCase", "CASES", "SPAN", "StressPlan", "plan_case", "render_frame", "visible_fraction",
            "occluder_size", "HIDDEN_BELOW"]
 
 #: the kinds of perturbation
-KINDS = ("occlude", "sweep", "partial", "slide", "roll-target", "roll-camera", "look", "dark", "blur", "fast",
+KINDS = ("none", "occlude", "sweep", "partial", "slide", "roll-target", "roll-camera", "look", "dark", "blur", "fast",
          "leave")
 
 #: kinds that paste an image patch (the occluder, or the new part of the look)
-PATCH_KINDS = ("occlude", "sweep", "partial", "slide", "look")
+PATCH_KINDS = ("none", "occlude", "sweep", "partial", "slide", "look")
 
 
 
@@ -49,6 +49,7 @@ class StressCase:
     name : short unique name, e.g. ``"occlude-60"``.
     kind : one of :data:`KINDS`:
 
+        * ``none``: nothing changes (the control: the same frames, untouched);
         * ``occlude``: a real image patch, still, covering every place the target takes in
           the window (full occlusion);
         * ``sweep``: a patch three target-widths wide crossing the target horizontally
@@ -104,6 +105,7 @@ class StressCase:
         a = self.amount
         n = self.length
         text = {
+            "none": f"nothing changes: the frames of every case, untouched ({n}-frame window)",
             "occlude": f"a still image patch hides the target for {n} frames",
             "sweep": f"an image patch sweeps across the target in {n} frames, hiding it in the middle",
             "partial": f"an image patch hides {a:.0%} of the box, from one side, for {n} frames",
@@ -119,8 +121,10 @@ class StressCase:
         return text
 
 
-#: the default cases: together they cover every kind once or a few times, without near-duplicates
+#: the default cases: together they cover every kind once or a few times, without near-duplicates;
+#: ``none`` is the control, as long as the longest case, so its run holds the frames of every case
 CASES: tuple[StressCase, ...] = (
+    StressCase("none", "none", 150),
     StressCase("occlude-10", "occlude", 10),
     StressCase("occlude-25", "occlude", 25),
     StressCase("occlude-60", "occlude", 60),
@@ -244,14 +248,21 @@ def visible_fraction(box: np.ndarray, image_size: tuple[int, int], occluder: np.
     return min(max(inside - covered, 0.0) / area, 1.0)
 
 
-def _source_frames(case: StressCase, n: int, lead: int, tail: int) -> tuple[np.ndarray, tuple[int, int]]:
+#: the window length every run is placed for: the longest default case
+SPAN = max(c.length for c in CASES)
+
+
+def _source_frames(case: StressCase, n: int, lead: int, tail: int, span: int) -> tuple[np.ndarray, tuple[int, int]]:
     """The original frame of each derived frame, and the window in derived frames.
 
-    The run is centred in the sequence; a sequence too short for it is played forwards and
-    backwards (its frames and truth reversed are real frames and truth too)."""
+    Every case starts from the same frame, chosen to centre a run with a window of ``span``
+    frames in the sequence, so one untouched run (``none``) holds the frames of every case. A
+    sequence too short is played forwards and backwards (its frames and truth reversed are
+    real frames and truth too)."""
     step = int(case.amount) if case.kind == "fast" else 1
-    need = lead + case.length + tail
+    need = lead + max(span, case.length) + tail
     first = (n - need) // 2 if n >= need else 0
+    need = lead + case.length + tail
     before = np.arange(first, first + lead)
     during = np.arange(first + lead, first + lead + case.length, step)
     after = np.arange(first + lead + case.length, first + need)
@@ -260,7 +271,7 @@ def _source_frames(case: StressCase, n: int, lead: int, tail: int) -> tuple[np.n
 
 
 def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator,
-              lead: int = 30, tail: int = 60) -> StressPlan:
+              lead: int = 30, tail: int = 60, span: int = SPAN) -> StressPlan:
     """Plan the derived sequence of ``case`` on a sequence with ground truth ``truth``.
 
     Parameters
@@ -271,6 +282,7 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
     rng : draws the case's free choices (which side a partial occluder comes from, the blur
         direction).
     lead, tail : derived frames before and after the window.
+    span : the run of every case starts where a run with a window this long would be centred.
 
     Returns
     -------
@@ -282,7 +294,7 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
         raise ValueError(f"image size must be at least 8x8, got {W}x{H}")
     if lead < 1 or tail < 1:
         raise ValueError(f"lead and tail need at least one frame each, got {lead} and {tail}")
-    src, (w0, w1) = _source_frames(case, t.shape[0], lead, tail)
+    src, (w0, w1) = _source_frames(case, t.shape[0], lead, tail, span)
     T = src.shape[0]
     boxes = t[src].copy()
     idx = np.arange(T)
@@ -297,7 +309,9 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
     blur_angle = 0.0
     x, y, w, h = boxes.T
     k = case.kind
-    if k == "occlude":
+    if k == "none":
+        perturbed = np.zeros(T, dtype=bool)
+    elif k == "occlude":
         # one still rectangle over every place the target takes in the window, with a margin
         wb = boxes[w0:w1]
         x0, y0 = wb[:, 0].min(), wb[:, 1].min()

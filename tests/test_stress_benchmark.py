@@ -20,7 +20,7 @@ from stages.overlay import MAGENTA, ORANGE, annotations_for
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 FRAMES = 60
-STRESS = ["--stress", "--cases", "occlude-10,fast-2", "--lead", "8", "--tail", "20", "--trackers", "appearance",
+STRESS = ["--stress", "--cases", "none,occlude-10,fast-2", "--lead", "8", "--tail", "20", "--trackers", "appearance",
           "--inline", "-q"]
 
 
@@ -57,7 +57,7 @@ def _rows(res: dict, **kw) -> list[dict]:
 def test_every_case_of_every_sequence_has_its_rows(first_run):
     res, _, _, err = first_run
     assert res["sequences"] == ["other", "synth"] and res["mode"] == "inline" and res["lead"] == 8
-    assert [c["name"] for c in res["cases"]] == ["occlude-10", "fast-2"]
+    assert [c["name"] for c in res["cases"]] == ["none", "occlude-10", "fast-2"]
     for seq in ("other", "synth"):
         for case in ("occlude-10", "fast-2"):
             mine = _rows(res, sequence=seq, case=case)
@@ -69,7 +69,7 @@ def test_every_case_of_every_sequence_has_its_rows(first_run):
             assert 0 <= app["success"] <= 1 and app["fps"] > 0 and "state" in app
             if not res["opencv_missing"]:
                 assert _rows(res, sequence=seq, case=case, tracker="opencv csrt")[0]["cle_px"] is not None
-    assert "[1/4] other / occlude-10" in err and "[4/4] synth / fast-2" in err
+    assert "[1/6] other / none" in err and "[6/6] synth / fast-2" in err
     assert set(res["summary"]) == {"appearance"} | (set() if res["opencv_missing"] else {"opencv csrt"})
     if res["opencv_missing"]:
         assert "unavailable" in res["opencv_missing"]["csrt"] and "opencv csrt not measured" in err
@@ -117,6 +117,21 @@ def test_scores_equal_gflow_eval_and_the_csv_has_the_state(first_run):
     assert json.loads(r.stdout)["success_rate_0.5"] == pytest.approx(app["after"], abs=1e-4)
 
 
+@pytest.mark.parametrize("case, frames", [("occlude-10", "28:38"), ("fast-2", "78:88")])
+def test_untouched_after_is_the_control_run_on_the_same_original_frames(first_run, case, frames):
+    res, cache, runs, _ = first_run
+    row = _rows(res, sequence="other", case=case, tracker="appearance")[0]
+    control = cache / "other" / "none"
+    r = _gflow("eval", "--gt", str(control / "groundtruth.csv"), "--pred", str(runs / "other" / "none" /
+               "appearance.csv"), "--frames", frames, "--json")
+    assert json.loads(r.stdout)["success_rate_0.5"] == pytest.approx(row["untouched_after"], abs=1e-4)
+    # the same original frames
+    src = {c: [line.split(",")[3] for line in (cache / "other" / c / "visibility.csv").read_text().split()[1:]]
+           for c in ("none", case)}
+    a, b = (int(v) for v in frames.split(":"))
+    assert src[case][28 if case == "occlude-10" else 48:] == src["none"][a:b]
+
+
 def test_gflow_boxes_writes_the_same_columns_from_the_recording(first_run, tmp_path):
     _, _, runs, _ = first_run
     run = runs / "synth" / "fast-2"
@@ -129,7 +144,7 @@ def test_second_run_reuses_the_cache_and_gives_the_same_scores(first_run, data):
     res, cache, _, _ = first_run
     r = _gflow("benchmark", str(data), *STRESS, "--json", "--stress-cache", str(cache))
     assert r.returncode == 0, r.stderr
-    assert r.stderr.count("(cached)") == 4
+    assert r.stderr.count("(cached)") == 6
     again = json.loads(r.stdout)
     for a, b in zip(res["rows"], again["rows"]):
         assert {k: a[k] for k in ("tracker", "cle_px", "success", "after", "back_in")} == \

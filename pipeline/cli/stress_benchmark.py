@@ -44,7 +44,7 @@ AFTER_GAP = 10
 #: a tracker got the target back when its success after the window is at least this
 BACK_AT = 0.8
 #: bumped whenever a derived sequence would come out differently (invalidates caches)
-VERSION = 2
+VERSION = 3
 
 
 def select_cases(text: str | None) -> list[StressCase]:
@@ -210,6 +210,8 @@ class StressRow:
     state: StateScore | None = None
     fps: float | None = None
     note: str = ""
+    untouched_after: float | None = None  # the after score on the same frames in the untouched run (case none)
+    overlap: np.ndarray | None = None  # (T,) per-frame IoU
     extra: dict = field(default_factory=dict)
 
     @property
@@ -227,10 +229,26 @@ def stress_scores(row: StressRow, d: Derived, boxes_csv: str | Path) -> StressRo
     row.frames, row.window = len(frames), (w0, w1)
     after = ov[w1 + AFTER_GAP:]
     row.after = float((after > 0.5).mean()) if after.size else None
+    row.overlap = ov
     row.back_in = frames_to_recover(ov, w1)
     if track.states is not None:
         row.state = state_score([track.states.get(f) for f in frames], d.plan.visible, d.plan.perturbed)
     return row
+
+
+def untouched(rows: list[StressRow], cases: dict[str, StressCase]) -> None:
+    """Fill each row's ``untouched_after``: the same tracker's after score over the same original
+    frames in the untouched run (case ``none``) of its sequence, where that run was made."""
+    control = {(r.sequence, r.tracker): r for r in rows if cases[r.case].kind == "none" and r.overlap is not None}
+    for r in rows:
+        c = control.get((r.sequence, r.tracker))
+        if c is None or r.overlap is None or r.after is None:
+            continue
+        w0, w1 = r.window
+        # a fast case's window shows `length` original frames in w1 - w0 derived ones
+        idx = np.arange(w1 + AFTER_GAP, r.overlap.shape[0]) + (cases[r.case].length - (w1 - w0))
+        if idx.size and idx[-1] < c.overlap.shape[0]:  # type: ignore[union-attr]
+            r.untouched_after = float((c.overlap[idx] > 0.5).mean())  # type: ignore[index]
 
 
 def _from_row(row: StressRow, r: Row) -> None:
@@ -254,7 +272,7 @@ def _rate(a: int, b: int) -> str:
     return "-" if b == 0 else f"{a / b:.2f}"
 
 
-COLUMNS = ("sequence", "case", "CLE px", "success", "after", "back in", "hidden ok", "shown ok")
+COLUMNS = ("sequence", "case", "CLE px", "success", "after", "untouched after", "back in", "hidden ok", "shown ok")
 OTHER_COLUMNS = ("CLE", "success", "after", "back in")
 
 
@@ -273,6 +291,8 @@ def _table(head: tuple[str, ...], cells: list[list[str]], markdown: bool, right_
 
 def _summary(rows: list[StressRow]) -> dict:
     """Counts over one tracker's rows: cases got back, the acceptance groups, pooled state rates."""
+    every = rows
+    rows = [r for r in rows if r.extra.get("case_kind") != "none"]  # the control perturbs nothing to get back from
     scored = [r for r in rows if r.after is not None]
 
     def back(pred) -> list[int]:
@@ -286,14 +306,14 @@ def _summary(rows: list[StressRow]) -> dict:
         "fast motion": lambda r: r.extra["case_kind"] == "fast",
         "every case": lambda r: True,
     }
-    st = [r.state for r in rows if r.state is not None]
+    st = [r.state for r in every if r.state is not None]
     ok = [r for r in rows if r.success is not None]
     return {
         "back": {g: back(p) for g, p in groups.items()},
         "mean_success": None if not ok else round(float(np.mean([r.success for r in ok])), 4),
         "mean_after": None if not scored else round(float(np.mean([r.after for r in scored])), 4),
-        "worse_than_still_box": [f"{r.sequence}/{r.case}" for r in ok
-                                 if r.extra.get("still_success") is not None and r.success < r.extra["still_success"]],
+        "worse_than_still_box": [f"{r.sequence}/{r.case}" for r in every if r.success is not None
+                                 and r.extra.get("still_success") is not None and r.success < r.extra["still_success"]],
         "hidden_reported_occluded_or_lost": [sum(s.hidden_right for s in st), sum(s.hidden for s in st)],
         "undisturbed_reported_tracked": [sum(s.shown_right for s in st), sum(s.shown for s in st)],
     }
@@ -312,7 +332,8 @@ def format_stress(rows: list[StressRow], markdown: bool = False) -> str:
             c = by.get((r.sequence, r.case, cv)) if cv else None
             s = by.get((r.sequence, r.case, "still box"))
             st = r.state
-            cells.append([r.sequence, r.case, _f(r.cle, ".1f"), _f(r.success, ".2f"), _f(r.after, ".2f"), _back_in(r),
+            cells.append([r.sequence, r.case, _f(r.cle, ".1f"), _f(r.success, ".2f"), _f(r.after, ".2f"),
+                          _f(r.untouched_after, ".2f"), _back_in(r),
                           "-" if st is None else _rate(st.hidden_right, st.hidden),
                           "-" if st is None else _rate(st.shown_right, st.shown)]
                          + ([_f(c and c.cle, ".1f"), _f(c and c.success, ".2f"), _f(c and c.after, ".2f"),
@@ -354,7 +375,9 @@ def stress_json(rows: list[StressRow], meta: dict, cases: list[StressCase]) -> d
         d: dict = {"sequence": r.sequence, "case": r.case, "tracker": r.tracker, "kind": r.kind, "frames": r.frames,
                    "window": list(r.window), "cle_px": None if r.cle is None else round(r.cle, 3),
                    "success": None if r.success is None else round(r.success, 4),
-                   "after": None if r.after is None else round(r.after, 4), "back": r.back, "back_in": r.back_in,
+                   "after": None if r.after is None else round(r.after, 4),
+                   "untouched_after": None if r.untouched_after is None else round(r.untouched_after, 4),
+                   "back": r.back, "back_in": r.back_in,
                    "fps": None if r.fps is None else round(r.fps, 2)}
         if r.state is not None:
             d["state"] = r.state.to_json()
@@ -369,12 +392,32 @@ def stress_json(rows: list[StressRow], meta: dict, cases: list[StressCase]) -> d
                 rows=out, summary={n: _summary([r for r in rows if r.tracker == n]) for n in names})
 
 
+def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: bool) -> None:
+    """Run an OpenCV tracker on a derived sequence, or, with the cache, take its boxes from the
+    last run on the same derived sequence (OpenCV's trackers do not change while tuning ours)."""
+    from pipeline.cli.commands.benchmark import _opencv_row
+    from pipeline.cli.sequence_benchmark import score_row
+
+    kept = d.seq.path / f"opencv_{name}_seed{seed}_cv{cv2.__version__}.csv"
+    info = kept.with_suffix(".json")
+    if cache and kept.is_file() and info.is_file():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(kept, out)
+        score_row(r, d.seq.groundtruth, out)
+        r.fps, r.boxes_csv = json.loads(info.read_text()).get("fps"), str(out)
+        return
+    _opencv_row(r, name, d.seq, 0, None, d.seq.groundtruth, out, seed, True)
+    if cache and r.score is not None:
+        shutil.copyfile(out, kept)
+        info.write_text(json.dumps({"fps": r.fps}))
+
+
 def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                ) -> tuple[list[StressRow], bool, list[StressCase]]:
     """Every tracker, OpenCV tracker (each available) and the still box on every case of every sequence.
 
     Returns the rows, whether Ctrl-C stopped it, and the cases."""
-    from pipeline.cli.commands.benchmark import _opencv_row, _tracker_row, _track_argv
+    from pipeline.cli.commands.benchmark import _tracker_row, _track_argv
     from pipeline.cli.commands.common import CliError
     from pipeline.cli.commands.track import track_args, track_plan
     from pipeline.cli.sequence_benchmark import static_box
@@ -421,7 +464,7 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                         rows.append(row)
                         r = Row(d.seq.name, row.tracker, "opencv")
                         out = folder / f"opencv_{cvn}.csv"
-                        _opencv_row(r, cvn, d.seq, 0, None, d.seq.groundtruth, out, args.seed, True)
+                        _opencv_cached(r, cvn, d, out, args.seed, bool(args.stress_cache))
                         _from_row(row, r)
                         if r.score is not None:
                             stress_scores(row, d, out)
@@ -437,4 +480,5 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
         except KeyboardInterrupt:
             interrupted = True
             note("interrupted: stopped; the tables hold the runs that finished")
+    untouched(rows, {c.name: c for c in cases})
     return rows, interrupted, cases

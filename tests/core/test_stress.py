@@ -40,7 +40,7 @@ def test_plan_frames_window_and_truth(case):
     calm = np.r_[0:w0] if case.persistent else np.r_[0:w0, w1:len(p)]
     assert not p.perturbed[calm].any()
     assert np.allclose(p.boxes[calm], truth[p.source[calm]])
-    assert p.perturbed[w0:w1].all()
+    assert p.perturbed[w0:w1].all() == (case.kind != "none")
     assert not any(p.changed(i) for i in calm)
     assert ((p.visible >= 0) & (p.visible <= 1)).all()
 
@@ -103,6 +103,18 @@ def test_a_short_sequence_is_played_forwards_then_backwards():
     assert len(p) == 150 and p.source.max() == 99 and p.source[-1] == 198 - 149
     assert (np.abs(np.diff(p.source)) == 1).all()
     assert np.allclose(p.boxes, _truth(100)[p.source])
+
+
+def test_every_case_starts_where_the_untouched_run_does_and_it_holds_their_frames():
+    runs = {c.name: _plan(c, n=400) for c in CASES}
+    control = runs["none"]
+    assert not control.perturbed.any() and not any(control.changed(i) for i in range(len(control)))
+    for name, p in runs.items():
+        assert p.source[0] == control.source[0] == (400 - len(control)) // 2, name
+        w0, w1 = p.window
+        gone = p.case.length - (w1 - w0)  # the frames a fast case drops
+        after = np.arange(w1, len(p))
+        assert np.array_equal(p.source[after], control.source[after + gone]), name
 
 
 def test_roll_goes_up_to_its_angle_and_back():

@@ -147,15 +147,10 @@ def _cmd_stress(args, names: list[str], seqs) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
     from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS, note, opencv_tracker
     from pipeline.cli.stress_benchmark import format_stress, run_stress, select_cases, stress_json
-    from gflow_core.stress import CASES
 
     for opt in ("frames", "plot", "precision_plot"):
         if getattr(args, opt):
             raise CliError(f"--{opt.replace('_', '-')} is not used with --stress (each case has its own frames)")
-    if args.list_cases:
-        for c in CASES:
-            print(f"{c.name:16s} {c.describe()}")
-        return 0
     if args.lead < 1 or args.tail < AFTER_MIN:
         raise CliError(f"--lead needs at least 1 frame and --tail at least {AFTER_MIN} (got {args.lead}, {args.tail})")
     if args.stress_cache and Path(args.stress_cache).exists() and not Path(args.stress_cache).is_dir():
@@ -201,16 +196,22 @@ def cmd_benchmark(args) -> int:
     from pipeline.io.datasets import parse_range
 
     names = _names(args.trackers, sorted(TRACKERS), "trackers")
+    if args.list_cases:
+        from gflow_core.stress import CASES
+
+        for c in CASES:
+            print(f"{c.name:16s} {c.describe()}")
+        return 0
+    if not args.datasets:
+        raise CliError("the following arguments are required: DATASET (a sequence folder or a folder of them)")
     if args.stress:
         _check_paths(args)
-        if args.list_cases:
-            return _cmd_stress(args, names, [])
         seqs, skipped = find_sequences(args.datasets)
         for s in skipped:
             note(s)
         return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences))
-    for opt in ("cases", "stress_cache", "list_cases"):
-        if getattr(args, opt):
+    for opt, default in (("cases", None), ("stress_cache", None), ("lead", 30), ("tail", 60)):
+        if getattr(args, opt) != default:
             raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
     cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
     first_frame, stop = parse_range(args.frames)
@@ -300,7 +301,7 @@ def register(sub) -> None:
                     "the published trackers and a box that never moves scored over the same frames.",
         epilog="examples: gflow benchmark ../shared/data --trackers chamfer --plot success.png; "
                "gflow benchmark ../shared/data --stress --trackers appearance --inline --markdown")
-    p.add_argument("datasets", nargs="+", metavar="DATASET",
+    p.add_argument("datasets", nargs="*", metavar="DATASET",
                    help="a sequence folder (frames/ + groundtruth.csv) or a folder of them")
     p.add_argument("--trackers", metavar="NAME,...",
                    help=f"trackers to run (default all: {', '.join(sorted(TRACKERS))})")
