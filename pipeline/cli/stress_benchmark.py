@@ -36,8 +36,8 @@ from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
 from pipeline.cli.sequence_benchmark import Row, Sequence, note
 
-__all__ = ["StressRow", "Derived", "select_cases", "derive", "stress_scores", "format_stress", "stress_json",
-           "AFTER_GAP", "BACK_AT", "VERSION"]
+__all__ = ["StressRow", "Derived", "select_cases", "derive", "check_sequences", "stress_scores", "untouched",
+           "format_stress", "stress_json", "run_stress", "AFTER_GAP", "BACK_AT", "VERSION"]
 
 #: the "after" score starts this many frames after the window ends
 AFTER_GAP = 10
@@ -412,18 +412,67 @@ def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: b
         info.write_text(json.dumps({"fps": r.fps}))
 
 
-def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
-               ) -> tuple[list[StressRow], bool, list[StressCase]]:
-    """Every tracker, OpenCV tracker (each available) and the still box on every case of every sequence.
-
-    Returns the rows, whether Ctrl-C stopped it, and the cases."""
+def _tracker_rows(args, d: Derived, names: list[str], folder: Path, extra: dict) -> list[StressRow]:
+    """Our trackers on one derived sequence, each run exactly as ``gflow benchmark`` runs it."""
     from pipeline.cli.commands.benchmark import _tracker_row, _track_argv
     from pipeline.cli.commands.common import CliError
     from pipeline.cli.commands.track import track_args, track_plan
+
+    rows = []
+    for name in names:
+        row = StressRow(d.origin, d.case.name, name, "tracker", extra=dict(extra))
+        rows.append(row)
+        targs = track_args(_track_argv(args, d.seq, name, 0, None, folder))
+        try:
+            plan = track_plan(targs)
+        except CliError as e:
+            row.note = f"skipped: {e}"
+            continue
+        r = Row(d.seq.name, name, "tracker")
+        _tracker_row(r, targs, plan, d.seq.groundtruth, True)
+        _from_row(row, r)
+        if r.score is not None and r.boxes_csv:
+            stress_scores(row, d, r.boxes_csv)
+    return rows
+
+
+def _other_rows(args, d: Derived, cv_names: list[str], folder: Path, extra: dict) -> list[StressRow]:
+    """OpenCV's trackers and the box that never moves on one derived sequence."""
     from pipeline.cli.sequence_benchmark import static_box
 
+    rows = []
+    for cvn in cv_names:
+        row = StressRow(d.origin, d.case.name, f"opencv {cvn}", "opencv", extra=dict(extra))
+        rows.append(row)
+        r = Row(d.seq.name, row.tracker, "opencv")
+        out = folder / f"opencv_{cvn}.csv"
+        _opencv_cached(r, cvn, d, out, args.seed, bool(args.stress_cache))
+        _from_row(row, r)
+        if r.score is not None:
+            stress_scores(row, d, out)
+    r = static_box(d.seq, d.seq.groundtruth, 0, folder)
+    still = StressRow(d.origin, d.case.name, "still box", "baseline", extra=dict(extra))
+    _from_row(still, r)
+    stress_scores(still, d, r.boxes_csv)  # type: ignore[arg-type]
+    return rows + [still]
+
+
+def check_sequences(seqs: list[Sequence]) -> None:
+    """Every sequence has an image and a ground-truth box for every frame from 0 on (ValueError
+    naming the first that does not), checked before any work."""
+    for seq in seqs:
+        _truth(seq, _files(seq))
+
+
+def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str],
+               donors: list[Sequence] | None = None) -> tuple[list[StressRow], bool, list[StressCase]]:
+    """Every tracker, OpenCV tracker (each available) and the still box on every case of every sequence.
+
+    ``donors`` are every sequence of the datasets (default ``seqs``): each sequence's image
+    patches are cut from the next one among them, so choosing fewer sequences with
+    ``--sequences`` does not change the derived sequences. Returns the rows, whether Ctrl-C
+    stopped it, and the cases."""
     cases = select_cases(args.cases)
-    keep_runs = Path(args.out_dir) if args.out_dir else None
     runs = len(seqs) * len(cases)
     rows: list[StressRow] = []
     done = 0
@@ -431,10 +480,11 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-stress-") as tmp:
         cache = Path(args.stress_cache) if args.stress_cache else Path(tmp) / "derived"
-        work = keep_runs or Path(tmp) / "runs"
+        work = Path(args.out_dir) if args.out_dir else Path(tmp) / "runs"
         try:
-            for si, seq in enumerate(seqs):
-                donor = seqs[(si + 1) % len(seqs)]
+            pool = donors or seqs
+            for seq in seqs:
+                donor = pool[(pool.index(seq) + 1) % len(pool)]
                 for case in cases:
                     done += 1
                     d = derive(seq, case, donor, cache, args.seed, args.lead, args.tail)
@@ -445,36 +495,12 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                             else f", about {eta:.0f} s left"))
                     extra = {"case_kind": case.kind, "case_length": case.length, "case_amount": case.amount}
                     folder = work / seq.name / case.name
-                    for name in names:
-                        row = StressRow(seq.name, case.name, name, "tracker", extra=dict(extra))
-                        rows.append(row)
-                        targs = track_args(_track_argv(args, d.seq, name, 0, None, folder))
-                        try:
-                            plan = track_plan(targs)
-                        except CliError as e:
-                            row.note = f"skipped: {e}"
-                            continue
-                        r = Row(d.seq.name, name, "tracker")
-                        _tracker_row(r, targs, plan, d.seq.groundtruth, True)
-                        _from_row(row, r)
-                        if r.score is not None and r.boxes_csv:
-                            stress_scores(row, d, r.boxes_csv)
-                    for cvn in cv_names:
-                        row = StressRow(seq.name, case.name, f"opencv {cvn}", "opencv", extra=dict(extra))
-                        rows.append(row)
-                        r = Row(d.seq.name, row.tracker, "opencv")
-                        out = folder / f"opencv_{cvn}.csv"
-                        _opencv_cached(r, cvn, d, out, args.seed, bool(args.stress_cache))
-                        _from_row(row, r)
-                        if r.score is not None:
-                            stress_scores(row, d, out)
-                    r = static_box(d.seq, d.seq.groundtruth, 0, folder)
-                    still = StressRow(seq.name, case.name, "still box", "baseline", extra=dict(extra))
-                    _from_row(still, r)
-                    stress_scores(still, d, r.boxes_csv)  # type: ignore[arg-type]
-                    rows.append(still)
-                    for row in rows[-(len(names) + len(cv_names) + 1):]:
-                        row.extra["still_success"] = still.success
+                    mine = _tracker_rows(args, d, names, folder, extra)
+                    rows += mine
+                    others = _other_rows(args, d, cv_names, folder, extra)
+                    rows += others
+                    for row in mine + others:
+                        row.extra["still_success"] = others[-1].success
                     if not args.stress_cache:
                         shutil.rmtree(cache / seq.name / case.name, ignore_errors=True)
         except KeyboardInterrupt:

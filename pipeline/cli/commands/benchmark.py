@@ -143,10 +143,10 @@ def _pick_sequences(seqs, text: str | None):
     return [s for s in seqs if s.name in want]
 
 
-def _cmd_stress(args, names: list[str], seqs) -> int:
+def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
     from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS, note, opencv_tracker
-    from pipeline.cli.stress_benchmark import format_stress, run_stress, select_cases, stress_json
+    from pipeline.cli.stress_benchmark import check_sequences, format_stress, run_stress, select_cases, stress_json
 
     for opt in ("frames", "plot", "precision_plot"):
         if getattr(args, opt):
@@ -155,10 +155,8 @@ def _cmd_stress(args, names: list[str], seqs) -> int:
         raise CliError(f"--lead needs at least 1 frame and --tail at least {AFTER_MIN} (got {args.lead}, {args.tail})")
     if args.stress_cache and Path(args.stress_cache).exists() and not Path(args.stress_cache).is_dir():
         raise CliError(f"--stress-cache {args.stress_cache} is a file, not a folder")
-    try:
-        select_cases(args.cases)
-    except ValueError as e:
-        raise CliError(str(e)) from None
+    select_cases(args.cases)
+    check_sequences(seqs)
     # CSRT beside every tracker by default, where this OpenCV has it
     cv_text = "csrt" if args.opencv is None else ("" if args.opencv.strip() == "none" else args.opencv)
     cv_names = _names(cv_text, list(OPENCV_TRACKERS), "opencv") if cv_text else []
@@ -171,7 +169,7 @@ def _cmd_stress(args, names: list[str], seqs) -> int:
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
-    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing])
+    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing], donors)
     mode = "inline" if args.inline else "processes"
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "seed": args.seed, "mode": mode,
             "lead": args.lead, "tail": args.tail, "interrupted": interrupted,
@@ -209,7 +207,7 @@ def cmd_benchmark(args) -> int:
         seqs, skipped = find_sequences(args.datasets)
         for s in skipped:
             note(s)
-        return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences))
+        return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences), seqs)
     for opt, default in (("cases", None), ("stress_cache", None), ("lead", 30), ("tail", 60)):
         if getattr(args, opt) != default:
             raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
