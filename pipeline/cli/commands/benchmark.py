@@ -143,6 +143,10 @@ def _pick_sequences(seqs, text: str | None):
     return [s for s in seqs if s.name in want]
 
 
+#: frames after the window the stress benchmark needs at least (the "after" score starts 10 frames after it)
+AFTER_MIN = 15
+
+
 def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
     from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS, note, opencv_tracker
@@ -182,10 +186,6 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
         for line in meta["skipped"] + [f"opencv {c}: {w}" for c, w in cv_missing.items()]:
             print(f"\nnot run: {line}")
     return 130 if interrupted else 0
-
-
-#: frames after the window the stress benchmark needs at least (the "after" score starts 10 frames after it)
-AFTER_MIN = 15
 
 
 def cmd_benchmark(args) -> int:
