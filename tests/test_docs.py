@@ -152,6 +152,14 @@ def gflow_args(segment: str) -> list[str] | None:
     words = shlex.split(segment, comments=True)
     while words and re.match(r"^[A-Z_][A-Z0-9_]*=", words[0]):
         words = words[1:]
+    # the shell's redirections are not the command's arguments: '> out.json', '2>&1', '>log'
+    kept: list[str] = []
+    for w in words:
+        if kept and re.fullmatch(r"\d?>>?|<", kept[-1]):
+            kept.pop()
+        elif not re.fullmatch(r"\d?>&\d|\d?>>?[^\s>&]\S*|<\S+", w):
+            kept.append(w)
+    words = kept[:-1] if kept and re.fullmatch(r"\d?>>?|<", kept[-1]) else kept
     if words[:1] == ["gflow"]:
         return words[1:]
     if len(words) >= 3 and words[0].endswith("python") and words[1] == "-m" and words[2] in (
@@ -335,7 +343,11 @@ class PageRun:
                     return
                 seen.append(s)
             os.killpg(p.pid, signal.SIGINT)
-            p.wait(timeout=30)
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                self.fail(where, line, f"still running 30 s after Ctrl-C\n{''.join(seen)}")
+                return
             if p.returncode != status:
                 self.fail(where, line, f"exit {p.returncode} after Ctrl-C\n{''.join(seen)}")
         finally:
