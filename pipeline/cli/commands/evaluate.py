@@ -79,10 +79,11 @@ def cmd_eval(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser("eval", help="score predicted boxes (or face points) against ground truth",
-                       description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU) and success "
-                                   "rate (IoU > 0.5). Face points (--landmarks, --points): the mean distance of the eye "
-                                   "corners 33, 133, 362, 263 and mouth corners 61, 291 from the reference, in pixels "
-                                   "and over the reference 33-263 distance (NME), over the frames with a reference.")
+                       description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU) "
+                                   "and success rate (IoU > 0.5). Face points (--landmarks, --points): the mean "
+                                   "distance of the eye corners 33, 133, 362, 263 and mouth corners 61, 291 from "
+                                   "the reference, in pixels and over the reference 33-263 distance (NME), over the "
+                                   "frames with a reference.")
     p.add_argument("--gt", help="ground truth CSV (frame,x,y,w,h)")
     p.add_argument("--pred", help="predicted CSV (frame,x,y,w,h)")
     p.add_argument("--landmarks", metavar="REF.npz",
