@@ -99,7 +99,7 @@ def annotations_for(frame: Frame, est: Estimate | PoseEstimate, particles: Parti
         pts.extend(_axes(est, ts))
         label = f"frame {est.header.seq}  ESS {est.ess:.1f}/{experts.shape[0]}  spread {est.spread_px:.1f}px  {est.state}"
         if est.landmarks is not None:
-            label += "  yaw {:.0f} pitch {:.0f} roll {:.0f}".format(*est.yaw_pitch_roll)
+            label += "  yaw {} pitch {} roll {}".format(*(int(round(v)) for v in est.yaw_pitch_roll))
     else:
         if particles is not None:
             pts.append(_points(particles.alpha.array()[:, :2], RED, ts, 2.0, max_points))

@@ -105,26 +105,19 @@ def write_points(path: str | os.PathLike, points: dict[int, tuple[np.ndarray, np
 
 def read_points(path: str | os.PathLike) -> dict[int, dict[int, tuple[float, float]]]:
     """Read a points file: ``{frame: {landmark: (x, y)}}`` (a header line is optional)."""
+    from pipeline.recording.results import csv_rows
+
     p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"points file not found: {p}")
     out: dict[int, dict[int, tuple[float, float]]] = {}
-    with open(p, newline="") as f:
-        for lineno, row in enumerate(csv.reader(f), start=1):
-            if not row or not "".join(row).strip():
-                continue
-            if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
-                continue  # header
-            if len(row) < 4:
-                raise ValueError(f"{p}:{lineno}: expected frame,landmark,x,y, got {len(row)} column(s)")
-            try:
-                frame, lm = int(row[0]), int(row[1])
-                x, y = float(row[2]), float(row[3])
-            except ValueError:
-                raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
-            if not (math.isfinite(x) and math.isfinite(y)):
-                raise ValueError(f"{p}:{lineno}: point has NaN or inf")
-            out.setdefault(frame, {})[lm] = (x, y)
+    for lineno, row in csv_rows(p, "frame,landmark,x,y", "points"):
+        try:
+            frame, lm = int(row[0]), int(row[1])
+            x, y = float(row[2]), float(row[3])
+        except ValueError:
+            raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"{p}:{lineno}: point has NaN or inf")
+        out.setdefault(frame, {})[lm] = (x, y)
     if not out:
         raise ValueError(f"{p}: no points")
     return out

@@ -18,28 +18,37 @@ __all__ = ["read_boxes", "write_boxes", "estimates", "truth_boxes", "frame_range
 Box = tuple[float, float, float, float]
 
 
-def read_boxes(path: str | Path) -> dict[int, Box]:
-    """Read ``frame,x,y,w,h`` rows (a header line is optional). Errors name the file and line."""
+def csv_rows(path: str | Path, columns: str, what: str):
+    """``(line number, row)`` of a CSV file of ``columns`` (e.g. ``"frame,x,y,w,h"``): blank lines and a
+    header line are skipped; a short row or a missing file is an error naming the file (and line)."""
     p = Path(path)
     if not p.is_file():
-        raise FileNotFoundError(f"box file not found: {p}")
-    out: dict[int, Box] = {}
+        raise FileNotFoundError(f"{what} file not found: {p}")
+    n = columns.count(",") + 1
     with open(p, newline="") as f:
         for lineno, row in enumerate(csv.reader(f), start=1):
             if not row or not "".join(row).strip():
                 continue
             if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
                 continue  # header
-            if len(row) < 5:
-                raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h, got {len(row)} column(s)")
-            try:
-                frame = int(row[0])
-                box = tuple(float(v) for v in row[1:5])
-            except ValueError:
-                raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
-            if not all(math.isfinite(v) for v in box):
-                raise ValueError(f"{p}:{lineno}: box has NaN or inf")
-            out[frame] = box  # type: ignore[assignment]
+            if len(row) < n:
+                raise ValueError(f"{p}:{lineno}: expected {columns}, got {len(row)} column(s)")
+            yield lineno, row
+
+
+def read_boxes(path: str | Path) -> dict[int, Box]:
+    """Read ``frame,x,y,w,h`` rows (a header line is optional). Errors name the file and line."""
+    p = Path(path)
+    out: dict[int, Box] = {}
+    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
+        try:
+            frame = int(row[0])
+            box = tuple(float(v) for v in row[1:5])
+        except ValueError:
+            raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if not all(math.isfinite(v) for v in box):
+            raise ValueError(f"{p}:{lineno}: box has NaN or inf")
+        out[frame] = box  # type: ignore[assignment]
     if not out:
         raise ValueError(f"{p}: no boxes")
     return out
