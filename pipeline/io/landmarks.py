@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from pipeline.io.csv_rows import csv_rows
+
 __all__ = ["LANDMARK_KEY", "resolve_landmarks", "read_landmarks", "read_points", "write_points"]
 
 #: The default key of the landmark array in a landmark file.
@@ -105,8 +107,6 @@ def write_points(path: str | os.PathLike, points: dict[int, tuple[np.ndarray, np
 
 def read_points(path: str | os.PathLike) -> dict[int, dict[int, tuple[float, float]]]:
     """Read a points file: ``{frame: {landmark: (x, y)}}`` (a header line is optional)."""
-    from pipeline.recording.results import csv_rows
-
     p = Path(path)
     out: dict[int, dict[int, tuple[float, float]]] = {}
     for lineno, row in csv_rows(p, "frame,landmark,x,y", "points"):

@@ -10,30 +10,14 @@ from typing import Any
 
 from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
+from pipeline.io.csv_rows import csv_rows
+
 from pipeline.io.mcap_io import iter_records
 
 __all__ = ["read_boxes", "write_boxes", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
            "RunOutcome"]
 
 Box = tuple[float, float, float, float]
-
-
-def csv_rows(path: str | Path, columns: str, what: str):
-    """``(line number, row)`` of a CSV file of ``columns`` (e.g. ``"frame,x,y,w,h"``): blank lines and a
-    header line are skipped; a short row or a missing file is an error naming the file (and line)."""
-    p = Path(path)
-    if not p.is_file():
-        raise FileNotFoundError(f"{what} file not found: {p}")
-    n = columns.count(",") + 1
-    with open(p, newline="") as f:
-        for lineno, row in enumerate(csv.reader(f), start=1):
-            if not row or not "".join(row).strip():
-                continue
-            if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
-                continue  # header
-            if len(row) < n:
-                raise ValueError(f"{p}:{lineno}: expected {columns}, got {len(row)} column(s)")
-            yield lineno, row
 
 
 def read_boxes(path: str | Path) -> dict[int, Box]:
