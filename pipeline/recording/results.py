@@ -11,7 +11,6 @@ from typing import Any
 from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows
-
 from pipeline.io.mcap_io import iter_records
 
 __all__ = ["read_boxes", "write_boxes", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
