@@ -13,9 +13,16 @@ filter never holds the background textures: with the background model on, they l
 the proposal stages (see ``stages/gflow_proposal.py``), and ``update`` runs with
 ``bg_mean = None``, which changes nothing else.
 
-The estimate: ``box`` is the bounding box of the projected vertices of the posterior mean
-pose; ``expert_points`` are every expert's projected vertices (the paper's figure 2);
-``pose``, ``pose_std``, ``rotation``, ``spread_px`` and ``ess`` summarise the posterior.
+The estimate: ``box`` is, for a learned face (a model with a reference box), the initial box
+moved and scaled with the face (``gflow_core.gflow.face_pose.following_box``), otherwise the
+bounding box of the projected vertices of the posterior mean pose; ``expert_points`` are every
+expert's projected vertices (the paper's figure 2), ``mean_points`` the mean's, ``landmarks`` the
+reference landmark of each vertex; ``pose``, ``pose_std``, ``rotation``, ``spread_px`` and ``ess``
+summarise the posterior, ``yaw_pitch_roll`` and ``expression`` read it as a face. ``confidence`` is
+the fraction of vertices the frame explains as the object (``Estimate.inlier_fraction``: in the
+image and within the outlier process's standard deviations of their texel), and ``target_state``
+is ``occluded`` below ``occluded_below``, ``lost`` below ``lost_below``, else ``tracked``; a
+coasting frame repeats the last observed frame's.
 
 First frame: the model is fitted into ``init`` (generic head) or a user morphable model
 (resource ``model``) is placed in it, and the experts start at that pose (optionally
