@@ -499,9 +499,11 @@ class Estimate:
         Parent of each new expert.
     resampled : bool
     inlier_fraction : float
-        Credibility-weighted mean over the new experts of the fraction of vertices the likelihood
-        explains as the object: inside the image and within ``outlier_sigmas`` (3 if that is
-        infinite) standard deviations of their predicted texel (eq. 13's outlier process).
+        Credibility-weighted mean over the new experts and the vertices of the probability that the
+        vertex shows the object rather than an outlier, ``1 / (1 + exp((e^2 - tau^2) / 2))`` with ``e``
+        its standardised residual (eq. 13) and ``tau`` = ``outlier_sigmas`` (3 if infinite): the
+        outlier process of the likelihood, whose density is the object's at ``tau`` standard
+        deviations (0 for a vertex outside the image).
     """
 
     pose: np.ndarray
@@ -811,13 +813,15 @@ def update(
         # the texels observe the light-corrected frame (y - b) / a (see photometric)
         a, b = gain_bias(y, pred_mean, 1.0 / (pred_var + cfg.sigma_w), ph)
         y = correct(y, a, b)
+    vv = pred_var + cfg.sigma_w
+    r2 = (y - pred_mean) ** 2
     tau = cfg.outlier_sigmas if math.isfinite(cfg.outlier_sigmas) else 3.0
-    # vertices the frame shows as the object: in the image and within tau standard deviations of the texel
-    inlier = st.inside & ((y - pred_mean) ** 2 <= tau ** 2 * (pred_var + cfg.sigma_w))
+    # P(object | y) = N(e) / (N(e) + N(tau)): the texel's Gaussian (eq. 13) against the outlier process
+    p_in = np.where(st.inside, 1.0 / (1.0 + np.exp(np.minimum(0.5 * (r2 / vv - tau * tau), 700.0))), 0.0)
     observed = st.inside
     if math.isfinite(cfg.outlier_sigmas):
         # outlier vertices (occluder, highlight) are not learned: prediction only
-        observed = inlier
+        observed = observed & (r2 <= cfg.outlier_sigmas ** 2 * vv)
     # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
     tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=observed)
     bg_mean = bg_var = None
@@ -849,7 +853,7 @@ def update(
         log_credibility=_ro(log_cred),
         parents=_ro(parents),
         resampled=resampled,
-        inlier_fraction=float(W @ inlier.mean(axis=1) / W.sum()),
+        inlier_fraction=float(W @ p_in.mean(axis=1) / W.sum()),
     )
     return new_state, est
 
