@@ -173,3 +173,30 @@ def test_face_processes_with_two_shards_equal_inline_with_one(tmp_path) -> None:
     run_inline(plan_for(frames, init, shards=1, **params), recording=str(inline))
     a, b = payloads(mp), payloads(inline)
     assert len(a) == 2 * 10 and a == b
+
+
+def test_overlays_draw_the_rotated_axes_and_the_angles() -> None:
+    """The render stage's and `gflow render`'s overlays of a face estimate: every expert's points,
+    the mean's, the three rotated axes from l (the paper's fig. 2) and the angles in the status line."""
+    from gflow_core.gflow.face_pose import rotation_from_angles
+    from stages.messages import Frame, Header, NDArray, PoseEstimate
+    from stages.messages_foxglove import LINE_LIST, POINTS
+    from stages.overlay import annotations_for
+
+    r = rotation_from_angles(30.0, 0.0, 0.0)
+    h = Header(stream="s", seq=4, stamp_ns=0)
+    pts = np.zeros((3, 5, 2), np.float32)
+    est = PoseEstimate(header=h, box=(0.0, 0.0, 10.0, 10.0), pose=(0, 0.52, 0, 50.0, 40.0, 60.0, 0.0),
+                       pose_std=(0.0,) * 7, rotation=tuple(r.ravel()), spread_px=0.5, ess=3.0,
+                       expert_points=NDArray.of(pts), mean_points=NDArray.of(pts[0]),
+                       log_credibility=NDArray.of(np.zeros(3)), parents=NDArray.of(np.arange(3)),
+                       landmarks=NDArray.of(np.arange(5, dtype=np.int32)), yaw_pitch_roll=(30.0, -0.2, 1.6),
+                       expression=(0.5,))
+    frame = Frame(header=h, image=NDArray.of(np.zeros((80, 100), np.uint8)))
+    ann = annotations_for(frame, est, None)
+    axes = [p for p in ann.points if p.type == LINE_LIST]
+    assert len(axes) == 3 and sum(p.type == POINTS for p in ann.points) == 2
+    # the x axis turned 30 degrees of yaw: from l = (50, 40), 0.5 c_1 cos(30) to the right
+    x_end = axes[0].points[1]
+    assert x_end.x - 0.5 == pytest.approx(50.0 + 30.0 * np.cos(np.radians(30.0)))
+    assert "yaw 30 pitch 0 roll 2" in ann.texts[0].text
