@@ -200,3 +200,15 @@ def test_overlays_draw_the_rotated_axes_and_the_angles() -> None:
     x_end = axes[0].points[1]
     assert x_end.x - 0.5 == pytest.approx(50.0 + 30.0 * np.cos(np.radians(30.0)))
     assert "yaw 30 pitch 0 roll 2" in ann.texts[0].text
+
+
+@needs_data
+@pytest.mark.parametrize(("extra", "message"), [
+    (["--tracker", "appearance"], "face points of --tracker gflow"),
+    (["--tracker", "gflow", "--model", "ellipsoid"], "needs a learned face model"),
+])
+def test_points_out_needs_a_face_model(tmp_path, gflow, extra, message) -> None:
+    r = gflow("track", str(DATA), "--init", "169,76,46,60", "--out", str(tmp_path / "b.csv"), "--points-out",
+              str(tmp_path / "p.csv"), "--stop", "2", *extra)
+    assert r.returncode != 0 and message in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "b.csv").exists()
