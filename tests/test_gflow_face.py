@@ -212,3 +212,24 @@ def test_points_out_needs_a_face_model(tmp_path, gflow, extra, message) -> None:
               str(tmp_path / "p.csv"), "--stop", "2", *extra)
     assert r.returncode != 0 and message in r.stderr and "Traceback" not in r.stderr
     assert not (tmp_path / "b.csv").exists()
+
+
+@needs_data
+def test_track_points_out_then_eval_landmarks(tmp_path, gflow) -> None:
+    """The user's path: gflow track --points-out, then gflow eval --landmarks on the same frames."""
+    pts = tmp_path / "p.csv"
+    r = gflow("track", str(DATA), "--tracker", "gflow", "--init", "169,76,46,60", "--seed", "1", "--stop", "6",
+              "--experts", "6", "--out", str(tmp_path / "b.csv"), "--points-out", str(pts), "--no-record",
+              "--inline", "-q")
+    assert r.returncode == 0, r.stderr
+    from pipeline.io.landmarks import read_points
+
+    got = read_points(pts)
+    model = load_model(BUILTIN_MODELS["face"])
+    assert sorted(got) == list(range(6)) and all(set(v) == set(model.landmarks.tolist()) for v in got.values())
+    r = gflow("eval", "--landmarks", str(DATA), "--points", str(pts), "--frames", "0:6", "--json")
+    assert r.returncode == 0, r.stderr
+    import json
+
+    s = json.loads(r.stdout)
+    assert s["frames"] == 6 and s["missing"] == 0 and s["nme"] < 0.15
