@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import every_nth, scratch, table  # noqa: E402
 
 from gflow_core.metrics import centre_error, score  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
@@ -116,13 +116,7 @@ def main() -> None:
                        "fps inline"]))
     print("\ncentre error (px) every 20th frame, mean over runs [min..max]")
     names = list(trackers)
-    out = []
-    for f in range(0, args.frames, 20):
-        row = [f]
-        for n in names:
-            v = np.array([e[f] for e in errs[n]])
-            row.append(f"{np.nanmean(v):6.1f} [{np.nanmin(v):.0f}..{np.nanmax(v):.0f}]")
-        out.append(row)
+    out = every_nth(errs, args.frames, lambda v: f"{np.nanmean(v):6.1f} [{np.nanmin(v):.0f}..{np.nanmax(v):.0f}]")
     print(table(out, ["frame", *names]))
     for n in names:
         allv = np.array(errs[n])

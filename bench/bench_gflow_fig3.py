@@ -37,7 +37,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import every_nth, scratch, table  # noqa: E402
 from bench_gflow_david import perturbed_box  # noqa: E402  (the same seeded start errors)
 
 from gflow_core.gflow.landmark_error import SCORED_LANDMARKS, landmark_score  # noqa: E402
@@ -165,15 +165,9 @@ def main() -> None:
     print(table(rows, ["tracker", "run", "start box", "NME", "px", "box CLE", "fps inline"]))
     templ = template_in_truth_boxes(ref, gt, args.frames)
     names = list(TRACKERS)
-    out = []
-    for f in range(0, args.frames, 20):
-        row = [f]
-        for n in names:
-            v = np.array([e[f] for e in errs[n]])
-            row.append("-" if not np.isfinite(v).any() else
-                       f"{np.nanmean(v):.3f} [{np.nanmin(v):.3f}..{np.nanmax(v):.3f}]")
-        row.append("-" if not np.isfinite(templ[f]) else f"{templ[f]:.3f}")
-        out.append(row)
+    out = every_nth({**errs, "template": [templ]}, args.frames,
+                    lambda v: "-" if not np.isfinite(v).any() else
+                    f"{np.nanmean(v):.3f}" + (f" [{np.nanmin(v):.3f}..{np.nanmax(v):.3f}]" if v.size > 1 else ""))
     print("\nlandmark NME every 20th frame, mean over runs [min..max]")
     print(table(out, ["frame", *names, "template in true box"]))
     for n in names:
