@@ -39,10 +39,11 @@ from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
 
-#: G-flow settings under which it is constrained optic flow (sec. 4; gflow_core.gflow.special_cases)
+#: G-flow settings under which it is constrained optic flow (sec. 4; gflow_core.gflow.special_cases),
+#: with the parts of the pose prior and texture model the special case has no place for switched off
 OPTIC_FLOW = {"n_experts": 1, "n_samples": 1, "alpha": 0.0, "psi_v": 1e6, "v_init_var": 1e-3, "background": False,
               "prior_std_rotation": math.inf, "prior_std_translation": math.inf, "prior_std_coefficients": math.inf,
-              "prior_rotation_decay": 1.0}
+              "prior_rotation_decay": 1.0, "texture_decay": 1.0, "reset_rate": 0.0, "morph_prior": math.inf}
 
 
 def perturbed_box(box, seed: int) -> list[float]:

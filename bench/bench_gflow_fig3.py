@@ -27,7 +27,6 @@ shaded) is written to ``--plot``.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 import time
 from pathlib import Path
@@ -38,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import every_nth, scratch, table  # noqa: E402
-from bench_gflow_david import perturbed_box  # noqa: E402  (the same seeded start errors)
+from bench_gflow_david import OPTIC_FLOW, perturbed_box  # noqa: E402  (the special case, the same start errors)
 
 from gflow_core.gflow.landmark_error import SCORED_LANDMARKS, landmark_score  # noqa: E402
 from gflow_core.metrics import score  # noqa: E402
@@ -49,11 +48,6 @@ from pipeline.runtime.inline import run_inline  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
 
-#: G-flow settings under which it is constrained optic flow (sec. 4; gflow_core.gflow.special_cases),
-#: with the parts of the pose prior and texture model the special case has no place for switched off
-OPTIC_FLOW = {"n_experts": 1, "n_samples": 1, "alpha": 0.0, "psi_v": 1e6, "background": False,
-              "prior_std_rotation": math.inf, "prior_std_translation": math.inf, "prior_std_coefficients": math.inf,
-              "prior_rotation_decay": 1.0, "texture_decay": 1.0, "reset_rate": 0.0, "morph_prior": math.inf}
 TRACKERS = {"G-flow (20 experts)": {"n_experts": 20}, "constrained optic flow": OPTIC_FLOW}
 
 
