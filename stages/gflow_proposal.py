@@ -136,6 +136,8 @@ class GFlowProposalStage(Stage):
         if isinstance(feat, Features):
             try:
                 grey, frame = frame_of(feat, seq, self.setup.image_shape if self.setup else None)
+                if self.setup is not None:
+                    frame = self.setup.observation(grey)
             except StageInputError as e:
                 self.report("bad_features", f"{e}; no proposals for this frame", seq)
         elif self.init_seq is not None:
@@ -189,7 +191,8 @@ class GFlowProposalStage(Stage):
         if frame is None:
             return None
         state = ExpertState(poses=st["poses"], tex_mean=st["tex_mean"], tex_var=st["tex_var"], bg_mean=bg_mean,
-                            bg_var=bg_var, log_credibility=st["log_credibility"], image_shape=s.image_shape)
+                            bg_var=bg_var, log_credibility=st["log_credibility"], image_shape=s.image_shape,
+                            tex_anchor=st["tex_anchor"])
         p: GFlowProposalParams = self.params  # type: ignore[assignment]
         rngs = expert_rngs(p.seed, stream_hash(self.ctx.stream), seq, self.indices)
         try:
@@ -210,7 +213,7 @@ class GFlowProposalStage(Stage):
         s = self.setup
         assert s is not None
         t1 = seq - 1
-        prev = self.prev[1].astype(np.float64) / 255.0 if self.prev is not None and self.prev[0] == t1 else None
+        prev = s.observation(self.prev[1]) if self.prev is not None and self.prev[0] == t1 else None
         poses, parents = st["poses"], st["parents"]
         if first or self.bg is None or self.bg_seq != t1 - 1:
             if prev is None:

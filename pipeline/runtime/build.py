@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -20,9 +19,9 @@ def load_resources(plan: Plan, sp: StagePlan) -> dict[str, Any]:
     res: dict[str, Any] = {}
     model = sp.params.get("model")
     if model:
-        from pipeline.io.modelfile import load_model  # imported lazily: only trackers with models need it
+        from pipeline.io.modelfile import load_model, model_path  # imported lazily: only trackers with models
 
-        res["model"] = load_model(Path(plan.base_dir, model))
+        res["model"] = load_model(model_path(model, plan.base_dir))  # a file, or a built-in model's name
     return res
 
 

@@ -148,6 +148,7 @@ class TrackRun:
     live: LiveSummary | None = None  # a live source's figures: skipped, gaps, latency
     confidence: dict[int, float] = field(default_factory=dict)  # the estimates' confidence by frame
     target_states: dict[int, str] = field(default_factory=dict)  # tracked / occluded / lost by frame
+    points: dict = field(default_factory=dict)  # G-flow face: {frame: (landmark ids (n,), points (n, 2))}
 
     def write_csv(self, path: str | Path) -> None:
         """The boxes CSV: frame,x,y,w,h,confidence,state."""
@@ -161,7 +162,8 @@ def track_plan(args) -> tuple[Plan, int | None]:
     """
     tracker = TRACKERS[args.tracker]
     check_tracker_options(args)
-    check_outputs(out=args.out, record=args.record)
+    check_outputs(out=args.out, record=args.record, points_out=getattr(args, "points_out", None))
+    check_points_out(args)
     graph, overrides = tracker.overrides(args)
     source = source_of(args)
     overrides.setdefault("source", {}).update(source_params(source, args))
@@ -203,19 +205,39 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
     frame_of = live.frames if live is not None else {}  # a live run's rows are the camera's frames
     boxes, confidence, target_states = (({frame_of.get(k, k): v for k, v in col.items()})
                                         for col in estimate_columns(est))
+    # a learned face's points, by the reference landmark each vertex came from
+    points = {frame_of.get(k, k): (v.landmarks.array(), v.mean_points.array()) for k, v in est.items()
+              if getattr(v, "landmarks", None) is not None}
     return TrackRun(boxes=boxes, states=[v.state for v in est.values()], confidence=confidence,
                     target_states=target_states,
                     recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
                     temporary=recording.temporary, lines=list(out.lines) + (live.lines() if live else []),
-                    incomplete=out.why if out.incomplete else "", live=live)
+                    incomplete=out.why if out.incomplete else "", live=live, points=points)
+
+
+def check_points_out(args) -> None:
+    """``--points-out`` needs a tracker that reports face points: G-flow with a learned face model."""
+    if not getattr(args, "points_out", None):
+        return
+    if args.tracker != "gflow":
+        raise CliError(f"--points-out writes the face points of --tracker gflow, not of --tracker {args.tracker}")
+    if getattr(args, "model", None) == "ellipsoid":
+        raise CliError("--points-out needs a learned face model (`face`, the default, or one from `gflow learn "
+                       "gflow`); the ellipsoid's vertices are no face landmarks")
 
 
 def cmd_track(args) -> int:
     run = run_track(args)
     run.write_csv(args.out)
+    pts = ""
+    if getattr(args, "points_out", None):
+        from pipeline.io.landmarks import write_points
+
+        write_points(args.points_out, run.points)
+        pts = f"; points: {args.points_out}" + ("" if run.points else " (empty: the model has no landmarks)")
     n, states, info = len(run.boxes), run.states, run.info
     print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
-          f"boxes: {args.out}; recording: {run.kept}")
+          f"boxes: {args.out}{pts}; recording: {run.kept}")
     for line in run.lines:
         print(f"  {line}")
     errs = info.get("errors")
@@ -239,6 +261,9 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
                         "source: a stream URL (rtsp://, http://, tcp://, udp://...) or a camera device /dev/videoN")
     p.add_argument("--init", type=parse_box, required=True, metavar="X,Y,W,H", help="initial box in frame --start")
     p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h,confidence,state)")
+    p.add_argument("--points-out", metavar="CSV",
+                   help="gflow with a face model: every vertex per frame (frame,landmark,x,y; landmark = the "
+                        "reference landmark index it was learned from), for gflow eval --landmarks")
     p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
                    help="tracking method (default appearance; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
