@@ -1,0 +1,153 @@
+"""The protocol every tracker implements: ``observe``, ``init``, ``propose``, ``update``, ``coast``.
+
+Every tracker here is a recursive Bayesian filter run in the design's two stages
+(``docs/architecture.md``):
+
+1. **propose** -- hypotheses for frame ``t`` from the posterior at ``t - 1``: particles drawn
+   from the dynamics, or poses found by optimisation and sampled about their peak (G-flow's
+   Laplace proposals, Marks et al. 2004 eq. 14-16);
+2. **update** -- the posterior at ``t``: the hypotheses weighed by frame ``t``'s likelihood,
+   resampled, and the appearance model updated (G-flow eq. 17, 19, 7-10; M2 eq. 7).
+
+plus **init** (the posterior at the first frame, from the user's box) and **coast** (the
+posterior carried over a frame that could not be used). Each is a pure function of
+``(params, state, inputs, rng)``: it returns new values and never changes its arguments, and
+all its randomness comes from the :class:`FrameRng` it is given, so the same call gives the same
+bits in a test, in the Python API (``gflow.Tracker``), ``--inline`` and the stage processes. The
+stages of ``stages/`` are thin adapters of these calls: they turn messages into arguments and
+results into messages, and hold what travels between processes.
+
+The anchors: Stone Soup's one interface per role with the mathematics in its implementations
+(``Predictor.predict``, ``Updater.update``), filterpy's one object per filter, OpenCV's
+``init(frame, box)`` / ``update(frame)``.
+
+Conventions: points are ``(x, y)`` pixels with the origin at the top-left pixel centre; a box
+is ``(x, y, w, h)``, its top-left corner and its size.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Protocol, TypeVar
+
+import numpy as np
+
+__all__ = ["Box", "Estimate", "FrameRng", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
+
+#: (x, y, w, h) in pixels
+Box = tuple[float, float, float, float]
+
+#: how the tracker judges the target: seen in the box, hidden where it is expected, being searched for
+TARGET_STATES = ("tracked", "occluded", "lost")
+#: which step made an estimate: the first frame, an update with the frame's evidence, a frame coasted over
+PHASES = ("init", "track", "coast")
+
+
+class UnusableFrame(ValueError):
+    """A frame that carries no information for the tracker (uniform, say): the caller coasts over it."""
+
+
+@dataclass(frozen=True)
+class FrameRng:
+    """The random draws of one frame ``t``: generator ``default_rng([seed, stream_hash, t, *path])``.
+
+    ``path`` separates independent draws within the frame: G-flow's expert ``i`` draws from
+    ``stream(i)`` and its resampling from ``stream()``; a particle filter's proposal and filter
+    from ``stream(PURPOSE)`` with a constant of their own. ``stream_hash`` is the CRC-32 of the
+    camera's stream name (``stages.rng.stream_hash``; ``cam0`` in the shipped graphs).
+    """
+
+    seed: int
+    stream_hash: int
+    t: int
+
+    def __post_init__(self) -> None:
+        if self.seed < 0 or self.stream_hash < 0 or self.t < 0:
+            raise ValueError(f"seed, stream hash and frame index must be >= 0, got {self.seed}, {self.stream_hash}, "
+                             f"{self.t}")
+
+    def stream(self, *path: int) -> np.random.Generator:
+        """The generator of one independent draw of this frame."""
+        return np.random.default_rng([int(self.seed), int(self.stream_hash), int(self.t), *(int(p) for p in path)])
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What a tracker reports for one frame.
+
+    Attributes
+    ----------
+    frame : int
+        The frame index ``t``.
+    box : (x, y, w, h) float
+        Where the target is, in pixels.
+    confidence : float in [0, 1]
+        How sure the tracker is that ``box`` holds the target.
+    target_state : {"tracked", "occluded", "lost"}
+        The target as the tracker judges it.
+    phase : {"init", "track", "coast"}
+        ``init`` for the first frame, ``track`` after an update with the frame's evidence,
+        ``coast`` when the frame could not be used and the posterior was only carried over.
+    extras : mapping
+        The tracker's own outputs (G-flow: ``pose``, ``rotation``, ``expert_points``, ...; see
+        each tracker's ``estimate`` docstring). Arrays are read-only.
+    """
+
+    frame: int
+    box: Box
+    confidence: float
+    target_state: str
+    phase: str
+    extras: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.target_state not in TARGET_STATES:
+            raise ValueError(f"target_state must be one of {', '.join(TARGET_STATES)}, got {self.target_state!r}")
+        if self.phase not in PHASES:
+            raise ValueError(f"phase must be one of {', '.join(PHASES)}, got {self.phase!r}")
+
+
+P = TypeVar("P")
+S = TypeVar("S")
+O = TypeVar("O")  # noqa: E741 (the observation)
+Q = TypeVar("Q")
+
+
+class TrackingFilter(Protocol[P, S, O, Q]):
+    """A tracker as a two-stage filter over parameters ``P``, states ``S``, observations ``O`` and
+    proposals ``Q``. The implementations keep no state of their own: everything is in ``S``."""
+
+    #: the tracker's name (``gflow track --tracker NAME``)
+    name: str
+
+    def observe(self, params: P, image: np.ndarray) -> O:
+        """What the tracker reads of a frame (``(H, W, 3)`` BGR or ``(H, W)`` grey uint8).
+
+        Raises :class:`UnusableFrame` for a frame with no information (the caller coasts) and
+        ``ValueError`` for one that is not an image."""
+        ...
+
+    def init(self, params: P, obs: O, box: Box, rng: FrameRng, resources: Mapping[str, Any]) -> tuple[S, Estimate]:
+        """The posterior at the first frame, from the user's ``box``. ``resources`` holds what the
+        caller loaded for the tracker (a learned model, under ``"model"``): the core opens no file."""
+        ...
+
+    def propose(self, params: P, state: S, obs: O, rng: FrameRng, dt: float = 1.0) -> Q:
+        """Hypotheses for frame ``rng.t`` from the posterior ``state`` at the previous frame; ``dt``
+        is the time since that frame in nominal frame periods (1 for files)."""
+        ...
+
+    def update(self, params: P, state: S, proposal: Q, obs: O, rng: FrameRng) -> tuple[S, Estimate]:
+        """The posterior at frame ``rng.t``: ``proposal`` weighed by the evidence of ``obs``."""
+        ...
+
+    def coast(self, params: P, state: S, rng: FrameRng, obs: O | None = None) -> tuple[S, Estimate]:
+        """The posterior carried over frame ``rng.t``, which could not be used (``obs`` is the frame
+        when it was readable but its proposals or update failed)."""
+        ...
+
+
+def step(f: TrackingFilter[P, S, O, Q], params: P, state: S, obs: O, rng: FrameRng,
+         dt: float = 1.0) -> tuple[S, Estimate]:
+    """One frame: ``f.update(params, state, f.propose(params, state, obs, rng, dt), obs, rng)``."""
+    return f.update(params, state, f.propose(params, state, obs, rng, dt), obs, rng)
