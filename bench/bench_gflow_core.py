@@ -19,7 +19,7 @@ import tracemalloc
 
 import numpy as np
 
-from gflow_core.gflow import GFlowConfig, fit_head_model_to_box, init_state, step
+from gflow_core.gflow import paper_config, fit_head_model_to_box, init_state, step
 from gflow_core.gflow.geometry import rotation_angle_deg
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 
@@ -28,7 +28,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=20, help="frames per run (default 20)")
     ap.add_argument("--experts", default="1,20,100", help="comma-separated expert counts")
-    ap.add_argument("--samples", type=int, default=GFlowConfig().n_samples, help="samples per expert")
+    ap.add_argument("--samples", type=int, default=paper_config().n_samples, help="samples per expert")
     args = ap.parse_args()
     rng = np.random.default_rng(2024)
     warm = 2
@@ -36,7 +36,7 @@ def main() -> None:
     model, pose0 = fit_head_model_to_box(seq.box, (240, 320))
     print(
         f"320x240, n={model.n_vertices} vertices, s={args.samples} samples/expert, "
-        f"{GFlowConfig().gn_iterations} Gauss-Newton iterations, {args.frames} timed frames per run"
+        f"{paper_config().gn_iterations} Gauss-Newton iterations, {args.frames} timed frames per run"
     )
     print(
         f"{'experts':>8} {'background':>10} {'ms/frame':>9} {'frames/s':>9} {'rot err':>8} {'px err':>7} "
@@ -44,7 +44,7 @@ def main() -> None:
     )
     for E in (int(v) for v in args.experts.split(",")):
         for bg in (False, True):
-            cfg = GFlowConfig(n_experts=E, n_samples=args.samples, background=bg)
+            cfg = paper_config(n_experts=E, n_samples=args.samples, background=bg)
             state = init_state(model, pose0, seq.frames[0], cfg)
             for t in range(1, warm + 1):
                 state, _ = step(state, seq.frames[t], model, cfg, seed=7, t=t)

@@ -3,7 +3,8 @@
 Inputs: ``features`` of frame t (the grey image is ``y_t``) and ``state``, the experts
 after frame t - 1 (:class:`ExpertStates` from the filter; ``input_offsets = {"state": 1}``
 joins it with frame t). Output: ``proposals`` (:class:`PoseProposals`) of this stage's
-shard of experts for frame t. For each expert ``d`` of the shard
+shard of experts for frame t. The stage is an adapter of
+:meth:`gflow_core.gflow.GFlowTracker.propose`; for each expert ``d`` of the shard
 (:func:`gflow_core.gflow.propose`):
 
 * the peak ``u_hat`` of its pose opinion by Gauss-Newton on eq. 14 and the Laplace
@@ -37,37 +38,31 @@ No usable frame t or no state t - 1: the stage publishes an *empty* proposal mes
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Any, Mapping
 
 import msgspec
 import numpy as np
 
-from gflow_core.gflow import ExpertState, expert_rngs, propose
+from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, GFlowState, ModelSetup, Proposals
 from gflow_core.gflow.background import TileLayout, TiledBackground
 from gflow_core.gflow.filter import advance_background, initial_background, predict_background
+from gflow_core.gflow.tracker import TRACKER
 
-from .base import Output, Stage, StageInputError
-from .gflow_common import (
-    GFlowParams,
-    ModelSetup,
-    frame_of,
-    prepare_model,
-    proposals_msg,
-    shard_indices,
-    unpack_states,
-)
+from .base import Output, Stage, StageContext, StageInputError
+from .gflow_common import GFlowStageFields, frame_of, prepare, proposals_msg, shard_indices, unpack_states
 from .messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
-from .rng import stream_hash
+from .rng import tracker_rng
 from .time_step import time_step
+from .tracker_params import stage_params, tracker_params
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 
 SNAPSHOT_VERSION = 2  # 2: the background replica as distinct tiles (1: dense (E, H, W) arrays)
 
 
-class GFlowProposalParams(GFlowParams):
-    """The G-flow parameters (:class:`~stages.gflow_common.GFlowParams`, equal to the
-    filter's) and which shard of the experts this stage proposes for.
+class GFlowProposalFields(GFlowStageFields):
+    """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the filter's), the
+    seed, the initial box, and which shard of the experts this stage proposes for.
 
     shard : index of this shard, ``0 <= shard < shards``.
     shards : number of proposal stages the experts are split across (``<= n_experts``).
@@ -76,12 +71,15 @@ class GFlowProposalParams(GFlowParams):
     shard: int = 0
     shards: int = 1
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if not 1 <= self.shards <= self.n_experts:
-            raise ValueError(f"shards must be in [1, n_experts={self.n_experts}], got {self.shards}")
+    def check(self, tracker: Any) -> None:
+        super().check(tracker)
+        if not 1 <= self.shards <= tracker.n_experts:
+            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {self.shards}")
         if not 0 <= self.shard < self.shards:
             raise ValueError(f"shard must be in [0, shards={self.shards}), got {self.shard}")
+
+
+GFlowProposalParams = stage_params("GFlowProposalParams", GFlowParams, GFlowProposalFields, __name__)
 
 
 class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -110,17 +108,20 @@ class GFlowProposalStage(Stage):
     drivers = frozenset({"features"})
     input_offsets = {"state": 1}
 
-    def __init__(self, params: GFlowProposalParams, ctx) -> None:
+    def __init__(self, params: GFlowProposalFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        self.indices = shard_indices(params.n_experts, params.shard, params.shards)
+        self.fields = params
+        self.tracker: GFlowParams = tracker_params(params, GFlowParams)
+        self.indices = shard_indices(self.tracker.n_experts, params.shard, params.shards)
         self.setup: ModelSetup | None = None
+        self.digest = ""
         self.init_seq: int | None = None
         self.prev: tuple[int, np.ndarray] | None = None  # (seq, grey uint8) of the last usable frame
-        self.bg: tuple[np.ndarray, np.ndarray] | None = None
+        self.bg: tuple[Any, Any] | None = None
         self.bg_seq = -1
         self.steps = 0
         self.init_error = ""
-        self.last: dict = {}
+        self.last: dict[str, Any] = {}
 
     def required(self, seq: int) -> frozenset[str]:
         # before (and at) the frame the filter starts from there is no state to wait for
@@ -130,55 +131,53 @@ class GFlowProposalStage(Stage):
 
     # -- one frame ---------------------------------------------------------------------------
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        p: GFlowProposalParams = self.params  # type: ignore[assignment]
         feat = inputs.get("features")
-        grey = frame = None
+        obs = None
         if isinstance(feat, Features):
             try:
-                grey, frame = frame_of(feat, seq, self.setup.image_shape if self.setup else None)
-                if self.setup is not None:
-                    frame = self.setup.observation(grey)
+                obs = frame_of(feat, seq, self.tracker, self.setup.image_shape if self.setup else None)
             except StageInputError as e:
                 self.report("bad_features", f"{e}; no proposals for this frame", seq)
         elif self.init_seq is not None:
             self.report("missing_features", f"frame {seq}: no features arrived; no proposals for this frame", seq)
         if self.init_seq is None:
-            self._initialise(seq, grey)
+            self._initialise(seq, obs)
             return []
         assert self.setup is not None
         header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
-        out = self._propose(seq, frame, inputs.get("state"), header.stamp_ns)
-        if grey is not None:
-            self.prev = (seq, grey)
+        out = self._propose(seq, obs, inputs.get("state"), header.stamp_ns)
+        if obs is not None:
+            self.prev = (seq, obs.grey)
         self.steps += 1
-        msg = proposals_msg(header, out, p.shard, p.shards, self.setup.digest)
+        msg = proposals_msg(header, out, self.fields.shard, self.fields.shards, self.digest)
         self.last = {"seq": seq, "experts": int(self.indices.size) if out is not None else 0}
         return [("proposals", msg)]
 
-    def _initialise(self, seq: int, grey: np.ndarray | None) -> None:
-        """Build the model on the first usable frame, as the filter does on the same frame."""
-        if grey is None:
+    def _initialise(self, seq: int, obs: GFlowObservation | None) -> None:
+        """Place the model on the first usable frame, as the filter does on the same frame."""
+        if obs is None:
             return
         try:
-            self.setup = prepare_model(self.params, self.ctx.resources, grey.shape)  # type: ignore[arg-type]
-        except (StageInputError, ValueError) as e:
+            self.setup, self.digest = prepare(self.fields, self.tracker, self.ctx.resources, obs.grey.shape)
+        except StageInputError as e:
             if str(e) != self.init_error:  # say it once, not on every frame
                 self.init_error = str(e)
                 self.report("init_failed", f"frame {seq}: {e}", seq)
             return
         self.init_seq = seq
-        self.prev = (seq, grey)
+        self.prev = (seq, obs.grey)
 
-    def _propose(self, seq: int, frame: np.ndarray | None, state_msg: Message | None, stamp_ns: int = 0):
+    def _propose(self, seq: int, obs: GFlowObservation | None, state_msg: Message | None,
+                 stamp_ns: int = 0) -> Proposals | None:
         """Advance the background replica to t - 1, then propose for frame t (None: no proposals)."""
-        assert self.setup is not None
         s = self.setup
+        assert s is not None
         if not isinstance(state_msg, ExpertStates):
             self.report("missing_state", f"frame {seq}: the expert state of frame {seq - 1} did not arrive; "
                                          f"no proposals for this frame", seq)
             return None
         try:
-            st = unpack_states(state_msg, s, f"expert state {seq - 1}")
+            st = unpack_states(state_msg, s, self.digest, f"expert state {seq - 1}")
         except StageInputError as e:
             self.report("bad_state", f"{e}; no proposals for frame {seq}", seq)
             return None
@@ -188,27 +187,20 @@ class GFlowProposalStage(Stage):
                 return None
             assert self.bg is not None
             bg_mean, bg_var = self.bg
-        if frame is None:
+        if obs is None:
             return None
-        state = ExpertState(poses=st["poses"], tex_mean=st["tex_mean"], tex_var=st["tex_var"], bg_mean=bg_mean,
-                            bg_var=bg_var, log_credibility=st["log_credibility"], image_shape=s.image_shape,
-                            tex_anchor=st["tex_anchor"])
-        p: GFlowProposalParams = self.params  # type: ignore[assignment]
-        rngs = expert_rngs(p.seed, stream_hash(self.ctx.stream), seq, self.indices)
+        experts = ExpertState(poses=st["poses"], tex_mean=st["tex_mean"], tex_var=st["tex_var"], bg_mean=bg_mean,
+                              bg_var=bg_var, log_credibility=st["log_credibility"], image_shape=s.image_shape,
+                              tex_anchor=st["tex_anchor"])
         try:
             dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
-            props = propose(state, frame, s.model, s.cfg, rngs, self.indices, dt)
+            return TRACKER.propose(self.tracker, GFlowState(s, experts), obs,
+                                   tracker_rng(self.fields.seed, self.ctx.stream, seq), dt, self.indices)
         except (ValueError, np.linalg.LinAlgError) as e:
             self.report("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals", seq)
             return None
-        bad = [f for f in ("u_hat", "sigma_hat", "samples", "log_weights", "log_evidence", "gn_objective")
-               if not np.isfinite(getattr(props, f)).all()]
-        if bad:
-            self.report("propose_failed", f"frame {seq}: non-finite {', '.join(bad)}; no proposals", seq)
-            return None
-        return props
 
-    def _advance_background(self, seq: int, st: dict, first: bool) -> bool:
+    def _advance_background(self, seq: int, st: dict[str, Any], first: bool) -> bool:
         """Bring the replica from frame t - 2 to t - 1 (eq. 7-10). False if it cannot be had."""
         s = self.setup
         assert s is not None
@@ -236,16 +228,16 @@ class GFlowProposalStage(Stage):
         return True
 
     # -- state ------------------------------------------------------------------------------------
-    def summary(self) -> dict:
-        return dict(self.last, steps=self.steps, shard=f"{self.params.shard}/{self.params.shards}",  # type: ignore[attr-defined]
+    def summary(self) -> dict[str, Any]:
+        return dict(self.last, steps=self.steps, shard=f"{self.fields.shard}/{self.fields.shards}",
                     background_at=self.bg_seq)
 
     def snapshot(self) -> bytes:
         bank = None if self.bg is None else self.bg[0].bank
         snap = _Snapshot(
             version=SNAPSHOT_VERSION,
-            image_shape=None if self.setup is None else tuple(self.setup.image_shape),  # type: ignore[arg-type]
-            digest="" if self.setup is None else self.setup.digest,
+            image_shape=None if self.setup is None else self.setup.image_shape,
+            digest=self.digest,
             init_seq=-1 if self.init_seq is None else self.init_seq,
             prev_seq=-1 if self.prev is None else self.prev[0],
             prev_grey=None if self.prev is None else NDArray.of(self.prev[1]),
@@ -264,19 +256,22 @@ class GFlowProposalStage(Stage):
             raise ValueError(f"not a gflow.proposal snapshot: {e}") from None
         if snap.version != SNAPSHOT_VERSION:
             raise ValueError(f"gflow.proposal snapshot version {snap.version}, this code reads {SNAPSHOT_VERSION}")
-        self.setup = None
+        self.setup, self.digest = None, ""
         if snap.image_shape is not None:
-            self.setup = prepare_model(self.params, self.ctx.resources, snap.image_shape)  # type: ignore[arg-type]
-            if self.setup.digest != snap.digest:
+            try:
+                self.setup, self.digest = prepare(self.fields, self.tracker, self.ctx.resources, snap.image_shape)
+            except StageInputError as e:
+                raise ValueError(str(e)) from None
+            if self.digest != snap.digest:
                 raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
-                                 f"{snap.digest}, this stage has {self.setup.digest})")
+                                 f"{snap.digest}, this stage has {self.digest})")
         try:
             self.prev = None if snap.prev_grey is None else (snap.prev_seq, snap.prev_grey.array().copy())
             self.bg = None
             if snap.bg_table is not None and snap.bg_mean is not None and snap.bg_var is not None:
                 if self.setup is None:
                     raise ValueError("corrupt gflow.proposal snapshot: a background replica without a frame size")
-                bank = TiledBackground(TileLayout(tuple(self.setup.image_shape), snap.bg_tile),  # type: ignore[arg-type]
+                bank = TiledBackground(TileLayout(self.setup.image_shape, snap.bg_tile),
                                        snap.bg_table.array().astype(np.int32), snap.bg_mean.array().copy(),
                                        snap.bg_var.array().copy())
                 if bank.n_experts != self.setup.cfg.n_experts:

@@ -8,7 +8,9 @@ import zlib
 
 import numpy as np
 
-__all__ = ["stream_hash", "frame_rng"]
+from gflow_core.tracker import FrameRng
+
+__all__ = ["stream_hash", "frame_rng", "tracker_rng"]
 
 
 def stream_hash(stream: str) -> int:
@@ -21,3 +23,9 @@ def frame_rng(seed: int, stream: str, seq: int, purpose: int) -> np.random.Gener
     if seed < 0 or seq < 0:
         raise ValueError(f"seed and seq must be non-negative, got seed={seed}, seq={seq}")
     return np.random.default_rng([seed, stream_hash(stream), seq, purpose])
+
+
+def tracker_rng(seed: int, stream: str, seq: int) -> FrameRng:
+    """The draws of one frame for a tracker of :mod:`gflow_core.tracker`: ``FrameRng(seed,
+    stream_hash(stream), seq)``, whose ``stream(purpose)`` is :func:`frame_rng`'s generator."""
+    return FrameRng(int(seed), stream_hash(stream), int(seq))

@@ -12,8 +12,9 @@ from gflow_core.gflow.geometry import TRANS, project, rotation_angle_deg
 from gflow_core.gflow.head_model import bounding_box
 from gflow_scenes import SYNTH, Cycle, features_msg, payloads, plan_for, pose_estimates, render_folder
 from pipeline.runtime.inline import run_inline
-from stages.gflow_common import config_of
+from gflow_core.gflow import GFlowParams
 from stages.gflow_filter import GFlowFilterParams
+from stages.tracker_params import tracker_params
 from stages.rng import stream_hash
 
 FRAMES = 16
@@ -35,8 +36,9 @@ def test_inline_pipeline_is_the_core_filter_bit_for_bit(scene, tmp_path) -> None
     run_inline(plan, recording=str(tmp_path / "run.mcap"))
     est = pose_estimates(tmp_path / "run.mcap")
     assert sorted(est) == list(range(FRAMES))
-    cfg = config_of(msgspec.convert(plan.stages["filter"].params, GFlowFilterParams))
+    params_ = tracker_params(msgspec.convert(plan.stages["filter"].params, GFlowFilterParams), GFlowParams)
     model, pose0 = fit_head_model_to_box(seq.box, frames.shape[1:])
+    cfg = params_.config(model, pose0)
     state = init_state(model, pose0, frames[0], cfg)
     assert est[0].state == "init" and np.allclose(est[0].box, bounding_box(project(model.bases, pose0)))
     for t in range(1, FRAMES):
@@ -94,24 +96,6 @@ def test_tracks_a_rendered_head_with_known_pose(tmp_path) -> None:
           f"(standing still: {still_rot.mean():.1f} deg, {still_px.mean():.1f} px)")
     assert rot.mean() < 6.0 and rot.max() < 12.0 and px.mean() < 1.5 and px.max() < 3.0
     assert still_rot.mean() > 2 * 6.0 and still_px.mean() > 4 * 1.5  # the bounds do reject a tracker that sits still
-
-
-def test_stage_parameters_mirror_the_core_config_defaults() -> None:
-    """The stages' G-flow parameters are declared field by field next to GFlowConfig; they must
-    not drift apart (same names, same defaults)."""
-    import dataclasses
-
-    import msgspec
-
-    from gflow_core.gflow.filter import GFlowConfig
-    from stages import gflow_common
-
-    params = next(c for c in vars(gflow_common).values()
-                  if isinstance(c, type) and issubclass(c, msgspec.Struct) and "n_experts" in getattr(c, "__struct_fields__", ()))
-    p_defaults = {f.name: f.default for f in msgspec.structs.fields(params)}
-    for f in dataclasses.fields(GFlowConfig):
-        assert f.name in p_defaults, f"GFlowConfig.{f.name} has no stage parameter"
-        assert p_defaults[f.name] == f.default, f"default of {f.name}: stage {p_defaults[f.name]!r} vs core {f.default!r}"
 
 
 def test_the_proposal_snapshot_holds_its_background_replica_compactly(scene) -> None:

@@ -11,8 +11,12 @@ Pure numpy / scipy / OpenCV; no I/O. Modules:
 * :mod:`.pose_opinion` -- eq. 13, 14, 16: Gauss-Newton, Laplace proposal, weights.
 * :mod:`.credibility` -- eq. 17, 19, resampling (sec. 3.4), posterior summaries.
 * :mod:`.filter` -- :func:`init_state`, :func:`propose`, :func:`update`.
+* :mod:`.params` -- :class:`GFlowParams`, the tracker's parameters and their defaults; presets
+  :data:`PAPER` and :data:`ELLIPSOID`.
+* :mod:`.tracker` -- :class:`GFlowTracker`, G-flow on the protocol of :mod:`gflow_core.tracker`
+  (what it reads of a frame, the model placed in the box, the estimate, coasting).
 * :mod:`.special_cases` -- constrained optic flow (eq. 21), template matching (eq. 22).
-* :mod:`.render` -- synthetic textured-head sequences for tests and benchmarks.
+* :mod:`.synthetic_head` -- synthetic textured-head sequences for tests and benchmarks.
 """
 
 from .filter import (
@@ -38,9 +42,20 @@ from .head_model import (
     model_to_arrays,
     pose_for_box,
 )
+from .params import ELLIPSOID, PAPER, GFlowParams, paper_config
+from .tracker import GFlowObservation, GFlowState, GFlowTracker, ModelSetup, model_setup
 
 __all__ = [
     "COEF",
+    "ELLIPSOID",
+    "PAPER",
+    "GFlowParams",
+    "GFlowObservation",
+    "GFlowState",
+    "GFlowTracker",
+    "ModelSetup",
+    "model_setup",
+    "paper_config",
     "N_RIGID",
     "ROT",
     "TRANS",

@@ -26,7 +26,7 @@ Departures from the paper
   (the same arithmetic, so the two agree).
 * ``resample_ess_fraction < 1`` resamples only when the ESS of the credibilities is
   below that fraction of ``E`` (otherwise each expert keeps its credibility as a
-  weight and picks its own child pose). The default ``1.0`` resamples at every frame,
+  weight and picks its own child pose). ``1.0`` resamples at every frame,
   as in sec. 3.4.
 * Texels never observed get the finite variance ``unknown_var`` rather than infinity:
   object texels whose vertex is outside the first frame, and background texels under
@@ -35,8 +35,8 @@ Departures from the paper
 * Vertices outside the image sample the replicated border (see :mod:`.image`).
 * Self-occlusion is not modelled (every vertex is assumed visible, as in the paper's
   one-to-one ``a_v``).
-* Robustness options (off by default in :class:`GFlowConfig`, on in the graph
-  ``pipeline/graphs/gflow.yaml``): coarse-to-fine Gauss-Newton with a coarse translation
+* Robustness options (off in the paper's settings, :data:`.params.PAPER`; on in the tracker's,
+  :class:`.params.GFlowParams`): coarse-to-fine Gauss-Newton with a coarse translation
   search (``pyramid_levels``, ``search_radius``), a per-frame gain and bias in the texture
   observation (``photometric``; the texel Kalman update then observes ``(y - b) / a``), a
   soft wall on the rotation (``max_rotation_deg``) and an outlier process per vertex
@@ -115,9 +115,12 @@ def _as_std_tuple(name: str, v, n: int | None) -> tuple[float, ...]:
     return t
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class GFlowConfig:
     """Parameters of the G-flow filter (no seed: randomness is passed in).
+
+    Made by :meth:`.params.GFlowParams.config`, where the defaults live (the shipped tracker's;
+    :func:`.params.paper_config` gives the paper's filter).
 
     Attributes
     ----------
@@ -145,7 +148,7 @@ class GFlowConfig:
         background terms are dropped), as in the paper's experiments (sec. 5).
     gn_background : bool
         Gauss-Newton includes the first background term of eq. 14, as in the paper
-        (sec. 3.2.2). Default False: foreground and prior only; see :mod:`.pose_opinion`.
+        (sec. 3.2.2). False: foreground and prior only; see :mod:`.pose_opinion`.
     object_mask : {"hull", "vertices"}
         Pixels rendered by the object, excluded from the background update (:mod:`.texture`).
     object_mask_margin : float
@@ -163,7 +166,7 @@ class GFlowConfig:
     prior_rotation_decay : float in (0, 1]
         ``a`` of the pose prior's mean: the rotation of ``u_{t-1}`` shrunk toward the
         identity, ``exp(a log r_{t-1})`` (:func:`.pose_opinion.prior_mean`); ``1`` = a pure
-        random walk (default).
+        random walk (the paper).
     resample_ess_fraction : float in (0, 1]
         Resample experts when ESS < fraction * E; ``1`` = every frame (sec. 3.4).
     pyramid_levels : int >= 1
@@ -187,10 +190,10 @@ class GFlowConfig:
         ``tau``: a vertex whose residual exceeds ``tau`` standard deviations is an outlier
         (:func:`.pose_opinion.robust_cost`): capped cost in Gauss-Newton and the likelihood, and
         its texel is not updated (prediction only), so an occluder is not learned into the
-        texture. ``inf`` = the paper's Gaussian (default).
+        texture. ``inf`` = the paper's Gaussian.
     max_scale_change : float > 1
         Soft wall on the scale ``|c|`` outside ``[|c_0| / max, |c_0| max]``
-        (:func:`.pose_opinion.scale_wall`); ``inf`` = none (default).
+        (:func:`.pose_opinion.scale_wall`); ``inf`` = none (the paper).
     scale_reference : tuple of float
         ``c_0``, the initial morph coefficients, needed by ``max_scale_change`` (the G-flow
         stages set it from the initial box; empty = no wall).
@@ -202,48 +205,48 @@ class GFlowConfig:
         from a learned model's ``morph_std``.
     texture_decay : float in (0, 1]
         ``a``: the object texels revert toward the first frame's look, ``V_t - v_1 = a (V_{t-1} - v_1) +
-        Z`` (:func:`.texture.anchored_predict`); ``1`` = the paper's random walk (default).
+        Z`` (:func:`.texture.anchored_predict`); ``1`` = the paper's random walk.
     reset_rate, reset_std_deg, reset_min_deg : float
         The pose transition's rotation is a mixture: the random walk with probability ``1 - reset_rate``,
         a Gaussian of std ``reset_std_deg`` about the frontal orientation with probability ``reset_rate``;
         experts turned by at least ``reset_min_deg`` also try a peak started frontal
-        (:class:`.pose_opinion.RotationReset`). ``reset_rate = 0`` = the random walk alone (default).
+        (:class:`.pose_opinion.RotationReset`). ``reset_rate = 0`` = the random walk alone (the paper).
     """
 
-    n_experts: int = 20
-    n_samples: int = 10
-    alpha: float = 1.0
-    gn_iterations: int = 5
-    sigma_w: float = 1e-3
-    psi_v: float = 1e-4
-    psi_b: float = 1e-4
-    v_init_var: float = 1e-3
-    b_init_var: float = 1e-3
-    unknown_var: float = 1.0
-    background: bool = False
-    gn_background: bool = False
-    object_mask: str = "hull"
-    object_mask_margin: float = 0.2
-    prior_std_rotation: float | tuple[float, ...] = 0.1
-    prior_std_translation: float | tuple[float, ...] = 10.0
-    prior_std_coefficients: float | tuple[float, ...] = 2.0
-    resample_ess_fraction: float = 1.0
-    prior_rotation_decay: float = 1.0
-    pyramid_levels: int = 1
-    search_radius: float = 0.0
-    search_step: float = 4.0
-    photometric: bool = False
-    photometric_gain_max: float = 2.0
-    max_rotation_deg: float = math.inf
-    search_stride: int = 1
-    outlier_sigmas: float = math.inf
-    max_scale_change: float = math.inf
-    scale_reference: tuple[float, ...] = ()
-    morph_prior_std: tuple[float, ...] = ()
-    texture_decay: float = 1.0
-    reset_rate: float = 0.0
-    reset_std_deg: float = 20.0
-    reset_min_deg: float = 10.0
+    n_experts: int
+    n_samples: int
+    alpha: float
+    gn_iterations: int
+    sigma_w: float
+    psi_v: float
+    psi_b: float
+    v_init_var: float
+    b_init_var: float
+    unknown_var: float
+    background: bool
+    gn_background: bool
+    object_mask: str
+    object_mask_margin: float
+    prior_std_rotation: float | tuple[float, ...]
+    prior_std_translation: float | tuple[float, ...]
+    prior_std_coefficients: float | tuple[float, ...]
+    resample_ess_fraction: float
+    prior_rotation_decay: float
+    pyramid_levels: int
+    search_radius: float
+    search_step: float
+    photometric: bool
+    photometric_gain_max: float
+    max_rotation_deg: float
+    search_stride: int
+    outlier_sigmas: float
+    max_scale_change: float
+    scale_reference: tuple[float, ...]
+    morph_prior_std: tuple[float, ...]
+    texture_decay: float
+    reset_rate: float
+    reset_std_deg: float
+    reset_min_deg: float
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):

@@ -23,13 +23,12 @@ different points of the flat rotation/translation valley.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 
 from .filter import GFlowConfig
 from .geometry import box_plus, project, projection_jacobian
 from .image import bilinear_stencil, prepare_frame
+from .params import paper_config
 
 __all__ = ["constrained_optic_flow", "template_matching", "optic_flow_config", "template_matching_config"]
 
@@ -107,32 +106,15 @@ def constrained_optic_flow(
 
 
 def optic_flow_config(**overrides) -> GFlowConfig:
-    """G-flow settings under which it is constrained optic flow (sec. 4)."""
-    base = GFlowConfig(
-        n_experts=1,
-        n_samples=1,
-        alpha=0.0,
-        psi_v=1e6,
-        v_init_var=1e-3,
-        background=False,
-        prior_std_rotation=np.inf,
-        prior_std_translation=np.inf,
-        prior_std_coefficients=np.inf,
-    )
-    return replace(base, **overrides)
+    """G-flow settings under which it is constrained optic flow (sec. 4): the paper's filter
+    (:data:`.params.PAPER`) with one expert at the peak, ``Psi_v -> infinity`` and no pose prior."""
+    return paper_config(**{**dict(n_experts=1, n_samples=1, alpha=0.0, psi_v=1e6, v_init_var=1e-3, background=False,
+                                  prior_std_rotation=np.inf, prior_std_translation=np.inf,
+                                  prior_std_coefficients=np.inf), **overrides})
 
 
 def template_matching_config(**overrides) -> GFlowConfig:
     """G-flow settings under which it is template matching (sec. 4): ``Var(V_1) = 0``, ``Psi_v = 0``."""
-    base = GFlowConfig(
-        n_experts=1,
-        n_samples=1,
-        alpha=0.0,
-        psi_v=0.0,
-        v_init_var=0.0,
-        background=False,
-        prior_std_rotation=np.inf,
-        prior_std_translation=np.inf,
-        prior_std_coefficients=np.inf,
-    )
-    return replace(base, **overrides)
+    return paper_config(**{**dict(n_experts=1, n_samples=1, alpha=0.0, psi_v=0.0, v_init_var=0.0, background=False,
+                                  prior_std_rotation=np.inf, prior_std_translation=np.inf,
+                                  prior_std_coefficients=np.inf), **overrides})

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.gflow import GFlowConfig, expert_rngs, fit_head_model_to_box, init_state, propose, step
+from gflow_core.gflow import paper_config, expert_rngs, fit_head_model_to_box, init_state, propose, step
 from gflow_core.gflow import background, pose_opinion
 from gflow_core.gflow.background import TileLayout, TiledBackground
 from gflow_core.gflow.image import bilinear_stencil
@@ -79,7 +79,7 @@ def test_the_replica_of_many_experts_is_a_fraction_of_the_dense_arrays() -> None
     """30 experts resampled every frame on a moving head: the distinct tiles are those near the head."""
     seq = synthetic_sequence(np.random.default_rng(3), 8, (120, 160))
     model, pose0 = fit_head_model_to_box(seq.box, seq.frames.shape[1:])
-    cfg = GFlowConfig(n_experts=30, n_samples=4, background=True)
+    cfg = paper_config(n_experts=30, n_samples=4, background=True)
     state = init_state(model, pose0, seq.frames[0], cfg)
     for t in range(1, 8):
         state, _ = step(state, seq.frames[t], model, cfg, seed=1, t=t)
@@ -92,7 +92,7 @@ def test_the_replica_of_many_experts_is_a_fraction_of_the_dense_arrays() -> None
 def test_the_search_in_blocks_equals_one_batch(monkeypatch) -> None:
     seq = synthetic_sequence(np.random.default_rng(5), 3, (120, 160))
     model, pose0 = fit_head_model_to_box(seq.box, seq.frames.shape[1:])
-    cfg = GFlowConfig(n_experts=9, n_samples=3, background=True, pyramid_levels=2, search_radius=8.0,
+    cfg = paper_config(n_experts=9, n_samples=3, background=True, pyramid_levels=2, search_radius=8.0,
                       search_step=4.0, photometric=True, outlier_sigmas=3.0, max_rotation_deg=30.0)
     state = init_state(model, pose0, seq.frames[0], cfg)
     outs = []

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.gflow import GFlowConfig, init_state, step
+from gflow_core.gflow import paper_config, init_state, step
 from gflow_core.gflow.face_pose import expression
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 
@@ -35,7 +35,7 @@ def test_the_sequence_changes_its_expression(seq) -> None:
 
 
 def test_gflow_follows_the_expression_coefficient(seq) -> None:
-    cfg = GFlowConfig(n_experts=10, n_samples=8, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4)
+    cfg = paper_config(n_experts=10, n_samples=8, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4)
     state = init_state(seq.model, seq.poses[0], seq.frames[0], cfg)
     got = []
     for t in range(1, len(seq.frames)):

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from gflow_core.gflow import GFlowConfig, init_state, propose, update
+from gflow_core.gflow import paper_config, init_state, propose, update
 from gflow_core.gflow.filter import expert_rngs
 from gflow_core.gflow.geometry import make_pose, rotation_angle_deg
 from gflow_core.gflow.image import local_contrast
@@ -23,7 +23,7 @@ def _log_normal(x, m, s):
 
 
 def test_morph_prior_is_the_normalised_product_of_walk_and_stationary_factor() -> None:
-    cfg = GFlowConfig(prior_std_coefficients=(0.5, 0.2, 0.3), morph_prior_std=(1.0, 2.0))
+    cfg = paper_config(prior_std_coefficients=(0.5, 0.2, 0.3), morph_prior_std=(1.0, 2.0))
     a, std = cfg.morph_shrink(3), cfg.prior_std(3)[5:]
     assert a[0] == 1.0 and std[0] == 0.5  # the scale keeps its random walk
     prev = 1.7
@@ -34,9 +34,9 @@ def test_morph_prior_is_the_normalised_product_of_walk_and_stationary_factor() -
         np.testing.assert_allclose(diff, diff[0], atol=1e-12)
     u = make_pose(None, [0, 0], [60.0, 3.0, -2.0])
     np.testing.assert_allclose(prior_mean(u, 1.0, a)[5:], [60.0, 3.0 * a[1], -2.0 * a[2]])
-    assert GFlowConfig().morph_shrink(3) is None
+    assert paper_config().morph_shrink(3) is None
     with pytest.raises(ValueError, match="k - 1 = 1"):
-        GFlowConfig(morph_prior_std=(1.0, 2.0)).prior_std(2)
+        paper_config(morph_prior_std=(1.0, 2.0)).prior_std(2)
 
 
 def test_texels_revert_toward_the_first_look() -> None:
@@ -92,7 +92,7 @@ def test_a_turned_expert_comes_back_to_frontal_with_the_reset(head) -> None:
     turned = make_pose(np.array([0.0, math.radians(25.0), 0.0]), true[3:5], true[5:])
     angles = {}
     for rate in (0.0, 0.01):
-        cfg = GFlowConfig(reset_rate=rate, **base)
+        cfg = paper_config(reset_rate=rate, **base)
         st = init_state(seq.model, true, seq.frames[0], cfg)  # texels of the frontal head
         st = type(st)(**{**st.__dict__, "poses": turned[None].copy()})
         props = propose(st, seq.frames[1], seq.model, cfg, expert_rngs(0, 0, 1, [0]))
@@ -102,7 +102,7 @@ def test_a_turned_expert_comes_back_to_frontal_with_the_reset(head) -> None:
 
 def test_confidence_falls_when_the_face_is_covered(head) -> None:
     seq = head
-    cfg = GFlowConfig(n_experts=4, n_samples=4, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4)
+    cfg = paper_config(n_experts=4, n_samples=4, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4)
     st = init_state(seq.model, seq.poses[0], seq.frames[0], cfg)
     covered = seq.frames[1].copy()
     x, y, w, h = seq.box

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gflow_core.gflow import (
-    GFlowConfig,
+    paper_config,
     concatenate_proposals,
     expert_rngs,
     fit_head_model_to_box,
@@ -54,11 +54,11 @@ def model_pose(seq):
 )
 def test_config_validation(kw, match) -> None:
     with pytest.raises(ValueError, match=match):
-        GFlowConfig(**kw)
+        paper_config(**kw)
 
 
 def test_prior_std_follows_the_pose_layout() -> None:
-    cfg = GFlowConfig(prior_std_rotation=(0.1, 0.2, 0.3), prior_std_translation=4.0, prior_std_coefficients=(1.0, 2.0))
+    cfg = paper_config(prior_std_rotation=(0.1, 0.2, 0.3), prior_std_translation=4.0, prior_std_coefficients=(1.0, 2.0))
     np.testing.assert_array_equal(cfg.prior_std(2), [0.1, 0.2, 0.3, 4.0, 4.0, 1.0, 2.0])
     with pytest.raises(ValueError, match="k=3"):
         cfg.prior_std(3)
@@ -68,7 +68,7 @@ def test_prior_std_follows_the_pose_layout() -> None:
 @pytest.mark.parametrize("background", [False, True])
 def test_sharded_proposals_equal_unsharded_bit_for_bit(seq, model_pose, background: bool) -> None:
     model, pose0 = model_pose
-    cfg = GFlowConfig(n_experts=7, n_samples=5, background=background)
+    cfg = paper_config(n_experts=7, n_samples=5, background=background)
     state = init_state(model, pose0, seq.frames[0], cfg, rng=np.random.default_rng(3), pose_jitter_std=0.05)
     full = propose(state, seq.frames[1], model, cfg, expert_rngs(11, 22, 1, range(7)))
     shards = ([4, 0, 6], [1], [2, 3, 5])
@@ -84,7 +84,7 @@ def test_sharded_proposals_equal_unsharded_bit_for_bit(seq, model_pose, backgrou
 
 def test_same_seed_same_result_and_inputs_are_not_modified(seq, model_pose) -> None:
     model, pose0 = model_pose
-    cfg = GFlowConfig(n_experts=5, n_samples=4, background=True)
+    cfg = paper_config(n_experts=5, n_samples=4, background=True)
     state = init_state(model, pose0, seq.frames[0], cfg)
     before = np.asarray(state.bg_mean), state.tex_mean.copy(), state.poses.copy()
     a = step(state, seq.frames[1], model, cfg, seed=1, t=1)
@@ -103,7 +103,7 @@ def test_same_seed_same_result_and_inputs_are_not_modified(seq, model_pose) -> N
 @pytest.mark.parametrize("value", [0.0, 1.0])
 def test_black_and_saturated_frames_give_no_nans(seq, model_pose, background: bool, value: float) -> None:
     model, pose0 = model_pose
-    cfg = GFlowConfig(n_experts=4, n_samples=3, background=background)
+    cfg = paper_config(n_experts=4, n_samples=3, background=background)
     state = init_state(model, pose0, np.full(seq.frames.shape[1:], value), cfg)
     for t in range(1, 4):
         frame = np.full(seq.frames.shape[1:], value) if t != 2 else seq.frames[t]
@@ -119,7 +119,7 @@ def test_black_and_saturated_frames_give_no_nans(seq, model_pose, background: bo
 
 def test_estimate_contents(seq, model_pose) -> None:
     model, pose0 = model_pose
-    cfg = GFlowConfig(n_experts=6, n_samples=4)
+    cfg = paper_config(n_experts=6, n_samples=4)
     state = init_state(model, pose0, seq.frames[0], cfg)
     state, est = step(state, seq.frames[1], model, cfg, seed=0, t=1)
     n = model.n_vertices
@@ -134,7 +134,7 @@ def test_estimate_contents(seq, model_pose) -> None:
 
 def test_no_resampling_above_the_ess_threshold_keeps_credibilities(seq, model_pose) -> None:
     model, pose0 = model_pose
-    cfg = GFlowConfig(n_experts=5, n_samples=4, resample_ess_fraction=1e-9)
+    cfg = paper_config(n_experts=5, n_samples=4, resample_ess_fraction=1e-9)
     state = init_state(model, pose0, seq.frames[0], cfg)
     new, est = step(state, seq.frames[1], model, cfg, seed=0, t=1)
     assert not est.resampled
@@ -144,7 +144,7 @@ def test_no_resampling_above_the_ess_threshold_keeps_credibilities(seq, model_po
 
 def test_bad_input_raises_clear_errors(seq, model_pose) -> None:
     model, pose0 = model_pose
-    cfg = GFlowConfig(n_experts=3, n_samples=2)
+    cfg = paper_config(n_experts=3, n_samples=2)
     f0 = seq.frames[0]
     with pytest.raises(ValueError, match="pose0 must have last dimension"):
         init_state(model, pose0[:5], f0, cfg)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.gflow import GFlowConfig, make_pose
+from gflow_core.gflow import paper_config, make_pose
 from gflow_core.gflow.geometry import TRANS, COEF, rotation_angle_deg
 from gflow_core.gflow.pose_opinion import log_pose_prior, prior_mean
 
@@ -30,7 +30,7 @@ def test_decay_shrinks_the_rotation_angle_and_keeps_the_rest() -> None:
 
 def test_the_prior_density_peaks_at_its_mean() -> None:
     prev = make_pose([0.0, 0.6, 0.0], [5.0, 5.0], [40.0])[None]
-    std = GFlowConfig(prior_std_rotation=0.05).prior_std(1)
+    std = paper_config(prior_std_rotation=0.05).prior_std(1)
     m = prior_mean(prev, 0.95)
     cands = np.stack([m[0], prev[0], make_pose([0.0, 0.55, 0.0], [5.0, 5.0], [40.0])])[None]
     lp = log_pose_prior(m, cands, std)[0]
@@ -40,4 +40,4 @@ def test_the_prior_density_peaks_at_its_mean() -> None:
 @pytest.mark.parametrize("a", [0.0, -0.5, 1.5, float("nan")])
 def test_decay_outside_its_range_is_refused(a: float) -> None:
     with pytest.raises(ValueError, match="prior_rotation_decay"):
-        GFlowConfig(prior_rotation_decay=a)
+        paper_config(prior_rotation_decay=a)

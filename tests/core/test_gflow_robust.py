@@ -3,10 +3,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import numpy as np
 import pytest
 
-from gflow_core.gflow.filter import GFlowConfig, init_state, step
+from gflow_core.gflow import paper_config
+from gflow_core.gflow.filter import init_state, step
 from gflow_core.gflow.geometry import ROT, TRANS, box_plus, make_pose
 from gflow_core.gflow.head_model import fit_head_to_box
 from gflow_core.gflow.image import frame_pyramid, prepare_frame
@@ -126,7 +128,7 @@ def test_robust_filter_shards_equal_one_batch() -> None:
     from gflow_core.gflow.filter import concatenate_proposals, expert_rngs, propose
 
     model, start, _, frame, _ = _scene(20.0)
-    cfg = GFlowConfig(n_experts=4, n_samples=3, pyramid_levels=3, search_radius=16.0, search_step=8.0,
+    cfg = paper_config(n_experts=4, n_samples=3, pyramid_levels=3, search_radius=16.0, search_step=8.0,
                       photometric=True, max_rotation_deg=30.0, outlier_sigmas=3.0, max_scale_change=1.5,
                       scale_reference=tuple(start[0, 5:]))
     st = init_state(model, start[0], frame, cfg, rng=np.random.default_rng(0), pose_jitter_std=1.0)
@@ -144,7 +146,7 @@ def test_config_rejects_bad_robust_options() -> None:
                {"max_rotation_deg": 0.0}, {"search_stride": 0}, {"max_scale_change": 1.0}, {"outlier_sigmas": 0.0},
                {"search_radius": 100.0, "search_step": 1.0}):
         with pytest.raises(ValueError, match=next(iter(kw)).split("_")[0]):
-            GFlowConfig(**kw)
+            paper_config(**kw)
 
 
 def test_outlier_process_caps_the_cost_and_ignores_an_occluded_patch() -> None:
@@ -168,7 +170,7 @@ def test_outlier_process_caps_the_cost_and_ignores_an_occluded_patch() -> None:
 
 def test_outlier_texels_are_not_updated() -> None:
     model, start, _, frame, _ = _scene(0.0)
-    cfg = GFlowConfig(n_experts=2, n_samples=2, alpha=0.0, outlier_sigmas=3.0)
+    cfg = paper_config(n_experts=2, n_samples=2, alpha=0.0, outlier_sigmas=3.0)
     st = init_state(model, start[0], frame, cfg)
     occluded = frame.copy()
     occluded[30:60, 60:90] = 0.0
@@ -196,14 +198,15 @@ def test_scale_wall_is_zero_inside_and_its_gradient_is_right() -> None:
     assert scale_wall(inside, None)[0][0] == 0.0
 
 
-def test_stages_set_the_scale_reference_from_the_initial_box() -> None:
-    from stages.gflow_common import GFlowParams, prepare_model
+def test_the_scale_wall_is_relative_to_the_initial_box() -> None:
+    from gflow_core.gflow import PAPER, GFlowParams, model_setup
+    from gflow_core.params import make
 
-    p = GFlowParams(init=(40.0, 30.0, 30.0, 40.0), max_scale_change=1.5)
-    setup = prepare_model(p, {}, (120, 160))
+    box = (40.0, 30.0, 30.0, 40.0)
+    setup = model_setup(make(GFlowParams, PAPER, max_scale_change=1.5), box, (120, 160))
     assert setup.cfg.scale_reference == (pytest.approx(40.0),)
     assert setup.cfg.scale_limits() == (pytest.approx(40.0), pytest.approx(np.log(1.5)))
-    assert prepare_model(GFlowParams(init=(40.0, 30.0, 30.0, 40.0)), {}, (120, 160)).cfg.scale_limits() is None
+    assert model_setup(make(GFlowParams, PAPER), box, (120, 160)).cfg.scale_limits() is None
 
 
 def test_copied_experts_and_one_expert_shards_equal_one_batch() -> None:
@@ -213,7 +216,7 @@ def test_copied_experts_and_one_expert_shards_equal_one_batch() -> None:
     from gflow_core.gflow.filter import ExpertState, concatenate_proposals, expert_rngs, propose
 
     model, start, _, frame, _ = _scene(20.0)
-    cfg = GFlowConfig(n_experts=4, n_samples=3, pyramid_levels=3, search_radius=32.0, search_step=8.0,
+    cfg = paper_config(n_experts=4, n_samples=3, pyramid_levels=3, search_radius=32.0, search_step=8.0,
                       photometric=True, max_rotation_deg=30.0, outlier_sigmas=3.0, max_scale_change=1.5,
                       scale_reference=tuple(start[0, 5:]))
     st = init_state(model, start[0], frame, cfg, rng=np.random.default_rng(0), pose_jitter_std=1.0)
@@ -221,7 +224,7 @@ def test_copied_experts_and_one_expert_shards_equal_one_batch() -> None:
     rows = np.array([0, 0, 0, 1, 1, 3])
     st = ExpertState(poses=st.poses[rows], tex_mean=st.tex_mean[rows], tex_var=st.tex_var[rows], bg_mean=None,
                      bg_var=None, log_credibility=np.full(6, -np.log(6)), image_shape=st.image_shape)
-    cfg = GFlowConfig(**{**{f: getattr(cfg, f) for f in cfg.__dataclass_fields__}, "n_experts": 6})
+    cfg = dataclasses.replace(cfg, n_experts=6)
     whole = propose(st, frame, model, cfg, expert_rngs(1, 0, 1, range(6)))
     assert np.array_equal(whole.u_hat[0], whole.u_hat[2]) and not np.array_equal(whole.u_hat[0], whole.u_hat[5])
     alone = concatenate_proposals([propose(st, frame, model, cfg, expert_rngs(1, 0, 1, [i]), [i]) for i in range(6)])

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.gflow import GFlowConfig, fit_head_model_to_box, init_state, step
+from gflow_core.gflow import GFlowConfig, paper_config, fit_head_model_to_box, init_state, step
 from gflow_core.gflow.geometry import TRANS, rotation_angle_deg
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 
@@ -66,7 +66,7 @@ def test_a_tracker_that_stands_still_fails_the_bounds(seq) -> None:
 
 @pytest.mark.parametrize("background", [False, True])
 def test_gflow_tracks_the_synthetic_head(seq, background: bool) -> None:
-    cfg = GFlowConfig(n_experts=10, n_samples=8, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4, background=background)
+    cfg = paper_config(n_experts=10, n_samples=8, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4, background=background)
     e = track(seq, cfg)
     report(f"G-flow, 10 experts, background {'on' if background else 'off'}", e)
     assert within_bounds(e)

@@ -1,0 +1,177 @@
+"""The G-flow tracker's parameters: :class:`GFlowParams`, the only place their defaults live.
+
+The defaults are the shipped tracker's: the built-in face model (``docs/faces.md``) with the
+departures from the paper listed in ``docs/trackers.md`` switched on (coarse-to-fine Gauss-Newton
+with a translation search, soft walls on rotation and scale, an outlier process per vertex,
+contrast-normalised frames, texels reverting toward the first look, a morph prior and a frontal
+reset). Two presets name other settings in one place:
+
+* :data:`PAPER` -- the filter of Marks, Hershey, Roddey & Movellan (NIPS 2004) as written: every
+  departure off, the generic head. Its special cases (constrained optic flow, template
+  matching, :mod:`.special_cases`) start from it.
+* :data:`ELLIPSOID` -- the generic rigid head fitted into the box (``gflow track --model
+  ellipsoid``): a flatter head, the paper's grey levels with a gain and bias per frame.
+
+:meth:`GFlowParams.config` turns the parameters into the :class:`.filter.GFlowConfig` that
+:func:`.filter.propose` and :func:`.filter.update` read, with the settings that depend on the
+model and the initial pose (the scale wall's reference, the morph prior's spreads) filled in.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any, Literal, Mapping
+
+import numpy as np
+
+from ..params import make, param
+from .filter import GFlowConfig
+from .geometry import COEF
+from .head_model import MorphableModel
+
+__all__ = ["GFlowParams", "PAPER", "ELLIPSOID", "CONFIG_FIELDS", "paper_config"]
+
+#: the fields of :class:`GFlowConfig`, parameters of the same names
+CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(GFlowConfig))
+
+
+@dataclass(frozen=True)
+class GFlowParams:
+    """Every setting of the G-flow tracker, with the shipped tracker's defaults.
+
+    Grey levels are in ``[0, 1]``, so variances are in those units squared; equation numbers are
+    the paper's. Each field's help text is in its declaration; ``gflow info gflow`` prints them
+    all. Raises ``ValueError`` naming the first parameter it refuses.
+    """
+
+    n_experts: int = param(20, "number of experts E", option="--experts")
+    n_samples: int = param(10, "pose samples s per expert (sec. 3.2.2)", option="--samples")
+    alpha: float = param(1.0, "sharpness of the Laplace proposal N(u_hat, alpha Sigma_hat); 0 = the peak",
+                         option="--alpha")
+    gn_iterations: int = param(5, "Gauss-Newton steps per frame (eq. 14)")
+    sigma_w: float = param(1e-2, "observation noise variance sigma_w (eq. 4)")
+    psi_v: float = param(1e-3, "process noise variance of the object texels Psi_v (eq. 4)")
+    psi_b: float = param(1e-4, "process noise variance of the background texels Psi_b (eq. 4)")
+    v_init_var: float = param(1e-3, "Var(V_1) of the object texels at the first frame (0: a known template)")
+    b_init_var: float = param(1e-3, "Var(B_1) of the background pixels visible in the first frame")
+    unknown_var: float = param(1.0, "variance of texels not observed at the first frame")
+    background: bool = param(False, "model the background texture, one Kalman filter per pixel and expert "
+                                    "(off: uninformative background, as in the paper's experiments)",
+                             option="--background")
+    gn_background: bool = param(False, "Gauss-Newton includes the first background term of eq. 14")
+    object_mask: Literal["hull", "vertices"] = param("hull", "pixels the object covers, kept out of the "
+                                                             "background update: its hull or its vertices")
+    object_mask_margin: float = param(0.2, "the hull enlarged by this fraction about its centre")
+    prior_std_rotation: float | tuple[float, ...] = param(0.05, "std of the pose random walk per frame, rotation "
+                                                                "(radians; one or 3 numbers; inf: none)")
+    prior_std_translation: float | tuple[float, ...] = param(5.0, "std of the pose random walk per frame, "
+                                                                  "translation (px; one or 2 numbers)")
+    prior_std_coefficients: float | tuple[float, ...] = param(0.2, "std of the pose random walk per frame, morph "
+                                                                   "coefficients (one or k numbers)")
+    resample_ess_fraction: float = param(1.0, "resample the experts when their ESS < this fraction of E "
+                                              "(1: every frame, sec. 3.4)")
+    prior_rotation_decay: float = param(0.98, "the prior's mean rotation decays toward the initial one at this "
+                                              "rate per frame (1: the paper's random walk)")
+    pyramid_levels: int = param(3, "coarse-to-fine levels of Gauss-Newton (1: the paper's single scale)")
+    search_radius: float = param(32.0, "translation search on the coarsest level, px (0: none)")
+    search_step: float = param(8.0, "spacing of the translation search, px")
+    photometric: bool = param(False, "a gain and bias per expert and frame (the ellipsoid's setting: on)")
+    photometric_gain_max: float = param(2.0, "the gain is clamped to [1 / max, max]")
+    max_rotation_deg: float = param(70.0, "soft wall on the head's rotation from its initial orientation, "
+                                          "degrees (inf: none)")
+    search_stride: int = param(1, "the translation search evaluates every this-many-th vertex")
+    outlier_sigmas: float = param(3.0, "a vertex beyond this many standard deviations is an outlier: a constant "
+                                       "cost, its texel not updated (inf: none)")
+    max_scale_change: float = param(1.5, "soft wall on the scale outside [1 / max, max] times the initial box's "
+                                         "(inf: none)")
+    scale_reference: tuple[float, ...] = param((), "the initial morph coefficients the scale wall is relative "
+                                                   "to (empty: from the initial box)")
+    morph_prior_std: tuple[float, ...] = param((), "stds of the morph prior on c_2..c_k (empty: from "
+                                                   "morph_prior and the model)")
+    texture_decay: float = param(0.9, "texels revert toward the first look at this rate per frame (1: the "
+                                      "paper's random walk)")
+    reset_rate: float = param(0.01, "probability a frame's pose transition turns the head back to frontal")
+    reset_std_deg: float = param(20.0, "std of the frontal reset's rotation, degrees")
+    reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "
+                                       "degrees")
+    morph_prior: float = param(0.5, "expressions held near the model's training spread: std morph_prior * "
+                                    "spread * c_1 (inf: the paper's random walk)")
+    contrast_sigma: float = param(5.0, "frames are local-contrast normalised over this many pixels (0: raw "
+                                       "grey levels)")
+    model: str = param("face", "the morphable model: face (built in), a file from `gflow learn gflow`, or "
+                               "empty for the generic ellipsoid head fitted into the box")
+    depth_ratio: float = param(1.0, "generic head only: depth semi-axis over width semi-axis")
+    head_grid: tuple[int, int] = param((15, 15), "generic head only: (longitudes, latitudes) of its vertices")
+    init_jitter: tuple[float, float, float] = param(
+        (0.0, 0.0, 0.0), "std of the experts' initial poses about the box's: rotation (rad), translation (px), "
+                         "morph coefficients (fraction)")
+    occluded_below: float = param(0.6, "the target is occluded when the fraction of vertices the frame "
+                                       "explains falls below this")
+    lost_below: float = param(0.3, "the target is lost when that fraction falls below this")
+
+    def __post_init__(self) -> None:
+        self.config()  # every check of GFlowConfig
+        if not (math.isfinite(self.depth_ratio) and self.depth_ratio > 0):
+            raise ValueError(f"depth_ratio must be positive, got {self.depth_ratio}")
+        if not (math.isfinite(self.contrast_sigma) and self.contrast_sigma >= 0):
+            raise ValueError(f"contrast_sigma must be finite and >= 0 (0 = off), got {self.contrast_sigma}")
+        if math.isnan(self.morph_prior) or self.morph_prior <= 0:
+            raise ValueError(f"morph_prior must be > 0 (inf = none), got {self.morph_prior}")
+        if len(self.head_grid) != 2 or min(self.head_grid) < 2:
+            raise ValueError(f"head_grid must be at least (2, 2), got {self.head_grid}")
+        if len(self.init_jitter) != 3 or not all(math.isfinite(v) and v >= 0 for v in self.init_jitter):
+            raise ValueError(f"init_jitter must be three finite numbers >= 0, got {self.init_jitter}")
+        if not 0.0 <= self.lost_below <= self.occluded_below <= 1.0:
+            raise ValueError(f"need 0 <= lost_below <= occluded_below <= 1, got {self.lost_below}, "
+                             f"{self.occluded_below}")
+
+    def config(self, model: MorphableModel | None = None, pose0: np.ndarray | None = None) -> GFlowConfig:
+        """The filter's configuration; with the model and its initial pose ``(P,)``, the settings that
+        depend on them filled in.
+
+        * ``max_scale_change`` finite and no ``scale_reference``: the reference is ``c_0``, the
+          initial pose's morph coefficients (the wall is relative to the initial box's scale);
+        * ``morph_prior`` finite, no ``morph_prior_std`` and a learned model with ``k > 1``:
+          ``m_j = morph_prior * morph_std_j * |c_1|`` at the initial pose.
+
+        Raises ``ValueError`` for settings that do not fit the model (the coefficient stds' length).
+        """
+        cfg = GFlowConfig(**{f: getattr(self, f) for f in CONFIG_FIELDS})
+        if model is None:
+            return cfg
+        if pose0 is None:
+            raise ValueError("config(model) needs the initial pose too")
+        cfg.prior_std(model.n_bases)  # the coefficient stds must match k
+        if math.isfinite(cfg.max_scale_change) and not cfg.scale_reference:
+            cfg = dataclasses.replace(cfg, scale_reference=tuple(float(v) for v in pose0[COEF]))
+        if (math.isfinite(self.morph_prior) and not cfg.morph_prior_std and model.morph_std is not None
+                and model.n_bases > 1):
+            # m_j = morph_prior * (training spread of c_j / c_1) * c_1 at the initial box
+            m = self.morph_prior * np.maximum(model.morph_std[1:], 1e-9) * abs(float(pose0[COEF][0]))
+            cfg = dataclasses.replace(cfg, morph_prior_std=tuple(float(v) for v in m))
+        cfg.prior_std(model.n_bases)  # the morph prior's length must match k too
+        return cfg
+
+
+#: the paper's filter: every departure off, the generic head (with :class:`GFlowParams`'s other defaults)
+PAPER: Mapping[str, Any] = MappingProxyType({
+    "sigma_w": 1e-3, "psi_v": 1e-4, "prior_std_rotation": 0.1, "prior_std_translation": 10.0,
+    "prior_std_coefficients": 2.0, "prior_rotation_decay": 1.0, "pyramid_levels": 1, "search_radius": 0.0,
+    "search_step": 4.0, "max_rotation_deg": math.inf, "outlier_sigmas": math.inf, "max_scale_change": math.inf,
+    "texture_decay": 1.0, "reset_rate": 0.0, "morph_prior": math.inf, "contrast_sigma": 0.0, "model": "",
+})
+
+#: the generic rigid head fitted into the box (``--model ellipsoid``): a flatter head, the paper's grey levels
+#: with a gain and bias per frame, texels as a random walk, rotation within 30 degrees
+ELLIPSOID: Mapping[str, Any] = MappingProxyType({
+    "model": "", "depth_ratio": 0.6, "sigma_w": 1e-3, "psi_v": 3e-4, "texture_decay": 1.0, "contrast_sigma": 0.0,
+    "photometric": True, "reset_rate": 0.0, "max_rotation_deg": 30.0,
+})
+
+
+def paper_config(**changes: Any) -> GFlowConfig:
+    """The :class:`GFlowConfig` of the paper's filter (:data:`PAPER`) with ``changes``."""
+    return make(GFlowParams, PAPER, **changes).config()

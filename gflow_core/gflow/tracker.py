@@ -1,0 +1,346 @@
+"""G-flow as a :class:`gflow_core.tracker.TrackingFilter`: one frame is :meth:`GFlowTracker.propose`
+(each expert's pose opinion, eq. 14-16, 19) then :meth:`GFlowTracker.update` (credibility,
+resampling, texel update, eq. 17, 19, sec. 3.4, eq. 7-10), on :mod:`.filter`.
+
+Around the filter of :mod:`.filter` this module holds what the tracker adds: what it reads of a
+frame (:meth:`GFlowTracker.observe`: grey levels / 255, local-contrast normalised), the model
+placed in the user's box (:func:`model_setup`), the estimate it reports (the box that follows a
+learned face, the confidence and the target's state) and coasting over a frame it cannot use.
+
+Random draws (:class:`gflow_core.tracker.FrameRng` of frame ``t``): expert ``i`` proposes from
+``stream(i)``, the update resamples from ``stream()``, and the experts' initial jitter (first
+frame only) comes from ``stream(PURPOSE_INIT)``. So proposals made for any partition of the
+experts (the pipeline's shards) concatenate to those of one call, bit for bit.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from ..features import to_grey
+from ..tracker import Box, Estimate, FrameRng, UnusableFrame
+from .credibility import ess, pose_spread, posterior_mean_pose
+from .face_pose import expression, following_box, yaw_pitch_roll
+from .filter import (
+    ExpertState,
+    GFlowConfig,
+    Proposals,
+    advance_background,
+    init_state,
+    predict_background,
+    predict_texels,
+    propose,
+    update,
+)
+from .geometry import COEF, project, rotation_matrices
+from .head_model import MorphableModel, bounding_box, fit_head_model_to_box, pose_for_box
+from .image import local_contrast
+from .params import GFlowParams
+
+__all__ = ["GFlowTracker", "GFlowState", "GFlowObservation", "ModelSetup", "model_setup", "clip_box",
+           "observation", "PURPOSE_INIT", "TRACKER"]
+
+#: ``FrameRng.stream`` path of the experts' initial jitter
+PURPOSE_INIT = 0x6F10
+_PROPOSAL_ARRAYS = ("u_hat", "sigma_hat", "samples", "log_weights", "log_evidence", "gn_objective")
+
+
+def clip_box(box: Sequence[float], shape: tuple[int, int]) -> tuple[np.ndarray, bool]:
+    """The initial box clipped to the image ``[-0.5, W - 0.5] x [-0.5, H - 0.5]``.
+
+    Returns
+    -------
+    box : (4,) float64, (x, y, w, h)
+    clipped : bool, True if the box had to be cut.
+
+    Raises
+    ------
+    ValueError
+        When less than 1 x 1 pixel of the box lies in the image.
+    """
+    H, W = shape
+    x, y, w, h = (float(v) for v in box)
+    x0, y0 = max(x, -0.5), max(y, -0.5)
+    x1, y1 = min(x + w, W - 0.5), min(y + h, H - 0.5)
+    if x1 - x0 < 1.0 or y1 - y0 < 1.0:
+        raise ValueError(f"initial box (x={x:g}, y={y:g}, w={w:g}, h={h:g}) lies outside the {W}x{H} frame "
+                         f"(x must overlap [-0.5, {W - 0.5}] and y [-0.5, {H - 0.5}] by at least a pixel)")
+    out = np.array([x0, y0, x1 - x0, y1 - y0])
+    return out, bool(not np.allclose(out, [x, y, w, h]))
+
+
+def observation(grey: np.ndarray, contrast_sigma: float = 0.0) -> np.ndarray:
+    """What G-flow observes of a grey uint8 frame ``(H, W)``: grey levels / 255, local-contrast
+    normalised when ``contrast_sigma > 0`` (:func:`.image.local_contrast`), ``(H, W)`` float64."""
+    y = grey.astype(np.float64) / 255.0
+    return local_contrast(y, contrast_sigma) if contrast_sigma > 0 else y
+
+
+@dataclass(frozen=True)
+class ModelSetup:
+    """The model placed in the user's box on frames of one size, and the configuration it implies.
+
+    Attributes
+    ----------
+    model : MorphableModel
+    pose0 : (P,) float64, the initial pose (its projection fills the clipped box).
+    cfg : GFlowConfig, with the scale wall's reference and the morph prior filled in.
+    box : (4,) float64, the initial box actually used (clipped to the frame).
+    clipped : bool, whether the box had to be clipped.
+    image_shape : (H, W)
+    contrast_sigma : float, the frames' local contrast normalisation (0: none).
+    """
+
+    model: MorphableModel
+    pose0: np.ndarray
+    cfg: GFlowConfig
+    box: np.ndarray
+    clipped: bool
+    image_shape: tuple[int, int]
+    contrast_sigma: float = 0.0
+
+    def observation(self, grey: np.ndarray) -> np.ndarray:
+        """``y_t`` of a grey uint8 frame (:func:`observation` with this run's ``contrast_sigma``)."""
+        return observation(grey, self.contrast_sigma)
+
+
+def model_setup(params: GFlowParams, box: Sequence[float], shape: tuple[int, int],
+                model: Any = None) -> ModelSetup:
+    """Place the model in ``box`` on frames of ``shape`` (the proposal and the filter stages both do
+    this, identically).
+
+    Parameters
+    ----------
+    params : GFlowParams
+    box : (x, y, w, h), clipped to the frame.
+    shape : (H, W)
+    model : MorphableModel or None
+        A learned model (``params.model`` loaded by the caller), placed in the box as it sat on the
+        training faces (:func:`.head_model.pose_for_box`); None: the generic ellipsoid head fitted
+        into the box (``depth_ratio``, ``head_grid``).
+
+    Raises
+    ------
+    ValueError
+        A box outside the frame, a ``model`` that is not a morphable model, or one that does not
+        fit the configuration (``prior_std_coefficients`` of the wrong length).
+    """
+    clipped_box, clipped = clip_box(box, shape)
+    try:
+        if model is not None:
+            if not isinstance(model, MorphableModel):
+                raise ValueError(f"the model file {params.model!r} holds a {type(model).__name__}; G-flow needs a "
+                                 f"morphable model (model file kind 'morphable')")
+            pose0 = pose_for_box(model, clipped_box, shape)
+        else:
+            model, pose0 = fit_head_model_to_box(clipped_box, shape, n_lon=params.head_grid[0],
+                                                 n_lat=params.head_grid[1], depth_ratio=params.depth_ratio)
+        cfg = params.config(model, pose0)
+    except ValueError as e:
+        raise ValueError(f"cannot place the G-flow model in the initial box {tuple(clipped_box.round(2))}: {e}") \
+            from None
+    return ModelSetup(model, pose0, cfg, clipped_box, clipped, (int(shape[0]), int(shape[1])), params.contrast_sigma)
+
+
+@dataclass(frozen=True)
+class GFlowObservation:
+    """What G-flow reads of one frame.
+
+    Attributes
+    ----------
+    grey : (H, W) uint8, the frame's grey levels.
+    y : (H, W) float64, ``y_t`` (:func:`observation`).
+    """
+
+    grey: np.ndarray
+    y: np.ndarray
+
+
+@dataclass(frozen=True)
+class GFlowState:
+    """The posterior after a frame: the experts, the model they use, and how the target was judged.
+
+    Attributes
+    ----------
+    setup : ModelSetup
+    experts : ExpertState
+        With the backgrounds when ``cfg.background`` and the caller keeps them (the pipeline's
+        filter stage does not: its proposal stages do).
+    confidence : float, of the last frame with evidence.
+    target_state : str, of the last frame with evidence.
+    """
+
+    setup: ModelSetup
+    experts: ExpertState
+    confidence: float = 1.0
+    target_state: str = "tracked"
+
+
+class GFlowTracker:
+    """G-flow's :class:`gflow_core.tracker.TrackingFilter` (stateless: everything is in
+    :class:`GFlowState`)."""
+
+    name = "gflow"
+    Params = GFlowParams
+
+    # -- inputs ---------------------------------------------------------------------------------
+    def observe(self, params: GFlowParams, image: np.ndarray) -> GFlowObservation:
+        """The grey frame (``features.to_grey`` of a BGR or grey image) and ``y_t``.
+
+        Raises
+        ------
+        UnusableFrame
+            A uniform frame (all black, saturated or any single grey level): it carries no
+            information about the pose and would overwrite the textures.
+        ValueError
+            Not an image of at least 2 x 2 pixels.
+        """
+        grey = to_grey(image) if np.ndim(image) == 3 else np.asarray(image)
+        return self.observe_grey(params, grey)
+
+    def observe_grey(self, params: GFlowParams, grey: np.ndarray) -> GFlowObservation:
+        """:meth:`observe` of a frame already in grey levels ``(H, W)`` uint8."""
+        if grey.ndim != 2 or grey.dtype != np.uint8 or min(grey.shape) < 2:
+            raise ValueError(f"grey image must be (H, W) uint8 of at least 2x2 pixels, got {grey.dtype} {grey.shape}")
+        lo, hi = int(grey.min()), int(grey.max())
+        if lo == hi:
+            raise UnusableFrame(f"every pixel is {lo} (a blank or saturated frame carries no information about the "
+                                f"pose, and would overwrite the textures)")
+        return GFlowObservation(grey=grey, y=observation(grey, params.contrast_sigma))
+
+    # -- the filter -----------------------------------------------------------------------------
+    def init(self, params: GFlowParams, obs: GFlowObservation, box: Box, rng: FrameRng,
+             resources: Mapping[str, Any], *, backgrounds: bool = True) -> tuple[GFlowState, Estimate]:
+        """The experts at the first frame: the model placed in ``box``, every expert at that pose
+        (jittered by ``init_jitter``: the paper initialises them "randomly near the correct pose",
+        sec. 5), texels read from the frame with ``Var(V_1) = v_init_var``.
+
+        ``backgrounds=False`` keeps no background textures even with ``background`` on (the
+        pipeline's filter stage, whose proposal stages keep them).
+
+        Raises ``ValueError`` (:func:`model_setup`) when the model cannot be placed in ``box``.
+        """
+        setup = model_setup(params, box, obs.grey.shape, resources.get("model"))
+        jitter = None
+        draw = None
+        if any(v > 0 for v in params.init_jitter):
+            r, tr, c = params.init_jitter
+            # std of the tangent-space jitter: (rotation x 3, translation x 2, |c0| * fraction)
+            jitter = np.concatenate([np.full(3, r), np.full(2, tr), c * np.abs(setup.pose0[COEF])])
+            draw = rng.stream(PURPOSE_INIT)
+        cfg = setup.cfg if backgrounds else dataclasses.replace(setup.cfg, background=False)
+        experts = init_state(setup.model, setup.pose0, obs.y, cfg, rng=draw, pose_jitter_std=jitter)
+        state = GFlowState(setup, experts)
+        return state, self.summary_estimate(state, rng.t, "init")
+
+    def propose(self, params: GFlowParams, state: GFlowState, obs: GFlowObservation, rng: FrameRng,
+                dt: float = 1.0, experts: np.ndarray | None = None) -> Proposals:
+        """Pose opinions (sec. 3.2) and likelihoods (eq. 19) of the experts ``experts`` (default:
+        all), each from its own generator ``rng.stream(i)`` (:func:`.filter.propose`).
+
+        Raises ``ValueError`` (or ``numpy.linalg.LinAlgError``) when the proposals cannot be made or
+        are not finite.
+        """
+        s = state.setup
+        idx = np.arange(state.experts.n_experts, dtype=np.int64) if experts is None else np.asarray(experts)
+        props = propose(state.experts, obs.y, s.model, s.cfg, [rng.stream(int(i)) for i in idx], idx, dt)
+        bad = [f for f in _PROPOSAL_ARRAYS if not np.isfinite(getattr(props, f)).all()]
+        if bad:
+            raise ValueError(f"non-finite {', '.join(bad)}")
+        return props
+
+    def update(self, params: GFlowParams, state: GFlowState, proposal: Proposals, obs: GFlowObservation,
+               rng: FrameRng) -> tuple[GFlowState, Estimate]:
+        """Credibility (eq. 17, 19), resampling from ``rng.stream()`` (sec. 3.4) and the texel update
+        (eq. 7-10) (:func:`.filter.update`); the confidence is the fraction of vertices the frame
+        explains as the object (``Estimate.inlier_fraction``), below ``occluded_below`` the target
+        is occluded, below ``lost_below`` lost."""
+        s = state.setup
+        new, est = update(state.experts, proposal, obs.y, s.model, s.cfg, rng.stream())
+        conf = min(max(est.inlier_fraction, 0.0), 1.0)
+        judged = "lost" if conf < params.lost_below else "occluded" if conf < params.occluded_below else "tracked"
+        out = GFlowState(s, new, conf, judged)
+        return out, self.estimate(out, rng.t, "track", est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
+                                  est.expert_points, est.mean_points, est.bbox, est.log_credibility, est.parents,
+                                  est.resampled)
+
+    def coast(self, params: GFlowParams, state: GFlowState, rng: FrameRng,
+              obs: GFlowObservation | None = None) -> tuple[GFlowState, Estimate]:
+        """No evidence from frame ``rng.t``: poses and credibilities kept, texels predicted only (eq. 9,
+        10). Backgrounds, when kept, are updated with ``obs`` at the kept poses (the frame was seen)
+        or only predicted (it was not)."""
+        s, st = state.setup, state.experts
+        E = st.n_experts
+        # Var(V_t | u_{1:t-1}, y_{1:t-1}) = Var(V_{t-1} | ...) + Psi_v   (eq. 10); mean unchanged (eq. 9)
+        # (or reverting toward the first look, texture_decay < 1)
+        tex_mean, tex_var = (np.array(a) for a in predict_texels(st, np.arange(E), s.cfg))
+        tex_mean.setflags(write=False)
+        tex_var.setflags(write=False)
+        bg_mean, bg_var = st.bg_mean, st.bg_var
+        if bg_mean is not None and bg_var is not None:
+            parents = np.arange(E, dtype=np.int64)
+            if obs is not None:
+                bg_mean, bg_var = advance_background(bg_mean, bg_var, st.poses, parents, obs.y, s.model, s.cfg)
+            else:
+                bg_mean, bg_var = predict_background(bg_mean, bg_var, parents, s.cfg)
+        out = dataclasses.replace(state, experts=dataclasses.replace(st, tex_mean=tex_mean, tex_var=tex_var,
+                                                                     bg_mean=bg_mean, bg_var=bg_var))
+        return out, self.summary_estimate(out, rng.t, "coast")
+
+    # -- the estimate ---------------------------------------------------------------------------
+    def summary_estimate(self, state: GFlowState, t: int, phase: str) -> Estimate:
+        """The estimate of experts with no new observation (first frame, coasting): the posterior
+        mean pose of the experts' poses under their credibilities."""
+        model, st = state.setup.model, state.experts
+        lc = st.log_credibility
+        mean = posterior_mean_pose(st.poses, lc)
+        pts = project(model.bases, st.poses)
+        mean_pts = project(model.bases, mean)
+        W = np.exp(lc)
+        d2 = np.sum((pts - mean_pts[None]) ** 2, axis=-1).mean(axis=-1)
+        return self.estimate(state, t, phase, mean, pose_spread(st.poses, lc, mean), rotation_matrices(mean),
+                             float(np.sqrt(W @ d2 / W.sum())), float(ess(lc)), pts, mean_pts, bounding_box(mean_pts),
+                             lc, np.arange(st.n_experts, dtype=np.int64), False)
+
+    def estimate(self, state: GFlowState, t: int, phase: str, pose: np.ndarray, pose_std: np.ndarray,
+                 rotation: np.ndarray, spread_px: float, ess_val: float, expert_points: np.ndarray,
+                 mean_points: np.ndarray, bbox: np.ndarray, log_credibility: np.ndarray, parents: np.ndarray,
+                 resampled: bool) -> Estimate:
+        """G-flow's estimate of frame ``t``.
+
+        ``box`` is, for a learned face (a model with a reference box), the initial box moved and
+        scaled with the face (:func:`.face_pose.following_box`), otherwise ``bbox``, the bounding box
+        of the projected vertices of the posterior mean pose. ``extras``:
+
+        * ``pose`` (P,), ``pose_std`` (P,): posterior mean and standard deviation (tangent space);
+        * ``rotation`` (3, 3): the mean pose's rotation;
+        * ``spread_px``: RMS distance of the experts' projected vertices from the mean's;
+        * ``ess``: effective sample size of the credibilities before resampling;
+        * ``expert_points`` (E, n, 2), ``mean_points`` (n, 2): projected vertices (the paper's fig. 2);
+        * ``log_credibility`` (E,), ``parents`` (E,) int64, ``resampled`` bool;
+        * ``landmarks`` (n,) int or None: a learned face's reference landmark of each vertex;
+        * ``yaw_pitch_roll`` (3,) degrees and ``expression`` (k - 1,) (:mod:`.face_pose`).
+        """
+        setup = state.setup
+        model = setup.model
+        if model.reference_box is not None:
+            # a learned face: the user's box, moved and scaled with the face
+            bbox = following_box(pose, setup.pose0, setup.box)
+        extras = {
+            "pose": pose, "pose_std": pose_std, "rotation": rotation, "spread_px": float(spread_px),
+            "ess": float(ess_val), "expert_points": expert_points, "mean_points": mean_points,
+            "log_credibility": log_credibility, "parents": parents, "resampled": bool(resampled),
+            "landmarks": model.landmarks, "yaw_pitch_roll": yaw_pitch_roll(rotation),
+            "expression": expression(np.asarray(pose)[COEF], model.morph_std),
+        }
+        box = tuple(float(v) for v in bbox)
+        return Estimate(frame=int(t), box=(box[0], box[1], box[2], box[3]), confidence=float(state.confidence),
+                        target_state=state.target_state, phase=phase, extras=extras)
+
+
+#: the one instance (it keeps no state)
+TRACKER = GFlowTracker()

@@ -1,0 +1,57 @@
+"""A stage's parameters derived from its tracker's parameter dataclass, never copied from it.
+
+A tracker's parameters live in one frozen dataclass in ``gflow_core`` (for G-flow,
+:class:`gflow_core.gflow.GFlowParams`): names, types, defaults, checks and help. A stage of that
+tracker takes every one of them under the same name, plus the few fields of its own (the seed,
+the initial box, its shard): :func:`stage_params` builds the stage's ``msgspec`` struct from the
+two, so graph files are validated against the dataclass (unknown names, wrong types, the
+dataclass's own checks) and a default cannot differ between the core and a stage.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+from typing import Any, TypeVar
+
+import msgspec
+
+from .base import Params
+
+__all__ = ["StageFields", "stage_params", "tracker_params"]
+
+F = TypeVar("F", bound="StageFields")
+T = TypeVar("T")
+
+
+class StageFields(Params):
+    """Base of the fields a stage adds to its tracker's parameters (declared as a subclass)."""
+
+    def check(self, tracker: Any) -> None:
+        """Checks of the stage's own fields against the tracker's parameters (``ValueError``)."""
+
+
+def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "") -> type[F]:
+    """The ``msgspec`` struct ``name`` with every field of the dataclass ``tracker`` (type and
+    default as declared there) and those of ``fields``. Making one runs ``tracker``'s checks, then
+    ``fields.check``: a bad value is a ``ValueError`` (``msgspec.ValidationError`` through
+    ``msgspec.convert``) naming the parameter."""
+    hints = typing.get_type_hints(tracker)
+    own = {f.name for f in msgspec.structs.fields(fields)}
+    clash = sorted(own & {f.name for f in dataclasses.fields(tracker)})
+    if clash:
+        raise TypeError(f"{fields.__name__} redeclares {', '.join(clash)} of {tracker.__name__}")
+    spec = [(f.name, hints[f.name], f.default) for f in dataclasses.fields(tracker)]
+
+    def __post_init__(self: F) -> None:
+        self.check(tracker_params(self, tracker))
+
+    struct = msgspec.defstruct(name, spec, bases=(fields,), module=module, kw_only=True, frozen=True,
+                               forbid_unknown_fields=True,
+                               namespace={"__post_init__": __post_init__, "__doc__": doc or fields.__doc__})
+    return typing.cast("type[F]", struct)
+
+
+def tracker_params(params: Params, tracker: type[T]) -> T:
+    """The tracker's dataclass of a stage's parameters (the fields of the same names)."""
+    return tracker(**{f.name: getattr(params, f.name) for f in dataclasses.fields(typing.cast(Any, tracker))})
