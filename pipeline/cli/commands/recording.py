@@ -57,10 +57,18 @@ DESCRIBERS[".npz"] = describe_model
 
 
 def cmd_info(args) -> int:
+    from pipeline.cli.trackers import TRACKERS
+
+    if args.file in TRACKERS and not Path(args.file).exists():
+        from pipeline.cli.tracker_options import print_tracker
+
+        print_tracker(args.file, args.json)
+        return 0
     suffix = Path(args.file).suffix.lower()
     fn = DESCRIBERS.get(suffix)
     if fn is None:
-        raise CliError(f"do not know how to describe {args.file} (known: {', '.join(sorted(DESCRIBERS))})")
+        raise CliError(f"do not know how to describe {args.file} (known: {', '.join(sorted(DESCRIBERS))} files, or a "
+                   f"tracker: {', '.join(sorted(TRACKERS))})")
     fn(args.file, args.json)
     return 0
 
@@ -94,9 +102,12 @@ def cmd_replay(args) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("info", help="what a recording (.mcap) or a learned model (.npz) holds",
-                       description="For a recording: topics, counts, rates, duration, schemas and metadata.")
-    p.add_argument("file", help="MCAP recording or model file")
+    p = sub.add_parser("info", help="what a recording (.mcap) or a learned model (.npz) holds, or a tracker's "
+                                    "parameters",
+                       description="For a recording: topics, counts, rates, duration, schemas and metadata. For a "
+                                   "tracker (gflow info gflow): its parameters with their defaults and help, and "
+                                   "each stage's own.")
+    p.add_argument("file", help="MCAP recording, model file or tracker name")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_info)
 

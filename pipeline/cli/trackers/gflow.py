@@ -2,7 +2,7 @@
 
 The G-flow parameters must be equal in the proposal stage(s) and the filter, so every
 option here sets all of them (``--gflow-set NAME=VALUE`` does the same for any parameter of
-:class:`stages.gflow_common.GFlowParams`; ``--set filter.X=...`` alone would make the two
+:class:`gflow_core.gflow.GFlowParams`; ``--set filter.X=...`` alone would make the two
 disagree, which the stages report). ``--shards K`` builds K proposal stages
 ``proposal0 .. proposal{K-1}``, each proposing for one block of experts, all feeding the
 filter: :func:`make_plan` generates that graph from the graph file.
@@ -15,49 +15,53 @@ generic rigid head fitted into ``--init``).
 
 from __future__ import annotations
 
-import argparse
 import copy
+import dataclasses
 from pathlib import Path
 
 import yaml
+
+from gflow_core.gflow.params import ELLIPSOID as ELLIPSOID_SETTINGS
+from gflow_core.gflow.params import GFlowParams
 
 from pipeline.runtime.graph import GRAPHS_DIR, GraphError, Plan, load_graph, parse_graph
 
 NAME = "gflow"
 GRAPH = "gflow"
+#: the tracker's parameters (every stage of the graph takes them)
+PARAMS = GFlowParams
 
 #: stage names of the graph
 PROPOSAL, FILTER = "proposal", "filter"
-#: ``--model`` names: the built-in face model (the default) and the generic ellipsoid head
-DEFAULT_MODEL, ELLIPSOID = "face", "ellipsoid"
-#: the generic head's settings (the graph's are the face model's): a flatter head, the paper's grey levels
-#: with a gain and bias per frame, texels as a random walk, rotation within 30 degrees (README, "G-flow")
-ELLIPSOID_SETTINGS = {"model": "", "depth_ratio": 0.6, "sigma_w": 1e-3, "psi_v": 3e-4, "texture_decay": 1.0,
-                      "contrast_sigma": 0.0, "photometric": True, "reset_rate": 0.0, "max_rotation_deg": 30.0}
+#: ``--model`` names: the built-in face model (the default) and the generic ellipsoid head (its settings:
+#: ``gflow_core.gflow.params.ELLIPSOID``)
+DEFAULT_MODEL, ELLIPSOID = GFlowParams().model, "ellipsoid"
 
 
 def add_args(g) -> None:
-    g.add_argument("--experts", type=int, metavar="N", help="gflow: number of experts E (default 20)")
-    g.add_argument("--samples", type=int, metavar="S", help="gflow: pose samples per expert s (default 10)")
-    g.add_argument("--alpha", type=float, metavar="A",
-                   help="gflow: sharpness of the Laplace proposal N(u_hat, alpha Sigma_hat); 0 = the peak (default 1)")
+    """The options of G-flow's parameters that have one (``--experts``, ...; from
+    :class:`gflow_core.gflow.GFlowParams`, with its help and default), ``--shards`` and ``--gflow-set``."""
+    from pipeline.cli.tracker_options import add_param_options
+
+    add_param_options(g, GFlowParams, NAME)
     g.add_argument("--shards", type=int, default=1, metavar="K",
                    help="gflow: split the experts across K proposal processes (default 1)")
-    g.add_argument("--background", action=argparse.BooleanOptionalAction, default=None,
-                   help="gflow: model the background texture (one Kalman filter per pixel and expert); "
-                        "default off (uninformative background, as in the paper's experiments)")
     g.add_argument("--gflow-set", action="append", metavar="NAME=VALUE", default=None,
-                   help="gflow: set a G-flow parameter in every proposal stage and the filter, e.g. psi_v=3e-4")
+                   help="gflow: set a G-flow parameter in every proposal stage and the filter, e.g. psi_v=3e-4 "
+                        "(`gflow info gflow` lists them)")
 
 
 def _gflow_sets(items: list[str] | None) -> dict:
     from pipeline.cli.commands.common import CliError
 
     out: dict = {}
+    known = {f.name for f in dataclasses.fields(GFlowParams)}
     for it in items or []:
         if "=" not in it:
             raise CliError(f"--gflow-set expects NAME=VALUE, got {it!r}")
         k, v = it.split("=", 1)
+        if k.strip() not in known:
+            raise CliError(f"--gflow-set {it}: G-flow has no parameter {k.strip()!r} (`gflow info gflow` lists them)")
         out[k.strip()] = yaml.safe_load(v)
     return out
 
@@ -66,12 +70,10 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     """Both stages get the same G-flow parameters; the filter also gets the number of shards."""
     from pipeline.cli.commands.common import CliError
 
+    from pipeline.cli.tracker_options import param_values
+
     shared: dict = {"init": list(args.init), "seed": args.seed}
-    for opt, param in (("experts", "n_experts"), ("samples", "n_samples"), ("alpha", "alpha"),
-                       ("background", "background")):
-        v = getattr(args, opt, None)
-        if v is not None:
-            shared[param] = v
+    shared.update(param_values(args, GFlowParams))
     model = getattr(args, "model", None) or DEFAULT_MODEL
     if model == ELLIPSOID:
         shared.update(ELLIPSOID_SETTINGS)  # the stages fit the generic head into the initial box
