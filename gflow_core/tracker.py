@@ -39,7 +39,8 @@ Box = tuple[float, float, float, float]
 
 #: how the tracker judges the target: seen in the box, hidden where it is expected, being searched for
 TARGET_STATES = ("tracked", "occluded", "lost")
-#: which step made an estimate: the first frame, an update with the frame's evidence, a frame coasted over
+#: the steps every tracker's estimates name: the first frame, an update with the frame's evidence, a frame
+#: coasted over
 PHASES = ("init", "track", "coast")
 
 
@@ -85,9 +86,11 @@ class Estimate:
         How sure the tracker is that ``box`` holds the target.
     target_state : {"tracked", "occluded", "lost"}
         The target as the tracker judges it.
-    phase : {"init", "track", "coast"}
-        ``init`` for the first frame, ``track`` after an update with the frame's evidence,
-        ``coast`` when the frame could not be used and the posterior was only carried over.
+    phase : str
+        Which step made it: ``init`` for the first frame, ``track`` after an update with the
+        frame's evidence, ``coast`` when the frame could not be used and the posterior was only
+        carried over; a tracker may name steps of its own (the contour filter's ``lost`` and
+        ``redetect``, the appearance filter's ``occluded``).
     extras : mapping
         The tracker's own outputs (G-flow: ``pose``, ``rotation``, ``expert_points``, ...; see
         each tracker's ``estimate`` docstring). Arrays are read-only.
@@ -103,8 +106,6 @@ class Estimate:
     def __post_init__(self) -> None:
         if self.target_state not in TARGET_STATES:
             raise ValueError(f"target_state must be one of {', '.join(TARGET_STATES)}, got {self.target_state!r}")
-        if self.phase not in PHASES:
-            raise ValueError(f"phase must be one of {', '.join(PHASES)}, got {self.phase!r}")
 
 
 P = TypeVar("P")

@@ -1,0 +1,187 @@
+"""``gflow.Tracker``: one target through frames you hand it, as OpenCV's trackers take them."""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+
+from gflow_core.tracker import Box, Estimate
+
+from .backends import GraphBackend, ProtocolBackend, gflow_setup
+from .errors import GflowError
+
+__all__ = ["Tracker", "TRACKERS"]
+
+#: the trackers, as ``gflow track --tracker NAME`` names them
+TRACKERS = ("appearance", "chamfer", "gflow", "m2")
+#: the trackers on the protocol of :mod:`gflow_core.tracker` (the others run their stages in process)
+ON_PROTOCOL = ("gflow",)
+
+
+def check_box(box: Sequence[float]) -> Box:
+    """``(x, y, w, h)``: four finite numbers with ``w, h > 0`` (``gflow track --init``'s rules)."""
+    try:
+        vals = tuple(float(v) for v in box)
+    except (TypeError, ValueError):
+        raise GflowError(f"expected X,Y,W,H numbers, got {box!r}") from None
+    if len(vals) != 4:
+        raise GflowError(f"expected 4 numbers X,Y,W,H, got {len(vals)}")
+    if not all(math.isfinite(v) for v in vals):
+        raise GflowError("box has NaN or inf")
+    if vals[2] <= 0 or vals[3] <= 0:
+        raise GflowError(f"box width and height must be positive, got W={vals[2]}, H={vals[3]}")
+    return vals[0], vals[1], vals[2], vals[3]
+
+
+class Tracker:
+    """A tracker you hand frames to: ``init(frame, box)`` on the first, then ``update(frame)`` on
+    each next one, each returning an :class:`~gflow_core.tracker.Estimate`.
+
+    Parameters
+    ----------
+    name : {"appearance", "chamfer", "gflow", "m2"}
+        The tracker (``docs/trackers.md``); ``appearance`` is ``gflow track``'s default.
+    seed : int >= 0
+        Frame ``t`` draws from ``default_rng([seed, crc32("cam0"), t, ...])``, as every stage of the
+        shipped graphs does: the same seed gives the boxes of ``gflow track --seed SEED`` bit for bit.
+    fps : float
+        The frames' rate (the stamps of a tracker run through its stages; default 25).
+    **params
+        For ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)
+        and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For the
+        trackers run through their stages (appearance, chamfer, m2), the options ``gflow track`` has
+        for them (``particles=500``, ``track_scale=True``, ``model="m2.npz"``) and
+        ``set={"filter": {"lam": 0.3}}`` for any stage parameter.
+
+    Frames are numpy arrays as OpenCV gives them: ``(H, W, 3)`` BGR or ``(H, W)`` grey, uint8; every
+    frame the size of the first. Frame indices count from ``init``'s ``frame_index`` (0).
+
+    Raises
+    ------
+    GflowError (a ValueError)
+        A bad value, box or frame, with the one-line message ``gflow track`` prints.
+    UnknownParameter (a TypeError)
+        A parameter the tracker does not have.
+    """
+
+    def __init__(self, name: str = "appearance", seed: int = 0, *, fps: float = 25.0, **params: Any) -> None:
+        if name not in TRACKERS:
+            raise GflowError(f"unknown tracker {name!r} (choose from {', '.join(TRACKERS)})")
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise GflowError(f"seed must be an integer >= 0, got {seed!r}")
+        if not (math.isfinite(fps) and fps > 0):
+            raise GflowError(f"fps must be positive, got {fps}")
+        self.name, self.seed = name, int(seed)
+        self._backend: ProtocolBackend | GraphBackend
+        if name == "gflow":
+            from gflow_core.gflow.tracker import TRACKER
+
+            try:
+                p, resources = gflow_setup(params)
+            except ValueError as e:
+                raise GflowError(str(e)) from None
+            self._backend = ProtocolBackend(TRACKER, p, resources, self.seed, "cam0")
+        else:
+            self._backend = GraphBackend(name, self.seed, fps, params)
+        self._shape: tuple[int, ...] | None = None
+        self._t = -1
+
+    @property
+    def params(self) -> Any:
+        """The tracker's parameter dataclass (trackers on the protocol; None for the others)."""
+        return self._backend.params if isinstance(self._backend, ProtocolBackend) else None
+
+    @property
+    def state(self) -> Any:
+        """The posterior after the last frame (trackers on the protocol; None for the others)."""
+        return self._backend.state if isinstance(self._backend, ProtocolBackend) else None
+
+    @property
+    def frame_index(self) -> int:
+        """The index of the last frame tracked (-1 before ``init``)."""
+        return self._t
+
+    @property
+    def problems(self) -> list[tuple[int, str]]:
+        """``(frame, message)`` of every frame the tracker could not use (it coasted), as the
+        pipeline reports them on its errors topic."""
+        return self._backend.problems
+
+    def _check_frame(self, frame: Any, t: int) -> np.ndarray:
+        img = np.asarray(frame)
+        if img.dtype != np.uint8 or img.ndim not in (2, 3) or img.size == 0 or (img.ndim == 3 and img.shape[2] != 3):
+            raise GflowError(f"frame {t}: expected (H, W) or (H, W, 3) uint8, got {img.dtype} {img.shape}")
+        if self._shape is not None and img.shape != self._shape:
+            raise GflowError(f"frame {t}: size changed from {self._shape} to {img.shape}")
+        return img
+
+    def init(self, frame: np.ndarray, box: Sequence[float], *, frame_index: int = 0) -> Estimate:
+        """Start on ``frame`` from ``box`` ``(x, y, w, h)`` (pixels, top-left corner and size).
+
+        Raises ``UnusableFrameError`` for a frame with no information (a uniform one) and
+        ``GflowError`` for a box that misses the frame."""
+        from pipeline.runtime.preflight import PreflightError, check_box_in_image
+
+        if self._t >= 0:
+            raise GflowError("the tracker has started already; make a new Tracker for a new target")
+        if frame_index < 0:
+            raise GflowError(f"frame_index must be >= 0, got {frame_index}")
+        img = self._check_frame(frame, frame_index)
+        b = check_box(box)
+        try:
+            check_box_in_image(b, img.shape[1], img.shape[0], what="init")
+        except PreflightError as e:
+            raise GflowError(str(e)) from None
+        est = self._one(self._backend.init(img, b, frame_index), frame_index)
+        self._shape, self._t = img.shape, frame_index
+        return est
+
+    def update(self, frame: np.ndarray, *, dt: float = 1.0) -> Estimate:
+        """Track into the next frame. ``dt``: the time since the previous frame in frame periods
+        (1: the next frame of a file; a live source that skipped frames gives more).
+
+        A frame that carries no information (uniform) is coasted over: the estimate says
+        ``phase == "coast"`` and :attr:`problems` says why."""
+        if not (math.isfinite(dt) and dt >= 1.0):
+            raise GflowError(f"dt must be >= 1 frame period, got {dt}")
+        t = self._t + 1
+        return self._one(self.step(frame, t, dt), t)
+
+    def coast(self) -> Estimate:
+        """No frame for the next index (a frame lost by the source): the posterior carried over it."""
+        if not isinstance(self._backend, ProtocolBackend):
+            raise GflowError(f"coast() needs a tracker on the protocol ({', '.join(ON_PROTOCOL)}); "
+                             f"gflow.track coasts {self.name} over the frames its source loses")
+        t = self._t + 1
+        return self._one(self.step(None, t), t)
+
+    def step(self, frame: np.ndarray | None, t: int, dt: float = 1.0) -> list[Estimate]:
+        """Frame ``t`` (``None``: lost), after every index before it was stepped; the estimates made
+        (a tracker run through its stages may give a lost frame's only with the next frame's)."""
+        if self._t < 0:
+            raise GflowError("call init(frame, box) first")
+        if t <= self._t:
+            raise GflowError(f"frame {t} comes after frame {self._t}")
+        out: list[Estimate] = []
+        for lost in range(self._t + 1, t):  # indices never given: lost frames
+            if isinstance(self._backend, ProtocolBackend):
+                out += self._backend.update(None, lost)
+            self._t = lost
+        out += self._backend.update(None if frame is None else self._check_frame(frame, t), t, dt)
+        self._t = t
+        return out
+
+    def finish(self) -> list[Estimate]:
+        """The estimates a tracker gives at the end of its frames (none but for some staged trackers)."""
+        return self._backend.finish() if self._t >= 0 else []
+
+    def _one(self, ests: list[Estimate], t: int) -> Estimate:
+        for e in ests:
+            if e.frame == t:
+                return e
+        why = "; ".join(m for s, m in self.problems if s == t) or "no estimate was made"
+        from .errors import UnusableFrameError
+
+        raise UnusableFrameError(f"frame {t}: {why}")

@@ -1,0 +1,141 @@
+"""The Python API (``from gflow import Tracker, track``): the boxes of ``gflow track --inline``
+bit for bit, errors as exceptions with the command line's messages."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from gflow import Estimate, GflowError, Tracker, UnknownParameter, UnusableFrameError, track
+from pipeline.io.frame_readers import folder_frames
+from pipeline.io.mcap_io import iter_records
+from pipeline.recording.results import read_boxes
+from stages.messages import decode
+
+
+def cli_estimates(cmd: list[str], tmp_path, name: str = "run") -> dict[int, object]:
+    """Run a gflow command that records, and return its estimate messages by frame."""
+    rec = tmp_path / f"{name}.mcap"
+    out = subprocess.run([sys.executable, "-m", "pipeline.cli.main", *cmd, "--record", str(rec)],
+                         capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr
+    return {r.seq: decode(r.data) for r in iter_records(rec) if r.type in ("Estimate", "PoseEstimate")}
+
+
+def assert_same(api: list[Estimate], cli: dict[int, object]) -> None:
+    assert [e.frame for e in api] == sorted(cli)
+    for e in api:
+        m = cli[e.frame]
+        assert (e.box, e.confidence, e.target_state, e.phase) == (tuple(m.box), m.confidence, m.target_state,
+                                                                   m.state), f"frame {e.frame}"
+
+
+@pytest.mark.data
+@pytest.mark.slow
+@pytest.mark.parametrize("tracker", ["appearance", "gflow", "chamfer"])
+def test_the_api_over_caviar1_gives_gflow_tracks_boxes(caviar1, tmp_path, tracker) -> None:
+    """Frames read with cv2.imread, the frame-0 box, seed 1: every estimate equals gflow track
+    --inline --seed 1's (box, confidence, target state, phase), bit for bit."""
+    gt = read_boxes(caviar1 / "groundtruth.csv")
+    box = gt[0]
+    cli = cli_estimates(["track", str(caviar1), "--tracker", tracker, "--init", ",".join(map(str, box)), "--seed",
+                         "1", "--inline", "--out", str(tmp_path / "boxes.csv"), "-q"], tmp_path)
+    t = Tracker(tracker, seed=1)
+    files = folder_frames(caviar1 / "frames")
+    api = [t.init(cv2.imread(str(files[0][1])), box)]
+    api += [t.update(cv2.imread(str(f))) for _, f in files[1:]]
+    assert len(api) == 382
+    assert_same(api, cli)
+
+
+def test_track_equals_tracker_and_gflow_track_on_the_synthetic_scene(tmp_path) -> None:
+    """track() of a source reads the frames the source stage sends; on the built-in scene it starts
+    from the scene's true box and equals Tracker fed the same frames, and gflow track."""
+    from gflow_core.synthetic import SyntheticScene
+
+    ests = list(track("synthetic", tracker="gflow", seed=2, stop=12, n_experts=6, n_samples=4))
+    scene = SyntheticScene()
+    t = Tracker("gflow", seed=2, n_experts=6, n_samples=4)
+    by_hand = [t.init(scene.render(0), scene.truth_box(0))] + [t.update(scene.render(k)) for k in range(1, 12)]
+    assert [(e.frame, e.box) for e in ests] == [(e.frame, e.box) for e in by_hand]
+    assert [e.phase for e in ests] == ["init"] + ["track"] * 11
+    assert ests[-1].extras["expert_points"].shape[0] == 6 and ests[0].target_state == "tracked"
+
+
+@pytest.mark.parametrize("tracker", ["gflow", "appearance"])
+def test_lost_frames_are_coasted_as_the_pipeline_does(tmp_path, tracker) -> None:
+    """A folder with frame 5 missing: the pipeline coasts over it and so does track()."""
+    from gflow_core.synthetic import SyntheticScene
+
+    scene = SyntheticScene(width=160, height=120, seed=3)
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(10):
+        if k != 5:
+            cv2.imwrite(str(folder / f"{k:06d}.png"), scene.render(k))
+    box = scene.truth_box(0)
+    extra = {"gflow": ["--experts", "5", "--samples", "3"], "appearance": []}[tracker]
+    cli = cli_estimates(["track", str(folder), "--tracker", tracker, "--init", ",".join(map(str, box)), "--seed",
+                         "3", "--inline", "--out", str(tmp_path / "b.csv"), "-q", *extra], tmp_path)
+    params = {"gflow": {"n_experts": 5, "n_samples": 3}, "appearance": {}}[tracker]
+    api = list(track(folder, init=box, tracker=tracker, seed=3, **params))
+    assert_same(api, cli)
+    assert api[5].frame == 5 and api[5].phase == "coast"
+
+
+def test_a_uniform_frame_cannot_start_a_track_and_is_coasted_over_later() -> None:
+    from gflow_core.synthetic import SyntheticScene
+
+    scene = SyntheticScene()
+    t = Tracker("gflow", seed=0, n_experts=4, n_samples=2)
+    with pytest.raises(UnusableFrameError, match="every pixel is 0"):
+        t.init(np.zeros((240, 320, 3), np.uint8), scene.truth_box(0))
+    t.init(scene.render(0), scene.truth_box(0))
+    est = t.update(np.full((240, 320, 3), 255, np.uint8))
+    assert est.phase == "coast" and est.frame == 1
+    assert t.problems == [(1, "frame 1: every pixel is 255 (a blank or saturated frame carries no information "
+                              "about the pose, and would overwrite the textures); coasting")]
+    assert t.coast().frame == 2 and t.update(scene.render(3)).phase == "track"
+
+
+def test_errors_are_exceptions_with_the_command_lines_messages(tmp_path, caviar1) -> None:
+    with pytest.raises(UnknownParameter, match="unknown parameter n_expert of GFlowParams"):
+        Tracker("gflow", n_expert=3)
+    with pytest.raises(GflowError, match="sigma_w must be finite and > 0, got -1"):
+        Tracker("gflow", sigma_w=-1.0)
+    with pytest.raises(GflowError, match="unknown tracker 'csrt'"):
+        Tracker("csrt")
+    with pytest.raises(UnknownParameter, match="tracker appearance has no option lam"):
+        Tracker("appearance", lam=3.0)
+    # the box and the source: the very lines gflow track prints
+    bad = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", "400,10,20,20",
+                          "--out", str(tmp_path / "b.csv"), "--inline", "-q"], capture_output=True, text=True)
+    assert bad.returncode == 2
+    with pytest.raises(GflowError) as e:
+        next(track(caviar1, init=(400, 10, 20, 20)))
+    assert str(e.value) in bad.stderr and "lies outside the 384x288 image" in str(e.value)
+    with pytest.raises(GflowError, match="source not found: nowhere"):
+        next(track("nowhere", init=(1, 2, 3, 4)))
+    with pytest.raises(GflowError, match=r"expected \(H, W\) or \(H, W, 3\) uint8, got float64"):
+        Tracker("gflow").init(np.zeros((20, 20)), (1, 1, 5, 5))
+    # one line each, and the classes users catch
+    assert "\n" not in str(e.value) and issubclass(GflowError, ValueError) and issubclass(UnknownParameter, TypeError)
+
+
+def test_the_api_starts_no_process() -> None:
+    """Tracker runs in this process, also for a tracker run through its stages."""
+    import psutil
+
+    from gflow_core.synthetic import SyntheticScene
+
+    before = set(psutil.Process().children(recursive=True))
+    scene = SyntheticScene()
+    t = Tracker("appearance", seed=1)
+    t.init(scene.render(0), scene.truth_box(0))
+    for k in range(1, 5):
+        t.update(scene.render(k))
+    assert set(psutil.Process().children(recursive=True)) == before
