@@ -59,7 +59,7 @@ DESCRIBERS[".npz"] = describe_model
 def cmd_info(args) -> int:
     from pipeline.cli.trackers import TRACKERS
 
-    if args.file in TRACKERS and not Path(args.file).exists():
+    if args.file in TRACKERS and not Path(args.file).is_file():
         from pipeline.cli.tracker_options import print_tracker
 
         print_tracker(args.file, args.json)

@@ -1,0 +1,103 @@
+"""A tracker's parameters live in one dataclass; the stages' structs, the graph files, the command
+line's options and help, ``gflow info`` and the Python API all derive from it and cannot drift."""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+import subprocess
+import sys
+import typing
+from contextlib import redirect_stdout
+
+import msgspec
+import pytest
+
+from gflow_core.gflow import GFlowParams, GFlowTracker
+from gflow_core.params import describe, format_value
+from gflow_core.tracker import TrackingFilter
+from pipeline.cli.trackers import TRACKERS
+from pipeline.runtime.graph import load_graph
+from stages.registry import get_stage_class
+
+#: tracker name -> its parameter dataclass (the trackers whose parameters live in one)
+WITH_PARAMS = {name: mod.PARAMS for name, mod in TRACKERS.items() if getattr(mod, "PARAMS", None) is not None}
+
+
+def test_gflow_has_its_parameters_in_one_dataclass() -> None:
+    assert WITH_PARAMS["gflow"] is GFlowParams
+
+
+@pytest.mark.parametrize("name", sorted(WITH_PARAMS))
+def test_every_stage_of_the_tracker_takes_every_parameter_with_the_dataclass_default(name) -> None:
+    cls = WITH_PARAMS[name]
+    hints = typing.get_type_hints(cls)
+    plan = load_graph(TRACKERS[name].GRAPH)
+    derived = [s for s in plan.stages.values() if s.kind not in ("source", "recorder", "preprocess")]
+    assert derived
+    for sp in derived:
+        fields = {f.name: f for f in msgspec.structs.fields(get_stage_class(sp.kind).Params)}
+        for f in dataclasses.fields(cls):
+            assert f.name in fields, f"{sp.kind} has no parameter {f.name}"
+            assert fields[f.name].default == f.default, f"{sp.kind}.{f.name}"
+            assert fields[f.name].type == hints[f.name], f"{sp.kind}.{f.name}"
+            # and the built-in graph runs the default: it names only what differs from the dataclass
+            assert sp.params[f.name] == msgspec.to_builtins(f.default), f"{name}.yaml sets {sp.name}.{f.name}"
+
+
+def test_a_stage_refuses_what_the_dataclass_refuses_with_its_message() -> None:
+    from pipeline.runtime.graph import GraphError
+
+    with pytest.raises(ValueError) as core:
+        GFlowParams(pyramid_levels=9)
+    with pytest.raises(GraphError) as graph:
+        load_graph("gflow", overrides={"filter": {"pyramid_levels": 9}})
+    assert str(core.value) in str(graph.value)
+
+
+def test_the_command_lines_options_show_the_dataclass_help_and_default() -> None:
+    help_text = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", "--help"], capture_output=True,
+                               text=True, env={"COLUMNS": "400", "PATH": ""}).stdout
+    flat = " ".join(help_text.split())
+    n = 0
+    for cls in WITH_PARAMS.values():
+        for info in describe(cls):
+            if info.option:
+                assert f"{info.option} " in flat
+                assert f"{info.help} (default {format_value(info.default)})" in flat, info.name
+                n += 1
+    assert n >= 4
+
+
+def test_gflow_info_lists_every_parameter_with_its_default() -> None:
+    from pipeline.cli.main import main
+
+    out = io.StringIO()
+    with redirect_stdout(out):
+        assert main(["info", "gflow", "--json"]) == 0
+    d = json.loads(out.getvalue())
+    assert [(r["name"], r["default"], r["help"]) for r in d["parameters"]] == \
+        [(i.name, format_value(i.default), i.help) for i in describe(GFlowParams)]
+    assert {s["stage"] for s in d["stages"]} >= {"proposal", "filter"}
+
+
+def test_every_parameter_has_help() -> None:
+    for cls in WITH_PARAMS.values():
+        for info in describe(cls):
+            assert len(info.help) > 10, f"{cls.__name__}.{info.name} has no help"
+
+
+def test_the_api_takes_the_dataclass_parameters() -> None:
+    from gflow import Tracker
+
+    t = Tracker("gflow", n_experts=7, psi_v=2e-3)
+    assert t.params == dataclasses.replace(GFlowParams(), n_experts=7, psi_v=2e-3)
+    assert Tracker("gflow").params == GFlowParams()
+
+
+def test_gflow_implements_the_tracker_protocol() -> None:
+    names = [n for n in dir(TrackingFilter) if not n.startswith("_")]
+    assert set(names) >= {"observe", "init", "propose", "update", "coast"}
+    for n in names:
+        assert hasattr(GFlowTracker, n), n
