@@ -47,7 +47,7 @@ def orientation_channels(grey: np.ndarray, blur: float = 1.0, pool: float = 1.5,
         Channel b holds sum over the pool of |g| * max(0, 1 - |angle - b pi/4| / (pi/4)),
         divided by the pooled |g| + ``norm_floor``.
     """
-    g = np.asarray(grey, dtype=np.float32)
+    g: np.ndarray = np.asarray(grey, dtype=np.float32)
     if g.ndim != 2 or g.shape[0] < 3 or g.shape[1] < 3:
         raise ValueError(f"orientation_channels needs a 2-D grey image of at least 3x3, got shape {g.shape}")
     if blur > 0:

@@ -13,7 +13,7 @@ Kong, Liu & Wong (1994) -- effective sample size ESS = 1 / sum(W_i^2).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -132,6 +132,9 @@ class LogWeights:
     """
 
     lw: np.ndarray
+    # set in __post_init__
+    _log_W: np.ndarray = field(init=False, repr=False, compare=False)
+    _log_sum: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         lw = np.asarray(self.lw, dtype=np.float64)
@@ -145,17 +148,17 @@ class LogWeights:
     @property
     def log_W(self) -> np.ndarray:
         """(N,) normalised log-weights."""
-        return self._log_W  # type: ignore[attr-defined]
+        return self._log_W
 
     @property
     def W(self) -> np.ndarray:
         """(N,) normalised weights, summing to 1."""
-        return np.exp(self._log_W)  # type: ignore[attr-defined]
+        return np.exp(self._log_W)
 
     @property
     def log_mean(self) -> float:
         """log of the mean weight, ``log(1/N sum exp(lw))`` (the log marginal likelihood increment)."""
-        return self._log_sum - float(np.log(self.lw.size))  # type: ignore[attr-defined]
+        return self._log_sum - float(np.log(self.lw.size))
 
     @property
     def ess(self) -> float:

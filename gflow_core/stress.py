@@ -442,13 +442,13 @@ def render_frame(image: np.ndarray, plan: StressPlan, i: int, patch: np.ndarray 
                          f"{plan.image_size[0]}x{plan.image_size[1]}")
     if not 0 <= i < len(plan):
         raise ValueError(f"frame {i} is outside the plan's {len(plan)} frames")
-    out = image.copy()
+    out: np.ndarray = image.copy()
     H, W = out.shape[:2]
     box = plan.boxes[i]
     cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
     if plan.shift[i] != 0.0:
-        m = np.float32([[1, 0, plan.shift[i]], [0, 1, 0]])
-        out = cv2.warpAffine(out, m, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        shift = np.array([[1, 0, plan.shift[i]], [0, 1, 0]], dtype=np.float32)
+        out = cv2.warpAffine(out, shift, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     if plan.angle[i] != 0.0:
         m = cv2.getRotationMatrix2D((float(cx), float(cy)), float(plan.angle[i]), 1.0)
         rolled = cv2.warpAffine(out, m, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

@@ -8,7 +8,7 @@ explicit generators: the scene layout from ``seed``, and the per-frame sensor no
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -46,6 +46,12 @@ class SyntheticScene:
     seed: int = 0
     noise: float = 4.0
     period: int = 120
+    # drawn in __post_init__ from the seed
+    _target: np.ndarray = field(init=False, repr=False, compare=False)
+    _target_tex: np.ndarray = field(init=False, repr=False, compare=False)
+    _distractors: list[tuple[np.ndarray, float]] = field(init=False, repr=False, compare=False)
+    _distractor_tex: np.ndarray = field(init=False, repr=False, compare=False)
+    _background: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.width < 64 or self.height < 64:
@@ -83,7 +89,7 @@ class SyntheticScene:
 
     def truth_box(self, t: int) -> tuple[float, float, float, float]:
         """Bounding box (x, y, w, h) of the target at frame t."""
-        p = similarity.apply(self.alpha(t), self._target)  # type: ignore[attr-defined]
+        p = similarity.apply(self.alpha(t), self._target)
         x0, y0 = p.min(axis=0)
         x1, y1 = p.max(axis=0)
         return float(x0), float(y0), float(x1 - x0 + 1), float(y1 - y0 + 1)
@@ -92,19 +98,19 @@ class SyntheticScene:
         """Frame t, (height, width, 3) uint8 BGR."""
         if not 0 <= t < self.n_frames:
             raise IndexError(f"frame {t} outside the scene's {self.n_frames} frames")
-        img = self._background.copy()  # type: ignore[attr-defined]
+        img = self._background.copy()
         w, h = self.width, self.height
-        for i, (poly, ph) in enumerate(self._distractors):  # type: ignore[attr-defined]
+        for i, (poly, ph) in enumerate(self._distractors):
             x = (w * (0.1 + 0.8 * ((t / max(self.period, 1) + 0.5 * i + ph / 6.3) % 1.0)))
             y = h * (0.25 + 0.5 * i)
             pts = (poly + [x, y]).round().astype(np.int32)
             mask = np.zeros((h, w), np.uint8)
             cv2.fillPoly(mask, [pts], 255)
-            img[mask > 0] = self._distractor_tex[mask > 0]  # type: ignore[attr-defined]
-        pts = similarity.apply(self.alpha(t), self._target)  # type: ignore[attr-defined]
+            img[mask > 0] = self._distractor_tex[mask > 0]
+        pts = similarity.apply(self.alpha(t), self._target)
         mask = np.zeros((h, w), np.uint8)
         cv2.fillPoly(mask, [np.round(pts * 16).astype(np.int32)], 255, lineType=cv2.LINE_AA, shift=4)
         a = (mask.astype(np.float32) / 255.0)[..., None]
-        img = (img * (1 - a) + self._target_tex * a)  # type: ignore[attr-defined]
+        img = (img * (1 - a) + self._target_tex * a)
         noise = np.random.default_rng([self.seed, t]).normal(0.0, self.noise, size=img.shape)
         return np.clip(img + noise, 0, 255).astype(np.uint8)

@@ -112,37 +112,38 @@ P = TypeVar("P")
 S = TypeVar("S")
 O = TypeVar("O")  # noqa: E741 (the observation)
 Q = TypeVar("Q")
+P_in = TypeVar("P_in", contravariant=True)  # the parameters, which a filter only reads
 
 
-class TrackingFilter(Protocol[P, S, O, Q]):
+class TrackingFilter(Protocol[P_in, S, O, Q]):
     """A tracker as a two-stage filter over parameters ``P``, states ``S``, observations ``O`` and
     proposals ``Q``. The implementations keep no state of their own: everything is in ``S``."""
 
     #: the tracker's name (``gflow track --tracker NAME``)
     name: str
 
-    def observe(self, params: P, image: np.ndarray) -> O:
+    def observe(self, params: P_in, image: np.ndarray) -> O:
         """What the tracker reads of a frame (``(H, W, 3)`` BGR or ``(H, W)`` grey uint8).
 
         Raises :class:`UnusableFrame` for a frame with no information (the caller coasts) and
         ``ValueError`` for one that is not an image."""
         ...
 
-    def init(self, params: P, obs: O, box: Box, rng: FrameRng, resources: Mapping[str, Any]) -> tuple[S, Estimate]:
+    def init(self, params: P_in, obs: O, box: Box, rng: FrameRng, resources: Mapping[str, Any]) -> tuple[S, Estimate]:
         """The posterior at the first frame, from the user's ``box``. ``resources`` holds what the
         caller loaded for the tracker (a learned model, under ``"model"``): the core opens no file."""
         ...
 
-    def propose(self, params: P, state: S, obs: O, rng: FrameRng, dt: float = 1.0) -> Q:
+    def propose(self, params: P_in, state: S, obs: O, rng: FrameRng, dt: float = 1.0) -> Q:
         """Hypotheses for frame ``rng.t`` from the posterior ``state`` at the previous frame; ``dt``
         is the time since that frame in nominal frame periods (1 for files)."""
         ...
 
-    def update(self, params: P, state: S, proposal: Q, obs: O, rng: FrameRng) -> tuple[S, Estimate]:
+    def update(self, params: P_in, state: S, proposal: Q, obs: O, rng: FrameRng) -> tuple[S, Estimate]:
         """The posterior at frame ``rng.t``: ``proposal`` weighed by the evidence of ``obs``."""
         ...
 
-    def coast(self, params: P, state: S, rng: FrameRng, obs: O | None = None) -> tuple[S, Estimate]:
+    def coast(self, params: P_in, state: S, rng: FrameRng, obs: O | None = None) -> tuple[S, Estimate]:
         """The posterior carried over frame ``rng.t``, which could not be used (``obs`` is the frame
         when it was readable but its proposals or update failed)."""
         ...

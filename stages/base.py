@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Generic, Mapping, TypeVar
 
 import msgspec
 
@@ -68,37 +68,44 @@ class StageContext:
 # (output port, message)
 Output = tuple[str, Message]
 
+#: a stage's parameter struct
+P = TypeVar("P", bound=Params)
+_Params = Params  # the base struct, inside Stage's body where ``Params`` is the class attribute
+
 
 @dataclass
 class _Reports:
     items: list[tuple[str, str, int]] = field(default_factory=list)
 
 
-class Stage(ABC):
-    """Base class of every stage. Subclasses set ``kind``, ``Params``, ``inputs``, ``outputs``."""
+class Stage(ABC, Generic[P]):
+    """Base class of every stage, generic over its parameter struct ``P`` (``self.params: P``).
+    Subclasses set ``kind``, ``Params`` (the struct ``P``), ``inputs``, ``outputs``:
+    ``class PreprocessStage(Stage[PreprocessParams])``."""
 
     kind: ClassVar[str]
-    Params: ClassVar[type[Params]]
-    inputs: ClassVar[Mapping[str, type]] = {}
-    outputs: ClassVar[Mapping[str, type]] = {}
+    Params: ClassVar[type[_Params]]
+    #: {port: message type}; an instance's own (:meth:`ports`) replace the class's
+    inputs: Mapping[str, type] = {}
+    outputs: Mapping[str, type] = {}
     drivers: ClassVar[frozenset[str] | None] = None
     input_offsets: ClassVar[Mapping[str, int]] = {}
     #: input ports whose messages ``prepare`` may be called on ahead of their step
     prepare_ports: ClassVar[frozenset[str]] = frozenset()
 
-    def __init__(self, params: Params, ctx: StageContext) -> None:
-        self.params = params
+    def __init__(self, params: P, ctx: StageContext) -> None:
+        self.params: P = params
         self.ctx = ctx
         self._reports = _Reports()
         # (port, header seq) -> a callable giving prepare(port, msg)'s result (or raising its
         # exception): what a runner computed ahead (pipeline.runtime.stage_host.StageHost)
         self.ahead: dict[tuple[str, int], Callable[[], Any]] = {}
         ins, outs = type(self).ports(params)
-        self.inputs = dict(ins)  # type: ignore[misc]
-        self.outputs = dict(outs)  # type: ignore[misc]
+        self.inputs = dict(ins)
+        self.outputs = dict(outs)
 
     @classmethod
-    def ports(cls, params: Params) -> tuple[Mapping[str, type], Mapping[str, type]]:
+    def ports(cls, params: P) -> tuple[Mapping[str, type], Mapping[str, type]]:
         """(inputs, outputs) of an instance with these parameters: {port: message type}."""
         return cls.inputs, cls.outputs
 
@@ -120,7 +127,7 @@ class Stage(ABC):
     def prepared(self, port: str, msg: Message) -> Any:
         """``prepare(port, msg)``: the result a runner computed ahead when there is one, else
         computed now. Call it from ``step`` (with the message ``step`` was given)."""
-        ahead = self.ahead.pop((port, msg.header.seq), None)  # type: ignore[attr-defined]
+        ahead = self.ahead.pop((port, msg.header.seq), None)
         return ahead() if ahead is not None else self.prepare(port, msg)
 
     def finish(self) -> list[Output]:

@@ -56,7 +56,7 @@ __all__ = [
 ]
 
 
-class GFlowStageFields(StageFields):
+class GFlowStageFields(StageFields, frozen=True):
     """What every G-flow stage takes besides the tracker's parameters (``gflow info gflow``).
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
@@ -190,7 +190,7 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str, where: str)
         raise StageInputError(f"{where}: expert states are for {msg.image_shape} frames, this stage tracks "
                               f"{setup.image_shape}")
     E, P, n = setup.cfg.n_experts, setup.model.pose_size, setup.model.n_vertices
-    out = {
+    out: dict[str, Any] = {
         "poses": _arr(msg.poses, "poses", (E, P), "float64", where),
         "tex_mean": _arr(msg.tex_mean, "tex_mean", (E, n), "float64", where),
         "tex_var": _arr(msg.tex_var, "tex_var", (E, n), "float64", where),

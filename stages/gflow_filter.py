@@ -71,7 +71,7 @@ __all__ = ["GFlowFilterStage", "GFlowFilterParams", "estimate_msg"]
 SNAPSHOT_VERSION = 1
 
 
-class GFlowFilterFields(GFlowStageFields):
+class GFlowFilterFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the proposal stages'),
     the seed, the initial box and the number of proposal shards.
 
@@ -122,7 +122,7 @@ def estimate_msg(header: Header, est: Estimate) -> PoseEstimate:
         expression=tuple(float(v) for v in x["expression"]))
 
 
-class GFlowFilterStage(Stage):
+class GFlowFilterStage(Stage[GFlowFilterFields]):
     kind = "gflow.filter"
     Params = GFlowFilterParams
     inputs = {"features": Features, "proposals0": PoseProposals}
@@ -130,14 +130,13 @@ class GFlowFilterStage(Stage):
     drivers = frozenset({"features"})
 
     @classmethod
-    def ports(cls, params: Any) -> tuple[Mapping[str, type], Mapping[str, type]]:
+    def ports(cls, params: GFlowFilterFields) -> tuple[Mapping[str, type], Mapping[str, type]]:
         ins: dict[str, type] = {"features": Features}
         ins.update({f"proposals{i}": PoseProposals for i in range(params.shards)})
         return ins, cls.outputs
 
     def __init__(self, params: GFlowFilterFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        self.fields = params
         self.tracker: GFlowParams = tracker_params(params, GFlowParams)
         self.state: GFlowState | None = None
         self.digest = ""
@@ -167,7 +166,7 @@ class GFlowFilterStage(Stage):
             self.report("missing_features", f"frame {seq}: no features arrived; coasting", seq)
         props = self._proposals(seq, inputs) if obs is not None else None
         header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
-        rng = tracker_rng(self.fields.seed, self.ctx.stream, seq)
+        rng = tracker_rng(self.params.seed, self.ctx.stream, seq)
         if obs is not None and props is not None:
             try:
                 new, est = TRACKER.update(self.tracker, state, props, obs, rng)
@@ -198,7 +197,7 @@ class GFlowFilterStage(Stage):
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
         """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""
         assert self.state is not None
-        shards = self.fields.shards
+        shards = self.params.shards
         parts = []
         for k in range(shards):
             msg = inputs.get(f"proposals{k}")
@@ -222,13 +221,13 @@ class GFlowFilterStage(Stage):
         except StageInputError as e:
             self.report("bad_features", f"{e}; waiting for a usable first frame", seq)
             return []
-        box = self.fields.init
+        box = self.params.init
         try:
             if box is None:
                 raise ValueError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter "
                                  "stages")
             # the filter keeps no backgrounds: the proposal stages start them from this frame
-            state, est = TRACKER.init(self.tracker, obs, box, tracker_rng(self.fields.seed, self.ctx.stream, seq),
+            state, est = TRACKER.init(self.tracker, obs, box, tracker_rng(self.params.seed, self.ctx.stream, seq),
                                       self.ctx.resources, backgrounds=False)
         except ValueError as e:
             if str(e) != self.init_error:  # once, not on every frame
@@ -241,7 +240,7 @@ class GFlowFilterStage(Stage):
             self.report("init_box_clipped", f"frame {seq}: initial box {box} reaches outside the {W}x{H} frame; "
                                             f"using {tuple(setup.box.round(2))}", seq)
         self.state = state
-        self.digest = config_digest(setup.cfg, setup.model, self.fields.seed, self.tracker.contrast_sigma)
+        self.digest = config_digest(setup.cfg, setup.model, self.params.seed, self.tracker.contrast_sigma)
         return self._outputs(feat.header, state, est, np.arange(state.experts.n_experts, dtype=np.int64), first=True)
 
     # -- state ------------------------------------------------------------------------------------
@@ -273,7 +272,7 @@ class GFlowFilterStage(Stage):
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
             try:
-                setup, digest = prepare(self.fields, self.tracker, self.ctx.resources, snap.image_shape)
+                setup, digest = prepare(self.params, self.tracker, self.ctx.resources, snap.image_shape)
             except StageInputError as e:
                 raise ValueError(str(e)) from None
             if digest != snap.digest:

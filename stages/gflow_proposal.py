@@ -60,7 +60,7 @@ __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 SNAPSHOT_VERSION = 2  # 2: the background replica as distinct tiles (1: dense (E, H, W) arrays)
 
 
-class GFlowProposalFields(GFlowStageFields):
+class GFlowProposalFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the filter's), the
     seed, the initial box, and which shard of the experts this stage proposes for.
 
@@ -100,7 +100,7 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     init_error: str
 
 
-class GFlowProposalStage(Stage):
+class GFlowProposalStage(Stage[GFlowProposalFields]):
     kind = "gflow.proposal"
     Params = GFlowProposalParams
     inputs = {"features": Features, "state": ExpertStates}
@@ -110,7 +110,6 @@ class GFlowProposalStage(Stage):
 
     def __init__(self, params: GFlowProposalFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        self.fields = params
         self.tracker: GFlowParams = tracker_params(params, GFlowParams)
         self.indices = shard_indices(self.tracker.n_experts, params.shard, params.shards)
         self.setup: ModelSetup | None = None
@@ -149,7 +148,7 @@ class GFlowProposalStage(Stage):
         if obs is not None:
             self.prev = (seq, obs.grey)
         self.steps += 1
-        msg = proposals_msg(header, out, self.fields.shard, self.fields.shards, self.digest)
+        msg = proposals_msg(header, out, self.params.shard, self.params.shards, self.digest)
         self.last = {"seq": seq, "experts": int(self.indices.size) if out is not None else 0}
         return [("proposals", msg)]
 
@@ -158,7 +157,7 @@ class GFlowProposalStage(Stage):
         if obs is None:
             return
         try:
-            self.setup, self.digest = prepare(self.fields, self.tracker, self.ctx.resources, obs.grey.shape)
+            self.setup, self.digest = prepare(self.params, self.tracker, self.ctx.resources, obs.grey.shape)
         except StageInputError as e:
             if str(e) != self.init_error:  # say it once, not on every frame
                 self.init_error = str(e)
@@ -195,7 +194,7 @@ class GFlowProposalStage(Stage):
         try:
             dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
             return TRACKER.propose(self.tracker, GFlowState(s, experts), obs,
-                                   tracker_rng(self.fields.seed, self.ctx.stream, seq), dt, self.indices)
+                                   tracker_rng(self.params.seed, self.ctx.stream, seq), dt, self.indices)
         except (ValueError, np.linalg.LinAlgError) as e:
             self.report("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals", seq)
             return None
@@ -229,7 +228,7 @@ class GFlowProposalStage(Stage):
 
     # -- state ------------------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
-        return dict(self.last, steps=self.steps, shard=f"{self.fields.shard}/{self.fields.shards}",
+        return dict(self.last, steps=self.steps, shard=f"{self.params.shard}/{self.params.shards}",
                     background_at=self.bg_seq)
 
     def snapshot(self) -> bytes:
@@ -259,7 +258,7 @@ class GFlowProposalStage(Stage):
         self.setup, self.digest = None, ""
         if snap.image_shape is not None:
             try:
-                self.setup, self.digest = prepare(self.fields, self.tracker, self.ctx.resources, snap.image_shape)
+                self.setup, self.digest = prepare(self.params, self.tracker, self.ctx.resources, snap.image_shape)
             except StageInputError as e:
                 raise ValueError(str(e)) from None
             if self.digest != snap.digest:

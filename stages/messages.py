@@ -16,6 +16,7 @@ Rules
 
 from __future__ import annotations
 
+import typing
 from typing import Any, Union
 
 import msgspec
@@ -190,7 +191,7 @@ from .messages_gflow import ExpertStates, PoseEstimate, PoseProposals  # noqa: E
 
 Message = Union[Frame, Features, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control, Snapshot,
                 ExpertStates, PoseProposals, PoseEstimate, Capture]
-MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in Message.__args__}  # type: ignore[attr-defined]
+MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in typing.get_args(Message)}
 
 from .messages_foxglove import FOXGLOVE_SCHEMAS, CompressedImage, ImageAnnotations  # noqa: E402
 

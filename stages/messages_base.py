@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import msgspec
 import numpy as np
@@ -45,7 +46,8 @@ class NDArray(msgspec.Struct, frozen=True):
         if a.dtype.name not in _ALLOWED_DTYPES:
             raise MessageError(f"dtype {a.dtype} cannot travel in a message; allowed: {sorted(_ALLOWED_DTYPES)}")
         # a copy, not a view: the message must not change when the stage reuses its array
-        return cls(dtype=a.dtype.name, shape=tuple(int(s) for s in a.shape), data=a.tobytes())  # type: ignore[arg-type]
+        # bytes here, a memoryview once decoded: both compare, hash and encode alike
+        return cls(dtype=a.dtype.name, shape=tuple(int(s) for s in a.shape), data=cast(memoryview, a.tobytes()))
 
     def array(self) -> np.ndarray:
         """Unpack to a read-only ndarray view of the bytes, checking dtype and size."""

@@ -51,7 +51,7 @@ class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True)
     done: int
 
 
-class ProposalParams(Params):
+class ProposalParams(Params, frozen=True):
     """Dynamics of the proposal. ``model``: path of a learned M2 model (empty: random walk).
 
     ``init`` (x, y, w, h), with a learned contour model: the AR(1) process on log s reverts
@@ -95,7 +95,7 @@ def particles_msg(header, kind: str, cloud: ParticleCloud) -> Particles:
                      log_w=NDArray.of(cloud.log_w))
 
 
-class ProposalStage(Stage):
+class ProposalStage(Stage[ProposalParams]):
     kind = "particle.proposal"
     Params = ProposalParams
     inputs = {"particles": Particles}
@@ -103,7 +103,7 @@ class ProposalStage(Stage):
     input_offsets = {"frames": -1}  # timed: frame t + 1 joins the posterior of t
 
     @classmethod
-    def ports(cls, params: ProposalParams):  # type: ignore[override]
+    def ports(cls, params: ProposalParams) -> tuple[Mapping[str, type], Mapping[str, type]]:
         return ({"particles": Particles, "frames": Frame} if params.timed else cls.inputs), cls.outputs
 
     def __init__(self, params: ProposalParams, ctx) -> None:
@@ -130,7 +130,7 @@ class ProposalStage(Stage):
         assert isinstance(msg, Particles)
         cloud = cloud_of(msg)
         t = seq + 1
-        rng = frame_rng(self.params.seed, self.ctx.stream, t, PURPOSE)  # type: ignore[attr-defined]
+        rng = frame_rng(self.params.seed, self.ctx.stream, t, PURPOSE)
         if cloud.k.max(initial=0) >= self.markov.shape[0]:
             raise StageInputError(f"particles {seq}: exemplar index beyond the model's K={self.markov.shape[0]}")
         frame = inputs.get("frames")

@@ -49,7 +49,7 @@ PURPOSE_RESAMPLE = 0x2E5B
 SNAPSHOT_VERSION = 1
 
 
-class PatchFilterParams(Params):
+class PatchFilterParams(Params, frozen=True):
     """Patch filter settings.
 
     model : path of a learned M2 model with patch exemplars (required).
@@ -106,7 +106,7 @@ def crop_patch(grey: np.ndarray, shape: tuple[int, int], crop: str,
     rows, cols = shape
     H, W = grey.shape
     if crop == "frame":
-        g = grey.astype(np.float32)
+        g: np.ndarray = grey.astype(np.float32)
         if (rows, cols) != (H, W):
             g = cv2.resize(g, (cols, rows), interpolation=cv2.INTER_AREA)
         s = np.sqrt(H * W / (rows * cols))
@@ -118,7 +118,7 @@ def crop_patch(grey: np.ndarray, shape: tuple[int, int], crop: str,
     return similarity.warp_patch(grey, alpha, (rows, cols)).astype(np.float64), alpha
 
 
-class PatchFilterStage(Stage):
+class PatchFilterStage(Stage[PatchFilterParams]):
     kind = "patch.filter"
     Params = PatchFilterParams
     inputs = {"features": Features, "proposals": Particles}
@@ -136,7 +136,7 @@ class PatchFilterStage(Stage):
                              "exemplars (shuffle or l2)")
         self.m2 = m
         self.model: PatchExemplars = m.to_patch_exemplars()
-        self.shape = (int(m.exemplars.shape[1]), int(m.exemplars.shape[2]))
+        self.shape = (int(self.model.patches.shape[1]), int(self.model.patches.shape[2]))
         self.alpha0: np.ndarray | None = None
         self.box: tuple[float, float, float, float] | None = None
         self.k: np.ndarray | None = None
@@ -149,7 +149,7 @@ class PatchFilterStage(Stage):
 
     def _observe(self, feat: Features | None, seq: int) -> np.ndarray | None:
         """The observed patch, or None (reported) if the features are unusable."""
-        p: PatchFilterParams = self.params  # type: ignore[assignment]
+        p = self.params
         if feat is None:
             self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
             return None
@@ -165,12 +165,12 @@ class PatchFilterStage(Stage):
         if self.alpha0 is None:
             self.alpha0 = alpha
             H, W = grey.shape
-            self.box = (tuple(float(v) for v in p.init) if p.init is not None  # type: ignore[assignment]
-                        else (0.0, 0.0, float(W), float(H)))
+            b = p.init if p.init is not None else (0.0, 0.0, W, H)
+            self.box = (float(b[0]), float(b[1]), float(b[2]), float(b[3]))
         return z
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        p: PatchFilterParams = self.params  # type: ignore[assignment]
+        p = self.params
         feat = inputs.get("features")
         feat = feat if isinstance(feat, Features) else None
         first = self.k is None
@@ -188,6 +188,7 @@ class PatchFilterStage(Stage):
                 k = cloud_of(prop).k
             else:
                 self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
+                assert self.k is not None  # not the first frame
                 k = self.k
             if k.size and (k.min() < 0 or k.max() >= self.model.K):
                 raise StageInputError(f"proposals {seq}: exemplar index outside [0, {self.model.K})")
@@ -213,7 +214,7 @@ class PatchFilterStage(Stage):
         assert self.alpha0 is not None and self.box is not None
         alpha = np.tile(self.alpha0, (self.k.size, 1))
         cloud = ParticleCloud(alpha=alpha, k=self.k, log_w=np.zeros(self.k.size))
-        a = tuple(float(v) for v in self.alpha0)
+        a = (float(self.alpha0[0]), float(self.alpha0[1]), float(self.alpha0[2]), float(self.alpha0[3]))
         est = Estimate(header=header, box=self.box, alpha=a, k=map_k, mean=a, std=(0.0, 0.0, 0.0, 0.0),
                        ess=float(post.ess), n=p.particles, log_evidence=float(post.log_evidence),
                        contour=NDArray.of(np.zeros((0, 2), dtype=np.float32)), state=state)
@@ -221,7 +222,8 @@ class PatchFilterStage(Stage):
 
     def summary(self) -> dict:
         return {"steps": self.steps, "seq": self.last_seq, "k": self.last_k,
-                "training_frame": int(self.m2.exemplar_frame[self.last_k]) if self.last_k >= 0 else -1}
+                "training_frame": int(frames[self.last_k]) if self.last_k >= 0 and (frames := self.m2.exemplar_frame)
+                is not None else -1}
 
     def snapshot(self) -> bytes:
         snap = _PatchSnapshot(version=SNAPSHOT_VERSION,
@@ -250,5 +252,5 @@ class PatchFilterStage(Stage):
             raise ValueError(f"stage {name!r}: inconsistent patch filter snapshot")
         self.k = k
         self.alpha0 = None if snap.alpha0 is None else np.array(snap.alpha0, dtype=np.float64)
-        self.box = None if snap.box is None else tuple(snap.box)  # type: ignore[assignment]
+        self.box = None if snap.box is None else (snap.box[0], snap.box[1], snap.box[2], snap.box[3])
         self.steps, self.last_k, self.last_seq = snap.steps, snap.last_k, snap.last_seq

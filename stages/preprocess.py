@@ -25,7 +25,7 @@ class _PreprocessSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=Tru
     thresholds: tuple[float, float] | None
 
 
-class PreprocessParams(Params):
+class PreprocessParams(Params, frozen=True):
     """Edge and chamfer settings.
 
     canny_low / canny_high: fixed Canny thresholds. Unset, they are chosen from the
@@ -49,7 +49,7 @@ class PreprocessParams(Params):
     edges: bool = True
 
 
-class PreprocessStage(Stage):
+class PreprocessStage(Stage[PreprocessParams]):
     kind = "preprocess"
     Params = PreprocessParams
     inputs = {"frames": Frame}
@@ -63,7 +63,7 @@ class PreprocessStage(Stage):
             else None)
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        p: PreprocessParams = self.params  # type: ignore[assignment]
+        p = self.params
         frame = inputs["frames"]
         assert isinstance(frame, Frame)
         try:
@@ -90,13 +90,13 @@ class PreprocessStage(Stage):
         return [("features", msg)]
 
     def _gradients(self, grey: np.ndarray) -> tuple[NDArray | None, NDArray | None]:
-        if not self.params.gradients:  # type: ignore[attr-defined]
+        if not self.params.gradients:
             return None, None
         gxa, gya = features.gradients(grey)
         return NDArray.of(gxa), NDArray.of(gya)
 
     def _grey_only(self, frame: Frame, grey: np.ndarray) -> Features:
-        p: PreprocessParams = self.params  # type: ignore[assignment]
+        p = self.params
         gx, gy = self._gradients(grey)
         self.done += 1
         return Features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(np.zeros(0, np.uint8)),

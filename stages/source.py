@@ -34,7 +34,7 @@ from .messages import Capture, Frame, Message, NDArray
 __all__ = ["SourceStage", "SourceParams", "RawFrame"]
 
 
-class SourceParams(Params):
+class SourceParams(Params, frozen=True):
     """Where frames come from and how fast.
 
     kind: ``synthetic`` (built-in scene with ground truth), ``folder`` (image files sorted
@@ -128,7 +128,7 @@ class RawFrame:
     events: tuple[tuple[str, str], ...] = ()
 
 
-class SourceStage(Stage):
+class SourceStage(Stage[SourceParams]):
     """Turns decoded frames into :class:`Frame` messages on port ``frames``."""
 
     kind = "source"
@@ -137,7 +137,7 @@ class SourceStage(Stage):
     outputs = {"frames": Frame}
 
     @classmethod
-    def ports(cls, params: SourceParams):  # type: ignore[override]
+    def ports(cls, params: SourceParams) -> tuple[Mapping[str, type], Mapping[str, type]]:
         outs: dict[str, type] = {"frames": Frame}
         if params.host_clock:
             outs["captures"] = Capture
@@ -157,7 +157,7 @@ class SourceStage(Stage):
 
     def emit(self, raw: RawFrame) -> list[Output]:
         """Validate one decoded frame and return ``[("frames", Frame)]`` or ``[]`` if unusable."""
-        p: SourceParams = self.params  # type: ignore[assignment]
+        p = self.params
         seq = raw.index
         where = f"frame {seq}" + (f" ({raw.name})" if raw.name else "")
         for kind, message in raw.events:

@@ -24,7 +24,7 @@ F = TypeVar("F", bound="StageFields")
 T = TypeVar("T")
 
 
-class StageFields(Params):
+class StageFields(Params, frozen=True):
     """Base of the fields a stage adds to its tracker's parameters (declared as a subclass)."""
 
     def check(self, tracker: Any) -> None:

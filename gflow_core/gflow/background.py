@@ -142,7 +142,7 @@ class TiledBackground:
                 tile: int = TILE) -> "TiledBackground":
         """``B_1``: the frame with variance ``b_init_var``, ``unknown_var`` under each expert's
         object ``masks`` (E, H, W) bool."""
-        lay = TileLayout(tuple(frame.shape), tile)  # type: ignore[arg-type]
+        lay = TileLayout((int(frame.shape[0]), int(frame.shape[1])), tile)
         E, K = masks.shape[0], lay.n_tiles
         mt = lay.to_tiles(masks, False)  # (E, K, TT)
         first, inverse = _unique_tiles(np.broadcast_to(np.arange(K), (E, K)), mt)
@@ -159,7 +159,7 @@ class TiledBackground:
         var = np.asarray(var, dtype=np.float64)
         if mean.ndim != 3 or var.shape != mean.shape:
             raise ValueError(f"background mean and variance must be (E, H, W) alike, got {mean.shape}, {var.shape}")
-        lay = TileLayout(tuple(mean.shape[1:]), tile)  # type: ignore[arg-type]
+        lay = TileLayout((int(mean.shape[1]), int(mean.shape[2])), tile)
         E, K = mean.shape[0], lay.n_tiles
         tm, tv = lay.to_tiles(mean).reshape(E * K, -1), lay.to_tiles(var).reshape(E * K, -1)
         rows = np.ascontiguousarray(np.concatenate([tm, tv], axis=1))
@@ -219,7 +219,7 @@ class TiledBackground:
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        return (self.n_experts,) + tuple(self.layout.shape)  # type: ignore[return-value]
+        return self.n_experts, self.layout.shape[0], self.layout.shape[1]
 
     @property
     def nbytes(self) -> int:

@@ -52,7 +52,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Sequence, cast
 
 import numpy as np
 
@@ -350,7 +350,7 @@ class GFlowConfig:
         """Standard deviations ``(5 + k,)`` of the pose transition in the pose vector layout: the
         random walk's, and for ``c_2 .. c_k`` with a morph prior ``1 / sqrt(1/std^2 + 1/m^2)``
         (:meth:`morph_shrink`)."""
-        c = self.prior_std_coefficients
+        c = cast("tuple[float, ...]", self.prior_std_coefficients)  # a tuple after __post_init__
         if len(c) not in (1, k):
             raise ValueError(f"prior_std_coefficients has {len(c)} values but the model has k={k} morph bases")
         out = np.empty(5 + k)
@@ -418,8 +418,8 @@ class ExpertState:
     poses: np.ndarray
     tex_mean: np.ndarray
     tex_var: np.ndarray
-    bg_mean: np.ndarray | None
-    bg_var: np.ndarray | None
+    bg_mean: np.ndarray | TiledTexels | None
+    bg_var: np.ndarray | TiledTexels | None
     log_credibility: np.ndarray
     image_shape: tuple[int, int]
     tex_anchor: np.ndarray | None = None
@@ -591,7 +591,7 @@ def init_state(
         bg_mean=bg_mean,
         bg_var=bg_var,
         log_credibility=_ro(np.full(E, -np.log(E))),
-        image_shape=tuple(img.shape),  # type: ignore[arg-type]
+        image_shape=(int(img.shape[0]), int(img.shape[1])),
         tex_anchor=None if cfg.texture_decay == 1.0 else _ro(texture_anchor(model, u0, img)),
     )
 

@@ -45,6 +45,7 @@ keeps every pose a proper rotation.
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial.transform import Rotation
 
 __all__ = [
@@ -91,7 +92,7 @@ def pose_names(k: int) -> tuple[str, ...]:
     return ("w_x", "w_y", "w_z", "l_x", "l_y") + tuple(f"c_{j + 1}" for j in range(pose_size(k) - N_RIGID))
 
 
-def make_pose(rotation: np.ndarray | None, translation: np.ndarray, coefficients: np.ndarray) -> np.ndarray:
+def make_pose(rotation: npt.ArrayLike | None, translation: npt.ArrayLike, coefficients: npt.ArrayLike) -> np.ndarray:
     """Build a pose vector ``u`` (eq. 2) from its parts.
 
     Parameters

@@ -80,7 +80,7 @@ class FrameData:
 
     @property
     def shape(self) -> tuple[int, int]:
-        return self.image.shape  # type: ignore[return-value]
+        return self.image.shape
 
 
 def prepare_frame(frame: np.ndarray, shape: tuple[int, int] | None = None) -> FrameData:
@@ -169,6 +169,9 @@ class BilinearStencil:
     """
 
     __slots__ = ("idx", "fx", "fy", "width", "size", "_x", "_y", "_H", "_dx_ok", "_dy_ok", "_inside")
+    _dx_ok: np.ndarray | None
+    _dy_ok: np.ndarray | None
+    _inside: np.ndarray | None
 
     def __init__(self, idx: np.ndarray, fx: np.ndarray, fy: np.ndarray, x: np.ndarray, y: np.ndarray,
                  shape: tuple[int, int]) -> None:

@@ -130,6 +130,7 @@ import numpy as np
 
 from .geometry import (COEF, ROT, TRANS, box_minus, box_plus, pose_quaternions, project,
                        quaternion_matrices, relative_rotvecs)
+from .background import TiledTexels
 from .coarse_search import translation_costs
 from .image import BilinearStencil, FrameData, bilinear_stencil, stencil_xy
 from .photometric import Photometric
@@ -187,8 +188,8 @@ class TextureView:
 
     mean: np.ndarray
     var: np.ndarray
-    bg_mean: np.ndarray | None = None
-    bg_var: np.ndarray | None = None
+    bg_mean: np.ndarray | TiledTexels | None = None
+    bg_var: np.ndarray | TiledTexels | None = None
     bg_rows: np.ndarray | None = None
     psi_b: float = 0.0
 
@@ -562,7 +563,8 @@ class _Evaluation:
         self.r = r
         if fit.background:
             tv = fit.tv
-            self.mb, self.mbx, self.mby, vb = tv.bg_at(st, tv.bg_rows[:, None], with_grad=True)  # type: ignore[index]
+            assert tv.bg_rows is not None
+            self.mb, self.mbx, self.mby, vb = tv.bg_at(st, tv.bg_rows[:, None], with_grad=True)
             self.wb = 1.0 / (vb + fit.sigma_w)
             self.rb = yv - self.mb
             f = f - (self.rb * self.rb * self.wb).sum(axis=-1)
@@ -946,15 +948,15 @@ def coarse_to_fine_peak(
         return res if reset is None else _frontal_chain(res, reset, *chains)
     E = u.shape[0]
     ls = 0.5 ** (L - 1)
-    sub = slice(None, None, int(search_stride))
+    every = slice(None, None, int(search_stride))
     # the search compares raw intensities with an uncapped cost: with a gain and bias fitted
     # at every grid point low-contrast patches matched too, and with the outlier cap most
     # vertices of a motion-blurred face were outliers everywhere (see the module docstring).
     # The candidates differ from u only in l, so the rotated shape g r (h_i c) + l is projected
     # once per expert and only the texture term is evaluated per translation (coarse_search).
-    xy = project(bases[sub], u)
+    xy = project(bases[every], u)
     cost = translation_costs(pyramid[L - 1].image, xy[..., 0] * ls, xy[..., 1] * ls, offsets * ls,
-                             tv.mean[:, sub], _fg_weights(tv, sigma_w)[:, sub], SEARCH_BLOCK_VERTICES)
+                             tv.mean[:, every], _fg_weights(tv, sigma_w)[:, every], SEARCH_BLOCK_VERTICES)
     # the rest of the objective (gauss_newton_objective): prior (only its translation part
     # changes with the offset) and the soft walls
     lam = prior_precision(prior_std)
@@ -1141,14 +1143,15 @@ def background_image_terms(frame: np.ndarray, tv: TextureView, sigma_w: float) -
     -------
     (E,) float64
     """
-    rows = tv.bg_rows
-    out = np.empty(len(rows))  # type: ignore[arg-type]
+    rows, bg_mean, bg_var = tv.bg_rows, tv.bg_mean, tv.bg_var
+    assert rows is not None and bg_mean is not None and bg_var is not None
+    out = np.empty(len(rows))
     v = np.empty(frame.shape)
     d = np.empty(frame.shape)
-    for j, r in enumerate(rows):  # type: ignore[arg-type]
+    for j, r in enumerate(rows):
         # sigma_b(j) + sigma_w with the predicted sigma_b (eq. 10)
-        np.add(tv.bg_var[r], tv.psi_b + sigma_w, out=v)  # type: ignore[index]
-        np.subtract(frame, tv.bg_mean[r], out=d)  # type: ignore[index]
+        np.add(bg_var[r], tv.psi_b + sigma_w, out=v)
+        np.subtract(frame, bg_mean[r], out=d)
         d *= d
         d /= v
         np.log(v, out=v)
@@ -1232,7 +1235,8 @@ def log_likelihood(
     if bg_image_terms is None:
         raise ValueError("bg_image_terms is required with a background model")
     m = fd.image.size
-    mb, vb = tv.bg_at(st, tv.bg_rows[:, None, None])  # type: ignore[index]
+    assert tv.bg_rows is not None
+    mb, vb = tv.bg_at(st, tv.bg_rows[:, None, None])
     vb = vb + sigma_w
     rb = y - mb
     bgv = np.sum(rb * rb / vb + np.log(vb), axis=-1)

@@ -144,8 +144,8 @@ def align_pairs(metric: Metric, moving: Items, fixed: Items, j: int, alpha0: np.
         m = alphas.shape[0] // idx.size
         return fwd(metric.transform(metric.subset(moving, np.repeat(idx, m)), alphas)).reshape(idx.size, m)
 
-    fast = isinstance(metric, ChamferMetric) and metric.method == "image"
-    if fast:
+    chamfer = metric if isinstance(metric, ChamferMetric) and metric.method == "image" else None
+    if chamfer is not None:
         q = fixed.curve(j)
         cache = {} if moving_images is None else moving_images
 
@@ -156,7 +156,7 @@ def align_pairs(metric: Metric, moving: Items, fixed: Items, j: int, alpha0: np.
             for r, i in enumerate(idx):
                 img = cache.get(int(i))
                 if img is None:
-                    img = cache[int(i)] = metric.point_image(moving.curve(int(i)), extent)
+                    img = cache[int(i)] = chamfer.point_image(moving.curve(int(i)), extent)
                 # rho(f, T_alpha m) = mean_q g(s |T_alpha^-1 q - m|)
                 pts = similarity.apply_many(similarity.invert(al[r]), q)
                 out[r] = img.distance(pts, np.full(m, q.shape[0]), scale=al[r, :, 3])

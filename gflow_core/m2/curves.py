@@ -112,9 +112,8 @@ class Curves:
 
     def __getitem__(self, idx: int | slice | np.ndarray) -> "Curves":
         """Sub-batch; an integer gives a batch of one."""
-        if isinstance(idx, (int, np.integer)):
-            idx = [int(idx)]
-        return Curves(self.points[idx], self.n_points[idx])
+        sel = [int(idx)] if isinstance(idx, (int, np.integer)) else idx
+        return Curves(self.points[sel], self.n_points[sel])
 
     def curve(self, i: int) -> np.ndarray:
         """(n_points[i], 2) float64, the valid points of curve i."""
@@ -262,6 +261,7 @@ class PointChamferImage:
             dy = ry - self._seed_y.take(lab)
             d2 = dx * dx + dy * dy
             best = d2 if best is None else np.minimum(best, d2, out=best)
+        assert best is not None
         return np.sqrt(best)
 
     def __call__(self, pts: np.ndarray, scale: float | np.ndarray = 1.0) -> np.ndarray:

@@ -35,12 +35,12 @@ Departures from the paper
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Callable, ClassVar, Literal
+from typing import Any, Callable, ClassVar, Literal, cast
 
 import numpy as np
 
 from .. import similarity
-from ..features import PROFILES, chamfer_image, edge_map, to_grey
+from ..features import PROFILES, Profile, chamfer_image, edge_map, to_grey
 from .chamfer import chamfer_distance
 from .curves import Curves, PointChamferImage, profile_g
 
@@ -217,7 +217,6 @@ class ChamferMetric(Metric):
         def f(items: Curves) -> np.ndarray:
             return img.distance(items.points, items.n_points)
 
-        f.image = img  # type: ignore[attr-defined]
         return f
 
     def transform(self, items: Curves, alphas: np.ndarray) -> Curves:
@@ -226,7 +225,7 @@ class ChamferMetric(Metric):
     def features(self, frame: np.ndarray) -> np.ndarray:
         """(H, W) image -> (H, W) float32 chamfer image gamma(z, .) of its Canny edges (eq. 5)."""
         edges = edge_map(to_grey(frame), self.canny_low, self.canny_high, self.blur)
-        return chamfer_image(edges, self.profile, self.g0)
+        return chamfer_image(edges, cast(Profile, self.profile), self.g0)
 
     def to_image(self, exemplars: Curves, features: np.ndarray, alphas: np.ndarray | None = None,
                  k: np.ndarray | None = None, outside: float | None = None) -> np.ndarray:

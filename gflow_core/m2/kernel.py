@@ -41,6 +41,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["moments", "mle", "mle_objective", "MLE_D1_RATIO", "PAPER_NOTE_RATIO", "KernelFit",
            "fit_kernels", "log_kernel", "KERNEL_METHODS"]
@@ -223,7 +224,7 @@ def fit_kernels(rho: np.ndarray, labels: np.ndarray, K: int, method: str = "mome
     return KernelFit(d=d, sigma=sigma, n=n, pooled=pooled, method=method)
 
 
-def log_kernel(rho: np.ndarray, sigma: np.ndarray, d: np.ndarray) -> np.ndarray:
+def log_kernel(rho: npt.ArrayLike, sigma: npt.ArrayLike, d: npt.ArrayLike) -> np.ndarray:
     """Log of the M2 kernel, eq. 6-7 with lambda = 1/(2 sigma^2) and Z ~ sigma^d (sec. 3.3.3).
 
     Parameters

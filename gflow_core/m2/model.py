@@ -162,6 +162,7 @@ class M2Model:
 
     def _check_appearance(self, K: int) -> None:
         a = self.appearance
+        assert a is not None
         if self.kind != "curve":
             raise ValueError("appearance exemplars go with contour (chamfer) models only")
         p = np.asarray(a.patches)
@@ -202,6 +203,7 @@ class M2Model:
         if self.kind != "curve":
             raise ValueError(f"a {self.metric!r} model has patch exemplars, not contours; use to_patch_exemplars()")
         ex = self.exemplars
+        assert isinstance(ex, Curves)
         return ContourExemplars(curves=ex.points, n_points=ex.n_points, sigma=self.sigma, d=self.d, pi=self.pi,
                                 markov=self.markov, dynamics=self.dynamics)
 
@@ -209,6 +211,7 @@ class M2Model:
         """:class:`~gflow_core.m2.patch_tracking.PatchExemplars` (patch metrics only)."""
         if self.kind != "patch":
             raise ValueError(f"a {self.metric!r} model has contour exemplars; use to_contour_exemplars()")
+        assert isinstance(self.exemplars, np.ndarray)
         return PatchExemplars(patches=self.exemplars, sigma=self.sigma, d=self.d, pi=self.pi, markov=self.markov,
                               metric=self.make_metric())
 
@@ -232,7 +235,7 @@ class M2Model:
             "g0": np.array(self.g0, dtype=np.float64),
             "upsample": np.array(self.upsample, dtype=np.int64),
             "shuffle_radius": np.array(self.shuffle_radius, dtype=np.int64),
-            "exemplar_frame": self.exemplar_frame.copy(),
+            "exemplar_frame": np.array(self.exemplar_frame, dtype=np.int64),  # set by __post_init__
             "d": self.d.copy(),
             "sigma": self.sigma.copy(),
             "pi": self.pi.copy(),
@@ -242,7 +245,7 @@ class M2Model:
             "ar_B": self.dynamics.B.copy(),
             "ref_size": self.ref_size.copy(),
         }
-        if self.kind == "curve":
+        if isinstance(self.exemplars, Curves):
             out["exemplar_curves"] = self.exemplars.points.copy()
             out["exemplar_n_points"] = self.exemplars.n_points.copy()
             if self.appearance is not None:
@@ -267,10 +270,10 @@ class M2Model:
         if "format_version" not in keys:
             raise ValueError("not an M2 model: no 'format_version' array")
         try:
-            version = np.asarray(arrays["format_version"])
-            if version.shape != () or version.dtype.kind not in "iu":
+            v = np.asarray(arrays["format_version"])
+            if v.shape != () or v.dtype.kind not in "iu":
                 raise TypeError
-            version = int(version)
+            version = int(v)
         except (TypeError, ValueError):
             raise ValueError("M2 model 'format_version' must be a scalar integer") from None
         if version not in READS_VERSIONS:

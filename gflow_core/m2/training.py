@@ -144,7 +144,7 @@ def foreground_mask(frame: np.ndarray, background: np.ndarray, threshold: float 
     diff = np.abs(f - b)
     if diff.ndim == 3:
         diff = diff.max(axis=2)
-    m = (diff > threshold).astype(np.uint8)
+    m: np.ndarray = (diff > threshold).astype(np.uint8)
     if open_radius > 0:
         m = cv2.morphologyEx(m, cv2.MORPH_OPEN, _disk(open_radius))
     if close_radius > 0:
@@ -369,13 +369,20 @@ def concat_training_sets(sets: Sequence[TrainingSet]) -> TrainingSet:
     if len(kinds) != 1:
         raise ValueError("cannot mix curve and patch training sets")
     if kinds == {"curve"}:
-        items: Curves | np.ndarray = Curves.from_list([c for s in sets for c in s.items.to_list()])
+        items: Curves | np.ndarray = Curves.from_list([c for s in sets for c in _as_curves(s.items).to_list()])
     else:
-        shapes = {s.items.shape[1:] for s in sets}
+        patches = [np.asarray(s.items) for s in sets]
+        shapes = {p.shape[1:] for p in patches}
         if len(shapes) != 1:
             raise ValueError(f"patch sizes differ between training sets: {shapes}")
-        items = np.concatenate([s.items for s in sets])
+        items = np.concatenate(patches)
     return TrainingSet(items=items, placement=np.concatenate([s.placement for s in sets]),
                        frame_index=np.concatenate([s.frame_index for s in sets]),
                        sequence=np.concatenate([s.sequence for s in sets]),
                        ref_size=np.mean([s.ref_size for s in sets], axis=0), kind=kinds.pop())
+
+
+def _as_curves(items: Curves | np.ndarray) -> Curves:
+    """The items of a curve training set (its kind says they are curves)."""
+    assert isinstance(items, Curves)
+    return items
