@@ -173,8 +173,8 @@ class GraphBackend:
         args = self._args(box)
         try:
             graph, over = self.module.overrides(args)
-            for stage, kv in self.sets.items():
-                over.setdefault(stage, {}).update(kv)
+            for sname, kv in self.sets.items():
+                over.setdefault(sname, {}).update(kv)
             # frames are pushed, never read: the source only validates and stamps them (media time)
             over.setdefault("source", {}).update(kind="synthetic", fps=self.fps, start=0, stop=None)
             make_plan = getattr(self.module, "make_plan", None)

@@ -99,6 +99,7 @@ def _read(source: Any, init: Sequence[float] | None, start: int, stop: int | Non
     from pipeline.io.frame_readers import open_reader
     from pipeline.runtime.preflight import PreflightError, check_source
     from stages.base import StageContext
+    from stages.messages import Frame
     from stages.source import SourceStage
 
     sp = _source_params(source, start, stop, fps)
@@ -121,7 +122,7 @@ def _read(source: Any, init: Sequence[float] | None, start: int, stop: int | Non
         for raw in reader:
             # the source stage's checks: an unreadable frame or one of another size is not sent
             for port, msg in stage.emit(raw):
-                if port == "frames":
+                if port == "frames" and isinstance(msg, Frame):
                     yield msg.header.seq, msg.image.array(), msg.header.stamp_ns
     return frames(), init
 
