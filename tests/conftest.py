@@ -49,6 +49,18 @@ def caviar1() -> Path:
     return data_dir("caviar1")
 
 
+@pytest.fixture(scope="session")
+def caviar1_m2_model(tmp_path_factory) -> Path:
+    """A small contour model (K = 4) learned by `gflow learn m2` from caviar1 frames 0-59."""
+    caviar1 = data_dir("caviar1")
+    out = tmp_path_factory.mktemp("m2-model") / "caviar1-k4.npz"
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", str(caviar1), "--boxes",
+                        str(caviar1 / "groundtruth.csv"), "--frames", "0:60", "-K", "4", "--max-points", "80",
+                        "--out", str(out)], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
 @pytest.fixture
 def gflow_cmd() -> list[str]:
     """The gflow command as the user runs it (the console script), falling back to python -m."""

@@ -31,17 +31,24 @@ FILLED = {
     "gflow": lambda box, seed: {"proposal.init": box, "filter.init": box, "proposal.seed": seed, "filter.seed": seed},
     "chamfer": lambda box, seed: {"filter.init": box, "filter.seed": seed, "proposal.seed": seed,
                                   "preprocess.calibrate_box": box},
+    # a model learned with `gflow learn m2`'s default preprocessing, which the graph's is
+    "m2": lambda box, seed: {"filter.init": box, "filter.seed": seed, "proposal.init": box, "proposal.seed": seed},
 }
 
 
 @pytest.mark.data
 @pytest.mark.parametrize("tracker", sorted(FILLED))
-def test_gflow_run_of_the_built_in_graph_equals_gflow_track(caviar1, tmp_path, tracker) -> None:
+def test_gflow_run_of_the_built_in_graph_equals_gflow_track(caviar1, tmp_path, tracker, request) -> None:
     box, seed = (129.0, 71.0, 30.0, 79.0), 1
+    model = []
+    sets = {"source.path": str(caviar1 / "frames"), "source.stop": FRAMES, **FILLED[tracker](box_of(box), seed)}
+    if tracker == "m2":
+        path = request.getfixturevalue("caviar1_m2_model").resolve()
+        model = ["--model", str(path)]
+        sets.update({"filter.model": path, "proposal.model": path})
     track = estimates(["track", str(caviar1), "--tracker", tracker, "--init", ",".join(map(str, box)), "--seed",
-                       str(seed), "--stop", str(FRAMES), "--out", str(tmp_path / "b.csv"), "-q"], tmp_path / "t.mcap")
-    sets = {"source.path": str(caviar1 / "frames"), "source.stop": FRAMES,
-            **FILLED[tracker](box_of(box), seed)}
+                       str(seed), "--stop", str(FRAMES), "--out", str(tmp_path / "b.csv"), "-q", *model],
+                      tmp_path / "t.mcap")
     run = estimates(["run", tracker, *[a for k, v in sets.items() for a in ("--set", f"{k}={v}")]],
                     tmp_path / "r.mcap")
     assert len(track) == FRAMES and run == track
