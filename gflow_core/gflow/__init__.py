@@ -1,6 +1,8 @@
 """G-flow (Marks, Hershey, Roddey & Movellan, NIPS 2004): the mathematics.
 
-Pure numpy / scipy / OpenCV; no I/O. Modules:
+Pure numpy / scipy / OpenCV; no I/O. The names below load their module on first use, so that
+reading the parameters (:mod:`.params`, which the command line does at every start) does not
+import the mathematics. Modules:
 
 * :mod:`.geometry` -- weak perspective morphable model (eq. 1, 2), pose vector layout,
   tangent-space increments, Jacobians.
@@ -19,31 +21,92 @@ Pure numpy / scipy / OpenCV; no I/O. Modules:
 * :mod:`.synthetic_head` -- synthetic textured-head sequences for tests and benchmarks.
 """
 
-from .filter import (
-    Estimate,
-    ExpertState,
-    GFlowConfig,
-    Proposals,
-    concatenate_proposals,
-    expert_rngs,
-    init_state,
-    propose,
-    step,
-    update,
-)
-from .geometry import COEF, N_RIGID, ROT, TRANS, box_minus, box_plus, make_pose, pose_names, pose_size, project
-from .head_model import (
-    MODEL_FORMAT_VERSION,
-    EllipsoidHead,
-    MorphableModel,
-    fit_head_model_to_box,
-    fit_head_to_box,
-    model_from_arrays,
-    model_to_arrays,
-    pose_for_box,
-)
-from .params import ELLIPSOID, PAPER, GFlowParams, paper_config
-from .tracker import GFlowObservation, GFlowState, GFlowTracker, ModelSetup, model_setup
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the names, for type checkers; at run time they load on first use (__getattr__)
+    from .filter import (
+        Estimate,
+        ExpertState,
+        GFlowConfig,
+        Proposals,
+        concatenate_proposals,
+        expert_rngs,
+        init_state,
+        propose,
+        step,
+        update,
+    )
+    from .geometry import COEF, N_RIGID, ROT, TRANS, box_minus, box_plus, make_pose, pose_names, pose_size, project
+    from .head_model import (
+        MODEL_FORMAT_VERSION,
+        EllipsoidHead,
+        MorphableModel,
+        fit_head_model_to_box,
+        fit_head_to_box,
+        model_from_arrays,
+        model_to_arrays,
+        pose_for_box,
+    )
+    from .params import ELLIPSOID, PAPER, GFlowParams, paper_config
+    from .tracker import GFlowObservation, GFlowState, GFlowTracker, ModelSetup, model_setup
+
+#: exported name -> the module of this package that defines it
+_EXPORTS = {
+    "Estimate": "filter",
+    "ExpertState": "filter",
+    "GFlowConfig": "filter",
+    "Proposals": "filter",
+    "concatenate_proposals": "filter",
+    "expert_rngs": "filter",
+    "init_state": "filter",
+    "propose": "filter",
+    "step": "filter",
+    "update": "filter",
+    "COEF": "geometry",
+    "N_RIGID": "geometry",
+    "ROT": "geometry",
+    "TRANS": "geometry",
+    "box_minus": "geometry",
+    "box_plus": "geometry",
+    "make_pose": "geometry",
+    "pose_names": "geometry",
+    "pose_size": "geometry",
+    "project": "geometry",
+    "MODEL_FORMAT_VERSION": "head_model",
+    "EllipsoidHead": "head_model",
+    "MorphableModel": "head_model",
+    "fit_head_model_to_box": "head_model",
+    "fit_head_to_box": "head_model",
+    "model_from_arrays": "head_model",
+    "model_to_arrays": "head_model",
+    "pose_for_box": "head_model",
+    "ELLIPSOID": "params",
+    "PAPER": "params",
+    "GFlowParams": "params",
+    "paper_config": "params",
+    "GFlowObservation": "tracker",
+    "GFlowState": "tracker",
+    "GFlowTracker": "tracker",
+    "ModelSetup": "tracker",
+    "model_setup": "tracker",
+}
+
+
+def __getattr__(name: str) -> Any:
+    mod = _EXPORTS.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{mod}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
+
 
 __all__ = [
     "COEF",

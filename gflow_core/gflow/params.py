@@ -23,19 +23,17 @@ import dataclasses
 import math
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, Literal, Mapping
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Literal, Mapping
 
 from ..params import make, param
-from .filter import GFlowConfig
-from .geometry import COEF
-from .head_model import MorphableModel
 
-__all__ = ["GFlowParams", "PAPER", "ELLIPSOID", "CONFIG_FIELDS", "paper_config"]
+if TYPE_CHECKING:  # the filter is imported when a configuration is made, not with the parameters
+    import numpy as np
 
-#: the fields of :class:`GFlowConfig`, parameters of the same names
-CONFIG_FIELDS = tuple(f.name for f in dataclasses.fields(GFlowConfig))
+    from .filter import GFlowConfig
+    from .head_model import MorphableModel
+
+__all__ = ["GFlowParams", "PAPER", "ELLIPSOID", "paper_config"]
 
 
 @dataclass(frozen=True)
@@ -139,7 +137,12 @@ class GFlowParams:
 
         Raises ``ValueError`` for settings that do not fit the model (the coefficient stds' length).
         """
-        cfg = GFlowConfig(**{f: getattr(self, f) for f in CONFIG_FIELDS})
+        import numpy as np
+
+        from .filter import GFlowConfig
+        from .geometry import COEF
+
+        cfg = GFlowConfig(**{f.name: getattr(self, f.name) for f in dataclasses.fields(GFlowConfig)})
         if model is None:
             return cfg
         if pose0 is None:

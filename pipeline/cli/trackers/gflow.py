@@ -23,6 +23,7 @@ import yaml
 
 from gflow_core.gflow.params import ELLIPSOID as ELLIPSOID_SETTINGS
 from gflow_core.gflow.params import GFlowParams
+from gflow_core.params import defaults
 
 from pipeline.runtime.graph import GRAPHS_DIR, GraphError, Plan, load_graph, parse_graph
 
@@ -35,7 +36,7 @@ PARAMS = GFlowParams
 PROPOSAL, FILTER = "proposal", "filter"
 #: ``--model`` names: the built-in face model (the default) and the generic ellipsoid head (its settings:
 #: ``gflow_core.gflow.params.ELLIPSOID``)
-DEFAULT_MODEL, ELLIPSOID = GFlowParams().model, "ellipsoid"
+DEFAULT_MODEL, ELLIPSOID = defaults(GFlowParams)["model"], "ellipsoid"
 
 
 def add_args(g) -> None:
