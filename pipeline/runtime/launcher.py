@@ -48,7 +48,9 @@ EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full di
 LATENCY_WINDOW = 250
 #: seconds before a stage of a run placed on hosts gives up a late input (3 s on one host)
 LATE_S_ACROSS_HOSTS = 10.0
+from pipeline.runtime.node_plan import DRAIN_S, LATE_S, NodePlan, write_node_plan
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
+from pipeline.runtime.user_settings import seconds
 from pipeline.runtime.security import Signer
 from pipeline.runtime.signals import StopSignals
 from pipeline.runtime.trace import mark
@@ -162,8 +164,11 @@ class Launcher:
         self.total_frames = total_frames
         self.on_status = on_status
         self.threads_per_stage = threads_per_stage
-        self.stall_timeout = (float(os.environ.get("GFLOW_STALL_S", "30")) if stall_timeout is None
-                              else stall_timeout)
+        self.stall_timeout = seconds("GFLOW_STALL_S", 30.0) if stall_timeout is None else stall_timeout
+        # across hosts a link may stall for seconds (TCP retransmits after a cut)
+        self.late_s = seconds("GFLOW_LATE_S", LATE_S_ACROSS_HOSTS if self.hosts else LATE_S)
+        self.drain_s = seconds("GFLOW_DRAIN_S", DRAIN_S)
+        self.node_zenoh = self.zenoh  # how the stage processes join zenoh (made concrete by run)
         self.stall: str = ""  # the stall report, when the run stopped for one
         self.run_dir: str = ""
         self._progress_at: dict[str, tuple[tuple, float]] = {}
@@ -250,29 +255,36 @@ class Launcher:
         return " | ".join(parts)
 
     # -- processes -------------------------------------------------------------------------
-    def _spawn(self, name: str, plan_file: str, restarts: int = 0) -> _Proc:
+    def _stage_env(self) -> dict[str, str]:
+        """The environment of a stage process: the launcher's, with one compute thread per
+        process unless the user says otherwise. Parallelism comes from the stage processes:
+        several processes each running a thread per core for BLAS / OpenMP oversubscribe the
+        cores (measured: every stage 2-3x slower than inline on 2 cores). The run's own state
+        goes in the node plan, never here."""
         env = dict(os.environ)
-        # Parallelism comes from the stage processes: one compute thread each. Several processes
-        # each running a thread per core for BLAS / OpenMP oversubscribe the cores (measured:
-        # every stage 2-3x slower than inline on 2 cores). A user's explicit setting wins.
         for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
             env.setdefault(var, str(self.threads_per_stage))
-        env.setdefault("GFLOW_CV_THREADS", str(self.threads_per_stage))
-        if self.hosts:  # across hosts a link may stall for seconds (TCP retransmits after a cut)
-            env.setdefault("GFLOW_LATE_S", str(LATE_S_ACROSS_HOSTS))
-        if self.recording:
-            # a restarted recorder starts a new segment: the first file stays as it was closed or torn
-            recorder = self.plan.stages[name].kind == "recorder"
-            env["GFLOW_RECORDING"] = str(segment_path(self.recording, restarts)) if restarts and recorder else self.recording
-        env["GFLOW_RUN_DIR"] = self.run_dir
-        env["GFLOW_STATE_DIR"] = os.path.join(self.run_dir, "state")
-        env["GFLOW_LAUNCHER_PID"] = str(os.getpid())
-        env["GFLOW_RESTARTS"] = str(restarts)
-        if restarts:  # the peers a restarted stage can still hear from
-            env["GFLOW_PEERS"] = ",".join(n for n, p in self.procs.items() if n != name and p.popen.poll() is None)
-        self._progress_at.pop(name, None)
         root = str(Path(__file__).resolve().parents[2])
         env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+        return env
+
+    def _node_plan(self, name: str, restarts: int) -> NodePlan:
+        """What stage ``name`` is handed (its ``restarts``-th restart; 0: its first start)."""
+        recording = self.recording or None
+        if recording and restarts and self.plan.stages[name].kind == "recorder":
+            # a restarted recorder starts a new segment: the first file stays as it was closed or torn
+            recording = str(segment_path(recording, restarts))
+        # the peers a restarted stage can still hear from
+        peers = (tuple(n for n, p in self.procs.items() if n != name and p.popen.poll() is None)
+                 if restarts else None)
+        return NodePlan(graph=self.plan, stage=name, zenoh=self.node_zenoh, launcher_pid=os.getpid(),
+                        run_dir=self.run_dir, restarts=restarts, peers=peers, recording=recording,
+                        late_s=self.late_s, drain_s=self.drain_s, cv_threads=self.threads_per_stage)
+
+    def _spawn(self, name: str, restarts: int = 0) -> _Proc:
+        plan_file = write_node_plan(self._node_plan(name, restarts), self.run_dir)
+        env = self._stage_env()
+        self._progress_at.pop(name, None)
         if self._zygote is not None and not restarts:
             # forked from the warm zygote (pipeline/runtime/zygote.py): no interpreter start, shared imports paid once
             r, w = os.pipe()
@@ -358,7 +370,8 @@ class Launcher:
         gateway = host_gateway(self.zenoh, bool(self.hosts))
         if gateway is not None:  # this host's stages reach the others through the launcher
             self.zenoh = gateway
-        node_settings = ZenohSettings(mode=self.zenoh.mode if self.zenoh.mode != "router" else "peer",
+        # a stage process's handshake waits for every peer's heartbeat: opening need not wait for them too
+        self.node_zenoh = ZenohSettings(mode=self.zenoh.mode if self.zenoh.mode != "router" else "peer",
                                       listen=node_listen(self.zenoh) if self.zenoh.mode != "client" else (),
                                       # a client launcher listens nowhere: its stages go to the router only
                                       # (not to whatever else may listen on the launcher's would-be port)
@@ -366,8 +379,7 @@ class Launcher:
                                                     if not e.endswith(":0") and self.zenoh.mode != "client")
                                       + (tuple(self.zenoh.connect) if gateway is None else ()),
                                       multicast=self.zenoh.multicast, shm_pool_mb=self.zenoh.shm_pool_mb,
-                                      security=self.zenoh.security)
-        plan.zenoh = node_settings.to_json()
+                                      security=self.zenoh.security, connect_scouted=False)
         mark("launcher run")
         # SIGINT / SIGTERM / SIGHUP on a sigwait thread, never a Python handler setting the Event
         # (pipeline/runtime/signals.py); taken before the session opens, so zenoh's threads block them
@@ -390,8 +402,6 @@ class Launcher:
                     bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True)
             self.run_dir = tempfile.mkdtemp(prefix="gflow-run-", dir=run_dir_parent())
             os.makedirs(os.path.join(self.run_dir, "state"))
-            plan_file = os.path.join(self.run_dir, "plan.json")
-            Path(plan_file).write_text(plan.to_json())
         except BaseException:
             if signals is not None:
                 signals.close()
@@ -408,7 +418,7 @@ class Launcher:
             self._zygote = take() if self.threads_per_stage == 1 else None
             try:
                 for n in recorder + workers:
-                    self.procs[n] = self._spawn(n, plan_file)
+                    self.procs[n] = self._spawn(n)
                     mark(f"launcher spawned {n} {self.procs[n].popen.pid}")
             finally:
                 self._close_zygote()  # restarts start `python -m pipeline.runtime.node`
@@ -469,7 +479,7 @@ class Launcher:
                             self._print(f"restarting {n} ({p.restarts + 1}/{sp.max_restarts})"
                                         + (f": recording the rest to {segment_path(self.recording, p.restarts + 1)}"
                                            if n in recorder and self.recording else ""))
-                            new = self._spawn(n, plan_file, p.restarts + 1)
+                            new = self._spawn(n, p.restarts + 1)
                             new.restarts = p.restarts + 1
                             self.procs[n] = new
                             running = True

@@ -1,4 +1,7 @@
-"""One stage as its own OS process on zenoh: ``python -m pipeline.runtime.node PLAN.json STAGE``.
+"""One stage as its own OS process on zenoh: ``python -m pipeline.runtime.node NODE_PLAN.json STAGE``.
+
+The launcher hands the process its node plan (:class:`pipeline.runtime.node_plan.NodePlan`):
+the graph, how to join zenoh, and the run's state for this process.
 
 Start-up handshake: every node publishes a heartbeat (:class:`StageStatus`) on
 ``gflow/<stream>/_status/<stage>`` twice a second and at every change of state, after
@@ -20,12 +23,12 @@ Faults:
 * Nothing outlives the launcher: on Linux every node asks for SIGTERM when its parent dies
   (``prctl(PR_SET_PDEATHSIG)``), and a watchdog thread also checks the parent pid; an
   orphaned node stops at once (the recorder closes its file first), removes the run's
-  temporary folder (``GFLOW_RUN_DIR``) and leaves with ``os._exit``: its session is not
+  temporary folder (the plan's ``run_dir``) and leaves with ``os._exit``: its session is not
   closed (zenoh-python's callback threads would hold the interpreter's teardown) and its
   stdout/stderr are pipes to the dead launcher.
 * Resume, not restart: a stage the graph restarts writes a checkpoint after every step
-  (``GFLOW_STATE_DIR``: its snapshot, the last frame done, its last outputs). Started
-  again (``GFLOW_RESTARTS`` > 0), it restores the checkpoint and resumes from the next frame
+  (in the run folder's ``state/``: its snapshot, the last frame done, its last outputs). Started
+  again (the plan's ``restarts`` > 0), it restores the checkpoint and resumes from the next frame
   it has not consumed: the source from the frame after the last one it sent; any other
   stage first takes the inputs it missed from the recording (every message that reached
   the recorder while it was down, read up to the recorder's last flush), then goes on live,
@@ -34,7 +37,7 @@ Faults:
   frame whose driver inputs are here).
 * The cycle never deadlocks: an input that does not come is given up when the stream is
   ``lag`` frames further on (twice the flow-control window, plus 4) or once its frame has
-  been the next one to step for ``GFLOW_LATE_S`` seconds (default 3) while the source is
+  been the next one to step for the plan's ``late_s`` seconds (default 3) while the source is
   ahead; the stage then coasts. (Counted from when its first input came, a G-flow proposal
   stage whose frames arrive a window ahead of its cycle gave inputs up on a loaded machine,
   and the multi-process result then differed from --inline.)
@@ -65,7 +68,6 @@ from pipeline.runtime.trace import mark
 mark("node begin")  # before the imports: bench/bench_startup.py tells interpreter start from imports
 
 import ctypes  # noqa: E402
-import dataclasses
 import logging
 import os
 import queue
@@ -87,10 +89,11 @@ from stages.source import SourceStage
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.drain import FINISHED, consumers_of, recorder_needs
 from pipeline.runtime.graph import Plan, RecorderParams, recorded_topic_filter
+from pipeline.runtime.node_plan import NodePlan, NodePlanError, read_node_plan
 from pipeline.runtime.stage_host import StageHost
 from pipeline.runtime.inbox import BoundedInbox
 from pipeline.runtime.memory import keep_freed_memory
-from pipeline.runtime.transport import Bus, ZenohSettings, open_session
+from pipeline.runtime.transport import Bus, open_session
 from pipeline.runtime.security import Signer
 from pipeline.runtime.signals import StopSignals
 
@@ -133,9 +136,10 @@ def die_with_parent() -> None:
 
 
 class Node:
-    def __init__(self, plan: Plan, name: str) -> None:
-        self.plan = plan
-        self.name = name
+    def __init__(self, node_plan: NodePlan) -> None:
+        self.node_plan = node_plan
+        self.plan = plan = node_plan.graph
+        self.name = name = node_plan.stage
         self.sp = plan.stages[name]
         self.stop = threading.Event()
         self._hb_stop = threading.Event()
@@ -149,8 +153,7 @@ class Node:
         self.state = "starting"
         self.steps = 0
         self.proc = psutil.Process()
-        # the handshake below waits for every peer's heartbeat: opening need not wait for them too
-        settings = dataclasses.replace(ZenohSettings.from_json(plan.zenoh), connect_scouted=False)
+        settings = node_plan.zenoh
         mark(f"node {name} opening session")
         self.session = open_session(settings)
         mark(f"node {name} session")
@@ -186,19 +189,19 @@ class Node:
         self.drained = threading.Event()
         self.announced = -1  # sources: the last frame announced
         self.frame_shape: tuple[int, ...] = ()
-        self.late_s = float(os.environ.get("GFLOW_LATE_S", "3.0"))
+        self.late_s = node_plan.late_s
         self.orphaned = threading.Event()
-        self.parent = int(os.environ.get("GFLOW_LAUNCHER_PID", "0") or 0)
-        self.restarts = int(os.environ.get("GFLOW_RESTARTS", "0") or 0)
+        self.parent = node_plan.launcher_pid
+        self.restarts = node_plan.restarts
         self.bad_control = 0
         self._published = False  # for the start-up trace only
         # who must be heard from before publishing: every stage; a restarted stage only those
         # the launcher saw running when it restarted it (the others may have finished), for at most 3 s
-        peers = os.environ.get("GFLOW_PEERS")
+        peers = node_plan.peers
         self.required_peers = (set(plan.stages) if not self.restarts or peers is None
-                               else {p for p in peers.split(",") if p in plan.stages} | {name})
+                               else {p for p in peers if p in plan.stages} | {name})
         self.ready_deadline = time.monotonic() + 3.0
-        state_dir = os.environ.get("GFLOW_STATE_DIR", "")
+        state_dir = node_plan.state_dir
         self.resend: list[tuple[str, bytes, int, str]] = []
         self.checkpoint_path = (Path(state_dir) / f"{name}.ckpt"
                                 if state_dir and self.sp.restart == "on-failure" else None)
@@ -430,7 +433,7 @@ class Node:
         """Feed the inputs after frame ``after`` that reached the recording while this stage
         was down (live copies of them are then ignored as already replayed)."""
         h = self.host
-        path = os.environ.get("GFLOW_RECORDING", "")
+        path = self.node_plan.recording
         if h is None or not path or not Path(path).is_file():
             return
         rec = self.plan.recorder()
@@ -469,7 +472,8 @@ class Node:
             lag = 2 * self.window + 4 if self.window else 0
             self.host = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self.publish,
                                   sp.snapshot_every, plan.snapshot_topic(self.name), lag=lag,
-                                  window=self.window or (1 << 40), on_step=self._checkpoint)
+                                  window=self.window or (1 << 40), on_step=self._checkpoint,
+                                  cv_threads=self.node_plan.cv_threads)
             for topic in sp.inputs.values():
                 self.bus.subscribe(topic, self._on_data, with_type=True)
             resumed_after = self._restore()
@@ -534,7 +538,7 @@ class Node:
         rec, need = recorder_needs(self.plan, eos)
         self.state = "draining"
         self.send_status()
-        deadline = time.monotonic() + float(os.environ.get("GFLOW_DRAIN_S", "30"))
+        deadline = time.monotonic() + self.node_plan.drain_s
         while not self.stop.is_set() and time.monotonic() < deadline:
             # a peer that never held a token here (another host, not yet heard) counts as there
             waiting = [c for c in consumers if self.peer_state.get(c) not in FINISHED
@@ -547,12 +551,13 @@ class Node:
             self.drained.clear()
             self.drained.wait(0.05)
         if not self.stop.is_set():
-            log.warning("[%s] finished, but its last messages were not confirmed within GFLOW_DRAIN_S", self.name)
+            log.warning("[%s] finished, but its last messages were not confirmed within %.0f s", self.name,
+                        self.node_plan.drain_s)
 
     def _cleanup_if_orphaned(self) -> None:
         """The launcher died: nobody else will remove the run's temporary folder."""
         if self.parent and os.getppid() != self.parent:
-            run_dir = os.environ.get("GFLOW_RUN_DIR", "")
+            run_dir = self.node_plan.run_dir
             if run_dir and Path(run_dir).name.startswith("gflow-run-"):
                 shutil.rmtree(run_dir, ignore_errors=True)
 
@@ -740,9 +745,8 @@ class Node:
 
         plan = self.plan
         rp = RecorderParams(**self.sp.params)
-        path = os.environ.get("GFLOW_RECORDING") or plan.recording_path()
+        path = self.node_plan.recording or plan.recording_path()
         assert path is not None
-        from pipeline.runtime.graph import Plan as _P  # noqa: F401  (metadata helpers live on Plan)
 
         meta = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
                 "gflow.config": plan.config_metadata()}
@@ -813,6 +817,7 @@ def frames_lead(plan: Plan, source: str, stages: set[str]) -> dict[str, int]:
 
 
 def run_node(plan_path: str, name: str) -> int:
+    """Run the stage process of node plan ``plan_path`` (whose stage must be ``name``)."""
     keep_freed_memory()  # frame-sized buffers reused, not faulted in afresh every frame
     # Signals go to a thread of their own (pipeline/runtime/signals.py), never to a Python
     # handler that sets an Event: started before any other thread, so zenoh's inherit the mask.
@@ -829,11 +834,15 @@ def run_node(plan_path: str, name: str) -> int:
     StopSignals(_on_signal).start()
     die_with_parent()
     mark(f"node {name} imported")
-    plan = Plan.from_json(Path(plan_path).read_text())
-    if name not in plan.stages:
-        print(f"gflow node: no stage {name!r} in {plan_path}", file=sys.stderr)
+    try:
+        node_plan = read_node_plan(plan_path)
+    except NodePlanError as e:
+        print(f"gflow node: {e}", file=sys.stderr)
         return 2
-    node = Node(plan, name)
+    if node_plan.stage != name or name not in node_plan.graph.stages:
+        print(f"gflow node: {plan_path} is the plan of stage {node_plan.stage!r}, not of {name!r}", file=sys.stderr)
+        return 2
+    node = Node(node_plan)
     holder.append(node)
     if node.parent and os.getppid() != node.parent:  # the launcher died before we got here
         node.orphaned.set()
@@ -860,7 +869,7 @@ def _exit_now() -> None:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     if len(argv) != 2:
-        print("usage: python -m pipeline.runtime.node PLAN.json STAGE", file=sys.stderr)
+        print("usage: python -m pipeline.runtime.node NODE_PLAN.json STAGE", file=sys.stderr)
         return 2
     logging.basicConfig(level=os.environ.get("GFLOW_LOG", "WARNING"), format="%(levelname)s %(message)s",
                         stream=sys.stderr)
