@@ -21,12 +21,18 @@ import msgspec
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import ZenohSettings
 
-__all__ = ["NodePlan", "NodePlanError", "write_node_plan", "read_node_plan", "LATE_S", "DRAIN_S"]
+__all__ = ["NodePlan", "NodePlanError", "write_node_plan", "read_node_plan", "LATE_S", "DRAIN_S",
+           "EXIT_BAD_SOURCE", "EXIT_DISK_FULL"]
 
 #: seconds an input may be the next to step while the source is ahead before it is given up
 LATE_S = 3.0
 #: seconds a finished stage waits at most for what it sent to arrive (pipeline/runtime/drain.py)
 DRAIN_S = 30.0
+#: what a stage process tells its launcher by its exit status, besides 0 (done) and 1 (an exception):
+#: a live source that cannot be opened, or an --init box outside its frames (not restarted)
+EXIT_BAD_SOURCE = 2
+#: the recorder's disk is full (ENOSPC): not worth a restart
+EXIT_DISK_FULL = 28
 
 
 class NodePlanError(ValueError):

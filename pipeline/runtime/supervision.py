@@ -31,13 +31,11 @@ import msgspec
 
 from pipeline.io.mcap_io import segment_path
 from pipeline.runtime.graph import Plan
-from pipeline.runtime.node_plan import NodePlan, write_node_plan
+from pipeline.runtime.node_plan import EXIT_DISK_FULL, NodePlan, write_node_plan
 from pipeline.runtime.trace import mark
 from pipeline.runtime.zygote import ForkedStage, Zygote
 
-__all__ = ["Supervisor", "StageExit", "StageProcess", "StageLost", "EXIT_DISK_FULL"]
-
-EXIT_DISK_FULL = 28  # a recorder's exit status on a full disk (pipeline/runtime/recorder_node.py)
+__all__ = ["Supervisor", "StageExit", "StageProcess", "StageLost"]
 
 
 class StageLost(Exception):
