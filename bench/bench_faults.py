@@ -3,7 +3,7 @@ SIGKILLed stage of the chamfer tracker takes to be back at work, with the boxes 
 undisturbed run. One command: ``python bench/bench_faults.py``.
 
 * checkpoint: mean time of ``snapshot()`` + an atomic file write per step, per stage kind, on
-  caviar1-sized frames with 500 particles (what ``pipeline/runtime/node.py`` does after each step of a
+  caviar1-sized frames with 500 particles (what ``pipeline/runtime/stage_node.py`` does after each step of a
   stage whose graph says ``restart: on-failure``);
 * resume: the chamfer graph on caviar1 (frames 0-149) as processes; at frame ~60 one stage is
   SIGKILLed; "back after" is the time from the kill to the restarted process's first
@@ -31,7 +31,7 @@ from _util import table  # noqa: E402
 from gflow_core.features import chamfer_image  # noqa: E402
 from pipeline.runtime.graph import load_graph  # noqa: E402
 from pipeline.runtime.launcher import Launcher  # noqa: E402
-from pipeline.runtime.node import Checkpoint  # noqa: E402
+from pipeline.runtime.checkpoint import Checkpoint  # noqa: E402
 from pipeline.recording.results import estimates, read_boxes  # noqa: E402
 from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
 from stages.base import StageContext  # noqa: E402

@@ -140,7 +140,7 @@ from pipeline.runtime.memory import keep_freed_memory
 keep_freed_memory()
 from pipeline.io.recorder import McapRecorder
 from pipeline.runtime.inbox import BoundedInbox
-from pipeline.runtime.node import RECORDER_INBOX_BYTES
+from pipeline.runtime.recorder_node import RECORDER_INBOX_BYTES
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 n, ep, path, compression = int(sys.argv[1]), sys.argv[2], sys.argv[3], sys.argv[4]
 s = open_session(ZenohSettings(listen=(ep,)))
@@ -206,7 +206,7 @@ def main() -> None:
     ap.add_argument("--kinds", default="random,caviar1", help="message kinds, comma separated: random, caviar1")
     ap.add_argument("--repeat", type=int, default=1, help="runs of the burst into a recorder process")
     args = ap.parse_args()
-    keep_freed_memory()  # as the recorder process does (pipeline/runtime/node.py)
+    keep_freed_memory()  # as the recorder process does (pipeline/runtime/node.py: run_node)
     tmp = str(scratch("gflow-bench-rec-"))
     rows = []
     for kind in args.kinds.split(","):

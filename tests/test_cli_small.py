@@ -47,7 +47,7 @@ def test_progress_never_shows_a_stage_ahead_of_the_source() -> None:
     for name, steps in (("source", 5), ("preprocess", 9), ("filter", 7)):
         la.status[name] = StageStatus(header=Header("demo", steps, time.time_ns()), stage=name, pid=1,
                                       state="running", steps=steps, fps=1.0)
-    line = la._progress_line()
+    line = la.monitor.line()
     assert "source: 9/120" in line and "preprocess: 9 " in line and "filter: 7 " in line, line
 
 

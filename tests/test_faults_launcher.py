@@ -7,7 +7,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -34,7 +33,7 @@ def _running(p: psutil.Process) -> bool:
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGHUP])
 def test_stages_die_with_the_launcher(tmp_path, sig):
     rec = tmp_path / "run.mcap"
-    stream = f"faults-{os.getpid()}-{time.monotonic_ns()}"  # finds the run's folder (a forked stage's environ is its zygote's)
+    stream = f"faults-{os.getpid()}-{time.monotonic_ns()}"
     p = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
                           "--set", "source.frames=600", "--set", "filter.particles=100", "--record", str(rec),
                           "--listen", "tcp/127.0.0.1:0", "--stream", stream],
@@ -45,12 +44,11 @@ def test_stages_die_with_the_launcher(tmp_path, sig):
         time.sleep(0.1)
     children = psutil.Process(p.pid).children()
     assert len(children) == 6
-    from pipeline.runtime.launcher import run_dir_parent
-
-    run_dirs = [d for d in Path(run_dir_parent() or tempfile.gettempdir()).glob("gflow-run-*")
-                if f'"stream": "{stream}"' in _read(d / "plan.json") or f'"stream":"{stream}"' in _read(d / "plan.json")]
+    # every stage process is started with its node plan, RUN_DIR/nodes/NAME.json
+    run_dirs = {Path(c.cmdline()[-2]).parents[1] for c in children}
     assert len(run_dirs) == 1, run_dirs
-    run_dir = str(run_dirs[0])
+    run_dir = str(run_dirs.pop())
+    assert Path(run_dir).name.startswith("gflow-run-") and f'"stream":"{stream}"' in _read(Path(run_dir, "nodes", "filter.json"))
     assert os.path.isdir(run_dir)
     p.send_signal(sig)
     t0 = time.monotonic()

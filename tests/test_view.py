@@ -39,6 +39,15 @@ def _stop(p: subprocess.Popen) -> None:
             p.wait(10)
 
 
+def _decode(channel: dict, payload: bytes) -> dict:
+    """A message as the Foxglove app decodes it: JSON, or protobuf with the channel's schema."""
+    if channel["encoding"] == "protobuf":
+        from tests.foxglove_protobuf import decode_with_schema
+
+        return decode_with_schema(channel["schemaName"], base64.b64decode(channel["schema"]), payload)
+    return json.loads(payload)
+
+
 def test_foxglove_client_receives_video_overlays_and_estimates(tmp_path: Path) -> None:
     rt = tmp_path / "rt"
     run = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "run", "demo", "--set", "source.realtime=true",
@@ -107,17 +116,18 @@ def test_foxglove_client_receives_video_overlays_and_estimates(tmp_path: Path) -
                 assert frame[0] == 0x01  # message data: opcode, subscription id, receive time, payload
                 sid, _ts = struct.unpack_from("<IQ", frame, 1)
                 ch = channels[subs[sid]]
-                got.setdefault(ch["topic"], {"channel": ch, "msg": json.loads(frame[13:])})
+                got.setdefault(ch["topic"], {"channel": ch, "msg": _decode(ch, frame[13:])})
     finally:
         if view is not None:
             _stop(view)
         _stop(run)
-    img = got["/gflow/demo/image"]
-    assert img["channel"]["schemaName"] == "foxglove.CompressedImage" and img["channel"]["encoding"] == "json"
-    assert img["msg"]["format"] == "jpeg" and base64.b64decode(img["msg"]["data"])[:2] == b"\xff\xd8"
+    img = got["/gflow/demo/image"]  # foxglove-sdk's message and schema, decoded with the schema advertised
+    assert img["channel"]["schemaName"] == "foxglove.CompressedImage" and img["channel"]["encoding"] == "protobuf"
+    assert img["msg"]["format"] == "jpeg" and img["msg"]["data"][:2] == b"\xff\xd8"
     ann = got["/gflow/demo/annotations"]
-    assert ann["channel"]["schemaName"] == "foxglove.ImageAnnotations"
+    assert ann["channel"]["schemaName"] == "foxglove.ImageAnnotations" and ann["channel"]["encoding"] == "protobuf"
     assert ann["msg"]["points"] and len(ann["msg"]["points"][0]["points"]) >= 4
+    assert ann["msg"]["texts"][0]["text"].startswith("frame ") and ann["msg"]["timestamp"] == ann["msg"]["texts"][0]["timestamp"]
     est = got["/gflow/demo/estimate"]["msg"]
     assert est["type"] == "Estimate" and len(est["box"]) == 4 and est["ess"] > 0 and est["state"] in ("track", "coast")
     st = got["/gflow/demo/_status/filter"]["msg"]

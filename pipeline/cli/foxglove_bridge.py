@@ -4,9 +4,10 @@
 A bridge subscribes to ``gflow/<stream>/**`` on zenoh and republishes, on channels named
 like the topics:
 
-* the render stage's ``image`` and ``annotations`` as they are (JSON messages of the
-  well-known schemas ``foxglove.CompressedImage`` / ``foxglove.ImageAnnotations``): an Image
-  panel shows the video with the overlays;
+* the render stage's ``image`` and ``annotations`` as foxglove-sdk's well-known messages
+  ``foxglove.CompressedImage`` / ``foxglove.ImageAnnotations``, on the SDK's typed channels
+  (protobuf, with the SDK's schemas: :mod:`pipeline.io.foxglove_messages`): an Image panel
+  shows the video with the overlays;
 * the messages a user plots (``estimate``: box, pose, ESS, state; ``errors``; every stage's
   heartbeat ``_status/<stage>``; ``_control``) as JSON objects (small arrays as lists, large
   ones as dtype and shape: :func:`pipeline.recording.plain.to_plain`), which the Plot and Raw Messages
@@ -23,9 +24,9 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from stages.messages import MessageError, decode
-from stages.messages_foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
+from stages.messages import FOXGLOVE_TYPES, MessageError, decode
 
+from pipeline.io.foxglove_messages import to_sdk
 from pipeline.recording.plain import to_plain
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 
@@ -33,7 +34,6 @@ __all__ = ["FoxgloveBridge", "FORWARDED_TYPES"]
 
 #: gflow message types forwarded as JSON (besides the Foxglove image / annotation messages)
 FORWARDED_TYPES = ("Estimate", "PoseEstimate", "ErrorReport", "StageStatus", "Control", "EndOfStream")
-_FOXGLOVE_BY_NAME = {t.__name__: (t, name) for t, name in FOXGLOVE_SCHEMAS.items()}
 
 
 @dataclass
@@ -81,21 +81,23 @@ class FoxgloveBridge:
     def _channel(self, topic: str, type_name: str):
         ch = self._channels.get(topic)
         if ch is None:
-            fx = self._fx
-            if type_name in _FOXGLOVE_BY_NAME:
-                typ, name = _FOXGLOVE_BY_NAME[type_name]
-                schema = fx.Schema(name=name, encoding="jsonschema",
-                                   data=json.dumps(foxglove_schema(typ)).encode("utf-8"))
-                ch = fx.Channel(topic, schema=schema, message_encoding="json", context=self._ctx)
+            if type_name in FOXGLOVE_TYPES:  # the SDK's typed channel: its schema, its encoding
+                from foxglove import channels
+
+                ch = getattr(channels, f"{type_name}Channel")(topic, context=self._ctx)
             else:
-                ch = fx.Channel(topic, message_encoding="json", context=self._ctx)  # schemaless JSON
+                ch = self._fx.Channel(topic, message_encoding="json", context=self._ctx)  # schemaless JSON
             self._channels[topic] = ch
         return ch
 
     def _forward(self, key: str, payload: bytes, pub_ns: int, type_name: str) -> None:
         topic = "/" + key
-        if type_name in _FOXGLOVE_BY_NAME:  # already Foxglove JSON: byte for byte
-            self._channel(topic, type_name).log(payload, log_time=pub_ns or time.time_ns())
+        if type_name in FOXGLOVE_TYPES:  # the render stage's: as the SDK's message
+            try:
+                msg = decode(payload)
+            except MessageError:
+                return
+            self._channel(topic, type_name).log(to_sdk(msg), log_time=pub_ns or time.time_ns())
         else:
             if type_name and type_name not in FORWARDED_TYPES:
                 return

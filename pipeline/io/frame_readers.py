@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Iterator
+from typing import Generator, Iterator
 
 import cv2
 import numpy as np
@@ -155,7 +155,7 @@ def _read_synthetic(p: SourceParams) -> Iterator[RawFrame]:
         yield RawFrame(t, scene.render(t), truth=scene.truth_box(t), name=f"synthetic#{t}")
 
 
-def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Iterator[RawFrame]:
+def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Generator[RawFrame, None, None]:
     """The frames of an open live capture, numbered ``first_seq``, ``first_seq`` + 1, ... as they are
     taken (each the newest decoded when the caller asks for it); a last frame with no image
     carries the reports of the stream's end. Closes the capture when done."""

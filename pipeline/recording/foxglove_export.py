@@ -3,9 +3,11 @@
 gflow records its own messages as MessagePack, which Foxglove cannot decode. The copy keeps
 every message's topic and times and writes:
 
-* the render stage's ``foxglove.CompressedImage`` / ``foxglove.ImageAnnotations`` as they are;
-* ``Frame`` messages as ``foxglove.CompressedImage`` (JPEG or PNG), so a recording without a
-  render stage still shows its video;
+* the render stage's ``foxglove.CompressedImage`` / ``foxglove.ImageAnnotations`` as
+  foxglove-sdk's messages, encoded by the SDK (protobuf) under the SDK's schemas
+  (:mod:`pipeline.io.foxglove_messages`);
+* ``Frame`` messages as ``foxglove.CompressedImage`` (JPEG or PNG) the same way, so a recording
+  without a render stage still shows its video;
 * the messages a user plots (estimates: box, pose, ESS, state; errors; heartbeats; control;
   end of stream) as JSON objects, with small arrays as lists and large ones as dtype and
   shape (:func:`pipeline.recording.plain.to_plain`), on schemaless JSON channels;
@@ -23,18 +25,18 @@ from pathlib import Path
 
 import cv2
 
-from stages.messages import Frame, MessageError, decode
-from stages.messages_foxglove import FOXGLOVE_SCHEMAS, CompressedImage, foxglove_schema, time_of
+from stages.messages import FOXGLOVE_TYPES, Frame, MessageError, decode
+from stages.messages_foxglove import CompressedImage, time_of
 
-from pipeline.recording.plain import to_plain
+from pipeline.io.foxglove_messages import sdk_schema, to_sdk
 from pipeline.io.mcap_io import iter_records, read_metadata
+from pipeline.recording.plain import to_plain
 
 __all__ = ["export_for_foxglove", "ExportSummary", "JSON_TYPES"]
 
 #: gflow message types written as JSON (EndOfStream is left out: on a frames topic it would
 #: put a second, schemaless channel beside the images)
 JSON_TYPES = ("Estimate", "PoseEstimate", "ErrorReport", "StageStatus", "Control")
-_FOXGLOVE_BY_NAME = {t.__name__: (t, n) for t, n in FOXGLOVE_SCHEMAS.items()}
 
 
 @dataclass
@@ -44,9 +46,7 @@ class ExportSummary:
     left_out: dict[str, int] = field(default_factory=dict)
 
 
-def _image_message(frame: Frame, fmt: str, quality: int) -> bytes | None:
-    from stages.messages import encode
-
+def _image_message(frame: Frame, fmt: str, quality: int) -> CompressedImage | None:
     try:
         img = frame.image.array()
     except MessageError:
@@ -55,8 +55,8 @@ def _image_message(frame: Frame, fmt: str, quality: int) -> bytes | None:
                else cv2.imencode(".png", img))
     if not ok:
         return None
-    return encode(CompressedImage(timestamp=time_of(frame.header.stamp_ns), frame_id=frame.header.stream,
-                                  data=buf.tobytes(), format=fmt))
+    return CompressedImage(timestamp=time_of(frame.header.stamp_ns), frame_id=frame.header.stream,
+                           data=buf.tobytes(), format=fmt)
 
 
 def export_for_foxglove(src: str | Path, dst: str | Path, image_format: str = "jpeg",
@@ -79,25 +79,24 @@ def export_for_foxglove(src: str | Path, dst: str | Path, image_format: str = "j
                 if fox is not None:
                     sid = schemas.get(fox, 0)
                     if not sid:
-                        typ, name = _FOXGLOVE_BY_NAME[fox]
-                        sid = schemas[fox] = w.register_schema(name, "jsonschema",
-                                                               json.dumps(foxglove_schema(typ)).encode())
-                cid = channels[key] = w.register_channel(topic, "json", sid)
+                        schema = sdk_schema(fox)
+                        sid = schemas[fox] = w.register_schema(schema.name, schema.encoding, schema.data)
+                cid = channels[key] = w.register_channel(topic, "protobuf" if fox is not None else "json", sid)
             return cid
 
         seqs: dict[int, int] = {}
         for r in iter_records(src):
             data: bytes | None = None
             fox: str | None = None
-            if r.type in _FOXGLOVE_BY_NAME:
-                data, fox = r.data, r.type
-            elif r.type == "Frame" or r.type in JSON_TYPES or r.type == "unknown":
+            if r.type in FOXGLOVE_TYPES or r.type == "Frame" or r.type in JSON_TYPES or r.type == "unknown":
                 try:
                     msg = decode(r.data)
                 except MessageError:
                     msg = None
                 if isinstance(msg, Frame):
-                    data, fox = _image_message(msg, image_format, quality), "CompressedImage"
+                    msg = _image_message(msg, image_format, quality)
+                if msg is not None and type(msg).__name__ in FOXGLOVE_TYPES:
+                    data, fox = to_sdk(msg).encode(), type(msg).__name__
                 elif msg is not None and type(msg).__name__ in JSON_TYPES:
                     data = json.dumps(to_plain(msg), allow_nan=False, default=str).encode()
             if data is None:

@@ -151,7 +151,6 @@ class Plan:
     stages: dict[str, StagePlan]
     source_text: str = ""
     base_dir: str = "."
-    zenoh: dict[str, Any] = field(default_factory=dict)
     on_host_lost: str = "stop"  # stop the run, or wait for the host to come back
     #: the graph's own stream (the camera): what stages seed their random draws and stamp their
     #: headers with, so a run's results do not depend on its run id ('' : the same as ``stream``)
@@ -191,22 +190,6 @@ class Plan:
 
     def drop_topics(self) -> frozenset[str]:
         return frozenset(t for s in self.stages.values() for port, t in s.outputs.items() if s.qos.get(port) == "drop")
-
-    def to_json(self) -> str:
-        return json.dumps({
-            "name": self.name, "stream": self.stream, "base_dir": self.base_dir, "zenoh": self.zenoh,
-            "source_text": self.source_text, "on_host_lost": self.on_host_lost, "camera": self.camera,
-            "external": self.external,
-            "stages": {n: dataclasses.asdict(s) for n, s in self.stages.items()},
-        })
-
-    @classmethod
-    def from_json(cls, text: str) -> "Plan":
-        d = json.loads(text)
-        return cls(name=d["name"], stream=d["stream"], base_dir=d.get("base_dir", "."), zenoh=d.get("zenoh", {}),
-                   source_text=d.get("source_text", ""), on_host_lost=d.get("on_host_lost", "stop"),
-                   camera=d.get("camera", ""), external=list(d.get("external", [])),
-                   stages={n: StagePlan(**s) for n, s in d["stages"].items()})
 
     def config_metadata(self) -> dict[str, str]:
         """MCAP metadata ``gflow.config``: every stage's resolved plan (kind, parameters with

@@ -67,8 +67,8 @@ class HostStats:
         return (self.steps - 1) * 1e9 / (self.last_step_ns - self.first_step_ns)
 
 
-def one_compute_thread() -> None:
-    """Give OpenCV the thread count a stage process has (``GFLOW_CV_THREADS``, 1 by default).
+def set_compute_threads(threads: int = 1) -> None:
+    """Give OpenCV the thread count of a stage (1 unless a stage process's plan says otherwise).
 
     Some OpenCV results depend on the number of threads: Canny with per-frame thresholds
     marks a few pixels differently where its parallel stripes meet (measured on crossing:
@@ -76,11 +76,9 @@ def one_compute_thread() -> None:
     as a process, ``--inline``, ``gflow rerun``, ``gflow step`` -- builds a StageHost, so
     setting it here makes them compute with the same bits.
     """
-    import os
-
     import cv2
 
-    cv2.setNumThreads(int(os.environ.get("GFLOW_CV_THREADS", "1")))
+    cv2.setNumThreads(threads)
 
 
 class StageHost:
@@ -93,14 +91,16 @@ class StageHost:
     topics_out : {port: topic} for every output port.
     error_topic : where :class:`ErrorReport` messages go.
     publish : ``publish(topic, payload, seq, type_name)``.
+    cv_threads : OpenCV threads (a stage process's plan says how many; 1 everywhere else).
     """
 
     def __init__(self, stage: Stage, topics_in: dict[str, str], topics_out: dict[str, str], error_topic: str,
                  publish: Publish, snapshot_every: int = 0, snapshot_topic: str = "", lag: int = 0,
-                 window: int = 0, on_step: Callable[[int], None] | None = None, ahead: bool = True) -> None:
+                 window: int = 0, on_step: Callable[[int], None] | None = None, ahead: bool = True,
+                 cv_threads: int = 1) -> None:
         from pipeline.runtime.join import SeqJoin
 
-        one_compute_thread()
+        set_compute_threads(cv_threads)
         self.last_sent: list[tuple[str, bytes, int, str]] = []  # what the last step published
         self.stage = stage
         self.name = stage.ctx.name

@@ -263,7 +263,7 @@ def _startup_failure(plan: Plan, launcher, message: str) -> str:
     """What to tell the user when a run could not start. A live source that cannot be opened says
     so itself, in one line naming it and what FFmpeg said; the recording, which holds nothing but
     the start-up's heartbeats, is removed."""
-    from pipeline.runtime.node import EXIT_BAD_SOURCE
+    from pipeline.runtime.node_plan import EXIT_BAD_SOURCE
 
     src = next((n for n, s in plan.stages.items() if s.is_source()), None)
     exit_ = launcher.exits.get(src)
