@@ -65,8 +65,8 @@ class StageContext:
     frame_period_ns: float = 0.0
 
 
-# (output port, message)
-Output = tuple[str, Message]
+# (output port, message): a message of stages.messages, or a Foxglove message on a viewer's topic
+Output = tuple[str, Any]
 
 #: a stage's parameter struct
 P = TypeVar("P", bound=Params)

@@ -41,7 +41,7 @@ STATE_COLOURS = {"tracked": GREEN, "occluded": ORANGE, "lost": MAGENTA}
 SHADE = Color(0.0, 0.0, 0.0, 0.6)
 
 
-class RenderParams(Params):
+class RenderParams(Params, frozen=True):
     """estimate: which estimate type the tracker publishes (``particle`` for chamfer / M2,
     ``gflow`` for G-flow). particles: also draw the posterior particles (chamfer / M2).
     max_points: at most this many particles or expert points drawn per frame.
@@ -117,14 +117,14 @@ def annotations_for(frame: Frame, est: Estimate | PoseEstimate, particles: Parti
     return ImageAnnotations(circles=[], points=pts, texts=[text])
 
 
-class RenderStage(Stage):
+class RenderStage(Stage[RenderParams]):
     kind = "render"
     Params = RenderParams
     inputs = {"frames": Frame, "estimate": Estimate}
     outputs = {"image": CompressedImage, "annotations": ImageAnnotations}
 
     @classmethod
-    def ports(cls, params: RenderParams):  # type: ignore[override]
+    def ports(cls, params: RenderParams) -> tuple[Mapping[str, type], Mapping[str, type]]:
         ins: dict[str, type] = {"frames": Frame, "estimate": PoseEstimate if params.estimate == "gflow" else Estimate}
         if params.particles:
             ins["particles"] = Particles
@@ -135,9 +135,9 @@ class RenderStage(Stage):
         self.drawn = 0
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        p: RenderParams = self.params  # type: ignore[assignment]
+        p = self.params
         frame, est = inputs.get("frames"), inputs.get("estimate")
-        if not isinstance(frame, Frame) or est is None:
+        if not isinstance(frame, Frame) or not isinstance(est, (Estimate, PoseEstimate)):
             return []  # nothing to draw for this frame (the frame or the estimate was lost)
         try:
             img = frame.image.array()
@@ -147,7 +147,7 @@ class RenderStage(Stage):
         if not ok:
             raise StageInputError(f"frame {seq}: OpenCV could not encode a {img.shape} image as JPEG")
         part = inputs.get("particles") if p.particles else None
-        ann = annotations_for(frame, est, part if isinstance(part, Particles) else None, p.max_points)  # type: ignore[arg-type]
+        ann = annotations_for(frame, est, part if isinstance(part, Particles) else None, p.max_points)
         self.drawn += 1
         image = CompressedImage(time_of(frame.header.stamp_ns), "camera", jpg.tobytes(), "jpeg")
         return [("image", image), ("annotations", ann)]
