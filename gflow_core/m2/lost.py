@@ -61,7 +61,7 @@ import cv2
 import numpy as np
 
 from ..orientation import orientation_channels
-from ..appearance import region
+from ..regions import region
 
 __all__ = ["LostParams", "LostState", "Anchor", "anchor_of", "verify", "redetect", "redetect_scales", "guard",
            "bound_positions"]
