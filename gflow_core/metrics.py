@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve",
-           "size_kept"]
+           "size_kept", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score"]
 
 #: overlap thresholds of the OTB success plot (Wu, Lim & Yang, CVPR 2013); its AUC is the mean over them
 OVERLAP_THRESHOLDS = np.linspace(0.0, 1.0, 21)
@@ -129,3 +129,109 @@ def size_kept(gt: dict[int, tuple], pred: dict[int, tuple], factor: float = 2.0)
     # a / a* = (w h) / (w* h*)
     ratio = (p[on, 2] * p[on, 3]) / np.maximum(g[on, 2] * g[on, 3], 1e-12)
     return float(np.mean((ratio >= 1.0 / factor) & (ratio <= factor)))
+
+
+#: the target states a tracker reports: seen in its box, hidden where it is expected, searched for
+TARGET_STATES = ("tracked", "occluded", "lost")
+
+#: a target with less than this fraction of its box in view counts as hidden
+HIDDEN_BELOW = 0.1
+
+
+def overlaps(gt: dict[int, tuple], pred: dict[int, tuple]) -> np.ndarray:
+    """Overlap (IoU) on every ground-truth frame in frame order, (F,); 0 where there is no prediction."""
+    return _per_frame(gt, pred)[0]
+
+
+def frames_to_recover(overlap: np.ndarray, start: int, threshold: float = 0.5, hold: int = 5) -> int | None:
+    """Frames from index ``start`` to the first of ``hold`` frames in a row with overlap above
+    ``threshold`` (0: on target from ``start`` on); None if that never happens.
+
+    Parameters
+    ----------
+    overlap : (F,) per-frame overlap in frame order.
+    start : the first index to look from (e.g. the first frame after a perturbation).
+    threshold, hold : what "on target" means: IoU > threshold for ``hold`` frames in a row
+        (fewer if the sequence ends first, as long as it ends on target).
+    """
+    ov = np.asarray(overlap, dtype=np.float64)
+    if ov.ndim != 1:
+        raise ValueError(f"overlap must be (F,), got shape {ov.shape}")
+    if not 0 <= start <= ov.shape[0]:
+        raise ValueError(f"start {start} is outside 0..{ov.shape[0]}")
+    run = 0
+    for i in range(start, ov.shape[0]):
+        run = run + 1 if ov[i] > threshold else 0
+        if run >= hold or (run and i == ov.shape[0] - 1):
+            return i - run + 1 - start
+    return None
+
+
+@dataclass(frozen=True)
+class StateScore:
+    """How often a tracker's ``state`` was right.
+
+    hidden : frames where the target was hidden (less than ``HIDDEN_BELOW`` of it in view),
+        after the first few of each hidden stretch; hidden_right : of those, reported
+        ``occluded`` or ``lost``.
+    shown : undisturbed frames (the target in view and nothing perturbed); shown_right : of
+        those, reported ``tracked``.
+    """
+
+    hidden: int
+    hidden_right: int
+    shown: int
+    shown_right: int
+
+    @property
+    def hidden_rate(self) -> float | None:
+        return self.hidden_right / self.hidden if self.hidden else None
+
+    @property
+    def shown_rate(self) -> float | None:
+        return self.shown_right / self.shown if self.shown else None
+
+    def to_json(self) -> dict:
+        r = self.hidden_rate, self.shown_rate
+        return {"hidden_frames": self.hidden, "hidden_reported_occluded_or_lost": None if r[0] is None else round(r[0], 4),
+                "undisturbed_frames": self.shown, "undisturbed_reported_tracked": None if r[1] is None else round(r[1], 4)}
+
+
+def state_score(states: list[str | None], visible: np.ndarray, perturbed: np.ndarray | None = None,
+                grace: int = 5, hidden_below: float = HIDDEN_BELOW) -> StateScore:
+    """Score reported target states against how much of the target was in view.
+
+    Parameters
+    ----------
+    states : (F,) the state reported on each frame (``"tracked"``, ``"occluded"``, ``"lost"``;
+        None where the tracker gave none, which counts as wrong).
+    visible : (F,) float, fraction of the target in view on each frame.
+    perturbed : (F,) bool, frames changed by a perturbation; None: a frame is undisturbed when
+        the whole target is in view.
+    grace : the first ``grace`` frames of each hidden stretch are not scored (a tracker cannot
+        know at once that the target went behind something).
+    hidden_below : a frame is hidden when less than this fraction of the target is in view.
+    """
+    vis = np.asarray(visible, dtype=np.float64)
+    if vis.ndim != 1 or len(states) != vis.shape[0]:
+        raise ValueError(f"states ({len(states)}) and visible {vis.shape} must both be one value per frame")
+    bad = sorted({s for s in states if s is not None and s not in TARGET_STATES})
+    if bad:
+        raise ValueError(f"unknown target state {bad[0]!r} (known: {', '.join(TARGET_STATES)})")
+    if perturbed is None:
+        calm = vis >= 1.0 - 1e-9
+    else:
+        calm = ~np.asarray(perturbed, dtype=bool)
+        if calm.shape != vis.shape:
+            raise ValueError(f"perturbed {calm.shape} and visible {vis.shape} must have the same shape")
+    hidden = vis < hidden_below
+    # the index of each frame within its hidden stretch
+    within = np.zeros(vis.shape[0], dtype=np.int64)
+    for i in range(1, vis.shape[0]):
+        within[i] = within[i - 1] + 1 if hidden[i] and hidden[i - 1] else 0
+    scored_hidden = hidden & (within >= grace)
+    said_hidden = np.array([s in ("occluded", "lost") for s in states], dtype=bool)
+    said_tracked = np.array([s == "tracked" for s in states], dtype=bool)
+    shown = calm & ~hidden
+    return StateScore(hidden=int(scored_hidden.sum()), hidden_right=int((scored_hidden & said_hidden).sum()),
+                      shown=int(shown.sum()), shown_right=int((shown & said_tracked).sum()))

@@ -3,10 +3,12 @@
 Outputs, for every frame that has an estimate:
 
 * ``image``: ``foxglove.CompressedImage`` (JPEG of the frame);
-* ``annotations``: ``foxglove.ImageAnnotations`` with the estimated box (green), the
+* ``annotations``: ``foxglove.ImageAnnotations`` with the estimated box (green while the
+  target is tracked, orange while the tracker judges it occluded, magenta while lost), the
   ground-truth box when the source knows it (white), the particles' positions (red) or
   every G-flow expert's projected vertices (the paper's fig. 2, cyan), the MAP contour or
-  mean mesh points (yellow), and a text line with the frame, ESS and state.
+  mean mesh points (yellow), and a text line with the frame, ESS, state, the target's state and
+  the confidence.
 
 The same annotations are drawn into videos by ``gflow render``.
 """
@@ -30,7 +32,11 @@ WHITE = Color(1.0, 1.0, 1.0, 0.9)
 RED = Color(1.0, 0.2, 0.2, 0.8)
 CYAN = Color(0.2, 0.9, 1.0, 0.6)
 YELLOW = Color(1.0, 0.9, 0.1, 1.0)
+ORANGE = Color(1.0, 0.6, 0.1, 1.0)
+MAGENTA = Color(1.0, 0.2, 0.8, 1.0)
 CLEAR = Color(0.0, 0.0, 0.0, 0.0)
+#: colour of the estimated box by the target's state: seen, hidden where expected, searched for
+STATE_COLOURS = {"tracked": GREEN, "occluded": ORANGE, "lost": MAGENTA}
 SHADE = Color(0.0, 0.0, 0.0, 0.6)
 
 
@@ -84,7 +90,8 @@ def annotations_for(frame: Frame, est: Estimate | PoseEstimate, particles: Parti
             pts.append(_points(particles.alpha.array()[:, :2], RED, ts, 2.0, max_points))
         pts.append(_points(est.contour.array(), YELLOW, ts, 2.0, 0))
         label = f"frame {est.header.seq}  ESS {est.ess:.0f}/{est.n}  k={est.k}  {est.state}"
-    pts.append(_box(est.box, GREEN, ts, 2.0))
+    pts.append(_box(est.box, STATE_COLOURS.get(est.target_state, GREEN), ts, 2.0))
+    label += f"  target {est.target_state} {est.confidence:.2f}"
     text = TextAnnotation(ts, point(4, 14), label, 12.0, WHITE, SHADE)
     return ImageAnnotations(circles=[], points=pts, texts=[text])
 

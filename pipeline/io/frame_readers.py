@@ -17,7 +17,7 @@ from gflow_core.synthetic import SyntheticScene
 from stages.messages import Frame, MessageError, decode
 from stages.source import RawFrame, SourceParams
 
-__all__ = ["open_reader", "IMAGE_EXTENSIONS", "count_frames"]
+__all__ = ["open_reader", "IMAGE_EXTENSIONS", "count_frames", "folder_frames"]
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
 
@@ -40,6 +40,12 @@ def _indexed(files: list[Path]) -> list[tuple[int, Path | None]]:
         first, last = min(by_index), max(by_index)
         return [(i, by_index.get(i)) for i in range(first, last + 1)]
     return list(enumerate(files))
+
+
+def folder_frames(path: str | os.PathLike) -> list[tuple[int, Path | None]]:
+    """(frame index, image file or None where the file is missing) of an image folder, as the
+    source stage numbers them."""
+    return _indexed(_folder_files(Path(path)))
 
 
 def _read_folder(files: list[Path], start: int, stop: int | None) -> Iterator[RawFrame]:

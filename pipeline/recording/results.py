@@ -1,4 +1,5 @@
-"""Results files: box CSVs (``frame,x,y,w,h``) and what a recording says about tracking."""
+"""Results files: box CSVs (``frame,x,y,w,h[,confidence,state]``), visibility files and what a recording
+says about tracking."""
 
 from __future__ import annotations
 
@@ -8,51 +9,154 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from gflow_core.metrics import TARGET_STATES
 from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.mcap_io import iter_records
 
-__all__ = ["read_boxes", "write_boxes", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
+__all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
+           "write_visibility", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
            "RunOutcome"]
 
 Box = tuple[float, float, float, float]
 
 
-def read_boxes(path: str | Path) -> dict[int, Box]:
-    """Read ``frame,x,y,w,h`` rows (a header line is optional). Errors name the file and line."""
-    p = Path(path)
+def _rows(p: Path, what: str):
+    """(line number, cells) of every data row of a CSV (a header line is optional)."""
     if not p.is_file():
-        raise FileNotFoundError(f"box file not found: {p}")
-    out: dict[int, Box] = {}
+        raise FileNotFoundError(f"{what} file not found: {p}")
     with open(p, newline="") as f:
         for lineno, row in enumerate(csv.reader(f), start=1):
             if not row or not "".join(row).strip():
                 continue
             if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
                 continue  # header
-            if len(row) < 5:
-                raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h, got {len(row)} column(s)")
-            try:
-                frame = int(row[0])
-                box = tuple(float(v) for v in row[1:5])
-            except ValueError:
-                raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
-            if not all(math.isfinite(v) for v in box):
-                raise ValueError(f"{p}:{lineno}: box has NaN or inf")
-            out[frame] = box  # type: ignore[assignment]
+            yield lineno, row
+
+
+def _box_row(p: Path, lineno: int, row: list[str]) -> tuple[int, Box]:
+    if len(row) < 5:
+        raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h, got {len(row)} column(s)")
+    try:
+        frame = int(row[0])
+        box = tuple(float(v) for v in row[1:5])
+    except ValueError:
+        raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+    if not all(math.isfinite(v) for v in box):
+        raise ValueError(f"{p}:{lineno}: box has NaN or inf")
+    return frame, box  # type: ignore[return-value]
+
+
+def read_boxes(path: str | Path) -> dict[int, Box]:
+    """Read ``frame,x,y,w,h`` rows (a header line is optional; columns after the fifth, such as
+    ``confidence,state``, are not read). Errors name the file and line."""
+    p = Path(path)
+    out: dict[int, Box] = {}
+    for lineno, row in _rows(p, "box"):
+        frame, box = _box_row(p, lineno, row)
+        out[frame] = box
     if not out:
         raise ValueError(f"{p}: no boxes")
     return out
 
 
-def write_boxes(path: str | Path, boxes: dict[int, Box]) -> None:
+@dataclass(frozen=True)
+class TrackRows:
+    """A boxes CSV with the tracker's judgement: box, confidence and target state by frame
+    (confidence and state are None for a five-column file)."""
+
+    boxes: dict[int, Box]
+    confidence: dict[int, float] | None
+    states: dict[int, str] | None
+
+
+def read_track(path: str | Path) -> TrackRows:
+    """Read ``frame,x,y,w,h[,confidence,state]`` rows. A file has the two extra columns on every
+    row or on none; a confidence outside [0, 1] or an unknown state is an error naming the line."""
+    p = Path(path)
+    boxes: dict[int, Box] = {}
+    conf: dict[int, float] = {}
+    states: dict[int, str] = {}
+    for lineno, row in _rows(p, "box"):
+        frame, box = _box_row(p, lineno, row)
+        boxes[frame] = box
+        if len(row) < 7:
+            if states:
+                raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h,confidence,state like the rows before, "
+                                 f"got {len(row)} column(s)")
+            continue
+        if len(boxes) > 1 and not states:
+            raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have five (frame,x,y,w,h)")
+        try:
+            c = float(row[5])
+        except ValueError:
+            raise ValueError(f"{p}:{lineno}: confidence is not a number: {row[5]!r}") from None
+        if not 0.0 <= c <= 1.0:
+            raise ValueError(f"{p}:{lineno}: confidence {row[5]} is outside [0, 1]")
+        s = row[6].strip()
+        if s not in TARGET_STATES:
+            raise ValueError(f"{p}:{lineno}: unknown state {s!r} (known: {', '.join(TARGET_STATES)})")
+        conf[frame], states[frame] = c, s
+    if not boxes:
+        raise ValueError(f"{p}: no boxes")
+    return TrackRows(boxes, conf or None, states or None)
+
+
+def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, float] | None = None,
+                states: dict[int, str] | None = None) -> None:
+    """Write ``frame,x,y,w,h`` rows, and ``confidence,state`` after them when given (for every frame)."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    full = confidence is not None and states is not None
+    with open(p, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else []))
+        for k in sorted(boxes):
+            extra = [f"{confidence[k]:.3f}", states[k]] if full else []  # type: ignore[index]
+            w.writerow([k, *(f"{v:.2f}" for v in boxes[k]), *extra])
+
+
+def estimate_columns(est: dict[int, Any]) -> tuple[dict[int, Box], dict[int, float], dict[int, str]]:
+    """Boxes, confidences and target states of estimates by frame (the CSV's columns)."""
+    return ({k: v.box for k, v in est.items()}, {k: float(v.confidence) for k, v in est.items()},
+            {k: v.target_state for k, v in est.items()})
+
+
+def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool] | None]:
+    """Read ``frame,visible[,perturbed,...]`` rows: the fraction of the target in view on each
+    frame and, when the file has the column, whether the frame was perturbed (0 or 1)."""
+    p = Path(path)
+    vis: dict[int, float] = {}
+    pert: dict[int, bool] = {}
+    for lineno, row in _rows(p, "visibility"):
+        if len(row) < 2:
+            raise ValueError(f"{p}:{lineno}: expected frame,visible[,perturbed], got {len(row)} column(s)")
+        try:
+            frame, v = int(row[0]), float(row[1])
+            if len(row) >= 3:
+                pert[frame] = bool(int(row[2]))
+        except ValueError:
+            raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if not 0.0 <= v <= 1.0:
+            raise ValueError(f"{p}:{lineno}: visible {row[1]} is outside [0, 1]")
+        vis[frame] = v
+    if not vis:
+        raise ValueError(f"{p}: no rows")
+    if pert and len(pert) != len(vis):
+        raise ValueError(f"{p}: the perturbed column is missing on some rows")
+    return vis, pert or None
+
+
+def write_visibility(path: str | Path, visible: dict[int, float], perturbed: dict[int, bool],
+                     source: dict[int, int] | None = None) -> None:
+    """Write ``frame,visible,perturbed[,source_frame]`` rows."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     with open(p, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "w", "h"])
-        for k in sorted(boxes):
-            w.writerow([k, *(f"{v:.2f}" for v in boxes[k])])
+        w.writerow(["frame", "visible", "perturbed"] + (["source_frame"] if source is not None else []))
+        for k in sorted(visible):
+            w.writerow([k, f"{visible[k]:.4f}", int(perturbed[k])] + ([source[k]] if source is not None else []))
 
 
 def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate]:

@@ -94,7 +94,6 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
 def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
     """Run one tracker as ``gflow track`` does, and score its boxes as ``gflow eval`` does."""
     from pipeline.cli.sequence_benchmark import note, score_row, tracking_seconds
-    from pipeline.recording.results import write_boxes
     from pipeline.cli.commands.track import run_track
 
     try:
@@ -105,7 +104,7 @@ def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
         return
     if run.info.get("interrupted"):
         raise KeyboardInterrupt
-    write_boxes(targs.out, run.boxes)
+    run.write_csv(targs.out)
     row.boxes_csv = targs.out if keep else None
     try:
         score_row(row, gt, Path(targs.out))
@@ -136,18 +135,89 @@ def _opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out
     row.boxes_csv = str(out) if keep else None
 
 
+def _pick_sequences(seqs, text: str | None):
+    """The sequences named in ``--sequences`` (all when not given)."""
+    if text is None:
+        return seqs
+    want = _names(text, [s.name for s in seqs], "sequences")
+    return [s for s in seqs if s.name in want]
+
+
+#: frames after the window the stress benchmark needs at least (the "after" score starts 10 frames after it)
+AFTER_MIN = 15
+
+
+def _cmd_stress(args, names: list[str], seqs, donors) -> int:
+    """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
+    from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS, note, opencv_tracker
+    from pipeline.cli.stress_benchmark import check_sequences, format_stress, run_stress, select_cases, stress_json
+
+    for opt in ("frames", "plot", "precision_plot"):
+        if getattr(args, opt):
+            raise CliError(f"--{opt.replace('_', '-')} is not used with --stress (each case has its own frames)")
+    if args.lead < 1 or args.tail < AFTER_MIN:
+        raise CliError(f"--lead needs at least 1 frame and --tail at least {AFTER_MIN} (got {args.lead}, {args.tail})")
+    if args.stress_cache and Path(args.stress_cache).exists() and not Path(args.stress_cache).is_dir():
+        raise CliError(f"--stress-cache {args.stress_cache} is a file, not a folder")
+    select_cases(args.cases)
+    check_sequences(seqs)
+    # CSRT beside every tracker by default, where this OpenCV has it
+    cv_text = "csrt" if args.opencv is None else ("" if args.opencv.strip() == "none" else args.opencv)
+    cv_names = _names(cv_text, list(OPENCV_TRACKERS), "opencv") if cv_text else []
+    cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
+    for c, why in cv_missing.items():
+        note(f"opencv {c} not measured: {why}")
+    with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
+        # every tracker's options and model files checked on the original sequences, before any work
+        _, skip = _plans(args, seqs, names, {s.name: min(s.groundtruth) for s in seqs}, None, Path(tmp))
+    for (seq, name), why in sorted(skip.items()):
+        note(f"{seq} / {name}: {why}")
+    runnable = [n for n in names if not any(k[1] == n for k in skip)]
+    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing], donors)
+    mode = "inline" if args.inline else "processes"
+    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "seed": args.seed, "mode": mode,
+            "lead": args.lead, "tail": args.tail, "interrupted": interrupted,
+            "skipped": sorted({f"{n}: {w}" for (_, n), w in skip.items()}),
+            "opencv_missing": cv_missing}
+    if args.json:
+        print(json.dumps(stress_json(rows, meta, cases)))
+    else:
+        print(format_stress(rows, markdown=args.markdown))
+        for line in meta["skipped"] + [f"opencv {c}: {w}" for c, w in cv_missing.items()]:
+            print(f"\nnot run: {line}")
+    return 130 if interrupted else 0
+
+
 def cmd_benchmark(args) -> int:
     from pipeline.cli.sequence_benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
                              plot_success, published_rows, static_box, to_json)
     from pipeline.io.datasets import parse_range
 
     names = _names(args.trackers, sorted(TRACKERS), "trackers")
+    if args.list_cases:
+        from gflow_core.stress import CASES
+
+        for c in CASES:
+            print(f"{c.name:16s} {c.describe()}")
+        return 0
+    if not args.datasets:
+        raise CliError("the following arguments are required: DATASET (a sequence folder or a folder of them)")
+    if args.stress:
+        _check_paths(args)
+        seqs, skipped = find_sequences(args.datasets)
+        for s in skipped:
+            note(s)
+        return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences), seqs)
+    for opt, default in (("cases", None), ("stress_cache", None), ("lead", 30), ("tail", 60)):
+        if getattr(args, opt) != default:
+            raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
     cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
     first_frame, stop = parse_range(args.frames)
     _check_paths(args)
     seqs, skipped = find_sequences(args.datasets)
     for s in skipped:
         note(s)
+    seqs = _pick_sequences(seqs, args.sequences)
     # the first frame to track: A of --frames A:B, else each sequence's first ground-truth frame
     first = {seq.name: first_frame if args.frames else min(seq.groundtruth) for seq in seqs}
     for seq in seqs:
@@ -227,8 +297,9 @@ def register(sub) -> None:
                     "truth, the fraction whose area is within a factor 2 of the true area) and fps (frames / wall "
                     "time of tracking), with "
                     "the published trackers and a box that never moves scored over the same frames.",
-        epilog="example: gflow benchmark ../shared/data --trackers chamfer --plot success.png")
-    p.add_argument("datasets", nargs="+", metavar="DATASET",
+        epilog="examples: gflow benchmark ../shared/data --trackers chamfer --plot success.png; "
+               "gflow benchmark ../shared/data --stress --trackers appearance --inline --markdown")
+    p.add_argument("datasets", nargs="*", metavar="DATASET",
                    help="a sequence folder (frames/ + groundtruth.csv) or a folder of them")
     p.add_argument("--trackers", metavar="NAME,...",
                    help=f"trackers to run (default all: {', '.join(sorted(TRACKERS))})")
@@ -249,4 +320,22 @@ def register(sub) -> None:
                    help="keep every run's boxes (DIR/SEQUENCE/TRACKER.csv) and recording (.mcap); "
                         "default: a temporary folder, removed at the end")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-frame progress (one line per run still)")
+    p.add_argument("--sequences", metavar="NAME,...", help="only these sequences of the datasets (default all)")
+    s = p.add_argument_group("stress benchmark (docs/stress.md)")
+    s.add_argument("--stress", action="store_true",
+                   help="run the trackers on stress cases derived from every sequence (occlusion, roll, change of "
+                        "look, darkening, blur, fast motion, leaving the frame) and score how they get the target "
+                        "back; OpenCV's CSRT runs beside them unless --opencv says otherwise (--opencv none: no "
+                        "OpenCV tracker)")
+    s.add_argument("--cases", metavar="NAME,...",
+                   help="only these stress cases (a name, or a kind such as occlude or roll-camera; see --list-cases)")
+    s.add_argument("--list-cases", action="store_true", help="print the stress cases and exit")
+    s.add_argument("--lead", type=int, default=30, metavar="N",
+                   help="frames tracked before each stress window (default 30)")
+    s.add_argument("--tail", type=int, default=60, metavar="N",
+                   help="frames tracked after each stress window (default 60; the 'after' score starts 10 frames "
+                        "after the window)")
+    s.add_argument("--stress-cache", metavar="DIR",
+                   help="keep the derived sequences in DIR and reuse them on the next run (default: a temporary "
+                        "folder, removed at the end)")
     p.set_defaults(func=cmd_benchmark)

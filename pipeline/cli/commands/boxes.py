@@ -1,4 +1,4 @@
-"""``gflow boxes RECORDING --out CSV``: the boxes (frame,x,y,w,h) of any recording, whether it was
+"""``gflow boxes RECORDING --out CSV``: the boxes (frame,x,y,w,h,confidence,state) of any recording, whether it was
 closed properly, torn by a killed recorder, recovered with ``gflow recover``, or written in
 segments by a restarted recorder."""
 
@@ -7,7 +7,7 @@ from __future__ import annotations
 ORDER = 57
 
 from pipeline.io.mcap_io import iter_records, segments
-from pipeline.recording.results import completeness, estimates, write_boxes
+from pipeline.recording.results import completeness, estimate_columns, estimates, write_boxes
 from pipeline.cli.commands.common import CliError
 
 
@@ -17,7 +17,7 @@ def cmd_boxes(args) -> int:
     est = estimates(args.recording, stream=args.stream)
     if not est:
         raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else ""))
-    write_boxes(args.out, {k: v.box for k, v in est.items()})
+    write_boxes(args.out, *estimate_columns(est))
     segs = segments(args.recording)
     print(f"{len(est)} boxes, frames {min(est)}-{max(est)}, written to {args.out}"
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))
@@ -30,12 +30,12 @@ def cmd_boxes(args) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("boxes", help="write the boxes (frame,x,y,w,h) tracked in a recording",
+    p = sub.add_parser("boxes", help="write the boxes (frame,x,y,w,h,confidence,state) tracked in a recording",
                        description="Rebuild the box CSV of a run from its recording: closed, torn (a killed "
                                    "recorder), recovered, or in segments (a restarted recorder). Names the frames "
                                    "that have no estimate (exit status 3) and those that coasted.",
                        epilog="example: gflow boxes recordings/track-20260101-120000.mcap --out boxes.csv")
     p.add_argument("recording", help="the .mcap recording (its NAME.partN.mcap segments are read too)")
-    p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h)")
+    p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h,confidence,state)")
     p.add_argument("--stream", help="only this stream's estimates (default: all)")
     p.set_defaults(func=cmd_boxes)

@@ -12,7 +12,7 @@ from pipeline.cli.commands.common import CliError
 def cmd_eval(args) -> int:
     from gflow_core.metrics import score
 
-    from pipeline.recording.results import read_boxes
+    from pipeline.recording.results import read_boxes, read_track
 
     gt, pred = read_boxes(args.gt), read_boxes(args.pred)
     if args.frames:
@@ -24,22 +24,55 @@ def cmd_eval(args) -> int:
         gt = {k: v for k, v in gt.items() if k >= lo and (hi is None or k < hi)}
         if not gt:
             raise CliError(f"no ground-truth frame in --frames {args.frames}")
+    states = _state_score(args, gt, read_track(args.pred)) if args.visibility else None
     s = score(gt, pred, threshold=args.threshold)
     if args.json:
-        print(json.dumps(s.to_json()))
+        print(json.dumps(dict(s.to_json(), **({"state": states.to_json()} if states else {}))))
     else:
         print(f"frames with ground truth: {s.frames} (missing predictions: {s.missing})")
         print(f"centre location error (CLE): {s.cle:.2f} px")
         print(f"mean overlap (IoU):          {s.mean_overlap:.3f}")
         print(f"success rate (IoU > {args.threshold}):   {s.success:.3f}")
+        if states:
+            print(f"state right when hidden:     {_rate(states.hidden_right, states.hidden)} (occluded or lost on "
+                  f"{states.hidden_right} of {states.hidden} hidden frames, past the first 5 of each stretch)")
+            print(f"state right when undisturbed: {_rate(states.shown_right, states.shown)} (tracked on "
+                  f"{states.shown_right} of {states.shown} frames)")
     return 0
+
+
+def _rate(a: int, n: int) -> str:
+    return "-" if n == 0 else f"{a / n:.3f}"
+
+
+def _state_score(args, gt: dict, track):
+    """How often the predicted state was right, given the truth's visibility file."""
+    from gflow_core.metrics import state_score
+
+    from pipeline.recording.results import read_visibility
+
+    if track.states is None:
+        raise CliError(f"{args.pred} has no state column (frame,x,y,w,h,confidence,state), so --visibility "
+                       "has nothing to score")
+    vis, pert = read_visibility(args.visibility)
+    frames = sorted(gt)
+    missing = [f for f in frames if f not in vis]
+    if missing:
+        raise CliError(f"{args.visibility} has no row for frame {missing[0]} of the ground truth")
+    return state_score([track.states.get(f) for f in frames], [vis[f] for f in frames],
+                       None if pert is None else [pert[f] for f in frames])
 
 
 def register(sub) -> None:
     p = sub.add_parser("eval", help="score predicted boxes against ground truth",
-                       description="Centre location error (px), mean overlap (IoU) and success rate (IoU > 0.5).")
+                       description="Centre location error (px), mean overlap (IoU) and success rate (IoU > 0.5); "
+                                   "with --visibility, how often the reported state was right.")
     p.add_argument("--gt", required=True, help="ground truth CSV (frame,x,y,w,h)")
-    p.add_argument("--pred", required=True, help="predicted CSV (frame,x,y,w,h)")
+    p.add_argument("--pred", required=True, help="predicted CSV (frame,x,y,w,h, optionally confidence,state)")
+    p.add_argument("--visibility", metavar="CSV",
+                   help="frame,visible[,perturbed] of the truth (a stress sequence's visibility.csv): also report how "
+                        "often the predicted state was right (occluded or lost when less than 10%% of the target is "
+                        "in view, past the first 5 frames of it; tracked on undisturbed frames)")
     p.add_argument("--frames", metavar="A:B",
                    help="score only frames A <= frame < B (e.g. 150: after a run with --start 150); by default every "
                         "ground-truth frame counts and a frame with no prediction is a failure")

@@ -20,7 +20,7 @@ import msgspec
 from stages.source import SourceParams
 
 from pipeline.runtime.graph import Plan, load_graph
-from pipeline.recording.results import run_outcome, write_boxes
+from pipeline.recording.results import estimate_columns, run_outcome, write_boxes
 from pipeline.io.frame_readers import count_frames
 from pipeline.cli.trackers import TRACKERS
 from pipeline.runtime.preflight import check_source
@@ -100,6 +100,12 @@ class TrackRun:
     temporary: bool = False  # --no-record: the recording was removed
     lines: list[str] = field(default_factory=list)  # what is missing, coasted, restarted
     incomplete: str = ""  # why the run is incomplete, or ""
+    confidence: dict[int, float] = field(default_factory=dict)  # the estimates' confidence by frame
+    target_states: dict[int, str] = field(default_factory=dict)  # tracked / occluded / lost by frame
+
+    def write_csv(self, path: str | Path) -> None:
+        """The boxes CSV: frame,x,y,w,h,confidence,state."""
+        write_boxes(path, self.boxes, self.confidence, self.target_states)
 
 
 def track_plan(args) -> tuple[Plan, int | None]:
@@ -141,7 +147,9 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
     finally:
         recording.cleanup()
     est = out.estimates
-    return TrackRun(boxes={k: v.box for k, v in est.items()}, states=[v.state for v in est.values()],
+    boxes, confidence, target_states = estimate_columns(est)
+    return TrackRun(boxes=boxes, states=[v.state for v in est.values()], confidence=confidence,
+                    target_states=target_states,
                     recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
                     temporary=recording.temporary, lines=list(out.lines),
                     incomplete=out.why if out.incomplete else "")
@@ -149,7 +157,7 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
 
 def cmd_track(args) -> int:
     run = run_track(args)
-    write_boxes(args.out, run.boxes)
+    run.write_csv(args.out)
     n, states, info = len(run.boxes), run.states, run.info
     print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
           f"boxes: {args.out}; recording: {run.kept}")
@@ -173,7 +181,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     """The options of ``gflow track`` (also parsed by ``gflow benchmark`` to run a tracker the same way)."""
     p.add_argument("source", help="image folder (or a dataset folder with frames/), video file, or .mcap recording")
     p.add_argument("--init", type=parse_box, required=True, metavar="X,Y,W,H", help="initial box in frame --start")
-    p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h)")
+    p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h,confidence,state)")
     p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
                    help="tracking method (default appearance; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
@@ -208,8 +216,9 @@ class _Parser(argparse.ArgumentParser):
 
 def register(sub) -> None:
     p = sub.add_parser("track", help="track one target through an image folder, a video or a recording",
-                       description="Track one target from an initial box. Writes frame,x,y,w,h per frame (0-based "
-                                   "pixels, top-left corner and size) and records every message to MCAP.",
+                       description="Track one target from an initial box. Writes frame,x,y,w,h,confidence,state per "
+                                   "frame (0-based pixels, top-left corner and size; the confidence in [0, 1] and "
+                                   "the state, tracked / occluded / lost, are the tracker's judgement) and records every message to MCAP.",
                        epilog="example: gflow track ../shared/data/crossing --init 204,150,17,50 --out boxes.csv")
     add_track_args(p)
     p.set_defaults(func=cmd_track)

@@ -1,0 +1,479 @@
+"""Stress cases: real frames perturbed over a window, with the ground truth carried along.
+
+A stress case takes a sequence with ground truth and derives a shorter one: ``lead`` frames
+before a window, the window perturbed (an occluder, a roll, a change of look, darkening and
+noise, motion blur, dropped frames, the target leaving the frame), and ``tail`` frames after
+it, so a tracker can be scored on whether it gets the target back. The derived ground truth is
+the original's, moved where the perturbation moves the image.
+
+The work is split in two pure steps:
+
+* :func:`plan_case` turns a case, the original ground truth and the frame size into a
+  :class:`StressPlan`: which original frame each derived frame shows and every per-frame
+  parameter (occluder rectangle, roll angle, shift, blur, gain, noise), with the derived
+  truth and how much of the target is visible. No image is touched.
+* :func:`render_frame` applies one derived frame's parameters to its original image.
+
+Boxes are (x, y, w, h): top-left corner and size in 0-based pixels, as in ``../shared/data``.
+Angles are in degrees, counter-clockwise on screen (OpenCV's convention).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from .metrics import HIDDEN_BELOW
+
+__all__ = ["KINDS", "StressCase", "CASES", "SPAN", "StressPlan", "plan_case", "render_frame", "visible_fraction",
+           "occluder_size", "HIDDEN_BELOW"]
+
+#: the kinds of perturbation
+KINDS = ("none", "occlude", "sweep", "partial", "slide", "roll-target", "roll-camera", "look", "dark", "blur", "fast",
+         "leave")
+
+#: kinds that paste an image patch (the occluder, or the new part of the look)
+PATCH_KINDS = ("none", "occlude", "sweep", "partial", "slide", "look")
+
+
+
+@dataclass(frozen=True)
+class StressCase:
+    """One perturbation of a window of frames.
+
+    Parameters
+    ----------
+    name : short unique name, e.g. ``"occlude-60"``.
+    kind : one of :data:`KINDS`:
+
+        * ``none``: nothing changes (the control: the same frames, untouched);
+        * ``occlude``: a real image patch, still, covering every place the target takes in
+          the window (full occlusion);
+        * ``sweep``: a patch three target-widths wide crossing the target horizontally
+          (full occlusion in the middle of the window);
+        * ``partial``: a patch covering the fraction ``amount`` of the box from one side,
+          moving with the target;
+        * ``slide``: a patch of the target's size sliding up across it (it enters from below,
+          covers it, leaves above), so a tracker that locks on its edge is dragged along;
+        * ``roll-target``: the target (a disc around it) rolls by up to ``amount`` degrees
+          and back;
+        * ``roll-camera``: the whole frame rolls about the target by up to ``amount``
+          degrees and back;
+        * ``look``: the top ``amount`` of the target is replaced by a patch for good (a hat
+          put on during the window, kept on after it);
+        * ``dark``: the frame darkens to ``amount`` of its brightness with Gaussian noise,
+          and recovers;
+        * ``blur``: linear motion blur of up to ``amount`` pixels, and back;
+        * ``fast``: only every ``amount``-th frame of the window is kept;
+        * ``leave``: the image shifts sideways until the target is out of the frame, stays
+          out, and comes back (the uncovered strip is black).
+    length : length of the window in original frames.
+    amount : the kind's strength (see ``kind``).
+    """
+
+    name: str
+    kind: str
+    length: int
+    amount: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"stress case {self.name!r}: unknown kind {self.kind!r} (known: {', '.join(KINDS)})")
+        if self.length < 1:
+            raise ValueError(f"stress case {self.name!r}: the window needs at least one frame, got {self.length}")
+        if self.kind in ("partial", "look") and not 0.0 < self.amount < 1.0:
+            raise ValueError(f"stress case {self.name!r}: amount is a fraction of the box in (0, 1), got {self.amount}")
+        if self.kind in ("roll-target", "roll-camera") and not 0.0 < abs(self.amount) <= 90.0:
+            raise ValueError(f"stress case {self.name!r}: amount is an angle in (0, 90] degrees, got {self.amount}")
+        if self.kind == "dark" and not 0.0 <= self.amount < 1.0:
+            raise ValueError(f"stress case {self.name!r}: amount is the darkest gain in [0, 1), got {self.amount}")
+        if self.kind == "blur" and self.amount < 2:
+            raise ValueError(f"stress case {self.name!r}: amount is a blur length of at least 2 px, got {self.amount}")
+        if self.kind == "fast" and (self.amount != int(self.amount) or self.amount < 2):
+            raise ValueError(f"stress case {self.name!r}: amount is the frame step, an integer >= 2, got {self.amount}")
+
+    @property
+    def persistent(self) -> bool:
+        """Whether the change stays after the window (a change of look)."""
+        return self.kind == "look"
+
+    def describe(self) -> str:
+        """One line saying what the case does."""
+        a = self.amount
+        n = self.length
+        text = {
+            "none": f"nothing changes: the frames of every case, untouched ({n}-frame window)",
+            "occlude": f"a still image patch hides the target for {n} frames",
+            "sweep": f"an image patch sweeps across the target in {n} frames, hiding it in the middle",
+            "partial": f"an image patch hides {a:.0%} of the box, from one side, for {n} frames",
+            "slide": f"a patch of the target's size slides up across it in {n} frames",
+            "roll-target": f"the target rolls to {a:g} degrees and back in {n} frames",
+            "roll-camera": f"the frame rolls about the target to {a:g} degrees and back in {n} frames",
+            "look": f"the top {a:.0%} of the target is replaced for good (put on in {n} frames)",
+            "dark": f"the frame darkens to {a:.0%} with noise and back in {n} frames",
+            "blur": f"motion blur up to {a:g} px and back in {n} frames",
+            "fast": f"one frame in {int(a)} of {n} kept (motion {int(a)}x faster)",
+            "leave": f"the target leaves the frame and comes back in {n} frames",
+        }[self.kind]
+        return text
+
+
+#: the default cases: together they cover every kind once or a few times, without near-duplicates;
+#: ``none`` is the control, as long as the longest case, so its run holds the frames of every case
+CASES: tuple[StressCase, ...] = (
+    StressCase("none", "none", 150),
+    StressCase("occlude-10", "occlude", 10),
+    StressCase("occlude-25", "occlude", 25),
+    StressCase("occlude-60", "occlude", 60),
+    StressCase("occlude-150", "occlude", 150),
+    StressCase("sweep-40", "sweep", 40),
+    StressCase("partial-33", "partial", 40, 1 / 3),
+    StressCase("partial-67", "partial", 40, 2 / 3),
+    StressCase("slide-60", "slide", 60),
+    StressCase("roll-target-35", "roll-target", 40, 35.0),
+    StressCase("roll-camera-20", "roll-camera", 40, 20.0),
+    StressCase("roll-camera-35", "roll-camera", 40, 35.0),
+    StressCase("roll-camera-45", "roll-camera", 40, 45.0),
+    StressCase("look", "look", 10, 0.25),
+    StressCase("dark-40", "dark", 40, 0.25),
+    StressCase("blur-30", "blur", 30, 21.0),
+    StressCase("fast-2", "fast", 60, 2),
+    StressCase("fast-3", "fast", 60, 3),
+    StressCase("leave-40", "leave", 40),
+)
+
+
+@dataclass(frozen=True)
+class StressPlan:
+    """Everything a derived sequence is, frame by frame, before any image is made.
+
+    Attributes
+    ----------
+    case : the case.
+    source : (T,) int64, the original frame each derived frame shows.
+    window : (start, stop), the derived frames of the window.
+    boxes : (T, 4) float64, the derived ground truth.
+    occluder : (T, 4) float64, the pasted patch's rectangle (x, y, w, h); NaN where none.
+    angle : (T,) float64, roll in degrees about the target's centre (0: none).
+    region : (T,) float64, radius of the rolled disc (0: the whole frame rolls).
+    shift : (T,) float64, horizontal shift of the image content in pixels.
+    blur : (T,) float64, motion blur length in pixels (below 2: none).
+    gain : (T,) float64, brightness factor.
+    noise : (T,) float64, standard deviation of Gaussian noise in grey levels.
+    visible : (T,) float64, the fraction of the true box that is in view (in the frame and
+        not under the patch).
+    perturbed : (T,) bool, whether the case changes the frame (or, for ``fast``, drops
+        frames around it).
+    blur_angle : direction of the motion blur, degrees.
+    image_size : (W, H).
+    """
+
+    case: StressCase
+    source: np.ndarray
+    window: tuple[int, int]
+    boxes: np.ndarray
+    occluder: np.ndarray
+    angle: np.ndarray
+    region: np.ndarray
+    shift: np.ndarray
+    blur: np.ndarray
+    gain: np.ndarray
+    noise: np.ndarray
+    visible: np.ndarray
+    perturbed: np.ndarray
+    blur_angle: float
+    image_size: tuple[int, int]
+
+    def __len__(self) -> int:
+        return int(self.source.shape[0])
+
+    def changed(self, i: int) -> bool:
+        """Whether derived frame ``i``'s image differs from its original frame's."""
+        return bool(not np.isnan(self.occluder[i, 0]) or self.angle[i] != 0.0 or self.shift[i] != 0.0
+                    or self.blur[i] >= 2.0 or self.gain[i] != 1.0 or self.noise[i] > 0.0)
+
+
+def _check_truth(truth: np.ndarray) -> np.ndarray:
+    t = np.asarray(truth, dtype=np.float64)
+    if t.ndim != 2 or t.shape[1] != 4 or t.shape[0] < 2:
+        raise ValueError(f"ground truth must be (N, 4) boxes with N >= 2, got shape {t.shape}")
+    if not np.isfinite(t).all():
+        raise ValueError("ground truth has NaN or inf")
+    if (t[:, 2:] <= 0).any():
+        raise ValueError("ground truth has a box with zero or negative size")
+    return t
+
+
+def _reflect(j: np.ndarray, n: int) -> np.ndarray:
+    """Indices played forwards, then backwards, then forwards ... over ``n`` frames."""
+    if n == 1:
+        return np.zeros_like(j)
+    period = 2 * (n - 1)
+    m = np.mod(j, period)
+    return np.where(m < n, m, period - m)
+
+
+def _bump(u: np.ndarray) -> np.ndarray:
+    """0 -> 1 -> 0 over u in [0, 1]: sin(pi u)."""
+    return np.sin(np.pi * np.clip(u, 0.0, 1.0))
+
+
+def visible_fraction(box: np.ndarray, image_size: tuple[int, int], occluder: np.ndarray | None = None) -> float:
+    """The fraction of ``box``'s area that is inside the image and not under ``occluder``.
+
+    Parameters
+    ----------
+    box : (4,) x, y, w, h.
+    image_size : (W, H).
+    occluder : (4,) x, y, w, h, or None (or NaN) for none.
+    """
+    x, y, w, h = (float(v) for v in box)
+    area = w * h
+    if area <= 0:
+        return 0.0
+    W, H = image_size
+    # the part of the box inside the image
+    x0, y0, x1, y1 = max(x, 0.0), max(y, 0.0), min(x + w, float(W)), min(y + h, float(H))
+    if x1 <= x0 or y1 <= y0:
+        return 0.0
+    inside = (x1 - x0) * (y1 - y0)
+    if occluder is None or np.isnan(occluder[0]):
+        return min(inside / area, 1.0)
+    ox, oy, ow, oh = (float(v) for v in occluder)
+    cx0, cy0, cx1, cy1 = max(x0, ox), max(y0, oy), min(x1, ox + ow), min(y1, oy + oh)
+    covered = max(cx1 - cx0, 0.0) * max(cy1 - cy0, 0.0)
+    return min(max(inside - covered, 0.0) / area, 1.0)
+
+
+#: the window length every run is placed for: the longest default case
+SPAN = max(c.length for c in CASES)
+
+
+def _source_frames(case: StressCase, n: int, lead: int, tail: int, span: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """The original frame of each derived frame, and the window in derived frames.
+
+    Every case starts from the same frame, chosen to centre a run with a window of ``span``
+    frames in the sequence, so one untouched run (``none``) holds the frames of every case. A
+    sequence too short is played forwards and backwards (its frames and truth reversed are
+    real frames and truth too)."""
+    step = int(case.amount) if case.kind == "fast" else 1
+    need = lead + max(span, case.length) + tail
+    first = (n - need) // 2 if n >= need else 0
+    need = lead + case.length + tail
+    before = np.arange(first, first + lead)
+    during = np.arange(first + lead, first + lead + case.length, step)
+    after = np.arange(first + lead + case.length, first + need)
+    src = _reflect(np.concatenate([before, during, after]), n).astype(np.int64)
+    return src, (lead, lead + during.shape[0])
+
+
+def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator,
+              lead: int = 30, tail: int = 60, span: int = SPAN) -> StressPlan:
+    """Plan the derived sequence of ``case`` on a sequence with ground truth ``truth``.
+
+    Parameters
+    ----------
+    case : the perturbation.
+    truth : (N, 4) float64, the true box of every original frame 0..N-1.
+    image_size : (W, H) of the original frames.
+    rng : draws the case's free choices (which side a partial occluder comes from, the blur
+        direction).
+    lead, tail : derived frames before and after the window.
+    span : the run of every case starts where a run with a window this long would be centred.
+
+    Returns
+    -------
+    StressPlan
+    """
+    t = _check_truth(truth)
+    W, H = (int(v) for v in image_size)
+    if W < 8 or H < 8:
+        raise ValueError(f"image size must be at least 8x8, got {W}x{H}")
+    if lead < 1 or tail < 1:
+        raise ValueError(f"lead and tail need at least one frame each, got {lead} and {tail}")
+    src, (w0, w1) = _source_frames(case, t.shape[0], lead, tail, span)
+    T = src.shape[0]
+    boxes = t[src].copy()
+    idx = np.arange(T)
+    # u: 0 at the window's first frame, 1 at its last
+    u = (idx - w0) / max(w1 - 1 - w0, 1)
+    inside = (idx >= w0) & (idx < w1)
+    hump = np.where(inside, _bump(u), 0.0)
+    occ = np.full((T, 4), np.nan)
+    angle, region, shift = np.zeros(T), np.zeros(T), np.zeros(T)
+    blur, gain, noise = np.zeros(T), np.ones(T), np.zeros(T)
+    perturbed = inside.copy()
+    blur_angle = 0.0
+    x, y, w, h = boxes.T
+    k = case.kind
+    if k == "none":
+        perturbed = np.zeros(T, dtype=bool)
+    elif k == "occlude":
+        # one still rectangle over every place the target takes in the window, with a margin
+        wb = boxes[w0:w1]
+        x0, y0 = wb[:, 0].min(), wb[:, 1].min()
+        x1, y1 = (wb[:, 0] + wb[:, 2]).max(), (wb[:, 1] + wb[:, 3]).max()
+        mx, my = 0.15 * wb[:, 2].mean() + 2, 0.15 * wb[:, 3].mean() + 2
+        occ[inside] = (x0 - mx, y0 - my, x1 - x0 + 2 * mx, y1 - y0 + 2 * my)
+    elif k == "sweep":
+        # three target widths wide, as tall as the target's path; left of it to right of it
+        wb = boxes[w0:w1]
+        ow = 3.0 * wb[:, 2].mean()
+        y0, y1 = wb[:, 1].min(), (wb[:, 1] + wb[:, 3]).max()
+        my = 0.15 * wb[:, 3].mean() + 2
+        xa, xb = wb[:, 0].min() - ow, (wb[:, 0] + wb[:, 2]).max()
+        ox = xa + (xb - xa) * np.clip(u, 0, 1)
+        occ[inside] = np.stack([ox, np.full(T, y0 - my), np.full(T, ow), np.full(T, y1 - y0 + 2 * my)], 1)[inside]
+    elif k == "partial":
+        side = ("left", "right", "bottom")[int(rng.integers(3))]
+        f = case.amount
+        if side == "left":
+            r = np.stack([x - 0.3 * w, y - 0.15 * h, (f + 0.3) * w, 1.3 * h], 1)
+        elif side == "right":
+            r = np.stack([x + (1 - f) * w, y - 0.15 * h, (f + 0.3) * w, 1.3 * h], 1)
+        else:
+            r = np.stack([x - 0.15 * w, y + (1 - f) * h, 1.3 * w, (f + 0.3) * h], 1)
+        occ[inside] = r[inside]
+    elif k == "slide":
+        # the patch's top edge goes from the box's bottom to above its top
+        oh = 1.2 * h
+        top = (y + h) - (h + oh) * np.clip(u, 0, 1)
+        occ[inside] = np.stack([x - 0.1 * w, top, 1.2 * w, oh], 1)[inside]
+    elif k in ("roll-target", "roll-camera"):
+        angle = case.amount * hump
+        if k == "roll-target":
+            region = np.where(inside, 0.55 * np.hypot(w, h), 0.0)
+    elif k == "look":
+        # the new top of the target, put on from above during the window and kept
+        f = case.amount
+        on = idx >= w0
+        drop = np.where(inside, 1.0 - np.clip(u, 0, 1), 0.0) * (f + 0.15) * h
+        occ[on] = np.stack([x - 0.1 * w, y - 0.15 * h - drop, 1.2 * w, (f + 0.15) * h], 1)[on]
+        perturbed = on
+    elif k == "dark":
+        gain = 1.0 - (1.0 - case.amount) * hump
+        noise = 15.0 * hump
+    elif k == "blur":
+        blur = case.amount * hump
+        blur_angle = float(rng.uniform(0.0, 180.0))
+    elif k == "fast":
+        pass  # the window's frames were dropped in _source_frames
+    elif k == "leave":
+        # out through the nearer side edge, far enough to leave a margin; out for the middle half
+        c = x[w0] + w[w0] / 2
+        left = c < W / 2
+        margin = 0.2 * w[w0:w1].max() + 4
+        dist = ((x + w)[w0:w1].max() + margin) if left else (W - x[w0:w1].min() + margin)
+        ramp = np.clip(np.minimum(u, 1 - u) / 0.25, 0.0, 1.0)
+        # the image moves, the target moves with it; smoothstep keeps the start and end gentle
+        s = dist * ramp * ramp * (3 - 2 * ramp)
+        shift = np.where(inside, -s if left else s, 0.0)
+        boxes[:, 0] += shift
+    visible = np.array([visible_fraction(boxes[i], (W, H), occ[i]) for i in range(T)])
+    return StressPlan(case=case, source=src, window=(w0, w1), boxes=boxes, occluder=occ, angle=angle,
+                      region=region, shift=shift, blur=blur, gain=gain, noise=noise, visible=visible,
+                      perturbed=perturbed, blur_angle=blur_angle, image_size=(W, H))
+
+
+def occluder_size(plan: StressPlan) -> tuple[int, int] | None:
+    """The largest (width, height) the patch takes, in pixels, or None if the case pastes none."""
+    o = plan.occluder[~np.isnan(plan.occluder[:, 0])]
+    if o.shape[0] == 0:
+        return None
+    return int(math.ceil(o[:, 2].max())), int(math.ceil(o[:, 3].max()))
+
+
+def _paste(img: np.ndarray, rect: np.ndarray, patch: np.ndarray) -> None:
+    """Paste ``patch`` resized to ``rect`` (x, y, w, h) into ``img`` in place, clipped to the image."""
+    H, W = img.shape[:2]
+    x, y, w, h = (float(v) for v in rect)
+    pw, ph = max(int(round(w)), 1), max(int(round(h)), 1)
+    px, py = int(round(x)), int(round(y))
+    a0, b0 = max(px, 0), max(py, 0)
+    a1, b1 = min(px + pw, W), min(py + ph, H)
+    if a1 <= a0 or b1 <= b0:
+        return
+    resized = cv2.resize(patch, (pw, ph), interpolation=cv2.INTER_AREA if pw * ph < patch.shape[0] * patch.shape[1]
+                         else cv2.INTER_LINEAR)
+    if resized.ndim == 2 and img.ndim == 3:
+        resized = cv2.cvtColor(resized, cv2.COLOR_GRAY2BGR)
+    elif resized.ndim == 3 and img.ndim == 2:
+        resized = cv2.cvtColor(resized, cv2.COLOR_BGR2GRAY)
+    img[b0:b1, a0:a1] = resized[b0 - py:b1 - py, a0 - px:a1 - px]
+
+
+def _motion_kernel(length: float, angle: float) -> np.ndarray:
+    """A normalised line kernel of ``length`` pixels at ``angle`` degrees, (K, K) float32."""
+    k = int(math.ceil(length)) | 1
+    ker = np.zeros((k, k), np.float32)
+    c = (k - 1) / 2.0
+    dx, dy = math.cos(math.radians(angle)), -math.sin(math.radians(angle))
+    half = (length - 1) / 2.0
+    p0 = (int(round((c - half * dx) * 16)), int(round((c - half * dy) * 16)))
+    p1 = (int(round((c + half * dx) * 16)), int(round((c + half * dy) * 16)))
+    cv2.line(ker, p0, p1, 1.0, 1, cv2.LINE_AA, 4)
+    return ker / max(float(ker.sum()), 1e-6)
+
+
+def render_frame(image: np.ndarray, plan: StressPlan, i: int, patch: np.ndarray | None = None,
+                 rng: np.random.Generator | None = None) -> np.ndarray:
+    """Derived frame ``i`` of ``plan`` made from its original image.
+
+    Parameters
+    ----------
+    image : (H, W, 3) or (H, W) uint8, the original frame ``plan.source[i]``.
+    plan : the plan.
+    i : derived frame index.
+    patch : (h, w, 3) or (h, w) uint8, the real image patch the case pastes (resized to each
+        frame's rectangle); needed by the cases that paste one.
+    rng : draws the noise of the frame (needed when ``plan.noise[i] > 0``).
+
+    Returns
+    -------
+    (H, W, 3) or (H, W) uint8, a new array (``image`` is not changed).
+    """
+    if image.dtype != np.uint8 or image.ndim not in (2, 3):
+        raise ValueError(f"image must be (H, W) or (H, W, 3) uint8, got {image.shape} {image.dtype}")
+    if (image.shape[1], image.shape[0]) != tuple(plan.image_size):
+        raise ValueError(f"image is {image.shape[1]}x{image.shape[0]}, the plan is for "
+                         f"{plan.image_size[0]}x{plan.image_size[1]}")
+    if not 0 <= i < len(plan):
+        raise ValueError(f"frame {i} is outside the plan's {len(plan)} frames")
+    out = image.copy()
+    H, W = out.shape[:2]
+    box = plan.boxes[i]
+    cx, cy = box[0] + box[2] / 2, box[1] + box[3] / 2
+    if plan.shift[i] != 0.0:
+        m = np.float32([[1, 0, plan.shift[i]], [0, 1, 0]])
+        out = cv2.warpAffine(out, m, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    if plan.angle[i] != 0.0:
+        m = cv2.getRotationMatrix2D((float(cx), float(cy)), float(plan.angle[i]), 1.0)
+        rolled = cv2.warpAffine(out, m, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        r = plan.region[i]
+        if r > 0:  # only a disc around the target rolls; a soft edge 15 % of its radius wide
+            yy, xx = np.mgrid[0:H, 0:W]
+            d = np.hypot(xx - cx, yy - cy)
+            a = np.clip((r - d) / (0.15 * r), 0.0, 1.0).astype(np.float32)
+            if out.ndim == 3:
+                a = a[..., None]
+            out = (a * rolled + (1 - a) * out + 0.5).astype(np.uint8)
+        else:
+            out = rolled
+    if not np.isnan(plan.occluder[i, 0]):
+        if patch is None:
+            raise ValueError(f"stress case {plan.case.name!r} pastes an image patch: give one")
+        _paste(out, plan.occluder[i], patch)
+    if plan.gain[i] != 1.0 or plan.noise[i] > 0:
+        f = out.astype(np.float32) * np.float32(plan.gain[i])
+        if plan.noise[i] > 0:
+            if rng is None:
+                raise ValueError(f"stress case {plan.case.name!r} adds noise: give an rng")
+            f += rng.normal(0.0, plan.noise[i], size=f.shape).astype(np.float32)
+        out = np.clip(f + 0.5, 0, 255).astype(np.uint8)
+    if plan.blur[i] >= 2.0:
+        out = cv2.filter2D(out, -1, _motion_kernel(float(plan.blur[i]), plan.blur_angle),
+                           borderType=cv2.BORDER_REFLECT101)
+    return out

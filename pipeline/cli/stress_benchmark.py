@@ -1,0 +1,510 @@
+"""``gflow benchmark DATA --stress``: trackers on sequences derived from real ones by perturbing a window.
+
+For every sequence folder and every stress case (:data:`gflow_core.stress.CASES`), a derived
+sequence folder is written: ``frames/`` (the original frames of the run, copied byte for byte
+where the case leaves them alone), ``groundtruth.csv`` (the original truth, moved where the
+image moves), ``visibility.csv`` (``frame,visible,perturbed,source_frame``: the fraction of the
+target in view, whether the case changed the frame, and the original frame shown) and
+``stress.json`` (the case, its window and where its image patch was cut). Each derived
+sequence then runs through :func:`pipeline.cli.commands.benchmark._tracker_row`, the very
+path of ``gflow benchmark`` and ``gflow track``, and OpenCV's CSRT and a box that never moves
+are scored beside it.
+
+Derived sequences are kept between runs under ``--stress-cache DIR`` (keyed by everything they
+are made from); without it they are written to a temporary folder and removed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import shutil
+import tempfile
+import time
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from gflow_core.metrics import HIDDEN_BELOW, StateScore, frames_to_recover, overlaps, state_score
+from gflow_core.stress import CASES, PATCH_KINDS, StressCase, StressPlan, occluder_size, plan_case, render_frame
+
+from pipeline.io.frame_readers import folder_frames
+from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
+from pipeline.cli.sequence_benchmark import Row, Sequence, note
+
+__all__ = ["StressRow", "Derived", "select_cases", "derive", "check_sequences", "stress_scores", "untouched",
+           "format_stress", "stress_json", "run_stress", "AFTER_GAP", "BACK_AT", "VERSION"]
+
+#: the "after" score starts this many frames after the window ends
+AFTER_GAP = 10
+#: a tracker got the target back when its success after the window is at least this
+BACK_AT = 0.8
+#: bumped whenever a derived sequence would come out differently (invalidates caches)
+VERSION = 3
+
+
+def select_cases(text: str | None) -> list[StressCase]:
+    """The cases named in ``text`` (comma-separated names or name prefixes: ``occlude`` is every
+    ``occlude-*``), in the order of :data:`CASES`; None: every case."""
+    if text is None:
+        return list(CASES)
+    want = [n.strip() for n in text.split(",") if n.strip()]
+    if not want:
+        raise ValueError(f"--cases needs at least one name (known: {', '.join(c.name for c in CASES)})")
+    chosen: set[str] = set()
+    for w in want:
+        hit = [c.name for c in CASES if c.name == w or c.name.startswith(w + "-") or c.kind == w]
+        if not hit:
+            raise ValueError(f"unknown stress case {w!r} (known: {', '.join(c.name for c in CASES)})")
+        chosen.update(hit)
+    return [c for c in CASES if c.name in chosen]
+
+
+@dataclass(frozen=True)
+class Derived:
+    """A derived sequence written to disk: its folder (as a :class:`Sequence`), its plan, and
+    where its image patch came from."""
+
+    seq: Sequence
+    plan: StressPlan
+    origin: str
+    case: StressCase
+    patch_from: str
+    cached: bool
+
+
+def _digest(*parts) -> str:
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+def _files(seq: Sequence) -> dict[int, Path]:
+    """The original image file of every frame of ``seq``."""
+    return {i: f for i, f in folder_frames(seq.path / "frames") if f is not None}
+
+
+def _truth(seq: Sequence, files: dict[int, Path]) -> np.ndarray:
+    """(N, 4) truth of frames 0..N-1: the sequence must have a box and an image for each."""
+    gt = seq.groundtruth
+    n = max(gt) + 1
+    missing = [f for f in range(n) if f not in gt or f not in files]
+    if min(gt) != 0 or missing:
+        raise ValueError(f"{seq.path}: the stress benchmark needs a ground-truth box and an image for every frame "
+                         f"from 0 on (frame {missing[0] if missing else 0} has none)")
+    return np.array([gt[f] for f in range(n)], dtype=np.float64)
+
+
+def _source_key(seq: Sequence, files: dict[int, Path]) -> str:
+    gt = (seq.path / "groundtruth.csv").read_bytes()
+    return _digest(hashlib.sha256(gt).hexdigest(), [(i, f.name, f.stat().st_size) for i, f in sorted(files.items())])
+
+
+def _cut_patch(donor: Sequence, size: tuple[int, int], avoid: set[int], rng: np.random.Generator,
+               ) -> tuple[np.ndarray, str]:
+    """A real image patch with the aspect of ``size`` (w, h), cut from a frame of ``donor`` away
+    from its target (and from frames in ``avoid``), and a note of where it was cut."""
+    files = _files(donor)
+    frames = [f for f in sorted(files) if f not in avoid] or sorted(files)
+    f = frames[int(rng.integers(len(frames)))]
+    img = cv2.imread(str(files[f]), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"{files[f]}: not a decodable image")
+    H, W = img.shape[:2]
+    w, h = size
+    scale = min(0.8 * W / w, 0.8 * H / h, 1.0)
+    pw, ph = max(int(w * scale), 4), max(int(h * scale), 4)
+    box = donor.groundtruth.get(f)
+    best = None
+    for _ in range(100):  # away from the donor's own target, so the occluder is never a copy of a target
+        x, y = int(rng.integers(0, W - pw + 1)), int(rng.integers(0, H - ph + 1))
+        best = best or (x, y)
+        if box is None or (x + pw <= box[0] or box[0] + box[2] <= x or y + ph <= box[1] or box[1] + box[3] <= y):
+            best = (x, y)
+            break
+    x, y = best  # type: ignore[misc]
+    return img[y:y + ph, x:x + pw].copy(), f"{donor.name} frame {f} at {x},{y},{pw},{ph}"
+
+
+def _write(folder: Path, seq: Sequence, files: dict[int, Path], plan: StressPlan, patch: np.ndarray | None,
+           seed: int) -> None:
+    frames = folder / "frames"
+    frames.mkdir(parents=True)
+    case = plan.case
+    for i in range(len(plan)):
+        src = files[int(plan.source[i])]
+        if not plan.changed(i):
+            shutil.copyfile(src, frames / f"{i:06d}{src.suffix.lower()}")
+            continue
+        img = cv2.imread(str(src), cv2.IMREAD_COLOR)
+        if img is None:
+            raise ValueError(f"{src}: not a decodable image")
+        rng = np.random.default_rng([seed, zlib.crc32(seq.name.encode()), zlib.crc32(case.name.encode()), i])
+        out = render_frame(img, plan, i, patch, rng)
+        if not cv2.imwrite(str(frames / f"{i:06d}.jpg"), out, [cv2.IMWRITE_JPEG_QUALITY, 95]):
+            raise OSError(f"could not write {frames / f'{i:06d}.jpg'}")
+    write_boxes(folder / "groundtruth.csv", {i: tuple(plan.boxes[i]) for i in range(len(plan))})
+    write_visibility(folder / "visibility.csv", {i: float(plan.visible[i]) for i in range(len(plan))},
+                     {i: bool(plan.perturbed[i]) for i in range(len(plan))},
+                     {i: int(plan.source[i]) for i in range(len(plan))})
+
+
+def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: int, lead: int, tail: int) -> Derived:
+    """Write (or find in ``root``) the derived sequence of ``case`` on ``seq``, its patch cut from ``donor``."""
+    files = _files(seq)
+    truth = _truth(seq, files)
+    first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
+    if first is None:
+        raise ValueError(f"{files[0]}: not a decodable image")
+    size = (first.shape[1], first.shape[0])
+    rng = np.random.default_rng([seed, zlib.crc32(seq.name.encode()), zlib.crc32(case.name.encode())])
+    plan = plan_case(case, truth, size, rng, lead=lead, tail=tail)
+    key = _digest(VERSION, case, lead, tail, seed, seq.name, _source_key(seq, files),
+                  donor.name if case.kind in PATCH_KINDS else "", _source_key(donor, _files(donor))
+                  if case.kind in PATCH_KINDS else "")
+    folder = root / seq.name / case.name
+    meta_path = folder / "stress.json"
+    cached = False
+    if meta_path.is_file():
+        try:
+            meta = json.loads(meta_path.read_text())
+            cached = meta.get("key") == key
+        except (OSError, ValueError):
+            cached = False
+    if cached:
+        patch_from = meta.get("patch_from", "")
+    else:
+        if folder.exists():
+            shutil.rmtree(folder)
+        patch, patch_from = None, ""
+        need = occluder_size(plan)
+        if need is not None:
+            patch, patch_from = _cut_patch(donor, need, set(plan.source.tolist()) if donor is seq else set(), rng)
+        _write(folder, seq, files, plan, patch, seed)
+        meta = {"key": key, "version": VERSION, "sequence": seq.name, "source": str(seq.path), "case": case.name,
+                "kind": case.kind, "length": case.length, "amount": case.amount, "describe": case.describe(),
+                "window": list(plan.window), "frames": len(plan), "lead": lead, "tail": tail, "seed": seed,
+                "patch_from": patch_from}
+        meta_path.write_text(json.dumps(meta, indent=1))  # last: marks the folder complete
+    gt = read_boxes(folder / "groundtruth.csv")
+    dseq = Sequence(name=f"{seq.name}/{case.name}", path=folder, groundtruth=gt, results=())
+    return Derived(dseq, plan, seq.name, case, patch_from, cached)
+
+
+@dataclass
+class StressRow:
+    """One tracker (ours, OpenCV's, or the box that never moves) on one derived sequence."""
+
+    sequence: str
+    case: str
+    tracker: str
+    kind: str  # "tracker" | "opencv" | "baseline"
+    frames: int = 0
+    window: tuple[int, int] = (0, 0)
+    cle: float | None = None
+    success: float | None = None
+    after: float | None = None  # success from AFTER_GAP frames after the window on
+    back_in: int | None = None  # frames from the window's end to IoU > 0.5 for 5 frames in a row
+    state: StateScore | None = None
+    fps: float | None = None
+    note: str = ""
+    untouched_after: float | None = None  # the after score on the same frames in the untouched run (case none)
+    overlap: np.ndarray | None = None  # (T,) per-frame IoU
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def back(self) -> bool | None:
+        return None if self.after is None else self.after >= BACK_AT
+
+
+def stress_scores(row: StressRow, d: Derived, boxes_csv: str | Path) -> StressRow:
+    """Score a tracker's boxes (and states, if the CSV has them) on a derived sequence."""
+    gt = d.seq.groundtruth
+    track = read_track(boxes_csv)
+    frames = sorted(gt)
+    ov = overlaps(gt, track.boxes)
+    w0, w1 = d.plan.window
+    row.frames, row.window = len(frames), (w0, w1)
+    after = ov[w1 + AFTER_GAP:]
+    row.after = float((after > 0.5).mean()) if after.size else None
+    row.overlap = ov
+    row.back_in = frames_to_recover(ov, w1)
+    if track.states is not None:
+        row.state = state_score([track.states.get(f) for f in frames], d.plan.visible, d.plan.perturbed)
+    return row
+
+
+def untouched(rows: list[StressRow], cases: dict[str, StressCase]) -> None:
+    """Fill each row's ``untouched_after``: the same tracker's after score over the same original
+    frames in the untouched run (case ``none``) of its sequence, where that run was made."""
+    control = {(r.sequence, r.tracker): r for r in rows if cases[r.case].kind == "none" and r.overlap is not None}
+    for r in rows:
+        c = control.get((r.sequence, r.tracker))
+        if c is None or r.overlap is None or r.after is None:
+            continue
+        w0, w1 = r.window
+        # a fast case's window shows `length` original frames in w1 - w0 derived ones
+        idx = np.arange(w1 + AFTER_GAP, r.overlap.shape[0]) + (cases[r.case].length - (w1 - w0))
+        if idx.size and idx[-1] < c.overlap.shape[0]:  # type: ignore[union-attr]
+            r.untouched_after = float((c.overlap[idx] > 0.5).mean())  # type: ignore[index]
+
+
+def _from_row(row: StressRow, r: Row) -> None:
+    if r.score is not None:
+        row.cle, row.success = r.score.cle, r.score.success
+    row.fps = r.fps
+    row.note = r.note
+
+
+def _f(v, fmt: str) -> str:
+    return "-" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, fmt)
+
+
+def _back_in(r: StressRow | None) -> str:
+    if r is None or r.success is None:
+        return "-"
+    return "never" if r.back_in is None else str(r.back_in)
+
+
+def _rate(a: int, b: int) -> str:
+    return "-" if b == 0 else f"{a / b:.2f}"
+
+
+COLUMNS = ("sequence", "case", "CLE px", "success", "after", "untouched after", "back in", "hidden ok", "shown ok")
+OTHER_COLUMNS = ("CLE", "success", "after", "back in")
+
+
+def _table(head: tuple[str, ...], cells: list[list[str]], markdown: bool, right_from: int = 2) -> str:
+    if markdown:
+        return "\n".join(["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+                         + ["| " + " | ".join(c) + " |" for c in cells])
+    widths = [max(len(h), *(len(c[i]) for c in cells)) if cells else len(h) for i, h in enumerate(head)]
+
+    def line(c: list[str]) -> str:
+        return "  ".join(v.rjust(w) if right_from <= i < len(head) - 1 else v.ljust(w)
+                         for i, (v, w) in enumerate(zip(c, widths))).rstrip()
+
+    return "\n".join([line(list(head)), line(["-" * w for w in widths])] + [line(c) for c in cells])
+
+
+def _summary(rows: list[StressRow]) -> dict:
+    """Counts over one tracker's rows: cases got back, the acceptance groups, pooled state rates."""
+    every = rows
+    rows = [r for r in rows if r.extra.get("case_kind") != "none"]  # the control perturbs nothing to get back from
+    scored = [r for r in rows if r.after is not None]
+
+    def back(pred) -> list[int]:
+        sel = [r for r in scored if pred(r)]
+        return [sum(bool(r.back) for r in sel), len(sel)]
+
+    groups = {
+        "full occlusion <= 60 frames": lambda r: r.extra["case_kind"] in ("occlude", "sweep")
+        and r.extra["case_length"] <= 60,
+        "roll <= 35 degrees": lambda r: r.extra["case_kind"].startswith("roll") and r.extra["case_amount"] <= 35,
+        "fast motion": lambda r: r.extra["case_kind"] == "fast",
+        "every case": lambda r: True,
+    }
+    st = [r.state for r in every if r.state is not None]
+    ok = [r for r in rows if r.success is not None]
+    return {
+        "back": {g: back(p) for g, p in groups.items()},
+        "mean_success": None if not ok else round(float(np.mean([r.success for r in ok])), 4),
+        "mean_after": None if not scored else round(float(np.mean([r.after for r in scored])), 4),
+        "worse_than_still_box": [f"{r.sequence}/{r.case}" for r in every if r.success is not None
+                                 and r.extra.get("still_success") is not None and r.success < r.extra["still_success"]],
+        "hidden_reported_occluded_or_lost": [sum(s.hidden_right for s in st), sum(s.hidden for s in st)],
+        "undisturbed_reported_tracked": [sum(s.shown_right for s in st), sum(s.shown for s in st)],
+    }
+
+
+def format_stress(rows: list[StressRow], markdown: bool = False) -> str:
+    """One table per tracker, CSRT's and the still box's scores beside each row, and a summary."""
+    ours = list(dict.fromkeys(r.tracker for r in rows if r.kind == "tracker"))
+    by = {(r.sequence, r.case, r.tracker): r for r in rows}
+    cv = next((r.tracker for r in rows if r.kind == "opencv"), None)
+    out: list[str] = []
+    for name in ours:
+        mine = [r for r in rows if r.tracker == name]
+        cells = []
+        for r in mine:
+            c = by.get((r.sequence, r.case, cv)) if cv else None
+            s = by.get((r.sequence, r.case, "still box"))
+            st = r.state
+            cells.append([r.sequence, r.case, _f(r.cle, ".1f"), _f(r.success, ".2f"), _f(r.after, ".2f"),
+                          _f(r.untouched_after, ".2f"), _back_in(r),
+                          "-" if st is None else _rate(st.hidden_right, st.hidden),
+                          "-" if st is None else _rate(st.shown_right, st.shown)]
+                         + ([_f(c and c.cle, ".1f"), _f(c and c.success, ".2f"), _f(c and c.after, ".2f"),
+                             _back_in(c)] if cv else [])
+                         + [_f(s and s.after, ".2f"), r.note])
+        head = COLUMNS + (tuple(f"{cv.removeprefix('opencv ').upper()} {h}" for h in OTHER_COLUMNS) if cv else ()) \
+            + ("still box after", "note")
+        out.append(f"{'### ' if markdown else ''}{name}" + (f" (beside it: {cv})" if cv else ""))
+        out.append("")
+        out.append(_table(head, cells, markdown))
+        out.append("")
+        out += _summary_lines(name, mine, [r for r in rows if r.tracker == cv] if cv else [], cv)
+        out.append("")
+    return "\n".join(out).rstrip()
+
+
+def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv: str | None) -> list[str]:
+    a, b = _summary(mine), _summary(theirs) if theirs else None
+    lines = []
+    for g, (k, n) in a["back"].items():
+        other = f"; {cv} {b['back'][g][0]}/{b['back'][g][1]}" if b else ""
+        lines.append(f"- back after {g} (success >= {BACK_AT} from {AFTER_GAP} frames after the window): "
+                     f"{k}/{n}{other}")
+    lines.append(f"- mean success {_f(a['mean_success'], '.3f')}, mean after {_f(a['mean_after'], '.3f')}"
+                 + (f"; {cv} {_f(b['mean_success'], '.3f')}, {_f(b['mean_after'], '.3f')}" if b else ""))
+    h, s = a["hidden_reported_occluded_or_lost"], a["undisturbed_reported_tracked"]
+    lines.append(f"- state: hidden frames (past the first 5) reported occluded or lost {_rate(*h)} ({h[0]}/{h[1]}); "
+                 f"undisturbed frames reported tracked {_rate(*s)} ({s[0]}/{s[1]})")
+    worse = a["worse_than_still_box"]
+    lines.append(f"- worse than a box that never moves (success): {len(worse)} case(s)"
+                 + (f": {', '.join(worse)}" if worse else ""))
+    return lines
+
+
+def stress_json(rows: list[StressRow], meta: dict, cases: list[StressCase]) -> dict:
+    """The stress benchmark as JSON: meta, the cases, one object per row, a summary per tracker."""
+    out = []
+    for r in rows:
+        d: dict = {"sequence": r.sequence, "case": r.case, "tracker": r.tracker, "kind": r.kind, "frames": r.frames,
+                   "window": list(r.window), "cle_px": None if r.cle is None else round(r.cle, 3),
+                   "success": None if r.success is None else round(r.success, 4),
+                   "after": None if r.after is None else round(r.after, 4),
+                   "untouched_after": None if r.untouched_after is None else round(r.untouched_after, 4),
+                   "back": r.back, "back_in": r.back_in,
+                   "fps": None if r.fps is None else round(r.fps, 2)}
+        if r.state is not None:
+            d["state"] = r.state.to_json()
+        if r.note:
+            d["note"] = r.note
+        d.update(r.extra)
+        out.append(d)
+    names = list(dict.fromkeys(r.tracker for r in rows if r.kind != "baseline"))
+    return dict(meta, after_gap=AFTER_GAP, back_at=BACK_AT, hidden_below=HIDDEN_BELOW,
+                cases=[{"name": c.name, "kind": c.kind, "length": c.length, "amount": c.amount,
+                        "describe": c.describe()} for c in cases],
+                rows=out, summary={n: _summary([r for r in rows if r.tracker == n]) for n in names})
+
+
+def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: bool) -> None:
+    """Run an OpenCV tracker on a derived sequence, or, with the cache, take its boxes from the
+    last run on the same derived sequence (OpenCV's trackers do not change while tuning ours)."""
+    from pipeline.cli.commands.benchmark import _opencv_row
+    from pipeline.cli.sequence_benchmark import score_row
+
+    kept = d.seq.path / f"opencv_{name}_seed{seed}_cv{cv2.__version__}.csv"
+    info = kept.with_suffix(".json")
+    if cache and kept.is_file() and info.is_file():
+        out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(kept, out)
+        score_row(r, d.seq.groundtruth, out)
+        r.fps, r.boxes_csv = json.loads(info.read_text()).get("fps"), str(out)
+        return
+    _opencv_row(r, name, d.seq, 0, None, d.seq.groundtruth, out, seed, True)
+    if cache and r.score is not None:
+        shutil.copyfile(out, kept)
+        info.write_text(json.dumps({"fps": r.fps}))
+
+
+def _tracker_rows(args, d: Derived, names: list[str], folder: Path, extra: dict) -> list[StressRow]:
+    """Our trackers on one derived sequence, each run exactly as ``gflow benchmark`` runs it."""
+    from pipeline.cli.commands.benchmark import _tracker_row, _track_argv
+    from pipeline.cli.commands.common import CliError
+    from pipeline.cli.commands.track import track_args, track_plan
+
+    rows = []
+    for name in names:
+        row = StressRow(d.origin, d.case.name, name, "tracker", extra=dict(extra))
+        rows.append(row)
+        targs = track_args(_track_argv(args, d.seq, name, 0, None, folder))
+        try:
+            plan = track_plan(targs)
+        except CliError as e:
+            row.note = f"skipped: {e}"
+            continue
+        r = Row(d.seq.name, name, "tracker")
+        _tracker_row(r, targs, plan, d.seq.groundtruth, True)
+        _from_row(row, r)
+        if r.score is not None and r.boxes_csv:
+            stress_scores(row, d, r.boxes_csv)
+    return rows
+
+
+def _other_rows(args, d: Derived, cv_names: list[str], folder: Path, extra: dict) -> list[StressRow]:
+    """OpenCV's trackers and the box that never moves on one derived sequence."""
+    from pipeline.cli.sequence_benchmark import static_box
+
+    rows = []
+    for cvn in cv_names:
+        row = StressRow(d.origin, d.case.name, f"opencv {cvn}", "opencv", extra=dict(extra))
+        rows.append(row)
+        r = Row(d.seq.name, row.tracker, "opencv")
+        out = folder / f"opencv_{cvn}.csv"
+        _opencv_cached(r, cvn, d, out, args.seed, bool(args.stress_cache))
+        _from_row(row, r)
+        if r.score is not None:
+            stress_scores(row, d, out)
+    r = static_box(d.seq, d.seq.groundtruth, 0, folder)
+    still = StressRow(d.origin, d.case.name, "still box", "baseline", extra=dict(extra))
+    _from_row(still, r)
+    stress_scores(still, d, r.boxes_csv)  # type: ignore[arg-type]
+    return rows + [still]
+
+
+def check_sequences(seqs: list[Sequence]) -> None:
+    """Every sequence has an image and a ground-truth box for every frame from 0 on (ValueError
+    naming the first that does not), checked before any work."""
+    for seq in seqs:
+        _truth(seq, _files(seq))
+
+
+def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str],
+               donors: list[Sequence] | None = None) -> tuple[list[StressRow], bool, list[StressCase]]:
+    """Every tracker, OpenCV tracker (each available) and the still box on every case of every sequence.
+
+    ``donors`` are every sequence of the datasets (default ``seqs``): each sequence's image
+    patches are cut from the next one among them, so choosing fewer sequences with
+    ``--sequences`` does not change the derived sequences. Returns the rows, whether Ctrl-C
+    stopped it, and the cases."""
+    cases = select_cases(args.cases)
+    runs = len(seqs) * len(cases)
+    rows: list[StressRow] = []
+    done = 0
+    t0 = time.monotonic()
+    interrupted = False
+    with tempfile.TemporaryDirectory(prefix="gflow-stress-") as tmp:
+        cache = Path(args.stress_cache) if args.stress_cache else Path(tmp) / "derived"
+        work = Path(args.out_dir) if args.out_dir else Path(tmp) / "runs"
+        try:
+            pool = donors or seqs
+            for seq in seqs:
+                donor = pool[(pool.index(seq) + 1) % len(pool)]
+                for case in cases:
+                    done += 1
+                    d = derive(seq, case, donor, cache, args.seed, args.lead, args.tail)
+                    eta = (time.monotonic() - t0) / max(done - 1, 1) * (runs - done + 1) if done > 1 else None
+                    note(f"[{done}/{runs}] {seq.name} / {case.name}: {len(d.plan)} frames, window "
+                         f"{d.plan.window[0]}:{d.plan.window[1]}" + (" (cached)" if d.cached else "")
+                         + ("" if eta is None else f", about {eta / 60:.0f} min left" if eta >= 120
+                            else f", about {eta:.0f} s left"))
+                    extra = {"case_kind": case.kind, "case_length": case.length, "case_amount": case.amount}
+                    folder = work / seq.name / case.name
+                    mine = _tracker_rows(args, d, names, folder, extra)
+                    rows += mine
+                    others = _other_rows(args, d, cv_names, folder, extra)
+                    rows += others
+                    for row in mine + others:
+                        row.extra["still_success"] = others[-1].success
+                    if not args.stress_cache:
+                        shutil.rmtree(cache / seq.name / case.name, ignore_errors=True)
+        except KeyboardInterrupt:
+            interrupted = True
+            note("interrupted: stopped; the tables hold the runs that finished")
+    untouched(rows, {c.name: c for c in cases})
+    return rows, interrupted, cases

@@ -1,0 +1,55 @@
+"""frames_to_recover and state_score: getting the target back, and whether the reported state was right."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from gflow_core.metrics import frames_to_recover, overlaps, state_score
+
+
+def test_frames_to_recover_counts_to_the_first_run_on_target():
+    ov = np.array([0.9, 0.9, 0.0, 0.0, 0.0, 0.6, 0.0, 0.7, 0.7, 0.7, 0.7, 0.7, 0.1])
+    assert frames_to_recover(ov, 2) == 5  # index 7 starts five in a row; the single 0.6 at 5 does not count
+    assert frames_to_recover(ov, 0, hold=2) == 0
+    assert frames_to_recover(ov, 2, hold=6) is None
+    assert frames_to_recover(np.array([0.0, 0.0, 0.8, 0.8]), 0) == 2  # the sequence ends on target
+    assert frames_to_recover(np.array([0.0, 0.0]), 0) is None
+    with pytest.raises(ValueError, match="outside"):
+        frames_to_recover(ov, 20)
+
+
+def test_overlaps_is_zero_where_a_prediction_is_missing():
+    gt = {0: (0.0, 0.0, 10.0, 10.0), 1: (0.0, 0.0, 10.0, 10.0)}
+    assert overlaps(gt, {0: (0.0, 0.0, 10.0, 10.0)}).tolist() == [1.0, 0.0]
+
+
+def test_state_score_scores_hidden_frames_past_the_grace_and_undisturbed_frames():
+    # 4 visible, 8 hidden, 1 half hidden, 3 visible after; frames 12 and 13-15 perturbed / not
+    visible = np.array([1, 1, 1, 1] + [0] * 8 + [0.5] + [1, 1, 1], dtype=float)
+    perturbed = np.array([0] * 4 + [1] * 9 + [0] * 3, dtype=bool)
+    states = (["tracked"] * 4 + ["tracked"] * 5 + ["occluded", "lost", "tracked"] + ["occluded"]
+              + ["lost", "tracked", "tracked"])
+    s = state_score(states, visible, perturbed)
+    assert (s.hidden, s.hidden_right) == (3, 2)  # frames 9-11 scored (the first 5 hidden are not)
+    assert (s.shown, s.shown_right) == (7, 6)  # frames 0-3 and 13-15; 13 says lost
+    assert s.hidden_rate == pytest.approx(2 / 3) and s.shown_rate == pytest.approx(6 / 7)
+    # without the perturbed column, frames with the whole target in view are the undisturbed ones
+    s2 = state_score(states, visible, None)
+    assert (s2.shown, s2.shown_right) == (7, 6)
+    # a frame with no state counts as wrong
+    s3 = state_score([None] * 16, visible, perturbed)
+    assert s3.hidden_right == 0 and s3.shown_right == 0 and s3.hidden == 3
+
+
+def test_state_score_refuses_unknown_states_and_mismatched_lengths():
+    with pytest.raises(ValueError, match="unknown target state 'hidden'"):
+        state_score(["hidden"], np.array([0.0]))
+    with pytest.raises(ValueError, match="one value per frame"):
+        state_score(["tracked"], np.array([1.0, 1.0]))
+
+
+def test_no_hidden_frames_means_no_rate():
+    s = state_score(["tracked"] * 3, np.ones(3))
+    assert s.hidden == 0 and s.hidden_rate is None and s.shown_rate == 1.0
+    assert s.to_json()["hidden_reported_occluded_or_lost"] is None

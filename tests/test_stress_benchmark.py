@@ -1,0 +1,230 @@
+"""``gflow benchmark --stress``, the confidence,state columns and ``gflow eval --visibility``: the real
+CLI on two short synthetic sequence folders (a few seconds per run)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gflow_core.synthetic import SyntheticScene
+from pipeline.io.datasets import write_frames
+from pipeline.recording.results import read_boxes, read_track, read_visibility, write_boxes
+from stages.messages import Estimate, Frame, Header, NDArray
+from stages.overlay import MAGENTA, ORANGE, annotations_for
+
+GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
+FRAMES = 60
+STRESS = ["--stress", "--cases", "none,occlude-10,fast-2", "--lead", "8", "--tail", "20", "--trackers", "appearance",
+          "--inline", "-q"]
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    """Two sequence folders (each the other's donor of image patches)."""
+    root = tmp_path_factory.mktemp("stressdata")
+    for name, seed in (("synth", 3), ("other", 5)):
+        scene = SyntheticScene(n_frames=FRAMES, seed=seed, period=90)
+        write_frames(root / name / "frames", [scene.render(t) for t in range(FRAMES)])
+        write_boxes(root / name / "groundtruth.csv", {t: scene.truth_box(t) for t in range(FRAMES)})
+    return root
+
+
+def _gflow(*args: str, env: dict | None = None, timeout: float = 240) -> subprocess.CompletedProcess:
+    return subprocess.run([*GFLOW, *args], capture_output=True, text=True, timeout=timeout,
+                          env=None if env is None else dict(os.environ, **env))
+
+
+@pytest.fixture(scope="module")
+def first_run(data, tmp_path_factory) -> tuple[dict, Path, Path, str]:
+    out = tmp_path_factory.mktemp("stressrun")
+    cache, runs = out / "cache", out / "runs"
+    r = _gflow("benchmark", str(data), *STRESS, "--json", "--stress-cache", str(cache), "--out-dir", str(runs))
+    assert r.returncode == 0, r.stderr
+    assert "Traceback" not in r.stderr
+    return json.loads(r.stdout), cache, runs, r.stderr
+
+
+def _rows(res: dict, **kw) -> list[dict]:
+    return [r for r in res["rows"] if all(r[k] == v for k, v in kw.items())]
+
+
+def test_every_case_of_every_sequence_has_its_rows(first_run):
+    res, _, _, err = first_run
+    assert res["sequences"] == ["other", "synth"] and res["mode"] == "inline" and res["lead"] == 8
+    assert [c["name"] for c in res["cases"]] == ["none", "occlude-10", "fast-2"]
+    for seq in ("other", "synth"):
+        for case in ("occlude-10", "fast-2"):
+            mine = _rows(res, sequence=seq, case=case)
+            kinds = {"tracker", "baseline"} | (set() if res["opencv_missing"] else {"opencv"})
+            assert {r["kind"] for r in mine} == kinds, mine
+            app = _rows(res, sequence=seq, case=case, tracker="appearance")[0]
+            assert app["frames"] == (38 if case == "occlude-10" else 58)  # fast-2: 60 frames in the window, 30 kept
+            assert app["window"] == ([8, 18] if case == "occlude-10" else [8, 38])
+            assert 0 <= app["success"] <= 1 and app["fps"] > 0 and "state" in app
+            if not res["opencv_missing"]:
+                assert _rows(res, sequence=seq, case=case, tracker="opencv csrt")[0]["cle_px"] is not None
+    assert "[1/6] other / none" in err and "[6/6] synth / fast-2" in err
+    assert set(res["summary"]) == {"appearance"} | (set() if res["opencv_missing"] else {"opencv csrt"})
+    if res["opencv_missing"]:
+        assert "unavailable" in res["opencv_missing"]["csrt"] and "opencv csrt not measured" in err
+
+
+def test_derived_folder_truth_visibility_and_untouched_frames(first_run, data):
+    _, cache, _, _ = first_run
+    d = cache / "synth" / "occlude-10"
+    meta = json.loads((d / "stress.json").read_text())
+    assert meta["window"] == [8, 18] and meta["patch_from"].startswith("other frame ")
+    gt = read_boxes(d / "groundtruth.csv")
+    vis, pert = read_visibility(d / "visibility.csv")
+    assert sorted(gt) == sorted(vis) == list(range(38))
+    assert all(vis[f] == 0 for f in range(8, 18)) and all(vis[f] > 0.99 for f in range(8))
+    assert [f for f in pert if pert[f]] == list(range(8, 18))
+    # the truth is the original's, frame for frame
+    src = {int(r.split(",")[0]): int(r.split(",")[3]) for r in (d / "visibility.csv").read_text().split()[1:]}
+    orig = read_boxes(data / "synth" / "groundtruth.csv")
+    assert all(np.allclose(gt[f], orig[src[f]], atol=0.01) for f in gt)
+    # frames outside the window are the original files, byte for byte
+    frames = sorted((d / "frames").iterdir())
+    assert len(frames) == 38
+    assert frames[0].read_bytes() == (data / "synth" / "frames" / f"{src[0]:06d}.png").read_bytes()
+    assert frames[10].suffix == ".jpg"
+
+
+def test_scores_equal_gflow_eval_and_the_csv_has_the_state(first_run):
+    res, cache, runs, _ = first_run
+    app = _rows(res, sequence="synth", case="occlude-10", tracker="appearance")[0]
+    csv = runs / "synth" / "occlude-10" / "appearance.csv"
+    d = cache / "synth" / "occlude-10"
+    assert csv.read_text().splitlines()[0] == "frame,x,y,w,h,confidence,state"
+    track = read_track(csv)
+    assert track.states is not None and set(track.states.values()) <= {"tracked", "occluded", "lost"}
+    r = _gflow("eval", "--gt", str(d / "groundtruth.csv"), "--pred", str(csv), "--visibility",
+               str(d / "visibility.csv"), "--json")
+    assert r.returncode == 0, r.stderr
+    ev = json.loads(r.stdout)
+    assert ev["cle_px"] == pytest.approx(app["cle_px"], abs=1e-3)
+    assert ev["success_rate_0.5"] == pytest.approx(app["success"], abs=1e-4)
+    assert ev["state"] == app["state"]
+    assert ev["state"]["hidden_frames"] == 5  # 10 hidden frames, the first 5 not scored
+    # the after score: success from 10 frames after the window on, as eval computes it on those frames
+    r = _gflow("eval", "--gt", str(d / "groundtruth.csv"), "--pred", str(csv), "--frames", "28:", "--json")
+    assert json.loads(r.stdout)["success_rate_0.5"] == pytest.approx(app["after"], abs=1e-4)
+
+
+@pytest.mark.parametrize("case, frames", [("occlude-10", "28:38"), ("fast-2", "78:88")])
+def test_untouched_after_is_the_control_run_on_the_same_original_frames(first_run, case, frames):
+    res, cache, runs, _ = first_run
+    row = _rows(res, sequence="other", case=case, tracker="appearance")[0]
+    control = cache / "other" / "none"
+    r = _gflow("eval", "--gt", str(control / "groundtruth.csv"), "--pred", str(runs / "other" / "none" /
+               "appearance.csv"), "--frames", frames, "--json")
+    assert json.loads(r.stdout)["success_rate_0.5"] == pytest.approx(row["untouched_after"], abs=1e-4)
+    # the same original frames
+    src = {c: [line.split(",")[3] for line in (cache / "other" / c / "visibility.csv").read_text().split()[1:]]
+           for c in ("none", case)}
+    a, b = (int(v) for v in frames.split(":"))
+    assert src[case][28 if case == "occlude-10" else 48:] == src["none"][a:b]
+
+
+def test_gflow_boxes_writes_the_same_columns_from_the_recording(first_run, tmp_path):
+    _, _, runs, _ = first_run
+    run = runs / "synth" / "fast-2"
+    r = _gflow("boxes", str(run / "appearance.mcap"), "--out", str(tmp_path / "b.csv"))
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "b.csv").read_text() == (run / "appearance.csv").read_text()
+
+
+def test_second_run_reuses_the_cache_and_gives_the_same_scores(first_run, data):
+    res, cache, _, _ = first_run
+    args = [a if a != "none,occlude-10,fast-2" else "occlude-10" for a in STRESS]
+    r = _gflow("benchmark", str(data), *args, "--sequences", "synth", "--json", "--stress-cache", str(cache))
+    assert r.returncode == 0, r.stderr
+    assert "synth / occlude-10: 38 frames, window 8:18 (cached)" in r.stderr
+    keys = ("tracker", "cle_px", "success", "after", "back_in", "state")
+    again = [{k: row.get(k) for k in keys} for row in json.loads(r.stdout)["rows"]]
+    assert again == [{k: row.get(k) for k in keys} for row in _rows(res, sequence="synth", case="occlude-10")]
+
+
+def test_markdown_table_and_nothing_left_behind(data, tmp_path):
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    r = _gflow("benchmark", str(data), "--stress", "--cases", "fast-2", "--sequences", "synth", "--lead", "8",
+               "--tail", "20", "--trackers", "appearance", "--inline", "-q", "--opencv", "none", "--markdown",
+               env={"TMPDIR": str(tmp)})
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[0] == "### appearance"
+    assert any(line.startswith("| synth | fast-2 |") for line in lines)
+    assert any(line.startswith("- back after fast motion") for line in lines)
+    assert "csrt" not in r.stdout.lower()
+    assert list(tmp.iterdir()) == []  # the derived sequences and runs were removed
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["--cases", "wobble"], "unknown stress case 'wobble'"),
+    (["--sequences", "nope"], "unknown sequence 'nope'"),
+    (["--plot", "x.png"], "--plot is not used with --stress"),
+    (["--tail", "3"], "--tail at least 15"),
+])
+def test_mistakes_are_one_line_errors(data, args, msg):
+    r = _gflow("benchmark", str(data), "--stress", "--trackers", "appearance", *args)
+    assert r.returncode == 2
+    assert msg in r.stderr and "Traceback" not in r.stderr
+    assert len(r.stderr.strip().splitlines()) <= 2
+
+
+def test_eval_reads_old_five_column_files_and_new_seven_column_ones(tmp_path):
+    gt = {f: (10.0 + f, 20.0, 30.0, 40.0) for f in range(10)}
+    write_boxes(tmp_path / "gt.csv", gt)
+    pred = {f: (12.0 + f, 20.0, 30.0, 40.0) for f in range(10)}
+    write_boxes(tmp_path / "old.csv", pred)
+    write_boxes(tmp_path / "new.csv", pred, {f: 0.5 for f in pred}, {f: "tracked" for f in pred})
+    assert (tmp_path / "old.csv").read_text().splitlines()[0] == "frame,x,y,w,h"
+    out = [_gflow("eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / n), "--json") for n in
+           ("old.csv", "new.csv")]
+    assert all(r.returncode == 0 for r in out), [r.stderr for r in out]
+    assert json.loads(out[0].stdout) == json.loads(out[1].stdout)
+    assert json.loads(out[0].stdout)["cle_px"] == pytest.approx(2.0)
+    # the state needs the state column: a five-column file says so in one line
+    (tmp_path / "vis.csv").write_text("frame,visible\n" + "".join(f"{f},1\n" for f in range(10)))
+    r = _gflow("eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "old.csv"), "--visibility",
+               str(tmp_path / "vis.csv"))
+    assert r.returncode == 2 and "has no state column" in r.stderr and "Traceback" not in r.stderr
+    r = _gflow("eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "new.csv"), "--visibility",
+               str(tmp_path / "vis.csv"))
+    assert r.returncode == 0 and "state right when undisturbed: 1.000 (tracked on 10 of 10 frames)" in r.stdout
+
+
+def test_read_track_refuses_bad_states_and_mixed_rows(tmp_path):
+    p = tmp_path / "b.csv"
+    p.write_text("frame,x,y,w,h,confidence,state\n0,1,2,3,4,0.5,tracked\n1,1,2,3,4,0.5,hidden\n")
+    with pytest.raises(ValueError, match=r"b.csv:3: unknown state 'hidden'"):
+        read_track(p)
+    p.write_text("0,1,2,3,4,1.5,tracked\n")
+    with pytest.raises(ValueError, match=r"outside \[0, 1\]"):
+        read_track(p)
+    p.write_text("0,1,2,3,4,0.5,tracked\n1,1,2,3,4\n")
+    with pytest.raises(ValueError, match="like the rows before"):
+        read_track(p)
+    assert read_boxes(p) == {0: (1.0, 2.0, 3.0, 4.0), 1: (1.0, 2.0, 3.0, 4.0)}
+
+
+def test_overlay_colours_the_box_by_state_and_writes_the_confidence():
+    img = np.zeros((40, 60, 3), np.uint8)
+    frame = Frame(Header("s", 3, 0), NDArray.of(img))
+    texts, colours = [], []
+    for state, conf in (("tracked", 0.9), ("occluded", 0.4), ("lost", 0.05)):
+        est = Estimate(Header("s", 3, 0), (5.0, 6.0, 10.0, 12.0), (0.0, 0.0, 0.0, 1.0), 0, (0.0, 0.0, 0.0, 1.0),
+                       (0.0, 0.0, 0.0, 0.0), 1.0, 1, 0.0, NDArray.of(np.zeros((0, 2), np.float32)),
+                       confidence=conf, target_state=state)
+        ann = annotations_for(frame, est, None)
+        texts.append(ann.texts[0].text)
+        colours.append(ann.points[-1].outline_color)
+    assert texts[0].endswith("target tracked 0.90") and texts[2].endswith("target lost 0.05")
+    assert colours[1] == ORANGE and colours[2] == MAGENTA and colours[0] not in (ORANGE, MAGENTA)
