@@ -17,7 +17,9 @@ target at all. This module keeps two such distributions, each by running moments
 
 and weighs three hypotheses for the rho of the estimate:
 
-    visible : rho ~ sigma_t^2 chi^2_{d_t}              (the target, looking as usual)
+    visible : rho ~ sigma_t^2 chi^2_{d_t}              (the target, looking as usual; a
+                                                       distance below the mode counts as the
+                                                       mode: a closer match is the target too)
     partial : rho ~ U(0, mean of the clutter's rho)    (the target, part hidden or a new look:
                                                        no model, an outlier process between a
                                                        perfect match and what clutter scores)
@@ -176,7 +178,8 @@ def visibility(rho: float, target: ChiSquare, clutter: ChiSquare, min_std: float
             # one-sided: p(rho | hidden) = p_c(min(rho, mode_c)), of the best of `trials` draws
             lp = m.log_pdf_min(rho, trials, min_std)
         else:
-            lp = m.log_pdf(rho, min_std)
+            # one-sided: p(rho | visible) = p_t(max(rho, mode_t)), a closer match than usual is the target
+            lp = m.log_pdf(max(rho, m.mode(min_std)), min_std)
         logs.append(math.log(w) + lp + (log_place if m is not clutter else 0.0))
     top = max(logs)
     if top == -math.inf:
