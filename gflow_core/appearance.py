@@ -144,6 +144,8 @@ class AppearanceParams:
     search_growth: float = 0.1  # the search for a hidden target widens by this many box sizes a frame
     search_scales: tuple[float, ...] = (0.0, -0.15, 0.15)  # log-sizes searched for a hidden target (0 first)
     search_area: int = 300  # exemplar pixels of the coarse pass of that search
+    hidden_after: int = 3  # frames in a row that clutter explains the estimate before the target is judged hidden
+    reappear: float = 0.001  # prior probability a frame that a target judged hidden is back
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -171,6 +173,8 @@ class AppearanceParams:
         if self.warmup < 1 or not self.min_std > 0 or not (0 < self.target_rate <= 1 and 0 < self.clutter_rate <= 1):
             raise ValueError(f"warmup must be >= 1, min_std positive and the rates in (0, 1], got {self.warmup}, "
                              f"{self.min_std}, {self.target_rate}, {self.clutter_rate}")
+        if self.hidden_after < 1 or not 0 < self.reappear < 1:
+            raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, {self.reappear}")
         if self.search_growth < 0 or not self.search_scales or self.search_area < 16:
             raise ValueError(f"search_growth must be >= 0, search_scales not empty and search_area >= 16, got "
                              f"{self.search_growth}, {self.search_scales}, {self.search_area}")
@@ -343,11 +347,11 @@ def _clutter(levels: list[_Level], centre: np.ndarray, log_s: float, half: tuple
 
 
 def _search_lost(feat: np.ndarray, st: AppearanceState, hold: np.ndarray, run: int, p: AppearanceParams
-                 ) -> tuple[redetect.Candidate | None, bool]:
+                 ) -> tuple[list[redetect.Candidate], bool]:
     """Search for a hidden target (:func:`gflow_core.redetect.search`) with the trusted exemplars
     (the anchor and the running exemplars, which learn only on confident frames) over centres
     ``hold`` +- (search + search_growth * run) box sizes, at the sizes ``search_scales``.
-    Returns the best candidate and whether the searched region covers the whole frame."""
+    Returns the best candidate of each size and whether the searched region covers the whole frame."""
     Hh, Ww = feat.shape[:2]
     size = st.size0 * float(np.exp(st.log_s))
     reach = p.search + p.search_growth * run
@@ -495,25 +499,33 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     # away from the prediction costs log N(c; pred, S) - log N(pred; pred, S)
     sx, sy = prior * bw + spd, prior * bh + spd
     log_place = -((centre[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (centre[1] - pred[1]) ** 2 / (2.0 * sy * sy))
-    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, log_place=log_place)
+    # a target judged hidden stays hidden unless the frame says otherwise: after a hidden frame
+    # the prior that it is back is `reappear` (split evenly between visible and partial); after
+    # a present frame the three hypotheses are equally likely a priori
+    was_hidden = st.hidden_run >= p.hidden_after
+    state_prior = (1.0, 1.0, 1.0) if not was_hidden else (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
+    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place)
     warm = st.target.n < p.warmup
-    # a target judged hidden comes back only where it looks as it did (P(visible) >= 1/2),
-    # not merely better than clutter
-    present = warm or (vis.present if st.hidden_run == 0 else vis.visible >= 0.5)
+    present = warm or vis.present
     confident = warm or vis.visible >= 0.5
     confidence = 1.0 - vis.hidden if warm else vis.visible
     run = 0 if present else st.hidden_run + 1
+    # clutter explains the estimate: the box holds the prediction and nothing is learnt; only
+    # after `hidden_after` such frames in a row is the target judged hidden and searched for
+    hidden = run >= p.hidden_after
     found = None
-    if not present:
-        found, covers = _search_lost(feat, st, pred, run, p)
-        if found is not None:
-            # the search had more chances than the window the clutter was learnt on
-            trials = found.area / clutter_seen[1] if clutter_seen is not None else 1.0
-            vf = visibility(1.0 - found.r, st.target, st.clutter, p.min_std, trials=max(trials, 1.0))
+    if hidden:
+        cands, covers = _search_lost(feat, st, pred, run, p)
+        for cand in cands:  # the size it had first
+            # a candidate away from the prediction must look like the target (no "partial"
+            # hypothesis), and the search had more chances than the window the clutter was
+            # learnt on: under "hidden" its distance is the best of that many clutter draws
+            trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+            vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
+                            trials=max(trials, 1.0))
             if vf.visible >= 0.5:
-                confidence, run = vf.visible, 0
-            else:
-                found = None
+                found, confidence, run = cand, vf.visible, 0
+                break
     level = 1.0 - st.target.mean() if st.target.n else r_est
     idx = systematic_resample(lw.lw, rng, n)
     new_parts = parts[idx]
@@ -527,11 +539,12 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         velocity = np.zeros(2)
         state = "tracked"
     elif not present:
-        # hidden: the box holds the prediction (the particles go on weighing the frame around it)
+        # hidden, or in doubt: the box holds the prediction (the particles go on weighing the
+        # frame around it)
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
         log_s = st.log_s
         velocity = 0.5 * st.velocity
-        state = "lost" if covers else "occluded"
+        state = ("lost" if covers else "occluded") if hidden else "tracked"
     else:
         if p.scale_search > 0 and confident and score >= max(level - p.scale_gate, p.scale_min_score):
             d, refined = _search_scale(feat, replace(st, log_s=log_s), centre, p)
@@ -561,6 +574,6 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     new = replace(st, recent=recent, slow=slow, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity,
                   hidden_run=run, target=target, clutter=clutter)
     return StepResult(state=new, box=box_of(centre, log_s, st.size0), mean=mean, std=std, ess=lw.ess,
-                      log_evidence=lw.log_mean, score=score, occluded=state != "tracked",
+                      log_evidence=lw.log_mean, score=score, occluded=not present,
                       confidence=float(min(max(confidence, 0.0), 1.0)), target_state=state, redetected=found is not None,
                       r=r_est)

@@ -97,20 +97,24 @@ def _crop(feat: np.ndarray, lo: np.ndarray, hi: np.ndarray, sigma: float) -> tup
 
 def _window(src: np.ndarray, offset: np.ndarray, centre: np.ndarray, k: float, out: tuple[int, int]) -> np.ndarray:
     """``out`` (W, H) pixels resampled by ``k`` around image ``centre`` (x, y) from ``src``, a crop
-    of the frame whose pixel (0, 0) is image ``offset``; beyond the crop the border is replicated."""
+    of the frame whose pixel (0, 0) is image ``offset``. Beyond the crop the channels are 0 (no
+    edges): a box partly outside the frame is matched on what is inside (a replicated border
+    draws stripes that matched the exemplars of a person's legs at r = 0.66)."""
     W, H = out
     c = centre - offset
     # output pixel (u, v) -> image centre + ((u, v) - (W - 1) / 2) / k
     M = np.array([[1.0 / k, 0.0, c[0] - (W / 2.0 - 0.5) / k],
                   [0.0, 1.0 / k, c[1] - (H / 2.0 - 0.5) / k]], dtype=np.float64)
-    w = cv2.warpAffine(src, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+    w = cv2.warpAffine(src, M, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_CONSTANT,
+                       borderValue=0)
     return w.reshape(H, W, -1)
 
 
 def search(feat: np.ndarray, exemplars: list[np.ndarray], res: tuple[int, int], size: tuple[float, float],
            centre: np.ndarray, margin: tuple[float, float], log_factors: tuple[float, ...],
-           coarse_area: int = 300, refine: int = 2) -> Candidate | None:
-    """The best match of ``exemplars`` over the centres ``centre`` +- ``margin`` inside the frame.
+           coarse_area: int = 300) -> list[Candidate]:
+    """The best match of ``exemplars`` at each size over the centres ``centre`` +- ``margin``
+    inside the frame.
 
     Parameters
     ----------
@@ -119,14 +123,15 @@ def search(feat: np.ndarray, exemplars: list[np.ndarray], res: tuple[int, int], 
     size : (w, h) image pixels of the box the exemplars cover at factor 1.
     centre : (2,) float64, middle of the searched centres; margin : (mx, my) image px either side.
     log_factors : sizes searched, as log of the factor on ``size`` (0.0 is the size itself).
-    coarse_area : the exemplars are shrunk to at most this many pixels for the dense pass.
-    refine : how many of the best coarse peaks (at most one per size) are measured again at
-        the full resolution, +- 2 coarse pixels.
+    coarse_area : the exemplars are shrunk to at most this many pixels for the dense pass; the
+        best coarse peak of each size is measured again at full resolution, +- 2 coarse pixels.
 
     Returns
     -------
-    The best refined candidate, or None when no centre of the window lies in the frame or the
-    frame is smaller than the box.
+    One candidate per size, in the order of ``log_factors`` (a caller that prefers the size it
+    had tries them in that order: the anchor matches a smaller box better as the look drifts),
+    each with the area searched over all sizes; empty when no centre of the window lies in the
+    frame.
     """
     Hh, Ww = feat.shape[:2]
     tw, th = res
@@ -134,7 +139,7 @@ def search(feat: np.ndarray, exemplars: list[np.ndarray], res: tuple[int, int], 
     lo = np.array([max(0.0, centre[0] - margin[0]), max(0.0, centre[1] - margin[1])])
     hi = np.array([min(Ww - 1.0, centre[0] + margin[0]), min(Hh - 1.0, centre[1] + margin[1])])
     if (hi < lo).any():
-        return None
+        return []
     c = min(1.0, float(np.sqrt(coarse_area / float(tw * th))))
     cres = (max(4, int(round(tw * c))), max(4, int(round(th * c))))
     small = [shrink(ex, cres) for ex in exemplars] if cres != (tw, th) else list(exemplars)
@@ -143,7 +148,8 @@ def search(feat: np.ndarray, exemplars: list[np.ndarray], res: tuple[int, int], 
     k_mid = cres[0] / size[0]
     reach = 0.5 * np.array(size) * float(np.exp(max(log_factors))) + 1.0
     src, off = _crop(feat, lo - reach, hi + reach, 0.4 / k_mid if k_mid < 1 else 0.0)
-    peaks: list[tuple[float, np.ndarray, float]] = []
+    area = float((hi[0] - lo[0] + 1.0) * (hi[1] - lo[1] + 1.0)) * len(log_factors)
+    out: list[Candidate] = []
     for lf in log_factors:
         f = float(np.exp(lf))
         k = cres[0] / (size[0] * f)
@@ -158,26 +164,17 @@ def search(feat: np.ndarray, exemplars: list[np.ndarray], res: tuple[int, int], 
         r[(ys < lo[1] - 0.5 / k) | (ys > hi[1] + 0.5 / k), :] = -1.0
         r[:, (xs < lo[0] - 0.5 / k) | (xs > hi[0] + 0.5 / k)] = -1.0
         _, best, _, loc = cv2.minMaxLoc(r)
-        if best > -1.0:
-            peaks.append((float(best), origin + np.array(loc, dtype=np.float64) / k, float(lf)))
-    if not peaks:
-        return None
-    # the best peaks, again at full resolution with +- 2 coarse pixels of freedom (the first of equal r wins)
-    order = sorted(range(len(peaks)), key=lambda i: -peaks[i][0])[: max(1, refine)]
-    best_c: Candidate | None = None
-    for i in order:
-        _, pc, lf = peaks[i]
-        f = float(np.exp(lf))
-        k = tw / (size[0] * f)
+        if best <= -1.0:
+            continue
+        # the peak again at full resolution with +- 2 coarse pixels of freedom
+        pc = origin + np.array(loc, dtype=np.float64) / k
+        kf = tw / (size[0] * f)
         m = int(np.ceil(2.0 / c)) + 1
-        half = np.array([tw / 2.0 + m, th / 2.0 + m]) / k + 1.0
-        loc_src, loc_off = _crop(feat, pc - half, pc + half, 0.4 / k if k < 1 else 0.0)
-        win = _window(loc_src, loc_off, pc, k, (tw + 2 * m, th + 2 * m))
-        r = _best_of(win, exemplars)
-        _, rb, _, loc = cv2.minMaxLoc(r)
-        pos = pc + (np.array(loc, dtype=np.float64) - m) / k
+        half = np.array([tw / 2.0 + m, th / 2.0 + m]) / kf + 1.0
+        loc_src, loc_off = _crop(feat, pc - half, pc + half, 0.4 / kf if kf < 1 else 0.0)
+        rf = _best_of(_window(loc_src, loc_off, pc, kf, (tw + 2 * m, th + 2 * m)), exemplars)
+        _, rb, _, lb = cv2.minMaxLoc(rf)
+        pos = pc + (np.array(lb, dtype=np.float64) - m) / kf
         pos = np.array([min(max(pos[0], 0.0), Ww - 1.0), min(max(pos[1], 0.0), Hh - 1.0)])
-        if best_c is None or rb > best_c.r:
-            best_c = Candidate(r=float(rb), centre=pos, log_f=lf)
-    area = float((hi[0] - lo[0] + 1.0) * (hi[1] - lo[1] + 1.0)) * len(log_factors)
-    return None if best_c is None else Candidate(r=best_c.r, centre=best_c.centre, log_f=best_c.log_f, area=area)
+        out.append(Candidate(r=float(rb), centre=pos, log_f=float(lf), area=area))
+    return out

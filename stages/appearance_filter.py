@@ -96,6 +96,8 @@ class AppearanceFilterParams(Params):
     search_growth: float = _DEFAULTS.search_growth
     search_scales: tuple[float, ...] = _DEFAULTS.search_scales
     search_area: int = _DEFAULTS.search_area
+    hidden_after: int = _DEFAULTS.hidden_after
+    reappear: float = _DEFAULTS.reappear
 
     def __post_init__(self) -> None:
         if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):

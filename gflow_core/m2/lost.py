@@ -214,8 +214,9 @@ def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, fl
            ) -> tuple[redetect.Candidate | None, Visibility | None, bool]:
     """Search for the lost target around the held box (:func:`gflow_core.redetect.search`) over
     centres within ``window + growth * lost_run`` box sizes, at ``scales`` times the held size.
-    Returns the best candidate with its visibility (None, None when nothing was searched) and
-    whether the searched region covered the whole frame. ``ring_area``: the area the clutter
+    Returns the first candidate (in the order of ``scales``) judged visible with its visibility,
+    else the best one (None, None when nothing was searched), and whether the searched region
+    covered the whole frame. ``ring_area``: the area the clutter
     distribution is learnt over (the search had area / ring_area times the chances)."""
     c = _centre(held)
     size = (float(held[2]), float(held[3]))
@@ -225,12 +226,17 @@ def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, fl
     covers = c[0] - margin[0] <= 0 and c[0] + margin[0] >= W - 1 and c[1] - margin[1] <= 0 and c[1] + margin[1] >= H - 1
     # the anchor's resolution, its size scaled to the held box's area
     s = _scale(anchor, held)
-    cand = redetect.search(feat, [anchor.channels], anchor.res, (anchor.size[0] * s, anchor.size[1] * s), c, margin,
-                           tuple(float(np.log(f)) for f in scales), coarse_area=p.coarse_area)
-    if cand is None:
-        return None, None, covers
-    trials = max(cand.area / ring_area, 1.0) if ring_area else 1.0
-    return cand, visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials), covers
+    cands = redetect.search(feat, [anchor.channels], anchor.res, (anchor.size[0] * s, anchor.size[1] * s), c, margin,
+                            tuple(float(np.log(f)) for f in scales), coarse_area=p.coarse_area)
+    best: tuple[redetect.Candidate | None, Visibility | None] = (None, None)
+    for cand in cands:  # the first size listed first: the anchor matches smaller boxes better as the look drifts
+        trials = max(cand.area / ring_area, 1.0) if ring_area else 1.0
+        vis = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials)
+        if vis.visible >= 0.5:
+            return cand, vis, covers
+        if best[0] is None or cand.r > best[0].r:
+            best = (cand, vis)
+    return best[0], best[1], covers
 
 
 def found_again(st: LostState, r: float, held: tuple[float, ...], p: LostParams) -> LostState:
