@@ -141,7 +141,8 @@ class AppearanceParams:
     min_std: float = 0.05  # floor on the spread of rho in the target's and the clutter's distributions
     target_rate: float = 0.05  # forgetting rate of the target's distance moments (confident frames)
     clutter_rate: float = 0.05  # forgetting rate of the clutter's distance moments (every frame)
-    search_growth: float = 0.1  # the search for a hidden target widens by this many box sizes a frame
+    search_start: float = 1.0  # the search for a target in doubt starts this many box sizes beyond the window ...
+    search_growth: float = 0.1  # ... and widens by this many box sizes a frame
     search_scales: tuple[float, ...] = (0.0, -0.15, 0.15)  # log-sizes searched for a hidden target (0 first)
     search_area: int = 300  # exemplar pixels of the coarse pass of that search
     hidden_after: int = 3  # frames in a row that clutter explains the estimate before the target is judged hidden
@@ -194,7 +195,8 @@ class AppearanceState:
     velocity : (2,) float64 px / frame.
     target : distribution of the estimate's distance rho = 1 - r on confident frames;
     clutter : distribution of the best rho away from the estimate (gflow_core.visibility).
-    hidden_run : consecutive frames the target has been judged hidden (0: present).
+    hidden_run : consecutive frames clutter has explained the estimate (0: present); the target
+        is judged hidden from ``hidden_after`` on.
     """
 
     size0: np.ndarray
@@ -354,7 +356,7 @@ def _search_lost(feat: np.ndarray, st: AppearanceState, hold: np.ndarray, run: i
     Returns the best candidate of each size and whether the searched region covers the whole frame."""
     Hh, Ww = feat.shape[:2]
     size = st.size0 * float(np.exp(st.log_s))
-    reach = p.search + p.search_growth * run
+    reach = p.search + p.search_start + p.search_growth * run
     margin = (reach * size[0] + 10.0, reach * size[1] + 10.0)
     covers = (hold[0] - margin[0] <= 0 and hold[0] + margin[0] >= Ww - 1
               and hold[1] - margin[1] <= 0 and hold[1] + margin[1] >= Hh - 1)
@@ -477,10 +479,11 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         log_lik = p.lam * (r - 1.0)
     # motion prior: N(x; x_pred, (prior * box)^2), tighter while the target is judged hidden,
     # then widening as the search does
-    prior = p.hidden_prior + p.search_growth * (st.hidden_run - 1) if st.hidden_run > 0 else p.motion_prior
+    hidden_before = st.hidden_run >= p.hidden_after
+    prior = p.hidden_prior + p.search_growth * (st.hidden_run - p.hidden_after) if hidden_before else p.motion_prior
     # N(x; x_pred, diag((prior w)^2, (prior h)^2)): a tall box may not jump far sideways
     # while hidden the std grows with the speed the target had: prior * size + hidden_speed |v|
-    spd = p.hidden_speed * float(np.hypot(*st.velocity)) if st.hidden_run > 0 else 0.0
+    spd = p.hidden_speed * float(np.hypot(*st.velocity)) if hidden_before else 0.0
     d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * (prior * bw + spd) ** 2) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * (prior * bh + spd) ** 2)
     lw = LogWeights(log_lik - d2)
     W = lw.W
@@ -502,8 +505,7 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     # a target judged hidden stays hidden unless the frame says otherwise: after a hidden frame
     # the prior that it is back is `reappear` (split evenly between visible and partial); after
     # a present frame the three hypotheses are equally likely a priori
-    was_hidden = st.hidden_run >= p.hidden_after
-    state_prior = (1.0, 1.0, 1.0) if not was_hidden else (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
+    state_prior = (1.0, 1.0, 1.0) if not hidden_before else (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place)
     warm = st.target.n < p.warmup
     present = warm or vis.present
@@ -514,7 +516,7 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     # after `hidden_after` such frames in a row is the target judged hidden and searched for
     hidden = run >= p.hidden_after
     found = None
-    if hidden:
+    if run > 0:
         cands, covers = _search_lost(feat, st, pred, run, p)
         for cand in cands:  # the size it had first
             # a candidate away from the prediction must look like the target (no "partial"
@@ -540,7 +542,7 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         state = "tracked"
     elif not present:
         # hidden, or in doubt: the box holds the prediction (the particles go on weighing the
-        # frame around it)
+        # frame around it), nothing is learnt and the velocity decays
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
         log_s = st.log_s
         velocity = 0.5 * st.velocity
