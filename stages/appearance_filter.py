@@ -93,6 +93,7 @@ class AppearanceFilterParams(Params):
     min_std: float = _DEFAULTS.min_std
     target_rate: float = _DEFAULTS.target_rate
     clutter_rate: float = _DEFAULTS.clutter_rate
+    search_start: float = _DEFAULTS.search_start
     search_growth: float = _DEFAULTS.search_growth
     search_scales: tuple[float, ...] = _DEFAULTS.search_scales
     search_area: int = _DEFAULTS.search_area
