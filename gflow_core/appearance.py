@@ -144,7 +144,7 @@ class AppearanceParams:
     search_start: float = 1.0  # the search for a target in doubt starts this many box sizes beyond the window ...
     search_growth: float = 0.1  # ... and widens by this many box sizes a frame
     search_scales: tuple[float, ...] = (0.0, -0.15, 0.15)  # log-sizes searched for a hidden target (0 first)
-    search_area: int = 300  # exemplar pixels of the coarse pass of that search
+    search_area: int = 150  # exemplar pixels of the coarse pass of that search
     hidden_after: int = 3  # frames in a row that clutter explains the estimate before the target is judged hidden
     reappear: float = 0.001  # prior probability a frame that a target judged hidden is back
 
