@@ -16,11 +16,12 @@ video it was never trained on:
   bias cancel) and does not reward shrinking: every scale is compared at one resolution.
 * **Exemplars online** (departure: the paper learns them offline). Exemplar 0 is the
   region of the initial box and is never replaced (it anchors the model against drift);
-  exemplars 1 and 2 are running means of the tracked region, updated only on frames judged
-  visible (below): exemplar 1 with rate ``update_rate``, raised up to ``adapt_max`` times
-  while the level of r is low (a target the model explains poorly, as after a change of
-  light, is learnt faster), and exemplar 2 with the slow rate ``slow_rate`` (a long memory
-  that the fast one cannot drag along). rho is the distance to the nearest exemplar, i.e.
+  exemplars 1 and 2 are running means of the tracked region: exemplar 1 with rate
+  ``update_rate`` on every frame the target is judged present (below), raised up to
+  ``adapt_max`` times while the level of r is low (a target the model explains poorly, as
+  after a change of light, is learnt faster), and exemplar 2 with the slow rate ``slow_rate``
+  only on confident frames (P(visible) >= 1/2; a long memory that the fast one cannot drag
+  along). Nothing is learnt while the target is in doubt or hidden. rho is the distance to the nearest exemplar, i.e.
   the MAP exemplar k of the paper's joint state (departure: k is maximised, not sampled).
 * **Dense evaluation.** r is computed for every integer position of a search window around
   the prediction at ``n_scales`` scales with :func:`cv2.matchTemplate`; each particle reads
@@ -31,20 +32,39 @@ video it was never trained on:
   reaches jumps of tens of pixels a frame. The dynamics are a random walk on
   (x, y, log s) plus the velocity of the last estimates (constant-velocity prediction).
 * **Motion prior.** Every particle is also weighed by a broad Gaussian around the
-  prediction, std ``motion_prior`` times the box's width (in x) and height (in y), so a distant look-alike must explain the
-  image much better than the target to win; while the target is judged hidden the std is
-  ``hidden_prior`` times the box's size plus ``hidden_speed`` times the speed (px / frame)
-  the target had, so the track does not jump to whatever passes in front, yet a fast
-  target that blurs out of the model is still reached. Measured (``gflow benchmark
-  ../shared/data --trackers appearance --inline --seed S``, seeds 1-3, CLE px) against the
-  earlier 0.3 box sizes without the speed term: caviar1 0.98-1.04 (1.36-1.50), david_indoor
-  2.87-3.20 (3.25-3.31), crossing and jumping unchanged (1.24-1.26, 3.12-3.14); at 0.15
-  without the speed term jumping lost the target (6.1 px, harness run).
-* **Occlusion.** When the posterior mean of r falls more than ``occlusion_drop`` below its
-  running level, the target is taken to be hidden: the exemplars are not updated and the
-  velocity decays (the estimate's state is ``occluded``). After ``occlusion_patience``
-  such frames the new level is accepted, so a lasting change of appearance is not mistaken
-  for an occlusion for ever.
+  prediction, std ``motion_prior`` times the box's width (in x) and height (in y), so a
+  distant look-alike must explain the image much better than the target to win; while the
+  target is judged hidden the std is ``hidden_prior`` times the box's size plus
+  ``hidden_speed`` times the speed (px / frame) the target had, widening by
+  ``search_growth`` box sizes a frame, so the track does not jump to whatever passes in
+  front, yet a fast target that blurs out of the model is still reached. Measured (``gflow
+  benchmark ../shared/data --trackers appearance --inline --seed S``, seeds 1-3, CLE px)
+  against the earlier 0.3 box sizes without the speed term: caviar1 0.98-1.04 (1.36-1.50),
+  david_indoor 2.87-3.20 (3.25-3.31), crossing and jumping unchanged (1.24-1.26, 3.12-3.14);
+  at 0.15 without the speed term jumping lost the target (6.1 px, harness run).
+* **Hidden, lost and found again** (departure: the paper has no notion of losing the target;
+  docs/recovery.md). Whether the estimate is the target is decided from the likelihood the
+  tracker has (:mod:`gflow_core.visibility`): its distance rho = 1 - r is weighed as the
+  target seen as usual (sigma^2 chi^2_d, sec. 3 and eq. 10 of the paper, from running moments
+  of rho on the frames the target was present, rate ``target_rate``), the target partly seen
+  (no model: uniform up to the clutter's mean) or clutter (sigma^2 chi^2_d from the best r of
+  the response away from the estimate on every frame, rate ``clutter_rate``), with a jump away
+  from the prediction costing its motion prior. Spreads are floored at ``min_std``; the first
+  ``warmup`` frames are taken as visible. The estimate's ``confidence`` is P(visible).
+  When clutter explains the estimate, the frame is in doubt: the box holds the prediction,
+  nothing is learnt, and the region ``search + search_start`` box sizes around it is searched
+  (below). After ``hidden_after`` such frames in a row the target is judged hidden
+  (``occluded``): the motion prior tightens, the velocity decays, and the search widens by
+  ``search_growth`` box sizes a frame up to the whole frame (``lost`` once it covers it).
+  A hidden target comes back only on strong evidence: the prior that it is back is
+  ``reappear`` a frame, so the estimate must be ~1/reappear times likelier present than
+  clutter. The search (:func:`gflow_core.redetect.search`) matches the anchor and the
+  running exemplars -- none of which learnt while the target was hidden -- coarse to fine
+  (``search_area`` exemplar pixels) at the log-sizes ``search_scales``, the size it had
+  first; a candidate there must look like the target (P(visible) >= 1/2 with no "partial"
+  hypothesis), against clutter's best of as many more positions as the search covered.
+  Tuned on the four shared sequences and their stress cases together
+  (``gflow benchmark ../shared/data --stress``; docs/recovery.md has the figures).
 * **Scale search** (default; departure: the paper samples the scale with the transform).
   After the position, the scale is searched at the posterior mean as DSST and CSRT do (Danelljan
   et al., BMVC 2014): 2J + 1 log-scales ``scale_search_step`` apart (J = ``scale_search``)
@@ -60,8 +80,7 @@ video it was never trained on:
   neither the anchor's nor the running exemplars' correlation falls by more than
   ``scale_consistency`` (off by default: at 0 and 0.01 it froze the scale at a wrong value
   on david_indoor and lost the face). With ``refine_position`` the centre moves to the
-  refined peak at the chosen scale. ``occlusion_patience`` is 15: at 10, a passer-by hiding
-  caviar1's target for 14 frames was accepted as the new look once the box was slimmer.
+  refined peak at the chosen scale.
   Measured (harness runs of this module, seed 1, CLE px / success) with the search against
   the fixed size: caviar1 1.36 / 0.982 (3.58 / 0.982), crossing 1.23 / 1.000 (2.01 / 0.983),
   david_indoor 3.31 / 0.990 (4.19 / 0.984), jumping 3.10 / 0.990 (2.88 / 1.000).

@@ -285,7 +285,7 @@ class FilterStage(Stage):
                                             None if obs.clutter is None else obs.clutter[1])
         alpha = post.resampled.alpha.copy()
         centre = np.array([h_box[0] + (h_box[2] - 1) / 2.0, h_box[1] + (h_box[3] - 1) / 2.0])
-        if cand is not None and cvis is not None and cvis.visible >= 0.5:
+        if cand is not None and cvis is not None and cvis.present:
             # re-detected: the held state moved onto the candidate (and to its size), the particles with it
             f = float(np.exp(cand.log_f))
             shift = cand.centre - centre

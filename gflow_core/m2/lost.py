@@ -232,7 +232,7 @@ def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, fl
     for cand in cands:  # the first size listed first: the anchor matches smaller boxes better as the look drifts
         trials = max(cand.area / ring_area, 1.0) if ring_area else 1.0
         vis = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials)
-        if vis.visible >= 0.5:
+        if vis.present:
             return cand, vis, covers
         if best[0] is None or cand.r > best[0].r:
             best = (cand, vis)
