@@ -215,8 +215,8 @@ def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, fl
     """Search for the lost target around the held box (:func:`gflow_core.redetect.search`) over
     centres within ``window + growth * lost_run`` box sizes, at ``scales`` times the held size.
     Returns the first candidate (in the order of ``scales``) judged visible with its visibility,
-    else the best one (None, None when nothing was searched), and whether the searched region
-    covered the whole frame. ``ring_area``: the area the clutter
+    else the one of highest r (None, None when nothing was searched), and whether the searched
+    region covered the whole frame. The caller resumes tracking on a candidate judged present. ``ring_area``: the area the clutter
     distribution is learnt over (the search had area / ring_area times the chances)."""
     c = _centre(held)
     size = (float(held[2]), float(held[3]))
@@ -232,7 +232,7 @@ def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, fl
     for cand in cands:  # the first size listed first: the anchor matches smaller boxes better as the look drifts
         trials = max(cand.area / ring_area, 1.0) if ring_area else 1.0
         vis = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials)
-        if vis.present:
+        if vis.visible >= 0.5:
             return cand, vis, covers
         if best[0] is None or cand.r > best[0].r:
             best = (cand, vis)
