@@ -34,3 +34,13 @@ def scratch(prefix: str, keep: str | None = None):
     if not os.environ.get("GFLOW_BENCH_KEEP"):
         atexit.register(shutil.rmtree, p, ignore_errors=True)
     return p
+
+
+def every_nth(series: dict, frames: int, fmt, step: int = 20) -> list[list]:
+    """Rows ``[frame, cell per series]`` every ``step``-th frame: ``fmt(values)`` of the runs' values at
+    that frame (``series``: name -> list of per-run (frames,) arrays)."""
+    rows = []
+    for f in range(0, frames, step):
+        rows.append([f] + [fmt(np.array([e[f] for e in runs])) for runs in series.values()])
+    return rows
+

@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import every_nth, scratch, table  # noqa: E402
 
 from gflow_core.metrics import centre_error, score  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
@@ -39,10 +39,11 @@ from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
 
-#: G-flow settings under which it is constrained optic flow (sec. 4; gflow_core.gflow.special_cases)
+#: G-flow settings under which it is constrained optic flow (sec. 4; gflow_core.gflow.special_cases),
+#: with the parts of the pose prior and texture model the special case has no place for switched off
 OPTIC_FLOW = {"n_experts": 1, "n_samples": 1, "alpha": 0.0, "psi_v": 1e6, "v_init_var": 1e-3, "background": False,
               "prior_std_rotation": math.inf, "prior_std_translation": math.inf, "prior_std_coefficients": math.inf,
-              "prior_rotation_decay": 1.0}
+              "prior_rotation_decay": 1.0, "texture_decay": 1.0, "reset_rate": 0.0, "morph_prior": math.inf}
 
 
 def perturbed_box(box, seed: int) -> list[float]:
@@ -116,13 +117,7 @@ def main() -> None:
                        "fps inline"]))
     print("\ncentre error (px) every 20th frame, mean over runs [min..max]")
     names = list(trackers)
-    out = []
-    for f in range(0, args.frames, 20):
-        row = [f]
-        for n in names:
-            v = np.array([e[f] for e in errs[n]])
-            row.append(f"{np.nanmean(v):6.1f} [{np.nanmin(v):.0f}..{np.nanmax(v):.0f}]")
-        out.append(row)
+    out = every_nth(errs, args.frames, lambda v: f"{np.nanmean(v):6.1f} [{np.nanmin(v):.0f}..{np.nanmax(v):.0f}]")
     print(table(out, ["frame", *names]))
     for n in names:
         allv = np.array(errs[n])

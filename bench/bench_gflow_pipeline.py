@@ -2,10 +2,12 @@
 background model off and on, inline and as processes over zenoh (1 and 2 proposal shards),
 the size of each message type, and the peak memory (RSS) of the proposal and filter processes.
 
-One command: ``python bench/bench_gflow_pipeline.py [--frames 60] [--experts 1,20,100]``
+One command: ``python bench/bench_gflow_pipeline.py [--frames 60] [--experts 1,20,100] [--source david]``
 
 The frames are a rendered textured head (``gflow_core.gflow.synthetic_head``) written once as PNGs
-(rendering is not timed); the source reads them as fast as the pipeline takes them. Frames/s
+(rendering is not timed), or with ``--source david`` the first frames of ../shared/data/david_indoor
+from its first ground-truth box; the source reads them as fast as the pipeline takes them. The
+G-flow settings are the graph's (``pipeline/graphs/gflow.yaml``: the built-in face model). Frames/s
 counts the tracked frames over the time from the first to the last estimate, from the
 recording's log times (start-up excluded). Message sizes are the mean encoded payloads in
 the recording. Peak RSS is each process's high-water mark (``VmHWM`` in /proc/PID/status, read
@@ -47,6 +49,18 @@ def render(folder: Path, n: int) -> np.ndarray:
     for t, f in enumerate(seq.frames):
         cv2.imwrite(str(folder / f"{t:06d}.png"), np.rint(f * 255).astype(np.uint8))
     return seq.box
+
+
+def david_frames(folder: Path, n: int) -> np.ndarray:
+    """Copy the first ``n`` frames of david_indoor; returns its first ground-truth box."""
+    data = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
+    if not data.is_dir():
+        raise SystemExit(f"{data} not found: --source david needs ../shared/data/david_indoor")
+    folder.mkdir(parents=True, exist_ok=True)
+    for t in range(n):
+        (folder / f"{t:06d}.jpg").write_bytes((data / "frames" / f"{t:06d}.jpg").read_bytes())
+    first = (data / "groundtruth.csv").read_text().splitlines()[1].split(",")
+    return np.array([float(v) for v in first[1:5]])
 
 
 def plan(folder: Path, box, experts: int, background: bool, shards: int):
@@ -115,14 +129,20 @@ def main() -> None:
     ap.add_argument("--experts", default="1,20,100", help="comma-separated expert counts")
     ap.add_argument("--modes", default="inline,processes,processes-2", help="inline, processes, processes-K (K shards)")
     ap.add_argument("--out", default=None, help="folder for frames and recordings (default: a temporary one)")
+    ap.add_argument("--source", choices=("synthetic", "david"), default="synthetic",
+                    help="a rendered head (default) or the first frames of ../shared/data/david_indoor")
+    ap.add_argument("--background", default="off,on", help="background model: off, on or off,on (default)")
     args = ap.parse_args()
     tmp = scratch("gflow-bench-", keep=args.out)
-    box = render(tmp / "frames", args.frames)
-    print(f"G-flow pipeline, 320x240, {args.frames} frames, s=10 samples, 5 Gauss-Newton iterations, "
-          f"n=225 vertices; {tmp}")
+    if args.source == "david":
+        box = david_frames(tmp / "frames", args.frames)
+    else:
+        box = render(tmp / "frames", args.frames)
+    print(f"G-flow pipeline, 320x240, {args.source} frames, {args.frames} frames, the graph's settings; load "
+          f"average {os.getloadavg()[0]:.1f} at the start; {tmp}")
     rows, size_rows, mem_rows = [], [], []
     for E in (int(v) for v in args.experts.split(",")):
-        for bg in (False, True):
+        for bg in (v == "on" for v in args.background.split(",")):
             for mode in args.modes.split(","):
                 shards = int(mode.split("-")[1]) if "-" in mode else 1
                 if shards > E:
@@ -154,7 +174,7 @@ def main() -> None:
                         prop, rss.get('filter', 0), rss.get('preprocess', 0), rss.get('source', 0),
                         rss.get('recorder', 0))), BUDGET_MB, "yes" if max(rss.values()) <= BUDGET_MB else "NO"])
                 print(f"  E={E} background={'on' if bg else 'off'} {mode}: {fps:.1f} fps", file=sys.stderr)
-    print("\nframes/s (first to last estimate)")
+    print(f"\nframes/s (first to last estimate; load average {os.getloadavg()[0]:.1f} at the end)")
     print(table(rows, ["experts", "background", "mode", "frames", "fps", "CPU ms/frame", "by process"]))
     print("\nmean message size (KiB, encoded payload)")
     print(table(size_rows, ["experts", "background", *SIZE_TYPES]))

@@ -450,7 +450,7 @@ def _search_scale(feat: np.ndarray, st: AppearanceState, centre: np.ndarray, p: 
 
 
 def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: AppearanceParams,
-         rng: np.random.Generator) -> StepResult:
+         rng: np.random.Generator, dt: float = 1.0) -> StepResult:
     """One frame: weigh the proposals (and detection particles), estimate, update, resample.
 
     Parameters
@@ -461,18 +461,24 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         dynamics around the posterior of t-1 (the proposal stage's output); the velocity
         term of the dynamics is added here.
     rng : the frame's generator (detection draws, resampling).
+    dt : frame periods since frame t-1 (1: the next frame; a live source skips frames). The
+        velocity term moves the prediction dt periods on and the motion prior's std grows as
+        sqrt(dt). The search window does not grow with dt: a tracker that falls behind would
+        search larger windows, fall further behind and skip more (measured: steps of 400 ms at
+        the cap of 25 periods); its margin already spans most of a box size. With dt = 1 the
+        bits are those of the one-step model.
     """
     n = p.particles
     if proposed.ndim != 2 or proposed.shape[1] != 3 or not np.isfinite(proposed).all():
         raise ValueError(f"proposals must be finite (N, 3) = (x, y, log s), got {proposed.shape}")
     Hh, Ww = feat.shape[:2]
-    pred = st.centre + st.velocity
+    pred = st.centre + st.velocity * dt
     s = float(np.exp(st.log_s))
     bw, bh = st.size0 * s
     levels = _responses(feat, st, pred, p)
     # x_t ~ (1 - beta) p(x_t | x_{t-1}) + beta N(peak, detect_std)      (mixture proposal)
     dyn = proposed.copy()
-    dyn[:, :2] += st.velocity
+    dyn[:, :2] += st.velocity * dt
     n_det = int(round(p.detect_fraction * len(dyn))) if levels else 0
     if n_det:
         best = max(levels, key=lambda lv: float(lv.r.max()))
@@ -503,6 +509,7 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     # N(x; x_pred, diag((prior w)^2, (prior h)^2)): a tall box may not jump far sideways
     # while hidden the std grows with the speed the target had: prior * size + hidden_speed |v|
     spd = p.hidden_speed * float(np.hypot(*st.velocity)) if hidden_before else 0.0
+    prior, spd = prior * float(np.sqrt(dt)), spd * float(np.sqrt(dt))  # spread over dt periods
     d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * (prior * bw + spd) ** 2) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * (prior * bh + spd) ** 2)
     lw = LogWeights(log_lik - d2)
     W = lw.W
@@ -572,8 +579,8 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
             log_s = float(np.clip(log_s + p.scale_gain * d, -p.max_log_scale, p.max_log_scale))
             if p.refine_position:
                 centre = np.array([np.clip(refined[0], 0.0, Ww - 1.0), np.clip(refined[1], 0.0, Hh - 1.0)])
-        # v <- m v + (1 - m) (c_t - c_{t-1})
-        velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre)
+        # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
+        velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
         # the target's distance distribution follows it on every frame it is present, so a lasting
         # change of look (partly hidden for good, new light) becomes the usual look; the exemplars

@@ -45,6 +45,7 @@ from .base import Output, Params, Stage, StageInputError
 from .messages import Estimate, Frame, Message, MessageError, NDArray, Particles
 from .particle_proposal import cloud_of, particles_msg
 from .rng import frame_rng
+from .time_step import time_step
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
 
@@ -266,7 +267,9 @@ class AppearanceFilterStage(Stage):
         if got is None:
             return self._coast(seq, frame)
         assert frame is not None
-        res = ap.step(st, got[1], proposed, self.core, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_STEP))
+        # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
+        dt = time_step(self.ctx, frame.header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
+        res = ap.step(st, got[1], proposed, self.core, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_STEP), dt)
         self.state = res.state
         self.steps += 1
         nst = res.state

@@ -54,11 +54,15 @@ class StageContext:
 
     ``resources`` holds what the pipeline loaded for the stage from files named in its
     parameters (a learned model as a dict of arrays, for example): stages never open files.
+    ``frame_period_ns`` is the nominal frame period of a source whose frames carry host
+    capture stamps (a live source), the unit of :func:`stages.time_step.time_step`; 0 when
+    the stamps are media time (files: one period apart by construction).
     """
 
     name: str
     stream: str
     resources: Mapping[str, Any] = field(default_factory=dict)
+    frame_period_ns: float = 0.0
 
 
 # (output port, message)

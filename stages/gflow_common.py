@@ -34,6 +34,7 @@ from typing import Any, Literal, Mapping
 import numpy as np
 
 from gflow_core.gflow import COEF, GFlowConfig, MorphableModel, fit_head_model_to_box, pose_for_box
+from gflow_core.gflow.image import local_contrast
 
 from .base import Params, StageInputError
 from .messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
@@ -73,9 +74,20 @@ class GFlowParams(Params):
     ``background``, ``gn_background``, ``object_mask``, ``object_mask_margin``,
     ``prior_std_rotation``, ``prior_std_translation``, ``prior_std_coefficients``,
     ``resample_ess_fraction``, ``prior_rotation_decay``, ``pyramid_levels``, ``search_radius``,
-    ``search_step``, ``photometric``, ``photometric_gain_max``, ``max_rotation_deg``, ``search_stride``, ``outlier_sigmas``, ``max_scale_change``, ``scale_reference``; left empty,
-    :func:`prepare_model` sets it from the initial pose); see its docstring for their meaning. Grey levels are in
-    ``[0, 1]``, so variances are in those units squared. Also:
+    ``search_step``, ``photometric``, ``photometric_gain_max``, ``max_rotation_deg``, ``search_stride``,
+    ``outlier_sigmas``, ``max_scale_change``, ``scale_reference``, ``morph_prior_std``, ``texture_decay``,
+    ``reset_rate``, ``reset_std_deg``, ``reset_min_deg``;
+    ``scale_reference`` left empty,
+    :func:`prepare_model` sets it from the initial pose; ``morph_prior_std``, left empty, set from ``morph_prior``);
+    see its docstring for their meaning. Grey levels are in ``[0, 1]``, so variances are in those units squared. Also:
+
+    morph_prior : a learned model's expressions stay near what it was learned from: the stationary factor of the
+        pose prior on ``c_2 .. c_k`` has std ``morph_prior * morph_std_j * c_1`` (``morph_std``: the model's training
+        spread of ``c_j / c_1``; ``c_1``: the initial scale); ``inf`` = none. Ignored for a model without
+        ``morph_std`` (the ellipsoid, k = 1).
+    contrast_sigma : pixels; > 0: every frame is local-contrast normalised before G-flow sees it
+        (``gflow_core.gflow.image.local_contrast``, a Gaussian neighbourhood of that std), so smooth
+        changes of light do not change the texture; 0 = the grey levels themselves (the paper).
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
     init : (x, y, w, h) initial box of the face in the first usable frame, 0-based pixels.
@@ -114,6 +126,13 @@ class GFlowParams(Params):
     outlier_sigmas: float = math.inf
     max_scale_change: float = math.inf
     scale_reference: tuple[float, ...] = ()
+    morph_prior_std: tuple[float, ...] = ()
+    texture_decay: float = 1.0
+    reset_rate: float = 0.0
+    reset_std_deg: float = 20.0
+    reset_min_deg: float = 10.0
+    morph_prior: float = math.inf
+    contrast_sigma: float = 0.0
     seed: int = 0
     init: tuple[float, float, float, float] | None = None
     model: str = ""
@@ -132,6 +151,10 @@ class GFlowParams(Params):
                                  f"h={self.init[3]} in {self.init}")
         if not (math.isfinite(self.depth_ratio) and self.depth_ratio > 0):
             raise ValueError(f"depth_ratio must be positive, got {self.depth_ratio}")
+        if not (math.isfinite(self.contrast_sigma) and self.contrast_sigma >= 0):
+            raise ValueError(f"contrast_sigma must be finite and >= 0 (0 = off), got {self.contrast_sigma}")
+        if math.isnan(self.morph_prior) or self.morph_prior <= 0:
+            raise ValueError(f"morph_prior must be > 0 (inf = none), got {self.morph_prior}")
         if min(self.head_grid) < 2:
             raise ValueError(f"head_grid must be at least (2, 2), got {self.head_grid}")
 
@@ -141,12 +164,14 @@ def config_of(p: GFlowParams) -> GFlowConfig:
     return GFlowConfig(**{f: getattr(p, f) for f in CONFIG_FIELDS})
 
 
-def config_digest(cfg: GFlowConfig, model: MorphableModel, seed: int) -> str:
+def config_digest(cfg: GFlowConfig, model: MorphableModel, seed: int, contrast_sigma: float = 0.0) -> str:
     """A short digest of everything that must agree between the proposal and the filter:
-    the configuration, the model's bases (shape and bytes) and the seed."""
+    the configuration, the model's bases (shape and bytes), the seed and how frames are normalised."""
     h = hashlib.sha256()
     h.update(repr(sorted(asdict(cfg).items())).encode())
     h.update(repr((model.bases.shape, int(seed))).encode())
+    if contrast_sigma:
+        h.update(repr(("contrast_sigma", float(contrast_sigma))).encode())
     h.update(np.ascontiguousarray(model.bases, dtype="<f8").tobytes())
     return h.hexdigest()[:16]
 
@@ -187,12 +212,18 @@ class ModelSetup:
     box : (4,) float64, the initial box actually used (clipped to the frame).
     clipped : bool
     image_shape : (H, W)
+    contrast_sigma : float, the frames' local contrast normalisation (0: none).
     """
 
     def __init__(self, model: MorphableModel, pose0: np.ndarray, cfg: GFlowConfig, digest: str, box: np.ndarray,
-                 clipped: bool, image_shape: tuple[int, int]) -> None:
+                 clipped: bool, image_shape: tuple[int, int], contrast_sigma: float = 0.0) -> None:
         self.model, self.pose0, self.cfg, self.digest = model, pose0, cfg, digest
         self.box, self.clipped, self.image_shape = box, clipped, image_shape
+        self.contrast_sigma = contrast_sigma
+
+    def observation(self, grey: np.ndarray) -> np.ndarray:
+        """``y_t`` of a grey uint8 frame (:func:`observation`, with this run's ``contrast_sigma``)."""
+        return observation(grey, self.contrast_sigma)
 
 
 def prepare_model(p: GFlowParams, resources: Mapping[str, Any], shape: tuple[int, int]) -> ModelSetup:
@@ -225,9 +256,16 @@ def prepare_model(p: GFlowParams, resources: Mapping[str, Any], shape: tuple[int
         if math.isfinite(cfg.max_scale_change) and not cfg.scale_reference:
             # the scale wall is relative to the initial box's scale
             cfg = dataclasses.replace(cfg, scale_reference=tuple(float(v) for v in pose0[COEF]))
+        if (math.isfinite(p.morph_prior) and not cfg.morph_prior_std and model.morph_std is not None
+                and model.n_bases > 1):
+            # m_j = morph_prior * (training spread of c_j / c_1) * c_1 at the initial box
+            m = p.morph_prior * np.maximum(model.morph_std[1:], 1e-9) * abs(float(pose0[COEF][0]))
+            cfg = dataclasses.replace(cfg, morph_prior_std=tuple(float(v) for v in m))
+        cfg.prior_std(model.n_bases)  # the morph prior's length must match k too
     except ValueError as e:
         raise StageInputError(f"cannot place the G-flow model in the initial box {tuple(box.round(2))}: {e}") from None
-    return ModelSetup(model, pose0, cfg, config_digest(cfg, model, p.seed), box, clipped, shape)
+    return ModelSetup(model, pose0, cfg, config_digest(cfg, model, p.seed, p.contrast_sigma), box, clipped, shape,
+                      p.contrast_sigma)
 
 
 def frame_of(feat: Features, seq: int, shape: tuple[int, int] | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -260,6 +298,13 @@ def frame_of(feat: Features, seq: int, shape: tuple[int, int] | None = None) -> 
     return grey, grey.astype(np.float64) / 255.0
 
 
+def observation(grey: np.ndarray, contrast_sigma: float = 0.0) -> np.ndarray:
+    """What G-flow observes of a grey uint8 frame: grey levels / 255, local-contrast normalised when
+    ``contrast_sigma > 0`` (:func:`gflow_core.gflow.image.local_contrast`). Both stages use it."""
+    y = grey.astype(np.float64) / 255.0
+    return local_contrast(y, contrast_sigma) if contrast_sigma > 0 else y
+
+
 def update_rng(seed: int, stream: str, t: int) -> np.random.Generator:
     """The filter's generator for frame ``t``: ``default_rng([seed, crc32(stream), t])``
     (the same as :func:`gflow_core.gflow.step`)."""
@@ -271,7 +316,8 @@ def update_rng(seed: int, stream: str, t: int) -> np.random.Generator:
 
 def states_msg(header: Header, poses: np.ndarray, tex_mean: np.ndarray, tex_var: np.ndarray,
                log_credibility: np.ndarray, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
-               first: bool, bg_mean: np.ndarray | None = None, bg_var: np.ndarray | None = None) -> ExpertStates:
+               first: bool, bg_mean: np.ndarray | None = None, bg_var: np.ndarray | None = None,
+               tex_anchor: np.ndarray | None = None) -> ExpertStates:
     """Pack the experts after frame ``header.seq`` (backgrounds only for snapshots)."""
     return ExpertStates(
         header=header, poses=NDArray.of(np.asarray(poses, np.float64)),
@@ -279,7 +325,8 @@ def states_msg(header: Header, poses: np.ndarray, tex_mean: np.ndarray, tex_var:
         log_credibility=NDArray.of(np.asarray(log_credibility, np.float64)),
         parents=NDArray.of(np.asarray(parents, np.int64)), image_shape=(int(image_shape[0]), int(image_shape[1])),
         config_digest=digest, first=bool(first),
-        bg_mean=None if bg_mean is None else NDArray.of(bg_mean), bg_var=None if bg_var is None else NDArray.of(bg_var))
+        bg_mean=None if bg_mean is None else NDArray.of(bg_mean), bg_var=None if bg_var is None else NDArray.of(bg_var),
+        tex_anchor=None if tex_anchor is None else NDArray.of(np.asarray(tex_anchor, np.float64)))
 
 
 def _arr(nd: NDArray, name: str, shape: tuple[int, ...], dtype: str, where: str) -> np.ndarray:
@@ -299,8 +346,8 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, where: str) -> dict[str,
 
     Returns
     -------
-    dict with poses (E, P), tex_mean (E, n), tex_var (E, n), log_credibility (E,), parents (E,),
-    and bg_mean / bg_var (E, H, W) when the message carries them.
+    dict with poses (E, P), tex_mean (E, n), tex_var (E, n), log_credibility (E,), parents (E,), tex_anchor
+    (n,) or None, and bg_mean / bg_var (E, H, W) when the message carries them.
 
     Raises
     ------
@@ -325,6 +372,10 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, where: str) -> dict[str,
     }
     if out["parents"].min() < 0 or out["parents"].max() >= E:
         raise StageInputError(f"{where}: parents must lie in [0, {E})")
+    if (msg.tex_anchor is not None) != (setup.cfg.texture_decay != 1.0):
+        raise StageInputError(f"{where}: the texture anchor is " + ("missing" if msg.tex_anchor is None else
+                              "unexpected") + f" for texture_decay {setup.cfg.texture_decay}")
+    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), "float64", where)
     if msg.bg_mean is not None and msg.bg_var is not None:
         H, W = setup.image_shape
         out["bg_mean"] = _arr(msg.bg_mean, "bg_mean", (E, H, W), "float64", where)
@@ -344,7 +395,8 @@ def proposals_msg(header: Header, props, shard: int, shards: int, digest: str) -
                              log_evidence=NDArray.of(np.zeros(0)), gn_objective=NDArray.of(np.zeros(0)),
                              shard=shard, shards=shards, config_digest=digest)
     return PoseProposals(header=header, **{f: NDArray.of(np.asarray(getattr(props, f))) for f in _PROPOSAL_FIELDS},
-                         shard=shard, shards=shards, config_digest=digest)
+                         shard=shard, shards=shards, config_digest=digest,
+                         reset=NDArray.of(np.asarray(props.reset, dtype=bool)) if props.reset.any() else None)
 
 
 def unpack_proposals(msg: PoseProposals, setup: ModelSetup, shard: int, shards: int, expected: np.ndarray,
@@ -378,6 +430,7 @@ def unpack_proposals(msg: PoseProposals, setup: ModelSetup, shard: int, shards: 
         log_weights=_arr(msg.log_weights, "log_weights", (Ep, s), "float64", where),
         log_evidence=_arr(msg.log_evidence, "log_evidence", (Ep,), "float64", where),
         gn_objective=_arr(msg.gn_objective, "gn_objective", (Ep,), "float64", where),
+        reset=np.zeros(Ep, dtype=bool) if msg.reset is None else _arr(msg.reset, "reset", (Ep,), "bool", where),
     )
 
 

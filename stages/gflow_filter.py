@@ -13,9 +13,16 @@ filter never holds the background textures: with the background model on, they l
 the proposal stages (see ``stages/gflow_proposal.py``), and ``update`` runs with
 ``bg_mean = None``, which changes nothing else.
 
-The estimate: ``box`` is the bounding box of the projected vertices of the posterior mean
-pose; ``expert_points`` are every expert's projected vertices (the paper's figure 2);
-``pose``, ``pose_std``, ``rotation``, ``spread_px`` and ``ess`` summarise the posterior.
+The estimate: ``box`` is, for a learned face (a model with a reference box), the initial box
+moved and scaled with the face (``gflow_core.gflow.face_pose.following_box``), otherwise the
+bounding box of the projected vertices of the posterior mean pose; ``expert_points`` are every
+expert's projected vertices (the paper's figure 2), ``mean_points`` the mean's, ``landmarks`` the
+reference landmark of each vertex; ``pose``, ``pose_std``, ``rotation``, ``spread_px`` and ``ess``
+summarise the posterior, ``yaw_pitch_roll`` and ``expression`` read it as a face. ``confidence`` is
+the fraction of vertices the frame explains as the object (``Estimate.inlier_fraction``: in the
+image and within the outlier process's standard deviations of their texel), and ``target_state``
+is ``occluded`` below ``occluded_below``, ``lost`` below ``lost_below``, else ``tracked``; a
+coasting frame repeats the last observed frame's.
 
 First frame: the model is fitted into ``init`` (generic head) or a user morphable model
 (resource ``model``) is placed in it, and the experts start at that pose (optionally
@@ -38,9 +45,11 @@ import msgspec
 import numpy as np
 
 from gflow_core.gflow import ExpertState, init_state, update
+from gflow_core.gflow.filter import predict_texels
 from gflow_core.gflow.credibility import ess, posterior_mean_pose, pose_spread
 from gflow_core.gflow.geometry import COEF, project, rotation_matrices
 from gflow_core.gflow.head_model import bounding_box
+from gflow_core.gflow.face_pose import expression, following_box, yaw_pitch_roll
 from gflow_core.gflow.filter import concatenate_proposals
 
 from .base import Output, Stage, StageInputError
@@ -73,10 +82,15 @@ class GFlowFilterParams(GFlowParams):
     init_jitter : standard deviations of the experts' initial poses about the initial box's
         pose: (rotation in radians, translation in pixels, morph coefficients as a fraction
         of their initial value). ``(0, 0, 0)``: every expert starts at the same pose.
+    occluded_below, lost_below : the estimate's ``confidence`` is the fraction of the model's vertices
+        the frame explains as the object (``Estimate.inlier_fraction`` of ``gflow_core.gflow.update``);
+        below ``occluded_below`` the target is ``occluded``, below ``lost_below`` ``lost``.
     """
 
     shards: int = 1
     init_jitter: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    occluded_below: float = 0.6
+    lost_below: float = 0.3
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -84,6 +98,9 @@ class GFlowFilterParams(GFlowParams):
             raise ValueError(f"shards must be in [1, n_experts={self.n_experts}], got {self.shards}")
         if not all(np.isfinite(v) and v >= 0 for v in self.init_jitter):
             raise ValueError(f"init_jitter must be three finite numbers >= 0, got {self.init_jitter}")
+        if not 0.0 <= self.lost_below <= self.occluded_below <= 1.0:
+            raise ValueError(f"need 0 <= lost_below <= occluded_below <= 1, got {self.lost_below}, "
+                             f"{self.occluded_below}")
 
 
 class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -96,6 +113,8 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     steps: int
     coasted: int
     init_error: str
+    confidence: float = 1.0  # of the last observed frame
+    target_state: str = "tracked"
 
 
 class GFlowFilterStage(Stage):
@@ -120,6 +139,7 @@ class GFlowFilterStage(Stage):
         self.coasted = 0
         self.init_error = ""
         self.last: dict = {}
+        self.confidence: tuple[float, str] = (1.0, "tracked")  # of the last observed frame
 
     # the first frame only needs features; afterwards the proposals of every shard too
     def required(self, seq: int) -> frozenset[str]:
@@ -135,7 +155,7 @@ class GFlowFilterStage(Stage):
         frame = None
         if isinstance(feat, Features):
             try:
-                frame = frame_of(feat, seq, setup.image_shape)[1]
+                frame = setup.observation(frame_of(feat, seq, setup.image_shape)[0])
             except StageInputError as e:
                 self.report("bad_features", f"{e}; coasting", seq)
         else:
@@ -154,7 +174,11 @@ class GFlowFilterStage(Stage):
         self.state = new
         self.steps += 1
         out_state = states_msg(header, new.poses, new.tex_mean, new.tex_var, new.log_credibility, est.parents,
-                               setup.image_shape, setup.digest, first=False)
+                               setup.image_shape, setup.digest, first=False, tex_anchor=new.tex_anchor)
+        # confidence: the fraction of vertices the frame shows as the face (the likelihood's outlier process)
+        conf = min(max(est.inlier_fraction, 0.0), 1.0)
+        self.confidence = (conf, "lost" if conf < p.lost_below else "occluded" if conf < p.occluded_below
+                           else "tracked")
         estimate = self._estimate_msg(header, est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
                                       est.expert_points, est.mean_points, est.bbox, est.log_credibility, est.parents,
                                       est.resampled, "track")
@@ -195,6 +219,7 @@ class GFlowFilterStage(Stage):
                 self.init_error = str(e)
                 self.report("init_failed", f"frame {seq}: {e}; not tracking", seq)
             return []
+        frame = setup.observation(grey)
         if setup.clipped:
             self.report("init_box_clipped", f"frame {seq}: initial box {p.init} reaches outside the "
                                             f"{grey.shape[1]}x{grey.shape[0]} frame; using {tuple(setup.box.round(2))}",
@@ -212,7 +237,7 @@ class GFlowFilterStage(Stage):
         E = state.n_experts
         parents = np.arange(E, dtype=np.int64)
         out_state = states_msg(feat.header, state.poses, state.tex_mean, state.tex_var, state.log_credibility,
-                               parents, setup.image_shape, setup.digest, first=True)
+                               parents, setup.image_shape, setup.digest, first=True, tex_anchor=state.tex_anchor)
         return [("state", out_state), ("estimate", self._summary_estimate(feat.header, state, "init"))]
 
     def _coast(self, seq: int, header: Header) -> list[Output]:
@@ -220,14 +245,18 @@ class GFlowFilterStage(Stage):
         setup, state = self.setup, self.state
         assert setup is not None and state is not None
         # Var(V_t | u_{1:t-1}, y_{1:t-1}) = Var(V_{t-1} | ...) + Psi_v   (eq. 10); mean unchanged (eq. 9)
-        tex_var = state.tex_var + setup.cfg.psi_v
+        # (or reverting toward the first look, texture_decay < 1)
+        E = state.n_experts
+        tex_mean, tex_var = predict_texels(state, np.arange(E), setup.cfg)
+        tex_mean, tex_var = np.array(tex_mean), np.array(tex_var)
+        tex_mean.setflags(write=False)
         tex_var.setflags(write=False)
-        self.state = replace(state, tex_var=tex_var)
+        self.state = replace(state, tex_mean=tex_mean, tex_var=tex_var)
         self.coasted += 1
         self.steps += 1
-        E = state.n_experts
-        out_state = states_msg(header, state.poses, state.tex_mean, tex_var, state.log_credibility,
-                               np.arange(E, dtype=np.int64), setup.image_shape, setup.digest, first=False)
+        out_state = states_msg(header, state.poses, tex_mean, tex_var, state.log_credibility,
+                               np.arange(E, dtype=np.int64), setup.image_shape, setup.digest, first=False,
+                               tex_anchor=state.tex_anchor)
         return [("state", out_state), ("estimate", self._summary_estimate(header, self.state, "coast"))]
 
     def _summary_estimate(self, header: Header, state: ExpertState, kind: str) -> PoseEstimate:
@@ -246,9 +275,15 @@ class GFlowFilterStage(Stage):
 
     def _estimate_msg(self, header: Header, pose, pose_std, rotation, spread_px, ess_val, expert_points, mean_points,
                       bbox, log_cred, parents, resampled: bool, kind: str) -> PoseEstimate:
+        setup = self.setup
+        assert setup is not None
+        model = setup.model
+        if model.reference_box is not None:
+            # a learned face: the user's box, moved and scaled with the face
+            bbox = following_box(pose, setup.pose0, setup.box)
         box = tuple(float(v) for v in bbox)
         self.last = {"seq": header.seq, "state": kind, "box": [round(v, 1) for v in box], "ess": round(ess_val, 1),
-                     "spread_px": round(spread_px, 2)}
+                     "spread_px": round(spread_px, 2), "confidence": round(self.confidence[0], 3)}
         return PoseEstimate(
             header=header, box=box, pose=tuple(float(v) for v in pose),  # type: ignore[arg-type]
             pose_std=tuple(float(v) for v in pose_std), rotation=tuple(float(v) for v in np.ravel(rotation)),
@@ -256,7 +291,11 @@ class GFlowFilterStage(Stage):
             expert_points=NDArray.of(np.asarray(expert_points, dtype=np.float32)),
             mean_points=NDArray.of(np.asarray(mean_points, dtype=np.float32)),
             log_credibility=NDArray.of(np.asarray(log_cred, dtype=np.float64)),
-            parents=NDArray.of(np.asarray(parents, dtype=np.int64)), resampled=bool(resampled), state=kind)
+            parents=NDArray.of(np.asarray(parents, dtype=np.int64)), resampled=bool(resampled), state=kind,
+            confidence=float(self.confidence[0]), target_state=self.confidence[1],
+            landmarks=None if model.landmarks is None else NDArray.of(np.asarray(model.landmarks, dtype=np.int32)),
+            yaw_pitch_roll=tuple(float(v) for v in yaw_pitch_roll(rotation)),  # type: ignore[arg-type]
+            expression=tuple(float(v) for v in expression(np.asarray(pose)[COEF], model.morph_std)))
 
     # -- state ------------------------------------------------------------------------------------
     def summary(self) -> dict:
@@ -268,11 +307,12 @@ class GFlowFilterStage(Stage):
             s = self.state
             st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s.poses, s.tex_mean,
                             s.tex_var, s.log_credibility, np.arange(s.n_experts, dtype=np.int64),
-                            self.setup.image_shape, self.setup.digest, first=False)
+                            self.setup.image_shape, self.setup.digest, first=False, tex_anchor=s.tex_anchor)
         snap = _Snapshot(version=SNAPSHOT_VERSION,
                          image_shape=None if self.setup is None else tuple(self.setup.image_shape),  # type: ignore[arg-type]
                          digest="" if self.setup is None else self.setup.digest, state=st, steps=self.steps,
-                         coasted=self.coasted, init_error=self.init_error)
+                         coasted=self.coasted, init_error=self.init_error, confidence=self.confidence[0],
+                         target_state=self.confidence[1])
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
@@ -297,5 +337,7 @@ class GFlowFilterStage(Stage):
                 arrs = {k: a[k].copy() for k in ("poses", "tex_mean", "tex_var", "log_credibility")}
                 for v in arrs.values():
                     v.setflags(write=False)
-                self.state = ExpertState(bg_mean=None, bg_var=None, image_shape=setup.image_shape, **arrs)
+                self.state = ExpertState(bg_mean=None, bg_var=None, image_shape=setup.image_shape,
+                                         tex_anchor=a["tex_anchor"], **arrs)
         self.steps, self.coasted, self.init_error = snap.steps, snap.coasted, snap.init_error
+        self.confidence = (snap.confidence, snap.target_state)

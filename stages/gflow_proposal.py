@@ -58,6 +58,7 @@ from .gflow_common import (
 )
 from .messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
 from .rng import stream_hash
+from .time_step import time_step
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 
@@ -135,6 +136,8 @@ class GFlowProposalStage(Stage):
         if isinstance(feat, Features):
             try:
                 grey, frame = frame_of(feat, seq, self.setup.image_shape if self.setup else None)
+                if self.setup is not None:
+                    frame = self.setup.observation(grey)
             except StageInputError as e:
                 self.report("bad_features", f"{e}; no proposals for this frame", seq)
         elif self.init_seq is not None:
@@ -144,7 +147,7 @@ class GFlowProposalStage(Stage):
             return []
         assert self.setup is not None
         header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
-        out = self._propose(seq, frame, inputs.get("state"))
+        out = self._propose(seq, frame, inputs.get("state"), header.stamp_ns)
         if grey is not None:
             self.prev = (seq, grey)
         self.steps += 1
@@ -166,7 +169,7 @@ class GFlowProposalStage(Stage):
         self.init_seq = seq
         self.prev = (seq, grey)
 
-    def _propose(self, seq: int, frame: np.ndarray | None, state_msg: Message | None):
+    def _propose(self, seq: int, frame: np.ndarray | None, state_msg: Message | None, stamp_ns: int = 0):
         """Advance the background replica to t - 1, then propose for frame t (None: no proposals)."""
         assert self.setup is not None
         s = self.setup
@@ -188,11 +191,13 @@ class GFlowProposalStage(Stage):
         if frame is None:
             return None
         state = ExpertState(poses=st["poses"], tex_mean=st["tex_mean"], tex_var=st["tex_var"], bg_mean=bg_mean,
-                            bg_var=bg_var, log_credibility=st["log_credibility"], image_shape=s.image_shape)
+                            bg_var=bg_var, log_credibility=st["log_credibility"], image_shape=s.image_shape,
+                            tex_anchor=st["tex_anchor"])
         p: GFlowProposalParams = self.params  # type: ignore[assignment]
         rngs = expert_rngs(p.seed, stream_hash(self.ctx.stream), seq, self.indices)
         try:
-            props = propose(state, frame, s.model, s.cfg, rngs, self.indices)
+            dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
+            props = propose(state, frame, s.model, s.cfg, rngs, self.indices, dt)
         except (ValueError, np.linalg.LinAlgError) as e:
             self.report("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals", seq)
             return None
@@ -208,7 +213,7 @@ class GFlowProposalStage(Stage):
         s = self.setup
         assert s is not None
         t1 = seq - 1
-        prev = self.prev[1].astype(np.float64) / 255.0 if self.prev is not None and self.prev[0] == t1 else None
+        prev = s.observation(self.prev[1]) if self.prev is not None and self.prev[0] == t1 else None
         poses, parents = st["poses"], st["parents"]
         if first or self.bg is None or self.bg_seq != t1 - 1:
             if prev is None:

@@ -23,7 +23,7 @@ import numpy as np
 
 __all__ = [
     "Header", "NDArray", "Frame", "Features", "Particles", "Estimate", "ErrorReport", "EndOfStream",
-    "StageStatus", "Control", "Snapshot", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
+    "StageStatus", "Control", "Snapshot", "Capture", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
     "MessageError",
 ]
 
@@ -145,6 +145,25 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     waiting: str = ""  # what the stage waits for, when it waits (for stall reports)
     frame_shape: tuple[int, ...] = ()  # sources: (H, W) of the frames they send
     ended: tuple[str, ...] = ()  # the recorder: topics whose end of stream it has recorded
+    captured: int = 0  # a live source: frames decoded since it opened
+    skipped: int = 0  # a live source: frames decoded and not sent (the newest frame wins)
+    reconnects: int = 0  # a live source: times the stream was lost and reopened
+
+
+class Capture(msgspec.Struct, frozen=True, tag=True):
+    """A live source's account of one frame it sent, on ``gflow/<stream>/captures``.
+
+    ``header`` is the frame's: ``seq`` its number in the stream (0, 1, 2, ... for the frames
+    sent), ``stamp_ns`` the host clock when it was read. ``frame`` is the camera's frame number
+    (every frame decoded since the source opened, sent or not); ``skipped`` the frames decoded
+    since the previous frame sent and not sent (the newest frame wins); ``gap_s`` the seconds
+    without frames when the stream was lost and reopened before this frame (0: no gap).
+    """
+
+    header: Header
+    frame: int
+    skipped: int = 0
+    gap_s: float = 0.0
 
 
 class Snapshot(msgspec.Struct, frozen=True, tag=True):
@@ -170,7 +189,7 @@ class Control(msgspec.Struct, frozen=True, tag=True):
 from .messages_gflow import ExpertStates, PoseEstimate, PoseProposals  # noqa: E402
 
 Message = Union[Frame, Features, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control, Snapshot,
-                ExpertStates, PoseProposals, PoseEstimate]
+                ExpertStates, PoseProposals, PoseEstimate, Capture]
 MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in Message.__args__}  # type: ignore[attr-defined]
 
 from .messages_foxglove import FOXGLOVE_SCHEMAS, CompressedImage, ImageAnnotations  # noqa: E402

@@ -31,6 +31,7 @@ class ExpertStates(msgspec.Struct, frozen=True, tag=True):
     config_digest : digest of the G-flow configuration and model; proposal and filter must agree.
     first : True for the state made from the first frame (the backgrounds start from it).
     bg_mean, bg_var : (E, H, W) float64 background posteriors, only in snapshots.
+    tex_anchor : (n,) float64, the first frame's texels the texture reverts toward (``texture_decay < 1``).
     """
 
     header: Header
@@ -44,6 +45,7 @@ class ExpertStates(msgspec.Struct, frozen=True, tag=True):
     first: bool = False
     bg_mean: NDArray | None = None
     bg_var: NDArray | None = None
+    tex_anchor: NDArray | None = None
 
 
 class PoseProposals(msgspec.Struct, frozen=True, tag=True):
@@ -52,6 +54,8 @@ class PoseProposals(msgspec.Struct, frozen=True, tag=True):
     expert_indices : (E',) int64; u_hat : (E', P); sigma_hat : (E', P, P); samples : (E', s, P);
     log_weights : (E', s) (eq. 16); log_evidence : (E',) (eq. 19); gn_objective : (E',).
     shard / shards : which shard of how many produced it.
+    reset : (E',) bool, experts that took the frontal reset (texture restarted from the first look);
+        None (an older message) = none did.
     """
 
     header: Header
@@ -65,12 +69,15 @@ class PoseProposals(msgspec.Struct, frozen=True, tag=True):
     shard: int = 0
     shards: int = 1
     config_digest: str = ""
+    reset: NDArray | None = None
 
 
 class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
     """G-flow's answer for one frame.
 
-    box : (x, y, w, h), bounding box of the projected vertices of the posterior mean pose.
+    box : (x, y, w, h): for a learned face (a model with a reference box), the initial box moved and
+        scaled with the face (``gflow_core.gflow.face_pose.following_box``); otherwise the bounding box
+        of the projected vertices of the posterior mean pose.
     pose / pose_std : (P,) posterior mean and standard deviation (tangent space).
     rotation : (3, 3) float64 rotation of the mean pose, row-major.
     spread_px : RMS distance of the experts' projected vertices from the mean's.
@@ -80,6 +87,12 @@ class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
     log_credibility : (E,) float64; parents : (E,) int64.
     state : "init", "track" or "coast".
     confidence, target_state : as in :class:`stages.messages.Estimate`.
+    landmarks : (n,) int32, for a learned face the reference landmark index of each vertex (the order of
+        ``mean_points``); None for other models.
+    yaw_pitch_roll : degrees, of the posterior mean pose (``gflow_core.gflow.face_pose``: yaw > 0 nose toward
+        the image's right, pitch > 0 nose up, roll > 0 clockwise in the image).
+    expression : (k - 1,) morph coefficients c_2..c_k over c_1, in the model's training standard deviations
+        (empty for a rigid model); the raw coefficients are ``pose[5:]``.
     """
 
     header: Header
@@ -97,3 +110,6 @@ class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
     state: str = "track"
     confidence: float = 1.0
     target_state: str = "tracked"
+    landmarks: NDArray | None = None
+    yaw_pitch_roll: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    expression: tuple[float, ...] = ()

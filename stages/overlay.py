@@ -7,8 +7,9 @@ Outputs, for every frame that has an estimate:
   target is tracked, orange while the tracker judges it occluded, magenta while lost), the
   ground-truth box when the source knows it (white), the particles' positions (red) or
   every G-flow expert's projected vertices (the paper's fig. 2, cyan), the MAP contour or
-  mean mesh points (yellow), and a text line with the frame, ESS, state, the target's state and
-  the confidence.
+  mean mesh points (yellow), for G-flow the mean pose's rotated axes (x red, y magenta, z blue,
+  as in fig. 2), and a text line with the frame, ESS, state, the target's state and the
+  confidence (and a face's yaw, pitch, roll).
 
 The same annotations are drawn into videos by ``gflow render``.
 """
@@ -22,8 +23,8 @@ import numpy as np
 
 from .base import Output, Params, Stage, StageInputError
 from .messages import Estimate, Frame, Message, MessageError, Particles, PoseEstimate
-from .messages_foxglove import (LINE_LOOP, POINTS, Color, CompressedImage, ImageAnnotations, PointsAnnotation,
-                                TextAnnotation, point, time_of)
+from .messages_foxglove import (LINE_LIST, LINE_LOOP, POINTS, Color, CompressedImage, ImageAnnotations,
+                                PointsAnnotation, TextAnnotation, point, time_of)
 
 __all__ = ["RenderStage", "RenderParams", "annotations_for"]
 
@@ -73,6 +74,22 @@ def _points(xy: np.ndarray, color: Color, ts, size: float, limit: int) -> Points
     return PointsAnnotation(ts, POINTS, [point(x, y) for x, y in xy], color, [], color, size)
 
 
+#: the rotated axes x, y, z: red, magenta, blue (green is the box)
+AXIS_COLOURS = (Color(1.0, 0.2, 0.2, 1.0), Color(1.0, 0.3, 1.0, 1.0), Color(0.3, 0.5, 1.0, 1.0))
+
+
+def _axes(est: PoseEstimate, ts) -> list[PointsAnnotation]:
+    """The mean pose's rotated model axes from the projected origin ``l``, half the face's scale ``c_1``
+    long (the paper's fig. 2): ``l + 0.5 c_1 g r e_a`` for a = x, y, z."""
+    r = np.asarray(est.rotation, dtype=np.float64).reshape(3, 3)
+    lx, ly, c1 = est.pose[3], est.pose[4], est.pose[5]
+    out = []
+    for a, colour in enumerate(AXIS_COLOURS):
+        ex, ey = 0.5 * abs(c1) * r[0, a], 0.5 * abs(c1) * r[1, a]
+        out.append(PointsAnnotation(ts, LINE_LIST, [point(lx, ly), point(lx + ex, ly + ey)], colour, [], colour, 2.0))
+    return out
+
+
 def annotations_for(frame: Frame, est: Estimate | PoseEstimate, particles: Particles | None,
                     max_points: int = 400) -> ImageAnnotations:
     """The overlays of one frame (pure; also used by ``gflow render``)."""
@@ -83,8 +100,12 @@ def annotations_for(frame: Frame, est: Estimate | PoseEstimate, particles: Parti
     if isinstance(est, PoseEstimate):
         experts = est.expert_points.array()
         pts.append(_points(experts.reshape(-1, 2), CYAN, ts, 2.0, max_points))
-        pts.append(_points(est.mean_points.array(), YELLOW, ts, 3.0, 0))
+        # a learned face has many vertices close together: smaller dots
+        pts.append(_points(est.mean_points.array(), YELLOW, ts, 3.0 if est.landmarks is None else 1.5, 0))
+        pts.extend(_axes(est, ts))
         label = f"frame {est.header.seq}  ESS {est.ess:.1f}/{experts.shape[0]}  spread {est.spread_px:.1f}px  {est.state}"
+        if est.landmarks is not None:
+            label += "  yaw {} pitch {} roll {}".format(*(int(round(v)) for v in est.yaw_pitch_roll))
     else:
         if particles is not None:
             pts.append(_points(particles.alpha.array()[:, :2], RED, ts, 2.0, max_points))

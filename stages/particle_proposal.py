@@ -16,6 +16,10 @@ the learned mean. The learned mean is the training person's distance from the tr
 camera: a model learned on caviar1 (people about 28x73 px) pulled a 17x50 px pedestrian of
 crossing to 28x73 within three frames. Translation is a random walk, theta's mean is ~0.
 
+With ``timed`` (set for live sources by ``pipeline/runtime/live_plan.py``) the stage also reads
+the frames and joins frame t + 1 with the posterior of t, so the noise grows with the time
+between the two frames' capture stamps (:mod:`stages.time_step`).
+
 The stage keeps no state that its outputs depend on; its snapshot holds the step counter.
 """
 
@@ -32,8 +36,9 @@ from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 
 from .base import Output, Params, Stage, StageInputError
-from .messages import Message, MessageError, NDArray, Particles
+from .messages import Frame, Message, MessageError, NDArray, Particles
 from .rng import frame_rng
+from .time_step import time_step
 
 __all__ = ["ProposalStage", "ProposalParams", "cloud_of", "particles_msg", "scale_mean_at"]
 
@@ -59,6 +64,7 @@ class ProposalParams(Params):
     std_log_s: float = 0.02
     model: str = ""
     init: tuple[float, float, float, float] | None = None
+    timed: bool = False  # also read the frames: the noise grows with the time to the next frame
 
     def __post_init__(self) -> None:
         if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
@@ -94,6 +100,11 @@ class ProposalStage(Stage):
     Params = ProposalParams
     inputs = {"particles": Particles}
     outputs = {"proposals": Particles}
+    input_offsets = {"frames": -1}  # timed: frame t + 1 joins the posterior of t
+
+    @classmethod
+    def ports(cls, params: ProposalParams):  # type: ignore[override]
+        return ({"particles": Particles, "frames": Frame} if params.timed else cls.inputs), cls.outputs
 
     def __init__(self, params: ProposalParams, ctx) -> None:
         super().__init__(params, ctx)
@@ -122,9 +133,11 @@ class ProposalStage(Stage):
         rng = frame_rng(self.params.seed, self.ctx.stream, t, PURPOSE)  # type: ignore[attr-defined]
         if cloud.k.max(initial=0) >= self.markov.shape[0]:
             raise StageInputError(f"particles {seq}: exemplar index beyond the model's K={self.markov.shape[0]}")
-        # k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1})
+        frame = inputs.get("frames")
+        dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
+        # k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame periods
         k = sample_markov(cloud.k, self.markov, rng)
-        alpha = cloud.alpha.copy() if self.fixed_alpha else self.dynamics.predict(cloud.alpha, rng)
+        alpha = cloud.alpha.copy() if self.fixed_alpha else self.dynamics.predict(cloud.alpha, rng, dt)
         out = ParticleCloud(alpha=alpha, k=k, log_w=np.zeros(cloud.n))
         self.done += 1
         return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]

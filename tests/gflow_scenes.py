@@ -20,7 +20,9 @@ from stages.messages import Features, Header, NDArray, decode, encode
 
 #: parameters matched to :func:`synthetic_sequence` (as in tests/core/test_gflow_tracking.py)
 SYNTH = dict(n_experts=10, n_samples=8, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4, depth_ratio=1.0,
-             prior_std_rotation=0.1, prior_std_translation=10.0, prior_std_coefficients=2.0)
+             prior_std_rotation=0.1, prior_std_translation=10.0, prior_std_coefficients=2.0,
+             model="", contrast_sigma=0.0, texture_decay=1.0, reset_rate=0.0, photometric=True,
+             max_rotation_deg=30.0)
 
 
 def render_folder(folder: Path, n_frames: int = 20, shape=(120, 160), seed: int = 3) -> tuple[SyntheticSequence, np.ndarray]:

@@ -150,7 +150,7 @@ def test_model_files(scene, tmp_path, gflow_cmd) -> None:
     # a good user model file (here: the generic head, 7 x 5 vertices) is placed in the box and tracked
     good = save_model(tmp_path / "head.npz", EllipsoidHead(n_lon=7, n_lat=5).model())
     rec = tmp_path / "run.mcap"
-    run_inline(plan_for(folder, seq.box, model=str(good), **SYNTH), recording=str(rec))
+    run_inline(plan_for(folder, seq.box, **dict(SYNTH, model=str(good))), recording=str(rec))
     est = pose_estimates(rec)
     assert sorted(est) == list(range(FRAMES)) and est[FRAMES - 1].mean_points.array().shape == (35, 2)
     assert est[FRAMES - 1].state == "track" and _finite_outputs(rec)

@@ -44,7 +44,8 @@ def test_gflow_track_command(tmp_path, gflow_cmd) -> None:
     out = subprocess.run([*gflow_cmd, "track", str(tmp_path / "frames"), "--tracker", "gflow", "--init", init,
                           "--out", str(tmp_path / "b.csv"), "--record", str(tmp_path / "r.mcap"), "--inline", "-q",
                           "--experts", "6", "--samples", "4", "--alpha", "0.5", "--no-background",
-                          "--gflow-set", "psi_v=1e-5"], capture_output=True, text=True, timeout=120)
+                          "--gflow-set", "psi_v=1e-5", "--model", "ellipsoid"], capture_output=True, text=True,
+                         timeout=120)
     assert out.returncode == 0, out.stderr
     boxes = read_boxes(tmp_path / "b.csv")
     assert sorted(boxes) == list(range(8))

@@ -49,6 +49,7 @@ Departures from the paper
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Sequence
@@ -65,7 +66,7 @@ from .credibility import (
     posterior_mean_pose,
     resample_experts,
 )
-from .geometry import COEF, ROT, TRANS, box_plus, project, rotation_matrices
+from .geometry import COEF, N_RIGID, ROT, TRANS, box_plus, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box
 from .image import bilinear_stencil, frame_pyramid, prepare_frame, validate_frame
 from .photometric import Photometric, correct, gain_bias
@@ -80,9 +81,10 @@ from .pose_opinion import (
     log_likelihood,
     log_pose_prior,
     prior_mean,
+    RotationReset,
 )
 from .background import TiledBackground, TiledTexels
-from .texture import kalman_update, object_mask
+from .texture import anchored_predict, kalman_update, object_mask
 
 __all__ = [
     "GFlowConfig",
@@ -192,6 +194,20 @@ class GFlowConfig:
     scale_reference : tuple of float
         ``c_0``, the initial morph coefficients, needed by ``max_scale_change`` (the G-flow
         stages set it from the initial box; empty = no wall).
+    morph_prior_std : tuple of float
+        Standard deviations ``m_j`` (one, or ``k - 1``) of a stationary Gaussian factor
+        ``N(c_j; 0, m_j^2)`` on the morph coefficients ``c_2 .. c_k`` in the pose prior, so that
+        expressions stay within what the model was learned from (:meth:`morph_shrink`); empty
+        or ``inf`` = none (the paper's prior is left open, sec. 2). The G-flow stages set it
+        from a learned model's ``morph_std``.
+    texture_decay : float in (0, 1]
+        ``a``: the object texels revert toward the first frame's look, ``V_t - v_1 = a (V_{t-1} - v_1) +
+        Z`` (:func:`.texture.anchored_predict`); ``1`` = the paper's random walk (default).
+    reset_rate, reset_std_deg, reset_min_deg : float
+        The pose transition's rotation is a mixture: the random walk with probability ``1 - reset_rate``,
+        a Gaussian of std ``reset_std_deg`` about the frontal orientation with probability ``reset_rate``;
+        experts turned by at least ``reset_min_deg`` also try a peak started frontal
+        (:class:`.pose_opinion.RotationReset`). ``reset_rate = 0`` = the random walk alone (default).
     """
 
     n_experts: int = 20
@@ -223,6 +239,11 @@ class GFlowConfig:
     outlier_sigmas: float = math.inf
     max_scale_change: float = math.inf
     scale_reference: tuple[float, ...] = ()
+    morph_prior_std: tuple[float, ...] = ()
+    texture_decay: float = 1.0
+    reset_rate: float = 0.0
+    reset_std_deg: float = 20.0
+    reset_min_deg: float = 10.0
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -276,9 +297,22 @@ class GFlowConfig:
         if ref and not (all(math.isfinite(x) for x in ref) and math.hypot(*ref) > 0.0):
             raise ValueError(f"scale_reference must be finite and not all zero, got {self.scale_reference!r}")
         object.__setattr__(self, "scale_reference", ref)
+        object.__setattr__(self, "morph_prior_std", _as_std_tuple("morph_prior_std", self.morph_prior_std, None)
+                           if len(self.morph_prior_std) else ())
         v = self.search_stride
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"search_stride must be an integer >= 1, got {v!r}")
+        if not (0.0 <= self.reset_rate < 1.0):
+            raise ValueError(f"reset_rate must be in [0, 1), got {self.reset_rate!r}")
+        for nm in ("reset_std_deg", "reset_min_deg"):
+            v = getattr(self, nm)
+            if not (math.isfinite(v) and v > 0.0):
+                raise ValueError(f"{nm} must be finite and > 0, got {v!r}")
+        if self.reset_rate > 0 and not all(math.isfinite(v) for v in _as_std_tuple(
+                "prior_std_rotation", self.prior_std_rotation, 3)):
+            raise ValueError("reset_rate > 0 needs a finite prior_std_rotation (the walk it mixes with)")
+        if not (0.0 < self.texture_decay <= 1.0):
+            raise ValueError(f"texture_decay must be in (0, 1], got {self.texture_decay!r}")
         if not (0.0 < self.resample_ess_fraction <= 1.0):
             raise ValueError(f"resample_ess_fraction must be in (0, 1], got {self.resample_ess_fraction!r}")
         object.__setattr__(
@@ -297,12 +331,22 @@ class GFlowConfig:
             return None
         return math.hypot(*self.scale_reference), math.log(self.max_scale_change)
 
+    def rotation_reset(self) -> RotationReset | None:
+        """The mixture transition of the rotation (:class:`.pose_opinion.RotationReset`), or None."""
+        if self.reset_rate == 0.0:
+            return None
+        return RotationReset(rate=self.reset_rate, std=math.radians(self.reset_std_deg),
+                             min_angle=math.radians(self.reset_min_deg),
+                             walk_std=np.broadcast_to(np.asarray(self.prior_std_rotation, dtype=np.float64), (3,)))
+
     def photometric_model(self) -> Photometric | None:
         """The gain/bias settings, or None when ``photometric`` is off."""
         return Photometric(gain_max=self.photometric_gain_max) if self.photometric else None
 
     def prior_std(self, k: int) -> np.ndarray:
-        """Random-walk standard deviations ``(5 + k,)`` in the pose vector layout."""
+        """Standard deviations ``(5 + k,)`` of the pose transition in the pose vector layout: the
+        random walk's, and for ``c_2 .. c_k`` with a morph prior ``1 / sqrt(1/std^2 + 1/m^2)``
+        (:meth:`morph_shrink`)."""
         c = self.prior_std_coefficients
         if len(c) not in (1, k):
             raise ValueError(f"prior_std_coefficients has {len(c)} values but the model has k={k} morph bases")
@@ -310,7 +354,39 @@ class GFlowConfig:
         out[ROT] = self.prior_std_rotation
         out[TRANS] = self.prior_std_translation
         out[COEF] = c
+        lam, kap = self._morph_precisions(k)
+        if kap is not None:
+            # N(c; c', std^2) N(c; 0, m^2) has precision 1/std^2 + 1/m^2
+            out[N_RIGID + 1:] = 1.0 / np.sqrt(lam + kap)
         return out
+
+    def _morph_precisions(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Random-walk and morph-prior precisions of ``c_2 .. c_k`` (None: no morph prior)."""
+        m = self.morph_prior_std
+        if not m or k < 2:
+            return np.zeros(max(k - 1, 0)), None
+        if len(m) not in (1, k - 1):
+            raise ValueError(f"morph_prior_std has {len(m)} values but the model has k - 1 = {k - 1} morphs")
+        c = np.broadcast_to(np.asarray(self.prior_std_coefficients, dtype=np.float64), (k,))[1:]
+        lam = np.where(np.isinf(c), 0.0, 1.0 / np.where(np.isinf(c), 1.0, c) ** 2)
+        mm = np.broadcast_to(np.asarray(m, dtype=np.float64), (k - 1,))
+        kap = np.where(np.isinf(mm), 0.0, 1.0 / np.where(np.isinf(mm), 1.0, mm) ** 2)
+        if ((lam + kap) <= 0).any():
+            raise ValueError("a morph coefficient has neither a finite random walk nor a finite morph prior")
+        return lam, kap
+
+    def morph_shrink(self, k: int) -> np.ndarray | None:
+        """Factors ``a (k,)`` of the transition's mean ``a * c_{t-1}`` (None: all 1, no morph prior).
+
+        The random walk ``N(c_t; c_{t-1}, std^2)`` times the stationary factor ``N(c_t; 0, m^2)``,
+        normalised over ``c_t``, is ``N(c_t; a c_{t-1}, 1 / (1/std^2 + 1/m^2))`` with
+        ``a = (1/std^2) / (1/std^2 + 1/m^2)``: an AR(1) process on each morph coefficient (``a = 1``
+        for ``c_1``, the scale). Its stationary spread is about ``m / sqrt(2)`` when ``m >> std``.
+        """
+        lam, kap = self._morph_precisions(k)
+        if kap is None:
+            return None
+        return np.concatenate([[1.0], lam / (lam + kap)])
 
 
 @dataclass(frozen=True)
@@ -331,6 +407,9 @@ class ExpertState:
     log_credibility : (E,) float64
         Normalised log credibilities (uniform after resampling).
     image_shape : (H, W)
+    tex_anchor : (n,) float64 or None
+        The first frame's texels at the initial pose, toward which the texels revert when
+        ``GFlowConfig.texture_decay < 1`` (:func:`.texture.anchored_predict`).
     """
 
     poses: np.ndarray
@@ -340,6 +419,7 @@ class ExpertState:
     bg_var: np.ndarray | None
     log_credibility: np.ndarray
     image_shape: tuple[int, int]
+    tex_anchor: np.ndarray | None = None
 
     @property
     def n_experts(self) -> int:
@@ -375,6 +455,9 @@ class Proposals:
         ``log p(y_t | u_{1:t-1}^(d), y_{1:t-1})`` estimated by eq. 19.
     gn_objective : (E',) float64
         Gauss-Newton objective at ``u_hat`` (diagnostic).
+    reset : (E',) bool
+        Experts whose peak is the frontal reset's and whose texture restarts from the first look
+        (:class:`.pose_opinion.RotationReset`; all False without ``reset_rate``).
     """
 
     expert_indices: np.ndarray
@@ -384,6 +467,7 @@ class Proposals:
     log_weights: np.ndarray
     log_evidence: np.ndarray
     gn_objective: np.ndarray
+    reset: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -414,6 +498,12 @@ class Estimate:
     parents : (E,) int64
         Parent of each new expert.
     resampled : bool
+    inlier_fraction : float
+        Credibility-weighted mean over the new experts and the vertices of the probability that the
+        vertex shows the object rather than an outlier, ``1 / (1 + exp((e^2 - tau^2) / 2))`` with ``e``
+        its standardised residual (eq. 13) and ``tau`` = ``outlier_sigmas`` (3 if infinite): the
+        outlier process of the likelihood, whose density is the object's at ``tau`` standard
+        deviations (0 for a vertex outside the image).
     """
 
     pose: np.ndarray
@@ -427,6 +517,7 @@ class Estimate:
     log_credibility: np.ndarray
     parents: np.ndarray
     resampled: bool
+    inlier_fraction: float = 1.0
 
 
 def expert_rngs(seed: int, stream_hash: int, t: int, indices: Sequence[int]) -> list[np.random.Generator]:
@@ -498,14 +589,30 @@ def init_state(
         bg_var=bg_var,
         log_credibility=_ro(np.full(E, -np.log(E))),
         image_shape=tuple(img.shape),  # type: ignore[arg-type]
+        tex_anchor=None if cfg.texture_decay == 1.0 else _ro(texture_anchor(model, u0, img)),
     )
 
 
+def texture_anchor(model: MorphableModel, pose0: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    """The first frame's texels at the initial pose ``v_1`` (n,): the frame at the projected vertices
+    (0.5 where a vertex is outside the image); the anchor of :func:`.texture.anchored_predict`."""
+    st = bilinear_stencil(project(model.bases, np.asarray(pose0, dtype=np.float64)), frame.shape)
+    return np.where(st.inside, st.sample(np.ascontiguousarray(frame, dtype=np.float64).reshape(-1)), 0.5)
+
+
+def predict_texels(state: ExpertState, rows: np.ndarray, cfg: GFlowConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted object texels (eq. 9, 10; with ``texture_decay < 1`` :func:`.texture.anchored_predict`) of the
+    experts ``rows``: means and variances ``(len(rows), n)``."""
+    return anchored_predict(state.tex_mean[rows], state.tex_var[rows], cfg.psi_v, cfg.texture_decay,
+                            state.tex_anchor)
+
+
 def _texture_view(state: ExpertState, idx: np.ndarray, cfg: GFlowConfig) -> TextureView:
-    # predicted texture (eq. 9, 10): mean unchanged, variance + Psi
+    # predicted texture (eq. 9, 10): mean unchanged, variance + Psi (or reverting toward the first look)
+    mean, var = predict_texels(state, idx, cfg)
     return TextureView(
-        mean=state.tex_mean[idx],
-        var=state.tex_var[idx] + cfg.psi_v,
+        mean=mean,
+        var=var,
         bg_mean=state.bg_mean,
         bg_var=state.bg_var,
         bg_rows=idx if state.bg_mean is not None else None,
@@ -520,6 +627,7 @@ def propose(
     cfg: GFlowConfig,
     rngs: Sequence[np.random.Generator],
     expert_indices: Sequence[int] | np.ndarray | None = None,
+    dt: float = 1.0,
 ) -> Proposals:
     """Pose opinions (sec. 3.2) and likelihoods (eq. 19) of some or all experts.
 
@@ -537,6 +645,9 @@ def propose(
         own generator only (nothing when ``alpha == 0``).
     expert_indices : sequence of int, optional
         Which experts (default: all, ``0 .. E-1``).
+    dt : float
+        Frame periods since ``t - 1`` (1: the next frame; a live source skips frames): the
+        prior's standard deviations grow as sqrt(dt). With dt = 1 the bits are the one-step model's.
 
     Returns
     -------
@@ -558,10 +669,10 @@ def propose(
         idx = idx.astype(np.int64)
     if len(rngs) != idx.size:
         raise ValueError(f"need one rng per proposed expert: got {len(rngs)} rngs for {idx.size} experts")
-    prior_std = cfg.prior_std(model.n_bases)
+    prior_std = cfg.prior_std(model.n_bases) * math.sqrt(dt)  # p(u_t | u_{t-1}) over dt periods
     prev = state.poses[idx]
     # mean of p(u_t | u_{t-1}): u_{t-1} itself unless its rotation decays toward the identity
-    centre = prior_mean(prev, cfg.prior_rotation_decay)
+    centre = prior_mean(prev, cfg.prior_rotation_decay, cfg.morph_shrink(model.n_bases))
     tv = _texture_view(state, idx, cfg)
     # u_hat = argmin eq. 14 (Gauss-Newton from u_{t-1}; second background term ignored, first one too
     # unless gn_background)
@@ -569,8 +680,13 @@ def propose(
     max_rot = math.radians(cfg.max_rotation_deg)
     osq = cfg.outlier_sigmas ** 2
     scale = cfg.scale_limits()
+    reset = cfg.rotation_reset()
+    if reset is not None and state.tex_anchor is not None:
+        # a reset also restarts the texture from the first look (the anchor of texture_decay)
+        reset = dataclasses.replace(reset, anchor_mean=state.tex_anchor,
+                                    anchor_var=np.full(state.tex_anchor.shape, cfg.v_init_var + cfg.psi_v))
     if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
-            and not math.isfinite(osq) and scale is None):
+            and not math.isfinite(osq) and scale is None and reset is None):
         gn = gauss_newton_peak(
             model.bases, fd, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
             use_background=cfg.gn_background,
@@ -581,11 +697,15 @@ def propose(
             model.bases, frame_pyramid(fd, cfg.pyramid_levels), centre, tv, cfg.sigma_w, prior_std,
             cfg.gn_iterations, start=prev, use_background=cfg.gn_background, photometric=ph,
             offsets=search_offsets(cfg.search_radius, cfg.search_step), max_rotation=max_rot,
-            search_stride=cfg.search_stride, outlier_sq=osq, scale=scale,
+            search_stride=cfg.search_stride, outlier_sq=osq, scale=scale, reset=reset,
         )
+    flags = np.zeros(idx.size, dtype=bool) if gn.reset is None else gn.reset
+    if flags.any() and reset is not None and reset.anchor_mean is not None:
+        # experts that took the reset are weighed with the first look's texels
+        tv = _with_anchor(tv, flags, reset)
     # u^(d,e) ~ g(. | u_hat, alpha Sigma_hat),  Sigma_hat = inverse Hessian of eq. 14
     samples, log_g, sigma_hat = laplace_proposal(gn.u_hat, gn.hessian, cfg.alpha, cfg.n_samples, rngs)
-    log_prior = log_pose_prior(centre, samples, prior_std, max_rot, scale)
+    log_prior = log_pose_prior(centre, samples, prior_std, max_rot, scale, reset)
     bgt = background_image_terms(fd.image, tv, cfg.sigma_w) if tv.has_background else None
     # full likelihood, eq. 13
     log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt, photometric=ph, outlier_sq=osq)
@@ -601,7 +721,15 @@ def propose(
         log_weights=_ro(log_w),
         log_evidence=_ro(log_ev),
         gn_objective=_ro(gn.objective),
+        reset=_ro(np.array(flags, dtype=bool)),
     )
+
+
+def _with_anchor(tv: TextureView, rows: np.ndarray, reset) -> TextureView:
+    """``tv`` with the texels of the experts ``rows`` (bool) replaced by the reset's first look."""
+    mean, var = np.array(tv.mean), np.array(tv.var)
+    mean[rows], var[rows] = reset.anchor_mean, reset.anchor_var
+    return dataclasses.replace(tv, mean=mean, var=var)
 
 
 def concatenate_proposals(parts: Sequence[Proposals]) -> Proposals:
@@ -678,16 +806,26 @@ def update(
     pts = project(model.bases, poses)
     st = bilinear_stencil(pts, img.shape)
     y = st.sample(img.reshape(-1))
-    pred_mean, pred_var = state.tex_mean[parents], state.tex_var[parents] + cfg.psi_v
+    pred_mean, pred_var = predict_texels(state, parents, cfg)
+    restart = proposals.reset[parents]
+    if restart.any() and state.tex_anchor is not None:
+        # children of an expert that took the frontal reset start from the first look's texels
+        pred_mean, pred_var = np.array(pred_mean), np.array(pred_var)
+        pred_mean[restart], pred_var[restart] = state.tex_anchor, cfg.v_init_var + cfg.psi_v
     ph = cfg.photometric_model()
     if ph is not None:
         # the texels observe the light-corrected frame (y - b) / a (see photometric)
         a, b = gain_bias(y, pred_mean, 1.0 / (pred_var + cfg.sigma_w), ph)
         y = correct(y, a, b)
+    vv = pred_var + cfg.sigma_w
+    r2 = (y - pred_mean) ** 2
+    tau = cfg.outlier_sigmas if math.isfinite(cfg.outlier_sigmas) else 3.0
+    # P(object | y) = N(e) / (N(e) + N(tau)): the texel's Gaussian (eq. 13) against the outlier process
+    p_in = np.where(st.inside, 1.0 / (1.0 + np.exp(np.minimum(0.5 * (r2 / vv - tau * tau), 700.0))), 0.0)
     observed = st.inside
     if math.isfinite(cfg.outlier_sigmas):
         # outlier vertices (occluder, highlight) are not learned: prediction only
-        observed = observed & ((y - pred_mean) ** 2 <= cfg.outlier_sigmas ** 2 * (pred_var + cfg.sigma_w))
+        observed = observed & (r2 <= cfg.outlier_sigmas ** 2 * vv)
     # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
     tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=observed)
     bg_mean = bg_var = None
@@ -705,6 +843,7 @@ def update(
         bg_var=bg_var,
         log_credibility=_ro(new_log_cred),
         image_shape=state.image_shape,
+        tex_anchor=state.tex_anchor,
     )
     est = Estimate(
         pose=_ro(mean_pose),
@@ -718,6 +857,7 @@ def update(
         log_credibility=_ro(log_cred),
         parents=_ro(parents),
         resampled=resampled,
+        inlier_fraction=float(W @ p_in.mean(axis=1) / W.sum()),
     )
     return new_state, est
 

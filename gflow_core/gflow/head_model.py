@@ -23,12 +23,24 @@ flat ``dict[str, numpy.ndarray]``; ``pipeline/`` writes and reads it with
 ==================  ===========  ======  ==========================================
 key                 shape        dtype   meaning
 ==================  ===========  ======  ==========================================
-``format_version``  ``()``       int     ``1`` (:data:`MODEL_FORMAT_VERSION`)
+``format_version``  ``()``       int     ``2`` (:data:`MODEL_FORMAT_VERSION`; ``1``, the
+                                         same without the optional face keys, is
+                                         read too)
 ``bases``           ``(n,3,k)``  float   ``bases[i, :, j]`` = vertex ``i`` in morph
                                          basis ``j`` (model units, camera-aligned
                                          axes: x right, y down, z away from camera)
 ``triangles``       ``(T, 3)``   int     optional: vertex indices of mesh triangles
                                          (drawing only; not used by the filter)
+``landmarks``       ``(n,)``     int     optional: the index of the reference
+                                         landmark each vertex was learned from
+                                         (distinct, >= 0; :mod:`.morphable_learn`)
+``reference_box``   ``(4,)``     float   optional: ``(x, y, w, h)`` in model units
+                                         about the origin, at the identity rotation
+                                         and ``c = (1, 0, ...)``: where a user's box
+                                         sits on the object (:func:`pose_for_box`)
+``morph_std``       ``(k,)``     float   optional: training spread of ``c_j / c_1``
+                                         (``>= 0``; for reading expressions in
+                                         standard deviations)
 ==================  ===========  ======  ==========================================
 
 ``n >= 3``, ``k >= 1``, every value finite, triangle indices in ``[0, n)``. Any
@@ -58,7 +70,9 @@ __all__ = [
 ]
 
 #: Version of the model array format written by :func:`model_to_arrays`.
-MODEL_FORMAT_VERSION = 1
+MODEL_FORMAT_VERSION = 2
+#: Model array format versions :func:`model_from_arrays` reads.
+READABLE_FORMAT_VERSIONS = (1, 2)
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -76,15 +90,27 @@ class MorphableModel:
         ``bases[i]`` is the paper's ``h_i`` (3 x k).
     triangles : (T, 3) int64 or None
         Optional mesh for drawing.
+    landmarks : (n,) int64 or None
+        The reference landmark each vertex was learned from (a learned face,
+        :mod:`.morphable_learn`); None for other models.
+    reference_box : (4,) float64 or None
+        ``(x, y, w, h)`` in model units about the origin (identity rotation, ``c = (1, 0, ...)``):
+        where a user's box sits on the object. None: the projected vertices' bounding box.
+    morph_std : (k,) float64 or None
+        Spread of ``c_j / c_1`` over the training frames.
 
     Raises
     ------
     ValueError
-        On a wrong shape, fewer than 3 vertices, non-finite values or bad triangles.
+        On a wrong shape, fewer than 3 vertices, non-finite values, bad triangles or landmark
+        indices.
     """
 
     bases: np.ndarray
     triangles: np.ndarray | None = None
+    landmarks: np.ndarray | None = None
+    reference_box: np.ndarray | None = None
+    morph_std: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         b = np.asarray(self.bases)
@@ -110,6 +136,24 @@ class MorphableModel:
             if t.size and (t.min() < 0 or t.max() >= n):
                 raise ValueError(f"model triangle indices must lie in [0, {n}), got [{t.min()}, {t.max()}]")
             object.__setattr__(self, "triangles", _readonly(np.array(t, dtype=np.int64, order="C")))
+        if self.landmarks is not None:
+            lm = np.asarray(self.landmarks)
+            if not np.issubdtype(lm.dtype, np.integer) or lm.shape != (n,):
+                raise ValueError(f"model landmarks must be {n} integers (one per vertex), got {lm.dtype} {lm.shape}")
+            if lm.size and (lm.min() < 0 or np.unique(lm).size != n):
+                raise ValueError("model landmarks must be distinct non-negative indices")
+            object.__setattr__(self, "landmarks", _readonly(np.array(lm, dtype=np.int64)))
+        if self.reference_box is not None:
+            rb = np.asarray(self.reference_box, dtype=np.float64)
+            if rb.shape != (4,) or not np.isfinite(rb).all() or rb[2] <= 0 or rb[3] <= 0:
+                raise ValueError(f"model reference_box must be a finite (x, y, w, h) with w, h > 0, got "
+                                 f"{np.asarray(self.reference_box).tolist()}")
+            object.__setattr__(self, "reference_box", _readonly(rb.copy()))
+        if self.morph_std is not None:
+            ms = np.asarray(self.morph_std, dtype=np.float64)
+            if ms.shape != (k,) or not np.isfinite(ms).all() or (ms < 0).any():
+                raise ValueError(f"model morph_std must be {k} finite numbers >= 0, got {ms.shape}")
+            object.__setattr__(self, "morph_std", _readonly(ms.copy()))
 
     @property
     def n_vertices(self) -> int:
@@ -309,9 +353,11 @@ def pose_for_box(
     """Initial pose placing any morphable model (e.g. a user-supplied one) in a box.
 
     Identity rotation; coefficients ``s * c0`` with ``c0`` = ``coefficients`` (default
-    ``(1, 0, ..., 0)``) and the scale ``s`` fitting the projected bounding box's width
-    and height to the box's in the least-squares sense; translation putting the
-    bounding box's centre at the box's centre. Exact when the aspect ratios agree.
+    ``(1, 0, ..., 0)``) and the scale ``s`` fitting the width and height of the model's box
+    to the box's in the least-squares sense; translation putting the model's box centre at
+    the box's centre. Exact when the aspect ratios agree. The model's box is its
+    ``reference_box`` (where a user's box sits on a learned face) when it has one and
+    ``coefficients`` is None, else the bounding box of the vertices projected at ``c0``.
 
     Parameters
     ----------
@@ -332,7 +378,10 @@ def pose_for_box(
         c0[0] = 1.0
     if c0.shape != (k,) or not np.isfinite(c0).all():
         raise ValueError(f"coefficients must be {k} finite numbers, got {coefficients!r}")
-    bb = bounding_box(project(model.bases, make_pose(None, [0.0, 0.0], c0)))
+    if model.reference_box is not None and coefficients is None:
+        bb = np.asarray(model.reference_box)
+    else:
+        bb = bounding_box(project(model.bases, make_pose(None, [0.0, 0.0], c0)))
     bw, bh = bb[2], bb[3]
     if bw <= 0 and bh <= 0:
         raise ValueError("the model projects to a single point with these coefficients")
@@ -356,7 +405,15 @@ def model_to_arrays(model: MorphableModel) -> dict[str, np.ndarray]:
     }
     if model.triangles is not None:
         out["triangles"] = np.array(model.triangles, dtype=np.int64)
+    for key in _FACE_KEYS:
+        v = getattr(model, key)
+        if v is not None:
+            out[key] = np.array(v)
     return out
+
+
+#: Optional keys of format version 2 (a learned face, :mod:`.morphable_learn`).
+_FACE_KEYS = ("landmarks", "reference_box", "morph_std")
 
 
 def model_from_arrays(d: dict[str, np.ndarray]) -> MorphableModel:
@@ -368,7 +425,7 @@ def model_from_arrays(d: dict[str, np.ndarray]) -> MorphableModel:
         On a missing or unknown key, a wrong version, shape or dtype, or bad values.
     """
     keys = set(d.keys())
-    allowed = {"format_version", "bases", "triangles"}
+    allowed = {"format_version", "bases", "triangles", *_FACE_KEYS}
     missing = {"format_version", "bases"} - keys
     if missing:
         raise ValueError(f"model arrays are missing key(s): {sorted(missing)}")
@@ -378,10 +435,17 @@ def model_from_arrays(d: dict[str, np.ndarray]) -> MorphableModel:
     ver = np.asarray(d["format_version"])
     if ver.shape != () or not np.issubdtype(ver.dtype, np.integer):
         raise ValueError(f"format_version must be an integer scalar, got shape {ver.shape} dtype {ver.dtype}")
-    if int(ver) != MODEL_FORMAT_VERSION:
-        raise ValueError(f"unsupported model format_version {int(ver)} (this code reads {MODEL_FORMAT_VERSION})")
+    if int(ver) not in READABLE_FORMAT_VERSIONS:
+        raise ValueError(f"unsupported model format_version {int(ver)} (this code reads "
+                         f"{', '.join(map(str, READABLE_FORMAT_VERSIONS))})")
+    if int(ver) == 1 and keys & set(_FACE_KEYS):
+        raise ValueError(f"format_version 1 has no {sorted(keys & set(_FACE_KEYS))} (version 2 does)")
     bases = np.asarray(d["bases"])
     if not np.issubdtype(bases.dtype, np.floating):
         raise ValueError(f"bases must be floating point, got dtype {bases.dtype}")
+    for key in ("reference_box", "morph_std"):
+        if key in d and not np.issubdtype(np.asarray(d[key]).dtype, np.floating):
+            raise ValueError(f"{key} must be floating point, got dtype {np.asarray(d[key]).dtype}")
     tri = d.get("triangles")
-    return MorphableModel(bases=bases, triangles=None if tri is None else np.asarray(tri))
+    return MorphableModel(bases=bases, triangles=None if tri is None else np.asarray(tri),
+                          **{key: np.asarray(d[key]) for key in _FACE_KEYS if key in d})

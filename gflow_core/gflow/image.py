@@ -20,7 +20,7 @@ import numpy as np
 
 __all__ = [
     "validate_frame", "FrameData", "prepare_frame", "frame_pyramid", "BilinearStencil", "bilinear_stencil",
-    "stencil_xy",
+    "stencil_xy", "local_contrast",
 ]
 
 
@@ -113,6 +113,41 @@ def frame_pyramid(fd: FrameData, levels: int) -> list[FrameData]:
         out.append(FrameData(img, img.reshape(-1), np.ascontiguousarray(gx).reshape(-1),
                              np.ascontiguousarray(gy).reshape(-1)))
     return out
+
+
+#: :func:`local_contrast`: the floor of the local standard deviation (grey levels in [0, 1]) and
+#: the softness of the squashing (in local standard deviations).
+CONTRAST_FLOOR = 0.02
+CONTRAST_SOFTNESS = 2.0
+
+
+def local_contrast(frame: np.ndarray, sigma: float) -> np.ndarray:
+    """Local contrast normalisation of a grey frame (a departure from the paper's raw intensities).
+
+    ``z = (y - G*y) / sqrt(G*(y - G*y)^2 + f^2)`` with ``G`` a Gaussian of std ``sigma`` pixels and
+    ``f`` = :data:`CONTRAST_FLOOR`, squashed back into ``[0, 1]`` as ``0.5 + 0.5 tanh(z / 2)``. Each
+    pixel is read against its neighbourhood, so a change of light that is smooth over ``sigma``
+    pixels (brightness, contrast, a slow shading gradient) leaves it unchanged, and a face
+    template learned in the dark still matches in the light. The floor keeps the noise of flat,
+    dark regions from being amplified.
+
+    Parameters
+    ----------
+    frame : (H, W) float64 in [0, 1]
+    sigma : float > 0
+
+    Returns
+    -------
+    (H, W) float64 in (0, 1)
+    """
+    import cv2
+
+    img = validate_frame(frame)
+    m = cv2.GaussianBlur(img, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    d = img - m
+    v = cv2.GaussianBlur(d * d, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    z = d / np.sqrt(v + CONTRAST_FLOOR ** 2)
+    return 0.5 + 0.5 * np.tanh(z / CONTRAST_SOFTNESS)
 
 
 class BilinearStencil:

@@ -138,6 +138,7 @@ __all__ = [
     "MIN_CURVATURE_FRACTION",
     "TextureView",
     "GaussNewtonResult",
+    "RotationReset",
     "log_pose_prior",
     "gauss_newton_objective",
     "gauss_newton_peak",
@@ -223,11 +224,14 @@ class GaussNewtonResult:
         Gauss-Newton Hessian at ``u_hat`` (positive definite); ``Sigma_hat = hessian^-1``.
     objective : (E,) float64
         Gauss-Newton objective at ``u_hat``.
+    reset : (E,) bool or None
+        Experts whose peak is that of the frontal reset (:class:`RotationReset`); None: no reset tried.
     """
 
     u_hat: np.ndarray
     hessian: np.ndarray
     objective: np.ndarray
+    reset: np.ndarray | None = None
 
 
 def prior_precision(prior_std: np.ndarray) -> np.ndarray:
@@ -236,7 +240,8 @@ def prior_precision(prior_std: np.ndarray) -> np.ndarray:
     return np.where(np.isinf(std), 0.0, 1.0 / np.where(np.isinf(std), 1.0, std) ** 2)
 
 
-def prior_mean(prev: np.ndarray, rotation_decay: float = 1.0) -> np.ndarray:
+def prior_mean(prev: np.ndarray, rotation_decay: float = 1.0, coefficient_shrink: np.ndarray | None = None
+               ) -> np.ndarray:
     """Mean ``m(u_{t-1})`` of the pose transition ``p(u_t | u_{t-1})``.
 
     Parameters
@@ -245,17 +250,23 @@ def prior_mean(prev: np.ndarray, rotation_decay: float = 1.0) -> np.ndarray:
         ``u_{t-1}``.
     rotation_decay : float in (0, 1]
         ``a``: the mean's rotation is ``exp(a log r_{t-1})`` (rotation vector times ``a``);
-        translation and coefficients are those of ``u_{t-1}``. ``1`` returns ``prev`` itself.
+        translation is that of ``u_{t-1}``. ``1`` and no shrink return ``prev`` itself.
+    coefficient_shrink : (k,) float64, optional
+        The mean's coefficients are ``coefficient_shrink * c_{t-1}`` (the morph prior's AR(1)
+        mean, :meth:`.filter.GFlowConfig.morph_shrink`); None: ``c_{t-1}``.
 
     Returns
     -------
     (..., P) float64
     """
-    if rotation_decay == 1.0:
+    if rotation_decay == 1.0 and coefficient_shrink is None:
         return prev
     m = np.array(prev, dtype=np.float64)
     # w_m = a w_{t-1}  (geodesic from the identity to r_{t-1}, at fraction a)
     m[..., ROT] *= rotation_decay
+    if coefficient_shrink is not None:
+        # c_m = a_c c_{t-1}   (random walk times the stationary morph prior, normalised)
+        m[..., COEF] *= coefficient_shrink
     return m
 
 
@@ -361,9 +372,76 @@ def robust_cost(e2: np.ndarray, outlier_sq: float) -> np.ndarray:
     return np.minimum(e2, outlier_sq)
 
 
+@dataclass(frozen=True)
+class RotationReset:
+    """A pose transition that now and then turns the head back toward the frontal view (departure
+    from the paper, which leaves ``p(u_t | u_{t-1})`` open, sec. 2).
+
+    The rotation of ``u_t`` is drawn from a mixture: with probability ``1 - rate`` the random walk
+    about the prior's mean ``m`` (:func:`prior_mean`), with probability ``rate`` a Gaussian about
+    the identity (the frontal orientation the model was placed in)::
+
+        p(w_t | u_{t-1}) = (1 - rate) N(log(r_m^T r_t); 0, diag(walk_std^2)) + rate N(w_t; 0, std^2 I)
+
+    (translation and coefficients as in the walk). A tracker that locked on a turned pose after a
+    large head turn (the texels anchored toward the first look match the face better at the
+    frontal pose, but every step of the walk from the turned pose makes it worse) can so come
+    back: :func:`coarse_to_fine_peak` also refines, for experts turned by at least ``min_angle``,
+    a chain that starts frontal under the reset component, and keeps the peak whose objective
+    under the mixture is lower.
+
+    With an ``anchor`` (the first frame's texels, when they are the anchor of
+    :func:`.texture.anchored_predict`), a reset also restarts the expert's texture from that first
+    look: the frontal chain is fitted to the anchor texels, the two peaks are compared by their
+    objectives including the texels' normalising terms ``1/2 sum_i log(sigma_v(i) + sigma_w)``, and
+    an expert that takes the reset is weighed (eq. 13, 16, 19) and updated (eq. 7-10) from the
+    anchor texels. This is what lets an expert that followed the wrong patch through a large turn
+    (its texels learned that patch, so the wrong pose explains the frame well) find the face again.
+
+    Attributes
+    ----------
+    rate : float in (0, 1)
+    std : float
+        Radians, the spread of the reset component about frontal.
+    min_angle : float
+        Radians.
+    walk_std : (3,) float64
+        The random walk's rotation std (finite).
+    anchor_mean, anchor_var : (n,) float64 or None
+        The first look's texels and their predicted variance.
+    """
+
+    rate: float
+    std: float
+    min_angle: float
+    walk_std: np.ndarray
+    anchor_mean: np.ndarray | None = None
+    anchor_var: np.ndarray | None = None
+
+    def anchor_view(self, rows: int) -> TextureView | None:
+        """The anchor texels as the texture opinions of ``rows`` experts (None without an anchor)."""
+        if self.anchor_mean is None or self.anchor_var is None:
+            return None
+        return TextureView(mean=np.broadcast_to(self.anchor_mean, (rows, self.anchor_mean.size)),
+                           var=np.broadcast_to(self.anchor_var, (rows, self.anchor_var.size)))
+
+    def neg_log_rotation(self, centre: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """``-log p(w | u_{t-1})`` of the mixture (module docstring), for poses ``(..., P)`` against
+        prior means ``centre`` broadcast alike."""
+        ws = np.asarray(self.walk_std, dtype=np.float64)
+        d = relative_rotvecs(pose_quaternions(centre), pose_quaternions(poses))
+        w = np.asarray(poses, dtype=np.float64)[..., ROT]
+        # log N(d; 0, diag(ws^2)) and log N(w; 0, std^2 I)
+        walk = -0.5 * np.sum((d / ws) ** 2, axis=-1) - np.sum(np.log(ws)) - 1.5 * _LOG_2PI
+        jump = -0.5 * np.sum(w * w, axis=-1) / self.std ** 2 - 3.0 * np.log(self.std) - 1.5 * _LOG_2PI
+        return -np.logaddexp(np.log1p(-self.rate) + walk, np.log(self.rate) + jump)
+
+
 def log_pose_prior(prev: np.ndarray, poses: np.ndarray, prior_std: np.ndarray,
-                   max_rotation: float = np.inf, scale: tuple[float, float] | None = None) -> np.ndarray:
-    """Log of the pose transition density ``p(u_t | u_{t-1})`` (Gaussian random walk).
+                   max_rotation: float = np.inf, scale: tuple[float, float] | None = None,
+                   reset: RotationReset | None = None) -> np.ndarray:
+    """Log of the pose transition density ``p(u_t | u_{t-1})`` (Gaussian random walk; with ``reset``
+    its rotation part is the mixture of :class:`RotationReset`).
 
     Parameters
     ----------
@@ -383,11 +461,15 @@ def log_pose_prior(prev: np.ndarray, poses: np.ndarray, prior_std: np.ndarray,
     """
     std = np.asarray(prior_std, dtype=np.float64)
     fin = np.isfinite(std)
+    if reset is not None:
+        fin[ROT] = False  # the rotation's density is the mixture's, added below
     d = box_minus(prev[:, None, :], poses)[..., fin]
     sd = std[fin]
     # log N(d; 0, diag(std^2)) = -1/2 sum (d/std)^2 - sum log std - P'/2 log 2 pi
     const = -np.sum(np.log(sd)) - 0.5 * sd.size * _LOG_2PI
     out = -0.5 * np.sum((d / sd) ** 2, axis=-1) + const
+    if reset is not None:
+        out = out - reset.neg_log_rotation(prev[:, None, :], poses)
     if np.isfinite(max_rotation):
         out = out - rotation_wall(poses, max_rotation)[0]
     if scale is not None:
@@ -792,6 +874,7 @@ def coarse_to_fine_peak(
     search_stride: int = 1,
     outlier_sq: float = np.inf,
     scale: tuple[float, float] | None = None,
+    reset: RotationReset | None = None,
 ) -> GaussNewtonResult:
     """Coarse-to-fine Gauss-Newton peak of eq. 14 on an image pyramid (departure from the paper).
 
@@ -850,13 +933,17 @@ def coarse_to_fine_peak(
             sub = TextureView(mean=tv.mean[first], var=tv.var[first])
             res = coarse_to_fine_peak(bases, pyramid, prev[first], sub, sigma_w, prior_std, n_iter, u[first],
                                       use_background, photometric, offsets, max_rotation, search_stride, outlier_sq,
-                                      scale)
-            return GaussNewtonResult(res.u_hat[inverse], res.hessian[inverse], res.objective[inverse])
+                                      scale, reset)
+            return GaussNewtonResult(res.u_hat[inverse], res.hessian[inverse], res.objective[inverse],
+                                     None if res.reset is None else res.reset[inverse])
     L = len(pyramid)
     fg = TextureView(mean=tv.mean, var=tv.var)
+    chains = (bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, use_background, photometric, max_rotation,
+              outlier_sq, scale, offsets, search_stride)
     if offsets is None or len(offsets) <= 1:
-        return _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
-                       max_rotation, outlier_sq, scale)
+        res = _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
+                      max_rotation, outlier_sq, scale)
+        return res if reset is None else _frontal_chain(res, reset, *chains)
     E = u.shape[0]
     ls = 0.5 ** (L - 1)
     sub = slice(None, None, int(search_stride))
@@ -899,7 +986,55 @@ def coarse_to_fine_peak(
     u_hat[take] = both.u_hat[E:][pick]
     hess[take] = both.hessian[E:][pick]
     obj[take] = both.objective[E:][pick]
-    return GaussNewtonResult(u_hat, hess, obj)
+    res = GaussNewtonResult(u_hat, hess, obj)
+    return res if reset is None else _frontal_chain(res, reset, *chains)
+
+
+def _frontal_chain(res: GaussNewtonResult, reset: RotationReset, bases, pyramid, prev, tv, fg, sigma_w, prior_std,
+                   n_iter, use_background, photometric, max_rotation, outlier_sq, scale, offsets,
+                   search_stride) -> GaussNewtonResult:
+    """The peak of :func:`coarse_to_fine_peak` compared with a peak started frontal under the reset
+    component of :class:`RotationReset` (found the same way, translation search included), for the
+    experts whose prior mean is turned by at least ``reset.min_angle``; the objectives compared (and
+    returned) are eq. 14's with the mixture prior."""
+    lam_rot = prior_precision(prior_std)[ROT]
+
+    def mixture_objective(obj, centre, u, lam, walk_centre):
+        # the chain's objective with its own rotation prior replaced by the mixture's -log density
+        d = relative_rotvecs(pose_quaternions(centre), pose_quaternions(u))
+        return obj - 0.5 * (lam * d * d).sum(axis=-1) + reset.neg_log_rotation(walk_centre, u)
+
+    obj = mixture_objective(res.objective, prev, res.u_hat, lam_rot, prev)
+    flags = np.zeros(prev.shape[0], dtype=bool)
+    w = prev[:, ROT]
+    sel = np.flatnonzero(np.sqrt((w * w).sum(axis=-1)) >= reset.min_angle)
+    if sel.size == 0:
+        return GaussNewtonResult(res.u_hat, res.hessian, obj, flags)
+    # the reset component: rotation about the identity with std reset.std, the rest as the walk;
+    # with an anchor, fitted to the first look's texels
+    centre = prev[sel].copy()
+    centre[:, ROT] = 0.0
+    start = res.u_hat[sel].copy()
+    start[:, ROT] = 0.0
+    std = np.array(prior_std, dtype=np.float64)
+    std[ROT] = reset.std
+    anchor = reset.anchor_view(sel.size)
+    tv_r = _rows_view(tv, sel) if anchor is None else anchor
+    fr = coarse_to_fine_peak(bases, pyramid, centre, tv_r, sigma_w, std, n_iter, start,
+                             use_background and anchor is None, photometric, offsets, max_rotation, search_stride,
+                             outlier_sq, scale)
+    obj_f = mixture_objective(fr.objective, centre, fr.u_hat, np.full(3, 1.0 / reset.std ** 2), prev[sel])
+    obj_l = obj[sel]
+    if anchor is not None:
+        # different texels: their Gaussians' normalising terms 1/2 sum log(sigma_v + sigma_w) (eq. 13) count too
+        obj_f = obj_f + 0.5 * np.log(anchor.var + sigma_w).sum(axis=-1)
+        obj_l = obj_l + 0.5 * np.log(tv.var[sel] + sigma_w).sum(axis=-1)
+    pick = obj_f < obj_l
+    take = sel[pick]
+    u_hat, hess = res.u_hat.copy(), res.hessian.copy()
+    u_hat[take], hess[take], obj[take] = fr.u_hat[pick], fr.hessian[pick], obj_f[pick]
+    flags[take] = True
+    return GaussNewtonResult(u_hat, hess, obj, flags)
 
 
 def _distinct_rows(*arrays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

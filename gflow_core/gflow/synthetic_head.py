@@ -207,8 +207,10 @@ def synthetic_sequence(
     n_lon: int = 15,
     n_lat: int = 15,
     patch_only: bool = True,
+    morph_stretch: np.ndarray | None = None,
+    morph_amp: tuple[float, ...] = (),
 ) -> SyntheticSequence:
-    """Render a head moving along a known smooth 3-D trajectory.
+    """Render a head moving along a known smooth 3-D trajectory, optionally changing its shape.
 
     The rotation vector is ``deg2rad(rot_amp_deg) * sin(2 pi f tau)`` with
     ``f = (1, 0.75, 0.5)`` cycles over the sequence (``tau`` from 0 to 1), so frame 0
@@ -216,6 +218,12 @@ def synthetic_sequence(
     and the scale ``1 + scale_amp sin(pi tau)``. The texture drifts
     (``texture_drift`` radians of phase per frame per wave) and every frame gets noise
     of std ``noise_std``. ``patch_only``: see :func:`render_head`.
+
+    Morphs (an "expression", eq. 1 with ``k > 1``): ``morph_stretch`` ``(3, k - 1)`` adds morph bases
+    to the rigid head (:class:`.head_model.EllipsoidHead`'s ``stretch``: basis ``j`` stretches the
+    semi-axes by ``morph_stretch[:, j]``), and their coefficients follow
+    ``c_{j+1} = c_1 morph_amp_j sin(2 pi (j + 1) tau)`` (zero at frame 0), so the model of the
+    sequence (``SyntheticSequence.model``) has ``k`` bases and ``poses[:, 5:]`` the true ``c``.
     """
     H, W = image_shape
     if box is None:
@@ -223,6 +231,16 @@ def synthetic_sequence(
         w = 0.8 * h
         box = (W / 2 - w / 2, H / 2 - h / 2, w, h)
     head, pose0 = fit_head_to_box(np.asarray(box), image_shape, n_lon=n_lon, n_lat=n_lat)
+    amps = np.asarray(morph_amp, dtype=np.float64).reshape(-1)
+    if morph_stretch is not None:
+        ms = np.asarray(morph_stretch, dtype=np.float64)
+        if ms.ndim != 2 or ms.shape[0] != 3 or ms.shape[1] != amps.size:
+            raise ValueError(f"morph_stretch must be (3, {amps.size}) for {amps.size} morph amplitudes, got {ms.shape}")
+        head = EllipsoidHead(head.semi_axes, n_lon, n_lat, head.lon_max_deg, head.lat_max_deg,
+                             np.concatenate([head.stretch, ms], axis=1))
+        pose0 = np.concatenate([pose0, np.zeros(amps.size)])
+    elif amps.size:
+        raise ValueError("morph_amp needs morph_stretch")
     texture = SphereTexture.random(rng, drift=texture_drift)
     background = smooth_background(image_shape, rng)
     tau = np.linspace(0.0, 1.0, n_frames) if n_frames > 1 else np.zeros(1)
@@ -234,6 +252,8 @@ def synthetic_sequence(
         w = amp * np.sin(2 * np.pi * f * ta)
         l = pose0[TRANS] + np.asarray(trans_amp_px) * np.array([np.sin(np.pi * ta), np.sin(2 * np.pi * ta)])
         c = pose0[COEF] * (1.0 + scale_amp * np.sin(np.pi * ta))
+        if amps.size:
+            c[1:] = c[0] * amps * np.sin(2 * np.pi * np.arange(1, amps.size + 1) * ta)
         poses[t] = make_pose(w, l, c)
         frames[t] = render_head(
             head, poses[t], texture, background, t=t, rng=rng, noise_std=noise_std, patch_only=patch_only

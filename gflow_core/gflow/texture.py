@@ -36,7 +36,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-__all__ = ["kalman_predict", "kalman_update", "object_mask", "background_predict_update"]
+__all__ = ["kalman_predict", "anchored_predict", "kalman_update", "object_mask", "background_predict_update"]
 
 
 def kalman_predict(mean: np.ndarray, var: np.ndarray, process_var: float) -> tuple[np.ndarray, np.ndarray]:
@@ -57,6 +57,41 @@ def kalman_predict(mean: np.ndarray, var: np.ndarray, process_var: float) -> tup
     # E(V_t | u_{1:t-1}, y_{1:t-1}) = E(V_{t-1} | u_{1:t-1}, y_{1:t-1})        (eq. 9)
     # Var(V_t | u_{1:t-1}, y_{1:t-1}) = Var(V_{t-1} | ...) + Psi                 (eq. 10)
     return mean, var + process_var
+
+
+def anchored_predict(mean: np.ndarray, var: np.ndarray, process_var: float, decay: float,
+                     anchor: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """Prediction of object texels that revert toward their first look (departure from the paper).
+
+    The paper's texture is a random walk, ``V_t = V_{t-1} + Z`` (eq. 4), so whatever the texels
+    learn (a drifting pose's background, an occluder the outlier test let through) they keep.
+    Here, optionally, each texel is an AR(1) process about the texture of the first frame
+    ``v_1``: ``V_t - v_1 = a (V_{t-1} - v_1) + Z``, ``Z ~ N(0, Psi_v)``, whose spread about ``v_1``
+    stays below ``sqrt(Psi_v / (1 - a^2))``::
+
+        mu' = v_1 + a (mu - v_1),     sigma' = a^2 sigma + Psi_v
+
+    ``a = 1`` (or no anchor) is eq. 9, 10 exactly (:func:`kalman_predict`).
+
+    Parameters
+    ----------
+    mean, var : (..., n) float64
+        Posterior at ``t - 1``.
+    process_var : float
+        ``Psi_v``.
+    decay : float in (0, 1]
+        ``a``.
+    anchor : (n,) float64 or None
+        ``v_1``, the texels of the first frame at the initial pose.
+
+    Returns
+    -------
+    mean, var : (..., n) float64
+    """
+    if decay == 1.0 or anchor is None:
+        return kalman_predict(mean, var, process_var)
+    # E(V_t | ...) = v_1 + a (E(V_{t-1} | ...) - v_1);  Var(V_t | ...) = a^2 Var(V_{t-1} | ...) + Psi_v
+    return anchor + decay * (mean - anchor), decay * decay * var + process_var
 
 
 def kalman_update(

@@ -61,11 +61,15 @@ class ARDynamics:
                 raise ValueError(f"ARDynamics.{name} contains NaN or inf")
             object.__setattr__(self, name, v)
 
-    def predict(self, alpha: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Sample alpha_t ~ p(alpha_t | alpha_{t-1}) for N particles. (N, 4) -> (N, 4)."""
+    def predict(self, alpha: np.ndarray, rng: np.random.Generator, dt: float = 1.0) -> np.ndarray:
+        """Sample alpha_t ~ p(alpha_t | alpha_{t-1}) for N particles. (N, 4) -> (N, 4).
+
+        ``dt``: the time since the previous frame in frame periods (1: the next frame); the
+        noise grows as sqrt(dt), as a random walk's does over dt steps (A itself is not raised
+        to dt). With dt = 1 the bits are those of the one-step model."""
         beta = to_beta(alpha)
-        w = rng.standard_normal(beta.shape)
-        # beta_t = mean + A (beta_{t-1} - mean) + B w
+        w = rng.standard_normal(beta.shape) * np.sqrt(dt)
+        # beta_t = mean + A (beta_{t-1} - mean) + sqrt(dt) B w
         beta_t = self.mean + (beta - self.mean) @ self.A.T + w @ self.B.T
         return from_beta(beta_t)
 

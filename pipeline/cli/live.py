@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TextIO
 
-from stages.messages import MessageError, StageStatus, decode
+from stages.messages import Capture, MessageError, StageStatus, decode
 
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.plain import describe, to_plain
@@ -108,7 +108,8 @@ def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | 
 
 @dataclass
 class RateStats:
-    """Rate over a window of arrival gaps (what ``ros2 topic hz`` prints)."""
+    """Rate over a window of arrival gaps (what ``ros2 topic hz`` prints); for messages stamped
+    by a live source, also the latency from capture to arrival here and the frames it skipped."""
 
     messages: int
     rate_hz: float
@@ -116,10 +117,31 @@ class RateStats:
     max_ms: float
     std_ms: float
     window: int
+    latency_p50_ms: float = float("nan")
+    latency_p99_ms: float = float("nan")
+    skipped: int = -1  # frames the live source skipped over the window (-1: not a live source)
+    captured: int = 0
 
     def line(self, key: str) -> str:
-        return (f"{key}: average rate {self.rate_hz:.2f} Hz  min {self.min_ms:.1f} ms  max {self.max_ms:.1f} ms  "
-                f"std dev {self.std_ms:.2f} ms  window {self.window}")
+        out = (f"{key}: average rate {self.rate_hz:.2f} Hz  min {self.min_ms:.1f} ms  max {self.max_ms:.1f} ms  "
+               f"std dev {self.std_ms:.2f} ms  window {self.window}")
+        if self.latency_p50_ms == self.latency_p50_ms:  # not NaN
+            out += f"  latency p50 {self.latency_p50_ms:.1f} ms p99 {self.latency_p99_ms:.1f} ms"
+        if self.skipped >= 0:
+            out += f"  skipped {self.skipped} of {self.captured} frames captured"
+        return out
+
+
+#: stamps after 2001-09-09 (1e18 ns since 1970) are the host clock; a file's media time starts at 0
+HOST_CLOCK_NS = 10**18
+
+
+def _stamp_of(payload: bytes) -> int:
+    """The capture stamp in a message's header (0: none, or not a gflow message)."""
+    try:
+        return int(decode(payload).header.stamp_ns)
+    except (MessageError, AttributeError):
+        return 0
 
 
 def rate_stats(times: list[float], window: int | None = None) -> RateStats | None:
@@ -143,14 +165,42 @@ def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: Te
     ``duration`` s (None: until Ctrl-C). Returns the last statistics (None: fewer than 2 messages)."""
     s = _session(settings)
     q: queue.SimpleQueue = queue.SimpleQueue()
-    Bus(s).subscribe(key, lambda k, p, ns, seq: q.put(time.monotonic()))
+    # arrival (monotonic), latency (ms, NaN when the stamp is not the host clock)
+    bus = Bus(s)
+    bus.subscribe(key, lambda k, p, ns, seq: q.put((time.monotonic(), time.time_ns(), p)))
+    live = _LiveCounts()
+    parts = key.split("/")
+    if len(parts) > 2 and parts[0] == "gflow" and "*" not in parts[1]:  # the stream's live source, if any
+        bus.subscribe(f"gflow/{parts[1]}/captures", lambda k, p, ns, seq: live.add(p))
     times: list[float] = []
+    lat: list[float] = []
     last: RateStats | None = None
+
+    def take(item) -> None:
+        t, now_ns, payload = item
+        times.append(t)
+        stamp = _stamp_of(payload)
+        lat.append((now_ns - stamp) / 1e6 if stamp > HOST_CLOCK_NS else float("nan"))
+
+    def stats() -> RateStats | None:
+        st = rate_stats(times, window)
+        if st is None:
+            return None
+        import numpy as np
+
+        ms = np.asarray(lat[-(st.window + 1):], dtype=float)
+        ms = ms[np.isfinite(ms)]
+        if ms.size:
+            st.latency_p50_ms, st.latency_p99_ms = float(np.percentile(ms, 50)), float(np.percentile(ms, 99))
+        if live.sent:
+            st.skipped, st.captured = live.window(window)
+        return st
+
     try:
         t_wait = time.monotonic()
         while not times:
             try:
-                times.append(q.get(timeout=0.05))
+                take(q.get(timeout=0.05))
             except queue.Empty:
                 if time.monotonic() - t_wait > wait:
                     return None
@@ -158,14 +208,15 @@ def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: Te
         next_print = times[0] + every
         while end is None or time.monotonic() < end:
             try:
-                times.append(q.get(timeout=0.05))
+                take(q.get(timeout=0.05))
             except queue.Empty:
                 pass
             if window:
                 del times[:-(window + 1)]
+                del lat[:-(window + 1)]
             if time.monotonic() >= next_print:
                 next_print += every
-                st = rate_stats(times, window)
+                st = stats()
                 if st is not None:
                     last = st
                     print(st.line(key), file=out, flush=True)
@@ -173,7 +224,30 @@ def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: Te
         pass
     finally:
         s.close()
-    return rate_stats(times, window) or last
+    return stats() or last
+
+
+class _LiveCounts:
+    """The live source's Capture messages heard (on zenoh's thread): frames sent and skipped."""
+
+    def __init__(self) -> None:
+        self.skips: list[tuple[int, int]] = []  # (camera frame, skipped before it)
+        self.sent = 0
+
+    def add(self, payload: bytes) -> None:
+        try:
+            m = decode(payload)
+        except MessageError:
+            return
+        if isinstance(m, Capture):
+            self.skips.append((m.frame, m.skipped))
+            self.sent += 1
+
+    def window(self, n: int | None) -> tuple[int, int]:
+        """(skipped, captured) over the last ``n`` frames sent (all: None)."""
+        w = list(self.skips[-n:] if n else self.skips)
+        skipped = sum(k for _, k in w)
+        return skipped, len(w) + skipped
 
 
 @dataclass

@@ -354,6 +354,8 @@ def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv
     a, b = _summary(mine), _summary(theirs) if theirs else None
     lines = []
     for g, (k, n) in a["back"].items():
+        if n == 0:
+            continue
         other = f"; {cv} {b['back'][g][0]}/{b['back'][g][1]}" if b else ""
         lines.append(f"- back after {g} (success >= {BACK_AT} from {AFTER_GAP} frames after the window): "
                      f"{k}/{n}{other}")

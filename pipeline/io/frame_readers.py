@@ -1,5 +1,6 @@
 """Frame readers (the I/O half of the source stage): image folders, video files, MCAP
-recordings and the synthetic scene. Each yields :class:`~stages.source.RawFrame` objects;
+recordings, the synthetic scene and live sources (:mod:`pipeline.io.live_capture`). Each
+yields :class:`~stages.source.RawFrame` objects;
 a frame that cannot be decoded is yielded with ``image=None`` and the reason, so the
 source stage can report it and the stream goes on.
 """
@@ -14,10 +15,12 @@ import cv2
 import numpy as np
 
 from gflow_core.synthetic import SyntheticScene
-from stages.messages import Frame, MessageError, decode
+from stages.messages import Capture, Frame, MessageError, decode
 from stages.source import RawFrame, SourceParams
 
-__all__ = ["open_reader", "IMAGE_EXTENSIONS", "count_frames", "folder_frames"]
+from pipeline.io.live_capture import LiveCapture
+
+__all__ = ["open_reader", "open_live", "read_live", "IMAGE_EXTENSIONS", "count_frames", "folder_frames"]
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".ppm", ".webp")
 
@@ -91,9 +94,37 @@ def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
         cap.release()
 
 
-def _read_mcap(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
+def _recorded_captures(path: Path) -> tuple[dict[int, tuple[int, int, float]], dict[int, tuple[int, np.ndarray]]]:
+    """A live run's Capture messages, {seq: (camera frame, skipped, gap_s)}, and the skipped
+    frames it recorded, {camera frame: (stamp, image)}."""
     from pipeline.io.mcap_io import iter_records
 
+    captures, skipped = {}, {}
+    for rec in iter_records(path):
+        if rec.type == "Capture" and rec.topic.endswith("/captures"):
+            try:
+                c = decode(rec.data)
+            except MessageError:
+                continue
+            if isinstance(c, Capture):
+                captures[c.header.seq] = (c.frame, c.skipped, c.gap_s)
+        elif rec.type == "Frame" and rec.topic.endswith("/skipped"):
+            try:
+                f = decode(rec.data)
+                skipped[f.header.seq] = (f.header.stamp_ns, f.image.array())
+            except (MessageError, AttributeError):
+                continue
+    return captures, skipped
+
+
+def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = False) -> Iterator[RawFrame]:
+    """The recorded frames; with ``host_clock``, with their recorded stamps and what the live
+    source said about each (its Capture, and the skipped frames recorded before it), so a live
+    run re-runs as it was tracked."""
+    from pipeline.io.mcap_io import iter_records
+
+    captures, skipped = _recorded_captures(path) if host_clock else ({}, {})
+    prev_frame = -1
     for rec in iter_records(path):
         if not rec.topic.endswith("/frames"):
             continue
@@ -106,10 +137,15 @@ def _read_mcap(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
         s = msg.header.seq
         if s < start or (stop is not None and s >= stop):
             continue
+        frame, n_skipped, gap = captures.get(s, (-1, 0, 0.0))
+        kept = tuple((f, *skipped[f]) for f in sorted(skipped) if prev_frame < f < frame)
+        prev_frame = max(prev_frame, frame)
+        live = (dict(frame=frame, stamp_ns=msg.header.stamp_ns, skipped=n_skipped, gap_s=gap, skipped_frames=kept)
+                if host_clock else {})
         try:
-            yield RawFrame(s, msg.image.array(), truth=msg.truth, name=msg.source)
+            yield RawFrame(s, msg.image.array(), truth=msg.truth, name=msg.source, **live)
         except MessageError as e:
-            yield RawFrame(s, None, str(e), name=msg.source)
+            yield RawFrame(s, None, str(e), name=msg.source, **live)
 
 
 def _read_synthetic(p: SourceParams) -> Iterator[RawFrame]:
@@ -119,8 +155,37 @@ def _read_synthetic(p: SourceParams) -> Iterator[RawFrame]:
         yield RawFrame(t, scene.render(t), truth=scene.truth_box(t), name=f"synthetic#{t}")
 
 
+def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Iterator[RawFrame]:
+    """The frames of an open live capture, numbered ``first_seq``, ``first_seq`` + 1, ... as they are
+    taken (each the newest decoded when the caller asks for it); a last frame with no image
+    carries the reports of the stream's end. Closes the capture when done."""
+    try:
+        seq = first_seq
+        while True:
+            f = capture.take()
+            if f is None:
+                break
+            kept = tuple((c.frame, c.stamp_ns, c.image) for c in f.skipped_frames if c.image is not None)
+            yield RawFrame(seq, f.image, name=f"{p.path}#{f.frame}", frame=f.frame, stamp_ns=f.stamp_ns,
+                           skipped=f.skipped, gap_s=f.gap_s, skipped_frames=kept, events=f.events)
+            seq += 1
+        events = capture.pending_events() + ([("stream_ended", capture.ended)] if capture.ended else [])
+        if events:
+            yield RawFrame(seq, None, events=tuple(events))
+    finally:
+        capture.close()
+
+
+def open_live(p: SourceParams) -> LiveCapture:
+    """Open the live source of ``p`` (raises :class:`LiveSourceError` in one line)."""
+    return LiveCapture(p.path, fps=p.fps, open_timeout=p.open_timeout, reconnect=p.reconnect,
+                       keep_skipped=p.keep_skipped, stop=p.stop).open()
+
+
 def open_reader(p: SourceParams, base_dir: str | os.PathLike = ".") -> Iterator[RawFrame]:
     """An iterator of decoded frames for the source parameters. Paths are relative to ``base_dir``."""
+    if p.kind == "live":
+        return read_live(open_live(p), p)
     path = Path(base_dir, p.path) if p.path else Path(".")
     if p.kind == "synthetic":
         return _read_synthetic(p)
@@ -131,7 +196,7 @@ def open_reader(p: SourceParams, base_dir: str | os.PathLike = ".") -> Iterator[
     if p.kind == "mcap":
         if not path.is_file():
             raise FileNotFoundError(f"MCAP file not found: {path}")
-        return _read_mcap(path, p.start, p.stop)
+        return _read_mcap(path, p.start, p.stop, p.host_clock)
     raise ValueError(f"unknown source kind {p.kind!r}")
 
 

@@ -31,12 +31,24 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["save_model", "load_model", "load_meta", "read_arrays", "describe", "KINDS", "META_PREFIX"]
+__all__ = ["save_model", "load_model", "load_meta", "read_arrays", "describe", "KINDS", "META_PREFIX",
+           "BUILTIN_MODELS", "model_path"]
 
 #: model kinds a file may hold
 KINDS = ("m2", "morphable")
 #: prefix of file-level metadata entries
 META_PREFIX = "meta_"
+#: models shipped with the package, by name: a graph or ``--model`` may name them instead of a file
+#: (``face``: learned by ``gflow learn gflow`` from david_indoor's MediaPipe landmarks, see docs/faces.md)
+BUILTIN_MODELS = {"face": Path(__file__).resolve().parent.parent / "models" / "face.npz"}
+
+
+def model_path(name: str | os.PathLike, base_dir: str | os.PathLike = ".") -> Path:
+    """The file a model parameter names: a built-in model's file (:data:`BUILTIN_MODELS`), else the
+    path relative to ``base_dir``."""
+    if str(name) in BUILTIN_MODELS:
+        return BUILTIN_MODELS[str(name)]
+    return Path(base_dir, name)
 
 
 def _kind_of(obj: Any) -> str:
@@ -241,8 +253,15 @@ def _describe_m2(model) -> dict[str, Any]:
 
 
 def _describe_morphable(model) -> dict[str, Any]:
-    return {"kind": "morphable", "vertices": int(model.n_vertices), "bases": int(model.n_bases),
-            "triangles": 0 if model.triangles is None else int(np.asarray(model.triangles).shape[0])}
+    info: dict[str, Any] = {"kind": "morphable", "vertices": int(model.n_vertices), "bases": int(model.n_bases),
+                            "triangles": 0 if model.triangles is None else int(np.asarray(model.triangles).shape[0])}
+    if model.landmarks is not None:
+        info["landmarks"] = [int(v) for v in model.landmarks]
+    if model.reference_box is not None:
+        info["reference_box"] = [float(v) for v in model.reference_box]
+    if model.morph_std is not None:
+        info["morph_std"] = [float(v) for v in model.morph_std]
+    return info
 
 
 def _fmt_stats(s: dict[str, float], fmt: str = ".3g") -> str:
@@ -265,6 +284,15 @@ def describe(path: str | os.PathLike, as_json: bool = False) -> None:
     if kind == "morphable":
         print(f"model:     morphable (G-flow), {info['vertices']} vertices, {info['bases']} morph bases, "
               f"{info['triangles']} triangles")
+        if "landmarks" in info:
+            lm = info["landmarks"]
+            print(f"face:      each vertex keeps its reference landmark: {', '.join(map(str, lm[:8]))}"
+                  f"{', ...' if len(lm) > 8 else ''}")
+        if "reference_box" in info:
+            print("box:       where a user's box sits, model units: x {:.3f} y {:.3f} w {:.3f} h {:.3f}".format(
+                *info["reference_box"]))
+        if "morph_std" in info:
+            print("morphs:    training spread of c_j / c_1: " + ", ".join(f"{v:.4f}" for v in info["morph_std"][1:]))
     else:
         print(f"model:     M2 (Toyama & Blake 2002), K = {info['K']} {info['exemplar_kind']} exemplars, "
               f"metric {info['metric']}, kernel {info['kernel']} (eq. {10 if info['kernel'] == 'moments' else 11})")

@@ -23,6 +23,7 @@ from stages.messages import EndOfStream, MessageError, Snapshot, decode
 from pipeline.runtime.build import make_stage
 from pipeline.recording.compare import FieldDiff, first_field_diff
 from pipeline.runtime.graph import GraphError, Plan, validate_params
+from pipeline.runtime.live_plan import recorded_source
 from pipeline.runtime.stage_host import StageHost
 from pipeline.io.mcap_io import Record, iter_records, read_metadata
 from pipeline.io.recorder import McapRecorder, peek_type
@@ -135,7 +136,10 @@ def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = N
         from stages.source import SourceParams
         import msgspec
 
-        for raw in open_reader(msgspec.convert(sp.params, SourceParams), plan.base_dir):
+        params = msgspec.convert(sp.params, SourceParams)
+        if params.kind == "live":  # the stream is gone: its frames are in the recording
+            params = msgspec.convert(recorded_source(sp.params, str(Path(path).resolve())), SourceParams)
+        for raw in open_reader(params, plan.base_dir):
             if raw.index <= start_after:
                 continue
             host._emit(st.emit(raw))  # type: ignore[attr-defined]
@@ -265,7 +269,6 @@ def rerun_graph(path: str | Path, out: str | Path, sets: dict[str, dict] | None 
             raise GraphError(f"--set names stage {stage!r}, which the recording does not have")
         apply_sets(plan, stage, kv)
     src = next(s for s in plan.stages.values() if s.is_source())
-    src.params = validate_params("source", dict(src.params, kind="mcap", path=str(Path(path).resolve()),
-                                                realtime=False), "recorded source")
+    src.params = validate_params("source", recorded_source(src.params, str(Path(path).resolve())), "recorded source")
     md = {"gflow.graph": read_metadata(path).get("gflow.graph", {}), "gflow.config": plan.config_metadata()}
     return plan, run_inline(plan, recording=str(out), metadata=md)

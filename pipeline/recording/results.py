@@ -12,6 +12,7 @@ from typing import Any
 from gflow_core.metrics import TARGET_STATES
 from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
+from pipeline.io.csv_rows import csv_rows
 from pipeline.io.mcap_io import iter_records
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
@@ -21,22 +22,7 @@ __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_col
 Box = tuple[float, float, float, float]
 
 
-def _rows(p: Path, what: str):
-    """(line number, cells) of every data row of a CSV (a header line is optional)."""
-    if not p.is_file():
-        raise FileNotFoundError(f"{what} file not found: {p}")
-    with open(p, newline="") as f:
-        for lineno, row in enumerate(csv.reader(f), start=1):
-            if not row or not "".join(row).strip():
-                continue
-            if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
-                continue  # header
-            yield lineno, row
-
-
 def _box_row(p: Path, lineno: int, row: list[str]) -> tuple[int, Box]:
-    if len(row) < 5:
-        raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h, got {len(row)} column(s)")
     try:
         frame = int(row[0])
         box = tuple(float(v) for v in row[1:5])
@@ -52,7 +38,7 @@ def read_boxes(path: str | Path) -> dict[int, Box]:
     ``confidence,state``, are not read). Errors name the file and line."""
     p = Path(path)
     out: dict[int, Box] = {}
-    for lineno, row in _rows(p, "box"):
+    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
         frame, box = _box_row(p, lineno, row)
         out[frame] = box
     if not out:
@@ -77,7 +63,7 @@ def read_track(path: str | Path) -> TrackRows:
     boxes: dict[int, Box] = {}
     conf: dict[int, float] = {}
     states: dict[int, str] = {}
-    for lineno, row in _rows(p, "box"):
+    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
         frame, box = _box_row(p, lineno, row)
         boxes[frame] = box
         if len(row) < 7:
@@ -128,9 +114,7 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
     p = Path(path)
     vis: dict[int, float] = {}
     pert: dict[int, bool] = {}
-    for lineno, row in _rows(p, "visibility"):
-        if len(row) < 2:
-            raise ValueError(f"{p}:{lineno}: expected frame,visible[,perturbed], got {len(row)} column(s)")
+    for lineno, row in csv_rows(p, "frame,visible", "visibility"):
         try:
             frame, v = int(row[0]), float(row[1])
             if len(row) >= 3:

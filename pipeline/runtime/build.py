@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import msgspec
@@ -20,17 +19,30 @@ def load_resources(plan: Plan, sp: StagePlan) -> dict[str, Any]:
     res: dict[str, Any] = {}
     model = sp.params.get("model")
     if model:
-        from pipeline.io.modelfile import load_model  # imported lazily: only trackers with models need it
+        from pipeline.io.modelfile import load_model, model_path  # imported lazily: only trackers with models
 
-        res["model"] = load_model(Path(plan.base_dir, model))
+        res["model"] = load_model(model_path(model, plan.base_dir))  # a file, or a built-in model's name
     return res
+
+
+def frame_period_ns(plan: Plan) -> float:
+    """The nominal frame period of a source whose frames carry host capture stamps (a live
+    source or a recording of one: ``1e9 / fps``), else 0 (media time: see stages/time_step.py)."""
+    from stages.source import SourceParams
+
+    src = next((s for s in plan.stages.values() if s.is_source()), None)
+    if src is None:
+        return 0.0
+    p = msgspec.convert(src.params, SourceParams)
+    return 1e9 / p.fps if p.host_clock else 0.0
 
 
 def make_stage(plan: Plan, name: str) -> Stage:
     sp = plan.stages[name]
     cls = get_stage_class(sp.kind)
     params = msgspec.convert(sp.params, cls.Params)
-    return cls(params, StageContext(name=name, stream=plan.seed_stream, resources=load_resources(plan, sp)))
+    return cls(params, StageContext(name=name, stream=plan.seed_stream, resources=load_resources(plan, sp),
+                                    frame_period_ns=frame_period_ns(plan)))
 
 
 def apply_defaults(plan: Plan) -> Plan:

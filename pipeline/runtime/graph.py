@@ -245,8 +245,9 @@ class Plan:
 #: the key chunk of the per-step progress heartbeats (:meth:`Plan.progress_topic`)
 PROGRESS = "@progress"
 
-#: topics every recording keeps, whatever ``topics`` says
-ALWAYS_RECORDED = ("errors", "_status/*", "_control")
+#: topics every recording keeps, whatever ``topics`` says (``captures``: what a live source
+#: sent and skipped, the camera's frame numbers of the estimates)
+ALWAYS_RECORDED = ("errors", "_status/*", "_control", "captures")
 
 
 def recorded_topic_filter(params: dict, stream: str):

@@ -94,7 +94,7 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
             outs = src_stage.emit(raw)
             src_host._flush_reports()
             src_host._emit(outs)
-            frames += len(outs)
+            frames += sum(port == "frames" for port, _ in outs)  # not a live source's captures
             drain()
             if progress is not None:
                 progress(frames)

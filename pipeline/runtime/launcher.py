@@ -38,11 +38,14 @@ from typing import Callable, TextIO
 from stages.messages import Control, ErrorReport, Header, StageStatus, decode, encode
 
 from pipeline.runtime.graph import Plan
+from pipeline.runtime.live_plan import live_source
 from pipeline.runtime.placement import describe_hosts, local_stages
 from pipeline.runtime.multihost import HostWatch, host_gateway, node_listen, stream_in_use
 from pipeline.io.mcap_io import segment_path
 
 EXIT_DISK_FULL = 28  # pipeline.runtime.node's recorder exit status on a full disk
+#: estimates whose capture-to-estimate latency the progress line summarises (a live source)
+LATENCY_WINDOW = 250
 #: seconds before a stage of a run placed on hosts gives up a late input (3 s on one host)
 LATE_S_ACROSS_HOSTS = 10.0
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
@@ -165,6 +168,9 @@ class Launcher:
         self.run_dir: str = ""
         self._progress_at: dict[str, tuple[tuple, float]] = {}
         self.estimates: dict[int, bytes] = {}
+        # a live source: capture-to-estimate latency (ms) of the last estimates heard, for the progress line
+        self.live = live_source(plan) is not None
+        self.latency_ms: collections.deque[float] = collections.deque(maxlen=LATENCY_WINDOW)
         self.status: dict[str, StageStatus] = {}
         self.errors: list[ErrorReport] = []
         self.procs: dict[str, _Proc] = {}
@@ -204,6 +210,12 @@ class Launcher:
         # a copy of every estimate: what the recording lost (a recorder restart) is still known
         if seq >= 0 and type_name in ("Estimate", "PoseEstimate"):
             self.estimates[seq] = payload
+            if self.live:
+                now = time.time_ns()
+                try:
+                    self.latency_ms.append((now - decode(payload).header.stamp_ns) / 1e6)
+                except (ValueError, AttributeError):
+                    pass
 
     # -- output ----------------------------------------------------------------------------
     def _print(self, text: str) -> None:
@@ -230,7 +242,11 @@ class Launcher:
                     steps = max(st.steps, done) if self.plan.stages[name].is_source() else st.steps
                     parts.append(f"{name}: {steps}" + (f"/{self.total_frames}" if self.total_frames and
                                  self.plan.stages[name].is_source() else "") + f" @{st.fps:.1f}fps"
-                                 + (f" drop={drop}" if drop else ""))
+                                 + (f" drop={drop}" if drop else "")
+                                 + (f" skipped={st.skipped}" if st.captured else ""))
+            lat = sorted(self.latency_ms)
+        if lat:  # capture to estimate, over the last LATENCY_WINDOW estimates
+            parts.append(f"latency p50 {lat[len(lat) // 2]:.0f} ms p99 {lat[min(len(lat) - 1, int(0.99 * len(lat)))]:.0f} ms")
         return " | ".join(parts)
 
     # -- processes -------------------------------------------------------------------------

@@ -44,6 +44,15 @@ Faults:
   all on caviar1); every stage rejects messages more than the flow-control window ahead of
   the last announced frame (so a frame up to 4 past it still passes), and images of
   another size.
+* A live source (``kind: live``) opens its stream or camera while the node starts, before its
+  first heartbeat, so a source that cannot be opened stops the run during start-up with one
+  line naming it and what FFmpeg said (exit status 2, not restarted), and an ``--init`` box
+  outside its frames is refused the same way. It then runs with ``live_ahead`` as its window
+  and takes the newest frame each time the window has room (``_run_live``): frames decoded
+  meanwhile are skipped and counted (heartbeat ``captured`` / ``skipped`` / ``reconnects``).
+  A stage that joins frame t + 1 with its input of frame t (``input_offsets`` -1 on the frames:
+  a proposal that knows when the next frame was taken) has consumed frame t + 1 when it
+  reports t, so flow control counts it one frame further on.
 * Every node holds a zenoh liveliness token ``gflow/<stream>/_alive/<stage>``, which
   vanishes within milliseconds of the process's death. The source waits while the
   recorder's token is gone, so a recorder restart loses no more than the frames in flight.
@@ -97,6 +106,7 @@ RECORDER_INBOX_BYTES = 32 * 2**20  # what the recorder holds unwritten before th
 REPORT_EVERY_S = 0.02  # a worker's progress heartbeats: at most 50 a second (measured: ~130 us of CPU per receiver each)
 PR_SET_PDEATHSIG = 1
 EXIT_DISK_FULL = 28  # the recorder's exit status when its disk is full (ENOSPC): not worth a restart
+EXIT_BAD_SOURCE = 2  # a live source that cannot be opened, or an --init box outside its frames
 
 
 class Checkpoint(msgspec.Struct, frozen=True):
@@ -149,8 +159,13 @@ class Node:
         self.host: StageHost | None = None
         self.recorder: McapRecorder | None = None
         # flow control (sources only): how far each worker stage has got
+        self.live = self.sp.is_source() and self.sp.params.get("kind") == "live"
         self.flow_window = int(self.sp.params.get("max_ahead", 0)) if self.sp.is_source() else 0
+        if self.live:
+            self.flow_window = int(self.sp.params.get("live_ahead", 1))
         self.flow_stages = {n for n, s in plan.stages.items() if s.kind != "recorder" and not s.is_source()}
+        self.lead = frames_lead(plan, self.name, self.flow_stages) if self.flow_window else {}
+        self.capture = None  # a live source's LiveCapture
         self.progress_of: dict[str, int] = {}
         self.first_pid: dict[str, int] = {}
         self.progress_changed = threading.Event()
@@ -216,7 +231,7 @@ class Node:
                 # finished, or restarted and not yet caught up: do not hold the source back
                 self.progress_of[other] = 1 << 60
             else:
-                self.progress_of[other] = st.last_seq
+                self.progress_of[other] = st.last_seq + self.lead.get(other, 0)
             self.progress_changed.set()
         if other not in self.seen:
             self.seen.add(other)
@@ -284,15 +299,17 @@ class Node:
 
     def publish(self, topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
         if not self.peers_ready.is_set():
-            while not self.peers_ready.wait(0.2 if self.restarts else 5.0):
+            warn_at = time.monotonic() + 5.0
+            while not self.peers_ready.wait(0.2):
+                if self.stop.is_set():  # stopped before everyone was there (a source that could not open)
+                    return
                 if self.restarts and time.monotonic() > self.ready_deadline:
                     self.peers_ready.set()  # restarted: a peer may have finished meanwhile
                     break
-                if not self.restarts:
+                if not self.restarts and time.monotonic() > warn_at:
+                    warn_at = time.monotonic() + 5.0
                     missing = sorted(self.required_peers - self.seen)
                     log.warning("[%s] still waiting to hear from %s before publishing", self.name, ", ".join(missing))
-                if self.stop.is_set():
-                    return
         if not self._published:
             self._published = True
             mark(f"node {self.name} first publish {topic.rsplit('/', 1)[-1]}")
@@ -310,6 +327,7 @@ class Node:
         last_seq = h.join.done_below if h else -1
         if self.sp.is_source():
             last_seq = self.announced
+        cap = self.capture
         return StageStatus(header=Header(self.plan.stream, steps, time.time_ns()), stage=self.name, pid=os.getpid(),
                            state=self.state, steps=steps, fps=round(fps, 2), dropped=dropped, errors=errors,
                            last_error=last[-300:], rss_mb=round(self.proc.memory_info().rss / 2**20, 1),
@@ -317,7 +335,9 @@ class Node:
                            busy_ms=round(h.stats.busy_ns / h.stats.steps / 1e6, 3) if h and h.stats.steps else 0.0,
                            rejected=self._rejected(), lost=h.stats.lost if h else 0,
                            waiting=h.waiting() if h and not h.closed and not self.sp.is_source() else "",
-                           frame_shape=self.frame_shape, ended=tuple(sorted(self.ended)))
+                           frame_shape=self.frame_shape, ended=tuple(sorted(self.ended)),
+                           captured=cap.captured if cap else 0, skipped=cap.skipped if cap else 0,
+                           reconnects=cap.reconnects if cap else 0)
 
     def _rejected(self) -> dict[str, int]:
         out = dict(self.host.stats.rejected) if self.host is not None else {}
@@ -454,6 +474,11 @@ class Node:
                 self.bus.subscribe(topic, self._on_data, with_type=True)
             resumed_after = self._restore()
             self._update_hold()
+            if self.live:
+                bad = self._open_live()
+                if bad:  # nothing was sent: leave at once (closing the session took seconds)
+                    print(bad, file=sys.stderr, flush=True)
+                    os._exit(EXIT_BAD_SOURCE)
         self.declared.set()
         mark(f"node {self.name} declared")
         hb = threading.Thread(target=self._heartbeat, daemon=True)
@@ -463,7 +488,9 @@ class Node:
         try:
             if sp.kind == "recorder":
                 return self._run_recorder()
-            if isinstance(self.host.stage, SourceStage):  # type: ignore[union-attr]
+            if self.live:
+                rc = self._run_live(resumed_after)
+            elif isinstance(self.host.stage, SourceStage):  # type: ignore[union-attr]
                 rc = self._run_source(resumed_after)
             else:
                 rc = self._run_stage(resumed_after)
@@ -564,22 +591,88 @@ class Node:
                 if delay > 0:
                     time.sleep(delay)
             self._flow_wait(raw.index)
-            outs = stage.emit(raw)
-            host._flush_reports()
-            if outs:  # announce the frame (and its size) before sending it, every few frames
-                self.announced = max(self.announced, raw.index)
-                shape = getattr(stage, "_shape", None)
-                self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
-                if raw.index >= next_announce:
-                    next_announce = raw.index + max(1, min(4, self.window // 2))
-                    self.send_status()
-            host._emit(outs)
-            if outs:
-                self._checkpoint(raw.index)
-            host.stats.steps += len(outs)
-            now = time.perf_counter_ns()
-            host.stats.first_step_ns = host.stats.first_step_ns or now
-            host.stats.last_step_ns = now
+            next_announce = self._send(raw, next_announce)
+        host.close("end")
+        return 0
+
+    def _send(self, raw, next_announce: int) -> int:
+        """Emit one decoded frame: announce it (and its size) before sending it, every few
+        frames; publish; checkpoint. Returns the frame to announce next."""
+        host = self.host
+        assert host is not None
+        stage: SourceStage = host.stage  # type: ignore[assignment]
+        outs = stage.emit(raw)
+        host._flush_reports()
+        if outs:
+            self.announced = max(self.announced, raw.index)
+            shape = stage._shape
+            self.frame_shape = tuple(int(d) for d in shape[:2]) if shape else ()
+            if raw.index >= next_announce:
+                next_announce = raw.index + max(1, min(4, self.window // 2))
+                self.send_status()
+        host._emit(outs)
+        if outs:
+            self._checkpoint(raw.index)
+            host.stats.steps += 1
+        now = time.perf_counter_ns()
+        host.stats.first_step_ns = host.stats.first_step_ns or now
+        host.stats.last_step_ns = now
+        return next_announce
+
+    def _open_live(self) -> str:
+        """Open the live source (before the first heartbeat); '' or the one-line reason it cannot run."""
+        from pipeline.io.frame_readers import open_live  # the source's own import (cv2, FFmpeg)
+        from pipeline.io.live_capture import LiveSourceError
+        from pipeline.runtime.preflight import PreflightError, check_box_in_image
+
+        p = self.host.stage.params  # type: ignore[union-attr]
+        try:
+            self.capture = open_live(p)  # type: ignore[arg-type]
+        except LiveSourceError as e:
+            return str(e)
+        h, w = self.capture.shape[:2]
+        for sp in self.plan.stages.values():
+            box = sp.params.get("init") if isinstance(sp.params, dict) else None
+            if box is not None and len(box) == 4:
+                try:
+                    check_box_in_image(box, w, h)
+                except PreflightError as e:
+                    self.capture.close()
+                    return f"{p.path}: {e}"  # type: ignore[attr-defined]
+        return ""
+
+    def _run_live(self, resumed_after: int = -1) -> int:
+        """A live source: each time the window has room, send the newest frame decoded (the
+        others are skipped and counted); end when the stream ends or is not back in time.
+        Restarted, it goes on numbering the frames it sends after the last one it sent (the
+        camera's frame numbers start again at 0: the stream was opened anew)."""
+        from pipeline.io.frame_readers import read_live
+
+        host, cap = self.host, self.capture
+        assert host is not None and cap is not None
+        stage: SourceStage = host.stage  # type: ignore[assignment]
+        threading.Thread(target=lambda: (self.stop.wait(), cap.interrupt()), daemon=True).start()
+        while not (self.started.is_set() and self.peers_ready.is_set()):
+            if self.stop.wait(0.01):
+                cap.close()
+                self.state = "stopped"
+                return 0
+        self.state = "running"
+        seq = resumed_after + 1
+        frames = read_live(cap, stage.params, first_seq=seq)  # type: ignore[arg-type]
+        next_announce = -1
+        while True:
+            self._flow_wait(seq)  # first room for a frame, then the newest frame there is
+            raw = next(frames, None)
+            if raw is None or self.stop.is_set():
+                break
+            next_announce = self._send(raw, next_announce)
+            seq = raw.index + 1
+        frames.close()
+        if self.stop.is_set():
+            host.close("interrupted")
+            self.state = "stopped"
+            return 0
         host.close("end")
         return 0
 
@@ -699,6 +792,24 @@ class Node:
                 pass
             self.state = "stopped" if self.state == "stopped" else "done"
         return 0
+
+
+def frames_lead(plan: Plan, source: str, stages: set[str]) -> dict[str, int]:
+    """{stage: frames it is ahead of the seq it reports}: a stage that joins frame t + k with its
+    inputs of frame t (``input_offsets`` -k on a port fed by ``source``'s frames) has taken
+    frame t + k when it reports t. Flow control counts it k frames further on, or the source
+    would wait for a report that waits for its next frame."""
+    from stages.registry import get_stage_class
+
+    frames = {plan.stages[source].outputs.get("frames")}
+    out = {}
+    for n in stages:
+        sp = plan.stages[n]
+        offsets = get_stage_class(sp.kind).input_offsets
+        k = max([-offsets.get(port, 0) for port, topic in sp.inputs.items() if topic in frames] or [0])
+        if k > 0:
+            out[n] = k
+    return out
 
 
 def run_node(plan_path: str, name: str) -> int:

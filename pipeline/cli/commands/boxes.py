@@ -7,6 +7,7 @@ from __future__ import annotations
 ORDER = 57
 
 from pipeline.io.mcap_io import iter_records, segments
+from pipeline.recording.live_record import live_summary
 from pipeline.recording.results import completeness, estimate_columns, estimates, write_boxes
 from pipeline.cli.commands.common import CliError
 
@@ -17,9 +18,12 @@ def cmd_boxes(args) -> int:
     est = estimates(args.recording, stream=args.stream)
     if not est:
         raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else ""))
-    write_boxes(args.out, *estimate_columns(est))
+    live = live_summary(args.recording, stream=args.stream)  # a live run: rows are the camera's frames
+    frame_of = live.frames if live is not None else {}
+    boxes, confidence, states = (({frame_of.get(k, k): v for k, v in col.items()}) for col in estimate_columns(est))
+    write_boxes(args.out, boxes, confidence, states)
     segs = segments(args.recording)
-    print(f"{len(est)} boxes, frames {min(est)}-{max(est)}, written to {args.out}"
+    print(f"{len(boxes)} boxes, frames {min(boxes)}-{max(boxes)}, written to {args.out}"
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))
     for line in torn:
         print(f"  {line}")

@@ -259,6 +259,21 @@ def place(plan: Plan, args) -> tuple[str, ...]:
     return hosts
 
 
+def _startup_failure(plan: Plan, launcher, message: str) -> str:
+    """What to tell the user when a run could not start. A live source that cannot be opened says
+    so itself, in one line naming it and what FFmpeg said; the recording, which holds nothing but
+    the start-up's heartbeats, is removed."""
+    from pipeline.runtime.node import EXIT_BAD_SOURCE
+
+    src = next((n for n, s in plan.stages.items() if s.is_source()), None)
+    exit_ = launcher.exits.get(src)
+    if exit_ is None or exit_.returncode != EXIT_BAD_SOURCE or not exit_.last_error:
+        return message
+    if launcher.recording and plan.recorder() is not None:
+        Path(launcher.recording).unlink(missing_ok=True)
+    return f"cannot track {exit_.last_error}"
+
+
 def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: bool = False, strict: bool = True):
     """Run a plan inline or as processes; return (recording path, seconds, frames, per-stage info).
     With ``strict=False`` a run that did not finish cleanly returns (``info["ok"]`` False) instead of
@@ -302,7 +317,7 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
         try:
             res = launcher.run()
         except RuntimeError as e:  # start-up: a stage died, a host did not come, the stream is taken
-            raise CliError(str(e)) from None
+            raise CliError(_startup_failure(plan, launcher, str(e))) from None
     if res.interrupted:
         print("interrupted: stages stopped, recording closed", file=sys.stderr)
     for n, e in res.exits.items():
@@ -310,8 +325,10 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
             print(f"stage {n} exited with status {e.returncode}: {e.last_error}", file=sys.stderr)
     src = next((n for n, s in plan.stages.items() if s.is_source()), None)  # a graph fed from outside has none
     frames = res.status[src].steps if src in res.status else 0
+    from pipeline.recording.live_record import LIVE_REPORTS  # a live source's reconnects and end: not errors
+
     info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
-            "errors": len(res.errors), "fps": {n: s.fps for n, s in res.status.items()},
+            "errors": sum(e.kind not in LIVE_REPORTS for e in res.errors), "fps": {n: s.fps for n, s in res.status.items()},
             "interrupted": res.interrupted, "stall": res.stall,
             "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
     if res.stall:

@@ -9,18 +9,60 @@ import json
 from pipeline.cli.commands.common import CliError
 
 
+def _frame_range(text: str) -> tuple[int, int | None]:
+    a, sep, b = text.partition(":")
+    try:
+        return int(a) if a else 0, int(b) if b else None
+    except ValueError:
+        raise CliError(f"--frames expects A:B (frame numbers, either may be left out), got {text!r}") from None
+
+
+def cmd_eval_landmarks(args) -> int:
+    """``--landmarks REF.npz --points P.csv``: the landmark error of tracked face points."""
+    from gflow_core.gflow.landmark_error import NORMALISING_PAIR, SCORED_LANDMARKS, landmark_score
+
+    from pipeline.io.landmarks import read_landmarks, read_points
+
+    if args.gt or args.pred:
+        raise CliError("give either --gt/--pred (boxes) or --landmarks/--points (face points), not both")
+    if not (args.landmarks and args.points):
+        raise CliError("--landmarks REF.npz and --points P.csv go together")
+    ref = read_landmarks(args.landmarks)
+    pts = read_points(args.points)
+    frames = None
+    if args.frames:
+        lo, hi = _frame_range(args.frames)
+        frames = range(lo, ref.shape[0] if hi is None else min(hi, ref.shape[0]))
+    try:
+        s = landmark_score(ref, pts, frames=frames)
+    except ValueError as e:
+        raise CliError(f"{args.points} against {args.landmarks}: {e}") from None
+    if s.frames == 0:
+        raise CliError(f"{args.landmarks} has no frame with the scored landmarks" +
+                       (f" in --frames {args.frames}" if args.frames else ""))
+    if args.json:
+        print(json.dumps(s.to_json()))
+    else:
+        print(f"frames with reference landmarks: {s.frames} (missing points: {s.missing})")
+        print(f"landmark NME (points {', '.join(map(str, SCORED_LANDMARKS))}; over the "
+              f"{NORMALISING_PAIR[0]}-{NORMALISING_PAIR[1]} distance): {s.nme:.4f}")
+        print(f"landmark error: {s.px:.2f} px")
+    return 0
+
+
 def cmd_eval(args) -> int:
     from gflow_core.metrics import score
 
     from pipeline.recording.results import read_boxes, read_track
 
+    if args.landmarks or args.points:
+        return cmd_eval_landmarks(args)
+    if not (args.gt and args.pred):
+        raise CliError("gflow eval needs --gt GT.csv --pred PRED.csv (boxes), or --landmarks REF.npz --points P.csv "
+                       "(face points)")
     gt, pred = read_boxes(args.gt), read_boxes(args.pred)
     if args.frames:
-        a, sep, b = args.frames.partition(":")
-        try:
-            lo, hi = int(a) if a else 0, int(b) if b else None
-        except ValueError:
-            raise CliError(f"--frames expects A:B (frame numbers, either may be left out), got {args.frames!r}") from None
+        lo, hi = _frame_range(args.frames)
         gt = {k: v for k, v in gt.items() if k >= lo and (hi is None or k < hi)}
         if not gt:
             raise CliError(f"no ground-truth frame in --frames {args.frames}")
@@ -64,15 +106,23 @@ def _state_score(args, gt: dict, track):
 
 
 def register(sub) -> None:
-    p = sub.add_parser("eval", help="score predicted boxes against ground truth",
-                       description="Centre location error (px), mean overlap (IoU) and success rate (IoU > 0.5); "
-                                   "with --visibility, how often the reported state was right.")
-    p.add_argument("--gt", required=True, help="ground truth CSV (frame,x,y,w,h)")
-    p.add_argument("--pred", required=True, help="predicted CSV (frame,x,y,w,h, optionally confidence,state)")
+    p = sub.add_parser("eval", help="score predicted boxes (or face points) against ground truth",
+                       description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU) "
+                                   "and success rate (IoU > 0.5); with --visibility, how often the reported state was "
+                                   "right. Face points (--landmarks, --points): the mean distance of the eye corners "
+                                   "33, 133, 362, 263 and mouth corners 61, 291 from the reference, in pixels and over "
+                                   "the reference 33-263 distance (NME), over the frames with a reference.")
+    p.add_argument("--gt", help="ground truth CSV (frame,x,y,w,h)")
+    p.add_argument("--pred", help="predicted CSV (frame,x,y,w,h, optionally confidence,state)")
     p.add_argument("--visibility", metavar="CSV",
                    help="frame,visible[,perturbed] of the truth (a stress sequence's visibility.csv): also report how "
                         "often the predicted state was right (occluded or lost when less than 10%% of the target is "
                         "in view, past the first 5 frames of it; tracked on undisturbed frames)")
+    p.add_argument("--landmarks", metavar="REF.npz",
+                   help="reference landmarks (npz, key 'landmarks', (frames, 468, 2 or 3), NaN where none; or a "
+                        "dataset folder holding landmarks.npz)")
+    p.add_argument("--points", metavar="P.csv",
+                   help="tracked points CSV (frame,landmark,x,y), e.g. from gflow track --points-out")
     p.add_argument("--frames", metavar="A:B",
                    help="score only frames A <= frame < B (e.g. 150: after a run with --start 150); by default every "
                         "ground-truth frame counts and a frame with no prediction is a failure")

@@ -291,9 +291,13 @@ def cmd_learn(args) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("learn", help="learn a model from training video (m2: Metric Mixture exemplars)",
-                       description="Learn a model from training video and write it to a model file (.npz).")
+    p = sub.add_parser("learn", help="learn a model from training video (m2: Metric Mixture exemplars; gflow: a "
+                                     "morphable face from landmarks)",
+                       description="Learn a model from training data and write it to a model file (.npz).")
     ms = p.add_subparsers(dest="model_kind", metavar="MODEL", required=True)
+    from pipeline.cli.commands._learn_gflow import add_parser as add_learn_gflow
+
+    add_learn_gflow(ms)
     q = ms.add_parser(
         "m2", help="Metric Mixture exemplars, kernels and dynamics (Toyama & Blake 2002)",
         description=textwrap.fill(

@@ -17,9 +17,12 @@ DESCRIBERS: dict = {}
 def describe_recording(path: str, as_json: bool) -> None:
     from pipeline.io.mcap_io import summarize
 
+    from pipeline.recording.live_record import live_summary
+
     s = summarize(path)
+    live = live_summary(path)  # None unless a live source made it
     if as_json:
-        print(json.dumps(s.to_json(), indent=1))
+        print(json.dumps(dict(s.to_json(), **({"live": live.to_json()} if live else {})), indent=1))
         return
     print(f"file:      {s.path}")
     print(f"messages:  {s.messages}   duration: {s.duration_s:.3f} s")
@@ -31,6 +34,8 @@ def describe_recording(path: str, as_json: bool) -> None:
     for t, ts in sorted(s.topics.items()):
         seqs = f"seq {ts.first_seq}..{ts.last_seq}" if ts.first_seq >= 0 else ""
         print(f"  {t:42s} {ts.type:20s} {ts.count:7d} msgs {ts.rate_hz:8.1f} Hz {ts.bytes / 2**20:9.2f} MiB  {seqs}")
+    if live is not None:
+        print("live:     " + "\n          ".join(live.lines()))
     print("schemas:  " + ", ".join(f"{n} ({e})" for n, e in sorted(s.schemas.items())))
     for name, md in s.metadata.items():
         print(f"metadata {name}:")

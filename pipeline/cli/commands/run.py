@@ -6,6 +6,7 @@ ORDER = 40
 
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import builtin_graphs, load_graph
+from pipeline.runtime.live_plan import prepare_live
 from pipeline.runtime.placement import local_stages
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
                                           check_outputs, parse_sets, run_plan)
@@ -20,6 +21,7 @@ def cmd_run(args) -> int:
         raise CliError(f"--record: the recorder runs on host {held.host}, not on {', '.join(args.hosts)}; "
                        f"give --record to the command of host {held.host}")
     recording = Recording(plan, args, None)
+    prepare_live(plan)  # a live source: timed proposals, skipped frames if recorded (docs/live.md)
     path, secs, frames, info = run_plan(plan, args, recording.path, None)
     hosts = f" (host {', '.join(args.hosts)})" if args.hosts else ""
     rec = path or recording.kept

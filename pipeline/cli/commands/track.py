@@ -1,4 +1,5 @@
-"""``gflow track``: one target through an image folder, a video or a recording.
+"""``gflow track``: one target through an image folder, a video, a recording, or a live stream or
+camera (``docs/live.md``).
 
 Each tracker is a module in ``pipeline/cli/trackers/`` with ``NAME``, ``add_args(parser)``
 (its own options) and ``overrides(args) -> (graph name, {stage: {param: value}})``; it may
@@ -23,7 +24,9 @@ from pipeline.runtime.graph import Plan, load_graph
 from pipeline.recording.results import estimate_columns, run_outcome, write_boxes
 from pipeline.io.frame_readers import count_frames
 from pipeline.cli.trackers import TRACKERS
+from pipeline.runtime.live_plan import live_source, prepare_live
 from pipeline.runtime.preflight import check_source
+from pipeline.recording.live_record import LiveSummary, live_summary
 from pipeline.runtime.trace import mark
 from pipeline.runtime.zygote import preload
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
@@ -69,8 +72,50 @@ def check_tracker_options(args) -> None:
                                f"{args.tracker}")
 
 
+#: options that only a live source takes: {dest: option}
+_LIVE_OPTIONS = {"reconnect": "--reconnect", "open_timeout": "--open-timeout"}
+
+
+def source_of(args) -> str:
+    """The source named by the positional argument or ``--camera N`` (one of the two)."""
+    from pipeline.io.live_capture import camera_device
+
+    camera = getattr(args, "camera", None)
+    if camera is not None:
+        if args.source:
+            raise CliError(f"give a source or --camera, not both ({args.source} and --camera {camera})")
+        return camera_device(camera)
+    if not args.source:
+        raise CliError("give a source (an image folder, a video, a recording, a stream URL or /dev/videoN) or "
+                       "--camera N")
+    return args.source
+
+
+def live_params(source: str, args) -> dict:
+    """Source parameters for a stream URL or a camera device."""
+    for opt, given in (("--start", args.start), ("--realtime", args.realtime)):
+        if given:
+            raise CliError(f"{opt} applies to files; a live source starts at its first frame and runs at its own "
+                           f"pace")
+    params: dict = {"kind": "live", "path": source, "fps": args.fps}
+    for dest in _LIVE_OPTIONS:
+        if getattr(args, dest, None) is not None:
+            params[dest] = getattr(args, dest)
+    if args.stop is not None:
+        params["stop"] = args.stop
+    return params
+
+
 def source_params(source: str, args) -> dict:
-    """Source stage parameters for a path: image folder (or dataset folder with frames/), video, or .mcap."""
+    """Source stage parameters for a path: image folder (or dataset folder with frames/), video, .mcap,
+    or a live source (stream URL, camera device)."""
+    from pipeline.io.live_capture import is_live_source
+
+    if is_live_source(source):
+        return live_params(source, args)
+    for dest, opt in _LIVE_OPTIONS.items():
+        if getattr(args, dest, None) is not None:
+            raise CliError(f"{opt} is an option of live sources (stream URLs, cameras), not of {source}")
     p = Path(source)
     params: dict = {"fps": args.fps, "realtime": args.realtime, "start": args.start}
     if args.stop is not None:
@@ -100,8 +145,10 @@ class TrackRun:
     temporary: bool = False  # --no-record: the recording was removed
     lines: list[str] = field(default_factory=list)  # what is missing, coasted, restarted
     incomplete: str = ""  # why the run is incomplete, or ""
+    live: LiveSummary | None = None  # a live source's figures: skipped, gaps, latency
     confidence: dict[int, float] = field(default_factory=dict)  # the estimates' confidence by frame
     target_states: dict[int, str] = field(default_factory=dict)  # tracked / occluded / lost by frame
+    points: dict = field(default_factory=dict)  # G-flow face: {frame: (landmark ids (n,), points (n, 2))}
 
     def write_csv(self, path: str | Path) -> None:
         """The boxes CSV: frame,x,y,w,h,confidence,state."""
@@ -115,9 +162,11 @@ def track_plan(args) -> tuple[Plan, int | None]:
     """
     tracker = TRACKERS[args.tracker]
     check_tracker_options(args)
-    check_outputs(out=args.out, record=args.record)
+    check_outputs(out=args.out, record=args.record, points_out=getattr(args, "points_out", None))
+    check_points_out(args)
     graph, overrides = tracker.overrides(args)
-    overrides.setdefault("source", {}).update(source_params(args.source, args))
+    source = source_of(args)
+    overrides.setdefault("source", {}).update(source_params(source, args))
     for stage, kv in parse_sets(args.set).items():
         overrides.setdefault(stage, {}).update(kv)
     make_plan = getattr(tracker, "make_plan", None)
@@ -128,6 +177,8 @@ def track_plan(args) -> tuple[Plan, int | None]:
     if not getattr(args, "inline", False):  # the stage processes' zygote imports their modules meanwhile
         preload(s.kind for s in plan.stages.values())
     sp = msgspec.convert(plan.stages["source"].params, SourceParams)
+    if sp.kind == "live":  # opened once, by the source stage (a camera or a listen=1 server serves one client)
+        return plan, None
     first = check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
     if args.tracker == "m2":
         check_whole_frame_model(args.model, args.source, first.image.shape)
@@ -141,26 +192,52 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
     mark("cli plan checked")
     recording = Recording(plan_, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
                           needed=("estimate",))
+    prepare_live(plan_)  # after Recording: --record-topics may ask for the skipped frames
+    live = None
     try:
         path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet, strict=False)
         out = run_outcome(path, plan_, info, args.start)  # every frame that was tracked, and what is missing
+        if live_source(plan_) is not None and path:
+            live = live_summary(path)
     finally:
         recording.cleanup()
     est = out.estimates
-    boxes, confidence, target_states = estimate_columns(est)
+    frame_of = live.frames if live is not None else {}  # a live run's rows are the camera's frames
+    boxes, confidence, target_states = (({frame_of.get(k, k): v for k, v in col.items()})
+                                        for col in estimate_columns(est))
+    # a learned face's points, by the reference landmark each vertex came from
+    points = {frame_of.get(k, k): (v.landmarks.array(), v.mean_points.array()) for k, v in est.items()
+              if getattr(v, "landmarks", None) is not None}
     return TrackRun(boxes=boxes, states=[v.state for v in est.values()], confidence=confidence,
                     target_states=target_states,
                     recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
-                    temporary=recording.temporary, lines=list(out.lines),
-                    incomplete=out.why if out.incomplete else "")
+                    temporary=recording.temporary, lines=list(out.lines) + (live.lines() if live else []),
+                    incomplete=out.why if out.incomplete else "", live=live, points=points)
+
+
+def check_points_out(args) -> None:
+    """``--points-out`` needs a tracker that reports face points: G-flow with a learned face model."""
+    if not getattr(args, "points_out", None):
+        return
+    if args.tracker != "gflow":
+        raise CliError(f"--points-out writes the face points of --tracker gflow, not of --tracker {args.tracker}")
+    if getattr(args, "model", None) == "ellipsoid":
+        raise CliError("--points-out needs a learned face model (`face`, the default, or one from `gflow learn "
+                       "gflow`); the ellipsoid's vertices are no face landmarks")
 
 
 def cmd_track(args) -> int:
     run = run_track(args)
     run.write_csv(args.out)
+    pts = ""
+    if getattr(args, "points_out", None):
+        from pipeline.io.landmarks import write_points
+
+        write_points(args.points_out, run.points)
+        pts = f"; points: {args.points_out}" + ("" if run.points else " (empty: the model has no landmarks)")
     n, states, info = len(run.boxes), run.states, run.info
     print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
-          f"boxes: {args.out}; recording: {run.kept}")
+          f"boxes: {args.out}{pts}; recording: {run.kept}")
     for line in run.lines:
         print(f"  {line}")
     errs = info.get("errors")
@@ -179,18 +256,31 @@ def cmd_track(args) -> int:
 
 def add_track_args(p: argparse.ArgumentParser) -> None:
     """The options of ``gflow track`` (also parsed by ``gflow benchmark`` to run a tracker the same way)."""
-    p.add_argument("source", help="image folder (or a dataset folder with frames/), video file, or .mcap recording")
+    p.add_argument("source", nargs="?",
+                   help="image folder (or a dataset folder with frames/), video file, .mcap recording, or a live "
+                        "source: a stream URL (rtsp://, http://, tcp://, udp://...) or a camera device /dev/videoN")
     p.add_argument("--init", type=parse_box, required=True, metavar="X,Y,W,H", help="initial box in frame --start")
     p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h,confidence,state)")
+    p.add_argument("--points-out", metavar="CSV",
+                   help="gflow with a face model: every vertex per frame (frame,landmark,x,y; landmark = the "
+                        "reference landmark index it was learned from), for gflow eval --landmarks")
     p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
                    help="tracking method (default appearance; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     add_record_args(p, "recordings/track-TIME.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
-    p.add_argument("--fps", type=float, default=25.0, help="source frame rate, for time stamps and --realtime")
+    p.add_argument("--fps", type=float, default=25.0,
+                   help="source frame rate, for time stamps and --realtime; of a live source, the nominal rate "
+                        "the trackers measure time in (default 25)")
     p.add_argument("--realtime", action="store_true", help="play the source at --fps instead of as fast as possible")
     p.add_argument("--start", type=int, default=0, help="first frame index")
-    p.add_argument("--stop", type=int, help="stop before this frame index")
+    p.add_argument("--stop", type=int, help="stop before this frame index (live: after this many frames decoded)")
+    g = p.add_argument_group("live sources (docs/live.md)")
+    g.add_argument("--camera", type=int, metavar="N", help="track camera N (/dev/videoN) instead of a SOURCE")
+    g.add_argument("--reconnect", type=float, metavar="S",
+                   help="seconds to keep reopening a lost stream before the run ends (default 5; 0: end at once)")
+    g.add_argument("--open-timeout", type=float, metavar="S",
+                   help="seconds opening the stream may take before it is an error (default 10)")
     p.add_argument("--graph", help="graph file to use instead of the tracker's built-in one")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="override a stage parameter")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")

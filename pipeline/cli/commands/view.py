@@ -24,11 +24,11 @@ def cmd_view(args) -> int:
         bridge = FoxgloveBridge(settings, stream=stream, host=args.host, port=args.port).start()
     except RuntimeError as e:  # the port is taken, say
         raise CliError(f"cannot serve on {args.host}:{args.port}: {e}") from None
-    print(f"Foxglove: open {bridge.url} (Open connection -> Foxglove WebSocket); Image panel on "
-          f"/gflow/{stream or 'STREAM'}/image with annotations /gflow/{stream or 'STREAM'}/annotations; "
-          f"Ctrl-C stops", file=sys.stderr, flush=True)
     end = None if args.duration is None else time.monotonic() + args.duration
-    try:
+    try:  # the ready line inside the try: a Ctrl-C right after it still stops the bridge
+        print(f"Foxglove: open {bridge.url} (Open connection -> Foxglove WebSocket); Image panel on "
+              f"/gflow/{stream or 'STREAM'}/image with annotations /gflow/{stream or 'STREAM'}/annotations; "
+              f"Ctrl-C stops", file=sys.stderr, flush=True)
         while end is None or time.monotonic() < end:
             time.sleep(0.2)
     except KeyboardInterrupt:

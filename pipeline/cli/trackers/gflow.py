@@ -7,9 +7,10 @@ disagree, which the stages report). ``--shards K`` builds K proposal stages
 ``proposal0 .. proposal{K-1}``, each proposing for one block of experts, all feeding the
 filter: :func:`make_plan` generates that graph from the graph file.
 
-``--model FILE`` (the option is shared with ``--tracker m2``) is a morphable model file
-(``pipeline.io.modelfile``, kind ``morphable``); without it the generic ellipsoid head is
-fitted into ``--init``.
+``--model`` (the option is shared with ``--tracker m2``) is a morphable model file
+(``pipeline.io.modelfile``, kind ``morphable``, e.g. from ``gflow learn gflow``), ``face`` (the
+default: the face model shipped with gflow, ``pipeline/models/face.npz``) or ``ellipsoid`` (the
+generic rigid head fitted into ``--init``).
 """
 
 from __future__ import annotations
@@ -27,6 +28,12 @@ GRAPH = "gflow"
 
 #: stage names of the graph
 PROPOSAL, FILTER = "proposal", "filter"
+#: ``--model`` names: the built-in face model (the default) and the generic ellipsoid head
+DEFAULT_MODEL, ELLIPSOID = "face", "ellipsoid"
+#: the generic head's settings (the graph's are the face model's): a flatter head, the paper's grey levels
+#: with a gain and bias per frame, texels as a random walk, rotation within 30 degrees (README, "G-flow")
+ELLIPSOID_SETTINGS = {"model": "", "depth_ratio": 0.6, "sigma_w": 1e-3, "psi_v": 3e-4, "texture_decay": 1.0,
+                      "contrast_sigma": 0.0, "photometric": True, "reset_rate": 0.0, "max_rotation_deg": 30.0}
 
 
 def add_args(g) -> None:
@@ -65,18 +72,20 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
         v = getattr(args, opt, None)
         if v is not None:
             shared[param] = v
-    model = getattr(args, "model", None)
-    if model:
+    model = getattr(args, "model", None) or DEFAULT_MODEL
+    if model == ELLIPSOID:
+        shared.update(ELLIPSOID_SETTINGS)  # the stages fit the generic head into the initial box
+    else:
         from gflow_core.gflow import MorphableModel
 
-        from pipeline.io.modelfile import load_model
+        from pipeline.io.modelfile import BUILTIN_MODELS, load_model, model_path
 
-        path = Path(model)
+        path = model_path(model)
         obj = load_model(path)  # a missing or corrupt file fails here, before anything starts
         if not isinstance(obj, MorphableModel):
             raise CliError(f"{path} holds a {type(obj).__name__}; --tracker gflow needs a morphable model file "
                            f"(kind 'morphable')")
-        shared["model"] = str(path.resolve())
+        shared["model"] = model if model in BUILTIN_MODELS else str(path.resolve())
     shared.update(_gflow_sets(getattr(args, "gflow_set", None)))
     shards = int(getattr(args, "shards", 1) or 1)
     if shards < 1:

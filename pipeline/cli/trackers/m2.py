@@ -17,7 +17,9 @@ def add_args(g) -> None:
     # --particles is shared with the chamfer tracker (it adds the option); --model is shared
     # with --tracker gflow (a morphable model file there)
     g.add_argument("--model", metavar="MODEL.npz",
-                   help="model file: m2 needs one learned by `gflow learn m2`; gflow takes a morphable model")
+                   help="model file: m2 needs one learned by `gflow learn m2`; gflow takes a morphable model "
+                        "file (`gflow learn gflow`), `face` (its default, the built-in face model) or `ellipsoid` "
+                        "(a generic rigid head fitted into --init)")
 
 
 def overrides(args) -> tuple[str, dict[str, dict]]:

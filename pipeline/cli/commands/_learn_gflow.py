@@ -1,0 +1,132 @@
+"""``gflow learn gflow``: a morphable face model (eq. 1) from 3-D landmark tracks.
+
+The mathematics is :mod:`gflow_core.gflow.morphable_learn` (Procrustes, frontal frame, vertex
+choice, PCA morph bases); this module reads the landmark files (:mod:`pipeline.io.landmarks`)
+and boxes, and writes the model file (:mod:`pipeline.io.modelfile`, kind ``morphable``, with
+``landmarks``, ``reference_box`` and ``morph_std``) with how it was made as metadata.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.cli.commands.common import CliError
+
+#: default number of vertices kept (farthest-point sampling of the 468 landmarks)
+DEFAULT_VERTICES = 160
+
+
+def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
+    """(frames, 4) boxes of a landmark file's frames (NaN rows where the box file has none)."""
+    from pipeline.recording.results import read_boxes
+
+    path = Path(box_file) if box_file else source.parent / "groundtruth.csv"
+    if not path.is_file():
+        raise CliError(f"--boxes: {path} not found" + ("" if box_file else f" (the ground truth beside {source})"))
+    b = read_boxes(path)
+    out = np.full((frames, 4), np.nan)
+    for f, box in b.items():
+        if 0 <= f < frames:
+            out[f] = box
+    return out
+
+
+def cmd_learn_gflow(args) -> int:
+    from gflow_core.gflow.morphable_learn import learn_morphable
+
+    from pipeline.cli.commands.common import check_outputs
+    from pipeline.io.datasets import parse_range
+    from pipeline.io.landmarks import read_landmarks, resolve_landmarks
+    from pipeline.io.modelfile import save_model
+
+    check_outputs(out=args.out)
+    if args.k < 1:
+        raise CliError(f"-k must be a positive number of morph bases, got {args.k}")
+    n_vertices = None if args.vertices in ("all", "0") else _positive_int(args.vertices)
+    start, stop = parse_range(args.frames)
+    if args.boxes is not None and args.boxes and len(args.boxes) != len(args.sources):
+        raise CliError(f"--boxes: give one box file per source ({len(args.sources)}), or none to use each source's "
+                       f"groundtruth.csv")
+    tracks, boxes, names, used = [], [], [], []
+    for i, src in enumerate(args.sources):
+        path = resolve_landmarks(src)
+        lm = read_landmarks(path, key=args.key, dims=(3,))
+        sel = slice(start, stop)
+        frames = np.arange(lm.shape[0])[sel]
+        if frames.size == 0:
+            raise CliError(f"{path} has {lm.shape[0]} frames: none in --frames {args.frames}")
+        tracks.append(lm[sel])
+        if args.boxes is not None:
+            boxes.append(_boxes_for(path, lm.shape[0], args.boxes[i] if args.boxes else None)[sel])
+        names.append(str(path))  # as given (the shipped model says ../shared/data/..., not this machine's path)
+        used.append(f"{frames[0]}:{frames[-1] + 1}")
+        if not args.quiet:
+            ok = int(np.isfinite(lm[sel]).all(axis=(1, 2)).sum())
+            print(f"read {path}: {lm.shape[1]} landmarks, {frames.size} frames ({ok} with a face)", file=sys.stderr)
+    try:
+        face = learn_morphable(tracks, k=args.k, n_vertices=n_vertices, boxes=boxes if boxes else None)
+    except ValueError as e:
+        raise CliError(f"cannot learn a face model: {e}") from None
+    m = face.model
+    meta = {"source": ";".join(names), "frames": ";".join(used), "training_frames": face.frames, "k": m.n_bases,
+            "vertices": m.n_vertices, "boxes": "yes" if boxes else "no",
+            "explained": face.explained, "residual_rms": face.residual_rms,
+            "command": "gflow learn gflow " + " ".join(sys.argv[3:]) if sys.argv[1:3] == ["learn", "gflow"] else ""}
+    out = save_model(args.out, m, meta=meta)
+    expl = ", ".join(f"{100 * v:.0f}%" for v in face.explained) or "none (k = 1)"
+    print(f"learned a morphable face model: k={m.n_bases} bases (the mean shape and {m.n_bases - 1} morphs), "
+          f"n={m.n_vertices} vertices, from {face.frames} frames; deformation variance per morph: {expl}; "
+          f"residual {face.residual_rms:.4f} face heights RMS; written to {out}")
+    return 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise CliError(f"--vertices expects a number or 'all', got {text!r}") from None
+    if v < 3:
+        raise CliError(f"--vertices must be at least 3 (or 'all'), got {v}")
+    return v
+
+
+def add_parser(models) -> None:
+    """``gflow learn gflow`` under the ``learn`` command's model subparsers."""
+    q = models.add_parser(
+        "gflow", help="a morphable face model (G-flow, eq. 1) from 3-D landmark tracks",
+        description=textwrap.fill(
+            "Learn a morphable model x_i = g r h_i c + l (Marks et al. 2004, eq. 1) from 3-D face landmarks tracked "
+            "in one or more videos: each frame's rigid pose and scale are removed (generalised orthogonal "
+            "Procrustes), the mean is turned to face the camera (eye corners 33 -> 263 along +x, mouth below) and "
+            "scaled to 1 unit high, the vertices are chosen (farthest-point sampling; the eye and mouth corners "
+            "33, 133, 362, 263, 61, 291 always kept), and the k morph bases are the mean shape and the k - 1 "
+            "leading principal deformations. Each vertex keeps the index of the landmark it came from. Any "
+            "landmark source in MediaPipe Face Mesh's layout (468 points, indices as MediaPipe's; x, y in pixels, "
+            "z in the same units, NaN for frames without a face) works, e.g. ../shared/data/david_indoor/"
+            "landmarks.npz. Track with `gflow track SOURCE --tracker gflow --model MODEL.npz --init X,Y,W,H`.", 90),
+        epilog="examples:\n"
+               "  gflow learn gflow ../shared/data/david_indoor --boxes --out face.npz\n"
+               "  gflow learn gflow ../shared/data/david_indoor --boxes --frames 0:335 -k 5 --vertices 160 "
+               "--out face-first-half.npz\n"
+               "  gflow learn gflow a/landmarks.npz b/landmarks.npz --out faces.npz   # two videos, one model",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    q.add_argument("sources", nargs="+", metavar="LANDMARKS",
+                   help="landmark file (.npz, (frames, 468, 3) under --key) or a dataset folder holding landmarks.npz")
+    q.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
+    q.add_argument("-k", type=int, default=5, help="morph bases, the first being the mean shape (default 5, as in "
+                                                   "the paper)")
+    q.add_argument("--vertices", default=str(DEFAULT_VERTICES), metavar="N",
+                   help=f"vertices kept, or 'all' (default {DEFAULT_VERTICES}: evenly spread over the face)")
+    q.add_argument("--boxes", metavar="GT.csv", nargs="*",
+                   help="boxes (frame,x,y,w,h) of the same frames, one file per source, or no file: the "
+                        "groundtruth.csv beside each landmark file; where they sit on the face is the model's "
+                        "reference box, which `gflow track --init` is read against (default: the face's outline)")
+    q.add_argument("--frames", metavar="A:B", help="learn from frames A <= index < B (default: all)")
+    q.add_argument("--key", default="landmarks", help="name of the landmark array in the files (default landmarks)")
+    q.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    q.set_defaults(func=cmd_learn_gflow)

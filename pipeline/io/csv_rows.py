@@ -1,0 +1,26 @@
+"""Reading the project's CSV tables (boxes ``frame,x,y,w,h``, face points ``frame,landmark,x,y``)."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+__all__ = ["csv_rows"]
+
+
+def csv_rows(path: str | Path, columns: str, what: str):
+    """``(line number, row)`` of a CSV file of ``columns`` (e.g. ``"frame,x,y,w,h"``): blank lines and a
+    header line are skipped; a short row or a missing file is an error naming the file (and line)."""
+    p = Path(path)
+    if not p.is_file():
+        raise FileNotFoundError(f"{what} file not found: {p}")
+    n = columns.count(",") + 1
+    with open(p, newline="") as f:
+        for lineno, row in enumerate(csv.reader(f), start=1):
+            if not row or not "".join(row).strip():
+                continue
+            if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
+                continue  # header
+            if len(row) < n:
+                raise ValueError(f"{p}:{lineno}: expected {columns}, got {len(row)} column(s)")
+            yield lineno, row

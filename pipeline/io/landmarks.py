@@ -1,0 +1,123 @@
+"""Face landmark files: reference landmarks (``.npz``) and tracked points (``.csv``).
+
+* A **landmark file** is a ``numpy.savez`` archive with one array of shape
+  ``(frames, landmarks, 2 or 3)``, float, under the key ``landmarks`` (another key can be
+  named): ``x, y`` in pixels of the frame (origin at the top-left pixel centre), ``z`` (if
+  any) in the same units, away from the camera; a frame whose landmarks were not found is
+  NaN. ``../shared/data/david_indoor/landmarks.npz`` (MediaPipe Face Mesh, 468 points) is one.
+  A dataset folder holding ``landmarks.npz`` stands for that file.
+* A **points file** is CSV ``frame,landmark,x,y``: one row per tracked vertex and frame,
+  ``landmark`` being the reference landmark index the vertex was learned from
+  (``gflow track --tracker gflow --points-out P.csv`` writes it).
+
+Every problem (missing file or key, wrong shape or dtype, a torn or non-numeric row) raises
+an error naming the file.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.io.csv_rows import csv_rows
+
+__all__ = ["LANDMARK_KEY", "resolve_landmarks", "read_landmarks", "read_points", "write_points"]
+
+#: The default key of the landmark array in a landmark file.
+LANDMARK_KEY = "landmarks"
+
+
+def resolve_landmarks(source: str | os.PathLike) -> Path:
+    """The landmark file of ``source``: the file itself, or ``source/landmarks.npz`` for a folder."""
+    p = Path(source)
+    if p.is_dir():
+        q = p / "landmarks.npz"
+        if not q.is_file():
+            raise FileNotFoundError(f"{p} is a folder without landmarks.npz")
+        return q
+    if not p.is_file():
+        raise FileNotFoundError(f"landmark file not found: {p}")
+    return p
+
+
+def read_landmarks(source: str | os.PathLike, key: str = LANDMARK_KEY, dims: tuple[int, ...] = (2, 3)) -> np.ndarray:
+    """Read a landmark file.
+
+    Parameters
+    ----------
+    source : an ``.npz`` file, or a folder holding ``landmarks.npz``.
+    key : the array's name in the archive.
+    dims : accepted sizes of the last axis (``(3,)`` to require 3-D landmarks).
+
+    Returns
+    -------
+    (T, N, D) float64, NaN where a frame has no landmarks.
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        With a one-line message naming the file and what is wrong.
+    """
+    p = resolve_landmarks(source)
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            if key not in z.files:
+                raise ValueError(f"{p}: no array {key!r} (it holds {', '.join(z.files) or 'nothing'})")
+            a = np.asarray(z[key])
+    except ValueError as e:
+        if str(e).startswith(str(p)):
+            raise
+        raise ValueError(f"{p}: not a readable landmark file (.npz without pickled arrays): {e}") from None
+    except (zipfile.BadZipFile, OSError, EOFError) as e:
+        raise ValueError(f"{p}: not a readable landmark file (.npz): {type(e).__name__}: {e}") from None
+    if a.ndim != 3 or a.shape[2] not in dims or a.shape[1] < 1:
+        want = " or ".join(str(d) for d in dims)
+        raise ValueError(f"{p}: {key!r} must have shape (frames, landmarks, {want}), got {a.shape}")
+    if not np.issubdtype(a.dtype, np.floating):
+        raise ValueError(f"{p}: {key!r} must be floating point (pixels, NaN for frames without a face), got {a.dtype}")
+    a = np.asarray(a, dtype=np.float64)
+    if np.isinf(a).any():
+        raise ValueError(f"{p}: {key!r} has infinite values (use NaN for a frame without landmarks)")
+    return a
+
+
+def write_points(path: str | os.PathLike, points: dict[int, tuple[np.ndarray, np.ndarray]]) -> Path:
+    """Write ``frame,landmark,x,y`` rows.
+
+    Parameters
+    ----------
+    points : {frame: (landmarks (n,) int, xy (n, 2) float)}
+    """
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    with open(p, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["frame", "landmark", "x", "y"])
+        for frame in sorted(points):
+            lm, xy = points[frame]
+            for i, (x, y) in zip(np.asarray(lm).tolist(), np.asarray(xy, dtype=np.float64).tolist()):
+                w.writerow([int(frame), int(i), f"{x:.3f}", f"{y:.3f}"])
+    return p
+
+
+def read_points(path: str | os.PathLike) -> dict[int, dict[int, tuple[float, float]]]:
+    """Read a points file: ``{frame: {landmark: (x, y)}}`` (a header line is optional)."""
+    p = Path(path)
+    out: dict[int, dict[int, tuple[float, float]]] = {}
+    for lineno, row in csv_rows(p, "frame,landmark,x,y", "points"):
+        try:
+            frame, lm = int(row[0]), int(row[1])
+            x, y = float(row[2]), float(row[3])
+        except ValueError:
+            raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if not (math.isfinite(x) and math.isfinite(y)):
+            raise ValueError(f"{p}:{lineno}: point has NaN or inf")
+        out.setdefault(frame, {})[lm] = (x, y)
+    if not out:
+        raise ValueError(f"{p}: no points")
+    return out
