@@ -204,7 +204,9 @@ def judge(st: LostState, obs: Observation, held: tuple[float, ...], p: LostParam
     else:
         lost = (not vis.present) if st.lost_run == 0 else vis.visible < 0.5
     if lost:
-        return replace(st, clutter=clutter, lost_run=st.lost_run + 1), vis, True
+        # the clutter is sampled only where the target is known: around a lost estimate the ring
+        # may hold the target itself
+        return replace(st, lost_run=st.lost_run + 1), vis, True
     return LostState(target=st.target.update(1.0 - obs.r, p.rate), clutter=clutter, found=st.found + 1, lost_run=0,
                      held=tuple(float(v) for v in held)), vis, False
 
