@@ -13,7 +13,7 @@ recording's log times (start-up excluded). Message sizes are the mean encoded pa
 the recording. Peak RSS is each process's high-water mark (``VmHWM`` in /proc/PID/status, read
 every 0.1 s while it runs, so a peak between two heartbeats is not missed; a restarted
 process counts its worst run); CPU is each process's user + system time per tracked frame
-(from /proc/PID/stat at the last reading). Targets (issue 11): every process under 250 MB
+(from /proc/PID/stat at the last reading). Targets: every process under 250 MB
 at 100 experts with the background model on; with 2 shards faster than inline.
 """
 

@@ -51,7 +51,7 @@ def main() -> int:
     ap.add_argument("--speaker", default="anya")
     ap.add_argument("-K", type=int, default=30)
     ap.add_argument("--patch-size", default="", help="WxH of the patches (default: the frames' own 80x60; the "
-                                                     "learned d_k depend on it, see the README)")
+                                                     "learned d_k depend on it, see docs/accuracy.md)")
     ap.add_argument("--particles", type=int, default=500)
     ap.add_argument("--sweep", type=int, nargs="*", default=[], help="extra K values for the d_k sweep (shuffle)")
     args = ap.parse_args()

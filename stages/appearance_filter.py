@@ -7,10 +7,13 @@ Toyama & Blake 2002). This stage adapts it to the pipeline's particle messages:
   from the grey levels) and ``proposals`` for frame t from ``particle.proposal`` (a random
   walk on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)).
 * Outputs: ``particles`` (the resampled posterior of t, alpha = (x, y, 0, s)) and
-  ``estimate``: the box, the posterior mean and std of alpha, the ESS, and the state
-  ``init``, ``track``, ``occluded`` (the target was judged hidden: the exemplars were not
-  updated and the velocity decays) or ``coast`` (no usable frame: the particles and the
-  model are carried over unchanged).
+  ``estimate``: the box, the posterior mean and std of alpha, the ESS, the data path
+  ``state`` -- ``init``, ``track``, ``occluded`` (the target was judged hidden: the box holds
+  the prediction, the exemplars are not updated and a widening region is searched), ``lost``
+  (hidden, and the search covers the whole frame), ``redetect`` (the search found it again
+  this frame) or ``coast`` (no usable frame: the particles and the model are carried over
+  unchanged) -- and what the tracker judges of the target: ``confidence``, P(visible) of
+  :mod:`gflow_core.visibility`, and ``target_state`` (``tracked``, ``occluded``, ``lost``).
 
 Bad input -- a missing, undecodable, uniform or wrongly sized frame, or missing proposals --
 makes the filter coast and is reported; it never stops the stream.
@@ -22,7 +25,8 @@ on caviar1, measured before the channels were made faster); ``--inline`` compute
 ``step``. The bits are the same either way.
 
 State for ``snapshot()`` / ``restore()``: the three exemplars, the particle cloud, the velocity,
-the confidence level and counters, as msgpack of a small Struct.
+the moments of the target's and the clutter's distance distributions, the hidden-frame count
+and counters, as msgpack of a small Struct (version 2).
 """
 
 from __future__ import annotations
@@ -47,7 +51,7 @@ __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
 
 PURPOSE_INIT = 0x51A1
 PURPOSE_STEP = 0x51A2
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2
 _DEFAULTS = ap.AppearanceParams()
 
 
@@ -69,8 +73,6 @@ class AppearanceFilterParams(Params):
     motion_prior: float = _DEFAULTS.motion_prior
     search: float = _DEFAULTS.search
     velocity_memory: float = _DEFAULTS.velocity_memory
-    occlusion_drop: float = _DEFAULTS.occlusion_drop
-    occlusion_patience: int = _DEFAULTS.occlusion_patience
     max_log_scale: float = _DEFAULTS.max_log_scale
     hidden_prior: float = _DEFAULTS.hidden_prior
     hidden_speed: float = _DEFAULTS.hidden_speed
@@ -88,6 +90,16 @@ class AppearanceFilterParams(Params):
     scale_consistency: float = _DEFAULTS.scale_consistency
     scale_min_score: float = _DEFAULTS.scale_min_score
     scale_gate: float = _DEFAULTS.scale_gate
+    warmup: int = _DEFAULTS.warmup
+    min_std: float = _DEFAULTS.min_std
+    target_rate: float = _DEFAULTS.target_rate
+    clutter_rate: float = _DEFAULTS.clutter_rate
+    search_start: float = _DEFAULTS.search_start
+    search_growth: float = _DEFAULTS.search_growth
+    search_scales: tuple[float, ...] = _DEFAULTS.search_scales
+    search_area: int = _DEFAULTS.search_area
+    hidden_after: int = _DEFAULTS.hidden_after
+    reappear: float = _DEFAULTS.reappear
 
     def __post_init__(self) -> None:
         if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
@@ -110,8 +122,9 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     centre: tuple[float, float] = (0.0, 0.0)
     log_s: float = 0.0
     velocity: tuple[float, float] = (0.0, 0.0)
-    level: float | None = None
-    occluded_run: int = 0
+    target: tuple[float, float, int] = (0.0, 0.0, 0)  # moments m1, m2 and count of the target's distance
+    clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # the same of the clutter's best distance
+    hidden_run: int = 0
     steps: int = 0
     last: dict = {}
 
@@ -182,15 +195,18 @@ class AppearanceFilterStage(Stage):
             raise feat
         return grey, feat
 
-    def _estimate(self, header, box, alpha, mean, std, ess, log_ev, state, score) -> Estimate:
+    def _estimate(self, header, box, alpha, mean, std, ess, log_ev, state, score, confidence: float = 1.0,
+                  target_state: str = "tracked") -> Estimate:
         p: AppearanceFilterParams = self.params  # type: ignore[assignment]
         x, y, w, h = box
         outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
         self.last = {"seq": header.seq, "box": [round(v, 2) for v in box], "ess": round(float(ess), 1),
-                     "state": state, "score": round(float(score), 4)}
+                     "state": state, "score": round(float(score), 4), "confidence": round(float(confidence), 4),
+                     "target_state": target_state}
         return Estimate(header=header, box=tuple(float(v) for v in box), alpha=tuple(float(v) for v in alpha), k=0,
                         mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std), ess=float(ess),
-                        n=p.particles, log_evidence=float(log_ev), contour=NDArray.of(outline), state=state)
+                        n=p.particles, log_evidence=float(log_ev), contour=NDArray.of(outline), state=state,
+                        confidence=float(confidence), target_state=target_state)
 
     def _initialise(self, seq: int, frame: Frame | None) -> list[Output]:
         p: AppearanceFilterParams = self.params  # type: ignore[assignment]
@@ -221,7 +237,9 @@ class AppearanceFilterStage(Stage):
         header = frame.header if frame is not None else self.header(seq, 0)
         a = np.array([st.centre[0], st.centre[1], 0.0, float(np.exp(st.log_s))])
         box = ap.box_of(st.centre, st.log_s, st.size0)
-        est = self._estimate(header, box, a, a, np.zeros(4), float(p.particles), 0.0, "coast", 0.0)
+        # no evidence this frame: the target is where it was judged to be, with no confidence
+        judged = "tracked" if st.hidden_run == 0 else str(self.last.get("target_state", "occluded"))
+        est = self._estimate(header, box, a, a, np.zeros(4), float(p.particles), 0.0, "coast", 0.0, 0.0, judged)
         self.steps += 1
         return [("particles", _posterior(header, st.particles)), ("estimate", est)]
 
@@ -258,8 +276,9 @@ class AppearanceFilterStage(Stage):
         a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
         mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])
         std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
-        est = self._estimate(frame.header, res.box, a, mean, std, res.ess, res.log_evidence,
-                             "occluded" if res.occluded else "track", res.score)
+        path = ("redetect" if res.redetected else "track") if res.target_state == "tracked" else res.target_state
+        est = self._estimate(frame.header, res.box, a, mean, std, res.ess, res.log_evidence, path, res.score,
+                             res.confidence, res.target_state)
         return [("particles", _posterior(frame.header, nst.particles)), ("estimate", est)]
 
     def summary(self) -> dict:
@@ -275,8 +294,9 @@ class AppearanceFilterStage(Stage):
             version=SNAPSHOT_VERSION, initialised=True, size0=(float(st.size0[0]), float(st.size0[1])),
             res=(int(st.res[0]), int(st.res[1])), anchor=NDArray.of(st.anchor), recent=NDArray.of(st.recent),
             slow=NDArray.of(st.slow), particles=NDArray.of(st.particles), centre=(float(st.centre[0]), float(st.centre[1])),
-            log_s=float(st.log_s), velocity=(float(st.velocity[0]), float(st.velocity[1])), level=st.level,
-            occluded_run=int(st.occluded_run), steps=self.steps, last=self.last))
+            log_s=float(st.log_s), velocity=(float(st.velocity[0]), float(st.velocity[1])),
+            target=(st.target.m1, st.target.m2, st.target.n), clutter=(st.clutter.m1, st.clutter.m2, st.clutter.n),
+            hidden_run=int(st.hidden_run), steps=self.steps, last=self.last))
 
     def restore(self, data: bytes) -> None:
         name = self.ctx.name
@@ -299,6 +319,7 @@ class AppearanceFilterStage(Stage):
             raise ValueError(f"stage {name!r}: bad appearance snapshot: {e}") from None
         self.state = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
                                         recent=recent, particles=parts, centre=np.array(snap.centre),
-                                        log_s=snap.log_s, velocity=np.array(snap.velocity), level=snap.level,
-                                        occluded_run=snap.occluded_run, slow=slow)
+                                        log_s=snap.log_s, velocity=np.array(snap.velocity), slow=slow,
+                                        target=ap.ChiSquare(*snap.target), clutter=ap.ChiSquare(*snap.clutter),
+                                        hidden_run=snap.hidden_run)
         self.shape = None

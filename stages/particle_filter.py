@@ -30,13 +30,17 @@ the reference box under the MAP alpha (centre u, size s * ref_size, so frame 0's
 init box); ``box: exemplar`` is the paper's bounding box of T_alpha x~_k.
 
 Lost target (departure: the paper is silent; :mod:`gflow_core.m2.lost`): each tracked frame's
-estimate is verified against the initial box by the correlation of edge-orientation channels;
-below half its running level (``lost_ratio``) the target is judged lost (state ``lost``): the
-estimate of the last found frame is held, the particles are kept within ``lost_window`` box
-sizes of it, and the initial box is searched for over that window; a match at 0.9 of the
-level resumes tracking from it (state ``redetect``); with ``lost_scales`` the search is also
-made at those multiples of the held size and the re-found target takes the best one's size. The online bank is not updated while
-lost. ``lost_ratio: 0`` is the paper's filter.
+estimate is verified against the initial box by the correlation of edge-orientation channels,
+and judged from the distributions of that distance (the target's, chi-squared as in the
+paper's sec. 3, and the clutter's around it, :mod:`gflow_core.visibility`). A lost target
+(state ``lost``) has the estimate of the last found frame held, the particles kept within
+``lost_window`` box sizes of it, and the initial box searched for over a window that widens by
+``lost_growth`` box sizes a frame up to the whole frame, at the sizes ``lost_scales``; a
+candidate that looks as the target did resumes tracking from it (state ``redetect``). The online
+bank is not updated while lost. ``lost_guard: false`` is the paper's filter. The estimate's
+``confidence`` is P(visible) of the verification and its ``target_state`` is ``tracked``,
+``occluded`` (lost, the search still local) or ``lost`` (the search covers the whole frame);
+without the guard they keep their defaults (``tracked``, 1).
 
 Blank frames (sec. 5.1.2, fig. 7): a frame whose edge map has fewer than ``min_edges``
 edge pixels carries no evidence; the particles coast on the dynamics (state ``coast``),
@@ -49,8 +53,8 @@ problem is reported; it never stops the stream.
 
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
-the lost guard's level, held estimate and anchor, and counters, as msgpack of a small Struct
-(version 2; version-1 snapshots still restore).
+the lost guard's distance distributions, held estimate and anchor, and counters, as msgpack of a
+small Struct (version 3; version-1 and -2 snapshots still restore, with a fresh guard).
 """
 
 from __future__ import annotations
@@ -74,6 +78,7 @@ from gflow_core.m2.target_shape import fit_to_box
 from gflow_core.m2.tracking import (ContourExemplars, ParticleCloud, curve_box, init_particles, posterior,
                                     template_from_edges, weigh)
 from gflow_core.particles import weight_histogram
+from gflow_core.visibility import ChiSquare
 
 from .base import Output, Params, Stage, StageInputError
 from .messages import Estimate, Features, Message, MessageError, NDArray, Particles
@@ -85,7 +90,7 @@ __all__ = ["FilterStage", "FilterParams"]
 PURPOSE_INIT = 0x1417
 PURPOSE_RESAMPLE = 0x2E5A
 PURPOSE_INIT_K = 0x1418
-SNAPSHOT_VERSION = 2
+SNAPSHOT_VERSION = 3
 
 
 class FilterParams(Params):
@@ -107,16 +112,11 @@ class FilterParams(Params):
     calibrate : widen the learned kernels so the initial box is a typical match on frame 0
         (:func:`gflow_core.m2.kernel.calibrate_sigma`).
     scale_prior : std of a prior N(0, .) on log s of the K = 1 chamfer tracker (0: none).
-    lost_ratio : the target is judged lost when the estimate's correlation with the initial box
-        (orientation channels) falls under this fraction of its running level (and under
-        ``lost_accept``); the estimate is then held, the particles kept within ``lost_window``
-        box sizes of it, and the initial box searched for over that window
-        (:mod:`gflow_core.m2.lost`; 0: no guard, the paper's filter).
-    lost_accept : a correlation at or above this is never judged lost.
-    lost_window : half-width of the hold and re-detection window, in box sizes.
+    lost_guard : verify the estimate against the initial box and hold, search and re-detect a
+        lost target (:mod:`gflow_core.m2.lost`; false: no guard, the paper's filter).
+    lost_window : half-width of the hold window and of the first re-detection window, in box sizes.
+    lost_growth : the re-detection window widens by this many box sizes a lost frame.
     lost_scales : sizes (multiples of the held size) searched when re-detecting (1.0 first).
-    lost_near : distance prior of the re-detection, r - lost_near * (distance in box sizes)^2 (0: none).
-    lost_reacquire : a re-detection needs r at least this fraction of the running level.
     fit_shape : stretch a learned model's item frame to the init box's aspect ratio.
     box : "reference" (the reference box under alpha) or "exemplar" (bounding box of T_alpha x~_k).
     """
@@ -135,19 +135,17 @@ class FilterParams(Params):
     confident_r: float = 0.6
     calibrate: bool = True
     scale_prior: float = 0.0
-    lost_ratio: float = 0.5
-    lost_accept: float = 0.5
+    lost_guard: bool = True
     lost_window: float = 1.5
+    lost_growth: float = 0.1
     lost_scales: tuple[float, ...] = (1.0,)
-    lost_near: float = 0.0
-    lost_reacquire: float = 0.9
     fit_shape: bool = True
     box: str = "reference"
 
     def __post_init__(self) -> None:
-        if not 0 <= self.lost_ratio < 1 or not self.lost_window > 0:
-            raise ValueError(f"lost_ratio must be in [0, 1) and lost_window positive, got {self.lost_ratio}, "
-                             f"{self.lost_window}")
+        if not self.lost_window > 0 or self.lost_growth < 0 or not self.lost_scales or min(self.lost_scales) <= 0:
+            raise ValueError(f"lost_window must be positive, lost_growth >= 0 and lost_scales positive, got "
+                             f"{self.lost_window}, {self.lost_growth}, {self.lost_scales}")
         if self.online < 0 or self.online_every < 1:
             raise ValueError(f"online must be >= 0 and online_every >= 1, got {self.online}, {self.online_every}")
         if not -1.0 <= self.confident_r <= 1.0:
@@ -194,9 +192,13 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     bank: _BankSnapshot | None = None  # online appearance exemplars (version 2)
     sigma: NDArray | None = None  # (K,) chamfer kernel widths after calibration on frame 0
     app_sigma: NDArray | None = None  # (K,) appearance kernel widths after calibration
-    lost: tuple[float, float, int, int] | None = None  # lost guard: level, var, found, lost_run
+    lost: tuple[float, float, int, int] | None = None  # lost guard (version 2, not restored): level, var, found, lost_run
+    lost_target: tuple[float, float, int] | None = None  # lost guard: moments m1, m2, count of the target's distance
+    lost_clutter: tuple[float, float, int] | None = None  # ... and of the clutter's best distance
+    lost_runs: tuple[int, int] = (0, 0)  # lost guard: found frames, consecutive lost frames
     held: tuple[float, ...] | None = None  # lost guard: box (x, y, w, h), alpha (4) and k of the last found frame
     anchor: NDArray | None = None  # lost guard: (th, tw, 4) channels of the initial box
+    judged: tuple[float, str] = (1.0, "tracked")  # confidence and target_state of the last estimate
 
 
 class FilterStage(Stage):
@@ -232,17 +234,17 @@ class FilterStage(Stage):
         self.ref_size = np.array(params.init[2:], dtype=np.float64)
         # the lost guard's orientation channels of a frame depend on the frame alone: a stage
         # process computes them ahead, on the host's second thread (stages.base, Stage.prepare)
-        self.prepare_ports = frozenset({"features"}) if params.lost_ratio > 0 else frozenset()  # type: ignore[misc]
+        self.prepare_ports = frozenset({"features"}) if params.lost_guard else frozenset()  # type: ignore[misc]
         self.last: dict = {}
         self.steps = 0
         self.warned = False
         self.lost = LostState()
         self.anchor: Anchor | None = None
+        self.judged: tuple[float, str] = (1.0, "tracked")  # confidence and target_state of the last estimate
 
     def _guard_params(self) -> LostParams | None:
         p: FilterParams = self.params  # type: ignore[assignment]
-        return (LostParams(ratio=p.lost_ratio, window=p.lost_window, accept=p.lost_accept, reacquire=p.lost_reacquire)
-                if p.lost_ratio > 0 else None)
+        return LostParams(window=p.lost_window, growth=p.lost_growth) if p.lost_guard else None
 
     def prepare(self, port: str, msg: Message) -> np.ndarray:
         """The lost guard's (H, W, 4) orientation channels of a feature frame's grey image."""
@@ -262,27 +264,31 @@ class FilterStage(Stage):
         (:mod:`gflow_core.m2.lost`). Returns the (possibly changed) posterior and state."""
         gp = self._guard_params()
         if gp is None or self.anchor is None or state != "track":
+            if state == "coast" and self.judged[1] == "tracked":
+                self.judged = (0.0, "tracked")  # no evidence this frame
             return post, state
         grey = self._grey(feat, seq)
         if grey is None:
             return post, state
         ch = self.prepared("features", feat)
         box = self._box(post.map_alpha, post.map_k)
-        r = lostmod.verify(ch, self.anchor, box)
-        self.lost, lost = lostmod.guard(self.lost, r, (*box, *post.map_alpha, post.map_k), gp)
+        obs = lostmod.observe(ch, self.anchor, box, gp)
+        self.lost, vis, lost = lostmod.judge(self.lost, obs, (*box, *post.map_alpha, post.map_k), gp)
         if not lost:
+            self.judged = (vis.visible if self.lost.found > gp.warmup else 1.0 - vis.hidden, "tracked")
             return post, state
         held = self.lost.held
         assert held is not None
         h_box, h_alpha, h_k = held[:4], np.array(held[4:8]), int(held[8])
         p: FilterParams = self.params  # type: ignore[assignment]
-        r_re, peak, f = lostmod.redetect_scales(ch, self.anchor, h_box, gp.window,  # type: ignore[arg-type]
-                                                tuple(p.lost_scales), p.lost_near)
+        cand, cvis, covers = lostmod.search(ch, self.anchor, h_box, self.lost, gp, tuple(p.lost_scales),  # type: ignore[arg-type]
+                                            None if obs.clutter is None else obs.clutter[1])
         alpha = post.resampled.alpha.copy()
         centre = np.array([h_box[0] + (h_box[2] - 1) / 2.0, h_box[1] + (h_box[3] - 1) / 2.0])
-        if lostmod.reacquired(self.lost, r_re, gp):
-            # re-detected: the held state moved onto the peak (and to its size), the particles with it
-            shift = peak - centre
+        if cand is not None and cvis is not None and cvis.present:
+            # re-detected: the held state moved onto the candidate (and to its size), the particles with it
+            f = float(np.exp(cand.log_f))
+            shift = cand.centre - centre
             new_alpha = h_alpha.copy()
             new_alpha[:2] += shift
             new_alpha[3] *= f
@@ -292,7 +298,8 @@ class FilterStage(Stage):
                                                    (0.25 * h_box[2] * f, 0.25 * h_box[3] * f))
             w, h = h_box[2] * f, h_box[3] * f
             new_box = (h_box[0] + shift[0] + (h_box[2] - w) / 2.0, h_box[1] + shift[1] + (h_box[3] - h) / 2.0, w, h)
-            self.lost, _ = lostmod.guard(self.lost, r_re, (*new_box, *new_alpha, h_k), gp)
+            self.lost = lostmod.found_again(self.lost, cand.r, (*new_box, *new_alpha, h_k), gp)
+            self.judged = (cvis.visible, "tracked")
             state = "redetect"
         else:
             # hold the last found estimate; keep the particles within the window around it
@@ -300,6 +307,7 @@ class FilterStage(Stage):
             half = (gp.window * h_box[2], gp.window * h_box[3])
             alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - centre + h_alpha[:2],
                                                    (float(h_alpha[0]), float(h_alpha[1])), half)
+            self.judged = (vis.visible, "lost" if covers else "occluded")
             state = "lost"
         post = replace(post, map_alpha=new_alpha, map_k=h_k,
                        resampled=ParticleCloud(alpha=alpha, k=post.resampled.k, log_w=post.resampled.log_w))
@@ -448,9 +456,11 @@ class FilterStage(Stage):
         contour = similarity.apply(alpha, self.model.curves[k, : self.model.n_points[k]]).astype(np.float32)
         self.last = {"seq": header.seq, "alpha": np.round(alpha, 3).tolist(), "ess": round(ess, 1), "state": state,
                      "k": int(k)}
+        confidence, target_state = (1.0, "tracked") if state == "init" or self._guard_params() is None else self.judged
         return Estimate(header=header, box=box, alpha=tuple(float(v) for v in alpha), k=int(k),
                         mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std), ess=float(ess),
-                        n=self.params.particles, log_evidence=float(log_ev), contour=NDArray.of(contour), state=state)  # type: ignore[attr-defined]
+                        n=self.params.particles, log_evidence=float(log_ev), contour=NDArray.of(contour), state=state,  # type: ignore[attr-defined]
+                        confidence=float(confidence), target_state=target_state)
 
     def _update(self, seq: int, feat: Features | None, cloud: ParticleCloud, first: bool = False) -> list[Output]:
         """Weigh ``cloud`` on the frame by eq. 7 (or coast), summarise, resample."""
@@ -558,7 +568,9 @@ class FilterStage(Stage):
                 frame=NDArray.of(self.bank.frame), last_add=self.bank.last_add),
             sigma=NDArray.of(self.model.sigma) if self.learned is not None and self.model is not None else None,
             app_sigma=NDArray.of(self.app.sigma) if self.app is not None else None,
-            lost=(self.lost.level, self.lost.var, self.lost.found, self.lost.lost_run),
+            lost_target=(self.lost.target.m1, self.lost.target.m2, self.lost.target.n),
+            lost_clutter=(self.lost.clutter.m1, self.lost.clutter.m2, self.lost.clutter.n),
+            lost_runs=(self.lost.found, self.lost.lost_run), judged=self.judged,
             held=self.lost.held, anchor=None if self.anchor is None else NDArray.of(self.anchor.channels))
         return msgspec.msgpack.encode(snap)
 
@@ -569,7 +581,7 @@ class FilterStage(Stage):
             snap = msgspec.msgpack.decode(data, type=_FilterSnapshot)
         except msgspec.DecodeError as e:
             raise ValueError(f"stage {name!r}: not a particle.filter snapshot: {e}") from None
-        if snap.version not in (1, SNAPSHOT_VERSION):  # version 1: no online bank, learned widths
+        if snap.version not in (1, 2, SNAPSHOT_VERSION):  # 1: no online bank, learned widths; 1-2: older guard
             raise ValueError(f"stage {name!r}: filter snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
         if snap.initialised and (snap.template is None) != (self.learned is not None):
             raise ValueError(f"stage {name!r}: the snapshot was taken " +
@@ -614,9 +626,12 @@ class FilterStage(Stage):
         self.last_cloud = cloud
         self.steps = snap.steps
         self.warned = snap.warned
-        self.lost = (LostState() if snap.lost is None else
-                     LostState(level=snap.lost[0], var=snap.lost[1], found=snap.lost[2], lost_run=snap.lost[3],
+        # a snapshot of the older guard (version 1-2, a level and thresholds) restores with a fresh one
+        self.lost = (LostState() if snap.lost_target is None or snap.lost_clutter is None else
+                     LostState(target=ChiSquare(*snap.lost_target), clutter=ChiSquare(*snap.lost_clutter),
+                               found=snap.lost_runs[0], lost_run=snap.lost_runs[1],
                                held=None if snap.held is None else tuple(snap.held)))
+        self.judged = (float(snap.judged[0]), str(snap.judged[1]))
         self.anchor = None
         if snap.anchor is not None and p.init is not None:
             try:

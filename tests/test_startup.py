@@ -1,4 +1,4 @@
-"""What a stage process pays for at start-up: only its own stage's imports (issue 11)."""
+"""What a stage process pays for at start-up: only its own stage's imports."""
 
 from __future__ import annotations
 

@@ -17,7 +17,7 @@ reference box T_alpha(box_ref), sampled on a grid of ``res`` = (tw, th) points; 
 same region of exemplar k's own training frame at its training state. rho_a = 1 - r, with r
 the Pearson correlation over all grid points and channels. The channels are invariant to
 gain and bias of the grey levels and far less sensitive to the colour of clothes than grey
-levels (measured: see the README's M2 section), which is what a different person needs.
+levels (measured: see docs/accuracy.md, m2), which is what a different person needs.
 rho_a lies in [0, 2]; sigma'_k, d'_k are fitted to the validation distances by eq. 10 or 11
 (:func:`.kernel.fit_kernels`), exactly like the chamfer kernels.
 

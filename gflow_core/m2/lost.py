@@ -16,29 +16,28 @@ first patch):
   initial box (the anchor, never updated) and the region of the estimate, resampled to
   the anchor's resolution. It is illumination-robust and does not depend on the contour
   model.
-* **Lost-target detection.** r_t is compared with its running level m (an exponential
-  moving mean over frames judged found, rate ``rate``): the target is lost when
-  r_t < max(min(``ratio`` m, ``accept``), ``min_found``), once ``warmup`` found frames have
-  set the level, or when the estimate's centre leaves the frame. (``min_found``: with a
-  model learned on pedestrians, a face's r stayed near 0.2 from the first frame, the
-  relative threshold near 0.1, and the posterior walked out of the frame.) (A
-  threshold in running standard deviations was tried first: on jumping the spread of r
-  over the first frames, with motion blur, put the threshold below zero.)
+* **Lost-target detection** (:mod:`gflow_core.visibility`). The distance rho = 1 - r_t is
+  a sigma^2 chi^2_d variable on frames where the estimate is the target (Toyama & Blake,
+  sec. 3 and eq. 10: d and sigma from the running moments of rho over the frames judged
+  found); beside it, the best correlation of the anchor in a ring around the estimate (centres
+  within ``ring`` box sizes, farther than half a box) is a sample of what clutter scores. The
+  target is lost when the hypothesis "the estimate is clutter" explains rho better than
+  "the target, as it looks" and "the target, part hidden" together, once ``warmup`` frames
+  have set the distributions, or when the estimate's centre leaves the frame. Nothing is a
+  threshold on r: the distributions are learned on the video being tracked. (The fixed
+  thresholds this replaces -- half the running level, a floor of 0.25, re-detection at 0.9
+  of the level and at least 0.4 -- were chosen on the shared sequences.)
 * **Hold and bound.** While lost, the reported estimate is the last found one, and the
   resampled particles are kept within ``window`` box sizes of it (positions beyond are
   clipped), so the posterior cannot run away on a low-likelihood target.
-* **Re-detection over a wider window.** While lost, the anchor is searched densely (every
-  pixel) over ``window`` box sizes around the held position, at the held size; when the
-  best r there is at least ``reacquire`` times the running level and at least
-  ``min_redetect`` (a match as good as the target's usual one, not merely above the lost
-  threshold: on caviar1 a lower bar moved the box onto a passer-by, and on david_indoor, with
-  a model learned on pedestrians whose level stayed near 0.2, onto the wall above the frame),
-  and its centre lies inside the frame, tracking resumes from that peak (the particles are moved onto it).
-  :func:`redetect_scales` searches at several sizes (the m2 graph: 0.93, 1, 1.07 of the held
-  size) and the re-found target takes the best size: on jumping a face that grew from 32 to 43
-  px was not re-found at the held size (m2 CLE 9.53 -> 4.51 px). A distance prior (``near``,
-  r - near * d^2 with d in box sizes) kept caviar1 off a passer-by but lost jumping's fast face
-  (success 0.90 -> 0.65 at 0.1), so the m2 graph leaves it off.
+* **Re-detection over a widening window** (:func:`gflow_core.redetect.search`). While lost,
+  the anchor is searched densely, coarse to fine, over centres within ``window`` +
+  ``growth`` x (frames lost) box sizes of the held position (up to the whole frame) at the
+  sizes the stage lists; the track resumes from the best candidate when it is judged the
+  target as it looks (P(visible) >= 1/2), with the clutter hypothesis taken as the best of as
+  many more draws as the searched area is larger than the ring (a wider search needs a closer
+  match). A distance prior was tried before (``near``: r - near d^2): it kept caviar1 off a
+  passer-by but lost jumping's fast face, and is gone.
 
 Limit: the verification is tied to the image axes. A target that turns in the image plane
 scores as lost: the synthetic scene's target turns by up to 0.25 rad and r fell from about
@@ -60,37 +59,40 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from .. import redetect
 from ..orientation import orientation_channels
-from ..appearance import region
+from ..regions import region
+from ..visibility import ChiSquare, Visibility, visibility
 
-__all__ = ["LostParams", "LostState", "Anchor", "anchor_of", "verify", "redetect", "redetect_scales", "guard",
-           "bound_positions"]
+__all__ = ["LostParams", "LostState", "Anchor", "Observation", "anchor_of", "verify", "observe", "judge",
+           "search", "found_again", "bound_positions", "channels"]
 
 
 @dataclass(frozen=True)
 class LostParams:
-    """ratio: lost below this fraction of the running level; rate: rate of the running level;
-    accept: r at or above this is never lost; warmup: found frames before any decision;
-    window: hold / re-detection half-width in box sizes; max_area: anchor resolution in pixels;
-    min_found: r under this is always lost;
-    reacquire, min_redetect: a re-detection needs r at least this fraction of the running
-    level and at least min_redetect."""
+    """window: hold half-width and first re-detection half-width, in box sizes; growth: the
+    re-detection widens by this many box sizes a lost frame; warmup: found frames before any
+    decision; rate, clutter_rate: forgetting rates of the target's and the clutter's distance
+    moments; min_std: floor on their spread; ring: the clutter is sampled at centres within
+    this many box sizes of the estimate (and farther than half a box); max_area: anchor
+    resolution in pixels; coarse_area: anchor pixels of the coarse pass of the search."""
 
-    ratio: float = 0.5
-    reacquire: float = 0.9
-    min_redetect: float = 0.4
-    min_found: float = 0.25
-    rate: float = 0.05
-    accept: float = 0.5
-    warmup: int = 5
     window: float = 1.5
+    growth: float = 0.1
+    warmup: int = 5
+    rate: float = 0.05
+    clutter_rate: float = 0.05
+    min_std: float = 0.05
+    ring: float = 1.0
     max_area: int = 600
+    coarse_area: int = 300
 
     def __post_init__(self) -> None:
-        if not (0 < self.ratio < 1 and 0 < self.reacquire and 0 < self.rate <= 1 and self.window > 0 and self.warmup >= 0
-                and self.max_area >= 36 and -1 <= self.accept <= 1):
-            raise ValueError(f"lost guard: ratio in (0, 1), rate in (0, 1], window positive, warmup >= 0, "
-                             f"max_area >= 36 and accept in [-1, 1], got {self}")
+        if not (self.window > 0 and self.growth >= 0 and self.warmup >= 0 and 0 < self.rate <= 1
+                and 0 < self.clutter_rate <= 1 and self.min_std > 0 and self.ring > 0.5 and self.max_area >= 36
+                and self.coarse_area >= 16):
+            raise ValueError(f"lost guard: window positive, growth and warmup >= 0, rates in (0, 1], min_std "
+                             f"positive, ring above 0.5, max_area >= 36 and coarse_area >= 16, got {self}")
 
 
 @dataclass(frozen=True)
@@ -105,14 +107,24 @@ class Anchor:
 
 @dataclass(frozen=True)
 class LostState:
-    """Running level of r (``var`` is kept for the snapshot layout and unused), found frames
-    seen, consecutive lost frames, and the held estimate (x, y, w, h of the last found frame's box, plus the model's state)."""
+    """The target's and the clutter's distance distributions, found frames seen, consecutive
+    lost frames, and the held estimate (x, y, w, h of the last found frame's box, plus the
+    model's state)."""
 
-    level: float = 0.0
-    var: float = 0.0
+    target: ChiSquare = ChiSquare()
+    clutter: ChiSquare = ChiSquare()
     found: int = 0
     lost_run: int = 0
     held: tuple[float, ...] | None = None
+
+
+@dataclass(frozen=True)
+class Observation:
+    """r of the anchor at the estimate, and the clutter's best r in the ring around it with the
+    area (px^2) of the centres it was taken over (None: the ring holds too few centres)."""
+
+    r: float
+    clutter: tuple[float, float] | None
 
 
 def channels(grey: np.ndarray) -> np.ndarray:
@@ -135,85 +147,104 @@ def _scale(anchor: Anchor, box: tuple[float, float, float, float]) -> float:
     return float(np.sqrt(max(box[2] * box[3], 1e-6) / (anchor.size[0] * anchor.size[1])))
 
 
+def _centre(box: tuple[float, ...]) -> np.ndarray:
+    return np.array([box[0] + (box[2] - 1) / 2.0, box[1] + (box[3] - 1) / 2.0])
+
+
 def verify(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, float]) -> float:
     """r: normalised correlation of the anchor with the region of ``box`` (centre and area;
-    the anchor's aspect ratio is kept, so a contour model's box shape does not matter)."""
+    the anchor's aspect ratio is kept, so a contour model's box shape does not matter);
+    -1 when the box's centre is outside the frame."""
+    return observe(feat, anchor, box, None).r
+
+
+def observe(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, float], p: LostParams | None
+            ) -> Observation:
+    """r of the anchor at ``box`` and, with ``p``, the clutter's best r over centres within
+    ``p.ring`` box sizes of it and farther than half a box (one correlation map)."""
     s = _scale(anchor, box)
-    c = np.array([box[0] + (box[2] - 1) / 2.0, box[1] + (box[3] - 1) / 2.0])
+    c = _centre(box)
     if not (0 <= c[0] <= feat.shape[1] - 1 and 0 <= c[1] <= feat.shape[0] - 1):
-        return -1.0  # the estimate left the frame
+        return Observation(r=-1.0, clutter=None)  # the estimate left the frame
     k = anchor.res[0] / (anchor.size[0] * s)
-    z = region(feat, c, (anchor.res[0] / k, anchor.res[1] / k), k)[: anchor.res[1], : anchor.res[0]]
-    return float(cv2.matchTemplate(np.ascontiguousarray(z), anchor.channels, cv2.TM_CCOEFF_NORMED)[0, 0])
-
-
-def redetect(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, float], window: float,
-             near: float = 0.0) -> tuple[float, np.ndarray]:
-    """Best r and its centre (x, y) over +- ``window`` box sizes around the held box, at its size.
-
-    ``near`` > 0: the score is r - near * (d_x^2 + d_y^2), d in box sizes from the held centre
-    (a prior that the target is near where it was last seen), and that score is returned."""
-    s = _scale(anchor, held)
-    c = np.array([held[0] + (held[2] - 1) / 2.0, held[1] + (held[3] - 1) / 2.0])
-    w, h = anchor.size[0] * s, anchor.size[1] * s
-    k = anchor.res[0] / w
-    win = region(feat, c, (w * (1 + 2 * window), h * (1 + 2 * window)), k)
     tw, th = anchor.res
-    if win.shape[0] <= th or win.shape[1] <= tw:
-        return -1.0, c
+    reach = 0.0 if p is None else p.ring
+    w, h = anchor.size[0] * s, anchor.size[1] * s
+    win = region(feat, c, (w * (1 + 2 * reach), h * (1 + 2 * reach)), k)
+    if p is None or win.shape[0] <= th or win.shape[1] <= tw:
+        z = np.ascontiguousarray(region(feat, c, (tw / k, th / k), k)[:th, :tw])
+        return Observation(r=float(cv2.matchTemplate(z, anchor.channels, cv2.TM_CCOEFF_NORMED)[0, 0]), clutter=None)
     r = cv2.matchTemplate(win, anchor.channels, cv2.TM_CCOEFF_NORMED)
     Wn, Hn = win.shape[1], win.shape[0]
-    # response (u, v) has the exemplar centre at window pixel (u + (tw - 1) / 2, v + (th - 1) / 2);
+    # response (u, v) has the anchor's centre at window pixel (u + (tw - 1) / 2, v + (th - 1) / 2);
     # window pixel (a, b) is image c + ((a, b) - (W - 1) / 2) / k
     origin = c + (np.array([(tw - 1) / 2.0, (th - 1) / 2.0]) - np.array([(Wn - 1) / 2.0, (Hn - 1) / 2.0])) / k
-    # only centres inside the frame (outside, the window is the frame's border repeated)
+    xs, ys = redetect.response_centres(origin, k, r.shape)
+    # r at the estimate: the response position nearest its centre
+    i, j = int(np.argmin(np.abs(ys - c[1]))), int(np.argmin(np.abs(xs - c[0])))
+    # only centres inside the frame count as clutter (outside, the window is the border repeated)
     H, W = feat.shape[:2]
-    u = origin[0] + np.arange(r.shape[1]) / k
-    v = origin[1] + np.arange(r.shape[0]) / k
-    r[(v < 0) | (v > H - 1), :] = -1.0
-    r[:, (u < 0) | (u > W - 1)] = -1.0
-    if near > 0:
-        du = ((u - c[0]) / w) ** 2
-        dv = ((v - c[1]) / h) ** 2
-        r = (r - near * (dv[:, None] + du[None, :])).astype(np.float32)
-    _, best, _, loc = cv2.minMaxLoc(r)
-    return float(best), origin + np.array(loc, dtype=np.float64) / k
+    r[(ys < 0) | (ys > H - 1), :] = -1.0
+    r[:, (xs < 0) | (xs > W - 1)] = -1.0
+    return Observation(r=float(r[i, j]), clutter=redetect.clutter_best(r, origin, k, c, (0.5 * w, 0.5 * h)))
 
 
-def redetect_scales(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, float], window: float,
-                    scales: tuple[float, ...], near: float = 0.0) -> tuple[float, np.ndarray, float]:
-    """:func:`redetect` at each size ``f`` * the held size (``f`` in ``scales``): the best r, its
-    centre and its ``f`` (the first of equal r wins, so list 1.0 first)."""
-    best: tuple[float, np.ndarray, float] = (-np.inf, np.array([held[0] + (held[2] - 1) / 2.0,
-                                                                 held[1] + (held[3] - 1) / 2.0]), 1.0)
-    for f in scales:
-        w, h = held[2] * f, held[3] * f
-        box = held if f == 1.0 else (held[0] + (held[2] - w) / 2.0, held[1] + (held[3] - h) / 2.0, w, h)
-        r, peak = redetect(feat, anchor, box, window / f, near)
-        if r > best[0]:
-            best = (r, peak, float(f))
-    return best
+def judge(st: LostState, obs: Observation, held: tuple[float, ...], p: LostParams
+          ) -> tuple[LostState, Visibility, bool]:
+    """One frame's decision from its observation: (new state, the visibility of the estimate,
+    lost?). ``held`` is what to hold if this frame is found. A lost target is found again at
+    the estimate only where it looks as it did (P(visible) >= 1/2), not merely better than
+    clutter."""
+    vis = visibility(1.0 - obs.r, st.target, st.clutter, p.min_std)
+    clutter = st.clutter if obs.clutter is None else st.clutter.update(1.0 - obs.clutter[0], p.clutter_rate)
+    if obs.r <= -1.0:
+        lost = st.found >= p.warmup or st.lost_run > 0
+    elif st.found < p.warmup:
+        lost = False
+    else:
+        lost = (not vis.present) if st.lost_run == 0 else vis.visible < 0.5
+    if lost:
+        # the clutter is sampled only where the target is known: around a lost estimate the ring
+        # may hold the target itself
+        return replace(st, lost_run=st.lost_run + 1), vis, True
+    return LostState(target=st.target.update(1.0 - obs.r, p.rate), clutter=clutter, found=st.found + 1, lost_run=0,
+                     held=tuple(float(v) for v in held)), vis, False
 
 
-def threshold(st: LostState, p: LostParams) -> float:
-    """r below this is lost: max(min(ratio * level, accept), min_found)."""
-    return max(min(p.ratio * st.level, p.accept), p.min_found)
+def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, float], st: LostState,
+           p: LostParams, scales: tuple[float, ...], ring_area: float | None
+           ) -> tuple[redetect.Candidate | None, Visibility | None, bool]:
+    """Search for the lost target around the held box (:func:`gflow_core.redetect.search`) over
+    centres within ``window + growth * lost_run`` box sizes, at ``scales`` times the held size.
+    Returns the first candidate (in the order of ``scales``) judged visible with its visibility,
+    else the one of highest r (None, None when nothing was searched), and whether the searched
+    region covered the whole frame. The caller resumes tracking on a candidate judged present. ``ring_area``: the area the clutter
+    distribution is learnt over (the search had area / ring_area times the chances)."""
+    c = _centre(held)
+    size = (float(held[2]), float(held[3]))
+    reach = p.window + p.growth * max(st.lost_run - 1, 0)
+    margin = (reach * size[0], reach * size[1])
+    H, W = feat.shape[:2]
+    covers = c[0] - margin[0] <= 0 and c[0] + margin[0] >= W - 1 and c[1] - margin[1] <= 0 and c[1] + margin[1] >= H - 1
+    # the anchor's resolution, its size scaled to the held box's area
+    s = _scale(anchor, held)
+    cands = redetect.search(feat, [anchor.channels], anchor.res, (anchor.size[0] * s, anchor.size[1] * s), c, margin,
+                            tuple(float(np.log(f)) for f in scales), coarse_area=p.coarse_area)
+    best: tuple[redetect.Candidate | None, Visibility | None] = (None, None)
+    for cand in cands:  # the first size listed first: the anchor matches smaller boxes better as the look drifts
+        trials = max(cand.area / ring_area, 1.0) if ring_area else 1.0
+        vis = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials)
+        if vis.visible >= 0.5:
+            return cand, vis, covers
+        if best[0] is None or cand.r > best[0].r:
+            best = (cand, vis)
+    return best[0], best[1], covers
 
 
-def reacquired(st: LostState, r: float, p: LostParams) -> bool:
-    """Is a re-detection with correlation ``r`` good enough to resume tracking?"""
-    return bool(np.isfinite(r) and r >= max(p.reacquire * st.level, threshold(st, p), p.min_redetect))
-
-
-def guard(st: LostState, r: float, held: tuple[float, ...], p: LostParams) -> tuple[LostState, bool]:
-    """One frame's decision from its verification ``r``: (new state, lost?). ``held`` is
-    what to hold if this frame is found."""
-    ready = st.found >= p.warmup
-    if ready and not (np.isfinite(r) and r >= threshold(st, p)):
-        return replace(st, lost_run=st.lost_run + 1), True
-    # m <- m + rate (r - m) over found frames
-    level = float(r) if st.found == 0 else st.level + p.rate * (float(r) - st.level)
-    return LostState(level=level, var=0.0, found=st.found + 1, lost_run=0, held=tuple(float(v) for v in held)), False
+def found_again(st: LostState, r: float, held: tuple[float, ...], p: LostParams) -> LostState:
+    """The state after a re-detection with correlation ``r`` placed the target at ``held``."""
+    return LostState(target=st.target.update(1.0 - r, p.rate), clutter=st.clutter, found=st.found + 1, lost_run=0,
+                     held=tuple(float(v) for v in held))
 
 
 def bound_positions(xy: np.ndarray, centre: tuple[float, float], half: tuple[float, float]) -> np.ndarray:

@@ -55,21 +55,27 @@ class Scene:
         return np.clip(img, 0, 255).astype(np.uint8)
 
 
-def _run(scene: Scene, params: ap.AppearanceParams, seed: int = 1):
+def _track(scene: Scene, params: ap.AppearanceParams, seed: int = 1) -> list[ap.StepResult]:
+    """The tracker on every frame after the first, as the appearance graph runs it."""
     box0 = scene.truth(0)
     dyn = random_walk(0.08 * np.sqrt(box0[2] * box0[3]), 0.0, params.std_log_s)
     st = ap.initialise(ap.features(scene.grey(0)), box0, params, np.random.default_rng([seed, 0]))
-    boxes, occluded = [box0], [False]
+    out = []
     for t in range(1, scene.n):
         a = np.column_stack([st.particles[:, :2], np.zeros(len(st.particles)), np.exp(st.particles[:, 2])])
         a = dyn.predict(a, np.random.default_rng([seed, 1, t]))
         prop = np.column_stack([a[:, :2], np.log(a[:, 3])])
         res = ap.step(st, ap.features(scene.grey(t)), prop, params, np.random.default_rng([seed, 2, t]))
         st = res.state
-        boxes.append(res.box)
-        occluded.append(res.occluded)
+        out.append(res)
+    return out
+
+
+def _run(scene: Scene, params: ap.AppearanceParams, seed: int = 1):
+    res = _track(scene, params, seed)
+    boxes = np.array([scene.truth(0)] + [r.box for r in res])
     truth = np.array([scene.truth(t) for t in range(scene.n)])
-    return np.array(boxes), truth, np.array(occluded)
+    return boxes, truth, np.array([False] + [r.occluded for r in res])
 
 
 def test_orientation_channels_shape_and_light_invariance():
@@ -217,3 +223,52 @@ def test_bad_parameters_and_boxes_are_refused():
     st = ap.initialise(feat, (5, 5, 20, 20), ap.AppearanceParams(), np.random.default_rng(0))
     with pytest.raises(ValueError, match="finite"):
         ap.step(st, feat, np.full((300, 3), np.nan), ap.AppearanceParams(), np.random.default_rng(1))
+
+
+class CoveredScene(Scene):
+    """A patch of its own texture covers the target (its box and a margin, moving with it) on
+    the frames of ``cover``: a full occlusion."""
+
+    def __init__(self, path, n: int, cover: range, **kw):
+        super().__init__(path, n, **kw)
+        self.cover = cover
+        self.patch = _texture(np.random.default_rng(99), 120, 120, 7.0)
+
+    def grey(self, t: int) -> np.ndarray:
+        img = Scene.grey(self, t)
+        if t in self.cover:
+            x, y, w, h = self.truth(t)
+            x0, y0 = int(x - 0.2 * w), int(y - 0.2 * h)
+            pw, ph = int(1.4 * w) + 2, int(1.4 * h) + 2
+            img[max(y0, 0):y0 + ph, max(x0, 0):x0 + pw] = cv2.resize(self.patch, (pw, ph))[max(0, -y0):, max(0, -x0):][
+                : H - max(y0, 0), : W - max(x0, 0)].astype(np.uint8)
+        return img
+
+
+def test_a_target_hidden_for_50_frames_is_found_again_and_the_states_say_so():
+    # the target walks 1.5 px a frame to the right; a patch hides it on frames 40-89, while it
+    # moves 75 px (beyond the usual search window): the tracker must say it is hidden, hold,
+    # search, and find it again once the patch is gone
+    def path(t):
+        return 70.0 + 1.5 * t, 120.0 + 10.0 * np.sin(t / 20.0), 1.0
+    cover = range(40, 90)
+    scene = CoveredScene(path, 150, cover)
+    res = _track(scene, ap.AppearanceParams())
+    truth = np.array([scene.truth(t) for t in range(scene.n)])
+    boxes = np.array([truth[0]] + [r.box for r in res])
+    states = ["tracked"] + [r.target_state for r in res]
+    conf = np.array([1.0] + [r.confidence for r in res])
+    hidden = [states[t] in ("occluded", "lost") for t in cover[5:]]
+    assert np.mean(hidden) >= 0.7, states[40:90]
+    undisturbed = [t for t in range(scene.n) if t < cover.start or t >= cover.stop + 10]
+    assert np.mean([states[t] == "tracked" for t in undisturbed]) >= 0.9
+    # found again: success at IoU 0.5 from 10 frames after the patch is gone
+    after = np.arange(cover.stop + 10, scene.n)
+    assert np.mean(iou(truth[after], boxes[after]) > 0.5) >= 0.8, centre_error(truth, boxes)[cover.stop:]
+    # the confidence reads the same: high on seen frames, low on hidden ones
+    assert np.median(conf[undisturbed]) > 0.5 and np.median(conf[list(cover[5:])]) < 0.2
+    # the box held while hidden stays in the frame, and a box held still does not pass
+    assert all(-b[2] / 2 <= b[0] <= W - b[2] / 2 and -b[3] / 2 <= b[1] <= H - b[3] / 2 for b in boxes)
+    held = boxes.copy()
+    held[cover.stop:] = boxes[cover.stop - 1]
+    assert np.mean(iou(truth[after], held[after]) > 0.5) < 0.5

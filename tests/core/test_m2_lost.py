@@ -40,38 +40,50 @@ def _jump_path(t: int):
     return (100.0 if t < 12 else 180.0), 120.0, 1.0
 
 
-def test_verify_redetect_and_the_lost_decision() -> None:
+def test_verify_search_and_the_lost_decision() -> None:
     scene = FramedScene(_jump_path, 20)
     box0 = scene.truth(0)
     ch0 = lost.channels(scene.grey(0))
     anchor = lost.anchor_of(ch0, box0, P)
     assert lost.verify(ch0, anchor, box0) > 0.9
     ch = lost.channels(scene.grey(15))
-    # the target left the box: r is low there; the re-detection finds it 45 px away
-    assert lost.verify(ch, anchor, box0) < 0.3
-    r, peak = lost.redetect(ch, anchor, box0, window=3.0)
-    truth = scene.truth(15)
-    assert r > 0.8 and np.hypot(*(peak - (truth[0] + (truth[2] - 1) / 2, truth[1] + (truth[3] - 1) / 2))) < 2.0
+    # the target left the box: r is low there, and the clutter around it is sampled
+    obs = lost.observe(ch, anchor, box0, P)
+    assert obs.r < 0.3 and obs.clutter is not None and obs.clutter[1] > 0
     # a box whose centre left the frame does not verify
     assert lost.verify(ch, anchor, (-80.0, 10.0, 30.0, 40.0)) == -1.0
-    # the decision: found frames set the level; a drop below ratio * level is lost and holds
+    # the decision: found frames set the target's distribution, clutter-like r is lost and holds
     st = lost.LostState()
-    for i in range(P.warmup):
-        st, is_lost = lost.guard(st, 0.8, (1.0, 2.0, 3.0, 4.0, float(i)), P)
+    for i in range(P.warmup + 5):
+        st, vis, is_lost = lost.judge(st, lost.Observation(0.8 + 0.02 * (i % 3), (0.25 + 0.03 * (i % 2), 900.0)),
+                                      (1.0, 2.0, 3.0, 4.0, float(i)), P)
         assert not is_lost
-    st, is_lost = lost.guard(st, 0.1, (9.0, 9.0, 9.0, 9.0, 9.0), P)
-    assert is_lost and st.held == (1.0, 2.0, 3.0, 4.0, float(P.warmup - 1)) and st.lost_run == 1
-    assert lost.reacquired(st, 0.78, P) and not lost.reacquired(st, 0.5, P)
+    assert vis.visible > 0.5
+    st, vis, is_lost = lost.judge(st, lost.Observation(0.2, (0.25, 900.0)), (9.0, 9.0, 9.0, 9.0, 9.0), P)
+    assert is_lost and vis.hidden > 0.5 and st.held == (1.0, 2.0, 3.0, 4.0, float(P.warmup + 4)) and st.lost_run == 1
+    # while lost, a half-way r (better than clutter, not the target's look) does not bring it back
+    st, vis, is_lost = lost.judge(st, lost.Observation(0.5, (0.25, 900.0)), (9.0, 9.0, 9.0, 9.0, 9.0), P)
+    assert is_lost and st.lost_run == 2
+    # the search over a widening window finds the target 80 px (2.7 box widths) away, once the
+    # window reaches it, and judges it visible
+    found = []
+    for _ in range(20):
+        cand, cvis, covers = lost.search(ch, anchor, box0, st, P, (1.0,), 900.0)
+        found.append(cand is not None and cand.r > 0.8 and cvis is not None and cvis.visible > 0.5)
+        st = lost.LostState(target=st.target, clutter=st.clutter, found=st.found, lost_run=st.lost_run + 1, held=st.held)
+    assert not found[0] and found[-1], found
+    truth = scene.truth(15)
+    assert np.hypot(*(cand.centre - (truth[0] + (truth[2] - 1) / 2, truth[1] + (truth[3] - 1) / 2))) < 2.0
     with pytest.raises(ValueError, match="lost guard"):
-        lost.LostParams(ratio=1.5)
+        lost.LostParams(rate=1.5)
 
 
-def _track(scene: Scene, lost_ratio: float) -> tuple[np.ndarray, list[str]]:
+def _track(scene: Scene, guard: bool) -> tuple[np.ndarray, list[str]]:
     box0 = scene.truth(0)
     ctx = lambda name: StageContext(name, "s")  # noqa: E731
     pre = PreprocessStage(PreprocessParams(calibrate_box=box0), ctx("preprocess"))
     prop = ProposalStage(ProposalParams(seed=1), ctx("proposal"))
-    filt = FilterStage(FilterParams(init=box0, seed=1, particles=300, lost_ratio=lost_ratio, lost_window=3.0),
+    filt = FilterStage(FilterParams(init=box0, seed=1, particles=300, lost_guard=guard, lost_window=3.0),
                        ctx("filter"))
     boxes, states, parts = [], [], None
     for t in range(scene.n):
@@ -94,12 +106,12 @@ def _track(scene: Scene, lost_ratio: float) -> tuple[np.ndarray, list[str]]:
 def test_the_filter_finds_a_target_that_jumped_beyond_its_proposals() -> None:
     scene = FramedScene(_jump_path, 30)
     truth = np.array([scene.truth(t) for t in range(scene.n)])
-    boxes, states = _track(scene, lost_ratio=P.ratio)
+    boxes, states = _track(scene, guard=True)
     err = centre_error(truth, boxes)
     assert "redetect" in states[12:]
     assert err[20:].max() < 4.0, err
     # the paper's filter (no guard) does not follow the jump
-    boxes0, states0 = _track(scene, lost_ratio=0.0)
+    boxes0, states0 = _track(scene, guard=False)
     assert centre_error(truth, boxes0)[20:].mean() > 20.0
     assert "redetect" not in states0 and "lost" not in states0
 
@@ -122,7 +134,9 @@ def test_redetect_at_several_sizes_finds_a_grown_target() -> None:
     box0 = (60.0, 50.0, 40.0, 40.0)
     anchor = lost.anchor_of(lost.channels(frame(79.5, 69.5, 40)), box0, p)
     ch = lost.channels(frame(95.0, 75.0, 46))
-    r1, _, f1 = lost.redetect_scales(ch, anchor, box0, p.window, (1.0,))
-    r, peak, f = lost.redetect_scales(ch, anchor, box0, p.window, (1.0, 0.87, 1.15))
-    assert f == 1.15 and r > r1 + 0.05 and f1 == 1.0
-    assert np.hypot(*(peak - [95.0, 75.0])) < 3.0
+    st = lost.LostState(lost_run=1)
+    c1, _, _ = lost.search(ch, anchor, box0, st, p, (1.0,), None)
+    c, _, _ = lost.search(ch, anchor, box0, st, p, (1.0, 0.87, 1.15), None)
+    assert c1 is not None and c is not None
+    assert np.isclose(np.exp(c.log_f), 1.15) and c.r > c1.r + 0.05 and c1.log_f == 0.0
+    assert np.hypot(*(c.centre - [95.0, 75.0])) < 3.0
