@@ -60,7 +60,7 @@ def core_run(folder: Path, truth0: tuple[float, float, float, float], seed: int 
     p = ap.AppearanceParams()
     grey = cv2.imread(str(frames[0]), cv2.IMREAD_GRAYSCALE)
     st = ap.initialise(ap.features(grey), truth0, p, np.random.default_rng([seed, 0]))
-    dyn = random_walk(cli_appearance.STD_XY_REL * float(np.sqrt(truth0[2] * truth0[3])), 0.0, 0.0)
+    dyn = random_walk(p.walk_std(truth0), 0.0, 0.0)
     out: dict[str, list[float]] = {"tracked": [], "searching": []}
     for t in range(1, len(frames)):
         grey = cv2.imread(str(frames[t]), cv2.IMREAD_GRAYSCALE)  # not timed: decoding is the source's work

@@ -5,7 +5,7 @@
   parameters the stages call, so the boxes are those of ``gflow track --inline`` bit for bit.
 * :class:`GraphBackend` runs the tracker's built-in graph in this process, exactly as ``--inline``
   does (frames pushed into its source stage, every message encoded and decoded): for the trackers
-  whose stages are not yet adapters of the protocol (appearance, chamfer, m2). Their parameters are
+  whose stages are not yet adapters of the protocol (chamfer, m2). Their parameters are
   given as ``gflow track`` takes them: its tracker options (``particles=500``, ``track_scale=True``)
   and ``set={"filter.lam": 0.3}``.
 """
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 from collections import deque
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -24,7 +24,32 @@ from stages.rng import stream_hash
 
 from .errors import GflowError, UnusableFrameError
 
-__all__ = ["ProtocolBackend", "GraphBackend", "gflow_setup"]
+__all__ = ["ProtocolBackend", "GraphBackend", "gflow_setup", "appearance_setup", "PROTOCOL_TRACKERS"]
+
+
+def appearance_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The appearance tracker's parameters from the API's keywords (it loads no resource)."""
+    from gflow_core.appearance_params import AppearanceParams
+
+    return make(AppearanceParams, params), {}
+
+
+def _appearance() -> tuple[Any, Any]:
+    from gflow_core.appearance_tracker import TRACKER
+
+    return TRACKER, appearance_setup
+
+
+def _gflow() -> tuple[Any, Any]:
+    from gflow_core.gflow.tracker import TRACKER
+
+    return TRACKER, gflow_setup
+
+
+#: tracker name -> () -> (its TrackingFilter, params -> (its parameter dataclass, resources)), for the
+#: trackers on the protocol (imported when one is made)
+PROTOCOL_TRACKERS: dict[str, Callable[[], tuple[Any, Callable[[Mapping[str, Any]], tuple[Any, dict[str, Any]]]]]] = {
+    "appearance": _appearance, "gflow": _gflow}
 
 
 def gflow_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:

@@ -9,7 +9,7 @@ import numpy as np
 
 from gflow_core.tracker import Box, Estimate
 
-from .backends import GraphBackend, ProtocolBackend, gflow_setup
+from .backends import PROTOCOL_TRACKERS, GraphBackend, ProtocolBackend
 from .errors import GflowError
 
 __all__ = ["Tracker", "TRACKERS"]
@@ -17,7 +17,7 @@ __all__ = ["Tracker", "TRACKERS"]
 #: the trackers, as ``gflow track --tracker NAME`` names them
 TRACKERS = ("appearance", "chamfer", "gflow", "m2")
 #: the trackers on the protocol of :mod:`gflow_core.tracker` (the others run their stages in process)
-ON_PROTOCOL = ("gflow",)
+ON_PROTOCOL = ("appearance", "gflow")
 
 
 def check_box(box: Sequence[float]) -> Box:
@@ -49,11 +49,13 @@ class Tracker:
     fps : float
         The frames' rate (the stamps of a tracker run through its stages; default 25).
     **params
-        For ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)
+        For ``appearance``, any parameter of :class:`gflow_core.appearance_params.AppearanceParams`
+        (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For
+        ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)
         and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For the
-        trackers run through their stages (appearance, chamfer, m2), the options ``gflow track`` has
-        for them (``particles=500``, ``track_scale=True``, ``model="m2.npz"``) and
-        ``set={"filter": {"lam": 0.3}}`` for any stage parameter.
+        trackers run through their stages (chamfer, m2), the options ``gflow track`` has for them
+        (``particles=800``, ``model="m2.npz"``) and ``set={"filter": {"lam": 0.3}}`` for any stage
+        parameter.
 
     Frames are numpy arrays as OpenCV gives them: ``(H, W, 3)`` BGR or ``(H, W)`` grey, uint8; every
     frame the size of the first. Frame indices count from ``init``'s ``frame_index`` (0).
@@ -75,14 +77,13 @@ class Tracker:
             raise GflowError(f"fps must be positive, got {fps}")
         self.name, self.seed = name, int(seed)
         self._backend: ProtocolBackend | GraphBackend
-        if name == "gflow":
-            from gflow_core.gflow.tracker import TRACKER
-
+        if name in ON_PROTOCOL:
+            impl, setup = PROTOCOL_TRACKERS[name]()
             try:
-                p, resources = gflow_setup(params)
+                p, resources = setup(params)
             except ValueError as e:
                 raise GflowError(str(e)) from None
-            self._backend = ProtocolBackend(TRACKER, p, resources, self.seed, "cam0")
+            self._backend = ProtocolBackend(impl, p, resources, self.seed, "cam0")
         else:
             self._backend = GraphBackend(name, self.seed, fps, params)
         self._shape: tuple[int, ...] | None = None

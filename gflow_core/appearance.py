@@ -102,6 +102,10 @@ video it was never trained on:
   & Baker 2004; it pulled the box off the face on david_indoor). ``scale_search = 0`` and
   ``n_scales = 1`` keep the first size.
 
+The parameters, their defaults and help are :class:`gflow_core.appearance_params.AppearanceParams`;
+the tracker protocol's ``init`` / ``propose`` / ``update`` / ``coast`` over this module are
+:mod:`gflow_core.appearance_tracker`.
+
 Coordinates are image (x, y) pixels with the origin at the top-left pixel centre; boxes are
 (x, y, w, h) with (x, y) the top-left corner, as in ``../shared/data``.
 """
@@ -114,6 +118,7 @@ import cv2
 import numpy as np
 
 from . import redetect
+from .appearance_params import AppearanceParams
 from .orientation import orientation_channels
 from .particles import LogWeights, systematic_resample
 from .regions import region
@@ -121,85 +126,6 @@ from .visibility import ChiSquare, visibility
 
 __all__ = ["AppearanceParams", "AppearanceState", "StepResult", "initialise", "step", "features",
            "region", "box_of", "ChiSquare"]
-
-
-@dataclass(frozen=True)
-class AppearanceParams:
-    """Settings of the appearance tracker (defaults chosen on all four shared sequences)."""
-
-    particles: int = 300
-    lam: float = 30.0  # lambda = 1 / (2 sigma^2) of exp(-lambda rho)
-    max_area: int = 1000  # exemplar resolution: at most this many pixels
-    update_rate: float = 0.02  # running-mean exemplar update per visible frame
-    n_scales: int = 1  # 1: the box keeps its first size (see "Scale" above); 3: scale is tracked
-    scale_step: float = 0.03  # log-scale spacing of the observed scales
-    std_log_s: float = 0.0  # random walk of log s (0.01 with n_scales = 3)
-    detect_fraction: float = 0.3
-    detect_std: float = 1.0  # px, spread of the particles drawn at the response peak
-    motion_prior: float = 1.0  # std of the motion prior, in box sizes (max(w, h))
-    search: float = 0.8  # search margin, in box sizes, plus 2 |v| + 10 px
-    velocity_memory: float = 0.5  # v <- m v + (1 - m) (c_t - c_{t-1})
-    hidden_prior: float = 0.2  # motion prior (box sizes) while the target is judged hidden ...
-    hidden_speed: float = 1.0  # ... plus this many times the speed |v| (px) the target had
-    scale_from_recent: bool = True
-    adapt_max: float = 3.0  # the running exemplar learns up to this many times faster when r's level is low
-    slow_rate: float = 0.005  # rate of the slow running exemplar (0: none)
-    max_log_scale: float = 1.3862943611198906  # |log s| bound: the box stays within [1/4, 4] x its first size
-    scale_search: int = 3  # J: after the position, scale searched at 2J + 1 log-scales (0: off); see "Scale search"
-    scale_search_step: float = 0.02  # log-scale spacing of the searched scales
-    scale_change_std: float = 0.05  # prior on the log-scale change per frame: N(0, std^2)
-    scale_anchor_weight: float = 0.7  # weight of the anchor in the scale score (the rest: the running exemplars)
-    scale_lam: float = 30.0  # lambda of the scale score
-    scale_refine: int = 2  # translation freedom (exemplar pixels) at each searched scale
-    scale_gain: float = 1.0  # log s <- log s + gain * (searched change)
-    refine_position: bool = True  # move the centre to the refined peak at the chosen scale
-    scale_consistency: float = 1.0  # a scale change is kept only if neither the anchor's nor the running exemplars' r falls by more than this
-    scale_min_score: float = 0.7  # scale searched only while r >= this (an absolute confidence)
-    scale_gate: float = 1.0  # scale searched only while r >= its running level - scale_gate (confident frames)
-    warmup: int = 5  # frames after the first on which the target is taken as visible (its distribution is learnt)
-    min_std: float = 0.05  # floor on the spread of rho in the target's and the clutter's distributions
-    target_rate: float = 0.05  # forgetting rate of the target's distance moments (confident frames)
-    clutter_rate: float = 0.05  # forgetting rate of the clutter's distance moments (every frame)
-    search_start: float = 1.0  # the search for a target in doubt starts this many box sizes beyond the window ...
-    search_growth: float = 0.1  # ... and widens by this many box sizes a frame
-    search_scales: tuple[float, ...] = (0.0, -0.15, 0.15)  # log-sizes searched for a hidden target (0 first)
-    search_area: int = 150  # exemplar pixels of the coarse pass of that search
-    hidden_after: int = 3  # frames in a row that clutter explains the estimate before the target is judged hidden
-    reappear: float = 0.001  # prior probability a frame that a target judged hidden is back
-
-    def __post_init__(self) -> None:
-        if self.particles < 1:
-            raise ValueError(f"particles must be >= 1, got {self.particles}")
-        if not self.lam > 0:
-            raise ValueError(f"lam must be positive, got {self.lam}")
-        if self.n_scales < 1 or self.n_scales % 2 == 0:
-            raise ValueError(f"n_scales must be odd and >= 1, got {self.n_scales}")
-        if not 0 <= self.detect_fraction < 1:
-            raise ValueError(f"detect_fraction must be in [0, 1), got {self.detect_fraction}")
-        if not 0 <= self.update_rate <= 1:
-            raise ValueError(f"update_rate must be in [0, 1], got {self.update_rate}")
-        if not 0 <= self.slow_rate <= 1:
-            raise ValueError(f"slow_rate must be in [0, 1], got {self.slow_rate}")
-        if not self.adapt_max >= 1:
-            raise ValueError(f"adapt_max must be >= 1, got {self.adapt_max}")
-        if self.scale_search < 0 or self.scale_refine < 0:
-            raise ValueError(f"scale_search and scale_refine must be >= 0, got {self.scale_search}, {self.scale_refine}")
-        if not 0 <= self.scale_anchor_weight <= 1:
-            raise ValueError(f"scale_anchor_weight must be in [0, 1], got {self.scale_anchor_weight}")
-        if not (self.scale_search_step > 0 and self.scale_change_std > 0 and self.scale_lam > 0):
-            raise ValueError("scale_search_step, scale_change_std and scale_lam must be positive")
-        if not (self.hidden_prior > 0 and self.hidden_speed >= 0):
-            raise ValueError(f"hidden_prior must be positive and hidden_speed >= 0, got {self.hidden_prior}, {self.hidden_speed}")
-        if self.warmup < 1 or not self.min_std > 0 or not (0 < self.target_rate <= 1 and 0 < self.clutter_rate <= 1):
-            raise ValueError(f"warmup must be >= 1, min_std positive and the rates in (0, 1], got {self.warmup}, "
-                             f"{self.min_std}, {self.target_rate}, {self.clutter_rate}")
-        if self.hidden_after < 1 or not 0 < self.reappear < 1:
-            raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, {self.reappear}")
-        if self.search_growth < 0 or not self.search_scales or self.search_area < 16:
-            raise ValueError(f"search_growth must be >= 0, search_scales not empty and search_area >= 16, got "
-                             f"{self.search_growth}, {self.search_scales}, {self.search_area}")
-        if self.max_area < 36:
-            raise ValueError(f"max_area must be >= 36 pixels, got {self.max_area}")
 
 
 @dataclass(frozen=True)

@@ -1,10 +1,13 @@
 """Filter stage of the appearance tracker: M2 with online exemplars (the default tracker).
 
-The mathematics is :mod:`gflow_core.appearance` (its docstring lists the departures from
-Toyama & Blake 2002). This stage adapts it to the pipeline's particle messages:
+An adapter of :class:`gflow_core.appearance_tracker.AppearanceTracker` (``observe``, ``init``,
+``update``, ``coast``); the mathematics is :mod:`gflow_core.appearance` (its docstring lists the
+departures from Toyama & Blake 2002). Its parameters are every field of
+:class:`gflow_core.appearance_params.AppearanceParams` (derived from it, defaults included) plus
+``seed`` and ``init``. This stage adapts the tracker to the pipeline's particle messages:
 
 * Inputs: ``frames`` of frame t (colour or grey; the appearance channels are computed here
-  from the grey levels) and ``proposals`` for frame t from ``particle.proposal`` (a random
+  from the grey levels) and ``proposals`` for frame t from ``appearance.proposal`` (a random
   walk on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)).
 * Outputs: ``particles`` (the resampled posterior of t, alpha = (x, y, 0, s)) and
   ``estimate``: the box, the posterior mean and std of alpha, the ESS, the data path
@@ -31,83 +34,37 @@ and counters, as msgpack of a small Struct (version 2).
 
 from __future__ import annotations
 
-from dataclasses import fields
 from typing import Mapping
 
 import msgspec
 import numpy as np
 
-from gflow_core import features
 from gflow_core import appearance as ap
+from gflow_core.appearance_params import AppearanceParams
+from gflow_core.features import to_grey
+from gflow_core.appearance_dynamics import alpha_of, particles_of
+from gflow_core.appearance_tracker import TRACKER, AppearanceObservation, AppearanceProposal, AppearanceTrack
 from gflow_core.m2.tracking import ParticleCloud
+from gflow_core.tracker import Estimate as TrackerEstimate
+from gflow_core.tracker import UnusableFrame
 
-from .base import Output, Params, Stage, StageInputError
-from .messages import Estimate, Frame, Message, MessageError, NDArray, Particles
+from .base import Output, Stage, StageContext, StageInputError
+from .messages import Estimate, Frame, Header, Message, MessageError, NDArray, Particles
 from .particle_proposal import cloud_of, particles_msg
-from .rng import frame_rng
+from .rng import tracker_rng
 from .time_step import time_step
+from .appearance_proposal import AppearanceStageFields
+from .tracker_params import stage_params, tracker_params
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
 
-PURPOSE_INIT = 0x51A1
-PURPOSE_STEP = 0x51A2
 SNAPSHOT_VERSION = 2
-_DEFAULTS = ap.AppearanceParams()
 
 
-class AppearanceFilterParams(Params):
-    """Appearance filter settings; every field but ``init`` and ``seed`` is the field of the
-    same name of :class:`gflow_core.appearance.AppearanceParams` (see it for meanings)."""
-
-    init: tuple[float, float, float, float] | None = None
-    seed: int = 0
-    particles: int = _DEFAULTS.particles
-    lam: float = _DEFAULTS.lam
-    max_area: int = _DEFAULTS.max_area
-    update_rate: float = _DEFAULTS.update_rate
-    n_scales: int = _DEFAULTS.n_scales
-    scale_step: float = _DEFAULTS.scale_step
-    std_log_s: float = _DEFAULTS.std_log_s
-    detect_fraction: float = _DEFAULTS.detect_fraction
-    detect_std: float = _DEFAULTS.detect_std
-    motion_prior: float = _DEFAULTS.motion_prior
-    search: float = _DEFAULTS.search
-    velocity_memory: float = _DEFAULTS.velocity_memory
-    max_log_scale: float = _DEFAULTS.max_log_scale
-    hidden_prior: float = _DEFAULTS.hidden_prior
-    hidden_speed: float = _DEFAULTS.hidden_speed
-    scale_from_recent: bool = _DEFAULTS.scale_from_recent
-    adapt_max: float = _DEFAULTS.adapt_max
-    slow_rate: float = _DEFAULTS.slow_rate
-    scale_search: int = _DEFAULTS.scale_search
-    scale_search_step: float = _DEFAULTS.scale_search_step
-    scale_change_std: float = _DEFAULTS.scale_change_std
-    scale_anchor_weight: float = _DEFAULTS.scale_anchor_weight
-    scale_lam: float = _DEFAULTS.scale_lam
-    scale_refine: int = _DEFAULTS.scale_refine
-    scale_gain: float = _DEFAULTS.scale_gain
-    refine_position: bool = _DEFAULTS.refine_position
-    scale_consistency: float = _DEFAULTS.scale_consistency
-    scale_min_score: float = _DEFAULTS.scale_min_score
-    scale_gate: float = _DEFAULTS.scale_gate
-    warmup: int = _DEFAULTS.warmup
-    min_std: float = _DEFAULTS.min_std
-    target_rate: float = _DEFAULTS.target_rate
-    clutter_rate: float = _DEFAULTS.clutter_rate
-    search_start: float = _DEFAULTS.search_start
-    search_growth: float = _DEFAULTS.search_growth
-    search_scales: tuple[float, ...] = _DEFAULTS.search_scales
-    search_area: int = _DEFAULTS.search_area
-    hidden_after: int = _DEFAULTS.hidden_after
-    reappear: float = _DEFAULTS.reappear
-
-    def __post_init__(self) -> None:
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
-        self.core()  # the core's own checks, before anything starts
-
-    def core(self) -> ap.AppearanceParams:
-        return ap.AppearanceParams(**{f.name: getattr(self, f.name) for f in fields(ap.AppearanceParams)})
+AppearanceFilterParams = stage_params(
+    "AppearanceFilterParams", AppearanceParams, AppearanceStageFields, __name__,
+    "Appearance filter settings: every field of :class:`gflow_core.appearance_params.AppearanceParams` "
+    "(see it for meanings), ``seed`` and ``init``.")
 
 
 class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -129,19 +86,14 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     last: dict = {}
 
 
-def _alpha(parts: np.ndarray) -> np.ndarray:
-    """(N, 3) (x, y, log s) -> (N, 4) alpha = (x, y, 0, s)."""
-    return np.column_stack([parts[:, 0], parts[:, 1], np.zeros(len(parts)), np.exp(parts[:, 2])])
-
-
-def _posterior(header, parts: np.ndarray) -> Particles:
+def _posterior(header: Header, parts: np.ndarray) -> Particles:
     """The resampled posterior (N, 3) as a Particles message (k = 0, equal weights)."""
     n = len(parts)
-    return particles_msg(header, "posterior", ParticleCloud(alpha=_alpha(parts), k=np.zeros(n, np.int64),
+    return particles_msg(header, "posterior", ParticleCloud(alpha=alpha_of(parts), k=np.zeros(n, np.int64),
                                                             log_w=np.zeros(n)))
 
 
-class AppearanceFilterStage(Stage):
+class AppearanceFilterStage(Stage[AppearanceStageFields]):
     kind = "appearance.filter"
     Params = AppearanceFilterParams
     inputs = {"frames": Frame, "proposals": Particles}
@@ -149,12 +101,12 @@ class AppearanceFilterStage(Stage):
     drivers = frozenset({"frames"})
     prepare_ports = frozenset({"frames"})
 
-    def __init__(self, params: AppearanceFilterParams, ctx) -> None:
+    def __init__(self, params: AppearanceStageFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
         if params.init is None:
             raise ValueError("the appearance filter needs an initial box: set init: [x, y, w, h]")
-        self.core = params.core()
-        self.state: ap.AppearanceState | None = None
+        self.core = tracker_params(params, AppearanceParams)
+        self.state: AppearanceTrack | None = None
         self.shape: tuple[int, int] | None = None
         self.steps = 0
         self.last: dict = {}
@@ -162,25 +114,23 @@ class AppearanceFilterStage(Stage):
     def required(self, seq: int) -> frozenset[str]:
         return frozenset({"frames"}) if self.state is None else frozenset(self.inputs)
 
-    def prepare(self, port: str, msg: Message) -> tuple[np.ndarray, np.ndarray | ValueError]:
-        """(grey (H, W) uint8, appearance channels (H, W, 4) float32) of a frame; the channels are
-        the ValueError they raised, if any (raised by ``step`` only for a frame it would use).
-        Raises MessageError or ValueError for an image that cannot be read."""
+    def prepare(self, port: str, msg: Message) -> tuple[np.ndarray, AppearanceObservation | UnusableFrame]:
+        """(grey (H, W) uint8, the tracker's observation of it, or the UnusableFrame a uniform frame
+        raised). Raises MessageError or ValueError for an image that cannot be read."""
         assert isinstance(msg, Frame)
-        grey = features.to_grey(msg.image.array())
+        grey = to_grey(msg.image.array())
         try:
-            return grey, ap.features(grey)
-        except ValueError as e:
+            return grey, TRACKER.observe_grey(self.core, grey)
+        except UnusableFrame as e:
             return grey, e
 
-    def _grey(self, frame: Frame | None, seq: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """The frame's grey levels and appearance channels, or None (reported) when the frame
-        cannot be used."""
+    def _observe(self, frame: Frame | None, seq: int) -> AppearanceObservation | None:
+        """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
         if frame is None:
             self.report("missing_frame", f"frame {seq}: no frame arrived; coasting", seq)
             return None
         try:
-            grey, feat = self.prepared("frames", frame)
+            grey, obs = self.prepared("frames", frame)
         except (MessageError, ValueError) as e:
             self.report("bad_frame", f"frame {seq}: {e}; coasting", seq)
             return None
@@ -188,98 +138,70 @@ class AppearanceFilterStage(Stage):
             self.report("bad_frame", f"frame {seq}: {grey.shape[1]}x{grey.shape[0]} but the stream is "
                         f"{self.shape[1]}x{self.shape[0]}; coasting", seq)
             return None
-        if grey.size == 0 or int(grey.max()) == int(grey.min()):
+        if isinstance(obs, UnusableFrame):
             self.report("blank_frame", f"frame {seq}: uniform frame, no evidence; coasting", seq)
             return None
-        if isinstance(feat, ValueError):
-            raise feat
-        return grey, feat
+        return obs
 
-    def _estimate(self, header, box, alpha, mean, std, ess, log_ev, state, score, confidence: float = 1.0,
-                  target_state: str = "tracked") -> Estimate:
-        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
-        x, y, w, h = box
+    def _outputs(self, header: Header, est: TrackerEstimate) -> list[Output]:
+        """The posterior and the estimate messages of the tracker's estimate."""
+        assert self.state is not None
+        self.steps += 1
+        x, y, w, h = est.box
         outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
-        self.last = {"seq": header.seq, "box": [round(v, 2) for v in box], "ess": round(float(ess), 1),
-                     "state": state, "score": round(float(score), 4), "confidence": round(float(confidence), 4),
-                     "target_state": target_state}
-        return Estimate(header=header, box=tuple(float(v) for v in box), alpha=tuple(float(v) for v in alpha), k=0,
-                        mean=tuple(float(v) for v in mean), std=tuple(float(v) for v in std), ess=float(ess),
-                        n=p.particles, log_evidence=float(log_ev), contour=NDArray.of(outline), state=state,
-                        confidence=float(confidence), target_state=target_state)
+        e = est.extras
+        self.last = {"seq": header.seq, "box": [round(v, 2) for v in est.box], "ess": round(float(e["ess"]), 1),
+                     "state": est.phase, "score": round(float(e["score"]), 4),
+                     "confidence": round(float(est.confidence), 4), "target_state": est.target_state}
+        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=0, mean=e["mean"], std=e["std"], ess=e["ess"],
+                       n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline), state=est.phase,
+                       confidence=est.confidence, target_state=est.target_state)
+        return [("particles", _posterior(header, self.state.core.particles)), ("estimate", msg)]
 
     def _initialise(self, seq: int, frame: Frame | None) -> list[Output]:
-        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
+        p = self.params
         try:
-            got = self._grey(frame, seq)
-        except ValueError as e:  # the channels of a frame too small for them
+            obs = self._observe(frame, seq)
+            if obs is None or frame is None:
+                raise StageInputError(f"frame {seq}: cannot initialise on this frame")
+            assert p.init is not None
+            self.state, est = TRACKER.init(self.core, obs, p.init, tracker_rng(p.seed, self.ctx.stream, seq), {})
+        except StageInputError:
+            raise
+        except ValueError as e:  # a box outside the frame, a frame too small for the channels
             raise StageInputError(f"frame {seq}: {e}") from None
-        if got is None or frame is None:
-            raise StageInputError(f"frame {seq}: cannot initialise on this frame")
-        grey, feat = got
-        try:
-            st = ap.initialise(feat, p.init, self.core, frame_rng(p.seed, self.ctx.stream, seq,  # type: ignore[arg-type]
-                                                                                 PURPOSE_INIT))
-        except ValueError as e:
-            raise StageInputError(f"frame {seq}: {e}") from None
-        self.state, self.shape = st, grey.shape
-        a = np.array([st.centre[0], st.centre[1], 0.0, 1.0])
-        box = ap.box_of(st.centre, st.log_s, st.size0)
-        est = self._estimate(frame.header, box, a, a, np.zeros(4), float(p.particles), 0.0, "init", 1.0)
-        self.steps += 1
-        return [("particles", _posterior(frame.header, st.particles)), ("estimate", est)]
-
-    def _coast(self, seq: int, frame: Frame | None) -> list[Output]:
-        """No usable frame: carry the posterior over unchanged."""
-        st = self.state
-        assert st is not None
-        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
-        header = frame.header if frame is not None else self.header(seq, 0)
-        a = np.array([st.centre[0], st.centre[1], 0.0, float(np.exp(st.log_s))])
-        box = ap.box_of(st.centre, st.log_s, st.size0)
-        # no evidence this frame: the target is where it was judged to be, with no confidence
-        judged = "tracked" if st.hidden_run == 0 else str(self.last.get("target_state", "occluded"))
-        est = self._estimate(header, box, a, a, np.zeros(4), float(p.particles), 0.0, "coast", 0.0, 0.0, judged)
-        self.steps += 1
-        return [("particles", _posterior(header, st.particles)), ("estimate", est)]
+        self.shape = obs.grey.shape
+        return self._outputs(frame.header, est)
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         frame = inputs.get("frames")
         frame = frame if isinstance(frame, Frame) else None
         if self.state is None:
             return self._initialise(seq, frame)
-        p: AppearanceFilterParams = self.params  # type: ignore[assignment]
+        p, n = self.params, self.core.particles
         st = self.state
+        rng = tracker_rng(p.seed, self.ctx.stream, seq)
         prop = inputs.get("proposals")
         if isinstance(prop, Particles):
-            cloud = cloud_of(prop)
-            alpha = cloud.alpha
-            if alpha.shape[0] != p.particles or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
+            alpha = cloud_of(prop).alpha
+            if alpha.shape[0] != n or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
                 self.report("bad_proposals", f"proposals {seq}: {alpha.shape[0]} particles (expected "
-                            f"{p.particles}), non-finite or non-positive scale; reusing the last posterior", seq)
-                proposed = st.particles
+                            f"{n}), non-finite or non-positive scale; reusing the last posterior", seq)
+                proposed = st.core.particles
             else:
-                proposed = np.column_stack([alpha[:, 0], alpha[:, 1], np.log(alpha[:, 3])])
+                proposed = particles_of(alpha)
         else:
             self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
-            proposed = st.particles
-        got = self._grey(frame, seq)
-        if got is None:
-            return self._coast(seq, frame)
+            proposed = st.core.particles
+        obs = self._observe(frame, seq)
+        if obs is None:
+            self.state, est = TRACKER.coast(self.core, st, rng)
+            return self._outputs(frame.header if frame is not None else self.header(seq, 0), est)
         assert frame is not None
         # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
         dt = time_step(self.ctx, frame.header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
-        res = ap.step(st, got[1], proposed, self.core, frame_rng(p.seed, self.ctx.stream, seq, PURPOSE_STEP), dt)
-        self.state = res.state
-        self.steps += 1
-        nst = res.state
-        a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
-        mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])
-        std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
-        path = ("redetect" if res.redetected else "track") if res.target_state == "tracked" else res.target_state
-        est = self._estimate(frame.header, res.box, a, mean, std, res.ess, res.log_evidence, path, res.score,
-                             res.confidence, res.target_state)
-        return [("particles", _posterior(frame.header, nst.particles)), ("estimate", est)]
+        self.state, est = TRACKER.update(self.core, st, AppearanceProposal(proposed, dt), obs, rng)
+        return self._outputs(frame.header, est)
 
     def summary(self) -> dict:
         """The last estimate (seq, box, ESS, state, appearance score r) and the step count."""
@@ -287,9 +209,9 @@ class AppearanceFilterStage(Stage):
 
     # -- snapshot / restore ---------------------------------------------------------------
     def snapshot(self) -> bytes:
-        st = self.state
-        if st is None:
+        if self.state is None:
             return msgspec.msgpack.encode(_Snapshot(version=SNAPSHOT_VERSION, initialised=False, steps=self.steps))
+        st = self.state.core
         return msgspec.msgpack.encode(_Snapshot(
             version=SNAPSHOT_VERSION, initialised=True, size0=(float(st.size0[0]), float(st.size0[1])),
             res=(int(st.res[0]), int(st.res[1])), anchor=NDArray.of(st.anchor), recent=NDArray.of(st.recent),
@@ -317,9 +239,10 @@ class AppearanceFilterStage(Stage):
             parts = snap.particles.array().copy()
         except (AssertionError, MessageError, ValueError) as e:
             raise ValueError(f"stage {name!r}: bad appearance snapshot: {e}") from None
-        self.state = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
-                                        recent=recent, particles=parts, centre=np.array(snap.centre),
-                                        log_s=snap.log_s, velocity=np.array(snap.velocity), slow=slow,
-                                        target=ap.ChiSquare(*snap.target), clutter=ap.ChiSquare(*snap.clutter),
-                                        hidden_run=snap.hidden_run)
+        core = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
+                                  recent=recent, particles=parts, centre=np.array(snap.centre), log_s=snap.log_s,
+                                  velocity=np.array(snap.velocity), slow=slow, target=ap.ChiSquare(*snap.target),
+                                  clutter=ap.ChiSquare(*snap.clutter), hidden_run=snap.hidden_run)
+        # the target as the last estimate judged it (what a coasted frame reports)
+        self.state = AppearanceTrack(core, str(self.last.get("target_state", "occluded")))
         self.shape = None

@@ -15,9 +15,9 @@ from gflow_core.metrics import score
 from gflow_core.synthetic import SyntheticScene
 from pipeline.recording.results import read_boxes
 from stages.appearance_filter import AppearanceFilterParams, AppearanceFilterStage
+from stages.appearance_proposal import AppearanceProposalParams, AppearanceProposalStage
 from stages.base import StageContext
 from stages.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
-from stages.particle_proposal import ProposalParams, ProposalStage
 
 N_FRAMES = 16
 SNAP_AT = 6
@@ -38,7 +38,7 @@ def scene():
 
 def _stages(box):
     filt = AppearanceFilterStage(AppearanceFilterParams(init=box, particles=100, seed=2), StageContext("filter", "s"))
-    prop = ProposalStage(ProposalParams(seed=2, std_xy=2.0, std_theta=0.0, std_log_s=0.0), StageContext("proposal", "s"))
+    prop = AppearanceProposalStage(AppearanceProposalParams(init=box, particles=100, seed=2), StageContext("proposal", "s"))
     return filt, prop
 
 
@@ -90,11 +90,12 @@ def test_a_snapshot_of_another_stage_is_refused(scene):
 def test_stage_parameters_are_the_core_parameters():
     from dataclasses import fields
 
-    from gflow_core.appearance import AppearanceParams
+    from gflow_core.appearance_params import AppearanceParams
 
     core = {f.name: f.default for f in fields(AppearanceParams)}
-    stage = {k: v for k, v in msgspec.structs.asdict(AppearanceFilterParams()).items() if k not in ("init", "seed")}
-    assert stage == core
+    for params in (AppearanceFilterParams(), AppearanceProposalParams()):
+        stage = {k: v for k, v in msgspec.structs.asdict(params).items() if k not in ("init", "seed", "timed")}
+        assert stage == core
 
 
 def test_bad_parameters_are_refused_before_anything_runs():

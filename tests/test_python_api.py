@@ -112,8 +112,12 @@ def test_errors_are_exceptions_with_the_command_lines_messages(tmp_path, caviar1
         Tracker("gflow", sigma_w=-1.0)
     with pytest.raises(GflowError, match="unknown tracker 'csrt'"):
         Tracker("csrt")
-    with pytest.raises(UnknownParameter, match="tracker appearance has no option lam"):
-        Tracker("appearance", lam=3.0)
+    with pytest.raises(UnknownParameter, match="unknown parameter lamb of AppearanceParams"):
+        Tracker("appearance", lamb=3.0)
+    with pytest.raises(GflowError, match="n_scales must be odd"):
+        Tracker("appearance", n_scales=2)
+    with pytest.raises(UnknownParameter, match="tracker chamfer has no option lam"):
+        Tracker("chamfer", lam=3.0)
     # the box and the source: the very lines gflow track prints
     bad = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", "400,10,20,20",
                           "--out", str(tmp_path / "b.csv"), "--inline", "-q"], capture_output=True, text=True)

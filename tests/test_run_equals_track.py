@@ -28,6 +28,8 @@ def box_of(values) -> str:
 
 #: tracker -> the stage parameters `gflow track --init BOX --seed SEED` fills in, for `gflow run --set`
 FILLED = {
+    "appearance": lambda box, seed: {"proposal.init": box, "filter.init": box, "proposal.seed": seed,
+                                     "filter.seed": seed},
     "gflow": lambda box, seed: {"proposal.init": box, "filter.init": box, "proposal.seed": seed, "filter.seed": seed},
     "chamfer": lambda box, seed: {"filter.init": box, "filter.seed": seed, "proposal.seed": seed,
                                   "preprocess.calibrate_box": box},

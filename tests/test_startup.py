@@ -32,7 +32,7 @@ def test_every_kind_resolves_lazily_to_its_stage_class():
     from stages.registry import STAGES, get_stage_class
 
     kinds = list(STAGES)
-    assert {"source", "preprocess", "particle.filter", "particle.proposal", "appearance.filter",
+    assert {"source", "preprocess", "particle.filter", "particle.proposal", "appearance.filter", "appearance.proposal",
             "gflow.filter", "gflow.proposal"} <= set(kinds)
     for kind in kinds:
         cls = get_stage_class(kind)

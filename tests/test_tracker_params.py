@@ -14,6 +14,8 @@ from contextlib import redirect_stdout
 import msgspec
 import pytest
 
+from gflow_core.appearance_params import AppearanceParams
+from gflow_core.appearance_tracker import AppearanceTracker
 from gflow_core.gflow import GFlowParams, GFlowTracker
 from gflow_core.params import describe, format_value
 from gflow_core.tracker import TrackingFilter
@@ -25,8 +27,8 @@ from stages.registry import get_stage_class
 WITH_PARAMS = {name: mod.PARAMS for name, mod in TRACKERS.items() if getattr(mod, "PARAMS", None) is not None}
 
 
-def test_gflow_has_its_parameters_in_one_dataclass() -> None:
-    assert WITH_PARAMS["gflow"] is GFlowParams
+def test_the_trackers_on_the_protocol_have_their_parameters_in_one_dataclass() -> None:
+    assert WITH_PARAMS["gflow"] is GFlowParams and WITH_PARAMS["appearance"] is AppearanceParams
 
 
 @pytest.mark.parametrize("name", sorted(WITH_PARAMS))
@@ -46,14 +48,17 @@ def test_every_stage_of_the_tracker_takes_every_parameter_with_the_dataclass_def
             assert sp.params[f.name] == msgspec.to_builtins(f.default), f"{name}.yaml sets {sp.name}.{f.name}"
 
 
-def test_a_stage_refuses_what_the_dataclass_refuses_with_its_message() -> None:
+@pytest.mark.parametrize("cls, graph, bad", [(GFlowParams, "gflow", {"pyramid_levels": 9}),
+                                             (AppearanceParams, "appearance", {"n_scales": 2})])
+def test_a_stage_refuses_what_the_dataclass_refuses_with_its_message(cls, graph, bad) -> None:
     from pipeline.runtime.graph import GraphError
 
     with pytest.raises(ValueError) as core:
-        GFlowParams(pyramid_levels=9)
-    with pytest.raises(GraphError) as graph:
-        load_graph("gflow", overrides={"filter": {"pyramid_levels": 9}})
-    assert str(core.value) in str(graph.value)
+        cls(**bad)
+    for stage in ("proposal", "filter"):
+        with pytest.raises(GraphError) as refused:
+            load_graph(graph, overrides={stage: bad})
+        assert str(core.value) in str(refused.value)
 
 
 def test_the_command_lines_options_show_the_dataclass_help_and_default() -> None:
@@ -65,20 +70,21 @@ def test_the_command_lines_options_show_the_dataclass_help_and_default() -> None
         for info in describe(cls):
             if info.option:
                 assert f"{info.option} " in flat
-                assert f"{info.help} (default {format_value(info.default)})" in flat, info.name
+                assert f"{info.help} (default {format_value(info.default)}" in flat, info.name
                 n += 1
     assert n >= 4
 
 
-def test_gflow_info_lists_every_parameter_with_its_default() -> None:
+@pytest.mark.parametrize("name", sorted(WITH_PARAMS))
+def test_gflow_info_lists_every_parameter_with_its_default(name) -> None:
     from pipeline.cli.main import main
 
     out = io.StringIO()
     with redirect_stdout(out):
-        assert main(["info", "gflow", "--json"]) == 0
+        assert main(["info", name, "--json"]) == 0
     d = json.loads(out.getvalue())
     assert [(r["name"], r["default"], r["help"]) for r in d["parameters"]] == \
-        [(i.name, format_value(i.default), i.help) for i in describe(GFlowParams)]
+        [(i.name, format_value(i.default), i.help) for i in describe(WITH_PARAMS[name])]
     assert {s["stage"] for s in d["stages"]} >= {"proposal", "filter"}
 
 
@@ -94,13 +100,16 @@ def test_the_api_takes_the_dataclass_parameters() -> None:
     t = Tracker("gflow", n_experts=7, psi_v=2e-3)
     assert t.params == dataclasses.replace(GFlowParams(), n_experts=7, psi_v=2e-3)
     assert Tracker("gflow").params == GFlowParams()
+    assert Tracker("appearance", lam=20.0).params == dataclasses.replace(AppearanceParams(), lam=20.0)
+    assert Tracker("appearance").params == AppearanceParams()
 
 
-def test_gflow_implements_the_tracker_protocol() -> None:
+@pytest.mark.parametrize("impl", [GFlowTracker, AppearanceTracker])
+def test_the_trackers_implement_the_tracker_protocol(impl) -> None:
     names = [n for n in dir(TrackingFilter) if not n.startswith("_")]
     assert set(names) >= {"observe", "init", "propose", "update", "coast"}
     for n in names:
-        assert hasattr(GFlowTracker, n), n
+        assert hasattr(impl, n), n
 
 
 def test_the_command_line_reads_the_parameters_without_importing_the_mathematics() -> None:
@@ -108,6 +117,6 @@ def test_the_command_line_reads_the_parameters_without_importing_the_mathematics
     import the trackers' mathematics (scipy, the G-flow filter), which would slow every start (about 0.3 s)."""
     code = ("import sys; from pipeline.cli.commands.track import add_track_args; import argparse; "
             "add_track_args(argparse.ArgumentParser()); "
-            "print(sorted(m for m in ('gflow_core.gflow.filter', 'scipy') if m in sys.modules))")
+            "print(sorted(m for m in ('gflow_core.gflow.filter', 'gflow_core.appearance', 'scipy') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout

@@ -36,16 +36,18 @@ def _scalar(tp: Any) -> Any:
     return None
 
 
-def add_param_options(group: Any, cls: type, tracker: str) -> None:
+def add_param_options(group: Any, cls: type, tracker: str, notes: dict[str, str] | None = None) -> None:
     """Add an option for every parameter of ``cls`` that names one; its default is None (not given),
-    its help the dataclass's with the default appended."""
+    its help the dataclass's with the default appended (and ``notes[name]``, for an option other
+    trackers read too)."""
     for info in describe(cls):
         if info.option is None:
             continue
         kind = _scalar(info.type)
         if kind is None:
             raise TypeError(f"{cls.__name__}.{info.name}: an option needs a number, a string or a switch")
-        help_ = f"{tracker}: {info.help} (default {format_value(info.default)})"
+        note = f"; {notes[info.name]}" if notes and info.name in notes else ""
+        help_ = f"{tracker}: {info.help} (default {format_value(info.default)}{note})"
         if kind is bool:
             group.add_argument(info.option, dest=option_dest(info), action=argparse.BooleanOptionalAction,
                                default=None, help=help_)

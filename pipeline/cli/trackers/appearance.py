@@ -1,40 +1,50 @@
 """``--tracker appearance`` (the default): M2 with online exemplars of edge-orientation channels.
 
-See :mod:`gflow_core.appearance` for the method and its departures from Toyama & Blake.
+See :mod:`gflow_core.appearance` for the method and its departures from Toyama & Blake. Its
+parameters are :class:`gflow_core.appearance_params.AppearanceParams` (``gflow info appearance``):
+both stages of the graph take every one of them, so every option here sets both.
 """
 
 from __future__ import annotations
 
-import math
+from typing import Any
+
+from gflow_core.appearance_params import FIXED_SIZE, TRACK_SCALE, AppearanceParams
 
 NAME = "appearance"
 GRAPH = "appearance"
+#: the tracker's parameters (every stage of the graph takes them)
+PARAMS = AppearanceParams
+#: stage names of the graph
+PROPOSAL, FILTER = "proposal", "filter"
 
-#: random walk of the centre per frame, in units of sqrt(w h) of the initial box
-STD_XY_REL = 0.08
+
+def _preset(values: Any) -> str:
+    return ", ".join(f"{k}={v}" for k, v in values.items())
 
 
-def add_args(g) -> None:
+def add_args(g: Any) -> None:
+    """The options of the appearance parameters that have one (``--particles``, from the dataclass with
+    its help and default; shared with chamfer and m2) and the two size presets."""
+    from pipeline.cli.tracker_options import add_param_options
+
+    add_param_options(g, AppearanceParams, NAME, notes={"particles": "chamfer, m2: 500"})
     g.add_argument("--track-scale", action="store_true",
-                   help="appearance: scale in the particle state (3 observed scales) instead of the default "
+                   help=f"appearance: scale in the particle state ({_preset(TRACK_SCALE)}) instead of the default "
                         "scale search at the peak; the box drifts smaller on caviar1 and david_indoor "
-                        "(README, 'Which tracker')")
+                        "(docs/trackers.md)")
     g.add_argument("--fixed-size", action="store_true",
-                   help="appearance: the box keeps the size of the initial box (no scale search)")
+                   help=f"appearance: the box keeps the size of the initial box ({_preset(FIXED_SIZE)})")
 
 
-def overrides(args) -> tuple[str, dict[str, dict]]:
-    box = list(args.init)
-    particles = getattr(args, "particles", None) or 300
-    filt: dict = {"init": box, "particles": particles, "seed": args.seed}
-    std_log_s = 0.0
+def overrides(args: Any) -> tuple[str, dict[str, dict]]:
+    """Both stages get the same appearance parameters, the initial box and the seed."""
+    from pipeline.cli.tracker_options import param_values
+
+    shared: dict = {"init": list(args.init), "seed": args.seed}
+    shared.update(param_values(args, AppearanceParams))
     if getattr(args, "track_scale", False):
-        std_log_s = 0.01
-        filt.update(n_scales=3, std_log_s=std_log_s, scale_search=0)
+        shared.update(TRACK_SCALE)
     elif getattr(args, "fixed_size", False):
-        filt.update(scale_search=0)
-    return GRAPH, {
-        "filter": filt,
-        "proposal": {"seed": args.seed, "std_xy": STD_XY_REL * math.sqrt(max(box[2] * box[3], 1.0)),
-                     "std_log_s": std_log_s},
-    }
+        shared.update(FIXED_SIZE)
+    return GRAPH, {PROPOSAL: dict(shared), FILTER: dict(shared)}

@@ -7,8 +7,8 @@ GRAPH = "chamfer"
 
 
 def add_args(g) -> None:
-    g.add_argument("--particles", type=int, default=None,
-                   help="number of particles (chamfer, m2, appearance; default 500, 500, 300)")
+    """No options of its own: ``--particles`` is added by the appearance tracker (its parameter
+    dataclass holds the option) and read here too."""
 
 
 def overrides(args) -> tuple[str, dict[str, dict]]:

@@ -14,7 +14,7 @@ NAME = "m2"
 
 
 def add_args(g) -> None:
-    # --particles is shared with the chamfer tracker (it adds the option); --model is shared
+    # --particles is shared with the appearance tracker (it adds the option); --model is shared
     # with --tracker gflow (a morphable model file there)
     g.add_argument("--model", metavar="MODEL.npz",
                    help="model file: m2 needs one learned by `gflow learn m2`; gflow takes a morphable model "

@@ -1,0 +1,128 @@
+"""Proposal stage of the appearance tracker: the dynamics' random walk about the posterior of t-1.
+
+An adapter of :func:`gflow_core.appearance_dynamics.walk`, the proposal of
+:class:`~gflow_core.appearance_tracker.AppearanceTracker`: input ``particles`` is the resampled
+posterior of frame t-1 (from ``appearance.filter``), output ``proposals`` the particles for frame
+t, drawn with ``FrameRng(seed, crc32(stream), t).stream(PURPOSE_WALK)``. The walk's std for the
+centre is ``std_xy_rel sqrt(w h)`` of the initial box ``init``, so this stage needs it as the
+filter does. Its parameters are every field of
+:class:`gflow_core.appearance_params.AppearanceParams` (the same values as the filter's: ``gflow
+track`` sets both), ``seed``, ``init`` and ``timed``.
+
+With ``timed`` (set for live sources by ``pipeline/runtime/live_plan.py``) the stage also reads
+the frames and joins frame t + 1 with the posterior of t, so the noise grows with the time
+between the two frames' capture stamps (:mod:`stages.time_step`).
+
+The stage keeps no state that its outputs depend on; its snapshot holds the step counter.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Mapping
+
+import msgspec
+import numpy as np
+
+from gflow_core.appearance_dynamics import PURPOSE_WALK, walk
+from gflow_core.appearance_params import AppearanceParams
+from gflow_core.m2.tracking import ParticleCloud
+
+from .base import Output, Stage, StageContext
+from .messages import Frame, Message, Particles
+from .particle_proposal import cloud_of, particles_msg
+from .rng import tracker_rng
+from .time_step import time_step
+from .tracker_params import StageFields, stage_params, tracker_params
+
+__all__ = ["AppearanceProposalStage", "AppearanceProposalParams", "AppearanceProposalFields", "AppearanceStageFields"]
+
+SNAPSHOT_VERSION = 1
+
+
+class AppearanceStageFields(StageFields, frozen=True):
+    """What every appearance stage takes besides the tracker's parameters (``gflow info appearance``).
+
+    seed : random seed (frame ``t`` draws from ``[seed, crc32(stream), t, purpose]``).
+    init : (x, y, w, h) initial box of the target in the first frame, 0-based pixels.
+    """
+
+    seed: int = 0
+    init: tuple[float, float, float, float] | None = None
+
+    def check(self, tracker: Any) -> None:
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.init is not None:
+            if not all(math.isfinite(v) for v in self.init):
+                raise ValueError(f"init box has NaN or infinite values: {self.init}")
+            if not (self.init[2] > 0 and self.init[3] > 0):
+                raise ValueError(f"init box must have positive width and height, got {self.init}")
+
+
+class AppearanceProposalFields(AppearanceStageFields, frozen=True):
+    """The appearance stages' own fields and ``timed`` (also read the frames: the noise grows with the
+    time to the next frame)."""
+
+    timed: bool = False
+
+
+AppearanceProposalParams = stage_params(
+    "AppearanceProposalParams", AppearanceParams, AppearanceProposalFields, __name__,
+    "Appearance proposal settings: every field of :class:`gflow_core.appearance_params.AppearanceParams` "
+    "(the filter's values), ``seed``, ``init`` and ``timed``.")
+
+
+class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    version: int
+    done: int
+
+
+class AppearanceProposalStage(Stage[AppearanceProposalFields]):
+    kind = "appearance.proposal"
+    Params = AppearanceProposalParams
+    inputs = {"particles": Particles}
+    outputs = {"proposals": Particles}
+    input_offsets = {"frames": -1}  # timed: frame t + 1 joins the posterior of t
+
+    @classmethod
+    def ports(cls, params: AppearanceProposalFields) -> tuple[Mapping[str, type], Mapping[str, type]]:
+        return ({"particles": Particles, "frames": Frame} if params.timed else cls.inputs), cls.outputs
+
+    def __init__(self, params: AppearanceProposalFields, ctx: StageContext) -> None:
+        super().__init__(params, ctx)
+        if params.init is None:
+            raise ValueError("the appearance proposal needs the initial box (its random walk is relative to the "
+                             "box's size): set init: [x, y, w, h]")
+        self.core = tracker_params(params, AppearanceParams)
+        self.size0 = (float(params.init[2]), float(params.init[3]))
+        self.done = 0
+
+    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
+        msg = inputs["particles"]
+        assert isinstance(msg, Particles)
+        cloud = cloud_of(msg)
+        t = seq + 1
+        frame = inputs.get("frames")
+        dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
+        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(PURPOSE_WALK)
+        alpha = walk(self.core, cloud.alpha, self.size0, rng, dt)
+        out = ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
+        self.done += 1
+        return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]
+
+    def summary(self) -> dict[str, Any]:
+        return {"proposed": self.done}
+
+    def snapshot(self) -> bytes:
+        return msgspec.msgpack.encode(_Snapshot(version=SNAPSHOT_VERSION, done=self.done))
+
+    def restore(self, data: bytes) -> None:
+        try:
+            snap = msgspec.msgpack.decode(data, type=_Snapshot)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {self.ctx.name!r}: not an appearance proposal snapshot: {e}") from None
+        if snap.version != SNAPSHOT_VERSION:
+            raise ValueError(f"stage {self.ctx.name!r}: proposal snapshot version {snap.version}, expected "
+                             f"{SNAPSHOT_VERSION}")
+        self.done = snap.done
