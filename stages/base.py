@@ -91,7 +91,7 @@ class Stage(ABC, Generic[P]):
     drivers: ClassVar[frozenset[str] | None] = None
     input_offsets: ClassVar[Mapping[str, int]] = {}
     #: input ports whose messages ``prepare`` may be called on ahead of their step
-    prepare_ports: ClassVar[frozenset[str]] = frozenset()
+    prepare_ports: frozenset[str] = frozenset()  # a stage may choose its own from its parameters
 
     def __init__(self, params: P, ctx: StageContext) -> None:
         self.params: P = params

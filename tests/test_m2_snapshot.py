@@ -87,7 +87,7 @@ def test_chamfer_filter_restore_is_bit_exact(scene_features) -> None:
     fresh = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
     again = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
     again.restore(fresh.snapshot())
-    assert again.model is None and again.required(0) == {"features"}
+    assert again.state is None and again.required(0) == {"features"}
 
 
 @pytest.fixture(scope="module")
@@ -156,7 +156,7 @@ def test_appearance_filter_restore_is_bit_exact_and_starts_on_the_box(scene_feat
     assert first.box == tuple(float(v) for v in box) and first.state == "init"
     f = make_f()
     _run(f, make_p(), feats, 0, None)
-    assert f.bank is not None and f.bank.n == 3 and f.bank.frame[0] == 0
+    assert f.state is not None and f.state.bank is not None and f.state.bank.n == 3 and f.state.bank.frame[0] == 0
 
 
 def test_proposal_reverts_log_s_to_the_start_box(contour_model) -> None:

@@ -1,0 +1,75 @@
+"""The contour particle filter's parameters (chamfer and M2): :class:`ContourParams`, the only place
+their defaults live.
+
+The filter is :mod:`gflow_core.contour_tracker` (Toyama & Blake, IJCV 2002, with the departures
+listed there). The filter stage's parameter struct (``stages/particle_filter.py``), through it the
+validation of the graph files, ``gflow info chamfer`` / ``gflow info m2`` and ``gflow run``'s
+``--set filter.NAME=VALUE`` derive from this dataclass. The shipped graphs set what their tracker
+runs differently (``pipeline/graphs/chamfer.yaml``: ``lam``, ``scale_prior``; ``m2.yaml``: the
+online bank and the lost guard's window).
+
+This module imports no mathematics, so the command line reads it at no cost.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .params import param
+
+__all__ = ["ContourParams", "BOX_POLICIES"]
+
+#: how the estimate's box is made from the MAP state with a learned model
+BOX_POLICIES = ("reference", "exemplar")
+
+
+@dataclass(frozen=True)
+class ContourParams:
+    """Every setting of the contour particle filter. Each field's help text is in its declaration.
+    Raises ``ValueError`` naming the first parameter it refuses."""
+
+    particles: int = param(500, "number of particles N")
+    lam: float = param(0.5, "lambda of the K = 1 chamfer likelihood exp(-lambda rho) (no learned model)")
+    max_points: int = param(200, "template points kept from the edges inside the box (no learned model)")
+    init_spread: tuple[float, float, float, float] = param((2.0, 2.0, 0.01, 0.01), "std of (ux, uy, theta, log s) "
+                                                                                   "of the initial cloud")
+    min_edges: int = param(1, "a frame with fewer edge pixels is blank: no evidence, the particles coast on the "
+                              "dynamics (sec. 5.1.2)")
+    appearance: bool = param(True, "with a learned model that has appearance exemplars, multiply the chamfer kernel "
+                                   "by the appearance kernel")
+    online: int = param(6, "bound of the online appearance exemplar bank (0: no online exemplars)")
+    online_every: int = param(5, "at most one online exemplar added every this many frames")
+    confident_r: float = param(0.6, "the estimate is confident (its region may become an online exemplar) when its "
+                                    "appearance correlation with the nearest exemplar is at least this")
+    calibrate: bool = param(True, "widen the learned kernels so the initial box is a typical match on frame 0")
+    scale_prior: float = param(0.0, "std of a prior N(0, .) on log s of the K = 1 chamfer tracker (0: none)")
+    lost_guard: bool = param(True, "verify the estimate against the initial box and hold, search and re-detect a "
+                                   "lost target (false: the paper's filter)")
+    lost_window: float = param(1.5, "half-width of the hold window and of the first re-detection window, in box "
+                                    "sizes")
+    lost_growth: float = param(0.1, "the re-detection window widens by this many box sizes a lost frame")
+    lost_scales: tuple[float, ...] = param((1.0,), "sizes (multiples of the held size) searched when re-detecting "
+                                                   "(1.0 first)")
+    fit_shape: bool = param(True, "stretch a learned model's item frame to the initial box's aspect ratio")
+    box: str = param("reference", "the estimate's box with a learned model: reference (the reference box under "
+                                  "alpha) or exemplar (bounding box of T_alpha x~_k)")
+
+    def __post_init__(self) -> None:
+        if not self.lost_window > 0 or self.lost_growth < 0 or not self.lost_scales or min(self.lost_scales) <= 0:
+            raise ValueError(f"lost_window must be positive, lost_growth >= 0 and lost_scales positive, got "
+                             f"{self.lost_window}, {self.lost_growth}, {self.lost_scales}")
+        if self.online < 0 or self.online_every < 1:
+            raise ValueError(f"online must be >= 0 and online_every >= 1, got {self.online}, {self.online_every}")
+        if not -1.0 <= self.confident_r <= 1.0:
+            raise ValueError(f"confident_r must be a correlation in [-1, 1], got {self.confident_r}")
+        if self.particles < 1:
+            raise ValueError(f"particles must be >= 1, got {self.particles}")
+        if not self.lam > 0:
+            raise ValueError(f"lam must be positive, got {self.lam}")
+        if self.min_edges < 0:
+            raise ValueError(f"min_edges must be >= 0, got {self.min_edges}")
+        if self.box not in BOX_POLICIES:
+            raise ValueError(f"box must be 'reference' or 'exemplar', got {self.box!r}")
+        if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
+            raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
