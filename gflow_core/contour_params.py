@@ -1,12 +1,13 @@
-"""The contour particle filter's parameters (chamfer and M2): :class:`ContourParams`, the only place
-their defaults live.
+"""The contour trackers' parameters: :class:`ChamferParams` and :class:`M2Params`, the only place their
+defaults live, over :class:`ContourParams`, the filter's.
 
 The filter is :mod:`gflow_core.contour_tracker` (Toyama & Blake, IJCV 2002, with the departures
-listed there). The filter stage's parameter struct (``stages/particle_filter.py``), through it the
-validation of the graph files, ``gflow info chamfer`` / ``gflow info m2`` and ``gflow run``'s
-``--set filter.NAME=VALUE`` derive from this dataclass. The shipped graphs set what their tracker
-runs differently (``pipeline/graphs/chamfer.yaml``: ``lam``, ``scale_prior``; ``m2.yaml``: the
-online bank and the lost guard's window).
+listed there). Each tracker's stages (``chamfer.proposal`` / ``chamfer.filter``, ``m2.proposal`` /
+``m2.filter``: ``stages/particle_proposal.py``, ``stages/particle_filter.py``) take every field of
+its dataclass, so the graph files (``pipeline/graphs/chamfer.yaml``, ``m2.yaml``) name none and are
+validated against it; ``gflow track``'s ``--particles``, ``gflow info chamfer`` / ``gflow info m2``
+and the help derive from it. The generic stages ``particle.proposal`` / ``particle.filter`` (graphs
+of your own, ``gflow demo``) take :class:`ContourParams` and the random walk's deviations.
 
 This module imports no mathematics, so the command line reads it at no cost.
 """
@@ -18,7 +19,7 @@ from dataclasses import dataclass
 
 from .params import param
 
-__all__ = ["ContourParams", "BOX_POLICIES"]
+__all__ = ["ContourParams", "ChamferParams", "M2Params", "BOX_POLICIES"]
 
 #: how the estimate's box is made from the MAP state with a learned model
 BOX_POLICIES = ("reference", "exemplar")
@@ -73,3 +74,40 @@ class ContourParams:
             raise ValueError(f"box must be 'reference' or 'exemplar', got {self.box!r}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
+
+
+@dataclass(frozen=True)
+class ChamferParams(ContourParams):
+    """The chamfer tracker (M2 with K = 1, the template from the edges inside the initial box): the
+    filter's settings with the chamfer tracker's values, and the proposal's random walk (M2 sec. 4.3,
+    A = I) on beta = (ux, uy, theta, log s)."""
+
+    lam: float = param(0.2, "lambda of the chamfer likelihood exp(-lambda rho)")
+    scale_prior: float = param(0.3, "std of a prior N(0, .) on log s (0: none; the directed chamfer distance alone "
+                                    "favours a template shrunk onto dense edges)")
+    std_xy: float = param(1.5, "random walk of the centre per frame, px")
+    std_theta: float = param(0.02, "random walk of the angle per frame, radians")
+    std_log_s: float = param(0.02, "random walk of log s per frame")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not all(math.isfinite(v) and v >= 0 for v in (self.std_xy, self.std_theta, self.std_log_s)):
+            raise ValueError(f"std_xy, std_theta and std_log_s must be finite and >= 0, got {self.std_xy}, "
+                             f"{self.std_theta}, {self.std_log_s}")
+
+
+@dataclass(frozen=True)
+class M2Params(ContourParams):
+    """The M2 tracker with a learned contour model (``gflow learn m2``): the filter's settings with the
+    values chosen on all four shared sequences at once (docs/accuracy.md, m2). The proposal's dynamics
+    are the model's (its Markov matrix and AR(1) process)."""
+
+    init_spread: tuple[float, float, float, float] = param((2.0, 2.0, 0.01, 0.02), "std of (ux, uy, theta, log s) "
+                                                                                   "of the initial cloud")
+    online: int = param(12, "bound of the online appearance exemplar bank (0: no online exemplars)")
+    confident_r: float = param(0.5, "the estimate is confident (its region may become an online exemplar) when its "
+                                    "appearance correlation with the nearest exemplar is at least this")
+    lost_window: float = param(2.5, "half-width of the hold window and of the first re-detection window, in box "
+                                    "sizes")
+    lost_scales: tuple[float, ...] = param((1.0, 0.93, 1.07), "sizes (multiples of the held size) searched when "
+                                                              "re-detecting (1.0 first)")

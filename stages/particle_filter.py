@@ -65,12 +65,12 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 import msgspec
 import numpy as np
 
-from gflow_core.contour_params import ContourParams
+from gflow_core.contour_params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour_tracker import TRACKER, ContourObservation, ContourSetup, ContourState, guard_params, \
     restore_model, setup
 from gflow_core.m2 import lost as lostmod
@@ -87,7 +87,8 @@ from .particle_proposal import cloud_of, particles_msg
 from .rng import tracker_rng
 from .tracker_params import StageFields, stage_params, tracker_params
 
-__all__ = ["FilterStage", "FilterParams", "FilterFields"]
+__all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
+           "M2FilterStage", "M2FilterParams"]
 
 SNAPSHOT_VERSION = 3
 
@@ -114,6 +115,12 @@ class FilterFields(StageFields, frozen=True):
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,
                             "Particle filter settings: every field of :class:`gflow_core.contour_params.ContourParams` "
                             "(see it for meanings), ``init``, ``seed`` and ``model``.")
+ChamferFilterParams = stage_params("ChamferFilterParams", ChamferParams, FilterFields, __name__,
+                                   "The chamfer tracker's filter: every field of "
+                                   ":class:`gflow_core.contour_params.ChamferParams`, ``init`` and ``seed``.")
+M2FilterParams = stage_params("M2FilterParams", M2Params, FilterFields, __name__,
+                              "The M2 tracker's filter: every field of :class:`gflow_core.contour_params.M2Params`, "
+                              "``init``, ``seed`` and ``model`` (a learned contour model, required).")
 
 
 class _LastSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -158,6 +165,10 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 class FilterStage(Stage[FilterFields]):
     kind = "particle.filter"
     Params = FilterParams
+    #: the tracker's parameter dataclass the stage's parameters derive from
+    Tracker: ClassVar[type[ContourParams]] = ContourParams
+    #: whether the stage needs a learned model (the ``model`` resource)
+    needs_model: ClassVar[bool] = False
     inputs = {"features": Features, "proposals": Particles}
     outputs = {"particles": Particles, "estimate": Estimate}
     drivers = frozenset({"features"})
@@ -166,7 +177,10 @@ class FilterStage(Stage[FilterFields]):
         super().__init__(params, ctx)
         if params.init is None:
             raise ValueError("the filter stage needs an initial box: set init: [x, y, w, h]")
-        self.core = tracker_params(params, ContourParams)
+        self.core = tracker_params(params, self.Tracker)
+        if self.needs_model and ctx.resources.get("model") is None:
+            raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
+                             f"(`gflow learn m2`)")
         try:
             self.setup: ContourSetup = setup(self.core, params.init, ctx.resources.get("model"))
         except ValueError as e:
@@ -405,3 +419,21 @@ class FilterStage(Stage[FilterFields]):
             anchor = Anchor(channels=ch, size=(float(p.init[2]), float(p.init[3])), res=(ch.shape[1], ch.shape[0]))
         self.state = ContourState(self.setup, model, cloud, template=template, app=app, bank=bank, lost=lost,
                                   anchor=anchor, judged=(float(snap.judged[0]), str(snap.judged[1])))
+
+
+class ChamferFilterStage(FilterStage):
+    """The chamfer tracker's filter (graph ``chamfer``): its parameters derive from ``ChamferParams``."""
+
+    kind = "chamfer.filter"
+    Params = ChamferFilterParams
+    Tracker = ChamferParams
+
+
+class M2FilterStage(FilterStage):
+    """The M2 tracker's filter (graph ``m2``): its parameters derive from ``M2Params``; a learned
+    contour model is required."""
+
+    kind = "m2.filter"
+    Params = M2FilterParams
+    Tracker = M2Params
+    needs_model = True

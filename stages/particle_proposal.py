@@ -25,7 +25,7 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Any, ClassVar, Mapping
 
 import msgspec
 import numpy as np
@@ -35,12 +35,17 @@ from gflow_core.m2.dynamics import sample_markov
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 
+from gflow_core.contour_params import ChamferParams, M2Params
+
 from .base import Output, Params, Stage, StageInputError
+from .base import Params as _Params
 from .messages import Frame, Message, MessageError, NDArray, Particles
 from .rng import frame_rng
 from .time_step import time_step
+from .tracker_params import StageFields, stage_params
 
-__all__ = ["ProposalStage", "ProposalParams", "cloud_of", "particles_msg", "scale_mean_at"]
+__all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
+           "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg", "scale_mean_at"]
 
 PURPOSE = 0x9209
 SNAPSHOT_VERSION = 1
@@ -71,6 +76,31 @@ class ProposalParams(Params, frozen=True):
             raise ValueError(f"init box must have positive width and height, got {self.init}")
 
 
+class ProposalFields(StageFields, frozen=True):
+    """What the chamfer and m2 proposal stages take besides their tracker's parameters: ``seed``,
+    ``model`` (a learned M2 model's path), ``init`` (the initial box: the AR(1) process on log s
+    reverts to its scale) and ``timed`` (also read the frames: the noise grows with the time to the
+    next frame)."""
+
+    seed: int = 0
+    model: str = ""
+    init: tuple[float, float, float, float] | None = None
+    timed: bool = False
+
+    def check(self, tracker: Any) -> None:
+        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
+            raise ValueError(f"init box must have positive width and height, got {self.init}")
+
+
+ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,
+                                     "The chamfer tracker's proposal: every field of "
+                                     ":class:`gflow_core.contour_params.ChamferParams` (its random walk: "
+                                     "``std_xy``, ``std_theta``, ``std_log_s``), ``seed``, ``init`` and ``timed``.")
+M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __name__,
+                                "The M2 tracker's proposal: every field of :class:`gflow_core.contour_params.M2Params`, "
+                                "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
+
+
 def scale_mean_at(dynamics: dyn.ARDynamics, log_s: float) -> dyn.ARDynamics:
     """The AR(1) process with the mean of log s moved to ``log_s`` (A and B unchanged).
 
@@ -97,10 +127,12 @@ def particles_msg(header, kind: str, cloud: ParticleCloud) -> Particles:
 
 class ProposalStage(Stage[ProposalParams]):
     kind = "particle.proposal"
-    Params = ProposalParams
+    Params: ClassVar[type[_Params]] = ProposalParams  # the chamfer and m2 stages below derive theirs
     inputs = {"particles": Particles}
     outputs = {"proposals": Particles}
     input_offsets = {"frames": -1}  # timed: frame t + 1 joins the posterior of t
+    #: whether the stage needs a learned model (the ``model`` resource)
+    needs_model: ClassVar[bool] = False
 
     @classmethod
     def ports(cls, params: ProposalParams) -> tuple[Mapping[str, type], Mapping[str, type]]:
@@ -109,6 +141,9 @@ class ProposalStage(Stage[ProposalParams]):
     def __init__(self, params: ProposalParams, ctx) -> None:
         super().__init__(params, ctx)
         model = ctx.resources.get("model")
+        if self.needs_model and model is None:
+            raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
+                             f"(`gflow learn m2`)")
         self.fixed_alpha = False
         if model is not None:
             if not isinstance(model, M2Model):
@@ -157,3 +192,18 @@ class ProposalStage(Stage[ProposalParams]):
             raise ValueError(f"stage {self.ctx.name!r}: proposal snapshot version {snap.version}, expected "
                              f"{SNAPSHOT_VERSION}")
         self.done = snap.done
+
+
+class ChamferProposalStage(ProposalStage):
+    """The chamfer tracker's proposal (graph ``chamfer``): the random walk of ``ChamferParams``."""
+
+    kind = "chamfer.proposal"
+    Params = ChamferProposalParams
+
+
+class M2ProposalStage(ProposalStage):
+    """The M2 tracker's proposal (graph ``m2``): the learned model's dynamics (a model is required)."""
+
+    kind = "m2.proposal"
+    Params = M2ProposalParams
+    needs_model = True

@@ -28,7 +28,10 @@ def add_args(g: Any) -> None:
     its help and default; shared with chamfer and m2) and the two size presets."""
     from pipeline.cli.tracker_options import add_param_options
 
-    add_param_options(g, AppearanceParams, NAME, notes={"particles": "chamfer, m2: 500"})
+    from gflow_core.contour_params import ChamferParams, M2Params
+
+    add_param_options(g, AppearanceParams, NAME, notes={
+        "particles": f"chamfer {ChamferParams().particles}, m2 {M2Params().particles}"})
     g.add_argument("--track-scale", action="store_true",
                    help=f"appearance: scale in the particle state ({_preset(TRACK_SCALE)}) instead of the default "
                         "scale search at the peak; the box drifts smaller on caviar1 and david_indoor "

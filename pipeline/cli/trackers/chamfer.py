@@ -1,20 +1,31 @@
-"""``--tracker chamfer``: M2 with K = 1, the template from the edges inside the initial box."""
+"""``--tracker chamfer``: M2 with K = 1, the template from the edges inside the initial box.
+
+Its parameters are :class:`gflow_core.contour_params.ChamferParams` (``gflow info chamfer``): the
+proposal and the filter of the graph take every one of them, so every option sets both.
+"""
 
 from __future__ import annotations
 
+from typing import Any
+
+from gflow_core.contour_params import ChamferParams
+
 NAME = "chamfer"
 GRAPH = "chamfer"
+#: the tracker's parameters (every stage of the graph but the preprocessing takes them)
+PARAMS = ChamferParams
 
 
-def add_args(g) -> None:
+def add_args(g: Any) -> None:
     """No options of its own: ``--particles`` is added by the appearance tracker (its parameter
     dataclass holds the option) and read here too."""
 
 
-def overrides(args) -> tuple[str, dict[str, dict]]:
+def overrides(args: Any) -> tuple[str, dict[str, dict]]:
+    """Both stages get the initial box, the seed and ``--particles``; the preprocessing calibrates its
+    Canny thresholds on the initial box."""
     box = list(args.init)
-    return GRAPH, {
-        "filter": {"init": box, "particles": args.particles or 500, "seed": args.seed},
-        "proposal": {"seed": args.seed},
-        "preprocess": {"calibrate_box": box},
-    }
+    shared: dict = {"init": box, "seed": args.seed}
+    if getattr(args, "particles", None):
+        shared["particles"] = args.particles
+    return GRAPH, {"filter": dict(shared), "proposal": dict(shared), "preprocess": {"calibrate_box": box}}

@@ -10,7 +10,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gflow_core.contour_params import M2Params
+
 NAME = "m2"
+#: the tracker's parameters of a contour model (graph ``m2``; every stage but the preprocessing takes them)
+PARAMS = M2Params
+#: the built-in graph of a contour model (a patch model runs ``m2_patch``)
+GRAPH = "m2"
 
 
 def add_args(g) -> None:
@@ -37,7 +43,7 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     meta = load_meta(path)
     mpath = str(path.resolve())
     box = list(args.init)
-    particles = getattr(args, "particles", None) or 500
+    particles = getattr(args, "particles", None) or M2Params().particles
     pre: dict = {}
     if "canny_low" in meta and "canny_high" in meta:
         pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))
@@ -51,8 +57,7 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
             "preprocess": pre,
         }
     pre.update(profile=model.profile, g0=model.g0)
-    return "m2", {
-        "filter": {"model": mpath, "init": box, "particles": particles, "seed": args.seed},
-        "proposal": {"model": mpath, "seed": args.seed, "init": box},
-        "preprocess": pre,
-    }
+    shared = {"model": mpath, "init": box, "seed": args.seed}
+    if getattr(args, "particles", None):
+        shared["particles"] = args.particles
+    return GRAPH, {"filter": dict(shared), "proposal": dict(shared), "preprocess": pre}
