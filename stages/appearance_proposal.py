@@ -18,10 +18,8 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
-import msgspec
 import numpy as np
 
 from gflow_core.appearance_dynamics import PURPOSE_WALK, walk
@@ -30,34 +28,18 @@ from gflow_core.m2.tracking import ParticleCloud
 
 from .base import Output, Stage, StageContext
 from .messages import Frame, Message, Particles
-from .particle_proposal import cloud_of, particles_msg
+from .particle_proposal import cloud_of, counter_snapshot, particles_msg, restored_counter
 from .rng import tracker_rng
 from .time_step import time_step
-from .tracker_params import StageFields, stage_params, tracker_params
+from .tracker_params import SeedBoxFields, stage_params, tracker_params
 
 __all__ = ["AppearanceProposalStage", "AppearanceProposalParams", "AppearanceProposalFields", "AppearanceStageFields"]
 
-SNAPSHOT_VERSION = 1
 
-
-class AppearanceStageFields(StageFields, frozen=True):
-    """What every appearance stage takes besides the tracker's parameters (``gflow info appearance``).
-
-    seed : random seed (frame ``t`` draws from ``[seed, crc32(stream), t, purpose]``).
-    init : (x, y, w, h) initial box of the target in the first frame, 0-based pixels.
-    """
-
-    seed: int = 0
-    init: tuple[float, float, float, float] | None = None
-
-    def check(self, tracker: Any) -> None:
-        if self.seed < 0:
-            raise ValueError(f"seed must be >= 0, got {self.seed}")
-        if self.init is not None:
-            if not all(math.isfinite(v) for v in self.init):
-                raise ValueError(f"init box has NaN or infinite values: {self.init}")
-            if not (self.init[2] > 0 and self.init[3] > 0):
-                raise ValueError(f"init box must have positive width and height, got {self.init}")
+class AppearanceStageFields(SeedBoxFields, frozen=True):
+    """What every appearance stage takes besides the tracker's parameters (``gflow info appearance``):
+    ``seed`` (frame ``t`` draws from ``[seed, crc32(stream), t, purpose]``) and ``init``, the
+    (x, y, w, h) initial box of the target in the first frame, 0-based pixels."""
 
 
 class AppearanceProposalFields(AppearanceStageFields, frozen=True):
@@ -71,11 +53,6 @@ AppearanceProposalParams = stage_params(
     "AppearanceProposalParams", AppearanceParams, AppearanceProposalFields, __name__,
     "Appearance proposal settings: every field of :class:`gflow_core.appearance_params.AppearanceParams` "
     "(the filter's values), ``seed``, ``init`` and ``timed``.")
-
-
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    done: int
 
 
 class AppearanceProposalStage(Stage[AppearanceProposalFields]):
@@ -115,14 +92,7 @@ class AppearanceProposalStage(Stage[AppearanceProposalFields]):
         return {"proposed": self.done}
 
     def snapshot(self) -> bytes:
-        return msgspec.msgpack.encode(_Snapshot(version=SNAPSHOT_VERSION, done=self.done))
+        return counter_snapshot(self.done)
 
     def restore(self, data: bytes) -> None:
-        try:
-            snap = msgspec.msgpack.decode(data, type=_Snapshot)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {self.ctx.name!r}: not an appearance proposal snapshot: {e}") from None
-        if snap.version != SNAPSHOT_VERSION:
-            raise ValueError(f"stage {self.ctx.name!r}: proposal snapshot version {snap.version}, expected "
-                             f"{SNAPSHOT_VERSION}")
-        self.done = snap.done
+        self.done = restored_counter(self.ctx.name, data)

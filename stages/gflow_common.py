@@ -28,7 +28,6 @@ shards concatenate to exactly one process's result, and the pipeline equals the 
 from __future__ import annotations
 
 import hashlib
-import math
 from dataclasses import asdict
 from typing import Any, Mapping
 
@@ -41,7 +40,7 @@ from gflow_core.tracker import UnusableFrame
 
 from .base import StageInputError
 from .messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
-from .tracker_params import StageFields
+from .tracker_params import SeedBoxFields
 
 __all__ = [
     "GFlowStageFields",
@@ -56,25 +55,12 @@ __all__ = [
 ]
 
 
-class GFlowStageFields(StageFields, frozen=True):
+class GFlowStageFields(SeedBoxFields, frozen=True):
     """What every G-flow stage takes besides the tracker's parameters (``gflow info gflow``).
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
     init : (x, y, w, h) initial box of the face in the first usable frame, 0-based pixels.
     """
-
-    seed: int = 0
-    init: tuple[float, float, float, float] | None = None
-
-    def check(self, tracker: Any) -> None:
-        if self.seed < 0:
-            raise ValueError(f"seed must be >= 0, got {self.seed}")
-        if self.init is not None:
-            if not all(math.isfinite(v) for v in self.init):
-                raise ValueError(f"init box has NaN or infinite values: {self.init}")
-            if not (self.init[2] > 0 and self.init[3] > 0):
-                raise ValueError(f"init box must have positive width and height, got w={self.init[2]}, "
-                                 f"h={self.init[3]} in {self.init}")
 
 
 def config_digest(cfg: GFlowConfig, model: MorphableModel, seed: int, contrast_sigma: float = 0.0) -> str:

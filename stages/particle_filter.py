@@ -71,7 +71,7 @@ import msgspec
 import numpy as np
 
 from gflow_core.contour_params import ChamferParams, ContourParams, M2Params
-from gflow_core.contour_tracker import TRACKER, ContourObservation, ContourSetup, ContourState, guard_params, \
+from gflow_core.contour_tracker import TRACKER, ContourObservation, ContourSetup, ContourState, \
     restore_model, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.appearance_metric import OnlineBank

@@ -101,6 +101,22 @@ M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __
                                 "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
 
 
+def counter_snapshot(done: int) -> bytes:
+    """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
+    return msgspec.msgpack.encode(_ProposalSnapshot(version=SNAPSHOT_VERSION, done=done))
+
+
+def restored_counter(stage: str, data: bytes) -> int:
+    """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
+    try:
+        snap = msgspec.msgpack.decode(data, type=_ProposalSnapshot)
+    except msgspec.DecodeError as e:
+        raise ValueError(f"stage {stage!r}: not a proposal snapshot: {e}") from None
+    if snap.version != SNAPSHOT_VERSION:
+        raise ValueError(f"stage {stage!r}: proposal snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
+    return snap.done
+
+
 def scale_mean_at(dynamics: dyn.ARDynamics, log_s: float) -> dyn.ARDynamics:
     """The AR(1) process with the mean of log s moved to ``log_s`` (A and B unchanged).
 
@@ -181,17 +197,10 @@ class ProposalStage(Stage[ProposalParams]):
         return {"proposed": self.done}
 
     def snapshot(self) -> bytes:
-        return msgspec.msgpack.encode(_ProposalSnapshot(version=SNAPSHOT_VERSION, done=self.done))
+        return counter_snapshot(self.done)
 
     def restore(self, data: bytes) -> None:
-        try:
-            snap = msgspec.msgpack.decode(data, type=_ProposalSnapshot)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {self.ctx.name!r}: not a proposal snapshot: {e}") from None
-        if snap.version != SNAPSHOT_VERSION:
-            raise ValueError(f"stage {self.ctx.name!r}: proposal snapshot version {snap.version}, expected "
-                             f"{SNAPSHOT_VERSION}")
-        self.done = snap.done
+        self.done = restored_counter(self.ctx.name, data)
 
 
 class ChamferProposalStage(ProposalStage):

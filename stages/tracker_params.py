@@ -11,6 +11,7 @@ dataclass's own checks) and a default cannot differ between the core and a stage
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from typing import Any, TypeVar
 
@@ -18,7 +19,7 @@ import msgspec
 
 from .base import Params
 
-__all__ = ["StageFields", "stage_params", "tracker_params"]
+__all__ = ["StageFields", "SeedBoxFields", "stage_params", "tracker_params"]
 
 F = TypeVar("F", bound="StageFields")
 T = TypeVar("T")
@@ -29,6 +30,24 @@ class StageFields(Params, frozen=True):
 
     def check(self, tracker: Any) -> None:
         """Checks of the stage's own fields against the tracker's parameters (``ValueError``)."""
+
+
+class SeedBoxFields(StageFields, frozen=True):
+    """The fields most tracker stages add: ``seed`` (frame ``t`` draws from ``[seed, crc32(stream), t,
+    ...]``) and ``init``, the (x, y, w, h) initial box of the target in the first frame, 0-based pixels."""
+
+    seed: int = 0
+    init: tuple[float, float, float, float] | None = None
+
+    def check(self, tracker: Any) -> None:
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0, got {self.seed}")
+        if self.init is not None:
+            if not all(math.isfinite(v) for v in self.init):
+                raise ValueError(f"init box has NaN or infinite values: {self.init}")
+            if not (self.init[2] > 0 and self.init[3] > 0):
+                raise ValueError(f"init box must have positive width and height, got w={self.init[2]}, "
+                                 f"h={self.init[3]} in {self.init}")
 
 
 def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "") -> type[F]:
