@@ -31,7 +31,7 @@ import msgspec
 import numpy as np
 
 from gflow_core.m2 import dynamics as dyn
-from gflow_core.m2.dynamics import sample_markov
+from gflow_core.m2.dynamics import sample_markov, scale_mean_at
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 
@@ -45,7 +45,7 @@ from .time_step import time_step
 from .tracker_params import StageFields, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
-           "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg", "scale_mean_at"]
+           "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
 
 PURPOSE = 0x9209
 SNAPSHOT_VERSION = 1
@@ -115,17 +115,6 @@ def restored_counter(stage: str, data: bytes) -> int:
     if snap.version != SNAPSHOT_VERSION:
         raise ValueError(f"stage {stage!r}: proposal snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
     return snap.done
-
-
-def scale_mean_at(dynamics: dyn.ARDynamics, log_s: float) -> dyn.ARDynamics:
-    """The AR(1) process with the mean of log s moved to ``log_s`` (A and B unchanged).
-
-    The learned mean of log s is the training target's distance from the training camera;
-    on another video the target's own size (the initial box) is the level to revert to.
-    """
-    mean = dynamics.mean.copy()
-    mean[3] = log_s
-    return dyn.ARDynamics(A=dynamics.A, mean=mean, B=dynamics.B)
 
 
 def cloud_of(msg: Particles) -> ParticleCloud:
