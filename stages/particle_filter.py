@@ -8,8 +8,8 @@ Inputs: ``features`` of frame t (the chamfer image) and ``proposals`` for frame 
 Outputs: ``particles`` (the resampled posterior of t, which the proposal stage turns into
 the proposals of t+1) and ``estimate`` (MAP state, box, posterior summary, ESS).
 
-Initialisation (first frame): with no learned model this is the chamfer tracker of the
-runtime issue: the template contour is the edge pixels inside ``init`` (x, y, w, h), the
+Initialisation (first frame): with no learned model this is the chamfer tracker: the
+template contour is the edge pixels inside ``init`` (x, y, w, h), the
 model is M2 with K = 1 and likelihood exp(-lambda rho). With a learned M2 model (resource
 ``model``, contour exemplars) the exemplars, sigma_k and d_k come from the model and
 ``init`` places it: alpha_0 = (box centre, 0, s) with s the box size over the model's
