@@ -10,8 +10,8 @@ transform alpha, exemplars, a distance rho, lambda = 1 / (2 sigma^2) -- and make
 video it was never trained on:
 
 * **Metric.** rho = 1 - r, where r is the normalised correlation (Pearson over pixels and
-  channels) of locally normalised edge-orientation channels
-  (:func:`gflow_core.orientation.orientation_channels`) between the exemplar and the region
+  channels) of locally normalised edge-orientation channels of the log-light image
+  (:func:`gflow_core.orientation.orientation_channels`, ``log_light``) between the exemplar and the region
   under T_alpha, resampled to the exemplar's resolution. It is illumination-robust (gain and
   bias cancel) and does not reward shrinking: every scale is compared at one resolution.
 * **Exemplars online** (departure: the paper learns them offline). Exemplar 0 is the
@@ -187,8 +187,8 @@ class StepResult:
 
 
 def features(grey: np.ndarray) -> np.ndarray:
-    """(H, W, 4) float32 appearance channels of a grey frame (H, W)."""
-    return orientation_channels(grey)
+    """(H, W, 4) float32 appearance channels of a grey frame (H, W), from its log-light image."""
+    return orientation_channels(grey, log_light=True)
 
 
 def _exemplar(feat: np.ndarray, centre: np.ndarray, log_s: float, size0: np.ndarray,

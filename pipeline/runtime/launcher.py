@@ -225,6 +225,9 @@ class Launcher:
             if recorder:
                 stop_recorder(sup, bus, plan, recorder)
             sup.record_exits()
+            # a stage's last heartbeat leaves just before its process exits: hear it before the
+            # session closes (under load it can arrive after the exit is seen)
+            monitor.await_final([n for n, e in sup.exits.items() if e.returncode == 0], 2.0)
             self.console.end()
             session.close()
             shutil.rmtree(self.run_dir, ignore_errors=True)

@@ -89,6 +89,7 @@ class ProgressMonitor:
         self.latency_ms: collections.deque[float] = collections.deque(maxlen=LATENCY_WINDOW)
         self.stall = ""  # the stall report, when the run stopped for one
         self.lock = threading.Lock()
+        self.heard = threading.Condition(self.lock)  # notified on every heartbeat
         self._progress_at: dict[str, tuple[tuple, float]] = {}
         self._last_line = 0.0
 
@@ -111,6 +112,7 @@ class ProgressMonitor:
             with self.lock:
                 self.status[msg.stage] = msg
                 self.peak_rss[msg.stage] = max(self.peak_rss.get(msg.stage, 0.0), msg.rss_mb)
+                self.heard.notify_all()
 
     def _on_error(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
         try:
@@ -138,6 +140,14 @@ class ProgressMonitor:
                     pass
 
     # -- what the launcher asks --------------------------------------------------------------
+    def await_final(self, names: list[str], timeout: float) -> bool:
+        """Wait up to ``timeout`` s for the final heartbeat (state ``done`` or ``stopped``) of
+        every stage of ``names``, which their processes send just before they exit; whether all
+        arrived. The counts a run reports at its end (messages rejected, frames skipped) are in it."""
+        with self.heard:
+            return self.heard.wait_for(
+                lambda: all(n in self.status and self.status[n].state in ("done", "stopped") for n in names), timeout)
+
     def snapshot(self) -> dict[str, StageStatus]:
         """The last heartbeat of every stage heard so far."""
         with self.lock:

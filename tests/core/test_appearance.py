@@ -121,6 +121,29 @@ def test_orientation_channels_keep_the_bits_of_the_first_version():
         assert orientation_channels(g).tobytes() == _channels_reference(g).tobytes()
 
 
+def test_log_light_channels_change_less_when_the_light_falls():
+    """Gradients of log(1 + grey) are those of the reflectance whatever the light's gain: on a
+    real frame darkened to a tenth and to a quarter (8-bit, rounded), the log-light channels
+    stay closer to the undarkened ones than the grey-level channels do."""
+    from tests.conftest import data_dir
+
+    grey = cv2.imread(str(sorted((data_dir("caviar1") / "frames").glob("*.jpg"))[100]), cv2.IMREAD_GRAYSCALE)
+    inner = (slice(8, -8), slice(8, -8))
+    for gain in (0.25, 0.1):
+        dark = np.clip(np.rint(grey * gain), 0, 255).astype(np.uint8)
+        corr = {}
+        for log_light in (False, True):
+            a = orientation_channels(grey, log_light=log_light)[inner].ravel()
+            b = orientation_channels(dark, log_light=log_light)[inner].ravel()
+            corr[log_light] = float(np.corrcoef(a, b)[0, 1])
+        assert corr[True] > corr[False] and corr[True] > 0.98, (gain, corr)
+    # the same image as float grey levels gives the table's values
+    assert np.allclose(orientation_channels(grey.astype(np.float32), log_light=True),
+                       orientation_channels(grey, log_light=True), atol=1e-4)
+    # the appearance tracker's channels are the log-light ones
+    assert ap.features(grey).tobytes() == orientation_channels(grey, log_light=True).tobytes()
+
+
 def test_follows_a_target_that_grows_and_shrinks_by_2x_with_scale_tracking():
     # scale 1 -> 2 -> 1 -> 0.6 over 160 frames while moving across the frame
     def path(t):

@@ -308,7 +308,7 @@ def register(sub) -> None:
                                                     "(default: every frame from the first ground-truth box)")
     p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")
     p.add_argument("--m2-model", metavar="MODEL.npz", help="model for --tracker m2 (without one, m2 is skipped)")
-    p.add_argument("--gflow-model", metavar="MODEL.npz", help="morphable model for the gflow tracker (default: generic head)")
+    p.add_argument("--gflow-model", metavar="MODEL.npz", help="morphable model for the gflow tracker (default: the built-in face model; 'ellipsoid': the generic rigid head)")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="stage parameter for every tracker run")
     p.add_argument("--opencv", metavar="NAME,...",
                    help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them")
