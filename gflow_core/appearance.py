@@ -454,11 +454,23 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     # away from the prediction costs log N(c; pred, S) - log N(pred; pred, S)
     sx, sy = prior * bw + spd, prior * bh + spd
     log_place = -((centre[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (centre[1] - pred[1]) ** 2 / (2.0 * sy * sy))
+    # a target partly hidden (or changing its look) is where its motion puts it: its match says
+    # little about its place, so under "partial" the estimate's place is weighed by the motion
+    # prior of a hidden target (hidden_prior box sizes plus hidden_speed |v|), not the wide
+    # prior of a target in plain view; a jump to a look-alike a box away is then no "partial"
+    if hidden_before:
+        log_place_partial = log_place
+    else:
+        hp = p.hidden_prior * float(np.sqrt(dt))
+        hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
+        px, py = hp * bw + hs, hp * bh + hs
+        log_place_partial = -((centre[0] - pred[0]) ** 2 / (2.0 * px * px) + (centre[1] - pred[1]) ** 2 / (2.0 * py * py))
     # a target judged hidden stays hidden unless the frame says otherwise: after a hidden frame
     # the prior that it is back is `reappear` (split evenly between visible and partial); after
     # a present frame the three hypotheses are equally likely a priori
     state_prior = (1.0, 1.0, 1.0) if not hidden_before else (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
-    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place)
+    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place,
+                     log_place_partial=log_place_partial)
     warm = st.target.n < p.warmup
     present = warm or vis.present
     confident = warm or vis.visible >= 0.5

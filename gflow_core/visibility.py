@@ -146,7 +146,7 @@ class Visibility:
 
 def visibility(rho: float, target: ChiSquare, clutter: ChiSquare, min_std: float,
                prior: tuple[float, float, float] = (1.0, 1.0, 1.0), trials: float = 1.0,
-               log_place: float = 0.0) -> Visibility:
+               log_place: float = 0.0, log_place_partial: float | None = None) -> Visibility:
     """P(visible), P(partial), P(hidden) of a distance ``rho`` (module docstring).
 
     Parameters
@@ -163,12 +163,16 @@ def visibility(rho: float, target: ChiSquare, clutter: ChiSquare, min_std: float
     log_place : log of how much likelier the estimate's place is under the target's motion
         prior than under clutter's (uniform over the searched window); added to the visible
         and partial hypotheses, so a far jump needs a better match.
+    log_place_partial : the same under the partial hypothesis when it differs (a target partly
+        hidden is placed by its motion rather than by a match that says little; default:
+        ``log_place``).
     """
+    place = (log_place, log_place if log_place_partial is None else log_place_partial, 0.0)
     logs = []
     # the partial hypothesis: uniform between a perfect match and the clutter's mean distance
     top_partial = max(clutter.mean(), min_std) if clutter.n else RHO_MAX
     # log pi_h + log p(rho | h) for h = visible, partial, hidden
-    for w, m in ((prior[0], target), (prior[1], None), (prior[2], clutter)):
+    for w, m, lpl in ((prior[0], target, place[0]), (prior[1], None, place[1]), (prior[2], clutter, place[2])):
         if w <= 0 or (m is not None and m.n == 0) or (m is None and rho > top_partial):
             logs.append(-math.inf)
             continue
@@ -180,7 +184,7 @@ def visibility(rho: float, target: ChiSquare, clutter: ChiSquare, min_std: float
         else:
             # one-sided: p(rho | visible) = p_t(max(rho, mode_t)), a closer match than usual is the target
             lp = m.log_pdf(max(rho, m.mode(min_std)), min_std)
-        logs.append(math.log(w) + lp + (log_place if m is not clutter else 0.0))
+        logs.append(math.log(w) + lp + lpl)
     top = max(logs)
     if top == -math.inf:
         return Visibility(visible=0.0, partial=1.0, hidden=0.0)
