@@ -36,7 +36,9 @@ constants are the priors, the rate at which the moments forget, and a floor on t
 Departures from the paper: the moments are exponentially weighted running moments (the look
 of the target and of its background drift over a video), not moments of a training set; the
 "partial" outlier hypothesis and the clutter distribution are not in the paper (a tail test
-alone calls every change of look an occlusion).
+alone calls every change of look an occlusion). The caller may add the log of the estimate's
+place under each hypothesis's motion prior (``log_place``, ``log_place_partial``); that too is
+ours.
 
 The distances here are rho = 1 - r with r a normalised correlation, so rho lies in [0, 2].
 """
