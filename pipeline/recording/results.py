@@ -25,12 +25,13 @@ Box = tuple[float, float, float, float]
 def _box_row(p: Path, lineno: int, row: list[str]) -> tuple[int, Box]:
     try:
         frame = int(row[0])
-        box = tuple(float(v) for v in row[1:5])
+        x, y, w, h = (float(v) for v in row[1:5])  # csv_rows gives at least five columns
     except ValueError:
         raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+    box = (x, y, w, h)
     if not all(math.isfinite(v) for v in box):
         raise ValueError(f"{p}:{lineno}: box has NaN or inf")
-    return frame, box  # type: ignore[return-value]
+    return frame, box
 
 
 def read_boxes(path: str | Path) -> dict[int, Box]:
@@ -98,7 +99,7 @@ def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, f
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else []))
         for k in sorted(boxes):
-            extra = [f"{confidence[k]:.3f}", states[k]] if full else []  # type: ignore[index]
+            extra = [f"{confidence[k]:.3f}", states[k]] if confidence is not None and states is not None else []
             w.writerow([k, *(f"{v:.2f}" for v in boxes[k]), *extra])
 
 
@@ -143,9 +144,9 @@ def write_visibility(path: str | Path, visible: dict[int, float], perturbed: dic
             w.writerow([k, f"{visible[k]:.4f}", int(perturbed[k])] + ([source[k]] if source is not None else []))
 
 
-def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate]:
+def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate | PoseEstimate]:
     """Every Estimate in a recording, by frame (the last one wins if a frame repeats)."""
-    out: dict[int, Estimate] = {}
+    out: dict[int, Estimate | PoseEstimate] = {}
     for r in iter_records(recording):
         if r.type not in ("Estimate", "PoseEstimate") or (stream and not r.topic.startswith(f"gflow/{stream}/")):
             continue
@@ -169,7 +170,7 @@ def truth_boxes(recording: str | Path) -> dict[int, Box]:
         except MessageError:
             continue
         if isinstance(m, Frame) and m.truth is not None:
-            out[m.header.seq] = tuple(m.truth)  # type: ignore[assignment]
+            out[m.header.seq] = m.truth  # decoded as a tuple (Box)
     return out
 
 
