@@ -7,7 +7,7 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, TypeVar
 
 from gflow_core.metrics import TARGET_STATES
 from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
@@ -17,9 +17,10 @@ from pipeline.io.mcap_io import iter_records
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
            "write_visibility", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
-           "RunOutcome"]
+           "RunOutcome", "renumber"]
 
 Box = tuple[float, float, float, float]
+V = TypeVar("V")
 
 
 def _box_row(p: Path, lineno: int, row: list[str]) -> tuple[int, Box]:
@@ -142,6 +143,11 @@ def write_visibility(path: str | Path, visible: dict[int, float], perturbed: dic
         w.writerow(["frame", "visible", "perturbed"] + (["source_frame"] if source is not None else []))
         for k in sorted(visible):
             w.writerow([k, f"{visible[k]:.4f}", int(perturbed[k])] + ([source[k]] if source is not None else []))
+
+
+def renumber(col: dict[int, V], frame_of: Mapping[int, int]) -> dict[int, V]:
+    """A column by frame with each frame renamed by ``frame_of`` (a live run's camera frames), else kept."""
+    return {frame_of.get(k, k): v for k, v in col.items()}
 
 
 def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate | PoseEstimate]:
