@@ -8,6 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 __all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve",
            "size_kept", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score"]
@@ -197,7 +198,7 @@ class StateScore:
                 "undisturbed_frames": self.shown, "undisturbed_reported_tracked": None if r[1] is None else round(r[1], 4)}
 
 
-def state_score(states: list[str | None], visible: np.ndarray, perturbed: np.ndarray | None = None,
+def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLike | None = None,
                 grace: int = 5, hidden_below: float = HIDDEN_BELOW) -> StateScore:
     """Score reported target states against how much of the target was in view.
 

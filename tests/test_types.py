@@ -1,4 +1,4 @@
-"""The type checker passes over the core, the stages and the Python API (``[tool.mypy]`` in
+"""The type checker passes over the core, the stages, the Python API and the pipeline (``[tool.mypy]`` in
 pyproject.toml), with no ``# type: ignore``: a third-party package that ships no types is named in
 the configuration instead."""
 
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-CHECKED = ("gflow_core", "stages", "gflow")
+CHECKED = ("gflow_core", "stages", "gflow", "pipeline")
 
 
 def test_mypy_passes(tmp_path) -> None:

@@ -25,6 +25,7 @@ if sys.argv and sys.argv[0].endswith(("gflow", "pipeline/cli/__main__.py", "pipe
 
 import argparse  # noqa: E402
 import logging  # noqa: E402
+from typing import NoReturn  # noqa: E402
 
 from pipeline.cli.commands import command_modules  # noqa: E402
 from pipeline.cli.commands.common import CliError  # noqa: E402
@@ -65,7 +66,7 @@ class _Version(argparse.Action):
 class _Parser(argparse.ArgumentParser):
     """argparse, with a usage mistake reported in one line (the usage is one --help away)."""
 
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 

@@ -246,7 +246,8 @@ def _track_opencv(name: str, seq: Sequence, start: int, stop: int | None, out_cs
             else:
                 ok, b = tracker.update(raw.image)
                 if ok:
-                    last = tuple(float(v) for v in b)  # type: ignore[assignment]
+                    bx, by, bw, bh = (float(v) for v in b)  # OpenCV's Rect: four numbers
+                    last = (bx, by, bw, bh)
         boxes[raw.index] = last
     secs = time.perf_counter() - t0
     write_boxes(out_csv, boxes)
@@ -277,8 +278,9 @@ COLUMNS = ("sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", 
 
 def _cells(r: Row) -> list[str]:
     s = r.score
-    return [r.sequence, r.tracker, r.kind, "-" if s is None else str(s.frames), _f(s and s.cle, ".2f"),
-            _f(s and s.success, ".3f"), _f(r.auc, ".3f"), _f(r.size_2x, ".2f"), _f(r.fps, ".1f"), r.note]
+    return [r.sequence, r.tracker, r.kind, "-" if s is None else str(s.frames),
+            _f(None if s is None else s.cle, ".2f"), _f(None if s is None else s.success, ".3f"), _f(r.auc, ".3f"),
+            _f(r.size_2x, ".2f"), _f(r.fps, ".1f"), r.note]
 
 
 def format_table(rows: list[Row], markdown: bool = False) -> str:
@@ -304,8 +306,10 @@ def to_json(rows: list[Row], meta: dict) -> dict:
         d: dict = {"sequence": r.sequence, "tracker": r.tracker, "kind": r.kind}
         if r.score is not None:
             d.update(r.score.to_json())
-            d["auc"] = round(r.auc, 4)  # type: ignore[arg-type]
-            d["success_curve"] = [round(float(v), 4) for v in r.curve]  # type: ignore[union-attr]
+            auc = r.auc
+            assert auc is not None and r.curve is not None  # score_row gives a scored row its curve
+            d["auc"] = round(auc, 4)
+            d["success_curve"] = [round(float(v), 4) for v in r.curve]
             d["size_within_2x"] = None if r.size_2x is None else round(r.size_2x, 4)
         d["fps"] = None if r.fps is None else round(r.fps, 2)
         if r.seconds is not None:
@@ -371,8 +375,12 @@ def plot_success(rows: list[Row], path: str) -> None:
 
 def plot_precision(rows: list[Row], path: str) -> None:
     """The OTB precision plot: fraction of frames within a centre error, precision at 20 px in the legend."""
-    _plot(rows, path, "precision", PRECISION_THRESHOLDS, "location error threshold (px)", "precision",
-          lambda r: f"{r.tracker} [{float(r.precision[20]):.3f}]", "precision plot")  # type: ignore[index]
+    def label(r: Row) -> str:
+        assert r.precision is not None  # _plot labels only the rows that have the curve it draws
+        return f"{r.tracker} [{float(r.precision[20]):.3f}]"
+
+    _plot(rows, path, "precision", PRECISION_THRESHOLDS, "location error threshold (px)", "precision", label,
+          "precision plot")
 
 
 def note(text: str) -> None:

@@ -117,14 +117,15 @@ def _cut_patch(donor: Sequence, size: tuple[int, int], avoid: set[int], rng: np.
     scale = min(0.8 * W / w, 0.8 * H / h, 1.0)
     pw, ph = max(int(w * scale), 4), max(int(h * scale), 4)
     box = donor.groundtruth.get(f)
-    best = None
+    best: tuple[int, int] | None = None
     for _ in range(100):  # away from the donor's own target, so the occluder is never a copy of a target
         x, y = int(rng.integers(0, W - pw + 1)), int(rng.integers(0, H - ph + 1))
         best = best or (x, y)
         if box is None or (x + pw <= box[0] or box[0] + box[2] <= x or y + ph <= box[1] or box[1] + box[3] <= y):
             best = (x, y)
             break
-    x, y = best  # type: ignore[misc]
+    assert best is not None  # the loop ran
+    x, y = best
     return img[y:y + ph, x:x + pw].copy(), f"{donor.name} frame {f} at {x},{y},{pw},{ph}"
 
 
@@ -247,8 +248,9 @@ def untouched(rows: list[StressRow], cases: dict[str, StressCase]) -> None:
         w0, w1 = r.window
         # a fast case's window shows `length` original frames in w1 - w0 derived ones
         idx = np.arange(w1 + AFTER_GAP, r.overlap.shape[0]) + (cases[r.case].length - (w1 - w0))
-        if idx.size and idx[-1] < c.overlap.shape[0]:  # type: ignore[union-attr]
-            r.untouched_after = float((c.overlap[idx] > 0.5).mean())  # type: ignore[index]
+        assert c.overlap is not None  # control holds rows with overlaps only
+        if idx.size and idx[-1] < c.overlap.shape[0]:
+            r.untouched_after = float((c.overlap[idx] > 0.5).mean())
 
 
 def _from_row(row: StressRow, r: Row) -> None:
@@ -455,7 +457,8 @@ def _other_rows(args, d: Derived, cv_names: list[str], folder: Path, extra: dict
     r = static_box(d.seq, d.seq.groundtruth, 0, folder)
     still = StressRow(d.origin, d.case.name, "still box", "baseline", extra=dict(extra))
     _from_row(still, r)
-    stress_scores(still, d, r.boxes_csv)  # type: ignore[arg-type]
+    assert r.boxes_csv is not None  # static_box names the CSV it wrote
+    stress_scores(still, d, r.boxes_csv)
     return rows + [still]
 
 

@@ -15,7 +15,7 @@ import os
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Literal, Sequence
 
 import cv2
 import numpy as np
@@ -68,7 +68,7 @@ def parse_range(text: str | None) -> tuple[int, int | None]:
     return a, b
 
 
-def resolve_source(source: str | os.PathLike) -> tuple[str, Path]:
+def resolve_source(source: str | os.PathLike) -> tuple[Literal["folder", "video", "avletters"], Path]:
     """("folder" | "video" | "avletters", path) for a training source path."""
     p = Path(source)
     if p.is_dir():
@@ -97,7 +97,7 @@ def read_frames(source: str | os.PathLike, start: int = 0, stop: int | None = No
     kind, path = resolve_source(source)
     if kind == "avletters":
         raise ValueError(f"{path} is an .npz file; read it with read_avletters")
-    params = SourceParams(kind=kind, path=str(path.resolve()), start=start, stop=stop)  # type: ignore[arg-type]
+    params = SourceParams(kind=kind, path=str(path.resolve()), start=start, stop=stop)
     frames, index, skipped = [], [], []
     for raw in open_reader(params):
         if raw.image is None:
@@ -181,7 +181,10 @@ def read_avletters(path: str | os.PathLike, reps: Sequence[int] | None = None,
     want = _parse_letters(letters)
     reps_set = None if reps is None else {int(r) for r in reps}
     ends = av.ends
-    frames, index, seq, labels = [], [], [], []
+    frames: list[np.ndarray] = []
+    index: list[np.ndarray] = []
+    seq: list[np.ndarray] = []
+    labels: list[np.ndarray] = []
     for u in range(av.starts.size):
         if reps_set is not None and int(av.repetitions[u]) not in reps_set:
             continue

@@ -20,6 +20,7 @@ import re
 import sys
 import tempfile
 import threading
+from typing import IO
 
 __all__ = ["FfmpegMessages", "ffmpeg_messages"]
 
@@ -33,7 +34,7 @@ class FfmpegMessages:
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
-        self._file = None
+        self._file: IO[bytes] | None = None
         self._saved_fd = -1
         self._pos = 0
         self._users = 0

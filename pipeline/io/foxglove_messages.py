@@ -16,8 +16,8 @@ from typing import Any
 import foxglove
 from foxglove import messages as fm
 
-from stages.messages_foxglove import (Color, CompressedImage, ImageAnnotations, Point2, PointsAnnotation,
-                                      TextAnnotation, Time)
+from stages.messages_foxglove import (CircleAnnotation, Color, CompressedImage, ImageAnnotations, Point2,
+                                      PointsAnnotation, TextAnnotation, Time)
 
 __all__ = ["to_sdk", "sdk_schema", "SDK_TYPES"]
 
@@ -63,7 +63,9 @@ def to_sdk(msg: CompressedImage | ImageAnnotations) -> Any:
                                   format=msg.format)
     if isinstance(msg, ImageAnnotations):
         # the SDK's annotations carry a time of their own: the frame's, which every annotation has
-        first = next(iter([*msg.points, *msg.circles, *msg.texts]), None)
+        annotations: list[PointsAnnotation | CircleAnnotation | TextAnnotation] = [*msg.points, *msg.circles,
+                                                                                   *msg.texts]
+        first = next(iter(annotations), None)
         return fm.ImageAnnotations(
             timestamp=_time(first.timestamp) if first is not None else None,
             circles=[fm.CircleAnnotation(timestamp=_time(c.timestamp), position=_point(c.position), diameter=c.diameter,

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Generator, Iterator
+from typing import Generator, Iterator, TypedDict
 
 import cv2
 import numpy as np
@@ -117,6 +117,16 @@ def _recorded_captures(path: Path) -> tuple[dict[int, tuple[int, int, float]], d
     return captures, skipped
 
 
+class _LiveFields(TypedDict, total=False):
+    """What a recorded live run adds to a :class:`RawFrame` (its keywords)."""
+
+    frame: int
+    stamp_ns: int
+    skipped: int
+    gap_s: float
+    skipped_frames: tuple[tuple[int, int, np.ndarray], ...]
+
+
 def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = False) -> Iterator[RawFrame]:
     """The recorded frames; with ``host_clock``, with their recorded stamps and what the live
     source said about each (its Capture, and the skipped frames recorded before it), so a live
@@ -140,8 +150,8 @@ def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = Fals
         frame, n_skipped, gap = captures.get(s, (-1, 0, 0.0))
         kept = tuple((f, *skipped[f]) for f in sorted(skipped) if prev_frame < f < frame)
         prev_frame = max(prev_frame, frame)
-        live = (dict(frame=frame, stamp_ns=msg.header.stamp_ns, skipped=n_skipped, gap_s=gap, skipped_frames=kept)
-                if host_clock else {})
+        live: _LiveFields = (_LiveFields(frame=frame, stamp_ns=msg.header.stamp_ns, skipped=n_skipped, gap_s=gap,
+                                         skipped_frames=kept) if host_clock else {})
         try:
             yield RawFrame(s, msg.image.array(), truth=msg.truth, name=msg.source, **live)
         except MessageError as e:

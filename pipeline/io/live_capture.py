@@ -316,10 +316,12 @@ class LiveCapture:
                     return None
                 self._cond.wait(0.1 if left is None else min(left, 0.1))
             if s.held is not None:
-                f, s.held = s.held, None
-                return LiveFrame(f.frame, f.stamp_ns, f.image)  # type: ignore[arg-type]
+                first, s.held = s.held, None
+                assert first.image is not None  # _put keeps every decoded frame's image
+                return LiveFrame(first.frame, first.stamp_ns, first.image)
             f, s.latest = s.latest, None
-            out = LiveFrame(f.frame, f.stamp_ns, f.image, s.skipped, tuple(s.kept), s.gap_s,  # type: ignore[arg-type]
+            assert f is not None and f.image is not None  # the wait above ended with a latest frame, kept whole
+            out = LiveFrame(f.frame, f.stamp_ns, f.image, s.skipped, tuple(s.kept), s.gap_s,
                             tuple(s.events))
             s.skipped, s.kept, s.gap_s, s.events = 0, [], 0.0, []
             return out

@@ -98,7 +98,7 @@ def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None
     Path of the written file.
     """
     kind = _kind_of(obj)
-    arrays = _to_arrays(obj, kind)
+    arrays: dict[str, Any] = _to_arrays(obj, kind)  # Any: np.savez's keywords also name its allow_pickle flag
     clash = [k for k in arrays if k == "kind" or k.startswith(META_PREFIX)]
     if clash:
         raise ValueError(f"model arrays use reserved name(s) {clash}")

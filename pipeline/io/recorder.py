@@ -29,6 +29,7 @@ fresh page-cache pages (``bench/bench_recorder.py`` prints the recorder's CPU pe
 
 from __future__ import annotations
 
+import builtins  # the field `bytes` below hides the type in the class body
 import errno
 import json
 import os
@@ -203,7 +204,7 @@ class McapRecorder:
         self._channels[key] = cid
         return cid
 
-    def write(self, topic: str, payload: bytes, seq: int, publish_ns: int = 0, log_ns: int | None = None,
+    def write(self, topic: str, payload: builtins.bytes, seq: int, publish_ns: int = 0, log_ns: int | None = None,
               type_name: str = "") -> None:
         """Record one payload exactly as received. ``type_name`` comes with the sample; without
         it the MessagePack type tag is read."""

@@ -3,6 +3,8 @@ data for ``--json`` and the Foxglove export."""
 
 from __future__ import annotations
 
+from typing import Any
+
 from stages.messages import MessageError, NDArray, decode
 
 __all__ = ["describe", "to_plain"]
@@ -37,21 +39,21 @@ def to_plain(msg, max_items: int = 64):
 
     if isinstance(msg, NDArray):
         n = 1
-        for d in msg.shape:
-            n *= d
+        for dim in msg.shape:
+            n *= dim
         if n <= max_items:
             try:
                 a = msg.array()
                 if a.dtype.kind == "f":  # JSON has no NaN / inf
                     import numpy as np
 
-                    a = np.where(np.isfinite(a), a, None)
+                    a = np.where(np.isfinite(a), a, np.array(None, dtype=object))  # as np.where makes of None
                 return {"dtype": msg.dtype, "shape": list(msg.shape), "values": a.tolist()}
             except MessageError:
                 pass
         return {"dtype": msg.dtype, "shape": list(msg.shape)}
     if isinstance(msg, msgspec.Struct):
-        d = {"type": type(msg).__name__} if type(msg).__struct_config__.tag else {}
+        d: dict[str, Any] = {"type": type(msg).__name__} if type(msg).__struct_config__.tag else {}
         for name in msg.__struct_fields__:
             d[name] = to_plain(getattr(msg, name), max_items)
         return d

@@ -133,8 +133,10 @@ def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = N
     t0 = time.perf_counter()
     consumed: list[Record] = []
     if sp.is_source():
-        from stages.source import SourceParams
+        from stages.source import SourceParams, SourceStage
         import msgspec
+
+        assert isinstance(st, SourceStage)  # the one stage class of kind "source"
 
         params = msgspec.convert(sp.params, SourceParams)
         if params.kind == "live":  # the stream is gone: its frames are in the recording
@@ -142,7 +144,7 @@ def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = N
         for raw in open_reader(params, plan.base_dir):
             if raw.index <= start_after:
                 continue
-            host._emit(st.emit(raw))  # type: ignore[attr-defined]
+            host._emit(st.emit(raw))
             host._flush_reports()
             host.stats.steps += 1
         host.close("end")
@@ -208,9 +210,10 @@ def check_outputs(recorded: list[tuple[str, int, bytes]], rerun: list[tuple[str,
     recorded = [r for r in recorded if keep(*r)]
     rerun = [r for r in rerun if keep(*r)]
 
-    def index(items):
+    def index(items: list[tuple[str, int, bytes]]
+              ) -> tuple[dict[tuple[str, int, int], bytes], list[tuple[str, int, int]]]:
         out: dict[tuple[str, int, int], bytes] = {}
-        order = []
+        order: list[tuple[str, int, int]] = []
         count: dict[tuple[str, int], int] = {}
         for topic, seq, data in items:
             if seq <= start_after:

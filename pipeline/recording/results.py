@@ -7,7 +7,7 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, TypeVar
 
 from gflow_core.metrics import TARGET_STATES
 from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
@@ -17,20 +17,22 @@ from pipeline.io.mcap_io import iter_records
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
            "write_visibility", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
-           "RunOutcome"]
+           "RunOutcome", "renumber"]
 
 Box = tuple[float, float, float, float]
+V = TypeVar("V")
 
 
 def _box_row(p: Path, lineno: int, row: list[str]) -> tuple[int, Box]:
     try:
         frame = int(row[0])
-        box = tuple(float(v) for v in row[1:5])
+        x, y, w, h = (float(v) for v in row[1:5])  # csv_rows gives at least five columns
     except ValueError:
         raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+    box = (x, y, w, h)
     if not all(math.isfinite(v) for v in box):
         raise ValueError(f"{p}:{lineno}: box has NaN or inf")
-    return frame, box  # type: ignore[return-value]
+    return frame, box
 
 
 def read_boxes(path: str | Path) -> dict[int, Box]:
@@ -98,7 +100,7 @@ def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, f
         w = csv.writer(f)
         w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else []))
         for k in sorted(boxes):
-            extra = [f"{confidence[k]:.3f}", states[k]] if full else []  # type: ignore[index]
+            extra = [f"{confidence[k]:.3f}", states[k]] if confidence is not None and states is not None else []
             w.writerow([k, *(f"{v:.2f}" for v in boxes[k]), *extra])
 
 
@@ -143,9 +145,14 @@ def write_visibility(path: str | Path, visible: dict[int, float], perturbed: dic
             w.writerow([k, f"{visible[k]:.4f}", int(perturbed[k])] + ([source[k]] if source is not None else []))
 
 
-def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate]:
+def renumber(col: dict[int, V], frame_of: Mapping[int, int]) -> dict[int, V]:
+    """A column by frame with each frame renamed by ``frame_of`` (a live run's camera frames), else kept."""
+    return {frame_of.get(k, k): v for k, v in col.items()}
+
+
+def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate | PoseEstimate]:
     """Every Estimate in a recording, by frame (the last one wins if a frame repeats)."""
-    out: dict[int, Estimate] = {}
+    out: dict[int, Estimate | PoseEstimate] = {}
     for r in iter_records(recording):
         if r.type not in ("Estimate", "PoseEstimate") or (stream and not r.topic.startswith(f"gflow/{stream}/")):
             continue
@@ -169,7 +176,7 @@ def truth_boxes(recording: str | Path) -> dict[int, Box]:
         except MessageError:
             continue
         if isinstance(m, Frame) and m.truth is not None:
-            out[m.header.seq] = tuple(m.truth)  # type: ignore[assignment]
+            out[m.header.seq] = m.truth  # decoded as a tuple (Box)
     return out
 
 

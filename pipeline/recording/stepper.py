@@ -78,7 +78,7 @@ class Stepper:
             self.last_seq = seq
             return orig(seq, inputs)
 
-        self.stage.step = spy  # type: ignore[method-assign]
+        setattr(self.stage, "step", spy)  # over the method, on this stepper's stage only
         self.last_seq = snapshot_seq if snapshot_seq is not None else -1
 
     @property

@@ -58,7 +58,7 @@ _STAGE_KEYS = {"kind", "params", "inputs", "outputs", "restart", "max_restarts",
 ON_HOST_LOST = ("stop", "wait")
 
 
-class RecorderParams(Params):
+class RecorderParams(Params, frozen=True):  # frozen as its base (msgspec inherits it; said for mypy)
     """The recorder: every message on ``gflow/<stream>/**`` to one MCAP file.
 
     path may contain ``{time}`` (YYYYmmdd-HHMMSS) and ``{name}`` (the graph name).
@@ -297,6 +297,8 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
             raise GraphError(f"{filename}: override for stage {sname!r}, which the graph does not have "
                              f"(stages: {', '.join(stages_doc)})")
     plans: dict[str, StagePlan] = {}
+    lines: dict[str, int] = {}  # the line of each stage, and of each of its inputs, for errors
+    input_lines: dict[str, dict[str, int]] = {}
     port_types: dict[str, tuple] = {}
     for sname, spec in stages_doc.items():
         where = f"{filename}:{_line(stages_doc, sname)}"
@@ -311,6 +313,7 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         if kind != RECORDER_KIND and kind not in STAGES:
             known = ", ".join(sorted([*STAGES, RECORDER_KIND]))
             raise GraphError(f"{filename}:{_line(spec, 'kind')}: stage {sname!r}: unknown stage kind {kind!r} (known: {known})")
+        assert isinstance(kind, str)  # the recorder's kind or a registered one
         params = dict(spec.get("params") or {})
         params.update(overrides.get(sname, {}))
         pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
@@ -354,8 +357,8 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         plans[sname] = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
                                  max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap,
                                  host=host)
-        plans[sname]._line = _line(stages_doc, sname)  # type: ignore[attr-defined]
-        plans[sname]._input_lines = {p: _line(inputs_doc, p) for p in inputs_doc}  # type: ignore[attr-defined]
+        lines[sname] = _line(stages_doc, sname)
+        input_lines[sname] = {p: _line(inputs_doc, p) for p in inputs_doc}
         port_types[sname] = (in_types, out_types)
     # every input must be produced by some stage (or come from outside), with the same message type
     producers: dict[str, tuple[str, str, type]] = {}
@@ -375,13 +378,13 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         for port, topic in s.outputs.items():
             if topic in producers:
                 other = producers[topic][0]
-                raise GraphError(f"{filename}:{s._line}: stages {other!r} and {s.name!r} both publish {topic}")  # type: ignore[attr-defined]
+                raise GraphError(f"{filename}:{lines[s.name]}: stages {other!r} and {s.name!r} both publish {topic}")
             producers[topic] = (s.name, port, port_types[s.name][1][port])
     for s in plans.values():
         if s.kind == RECORDER_KIND:
             continue
         for port, topic in s.inputs.items():
-            line = s._input_lines.get(port, s._line)  # type: ignore[attr-defined]
+            line = input_lines[s.name].get(port, lines[s.name])
             if topic not in producers:
                 raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is not connected: no stage "
                                  f"publishes {topic} (published: {', '.join(sorted(producers)) or 'nothing'})")
@@ -402,7 +405,7 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
     placed = [s for s in plans.values() if s.host]
     if placed and len(placed) != len(plans):
         s = next(s for s in plans.values() if not s.host)
-        raise GraphError(f"{filename}:{s._line}: stage {s.name!r} has no host, but other stages do: in a graph "  # type: ignore[attr-defined]
+        raise GraphError(f"{filename}:{lines[s.name]}: stage {s.name!r} has no host, but other stages do: in a graph "
                          f"placed on hosts every stage needs one (host: {placed[0].host}, say)")
     return Plan(name=name, stream=stream, stages=plans, source_text=text, base_dir=base_dir,
                 on_host_lost=str(on_host_lost), external=[topic_key(stream, str(t)) for t in external])

@@ -77,7 +77,8 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
         rec = McapRecorder(path, flush_interval=rp.flush_interval, compression=rp.compression,
                            chunk_size=rp.chunk_size, metadata=metadata or {}).open()
     src_host = hosts[source_name]
-    src_stage: SourceStage = src_host.stage  # type: ignore[assignment]
+    src_stage = src_host.stage
+    assert isinstance(src_stage, SourceStage)  # the one stage class of kind "source"
 
     def drain() -> None:
         while queue:
@@ -90,7 +91,7 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     t0 = time.perf_counter()
     frames = 0
     try:
-        for raw in open_reader(src_stage.params, plan.base_dir):  # type: ignore[arg-type]
+        for raw in open_reader(src_stage.params, plan.base_dir):
             outs = src_stage.emit(raw)
             src_host._flush_reports()
             src_host._emit(outs)

@@ -94,6 +94,7 @@ def check_source(params: SourceParams, box=None, base_dir: str | os.PathLike = "
     """:func:`first_frame`, and the box against its size when given."""
     frame = first_frame(params, base_dir)
     if box is not None:
+        assert frame.image is not None  # first_frame refuses a frame without an image
         h, w = frame.image.shape[:2]
         check_box_in_image(box, w, h)
     return frame

@@ -290,7 +290,9 @@ def acl_config(cfg: RouterConfig) -> dict:
                       "key_exprs": _with_progress(["gflow/**"])})
         rules.append({"id": "read-out", "permission": "allow", "flows": ["egress"],
                       "messages": ["put", "delete", "reply", "liveliness_token"], "key_exprs": _with_progress(["gflow/**"])})
-        subjects.append({"id": "readers", **({} if cfg.readers == "anyone" else cfg.readers)})
+        readers = {} if cfg.readers == "anyone" else cfg.readers
+        assert isinstance(readers, dict)  # anyone, none or a mapping: checked when the configuration was read
+        subjects.append({"id": "readers", **readers})
         policies.append({"id": "readers", "rules": ["read-in", "read-out"], "subjects": ["readers"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects, "policies": policies}
 

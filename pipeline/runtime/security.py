@@ -133,7 +133,11 @@ def _own_user_file(user: str, password: str) -> str:
         fd, path = tempfile.mkstemp(prefix="gflow-login-", text=True)  # mode 0600
         with os.fdopen(fd, "w") as f:
             f.write(f"{user}:{password}\n")
-        atexit.register(lambda: os.path.exists(path) and os.unlink(path))
+        def remove() -> None:
+            if os.path.exists(path):
+                os.unlink(path)
+
+        atexit.register(remove)
         _USER_FILES[key] = path
     return _USER_FILES[key]
 

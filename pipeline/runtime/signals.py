@@ -19,7 +19,8 @@ import logging
 import os
 import signal
 import threading
-from typing import Callable
+from types import FrameType
+from typing import Any, Callable
 
 __all__ = ["STOP_SIGNALS", "StopSignals"]
 
@@ -45,7 +46,7 @@ class StopSignals:
         self._thread: threading.Thread | None = None
         self._fds: tuple[int, int] | None = None
         self._old_fd = -1
-        self._old_handlers: dict[int, object] = {}
+        self._old_handlers: dict[int, Callable[[int, FrameType | None], Any] | int | signal.Handlers | None] = {}
 
     def start(self) -> "StopSignals":
         if threading.current_thread() is not threading.main_thread():
@@ -82,7 +83,7 @@ class StopSignals:
         if self._fds is None:
             return
         for s, h in self._old_handlers.items():
-            signal.signal(s, h)  # type: ignore[arg-type]
+            signal.signal(s, h)
         self._old_handlers = {}
         signal.set_wakeup_fd(self._old_fd)
         r, w = self._fds

@@ -30,9 +30,12 @@ import time
 import traceback
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from concurrent.futures import ThreadPoolExecutor
 
 from stages.base import Stage, StageInputError
 from stages.messages_foxglove import FOXGLOVE_SCHEMAS
@@ -124,7 +127,7 @@ class StageHost:
         self.snapshot_topic = snapshot_topic
         # preparing ahead: a thread of its own, started at the first message there is to prepare
         self.ahead = ahead and bool(stage.prepare_ports)
-        self._pool = None
+        self._pool: ThreadPoolExecutor | None = None
         self._unprepared: deque[tuple[str, Any]] = deque()  # joined, waiting for room to be prepared
 
     # -- errors ------------------------------------------------------------------------------
@@ -256,7 +259,7 @@ class StageHost:
         if isinstance(msg, EndOfStream):
             self.join.end(port, msg.header.seq + offset)
         else:
-            want = self.stage.inputs[port]
+            want: type[Any] = self.stage.inputs[port]  # a message class: the check narrows msg to a message
             if not isinstance(msg, want):
                 self.reject("wrong_type", f"on {topic}: expected {want.__name__}, got {type(msg).__name__}",
                             msg.header.seq if hasattr(msg, "header") else -1, topic)
@@ -294,7 +297,8 @@ class StageHost:
             port, msg = queued.popleft()
             if msg.header.seq + self.stage.input_offsets.get(port, 0) <= self.join.done_below:
                 continue
-            pending[(port, msg.header.seq)] = self._pool.submit(self.stage.prepare, port, msg).result  # type: ignore[union-attr]
+            assert self._pool is not None  # made before the first message was queued
+            pending[(port, msg.header.seq)] = self._pool.submit(self.stage.prepare, port, msg).result
 
     def _forget_prepared(self, upto: int) -> None:
         """Drop what was prepared for frames stepped or given up (a step that did not ask for

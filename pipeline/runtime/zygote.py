@@ -106,11 +106,12 @@ class ForkedStage:
     def poll(self) -> int | None:
         return self._reap(os.WNOHANG)
 
-    def wait(self, timeout: float | None = None) -> int:
+    def wait(self, timeout: float | None = None) -> int | None:
+        """The exit code; None when the process was reaped elsewhere before its code was read."""
         import subprocess
 
         if timeout is None:
-            return self._reap(0)  # type: ignore[return-value]
+            return self._reap(0)
         end = time.monotonic() + timeout
         while self.poll() is None:
             left = end - time.monotonic()
@@ -120,7 +121,7 @@ class ForkedStage:
                 select.select([self._pidfd], [], [], left)  # readable when the process has exited
             else:
                 time.sleep(min(left, 0.01))
-        return self.returncode  # type: ignore[return-value]
+        return self.returncode
 
 
 class Zygote:

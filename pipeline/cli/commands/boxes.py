@@ -8,7 +8,7 @@ ORDER = 57
 
 from pipeline.io.mcap_io import iter_records, segments
 from pipeline.recording.live_record import live_summary
-from pipeline.recording.results import completeness, estimate_columns, estimates, write_boxes
+from pipeline.recording.results import completeness, estimate_columns, estimates, renumber, write_boxes
 from pipeline.cli.commands.common import CliError
 
 
@@ -20,7 +20,9 @@ def cmd_boxes(args) -> int:
         raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else ""))
     live = live_summary(args.recording, stream=args.stream)  # a live run: rows are the camera's frames
     frame_of = live.frames if live is not None else {}
-    boxes, confidence, states = (({frame_of.get(k, k): v for k, v in col.items()}) for col in estimate_columns(est))
+    by_seq = estimate_columns(est)
+    boxes, confidence, states = (renumber(by_seq[0], frame_of), renumber(by_seq[1], frame_of),
+                                 renumber(by_seq[2], frame_of))
     write_boxes(args.out, boxes, confidence, states)
     segs = segments(args.recording)
     print(f"{len(boxes)} boxes, frames {min(boxes)}-{max(boxes)}, written to {args.out}"

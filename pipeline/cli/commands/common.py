@@ -33,7 +33,7 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
         raise argparse.ArgumentTypeError("box has NaN or inf")
     if vals[2] <= 0 or vals[3] <= 0:
         raise argparse.ArgumentTypeError(f"box width and height must be positive, got W={vals[2]}, H={vals[3]}")
-    return vals  # type: ignore[return-value]
+    return vals
 
 
 _ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^\s?#]+)(\?[^\s#]*)?(#\S*)?$")
@@ -203,7 +203,9 @@ class Recording:
         self.path = getattr(args, "record", None) or default
         from pipeline.runtime.preflight import check_writable
 
-        check_writable(self.path or plan.recording_path(), "--record" if getattr(args, "record", None)
+        path = self.path or plan.recording_path()
+        assert path is not None  # the plan has its recorder
+        check_writable(path, "--record" if getattr(args, "record", None)
                        else "the recording")  # before any work, also the default path
 
     @property
@@ -311,18 +313,19 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
                  else f"listening on {', '.join(endpoints)}")
         print(f"{plan.name}: {where}{reach} (stream {plan.stream}; gflow ps, topics, echo and hz find it)",
               file=sys.stderr)
+    rec = plan.recorder()
     with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
                   camera=plan.seed_stream,
-                  recording=launcher.recording if plan.recorder() and plan.recorder().name in launcher.local else None):
+                  recording=launcher.recording if rec and rec.name in launcher.local else None):
         try:
             res = launcher.run()
         except RuntimeError as e:  # start-up: a stage died, a host did not come, the stream is taken
             raise CliError(_startup_failure(plan, launcher, str(e))) from None
     if res.interrupted:
         print("interrupted: stages stopped, recording closed", file=sys.stderr)
-    for n, e in res.exits.items():
-        if e.returncode != 0:
-            print(f"stage {n} exited with status {e.returncode}: {e.last_error}", file=sys.stderr)
+    for n, ex in res.exits.items():
+        if ex.returncode != 0:
+            print(f"stage {n} exited with status {ex.returncode}: {ex.last_error}", file=sys.stderr)
     src = next((n for n, s in plan.stages.items() if s.is_source()), None)  # a graph fed from outside has none
     frames = res.status[src].steps if src in res.status else 0
     from pipeline.recording.live_record import LIVE_REPORTS  # a live source's reconnects and end: not errors

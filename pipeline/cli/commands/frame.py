@@ -7,6 +7,7 @@ ORDER = 25
 
 import sys
 from pathlib import Path
+from typing import Literal
 
 from pipeline.cli.commands.common import CliError, check_outputs
 
@@ -50,6 +51,7 @@ def cmd_frame(args) -> int:
 
     check_outputs(OUT=args.out)
     p = Path(args.source)
+    kind: Literal["folder", "video", "mcap"]
     if p.is_dir():
         if (p / "frames").is_dir():
             p = p / "frames"
@@ -66,6 +68,7 @@ def cmd_frame(args) -> int:
         raise CliError(str(e).replace("--start", "frame")) from None
     if raw.index != args.index:
         raise CliError(f"{args.source} has no frame {args.index} (the next one is {raw.index})")
+    assert raw.image is not None  # first_frame refuses a frame without an image
     h, w = raw.image.shape[:2]
     scale = args.scale or (3 if max(w, h) <= 200 else 2 if max(w, h) <= 500 else 1)
     step = args.grid or (10 if max(w, h) <= 200 else 20 if max(w, h) <= 500 else 50)

@@ -13,6 +13,7 @@ import argparse
 import json
 import sys
 import time
+from typing import Any, cast
 
 from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, stream_of, tool_zenoh
 
@@ -184,7 +185,7 @@ def cmd_pub(args) -> int:
     fields.setdefault("header", {})
     fields["header"] = dict({"stream": stream, "seq": args.seq, "stamp_ns": time.time_ns()}, **fields["header"])
     try:
-        msg = msgspec.convert(fields, typ)
+        msg: Any = msgspec.convert(fields, typ)  # the message type named on the command line
     except msgspec.ValidationError as e:
         raise CliError(f"not a valid {args.type}: {e}") from None
     assert isinstance(msg.header, Header)
@@ -194,7 +195,8 @@ def cmd_pub(args) -> int:
         bus = Bus(s, signer=Signer.of(settings.security))
         pub = bus.publisher(key)
         end = time.monotonic() + args.wait
-        while not pub.matching_status.matching:
+        # zenoh's stub says matching_status is a bool; it is a MatchingStatus, whose .matching is the bool
+        while not cast(Any, pub.matching_status).matching:
             if time.monotonic() > end:
                 raise CliError(f"no subscriber of {key} appeared within {args.wait:g} s; nothing sent")
             time.sleep(0.02)

@@ -62,7 +62,7 @@ class _Progress:
     def __init__(self, quiet: bool) -> None:
         self.quiet = quiet
         self.t0 = time.monotonic()
-        self.last = (None, 0.0)
+        self.last: tuple[str | None, float] = (None, 0.0)
 
     def __call__(self, stage: str, done: int, total: int) -> None:
         if self.quiet:
@@ -100,7 +100,7 @@ def _sources_and_boxes(args) -> list[tuple[str, str | None]]:
         return [(s, None) for s in sources]
     if not boxes:
         # --boxes as a flag: each sequence folder's groundtruth.csv
-        out = []
+        out: list[tuple[str, str | None]] = []
         for s in sources:
             gt = Path(s) / "groundtruth.csv"
             if not gt.is_file():
@@ -235,9 +235,9 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
             shape = parse_size(args.patch_size) if args.patch_size else None
             sets = []
             for s in np.unique(seq.sequence):
-                at = np.nonzero(seq.sequence == s)[0]
-                sets.append(training.patches_from_frames([seq.frames[i] for i in at], shape,
-                                                         frame_index=seq.frame_index[at], sequence=int(s)))
+                rows = np.nonzero(seq.sequence == s)[0]
+                sets.append(training.patches_from_frames([seq.frames[i] for i in rows], shape,
+                                                         frame_index=seq.frame_index[rows], sequence=int(s)))
             ts = training.concat_training_sets(sets)
             meta.update(training="frames", crop="frame")
         else:

@@ -67,14 +67,14 @@ def cmd_render(args) -> int:
     if not video:
         out.mkdir(parents=True, exist_ok=True)
     for i, s in enumerate(seqs):
-        ann: ImageAnnotations = annotations_for(frames[s], est[s], parts.get(s) if args.particles else None)  # type: ignore[arg-type]
+        ann: ImageAnnotations = annotations_for(frames[s], est[s], parts.get(s) if args.particles else None)
         img = frames[s].image.array()
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
         pic = draw_annotations(img, ann, args.scale)
         if video:
             if writer is None:
-                fourcc = cv2.VideoWriter_fourcc(*("mp4v" if out.suffix.lower() in (".mp4", ".mov") else "MJPG"))
+                fourcc = cv2.VideoWriter.fourcc(*("mp4v" if out.suffix.lower() in (".mp4", ".mov") else "MJPG"))
                 writer = cv2.VideoWriter(str(out), fourcc, args.fps, (pic.shape[1], pic.shape[0]))
                 if not writer.isOpened():
                     raise CliError(f"OpenCV cannot write {out} (try an .avi or a folder of PNGs)")

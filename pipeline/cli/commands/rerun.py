@@ -67,8 +67,8 @@ def cmd_rerun(args) -> int:
         return rc if args.check else 0
     if not args.stage:
         raise CliError("say which stage to re-run with --stage NAME, or --graph for all of them")
-    sets = _stage_sets(args.set)
-    res = rerun_stage(args.file, args.stage, sets, args.from_seq)
+    stage_sets = _stage_sets(args.set)
+    res = rerun_stage(args.file, args.stage, stage_sets, args.from_seq)
     if res.note:
         print(f"note: {res.note}", file=sys.stderr)
     fps = res.steps / res.seconds if res.seconds > 0 else float("inf")
@@ -77,11 +77,11 @@ def cmd_rerun(args) -> int:
     print(f"re-ran {args.stage}{start}: {res.steps} steps in {res.seconds:.3f} s ({fps:.1f} steps/s)")
     plan = recorded_plan(args.file)
     if args.out:
-        if sets:
+        if stage_sets:
             from pipeline.recording.rerun import apply_sets
 
-            apply_sets(plan, args.stage, sets)
-        write_rerun(args.file, args.out, plan, res, sets)
+            apply_sets(plan, args.stage, stage_sets)
+        write_rerun(args.file, args.out, plan, res, stage_sets)
         print(f"new recording: {args.out} (compare with: gflow diff {args.file} {args.out})")
     topics = set(plan.stages[args.stage].outputs.values())
     if plan.stages[args.stage].snapshot_every:

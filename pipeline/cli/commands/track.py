@@ -15,13 +15,14 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NoReturn
 
 import msgspec
 
 from stages.source import SourceParams
 
 from pipeline.runtime.graph import Plan, load_graph
-from pipeline.recording.results import estimate_columns, run_outcome, write_boxes
+from pipeline.recording.results import estimate_columns, renumber, run_outcome, write_boxes
 from pipeline.io.frame_readers import count_frames
 from pipeline.cli.trackers import TRACKERS
 from pipeline.runtime.live_plan import live_source, prepare_live
@@ -181,6 +182,7 @@ def track_plan(args) -> tuple[Plan, int | None]:
         return plan, None
     first = check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
     if args.tracker == "m2":
+        assert first.image is not None  # check_source refuses a first frame without an image
         check_whole_frame_model(args.model, args.source, first.image.shape)
     return plan, count_frames(sp)
 
@@ -203,8 +205,9 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
         recording.cleanup()
     est = out.estimates
     frame_of = live.frames if live is not None else {}  # a live run's rows are the camera's frames
-    boxes, confidence, target_states = (({frame_of.get(k, k): v for k, v in col.items()})
-                                        for col in estimate_columns(est))
+    by_seq = estimate_columns(est)
+    boxes, confidence, target_states = (renumber(by_seq[0], frame_of), renumber(by_seq[1], frame_of),
+                                        renumber(by_seq[2], frame_of))
     # a learned face's points, by the reference landmark each vertex came from
     points = {frame_of.get(k, k): (v.landmarks.array(), v.mean_points.array()) for k, v in est.items()
               if getattr(v, "landmarks", None) is not None}
@@ -300,7 +303,7 @@ def track_args(argv: list[str]) -> argparse.Namespace:
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str):  # type: ignore[override]
+    def error(self, message: str) -> NoReturn:
         raise CliError(message)
 
 

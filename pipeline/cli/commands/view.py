@@ -39,8 +39,8 @@ def cmd_view(args) -> int:
     print(f"forwarded {n} messages on {len(bridge.forwarded)} topics ("
           + ", ".join(f"{t} {c}" for t, c in sorted(bridge.forwarded.items())) + ")"
           + (f"; dropped {bridge.dropped} while busy" if bridge.dropped else ""), file=sys.stderr)
-    for t, e in sorted(bridge.failed.items()):
-        print(f"could not forward {t}: {e}", file=sys.stderr)
+    for t, why in sorted(bridge.failed.items()):
+        print(f"could not forward {t}: {why}", file=sys.stderr)
     return 0
 
 
