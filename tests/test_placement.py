@@ -144,3 +144,35 @@ def test_record_on_a_host_without_the_recorder_is_refused_before_anything_starts
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert "recorder runs on host ops" in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert not (tmp_path / "x.mcap").exists()
+
+
+class _NoNetwork:
+    """The one call HostWatch makes on a session: a liveliness subscriber (fed by hand here)."""
+
+    def liveliness(self):
+        return self
+
+    def declare_subscriber(self, *args, **kwargs):
+        return None
+
+
+def test_a_lost_host_is_named_with_every_stage_it_ran_even_when_their_tokens_go_one_by_one():
+    from pipeline.runtime.multihost import HostWatch
+
+    plan = load_graph("demo_hosts")
+    said: list[str] = []
+    watch = HostWatch(_NoNetwork(), plan, local={"source"}, say=said.append, settle_s=60.0)
+    watch.ever = watch.alive = set(watch.remote)
+    running = {n: "running" for n in plan.stages}
+    assert not watch.check(running) and not said
+    watch.alive = set(watch.remote) - {"proposal"}  # the first of edge's tokens is gone
+    assert not watch.check(running) and not said     # the others are still there: not yet
+    watch.alive = {"render", "recorder"}             # edge's last tokens follow
+    assert watch.check(running)
+    assert said == ["host lost: edge (preprocess, proposal, filter) stopped answering (liveliness token gone); "
+                    "stopping this host's stages (on_host_lost: stop)"]
+    # a single stage that dies while the rest of its host lives is named once the wait is over
+    said.clear()
+    watch = HostWatch(_NoNetwork(), plan, local={"source"}, say=said.append, settle_s=0.0)
+    watch.ever, watch.alive = set(watch.remote), set(watch.remote) - {"render"}
+    assert watch.check(running) and said[0].startswith("host lost: ops (render) stopped answering")

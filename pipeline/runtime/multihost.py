@@ -77,10 +77,17 @@ def stream_in_use(session: zenoh.Session, stream: str, local: set[str]) -> str:
 
 
 class HostWatch:
-    """The liveliness of the stages placed on other hosts, with one-line reports by host."""
+    """The liveliness of the stages placed on other hosts, with one-line reports by host.
 
-    def __init__(self, session: zenoh.Session, plan: Plan, local: set[str], say: Callable[[str], None]) -> None:
+    A host's stages lose their tokens one by one (each process has its own session), so a loss
+    is reported once every unfinished stage of that host is gone, or ``settle_s`` after the
+    first one went (a single stage that died while its host lives)."""
+
+    def __init__(self, session: zenoh.Session, plan: Plan, local: set[str], say: Callable[[str], None],
+                 settle_s: float = 3.0) -> None:
         self.plan = plan
+        self.settle_s = settle_s
+        self._first_gone: float | None = None
         self.remote = [n for n in plan.stages if n not in local]
         self.say = say
         self.alive: set[str] = set()
@@ -116,7 +123,19 @@ class HostWatch:
         with self._lock:
             gone = {n for n in self.remote if n in self.ever and n not in self.alive
                     and states.get(n) not in ("done", "draining")}
-        new, back = gone - self.lost, self.lost - gone
+        new = gone - self.lost
+        if new:
+            # the rest of a lost host's stages usually follow within milliseconds: name them together
+            hosts = {self.plan.stages[n].host for n in new}
+            pending = {n for n in self.remote if self.plan.stages[n].host in hosts and n not in gone
+                       and states.get(n) not in _FINISHED}
+            now = time.monotonic()
+            if self._first_gone is None:
+                self._first_gone = now
+            if pending and now - self._first_gone < self.settle_s:
+                return False  # not yet: report the host once its other stages are gone too
+        self._first_gone = None
+        back = self.lost - gone
         self.lost = gone
         if back:
             self.say(f"host back: {describe_hosts(self.plan, back)}")
