@@ -89,7 +89,7 @@ def cmd_rerun(args) -> int:
     old = recorded_outputs(args.file, topics, res.start_after)
     bad = check_outputs(old, res.outputs, res.start_after)
     rc = _report(bad, len(old), args.stage, ends_note(old))
-    return rc if (args.check or not sets) and rc else 0
+    return rc if (args.check or not stage_sets) and rc else 0
 
 
 def register(sub) -> None:
