@@ -58,7 +58,11 @@ video it was never trained on:
   ``search_growth`` box sizes a frame up to the whole frame (``lost`` once it covers it).
   A hidden target comes back only on strong evidence: the prior that it is back is
   ``reappear`` a frame, so the estimate must be ~1/reappear times likelier present than
-  clutter. The search (:func:`gflow_core.redetect.search`) matches the anchor and the
+  clutter -- on one frame, or (``hidden_filter``) over several: the hypotheses are a Markov
+  chain filtered forward, the probability that the target was present on the last frame is
+  carried to the next, and frames of moderate evidence at the held box add up (the carried
+  part is placed by a hidden target's tight motion prior, so it does not carry a jump to a
+  look-alike elsewhere). The search (:func:`gflow_core.redetect.search`) matches the anchor and the
   running exemplars -- none of which learnt while the target was hidden -- coarse to fine
   (``search_area`` exemplar pixels) at the log-sizes ``search_scales``, the size it had
   first; a candidate there must look like the target (P(visible) >= 1/2 with no "partial"
@@ -112,6 +116,7 @@ Coordinates are image (x, y) pixels with the origin at the top-left pixel centre
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import cv2
@@ -142,6 +147,8 @@ class AppearanceState:
     clutter : distribution of the best rho away from the estimate (gflow_core.visibility).
     hidden_run : consecutive frames clutter has explained the estimate (0: present); the target
         is judged hidden from ``hidden_after`` on.
+    back : while the target is judged hidden, the filtered probability that it was present
+        (visible or partial) on the last frame (0 on entering the hidden state).
     """
 
     size0: np.ndarray
@@ -156,6 +163,7 @@ class AppearanceState:
     target: ChiSquare
     clutter: ChiSquare
     hidden_run: int
+    back: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -465,10 +473,38 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
         px, py = hp * bw + hs, hp * bh + hs
         log_place_partial = -((centre[0] - pred[0]) ** 2 / (2.0 * px * px) + (centre[1] - pred[1]) ** 2 / (2.0 * py * py))
-    # a target judged hidden stays hidden unless the frame says otherwise: after a hidden frame
-    # the prior that it is back is `reappear` (split evenly between visible and partial); after
-    # a present frame the three hypotheses are equally likely a priori
-    state_prior = (1.0, 1.0, 1.0) if not hidden_before else (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
+    # a target judged hidden stays hidden unless the frames say otherwise: after a hidden frame
+    # the prior that it is back is `reappear` (split evenly between visible and partial), plus,
+    # with `hidden_filter`, what the last frames said (below); after a present frame the three
+    # hypotheses are equally likely a priori
+    if not hidden_before:
+        state_prior = (1.0, 1.0, 1.0)
+    elif p.hidden_filter:
+        # forward filtering of a Markov chain over (visible, partial, hidden): the prior of frame t is
+        #   pi_t(h') = sum_h b_{t-1}(h) T(h, h'),
+        # T(present, .) = (1/3, 1/3, 1/3) (the equal priors after a present frame) and
+        # T(hidden, .) = (q/2, q/2, 1 - q), q = reappear; b_{t-1}(present) = st.back, the filtered
+        # posterior of the last frame (0 on entering the hidden state, so its first frame has the
+        # prior of one hidden frame). Frames of moderate evidence then add up: the posterior odds
+        # of present grow as o_t ~ L_t (2/3 b_{t-1} + q) while b is small (L_t the frame's ratio)
+        # The two ways of being present differ in place: a target present on the last frame was at the
+        # place the evidence was gathered (the held box) and moved as a target partly hidden moves
+        # (hidden_prior box sizes plus hidden_speed |v|: log N_t), a target coming back afresh may be
+        # anywhere the widening prior allows (log_place: log N_w). Both present hypotheses weigh
+        #   log [ (b/3) N_t + (1 - b)(q/2) N_w ] - log [ b/3 + (1 - b) q/2 ],
+        # so evidence gathered at the held box does not carry a jump to a look-alike elsewhere.
+        b = float(st.back)
+        carried, fresh = b / 3.0, (1.0 - b) * 0.5 * p.reappear
+        hp = p.hidden_prior * float(np.sqrt(dt))
+        hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
+        px, py = hp * bw + hs, hp * bh + hs
+        log_tight = -((centre[0] - pred[0]) ** 2 / (2.0 * px * px) + (centre[1] - pred[1]) ** 2 / (2.0 * py * py))
+        log_place = float(np.logaddexp(math.log(carried) + log_tight if carried > 0 else -math.inf,
+                                       math.log(fresh) + log_place)) - math.log(carried + fresh)
+        log_place_partial = log_place
+        state_prior = (carried + fresh, carried + fresh, b / 3.0 + (1.0 - b) * (1.0 - p.reappear))
+    else:
+        state_prior = (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place,
                      log_place_partial=log_place_partial)
     warm = st.target.n < p.warmup
@@ -538,7 +574,8 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         # the searched scale is the posterior's: every particle carries it
         new_parts[:, 2] = log_s
     new = replace(st, recent=recent, slow=slow, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity,
-                  hidden_run=run, target=target, clutter=clutter)
+                  hidden_run=run, target=target, clutter=clutter,
+                  back=(vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0)
     return StepResult(state=new, box=box_of(centre, log_s, st.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=score, occluded=not present,
                       confidence=float(min(max(confidence, 0.0), 1.0)), target_state=state, redetected=found is not None,

@@ -81,6 +81,9 @@ class AppearanceParams:
     hidden_after: int = param(3, "frames in a row that clutter explains the estimate before the target is judged "
                                  "hidden")
     reappear: float = param(0.001, "prior probability a frame that a target judged hidden is back")
+    hidden_filter: bool = param(True, "while the target is hidden, carry the probability it is present from "
+                                      "frame to frame (forward filtering) instead of the prior `reappear` alone, "
+                                      "so frames of moderate evidence add up")
     std_xy_rel: float = param(0.08, "random walk of the centre per frame (the proposal), in units of sqrt(w h) of "
                                     "the initial box")
 

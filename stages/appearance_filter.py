@@ -58,7 +58,7 @@ from .tracker_params import stage_params, tracker_params
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
 
-SNAPSHOT_VERSION = 2
+SNAPSHOT_VERSION = 3
 
 
 AppearanceFilterParams = stage_params(
@@ -82,6 +82,7 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     target: tuple[float, float, int] = (0.0, 0.0, 0)  # moments m1, m2 and count of the target's distance
     clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # the same of the clutter's best distance
     hidden_run: int = 0
+    back: float = 0.0  # filtered P(present) of the last frame while the target is hidden
     steps: int = 0
     last: dict = {}
 
@@ -218,7 +219,7 @@ class AppearanceFilterStage(Stage[AppearanceStageFields]):
             slow=NDArray.of(st.slow), particles=NDArray.of(st.particles), centre=(float(st.centre[0]), float(st.centre[1])),
             log_s=float(st.log_s), velocity=(float(st.velocity[0]), float(st.velocity[1])),
             target=(st.target.m1, st.target.m2, st.target.n), clutter=(st.clutter.m1, st.clutter.m2, st.clutter.n),
-            hidden_run=int(st.hidden_run), steps=self.steps, last=self.last))
+            hidden_run=int(st.hidden_run), back=float(st.back), steps=self.steps, last=self.last))
 
     def restore(self, data: bytes) -> None:
         name = self.ctx.name
@@ -242,7 +243,8 @@ class AppearanceFilterStage(Stage[AppearanceStageFields]):
         core = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
                                   recent=recent, particles=parts, centre=np.array(snap.centre), log_s=snap.log_s,
                                   velocity=np.array(snap.velocity), slow=slow, target=ap.ChiSquare(*snap.target),
-                                  clutter=ap.ChiSquare(*snap.clutter), hidden_run=snap.hidden_run)
+                                  clutter=ap.ChiSquare(*snap.clutter), hidden_run=snap.hidden_run,
+                                  back=snap.back)
         # the target as the last estimate judged it (what a coasted frame reports)
         self.state = AppearanceTrack(core, str(self.last.get("target_state", "occluded")))
         self.shape = None
