@@ -295,3 +295,37 @@ def test_a_target_hidden_for_50_frames_is_found_again_and_the_states_say_so():
     held = boxes.copy()
     held[cover.stop:] = boxes[cover.stop - 1]
     assert np.mean(iou(truth[after], held[after]) > 0.5) < 0.5
+
+
+class VeiledScene(CoveredScene):
+    """After the full cover, a veil: the covered look blended over the target at ``alpha``, so
+    every frame's match is moderate (likelier the target than clutter, far from certain)."""
+
+    def __init__(self, path, n: int, cover: range, veil: range, alpha: float, **kw):
+        super().__init__(path, n, cover, **kw)
+        self.veil, self.alpha = veil, alpha
+
+    def grey(self, t: int) -> np.ndarray:
+        img = CoveredScene.grey(self, t)
+        if t in self.veil:
+            covered = CoveredScene.grey(self, self.cover.start).astype(np.float32)
+            img = (self.alpha * covered + (1.0 - self.alpha) * img).astype(np.uint8)
+        return img
+
+
+def test_frames_of_moderate_evidence_add_up_to_bring_a_hidden_target_back():
+    # a still target fully covered on frames 30-59, then seen through a veil: no single frame is
+    # ~1/reappear times likelier the target than clutter, but the forward-filtered hidden state
+    # adds the frames up (hidden_filter); with the one-frame prior it never comes back
+    scene = VeiledScene(lambda t: (150.0, 120.0, 1.0), 110, range(30, 60), range(60, 110), alpha=0.56)
+    truth = np.array([scene.truth(t) for t in range(scene.n)])
+    back = {}
+    for hf in (True, False):
+        res = _track(scene, ap.AppearanceParams(hidden_filter=hf))
+        states = ["tracked"] + [r.target_state for r in res]
+        assert all(s in ("occluded", "lost") for s in states[40:60]), states[30:60]
+        back[hf] = next((t for t in range(60, scene.n) if states[t] == "tracked"), None)
+        if back[hf] is not None:
+            assert iou(truth[back[hf]:back[hf] + 1], np.array([res[back[hf] - 1].box]))[0] > 0.5
+    assert back[True] is not None and back[True] < 80, back
+    assert back[False] is None, back
