@@ -70,14 +70,17 @@ class ContourTrack:
     dynamics: ARDynamics
 
 
-def proposal_dynamics(model: M2Model | None, init: Box | None, std_xy: float, std_theta: float,
-                      std_log_s: float) -> tuple[np.ndarray, ARDynamics, bool]:
+def proposal_dynamics(model: M2Model | None, init: Box | None, walk: tuple[float, float, float] | None
+                      ) -> tuple[np.ndarray, ARDynamics, bool]:
     """The proposal's (Markov matrix (K, K), AR(1) dynamics, alpha fixed): with no learned model the
-    random walk of the given deviations and K = 1; with one its Markov matrix and AR(1) process, the
+    random walk of deviations ``walk`` (std_xy, std_theta, std_log_s) and K = 1; with one its
+    Markov matrix and AR(1) process, the
     log s mean moved to the scale of ``init`` for a contour model (:func:`.m2.dynamics.scale_mean_at`);
     a patch model is tracked with no alpha transformations (sec. 5.2: alpha fixed)."""
     if model is None:
-        return np.ones((1, 1)), dyn.random_walk(std_xy, std_theta, std_log_s), False
+        if walk is None:
+            raise ValueError("a proposal with no learned model needs the random walk's deviations")
+        return np.ones((1, 1)), dyn.random_walk(*walk), False
     dynamics = model.dynamics
     if init is not None and model.kind == "curve":
         dynamics = scale_mean_at(model.dynamics, float(np.log(model.alpha_from_box(init)[3])))
@@ -147,10 +150,8 @@ class ContourTracker:
         thresholds = ((edges.canny_low, edges.canny_high) if edges.canny_low is not None and edges.canny_high is not None
                       else features.canny_calibrated(obs.grey, edges.blur, edges.canny_percentile, box))
         setup_ = setup(params, box, model)
-        if isinstance(params, ChamferParams):
-            markov, dynamics, fixed = proposal_dynamics(model, box, params.std_xy, params.std_theta, params.std_log_s)
-        else:
-            markov, dynamics, fixed = proposal_dynamics(model, box, 0.0, 0.0, 0.0)
+        walk = (params.std_xy, params.std_theta, params.std_log_s) if isinstance(params, ChamferParams) else None
+        markov, dynamics, fixed = proposal_dynamics(model, box, walk)
         assert not fixed  # setup refuses patch models
         fobs = self.features(params, obs, edges, thresholds, self._wants_grey(params, setup_.app0 is not None))
         st, est = FILTER.init(params, fobs, setup_, rng)

@@ -155,8 +155,8 @@ class ProposalStage(Stage[ProposalParams]):
             raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
                              "not an M2 model")
         # patch exemplars are tracked with no alpha transformations (sec. 5.2)
-        self.markov, self.dynamics, self.fixed_alpha = proposal_dynamics(
-            model, params.init, params.std_xy, params.std_theta, params.std_log_s)
+        walk = None if model is not None else (params.std_xy, params.std_theta, params.std_log_s)
+        self.markov, self.dynamics, self.fixed_alpha = proposal_dynamics(model, params.init, walk)
         self.done = 0
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
