@@ -1,13 +1,15 @@
-"""How :class:`gflow.Tracker` runs each tracker: on the protocol, or through its stages in process.
+"""How :class:`gflow.Tracker` runs each tracker: on the protocol, or (m2 with a patch model) through
+its stages in process.
 
 * :class:`ProtocolBackend` calls a :class:`gflow_core.tracker.TrackingFilter` directly
   (``observe``, ``init``, ``propose``, ``update``, ``coast``): the same functions, draws and
   parameters the stages call, so the boxes are those of ``gflow track --inline`` bit for bit.
-* :class:`GraphBackend` runs the tracker's built-in graph in this process, exactly as ``--inline``
-  does (frames pushed into its source stage, every message encoded and decoded): for the trackers
-  whose stages are not yet adapters of the protocol (chamfer, m2). Their parameters are
-  given as ``gflow track`` takes them: its tracker options (``particles=500``, ``track_scale=True``)
-  and ``set={"filter.lam": 0.3}``.
+  Every tracker is on it: appearance, gflow, chamfer and m2 (a contour model).
+* :class:`GraphBackend` runs a tracker's built-in graph in this process, exactly as ``--inline``
+  does (frames pushed into its source stage, every message encoded and decoded): only for m2 with
+  a patch model (the ``m2_patch`` graph, whose filter is not on the protocol). Its parameters are
+  given as ``gflow track`` takes them: its tracker options (``particles=500``) and
+  ``set={"filter.lam": 0.3}``.
 """
 
 from __future__ import annotations
@@ -24,7 +26,8 @@ from stages.rng import stream_hash
 
 from .errors import GflowError, UnusableFrameError
 
-__all__ = ["ProtocolBackend", "GraphBackend", "gflow_setup", "appearance_setup", "PROTOCOL_TRACKERS"]
+__all__ = ["ProtocolBackend", "GraphBackend", "gflow_setup", "appearance_setup", "chamfer_setup", "m2_setup",
+           "patch_model", "PROTOCOL_TRACKERS"]
 
 
 def appearance_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
@@ -32,6 +35,51 @@ def appearance_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
     from gflow_core.appearance_params import AppearanceParams
 
     return make(AppearanceParams, params), {}
+
+
+def chamfer_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The chamfer tracker's parameters from the API's keywords (it loads no resource; its Canny
+    thresholds are calibrated on the initial box, as ``gflow track --tracker chamfer`` does)."""
+    from gflow_core.contour_params import ChamferParams
+
+    return make(ChamferParams, params), {}
+
+
+def _m2_model(model: Any) -> tuple[Any, dict[str, Any]]:
+    """(the M2 model, its file's meta) of the ``model`` keyword: a file or an ``M2Model``."""
+    from gflow_core.m2.model import M2Model
+
+    if isinstance(model, M2Model):
+        return model, {}
+    if not model:
+        raise GflowError("tracker m2 needs model=MODEL.npz (learn one with `gflow learn m2`)")
+    from pipeline.io.modelfile import load_meta, load_model
+
+    try:
+        obj, meta = load_model(model), load_meta(model)
+    except (OSError, ValueError) as e:
+        raise GflowError(str(e)) from None
+    if not isinstance(obj, M2Model):
+        raise GflowError(f"{model} holds a {type(obj).__name__}, not an M2 model")
+    return obj, meta
+
+
+def patch_model(name: str, params: Mapping[str, Any]) -> bool:
+    """Whether tracker ``name`` with ``params`` is m2 with a patch model (run through its stages)."""
+    return name == "m2" and _m2_model(params.get("model"))[0].kind == "patch"
+
+
+def m2_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The M2 tracker's parameters and resources from the API's keywords: ``model`` is a model file
+    of ``gflow learn m2`` or an ``M2Model``; the edges are read with the settings the model was
+    learned with (its profile and g0, its file's Canny thresholds and blur), as ``gflow track
+    --tracker m2`` sets the preprocess stage."""
+    from gflow_core.contour_params import M2Params
+    from gflow_core.contour_protocol import m2_edge_params
+
+    kw = dict(params)
+    model, meta = _m2_model(kw.pop("model", None))
+    return make(M2Params, kw), {"model": model, "edges": m2_edge_params(model, meta)}
 
 
 def _appearance() -> tuple[Any, Any]:
@@ -46,10 +94,22 @@ def _gflow() -> tuple[Any, Any]:
     return TRACKER, gflow_setup
 
 
+def _chamfer() -> tuple[Any, Any]:
+    from gflow_core.contour_protocol import CHAMFER
+
+    return CHAMFER, chamfer_setup
+
+
+def _m2() -> tuple[Any, Any]:
+    from gflow_core.contour_protocol import M2
+
+    return M2, m2_setup
+
+
 #: tracker name -> () -> (its TrackingFilter, params -> (its parameter dataclass, resources)), for the
 #: trackers on the protocol (imported when one is made)
 PROTOCOL_TRACKERS: dict[str, Callable[[], tuple[Any, Callable[[Mapping[str, Any]], tuple[Any, dict[str, Any]]]]]] = {
-    "appearance": _appearance, "gflow": _gflow}
+    "appearance": _appearance, "chamfer": _chamfer, "gflow": _gflow, "m2": _m2}
 
 
 def gflow_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
@@ -133,7 +193,8 @@ class ProtocolBackend:
 
 
 class GraphBackend:
-    """A tracker's built-in graph run in this process, fed one frame at a time (as ``--inline``)."""
+    """A tracker's built-in graph run in this process, fed one frame at a time (as ``--inline``):
+    m2 with a patch model (graph ``m2_patch``), the one tracker not on the protocol."""
 
     def __init__(self, name: str, seed: int, fps: float, params: Mapping[str, Any]) -> None:
         from pipeline.cli.trackers import TRACKERS

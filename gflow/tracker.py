@@ -9,15 +9,13 @@ import numpy as np
 
 from gflow_core.tracker import Box, Estimate
 
-from .backends import PROTOCOL_TRACKERS, GraphBackend, ProtocolBackend
+from .backends import PROTOCOL_TRACKERS, GraphBackend, ProtocolBackend, patch_model
 from .errors import GflowError
 
 __all__ = ["Tracker", "TRACKERS"]
 
 #: the trackers, as ``gflow track --tracker NAME`` names them
 TRACKERS = ("appearance", "chamfer", "gflow", "m2")
-#: the trackers on the protocol of :mod:`gflow_core.tracker` (the others run their stages in process)
-ON_PROTOCOL = ("appearance", "gflow")
 
 
 def check_box(box: Sequence[float]) -> Box:
@@ -52,10 +50,12 @@ class Tracker:
         For ``appearance``, any parameter of :class:`gflow_core.appearance_params.AppearanceParams`
         (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For
         ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)
-        and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For the
-        trackers run through their stages (chamfer, m2), the options ``gflow track`` has for them
-        (``particles=800``, ``model="m2.npz"``) and ``set={"filter": {"lam": 0.3}}`` for any stage
-        parameter.
+        and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For
+        ``chamfer``, any parameter of :class:`gflow_core.contour_params.ChamferParams` (``gflow info
+        chamfer``); for ``m2``, any of :class:`gflow_core.contour_params.M2Params` and ``model`` (a
+        file of ``gflow learn m2`` or an ``M2Model``). An m2 patch model runs its stages in process
+        and takes the options ``gflow track`` has (``particles=800``) and ``set={"filter": {"lam":
+        0.3}}`` for any stage parameter.
 
     Frames are numpy arrays as OpenCV gives them: ``(H, W, 3)`` BGR or ``(H, W)`` grey, uint8; every
     frame the size of the first. Frame indices count from ``init``'s ``frame_index`` (0).
@@ -77,7 +77,7 @@ class Tracker:
             raise GflowError(f"fps must be positive, got {fps}")
         self.name, self.seed = name, int(seed)
         self._backend: ProtocolBackend | GraphBackend
-        if name in ON_PROTOCOL:
+        if not patch_model(name, params):
             impl, setup = PROTOCOL_TRACKERS[name]()
             try:
                 p, resources = setup(params)
@@ -91,12 +91,12 @@ class Tracker:
 
     @property
     def params(self) -> Any:
-        """The tracker's parameter dataclass (trackers on the protocol; None for the others)."""
+        """The tracker's parameter dataclass (None for m2 with a patch model, run through its stages)."""
         return self._backend.params if isinstance(self._backend, ProtocolBackend) else None
 
     @property
     def state(self) -> Any:
-        """The posterior after the last frame (trackers on the protocol; None for the others)."""
+        """The posterior after the last frame (None for m2 with a patch model, run through its stages)."""
         return self._backend.state if isinstance(self._backend, ProtocolBackend) else None
 
     @property
@@ -153,8 +153,8 @@ class Tracker:
     def coast(self) -> Estimate:
         """No frame for the next index (a frame lost by the source): the posterior carried over it."""
         if not isinstance(self._backend, ProtocolBackend):
-            raise GflowError(f"coast() needs a tracker on the protocol ({', '.join(ON_PROTOCOL)}); "
-                             f"gflow.track coasts {self.name} over the frames its source loses")
+            raise GflowError("coast() needs a tracker on the protocol (m2 with a patch model runs its stages); "
+                             "gflow.track coasts it over the frames its source loses")
         t = self._t + 1
         return self._one(self.step(None, t), t)
 

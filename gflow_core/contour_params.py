@@ -16,10 +16,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 from .params import param
 
-__all__ = ["ContourParams", "ChamferParams", "M2Params", "BOX_POLICIES"]
+__all__ = ["ContourParams", "ChamferParams", "M2Params", "EdgeParams", "BOX_POLICIES"]
 
 #: how the estimate's box is made from the MAP state with a learned model
 BOX_POLICIES = ("reference", "exemplar")
@@ -111,3 +112,20 @@ class M2Params(ContourParams):
                                     "sizes")
     lost_scales: tuple[float, ...] = param((1.0, 0.93, 1.07), "sizes (multiples of the held size) searched when "
                                                               "re-detecting (1.0 first)")
+
+
+@dataclass(frozen=True)
+class EdgeParams:
+    """What the contour trackers read of a frame: the Canny edges and their chamfer image (the
+    preprocess stage's settings; the defaults are the ``chamfer`` graph's). An M2 model brings its
+    own (:func:`gflow_core.contour_protocol.m2_edge_params`)."""
+
+    profile: Literal["quadratic", "truncated", "linear"] = param("truncated", "chamfer profile g(u): quadratic u^2, "
+                                                                              "truncated min(u^2, g0), linear u")
+    g0: float = param(100.0, "truncation level of the truncated profile, squared pixels")
+    canny_low: float | None = param(None, "fixed low Canny threshold (None, with canny_high: calibrated on the "
+                                          "initial box in the first frame)")
+    canny_high: float | None = param(None, "fixed high Canny threshold")
+    canny_percentile: float = param(80.0, "percentile of the gradient magnitude in the box that calibrates the "
+                                          "high threshold")
+    blur: float = param(1.0, "std of the Gaussian pre-blur, px (0: none)")

@@ -6,7 +6,8 @@ Toyama & Blake (IJCV 2002) weigh the particles X = (alpha, k) by the exemplar li
     p(z | alpha, k) ~ exp(-rho(z, T_alpha x~_k) / (2 sigma_k^2)) / sigma_k^d_k      (eq. 7)
 
 and resample. This module holds that step for the two contour trackers and the departures the
-pipeline's filter stage (``stages/particle_filter.py``, an adapter of :class:`ContourTracker`) runs:
+pipeline's filter stage (``stages/particle_filter.py``, an adapter of :class:`ContourFilter`) runs, and
+the contour trackers' protocol (:class:`gflow_core.contour_protocol.ContourTracker`) updates with:
 
 * **Initialisation.** With no learned model (the chamfer tracker) the template is the edge pixels
   inside the initial box, K = 1 with likelihood exp(-lambda rho). With a learned model the box
@@ -34,8 +35,8 @@ pipeline's filter stage (``stages/particle_filter.py``, an adapter of :class:`Co
 
 Random draws of frame ``t`` (:class:`~gflow_core.tracker.FrameRng`): the initial cloud from
 ``stream(PURPOSE_INIT)``, k_0 from ``stream(PURPOSE_INIT_K)``, the resampling from
-``stream(PURPOSE_RESAMPLE)``; the proposal's dynamics (``stages/particle_proposal.py``) from
-``stream(PURPOSE_PROPOSAL)``.
+``stream(PURPOSE_RESAMPLE)``; the proposal's dynamics (:func:`gflow_core.contour_protocol.propose_cloud`)
+from ``stream(PURPOSE_PROPOSAL)``.
 """
 
 from __future__ import annotations
@@ -60,7 +61,7 @@ from .m2.tracking import ContourExemplars, ParticleCloud, Posterior, curve_box, 
     template_from_edges, weigh
 from .tracker import Box, Estimate, FrameRng
 
-__all__ = ["ContourTracker", "ContourSetup", "ContourState", "ContourObservation", "TRACKER", "setup",
+__all__ = ["ContourFilter", "ContourSetup", "ContourState", "ContourObservation", "FILTER", "setup",
            "k1_model", "restore_model", "guard_params", "PURPOSE_INIT", "PURPOSE_INIT_K", "PURPOSE_RESAMPLE", "PURPOSE_PROPOSAL"]
 
 PURPOSE_INIT = 0x1417
@@ -153,9 +154,10 @@ def guard_params(params: ContourParams) -> LostParams | None:
     return LostParams(window=params.lost_window, growth=params.lost_growth) if params.lost_guard else None
 
 
-class ContourTracker:
+class ContourFilter:
     """The contour particle filter's update, init and box policy (stateless: everything is in
-    :class:`ContourState`). The proposal is the dynamics of ``stages/particle_proposal.py``."""
+    :class:`ContourState`), on the features of a frame. The proposal and the features are
+    :mod:`gflow_core.contour_protocol`'s, which puts this filter on the tracker protocol."""
 
     name = "contour"
     Params = ContourParams
@@ -363,7 +365,7 @@ class ContourTracker:
 
 
 #: the one instance (it keeps no state)
-TRACKER = ContourTracker()
+FILTER = ContourFilter()
 
 
 def restore_model(setup_: ContourSetup, params: ContourParams, template: np.ndarray | None,

@@ -16,7 +16,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
-__all__ = ["to_grey", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image", "PROFILES"]
+__all__ = ["to_grey", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image",
+           "canny_calibrated", "edges_and_chamfer", "PROFILES"]
 
 PROFILES = ("linear", "quadratic", "truncated")
 Profile = Literal["linear", "quadratic", "truncated"]
@@ -131,6 +132,24 @@ def edge_map(grey: np.ndarray, low: float | None = None, high: float | None = No
     if not (0 <= low <= high):
         raise ValueError(f"Canny thresholds must satisfy 0 <= low <= high, got low={low}, high={high}")
     return cv2.Canny(g, low, high, L2gradient=True)
+
+
+def canny_calibrated(grey: np.ndarray, blur: float, percentile: float,
+                     box: tuple[float, float, float, float]) -> tuple[float, float]:
+    """Canny thresholds calibrated on the pixels of ``box``: :func:`auto_canny_thresholds` of the
+    grey image blurred as :func:`edge_map` blurs it (the contour trackers choose them once, on the
+    first frame's target). Raises ``ValueError`` for a box that misses the image."""
+    return auto_canny_thresholds(gaussian_blur(grey, blur), percentile, box=box)
+
+
+def edges_and_chamfer(grey: np.ndarray, thresholds: tuple[float, float] | None, blur: float, percentile: float,
+                      profile: Profile, g0: float) -> tuple[np.ndarray, np.ndarray]:
+    """What the contour trackers read of a grey frame: the Canny edge map (:func:`edge_map` with
+    ``thresholds``, or chosen on the whole frame when None) and its chamfer image
+    (:func:`chamfer_image`). Returns ((H, W) uint8, (H, W) float32)."""
+    low, high = thresholds if thresholds is not None else (None, None)
+    edges = edge_map(grey, low, high, blur, percentile)
+    return edges, chamfer_image(edges, profile, g0)
 
 
 #: below this squared image diagonal (1024 px), OpenCV's distances are made exact (see distance_transform)

@@ -1,6 +1,6 @@
 """Filter stage of the contour particle filter: weighs proposals by eq. 7 and resamples.
 
-An adapter of :class:`gflow_core.contour_tracker.ContourTracker`, where the mathematics below
+An adapter of :class:`gflow_core.contour_tracker.ContourFilter`, where the mathematics below
 lives; its parameters are every field of :class:`gflow_core.contour_params.ContourParams`
 (derived from it, defaults included) plus ``init``, ``seed`` and ``model``.
 
@@ -71,7 +71,7 @@ import msgspec
 import numpy as np
 
 from gflow_core.contour_params import ChamferParams, ContourParams, M2Params
-from gflow_core.contour_tracker import TRACKER, ContourObservation, ContourSetup, ContourState, \
+from gflow_core.contour_tracker import FILTER, ContourObservation, ContourSetup, ContourState, \
     restore_model, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.appearance_metric import OnlineBank
@@ -272,7 +272,7 @@ class FilterStage(Stage[FilterFields]):
         obs = self._observe(feat, seq)
         assert obs is not None
         try:
-            self.state, est = TRACKER.init(self.core, obs, self.setup, tracker_rng(self.params.seed, self.ctx.stream,
+            self.state, est = FILTER.init(self.core, obs, self.setup, tracker_rng(self.params.seed, self.ctx.stream,
                                                                                     seq))
         except ValueError as e:
             raise StageInputError(f"frame {seq}: {e}") from None
@@ -312,7 +312,7 @@ class FilterStage(Stage[FilterFields]):
                                   f"K={self.state.model.K}")
         feat = feat if isinstance(feat, Features) else None
         obs = self._observe(feat, seq)
-        self.state, est = TRACKER.update(self.core, self.state, cloud, obs,
+        self.state, est = FILTER.update(self.core, self.state, cloud, obs,
                                          tracker_rng(self.params.seed, self.ctx.stream, seq))
         return self._outputs(feat.header if feat is not None else self.header(seq, 0), est, cloud)
 

@@ -1,8 +1,12 @@
 """Proposal stage of the contour particle filter: samples p(X_t | X_{t-1}) (M2 sec. 4.3).
 
+An adapter of :func:`gflow_core.contour_protocol.proposal_dynamics` and
+:func:`~gflow_core.contour_protocol.propose_cloud`, the proposal of the contour trackers' protocol
+(:class:`~gflow_core.contour_protocol.ContourTracker`).
+
 Input ``particles`` is the resampled posterior of frame t-1 (from the filter stage); the
 output ``proposals`` are the particles for frame t, drawn from the dynamics with the
-random stream ``frame_rng(seed, stream, t, PURPOSE)``.
+random stream ``FrameRng(seed, crc32(stream), t).stream(PURPOSE)`` (``PURPOSE_PROPOSAL``).
 
 With no learned model (the chamfer tracker, K = 1) the dynamics are a random walk on
 beta = (ux, uy, theta, log s) with the given standard deviations; with a learned M2
@@ -28,10 +32,8 @@ from __future__ import annotations
 from typing import Any, ClassVar, Mapping
 
 import msgspec
-import numpy as np
 
-from gflow_core.m2 import dynamics as dyn
-from gflow_core.m2.dynamics import sample_markov, scale_mean_at
+from gflow_core.contour_protocol import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 
@@ -40,14 +42,14 @@ from gflow_core.contour_params import ChamferParams, M2Params
 from .base import Output, Params, Stage, StageInputError
 from .base import Params as _Params
 from .messages import Frame, Message, MessageError, NDArray, Particles
-from .rng import frame_rng
+from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import StageFields, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
 
-PURPOSE = 0x9209
+PURPOSE = PURPOSE_PROPOSAL  # 0x9209
 SNAPSHOT_VERSION = 1
 
 
@@ -149,20 +151,12 @@ class ProposalStage(Stage[ProposalParams]):
         if self.needs_model and model is None:
             raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
                              f"(`gflow learn m2`)")
-        self.fixed_alpha = False
-        if model is not None:
-            if not isinstance(model, M2Model):
-                raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
-                                 "not an M2 model")
-            self.markov = model.markov
-            self.dynamics = model.dynamics
-            if params.init is not None and model.kind == "curve":
-                self.dynamics = scale_mean_at(model.dynamics, float(np.log(model.alpha_from_box(params.init)[3])))
-            # patch exemplars are tracked with no alpha transformations (sec. 5.2)
-            self.fixed_alpha = model.kind == "patch"
-        else:
-            self.markov = np.ones((1, 1))
-            self.dynamics = dyn.random_walk(params.std_xy, params.std_theta, params.std_log_s)
+        if model is not None and not isinstance(model, M2Model):
+            raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
+                             "not an M2 model")
+        # patch exemplars are tracked with no alpha transformations (sec. 5.2)
+        walk = None if model is not None else (params.std_xy, params.std_theta, params.std_log_s)
+        self.markov, self.dynamics, self.fixed_alpha = proposal_dynamics(model, params.init, walk)
         self.done = 0
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
@@ -170,15 +164,14 @@ class ProposalStage(Stage[ProposalParams]):
         assert isinstance(msg, Particles)
         cloud = cloud_of(msg)
         t = seq + 1
-        rng = frame_rng(self.params.seed, self.ctx.stream, t, PURPOSE)
-        if cloud.k.max(initial=0) >= self.markov.shape[0]:
-            raise StageInputError(f"particles {seq}: exemplar index beyond the model's K={self.markov.shape[0]}")
+        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(PURPOSE)
         frame = inputs.get("frames")
         dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
         # k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame periods
-        k = sample_markov(cloud.k, self.markov, rng)
-        alpha = cloud.alpha.copy() if self.fixed_alpha else self.dynamics.predict(cloud.alpha, rng, dt)
-        out = ParticleCloud(alpha=alpha, k=k, log_w=np.zeros(cloud.n))
+        try:
+            out = propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)
+        except ValueError as e:
+            raise StageInputError(f"particles {seq}: {e}") from None
         self.done += 1
         return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]
 

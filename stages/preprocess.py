@@ -1,4 +1,8 @@
-"""Preprocessing stage: grey levels, gradients, Canny edges and the chamfer image (M2 eq. 4-5)."""
+"""Preprocessing stage: grey levels, gradients, Canny edges and the chamfer image (M2 eq. 4-5).
+
+The edges and the chamfer image are :func:`gflow_core.features.edges_and_chamfer`, with the Canny
+thresholds of :func:`gflow_core.features.canny_calibrated` when ``calibrate_box`` is set: the
+observation of the contour trackers' protocol (:mod:`gflow_core.contour_protocol`)."""
 
 from __future__ import annotations
 
@@ -74,14 +78,12 @@ class PreprocessStage(Stage[PreprocessParams]):
         if not p.edges:
             return [("features", self._grey_only(frame, grey))]
         if self.thresholds is None and p.calibrate_box is not None:
-            blurred = features.gaussian_blur(grey, p.blur)
             try:
-                self.thresholds = features.auto_canny_thresholds(blurred, p.canny_percentile, box=p.calibrate_box)
+                self.thresholds = features.canny_calibrated(grey, p.blur, p.canny_percentile, p.calibrate_box)
             except ValueError as e:
                 raise StageInputError(f"frame {seq}: {e}") from None
-        low, high = self.thresholds if self.thresholds is not None else (None, None)
-        edges = features.edge_map(grey, low, high, p.blur, p.canny_percentile)
-        cham = features.chamfer_image(edges, p.profile, p.g0)
+        # the contour trackers' observation (gflow_core.contour_protocol computes the same)
+        edges, cham = features.edges_and_chamfer(grey, self.thresholds, p.blur, p.canny_percentile, p.profile, p.g0)
         gx, gy = self._gradients(grey)
         self.done += 1
         msg = Features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(edges),

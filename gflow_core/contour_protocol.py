@@ -1,0 +1,190 @@
+"""The contour trackers, chamfer and M2, on the tracker protocol of :mod:`gflow_core.tracker`.
+
+:class:`ContourTracker` is the :class:`~gflow_core.tracker.TrackingFilter` of both (:data:`CHAMFER`,
+:data:`M2`), over the filter of :mod:`gflow_core.contour_tracker`:
+
+* ``observe`` -- the frame's grey levels (:class:`ContourFrame`). Its edges and chamfer image
+  (:func:`.features.edges_and_chamfer`, what the preprocess stage computes) depend on the Canny
+  thresholds, which the chamfer tracker chooses on the first frame's box: they are part of the
+  track (:class:`ContourTrack`), so ``init`` and ``update`` compute them from the frame;
+* ``init`` -- the thresholds, the learned model placed for the box (or the K = 1 template from the
+  edges in the box), the initial cloud and the proposal's dynamics (:func:`proposal_dynamics`);
+* ``propose`` -- :func:`propose_cloud`: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) (M2 sec.
+  4.3; the chamfer tracker's is a random walk with K = 1, the M2 tracker's the learned model's);
+* ``update`` -- :meth:`.contour_tracker.ContourFilter.update`: eq. 7 (x the appearance kernel),
+  resampling, the lost guard and the online bank;
+* ``coast`` -- a frame that could not be used: the proposal weighed by no evidence (the posterior
+  is the prior, as the filter stage does when no features arrive).
+
+Random draws of frame ``t`` (:class:`~gflow_core.tracker.FrameRng`): the proposal from
+``stream(PURPOSE_PROPOSAL)`` (the proposal stage's ``frame_rng(seed, stream, t, PURPOSE)``), the
+filter's as :mod:`.contour_tracker` lists them; so a step here and a step through the stages
+(``stages/preprocess.py``, ``stages/particle_proposal.py``, ``stages/particle_filter.py``) give
+the same bits.
+
+Resources (``init``): ``model``, the learned M2 model (required by M2, refused by chamfer), and
+``edges``, the :class:`~gflow_core.contour_params.EdgeParams` the model was learned with
+(:func:`m2_edge_params`; default: the chamfer tracker's, thresholds calibrated on the box).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from dataclasses import dataclass
+from typing import Any, Literal, Mapping, cast
+
+import numpy as np
+
+from . import features
+from .contour_params import ChamferParams, ContourParams, EdgeParams, M2Params
+from .contour_tracker import FILTER, PURPOSE_PROPOSAL, ContourObservation, ContourState, setup
+from .m2 import dynamics as dyn
+from .m2 import lost as lostmod
+from .m2.dynamics import ARDynamics, sample_markov, scale_mean_at
+from .m2.model import M2Model
+from .m2.tracking import ParticleCloud
+from .tracker import Box, Estimate, FrameRng
+
+__all__ = ["ContourTracker", "ContourFrame", "ContourTrack", "CHAMFER", "M2", "proposal_dynamics", "propose_cloud",
+           "m2_edge_params", "PURPOSE_PROPOSAL"]
+
+
+@dataclass(frozen=True)
+class ContourFrame:
+    """What the contour trackers read of a frame: grey : (H, W) uint8 grey levels."""
+
+    grey: np.ndarray
+
+
+@dataclass(frozen=True)
+class ContourTrack:
+    """The posterior after a frame (``filter``, :class:`.contour_tracker.ContourState`) and what is
+    fixed for the track: the edge settings and the Canny thresholds chosen on the first frame (None:
+    chosen on every frame), the proposal's Markov matrix (K, K) and AR(1) dynamics."""
+
+    filter: ContourState
+    edges: EdgeParams
+    thresholds: tuple[float, float] | None
+    markov: np.ndarray
+    dynamics: ARDynamics
+
+
+def proposal_dynamics(model: M2Model | None, init: Box | None, walk: tuple[float, float, float] | None
+                      ) -> tuple[np.ndarray, ARDynamics, bool]:
+    """The proposal's (Markov matrix (K, K), AR(1) dynamics, alpha fixed): with no learned model the
+    random walk of deviations ``walk`` (std_xy, std_theta, std_log_s) and K = 1; with one its
+    Markov matrix and AR(1) process, the
+    log s mean moved to the scale of ``init`` for a contour model (:func:`.m2.dynamics.scale_mean_at`);
+    a patch model is tracked with no alpha transformations (sec. 5.2: alpha fixed)."""
+    if model is None:
+        if walk is None:
+            raise ValueError("a proposal with no learned model needs the random walk's deviations")
+        return np.ones((1, 1)), dyn.random_walk(*walk), False
+    dynamics = model.dynamics
+    if init is not None and model.kind == "curve":
+        dynamics = scale_mean_at(model.dynamics, float(np.log(model.alpha_from_box(init)[3])))
+    return model.markov, dynamics, model.kind == "patch"
+
+
+def propose_cloud(cloud: ParticleCloud, markov: np.ndarray, dynamics: ARDynamics, rng: np.random.Generator,
+                  dt: float = 1.0, fixed_alpha: bool = False) -> ParticleCloud:
+    """The proposal for the next frame: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over ``dt``
+    frame periods (unchanged with ``fixed_alpha``), equal weights. Raises ``ValueError`` for an
+    exemplar index beyond the Markov matrix."""
+    if cloud.k.max(initial=0) >= markov.shape[0]:
+        raise ValueError(f"exemplar index beyond the model's K={markov.shape[0]}")
+    k = sample_markov(cloud.k, markov, rng)
+    alpha = cloud.alpha.copy() if fixed_alpha else dynamics.predict(cloud.alpha, rng, dt)
+    return ParticleCloud(alpha=alpha, k=k, log_w=np.zeros(cloud.n))
+
+
+def m2_edge_params(model: M2Model, meta: Mapping[str, Any]) -> EdgeParams:
+    """The edge settings an M2 model was learned with: its chamfer profile and g0, and the Canny
+    thresholds and blur of its file's ``meta`` (the ``m2`` graph's 50, 150 and 1.0 when absent), as
+    ``gflow track --tracker m2`` sets the preprocess stage."""
+    low, high = (float(meta["canny_low"]), float(meta["canny_high"])) if "canny_low" in meta and "canny_high" in meta \
+        else (50.0, 150.0)
+    profile = cast(Literal["quadratic", "truncated", "linear"], model.profile)  # M2Model checks it
+    return EdgeParams(profile=profile, g0=float(model.g0), canny_low=low, canny_high=high,
+                      blur=float(meta.get("blur", 1.0)))
+
+
+class ContourTracker:
+    """The contour trackers' :class:`gflow_core.tracker.TrackingFilter` (stateless: everything is in
+    :class:`ContourTrack`). ``needs_model``: M2 (a learned model resource); chamfer takes none."""
+
+    def __init__(self, name: str, params: type[ContourParams], needs_model: bool) -> None:
+        self.name, self.Params, self.needs_model = name, params, needs_model
+
+    def observe(self, params: ContourParams, image: np.ndarray) -> ContourFrame:
+        """The grey levels of a ``(H, W, 3)`` BGR or ``(H, W)`` grey frame (``ValueError`` for one that
+        is not an image). A uniform frame is not refused: it has no edges, a blank frame (no evidence)."""
+        return ContourFrame(features.to_grey(image))
+
+    def features(self, params: ContourParams, frame: ContourFrame, edges: EdgeParams,
+                 thresholds: tuple[float, float] | None, wants_grey: bool) -> ContourObservation:
+        """The filter's observation of a frame, as the preprocess stage and the filter stage make it:
+        edges and chamfer image, blank below ``min_edges`` edge pixels, the grey levels and the lost
+        guard's orientation channels (computed when first asked) where a cue needs them."""
+        grey = frame.grey
+        e, cham = features.edges_and_chamfer(grey, thresholds, edges.blur, edges.canny_percentile, edges.profile,
+                                             edges.g0)
+        chamfer: np.ndarray | None = cham if cham.ndim == 2 and cham.size and np.isfinite(cham).all() else None
+        blank = chamfer is not None and params.min_edges > 0 and int(np.count_nonzero(e)) < params.min_edges
+        g = grey if wants_grey and grey.ndim == 2 and min(grey.shape) >= 3 else None
+        channels = functools.cache(functools.partial(lostmod.channels, g)) if g is not None else None
+        return ContourObservation(edges=e, chamfer=chamfer, blank=blank, grey=g, channels=channels)
+
+    def init(self, params: ContourParams, obs: ContourFrame, box: Box, rng: FrameRng,
+             resources: Mapping[str, Any]) -> tuple[ContourTrack, Estimate]:
+        """The thresholds (calibrated on ``box`` unless the edge settings fix them), the model placed
+        for ``box`` and the posterior at the first frame. ``ValueError`` for a missing or wrong model, a
+        box outside the frame or a template with no edges."""
+        model = resources.get("model")
+        if self.needs_model and model is None:
+            raise ValueError(f"tracker {self.name} needs a learned model (`gflow learn m2`)")
+        if not self.needs_model and model is not None:
+            raise ValueError(f"tracker {self.name} takes no model")
+        edges = resources.get("edges") or EdgeParams()
+        thresholds = ((edges.canny_low, edges.canny_high) if edges.canny_low is not None and edges.canny_high is not None
+                      else features.canny_calibrated(obs.grey, edges.blur, edges.canny_percentile, box))
+        setup_ = setup(params, box, model)
+        walk = (params.std_xy, params.std_theta, params.std_log_s) if isinstance(params, ChamferParams) else None
+        markov, dynamics, fixed = proposal_dynamics(model, box, walk)
+        assert not fixed  # setup refuses patch models
+        fobs = self.features(params, obs, edges, thresholds, self._wants_grey(params, setup_.app0 is not None))
+        st, est = FILTER.init(params, fobs, setup_, rng)
+        return ContourTrack(st, edges, thresholds, markov, dynamics), est
+
+    @staticmethod
+    def _wants_grey(params: ContourParams, appearance: bool) -> bool:
+        return params.lost_guard or appearance
+
+    def propose(self, params: ContourParams, state: ContourTrack, obs: ContourFrame | None, rng: FrameRng,
+                dt: float = 1.0) -> ParticleCloud:
+        """:func:`propose_cloud` of the posterior, from ``rng.stream(PURPOSE_PROPOSAL)`` (the frame is not read)."""
+        return propose_cloud(state.filter.cloud, state.markov, state.dynamics, rng.stream(PURPOSE_PROPOSAL), dt)
+
+    def update(self, params: ContourParams, state: ContourTrack, proposal: ParticleCloud, obs: ContourFrame | None,
+               rng: FrameRng) -> tuple[ContourTrack, Estimate]:
+        """The filter's update of ``proposal`` on the frame's features (no evidence when ``obs`` is None).
+        The estimate's phase is ``track``, ``coast`` (a blank frame), ``lost`` or ``redetect``."""
+        if proposal.k.size and proposal.k.max() >= state.filter.model.K:
+            raise ValueError(f"exemplar index {int(proposal.k.max())} beyond the model's K={state.filter.model.K}")
+        fobs = None if obs is None else self.features(
+            params, obs, state.edges, state.thresholds,
+            self._wants_grey(params, state.filter.setup.app0 is not None))
+        st, est = FILTER.update(params, state.filter, proposal, fobs, rng)
+        return dataclasses.replace(state, filter=st), est
+
+    def coast(self, params: ContourParams, state: ContourTrack, rng: FrameRng,
+              obs: ContourFrame | None = None) -> tuple[ContourTrack, Estimate]:
+        """Frame ``rng.t`` could not be used: the proposal weighed by no evidence (phase ``coast``)."""
+        return self.update(params, state, self.propose(params, state, None, rng), None, rng)
+
+
+#: the chamfer tracker (K = 1, the template from the edges in the box; a random walk)
+CHAMFER = ContourTracker("chamfer", ChamferParams, needs_model=False)
+#: the M2 tracker (a learned contour model, resource ``model``)
+M2 = ContourTracker("m2", M2Params, needs_model=True)
