@@ -38,10 +38,10 @@ import numpy as np
 
 from . import features
 from .contour_params import ChamferParams, ContourParams, EdgeParams, M2Params
-from .contour_tracker import FILTER, PURPOSE_PROPOSAL, ContourObservation, ContourState, setup
-from .m2 import dynamics as dyn
+from .contour_dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from .contour_tracker import FILTER, ContourObservation, ContourState, setup
 from .m2 import lost as lostmod
-from .m2.dynamics import ARDynamics, sample_markov, scale_mean_at
+from .m2.dynamics import ARDynamics
 from .m2.model import M2Model
 from .m2.tracking import ParticleCloud
 from .tracker import Box, Estimate, FrameRng
@@ -68,35 +68,6 @@ class ContourTrack:
     thresholds: tuple[float, float] | None
     markov: np.ndarray
     dynamics: ARDynamics
-
-
-def proposal_dynamics(model: M2Model | None, init: Box | None, walk: tuple[float, float, float] | None
-                      ) -> tuple[np.ndarray, ARDynamics, bool]:
-    """The proposal's (Markov matrix (K, K), AR(1) dynamics, alpha fixed): with no learned model the
-    random walk of deviations ``walk`` (std_xy, std_theta, std_log_s) and K = 1; with one its
-    Markov matrix and AR(1) process, the
-    log s mean moved to the scale of ``init`` for a contour model (:func:`.m2.dynamics.scale_mean_at`);
-    a patch model is tracked with no alpha transformations (sec. 5.2: alpha fixed)."""
-    if model is None:
-        if walk is None:
-            raise ValueError("a proposal with no learned model needs the random walk's deviations")
-        return np.ones((1, 1)), dyn.random_walk(*walk), False
-    dynamics = model.dynamics
-    if init is not None and model.kind == "curve":
-        dynamics = scale_mean_at(model.dynamics, float(np.log(model.alpha_from_box(init)[3])))
-    return model.markov, dynamics, model.kind == "patch"
-
-
-def propose_cloud(cloud: ParticleCloud, markov: np.ndarray, dynamics: ARDynamics, rng: np.random.Generator,
-                  dt: float = 1.0, fixed_alpha: bool = False) -> ParticleCloud:
-    """The proposal for the next frame: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over ``dt``
-    frame periods (unchanged with ``fixed_alpha``), equal weights. Raises ``ValueError`` for an
-    exemplar index beyond the Markov matrix."""
-    if cloud.k.max(initial=0) >= markov.shape[0]:
-        raise ValueError(f"exemplar index beyond the model's K={markov.shape[0]}")
-    k = sample_markov(cloud.k, markov, rng)
-    alpha = cloud.alpha.copy() if fixed_alpha else dynamics.predict(cloud.alpha, rng, dt)
-    return ParticleCloud(alpha=alpha, k=k, log_w=np.zeros(cloud.n))
 
 
 def m2_edge_params(model: M2Model, meta: Mapping[str, Any]) -> EdgeParams:

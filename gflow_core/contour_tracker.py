@@ -46,6 +46,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .contour_dynamics import PURPOSE_PROPOSAL
 from . import similarity
 from .contour_params import ContourParams
 from .m2 import dynamics as dyn
@@ -67,7 +68,6 @@ __all__ = ["ContourFilter", "ContourSetup", "ContourState", "ContourObservation"
 PURPOSE_INIT = 0x1417
 PURPOSE_RESAMPLE = 0x2E5A
 PURPOSE_INIT_K = 0x1418
-PURPOSE_PROPOSAL = 0x9209
 
 
 @dataclass(frozen=True)

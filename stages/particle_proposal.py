@@ -1,7 +1,7 @@
 """Proposal stage of the contour particle filter: samples p(X_t | X_{t-1}) (M2 sec. 4.3).
 
-An adapter of :func:`gflow_core.contour_protocol.proposal_dynamics` and
-:func:`~gflow_core.contour_protocol.propose_cloud`, the proposal of the contour trackers' protocol
+An adapter of :func:`gflow_core.contour_dynamics.proposal_dynamics` and
+:func:`~gflow_core.contour_dynamics.propose_cloud`, the proposal of the contour trackers' protocol
 (:class:`~gflow_core.contour_protocol.ContourTracker`).
 
 Input ``particles`` is the resampled posterior of frame t-1 (from the filter stage); the
@@ -33,7 +33,7 @@ from typing import Any, ClassVar, Mapping
 
 import msgspec
 
-from gflow_core.contour_protocol import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from gflow_core.contour_dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 

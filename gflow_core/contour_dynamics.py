@@ -1,0 +1,53 @@
+"""The contour trackers' proposal (chamfer, m2): p(X_t | X_{t-1}) of M2 sec. 4.3.
+
+Kept apart from :mod:`gflow_core.contour_protocol` so that the proposal stage imports only the
+dynamics (numpy), not the filter's image processing (SciPy, OpenCV): a stage process pays at
+start-up only for what it runs.
+
+Draws: ``FrameRng(seed, stream_hash, t).stream(PURPOSE_PROPOSAL)``, the proposal stage's
+``frame_rng(seed, stream, t, PURPOSE)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .m2 import dynamics as dyn
+from .m2.dynamics import ARDynamics, sample_markov, scale_mean_at
+from .m2.model import M2Model
+from .m2.tracking import ParticleCloud
+from .tracker import Box
+
+__all__ = ["PURPOSE_PROPOSAL", "proposal_dynamics", "propose_cloud"]
+
+#: the stream of a frame's proposal draws
+PURPOSE_PROPOSAL = 0x9209
+
+
+def proposal_dynamics(model: M2Model | None, init: Box | None, walk: tuple[float, float, float] | None
+                      ) -> tuple[np.ndarray, ARDynamics, bool]:
+    """The proposal's (Markov matrix (K, K), AR(1) dynamics, alpha fixed): with no learned model the
+    random walk of deviations ``walk`` (std_xy, std_theta, std_log_s) and K = 1; with one its
+    Markov matrix and AR(1) process, the
+    log s mean moved to the scale of ``init`` for a contour model (:func:`.m2.dynamics.scale_mean_at`);
+    a patch model is tracked with no alpha transformations (sec. 5.2: alpha fixed)."""
+    if model is None:
+        if walk is None:
+            raise ValueError("a proposal with no learned model needs the random walk's deviations")
+        return np.ones((1, 1)), dyn.random_walk(*walk), False
+    dynamics = model.dynamics
+    if init is not None and model.kind == "curve":
+        dynamics = scale_mean_at(model.dynamics, float(np.log(model.alpha_from_box(init)[3])))
+    return model.markov, dynamics, model.kind == "patch"
+
+
+def propose_cloud(cloud: ParticleCloud, markov: np.ndarray, dynamics: ARDynamics, rng: np.random.Generator,
+                  dt: float = 1.0, fixed_alpha: bool = False) -> ParticleCloud:
+    """The proposal for the next frame: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over ``dt``
+    frame periods (unchanged with ``fixed_alpha``), equal weights. Raises ``ValueError`` for an
+    exemplar index beyond the Markov matrix."""
+    if cloud.k.max(initial=0) >= markov.shape[0]:
+        raise ValueError(f"exemplar index beyond the model's K={markov.shape[0]}")
+    k = sample_markov(cloud.k, markov, rng)
+    alpha = cloud.alpha.copy() if fixed_alpha else dynamics.predict(cloud.alpha, rng, dt)
+    return ParticleCloud(alpha=alpha, k=k, log_w=np.zeros(cloud.n))
