@@ -27,6 +27,7 @@ the heartbeat).
 
 from __future__ import annotations
 
+import abc
 import logging
 import os
 import queue
@@ -67,7 +68,7 @@ def exit_now() -> None:
     os._exit(0)
 
 
-class NodeBase:
+class NodeBase(abc.ABC):
     """One stage process on zenoh (see the module doc). ``run()`` declares, then serves."""
 
     def __init__(self, node_plan: NodePlan) -> None:
@@ -120,9 +121,9 @@ class NodeBase:
     def declare(self) -> None:
         """Declare this role's subscribers and get ready (before the first heartbeat)."""
 
+    @abc.abstractmethod
     def serve(self) -> int:
         """Do this role's work; the process's exit status."""
-        raise NotImplementedError
 
     def report(self) -> dict[str, Any]:
         """This role's fields of the heartbeat (:class:`StageStatus`), with at least ``steps``."""

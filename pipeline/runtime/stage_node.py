@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import abc
 import logging
 import time
 from pathlib import Path
@@ -66,9 +67,9 @@ class StageNode(NodeBase):
         self.resumed_after = self._restore()
         self._update_hold()
 
+    @abc.abstractmethod
     def work(self, resumed_after: int) -> int:
         """The role's work, from the frame after ``resumed_after``; the exit status."""
-        raise NotImplementedError
 
     def serve(self) -> int:
         rc = self.work(self.resumed_after)
