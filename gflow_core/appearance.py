@@ -301,6 +301,13 @@ def _clutter(levels: list[_Level], centre: np.ndarray, log_s: float, half: tuple
     return redetect.clutter_best(lv.r, lv.origin, lv.k, centre, half)
 
 
+def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float) -> float:
+    """log N(c; pred, diag(sx^2, sy^2)) - log N(pred; pred, diag(sx^2, sy^2)): what a centre ``c``
+    (2,) costs under a motion prior about ``pred`` (2,) of deviations (sx, sy) px."""
+    # -((c_x - pred_x)^2 / 2 sx^2 + (c_y - pred_y)^2 / 2 sy^2)
+    return -((c[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (c[1] - pred[1]) ** 2 / (2.0 * sy * sy))
+
+
 def _search_lost(feat: np.ndarray, st: AppearanceState, hold: np.ndarray, run: int, p: AppearanceParams
                  ) -> tuple[list[redetect.Candidate], bool]:
     """Search for a hidden target (:func:`gflow_core.redetect.search`) with the trusted exemplars
@@ -460,19 +467,15 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     clutter_seen = _clutter(levels, centre, log_s, (0.5 * bw, 0.5 * bh))
     # where the estimate is: a target that is there moved as its motion prior says, so a jump
     # away from the prediction costs log N(c; pred, S) - log N(pred; pred, S)
-    sx, sy = prior * bw + spd, prior * bh + spd
-    log_place = -((centre[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (centre[1] - pred[1]) ** 2 / (2.0 * sy * sy))
+    log_place = _log_place(centre, pred, prior * bw + spd, prior * bh + spd)
     # a target partly hidden (or changing its look) is where its motion puts it: its match says
     # little about its place, so under "partial" the estimate's place is weighed by the motion
     # prior of a hidden target (hidden_prior box sizes plus hidden_speed |v|), not the wide
     # prior of a target in plain view; a jump to a look-alike a box away is then no "partial"
-    if hidden_before:
-        log_place_partial = log_place
-    else:
-        hp = p.hidden_prior * float(np.sqrt(dt))
-        hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
-        px, py = hp * bw + hs, hp * bh + hs
-        log_place_partial = -((centre[0] - pred[0]) ** 2 / (2.0 * px * px) + (centre[1] - pred[1]) ** 2 / (2.0 * py * py))
+    hp = p.hidden_prior * float(np.sqrt(dt))
+    hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
+    log_tight = _log_place(centre, pred, hp * bw + hs, hp * bh + hs)
+    log_place_partial = log_place if hidden_before else log_tight
     # a target judged hidden stays hidden unless the frames say otherwise: after a hidden frame
     # the prior that it is back is `reappear` (split evenly between visible and partial), plus,
     # with `hidden_filter`, what the last frames said (below); after a present frame the three
@@ -495,10 +498,6 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         # so evidence gathered at the held box does not carry a jump to a look-alike elsewhere.
         b = float(st.back)
         carried, fresh = b / 3.0, (1.0 - b) * 0.5 * p.reappear
-        hp = p.hidden_prior * float(np.sqrt(dt))
-        hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
-        px, py = hp * bw + hs, hp * bh + hs
-        log_tight = -((centre[0] - pred[0]) ** 2 / (2.0 * px * px) + (centre[1] - pred[1]) ** 2 / (2.0 * py * py))
         log_place = float(np.logaddexp(math.log(carried) + log_tight if carried > 0 else -math.inf,
                                        math.log(fresh) + log_place)) - math.log(carried + fresh)
         log_place_partial = log_place
