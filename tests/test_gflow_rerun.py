@@ -1,4 +1,4 @@
-"""Issue 5's determinism checks on a real multi-process G-flow run (david_indoor): every stage
+"""The determinism checks on a real multi-process G-flow run (david_indoor): every stage
 re-runs bit for bit, --from a middle snapshot matches, and a changed parameter is caught."""
 
 from __future__ import annotations

@@ -147,7 +147,7 @@ def test_mouths_shuffle_model_tracks_without_alpha(tmp_path, gflow_cmd) -> None:
 
 
 def test_m2_recording_reruns_bit_for_bit(caviar1_model, tmp_path, gflow_cmd) -> None:
-    """Issue 5's determinism checks on a multi-process M2 run: every stage, --from a middle
+    """The determinism checks on a multi-process M2 run: every stage, --from a middle
     snapshot, and a changed parameter that --check catches with the first differing frame."""
     caviar1, model = caviar1_model
     gt = read_boxes(caviar1 / "groundtruth.csv")
