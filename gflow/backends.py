@@ -46,11 +46,14 @@ def chamfer_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
 
 
 def _m2_model(model: Any) -> tuple[Any, dict[str, Any]]:
-    """(the M2 model, its file's meta) of the ``model`` keyword: a file or an ``M2Model``."""
+    """(the M2 model, its file's meta) of the ``model`` keyword: a file, an ``M2Model``, or the pair
+    already loaded (:func:`patch_model`)."""
     from gflow_core.m2.model import M2Model
 
     if isinstance(model, M2Model):
         return model, {}
+    if isinstance(model, tuple) and len(model) == 2 and isinstance(model[0], M2Model):
+        return model[0], dict(model[1])
     if not model:
         raise GflowError("tracker m2 needs model=MODEL.npz (learn one with `gflow learn m2`)")
     from pipeline.io.modelfile import load_meta, load_model
@@ -64,9 +67,15 @@ def _m2_model(model: Any) -> tuple[Any, dict[str, Any]]:
     return obj, meta
 
 
-def patch_model(name: str, params: Mapping[str, Any]) -> bool:
-    """Whether tracker ``name`` with ``params`` is m2 with a patch model (run through its stages)."""
-    return name == "m2" and _m2_model(params.get("model"))[0].kind == "patch"
+def patch_model(name: str, params: Mapping[str, Any]) -> tuple[bool, dict[str, Any]]:
+    """Whether tracker ``name`` with ``params`` is m2 with a patch model (run through its stages),
+    and the parameters with an m2 model file read once (model, meta) for :func:`m2_setup`."""
+    if name != "m2":
+        return False, dict(params)
+    model, meta = _m2_model(params.get("model"))
+    if model.kind == "patch":
+        return True, dict(params)
+    return False, {**params, "model": (model, meta)}
 
 
 def m2_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:

@@ -77,10 +77,11 @@ class Tracker:
             raise GflowError(f"fps must be positive, got {fps}")
         self.name, self.seed = name, int(seed)
         self._backend: ProtocolBackend | GraphBackend
-        if not patch_model(name, params):
+        patch, loaded = patch_model(name, params)
+        if not patch:
             impl, setup = PROTOCOL_TRACKERS[name]()
             try:
-                p, resources = setup(params)
+                p, resources = setup(loaded)
             except ValueError as e:
                 raise GflowError(str(e)) from None
             self._backend = ProtocolBackend(impl, p, resources, self.seed, "cam0")
