@@ -42,7 +42,11 @@ def test_missing_frames_are_counted_on_the_heartbeat(tmp_path):
         th.join(0.05)
     s = open_session(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)))
     bus = Bus(s)
-    time.sleep(0.5)
+    pub = bus.publisher("gflow/cam0/frames")
+    deadline = time.monotonic() + 30
+    while not pub.matching_status.matching:  # the stage's subscription has reached this session
+        assert time.monotonic() < deadline, "no subscriber to gflow/cam0/frames within 30 s"
+        time.sleep(0.02)
     img = NDArray.of(np.random.default_rng(0).integers(0, 255, (60, 80), dtype=np.uint8))
     for seq in (0, 1, 2, 5, 6, 9):  # frames 3, 4, 7 and 8 never arrive
         bus.publish("gflow/cam0/frames", encode(Frame(Header("cam0", seq, seq), img)), seq, "Frame")

@@ -9,7 +9,9 @@ never reached the other hosts). So before it exits, a finished stage waits until
 * every stage that consumes one of its outputs has finished too (heartbeat state ``draining``,
   ``done`` or ``stopped``: it has seen the end of its inputs) or is gone (liveliness token), and
 * the recorder, when it keeps one of its outputs, has recorded the end of stream of each kept
-  reliable output (its heartbeat's ``ended`` topics) or is gone,
+  output (its heartbeat's ``ended`` topics) or is gone. This holds for drop topics too: their
+  end of stream is sent with BLOCK behind the data (:mod:`pipeline.runtime.transport`), so once
+  it is recorded, whatever of the data zenoh did not drop under load is recorded as well,
 
 for at most ``GFLOW_DRAIN_S`` seconds (default 30).
 """
@@ -33,10 +35,10 @@ def consumers_of(plan: Plan, name: str) -> set[str]:
 
 def recorder_needs(plan: Plan, eos_topics: list[str]) -> tuple[str | None, set[str]]:
     """(the recorder's name, which of ``eos_topics`` it keeps): the ends of stream it must record
-    before the stage that sends them may exit. Topics of drop QoS are not waited for."""
+    before the stage that sends them may exit (drop topics included: their end of stream is
+    never dropped)."""
     rec = plan.recorder()
     if rec is None:
         return None, set()
     keep = recorded_topic_filter(rec.params, plan.stream)
-    drop = plan.drop_topics()
-    return rec.name, {t for t in eos_topics if keep(t) and t not in drop}
+    return rec.name, {t for t in eos_topics if keep(t)}

@@ -10,7 +10,10 @@ Quality of service per topic:
   BLOCK. Nothing is dropped; a slow subscriber slows the publisher down.
 * ``drop`` (live video that may drop under load): congestion control DROP. Drops are not
   silent: every subscriber counts gaps in the sequence numbers (``SeqJoin.gaps``) and the
-  stage status reports them.
+  stage status reports them. The end of stream on a drop topic is still sent with BLOCK (a
+  publisher of its own on the same key, behind the data in the same queue), so it always
+  arrives, and a finished stage can wait for the recorder to have written it
+  (:mod:`pipeline.runtime.drain`).
 
 Facts measured with eclipse-zenoh 1.10 (see GUIDE.md): ``transport/unicast/lowlatency``
 loses messages over ~60 KB without error, so it is never enabled here; sessions do not
@@ -206,24 +209,28 @@ class Bus:
 
     session: zenoh.Session
     drop_topics: frozenset[str] = frozenset()
-    _pubs: dict[str, zenoh.Publisher] = field(default_factory=dict)
+    _pubs: dict[tuple[str, bool], zenoh.Publisher] = field(default_factory=dict)
     _subs: list = field(default_factory=list)
     sent: int = 0
     signer: Signer | None = None
     foreign: dict[str, int] = field(default_factory=dict)
 
-    def publisher(self, key: str) -> zenoh.Publisher:
-        pub = self._pubs.get(key)
+    def publisher(self, key: str, block: bool = False) -> zenoh.Publisher:
+        """The publisher of ``key``: congestion control DROP on a drop topic unless ``block``."""
+        drop = key in self.drop_topics and not block
+        pub = self._pubs.get((key, drop))
         if pub is None:
-            cc = zenoh.CongestionControl.DROP if key in self.drop_topics else zenoh.CongestionControl.BLOCK
+            cc = zenoh.CongestionControl.DROP if drop else zenoh.CongestionControl.BLOCK
             pub = self.session.declare_publisher(key, congestion_control=cc, reliability=zenoh.Reliability.RELIABLE)
-            self._pubs[key] = pub
+            self._pubs[(key, drop)] = pub
         return pub
 
     def publish(self, key: str, payload: bytes, seq: int, type_name: str = "") -> None:
         ns = time.time_ns()
         tag = self.signer.tag(key, seq, ns, payload) if self.signer is not None else b""
-        self.publisher(key).put(payload, attachment=pack_attachment(ns, seq, type_name, tag))
+        # the end of stream is never dropped, even on a drop topic (see the module docstring)
+        pub = self.publisher(key, block=type_name == "EndOfStream")
+        pub.put(payload, attachment=pack_attachment(ns, seq, type_name, tag))
         self.sent += 1
 
     def subscribe(self, key: str, callback: Callable[..., None], with_type: bool = False) -> None:
