@@ -107,13 +107,15 @@ def test_tools_find_the_running_pipeline(pipeline) -> None:
     silent = _gflow(rt, "echo", "gflow/demo/no_such_topic", "--timeout", "1")
     assert silent.returncode == 1 and "no message on gflow/demo/no_such_topic" in silent.stderr
 
-    # pub: the launcher's control topic; the sources stop and the run ends by itself
+    # pub: the control topic; the launcher passes the stop on, the sources stop and the run ends by itself
     pub = _gflow(rt, "pub", "gflow/demo/_control", "Control", '{"command": "stop"}')
     assert pub.returncode == 0, pub.stderr
     proc.wait(60)
     assert not list(rt.glob("*.json")), "the announcement must be removed when the launcher exits"
     _, err = proc.communicate()
     assert "listening on tcp/127.0.0.1:" in err
+    # the launcher passed the stop on to every stage (the tool may not have linked to them all yet)
+    assert "stop received on the control topic" in err, err
 
     nothing = _gflow(rt, "topics", "--duration", "1")
     assert nothing.returncode == 2 and "no running gflow pipeline" in nothing.stderr

@@ -11,6 +11,9 @@ The launcher puts together the roles it plays, each in a module of its own:
   for, and the run stops (not ok);
 * shutdown (``pipeline/runtime/shutdown.py``): sources and stages first, the recorder last,
   so the MCAP file keeps everything (a Ctrl-C in the terminal reaches the launcher only).
+  A ``stop`` published on the control topic by a user's tool (``gflow pub``) is passed on to
+  every stage by the launcher, so the run ends normally even if the tool has not yet linked
+  to every stage.
 
 The launcher's zenoh session listens on one loopback endpoint; the stages connect to it and,
 through gossip, to each other. The node plans, the checkpoints and nothing else live in one
@@ -30,7 +33,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, TextIO
 
-from stages.messages import ErrorReport, StageStatus
+from stages.messages import Control, ErrorReport, StageStatus, decode
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.live_plan import live_source
@@ -129,6 +132,8 @@ class Launcher:
         self.supervisor = Supervisor(plan, self.console.say, on_spawn=self.monitor.forget)
         self.run_dir: str = ""
         self._interrupt = threading.Event()
+        self._stop_heard = threading.Event()  # a ``stop`` on the control topic, from a user's tool
+        self._stop_relayed = False
 
     @property
     def status(self) -> dict[str, StageStatus]:
@@ -185,6 +190,7 @@ class Launcher:
                     raise RuntimeError(busy)
             watch = HostWatch(session, plan, self.local, self.console.say)
             monitor.subscribe(bus)
+            bus.subscribe(plan.control_topic, self._on_control)
             self.run_dir = tempfile.mkdtemp(prefix="gflow-run-", dir=run_dir_parent())
             os.makedirs(os.path.join(self.run_dir, "state"))
         except BaseException:
@@ -275,6 +281,8 @@ class Launcher:
             self._check_interrupt()
             now = time.monotonic()
             states = monitor.states()
+            if self._stop_heard.is_set() and not self._stop_relayed:
+                self._relay_stop(bus)
             if now - last_start > 0.5 and any(states.get(n) == "ready" for n in sources):
                 control(bus, plan, "start")  # a source missed the first start
                 last_start = now
@@ -293,6 +301,24 @@ class Launcher:
             if not running:
                 return
             time.sleep(0.05)
+
+    def _on_control(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+        """On zenoh's thread: note a ``stop`` on the control topic (garbage is the stages' to count)."""
+        try:
+            msg = decode(payload)
+        except ValueError:
+            return
+        if isinstance(msg, Control) and msg.command == "stop":
+            self._stop_heard.set()
+
+    def _relay_stop(self, bus: Bus) -> None:
+        """Send a ``stop`` heard on the control topic on to every stage, once. A tool that
+        publishes it (``gflow pub ... Control '{"command": "stop"}'``) reaches the launcher first,
+        whose endpoint it connects to, but in peer mode only those stages it has already linked
+        to; every stage is linked to the launcher, so the run stops as a whole, normally."""
+        self._stop_relayed = True
+        self.console.say("stop received on the control topic: every stage asked to finish")
+        control(bus, self.plan, "stop")
 
     def _check_interrupt(self) -> None:
         if self._interrupt.is_set():
