@@ -11,6 +11,7 @@ from pipeline.runtime.launcher import Launcher
 from pipeline.runtime.transport import ZenohSettings, free_port
 
 FRAMES = 60
+HEARTBEAT_S = 0.5  # pipeline/runtime/node_base.py
 
 
 def test_the_source_announces_every_few_frames_not_every_frame(tmp_path):
@@ -22,8 +23,11 @@ def test_the_source_announces_every_few_frames_not_every_frame(tmp_path):
     recs = list(iter_records(path))
     assert sum(r.type == "Estimate" for r in recs) == FRAMES
     status = [decode(r.data) for r in recs if r.topic.endswith("/_status/source")]
-    # the heartbeat repeats the last announced frame; an announcement is a new one. Counting
-    # distinct positions (not heartbeats) keeps the machine's load out of the count: with an
-    # announcement per frame there would be FRAMES of them.
+    # an announcement is a new position every 4 frames; a heartbeat (every 0.5 s) repeats the
+    # last frame sent, so each heartbeat while frames were being sent may add a position. The
+    # load of the machine is in the allowance (how long sending took); with an announcement per
+    # frame there would be FRAMES positions.
     announced = {s.last_seq for s in status if s.last_seq >= 0}
-    assert len(announced) <= FRAMES / 4 + 3, sorted(announced)
+    sent = [r.publish_ns for r in recs if r.type == "Frame"]
+    beats = (max(sent) - min(sent)) / 1e9 / HEARTBEAT_S + 1
+    assert len(announced) <= FRAMES / 4 + 3 + beats, (sorted(announced), beats)

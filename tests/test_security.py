@@ -333,12 +333,15 @@ def _attack(settings: ZenohSettings, plan, wait_matching: bool) -> dict:
         bus = Bus(s)
         heard: queue.SimpleQueue = queue.SimpleQueue()
         bus.subscribe(est_topic, lambda k, p, ns, seq: heard.put(seq))
+        recorder_heard = threading.Event()  # peer mode: a heartbeat of the recorder's means a link to it
+        bus.subscribe(f"gflow/{plan.stream}/_status/recorder", lambda *a: recorder_heard.set())
         first = heard.get(timeout=60)
         header = Header(plan.stream, first, time.time_ns())
         sent = {"control": 0, "end": 0, "estimate": 0, "first": first}
         pubs = {t: bus.publisher(t) for t in (plan.control_topic, frames_topic, est_topic)}
-        if wait_matching:  # peer mode: the run's subscribers are right there
-            _wait(lambda: all(p.matching_status.matching for p in pubs.values()), what="the run's subscribers")
+        if wait_matching:  # peer mode: the run's subscribers are right there, the recorder's among them
+            _wait(lambda: all(p.matching_status.matching for p in pubs.values()) and recorder_heard.is_set(),
+                  what="the run's subscribers")
         bus.publish(plan.control_topic, encode(Control(header, "stop")), first, "Control")
         sent["control"] += 1
         bus.publish(frames_topic, encode(EndOfStream(Header(plan.stream, first + 1, time.time_ns()))), first + 1,
