@@ -3,6 +3,7 @@ SIGKILL, and an independent MCAP reader (@mcap/core, TypeScript) on the files.""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -132,3 +133,40 @@ def test_independent_reader_reads_recordings(crossing_run):
             assert js["topics"][topic]["encoding"] == "msgpack"
         assert "gflow.Estimate" in js["topics"]["gflow/cam0/estimate"]["schemas"]
         assert {"gflow.graph", "gflow.config"} <= set(js["metadata"])
+
+
+def _copy_recording(src: Path, dst: Path, records) -> None:
+    from pipeline.io.mcap_io import read_metadata
+    from pipeline.io.recorder import McapRecorder
+
+    with McapRecorder(dst, metadata=dict(read_metadata(src))) as rec:
+        for r in records:
+            rec.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns, type_name=r.type)
+
+
+def test_an_input_given_up_as_late_is_given_up_again_by_the_rerun(crossing_run, tmp_path):
+    """A live filter that gave up frame 30's features as late stepped frame 30 without them and
+    dropped them when they came. In the recording they come later and the filter's late_input
+    report names them: the re-run must step frame 30 without them too, as if they had never come."""
+    from pipeline.recording.rerun import check_outputs, rerun_stage
+    from stages.messages import ErrorReport, Header, encode
+
+    recs = list(iter_records(crossing_run))
+    feats = "gflow/cam0/features"
+    [late] = [r for r in recs if r.topic == feats and r.seq == 30]
+    at = next(i for i, r in enumerate(recs) if r.topic == feats and r.seq == 34)  # it comes 4 frames late
+    moved = [r for r in recs[:at] if r is not late] + [late] + recs[at:]
+    report = ErrorReport(header=Header("cam0", 30, 0), stage="filter", kind="late_input", topic=feats,
+                         message="frame 30: no features after 3.0 s while the stream is ahead; going on without")
+    rep = dataclasses.replace(late, topic="gflow/cam0/errors", type="ErrorReport", data=encode(report))
+    with_report = moved[:at] + [rep] + moved[at:]  # the report, before the features came
+    _copy_recording(crossing_run, tmp_path / "late.mcap", with_report)
+    _copy_recording(crossing_run, tmp_path / "moved.mcap", moved)
+    _copy_recording(crossing_run, tmp_path / "never.mcap", [r for r in recs if r is not late])
+
+    replayed = rerun_stage(tmp_path / "late.mcap", "filter").outputs
+    never = rerun_stage(tmp_path / "never.mcap", "filter").outputs
+    used = rerun_stage(tmp_path / "moved.mcap", "filter").outputs
+    assert check_outputs(never, replayed) == []
+    # without the report the re-run waits for the features and uses them: frame 30 differs
+    assert [m.seq for m in check_outputs(never, used)][:1] == [30]

@@ -6,6 +6,13 @@ payload as it travelled. So one stage can be fed its recorded inputs in the reco
 order and its new outputs compared with the recorded ones byte for byte, or, with new
 parameters, written to a new recording to diff against the old one.
 
+Inputs given up as late: a live stage that waited ``late_s`` for a frame's input while the
+stream went on stepped that frame without it (and dropped the input when it came). Its
+``late_input`` report names the topics it gave up (``ErrorReport.topic``); the re-run skips
+those inputs of that frame and steps it as soon as it waits for nothing else, so a run that
+gave inputs up re-runs bit for bit too. (Recordings made before reports named their topics
+re-run with every input.)
+
 Seeking: a stage with ``snapshot_every: N`` publishes its state every N frames on
 ``gflow/<stream>/_snapshot/<stage>``. ``--from SEQ`` restores the nearest snapshot before
 SEQ and feeds only the inputs after it; the outputs must equal those of a full re-run.
@@ -18,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from stages.messages import EndOfStream, MessageError, Snapshot, decode
+from stages.messages import EndOfStream, ErrorReport, MessageError, Snapshot, decode
 
 from pipeline.runtime.build import make_stage
 from pipeline.recording.compare import FieldDiff, first_field_diff
@@ -76,6 +83,29 @@ def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
     params = dict(sp.params)
     params.update(sets)
     sp.params = validate_params(sp.kind, params, f"--set for stage {stage!r}")
+
+
+def late_give_ups(path: str | Path, error_topic: str, stage: str) -> dict[int, frozenset[str]]:
+    """{frame: the input topics ``stage`` gave up for it as late} from its ``late_input`` reports."""
+    out: dict[int, frozenset[str]] = {}
+    for r in iter_records(path, topics=[error_topic]):
+        try:
+            m = decode(r.data)
+        except (MessageError, ValueError):
+            continue
+        if isinstance(m, ErrorReport) and m.stage == stage and m.kind == "late_input" and m.topic:
+            out[m.header.seq] = out.get(m.header.seq, frozenset()) | frozenset(m.topic.split(","))
+    return out
+
+
+def _replay_give_ups(host: StageHost, late: dict[int, frozenset[str]]) -> None:
+    """Step a frame the live stage stepped without inputs it gave up, once it waits for nothing else."""
+    j = host.join
+    while (w := j.waiting(host.stage.required)) is not None and w[1] and w[0] in late and w[0] > j.force_below:
+        if not {host.topics_in[p] for p in w[1]} <= late[w[0]]:
+            return
+        j.force_below = w[0]
+        host.pump()
 
 
 def _snapshot_before(path: str | Path, topic: str, seq: int) -> Snapshot | None:
@@ -150,10 +180,15 @@ def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = N
         host.close("end")
     else:
         wanted = set(sp.inputs.values())
+        late = late_give_ups(path, plan.error_topic, stage)
         for r in iter_records(path):
             if r.topic in wanted:
+                if r.topic in late.get(r.seq, ()) and r.type != "EndOfStream":
+                    continue  # the live stage gave it up as late (it came after its frame was stepped)
                 consumed.append(r)
                 host.deliver(r.topic, r.data)
+                if late:
+                    _replay_give_ups(host, late)
                 if progress is not None:
                     progress(host.stats.steps)
         host.close("end")

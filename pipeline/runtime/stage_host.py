@@ -235,8 +235,11 @@ class StageHost:
         if not ahead:
             return
         w = j.waiting(self.stage.required)
+        # the topics given up go in the report's ``topic`` (comma-separated): `gflow rerun` replays
+        # the give-up from them (pipeline/recording/rerun.py)
+        missing = ",".join(self.topics_in[p] for p in w[1] if p in self.topics_in) if w and w[0] == seq else ""
         self.report("late_input", f"frame {seq}: no {', '.join(w[1]) if w else 'input'} after {wait_s:.1f} s "
-                    "while the stream is ahead; going on without", seq)
+                    "while the stream is ahead; going on without", seq, topic=missing)
         j.force_below = max(j.force_below, seq)
         self.pump()
 
