@@ -35,6 +35,7 @@ from typing import Callable, TextIO
 
 from stages.messages import Control, ErrorReport, StageStatus, decode
 
+from pipeline.runtime.drain import FINISHED
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.live_plan import live_source
 from pipeline.runtime.multihost import HostWatch, host_gateway, node_listen, stream_in_use
@@ -129,7 +130,8 @@ class Launcher:
         self.monitor = ProgressMonitor(plan, self.console, total_frames, live=live_source(plan) is not None,
                                        stall_timeout=(seconds("GFLOW_STALL_S", 30.0) if stall_timeout is None
                                                       else stall_timeout))
-        self.supervisor = Supervisor(plan, self.console.say, on_spawn=self.monitor.forget)
+        self.supervisor = Supervisor(plan, self.console.say, on_spawn=self.monitor.forget,
+                                     finished=lambda: {n for n, st in self.monitor.states().items() if st in FINISHED})
         self.run_dir: str = ""
         self._interrupt = threading.Event()
         self._stop_heard = threading.Event()  # a ``stop`` on the control topic, from a user's tool

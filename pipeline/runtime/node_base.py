@@ -112,6 +112,10 @@ class NodeBase(abc.ABC):
         self.required_peers = (set(plan.stages) if not self.restarts or peers is None
                                else {p for p in peers if p in plan.stages} | {name})
         self.ready_deadline = time.monotonic() + RESTART_READY_S
+        for other in node_plan.finished:  # restarted after they finished: they will not say so again
+            if other in plan.stages and other != name:
+                self.peer_state[other] = "done"
+                self.peer_done.add(other)
 
     # -- what a role fills in ------------------------------------------------------------------
     def make_inbox(self) -> queue.SimpleQueue | BoundedInbox:

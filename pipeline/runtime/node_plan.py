@@ -50,6 +50,9 @@ class NodePlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     restarts : how many times the stage was restarted before this process (0: first start).
     peers : a restarted stage: the stages the launcher saw running, the only ones it waits for
         (None: every stage of the graph).
+    finished : a restarted stage: the stages the launcher had heard finish (heartbeat state
+        draining, done or stopped). They exited before this process could hear them, so it
+        takes them as finished: it does not wait for them to drain what it sends.
     recording : the MCAP file: the recorder writes it (a restarted recorder, its next
         segment); a restarted stage catches up from it (None: no recording).
     late_s : seconds before an input that does not come is given up (while the source is ahead).
@@ -64,6 +67,7 @@ class NodePlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
     run_dir: str = ""
     restarts: int = 0
     peers: tuple[str, ...] | None = None
+    finished: tuple[str, ...] = ()
     recording: str | None = None
     late_s: float = LATE_S
     drain_s: float = DRAIN_S

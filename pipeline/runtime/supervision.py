@@ -103,10 +103,13 @@ class Supervisor:
     plan : the graph.
     say : where the supervisor's one-line reports go (a stage died, is restarted...).
     on_spawn : called with a stage's name whenever a process of it is started.
+    finished : the stages heard to have finished so far (handed to a restarted stage).
     """
 
-    def __init__(self, plan: Plan, say: Callable[[str], None], on_spawn: Callable[[str], None] | None = None) -> None:
+    def __init__(self, plan: Plan, say: Callable[[str], None], on_spawn: Callable[[str], None] | None = None,
+                 finished: Callable[[], set[str]] | None = None) -> None:
         self.plan = plan
+        self.finished = finished
         self.node_plan: NodePlan | None = None
         self.say = say
         self.on_spawn = on_spawn
@@ -140,7 +143,10 @@ class Supervisor:
             recording = str(segment_path(recording, restarts))
         # the peers a restarted stage can still hear from
         peers = tuple(n for n, p in self.procs.items() if n != name and p.alive()) if restarts else None
-        return msgspec.structs.replace(base, stage=name, restarts=restarts, peers=peers, recording=recording)
+        # and those that finished meanwhile: it would never hear them say so
+        done = tuple(sorted(n for n in self.finished() if n != name)) if restarts and self.finished else ()
+        return msgspec.structs.replace(base, stage=name, restarts=restarts, peers=peers, finished=done,
+                                       recording=recording)
 
     def spawn(self, name: str, restarts: int = 0) -> StageProcess:
         """Start a process of stage ``name``."""
