@@ -154,6 +154,7 @@ class StageNode(NodeBase):
         self.state = "draining"
         self.send_status()
         deadline = time.monotonic() + self.node_plan.drain_s
+        waiting: list[str] = []
         while not self.stop.is_set() and time.monotonic() < deadline:
             # a peer that never held a token here (another host, not yet heard) counts as there
             waiting = [c for c in consumers if self.peer_state.get(c) not in FINISHED
@@ -166,5 +167,5 @@ class StageNode(NodeBase):
             self.drained.clear()
             self.drained.wait(0.05)
         if not self.stop.is_set():
-            log.warning("[%s] finished, but its last messages were not confirmed within %.0f s", self.name,
-                        self.node_plan.drain_s)
+            log.warning("[%s] finished, but its last messages were not confirmed within %.0f s (by %s)", self.name,
+                        self.node_plan.drain_s, ", ".join(waiting))
