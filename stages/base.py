@@ -121,8 +121,16 @@ class Stage(ABC, Generic[P]):
     def prepare(self, port: str, msg: Message) -> Any:
         """The work on one input message of a port in ``prepare_ports`` that depends on that
         message alone, never on the stage's state (it may run on another thread while ``step``
-        runs). Exceptions propagate to :meth:`prepared`."""
-        raise NotImplementedError(f"stage kind {self.kind!r} lists prepare_ports {sorted(self.prepare_ports)} but does not implement prepare()")
+        runs). Exceptions propagate to :meth:`prepared`. A stage with ``prepare_ports`` overrides
+        it (:meth:`check_prepare`, called by every runner when it takes the stage)."""
+        raise TypeError(f"stage kind {self.kind!r} calls prepared() but does not implement prepare()")
+
+    def check_prepare(self) -> None:
+        """TypeError when the stage lists ``prepare_ports`` (they may depend on its parameters,
+        so this is checked on the instance) but does not implement :meth:`prepare`."""
+        if self.prepare_ports and type(self).prepare is Stage.prepare:
+            raise TypeError(f"stage kind {self.kind!r} lists prepare_ports {sorted(self.prepare_ports)} "
+                            "but does not implement prepare()")
 
     def prepared(self, port: str, msg: Message) -> Any:
         """``prepare(port, msg)``: the result a runner computed ahead when there is one, else

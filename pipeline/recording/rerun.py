@@ -104,8 +104,7 @@ def _replay_give_ups(host: StageHost, late: dict[int, frozenset[str]]) -> None:
     while (w := j.waiting(host.stage.required)) is not None and w[1] and w[0] in late and w[0] > j.force_below:
         if not {host.topics_in[p] for p in w[1]} <= late[w[0]]:
             return
-        j.force_below = w[0]
-        host.pump()
+        host.give_up(w[0])
 
 
 def _snapshot_before(path: str | Path, topic: str, seq: int) -> Snapshot | None:

@@ -105,6 +105,7 @@ class StageHost:
 
         set_compute_threads(cv_threads)
         self.last_sent: list[tuple[str, bytes, int, str]] = []  # what the last step published
+        stage.check_prepare()
         self.stage = stage
         self.name = stage.ctx.name
         self.topics_in = dict(topics_in)
@@ -240,7 +241,11 @@ class StageHost:
         missing = ",".join(self.topics_in[p] for p in w[1] if p in self.topics_in) if w and w[0] == seq else ""
         self.report("late_input", f"frame {seq}: no {', '.join(w[1]) if w else 'input'} after {wait_s:.1f} s "
                     "while the stream is ahead; going on without", seq, topic=missing)
-        j.force_below = max(j.force_below, seq)
+        self.give_up(seq)
+
+    def give_up(self, seq: int) -> None:
+        """Step every frame up to ``seq`` with what it has (its missing inputs given up)."""
+        self.join.force_below = max(self.join.force_below, seq)
         self.pump()
 
     # -- input -------------------------------------------------------------------------------
