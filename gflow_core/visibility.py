@@ -12,8 +12,9 @@ target at all. This module keeps two such distributions, each by running moments
 
 * **target** -- rho at the estimate on frames judged visible (the target as it looks while
   the tracker is sure of it);
-* **clutter** -- the best rho the search window offers away from the estimate, on every
-  frame (what the best look-alike in the background scores).
+* **clutter** -- the best rho the search window offers away from the estimate, on the frames
+  the target is present (what the best look-alike in the background scores; while the target
+  is hidden the best match away from a held box may be the target itself).
 
 and weighs three hypotheses for the rho of the estimate:
 

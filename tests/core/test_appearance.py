@@ -329,3 +329,19 @@ def test_frames_of_moderate_evidence_add_up_to_bring_a_hidden_target_back():
             assert iou(truth[back[hf]:back[hf] + 1], np.array([res[back[hf] - 1].box]))[0] > 0.5
     assert back[True] is not None and back[True] < 80, back
     assert back[False] is None, back
+
+
+def test_the_clutter_is_learnt_only_while_the_target_is_present():
+    # while the box is held for a hidden target, the best match away from it may be the target
+    # itself: the clutter's moments stand still on those frames (unless clutter_while_hidden)
+    def path(t):
+        return 70.0 + 1.5 * t, 120.0, 1.0
+    scene = CoveredScene(path, 100, range(40, 90))
+    for while_hidden in (False, True):
+        res = _track(scene, ap.AppearanceParams(clutter_while_hidden=while_hidden))
+        held = [i for i in range(1, len(res)) if res[i].state.hidden_run > 0]
+        assert len(held) > 20, [r.target_state for r in res]
+        moved = [res[i].state.clutter != res[i - 1].state.clutter for i in held]
+        assert any(moved) == while_hidden, moved
+        seen = [i for i in range(1, 39) if res[i].state.hidden_run == 0]
+        assert all(res[i].state.clutter != res[i - 1].state.clutter for i in seen)
