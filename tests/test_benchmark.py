@@ -155,7 +155,7 @@ def test_bad_input_is_one_line(case, seq, tmp_path, capsys):
             "plot_folder": [str(seq), "--plot", str(tmp_path / "nodir" / "s.png")],
             "plot_format": [str(seq), "--plot", str(tmp_path / "s.xyz")]}[case]
     want = {"missing": "not found", "no_frames": "no frames/", "no_truth": "no groundtruth.csv", "tracker": "nosuch",
-            "opencv": "nosuch", "model": "missing.npz", "frames": "20:10", "no_first_box": f"frame {FRAMES + 5}",
+            "opencv": "unknown OpenCV tracker 'nosuch' in --opencv", "model": "missing.npz", "frames": "20:10", "no_first_box": f"frame {FRAMES + 5}",
             "plot_folder": "does not exist", "plot_format": ".png"}[case]
     assert main(["benchmark", *argv, "--inline"]) == 2
     err = capsys.readouterr().err.strip().splitlines()

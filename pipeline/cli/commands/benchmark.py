@@ -20,7 +20,8 @@ from pipeline.cli.commands.common import CliError
 MODEL_OPTIONS = {"m2": "--m2-model", "gflow": "--gflow-model"}
 
 
-def _names(text: str | None, known: list[str], what: str) -> list[str]:
+def _names(text: str | None, known: list[str], what: str, noun: str) -> list[str]:
+    """The names of a comma-separated option ``--what``, each one of ``known`` (a ``noun``)."""
     if text is None:
         return list(known)
     names = [n.strip() for n in text.split(",") if n.strip()]
@@ -28,8 +29,17 @@ def _names(text: str | None, known: list[str], what: str) -> list[str]:
         raise CliError(f"--{what} needs at least one name (known: {', '.join(known)})")
     bad = [n for n in names if n not in known]
     if bad:
-        raise CliError(f"unknown {what[:-1]} {bad[0]!r} (known: {', '.join(known)})")
+        raise CliError(f"unknown {noun} {bad[0]!r} in --{what} (known: {', '.join(known)})")
     return list(dict.fromkeys(names))
+
+
+def _opencv_names(text: str | None) -> list[str]:
+    """The OpenCV trackers of ``--opencv`` (``none``: no OpenCV tracker)."""
+    from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS
+
+    if not text or text.strip() == "none":
+        return []
+    return _names(text, list(OPENCV_TRACKERS), "opencv", "OpenCV tracker")
 
 
 def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path) -> list[str]:
@@ -139,7 +149,7 @@ def _pick_sequences(seqs, text: str | None):
     """The sequences named in ``--sequences`` (all when not given)."""
     if text is None:
         return seqs
-    want = _names(text, [s.name for s in seqs], "sequences")
+    want = _names(text, [s.name for s in seqs], "sequences", "sequence")
     return [s for s in seqs if s.name in want]
 
 
@@ -149,7 +159,7 @@ AFTER_MIN = 15
 
 def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
-    from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS, note, opencv_tracker
+    from pipeline.cli.sequence_benchmark import note, opencv_tracker
     from pipeline.cli.stress_benchmark import check_sequences, format_stress, run_stress, select_cases, stress_json
 
     for opt in ("frames", "plot", "precision_plot"):
@@ -162,8 +172,7 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     select_cases(args.cases)
     check_sequences(seqs)
     # CSRT beside every tracker by default, where this OpenCV has it
-    cv_text = "csrt" if args.opencv is None else ("" if args.opencv.strip() == "none" else args.opencv)
-    cv_names = _names(cv_text, list(OPENCV_TRACKERS), "opencv") if cv_text else []
+    cv_names = _opencv_names("csrt" if args.opencv is None else args.opencv)
     cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
     for c, why in cv_missing.items():
         note(f"opencv {c} not measured: {why}")
@@ -189,11 +198,11 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
 
 
 def cmd_benchmark(args) -> int:
-    from pipeline.cli.sequence_benchmark import (OPENCV_TRACKERS, Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
+    from pipeline.cli.sequence_benchmark import (Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
                              plot_success, published_rows, static_box, to_json)
     from pipeline.io.datasets import parse_range
 
-    names = _names(args.trackers, sorted(TRACKERS), "trackers")
+    names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
     if args.list_cases:
         from gflow_core.stress import CASES
 
@@ -211,7 +220,7 @@ def cmd_benchmark(args) -> int:
     for opt, default in (("cases", None), ("stress_cache", None), ("lead", 30), ("tail", 60)):
         if getattr(args, opt) != default:
             raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
-    cv_names = _names(args.opencv, list(OPENCV_TRACKERS), "opencv") if args.opencv else []
+    cv_names = _opencv_names(args.opencv)
     first_frame, stop = parse_range(args.frames)
     _check_paths(args)
     seqs, skipped = find_sequences(args.datasets)
@@ -311,7 +320,8 @@ def register(sub) -> None:
     p.add_argument("--gflow-model", metavar="MODEL.npz", help="morphable model for the gflow tracker (default: the built-in face model; 'ellipsoid': the generic rigid head)")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="stage parameter for every tracker run")
     p.add_argument("--opencv", metavar="NAME,...",
-                   help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them")
+                   help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them (none: no "
+                        "OpenCV tracker)")
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
     p.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     p.add_argument("--plot", metavar="PNG", help="write the success plot (success rate against overlap threshold)")
