@@ -50,6 +50,13 @@ def first_run(data, tmp_path_factory) -> tuple[dict, Path, Path, str]:
     return json.loads(r.stdout), cache, runs, r.stderr
 
 
+def _derived(cache: Path, seq: str, case: str, seed: int = 1) -> Path:
+    """The cached folder of a derived sequence (``CACHE/SEQ/CASE-KEY``) made with ``seed``."""
+    found = [d for d in (cache / seq).glob(f"{case}-*") if json.loads((d / "stress.json").read_text())["seed"] == seed]
+    assert len(found) == 1, found
+    return found[0]
+
+
 def _rows(res: dict, **kw) -> list[dict]:
     return [r for r in res["rows"] if all(r[k] == v for k, v in kw.items())]
 
@@ -77,7 +84,7 @@ def test_every_case_of_every_sequence_has_its_rows(first_run):
 
 def test_derived_folder_truth_visibility_and_untouched_frames(first_run, data):
     _, cache, _, _ = first_run
-    d = cache / "synth" / "occlude-10"
+    d = _derived(cache, "synth", "occlude-10")
     meta = json.loads((d / "stress.json").read_text())
     assert meta["window"] == [8, 18] and meta["patch_from"].startswith("other frame ")
     gt = read_boxes(d / "groundtruth.csv")
@@ -100,7 +107,7 @@ def test_scores_equal_gflow_eval_and_the_csv_has_the_state(first_run):
     res, cache, runs, _ = first_run
     app = _rows(res, sequence="synth", case="occlude-10", tracker="appearance")[0]
     csv = runs / "synth" / "occlude-10" / "appearance.csv"
-    d = cache / "synth" / "occlude-10"
+    d = _derived(cache, "synth", "occlude-10")
     assert csv.read_text().splitlines()[0] == "frame,x,y,w,h,confidence,state"
     track = read_track(csv)
     assert track.states is not None and set(track.states.values()) <= {"tracked", "occluded", "lost"}
@@ -121,12 +128,12 @@ def test_scores_equal_gflow_eval_and_the_csv_has_the_state(first_run):
 def test_untouched_after_is_the_control_run_on_the_same_original_frames(first_run, case, frames):
     res, cache, runs, _ = first_run
     row = _rows(res, sequence="other", case=case, tracker="appearance")[0]
-    control = cache / "other" / "none"
+    control = _derived(cache, "other", "none")
     r = _gflow("eval", "--gt", str(control / "groundtruth.csv"), "--pred", str(runs / "other" / "none" /
                "appearance.csv"), "--frames", frames, "--json")
     assert json.loads(r.stdout)["success_rate_0.5"] == pytest.approx(row["untouched_after"], abs=1e-4)
     # the same original frames
-    src = {c: [line.split(",")[3] for line in (cache / "other" / c / "visibility.csv").read_text().split()[1:]]
+    src = {c: [line.split(",")[3] for line in (_derived(cache, "other", c) / "visibility.csv").read_text().split()[1:]]
            for c in ("none", case)}
     a, b = (int(v) for v in frames.split(":"))
     assert src[case][28 if case == "occlude-10" else 48:] == src["none"][a:b]
@@ -149,6 +156,20 @@ def test_second_run_reuses_the_cache_and_gives_the_same_scores(first_run, data):
     keys = ("tracker", "cle_px", "success", "after", "back_in", "state")
     again = [{k: row.get(k) for k in keys} for row in json.loads(r.stdout)["rows"]]
     assert again == [{k: row.get(k) for k in keys} for row in _rows(res, sequence="synth", case="occlude-10")]
+
+
+def test_runs_of_other_seeds_keep_their_own_derived_frames_in_a_shared_cache(first_run, data):
+    # a run with another seed writes its own folder; the first seed's frames stay cached
+    _, cache, _, _ = first_run
+    args = [a if a != "none,occlude-10,fast-2" else "occlude-10" for a in STRESS]
+    other = _gflow("benchmark", str(data), *args, "--sequences", "synth", "--seed", "2", "--json", "--stress-cache",
+                   str(cache))
+    assert other.returncode == 0, other.stderr
+    assert "(cached)" not in other.stderr
+    again = _gflow("benchmark", str(data), *args, "--sequences", "synth", "--json", "--stress-cache", str(cache))
+    assert again.returncode == 0, again.stderr
+    assert "synth / occlude-10: 38 frames, window 8:18 (cached)" in again.stderr
+    assert len(list((cache / "synth").glob("occlude-10-*"))) == 2
 
 
 def test_markdown_table_and_nothing_left_behind(data, tmp_path):

@@ -10,8 +10,10 @@ sequence then runs through :func:`pipeline.cli.commands.benchmark._tracker_row`,
 path of ``gflow benchmark`` and ``gflow track``, and OpenCV's CSRT and a box that never moves
 are scored beside it.
 
-Derived sequences are kept between runs under ``--stress-cache DIR`` (keyed by everything they
-are made from); without it they are written to a temporary folder and removed.
+Derived sequences are kept between runs under ``--stress-cache DIR``, in
+``DIR/SEQUENCE/CASE-KEY`` (KEY a digest of everything they are made from, so runs that differ
+in seed, lead or tail keep their own); without it they are written to a temporary folder and
+removed.
 """
 
 from __future__ import annotations
@@ -165,7 +167,9 @@ def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: i
     key = _digest(VERSION, case, lead, tail, seed, seq.name, _source_key(seq, files),
                   donor.name if case.kind in PATCH_KINDS else "", _source_key(donor, _files(donor))
                   if case.kind in PATCH_KINDS else "")
-    folder = root / seq.name / case.name
+    # one folder per key: runs with another seed, lead or tail sharing the cache (at the same
+    # time, too) never rewrite the frames this run reads
+    folder = root / seq.name / f"{case.name}-{key[:12]}"
     meta_path = folder / "stress.json"
     cached = False
     if meta_path.is_file():
@@ -507,7 +511,7 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                     for row in mine + others:
                         row.extra["still_success"] = others[-1].success
                     if not args.stress_cache:
-                        shutil.rmtree(cache / seq.name / case.name, ignore_errors=True)
+                        shutil.rmtree(d.seq.path, ignore_errors=True)
         except KeyboardInterrupt:
             interrupted = True
             note("interrupted: stopped; the tables hold the runs that finished")
