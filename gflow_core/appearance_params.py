@@ -71,7 +71,8 @@ class AppearanceParams:
                            "learnt)")
     min_std: float = param(0.05, "floor on the spread of rho in the target's and the clutter's distributions")
     target_rate: float = param(0.05, "forgetting rate of the target's distance moments (frames it is present)")
-    clutter_rate: float = param(0.05, "forgetting rate of the clutter's distance moments (frames the target is present)")
+    clutter_rate: float = param(0.05, "forgetting rate of the clutter's distance moments (frames the target is "
+                                      "present)")
     clutter_while_hidden: bool = param(False, "learn the clutter's moments on frames the target is in doubt or "
                                               "hidden too (the best match away from a held box may be the target)")
     search_start: float = param(1.0, "the search for a target in doubt starts this many box sizes beyond the "
