@@ -172,6 +172,27 @@ def test_runs_of_other_seeds_keep_their_own_derived_frames_in_a_shared_cache(fir
     assert len(list((cache / "synth").glob("occlude-10-*"))) == 2
 
 
+def test_two_runs_deriving_one_sequence_at_once_both_read_complete_frames(data, tmp_path):
+    # each run writes the derived sequence under a name of its own and renames it when complete:
+    # both get a complete folder, one folder is kept, nothing half-written is left
+    from concurrent.futures import ThreadPoolExecutor
+
+    from gflow_core.stress import CASES
+    from pipeline.cli.sequence_benchmark import find_sequences
+    from pipeline.cli.stress_benchmark import derive
+
+    seqs, _ = find_sequences([str(data)])
+    synth, other = sorted(seqs, key=lambda q: q.name != "synth")
+    case = next(c for c in CASES if c.name == "occlude-10")
+    cache = tmp_path / "cache"
+    with ThreadPoolExecutor(2) as pool:
+        runs = [pool.submit(derive, synth, case, other, cache, 1, 8, 20) for _ in range(2)]
+        got = [r.result() for r in runs]
+    assert got[0].seq.path == got[1].seq.path
+    assert len(list((got[0].seq.path / "frames").glob("*"))) == 38
+    assert [p.name for p in (cache / "synth").iterdir()] == [got[0].seq.path.name]
+
+
 def test_markdown_table_and_nothing_left_behind(data, tmp_path):
     tmp = tmp_path / "tmp"
     tmp.mkdir()

@@ -12,8 +12,9 @@ are scored beside it.
 
 Derived sequences are kept between runs under ``--stress-cache DIR``, in
 ``DIR/SEQUENCE/CASE-KEY`` (KEY a digest of everything they are made from, so runs that differ
-in seed, lead or tail keep their own); without it they are written to a temporary folder and
-removed.
+in seed, lead or tail keep their own; each is written under a name of its own and renamed when
+complete, so runs at the same time share it safely); without it they are written to a
+temporary folder and removed.
 """
 
 from __future__ import annotations
@@ -154,6 +155,15 @@ def _write(folder: Path, seq: Sequence, files: dict[int, Path], plan: StressPlan
                      {i: int(plan.source[i]) for i in range(len(plan))})
 
 
+def _cached_meta(meta_path: Path, key: str) -> dict | None:
+    """The ``stress.json`` of a complete cached folder made with ``key``, else None."""
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError):
+        return None
+    return meta if isinstance(meta, dict) and meta.get("key") == key else None
+
+
 def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: int, lead: int, tail: int) -> Derived:
     """Write (or find in ``root``) the derived sequence of ``case`` on ``seq``, its patch cut from ``donor``."""
     files = _files(seq)
@@ -167,35 +177,37 @@ def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: i
     key = _digest(VERSION, case, lead, tail, seed, seq.name, _source_key(seq, files),
                   donor.name if case.kind in PATCH_KINDS else "", _source_key(donor, _files(donor))
                   if case.kind in PATCH_KINDS else "")
-    # one folder per key: runs with another seed, lead or tail sharing the cache (at the same
-    # time, too) never rewrite the frames this run reads
+    # one folder per key: runs with another seed, lead or tail sharing the cache never rewrite the
+    # frames this run reads; a folder is written under a name of its own and renamed when complete,
+    # so a run never sees another's half-written folder, and two runs of one key keep the first
     folder = root / seq.name / f"{case.name}-{key[:12]}"
     meta_path = folder / "stress.json"
-    cached = False
-    if meta_path.is_file():
-        try:
-            meta = json.loads(meta_path.read_text())
-            cached = meta.get("key") == key
-        except (OSError, ValueError):
-            cached = False
-    if cached:
-        patch_from = meta.get("patch_from", "")
-    else:
-        if folder.exists():
-            shutil.rmtree(folder)
+    meta = _cached_meta(meta_path, key)
+    cached = meta is not None
+    if meta is None:
         patch, patch_from = None, ""
         need = occluder_size(plan)
         if need is not None:
             patch, patch_from = _cut_patch(donor, need, set(plan.source.tolist()) if donor is seq else set(), rng)
-        _write(folder, seq, files, plan, patch, seed)
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        part = Path(tempfile.mkdtemp(prefix=f"{folder.name}.part-", dir=folder.parent))
+        _write(part, seq, files, plan, patch, seed)
         meta = {"key": key, "version": VERSION, "sequence": seq.name, "source": str(seq.path), "case": case.name,
                 "kind": case.kind, "length": case.length, "amount": case.amount, "describe": case.describe(),
                 "window": list(plan.window), "frames": len(plan), "lead": lead, "tail": tail, "seed": seed,
                 "patch_from": patch_from}
-        meta_path.write_text(json.dumps(meta, indent=1))  # last: marks the folder complete
+        (part / "stress.json").write_text(json.dumps(meta, indent=1))
+        try:
+            part.rename(folder)
+        except OSError:
+            if _cached_meta(meta_path, key) is None:  # an incomplete folder (a crash): replace it
+                shutil.rmtree(folder, ignore_errors=True)
+                part.rename(folder)
+            else:  # another run wrote the same folder first: its frames are these
+                shutil.rmtree(part, ignore_errors=True)
     gt = read_boxes(folder / "groundtruth.csv")
     dseq = Sequence(name=f"{seq.name}/{case.name}", path=folder, groundtruth=gt, results=())
-    return Derived(dseq, plan, seq.name, case, patch_from, cached)
+    return Derived(dseq, plan, seq.name, case, str(meta.get("patch_from", "")), cached)
 
 
 @dataclass
