@@ -16,7 +16,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-__all__ = ["to_grey", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image",
+__all__ = ["to_grey", "to_uint8", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image",
            "canny_calibrated", "edges_and_chamfer", "PROFILES"]
 
 PROFILES = ("linear", "quadratic", "truncated")
@@ -34,6 +34,18 @@ def _check_image(img: np.ndarray, name: str = "image") -> np.ndarray:
     return img
 
 
+def to_uint8(img: np.ndarray) -> np.ndarray:
+    """An image as uint8, channels kept: float images are taken in [0, 1], integer ones clipped to
+    [0, 255]. Raises ``ValueError`` for an array that is not an image (:func:`to_grey`'s rules)."""
+    img = _check_image(img)
+    if img.dtype != np.uint8:
+        if img.dtype.kind == "f":
+            img = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
+        else:
+            img = np.clip(img, 0, 255).astype(np.uint8)
+    return img
+
+
 def to_grey(img: np.ndarray) -> np.ndarray:
     """Convert an image to 8-bit grey levels.
 
@@ -45,12 +57,7 @@ def to_grey(img: np.ndarray) -> np.ndarray:
     -------
     (H, W) uint8
     """
-    img = _check_image(img)
-    if img.dtype != np.uint8:
-        if img.dtype.kind == "f":
-            img = np.clip(np.rint(img * 255.0), 0, 255).astype(np.uint8)
-        else:
-            img = np.clip(img, 0, 255).astype(np.uint8)
+    img = to_uint8(img)
     if img.ndim == 3:
         if img.shape[2] == 1:
             return np.ascontiguousarray(img[:, :, 0])

@@ -52,7 +52,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import gammainc, gammaln
 
-__all__ = ["ChiSquare", "Visibility", "visibility", "RHO_MAX"]
+__all__ = ["ChiSquare", "Cue", "Visibility", "visibility", "RHO_MAX"]
 
 #: rho = 1 - r lies in [0, RHO_MAX]
 RHO_MAX = 2.0
@@ -134,6 +134,22 @@ class ChiSquare:
 
 
 @dataclass(frozen=True)
+class Cue:
+    """A further distance of the same estimate, from another cue, with its own learnt target and
+    clutter distributions; given the hypothesis it is independent of the first (the cues'
+    likelihoods multiply, as in multi-cue particle filters: Perez, Vermaak & Blake, Proc. IEEE 2004).
+
+    rho : its distance; trials : as :func:`visibility`'s, for this cue (the estimate was picked by
+    the best of this many clutter draws of it).
+    """
+
+    rho: float
+    target: ChiSquare
+    clutter: ChiSquare
+    trials: float = 1.0
+
+
+@dataclass(frozen=True)
 class Visibility:
     """Posterior of the three hypotheses for one distance; they sum to 1."""
 
@@ -149,7 +165,8 @@ class Visibility:
 
 def visibility(rho: float, target: ChiSquare, clutter: ChiSquare, min_std: float,
                prior: tuple[float, float, float] = (1.0, 1.0, 1.0), trials: float = 1.0,
-               log_place: float = 0.0, log_place_partial: float | None = None) -> Visibility:
+               log_place: float = 0.0, log_place_partial: float | None = None, cues: tuple[Cue, ...] = ()
+               ) -> Visibility:
     """P(visible), P(partial), P(hidden) of a distance ``rho`` (module docstring).
 
     Parameters
@@ -169,6 +186,10 @@ def visibility(rho: float, target: ChiSquare, clutter: ChiSquare, min_std: float
     log_place_partial : the same under the partial hypothesis when it differs (a target partly
         hidden is placed by its motion rather than by a match that says little; default:
         ``log_place``).
+    cues : further cues of the same estimate (:class:`Cue`); each adds its log-density under each
+        hypothesis, by the same rules (one-sided target and clutter densities, the partial
+        hypothesis uniform up to its clutter's mean). A cue whose distributions have no samples
+        yet is left out.
     """
     place = (log_place, log_place if log_place_partial is None else log_place_partial, 0.0)
     logs = []
@@ -188,6 +209,14 @@ def visibility(rho: float, target: ChiSquare, clutter: ChiSquare, min_std: float
             # one-sided: p(rho | visible) = p_t(max(rho, mode_t)), a closer match than usual is the target
             lp = m.log_pdf(max(rho, m.mode(min_std)), min_std)
         logs.append(math.log(w) + lp + lpl)
+    for cue in cues:
+        if cue.target.n == 0 or cue.clutter.n == 0:
+            continue
+        # p(rho, rho' | h) = p(rho | h) p(rho' | h): the cue's log-density under each hypothesis
+        logs[0] += cue.target.log_pdf(max(cue.rho, cue.target.mode(min_std)), min_std)
+        top_c = max(cue.clutter.mean(), min_std)
+        logs[1] += -math.log(top_c) if cue.rho <= top_c else -math.inf
+        logs[2] += cue.clutter.log_pdf_min(cue.rho, max(cue.trials, 1.0), min_std)
     top = max(logs)
     if top == -math.inf:
         return Visibility(visible=0.0, partial=1.0, hidden=0.0)
