@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["Candidate", "search", "clutter_best", "response_centres", "shrink"]
+__all__ = ["Candidate", "search", "clutter_best", "response_centres", "shrink", "ncc", "window_energy", "FLAT"]
 
 
 @dataclass(frozen=True)
@@ -72,11 +72,36 @@ def shrink(exemplar: np.ndarray, res: tuple[int, int]) -> np.ndarray:
     return out.reshape(res[1], res[0], -1)
 
 
+#: a placement whose channels carry less than this fraction of the exemplar's energy has no structure
+FLAT = 1e-4
+
+
+def window_energy(win: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H - th + 1, W - tw + 1) float64: sum of the squared channels of ``win`` (H, W, C) under every
+    placement of a template of ``shape`` (th, tw), by an integral image."""
+    th, tw = shape
+    sq = np.einsum("ijc,ijc->ij", win, win, dtype=np.float64)
+    ii = cv2.integral(sq, sdepth=cv2.CV_64F)
+    return ii[th:, tw:] - ii[:-th, tw:] - ii[th:, :-tw] + ii[:-th, :-tw]
+
+
+def ncc(win: np.ndarray, ex: np.ndarray, energy: np.ndarray | None = None) -> np.ndarray:
+    """The normalised correlation map of the exemplar ``ex`` (th, tw, C) with ``win`` (H, W, C),
+    0 (no evidence) where the window is flat: the channels are normalised with a floor, so a
+    region without edges holds values near 0, whose correlation is the ratio of two rounding
+    errors (measured: r = 0.98 on a black border, 1e-19 in amplitude after resampling).
+    ``energy``: :func:`window_energy` of ``win`` at ``ex``'s shape, when the caller has it."""
+    r = cv2.matchTemplate(win, ex, cv2.TM_CCOEFF_NORMED)
+    e = window_energy(win, ex.shape[:2]) if energy is None else energy
+    return np.where(e < FLAT * float(np.einsum("ijc,ijc->", ex, ex, dtype=np.float64)), np.float32(0.0), r)
+
+
 def _best_of(win: np.ndarray, exemplars: list[np.ndarray]) -> np.ndarray:
-    """max over exemplars of the normalised correlation map of each with ``win``."""
-    r = cv2.matchTemplate(win, exemplars[0], cv2.TM_CCOEFF_NORMED)
+    """max over exemplars of the normalised correlation map of each with ``win`` (:func:`ncc`)."""
+    e = window_energy(win, exemplars[0].shape[:2])
+    r = ncc(win, exemplars[0], e)
     for ex in exemplars[1:]:
-        r = np.maximum(r, cv2.matchTemplate(win, ex, cv2.TM_CCOEFF_NORMED))
+        r = np.maximum(r, ncc(win, ex, e))
     return r
 
 

@@ -56,7 +56,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-import cv2
 import numpy as np
 
 from .. import redetect
@@ -173,8 +172,9 @@ def observe(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, fl
     win = region(feat, c, (w * (1 + 2 * reach), h * (1 + 2 * reach)), k)
     if p is None or win.shape[0] <= th or win.shape[1] <= tw:
         z = np.ascontiguousarray(region(feat, c, (tw / k, th / k), k)[:th, :tw])
-        return Observation(r=float(cv2.matchTemplate(z, anchor.channels, cv2.TM_CCOEFF_NORMED)[0, 0]), clutter=None)
-    r = cv2.matchTemplate(win, anchor.channels, cv2.TM_CCOEFF_NORMED)
+        return Observation(r=float(redetect.ncc(z, anchor.channels)[0, 0]), clutter=None)
+    # a flat window (no edges) has no correlation: 0, not the ratio of two rounding errors
+    r = redetect.ncc(win, anchor.channels)
     Wn, Hn = win.shape[1], win.shape[0]
     # response (u, v) has the anchor's centre at window pixel (u + (tw - 1) / 2, v + (th - 1) / 2);
     # window pixel (a, b) is image c + ((a, b) - (W - 1) / 2) / k
