@@ -6,8 +6,9 @@ Every shared sequence (``../shared/data``, or ``GFLOW_DATA``) gets the stress ca
 ``occlude-150`` (a real image patch hides the target for 150 frames, between 30 frames before
 and 60 after; :mod:`gflow_core.stress`), and the tracker runs on it twice:
 
-* **in one process, one frame at a time, OpenCV on one thread as in a stage process** (the
-  filter's work only: appearance channels and ``gflow_core.appearance.step``, with the
+* **in one process, one frame at a time, OpenCV on one thread as in a stage process**, with the
+  default cues (edges and colour) and with the edges alone (the filter's work only: grey
+  levels, appearance channels, colour bins and ``gflow_core.appearance.step``, with the
   proposal's random walk): CPU ms per frame, split by
   what the tracker reported on the frame -- ``tracked``, or ``occluded`` / ``lost`` (it
   searches a widening region, up to the whole frame). The channels are computed in the step
@@ -39,6 +40,7 @@ from _util import pct, scratch, table  # noqa: E402
 from bench_pipeline import CpuSampler  # noqa: E402
 
 from gflow_core import appearance as ap  # noqa: E402
+from gflow_core.appearance_tracker import TRACKER  # noqa: E402
 from gflow_core.m2.dynamics import random_walk  # noqa: E402
 from gflow_core.stress import CASES  # noqa: E402
 from pipeline.cli.sequence_benchmark import find_sequences  # noqa: E402
@@ -53,26 +55,33 @@ from stages.messages import Estimate, decode  # noqa: E402
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 
 
-def core_run(folder: Path, truth0: tuple[float, float, float, float], seed: int = 1) -> dict[str, list[float]]:
-    """CPU seconds of each frame's channels + step, by the state the tracker reported."""
+def core_run(folder: Path, truth0: tuple[float, float, float, float], seed: int = 1,
+             colour: bool = True) -> dict[str, list[float]]:
+    """CPU seconds of each frame's observation (grey levels, channels, colour bins) + step, by the
+    state the tracker reported; ``colour`` False: the edges alone (``--set filter.colour=false``)."""
     frames = sorted((folder / "frames").glob("*"))
     cv2.setNumThreads(1)  # as in a stage process (pipeline/runtime/stage_host.py)
-    p = ap.AppearanceParams()
-    grey = cv2.imread(str(frames[0]), cv2.IMREAD_GRAYSCALE)
-    st = ap.initialise(ap.features(grey), truth0, p, np.random.default_rng([seed, 0]))
+    p = ap.AppearanceParams(colour=colour)
+    obs = TRACKER.observe(p, cv2.imread(str(frames[0]), cv2.IMREAD_COLOR))
+    st = ap.initialise(obs.channels(), truth0, p, np.random.default_rng([seed, 0]), obs.bins)
     dyn = random_walk(p.walk_std(truth0), 0.0, 0.0)
     out: dict[str, list[float]] = {"tracked": [], "searching": []}
     for t in range(1, len(frames)):
-        grey = cv2.imread(str(frames[t]), cv2.IMREAD_GRAYSCALE)  # not timed: decoding is the source's work
+        img = cv2.imread(str(frames[t]), cv2.IMREAD_COLOR)  # not timed: decoding is the source's work
         a = np.column_stack([st.particles[:, :2], np.zeros(len(st.particles)), np.exp(st.particles[:, 2])])
         a = dyn.predict(a, np.random.default_rng([seed, 1, t]))
         prop = np.column_stack([a[:, :2], np.log(a[:, 3])])
         c0 = time.process_time()
-        res = ap.step(st, ap.features(grey), prop, p, np.random.default_rng([seed, 2, t]))
+        obs = TRACKER.observe(p, img)
+        res = ap.step(st, obs.channels(), prop, p, np.random.default_rng([seed, 2, t]), bins=obs.bins)
         c1 = time.process_time()
         st = res.state
         out["tracked" if res.target_state == "tracked" else "searching"].append(c1 - c0)
     return out
+
+
+def _cues(colour: bool) -> str:
+    return "edges + colour" if colour else "edges alone"
 
 
 def pipeline_run(folder: Path, truth0: tuple[float, float, float, float], rec: str) -> dict:
@@ -123,29 +132,32 @@ def main() -> None:
     out = scratch("gflow-bench-recovery-", keep=args.out)
     print(f"load before: {' '.join(f'{x:.2f}' for x in psutil.getloadavg())} on {psutil.cpu_count()} cores")
     rows, prow = [], []
-    all_t, all_s = [], []
+    all_t: dict[bool, list[float]] = {True: [], False: []}
+    all_s: dict[bool, list[float]] = {True: [], False: []}
     for i, seq in enumerate(seqs):
         donor = seqs[(i + 1) % len(seqs)]
         d = derive(seq, case, donor, out / "derived", seed=1, lead=30, tail=60)
         folder = d.seq.path
         truth0 = d.seq.groundtruth[min(d.seq.groundtruth)]
-        cpu = core_run(folder, truth0)
-        tr, se = 1e3 * np.array(cpu["tracked"]), 1e3 * np.array(cpu["searching"])
-        all_t += list(tr)
-        all_s += list(se)
-        rows.append([seq.name, len(tr), len(se), f"{tr.mean():.1f}", f"{pct(tr, 95):.1f}",
-                     f"{se.mean():.1f}" if len(se) else "-", f"{pct(se, 95):.1f}" if len(se) else "-",
-                     f"{1e3 / max(tr.mean(), 1e-9):.0f}", f"{1e3 / se.mean():.0f}" if len(se) else "-"])
+        for colour in (True, False):
+            cpu = core_run(folder, truth0, colour=colour)
+            tr, se = 1e3 * np.array(cpu["tracked"]), 1e3 * np.array(cpu["searching"])
+            all_t[colour] += list(tr)
+            all_s[colour] += list(se)
+            rows.append([seq.name, _cues(colour), len(tr), len(se), f"{tr.mean():.1f}", f"{pct(tr, 95):.1f}",
+                         f"{se.mean():.1f}" if len(se) else "-", f"{pct(se, 95):.1f}" if len(se) else "-",
+                         f"{1e3 / max(tr.mean(), 1e-9):.0f}", f"{1e3 / se.mean():.0f}" if len(se) else "-"])
         if not args.no_processes:
             r = pipeline_run(folder, truth0, str(out / f"{seq.name}.mcap"))
             prow.append([seq.name, r["frames"], r["hidden"], f"{r['fps']:.1f}", f"{r['fps_hidden']:.1f}",
                          "  ".join(f"{n} {v:.1f}" for n, v in sorted(r["stages"].items()))])
-    t, s = np.array(all_t), np.array(all_s)
-    rows.append(["all", len(t), len(s), f"{t.mean():.1f}", f"{pct(t, 95):.1f}", f"{s.mean():.1f}", f"{pct(s, 95):.1f}",
-                 f"{1e3 / t.mean():.0f}", f"{1e3 / s.mean():.0f}"])
-    print(f"\n{case.name} ({case.describe()}): the filter's CPU per frame in one process (channels + step; "
-          "frame decoding not counted)")
-    print(table(rows, ["sequence", "tracked frames", "searching frames", "tracked ms/f", "tracked p95",
+    for colour in (True, False):
+        t, s = np.array(all_t[colour]), np.array(all_s[colour])
+        rows.append(["all", _cues(colour), len(t), len(s), f"{t.mean():.1f}", f"{pct(t, 95):.1f}", f"{s.mean():.1f}",
+                     f"{pct(s, 95):.1f}", f"{1e3 / t.mean():.0f}", f"{1e3 / s.mean():.0f}"])
+    print(f"\n{case.name} ({case.describe()}): the filter's CPU per frame in one process (grey levels, channels, "
+          "colour bins + step; frame decoding not counted), the default and the edges alone side by side")
+    print(table(rows, ["sequence", "cues", "tracked frames", "searching frames", "tracked ms/f", "tracked p95",
                        "searching ms/f", "searching p95", "tracked frames/s (1 core)", "searching frames/s (1 core)"]))
     if prow:
         print("\nas processes (gflow track's graph): frames/s from the first to the last estimate, and over the "

@@ -87,6 +87,11 @@ class AppearanceParams:
     hidden_filter: bool = param(True, "while the target is hidden, carry the probability it is present from "
                                       "frame to frame (forward filtering) instead of the prior `reappear` alone, "
                                       "so frames of moderate evidence add up")
+    colour: bool = param(True, "weigh the colour histogram of the box as a second cue, with its own target and "
+                               "clutter distributions, and search a hidden target by colour too")
+    colour_lam: float = param(20.0, "lambda_c of the colour likelihood exp(-lambda_c (1 - BC)) (Perez et al. 2002); "
+                                    "0: colour only judges the estimate and searches")
+    colour_rate: float = param(0.02, "rate of the running colour histogram's update on confident frames")
     std_xy_rel: float = param(0.08, "random walk of the centre per frame (the proposal), in units of sqrt(w h) of "
                                     "the initial box")
 
@@ -116,6 +121,10 @@ class AppearanceParams:
         if self.warmup < 1 or not self.min_std > 0 or not (0 < self.target_rate <= 1 and 0 < self.clutter_rate <= 1):
             raise ValueError(f"warmup must be >= 1, min_std positive and the rates in (0, 1], got {self.warmup}, "
                              f"{self.min_std}, {self.target_rate}, {self.clutter_rate}")
+        if not self.colour_lam >= 0:
+            raise ValueError(f"colour_lam must be >= 0, got {self.colour_lam}")
+        if not 0 <= self.colour_rate <= 1:
+            raise ValueError(f"colour_rate must be in [0, 1], got {self.colour_rate}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, {self.reappear}")
         if self.search_growth < 0 or not self.search_scales or self.search_area < 16:

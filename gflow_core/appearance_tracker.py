@@ -34,6 +34,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from . import appearance as ap
+from . import colour
 from .appearance_dynamics import PURPOSE_WALK, alpha_of, particles_of, walk
 from .appearance_params import AppearanceParams
 from .features import to_grey
@@ -52,10 +53,12 @@ class AppearanceObservation:
 
     grey : (H, W) uint8 grey levels; feat : (H, W, 4) float32 appearance channels, or the
     ``ValueError`` computing them raised (a frame too small for them), raised by a step that uses it.
+    bins : (H, W) uint8 colour bins (:func:`gflow_core.colour.bins`), or None without the colour cue.
     """
 
     grey: np.ndarray
     feat: np.ndarray | ValueError
+    bins: np.ndarray | None = None
 
     def channels(self) -> np.ndarray:
         """The appearance channels (raises the ``ValueError`` they raised)."""
@@ -90,26 +93,38 @@ class AppearanceTracker:
     Params = AppearanceParams
 
     def observe(self, params: AppearanceParams, image: np.ndarray) -> AppearanceObservation:
-        """The grey levels and appearance channels of a ``(H, W, 3)`` BGR or ``(H, W)`` grey frame.
+        """The grey levels, appearance channels and (``params.colour``) colour bins of a ``(H, W, 3)``
+        BGR or ``(H, W)`` grey frame.
 
         Raises :class:`UnusableFrame` for a uniform frame (no evidence) and ``ValueError`` for one
         that is not an image."""
-        return self.observe_grey(params, to_grey(image))
+        grey = to_grey(image)
+        self._check_evidence(grey)
+        return self._observation(grey, colour.bins(image) if params.colour else None)
 
     def observe_grey(self, params: AppearanceParams, grey: np.ndarray) -> AppearanceObservation:
-        """:meth:`observe` of a frame already in grey levels ``(H, W)`` uint8."""
+        """:meth:`observe` of a frame already in grey levels ``(H, W)`` uint8 (its colour bins are
+        grey-level bins)."""
+        self._check_evidence(grey)
+        return self._observation(grey, colour.bins(grey) if params.colour else None)
+
+    @staticmethod
+    def _check_evidence(grey: np.ndarray) -> None:
         if grey.size == 0 or int(grey.max()) == int(grey.min()):
             raise UnusableFrame("uniform frame, no evidence")
+
+    @staticmethod
+    def _observation(grey: np.ndarray, bins: np.ndarray | None) -> AppearanceObservation:
         try:
-            return AppearanceObservation(grey, ap.features(grey))
+            return AppearanceObservation(grey, ap.features(grey), bins)
         except ValueError as e:
-            return AppearanceObservation(grey, e)
+            return AppearanceObservation(grey, e, bins)
 
     def init(self, params: AppearanceParams, obs: AppearanceObservation, box: Box, rng: FrameRng,
              resources: Mapping[str, Any]) -> tuple[AppearanceTrack, Estimate]:
         """The anchor exemplar of ``box`` and the particles about it (``ValueError`` for a box
         outside the frame or a frame too small for the channels)."""
-        core = ap.initialise(obs.channels(), box, params, rng.stream(PURPOSE_INIT))
+        core = ap.initialise(obs.channels(), box, params, rng.stream(PURPOSE_INIT), obs.bins)
         a = np.array([core.centre[0], core.centre[1], 0.0, 1.0])
         est = self.estimate(params, rng.t, ap.box_of(core.centre, core.log_s, core.size0), "init", a, a,
                             np.zeros(4), float(params.particles), 0.0, 1.0, 1.0, "tracked")
@@ -128,7 +143,8 @@ class AppearanceTracker:
                obs: AppearanceObservation, rng: FrameRng) -> tuple[AppearanceTrack, Estimate]:
         """:func:`.appearance.step` of the proposal on the frame. The estimate's phase is ``track``,
         ``redetect`` (the search found a hidden target again this frame), ``occluded`` or ``lost``."""
-        res = ap.step(state.core, obs.channels(), proposal.particles, params, rng.stream(PURPOSE_STEP), proposal.dt)
+        res = ap.step(state.core, obs.channels(), proposal.particles, params, rng.stream(PURPOSE_STEP), proposal.dt,
+                      obs.bins)
         nst = res.state
         a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
         mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])

@@ -7,7 +7,7 @@ departures from Toyama & Blake 2002). Its parameters are every field of
 ``seed`` and ``init``. This stage adapts the tracker to the pipeline's particle messages:
 
 * Inputs: ``frames`` of frame t (colour or grey; the appearance channels are computed here
-  from the grey levels) and ``proposals`` for frame t from ``appearance.proposal`` (a random
+  from the grey levels, and the colour bins of the colour cue from the colours) and ``proposals`` for frame t from ``appearance.proposal`` (a random
   walk on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)).
 * Outputs: ``particles`` (the resampled posterior of t, alpha = (x, y, 0, s)) and
   ``estimate``: the box, the posterior mean and std of alpha, the ESS, the data path
@@ -28,8 +28,9 @@ on caviar1, measured before the channels were made faster); ``--inline`` compute
 ``step``. The bits are the same either way.
 
 State for ``snapshot()`` / ``restore()``: the three exemplars, the particle cloud, the velocity,
-the moments of the target's and the clutter's distance distributions, the hidden-frame count
-and counters, as msgpack of a small Struct (version 2).
+the moments of the target's and the clutter's distance distributions, the colour histograms and
+their distance moments, the hidden-frame count and counters, as msgpack of a small Struct
+(version 4).
 """
 
 from __future__ import annotations
@@ -58,7 +59,7 @@ from .tracker_params import stage_params, tracker_params
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
 
-SNAPSHOT_VERSION = 3
+SNAPSHOT_VERSION = 4
 
 
 AppearanceFilterParams = stage_params(
@@ -83,6 +84,10 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # the same of the clutter's best distance
     hidden_run: int = 0
     back: float = 0.0  # filtered P(present) of the last frame while the target is hidden
+    colour0: NDArray | None = None  # colour histograms: the first box's and the running one (None: no colour cue)
+    colour: NDArray | None = None
+    ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # moments of the target's and the clutter's colour distance
+    cclutter: tuple[float, float, int] = (0.0, 0.0, 0)
     steps: int = 0
     last: dict = {}
 
@@ -119,11 +124,12 @@ class AppearanceFilterStage(Stage[AppearanceStageFields]):
         """(grey (H, W) uint8, the tracker's observation of it, or the UnusableFrame a uniform frame
         raised). Raises MessageError or ValueError for an image that cannot be read."""
         assert isinstance(msg, Frame)
-        grey = to_grey(msg.image.array())
+        image = msg.image.array()
         try:
-            return grey, TRACKER.observe_grey(self.core, grey)
+            obs = TRACKER.observe(self.core, image)
+            return obs.grey, obs
         except UnusableFrame as e:
-            return grey, e
+            return to_grey(image), e
 
     def _observe(self, frame: Frame | None, seq: int) -> AppearanceObservation | None:
         """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
@@ -219,7 +225,11 @@ class AppearanceFilterStage(Stage[AppearanceStageFields]):
             slow=NDArray.of(st.slow), particles=NDArray.of(st.particles), centre=(float(st.centre[0]), float(st.centre[1])),
             log_s=float(st.log_s), velocity=(float(st.velocity[0]), float(st.velocity[1])),
             target=(st.target.m1, st.target.m2, st.target.n), clutter=(st.clutter.m1, st.clutter.m2, st.clutter.n),
-            hidden_run=int(st.hidden_run), back=float(st.back), steps=self.steps, last=self.last))
+            hidden_run=int(st.hidden_run), back=float(st.back),
+            colour0=None if st.colour0 is None else NDArray.of(st.colour0),
+            colour=None if st.colour is None else NDArray.of(st.colour),
+            ctarget=(st.ctarget.m1, st.ctarget.m2, st.ctarget.n), cclutter=(st.cclutter.m1, st.cclutter.m2, st.cclutter.n),
+            steps=self.steps, last=self.last))
 
     def restore(self, data: bytes) -> None:
         name = self.ctx.name
@@ -238,13 +248,16 @@ class AppearanceFilterStage(Stage[AppearanceStageFields]):
                     and snap.particles is not None)
             anchor, recent, slow = snap.anchor.array().copy(), snap.recent.array().copy(), snap.slow.array().copy()
             parts = snap.particles.array().copy()
+            colour0 = None if snap.colour0 is None else snap.colour0.array().copy()
+            colour = None if snap.colour is None else snap.colour.array().copy()
         except (AssertionError, MessageError, ValueError) as e:
             raise ValueError(f"stage {name!r}: bad appearance snapshot: {e}") from None
         core = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
                                   recent=recent, particles=parts, centre=np.array(snap.centre), log_s=snap.log_s,
                                   velocity=np.array(snap.velocity), slow=slow, target=ap.ChiSquare(*snap.target),
                                   clutter=ap.ChiSquare(*snap.clutter), hidden_run=snap.hidden_run,
-                                  back=snap.back)
+                                  back=snap.back, colour0=colour0, colour=colour,
+                                  ctarget=ap.ChiSquare(*snap.ctarget), cclutter=ap.ChiSquare(*snap.cclutter))
         # the target as the last estimate judged it (what a coasted frame reports)
         self.state = AppearanceTrack(core, str(self.last.get("target_state", "occluded")))
         self.shape = None

@@ -42,3 +42,24 @@ def test_crossing_inline(crossing, tmp_path, gflow_cmd):
     assert res["frames"] == 120 and res["missing_predictions"] == 0
     assert res["cle_px"] < still.cle / 2.5
     assert res["success_rate_0.5"] > 3 * still.success
+
+
+def test_david_indoor_face_found_again_after_sixty_hidden_frames_by_its_colour(tmp_path, gflow_cmd):
+    """david_indoor's stress case `occlude-60` (seed 1): after the window David has turned and walked
+    into the light, and his face matches the edge exemplars no better than the background; its colour
+    still does. With the colour cue the face is got back; with the edges alone it is not."""
+    from tests.conftest import data_dir
+
+    data = data_dir("david_indoor").parent
+    after = {}
+    for colour in ("true", "false"):
+        r = subprocess.run([*gflow_cmd, "benchmark", str(data), "--stress", "--sequences", "david_indoor", "--cases",
+                            "occlude-60", "--trackers", "appearance", "--opencv", "none", "--inline", "-q", "--json",
+                            "--seed", "1", "--stress-cache", str(tmp_path / "cache"), "--set", f"filter.colour={colour}"],
+                           capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+        row = [x for x in json.loads(r.stdout)["rows"] if x["kind"] == "tracker"][0]
+        after[colour] = (row["back"], row["after"])
+    print(after)
+    assert after["true"][0] and after["true"][1] >= 0.8, after
+    assert not after["false"][0], f"the edges alone got it back too: the case no longer tests colour ({after})"

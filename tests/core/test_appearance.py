@@ -345,3 +345,61 @@ def test_the_clutter_is_learnt_only_while_the_target_is_present():
         assert any(moved) == while_hidden, moved
         seen = [i for i in range(1, 39) if res[i].state.hidden_run == 0]
         assert all(res[i].state.clutter != res[i - 1].state.clutter for i in seen)
+
+
+def _colour_scene(t: int, seed: int = 5) -> tuple[np.ndarray, tuple[float, float, float, float] | None]:
+    """A BGR frame of muted colour texture. A reddish textured box sits at the left until frame 20,
+    is gone (hidden) until frame 45, and then stands 150 px to the right with a new texture of the
+    same hue: its edges match nothing the tracker learnt, its colour does. Returns the frame and the
+    true box (None while hidden)."""
+    rng = np.random.default_rng(seed)
+    bg = np.dstack([_texture(rng, H, W, 10.0) * 0.5 + 60.0 for _ in range(3)])
+    tex_before, tex_after = _texture(rng, 40, 30, 4.0), _texture(rng, 40, 30, 7.0)
+    img = bg.copy()
+    box = None
+    if t < 20 or t >= 45:
+        x, y = (60, 100) if t < 20 else (210, 90)
+        tex = tex_before if t < 20 else tex_after
+        # hue of red-orange: B low, G middle, R high, textured in brightness
+        img[y:y + 40, x:x + 30] = np.dstack([0.15 * tex, 0.45 * tex, 0.4 * tex + 150.0])
+        box = (float(x), float(y), 30.0, 40.0)
+    img = img + np.random.default_rng([seed, t]).normal(0, 3.0, img.shape)
+    return np.clip(img, 0, 255).astype(np.uint8), box
+
+
+@pytest.mark.parametrize("colour", [True, False])
+def test_a_target_back_with_a_new_texture_is_found_by_its_colour(colour):
+    """The target comes back after 25 hidden frames far away and with new edges: with the colour cue
+    the search finds it (the edges alone call it clutter and never do)."""
+    from gflow_core import colour as col
+
+    params = ap.AppearanceParams()
+    img0, box0 = _colour_scene(0)
+    assert box0 is not None
+    dyn = random_walk(0.08 * np.sqrt(box0[2] * box0[3]), 0.0, params.std_log_s)
+
+    def bins(img: np.ndarray) -> np.ndarray | None:
+        return col.bins(img) if colour else None
+
+    st = ap.initialise(ap.features(cv2.cvtColor(img0, cv2.COLOR_BGR2GRAY)), box0, params,
+                       np.random.default_rng([1, 0]), bins(img0))
+    hidden_said, ious = [], []
+    for t in range(1, 90):
+        img, truth = _colour_scene(t)
+        a = np.column_stack([st.particles[:, :2], np.zeros(len(st.particles)), np.exp(st.particles[:, 2])])
+        a = dyn.predict(a, np.random.default_rng([1, 1, t]))
+        prop = np.column_stack([a[:, :2], np.log(a[:, 3])])
+        res = ap.step(st, ap.features(cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)), prop, params,
+                      np.random.default_rng([1, 2, t]), bins=bins(img))
+        st = res.state
+        if truth is None and t >= 25:
+            hidden_said.append(res.target_state != "tracked")
+        if t >= 55:
+            assert truth is not None
+            ious.append(float(iou(np.array([res.box]), np.array([truth]))[0]))
+    assert np.mean(hidden_said) >= 0.7, "the hidden frames are reported occluded or lost either way"
+    back = float(np.mean(np.array(ious) >= 0.5))
+    if colour:
+        assert back >= 0.8, f"with colour the target is found again ({back:.2f} of the frames after)"
+    else:
+        assert back <= 0.2, f"the edges alone do not find the new texture ({back:.2f}): the scene tests colour"
