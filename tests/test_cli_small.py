@@ -16,7 +16,7 @@ from pipeline.runtime.build import apply_defaults
 from pipeline.recording.compare import field_diffs
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.launcher import Launcher
-from stages.messages import Header, NDArray, Particles, StageStatus, encode
+from stages.messages import Header, NDArray, Particles, Snapshot, StageStatus, encode
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -39,6 +39,19 @@ def test_field_differences_print_plain_numbers() -> None:
     b[1, 2] = 0.25
     (d,) = field_diffs(_particles(a), _particles(b))
     assert d.path == "alpha[1, 2]" and "(0.0 vs 0.25)" in d.detail and "np." not in d.detail
+
+
+def test_long_byte_fields_are_summarised_not_printed() -> None:
+    """A stage snapshot's bytes run to megabytes: a difference names the lengths and where they part."""
+    a = b"\x00" * 5000 + b"old" + b"\x01" * 5000
+    b = b"\x00" * 5000 + b"new" + b"\x01" * 6000
+    (d,) = field_diffs(encode(Snapshot(header=Header("s", 1, 0), stage="filter", kind="k", data=a)),
+                       encode(Snapshot(header=Header("s", 1, 0), stage="filter", kind="k", data=b)))
+    assert d.path == "data" and "10003 vs 11003 bytes, first different at 5000" in d.detail, d.detail
+    assert len(d.detail) < 200
+    (short,) = field_diffs(encode(Snapshot(header=Header("s", 1, 0), stage="filter", kind="k", data=b"ab")),
+                           encode(Snapshot(header=Header("s", 1, 0), stage="filter", kind="k", data=b"ac")))
+    assert short.detail == "b'ab' vs b'ac'"
 
 
 def test_progress_never_shows_a_stage_ahead_of_the_source() -> None:

@@ -45,6 +45,22 @@ def _array_diff(path: str, a: NDArray, b: NDArray) -> FieldDiff | None:
     return FieldDiff(path, "bytes differ")
 
 
+#: values longer than this are summarised, not printed (a snapshot's bytes run to megabytes)
+_SHOW = 60
+
+
+def _text_diff(path: str, a: bytes | str, b: bytes | str) -> FieldDiff:
+    """Two differing byte or text values: both in full when short, else their lengths and where
+    they first differ."""
+    if len(a) <= _SHOW and len(b) <= _SHOW:
+        return FieldDiff(path, f"{a!r} vs {b!r}")
+    n = min(len(a), len(b))
+    i = next((k for k in range(n) if a[k] != b[k]), n)
+    unit = "bytes" if isinstance(a, bytes) else "characters"
+    return FieldDiff(path, f"{len(a)} vs {len(b)} {unit}, first different at {i}: "
+                           f"{a[i:i + 16]!r}... vs {b[i:i + 16]!r}...")
+
+
 def _walk(path: str, a: Any, b: Any, out: list[FieldDiff]) -> None:
     if isinstance(a, NDArray) and isinstance(b, NDArray):
         d = _array_diff(path, a, b)
@@ -65,6 +81,8 @@ def _walk(path: str, a: Any, b: Any, out: list[FieldDiff]) -> None:
     elif isinstance(a, dict) and isinstance(b, dict):
         for k in sorted(set(a) | set(b), key=str):
             _walk(f"{path}.{k}", a.get(k), b.get(k), out)
+    elif isinstance(a, (bytes, str)) and isinstance(b, (bytes, str)) and type(a) is type(b) and a != b:
+        out.append(_text_diff(path, a, b))
     elif a != b and not (isinstance(a, float) and isinstance(b, float) and np.isnan(a) and np.isnan(b)):
         mag = abs(a - b) if isinstance(a, (int, float)) and isinstance(b, (int, float)) else float("nan")
         out.append(FieldDiff(path, f"{_num(a)} vs {_num(b)}", float(mag)))
