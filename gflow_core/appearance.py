@@ -95,9 +95,10 @@ video it was never trained on:
   - the search for a hidden target: the box of the current size with the best BC over the
     searched centres, placed and sized by the edges within one colour sample of it, is a
     candidate beside the edges' best of each size, weighed with both cues, the colour one as
-    the best of as many clutter draws as the colour search covered. Colour candidates join only once the target is judged hidden: on the
-    frames in doubt before, an occluder coming across leaves part of the target in view, and
-    the colour search followed it off the target (david_indoor ``sweep-40``, measured).
+    the best of as many clutter draws as the colour search covered. Colour candidates join
+    only once the target is judged hidden: on the frames in doubt before, an occluder coming
+    across leaves part of the target in view, and the colour search followed it off the target
+    (david_indoor ``sweep-40``, seed 1: after-window success 0.62 against 0.90).
 
   A grey video puts every pixel in the value bins: the cue is then a grey-level histogram,
   learnt the same way. Measured (docs/recovery.md) on the stress cases, seeds 1 / 2 / 3, against
@@ -391,15 +392,31 @@ class _ColourSeen:
     hist: np.ndarray
 
 
+def _colour_refs(st: AppearanceState) -> list[np.ndarray]:
+    """The colour references: the first box's histogram and the running one."""
+    assert st.colour0 is not None and st.colour is not None
+    return [st.colour0, st.colour]
+
+
+def _colour_distance(bins: np.ndarray, st: AppearanceState, centre: np.ndarray, sz: tuple[float, float]
+                     ) -> tuple[float, np.ndarray] | None:
+    """rho_c of the box of size ``sz`` (w, h) at ``centre``, and its histogram (N_BINS,); None for a
+    box with no sample in the frame."""
+    h = col.histogram(bins, centre, sz, col.stride_for(sz))
+    if h is None:
+        return None
+    # rho_c = 1 - max_k BC(p, q_k): the nearest colour reference (as the MAP exemplar)
+    return 1.0 - col.bhattacharyya(h, _colour_refs(st)), h
+
+
 def _colour_scan(bins: np.ndarray, st: AppearanceState, pred: np.ndarray, margin: float) -> col.Scan | None:
     """BC of the boxes of the current size (:func:`gflow_core.colour.scan`) with centres within
     ``margin`` px of the prediction and two box sizes at least (the clutter is taken one to two box
     sizes from the estimate)."""
-    assert st.colour0 is not None and st.colour is not None
     size = st.size0 * float(np.exp(st.log_s))
     sz = (float(size[0]), float(size[1]))
     reach = (max(margin, 2.0 * sz[0]), max(margin, 2.0 * sz[1]))
-    return col.scan(bins, pred, reach, sz, [st.colour0, st.colour], col.stride_for(sz))
+    return col.scan(bins, pred, reach, sz, _colour_refs(st), col.stride_for(sz))
 
 
 def _colour_at(bins: np.ndarray, st: AppearanceState, sc: col.Scan | None, centre: np.ndarray, log_s: float
@@ -407,25 +424,20 @@ def _colour_at(bins: np.ndarray, st: AppearanceState, sc: col.Scan | None, centr
     """rho_c = 1 - BC of the box at ``centre`` (:mod:`gflow_core.colour`), and the best 1 - BC of the
     scanned boxes ``sc`` one box size or more from it (the clutter: a histogram counts the whole
     box, so a box that overlaps the target shares its colours)."""
-    assert st.colour0 is not None and st.colour is not None
     size = st.size0 * float(np.exp(log_s))
     sz = (float(size[0]), float(size[1]))
-    stride = col.stride_for(sz)
-    refs = [st.colour0, st.colour]
-    h = col.histogram(bins, centre, sz, stride)
-    if h is None:
+    d = _colour_distance(bins, st, centre, sz)
+    if d is None:
         return None
-    # rho_c = 1 - max_k BC(p, q_k): the nearest colour reference (as the MAP exemplar)
-    rho = 1.0 - col.bhattacharyya(h, refs)
+    rho, h = d
     if sc is None:
         return _ColourSeen(rho, None, 0.0, h)
-    stride = sc.stride
     away = sc.away(centre, sz) & (np.abs(sc.xs - centre[0])[None, :] <= 2.0 * sz[0]) & (
         np.abs(sc.ys - centre[1])[:, None] <= 2.0 * sz[1])
     best = sc.best(away) if int(away.sum()) >= 16 else None
     if best is None:
         return _ColourSeen(rho, None, 0.0, h)
-    return _ColourSeen(rho, 1.0 - best[0], float(away.sum()) * stride * stride, h)
+    return _ColourSeen(rho, 1.0 - best[0], float(away.sum()) * sc.stride * sc.stride, h)
 
 
 def _colour_candidates(feat: np.ndarray, bins: np.ndarray, st: AppearanceState, hold: np.ndarray, run: int,
@@ -436,34 +448,29 @@ def _colour_candidates(feat: np.ndarray, bins: np.ndarray, st: AppearanceState, 
     target holds nearly the same colours, so colour is scanned at one size and the edges choose
     among the sizes (a scan a size costs three times as much and found the same place). Returns
     (candidate, its rho_c, the area the colour search covered) for each size."""
-    assert st.colour0 is not None and st.colour is not None
-    refs = [st.colour0, st.colour]
     size = st.size0 * float(np.exp(st.log_s))
     sz = (float(size[0]), float(size[1]))
     stride = col.stride_for(sz)
-    sc = col.scan(bins, hold, _search_margin(st, run, p), sz, refs, stride)
+    sc = col.scan(bins, hold, _search_margin(st, run, p), sz, _colour_refs(st), stride)
     best = sc.best() if sc is not None else None
     if sc is None or best is None:
         return []
     out = []
     for cand in redetect.search(feat, _exemplars(st, p), st.res, sz, best[1], (float(stride), float(stride)),
                                 tuple(p.search_scales), coarse_area=p.search_area):
-        csz = (sz[0] * float(np.exp(cand.log_f)), sz[1] * float(np.exp(cand.log_f)))
-        h = col.histogram(bins, cand.centre, csz, col.stride_for(csz))
-        if h is not None:
-            out.append((cand, 1.0 - col.bhattacharyya(h, refs), sc.area))
+        f = float(np.exp(cand.log_f))
+        d = _colour_distance(bins, st, cand.centre, (sz[0] * f, sz[1] * f))
+        if d is not None:
+            out.append((cand, d[0], sc.area))
     return out
 
 
 def _colour_cue(bins: np.ndarray | None, st: AppearanceState, cand: redetect.Candidate) -> tuple[Cue, ...]:
     """The colour cue of an edge search candidate (one draw: the edges picked it)."""
-    assert bins is not None and st.colour0 is not None and st.colour is not None
+    assert bins is not None
     size = st.size0 * float(np.exp(st.log_s + cand.log_f))
-    sz = (float(size[0]), float(size[1]))
-    h = col.histogram(bins, cand.centre, sz, col.stride_for(sz))
-    if h is None:
-        return ()
-    return (Cue(1.0 - col.bhattacharyya(h, [st.colour0, st.colour]), st.ctarget, st.cclutter),)
+    d = _colour_distance(bins, st, cand.centre, (float(size[0]), float(size[1])))
+    return () if d is None else (Cue(d[0], st.ctarget, st.cclutter),)
 
 
 def _search_lost(feat: np.ndarray, st: AppearanceState, hold: np.ndarray, run: int, p: AppearanceParams
