@@ -33,7 +33,7 @@ import numpy as np
 
 from .features import to_uint8
 
-__all__ = ["N_BINS", "Scan", "bins", "stride_for", "histogram", "bhattacharyya", "scan", "SAMPLES_PER_BOX"]
+__all__ = ["N_BINS", "Scan", "bins", "is_grey", "stride_for", "histogram", "bhattacharyya", "scan", "SAMPLES_PER_BOX"]
 
 #: hue x saturation bins of the coloured pixels, and value bins of the rest (Perez et al. 2002)
 N_H, N_S, N_V = 10, 10, 10
@@ -61,6 +61,14 @@ def bins(image: np.ndarray) -> np.ndarray:
     # hue 0..179 (OpenCV's), saturation and value 0..255
     hs = (h * N_H // 180) * N_S + s * N_S // 256
     return np.where(coloured, hs, N_H * N_S + v * N_V // 256).astype(np.uint8)
+
+
+def is_grey(image: np.ndarray) -> bool:
+    """Whether ``image`` has no colour: ``(H, W)`` or one channel, or its channels all equal (a grey
+    video stored as colour)."""
+    if image.ndim == 2 or image.shape[2] == 1:
+        return True
+    return bool(np.array_equal(image[..., 0], image[..., 1]) and np.array_equal(image[..., 1], image[..., 2]))
 
 
 def stride_for(size: tuple[float, float]) -> int:

@@ -53,6 +53,8 @@ class ContourParams:
     lost_growth: float = param(0.1, "the re-detection window widens by this many box sizes a lost frame")
     lost_scales: tuple[float, ...] = param((1.0,), "sizes (multiples of the held size) searched when re-detecting "
                                                    "(1.0 first)")
+    lost_colour: bool = param(True, "the lost guard weighs the box's colour histogram too, against the initial "
+                                    "box's (on colour frames; gflow_core.m2.lost)")
     fit_shape: bool = param(True, "stretch a learned model's item frame to the initial box's aspect ratio")
     box: str = param("reference", "the estimate's box with a learned model: reference (the reference box under "
                                   "alpha) or exemplar (bounding box of T_alpha x~_k)")

@@ -36,7 +36,7 @@ from typing import Any, Literal, Mapping, cast
 
 import numpy as np
 
-from . import features
+from . import colour, features
 from .contour_params import ChamferParams, ContourParams, EdgeParams, M2Params
 from .contour_dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
 from .contour_tracker import FILTER, ContourObservation, ContourState, setup
@@ -52,9 +52,11 @@ __all__ = ["ContourTracker", "ContourFrame", "ContourTrack", "CHAMFER", "M2", "p
 
 @dataclass(frozen=True)
 class ContourFrame:
-    """What the contour trackers read of a frame: grey : (H, W) uint8 grey levels."""
+    """What the contour trackers read of a frame: grey : (H, W) uint8 grey levels; bins : (H, W) uint8
+    colour bins (:func:`gflow_core.colour.bins`) for the lost guard's colour cue, or None."""
 
     grey: np.ndarray
+    bins: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -90,8 +92,12 @@ class ContourTracker:
 
     def observe(self, params: ContourParams, image: np.ndarray) -> ContourFrame:
         """The grey levels of a ``(H, W, 3)`` BGR or ``(H, W)`` grey frame (``ValueError`` for one that
-        is not an image). A uniform frame is not refused: it has no edges, a blank frame (no evidence)."""
-        return ContourFrame(features.to_grey(image))
+        is not an image), and its colour bins where the lost guard weighs colour (a frame with colour:
+        not a grey one, whose grey levels the edges already read). A uniform frame is not
+        refused: it has no edges, a blank frame (no evidence)."""
+        grey = features.to_grey(image)
+        use = params.lost_guard and params.lost_colour and not colour.is_grey(image)
+        return ContourFrame(grey, colour.bins(image) if use else None)
 
     def features(self, params: ContourParams, frame: ContourFrame, edges: EdgeParams,
                  thresholds: tuple[float, float] | None, wants_grey: bool) -> ContourObservation:
@@ -105,7 +111,8 @@ class ContourTracker:
         blank = chamfer is not None and params.min_edges > 0 and int(np.count_nonzero(e)) < params.min_edges
         g = grey if wants_grey and grey.ndim == 2 and min(grey.shape) >= 3 else None
         channels = functools.cache(functools.partial(lostmod.channels, g)) if g is not None else None
-        return ContourObservation(edges=e, chamfer=chamfer, blank=blank, grey=g, channels=channels)
+        return ContourObservation(edges=e, chamfer=chamfer, blank=blank, grey=g, channels=channels,
+                                  bins=frame.bins if g is not None else None)
 
     def init(self, params: ContourParams, obs: ContourFrame, box: Box, rng: FrameRng,
              resources: Mapping[str, Any]) -> tuple[ContourTrack, Estimate]:

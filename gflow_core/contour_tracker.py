@@ -118,7 +118,9 @@ class ContourObservation:
     edges : (H, W) uint8 edge map; chamfer : (H, W) float chamfer image, or None when the frame is
     unusable (no evidence); blank : fewer than ``min_edges`` edge pixels (no evidence); grey :
     (H, W) uint8 grey image, or None (the appearance cues are skipped: chamfer only); channels :
-    () -> (H, W, 4) the lost guard's orientation channels of ``grey`` (computed when first asked).
+    () -> (H, W, 4) the lost guard's orientation channels of ``grey`` (computed when first asked);
+    bins : (H, W) uint8 colour bins of the frame (:func:`gflow_core.colour.bins`), or None (the lost
+    guard weighs no colour).
     """
 
     edges: np.ndarray | None
@@ -126,6 +128,7 @@ class ContourObservation:
     blank: bool = False
     grey: np.ndarray | None = None
     channels: Callable[[], np.ndarray] | None = None
+    bins: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -176,7 +179,7 @@ class ContourFilter:
         gp = guard_params(params)
         anchor = None
         if gp is not None and obs.grey is not None and obs.channels is not None:
-            anchor = lostmod.anchor_of(obs.channels(), setup_.init, gp)
+            anchor = lostmod.anchor_of(obs.channels(), setup_.init, gp, obs.bins if params.lost_colour else None)
         if setup_.learned is None:
             pts = template_from_edges(obs.edges, setup_.init, params.max_points)
             model = k1_model(pts, params.lam)
@@ -280,7 +283,8 @@ class ContourFilter:
             return post, phase, st
         ch = obs.channels()
         box = self.box(params, st, post.map_alpha, post.map_k)
-        seen = lostmod.observe(ch, st.anchor, box, gp)
+        bins = obs.bins if params.lost_colour else None
+        seen = lostmod.observe(ch, st.anchor, box, gp, bins)
         lost_st, vis, lost = lostmod.judge(st.lost, seen, (*box, *post.map_alpha, post.map_k), gp)
         if not lost:
             return post, phase, replace(st, lost=lost_st, judged=(
@@ -289,7 +293,7 @@ class ContourFilter:
         assert held is not None
         h_box, h_alpha, h_k = (held[0], held[1], held[2], held[3]), np.array(held[4:8]), int(held[8])
         cand, cvis, covers = lostmod.search(ch, st.anchor, h_box, lost_st, gp, tuple(params.lost_scales),
-                                            None if seen.clutter is None else seen.clutter[1])
+                                            None if seen.clutter is None else seen.clutter[1], bins)
         alpha = post.resampled.alpha.copy()
         centre = np.array([h_box[0] + (h_box[2] - 1) / 2.0, h_box[1] + (h_box[3] - 1) / 2.0])
         if cand is not None and cvis is not None and cvis.present:

@@ -23,7 +23,7 @@ import msgspec
 import numpy as np
 
 __all__ = [
-    "Header", "NDArray", "Frame", "Features", "Particles", "Estimate", "ErrorReport", "EndOfStream",
+    "Header", "NDArray", "Frame", "Features", "ColourFeatures", "Particles", "Estimate", "ErrorReport", "EndOfStream",
     "StageStatus", "Control", "Snapshot", "Capture", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
     "MessageError",
 ]
@@ -57,6 +57,15 @@ class Features(msgspec.Struct, frozen=True, tag=True):
     g0: float
     grad_x: NDArray | None = None
     grad_y: NDArray | None = None
+
+
+class ColourFeatures(Features, frozen=True, tag=True):
+    """:class:`Features` of a colour frame with its colour bins (H, W) uint8
+    (:func:`gflow_core.colour.bins`), for the contour trackers' lost guard. A type of its own, not a
+    field of :class:`Features`, so features without bins encode as they always did (recordings made
+    before re-run bit for bit)."""
+
+    bins: NDArray | None = None
 
 
 class Particles(msgspec.Struct, frozen=True, tag=True):
@@ -189,7 +198,7 @@ class Control(msgspec.Struct, frozen=True, tag=True):
 
 from .messages_gflow import ExpertStates, PoseEstimate, PoseProposals  # noqa: E402
 
-Message = Union[Frame, Features, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control, Snapshot,
+Message = Union[Frame, Features, ColourFeatures, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control, Snapshot,
                 ExpertStates, PoseProposals, PoseEstimate, Capture]
 MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in typing.get_args(Message)}
 

@@ -34,9 +34,11 @@ the reference box under the MAP alpha (centre u, size s * ref_size, so frame 0's
 init box); ``box: exemplar`` is the paper's bounding box of T_alpha x~_k.
 
 Lost target (departure: the paper is silent; :mod:`gflow_core.m2.lost`): each tracked frame's
-estimate is verified against the initial box by the correlation of edge-orientation channels,
-and judged from the distributions of that distance (the target's, chi-squared as in the
-paper's sec. 3, and the clutter's around it, :mod:`gflow_core.visibility`). A lost target
+estimate is verified against the initial box by the correlation of edge-orientation channels
+and, where the features carry the frame's colour bins (the preprocess stage's ``colour``, on in
+the chamfer and m2 graphs), by the distance of the box's colour histogram to the initial box's
+(``lost_colour``), and judged from the distributions of those distances (the target's,
+chi-squared as in the paper's sec. 3, and the clutter's around it, :mod:`gflow_core.visibility`). A lost target
 (state ``lost``) has the estimate of the last found frame held, the particles kept within
 ``lost_window`` box sizes of it, and the initial box searched for over a window that widens by
 ``lost_growth`` box sizes a frame up to the whole frame, at the sizes ``lost_scales``; a
@@ -58,7 +60,8 @@ problem is reported; it never stops the stream.
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
 the lost guard's distance distributions, held estimate and anchor, and counters, as msgpack of a
-small Struct (version 3; version-1 and -2 snapshots still restore, with a fresh guard).
+small Struct (version 4; version-1 and -2 snapshots still restore, with a fresh guard, and
+version-3 ones with a guard that weighs no colour).
 """
 
 from __future__ import annotations
@@ -70,6 +73,7 @@ from typing import Any, ClassVar, Mapping
 import msgspec
 import numpy as np
 
+from gflow_core import colour
 from gflow_core.contour_params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour_tracker import FILTER, ContourObservation, ContourSetup, ContourState, \
     restore_model, setup
@@ -82,7 +86,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
-from .messages import Estimate, Features, Header, Message, MessageError, NDArray, Particles
+from .messages import ColourFeatures, Estimate, Features, Header, Message, MessageError, NDArray, Particles
 from .particle_proposal import cloud_of, particles_msg
 from .rng import tracker_rng
 from .tracker_params import StageFields, stage_params, tracker_params
@@ -90,7 +94,7 @@ from .tracker_params import StageFields, stage_params, tracker_params
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
 
-SNAPSHOT_VERSION = 3
+SNAPSHOT_VERSION = 4
 
 
 class FilterFields(StageFields, frozen=True):
@@ -160,6 +164,9 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     held: tuple[float, ...] | None = None  # lost guard: box (x, y, w, h), alpha (4) and k of the last found frame
     anchor: NDArray | None = None  # lost guard: (th, tw, 4) channels of the initial box
     judged: tuple[float, str] = (1.0, "tracked")  # confidence and target_state of the last estimate
+    anchor_colour: NDArray | None = None  # lost guard (version 4): (N_BINS,) colour histogram of the initial box
+    lost_ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the target's colour distance
+    lost_cclutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of the clutter's best colour distance
 
 
 class FilterStage(Stage[FilterFields]):
@@ -251,7 +258,24 @@ class FilterStage(Stage[FilterFields]):
             edges = feat.edges.array()
         except MessageError:
             edges = None
-        return ContourObservation(edges=edges, chamfer=cham, blank=blank, grey=grey, channels=channels)
+        bins = self._bins(feat, grey, seq) if self.core.lost_guard and self.core.lost_colour else None
+        return ContourObservation(edges=edges, chamfer=cham, blank=blank, grey=grey, channels=channels, bins=bins)
+
+    def _bins(self, feat: Features, grey: np.ndarray | None, seq: int) -> np.ndarray | None:
+        """The frame's colour bins (None: not sent -- a recording made before them -- or unusable, reported:
+        the lost guard then weighs the edges alone)."""
+        if not isinstance(feat, ColourFeatures) or feat.bins is None or grey is None:
+            return None
+        try:
+            bins = feat.bins.array()
+        except MessageError as e:
+            self.report("bad_features", f"frame {seq}: colour bins: {e}; edges only", seq)
+            return None
+        if bins.shape != grey.shape or bins.dtype != np.uint8:
+            self.report("bad_features", f"frame {seq}: colour bins of {bins.dtype} {bins.shape}, not uint8 "
+                                        f"{grey.shape}; edges only", seq)
+            return None
+        return bins
 
     def _check_profile(self, feat: Features, seq: int) -> None:
         m = self.setup.learned
@@ -355,7 +379,11 @@ class FilterStage(Stage[FilterFields]):
             lost_target=(lost.target.m1, lost.target.m2, lost.target.n),
             lost_clutter=(lost.clutter.m1, lost.clutter.m2, lost.clutter.n),
             lost_runs=(lost.found, lost.lost_run), judged=st.judged if st is not None else (1.0, "tracked"),
-            held=lost.held, anchor=None if st is None or st.anchor is None else NDArray.of(st.anchor.channels))
+            held=lost.held, anchor=None if st is None or st.anchor is None else NDArray.of(st.anchor.channels),
+            anchor_colour=None if st is None or st.anchor is None or st.anchor.colour is None
+            else NDArray.of(st.anchor.colour),
+            lost_ctarget=(lost.ctarget.m1, lost.ctarget.m2, lost.ctarget.n),
+            lost_cclutter=(lost.cclutter.m1, lost.cclutter.m2, lost.cclutter.n))
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
@@ -365,7 +393,8 @@ class FilterStage(Stage[FilterFields]):
             snap = msgspec.msgpack.decode(data, type=_FilterSnapshot)
         except msgspec.DecodeError as e:
             raise ValueError(f"stage {name!r}: not a particle.filter snapshot: {e}") from None
-        if snap.version not in (1, 2, SNAPSHOT_VERSION):  # 1: no online bank, learned widths; 1-2: older guard
+        # 1: no online bank, learned widths; 1-2: older guard; 3: no colour in the guard (it restores without)
+        if snap.version not in (1, 2, 3, SNAPSHOT_VERSION):
             raise ValueError(f"stage {name!r}: filter snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
         learned = self.setup.learned
         if snap.initialised and (snap.template is None) != (learned is not None):
@@ -407,16 +436,21 @@ class FilterStage(Stage[FilterFields]):
         lost = (LostState() if snap.lost_target is None or snap.lost_clutter is None else
                 LostState(target=ChiSquare(*snap.lost_target), clutter=ChiSquare(*snap.lost_clutter),
                           found=snap.lost_runs[0], lost_run=snap.lost_runs[1],
-                          held=None if snap.held is None else tuple(snap.held)))
+                          held=None if snap.held is None else tuple(snap.held),
+                          ctarget=ChiSquare(*snap.lost_ctarget), cclutter=ChiSquare(*snap.lost_cclutter)))
         anchor = None
         if snap.anchor is not None and p.init is not None:
             try:
                 ch = snap.anchor.array().copy()
+                hist = None if snap.anchor_colour is None else snap.anchor_colour.array().copy()
             except MessageError as e:
                 raise ValueError(f"stage {name!r}: bad filter snapshot: {e}") from None
             if ch.ndim != 3:
                 raise ValueError(f"stage {name!r}: bad filter snapshot: anchor of shape {ch.shape}")
-            anchor = Anchor(channels=ch, size=(float(p.init[2]), float(p.init[3])), res=(ch.shape[1], ch.shape[0]))
+            if hist is not None and hist.shape != (colour.N_BINS,):
+                raise ValueError(f"stage {name!r}: bad filter snapshot: colour histogram of shape {hist.shape}")
+            anchor = Anchor(channels=ch, size=(float(p.init[2]), float(p.init[3])), res=(ch.shape[1], ch.shape[0]),
+                            colour=hist)
         self.state = ContourState(self.setup, model, cloud, template=template, app=app, bank=bank, lost=lost,
                                   anchor=anchor, judged=(float(snap.judged[0]), str(snap.judged[1])))
 

@@ -1,4 +1,4 @@
-"""Preprocessing stage: grey levels, gradients, Canny edges and the chamfer image (M2 eq. 4-5).
+"""Preprocessing stage: grey levels, gradients, Canny edges, the chamfer image (M2 eq. 4-5) and colour bins.
 
 The edges and the chamfer image are :func:`gflow_core.features.edges_and_chamfer`, with the Canny
 thresholds of :func:`gflow_core.features.canny_calibrated` when ``calibrate_box`` is set: the
@@ -11,10 +11,10 @@ from typing import Literal, Mapping
 import msgspec
 import numpy as np
 
-from gflow_core import features
+from gflow_core import colour, features
 
 from .base import Output, Params, Stage, StageInputError
-from .messages import Features, Frame, Message, MessageError, NDArray
+from .messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
 
 __all__ = ["PreprocessStage", "PreprocessParams"]
 
@@ -40,6 +40,8 @@ class PreprocessParams(Params, frozen=True):
     edges: compute the Canny edges and the chamfer image (default). Off, ``edges`` and
     ``chamfer`` travel as empty arrays: for trackers that read only the grey image (G-flow),
     which saves the distance transform and 450 KB a frame at 320x240 on every hop.
+    colour: also send the colour bins (:func:`gflow_core.colour.bins`, one byte a pixel) of a frame
+    that has colour (none for a grey frame), for the contour trackers' lost guard.
     """
 
     canny_low: float | None = None
@@ -51,6 +53,7 @@ class PreprocessParams(Params, frozen=True):
     g0: float = 100.0
     gradients: bool = False
     edges: bool = True
+    colour: bool = False
 
 
 class PreprocessStage(Stage[PreprocessParams]):
@@ -76,7 +79,7 @@ class PreprocessStage(Stage[PreprocessParams]):
         except (MessageError, ValueError) as e:
             raise StageInputError(f"frame {seq}: {e}") from None
         if not p.edges:
-            return [("features", self._grey_only(frame, grey))]
+            return [("features", self._grey_only(frame, img, grey))]
         if self.thresholds is None and p.calibrate_box is not None:
             try:
                 self.thresholds = features.canny_calibrated(grey, p.blur, p.canny_percentile, p.calibrate_box)
@@ -86,9 +89,9 @@ class PreprocessStage(Stage[PreprocessParams]):
         edges, cham = features.edges_and_chamfer(grey, self.thresholds, p.blur, p.canny_percentile, p.profile, p.g0)
         gx, gy = self._gradients(grey)
         self.done += 1
-        msg = Features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(edges),
-                       chamfer=NDArray.of(cham.astype(np.float32)), profile=p.profile, g0=p.g0,
-                       grad_x=gx, grad_y=gy)
+        msg = self._features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(edges),
+                             chamfer=NDArray.of(cham.astype(np.float32)), profile=p.profile, g0=p.g0,
+                             grad_x=gx, grad_y=gy, img=img)
         return [("features", msg)]
 
     def _gradients(self, grey: np.ndarray) -> tuple[NDArray | None, NDArray | None]:
@@ -97,12 +100,20 @@ class PreprocessStage(Stage[PreprocessParams]):
         gxa, gya = features.gradients(grey)
         return NDArray.of(gxa), NDArray.of(gya)
 
-    def _grey_only(self, frame: Frame, grey: np.ndarray) -> Features:
+    def _grey_only(self, frame: Frame, img: np.ndarray, grey: np.ndarray) -> Features:
         p = self.params
         gx, gy = self._gradients(grey)
         self.done += 1
-        return Features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(np.zeros(0, np.uint8)),
-                        chamfer=NDArray.of(np.zeros(0, np.float32)), profile=p.profile, g0=p.g0, grad_x=gx, grad_y=gy)
+        return self._features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(np.zeros(0, np.uint8)),
+                              chamfer=NDArray.of(np.zeros(0, np.float32)), profile=p.profile, g0=p.g0, grad_x=gx,
+                              grad_y=gy, img=img)
+
+    def _features(self, img: np.ndarray, **fields) -> Features:
+        """The message: :class:`ColourFeatures` with the frame's colour bins when asked for and the frame
+        has colour, else :class:`Features` (a grey frame has no colour)."""
+        if self.params.colour and not colour.is_grey(img):
+            return ColourFeatures(**fields, bins=NDArray.of(colour.bins(img)))
+        return Features(**fields)
 
     def summary(self) -> dict:
         return {"frames": self.done, "canny_thresholds": self.thresholds}

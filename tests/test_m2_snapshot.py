@@ -7,6 +7,7 @@ filter with a learned shuffle model, on the synthetic scene (no data folder need
 
 from __future__ import annotations
 
+import msgspec
 import numpy as np
 import pytest
 
@@ -14,8 +15,8 @@ from gflow_core.m2 import training
 from gflow_core.m2.learn import learn
 from gflow_core.synthetic import SyntheticScene
 from stages.base import StageContext
-from stages.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
-from stages.particle_filter import FilterParams, FilterStage
+from stages.messages import ColourFeatures, Estimate, Frame, Header, NDArray, Particles, decode, encode
+from stages.particle_filter import FilterParams, FilterStage, _FilterSnapshot
 from stages.particle_proposal import ProposalParams, ProposalStage
 from stages.patch_filter import PatchFilterParams, PatchFilterStage
 from stages.preprocess import PreprocessParams, PreprocessStage
@@ -31,7 +32,8 @@ def scene_features():
     """Features of the synthetic scene (first frames) and its first truth box."""
     scene = SyntheticScene(width=160, height=120, n_frames=N_FRAMES, seed=3, noise=4.0)
     box = scene.truth_box(0)
-    pre = PreprocessStage(PreprocessParams(calibrate_box=box, profile="quadratic"), StageContext("preprocess", "s"))
+    pre = PreprocessStage(PreprocessParams(calibrate_box=box, profile="quadratic", colour=True),
+                          StageContext("preprocess", "s"))
     feats, frames = [], []
     for t in range(N_FRAMES):
         img = scene.render(t)
@@ -83,6 +85,23 @@ def test_chamfer_filter_restore_is_bit_exact(scene_features) -> None:
     outs = _check_restore(lambda: FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx),
                           lambda: ProposalStage(ProposalParams(seed=4), StageContext("proposal", "s")), feats)
     assert len(outs) > 2 * N_FRAMES
+    # the lost guard weighed colour (the scene is in colour), and its colour model was restored
+    assert isinstance(feats[0], ColourFeatures) and feats[0].bins is not None
+    f = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
+    _run(f, ProposalStage(ProposalParams(seed=4), StageContext("proposal", "s")), feats[: SNAP_AT + 1], 0, None)
+    g = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
+    g.restore(f.snapshot())
+    assert f.state is not None and g.state is not None and f.state.anchor is not None and g.state.anchor is not None
+    assert f.state.lost.ctarget.n > 0 and g.state.lost.ctarget == f.state.lost.ctarget
+    assert np.array_equal(g.state.anchor.colour, f.state.anchor.colour)
+    # a version-3 snapshot (before the colour cue) restores with a guard that weighs the edges alone
+    snap = msgspec.msgpack.decode(f.snapshot(), type=_FilterSnapshot)
+    old = msgspec.structs.replace(snap, version=3, anchor_colour=None, lost_ctarget=(0.0, 0.0, 0),
+                                  lost_cclutter=(0.0, 0.0, 0))
+    h = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
+    h.restore(msgspec.msgpack.encode(old))
+    assert h.state is not None and h.state.anchor is not None and h.state.anchor.colour is None
+    assert h.state.lost.target == f.state.lost.target and h.state.lost.ctarget.n == 0
     # a snapshot before the first frame restores to an uninitialised filter
     fresh = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
     again = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)

@@ -27,6 +27,21 @@ first patch):
   threshold on r: the distributions are learned on the video being tracked. (The fixed
   thresholds this replaces -- half the running level, a floor of 0.25, re-detection at 0.9
   of the level and at least 0.4 -- were chosen on the shared sequences.)
+* **Colour, a second cue** (``colour`` bins given: the stage's features carry them when the
+  preprocess stage's ``colour`` is on, as in the chamfer and m2 graphs). Pedestrians side by side
+  have the same edges: on caviar1 the guard took the man walking beside the target for it after
+  an occluder left, and kept him. The box's hue-saturation histogram (:mod:`gflow_core.colour`,
+  the bins of Perez et al., ECCV 2002) is compared with the initial box's by rho_c = 1 - BC, BC
+  the Bhattacharyya coefficient. rho_c has its own target and clutter chi-squared
+  distributions, learnt as rho's are (the clutter: the best box of the estimate's size one to
+  two box sizes away, since a box that overlaps the target shares its colours), and given the
+  hypothesis the two distances are independent: their likelihoods multiply
+  (:class:`gflow_core.visibility.Cue`). Every re-detection candidate is weighed by its colour
+  as well. The anchor's histogram is never updated, like its channels; while the target's colour
+  distances are not below the clutter's on average the cue is left out (:func:`_cues`). A grey
+  video brings no bins (the stage sends them for colour frames only). Measured in
+  docs/recovery.md; a running histogram beside the anchor's (as the appearance tracker has) got
+  fewer cases back there.
 * **Hold and bound.** While lost, the reported estimate is the last found one, and the
   resampled particles are kept within ``window`` box sizes of it (positions beyond are
   clipped), so the posterior cannot run away on a low-likelihood target.
@@ -58,13 +73,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from .. import colour as col
 from .. import redetect
 from ..orientation import orientation_channels
 from ..regions import region
-from ..visibility import ChiSquare, Visibility, visibility
+from ..visibility import ChiSquare, Cue, Visibility, visibility
 
-__all__ = ["LostParams", "LostState", "Anchor", "Observation", "anchor_of", "verify", "observe", "judge",
-           "search", "found_again", "bound_positions", "channels"]
+__all__ = ["LostParams", "LostState", "Anchor", "Observation", "ColourSeen", "anchor_of", "verify", "observe",
+           "judge", "search", "found_again", "bound_positions", "channels"]
 
 
 @dataclass(frozen=True)
@@ -97,24 +113,38 @@ class LostParams:
 @dataclass(frozen=True)
 class Anchor:
     """Orientation channels of the initial box at resolution ``res`` (tw, th); ``size`` is
-    the box's (w, h) in image pixels."""
+    the box's (w, h) in image pixels; ``colour`` its colour histogram (N_BINS,) of
+    :mod:`gflow_core.colour`, or None (no colour cue)."""
 
     channels: np.ndarray
     size: tuple[float, float]
     res: tuple[int, int]
+    colour: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
 class LostState:
     """The target's and the clutter's distance distributions, found frames seen, consecutive
     lost frames, and the held estimate (x, y, w, h of the last found frame's box, plus the
-    model's state)."""
+    model's state), and the colour distance's distributions."""
 
     target: ChiSquare = ChiSquare()
     clutter: ChiSquare = ChiSquare()
     found: int = 0
     lost_run: int = 0
     held: tuple[float, ...] | None = None
+    ctarget: ChiSquare = ChiSquare()
+    cclutter: ChiSquare = ChiSquare()
+
+
+@dataclass(frozen=True)
+class ColourSeen:
+    """The colour cue at a box: rho_c = 1 - BC to the anchor's histogram, and the clutter's best
+    rho_c over boxes one to two box sizes away with the area (px^2) of their centres (None: too
+    few such boxes in the frame)."""
+
+    rho: float
+    clutter: tuple[float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -124,6 +154,7 @@ class Observation:
 
     r: float
     clutter: tuple[float, float] | None
+    colour: ColourSeen | None = None
 
 
 def channels(grey: np.ndarray) -> np.ndarray:
@@ -131,14 +162,19 @@ def channels(grey: np.ndarray) -> np.ndarray:
     return orientation_channels(grey)
 
 
-def anchor_of(feat: np.ndarray, box: tuple[float, float, float, float], p: LostParams) -> Anchor:
-    """The anchor: ``feat``'s region of ``box`` (x, y, w, h) at no more than ``max_area`` pixels."""
+def anchor_of(feat: np.ndarray, box: tuple[float, float, float, float], p: LostParams,
+              bins: np.ndarray | None = None) -> Anchor:
+    """The anchor: ``feat``'s region of ``box`` (x, y, w, h) at no more than ``max_area`` pixels and,
+    with the frame's colour bins ``bins`` (H, W) uint8 (:func:`gflow_core.colour.bins`), the box's
+    colour histogram."""
     x, y, w, h = (float(v) for v in box)
     f = min(1.0, float(np.sqrt(p.max_area / (w * h))))
     res = (max(6, int(round(w * f))), max(6, int(round(h * f))))
     k = res[0] / w
-    ch = region(feat, np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0]), (res[0] / k, res[1] / k), k)
-    return Anchor(channels=ch[: res[1], : res[0]].copy(), size=(w, h), res=res)
+    c = np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0])
+    ch = region(feat, c, (res[0] / k, res[1] / k), k)
+    hist = None if bins is None else col.histogram(bins, c, (w, h), col.stride_for((w, h)))
+    return Anchor(channels=ch[: res[1], : res[0]].copy(), size=(w, h), res=res, colour=hist)
 
 
 def _scale(anchor: Anchor, box: tuple[float, float, float, float]) -> float:
@@ -157,14 +193,55 @@ def verify(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, flo
     return observe(feat, anchor, box, None).r
 
 
-def observe(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, float], p: LostParams | None
-            ) -> Observation:
+def colour_at(bins: np.ndarray | None, anchor: Anchor, centre: np.ndarray, size: tuple[float, float],
+              clutter: bool = True) -> ColourSeen | None:
+    """The colour cue of the box of ``size`` (w, h) at ``centre``: rho_c = 1 - BC(p, q_0), q_0 the
+    anchor's histogram (Perez et al. 2002), and with ``clutter`` the best rho_c of the boxes of that
+    size whose centres lie one to two box sizes from it (a histogram counts the whole box, so a box
+    that overlaps the target shares its colours). None without bins, an anchor histogram or a sample
+    of the box in the frame."""
+    if bins is None or anchor.colour is None:
+        return None
+    stride = col.stride_for(size)
+    h = col.histogram(bins, centre, size, stride)
+    if h is None:
+        return None
+    # rho_c = 1 - BC(p, q_0)
+    rho = 1.0 - col.bhattacharyya(h, [anchor.colour])
+    if not clutter:
+        return ColourSeen(rho)
+    sc = col.scan(bins, centre, (2.0 * size[0], 2.0 * size[1]), size, [anchor.colour], stride)
+    if sc is None:
+        return ColourSeen(rho)
+    away = sc.away(centre, size)
+    best = sc.best(away) if int(away.sum()) >= 16 else None
+    if best is None:
+        return ColourSeen(rho)
+    return ColourSeen(rho, (1.0 - best[0], float(away.sum()) * stride * stride))
+
+
+def _cues(seen: ColourSeen | None, st: LostState, trials: float = 1.0) -> tuple[Cue, ...]:
+    """The colour cue of :func:`gflow_core.visibility.visibility`: none without colour, and none while
+    the target's colour distances are not below the clutter's on average. The hypotheses read a
+    distance one-sidedly (closer than usual is the target), which holds only for a cue that tells
+    the target from clutter: on david_indoor the face walks from the dark room of the first box into
+    bright light, its colour distance to the anchor rises to about 0.8 while the best box beside it
+    stays near 0.3, and a dark patch far away then read as the face (chamfer 9.4 -> 16.0 px)."""
+    if seen is None or not (st.ctarget.n and st.cclutter.n) or st.ctarget.mean() >= st.cclutter.mean():
+        return ()
+    return (Cue(seen.rho, st.ctarget, st.cclutter, trials=trials),)
+
+
+def observe(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, float], p: LostParams | None,
+            bins: np.ndarray | None = None) -> Observation:
     """r of the anchor at ``box`` and, with ``p``, the clutter's best r over centres within
-    ``p.ring`` box sizes of it and farther than half a box (one correlation map)."""
+    ``p.ring`` box sizes of it and farther than half a box (one correlation map); with the
+    frame's colour bins ``bins``, the colour cue (:func:`colour_at`)."""
     s = _scale(anchor, box)
     c = _centre(box)
     if not (0 <= c[0] <= feat.shape[1] - 1 and 0 <= c[1] <= feat.shape[0] - 1):
         return Observation(r=-1.0, clutter=None)  # the estimate left the frame
+    seen = None if p is None else colour_at(bins, anchor, c, (float(box[2]), float(box[3])))
     k = anchor.res[0] / (anchor.size[0] * s)
     tw, th = anchor.res
     reach = 0.0 if p is None else p.ring
@@ -172,7 +249,7 @@ def observe(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, fl
     win = region(feat, c, (w * (1 + 2 * reach), h * (1 + 2 * reach)), k)
     if p is None or win.shape[0] <= th or win.shape[1] <= tw:
         z = np.ascontiguousarray(region(feat, c, (tw / k, th / k), k)[:th, :tw])
-        return Observation(r=float(redetect.ncc(z, anchor.channels)[0, 0]), clutter=None)
+        return Observation(r=float(redetect.ncc(z, anchor.channels)[0, 0]), clutter=None, colour=seen)
     # a flat window (no edges) has no correlation: 0, not the ratio of two rounding errors
     r = redetect.ncc(win, anchor.channels)
     Wn, Hn = win.shape[1], win.shape[0]
@@ -186,7 +263,8 @@ def observe(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, fl
     H, W = feat.shape[:2]
     r[(ys < 0) | (ys > H - 1), :] = -1.0
     r[:, (xs < 0) | (xs > W - 1)] = -1.0
-    return Observation(r=float(r[i, j]), clutter=redetect.clutter_best(r, origin, k, c, (0.5 * w, 0.5 * h)))
+    return Observation(r=float(r[i, j]), clutter=redetect.clutter_best(r, origin, k, c, (0.5 * w, 0.5 * h)),
+                       colour=seen)
 
 
 def judge(st: LostState, obs: Observation, held: tuple[float, ...], p: LostParams
@@ -195,8 +273,14 @@ def judge(st: LostState, obs: Observation, held: tuple[float, ...], p: LostParam
     lost?). ``held`` is what to hold if this frame is found. A lost target is found again at
     the estimate only where it looks as it did (P(visible) >= 1/2), not merely better than
     clutter."""
-    vis = visibility(1.0 - obs.r, st.target, st.clutter, p.min_std)
+    # the cues multiply under each hypothesis (gflow_core.visibility.Cue): edges, and colour when seen
+    vis = visibility(1.0 - obs.r, st.target, st.clutter, p.min_std, cues=_cues(obs.colour, st))
     clutter = st.clutter if obs.clutter is None else st.clutter.update(1.0 - obs.clutter[0], p.clutter_rate)
+    ctarget, cclutter = st.ctarget, st.cclutter
+    if obs.colour is not None:
+        ctarget = st.ctarget.update(obs.colour.rho, p.rate)
+        if obs.colour.clutter is not None:
+            cclutter = st.cclutter.update(obs.colour.clutter[0], p.clutter_rate)
     if obs.r <= -1.0:
         lost = st.found >= p.warmup or st.lost_run > 0
     elif st.found < p.warmup:
@@ -208,18 +292,20 @@ def judge(st: LostState, obs: Observation, held: tuple[float, ...], p: LostParam
         # may hold the target itself
         return replace(st, lost_run=st.lost_run + 1), vis, True
     return LostState(target=st.target.update(1.0 - obs.r, p.rate), clutter=clutter, found=st.found + 1, lost_run=0,
-                     held=tuple(float(v) for v in held)), vis, False
+                     held=tuple(float(v) for v in held), ctarget=ctarget, cclutter=cclutter), vis, False
 
 
 def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, float], st: LostState,
-           p: LostParams, scales: tuple[float, ...], ring_area: float | None
+           p: LostParams, scales: tuple[float, ...], ring_area: float | None, bins: np.ndarray | None = None
            ) -> tuple[redetect.Candidate | None, Visibility | None, bool]:
     """Search for the lost target around the held box (:func:`gflow_core.redetect.search`) over
     centres within ``window + growth * lost_run`` box sizes, at ``scales`` times the held size.
     Returns the first candidate (in the order of ``scales``) judged visible with its visibility,
     else the one of highest r (None, None when nothing was searched), and whether the searched
     region covered the whole frame. The caller resumes tracking on a candidate judged present. ``ring_area``: the area the clutter
-    distribution is learnt over (the search had area / ring_area times the chances)."""
+    distribution is learnt over (the search had area / ring_area times the chances). With the
+    frame's colour bins ``bins`` each candidate is weighed by its colour too (one draw of it: the
+    edges picked the candidate), so a look-alike of another colour is not taken for the target."""
     c = _centre(held)
     size = (float(held[2]), float(held[3]))
     reach = p.window + p.growth * max(st.lost_run - 1, 0)
@@ -233,7 +319,9 @@ def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, fl
     best: tuple[redetect.Candidate | None, Visibility | None] = (None, None)
     for cand in cands:  # the first size listed first: the anchor matches smaller boxes better as the look drifts
         trials = max(cand.area / ring_area, 1.0) if ring_area else 1.0
-        vis = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials)
+        f = float(np.exp(cand.log_f))
+        seen = colour_at(bins, anchor, cand.centre, (size[0] * f, size[1] * f), clutter=False)
+        vis = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials, cues=_cues(seen, st))
         if vis.visible >= 0.5:
             return cand, vis, covers
         if best[0] is None or cand.r > best[0].r:
@@ -242,9 +330,10 @@ def search(feat: np.ndarray, anchor: Anchor, held: tuple[float, float, float, fl
 
 
 def found_again(st: LostState, r: float, held: tuple[float, ...], p: LostParams) -> LostState:
-    """The state after a re-detection with correlation ``r`` placed the target at ``held``."""
+    """The state after a re-detection with correlation ``r`` placed the target at ``held`` (the colour
+    distributions learn again from the next found frame)."""
     return LostState(target=st.target.update(1.0 - r, p.rate), clutter=st.clutter, found=st.found + 1, lost_run=0,
-                     held=tuple(float(v) for v in held))
+                     held=tuple(float(v) for v in held), ctarget=st.ctarget, cclutter=st.cclutter)
 
 
 def bound_positions(xy: np.ndarray, centre: tuple[float, float], half: tuple[float, float]) -> np.ndarray:

@@ -105,3 +105,27 @@ def test_bins_accept_every_image_layout_the_tracker_accepts(shape):
     img = np.random.default_rng(3).integers(0, 255, size=shape, dtype=np.uint8)
     b = col.bins(img)
     assert b.shape == (30, 40) and b.dtype == np.uint8 and int(b.max()) < col.N_BINS
+
+
+def test_a_grey_frame_has_no_colour_and_the_preprocessing_sends_no_bins_for_it() -> None:
+    """A grey video stored as colour (three equal channels) has no colour: ``is_grey`` says so, and the
+    preprocess stage asked for colour bins sends them for a colour frame only (the contour trackers'
+    lost guard then weighs the edges alone)."""
+    from stages.base import StageContext
+    from stages.messages import Frame, Header, NDArray
+    from stages.preprocess import PreprocessParams, PreprocessStage
+
+    rng = np.random.default_rng(0)
+    grey = rng.integers(0, 256, (40, 50), dtype=np.uint8)
+    as_colour = np.repeat(grey[..., None], 3, axis=2)
+    tinted = as_colour.copy()
+    tinted[5, 7, 2] ^= 1  # one pixel whose channels differ
+    assert col.is_grey(grey) and col.is_grey(as_colour) and col.is_grey(grey[..., None])
+    assert not col.is_grey(tinted)
+    pre = PreprocessStage(PreprocessParams(colour=True), StageContext("preprocess", "s"))
+    sent = []
+    for t, img in enumerate((as_colour, tinted)):
+        (_, f), = pre.step(t, {"frames": Frame(Header("s", t, t * 40_000_000), NDArray.of(img))})
+        sent.append(getattr(f, "bins", None))
+    assert sent[0] is None and sent[1] is not None
+    assert np.array_equal(sent[1].array(), col.bins(tinted))

@@ -1,17 +1,24 @@
 """The lost-target guard of the contour particle filter (gflow_core.m2.lost): verification
 against the initial box, the lost decision, re-detection over a window, and, on the filter
 stage, a target that jumps beyond the reach of the proposals is found again (the paper's
-filter, with the guard off, stays behind)."""
+filter, with the guard off, stays behind); with the frame's colour the search refuses a look-alike
+of another colour that the edges alone would take back."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
+import cv2
+import msgspec
 import numpy as np
 import pytest
 
+from gflow_core import colour
 from gflow_core.m2 import lost
 from gflow_core.metrics import centre_error
+from gflow_core.visibility import ChiSquare
 from stages.base import StageContext
-from stages.messages import Frame, Header, NDArray
+from stages.messages import ColourFeatures, Frame, Header, NDArray
 from stages.particle_filter import FilterParams, FilterStage
 from stages.particle_proposal import ProposalParams, ProposalStage
 from stages.preprocess import PreprocessParams, PreprocessStage
@@ -140,3 +147,90 @@ def test_redetect_at_several_sizes_finds_a_grown_target() -> None:
     assert c1 is not None and c is not None
     assert np.isclose(np.exp(c.log_f), 1.15) and c.r > c1.r + 0.05 and c1.log_f == 0.0
     assert np.hypot(*(c.centre - [95.0, 75.0])) < 3.0
+
+
+def _two_lookalikes(cover: bool, t: int) -> tuple[np.ndarray, np.ndarray]:
+    """A reddish target at (40, 60) and, 75 px to its right, a bluish look-alike whose block pattern
+    differs in 9 of 30 blocks, on a background of coloured blocks; ``cover``: a patch of other
+    blocks hides the target. Returns the BGR frame (H, W, 3) and its grey levels (H, W)."""
+    rng = np.random.default_rng(3)
+    blocks = rng.integers(0, 2, (6, 5))
+    other = blocks.copy()
+    other.flat[rng.choice(30, 9, replace=False)] ^= 1
+    bg = np.kron(rng.uniform(60, 200, (20, 30, 3)), np.ones((8, 8, 1)))
+    noise = np.random.default_rng(t)
+    img = bg.copy()
+    for (x, y), pattern, tint in (((40, 60), blocks, (0.35, 0.45, 1.0)), ((115, 60), other, (1.0, 0.6, 0.35))):
+        tex = np.kron(pattern, np.ones((6, 6))) * 150 + 60
+        img[y:y + 36, x:x + 30] = tex[..., None] * np.array(tint)
+    if cover:
+        img[50:106, 30:80] = np.kron(noise.uniform(60, 200, (7, 7, 3)), np.ones((8, 8, 1)))[:56, :50]
+    img = (img + noise.normal(0, 8, img.shape)).clip(0, 255).astype(np.uint8)
+    return img, cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+
+
+@pytest.mark.parametrize("with_colour", [False, True])
+def test_colour_keeps_the_search_off_a_lookalike_of_another_colour(with_colour: bool) -> None:
+    """With the frame's colour bins the guard weighs each candidate's colour histogram against the
+    initial box's: a look-alike whose edges the edges alone take for the target partly seen is
+    refused, and the target itself is taken back once it is uncovered."""
+    box = (40.0, 60.0, 30.0, 36.0)
+    img, grey = _two_lookalikes(False, 0)
+    bins = colour.bins(img) if with_colour else None
+    anchor = lost.anchor_of(lost.channels(grey), box, P, bins)
+    st = lost.LostState()
+    for t in range(P.warmup + 10):
+        img, grey = _two_lookalikes(False, t)
+        obs = lost.observe(lost.channels(grey), anchor, box, P, colour.bins(img) if with_colour else None)
+        st, vis, is_lost = lost.judge(st, obs, (*box, 0.0), P)
+        assert not is_lost
+    assert (st.ctarget.n > 0) == with_colour
+    assert obs.clutter is not None
+    img, grey = _two_lookalikes(True, 100)
+    ch, bins = lost.channels(grey), colour.bins(img) if with_colour else None
+    st, vis, is_lost = lost.judge(st, lost.observe(ch, anchor, box, P, bins), (*box, 0.0), P)
+    assert is_lost
+    st = replace(st, lost_run=st.lost_run + 16)  # the window has widened past the look-alike
+    cand, cvis, _ = lost.search(ch, anchor, box, st, P, (1.0,), obs.clutter[1], bins)
+    assert cand is not None and cvis is not None and abs(cand.centre[0] - 129.5) < 3  # the look-alike
+    assert cvis.present != with_colour, cvis
+    # uncovered, the target is found again (with or without colour)
+    img, grey = _two_lookalikes(False, 101)
+    ch, bins = lost.channels(grey), colour.bins(img) if with_colour else None
+    cand, cvis, _ = lost.search(ch, anchor, box, st, P, (1.0,), obs.clutter[1], bins)
+    assert cand is not None and cvis is not None and cvis.visible >= 0.5 and abs(cand.centre[0] - 54.5) < 3
+
+
+def test_a_colour_cue_that_does_not_tell_target_from_clutter_is_left_out() -> None:
+    """The hypotheses read a distance one-sidedly (closer than usual is the target): a colour cue whose
+    target distances are not below its clutter's (a face that walked from a dark room into the light,
+    far from its first box's colours) would call any patch of the first box's colours the target. It
+    is left out, and the decision is the edges' alone."""
+    edges = dict(target=ChiSquare(0.2, 0.045, 30), clutter=ChiSquare(0.7, 0.5, 30), found=30)
+    informative = lost.LostState(**edges, ctarget=ChiSquare(0.1, 0.0125, 30),
+                                 cclutter=ChiSquare(0.5, 0.26, 30))
+    inverted = lost.LostState(**edges, ctarget=ChiSquare(0.8, 0.65, 30), cclutter=ChiSquare(0.3, 0.1, 30))
+    seen = lost.Observation(0.55, (0.3, 900.0), lost.ColourSeen(0.05, (0.3, 900.0)))
+    alone = lost.judge(lost.LostState(**edges), replace(seen, colour=None), (0.0, 0.0, 1.0, 1.0), P)[1]
+    assert lost.judge(inverted, seen, (0.0, 0.0, 1.0, 1.0), P)[1] == alone
+    assert lost.judge(informative, seen, (0.0, 0.0, 1.0, 1.0), P)[1].visible > alone.visible
+
+
+def test_colour_bins_of_the_wrong_shape_are_reported_and_the_guard_weighs_the_edges() -> None:
+    """A features message whose colour bins do not fit its grey image is reported (``bad_features``)
+    and the filter goes on with the edges alone, as on a frame with no bins."""
+    img, grey = _two_lookalikes(False, 0)
+    box = (40.0, 60.0, 30.0, 36.0)
+    pre = PreprocessStage(PreprocessParams(calibrate_box=box, colour=True), StageContext("preprocess", "s"))
+    filt = FilterStage(FilterParams(init=box, seed=1, particles=100), StageContext("filter", "s"))
+    prop = ProposalStage(ProposalParams(seed=1), StageContext("proposal", "s"))
+    (_, feat), = pre.step(0, {"frames": Frame(Header("s", 0, 0), NDArray.of(img))})
+    assert isinstance(feat, ColourFeatures)
+    out = filt.step(0, {"features": feat})
+    parts = next(m for p, m in out if p == "particles")
+    (_, feat1), = pre.step(1, {"frames": Frame(Header("s", 1, 40_000_000), NDArray.of(img))})
+    bad = msgspec.structs.replace(feat1, bins=NDArray.of(np.zeros((5, 5), np.uint8)))
+    (_, proposals), = prop.step(0, {"particles": parts})
+    out = filt.step(1, {"features": bad, "proposals": proposals})
+    assert any(p == "estimate" for p, _ in out)
+    assert [k for k, _, _ in filt.drain_reports()] == ["bad_features"]
