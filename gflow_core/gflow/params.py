@@ -4,25 +4,10 @@ The defaults are the shipped tracker's: the built-in face model (``docs/faces.md
 departures from the paper listed in ``docs/trackers.md`` switched on (coarse-to-fine Gauss-Newton
 with a translation search, soft walls on rotation and scale, an outlier process per vertex,
 contrast-normalised frames, texels reverting toward the first look, a morph prior and a frontal
-reset), and the background texture model of the paper's eq. 4 and 7-10 on (``background``).
-
-The paper's experiments left the background uninformative, and so did this tracker until its
-stress benchmark showed what that costs: with nothing explaining the pixels around the object, a
-person walking past a pedestrian explained the object's texels as well as the pedestrian did and
-took the track. With a Kalman filter per background pixel (:mod:`.background`) the pixels the
-passer-by leaves are explained by the background the expert saw there. Measured (``gflow benchmark
-../shared/data --stress --trackers gflow --inline --seed S``, seeds 1 / 2 / 3, off -> on): stress
-cases got back 31 / 32 / 29 -> 36 / 41 / 40 of 72, cases worse than a box that never moves 14 / 10 /
-13 -> 8 / 6 / 11 (all on caviar1; seed 3's include the untouched control), mean success 0.610 /
-0.631 / 0.593 -> 0.644 / 0.687 / 0.672; shared sequences (seed 1, CLE
-px) caviar1 1.86 -> 1.63, crossing 31.30 -> 2.40, david_indoor 2.75 -> 2.87, jumping 3.76 -> 3.91;
-david_indoor landmark NME 0.079 -> 0.088 (seed 1) and 0.167 -> 0.124 (seed 2). It costs about a
-third of the frame rate (docs/performance.md).
-
-Two presets name other settings in one place:
+reset). Two presets name other settings in one place:
 
 * :data:`PAPER` -- the filter of Marks, Hershey, Roddey & Movellan (NIPS 2004) as written: every
-  departure off, the generic head, the background uninformative as in its experiments. Its special cases (constrained optic flow, template
+  departure off, the generic head. Its special cases (constrained optic flow, template
   matching, :mod:`.special_cases`) start from it.
 * :data:`ELLIPSOID` -- the generic rigid head fitted into the box (``gflow track --model
   ellipsoid``): a flatter head, the paper's grey levels with a gain and bias per frame.
@@ -71,9 +56,8 @@ class GFlowParams:
     v_init_var: float = param(1e-3, "Var(V_1) of the object texels at the first frame (0: a known template)")
     b_init_var: float = param(1e-3, "Var(B_1) of the background pixels visible in the first frame")
     unknown_var: float = param(1.0, "variance of texels not observed at the first frame")
-    background: bool = param(True, "model the background texture, one Kalman filter per pixel and expert "
-                                   "(eq. 4, 7-10; off: an uninformative background, as in the paper's "
-                                   "experiments)",
+    background: bool = param(False, "model the background texture, one Kalman filter per pixel and expert "
+                                    "(off: uninformative background, as in the paper's experiments)",
                              option="--background")
     gn_background: bool = param(False, "Gauss-Newton includes the first background term of eq. 14")
     object_mask: Literal["hull", "vertices"] = param("hull", "pixels the object covers, kept out of the "
@@ -181,7 +165,6 @@ PAPER: Mapping[str, Any] = MappingProxyType({
     "prior_std_coefficients": 2.0, "prior_rotation_decay": 1.0, "pyramid_levels": 1, "search_radius": 0.0,
     "search_step": 4.0, "max_rotation_deg": math.inf, "outlier_sigmas": math.inf, "max_scale_change": math.inf,
     "texture_decay": 1.0, "reset_rate": 0.0, "morph_prior": math.inf, "contrast_sigma": 0.0, "model": "",
-    "background": False,
 })
 
 #: the generic rigid head fitted into the box (``--model ellipsoid``): a flatter head, the paper's grey levels
