@@ -67,6 +67,19 @@ class ColourFeatures(Features, frozen=True, tag=True):
 
     bins: NDArray | None = None
 
+    def bins_array(self, shape: tuple[int, ...]) -> np.ndarray | None:
+        """The bins as an (H, W) uint8 array of the grey image's ``shape``; None when not sent.
+        Raises :class:`MessageError` naming what is wrong with them."""
+        if self.bins is None:
+            return None
+        try:
+            b = self.bins.array()
+        except MessageError as e:
+            raise MessageError(f"colour bins: {e}") from None
+        if b.shape != tuple(shape) or b.dtype != np.uint8:
+            raise MessageError(f"colour bins of {b.dtype} {b.shape}, not uint8 {tuple(shape)}")
+        return b
+
 
 class Particles(msgspec.Struct, frozen=True, tag=True):
     """A particle cloud over X = (alpha, k): alpha (N, 4) float64, k (N,) int64, log_w (N,) float64.

@@ -264,18 +264,13 @@ class FilterStage(Stage[FilterFields]):
     def _bins(self, feat: Features, grey: np.ndarray | None, seq: int) -> np.ndarray | None:
         """The frame's colour bins (None: not sent -- a recording made before them -- or unusable, reported:
         the lost guard then weighs the edges alone)."""
-        if not isinstance(feat, ColourFeatures) or feat.bins is None or grey is None:
+        if not isinstance(feat, ColourFeatures) or grey is None:
             return None
         try:
-            bins = feat.bins.array()
+            return feat.bins_array(grey.shape)
         except MessageError as e:
-            self.report("bad_features", f"frame {seq}: colour bins: {e}; edges only", seq)
+            self.report("bad_features", f"frame {seq}: {e}; edges only", seq)
             return None
-        if bins.shape != grey.shape or bins.dtype != np.uint8:
-            self.report("bad_features", f"frame {seq}: colour bins of {bins.dtype} {bins.shape}, not uint8 "
-                                        f"{grey.shape}; edges only", seq)
-            return None
-        return bins
 
     def _check_profile(self, feat: Features, seq: int) -> None:
         m = self.setup.learned

@@ -815,16 +815,7 @@ def update(
         # children of an expert that took the frontal reset start from the first look's texels
         pred_mean, pred_var = np.array(pred_mean), np.array(pred_var)
         pred_mean[restart], pred_var[restart] = state.tex_anchor, cfg.v_init_var + cfg.psi_v
-    ph = cfg.photometric_model()
-    if ph is not None:
-        # the texels observe the light-corrected frame (y - b) / a (see photometric)
-        a, b = gain_bias(y, pred_mean, 1.0 / (pred_var + cfg.sigma_w), ph)
-        y = correct(y, a, b)
-    vv = pred_var + cfg.sigma_w
-    r2 = (y - pred_mean) ** 2
-    tau = cfg.outlier_sigmas if math.isfinite(cfg.outlier_sigmas) else 3.0
-    # P(object | y) = N(e) / (N(e) + N(tau)): the texel's Gaussian (eq. 13) against the outlier process
-    p_in = np.where(st.inside, 1.0 / (1.0 + np.exp(np.minimum(0.5 * (r2 / vv - tau * tau), 700.0))), 0.0)
+    y, p_in, r2, vv = explained(y, st.inside, pred_mean, pred_var, cfg)
     observed = st.inside
     if math.isfinite(cfg.outlier_sigmas):
         # outlier vertices (occluder, highlight) are not learned: prediction only
@@ -863,6 +854,34 @@ def update(
         inlier_fraction=float(W @ p_in.mean(axis=1) / W.sum()),
     )
     return new_state, est
+
+
+def explained(y: np.ndarray, inside: np.ndarray, mean: np.ndarray, var: np.ndarray, cfg: GFlowConfig
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """How well texels explain the frame at the vertices.
+
+    Parameters
+    ----------
+    y : (E, n) the frame sampled at each expert's projected vertices; inside : (E, n) bool, the
+        vertex is in the image; mean, var : (E, n) the predicted texels (eq. 9, 10).
+
+    Returns
+    -------
+    y : (E, n) the frame as the texels observe it (light-corrected ``(y - b) / a`` with the
+        photometric model); p_in : (E, n) P(object | y) of each vertex, 0 outside the image;
+        r2 : (E, n) squared residuals; vv : (E, n) their variances ``var + sigma_w``.
+    """
+    ph = cfg.photometric_model()
+    if ph is not None:
+        # the texels observe the light-corrected frame (y - b) / a (see photometric)
+        a, b = gain_bias(y, mean, 1.0 / (var + cfg.sigma_w), ph)
+        y = correct(y, a, b)
+    vv = var + cfg.sigma_w
+    r2 = (y - mean) ** 2
+    tau = cfg.outlier_sigmas if math.isfinite(cfg.outlier_sigmas) else 3.0
+    # P(object | y) = N(e) / (N(e) + N(tau)): the texel's Gaussian (eq. 13) against the outlier process
+    p_in = np.where(inside, 1.0 / (1.0 + np.exp(np.minimum(0.5 * (r2 / vv - tau * tau), 700.0))), 0.0)
+    return y, p_in, r2, vv
 
 
 def _masks(model: MorphableModel, poses: np.ndarray, shape: tuple[int, int], cfg: GFlowConfig) -> np.ndarray:
