@@ -21,11 +21,17 @@ moved and scaled with the face (``gflow_core.gflow.face_pose.following_box``), o
 bounding box of the projected vertices of the posterior mean pose; ``expert_points`` are every
 expert's projected vertices (the paper's figure 2), ``mean_points`` the mean's, ``landmarks`` the
 reference landmark of each vertex; ``pose``, ``pose_std``, ``rotation``, ``spread_px`` and ``ess``
-summarise the posterior, ``yaw_pitch_roll`` and ``expression`` read it as a face. ``confidence`` is
-the fraction of vertices the frame explains as the object (``Estimate.inlier_fraction``: in the
-image and within the outlier process's standard deviations of their texel), and ``target_state``
-is ``occluded`` below ``occluded_below``, ``lost`` below ``lost_below``, else ``tracked``; a
-coasting frame repeats the last observed frame's.
+summarise the posterior, ``yaw_pitch_roll`` and ``expression`` read it as a face. With the lost
+guard (``lost_guard``, on; :mod:`gflow_core.gflow.guard`) ``confidence`` is P(visible) of the box
+and ``target_state`` the guard's verdict (``occluded``/``lost`` while it holds the box and
+searches; state ``lost``, and ``redetect`` on the frame it re-seats the experts); it reads the
+colour bins of :class:`ColourFeatures` (the preprocess stage's ``colour``, on in the graph), and
+bins that do not fit the grey image are reported (``bad_features``) and that frame is judged on
+edges alone. Without the guard ``confidence`` is the fraction of vertices the frame explains as
+the object (``Estimate.inlier_fraction``) and ``target_state`` is ``occluded`` below
+``occluded_below``, ``lost`` below ``lost_below``, else ``tracked``. A coasting frame repeats the
+last observed frame's. The snapshot (version 2) holds the guard's anchor and distributions; a
+version-1 snapshot restores with the guard off.
 
 First frame: the model is fitted into ``init`` (generic head) or a user morphable model
 (resource ``model``) is placed in it, and the experts start at that pose (optionally
@@ -41,15 +47,19 @@ cycle never stalls. Nothing is ever NaN.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Mapping
 
 import msgspec
 import numpy as np
 
-from gflow_core.gflow import ExpertState, GFlowParams, GFlowState, Proposals
+from gflow_core import colour
+from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
 from gflow_core.gflow.tracker import TRACKER
+from gflow_core.m2.lost import Anchor, LostState
 from gflow_core.tracker import Estimate
+from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (
@@ -62,13 +72,23 @@ from .gflow_common import (
     unpack_proposals,
     unpack_states,
 )
-from .messages import ExpertStates, Features, Header, Message, NDArray, PoseEstimate, PoseProposals
+from .messages import (
+    ColourFeatures,
+    ExpertStates,
+    Features,
+    Header,
+    Message,
+    MessageError,
+    NDArray,
+    PoseEstimate,
+    PoseProposals,
+)
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams", "estimate_msg"]
 
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = 2  # 2: the lost guard's anchor and distributions (1: none; restores without the guard)
 
 
 class GFlowFilterFields(GFlowStageFields, frozen=True):
@@ -102,6 +122,19 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     init_error: str
     confidence: float = 1.0  # of the last observed frame
     target_state: str = "tracked"
+    anchor: NDArray | None = None  # lost guard (version 2): (th, tw, 4) channels of the initial box
+    anchor_colour: NDArray | None = None  # ... (N_BINS,) its colour histogram
+    lost_target: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments m1, m2, count of the target's distance
+    lost_clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of the clutter's best distance
+    lost_ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # ... of the target's colour distance
+    lost_cclutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of the clutter's best colour distance
+    lost_runs: tuple[int, int] = (0, 0)  # ... found frames, consecutive lost frames
+    held: tuple[float, ...] | None = None  # ... box (x, y, w, h) and pose (P) of the last found frame
+    fit_level: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the first look's misfit when found
+
+
+def _moments(c: ChiSquare) -> tuple[float, float, int]:
+    return (c.m1, c.m2, c.n)
 
 
 def estimate_msg(header: Header, est: Estimate) -> PoseEstimate:
@@ -159,7 +192,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         obs = None
         if isinstance(feat, Features):
             try:
-                obs = frame_of(feat, seq, self.tracker, state.setup.image_shape)
+                obs = self._with_bins(feat, frame_of(feat, seq, self.tracker, state.setup.image_shape), seq)
             except StageInputError as e:
                 self.report("bad_features", f"{e}; coasting", seq)
         else:
@@ -194,6 +227,18 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                      "confidence": round(est.confidence, 3)}
         return [("state", out_state), ("estimate", estimate_msg(header, est))]
 
+    def _with_bins(self, feat: Features, obs: GFlowObservation, seq: int) -> GFlowObservation:
+        """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
+        them (the preprocess stage's ``colour``) and the guard weighs colour. Bad bins are reported and
+        the guard weighs the edges alone on that frame."""
+        if not (self.tracker.lost_guard and self.tracker.lost_colour and isinstance(feat, ColourFeatures)):
+            return obs
+        try:
+            return dataclasses.replace(obs, bins=feat.bins_array(obs.grey.shape))
+        except MessageError as e:
+            self.report("bad_features", f"frame {seq}: {e}; the lost guard weighs edges only", seq)
+            return obs
+
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
         """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""
         assert self.state is not None
@@ -217,7 +262,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         if not isinstance(feat, Features):
             return []
         try:
-            obs = frame_of(feat, seq, self.tracker)
+            obs = self._with_bins(feat, frame_of(feat, seq, self.tracker), seq)
         except StageInputError as e:
             self.report("bad_features", f"{e}; waiting for a usable first frame", seq)
             return []
@@ -254,21 +299,51 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s.poses, s.tex_mean,
                             s.tex_var, s.log_credibility, np.arange(s.n_experts, dtype=np.int64),
                             setup.image_shape, self.digest, first=False, tex_anchor=s.tex_anchor)
+        guard: dict[str, Any] = {}
+        if self.state is not None and self.state.anchor is not None:
+            a, lost = self.state.anchor, self.state.lost
+            guard = dict(anchor=NDArray.of(a.channels), anchor_colour=None if a.colour is None else NDArray.of(a.colour),
+                         lost_target=_moments(lost.target), lost_clutter=_moments(lost.clutter),
+                         lost_ctarget=_moments(lost.ctarget), lost_cclutter=_moments(lost.cclutter),
+                         lost_runs=(lost.found, lost.lost_run), held=lost.held,
+                         fit_level=_moments(self.state.fit_level))
         snap = _Snapshot(version=SNAPSHOT_VERSION,
                          image_shape=None if self.state is None else self.state.setup.image_shape,
                          digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
                          init_error=self.init_error,
                          confidence=1.0 if self.state is None else self.state.confidence,
-                         target_state="tracked" if self.state is None else self.state.target_state)
+                         target_state="tracked" if self.state is None else self.state.target_state, **guard)
         return msgspec.msgpack.encode(snap)
+
+    @staticmethod
+    def _guard_of(snap: _Snapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare]:
+        """The lost guard's anchor and state of a snapshot (none in a version-1 snapshot: the guard is off
+        for the rest of the run)."""
+        if snap.anchor is None:
+            return None, LostState(), ChiSquare()
+        try:
+            ch = snap.anchor.array().copy()
+            hist = None if snap.anchor_colour is None else snap.anchor_colour.array().copy()
+        except MessageError as e:
+            raise ValueError(f"bad gflow.filter snapshot: {e}") from None
+        if ch.ndim != 3 or ch.shape[2] != 4:
+            raise ValueError(f"bad gflow.filter snapshot: lost guard anchor of shape {ch.shape}")
+        if hist is not None and hist.shape != (colour.N_BINS,):
+            raise ValueError(f"bad gflow.filter snapshot: colour histogram of shape {hist.shape}")
+        anchor = Anchor(channels=ch, size=(float(box[2]), float(box[3])), res=(ch.shape[1], ch.shape[0]), colour=hist)
+        lost = LostState(target=ChiSquare(*snap.lost_target), clutter=ChiSquare(*snap.lost_clutter),
+                         found=snap.lost_runs[0], lost_run=snap.lost_runs[1],
+                         held=None if snap.held is None else tuple(float(v) for v in snap.held),
+                         ctarget=ChiSquare(*snap.lost_ctarget), cclutter=ChiSquare(*snap.lost_cclutter))
+        return anchor, lost, ChiSquare(*snap.fit_level)
 
     def restore(self, data: bytes) -> None:
         try:
             snap = msgspec.msgpack.decode(data, type=_Snapshot)
         except msgspec.DecodeError as e:
             raise ValueError(f"not a gflow.filter snapshot: {e}") from None
-        if snap.version != SNAPSHOT_VERSION:
-            raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads {SNAPSHOT_VERSION}")
+        if snap.version not in (1, SNAPSHOT_VERSION):
+            raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads 1 and {SNAPSHOT_VERSION}")
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
             try:
@@ -287,6 +362,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                 v.setflags(write=False)
             experts = ExpertState(bg_mean=None, bg_var=None, image_shape=setup.image_shape, tex_anchor=a["tex_anchor"],
                                   **arrs)
-            self.state = GFlowState(setup, experts, snap.confidence, snap.target_state)
+            anchor, lost, level = self._guard_of(snap, setup.box)
+            self.state = GFlowState(setup, experts, snap.confidence, snap.target_state, anchor, lost, level)
             self.digest = digest
         self.steps, self.coasted, self.init_error = snap.steps, snap.coasted, snap.init_error

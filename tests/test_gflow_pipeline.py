@@ -7,6 +7,7 @@ import msgspec
 import numpy as np
 import pytest
 
+from gflow_core import colour
 from gflow_core.gflow import fit_head_model_to_box, init_state, step
 from gflow_core.gflow.geometry import TRANS, project, rotation_angle_deg
 from gflow_core.gflow.head_model import bounding_box
@@ -14,6 +15,7 @@ from gflow_scenes import SYNTH, Cycle, features_msg, payloads, plan_for, pose_es
 from pipeline.runtime.inline import run_inline
 from gflow_core.gflow import GFlowParams
 from stages.gflow_filter import GFlowFilterParams
+from stages.messages import ColourFeatures, NDArray
 from stages.tracker_params import tracker_params
 from stages.rng import stream_hash
 
@@ -117,3 +119,45 @@ def test_the_proposal_snapshot_holds_its_background_replica_compactly(scene) -> 
     bad = msgspec.structs.replace(s, bg_table=type(s.bg_table).of(np.full((24, 80), 10**6, np.int32)))
     with pytest.raises(ValueError, match="tile ids|do not fit"):
         Cycle(params).proposal.restore(msgspec.msgpack.encode(bad))
+
+
+def _colour_features(grey: np.ndarray, seq: int, bins: np.ndarray | None = None) -> ColourFeatures:
+    """Features of a colour frame made from ``grey`` (H, W), with its bins (or ``bins``)."""
+    if bins is None:
+        bins = colour.bins(np.dstack([grey, np.roll(grey, 7, axis=1), 255 - grey]))
+    f = features_msg(grey, seq)
+    return ColourFeatures(f.header, f.grey, f.edges, f.chamfer, f.profile, f.g0, bins=NDArray.of(bins))
+
+
+def test_the_lost_guard_reads_colour_bins_survives_a_restart_and_reports_bad_bins(scene) -> None:
+    """The filter's lost guard takes the colour bins of ColourFeatures (the preprocess stage's
+    ``colour``): its anchor keeps the first box's histogram across a snapshot, a version-1 snapshot
+    (before the guard) restores with the guard off, and bins of the wrong size are reported while
+    tracking goes on."""
+    _, seq, frames = scene
+    grey = np.rint(frames * 255).astype(np.uint8)
+    params = dict(SYNTH, seed=4, init=[float(v) for v in seq.box])
+    cyc = Cycle(params)
+    for t in range(4):
+        cyc.step(t, _colour_features(grey[t], t))
+    st = cyc.filter.state
+    assert st.anchor is not None and st.anchor.colour is not None and st.lost.ctarget.n == 3
+    snap = cyc.filter.snapshot()
+    cyc.restart_from_snapshots()
+    again = cyc.filter.state
+    assert np.array_equal(again.anchor.colour, st.anchor.colour) and again.lost == st.lost
+    assert again.fit_level == st.fit_level and st.fit_level.n == 3
+    # a version-1 snapshot has no guard fields: restored, the guard is off for the rest of the run
+    old = msgspec.msgpack.decode(snap)
+    old = {k: v for k, v in old.items() if not k.startswith(("anchor", "lost_", "held", "fit_"))}
+    old["version"] = 1
+    cyc.filter.restore(msgspec.msgpack.encode(old))
+    assert cyc.filter.state.anchor is None
+    out = cyc.step(4, _colour_features(grey[4], 4))
+    assert msgspec.msgpack.decode(out["estimate"])["target_state"] == "tracked"
+    # bins of another size than the grey image: reported, the frame is tracked on the edges alone
+    fresh = Cycle(params)
+    fresh.step(0, _colour_features(grey[0], 0))
+    fresh.step(1, _colour_features(grey[1], 1, np.zeros((5, 5), np.uint8)))
+    kinds = [k for k, _, _ in fresh.filter.drain_reports()]
+    assert kinds == ["bad_features"] and fresh.filter.state.lost.found == 1

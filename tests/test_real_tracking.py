@@ -3,12 +3,15 @@ ones a broken tracker fails: each must beat a box that never moves by a wide mar
 
 from __future__ import annotations
 
+import glob
 import json
 import subprocess
 
+import cv2
+import numpy as np
 import pytest
 
-from gflow_core.metrics import score
+from gflow_core.metrics import iou, score
 from pipeline.recording.results import read_boxes
 
 
@@ -86,3 +89,29 @@ def test_chamfer_guard_keeps_off_the_pedestrian_beside_caviar1s_target_by_colour
     print(after)
     assert after["true"][0] and after["true"][1] >= 0.8 and after["true"][2] > after["true"][3], after
     assert not after["false"][0], f"the edges alone got it back too: the case no longer tests colour ({after})"
+
+
+def test_gflow_leaves_the_passer_by_and_gets_caviar1s_target_back() -> None:
+    """caviar1 from frame 65: a man in black walks in front of the target (frames ~95-110) and on to
+    the left. Without the guard every expert goes with him (his texels explain the frame as well as
+    hers) and never comes back; with the guard the box is held while he covers her, and the experts
+    are re-seated on her when he has passed."""
+    from tests.conftest import data_dir
+    from gflow import Tracker
+
+    d = data_dir("caviar1")
+    frames = sorted(glob.glob(str(d / "frames" / "*")))[65:165]
+    gt = np.loadtxt(d / "groundtruth.csv", delimiter=",", skiprows=1)[65:165, 1:]
+    result = {}
+    for on in (True, False):
+        t = Tracker("gflow", seed=1, lost_guard=on)
+        ests = [t.init(cv2.imread(frames[0]), tuple(gt[0])) if i == 0 else t.update(cv2.imread(f))
+                for i, f in enumerate(frames)]
+        ious = iou(gt, np.array([e.box for e in ests]))
+        result[on] = (float((ious[70:] >= 0.5).mean()), [e.target_state for e in ests], [e.phase for e in ests])
+    print({k: v[0] for k, v in result.items()})
+    assert result[False][0] < 0.2, "without the guard G-flow no longer follows the passer-by: the case tests nothing"
+    assert result[True][0] >= 0.8
+    states, phases = result[True][1], result[True][2]
+    assert "redetect" in phases[30:70] and any(s != "tracked" for s in states[30:70])
+    assert states[70:].count("tracked") >= 0.9 * 30

@@ -106,9 +106,18 @@ class GFlowParams:
     init_jitter: tuple[float, float, float] = param(
         (0.0, 0.0, 0.0), "std of the experts' initial poses about the box's: rotation (rad), translation (px), "
                          "morph coefficients (fraction)")
-    occluded_below: float = param(0.6, "the target is occluded when the fraction of vertices the frame "
-                                       "explains falls below this")
-    lost_below: float = param(0.3, "the target is lost when that fraction falls below this")
+    occluded_below: float = param(0.6, "without the lost guard: the target is occluded when the fraction of "
+                                       "vertices the frame explains falls below this")
+    lost_below: float = param(0.3, "without the lost guard: the target is lost when that fraction falls below "
+                                   "this")
+    lost_guard: bool = param(True, "verify the estimate against the initial box (edges and colour), hold it while "
+                                   "the target is hidden, search for it and re-seat the experts where it is "
+                                   "found (gflow_core/gflow/guard.py)")
+    lost_colour: bool = param(True, "the lost guard weighs the box's colour histogram too (colour frames)")
+    lost_window: float = param(1.5, "half-width of the first re-detection window, in box sizes")
+    lost_growth: float = param(0.1, "the re-detection window widens by this many box sizes a lost frame")
+    lost_scales: tuple[float, ...] = param((1.0, 0.93, 1.07), "sizes (multiples of the held size) searched when "
+                                                             "re-detecting")
 
     def __post_init__(self) -> None:
         self.config()  # every check of GFlowConfig
@@ -122,6 +131,10 @@ class GFlowParams:
             raise ValueError(f"head_grid must be at least (2, 2), got {self.head_grid}")
         if len(self.init_jitter) != 3 or not all(math.isfinite(v) and v >= 0 for v in self.init_jitter):
             raise ValueError(f"init_jitter must be three finite numbers >= 0, got {self.init_jitter}")
+        if not (self.lost_window > 0 and self.lost_growth >= 0 and self.lost_scales
+                and all(math.isfinite(v) and v > 0 for v in self.lost_scales)):
+            raise ValueError(f"lost_window must be positive, lost_growth >= 0 and lost_scales positive, got "
+                             f"{self.lost_window}, {self.lost_growth}, {self.lost_scales}")
         if not 0.0 <= self.lost_below <= self.occluded_below <= 1.0:
             raise ValueError(f"need 0 <= lost_below <= occluded_below <= 1, got {self.lost_below}, "
                              f"{self.occluded_below}")
@@ -165,6 +178,7 @@ PAPER: Mapping[str, Any] = MappingProxyType({
     "prior_std_coefficients": 2.0, "prior_rotation_decay": 1.0, "pyramid_levels": 1, "search_radius": 0.0,
     "search_step": 4.0, "max_rotation_deg": math.inf, "outlier_sigmas": math.inf, "max_scale_change": math.inf,
     "texture_decay": 1.0, "reset_rate": 0.0, "morph_prior": math.inf, "contrast_sigma": 0.0, "model": "",
+    "lost_guard": False,
 })
 
 #: the generic rigid head fitted into the box (``--model ellipsoid``): a flatter head, the paper's grey levels

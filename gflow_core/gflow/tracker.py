@@ -21,8 +21,12 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from .. import colour as col
 from ..features import to_grey
+from ..m2.lost import Anchor, LostParams, LostState
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame
+from ..visibility import ChiSquare
+from . import guard
 from .credibility import ess, pose_spread, posterior_mean_pose
 from .face_pose import expression, following_box, yaw_pitch_roll
 from .filter import (
@@ -154,10 +158,13 @@ class GFlowObservation:
     ----------
     grey : (H, W) uint8, the frame's grey levels.
     y : (H, W) float64, ``y_t`` (:func:`observation`).
+    bins : (H, W) uint8 colour bins (:func:`gflow_core.colour.bins`) for the lost guard's colour cue,
+        or None (a grey frame, or no colour cue).
     """
 
     grey: np.ndarray
     y: np.ndarray
+    bins: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -172,12 +179,23 @@ class GFlowState:
         filter stage does not: its proposal stages do).
     confidence : float, of the last frame with evidence.
     target_state : str, of the last frame with evidence.
+    anchor : the lost guard's anchor (the user's box on the first frame), None without the guard.
+    lost : the lost guard's state (:mod:`.guard`).
+    fit_level : the guard's running moments of the first look's misfit on found frames.
     """
 
     setup: ModelSetup
     experts: ExpertState
     confidence: float = 1.0
     target_state: str = "tracked"
+    anchor: Anchor | None = None
+    lost: LostState = LostState()
+    fit_level: ChiSquare = ChiSquare()
+
+
+def guard_params(params: GFlowParams) -> LostParams | None:
+    """The lost guard's settings, None without the guard."""
+    return guard.guard_params(params.lost_window, params.lost_growth) if params.lost_guard else None
 
 
 class GFlowTracker:
@@ -189,7 +207,8 @@ class GFlowTracker:
 
     # -- inputs ---------------------------------------------------------------------------------
     def observe(self, params: GFlowParams, image: np.ndarray) -> GFlowObservation:
-        """The grey frame (``features.to_grey`` of a BGR or grey image) and ``y_t``.
+        """The grey frame (``features.to_grey`` of a BGR or grey image), ``y_t`` and, for the lost
+        guard's colour cue, the colour bins of a frame with colour.
 
         Raises
         ------
@@ -200,7 +219,10 @@ class GFlowTracker:
             Not an image of at least 2 x 2 pixels.
         """
         grey = to_grey(image) if np.ndim(image) == 3 else np.asarray(image)
-        return self.observe_grey(params, grey)
+        obs = self.observe_grey(params, grey)
+        if params.lost_guard and params.lost_colour and not col.is_grey(image):
+            obs = dataclasses.replace(obs, bins=col.bins(image))
+        return obs
 
     def observe_grey(self, params: GFlowParams, grey: np.ndarray) -> GFlowObservation:
         """:meth:`observe` of a frame already in grey levels ``(H, W)`` uint8."""
@@ -234,7 +256,10 @@ class GFlowTracker:
             draw = rng.stream(PURPOSE_INIT)
         cfg = setup.cfg if backgrounds else dataclasses.replace(setup.cfg, background=False)
         experts = init_state(setup.model, setup.pose0, obs.y, cfg, rng=draw, pose_jitter_std=jitter)
-        state = GFlowState(setup, experts)
+        gp = guard_params(params)
+        anchor = None if gp is None else guard.anchor_of(obs.grey, tuple(float(v) for v in setup.box), gp,
+                                                         obs.bins if params.lost_colour else None)
+        state = GFlowState(setup, experts, anchor=anchor)
         return state, self.summary_estimate(state, rng.t, "init")
 
     def propose(self, params: GFlowParams, state: GFlowState, obs: GFlowObservation, rng: FrameRng,
@@ -256,17 +281,50 @@ class GFlowTracker:
     def update(self, params: GFlowParams, state: GFlowState, proposal: Proposals, obs: GFlowObservation,
                rng: FrameRng) -> tuple[GFlowState, Estimate]:
         """Credibility (eq. 17, 19), resampling from ``rng.stream()`` (sec. 3.4) and the texel update
-        (eq. 7-10) (:func:`.filter.update`); the confidence is the fraction of vertices the frame
-        explains as the object (``Estimate.inlier_fraction``), below ``occluded_below`` the target
-        is occluded, below ``lost_below`` lost."""
+        (eq. 7-10) (:func:`.filter.update`), then the lost guard (:mod:`.guard`): the estimate is
+        verified, held while the target is judged hidden or lost, and the experts re-seated where a
+        search finds it again (phase ``redetect``). The confidence is the guard's P(visible); without
+        the guard it is the fraction of vertices the frame explains as the object
+        (``Estimate.inlier_fraction``), below ``occluded_below`` the target is occluded, below
+        ``lost_below`` lost."""
         s = state.setup
         new, est = update(state.experts, proposal, obs.y, s.model, s.cfg, rng.stream())
-        conf = min(max(est.inlier_fraction, 0.0), 1.0)
-        judged = "lost" if conf < params.lost_below else "occluded" if conf < params.occluded_below else "tracked"
-        out = GFlowState(s, new, conf, judged)
-        return out, self.estimate(out, rng.t, "track", est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
-                                  est.expert_points, est.mean_points, est.bbox, est.log_credibility, est.parents,
-                                  est.resampled)
+        gp = guard_params(params)
+        if gp is None or state.anchor is None:
+            conf = min(max(est.inlier_fraction, 0.0), 1.0)
+            judged = "lost" if conf < params.lost_below else "occluded" if conf < params.occluded_below else "tracked"
+            out = GFlowState(s, new, conf, judged, state.anchor, state.lost, state.fit_level)
+            return out, self._estimate_of(out, rng.t, "track", est)
+        g = guard.step(state.lost, state.anchor, gp, guard.channels(obs.grey),
+                       obs.bins if params.lost_colour else None, self._box(s, est.pose, est.bbox), est.pose,
+                       tuple(params.lost_scales), guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level)
+        if g.pose is None:
+            out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level)
+            return out, self._estimate_of(out, rng.t, g.phase, est, g.box)
+        # re-detected: every expert re-seated at the candidate, texels read there
+        seated = guard.reseat(new, g.pose, obs.y, s.model, s.cfg)
+        if seated.bg_mean is not None and state.experts.bg_mean is not None:
+            # the backgrounds advanced at the re-seated poses, as a proposal stage's replica does from the
+            # state message (its parents: every expert its own)
+            bg_mean, bg_var = advance_background(state.experts.bg_mean, state.experts.bg_var, seated.poses,
+                                                 np.arange(seated.n_experts, dtype=np.int64), obs.y, s.model, s.cfg)
+            seated = dataclasses.replace(seated, bg_mean=bg_mean, bg_var=bg_var)
+        out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level)
+        return out, self.summary_estimate(out, rng.t, g.phase)
+
+    def _estimate_of(self, state: GFlowState, t: int, phase: str, est: Any,
+                     box: tuple[float, float, float, float] | None = None) -> Estimate:
+        """:meth:`estimate` of :func:`.filter.update`'s estimate ``est``, with ``box`` reported instead
+        of the posterior's when given (the lost guard's held box)."""
+        return self.estimate(state, t, phase, est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
+                             est.expert_points, est.mean_points, est.bbox, est.log_credibility, est.parents,
+                             est.resampled, box=box)
+
+    @staticmethod
+    def _box(setup: ModelSetup, pose: np.ndarray, bbox: np.ndarray) -> tuple[float, float, float, float]:
+        """The box of ``pose``: a learned face's following box, else ``bbox`` (the projected vertices')."""
+        b = following_box(pose, setup.pose0, setup.box) if setup.model.reference_box is not None else bbox
+        return (float(b[0]), float(b[1]), float(b[2]), float(b[3]))
 
     def coast(self, params: GFlowParams, state: GFlowState, rng: FrameRng,
               obs: GFlowObservation | None = None) -> tuple[GFlowState, Estimate]:
@@ -309,12 +367,13 @@ class GFlowTracker:
     def estimate(self, state: GFlowState, t: int, phase: str, pose: np.ndarray, pose_std: np.ndarray,
                  rotation: np.ndarray, spread_px: float, ess_val: float, expert_points: np.ndarray,
                  mean_points: np.ndarray, bbox: np.ndarray, log_credibility: np.ndarray, parents: np.ndarray,
-                 resampled: bool) -> Estimate:
+                 resampled: bool, box: tuple[float, float, float, float] | None = None) -> Estimate:
         """G-flow's estimate of frame ``t``.
 
-        ``box`` is, for a learned face (a model with a reference box), the initial box moved and
-        scaled with the face (:func:`.face_pose.following_box`), otherwise ``bbox``, the bounding box
-        of the projected vertices of the posterior mean pose. ``extras``:
+        ``box`` is, when given, the lost guard's (held or re-detected); otherwise, for a learned face
+        (a model with a reference box), the initial box moved and scaled with the face
+        (:func:`.face_pose.following_box`), else ``bbox``, the bounding box of the projected vertices
+        of the posterior mean pose. ``extras``:
 
         * ``pose`` (P,), ``pose_std`` (P,): posterior mean and standard deviation (tangent space);
         * ``rotation`` (3, 3): the mean pose's rotation;
@@ -327,9 +386,9 @@ class GFlowTracker:
         """
         setup = state.setup
         model = setup.model
-        if model.reference_box is not None:
+        if box is None:
             # a learned face: the user's box, moved and scaled with the face
-            bbox = following_box(pose, setup.pose0, setup.box)
+            box = self._box(setup, pose, bbox)
         extras = {
             "pose": pose, "pose_std": pose_std, "rotation": rotation, "spread_px": float(spread_px),
             "ess": float(ess_val), "expert_points": expert_points, "mean_points": mean_points,
@@ -337,7 +396,6 @@ class GFlowTracker:
             "landmarks": model.landmarks, "yaw_pitch_roll": yaw_pitch_roll(rotation),
             "expression": expression(np.asarray(pose)[COEF], model.morph_std),
         }
-        box = tuple(float(v) for v in bbox)
         return Estimate(frame=int(t), box=(box[0], box[1], box[2], box[3]), confidence=float(state.confidence),
                         target_state=state.target_state, phase=phase, extras=extras)
 
