@@ -18,18 +18,26 @@ around G-flow's estimate box:
   the estimate (:func:`gflow_core.visibility.visibility`): no threshold of its own.
 * **Hold.** While lost, the reported box is the last found one, with ``target_state``
   ``occluded`` (or ``lost`` once the search covers the whole frame); the experts go on as G-flow
-  moves them. G-flow's own likelihood has a say (:func:`first_look_fit`: the fraction of vertices
-  the first frame's texels explain, eq. 13 against the outlier process): where it explains more of
-  the frame at the experts' pose than at the held one, the experts' box is reported (still
-  ``occluded``): the verification is tied to the image axes, and a face rolling in the image plane
-  fails it while the experts follow the face.
+  moves them.
 * **Re-detection** over a window that widens each lost frame up to the whole frame
   (:func:`gflow_core.m2.lost.search`). A candidate judged the target as it looks
   (P(visible) >= 1/2) away from the experts' box re-seats every expert (:func:`reseat`): the pose
   of the last found frame, scaled and moved so that its box is the candidate's, with texels read
   from the frame there (as on the first frame, eq. 7-8 with ``Var(V_1)``) and equal
-  credibilities -- if the first look explains more of the frame there than at the experts' pose.
-  A candidate within the experts' box leaves them as they are.
+  credibilities. A candidate within the experts' box leaves them as they are.
+* **G-flow's likelihood as a check, where the edges are alone.** Where the colour cue is not
+  weighed (a grey video, or colour that does not tell the target from clutter:
+  :func:`gflow_core.m2.lost.colour_weighed`), the edges alone decided too often: a face rolling
+  in the image plane fails the axis-bound verification while the experts follow it (jumping),
+  and on david_indoor, where the face walks into bright light, a candidate elsewhere was taken
+  for it. There G-flow's own likelihood must agree (:func:`first_look_fit`: the fraction of
+  vertices the first frame's texels explain, eq. 13 against the outlier process): a candidate
+  re-seats the experts only if the first look explains more of the frame there than at the
+  experts' pose, and as much as it did on found frames (a misfit within one standard deviation of
+  their mean); and where it explains more at the experts' pose than at the held box, the experts'
+  box is reported rather than the held one. Where colour is weighed, edges and colour decide: on
+  caviar1 the man who walks past the target explains the grey-level first look as well as she
+  does, and the check kept the experts on him.
 
 The guard reads the grey frame and, for colour frames, the colour bins (:mod:`gflow_core.colour`);
 G-flow's likelihood still reads the grey levels alone. No I/O here.
@@ -155,10 +163,14 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     With ``fit`` (:func:`first_look_fit`) a candidate away from the estimate re-seats the experts only
     where G-flow's own likelihood, with the first look's texels, explains more of the frame than at the
     estimate, and as much as it did at the target: its misfit ``1 - fit`` no more than one standard
-    deviation above the mean of the found frames' (``level``, learnt at the guard's rate). The guard's
-    cues found it, G-flow's model confirms it."""
+    deviation above the mean of the found frames' (``level``, learnt at the guard's rate). The check
+    applies only while the colour cue is not weighed (edges alone)."""
     seen = lostmod.observe(channels, anchor, box, p, bins)
     held_now = (*box, *(float(v) for v in pose))
+    if lostmod.colour_weighed(seen.colour, lost):
+        # edges and colour, two independent cues, decide; G-flow's likelihood has its say only where the
+        # edges are alone (grey video, or a colour that does not tell the target from clutter)
+        fit = None
     st, vis, is_lost = lostmod.judge(lost, seen, held_now, p)
     f_est = None if fit is None else fit(pose)
     if not is_lost:
@@ -182,21 +194,21 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
         w, h = h_box[2] * f, h_box[3] * f
         new_box = (float(cand.centre[0] - (w - 1) / 2.0), float(cand.centre[1] - (h - 1) / 2.0), float(w), float(h))
         new_pose = reseat_pose(h_pose, h_box, new_box)
-        if fit is None or _confirms(1.0 - fit(new_pose), 1.0 - f_est, level, p):
+        if fit is None or f_est is None or _confirms(1.0 - fit(new_pose), 1.0 - f_est, level, p):
             st = lostmod.found_again(st, cand.r, (*new_box, *(float(v) for v in new_pose)), p)
             return GuardStep(st, new_box, new_pose, float(cvis.visible), "tracked", "redetect", level)
         # G-flow's model does not confirm it: no re-seat
-    if f_est is not None and fit(h_pose) <= f_est:
+    if fit is not None and f_est is not None and fit(h_pose) <= f_est:
         # the first look fits the estimate better than the held place (a face turning in the image plane
         # fails the axis-bound verification while the experts follow it): report the experts' box
         return GuardStep(st, box, None, float(vis.visible), state, "lost", level)
     return GuardStep(st, h_box, None, float(vis.visible), state, "lost", level)
 
 
-def _confirms(d_cand: float, d_est: float | None, level: ChiSquare, p: LostParams) -> bool:
+def _confirms(d_cand: float, d_est: float, level: ChiSquare, p: LostParams) -> bool:
     """G-flow's likelihood confirms a candidate of first-look misfit ``d_cand``: below the estimate's
     ``d_est``, and within one standard deviation above the mean misfit of the found frames."""
-    if d_est is not None and d_cand >= d_est:
+    if d_cand >= d_est:
         return False
     if level.n < p.warmup:
         return True

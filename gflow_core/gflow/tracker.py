@@ -257,7 +257,8 @@ class GFlowTracker:
         cfg = setup.cfg if backgrounds else dataclasses.replace(setup.cfg, background=False)
         experts = init_state(setup.model, setup.pose0, obs.y, cfg, rng=draw, pose_jitter_std=jitter)
         gp = guard_params(params)
-        anchor = None if gp is None else guard.anchor_of(obs.grey, tuple(float(v) for v in setup.box), gp,
+        x, y, w, h = (float(v) for v in setup.box)
+        anchor = None if gp is None else guard.anchor_of(obs.grey, (x, y, w, h), gp,
                                                          obs.bins if params.lost_colour else None)
         state = GFlowState(setup, experts, anchor=anchor)
         return state, self.summary_estimate(state, rng.t, "init")

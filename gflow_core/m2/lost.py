@@ -80,6 +80,7 @@ from ..regions import region
 from ..visibility import ChiSquare, Cue, Visibility, visibility
 
 __all__ = ["LostParams", "LostState", "Anchor", "Observation", "ColourSeen", "anchor_of", "verify", "observe",
+           "colour_weighed",
            "judge", "search", "found_again", "bound_positions", "channels"]
 
 
@@ -230,6 +231,12 @@ def _cues(seen: ColourSeen | None, st: LostState, trials: float = 1.0) -> tuple[
     if seen is None or not (st.ctarget.n and st.cclutter.n) or st.ctarget.mean() >= st.cclutter.mean():
         return ()
     return (Cue(seen.rho, st.ctarget, st.cclutter, trials=trials),)
+
+
+def colour_weighed(seen: ColourSeen | None, st: LostState) -> bool:
+    """Whether the colour cue ``seen`` is weighed in the decisions (:func:`_cues`): there is one, and the
+    target's colour distances are below the clutter's on average."""
+    return bool(_cues(seen, st))
 
 
 def observe(feat: np.ndarray, anchor: Anchor, box: tuple[float, float, float, float], p: LostParams | None,
