@@ -53,7 +53,6 @@ from typing import Any, Mapping
 import msgspec
 import numpy as np
 
-from gflow_core import colour
 from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
 from gflow_core.gflow.tracker import TRACKER
@@ -83,6 +82,7 @@ from .messages import (
     PoseEstimate,
     PoseProposals,
 )
+from .lost_snapshot import moments, pack_guard, unpack_anchor, unpack_lost
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
 
@@ -131,10 +131,6 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     lost_runs: tuple[int, int] = (0, 0)  # ... found frames, consecutive lost frames
     held: tuple[float, ...] | None = None  # ... box (x, y, w, h) and pose (P) of the last found frame
     fit_level: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the first look's misfit when found
-
-
-def _moments(c: ChiSquare) -> tuple[float, float, int]:
-    return (c.m1, c.m2, c.n)
 
 
 def estimate_msg(header: Header, est: Estimate) -> PoseEstimate:
@@ -301,12 +297,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                             setup.image_shape, self.digest, first=False, tex_anchor=s.tex_anchor)
         guard: dict[str, Any] = {}
         if self.state is not None and self.state.anchor is not None:
-            a, lost = self.state.anchor, self.state.lost
-            guard = dict(anchor=NDArray.of(a.channels), anchor_colour=None if a.colour is None else NDArray.of(a.colour),
-                         lost_target=_moments(lost.target), lost_clutter=_moments(lost.clutter),
-                         lost_ctarget=_moments(lost.ctarget), lost_cclutter=_moments(lost.cclutter),
-                         lost_runs=(lost.found, lost.lost_run), held=lost.held,
-                         fit_level=_moments(self.state.fit_level))
+            guard = dict(pack_guard(self.state.anchor, self.state.lost), fit_level=moments(self.state.fit_level))
         snap = _Snapshot(version=SNAPSHOT_VERSION,
                          image_shape=None if self.state is None else self.state.setup.image_shape,
                          digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
@@ -319,22 +310,14 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     def _guard_of(snap: _Snapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare]:
         """The lost guard's anchor and state of a snapshot (none in a version-1 snapshot: the guard is off
         for the rest of the run)."""
-        if snap.anchor is None:
-            return None, LostState(), ChiSquare()
         try:
-            ch = snap.anchor.array().copy()
-            hist = None if snap.anchor_colour is None else snap.anchor_colour.array().copy()
-        except MessageError as e:
+            anchor = unpack_anchor(snap.anchor, snap.anchor_colour, (float(box[2]), float(box[3])))
+        except ValueError as e:
             raise ValueError(f"bad gflow.filter snapshot: {e}") from None
-        if ch.ndim != 3 or ch.shape[2] != 4:
-            raise ValueError(f"bad gflow.filter snapshot: lost guard anchor of shape {ch.shape}")
-        if hist is not None and hist.shape != (colour.N_BINS,):
-            raise ValueError(f"bad gflow.filter snapshot: colour histogram of shape {hist.shape}")
-        anchor = Anchor(channels=ch, size=(float(box[2]), float(box[3])), res=(ch.shape[1], ch.shape[0]), colour=hist)
-        lost = LostState(target=ChiSquare(*snap.lost_target), clutter=ChiSquare(*snap.lost_clutter),
-                         found=snap.lost_runs[0], lost_run=snap.lost_runs[1],
-                         held=None if snap.held is None else tuple(float(v) for v in snap.held),
-                         ctarget=ChiSquare(*snap.lost_ctarget), cclutter=ChiSquare(*snap.lost_cclutter))
+        if anchor is None:
+            return None, LostState(), ChiSquare()
+        lost = unpack_lost(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
+                           snap.lost_cclutter)
         return anchor, lost, ChiSquare(*snap.fit_level)
 
     def restore(self, data: bytes) -> None:

@@ -73,21 +73,20 @@ from typing import Any, ClassVar, Mapping
 import msgspec
 import numpy as np
 
-from gflow_core import colour
 from gflow_core.contour_params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour_tracker import FILTER, ContourObservation, ContourSetup, ContourState, \
     restore_model, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.appearance_metric import OnlineBank
-from gflow_core.m2.lost import Anchor, LostState
+from gflow_core.m2.lost import LostState
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.particles import weight_histogram
 from gflow_core.tracker import Estimate as TrackerEstimate
-from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
 from .messages import ColourFeatures, Estimate, Features, Header, Message, MessageError, NDArray, Particles
 from .particle_proposal import cloud_of, particles_msg
+from .lost_snapshot import pack_guard, unpack_anchor, unpack_lost
 from .rng import tracker_rng
 from .tracker_params import StageFields, stage_params, tracker_params
 
@@ -371,14 +370,8 @@ class FilterStage(Stage[FilterFields]):
                 frame=NDArray.of(st.bank.frame), last_add=st.bank.last_add),
             sigma=NDArray.of(st.model.sigma) if st is not None and self.setup.learned is not None else None,
             app_sigma=NDArray.of(st.app.sigma) if st is not None and st.app is not None else None,
-            lost_target=(lost.target.m1, lost.target.m2, lost.target.n),
-            lost_clutter=(lost.clutter.m1, lost.clutter.m2, lost.clutter.n),
-            lost_runs=(lost.found, lost.lost_run), judged=st.judged if st is not None else (1.0, "tracked"),
-            held=lost.held, anchor=None if st is None or st.anchor is None else NDArray.of(st.anchor.channels),
-            anchor_colour=None if st is None or st.anchor is None or st.anchor.colour is None
-            else NDArray.of(st.anchor.colour),
-            lost_ctarget=(lost.ctarget.m1, lost.ctarget.m2, lost.ctarget.n),
-            lost_cclutter=(lost.cclutter.m1, lost.cclutter.m2, lost.cclutter.n))
+            judged=st.judged if st is not None else (1.0, "tracked"),
+            **pack_guard(None if st is None else st.anchor, lost))
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
@@ -429,23 +422,14 @@ class FilterStage(Stage[FilterFields]):
                              f"has K={model.K}")
         # a snapshot of the older guard (version 1-2, a level and thresholds) restores with a fresh one
         lost = (LostState() if snap.lost_target is None or snap.lost_clutter is None else
-                LostState(target=ChiSquare(*snap.lost_target), clutter=ChiSquare(*snap.lost_clutter),
-                          found=snap.lost_runs[0], lost_run=snap.lost_runs[1],
-                          held=None if snap.held is None else tuple(snap.held),
-                          ctarget=ChiSquare(*snap.lost_ctarget), cclutter=ChiSquare(*snap.lost_cclutter)))
+                unpack_lost(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
+                            snap.lost_cclutter))
         anchor = None
-        if snap.anchor is not None and p.init is not None:
+        if p.init is not None:
             try:
-                ch = snap.anchor.array().copy()
-                hist = None if snap.anchor_colour is None else snap.anchor_colour.array().copy()
-            except MessageError as e:
+                anchor = unpack_anchor(snap.anchor, snap.anchor_colour, (float(p.init[2]), float(p.init[3])))
+            except ValueError as e:
                 raise ValueError(f"stage {name!r}: bad filter snapshot: {e}") from None
-            if ch.ndim != 3:
-                raise ValueError(f"stage {name!r}: bad filter snapshot: anchor of shape {ch.shape}")
-            if hist is not None and hist.shape != (colour.N_BINS,):
-                raise ValueError(f"stage {name!r}: bad filter snapshot: colour histogram of shape {hist.shape}")
-            anchor = Anchor(channels=ch, size=(float(p.init[2]), float(p.init[3])), res=(ch.shape[1], ch.shape[0]),
-                            colour=hist)
         self.state = ContourState(self.setup, model, cloud, template=template, app=app, bank=bank, lost=lost,
                                   anchor=anchor, judged=(float(snap.judged[0]), str(snap.judged[1])))
 

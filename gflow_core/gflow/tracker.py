@@ -388,7 +388,7 @@ class GFlowTracker:
         setup = state.setup
         model = setup.model
         if box is None:
-            # a learned face: the user's box, moved and scaled with the face
+            # the posterior's box (a learned face: the user's box, moved and scaled with the face)
             box = self._box(setup, pose, bbox)
         extras = {
             "pose": pose, "pose_std": pose_std, "rotation": rotation, "spread_px": float(spread_px),
