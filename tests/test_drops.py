@@ -3,6 +3,7 @@ heartbeat (and so in the recording and in the launcher's progress line)."""
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 
@@ -47,12 +48,25 @@ def test_missing_frames_are_counted_on_the_heartbeat(tmp_path):
     while not pub.matching_status.matching:  # the stage's subscription has reached this session
         assert time.monotonic() < deadline, "no subscriber to gflow/cam0/frames within 30 s"
         time.sleep(0.02)
+    heard: queue.Queue[int] = queue.Queue()
+    bus.subscribe("gflow/cam0/features", lambda k, p, ns, seq: heard.put(seq))
     img = NDArray.of(np.random.default_rng(0).integers(0, 255, (60, 80), dtype=np.uint8))
     for seq in (0, 1, 2, 5, 6, 9):  # frames 3, 4, 7 and 8 never arrive
         bus.publish("gflow/cam0/frames", encode(Frame(Header("cam0", seq, seq), img)), seq, "Frame")
-    bus.publish("gflow/cam0/frames", encode(EndOfStream(Header("cam0", 10, 0))), 10, "EndOfStream")
-    th.join(60)
+        # one frame at a time: `features` is a drop topic, and a burst may be dropped by design
+        while heard.get(timeout=30) != seq:
+            pass
+    # the end of the stream, again every 2 s until the pipeline has ended (a second EndOfStream only
+    # ends an input already ended)
+    deadline = time.monotonic() + 60
+    while th.is_alive() and time.monotonic() < deadline:
+        bus.publish("gflow/cam0/frames", encode(EndOfStream(Header("cam0", 10, 0))), 10, "EndOfStream")
+        th.join(2.0)
     s.close()
+    if th.is_alive():  # fail cleanly: stop the pipeline rather than leave it running at exit
+        launcher.request_stop()
+        th.join(30)
+        raise AssertionError("the pipeline did not end within 60 s of the end of the stream")
     assert result["r"].ok, result["r"].exits
     last = [decode(r.data) for r in iter_records(rec, topics=["gflow/cam0/_status/preprocess"])][-1]
     assert isinstance(last, StageStatus) and last.dropped == {"frames": 4}
