@@ -432,12 +432,10 @@ def _colour_at(bins: np.ndarray, st: AppearanceState, sc: col.Scan | None, centr
     rho, h = d
     if sc is None:
         return _ColourSeen(rho, None, 0.0, h)
-    away = sc.away(centre, sz) & (np.abs(sc.xs - centre[0])[None, :] <= 2.0 * sz[0]) & (
-        np.abs(sc.ys - centre[1])[:, None] <= 2.0 * sz[1])
-    best = sc.best(away) if int(away.sum()) >= 16 else None
-    if best is None:
+    cl = sc.clutter(centre, sz)
+    if cl is None:
         return _ColourSeen(rho, None, 0.0, h)
-    return _ColourSeen(rho, 1.0 - best[0], float(away.sum()) * sc.stride * sc.stride, h)
+    return _ColourSeen(rho, cl[0], cl[1], h)
 
 
 def _colour_candidates(feat: np.ndarray, bins: np.ndarray, st: AppearanceState, hold: np.ndarray, run: int,

@@ -137,6 +137,21 @@ class Scan:
         far_y = np.abs(self.ys - centre[1]) >= half[1]
         return (far_y[:, None] | far_x[None, :]) & (self.bc >= 0)
 
+    def clutter(self, centre: np.ndarray, size: tuple[float, float], min_boxes: int = 16
+                ) -> tuple[float, float] | None:
+        """The colour cue's clutter about a box of ``size`` (w, h) at ``centre``: the best rho_c =
+        1 - BC of the scanned boxes one to two box sizes from it (a histogram counts the whole box,
+        so a box that overlaps the target shares its colours), and the image area (px^2) of those
+        centres. None when fewer than ``min_boxes`` were scanned there."""
+        near_x = np.abs(self.xs - centre[0]) <= 2.0 * size[0]
+        near_y = np.abs(self.ys - centre[1]) <= 2.0 * size[1]
+        ring = self.away(centre, size) & near_y[:, None] & near_x[None, :]
+        n = int(ring.sum())
+        best = self.best(ring) if n >= min_boxes else None
+        if best is None:
+            return None
+        return 1.0 - best[0], float(n) * self.stride * self.stride
+
 
 def scan(b: np.ndarray, centre: np.ndarray, margin: tuple[float, float], size: tuple[float, float],
          refs: list[np.ndarray], stride: int) -> Scan | None:

@@ -132,7 +132,7 @@ from .geometry import (COEF, ROT, TRANS, box_minus, box_plus, pose_quaternions, 
                        quaternion_matrices, relative_rotvecs)
 from .background import TiledTexels
 from .coarse_search import translation_costs
-from .image import BilinearStencil, FrameData, bilinear_stencil, stencil_xy
+from .image import BilinearStencil, FrameData, stencil_xy
 from .photometric import Photometric
 
 __all__ = [

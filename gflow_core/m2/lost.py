@@ -214,11 +214,8 @@ def colour_at(bins: np.ndarray | None, anchor: Anchor, centre: np.ndarray, size:
     sc = col.scan(bins, centre, (2.0 * size[0], 2.0 * size[1]), size, [anchor.colour], stride)
     if sc is None:
         return ColourSeen(rho)
-    away = sc.away(centre, size)
-    best = sc.best(away) if int(away.sum()) >= 16 else None
-    if best is None:
-        return ColourSeen(rho)
-    return ColourSeen(rho, (1.0 - best[0], float(away.sum()) * stride * stride))
+    cl = sc.clutter(centre, size)
+    return ColourSeen(rho) if cl is None else ColourSeen(rho, cl)
 
 
 def _cues(seen: ColourSeen | None, st: LostState, trials: float = 1.0) -> tuple[Cue, ...]:
