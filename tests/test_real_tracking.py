@@ -68,27 +68,27 @@ def test_david_indoor_face_found_again_after_sixty_hidden_frames_by_its_colour(t
     assert not after["false"][0], f"the edges alone got it back too: the case no longer tests colour ({after})"
 
 
-def test_chamfer_guard_keeps_off_the_pedestrian_beside_caviar1s_target_by_colour(tmp_path, gflow_cmd):
-    """caviar1's stress case `partial-33` (seed 1), chamfer: while a patch covers a third of the target
-    the lost guard holds the box; the man walking beside it has the same edges, and with the edges
-    alone the guard took him for the target when it searched, and kept him. Weighing the colour of the
-    candidates (red shirt against dark jacket), it waits for the target and gets it back."""
+def test_chamfer_guard_keeps_off_the_pedestrian_beside_caviar1s_target(tmp_path, gflow_cmd):
+    """caviar1's stress cases `slide-60` (a patch slides up across the target) and `look` (her top is
+    replaced for good), seed 1, chamfer. The man standing beside her, 1.15 box widths away, has the same
+    edges. With the clutter sampled within one box size of the estimate the guard never saw him as
+    clutter, its clutter model called his match impossible for clutter, and it took him for the target
+    (success 0.25 and 0.77 against a still box's 0.59 and 0.88). Sampled as far as the search's first
+    window reaches, he is clutter: the guard holds the box and gets her back."""
     from tests.conftest import data_dir
 
     data = data_dir("caviar1").parent
-    after = {}
-    for colour in ("true", "false"):
-        r = subprocess.run([*gflow_cmd, "benchmark", str(data), "--stress", "--sequences", "caviar1", "--cases",
-                            "partial-33", "--trackers", "chamfer", "--opencv", "none", "--inline", "-q", "--json",
-                            "--seed", "1", "--stress-cache", str(tmp_path / "cache"),
-                            "--set", f"filter.lost_colour={colour}"],
-                           capture_output=True, text=True, timeout=600)
-        assert r.returncode == 0, r.stderr
-        row = [x for x in json.loads(r.stdout)["rows"] if x["kind"] == "tracker"][0]
-        after[colour] = (row["back"], row["after"], row["success"], row["still_success"])
-    print(after)
-    assert after["true"][0] and after["true"][1] >= 0.8 and after["true"][2] > after["true"][3], after
-    assert not after["false"][0], f"the edges alone got it back too: the case no longer tests colour ({after})"
+    r = subprocess.run([*gflow_cmd, "benchmark", str(data), "--stress", "--sequences", "caviar1", "--cases",
+                        "slide-60,look", "--trackers", "chamfer", "--opencv", "none", "--inline", "-q", "--json",
+                        "--seed", "1", "--stress-cache", str(tmp_path / "cache")],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    rows = {x["case"]: x for x in json.loads(r.stdout)["rows"] if x["kind"] == "tracker"}
+    seen = {c: (x["back"], x["after"], x["success"], x["still_success"]) for c, x in rows.items()}
+    print(seen)
+    assert set(rows) == {"slide-60", "look"}, seen
+    for case, (back, after, success, still) in seen.items():
+        assert back and after >= 0.8 and success > still, (case, seen)
 
 
 def test_gflow_leaves_the_passer_by_and_gets_caviar1s_target_back() -> None:

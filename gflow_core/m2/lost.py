@@ -21,6 +21,12 @@ first patch):
   sec. 3 and eq. 10: d and sigma from the running moments of rho over the frames judged
   found); beside it, the best correlation of the anchor in a ring around the estimate (centres
   within ``ring`` box sizes, farther than half a box) is a sample of what clutter scores. The
+  ring reaches as far as the search's first window (1.5 box sizes): with one box size, caviar1's
+  pedestrian standing 1.15 box widths beside the target was never sampled, the clutter's model
+  (r about 0.28, its spread at the floor) called his r of 0.54 impossible for clutter, and after
+  a patch hid the target for 10 frames G-flow's guard re-seated the experts on him; measured in
+  docs/recovery.md (stress benchmark, seeds 1 and 2: cases worse than a box that never moves 9
+  -> 1 over chamfer, m2 and G-flow). The
   target is lost when the hypothesis "the estimate is clutter" explains rho better than
   "the target, as it looks" and "the target, part hidden" together, once ``warmup`` frames
   have set the distributions, or when the estimate's centre leaves the frame. Nothing is a
@@ -90,8 +96,10 @@ class LostParams:
     re-detection widens by this many box sizes a lost frame; warmup: found frames before any
     decision; rate, clutter_rate: forgetting rates of the target's and the clutter's distance
     moments; min_std: floor on their spread; ring: the clutter is sampled at centres within
-    this many box sizes of the estimate (and farther than half a box); max_area: anchor
-    resolution in pixels; coarse_area: anchor pixels of the coarse pass of the search."""
+    this many box sizes of the estimate (and farther than half a box), as far as the search's
+    first window reaches by default (``window``: the clutter model is learnt on what the search
+    will meet); max_area: anchor resolution in pixels; coarse_area: anchor pixels of the coarse
+    pass of the search."""
 
     window: float = 1.5
     growth: float = 0.1
@@ -99,7 +107,7 @@ class LostParams:
     rate: float = 0.05
     clutter_rate: float = 0.05
     min_std: float = 0.05
-    ring: float = 1.0
+    ring: float = 1.5
     max_area: int = 600
     coarse_area: int = 300
 

@@ -149,8 +149,8 @@ def test_redetect_at_several_sizes_finds_a_grown_target() -> None:
     assert np.hypot(*(c.centre - [95.0, 75.0])) < 3.0
 
 
-def _two_lookalikes(cover: bool, t: int) -> tuple[np.ndarray, np.ndarray]:
-    """A reddish target at (40, 60) and, 75 px to its right, a bluish look-alike whose block pattern
+def _two_lookalikes(cover: bool, t: int, dx: int = 75) -> tuple[np.ndarray, np.ndarray]:
+    """A reddish target at (40, 60) and, ``dx`` px to its right, a bluish look-alike whose block pattern
     differs in 9 of 30 blocks, on a background of coloured blocks; ``cover``: a patch of other
     blocks hides the target. Returns the BGR frame (H, W, 3) and its grey levels (H, W)."""
     rng = np.random.default_rng(3)
@@ -160,11 +160,12 @@ def _two_lookalikes(cover: bool, t: int) -> tuple[np.ndarray, np.ndarray]:
     bg = np.kron(rng.uniform(60, 200, (20, 30, 3)), np.ones((8, 8, 1)))
     noise = np.random.default_rng(t)
     img = bg.copy()
-    for (x, y), pattern, tint in (((40, 60), blocks, (0.35, 0.45, 1.0)), ((115, 60), other, (1.0, 0.6, 0.35))):
+    for (x, y), pattern, tint in (((40, 60), blocks, (0.35, 0.45, 1.0)), ((40 + dx, 60), other, (1.0, 0.6, 0.35))):
         tex = np.kron(pattern, np.ones((6, 6))) * 150 + 60
         img[y:y + 36, x:x + 30] = tex[..., None] * np.array(tint)
     if cover:
-        img[50:106, 30:80] = np.kron(noise.uniform(60, 200, (7, 7, 3)), np.ones((8, 8, 1)))[:56, :50]
+        x1 = min(80, 40 + dx - 2)  # up to the look-alike, not over it
+        img[50:106, 30:x1] = np.kron(noise.uniform(60, 200, (7, 7, 3)), np.ones((8, 8, 1)))[:56, :x1 - 30]
     img = (img + noise.normal(0, 8, img.shape)).clip(0, 255).astype(np.uint8)
     return img, cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
 
@@ -173,7 +174,9 @@ def _two_lookalikes(cover: bool, t: int) -> tuple[np.ndarray, np.ndarray]:
 def test_colour_keeps_the_search_off_a_lookalike_of_another_colour(with_colour: bool) -> None:
     """With the frame's colour bins the guard weighs each candidate's colour histogram against the
     initial box's: a look-alike whose edges the edges alone take for the target partly seen is
-    refused, and the target itself is taken back once it is uncovered."""
+    refused, and the target itself is taken back once it is uncovered. (A clutter ring of one box size:
+    the look-alike is then refused by its colour alone, not by the wider clutter sample of the default.)"""
+    P = replace(lost.LostParams(), ring=1.0)  # noqa: N806 - the module's P, narrowed
     box = (40.0, 60.0, 30.0, 36.0)
     img, grey = _two_lookalikes(False, 0)
     bins = colour.bins(img) if with_colour else None
@@ -199,6 +202,32 @@ def test_colour_keeps_the_search_off_a_lookalike_of_another_colour(with_colour: 
     ch, bins = lost.channels(grey), colour.bins(img) if with_colour else None
     cand, cvis, _ = lost.search(ch, anchor, box, st, P, (1.0,), obs.clutter[1], bins)
     assert cand is not None and cvis is not None and cvis.visible >= 0.5 and abs(cand.centre[0] - 54.5) < 3
+
+
+@pytest.mark.parametrize("ring", [1.0, 1.5])
+def test_the_clutter_ring_reaches_a_lookalike_beside_the_target(ring: float) -> None:
+    """The clutter is sampled as far as the search's first window reaches (``ring`` 1.5 box sizes, the
+    default): a look-alike 1.2 box widths beside the target is then part of the clutter model, and once
+    the target is covered the search does not take it for the target (edges alone). Sampled within one
+    box size, it never was, and the search takes it."""
+    p = replace(P, ring=ring)
+    box = (40.0, 60.0, 30.0, 36.0)
+    _, grey = _two_lookalikes(False, 0, dx=36)
+    anchor = lost.anchor_of(lost.channels(grey), box, p)
+    st = lost.LostState()
+    for t in range(p.warmup + 20):
+        _, grey = _two_lookalikes(False, t, dx=36)
+        obs = lost.observe(lost.channels(grey), anchor, box, p)
+        st, _, is_lost = lost.judge(st, obs, (*box, 0.0), p)
+        assert not is_lost
+    assert obs.clutter is not None
+    _, grey = _two_lookalikes(True, 100, dx=36)
+    ch = lost.channels(grey)
+    st, _, is_lost = lost.judge(st, lost.observe(ch, anchor, box, p), (*box, 0.0), p)
+    assert is_lost
+    cand, cvis, _ = lost.search(ch, anchor, box, st, p, (1.0,), obs.clutter[1])
+    assert cand is not None and cvis is not None and abs(cand.centre[0] - (76 + 14.5)) < 3  # the look-alike
+    assert cvis.present == (ring == 1.0), (st.clutter.mean(), cand.r, cvis)
 
 
 def test_a_colour_cue_that_does_not_tell_target_from_clutter_is_left_out() -> None:
