@@ -130,7 +130,12 @@ def test_processes_table_matches_inline(seq, inline_run):
         row = _row(res["rows"], name)
         assert cells[2] == row["kind"] and int(cells[3]) == row["frames"]
         got = tuple(float(v) for v in cells[4:7])
-        assert got == (round(row["cle_px"], 2), round(row["success_rate_0.5"], 3), round(row["auc"], 3)), name
+        # the table prints the scores to 2, 3 and 3 places, the JSON rounds them to 3, 4 and 4: equal
+        # within half a printed unit plus the JSON's rounding (a value on a rounding boundary, AUC
+        # 0.68254 printed 0.683 and kept as 0.6825, must not fail)
+        want = (row["cle_px"], row["success_rate_0.5"], row["auc"])
+        for g, w, places in zip(got, want, (2, 3, 3)):
+            assert abs(g - w) <= 0.5 * 10.0 ** -places + 0.5 * 10.0 ** -(places + 1) + 1e-12, (name, got, want)
         size = row["size_within_2x"]
         assert cells[7] == ("-" if size is None else f"{size:.2f}"), name
     assert float(table["chamfer"][8]) > 0 and table["other"][8] == "-"  # fps
