@@ -98,7 +98,7 @@ def diff_recordings(a: str | Path, b: str | Path, topics: list[str] | None = Non
                 td._diverge(seq)
                 td.types.add(db[key][0])
                 continue
-            (ta, pa), (tb, pb) = da[key], db[key]
+            (ta, pa), (_, pb) = da[key], db[key]
             td.types.add(ta)
             if ta in ("Estimate", "PoseEstimate"):
                 ed = _estimate_diff(seq, pa, pb)

@@ -238,7 +238,7 @@ def cmd_track(args) -> int:
 
         write_points(args.points_out, run.points)
         pts = f"; points: {args.points_out}" + ("" if run.points else " (empty: the model has no landmarks)")
-    n, states, info = len(run.boxes), run.states, run.info
+    n, info = len(run.boxes), run.info
     print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
           f"boxes: {args.out}{pts}; recording: {run.kept}")
     for line in run.lines:
