@@ -84,12 +84,18 @@ def test_malformed_messages_injected_on_a_live_topic(tmp_path):
     t = threading.Thread(target=lambda: result.setdefault("r", launcher.run()))
     t.start()
     deadline = time.monotonic() + 60
-    while not (launcher.status.get("source") and launcher.status["source"].state == "running"):
+    # the filter has stepped a frame: its subscriptions are declared
+    while not (launcher.status.get("filter") and launcher.status["filter"].steps > 0):
         assert time.monotonic() < deadline, "pipeline did not start"
+        assert t.is_alive(), "the run ended before the filter reported a step"
         time.sleep(0.05)
     s = open_session(ZenohSettings(connect=(f"tcp/127.0.0.1:{port}",)))
     bus = Bus(s)
-    time.sleep(0.5)  # let the injector's declarations reach every peer
+    pubs = [bus.publisher("gflow/demo/features"), bus.publisher("gflow/demo/proposals")]
+    # ... and have reached the injector's session (zenoh's matching status), not a fixed wait
+    while not all(p.matching_status.matching for p in pubs):
+        assert time.monotonic() < deadline, "the injector's publishers never matched a subscriber"
+        time.sleep(0.02)
     bus.publish("gflow/demo/features", b"\x01\x02 not msgpack", 5)
     bus.publish("gflow/demo/proposals", b"\x81\xa4type\xa5Frame", 6)  # a tag with no body
     s.close()
