@@ -99,6 +99,29 @@ def test_nan_and_inf_particles_are_rejected():
     assert sink.seqs("proposals", "Particles") == [1]
 
 
+def test_an_input_just_ahead_of_the_source_announcement_is_held_until_the_announcement_comes():
+    """The source's position and the inputs travel on different links: an input up to one more
+    window past the limit is held (not rejected) and joined once an announcement covers it;
+    one further ahead, or one the source never covers before the end, is rejected."""
+    sink = Sink()
+    h = _preprocess(sink)  # window 8: the limit is source + 9
+    h.source_seq = 3
+    for s in range(4):
+        h.deliver("frames", encode(_frame(s)))
+    h.deliver("frames", encode(_frame(13)))  # 1 past the limit: held
+    h.deliver("frames", encode(_frame(22)))  # past the limit by more than a window: rejected
+    assert h.stats.rejected == {"future_seq": 1} and sink.errors() == 1
+    assert [seq for _, seq, _ in h.early["frames"]] == [13]
+    h.source_seq = 12  # the announcement arrives
+    h.tick(60.0)
+    assert 13 in sink.seqs("features", "Features") and not h.early["frames"]
+    h.deliver("frames", encode(_frame(24)))  # held again, and never covered
+    assert h.stats.rejected == {"future_seq": 1}
+    h.close()
+    assert h.stats.rejected == {"future_seq": 2} and sink.errors() == 2
+    assert 24 not in sink.seqs("features", "Features")
+
+
 def test_without_the_source_position_future_seqs_are_not_judged():
     sink = Sink()
     h = _preprocess(sink)

@@ -130,6 +130,9 @@ class StageHost:
         self.ahead = ahead and bool(stage.prepare_ports)
         self._pool: ThreadPoolExecutor | None = None
         self._unprepared: deque[tuple[str, Any]] = deque()  # joined, waiting for room to be prepared
+        # inputs a little ahead of the source's last announcement, held until the next one covers
+        # them: the announcement and the input travel on different links, so either may come first
+        self.early: dict[str, deque[tuple[str, int, Any]]] = {}  # port -> (topic, seq, msg), in order
 
     # -- errors ------------------------------------------------------------------------------
     def report(self, kind: str, message: str, seq: int = -1, topic: str = "") -> None:
@@ -170,9 +173,6 @@ class StageHost:
         if why:
             last = self.join.high.get(port, -1)
             return (f"{why}_seq: frame {seq} on a port at {last}, consumed up to {self.join.done_below}")
-        if self.source_seq >= 0 and seq > self.source_seq + self.window + 1:
-            return (f"future_seq: frame {seq} is more than {self.window} frames ahead of the source "
-                    f"(at {self.source_seq})")
         for name in getattr(msg, "__struct_fields__", ()):
             arr = getattr(msg, name)
             if isinstance(arr, NDArray):
@@ -188,7 +188,14 @@ class StageHost:
                 return f"bad_array: Particles: {e}"
             if not ok:
                 return "bad_values: particles with NaN or inf, or alpha and log_w of different lengths"
+        # last, so that an input held for being early is otherwise sound
+        if self._ahead_of_source(seq):
+            return (f"future_seq: frame {seq} is more than {self.window} frames ahead of the source "
+                    f"(at {self.source_seq})")
         return ""
+
+    def _ahead_of_source(self, seq: int) -> bool:
+        return self.source_seq >= 0 and seq > self.source_seq + self.window + 1
 
     def _check_array(self, name: str, arr: NDArray, image: bool) -> str:
         """Shape against size and the declared frame, in Python integers (no overflow, no allocation)."""
@@ -225,6 +232,8 @@ class StageHost:
         while the source is ahead of it (or a driver port has ended): give up its missing inputs
         and go on."""
         j = self.join
+        if not self.closed and self.release_early():
+            self.pump()
         if self.closed or not j.pending or self.hold:
             return
         seq, now = min(j.pending), time.monotonic()
@@ -264,6 +273,7 @@ class StageHost:
             self.reject("malformed_message", f"on {topic}: {e}", topic=topic)
             return
         offset = self.stage.input_offsets.get(port, 0)
+        self.release_early()
         if isinstance(msg, EndOfStream):
             self.join.end(port, msg.header.seq + offset)
         else:
@@ -277,16 +287,42 @@ class StageHost:
                 return
             if msg.header.seq + offset <= self.replayed_upto.get(port, -1):
                 return  # the live copy of an input already replayed from the recording
-            bad = self.check(port, msg.header.seq + offset, msg)
-            if bad:
-                kind, _, why = bad.partition(": ")
-                self.reject(kind, f"on {topic}: {why}", msg.header.seq, topic)
-                return
-            self.join.push(port, msg.header.seq + offset, msg)
-            if self.ahead and port in self.stage.prepare_ports:
-                self._prepare_ahead(port, msg)
+            self._accept(port, topic, msg.header.seq + offset, msg)
         if pump:
             self.pump()
+
+    def _accept(self, port: str, topic: str, seq: int, msg: Any, held: bool = False) -> None:
+        """Check one decoded input (``seq`` offset) and join it, hold it as early, or reject it."""
+        bad = self.check(port, seq, msg)
+        if bad.startswith("future_seq") and not held and self._hold_early(port, topic, seq, msg):
+            return
+        if bad:
+            kind, _, why = bad.partition(": ")
+            self.reject(kind, f"on {topic}: {why}", msg.header.seq, topic)
+            return
+        self.join.push(port, seq, msg)
+        if self.ahead and port in self.stage.prepare_ports:
+            self._prepare_ahead(port, msg)
+
+    def _hold_early(self, port: str, topic: str, seq: int, msg: Any) -> bool:
+        """Hold an input at most one more window past the flow-control limit, and at most a
+        window of them per port, until the source's next announcement covers it (True: held)."""
+        q = self.early.setdefault(port, deque())
+        if seq > self.source_seq + 2 * (self.window + 1) or len(q) >= self.window + 1:
+            return False
+        q.append((topic, seq, msg))
+        return True
+
+    def release_early(self, force: bool = False) -> bool:
+        """Join the held inputs the source's announcements now cover (with ``force``, check
+        them all again as they are); True if any was taken out of hold."""
+        released = False
+        for port, q in self.early.items():
+            while q and (force or not self._ahead_of_source(q[0][1])):
+                topic, seq, msg = q.popleft()
+                self._accept(port, topic, seq, msg, held=True)
+                released = True
+        return released
 
     def _prepare_ahead(self, port: str, msg: Any) -> None:
         """Queue ``stage.prepare(port, msg)`` for the host's second thread."""
@@ -372,6 +408,7 @@ class StageHost:
         """Finish the stage and publish an end of stream on each output (once)."""
         if self.closed:
             return
+        self.release_early(force=True)  # what the source never covered is rejected as future_seq
         self.closed = True
         if self._pool is not None:
             self._pool.shutdown(wait=False, cancel_futures=True)
