@@ -177,12 +177,17 @@ class StateScore:
         ``occluded`` or ``lost``.
     shown : undisturbed frames (the target in view and nothing perturbed); shown_right : of
         those, reported ``tracked``.
+    off : frames with the target in view whose box missed it (overlap at or below the success
+        threshold), scored when the overlaps are given; off_tracked : of those, reported
+        ``tracked`` -- the box is off the target and the output does not say so (lower is better).
     """
 
     hidden: int
     hidden_right: int
     shown: int
     shown_right: int
+    off: int = 0
+    off_tracked: int = 0
 
     @property
     def hidden_rate(self) -> float | None:
@@ -192,14 +197,20 @@ class StateScore:
     def shown_rate(self) -> float | None:
         return self.shown_right / self.shown if self.shown else None
 
+    @property
+    def off_rate(self) -> float | None:
+        return self.off_tracked / self.off if self.off else None
+
     def to_json(self) -> dict:
-        r = self.hidden_rate, self.shown_rate
+        r = self.hidden_rate, self.shown_rate, self.off_rate
         return {"hidden_frames": self.hidden, "hidden_reported_occluded_or_lost": None if r[0] is None else round(r[0], 4),
-                "undisturbed_frames": self.shown, "undisturbed_reported_tracked": None if r[1] is None else round(r[1], 4)}
+                "undisturbed_frames": self.shown, "undisturbed_reported_tracked": None if r[1] is None else round(r[1], 4),
+                "off_target_frames": self.off, "off_target_reported_tracked": None if r[2] is None else round(r[2], 4)}
 
 
 def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLike | None = None,
-                grace: int = 5, hidden_below: float = HIDDEN_BELOW) -> StateScore:
+                grace: int = 5, hidden_below: float = HIDDEN_BELOW, overlap: ArrayLike | None = None,
+                threshold: float = 0.5) -> StateScore:
     """Score reported target states against how much of the target was in view.
 
     Parameters
@@ -212,6 +223,9 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
     grace : the first ``grace`` frames of each hidden stretch are not scored (a tracker cannot
         know at once that the target went behind something).
     hidden_below : a frame is hidden when less than this fraction of the target is in view.
+    overlap : (F,) the box's overlap (IoU) with the truth on each frame (:func:`overlaps`); with it,
+        the frames with the target in view and overlap at or below ``threshold`` are scored for
+        whether they were reported ``tracked`` (``off``, ``off_tracked``).
     """
     vis = np.asarray(visible, dtype=np.float64)
     if vis.ndim != 1 or len(states) != vis.shape[0]:
@@ -234,5 +248,12 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
     said_hidden = np.array([s in ("occluded", "lost") for s in states], dtype=bool)
     said_tracked = np.array([s == "tracked" for s in states], dtype=bool)
     shown = calm & ~hidden
+    off = np.zeros_like(hidden)
+    if overlap is not None:
+        ov = np.asarray(overlap, dtype=np.float64)
+        if ov.shape != vis.shape:
+            raise ValueError(f"overlap {ov.shape} and visible {vis.shape} must have the same shape")
+        off = ~hidden & ~(ov > threshold)
     return StateScore(hidden=int(scored_hidden.sum()), hidden_right=int((scored_hidden & said_hidden).sum()),
-                      shown=int(shown.sum()), shown_right=int((shown & said_tracked).sum()))
+                      shown=int(shown.sum()), shown_right=int((shown & said_tracked).sum()),
+                      off=int(off.sum()), off_tracked=int((off & said_tracked).sum()))

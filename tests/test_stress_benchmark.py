@@ -241,6 +241,16 @@ def test_eval_reads_old_five_column_files_and_new_seven_column_ones(tmp_path):
     r = _gflow("eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "new.csv"), "--visibility",
                str(tmp_path / "vis.csv"))
     assert r.returncode == 0 and "state right when undisturbed: 1.000 (tracked on 10 of 10 frames)" in r.stdout
+    assert "off the target, said tracked: - (tracked on 0 of 0 frames" in r.stdout
+    # boxes that leave the target on frames 6-9, said tracked on 6-7 and lost on 8-9
+    off = {**pred, **{f: (200.0, 200.0, 30.0, 40.0) for f in range(6, 10)}}
+    write_boxes(tmp_path / "off.csv", off, {f: 0.5 for f in off},
+                {f: "lost" if f >= 8 else "tracked" for f in off})
+    r = _gflow("eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "off.csv"), "--visibility",
+               str(tmp_path / "vis.csv"), "--json")
+    assert r.returncode == 0, r.stderr
+    st = json.loads(r.stdout)["state"]
+    assert st["off_target_frames"] == 4 and st["off_target_reported_tracked"] == pytest.approx(0.5)
 
 
 def test_read_track_refuses_bad_states_and_mixed_rows(tmp_path):

@@ -249,7 +249,7 @@ def stress_scores(row: StressRow, d: Derived, boxes_csv: str | Path) -> StressRo
     row.overlap = ov
     row.back_in = frames_to_recover(ov, w1)
     if track.states is not None:
-        row.state = state_score([track.states.get(f) for f in frames], d.plan.visible, d.plan.perturbed)
+        row.state = state_score([track.states.get(f) for f in frames], d.plan.visible, d.plan.perturbed, overlap=ov)
     return row
 
 
@@ -334,6 +334,7 @@ def _summary(rows: list[StressRow]) -> dict:
                                  and r.extra.get("still_success") is not None and r.success < r.extra["still_success"]],
         "hidden_reported_occluded_or_lost": [sum(s.hidden_right for s in st), sum(s.hidden for s in st)],
         "undisturbed_reported_tracked": [sum(s.shown_right for s in st), sum(s.shown for s in st)],
+        "off_target_reported_tracked": [sum(s.off_tracked for s in st), sum(s.off for s in st)],
     }
 
 
@@ -382,6 +383,9 @@ def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv
     h, s = a["hidden_reported_occluded_or_lost"], a["undisturbed_reported_tracked"]
     lines.append(f"- state: hidden frames (past the first 5) reported occluded or lost {_rate(*h)} ({h[0]}/{h[1]}); "
                  f"undisturbed frames reported tracked {_rate(*s)} ({s[0]}/{s[1]})")
+    o = a["off_target_reported_tracked"]
+    lines.append(f"- box off the target (IoU <= 0.5, target in view) yet reported tracked {_rate(*o)} "
+                 f"({o[0]}/{o[1]}; lower is better)")
     worse = a["worse_than_still_box"]
     lines.append(f"- worse than a box that never moves (success): {len(worse)} case(s)"
                  + (f": {', '.join(worse)}" if worse else ""))

@@ -53,3 +53,16 @@ def test_no_hidden_frames_means_no_rate():
     s = state_score(["tracked"] * 3, np.ones(3))
     assert s.hidden == 0 and s.hidden_rate is None and s.shown_rate == 1.0
     assert s.to_json()["hidden_reported_occluded_or_lost"] is None
+
+
+def test_state_score_counts_boxes_off_a_target_in_view_that_were_said_tracked():
+    visible = np.array([1, 1, 1, 0, 0, 1, 1, 0.5], dtype=float)
+    overlap = np.array([0.9, 0.2, 0.0, 0.0, 0.0, 0.5, 0.0, 0.3])
+    states = ["tracked", "tracked", "occluded", "tracked", "lost", "tracked", "lost", "tracked"]
+    s = state_score(states, visible, overlap=overlap)
+    # off: in view with overlap <= 0.5 -> frames 1, 2, 5, 6, 7 (3 and 4 are hidden: not scored)
+    assert (s.off, s.off_tracked) == (5, 3) and s.off_rate == pytest.approx(3 / 5)
+    assert s.to_json()["off_target_reported_tracked"] == pytest.approx(0.6)
+    assert state_score(states, visible).off == 0  # without overlaps nothing is scored
+    with pytest.raises(ValueError, match="same shape"):
+        state_score(states, visible, overlap=overlap[:3])

@@ -80,6 +80,9 @@ def cmd_eval(args) -> int:
                   f"{states.hidden_right} of {states.hidden} hidden frames, past the first 5 of each stretch)")
             print(f"state right when undisturbed: {_rate(states.shown_right, states.shown)} (tracked on "
                   f"{states.shown_right} of {states.shown} frames)")
+            print(f"off the target, said tracked: {_rate(states.off_tracked, states.off)} (tracked on "
+                  f"{states.off_tracked} of {states.off} frames with the target in view and IoU <= {args.threshold}; "
+                  "lower is better)")
     return 0
 
 
@@ -89,7 +92,7 @@ def _rate(a: int, n: int) -> str:
 
 def _state_score(args, gt: dict, track):
     """How often the predicted state was right, given the truth's visibility file."""
-    from gflow_core.metrics import state_score
+    from gflow_core.metrics import overlaps, state_score
 
     from pipeline.recording.results import read_visibility
 
@@ -102,7 +105,8 @@ def _state_score(args, gt: dict, track):
     if missing:
         raise CliError(f"{args.visibility} has no row for frame {missing[0]} of the ground truth")
     return state_score([track.states.get(f) for f in frames], [vis[f] for f in frames],
-                       None if pert is None else [pert[f] for f in frames])
+                       None if pert is None else [pert[f] for f in frames],
+                       overlap=overlaps(gt, track.boxes), threshold=args.threshold)
 
 
 def register(sub) -> None:
