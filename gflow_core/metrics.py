@@ -11,7 +11,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve",
-           "size_kept", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score"]
+           "size_kept", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score",
+           "CONFIDENCE_BANDS"]
 
 #: overlap thresholds of the OTB success plot (Wu, Lim & Yang, CVPR 2013); its AUC is the mean over them
 OVERLAP_THRESHOLDS = np.linspace(0.0, 1.0, 21)
@@ -168,6 +169,11 @@ def frames_to_recover(overlap: np.ndarray, start: int, threshold: float = 0.5, h
     return None
 
 
+#: the inner edges of the confidence bands a state score counts frames on target in:
+#: [0, 0.25), [0.25, 0.5), [0.5, 0.75), [0.75, 0.95), [0.95, 1]
+CONFIDENCE_BANDS = (0.25, 0.5, 0.75, 0.95)
+
+
 @dataclass(frozen=True)
 class StateScore:
     """How often a tracker's ``state`` was right.
@@ -180,6 +186,9 @@ class StateScore:
     off : frames with the target in view whose box missed it (overlap at or below the success
         threshold), scored when the overlaps are given; off_tracked : of those, reported
         ``tracked`` -- the box is off the target and the output does not say so (lower is better).
+    bands : per band of :data:`CONFIDENCE_BANDS`, (frames with the target in view, of those with
+        the box on it), scored when the confidences and overlaps are given: how far a user may
+        trust a confidence (it is P(visible), not a calibrated P(on target)).
     """
 
     hidden: int
@@ -188,6 +197,7 @@ class StateScore:
     shown_right: int
     off: int = 0
     off_tracked: int = 0
+    bands: tuple[tuple[int, int], ...] = ()
 
     @property
     def hidden_rate(self) -> float | None:
@@ -205,12 +215,21 @@ class StateScore:
         r = self.hidden_rate, self.shown_rate, self.off_rate
         return {"hidden_frames": self.hidden, "hidden_reported_occluded_or_lost": None if r[0] is None else round(r[0], 4),
                 "undisturbed_frames": self.shown, "undisturbed_reported_tracked": None if r[1] is None else round(r[1], 4),
-                "off_target_frames": self.off, "off_target_reported_tracked": None if r[2] is None else round(r[2], 4)}
+                "off_target_frames": self.off, "off_target_reported_tracked": None if r[2] is None else round(r[2], 4),
+                "confidence_bands": band_json(self.bands)}
+
+
+def band_json(bands: tuple[tuple[int, int], ...] | list[list[int]]) -> list[dict]:
+    """Per confidence band (:data:`CONFIDENCE_BANDS`): its range, frames with the target in view, and
+    of those the share with the box on it."""
+    edges = (0.0, *CONFIDENCE_BANDS, 1.0)
+    return [{"from": edges[i], "to": edges[i + 1], "frames": int(n), "on_target": None if n == 0 else round(k / n, 4)}
+            for i, (n, k) in enumerate(bands)]
 
 
 def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLike | None = None,
                 grace: int = 5, hidden_below: float = HIDDEN_BELOW, overlap: ArrayLike | None = None,
-                threshold: float = 0.5) -> StateScore:
+                threshold: float = 0.5, confidence: ArrayLike | None = None) -> StateScore:
     """Score reported target states against how much of the target was in view.
 
     Parameters
@@ -226,6 +245,8 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
     overlap : (F,) the box's overlap (IoU) with the truth on each frame (:func:`overlaps`); with it,
         the frames with the target in view and overlap at or below ``threshold`` are scored for
         whether they were reported ``tracked`` (``off``, ``off_tracked``).
+    confidence : (F,) the confidence reported on each frame (NaN where none); with ``overlap``, the
+        frames with the target in view are counted per confidence band (``bands``).
     """
     vis = np.asarray(visible, dtype=np.float64)
     if vis.ndim != 1 or len(states) != vis.shape[0]:
@@ -254,6 +275,16 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
         if ov.shape != vis.shape:
             raise ValueError(f"overlap {ov.shape} and visible {vis.shape} must have the same shape")
         off = ~hidden & ~(ov > threshold)
+    bands: tuple[tuple[int, int], ...] = ()
+    if overlap is not None and confidence is not None:
+        conf = np.asarray(confidence, dtype=np.float64)
+        if conf.shape != vis.shape:
+            raise ValueError(f"confidence {conf.shape} and visible {vis.shape} must have the same shape")
+        band = np.searchsorted(np.asarray(CONFIDENCE_BANDS), conf, side="right")
+        seen = ~hidden & np.isfinite(conf)
+        on = np.asarray(overlap, dtype=np.float64) > threshold
+        bands = tuple((int((seen & (band == b)).sum()), int((seen & (band == b) & on).sum()))
+                      for b in range(len(CONFIDENCE_BANDS) + 1))
     return StateScore(hidden=int(scored_hidden.sum()), hidden_right=int((scored_hidden & said_hidden).sum()),
                       shown=int(shown.sum()), shown_right=int((shown & said_tracked).sum()),
-                      off=int(off.sum()), off_tracked=int((off & said_tracked).sum()))
+                      off=int(off.sum()), off_tracked=int((off & said_tracked).sum()), bands=bands)

@@ -251,6 +251,8 @@ def test_eval_reads_old_five_column_files_and_new_seven_column_ones(tmp_path):
     assert r.returncode == 0, r.stderr
     st = json.loads(r.stdout)["state"]
     assert st["off_target_frames"] == 4 and st["off_target_reported_tracked"] == pytest.approx(0.5)
+    assert [b["frames"] for b in st["confidence_bands"]] == [0, 0, 10, 0, 0]  # every confidence 0.5
+    assert st["confidence_bands"][2]["on_target"] == pytest.approx(0.6)
 
 
 def test_read_track_refuses_bad_states_and_mixed_rows(tmp_path):

@@ -32,7 +32,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gflow_core.metrics import HIDDEN_BELOW, StateScore, frames_to_recover, overlaps, state_score
+from gflow_core.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band_json, frames_to_recover, overlaps,
+                                 state_score)
 from gflow_core.stress import CASES, PATCH_KINDS, StressCase, StressPlan, occluder_size, plan_case, render_frame
 
 from pipeline.io.frame_readers import folder_frames
@@ -249,7 +250,9 @@ def stress_scores(row: StressRow, d: Derived, boxes_csv: str | Path) -> StressRo
     row.overlap = ov
     row.back_in = frames_to_recover(ov, w1)
     if track.states is not None:
-        row.state = state_score([track.states.get(f) for f in frames], d.plan.visible, d.plan.perturbed, overlap=ov)
+        conf = None if track.confidence is None else [track.confidence.get(f, float("nan")) for f in frames]
+        row.state = state_score([track.states.get(f) for f in frames], d.plan.visible, d.plan.perturbed, overlap=ov,
+                                confidence=conf)
     return row
 
 
@@ -335,6 +338,8 @@ def _summary(rows: list[StressRow]) -> dict:
         "hidden_reported_occluded_or_lost": [sum(s.hidden_right for s in st), sum(s.hidden for s in st)],
         "undisturbed_reported_tracked": [sum(s.shown_right for s in st), sum(s.shown for s in st)],
         "off_target_reported_tracked": [sum(s.off_tracked for s in st), sum(s.off for s in st)],
+        "confidence_bands": band_json([[sum(s.bands[b][i] for s in st if s.bands) for i in (0, 1)]
+                                       for b in range(len(CONFIDENCE_BANDS) + 1)]),
     }
 
 
@@ -386,6 +391,10 @@ def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv
     o = a["off_target_reported_tracked"]
     lines.append(f"- box off the target (IoU <= 0.5, target in view) yet reported tracked {_rate(*o)} "
                  f"({o[0]}/{o[1]}; lower is better)")
+    bands = [b for b in a["confidence_bands"] if b["frames"]]
+    if bands:
+        lines.append("- on target by confidence (target in view): " + "; ".join(
+            f"{b['from']:.2f}-{b['to']:.2f} {b['on_target']:.2f} of {b['frames']}" for b in bands))
     worse = a["worse_than_still_box"]
     lines.append(f"- worse than a box that never moves (success): {len(worse)} case(s)"
                  + (f": {', '.join(worse)}" if worse else ""))

@@ -66,3 +66,15 @@ def test_state_score_counts_boxes_off_a_target_in_view_that_were_said_tracked():
     assert state_score(states, visible).off == 0  # without overlaps nothing is scored
     with pytest.raises(ValueError, match="same shape"):
         state_score(states, visible, overlap=overlap[:3])
+
+
+def test_state_score_counts_frames_on_target_per_confidence_band():
+    visible = np.array([1, 1, 1, 0, 1, 1], dtype=float)
+    overlap = np.array([0.9, 0.1, 0.8, 0.0, 0.7, 0.6])
+    conf = np.array([0.1, 0.2, 0.6, 0.9, 0.97, np.nan])
+    s = state_score(["tracked"] * 6, visible, overlap=overlap, confidence=conf)
+    # bands [0, .25) [.25, .5) [.5, .75) [.75, .95) [.95, 1]; frame 3 is hidden, frame 5 has no confidence
+    assert s.bands == ((2, 1), (0, 0), (1, 1), (0, 0), (1, 1))
+    js = s.to_json()["confidence_bands"]
+    assert js[0] == {"from": 0.0, "to": 0.25, "frames": 2, "on_target": 0.5} and js[1]["on_target"] is None
+    assert state_score(["tracked"] * 6, visible, overlap=overlap).bands == ()

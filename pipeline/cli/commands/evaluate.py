@@ -83,6 +83,11 @@ def cmd_eval(args) -> int:
             print(f"off the target, said tracked: {_rate(states.off_tracked, states.off)} (tracked on "
                   f"{states.off_tracked} of {states.off} frames with the target in view and IoU <= {args.threshold}; "
                   "lower is better)")
+            bands = [b for b in states.to_json()["confidence_bands"] if b["frames"]]
+            if bands:
+                print("on target by confidence:     " + "; ".join(
+                    f"{b['from']:.2f}-{b['to']:.2f} {b['on_target']:.2f} of {b['frames']}" for b in bands)
+                      + " (frames with the target in view)")
     return 0
 
 
@@ -106,14 +111,17 @@ def _state_score(args, gt: dict, track):
         raise CliError(f"{args.visibility} has no row for frame {missing[0]} of the ground truth")
     return state_score([track.states.get(f) for f in frames], [vis[f] for f in frames],
                        None if pert is None else [pert[f] for f in frames],
-                       overlap=overlaps(gt, track.boxes), threshold=args.threshold)
+                       overlap=overlaps(gt, track.boxes), threshold=args.threshold,
+                       confidence=None if track.confidence is None else
+                       [track.confidence.get(f, float("nan")) for f in frames])
 
 
 def register(sub) -> None:
     p = sub.add_parser("eval", help="score predicted boxes (or face points) against ground truth",
                        description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU) "
                                    "and success rate (IoU > 0.5); with --visibility, how often the reported state was "
-                                   "right. Face points (--landmarks, --points): the mean distance of the eye corners "
+                                   "right, how often a box off the target was still reported tracked, and how often "
+                                   "the box was on the target at each level of confidence. Face points (--landmarks, --points): the mean distance of the eye corners "
                                    "33, 133, 362, 263 and mouth corners 61, 291 from the reference, in pixels and over "
                                    "the reference 33-263 distance (NME), over the frames with a reference.")
     p.add_argument("--gt", help="ground truth CSV (frame,x,y,w,h)")
@@ -121,7 +129,8 @@ def register(sub) -> None:
     p.add_argument("--visibility", metavar="CSV",
                    help="frame,visible[,perturbed] of the truth (a stress sequence's visibility.csv): also report how "
                         "often the predicted state was right (occluded or lost when less than 10%% of the target is "
-                        "in view, past the first 5 frames of it; tracked on undisturbed frames)")
+                        "in view, past the first 5 frames of it; tracked on undisturbed frames), how often a box off "
+                        "the target was said tracked, and the share on target per band of confidence")
     p.add_argument("--landmarks", metavar="REF.npz",
                    help="reference landmarks (npz, key 'landmarks', (frames, 468, 2 or 3), NaN where none; or a "
                         "dataset folder holding landmarks.npz)")
