@@ -12,7 +12,7 @@ from numpy.typing import ArrayLike
 
 __all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve",
            "size_kept", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score",
-           "CONFIDENCE_BANDS"]
+           "CONFIDENCE_BANDS", "band_json", "band_text"]
 
 #: overlap thresholds of the OTB success plot (Wu, Lim & Yang, CVPR 2013); its AUC is the mean over them
 OVERLAP_THRESHOLDS = np.linspace(0.0, 1.0, 21)
@@ -225,6 +225,11 @@ def band_json(bands: tuple[tuple[int, int], ...] | list[list[int]]) -> list[dict
     edges = (0.0, *CONFIDENCE_BANDS, 1.0)
     return [{"from": edges[i], "to": edges[i + 1], "frames": int(n), "on_target": None if n == 0 else round(k / n, 4)}
             for i, (n, k) in enumerate(bands)]
+
+
+def band_text(bands: list[dict]) -> str:
+    """One line of :func:`band_json`'s bands that hold frames: ``"0.00-0.25 0.63 of 1260; ..."``."""
+    return "; ".join(f"{b['from']:.2f}-{b['to']:.2f} {b['on_target']:.2f} of {b['frames']}" for b in bands if b["frames"])
 
 
 def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLike | None = None,

@@ -32,8 +32,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gflow_core.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band_json, frames_to_recover, overlaps,
-                                 state_score)
+from gflow_core.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band_json, band_text, frames_to_recover,
+                                 overlaps, state_score)
 from gflow_core.stress import CASES, PATCH_KINDS, StressCase, StressPlan, occluder_size, plan_case, render_frame
 
 from pipeline.io.frame_readers import folder_frames
@@ -391,10 +391,9 @@ def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv
     o = a["off_target_reported_tracked"]
     lines.append(f"- box off the target (IoU <= 0.5, target in view) yet reported tracked {_rate(*o)} "
                  f"({o[0]}/{o[1]}; lower is better)")
-    bands = [b for b in a["confidence_bands"] if b["frames"]]
+    bands = band_text(a["confidence_bands"])
     if bands:
-        lines.append("- on target by confidence (target in view): " + "; ".join(
-            f"{b['from']:.2f}-{b['to']:.2f} {b['on_target']:.2f} of {b['frames']}" for b in bands))
+        lines.append(f"- on target by confidence (target in view): {bands}")
     worse = a["worse_than_still_box"]
     lines.append(f"- worse than a box that never moves (success): {len(worse)} case(s)"
                  + (f": {', '.join(worse)}" if worse else ""))

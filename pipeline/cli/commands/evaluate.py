@@ -51,7 +51,7 @@ def cmd_eval_landmarks(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from gflow_core.metrics import score
+    from gflow_core.metrics import band_text, score
 
     from pipeline.recording.results import read_boxes, read_track
 
@@ -83,11 +83,9 @@ def cmd_eval(args) -> int:
             print(f"off the target, said tracked: {_rate(states.off_tracked, states.off)} (tracked on "
                   f"{states.off_tracked} of {states.off} frames with the target in view and IoU <= {args.threshold}; "
                   "lower is better)")
-            bands = [b for b in states.to_json()["confidence_bands"] if b["frames"]]
+            bands = band_text(states.to_json()["confidence_bands"])
             if bands:
-                print("on target by confidence:     " + "; ".join(
-                    f"{b['from']:.2f}-{b['to']:.2f} {b['on_target']:.2f} of {b['frames']}" for b in bands)
-                      + " (frames with the target in view)")
+                print(f"on target by confidence:     {bands} (frames with the target in view)")
     return 0
 
 
@@ -121,7 +119,8 @@ def register(sub) -> None:
                        description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU) "
                                    "and success rate (IoU > 0.5); with --visibility, how often the reported state was "
                                    "right, how often a box off the target was still reported tracked, and how often "
-                                   "the box was on the target at each level of confidence. Face points (--landmarks, --points): the mean distance of the eye corners "
+                                   "the box was on the target at each level of confidence. Face points (--landmarks, "
+                                   "--points): the mean distance of the eye corners "
                                    "33, 133, 362, 263 and mouth corners 61, 291 from the reference, in pixels and over "
                                    "the reference 33-263 distance (NME), over the frames with a reference.")
     p.add_argument("--gt", help="ground truth CSV (frame,x,y,w,h)")
