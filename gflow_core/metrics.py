@@ -274,12 +274,13 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
     said_hidden = np.array([s in ("occluded", "lost") for s in states], dtype=bool)
     said_tracked = np.array([s == "tracked" for s in states], dtype=bool)
     shown = calm & ~hidden
-    off = np.zeros_like(hidden)
+    on = np.ones_like(hidden)
     if overlap is not None:
         ov = np.asarray(overlap, dtype=np.float64)
         if ov.shape != vis.shape:
             raise ValueError(f"overlap {ov.shape} and visible {vis.shape} must have the same shape")
-        off = ~hidden & ~(ov > threshold)
+        on = ov > threshold
+    off = ~hidden & ~on
     bands: tuple[tuple[int, int], ...] = ()
     if overlap is not None and confidence is not None:
         conf = np.asarray(confidence, dtype=np.float64)
@@ -287,7 +288,6 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
             raise ValueError(f"confidence {conf.shape} and visible {vis.shape} must have the same shape")
         band = np.searchsorted(np.asarray(CONFIDENCE_BANDS), conf, side="right")
         seen = ~hidden & np.isfinite(conf)
-        on = np.asarray(overlap, dtype=np.float64) > threshold
         bands = tuple((int((seen & (band == b)).sum()), int((seen & (band == b) & on).sum()))
                       for b in range(len(CONFIDENCE_BANDS) + 1))
     return StateScore(hidden=int(scored_hidden.sum()), hidden_right=int((scored_hidden & said_hidden).sum()),
