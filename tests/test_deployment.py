@@ -80,15 +80,23 @@ def _start(net: Net, tmp: Path, stream: str, extra: list[str] = (), record: str 
 
 
 def _finish(procs: dict, timeout: float = 90.0) -> dict[str, str]:
-    out = {}
-    for host, (p, d) in procs.items():
+    """Wait for every host's launcher; on a failure, every host's output (one hangs, another says why)."""
+    deadline = time.monotonic() + timeout
+    for p, _ in procs.values():
         try:
-            p.wait(timeout)
+            p.wait(max(0.1, deadline - time.monotonic()))
         except subprocess.TimeoutExpired:
+            pass
+    out, why = {}, {}
+    for host, (p, d) in procs.items():
+        if p.poll() is None:
             p.kill()
-        err = (d / "stderr.txt").read_text()
-        assert p.returncode == 0, f"{host} exited {p.returncode}:\n{err[-2000:]}"
-        out[host] = err
+            p.wait(30)
+            why[host] = f"still running after {timeout:.0f} s"
+        elif p.returncode != 0:
+            why[host] = f"exited {p.returncode}"
+        out[host] = (d / "stderr.txt").read_text()
+    assert not why, "\n".join(f"{h} {why.get(h, 'exited 0')}:\n{out[h][-1500:]}" for h in procs)
     return out
 
 

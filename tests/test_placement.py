@@ -176,3 +176,40 @@ def test_a_lost_host_is_named_with_every_stage_it_ran_even_when_their_tokens_go_
     watch = HostWatch(_NoNetwork(), plan, local={"source"}, say=said.append, settle_s=0.0)
     watch.ever, watch.alive = set(watch.remote), set(watch.remote) - {"render"}
     assert watch.check(running) and said[0].startswith("host lost: ops (render) stopped answering")
+
+
+def test_a_draining_stage_of_another_host_whose_token_is_gone_has_finished():
+    """Its final 'done' heartbeat can be lost on a lossy link: the run must not wait for it for ever."""
+    from pipeline.runtime.multihost import HostWatch
+
+    plan = load_graph("demo_hosts")
+    watch = HostWatch(_NoNetwork(), plan, local={"render", "recorder"}, say=lambda s: None)
+    remote = ["source", "preprocess", "proposal", "filter"]
+    watch.ever = watch.alive = set(remote)
+    states = {"source": "done", "preprocess": "done", "proposal": "draining", "filter": "running"}
+    assert watch.unfinished(remote, states) == ["proposal", "filter"]
+    watch.alive = set(remote) - {"proposal"}  # proposal exited; its "done" never arrived
+    assert watch.unfinished(remote, states) == ["filter"]
+    watch.alive = set(remote) - {"proposal", "filter"}  # a running stage whose token went is lost, not finished
+    assert watch.unfinished(remote, states) == ["filter"]
+    assert watch.check(states)
+
+
+def test_a_stage_heartbeat_overtaken_by_its_final_one_does_not_undo_it():
+    import io
+
+    from pipeline.runtime.progress import Console, ProgressMonitor
+    from stages.messages import Header, StageStatus, encode
+
+    plan = load_graph("demo_hosts")
+    mon = ProgressMonitor(plan, Console(io.StringIO(), enabled=False))
+
+    def hb(pid: int, stamp: int, state: str) -> None:
+        st = StageStatus(header=Header(plan.stream, 40, stamp), stage="filter", pid=pid, state=state, steps=40, fps=0.0)
+        mon._on_status("k", encode(st), stamp, 40)
+
+    hb(7, 200, "done")
+    hb(7, 100, "draining")  # sent earlier by the heartbeat thread, arrived later
+    assert mon.states()["filter"] == "done"
+    hb(8, 50, "running")  # a new process of the stage (a restart): its own clock
+    assert mon.states()["filter"] == "running"

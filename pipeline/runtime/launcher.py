@@ -293,7 +293,7 @@ class Launcher:
             states = monitor.states()
             if watch.check(states):  # a host of the graph is gone and the graph says stop
                 raise StageLost(watch.lost_report)
-            if recorder and any(states.get(n) not in ("done", "stopped") for n in remote):
+            if recorder and watch.unfinished(remote, states):
                 running = True  # the local recorder records until the other hosts have finished
             if recorder and not workers and not remote and not self._external_ended(recorder[0]):
                 running = True  # a graph fed from outside only: record until each of its ends

@@ -115,6 +115,17 @@ class HostWatch:
             self._told_wait = elapsed
             self.say(f"waiting for {describe_hosts(self.plan, remote)} to start")
 
+    def unfinished(self, names: list[str], states: dict[str, str]) -> list[str]:
+        """Those of ``names`` (stages of other hosts) that have not finished. A stage has when its
+        last heartbeat says ``done`` or ``stopped``, or says ``draining`` and its token is gone:
+        a draining stage exits once what it sent has arrived (:mod:`pipeline.runtime.drain`), and
+        the final heartbeat it sends just before closing its session may never cross a lossy
+        link, so waiting for that heartbeat alone could wait for ever."""
+        with self._lock:
+            exited = {n for n in names if n in self.ever and n not in self.alive}
+        return [n for n in names if states.get(n) not in ("done", "stopped")
+                and not (states.get(n) == "draining" and n in exited)]
+
     def check(self, states: dict[str, str]) -> bool:
         """Report hosts lost or back; True when one is lost and the graph says stop. A stage of
         another host is lost when its token is gone before it finished: its host died or was cut

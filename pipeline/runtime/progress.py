@@ -110,6 +110,9 @@ class ProgressMonitor:
             return
         if isinstance(msg, StageStatus):
             with self.lock:
+                old = self.status.get(msg.stage)
+                if old is not None and old.pid == msg.pid and old.header.stamp_ns > msg.header.stamp_ns:
+                    return  # an older heartbeat of the same process overtaken by its final one
                 self.status[msg.stage] = msg
                 self.peak_rss[msg.stage] = max(self.peak_rss.get(msg.stage, 0.0), msg.rss_mb)
                 self.heard.notify_all()
