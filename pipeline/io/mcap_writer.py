@@ -21,6 +21,7 @@ one message), the join and the compressed copy exist only while the chunk is clo
 
 from __future__ import annotations
 
+import ctypes
 import os
 import struct
 from collections import defaultdict
@@ -37,6 +38,22 @@ except ImportError:  # pragma: no cover - isal is a dependency; zlib is the fall
     from zlib import crc32 as _crc32
 
 __all__ = ["ChunkWriter", "COMPRESSIONS", "crc32"]
+
+
+def _sync_file_range() -> Callable[[int, int, int], int] | None:
+    """Linux's ``sync_file_range(fd, offset, nbytes, WAIT_BEFORE | WRITE | WAIT_AFTER)``: write
+    back a range of a file and wait until it is clean, the rest of the file untouched (unlike
+    fdatasync). None where libc does not have it."""
+    try:
+        fn = ctypes.CDLL(None, use_errno=True).sync_file_range
+    except (AttributeError, OSError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_int64, ctypes.c_int64, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    return lambda fd, offset, nbytes: fn(fd, offset, nbytes, 1 | 2 | 4)
+
+
+_write_back = _sync_file_range()
 
 MAGIC = b"\x89MCAP0\r\n"
 crc32: Callable[..., int] = _crc32
@@ -225,14 +242,22 @@ class ChunkWriter:
     def _drop_written(self, end: int) -> None:
         """Every ``DROP_EVERY`` bytes, ask the kernel to write back, and to forget, the last
         ``DROP_WINDOW`` bytes: the first call on a range starts its write-back, a later one
-        frees its pages once they are clean (dirty pages are never dropped)."""
+        frees its pages once they are clean (dirty pages are never dropped). The older half of
+        the window, set writing several calls ago, is first waited for until it is clean
+        (``sync_file_range``; usually it already is), so a disk slower than the writes cannot
+        leave the recording in the page cache: the wait holds the recorder back instead, as a
+        full inbox holds back the publishers."""
         if end - self._dropped_at < DROP_EVERY:
             return
         self._dropped_at = end
         lo = max(0, end - DROP_WINDOW)
+        mid = max(lo, end - DROP_WINDOW // 2)
         try:
             self._f.flush()
-            os.posix_fadvise(self._f.fileno(), lo, end - lo, os.POSIX_FADV_DONTNEED)
+            fd = self._f.fileno()
+            if _write_back is not None and mid > lo:
+                _write_back(fd, lo, mid - lo)
+            os.posix_fadvise(fd, lo, end - lo, os.POSIX_FADV_DONTNEED)
         except (AttributeError, OSError, ValueError):  # no fadvise (not Linux), or not a real file
             self.drop_cache = False
 

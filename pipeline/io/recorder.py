@@ -18,7 +18,9 @@ magic (a valid MCAP file without a summary, readable to that point) and raises
 Page cache: a recording is written once and not read back while it is written, so the
 writer (``pipeline/io/mcap_writer.py``) drops what it has written from the page cache as it
 goes (``posix_fadvise`` DONTNEED on the last ``DROP_WINDOW`` bytes every ``DROP_EVERY`` bytes: the first call
-starts the write-back, a later one frees the pages once they are clean). The recording then
+starts the write-back, a later one frees the pages once they are clean; the older half of the
+window is waited for until clean first, so a disk slower than the writes holds the recorder back
+rather than leaving the file in the cache). The recording then
 holds a bounded amount of page cache whatever its length, and the kernel recycles the same
 pages instead of taking fresh ones: measured on this project's 2-core VM, where free memory
 is handed back to the hypervisor (virtio-balloon free page reporting) and every fresh page
