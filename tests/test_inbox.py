@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import queue
 import threading
+import time
 
 import pytest
 
@@ -35,8 +36,12 @@ def test_a_full_inbox_holds_the_producer_back_and_loses_nothing():
 
     th = threading.Thread(target=producer, daemon=True)
     th.start()
-    assert not third.wait(0.2), "put went over the bound instead of waiting"
-    assert q.nbytes == 100
+    deadline = time.monotonic() + 30
+    while not q.waiting:  # however late the producer thread runs
+        assert not third.is_set(), "put went over the bound instead of waiting"
+        assert time.monotonic() < deadline, "the producer never reached put"
+        time.sleep(0.005)
+    assert not third.is_set() and q.nbytes == 100
     assert q.get()[2] == 0  # room for it now
     assert third.wait(10), "the producer was not woken when room was made"
     th.join(10)

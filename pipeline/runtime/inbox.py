@@ -34,6 +34,7 @@ class BoundedInbox:
         self._bytes = 0
         self._cv = threading.Condition()
         self.waited_s = 0.0  # total time producers spent waiting for room (backpressure)
+        self.waiting = 0  # producers waiting for room now
         self.peak_bytes = 0
 
     @staticmethod
@@ -49,8 +50,10 @@ class BoundedInbox:
         with self._cv:
             if self._items and self._bytes + n > self.max_bytes:
                 t0 = time.monotonic()
+                self.waiting += 1
                 while self._items and self._bytes + n > self.max_bytes:
                     self._cv.wait()
+                self.waiting -= 1
                 self.waited_s += time.monotonic() - t0
             self._items.append((item, n))
             self._bytes += n
