@@ -116,3 +116,30 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
             pass
     s.close()
     assert want and got == want
+
+
+def test_topics_waits_for_a_pipeline_that_is_slow_to_come_up(gflow_cmd):
+    """`gflow topics` started before anything publishes: its --duration counts from the first message."""
+    port = free_port()
+    s = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",)))
+    try:
+        tool = subprocess.Popen([*gflow_cmd, "topics", "--connect", f"tcp/127.0.0.1:{port}", "--duration", "1",
+                                 "--wait", "60"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        bus = Bus(s)
+        pub = bus.publisher("gflow/slow/_status/source")
+        deadline = time.monotonic() + 60
+        while not pub.matching_status.matching:  # the tool has subscribed
+            assert time.monotonic() < deadline and tool.poll() is None, "the tool never subscribed"
+            time.sleep(0.02)
+        quiet_until = time.monotonic() + 2.0  # longer than --duration: nothing yet
+        while time.monotonic() < quiet_until:
+            assert tool.poll() is None, "topics gave up before its --wait"
+            time.sleep(0.05)
+        while tool.poll() is None:  # beats until the tool has listened its second
+            bus.publish("gflow/slow/_status/source", b"x", 0)
+            time.sleep(0.05)
+        out, err = tool.communicate(timeout=30)
+    finally:
+        s.close()
+    assert tool.returncode == 0, err
+    assert "gflow/slow/_status/source" in out, out

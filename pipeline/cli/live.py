@@ -27,9 +27,10 @@ def _session(settings: ZenohSettings):
 
 
 def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdout, key: str = "gflow/**",
-                as_json: bool = False) -> dict[str, int]:
+                as_json: bool = False, wait: float = 0.0) -> dict[str, int]:
     """Listen on ``key`` for ``duration`` seconds and print each topic with its type, count, rate and
-    bandwidth (one JSON object with ``as_json``)."""
+    bandwidth (one JSON object with ``as_json``). With ``wait``, the ``duration`` starts at the first
+    message, waited for up to ``wait`` s (a pipeline just started may take seconds to beat)."""
     s = _session(settings)
     counts: dict[str, int] = {}
     nbytes: dict[str, int] = {}
@@ -37,12 +38,22 @@ def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdo
     q: queue.SimpleQueue = queue.SimpleQueue()
     bus = Bus(s)
     bus.subscribe(key, lambda k, p, ns, seq: q.put((k, p)))
+    first: list[tuple[str, bytes]] = []
     end = time.monotonic() + duration
-    while time.monotonic() < end:
+    if wait > 0:
         try:
-            k, p = q.get(timeout=0.05)
+            first.append(q.get(timeout=wait))
+            end = time.monotonic() + duration
         except queue.Empty:
-            continue
+            end = 0.0  # nothing came
+    while first or time.monotonic() < end:
+        if first:
+            k, p = first.pop()
+        else:
+            try:
+                k, p = q.get(timeout=0.05)
+            except queue.Empty:
+                continue
         counts[k] = counts.get(k, 0) + 1
         nbytes[k] = nbytes.get(k, 0) + len(p)
         if k not in types:
@@ -58,7 +69,7 @@ def list_topics(settings: ZenohSettings, duration: float, out: TextIO = sys.stdo
                               "bytes_per_s": nbytes[k] / duration} for k in sorted(counts)}, indent=1), file=out)
         return counts
     if not counts:
-        print(f"no messages on {key} in {duration:.1f} s (is a pipeline running, and reachable at "
+        print(f"no messages on {key} in {max(wait, duration):.1f} s (is a pipeline running, and reachable at "
               f"{', '.join(settings.connect) or 'the default endpoint'}?)", file=sys.stderr)
     for k in sorted(counts):
         print(f"{k:45s} {types[k]:18s} {counts[k]:6d} msgs  {counts[k] / duration:7.1f} Hz  "

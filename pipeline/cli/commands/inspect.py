@@ -60,7 +60,7 @@ def cmd_topics(args) -> int:
     settings, found = tool_zenoh(args, args.stream)
     _say_where(found)
     key = f"gflow/{args.stream}/**" if args.stream else "gflow/**"
-    counts = list_topics(settings, args.duration, out=sys.stdout, key=key, as_json=args.json)
+    counts = list_topics(settings, args.duration, out=sys.stdout, key=key, as_json=args.json, wait=args.wait)
     return 0 if counts else 1
 
 
@@ -227,7 +227,11 @@ def register(sub) -> None:
                        description="Listens on gflow/** for a while and prints each topic with its message type, "
                                    "count, rate and bandwidth. Without --connect it joins the pipelines running on "
                                    "this machine.")
-    p.add_argument("--duration", type=positive_float, default=2.0, help="seconds to listen (default 2)")
+    p.add_argument("--duration", type=positive_float, default=2.0,
+                   help="seconds to listen, from the first message (default 2)")
+    p.add_argument("--wait", type=positive_float, default=10.0,
+                   help="seconds to wait for the first message, e.g. while a pipeline just started comes up "
+                        "(default 10)")
     p.add_argument("--stream", help="only the pipeline of this stream (when several run)")
     p.add_argument("--json", action="store_true", help="print JSON: type, messages, rate_hz, bytes_per_s per topic")
     add_zenoh_args(p)
