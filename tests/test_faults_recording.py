@@ -106,3 +106,23 @@ def test_boxes_from_a_torn_recording_names_what_is_missing(demo_recording, tmp_p
     bad = subprocess.run([*GFLOW, "boxes", str(tmp_path / "nothing.mcap"), "--out", str(tmp_path / "c.csv")],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "not found" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_a_recording_cut_anywhere_reads_to_its_cut_and_info_says_so(demo_recording, tmp_path):
+    """Cut inside the header, inside a record's opcode and length, inside a chunk, or before the
+    footer: the messages before the cut are read, the cut is reported, and never an internal error."""
+    data = demo_recording.read_bytes()
+    whole = sum(1 for _ in iter_records(demo_recording))
+    cuts = sorted({9, 10, 12, 16, 17, 30, len(data) // 3, len(data) // 2, len(data) - 40, len(data) - 1})
+    seen = []
+    for cut in cuts:
+        torn = tmp_path / f"cut{cut}.mcap"
+        torn.write_bytes(data[:cut])
+        notes: list[str] = []
+        n = sum(1 for _ in iter_records(torn, on_truncated=notes.append))
+        assert n <= whole and notes and "not closed properly" in notes[0], (cut, notes)
+        r = subprocess.run([*GFLOW, "info", str(torn)], capture_output=True, text=True, timeout=60)
+        assert r.returncode == 0 and "internal error" not in r.stderr and "Traceback" not in r.stderr, (cut, r.stderr)
+        assert "recording ends early" in r.stdout, (cut, r.stdout)
+        seen.append(n)
+    assert seen == sorted(seen) and seen[0] == 0 and seen[-1] > 0  # the later the cut, the more is read

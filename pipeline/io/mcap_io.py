@@ -12,6 +12,7 @@ recording's segments after it, as one recording (:func:`segments`).
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -26,9 +27,10 @@ class TruncatedRecording(Exception):
     """Raised (or reported) when a recording ends in the middle of a record."""
 
 
-# What reading a torn or corrupt file raises: the mcap reader's own errors, and the
-# decompressors' (lz4 raises RuntimeError on an incomplete frame; zstandard ZstdError).
-TORN_END_ERRORS: tuple[type[BaseException], ...] = (McapError, EOFError, ValueError, RuntimeError)
+# What reading a torn or corrupt file raises: the mcap reader's own errors, struct's (a file torn
+# inside a record's opcode and length), and the decompressors' (lz4 raises RuntimeError on an
+# incomplete frame; zstandard ZstdError).
+TORN_END_ERRORS: tuple[type[BaseException], ...] = (McapError, EOFError, ValueError, RuntimeError, struct.error)
 try:
     import zstandard as _zstd
 
@@ -125,8 +127,8 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
             for md in make_reader(f).iter_metadata():
                 out[md.name] = dict(md.metadata)
             return out
-        except TORN_END_ERRORS:  # no footer (a killed writer): fall back to reading the records
-            out.clear()
+        except (*TORN_END_ERRORS, OSError):  # no footer (a killed writer; shorter than one: a seek before
+            out.clear()                      # the start): fall back to reading the records
     from mcap.records import Metadata
     from mcap.stream_reader import StreamReader
 
