@@ -98,6 +98,16 @@ def test_http_mjpeg_inline_accounts_for_every_frame(tmp_path: Path, caviar1: Pat
     assert sorted(boxes) == sorted(s.frames.values()) and boxes.keys() >= {0}
 
 
+def _frames_recorded(path: Path) -> int:
+    """Frames in a recording still being written (0 before it exists)."""
+    from pipeline.io.mcap_io import iter_records
+
+    try:
+        return sum(1 for r in iter_records(path, on_truncated=lambda note: None) if r.type == "Frame")
+    except (OSError, ValueError):
+        return 0
+
+
 def test_server_killed_and_restarted_reconnects_and_reports_the_gap(tmp_path: Path, caviar1: Path) -> None:
     """The server dies mid-stream and comes back: the source reconnects, reports the gap in
     seconds and frames, numbers on from where it was, and the run ends normally when the second
@@ -110,10 +120,10 @@ def test_server_killed_and_restarted_reconnects_and_reports_the_gap(tmp_path: Pa
                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     second = None
     try:
-        deadline = time.monotonic() + 30
-        while not (tmp_path / "r.mcap").exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(2.0)  # serving about 50 frames
+        deadline = time.monotonic() + 60
+        while _frames_recorded(tmp_path / "r.mcap") < 25:  # the source is receiving the first stream
+            assert time.monotonic() < deadline and proc.poll() is None, "no frame of the first stream was recorded"
+            time.sleep(0.1)
         first.stop()
         killed = time.monotonic()
         time.sleep(1.0)
