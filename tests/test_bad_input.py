@@ -75,8 +75,8 @@ def test_truncated_video(crossing, tmp_path, gflow_cmd):
 
 def test_malformed_messages_injected_on_a_live_topic(tmp_path):
     port = free_port()
-    # 3 s of frames: the injection waits for a heartbeat of the filter (every 0.5 s) and must land while it runs
-    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 90, "realtime": True, "fps": 30},
+    # 5 s of frames: the injection waits for a heartbeat of the filter (every 0.5 s) and must land while it runs
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 150, "realtime": True, "fps": 30},
                                                         "filter": {"particles": 200}}))
     rec = tmp_path / "run.mcap"
     launcher = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",)), recording=str(rec),
@@ -97,6 +97,7 @@ def test_malformed_messages_injected_on_a_live_topic(tmp_path):
     while not all(p.matching_status.matching for p in pubs):
         assert time.monotonic() < deadline, "the injector's publishers never matched a subscriber"
         time.sleep(0.02)
+    assert t.is_alive(), "the run ended before the injection"
     bus.publish("gflow/demo/features", b"\x01\x02 not msgpack", 5)
     bus.publish("gflow/demo/proposals", b"\x81\xa4type\xa5Frame", 6)  # a tag with no body
     s.close()
@@ -106,7 +107,7 @@ def test_malformed_messages_injected_on_a_live_topic(tmp_path):
     kinds = {(e.stage, e.kind) for e in _errors(rec)}
     assert ("filter", "malformed_message") in kinds, kinds
     # the pipeline carried on: every frame was tracked, and the garbage itself was recorded
-    assert sorted(estimates(rec)) == list(range(90))
+    assert sorted(estimates(rec)) == list(range(150))
     raw = [r.data for r in iter_records(rec) if r.topic == "gflow/demo/features" and r.type == "unknown"]
     assert b"\x01\x02 not msgpack" in raw
 
