@@ -353,9 +353,9 @@ def _attack(settings: ZenohSettings, plan, wait_matching: bool) -> dict:
             bus.publish(est_topic, encode(fake), k, "Estimate")
             sent["estimate"] += 1
         sent["last_heard"] = first
-        while True:  # keep listening: a reader sees the run go on past the attack
+        while sent["last_heard"] < FRAMES - 1:  # keep listening: a reader sees the run go on past the attack
             try:
-                sent["last_heard"] = heard.get(timeout=0.5)
+                sent["last_heard"] = heard.get(timeout=10.0)  # (silent that long: the run has ended)
             except queue.Empty:
                 break
         return sent
