@@ -304,14 +304,18 @@ class _Acks:
             self.changed.set()
 
     def wait(self, stages: tuple[str, ...], seq: int, timeout: float) -> None:
+        """Until each of ``stages`` has processed frame ``seq`` (``seq`` -1: until each has been
+        heard at all; a stage beats only after declaring its subscribers, so it will hear what
+        is sent next)."""
         end = time.monotonic() + timeout
         while True:
-            behind = [s for s in stages if self.last.get(s, -1) < seq]
+            behind = [s for s in stages if self.last.get(s, -2) < seq]
             if not behind:
                 return
             left = end - time.monotonic()
             if left <= 0:
-                raise TimeoutError(f"lockstep: no acknowledgement of frame {seq} from {', '.join(behind)} "
+                what = "heartbeat" if seq < 0 else f"acknowledgement of frame {seq}"
+                raise TimeoutError(f"lockstep: no {what} from {', '.join(behind)} "
                                    f"within {timeout:.0f} s (are they running, on this network?)")
             self.changed.clear()
             self.changed.wait(min(left, 0.05))
@@ -354,10 +358,12 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
 
         announcement = announce(stream, announce_endpoints, name=f"replay {Path(path).name}", kind="replay",
                                 recording=str(path))
-    time.sleep(opts.settle)  # let subscribers' declarations arrive before the first sample
     n = 0
     loop = 0
     try:
+        if opts.lockstep:  # the stages fed in lockstep have declared their subscribers once they beat
+            acks.wait(opts.lockstep, -1, opts.ack_timeout)
+        time.sleep(opts.settle)  # let other subscribers' declarations arrive before the first sample
         while opts.loops == 0 or loop < opts.loops:
             loop += 1
             wall0 = time.monotonic()
