@@ -37,6 +37,8 @@ try:
     TORN_END_ERRORS += (_zstd.ZstdError,)
 except ImportError:  # zstandard is optional for reading lz4 files
     pass
+# ... and what reading the footer of a file shorter than one raises (a seek before its start)
+_NO_FOOTER_ERRORS = TORN_END_ERRORS + (OSError,)
 
 
 @dataclass(frozen=True)
@@ -127,8 +129,8 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
             for md in make_reader(f).iter_metadata():
                 out[md.name] = dict(md.metadata)
             return out
-        except (*TORN_END_ERRORS, OSError):  # no footer (a killed writer; shorter than one: a seek before
-            out.clear()                      # the start): fall back to reading the records
+        except _NO_FOOTER_ERRORS:  # no footer (a killed writer): fall back to reading the records
+            out.clear()
     from mcap.records import Metadata
     from mcap.stream_reader import StreamReader
 
