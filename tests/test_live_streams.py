@@ -172,10 +172,11 @@ def test_stream_faster_than_the_tracker_skips_and_keeps_latency_bounded(tmp_path
     # bounded latency: a frame waits at most for the step in progress, then takes its own step, so
     # no estimate comes later than a few steps after its capture. The step is measured in this run
     # (the gap between estimates), since the machine may be loaded; queued frames would instead
-    # wait for every frame before them, and the run would last until all n were tracked.
+    # wait for every frame before them, and the run would last until all n were tracked. (The 90th
+    # percentile: queued, latency would grow frame after frame; one stall of a loaded machine does not.)
     logged = sorted(x.log_ns for x in recs if x.type in ("Estimate", "PoseEstimate"))
     step_ms = float(np.median(np.diff(logged))) / 1e6 if len(logged) > 1 else 1000.0
-    assert max(s.latency_ms) < 3 * step_ms + 500.0, (s.latency_ms, step_ms)
+    assert np.percentile(s.latency_ms, 90) < 3 * step_ms + 500.0, (s.latency_ms, step_ms)
     frames = sum(1 for x in recs if x.type == "Frame" and x.topic.endswith("/frames"))
     kept = sum(1 for x in recs if x.type == "Frame" and x.topic.endswith("/skipped"))
     assert frames == s.sent and frames + kept == n  # every frame captured is in the recording
