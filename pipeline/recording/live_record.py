@@ -21,6 +21,7 @@ import numpy as np
 from stages.messages import Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus, decode
 
 from pipeline.io.mcap_io import iter_records
+from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["LiveSummary", "live_summary", "latency_percentiles", "LIVE_REPORTS"]
 
@@ -85,10 +86,12 @@ def live_summary(path: str | Path, stream: str | None = None) -> LiveSummary | N
     s = LiveSummary()
     skipped_before_sent = 0  # the captures' count; the heartbeats also count those after the last frame sent
     stamps: dict[int, int] = {}
-    est_log: list[tuple[int, int]] = []  # (capture stamp, log time) of each estimate
+    est_log: list[tuple[int, int, str, str]] = []  # (capture stamp, log time, topic, session) of each estimate
+    sessions = RunSessions()
     for r in iter_records(path):
         if stream and not r.topic.startswith(f"gflow/{stream}/"):
             continue
+        sessions.add(r)
         if r.type not in ("Capture", "Estimate", "PoseEstimate", "StageStatus", "ErrorReport"):
             continue
         try:
@@ -102,7 +105,7 @@ def live_summary(path: str | Path, stream: str | None = None) -> LiveSummary | N
             if m.gap_s > 0:
                 s.gaps.append((m.frame, m.gap_s))
         elif isinstance(m, (Estimate, PoseEstimate)):
-            est_log.append((m.header.stamp_ns, r.log_ns))
+            est_log.append((m.header.stamp_ns, r.log_ns, r.topic, r.source))
         elif isinstance(m, StageStatus) and m.captured:
             s.captured = max(s.captured, m.captured)
             s.reconnects = max(s.reconnects, m.reconnects)
@@ -115,5 +118,6 @@ def live_summary(path: str | Path, stream: str | None = None) -> LiveSummary | N
     s.captured = max(s.captured, max(s.frames.values()) + 1)
     s.reconnects = max(s.reconnects, len(s.gaps))
     live_stamps = set(stamps.values())
-    s.latency_ms = [(log - st) / 1e6 for st, log in est_log if st in live_stamps]
+    s.latency_ms = [(log - st) / 1e6 for st, log, topic, source in est_log
+                    if st in live_stamps and sessions.is_own(topic, source)]  # the run's own estimates
     return s

@@ -14,9 +14,10 @@ from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows
 from pipeline.io.mcap_io import iter_records
+from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
-           "write_visibility", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
+           "write_visibility", "estimates", "run_estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
            "RunOutcome", "renumber"]
 
 Box = tuple[float, float, float, float]
@@ -151,9 +152,19 @@ def renumber(col: dict[int, V], frame_of: Mapping[int, int]) -> dict[int, V]:
 
 
 def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate | PoseEstimate]:
-    """Every Estimate in a recording, by frame (the last one wins if a frame repeats)."""
-    out: dict[int, Estimate | PoseEstimate] = {}
+    """Every Estimate of the run's own stages in a recording, by frame (the last one wins if a
+    frame repeats); those from outside the run are left out (:func:`run_estimates`)."""
+    return run_estimates(recording, stream)[0]
+
+
+def run_estimates(recording: str | Path, stream: str | None = None
+                  ) -> tuple[dict[int, Estimate | PoseEstimate], RunSessions]:
+    """:func:`estimates`, and what the recording says of the run's sessions: the messages from
+    outside the run (another zenoh session on the run's estimate topic) that were left out."""
+    sessions = RunSessions()
+    found: list[tuple[str, str, Estimate | PoseEstimate]] = []
     for r in iter_records(recording):
+        sessions.add(r)
         if r.type not in ("Estimate", "PoseEstimate") or (stream and not r.topic.startswith(f"gflow/{stream}/")):
             continue
         try:
@@ -161,8 +172,12 @@ def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Est
         except MessageError:
             continue
         if isinstance(m, (Estimate, PoseEstimate)):
+            found.append((r.topic, r.source, m))
+    out: dict[int, Estimate | PoseEstimate] = {}
+    for topic, source, m in found:  # whose they are is known once the whole recording was read
+        if sessions.is_own(topic, source):
             out[m.header.seq] = m
-    return out
+    return out, sessions
 
 
 def truth_boxes(recording: str | Path) -> dict[int, Box]:
@@ -229,7 +244,7 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunO
     ``info`` is what ``run_plan`` returns (``ok``, ``estimates`` heard live, ``restarts``). The
     frames expected are those the source sent (a truncated video sends fewer than its header
     says), from ``start`` to the last frame seen."""
-    est = estimates(recording) if recording and Path(recording).is_file() else {}
+    est, sessions = run_estimates(recording) if recording and Path(recording).is_file() else ({}, RunSessions())
     heard = []
     for seq, payload in info.get("estimates", {}).items():
         if seq in est:
@@ -246,7 +261,7 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunO
     sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
             if est and topic and recording else set())
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
-    lines = completeness(est, expected)
+    lines = completeness(est, expected) + sessions.lines()
     if heard:
         lines.append(f"{len(heard)} frame(s) missing from the recording were kept from the live stream: "
                      f"{frame_ranges(heard)}")
