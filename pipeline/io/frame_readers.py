@@ -177,7 +177,8 @@ def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Gene
                 break
             kept = tuple((c.frame, c.stamp_ns, c.image) for c in f.skipped_frames if c.image is not None)
             yield RawFrame(seq, f.image, name=f"{p.path}#{f.frame}", frame=f.frame, stamp_ns=f.stamp_ns,
-                           skipped=f.skipped, gap_s=f.gap_s, skipped_frames=kept, events=f.events)
+                           skipped=f.skipped, gap_s=f.gap_s, skipped_frames=kept, events=f.events, missed=f.missed,
+                           damaged=f.damaged)
             seq += 1
         events = capture.pending_events() + ([("stream_ended", capture.ended)] if capture.ended else [])
         if events:
@@ -189,7 +190,7 @@ def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Gene
 def open_live(p: SourceParams) -> LiveCapture:
     """Open the live source of ``p`` (raises :class:`LiveSourceError` in one line)."""
     return LiveCapture(p.path, fps=p.fps, open_timeout=p.open_timeout, reconnect=p.reconnect,
-                       keep_skipped=p.keep_skipped, stop=p.stop).open()
+                       keep_skipped=p.keep_skipped, stop=p.stop, url=p.relay).open()
 
 
 def open_reader(p: SourceParams, base_dir: str | os.PathLike = ".") -> Iterator[RawFrame]:

@@ -92,16 +92,21 @@ def read_track(path: str | Path) -> TrackRows:
 
 
 def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, float] | None = None,
-                states: dict[int, str] | None = None) -> None:
-    """Write ``frame,x,y,w,h`` rows, and ``confidence,state`` after them when given (for every frame)."""
+                states: dict[int, str] | None = None, inputs: dict[int, str] | None = None) -> None:
+    """Write ``frame,x,y,w,h`` rows, and ``confidence,state`` after them when given (for every frame),
+    and ``input`` after those when given (a live source: ``ok``, or ``damaged`` for a frame decoded
+    from damaged data)."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     full = confidence is not None and states is not None
     with open(p, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else []))
+        w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else [])
+                   + (["input"] if full and inputs is not None else []))
         for k in sorted(boxes):
             extra = [f"{confidence[k]:.3f}", states[k]] if confidence is not None and states is not None else []
+            if extra and inputs is not None:
+                extra.append(inputs.get(k, "ok"))
             w.writerow([k, *(f"{v:.2f}" for v in boxes[k]), *extra])
 
 

@@ -192,7 +192,9 @@ class ProgressMonitor:
                     steps = max(st.steps, done) if source else st.steps
                     parts.append(f"{name}: {steps}" + (f"/{self.total_frames}" if self.total_frames and source else "")
                                  + f" @{st.fps:.1f}fps" + (f" drop={drop}" if drop else "")
-                                 + (f" skipped={st.skipped}" if st.captured else ""))
+                                 + (f" skipped={st.skipped}" if st.captured else "")
+                                 + (f" missed={st.missed}" if st.missed else "")
+                                 + (f" damaged={st.damaged}" if st.damaged else ""))
             lat = sorted(self.latency_ms)
             outside = sum(self.outside.values())
         if outside:

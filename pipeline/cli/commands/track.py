@@ -25,7 +25,7 @@ from pipeline.runtime.graph import Plan, load_graph
 from pipeline.recording.results import estimate_columns, renumber, run_outcome, write_boxes
 from pipeline.io.frame_readers import count_frames
 from pipeline.cli.trackers import TRACKERS
-from pipeline.runtime.live_plan import live_source, prepare_live
+from pipeline.runtime.live_plan import listen_early, live_source, prepare_live
 from pipeline.runtime.preflight import check_source
 from pipeline.recording.live_record import LiveSummary, live_summary
 from pipeline.runtime.trace import mark
@@ -160,8 +160,10 @@ class TrackRun:
     points: dict = field(default_factory=dict)  # G-flow face: {frame: (landmark ids (n,), points (n, 2))}
 
     def write_csv(self, path: str | Path) -> None:
-        """The boxes CSV: frame,x,y,w,h,confidence,state."""
-        write_boxes(path, self.boxes, self.confidence, self.target_states)
+        """The boxes CSV: frame,x,y,w,h,confidence,state (and a live source's input: ok / damaged)."""
+        inputs = ({f: "damaged" if f in self.live.damaged_sent else "ok" for f in self.boxes}
+                  if self.live is not None else None)
+        write_boxes(path, self.boxes, self.confidence, self.target_states, inputs)
 
 
 def track_plan(args) -> tuple[Plan, int | None]:
@@ -204,6 +206,8 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
                           needed=("estimate",))
     prepare_live(plan_)  # after Recording: --record-topics may ask for the skipped frames
     live = None
+    # a UDP source's port, bound before anything starts (what a sender sends first is kept)
+    listeners = listen_early(plan_, say=None if args.quiet else lambda line: print(line, file=sys.stderr))
     try:
         path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet, strict=False)
         out = run_outcome(path, plan_, info, args.start)  # every frame that was tracked, and what is missing
@@ -211,6 +215,8 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
             live = live_summary(path)
     finally:
         recording.cleanup()
+        for relay in listeners:
+            relay.close()
     est = out.estimates
     frame_of = live.frames if live is not None else {}  # a live run's rows are the camera's frames
     by_seq = estimate_columns(est)
@@ -222,7 +228,8 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
     return TrackRun(boxes=boxes, states=[v.state for v in est.values()], confidence=confidence,
                     target_states=target_states,
                     recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
-                    temporary=recording.temporary, lines=list(out.lines) + (live.lines() if live else []),
+                    temporary=recording.temporary,
+                    lines=list(out.lines) + (live.lines() if live else []) + [x for r in listeners for x in r.lines()],
                     incomplete=out.why if out.incomplete else "", live=live, points=points)
 
 
