@@ -5,41 +5,15 @@ found before anything runs; the CLI runs as a subprocess on tiny image folders i
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
-import cv2
-import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+from test_cli_errors import assert_one_line_error, frames, gflow  # noqa: F401  (frames: a fixture)
 
 
-def gflow(*args: str, cwd: Path, timeout: float = 60.0) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout)
-
-
-def one_line_error(r: subprocess.CompletedProcess) -> str:
-    assert r.returncode != 0, (r.stdout, r.stderr)
-    assert "Traceback" not in r.stderr, r.stderr
-    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    assert len(lines) == 1, r.stderr
-    return lines[0]
-
-
-@pytest.fixture()
-def frames(tmp_path: Path) -> Path:
-    """Six 64x48 textured frames in a folder."""
-    d = tmp_path / "frames"
-    d.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(6):
-        cv2.imwrite(str(d / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
-    return d
+def one_line_error(r) -> str:
+    return assert_one_line_error(r)
 
 
 @pytest.mark.parametrize("tracker, extra", [("appearance", []), ("chamfer", []), ("m2", ["--model", "m.npz"])])
@@ -76,13 +50,13 @@ def test_default_recording_folder_is_still_made(tmp_path: Path, frames: Path) ->
     assert len(list((tmp_path / "recordings").glob("*.mcap"))) == 1
 
 
-def test_track_defaults_to_seed_one(tmp_path: Path, frames: Path) -> None:
+def test_track_defaults_to_seed_one(tmp_path: Path, caviar1: Path) -> None:
     """gflow track without --seed gives the boxes of --seed 1, the seed of the README, gflow benchmark
     and the docs' figures (and the Python API's default)."""
     rows = {}
     for name, extra in (("default", []), ("one", ["--seed", "1"]), ("zero", ["--seed", "0"])):
-        r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", f"{name}.csv", "--inline", "--no-record",
-                  "-q", *extra, cwd=tmp_path)
+        r = gflow("track", str(caviar1), "--init", "129,71,30,79", "--stop", "10", "--out", f"{name}.csv", "--inline",
+                  "--no-record", "-q", *extra, cwd=tmp_path)
         assert r.returncode == 0, r.stderr
         rows[name] = (tmp_path / f"{name}.csv").read_text()
     assert rows["zero"] != rows["one"], "the seed must matter for this test to tell them apart"
