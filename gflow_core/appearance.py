@@ -54,8 +54,12 @@ video it was never trained on:
   from ever looking better than clutter: measured (seeds 1 / 2 / 3, docs/recovery.md) cases got
   back 65 / 65 / 64 -> 66 / 67 / 67 of 72 and cases worse than a still box 2 / 1 / 3 -> 0 / 0 / 0
   against learning it on every frame, ``clutter_while_hidden``), with a jump away
-  from the prediction costing its motion prior. Spreads are floored at ``min_std``; the first
-  ``warmup`` frames are taken as visible. The estimate's ``confidence`` is P(visible).
+  from the prediction costing its motion prior. Spreads are floored at ``min_std``. The clutter's
+  first sample is taken on the first frame (the best look-alike away from the box there); the
+  target's cannot be (the box matches itself), so on the first ``warmup`` frames a target judged
+  present (the visible hypothesis has no samples yet: partial against clutter) is taken as
+  confident. On a video that holds nothing like the target (fresh noise) the box then scores like
+  clutter from the second frame on. The estimate's ``confidence`` is P(visible).
   When clutter explains the estimate, the frame is in doubt: the box holds the prediction,
   nothing is learnt, and the region ``search + search_start`` box sizes around it is searched
   (below). After ``hidden_after`` such frames in a row the target is judged hidden

@@ -142,14 +142,14 @@ class UdpRelay:
                     conn.setblocking(False)
                     self._client = conn
                     sel.register(conn, selectors.EVENT_READ, "client")
-                elif key.data == "client" and events & selectors.EVENT_READ:
+                elif key.data == "client" and events & selectors.EVENT_READ and self._client is not None:
                     try:
-                        gone = not self._client.recv(4096)  # type: ignore[union-attr]  # FFmpeg sends nothing
+                        gone = not self._client.recv(4096)  # FFmpeg sends nothing: b"" is the reader gone
                     except (BlockingIOError, InterruptedError):
                         gone = False
                     except OSError:
                         gone = True
-                    if gone and self._client is not None:
+                    if gone:
                         sel.unregister(self._client)
                         self._client.close()
                         self._client = None
