@@ -71,6 +71,10 @@ class LiveSummary:
     def sent(self) -> int:
         return len(self.frames)
 
+    def inputs(self, frames) -> dict[int, str]:
+        """The CSV's ``input`` column for these camera frames: ``damaged`` or ``ok``."""
+        return {f: "damaged" if f in self.damaged_sent else "ok" for f in frames}
+
     def lines(self) -> list[str]:
         """What to tell the user: frames, skips, gaps, latency, how the stream ended."""
         p50, p99, worst = latency_percentiles(self.latency_ms)

@@ -161,9 +161,8 @@ class TrackRun:
 
     def write_csv(self, path: str | Path) -> None:
         """The boxes CSV: frame,x,y,w,h,confidence,state (and a live source's input: ok / damaged)."""
-        inputs = ({f: "damaged" if f in self.live.damaged_sent else "ok" for f in self.boxes}
-                  if self.live is not None else None)
-        write_boxes(path, self.boxes, self.confidence, self.target_states, inputs)
+        write_boxes(path, self.boxes, self.confidence, self.target_states,
+                    self.live.inputs(self.boxes) if self.live is not None else None)
 
 
 def track_plan(args) -> tuple[Plan, int | None]:
