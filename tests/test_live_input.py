@@ -134,6 +134,14 @@ def test_udp_outage_is_reported_and_frame_numbers_stay_the_cameras(tmp_path: Pat
 
     s = live_summary(tmp_path / "r.mcap")
     assert s is not None and s.missed == missed
+    rerun_source_is_identical(tmp_path)
+
+
+def rerun_source_is_identical(tmp_path: Path) -> None:
+    """The source re-run from the recording says what it said live (frames missed, damage), bit for bit."""
+    rr = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "rerun", "r.mcap", "--stage", "source", "--check"],
+                        cwd=tmp_path, env=env_for(tmp_path), capture_output=True, text=True, timeout=120)
+    assert rr.returncode == 0 and "identical bit for bit" in rr.stdout, (rr.stdout, rr.stderr)
 
 
 def test_corrupted_h264_is_reported_frame_by_frame(tmp_path: Path, caviar1: Path, stream: Path) -> None:
@@ -177,3 +185,4 @@ def test_corrupted_h264_is_reported_frame_by_frame(tmp_path: Path, caviar1: Path
     info = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "info", "r.mcap"], cwd=tmp_path,
                           env=env_for(tmp_path), capture_output=True, text=True, timeout=60)
     assert "decoded from damaged data" in info.stdout, info.stdout
+    rerun_source_is_identical(tmp_path)

@@ -94,9 +94,9 @@ def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
         cap.release()
 
 
-def _recorded_captures(path: Path) -> tuple[dict[int, tuple[int, int, float]], dict[int, tuple[int, np.ndarray]]]:
-    """A live run's Capture messages, {seq: (camera frame, skipped, gap_s)}, and the skipped
-    frames it recorded, {camera frame: (stamp, image)}."""
+def _recorded_captures(path: Path) -> tuple[dict[int, Capture], dict[int, tuple[int, np.ndarray]]]:
+    """A live run's Capture messages, {seq: Capture}, and the skipped frames it recorded,
+    {camera frame: (stamp, image)}."""
     from pipeline.io.mcap_io import iter_records
 
     captures, skipped = {}, {}
@@ -107,7 +107,7 @@ def _recorded_captures(path: Path) -> tuple[dict[int, tuple[int, int, float]], d
             except MessageError:
                 continue
             if isinstance(c, Capture):
-                captures[c.header.seq] = (c.frame, c.skipped, c.gap_s)
+                captures[c.header.seq] = c
         elif rec.type == "Frame" and rec.topic.endswith("/skipped"):
             try:
                 f = decode(rec.data)
@@ -125,6 +125,8 @@ class _LiveFields(TypedDict, total=False):
     skipped: int
     gap_s: float
     skipped_frames: tuple[tuple[int, int, np.ndarray], ...]
+    missed: int
+    damaged: bool
 
 
 def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = False) -> Iterator[RawFrame]:
@@ -147,11 +149,14 @@ def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = Fals
         s = msg.header.seq
         if s < start or (stop is not None and s >= stop):
             continue
-        frame, n_skipped, gap = captures.get(s, (-1, 0, 0.0))
+        c = captures.get(s)
+        frame = c.frame if c is not None else -1
         kept = tuple((f, *skipped[f]) for f in sorted(skipped) if prev_frame < f < frame)
         prev_frame = max(prev_frame, frame)
-        live: _LiveFields = (_LiveFields(frame=frame, stamp_ns=msg.header.stamp_ns, skipped=n_skipped, gap_s=gap,
-                                         skipped_frames=kept) if host_clock else {})
+        live: _LiveFields = (_LiveFields(frame=frame, stamp_ns=msg.header.stamp_ns, skipped_frames=kept,
+                                         skipped=c.skipped if c else 0, gap_s=c.gap_s if c else 0.0,
+                                         missed=c.missed if c else 0, damaged=c.damaged if c else False)
+                             if host_clock else {})
         try:
             yield RawFrame(s, msg.image.array(), truth=msg.truth, name=msg.source, **live)
         except MessageError as e:
