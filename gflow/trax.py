@@ -81,8 +81,8 @@ def box_of_region(region: Any) -> Box:
             raise RequestError(f"a polygon region needs at least 3 points, got {len(pts)}")
         xs = [_decimals(p[0]) for p in pts]
         ys = [_decimals(p[1]) for p in pts]
-        # the bounding box: (min x, min y, max x - min x, max y - min y)
-        x, y, w, h = min(xs), min(ys), max(xs) - min(xs), max(ys) - min(ys)
+        # the bounding box: (min x, min y, max x - min x, max y - min y), in the client's 4 decimals
+        x, y, w, h = min(xs), min(ys), _decimals(max(xs) - min(xs)), _decimals(max(ys) - min(ys))
     else:
         raise RequestError(f"region of type {kind or type(region).__name__}: this tracker takes a rectangle or a "
                            "polygon (its bounding box)")
