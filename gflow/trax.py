@@ -266,11 +266,12 @@ def _say(line: str) -> None:
     print(f"gflow trax: error: {line}", file=sys.__stderr__, flush=True)
 
 
-def tracker_factory(name: str, seed: int, params: Mapping[str, Any]) -> TrackerFactory:
-    """``() -> Tracker(name, seed, **params)``, after making one to check the name and parameters
-    (raises ``GflowError`` / ``UnknownParameter`` with ``gflow track``'s one-line messages)."""
-    Tracker(name, seed, **params)
-    return lambda: Tracker(name, seed, **params)
+def tracker_factory(name: str | None, seed: int, params: Mapping[str, Any]) -> tuple[str, TrackerFactory]:
+    """The tracker's name (``None``: the API's default tracker) and ``() -> Tracker(name, seed,
+    **params)``, after making one to check the name and parameters (raises ``GflowError`` /
+    ``UnknownParameter`` with ``gflow track``'s one-line messages)."""
+    name = (Tracker(name, seed, **params) if name else Tracker(seed=seed, **params)).name
+    return name, lambda: Tracker(name, seed, **params)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -289,7 +290,7 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"the TraX library (package vot-trax) is not installed: {INSTALL_HINT}")
         return 2
     try:
-        make = tracker_factory(args.tracker, args.seed, tracker_params(args))
+        name, make = tracker_factory(args.tracker, args.seed, tracker_params(args))
         out = open(args.out, "w", newline="") if args.out else None
     except (CliError, GflowError, UnknownParameter) as e:
         _say(" ".join(str(e).split()))
@@ -299,7 +300,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     stdout, sys.stdout = sys.stdout, sys.stderr  # stdout carries the protocol alone
     try:
-        return serve(make, out, name=f"gflow-{args.tracker}")
+        return serve(make, out, name=f"gflow-{name}")
     except KeyboardInterrupt:
         _say("interrupted")
         return 130

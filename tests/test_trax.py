@@ -94,13 +94,13 @@ def test_trax_serves_the_apis_boxes_through_a_reinitialisation(tmp_path):
     # boxes with the 2 decimals of a ground-truth file (TraX carries 4)
     box0, box31 = (tuple(round(v, 2) for v in scene.truth_box(t)) for t in (0, 31))
     # the API: one track over frames 0..30, a new one from frame 31 (its frames count from 0 again)
-    first = Tracker("appearance", seed=3)
+    first = Tracker(seed=3)  # the default tracker, as the server's without --tracker
     want = [first.init(frames[0], box0)] + [first.update(f) for f in frames[1:31]]
-    second = Tracker("appearance", seed=3)
+    second = Tracker(seed=3)
     want += [second.init(frames[31], box31)] + [second.update(f) for f in frames[32:]]
 
     with session("--seed", "3", "--out", str(out), via_gflow=True) as s:
-        assert s.client.tracker_name == "gflow-appearance"
+        assert s.client.tracker_name == f"gflow-{first.name}"
         assert s.client.region_formats == ["rectangle", "polygon"]
         got = [s.initialize(FileImage.create(str(paths[0])), Rectangle.create(*box0))]
         for t in range(1, 31):  # a path, an RGB array, an encoded buffer: the same pixels
@@ -204,7 +204,7 @@ def test_a_uniform_first_image_waits_for_a_usable_one_as_gflow_track_does(tmp_pa
     box0 = tuple(round(v, 2) for v in scene.truth_box(0))
     t = Tracker("appearance", seed=2)
     want = [t.init(frames[1], box0, frame_index=1), t.update(frames[2])]
-    with session("--seed", "2") as s:
+    with session("--seed", "2", "--tracker", "appearance") as s:
         box, props = s.initialize(rgb(frames[0]), Rectangle.create(*box0))
         assert np.abs(np.subtract(box, box0)).max() < WIRE
         assert (props["confidence"], props["state"], props["phase"]) == ("0", "lost", "waiting")

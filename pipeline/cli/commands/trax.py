@@ -17,17 +17,15 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.cli.commands.common import CliError
-
-#: the trackers ``gflow.Tracker`` runs (``pipeline/cli/trackers``)
-TRACKER_NAMES = ("appearance", "chamfer", "gflow", "m2")
+from pipeline.cli.trackers import TRACKERS
 #: what to run when the ``trax`` module is missing (``gflow.trax.INSTALL_HINT`` says the same)
 INSTALL_HINT = "pip install 'gflow[vot]' (or pip install vot-trax)"
 
 
 def add_trax_args(p: argparse.ArgumentParser) -> None:
     """The options of ``gflow trax`` and ``python -m gflow.trax``."""
-    p.add_argument("--tracker", default="appearance", choices=TRACKER_NAMES,
-                   help="the tracker to serve (default appearance; README 'Which tracker')")
+    p.add_argument("--tracker", choices=sorted(TRACKERS),
+                   help="the tracker to serve (default: gflow track's default tracker; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=0,
                    help="random seed (default 0): the boxes of gflow track --inline --seed SEED")
     p.add_argument("--model", metavar="FILE",
@@ -49,14 +47,14 @@ def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
     for item in args.set or []:
         name, eq, value = item.partition("=")
         if not eq or not name.strip().isidentifier():
-            raise CliError(f"--set expects NAME=VALUE (a parameter of the tracker: gflow info {args.tracker}), "
-                           f"got {item!r}")
+            raise CliError(f"--set expects NAME=VALUE (a parameter of the tracker: gflow info "
+                           f"{args.tracker or 'TRACKER'}), got {item!r}")
         try:
             out[name.strip()] = yaml.safe_load(value)
         except yaml.YAMLError:
             raise CliError(f"--set {item}: the value is not a number, a word or a list") from None
     if args.model is not None:
-        if args.tracker not in ("m2", "gflow"):
+        if args.tracker is not None and args.tracker not in ("m2", "gflow"):
             raise CliError(f"--model is an option of --tracker m2 / gflow, not of --tracker {args.tracker}")
         if "model" in out:
             raise CliError("give the model once: --model FILE or --set model=FILE")
@@ -68,7 +66,7 @@ def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
 
 def argv_of(args: argparse.Namespace) -> list[str]:
     """``python -m gflow.trax``'s arguments for the options of ``gflow trax``."""
-    argv = ["--tracker", args.tracker, "--seed", str(args.seed)]
+    argv = ["--seed", str(args.seed)] + (["--tracker", args.tracker] if args.tracker else [])
     if args.model is not None:
         argv += ["--model", args.model]
     for item in args.set or []:
