@@ -90,7 +90,7 @@ def main() -> None:
     if not args.skip_track:
         init = ",".join(f"{v:g}" for v in box0)
         cmd = ["gflow", "track", str(DATA), "--tracker", "gflow", "--init", init, "--out", str(tmp / "david.csv"),
-               "--record", str(tmp / "david.mcap"), "--stop", str(args.frames), "-q"]
+               "--record", str(tmp / "david.mcap"), "--stop", str(args.frames), "--seed", "0", "-q"]
         print("$ " + " ".join(cmd).replace(str(DATA), "../shared/data/david_indoor").replace(str(tmp), "OUT"))
         subprocess.run(cmd, check=True)
         ev = ["gflow", "eval", "--gt", str(DATA / "groundtruth.csv"), "--pred", str(tmp / "david.csv")]

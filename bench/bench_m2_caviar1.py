@@ -96,7 +96,7 @@ def main() -> int:
         gflow("learn", "m2", str(data), "--frames", args.train, "-K", str(args.K), "--out", str(model_u), "-q")
         pred = tmp / "m2u.csv"
         gflow("track", str(data), "--tracker", "m2", "--model", str(model_u), "--init", init, "--start", str(b),
-              "--out", str(pred), "--record", str(tmp / "m2u.mcap"), "-q", *mode)
+              "--out", str(pred), "--record", str(tmp / "m2u.mcap"), "--seed", "0", "-q", *mode)
         r = evaluate(gt_test, pred)
         rows.append([f"M2 unsupervised K={args.K}, seed 0", f"{b}-{n - 1}", f"{r['cle_px']:.2f}",
                      f"{r['success_rate_0.5']:.3f}", f"{r['mean_overlap']:.3f}"])

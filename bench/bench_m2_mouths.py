@@ -80,7 +80,7 @@ def main() -> int:
         models[metric] = load_model(path)
         rec = tmp / f"track-{metric}.mcap"
         gflow("track", str(folder), "--tracker", "m2", "--model", str(path), "--init", f"0,0,{W},{H}",
-              "--out", str(tmp / f"track-{metric}.csv"), "--record", str(rec), "--particles", str(args.particles), "-q")
+              "--out", str(tmp / f"track-{metric}.csv"), "--record", str(rec), "--particles", str(args.particles), "--seed", "0", "-q")
         est = estimates(rec)
         if sorted(est) != list(range(len(test))):
             raise SystemExit(f"{metric}: expected an estimate for each of the {len(test)} frames, got {len(est)}")

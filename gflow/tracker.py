@@ -68,7 +68,7 @@ class Tracker:
         A parameter the tracker does not have.
     """
 
-    def __init__(self, name: str = "appearance", seed: int = 0, *, fps: float = 25.0, **params: Any) -> None:
+    def __init__(self, name: str = "appearance", seed: int = 1, *, fps: float = 25.0, **params: Any) -> None:
         if name not in TRACKERS:
             raise GflowError(f"unknown tracker {name!r} (choose from {', '.join(TRACKERS)})")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:

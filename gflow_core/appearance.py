@@ -54,8 +54,12 @@ video it was never trained on:
   from ever looking better than clutter: measured (seeds 1 / 2 / 3, docs/recovery.md) cases got
   back 65 / 65 / 64 -> 66 / 67 / 67 of 72 and cases worse than a still box 2 / 1 / 3 -> 0 / 0 / 0
   against learning it on every frame, ``clutter_while_hidden``), with a jump away
-  from the prediction costing its motion prior. Spreads are floored at ``min_std``; the first
-  ``warmup`` frames are taken as visible. The estimate's ``confidence`` is P(visible).
+  from the prediction costing its motion prior. Spreads are floored at ``min_std``. The clutter's
+  first sample is taken on the first frame (the best look-alike away from the box there); the
+  target's cannot be (the box matches itself), so on the first ``warmup`` frames a target judged
+  present (the visible hypothesis has no samples yet: partial against clutter) is taken as
+  confident. On a video that holds nothing like the target (fresh noise) the box then scores like
+  clutter from the second frame on. The estimate's ``confidence`` is P(visible).
   When clutter explains the estimate, the frame is in doubt: the box holds the prediction,
   nothing is learnt, and the region ``search + search_start`` box sizes around it is searched
   (below). After ``hidden_after`` such frames in a row the target is judged hidden
@@ -289,10 +293,31 @@ def initialise(feat: np.ndarray, box: tuple[float, float, float, float], params:
     hist = None
     if params.colour and bins is not None:
         hist = col.histogram(bins, centre, (w, h), col.stride_for((w, h)))
-    return AppearanceState(size0=size0, res=res, anchor=anchor, recent=anchor.copy(), particles=parts,
-                           centre=centre, log_s=0.0, velocity=np.zeros(2), slow=anchor.copy(),
-                           target=ChiSquare(), clutter=ChiSquare(), hidden_run=0, colour0=hist,
-                           colour=None if hist is None else hist.copy())
+    st = AppearanceState(size0=size0, res=res, anchor=anchor, recent=anchor.copy(), particles=parts,
+                         centre=centre, log_s=0.0, velocity=np.zeros(2), slow=anchor.copy(),
+                         target=ChiSquare(), clutter=ChiSquare(), hidden_run=0, colour0=hist,
+                         colour=None if hist is None else hist.copy())
+    return _first_clutter(st, feat, bins, params)
+
+
+def _first_clutter(st: AppearanceState, feat: np.ndarray, bins: np.ndarray | None, p: AppearanceParams
+                   ) -> AppearanceState:
+    """The clutter's first sample, from the first frame: what the best look-alike away from the box
+    scores there, as every later frame's clutter sample is taken (the edges' best r farther than
+    half a box from it, the colour's best box one to two box sizes away). The target's distribution
+    cannot be learnt from the frame it was cut from (rho = 0), but the clutter's can: from the next
+    frame on, a box that scores like the background's best is then judged clutter, whatever the
+    frame holds (on a video of fresh noise, every frame from the second)."""
+    w, h = (float(v) for v in st.size0)
+    levels = _responses(feat, st, st.centre, p)
+    seen = _clutter(levels, st.centre, 0.0, (0.5 * w, 0.5 * h))
+    clutter = st.clutter.update(1.0 - seen[0], p.clutter_rate) if seen is not None else st.clutter
+    cclutter = st.cclutter
+    if bins is not None and st.colour0 is not None:
+        c = _colour_at(bins, st, _colour_scan(bins, st, st.centre, p.search * max(w, h) + 10.0), st.centre, 0.0)
+        if c is not None and c.clutter is not None:
+            cclutter = cclutter.update(c.clutter, p.clutter_rate)
+    return replace(st, clutter=clutter, cclutter=cclutter)
 
 
 @dataclass(frozen=True)
@@ -686,9 +711,11 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         state_prior = (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place,
                      log_place_partial=log_place_partial, cues=cues)
+    # the first `warmup` frames the target's distribution is still being learnt: a present target is
+    # taken as confident; whether it is present at all the clutter says from the first frame on
     warm = st.target.n < p.warmup
-    present = warm or vis.present
-    confident = warm or vis.visible >= 0.5
+    present = vis.present
+    confident = present and (warm or vis.visible >= 0.5)
     confidence = 1.0 - vis.hidden if warm else vis.visible
     run = 0 if present else st.hidden_run + 1
     # clutter explains the estimate: the box holds the prediction and nothing is learnt; only

@@ -67,8 +67,8 @@ class AppearanceParams:
                                           "exemplars' r falls by more than this")
     scale_min_score: float = param(0.7, "scale searched only while r >= this (an absolute confidence)")
     scale_gate: float = param(1.0, "scale searched only while r >= its running level - scale_gate")
-    warmup: int = param(5, "frames after the first on which the target is taken as visible (its distribution is "
-                           "learnt)")
+    warmup: int = param(5, "frames after the first on which a target judged present is taken as confident (its "
+                           "distribution is learnt)")
     min_std: float = param(0.05, "floor on the spread of rho in the target's and the clutter's distributions")
     target_rate: float = param(0.05, "forgetting rate of the target's distance moments (frames it is present)")
     clutter_rate: float = param(0.05, "forgetting rate of the clutter's distance moments (frames the target is "

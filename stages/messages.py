@@ -171,6 +171,8 @@ class StageStatus(msgspec.Struct, frozen=True, tag=True):
     captured: int = 0  # a live source: frames decoded since it opened
     skipped: int = 0  # a live source: frames decoded and not sent (the newest frame wins)
     reconnects: int = 0  # a live source: times the stream was lost and reopened
+    missed: int = 0  # a live source: frames that never arrived (gaps in the stream's timestamps, reconnects)
+    damaged: int = 0  # a live source: frames decoded from damaged data (FFmpeg reported errors)
 
 
 class Capture(msgspec.Struct, frozen=True, tag=True):
@@ -180,13 +182,18 @@ class Capture(msgspec.Struct, frozen=True, tag=True):
     sent), ``stamp_ns`` the host clock when it was read. ``frame`` is the camera's frame number
     (every frame decoded since the source opened, sent or not); ``skipped`` the frames decoded
     since the previous frame sent and not sent (the newest frame wins); ``gap_s`` the seconds
-    without frames when the stream was lost and reopened before this frame (0: no gap).
+    without frames when the stream was lost and reopened before this frame (0: no gap);
+    ``missed`` the frames that never arrived since the previous frame sent (the camera's frame
+    numbers skip them); ``damaged`` whether this frame was decoded from damaged data (FFmpeg
+    reported corrupt or undecodable data on it, or on a frame it was predicted from).
     """
 
     header: Header
     frame: int
     skipped: int = 0
     gap_s: float = 0.0
+    missed: int = 0
+    damaged: bool = False
 
 
 class Snapshot(msgspec.Struct, frozen=True, tag=True):

@@ -51,7 +51,9 @@ class SourceParams(Params, frozen=True):
     Live sources only: ``live_ahead`` frames may be in flight ahead of the slowest stage (the
     newest frame wins beyond them); ``reconnect``: seconds to keep reopening a lost stream;
     ``open_timeout``: seconds an open may take; ``keep_skipped``: send the skipped frames on
-    port ``skipped`` (for the recording); ``stop``: end after this many frames decoded.
+    port ``skipped`` (for the recording); ``stop``: end after this many frames decoded;
+    ``relay``: where to read ``path``'s bytes instead (a UDP port bound before the pipeline
+    started, served on loopback: :mod:`pipeline.io.udp_relay`).
     """
 
     kind: Literal["synthetic", "folder", "video", "mcap", "live"] = "synthetic"
@@ -75,6 +77,7 @@ class SourceParams(Params, frozen=True):
     reconnect: float = 5.0
     open_timeout: float = 10.0
     keep_skipped: bool = False
+    relay: str = ""
 
     @property
     def host_clock(self) -> bool:
@@ -111,8 +114,10 @@ class RawFrame:
     Live sources (host stamps) also give: ``frame`` the camera's frame number, ``stamp_ns``
     the host clock when it was read, ``skipped`` the frames skipped since the previous one,
     ``gap_s`` seconds lost to a reconnect before it, ``skipped_frames`` those frames'
-    ``(frame, stamp_ns, image)`` when they are kept, and ``events`` ``(kind, message)`` reports
-    (a frame with no image and only events is just the reports: the end of a stream).
+    ``(frame, stamp_ns, image)`` when they are kept, ``events`` ``(kind, message)`` reports
+    (a frame with no image and only events is just the reports: the end of a stream),
+    ``missed`` the frames that never arrived since the previous one and ``damaged`` whether it
+    was decoded from damaged data.
     """
 
     index: int
@@ -126,6 +131,8 @@ class RawFrame:
     gap_s: float = 0.0
     skipped_frames: tuple[tuple[int, int, np.ndarray], ...] = ()
     events: tuple[tuple[str, str], ...] = ()
+    missed: int = 0
+    damaged: bool = False
 
 
 class SourceStage(Stage[SourceParams]):
@@ -186,7 +193,7 @@ class SourceStage(Stage[SourceParams]):
             self.skipped += raw.skipped
             self.last_frame = raw.frame
             out.append(("captures", Capture(header=self.header(seq, stamp), frame=raw.frame, skipped=raw.skipped,
-                                            gap_s=raw.gap_s)))
+                                            gap_s=raw.gap_s, missed=raw.missed, damaged=raw.damaged)))
         if p.keep_skipped:
             name = raw.name.rsplit("#", 1)[0]
             out += [("skipped", Frame(header=self.header(frame, stamp_ns), image=NDArray.of(image),

@@ -22,6 +22,10 @@ if sys.argv and sys.argv[0].endswith(("gflow", "pipeline/cli/__main__.py", "pipe
     # first, before the imports below: a command that starts stage processes forks their zygote
     # now, which imports what they share while this process goes on (pipeline/runtime/zygote.py)
     start_early(sys.argv[1:])
+    # then a UDP source's port, so a sender started with the command loses nothing (pipeline/io/udp_relay.py)
+    from pipeline.io.udp_relay import bind_early
+
+    bind_early(sys.argv[1:])
 
 import argparse  # noqa: E402
 import logging  # noqa: E402

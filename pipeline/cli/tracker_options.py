@@ -15,7 +15,7 @@ from typing import Any
 
 from gflow_core.params import ParamInfo, describe, format_value
 
-__all__ = ["add_param_options", "param_values", "option_dest", "param_table"]
+__all__ = ["add_param_options", "param_values", "option_dest", "param_table", "check_param_values"]
 
 
 def option_dest(info: ParamInfo) -> str:
@@ -63,6 +63,27 @@ def param_values(args: argparse.Namespace, cls: type) -> dict[str, Any]:
         if info.option is not None and getattr(args, option_dest(info), None) is not None:
             out[info.name] = getattr(args, option_dest(info))
     return out
+
+
+def check_param_values(args: argparse.Namespace, classes: list[type], cls: type) -> None:
+    """Refuse a value the options of ``classes`` were given that ``cls`` (the tracker that runs)
+    would refuse, as ``ValueError("--OPTION VALUE: why")``: the dataclass's own check, in one line,
+    before a graph is built from it (an option declared on one tracker's parameters and read by
+    another, as ``--particles``, is checked against the one that runs)."""
+    from gflow_core.params import make
+
+    fields = {i.name for i in describe(cls)}
+    for other in classes:
+        for info in describe(other):
+            if info.option is None or info.name not in fields:
+                continue
+            value = getattr(args, option_dest(info), None)
+            if value is None:
+                continue
+            try:
+                make(cls, {info.name: value})
+            except ValueError as e:
+                raise ValueError(f"{info.option} {format_value(value)}: {e}") from None
 
 
 def _type_name(tp: Any) -> str:

@@ -22,11 +22,24 @@ import tempfile
 import threading
 from typing import IO
 
-__all__ = ["FfmpegMessages", "ffmpeg_messages"]
+__all__ = ["FfmpegMessages", "ffmpeg_messages", "is_damage"]
 
 #: FFmpeg's warning level (AV_LOG_WARNING): at the error level an HTTP 404 says nothing
 LOG_LEVEL = "24"
-_PREFIX = re.compile(r"^\[OPENCV:FFMPEG:\d+\]\s*")
+#: FFmpeg's error level (AV_LOG_ERROR): a decoder says so when a frame could not be decoded whole
+ERROR_LEVEL = 16
+_PREFIX = re.compile(r"^\[OPENCV:FFMPEG:(\d+)\]\s*")
+#: warnings that mean the stream's bytes were damaged (the demuxer's corrupt-packet and continuity
+#: checks, the decoder's concealment), not the many that do not (a deprecated pixel format)
+_DAMAGE = re.compile(r"corrupt|concealing|error while decoding|missing picture|invalid|out of range|mismatch|"
+                     r"continuity|decode_slice", re.IGNORECASE)
+
+
+def is_damage(level: int, text: str) -> bool:
+    """Whether an FFmpeg message read while decoding a live stream says a frame was damaged: any
+    error (a decoder that could not decode a slice says so at the error level, then conceals it)
+    or a warning about corrupt or missing data."""
+    return level <= ERROR_LEVEL or bool(_DAMAGE.search(text))
 
 
 class FfmpegMessages:
@@ -74,10 +87,14 @@ class FfmpegMessages:
 
     def collect(self) -> list[str]:
         """Read what was written since the last call; returns FFmpeg's new lines."""
+        return [text for _, text in self.collect_levels()]
+
+    def collect_levels(self) -> list[tuple[int, str]]:
+        """:meth:`collect`, each line with FFmpeg's level (16 error, 24 warning)."""
         with self._lock:
             return self._collect_locked()
 
-    def _collect_locked(self) -> list[str]:
+    def _collect_locked(self) -> list[tuple[int, str]]:
         if self._file is None:
             return []
         _flush_c_stdio()
@@ -92,7 +109,7 @@ class FfmpegMessages:
             if m is None:
                 passthrough.append(line + "\n")
             elif line[m.end():].strip() and "Immediate exit requested" not in line:
-                new.append(line[m.end():].strip())  # (that one is FFmpeg obeying our own timeout)
+                new.append((int(m.group(1)), line[m.end():].strip()))  # (that one is FFmpeg obeying our own timeout)
         if passthrough and self._saved_fd >= 0:
             os.write(self._saved_fd, "".join(passthrough).encode())
         return new

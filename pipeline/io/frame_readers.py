@@ -94,9 +94,9 @@ def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
         cap.release()
 
 
-def _recorded_captures(path: Path) -> tuple[dict[int, tuple[int, int, float]], dict[int, tuple[int, np.ndarray]]]:
-    """A live run's Capture messages, {seq: (camera frame, skipped, gap_s)}, and the skipped
-    frames it recorded, {camera frame: (stamp, image)}."""
+def _recorded_captures(path: Path) -> tuple[dict[int, Capture], dict[int, tuple[int, np.ndarray]]]:
+    """A live run's Capture messages, {seq: Capture}, and the skipped frames it recorded,
+    {camera frame: (stamp, image)}."""
     from pipeline.io.mcap_io import iter_records
 
     captures, skipped = {}, {}
@@ -107,7 +107,7 @@ def _recorded_captures(path: Path) -> tuple[dict[int, tuple[int, int, float]], d
             except MessageError:
                 continue
             if isinstance(c, Capture):
-                captures[c.header.seq] = (c.frame, c.skipped, c.gap_s)
+                captures[c.header.seq] = c
         elif rec.type == "Frame" and rec.topic.endswith("/skipped"):
             try:
                 f = decode(rec.data)
@@ -125,6 +125,8 @@ class _LiveFields(TypedDict, total=False):
     skipped: int
     gap_s: float
     skipped_frames: tuple[tuple[int, int, np.ndarray], ...]
+    missed: int
+    damaged: bool
 
 
 def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = False) -> Iterator[RawFrame]:
@@ -147,11 +149,14 @@ def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = Fals
         s = msg.header.seq
         if s < start or (stop is not None and s >= stop):
             continue
-        frame, n_skipped, gap = captures.get(s, (-1, 0, 0.0))
+        c = captures.get(s)
+        frame = c.frame if c is not None else -1
         kept = tuple((f, *skipped[f]) for f in sorted(skipped) if prev_frame < f < frame)
         prev_frame = max(prev_frame, frame)
-        live: _LiveFields = (_LiveFields(frame=frame, stamp_ns=msg.header.stamp_ns, skipped=n_skipped, gap_s=gap,
-                                         skipped_frames=kept) if host_clock else {})
+        live: _LiveFields = (_LiveFields(frame=frame, stamp_ns=msg.header.stamp_ns, skipped_frames=kept,
+                                         skipped=c.skipped if c else 0, gap_s=c.gap_s if c else 0.0,
+                                         missed=c.missed if c else 0, damaged=c.damaged if c else False)
+                             if host_clock else {})
         try:
             yield RawFrame(s, msg.image.array(), truth=msg.truth, name=msg.source, **live)
         except MessageError as e:
@@ -177,7 +182,8 @@ def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Gene
                 break
             kept = tuple((c.frame, c.stamp_ns, c.image) for c in f.skipped_frames if c.image is not None)
             yield RawFrame(seq, f.image, name=f"{p.path}#{f.frame}", frame=f.frame, stamp_ns=f.stamp_ns,
-                           skipped=f.skipped, gap_s=f.gap_s, skipped_frames=kept, events=f.events)
+                           skipped=f.skipped, gap_s=f.gap_s, skipped_frames=kept, events=f.events, missed=f.missed,
+                           damaged=f.damaged)
             seq += 1
         events = capture.pending_events() + ([("stream_ended", capture.ended)] if capture.ended else [])
         if events:
@@ -189,7 +195,7 @@ def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Gene
 def open_live(p: SourceParams) -> LiveCapture:
     """Open the live source of ``p`` (raises :class:`LiveSourceError` in one line)."""
     return LiveCapture(p.path, fps=p.fps, open_timeout=p.open_timeout, reconnect=p.reconnect,
-                       keep_skipped=p.keep_skipped, stop=p.stop).open()
+                       keep_skipped=p.keep_skipped, stop=p.stop, url=p.relay).open()
 
 
 def open_reader(p: SourceParams, base_dir: str | os.PathLike = ".") -> Iterator[RawFrame]:

@@ -6,8 +6,18 @@ not taken yet together with the number of frames decoded since the previous one 
 taken (skipped, never lost silently). The first frame decoded is held until it is taken: it is
 the frame the tracker starts on, the one ``--init`` describes.
 
-* **Frame numbers** count every frame decoded since the open (skipped ones included; frames
-  that never arrived during a reconnect are not counted, their time is reported instead).
+* **Frame numbers** are the camera's: from the stream's own timestamps where it has them, so
+  frames that never arrived (an outage, packets lost, a reconnect to a sender that went on)
+  leave a gap in the numbers and are counted and reported; else counting every frame decoded
+  (skipped ones included), a reconnect's gap estimated by the host clock
+  (:mod:`pipeline.io.frame_numbers`).
+* **Damage.** FFmpeg's messages are read after every frame: a frame decoded while FFmpeg
+  reported corrupt or undecodable data is **damaged**, and so is every frame decoded from it
+  until the next keyframe (``CAP_PROP_FRAME_TYPE`` I: predicted frames carry the damage on).
+  Damaged frames are counted, marked on the frame taken, and the start of each damaged run is
+  reported with what FFmpeg said. FFmpeg decodes as many frames ahead of the one it hands over
+  as it has threads, less one, and says what went wrong as it decodes: the frame handed over
+  when it spoke and that many after it are marked, so a damaged run can start a frame early.
 * **Capture stamps** come from the receiving host's clock (``time.time_ns()``), taken as
   ``read()`` returns each frame.
 * **Opening** can block (a server that accepts and sends nothing; a stream FFmpeg cannot
@@ -34,7 +44,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from pipeline.io.ffmpeg_messages import ffmpeg_messages
+from pipeline.io.ffmpeg_messages import ffmpeg_messages, is_damage
+from pipeline.io.frame_numbers import FrameNumbers
 
 __all__ = ["LiveCapture", "LiveFrame", "LiveSourceError", "is_live_source", "camera_device", "READ_TIMEOUT_S"]
 
@@ -45,7 +56,10 @@ READ_TIMEOUT_S = 5.0
 #: back-off between reconnection attempts: first wait, and the most it grows to
 BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.25, 1.0
 _DEVICE = re.compile(r"^/dev/video\d+$")
-CAP_PROP_FPS = 5  # cv2.CAP_PROP_FPS (this module imports cv2 only when it opens a source)
+# OpenCV's property ids (this module imports cv2 only when it opens a source)
+CAP_PROP_FPS, CAP_PROP_FRAME_TYPE, CAP_PROP_N_THREADS, CAP_PROP_PTS = 5, 69, 70, 71
+#: the frame types (CAP_PROP_FRAME_TYPE, av_get_picture_type_char) that decode from no other frame
+KEY_TYPES = (ord("I"), ord("i"))
 
 
 class LiveSourceError(ValueError):
@@ -67,11 +81,14 @@ def camera_device(index: int) -> str:
 
 @dataclass(frozen=True)
 class Captured:
-    """One decoded frame: its number since the open, its host capture stamp, the image."""
+    """One decoded frame: the camera's frame number, its host capture stamp, the image, the frames
+    that never arrived just before it, and whether it was decoded from damaged data."""
 
     frame: int
     stamp_ns: int
     image: np.ndarray | None  # None for a skipped frame whose image was not kept
+    missed: int = 0
+    damaged: bool = False
 
 
 @dataclass(frozen=True)
@@ -81,7 +98,10 @@ class LiveFrame:
     skipped : frames decoded since the previous frame taken, and not taken (newest frame wins).
     skipped_frames : those frames, when the capture keeps them (``keep_skipped``).
     gap_s : seconds without frames while the stream was lost and reopened since then.
-    events : ``(kind, message)`` reports: ``reconnected`` (with the gap), in order.
+    events : ``(kind, message)`` reports: ``reconnected`` (with the gap), ``frames_missed`` (a gap
+        in the stream's timestamps), ``damaged_input`` (FFmpeg reported damaged data), in order.
+    missed : frames that never arrived since the previous frame taken.
+    damaged : this frame was decoded from damaged data (see the module docstring).
     """
 
     frame: int
@@ -91,6 +111,8 @@ class LiveFrame:
     skipped_frames: tuple[Captured, ...] = ()
     gap_s: float = 0.0
     events: tuple[tuple[str, str], ...] = ()
+    missed: int = 0
+    damaged: bool = False
 
 
 @dataclass
@@ -101,6 +123,7 @@ class _Slot:
     kept: list[Captured] = field(default_factory=list)
     gap_s: float = 0.0
     events: list[tuple[str, str]] = field(default_factory=list)
+    missed: int = 0
 
 
 class LiveCapture:
@@ -115,11 +138,14 @@ class LiveCapture:
     reconnect : seconds to keep trying after the stream is lost (0: end at once).
     keep_skipped : keep the images of skipped frames (for the recording).
     stop : end after this many frames (None: when the stream ends).
+    url : where to open ``source``'s stream instead, when it is relayed (:mod:`pipeline.io.udp_relay`);
+        reports name ``source``.
     """
 
     def __init__(self, source: str, fps: float = 25.0, open_timeout: float = 10.0, reconnect: float = 5.0,
-                 keep_skipped: bool = False, stop: int | None = None) -> None:
+                 keep_skipped: bool = False, stop: int | None = None, url: str = "") -> None:
         self.source = source
+        self.url = url or source
         self.fps = fps
         self.open_timeout = open_timeout
         self.reconnect = reconnect
@@ -127,6 +153,8 @@ class LiveCapture:
         self.stop = stop
         self.captured = 0  # frames decoded since the open
         self.skipped = 0  # frames decoded and never taken
+        self.missed = 0  # frames that never arrived (gaps in the stream's timestamps, reconnects)
+        self.damaged = 0  # frames decoded from damaged data
         self.reconnects = 0
         self.ended = ""  # why the capture ended ('' while it runs)
         self.shape: tuple[int, ...] = ()
@@ -139,6 +167,9 @@ class LiveCapture:
         self._messages = ffmpeg_messages()
         self._listening = False
         self._last_ns = 0  # host stamp of the last frame decoded
+        self._numbers: FrameNumbers | None = None  # made at the open, with the stream's declared rate
+        self._damage_run = False  # the last frame decoded was damaged
+        self._ahead = 0  # frames still suspect after FFmpeg reported damage (it decodes ahead)
 
     # -- opening -------------------------------------------------------------------------------
     def open(self) -> "LiveCapture":
@@ -158,7 +189,8 @@ class LiveCapture:
         self.shape = tuple(first.shape)
         fps = float(cap.get(CAP_PROP_FPS))
         self.declared_fps = fps if 0 < fps < 1000 else 0.0
-        self._put(first, stamp)
+        self._numbers = FrameNumbers(self.declared_fps or self.fps)
+        self._decoded(cap, first, stamp, [])
         self._thread = threading.Thread(target=self._read_loop, name="live-capture", daemon=True)
         self._thread.start()
         return self
@@ -176,7 +208,7 @@ class LiveCapture:
                     cap = cv2.VideoCapture(self.source, cv2.CAP_V4L2)
                 else:
                     ms = int(max(timeout, 0.1) * 1000)
-                    cap = cv2.VideoCapture(self.source, cv2.CAP_FFMPEG,
+                    cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG,
                                            [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms,
                                             cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(READ_TIMEOUT_S * 1000)])
                 if not cap.isOpened():
@@ -215,13 +247,61 @@ class LiveCapture:
         return " (FFmpeg gave no reason: is it a video stream FFmpeg can decode?)"
 
     # -- reading -------------------------------------------------------------------------------
-    def _put(self, img: np.ndarray, stamp: int) -> None:
+    def _decoded(self, cap, img: np.ndarray, stamp: int, said: list[tuple[int, str]], gap_s: float = 0.0,
+                 lost: str = "", attempt: int = 0) -> None:
+        """Number a frame just decoded, judge its damage from what FFmpeg said while it was decoded
+        (``said``) and its type, report a gap or the start of damage, and put it in the slot. After
+        reconnect ``attempt``, ``gap_s`` is the time without frames and ``lost`` what the report says
+        of the loss."""
+        assert self._numbers is not None
+        reopened = gap_s > 0 or bool(lost)
+        bad_ahead = False
+        n = self._numbers.number(float(cap.get(CAP_PROP_PTS)), stamp, reopened)
+        bad = [text for level, text in said if is_damage(level, text)]
+        kind = int(cap.get(CAP_PROP_FRAME_TYPE))
+        if bad:  # FFmpeg decodes up to (threads - 1) frames ahead of the one handed over: those are suspect too
+            self._ahead = max(0, int(cap.get(CAP_PROP_N_THREADS)) - 1)
+        elif self._ahead and not reopened:
+            self._ahead -= 1
+            bad_ahead = True
+        # a predicted frame decodes from the frames before it: their damage goes on to the next keyframe
+        damaged = (bool(bad) or (self._damage_run and not reopened and (
+            bad_ahead or (kind > 0 and kind not in KEY_TYPES))))
+        events: list[tuple[str, str]] = []
+        rate = self.declared_fps or self.fps
+        counted = "by the stream's timestamps" if n.exact else f"about, at {rate:g} frames/s"
+        if lost:
+            events.append(("reconnected", (
+                f"{lost}; back after {gap_s:.2f} s (attempt {attempt}), {n.missed} frames missed ({counted}"
+                + (f"; {n.jump}" if n.jump else "") + f"); tracking resumes at "
+                f"frame {n.frame} with the motion model's uncertainty grown for the {gap_s:.2f} s")))
+        elif n.missed or n.jump:
+            first_missed = n.frame - n.missed
+            which = (f"frames {first_missed}-{n.frame - 1}" if n.missed > 1 else f"frame {first_missed}")
+            events.append(("frames_missed", (
+                f"{self.source}: " + (f"{n.jump}; " if n.jump else "")
+                + (f"{which} never arrived ({n.missed} frames, {n.missed / rate:.2f} s, {counted}); "
+                   if n.missed else "") + f"tracking resumes at frame {n.frame}")))
+        if bad and not self._damage_run:
+            events.append(("damaged_input", (
+                f"{self.source}: frame {n.frame} decoded from damaged data (FFmpeg: {bad[0]}"
+                + (f"; {len(bad) - 1} more message(s)" if len(bad) > 1 else "")
+                + "); the frames decoded from it are damaged until the next keyframe")))
+        self._damage_run = damaged
+        self._put(Captured(n.frame, stamp, img, n.missed, damaged), gap_s, events)
+
+    def _put(self, f: Captured, gap_s: float = 0.0, events: list[tuple[str, str]] | None = None) -> None:
         with self._cond:
-            f = Captured(self.captured, stamp, img)
+            first = self.captured == 0
             self.captured += 1
-            self._last_ns = stamp
+            self.missed += f.missed
+            self.damaged += f.damaged
+            self._last_ns = f.stamp_ns
             s = self._slot
-            if f.frame == 0:
+            s.missed += f.missed
+            s.gap_s += gap_s
+            s.events += events or []
+            if first:
                 s.held = f
             else:
                 if s.latest is not None:  # never taken: the newer frame wins
@@ -236,7 +316,6 @@ class LiveCapture:
         import cv2
 
         cap = self._cap
-        heard = time.monotonic()
         while not self._closing.is_set() and cap is not None:
             try:
                 ok, img = cap.read()
@@ -244,10 +323,7 @@ class LiveCapture:
                 ok, img = False, None
             stamp = time.time_ns()
             if ok and img is not None:  # a frame of another size too: the source stage reports it
-                self._put(img, stamp)
-                if time.monotonic() - heard > 1.0:  # what FFmpeg said while frames came explains no loss
-                    heard = time.monotonic()
-                    self._messages.collect()
+                self._decoded(cap, img, stamp, self._messages.collect_levels())  # what FFmpeg said decoding it
                 if self.stop is not None and self.captured >= self.stop:
                     self._end(f"{self.source}: stopped after frame {self.captured - 1} (--stop {self.stop})")
                     break
@@ -262,7 +338,7 @@ class LiveCapture:
 
     def _reconnect(self):
         """Reopen a lost stream with back-off for ``reconnect`` seconds; None when it is not back."""
-        last = self.captured - 1
+        last = self._numbers.last if self._numbers is not None else self.captured - 1
         lost_at = time.monotonic()
         said = self._messages.collect()
         why = f"FFmpeg: {said[-1]}" if said else "the stream ended or the connection closed"
@@ -280,17 +356,10 @@ class LiveCapture:
                 wait = min(2 * wait, BACKOFF_MAX_S)
                 continue
             gap = (stamp - self._last_ns) / 1e9
-            rate = self.declared_fps or self.fps  # the stream's own rate when it says it
-            missed = max(0, int(round(gap * rate)) - 1)
             self.reconnects += 1
-            with self._cond:
-                self._slot.gap_s += gap
-                self._slot.events.append(("reconnected", (
-                    f"{self.source}: lost after frame {last} ({why}); back after {gap:.2f} s "
-                    f"(attempt {attempts}), about {missed} frames missed at {rate:g} frames/s; "
-                    f"tracking resumes at frame {self.captured} with the motion model's uncertainty "
-                    f"grown for the {gap:.2f} s")))
-            self._put(img, stamp)
+            self._damage_run, self._ahead = False, 0  # a new connection starts decoding afresh
+            self._decoded(cap, img, stamp, [], gap_s=gap, lost=f"{self.source}: lost after frame {last} ({why})",
+                          attempt=attempts)
             return cap
         if not self._closing.is_set():
             self._end(f"{self.source}: lost after frame {last} ({why}) and not back within "
@@ -318,12 +387,12 @@ class LiveCapture:
             if s.held is not None:
                 first, s.held = s.held, None
                 assert first.image is not None  # _put keeps every decoded frame's image
-                return LiveFrame(first.frame, first.stamp_ns, first.image)
+                return LiveFrame(first.frame, first.stamp_ns, first.image, damaged=first.damaged)
             f, s.latest = s.latest, None
             assert f is not None and f.image is not None  # the wait above ended with a latest frame, kept whole
             out = LiveFrame(f.frame, f.stamp_ns, f.image, s.skipped, tuple(s.kept), s.gap_s,
-                            tuple(s.events))
-            s.skipped, s.kept, s.gap_s, s.events = 0, [], 0.0, []
+                            tuple(s.events), s.missed, f.damaged)
+            s.skipped, s.kept, s.gap_s, s.events, s.missed = 0, [], 0.0, [], 0
             return out
 
     def interrupt(self) -> None:

@@ -20,7 +20,10 @@ from typing import Iterator
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
-__all__ = ["Record", "iter_records", "segments", "segment_path", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording"]
+from pipeline.io.run_sessions import RunSessions
+
+__all__ = ["Record", "iter_records", "segments", "segment_path", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording",
+           "SOURCE_KEY"]
 
 
 class TruncatedRecording(Exception):
@@ -41,6 +44,10 @@ except ImportError:  # zstandard is optional for reading lz4 files
 _NO_FOOTER_ERRORS = TORN_END_ERRORS + (OSError,)
 
 
+#: channel metadata naming the zenoh session (hex id) whose samples the channel holds (the recorder's)
+SOURCE_KEY = "gflow.source"
+
+
 @dataclass(frozen=True)
 class Record:
     topic: str
@@ -51,6 +58,7 @@ class Record:
     data: bytes
     schema: str = ""
     schema_encoding: str = ""
+    source: str = ""  # the zenoh session that published it ("" when the recording does not say)
 
 
 def _check(path: str | Path) -> Path:
@@ -111,7 +119,8 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
                     continue
                 yield Record(channel.topic, channel.metadata.get("gflow.type", schema.name if schema else ""),
                              msg.log_time, msg.publish_time, msg.sequence, msg.data,
-                             schema.name if schema else "", schema.encoding if schema else "")
+                             schema.name if schema else "", schema.encoding if schema else "",
+                             channel.metadata.get(SOURCE_KEY, ""))
         except TORN_END_ERRORS as e:  # a torn or corrupt end
             text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
             if strict:
@@ -173,6 +182,7 @@ class RecordingSummary:
     metadata: dict[str, dict[str, str]]
     truncated: str = ""
     segments: list[str] = field(default_factory=list)  # the files of the recording, when more than one
+    sessions: RunSessions = field(default_factory=RunSessions)  # the run's zenoh sessions and what came from outside
 
     @property
     def duration_s(self) -> float:
@@ -182,6 +192,7 @@ class RecordingSummary:
         return {
             "path": self.path, "messages": self.messages, "duration_s": round(self.duration_s, 3),
             "truncated": self.truncated or None, "segments": self.segments or None,
+            "outside_the_run": self.sessions.to_json() or None,
             "topics": {t: {"type": s.type, "count": s.count, "rate_hz": round(s.rate_hz, 2), "bytes": s.bytes,
                            "first_seq": s.first_seq, "last_seq": s.last_seq} for t, s in self.topics.items()},
             "schemas": self.schemas,
@@ -197,7 +208,9 @@ def summarize(path: str | Path) -> RecordingSummary:
     topics: dict[str, TopicSummary] = {}
     n = 0
     start = end = 0
+    sessions = RunSessions()
     for r in iter_records(path, on_truncated=truncated.append):
+        sessions.add(r)
         key = f"{r.topic}"
         s = topics.get(key)
         if s is None:
@@ -215,4 +228,4 @@ def summarize(path: str | Path) -> RecordingSummary:
         end = max(end, r.log_ns)
     segs = segments(path)
     return RecordingSummary(str(path), n, start, end, topics, schemas, read_metadata(path),
-                            "; ".join(truncated), [str(p) for p in segs] if len(segs) > 1 else [])
+                            "; ".join(truncated), [str(p) for p in segs] if len(segs) > 1 else [], sessions)

@@ -1,5 +1,5 @@
-"""MCAP recording of every message: one channel per (topic, message type), a JSON schema
-per message type, chunked and compressed, flushed on a timer.
+"""MCAP recording of every message: one channel per (topic, message type, publishing zenoh
+session), a JSON schema per message type, chunked and compressed, flushed on a timer.
 
 Each record keeps the payload bytes exactly as they travelled (so a re-run can be compared
 bit for bit), the topic, the log time (when the recorder received it), the publish time
@@ -44,6 +44,7 @@ import msgspec
 from mcap.data_stream import RecordBuilder
 from mcap.records import DataEnd, Footer
 
+from pipeline.io.mcap_io import SOURCE_KEY
 from pipeline.io.mcap_writer import ChunkWriter
 
 from stages.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
@@ -99,7 +100,7 @@ class McapRecorder:
     _f: IO[bytes] | None = None
     _w: ChunkWriter | None = None
     _schemas: dict[str, int] = field(default_factory=dict)
-    _channels: dict[tuple[str, str], int] = field(default_factory=dict)
+    _channels: dict[tuple[str, str, str], int] = field(default_factory=dict)
     _last_flush: float = 0.0
     messages: int = 0
     bytes: int = 0
@@ -182,8 +183,8 @@ class McapRecorder:
         assert self._w is not None, "recorder is not open"
         self._w.add_metadata(name, {k: str(v) for k, v in data.items()})
 
-    def _channel(self, topic: str, type_name: str) -> int:
-        key = (topic, type_name)
+    def _channel(self, topic: str, type_name: str, source: str = "") -> int:
+        key = (topic, type_name, source)
         cid = self._channels.get(key)
         if cid is not None:
             return cid
@@ -201,22 +202,25 @@ class McapRecorder:
                 sid = self._w.register_schema(SCHEMA_PREFIX + type_name, SCHEMA_ENCODING,
                                               json.dumps(json_schema(typ)).encode())
             self._schemas[type_name] = sid
-        cid = self._w.register_channel(topic, "json" if fox is not None else MESSAGE_ENCODING, sid,
-                                       metadata={"gflow.type": type_name or "unknown"})
+        meta = {"gflow.type": type_name or "unknown"}
+        if source:  # the zenoh session that published on it (pipeline.runtime.transport.sample_source)
+            meta[SOURCE_KEY] = source
+        cid = self._w.register_channel(topic, "json" if fox is not None else MESSAGE_ENCODING, sid, metadata=meta)
         self._channels[key] = cid
         return cid
 
     def write(self, topic: str, payload: builtins.bytes, seq: int, publish_ns: int = 0, log_ns: int | None = None,
-              type_name: str = "") -> None:
+              type_name: str = "", source: str = "") -> None:
         """Record one payload exactly as received. ``type_name`` comes with the sample; without
-        it the MessagePack type tag is read."""
+        it the MessagePack type tag is read. ``source`` is the zenoh session that published it
+        (a channel of its own per session, its metadata ``gflow.source``; "" when not known)."""
         assert self._w is not None, "recorder is not open"
         log_ns = time.time_ns() if log_ns is None else log_ns
         if not type_name or (type_name not in MESSAGE_TYPES and type_name not in FOXGLOVE_TYPES):
             type_name = peek_type(payload)
             if type_name not in MESSAGE_TYPES:
                 type_name = ""  # an unknown tag: the topic's one `unknown` channel, not a channel per tag
-        cid = self._guard(self._channel, topic, type_name)
+        cid = self._guard(self._channel, topic, type_name, source)
         self._guard(self._w.add_message, cid, log_time=log_ns, data=payload, publish_time=publish_ns or log_ns,
                     sequence=max(seq, 0) & 0xFFFFFFFF)
         self.messages += 1

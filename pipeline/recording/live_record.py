@@ -21,11 +21,15 @@ import numpy as np
 from stages.messages import Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus, decode
 
 from pipeline.io.mcap_io import iter_records
+from pipeline.recording.results import frame_ranges
+from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["LiveSummary", "live_summary", "latency_percentiles", "LIVE_REPORTS"]
 
 #: the kinds of the reports a live source makes on the errors topic
-LIVE_REPORTS = ("reconnected", "stream_ended")
+LIVE_REPORTS = ("reconnected", "stream_ended", "frames_missed", "damaged_input")
+#: reports of one kind listed in full before the rest are only counted
+LISTED_REPORTS = 5
 
 
 def latency_percentiles(latencies_ms) -> tuple[float, float, float]:
@@ -45,8 +49,11 @@ class LiveSummary:
         frames accounted for by the captures).
     skipped : frames decoded and not sent (the newest frame wins).
     gaps : (camera frame after the gap, seconds) of each reconnect.
-    reports : the source's reconnect and end-of-stream reports, in order.
+    reports : the source's reports (reconnects, frames missed, damaged input, the end), in order.
     latency_ms : capture to recorded estimate, one per estimate.
+    missed : frames that never arrived (gaps in the stream's timestamps, reconnects).
+    damaged : frames decoded from damaged data, sent or skipped.
+    damaged_sent : the camera frame numbers of the frames sent that were damaged.
     """
 
     frames: dict[int, int] = field(default_factory=dict)
@@ -56,25 +63,46 @@ class LiveSummary:
     gaps: list[tuple[int, float]] = field(default_factory=list)
     reports: list[tuple[str, str]] = field(default_factory=list)
     latency_ms: list[float] = field(default_factory=list)
+    missed: int = 0
+    damaged: int = 0
+    damaged_sent: set[int] = field(default_factory=set)
 
     @property
     def sent(self) -> int:
         return len(self.frames)
+
+    def inputs(self, frames) -> dict[int, str]:
+        """The CSV's ``input`` column for these camera frames: ``damaged`` or ``ok``."""
+        return {f: "damaged" if f in self.damaged_sent else "ok" for f in frames}
 
     def lines(self) -> list[str]:
         """What to tell the user: frames, skips, gaps, latency, how the stream ended."""
         p50, p99, worst = latency_percentiles(self.latency_ms)
         out = [f"live source: {self.captured} frames captured, {self.sent} tracked, {self.skipped} skipped "
                f"(the newest frame wins)" + (f", {self.reconnects} reconnect(s)" if self.reconnects else "")]
+        if self.missed:
+            out.append(f"{self.missed} frame(s) never arrived (the camera's frame numbers skip them: see the "
+                       f"frames_missed and reconnected reports)")
+        if self.damaged:
+            out.append(f"{self.damaged} frame(s) decoded from damaged data, {len(self.damaged_sent)} of them tracked"
+                       + (f" (frames {frame_ranges(self.damaged_sent)}; the CSV's input column says damaged)"
+                          if self.damaged_sent else ""))
         if self.latency_ms:
             out.append(f"latency, capture to estimate: p50 {p50:.1f} ms, p99 {p99:.1f} ms, max {worst:.1f} ms "
                        f"({len(self.latency_ms)} estimates)")
-        out += [f"{kind}: {msg}" for kind, msg in self.reports]
+        shown: dict[str, int] = {}
+        for kind, msg in self.reports:
+            shown[kind] = shown.get(kind, 0) + 1
+            if shown[kind] <= LISTED_REPORTS:
+                out.append(f"{kind}: {msg}")
+        out += [f"{kind}: {n - LISTED_REPORTS} more (gflow echo or the recording's errors topic has them all)"
+                for kind, n in shown.items() if n > LISTED_REPORTS]
         return out
 
     def to_json(self) -> dict:
         p50, p99, worst = latency_percentiles(self.latency_ms)
         return {"captured": self.captured, "sent": self.sent, "skipped": self.skipped, "reconnects": self.reconnects,
+                "missed": self.missed, "damaged": self.damaged, "damaged_sent": sorted(self.damaged_sent),
                 "gaps": [{"frame": f, "seconds": s} for f, s in self.gaps],
                 "reports": [{"kind": k, "message": m} for k, m in self.reports],
                 "latency_ms": {"p50": p50, "p99": p99, "max": worst, "n": len(self.latency_ms)}}
@@ -84,11 +112,14 @@ def live_summary(path: str | Path, stream: str | None = None) -> LiveSummary | N
     """The live-source figures of a recording (None when it has no Capture: not a live run)."""
     s = LiveSummary()
     skipped_before_sent = 0  # the captures' count; the heartbeats also count those after the last frame sent
+    missed_before_sent = 0
     stamps: dict[int, int] = {}
-    est_log: list[tuple[int, int]] = []  # (capture stamp, log time) of each estimate
+    est_log: list[tuple[int, int, str, str]] = []  # (capture stamp, log time, topic, session) of each estimate
+    sessions = RunSessions()
     for r in iter_records(path):
         if stream and not r.topic.startswith(f"gflow/{stream}/"):
             continue
+        sessions.add(r)
         if r.type not in ("Capture", "Estimate", "PoseEstimate", "StageStatus", "ErrorReport"):
             continue
         try:
@@ -99,21 +130,29 @@ def live_summary(path: str | Path, stream: str | None = None) -> LiveSummary | N
             s.frames[m.header.seq] = m.frame
             stamps[m.header.seq] = m.header.stamp_ns
             skipped_before_sent += m.skipped
+            missed_before_sent += m.missed
+            if m.damaged:
+                s.damaged_sent.add(m.frame)
             if m.gap_s > 0:
                 s.gaps.append((m.frame, m.gap_s))
         elif isinstance(m, (Estimate, PoseEstimate)):
-            est_log.append((m.header.stamp_ns, r.log_ns))
+            est_log.append((m.header.stamp_ns, r.log_ns, r.topic, r.source))
         elif isinstance(m, StageStatus) and m.captured:
             s.captured = max(s.captured, m.captured)
             s.reconnects = max(s.reconnects, m.reconnects)
             s.skipped = max(s.skipped, m.skipped)
+            s.missed = max(s.missed, m.missed)
+            s.damaged = max(s.damaged, m.damaged)
         elif isinstance(m, ErrorReport) and m.kind in LIVE_REPORTS:
             s.reports.append((m.kind, m.message))
     if not s.frames:
         return None
     s.skipped = max(s.skipped, skipped_before_sent)
-    s.captured = max(s.captured, max(s.frames.values()) + 1)
+    s.missed = max(s.missed, missed_before_sent)
+    s.damaged = max(s.damaged, len(s.damaged_sent))
+    s.captured = max(s.captured, s.sent + skipped_before_sent)  # frame numbers also count the frames missed
     s.reconnects = max(s.reconnects, len(s.gaps))
     live_stamps = set(stamps.values())
-    s.latency_ms = [(log - st) / 1e6 for st, log in est_log if st in live_stamps]
+    s.latency_ms = [(log - st) / 1e6 for st, log, topic, source in est_log
+                    if st in live_stamps and sessions.is_own(topic, source)]  # the run's own estimates
     return s

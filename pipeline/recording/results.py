@@ -14,9 +14,10 @@ from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows
 from pipeline.io.mcap_io import iter_records
+from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
-           "write_visibility", "estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
+           "write_visibility", "estimates", "run_estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
            "RunOutcome", "renumber"]
 
 Box = tuple[float, float, float, float]
@@ -91,16 +92,21 @@ def read_track(path: str | Path) -> TrackRows:
 
 
 def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, float] | None = None,
-                states: dict[int, str] | None = None) -> None:
-    """Write ``frame,x,y,w,h`` rows, and ``confidence,state`` after them when given (for every frame)."""
+                states: dict[int, str] | None = None, inputs: dict[int, str] | None = None) -> None:
+    """Write ``frame,x,y,w,h`` rows, and ``confidence,state`` after them when given (for every frame),
+    and ``input`` after those when given (a live source: ``ok``, or ``damaged`` for a frame decoded
+    from damaged data)."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     full = confidence is not None and states is not None
     with open(p, "w", newline="") as f:
         w = csv.writer(f)
-        w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else []))
+        w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else [])
+                   + (["input"] if full and inputs is not None else []))
         for k in sorted(boxes):
             extra = [f"{confidence[k]:.3f}", states[k]] if confidence is not None and states is not None else []
+            if extra and inputs is not None:
+                extra.append(inputs.get(k, "ok"))
             w.writerow([k, *(f"{v:.2f}" for v in boxes[k]), *extra])
 
 
@@ -151,9 +157,19 @@ def renumber(col: dict[int, V], frame_of: Mapping[int, int]) -> dict[int, V]:
 
 
 def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Estimate | PoseEstimate]:
-    """Every Estimate in a recording, by frame (the last one wins if a frame repeats)."""
-    out: dict[int, Estimate | PoseEstimate] = {}
+    """Every Estimate of the run's own stages in a recording, by frame (the last one wins if a
+    frame repeats); those from outside the run are left out (:func:`run_estimates`)."""
+    return run_estimates(recording, stream)[0]
+
+
+def run_estimates(recording: str | Path, stream: str | None = None
+                  ) -> tuple[dict[int, Estimate | PoseEstimate], RunSessions]:
+    """:func:`estimates`, and what the recording says of the run's sessions: the messages from
+    outside the run (another zenoh session on the run's estimate topic) that were left out."""
+    sessions = RunSessions()
+    found: list[tuple[str, str, Estimate | PoseEstimate]] = []
     for r in iter_records(recording):
+        sessions.add(r)
         if r.type not in ("Estimate", "PoseEstimate") or (stream and not r.topic.startswith(f"gflow/{stream}/")):
             continue
         try:
@@ -161,8 +177,12 @@ def estimates(recording: str | Path, stream: str | None = None) -> dict[int, Est
         except MessageError:
             continue
         if isinstance(m, (Estimate, PoseEstimate)):
+            found.append((r.topic, r.source, m))
+    out: dict[int, Estimate | PoseEstimate] = {}
+    for topic, source, m in found:  # whose they are is known once the whole recording was read
+        if sessions.is_own(topic, source):
             out[m.header.seq] = m
-    return out
+    return out, sessions
 
 
 def truth_boxes(recording: str | Path) -> dict[int, Box]:
@@ -229,7 +249,7 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunO
     ``info`` is what ``run_plan`` returns (``ok``, ``estimates`` heard live, ``restarts``). The
     frames expected are those the source sent (a truncated video sends fewer than its header
     says), from ``start`` to the last frame seen."""
-    est = estimates(recording) if recording and Path(recording).is_file() else {}
+    est, sessions = run_estimates(recording) if recording and Path(recording).is_file() else ({}, RunSessions())
     heard = []
     for seq, payload in info.get("estimates", {}).items():
         if seq in est:
@@ -246,7 +266,7 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunO
     sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
             if est and topic and recording else set())
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
-    lines = completeness(est, expected)
+    lines = completeness(est, expected) + sessions.lines()
     if heard:
         lines.append(f"{len(heard)} frame(s) missing from the recording were kept from the live stream: "
                      f"{frame_ranges(heard)}")

@@ -256,8 +256,10 @@ def validate_params(kind: str, params: dict[str, Any], where: str) -> dict[str, 
     try:
         obj = msgspec.convert(dict(params), typ, strict=False)
     except (msgspec.ValidationError, ValueError, TypeError) as e:
-        known = ", ".join(f.name for f in msgspec.structs.fields(typ))
-        raise GraphError(f"{where}: bad parameter for stage kind {kind!r}: {e} (known parameters: {known})") from None
+        # the names a stage takes help with a mistyped name, not with a value out of range
+        known = (f" (known parameters: {', '.join(f.name for f in msgspec.structs.fields(typ))})"
+                 if "unknown field" in str(e) else "")
+        raise GraphError(f"{where}: bad parameter for stage kind {kind!r}: {e}{known}") from None
     return msgspec.to_builtins(obj)
 
 

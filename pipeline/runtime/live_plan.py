@@ -19,7 +19,7 @@ from stages.source import SourceParams
 from pipeline.runtime.graph import RECORDER_KIND, Plan
 from pipeline.runtime.transport import topic_key
 
-__all__ = ["prepare_live", "live_source", "recorded_source", "SKIPPED_TOPIC"]
+__all__ = ["prepare_live", "live_source", "recorded_source", "listen_early", "SKIPPED_TOPIC"]
 
 #: the topic name (after gflow/STREAM/) of the frames a live source skips
 SKIPPED_TOPIC = "skipped"
@@ -53,6 +53,32 @@ def prepare_live(plan: Plan) -> Plan:
         src.params["keep_skipped"] = True
         src.outputs.setdefault(SKIPPED_TOPIC, topic_key(plan.stream, SKIPPED_TOPIC))
     return plan
+
+
+def listen_early(plan: Plan, local: set[str] | None = None, say=None) -> list:
+    """Bind a UDP source's port now, before any stage starts, and have the source read it through
+    the relay (:mod:`pipeline.io.udp_relay`): a sender that starts first loses nothing, and the
+    first frame the tracker gets, the one ``--init`` describes, is the first one sent. Only a
+    source that runs here (``local``: the stages this process starts; None: all). ``say(line)``
+    is told that the port is bound and, later, when the first data came. Returns the relays, to
+    close after the run; a port that cannot be bound is left to the source (which says why)."""
+    from pipeline.io.udp_relay import relay_for, relayed_udp
+
+    p = live_source(plan)
+    src = next((n for n, s in plan.stages.items() if s.is_source()), None)
+    if p is None or p.kind != "live" or src is None or (local is not None and src not in local):
+        return []
+    if relayed_udp(p.path) is None:
+        return []
+    try:
+        relay = relay_for(p.path)
+    except OSError:
+        return []
+    plan.stages[src].params["relay"] = relay.relay_url
+    if say is not None:
+        say(f"listening on {p.path}: bound before the pipeline starts, so what is sent from now on is kept")
+    relay.tell_first(say)
+    return [relay]
 
 
 def recorded_source(params: dict, path: str) -> dict:

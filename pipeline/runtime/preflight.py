@@ -1,7 +1,7 @@
 """Checks run before a pipeline starts, so a user's mistake costs a second, not a run.
 
 * :func:`check_writable`: an output path that is a folder, or under a folder that does not
-  exist or cannot be written, is refused before any tracking (a run whose result cannot be
+  exist (a mistyped folder is not created) or cannot be written, is refused before any tracking (a run whose result cannot be
   saved is lost work).
 * :func:`first_frame`: decode the first frame the source would produce, which proves the
   file is readable (a text file named ``.mp4`` is refused here, without FFmpeg's noise) and
@@ -27,16 +27,21 @@ class PreflightError(ValueError):
     """A mistake found before the pipeline starts; the message is one line for the user."""
 
 
-def check_writable(path: str | os.PathLike, what: str = "output") -> Path:
+def check_writable(path: str | os.PathLike, what: str = "output", make_folder: bool = False) -> Path:
     """Refuse ``path`` unless a file can be written there; never leaves a file behind.
 
-    A missing parent folder is created (as every writer here would), so the check is the
-    same one the writer will face later.
+    A folder that does not exist is refused: a path the user typed with a mistake in its
+    folder would put the work where they would not look for it. With ``make_folder`` (the
+    program's own default places, such as ``recordings/``) it is created instead, so the check
+    is the same one the writer will face later.
     """
     p = Path(path)
     if str(path).endswith(("/", os.sep)) or p.is_dir():
         raise PreflightError(f"{what} {path} is a folder; give a file name")
     parent = p.parent if str(p.parent) else Path(".")
+    if not make_folder and not parent.exists():
+        raise PreflightError(f"{what} {path}: the folder {parent} does not exist (create it first, or give another "
+                             f"path)")
     try:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -84,7 +84,9 @@ class ProgressMonitor:
         self.stall_timeout = stall_timeout
         self.status: dict[str, StageStatus] = {}
         self.errors: list[ErrorReport] = []
-        self.estimates: dict[int, bytes] = {}  # every estimate payload heard, by frame
+        self.estimates: dict[int, bytes] = {}  # every estimate payload of the run's stages heard, by frame
+        self.sessions: set[str] = set()  # the zenoh sessions of the run's stages (they beat)
+        self.outside: dict[tuple[str, str], int] = {}  # (topic, session) -> estimates from outside the run
         self.peak_rss: dict[str, float] = {}
         self.latency_ms: collections.deque[float] = collections.deque(maxlen=LATENCY_WINDOW)
         self.stall = ""  # the stall report, when the run stopped for one
@@ -96,20 +98,22 @@ class ProgressMonitor:
     def subscribe(self, bus: Bus) -> None:
         """Listen to the heartbeats, the errors and the estimates of the graph."""
         plan = self.plan
-        bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status)
+        bus.subscribe(f"gflow/{plan.stream}/_status/*", self._on_status, with_source=True)
         bus.subscribe(plan.error_topic, self._on_error)
         for sp in plan.stages.values():
             if "estimate" in sp.outputs and sp.kind != "recorder":
-                bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True)
+                bus.subscribe(sp.outputs["estimate"], self._on_estimate, with_type=True, with_source=True)
 
     # -- zenoh callbacks (zenoh threads: hand over, never block) -----------------------------
-    def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int) -> None:
+    def _on_status(self, key: str, payload: bytes, pub_ns: int, seq: int, source: str = "") -> None:
         try:
             msg = decode(payload)
         except ValueError:
             return
         if isinstance(msg, StageStatus):
             with self.lock:
+                if source:  # a stage process beats from its start, before it publishes anything else
+                    self.sessions.add(source)
                 old = self.status.get(msg.stage)
                 if old is not None and old.pid == msg.pid and old.header.stamp_ns > msg.header.stamp_ns:
                     return  # an older heartbeat of the same process overtaken by its final one
@@ -131,7 +135,11 @@ class ProgressMonitor:
             elif n == PRINTED_ERRORS + 1:
                 self.console.say("more errors: counting them without printing (see the recording's errors topic)")
 
-    def _on_estimate(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str) -> None:
+    def _on_estimate(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str, source: str = "") -> None:
+        if source not in self.sessions:  # another zenoh session on the run's estimate topic: not the run's
+            with self.lock:
+                self.outside[(key, source)] = self.outside.get((key, source), 0) + 1
+            return
         # a copy of every estimate: what the recording lost (a recorder restart) is still known
         if seq >= 0 and type_name in ("Estimate", "PoseEstimate"):
             self.estimates[seq] = payload
@@ -184,8 +192,13 @@ class ProgressMonitor:
                     steps = max(st.steps, done) if source else st.steps
                     parts.append(f"{name}: {steps}" + (f"/{self.total_frames}" if self.total_frames and source else "")
                                  + f" @{st.fps:.1f}fps" + (f" drop={drop}" if drop else "")
-                                 + (f" skipped={st.skipped}" if st.captured else ""))
+                                 + (f" skipped={st.skipped}" if st.captured else "")
+                                 + (f" missed={st.missed}" if st.missed else "")
+                                 + (f" damaged={st.damaged}" if st.damaged else ""))
             lat = sorted(self.latency_ms)
+            outside = sum(self.outside.values())
+        if outside:
+            parts.append(f"outside the run: {outside} estimates ignored")
         if lat:  # capture to estimate, over the last LATENCY_WINDOW estimates
             parts.append(f"latency p50 {lat[len(lat) // 2]:.0f} ms p99 {lat[min(len(lat) - 1, int(0.99 * len(lat)))]:.0f} ms")
         return " | ".join(parts)

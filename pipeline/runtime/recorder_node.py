@@ -47,11 +47,11 @@ class RecorderNode(NodeBase):
         return BoundedInbox(RECORDER_INBOX_BYTES)
 
     def declare(self) -> None:
-        self.bus.subscribe(f"gflow/{self.plan.stream}/**", self._on_sample, with_type=True)
+        self.bus.subscribe(f"gflow/{self.plan.stream}/**", self._on_sample, with_type=True, with_source=True)
 
-    def _on_sample(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str = "") -> None:
-        if self.keep(key):
-            self._on_data(key, payload, pub_ns, seq, type_name)
+    def _on_sample(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str = "", source: str = "") -> None:
+        if self.keep(key):  # with the publisher's session: the results leave out what came from outside the run
+            self.inbox.put((key, payload, pub_ns, seq, type_name, source))
 
     def report(self) -> dict[str, Any]:
         return {"steps": self.recorder.messages if self.recorder is not None else 0, "ended": tuple(sorted(self.ended))}
@@ -81,13 +81,13 @@ class RecorderNode(NodeBase):
         try:
             while True:
                 try:
-                    key, payload, pub_ns, seq, type_name = self.inbox.get(timeout=0.05)
+                    key, payload, pub_ns, seq, type_name, source = self.inbox.get(timeout=0.05)
                 except queue.Empty:
                     rec.maybe_flush()
                     if self.stop.is_set():
                         break
                     continue
-                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
+                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name, source=source)
                 if type_name == "EndOfStream":
                     self.ended.add(key)
                     self.send_status()  # the stage that sent it waits for this before it exits
@@ -98,10 +98,10 @@ class RecorderNode(NodeBase):
             deadline = time.monotonic() + (0.5 if quick else 2.0)
             while time.monotonic() < min(quiet_until, deadline):
                 try:
-                    key, payload, pub_ns, seq, type_name = self.inbox.get(timeout=0.05)
+                    key, payload, pub_ns, seq, type_name, source = self.inbox.get(timeout=0.05)
                 except queue.Empty:
                     continue
-                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name)
+                rec.write(key, payload, seq, publish_ns=pub_ns, type_name=type_name, source=source)
                 if "/_status/" not in key:
                     quiet_until = time.monotonic() + 0.3
             rec.close()

@@ -14,7 +14,8 @@
   line naming it and what FFmpeg said (exit status 2, not restarted), and an ``--init`` box
   outside its frames is refused the same way. It then runs with ``live_ahead`` as its window
   and takes the newest frame each time the window has room: frames decoded meanwhile are
-  skipped and counted (heartbeat ``captured`` / ``skipped`` / ``reconnects``).
+  skipped and counted (heartbeat ``captured`` / ``skipped`` / ``reconnects``, and the frames that
+  never arrived and those decoded from damaged data: ``missed`` / ``damaged``).
 """
 
 from __future__ import annotations
@@ -200,7 +201,8 @@ class LiveSourceNode(SourceNode):
         out = super().report()
         cap = self.capture
         if cap is not None:
-            out.update(captured=cap.captured, skipped=cap.skipped, reconnects=cap.reconnects)
+            out.update(captured=cap.captured, skipped=cap.skipped, reconnects=cap.reconnects, missed=cap.missed,
+                       damaged=cap.damaged)
         return out
 
     def work(self, resumed_after: int) -> int:

@@ -33,7 +33,8 @@ import zenoh
 
 from pipeline.runtime.security import Security, Signer, explain_refusal
 
-__all__ = ["ZenohSettings", "SessionError", "open_session", "open_reaching", "reached", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment"]
+__all__ = ["ZenohSettings", "SessionError", "open_session", "open_reaching", "reached", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment",
+           "sample_source"]
 
 Mode = Literal["peer", "client", "router"]
 
@@ -170,6 +171,15 @@ def topic_key(stream: str, topic: str) -> str:
     return f"gflow/{stream}/{topic}"
 
 
+def sample_source(sample: zenoh.Sample) -> str:
+    """The zenoh session that published a sample (its id in hex), from the source info every
+    :meth:`Bus.publish` attaches; "" for a sample without one (a publisher outside gflow).
+    Without a run key nothing is authenticated: this tells the run's own stages from another
+    peer that publishes on the same topic, not from one that forges the source info."""
+    info = sample.source_info
+    return str(info.source_id.zid) if info is not None else ""
+
+
 _ATT = struct.Struct("<qq")
 
 
@@ -210,6 +220,7 @@ class Bus:
     session: zenoh.Session
     drop_topics: frozenset[str] = frozenset()
     _pubs: dict[tuple[str, bool], zenoh.Publisher] = field(default_factory=dict)
+    _sns: dict[int, tuple[zenoh.EntityGlobalId, list[int]]] = field(default_factory=dict)  # by id(publisher)
     _subs: list = field(default_factory=list)
     sent: int = 0
     signer: Signer | None = None
@@ -223,6 +234,7 @@ class Bus:
             cc = zenoh.CongestionControl.DROP if drop else zenoh.CongestionControl.BLOCK
             pub = self.session.declare_publisher(key, congestion_control=cc, reliability=zenoh.Reliability.RELIABLE)
             self._pubs[(key, drop)] = pub
+            self._sns[id(pub)] = (pub.id, [0])
         return pub
 
     def publish(self, key: str, payload: bytes, seq: int, type_name: str = "") -> None:
@@ -230,11 +242,17 @@ class Bus:
         tag = self.signer.tag(key, seq, ns, payload) if self.signer is not None else b""
         # the end of stream is never dropped, even on a drop topic (see the module docstring)
         pub = self.publisher(key, block=type_name == "EndOfStream")
-        pub.put(payload, attachment=pack_attachment(ns, seq, type_name, tag))
+        # the sample names its publisher (session and entity) and counts its samples: a receiver
+        # tells the run's own stages from another session on the same topic (sample_source)
+        eid, sn = self._sns[id(pub)]
+        sn[0] += 1
+        pub.put(payload, attachment=pack_attachment(ns, seq, type_name, tag), source_info=zenoh.SourceInfo(eid, sn[0]))
         self.sent += 1
 
-    def subscribe(self, key: str, callback: Callable[..., None], with_type: bool = False) -> None:
-        """``callback(key, payload, publish_ns, seq)``, plus ``type_name`` with ``with_type``."""
+    def subscribe(self, key: str, callback: Callable[..., None], with_type: bool = False,
+                  with_source: bool = False) -> None:
+        """``callback(key, payload, publish_ns, seq)``, plus ``type_name`` with ``with_type``, plus
+        the publisher's session (:func:`sample_source`) with ``with_source``."""
         def _cb(sample: zenoh.Sample) -> None:
             att = sample.attachment
             raw = att.to_bytes() if att is not None else None
@@ -242,10 +260,10 @@ class Bus:
             payload = sample.payload.to_bytes()
             if self.signer is not None and not self._signed(str(sample.key_expr), seq, pub_ns, payload, raw):
                 return
-            if with_type:
-                callback(str(sample.key_expr), payload, pub_ns, seq, type_name)
-            else:
-                callback(str(sample.key_expr), payload, pub_ns, seq)
+            extra: tuple = (type_name,) if with_type else ()
+            if with_source:
+                extra += (sample_source(sample),)
+            callback(str(sample.key_expr), payload, pub_ns, seq, *extra)
 
         self._subs.append(self.session.declare_subscriber(key, _cb))
 

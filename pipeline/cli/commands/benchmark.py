@@ -45,6 +45,7 @@ def _opencv_names(text: str | None) -> list[str]:
 def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path) -> list[str]:
     """The ``gflow track`` command line this benchmark run is (the box of frame ``start``, one seed)."""
     box = ",".join(repr(float(v)) for v in seq.groundtruth[start])
+    folder.mkdir(parents=True, exist_ok=True)  # the benchmark's own folder (gflow track makes none)
     argv = [str(seq.path), "--init", box, "--out", str(folder / f"{name}.csv"), "--tracker", name,
             "--seed", str(args.seed), "--start", str(start), "--record", str(folder / f"{name}.mcap")]
     if stop is not None:

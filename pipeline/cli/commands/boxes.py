@@ -8,14 +8,14 @@ ORDER = 57
 
 from pipeline.io.mcap_io import iter_records, segments
 from pipeline.recording.live_record import live_summary
-from pipeline.recording.results import completeness, estimate_columns, estimates, renumber, write_boxes
+from pipeline.recording.results import completeness, estimate_columns, renumber, run_estimates, write_boxes
 from pipeline.cli.commands.common import CliError
 
 
 def cmd_boxes(args) -> int:
     torn: list[str] = []
     list(iter_records(args.recording, topics=["-"], on_truncated=torn.append))  # checks the file; notes a torn end
-    est = estimates(args.recording, stream=args.stream)
+    est, sessions = run_estimates(args.recording, stream=args.stream)  # the run's own: what came from outside is said
     if not est:
         raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else ""))
     live = live_summary(args.recording, stream=args.stream)  # a live run: rows are the camera's frames
@@ -23,11 +23,11 @@ def cmd_boxes(args) -> int:
     by_seq = estimate_columns(est)
     boxes, confidence, states = (renumber(by_seq[0], frame_of), renumber(by_seq[1], frame_of),
                                  renumber(by_seq[2], frame_of))
-    write_boxes(args.out, boxes, confidence, states)
+    write_boxes(args.out, boxes, confidence, states, live.inputs(boxes) if live is not None else None)
     segs = segments(args.recording)
     print(f"{len(boxes)} boxes, frames {min(boxes)}-{max(boxes)}, written to {args.out}"
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))
-    for line in torn:
+    for line in torn + sessions.lines():
         print(f"  {line}")
     gaps = completeness(est, None)
     for line in gaps:

@@ -205,8 +205,8 @@ class Recording:
 
         path = self.path or plan.recording_path()
         assert path is not None  # the plan has its recorder
-        check_writable(path, "--record" if getattr(args, "record", None)
-                       else "the recording")  # before any work, also the default path
+        given = bool(getattr(args, "record", None))  # the default recordings/ folder is made; a typed one must exist
+        check_writable(path, "--record" if given else "the recording", make_folder=not given)  # before any work
 
     @property
     def kept(self) -> str:

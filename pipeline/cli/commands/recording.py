@@ -30,6 +30,8 @@ def describe_recording(path: str, as_json: bool) -> None:
         print(f"segments:  {', '.join(s.segments)} (a restarted recorder; read as one recording)")
     if s.truncated:
         print(f"WARNING:   {s.truncated}")
+    for line in s.sessions.lines():
+        print(f"outside:   {line}")
     print("topics:")
     for t, ts in sorted(s.topics.items()):
         seqs = f"seq {ts.first_seq}..{ts.last_seq}" if ts.first_seq >= 0 else ""

@@ -4,9 +4,11 @@ from __future__ import annotations
 
 ORDER = 40
 
+import sys
+
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import builtin_graphs, load_graph
-from pipeline.runtime.live_plan import prepare_live
+from pipeline.runtime.live_plan import listen_early, prepare_live
 from pipeline.runtime.placement import local_stages
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
                                           check_outputs, parse_sets, run_plan)
@@ -22,7 +24,12 @@ def cmd_run(args) -> int:
                        f"give --record to the command of host {held.host}")
     recording = Recording(plan, args, None)
     prepare_live(plan)  # a live source: timed proposals, skipped frames if recorded (docs/live.md)
-    path, secs, frames, info = run_plan(plan, args, recording.path, None)
+    listeners = listen_early(plan, local_stages(plan, args.hosts), say=lambda line: print(line, file=sys.stderr))
+    try:
+        path, secs, frames, info = run_plan(plan, args, recording.path, None)
+    finally:
+        for relay in listeners:
+            relay.close()
     hosts = f" (host {', '.join(args.hosts)})" if args.hosts else ""
     rec = path or recording.kept
     if args.hosts and held is not None and held.host not in args.hosts:

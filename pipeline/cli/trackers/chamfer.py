@@ -26,6 +26,6 @@ def overrides(args: Any) -> tuple[str, dict[str, dict]]:
     Canny thresholds on the initial box."""
     box = list(args.init)
     shared: dict = {"init": box, "seed": args.seed}
-    if getattr(args, "particles", None):
+    if getattr(args, "particles", None) is not None:
         shared["particles"] = args.particles
     return GRAPH, {"filter": dict(shared), "proposal": dict(shared), "preprocess": {"calibrate_box": box}}

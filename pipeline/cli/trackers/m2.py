@@ -43,7 +43,7 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     meta = load_meta(path)
     mpath = str(path.resolve())
     box = list(args.init)
-    particles = getattr(args, "particles", None) or M2Params().particles
+    particles = args.particles if getattr(args, "particles", None) is not None else M2Params().particles
     pre: dict = {}
     if "canny_low" in meta and "canny_high" in meta:
         pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))
@@ -58,6 +58,6 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
         }
     pre.update(profile=model.profile, g0=model.g0)
     shared = {"model": mpath, "init": box, "seed": args.seed}
-    if getattr(args, "particles", None):
+    if getattr(args, "particles", None) is not None:
         shared["particles"] = args.particles
     return GRAPH, {"filter": dict(shared), "proposal": dict(shared), "preprocess": pre}

@@ -1,0 +1,69 @@
+"""``gflow track``'s options as a user types them: a value no tracker can run with, an output in a
+folder that does not exist, and the default seed. Each mistake is one line naming the option,
+found before anything runs; the CLI runs as a subprocess on tiny image folders in tmp_path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from test_cli_errors import assert_one_line_error, frames, gflow  # noqa: F401  (frames: a fixture)
+
+
+def one_line_error(r) -> str:
+    return assert_one_line_error(r)
+
+
+@pytest.mark.parametrize("tracker, extra", [("appearance", []), ("chamfer", []), ("m2", ["--model", "m.npz"])])
+@pytest.mark.parametrize("value", ["0", "-5"])
+def test_particles_below_one_is_one_line_for_every_tracker(tmp_path: Path, frames: Path, tracker: str,
+                                                           extra: list[str], value: str) -> None:
+    """--particles 0: one line naming the option and the value, not the graph file's path nor the
+    stage's parameter names; chamfer and m2 do not run with their default instead."""
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--tracker", tracker,
+              "--particles", value, *extra, "--inline", cwd=tmp_path)
+    line = one_line_error(r)
+    assert "--particles" in line and value in line, line
+    assert ".yaml" not in line and "known parameters" not in line and "lam" not in line, line
+    assert not (tmp_path / "b.csv").exists() and not list(tmp_path.rglob("*.mcap"))
+
+
+@pytest.mark.parametrize("opt, name", [("--out", "x.csv"), ("--record", "r.mcap"), ("--points-out", "p.csv")])
+def test_output_in_a_missing_folder_is_refused(tmp_path: Path, frames: Path, opt: str, name: str) -> None:
+    """A mistyped folder is one line naming the option and the folder; no folder is created."""
+    missing = tmp_path / "nonexistent_dir"
+    args = {"--out": ["--out", str(missing / name)], "--record": ["--out", "b.csv", "--record", str(missing / name)],
+            "--points-out": ["--out", "b.csv", "--tracker", "gflow", "--points-out", str(missing / name)]}[opt]
+    r = gflow("track", str(frames), "--init", "10,10,20,20", *args, cwd=tmp_path)
+    line = one_line_error(r)
+    assert opt in line and str(missing) in line and "does not exist" in line, line
+    assert not missing.exists()
+    assert not (tmp_path / "b.csv").exists()
+
+
+def test_default_recording_folder_is_still_made(tmp_path: Path, frames: Path) -> None:
+    """The default recordings/ folder is the program's own: it is made when missing."""
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "-q", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert len(list((tmp_path / "recordings").glob("*.mcap"))) == 1
+
+
+def test_track_defaults_to_seed_one(tmp_path: Path, caviar1: Path) -> None:
+    """gflow track without --seed gives the boxes of --seed 1, the seed of the README, gflow benchmark
+    and the docs' figures (and the Python API's default)."""
+    rows = {}
+    for name, extra in (("default", []), ("one", ["--seed", "1"]), ("zero", ["--seed", "0"])):
+        r = gflow("track", str(caviar1), "--init", "129,71,30,79", "--stop", "10", "--out", f"{name}.csv", "--inline",
+                  "--no-record", "-q", *extra, cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        rows[name] = (tmp_path / f"{name}.csv").read_text()
+    assert rows["zero"] != rows["one"], "the seed must matter for this test to tell them apart"
+    assert rows["default"] == rows["one"]
+    from gflow import Tracker
+    from gflow.track import track
+    import inspect
+
+    assert Tracker().seed == 1
+    assert inspect.signature(track).parameters["seed"].default == 1

@@ -1,0 +1,129 @@
+"""A sender of an MPEG-TS file at its own pace, over TCP (it listens and serves one client) or
+UDP (it sends datagrams to a port whether anyone listens or not), for the live-input tests.
+
+The file is made constant-rate (``encode_cbr``: x264 CBR in a TS padded to ``-muxrate``), so
+sending its bytes at that rate sends its frames in real time. What a network does to a stream
+is done to the bytes: ``--outage T:D`` sends nothing of the stream's seconds T to T + D (the
+camera goes on, the packets are lost), ``--stall T:D`` stops sending at T for D seconds and goes
+on where it stopped (nothing lost). Run as a process::
+
+    python tests/ts_sender.py FILE.ts udp PORT --rate 125000 [--outage 3:2.2] [--stall 3:1]
+
+It prints ``sending`` when it sends its first byte (for UDP: at once; for TCP: when the client
+connected), ``outage`` / ``back`` around a gap, and ``done`` at the end, each with the time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["encode_cbr", "corrupt", "MUXRATE"]
+
+#: the TS's constant rate in bits/s (x264 at 800 kbit/s padded to 1 Mbit/s)
+MUXRATE = 1_000_000
+DATAGRAM = 7 * 188
+
+
+def encode_cbr(ffmpeg: str, frames_dir: Path, out: Path, count: int, fps: float = 25.0, gop: int = 25) -> Path:
+    """``count`` frames of ``frames_dir/%06d.jpg`` as constant-rate H.264 in MPEG-TS (a keyframe
+    every ``gop`` frames, as cameras send)."""
+    subprocess.run([ffmpeg, "-hide_banner", "-loglevel", "error", "-y", "-framerate", f"{fps:g}",
+                    "-i", str(frames_dir / "%06d.jpg"), "-frames:v", str(count), "-c:v", "libx264",
+                    "-preset", "ultrafast", "-tune", "zerolatency", "-g", str(gop), "-b:v", "800k",
+                    "-maxrate", "800k", "-bufsize", "200k", "-x264-params", "nal-hrd=cbr",
+                    "-muxrate", str(MUXRATE), "-f", "mpegts", str(out)], check=True)
+    return out
+
+
+def corrupt(src: Path, dst: Path, offset: int, n: int) -> Path:
+    """A copy of ``src`` with ``n`` bytes of video inverted from ``offset`` on (what a bad link does
+    to the picture): payload bytes of the video's TS packets (PID 0x100, FFmpeg's), not the packet
+    headers nor the packets that start a frame (its timestamps), nor the padding a constant-rate
+    stream carries (which would damage nothing)."""
+    data = bytearray(src.read_bytes())
+    pos = offset - offset % 188
+    while n > 0 and pos + 188 <= len(data):
+        pid = ((data[pos + 1] & 0x1F) << 8) | data[pos + 2]
+        starts = bool(data[pos + 1] & 0x40)
+        if data[pos] == 0x47 and pid == 0x100 and not starts and not data[pos + 3] & 0x20:  # no adaptation field
+            for i in range(pos + 4, min(pos + 188, pos + 4 + n)):
+                data[i] ^= 0xFF
+            n -= 184
+        pos += 188
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def _window(text: str | None) -> tuple[float, float] | None:
+    if not text:
+        return None
+    t, d = text.split(":")
+    return float(t), float(d)
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("file")
+    ap.add_argument("proto", choices=["tcp", "udp"])
+    ap.add_argument("port", type=int)
+    ap.add_argument("--rate", type=float, default=MUXRATE / 8, help="bytes per second")
+    ap.add_argument("--outage", help="T:D: the stream's seconds T to T + D are lost")
+    ap.add_argument("--stall", help="T:D: at T, stop sending for D seconds, then go on")
+    a = ap.parse_args(argv)
+    data = Path(a.file).read_bytes()
+    outage, stall = _window(a.outage), _window(a.stall)
+    if a.proto == "tcp":
+        srv = socket.socket()
+        srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        srv.bind(("127.0.0.1", a.port))
+        srv.listen(1)
+        print("listening", flush=True)
+        conn, _ = srv.accept()
+        send = conn.sendall
+    else:
+        udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+
+        def send(b: bytes) -> None:
+            try:
+                udp.sendto(b, ("127.0.0.1", a.port))
+            except ConnectionRefusedError:  # an ICMP port-unreachable from an earlier datagram
+                pass
+
+    print(f"sending {time.time():.3f}", flush=True)
+    t0 = time.monotonic()
+    paused = 0.0
+    in_outage = False
+    for off in range(0, len(data), DATAGRAM):
+        at = off / a.rate  # the stream's second of this datagram
+        if stall is not None and at >= stall[0] and not paused:
+            print(f"stall {time.time():.3f}", flush=True)
+            time.sleep(stall[1])
+            paused = stall[1]
+            print(f"back {time.time():.3f}", flush=True)
+        due = t0 + paused + at
+        delay = due - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
+        if outage is not None and outage[0] <= at < outage[0] + outage[1]:
+            if not in_outage:
+                in_outage = True
+                print(f"outage {time.time():.3f}", flush=True)
+            continue
+        if in_outage:
+            in_outage = False
+            print(f"back {time.time():.3f}", flush=True)
+        try:
+            send(data[off:off + DATAGRAM])
+        except (BrokenPipeError, ConnectionResetError):
+            break
+    print(f"done {time.time():.3f}", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
