@@ -201,9 +201,12 @@ class Recording:
         if pats:
             rec.params["topics"] = pats + [t for t in needed if t not in pats]
         self.path = getattr(args, "record", None) or default
+        from pipeline.io.recording_files import refuse_existing
         from pipeline.runtime.preflight import check_writable
 
-        path = self.path or plan.recording_path()
+        if self.path:  # a recording never overwrites a file (the recorder also creates it exclusively)
+            refuse_existing(self.path, "--record" if getattr(args, "record", None) else "the recording")
+        path = self.path or plan.recording_path()  # None: named when the run starts, with its run id
         assert path is not None  # the plan has its recorder
         check_writable(path, "--record" if getattr(args, "record", None)
                        else "the recording")  # before any work, also the default path
@@ -212,6 +215,11 @@ class Recording:
     def kept(self) -> str:
         """How to name the recording to the user."""
         return "none (--no-record)" if self.temporary or self.path is None else str(self.path)
+
+    def written(self, path: str | None) -> None:
+        """The path the run recorded to (a default one is named when the run starts)."""
+        if not self.temporary and path:
+            self.path = path
 
     def cleanup(self) -> None:
         if self.tmpdir:
@@ -261,6 +269,11 @@ def place(plan: Plan, args) -> tuple[str, ...]:
     return hosts
 
 
+def temporary_recording(path: str | None) -> bool:
+    """A recording :class:`Recording` made for ``--no-record`` (read back, then removed)."""
+    return bool(path) and Path(str(path)).parent.name.startswith("gflow-norecord-")
+
+
 def _startup_failure(plan: Plan, launcher, message: str) -> str:
     """What to tell the user when a run could not start. A live source that cannot be opened says
     so itself, in one line naming it and what FFmpeg said; the recording, which holds nothing but
@@ -304,7 +317,7 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     preload(s.kind for s in plan.stages.values())  # the stage processes' zygote imports their modules (once)
 
     launcher = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
-                        total_frames=total, hosts=hosts)
+                        total_frames=total, hosts=hosts, say_recording=not temporary_recording(recording))
     endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
     if not quiet:
         here = ", ".join(n for n in plan.stages if n in launcher.local)

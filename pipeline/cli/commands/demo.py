@@ -23,11 +23,12 @@ def cmd_demo(args) -> int:
     overrides = {"source": {"frames": args.frames}, "filter": {"particles": args.particles, "seed": args.seed},
                  "proposal": {"seed": args.seed}}
     plan = apply_defaults(load_graph("demo", overrides=overrides))
-    recording = Recording(plan, args, plan.recording_path(), needed=("estimate",))
+    recording = Recording(plan, args, None, needed=("estimate",))  # named with the run id when it starts
     print(f"gflow demo: synthetic scene, {args.frames} frames, {args.particles} particles, "
           f"{'inline' if args.inline else 'one process per stage over zenoh'}", file=sys.stderr)
     try:
         path, secs, frames, info = run_plan(plan, args, recording.path, args.frames)
+        recording.written(path)
         est = {k: v.box for k, v in estimates(path).items()}
     finally:
         recording.cleanup()
@@ -57,7 +58,7 @@ def register(sub) -> None:
     p.add_argument("--particles", type=int, default=500, help="number of particles (default 500)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the filter and proposal stages")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
-    add_record_args(p, "recordings/demo-TIME.mcap")
+    add_record_args(p, "recordings/demo-TIME-RUNID.mcap")
     add_placement_args(p, hosts=False)
     add_zenoh_args(p)
     p.set_defaults(func=cmd_demo)

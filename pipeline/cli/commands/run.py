@@ -23,6 +23,7 @@ def cmd_run(args) -> int:
     recording = Recording(plan, args, None)
     prepare_live(plan)  # a live source: timed proposals, skipped frames if recorded (docs/live.md)
     path, secs, frames, info = run_plan(plan, args, recording.path, None)
+    recording.written(path)
     hosts = f" (host {', '.join(args.hosts)})" if args.hosts else ""
     rec = path or recording.kept
     if args.hosts and held is not None and held.host not in args.hosts:
