@@ -20,7 +20,7 @@ import fnmatch
 import re
 from typing import Iterable
 
-__all__ = ["TopicError", "topic_matches", "select_topics", "split_topic", "describe_topics"]
+__all__ = ["TopicError", "topic_matches", "select_topics", "split_topic", "describe_topics", "stream_prefix"]
 
 #: a run id appended to a graph's stream (pipeline/runtime/runid.py: six hex digits)
 _RUN_ID = re.compile(r"-[0-9a-f]{6}$")
@@ -64,13 +64,25 @@ def topic_matches(pattern: str, topic: str) -> bool:
     return pp is not None and _stream_matches(pp[0], stream) and fnmatch.fnmatchcase(name, pp[1])
 
 
-def describe_topics(topics: Iterable[str], limit: int = 30) -> str:
-    """The topics as one line: ``a, b, c`` (the first ``limit``, then how many more)."""
+def stream_prefix(topics: Iterable[str]) -> str:
+    """``gflow/STREAM/`` when every topic is of that one stream, else ""."""
+    ts = list(topics)
+    streams = {split_topic(t)[0] if split_topic(t) else None for t in ts}
+    if len(streams) != 1 or None in streams:
+        return ""
+    return f"gflow/{streams.pop()}/"
+
+
+def describe_topics(topics: Iterable[str], limit: int = 40, counts: dict[str, int] | None = None) -> str:
+    """The topics as one line, the stream said once when they share it: ``gflow/demo-3f9c2a/: estimate,
+    frames`` (the first ``limit``, then how many more; with ``counts``, each topic's count after it)."""
     ts = sorted(set(topics))
     if not ts:
         return "none"
+    prefix = stream_prefix(ts)
     more = f" and {len(ts) - limit} more" if len(ts) > limit else ""
-    return ", ".join(ts[:limit]) + more
+    names = [t[len(prefix):] + (f" {counts[t]}" if counts is not None else "") for t in ts[:limit]]
+    return (f"{prefix}: " if prefix else "") + ", ".join(names) + more
 
 
 def select_topics(patterns: Iterable[str] | None, available: Iterable[str], where: str = "the recording") -> list[str]:

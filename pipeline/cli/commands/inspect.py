@@ -35,15 +35,55 @@ def _run_stream(stream: str) -> str:
     return stream
 
 
+def _in_stream(topic: str) -> bool:
+    """A topic typed as the name inside a stream: ``estimate``, ``_status/filter`` (the names with
+    a ``/`` inside a stream all start with ``_``); ``cam0/estimate`` names its stream."""
+    return not topic.startswith("gflow/") and ("/" not in topic or topic.startswith("_"))
+
+
+def _key_expr(topic: str) -> str:
+    """A topic as typed, with shell wildcards, as a zenoh key expression (``est*`` -> ``est$*``)."""
+    return "/".join(c if c in ("*", "**") else c.replace("*", "$*").replace("?", "$*") for c in topic.split("/"))
+
+
 def _key(topic: str) -> str:
-    """``gflow/STREAM/NAME`` for a topic given with or without ``gflow/``, STREAM resolved by
-    :func:`_run_stream`."""
+    """The key expression for a topic as the user typed it (pipeline/recording/topics.py): the name
+    in the stream (``estimate``: of the one pipeline running, or of any while none or several run),
+    the full name with or without ``gflow/`` and with or without the run id (STREAM resolved by
+    :func:`_run_stream`), shell wildcards."""
+    from pipeline.runtime.running import running
+
+    if _in_stream(topic):  # of the one pipeline running, or of any while none or several run
+        streams = sorted({str(i.get("stream")) for i in running()})
+        return _key_expr(f"gflow/{streams[0] if len(streams) == 1 else '*'}/{topic}")
     key = topic if topic.startswith("gflow/") else f"gflow/{topic}"
     stream = stream_of(key)
     if stream is None:
-        return key
+        return _key_expr(key)
     parts = key.split("/", 2)
-    return "/".join(["gflow", _run_stream(stream), *parts[2:]])
+    return _key_expr("/".join(["gflow", _run_stream(stream), *parts[2:]]))
+
+
+def _await_pipeline(args, topic: str | None, wait: float) -> None:
+    """Wait up to ``wait`` s for a pipeline to be announced on this machine (of the stream ``topic``
+    names, if it names one), so a tool started before its run does not give up at once."""
+    from pipeline.runtime.running import running
+
+    if wait <= 0 or args.connect or args.mode == "router" or args.multicast:
+        return
+    stream = stream_of(topic if topic.startswith("gflow/") else f"gflow/{topic}") if topic and not _in_stream(
+        topic) else None
+
+    def found() -> bool:
+        return any(stream is None or stream in (i.get("stream"), i.get("camera")) for i in running())
+
+    if found():
+        return
+    end = time.monotonic() + wait
+    print(f"waiting up to {wait:g} s for a pipeline" + (f" of stream {stream}" if stream else "") + " to start",
+          file=sys.stderr, flush=True)
+    while time.monotonic() < end and not found():
+        time.sleep(0.1)
 
 
 def _say_where(found: list[dict]) -> None:
@@ -67,6 +107,7 @@ def cmd_topics(args) -> int:
 def cmd_echo(args) -> int:
     from pipeline.cli.live import echo
 
+    _await_pipeline(args, args.topic, args.timeout or 0.0)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     if not args.json:
@@ -82,9 +123,10 @@ def cmd_echo(args) -> int:
 def cmd_hz(args) -> int:
     from pipeline.cli.live import hz
 
-    key = _key(args.topic)
     if args.window is not None and args.window < 1:
         raise CliError(f"--window must be at least 1 gap, got {args.window}")
+    _await_pipeline(args, args.topic, args.wait)  # --wait: also for a run that has not started yet
+    key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     _say_where(found)
     st = hz(settings, key, args.duration, wait=args.wait, window=args.window)
@@ -243,7 +285,8 @@ def register(sub) -> None:
                                    "Exits 1 when no message came.",
                        epilog="examples:\n  gflow echo gflow/demo/estimate -n 5\n  gflow echo demo/_status/* --json "
                               "--timeout 2", formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("topic", help="key expression, e.g. gflow/cam0/estimate or cam0/**")
+    p.add_argument("topic", help="the name in the stream (estimate), the full name with or without the run id "
+                                 "(gflow/cam0/estimate), or a pattern (cam0/**, _status/*)")
     p.add_argument("-n", "--count", type=int, help="stop after N messages")
     p.add_argument("--timeout", type=positive_float, help="stop after this many seconds")
     p.add_argument("--json", action="store_true", help="one JSON object per message (small arrays as lists)")
@@ -254,10 +297,13 @@ def register(sub) -> None:
                        description="Waits for the first message, then prints every second the average rate and the "
                                    "min / max / standard deviation of the gaps between messages, over a rolling "
                                    "window (like ros2 topic hz). Exits 1 when fewer than 2 messages came.")
-    p.add_argument("topic", help="key expression, e.g. gflow/cam0/frames")
+    p.add_argument("topic", help="the name in the stream (frames), the full name with or without the run id "
+                                 "(gflow/cam0/frames), or a pattern")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--window", type=int, metavar="N", help="statistics over the last N gaps (default: all)")
-    p.add_argument("--wait", type=positive_float, default=10.0, help="seconds to wait for the first message (default 10)")
+    p.add_argument("--wait", type=positive_float, default=10.0,
+                   help="seconds to wait for the first message, and for the pipeline to start when none runs yet "
+                        "(default 10)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_hz)
 

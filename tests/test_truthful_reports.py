@@ -1,0 +1,74 @@
+"""Tools that never give a wrong answer: what ``gflow foxglove`` copied, what ``rerun --check``
+cannot check, ``gflow step`` jumping without warnings, a demo scored over the frames it ran,
+m2's coasting report, a stream's end, the counts after Ctrl-C, ``gflow run`` without an initial
+box, and CSV line endings."""
+
+from __future__ import annotations
+
+import io
+import logging
+from pathlib import Path
+
+import pytest
+from mcap.reader import make_reader
+
+from pipeline.cli.main import main
+from pipeline.io.mcap_io import iter_records
+from stages.messages import Estimate, decode
+
+
+@pytest.fixture(scope="module")
+def demo_run(tmp_path_factory) -> Path:
+    p = tmp_path_factory.mktemp("demo") / "run.mcap"
+    assert main(["demo", "--frames", "60", "--particles", "100", "--inline", "--record", str(p)]) == 0
+    return p
+
+
+def test_foxglove_says_what_it_copied_and_draws_the_box(demo_run: Path, tmp_path: Path, capsys) -> None:
+    from tests.foxglove_protobuf import decode_with_schema
+
+    out = tmp_path / "fox.mcap"
+    assert main(["foxglove", str(demo_run), str(out)]) == 0
+    said = capsys.readouterr().out
+    left = said.split("left out:", 1)[1]
+    assert "features" in left and "estimate" not in left and "frames " not in left, said
+    boxes = {}
+    with open(out, "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if channel.topic.endswith("/box"):
+                assert schema.name == "foxglove.ImageAnnotations"
+                ann = decode_with_schema(schema.name, schema.data, message.data)
+                boxes[len(boxes)] = ann
+    est = [m for r in iter_records(demo_run) if r.topic.endswith("/estimate")
+           for m in [decode(r.data)] if isinstance(m, Estimate)]
+    assert len(boxes) == len(est) == 60
+    x, y, w, h = est[0].box
+    loop = boxes[0]["points"][-1]["points"]  # the estimate's box, drawn last (pixel edges: Foxglove's)
+    assert [(p["x"], p["y"]) for p in loop][0] == pytest.approx((x, y))
+    assert [(p["x"], p["y"]) for p in loop][2] == pytest.approx((x + w, y + h))
+
+
+def test_rerun_check_says_what_it_cannot_check(tmp_path: Path, capsys) -> None:
+    p = tmp_path / "few.mcap"
+    assert main(["demo", "--frames", "8", "--particles", "100", "--inline", "--record", str(p),
+                 "--record-topics", "estimate,particles"]) == 0
+    capsys.readouterr()
+    assert main(["rerun", str(p), "--stage", "filter", "--check"]) == 2
+    err = capsys.readouterr().err
+    assert "cannot re-run stage filter" in err and "/proposals" in err and "--record-topics estimate,particles" in err
+    assert main(["rerun", str(p), "--graph", "--check"]) == 2
+    assert "/frames" in capsys.readouterr().err
+
+
+def test_step_jumps_to_a_frame_without_warnings(demo_run: Path, capsys, monkeypatch, caplog) -> None:
+    monkeypatch.setattr("sys.stdin", io.StringIO("j 50\ns\nq\n"))
+    with caplog.at_level(logging.WARNING):
+        assert main(["step", str(demo_run), "--stage", "filter"]) == 0
+    jumped = capsys.readouterr().out
+    assert not [r for r in caplog.records if r.levelno >= logging.WARNING], caplog.text
+    assert "--- frame 50" in jumped and "  error " not in jumped
+    monkeypatch.setattr("sys.stdin", io.StringIO("\n" * 51 + "q\n"))  # frame by frame from the start
+    assert main(["step", str(demo_run), "--stage", "filter"]) == 0
+    walked = capsys.readouterr().out
+    frame = lambda text: text.split("--- frame 50", 1)[1].split("step>", 1)[0]  # noqa: E731
+    assert frame(jumped) == frame(walked)
