@@ -107,7 +107,7 @@ class FoxgloveBridge:
     def _forward(self, key: str, payload: bytes, pub_ns: int, type_name: str) -> None:
         topic = "/" + key
         log_ns = pub_ns or time.time_ns()
-        if type_name and type_name not in FORWARDED_TYPES + FOXGLOVE_TYPES + ("Frame",):
+        if type_name and type_name not in FORWARDED_TYPES and type_name not in FOXGLOVE_TYPES and type_name != "Frame":
             return  # features, particles, snapshots: not decoded at all
         try:
             msg = decode(payload)
