@@ -72,3 +72,40 @@ def test_step_jumps_to_a_frame_without_warnings(demo_run: Path, capsys, monkeypa
     walked = capsys.readouterr().out
     frame = lambda text: text.split("--- frame 50", 1)[1].split("step>", 1)[0]  # noqa: E731
     assert frame(jumped) == frame(walked)
+
+
+def test_a_demo_stopped_early_is_scored_over_the_frames_it_ran(tmp_path: Path) -> None:
+    import json
+    import os
+    import re
+    import subprocess
+    import sys
+    import time
+
+    rt = tmp_path / "rt"
+    env = dict(os.environ, GFLOW_RUNTIME_DIR=str(rt), PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+    cmd = [sys.executable, "-m", "pipeline.cli.main"]
+    demo = subprocess.Popen([*cmd, "demo", "--frames", "5000", "--particles", "100", "--no-record"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not (rt.is_dir() and list(rt.glob("*.json"))):
+            assert demo.poll() is None and time.monotonic() < deadline, "the demo did not start"
+            time.sleep(0.1)
+        stream = json.loads(next(rt.glob("*.json")).read_text())["stream"]
+        echo = subprocess.run([*cmd, "echo", "estimate", "-n", "20", "--timeout", "60"], env=env, capture_output=True,
+                              text=True, timeout=90)  # tracking: then stop it
+        assert echo.returncode == 0, echo.stderr
+        pub = subprocess.run([*cmd, "pub", f"gflow/{stream}/_control", "Control", '{"command": "stop"}', "--wait",
+                              "30"], env=env, capture_output=True, text=True, timeout=60)
+        assert pub.returncode == 0, pub.stderr
+        out, err = demo.communicate(timeout=120)
+    finally:
+        if demo.poll() is None:
+            demo.kill()
+    assert demo.returncode == 0, err
+    ran = int(re.search(r"frames: (\d+)", out).group(1))
+    scored = re.search(r"success@0.5 ([\d.]+) over (\d+) frames", out)
+    assert ran < 5000 and f"stopped after {ran} of 5000 frames" in out, out
+    flight = re.search(r"\((\d+) in flight when it stopped", out)
+    assert int(scored.group(2)) == ran - (int(flight.group(1)) if flight else 0) and float(scored.group(1)) > 0.8, out

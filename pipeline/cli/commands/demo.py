@@ -35,16 +35,28 @@ def cmd_demo(args) -> int:
     sp = plan.stages["source"].params
     scene = SyntheticScene(width=sp.get("width", 320), height=sp.get("height", 240), n_frames=args.frames,
                            seed=sp.get("scene_seed", 0), noise=sp.get("noise", 4.0))
-    truth = {t: scene.truth_box(t) for t in range(args.frames)}
-    s = score(truth, est)
+    # a run stopped early (a stop control, Ctrl-C) is scored over the frames it ran, up to its last
+    # estimate: not charged with the frames it never ran, nor those the stop caught in flight (a
+    # frame missing before the last estimate still counts as a failure)
+    sent = min(frames, args.frames)
+    ran = args.frames if sent >= args.frames else (max(est) + 1 if est else 0)
+    truth = {t: scene.truth_box(t) for t in range(ran)}
     print(f"recording: {recording.kept}")
     print(f"frames: {frames}   wall time: {secs:.2f} s   end-to-end rate: {frames / secs:.1f} frames/s "
           f"(wall time, including start-up)")
     if info.get("fps"):
         print("per-stage rate while running (frames/s, last heartbeat): "
               + ", ".join(f"{n} {v:.1f}" for n, v in info["fps"].items() if v))
-    print(f"tracking error vs ground truth: CLE {s.cle:.2f} px, mean overlap {s.mean_overlap:.3f}, "
-          f"success@0.5 {s.success:.3f} over {s.frames} frames")
+    if ran < args.frames:
+        print(f"stopped after {sent} of {args.frames} frames" + (f" ({sent - ran} in flight when it stopped, not scored)"
+                                                                  if sent > ran else ""))
+    if not truth or not est:
+        print("tracking error vs ground truth: no frame was tracked")
+    else:
+        s = score(truth, est)
+        print(f"tracking error vs ground truth: CLE {s.cle:.2f} px, mean overlap {s.mean_overlap:.3f}, "
+              f"success@0.5 {s.success:.3f} over {s.frames} frames"
+              + (f" ({s.missing} without an estimate)" if s.missing else ""))
     return 130 if info.get("interrupted") else 0
 
 
