@@ -109,3 +109,65 @@ def test_a_demo_stopped_early_is_scored_over_the_frames_it_ran(tmp_path: Path) -
     assert ran < 5000 and f"stopped after {ran} of 5000 frames" in out, out
     flight = re.search(r"\((\d+) in flight when it stopped", out)
     assert int(scored.group(2)) == ran - (int(flight.group(1)) if flight else 0) and float(scored.group(1)) > 0.8, out
+
+
+def test_coasting_says_whether_the_input_was_unusable_or_blank(tmp_path: Path, capsys) -> None:
+    """Blank frames (no edge pixels) coast on the dynamics with their input read; the report says
+    so, and not "no usable input"."""
+    p = tmp_path / "blank.mcap"
+    assert main(["run", "demo", "--inline", "--set", "source.frames=30", "--set", "source.blank_every=10",
+                 "--set", "source.blank_count=2", "--record", str(p)]) == 0
+    capsys.readouterr()
+    assert main(["boxes", str(p), "--out", str(tmp_path / "b.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "6 frame(s) coasted" in out and "held no evidence" in out and "8-9, 18-19, 28-29" in out, out
+    assert "no usable input" not in out
+    from pipeline.recording.results import completeness
+
+    est = {f: type("E", (), {"state": "coast" if f in (2, 3) else "track"})() for f in range(6)}  # the state: all it reads
+    lines = completeness(est, range(6), {3})  # frame 3 was reported (a missing input); frame 2 was blank
+    assert any("no usable input" in ln and ln.endswith(": 3") for ln in lines), lines
+    assert any("held no evidence" in ln and ln.endswith(": 2") for ln in lines), lines
+
+
+def test_the_live_figures_add_up() -> None:
+    """After Ctrl-C, frames captured = tracked + skipped + in flight; the rate leaves the waits out."""
+    from pipeline.recording.live_record import LiveSummary
+
+    s = LiveSummary(frames={i: i for i in range(100)}, captured=121, skipped=19, latency_ms=[10.0] * 99)
+    line = s.lines()[0]
+    assert "121 frames captured, 99 tracked, 19 skipped" in line and "3 in flight when the run stopped" in line, line
+
+
+@pytest.fixture
+def stream_frames() -> Path:
+    from tests.conftest import data_dir
+    from tests.stream_server import ffmpeg_exe
+
+    if ffmpeg_exe() is None:
+        pytest.skip("no FFmpeg to serve streams: pip install imageio-ffmpeg (a test extra)")
+    return data_dir("crossing") / "frames"
+
+
+def test_a_stream_that_ends_is_no_error(tmp_path: Path, stream_frames: Path) -> None:
+    import os
+    import subprocess
+    import sys
+
+    from tests.stream_server import StreamServer
+
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+    cmd = [sys.executable, "-m", "pipeline.cli.main", "track"]
+    with StreamServer(stream_frames, fps=25, count=40) as srv:
+        r = subprocess.run([*cmd, srv.url, "--init", "204,150,17,50", "--out", "a.csv", "--reconnect", "0",
+                            "--record", "a.mcap"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "error from source" not in r.stderr and "source: " + srv.url in r.stderr, r.stderr
+    assert "errors reported" not in r.stdout and "stream_ended:" in r.stdout, r.stdout
+    assert "s the stream was tracked" in r.stdout, r.stdout
+    with StreamServer(stream_frames, fps=50, count=30) as srv:
+        r = subprocess.run([*cmd, srv.url, "--init", "204,150,17,50", "--out", "b.csv", "--inline", "--stop", "150",
+                            "--reconnect", "0", "--no-record"], cwd=tmp_path, env=env, capture_output=True,
+                           text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "errors reported" not in r.stdout and "WARNING" not in r.stderr, (r.stdout, r.stderr)

@@ -18,14 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.messages import Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus, decode
+from stages.messages import (NOTICE_KINDS, Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus,
+                             decode)
 
 from pipeline.io.mcap_io import iter_records
 
 __all__ = ["LiveSummary", "live_summary", "latency_percentiles", "LIVE_REPORTS"]
 
-#: the kinds of the reports a live source makes on the errors topic
-LIVE_REPORTS = ("reconnected", "stream_ended")
+#: the kinds of the reports a live source makes on the errors topic (news, not errors)
+LIVE_REPORTS = NOTICE_KINDS
 
 
 def latency_percentiles(latencies_ms) -> tuple[float, float, float]:
@@ -56,16 +57,26 @@ class LiveSummary:
     gaps: list[tuple[int, float]] = field(default_factory=list)
     reports: list[tuple[str, str]] = field(default_factory=list)
     latency_ms: list[float] = field(default_factory=list)
+    tracking_s: float = 0.0  # from the first estimate to the last, the reconnects' waits left out
 
     @property
     def sent(self) -> int:
         return len(self.frames)
 
+    @property
+    def tracked(self) -> int:
+        """Frames sent that have an estimate."""
+        return len(self.latency_ms)
+
     def lines(self) -> list[str]:
-        """What to tell the user: frames, skips, gaps, latency, how the stream ended."""
+        """What to tell the user: frames, skips, gaps, latency, how the stream ended. The frames
+        captured add up: tracked + skipped + those in flight when the run stopped (decoded and not
+        yet sent, or sent and not yet tracked)."""
         p50, p99, worst = latency_percentiles(self.latency_ms)
-        out = [f"live source: {self.captured} frames captured, {self.sent} tracked, {self.skipped} skipped "
-               f"(the newest frame wins)" + (f", {self.reconnects} reconnect(s)" if self.reconnects else "")]
+        flight = max(0, self.captured - self.tracked - self.skipped)
+        out = [f"live source: {self.captured} frames captured, {self.tracked} tracked, {self.skipped} skipped "
+               f"(the newest frame wins)" + (f", {flight} in flight when the run stopped" if flight else "")
+               + (f", {self.reconnects} reconnect(s)" if self.reconnects else "")]
         if self.latency_ms:
             out.append(f"latency, capture to estimate: p50 {p50:.1f} ms, p99 {p99:.1f} ms, max {worst:.1f} ms "
                        f"({len(self.latency_ms)} estimates)")
@@ -74,7 +85,8 @@ class LiveSummary:
 
     def to_json(self) -> dict:
         p50, p99, worst = latency_percentiles(self.latency_ms)
-        return {"captured": self.captured, "sent": self.sent, "skipped": self.skipped, "reconnects": self.reconnects,
+        return {"captured": self.captured, "sent": self.sent, "tracked": self.tracked, "skipped": self.skipped,
+                "in_flight": max(0, self.captured - self.tracked - self.skipped), "reconnects": self.reconnects,
                 "gaps": [{"frame": f, "seconds": s} for f, s in self.gaps],
                 "reports": [{"kind": k, "message": m} for k, m in self.reports],
                 "latency_ms": {"p50": p50, "p99": p99, "max": worst, "n": len(self.latency_ms)}}
@@ -116,4 +128,7 @@ def live_summary(path: str | Path, stream: str | None = None) -> LiveSummary | N
     s.reconnects = max(s.reconnects, len(s.gaps))
     live_stamps = set(stamps.values())
     s.latency_ms = [(log - st) / 1e6 for st, log in est_log if st in live_stamps]
+    logs = [log for st, log in est_log if st in live_stamps]
+    if len(logs) > 1:  # the time spent tracking, without the waits for a lost stream to come back
+        s.tracking_s = max(0.0, (max(logs) - min(logs)) / 1e9 - sum(g for _, g in s.gaps))
     return s

@@ -241,8 +241,10 @@ def cmd_track(args) -> int:
         write_points(args.points_out, run.points)
         pts = f"; points: {args.points_out}" + ("" if run.points else " (empty: the model has no landmarks)")
     n, info = len(run.boxes), run.info
-    print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
-          f"boxes: {args.out}{pts}; recording: {run.kept}")
+    rate = f"{n / max(run.seconds, 1e-9):.1f} fps"
+    if run.live is not None and run.live.tracking_s > 0:  # not the waits for a lost stream, nor its end
+        rate = f"{n / run.live.tracking_s:.1f} fps over the {run.live.tracking_s:.1f} s the stream was tracked"
+    print(f"tracked {n} frames in {run.seconds:.2f} s ({rate}); boxes: {args.out}{pts}; recording: {run.kept}")
     for line in run.lines:
         print(f"  {line}")
     errs = info.get("errors")
