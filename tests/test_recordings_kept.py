@@ -112,3 +112,93 @@ def test_concurrent_runs_keep_every_recording(tmp_path: Path) -> None:
                              capture_output=True, text=True, timeout=120)
         assert chk.returncode == 0 and "identical" in chk.stdout, (r, chk.stdout, chk.stderr)
     assert time.time() - t0 < 170
+
+
+def test_run_without_an_initial_box_is_refused_before_launch(tmp_path: Path, monkeypatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert main(["run", "chamfer"]) == 2
+    err = capsys.readouterr().err
+    assert "needs an initial box" in err and "--set filter.init=" in err and len(err.strip().splitlines()) == 1, err
+    assert not list(tmp_path.rglob("*.mcap"))
+
+
+def test_csv_files_end_lines_with_lf(tmp_path: Path) -> None:
+    from pipeline.io.landmarks import write_points
+    from pipeline.recording.results import write_boxes
+
+    write_boxes(tmp_path / "b.csv", {0: (1.0, 2.0, 3.0, 4.0), 1: (2.0, 3.0, 4.0, 5.0)}, {0: 1.0, 1: 0.5},
+                {0: "tracked", 1: "occluded"})
+    import numpy as np
+
+    write_points(tmp_path / "p.csv", {0: (np.array([0, 1]), np.array([[1.0, 2.0], [3.0, 4.0]]))})
+    for name in ("b.csv", "p.csv"):
+        data = (tmp_path / name).read_bytes()
+        assert b"\r" not in data and data.count(b"\n") >= 3, (name, data)
+
+
+def test_no_record_names_no_recording(tmp_path: Path) -> None:
+    seq = data_dir("crossing")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
+    r = subprocess.run([*GFLOW, "track", str(seq), "--init", "204,150,17,50", "--out", "b.csv", "--stop", "5",
+                        "--no-record"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "recording: none (--no-record)" in r.stdout
+    assert "recording to" not in r.stderr and "gflow-norecord" not in r.stderr + r.stdout, r.stderr
+
+
+def _fake_recordings(folder: Path, n: int) -> list[Path]:
+    folder.mkdir(parents=True, exist_ok=True)
+    out = []
+    for i in range(n):
+        p = folder / f"run-{i}.mcap"
+        p.write_bytes(b"x" * 1000)
+        os.utime(p, (1_000_000 + i * 10, 1_000_000 + i * 10))
+        out.append(p)
+    seg = folder / "run-0.part1.mcap"  # the oldest one has a segment of a restarted recorder
+    seg.write_bytes(b"y" * 500)
+    os.utime(seg, (1_000_000, 1_000_000))
+    return out
+
+
+def test_clean_keeps_the_newest_and_says_what_it_removed(tmp_path: Path, capsys) -> None:
+    recs = _fake_recordings(tmp_path / "recordings", 4)
+    assert main(["clean", str(tmp_path / "recordings"), "--keep", "2", "--dry-run"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out.startswith("would remove 2 recording(s) (0.0 MB)") and "kept the newest 2" in out, out
+    assert all(p.exists() for p in recs)
+    assert main(["clean", str(tmp_path / "recordings"), "--keep", "2"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out.startswith("removed 2 recording(s)") and len(out.splitlines()) == 1, out
+    assert [p.exists() for p in recs] == [False, False, True, True]
+    assert not (tmp_path / "recordings" / "run-0.part1.mcap").exists()
+    with pytest.raises(SystemExit):
+        main(["clean", "--help"])
+    assert "--keep" in capsys.readouterr().out
+
+
+def test_a_run_warns_when_its_recordings_folder_grows(tmp_path: Path, monkeypatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    _fake_recordings(tmp_path / "recordings", 3)
+    monkeypatch.setenv("GFLOW_RECORDINGS_WARN_MB", "0.001")
+    assert main(["demo", "--frames", "3", "--particles", "50", "--inline"]) == 0
+    err = capsys.readouterr().err
+    assert "recordings holds" in err and "GFLOW_RECORDINGS_WARN_MB" in err and "gflow clean" in err, err
+    monkeypatch.setenv("GFLOW_RECORDINGS_WARN_MB", "0")
+    assert main(["demo", "--frames", "3", "--particles", "50", "--inline"]) == 0
+    assert "GFLOW_RECORDINGS_WARN_MB" not in capsys.readouterr().err
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0, reason="giving a file to another user needs root")
+def test_ps_lists_only_the_users_own_pipelines(tmp_path: Path, monkeypatch, capsys) -> None:
+    import json
+
+    monkeypatch.setenv("GFLOW_RUNTIME_DIR", str(tmp_path))
+    theirs = tmp_path / "cam9-1.json"
+    theirs.write_text(json.dumps({"kind": "pipeline", "name": "theirs", "stream": "cam9", "pid": os.getpid(),
+                                  "endpoints": ["tcp/127.0.0.1:9"], "stages": [], "started": time.time()}))
+    os.chown(theirs, 4242, 4242)  # another user's pipeline, alive
+    assert main(["ps", "--listen-for", "0.1"]) == 1
+    err = capsys.readouterr().err
+    assert "no running gflow pipeline" in err and "other users" in err
+    assert main(["ps", "--all", "--listen-for", "0.1"]) == 0
+    assert "stream cam9" in capsys.readouterr().out

@@ -97,7 +97,7 @@ def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, f
     p.parent.mkdir(parents=True, exist_ok=True)
     full = confidence is not None and states is not None
     with open(p, "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
         w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else []))
         for k in sorted(boxes):
             extra = [f"{confidence[k]:.3f}", states[k]] if confidence is not None and states is not None else []
@@ -139,7 +139,7 @@ def write_visibility(path: str | Path, visible: dict[int, float], perturbed: dic
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     with open(p, "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
         w.writerow(["frame", "visible", "perturbed"] + (["source_frame"] if source is not None else []))
         for k in sorted(visible):
             w.writerow([k, f"{visible[k]:.4f}", int(perturbed[k])] + ([source[k]] if source is not None else []))

@@ -88,17 +88,26 @@ def announce(stream: str, endpoints: list[str] | tuple[str, ...], *, name: str =
     return a
 
 
-def running(stream: str | None = None) -> list[dict]:
-    """Every live announcement (oldest first), optionally of one stream; stale files are removed."""
+def running(stream: str | None = None, everyone: bool = False) -> list[dict]:
+    """Every live announcement (oldest first), optionally of one stream; stale files are removed.
+
+    Only the user's own pipelines (announcement files this user owns: a runtime folder shared
+    between users, ``GFLOW_RUNTIME_DIR`` say, holds others' too), unless ``everyone``; each
+    announcement says its owner's uid as ``uid``."""
     d = runtime_dir()
     out = []
+    me = os.getuid() if hasattr(os, "getuid") else 0
     for f in sorted(d.glob("*.json")) if d.is_dir() else []:
         try:
+            uid = f.stat().st_uid
+            if uid != me and not everyone:
+                continue  # another user's pipeline
             info = json.loads(f.read_text())
             pid = int(info["pid"])
+            info["uid"] = uid
         except (OSError, ValueError, KeyError, TypeError):
             continue  # being written, or not ours
-        if not _alive(pid):
+        if not _alive(pid) and uid == me:
             try:
                 f.unlink()
             except OSError:

@@ -217,9 +217,15 @@ class Recording:
         return "none (--no-record)" if self.temporary or self.path is None else str(self.path)
 
     def written(self, path: str | None) -> None:
-        """The path the run recorded to (a default one is named when the run starts)."""
+        """The path the run recorded to (a default one is named when the run starts); a note when
+        its folder holds more than ``GFLOW_RECORDINGS_WARN_MB`` of recordings."""
         if not self.temporary and path:
             self.path = path
+            from pipeline.io.recording_files import size_warning
+
+            note = size_warning(Path(path).parent)
+            if note:
+                print(note, file=sys.stderr)
 
     def cleanup(self) -> None:
         if self.tmpdir:

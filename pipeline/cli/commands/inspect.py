@@ -166,12 +166,23 @@ def _stage_states(settings, streams: list[str], seconds: float) -> dict[str, dic
     return out
 
 
+def _user(uid: int) -> str:
+    try:
+        import pwd
+
+        return pwd.getpwuid(uid).pw_name
+    except (ImportError, KeyError):
+        return str(uid)
+
+
 def cmd_ps(args) -> int:
     from pipeline.runtime.running import describe_none, running, runtime_dir
 
-    found = running(args.stream)
+    found = running(args.stream, everyone=args.all)
     if not found:
-        print(describe_none(args.stream), file=sys.stderr)
+        others = [] if args.all else running(args.stream, everyone=True)
+        print(describe_none(args.stream) + (f" ({len(others)} of other users: gflow ps --all)" if others else ""),
+              file=sys.stderr)
         return 1
     if args.json:
         rows = []
@@ -186,7 +197,7 @@ def cmd_ps(args) -> int:
             continue
         up = time.time() - float(info.get("started", time.time()))
         print(f"{info.get('kind', 'pipeline')} {info.get('name')}  stream {info['stream']}  pid {info['pid']}  "
-              f"up {up:.0f} s  at {', '.join(info['endpoints'])}"
+              f"up {up:.0f} s  at {', '.join(info['endpoints'])}" + (f"  user {_user(info['uid'])}" if args.all else "")
               + (f"  recording {info['recording']}" if info.get("recording") else ""))
         for name in info.get("stages") or sorted(states):
             st = states.get(name)
@@ -255,10 +266,11 @@ def cmd_pub(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser("ps", help="list the running pipelines and the state of their stages",
-                       description="Lists the pipelines (and replays) running on this machine, as announced in the "
-                                   "user's runtime folder, with each stage's state, progress, rate and memory from "
-                                   "its heartbeat.")
+                       description="Lists the user's pipelines (and replays) running on this machine, as announced "
+                                   "in the user's runtime folder, with each stage's state, progress, rate and memory "
+                                   "from its heartbeat.")
     p.add_argument("--stream", help="only the pipeline of this stream")
+    p.add_argument("--all", action="store_true", help="also other users' pipelines (a runtime folder they share)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--listen-for", type=positive_float, default=1.2, metavar="S",
                    help="seconds to collect heartbeats (default 1.2; stages beat every 0.5 s)")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 ORDER = 40
 
-from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.build import apply_defaults, check_stages
 from pipeline.runtime.graph import builtin_graphs, load_graph
 from pipeline.runtime.live_plan import prepare_live
 from pipeline.runtime.placement import local_stages
@@ -16,7 +16,8 @@ def cmd_run(args) -> int:
     check_outputs(record=args.record)
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     held = plan.recorder()
-    local_stages(plan, args.hosts)  # an unknown --host label is the first thing to say
+    local = local_stages(plan, args.hosts)  # an unknown --host label is the first thing to say
+    check_stages(plan, local)  # a stage that cannot start (no initial box, say): before any process or recording
     if args.record and args.hosts and held is not None and held.host not in args.hosts:
         raise CliError(f"--record: the recorder runs on host {held.host}, not on {', '.join(args.hosts)}; "
                        f"give --record to the command of host {held.host}")
