@@ -123,6 +123,7 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
                 pos, size = f.tell(), p.stat().st_size
             except (OSError, ValueError):
                 pos = size = 0
+            text: str
             if pos < size:  # bytes after the record that failed: the file is damaged, not just cut short
                 text = Damaged(f"{p}: recording is damaged at byte {pos} of {size} ({type(e).__name__}: {e}); "
                                f"nothing after it can be read (`gflow recover` keeps what is before it)")

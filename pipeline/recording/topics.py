@@ -66,11 +66,10 @@ def topic_matches(pattern: str, topic: str) -> bool:
 
 def stream_prefix(topics: Iterable[str]) -> str:
     """``gflow/STREAM/`` when every topic is of that one stream, else ""."""
-    ts = list(topics)
-    streams = {split_topic(t)[0] if split_topic(t) else None for t in ts}
+    streams = {parts[0] if parts is not None else None for parts in map(split_topic, topics)}
     if len(streams) != 1 or None in streams:
         return ""
-    return f"gflow/{streams.pop()}/"
+    return f"gflow/{next(iter(streams))}/"
 
 
 def describe_topics(topics: Iterable[str], limit: int = 40, counts: dict[str, int] | None = None) -> str:

@@ -10,7 +10,7 @@ from pathlib import Path
 
 
 def cmd_clean(args) -> int:
-    from pipeline.io.recording_files import folder_recordings
+    from pipeline.io.recording_files import StoredRecording, folder_recordings
     from pipeline.runtime.running import running
     from pipeline.cli.commands.common import CliError
 
@@ -21,7 +21,9 @@ def cmd_clean(args) -> int:
         raise CliError(f"--keep must be 0 or more, got {args.keep}")
     recs = folder_recordings(folder)
     busy = {Path(str(i["recording"])).resolve() for i in running() if i.get("recording")}
-    kept, drop, in_use = recs[:args.keep], [], []
+    kept = recs[:args.keep]
+    drop: list[StoredRecording] = []
+    in_use: list[StoredRecording] = []
     for r in recs[args.keep:]:
         (in_use if r.path.resolve() in busy else drop).append(r)
     freed = sum(r.bytes for r in drop)

@@ -20,8 +20,8 @@ def cmd_diff(args) -> int:
         try:
             topics = select_topics(args.topics, set(recorded_topics(args.a)) | set(recorded_topics(args.b)),
                                    where=f"{args.a} or {args.b}")
-        except TopicError as e:
-            raise CliError(str(e)) from None
+        except TopicError as bad:
+            raise CliError(str(bad)) from None
     res = diff_recordings(args.a, args.b, topics)
     if args.json:
         print(json.dumps({t: {"types": sorted(d.types), "same": d.same, "differ": d.differ, "only_a": d.only_a,
