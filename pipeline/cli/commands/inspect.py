@@ -67,23 +67,17 @@ def _key(topic: str) -> str:
 def _await_pipeline(args, topic: str | None, wait: float) -> None:
     """Wait up to ``wait`` s for a pipeline to be announced on this machine (of the stream ``topic``
     names, if it names one), so a tool started before its run does not give up at once."""
-    from pipeline.runtime.running import running
+    from pipeline.runtime.running import await_running
 
     if wait <= 0 or args.connect or args.mode == "router" or args.multicast:
         return
     stream = stream_of(topic if topic.startswith("gflow/") else f"gflow/{topic}") if topic and not _in_stream(
         topic) else None
-
-    def found() -> bool:
-        return any(stream is None or stream in (i.get("stream"), i.get("camera")) for i in running())
-
-    if found():
+    if await_running(stream, until=time.monotonic()):
         return
-    end = time.monotonic() + wait
     print(f"waiting up to {wait:g} s for a pipeline" + (f" of stream {stream}" if stream else "") + " to start",
           file=sys.stderr, flush=True)
-    while time.monotonic() < end and not found():
-        time.sleep(0.1)
+    await_running(stream, until=time.monotonic() + wait)
 
 
 def _say_where(found: list[dict]) -> None:

@@ -14,26 +14,16 @@ def _await_run(args, end: float | None) -> bool:
     """Wait for a pipeline (of ``--stream``: the run's stream or its graph's) to be announced on
     this machine, until ``end`` (None: until Ctrl-C); True when one runs. With ``--connect`` the
     user's endpoints are used as they are."""
-    from pipeline.runtime.running import running
+    from pipeline.runtime.running import await_running
 
-    if args.connect or args.mode == "router" or args.multicast:
-        return True
-
-    def found() -> bool:
-        return any(args.stream is None or args.stream in (i.get("stream"), i.get("camera")) for i in running())
-
-    if found():
+    if args.connect or args.mode == "router" or args.multicast or await_running(args.stream, until=time.monotonic()):
         return True
     print("gflow view: waiting for a pipeline to start" + (f" with stream {args.stream}" if args.stream else "")
           + " (Ctrl-C stops)", file=sys.stderr, flush=True)
     try:
-        while not found():
-            if end is not None and time.monotonic() >= end:
-                return False
-            time.sleep(0.1)
+        return await_running(args.stream, until=end)
     except KeyboardInterrupt:
         return False
-    return True
 
 
 def cmd_view(args) -> int:
