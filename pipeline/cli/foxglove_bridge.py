@@ -19,7 +19,7 @@ like the topics:
   run, whatever started it (``gflow track``, ``demo``, ``run``), with or without a render stage.
 
 Features, particles and snapshots (large binary arrays) are not forwarded, nor end-of-stream
-markers on an image channel.
+markers on an image channel or on a topic nothing else was forwarded on.
 """
 
 from __future__ import annotations
@@ -124,8 +124,8 @@ class FoxgloveBridge:
         elif name in FOXGLOVE_TYPES:  # the render stage's: as the SDK's message
             self._log(topic, name, to_sdk(msg), log_ns)
         elif name in FORWARDED_TYPES:
-            if name == "EndOfStream" and key.endswith("/frames"):
-                return  # not on the image channel: Foxglove reads one schema per topic
+            if name == "EndOfStream" and (key.endswith("/frames") or topic not in self._channels):
+                return  # not on an image channel (Foxglove reads one schema per topic), nor alone on a topic
             body = json.dumps(to_plain(msg), allow_nan=False, default=str).encode("utf-8")
             self._log(topic, name, body, log_ns)
             if isinstance(msg, (Estimate, PoseEstimate)):  # its box, over its frame

@@ -134,6 +134,11 @@ def size_warning(folder: str | os.PathLike) -> str:
     total = sum(r.bytes for r in recs)
     if total <= limit * 1e6:
         return ""
+    keep, size = 0, 0
+    for r in recs:  # the newest that fit under the limit (at least one)
+        if keep and size + r.bytes > limit * 1e6:
+            break
+        keep, size = keep + 1, size + r.bytes
     return (f"note: {folder} holds {total / 1e6:.0f} MB in {len(recs)} recordings, more than "
-            f"GFLOW_RECORDINGS_WARN_MB={limit:g}; `gflow clean {folder} --keep 5 --dry-run` shows what removing all "
-            f"but the newest 5 would free")
+            f"GFLOW_RECORDINGS_WARN_MB={limit:g}; `gflow clean {folder} --keep {keep} --dry-run` says what removing "
+            f"all but the newest {keep} would free")
