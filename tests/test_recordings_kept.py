@@ -202,3 +202,31 @@ def test_ps_lists_only_the_users_own_pipelines(tmp_path: Path, monkeypatch, caps
     assert "no running gflow pipeline" in err and "other users" in err
     assert main(["ps", "--all", "--listen-for", "0.1"]) == 0
     assert "stream cam9" in capsys.readouterr().out
+
+
+def test_a_run_whose_default_port_is_taken_at_the_last_moment_still_runs(tmp_path: Path, monkeypatch, capsys) -> None:
+    """Runs started together all find 7447 free; the ones that lose the race for it listen elsewhere."""
+    import socket
+
+    from pipeline.cli.commands import common
+
+    held = socket.socket()
+    try:
+        held.bind(("127.0.0.1", 7447))
+        held.listen()
+    except OSError:
+        pass  # another pipeline holds it: taken all the same
+    real = common.launcher_zenoh
+
+    def found_free(args):  # what the check saw a moment before another run took the port
+        return common.dataclasses.replace(real(args), listen=(common.DEFAULT_ENDPOINT,))
+
+    monkeypatch.setattr(common, "launcher_zenoh", found_free)
+    monkeypatch.chdir(tmp_path)
+    try:
+        assert main(["demo", "--frames", "3", "--particles", "50"]) == 0
+    finally:
+        held.close()
+    err = capsys.readouterr().err
+    assert "listening on tcp/127.0.0.1:7447" in err and "in use" not in err, err
+    assert len(list((tmp_path / "recordings").glob("*.mcap"))) == 1
