@@ -1,0 +1,93 @@
+"""``gflow export vot DATA OUT``: sequences with ground truth as a VOT toolkit workspace.
+
+DATA is what ``gflow benchmark`` reads: a sequence folder (``frames/`` and ``groundtruth.csv``)
+or a folder of them. OUT becomes a workspace that ``vot evaluate --workspace OUT`` runs with no
+download: the sequences in the VOT layout, a stack, and a ``trackers.ini`` that serves gflow's
+trackers over TraX with this Python (:mod:`pipeline.io.vot_workspace` says how each file is
+written; ``docs/vot.md`` how to use them).
+"""
+
+from __future__ import annotations
+
+ORDER = 33
+
+import sys
+from pathlib import Path
+
+from pipeline.cli.commands.common import CliError
+
+
+def _check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise CliError(f"{out} is a file; give a new folder for the workspace")
+    if out.is_dir() and any(out.iterdir()):
+        raise CliError(f"{out} is not empty; give a new folder for the workspace")
+    if not out.resolve().parent.is_dir():
+        raise CliError(f"folder {out.parent} does not exist")
+
+
+def cmd_export_vot(args) -> int:
+    from pipeline.cli.sequence_benchmark import find_sequences
+    from pipeline.io.vot_workspace import (stack_yaml, trackers_ini, workspace_config, write_list,
+                                           write_sequence)
+
+    out = Path(args.out)
+    _check_out(out)
+    if args.m2_model and not Path(args.m2_model).is_file():
+        raise CliError(f"--m2-model: model file not found: {args.m2_model}")
+    seqs, notes = find_sequences([args.data])
+    if args.sequences:
+        want = [n.strip() for n in args.sequences.split(",") if n.strip()]
+        unknown = [n for n in want if n not in {s.name for s in seqs}]
+        if unknown or not want:
+            raise CliError(f"unknown sequence {unknown[0] if unknown else '(none given)'} in --sequences (known: "
+                           f"{', '.join(s.name for s in seqs)})")
+        seqs = [s for s in seqs if s.name in want]
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
+    done = []
+    try:
+        for s in seqs:
+            e = write_sequence(out / "sequences" / s.name, s.name, s.path / "frames", s.groundtruth)
+            done.append(e)
+            how = "copied" if e.copied else "re-encoded as PNG"
+            print(f"{e.name}: {e.length} frames from frame {e.first} ({e.labelled} with ground truth), "
+                  f"{e.size[0]}x{e.size[1]}, {how}")
+    except ValueError as err:
+        raise CliError(f"{err} (the workspace in {out} is incomplete: remove it)") from None
+    write_list(out / "sequences", [e.name for e in done])
+    sparse = [e.name for e in done if not e.dense]
+    title = f"gflow export of {Path(args.data).name}: {', '.join(e.name for e in done)}"
+    (out / "stack.yaml").write_text(stack_yaml(title, supervised=not sparse))
+    trackers = {"appearance": ["--tracker", "appearance"], "chamfer": ["--tracker", "chamfer"],
+                "gflow": ["--tracker", "gflow"]}
+    if args.m2_model:
+        trackers["m2"] = ["--tracker", "m2", "--model", str(Path(args.m2_model).resolve())]
+    (out / "trackers.ini").write_text(trackers_ini(sys.executable, trackers))
+    (out / "config.yaml").write_text(workspace_config())
+    if sparse:
+        print(f"note: {', '.join(sparse)} {'has' if len(sparse) == 1 else 'have'} frames without ground truth "
+              f"(written as nan rows, which the toolkit leaves out of its analyses); the stack has no reinit "
+              f"experiment, which needs a box on every frame")
+    print(f"VOT workspace in {out}: {len(done)} sequences; trackers {', '.join('gflow-' + t for t in trackers)}; "
+          f"run: vot evaluate --workspace {out} gflow-appearance")
+    return 0
+
+
+def register(sub) -> None:
+    p = sub.add_parser("export", help="write sequences for other tools (vot: a VOT toolkit workspace)",
+                       description="Write data in another tool's layout.")
+    kinds = p.add_subparsers(dest="kind", metavar="KIND", required=True)
+    v = kinds.add_parser("vot", help="sequences with ground truth as a VOT toolkit workspace (docs/vot.md)",
+                         description="Write the sequences of DATA (what gflow benchmark reads: a folder with frames/ "
+                                     "and groundtruth.csv, or a folder of them) as a VOT toolkit workspace in OUT: "
+                                     "sequences/NAME/color/00000001.jpg ..., groundtruth.txt (a frame without ground "
+                                     "truth is a nan row), sequence, list.txt, and stack.yaml, trackers.ini and "
+                                     "config.yaml, so that vot evaluate --workspace OUT runs with no download. VOT "
+                                     "frame 1 is each sequence's first frame with ground truth.",
+                         epilog="example: gflow export vot ../shared/data vot-workspace --sequences caviar1,jumping")
+    v.add_argument("data", metavar="DATA", help="a sequence folder (frames/, groundtruth.csv) or a folder of them")
+    v.add_argument("out", metavar="OUT", help="the workspace folder to write (new or empty)")
+    v.add_argument("--sequences", metavar="A,B", help="only these sequences of DATA")
+    v.add_argument("--m2-model", metavar="FILE", help="add gflow-m2 to trackers.ini with this model of gflow learn m2")
+    v.set_defaults(func=cmd_export_vot)

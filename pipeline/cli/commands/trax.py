@@ -1,0 +1,102 @@
+"""``gflow trax``: serve a tracker over TraX, the protocol the VOT toolkit runs trackers with.
+
+The server is the Python API's (:mod:`gflow.trax`, ``python -m gflow.trax``): this command checks
+its options and that the protocol library is installed, then becomes that program (``exec``), so
+the client's stdin and stdout are the server's own. ``docs/vot.md`` shows the toolkit's side.
+"""
+
+from __future__ import annotations
+
+ORDER = 32
+
+import argparse
+import importlib.util
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+from pipeline.cli.commands.common import CliError
+from pipeline.cli.trackers import TRACKERS
+#: what to run when the ``trax`` module is missing (``gflow.trax.INSTALL_HINT`` says the same)
+INSTALL_HINT = "pip install 'gflow[vot]' (or pip install vot-trax)"
+
+
+def add_trax_args(p: argparse.ArgumentParser) -> None:
+    """The options of ``gflow trax`` and ``python -m gflow.trax``."""
+    p.add_argument("--tracker", choices=sorted(TRACKERS),
+                   help="the tracker to serve (default: gflow track's default tracker; README 'Which tracker')")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed (default 0): the boxes of gflow track --inline --seed SEED")
+    p.add_argument("--model", metavar="FILE",
+                   help="m2: the model of gflow learn m2 (required); gflow: face (default), ellipsoid or a model "
+                        "file of gflow learn gflow")
+    p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a parameter of the tracker, as gflow info TRACKER lists it and gflow.Tracker takes it "
+                        "(VALUE read as YAML: 500, 0.3, true); repeat for more")
+    p.add_argument("--out", metavar="CSV",
+                   help="also write the boxes served, as gflow track --out writes them (frame = the image's index "
+                        "in the session); give an absolute path: the toolkit runs trackers in a folder of its own")
+
+
+def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
+    """The keywords for ``gflow.Tracker`` of ``--set NAME=VALUE`` and ``--model``."""
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in args.set or []:
+        name, eq, value = item.partition("=")
+        if not eq or not name.strip().isidentifier():
+            raise CliError(f"--set expects NAME=VALUE (a parameter of the tracker: gflow info "
+                           f"{args.tracker or 'TRACKER'}), got {item!r}")
+        try:
+            out[name.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise CliError(f"--set {item}: the value is not a number, a word or a list") from None
+    if args.model is not None:
+        if args.tracker is not None and args.tracker not in ("m2", "gflow"):
+            raise CliError(f"--model is an option of --tracker m2 / gflow, not of --tracker {args.tracker}")
+        if "model" in out:
+            raise CliError("give the model once: --model FILE or --set model=FILE")
+        out["model"] = args.model
+    if args.tracker == "m2" and "model" not in out:
+        raise CliError("--tracker m2 needs --model MODEL.npz (learn one with gflow learn m2)")
+    return out
+
+
+def argv_of(args: argparse.Namespace) -> list[str]:
+    """``python -m gflow.trax``'s arguments for the options of ``gflow trax``."""
+    argv = ["--seed", str(args.seed)] + (["--tracker", args.tracker] if args.tracker else [])
+    if args.model is not None:
+        argv += ["--model", args.model]
+    for item in args.set or []:
+        argv += ["--set", item]
+    if args.out:
+        argv += ["--out", args.out]
+    return argv
+
+
+def cmd_trax(args: argparse.Namespace) -> int:
+    if importlib.util.find_spec("trax") is None:
+        raise CliError(f"the TraX library (package vot-trax) is not installed: {INSTALL_HINT}")
+    tracker_params(args)  # a mistyped option fails here, in one line
+    if args.seed < 0:
+        raise CliError(f"--seed must be >= 0, got {args.seed}")
+    if args.out and not Path(args.out).resolve().parent.is_dir():
+        raise CliError(f"--out {args.out}: folder {Path(args.out).parent} does not exist")
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(sys.executable, [sys.executable, "-m", "gflow.trax", *argv_of(args)])
+    return 0  # not reached: exec replaces this process
+
+
+def register(sub) -> None:
+    p = sub.add_parser("trax", help="serve a tracker over TraX, for the VOT toolkit (docs/vot.md)",
+                       description="Serve one of gflow's trackers over TraX (stdin / stdout), the protocol the VOT "
+                                   "toolkit runs trackers with: each initialize starts the tracker on a region "
+                                   "(a rectangle, or a polygon's bounding box), each frame is answered with the "
+                                   "box and the properties confidence and state. Runs the Python API, no stage "
+                                   "processes. Needs the vot-trax package: " + INSTALL_HINT + ".",
+                       epilog="trackers.ini: command = gflow trax --tracker chamfer (docs/vot.md)")
+    add_trax_args(p)
+    p.set_defaults(func=cmd_trax)
