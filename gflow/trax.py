@@ -165,7 +165,7 @@ class TraxSession:
         self.pending: Box | None = None  # the box of an initialize whose image could not start a track
         self.images = 0  # images received in the session
         self._t = 0  # index of the current image in its track (0: the initialize's)
-        self._out = csv.writer(out) if out is not None else None
+        self._out = csv.writer(out, lineterminator="\n") if out is not None else None  # as gflow track's CSV
         self._file = out
         if self._out is not None:
             self._out.writerow(["frame", "x", "y", "w", "h", "confidence", "state"])

@@ -136,6 +136,11 @@ class ErrorReport(msgspec.Struct, frozen=True, tag=True):
     topic: str = ""
 
 
+#: report kinds that are news about a live stream, not errors: its reconnects and its end (a
+#: stream ends; counted as errors, a run would never end without one)
+NOTICE_KINDS = ("reconnected", "stream_ended", "frames_missed", "damaged_input")
+
+
 class EndOfStream(msgspec.Struct, frozen=True, tag=True):
     """No message with ``seq >= header.seq`` will follow on this topic."""
 

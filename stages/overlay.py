@@ -26,7 +26,7 @@ from .messages import Estimate, Frame, Message, MessageError, Particles, PoseEst
 from .messages_foxglove import (LINE_LIST, LINE_LOOP, POINTS, Color, CompressedImage, ImageAnnotations,
                                 PointsAnnotation, TextAnnotation, point, time_of)
 
-__all__ = ["RenderStage", "RenderParams", "annotations_for"]
+__all__ = ["RenderStage", "RenderParams", "annotations_for", "estimate_annotations"]
 
 GREEN = Color(0.1, 0.9, 0.2, 1.0)
 WHITE = Color(1.0, 1.0, 1.0, 0.9)
@@ -93,10 +93,18 @@ def _axes(est: PoseEstimate, ts) -> list[PointsAnnotation]:
 def annotations_for(frame: Frame, est: Estimate | PoseEstimate, particles: Particles | None,
                     max_points: int = 400) -> ImageAnnotations:
     """The overlays of one frame (pure; also used by ``gflow render``)."""
-    ts = time_of(frame.header.stamp_ns)
+    return estimate_annotations(est, frame.header.stamp_ns, frame.truth, particles, max_points)
+
+
+def estimate_annotations(est: Estimate | PoseEstimate, stamp_ns: int, truth=None, particles: Particles | None = None,
+                         max_points: int = 400) -> ImageAnnotations:
+    """The overlays of an estimate on the frame stamped ``stamp_ns`` (ground-truth box ``truth``
+    (x, y, w, h) or None): what :func:`annotations_for` draws, also where no render stage ran
+    (``gflow view``, ``gflow foxglove`` draw the box over the recorded frames with it)."""
+    ts = time_of(stamp_ns)
     pts: list[PointsAnnotation] = []
-    if frame.truth is not None:
-        pts.append(_box(frame.truth, WHITE, ts, 1.0))
+    if truth is not None:
+        pts.append(_box(truth, WHITE, ts, 1.0))
     if isinstance(est, PoseEstimate):
         experts = est.expert_points.array()
         pts.append(_points(experts.reshape(-1, 2), CYAN, ts, 2.0, max_points))

@@ -29,7 +29,7 @@ def test_export_has_sdk_images_and_overlays_and_json_estimates(tmp_path: Path) -
     assert r.returncode == 0, r.stderr
     r = gflow(tmp_path, "foxglove", "run.mcap", "fox.mcap")
     assert r.returncode == 0, r.stderr
-    assert "left out" in r.stdout and "gflow/demo/features" in r.stdout
+    assert "left out: gflow/demo/: " in r.stdout and "features 8" in r.stdout
     seen: dict[str, list] = {}
     with open(tmp_path / "fox.mcap", "rb") as f:
         for schema, channel, message in make_reader(f).iter_messages():

@@ -13,7 +13,13 @@ like the topics:
   ones as dtype and shape: :func:`pipeline.recording.plain.to_plain`), which the Plot and Raw Messages
   panels read (e.g. ``/gflow/demo/estimate.ess``).
 
-Frames, features, particles and snapshots (large binary arrays) are not forwarded.
+* the source's ``frames`` as ``foxglove.CompressedImage`` (JPEG) and every estimate's box as
+  ``foxglove.ImageAnnotations`` on ``box`` (stamped with its frame: what the render stage draws,
+  without particles), so an Image panel on ``frames`` with the annotations ``box`` shows any
+  run, whatever started it (``gflow track``, ``demo``, ``run``), with or without a render stage.
+
+Features, particles and snapshots (large binary arrays) are not forwarded, nor end-of-stream
+markers on an image channel or on a topic nothing else was forwarded on.
 """
 
 from __future__ import annotations
@@ -24,9 +30,10 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from stages.messages import FOXGLOVE_TYPES, MessageError, decode
+from stages.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
+from stages.overlay import estimate_annotations
 
-from pipeline.io.foxglove_messages import to_sdk
+from pipeline.io.foxglove_messages import BOX_TOPIC, frame_image, to_sdk
 from pipeline.recording.plain import to_plain
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 
@@ -34,6 +41,8 @@ __all__ = ["FoxgloveBridge", "FORWARDED_TYPES"]
 
 #: gflow message types forwarded as JSON (besides the Foxglove image / annotation messages)
 FORWARDED_TYPES = ("Estimate", "PoseEstimate", "ErrorReport", "StageStatus", "Control", "EndOfStream")
+#: frames remembered (stamp and ground truth) to stamp their estimates' boxes
+_FRAMES_KEPT = 256
 
 
 @dataclass
@@ -58,6 +67,7 @@ class FoxgloveBridge:
         self._ctx = foxglove.Context()
         self._channels: dict[str, object] = {}
         self._q: queue.Queue = queue.Queue(maxsize=256)
+        self._frames: dict[tuple[str, int], tuple[int, object]] = {}  # (stream, seq) -> stamp, truth
         self._stop = threading.Event()
         self.server = foxglove.start_server(name="gflow", host=self.host, port=self.port, context=self._ctx)
         self.port = self.server.port
@@ -90,27 +100,38 @@ class FoxgloveBridge:
             self._channels[topic] = ch
         return ch
 
+    def _log(self, topic: str, type_name: str, body, log_ns: int) -> None:
+        self._channel(topic, type_name).log(body, log_time=log_ns)
+        self.forwarded[topic] = self.forwarded.get(topic, 0) + 1
+
     def _forward(self, key: str, payload: bytes, pub_ns: int, type_name: str) -> None:
         topic = "/" + key
-        if type_name in FOXGLOVE_TYPES:  # the render stage's: as the SDK's message
-            try:
-                msg = decode(payload)
-            except MessageError:
-                return
-            self._channel(topic, type_name).log(to_sdk(msg), log_time=pub_ns or time.time_ns())
-        else:
-            if type_name and type_name not in FORWARDED_TYPES:
-                return
-            try:
-                msg = decode(payload)
-            except MessageError:
-                return
-            name = type(msg).__name__
-            if name not in FORWARDED_TYPES:
-                return
+        log_ns = pub_ns or time.time_ns()
+        if type_name and type_name not in FORWARDED_TYPES and type_name not in FOXGLOVE_TYPES and type_name != "Frame":
+            return  # features, particles, snapshots: not decoded at all
+        try:
+            msg = decode(payload)
+        except MessageError:
+            return
+        name = type(msg).__name__
+        if isinstance(msg, Frame):  # the video of any run, as the SDK's image
+            self._frames[(msg.header.stream, msg.header.seq)] = (msg.header.stamp_ns, msg.truth)
+            while len(self._frames) > _FRAMES_KEPT:
+                self._frames.pop(next(iter(self._frames)))
+            img = frame_image(msg, "jpeg", 85)
+            if img is not None:
+                self._log(topic, "CompressedImage", to_sdk(img), log_ns)
+        elif name in FOXGLOVE_TYPES:  # the render stage's: as the SDK's message
+            self._log(topic, name, to_sdk(msg), log_ns)
+        elif name in FORWARDED_TYPES:
+            if name == "EndOfStream" and (key.endswith("/frames") or topic not in self._channels):
+                return  # not on an image channel (Foxglove reads one schema per topic), nor alone on a topic
             body = json.dumps(to_plain(msg), allow_nan=False, default=str).encode("utf-8")
-            self._channel(topic, name).log(body, log_time=pub_ns or time.time_ns())
-        self.forwarded[topic] = self.forwarded.get(topic, 0) + 1
+            self._log(topic, name, body, log_ns)
+            if isinstance(msg, (Estimate, PoseEstimate)):  # its box, over its frame
+                stamp, truth = self._frames.pop((msg.header.stream, msg.header.seq), (msg.header.stamp_ns, None))
+                box = topic.rsplit("/", 1)[0] + "/" + BOX_TOPIC
+                self._log(box, "ImageAnnotations", to_sdk(estimate_annotations(msg, stamp, truth)), log_ns)
 
     def _run(self) -> None:
         while not self._stop.is_set():

@@ -16,10 +16,15 @@ from typing import Any
 import foxglove
 from foxglove import messages as fm
 
+from stages.messages import Frame, MessageError
 from stages.messages_foxglove import (CircleAnnotation, Color, CompressedImage, ImageAnnotations, Point2,
-                                      PointsAnnotation, TextAnnotation, Time)
+                                      PointsAnnotation, TextAnnotation, Time, time_of)
 
-__all__ = ["to_sdk", "sdk_schema", "SDK_TYPES"]
+__all__ = ["to_sdk", "sdk_schema", "SDK_TYPES", "frame_image", "BOX_TOPIC"]
+
+#: the topic beside ``frames`` on which ``gflow view`` and ``gflow foxglove`` put the estimate's
+#: box as ``foxglove.ImageAnnotations`` (whatever made the run: no render stage is needed)
+BOX_TOPIC = "box"
 
 #: gflow's message type name -> the SDK's message type
 SDK_TYPES: dict[str, Any] = {"CompressedImage": fm.CompressedImage, "ImageAnnotations": fm.ImageAnnotations}
@@ -78,3 +83,20 @@ def to_sdk(msg: CompressedImage | ImageAnnotations) -> Any:
 def sdk_schema(type_name: str) -> foxglove.Schema:
     """The SDK's schema (name ``foxglove.<Type>``, protobuf) of gflow's message type ``type_name``."""
     return SDK_TYPES[type_name].get_schema()
+
+
+def frame_image(frame: Frame, fmt: str = "jpeg", quality: int = 90) -> CompressedImage | None:
+    """A frame as a ``foxglove.CompressedImage`` (JPEG or PNG), stamped with the frame's time;
+    None when its image cannot be read or encoded."""
+    import cv2
+
+    try:
+        img = frame.image.array()
+    except MessageError:
+        return None
+    ok, buf = (cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality]) if fmt == "jpeg"
+               else cv2.imencode(".png", img))
+    if not ok:
+        return None
+    return CompressedImage(timestamp=time_of(frame.header.stamp_ns), frame_id=frame.header.stream,
+                           data=buf.tobytes(), format=fmt)

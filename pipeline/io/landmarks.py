@@ -96,7 +96,7 @@ def write_points(path: str | os.PathLike, points: dict[int, tuple[np.ndarray, np
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     with open(p, "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
         w.writerow(["frame", "landmark", "x", "y"])
         for frame in sorted(points):
             lm, xy = points[frame]

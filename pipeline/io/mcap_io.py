@@ -22,12 +22,17 @@ from mcap.reader import NonSeekingReader, make_reader
 
 from pipeline.io.run_sessions import RunSessions
 
-__all__ = ["Record", "iter_records", "segments", "segment_path", "read_metadata", "summarize", "RecordingSummary", "TruncatedRecording",
-           "SOURCE_KEY"]
+__all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
+           "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY"]
 
 
 class TruncatedRecording(Exception):
     """Raised (or reported) when a recording ends in the middle of a record."""
+
+
+class Damaged(str):
+    """What ``on_truncated`` is told when a record fails to read with more of the file after it
+    (corrupt, e.g. two writers on one file), rather than at a torn end."""
 
 
 # What reading a torn or corrupt file raises: the mcap reader's own errors, struct's (a file torn
@@ -122,11 +127,39 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
                              schema.name if schema else "", schema.encoding if schema else "",
                              channel.metadata.get(SOURCE_KEY, ""))
         except TORN_END_ERRORS as e:  # a torn or corrupt end
-            text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
+            try:
+                pos, size = f.tell(), p.stat().st_size
+            except (OSError, ValueError):
+                pos = size = 0
+            text: str
+            if pos < size:  # bytes after the record that failed: the file is damaged, not just cut short
+                text = Damaged(f"{p}: recording is damaged at byte {pos} of {size} ({type(e).__name__}: {e}); "
+                               f"nothing after it can be read (`gflow recover` keeps what is before it)")
+            else:
+                text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
             if strict:
                 raise TruncatedRecording(text) from None
             if on_truncated is not None:
                 on_truncated(text)
+
+
+def recorded_topics(path: str | Path) -> list[str]:
+    """The topics of a recording and its segments (from the summary where there is one; a torn
+    file is read to its last complete chunk)."""
+    out: set[str] = set()
+    for seg in segments(path):
+        p = _check(seg) if seg == Path(path) else seg
+        summary = None
+        with open(p, "rb") as f:
+            try:
+                summary = make_reader(f).get_summary()
+            except _NO_FOOTER_ERRORS:
+                summary = None
+        if summary is not None and summary.channels:
+            out.update(c.topic for c in summary.channels.values())
+        else:
+            out.update(r.topic for r in _iter_file(p))
+    return sorted(out)
 
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
@@ -183,6 +216,17 @@ class RecordingSummary:
     truncated: str = ""
     segments: list[str] = field(default_factory=list)  # the files of the recording, when more than one
     sessions: RunSessions = field(default_factory=RunSessions)  # the run's zenoh sessions and what came from outside
+    damaged: bool = False  # a record failed to read before the end of the file
+
+    @property
+    def unreadable(self) -> str:
+        """Why this recording cannot be trusted as a record of its run ("" when it can): it is
+        damaged, or it holds no message it could read."""
+        if self.damaged:
+            return "the recording is damaged"
+        if self.truncated and self.messages == 0:
+            return "no message could be read"
+        return ""
 
     @property
     def duration_s(self) -> float:
@@ -228,4 +272,5 @@ def summarize(path: str | Path) -> RecordingSummary:
         end = max(end, r.log_ns)
     segs = segments(path)
     return RecordingSummary(str(path), n, start, end, topics, schemas, read_metadata(path),
-                            "; ".join(truncated), [str(p) for p in segs] if len(segs) > 1 else [], sessions)
+                            "; ".join(truncated), [str(p) for p in segs] if len(segs) > 1 else [], sessions,
+                            damaged=any(isinstance(t, Damaged) for t in truncated))

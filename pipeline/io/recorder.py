@@ -46,6 +46,7 @@ from mcap.records import DataEnd, Footer
 
 from pipeline.io.mcap_io import SOURCE_KEY
 from pipeline.io.mcap_writer import ChunkWriter
+from pipeline.io.recording_files import create_new
 
 from stages.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
 from stages.messages_foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
@@ -86,7 +87,7 @@ class McapRecorder:
 
     Parameters
     ----------
-    path : output file (parent folders are created).
+    path : output file, created here (a file that exists is an error; parent folders are created).
     flush_interval : seconds between chunk flushes (<= 0.5 s by default).
     compression : "lz4" (default, fast), "zstd" or "none".
     chunk_size : bytes per chunk before an automatic flush.
@@ -126,7 +127,12 @@ class McapRecorder:
                 raise DiskFull(e.errno, f"no space left for a recording in {p.parent}") from None
             raise
         self._reserve = reserve
-        self._f = open(p, "wb")
+        try:
+            self._f = create_new(p)  # never over another recording (pipeline/io/recording_files.py)
+        except FileExistsError:
+            reserve.unlink(missing_ok=True)
+            self._reserve = None
+            raise
         self._w = ChunkWriter(self._f, chunk_size=self.chunk_size, compression=comp, drop_cache=self.drop_cache)
         self._guard(self._start)
         self._last_flush = time.monotonic()

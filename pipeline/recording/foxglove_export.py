@@ -11,8 +11,12 @@ every message's topic and times and writes:
 * the messages a user plots (estimates: box, pose, ESS, state; errors; heartbeats; control;
   end of stream) as JSON objects, with small arrays as lists and large ones as dtype and
   shape (:func:`pipeline.recording.plain.to_plain`), on schemaless JSON channels;
+* every estimate's box (and the ground truth a synthetic frame carries) as
+  ``foxglove.ImageAnnotations`` on ``gflow/<stream>/box``, stamped with its frame, so an Image
+  panel on ``frames`` draws the box whatever made the run (the render stage's overlays of
+  :func:`stages.overlay.estimate_annotations`, without particles);
 * nothing of the large binary messages (features, particles, proposals, snapshots, G-flow
-  states) nor the end-of-stream markers: they are counted as left out.
+  states) nor the end-of-stream markers: they are counted as left out, by topic and apart.
 
 The original stays the one to re-run, diff and step; the copy is for looking.
 """
@@ -23,12 +27,10 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
+from stages.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
+from stages.overlay import estimate_annotations
 
-from stages.messages import FOXGLOVE_TYPES, Frame, MessageError, decode
-from stages.messages_foxglove import CompressedImage, time_of
-
-from pipeline.io.foxglove_messages import sdk_schema, to_sdk
+from pipeline.io.foxglove_messages import BOX_TOPIC, frame_image, sdk_schema, to_sdk
 from pipeline.io.mcap_io import iter_records, read_metadata
 from pipeline.recording.plain import to_plain
 
@@ -41,27 +43,20 @@ JSON_TYPES = ("Estimate", "PoseEstimate", "ErrorReport", "StageStatus", "Control
 
 @dataclass
 class ExportSummary:
+    """What the copy holds: ``by_topic`` its messages per topic (``.../box``: the annotations made
+    from the estimates), ``left_out`` the messages not copied per topic (end-of-stream markers
+    apart, in ``markers``)."""
+
     messages: int = 0
     by_topic: dict[str, int] = field(default_factory=dict)
     left_out: dict[str, int] = field(default_factory=dict)
-
-
-def _image_message(frame: Frame, fmt: str, quality: int) -> CompressedImage | None:
-    try:
-        img = frame.image.array()
-    except MessageError:
-        return None
-    ok, buf = (cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, quality]) if fmt == "jpeg"
-               else cv2.imencode(".png", img))
-    if not ok:
-        return None
-    return CompressedImage(timestamp=time_of(frame.header.stamp_ns), frame_id=frame.header.stream,
-                           data=buf.tobytes(), format=fmt)
+    markers: int = 0  # end-of-stream markers, not copied
 
 
 def export_for_foxglove(src: str | Path, dst: str | Path, image_format: str = "jpeg",
-                        quality: int = 90) -> ExportSummary:
-    """Write the Foxglove-readable copy of ``src`` to ``dst`` (see the module docstring)."""
+                        quality: int = 90, topics: list[str] | None = None) -> ExportSummary:
+    """Write the Foxglove-readable copy of ``src`` to ``dst`` (see the module docstring); with
+    ``topics``, of those topics only (exact names)."""
     from mcap.writer import CompressionType, Writer
 
     out = ExportSummary()
@@ -85,29 +80,44 @@ def export_for_foxglove(src: str | Path, dst: str | Path, image_format: str = "j
             return cid
 
         seqs: dict[int, int] = {}
-        for r in iter_records(src):
+
+        def put(topic: str, fox: str | None, data: bytes, log_ns: int, publish_ns: int) -> None:
+            cid = channel(topic, fox)
+            seqs[cid] = seqs.get(cid, -1) + 1
+            w.add_message(cid, log_time=log_ns, publish_time=publish_ns or log_ns, data=data, sequence=seqs[cid])
+            out.messages += 1
+            out.by_topic[topic] = out.by_topic.get(topic, 0) + 1
+
+        frames: dict[tuple[str, int], tuple[int, object]] = {}  # (stream, seq) -> the frame's stamp and truth
+        for r in iter_records(src, topics=topics):
             data: bytes | None = None
             fox: str | None = None
-            if r.type in FOXGLOVE_TYPES or r.type == "Frame" or r.type in JSON_TYPES or r.type == "unknown":
+            msg = None
+            if r.type in FOXGLOVE_TYPES or r.type == "Frame" or r.type in JSON_TYPES or r.type in ("unknown",
+                                                                                                   "EndOfStream"):
                 try:
                     msg = decode(r.data)
                 except MessageError:
                     msg = None
                 if isinstance(msg, Frame):
-                    msg = _image_message(msg, image_format, quality)
+                    frames[(msg.header.stream, msg.header.seq)] = (msg.header.stamp_ns, msg.truth)
+                    msg = frame_image(msg, image_format, quality)
                 if msg is not None and type(msg).__name__ in FOXGLOVE_TYPES:
                     data, fox = to_sdk(msg).encode(), type(msg).__name__
                 elif msg is not None and type(msg).__name__ in JSON_TYPES:
                     data = json.dumps(to_plain(msg), allow_nan=False, default=str).encode()
             if data is None:
-                out.left_out[r.topic] = out.left_out.get(r.topic, 0) + 1
+                if type(msg).__name__ == "EndOfStream":
+                    out.markers += 1
+                else:
+                    out.left_out[r.topic] = out.left_out.get(r.topic, 0) + 1
                 continue
-            cid = channel(r.topic, fox)
-            seqs[cid] = seqs.get(cid, -1) + 1
-            w.add_message(cid, log_time=r.log_ns, publish_time=r.publish_ns or r.log_ns, data=data,
-                          sequence=seqs[cid])
-            out.messages += 1
-            out.by_topic[r.topic] = out.by_topic.get(r.topic, 0) + 1
+            put(r.topic, fox, data, r.log_ns, r.publish_ns)
+            if isinstance(msg, (Estimate, PoseEstimate)):  # its box over its frame
+                stamp, truth = frames.pop((msg.header.stream, msg.header.seq), (msg.header.stamp_ns, None))
+                box_topic = r.topic.rsplit("/", 1)[0] + "/" + BOX_TOPIC
+                put(box_topic, "ImageAnnotations", to_sdk(estimate_annotations(msg, stamp, truth)).encode(),
+                    r.log_ns, r.publish_ns)
         for name, md in read_metadata(src).items():
             w.add_metadata(name, md)
         w.finish()

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.messages import Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus, decode
+from stages.messages import (NOTICE_KINDS, Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus,
+                             decode)
 
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.results import frame_ranges
@@ -26,8 +27,8 @@ from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["LiveSummary", "live_summary", "latency_percentiles", "LIVE_REPORTS"]
 
-#: the kinds of the reports a live source makes on the errors topic
-LIVE_REPORTS = ("reconnected", "stream_ended", "frames_missed", "damaged_input")
+#: the kinds of the reports a live source makes on the errors topic (news, not errors)
+LIVE_REPORTS = NOTICE_KINDS
 #: reports of one kind listed in full before the rest are only counted
 LISTED_REPORTS = 5
 
@@ -66,20 +67,30 @@ class LiveSummary:
     missed: int = 0
     damaged: int = 0
     damaged_sent: set[int] = field(default_factory=set)
+    tracking_s: float = 0.0  # from the first estimate to the last, the reconnects' waits left out
 
     @property
     def sent(self) -> int:
         return len(self.frames)
+
+    @property
+    def tracked(self) -> int:
+        """Frames sent that have an estimate."""
+        return len(self.latency_ms)
 
     def inputs(self, frames) -> dict[int, str]:
         """The CSV's ``input`` column for these camera frames: ``damaged`` or ``ok``."""
         return {f: "damaged" if f in self.damaged_sent else "ok" for f in frames}
 
     def lines(self) -> list[str]:
-        """What to tell the user: frames, skips, gaps, latency, how the stream ended."""
+        """What to tell the user: frames, skips, gaps, latency, how the stream ended. The frames
+        captured add up: tracked + skipped + those in flight when the run stopped (decoded and not
+        yet sent, or sent and not yet tracked)."""
         p50, p99, worst = latency_percentiles(self.latency_ms)
-        out = [f"live source: {self.captured} frames captured, {self.sent} tracked, {self.skipped} skipped "
-               f"(the newest frame wins)" + (f", {self.reconnects} reconnect(s)" if self.reconnects else "")]
+        flight = max(0, self.captured - self.tracked - self.skipped)
+        out = [f"live source: {self.captured} frames captured, {self.tracked} tracked, {self.skipped} skipped "
+               f"(the newest frame wins)" + (f", {flight} in flight when the run stopped" if flight else "")
+               + (f", {self.reconnects} reconnect(s)" if self.reconnects else "")]
         if self.missed:
             out.append(f"{self.missed} frame(s) never arrived (the camera's frame numbers skip them: see the "
                        f"frames_missed and reconnected reports)")
@@ -101,7 +112,8 @@ class LiveSummary:
 
     def to_json(self) -> dict:
         p50, p99, worst = latency_percentiles(self.latency_ms)
-        return {"captured": self.captured, "sent": self.sent, "skipped": self.skipped, "reconnects": self.reconnects,
+        return {"captured": self.captured, "sent": self.sent, "tracked": self.tracked, "skipped": self.skipped,
+                "in_flight": max(0, self.captured - self.tracked - self.skipped), "reconnects": self.reconnects,
                 "missed": self.missed, "damaged": self.damaged, "damaged_sent": sorted(self.damaged_sent),
                 "gaps": [{"frame": f, "seconds": s} for f, s in self.gaps],
                 "reports": [{"kind": k, "message": m} for k, m in self.reports],
@@ -153,6 +165,10 @@ def live_summary(path: str | Path, stream: str | None = None) -> LiveSummary | N
     s.captured = max(s.captured, s.sent + skipped_before_sent)  # frame numbers also count the frames missed
     s.reconnects = max(s.reconnects, len(s.gaps))
     live_stamps = set(stamps.values())
-    s.latency_ms = [(log - st) / 1e6 for st, log, topic, source in est_log
-                    if st in live_stamps and sessions.is_own(topic, source)]  # the run's own estimates
+    own = [(st, log) for st, log, topic, source in est_log
+           if st in live_stamps and sessions.is_own(topic, source)]  # the run's own estimates
+    s.latency_ms = [(log - st) / 1e6 for st, log in own]
+    logs = [log for _, log in own]
+    if len(logs) > 1:  # the time spent tracking, without the waits for a lost stream to come back
+        s.tracking_s = max(0.0, (max(logs) - min(logs)) / 1e9 - sum(g for _, g in s.gaps))
     return s

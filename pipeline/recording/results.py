@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Mapping, TypeVar
 
 from gflow_core.metrics import TARGET_STATES
-from stages.messages import Estimate, Frame, MessageError, PoseEstimate, decode
+from stages.messages import ErrorReport, Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows
 from pipeline.io.mcap_io import iter_records
@@ -100,7 +100,7 @@ def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, f
     p.parent.mkdir(parents=True, exist_ok=True)
     full = confidence is not None and states is not None
     with open(p, "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
         w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else [])
                    + (["input"] if full and inputs is not None else []))
         for k in sorted(boxes):
@@ -145,7 +145,7 @@ def write_visibility(path: str | Path, visible: dict[int, float], perturbed: dic
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     with open(p, "w", newline="") as f:
-        w = csv.writer(f)
+        w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
         w.writerow(["frame", "visible", "perturbed"] + (["source_frame"] if source is not None else []))
         for k in sorted(visible):
             w.writerow([k, f"{visible[k]:.4f}", int(perturbed[k])] + ([source[k]] if source is not None else []))
@@ -214,19 +214,48 @@ def frame_ranges(frames) -> str:
     return ", ".join(out)
 
 
-def completeness(est: dict, expected: range | None) -> list[str]:
+def reported_frames(recording: str | None, stream: str | None = None) -> set[int]:
+    """The frames a stage reported a problem with (an ``ErrorReport`` on ``gflow/<stream>/errors``)."""
+    if not recording or not Path(recording).is_file():
+        return set()
+    out: set[int] = set()
+    for r in iter_records(recording, topics=[f"gflow/{stream}/errors"] if stream else None):
+        if not r.topic.endswith("/errors"):
+            continue
+        try:
+            m = decode(r.data)
+        except MessageError:
+            continue
+        if isinstance(m, ErrorReport):
+            out.add(m.header.seq)
+    return out
+
+
+def completeness(est: dict, expected: range | None, reported: set[int] | None = None) -> list[str]:
     """Lines saying which frames have no estimate and which coasted (empty: every frame tracked).
 
-    expected : the frames the source was to send (None: from the first to the last estimate)."""
+    expected : the frames the source was to send (None: from the first to the last estimate).
+    reported : the frames a stage reported a problem with (:func:`reported_frames`): a coasted frame
+        among them had no usable input; one not among them was read, but held no evidence for the
+        tracker (the contour trackers' blank frame: fewer edge pixels than ``min_edges``, M2 sec. 5.1.2).
+    """
     if expected is None:
         expected = range(min(est), max(est) + 1) if est else range(0)
     missing = [f for f in expected if f not in est]
     coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast"]
+    reported = reported or set()
+    bad = [f for f in coasted if f in reported]
+    blank = [f for f in coasted if f not in reported]
     lines = []
     if missing:
         lines.append(f"{len(missing)} frame(s) have no estimate: {frame_ranges(missing)}")
-    if coasted:
-        lines.append(f"{len(coasted)} frame(s) coasted on the dynamics (no usable input): {frame_ranges(coasted)}")
+    if bad:
+        lines.append(f"{len(bad)} frame(s) coasted on the dynamics (no usable input, reported in the errors): "
+                     f"{frame_ranges(bad)}")
+    if blank:
+        lines.append(f"{len(blank)} frame(s) coasted on the dynamics: the frame was read but held no evidence "
+                     f"(fewer edge pixels than the tracker's min_edges: a blank frame, M2 sec. 5.1.2): "
+                     f"{frame_ranges(blank)}")
     return lines
 
 
@@ -266,7 +295,7 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunO
     sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
             if est and topic and recording else set())
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
-    lines = completeness(est, expected) + sessions.lines()
+    lines = completeness(est, expected, reported_frames(recording, plan.stream)) + sessions.lines()
     if heard:
         lines.append(f"{len(heard)} frame(s) missing from the recording were kept from the live stream: "
                      f"{frame_ranges(heard)}")

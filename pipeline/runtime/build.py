@@ -9,7 +9,7 @@ import msgspec
 from stages.base import Stage, StageContext
 from stages.registry import get_stage_class
 
-from pipeline.runtime.graph import Plan, StagePlan
+from pipeline.runtime.graph import GraphError, Plan, StagePlan
 
 __all__ = ["make_stage", "apply_defaults"]
 
@@ -43,6 +43,24 @@ def make_stage(plan: Plan, name: str) -> Stage:
     params = msgspec.convert(sp.params, cls.Params)
     return cls(params, StageContext(name=name, stream=plan.seed_stream, resources=load_resources(plan, sp),
                                     frame_period_ns=frame_period_ns(plan)))
+
+
+def check_stages(plan: Plan, names) -> None:
+    """Build each stage of ``names`` (not the source, not the recorder) once, here, so a stage that
+    cannot start (a filter without its initial box, a missing model) is a :class:`GraphError`
+    naming it before any process starts or any recording is made. Building a stage is cheap: its
+    parameters and resources, no frame."""
+    for name in names:
+        sp = plan.stages[name]
+        if sp.kind == "recorder" or sp.is_source():
+            continue
+        try:
+            make_stage(plan, name)
+        except (ValueError, TypeError, KeyError, OSError, msgspec.ValidationError) as e:
+            msg = " ".join(str(e).split())
+            hint = (f" (on the command line: --set {name}.init=[X,Y,W,H])"
+                    if "init:" in msg and "set init" in msg else "")
+            raise GraphError(f"stage {name!r} ({sp.kind}) cannot start: {msg}{hint}") from None
 
 
 def apply_defaults(plan: Plan) -> Plan:

@@ -37,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import re
+import secrets
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -47,6 +48,7 @@ import msgspec
 from stages.base import Params
 from stages.registry import STAGES
 
+from pipeline.io.recording_files import unique_path
 from pipeline.runtime.transport import topic_key
 
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
@@ -61,7 +63,9 @@ ON_HOST_LOST = ("stop", "wait")
 class RecorderParams(Params, frozen=True):  # frozen as its base (msgspec inherits it; said for mypy)
     """The recorder: every message on ``gflow/<stream>/**`` to one MCAP file.
 
-    path may contain ``{time}`` (YYYYmmdd-HHMMSS) and ``{name}`` (the graph name).
+    path may contain ``{time}`` (YYYYmmdd-HHMMSS), ``{name}`` (the graph name) and ``{run}`` (the run
+    id; a path with ``{time}`` and without ``{run}`` gets ``-RUNID`` before its suffix). A name that
+    is taken gets ``-2``, ``-3``...: a recording never overwrites a file.
     topics: which topics to keep, as shell patterns on the name after ``gflow/<stream>/``
     (``estimate``, ``_snapshot/*``, ``*``); errors, heartbeats and control are always kept, so
     a recording always says what went wrong.
@@ -222,7 +226,14 @@ class Plan:
         if rec is None:
             return None
         path = rec.params.get("path", RecorderParams().path)
-        return str(Path(self.base_dir, path.format(name=self.name, time=time.strftime("%Y%m%d-%H%M%S"))))
+        # the run id (demo-3f9c2a: pipeline/runtime/runid.py), or a fresh one for a run without
+        # (--inline): two runs started in the same second never share a name
+        cam = self.camera or ""
+        run = self.stream[len(cam) + 1:] if cam and self.stream.startswith(cam + "-") else secrets.token_hex(3)
+        p = Path(self.base_dir, path.format(name=self.name, time=time.strftime("%Y%m%d-%H%M%S"), run=run))
+        if "{run}" not in path and "{time}" in path:
+            p = p.with_name(f"{p.stem}-{run}{p.suffix}")
+        return str(unique_path(p))
 
 
 #: the key chunk of the per-step progress heartbeats (:meth:`Plan.progress_topic`)

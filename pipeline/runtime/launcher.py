@@ -101,14 +101,16 @@ class Launcher:
     threads_per_stage : compute threads (OpenCV, BLAS, OpenMP) each stage process may use.
     stall_timeout : seconds without progress before the run stops (default ``GFLOW_STALL_S``, 30).
     hosts : the host labels this launcher starts the stages of (placement; all stages without).
+    say_recording : print "recording to PATH" (not for a temporary recording: ``--no-record``).
     """
 
     def __init__(self, plan: Plan, zenoh: ZenohSettings | None = None, recording: str | None = None,
                  out: TextIO | None = None, progress: bool = True, startup_timeout: float = 60.0,
                  total_frames: int | None = None, on_status: Callable[[dict[str, StageStatus]], None] | None = None,
                  threads_per_stage: int = 1, stall_timeout: float | None = None,
-                 hosts: tuple[str, ...] = ()) -> None:
+                 hosts: tuple[str, ...] = (), say_recording: bool = True) -> None:
         self.plan = plan
+        self.say_recording = say_recording  # False: a temporary recording the user asked not to keep
         # placement: the stages this host starts (all of them without ``hosts``)
         self.local = local_stages(plan, hosts)
         self.hosts = tuple(hosts)
@@ -210,7 +212,7 @@ class Launcher:
         try:
             # the stage processes fork from the zygote the gflow command started first, when there is one
             sup.start(recorder + workers, node_plan, take() if self.threads_per_stage == 1 else None)
-            if recorder and self.recording:
+            if recorder and self.recording and self.say_recording:
                 self.console.say(f"recording to {self.recording}")
             self._await_heartbeats(watch, t0)
             mark("launcher heard all")

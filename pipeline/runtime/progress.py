@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Callable, TextIO
 
-from stages.messages import ErrorReport, StageStatus, decode
+from stages.messages import NOTICE_KINDS, ErrorReport, StageStatus, decode
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import Bus
@@ -129,8 +129,10 @@ class ProgressMonitor:
         if isinstance(msg, ErrorReport):
             with self.lock:
                 self.errors.append(msg)
-                n = len(self.errors)
-            if n <= PRINTED_ERRORS:
+                n = sum(e.kind not in NOTICE_KINDS for e in self.errors)
+            if msg.kind in NOTICE_KINDS:  # a live stream's reconnect or end: news, not an error
+                self.console.say(f"{msg.stage}: {msg.message}")
+            elif n <= PRINTED_ERRORS:
                 self.console.say(f"error from {msg.stage} [{msg.kind}] {msg.message}")
             elif n == PRINTED_ERRORS + 1:
                 self.console.say("more errors: counting them without printing (see the recording's errors topic)")

@@ -27,7 +27,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-__all__ = ["runtime_dir", "Announcement", "announce", "running", "describe_none", "runs_of_camera"]
+__all__ = ["runtime_dir", "Announcement", "announce", "running", "describe_none", "runs_of_camera", "await_running"]
 
 
 def runtime_dir() -> Path:
@@ -88,17 +88,26 @@ def announce(stream: str, endpoints: list[str] | tuple[str, ...], *, name: str =
     return a
 
 
-def running(stream: str | None = None) -> list[dict]:
-    """Every live announcement (oldest first), optionally of one stream; stale files are removed."""
+def running(stream: str | None = None, everyone: bool = False) -> list[dict]:
+    """Every live announcement (oldest first), optionally of one stream; stale files are removed.
+
+    Only the user's own pipelines (announcement files this user owns: a runtime folder shared
+    between users, ``GFLOW_RUNTIME_DIR`` say, holds others' too), unless ``everyone``; each
+    announcement says its owner's uid as ``uid``."""
     d = runtime_dir()
     out = []
+    me = os.getuid() if hasattr(os, "getuid") else 0
     for f in sorted(d.glob("*.json")) if d.is_dir() else []:
         try:
+            uid = f.stat().st_uid
+            if uid != me and not everyone:
+                continue  # another user's pipeline
             info = json.loads(f.read_text())
             pid = int(info["pid"])
+            info["uid"] = uid
         except (OSError, ValueError, KeyError, TypeError):
             continue  # being written, or not ours
-        if not _alive(pid):
+        if not _alive(pid) and uid == me:
             try:
                 f.unlink()
             except OSError:
@@ -120,3 +129,16 @@ def runs_of_camera(camera: str) -> list[dict]:
     """The running pipelines whose graph's stream is ``camera`` (each run has its own stream,
     ``demo-3f9c2a`` for the graph stream ``demo``)."""
     return [i for i in running() if i.get("camera") == camera and i.get("stream") != camera]
+
+
+def await_running(stream: str | None = None, until: float | None = None, poll: float = 0.1) -> bool:
+    """Wait until a pipeline is announced (of ``stream``: its run's stream or its graph's), or the
+    monotonic time ``until`` (None: no end); True when one runs. For a tool started before its run."""
+    def found() -> bool:
+        return any(stream is None or stream in (i.get("stream"), i.get("camera")) for i in running())
+
+    while not found():
+        if until is not None and time.monotonic() >= until:
+            return False
+        time.sleep(poll)
+    return True

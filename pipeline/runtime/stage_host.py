@@ -39,8 +39,8 @@ if TYPE_CHECKING:
 
 from stages.base import Stage, StageInputError
 from stages.messages_foxglove import FOXGLOVE_SCHEMAS
-from stages.messages import (EndOfStream, ErrorReport, Features, Frame, Header, MessageError, NDArray, Particles,
-                             Snapshot, decode, encode)
+from stages.messages import (NOTICE_KINDS, EndOfStream, ErrorReport, Features, Frame, Header, MessageError, NDArray,
+                             Particles, Snapshot, decode, encode)
 
 __all__ = ["StageHost", "Publish", "AHEAD_LIMIT"]
 
@@ -136,9 +136,12 @@ class StageHost:
 
     # -- errors ------------------------------------------------------------------------------
     def report(self, kind: str, message: str, seq: int = -1, topic: str = "") -> None:
-        self.stats.errors += 1
-        self.stats.last_error = f"{kind}: {message}"
-        log.warning("[%s] %s: %s", self.name, kind, message)
+        if kind in NOTICE_KINDS:  # a live stream's reconnect or end: news, not an error
+            log.info("[%s] %s: %s", self.name, kind, message)
+        else:
+            self.stats.errors += 1
+            self.stats.last_error = f"{kind}: {message}"
+            log.warning("[%s] %s: %s", self.name, kind, message)
         err = ErrorReport(header=Header(self.stage.ctx.stream, max(seq, 0), 0), stage=self.name, kind=kind,
                           message=message, topic=topic)
         self.publish(self.error_topic, encode(err), max(seq, 0), "ErrorReport")

@@ -8,7 +8,8 @@ ORDER = 57
 
 from pipeline.io.mcap_io import iter_records, segments
 from pipeline.recording.live_record import live_summary
-from pipeline.recording.results import completeness, estimate_columns, renumber, run_estimates, write_boxes
+from pipeline.recording.results import (completeness, estimate_columns, renumber, reported_frames, run_estimates,
+                                       write_boxes)
 from pipeline.cli.commands.common import CliError
 
 
@@ -29,7 +30,7 @@ def cmd_boxes(args) -> int:
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))
     for line in torn + sessions.lines():
         print(f"  {line}")
-    gaps = completeness(est, None)
+    gaps = completeness(est, None, reported_frames(args.recording, args.stream))
     for line in gaps:
         print(f"  {line}")
     return 3 if any("no estimate" in g for g in gaps) else 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import sys
 import time
@@ -12,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.runtime.graph import Plan
-from pipeline.runtime.transport import ZenohSettings, free_port
+from pipeline.runtime.transport import SessionError, ZenohSettings, free_port
 from pipeline.cli.security_options import add_security_args, apply_security
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -201,9 +202,12 @@ class Recording:
         if pats:
             rec.params["topics"] = pats + [t for t in needed if t not in pats]
         self.path = getattr(args, "record", None) or default
+        from pipeline.io.recording_files import refuse_existing
         from pipeline.runtime.preflight import check_writable
 
-        path = self.path or plan.recording_path()
+        if self.path:  # a recording never overwrites a file (the recorder also creates it exclusively)
+            refuse_existing(self.path, "--record" if getattr(args, "record", None) else "the recording")
+        path = self.path or plan.recording_path()  # None: named when the run starts, with its run id
         assert path is not None  # the plan has its recorder
         given = bool(getattr(args, "record", None))  # the default recordings/ folder is made; a typed one must exist
         check_writable(path, "--record" if given else "the recording", make_folder=not given)  # before any work
@@ -212,6 +216,17 @@ class Recording:
     def kept(self) -> str:
         """How to name the recording to the user."""
         return "none (--no-record)" if self.temporary or self.path is None else str(self.path)
+
+    def written(self, path: str | None) -> None:
+        """The path the run recorded to (a default one is named when the run starts); a note when
+        its folder holds more than ``GFLOW_RECORDINGS_WARN_MB`` of recordings."""
+        if not self.temporary and path:
+            self.path = path
+            from pipeline.io.recording_files import size_warning
+
+            note = size_warning(Path(path).parent)
+            if note:
+                print(note, file=sys.stderr)
 
     def cleanup(self) -> None:
         if self.tmpdir:
@@ -261,6 +276,11 @@ def place(plan: Plan, args) -> tuple[str, ...]:
     return hosts
 
 
+def temporary_recording(path: str | None) -> bool:
+    """A recording :class:`Recording` made for ``--no-record`` (read back, then removed)."""
+    return bool(path) and Path(str(path)).parent.name.startswith("gflow-norecord-")
+
+
 def _startup_failure(plan: Plan, launcher, message: str) -> str:
     """What to tell the user when a run could not start. A live source that cannot be opened says
     so itself, in one line naming it and what FFmpeg said; the recording, which holds nothing but
@@ -303,24 +323,32 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
 
     preload(s.kind for s in plan.stages.values())  # the stage processes' zygote imports their modules (once)
 
-    launcher = Launcher(plan, zenoh=launcher_zenoh(args), recording=recording, progress=not quiet,
-                        total_frames=total, hosts=hosts)
-    endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
-    if not quiet:
-        here = ", ".join(n for n in plan.stages if n in launcher.local)
-        where = f"host {', '.join(hosts)} ({here}); " if hosts else ""
-        reach = (f"a client of {', '.join(launcher.zenoh.connect)}" if launcher.zenoh.mode == "client"
-                 else f"listening on {', '.join(endpoints)}")
-        print(f"{plan.name}: {where}{reach} (stream {plan.stream}; gflow ps, topics, echo and hz find it)",
-              file=sys.stderr)
-    rec = plan.recorder()
-    with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
-                  camera=plan.seed_stream,
-                  recording=launcher.recording if rec and rec.name in launcher.local else None):
-        try:
-            res = launcher.run()
-        except RuntimeError as e:  # start-up: a stage died, a host did not come, the stream is taken
-            raise CliError(_startup_failure(plan, launcher, str(e))) from None
+    zenoh = launcher_zenoh(args)
+    while True:
+        launcher = Launcher(plan, zenoh=zenoh, recording=recording, progress=not quiet,
+                            total_frames=total, hosts=hosts, say_recording=not temporary_recording(recording))
+        endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
+        if not quiet:
+            here = ", ".join(n for n in plan.stages if n in launcher.local)
+            where = f"host {', '.join(hosts)} ({here}); " if hosts else ""
+            reach = (f"a client of {', '.join(launcher.zenoh.connect)}" if launcher.zenoh.mode == "client"
+                     else f"listening on {', '.join(endpoints)}")
+            print(f"{plan.name}: {where}{reach} (stream {plan.stream}; gflow ps, topics, echo and hz find it)",
+                  file=sys.stderr)
+        rec = plan.recorder()
+        with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
+                      camera=plan.seed_stream,
+                      recording=launcher.recording if rec and rec.name in launcher.local else None):
+            try:
+                res = launcher.run()
+            except SessionError as e:  # 7447, free a moment ago, taken by a run started at the same time
+                if args.listen or zenoh.listen != (DEFAULT_ENDPOINT,) or "in use" not in str(e):
+                    raise CliError(str(e)) from None
+                zenoh = dataclasses.replace(zenoh, listen=(f"tcp/127.0.0.1:{free_port()}",))
+                continue  # nothing had started: the session is the launcher's first step
+            except RuntimeError as e:  # start-up: a stage died, a host did not come, the stream is taken
+                raise CliError(_startup_failure(plan, launcher, str(e))) from None
+        break
     if res.interrupted:
         print("interrupted: stages stopped, recording closed", file=sys.stderr)
     for n, ex in res.exits.items():

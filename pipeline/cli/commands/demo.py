@@ -23,27 +23,40 @@ def cmd_demo(args) -> int:
     overrides = {"source": {"frames": args.frames}, "filter": {"particles": args.particles, "seed": args.seed},
                  "proposal": {"seed": args.seed}}
     plan = apply_defaults(load_graph("demo", overrides=overrides))
-    recording = Recording(plan, args, plan.recording_path(), needed=("estimate",))
+    recording = Recording(plan, args, None, needed=("estimate",))  # named with the run id when it starts
     print(f"gflow demo: synthetic scene, {args.frames} frames, {args.particles} particles, "
           f"{'inline' if args.inline else 'one process per stage over zenoh'}", file=sys.stderr)
     try:
         path, secs, frames, info = run_plan(plan, args, recording.path, args.frames)
+        recording.written(path)
         est = {k: v.box for k, v in estimates(path).items()}
     finally:
         recording.cleanup()
     sp = plan.stages["source"].params
     scene = SyntheticScene(width=sp.get("width", 320), height=sp.get("height", 240), n_frames=args.frames,
                            seed=sp.get("scene_seed", 0), noise=sp.get("noise", 4.0))
-    truth = {t: scene.truth_box(t) for t in range(args.frames)}
-    s = score(truth, est)
+    # a run stopped early (a stop control, Ctrl-C) is scored over the frames it ran, up to its last
+    # estimate: not charged with the frames it never ran, nor those the stop caught in flight (a
+    # frame missing before the last estimate still counts as a failure)
+    sent = min(frames, args.frames)
+    ran = args.frames if sent >= args.frames else (max(est) + 1 if est else 0)
+    truth = {t: scene.truth_box(t) for t in range(ran)}
     print(f"recording: {recording.kept}")
     print(f"frames: {frames}   wall time: {secs:.2f} s   end-to-end rate: {frames / secs:.1f} frames/s "
           f"(wall time, including start-up)")
     if info.get("fps"):
         print("per-stage rate while running (frames/s, last heartbeat): "
               + ", ".join(f"{n} {v:.1f}" for n, v in info["fps"].items() if v))
-    print(f"tracking error vs ground truth: CLE {s.cle:.2f} px, mean overlap {s.mean_overlap:.3f}, "
-          f"success@0.5 {s.success:.3f} over {s.frames} frames")
+    if ran < args.frames:
+        print(f"stopped after {sent} of {args.frames} frames" + (f" ({sent - ran} in flight when it stopped, not scored)"
+                                                                  if sent > ran else ""))
+    if not truth or not est:
+        print("tracking error vs ground truth: no frame was tracked")
+    else:
+        s = score(truth, est)
+        print(f"tracking error vs ground truth: CLE {s.cle:.2f} px, mean overlap {s.mean_overlap:.3f}, "
+              f"success@0.5 {s.success:.3f} over {s.frames} frames"
+              + (f" ({s.missing} without an estimate)" if s.missing else ""))
     return 130 if info.get("interrupted") else 0
 
 
@@ -57,7 +70,7 @@ def register(sub) -> None:
     p.add_argument("--particles", type=int, default=500, help="number of particles (default 500)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the filter and proposal stages")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
-    add_record_args(p, "recordings/demo-TIME.mcap")
+    add_record_args(p, "recordings/demo-TIME-RUNID.mcap")
     add_placement_args(p, hosts=False)
     add_zenoh_args(p)
     p.set_defaults(func=cmd_demo)

@@ -10,9 +10,19 @@ ORDER = 54
 
 
 def cmd_diff(args) -> int:
+    from pipeline.io.mcap_io import recorded_topics
     from pipeline.recording.diff import diff_recordings
+    from pipeline.recording.topics import TopicError, select_topics
+    from pipeline.cli.commands.common import CliError
 
-    res = diff_recordings(args.a, args.b, args.topics)
+    topics = None
+    if args.topics:  # as typed (estimate, gflow/demo/estimate, *): one that names nothing is an error
+        try:
+            topics = select_topics(args.topics, set(recorded_topics(args.a)) | set(recorded_topics(args.b)),
+                                   where=f"{args.a} or {args.b}")
+        except TopicError as bad:
+            raise CliError(str(bad)) from None
+    res = diff_recordings(args.a, args.b, topics)
     if args.json:
         print(json.dumps({t: {"types": sorted(d.types), "same": d.same, "differ": d.differ, "only_a": d.only_a,
                               "only_b": d.only_b, "first_divergence": d.first_divergence,
@@ -52,7 +62,8 @@ def register(sub) -> None:
                                    "pose difference per frame. Exit status 1 if they differ.")
     p.add_argument("a", help="first recording")
     p.add_argument("b", help="second recording")
-    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (full names)")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics: the name in the stream (estimate), the full name with or without "
+                        "the run id (gflow/demo/estimate), or a shell pattern (gflow/*/estimate)")
     p.add_argument("--frames", action="store_true", help="print the estimate difference of every frame")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_diff)

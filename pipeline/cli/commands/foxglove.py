@@ -12,16 +12,26 @@ from pipeline.cli.commands.common import CliError, check_outputs
 
 def cmd_foxglove(args) -> int:
     from pipeline.recording.foxglove_export import export_for_foxglove
+    from pipeline.recording.topics import describe_topics
 
     if not Path(args.recording).is_file():
         raise CliError(f"recording not found: {args.recording}")
     if os.path.abspath(args.recording) == os.path.abspath(args.out):
         raise CliError("OUT must be a new file, not the recording itself")
     check_outputs(OUT=args.out)
-    s = export_for_foxglove(args.recording, args.out, image_format=args.image_format, quality=args.quality)
-    print(f"wrote {args.out}: {s.messages} messages on {len(s.by_topic)} topics, as JSON Foxglove decodes"
-          + (f"; left out {sum(s.left_out.values())} binary messages ({', '.join(sorted(s.left_out))})"
-             if s.left_out else ""))
+    topics = None
+    if args.topics:  # as typed (frames, gflow/cam0/estimate, *): one that names nothing is an error
+        from pipeline.cli.commands.recording import recording_topics
+
+        topics = recording_topics(args.recording, args.topics)
+    s = export_for_foxglove(args.recording, args.out, image_format=args.image_format, quality=args.quality,
+                            topics=topics)
+    print(f"wrote {args.out}: {s.messages} messages on {len(s.by_topic)} topics: "
+          f"{describe_topics(s.by_topic, counts=s.by_topic)}")
+    left = ([f"{describe_topics(s.left_out, counts=s.left_out)} (binary arrays Foxglove cannot show)"]
+            if s.left_out else []) + ([f"{s.markers} end-of-stream markers"] if s.markers else [])
+    if left:
+        print("left out: " + "; ".join(left))
     return 0
 
 
@@ -30,11 +40,15 @@ def register(sub) -> None:
                        description="gflow records its messages as MessagePack, which Foxglove cannot decode. This "
                                    "writes a copy with the frames as foxglove.CompressedImage, the render stage's "
                                    "images and annotations as they are, and the estimates (box, pose, ESS, state), "
-                                   "errors and heartbeats as JSON for the Plot panel. Features, particles and "
-                                   "snapshots are left out. Keep the original for rerun, diff and step.",
+                                   "errors and heartbeats as JSON for the Plot panel, and each estimate's box as "
+                                   "foxglove.ImageAnnotations on gflow/STREAM/box (an Image panel on frames draws it). "
+                                   "Features, particles and snapshots are left out. Keep the original for rerun, diff and step.",
                        epilog="example: gflow foxglove run.mcap run-foxglove.mcap   (then open it in Foxglove)")
     p.add_argument("recording", help="gflow MCAP recording")
     p.add_argument("out", help="the copy to write (.mcap)")
     p.add_argument("--image-format", choices=["jpeg", "png"], default="jpeg", help="frames as (default jpeg)")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC",
+                   help="copy only these topics: the name in the stream (frames estimate), the full name with or "
+                        "without the run id, or a shell pattern")
     p.add_argument("--quality", type=int, default=90, help="JPEG quality 1-100 (default 90)")
     p.set_defaults(func=cmd_foxglove)

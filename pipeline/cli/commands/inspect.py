@@ -35,15 +35,49 @@ def _run_stream(stream: str) -> str:
     return stream
 
 
+def _in_stream(topic: str) -> bool:
+    """A topic typed as the name inside a stream: ``estimate``, ``_status/filter`` (the names with
+    a ``/`` inside a stream all start with ``_``); ``cam0/estimate`` names its stream."""
+    return not topic.startswith("gflow/") and ("/" not in topic or topic.startswith("_"))
+
+
+def _key_expr(topic: str) -> str:
+    """A topic as typed, with shell wildcards, as a zenoh key expression (``est*`` -> ``est$*``)."""
+    return "/".join(c if c in ("*", "**") else c.replace("*", "$*").replace("?", "$*") for c in topic.split("/"))
+
+
 def _key(topic: str) -> str:
-    """``gflow/STREAM/NAME`` for a topic given with or without ``gflow/``, STREAM resolved by
-    :func:`_run_stream`."""
+    """The key expression for a topic as the user typed it (pipeline/recording/topics.py): the name
+    in the stream (``estimate``: of the one pipeline running, or of any while none or several run),
+    the full name with or without ``gflow/`` and with or without the run id (STREAM resolved by
+    :func:`_run_stream`), shell wildcards."""
+    from pipeline.runtime.running import running
+
+    if _in_stream(topic):  # of the one pipeline running, or of any while none or several run
+        streams = sorted({str(i.get("stream")) for i in running()})
+        return _key_expr(f"gflow/{streams[0] if len(streams) == 1 else '*'}/{topic}")
     key = topic if topic.startswith("gflow/") else f"gflow/{topic}"
     stream = stream_of(key)
     if stream is None:
-        return key
+        return _key_expr(key)
     parts = key.split("/", 2)
-    return "/".join(["gflow", _run_stream(stream), *parts[2:]])
+    return _key_expr("/".join(["gflow", _run_stream(stream), *parts[2:]]))
+
+
+def _await_pipeline(args, topic: str | None, wait: float) -> None:
+    """Wait up to ``wait`` s for a pipeline to be announced on this machine (of the stream ``topic``
+    names, if it names one), so a tool started before its run does not give up at once."""
+    from pipeline.runtime.running import await_running
+
+    if wait <= 0 or args.connect or args.mode == "router" or args.multicast:
+        return
+    stream = stream_of(topic if topic.startswith("gflow/") else f"gflow/{topic}") if topic and not _in_stream(
+        topic) else None
+    if await_running(stream, until=time.monotonic()):
+        return
+    print(f"waiting up to {wait:g} s for a pipeline" + (f" of stream {stream}" if stream else "") + " to start",
+          file=sys.stderr, flush=True)
+    await_running(stream, until=time.monotonic() + wait)
 
 
 def _say_where(found: list[dict]) -> None:
@@ -67,6 +101,7 @@ def cmd_topics(args) -> int:
 def cmd_echo(args) -> int:
     from pipeline.cli.live import echo
 
+    _await_pipeline(args, args.topic, args.timeout or 0.0)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     if not args.json:
@@ -82,9 +117,10 @@ def cmd_echo(args) -> int:
 def cmd_hz(args) -> int:
     from pipeline.cli.live import hz
 
-    key = _key(args.topic)
     if args.window is not None and args.window < 1:
         raise CliError(f"--window must be at least 1 gap, got {args.window}")
+    _await_pipeline(args, args.topic, args.wait)  # --wait: also for a run that has not started yet
+    key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     _say_where(found)
     st = hz(settings, key, args.duration, wait=args.wait, window=args.window)
@@ -124,12 +160,23 @@ def _stage_states(settings, streams: list[str], seconds: float) -> dict[str, dic
     return out
 
 
+def _user(uid: int) -> str:
+    try:
+        import pwd
+
+        return pwd.getpwuid(uid).pw_name
+    except (ImportError, KeyError):
+        return str(uid)
+
+
 def cmd_ps(args) -> int:
     from pipeline.runtime.running import describe_none, running, runtime_dir
 
-    found = running(args.stream)
+    found = running(args.stream, everyone=args.all)
     if not found:
-        print(describe_none(args.stream), file=sys.stderr)
+        others = [] if args.all else running(args.stream, everyone=True)
+        print(describe_none(args.stream) + (f" ({len(others)} of other users: gflow ps --all)" if others else ""),
+              file=sys.stderr)
         return 1
     if args.json:
         rows = []
@@ -144,7 +191,7 @@ def cmd_ps(args) -> int:
             continue
         up = time.time() - float(info.get("started", time.time()))
         print(f"{info.get('kind', 'pipeline')} {info.get('name')}  stream {info['stream']}  pid {info['pid']}  "
-              f"up {up:.0f} s  at {', '.join(info['endpoints'])}"
+              f"up {up:.0f} s  at {', '.join(info['endpoints'])}" + (f"  user {_user(info['uid'])}" if args.all else "")
               + (f"  recording {info['recording']}" if info.get("recording") else ""))
         for name in info.get("stages") or sorted(states):
             st = states.get(name)
@@ -213,10 +260,11 @@ def cmd_pub(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser("ps", help="list the running pipelines and the state of their stages",
-                       description="Lists the pipelines (and replays) running on this machine, as announced in the "
-                                   "user's runtime folder, with each stage's state, progress, rate and memory from "
-                                   "its heartbeat.")
+                       description="Lists the user's pipelines (and replays) running on this machine, as announced "
+                                   "in the user's runtime folder, with each stage's state, progress, rate and memory "
+                                   "from its heartbeat.")
     p.add_argument("--stream", help="only the pipeline of this stream")
+    p.add_argument("--all", action="store_true", help="also other users' pipelines (a runtime folder they share)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--listen-for", type=positive_float, default=1.2, metavar="S",
                    help="seconds to collect heartbeats (default 1.2; stages beat every 0.5 s)")
@@ -243,7 +291,8 @@ def register(sub) -> None:
                                    "Exits 1 when no message came.",
                        epilog="examples:\n  gflow echo gflow/demo/estimate -n 5\n  gflow echo demo/_status/* --json "
                               "--timeout 2", formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("topic", help="key expression, e.g. gflow/cam0/estimate or cam0/**")
+    p.add_argument("topic", help="the name in the stream (estimate), the full name with or without the run id "
+                                 "(gflow/cam0/estimate), or a pattern (cam0/**, _status/*)")
     p.add_argument("-n", "--count", type=int, help="stop after N messages")
     p.add_argument("--timeout", type=positive_float, help="stop after this many seconds")
     p.add_argument("--json", action="store_true", help="one JSON object per message (small arrays as lists)")
@@ -254,10 +303,13 @@ def register(sub) -> None:
                        description="Waits for the first message, then prints every second the average rate and the "
                                    "min / max / standard deviation of the gaps between messages, over a rolling "
                                    "window (like ros2 topic hz). Exits 1 when fewer than 2 messages came.")
-    p.add_argument("topic", help="key expression, e.g. gflow/cam0/frames")
+    p.add_argument("topic", help="the name in the stream (frames), the full name with or without the run id "
+                                 "(gflow/cam0/frames), or a pattern")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--window", type=int, metavar="N", help="statistics over the last N gaps (default: all)")
-    p.add_argument("--wait", type=positive_float, default=10.0, help="seconds to wait for the first message (default 10)")
+    p.add_argument("--wait", type=positive_float, default=10.0,
+                   help="seconds to wait for the first message, and for the pipeline to start when none runs yet "
+                        "(default 10)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_hz)
 

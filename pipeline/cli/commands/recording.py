@@ -14,16 +14,18 @@ from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_floa
 DESCRIBERS: dict = {}
 
 
-def describe_recording(path: str, as_json: bool) -> None:
+def describe_recording(path: str, as_json: bool) -> int:
     from pipeline.io.mcap_io import summarize
 
     from pipeline.recording.live_record import live_summary
 
     s = summarize(path)
     live = live_summary(path)  # None unless a live source made it
+    bad = s.unreadable
     if as_json:
-        print(json.dumps(dict(s.to_json(), **({"live": live.to_json()} if live else {})), indent=1))
-        return
+        print(json.dumps(dict(s.to_json(), **({"live": live.to_json()} if live else {}),
+                              unreadable=bad or None), indent=1))
+        return 1 if bad else 0
     print(f"file:      {s.path}")
     print(f"messages:  {s.messages}   duration: {s.duration_s:.3f} s")
     if s.segments:
@@ -44,6 +46,10 @@ def describe_recording(path: str, as_json: bool) -> None:
         for k, v in md.items():
             v1 = v if len(v) < 200 else v[:200] + f"... ({len(v)} chars)"
             print(f"  {k}: {v1}" if "\n" not in v1 else f"  {k}: |\n    " + v1.replace("\n", "\n    "))
+    if bad:  # exit 1: a script must not take this file for a good recording
+        print(f"gflow info: {path}: {bad} ({s.messages} messages read)", file=sys.stderr)
+        return 1
+    return 0
 
 
 DESCRIBERS[".mcap"] = describe_recording
@@ -71,8 +77,19 @@ def cmd_info(args) -> int:
     if fn is None:
         raise CliError(f"do not know how to describe {args.file} (known: {', '.join(sorted(DESCRIBERS))} files, or a "
                    f"tracker: {', '.join(sorted(TRACKERS))})")
-    fn(args.file, args.json)
-    return 0
+    return int(fn(args.file, args.json) or 0)
+
+
+def recording_topics(path: str, patterns: list[str]) -> list[str]:
+    """The topics of recording ``path`` that ``patterns`` name (:func:`pipeline.recording.topics.select_topics`);
+    a pattern matching none is a one-line error listing the recording's topics."""
+    from pipeline.io.mcap_io import recorded_topics
+    from pipeline.recording.topics import TopicError, select_topics
+
+    try:
+        return select_topics(patterns, recorded_topics(path), where=path)
+    except TopicError as e:
+        raise CliError(str(e)) from None
 
 
 def cmd_replay(args) -> int:
@@ -88,6 +105,8 @@ def cmd_replay(args) -> int:
     from pipeline.runtime.transport import free_port
 
     check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+    if args.topics:  # the names as typed (estimate, gflow/cam0/frames, *): refused before joining if none fits
+        opts.topics = recording_topics(args.file, args.topics)
 
     settings, found = tool_zenoh(args, require=False)  # joins the running pipelines, if any
     if not args.listen and settings.mode != "client":
@@ -126,7 +145,9 @@ def register(sub) -> None:
     g.add_argument("--speed", type=positive_float, default=1.0,
                    help="timing factor on the original timing, > 0 (default 1; 2 = twice as fast)")
     g.add_argument("--max", action="store_true", help="as fast as possible")
-    p.add_argument("--topics", nargs="+", metavar="TOPIC", help="only these topics (full names)")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC",
+                   help="only these topics: the name in the stream (frames), the full name with or without the "
+                        "run id (gflow/cam0/frames), or a shell pattern (gflow/*/estimate)")
     p.add_argument("--from-seq", type=int, metavar="SEQ", help="first frame to replay")
     p.add_argument("--to-seq", type=int, metavar="SEQ", help="stop before this frame")
     p.add_argument("--start", type=float, metavar="S", help="start this many seconds into the recording")

@@ -5,6 +5,7 @@ from __future__ import annotations
 ORDER = 56
 
 import os
+import sys
 
 
 def cmd_recover(args) -> int:
@@ -18,6 +19,9 @@ def cmd_recover(args) -> int:
     state = "the file was complete" if r.complete else f"the file ends early ({r.stopped_because})"
     print(f"recovered {r.messages} messages on {r.channels} channels and {r.metadata} metadata records "
           f"into {args.fixed}; {state}")
+    if r.messages == 0:  # exit 1: nothing was saved, whatever the file holds
+        print(f"gflow recover: nothing could be recovered from {args.broken}", file=sys.stderr)
+        return 1
     return 0
 
 

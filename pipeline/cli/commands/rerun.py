@@ -39,6 +39,38 @@ def _report(mismatches, compared: int, label: str, note: str = "") -> int:
     return 1
 
 
+def _cannot_check(path: str, plan, needs: set[str], compares: set[str], what: str) -> None:
+    """A :class:`CliError` saying what cannot be re-run or checked and why: the recording lacks
+    topics the re-run is fed (``needs``: it would step nothing) or every topic it is compared with
+    (``compares``); ``--record-topics`` chose what was kept."""
+    from pipeline.io.mcap_io import recorded_topics
+
+    have = set(recorded_topics(path))
+    missing = sorted(needs - have)
+    rec = plan.recorder()
+    kept = list(rec.params.get("topics") or ["*"]) if rec is not None else ["*"]
+    why = f" (it was recorded with --record-topics {','.join(kept)})" if "*" not in kept else ""
+    if missing:
+        it = "it is" if len(missing) == 1 else "they are"
+        raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in {path}{why}, and a re-run is fed "
+                       f"what was recorded; record every topic (or these too) to check {what}")
+    if compares and not compares & have:
+        raise CliError(f"cannot check {what}: none of its outputs ({', '.join(sorted(compares))}) is in {path}{why}, "
+                       f"so there is nothing to compare with")
+
+
+def _chosen(args, outputs: set[str]) -> set[str]:
+    """The outputs ``--topics`` names (as typed: estimate, gflow/demo/estimate, patterns), or all."""
+    if not args.topics:
+        return outputs
+    from pipeline.recording.topics import TopicError, select_topics
+
+    try:
+        return set(select_topics(args.topics, outputs, where="the re-run's outputs"))
+    except TopicError as e:
+        raise CliError(str(e)) from None
+
+
 def cmd_rerun(args) -> int:
     from pipeline.recording.rerun import (check_outputs, ends_note, recorded_outputs, recorded_plan, rerun_graph, rerun_stage,
                          write_rerun)
@@ -48,16 +80,25 @@ def cmd_rerun(args) -> int:
     from pipeline.cli.commands.common import check_outputs as check_output_paths
 
     check_output_paths(out=args.out)
+    if args.out:  # a recording never overwrites a file
+        from pipeline.io.recording_files import refuse_existing
+
+        refuse_existing(args.out, "--out")
     if args.graph:
         if args.from_seq is not None:
             raise CliError("--from works with --stage (a whole-graph re-run starts at the first frame)")
         sets = parse_sets(args.set)
-        out = args.out or str(Path(args.file).with_suffix("")) + "-rerun.mcap"
+        plan0 = recorded_plan(args.file)
+        _cannot_check(args.file, plan0, {t for s in plan0.stages.values() if s.is_source() for t in s.outputs.values()},
+                      set(), "the graph")
+        from pipeline.io.recording_files import unique_path
+
+        out = args.out or str(unique_path(str(Path(args.file).with_suffix("")) + "-rerun.mcap"))
         t0 = time.perf_counter()
         plan, res = rerun_graph(args.file, out, sets)
         print(f"re-ran the whole graph from the recorded frames: {res.frames} frames in {time.perf_counter() - t0:.2f} s; "
               f"new recording: {out}")
-        topics = {t for s in plan.stages.values() for t in s.outputs.values()}
+        topics = _chosen(args, {t for s in plan.stages.values() for t in s.outputs.values()})
         from pipeline.io.mcap_io import iter_records
 
         new = [(r.topic, r.seq, r.data) for r in iter_records(out, topics=sorted(topics)) if r.type != "ErrorReport"]
@@ -68,6 +109,14 @@ def cmd_rerun(args) -> int:
     if not args.stage:
         raise CliError("say which stage to re-run with --stage NAME, or --graph for all of them")
     stage_sets = _stage_sets(args.set)
+    plan = recorded_plan(args.file)
+    if args.stage in plan.stages:  # an unknown stage: rerun_stage names the graph's
+        sp = plan.stages[args.stage]
+        produced = {t for s in plan.stages.values() for t in s.outputs.values()}
+        _cannot_check(args.file, plan, set(sp.inputs.values()) & produced, set(sp.outputs.values()),
+                      f"stage {args.stage}")
+        topics = set(sp.outputs.values()) | ({plan.snapshot_topic(args.stage)} if sp.snapshot_every else set())
+        topics = _chosen(args, topics)  # before the re-run: a name that fits no output is the first thing to say
     res = rerun_stage(args.file, args.stage, stage_sets, args.from_seq)
     if res.note:
         print(f"note: {res.note}", file=sys.stderr)
@@ -75,7 +124,6 @@ def cmd_rerun(args) -> int:
     start = f" from the snapshot at frame {res.restored_from}" if res.restored_from is not None else (
         f" from frame {res.start_after + 1}" if res.start_after >= 0 else "")
     print(f"re-ran {args.stage}{start}: {res.steps} steps in {res.seconds:.3f} s ({fps:.1f} steps/s)")
-    plan = recorded_plan(args.file)
     if args.out:
         if stage_sets:
             from pipeline.recording.rerun import apply_sets
@@ -83,14 +131,11 @@ def cmd_rerun(args) -> int:
             apply_sets(plan, args.stage, stage_sets)
         write_rerun(args.file, args.out, plan, res, stage_sets)
         print(f"new recording: {args.out} (compare with: gflow diff {args.file} {args.out})")
-    topics = set(plan.stages[args.stage].outputs.values())
-    if plan.stages[args.stage].snapshot_every:
-        topics.add(plan.snapshot_topic(args.stage))
     old = recorded_outputs(args.file, topics, res.start_after)
     # error reports are diagnostics, left out on both sides: a live stage's report of a frame it
     # stepped without a late input is in the recording, and the re-run makes it again (its text
     # names the live wait in seconds)
-    new = [o for o in res.outputs if o[0] != plan.error_topic]
+    new = [o for o in res.outputs if o[0] != plan.error_topic and o[0] in topics]
     bad = check_outputs(old, new, res.start_after)
     rc = _report(bad, len(old), args.stage, ends_note(old))
     return rc if (args.check or not stage_sets) and rc else 0
@@ -117,4 +162,7 @@ def register(sub) -> None:
                    help="start from the nearest snapshot before frame SEQ")
     p.add_argument("--out", metavar="NEW.mcap", help="write the re-run to a new recording")
     p.add_argument("--check", action="store_true", help="exit 1 at any difference from the recorded outputs")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC",
+                   help="compare only these outputs: the name in the stream (estimate), the full name with or "
+                        "without the run id, or a shell pattern")
     p.set_defaults(func=cmd_rerun)

@@ -6,7 +6,7 @@ ORDER = 40
 
 import sys
 
-from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.build import apply_defaults, check_stages
 from pipeline.runtime.graph import builtin_graphs, load_graph
 from pipeline.runtime.live_plan import listen_early, prepare_live
 from pipeline.runtime.placement import local_stages
@@ -18,18 +18,20 @@ def cmd_run(args) -> int:
     check_outputs(record=args.record)
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     held = plan.recorder()
-    local_stages(plan, args.hosts)  # an unknown --host label is the first thing to say
+    local = local_stages(plan, args.hosts)  # an unknown --host label is the first thing to say
+    check_stages(plan, local)  # a stage that cannot start (no initial box, say): before any process or recording
     if args.record and args.hosts and held is not None and held.host not in args.hosts:
         raise CliError(f"--record: the recorder runs on host {held.host}, not on {', '.join(args.hosts)}; "
                        f"give --record to the command of host {held.host}")
     recording = Recording(plan, args, None)
     prepare_live(plan)  # a live source: timed proposals, skipped frames if recorded (docs/live.md)
-    listeners = listen_early(plan, local_stages(plan, args.hosts), say=lambda line: print(line, file=sys.stderr))
+    listeners = listen_early(plan, local, say=lambda line: print(line, file=sys.stderr))
     try:
         path, secs, frames, info = run_plan(plan, args, recording.path, None)
     finally:
         for relay in listeners:
             relay.close()
+    recording.written(path)
     hosts = f" (host {', '.join(args.hosts)})" if args.hosts else ""
     rec = path or recording.kept
     if args.hosts and held is not None and held.host not in args.hosts:

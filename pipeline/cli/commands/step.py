@@ -13,14 +13,15 @@ HELP = """commands:
   h            this help                  q       quit"""
 
 
-def _show(view, out) -> None:
+def _show(view, out, outputs: set[str] | None = None) -> None:
     print(f"--- frame {view.seq} " + "-" * 50, file=out)
     print("inputs:", file=out)
     for p, d in view.inputs.items():
         print(f"  {p:10s} {d}", file=out)
     print("outputs:", file=out)
     for p, d in view.outputs:
-        print(f"  {p:10s} {d}", file=out)
+        if outputs is None or p in outputs:
+            print(f"  {p:10s} {d}", file=out)
     for e in view.errors:
         print(f"  error    {e}", file=out)
     print("state:   " + json.dumps(view.summary, default=str), file=out)
@@ -31,6 +32,16 @@ def cmd_step(args) -> int:
 
     st = Stepper(args.file, args.stage)
     out = sys.stdout
+    shown = None
+    if args.topics:  # the outputs to show, as typed (estimate, gflow/demo/estimate, patterns)
+        from pipeline.cli.commands.common import CliError
+        from pipeline.recording.topics import TopicError, select_topics
+
+        try:
+            chosen = select_topics(args.topics, st.sp.outputs.values(), where=f"stage {args.stage}'s outputs")
+        except TopicError as e:
+            raise CliError(str(e)) from None
+        shown = {t.rsplit("/", 1)[-1] for t in chosen}
     interactive = sys.stdin.isatty()
     print(f"stepping {args.stage} ({st.sp.kind}) through {args.file}: {len(st.records)} input messages, "
           f"snapshots at {sorted(st.snapshots) or 'none'}", file=out)
@@ -56,7 +67,7 @@ def cmd_step(args) -> int:
             if last is None:
                 print("end of the recording", file=out)
             else:
-                _show(last, out)
+                _show(last, out, shown)
         elif cmd in ("j", "jump"):
             try:
                 seq = int(arg)
@@ -66,13 +77,15 @@ def cmd_step(args) -> int:
             print(f"jumped {st.jump(seq)}", file=out)
             last = st.next()
             if last is not None:
-                _show(last, out)
+                _show(last, out, shown)
         elif cmd in ("s", "state"):
             print(json.dumps(st.stage.summary(), indent=1, default=str), file=out)
         elif cmd in ("o", "outputs"):
             from pipeline.recording.plain import describe
 
             for topic, seq, data in st.outputs[-len(last.outputs):] if last else []:
+                if shown is not None and topic.rsplit("/", 1)[-1] not in shown:
+                    continue
                 print(f"{topic} seq {seq}: {describe(data, full=True)}", file=out)
         elif cmd in ("h", "help", "?"):
             print(HELP, file=out)
@@ -92,4 +105,7 @@ def register(sub) -> None:
     p.add_argument("file", help="MCAP recording made by gflow")
     p.add_argument("--stage", required=True, help="stage to step (e.g. filter)")
     p.add_argument("--start", type=int, help="jump to this frame first")
+    p.add_argument("--topics", nargs="+", metavar="TOPIC",
+                   help="show only these outputs: the name in the stream (estimate), the full name with or without "
+                        "the run id, or a shell pattern")
     p.set_defaults(func=cmd_step)

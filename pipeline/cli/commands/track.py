@@ -12,7 +12,6 @@ ORDER = 20
 
 import argparse
 import sys
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
@@ -201,14 +200,17 @@ def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
     (a temporary one with ``--no-record``, removed here) and the live stream, whatever happened."""
     plan_, total = plan or track_plan(args)
     mark("cli plan checked")
-    recording = Recording(plan_, args, str(Path("recordings") / f"track-{time.strftime('%Y%m%d-%H%M%S')}.mcap"),
-                          needed=("estimate",))
+    rec = plan_.recorder()
+    if rec is not None:  # recordings/track-TIME-RUNID.mcap, named when the run starts (Plan.recording_path)
+        rec.params["path"] = "recordings/track-{time}.mcap"
+    recording = Recording(plan_, args, None, needed=("estimate",))
     prepare_live(plan_)  # after Recording: --record-topics may ask for the skipped frames
     live = None
     # a UDP source's port, bound before anything starts (what a sender sends first is kept)
     listeners = listen_early(plan_, say=None if args.quiet else lambda line: print(line, file=sys.stderr))
     try:
         path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet, strict=False)
+        recording.written(path)
         out = run_outcome(path, plan_, info, args.start)  # every frame that was tracked, and what is missing
         if live_source(plan_) is not None and path:
             live = live_summary(path)
@@ -253,8 +255,10 @@ def cmd_track(args) -> int:
         write_points(args.points_out, run.points)
         pts = f"; points: {args.points_out}" + ("" if run.points else " (empty: the model has no landmarks)")
     n, info = len(run.boxes), run.info
-    print(f"tracked {n} frames in {run.seconds:.2f} s ({n / max(run.seconds, 1e-9):.1f} fps); "
-          f"boxes: {args.out}{pts}; recording: {run.kept}")
+    rate = f"{n / max(run.seconds, 1e-9):.1f} fps"
+    if run.live is not None and run.live.tracking_s > 0:  # not the waits for a lost stream, nor its end
+        rate = f"{n / run.live.tracking_s:.1f} fps over the {run.live.tracking_s:.1f} s the stream was tracked"
+    print(f"tracked {n} frames in {run.seconds:.2f} s ({rate}); boxes: {args.out}{pts}; recording: {run.kept}")
     for line in run.lines:
         print(f"  {line}")
     errs = info.get("errors")
@@ -284,7 +288,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
                    help="tracking method (default appearance; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
-    add_record_args(p, "recordings/track-TIME.mcap")
+    add_record_args(p, "recordings/track-TIME-RUNID.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     p.add_argument("--fps", type=float, default=25.0,
                    help="source frame rate, for time stamps and --realtime; of a live source, the nominal rate "

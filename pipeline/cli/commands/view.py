@@ -10,6 +10,22 @@ import time
 from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, tool_zenoh
 
 
+def _await_run(args, end: float | None) -> bool:
+    """Wait for a pipeline (of ``--stream``: the run's stream or its graph's) to be announced on
+    this machine, until ``end`` (None: until Ctrl-C); True when one runs. With ``--connect`` the
+    user's endpoints are used as they are."""
+    from pipeline.runtime.running import await_running
+
+    if args.connect or args.mode == "router" or args.multicast or await_running(args.stream, until=time.monotonic()):
+        return True
+    print("gflow view: waiting for a pipeline to start" + (f" with stream {args.stream}" if args.stream else "")
+          + " (Ctrl-C stops)", file=sys.stderr, flush=True)
+    try:
+        return await_running(args.stream, until=end)
+    except KeyboardInterrupt:
+        return False
+
+
 def cmd_view(args) -> int:
     try:
         import foxglove  # noqa: F401
@@ -17,6 +33,15 @@ def cmd_view(args) -> int:
         raise CliError("gflow view needs the foxglove-sdk package: pip install foxglove-sdk") from None
     from pipeline.cli.foxglove_bridge import FoxgloveBridge
 
+    end = None if args.duration is None else time.monotonic() + args.duration
+    if not _await_run(args, end):
+        print("gflow view: no pipeline started" + (f" with stream {args.stream}" if args.stream else ""),
+              file=sys.stderr)
+        return 1
+    from pipeline.runtime.running import runs_of_camera, running
+
+    if args.stream and not running(args.stream) and len(runs_of_camera(args.stream)) == 1:
+        args.stream = runs_of_camera(args.stream)[0]["stream"]  # the graph's stream (cam0): its run
     settings, found = tool_zenoh(args, args.stream)
     streams = sorted({i["stream"] for i in found})
     stream = args.stream or (streams[0] if len(streams) == 1 else None)
@@ -24,11 +49,11 @@ def cmd_view(args) -> int:
         bridge = FoxgloveBridge(settings, stream=stream, host=args.host, port=args.port).start()
     except RuntimeError as e:  # the port is taken, say
         raise CliError(f"cannot serve on {args.host}:{args.port}: {e}") from None
-    end = None if args.duration is None else time.monotonic() + args.duration
     try:  # the ready line inside the try: a Ctrl-C right after it still stops the bridge
+        s = stream or "STREAM"
         print(f"Foxglove: open {bridge.url} (Open connection -> Foxglove WebSocket); Image panel on "
-              f"/gflow/{stream or 'STREAM'}/image with annotations /gflow/{stream or 'STREAM'}/annotations; "
-              f"Ctrl-C stops", file=sys.stderr, flush=True)
+              f"/gflow/{s}/frames with annotations /gflow/{s}/box (with a render stage also /gflow/{s}/image "
+              f"and /gflow/{s}/annotations); Ctrl-C stops", file=sys.stderr, flush=True)
         while end is None or time.monotonic() < end:
             time.sleep(0.2)
     except KeyboardInterrupt:
@@ -48,7 +73,9 @@ def register(sub) -> None:
     p = sub.add_parser("view", help="show a live pipeline in Foxglove (WebSocket server, ws://127.0.0.1:8765)",
                        description="Serves the live topics over Foxglove's WebSocket protocol (foxglove-sdk): the "
                                    "render stage's video and overlays, and the estimate, errors and every stage's "
-                                   "heartbeat as JSON (plot e.g. /gflow/demo/estimate.ess). Frames, features and "
+                                   "heartbeat as JSON (plot e.g. /gflow/demo/estimate.ess), the source's frames as images "
+                                   "and each estimate's box as image annotations (/gflow/STREAM/box), whatever started "
+                                   "the run. Started before the run, it waits for it. Features and "
                                    "particles are not forwarded. In the Foxglove app: Open connection -> Foxglove "
                                    "WebSocket -> ws://HOST:PORT.")
     p.add_argument("--stream", help="the pipeline's stream (default: the one running)")

@@ -1,0 +1,144 @@
+"""Recording files are never overwritten.
+
+* A default recording name carries the time and the run id (``recordings/track-20250101-120000-3f9c2a.mcap``),
+  and a suffix (``-2``, ``-3``...) when that name is taken: two runs started in the same second
+  get two files (:func:`unique_path`).
+* The recorder creates its file exclusively (``O_EXCL``, :func:`create_new`): should two writers
+  still be given one name, the second one fails with a one-line error instead of destroying the
+  first one's file.
+* ``--record FILE`` naming a file that exists is refused before the run starts (:func:`refuse_existing`).
+
+A folder of recordings grows by a few hundred KB a frame (raw frames are most of it):
+:func:`folder_recordings` lists its recordings (each with its segment files) newest first, which
+``gflow clean`` and the size warning after a run (:func:`size_warning`, above
+``GFLOW_RECORDINGS_WARN_MB``, default 2000) use.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO
+
+__all__ = ["RecordingExists", "unique_path", "create_new", "refuse_existing", "StoredRecording", "folder_recordings",
+           "size_warning", "warn_mb", "WARN_MB"]
+
+#: the size of a recordings folder above which a run warns (MB), unless GFLOW_RECORDINGS_WARN_MB says
+WARN_MB = 2000.0
+
+
+class RecordingExists(FileExistsError):
+    """A recording would overwrite a file that exists."""
+
+
+def _taken(p: Path) -> bool:
+    """A path that names a file, or the first segment of one (``NAME.part1.mcap``)."""
+    return p.exists() or p.with_name(f"{p.stem}.part1{p.suffix}").exists()
+
+
+def unique_path(path: str | os.PathLike) -> Path:
+    """``path`` itself when free, else ``STEM-2.SUFFIX``, ``STEM-3.SUFFIX``... the first one free."""
+    p = Path(path)
+    n = 2
+    out = p
+    while _taken(out):
+        out = p.with_name(f"{p.stem}-{n}{p.suffix}")
+        n += 1
+    return out
+
+
+def refuse_existing(path: str | os.PathLike, what: str = "--record") -> None:
+    """A :class:`RecordingExists` when ``path`` exists: a recording never replaces a file."""
+    p = Path(path)
+    if _taken(p) and not p.is_dir():
+        raise RecordingExists(f"{what} {path} exists; a recording never overwrites a file: give a new name "
+                              f"or remove it first")
+
+
+def create_new(path: str | os.PathLike) -> IO[bytes]:
+    """Open ``path`` for writing, created here and now (``O_EXCL``): a file that exists is an error."""
+    try:
+        return open(path, "xb")
+    except FileExistsError:
+        raise RecordingExists(f"{path} exists (another run writing the same file?); a recording never "
+                              f"overwrites a file") from None
+
+
+_SEGMENT = re.compile(r"^(?P<stem>.+)\.part\d+$")
+
+
+@dataclass
+class StoredRecording:
+    """One recording of a folder: its file, its segment files, their bytes and its time."""
+
+    path: Path
+    files: list[Path] = field(default_factory=list)
+    bytes: int = 0
+    mtime: float = 0.0
+
+
+def folder_recordings(folder: str | os.PathLike) -> list[StoredRecording]:
+    """The recordings (``*.mcap``, each with its ``NAME.partN.mcap`` segments and a recorder's
+    ``.NAME.mcap.reserve`` left behind) of ``folder``, newest first."""
+    d = Path(folder)
+    if not d.is_dir():
+        return []
+    by_stem: dict[str, StoredRecording] = {}
+    files = sorted(d.glob("*.mcap"))
+    for f in files:  # first the recordings themselves, then their segments
+        if _SEGMENT.match(f.stem) is None:
+            by_stem[f.stem] = StoredRecording(f)
+    for f in files:
+        m = _SEGMENT.match(f.stem)
+        rec = by_stem.get(m["stem"] if m else f.stem)
+        if rec is None:  # a segment whose first file is gone: a recording of its own
+            rec = by_stem[f.stem] = StoredRecording(f)
+        rec.files.append(f)
+    for rec in by_stem.values():
+        reserve = rec.path.with_name(f".{rec.path.name}.reserve")
+        if reserve.exists():
+            rec.files.append(reserve)
+        for f in rec.files:
+            try:
+                st = f.stat()
+            except OSError:
+                continue
+            rec.bytes += st.st_size
+            rec.mtime = max(rec.mtime, st.st_mtime)
+    return sorted(by_stem.values(), key=lambda r: (r.mtime, r.path.name), reverse=True)
+
+
+def warn_mb() -> float:
+    """``GFLOW_RECORDINGS_WARN_MB`` (MB; 0 turns the warning off), else :data:`WARN_MB`."""
+    text = os.environ.get("GFLOW_RECORDINGS_WARN_MB", "").strip()
+    if not text:
+        return WARN_MB
+    try:
+        v = float(text)
+    except ValueError:
+        v = -1.0
+    if not v >= 0:
+        raise ValueError(f"GFLOW_RECORDINGS_WARN_MB must be a number of MB >= 0, got {text!r}")
+    return v
+
+
+def size_warning(folder: str | os.PathLike) -> str:
+    """A line to tell the user when the recordings of ``folder`` hold more than :func:`warn_mb`
+    ("" when they do not)."""
+    limit = warn_mb()
+    if limit <= 0:
+        return ""
+    recs = folder_recordings(folder)
+    total = sum(r.bytes for r in recs)
+    if total <= limit * 1e6:
+        return ""
+    keep, size = 0, 0
+    for r in recs:  # the newest that fit under the limit (at least one)
+        if keep and size + r.bytes > limit * 1e6:
+            break
+        keep, size = keep + 1, size + r.bytes
+    return (f"note: {folder} holds {total / 1e6:.0f} MB in {len(recs)} recordings, more than "
+            f"GFLOW_RECORDINGS_WARN_MB={limit:g}; `gflow clean {folder} --keep {keep} --dry-run` says what removing "
+            f"all but the newest {keep} would free")
