@@ -49,7 +49,8 @@ from gflow_core.gflow.filter import advance_background, initial_background, pred
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import GFlowStageFields, frame_of, prepare, proposals_msg, shard_indices, unpack_states
+from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, proposals_msg, shard_indices,
+                           unpack_states)
 from .messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
 from .rng import tracker_rng
 from .time_step import time_step
@@ -107,6 +108,7 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
     outputs = {"proposals": PoseProposals}
     drivers = frozenset({"features"})
     input_offsets = {"state": 1}
+    prepare_ports = frozenset({"features"})
 
     def __init__(self, params: GFlowProposalFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
@@ -129,12 +131,19 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         return frozenset({"features", "state"})
 
     # -- one frame ---------------------------------------------------------------------------
+    def prepare(self, port: str, msg: Message) -> GFlowObservation:
+        """What G-flow reads of a frame and the pyramid its proposals need (:meth:`GFlowTracker.with_pyramid`),
+        which depend on the frame alone: made as soon as it arrives, while the stage waits for the
+        experts. Raises StageInputError for a frame that cannot be used."""
+        assert isinstance(msg, Features)
+        return TRACKER.with_pyramid(self.tracker, frame_of(msg, msg.header.seq, self.tracker))
+
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         feat = inputs.get("features")
         obs = None
         if isinstance(feat, Features):
             try:
-                obs = frame_of(feat, seq, self.tracker, self.setup.image_shape if self.setup else None)
+                obs = check_size(self.prepared("features", feat), seq, self.setup.image_shape if self.setup else None)
             except StageInputError as e:
                 self.report("bad_features", f"{e}; no proposals for this frame", seq)
         elif self.init_seq is not None:

@@ -42,7 +42,7 @@ from .filter import (
 )
 from .geometry import COEF, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box, fit_head_model_to_box, pose_for_box
-from .image import local_contrast
+from .image import FrameData, frame_pyramid, local_contrast, prepare_frame
 from .params import GFlowParams
 
 __all__ = ["GFlowTracker", "GFlowState", "GFlowObservation", "ModelSetup", "model_setup", "clip_box",
@@ -160,11 +160,21 @@ class GFlowObservation:
     y : (H, W) float64, ``y_t`` (:func:`observation`).
     bins : (H, W) uint8 colour bins (:func:`gflow_core.colour.bins`) for the lost guard's colour cue,
         or None (a grey frame, or no colour cue).
+    pyramid : ``y_t`` validated with its gradient images, level 0 first (:func:`.image.frame_pyramid`),
+        made ahead by :meth:`GFlowTracker.with_pyramid`; None: :meth:`GFlowTracker.propose` makes it.
+    channels : (H, W, 4) float32, the lost guard's orientation channels of ``grey``, made ahead by
+        :meth:`GFlowTracker.with_channels`; None: :meth:`GFlowTracker.update` makes them.
+
+    The last two are what a frame costs before any expert is looked at; a pipeline stage computes
+    them as soon as the frame arrives (``stages/gflow_proposal.py``, ``gflow_filter.py``), while it
+    waits for the experts. Made ahead or not, they are the same arrays, so the results are too.
     """
 
     grey: np.ndarray
     y: np.ndarray
     bins: np.ndarray | None = None
+    pyramid: tuple[FrameData, ...] | None = None
+    channels: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -193,9 +203,10 @@ class GFlowState:
     fit_level: ChiSquare = ChiSquare()
 
 
-def guard_params(params: GFlowParams) -> LostParams | None:
-    """The lost guard's settings, None without the guard."""
-    return guard.guard_params(params.lost_window, params.lost_growth) if params.lost_guard else None
+def guard_params(params: GFlowParams, dt: float = 1.0) -> LostParams | None:
+    """The lost guard's settings for a step of ``dt`` frame periods (its re-detection window widens by
+    ``lost_growth`` box sizes a period), None without the guard."""
+    return guard.guard_params(params.lost_window, params.lost_growth * dt) if params.lost_guard else None
 
 
 class GFlowTracker:
@@ -233,6 +244,19 @@ class GFlowTracker:
             raise UnusableFrame(f"every pixel is {lo} (a blank or saturated frame carries no information about the "
                                 f"pose, and would overwrite the textures)")
         return GFlowObservation(grey=grey, y=observation(grey, params.contrast_sigma))
+
+    def with_pyramid(self, params: GFlowParams, obs: GFlowObservation) -> GFlowObservation:
+        """``obs`` with the pyramid :meth:`propose` reads (``y_t`` validated, its gradient images and
+        ``pyramid_levels - 1`` coarser levels, :func:`.image.frame_pyramid`)."""
+        if obs.pyramid is not None:
+            return obs
+        return dataclasses.replace(obs, pyramid=tuple(frame_pyramid(prepare_frame(obs.y), params.pyramid_levels)))
+
+    def with_channels(self, params: GFlowParams, obs: GFlowObservation) -> GFlowObservation:
+        """``obs`` with the lost guard's orientation channels of the grey frame (none without the guard)."""
+        if obs.channels is not None or not params.lost_guard:
+            return obs
+        return dataclasses.replace(obs, channels=guard.channels(obs.grey))
 
     # -- the filter -----------------------------------------------------------------------------
     def init(self, params: GFlowParams, obs: GFlowObservation, box: Box, rng: FrameRng,
@@ -273,7 +297,8 @@ class GFlowTracker:
         """
         s = state.setup
         idx = np.arange(state.experts.n_experts, dtype=np.int64) if experts is None else np.asarray(experts)
-        props = propose(state.experts, obs.y, s.model, s.cfg, [rng.stream(int(i)) for i in idx], idx, dt)
+        props = propose(state.experts, obs.y, s.model, s.cfg, [rng.stream(int(i)) for i in idx], idx, dt,
+                        pyramid=obs.pyramid)
         bad = [f for f in _PROPOSAL_ARRAYS if not np.isfinite(getattr(props, f)).all()]
         if bad:
             raise ValueError(f"non-finite {', '.join(bad)}")
@@ -282,23 +307,24 @@ class GFlowTracker:
     def update(self, params: GFlowParams, state: GFlowState, proposal: Proposals, obs: GFlowObservation,
                rng: FrameRng) -> tuple[GFlowState, Estimate]:
         """Credibility (eq. 17, 19), resampling from ``rng.stream()`` (sec. 3.4) and the texel update
-        (eq. 7-10) (:func:`.filter.update`), then the lost guard (:mod:`.guard`): the estimate is
-        verified, held while the target is judged hidden or lost, and the experts re-seated where a
-        search finds it again (phase ``redetect``). The confidence is the guard's P(visible); without
+        (eq. 7-10) (:func:`.filter.update`, over the ``proposal.dt`` periods the step spans), then the
+        lost guard (:mod:`.guard`): the estimate is verified, held while the target is judged hidden or
+        lost, and the experts re-seated where a search finds it again (phase ``redetect``). The confidence is the guard's P(visible); without
         the guard it is the fraction of vertices the frame explains as the object
         (``Estimate.inlier_fraction``), below ``occluded_below`` the target is occluded, below
         ``lost_below`` lost."""
         s = state.setup
         new, est = update(state.experts, proposal, obs.y, s.model, s.cfg, rng.stream())
-        gp = guard_params(params)
+        gp = guard_params(params, proposal.dt)
         if gp is None or state.anchor is None:
             conf = min(max(est.inlier_fraction, 0.0), 1.0)
             judged = "lost" if conf < params.lost_below else "occluded" if conf < params.occluded_below else "tracked"
             out = GFlowState(s, new, conf, judged, state.anchor, state.lost, state.fit_level)
             return out, self._estimate_of(out, rng.t, "track", est)
-        g = guard.step(state.lost, state.anchor, gp, guard.channels(obs.grey),
-                       obs.bins if params.lost_colour else None, self._box(s, est.pose, est.bbox), est.pose,
-                       tuple(params.lost_scales), guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level)
+        channels = self.with_channels(params, obs).channels
+        assert channels is not None  # the guard is on
+        g = guard.step(state.lost, state.anchor, gp, channels, obs.bins if params.lost_colour else None,
+                       self._box(s, est.pose, est.bbox), est.pose, tuple(params.lost_scales), guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level)
         if g.pose is None:
             out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level)
             return out, self._estimate_of(out, rng.t, g.phase, est, g.box)
