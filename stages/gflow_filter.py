@@ -33,6 +33,11 @@ the object (``Estimate.inlier_fraction``) and ``target_state`` is ``occluded`` b
 last observed frame's. The snapshot (version 2) holds the guard's anchor and distributions; a
 version-1 snapshot restores with the guard off.
 
+Per-frame image work. What G-flow reads of frame t, its colour bins and the lost guard's
+orientation channels of the whole frame depend on the frame alone: the stage makes them in
+``prepare`` (``prepare_ports``), which a stage process runs on its second thread as soon as the
+features arrive, while it waits for the proposals; the same arrays either way.
+
 First frame: the model is fitted into ``init`` (generic head) or a user morphable model
 (resource ``model``) is placed in it, and the experts start at that pose (optionally
 jittered by ``init_jitter``, "initialised randomly near the correct pose", sec. 5), with

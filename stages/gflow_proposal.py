@@ -32,6 +32,17 @@ snapshot, taken after every frame for a restart, small. If frame t - 1 was missi
 when state t - 1 arrives (a lost state message), it restarts from frame t - 1 and the
 problem is reported.
 
+Per-frame image work. What G-flow reads of frame t (the contrast-normalised grey levels) and the
+pyramid with gradient images its Gauss-Newton reads depend on the frame alone: the stage makes
+them in ``prepare`` (``prepare_ports``), which a stage process runs on its second thread as soon as
+the features arrive, while it waits for the state of t - 1; ``step`` then only proposes. The same
+arrays either way (``--inline`` makes them in ``step``).
+
+The time step. The proposals of frame t are made for the periods since the state's frame
+(:func:`stages.time_step.time_step` of the two frames' stamps: 1 for files, the real time for a
+live source that skipped frames; :meth:`gflow_core.gflow.GFlowConfig.at_pace`), and carry it to
+the filter (``PoseProposals.dt``), which predicts the texels over the same periods.
+
 No usable frame t or no state t - 1: the stage publishes an *empty* proposal message
 (no experts) for frame t and reports why, so the filter coasts instead of waiting.
 """

@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import colour as col
 from ..features import to_grey
-from ..m2.lost import Anchor, LostParams, LostState
+from ..m2.lost import Anchor, LostParams, LostState, bound_positions
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame
 from ..visibility import ChiSquare
 from . import guard
@@ -40,7 +40,7 @@ from .filter import (
     propose,
     update,
 )
-from .geometry import COEF, project, rotation_matrices
+from .geometry import COEF, TRANS, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box, fit_head_model_to_box, pose_for_box
 from .image import FrameData, frame_pyramid, local_contrast, prepare_frame
 from .params import GFlowParams
@@ -309,10 +309,12 @@ class GFlowTracker:
         """Credibility (eq. 17, 19), resampling from ``rng.stream()`` (sec. 3.4) and the texel update
         (eq. 7-10) (:func:`.filter.update`, over the ``proposal.dt`` periods the step spans), then the
         lost guard (:mod:`.guard`): the estimate is verified, held while the target is judged hidden or
-        lost, and the experts re-seated where a search finds it again (phase ``redetect``). The confidence is the guard's P(visible); without
-        the guard it is the fraction of vertices the frame explains as the object
-        (``Estimate.inlier_fraction``), below ``occluded_below`` the target is occluded, below
-        ``lost_below`` lost."""
+        lost (box and points where it was last found, the experts kept within ``lost_hold`` box sizes
+        of it, :meth:`_hold`), and the experts re-seated where a search finds it again (phase
+        ``redetect``), at the pose where the first look fits the frame there (:meth:`_place`). The
+        confidence is the guard's P(visible); without the guard it is the fraction of vertices the frame
+        explains as the object (``Estimate.inlier_fraction``), below ``occluded_below`` the target is
+        occluded, below ``lost_below`` lost."""
         s = state.setup
         new, est = update(state.experts, proposal, obs.y, s.model, s.cfg, rng.stream())
         gp = guard_params(params, proposal.dt)
@@ -324,9 +326,16 @@ class GFlowTracker:
         channels = self.with_channels(params, obs).channels
         assert channels is not None  # the guard is on
         g = guard.step(state.lost, state.anchor, gp, channels, obs.bins if params.lost_colour else None,
-                       self._box(s, est.pose, est.bbox), est.pose, tuple(params.lost_scales), guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level)
+                       self._box(s, est.pose, est.bbox), est.pose, tuple(params.lost_scales),
+                       guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level,
+                       place=lambda box: self._place(params, s, new, obs, box))
         if g.pose is None:
+            if g.target_state != "tracked" and g.lost.held is not None and params.lost_hold > 0:
+                new = self._hold(s, new, g.lost.held, params.lost_hold)
             out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level)
+            if g.held_pose is not None:
+                # the held box is reported: the face where it was last found, its points with it
+                return out, self._held_estimate(out, rng.t, est, g.box, g.held_pose)
             return out, self._estimate_of(out, rng.t, g.phase, est, g.box)
         # re-detected: every expert re-seated at the candidate, texels read there
         seated = guard.reseat(new, g.pose, obs.y, s.model, s.cfg)
@@ -339,12 +348,54 @@ class GFlowTracker:
         out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level)
         return out, self.summary_estimate(out, rng.t, g.phase)
 
+    def _place(self, params: GFlowParams, setup: ModelSetup, experts: ExpertState, obs: GFlowObservation,
+               box: tuple[float, float, float, float]) -> np.ndarray:
+        """The pose to re-seat the experts at for a re-detected ``box``: the first frame's pose moved and
+        scaled into it (:func:`.guard.reseat_pose`), settled where the first look fits the frame
+        (:func:`.guard.settle`)."""
+        pose0 = setup.pose0
+        box0 = self._box(setup, pose0, bounding_box(project(setup.model.bases, pose0)))
+        pyramid = self.with_pyramid(params, obs).pyramid
+        assert pyramid is not None
+        return guard.settle(guard.reseat_pose(pose0, box0, box), pyramid, experts, setup.model, setup.cfg)
+
     def _estimate_of(self, state: GFlowState, t: int, phase: str, est: Any,
                      box: tuple[float, float, float, float] | None = None) -> Estimate:
         """:meth:`estimate` of :func:`.filter.update`'s estimate ``est``, with ``box`` reported instead
         of the posterior's when given (the lost guard's held box)."""
         return self.estimate(state, t, phase, est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
                              est.expert_points, est.mean_points, est.bbox, est.log_credibility, est.parents,
+                             est.resampled, box=box)
+
+    def _hold(self, setup: ModelSetup, experts: ExpertState, held: tuple[float, ...], reach: float) -> ExpertState:
+        """The experts kept near the face while the lost guard holds it where it was last found: each
+        expert's box centre (:meth:`_box`) moved, by its translation ``l``, into the held box's centre
+        +- ``reach`` box sizes (:func:`gflow_core.m2.lost.bound_positions`, as the contour trackers keep
+        their particles). G-flow's likelihood follows whatever explains the frame best while the face
+        is hidden or turned away (a plain wall, a shoulder); kept within reach, the experts are where the
+        face comes back."""
+        model = setup.model
+        boxes = np.array([self._box(setup, u, bounding_box(p)) for u, p in zip(experts.poses,
+                                                                               project(model.bases, experts.poses))])
+        centre = boxes[:, :2] + 0.5 * boxes[:, 2:]
+        hc = (held[0] + 0.5 * held[2], held[1] + 0.5 * held[3])
+        shift = bound_positions(centre, hc, (reach * held[2], reach * held[3])) - centre
+        if not shift.any():
+            return experts
+        poses = np.array(experts.poses)
+        # both of G-flow's boxes move with the translation l (eq. 1)
+        poses[:, TRANS] += shift
+        poses.setflags(write=False)
+        return dataclasses.replace(experts, poses=poses)
+
+    def _held_estimate(self, state: GFlowState, t: int, est: Any, box: tuple[float, float, float, float],
+                       pose: np.ndarray) -> Estimate:
+        """The estimate of a frame whose target the lost guard holds where it was last found: the held
+        ``box`` and the held ``pose`` (P,) with its rotation and projected points; the experts' spread,
+        points and credibilities as they are."""
+        mean_pts = project(state.setup.model.bases, pose)
+        return self.estimate(state, t, "lost", pose, est.pose_std, rotation_matrices(pose), est.spread_px, est.ess,
+                             est.expert_points, mean_pts, bounding_box(mean_pts), est.log_credibility, est.parents,
                              est.resampled, box=box)
 
     @staticmethod
