@@ -841,14 +841,20 @@ def gauss_newton_peak(
         ev = _Evaluation(fit, cand)
         ok = np.isfinite(ev.f) & (ev.f <= f)
         step_len = np.where(ok, np.minimum(1.0, 2.0 * step_len), 0.5 * step_len)
-        sel = np.flatnonzero(ok)
-        if sel.size == 0:
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok == 0:
             continue
-        u[sel] = cand[sel]
-        f[sel] = ev.f[sel]
+        u[ok] = cand[ok]
+        f[ok] = ev.f[ok]
         if final_hessian or it < n_iter - 1:
-            # relinearise where the step was taken (elsewhere the point, so g and H, are unchanged)
-            g[sel], H[sel] = ev.linearise(None if sel.size == E else sel)
+            # relinearise where the step was taken (elsewhere the point, so g and H, are unchanged);
+            # every row when most steps were taken (each row's numbers are its own either way)
+            if 2 * n_ok >= E:
+                g_all, H_all = ev.linearise()
+                g[ok], H[ok] = g_all[ok], H_all[ok]
+            else:
+                sel = np.flatnonzero(ok)
+                g[sel], H[sel] = ev.linearise(sel)
     return GaussNewtonResult(u, H, f)
 
 
