@@ -26,13 +26,10 @@ from gflow_core.gflow.texture import anchored_predict
 
 
 @pytest.fixture(scope="module")
-def seq():
-    return synthetic_sequence(np.random.default_rng(5), 4, (60, 80), rot_amp_deg=(4, 6, 3), trans_amp_px=(4, 2))
-
-
-@pytest.fixture(scope="module")
-def model_pose(seq):
-    return fit_head_model_to_box(seq.box, seq.frames.shape[1:])
+def scene():
+    """Two frames of a rendered head, the generic head model and its pose in the first."""
+    seq = synthetic_sequence(np.random.default_rng(8), 2, (60, 80), rot_amp_deg=(4, 6, 3), trans_amp_px=(4, 2))
+    return (seq, *fit_head_model_to_box(seq.box, seq.frames.shape[1:]))
 
 
 def test_one_period_is_the_configuration_itself() -> None:
@@ -77,8 +74,8 @@ def test_a_random_walk_of_texels_adds_dt_process_noises() -> None:
     assert cfg.at_pace(4.0).texture_decay == 1.0
 
 
-def test_the_filter_predicts_the_texels_over_the_periods_of_its_proposals(seq, model_pose) -> None:
-    model, pose0 = model_pose
+def test_the_filter_predicts_the_texels_over_the_periods_of_its_proposals(scene) -> None:
+    seq, model, pose0 = scene
     cfg = paper_config(n_experts=4, n_samples=3, texture_decay=0.9)
     state = init_state(model, pose0, seq.frames[0], cfg)
     props = propose(state, seq.frames[1], model, cfg, expert_rngs(1, 2, 1, range(4)), dt=3.0)
@@ -93,8 +90,8 @@ def test_the_filter_predicts_the_texels_over_the_periods_of_its_proposals(seq, m
     assert not np.array_equal(a.tex_var, c.tex_var)
 
 
-def test_shards_made_for_different_steps_do_not_join(seq, model_pose) -> None:
-    model, pose0 = model_pose
+def test_shards_made_for_different_steps_do_not_join(scene) -> None:
+    seq, model, pose0 = scene
     cfg = paper_config(n_experts=4, n_samples=3)
     state = init_state(model, pose0, seq.frames[0], cfg)
     one = propose(state, seq.frames[1], model, cfg, expert_rngs(1, 2, 1, [0, 1]), [0, 1], dt=1.0)
