@@ -42,6 +42,11 @@ Departures from the paper
   soft wall on the rotation (``max_rotation_deg``) and an outlier process per vertex
   (``outlier_sigmas``; outlier texels are predicted, not updated, so an occluder is not
   learned). See :mod:`.pose_opinion` and :mod:`.photometric`.
+* A step may span ``dt`` frame periods (a live source skips frames; the paper's frames are one
+  period apart): :meth:`GFlowConfig.at_pace` composes ``dt`` one-period steps of the pose walk,
+  the rotation decay, the texels' prediction and the frontal reset; :func:`propose` takes ``dt``
+  and the :class:`Proposals` carry it to :func:`update`. ``dt = 1`` is the one-period model, bit
+  for bit.
 * See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
   default, safeguards, ``alpha = 0``), :mod:`.texture` (``object_mask="hull"`` with a
   margin) and :mod:`.credibility` (systematic resampling).
