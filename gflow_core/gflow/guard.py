@@ -45,7 +45,9 @@ around G-flow's estimate box:
   for it. There G-flow's own model must agree (:func:`first_look_fit`: the normalised correlation
   of the first frame's texels with the frame at the pose's vertices): a candidate re-seats the
   experts only if the first look fits the frame better there than at the experts' pose, and about
-  as well as it did on found frames (a misfit within two standard deviations of their mean); and
+  as well as it did on found frames (a misfit within two standard deviations of their mean, either
+  side: a candidate far better than the target has lately fitted is a look-alike of the first
+  look); and
   where it fits better at the experts' pose than at the held box, the experts' box is reported
   rather than the held one. The correlation, not the fraction of vertices the texels explain
   (eq. 13 against the outlier process): a plain wall explains most texels of a contrast-normalised
@@ -222,8 +224,8 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     (H, W, 4) and colour bins (H, W) or None; hold and search while lost (:mod:`gflow_core.m2.lost`).
     With ``fit`` (:func:`first_look_fit`) a candidate away from the estimate re-seats the experts only
     where the first look fits the frame better than at the estimate, and about as well as it did at
-    the target: its misfit ``1 - fit`` no more than two standard deviations above the mean of the
-    found frames' (``level``, learnt at the guard's rate). The check applies only while the colour cue
+    the target: its misfit ``1 - fit`` within two standard deviations of the mean of the found
+    frames' (``level``, learnt at the guard's rate). The check applies only while the colour cue
     is not weighed (edges alone). With ``place`` the experts are re-seated at ``place(box)`` of the
     candidate's box (:func:`settle` of the first frame's pose placed in it), else at the held pose
     moved and scaled into it (:func:`reseat_pose`); a candidate within the estimate's box re-seats
@@ -278,14 +280,18 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
 
 def _confirms(d_cand: float, d_est: float, level: ChiSquare, p: LostParams) -> bool:
     """G-flow's first look confirms a candidate of misfit ``d_cand``: below the estimate's ``d_est``, and
-    within two standard deviations above the mean misfit of the found frames (one held the target off
-    the face on david_indoor where its look had changed with the light, 0.58-0.65 against 0.44 +- 0.09)."""
+    within two standard deviations of the mean misfit of the found frames, either side. Two: one held
+    the target off the face on david_indoor, where its look had changed with the light (0.58-0.65
+    against 0.44 +- 0.09). Either side: a candidate that fits the first look far better than the
+    target has lately is a look-alike of the first look rather than the target as it looks now (on
+    dollar an identical stack of bills lies beside the one tracked, whose look changes as it is
+    opened)."""
     if d_cand >= d_est:
         return False
     if level.n < p.warmup:
         return True
     var = max(level.m2 - level.m1 * level.m1, 0.0)
-    return d_cand <= level.m1 + 2.0 * float(np.sqrt(var))
+    return abs(d_cand - level.m1) <= 2.0 * float(np.sqrt(var))
 
 
 def _inside(centre: np.ndarray, box: tuple[float, float, float, float]) -> bool:
