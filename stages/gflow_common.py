@@ -28,6 +28,7 @@ shards concatenate to exactly one process's result, and the pipeline equals the 
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import asdict
 from typing import Any, Mapping
 
@@ -40,6 +41,7 @@ from gflow_core.tracker import UnusableFrame
 
 from .base import StageInputError
 from .messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
+from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
 __all__ = [
@@ -47,6 +49,7 @@ __all__ = [
     "config_digest",
     "prepare",
     "frame_of",
+    "check_size",
     "states_msg",
     "unpack_states",
     "proposals_msg",
@@ -106,7 +109,7 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams, shape: tuple[int, i
     StageInputError
         An undecodable array, not a 2-D uint8 image of at least 2 x 2 pixels, a uniform
         image (all black, saturated or any single grey level), or another size than
-        ``shape`` (the frames the tracker was initialised on).
+        ``shape`` (the frames the tracker was initialised on; :func:`check_size`).
     """
     try:
         grey = feat.grey.array()
@@ -118,6 +121,14 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams, shape: tuple[int, i
         raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
     except ValueError as e:
         raise StageInputError(f"frame {seq}: {e}") from None
+    return check_size(obs, seq, shape)
+
+
+def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -> GFlowObservation:
+    """``obs``, if its frame has the size ``shape`` of the frames the tracker started on (None: any).
+
+    Raises StageInputError naming both sizes otherwise."""
+    grey = obs.grey
     if shape is not None and grey.shape != tuple(shape):
         raise StageInputError(f"frame {seq}: size {grey.shape[1]}x{grey.shape[0]} differs from the "
                               f"{shape[1]}x{shape[0]} frames the tracker started on; frame skipped")
@@ -209,7 +220,8 @@ def proposals_msg(header: Header, props: Proposals | None, shard: int, shards: i
                              shard=shard, shards=shards, config_digest=digest)
     return PoseProposals(header=header, **{f: NDArray.of(np.asarray(getattr(props, f))) for f in _PROPOSAL_FIELDS},
                          shard=shard, shards=shards, config_digest=digest,
-                         reset=NDArray.of(np.asarray(props.reset, dtype=bool)) if props.reset.any() else None)
+                         reset=NDArray.of(np.asarray(props.reset, dtype=bool)) if props.reset.any() else None,
+                         dt=float(props.dt))
 
 
 def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: int, shards: int,
@@ -230,6 +242,8 @@ def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: 
     if Ep and msg.expert_indices.shape == (0,):
         raise StageInputError(f"{where}: the proposal stage had no usable frame or expert state for this frame")
     P, s = setup.model.pose_size, setup.cfg.n_samples
+    if not (math.isfinite(msg.dt) and 1.0 <= msg.dt <= MAX_TIME_STEP):
+        raise StageInputError(f"{where}: dt must be in [1, {MAX_TIME_STEP:g}] frame periods, got {msg.dt!r}")
     idx = _arr(msg.expert_indices, "expert_indices", (Ep,), "int64", where)
     if not np.array_equal(idx, expected):
         raise StageInputError(f"{where}: expert indices {idx.tolist()} are not this shard's {expected.tolist()}")
@@ -242,6 +256,7 @@ def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: 
         log_evidence=_arr(msg.log_evidence, "log_evidence", (Ep,), "float64", where),
         gn_objective=_arr(msg.gn_objective, "gn_objective", (Ep,), "float64", where),
         reset=np.zeros(Ep, dtype=bool) if msg.reset is None else _arr(msg.reset, "reset", (Ep,), "bool", where),
+        dt=float(msg.dt),
     )
 
 

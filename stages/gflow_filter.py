@@ -33,6 +33,11 @@ the object (``Estimate.inlier_fraction``) and ``target_state`` is ``occluded`` b
 last observed frame's. The snapshot (version 2) holds the guard's anchor and distributions; a
 version-1 snapshot restores with the guard off.
 
+Per-frame image work. What G-flow reads of frame t, its colour bins and the lost guard's
+orientation channels of the whole frame depend on the frame alone: the stage makes them in
+``prepare`` (``prepare_ports``), which a stage process runs on its second thread as soon as the
+features arrive, while it waits for the proposals; the same arrays either way.
+
 First frame: the model is fitted into ``init`` (generic head) or a user morphable model
 (resource ``model``) is placed in it, and the experts start at that pose (optionally
 jittered by ``init_jitter``, "initialised randomly near the correct pose", sec. 5), with
@@ -63,6 +68,7 @@ from gflow_core.visibility import ChiSquare
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (
     GFlowStageFields,
+    check_size,
     config_digest,
     frame_of,
     prepare,
@@ -157,6 +163,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     inputs = {"features": Features, "proposals0": PoseProposals}
     outputs = {"state": ExpertStates, "estimate": PoseEstimate}
     drivers = frozenset({"features"})
+    prepare_ports = frozenset({"features"})
 
     @classmethod
     def ports(cls, params: GFlowFilterFields) -> tuple[Mapping[str, type], Mapping[str, type]]:
@@ -188,7 +195,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         obs = None
         if isinstance(feat, Features):
             try:
-                obs = self._with_bins(feat, frame_of(feat, seq, self.tracker, state.setup.image_shape), seq)
+                obs = check_size(self._observed(feat, seq), seq, state.setup.image_shape)
             except StageInputError as e:
                 self.report("bad_features", f"{e}; coasting", seq)
         else:
@@ -223,17 +230,34 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                      "confidence": round(est.confidence, 3)}
         return [("state", out_state), ("estimate", estimate_msg(header, est))]
 
-    def _with_bins(self, feat: Features, obs: GFlowObservation, seq: int) -> GFlowObservation:
-        """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
-        them (the preprocess stage's ``colour``) and the guard weighs colour. Bad bins are reported and
+    def prepare(self, port: str, msg: Message) -> tuple[GFlowObservation, str]:
+        """What G-flow reads of a frame, with the colour bins and the orientation channels the lost
+        guard reads (:meth:`GFlowTracker.with_channels`), which depend on the frame alone: made as
+        soon as it arrives, while the stage waits for the proposals. Returns the observation and
+        what was wrong with the bins ("" when nothing was). Raises StageInputError for a frame that
+        cannot be used."""
+        assert isinstance(msg, Features)
+        obs, problem = self._with_bins(msg, frame_of(msg, msg.header.seq, self.tracker))
+        return TRACKER.with_channels(self.tracker, obs), problem
+
+    def _observed(self, feat: Features, seq: int) -> GFlowObservation:
+        """:meth:`prepare`'s observation of ``feat`` (made ahead or now), its bins' problem reported:
         the guard weighs the edges alone on that frame."""
+        obs, problem = self.prepared("features", feat)
+        if problem:
+            self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
+        return obs
+
+    def _with_bins(self, feat: Features, obs: GFlowObservation) -> tuple[GFlowObservation, str]:
+        """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
+        them (the preprocess stage's ``colour``) and the guard weighs colour, and what was wrong with
+        bad bins ("" when nothing was; then the observation has none)."""
         if not (self.tracker.lost_guard and self.tracker.lost_colour and isinstance(feat, ColourFeatures)):
-            return obs
+            return obs, ""
         try:
-            return dataclasses.replace(obs, bins=feat.bins_array(obs.grey.shape))
+            return dataclasses.replace(obs, bins=feat.bins_array(obs.grey.shape)), ""
         except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; the lost guard weighs edges only", seq)
-            return obs
+            return obs, str(e)
 
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
         """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""
@@ -258,7 +282,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         if not isinstance(feat, Features):
             return []
         try:
-            obs = self._with_bins(feat, frame_of(feat, seq, self.tracker), seq)
+            obs = self._observed(feat, seq)
         except StageInputError as e:
             self.report("bad_features", f"{e}; waiting for a usable first frame", seq)
             return []

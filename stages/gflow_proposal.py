@@ -32,6 +32,17 @@ snapshot, taken after every frame for a restart, small. If frame t - 1 was missi
 when state t - 1 arrives (a lost state message), it restarts from frame t - 1 and the
 problem is reported.
 
+Per-frame image work. What G-flow reads of frame t (the contrast-normalised grey levels) and the
+pyramid with gradient images its Gauss-Newton reads depend on the frame alone: the stage makes
+them in ``prepare`` (``prepare_ports``), which a stage process runs on its second thread as soon as
+the features arrive, while it waits for the state of t - 1; ``step`` then only proposes. The same
+arrays either way (``--inline`` makes them in ``step``).
+
+The time step. The proposals of frame t are made for the periods since the state's frame
+(:func:`stages.time_step.time_step` of the two frames' stamps: 1 for files, the real time for a
+live source that skipped frames; :meth:`gflow_core.gflow.GFlowConfig.at_pace`), and carry it to
+the filter (``PoseProposals.dt``), which predicts the texels over the same periods.
+
 No usable frame t or no state t - 1: the stage publishes an *empty* proposal message
 (no experts) for frame t and reports why, so the filter coasts instead of waiting.
 """
@@ -49,7 +60,8 @@ from gflow_core.gflow.filter import advance_background, initial_background, pred
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import GFlowStageFields, frame_of, prepare, proposals_msg, shard_indices, unpack_states
+from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, proposals_msg, shard_indices,
+                           unpack_states)
 from .messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
 from .rng import tracker_rng
 from .time_step import time_step
@@ -107,6 +119,7 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
     outputs = {"proposals": PoseProposals}
     drivers = frozenset({"features"})
     input_offsets = {"state": 1}
+    prepare_ports = frozenset({"features"})
 
     def __init__(self, params: GFlowProposalFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
@@ -129,12 +142,19 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         return frozenset({"features", "state"})
 
     # -- one frame ---------------------------------------------------------------------------
+    def prepare(self, port: str, msg: Message) -> GFlowObservation:
+        """What G-flow reads of a frame and the pyramid its proposals need (:meth:`GFlowTracker.with_pyramid`),
+        which depend on the frame alone: made as soon as it arrives, while the stage waits for the
+        experts. Raises StageInputError for a frame that cannot be used."""
+        assert isinstance(msg, Features)
+        return TRACKER.with_pyramid(self.tracker, frame_of(msg, msg.header.seq, self.tracker))
+
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         feat = inputs.get("features")
         obs = None
         if isinstance(feat, Features):
             try:
-                obs = frame_of(feat, seq, self.tracker, self.setup.image_shape if self.setup else None)
+                obs = check_size(self.prepared("features", feat), seq, self.setup.image_shape if self.setup else None)
             except StageInputError as e:
                 self.report("bad_features", f"{e}; no proposals for this frame", seq)
         elif self.init_seq is not None:

@@ -56,6 +56,8 @@ class PoseProposals(msgspec.Struct, frozen=True, tag=True):
     shard / shards : which shard of how many produced it.
     reset : (E',) bool, experts that took the frontal reset (texture restarted from the first look);
         None (an older message) = none did.
+    dt : frame periods from the state's frame to this one, the step the proposals were made for
+        (a live source skips frames); 1.0 in an older message.
     """
 
     header: Header
@@ -70,6 +72,7 @@ class PoseProposals(msgspec.Struct, frozen=True, tag=True):
     shards: int = 1
     config_digest: str = ""
     reset: NDArray | None = None
+    dt: float = 1.0
 
 
 class PoseEstimate(msgspec.Struct, frozen=True, tag=True):

@@ -14,7 +14,9 @@ from gflow_core.gflow.head_model import bounding_box
 from gflow_scenes import SYNTH, Cycle, features_msg, payloads, plan_for, pose_estimates, render_folder
 from pipeline.runtime.inline import run_inline
 from gflow_core.gflow import GFlowParams
-from stages.gflow_filter import GFlowFilterParams
+from stages.base import StageContext
+from stages.gflow_filter import GFlowFilterParams, GFlowFilterStage
+from stages.gflow_proposal import GFlowProposalParams, GFlowProposalStage
 from stages.messages import ColourFeatures, NDArray
 from stages.tracker_params import tracker_params
 from stages.rng import stream_hash
@@ -161,3 +163,32 @@ def test_the_lost_guard_reads_colour_bins_survives_a_restart_and_reports_bad_bin
     fresh.step(1, _colour_features(grey[1], 1, np.zeros((5, 5), np.uint8)))
     kinds = [k for k, _, _ in fresh.filter.drain_reports()]
     assert kinds == ["bad_features"] and fresh.filter.state.lost.found == 1
+
+
+def test_a_live_step_of_several_periods_travels_with_the_proposals(scene) -> None:
+    """With host stamps (a live source) the proposal stage measures the time since the experts' frame
+    in nominal periods and the proposals carry it to the filter, which predicts the texels over the
+    same periods; proposals claiming a step shorter than a period are refused and the filter coasts."""
+    _, seq, frames = scene
+    grey = np.rint(frames * 255).astype(np.uint8)
+    params = dict(SYNTH, seed=4, init=[float(v) for v in seq.box])
+    live = {"frame_period_ns": 40e6}  # 25 frames/s
+    prop = GFlowProposalStage(msgspec.convert(params, GFlowProposalParams), StageContext("proposal", "t", **live))
+    filt = GFlowFilterStage(msgspec.convert(params, GFlowFilterParams), StageContext("filter", "t", **live))
+    t0 = 1_700_000_000_000_000_000
+    stamps = [t0, t0 + 40_000_000, t0 + 160_000_000]  # frame 2 was taken 3 periods after frame 1
+    state, steps = None, []
+    for t, stamp in enumerate(stamps):
+        f = features_msg(grey[t], t)
+        feat = msgspec.structs.replace(f, header=msgspec.structs.replace(f.header, stamp_ns=stamp))
+        props = dict(prop.step(t, {"features": feat, "state": state})).get("proposals")
+        if props is not None:
+            steps.append(props.dt)
+        out = dict(filt.step(t, {"features": feat, "proposals0": props}))
+        state = out["state"]
+        assert out["estimate"].state in ("init", "track")
+    assert steps == [1.0, 3.0]
+    bad = msgspec.structs.replace(props, dt=0.5)
+    out = dict(filt.step(3, {"features": features_msg(grey[3], 3), "proposals0": bad}))
+    assert out["estimate"].state == "coast"
+    assert [k for k, _, _ in filt.drain_reports()] == ["bad_proposals"]

@@ -42,6 +42,11 @@ Departures from the paper
   soft wall on the rotation (``max_rotation_deg``) and an outlier process per vertex
   (``outlier_sigmas``; outlier texels are predicted, not updated, so an occluder is not
   learned). See :mod:`.pose_opinion` and :mod:`.photometric`.
+* A step may span ``dt`` frame periods (a live source skips frames; the paper's frames are one
+  period apart): :meth:`GFlowConfig.at_pace` composes ``dt`` one-period steps of the pose walk,
+  the rotation decay, the texels' prediction and the frontal reset; :func:`propose` takes ``dt``
+  and the :class:`Proposals` carry it to :func:`update`. ``dt = 1`` is the one-period model, bit
+  for bit.
 * See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
   default, safeguards, ``alpha = 0``), :mod:`.texture` (``object_mask="hull"`` with a
   margin) and :mod:`.credibility` (systematic resampling).
@@ -68,7 +73,7 @@ from .credibility import (
 )
 from .geometry import COEF, N_RIGID, ROT, TRANS, box_plus, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box
-from .image import bilinear_stencil, frame_pyramid, prepare_frame, validate_frame
+from .image import FrameData, bilinear_stencil, frame_pyramid, prepare_frame, validate_frame
 from .photometric import Photometric, correct, gain_bias
 from .pose_opinion import (
     TextureView,
@@ -328,6 +333,50 @@ class GFlowConfig:
             self, "prior_std_coefficients", _as_std_tuple("prior_std_coefficients", self.prior_std_coefficients, None)
         )
 
+    def at_pace(self, dt: float) -> GFlowConfig:
+        """The configuration of one step that spans ``dt`` frame periods (a live source skips frames).
+
+        Every per-frame setting of the models is that of ``dt`` frames composed (``dt = 1``: ``self``,
+        the same bits):
+
+        * the pose random walk (eq. 4's ``u_t = u_{t-1} + noise``, sec. 2 leaves it open) over ``dt``
+          periods: its standard deviations times ``sqrt(dt)``;
+        * the prior mean's rotation decay ``a`` (:func:`.pose_opinion.prior_mean`): ``a^dt``;
+        * the object texels (eq. 4's ``V_t = V_{t-1} + Z``; with ``texture_decay = a < 1`` the AR(1)
+          process of :func:`.texture.anchored_predict`): ``a^dt`` and
+          ``Var(Z) = Psi_v (1 - a^(2 dt)) / (1 - a^2)`` (``Psi_v dt`` when ``a = 1``);
+        * the frontal reset's probability ``r`` (:class:`.pose_opinion.RotationReset`): ``1 - (1 - r)^dt``.
+
+        With a morph prior the coefficients' AR(1) mean and spread follow from the walk's widened
+        standard deviation (:meth:`morph_shrink`): ``a' = 1 / (1 + dt std^2 / m^2)``, to first order
+        ``a^dt``, with the same stationary spread. The background texels (``Psi_b``), kept per frame
+        seen by each proposal stage's replica, are not changed, nor is the translation search
+        (``search_radius``): its 32 px are 3.7 standard deviations of the walk over 3 periods, and a
+        search grown as the walk's spread (times ``sqrt(dt)``) lost the face more often on david_indoor
+        played at every 3rd frame (landmark NME 0.178 against 0.136, mean of seeds 1-3).
+
+        Raises ``ValueError`` unless ``dt`` is finite and ``>= 1``.
+        """
+        if not (math.isfinite(dt) and dt >= 1.0):
+            raise ValueError(f"dt must be finite and >= 1 frame period, got {dt!r}")
+        if dt == 1.0:
+            return self
+        s = math.sqrt(dt)
+
+        def walk(v: float | tuple[float, ...]) -> tuple[float, ...]:
+            # std over dt periods of a random walk: sqrt(dt) std  (inf stays inf)
+            return tuple(x * s for x in cast("tuple[float, ...]", v))
+
+        a = self.texture_decay
+        # Var(V_{t+dt} - a^dt V_t) = Psi_v (1 + a^2 + ... + a^(2 (dt - 1)))
+        psi_v = self.psi_v * dt if a == 1.0 else self.psi_v * (1.0 - a ** (2.0 * dt)) / (1.0 - a * a)
+        return dataclasses.replace(
+            self, prior_std_rotation=walk(self.prior_std_rotation),
+            prior_std_translation=walk(self.prior_std_translation),
+            prior_std_coefficients=walk(self.prior_std_coefficients),
+            prior_rotation_decay=self.prior_rotation_decay ** dt, texture_decay=a ** dt, psi_v=psi_v,
+            reset_rate=1.0 - (1.0 - self.reset_rate) ** dt)
+
     def scale_limits(self) -> tuple[float, float] | None:
         """``(|c_0|, log max_scale_change)`` for :func:`.pose_opinion.scale_wall`, or None."""
         if not (math.isfinite(self.max_scale_change) and self.scale_reference):
@@ -461,6 +510,9 @@ class Proposals:
     reset : (E',) bool
         Experts whose peak is the frontal reset's and whose texture restarts from the first look
         (:class:`.pose_opinion.RotationReset`; all False without ``reset_rate``).
+    dt : float
+        Frame periods the step spans (:meth:`GFlowConfig.at_pace`); :func:`update` predicts the
+        texels over the same periods.
     """
 
     expert_indices: np.ndarray
@@ -471,6 +523,7 @@ class Proposals:
     log_evidence: np.ndarray
     gn_objective: np.ndarray
     reset: np.ndarray
+    dt: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -631,6 +684,7 @@ def propose(
     rngs: Sequence[np.random.Generator],
     expert_indices: Sequence[int] | np.ndarray | None = None,
     dt: float = 1.0,
+    pyramid: Sequence[FrameData] | None = None,
 ) -> Proposals:
     """Pose opinions (sec. 3.2) and likelihoods (eq. 19) of some or all experts.
 
@@ -649,15 +703,25 @@ def propose(
     expert_indices : sequence of int, optional
         Which experts (default: all, ``0 .. E-1``).
     dt : float
-        Frame periods since ``t - 1`` (1: the next frame; a live source skips frames): the
-        prior's standard deviations grow as sqrt(dt). With dt = 1 the bits are the one-step model's.
+        Frame periods since the state's frame (1: the next frame; a live source skips frames): the
+        pose transition and the texels' prediction span ``dt`` periods (:meth:`GFlowConfig.at_pace`).
+        With dt = 1 the bits are the one-step model's. The proposals carry it to :func:`update`.
+    pyramid : sequence of FrameData, optional
+        ``frame`` already validated with its gradient images and its coarser levels
+        (:func:`.image.prepare_frame`, :func:`.image.frame_pyramid` with ``cfg.pyramid_levels``), made
+        ahead of the experts; None: made here. The same arrays either way.
 
     Returns
     -------
     Proposals
     """
     state.check(model)
-    fd = prepare_frame(frame, shape=state.image_shape)
+    if pyramid is None:
+        pyramid = frame_pyramid(prepare_frame(frame, shape=state.image_shape), cfg.pyramid_levels)
+    elif not pyramid or pyramid[0].shape != tuple(state.image_shape):
+        raise ValueError(f"the frame's pyramid is for {pyramid[0].shape if pyramid else 'no'} frames, the state "
+                         f"tracks {tuple(state.image_shape)}")
+    fd = pyramid[0]
     E = state.n_experts
     if expert_indices is None:
         idx = np.arange(E, dtype=np.int64)
@@ -672,7 +736,9 @@ def propose(
         idx = idx.astype(np.int64)
     if len(rngs) != idx.size:
         raise ValueError(f"need one rng per proposed expert: got {len(rngs)} rngs for {idx.size} experts")
-    prior_std = cfg.prior_std(model.n_bases) * math.sqrt(dt)  # p(u_t | u_{t-1}) over dt periods
+    # p(u_t | u_{t-dt}) and the texels' prediction over the dt periods since the state's frame
+    cfg = cfg.at_pace(dt)
+    prior_std = cfg.prior_std(model.n_bases)
     prev = state.poses[idx]
     # mean of p(u_t | u_{t-1}): u_{t-1} itself unless its rotation decays toward the identity
     centre = prior_mean(prev, cfg.prior_rotation_decay, cfg.morph_shrink(model.n_bases))
@@ -697,7 +763,7 @@ def propose(
     else:
         # departures (see pose_opinion.coarse_to_fine_peak and photometric): pyramid, search, gain/bias
         gn = coarse_to_fine_peak(
-            model.bases, frame_pyramid(fd, cfg.pyramid_levels), centre, tv, cfg.sigma_w, prior_std,
+            model.bases, pyramid, centre, tv, cfg.sigma_w, prior_std,
             cfg.gn_iterations, start=prev, use_background=cfg.gn_background, photometric=ph,
             offsets=search_offsets(cfg.search_radius, cfg.search_step), max_rotation=max_rot,
             search_stride=cfg.search_stride, outlier_sq=osq, scale=scale, reset=reset,
@@ -725,6 +791,7 @@ def propose(
         log_evidence=_ro(log_ev),
         gn_objective=_ro(gn.objective),
         reset=_ro(np.array(flags, dtype=bool)),
+        dt=float(dt),
     )
 
 
@@ -739,13 +806,16 @@ def concatenate_proposals(parts: Sequence[Proposals]) -> Proposals:
     """Join proposals of disjoint expert shards, ordered by expert index."""
     if not parts:
         raise ValueError("no proposals to concatenate")
+    dts = {p.dt for p in parts}
+    if len(dts) != 1:
+        raise ValueError(f"proposals of one frame made for different time steps {sorted(dts)}")
     idx = np.concatenate([p.expert_indices for p in parts])
     order = np.argsort(idx, kind="stable")
 
     def cat(name: str) -> np.ndarray:
         return _ro(np.concatenate([getattr(p, name) for p in parts])[order])
 
-    return Proposals(**{f: cat(f) for f in Proposals.__dataclass_fields__})
+    return Proposals(**{f: cat(f) for f in Proposals.__dataclass_fields__ if f != "dt"}, dt=parts[0].dt)
 
 
 def update(
@@ -763,7 +833,8 @@ def update(
     state : ExpertState
         Experts at ``t - 1`` (the state ``proposals`` were computed from).
     proposals : Proposals
-        For all experts, ``0 .. E-1`` in order (see :func:`concatenate_proposals`).
+        For all experts, ``0 .. E-1`` in order (see :func:`concatenate_proposals`); the texels are
+        predicted over its ``dt`` periods.
     frame : (H, W) float64 in [0, 1]
         ``y_t``.
     model : MorphableModel
@@ -787,6 +858,8 @@ def update(
     samples, log_w = proposals.samples, proposals.log_weights
     if not (np.isfinite(log_w).all() and np.isfinite(samples).all()):
         raise ValueError("proposals contain NaN or infinite values")
+    # the texels are predicted over the periods the proposals' step spans (eq. 9, 10)
+    cfg = cfg.at_pace(proposals.dt)
     s = samples.shape[1]
     # credibility, eq. 17 with eq. 19
     log_cred = log_credibility(state.log_credibility, proposals.log_evidence)

@@ -116,6 +116,8 @@ class GFlowParams:
     lost_colour: bool = param(True, "the lost guard weighs the box's colour histogram too (colour frames)")
     lost_window: float = param(1.5, "half-width of the first re-detection window, in box sizes")
     lost_growth: float = param(0.1, "the re-detection window widens by this many box sizes a lost frame")
+    lost_hold: float = param(1.0, "while the target is held, the experts are kept within this many box sizes of "
+                                  "where it was last found (0: wherever G-flow takes them)")
     lost_scales: tuple[float, ...] = param((1.0, 0.93, 1.07), "sizes (multiples of the held size) searched when "
                                                              "re-detecting")
 
@@ -131,6 +133,8 @@ class GFlowParams:
             raise ValueError(f"head_grid must be at least (2, 2), got {self.head_grid}")
         if len(self.init_jitter) != 3 or not all(math.isfinite(v) and v >= 0 for v in self.init_jitter):
             raise ValueError(f"init_jitter must be three finite numbers >= 0, got {self.init_jitter}")
+        if not (math.isfinite(self.lost_hold) and self.lost_hold >= 0):
+            raise ValueError(f"lost_hold must be finite and >= 0 (0: the experts are not kept), got {self.lost_hold}")
         if not (self.lost_window > 0 and self.lost_growth >= 0 and self.lost_scales
                 and all(math.isfinite(v) and v > 0 for v in self.lost_scales)):
             raise ValueError(f"lost_window must be positive, lost_growth >= 0 and lost_scales positive, got "

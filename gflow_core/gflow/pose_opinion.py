@@ -496,8 +496,11 @@ class _Fit:
                  lam: np.ndarray, use_background: bool, level_scale: float, photometric: Photometric | None,
                  max_rotation: float, outlier_sq: float, scale: tuple[float, float] | None) -> None:
         self.bases, self.fd, self.prev, self.tv, self.sigma_w, self.lam = bases, fd, prev, tv, sigma_w, lam
-        # h_i as (3, n, k): the shape vertices and the Jacobian come out with the vertices last
+        # h_i as (3, n, k), and as (k, 3 n) and (3, k, n): the shape vertices and the Jacobian come out
+        # with the vertices last
         self.h = np.ascontiguousarray(bases.transpose(1, 0, 2))
+        self.hk = np.ascontiguousarray(bases.transpose(2, 1, 0).reshape(bases.shape[2], -1))
+        self.hT = np.ascontiguousarray(bases.transpose(1, 2, 0))
         self.q_prev = pose_quaternions(prev)
         self.background = bool(tv.has_background and use_background)
         self.level_scale, self.photometric = level_scale, photometric
@@ -532,8 +535,9 @@ class _Evaluation:
         ls = fit.level_scale
         qu = pose_quaternions(u)
         self.g_r = quaternion_matrices(qu, rows=2)  # (E, 2, 3) = g r
-        # h_i c, (E, 3, n)
-        self.s = np.einsum("xnk,ek->exn", fit.h, u[:, COEF])
+        # h_i c, (E, 3, n): one (1, k) x (k, 3 n) product per expert (a batch of BLAS calls, each
+        # expert's alone, so any split of the experts gives the same numbers)
+        self.s = (u[:, None, COEF] @ fit.hk).reshape(u.shape[0], 3, -1)
         # x_i = g r (h_i c) + l   (eq. 1), then to the level's pixels
         xy = self.g_r @ self.s  # (E, 2, n)
         x, y = xy[:, 0] + u[:, 3, None], xy[:, 1] + u[:, 4, None]
@@ -594,8 +598,7 @@ class _Evaluation:
         """
         s, g_r = self.s[sel], self.g_r[sel]
         E, n = gx.shape
-        h = self.fit.h
-        k = h.shape[2]
+        k = self.fit.hT.shape[1]
         q = g_r.transpose(0, 2, 1) @ np.stack([gx, gy], axis=1)  # (E, 3, n)
         J = np.empty((E, 5 + k, n))
         s0, s1, s2 = s[:, 0], s[:, 1], s[:, 2]
@@ -605,7 +608,12 @@ class _Evaluation:
         np.subtract(s0 * q1, s1 * q0, out=J[:, 2])
         J[:, 3] = gx
         J[:, 4] = gy
-        J[:, 5:] = np.einsum("exn,xnk->ekn", q, h)
+        # q_i . h_i for each coefficient: sum over the 3 axes, in order
+        hT = self.fit.hT
+        Jc = J[:, 5:]
+        np.multiply(q[:, 0, None, :], hT[0], out=Jc)
+        Jc += q[:, 1, None, :] * hT[1]
+        Jc += q[:, 2, None, :] * hT[2]
         return J
 
     def linearise(self, sel: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -626,12 +634,13 @@ class _Evaluation:
         wr = w * self.r[sl]
         # foreground: g = J^T W r,  H = J^T W J
         g = (J @ wr[:, :, None])[:, :, 0]
-        H = (J * w[:, None, :]) @ J.transpose(0, 2, 1)
+        H = (J * w[:, None, :]) @ J.transpose(0, 2, 1)  # a new C-contiguous array
         P = H.shape[-1]
+        diag = H.reshape(H.shape[0], P * P)[:, :: P + 1]  # a view of its diagonals
         # prior: d(u [+] delta) ~ d(u) + delta
         lam, u = fit.lam, self.u[sl]
         g += lam * self.d[sl]
-        H += np.diag(lam)
+        diag += lam
         if self.wall_r:
             _, gw, hw = rotation_wall(u, fit.max_rotation)
             g[:, ROT] += gw
@@ -641,9 +650,8 @@ class _Evaluation:
             g[:, COEF] += gc
             H[:, COEF, COEF] += hc
         # ridge (numerical guard, see module docstring)
-        dg = np.diagonal(H, axis1=1, axis2=2)
-        ridge = 1e-10 * dg + 1e-12 * np.maximum(dg.max(axis=1, keepdims=True), 1e-12)
-        H[:, np.arange(P), np.arange(P)] += ridge
+        ridge = 1e-10 * diag + 1e-12 * np.maximum(diag.max(axis=1, keepdims=True), 1e-12)
+        diag += ridge
         if fit.background:
             # d (y_t(x) - mu_b(x)) / d delta
             bx, by = gx - self.mbx[sl] * ls, gy - self.mby[sl] * ls
@@ -833,14 +841,20 @@ def gauss_newton_peak(
         ev = _Evaluation(fit, cand)
         ok = np.isfinite(ev.f) & (ev.f <= f)
         step_len = np.where(ok, np.minimum(1.0, 2.0 * step_len), 0.5 * step_len)
-        sel = np.flatnonzero(ok)
-        if sel.size == 0:
+        n_ok = int(np.count_nonzero(ok))
+        if n_ok == 0:
             continue
-        u[sel] = cand[sel]
-        f[sel] = ev.f[sel]
+        u[ok] = cand[ok]
+        f[ok] = ev.f[ok]
         if final_hessian or it < n_iter - 1:
-            # relinearise where the step was taken (elsewhere the point, so g and H, are unchanged)
-            g[sel], H[sel] = ev.linearise(None if sel.size == E else sel)
+            # relinearise where the step was taken (elsewhere the point, so g and H, are unchanged);
+            # every row when most steps were taken (each row's numbers are its own either way)
+            if 2 * n_ok >= E:
+                g_all, H_all = ev.linearise()
+                g[ok], H[ok] = g_all[ok], H_all[ok]
+            else:
+                sel = np.flatnonzero(ok)
+                g[sel], H[sel] = ev.linearise(sel)
     return GaussNewtonResult(u, H, f)
 
 

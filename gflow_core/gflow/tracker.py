@@ -23,7 +23,7 @@ import numpy as np
 
 from .. import colour as col
 from ..features import to_grey
-from ..m2.lost import Anchor, LostParams, LostState
+from ..m2.lost import Anchor, LostParams, LostState, bound_positions
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame
 from ..visibility import ChiSquare
 from . import guard
@@ -40,9 +40,9 @@ from .filter import (
     propose,
     update,
 )
-from .geometry import COEF, project, rotation_matrices
+from .geometry import COEF, TRANS, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box, fit_head_model_to_box, pose_for_box
-from .image import local_contrast
+from .image import FrameData, frame_pyramid, local_contrast, prepare_frame
 from .params import GFlowParams
 
 __all__ = ["GFlowTracker", "GFlowState", "GFlowObservation", "ModelSetup", "model_setup", "clip_box",
@@ -160,11 +160,21 @@ class GFlowObservation:
     y : (H, W) float64, ``y_t`` (:func:`observation`).
     bins : (H, W) uint8 colour bins (:func:`gflow_core.colour.bins`) for the lost guard's colour cue,
         or None (a grey frame, or no colour cue).
+    pyramid : ``y_t`` validated with its gradient images, level 0 first (:func:`.image.frame_pyramid`),
+        made ahead by :meth:`GFlowTracker.with_pyramid`; None: :meth:`GFlowTracker.propose` makes it.
+    channels : (H, W, 4) float32, the lost guard's orientation channels of ``grey``, made ahead by
+        :meth:`GFlowTracker.with_channels`; None: :meth:`GFlowTracker.update` makes them.
+
+    The last two are what a frame costs before any expert is looked at; a pipeline stage computes
+    them as soon as the frame arrives (``stages/gflow_proposal.py``, ``gflow_filter.py``), while it
+    waits for the experts. Made ahead or not, they are the same arrays, so the results are too.
     """
 
     grey: np.ndarray
     y: np.ndarray
     bins: np.ndarray | None = None
+    pyramid: tuple[FrameData, ...] | None = None
+    channels: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -193,9 +203,10 @@ class GFlowState:
     fit_level: ChiSquare = ChiSquare()
 
 
-def guard_params(params: GFlowParams) -> LostParams | None:
-    """The lost guard's settings, None without the guard."""
-    return guard.guard_params(params.lost_window, params.lost_growth) if params.lost_guard else None
+def guard_params(params: GFlowParams, dt: float = 1.0) -> LostParams | None:
+    """The lost guard's settings for a step of ``dt`` frame periods (its re-detection window widens by
+    ``lost_growth`` box sizes a period), None without the guard."""
+    return guard.guard_params(params.lost_window, params.lost_growth * dt) if params.lost_guard else None
 
 
 class GFlowTracker:
@@ -233,6 +244,19 @@ class GFlowTracker:
             raise UnusableFrame(f"every pixel is {lo} (a blank or saturated frame carries no information about the "
                                 f"pose, and would overwrite the textures)")
         return GFlowObservation(grey=grey, y=observation(grey, params.contrast_sigma))
+
+    def with_pyramid(self, params: GFlowParams, obs: GFlowObservation) -> GFlowObservation:
+        """``obs`` with the pyramid :meth:`propose` reads (``y_t`` validated, its gradient images and
+        ``pyramid_levels - 1`` coarser levels, :func:`.image.frame_pyramid`)."""
+        if obs.pyramid is not None:
+            return obs
+        return dataclasses.replace(obs, pyramid=tuple(frame_pyramid(prepare_frame(obs.y), params.pyramid_levels)))
+
+    def with_channels(self, params: GFlowParams, obs: GFlowObservation) -> GFlowObservation:
+        """``obs`` with the lost guard's orientation channels of the grey frame (none without the guard)."""
+        if obs.channels is not None or not params.lost_guard:
+            return obs
+        return dataclasses.replace(obs, channels=guard.channels(obs.grey))
 
     # -- the filter -----------------------------------------------------------------------------
     def init(self, params: GFlowParams, obs: GFlowObservation, box: Box, rng: FrameRng,
@@ -273,7 +297,8 @@ class GFlowTracker:
         """
         s = state.setup
         idx = np.arange(state.experts.n_experts, dtype=np.int64) if experts is None else np.asarray(experts)
-        props = propose(state.experts, obs.y, s.model, s.cfg, [rng.stream(int(i)) for i in idx], idx, dt)
+        props = propose(state.experts, obs.y, s.model, s.cfg, [rng.stream(int(i)) for i in idx], idx, dt,
+                        pyramid=obs.pyramid)
         bad = [f for f in _PROPOSAL_ARRAYS if not np.isfinite(getattr(props, f)).all()]
         if bad:
             raise ValueError(f"non-finite {', '.join(bad)}")
@@ -282,25 +307,35 @@ class GFlowTracker:
     def update(self, params: GFlowParams, state: GFlowState, proposal: Proposals, obs: GFlowObservation,
                rng: FrameRng) -> tuple[GFlowState, Estimate]:
         """Credibility (eq. 17, 19), resampling from ``rng.stream()`` (sec. 3.4) and the texel update
-        (eq. 7-10) (:func:`.filter.update`), then the lost guard (:mod:`.guard`): the estimate is
-        verified, held while the target is judged hidden or lost, and the experts re-seated where a
-        search finds it again (phase ``redetect``). The confidence is the guard's P(visible); without
-        the guard it is the fraction of vertices the frame explains as the object
-        (``Estimate.inlier_fraction``), below ``occluded_below`` the target is occluded, below
-        ``lost_below`` lost."""
+        (eq. 7-10) (:func:`.filter.update`, over the ``proposal.dt`` periods the step spans), then the
+        lost guard (:mod:`.guard`): the estimate is verified, held while the target is judged hidden or
+        lost (box and points where it was last found, the experts kept within ``lost_hold`` box sizes
+        of it, :meth:`_hold`), and the experts re-seated where a search finds it again (phase
+        ``redetect``), at the pose where the first look fits the frame there (:meth:`_place`). The
+        confidence is the guard's P(visible); without the guard it is the fraction of vertices the frame
+        explains as the object (``Estimate.inlier_fraction``), below ``occluded_below`` the target is
+        occluded, below ``lost_below`` lost."""
         s = state.setup
         new, est = update(state.experts, proposal, obs.y, s.model, s.cfg, rng.stream())
-        gp = guard_params(params)
+        gp = guard_params(params, proposal.dt)
         if gp is None or state.anchor is None:
             conf = min(max(est.inlier_fraction, 0.0), 1.0)
             judged = "lost" if conf < params.lost_below else "occluded" if conf < params.occluded_below else "tracked"
             out = GFlowState(s, new, conf, judged, state.anchor, state.lost, state.fit_level)
             return out, self._estimate_of(out, rng.t, "track", est)
-        g = guard.step(state.lost, state.anchor, gp, guard.channels(obs.grey),
-                       obs.bins if params.lost_colour else None, self._box(s, est.pose, est.bbox), est.pose,
-                       tuple(params.lost_scales), guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level)
+        channels = self.with_channels(params, obs).channels
+        assert channels is not None  # the guard is on
+        g = guard.step(state.lost, state.anchor, gp, channels, obs.bins if params.lost_colour else None,
+                       self._box(s, est.pose, est.bbox), est.pose, tuple(params.lost_scales),
+                       guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level,
+                       place=lambda box: self._place(params, s, new, obs, box))
         if g.pose is None:
+            if g.target_state != "tracked" and g.lost.held is not None and params.lost_hold > 0:
+                new = self._hold(s, new, g.lost.held, params.lost_hold)
             out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level)
+            if g.held_pose is not None:
+                # the held box is reported: the face where it was last found, its points with it
+                return out, self._held_estimate(out, rng.t, est, g.box, g.held_pose)
             return out, self._estimate_of(out, rng.t, g.phase, est, g.box)
         # re-detected: every expert re-seated at the candidate, texels read there
         seated = guard.reseat(new, g.pose, obs.y, s.model, s.cfg)
@@ -313,12 +348,54 @@ class GFlowTracker:
         out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level)
         return out, self.summary_estimate(out, rng.t, g.phase)
 
+    def _place(self, params: GFlowParams, setup: ModelSetup, experts: ExpertState, obs: GFlowObservation,
+               box: tuple[float, float, float, float]) -> np.ndarray:
+        """The pose to re-seat the experts at for a re-detected ``box``: the first frame's pose moved and
+        scaled into it (:func:`.guard.reseat_pose`), settled where the first look fits the frame
+        (:func:`.guard.settle`)."""
+        pose0 = setup.pose0
+        box0 = self._box(setup, pose0, bounding_box(project(setup.model.bases, pose0)))
+        pyramid = self.with_pyramid(params, obs).pyramid
+        assert pyramid is not None
+        return guard.settle(guard.reseat_pose(pose0, box0, box), pyramid, experts, setup.model, setup.cfg)
+
     def _estimate_of(self, state: GFlowState, t: int, phase: str, est: Any,
                      box: tuple[float, float, float, float] | None = None) -> Estimate:
         """:meth:`estimate` of :func:`.filter.update`'s estimate ``est``, with ``box`` reported instead
         of the posterior's when given (the lost guard's held box)."""
         return self.estimate(state, t, phase, est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
                              est.expert_points, est.mean_points, est.bbox, est.log_credibility, est.parents,
+                             est.resampled, box=box)
+
+    def _hold(self, setup: ModelSetup, experts: ExpertState, held: tuple[float, ...], reach: float) -> ExpertState:
+        """The experts kept near the face while the lost guard holds it where it was last found: each
+        expert's box centre (:meth:`_box`) moved, by its translation ``l``, into the held box's centre
+        +- ``reach`` box sizes (:func:`gflow_core.m2.lost.bound_positions`, as the contour trackers keep
+        their particles). G-flow's likelihood follows whatever explains the frame best while the face
+        is hidden or turned away (a plain wall, a shoulder); kept within reach, the experts are where the
+        face comes back."""
+        model = setup.model
+        boxes = np.array([self._box(setup, u, bounding_box(p)) for u, p in zip(experts.poses,
+                                                                               project(model.bases, experts.poses))])
+        centre = boxes[:, :2] + 0.5 * boxes[:, 2:]
+        hc = (held[0] + 0.5 * held[2], held[1] + 0.5 * held[3])
+        shift = bound_positions(centre, hc, (reach * held[2], reach * held[3])) - centre
+        if not shift.any():
+            return experts
+        poses = np.array(experts.poses)
+        # both of G-flow's boxes move with the translation l (eq. 1)
+        poses[:, TRANS] += shift
+        poses.setflags(write=False)
+        return dataclasses.replace(experts, poses=poses)
+
+    def _held_estimate(self, state: GFlowState, t: int, est: Any, box: tuple[float, float, float, float],
+                       pose: np.ndarray) -> Estimate:
+        """The estimate of a frame whose target the lost guard holds where it was last found: the held
+        ``box`` and the held ``pose`` (P,) with its rotation and projected points; the experts' spread,
+        points and credibilities as they are."""
+        mean_pts = project(state.setup.model.bases, pose)
+        return self.estimate(state, t, "lost", pose, est.pose_std, rotation_matrices(pose), est.spread_px, est.ess,
+                             est.expert_points, mean_pts, bounding_box(mean_pts), est.log_credibility, est.parents,
                              est.resampled, box=box)
 
     @staticmethod

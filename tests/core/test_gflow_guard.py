@@ -1,13 +1,19 @@
-"""G-flow's lost guard (gflow_core.gflow.guard): re-seating the experts on a re-detected box, the
-first-look fit that confirms it (tests/test_real_tracking.py has it on caviar1's real frames)."""
+"""G-flow's lost guard (gflow_core.gflow.guard): re-seating the experts on a re-detected box at the
+pose where the first look fits it, the first-look fit that confirms it, and the experts kept near
+the held box while the target is held (tests/test_real_tracking.py has it on caviar1's real frames)."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
 
 from gflow_core.gflow import GFlowParams, fit_head_model_to_box, init_state
 from gflow_core.gflow import guard
+from gflow_core.gflow.geometry import rotation_angle_deg
+from gflow_core.gflow.image import frame_pyramid, prepare_frame
+from gflow_core.gflow.tracker import TRACKER, GFlowState, model_setup
 from gflow_core.gflow.face_pose import following_box
 from gflow_core.gflow.geometry import project
 from gflow_core.gflow.head_model import bounding_box
@@ -58,3 +64,53 @@ def test_the_first_look_fits_the_target_better_than_a_place_beside_it(head) -> N
     beside = pose0.copy()
     beside[3] += 40.0
     assert fit(pose0) > 0.95 and fit(beside) < fit(pose0) - 0.03
+
+
+def test_a_plain_patch_has_no_fit_to_the_first_look(head) -> None:
+    """The fit is a correlation: a flat wall explains the texels of a contrast-normalised face within
+    their spread, and still does not fit them."""
+    seq, model, pose0 = head
+    cfg = GFlowParams(model="", n_experts=4, texture_decay=0.9).config(model, pose0)
+    st = init_state(model, pose0, seq.frames[0], cfg)
+    flat = np.full_like(seq.frames[0], 0.5)
+    flat[:, :3] = 0.2  # not uniform (a uniform frame is unusable), but flat under the head
+    assert guard.first_look_fit(st, flat, model, cfg)(pose0) == 0.0
+    far = pose0.copy()
+    far[3] += 1e4  # every vertex outside the image
+    assert guard.first_look_fit(st, seq.frames[0], model, cfg)(far) == 0.0
+
+
+def test_settle_puts_a_box_sized_guess_back_on_the_face(head) -> None:
+    """A re-detection gives a box; the first frame's pose placed in a box a few pixels off and tilted
+    settles where the first look fits the frame: back on the head's true pose."""
+    seq, model, pose0 = head
+    cfg = GFlowParams(model="", n_experts=4, texture_decay=0.9).config(model, pose0)
+    st = init_state(model, pose0, seq.frames[0], cfg)
+    guess = pose0.copy()
+    guess[3:5] += (7.0, -5.0)
+    guess[:3] = (0.0, 0.0, np.radians(12.0))
+    pyramid = frame_pyramid(prepare_frame(seq.frames[0]), cfg.pyramid_levels)
+    u = guard.settle(guess, pyramid, st, model, cfg)
+    err = lambda v: np.abs(project(model.bases, v) - project(model.bases, pose0)).max()  # noqa: E731
+    assert err(guess) > 6.0 and err(u) < 1.0
+    assert rotation_angle_deg(guess, pose0) == pytest.approx(12.0) and rotation_angle_deg(u, pose0) < 4.0
+
+
+def test_the_experts_are_kept_near_the_held_box_while_the_target_is_held(head) -> None:
+    seq, model, pose0 = head
+    params = GFlowParams(model="", n_experts=3, lost_hold=1.0)
+    setup = model_setup(params, seq.box, seq.frames.shape[1:])
+    st = init_state(setup.model, setup.pose0, seq.frames[0], setup.cfg)
+    poses = np.array(st.poses)
+    poses[:, 3] += (0.0, 30.0, 500.0)  # on the box, near it, far away
+    poses.setflags(write=False)
+    st = dataclasses.replace(st, poses=poses)
+    held = tuple(float(v) for v in bounding_box(project(setup.model.bases, setup.pose0)))
+    kept = TRACKER._hold(setup, st, held, params.lost_hold)
+    centres = np.array([bounding_box(p)[:2] + 0.5 * bounding_box(p)[2:] for p in project(setup.model.bases, kept.poses)])
+    hc = np.array(held[:2]) + 0.5 * np.array(held[2:])
+    assert np.array_equal(kept.poses[:2], st.poses[:2])  # within reach: unchanged
+    assert centres[2, 0] == pytest.approx(hc[0] + held[2], abs=1e-9)  # the far one at the edge of reach
+    assert np.array_equal(kept.poses[2, 5:], st.poses[2, 5:]) and np.array_equal(kept.tex_mean, st.tex_mean)
+    with pytest.raises(ValueError, match="lost_hold"):
+        GFlowParams(lost_hold=-1.0)

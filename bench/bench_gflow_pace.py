@@ -1,0 +1,107 @@
+"""G-flow at a camera's pace: david_indoor played at every k-th frame, the time between the frames
+reaching the tracker (dt = k), scored with the landmark metric (README "Faces").
+
+One command: ``python bench/bench_gflow_pace.py [--every 1,3] [--seeds 1] [--inline]``
+
+A live camera faster than the tracker makes it skip frames; the stages then measure the time since
+the frame they last saw in nominal periods (``stages/time_step.py``) from the frames' host stamps.
+To play a sequence that way, each k-th frame of ../shared/data/david_indoor is written to an MCAP
+recording as a live source would record it: frames numbered 0, 1, 2, ... stamped k frame periods
+(of 25 frames/s) apart, each with its Capture message naming the camera's frame (0, k, 2k, ...) and
+the k - 1 frames skipped before it. ``gflow track REC.mcap --set source.clock=host`` replays it
+with those stamps (as ``gflow rerun`` replays a live run): G-flow's proposals are made for dt = k
+periods, and the CSV rows are the camera's frame numbers, so ``gflow eval --landmarks`` scores them
+against the reference landmarks of frames 0, k, 2k, ... The printed commands are the ones run
+(``OUT`` a temporary folder, removed at the end).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _util import scratch, table  # noqa: E402
+
+from pipeline.io.recorder import McapRecorder  # noqa: E402
+from stages.messages import Capture, Frame, Header, NDArray, encode  # noqa: E402
+
+DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
+INIT = "169,76,46,60"
+FPS = 25.0
+T0 = 1_700_000_000_000_000_000  # a host clock stamp (ns)
+
+
+def derive(data: Path, k: int, out: Path, stream: str = "cam0") -> int:
+    """Write every ``k``-th frame of ``data/frames`` to ``out`` as a live source records it; returns the
+    number of frames written."""
+    files = sorted(p for p in (data / "frames").iterdir() if p.suffix.lower() in (".jpg", ".png"))
+    period = int(round(1e9 / FPS))
+    rec = McapRecorder(out).open()
+    try:
+        for i, f in enumerate(files[::k]):
+            img = cv2.imread(str(f))
+            if img is None:
+                raise SystemExit(f"{f}: cannot read the image")
+            head = Header(stream, i, T0 + i * k * period)
+            rec.write(f"gflow/{stream}/frames", encode(Frame(header=head, image=NDArray.of(img), source=f.name)), i,
+                      log_ns=head.stamp_ns)
+            rec.write(f"gflow/{stream}/captures",
+                      encode(Capture(header=head, frame=i * k, skipped=0 if i == 0 else k - 1)), i, log_ns=head.stamp_ns)
+    finally:
+        rec.close()
+    return len(files[::k])
+
+
+def run(cmd: list[str], tmp: Path, show: bool) -> str:
+    if show:
+        print("$ " + " ".join(cmd).replace(str(DATA), "../shared/data/david_indoor").replace(str(tmp), "OUT"))
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    if out.returncode != 0:
+        raise SystemExit(f"{' '.join(cmd)} failed:\n{out.stderr}")
+    return out.stdout
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--every", default="1,3", help="play every k-th frame, for each k listed (default 1,3)")
+    ap.add_argument("--seeds", default="1", help="seeds, comma-separated (default 1)")
+    ap.add_argument("--inline", action="store_true", help="run the stages in one process (default: processes)")
+    args = ap.parse_args()
+    if not DATA.is_dir():
+        raise SystemExit(f"{DATA} not found: this benchmark needs ../shared/data/david_indoor")
+    tmp = scratch("gflow-pace-")
+    rows = []
+    for k in (int(v) for v in args.every.split(",")):
+        rec = tmp / f"david-every{k}.mcap"
+        n = derive(DATA, k, rec)
+        for seed in (int(v) for v in args.seeds.split(",")):
+            boxes, points = tmp / f"d{k}-{seed}.csv", tmp / f"p{k}-{seed}.csv"
+            show = seed == int(args.seeds.split(",")[0])
+            run(["gflow", "track", str(rec), "--tracker", "gflow", "--init", INIT, "--seed", str(seed),
+                 "--set", "source.clock=host", "--out", str(boxes), "--points-out", str(points), "--no-record", "-q",
+                 *(["--inline"] if args.inline else [])], tmp, show)
+            lm = json.loads(run(["gflow", "eval", "--landmarks", str(DATA / "landmarks.npz"), "--points", str(points),
+                                 "--json"], tmp, show))
+            bx = json.loads(run(["gflow", "eval", "--gt", str(DATA / "groundtruth.csv"), "--pred", str(boxes),
+                                 "--json"], tmp, show))
+            # the frames not played have no points nor boxes: scored over the frames played
+            played = bx["frames"] - bx["missing_predictions"]
+            success = bx["success_rate_0.5"] * bx["frames"] / max(played, 1)
+            rows.append([k, n, seed, lm["frames"] - lm["missing"], f"{lm['nme']:.3f}", f"{lm['px']:.2f}",
+                         f"{bx['cle_px']:.2f}", f"{success:.3f}"])
+            print(f"  every {k}th frame, seed {seed}: NME {lm['nme']:.3f}, CLE {bx['cle_px']:.2f} px", file=sys.stderr)
+    print(f"\nG-flow on david_indoor at every k-th frame (dt = k), {'inline' if args.inline else 'processes'}")
+    print(table(rows, ["k", "frames played", "seed", "with landmarks", "landmark NME", "landmark px", "box CLE px",
+                       "success"]))
+
+
+if __name__ == "__main__":
+    main()
