@@ -28,6 +28,7 @@ USER_VARIABLES = {
     "GFLOW_STALL_S": "seconds without progress before the launcher stops a run",
     "GFLOW_LATE_S": "seconds before a late input is given up (read by the launcher, sent in the plan)",
     "GFLOW_DRAIN_S": "seconds a finished stage waits for its messages to arrive (read by the launcher)",
+    "GFLOW_RECORDINGS_WARN_MB": "the recordings folder's size above which a run says so (0 never)",
 }
 
 
