@@ -204,6 +204,8 @@ def test_means_over_sequences(tmp_path):
     assert t["opencv csrt"][-1]["AUC"] == "0.550"
     means = {c["tracker"]: c for c in t["means over the sequences"]}
     assert means["t"]["AUC above static box"] == "1 of 2" and means["opencv csrt"]["AUC above static box"] == "1 of 2"
+    assert means["t"]["AUC below CSRT on"] == "b" and means["t"]["AUC below static box on"] == "b"
+    assert means["opencv csrt"]["AUC below CSRT on"] == "-"
     assert means_json(rows)["t"] == {"sequences": 2, "of": 2, "auc": 0.6, "precision_20": 0.75, "cle_px": 3.0,
                                      "success_rate_0.5": 0.6}
     md = format_tables(rows, markdown=True)

@@ -164,20 +164,25 @@ def _published_table(rows: list[Row], markdown: bool) -> str:
 
 
 def _means_table(rows: list[Row], seqs: list[str], markdown: bool) -> str:
-    """Every tracker's means side by side, and on how many sequences its AUC is above the still box's."""
-    head = ["tracker", "kind", "sequences", "AUC", f"prec@{PRECISION_AT}", "CLE px", "success", "AUC above static box"]
-    still = {r.sequence: r for r in _scored(rows) if r.kind == "baseline"}
+    """Every tracker's means side by side; for ours, on how many sequences its AUC is above the
+    static box's, and on which it is below each comparison's."""
+    auc = {(r.sequence, r.tracker): float(r.auc) for r in _scored(rows) if r.auc is not None}
+    still = {r.sequence: auc[r.sequence, r.tracker] for r in _scored(rows) if r.kind == "baseline"}
+    others = _names(rows, "opencv") + _names(rows, "baseline")
+    head = ["tracker", "kind", "sequences", "AUC", f"prec@{PRECISION_AT}", "CLE px", "success", "AUC above static box"] \
+        + [f"AUC below {_short(o)} on" for o in others]
     cells = []
     for kind in ("tracker", "opencv", "baseline"):
         for name in _names(rows, kind):
-            mine = [r for r in rows if r.tracker == name]
-            m = mean_of(mine, len(seqs))
-            ok = _scored(mine)
-            above = [r for r in ok if r.sequence in still and r.auc is not None and still[r.sequence].auc is not None
-                     and r.auc > still[r.sequence].auc]
-            vs = "-" if kind == "baseline" else f"{len(above)} of {sum(r.sequence in still for r in ok)}"
-            cells.append([name, kind, "0" if m is None else str(m.sequences)] + _mean_figures(m, False)[1:] + [vs])
-    return _table(head, cells, markdown, left={0, 1})
+            m = mean_of([r for r in rows if r.tracker == name], len(seqs))
+            mine = {q: a for (q, n), a in auc.items() if n == name}
+            above = sum(q in still and a > still[q] for q, a in mine.items())
+            vs = "-" if kind == "baseline" else f"{above} of {sum(q in still for q in mine)}"
+            below = [", ".join(q for q, a in mine.items() if (q, o) in auc and auc[q, o] > a) or "none"
+                     if kind == "tracker" else "-" for o in others]
+            cells.append([name, kind, "0" if m is None else str(m.sequences)] + _mean_figures(m, False)[1:] + [vs]
+                         + below)
+    return _table(head, cells, markdown, left={0, 1} | set(range(8, len(head))))
 
 
 def format_tables(rows: list[Row], markdown: bool = False, fps: bool = True) -> str:

@@ -412,11 +412,49 @@ def format_stress(rows: list[StressRow], markdown: bool = False) -> str:
         out += _summary_lines(name, mine, theirs, cv)
         out.append("")
         for group, title in (("families", "family"), ("sequences", "sequence")):
-            head = f"{name} per {title}" + (f" (beside it: {cv})" if cv else "")
-            out += [f"**{head}**" if markdown else head, "",
+            line = f"{name} per {title}" + (f" (beside it: {cv})" if cv else "")
+            out += [f"**{line}**" if markdown else line, "",
                     _group_table(title, _summary(mine)[group], _summary(theirs)[group] if theirs else None, cv,
                                  markdown), ""]
+    out += _overview(rows, markdown)
     return "\n".join(out).rstrip()
+
+
+#: the heading of the tables that put every tracker side by side
+OVERVIEW = "every tracker"
+
+
+def _overview(rows: list[StressRow], markdown: bool) -> list[str]:
+    """Every tracker (ours and OpenCV's) side by side: cases got back per family and per sequence,
+    and the summary figures."""
+    names = list(dict.fromkeys(r.tracker for r in rows if r.kind != "baseline"))
+    if not names:
+        return []
+    sums = {n: _summary([r for r in rows if r.tracker == n]) for n in names}
+    head = tuple(n.removeprefix("opencv ").upper() if n.startswith("opencv ") else n for n in names)
+
+    def back(g: dict | None) -> str:
+        return "-" if g is None else f"{g['back'][0]}/{g['back'][1]}"
+
+    out = [f"{'### ' if markdown else ''}{OVERVIEW}: cases got back (success >= {BACK_AT} from {AFTER_GAP} frames "
+           "after the window) of those run, per family and per sequence", ""]
+    for group, title in (("families", "family"), ("sequences", "sequence")):
+        keys = list(dict.fromkeys(k for n in names for k in sums[n][group]))
+        cells = [[k] + [back(sums[n][group].get(k)) for n in names] for k in keys]
+        cells.append(["every case"] + [back({"back": sums[n]["back"]["every case"]}) for n in names])
+        out += [_table((title,) + head, cells, markdown, right_from=1, last_left=False), ""]
+    rate = [("mean success", lambda a: _f(a["mean_success"], ".3f")),
+            ("mean after", lambda a: _f(a["mean_after"], ".3f")),
+            ("hidden frames reported occluded or lost", lambda a: _rate(*a["hidden_reported_occluded_or_lost"])),
+            ("undisturbed frames reported tracked", lambda a: _rate(*a["undisturbed_reported_tracked"])),
+            ("off the target yet reported tracked (lower is better)",
+             lambda a: _rate(*a["off_target_reported_tracked"])),
+            ("cases worse than a box that never moves", lambda a: str(len(a["worse_than_still_box"])))]
+    groups = [g for g in sums[names[0]]["back"] if g != "every case"]
+    cells = [[f"got back after {g}"] + [back({"back": sums[n]["back"][g]}) for n in names] for g in groups]
+    cells += [[what] + [get(sums[n]) for n in names] for what, get in rate]
+    out += [_table(("over every case",) + head, cells, markdown, right_from=1, last_left=False), ""]
+    return out
 
 
 def _group_table(title: str, mine: dict, theirs: dict | None, cv: str | None, markdown: bool) -> str:
