@@ -21,7 +21,7 @@ Departures
   whose angle and scale move mostly with how precisely an exemplar can be aligned to each
   training item, and that is limited by the training target's size in pixels: a pixel of
   misalignment is 6 % of scale on crossing's 16x42 px pedestrian and 3 % on caviar1's 28x73 px
-  one. A model learned on crossing (theta and log s noise 0.15 a frame) let a caviar1 pedestrian,
+  one. A model learned on crossing (theta and log s noise 0.15-0.18 a frame) let a caviar1 pedestrian,
   1.9 times its size, shrink onto her upper body and jump 10-17 px up and down. The noise rows
   of theta and log s are divided by r, the initial box's size over the largest training
   target's, where r > 1: a target twice the size of every training target gets half the angle
