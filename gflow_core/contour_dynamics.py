@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from .m2 import dynamics as dyn
-from .m2.dynamics import ARDynamics, sample_markov, scale_mean_at
+from .m2.dynamics import ARDynamics, at_resolution, sample_markov, scale_mean_at
 from .m2.model import M2Model
 from .m2.tracking import ParticleCloud
 from .tracker import Box
@@ -28,16 +28,21 @@ def proposal_dynamics(model: M2Model | None, init: Box | None, walk: tuple[float
                       ) -> tuple[np.ndarray, ARDynamics, bool]:
     """The proposal's (Markov matrix (K, K), AR(1) dynamics, alpha fixed): with no learned model the
     random walk of deviations ``walk`` (std_xy, std_theta, std_log_s) and K = 1; with one its
-    Markov matrix and AR(1) process, the
-    log s mean moved to the scale of ``init`` for a contour model (:func:`.m2.dynamics.scale_mean_at`);
-    a patch model is tracked with no alpha transformations (sec. 5.2: alpha fixed)."""
+    Markov matrix and AR(1) process, for a contour model with the log s mean moved to the scale of
+    ``init`` (:func:`.m2.dynamics.scale_mean_at`) and the noise of theta and log s at the tracked
+    target's resolution (:func:`.m2.dynamics.at_resolution`); a patch model is tracked with no
+    alpha transformations (sec. 5.2: alpha fixed)."""
     if model is None:
         if walk is None:
             raise ValueError("a proposal with no learned model needs the random walk's deviations")
         return np.ones((1, 1)), dyn.random_walk(*walk), False
     dynamics = model.dynamics
     if init is not None and model.kind == "curve":
-        dynamics = scale_mean_at(model.dynamics, float(np.log(model.alpha_from_box(init)[3])))
+        s0 = float(model.alpha_from_box(init)[3])
+        dynamics = scale_mean_at(model.dynamics, float(np.log(s0)))
+        if np.isfinite(model.train_scale):  # files before format 3 do not say: their dynamics as learned
+            # the target's size over the largest training target's: the resolution the noise is carried to
+            dynamics = at_resolution(dynamics, s0 / model.train_scale)
     return model.markov, dynamics, model.kind == "patch"
 
 

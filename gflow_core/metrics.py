@@ -145,27 +145,37 @@ def overlaps(gt: dict[int, tuple], pred: dict[int, tuple]) -> np.ndarray:
     return _per_frame(gt, pred)[0]
 
 
-def frames_to_recover(overlap: np.ndarray, start: int, threshold: float = 0.5, hold: int = 5) -> int | None:
-    """Frames from index ``start`` to the first of ``hold`` frames in a row with overlap above
+def frames_to_recover(overlap: np.ndarray, start: int, threshold: float = 0.5, hold: int = 5,
+                      frames: ArrayLike | None = None) -> int | None:
+    """Frames from ``start`` to the first of ``hold`` frames in a row with overlap above
     ``threshold`` (0: on target from ``start`` on); None if that never happens.
 
     Parameters
     ----------
     overlap : (F,) per-frame overlap in frame order.
-    start : the first index to look from (e.g. the first frame after a perturbation).
+    start : the first index to look from (e.g. the first frame after a perturbation); with
+        ``frames``, the first frame number.
     threshold, hold : what "on target" means: IoU > threshold for ``hold`` frames in a row
         (fewer if the sequence ends first, as long as it ends on target).
+    frames : (F,) increasing frame numbers of the entries, where only some frames are scored
+        (sparse ground truth); then a run is the scored frames in a row on target, and it holds
+        once it spans ``hold`` frames (from its first frame to its last). None: entry i is frame i.
     """
     ov = np.asarray(overlap, dtype=np.float64)
     if ov.ndim != 1:
         raise ValueError(f"overlap must be (F,), got shape {ov.shape}")
-    if not 0 <= start <= ov.shape[0]:
+    f = np.arange(ov.shape[0]) if frames is None else np.asarray(frames, dtype=np.int64)
+    if f.shape != ov.shape:
+        raise ValueError(f"frames {f.shape} and overlap {ov.shape} must have the same shape")
+    if frames is None and not 0 <= start <= ov.shape[0]:
         raise ValueError(f"start {start} is outside 0..{ov.shape[0]}")
+    first = int(np.searchsorted(f, start))
     run = 0
-    for i in range(start, ov.shape[0]):
+    for i in range(first, ov.shape[0]):
         run = run + 1 if ov[i] > threshold else 0
-        if run >= hold or (run and i == ov.shape[0] - 1):
-            return i - run + 1 - start
+        if run and (f[i] - f[i - run + 1] + 1 >= hold or i == ov.shape[0] - 1):
+            j = i - run + 1
+            return 0 if j == first else int(f[j] - start)
     return None
 
 
@@ -234,7 +244,8 @@ def band_text(bands: list[dict]) -> str:
 
 def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLike | None = None,
                 grace: int = 5, hidden_below: float = HIDDEN_BELOW, overlap: ArrayLike | None = None,
-                threshold: float = 0.5, confidence: ArrayLike | None = None) -> StateScore:
+                threshold: float = 0.5, confidence: ArrayLike | None = None,
+                frames: ArrayLike | None = None) -> StateScore:
     """Score reported target states against how much of the target was in view.
 
     Parameters
@@ -252,6 +263,9 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
         whether they were reported ``tracked`` (``off``, ``off_tracked``).
     confidence : (F,) the confidence reported on each frame (NaN where none); with ``overlap``, the
         frames with the target in view are counted per confidence band (``bands``).
+    frames : (F,) increasing frame numbers of the entries, where only some frames are scored
+        (sparse ground truth): ``grace`` then counts frames from the first scored frame of a
+        hidden stretch. None: entry i is frame i.
     """
     vis = np.asarray(visible, dtype=np.float64)
     if vis.ndim != 1 or len(states) != vis.shape[0]:
@@ -266,10 +280,13 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
         if calm.shape != vis.shape:
             raise ValueError(f"perturbed {calm.shape} and visible {vis.shape} must have the same shape")
     hidden = vis < hidden_below
-    # the index of each frame within its hidden stretch
+    f = np.arange(vis.shape[0]) if frames is None else np.asarray(frames, dtype=np.int64)
+    if f.shape != vis.shape:
+        raise ValueError(f"frames {f.shape} and visible {vis.shape} must have the same shape")
+    # how many frames each frame is into its hidden stretch
     within = np.zeros(vis.shape[0], dtype=np.int64)
     for i in range(1, vis.shape[0]):
-        within[i] = within[i - 1] + 1 if hidden[i] and hidden[i - 1] else 0
+        within[i] = within[i - 1] + int(f[i] - f[i - 1]) if hidden[i] and hidden[i - 1] else 0
     scored_hidden = hidden & (within >= grace)
     said_hidden = np.array([s in ("occluded", "lost") for s in states], dtype=bool)
     said_tracked = np.array([s == "tracked" for s in states], dtype=bool)

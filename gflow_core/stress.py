@@ -6,6 +6,11 @@ noise, motion blur, dropped frames, the target leaving the frame), and ``tail`` 
 it, so a tracker can be scored on whether it gets the target back. The derived ground truth is
 the original's, moved where the perturbation moves the image.
 
+Ground truth may be sparse (a box on every 5th frame, as in the MIL dataset): the plan then
+places its occluders, rolls and shifts by the truth interpolated between the labelled frames
+(:func:`fill_truth`), starts every run on a labelled frame, and says which derived frames show
+a labelled one (``StressPlan.labelled``); only those are scored.
+
 The work is split in two pure steps:
 
 * :func:`plan_case` turns a case, the original ground truth and the frame size into a
@@ -29,7 +34,7 @@ import numpy as np
 from .metrics import HIDDEN_BELOW
 
 __all__ = ["KINDS", "StressCase", "CASES", "SPAN", "StressPlan", "plan_case", "render_frame", "visible_fraction",
-           "occluder_size", "HIDDEN_BELOW"]
+           "occluder_size", "fill_truth", "HIDDEN_BELOW"]
 
 #: the kinds of perturbation
 KINDS = ("none", "occlude", "sweep", "partial", "slide", "roll-target", "roll-camera", "look", "dark", "blur", "fast",
@@ -167,6 +172,8 @@ class StressPlan:
         not under the patch).
     perturbed : (T,) bool, whether the case changes the frame (or, for ``fast``, drops
         frames around it).
+    labelled : (T,) bool, whether the original frame shown has a ground-truth box (the
+        others' boxes are interpolated for the plan and are not scored).
     blur_angle : direction of the motion blur, degrees.
     image_size : (W, H).
     """
@@ -184,6 +191,7 @@ class StressPlan:
     noise: np.ndarray
     visible: np.ndarray
     perturbed: np.ndarray
+    labelled: np.ndarray
     blur_angle: float
     image_size: tuple[int, int]
 
@@ -252,16 +260,43 @@ def visible_fraction(box: np.ndarray, image_size: tuple[int, int], occluder: np.
 SPAN = max(c.length for c in CASES)
 
 
-def _source_frames(case: StressCase, n: int, lead: int, tail: int, span: int) -> tuple[np.ndarray, tuple[int, int]]:
+def fill_truth(truth: dict[int, tuple[float, float, float, float]]) -> tuple[np.ndarray, np.ndarray]:
+    """The truth of every frame from the first labelled one to the last, from sparse labels.
+
+    Parameters
+    ----------
+    truth : frame -> (x, y, w, h), at least two frames.
+
+    Returns
+    -------
+    boxes : (N, 4) float64, frame ``first + i`` in row i (N = last - first + 1); between two
+        labelled frames each coordinate is interpolated linearly.
+    labelled : (N,) bool, the rows that are labelled.
+    """
+    frames = np.array(sorted(truth), dtype=np.int64)
+    if frames.shape[0] < 2:
+        raise ValueError(f"the ground truth needs at least two labelled frames, got {frames.shape[0]}")
+    known = np.array([truth[int(f)] for f in frames], dtype=np.float64)
+    idx = np.arange(frames[0], frames[-1] + 1)
+    boxes = np.stack([np.interp(idx, frames, known[:, k]) for k in range(4)], axis=1)
+    labelled = np.zeros(idx.shape[0], dtype=bool)
+    labelled[frames - frames[0]] = True
+    return boxes, labelled
+
+
+def _source_frames(case: StressCase, n: int, lead: int, tail: int, span: int,
+                   labelled: np.ndarray) -> tuple[np.ndarray, tuple[int, int]]:
     """The original frame of each derived frame, and the window in derived frames.
 
     Every case starts from the same frame, chosen to centre a run with a window of ``span``
-    frames in the sequence, so one untouched run (``none``) holds the frames of every case. A
-    sequence too short is played forwards and backwards (its frames and truth reversed are
-    real frames and truth too)."""
+    frames in the sequence (moved back to the labelled frame at or before it, where the truth
+    is sparse, so the tracker starts from a true box), so one untouched run (``none``) holds the
+    frames of every case. A sequence too short is played forwards and backwards (its frames and
+    truth reversed are real frames and truth too)."""
     step = int(case.amount) if case.kind == "fast" else 1
     need = lead + max(span, case.length) + tail
     first = (n - need) // 2 if n >= need else 0
+    first = int(np.flatnonzero(labelled[:first + 1])[-1])
     need = lead + case.length + tail
     before = np.arange(first, first + lead)
     during = np.arange(first + lead, first + lead + case.length, step)
@@ -271,7 +306,7 @@ def _source_frames(case: StressCase, n: int, lead: int, tail: int, span: int) ->
 
 
 def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator,
-              lead: int = 30, tail: int = 60, span: int = SPAN) -> StressPlan:
+              lead: int = 30, tail: int = 60, span: int = SPAN, labelled: np.ndarray | None = None) -> StressPlan:
     """Plan the derived sequence of ``case`` on a sequence with ground truth ``truth``.
 
     Parameters
@@ -283,6 +318,8 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
         direction).
     lead, tail : derived frames before and after the window.
     span : the run of every case starts where a run with a window this long would be centred.
+    labelled : (N,) bool, the frames whose truth is labelled (the others interpolated,
+        :func:`fill_truth`); frame 0 must be one. None: every frame.
 
     Returns
     -------
@@ -294,7 +331,10 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
         raise ValueError(f"image size must be at least 8x8, got {W}x{H}")
     if lead < 1 or tail < 1:
         raise ValueError(f"lead and tail need at least one frame each, got {lead} and {tail}")
-    src, (w0, w1) = _source_frames(case, t.shape[0], lead, tail, span)
+    lab = np.ones(t.shape[0], dtype=bool) if labelled is None else np.asarray(labelled, dtype=bool)
+    if lab.shape != (t.shape[0],) or not lab[0]:
+        raise ValueError(f"labelled must be (N,) = ({t.shape[0]},) bool with frame 0 labelled")
+    src, (w0, w1) = _source_frames(case, t.shape[0], lead, tail, span, lab)
     T = src.shape[0]
     boxes = t[src].copy()
     idx = np.arange(T)
@@ -375,7 +415,7 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
     visible = np.array([visible_fraction(boxes[i], (W, H), occ[i]) for i in range(T)])
     return StressPlan(case=case, source=src, window=(w0, w1), boxes=boxes, occluder=occ, angle=angle,
                       region=region, shift=shift, blur=blur, gain=gain, noise=noise, visible=visible,
-                      perturbed=perturbed, blur_angle=blur_angle, image_size=(W, H))
+                      perturbed=perturbed, labelled=lab[src], blur_angle=blur_angle, image_size=(W, H))
 
 
 def occluder_size(plan: StressPlan) -> tuple[int, int] | None:

@@ -116,29 +116,101 @@ def test_plots_are_images(inline_run):
         assert img is not None and img.shape[0] > 100 and img.shape[1] > 100
 
 
-def test_processes_table_matches_inline(seq, inline_run):
-    """The default (multi-process) run prints one table whose scores equal the inline run's."""
+def _tables(text: str) -> dict[str, list[dict[str, str]]]:
+    """The plain-text tables of ``gflow benchmark``: {title's first word(s) before " (": [{column: cell}]}."""
+    out: dict[str, list[dict[str, str]]] = {}
+    for block in text.strip().split("\n\n"):
+        lines = block.splitlines()
+        if len(lines) == 1 and " (" in lines[0]:
+            title = lines[0].split(" (")[0]
+            continue
+        if len(lines) >= 3 and set(lines[1]) <= {"-", " "}:
+            # columns are separated by two spaces or more; the rule line gives their extents
+            spans, x = [], 0
+            for dashes in lines[1].split("  "):
+                if dashes:
+                    spans.append((x, x + len(dashes)))
+                x += len(dashes) + 2
+
+            def cells(line: str) -> list[str]:
+                return [line[a:b + 1 if i < len(spans) - 1 else None].strip() if a < len(line) else ""
+                        for i, (a, b) in enumerate(spans)]
+
+            head = cells(lines[0])
+            out[title] = [dict(zip(head, cells(ln))) for ln in lines[2:]]
+    return out
+
+
+def _close(cell: str, want: float, places: int) -> bool:
+    """A printed figure equals the JSON's (rounded one place further) within half a printed unit
+    plus the JSON's rounding (a value on a rounding boundary, AUC 0.68254 printed 0.683 and kept
+    as 0.6825, must not fail)."""
+    return abs(float(cell) - want) <= 0.5 * 10.0 ** -places + 0.5 * 10.0 ** -(places + 1) + 1e-12
+
+
+def test_processes_tables_match_inline(seq, inline_run):
+    """The default (multi-process) run prints one table per tracker whose scores equal the inline
+    run's, the static box and the published tracker beside it, and the mean over the sequences."""
     res, _ = inline_run
     r = _run([str(seq), "--trackers", "chamfer"])
     assert r.returncode == 0, r.stderr
     assert "benchmark: [1/1] synth / chamfer" in r.stderr  # progress on stderr
-    header, *body = [re.split(r"\s{2,}", ln) for ln in r.stdout.splitlines() if ln.strip()]
-    assert header[:9] == ["sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "size 2x", "fps"]
-    table = {c[1]: c for c in body if c[0] == "synth"}
-    assert set(table) == {"chamfer", "other", "static box"}
-    for name, cells in table.items():
+    tables = _tables(r.stdout)
+    assert list(tables) == ["chamfer", "static box", "published trackers", "means over the sequences"]
+    chamfer = tables["chamfer"]
+    assert list(chamfer[0])[:7] == ["sequence", "frames scored", "AUC", "prec@20", "CLE px", "success", "fps"]
+    assert [c["sequence"] for c in chamfer] == ["synth", "mean of 1"]
+    for name, cells in (("chamfer", chamfer[0]), ("static box", tables["static box"][0]),
+                        ("other", tables["published trackers"][0])):
         row = _row(res["rows"], name)
-        assert cells[2] == row["kind"] and int(cells[3]) == row["frames"]
-        got = tuple(float(v) for v in cells[4:7])
-        # the table prints the scores to 2, 3 and 3 places, the JSON rounds them to 3, 4 and 4: equal
-        # within half a printed unit plus the JSON's rounding (a value on a rounding boundary, AUC
-        # 0.68254 printed 0.683 and kept as 0.6825, must not fail)
-        want = (row["cle_px"], row["success_rate_0.5"], row["auc"])
-        for g, w, places in zip(got, want, (2, 3, 3)):
-            assert abs(g - w) <= 0.5 * 10.0 ** -places + 0.5 * 10.0 ** -(places + 1) + 1e-12, (name, got, want)
-        size = row["size_within_2x"]
-        assert cells[7] == ("-" if size is None else f"{size:.2f}"), name
-    assert float(table["chamfer"][8]) > 0 and table["other"][8] == "-"  # fps
+        assert int(cells["frames scored"]) == row["frames"], name
+        for col, key, places in (("AUC", "auc", 3), ("prec@20", "precision_20", 3), ("CLE px", "cle_px", 2),
+                                 ("success", "success_rate_0.5", 3)):
+            assert _close(cells[col], row[key], places), (name, col, cells[col], row[key])
+    # beside the tracker: the static box's and the best published tracker's AUC on the same sequence
+    assert _close(chamfer[0]["static box AUC"], _row(res["rows"], "static box")["auc"], 3)
+    assert chamfer[0]["best published AUC"].startswith("other ")
+    assert _close(chamfer[0]["best published AUC"].split()[1], _row(res["rows"], "other")["auc"], 3)
+    assert float(chamfer[0]["fps"]) > 0 and tables["static box"][0]["fps"] == "-"
+    # one sequence: the mean is its figures; the JSON has the means too
+    assert {k: chamfer[1][k] for k in ("AUC", "CLE px")} == {k: chamfer[0][k] for k in ("AUC", "CLE px")}
+    assert res["means"]["chamfer"]["sequences"] == 1
+    assert res["means"]["chamfer"]["auc"] == _row(res["rows"], "chamfer")["auc"]
+    means = {c["tracker"]: c for c in tables["means over the sequences"]}
+    assert set(means) == {"chamfer", "static box"} and means["chamfer"]["AUC above static box"] in ("0 of 1", "1 of 1")
+    assert "processes, seed 1; gflow " in r.stdout and "numpy " in r.stdout  # the versions it ran on
+
+
+def test_means_over_sequences(tmp_path):
+    """Two sequences: the mean row is the mean of the two rows, and a tracker skipped on none."""
+    from gflow_core.metrics import TrackScore
+    from pipeline.cli.benchmark_tables import format_tables, means_json
+    from pipeline.cli.sequence_benchmark import PRECISION_THRESHOLDS, Row
+
+    def row(seq: str, tracker: str, kind: str, cle: float, auc: float, prec: float) -> Row:
+        r = Row(seq, tracker, kind, score=TrackScore(10, cle, auc, auc, 0), fps=30.0 if kind != "baseline" else None)
+        r.curve, r.precision = np.full(21, auc), np.full(PRECISION_THRESHOLDS.shape, prec)
+        return r
+
+    rows = [row("a", "t", "tracker", 2.0, 0.8, 1.0), row("a", "opencv csrt", "opencv", 4.0, 0.6, 0.9),
+            row("a", "static box", "baseline", 30.0, 0.2, 0.1), row("b", "t", "tracker", 4.0, 0.4, 0.5),
+            row("b", "opencv csrt", "opencv", 6.0, 0.5, 0.7), row("b", "static box", "baseline", 50.0, 0.5, 0.0)]
+    text = format_tables(rows, fps=False)
+    t = _tables(text)
+    assert "fps" not in t["t"][0]
+    mean = t["t"][-1]
+    assert mean["sequence"] == "mean of 2" and mean["AUC"] == "0.600" and mean["CLE px"] == "3.00"
+    assert mean["prec@20"] == "0.750" and mean["CSRT AUC"] == "0.550" and mean["static box AUC"] == "0.350"
+    assert t["opencv csrt"][-1]["AUC"] == "0.550"
+    means = {c["tracker"]: c for c in t["means over the sequences"]}
+    assert means["t"]["AUC above static box"] == "1 of 2" and means["opencv csrt"]["AUC above static box"] == "1 of 2"
+    assert means["t"]["AUC below CSRT on"] == "b" and means["t"]["AUC below static box on"] == "b"
+    assert means["opencv csrt"]["AUC below CSRT on"] == "-"
+    assert means_json(rows)["t"] == {"sequences": 2, "of": 2, "auc": 0.6, "precision_20": 0.75, "cle_px": 3.0,
+                                     "success_rate_0.5": 0.6}
+    md = format_tables(rows, markdown=True)
+    assert "**t** (tracker; beside it the AUC of CSRT, static box)" in md
+    assert "| mean of 2 |  | 0.600 | 0.750 | 3.00 | 0.600 | - | 0.550 | 0.350 |" in md
 
 
 @pytest.mark.parametrize("case", ["missing", "no_frames", "no_truth", "tracker", "opencv", "model", "frames",

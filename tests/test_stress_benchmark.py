@@ -193,6 +193,41 @@ def test_two_runs_deriving_one_sequence_at_once_both_read_complete_frames(data, 
     assert [p.name for p in (cache / "synth").iterdir()] == [got[0].seq.path.name]
 
 
+def test_sparse_ground_truth_is_scored_on_the_labelled_frames_only(data, tmp_path):
+    """A sequence labelled every 5th frame (as the MIL dataset): the derived truth and visibility hold
+    the frames that show a labelled one, the scores are `gflow eval`'s on those, and the summary
+    reports per family and per sequence."""
+    sparse = tmp_path / "sparse"
+    sparse.mkdir()
+    (sparse / "frames").symlink_to(data / "synth" / "frames", target_is_directory=True)
+    truth = read_boxes(data / "synth" / "groundtruth.csv")
+    write_boxes(sparse / "groundtruth.csv", {f: b for f, b in truth.items() if f % 5 == 0})
+    cache, runs = tmp_path / "cache", tmp_path / "runs"
+    r = _gflow("benchmark", str(sparse), str(data / "other"), "--sequences", "sparse", *STRESS, "--opencv", "none",
+               "--json", "--stress-cache", str(cache), "--out-dir", str(runs))
+    assert r.returncode == 0, r.stderr
+    res = json.loads(r.stdout)
+    d = _derived(cache, "sparse", "occlude-10")
+    src = {int(ln.split(",")[0]): int(ln.split(",")[3]) for ln in (d / "visibility.csv").read_text().split()[1:]}
+    gt = read_boxes(d / "groundtruth.csv")
+    assert sorted(gt) == sorted(src) and all(f % 5 == 0 for f in src.values()) and 0 in gt
+    assert all(np.allclose(gt[f], truth[src[f]], atol=0.01) for f in gt)
+    assert len(list((d / "frames").iterdir())) == 38 > len(gt)  # every frame is shown, the labelled ones scored
+    app = _rows(res, sequence="sparse", case="occlude-10", tracker="appearance")[0]
+    assert app["frames"] == len(gt)
+    csv = runs / "sparse" / "occlude-10" / "appearance.csv"
+    ev = json.loads(_gflow("eval", "--gt", str(d / "groundtruth.csv"), "--pred", str(csv), "--visibility",
+                           str(d / "visibility.csv"), "--json").stdout)
+    assert ev["success_rate_0.5"] == pytest.approx(app["success"], abs=1e-4) and ev["state"] == app["state"]
+    after = [f for f in gt if f >= 18 + 10]
+    ev_after = json.loads(_gflow("eval", "--gt", str(d / "groundtruth.csv"), "--pred", str(csv), "--frames",
+                                 f"{min(after)}:", "--json").stdout)
+    assert ev_after["success_rate_0.5"] == pytest.approx(app["after"], abs=1e-4)
+    summary = res["summary"]["appearance"]
+    assert set(summary["families"]) == {"occlude", "fast"} and list(summary["sequences"]) == ["sparse"]
+    assert summary["sequences"]["sparse"]["back"][1] == 2 == summary["back"]["every case"][1]
+
+
 def test_markdown_table_and_nothing_left_behind(data, tmp_path):
     tmp = tmp_path / "tmp"
     tmp.mkdir()
@@ -204,6 +239,10 @@ def test_markdown_table_and_nothing_left_behind(data, tmp_path):
     assert lines[0] == "### appearance"
     assert any(line.startswith("| synth | fast-2 |") for line in lines)
     assert any(line.startswith("- back after fast motion") for line in lines)
+    family = lines.index("**appearance per family**")
+    assert lines[family + 2] == "| family | got back | mean success | mean after |"
+    assert lines[family + 4].startswith("| fast | 0/1 |") or lines[family + 4].startswith("| fast | 1/1 |")
+    assert "**appearance per sequence**" in lines and any(ln.startswith("| synth | ") for ln in lines)
     assert "csrt" not in r.stdout.lower()
     assert list(tmp.iterdir()) == []  # the derived sequences and runs were removed
 

@@ -10,10 +10,27 @@ Two independent parts:
    where beta = (ux, uy, theta, log s). The scale runs in log space so that it stays
    positive; translation and rotation are unchanged.
 
-Departure (:func:`scale_mean_at`): on video the model was not learned on, the AR(1) process on
-log s reverts to the initial box's scale, not to the learned mean (the training person's distance
-from the training camera: a model learned on caviar1, people about 28x73 px, pulled a 17x50 px
-pedestrian of crossing to 28x73 within three frames).
+Departures
+----------
+* :func:`scale_mean_at`: on video the model was not learned on, the AR(1) process on log s
+  reverts to the initial box's scale, not to the learned mean (the training person's distance
+  from the training camera: a model learned on caviar1, people about 28x73 px, pulled a 17x50 px
+  pedestrian of crossing to 28x73 within three frames).
+* :func:`at_resolution`: the noise of theta and log s is carried to the tracked target's
+  resolution. The process is learned from the exemplar-composed training states (sec. 4.3),
+  whose angle and scale move mostly with how precisely an exemplar can be aligned to each
+  training item, and that is limited by the training target's size in pixels: a pixel of
+  misalignment is 6 % of scale on crossing's 16x42 px pedestrian and 3 % on caviar1's 28x73 px
+  one. A model learned on crossing (theta and log s noise 0.15-0.18 a frame) let a caviar1 pedestrian,
+  1.9 times its size, shrink onto her upper body and jump 10-17 px up and down. The noise rows
+  of theta and log s are divided by r, the initial box's size over the largest training
+  target's, where r > 1: a target twice the size of every training target gets half the angle
+  and scale noise. A target within the training sizes keeps the learned noise (the noise was
+  learned at those resolutions; enlarging it for smaller targets made caviar1 frames 150-381,
+  where the walker is 0.9 of the reference size, worse with its own model, and scaling it for
+  caviar1's first box, 1.08 of the median training size, lowered the AUC of its own model).
+  Translation noise stays in pixels (scaling it with s as well was worse in both directions
+  between caviar1 and crossing).
 """
 
 from __future__ import annotations
@@ -22,7 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ARDynamics", "random_walk", "scale_mean_at", "to_beta", "from_beta", "sample_markov", "sample_categorical"]
+__all__ = ["ARDynamics", "random_walk", "scale_mean_at", "at_resolution", "to_beta", "from_beta", "sample_markov",
+           "sample_categorical"]
 
 
 def to_beta(alpha: np.ndarray) -> np.ndarray:
@@ -95,6 +113,27 @@ def scale_mean_at(dynamics: ARDynamics, log_s: float) -> ARDynamics:
     mean = dynamics.mean.copy()
     mean[3] = log_s
     return ARDynamics(A=dynamics.A, mean=mean, B=dynamics.B)
+
+
+def at_resolution(dynamics: ARDynamics, r: float) -> ARDynamics:
+    """The AR(1) process with the noise of theta and log s (rows 2 and 3 of B) divided by ``r``
+    where ``r`` > 1: a learned contour model tracking a target ``r`` times the size of the largest
+    it was learned on (module docstring). Unchanged for ``r`` <= 1.
+
+    Parameters
+    ----------
+    dynamics : the learned process.
+    r : the initial box's scale over the largest training item's, s_0 / s_train (s = sqrt(w h)
+        over the reference box's, ``M2Model.alpha_from_box``, ``M2Model.train_scale``); 0 < r.
+    """
+    if not r > 0:  # NaN refused too
+        raise ValueError(f"the scale ratio must be positive, got {r}")
+    if r <= 1.0 + 1e-9:  # a first box as large as the largest training target (caviar1's own) is within
+        return dynamics
+    B = dynamics.B.copy()
+    # (theta, log s) noise at the target's resolution: rows 2, 3 of B over r
+    B[2:] /= r
+    return ARDynamics(A=dynamics.A, mean=dynamics.mean, B=B)
 
 
 def random_walk(std_xy: float, std_theta: float, std_log_s: float) -> ARDynamics:

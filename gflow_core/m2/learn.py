@@ -225,7 +225,7 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
                     exemplar_frame=ts.frame_index[fit.clusters.medoids],
                     profile=str(mp.get("profile", "quadratic")), g0=float(mp.get("g0", 100.0)),
                     upsample=int(mp.get("upsample", 2)), shuffle_radius=int(mp.get("radius", 1)),
-                    appearance=appearance)
+                    appearance=appearance, train_scale=float(np.max(ts.placement[:, 3])))
     return LearnResult(model=model, exemplar_fit=fit, validation=val, kernel=kf, states_alpha=states_alpha,
                        states_k=val.k)
 

@@ -10,7 +10,8 @@ fixed-width unicode arrays only (``np.savez`` / ``np.load(allow_pickle=False)`` 
 :meth:`M2Model.from_arrays` checks the format version, every key, shape, dtype and value
 and raises ``ValueError`` naming what is wrong.
 
-Array keys (format version 2; version 1 files, which have no ``app_*`` arrays, are read too)
+Array keys (format version 3; version 1 files, which have no ``app_*`` arrays, and version 2
+files, which have no ``train_scale``, are read too)
 --------------------------------------------------------------------------------------------
 format_version  () int64           FORMAT_VERSION
 metric          () str             "chamfer" | "shuffle" | "l2"
@@ -27,6 +28,8 @@ d, sigma, pi    (K,) float64
 markov          (K, K) float64
 ar_A, ar_B      (4, 4) float64;  ar_mean (4,) float64
 ref_size        (2,) float64       (w, h) of the reference box in item coordinates
+train_scale     () float64         the largest scale s of a training item (its size over the
+                                   reference box); version 3 (older files: inf, see below)
 app_patches     (K, th, tw, 4) float32  optional (curve metrics): appearance exemplars a_k
                                    (:mod:`.appearance_metric`); with it app_sigma, app_d (K,) float64
 """
@@ -49,9 +52,9 @@ from .tracking import ContourExemplars
 
 __all__ = ["M2Model", "FORMAT_VERSION"]
 
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 #: format versions this code reads
-READS_VERSIONS = (1, 2)
+READS_VERSIONS = (1, 2, 3)
 
 _SCALARS = {"format_version": "i", "metric": "U", "kernel": "U", "profile": "U", "g0": "f", "upsample": "i",
             "shuffle_radius": "i"}
@@ -79,6 +82,10 @@ class M2Model:
     shuffle_radius : int, shuffle neighbourhood radius.
     appearance : AppearanceKernels or None, appearance exemplars and kernels beside chamfer
         (curve metrics only, :mod:`.appearance_metric`).
+    train_scale : float, the largest scale s of a training item (its size over the reference box);
+        a target tracked at a larger s gets the angle and scale noise of the dynamics scaled down
+        (:func:`.dynamics.at_resolution`). inf for files of format version 2 and older (their
+        dynamics are used as learned).
     """
 
     metric: str
@@ -96,6 +103,7 @@ class M2Model:
     upsample: int = 2
     shuffle_radius: int = 1
     appearance: AppearanceKernels | None = None
+    train_scale: float = float("inf")
 
     def __post_init__(self) -> None:
         if self.metric not in METRICS:
@@ -157,6 +165,9 @@ class M2Model:
         object.__setattr__(self, "g0", float(self.g0))
         object.__setattr__(self, "upsample", int(self.upsample))
         object.__setattr__(self, "shuffle_radius", int(self.shuffle_radius))
+        object.__setattr__(self, "train_scale", float(self.train_scale))
+        if not self.train_scale > 0:  # inf allowed (older files), NaN refused
+            raise ValueError(f"train_scale must be positive, got {self.train_scale}")
         if self.appearance is not None:
             self._check_appearance(K)
 
@@ -244,6 +255,7 @@ class M2Model:
             "ar_mean": self.dynamics.mean.copy(),
             "ar_B": self.dynamics.B.copy(),
             "ref_size": self.ref_size.copy(),
+            "train_scale": np.array(self.train_scale, dtype=np.float64),
         }
         if isinstance(self.exemplars, Curves):
             out["exemplar_curves"] = self.exemplars.points.copy()
@@ -296,7 +308,8 @@ class M2Model:
         if metric not in METRICS:
             raise ValueError(f"M2 model has unknown metric {metric!r}")
         kind = METRICS[metric].kind
-        expected = set(_SCALARS) | set(_COMMON) | set(_CURVE if kind == "curve" else _PATCH)
+        expected = set(_SCALARS) | set(_COMMON) | set(_CURVE if kind == "curve" else _PATCH) \
+            | ({"train_scale"} if version >= 3 else set())
         missing = sorted(expected - keys)
         if missing:
             raise ValueError(f"M2 model is missing the array(s) {missing}")
@@ -337,4 +350,5 @@ class M2Model:
                    dynamics=dyn, ref_size=get("ref_size", "fiu", (2,)),
                    exemplar_frame=get("exemplar_frame", "iu", (K,)), profile=str(scal["profile"]),
                    g0=float(scal["g0"]), upsample=int(scal["upsample"]), shuffle_radius=int(scal["shuffle_radius"]),
-                   appearance=appearance)
+                   appearance=appearance,
+                   train_scale=float(get("train_scale", "fiu", ())) if version >= 3 else float("inf"))

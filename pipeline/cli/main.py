@@ -40,22 +40,9 @@ from pipeline.runtime.transport import SessionError  # noqa: E402
 __all__ = ["main", "build_parser"]
 
 
-def version_text() -> str:
-    """``gflow X.Y.Z (python A.B, eclipse-zenoh V, mcap V)``: what a bug report needs."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    def v(name: str) -> str:
-        try:
-            return version(name)
-        except PackageNotFoundError:
-            return "not installed"
-
-    py = ".".join(map(str, sys.version_info[:3]))
-    return f"gflow {v('gflow')} (python {py}, eclipse-zenoh {v('eclipse-zenoh')}, mcap {v('mcap')})"
-
-
 class _Version(argparse.Action):
-    """``--version``: what :func:`version_text` says, looked up only when asked (reading the
+    """``--version``: gflow, Python, the libraries that decide the figures and the OS
+    (:func:`pipeline.cli.versions.version_text`), looked up only when asked (reading the
     installed packages' metadata took ~45 ms of CPU at every start of ``gflow``)."""
 
     def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
@@ -63,6 +50,8 @@ class _Version(argparse.Action):
         super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
 
     def __call__(self, parser, namespace, values, option_string=None):
+        from pipeline.cli.versions import version_text
+
         print(version_text())
         parser.exit()
 

@@ -30,13 +30,15 @@ from gflow_core.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, 
 from pipeline.recording.results import read_boxes, write_boxes
 
 __all__ = ["Sequence", "Row", "find_sequences", "score_row", "static_box", "published_rows", "opencv_tracker",
-           "run_opencv", "tracking_seconds", "format_table", "to_json", "plot_success", "plot_precision",
-           "PRECISION_THRESHOLDS"]
+           "run_opencv", "tracking_seconds", "to_json", "plot_success", "plot_precision",
+           "PRECISION_THRESHOLDS", "PRECISION_AT"]
 
 Box = tuple[float, float, float, float]
 
 #: centre-error thresholds (px) of the precision plot; the legend gives precision at 20 px (OTB)
 PRECISION_THRESHOLDS = np.arange(0.0, 51.0)
+#: the centre error (px) the tables give the precision at (OTB's representative threshold)
+PRECISION_AT = 20
 
 #: OpenCV tracker names for ``--opencv`` and the class each one is
 OPENCV_TRACKERS = {"csrt": "TrackerCSRT", "kcf": "TrackerKCF", "mil": "TrackerMIL", "boosting": "TrackerBoosting",
@@ -78,6 +80,11 @@ class Row:
     @property
     def auc(self) -> float | None:
         return None if self.curve is None else float(self.curve.mean())
+
+    @property
+    def precision_at(self) -> float | None:
+        """Precision at :data:`PRECISION_AT` px: the fraction of ground-truth frames with the centre that near."""
+        return None if self.precision is None else float(self.precision[PRECISION_AT])
 
 
 def _is_sequence(p: Path) -> bool:
@@ -269,36 +276,6 @@ def tracking_seconds(recording: str | Path) -> float | None:
     return (last - first) / 1e9
 
 
-def _f(v: float | None, fmt: str) -> str:
-    return "-" if v is None or not math.isfinite(v) else format(v, fmt)
-
-
-COLUMNS = ("sequence", "tracker", "kind", "frames", "CLE px", "success", "AUC", "size 2x", "fps", "note")
-
-
-def _cells(r: Row) -> list[str]:
-    s = r.score
-    return [r.sequence, r.tracker, r.kind, "-" if s is None else str(s.frames),
-            _f(None if s is None else s.cle, ".2f"), _f(None if s is None else s.success, ".3f"), _f(r.auc, ".3f"),
-            _f(r.size_2x, ".2f"), _f(r.fps, ".1f"), r.note]
-
-
-def format_table(rows: list[Row], markdown: bool = False) -> str:
-    """One table of every row: CLE (px), success (IoU > 0.5), success-plot AUC, fps."""
-    cells = [_cells(r) for r in rows]
-    if markdown:
-        out = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
-        out += ["| " + " | ".join(c) + " |" for c in cells]
-        return "\n".join(out)
-    widths = [max(len(h), *(len(c[i]) for c in cells)) if cells else len(h) for i, h in enumerate(COLUMNS)]
-    right = {3, 4, 5, 6, 7, 8}
-
-    def line(c: list[str]) -> str:
-        return "  ".join(v.rjust(w) if i in right else v.ljust(w) for i, (v, w) in enumerate(zip(c, widths))).rstrip()
-
-    return "\n".join([line(list(COLUMNS)), line(["-" * w for w in widths])] + [line(c) for c in cells])
-
-
 def to_json(rows: list[Row], meta: dict) -> dict:
     """The benchmark as JSON: ``meta`` plus one object per row (scores as ``gflow eval --json``)."""
     out = []
@@ -311,6 +288,7 @@ def to_json(rows: list[Row], meta: dict) -> dict:
             d["auc"] = round(auc, 4)
             d["success_curve"] = [round(float(v), 4) for v in r.curve]
             d["size_within_2x"] = None if r.size_2x is None else round(r.size_2x, 4)
+            d[f"precision_{PRECISION_AT}"] = None if r.precision_at is None else round(r.precision_at, 4)
         d["fps"] = None if r.fps is None else round(r.fps, 2)
         if r.seconds is not None:
             d["seconds"] = round(r.seconds, 3)
@@ -322,7 +300,10 @@ def to_json(rows: list[Row], meta: dict) -> dict:
             d["boxes"] = r.boxes_csv
         d.update(r.extra)
         out.append(d)
-    return dict(meta, overlap_thresholds=[round(float(t), 4) for t in OVERLAP_THRESHOLDS], rows=out)
+    from pipeline.cli.benchmark_tables import means_json
+
+    return dict(meta, overlap_thresholds=[round(float(t), 4) for t in OVERLAP_THRESHOLDS], rows=out,
+                means=means_json(rows))
 
 
 _STYLE = {"tracker": "-", "opencv": "-.", "published": "--", "baseline": ":"}
@@ -347,7 +328,7 @@ def _plot(rows: list[Row], path: str, attr: str, x: np.ndarray, xlabel: str, yla
     fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 4.2 * nrows), squeeze=False)
     for ax, seq in zip(axes.flat, seqs):
         mine = [r for r in rows if r.sequence == seq and getattr(r, attr) is not None]
-        mine.sort(key=lambda r: -(r.auc or 0.0) if attr == "curve" else -(float(r.precision[20]) if r.precision is not None else 0.0))
+        mine.sort(key=lambda r: -(r.auc or 0.0) if attr == "curve" else -(r.precision_at or 0.0))
         for r in mine:
             ax.plot(x, getattr(r, attr), _STYLE.get(r.kind, "-"), lw=2.0 if r.kind == "tracker" else 1.2,
                     color=colour.get(r.tracker, "0.5"), label=label(r))
@@ -376,8 +357,8 @@ def plot_success(rows: list[Row], path: str) -> None:
 def plot_precision(rows: list[Row], path: str) -> None:
     """The OTB precision plot: fraction of frames within a centre error, precision at 20 px in the legend."""
     def label(r: Row) -> str:
-        assert r.precision is not None  # _plot labels only the rows that have the curve it draws
-        return f"{r.tracker} [{float(r.precision[20]):.3f}]"
+        assert r.precision_at is not None  # _plot labels only the rows that have the curve it draws
+        return f"{r.tracker} [{r.precision_at:.3f}]"
 
     _plot(rows, path, "precision", PRECISION_THRESHOLDS, "location error threshold (px)", "precision", label,
           "precision plot")

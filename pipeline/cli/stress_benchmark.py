@@ -5,7 +5,9 @@ sequence folder is written: ``frames/`` (the original frames of the run, copied 
 where the case leaves them alone), ``groundtruth.csv`` (the original truth, moved where the
 image moves), ``visibility.csv`` (``frame,visible,perturbed,source_frame``: the fraction of the
 target in view, whether the case changed the frame, and the original frame shown) and
-``stress.json`` (the case, its window and where its image patch was cut). Each derived
+``stress.json`` (the case, its window and where its image patch was cut). Where the original
+truth is sparse (a box every 5th frame), the derived ``groundtruth.csv`` and ``visibility.csv``
+hold the frames that show a labelled one, and only those are scored. Each derived
 sequence then runs through :func:`pipeline.cli.commands.benchmark._tracker_row`, the very
 path of ``gflow benchmark`` and ``gflow track``, and OpenCV's CSRT and a box that never moves
 are scored beside it.
@@ -34,7 +36,8 @@ import numpy as np
 
 from gflow_core.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band_json, band_text, frames_to_recover,
                                  overlaps, state_score)
-from gflow_core.stress import CASES, PATCH_KINDS, StressCase, StressPlan, occluder_size, plan_case, render_frame
+from gflow_core.stress import (CASES, PATCH_KINDS, StressCase, StressPlan, fill_truth, occluder_size, plan_case,
+                               render_frame)
 
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
@@ -90,15 +93,29 @@ def _files(seq: Sequence) -> dict[int, Path]:
     return {i: f for i, f in folder_frames(seq.path / "frames") if f is not None}
 
 
-def _truth(seq: Sequence, files: dict[int, Path]) -> np.ndarray:
-    """(N, 4) truth of frames 0..N-1: the sequence must have a box and an image for each."""
+@dataclass(frozen=True)
+class Truth:
+    """A sequence's truth for planning: ``boxes`` (N, 4) of frames ``first`` .. ``first + N - 1``,
+    interpolated between labelled frames, and ``labelled`` (N,) bool."""
+
+    first: int
+    boxes: np.ndarray
+    labelled: np.ndarray
+
+
+def _truth(seq: Sequence, files: dict[int, Path]) -> Truth:
+    """The truth from the first labelled frame to the last; every frame between needs an image."""
     gt = seq.groundtruth
-    n = max(gt) + 1
-    missing = [f for f in range(n) if f not in gt or f not in files]
-    if min(gt) != 0 or missing:
-        raise ValueError(f"{seq.path}: the stress benchmark needs a ground-truth box and an image for every frame "
-                         f"from 0 on (frame {missing[0] if missing else 0} has none)")
-    return np.array([gt[f] for f in range(n)], dtype=np.float64)
+    if len(gt) < 2:
+        raise ValueError(f"{seq.path}: the stress benchmark needs ground-truth boxes on at least two frames")
+    boxes, labelled = fill_truth(gt)
+    first = min(gt)
+    missing = [f for f in range(first, first + boxes.shape[0]) if f not in files]
+    if missing:
+        raise ValueError(f"{seq.path}: the stress benchmark needs an image for every frame from the first "
+                         f"ground-truth box ({first}) to the last ({first + boxes.shape[0] - 1}); frame {missing[0]} "
+                         "has none")
+    return Truth(first, boxes, labelled)
 
 
 def _source_key(seq: Sequence, files: dict[int, Path]) -> str:
@@ -134,12 +151,14 @@ def _cut_patch(donor: Sequence, size: tuple[int, int], avoid: set[int], rng: np.
 
 
 def _write(folder: Path, seq: Sequence, files: dict[int, Path], plan: StressPlan, patch: np.ndarray | None,
-           seed: int) -> None:
+           seed: int, first: int = 0) -> None:
+    """The derived frames, and the truth and visibility of those that show a labelled frame
+    (``plan.source`` counts from the original frame ``first``)."""
     frames = folder / "frames"
     frames.mkdir(parents=True)
     case = plan.case
     for i in range(len(plan)):
-        src = files[int(plan.source[i])]
+        src = files[first + int(plan.source[i])]
         if not plan.changed(i):
             shutil.copyfile(src, frames / f"{i:06d}{src.suffix.lower()}")
             continue
@@ -150,10 +169,10 @@ def _write(folder: Path, seq: Sequence, files: dict[int, Path], plan: StressPlan
         out = render_frame(img, plan, i, patch, rng)
         if not cv2.imwrite(str(frames / f"{i:06d}.jpg"), out, [cv2.IMWRITE_JPEG_QUALITY, 95]):
             raise OSError(f"could not write {frames / f'{i:06d}.jpg'}")
-    write_boxes(folder / "groundtruth.csv", {i: tuple(plan.boxes[i]) for i in range(len(plan))})
-    write_visibility(folder / "visibility.csv", {i: float(plan.visible[i]) for i in range(len(plan))},
-                     {i: bool(plan.perturbed[i]) for i in range(len(plan))},
-                     {i: int(plan.source[i]) for i in range(len(plan))})
+    scored = [i for i in range(len(plan)) if plan.labelled[i]]
+    write_boxes(folder / "groundtruth.csv", {i: tuple(plan.boxes[i]) for i in scored})
+    write_visibility(folder / "visibility.csv", {i: float(plan.visible[i]) for i in scored},
+                     {i: bool(plan.perturbed[i]) for i in scored}, {i: first + int(plan.source[i]) for i in scored})
 
 
 def _cached_meta(meta_path: Path, key: str) -> dict | None:
@@ -169,12 +188,12 @@ def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: i
     """Write (or find in ``root``) the derived sequence of ``case`` on ``seq``, its patch cut from ``donor``."""
     files = _files(seq)
     truth = _truth(seq, files)
-    first = cv2.imread(str(files[0]), cv2.IMREAD_COLOR)
-    if first is None:
-        raise ValueError(f"{files[0]}: not a decodable image")
-    size = (first.shape[1], first.shape[0])
+    img = cv2.imread(str(files[truth.first]), cv2.IMREAD_COLOR)
+    if img is None:
+        raise ValueError(f"{files[truth.first]}: not a decodable image")
+    size = (img.shape[1], img.shape[0])
     rng = np.random.default_rng([seed, zlib.crc32(seq.name.encode()), zlib.crc32(case.name.encode())])
-    plan = plan_case(case, truth, size, rng, lead=lead, tail=tail)
+    plan = plan_case(case, truth.boxes, size, rng, lead=lead, tail=tail, labelled=truth.labelled)
     key = _digest(VERSION, case, lead, tail, seed, seq.name, _source_key(seq, files),
                   donor.name if case.kind in PATCH_KINDS else "", _source_key(donor, _files(donor))
                   if case.kind in PATCH_KINDS else "")
@@ -189,14 +208,15 @@ def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: i
         patch, patch_from = None, ""
         need = occluder_size(plan)
         if need is not None:
-            patch, patch_from = _cut_patch(donor, need, set(plan.source.tolist()) if donor is seq else set(), rng)
+            patch, patch_from = _cut_patch(donor, need, {truth.first + int(f) for f in plan.source} if donor is seq
+                                           else set(), rng)
         folder.parent.mkdir(parents=True, exist_ok=True)
         part = Path(tempfile.mkdtemp(prefix=f"{folder.name}.part-", dir=folder.parent))
-        _write(part, seq, files, plan, patch, seed)
+        _write(part, seq, files, plan, patch, seed, truth.first)
         meta = {"key": key, "version": VERSION, "sequence": seq.name, "source": str(seq.path), "case": case.name,
                 "kind": case.kind, "length": case.length, "amount": case.amount, "describe": case.describe(),
-                "window": list(plan.window), "frames": len(plan), "lead": lead, "tail": tail, "seed": seed,
-                "patch_from": patch_from}
+                "window": list(plan.window), "frames": len(plan), "scored_frames": int(plan.labelled.sum()),
+                "lead": lead, "tail": tail, "seed": seed, "patch_from": patch_from}
         (part / "stress.json").write_text(json.dumps(meta, indent=1))
         try:
             part.rename(folder)
@@ -238,21 +258,24 @@ class StressRow:
 
 
 def stress_scores(row: StressRow, d: Derived, boxes_csv: str | Path) -> StressRow:
-    """Score a tracker's boxes (and states, if the CSV has them) on a derived sequence."""
+    """Score a tracker's boxes (and states, if the CSV has them) on a derived sequence, on the
+    frames that have ground truth (every frame, or those showing a labelled original)."""
     gt = d.seq.groundtruth
     track = read_track(boxes_csv)
-    frames = sorted(gt)
+    frames = np.array(sorted(gt), dtype=np.int64)
     ov = overlaps(gt, track.boxes)
     w0, w1 = d.plan.window
     row.frames, row.window = len(frames), (w0, w1)
-    after = ov[w1 + AFTER_GAP:]
+    after = ov[frames >= w1 + AFTER_GAP]
     row.after = float((after > 0.5).mean()) if after.size else None
-    row.overlap = ov
-    row.back_in = frames_to_recover(ov, w1)
+    # per derived frame, NaN where it is not scored
+    row.overlap = np.full(len(d.plan), np.nan)
+    row.overlap[frames] = ov
+    row.back_in = frames_to_recover(ov, w1, frames=frames)
     if track.states is not None:
-        conf = None if track.confidence is None else [track.confidence.get(f, float("nan")) for f in frames]
-        row.state = state_score([track.states.get(f) for f in frames], d.plan.visible, d.plan.perturbed, overlap=ov,
-                                confidence=conf)
+        conf = None if track.confidence is None else [track.confidence.get(int(f), float("nan")) for f in frames]
+        row.state = state_score([track.states.get(int(f)) for f in frames], d.plan.visible[frames],
+                                d.plan.perturbed[frames], overlap=ov, confidence=conf, frames=frames)
     return row
 
 
@@ -269,7 +292,10 @@ def untouched(rows: list[StressRow], cases: dict[str, StressCase]) -> None:
         idx = np.arange(w1 + AFTER_GAP, r.overlap.shape[0]) + (cases[r.case].length - (w1 - w0))
         assert c.overlap is not None  # control holds rows with overlaps only
         if idx.size and idx[-1] < c.overlap.shape[0]:
-            r.untouched_after = float((c.overlap[idx] > 0.5).mean())
+            ov = c.overlap[idx]
+            ov = ov[~np.isnan(ov)]  # the scored frames (the same original frames as the case's)
+            if ov.size:
+                r.untouched_after = float((ov > 0.5).mean())
 
 
 def _from_row(row: StressRow, r: Row) -> None:
@@ -297,17 +323,27 @@ COLUMNS = ("sequence", "case", "CLE px", "success", "after", "untouched after", 
 OTHER_COLUMNS = ("CLE", "success", "after", "back in")
 
 
-def _table(head: tuple[str, ...], cells: list[list[str]], markdown: bool, right_from: int = 2) -> str:
+def _table(head: tuple[str, ...], cells: list[list[str]], markdown: bool, right_from: int = 2,
+           last_left: bool = True) -> str:
     if markdown:
         return "\n".join(["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
                          + ["| " + " | ".join(c) + " |" for c in cells])
     widths = [max(len(h), *(len(c[i]) for c in cells)) if cells else len(h) for i, h in enumerate(head)]
 
     def line(c: list[str]) -> str:
-        return "  ".join(v.rjust(w) if right_from <= i < len(head) - 1 else v.ljust(w)
+        return "  ".join(v.rjust(w) if right_from <= i < len(head) - last_left else v.ljust(w)
                          for i, (v, w) in enumerate(zip(c, widths))).rstrip()
 
     return "\n".join([line(list(head)), line(["-" * w for w in widths])] + [line(c) for c in cells])
+
+
+def _group(rows: list[StressRow]) -> dict:
+    """Cases got back, mean success and mean after score of some rows of one tracker."""
+    scored = [r for r in rows if r.after is not None]
+    ok = [r for r in rows if r.success is not None]
+    return {"back": [sum(bool(r.back) for r in scored), len(scored)],
+            "mean_success": None if not ok else round(float(np.mean([r.success for r in ok])), 4),
+            "mean_after": None if not scored else round(float(np.mean([r.after for r in scored])), 4)}
 
 
 def _summary(rows: list[StressRow]) -> dict:
@@ -330,6 +366,9 @@ def _summary(rows: list[StressRow]) -> dict:
     st = [r.state for r in every if r.state is not None]
     ok = [r for r in rows if r.success is not None]
     return {
+        "families": {k: _group([r for r in rows if r.extra["case_kind"] == k])
+                     for k in dict.fromkeys(r.extra["case_kind"] for r in rows)},
+        "sequences": {q: _group([r for r in rows if r.sequence == q]) for q in dict.fromkeys(r.sequence for r in rows)},
         "back": {g: back(p) for g, p in groups.items()},
         "mean_success": None if not ok else round(float(np.mean([r.success for r in ok])), 4),
         "mean_after": None if not scored else round(float(np.mean([r.after for r in scored])), 4),
@@ -369,9 +408,68 @@ def format_stress(rows: list[StressRow], markdown: bool = False) -> str:
         out.append("")
         out.append(_table(head, cells, markdown))
         out.append("")
-        out += _summary_lines(name, mine, [r for r in rows if r.tracker == cv] if cv else [], cv)
+        theirs = [r for r in rows if r.tracker == cv] if cv else []
+        out += _summary_lines(name, mine, theirs, cv)
         out.append("")
+        for group, title in (("families", "family"), ("sequences", "sequence")):
+            line = f"{name} per {title}" + (f" (beside it: {cv})" if cv else "")
+            out += [f"**{line}**" if markdown else line, "",
+                    _group_table(title, _summary(mine)[group], _summary(theirs)[group] if theirs else None, cv,
+                                 markdown), ""]
+    out += _overview(rows, markdown)
     return "\n".join(out).rstrip()
+
+
+#: the heading of the tables that put every tracker side by side
+OVERVIEW = "every tracker"
+
+
+def _overview(rows: list[StressRow], markdown: bool) -> list[str]:
+    """Every tracker (ours and OpenCV's) side by side: cases got back per family and per sequence,
+    and the summary figures."""
+    names = list(dict.fromkeys(r.tracker for r in rows if r.kind != "baseline"))
+    if not names:
+        return []
+    sums = {n: _summary([r for r in rows if r.tracker == n]) for n in names}
+    head = tuple(n.removeprefix("opencv ").upper() if n.startswith("opencv ") else n for n in names)
+
+    def back(g: dict | None) -> str:
+        return "-" if g is None else f"{g['back'][0]}/{g['back'][1]}"
+
+    out = [f"{'### ' if markdown else ''}{OVERVIEW}: cases got back (success >= {BACK_AT} from {AFTER_GAP} frames "
+           "after the window) of those run, per family and per sequence", ""]
+    for group, title in (("families", "family"), ("sequences", "sequence")):
+        keys = list(dict.fromkeys(k for n in names for k in sums[n][group]))
+        cells = [[k] + [back(sums[n][group].get(k)) for n in names] for k in keys]
+        cells.append(["every case"] + [back({"back": sums[n]["back"]["every case"]}) for n in names])
+        out += [_table((title,) + head, cells, markdown, right_from=1, last_left=False), ""]
+    rate = [("mean success", lambda a: _f(a["mean_success"], ".3f")),
+            ("mean after", lambda a: _f(a["mean_after"], ".3f")),
+            ("hidden frames reported occluded or lost", lambda a: _rate(*a["hidden_reported_occluded_or_lost"])),
+            ("undisturbed frames reported tracked", lambda a: _rate(*a["undisturbed_reported_tracked"])),
+            ("off the target yet reported tracked (lower is better)",
+             lambda a: _rate(*a["off_target_reported_tracked"])),
+            ("cases worse than a box that never moves", lambda a: str(len(a["worse_than_still_box"])))]
+    groups = [g for g in sums[names[0]]["back"] if g != "every case"]
+    cells = [[f"got back after {g}"] + [back({"back": sums[n]["back"][g]}) for n in names] for g in groups]
+    cells += [[what] + [get(sums[n]) for n in names] for what, get in rate]
+    out += [_table(("over every case",) + head, cells, markdown, right_from=1, last_left=False), ""]
+    return out
+
+
+def _group_table(title: str, mine: dict, theirs: dict | None, cv: str | None, markdown: bool) -> str:
+    """Cases got back, mean success and mean after per family (or per sequence), CSRT's beside."""
+    other = () if theirs is None or cv is None else tuple(
+        f"{cv.removeprefix('opencv ').upper()} {h}" for h in ("got back", "mean success", "mean after"))
+    head = (title, "got back", "mean success", "mean after") + other
+
+    def cells(g: dict | None) -> list[str]:
+        if g is None:
+            return ["-", "-", "-"]
+        return [f"{g['back'][0]}/{g['back'][1]}", _f(g["mean_success"], ".3f"), _f(g["mean_after"], ".3f")]
+
+    body = [[k] + cells(g) + (cells(theirs.get(k)) if theirs is not None and other else []) for k, g in mine.items()]
+    return _table(head, body, markdown, right_from=1, last_left=False)
 
 
 def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv: str | None) -> list[str]:

@@ -58,6 +58,8 @@ def test_learn_curves_from_video_end_to_end() -> None:
     # the MLE variant gives integer d
     m2 = learn(ts, "chamfer", K=4, kernel="mle")
     assert np.array_equal(m2.d, np.round(m2.d)) and (m2.d >= 1).all()
+    # the largest training item's scale is kept: the resolution the dynamics' noise was learned at
+    assert m.train_scale == pytest.approx(float(ts.placement[:, 3].max())) and m.train_scale >= 1.0
     # round trip and tracking on a frame not seen in training
     m = M2Model.from_arrays(m.to_arrays())
     test_frames, test_centres, test_widths = gait_frames(40, seed=0, x0=20.0)

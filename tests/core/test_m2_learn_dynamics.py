@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.m2.dynamics import from_beta, sample_markov
+from gflow_core.m2.dynamics import from_beta, random_walk, sample_markov
 from gflow_core.m2.learn_dynamics import learn_ar, learn_markov, split_runs, transition_counts, yule_walker
 
 
@@ -108,3 +108,46 @@ def test_split_runs_breaks_at_gaps_and_sequences() -> None:
         learn_markov(runs, K=2, prior=0.0)
     with pytest.raises(ValueError, match="labels"):
         learn_markov([np.array([0, 3])], K=2)
+
+
+def test_at_resolution_scales_the_angle_and_scale_noise_of_a_larger_target_only() -> None:
+    from gflow_core.m2.dynamics import ARDynamics, at_resolution
+
+    A = np.diag([1.0, 1.0, 0.5, 0.7])
+    B = np.array([[2.0, 0, 0, 0], [0.3, 2.5, 0, 0], [0.01, 0.0, 0.15, 0], [0.0, 0.02, 0.01, 0.16]])
+    dyn = ARDynamics(A=A, mean=np.array([100.0, 50.0, 0.0, 0.1]), B=B)
+    half = at_resolution(dyn, 2.0)
+    # rows of theta and log s over 2; translation noise, A and the mean unchanged
+    assert np.allclose(half.B[2:], B[2:] / 2) and np.array_equal(half.B[:2], B[:2])
+    assert np.array_equal(half.A, A) and np.array_equal(half.mean, dyn.mean)
+    # a target within the training sizes keeps the learned process, bit for bit
+    assert at_resolution(dyn, 1.0) is dyn and at_resolution(dyn, 0.5) is dyn
+    # sampled: the spread of log s halves, that of the centre does not
+    rng = np.random.default_rng(0)
+    alpha = np.tile([100.0, 50.0, 0.0, 1.1], (20000, 1))
+    a, b = dyn.predict(alpha, rng), half.predict(alpha, np.random.default_rng(0))
+    assert np.std(np.log(b[:, 3])) == pytest.approx(np.std(np.log(a[:, 3])) / 2, rel=1e-6)
+    assert np.array_equal(a[:, :2], b[:, :2])
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="scale ratio"):
+            at_resolution(dyn, bad)
+
+
+def test_proposal_dynamics_carries_the_noise_to_the_target_size() -> None:
+    """A model learned on targets up to 1.25 of its reference box, placed on a box 2.5 times it: the
+    angle and scale noise is halved; on a box within the training sizes the learned process is used."""
+    from dataclasses import replace
+
+    from gflow_core.contour_dynamics import proposal_dynamics
+    from gflow_core.m2.curves import Curves
+    from gflow_core.m2.model import M2Model
+
+    rng = np.random.default_rng(0)
+    m = M2Model(metric="chamfer", kernel="moments", exemplars=Curves.from_list([rng.normal(0, 5, (20, 2))]),
+                d=np.array([4.0]), sigma=np.array([1.0]), pi=np.array([1.0]), markov=np.ones((1, 1)),
+                dynamics=random_walk(2.0, 0.1, 0.1), ref_size=np.array([20.0, 40.0]), train_scale=1.25)
+    _, big, _ = proposal_dynamics(m, (0.0, 0.0, 50.0, 100.0), None)  # s0 = 2.5, r = 2
+    _, same, _ = proposal_dynamics(m, (0.0, 0.0, 20.0, 40.0), None)  # s0 = 1
+    assert np.allclose(np.diag(big.B), [2.0, 2.0, 0.05, 0.05]) and np.allclose(np.diag(same.B), [2.0, 2.0, 0.1, 0.1])
+    _, old, _ = proposal_dynamics(replace(m, train_scale=float("inf")), (0.0, 0.0, 50.0, 100.0), None)
+    assert np.allclose(np.diag(old.B), [2.0, 2.0, 0.1, 0.1])  # a file without train_scale: as learned

@@ -143,12 +143,13 @@ def test_appearance_round_trip_and_version_1_files_still_read() -> None:
                             d=np.array([3.0, 4.0, 5.0]))
     m = replace(curve_model(), appearance=app)
     arrays = m.to_arrays()
-    assert int(arrays["format_version"]) == FORMAT_VERSION == 2
+    assert int(arrays["format_version"]) == FORMAT_VERSION == 3
     back = M2Model.from_arrays(arrays)
     assert np.array_equal(back.appearance.patches, app.patches) and np.array_equal(back.appearance.d, app.d)
     # a version-1 file (written before appearance exemplars existed) reads as a chamfer-only model
     v1 = curve_model().to_arrays()
     v1["format_version"] = np.array(1)
+    del v1["train_scale"]
     old = M2Model.from_arrays(v1)
     assert old.appearance is None and old.K == 3
     # appearance arrays are all or nothing, and only in version 2
@@ -162,3 +163,22 @@ def test_appearance_round_trip_and_version_1_files_still_read() -> None:
         M2Model.from_arrays(bad)
     with pytest.raises(ValueError, match="appearance patches"):
         replace(curve_model(), appearance=replace(app, patches=app.patches[:2]))
+
+
+def test_train_scale_round_trips_and_older_files_use_their_dynamics_as_learned() -> None:
+    from dataclasses import replace
+
+    m = replace(curve_model(), train_scale=1.25)
+    arrays = m.to_arrays()
+    assert float(arrays["train_scale"]) == 1.25 and M2Model.from_arrays(via_npz(arrays)).train_scale == 1.25
+    # a version-2 file has no train_scale: inf, so no target is larger than its training ones
+    v2 = dict(arrays)
+    v2["format_version"] = np.array(2)
+    del v2["train_scale"]
+    assert M2Model.from_arrays(v2).train_scale == float("inf")
+    with pytest.raises(ValueError, match="train_scale"):
+        M2Model.from_arrays(dict(arrays, format_version=np.array(3), train_scale=np.array(-1.0)))
+    with pytest.raises(ValueError, match="unexpected"):
+        M2Model.from_arrays(dict(v2, train_scale=np.array(1.0)))
+    with pytest.raises(ValueError, match="missing"):
+        M2Model.from_arrays({k: v for k, v in arrays.items() if k != "train_scale"})

@@ -19,6 +19,37 @@ def test_frames_to_recover_counts_to_the_first_run_on_target():
         frames_to_recover(ov, 20)
 
 
+def test_frames_to_recover_on_sparse_ground_truth_counts_frames_not_entries():
+    # a box every 5th frame: 0, 5, ..., 45; off target on 10-20, back from 25
+    frames = np.arange(0, 50, 5)
+    ov = np.array([0.9, 0.9, 0.0, 0.1, 0.2, 0.8, 0.8, 0.8, 0.8, 0.8])
+    assert frames_to_recover(ov, 10, frames=frames) == 15  # frame 25 starts a run spanning >= 5 frames (25, 30)
+    assert frames_to_recover(ov, 0, frames=frames) == 0
+    assert frames_to_recover(ov, 12, frames=frames) == 13  # from the first scored frame at or after 12
+    assert frames_to_recover(ov, 10, hold=30, frames=frames) == 15  # the run reaches the end on target
+    assert frames_to_recover(ov[:6], 10, hold=30, frames=frames[:6]) == 15
+    assert frames_to_recover(np.array([0.9, 0.9, 0.0, 0.0]), 0, frames=np.array([10, 15, 20, 25]), hold=2) == 0
+    # one scored frame on target spans one frame: not a run of 2, unless the sequence ends on it
+    assert frames_to_recover(np.array([0.9, 0.0, 0.9, 0.0]), 10, frames=np.array([10, 15, 20, 25]), hold=2) is None
+    # every frame given: the same as without frames
+    dense = np.array([0.9, 0.0, 0.0, 0.7, 0.7, 0.7, 0.7, 0.7])
+    assert frames_to_recover(dense, 1, frames=np.arange(8)) == frames_to_recover(dense, 1) == 2
+    with pytest.raises(ValueError, match="same shape"):
+        frames_to_recover(ov, 0, frames=frames[:3])
+
+
+def test_state_score_grace_counts_frames_on_sparse_ground_truth():
+    # a box every 5th frame; hidden on frames 10-30: past the 5-frame grace from frame 15 on
+    frames = np.arange(0, 45, 5)
+    visible = np.array([1, 1, 0, 0, 0, 0, 0, 1, 1], dtype=float)
+    states = ["tracked", "tracked", "tracked", "occluded", "lost", "lost", "tracked", "tracked", "tracked"]
+    s = state_score(states, visible, frames=frames)
+    assert (s.hidden, s.hidden_right) == (4, 3)  # frames 15, 20, 25, 30; 30 said tracked
+    assert (s.shown, s.shown_right) == (4, 4)
+    dense = state_score(states, visible)  # read as consecutive frames, only the 5th hidden entry on is scored
+    assert dense.hidden == 0
+
+
 def test_overlaps_is_zero_where_a_prediction_is_missing():
     gt = {0: (0.0, 0.0, 10.0, 10.0), 1: (0.0, 0.0, 10.0, 10.0)}
     assert overlaps(gt, {0: (0.0, 0.0, 10.0, 10.0)}).tolist() == [1.0, 0.0]

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.stress import CASES, KINDS, StressCase, occluder_size, plan_case, render_frame, visible_fraction
+from gflow_core.stress import (CASES, KINDS, StressCase, fill_truth, occluder_size, plan_case, render_frame,
+                               visible_fraction)
 
 W, H = 200, 150
 
@@ -206,3 +207,26 @@ def test_bad_truth_and_image_are_refused():
         render_frame(np.zeros((10, 10, 3), np.uint8), p, 0)
     with pytest.raises(ValueError, match="give one"):
         render_frame(_image(), p, p.window[0] + 1)
+
+
+def test_fill_truth_interpolates_between_labelled_frames():
+    boxes, labelled = fill_truth({3: (10.0, 20.0, 30.0, 40.0), 8: (20.0, 10.0, 30.0, 50.0), 13: (20.0, 10.0, 30.0, 50.0)})
+    assert boxes.shape == (11, 4) and labelled.tolist() == [True] + [False] * 4 + [True] + [False] * 4 + [True]
+    assert boxes[0].tolist() == [10.0, 20.0, 30.0, 40.0] and boxes[5].tolist() == [20.0, 10.0, 30.0, 50.0]
+    assert boxes[2].tolist() == pytest.approx([14.0, 16.0, 30.0, 44.0])  # 2/5 of the way
+    with pytest.raises(ValueError, match="at least two"):
+        fill_truth({0: (1.0, 2.0, 3.0, 4.0)})
+
+
+def test_sparse_truth_starts_every_run_on_a_labelled_frame_and_marks_the_labelled_ones():
+    n = 400
+    labelled = np.arange(n) % 5 == 0
+    for case in CASES:
+        p = plan_case(case, _truth(n), (W, H), np.random.default_rng(0), labelled=labelled)
+        assert p.labelled[0] and np.array_equal(p.labelled, labelled[p.source]), case.name
+        dense = plan_case(case, _truth(n), (W, H), np.random.default_rng(0))
+        # the start moves back to the labelled frame at or before the dense plan's start
+        assert 0 <= dense.source[0] - p.source[0] < 5 and p.source[0] % 5 == 0, case.name
+        assert dense.labelled.all()
+    with pytest.raises(ValueError, match="frame 0 labelled"):
+        plan_case(CASES[0], _truth(n), (W, H), np.random.default_rng(0), labelled=~labelled)

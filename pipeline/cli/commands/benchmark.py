@@ -1,6 +1,7 @@
-"""``gflow benchmark DATASET...``: every tracker on every sequence folder, in one table.
+"""``gflow benchmark DATASET...``: every tracker on every sequence folder, one table per tracker.
 
-The logic (finding sequences, scoring, the table, JSON and plots) is in :mod:`pipeline.cli.sequence_benchmark`;
+The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.cli.sequence_benchmark`, the
+tables in :mod:`pipeline.cli.benchmark_tables`, the stress benchmark in :mod:`pipeline.cli.stress_benchmark`;
 each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`.track.run_track`).
 """
 
@@ -199,8 +200,10 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
 
 
 def cmd_benchmark(args) -> int:
-    from pipeline.cli.sequence_benchmark import (Row, find_sequences, format_table, note, opencv_tracker, plot_precision,
-                             plot_success, published_rows, static_box, to_json)
+    from pipeline.cli.benchmark_tables import format_tables
+    from pipeline.cli.sequence_benchmark import (Row, find_sequences, note, opencv_tracker, plot_precision, plot_success,
+                                                 published_rows, static_box, to_json)
+    from pipeline.cli.versions import version_text, versions
     from pipeline.io.datasets import parse_range
 
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
@@ -280,13 +283,14 @@ def cmd_benchmark(args) -> int:
             note("interrupted: stopped; the table holds the runs that finished")
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs],
             "frames": [first_frame if args.frames else None, stop], "seed": args.seed, "mode": mode,
-            "skipped": skipped, "interrupted": interrupted}
+            "skipped": skipped, "interrupted": interrupted, "versions": versions()}
     if args.json:
         print(json.dumps(to_json(rows, meta)))
     else:
-        print(format_table(rows, markdown=args.markdown))
+        print(format_tables(rows, markdown=args.markdown, fps=not args.no_fps))
         if skipped:
             print("\n" + "\n".join(skipped))
+        print(f"\n{mode}, seed {args.seed}; {version_text(meta['versions'])}")
     if not interrupted:
         if args.plot:
             plot_success(rows, args.plot)
@@ -299,14 +303,16 @@ def cmd_benchmark(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser(
-        "benchmark", help="run trackers on sequence folders and score them in one table",
+        "benchmark", help="run trackers on sequence folders and score them, one table per tracker",
         description="Run every selected tracker on every sequence folder (frames/ and groundtruth.csv, "
                     "optionally results/*.csv of published trackers) from the ground-truth box of the first frame, "
-                    "exactly as `gflow track` does, and score it as `gflow eval` does. Prints one table: CLE (px), "
-                    "success (IoU > 0.5), AUC of the success plot, size 2x (of the frames where the box overlaps the "
-                    "truth, the fraction whose area is within a factor 2 of the true area) and fps (frames / wall "
-                    "time of tracking), with "
-                    "the published trackers and a box that never moves scored over the same frames.",
+                    "exactly as `gflow track` does, and score it as `gflow eval` does, on the frames that have a "
+                    "ground-truth box. Prints one table per tracker, a row per sequence and the mean over them: "
+                    "AUC of the OTB success plot (the headline), precision at 20 px, CLE (px), success (IoU > 0.5) "
+                    "and fps (frames / wall time of tracking); beside each tracker's figures the AUC of the "
+                    "OpenCV trackers run, of a box that never moves and of the best published tracker, each of "
+                    "which gets its own table too. --json has every row (also the mean overlap and 'size within "
+                    "2x') and the means.",
         epilog="examples: gflow benchmark ../shared/data --trackers chamfer --plot success.png; "
                "gflow benchmark ../shared/data --stress --trackers appearance --inline --markdown")
     p.add_argument("datasets", nargs="*", metavar="DATASET",
@@ -324,7 +330,10 @@ def register(sub) -> None:
                    help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them (none: no "
                         "OpenCV tracker)")
     p.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    p.add_argument("--markdown", action="store_true", help="print the table as Markdown")
+    p.add_argument("--markdown", action="store_true", help="print the tables as Markdown")
+    p.add_argument("--no-fps", action="store_true",
+                   help="leave the frames/s out of the tables (for tables kept beside other measurements: speed "
+                        "depends on the machine and its load; docs/performance.md measures it)")
     p.add_argument("--plot", metavar="PNG", help="write the success plot (success rate against overlap threshold)")
     p.add_argument("--precision-plot", metavar="PNG", help="write the precision plot (against centre error)")
     p.add_argument("--out-dir", metavar="DIR",

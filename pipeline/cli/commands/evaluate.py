@@ -111,7 +111,7 @@ def _state_score(args, gt: dict, track):
                        None if pert is None else [pert[f] for f in frames],
                        overlap=overlaps(gt, track.boxes), threshold=args.threshold,
                        confidence=None if track.confidence is None else
-                       [track.confidence.get(f, float("nan")) for f in frames])
+                       [track.confidence.get(f, float("nan")) for f in frames], frames=frames)
 
 
 def register(sub) -> None:

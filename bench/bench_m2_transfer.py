@@ -1,0 +1,92 @@
+"""M2 that transfers: a model learned on one pedestrian video tracking a pedestrian in another.
+
+    python bench/bench_m2_transfer.py                 # seeds 1-6, --inline
+    python bench/bench_m2_transfer.py --seeds 1,2,3
+    python bench/bench_m2_transfer.py --root ../main   # the code of another checkout, to compare
+
+Learns two models with `gflow learn m2` (K = 20, from the ground-truth boxes): one on caviar1
+frames 0-149 (a 28x73 px walker), one on all of crossing (a 16x42 px walker), and runs `gflow
+benchmark --trackers m2 --inline` with each seed on:
+
+* crossing with the caviar1 model (a target 0.6 times the model's size);
+* caviar1 with the crossing model (1.9 times it);
+* caviar1 frames 150-381 with the caviar1 model (the frames it was not trained on), and all of
+  caviar1 with it (its training frames included), the figures the transfer must not worsen.
+
+Prints CLE, AUC and success per seed and their means. The models go to a temporary folder,
+removed at the end (``GFLOW_BENCH_KEEP=1`` keeps it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _util import scratch, table  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data"
+#: the checkout whose gflow runs (--root)
+CODE = ROOT
+
+
+def gflow(*argv: str) -> str:
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", *argv], cwd=CODE, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"gflow {' '.join(argv)} failed: {r.stderr.strip()[-500:]}")
+    return r.stdout
+
+
+def run(model: Path, seq: str, frames: str | None, seed: int) -> tuple[float, float, float]:
+    argv = ["benchmark", str(DATA), "--sequences", seq, "--trackers", "m2", "--m2-model", str(model), "--inline",
+            "--seed", str(seed), "--json", "-q"] + (["--frames", frames] if frames else [])
+    row = next(r for r in json.loads(gflow(*argv))["rows"] if r["tracker"] == "m2")
+    return row["cle_px"], row["auc"], row["success_rate_0.5"]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", default="1,2,3,4,5,6", help="seeds to run (default 1-6)")
+    ap.add_argument("--root", metavar="DIR", help="run the gflow of this checkout (its pipeline/ is imported from "
+                                                  "there), e.g. the code before a change")
+    args = ap.parse_args()
+    global CODE
+    if args.root:
+        CODE = Path(args.root).resolve()
+        if not (CODE / "pipeline" / "cli").is_dir():
+            raise SystemExit(f"--root {args.root}: not a gflow checkout (no pipeline/cli)")
+    if not (DATA / "caviar1").is_dir() or not (DATA / "crossing").is_dir():
+        raise SystemExit(f"needs caviar1 and crossing in {DATA}")
+    seeds = [int(s) for s in args.seeds.split(",")]
+    tmp = scratch("gflow-bench-m2-transfer-")
+    cav, cross = tmp / "caviar1-0-149.npz", tmp / "crossing.npz"
+    gflow("learn", "m2", str(DATA / "caviar1"), "--boxes", str(DATA / "caviar1" / "groundtruth.csv"), "--frames",
+          "0:150", "-K", "20", "--out", str(cav), "-q")
+    gflow("learn", "m2", str(DATA / "crossing"), "--boxes", str(DATA / "crossing" / "groundtruth.csv"), "-K", "20",
+          "--out", str(cross), "-q")
+    cases = [("caviar1 0-149 -> crossing", cav, "crossing", None),
+             ("crossing -> caviar1", cross, "caviar1", None),
+             ("caviar1 0-149 -> caviar1 150-381", cav, "caviar1", "150:"),
+             ("caviar1 0-149 -> caviar1 (all)", cav, "caviar1", None)]
+    rows = []
+    for name, model, seq, frames in cases:
+        res = np.array([run(model, seq, frames, s) for s in seeds])
+        rows.append([name, " / ".join(f"{v:.2f}" for v in res[:, 0]), f"{res[:, 0].mean():.2f}",
+                     " / ".join(f"{v:.3f}" for v in res[:, 1]), f"{res[:, 1].mean():.3f}",
+                     f"{res[:, 2].min():.3f}-{res[:, 2].max():.3f}"])
+        print(f"{name}: done", file=sys.stderr, flush=True)
+    print(f"M2 transfer, seeds {args.seeds}, --inline (CLE px, AUC of the success plot, success at IoU 0.5)")
+    print(table(rows, ["model -> sequence", "CLE per seed", "mean", "AUC per seed", "mean", "success"]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,53 @@
+"""The versions a measured figure or a bug report depends on: gflow, Python, the libraries, the OS.
+
+``gflow --version`` prints them, and ``gflow benchmark`` writes them beside its tables, so a
+figure in the docs says what it ran on. Looked up only when asked: reading the installed
+packages' metadata and importing OpenCV cost tens of milliseconds at every start of ``gflow``.
+"""
+
+from __future__ import annotations
+
+import platform
+import sys
+
+__all__ = ["versions", "version_text"]
+
+#: distribution names of the Python packages that decide the figures, in the order printed
+PACKAGES = (("numpy", "numpy"), ("opencv", None), ("scipy", "scipy"), ("zenoh", "eclipse-zenoh"), ("mcap", "mcap"),
+            ("msgspec", "msgspec"))
+
+
+def _dist(name: str) -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(name)
+    except PackageNotFoundError:
+        return "not installed"
+
+
+def _opencv() -> str:
+    """The version of the cv2 that is imported (a contrib build may shadow the project's), and its build."""
+    try:
+        import cv2
+    except ImportError:
+        return "not installed"
+    contrib = hasattr(cv2, "TrackerCSRT") or hasattr(getattr(cv2, "legacy", None), "TrackerCSRT_create")
+    return f"{cv2.__version__}{' contrib' if contrib else ''}"
+
+
+def versions() -> dict[str, str]:
+    """``{"gflow": ..., "python": ..., "numpy": ..., "opencv": ..., "scipy": ..., "zenoh": ..., "mcap": ...,
+    "msgspec": ..., "os": ...}``."""
+    out = {"gflow": _dist("gflow"), "python": ".".join(map(str, sys.version_info[:3]))}
+    for key, dist in PACKAGES:
+        out[key] = _opencv() if dist is None else _dist(dist)
+    out["os"] = f"{platform.system()} {platform.release()} {platform.machine()}"
+    return out
+
+
+def version_text(v: dict[str, str] | None = None) -> str:
+    """``gflow 0.1.0 (python 3.11.7, numpy 2.4.6, opencv 5.0.0, ...; Linux 6.8 x86_64)``: one line."""
+    v = versions() if v is None else v
+    libs = ", ".join(f"{k} {v[k]}" for k in ["python", *(key for key, _ in PACKAGES)])
+    return f"gflow {v['gflow']} ({libs}; {v['os']})"
