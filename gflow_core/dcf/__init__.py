@@ -1,0 +1,1 @@
+"""A particle filter whose likelihood is a discriminative correlation filter learnt online."""
