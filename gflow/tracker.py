@@ -15,7 +15,7 @@ from .errors import GflowError
 __all__ = ["Tracker", "TRACKERS"]
 
 #: the trackers, as ``gflow track --tracker NAME`` names them
-TRACKERS = ("appearance", "chamfer", "gflow", "m2")
+TRACKERS = ("appearance", "chamfer", "dcf", "gflow", "m2")
 
 
 def check_box(box: Sequence[float]) -> Box:
@@ -39,7 +39,7 @@ class Tracker:
 
     Parameters
     ----------
-    name : {"appearance", "chamfer", "gflow", "m2"}
+    name : {"appearance", "chamfer", "dcf", "gflow", "m2"}
         The tracker (``docs/trackers.md``); ``appearance`` is ``gflow track``'s default.
     seed : int >= 0
         Frame ``t`` draws from ``default_rng([seed, crc32("cam0"), t, ...])``, as every stage of the
@@ -48,7 +48,8 @@ class Tracker:
         The frames' rate (the stamps of a tracker run through its stages; default 25).
     **params
         For ``appearance``, any parameter of :class:`gflow_core.appearance_params.AppearanceParams`
-        (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For
+        (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For ``dcf``,
+        any parameter of :class:`gflow_core.dcf.params.DCFParams` (``gflow info dcf``). For
         ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)
         and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For
         ``chamfer``, any parameter of :class:`gflow_core.contour_params.ChamferParams` (``gflow info

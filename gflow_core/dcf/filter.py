@@ -17,7 +17,7 @@ Online, numerator and denominator are running averages at the learning rate eta
 
 and the response to a test sample z over every displacement is
 
-    y = F^-1 { sum_l conj(A_l) Z_l / (B + lambda) }                          (DSST eq. 6)
+    y = F^-1 { sum_l conj(A_l) Z_l / (B + lambda) } = F^-1 { sum_l D_l Z_l }   (DSST eq. 6)
 
 so that y(d) is large where z holds the training sample displaced by d.
 
@@ -32,9 +32,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.fft as sfft
 
-__all__ = ["Spectrum", "gaussian_label", "spectrum", "train", "blend", "respond", "upsample", "centred",
-           "spatial", "correlate_full", "peak", "sidelobe"]
+__all__ = ["Spectrum", "gaussian_label", "spectrum", "train", "blend", "detector", "respond", "upsample", "centred",
+           "spatial", "correlate_valid", "peak", "sidelobe"]
 
 
 @dataclass(frozen=True)
@@ -56,8 +57,8 @@ def gaussian_label(h: int, w: int, sigma: float) -> np.ndarray:
 
 
 def spectrum(x: np.ndarray, window: np.ndarray) -> np.ndarray:
-    """F = DFT of the windowed sample: x (h, w, C) float32 times window (h, w), rfft2 over the cells."""
-    return np.fft.rfft2(x * window[..., None], axes=(0, 1))
+    """F = DFT of the windowed sample: x (h, w, C) times window (h, w), rfft2 over the cells, complex128."""
+    return np.fft.rfft2(x.astype(np.float64) * window[..., None], axes=(0, 1))
 
 
 def train(f_hat: np.ndarray, g_hat: np.ndarray) -> Spectrum:
@@ -76,13 +77,17 @@ def blend(old: Spectrum, new: Spectrum, eta: float) -> Spectrum:
     return Spectrum((1.0 - eta) * old.num + eta * new.num, (1.0 - eta) * old.den + eta * new.den)
 
 
-def respond(filt: Spectrum, z_hat: np.ndarray, lam: float) -> np.ndarray:
-    """Y = sum_l conj(A_l) Z_l / (B + lambda) (DSST eq. 6): (h, w') complex spectrum of the response."""
-    # sum_l conj(A_l) Z_l (einsum: its sums are in a fixed order, the same bits in any process)
-    s = (np.einsum("ijc,ijc->ij", filt.num.real, z_hat.real) + np.einsum("ijc,ijc->ij", filt.num.imag, z_hat.imag)
-         + 1j * (np.einsum("ijc,ijc->ij", filt.num.real, z_hat.imag)
-                 - np.einsum("ijc,ijc->ij", filt.num.imag, z_hat.real)))
-    return s / (filt.den + lam)
+def detector(filt: Spectrum, lam: float) -> np.ndarray:
+    """The filter as detection applies it: D_l = conj(A_l) / (B + lambda), (h, w', C) complex, so that the
+    response's spectrum is Y = sum_l D_l Z_l (DSST eq. 6)."""
+    return np.conj(filt.num) / (filt.den + lam)[..., None]
+
+
+def respond(det: np.ndarray, z_hat: np.ndarray) -> np.ndarray:
+    """Y = sum_l D_l Z_l (DSST eq. 6 with D = :func:`detector`): (h, w') complex spectrum of the response."""
+    # sum over channels by einsum: a fixed order of summation, the same bits in any process
+    return (np.einsum("ijc,ijc->ij", det.real, z_hat.real) - np.einsum("ijc,ijc->ij", det.imag, z_hat.imag)
+            + 1j * (np.einsum("ijc,ijc->ij", det.real, z_hat.imag) + np.einsum("ijc,ijc->ij", det.imag, z_hat.real)))
 
 
 def upsample(y_hat: np.ndarray, shape: tuple[int, int], factor: int) -> np.ndarray:
@@ -104,30 +109,32 @@ def centred(y: np.ndarray) -> np.ndarray:
     return np.fft.fftshift(y)
 
 
-def spatial(filt: Spectrum, lam: float, shape: tuple[int, int]) -> np.ndarray:
-    """The filter in the spatial domain: h_l = F^-1 { A_l / (B + lambda) }, (h, w, C) float64 in the
-    window's own cells (the response to z at displacement d is sum_x h(x) z(x + d), cyclic)."""
-    H = filt.num / (filt.den + lam)[..., None]
-    return np.fft.irfft2(H, s=shape, axes=(0, 1))
+def spatial(det: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """The filter in the spatial domain, h_l = F^-1 { conj(D_l) }: (h, w, C) float64 in the window's own
+    cells, so that the response to z at displacement d is sum_x h(x) z(x + d), cyclic."""
+    return np.fft.irfft2(np.conj(det), s=shape, axes=(0, 1))
 
 
-def correlate_full(h: np.ndarray, feats: np.ndarray) -> np.ndarray:
-    """The filter ``h`` (fh, fw, C) (:func:`spatial`) correlated with a larger map of cells ``feats``
-    (H, W, C): (H, W) float64, y(i, j) = sum_l sum_(u, v) h_l(u, v) x_l(i + u - fh // 2, j + v - fw // 2),
-    zero outside the map: y(i, j) scores the window centred on cell (i, j), i.e. the target there."""
+def correlate_valid(h: np.ndarray, feats: np.ndarray) -> np.ndarray:
+    """The filter ``h`` (fh, fw, C) (:func:`spatial`) slid over a larger map of cells ``feats`` (H, W, C):
+    (H - fh + 1, W - fw + 1) float64,
+
+        y(i, j) = sum_l sum_(u, v) h_l(u, v) x_l(i + u, j + v),
+
+    the score of the window whose top-left cell is (i, j) (its centre at (i + fh // 2, j + fw // 2)),
+    for every window that lies inside the map. By DFTs of a fast length (the wrapped parts fall outside
+    the windows kept)."""
     fh, fw = h.shape[:2]
     Hh, Ww = feats.shape[:2]
-    sh, sw = Hh + fh, Ww + fw
-    # correlation = convolution with the flipped filter; by DFTs of the zero-padded maps
-    fx = np.fft.rfft2(feats, s=(sh, sw), axes=(0, 1))
-    fk = np.fft.rfft2(h[::-1, ::-1], s=(sh, sw), axes=(0, 1))
-    prod = np.einsum("ijc,ijc->ij", fx.real, fk.real) - np.einsum("ijc,ijc->ij", fx.imag, fk.imag) + 1j * (
-        np.einsum("ijc,ijc->ij", fx.real, fk.imag) + np.einsum("ijc,ijc->ij", fx.imag, fk.real))
-    full = np.fft.irfft2(prod, s=(sh, sw))
-    # full(i, j) = sum h(fh - 1 - a, fw - 1 - b) x(i - a, j - b): the centre of h on cell (i, j) at
-    # i + (fh - 1) - fh // 2, j + (fw - 1) - fw // 2
-    oy, ox = fh - 1 - fh // 2, fw - 1 - fw // 2
-    return full[oy:oy + Hh, ox:ox + Ww]
+    if Hh < fh or Ww < fw:
+        raise ValueError(f"the map ({Hh}x{Ww} cells) is smaller than the filter ({fh}x{fw})")
+    sh, sw = sfft.next_fast_len(Hh, real=True), sfft.next_fast_len(Ww, real=True)
+    # y = x correlated with h = F^-1 { X conj(H) } over the (zero-padded) map
+    fx = sfft.rfft2(feats.astype(np.float64), s=(sh, sw), axes=(0, 1))
+    fk = sfft.rfft2(h, s=(sh, sw), axes=(0, 1))
+    prod = (np.einsum("ijc,ijc->ij", fx.real, fk.real) + np.einsum("ijc,ijc->ij", fx.imag, fk.imag)
+            + 1j * (np.einsum("ijc,ijc->ij", fx.imag, fk.real) - np.einsum("ijc,ijc->ij", fx.real, fk.imag)))
+    return sfft.irfft2(prod, s=(sh, sw))[: Hh - fh + 1, : Ww - fw + 1]
 
 
 def peak(y: np.ndarray) -> tuple[int, int, float]:

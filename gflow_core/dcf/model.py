@@ -29,13 +29,14 @@ import cv2
 import numpy as np
 
 from . import filter as cf
+from .constrained import box_mask, solve_masked
 from .features import colour_bins, cosine_window, hog, intensity, sample, N_COLOUR_BINS, N_GREY_BINS
 from .histogram import ColourModel, colour_score, histograms, learn_colour
 from .params import DCFParams
 from .scale import ScaleFilter, detect_scale, init_scale, learn_scale
 
 __all__ = ["Geometry", "geometry", "TargetModel", "Response", "Window", "window", "respond", "init_model", "learn",
-           "search", "Candidate", "scale_change"]
+           "search", "Candidate", "scale_change", "respond_region"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ class Geometry:
     window: np.ndarray
     label_hat: np.ndarray
     box_cells: tuple[float, float]
+    mask: np.ndarray | None = None
 
     @property
     def template(self) -> tuple[int, int]:
@@ -85,8 +87,9 @@ def geometry(size0: tuple[float, float], p: DCFParams) -> Geometry:
     # sigma = label_sigma sqrt(w h) in cells (KCF's output_sigma_factor 0.1 / cell size)
     sigma = p.label_sigma * float(np.sqrt(box_cells[0] * box_cells[1]))
     label_hat = np.fft.rfft2(cf.gaussian_label(hc, wc, sigma))
+    mask = box_mask((wc, hc), box_cells, p.mask) if p.mask > 0 else None
     return Geometry(size0=(w, h), win0=win, cells=(wc, hc), cell=p.cell, k0=k0, window=cosine_window(hc, wc),
-                    label_hat=label_hat, box_cells=box_cells)
+                    label_hat=label_hat, box_cells=box_cells, mask=mask)
 
 
 @dataclass(frozen=True)
@@ -134,11 +137,18 @@ def window(image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], siz
 
 @dataclass(frozen=True)
 class TargetModel:
-    """filt : the running filter; anchor : the first frame's; colour : Staple's histograms (None: no
-    colour model); colour_mode : ``"colour"``, ``"grey"`` or None; scale : the scale filter (None: fixed size)."""
+    """What the tracker knows of the target.
 
-    filt: cf.Spectrum
-    anchor: cf.Spectrum
+    train : the running average the filter is solved from -- the numerator and denominator (DSST eq. 5)
+        without a mask, the windowed samples' spectra (BACF sec. 3.3) with one; det : the filter as
+        detection applies it (:func:`.filter.detector`), (hc, wc // 2 + 1, C) complex; anchor : the first
+        frame's, never updated; colour : Staple's histograms (None: no colour model); colour_mode :
+        ``"colour"``, ``"grey"`` or None; scale : the scale filter (None: fixed size).
+    """
+
+    train: cf.Spectrum | np.ndarray
+    det: np.ndarray
+    anchor: np.ndarray
     colour: ColourModel | None
     colour_mode: str | None
     scale: ScaleFilter | None
@@ -148,13 +158,23 @@ def _n_bins(mode: str | None) -> int:
     return N_COLOUR_BINS if mode == "colour" else N_GREY_BINS
 
 
+def _solve(train: cf.Spectrum | np.ndarray, geom: Geometry, p: DCFParams) -> np.ndarray:
+    """The detection filter of the running average: closed form (DSST eq. 3) or under the mask (ADMM)."""
+    if isinstance(train, cf.Spectrum):
+        return cf.detector(train, p.lam)
+    assert geom.mask is not None
+    return solve_masked(train, geom.label_hat, geom.mask, p.lam, p.mu, p.admm_iterations)
+
+
 def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple[float, float], geom: Geometry,
                p: DCFParams) -> TargetModel:
-    """The model of the first frame's box centred at ``centre``: the filter of its window (DSST eq. 3),
-    which is also the anchor, the colour histograms and the scale filter."""
+    """The model of the first frame's box centred at ``centre``: the filter of its window (DSST eq. 3,
+    or under the mask), which is also the anchor, the colour histograms and the scale filter."""
     mode = None if p.colour_weight <= 0 else ("grey" if is_grey else "colour")
     win = window(image, grey, centre, geom.template, geom.k(0.0), geom.cell, mode)
-    filt = cf.train(cf.spectrum(win.x, geom.window), geom.label_hat)
+    x_hat = cf.spectrum(win.x, geom.window)
+    train: cf.Spectrum | np.ndarray = cf.train(x_hat, geom.label_hat) if geom.mask is None else x_hat
+    det = _solve(train, geom, p)
     colour = None
     if mode is not None:
         assert win.bins is not None and win.valid is not None
@@ -163,59 +183,65 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
     scale = None
     if p.scales > 1:
         scale = init_scale(grey, centre, geom.size0, p.scales, p.scale_step, p.scale_area, p.cell)
-    return TargetModel(filt, filt, colour, mode, scale)
+    return TargetModel(train, det, det, colour, mode, scale)
 
 
-def detection_filter(model: TargetModel, w: float) -> cf.Spectrum:
-    """The filter detection uses: (1 - w) the running filter + w the anchor, numerators and denominators."""
+def detection_filter(model: TargetModel, w: float) -> np.ndarray:
+    """The filter detection uses: (1 - w) the running filter + w the anchor."""
     if w <= 0:
-        return model.filt
-    return cf.Spectrum((1.0 - w) * model.filt.num + w * model.anchor.num,
-                       (1.0 - w) * model.filt.den + w * model.anchor.den)
+        return model.det
+    return (1.0 - w) * model.det + w * model.anchor
 
 
 @dataclass(frozen=True)
 class Response:
-    """The merged response over a window, upsampled to template px.
+    """A response map over target positions.
 
-    y : (h, w) float64, centred: index (h // 2, w // 2) is the target at the window's centre, index
-    (i, j) the target at ``centre + ((j, i) - (w // 2, h // 2)) / k``. y_cf : the filter's part alone.
+    y : (h, w) float64; index (i, j) is the target centred at image point ``origin + (j / q_x, i / q_y)``
+    (``q`` map px per image px). cubic : read between map positions by bicubic interpolation (a map on
+    cells) rather than bilinear (a map upsampled to template px).
     """
 
     y: np.ndarray
-    centre: tuple[float, float]
-    k: tuple[float, float]
+    origin: tuple[float, float]
+    q: tuple[float, float]
+    cubic: bool = False
 
     def at(self, xy: np.ndarray) -> np.ndarray:
-        """(N,) the response at image points ``xy`` (N, 2), bilinear; the map's minimum outside it."""
-        h, w = self.y.shape
-        u = ((xy[:, 0] - self.centre[0]) * self.k[0] + w // 2).astype(np.float32).reshape(-1, 1)
-        v = ((xy[:, 1] - self.centre[1]) * self.k[1] + h // 2).astype(np.float32).reshape(-1, 1)
-        return cv2.remap(self.y.astype(np.float32), u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                         borderValue=float(self.y.min())).ravel().astype(np.float64)
+        """(N,) the response at image points ``xy`` (N, 2); the map's minimum outside it."""
+        u = ((xy[:, 0] - self.origin[0]) * self.q[0]).astype(np.float32).reshape(-1, 1)
+        v = ((xy[:, 1] - self.origin[1]) * self.q[1]).astype(np.float32).reshape(-1, 1)
+        lo = float(self.y.min())
+        out = cv2.remap(self.y.astype(np.float32), u, v, cv2.INTER_CUBIC if self.cubic else cv2.INTER_LINEAR,
+                        borderMode=cv2.BORDER_CONSTANT, borderValue=lo).ravel().astype(np.float64)
+        # bicubic interpolation overshoots a little between samples: keep it within the map's range
+        return np.clip(out, lo, float(self.y.max())) if self.cubic else out
 
     def point(self, i: int, j: int) -> np.ndarray:
         """(x, y) image point of map index (i, j)."""
-        h, w = self.y.shape
-        return np.array([self.centre[0] + (j - w // 2) / self.k[0], self.centre[1] + (i - h // 2) / self.k[1]])
+        return np.array([self.origin[0] + j / self.q[0], self.origin[1] + i / self.q[1]])
 
     def peak(self) -> tuple[np.ndarray, float]:
         """The image point of the response's maximum and its value."""
         i, j, v = cf.peak(self.y)
         return self.point(i, j), v
 
+    def area(self) -> float:
+        """The image area (px^2) of the positions the map covers."""
+        return float(self.y.size) / (self.q[0] * self.q[1])
+
     def best_away(self, xy: np.ndarray, half: tuple[float, float]) -> tuple[float, float] | None:
         """The best response at centres farther than ``half`` (hx, hy) image px from ``xy`` in x or y (the
         best look-alike away from the estimate), and the image area (px^2) of those centres; None when
         fewer than 16 map positions are left."""
         h, w = self.y.shape
-        xs = self.centre[0] + (np.arange(w) - w // 2) / self.k[0]
-        ys = self.centre[1] + (np.arange(h) - h // 2) / self.k[1]
+        xs = self.origin[0] + np.arange(w) / self.q[0]
+        ys = self.origin[1] + np.arange(h) / self.q[1]
         mask = (np.abs(ys - xy[1]) >= half[1])[:, None] | (np.abs(xs - xy[0]) >= half[0])[None, :]
         n = int(mask.sum())
         if n < 16:
             return None
-        return float(self.y[mask].max()), n / (self.k[0] * self.k[1])
+        return float(self.y[mask].max()), n / (self.q[0] * self.q[1])
 
 
 def _colour_cells(model: TargetModel, win: Window, geom: Geometry) -> np.ndarray | None:
@@ -231,14 +257,16 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
     k = geom.k(log_s)
     win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode)
     # Y_cf = sum_l conj(A_l) Z_l / (B + lambda)                                  (DSST eq. 6)
-    y_hat = cf.respond(detection_filter(model, p.anchor_weight), cf.spectrum(win.x, geom.window), p.lam)
+    y_hat = cf.respond(detection_filter(model, p.anchor_weight), cf.spectrum(win.x, geom.window))
     col = _colour_cells(model, win, geom)
     if col is not None:
         # y = (1 - alpha) y_cf + alpha y_hist                                  (Staple eq. 2)
         y_hat = (1.0 - p.colour_weight) * y_hat + p.colour_weight * np.fft.rfft2(np.fft.ifftshift(col))
     wc, hc = geom.cells
     y = cf.centred(cf.upsample(y_hat, (hc, wc), geom.cell))
-    return Response(y, win.centre, k)
+    # index (h // 2, w // 2) is displacement 0: the target at the window's centre
+    origin = (win.centre[0] - (y.shape[1] // 2) / k[0], win.centre[1] - (y.shape[0] // 2) / k[1])
+    return Response(y, origin, k)
 
 
 def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
@@ -248,7 +276,14 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
     the scale filter at ``scale_rate``. The anchor is never changed."""
     k = geom.k(log_s)
     win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode)
-    filt = cf.blend(model.filt, cf.train(cf.spectrum(win.x, geom.window), geom.label_hat), rate)
+    x_hat = cf.spectrum(win.x, geom.window)
+    train: cf.Spectrum | np.ndarray
+    if isinstance(model.train, cf.Spectrum):
+        # A <- (1 - eta) A + eta conj(G) F,  B <- (1 - eta) B + eta sum |F|^2           (DSST eq. 5)
+        train = cf.blend(model.train, cf.train(x_hat, geom.label_hat), rate)
+    else:
+        # x_model <- (1 - eta) x_model + eta x                                        (BACF sec. 3.3)
+        train = (1.0 - rate) * model.train + rate * x_hat
     colour = model.colour
     if colour is not None and win.bins is not None and win.valid is not None and p.colour_rate > 0:
         box = (geom.size0[0] * geom.k0[0], geom.size0[1] * geom.k0[1])
@@ -259,7 +294,7 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
         s = float(np.exp(log_s))
         sf = learn_scale(sf, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
                          p.scale_rate)
-    return TargetModel(filt, model.anchor, colour, model.colour_mode, sf)
+    return TargetModel(train, _solve(train, geom, p), model.anchor, colour, model.colour_mode, sf)
 
 
 def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, float], log_s: float, geom: Geometry,
@@ -271,6 +306,42 @@ def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, floa
     d, _ = detect_scale(model.scale, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
                         p.scale_lam)
     return d
+
+
+def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold: np.ndarray,
+                   margin: tuple[float, float], log_s: float, geom: Geometry, p: DCFParams) -> Response | None:
+    """The response at every cell of centres within ``margin`` (mx, my) px of ``hold`` and in the frame,
+    at scale exp(``log_s``): a map on cells, read by bicubic interpolation; None when no centre is left.
+
+    At placement c, the window centred at c scores sum_l sum_u h_l(u) w(u) x_l(c + u), h the detection
+    filter in the spatial domain and w the cosine window -- what :func:`respond` gives the window's
+    centre -- by sliding h w over the region's cells (:func:`.filter.correlate_valid`); merged with the
+    colour score of the box at c as :func:`respond` merges them."""
+    Hh, Ww = grey.shape
+    x0, x1 = max(0.0, hold[0] - margin[0]), min(Ww - 1.0, hold[0] + margin[0])
+    y0, y1 = max(0.0, hold[1] - margin[1]), min(Hh - 1.0, hold[1] + margin[1])
+    if x1 < x0 or y1 < y0:
+        return None
+    wc, hc = geom.cells
+    kx, ky = geom.k(log_s)
+    # centres on a grid of cells: n cells each way of the region's middle, the windows around them
+    nx = int(np.ceil(0.5 * (x1 - x0) * kx / geom.cell))
+    ny = int(np.ceil(0.5 * (y1 - y0) * ky / geom.cell))
+    cw, ch = wc + 2 * nx, hc + 2 * ny
+    centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
+    win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode)
+    # h w: the filter times the cosine window, so that a placement is scored as a windowed sample is
+    hw = cf.spatial(detection_filter(model, p.anchor_weight), (hc, wc)) * geom.window[..., None]
+    y = cf.correlate_valid(hw, win.x)
+    col = _colour_cells(model, win, geom)
+    if col is not None:
+        # y = (1 - alpha) y_cf + alpha y_hist                                  (Staple eq. 2)
+        y = (1.0 - p.colour_weight) * y + p.colour_weight * col[hc // 2: hc // 2 + 2 * ny + 1,
+                                                                    wc // 2: wc // 2 + 2 * nx + 1]
+    # map index (i, j): the window centred on region cell (i + hc // 2, j + wc // 2), whose centre is
+    # (j - nx) cells from the region's middle
+    origin = (centre[0] - nx * geom.cell / kx, centre[1] - ny * geom.cell / ky)
+    return Response(y, origin, (kx / geom.cell, ky / geom.cell), cubic=True)
 
 
 @dataclass(frozen=True)
@@ -288,41 +359,15 @@ class Candidate:
 def search(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold: np.ndarray, margin: tuple[float, float],
            log_s: float, geom: Geometry, p: DCFParams, log_sizes: tuple[float, ...] = (0.0,)) -> list[Candidate]:
     """The best placement of the target with its centre within ``margin`` (mx, my) px of ``hold`` (and in
-    the frame), at each log-size change in ``log_sizes``.
-
-    At placement c, the window centred at c scores sum_l sum_u h_l(u) w(u) x_l(c + u), h the detection
-    filter in the spatial domain and w the cosine window: the correlation of h w with the region's
-    cells (:func:`.filter.correlate_full`), merged with the colour score as :func:`respond` merges them."""
-    Hh, Ww = grey.shape
-    x0, x1 = max(0.0, hold[0] - margin[0]), min(Ww - 1.0, hold[0] + margin[0])
-    y0, y1 = max(0.0, hold[1] - margin[1]), min(Hh - 1.0, hold[1] + margin[1])
-    filt = detection_filter(model, p.anchor_weight)
-    wc, hc = geom.cells
-    # h w: the filter times the cosine window, so that a placement is scored as a windowed sample is
-    hw = cf.spatial(filt, p.lam, (hc, wc)) * geom.window[..., None]
+    the frame) at each log-size change in ``log_sizes`` (:func:`respond_region`); ``area`` sums the
+    areas searched over the sizes."""
     out = []
     area = 0.0
     for lf in log_sizes:
-        kx, ky = geom.k(log_s + lf)
-        # the region's template pixels: the centres searched plus half a window each side, whole cells
-        cw = int(np.ceil(((x1 - x0) * kx + wc * geom.cell) / geom.cell))
-        ch = int(np.ceil(((y1 - y0) * ky + hc * geom.cell) / geom.cell))
-        centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
-        win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode)
-        y = cf.correlate_full(hw, win.x)
-        col = _colour_cells(model, win, geom)
-        if col is not None:
-            # y = (1 - alpha) y_cf + alpha y_hist                              (Staple eq. 2)
-            y = (1.0 - p.colour_weight) * y + p.colour_weight * col
-        # cell (i, j)'s centre in the image
-        xs = centre[0] + ((np.arange(cw) + 0.5) * geom.cell - 0.5 - (cw * geom.cell - 1) / 2.0) / kx
-        ys = centre[1] + ((np.arange(ch) + 0.5) * geom.cell - 0.5 - (ch * geom.cell - 1) / 2.0) / ky
-        inside = ((ys >= y0 - 0.5 * geom.cell / ky) & (ys <= y1 + 0.5 * geom.cell / ky))[:, None] & \
-                 ((xs >= x0 - 0.5 * geom.cell / kx) & (xs <= x1 + 0.5 * geom.cell / kx))[None, :]
-        if not inside.any():
+        r = respond_region(model, image, grey, hold, margin, log_s + lf, geom, p)
+        if r is None:
             continue
-        yv = np.where(inside, y, -np.inf)
-        i, j, v = cf.peak(yv)
-        area += float(inside.sum()) * (geom.cell / kx) * (geom.cell / ky)
-        out.append(Candidate(v, np.array([xs[j], ys[i]]), float(lf), 0.0))
+        xy, v = r.peak()
+        area += r.area()
+        out.append(Candidate(v, xy, float(lf), 0.0))
     return [Candidate(c.r, c.centre, c.log_f, area) for c in out]

@@ -29,10 +29,15 @@ class DCFParams:
     """Every setting of the correlation-filter tracker. Each field's help text is in its declaration;
     ``gflow info dcf`` prints them all. Raises ``ValueError`` naming the first parameter it refuses."""
 
-    particles: int = param(200, "number of particles N over (x, y, log s)", option="--particles")
+    particles: int = param(200, "number of particles N over (x, y, log s)")
     cell: int = param(4, "HOG cell size in pixels")
-    padding: float = param(2.0, "the filter's window: the target plus this many times its mean side")
+    padding: float = param(3.0, "the filter's window: the target plus this many times its mean side")
     template: int = param(150, "sqrt of the window's area in template pixels (the window is resampled to it)")
+    mask: float = param(1.0, "the filter's support: a box of the target's size times this (0: the whole window, "
+                             "closed form)")
+    mu: float = param(0.03, "the ADMM penalty mu of the masked filter at its first iteration, relative to the "
+                           "sample's mean energy per frequency")
+    admm_iterations: int = param(2, "ADMM iterations of the masked filter a frame")
     lam: float = param(1e-4, "lambda, the ridge regression's regulariser")
     label_sigma: float = param(0.1, "std of the Gaussian desired response, in units of sqrt(w h) of the target")
     rate: float = param(0.02, "eta, the filter's learning rate on confident frames")
@@ -44,9 +49,12 @@ class DCFParams:
     scale_step: float = param(1.02, "ratio between neighbouring scales of the scale filter")
     scale_rate: float = param(0.025, "learning rate of the scale filter")
     scale_lam: float = param(0.01, "lambda of the scale filter")
-    scale_area: int = param(512, "pixels of the scale filter's sample at most")
+    scale_area: int = param(2048, "pixels of the scale filter's sample at most")
     max_log_scale: float = param(1.3862943611198906, "bound on |log s|: the box stays within [1/4, 4] times its "
                                                      "first size")
+    region_margin: float = param(0.0, "search centres within this many mean sides of the prediction by sliding the "
+                                      "filter (0: the filter's own window)")
+    speed_search: float = param(1.0, "... plus this many times the speed |v| dt")
     kappa: float = param(30.0, "sharpness of the likelihood p(z | X) ~ exp(kappa y(X)), y the response")
     detect_fraction: float = param(0.3, "fraction of the particles drawn at the peak of the response")
     detect_std: float = param(1.0, "spread of the particles drawn at the response peak, px")
@@ -78,6 +86,9 @@ class DCFParams:
             raise ValueError(f"padding must be finite and >= 0, got {self.padding}")
         if self.template < 8 * self.cell:
             raise ValueError(f"template must be at least 8 cells ({8 * self.cell} px), got {self.template}")
+        if not (math.isfinite(self.mask) and self.mask >= 0) or not self.mu > 0 or self.admm_iterations < 1:
+            raise ValueError(f"mask must be >= 0, mu positive and admm_iterations >= 1, got {self.mask}, {self.mu}, "
+                             f"{self.admm_iterations}")
         if not (self.lam > 0 and self.scale_lam > 0):
             raise ValueError(f"lam and scale_lam must be positive, got {self.lam}, {self.scale_lam}")
         if not self.label_sigma > 0:

@@ -1,18 +1,25 @@
 """What the correlation-filter tracker reads of a frame, proposes, and carries from frame to frame.
 
 All frozen: the tracker's functions return new values and never change their arguments.
+:func:`to_arrays` and :func:`from_arrays` turn a state into plain arrays and values and back, bit for
+bit (a stage's snapshot).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any, Mapping
 
 import numpy as np
 
 from ..visibility import ChiSquare
-from .model import Geometry, TargetModel
+from . import filter as cf
+from .histogram import ColourModel
+from .model import Geometry, TargetModel, geometry
+from .params import DCFParams
+from .scale import ScaleFilter
 
-__all__ = ["DCFObservation", "DCFProposal", "DCFState"]
+__all__ = ["DCFObservation", "DCFProposal", "DCFState", "to_arrays", "from_arrays"]
 
 
 @dataclass(frozen=True)
@@ -66,3 +73,65 @@ class DCFState:
     hidden_run: int = 0
     back: float = 0.0
     target_state: str = "tracked"
+
+
+def _real(a: np.ndarray) -> np.ndarray:
+    """A complex array as float64 (..., 2 n) (real and imaginary parts interleaved); a real one as float64."""
+    if np.iscomplexobj(a):
+        return np.ascontiguousarray(a, dtype=np.complex128).view(np.float64)
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _complex(a: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`_real` for a complex array."""
+    return np.ascontiguousarray(a, dtype=np.float64).view(np.complex128)
+
+
+def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The state as named float64 arrays (complex ones with real and imaginary parts interleaved on their
+    last axis) and plain values, for a snapshot; :func:`from_arrays` inverts it bit for bit."""
+    m = st.model
+    arrays = {"particles": st.particles, "centre": st.centre, "velocity": st.velocity, "det": _real(m.det),
+              "anchor": _real(m.anchor)}
+    if isinstance(m.train, cf.Spectrum):
+        arrays.update(train_num=_real(m.train.num), train_den=m.train.den)
+    else:
+        arrays["train_x"] = _real(m.train)
+    if m.colour is not None:
+        arrays.update(colour_fg=m.colour.fg, colour_bg=m.colour.bg)
+    if m.scale is not None:
+        arrays.update(scale_num=_real(m.scale.num), scale_den=m.scale.den, scale_label=_real(m.scale.label_hat))
+    values = {"size0": [float(v) for v in st.geom.size0], "log_s": float(st.log_s), "hidden_run": int(st.hidden_run),
+              "back": float(st.back), "target_state": st.target_state, "colour_mode": m.colour_mode,
+              "target": [st.target.m1, st.target.m2, st.target.n], "clutter": [st.clutter.m1, st.clutter.m2, st.clutter.n],
+              "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
+    return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}, values
+
+
+def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: DCFParams) -> DCFState:
+    """The state of :func:`to_arrays` (``KeyError`` / ``ValueError`` for a part missing or of the wrong
+    shape); the window's geometry is made again from the first size and the parameters."""
+    size0 = values["size0"]
+    geom = geometry((float(size0[0]), float(size0[1])), p)
+    wc, hc = geom.cells
+    det, anchor = _complex(arrays["det"]), _complex(arrays["anchor"])
+    if det.shape[:2] != (hc, wc // 2 + 1) or anchor.shape != det.shape:
+        raise ValueError(f"filter of shape {det.shape} does not fit the window of {wc}x{hc} cells")
+    train: cf.Spectrum | np.ndarray
+    if "train_num" in arrays:
+        train = cf.Spectrum(_complex(arrays["train_num"]), np.array(arrays["train_den"]))
+    else:
+        train = _complex(arrays["train_x"])
+    colour = ColourModel(np.array(arrays["colour_fg"]), np.array(arrays["colour_bg"])) if "colour_fg" in arrays else None
+    scale = None
+    if "scale_num" in arrays:
+        sm = values["scale_model"]
+        scale = ScaleFilter(_complex(arrays["scale_num"]), np.array(arrays["scale_den"]),
+                            _complex(arrays["scale_label"]), (int(sm[0]), int(sm[1])))
+    model = TargetModel(train, det, anchor, colour, values["colour_mode"], scale)
+    t, c = values["target"], values["clutter"]
+    return DCFState(geom=geom, model=model, particles=np.array(arrays["particles"]), centre=np.array(arrays["centre"]),
+                    log_s=float(values["log_s"]), velocity=np.array(arrays["velocity"]),
+                    target=ChiSquare(float(t[0]), float(t[1]), int(t[2])),
+                    clutter=ChiSquare(float(c[0]), float(c[1]), int(c[2])), hidden_run=int(values["hidden_run"]),
+                    back=float(values["back"]), target_state=str(values["target_state"]))

@@ -100,9 +100,14 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     pred = st.centre + st.velocity * dt
     s = float(np.exp(st.log_s))
     bw, bh = geom.size0[0] * s, geom.size0[1] * s
-    resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p)
-    # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
     extra = speed_noise(p, st.velocity, dt)
+    resp: tm.Response | None = None
+    if p.region_margin > 0:
+        m = p.region_margin * 0.5 * (bw + bh) + p.speed_search * float(np.hypot(*st.velocity)) * dt
+        resp = tm.respond_region(model, obs.image, obs.grey, pred, (m, m), st.log_s, geom, p)
+    if resp is None:
+        resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p)
+    # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
     dyn = proposed.copy()
     dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
     # x_t ~ (1 - b) p(x_t | x_t-1) + b N(peak, detect_std^2)          (mixture proposal, b = detect_fraction)

@@ -35,8 +35,8 @@ from pipeline.cli.commands.common import (CliError, Recording, add_placement_arg
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
-#: options one tracker adds that others read too (chamfer and m2 read appearance's --particles, gflow m2's --model)
-_ALSO_USED_BY = {"particles": ("chamfer", "m2"), "model": ("gflow",)}
+#: options one tracker adds that others read too (chamfer, dcf and m2 read appearance's --particles, gflow m2's --model)
+_ALSO_USED_BY = {"particles": ("chamfer", "dcf", "m2"), "model": ("gflow",)}
 
 
 def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
