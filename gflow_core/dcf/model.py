@@ -206,16 +206,21 @@ class Response:
     origin: tuple[float, float]
     q: tuple[float, float]
     cubic: bool = False
+    cf: np.ndarray | None = None
+    colour: np.ndarray | None = None
 
-    def at(self, xy: np.ndarray) -> np.ndarray:
-        """(N,) the response at image points ``xy`` (N, 2); the map's minimum outside it."""
+    def at(self, xy: np.ndarray, part: str = "y") -> np.ndarray:
+        """(N,) the response (``part`` "y"; "cf": the filter's alone; "colour": the colour score) at image
+        points ``xy`` (N, 2); the map's minimum outside it."""
+        m = {"y": self.y, "cf": self.cf, "colour": self.colour}[part]
+        assert m is not None
         u = ((xy[:, 0] - self.origin[0]) * self.q[0]).astype(np.float32).reshape(-1, 1)
         v = ((xy[:, 1] - self.origin[1]) * self.q[1]).astype(np.float32).reshape(-1, 1)
-        lo = float(self.y.min())
-        out = cv2.remap(self.y.astype(np.float32), u, v, cv2.INTER_CUBIC if self.cubic else cv2.INTER_LINEAR,
+        lo = float(m.min())
+        out = cv2.remap(m.astype(np.float32), u, v, cv2.INTER_CUBIC if self.cubic else cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_CONSTANT, borderValue=lo).ravel().astype(np.float64)
         # bicubic interpolation overshoots a little between samples: keep it within the map's range
-        return np.clip(out, lo, float(self.y.max())) if self.cubic else out
+        return np.clip(out, lo, float(m.max())) if self.cubic else out
 
     def point(self, i: int, j: int) -> np.ndarray:
         """(x, y) image point of map index (i, j)."""
@@ -230,18 +235,20 @@ class Response:
         """The image area (px^2) of the positions the map covers."""
         return float(self.y.size) / (self.q[0] * self.q[1])
 
-    def best_away(self, xy: np.ndarray, half: tuple[float, float]) -> tuple[float, float] | None:
-        """The best response at centres farther than ``half`` (hx, hy) image px from ``xy`` in x or y (the
-        best look-alike away from the estimate), and the image area (px^2) of those centres; None when
-        fewer than 16 map positions are left."""
-        h, w = self.y.shape
+    def best_away(self, xy: np.ndarray, half: tuple[float, float], part: str = "y") -> tuple[float, float] | None:
+        """The best response (``part`` as :meth:`at`) at centres farther than ``half`` (hx, hy) image px from
+        ``xy`` in x or y (the best look-alike away from the estimate), and the image area (px^2) of those
+        centres; None when fewer than 16 map positions are left."""
+        m = {"y": self.y, "cf": self.cf, "colour": self.colour}[part]
+        assert m is not None
+        h, w = m.shape
         xs = self.origin[0] + np.arange(w) / self.q[0]
         ys = self.origin[1] + np.arange(h) / self.q[1]
         mask = (np.abs(ys - xy[1]) >= half[1])[:, None] | (np.abs(xs - xy[0]) >= half[0])[None, :]
         n = int(mask.sum())
         if n < 16:
             return None
-        return float(self.y[mask].max()), n / (self.q[0] * self.q[1])
+        return float(m[mask].max()), n / (self.q[0] * self.q[1])
 
 
 def _colour_cells(model: TargetModel, win: Window, geom: Geometry) -> np.ndarray | None:
@@ -258,15 +265,15 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
     win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode)
     # Y_cf = sum_l conj(A_l) Z_l / (B + lambda)                                  (DSST eq. 6)
     y_hat = cf.respond(detection_filter(model, p.anchor_weight), cf.spectrum(win.x, geom.window))
-    col = _colour_cells(model, win, geom)
-    if col is not None:
-        # y = (1 - alpha) y_cf + alpha y_hist                                  (Staple eq. 2)
-        y_hat = (1.0 - p.colour_weight) * y_hat + p.colour_weight * np.fft.rfft2(np.fft.ifftshift(col))
     wc, hc = geom.cells
-    y = cf.centred(cf.upsample(y_hat, (hc, wc), geom.cell))
+    y_cf = cf.centred(cf.upsample(y_hat, (hc, wc), geom.cell))
+    col = _colour_cells(model, win, geom)
+    y_col = None if col is None else cf.centred(cf.upsample(np.fft.rfft2(np.fft.ifftshift(col)), (hc, wc), geom.cell))
+    # y = (1 - alpha) y_cf + alpha y_hist                                      (Staple eq. 2)
+    y = y_cf if y_col is None else (1.0 - p.colour_weight) * y_cf + p.colour_weight * y_col
     # index (h // 2, w // 2) is displacement 0: the target at the window's centre
     origin = (win.centre[0] - (y.shape[1] // 2) / k[0], win.centre[1] - (y.shape[0] // 2) / k[1])
-    return Response(y, origin, k)
+    return Response(y, origin, k, cf=y_cf, colour=y_col)
 
 
 def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
@@ -310,16 +317,21 @@ def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, floa
 
 def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold: np.ndarray,
                    margin: tuple[float, float], log_s: float, geom: Geometry, p: DCFParams) -> Response | None:
-    """The response at every cell of centres within ``margin`` (mx, my) px of ``hold`` and in the frame,
-    at scale exp(``log_s``): a map on cells, read by bicubic interpolation; None when no centre is left.
+    """The response at every cell of centres within ``margin`` (mx, my) px of ``hold`` whose box lies in
+    the frame (or whose centre does, for a box larger than the frame), at scale exp(``log_s``): a map on
+    cells, read by bicubic interpolation; None when no centre is left. (Outside the frame the window's
+    pixels repeat its border, whose stripes can look like anything.)
 
     At placement c, the window centred at c scores sum_l sum_u h_l(u) w(u) x_l(c + u), h the detection
     filter in the spatial domain and w the cosine window -- what :func:`respond` gives the window's
-    centre -- by sliding h w over the region's cells (:func:`.filter.correlate_valid`); merged with the
-    colour score of the box at c as :func:`respond` merges them."""
+    centre -- by sliding h w over the region's cells (:func:`.filter.correlate_valid`); the colour score
+    of the box at c beside it, and the two merged as :func:`respond` merges them."""
     Hh, Ww = grey.shape
-    x0, x1 = max(0.0, hold[0] - margin[0]), min(Ww - 1.0, hold[0] + margin[0])
-    y0, y1 = max(0.0, hold[1] - margin[1]), min(Hh - 1.0, hold[1] + margin[1])
+    s = float(np.exp(log_s))
+    # the centres whose box (w, h) lies in the frame: [(w - 1) / 2, W - 1 - (w - 1) / 2]
+    hw_, hh_ = min(0.5 * (geom.size0[0] * s - 1.0), 0.5 * (Ww - 1.0)), min(0.5 * (geom.size0[1] * s - 1.0), 0.5 * (Hh - 1.0))
+    x0, x1 = max(hw_, hold[0] - margin[0]), min(Ww - 1.0 - hw_, hold[0] + margin[0])
+    y0, y1 = max(hh_, hold[1] - margin[1]), min(Hh - 1.0 - hh_, hold[1] + margin[1])
     if x1 < x0 or y1 < y0:
         return None
     wc, hc = geom.cells
@@ -332,42 +344,45 @@ def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold
     win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode)
     # h w: the filter times the cosine window, so that a placement is scored as a windowed sample is
     hw = cf.spatial(detection_filter(model, p.anchor_weight), (hc, wc)) * geom.window[..., None]
-    y = cf.correlate_valid(hw, win.x)
+    y_cf = cf.correlate_valid(hw, win.x)
     col = _colour_cells(model, win, geom)
-    if col is not None:
-        # y = (1 - alpha) y_cf + alpha y_hist                                  (Staple eq. 2)
-        y = (1.0 - p.colour_weight) * y + p.colour_weight * col[hc // 2: hc // 2 + 2 * ny + 1,
-                                                                    wc // 2: wc // 2 + 2 * nx + 1]
+    y_col = None if col is None else col[hc // 2: hc // 2 + 2 * ny + 1, wc // 2: wc // 2 + 2 * nx + 1]
+    # y = (1 - alpha) y_cf + alpha y_hist                                      (Staple eq. 2)
+    y = y_cf if y_col is None else (1.0 - p.colour_weight) * y_cf + p.colour_weight * y_col
     # map index (i, j): the window centred on region cell (i + hc // 2, j + wc // 2), whose centre is
     # (j - nx) cells from the region's middle
     origin = (centre[0] - nx * geom.cell / kx, centre[1] - ny * geom.cell / ky)
-    return Response(y, origin, (kx / geom.cell, ky / geom.cell), cubic=True)
+    return Response(y, origin, (kx / geom.cell, ky / geom.cell), cubic=True, cf=y_cf, colour=y_col)
 
 
 @dataclass(frozen=True)
 class Candidate:
-    """A detection of :func:`search`: the response ``r`` at its centre (x, y), its log-size change
-    ``log_f`` from the searched size, and ``area``, the image area (px^2) of the centres searched
-    (summed over the sizes)."""
+    """A detection of :func:`search`: the filter's response ``r`` at its centre (x, y) and the colour score
+    ``r_colour`` there (None without a colour model), its log-size change ``log_f`` from the searched size,
+    and ``area``, the image area (px^2) of the centres searched (summed over the sizes)."""
 
     r: float
     centre: np.ndarray
     log_f: float
     area: float
+    r_colour: float | None = None
 
 
 def search(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold: np.ndarray, margin: tuple[float, float],
            log_s: float, geom: Geometry, p: DCFParams, log_sizes: tuple[float, ...] = (0.0,)) -> list[Candidate]:
-    """The best placement of the target with its centre within ``margin`` (mx, my) px of ``hold`` (and in
-    the frame) at each log-size change in ``log_sizes`` (:func:`respond_region`); ``area`` sums the
-    areas searched over the sizes."""
+    """The best placement of the target by the filter alone (Staple's colour model is a model of the target
+    against its surroundings, not against the whole frame) with its centre within ``margin`` (mx, my) px of
+    ``hold`` (and its box in the frame) at each log-size change in ``log_sizes`` (:func:`respond_region`),
+    with the colour score there; ``area`` sums the areas searched over the sizes."""
     out = []
     area = 0.0
     for lf in log_sizes:
         r = respond_region(model, image, grey, hold, margin, log_s + lf, geom, p)
         if r is None:
             continue
-        xy, v = r.peak()
+        assert r.cf is not None
+        i, j, v = cf.peak(r.cf)
+        xy = r.point(i, j)
         area += r.area()
-        out.append(Candidate(v, xy, float(lf), 0.0))
-    return [Candidate(c.r, c.centre, c.log_f, area) for c in out]
+        out.append(Candidate(v, xy, float(lf), 0.0, None if r.colour is None else float(r.colour[i, j])))
+    return [Candidate(c.r, c.centre, c.log_f, area, c.r_colour) for c in out]

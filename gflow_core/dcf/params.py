@@ -52,9 +52,6 @@ class DCFParams:
     scale_area: int = param(2048, "pixels of the scale filter's sample at most")
     max_log_scale: float = param(1.3862943611198906, "bound on |log s|: the box stays within [1/4, 4] times its "
                                                      "first size")
-    region_margin: float = param(0.0, "search centres within this many mean sides of the prediction by sliding the "
-                                      "filter (0: the filter's own window)")
-    speed_search: float = param(1.0, "... plus this many times the speed |v| dt")
     kappa: float = param(30.0, "sharpness of the likelihood p(z | X) ~ exp(kappa y(X)), y the response")
     detect_fraction: float = param(0.3, "fraction of the particles drawn at the peak of the response")
     detect_std: float = param(1.0, "spread of the particles drawn at the response peak, px")
@@ -62,20 +59,22 @@ class DCFParams:
                                     "of the initial box")
     speed_noise: float = param(0.5, "the centre's noise grows by this many times the speed |v| (px / frame)")
     velocity_memory: float = param(0.5, "m of the velocity v <- m v + (1 - m) (c_t - c_{t-1}) / dt")
-    motion_prior: float = param(1.0, "std of the motion prior about the prediction, in box sizes")
+    motion_prior: float = param(0.25, "std of the motion prior about the prediction, in box sizes, plus the speed's share")
     target_rate: float = param(0.05, "rate of the running moments of the target's score distribution")
     clutter_rate: float = param(0.05, "rate of the running moments of the clutter's score distribution")
     min_std: float = param(0.02, "floor on the spread of both score distributions")
-    prior_target: tuple[float, float] = param((0.5, 0.15), "mean and std of the target's distance rho = 1 - y "
-                                                           "before any frame (pseudo-samples)")
-    prior_clutter: tuple[float, float] = param((0.85, 0.08), "mean and std of the clutter's distance before any "
-                                                             "frame")
+    prior_target: tuple[float, float] = param((0.55, 0.15), "mean and std of the target's distance rho = 1 - y (y "
+                                                            "the filter's response) before any frame")
+    prior_clutter: tuple[float, float] = param((0.8, 0.08), "mean and std of the clutter's distance before any frame")
+    prior_colour_target: tuple[float, float] = param((0.3, 0.1), "the same of the colour score: the target's ...")
+    prior_colour_clutter: tuple[float, float] = param((0.45, 0.1), "... and the clutter's")
     prior_count: int = param(10, "pseudo-samples the two prior distributions count for")
     hidden_after: int = param(3, "frames in a row that clutter explains the estimate before the target is "
                                  "judged hidden")
     reappear: float = param(0.001, "prior probability a frame that a target judged hidden is back")
-    search_growth: float = param(0.5, "while the target is in doubt or hidden, the searched region widens by "
-                                      "this many box sizes a frame")
+    search_growth: float = param(0.1, "while the target is unseen its place spreads by this many mean sides a "
+                                      "frame (the search covers three standard deviations)")
+    coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -113,6 +112,8 @@ class DCFParams:
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {v}")
+        if not 0 <= self.coast_velocity <= 1:
+            raise ValueError(f"coast_velocity must be in [0, 1], got {self.coast_velocity}")
         if not 0 <= self.velocity_memory < 1:
             raise ValueError(f"velocity_memory must be in [0, 1), got {self.velocity_memory}")
         if not self.motion_prior > 0:
@@ -122,10 +123,10 @@ class DCFParams:
                              f"{self.clutter_rate}")
         if not self.min_std > 0:
             raise ValueError(f"min_std must be positive, got {self.min_std}")
-        if len(self.prior_target) != 2 or len(self.prior_clutter) != 2 or not all(
-                v > 0 and math.isfinite(v) for v in (*self.prior_target, *self.prior_clutter)):
-            raise ValueError(f"prior_target and prior_clutter must be two positive numbers (mean, std), got "
-                             f"{self.prior_target}, {self.prior_clutter}")
+        for name in ("prior_target", "prior_clutter", "prior_colour_target", "prior_colour_clutter"):
+            v = getattr(self, name)
+            if len(v) != 2 or not all(x > 0 and math.isfinite(x) for x in v):
+                raise ValueError(f"{name} must be two positive numbers (mean, std), got {v}")
         if self.prior_count < 1:
             raise ValueError(f"prior_count must be >= 1, got {self.prior_count}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:

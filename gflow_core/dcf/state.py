@@ -54,12 +54,14 @@ class DCFState:
     particles : (N, 3) float64 resampled posterior over (x, y, log s).
     centre : (2,) float64 and log_s : the last estimate (the box is exp(log_s) times the first size).
     velocity : (2,) float64 px / frame.
-    target : distribution of the estimate's distance rho = 1 - y (y the response) on frames the target
-        was present; clutter : of the best distance away from the estimate (:mod:`gflow_core.visibility`).
+    target : distribution of the estimate's distance rho = 1 - y (y the filter's response) on frames the
+        target was present; clutter : of the best distance away from the estimate (:mod:`gflow_core.visibility`);
+        ctarget, cclutter : the same of the colour score (unused without a colour model).
     hidden_run : frames in a row that clutter explained the estimate (0: present).
     back : while the target is judged hidden, the filtered probability it was present on the last frame.
     target_state : how the target was judged on the last frame with evidence (what a coasted frame
         reports).
+    spread : px, how far the target's place has spread since it was last seen (0 while it is).
     """
 
     geom: Geometry
@@ -70,9 +72,12 @@ class DCFState:
     velocity: np.ndarray
     target: ChiSquare
     clutter: ChiSquare
+    ctarget: ChiSquare = ChiSquare()
+    cclutter: ChiSquare = ChiSquare()
     hidden_run: int = 0
     back: float = 0.0
     target_state: str = "tracked"
+    spread: float = 0.0
 
 
 def _real(a: np.ndarray) -> np.ndarray:
@@ -102,8 +107,10 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     if m.scale is not None:
         arrays.update(scale_num=_real(m.scale.num), scale_den=m.scale.den, scale_label=_real(m.scale.label_hat))
     values = {"size0": [float(v) for v in st.geom.size0], "log_s": float(st.log_s), "hidden_run": int(st.hidden_run),
-              "back": float(st.back), "target_state": st.target_state, "colour_mode": m.colour_mode,
+              "back": float(st.back), "target_state": st.target_state, "spread": float(st.spread), "colour_mode": m.colour_mode,
               "target": [st.target.m1, st.target.m2, st.target.n], "clutter": [st.clutter.m1, st.clutter.m2, st.clutter.n],
+              "ctarget": [st.ctarget.m1, st.ctarget.m2, st.ctarget.n],
+              "cclutter": [st.cclutter.m1, st.cclutter.m2, st.cclutter.n],
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
     return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}, values
 
@@ -129,9 +136,14 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
         scale = ScaleFilter(_complex(arrays["scale_num"]), np.array(arrays["scale_den"]),
                             _complex(arrays["scale_label"]), (int(sm[0]), int(sm[1])))
     model = TargetModel(train, det, anchor, colour, values["colour_mode"], scale)
-    t, c = values["target"], values["clutter"]
+    def chi(key: str) -> ChiSquare:
+        v = values[key]
+        return ChiSquare(float(v[0]), float(v[1]), int(v[2]))
+
+
     return DCFState(geom=geom, model=model, particles=np.array(arrays["particles"]), centre=np.array(arrays["centre"]),
                     log_s=float(values["log_s"]), velocity=np.array(arrays["velocity"]),
-                    target=ChiSquare(float(t[0]), float(t[1]), int(t[2])),
-                    clutter=ChiSquare(float(c[0]), float(c[1]), int(c[2])), hidden_run=int(values["hidden_run"]),
-                    back=float(values["back"]), target_state=str(values["target_state"]))
+                    target=chi("target"), clutter=chi("clutter"), ctarget=chi("ctarget"), cclutter=chi("cclutter"),
+                    hidden_run=int(values["hidden_run"]),
+                    back=float(values["back"]), target_state=str(values["target_state"]),
+                    spread=float(values["spread"]))

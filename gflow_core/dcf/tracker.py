@@ -27,7 +27,7 @@ import numpy as np
 from ..features import to_grey
 from ..particles import LogWeights, systematic_resample
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame
-from ..visibility import ChiSquare, visibility
+from ..visibility import ChiSquare, Cue, visibility
 from . import model as tm
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
@@ -47,11 +47,11 @@ def box_of(centre: np.ndarray, log_s: float, size0: tuple[float, float]) -> tupl
     return (float(centre[0] - (w - 1) / 2.0), float(centre[1] - (h - 1) / 2.0), float(w), float(h))
 
 
-def _prior(p: DCFParams) -> tuple[ChiSquare, ChiSquare]:
-    """The target's and the clutter's distance distributions before any frame: ``prior_count``
-    pseudo-samples of mean and std ``prior_target`` / ``prior_clutter`` (the moments of eq. 10)."""
-    (mt, st), (mc, sc) = p.prior_target, p.prior_clutter
-    return (ChiSquare(mt, st * st + mt * mt, p.prior_count), ChiSquare(mc, sc * sc + mc * mc, p.prior_count))
+def _prior(mean_std: tuple[float, float], count: int) -> ChiSquare:
+    """A distance distribution before any frame: ``count`` pseudo-samples of the given mean and std (the
+    moments of Toyama & Blake's eq. 10)."""
+    m, s = mean_std
+    return ChiSquare(m, s * s + m * m, count)
 
 
 @dataclass(frozen=True)
@@ -72,9 +72,13 @@ class StepResult:
     redetected: bool
 
 
-def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float) -> float:
-    """log N(c; pred, diag(sx^2, sy^2)) - log N(pred; pred, diag(sx^2, sy^2))."""
-    return -((c[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (c[1] - pred[1]) ** 2 / (2.0 * sy * sy))
+def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float, area: float) -> float:
+    """log N(c; pred, diag(sx^2, sy^2)) - log(1 / area): how much likelier the target's motion prior puts
+    it at ``c`` than clutter, which is anywhere in the ``area`` (px^2) searched."""
+    # log N = -((c_x - pred_x)^2 / 2 sx^2 + (c_y - pred_y)^2 / 2 sy^2) - log(2 pi sx sy)
+    log_n = -((c[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (c[1] - pred[1]) ** 2 / (2.0 * sy * sy)) \
+        - math.log(2.0 * math.pi * sx * sy)
+    return log_n + math.log(area)
 
 
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
@@ -101,12 +105,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     s = float(np.exp(st.log_s))
     bw, bh = geom.size0[0] * s, geom.size0[1] * s
     extra = speed_noise(p, st.velocity, dt)
-    resp: tm.Response | None = None
-    if p.region_margin > 0:
-        m = p.region_margin * 0.5 * (bw + bh) + p.speed_search * float(np.hypot(*st.velocity)) * dt
-        resp = tm.respond_region(model, obs.image, obs.grey, pred, (m, m), st.log_s, geom, p)
-    if resp is None:
-        resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p)
+    resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p)
     # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
     dyn = proposed.copy()
     dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
@@ -124,9 +123,10 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
     log_lik = p.kappa * y
-    # the motion prior N(x; pred, diag(sx^2, sy^2)), sx = prior w sqrt(dt) + beta |v| dt
-    sx = p.motion_prior * bw * math.sqrt(dt) + extra
-    sy = p.motion_prior * bh * math.sqrt(dt) + extra
+    # the motion prior N(x; pred, diag(sx^2, sy^2)), sx = prior w sqrt(dt) + beta |v| dt, widened while the
+    # target is unseen by the spread its place has gathered since (added in quadrature)
+    sx = float(np.hypot(p.motion_prior * bw * math.sqrt(dt) + extra, st.spread))
+    sy = float(np.hypot(p.motion_prior * bh * math.sqrt(dt) + extra, st.spread))
     d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * sx * sx) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * sy * sy)
     lw = LogWeights(log_lik - d2)
     W = lw.W
@@ -135,12 +135,19 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
     centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
     log_s = st.log_s
-    # is the estimate the target? its distance rho = 1 - y against the target's and the clutter's
-    # chi-squared distributions (gflow_core.visibility)
-    r_est = float(resp.at(centre[None, :])[0])
-    clutter_seen = resp.best_away(centre, (0.5 * bw, 0.5 * bh))
+    # is the estimate the target? two cues, each a distance rho = 1 - y against its own learnt target and
+    # clutter chi-squared distributions (gflow_core.visibility): the filter's response, and the colour
+    # score with its clutter taken a box away at least (a box that overlaps the target shares its colours)
+    r_est = float(resp.at(centre[None, :], "cf")[0])
+    clutter_seen = resp.best_away(centre, (0.5 * bw, 0.5 * bh), "cf")
+    colour_seen = None
+    if resp.colour is not None:
+        colour_seen = (float(resp.at(centre[None, :], "colour")[0]), resp.best_away(centre, (bw, bh), "colour"))
+    cues = () if colour_seen is None else (Cue(1.0 - colour_seen[0], st.ctarget, st.cclutter),)
     hidden_before = st.hidden_run >= p.hidden_after
-    log_place = _log_place(centre, pred, sx, sy)
+    # the estimate's place under the target's motion prior against clutter's, uniform over the window:
+    # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
+    log_place = _log_place(centre, pred, sx, sy, resp.area())
     if hidden_before:
         # forward filtering over (visible, partial, hidden): after a hidden frame the prior that the
         # target is back is `reappear`, plus the probability `back` that it was present on the last frame
@@ -149,7 +156,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         prior = (b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * (1.0 - q))
     else:
         prior = (1.0, 1.0, 1.0)
-    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place)
+    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
     present = vis.present
     confident = vis.visible >= 0.5
     confidence = vis.visible
@@ -157,23 +164,30 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     hidden = run >= p.hidden_after
     found = None
     covers = False
+    spread = 0.0
     if run > 0:
-        reach = 0.5 * p.padding + p.search_growth * run
-        margin = (reach * bw + 10.0, reach * bh + 10.0)
+        # unseen, the target's place spreads by search_growth mean sides a frame; the search covers
+        # three standard deviations of its prior
+        spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
+        margin = (3.0 * float(np.hypot(sx, spread)) + 10.0, 3.0 * float(np.hypot(sy, spread)) + 10.0)
         covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
                   and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
         for cand in tm.search(model, obs.image, obs.grey, pred, margin, st.log_s, geom, p):
             # the search had more chances than the window the clutter was learnt on: under "hidden" its
-            # distance is the best of that many clutter draws
+            # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
+            # the candidate is placed by the target's prior: log N(x; pred, S) + log A
             trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+            place = _log_place(cand.centre, pred, float(np.hypot(sx, spread)), float(np.hypot(sy, spread)), cand.area)
+            # the colour score of the filter's pick: one draw of the colour clutter
+            ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
             vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
-                            trials=max(trials, 1.0))
+                            trials=max(trials, 1.0), log_place=place, cues=ccue)
             if vf.visible >= 0.5:
-                found, confidence, run = cand, vf.visible, 0
+                found, confidence, run, spread = cand, vf.visible, 0, 0.0
                 break
     idx = systematic_resample(lw.lw, rng, n)
     new_parts = parts[idx]
-    target, clutter, mdl = st.target, st.clutter, model
+    target, clutter, ctarget, cclutter, mdl = st.target, st.clutter, st.ctarget, st.cclutter, model
     if found is not None:
         centre = found.centre.copy()
         log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
@@ -183,7 +197,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     elif not present:
         # hidden, or in doubt: the box holds the prediction, nothing is learnt, the velocity decays
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
-        velocity = 0.5 * st.velocity
+        velocity = p.coast_velocity ** dt * st.velocity
         state = ("lost" if covers else "occluded") if hidden else "tracked"
     else:
         c = (float(centre[0]), float(centre[1]))
@@ -194,14 +208,21 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
         target = st.target.update(1.0 - r_est, p.target_rate)
+        if colour_seen is not None:
+            ctarget = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
         if confident:
             mdl = tm.learn(mdl, obs.image, obs.grey, c, log_s, geom, p, p.rate)
+    # the clutter's moments learn on the frames the target is present (while it is not, the best away from
+    # the held box may be the target itself)
     if clutter_seen is not None and present:
         clutter = st.clutter.update(1.0 - clutter_seen[0], p.clutter_rate)
+    if colour_seen is not None and colour_seen[1] is not None and present:
+        cclutter = st.cclutter.update(1.0 - colour_seen[1][0], p.clutter_rate)
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, model=mdl, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, target=target,
-                  clutter=clutter, hidden_run=run, back=back, target_state=state)
+                  clutter=clutter, ctarget=ctarget, cclutter=cclutter, hidden_run=run, back=back, target_state=state,
+                  spread=spread)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)
@@ -222,9 +243,10 @@ def initialise(obs: DCFObservation, box: Box, p: DCFParams, rng: np.random.Gener
     n = p.particles
     # x_0 ~ N(centre, 1 px), log s_0 = 0
     parts = np.column_stack([centre[0] + rng.normal(0.0, 1.0, n), centre[1] + rng.normal(0.0, 1.0, n), np.zeros(n)])
-    target, clutter = _prior(p)
     return DCFState(geom=geom, model=mdl, particles=parts, centre=centre, log_s=0.0, velocity=np.zeros(2),
-                    target=target, clutter=clutter)
+                    target=_prior(p.prior_target, p.prior_count), clutter=_prior(p.prior_clutter, p.prior_count),
+                    ctarget=_prior(p.prior_colour_target, p.prior_count),
+                    cclutter=_prior(p.prior_colour_clutter, p.prior_count))
 
 
 class DCFTracker:
