@@ -91,9 +91,9 @@ def hog(patches: np.ndarray, cell: int) -> np.ndarray:
     n_cells = nb * hc * wc
     w1f = w1.reshape(-1)
     # h(cell, b) = sum over the cell's pixels of |g| times the vote to bin b
-    hist = (np.bincount(cell_id + b0i.reshape(-1), weights=m * (1.0 - w1f), minlength=n_cells * N_ORIENT)
-            + np.bincount(cell_id + b1i.reshape(-1), weights=m * w1f, minlength=n_cells * N_ORIENT))
-    hist = hist.reshape(nb, hc, wc, N_ORIENT) / float(cell * cell)
+    votes = (np.bincount(cell_id + b0i.reshape(-1), weights=m * (1.0 - w1f), minlength=n_cells * N_ORIENT)
+             + np.bincount(cell_id + b1i.reshape(-1), weights=m * w1f, minlength=n_cells * N_ORIENT))
+    hist = votes.astype(np.float64).reshape(nb, hc, wc, N_ORIENT) / float(cell * cell)
     half = N_ORIENT // 2
     insens = hist[..., :half] + hist[..., half:]
     # block energy: E(i, j) = sum_b h_insensitive(i, j, b)^2, padded by replication
