@@ -61,8 +61,6 @@ class DCFParams:
     velocity_memory: float = param(0.5, "m of the velocity v <- m v + (1 - m) (c_t - c_{t-1}) / dt")
     motion_prior: float = param(0.25, "std of the motion prior about the prediction, in box sizes, plus the speed's share")
     target_rate: float = param(0.05, "rate of the running moments of the target's score distribution")
-    target_confident_only: bool = param(False, "the target's distributions learn on confident frames only (else on "
-                                               "every frame the target is present)")
     clutter_rate: float = param(0.05, "rate of the running moments of the clutter's score distribution")
     min_std: float = param(0.02, "floor on the spread of both score distributions")
     prior_target: tuple[float, float] = param((0.55, 0.15), "mean and std of the target's distance rho = 1 - y (y "

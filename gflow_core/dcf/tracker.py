@@ -207,10 +207,11 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
-        if confident or not p.target_confident_only:
-            target = st.target.update(1.0 - r_est, p.target_rate)
-            if colour_seen is not None:
-                ctarget = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
+        # the target's distributions follow it on every frame it is present, so a lasting change of look
+        # becomes the usual look; the model learns on confident frames only
+        target = st.target.update(1.0 - r_est, p.target_rate)
+        if colour_seen is not None:
+            ctarget = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
         if confident:
             mdl = tm.learn(mdl, obs.image, obs.grey, c, log_s, geom, p, p.rate)
     # the clutter's moments learn on the frames the target is present (while it is not, the best away from
