@@ -26,8 +26,12 @@ m a binary mask over the window's cells. The problem is split (ADMM, BACF eq. 5-
 The training sample is the running average of the windowed samples' spectra (BACF sec. 3.3),
 solved again every frame it is updated, ``iterations`` times from zero. Units: unnormalised
 DFTs, so that the data term, lambda and mu weigh alike per frequency as in the spatial
-objective; mu starts at ``mu0`` times the number of cells (BACF's mu = 1 with its normalised
-DFTs), beta = 10, mu_max = 1e4 times the number of cells.
+objective; mu starts at ``mu0`` times the sample's mean energy per frequency, mean_t u^H u (so
+that it does not depend on the features' scale), grows by beta = 3 an iteration and stops at
+1e4 times that energy. With few iterations the solution depends on mu0: a larger one holds the
+filter closer to zero (a lower, flatter response). Measured on caviar1's first frame with two
+iterations, the target moved by 6 px scored 0.54 with mu0 = 0.03 and the best placement three cells
+or more from it 0.20 (0.19 and 0.10 with mu0 = 1; the closed form without a mask: 0.84 and 0.06).
 
 Departures: the mask is a box of the target's size times ``mask`` (not the target's own size in
 cells as BACF, nor CSR-DCF's colour segmentation); the detection uses h, which meets the
