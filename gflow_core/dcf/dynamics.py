@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..appearance_dynamics import alpha_of, particles_of
 from ..m2.dynamics import random_walk
 from .params import DCFParams
 
@@ -32,16 +33,6 @@ __all__ = ["alpha_of", "particles_of", "walk", "speed_noise", "PURPOSE_WALK"]
 
 #: the stream of a frame's draws the proposal's random walk takes
 PURPOSE_WALK = 0xDCF1
-
-
-def alpha_of(parts: np.ndarray) -> np.ndarray:
-    """(N, 3) (x, y, log s) -> (N, 4) alpha = (x, y, 0, s)."""
-    return np.column_stack([parts[:, 0], parts[:, 1], np.zeros(len(parts)), np.exp(parts[:, 2])])
-
-
-def particles_of(alpha: np.ndarray) -> np.ndarray:
-    """(N, 4) alpha = (x, y, theta, s) -> (N, 3) (x, y, log s) (theta is not tracked)."""
-    return np.column_stack([alpha[:, 0], alpha[:, 1], np.log(alpha[:, 3])])
 
 
 def walk(params: DCFParams, alpha: np.ndarray, size0: tuple[float, float], rng: np.random.Generator,
