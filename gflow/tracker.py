@@ -40,7 +40,7 @@ class Tracker:
     Parameters
     ----------
     name : {"appearance", "chamfer", "dcf", "gflow", "m2"}
-        The tracker (``docs/trackers.md``); ``appearance`` is ``gflow track``'s default.
+        The tracker (``docs/trackers.md``); ``dcf`` is ``gflow track``'s default.
     seed : int >= 0
         Frame ``t`` draws from ``default_rng([seed, crc32("cam0"), t, ...])``, as every stage of the
         shipped graphs does: the same seed gives the boxes of ``gflow track --seed SEED`` bit for bit.
@@ -69,7 +69,7 @@ class Tracker:
         A parameter the tracker does not have.
     """
 
-    def __init__(self, name: str = "appearance", seed: int = 0, *, fps: float = 25.0, **params: Any) -> None:
+    def __init__(self, name: str = "dcf", seed: int = 0, *, fps: float = 25.0, **params: Any) -> None:
         if name not in TRACKERS:
             raise GflowError(f"unknown tracker {name!r} (choose from {', '.join(TRACKERS)})")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:

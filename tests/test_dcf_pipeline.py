@@ -154,6 +154,10 @@ def test_gflow_info_and_track_name_the_tracker(gflow_cmd, tmp_path, frames):
     assert r.returncode != 0 and "scales must be odd" in r.stderr and "Traceback" not in r.stderr
 
 
-def test_the_api_tracker_is_the_protocol_tracker():
-    assert type(Tracker("dcf").params).__name__ == "DCFParams"
+def test_it_is_the_default_of_gflow_track_and_of_the_api():
+    from pipeline.cli.commands.track import track_args
+
+    assert track_args(["x", "--init", "1,1,5,5", "--out", "b.csv"]).tracker == "dcf"
+    t = Tracker()
+    assert t.name == "dcf" and type(t.params).__name__ == "DCFParams"
     assert sys.modules["gflow_core.dcf.tracker"].TRACKER.name == "dcf"

@@ -267,8 +267,8 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--points-out", metavar="CSV",
                    help="gflow with a face model: every vertex per frame (frame,landmark,x,y; landmark = the "
                         "reference landmark index it was learned from), for gflow eval --landmarks")
-    p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
-                   help="tracking method (default appearance; README 'Which tracker')")
+    p.add_argument("--tracker", default="dcf", choices=sorted(TRACKERS),
+                   help="tracking method (default dcf; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     add_record_args(p, "recordings/track-TIME.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")

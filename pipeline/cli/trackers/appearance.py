@@ -1,4 +1,4 @@
-"""``--tracker appearance`` (the default): M2 with online exemplars of edge-orientation channels.
+"""``--tracker appearance``: M2 with online exemplars of edge-orientation channels.
 
 See :mod:`gflow_core.appearance` for the method and its departures from Toyama & Blake. Its
 parameters are :class:`gflow_core.appearance_params.AppearanceParams` (``gflow info appearance``):

@@ -1,4 +1,4 @@
-"""``--tracker dcf``: a particle filter whose likelihood is a correlation filter learnt online.
+"""``--tracker dcf`` (the default): a particle filter whose likelihood is a correlation filter learnt online.
 
 See :mod:`gflow_core.dcf` for the method, its papers and its departures. Its parameters are
 :class:`gflow_core.dcf.params.DCFParams` (``gflow info dcf``): both stages of the graph take every
