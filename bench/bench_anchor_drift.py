@@ -2,11 +2,11 @@
 
 One command: ``python bench/bench_anchor_drift.py`` (``--sequence david_indoor --every 3``).
 
-The default tracker anchors its model on the region of the first annotated box (exemplar 0,
+The appearance tracker anchors its model on the region of the first annotated box (exemplar 0,
 never replaced; :mod:`gflow_core.appearance`). If later annotations frame the target
 differently from the first one -- a larger margin, a centre placed lower on the face -- a
 tracker faithful to the first box is off the annotation by that much, however well it tracks.
-This benchmark runs the default tracker (seed 1) over a shared sequence and, on every
+This benchmark runs the appearance tracker (seed 1) over a shared sequence and, on every
 ``--every``-th frame, searches the frame around the annotated box for the best normalised
 correlation of the tracker's three exemplars (the first box's, and the running ones it has
 then), exactly as the tracker measures it (:func:`gflow_core.appearance._exemplar`):

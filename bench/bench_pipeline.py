@@ -1,5 +1,5 @@
 """End-to-end frames/s and CPU seconds per frame of ``gflow track`` as processes over zenoh
-versus ``--inline``, for the chamfer tracker and the default (appearance) tracker, side by
+versus ``--inline``, for the chamfer tracker and the appearance tracker, side by
 side in one run, and the peak memory (RSS) of every stage process.
 One command: ``python bench/bench_pipeline.py``.
 

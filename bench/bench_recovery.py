@@ -1,4 +1,4 @@
-"""Speed of the default (appearance) tracker while it tracks and while it searches for a hidden
+"""Speed of the appearance tracker while it tracks and while it searches for a hidden
 target: CPU time per frame and frames/s, on real frames with a long full occlusion.
 One command: ``python bench/bench_recovery.py``.
 

@@ -1,4 +1,4 @@
-"""Start-up of ``gflow track`` (default appearance tracker, processes) on caviar1: N cold starts
+"""Start-up of ``gflow track`` (the default tracker, processes) on caviar1: N cold starts
 of a new ``python -m pipeline.cli track ... --stop 5`` process, each timed from just before the
 process is started to the first estimate in its recording (the recorder's receive time).
 

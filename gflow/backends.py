@@ -4,7 +4,7 @@ its stages in process.
 * :class:`ProtocolBackend` calls a :class:`gflow_core.tracker.TrackingFilter` directly
   (``observe``, ``init``, ``propose``, ``update``, ``coast``): the same functions, draws and
   parameters the stages call, so the boxes are those of ``gflow track --inline`` bit for bit.
-  Every tracker is on it: appearance, gflow, chamfer and m2 (a contour model).
+  Every tracker is on it: appearance, dcf, gflow, chamfer and m2 (a contour model).
 * :class:`GraphBackend` runs a tracker's built-in graph in this process, exactly as ``--inline``
   does (frames pushed into its source stage, every message encoded and decoded): only for m2 with
   a patch model (the ``m2_patch`` graph, whose filter is not on the protocol). Its parameters are
@@ -26,8 +26,8 @@ from stages.rng import stream_hash
 
 from .errors import GflowError, UnusableFrameError
 
-__all__ = ["ProtocolBackend", "GraphBackend", "gflow_setup", "appearance_setup", "chamfer_setup", "m2_setup",
-           "patch_model", "PROTOCOL_TRACKERS"]
+__all__ = ["ProtocolBackend", "GraphBackend", "gflow_setup", "appearance_setup", "chamfer_setup", "dcf_setup",
+           "m2_setup", "patch_model", "PROTOCOL_TRACKERS"]
 
 
 def appearance_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
@@ -35,6 +35,13 @@ def appearance_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
     from gflow_core.appearance_params import AppearanceParams
 
     return make(AppearanceParams, params), {}
+
+
+def dcf_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """The correlation-filter tracker's parameters from the API's keywords (it loads no resource)."""
+    from gflow_core.dcf.params import DCFParams
+
+    return make(DCFParams, params), {}
 
 
 def chamfer_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
@@ -97,6 +104,12 @@ def _appearance() -> tuple[Any, Any]:
     return TRACKER, appearance_setup
 
 
+def _dcf() -> tuple[Any, Any]:
+    from gflow_core.dcf.tracker import TRACKER
+
+    return TRACKER, dcf_setup
+
+
 def _gflow() -> tuple[Any, Any]:
     from gflow_core.gflow.tracker import TRACKER
 
@@ -118,7 +131,7 @@ def _m2() -> tuple[Any, Any]:
 #: tracker name -> () -> (its TrackingFilter, params -> (its parameter dataclass, resources)), for the
 #: trackers on the protocol (imported when one is made)
 PROTOCOL_TRACKERS: dict[str, Callable[[], tuple[Any, Callable[[Mapping[str, Any]], tuple[Any, dict[str, Any]]]]]] = {
-    "appearance": _appearance, "chamfer": _chamfer, "gflow": _gflow, "m2": _m2}
+    "appearance": _appearance, "chamfer": _chamfer, "dcf": _dcf, "gflow": _gflow, "m2": _m2}
 
 
 def gflow_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:

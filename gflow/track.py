@@ -21,7 +21,7 @@ SYNTHETIC = "synthetic"
 
 
 def track(source: str | os.PathLike[str] | Iterable[np.ndarray | None] | Any, init: Sequence[float] | None = None,
-          tracker: str = "appearance", seed: int = 1, *, start: int = 0, stop: int | None = None, fps: float = 25.0,
+          tracker: str = "dcf", seed: int = 1, *, start: int = 0, stop: int | None = None, fps: float = 25.0,
           **params: Any) -> Iterator[Estimate]:
     """Track one target from ``init`` through ``source``, yielding an estimate per frame.
 

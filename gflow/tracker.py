@@ -15,7 +15,7 @@ from .errors import GflowError
 __all__ = ["Tracker", "TRACKERS"]
 
 #: the trackers, as ``gflow track --tracker NAME`` names them
-TRACKERS = ("appearance", "chamfer", "gflow", "m2")
+TRACKERS = ("appearance", "chamfer", "dcf", "gflow", "m2")
 
 
 def check_box(box: Sequence[float]) -> Box:
@@ -39,8 +39,8 @@ class Tracker:
 
     Parameters
     ----------
-    name : {"appearance", "chamfer", "gflow", "m2"}
-        The tracker (``docs/trackers.md``); ``appearance`` is ``gflow track``'s default.
+    name : {"appearance", "chamfer", "dcf", "gflow", "m2"}
+        The tracker (``docs/trackers.md``); ``dcf`` is ``gflow track``'s default.
     seed : int >= 0
         Frame ``t`` draws from ``default_rng([seed, crc32("cam0"), t, ...])``, as every stage of the
         shipped graphs does: the same seed gives the boxes of ``gflow track --seed SEED`` bit for bit.
@@ -48,7 +48,8 @@ class Tracker:
         The frames' rate (the stamps of a tracker run through its stages; default 25).
     **params
         For ``appearance``, any parameter of :class:`gflow_core.appearance_params.AppearanceParams`
-        (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For
+        (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For ``dcf``,
+        any parameter of :class:`gflow_core.dcf.params.DCFParams` (``gflow info dcf``). For
         ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)
         and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For
         ``chamfer``, any parameter of :class:`gflow_core.contour_params.ChamferParams` (``gflow info
@@ -68,7 +69,7 @@ class Tracker:
         A parameter the tracker does not have.
     """
 
-    def __init__(self, name: str = "appearance", seed: int = 1, *, fps: float = 25.0, **params: Any) -> None:
+    def __init__(self, name: str = "dcf", seed: int = 1, *, fps: float = 25.0, **params: Any) -> None:
         if name not in TRACKERS:
             raise GflowError(f"unknown tracker {name!r} (choose from {', '.join(TRACKERS)})")
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:

@@ -1,4 +1,4 @@
-"""M2 with online appearance exemplars: the default tracker of ``gflow track``.
+"""M2 with online appearance exemplars: ``gflow track --tracker appearance``.
 
 Toyama & Blake (IJCV 2002) track with a particle filter whose observation density is an
 exemplar mixture in a metric space (eq. 6-7):

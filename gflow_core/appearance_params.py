@@ -1,6 +1,6 @@
 """The appearance tracker's parameters: :class:`AppearanceParams`, the only place their defaults live.
 
-The tracker is :mod:`gflow_core.appearance` (M2 with online exemplars, the default tracker;
+The tracker is :mod:`gflow_core.appearance` (M2 with online exemplars;
 its docstring gives each parameter's role and the measurements behind the defaults, chosen on
 all four shared sequences together). Everything else derives from this dataclass: the stages'
 parameter structs (``stages/appearance_filter.py``, ``stages/appearance_proposal.py``), the

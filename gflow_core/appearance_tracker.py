@@ -1,4 +1,4 @@
-"""The appearance tracker (the default) on the tracker protocol of :mod:`gflow_core.tracker`.
+"""The appearance tracker on the tracker protocol of :mod:`gflow_core.tracker`.
 
 :class:`AppearanceTracker` is the appearance tracker's :class:`~gflow_core.tracker.TrackingFilter`:
 

@@ -1,4 +1,4 @@
-"""Filter stage of the appearance tracker: M2 with online exemplars (the default tracker).
+"""Filter stage of the appearance tracker: M2 with online exemplars.
 
 An adapter of :class:`gflow_core.appearance_tracker.AppearanceTracker` (``observe``, ``init``,
 ``update``, ``coast``); the mathematics is :mod:`gflow_core.appearance` (its docstring lists the

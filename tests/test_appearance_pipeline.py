@@ -1,4 +1,4 @@
-"""The appearance tracker (gflow track's default) as stages: snapshot/restore bit for bit,
+"""The appearance tracker (gflow track --tracker appearance) as stages: snapshot/restore bit for bit,
 bad input coasts, and the real CLI on real video: multi-process = --inline byte for byte,
 the recording re-runs bit for bit, and it beats a box that never moves."""
 
@@ -133,8 +133,8 @@ def test_crossing_processes_equal_inline_and_rerun_is_bit_exact(crossing, tmp_pa
     outs = {}
     for mode in ("mp", "inline"):
         csv = tmp_path / f"{mode}.csv"
-        cmd = [*gflow_cmd, "track", str(crossing), "--init", init, "--seed", "1", "--out", str(csv),
-               "--record", str(tmp_path / f"{mode}.mcap"), "-q", "--stop", "60"]
+        cmd = [*gflow_cmd, "track", str(crossing), "--tracker", "appearance", "--init", init, "--seed", "1", "--out",
+               str(csv), "--record", str(tmp_path / f"{mode}.mcap"), "-q", "--stop", "60"]
         r = subprocess.run(cmd + (["--inline"] if mode == "inline" else []), capture_output=True, text=True,
                            timeout=300)
         assert r.returncode == 0, r.stderr

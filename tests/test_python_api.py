@@ -69,7 +69,7 @@ def test_track_equals_tracker_and_gflow_track_on_the_synthetic_scene(tmp_path) -
     assert ests[-1].extras["expert_points"].shape[0] == 6 and ests[0].target_state == "tracked"
 
 
-@pytest.mark.parametrize("tracker", ["gflow", "appearance", "chamfer"])
+@pytest.mark.parametrize("tracker", ["gflow", "appearance", "chamfer", "dcf"])
 def test_lost_frames_are_coasted_as_the_pipeline_does(tmp_path, tracker) -> None:
     """A folder with frame 5 missing: the pipeline coasts over it and so does track()."""
     from gflow_core.synthetic import SyntheticScene
@@ -81,10 +81,10 @@ def test_lost_frames_are_coasted_as_the_pipeline_does(tmp_path, tracker) -> None
         if k != 5:
             cv2.imwrite(str(folder / f"{k:06d}.png"), scene.render(k))
     box = scene.truth_box(0)
-    extra = {"gflow": ["--experts", "5", "--samples", "3"], "appearance": [], "chamfer": []}[tracker]
+    extra = {"gflow": ["--experts", "5", "--samples", "3"], "appearance": [], "chamfer": [], "dcf": []}[tracker]
     cli = cli_estimates(["track", str(folder), "--tracker", tracker, "--init", ",".join(map(str, box)), "--seed",
                          "3", "--inline", "--out", str(tmp_path / "b.csv"), "-q", *extra], tmp_path)
-    params = {"gflow": {"n_experts": 5, "n_samples": 3}, "appearance": {}, "chamfer": {}}[tracker]
+    params = {"gflow": {"n_experts": 5, "n_samples": 3}, "appearance": {}, "chamfer": {}, "dcf": {}}[tracker]
     api = list(track(folder, init=box, tracker=tracker, seed=3, **params))
     assert_same(api, cli)
     assert api[5].frame == 5 and api[5].phase == "coast"

@@ -33,6 +33,7 @@ FILLED = {
     "gflow": lambda box, seed: {"proposal.init": box, "filter.init": box, "proposal.seed": seed, "filter.seed": seed},
     "chamfer": lambda box, seed: {"filter.init": box, "filter.seed": seed, "proposal.seed": seed,
                                   "preprocess.calibrate_box": box},
+    "dcf": lambda box, seed: {"proposal.init": box, "filter.init": box, "proposal.seed": seed, "filter.seed": seed},
     # a model learned with `gflow learn m2`'s default preprocessing, which the graph's is
     "m2": lambda box, seed: {"filter.init": box, "filter.seed": seed, "proposal.init": box, "proposal.seed": seed},
 }

@@ -59,8 +59,8 @@ def cmd_export_vot(args) -> int:
     sparse = [e.name for e in done if not e.dense]
     title = f"gflow export of {Path(args.data).name}: {', '.join(e.name for e in done)}"
     (out / "stack.yaml").write_text(stack_yaml(title, supervised=not sparse))
-    trackers = {"appearance": ["--tracker", "appearance"], "chamfer": ["--tracker", "chamfer"],
-                "gflow": ["--tracker", "gflow"]}
+    trackers = {"dcf": ["--tracker", "dcf"], "appearance": ["--tracker", "appearance"],
+                "chamfer": ["--tracker", "chamfer"], "gflow": ["--tracker", "gflow"]}
     if args.m2_model:
         trackers["m2"] = ["--tracker", "m2", "--model", str(Path(args.m2_model).resolve())]
     (out / "trackers.ini").write_text(trackers_ini(sys.executable, trackers))
@@ -70,7 +70,7 @@ def cmd_export_vot(args) -> int:
               f"(written as nan rows, which the toolkit leaves out of its analyses); the stack has no reinit "
               f"experiment, which needs a box on every frame")
     print(f"VOT workspace in {out}: {len(done)} sequences; trackers {', '.join('gflow-' + t for t in trackers)}; "
-          f"run: vot evaluate --workspace {out} gflow-appearance")
+          f"run: vot evaluate --workspace {out} gflow-dcf")
     return 0
 
 

@@ -34,8 +34,8 @@ from pipeline.cli.commands.common import (CliError, Recording, add_placement_arg
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
-#: options one tracker adds that others read too (chamfer and m2 read appearance's --particles, gflow m2's --model)
-_ALSO_USED_BY = {"particles": ("chamfer", "m2"), "model": ("gflow",)}
+#: options one tracker adds that others read too (chamfer, dcf and m2 read appearance's --particles, gflow m2's --model)
+_ALSO_USED_BY = {"particles": ("chamfer", "dcf", "m2"), "model": ("gflow",)}
 
 
 def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
@@ -285,8 +285,8 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--points-out", metavar="CSV",
                    help="gflow with a face model: every vertex per frame (frame,landmark,x,y; landmark = the "
                         "reference landmark index it was learned from), for gflow eval --landmarks")
-    p.add_argument("--tracker", default="appearance", choices=sorted(TRACKERS),
-                   help="tracking method (default appearance; README 'Which tracker')")
+    p.add_argument("--tracker", default="dcf", choices=sorted(TRACKERS),
+                   help="tracking method (default dcf; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
     add_record_args(p, "recordings/track-TIME-RUNID.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")

@@ -1,4 +1,4 @@
-"""``--tracker appearance`` (the default): M2 with online exemplars of edge-orientation channels.
+"""``--tracker appearance``: M2 with online exemplars of edge-orientation channels.
 
 See :mod:`gflow_core.appearance` for the method and its departures from Toyama & Blake. Its
 parameters are :class:`gflow_core.appearance_params.AppearanceParams` (``gflow info appearance``):
@@ -29,9 +29,10 @@ def add_args(g: Any) -> None:
     from pipeline.cli.tracker_options import add_param_options
 
     from gflow_core.contour_params import ChamferParams, M2Params
+    from gflow_core.dcf.params import DCFParams
 
     add_param_options(g, AppearanceParams, NAME, notes={
-        "particles": f"chamfer {ChamferParams().particles}, m2 {M2Params().particles}"})
+        "particles": f"chamfer {ChamferParams().particles}, dcf {DCFParams().particles}, m2 {M2Params().particles}"})
     g.add_argument("--track-scale", action="store_true",
                    help=f"appearance: scale in the particle state ({_preset(TRACK_SCALE)}) instead of the default "
                         "scale search at the peak; the box drifts smaller on caviar1 and david_indoor "

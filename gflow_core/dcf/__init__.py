@@ -1,0 +1,82 @@
+"""A particle filter whose likelihood is a discriminative correlation filter learnt online (``--tracker dcf``).
+
+The appearance tracker (:mod:`gflow_core.appearance`) scores the target against exemplars of its own
+look; nothing in that score says what the surroundings look like, so a background that resembles
+the target, or a target that changes, is judged by rules tuned on the videos at hand. This tracker
+keeps the particle filter of the papers (particles over (x, y, log s), importance weights from a
+likelihood, systematic resampling: Toyama & Blake, IJCV 2002; Isard & Blake) and makes its
+likelihood a model of the target *against its surroundings*, learnt online as KCF, DSST, Staple,
+BACF and CSRT learn theirs:
+
+* **Features** (:mod:`.features`): fHOG on cells of 4 pixels (Felzenszwalb et al. 2010; 31 channels)
+  and the cells' mean grey level, over a window of the target plus ``padding`` times its mean side,
+  resampled to ``template``^2 template pixels; a cosine window tapers it (Bolme et al. 2010).
+* **The filter** (:mod:`.filter`, :mod:`.constrained`): ridge regression of a Gaussian label (sigma
+  ``label_sigma`` sqrt(w h)) on every shift of the window, solved per frequency in the Fourier
+  domain (Henriques et al. PAMI 2015, eq. 12; Danelljan et al. BMVC 2014, eq. 3; Bolme et al. CVPR
+  2010, MOSSE). The window is wide (the target plus 3 mean sides), so that fast motion stays inside
+  it and every real shift of the background is a negative example; the filter itself is held to
+  a box of the target's size (``mask``), by the ADMM of Galoogahi et al. (BACF, ICCV 2017; the
+  spatial constraint of Lukezic et al.'s CSR-DCF, CVPR 2017), so that the background does not
+  become part of the target. Learnt online from the running average of the windowed samples at rate
+  ``rate`` (BACF sec. 3.3), only on frames the tracker is confident of; the first frame's filter
+  is kept as an anchor and detection uses (1 - ``anchor_weight``) the running filter + that anchor.
+* **Colour** (:mod:`.histogram`): Staple's model (Bertinetto et al., CVPR 2016): histograms of the
+  box and of its surroundings, the per-pixel probability that a colour is the target's, averaged
+  over the box; merged with the filter's response as (1 - alpha) y_cf + alpha y_hist (Staple eq. 2).
+  Grey video -- one channel, or three equal ones (:func:`.features.is_grey`) -- is detected and
+  the model uses 32 grey levels instead of 32^3 colours.
+* **Likelihood** (:mod:`.model`, :mod:`.tracker`): the merged response over the window at the
+  constant-velocity prediction, upsampled by zero-padding its spectrum to template pixels, read
+  at each particle: p(z | X) ~ exp(``kappa`` y(X)). A fraction ``detect_fraction`` of the particles
+  is drawn at the response's peak (a mixture proposal, as the appearance tracker and Okuma et al.,
+  ECCV 2004), so the particle filter and the filter's peak agree.
+* **Motion** (:mod:`.dynamics`): constant velocity; the centre's noise is a random walk of
+  ``std_xy_rel`` sqrt(w0 h0) sqrt(dt) px (the proposal stage) plus ``speed_noise`` |v| dt (the
+  filter, which holds v), and every particle is weighed by a motion prior N(pred, (``motion_prior``
+  box + ``speed_noise`` |v| dt)^2), so the spread follows the target's observed speed and the time
+  since the last frame seen (dt periods).
+* **Scale** (:mod:`.scale`): DSST's 1-D scale filter (17 scales 2 % apart, as fDSST samples) at the
+  estimate, on confident frames; the particles carry the scale it finds.
+* **Is it the target?** Two cues, each a distance rho = 1 - y at the estimate: the filter's
+  response and the colour score. Each has its own learnt target and clutter distributions, rho ~
+  sigma^2 chi^2_d by running moments (Toyama & Blake eq. 10; :mod:`gflow_core.visibility`): the
+  clutter's from the best score away from the estimate in the window (half a box for the filter,
+  a box for colour, whose boxes overlap), the target's from the estimate on frames it is present.
+  The two cues multiply (Perez, Vermaak & Blake 2004), with the estimate's place under the motion
+  prior against clutter's, anywhere in the window, and give P(visible), P(partial), P(hidden);
+  ``confidence`` is P(visible). The model learns only when P(visible) >= 1/2, so an occluder is
+  not learnt.
+* **Hidden, lost, found again.** After ``hidden_after`` frames that clutter explains, the target
+  is ``occluded``: the box holds the prediction, the velocity decays, nothing is learnt, and the
+  target's place spreads by ``search_growth`` mean sides a frame; the filter (times its cosine
+  window, so each placement is scored as a window centred there) is slid over three standard
+  deviations of that place (:func:`.model.search`), up to the whole frame (``lost``). The best
+  placement is taken back only on strong evidence: its filter score against the clutter's as the
+  best of as many draws as the search covered, its colour score, its place under the spread prior
+  against the searched area, and a prior ``reappear`` that a hidden target is back.
+
+Departures from the papers, each measured on the nine shared sequences and their stress cases
+together (docs/trackers.md):
+
+* KCF, DSST and Staple keep a filter as large as their window; BACF and CSR-DCF constrain it. Here
+  the constraint is a box of the target's size (not BACF's exact target size in cells, nor
+  CSR-DCF's colour segmentation), solved by two ADMM iterations a frame from zero, with mu starting
+  at ``mu`` times the sample's mean energy per frequency (scale-free) and growing threefold an
+  iteration; the detection uses the constrained filter h rather than BACF's g. Without the mask
+  (``mask`` 0) the filter is DSST's closed form with numerator and denominator averaged.
+* Staple's colour histograms are learnt over the whole window's ring, and its score is computed on
+  the filter's cells (so the two responses add cell for cell and are upsampled together).
+* fHOG here bins each pixel to its own cell (no bilinear spatial vote) and takes the grey level's
+  gradient (fHOG takes the colour channel of largest gradient).
+* The scale filter takes the argmax over 17 scales (no interpolation to 33, no sub-step: a
+  parabola's sub-step drifted the box on fixed-size ground truth).
+* Nothing in the papers says whether the target is there; the visibility model, the search and
+  the place prior are this project's (as the appearance tracker's), here with the filter's and the
+  colour's scores as cues.
+
+Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
+:mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
+:mod:`.dynamics` (the proposal's walk), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+(the :class:`~gflow_core.tracker.TrackingFilter`).
+"""

@@ -1,0 +1,139 @@
+"""The correlation-filter tracker's parameters: :class:`DCFParams`, the only place their defaults live.
+
+The tracker is :mod:`gflow_core.dcf` (a particle filter whose likelihood is a discriminative
+correlation filter learnt online; its docstring gives each part's role, the papers and the
+departures). Everything else derives from this dataclass: the stages' parameter structs
+(``stages/dcf_proposal.py``, ``stages/dcf_filter.py``), the validation of
+``pipeline/graphs/dcf.yaml``, ``gflow track --tracker dcf``'s options and their help, ``gflow info
+dcf`` and the keywords of ``gflow.Tracker("dcf", ...)``. The defaults follow the papers where they
+give one (lambda 1e-4, a Gaussian label of 0.1 the target's size, cells of 4 pixels: Henriques et
+al. 2015; 17 scales 2 % apart, their rate and lambda: Danelljan et al. 2014 and 2017; the colour
+model's rate and weight: Bertinetto et al. 2016); the rest were chosen on all nine shared
+sequences and their stress cases together (``docs/trackers.md``).
+
+This module imports no mathematics, so the command line reads it at no cost.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ..params import param
+
+__all__ = ["DCFParams"]
+
+
+@dataclass(frozen=True)
+class DCFParams:
+    """Every setting of the correlation-filter tracker. Each field's help text is in its declaration;
+    ``gflow info dcf`` prints them all. Raises ``ValueError`` naming the first parameter it refuses."""
+
+    particles: int = param(200, "number of particles N over (x, y, log s)")
+    cell: int = param(4, "HOG cell size in pixels")
+    padding: float = param(3.0, "the filter's window: the target plus this many times its mean side")
+    template: int = param(150, "sqrt of the window's area in template pixels (the window is resampled to it)")
+    mask: float = param(1.0, "the filter's support: a box of the target's size times this (0: the whole window, "
+                             "closed form)")
+    mu: float = param(0.03, "the ADMM penalty mu of the masked filter at its first iteration, relative to the "
+                           "sample's mean energy per frequency")
+    admm_iterations: int = param(2, "ADMM iterations of the masked filter a frame")
+    lam: float = param(1e-4, "lambda, the ridge regression's regulariser")
+    label_sigma: float = param(0.1, "std of the Gaussian desired response, in units of sqrt(w h) of the target")
+    rate: float = param(0.02, "eta, the filter's learning rate on confident frames")
+    anchor_weight: float = param(0.2, "weight of the first frame's filter in the filter detection uses")
+    colour_weight: float = param(0.3, "alpha: the response is (1 - alpha) filter + alpha colour model (0: no "
+                                      "colour model)")
+    colour_rate: float = param(0.04, "learning rate of the colour model's histograms")
+    scales: int = param(17, "scales of the 1-D scale filter (odd; 1: the box keeps its first size)")
+    scale_step: float = param(1.02, "ratio between neighbouring scales of the scale filter")
+    scale_rate: float = param(0.025, "learning rate of the scale filter")
+    scale_lam: float = param(0.01, "lambda of the scale filter")
+    scale_area: int = param(1024, "pixels of the scale filter's sample at most")
+    max_log_scale: float = param(1.3862943611198906, "bound on |log s|: the box stays within [1/4, 4] times its "
+                                                     "first size")
+    kappa: float = param(30.0, "sharpness of the likelihood p(z | X) ~ exp(kappa y(X)), y the response")
+    detect_fraction: float = param(0.3, "fraction of the particles drawn at the peak of the response")
+    detect_std: float = param(1.0, "spread of the particles drawn at the response peak, px")
+    std_xy_rel: float = param(0.05, "random walk of the centre per frame (the proposal), in units of sqrt(w h) "
+                                    "of the initial box")
+    speed_noise: float = param(0.5, "the centre's noise grows by this many times the speed |v| (px / frame)")
+    velocity_memory: float = param(0.5, "m of the velocity v <- m v + (1 - m) (c_t - c_{t-1}) / dt")
+    motion_prior: float = param(0.25, "std of the motion prior about the prediction, in box sizes, plus the speed's share")
+    target_rate: float = param(0.05, "rate of the running moments of the target's score distribution")
+    clutter_rate: float = param(0.05, "rate of the running moments of the clutter's score distribution")
+    min_std: float = param(0.02, "floor on the spread of both score distributions")
+    prior_target: tuple[float, float] = param((0.55, 0.15), "mean and std of the target's distance rho = 1 - y (y "
+                                                            "the filter's response) before any frame")
+    prior_clutter: tuple[float, float] = param((0.8, 0.08), "mean and std of the clutter's distance before any frame")
+    prior_colour_target: tuple[float, float] = param((0.3, 0.1), "the same of the colour score: the target's ...")
+    prior_colour_clutter: tuple[float, float] = param((0.45, 0.1), "... and the clutter's")
+    prior_count: int = param(10, "pseudo-samples the two prior distributions count for")
+    hidden_after: int = param(3, "frames in a row that clutter explains the estimate before the target is "
+                                 "judged hidden")
+    reappear: float = param(0.001, "prior probability a frame that a target judged hidden is back")
+    search_growth: float = param(0.1, "while the target is unseen its place spreads by this many mean sides a "
+                                      "frame (the search covers three standard deviations)")
+    coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
+
+    def __post_init__(self) -> None:
+        if self.particles < 1:
+            raise ValueError(f"particles must be >= 1, got {self.particles}")
+        if self.cell < 1:
+            raise ValueError(f"cell must be >= 1, got {self.cell}")
+        if not (math.isfinite(self.padding) and self.padding >= 0):
+            raise ValueError(f"padding must be finite and >= 0, got {self.padding}")
+        if self.template < 8 * self.cell:
+            raise ValueError(f"template must be at least 8 cells ({8 * self.cell} px), got {self.template}")
+        if not (math.isfinite(self.mask) and self.mask >= 0) or not self.mu > 0 or self.admm_iterations < 1:
+            raise ValueError(f"mask must be >= 0, mu positive and admm_iterations >= 1, got {self.mask}, {self.mu}, "
+                             f"{self.admm_iterations}")
+        if not (self.lam > 0 and self.scale_lam > 0):
+            raise ValueError(f"lam and scale_lam must be positive, got {self.lam}, {self.scale_lam}")
+        if not self.label_sigma > 0:
+            raise ValueError(f"label_sigma must be positive, got {self.label_sigma}")
+        for name in ("rate", "anchor_weight", "colour_weight", "colour_rate", "scale_rate"):
+            v = getattr(self, name)
+            if not 0 <= v <= 1:
+                raise ValueError(f"{name} must be in [0, 1], got {v}")
+        if self.scales < 1 or self.scales % 2 == 0:
+            raise ValueError(f"scales must be odd and >= 1, got {self.scales}")
+        if not self.scale_step > 1:
+            raise ValueError(f"scale_step must be > 1, got {self.scale_step}")
+        if self.scale_area < 64:
+            raise ValueError(f"scale_area must be >= 64 pixels, got {self.scale_area}")
+        if not self.max_log_scale > 0:
+            raise ValueError(f"max_log_scale must be positive, got {self.max_log_scale}")
+        if not self.kappa > 0:
+            raise ValueError(f"kappa must be positive, got {self.kappa}")
+        if not 0 <= self.detect_fraction < 1:
+            raise ValueError(f"detect_fraction must be in [0, 1), got {self.detect_fraction}")
+        for name in ("detect_std", "std_xy_rel", "speed_noise", "search_growth"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {v}")
+        if not 0 <= self.coast_velocity <= 1:
+            raise ValueError(f"coast_velocity must be in [0, 1], got {self.coast_velocity}")
+        if not 0 <= self.velocity_memory < 1:
+            raise ValueError(f"velocity_memory must be in [0, 1), got {self.velocity_memory}")
+        if not self.motion_prior > 0:
+            raise ValueError(f"motion_prior must be positive, got {self.motion_prior}")
+        if not (0 < self.target_rate <= 1 and 0 < self.clutter_rate <= 1):
+            raise ValueError(f"target_rate and clutter_rate must be in (0, 1], got {self.target_rate}, "
+                             f"{self.clutter_rate}")
+        if not self.min_std > 0:
+            raise ValueError(f"min_std must be positive, got {self.min_std}")
+        for name in ("prior_target", "prior_clutter", "prior_colour_target", "prior_colour_clutter"):
+            v = getattr(self, name)
+            if len(v) != 2 or not all(x > 0 and math.isfinite(x) for x in v):
+                raise ValueError(f"{name} must be two positive numbers (mean, std), got {v}")
+        if self.prior_count < 1:
+            raise ValueError(f"prior_count must be >= 1, got {self.prior_count}")
+        if self.hidden_after < 1 or not 0 < self.reappear < 1:
+            raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
+                             f"{self.reappear}")
+
+    def walk_std(self, box: tuple[float, float, float, float]) -> float:
+        """The std (px) of the proposal's random walk of the centre for the initial ``box`` (x, y, w, h):
+        ``std_xy_rel * sqrt(w h)`` (w h at least 1 px^2)."""
+        return self.std_xy_rel * math.sqrt(max(box[2] * box[3], 1.0))

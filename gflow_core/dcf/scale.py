@@ -1,0 +1,111 @@
+"""The 1-D scale filter of DSST (Danelljan, Hager, Khan & Felsberg, BMVC 2014, sec. 3.2).
+
+At the estimated position, S patches of the target's size times a^n (n = -(S-1)/2 ... (S-1)/2,
+a the scale step) are resampled to one model size; their fHOG cells, flattened, make a
+(S, D) sample whose rows are ordered by scale. A correlation filter along the scale axis (one
+dimension, D channels; the same closed form as the translation filter, DSST eq. 3, 5, 6)
+learns to answer with a Gaussian peaked at the middle row, so its response to a new sample
+peaks at the row of the target's present scale.
+
+Departures: 17 scales, as fDSST (Danelljan et al., PAMI 2017) samples, without its PCA and
+interpolation of the response to 33; the peak is refined by a parabola through its
+neighbours (sub-step).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .features import hog, sample
+
+__all__ = ["ScaleFilter", "model_size", "scale_sample", "init_scale", "learn_scale", "detect_scale"]
+
+
+@dataclass(frozen=True)
+class ScaleFilter:
+    """The scale filter: ``num`` (S, D) complex128 and ``den`` (S,) float64 (DSST eq. 5), ``label_hat``
+    (S,) the DFT of the desired response, ``model`` (w, h) the samples' size in pixels."""
+
+    num: np.ndarray
+    den: np.ndarray
+    label_hat: np.ndarray
+    model: tuple[int, int]
+
+
+def model_size(size0: tuple[float, float], area: int, cell: int) -> tuple[int, int]:
+    """(w, h) pixels of the scale samples: the target's aspect, at most ``area`` pixels (DSST's 512),
+    whole cells, at least 2 cells a side."""
+    w, h = float(size0[0]), float(size0[1])
+    f = min(1.0, float(np.sqrt(area / (w * h))))
+    return (max(2, int(round(w * f / cell))) * cell, max(2, int(round(h * f / cell))) * cell)
+
+
+def scale_sample(grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float], factors: np.ndarray,
+                 model: tuple[int, int], cell: int) -> np.ndarray:
+    """(S, D) float64: row n is the fHOG cells of the box of ``size`` (w, h) times ``factors[n]`` at
+    ``centre``, resampled to ``model`` (w, h) pixels, flattened, times the 1-D Hann window over scales."""
+    mw, mh = model
+    patches = np.empty((len(factors), mh, mw), dtype=np.float32)
+    for n, f in enumerate(factors):
+        # k = model pixels per image pixel of the box at this scale (the larger of the two, so it covers the box)
+        k = max(mw / (size[0] * f), mh / (size[1] * f))
+        patches[n] = sample(grey, centre, (mw, mh), k)
+    x = hog(patches, cell).reshape(len(factors), -1).astype(np.float64)
+    # the window over scales tapers the extreme ones (DSST sec. 3.2)
+    return x * np.hanning(len(factors) + 2)[1:-1, None]
+
+
+def _factors(n: int, step: float) -> np.ndarray:
+    """a^i for i = -(n - 1) / 2 ... (n - 1) / 2."""
+    return step ** (np.arange(n) - (n - 1) // 2).astype(np.float64)
+
+
+def init_scale(grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float], n: int, step: float,
+               area: int, cell: int) -> ScaleFilter:
+    """The scale filter of the first frame: one sample (DSST eq. 3); the label is a Gaussian over the
+    scale index of std sqrt(S) / 4 peaked at the middle row (DSST sec. 4)."""
+    model = model_size(size, area, cell)
+    idx = np.arange(n) - (n - 1) // 2
+    sigma = np.sqrt(n) / 4.0
+    # g(n) = exp(-n^2 / (2 sigma^2)), n the scale index about the middle
+    label_hat = np.fft.fft(np.exp(-0.5 * idx ** 2 / sigma ** 2))
+    f = np.fft.fft(scale_sample(grey, centre, size, _factors(n, step), model, cell), axis=0)
+    # A = conj(G) F, B = sum_d |F_d|^2                                          (DSST eq. 3)
+    num = np.conj(label_hat)[:, None] * f
+    den = (f.real ** 2 + f.imag ** 2).sum(axis=1)
+    return ScaleFilter(num, den, label_hat, model)
+
+
+def learn_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float],
+                step: float, cell: int, rate: float) -> ScaleFilter:
+    """The running average with a new sample at the estimate (DSST eq. 5)."""
+    n = len(sf.den)
+    f = np.fft.fft(scale_sample(grey, centre, size, _factors(n, step), sf.model, cell), axis=0)
+    # A <- (1 - eta) A + eta conj(G) F,  B <- (1 - eta) B + eta sum_d |F_d|^2
+    num = (1.0 - rate) * sf.num + rate * np.conj(sf.label_hat)[:, None] * f
+    den = (1.0 - rate) * sf.den + rate * (f.real ** 2 + f.imag ** 2).sum(axis=1)
+    return ScaleFilter(num, den, sf.label_hat, sf.model)
+
+
+def detect_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float],
+                 step: float, cell: int, lam: float, refine: bool = False) -> tuple[float, np.ndarray]:
+    """The log-scale change at ``centre`` and the response over the scales (S,).
+
+    y = F^-1 { sum_d conj(A_d) Z_d / (B + lambda) } (DSST eq. 6) over the scale index; its peak,
+    refined by a parabola through the neighbours, gives the change n* log a."""
+    n = len(sf.den)
+    z = np.fft.fft(scale_sample(grey, centre, size, _factors(n, step), sf.model, cell), axis=0)
+    # sum_d conj(A_d) Z_d (einsum: a fixed order of summation)
+    s = np.einsum("sd,sd->s", np.conj(sf.num), z)
+    y = np.fft.ifft(s / (sf.den + lam)).real
+    i = int(np.argmax(y))
+    d = float(i - (n - 1) // 2)
+    if refine and 0 < i < n - 1:
+        a, b, c = y[i - 1], y[i], y[i + 1]
+        den = a - 2.0 * b + c
+        if den < 0:
+            # the vertex of the parabola through (i - 1, a), (i, b), (i + 1, c)
+            d += float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
+    return d * float(np.log(step)), y

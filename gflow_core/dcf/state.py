@@ -1,0 +1,149 @@
+"""What the correlation-filter tracker reads of a frame, proposes, and carries from frame to frame.
+
+All frozen: the tracker's functions return new values and never change their arguments.
+:func:`to_arrays` and :func:`from_arrays` turn a state into plain arrays and values and back, bit for
+bit (a stage's snapshot).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..visibility import ChiSquare
+from . import filter as cf
+from .histogram import ColourModel
+from .model import Geometry, TargetModel, geometry
+from .params import DCFParams
+from .scale import ScaleFilter
+
+__all__ = ["DCFObservation", "DCFProposal", "DCFState", "to_arrays", "from_arrays"]
+
+
+@dataclass(frozen=True)
+class DCFObservation:
+    """A frame as the tracker reads it.
+
+    image : (H, W, 3) BGR uint8 of a colour frame, or (H, W) uint8 of a grey one (single channel, or
+    three equal channels: :func:`gflow_core.dcf.features.is_grey`); grey : (H, W) float32 grey levels;
+    is_grey : whether the frame holds grey levels only.
+    """
+
+    image: np.ndarray
+    grey: np.ndarray
+    is_grey: bool
+
+
+@dataclass(frozen=True)
+class DCFProposal:
+    """The proposal for frame t: particles (N, 3) (x, y, log s) from the proposal's random walk about
+    the posterior of the frame before, and ``dt``, the frame periods since that posterior."""
+
+    particles: np.ndarray
+    dt: float = 1.0
+
+
+@dataclass(frozen=True)
+class DCFState:
+    """The posterior after a frame.
+
+    geom : the filter's window (:class:`.model.Geometry`, a function of the first box's size and the
+        parameters); model : the filters, the colour model and the scale filter.
+    particles : (N, 3) float64 resampled posterior over (x, y, log s).
+    centre : (2,) float64 and log_s : the last estimate (the box is exp(log_s) times the first size).
+    velocity : (2,) float64 px / frame.
+    target : distribution of the estimate's distance rho = 1 - y (y the filter's response) on frames the
+        target was present; clutter : of the best distance away from the estimate (:mod:`gflow_core.visibility`);
+        ctarget, cclutter : the same of the colour score (unused without a colour model).
+    hidden_run : frames in a row that clutter explained the estimate (0: present).
+    back : while the target is judged hidden, the filtered probability it was present on the last frame.
+    target_state : how the target was judged on the last frame with evidence (what a coasted frame
+        reports).
+    spread : px, how far the target's place has spread since it was last seen (0 while it is).
+    """
+
+    geom: Geometry
+    model: TargetModel
+    particles: np.ndarray
+    centre: np.ndarray
+    log_s: float
+    velocity: np.ndarray
+    target: ChiSquare
+    clutter: ChiSquare
+    ctarget: ChiSquare = ChiSquare()
+    cclutter: ChiSquare = ChiSquare()
+    hidden_run: int = 0
+    back: float = 0.0
+    target_state: str = "tracked"
+    spread: float = 0.0
+
+
+def _real(a: np.ndarray) -> np.ndarray:
+    """A complex array as float64 (..., 2 n) (real and imaginary parts interleaved); a real one as float64."""
+    if np.iscomplexobj(a):
+        return np.ascontiguousarray(a, dtype=np.complex128).view(np.float64)
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+def _complex(a: np.ndarray) -> np.ndarray:
+    """The inverse of :func:`_real` for a complex array."""
+    return np.ascontiguousarray(a, dtype=np.float64).view(np.complex128)
+
+
+def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The state as named float64 arrays (complex ones with real and imaginary parts interleaved on their
+    last axis) and plain values, for a snapshot; :func:`from_arrays` inverts it bit for bit."""
+    m = st.model
+    arrays = {"particles": st.particles, "centre": st.centre, "velocity": st.velocity, "det": _real(m.det),
+              "anchor": _real(m.anchor)}
+    if isinstance(m.train, cf.Spectrum):
+        arrays.update(train_num=_real(m.train.num), train_den=m.train.den)
+    else:
+        arrays["train_x"] = _real(m.train)
+    if m.colour is not None:
+        arrays.update(colour_fg=m.colour.fg, colour_bg=m.colour.bg)
+    if m.scale is not None:
+        arrays.update(scale_num=_real(m.scale.num), scale_den=m.scale.den, scale_label=_real(m.scale.label_hat))
+    values = {"size0": [float(v) for v in st.geom.size0], "log_s": float(st.log_s), "hidden_run": int(st.hidden_run),
+              "back": float(st.back), "target_state": st.target_state, "spread": float(st.spread), "colour_mode": m.colour_mode,
+              "target": [st.target.m1, st.target.m2, st.target.n], "clutter": [st.clutter.m1, st.clutter.m2, st.clutter.n],
+              "ctarget": [st.ctarget.m1, st.ctarget.m2, st.ctarget.n],
+              "cclutter": [st.cclutter.m1, st.cclutter.m2, st.cclutter.n],
+              "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
+    return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}, values
+
+
+def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: DCFParams) -> DCFState:
+    """The state of :func:`to_arrays` (``KeyError`` / ``ValueError`` for a part missing or of the wrong
+    shape); the window's geometry is made again from the first size and the parameters."""
+    size0 = values["size0"]
+    geom = geometry((float(size0[0]), float(size0[1])), p)
+    wc, hc = geom.cells
+    det, anchor = _complex(arrays["det"]), _complex(arrays["anchor"])
+    if det.shape[:2] != (hc, wc // 2 + 1) or anchor.shape != det.shape:
+        raise ValueError(f"filter of shape {det.shape} does not fit the window of {wc}x{hc} cells")
+    train: cf.Spectrum | np.ndarray
+    if "train_num" in arrays:
+        train = cf.Spectrum(_complex(arrays["train_num"]), np.array(arrays["train_den"]))
+    else:
+        train = _complex(arrays["train_x"])
+    colour = ColourModel(np.array(arrays["colour_fg"]), np.array(arrays["colour_bg"])) if "colour_fg" in arrays else None
+    scale = None
+    if "scale_num" in arrays:
+        sm = values["scale_model"]
+        scale = ScaleFilter(_complex(arrays["scale_num"]), np.array(arrays["scale_den"]),
+                            _complex(arrays["scale_label"]), (int(sm[0]), int(sm[1])))
+    model = TargetModel(train, det, anchor, colour, values["colour_mode"], scale)
+    def chi(key: str) -> ChiSquare:
+        v = values[key]
+        return ChiSquare(float(v[0]), float(v[1]), int(v[2]))
+
+
+    return DCFState(geom=geom, model=model, particles=np.array(arrays["particles"]), centre=np.array(arrays["centre"]),
+                    log_s=float(values["log_s"]), velocity=np.array(arrays["velocity"]),
+                    target=chi("target"), clutter=chi("clutter"), ctarget=chi("ctarget"), cclutter=chi("cclutter"),
+                    hidden_run=int(values["hidden_run"]),
+                    back=float(values["back"]), target_state=str(values["target_state"]),
+                    spread=float(values["spread"]))

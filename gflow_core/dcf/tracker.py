@@ -1,0 +1,329 @@
+"""The correlation-filter tracker on the tracker protocol of :mod:`gflow_core.tracker`.
+
+:class:`DCFTracker` is the tracker's :class:`~gflow_core.tracker.TrackingFilter`:
+
+* ``observe`` -- the frame, its grey levels and whether it is grey (:func:`.features.is_grey`);
+* ``init`` -- the target model of the user's box (:func:`.model.init_model`) and the particles
+  about it;
+* ``propose`` -- the random walk about the posterior's particles (:func:`.dynamics.walk`);
+* ``update`` -- :func:`step`: the response over the window at the prediction, the particles weighed
+  by it, the estimate, whether the target is present, hidden or lost, the search for a hidden one,
+  the model's update and resampling;
+* ``coast`` -- the posterior carried over a frame with no evidence.
+
+Random draws of frame ``t`` (:class:`~gflow_core.tracker.FrameRng`): the initial particles from
+``stream(PURPOSE_INIT)``, the proposal from ``stream(PURPOSE_WALK)``, the update's draws (the
+speed's share of the noise, the particles at the peak, resampling) from ``stream(PURPOSE_STEP)``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any, Mapping
+
+import numpy as np
+
+from ..features import to_grey
+from ..particles import LogWeights, systematic_resample
+from ..tracker import Box, Estimate, FrameRng, UnusableFrame
+from ..visibility import ChiSquare, Cue, visibility
+from . import model as tm
+from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
+from .features import is_grey
+from .params import DCFParams
+from .state import DCFObservation, DCFProposal, DCFState
+
+__all__ = ["DCFTracker", "TRACKER", "StepResult", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
+
+#: the streams of a frame's draws: the initial particles, the update (the proposal's: PURPOSE_WALK)
+PURPOSE_INIT, PURPOSE_STEP = 0xDCF0, 0xDCF2
+
+
+def box_of(centre: np.ndarray, log_s: float, size0: tuple[float, float]) -> tuple[float, float, float, float]:
+    """(x, y, w, h) of the box of scale exp(log_s) times ``size0`` centred at ``centre``."""
+    s = float(np.exp(log_s))
+    w, h = size0[0] * s, size0[1] * s
+    return (float(centre[0] - (w - 1) / 2.0), float(centre[1] - (h - 1) / 2.0), float(w), float(h))
+
+
+def _prior(mean_std: tuple[float, float], count: int) -> ChiSquare:
+    """A distance distribution before any frame: ``count`` pseudo-samples of the given mean and std (the
+    moments of Toyama & Blake's eq. 10)."""
+    m, s = mean_std
+    return ChiSquare(m, s * s + m * m, count)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One frame's answer: the new state, the box, the posterior's mean and std of (x, y, log s), the ESS,
+    the log evidence, ``score`` the response at the estimate, ``confidence`` P(visible), ``target_state``
+    and whether the search found a hidden target again this frame."""
+
+    state: DCFState
+    box: tuple[float, float, float, float]
+    mean: np.ndarray
+    std: np.ndarray
+    ess: float
+    log_evidence: float
+    score: float
+    confidence: float
+    target_state: str
+    redetected: bool
+
+
+def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float, area: float) -> float:
+    """log N(c; pred, diag(sx^2, sy^2)) - log(1 / area): how much likelier the target's motion prior puts
+    it at ``c`` than clutter, which is anywhere in the ``area`` (px^2) searched."""
+    # log N = -((c_x - pred_x)^2 / 2 sx^2 + (c_y - pred_y)^2 / 2 sy^2) - log(2 pi sx sy)
+    log_n = -((c[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (c[1] - pred[1]) ** 2 / (2.0 * sy * sy)) \
+        - math.log(2.0 * math.pi * sx * sy)
+    return log_n + math.log(area)
+
+
+def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
+         dt: float = 1.0) -> StepResult:
+    """One frame: the response at the prediction, the particles weighed, the estimate, the target's
+    state, the search for a hidden target, the model's update, resampling.
+
+    Parameters
+    ----------
+    st : the posterior after frame t-1.
+    obs : frame t.
+    proposed : (N, 3) float64 particles (x, y, log s) of the proposal's random walk about the posterior
+        of t-1; the velocity and the speed's share of the noise are added here (:mod:`.dynamics`).
+    rng : the update's generator of frame t.
+    dt : frame periods since frame t-1.
+    """
+    n = p.particles
+    if proposed.ndim != 2 or proposed.shape[1] != 3 or not np.isfinite(proposed).all():
+        raise ValueError(f"proposals must be finite (N, 3) = (x, y, log s), got {proposed.shape}")
+    geom, model = st.geom, st.model
+    Hh, Ww = obs.grey.shape
+    # constant velocity: the prediction c_{t-1} + v dt
+    pred = st.centre + st.velocity * dt
+    s = float(np.exp(st.log_s))
+    bw, bh = geom.size0[0] * s, geom.size0[1] * s
+    extra = speed_noise(p, st.velocity, dt)
+    resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p)
+    # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
+    dyn = proposed.copy()
+    dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
+    # x_t ~ (1 - b) p(x_t | x_t-1) + b N(peak, detect_std^2)          (mixture proposal, b = detect_fraction)
+    n_det = int(round(p.detect_fraction * len(dyn)))
+    peak_xy, _ = resp.peak()
+    if n_det:
+        det = np.column_stack([peak_xy[0] + rng.normal(0.0, p.detect_std, n_det),
+                               peak_xy[1] + rng.normal(0.0, p.detect_std, n_det),
+                               np.full(n_det, st.log_s)])
+        parts = np.vstack([dyn[: len(dyn) - n_det], det])
+    else:
+        parts = dyn
+    parts[:, 2] = st.log_s
+    y = resp.at(parts[:, :2])
+    # log p(z | X) = kappa y(X): the response read at the particle
+    log_lik = p.kappa * y
+    # the motion prior N(x; pred, diag(sx^2, sy^2)), sx = prior w sqrt(dt) + beta |v| dt, widened while the
+    # target is unseen by the spread its place has gathered since (added in quadrature)
+    sx = float(np.hypot(p.motion_prior * bw * math.sqrt(dt) + extra, st.spread))
+    sy = float(np.hypot(p.motion_prior * bh * math.sqrt(dt) + extra, st.spread))
+    d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * sx * sx) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * sy * sy)
+    lw = LogWeights(log_lik - d2)
+    W = lw.W
+    # weighted sums by einsum, not BLAS: the same bits in one thread and in many
+    mean = np.einsum("i,ij->j", W, parts)
+    std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
+    centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
+    log_s = st.log_s
+    # is the estimate the target? two cues, each a distance rho = 1 - y against its own learnt target and
+    # clutter chi-squared distributions (gflow_core.visibility): the filter's response, and the colour
+    # score with its clutter taken a box away at least (a box that overlaps the target shares its colours)
+    r_est = float(resp.at(centre[None, :], "cf")[0])
+    clutter_seen = resp.best_away(centre, (0.5 * bw, 0.5 * bh), "cf")
+    colour_seen = None
+    if resp.colour is not None:
+        colour_seen = (float(resp.at(centre[None, :], "colour")[0]), resp.best_away(centre, (bw, bh), "colour"))
+    cues = () if colour_seen is None else (Cue(1.0 - colour_seen[0], st.ctarget, st.cclutter),)
+    hidden_before = st.hidden_run >= p.hidden_after
+    # the estimate's place under the target's motion prior against clutter's, uniform over the window:
+    # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
+    log_place = _log_place(centre, pred, sx, sy, resp.area())
+    if hidden_before:
+        # forward filtering over (visible, partial, hidden): after a hidden frame the prior that the
+        # target is back is `reappear`, plus the probability `back` that it was present on the last frame
+        b = float(st.back)
+        q = p.reappear
+        prior = (b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * (1.0 - q))
+    else:
+        prior = (1.0, 1.0, 1.0)
+    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
+    present = vis.present
+    confident = vis.visible >= 0.5
+    confidence = vis.visible
+    run = 0 if present else st.hidden_run + 1
+    hidden = run >= p.hidden_after
+    found = None
+    covers = False
+    spread = 0.0
+    if run > 0:
+        # unseen, the target's place spreads by search_growth mean sides a frame; the search covers
+        # three standard deviations of its prior
+        spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
+        margin = (3.0 * float(np.hypot(sx, spread)) + 10.0, 3.0 * float(np.hypot(sy, spread)) + 10.0)
+        covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
+                  and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
+        for cand in tm.search(model, obs.image, obs.grey, pred, margin, st.log_s, geom, p):
+            # the search had more chances than the window the clutter was learnt on: under "hidden" its
+            # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
+            # the candidate is placed by the target's prior: log N(x; pred, S) + log A
+            trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+            place = _log_place(cand.centre, pred, float(np.hypot(sx, spread)), float(np.hypot(sy, spread)), cand.area)
+            # the colour score of the filter's pick: one draw of the colour clutter
+            ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
+            vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
+                            trials=max(trials, 1.0), log_place=place, cues=ccue)
+            if vf.visible >= 0.5:
+                found, confidence, run, spread = cand, vf.visible, 0, 0.0
+                break
+    idx = systematic_resample(lw.lw, rng, n)
+    new_parts = parts[idx]
+    target, clutter, ctarget, cclutter, mdl = st.target, st.clutter, st.ctarget, st.cclutter, model
+    if found is not None:
+        centre = found.centre.copy()
+        log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
+        new_parts[:, :2] += centre - mean[:2]
+        velocity = np.zeros(2)
+        state = "tracked"
+    elif not present:
+        # hidden, or in doubt: the box holds the prediction, nothing is learnt, the velocity decays
+        centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
+        velocity = p.coast_velocity ** dt * st.velocity
+        state = ("lost" if covers else "occluded") if hidden else "tracked"
+    else:
+        c = (float(centre[0]), float(centre[1]))
+        if confident and mdl.scale is not None:
+            d = tm.scale_change(mdl, obs.grey, c, log_s, geom, p)
+            log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
+        # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
+        velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
+        state = "tracked"
+        # the target's distributions follow it on every frame it is present, so a lasting change of look
+        # becomes the usual look; the model learns on confident frames only
+        target = st.target.update(1.0 - r_est, p.target_rate)
+        if colour_seen is not None:
+            ctarget = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
+        if confident:
+            mdl = tm.learn(mdl, obs.image, obs.grey, c, log_s, geom, p, p.rate)
+    # the clutter's moments learn on the frames the target is present (while it is not, the best away from
+    # the held box may be the target itself)
+    if clutter_seen is not None and present:
+        clutter = st.clutter.update(1.0 - clutter_seen[0], p.clutter_rate)
+    if colour_seen is not None and colour_seen[1] is not None and present:
+        cclutter = st.cclutter.update(1.0 - colour_seen[1][0], p.clutter_rate)
+    new_parts[:, 2] = log_s
+    back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
+    new = replace(st, model=mdl, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, target=target,
+                  clutter=clutter, ctarget=ctarget, cclutter=cclutter, hidden_run=run, back=back, target_state=state,
+                  spread=spread)
+    return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
+                      log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
+                      target_state=state, redetected=found is not None)
+
+
+def initialise(obs: DCFObservation, box: Box, p: DCFParams, rng: np.random.Generator) -> DCFState:
+    """The model of ``box`` (x, y, w, h) and the particles about its centre (``ValueError`` for a box
+    outside the frame)."""
+    x, y, w, h = (float(v) for v in box)
+    if not (w > 0 and h > 0):
+        raise ValueError(f"initial box must have positive width and height, got {box}")
+    Hh, Ww = obs.grey.shape
+    if x >= Ww or y >= Hh or x + w <= 0 or y + h <= 0:
+        raise ValueError(f"initial box {box} lies outside the {Ww}x{Hh} frame")
+    centre = np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0])
+    geom = tm.geometry((w, h), p)
+    mdl = tm.init_model(obs.image, obs.grey, obs.is_grey, (float(centre[0]), float(centre[1])), geom, p)
+    n = p.particles
+    # x_0 ~ N(centre, 1 px), log s_0 = 0
+    parts = np.column_stack([centre[0] + rng.normal(0.0, 1.0, n), centre[1] + rng.normal(0.0, 1.0, n), np.zeros(n)])
+    return DCFState(geom=geom, model=mdl, particles=parts, centre=centre, log_s=0.0, velocity=np.zeros(2),
+                    target=_prior(p.prior_target, p.prior_count), clutter=_prior(p.prior_clutter, p.prior_count),
+                    ctarget=_prior(p.prior_colour_target, p.prior_count),
+                    cclutter=_prior(p.prior_colour_clutter, p.prior_count))
+
+
+class DCFTracker:
+    """The correlation-filter tracker's :class:`gflow_core.tracker.TrackingFilter` (stateless: everything
+    is in :class:`.state.DCFState`)."""
+
+    name = "dcf"
+    Params = DCFParams
+
+    def observe(self, params: DCFParams, image: np.ndarray) -> DCFObservation:
+        """The frame (``(H, W, 3)`` BGR or ``(H, W)`` grey uint8), its grey levels and whether it is grey.
+
+        Raises :class:`UnusableFrame` for a uniform frame and ``ValueError`` for one that is not an image."""
+        grey = to_grey(image)
+        if grey.size == 0 or int(grey.max()) == int(grey.min()):
+            raise UnusableFrame("uniform frame, no evidence")
+        if grey.shape[0] < 2 * params.cell or grey.shape[1] < 2 * params.cell:
+            raise ValueError(f"frame {grey.shape[1]}x{grey.shape[0]} is smaller than two cells")
+        g = is_grey(image) if image.ndim == 3 else True
+        img = grey if g else np.ascontiguousarray(image[..., :3])
+        return DCFObservation(img, grey.astype(np.float32), g)
+
+    def init(self, params: DCFParams, obs: DCFObservation, box: Box, rng: FrameRng,
+             resources: Mapping[str, Any]) -> tuple[DCFState, Estimate]:
+        """The model of ``box`` and the particles about it (``ValueError`` for a box outside the frame)."""
+        st = initialise(obs, box, params, rng.stream(PURPOSE_INIT))
+        a = np.array([st.centre[0], st.centre[1], 0.0, 1.0])
+        est = self.estimate(params, rng.t, box_of(st.centre, 0.0, st.geom.size0), "init", a, a, np.zeros(4),
+                            float(params.particles), 0.0, 1.0, 1.0, "tracked")
+        return st, est
+
+    def propose(self, params: DCFParams, state: DCFState, obs: DCFObservation | None, rng: FrameRng,
+                dt: float = 1.0) -> DCFProposal:
+        """The random walk about the posterior's particles (:func:`.dynamics.walk`) from
+        ``rng.stream(PURPOSE_WALK)`` (the frame is not read)."""
+        alpha = walk(params, alpha_of(state.particles), state.geom.size0, rng.stream(PURPOSE_WALK), dt)
+        return DCFProposal(particles_of(alpha), dt)
+
+    def update(self, params: DCFParams, state: DCFState, proposal: DCFProposal, obs: DCFObservation,
+               rng: FrameRng) -> tuple[DCFState, Estimate]:
+        """:func:`step` of the proposal on the frame. The estimate's phase is ``track``, ``redetect`` (the
+        search found a hidden target again this frame), ``occluded`` or ``lost``."""
+        res = step(state, obs, proposal.particles, params, rng.stream(PURPOSE_STEP), proposal.dt)
+        nst = res.state
+        a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
+        mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])
+        std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
+        phase = ("redetect" if res.redetected else "track") if res.target_state == "tracked" else res.target_state
+        est = self.estimate(params, rng.t, res.box, phase, a, mean, std, res.ess, res.log_evidence, res.score,
+                            res.confidence, res.target_state)
+        return nst, est
+
+    def coast(self, params: DCFParams, state: DCFState, rng: FrameRng,
+              obs: DCFObservation | None = None) -> tuple[DCFState, Estimate]:
+        """No evidence from frame ``rng.t``: the posterior unchanged; the target is where it was judged to
+        be, with no confidence."""
+        a = np.array([state.centre[0], state.centre[1], 0.0, float(np.exp(state.log_s))])
+        judged = "tracked" if state.hidden_run == 0 else state.target_state
+        est = self.estimate(params, rng.t, box_of(state.centre, state.log_s, state.geom.size0), "coast", a, a,
+                            np.zeros(4), float(params.particles), 0.0, 0.0, 0.0, judged)
+        return replace(state, target_state=judged), est
+
+    def estimate(self, params: DCFParams, t: int, box: tuple[float, float, float, float], phase: str,
+                 alpha: np.ndarray, mean: np.ndarray, std: np.ndarray, ess: float, log_evidence: float,
+                 score: float, confidence: float, target_state: str) -> Estimate:
+        """The tracker's estimate of frame ``t``. ``extras``: ``alpha`` (4,) the estimate (x, y, 0, s);
+        ``mean``, ``std`` (4,) the posterior's mean and std of alpha (std of log s); ``ess``;
+        ``log_evidence``; ``score``, the response at the estimate; ``n``, the number of particles."""
+        b = tuple(float(v) for v in box)
+        extras = {"alpha": tuple(float(v) for v in alpha), "mean": tuple(float(v) for v in mean),
+                  "std": tuple(float(v) for v in std), "ess": float(ess), "log_evidence": float(log_evidence),
+                  "score": float(score), "n": int(params.particles)}
+        return Estimate(frame=int(t), box=(b[0], b[1], b[2], b[3]), confidence=float(confidence),
+                        target_state=target_state, phase=phase, extras=extras)
+
+
+#: the one instance (it keeps no state)
+TRACKER = DCFTracker()
