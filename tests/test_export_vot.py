@@ -71,7 +71,7 @@ def test_a_sparsely_labelled_sequence_becomes_a_vot_workspace(tmp_path):
     assert stack["experiments"]["baseline"]["type"] == "unsupervised"
     assert "syn has frames without ground truth" in r.stdout and "no reinit experiment" in r.stdout
     ini = (out / "trackers.ini").read_text()
-    for name in ("appearance", "chamfer", "gflow"):
+    for name in ("dcf", "appearance", "chamfer", "gflow"):
         assert f"[gflow-{name}]\nlabel = gflow {name}\nprotocol = trax\ncommand = {sys.executable} -m gflow.trax " \
                f"--tracker {name}\n" in ini
     assert "gflow-m2" not in ini
@@ -166,13 +166,13 @@ def test_the_toolkit_evaluates_the_export_and_agrees_with_gflows_overlap(tmp_pat
     gt = make_sequence(tmp_path / "data" / "syn", n=20, labelled=lambda t: t % 2 == 0)
     assert gflow("export", "vot", str(tmp_path / "data"), str(tmp_path / "ws")).returncode == 0
     env = dict(os.environ, PYTHONPATH=str(ROOT), VOT_RESULTS_BINARY="0")
-    for cmd in (["evaluate", "--workspace", str(tmp_path / "ws"), "gflow-appearance"],
-                ["analysis", "--workspace", str(tmp_path / "ws"), "gflow-appearance", "--name", "a"]):
+    for cmd in (["evaluate", "--workspace", str(tmp_path / "ws"), "gflow-dcf"],
+                ["analysis", "--workspace", str(tmp_path / "ws"), "gflow-dcf", "--name", "a"]):
         r = subprocess.run([vot, *cmd], capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env,
                            stdin=subprocess.DEVNULL)
         assert r.returncode == 0 and "rror" not in r.stdout + r.stderr, (r.stdout + r.stderr)[-3000:]
     # the toolkit's trajectory (line k is frame k - 1): the boxes gflow track gives
-    lines = (tmp_path / "ws" / "results" / "gflow-appearance" / "baseline" / "syn" / "syn_001.txt").read_text().split()
+    lines = (tmp_path / "ws" / "results" / "gflow-dcf" / "baseline" / "syn" / "syn_001.txt").read_text().split()
     assert lines[0] == "1" and len(lines) == 20  # the toolkit's code for the initialisation frame
     served = {k: tuple(float(v) for v in line.split(",")) for k, line in enumerate(lines) if k > 0}
     track = gflow("track", str(tmp_path / "data" / "syn"), "--init", ",".join(map(str, gt[0])), "--inline", "--seed",

@@ -246,8 +246,8 @@ def test_vot_test_passes_for_the_default_tracker(tmp_path):
                     "its own (docs/vot.md; it brings opencv-python) and put its bin folder on PATH")
     from pipeline.io.vot_workspace import trackers_ini
 
-    (tmp_path / "trackers.ini").write_text(trackers_ini(sys.executable, {"appearance": ["--tracker", "appearance"]}))
-    r = subprocess.run([vot, "test", "gflow-appearance"], capture_output=True, text=True, timeout=300, cwd=tmp_path,
+    (tmp_path / "trackers.ini").write_text(trackers_ini(sys.executable, {"dcf": ["--tracker", "dcf"]}))
+    r = subprocess.run([vot, "test", "gflow-dcf"], capture_output=True, text=True, timeout=300, cwd=tmp_path,
                        stdin=subprocess.DEVNULL, env=dict(os.environ, PYTHONPATH=str(ROOT)))
     out = r.stdout + r.stderr
     assert r.returncode == 0 and "Test concluded successfuly" in out, out[-3000:]  # the toolkit's spelling
