@@ -176,7 +176,7 @@ def test_the_toolkit_evaluates_the_export_and_agrees_with_gflows_overlap(tmp_pat
     assert lines[0] == "1" and len(lines) == 20  # the toolkit's code for the initialisation frame
     served = {k: tuple(float(v) for v in line.split(",")) for k, line in enumerate(lines) if k > 0}
     track = gflow("track", str(tmp_path / "data" / "syn"), "--init", ",".join(map(str, gt[0])), "--inline", "--seed",
-                  "0", "--no-record", "-q", "--out", str(tmp_path / "track.csv"))
+                  "1", "--no-record", "-q", "--out", str(tmp_path / "track.csv"))
     assert track.returncode == 0, track.stderr
     want = read_boxes(tmp_path / "track.csv")
     assert all(np.abs(np.subtract(served[f], want[f])).max() <= 0.005 + 2e-4 for f in served)

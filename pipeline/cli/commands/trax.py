@@ -26,8 +26,8 @@ def add_trax_args(p: argparse.ArgumentParser) -> None:
     """The options of ``gflow trax`` and ``python -m gflow.trax``."""
     p.add_argument("--tracker", choices=sorted(TRACKERS),
                    help="the tracker to serve (default: gflow track's default tracker; README 'Which tracker')")
-    p.add_argument("--seed", type=int, default=0,
-                   help="random seed (default 0): the boxes of gflow track --inline --seed SEED")
+    p.add_argument("--seed", type=int, default=1,
+                   help="random seed (default 1, as gflow track's): the boxes of gflow track --inline --seed SEED")
     p.add_argument("--model", metavar="FILE",
                    help="m2: the model of gflow learn m2 (required); gflow: face (default), ellipsoid or a model "
                         "file of gflow learn gflow")
