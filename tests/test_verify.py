@@ -42,18 +42,25 @@ def _recovered(broken: Path, fixed: Path, capsys) -> int:
     return int(m.group(1))
 
 
-def test_an_intact_recording_is_ok_with_infos_message_count(small_recording: Path, capsys) -> None:  # noqa: F811
+def test_an_intact_recording_is_ok_with_infos_message_count(small_recording: Path, capsys,  # noqa: F811
+                                                             monkeypatch) -> None:
+    import pipeline.cli.commands.verify as verify_command
+
     assert main(["info", str(small_recording), "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
+    monkeypatch.setattr(verify_command, "PROGRESS_EVERY_S", 0.0)  # a progress line after every chunk
     assert main(["verify", str(small_recording)]) == 0
-    out = capsys.readouterr().out.strip()
+    cap = capsys.readouterr()
+    out = cap.out.strip()
+    progress = cap.err.splitlines()
+    assert progress and all(re.fullmatch(r"  verify: \S+  [\d.]+/[\d.]+ MB, \d+ messages", p) for p in progress), cap.err
     m = re.fullmatch(re.escape(str(small_recording)) + r": OK: (\d+) messages, (\d+) channels, ([\d.]+) seconds", out)
     assert m, out
     assert int(m.group(1)) == info["messages"] > 0
     assert int(m.group(2)) >= len(info["topics"])
     assert float(m.group(3)) == round(info["duration_s"], 3)
     assert main(["verify", "--quiet", str(small_recording)]) == 0
-    assert capsys.readouterr().out == ""  # --quiet: only the damaged ones
+    assert capsys.readouterr() == ("", "")  # --quiet: only the damaged ones, no progress
 
 
 def test_flipped_bytes_inside_a_chunk_name_the_chunk_and_its_offset(small_recording: Path, tmp_path: Path,  # noqa: F811
@@ -130,3 +137,32 @@ def test_a_recording_a_running_pipeline_writes_is_in_progress(small_recording: P
     assert f"{live}: IN PROGRESS: being written by verify-test" in out and "DAMAGED" not in out, out
     assert main(["verify", str(live)]) == 1  # once the run is over, the same file is damaged
     assert "DAMAGED" in capsys.readouterr().out
+
+
+def test_a_summary_that_disagrees_with_the_file_is_damaged(small_recording: Path, tmp_path: Path,  # noqa: F811
+                                                          capsys) -> None:
+    """Statistics claiming one message more, under a summary CRC made to match: the counts are checked."""
+    import struct
+    import zlib
+
+    from mcap.records import Statistics
+    from mcap.stream_reader import StreamReader
+
+    data = bytearray(small_recording.read_bytes())
+    with open(small_recording, "rb") as f:
+        at, stats_at = 8, -1
+        for rec in StreamReader(f, emit_chunks=True).records:
+            if isinstance(rec, Statistics):
+                stats_at, n = at, rec.message_count
+            at = f.tell()
+    assert stats_at > 0
+    struct.pack_into("<Q", data, stats_at + 9, n + 1)  # opcode, length, then message_count
+    footer_at = len(data) - 8 - (1 + 8 + 20)
+    summary_start = struct.unpack_from("<Q", data, footer_at + 9)[0]
+    crc = zlib.crc32(data[footer_at:footer_at + 25], zlib.crc32(data[summary_start:footer_at]))
+    struct.pack_into("<I", data, footer_at + 25, crc)
+    bad = tmp_path / "stats.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert f"the statistics say {n + 1} messages; the file holds {n}; {n} messages readable before it" in out, out

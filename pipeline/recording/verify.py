@@ -314,10 +314,12 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
                         raise _Fault(f"byte {at}: the file ends without its closing magic bytes") from None
                     raise
                 except TORN_END_ERRORS as e:
-                    if f.tell() >= size:
+                    if footer is not None:
+                        raise _Fault(f"byte {at}: the closing magic bytes are wrong") from None
+                    if f.tell() >= size:  # a record cut short by the end of the file
                         raise EndOfFile() from None
-                    what = "the closing magic bytes are wrong" if footer is not None else "a record cannot be read"
-                    raise _Fault(f"byte {at}: {what} ({type(e).__name__}: {' '.join(str(e).split())})") from None
+                    raise _Fault(f"byte {at}: a record cannot be read ({type(e).__name__}: "
+                                 f"{' '.join(str(e).split())})") from None
                 end = f.tell()
                 w.n_records += 1
                 if w.n_records == 1 and not isinstance(rec, Header):

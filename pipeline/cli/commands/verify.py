@@ -46,8 +46,12 @@ def verify_line(path: str, busy: dict[Path, dict], quiet: bool) -> tuple[bool, s
                 f"{r.messages} messages in its complete chunks so far")
         return True, "" if quiet else line
     if r.ok:
+        from pipeline.io.mcap_io import segments
+
+        more = [s.name for s in segments(path)[1:]]  # a restarted recorder's files: each is checked on its own
         return True, "" if quiet else (f"{path}: OK: {r.messages} messages, {r.channels} channels, "
-                                       f"{r.duration_s:.3f} seconds")
+                                       f"{r.duration_s:.3f} seconds"
+                                       + (f" (the recording goes on in {', '.join(more)})" if more else ""))
     salvage = (f"gflow recover {path} FIXED.mcap can salvage them" if r.messages else "nothing to salvage")
     return False, f"{path}: DAMAGED: {r.damage}; {r.messages} messages readable before it; {salvage}"
 
