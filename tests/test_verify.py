@@ -166,3 +166,17 @@ def test_a_summary_that_disagrees_with_the_file_is_damaged(small_recording: Path
     assert main(["verify", str(bad)]) == 1
     out = capsys.readouterr().out
     assert f"the statistics say {n + 1} messages; the file holds {n}; {n} messages readable before it" in out, out
+
+
+def test_a_damaged_record_length_in_a_closed_file_is_not_taken_for_a_torn_end(small_recording: Path,  # noqa: F811
+                                                                              tmp_path: Path, capsys) -> None:
+    import struct
+
+    offset, _ = _chunks(small_recording)[-1]
+    data = bytearray(small_recording.read_bytes())
+    struct.pack_into("<Q", data, offset + 1, 10**9)  # the last chunk's record length: past the end of the file
+    bad = tmp_path / "length.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert f"DAMAGED: byte {offset}: a record runs to or past the end of the file" in out and "no summary" not in out

@@ -35,9 +35,13 @@ from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from pipeline.io.mcap_io import TORN_END_ERRORS, _check
 from pipeline.io.mcap_writer import crc32
 from pipeline.io.recorder import SCHEMA_PREFIX
-from stages.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, MessageError, decode, decode_as
+from stages.messages import MESSAGE_TYPES, MessageError, decode, decode_as
+from stages.messages_foxglove import FOXGLOVE_SCHEMAS
 
 __all__ = ["verify", "VerifyResult", "Progress"]
+
+_MAGIC = b"\x89MCAP0\r\n"
+_FOXGLOVE_BY_SCHEMA: dict[str, type] = {name: typ for typ, name in FOXGLOVE_SCHEMAS.items()}
 
 #: told (bytes read, file size, messages checked) after each chunk
 Progress = Callable[[int, int, int], None]
@@ -90,7 +94,7 @@ def _message_decoder(schema: Schema | None) -> Callable[[bytes], Any] | None:
     if name.startswith(SCHEMA_PREFIX) and name[len(SCHEMA_PREFIX):] in MESSAGE_TYPES:
         typ = MESSAGE_TYPES[name[len(SCHEMA_PREFIX):]]
         return lambda data: decode_as(data, typ)
-    fox = next((t for t in FOXGLOVE_TYPES.values() if _foxglove_name(t) == name), None)
+    fox = _FOXGLOVE_BY_SCHEMA.get(name)
     if fox is not None:
         def check(data: bytes) -> Any:
             m = decode(data)
@@ -99,12 +103,6 @@ def _message_decoder(schema: Schema | None) -> Callable[[bytes], Any] | None:
             return m
         return check
     return None
-
-
-def _foxglove_name(typ: type) -> str:
-    from stages.messages_foxglove import FOXGLOVE_SCHEMAS
-
-    return FOXGLOVE_SCHEMAS.get(typ, "")
 
 
 def _indexed_topics(following: Iterator[Any], channels: dict[int, Channel]) -> str:
@@ -131,7 +129,6 @@ class _Walk:
         self.decoders: dict[int, Callable[[bytes], Any] | None] = {}
         self.chunks: dict[int, _ChunkSeen] = {}  # by offset
         self.last_chunk: _ChunkSeen | None = None
-        self.indexed: set[int] = set()  # channels of last_chunk with a message index
         self.metadata: dict[int, str] = {}  # offset -> name
         self.summary_start = 0  # the offset after the data end
         self.stats: Statistics | None = None
@@ -209,7 +206,6 @@ class _Walk:
                 seen.per_channel[rec.channel_id] = seen.per_channel.get(rec.channel_id, 0) + 1
         self.chunks[offset] = seen
         self.last_chunk = seen
-        self.indexed = set()
 
     def message_index(self, mi: MessageIndex, offset: int) -> None:
         ck = self.last_chunk
@@ -220,7 +216,6 @@ class _Walk:
         if len(mi.records) != n:
             topic = self.channels[mi.channel_id].topic if mi.channel_id in self.channels else f"channel {mi.channel_id}"
             raise _Fault(f"{where}: lists {len(mi.records)} messages on {topic}; the chunk holds {n}")
-        self.indexed.add(mi.channel_id)
 
     # the summary -----------------------------------------------------------------------------------------
     def check_summary(self, footer: Footer, footer_at: int, f) -> None:
@@ -296,7 +291,7 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
     w = _Walk(r)
     with open(p, "rb") as f:
         records = iter(StreamReader(f, emit_chunks=True, validate_crcs=True).records)
-        at = 0
+        at = last_at = 0
         footer: tuple[Footer, int] | None = None
         in_summary = False
         try:
@@ -321,6 +316,7 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
                     raise _Fault(f"byte {at}: a record cannot be read ({type(e).__name__}: "
                                  f"{' '.join(str(e).split())})") from None
                 end = f.tell()
+                last_at = at
                 w.n_records += 1
                 if w.n_records == 1 and not isinstance(rec, Header):
                     raise _Fault(f"byte {at}: the file does not start with a header record")
@@ -360,9 +356,15 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
                 raise _Fault(f"byte {f.tell()}: {after} bytes after the closing magic bytes")
             w.check_summary(footer[0], footer[1], f)
         except EndOfFile:
-            r.torn = True
-            r.damage = (f"the file ends at byte {size}, inside the record that starts at byte {at}, with no summary "
-                        f"or footer (its writer was killed, or is still writing)")
+            f.seek(max(0, size - 8))
+            if size > 16 and f.read(8) == _MAGIC:  # a closed file: a damaged length ran a record past its end
+                start = last_at if at >= size else at  # the record that swallowed the rest, or the one cut short
+                r.damage = (f"byte {start}: a record runs to or past the end of the file, which ends with its closing "
+                            f"magic bytes (the record's length is damaged)")
+            else:
+                r.torn = True
+                r.damage = (f"the file ends at byte {size}, inside the record that starts at byte {at}, with no "
+                            f"summary or footer (its writer was killed, or is still writing)")
         except _Fault as e:
             r.damage = str(e)
     r.channels = len(w.channels)
