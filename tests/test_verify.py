@@ -1,0 +1,182 @@
+"""``gflow verify`` on a real recording and on damaged copies of it: an intact file passes with
+``gflow info``'s message count; flipped bytes name their chunk and offset; a truncated copy says
+how many messages ``gflow recover`` salvages (and recover does salvage that many); a message that
+does not decode as its type is named; bad or missing files are one-line errors; a recording a
+running pipeline is writing is in progress, not damaged."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from mcap.reader import make_reader
+
+from pipeline.cli.main import main
+from pipeline.io.recorder import McapRecorder
+from tests.test_recordings_kept import small_recording  # noqa: F401  (a short real run, recorded)
+
+GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
+
+
+def _chunks(path: Path) -> list[tuple[int, int]]:
+    """(offset, length) of every chunk, from the file's chunk index."""
+    with open(path, "rb") as f:
+        s = make_reader(f).get_summary()
+    assert s is not None
+    return sorted((c.chunk_start_offset, c.chunk_length) for c in s.chunk_indexes)
+
+
+def _readable(out: str) -> int:
+    m = re.search(r"; (\d+) messages readable before it; ", out)
+    assert m, out
+    return int(m.group(1))
+
+
+def _recovered(broken: Path, fixed: Path, capsys) -> int:
+    main(["recover", str(broken), str(fixed)])
+    m = re.search(r"recovered (\d+) messages", capsys.readouterr().out)
+    assert m
+    return int(m.group(1))
+
+
+def test_an_intact_recording_is_ok_with_infos_message_count(small_recording: Path, capsys,  # noqa: F811
+                                                             monkeypatch) -> None:
+    import pipeline.cli.commands.verify as verify_command
+
+    assert main(["info", str(small_recording), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    monkeypatch.setattr(verify_command, "PROGRESS_EVERY_S", 0.0)  # a progress line after every chunk
+    assert main(["verify", str(small_recording)]) == 0
+    cap = capsys.readouterr()
+    out = cap.out.strip()
+    progress = cap.err.splitlines()
+    assert progress and all(re.fullmatch(r"  verify: \S+  [\d.]+/[\d.]+ MB, \d+ messages", p) for p in progress), cap.err
+    m = re.fullmatch(re.escape(str(small_recording)) + r": OK: (\d+) messages, (\d+) channels, ([\d.]+) seconds", out)
+    assert m, out
+    assert int(m.group(1)) == info["messages"] > 0
+    assert int(m.group(2)) >= len(info["topics"])
+    assert float(m.group(3)) == round(info["duration_s"], 3)
+    assert main(["verify", "--quiet", str(small_recording)]) == 0
+    assert capsys.readouterr() == ("", "")  # --quiet: only the damaged ones, no progress
+
+
+def test_flipped_bytes_inside_a_chunk_name_the_chunk_and_its_offset(small_recording: Path, tmp_path: Path,  # noqa: F811
+                                                                    capsys) -> None:
+    chunks = _chunks(small_recording)
+    k = len(chunks) // 2  # a chunk after the first, so some messages come before it
+    offset, length = chunks[k]
+    data = bytearray(small_recording.read_bytes())
+    for i in range(offset + length // 2, offset + length // 2 + 16):
+        data[i] ^= 0xFF
+    bad = tmp_path / "flipped.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["verify", "--quiet", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert out.startswith(f"{bad}: DAMAGED: chunk {k + 1} at byte {offset}: "), out
+    n = _readable(out)
+    assert n == _recovered(bad, tmp_path / "fixed.mcap", capsys)
+    assert (n > 0) == (k > 0)
+    assert main(["verify", str(tmp_path / "fixed.mcap")]) == 0  # what recover wrote is intact
+    assert f"OK: {n} messages" in capsys.readouterr().out
+
+
+def test_a_truncated_copy_says_how_many_messages_recover_salvages(small_recording: Path, tmp_path: Path,  # noqa: F811
+                                                                  capsys) -> None:
+    offset, _ = _chunks(small_recording)[-1]
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(small_recording.read_bytes()[:offset + 100])  # inside the last chunk: no summary, no footer
+    assert main(["verify", str(cut)]) == 1
+    out = capsys.readouterr().out
+    assert "DAMAGED" in out and "no summary" in out and f"gflow recover {cut} FIXED.mcap can salvage them" in out
+    n = _readable(out)
+    assert 0 < n == _recovered(cut, tmp_path / "fixed.mcap", capsys)
+
+
+def test_a_message_that_does_not_decode_as_its_type_is_named(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "garbled.mcap"
+    rec = McapRecorder(path).open()
+    rec.write("gflow/cam0/estimate", b"\x93\x01\x02\x03", seq=1, type_name="Estimate")
+    rec.close()
+    assert main(["verify", str(path)]) == 1
+    out = capsys.readouterr().out
+    assert "chunk 1 at byte" in out and "gflow/cam0/estimate (seq 1) does not decode as gflow.Estimate" in out, out
+    assert "0 messages readable before it; nothing to salvage" in out
+
+
+def test_bad_and_missing_files_are_one_line_errors(small_recording: Path, tmp_path: Path) -> None:  # noqa: F811
+    not_mcap = tmp_path / "notes.mcap"
+    not_mcap.write_text("these are notes, not a recording\n")
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    missing = tmp_path / "missing.mcap"
+    r = subprocess.run([*GFLOW, "verify", str(not_mcap), str(missing), str(empty), str(small_recording)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1
+    assert "Traceback" not in r.stderr + r.stdout
+    errors = r.stderr.strip().splitlines()
+    assert len(errors) == 4, r.stderr  # one per bad file, and the tally
+    assert f"{not_mcap} is not an MCAP file" in errors[0]
+    assert f"recording not found: {missing}" in errors[1]
+    assert f"{empty} is empty" in errors[2]
+    assert r.stdout.startswith(f"{small_recording}: OK: ")  # the good file after them is still checked
+
+
+def test_a_recording_a_running_pipeline_writes_is_in_progress(small_recording: Path, tmp_path: Path,  # noqa: F811
+                                                              capsys) -> None:
+    from pipeline.runtime.running import announce
+
+    offset, _ = _chunks(small_recording)[-1]
+    live = tmp_path / "live.mcap"
+    live.write_bytes(small_recording.read_bytes()[:offset + 100])  # as a writer leaves it between two chunks
+    with announce("verify-test", [], name="verify-test", recording=str(live)):
+        assert main(["verify", str(live)]) == 0
+        out = capsys.readouterr().out
+    assert f"{live}: IN PROGRESS: being written by verify-test" in out and "DAMAGED" not in out, out
+    assert main(["verify", str(live)]) == 1  # once the run is over, the same file is damaged
+    assert "DAMAGED" in capsys.readouterr().out
+
+
+def test_a_summary_that_disagrees_with_the_file_is_damaged(small_recording: Path, tmp_path: Path,  # noqa: F811
+                                                          capsys) -> None:
+    """Statistics claiming one message more, under a summary CRC made to match: the counts are checked."""
+    import struct
+    import zlib
+
+    from mcap.records import Statistics
+    from mcap.stream_reader import StreamReader
+
+    data = bytearray(small_recording.read_bytes())
+    with open(small_recording, "rb") as f:
+        at, stats_at = 8, -1
+        for rec in StreamReader(f, emit_chunks=True).records:
+            if isinstance(rec, Statistics):
+                stats_at, n = at, rec.message_count
+            at = f.tell()
+    assert stats_at > 0
+    struct.pack_into("<Q", data, stats_at + 9, n + 1)  # opcode, length, then message_count
+    footer_at = len(data) - 8 - (1 + 8 + 20)
+    summary_start = struct.unpack_from("<Q", data, footer_at + 9)[0]
+    crc = zlib.crc32(data[footer_at:footer_at + 25], zlib.crc32(data[summary_start:footer_at]))
+    struct.pack_into("<I", data, footer_at + 25, crc)
+    bad = tmp_path / "stats.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert f"the statistics say {n + 1} messages; the file holds {n}; {n} messages readable before it" in out, out
+
+
+def test_a_damaged_record_length_in_a_closed_file_is_not_taken_for_a_torn_end(small_recording: Path,  # noqa: F811
+                                                                              tmp_path: Path, capsys) -> None:
+    import struct
+
+    offset, _ = _chunks(small_recording)[-1]
+    data = bytearray(small_recording.read_bytes())
+    struct.pack_into("<Q", data, offset + 1, 10**9)  # the last chunk's record length: past the end of the file
+    bad = tmp_path / "length.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert f"DAMAGED: byte {offset}: a record runs to or past the end of the file" in out and "no summary" not in out
