@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import math
 import os
+import socket
 import subprocess
 import sys
 import time
@@ -186,3 +187,31 @@ def test_corrupted_h264_is_reported_frame_by_frame(tmp_path: Path, caviar1: Path
                           env=env_for(tmp_path), capture_output=True, text=True, timeout=60)
     assert "decoded from damaged data" in info.stdout, info.stdout
     rerun_source_is_identical(tmp_path)
+
+
+def test_a_stream_joined_after_it_began_is_reported(stream: Path) -> None:
+    """A sender already running when the port is bound: the first datagram is the middle of the
+    stream (not its first table), so the run says that frames were lost before it listened and
+    that frame 0 is the first frame received; a stream received from its start says nothing of it."""
+    from pipeline.io.udp_relay import UdpRelay, joined_midway
+
+    data = stream.read_bytes()
+    pkt = 188
+    assert joined_midway(data[:7 * pkt]) is None  # FFmpeg's stream begins with its tables
+    assert joined_midway(b"not a transport stream") is None
+    for start in (0, 200 * pkt):
+        relay = UdpRelay(f"udp://127.0.0.1:{free_port()}")
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as tx:
+                tx.sendto(data[start:start + 7 * pkt], ("127.0.0.1", int(relay.url.rsplit(":", 1)[1])))
+            deadline = time.monotonic() + 30
+            while not relay.first_at and time.monotonic() < deadline:
+                time.sleep(0.01)
+            line = relay.lines()[0]
+        finally:
+            relay.close()
+        assert relay.first_at, "the datagram never arrived"
+        if start:
+            assert "the stream had begun before the port was bound" in line and "first frame received" in line, line
+        else:
+            assert "had begun" not in line, line

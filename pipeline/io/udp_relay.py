@@ -30,7 +30,7 @@ import threading
 import time
 from urllib.parse import parse_qs, urlsplit
 
-__all__ = ["UdpRelay", "relayed_udp", "bind_early", "relay_for"]
+__all__ = ["UdpRelay", "relayed_udp", "bind_early", "relay_for", "joined_midway"]
 
 #: the receive buffer asked of the kernel for the bound port
 RCVBUF = 8 * 2**20
@@ -61,6 +61,27 @@ def relayed_udp(url: str) -> tuple[str, int] | None:
     return query.get("localaddr", ["0.0.0.0"])[0], port
 
 
+#: MPEG-TS: a packet's size and sync byte; the PIDs of the tables a muxer writes first (PAT, SDT)
+TS_PACKET, TS_SYNC, TS_FIRST_PIDS = 188, 0x47, (0x0000, 0x0011)
+
+
+def joined_midway(data: bytes) -> str | None:
+    """What says that ``data``, the first datagram received, is not the start of its MPEG-TS stream.
+
+    A muxer begins a stream with its tables (the PAT, or FFmpeg's SDT before it), each PID's
+    4-bit continuity counter at 0; a first packet of another PID or a later count means the
+    sender was sending before the port was bound and what it sent before is lost. None when the
+    datagram begins a stream, or is not MPEG-TS (nothing can be said).
+    """
+    if len(data) < 4 or data[0] != TS_SYNC:
+        return None
+    pid = ((data[1] & 0x1F) << 8) | data[2]
+    cc = data[3] & 0x0F
+    if pid in TS_FIRST_PIDS and cc == 0:
+        return None
+    return f"its first packet is PID 0x{pid:x} at continuity {cc}, not a stream's first table"
+
+
 class UdpRelay:
     """Bind ``url``'s UDP port now and serve what arrives on ``relay_url`` (module docstring).
 
@@ -77,6 +98,7 @@ class UdpRelay:
         self._lock = threading.Lock()
         self.bound_at = time.time()
         self.first_at = 0.0  # when the first datagram came (0: none yet)
+        self.midway: str | None = None  # why the first datagram is not its stream's start (None: it is)
         self.datagrams = 0
         self.bytes = 0
         self.dropped_bytes = 0  # kept too long without a reader: the oldest went
@@ -124,6 +146,7 @@ class UdpRelay:
                             break
                         if not self.first_at:
                             with self._lock:
+                                self.midway = joined_midway(data)
                                 self.first_at = time.time()
                                 tell = self._on_first
                             if tell is not None:
@@ -177,7 +200,16 @@ class UdpRelay:
             self._pending.popleft()
 
     def first_line(self) -> str:
-        return f"{self.url}: the first data arrived {self.first_at - self.bound_at:.2f} s after the port was bound"
+        return (f"{self.url}: the first data arrived {self.first_at - self.bound_at:.2f} s after the port was bound"
+                + self.midway_note())
+
+    def midway_note(self) -> str:
+        """The warning, for a stream joined after it began (else '')."""
+        if self.midway is None:
+            return ""
+        return (f"; the stream had begun before the port was bound ({self.midway}): what the sender sent before "
+                "is lost, and frame 0 of the results (where --init goes) is the first frame received, not the "
+                "sender's first")
 
     def tell_first(self, on_first) -> None:
         """Have ``on_first(line)`` told when the first datagram comes (now, if it came already)."""
@@ -193,7 +225,7 @@ class UdpRelay:
             return [f"{self.url}: listened from before the pipeline started; no data arrived"]
         out = [f"{self.url}: listened from before the pipeline started; the first data arrived "
                f"{self.first_at - self.bound_at:.2f} s after the port was bound ({self.datagrams} datagrams, "
-               f"{self.bytes / 2**20:.1f} MiB)"]
+               f"{self.bytes / 2**20:.1f} MiB)" + self.midway_note()]
         if self.dropped_bytes:
             out.append(f"{self.url}: {self.dropped_bytes / 2**20:.1f} MiB dropped while no reader took them "
                        f"(more than {self.max_bytes / 2**20:.0f} MiB waited)")
