@@ -9,6 +9,7 @@ import sys
 import time
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -82,6 +83,32 @@ def check_outputs(**paths: str | None) -> None:
     for opt, path in paths.items():
         if path:
             check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
+
+
+def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]]) -> None:
+    """Refuse a stage parameter given on the command line that the graph's stage would refuse, in the
+    words of the option that gave it: ``given`` = {how it was given (``--particles 0``,
+    ``--set filter.particles=0``): (stage, parameter, value)}; a stage the graph does not have is left
+    to the graph's own error. The same line as ``gflow track --particles 0``, with no graph path."""
+    from pipeline.runtime.graph import GraphError, load_graph, params_error
+
+    if not given:
+        return
+    try:
+        stages = load_graph(graph).stages
+    except GraphError:  # the graph's own fault: said by the load that follows, with the overrides
+        return
+    for how, (stage, param, value) in given.items():
+        if stage in stages:
+            why = params_error(stages[stage].kind, {**stages[stage].params, param: value})
+            if why is not None:
+                raise CliError(f"{how}: {why}")
+
+
+def sets_as_given(items: list[str] | None) -> dict[str, tuple[str, str, Any]]:
+    """Each ``--set stage.param=value`` as :func:`check_stage_values` takes it: {``--set ITEM``: (stage, param, value)}."""
+    return {f"--set {it}": (stage, param, value) for it in items or ()
+            for stage, kv in parse_sets([it]).items() for param, value in kv.items()}
 
 
 def parse_sets(items: list[str]) -> dict[str, dict]:
