@@ -364,8 +364,9 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
                   file=sys.stderr)
         rec = plan.recorder()
         with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
-                      camera=plan.seed_stream,
-                      recording=launcher.recording if rec and rec.name in launcher.local else None):
+                      camera=plan.seed_stream, no_record=temporary_recording(recording),
+                      recording=(launcher.recording if rec and rec.name in launcher.local
+                                 and not temporary_recording(recording) else None)):
             try:
                 res = launcher.run()
             except SessionError as e:  # 7447, free a moment ago, taken by a run started at the same time
