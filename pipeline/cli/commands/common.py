@@ -85,11 +85,13 @@ def check_outputs(**paths: str | None) -> None:
             check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
 
 
-def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]]) -> None:
-    """Refuse a stage parameter given on the command line that the graph's stage would refuse, in the
-    words of the option that gave it: ``given`` = {how it was given (``--particles 0``,
-    ``--set filter.particles=0``): (stage, parameter, value)}; a stage the graph does not have is left
-    to the graph's own error. The same line as ``gflow track --particles 0``, with no graph path."""
+def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], others: dict[str, dict] | None = None) -> None:
+    """Refuse stage parameters given on the command line that the graph's stage would refuse, in the
+    words of the options that gave them: ``given`` = {how it was given (``--particles 0``,
+    ``--set filter.particles=0``): (stage, parameter, value)}, checked together per stage, on top of
+    the graph's values and ``others`` ({stage: {parameter: value}} set otherwise). A stage the graph
+    does not have is left to the graph's own error. The same line as ``gflow track --particles 0``,
+    with no graph path."""
     from pipeline.runtime.graph import GraphError, load_graph, params_error
 
     if not given:
@@ -98,11 +100,15 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]]) -> No
         stages = load_graph(graph).stages
     except GraphError:  # the graph's own fault: said by the load that follows, with the overrides
         return
-    for how, (stage, param, value) in given.items():
-        if stage in stages:
-            why = params_error(stages[stage].kind, {**stages[stage].params, param: value})
-            if why is not None:
-                raise CliError(f"{how}: {why}")
+    for stage in dict.fromkeys(st for st, _, _ in given.values()):
+        if stage not in stages:
+            continue
+        mine = {how: (param, value) for how, (st, param, value) in given.items() if st == stage}
+        base = {**stages[stage].params, **(others or {}).get(stage, {})}
+        why = params_error(stages[stage].kind, {**base, **{param: value for param, value in mine.values()}})
+        if why is not None:  # named by the values refused alone, else by all of them
+            alone = [how for how, (param, value) in mine.items() if params_error(stages[stage].kind, {**base, param: value})]
+            raise CliError(f"{' '.join(alone or mine)}: {why}")
 
 
 def sets_as_given(items: list[str] | None) -> dict[str, tuple[str, str, Any]]:

@@ -20,9 +20,9 @@ def cmd_demo(args) -> int:
     from pipeline.recording.results import estimates
 
     check_outputs(record=args.record)
-    check_stage_values("demo", {f"--particles {args.particles}": ("filter", "particles", args.particles)})
     overrides = {"source": {"frames": args.frames}, "filter": {"particles": args.particles, "seed": args.seed},
                  "proposal": {"seed": args.seed}}
+    check_stage_values("demo", {f"--particles {args.particles}": ("filter", "particles", args.particles)}, overrides)
     plan = apply_defaults(load_graph("demo", overrides=overrides))
     recording = Recording(plan, args, None, needed=("estimate",))  # named with the run id when it starts
     print(f"gflow demo: synthetic scene, {args.frames} frames, {args.particles} particles, "

@@ -177,7 +177,7 @@ def track_plan(args) -> tuple[Plan, int | None]:
     graph, overrides = tracker.overrides(args)
     source = source_of(args)
     overrides.setdefault("source", {}).update(source_params(source, args))
-    check_stage_values(args.graph or graph, sets_as_given(args.set))
+    check_stage_values(args.graph or graph, sets_as_given(args.set), overrides)
     for stage, kv in parse_sets(args.set).items():
         overrides.setdefault(stage, {}).update(kv)
     make_plan = getattr(tracker, "make_plan", None)
