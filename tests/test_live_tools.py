@@ -157,3 +157,26 @@ def test_a_replay_is_found_without_a_launcher(tmp_path: Path) -> None:
         rp.send_signal(signal.SIGINT)  # Ctrl-C: the replay stops and removes its announcement
         rp.wait(30)
     assert not list(rt.glob("*.json"))
+
+
+def test_ps_says_a_no_record_run_is_not_recording(tmp_path: Path) -> None:
+    """A --no-record run reads its results from a temporary file; gflow ps does not call it a recording."""
+    rt = tmp_path / "runtime"
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "demo", "--no-record", "--frames", "3000",
+                             "--particles", "50", "--listen", "tcp/127.0.0.1:0", "--stream", "norec"],
+                            env=_env(rt), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, text=True)
+    try:
+        files = _wait(lambda: list(rt.glob("*.json")) if rt.is_dir() else [], "the launcher's announcement")
+        info = json.loads(files[0].read_text())
+        assert info["pid"] == proc.pid and info["recording"] is None and info["no_record"] is True, info
+        r = _gflow(rt, "ps", "--listen-for", "0.2")
+        assert r.returncode == 0, r.stderr
+        line = next(ln for ln in r.stdout.splitlines() if f"pid {proc.pid}" in ln)
+        assert "not recording (--no-record)" in line and "gflow-norecord" not in r.stdout, r.stdout
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(60)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)

@@ -98,3 +98,30 @@ def test_rerun_step_and_foxglove_take_topics(runs, tmp_path: Path, capsys, monke
     assert main(["foxglove", str(a), str(tmp_path / "f.mcap"), "--topics", "frames", "estimate"]) == 0
     out = capsys.readouterr().out
     assert "frames 10" in out and "estimate 10" in out and "features" not in out
+
+
+def _demo_with_a_run_id(path: Path, seed: int) -> Path:
+    """A short demo recorded as a multi-process run records it: its stream carries a new run id."""
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 12}, "filter": {"particles": 50, "seed": seed},
+                                                        "proposal": {"seed": seed}}))
+    choose_stream(plan, None, placed=False)
+    md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
+          "gflow.config": plan.config_metadata()}
+    run_inline(plan, recording=str(path), metadata=md)
+    return path
+
+
+def test_diff_pairs_two_runs_of_one_graph_across_their_run_ids(tmp_path: Path, capsys) -> None:
+    a, b, c = (_demo_with_a_run_id(tmp_path / f"{n}.mcap", s) for n, s in (("a", 1), ("b", 2), ("c", 1)))
+    assert {r.topic.split("/")[1] for r in iter_records(a)} != {r.topic.split("/")[1] for r in iter_records(c)}
+    assert main(["diff", str(a), str(b), "--frames"]) == 1
+    out = capsys.readouterr().out
+    assert out.count("paired across run ids") == 1 and "gflow/demo/estimate" in out, out
+    row = next(line.split() for line in out.splitlines() if line.startswith("gflow/demo/estimate "))
+    same, differ, only_a, only_b = map(int, row[2:6])
+    assert differ > 0 and only_a == 0 and only_b == 0 and same + differ == 13, row
+    table = out[out.index("pose max|diff|"):].splitlines()[1:13]
+    assert [int(line.split()[0]) for line in table] == list(range(12)), out  # one row per frame
+    assert main(["diff", str(a), str(c)]) == 0
+    out = capsys.readouterr().out
+    assert "paired across run ids" in out and out.rstrip().endswith("identical"), out

@@ -30,6 +30,22 @@ def test_particles_below_one_is_one_line_for_every_tracker(tmp_path: Path, frame
     assert not (tmp_path / "b.csv").exists() and not list(tmp_path.rglob("*.mcap"))
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["demo", "--particles", "0", "--frames", "3", "--inline"], "--particles 0"),
+    (["track", "FRAMES", "--init", "10,10,20,20", "--out", "b.csv", "--tracker", "chamfer", "--set", "filter.particles=0",
+      "--inline"], "--set filter.particles=0"),
+])
+def test_particles_below_one_from_demo_or_set_is_the_same_line(tmp_path: Path, frames: Path, argv: list[str],
+                                                               said: str) -> None:
+    """``gflow demo --particles 0`` and ``--set filter.particles=0`` say what ``gflow track --particles 0``
+    says, naming the option as given, not the graph file's path nor the stage kind."""
+    r = gflow(*[str(frames) if a == "FRAMES" else a for a in argv], cwd=tmp_path)
+    line = one_line_error(r)
+    assert f"{said}: particles must be >= 1, got 0" in line, line
+    assert ".yaml" not in line and "stage kind" not in line, line
+    assert not (tmp_path / "b.csv").exists() and not list(tmp_path.rglob("*.mcap"))
+
+
 @pytest.mark.parametrize("opt, name", [("--out", "x.csv"), ("--record", "r.mcap"), ("--points-out", "p.csv")])
 def test_output_in_a_missing_folder_is_refused(tmp_path: Path, frames: Path, opt: str, name: str) -> None:
     """A mistyped folder is one line naming the option and the folder; no folder is created."""

@@ -130,6 +130,29 @@ def test_coasting_says_whether_the_input_was_unusable_or_blank(tmp_path: Path, c
     assert any("held no evidence" in ln and ln.endswith(": 2") for ln in lines), lines
 
 
+def test_a_dim_frame_is_not_called_blank_but_named_by_the_fixed_canny_thresholds(tmp_path: Path, capsys) -> None:
+    """A frame too dim for fixed Canny thresholds (an m2 model's 50/150) coasts like a blank one, but
+    the report says which it was: the dim frames with the thresholds and how to change them, a
+    uniform frame with the blank-frame wording. The boxes are those of the run without the report."""
+    import cv2
+    import numpy as np
+
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for i in range(10):
+        img = np.full((96, 128), 60, np.uint8)
+        contrast = {4: 6, 5: 6, 8: 0}.get(i, 140)  # 4-5: a faint box, 8: a uniform frame
+        img[30:70, 50:80] = 60 + contrast
+        cv2.imwrite(str(folder / f"{i:04d}.png"), img)
+    assert main(["track", str(folder), "--tracker", "chamfer", "--init", "50,30,30,40", "--set", "preprocess.canny_low=50",
+                 "--set", "preprocess.canny_high=150", "--out", str(tmp_path / "b.csv"), "--inline", "--no-record"]) == 0
+    out = capsys.readouterr().out
+    dim = next((ln for ln in out.splitlines() if "not blank" in ln), "")
+    assert dim.strip().startswith("2 frame(s) coasted") and "Canny thresholds 50/150" in dim and ": 4-5;" in dim, out
+    assert "--set preprocess.canny_low=LOW --set preprocess.canny_high=HIGH" in dim, dim
+    assert any("held no evidence" in ln and "a blank frame" in ln and ln.endswith(": 8") for ln in out.splitlines()), out
+
+
 def test_the_live_figures_add_up() -> None:
     """After Ctrl-C, frames captured = tracked + skipped + in flight; the rate leaves the waits out."""
     from pipeline.recording.live_record import LiveSummary

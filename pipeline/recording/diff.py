@@ -4,6 +4,10 @@ Messages are paired by (topic, sequence number, occurrence). Per topic: how many
 identical, how many differ and in which fields (with the largest difference), how many
 are only in one file, and the first frame where they diverge. For estimates, the box
 centre distance, the overlap and the pose difference are given per frame.
+Two runs of one graph record under streams that differ by their run ids (``gflow/demo-43159e/estimate``,
+``gflow/demo-a1b2c3/estimate``); when that is all that tells the recordings' topics apart, topics are
+paired by their name without the run id (``gflow/demo/estimate``), and :attr:`TopicDiff.topic_a` /
+:attr:`TopicDiff.topic_b` say which topics were compared.
 Heartbeats and control messages (``_status``, ``_control``) carry wall-clock times and
 are left out unless named with ``topics``.
 """
@@ -19,6 +23,7 @@ from gflow_core.metrics import centre_error, iou
 from stages.messages import Estimate, MessageError, PoseEstimate, decode
 
 from pipeline.recording.compare import field_diffs
+from pipeline.recording.topics import streams_paired_across_run_ids, without_run_id
 from pipeline.io.mcap_io import iter_records
 
 __all__ = ["TopicDiff", "EstimateDiff", "diff_recordings"]
@@ -43,6 +48,8 @@ class TopicDiff:
     first_divergence: int | None = None
     fields: dict[str, float] = field(default_factory=dict)  # field path (no index) -> max |difference|
     estimates: list[EstimateDiff] = field(default_factory=list)
+    topic_a: str = ""  # the topic of A compared ("" when A has none), differs from ``topic`` across run ids
+    topic_b: str = ""
 
     @property
     def identical(self) -> bool:
@@ -82,10 +89,14 @@ def _estimate_diff(seq: int, a: bytes, b: bytes) -> EstimateDiff | None:
 def diff_recordings(a: str | Path, b: str | Path, topics: list[str] | None = None) -> dict[str, TopicDiff]:
     """Per-topic differences between recordings ``a`` and ``b``."""
     ia, ib = _index(a, topics), _index(b, topics)
+    names_a, names_b = {t: t for t in ia}, {t: t for t in ib}
+    if streams_paired_across_run_ids(ia, ib) is not None:  # two runs of one graph: pair by name without run id
+        names_a, names_b = {without_run_id(t): t for t in ia}, {without_run_id(t): t for t in ib}
     out: dict[str, TopicDiff] = {}
-    for topic in sorted(set(ia) | set(ib)):
-        da, db = ia.get(topic, {}), ib.get(topic, {})
-        td = out[topic] = TopicDiff(topic)
+    for topic in sorted(set(names_a) | set(names_b)):
+        ta_, tb_ = names_a.get(topic, ""), names_b.get(topic, "")
+        da, db = ia.get(ta_, {}), ib.get(tb_, {})
+        td = out[topic] = TopicDiff(topic, topic_a=ta_, topic_b=tb_)
         for key in sorted(set(da) | set(db)):
             seq = key[0]
             if key not in db:

@@ -15,6 +15,7 @@ from stages.messages import ErrorReport, Estimate, Frame, MessageError, PoseEsti
 from pipeline.io.csv_rows import csv_rows
 from pipeline.io.mcap_io import iter_records
 from pipeline.io.run_sessions import RunSessions
+from pipeline.recording.edgeless import EdgelessFrames, edgeless_frames
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
            "write_visibility", "estimates", "run_estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
@@ -231,13 +232,16 @@ def reported_frames(recording: str | None, stream: str | None = None) -> set[int
     return out
 
 
-def completeness(est: dict, expected: range | None, reported: set[int] | None = None) -> list[str]:
+def completeness(est: dict, expected: range | None, reported: set[int] | None = None,
+                 edgeless: EdgelessFrames | None = None) -> list[str]:
     """Lines saying which frames have no estimate and which coasted (empty: every frame tracked).
 
     expected : the frames the source was to send (None: from the first to the last estimate).
     reported : the frames a stage reported a problem with (:func:`reported_frames`): a coasted frame
         among them had no usable input; one not among them was read, but held no evidence for the
         tracker (the contour trackers' blank frame: fewer edge pixels than ``min_edges``, M2 sec. 5.1.2).
+    edgeless : of those, the frames that are not blank but have no edges at the fixed Canny
+        thresholds (:func:`pipeline.recording.edgeless.edgeless_frames`), said apart with the thresholds.
     """
     if expected is None:
         expected = range(min(est), max(est) + 1) if est else range(0)
@@ -245,7 +249,8 @@ def completeness(est: dict, expected: range | None, reported: set[int] | None = 
     coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast"]
     reported = reported or set()
     bad = [f for f in coasted if f in reported]
-    blank = [f for f in coasted if f not in reported]
+    blank = [f for f in coasted if f not in reported and (edgeless is None or f not in edgeless.frames)]
+    dim = [f for f in coasted if f not in reported and edgeless is not None and f in edgeless.frames]
     lines = []
     if missing:
         lines.append(f"{len(missing)} frame(s) have no estimate: {frame_ranges(missing)}")
@@ -256,6 +261,12 @@ def completeness(est: dict, expected: range | None, reported: set[int] | None = 
         lines.append(f"{len(blank)} frame(s) coasted on the dynamics: the frame was read but held no evidence "
                      f"(fewer edge pixels than the tracker's min_edges: a blank frame, M2 sec. 5.1.2): "
                      f"{frame_ranges(blank)}")
+    if dim and edgeless is not None:
+        lines.append(f"{len(dim)} frame(s) coasted on the dynamics: the frame was read and is not blank, but has "
+                     f"no edges at {edgeless.whose} Canny thresholds {edgeless.low:g}/{edgeless.high:g} (fewer edge "
+                     f"pixels than the tracker's min_edges {edgeless.min_edges}: too dim or low in contrast for "
+                     f"them): {frame_ranges(dim)}; set others with --set preprocess.canny_low=LOW --set "
+                     f"preprocess.canny_high=HIGH (null for both: chosen from each frame's gradients)")
     return lines
 
 
@@ -295,7 +306,9 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunO
     sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
             if est and topic and recording else set())
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
-    lines = completeness(est, expected, reported_frames(recording, plan.stream)) + sessions.lines()
+    reported = reported_frames(recording, plan.stream)
+    read = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
+    lines = completeness(est, expected, reported, edgeless_frames(plan, read)) + sessions.lines()
     if heard:
         lines.append(f"{len(heard)} frame(s) missing from the recording were kept from the live stream: "
                      f"{frame_ranges(heard)}")

@@ -20,7 +20,8 @@ import fnmatch
 import re
 from typing import Iterable
 
-__all__ = ["TopicError", "topic_matches", "select_topics", "split_topic", "describe_topics", "stream_prefix"]
+__all__ = ["TopicError", "topic_matches", "select_topics", "split_topic", "describe_topics", "stream_prefix",
+           "without_run_id", "streams_paired_across_run_ids"]
 
 #: a run id appended to a graph's stream (pipeline/runtime/runid.py: six hex digits)
 _RUN_ID = re.compile(r"-[0-9a-f]{6}$")
@@ -36,6 +37,30 @@ def split_topic(topic: str) -> tuple[str, str] | None:
     if len(parts) == 3 and parts[0] == "gflow" and parts[1] and parts[2]:
         return parts[1], parts[2]
     return None
+
+
+def without_run_id(topic: str) -> str:
+    """``gflow/demo-3f9c2a/estimate`` -> ``gflow/demo/estimate``; a topic with no run id as it is."""
+    parts = split_topic(topic)
+    if parts is None:
+        return topic
+    return f"gflow/{_RUN_ID.sub('', parts[0])}/{parts[1]}"
+
+
+def streams_paired_across_run_ids(a: Iterable[str], b: Iterable[str]) -> tuple[str, str] | None:
+    """The streams (A's, B's) of two sets of topics that differ only by run id, else None.
+
+    Two runs of one graph record ``gflow/demo-43159e/...`` and ``gflow/demo-a1b2c3/...``: each set is
+    of one stream, the streams differ, and they are the same stream once the run id is removed
+    (``demo``). Topics of one set missing from the other do not prevent the pairing.
+    """
+    pa, pb = stream_prefix(a), stream_prefix(b)
+    if not pa or not pb or pa == pb:
+        return None
+    sa, sb = pa[len("gflow/"):-1], pb[len("gflow/"):-1]
+    if _RUN_ID.sub("", sa) != _RUN_ID.sub("", sb):
+        return None
+    return sa, sb
 
 
 def _stream_matches(pattern: str, stream: str) -> bool:

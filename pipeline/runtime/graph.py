@@ -261,17 +261,26 @@ def _params_struct(kind: str) -> type[Params]:
     return STAGES[kind].Params
 
 
-def validate_params(kind: str, params: dict[str, Any], where: str) -> dict[str, Any]:
-    """Convert params to the stage's struct (unknown keys and wrong types are errors); return plain data."""
+def params_error(kind: str, params: dict[str, Any]) -> str | None:
+    """Why the stage kind ``kind`` refuses ``params`` (an unknown name, a wrong type, a value out of
+    range), in one line; None when it takes them."""
     typ = _params_struct(kind)
     try:
-        obj = msgspec.convert(dict(params), typ, strict=False)
+        msgspec.convert(dict(params), typ, strict=False)
     except (msgspec.ValidationError, ValueError, TypeError) as e:
         # the names a stage takes help with a mistyped name, not with a value out of range
         known = (f" (known parameters: {', '.join(f.name for f in msgspec.structs.fields(typ))})"
                  if "unknown field" in str(e) else "")
-        raise GraphError(f"{where}: bad parameter for stage kind {kind!r}: {e}{known}") from None
-    return msgspec.to_builtins(obj)
+        return f"{e}{known}"
+    return None
+
+
+def validate_params(kind: str, params: dict[str, Any], where: str) -> dict[str, Any]:
+    """Convert params to the stage's struct (unknown keys and wrong types are errors); return plain data."""
+    why = params_error(kind, params)
+    if why is not None:
+        raise GraphError(f"{where}: bad parameter for stage kind {kind!r}: {why}")
+    return msgspec.to_builtins(msgspec.convert(dict(params), _params_struct(kind), strict=False))
 
 
 def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overrides: dict[str, dict] | None = None) -> Plan:

@@ -7,7 +7,9 @@ Folder: ``$GFLOW_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/gflow``, else
 
     {"kind": "pipeline", "name": "demo", "stream": "demo", "pid": 1234,
      "endpoints": ["tcp/127.0.0.1:7447"], "stages": ["source", ...], "started": 1763870000.1,
-     "recording": "recordings/demo-....mcap", "camera": "demo"}
+     "recording": "recordings/demo-....mcap", "camera": "demo", "no_record": false}
+
+``recording`` is None where this launcher does not record (``no_record`` true for a ``--no-record`` run).
 
 ``stream`` is the run's own stream (``demo-3f9c2a``: see ``pipeline.runtime.runid``), ``camera``
 the graph's; the tools accept a topic named by the graph's stream when one run of it is running.
@@ -71,14 +73,16 @@ class Announcement:
 
 
 def announce(stream: str, endpoints: list[str] | tuple[str, ...], *, name: str = "", stages: list[str] | None = None,
-             kind: str = "pipeline", recording: str | None = None, camera: str = "") -> Announcement:
-    """Write this process's file (atomically) and return the handle that removes it."""
+             kind: str = "pipeline", recording: str | None = None, camera: str = "",
+             no_record: bool = False) -> Announcement:
+    """Write this process's file (atomically) and return the handle that removes it. ``no_record``:
+    a ``--no-record`` run (its results read from a temporary file, not announced as a recording)."""
     d = runtime_dir()
     d.mkdir(parents=True, exist_ok=True, mode=0o700)
     pid = os.getpid()
     info = {"kind": kind, "name": name or stream, "stream": stream, "pid": pid,
             "endpoints": [e.replace("0.0.0.0", "127.0.0.1") for e in endpoints], "stages": list(stages or []),
-            "started": time.time(), "recording": recording, "camera": camera or stream}
+            "started": time.time(), "recording": recording, "camera": camera or stream, "no_record": no_record}
     path = d / f"{stream}-{pid}.json"
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(info))

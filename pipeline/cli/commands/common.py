@@ -9,6 +9,7 @@ import sys
 import time
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -82,6 +83,38 @@ def check_outputs(**paths: str | None) -> None:
     for opt, path in paths.items():
         if path:
             check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
+
+
+def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], others: dict[str, dict] | None = None) -> None:
+    """Refuse stage parameters given on the command line that the graph's stage would refuse, in the
+    words of the options that gave them: ``given`` = {how it was given (``--particles 0``,
+    ``--set filter.particles=0``): (stage, parameter, value)}, checked together per stage, on top of
+    the graph's values and ``others`` ({stage: {parameter: value}} set otherwise). A stage the graph
+    does not have is left to the graph's own error. The same line as ``gflow track --particles 0``,
+    with no graph path."""
+    from pipeline.runtime.graph import GraphError, load_graph, params_error
+
+    if not given:
+        return
+    try:
+        stages = load_graph(graph).stages
+    except GraphError:  # the graph's own fault: said by the load that follows, with the overrides
+        return
+    for stage in dict.fromkeys(st for st, _, _ in given.values()):
+        if stage not in stages:
+            continue
+        mine = {how: (param, value) for how, (st, param, value) in given.items() if st == stage}
+        base = {**stages[stage].params, **(others or {}).get(stage, {})}
+        why = params_error(stages[stage].kind, {**base, **{param: value for param, value in mine.values()}})
+        if why is not None:  # named by the values refused alone, else by all of them
+            alone = [how for how, (param, value) in mine.items() if params_error(stages[stage].kind, {**base, param: value})]
+            raise CliError(f"{' '.join(alone or mine)}: {why}")
+
+
+def sets_as_given(items: list[str] | None) -> dict[str, tuple[str, str, Any]]:
+    """Each ``--set stage.param=value`` as :func:`check_stage_values` takes it: {``--set ITEM``: (stage, param, value)}."""
+    return {f"--set {it}": (stage, param, value) for it in items or ()
+            for stage, kv in parse_sets([it]).items() for param, value in kv.items()}
 
 
 def parse_sets(items: list[str]) -> dict[str, dict]:
@@ -337,8 +370,9 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
                   file=sys.stderr)
         rec = plan.recorder()
         with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
-                      camera=plan.seed_stream,
-                      recording=launcher.recording if rec and rec.name in launcher.local else None):
+                      camera=plan.seed_stream, no_record=temporary_recording(recording),
+                      recording=(launcher.recording if rec and rec.name in launcher.local
+                                 and not temporary_recording(recording) else None)):
             try:
                 res = launcher.run()
             except SessionError as e:  # 7447, free a moment ago, taken by a run started at the same time

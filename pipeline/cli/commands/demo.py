@@ -9,7 +9,7 @@ import sys
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.cli.commands.common import (Recording, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          run_plan)
+                                          check_stage_values, run_plan)
 
 
 def cmd_demo(args) -> int:
@@ -22,6 +22,7 @@ def cmd_demo(args) -> int:
     check_outputs(record=args.record)
     overrides = {"source": {"frames": args.frames}, "filter": {"particles": args.particles, "seed": args.seed},
                  "proposal": {"seed": args.seed}}
+    check_stage_values("demo", {f"--particles {args.particles}": ("filter", "particles", args.particles)}, overrides)
     plan = apply_defaults(load_graph("demo", overrides=overrides))
     recording = Recording(plan, args, None, needed=("estimate",))  # named with the run id when it starts
     print(f"gflow demo: synthetic scene, {args.frames} frames, {args.particles} particles, "

@@ -12,7 +12,7 @@ ORDER = 54
 def cmd_diff(args) -> int:
     from pipeline.io.mcap_io import recorded_topics
     from pipeline.recording.diff import diff_recordings
-    from pipeline.recording.topics import TopicError, select_topics
+    from pipeline.recording.topics import TopicError, select_topics, stream_prefix
     from pipeline.cli.commands.common import CliError
 
     topics = None
@@ -23,14 +23,18 @@ def cmd_diff(args) -> int:
         except TopicError as bad:
             raise CliError(str(bad)) from None
     res = diff_recordings(args.a, args.b, topics)
+    across = next(((d.topic_a, d.topic_b) for d in res.values() if d.topic_a and d.topic_b and d.topic_a != d.topic_b), None)
     if args.json:
-        print(json.dumps({t: {"types": sorted(d.types), "same": d.same, "differ": d.differ, "only_a": d.only_a,
-                              "only_b": d.only_b, "first_divergence": d.first_divergence,
+        print(json.dumps({t: {"topic_a": d.topic_a, "topic_b": d.topic_b, "types": sorted(d.types), "same": d.same,
+                              "differ": d.differ, "only_a": d.only_a, "only_b": d.only_b, "first_divergence": d.first_divergence,
                               "fields": {k: (None if np.isnan(v) else v) for k, v in d.fields.items()},
                               "estimates": [e.__dict__ for e in d.estimates if e.centre_px or e.pose]}
                           for t, d in res.items()}, indent=1))
         return 0 if all(d.identical for d in res.values()) else 1
     print(f"A = {args.a}\nB = {args.b}")
+    if across is not None:
+        print(f"paired across run ids: A's {stream_prefix([across[0]])} with B's {stream_prefix([across[1]])} "
+              "(the same graph's topics, compared by their name without the run id)")
     print(f"{'topic':40s} {'type':22s} {'same':>6s} {'differ':>6s} {'only A':>6s} {'only B':>6s}  first divergence")
     for t, d in res.items():
         fd = "-" if d.first_divergence is None else f"frame {d.first_divergence}"
@@ -57,8 +61,9 @@ def cmd_diff(args) -> int:
 
 def register(sub) -> None:
     p = sub.add_parser("diff", help="compare two recordings topic by topic",
-                       description="Pairs messages by topic and frame; prints, per topic, how many differ, in which "
-                                   "fields and by how much, and where they first diverge; for estimates the box and "
+                       description="Pairs messages by topic and frame (two runs of one graph, whose topics differ "
+                                   "only by their run ids, are paired by the topic name without the run id); prints, "
+                                   "per topic, how many differ, in which fields and by how much, and where they first diverge; for estimates the box and "
                                    "pose difference per frame. Exit status 1 if they differ.")
     p.add_argument("a", help="first recording")
     p.add_argument("b", help="second recording")

@@ -192,7 +192,8 @@ def cmd_ps(args) -> int:
         up = time.time() - float(info.get("started", time.time()))
         print(f"{info.get('kind', 'pipeline')} {info.get('name')}  stream {info['stream']}  pid {info['pid']}  "
               f"up {up:.0f} s  at {', '.join(info['endpoints'])}" + (f"  user {_user(info['uid'])}" if args.all else "")
-              + (f"  recording {info['recording']}" if info.get("recording") else ""))
+              + ("  not recording (--no-record)" if info.get("no_record")
+                 else f"  recording {info['recording']}" if info.get("recording") else ""))
         for name in info.get("stages") or sorted(states):
             st = states.get(name)
             if st is None:

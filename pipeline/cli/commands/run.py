@@ -11,11 +11,13 @@ from pipeline.runtime.graph import builtin_graphs, load_graph
 from pipeline.runtime.live_plan import listen_early, prepare_live
 from pipeline.runtime.placement import local_stages
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
-                                          check_outputs, parse_sets, run_plan)
+                                          check_outputs, check_stage_values, parse_sets, run_plan,
+                                          sets_as_given)
 
 
 def cmd_run(args) -> int:
     check_outputs(record=args.record)
+    check_stage_values(args.graph, sets_as_given(args.set))
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     held = plan.recorder()
     local = local_stages(plan, args.hosts)  # an unknown --host label is the first thing to say

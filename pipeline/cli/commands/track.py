@@ -30,7 +30,8 @@ from pipeline.recording.live_record import LiveSummary, live_summary
 from pipeline.runtime.trace import mark
 from pipeline.runtime.zygote import preload
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
-                                          check_outputs, parse_box, parse_sets, run_plan)
+                                          check_outputs, check_stage_values, parse_box, parse_sets, run_plan,
+                                          sets_as_given)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -176,6 +177,7 @@ def track_plan(args) -> tuple[Plan, int | None]:
     graph, overrides = tracker.overrides(args)
     source = source_of(args)
     overrides.setdefault("source", {}).update(source_params(source, args))
+    check_stage_values(args.graph or graph, sets_as_given(args.set), overrides)
     for stage, kv in parse_sets(args.set).items():
         overrides.setdefault(stage, {}).update(kv)
     make_plan = getattr(tracker, "make_plan", None)
