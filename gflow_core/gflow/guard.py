@@ -37,24 +37,40 @@ around G-flow's estimate box:
   are, unless the first look, settled there, fits the frame better than at their estimate (G-flow's
   check below): after a loss the experts may come back near the face with the wrong pose, or with
   the texels of what they followed meanwhile.
-* **G-flow's likelihood as a check, where the edges are alone.** Where the colour cue is not
-  weighed (a grey video, or colour that does not tell the target from clutter:
-  :func:`gflow_core.m2.lost.colour_weighed`), the edges alone decided too often: a face rolling
-  in the image plane fails the axis-bound verification while the experts follow it (jumping),
-  and on david_indoor, where the face walks into bright light, a candidate elsewhere was taken
-  for it. There G-flow's own model must agree (:func:`first_look_fit`: the normalised correlation
-  of the first frame's texels with the frame at the pose's vertices): a candidate re-seats the
-  experts only if the first look fits the frame better there than at the experts' pose, and about
-  as well as it did on found frames (a misfit within two standard deviations of their mean, either
-  side: a candidate far better than the target has lately fitted is a look-alike of the first
-  look); and
-  where it fits better at the experts' pose than at the held box, the experts' box is reported
-  rather than the held one. The correlation, not the fraction of vertices the texels explain
-  (eq. 13 against the outlier process): a plain wall explains most texels of a contrast-normalised
-  face within three standard deviations (about 0.9 of them, as much as the face in bright light),
-  and has no correlation with it. Where colour is weighed, edges and colour decide: on caviar1 the
-  man who walks past the target explains the grey-level first look as well as she does, and the
-  check kept the experts on him.
+* **A likelihood ratio for a candidate away from the experts.** It re-seats them only where the
+  estimate is judged not the target as it looks (P(visible) < 1/2) and the candidate judged it
+  (P(visible) >= 1/2; its edge distance the best of as many clutter draws as its search window
+  holds clutter rings), each on every cue there (:func:`_away_wins`): the edges, and colour where
+  it is weighed; where it is not (grey video, or a colour that does not tell the target from
+  clutter: :func:`gflow_core.m2.lost.colour_weighed`), G-flow's own model, the misfit ``1 - fit``
+  of the first look (:func:`first_look_fit`: the normalised correlation of the first frame's
+  texels with the frame at the pose's vertices) with two chi-squared distributions of its own,
+  learnt on found frames: at the estimate (the target) and the best of the ring around it
+  (clutter, :func:`first_look_clutter`). Before, the first look had to fit the candidate better
+  than the estimate and within two standard deviations of the found frames' mean, either side: on
+  dollar, where an identical stack of bills lies beside the one tracked (which is opened), the
+  second stack, settled, fell within the band after a loss and took the experts (29.33 px); the
+  ratio keeps them, as the estimate still fits the first look as the target has lately (its
+  P(visible) 1.0 at frame 149: the estimate is not judged lost; 5.19 px). On twinnings a settled
+  patch of wall still takes the experts from the turned box at frame 310, as before, but the ratio
+  brings them back to the box at frame 350, where the band did not (31.33 -> 18.23 px). The
+  correlation, not the fraction of vertices the texels explain (eq. 13 against the
+  outlier process): a plain wall explains most texels of a contrast-normalised face within three
+  standard deviations (about 0.9 of them, as much as the face in bright light), and has no
+  correlation with it. A motion prior on the candidate's place (a random walk from the held box,
+  its spread G-flow's translation prior or learnt from the speed of found frames) was measured and
+  not kept: tiger1 5.48 -> 6.84 px with either (a target that moves fast while lost), twinnings
+  18.23 -> 28.12 and 36.42 px.
+* **G-flow's likelihood for a candidate within the experts' box, and for the box reported.** A
+  candidate within the experts' box re-seats them only if the first look, settled there, fits the
+  frame better than at the experts' pose and about as well as it did on found frames (a misfit
+  within two standard deviations of their mean, either side: :func:`_confirms`): after a loss the
+  experts may be back near the face with the wrong pose. While lost, where the first look fits the
+  estimate better than the held place, the experts' box is reported rather than the held one (a
+  face turning in the image plane fails the axis-bound verification while the experts follow it,
+  jumping). Neither applies the colour rule: on caviar1 the man who walks past the target explains
+  the grey-level first look as well as she does, and where colour is weighed, edges and colour
+  decide what is reported.
 
 The guard reads the grey frame and, for colour frames, the colour bins (:mod:`gflow_core.colour`);
 G-flow's likelihood still reads the grey levels alone. No I/O here.
