@@ -34,8 +34,7 @@ def _wins(est_misfit: float, cand_misfit: float, level: ChiSquare = LEVEL) -> bo
     # the edges alone: the estimate looks like clutter (0.62), the candidate like the target (0.30)
     seen = Observation(r=1.0 - 0.62, clutter=(0.4, RING))
     cand = Candidate(r=1.0 - 0.30, centre=np.array([100.0, 80.0]), log_f=0.0, area=RING)
-    return guard._away_wins(seen, cand, EDGES, EDGES, None, None, (40.0, 50.0), RING, P, False,
-                            (est_misfit, cand_misfit), level, LOOK_CLUTTER)
+    return guard._away_wins(seen, cand, EDGES, EDGES, RING, P, (est_misfit, cand_misfit), level, LOOK_CLUTTER)
 
 
 def test_a_look_alike_of_the_first_look_does_not_take_the_experts_from_the_target_as_it_looks_now() -> None:

@@ -327,9 +327,11 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
             st = lostmod.found_again(st, cand.r, held_now, p)
             return GuardStep(st, box, None, float(cvis.visible), "tracked", "track", level, None, look_clutter)
         new_pose = reseat_pose(h_pose, h_box, new_box) if place is None else place(new_box)
-        if _away_wins(seen, cand, st, lost, anchor, bins, (w, h), ring, p, weighed,
-                      None if fit is None or f_est is None else (1.0 - f_est, 1.0 - fit(new_pose)),
-                      level, look_clutter):
+        # where colour is weighed, edges and colour judged the candidate present (two independent cues);
+        # where the edges are alone, the likelihood ratio of both places decides
+        if weighed or _away_wins(seen, cand, st, lost, ring, p,
+                                 None if fit is None or f_est is None else (1.0 - f_est, 1.0 - fit(new_pose)),
+                                 level, look_clutter):
             st = lostmod.found_again(st, cand.r, (*new_box, *(float(v) for v in new_pose)), p)
             return GuardStep(st, new_box, new_pose, float(cvis.visible), "tracked", "redetect", level, None,
                              look_clutter)
@@ -340,30 +342,24 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     return GuardStep(st, h_box, None, float(vis.visible), state, "lost", level, h_pose, look_clutter)
 
 
-def _away_wins(seen: lostmod.Observation, cand: redetect.Candidate, st: LostState, lost: LostState, anchor: Anchor,
-               bins: np.ndarray | None, size: tuple[float, float], ring: float | None, p: LostParams,
-               weighed: bool, misfits: tuple[float, float] | None, level: ChiSquare, look_clutter: ChiSquare
-               ) -> bool:
-    """Whether a candidate away from the estimate's box is the target and the estimate is not: P(visible)
-    of the estimate below 1/2 and of the candidate at least 1/2 (:func:`gflow_core.visibility.visibility`),
-    on the edges' distances (the estimate's ``seen.r``, the candidate's ``cand.r``, the best of ``trials``
-    draws: its search window's area over the clutter ring's) with, as a second cue, colour where it is
-    weighed, else the first look's ``misfits`` (estimate, candidate) where its distributions ``level`` and
-    ``look_clutter`` tell the target from clutter (:func:`_discriminates`).
+def _away_wins(seen: lostmod.Observation, cand: redetect.Candidate, st: LostState, lost: LostState,
+               ring: float | None, p: LostParams, misfits: tuple[float, float] | None, level: ChiSquare,
+               look_clutter: ChiSquare) -> bool:
+    """Whether a candidate away from the estimate's box is the target and the estimate is not, where the
+    colour cue is not weighed: P(visible) of the estimate below 1/2 and of the candidate at least 1/2
+    (:func:`gflow_core.visibility.visibility`), on the edges' distances (the estimate's ``seen.r``
+    against ``lost``'s distributions; the candidate's ``cand.r`` against ``st``'s, the best of
+    ``trials`` draws: its search window's area over the clutter ring's) with, as a second cue, the first
+    look's ``misfits`` (estimate, candidate) where its distributions ``level`` and ``look_clutter`` tell
+    the target from clutter (:func:`_discriminates`).
 
     The first look's clutter distribution is what decides on dollar: a second, identical stack of bills
-    lies beside the one tracked, which is opened; the first look fits the second stack (misfit 0.2)
-    far better than the opened one (0.5, about the mean of the found frames'), but fitting the target as
-    it has lately looked, the estimate is judged visible and the experts stay."""
+    lies beside the one tracked, which is opened; the first look fits the second stack far better than
+    the opened one, but as the opened one fits it as the target has lately looked, the estimate is
+    judged visible and the experts stay."""
     cues_e: tuple[Cue, ...] = ()
     cues_c: tuple[Cue, ...] = ()
-    if weighed:
-        assert seen.colour is not None
-        cues_e = (Cue(seen.colour.rho, lost.ctarget, lost.cclutter),)
-        seen_c = lostmod.colour_at(bins, anchor, cand.centre, size, clutter=False)
-        if seen_c is not None:
-            cues_c = (Cue(seen_c.rho, st.ctarget, st.cclutter),)
-    elif misfits is not None and _discriminates(level, look_clutter, p):
+    if misfits is not None and _discriminates(level, look_clutter, p):
         cues_e = (Cue(misfits[0], level, look_clutter),)
         cues_c = (Cue(misfits[1], level, look_clutter),)
     vis_e = visibility(1.0 - seen.r, lost.target, lost.clutter, p.min_std, cues=cues_e)
