@@ -37,30 +37,33 @@ around G-flow's estimate box:
   are, unless the first look, settled there, fits the frame better than at their estimate (G-flow's
   check below): after a loss the experts may come back near the face with the wrong pose, or with
   the texels of what they followed meanwhile.
-* **A likelihood ratio for a candidate away from the experts.** It re-seats them only where the
-  estimate is judged not the target as it looks (P(visible) < 1/2) and the candidate judged it
-  (P(visible) >= 1/2; its edge distance the best of as many clutter draws as its search window
-  holds clutter rings), each on every cue there (:func:`_away_wins`): the edges, and colour where
-  it is weighed; where it is not (grey video, or a colour that does not tell the target from
-  clutter: :func:`gflow_core.m2.lost.colour_weighed`), G-flow's own model, the misfit ``1 - fit``
-  of the first look (:func:`first_look_fit`: the normalised correlation of the first frame's
-  texels with the frame at the pose's vertices) with two chi-squared distributions of its own,
-  learnt on found frames: at the estimate (the target) and the best of the ring around it
-  (clutter, :func:`first_look_clutter`). Before, the first look had to fit the candidate better
-  than the estimate and within two standard deviations of the found frames' mean, either side: on
-  dollar, where an identical stack of bills lies beside the one tracked (which is opened), the
-  second stack, settled, fell within the band after a loss and took the experts (29.33 px); the
-  ratio keeps them, as the estimate still fits the first look as the target has lately (its
-  P(visible) 1.0 at frame 149: the estimate is not judged lost; 5.19 px). On twinnings a settled
-  patch of wall still takes the experts from the turned box at frame 310, as before, but the ratio
-  brings them back to the box at frame 350, where the band did not (31.33 -> 18.23 px). The
-  correlation, not the fraction of vertices the texels explain (eq. 13 against the
-  outlier process): a plain wall explains most texels of a contrast-normalised face within three
+* **A likelihood ratio for a candidate away from the experts, where the edges are alone.** Where
+  the colour cue is weighed, edges and colour, two independent cues, judge a candidate and one
+  judged present re-seats the experts. Where it is not (grey video, or a colour that does not tell
+  the target from clutter: :func:`gflow_core.m2.lost.colour_weighed`), a candidate re-seats them
+  only where the estimate is judged not the target as it looks (P(visible) < 1/2) and the
+  candidate judged it (P(visible) >= 1/2; its edge distance the best of as many clutter draws as
+  its search window holds clutter rings), each on the edges and G-flow's own model
+  (:func:`_away_wins`): the misfit ``1 - fit`` of the first look (:func:`first_look_fit`: the
+  normalised correlation of the first frame's texels with the frame at the pose's vertices) with
+  two chi-squared distributions of its own, learnt on found frames: at the estimate (the target)
+  and the best of the ring around it (clutter, :func:`first_look_clutter`). Before, the first look
+  had to fit the candidate better than the estimate and within two standard deviations of the
+  found frames' mean, either side: on dollar, where an identical stack of bills lies beside the
+  one tracked (which is opened), the second stack, settled, fell within the band after a loss and
+  took the experts (29.33 px); the ratio keeps them, as the estimate still fits the first look as
+  the target has lately (its P(visible) 1.0 at frame 149: the estimate is not judged lost; 5.19
+  px). On twinnings a settled patch of wall still takes the experts from the turned box at frame
+  310, as before, but the ratio brings them back to the box at frame 350, where the band did not
+  (31.33 -> 18.23 px). With colour's ratio too where colour is weighed, david_indoor's stress cases
+  `sweep-40` and `slide-60` lost the face's points (landmark NME after the window 0.126 -> 0.266,
+  0.068 -> 0.792). The correlation, not the fraction of vertices the texels explain (eq. 13
+  against the outlier process): a plain wall explains most texels of a contrast-normalised face within three
   standard deviations (about 0.9 of them, as much as the face in bright light), and has no
   correlation with it. A motion prior on the candidate's place (a random walk from the held box,
-  its spread G-flow's translation prior or learnt from the speed of found frames) was measured and
-  not kept: tiger1 5.48 -> 6.84 px with either (a target that moves fast while lost), twinnings
-  18.23 -> 28.12 and 36.42 px.
+  its spread G-flow's translation prior or learnt from the speed of found frames) was measured, with
+  colour's ratio too, and not kept: tiger1 5.48 -> 6.84 px with either (a target that moves fast
+  while lost), twinnings 18.23 -> 28.12 and 36.42 px.
 * **G-flow's likelihood for a candidate within the experts' box, and for the box reported.** A
   candidate within the experts' box re-seats them only if the first look, settled there, fits the
   frame better than at the experts' pose and about as well as it did on found frames (a misfit
@@ -282,14 +285,11 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     With ``fit`` (:func:`first_look_fit`) and ``ring_fit`` (:func:`first_look_clutter`), found frames
     on which the colour cue is not weighed teach two distributions of the first look's misfit
     ``1 - fit``: at the estimate (``level``) and the best beside it (``look_clutter``), at the guard's
-    rates. A candidate away from the estimate's box re-seats the experts (at ``place(box)`` of its box,
-    :func:`settle`; else the held pose moved and scaled into it, :func:`reseat_pose`) only on a
-    likelihood ratio of both places (:func:`gflow_core.visibility.visibility`, the target against
-    clutter): the estimate judged not the target as it looks (P(visible) < 1/2) and the candidate
-    judged it (P(visible) >= 1/2, its edge distance the best of as many clutter draws as its search
-    window holds rings), each on every cue there: the edges, and colour where it is weighed, else the
-    first look where its two distributions tell the target from clutter. A candidate within the
-    estimate's box re-seats them only where ``fit`` confirms it (:func:`_confirms`).
+    rates. A candidate away from the estimate's box that the search judges present re-seats the experts
+    (at ``place(box)`` of its box, :func:`settle`; else the held pose moved and scaled into it,
+    :func:`reseat_pose`): where colour is weighed at once, else only on a likelihood ratio of both
+    places, the target against clutter (:func:`_away_wins`). A candidate within the estimate's box
+    re-seats them only where ``fit`` confirms it (:func:`_confirms`).
     """
     seen = lostmod.observe(channels, anchor, box, p, bins)
     held_now = (*box, *(float(v) for v in pose))
