@@ -137,6 +137,7 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     lost_runs: tuple[int, int] = (0, 0)  # ... found frames, consecutive lost frames
     held: tuple[float, ...] | None = None  # ... box (x, y, w, h) and pose (P) of the last found frame
     fit_level: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the first look's misfit when found
+    look_clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of its best misfit beside the target then
 
 
 def estimate_msg(header: Header, est: Estimate) -> PoseEstimate:
@@ -321,7 +322,8 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                             setup.image_shape, self.digest, first=False, tex_anchor=s.tex_anchor)
         guard: dict[str, Any] = {}
         if self.state is not None and self.state.anchor is not None:
-            guard = dict(pack_guard(self.state.anchor, self.state.lost), fit_level=moments(self.state.fit_level))
+            guard = dict(pack_guard(self.state.anchor, self.state.lost), fit_level=moments(self.state.fit_level),
+                         look_clutter=moments(self.state.look_clutter))
         snap = _Snapshot(version=SNAPSHOT_VERSION,
                          image_shape=None if self.state is None else self.state.setup.image_shape,
                          digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
@@ -331,7 +333,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         return msgspec.msgpack.encode(snap)
 
     @staticmethod
-    def _guard_of(snap: _Snapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare]:
+    def _guard_of(snap: _Snapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare, ChiSquare]:
         """The lost guard's anchor and state of a snapshot (none in a version-1 snapshot: the guard is off
         for the rest of the run)."""
         try:
@@ -339,10 +341,10 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         except ValueError as e:
             raise ValueError(f"bad gflow.filter snapshot: {e}") from None
         if anchor is None:
-            return None, LostState(), ChiSquare()
+            return None, LostState(), ChiSquare(), ChiSquare()
         lost = unpack_lost(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
                            snap.lost_cclutter)
-        return anchor, lost, ChiSquare(*snap.fit_level)
+        return anchor, lost, ChiSquare(*snap.fit_level), ChiSquare(*snap.look_clutter)
 
     def restore(self, data: bytes) -> None:
         try:
@@ -369,7 +371,8 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                 v.setflags(write=False)
             experts = ExpertState(bg_mean=None, bg_var=None, image_shape=setup.image_shape, tex_anchor=a["tex_anchor"],
                                   **arrs)
-            anchor, lost, level = self._guard_of(snap, setup.box)
-            self.state = GFlowState(setup, experts, snap.confidence, snap.target_state, anchor, lost, level)
+            anchor, lost, level, look_clutter = self._guard_of(snap, setup.box)
+            self.state = GFlowState(setup, experts, snap.confidence, snap.target_state, anchor, lost, level,
+                                    look_clutter)
             self.digest = digest
         self.steps, self.coasted, self.init_error = snap.steps, snap.coasted, snap.init_error

@@ -148,7 +148,7 @@ def test_the_lost_guard_reads_colour_bins_survives_a_restart_and_reports_bad_bin
     cyc.restart_from_snapshots()
     again = cyc.filter.state
     assert np.array_equal(again.anchor.colour, st.anchor.colour) and again.lost == st.lost
-    assert again.fit_level == st.fit_level
+    assert again.fit_level == st.fit_level and again.look_clutter == st.look_clutter
     # a version-1 snapshot has no guard fields: restored, the guard is off for the rest of the run
     old = msgspec.msgpack.decode(snap)
     old = {k: v for k, v in old.items() if not k.startswith(("anchor", "lost_", "held", "fit_"))}

@@ -37,24 +37,43 @@ around G-flow's estimate box:
   are, unless the first look, settled there, fits the frame better than at their estimate (G-flow's
   check below): after a loss the experts may come back near the face with the wrong pose, or with
   the texels of what they followed meanwhile.
-* **G-flow's likelihood as a check, where the edges are alone.** Where the colour cue is not
-  weighed (a grey video, or colour that does not tell the target from clutter:
-  :func:`gflow_core.m2.lost.colour_weighed`), the edges alone decided too often: a face rolling
-  in the image plane fails the axis-bound verification while the experts follow it (jumping),
-  and on david_indoor, where the face walks into bright light, a candidate elsewhere was taken
-  for it. There G-flow's own model must agree (:func:`first_look_fit`: the normalised correlation
-  of the first frame's texels with the frame at the pose's vertices): a candidate re-seats the
-  experts only if the first look fits the frame better there than at the experts' pose, and about
-  as well as it did on found frames (a misfit within two standard deviations of their mean, either
-  side: a candidate far better than the target has lately fitted is a look-alike of the first
-  look); and
-  where it fits better at the experts' pose than at the held box, the experts' box is reported
-  rather than the held one. The correlation, not the fraction of vertices the texels explain
-  (eq. 13 against the outlier process): a plain wall explains most texels of a contrast-normalised
-  face within three standard deviations (about 0.9 of them, as much as the face in bright light),
-  and has no correlation with it. Where colour is weighed, edges and colour decide: on caviar1 the
-  man who walks past the target explains the grey-level first look as well as she does, and the
-  check kept the experts on him.
+* **A likelihood ratio for a candidate away from the experts, where the edges are alone.** Where
+  the colour cue is weighed, edges and colour, two independent cues, judge a candidate and one
+  judged present re-seats the experts. Where it is not (grey video, or a colour that does not tell
+  the target from clutter: :func:`gflow_core.m2.lost.colour_weighed`), a candidate re-seats them
+  only where the estimate is judged not the target as it looks (P(visible) < 1/2) and the
+  candidate judged it (P(visible) >= 1/2; its edge distance the best of as many clutter draws as
+  its search window holds clutter rings), each on the edges and G-flow's own model
+  (:func:`_away_wins`): the misfit ``1 - fit`` of the first look (:func:`first_look_fit`: the
+  normalised correlation of the first frame's texels with the frame at the pose's vertices) with
+  two chi-squared distributions of its own, learnt on found frames: at the estimate (the target)
+  and the best of the ring around it (clutter, :func:`first_look_clutter`). Before, the first look
+  had to fit the candidate better than the estimate and within two standard deviations of the
+  found frames' mean, either side: on dollar, where an identical stack of bills lies beside the
+  one tracked (which is opened), the second stack, settled, fell within the band after a loss and
+  took the experts (29.33 px); the ratio keeps them, as the estimate still fits the first look as
+  the target has lately (its P(visible) 1.0 at frame 149: the estimate is not judged lost; 5.19
+  px). On twinnings a settled patch of wall still takes the experts from the turned box at frame
+  310, as before, but the ratio brings them back to the box at frame 350, where the band did not
+  (31.33 -> 18.23 px). With colour's ratio too where colour is weighed, david_indoor's stress cases
+  `sweep-40` and `slide-60` lost the face's points (landmark NME after the window 0.126 -> 0.266,
+  0.068 -> 0.792). The correlation, not the fraction of vertices the texels explain (eq. 13
+  against the outlier process): a plain wall explains most texels of a contrast-normalised face within three
+  standard deviations (about 0.9 of them, as much as the face in bright light), and has no
+  correlation with it. A motion prior on the candidate's place (a random walk from the held box,
+  its spread G-flow's translation prior or learnt from the speed of found frames) was measured, with
+  colour's ratio too, and not kept: tiger1 5.48 -> 6.84 px with either (a target that moves fast
+  while lost), twinnings 18.23 -> 28.12 and 36.42 px.
+* **G-flow's likelihood for a candidate within the experts' box, and for the box reported.** A
+  candidate within the experts' box re-seats them only if the first look, settled there, fits the
+  frame better than at the experts' pose and about as well as it did on found frames (a misfit
+  within two standard deviations of their mean, either side: :func:`_confirms`): after a loss the
+  experts may be back near the face with the wrong pose. While lost, where the first look fits the
+  estimate better than the held place, the experts' box is reported rather than the held one (a
+  face turning in the image plane fails the axis-bound verification while the experts follow it,
+  jumping). Neither applies the colour rule: on caviar1 the man who walks past the target explains
+  the grey-level first look as well as she does, and where colour is weighed, edges and colour
+  decide what is reported.
 
 The guard reads the grey frame and, for colour frames, the colour bins (:mod:`gflow_core.colour`);
 G-flow's likelihood still reads the grey levels alone. No I/O here.
@@ -67,9 +86,10 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from .. import redetect
 from ..m2 import lost as lostmod
 from ..m2.lost import Anchor, LostParams, LostState
-from ..visibility import ChiSquare, Visibility
+from ..visibility import ChiSquare, Cue, Visibility, visibility
 from .filter import ExpertState, GFlowConfig, _ro
 from .geometry import COEF, ROT, TRANS, project
 from .head_model import MorphableModel
@@ -95,6 +115,8 @@ class GuardStep:
         search covers the whole frame).
     phase : ``track``, ``lost`` or ``redetect``.
     level : running moments of the first look's misfit ``1 - fit`` at the estimate on found frames.
+    look_clutter : running moments of the first look's best misfit beside the estimate on those frames
+        (:func:`first_look_clutter`).
     held_pose : (P,) the pose of the held box when that is the box reported (the face where it was last
         found: the estimate's points are that pose's too), else None.
     """
@@ -107,6 +129,7 @@ class GuardStep:
     phase: str
     level: ChiSquare = ChiSquare()
     held_pose: np.ndarray | None = None
+    look_clutter: ChiSquare = ChiSquare()
 
 
 def guard_params(window: float, growth: float) -> LostParams:
@@ -204,50 +227,86 @@ def first_look_fit(experts: ExpertState, frame: np.ndarray, model: MorphableMode
     flat = np.ascontiguousarray(frame, dtype=np.float64).reshape(-1)
 
     def fit(pose: np.ndarray) -> float:
-        st = bilinear_stencil(project(model.bases, np.asarray(pose, dtype=np.float64)[None]), frame.shape)
-        y, ok = st.sample(flat)[0], st.inside[0]
-        if ok.sum() < 3:
-            return 0.0
-        a, b = mu[ok] - mu[ok].mean(), y[ok] - y[ok].mean()
-        den = float(np.sqrt((a * a).sum() * (b * b).sum()))
-        # rho = sum (mu - <mu>)(y - <y>) / sqrt(sum (mu - <mu>)^2 sum (y - <y>)^2), times the inside fraction
-        return float((a * b).sum()) / den * float(ok.mean()) if den > 0 else 0.0
+        pts = project(model.bases, np.asarray(pose, dtype=np.float64)[None])
+        return float(_correlations(mu, flat, frame.shape, pts)[0])
 
     return fit
+
+
+def first_look_clutter(experts: ExpertState, frame: np.ndarray, model: MorphableModel, cfg: GFlowConfig,
+                       ring: float) -> Callable[[np.ndarray, tuple[float, float, float, float]], float]:
+    """``best(pose, box)``: the best fit of the first look (:func:`first_look_fit`) to ``frame`` (H, W)
+    at ``pose`` (P,) moved, by its translation, to centres around ``box`` (x, y, w, h): on a grid of a
+    quarter box size, within ``ring`` box sizes of its centre and farther than half a box in x or y
+    (the ring in which :func:`gflow_core.m2.lost.observe` samples the edges' clutter). A sample of what
+    the best look-alike beside the target scores with the first look (eq. 1 is linear in the
+    translation ``l``, so every point moves with it)."""
+    mu = _first_look(experts, cfg)[0][0]
+    flat = np.ascontiguousarray(frame, dtype=np.float64).reshape(-1)
+    g = np.arange(-np.floor(4 * ring), np.floor(4 * ring) + 1) / 4.0
+    gx, gy = np.meshgrid(g, g)
+    away = (np.abs(gx) > 0.5) | (np.abs(gy) > 0.5)
+    steps = np.stack([gx[away], gy[away]], axis=1)
+
+    def best(pose: np.ndarray, box: tuple[float, float, float, float]) -> float:
+        pts = project(model.bases, np.asarray(pose, dtype=np.float64)[None])[0]
+        offsets = steps * np.array([box[2], box[3]])
+        return float(_correlations(mu, flat, frame.shape, pts[None] + offsets[:, None, :]).max())
+
+    return best
+
+
+def _correlations(mu: np.ndarray, flat: np.ndarray, shape: tuple[int, ...], pts: np.ndarray) -> np.ndarray:
+    """(K,) fits of the first look ``mu`` (n,) to the frame ``flat`` (H W,) of ``shape`` at the points
+    ``pts`` (K, n, 2): the correlation over the points in the image times their fraction (0 with fewer
+    than 3 in the image or a flat patch)."""
+    st = bilinear_stencil(pts, (int(shape[0]), int(shape[1])))
+    y, ok = st.sample(flat), st.inside
+    w = ok.astype(np.float64)
+    cnt = w.sum(axis=1)
+    c = np.maximum(cnt, 1.0)
+    a = (mu[None] - (w * mu[None]).sum(axis=1, keepdims=True) / c[:, None]) * w
+    b = (y - (w * y).sum(axis=1, keepdims=True) / c[:, None]) * w
+    den = np.sqrt((a * a).sum(axis=1) * (b * b).sum(axis=1))
+    # rho = sum (mu - <mu>)(y - <y>) / sqrt(sum (mu - <mu>)^2 sum (y - <y>)^2), times the inside fraction
+    rho = np.where(den > 0, (a * b).sum(axis=1) / np.where(den > 0, den, 1.0), 0.0) * (cnt / ok.shape[1])
+    return np.where(cnt >= 3, rho, 0.0)
 
 
 def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, bins: np.ndarray | None,
          box: tuple[float, float, float, float], pose: np.ndarray, scales: tuple[float, ...],
          fit: Callable[[np.ndarray], float] | None = None, level: ChiSquare = ChiSquare(),
-         place: Callable[[tuple[float, float, float, float]], np.ndarray] | None = None) -> GuardStep:
+         place: Callable[[tuple[float, float, float, float]], np.ndarray] | None = None,
+         ring_fit: Callable[[np.ndarray, tuple[float, float, float, float]], float] | None = None,
+         look_clutter: ChiSquare = ChiSquare()) -> GuardStep:
     """Judge the estimate ``box`` (x, y, w, h) of pose ``pose`` (P,) on a frame's orientation channels
     (H, W, 4) and colour bins (H, W) or None; hold and search while lost (:mod:`gflow_core.m2.lost`).
-    With ``fit`` (:func:`first_look_fit`) a candidate away from the estimate re-seats the experts only
-    where the first look fits the frame better than at the estimate, and about as well as it did at
-    the target: its misfit ``1 - fit`` within two standard deviations of the mean of the found
-    frames' (``level``, learnt at the guard's rate). The check applies only while the colour cue
-    is not weighed (edges alone). With ``place`` the experts are re-seated at ``place(box)`` of the
-    candidate's box (:func:`settle` of the first frame's pose placed in it), else at the held pose
-    moved and scaled into it (:func:`reseat_pose`); a candidate within the estimate's box re-seats
-    them only where ``fit`` confirms it (whether colour is weighed or not)."""
+
+    With ``fit`` (:func:`first_look_fit`) and ``ring_fit`` (:func:`first_look_clutter`), found frames
+    on which the colour cue is not weighed teach two distributions of the first look's misfit
+    ``1 - fit``: at the estimate (``level``) and the best beside it (``look_clutter``), at the guard's
+    rates. A candidate away from the estimate's box that the search judges present re-seats the experts
+    (at ``place(box)`` of its box, :func:`settle`; else the held pose moved and scaled into it,
+    :func:`reseat_pose`): where colour is weighed at once, else only on a likelihood ratio of both
+    places, the target against clutter (:func:`_away_wins`). A candidate within the estimate's box
+    re-seats them only where ``fit`` confirms it (:func:`_confirms`).
+    """
     seen = lostmod.observe(channels, anchor, box, p, bins)
     held_now = (*box, *(float(v) for v in pose))
-    first_look = fit
-    if lostmod.colour_weighed(seen.colour, lost):
-        # edges and colour, two independent cues, decide; G-flow's likelihood has its say only where the
-        # edges are alone (grey video, or a colour that does not tell the target from clutter)
-        fit = None
+    weighed = lostmod.colour_weighed(seen.colour, lost)
     st, vis, is_lost = lostmod.judge(lost, seen, held_now, p)
     f_est = None if fit is None else fit(pose)
     if not is_lost:
-        if f_est is not None:
+        if f_est is not None and not weighed:
             level = level.update(1.0 - f_est, p.rate)
-        return GuardStep(st, box, None, _confidence(vis, st, p), "tracked", "track", level)
+            if ring_fit is not None:
+                look_clutter = look_clutter.update(1.0 - ring_fit(pose, box), p.clutter_rate)
+        return GuardStep(st, box, None, _confidence(vis, st, p), "tracked", "track", level, None, look_clutter)
     held = st.held
     if held is None:  # lost before any frame was found (the estimate left the frame at once)
         held = held_now
     h_box = (held[0], held[1], held[2], held[3])
-    h_pose = np.array(held[4:], dtype=np.float64)
+    h_pose = np.asarray(held[4:], dtype=np.float64)
     ring = None if seen.clutter is None else seen.clutter[1]
     cand, cvis, covers = lostmod.search(channels, anchor, h_box, st, p, scales, ring, bins)
     state = "lost" if covers else "occluded"
@@ -259,33 +318,69 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
             # found where G-flow's experts already are: they stay, unless the first look, settled in the
             # candidate's box, fits the frame better than at their estimate (their points were put off the
             # face by what they followed while it was lost)
-            if place is not None and first_look is not None:
+            if place is not None and fit is not None and f_est is not None:
                 new_pose = place(new_box)
-                if _confirms(1.0 - first_look(new_pose), 1.0 - first_look(pose), level, p):
+                if _confirms(1.0 - fit(new_pose), 1.0 - f_est, level, p):
                     st = lostmod.found_again(st, cand.r, (*new_box, *(float(v) for v in new_pose)), p)
-                    return GuardStep(st, new_box, new_pose, float(cvis.visible), "tracked", "redetect", level)
+                    return GuardStep(st, new_box, new_pose, float(cvis.visible), "tracked", "redetect", level, None,
+                                     look_clutter)
             st = lostmod.found_again(st, cand.r, held_now, p)
-            return GuardStep(st, box, None, float(cvis.visible), "tracked", "track", level)
+            return GuardStep(st, box, None, float(cvis.visible), "tracked", "track", level, None, look_clutter)
         new_pose = reseat_pose(h_pose, h_box, new_box) if place is None else place(new_box)
-        if fit is None or f_est is None or _confirms(1.0 - fit(new_pose), 1.0 - f_est, level, p):
+        # where colour is weighed, edges and colour judged the candidate present (two independent cues);
+        # where the edges are alone, the likelihood ratio of both places decides
+        if weighed or _away_wins(seen, cand, st, lost, ring, p,
+                                 None if fit is None or f_est is None else (1.0 - f_est, 1.0 - fit(new_pose)),
+                                 level, look_clutter):
             st = lostmod.found_again(st, cand.r, (*new_box, *(float(v) for v in new_pose)), p)
-            return GuardStep(st, new_box, new_pose, float(cvis.visible), "tracked", "redetect", level)
-        # G-flow's model does not confirm it: no re-seat
-    if fit is not None and f_est is not None and fit(h_pose) <= f_est:
+            return GuardStep(st, new_box, new_pose, float(cvis.visible), "tracked", "redetect", level, None,
+                             look_clutter)
+    if fit is not None and f_est is not None and not weighed and fit(h_pose) <= f_est:
         # the first look fits the estimate better than the held place (a face turning in the image plane
         # fails the axis-bound verification while the experts follow it): report the experts' box
-        return GuardStep(st, box, None, float(vis.visible), state, "lost", level)
-    return GuardStep(st, h_box, None, float(vis.visible), state, "lost", level, h_pose)
+        return GuardStep(st, box, None, float(vis.visible), state, "lost", level, None, look_clutter)
+    return GuardStep(st, h_box, None, float(vis.visible), state, "lost", level, h_pose, look_clutter)
+
+
+def _away_wins(seen: lostmod.Observation, cand: redetect.Candidate, st: LostState, lost: LostState,
+               ring: float | None, p: LostParams, misfits: tuple[float, float] | None, level: ChiSquare,
+               look_clutter: ChiSquare) -> bool:
+    """Whether a candidate away from the estimate's box is the target and the estimate is not, where the
+    colour cue is not weighed: P(visible) of the estimate below 1/2 and of the candidate at least 1/2
+    (:func:`gflow_core.visibility.visibility`), on the edges' distances (the estimate's ``seen.r``
+    against ``lost``'s distributions; the candidate's ``cand.r`` against ``st``'s, the best of
+    ``trials`` draws: its search window's area over the clutter ring's) with, as a second cue, the first
+    look's ``misfits`` (estimate, candidate) where its distributions ``level`` and ``look_clutter`` tell
+    the target from clutter (:func:`_discriminates`).
+
+    The first look's clutter distribution is what decides on dollar: a second, identical stack of bills
+    lies beside the one tracked, which is opened; the first look fits the second stack far better than
+    the opened one, but as the opened one fits it as the target has lately looked, the estimate is
+    judged visible and the experts stay."""
+    cues_e: tuple[Cue, ...] = ()
+    cues_c: tuple[Cue, ...] = ()
+    if misfits is not None and _discriminates(level, look_clutter, p):
+        cues_e = (Cue(misfits[0], level, look_clutter),)
+        cues_c = (Cue(misfits[1], level, look_clutter),)
+    vis_e = visibility(1.0 - seen.r, lost.target, lost.clutter, p.min_std, cues=cues_e)
+    trials = max(cand.area / ring, 1.0) if ring else 1.0
+    vis_c = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, trials=trials, cues=cues_c)
+    return vis_e.visible < 0.5 and vis_c.visible >= 0.5
+
+
+def _discriminates(level: ChiSquare, clutter: ChiSquare, p: LostParams) -> bool:
+    """Whether the first look tells the target from clutter: both misfit distributions learnt over
+    ``p.warmup`` found frames or more, the target's mean below the clutter's."""
+    return level.n >= p.warmup and clutter.n >= p.warmup and level.mean() < clutter.mean()
 
 
 def _confirms(d_cand: float, d_est: float, level: ChiSquare, p: LostParams) -> bool:
-    """G-flow's first look confirms a candidate of misfit ``d_cand``: below the estimate's ``d_est``, and
-    within two standard deviations of the mean misfit of the found frames, either side. Two: one held
-    the target off the face on david_indoor, where its look had changed with the light (0.58-0.65
-    against 0.44 +- 0.09). Either side: a candidate that fits the first look far better than the
-    target has lately is a look-alike of the first look rather than the target as it looks now (on
-    dollar an identical stack of bills lies beside the one tracked, whose look changes as it is
-    opened)."""
+    """G-flow's first look confirms a candidate within the estimate's box of misfit ``d_cand``: below the
+    estimate's ``d_est``, and within two standard deviations of the mean misfit of the found frames,
+    either side. Two: one held the target off the face on david_indoor, where its look had changed
+    with the light (0.58-0.65 against 0.44 +- 0.09). Either side: a candidate that fits the first look
+    far better than the target has lately is a look-alike of the first look rather than the target as
+    it looks now."""
     if d_cand >= d_est:
         return False
     if level.n < p.warmup:
@@ -303,3 +398,4 @@ def _inside(centre: np.ndarray, box: tuple[float, float, float, float]) -> bool:
 def _confidence(vis: Visibility, st: LostState, p: LostParams) -> float:
     # during the warm-up the target distribution is still being learnt: 1 - P(hidden)
     return float(vis.visible if st.found > p.warmup else 1.0 - vis.hidden)
+

@@ -192,6 +192,7 @@ class GFlowState:
     anchor : the lost guard's anchor (the user's box on the first frame), None without the guard.
     lost : the lost guard's state (:mod:`.guard`).
     fit_level : the guard's running moments of the first look's misfit on found frames.
+    look_clutter : ... and of its best misfit beside the estimate there (:func:`.guard.first_look_clutter`).
     """
 
     setup: ModelSetup
@@ -201,6 +202,7 @@ class GFlowState:
     anchor: Anchor | None = None
     lost: LostState = LostState()
     fit_level: ChiSquare = ChiSquare()
+    look_clutter: ChiSquare = ChiSquare()
 
 
 def guard_params(params: GFlowParams, dt: float = 1.0) -> LostParams | None:
@@ -321,18 +323,20 @@ class GFlowTracker:
         if gp is None or state.anchor is None:
             conf = min(max(est.inlier_fraction, 0.0), 1.0)
             judged = "lost" if conf < params.lost_below else "occluded" if conf < params.occluded_below else "tracked"
-            out = GFlowState(s, new, conf, judged, state.anchor, state.lost, state.fit_level)
+            out = GFlowState(s, new, conf, judged, state.anchor, state.lost, state.fit_level, state.look_clutter)
             return out, self._estimate_of(out, rng.t, "track", est)
         channels = self.with_channels(params, obs).channels
         assert channels is not None  # the guard is on
         g = guard.step(state.lost, state.anchor, gp, channels, obs.bins if params.lost_colour else None,
                        self._box(s, est.pose, est.bbox), est.pose, tuple(params.lost_scales),
                        guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level,
-                       place=lambda box: self._place(params, s, new, obs, box))
+                       place=lambda box: self._place(params, s, new, obs, box),
+                       ring_fit=guard.first_look_clutter(new, obs.y, s.model, s.cfg, gp.ring),
+                       look_clutter=state.look_clutter)
         if g.pose is None:
             if g.target_state != "tracked" and g.lost.held is not None and params.lost_hold > 0:
                 new = self._hold(s, new, g.lost.held, params.lost_hold)
-            out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level)
+            out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter)
             if g.held_pose is not None:
                 # the held box is reported: the face where it was last found, its points with it
                 return out, self._held_estimate(out, rng.t, est, g.box, g.held_pose)
@@ -345,7 +349,7 @@ class GFlowTracker:
             bg_mean, bg_var = advance_background(state.experts.bg_mean, state.experts.bg_var, seated.poses,
                                                  np.arange(seated.n_experts, dtype=np.int64), obs.y, s.model, s.cfg)
             seated = dataclasses.replace(seated, bg_mean=bg_mean, bg_var=bg_var)
-        out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level)
+        out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter)
         return out, self.summary_estimate(out, rng.t, g.phase)
 
     def _place(self, params: GFlowParams, setup: ModelSetup, experts: ExpertState, obs: GFlowObservation,
