@@ -44,7 +44,7 @@ from gflow_core.tracker import TrackingFilter, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError
 from .messages import Estimate, Frame, Header, Message, MessageError, NDArray, Particles
-from .particle_proposal import cloud_of, counter_snapshot, particles_msg, restored_counter
+from .particle_proposal import cloud_of, counter_snapshot, particles_msg, posterior_input, restored_counter
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
@@ -278,12 +278,8 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         self.done = 0
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        msg = inputs["particles"]
-        assert isinstance(msg, Particles)
-        cloud = cloud_of(msg)
+        msg, cloud, dt = posterior_input(self.ctx, inputs)
         t = seq + 1
-        frame = inputs.get("frames")
-        dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
         rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.box.purpose)
         alpha = self.box.walk(self.core, cloud.alpha, self.size0, rng, dt)
         out = ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
