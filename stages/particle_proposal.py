@@ -39,7 +39,7 @@ from gflow_core.m2.tracking import ParticleCloud
 
 from gflow_core.contour_params import ChamferParams, M2Params
 
-from .base import Output, Params, Stage, StageInputError
+from .base import Output, Params, Stage, StageContext, StageInputError
 from .base import Params as _Params
 from .messages import Frame, Message, MessageError, NDArray, Particles
 from .rng import tracker_rng
@@ -127,6 +127,17 @@ def cloud_of(msg: Particles) -> ParticleCloud:
         raise StageInputError(f"particles {msg.header.seq}: {e}") from None
 
 
+def posterior_input(ctx: StageContext, inputs: Mapping[str, Message | None]) -> tuple[Particles, ParticleCloud, float]:
+    """A proposal stage's inputs: the posterior message of frame t-1, its cloud, and the periods from
+    it to frame t (:mod:`stages.time_step`; 1 unless ``timed`` joined frame t as ``frames``)."""
+    msg = inputs["particles"]
+    assert isinstance(msg, Particles)
+    cloud = cloud_of(msg)
+    frame = inputs.get("frames")
+    dt = time_step(ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
+    return msg, cloud, dt
+
+
 def particles_msg(header, kind: str, cloud: ParticleCloud) -> Particles:
     return Particles(header=header, kind=kind, alpha=NDArray.of(cloud.alpha), k=NDArray.of(cloud.k),
                      log_w=NDArray.of(cloud.log_w))
@@ -160,13 +171,9 @@ class ProposalStage(Stage[ProposalParams]):
         self.done = 0
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        msg = inputs["particles"]
-        assert isinstance(msg, Particles)
-        cloud = cloud_of(msg)
+        msg, cloud, dt = posterior_input(self.ctx, inputs)
         t = seq + 1
         rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(PURPOSE)
-        frame = inputs.get("frames")
-        dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
         # k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame periods
         try:
             out = propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)

@@ -1,0 +1,296 @@
+"""The stages of a box tracker on the protocol: a filter stage and a proposal stage for any tracker
+whose state is a particle cloud over a box (x, y, log s), driven through the tracker's protocol
+object (:class:`gflow_core.tracker.TrackingFilter`).
+
+The appearance tracker (:mod:`stages.appearance_filter`, :mod:`stages.appearance_proposal`) and the
+correlation-filter tracker (:mod:`stages.dcf_filter`, :mod:`stages.dcf_proposal`) are registrations
+of these two classes: each sets its ``kind``, its ``Params`` and a :class:`BoxFilterSpec` or
+:class:`BoxProposalSpec` naming its protocol object, its parameter dataclass, its particles'
+conversions and its snapshot codec.
+
+* :class:`BoxFilterStage` -- inputs ``frames`` of frame t and ``proposals`` for frame t (a random walk
+  on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)); outputs ``particles`` (the
+  resampled posterior of t, alpha = (x, y, 0, s)) and ``estimate``: the box, the posterior's mean and
+  std of alpha, the ESS, the data path ``state`` -- ``init``, ``track``, ``occluded``, ``lost``,
+  ``redetect`` or ``coast`` -- and what the tracker judges of the target: ``confidence`` (P(visible))
+  and ``target_state`` (``tracked``, ``occluded``, ``lost``). A missing, undecodable, uniform or
+  wrongly sized frame, or missing proposals, make it coast and are reported; they never stop the
+  stream. The frame's observation (``TRACKER.observe``) is the stage's ``prepare`` work
+  (:mod:`stages.base`). Its snapshot is the tracker's :class:`SnapshotCodec` Struct.
+* :class:`BoxProposalStage` -- input ``particles``, the resampled posterior of frame t-1; output
+  ``proposals``, the particles for frame t from the tracker's random walk drawn with
+  ``FrameRng(seed, crc32(stream), t).stream(PURPOSE_WALK)``; its std is relative to the size of the
+  initial box ``init``. With ``timed`` it also reads the frames and joins frame t + 1 with the
+  posterior of t, so the noise grows with the time between the two frames' capture stamps
+  (:mod:`stages.time_step`). It keeps no state that its outputs depend on; its snapshot holds the
+  step counter.
+
+The proposal stage calls the tracker's walk on the message's particles rather than
+``TRACKER.propose`` (which takes the tracker's state): the state lives in the filter's process.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar, Mapping
+
+import msgspec
+import numpy as np
+
+from gflow_core.features import to_grey
+from gflow_core.m2.tracking import ParticleCloud
+from gflow_core.tracker import Estimate as TrackerEstimate
+from gflow_core.tracker import TrackingFilter, UnusableFrame
+
+from .base import Output, Stage, StageContext, StageInputError
+from .messages import Estimate, Frame, Header, Message, MessageError, NDArray, Particles
+from .particle_proposal import cloud_of, counter_snapshot, particles_msg, posterior_input, restored_counter
+from .rng import tracker_rng
+from .time_step import time_step
+from .tracker_params import SeedBoxFields, tracker_params
+
+__all__ = ["BoxFilterSpec", "BoxFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec"]
+
+
+@dataclass(frozen=True)
+class SnapshotCodec:
+    """How a tracker's state travels in a filter snapshot.
+
+    ``struct`` is a ``msgspec.Struct`` with the fields ``version: int``, ``initialised: bool``,
+    ``steps: int = 0`` and ``last: dict = {}`` besides the tracker's own (each with a default);
+    ``version`` the version this code writes and reads; ``fields(state)`` the tracker's fields of a
+    snapshot of ``state``; ``state(snap, params, last)`` the state of a decoded snapshot (``last`` is
+    the last estimate's summary), raising ``ValueError``, ``KeyError``, ``IndexError``,
+    ``TypeError``, ``AssertionError`` or :class:`~stages.messages.MessageError` for bad content."""
+
+    struct: type[Any]
+    version: int
+    fields: Callable[[Any], dict[str, Any]]
+    state: Callable[[Any, Any, dict], Any]
+
+
+@dataclass(frozen=True)
+class BoxFilterSpec:
+    """What :class:`BoxFilterStage` needs of one tracker.
+
+    ``name`` is the tracker's name in messages (``"dcf"``); ``tracker`` its protocol object
+    (``TRACKER``); ``params`` its parameter dataclass; ``proposal(particles, dt)`` its proposal of
+    (N, 3) particles (x, y, log s); ``particles(state)`` the (N, 3) posterior particles of a state;
+    ``alpha_of`` / ``particles_of`` the conversions between (N, 3) particles and (N, 4) alpha =
+    (x, y, theta, s); ``snapshot`` its :class:`SnapshotCodec`."""
+
+    name: str
+    tracker: TrackingFilter[Any, Any, Any, Any]
+    params: type
+    proposal: Callable[[np.ndarray, float], Any]
+    particles: Callable[[Any], np.ndarray]
+    alpha_of: Callable[[np.ndarray], np.ndarray]
+    particles_of: Callable[[np.ndarray], np.ndarray]
+    snapshot: SnapshotCodec
+
+
+@dataclass(frozen=True)
+class BoxProposalSpec:
+    """What :class:`BoxProposalStage` needs of one tracker: its ``name``, its parameter dataclass
+    ``params`` and its random walk ``walk(params, alpha (N, 4), size0 (w, h), rng, dt) -> alpha
+    (N, 4)`` drawn from ``rng = FrameRng(...).stream(purpose)``. The proposal process imports only
+    these (not the tracker's update)."""
+
+    name: str
+    params: type
+    walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray]
+    purpose: int
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
+
+
+class BoxFilterStage(Stage[SeedBoxFields]):
+    """The filter stage of a box tracker (module docstring); a subclass sets ``kind``, ``Params``
+    and ``box``."""
+
+    box: ClassVar[BoxFilterSpec]
+    inputs = {"frames": Frame, "proposals": Particles}
+    outputs = {"particles": Particles, "estimate": Estimate}
+    drivers = frozenset({"frames"})
+    prepare_ports = frozenset({"frames"})
+
+    def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
+        super().__init__(params, ctx)
+        if params.init is None:
+            raise ValueError(f"the {self.box.name} filter needs an initial box: set init: [x, y, w, h]")
+        self.core: Any = tracker_params(params, self.box.params)
+        self.state: Any = None
+        self.shape: tuple[int, ...] | None = None
+        self.steps = 0
+        self.last: dict = {}
+
+    def required(self, seq: int) -> frozenset[str]:
+        return frozenset({"frames"}) if self.state is None else frozenset(self.inputs)
+
+    def prepare(self, port: str, msg: Message) -> tuple[tuple[int, ...], Any]:
+        """(the frame's grey (H, W), the tracker's observation or the UnusableFrame a uniform frame
+        raised). Raises MessageError or ValueError for an image that cannot be read."""
+        assert isinstance(msg, Frame)
+        image = msg.image.array()
+        try:
+            obs = self.box.tracker.observe(self.core, image)
+            return obs.grey.shape, obs
+        except UnusableFrame as e:
+            return to_grey(image).shape, e
+
+    def _observe(self, frame: Frame | None, seq: int) -> Any:
+        """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
+        if frame is None:
+            self.report("missing_frame", f"frame {seq}: no frame arrived; coasting", seq)
+            return None
+        try:
+            shape, obs = self.prepared("frames", frame)
+        except (MessageError, ValueError) as e:
+            self.report("bad_frame", f"frame {seq}: {e}; coasting", seq)
+            return None
+        if self.shape is not None and shape != self.shape:
+            self.report("bad_frame", f"frame {seq}: {shape[1]}x{shape[0]} but the stream is "
+                        f"{self.shape[1]}x{self.shape[0]}; coasting", seq)
+            return None
+        if isinstance(obs, UnusableFrame):
+            self.report("blank_frame", f"frame {seq}: uniform frame, no evidence; coasting", seq)
+            return None
+        return obs
+
+    def _outputs(self, header: Header, est: TrackerEstimate) -> list[Output]:
+        """The posterior and the estimate messages of the tracker's estimate."""
+        assert self.state is not None
+        self.steps += 1
+        x, y, w, h = est.box
+        outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+        e = est.extras
+        self.last = {"seq": header.seq, "box": [round(v, 2) for v in est.box], "ess": round(float(e["ess"]), 1),
+                     "state": est.phase, "score": round(float(e["score"]), 4),
+                     "confidence": round(float(est.confidence), 4), "target_state": est.target_state}
+        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=0, mean=e["mean"], std=e["std"], ess=e["ess"],
+                       n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline), state=est.phase,
+                       confidence=est.confidence, target_state=est.target_state)
+        parts = self.box.particles(self.state)
+        n = len(parts)
+        post = ParticleCloud(alpha=self.box.alpha_of(parts), k=np.zeros(n, np.int64), log_w=np.zeros(n))
+        return [("particles", particles_msg(header, "posterior", post)), ("estimate", msg)]
+
+    def _initialise(self, seq: int, frame: Frame | None) -> list[Output]:
+        p = self.params
+        try:
+            obs = self._observe(frame, seq)
+            if obs is None or frame is None:
+                raise StageInputError(f"frame {seq}: cannot initialise on this frame")
+            assert p.init is not None
+            self.state, est = self.box.tracker.init(self.core, obs, p.init,
+                                                    tracker_rng(p.seed, self.ctx.stream, seq), {})
+        except StageInputError:
+            raise
+        except ValueError as e:  # a box outside the frame, a frame too small for the tracker's cells
+            raise StageInputError(f"frame {seq}: {e}") from None
+        self.shape = obs.grey.shape
+        return self._outputs(frame.header, est)
+
+    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
+        frame = inputs.get("frames")
+        frame = frame if isinstance(frame, Frame) else None
+        if self.state is None:
+            return self._initialise(seq, frame)
+        p, n, box = self.params, self.core.particles, self.box
+        st = self.state
+        rng = tracker_rng(p.seed, self.ctx.stream, seq)
+        prop = inputs.get("proposals")
+        if isinstance(prop, Particles):
+            alpha = cloud_of(prop).alpha
+            if alpha.shape[0] != n or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
+                self.report("bad_proposals", f"proposals {seq}: {alpha.shape[0]} particles (expected "
+                            f"{n}), non-finite or non-positive scale; reusing the last posterior", seq)
+                proposed = box.particles(st)
+            else:
+                proposed = box.particles_of(alpha)
+        else:
+            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
+            proposed = box.particles(st)
+        obs = self._observe(frame, seq)
+        if obs is None:
+            self.state, est = box.tracker.coast(self.core, st, rng)
+            return self._outputs(frame.header if frame is not None else self.header(seq, 0), est)
+        assert frame is not None
+        # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
+        dt = time_step(self.ctx, frame.header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
+        self.state, est = box.tracker.update(self.core, st, box.proposal(proposed, dt), obs, rng)
+        return self._outputs(frame.header, est)
+
+    def summary(self) -> dict:
+        """The last estimate (seq, box, ESS, state, the tracker's score at the estimate) and the step count."""
+        return dict(self.last, steps=self.steps)
+
+    # -- snapshot / restore ---------------------------------------------------------------
+    def snapshot(self) -> bytes:
+        codec = self.box.snapshot
+        if self.state is None:
+            return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=False, steps=self.steps))
+        return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=True,
+                                                   **codec.fields(self.state), steps=self.steps, last=self.last))
+
+    def restore(self, data: bytes) -> None:
+        name, label, codec = self.ctx.name, self.box.name, self.box.snapshot
+        try:
+            snap = msgspec.msgpack.decode(data, type=codec.struct)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {name!r}: not {_article(self.kind)} {self.kind} snapshot: {e}") from None
+        if snap.version != codec.version:
+            raise ValueError(f"stage {name!r}: {label} snapshot version {snap.version}, expected {codec.version}")
+        self.steps, self.last = snap.steps, dict(snap.last)
+        if not snap.initialised:
+            self.state, self.shape = None, None
+            return
+        try:
+            self.state = codec.state(snap, self.core, self.last)
+        except (AssertionError, KeyError, IndexError, TypeError, MessageError, ValueError) as e:
+            raise ValueError(f"stage {name!r}: bad {label} snapshot: {e}") from None
+        self.shape = None
+
+
+class BoxProposalStage(Stage[SeedBoxFields]):
+    """The proposal stage of a box tracker (module docstring); a subclass sets ``kind``, ``Params``
+    (with the field ``timed``) and ``box``."""
+
+    box: ClassVar[BoxProposalSpec]
+    inputs = {"particles": Particles}
+    outputs = {"proposals": Particles}
+    input_offsets = {"frames": -1}  # timed: frame t + 1 joins the posterior of t
+
+    @classmethod
+    def ports(cls, params: SeedBoxFields) -> tuple[Mapping[str, type], Mapping[str, type]]:
+        timed = bool(getattr(params, "timed", False))
+        return ({"particles": Particles, "frames": Frame} if timed else cls.inputs), cls.outputs
+
+    def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
+        super().__init__(params, ctx)
+        if params.init is None:
+            raise ValueError(f"the {self.box.name} proposal needs the initial box (its random walk is relative to "
+                             "the box's size): set init: [x, y, w, h]")
+        self.core: Any = tracker_params(params, self.box.params)
+        self.size0 = (float(params.init[2]), float(params.init[3]))
+        self.done = 0
+
+    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
+        msg, cloud, dt = posterior_input(self.ctx, inputs)
+        t = seq + 1
+        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.box.purpose)
+        alpha = self.box.walk(self.core, cloud.alpha, self.size0, rng, dt)
+        out = ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
+        self.done += 1
+        return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]
+
+    def summary(self) -> dict[str, Any]:
+        return {"proposed": self.done}
+
+    def snapshot(self) -> bytes:
+        return counter_snapshot(self.done)
+
+    def restore(self, data: bytes) -> None:
+        self.done = restored_counter(self.ctx.name, data)
