@@ -38,7 +38,7 @@ from . import colour
 from .appearance_dynamics import PURPOSE_WALK, alpha_of, particles_of, walk
 from .appearance_params import AppearanceParams
 from .features import to_grey
-from .tracker import Box, Estimate, FrameRng, UnusableFrame
+from .tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate
 
 __all__ = ["AppearanceTracker", "AppearanceObservation", "AppearanceProposal", "AppearanceTrack", "TRACKER",
            "alpha_of", "particles_of", "walk", "PURPOSE_INIT", "PURPOSE_STEP", "PURPOSE_WALK"]
@@ -172,12 +172,8 @@ class AppearanceTracker:
         (x, y, 0, s); ``mean``, ``std`` (4,) the posterior's mean and std of alpha (std of log s);
         ``ess``; ``log_evidence``; ``score``, the posterior mean of the correlation r; ``n``, the
         number of particles."""
-        b = tuple(float(v) for v in box)
-        extras = {"alpha": tuple(float(v) for v in alpha), "mean": tuple(float(v) for v in mean),
-                  "std": tuple(float(v) for v in std), "ess": float(ess), "log_evidence": float(log_evidence),
-                  "score": float(score), "n": int(params.particles)}
-        return Estimate(frame=int(t), box=(b[0], b[1], b[2], b[3]), confidence=float(confidence),
-                        target_state=target_state, phase=phase, extras=extras)
+        return box_estimate(t, box, phase, alpha, mean, std, ess, log_evidence, score, params.particles, confidence,
+                            target_state)
 
 
 #: the one instance (it keeps no state)

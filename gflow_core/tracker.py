@@ -32,7 +32,7 @@ from typing import Any, Mapping, Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["Box", "Estimate", "FrameRng", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
+__all__ = ["Box", "Estimate", "box_estimate", "FrameRng", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
 
 #: (x, y, w, h) in pixels
 Box = tuple[float, float, float, float]
@@ -106,6 +106,20 @@ class Estimate:
     def __post_init__(self) -> None:
         if self.target_state not in TARGET_STATES:
             raise ValueError(f"target_state must be one of {', '.join(TARGET_STATES)}, got {self.target_state!r}")
+
+
+def box_estimate(t: int, box: Box, phase: str, alpha: np.ndarray, mean: np.ndarray, std: np.ndarray, ess: float,
+                 log_evidence: float, score: float, particles: int, confidence: float, target_state: str) -> Estimate:
+    """The estimate of frame ``t`` of a box tracker over alpha = (x, y, 0, s) (appearance, dcf).
+    ``extras``: ``alpha`` (4,) the estimate; ``mean``, ``std`` (4,) the posterior's mean and std of
+    alpha (std of log s); ``ess``; ``log_evidence``; ``score`` (the tracker's own: see its
+    ``estimate``); ``n``, the number of particles."""
+    b = tuple(float(v) for v in box)
+    extras = {"alpha": tuple(float(v) for v in alpha), "mean": tuple(float(v) for v in mean),
+              "std": tuple(float(v) for v in std), "ess": float(ess), "log_evidence": float(log_evidence),
+              "score": float(score), "n": int(particles)}
+    return Estimate(frame=int(t), box=(b[0], b[1], b[2], b[3]), confidence=float(confidence),
+                    target_state=target_state, phase=phase, extras=extras)
 
 
 P = TypeVar("P")

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..features import to_grey
 from ..particles import LogWeights, systematic_resample
-from ..tracker import Box, Estimate, FrameRng, UnusableFrame
+from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate
 from ..visibility import ChiSquare, Cue, visibility
 from . import model as tm
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
@@ -317,12 +317,8 @@ class DCFTracker:
         """The tracker's estimate of frame ``t``. ``extras``: ``alpha`` (4,) the estimate (x, y, 0, s);
         ``mean``, ``std`` (4,) the posterior's mean and std of alpha (std of log s); ``ess``;
         ``log_evidence``; ``score``, the response at the estimate; ``n``, the number of particles."""
-        b = tuple(float(v) for v in box)
-        extras = {"alpha": tuple(float(v) for v in alpha), "mean": tuple(float(v) for v in mean),
-                  "std": tuple(float(v) for v in std), "ess": float(ess), "log_evidence": float(log_evidence),
-                  "score": float(score), "n": int(params.particles)}
-        return Estimate(frame=int(t), box=(b[0], b[1], b[2], b[3]), confidence=float(confidence),
-                        target_state=target_state, phase=phase, extras=extras)
+        return box_estimate(t, box, phase, alpha, mean, std, ess, log_evidence, score, params.particles, confidence,
+                            target_state)
 
 
 #: the one instance (it keeps no state)
