@@ -38,7 +38,7 @@ from . import colour
 from .appearance_dynamics import PURPOSE_WALK, alpha_of, particles_of, walk
 from .appearance_params import AppearanceParams
 from .features import to_grey
-from .tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate
+from .tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 
 __all__ = ["AppearanceTracker", "AppearanceObservation", "AppearanceProposal", "AppearanceTrack", "TRACKER",
            "alpha_of", "particles_of", "walk", "PURPOSE_INIT", "PURPOSE_STEP", "PURPOSE_WALK"]
@@ -145,14 +145,7 @@ class AppearanceTracker:
         ``redetect`` (the search found a hidden target again this frame), ``occluded`` or ``lost``."""
         res = ap.step(state.core, obs.channels(), proposal.particles, params, rng.stream(PURPOSE_STEP), proposal.dt,
                       obs.bins)
-        nst = res.state
-        a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
-        mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])
-        std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
-        phase = ("redetect" if res.redetected else "track") if res.target_state == "tracked" else res.target_state
-        est = self.estimate(params, rng.t, res.box, phase, a, mean, std, res.ess, res.log_evidence, res.score,
-                            res.confidence, res.target_state)
-        return AppearanceTrack(nst, res.target_state), est
+        return AppearanceTrack(res.state, res.target_state), box_step_estimate(rng.t, res, params.particles)
 
     def coast(self, params: AppearanceParams, state: AppearanceTrack, rng: FrameRng,
               obs: AppearanceObservation | None = None) -> tuple[AppearanceTrack, Estimate]:

@@ -32,7 +32,7 @@ from typing import Any, Mapping, Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["Box", "Estimate", "box_estimate", "FrameRng", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
+__all__ = ["Box", "Estimate", "box_estimate", "box_step_estimate", "FrameRng", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
 
 #: (x, y, w, h) in pixels
 Box = tuple[float, float, float, float]
@@ -120,6 +120,20 @@ def box_estimate(t: int, box: Box, phase: str, alpha: np.ndarray, mean: np.ndarr
               "score": float(score), "n": int(particles)}
     return Estimate(frame=int(t), box=(b[0], b[1], b[2], b[3]), confidence=float(confidence),
                     target_state=target_state, phase=phase, extras=extras)
+
+
+def box_step_estimate(t: int, res: Any, particles: int) -> Estimate:
+    """:func:`box_estimate` of a box tracker's step result ``res`` (appearance, dcf): its ``state``
+    (``centre``, ``log_s``), posterior ``mean`` and ``std`` (3,) of (x, y, log s), ``box``, ``ess``,
+    ``log_evidence``, ``score``, ``confidence``, ``target_state`` and ``redetected``. The phase is
+    ``track``, ``redetect`` (the search found a hidden target again this frame), ``occluded`` or ``lost``."""
+    nst = res.state
+    a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
+    mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])
+    std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
+    phase = ("redetect" if res.redetected else "track") if res.target_state == "tracked" else res.target_state
+    return box_estimate(t, res.box, phase, a, mean, std, res.ess, res.log_evidence, res.score, particles,
+                        res.confidence, res.target_state)
 
 
 P = TypeVar("P")

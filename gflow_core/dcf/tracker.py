@@ -26,7 +26,7 @@ import numpy as np
 
 from ..features import to_grey
 from ..particles import LogWeights, systematic_resample
-from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate
+from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 from ..visibility import ChiSquare, Cue, visibility
 from . import model as tm
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
@@ -292,14 +292,7 @@ class DCFTracker:
         """:func:`step` of the proposal on the frame. The estimate's phase is ``track``, ``redetect`` (the
         search found a hidden target again this frame), ``occluded`` or ``lost``."""
         res = step(state, obs, proposal.particles, params, rng.stream(PURPOSE_STEP), proposal.dt)
-        nst = res.state
-        a = np.array([nst.centre[0], nst.centre[1], 0.0, float(np.exp(nst.log_s))])
-        mean = np.array([res.mean[0], res.mean[1], 0.0, float(np.exp(res.mean[2]))])
-        std = np.array([res.std[0], res.std[1], 0.0, float(res.std[2])])
-        phase = ("redetect" if res.redetected else "track") if res.target_state == "tracked" else res.target_state
-        est = self.estimate(params, rng.t, res.box, phase, a, mean, std, res.ess, res.log_evidence, res.score,
-                            res.confidence, res.target_state)
-        return nst, est
+        return res.state, box_step_estimate(rng.t, res, params.particles)
 
     def coast(self, params: DCFParams, state: DCFState, rng: FrameRng,
               obs: DCFObservation | None = None) -> tuple[DCFState, Estimate]:
