@@ -81,6 +81,82 @@ def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float, area: floa
     return log_n + math.log(area)
 
 
+
+def _particles(st: DCFState, proposed: np.ndarray, peak_xy: np.ndarray, extra: float, p: DCFParams,
+               rng: np.random.Generator, dt: float) -> np.ndarray:
+    """The (N, 3) particles of frame t: the proposal's walk moved by the velocity and the speed's share of
+    the noise, a ``detect_fraction`` of them drawn about the response's peak instead; log s is the state's."""
+    # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
+    dyn = proposed.copy()
+    dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
+    # x_t ~ (1 - b) p(x_t | x_t-1) + b N(peak, detect_std^2)          (mixture proposal, b = detect_fraction)
+    n_det = int(round(p.detect_fraction * len(dyn)))
+    if n_det:
+        det = np.column_stack([peak_xy[0] + rng.normal(0.0, p.detect_std, n_det),
+                               peak_xy[1] + rng.normal(0.0, p.detect_std, n_det),
+                               np.full(n_det, st.log_s)])
+        parts = np.vstack([dyn[: len(dyn) - n_det], det])
+    else:
+        parts = dyn
+    parts[:, 2] = st.log_s
+    return parts
+
+
+def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
+    """Forward filtering over (visible, partial, hidden): after a hidden frame the prior that the target
+    is back is ``reappear``, plus the probability ``back`` that it was present on the last frame."""
+    b, q = back, reappear
+    return (b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * (1.0 - q))
+
+
+def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
+            spread: float, clutter_seen: Any) -> tuple[Any, float, bool]:
+    """The search for a hidden target over three standard deviations of its place's prior (the motion
+    prior's (sx, sy) widened by ``spread``, in quadrature): (the first candidate judged visible or None,
+    its P(visible), whether the search covered the whole frame)."""
+    Hh, Ww = obs.grey.shape
+    sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
+    margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
+    covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
+              and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
+    for cand in tm.search(st.model, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
+        # the search had more chances than the window the clutter was learnt on: under "hidden" its
+        # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
+        # the candidate is placed by the target's prior: log N(x; pred, S) + log A
+        trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+        place = _log_place(cand.centre, pred, sx, sy, cand.area)
+        # the colour score of the filter's pick: one draw of the colour clutter
+        ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
+        vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
+                        trials=max(trials, 1.0), log_place=place, cues=ccue)
+        if vf.visible >= 0.5:
+            return cand, vf.visible, covers
+    return None, 0.0, covers
+
+
+def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float, Any, Any]:
+    """The estimate's two cues, each to be read as a distance rho = 1 - score against its own learnt
+    target and clutter distributions (gflow_core.visibility): (the filter's response at ``centre``, the
+    best response half a box away or more, and (the colour score at ``centre``, its best a box away or
+    more) or None without a colour model; a box that overlaps the target shares its colours)."""
+    r_est = float(resp.at(centre[None, :], "cf")[0])
+    clutter_seen = resp.best_away(centre, (0.5 * bw, 0.5 * bh), "cf")
+    colour_seen = None
+    if resp.colour is not None:
+        colour_seen = (float(resp.at(centre[None, :], "colour")[0]), resp.best_away(centre, (bw, bh), "colour"))
+    return r_est, clutter_seen, colour_seen
+
+
+def _learn_clutter(st: DCFState, clutter_seen: Any, colour_seen: Any, rate: float) -> tuple[ChiSquare, ChiSquare]:
+    """The clutter's moments after a frame the target is present (while it is not, the best away from the
+    held box may be the target itself): (the filter's, the colour's)."""
+    clutter, cclutter = st.clutter, st.cclutter
+    if clutter_seen is not None:
+        clutter = clutter.update(1.0 - clutter_seen[0], rate)
+    if colour_seen is not None and colour_seen[1] is not None:
+        cclutter = cclutter.update(1.0 - colour_seen[1][0], rate)
+    return clutter, cclutter
+
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
     """One frame: the response at the prediction, the particles weighed, the estimate, the target's
@@ -106,20 +182,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     bw, bh = geom.size0[0] * s, geom.size0[1] * s
     extra = speed_noise(p, st.velocity, dt)
     resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p)
-    # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
-    dyn = proposed.copy()
-    dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
-    # x_t ~ (1 - b) p(x_t | x_t-1) + b N(peak, detect_std^2)          (mixture proposal, b = detect_fraction)
-    n_det = int(round(p.detect_fraction * len(dyn)))
-    peak_xy, _ = resp.peak()
-    if n_det:
-        det = np.column_stack([peak_xy[0] + rng.normal(0.0, p.detect_std, n_det),
-                               peak_xy[1] + rng.normal(0.0, p.detect_std, n_det),
-                               np.full(n_det, st.log_s)])
-        parts = np.vstack([dyn[: len(dyn) - n_det], det])
-    else:
-        parts = dyn
-    parts[:, 2] = st.log_s
+    parts = _particles(st, proposed, resp.peak()[0], extra, p, rng, dt)
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
     log_lik = p.kappa * y
@@ -135,27 +198,14 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
     centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
     log_s = st.log_s
-    # is the estimate the target? two cues, each a distance rho = 1 - y against its own learnt target and
-    # clutter chi-squared distributions (gflow_core.visibility): the filter's response, and the colour
-    # score with its clutter taken a box away at least (a box that overlaps the target shares its colours)
-    r_est = float(resp.at(centre[None, :], "cf")[0])
-    clutter_seen = resp.best_away(centre, (0.5 * bw, 0.5 * bh), "cf")
-    colour_seen = None
-    if resp.colour is not None:
-        colour_seen = (float(resp.at(centre[None, :], "colour")[0]), resp.best_away(centre, (bw, bh), "colour"))
+    # is the estimate the target? two cues (the filter's response, the colour score): _scores
+    r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)
     cues = () if colour_seen is None else (Cue(1.0 - colour_seen[0], st.ctarget, st.cclutter),)
     hidden_before = st.hidden_run >= p.hidden_after
     # the estimate's place under the target's motion prior against clutter's, uniform over the window:
     # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
     log_place = _log_place(centre, pred, sx, sy, resp.area())
-    if hidden_before:
-        # forward filtering over (visible, partial, hidden): after a hidden frame the prior that the
-        # target is back is `reappear`, plus the probability `back` that it was present on the last frame
-        b = float(st.back)
-        q = p.reappear
-        prior = (b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * (1.0 - q))
-    else:
-        prior = (1.0, 1.0, 1.0)
+    prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
     present = vis.present
     confident = vis.visible >= 0.5
@@ -166,25 +216,11 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     covers = False
     spread = 0.0
     if run > 0:
-        # unseen, the target's place spreads by search_growth mean sides a frame; the search covers
-        # three standard deviations of its prior
+        # unseen, the target's place spreads by search_growth mean sides a frame
         spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
-        margin = (3.0 * float(np.hypot(sx, spread)) + 10.0, 3.0 * float(np.hypot(sy, spread)) + 10.0)
-        covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
-                  and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
-        for cand in tm.search(model, obs.image, obs.grey, pred, margin, st.log_s, geom, p):
-            # the search had more chances than the window the clutter was learnt on: under "hidden" its
-            # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
-            # the candidate is placed by the target's prior: log N(x; pred, S) + log A
-            trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-            place = _log_place(cand.centre, pred, float(np.hypot(sx, spread)), float(np.hypot(sy, spread)), cand.area)
-            # the colour score of the filter's pick: one draw of the colour clutter
-            ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
-            vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
-                            trials=max(trials, 1.0), log_place=place, cues=ccue)
-            if vf.visible >= 0.5:
-                found, confidence, run, spread = cand, vf.visible, 0, 0.0
-                break
+        found, found_conf, covers = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen)
+        if found is not None:
+            confidence, run, spread = found_conf, 0, 0.0
     idx = systematic_resample(lw.lw, rng, n)
     new_parts = parts[idx]
     target, clutter, ctarget, cclutter, mdl = st.target, st.clutter, st.ctarget, st.cclutter, model
@@ -214,12 +250,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
             ctarget = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
         if confident:
             mdl = tm.learn(mdl, obs.image, obs.grey, c, log_s, geom, p, p.rate)
-    # the clutter's moments learn on the frames the target is present (while it is not, the best away from
-    # the held box may be the target itself)
-    if clutter_seen is not None and present:
-        clutter = st.clutter.update(1.0 - clutter_seen[0], p.clutter_rate)
-    if colour_seen is not None and colour_seen[1] is not None and present:
-        cclutter = st.cclutter.update(1.0 - colour_seen[1][0], p.clutter_rate)
+    if present:
+        clutter, cclutter = _learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate)
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, model=mdl, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, target=target,
