@@ -176,7 +176,7 @@ from .appearance_params import AppearanceParams
 from .orientation import orientation_channels
 from .particles import LogWeights, systematic_resample
 from .regions import region
-from .visibility import ChiSquare, Cue, visibility
+from .visibility import ChiSquare, Cue, Visibility, visibility
 
 __all__ = ["AppearanceParams", "AppearanceState", "StepResult", "initialise", "step", "features",
            "region", "box_of", "ChiSquare"]
@@ -577,9 +577,382 @@ def _search_scale(feat: np.ndarray, st: AppearanceState, centre: np.ndarray, p: 
     return d, centre + shift[i]
 
 
+def _propose(st: AppearanceState, proposed: np.ndarray, levels: list[_Level], p: AppearanceParams,
+             rng: np.random.Generator, dt: float) -> np.ndarray:
+    """The particles of frame t from the mixture proposal (the "boosted" particle filter).
+
+    Parameters
+    ----------
+    st : the state after frame t-1.
+    proposed : (N, 3) float64 (x, y, log s) drawn from the random walk of the dynamics.
+    levels : frame t's response at each observed scale (:func:`_responses`).
+    rng : draws the detection particles.
+    dt : frame periods since frame t-1.
+
+    Returns
+    -------
+    (N, 3) float64: the proposals moved by the velocity over ``dt`` periods, the last
+    round(detect_fraction N) of them replaced by draws about the best peak of the response
+    (none without a response).
+    """
+    # x_t ~ (1 - beta) p(x_t | x_{t-1}) + beta N(peak, detect_std)      (mixture proposal)
+    dyn = proposed.copy()
+    dyn[:, :2] += st.velocity * dt
+    n_det = int(round(p.detect_fraction * len(dyn))) if levels else 0
+    if not n_det:
+        return dyn
+    best = max(levels, key=lambda lv: float(lv.r.max()))
+    _, _, _, loc = cv2.minMaxLoc(best.r)
+    peak = best.origin + np.array(loc, dtype=np.float64) / best.k
+    det = np.column_stack([peak[0] + rng.normal(0.0, p.detect_std, n_det),
+                           peak[1] + rng.normal(0.0, p.detect_std, n_det),
+                           best.log_s + rng.normal(0.0, p.std_log_s, n_det)])
+    return np.vstack([dyn[: len(dyn) - n_det], det])
+
+
+def _log_likelihood(levels: list[_Level], parts: np.ndarray, cscan: col.Scan | None, p: AppearanceParams
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """The observation density of every particle: the edge exemplars' (eq. 7), times the colour
+    cue's when ``cscan`` is given.
+
+    Parameters
+    ----------
+    levels : the response at each observed scale (:func:`_responses`).
+    parts : (N, 3) float64 particles (x, y, log s).
+    cscan : BC of the boxes of the current size about the prediction, or None without colour.
+
+    Returns
+    -------
+    r : (N,) float64, the normalised correlation at each particle.
+    log_lik : (N,) float64, log p(z | X) up to a constant.
+    """
+    if len(levels) == p.n_scales > 1 and p.scale_from_recent:
+        # position from both exemplars at the last scale, scale from the running exemplar only
+        # (the anchor prefers ever smaller boxes as the appearance moves away from it):
+        # log p = lambda (r(x, y, s_t-1) - 1) + lambda (r_1(x, y, s) - r_1(x, y, s_t-1))
+        mid = len(levels) // 2
+        r = _lookup(levels, parts, level=mid)
+        log_lik = p.lam * (r - 1.0) + p.lam * (_lookup(levels, parts, recent=True)
+                                               - _lookup(levels, parts, recent=True, level=mid))
+    else:
+        r = _lookup(levels, parts)
+        # log p(z | X) = -lambda rho = lambda (r - 1)                      (eq. 7, K exemplars, MAP k)
+        log_lik = p.lam * (r - 1.0)
+    if cscan is not None:
+        # the cues multiply: log p(z_e, z_c | X) = lambda (r - 1) + lambda_c (BC - 1), lambda_c = 20
+        # (Perez et al. 2002: p ~ exp(-lambda D^2), D^2 = 1 - BC)
+        log_lik = log_lik + p.colour_lam * (cscan.at(parts[:, 0], parts[:, 1]) - 1.0)
+    return r, log_lik
+
+
+def _motion_spread(st: AppearanceState, p: AppearanceParams, dt: float) -> tuple[float, float]:
+    """The motion prior's spread over ``dt`` periods: its std is ``prior`` box sizes plus ``spd`` px.
+
+    While the target is in view, ``prior`` is ``motion_prior`` and ``spd`` 0; while it is judged
+    hidden, ``prior`` is ``hidden_prior`` widening by ``search_growth`` a frame and ``spd`` is
+    ``hidden_speed`` times the speed (px / frame) the target had. Both grow as sqrt(dt).
+
+    Returns
+    -------
+    (prior, spd)
+    """
+    # motion prior: N(x; x_pred, (prior * box)^2), tighter while the target is judged hidden,
+    # then widening as the search does
+    hidden_before = st.hidden_run >= p.hidden_after
+    prior = p.hidden_prior + p.search_growth * (st.hidden_run - p.hidden_after) if hidden_before else p.motion_prior
+    # N(x; x_pred, diag((prior w)^2, (prior h)^2)): a tall box may not jump far sideways
+    # while hidden the std grows with the speed the target had: prior * size + hidden_speed |v|
+    spd = p.hidden_speed * float(np.hypot(*st.velocity)) if hidden_before else 0.0
+    prior, spd = prior * float(np.sqrt(dt)), spd * float(np.sqrt(dt))  # spread over dt periods
+    return prior, spd
+
+
+@dataclass(frozen=True)
+class _Estimate:
+    """The posterior of one frame.
+
+    mean, std : (3,) float64, posterior mean and std of (x, y, log s).
+    score : posterior mean of r.
+    centre : (2,) float64, the mean's position clipped to the frame; log_s : its log-scale clipped
+        to +- ``max_log_scale``.
+    """
+
+    mean: np.ndarray
+    std: np.ndarray
+    score: float
+    centre: np.ndarray
+    log_s: float
+
+
+def _estimate(lw: LogWeights, parts: np.ndarray, r: np.ndarray, frame: tuple[int, int], p: AppearanceParams
+              ) -> _Estimate:
+    """The posterior mean and std of the weighted particles ``parts`` (N, 3), the posterior mean of
+    their correlations ``r`` (N,), and the estimate's box within the frame of ``frame`` = (H, W) px."""
+    Hh, Ww = frame
+    W = lw.W
+    # weighted sums by einsum, not BLAS: BLAS splits sums by thread count, and a stage process
+    # (one thread) must give the bits --inline gives
+    mean = np.einsum("i,ij->j", W, parts)
+    score = float(np.einsum("i,i->", W, r))
+    std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
+    centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
+    log_s = float(np.clip(mean[2], -p.max_log_scale, p.max_log_scale))
+    return _Estimate(mean=mean, std=std, score=score, centre=centre, log_s=log_s)
+
+
+def _place_priors(st: AppearanceState, p: AppearanceParams, centre: np.ndarray, pred: np.ndarray,
+                  spread: tuple[float, float], box: tuple[float, float], dt: float
+                  ) -> tuple[float, float, tuple[float, float, float]]:
+    """What the estimate's place and the last frames say of the three hypotheses (visible, partial,
+    hidden) of :func:`gflow_core.visibility.visibility`.
+
+    Parameters
+    ----------
+    centre : (2,) the estimate; pred : (2,) the prediction.
+    spread : (sx, sy) px, the std of the motion prior (:func:`_motion_spread`).
+    box : (w, h) px of the box at the last scale.
+
+    Returns
+    -------
+    log_place : log N(centre; pred, S) - log N(pred; pred, S) under "visible".
+    log_place_partial : the same under "partial".
+    state_prior : the prior of (visible, partial, hidden).
+    """
+    bw, bh = box
+    # where the estimate is: a target that is there moved as its motion prior says, so a jump
+    # away from the prediction costs log N(c; pred, S) - log N(pred; pred, S)
+    log_place = _log_place(centre, pred, spread[0], spread[1])
+    # a target partly hidden (or changing its look) is where its motion puts it: its match says
+    # little about its place, so under "partial" the estimate's place is weighed by the motion
+    # prior of a hidden target (hidden_prior box sizes plus hidden_speed |v|), not the wide
+    # prior of a target in plain view; a jump to a look-alike a box away is then no "partial"
+    hp = p.hidden_prior * float(np.sqrt(dt))
+    hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
+    log_tight = _log_place(centre, pred, hp * bw + hs, hp * bh + hs)
+    hidden_before = st.hidden_run >= p.hidden_after
+    log_place_partial = log_place if hidden_before else log_tight
+    # a target judged hidden stays hidden unless the frames say otherwise: after a hidden frame
+    # the prior that it is back is `reappear` (split evenly between visible and partial), plus,
+    # with `hidden_filter`, what the last frames said (below); after a present frame the three
+    # hypotheses are equally likely a priori
+    if not hidden_before:
+        return log_place, log_place_partial, (1.0, 1.0, 1.0)
+    if not p.hidden_filter:
+        return log_place, log_place_partial, (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
+    # forward filtering of a Markov chain over (visible, partial, hidden): the prior of frame t is
+    #   pi_t(h') = sum_h b_{t-1}(h) T(h, h'),
+    # T(present, .) = (1/3, 1/3, 1/3) (the equal priors after a present frame) and
+    # T(hidden, .) = (q/2, q/2, 1 - q), q = reappear; b_{t-1}(present) = st.back, the filtered
+    # posterior of the last frame (0 on entering the hidden state, so its first frame has the
+    # prior of one hidden frame). Frames of moderate evidence then add up: the posterior odds
+    # of present grow as o_t ~ L_t (2/3 b_{t-1} + q) while b is small (L_t the frame's ratio)
+    # The two ways of being present differ in place: a target present on the last frame was at the
+    # place the evidence was gathered (the held box) and moved as a target partly hidden moves
+    # (hidden_prior box sizes plus hidden_speed |v|: log N_t), a target coming back afresh may be
+    # anywhere the widening prior allows (log_place: log N_w). Both present hypotheses weigh
+    #   log [ (b/3) N_t + (1 - b)(q/2) N_w ] - log [ b/3 + (1 - b) q/2 ],
+    # so evidence gathered at the held box does not carry a jump to a look-alike elsewhere.
+    b = float(st.back)
+    carried, fresh = b / 3.0, (1.0 - b) * 0.5 * p.reappear
+    log_place = float(np.logaddexp(math.log(carried) + log_tight if carried > 0 else -math.inf,
+                                   math.log(fresh) + log_place)) - math.log(carried + fresh)
+    return log_place, log_place, (carried + fresh, carried + fresh, b / 3.0 + (1.0 - b) * (1.0 - p.reappear))
+
+
+@dataclass(frozen=True)
+class _Judgement:
+    """Whether the estimate is the target (:mod:`gflow_core.visibility`).
+
+    vis : P(visible), P(partial), P(hidden) of the estimate.
+    present : the target is judged in the box (fully or partly).
+    confident : present, and visible (or still in the first ``warmup`` frames): the exemplars learn.
+    confidence : P(visible) (P(present) in the first ``warmup`` frames).
+    run : frames in a row clutter has explained the estimate, this one included (0: present).
+    hidden : ``run`` has reached ``hidden_after``: the target is judged hidden.
+    """
+
+    vis: Visibility
+    present: bool
+    confident: bool
+    confidence: float
+    run: int
+    hidden: bool
+
+
+def _judge(st: AppearanceState, p: AppearanceParams, r_est: float, cues: tuple[Cue, ...], centre: np.ndarray,
+           pred: np.ndarray, spread: tuple[float, float], box: tuple[float, float], dt: float) -> _Judgement:
+    """Whether the estimate at ``centre`` (2,), of correlation ``r_est`` (and colour ``cues``), is the
+    target: its distance rho = 1 - r against the target's and the clutter's chi-squared
+    distributions (sec. 3 and eq. 10 of the paper), weighed by its place (:func:`_place_priors`)."""
+    log_place, log_place_partial, state_prior = _place_priors(st, p, centre, pred, spread, box, dt)
+    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place,
+                     log_place_partial=log_place_partial, cues=cues)
+    # the first `warmup` frames the target's distribution is still being learnt: a present target is
+    # taken as confident; whether it is present at all the clutter says from the first frame on
+    warm = st.target.n < p.warmup
+    present = vis.present
+    run = 0 if present else st.hidden_run + 1
+    # clutter explains the estimate: the box holds the prediction and nothing is learnt; only
+    # after `hidden_after` such frames in a row is the target judged hidden and searched for
+    return _Judgement(vis=vis, present=present, confident=present and (warm or vis.visible >= 0.5),
+                      confidence=1.0 - vis.hidden if warm else vis.visible, run=run, hidden=run >= p.hidden_after)
+
+
+#: a search candidate with the number of clutter draws its edge distance is the best of, and its colour cue
+_Option = tuple[redetect.Candidate, float, tuple[Cue, ...]]
+
+
+def _search_options(feat: np.ndarray, bins: np.ndarray | None, st: AppearanceState, pred: np.ndarray, run: int,
+                    hidden: bool, clutter_seen: tuple[float, float] | None, seen: _ColourSeen | None,
+                    p: AppearanceParams) -> tuple[list[_Option], bool]:
+    """The candidates of the search for a target in doubt ``run`` frames about the prediction ``pred``
+    (2,): the edges' best of each size (:func:`_search_lost`) and, once the target is judged
+    ``hidden``, the colour's (:func:`_colour_candidates`). Returns them and whether the search
+    covers the whole frame."""
+    colour_on = bins is not None and st.colour0 is not None
+    cands, covers = _search_lost(feat, st, pred, run, p)
+    # every candidate with its edge trials, its colour cue, and which size it has
+    options: list[_Option] = []
+    for cand in cands:
+        # the search had more chances than the window the clutter was learnt on: under
+        # "hidden" its distance is the best of that many clutter draws
+        trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+        options.append((cand, trials, _colour_cue(bins, st, cand) if colour_on else ()))
+    if colour_on and hidden and seen is not None and seen.clutter is not None:
+        assert bins is not None
+        # the candidates the colour finds, each the best of the colour search's many boxes, once
+        # the target is judged hidden: on the frames in doubt before, an occluder coming across
+        # leaves part of the target in view, whose colours the colour search follows off it
+        for cand, rho_c, area in _colour_candidates(feat, bins, st, pred, run, p):
+            options.append((cand, 1.0, (Cue(rho_c, st.ctarget, st.cclutter, trials=area / seen.area),)))
+    return options, covers
+
+
+def _pick_candidate(options: list[_Option], st: AppearanceState, p: AppearanceParams
+                    ) -> tuple[redetect.Candidate, float] | None:
+    """The first size of ``search_scales`` (the size it had first) whose likeliest candidate looks like
+    the target, P(visible) >= 1/2 with no "partial" hypothesis, and that P(visible); None if no size has one."""
+    for lf in p.search_scales:  # the size it had first
+        # a candidate away from the prediction must look like the target (no "partial" hypothesis)
+        best_vis, best_cand = 0.0, None
+        for cand, trials, ccue in options:
+            if cand.log_f != lf:
+                continue
+            vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std,
+                            prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0), cues=ccue)
+            if vf.visible > best_vis:
+                best_vis, best_cand = vf.visible, cand
+        if best_cand is not None and best_vis >= 0.5:
+            return best_cand, best_vis
+    return None
+
+
+def _learn(st: AppearanceState, feat: np.ndarray, centre: np.ndarray, log_s: float, r_est: float, level: float,
+           seen: _ColourSeen | None, confident: bool, p: AppearanceParams) -> AppearanceState:
+    """The models learnt on a frame the target is present at ``centre``, ``log_s``: the target's
+    distance distributions (edges and colour) on every such frame, the running exemplar at a rate
+    raised while the level of r is low, and, on confident frames, the slow exemplar and the running
+    colour histogram."""
+    recent, slow, colour, ctarget = st.recent, st.slow, st.colour, st.ctarget
+    # the target's distance distribution follows it on every frame it is present, so a lasting
+    # change of look (partly hidden for good, new light) becomes the usual look; the exemplars
+    # learn only on confident frames
+    target = st.target.update(1.0 - r_est, p.target_rate)
+    if seen is not None:
+        ctarget = st.ctarget.update(seen.rho, p.target_rate)
+        if confident and st.colour is not None:
+            # q_1 <- (1 - a_c) q_1 + a_c p: the running colour histogram learns on confident frames
+            colour = (1.0 - p.colour_rate) * st.colour + p.colour_rate * seen.hist
+    if p.update_rate > 0:
+        z = _exemplar(feat, centre, log_s, st.size0, st.res)
+        # a poorly explained target (low level of r) learns faster: a = a_0 clip((1 - level) / 0.2, 1, adapt_max)
+        a = p.update_rate * float(np.clip((1.0 - level) / 0.2, 1.0, p.adapt_max))
+        # x~_1 <- (1 - a) x~_1 + a z on every frame the target is present; the long memory
+        # x~_2 <- (1 - a_slow) x~_2 + a_slow z only on confident ones
+        recent = ((1.0 - a) * st.recent + a * z).astype(np.float32)
+        if confident:
+            slow = ((1.0 - p.slow_rate) * st.slow + p.slow_rate * z).astype(np.float32)
+    return replace(st, recent=recent, slow=slow, target=target, colour=colour, ctarget=ctarget)
+
+
+@dataclass(frozen=True)
+class _Move:
+    """Where a frame leaves the track: the state with what it learnt, the box's centre (2,) and
+    log-scale, the velocity (2,) px / frame, and the target state (``StepResult.target_state``)."""
+
+    learnt: AppearanceState
+    centre: np.ndarray
+    log_s: float
+    velocity: np.ndarray
+    target_state: str
+
+
+def _resume(st: AppearanceState, found: redetect.Candidate, est: _Estimate, new_parts: np.ndarray,
+            p: AppearanceParams) -> _Move:
+    """Re-detected: the track resumes at the candidate ``found``, with the particles' spread (the
+    resampled particles ``new_parts`` (N, 3) are moved there in place); the velocity restarts at 0."""
+    centre = found.centre.copy()
+    log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
+    new_parts[:, :2] += centre - est.mean[:2]
+    new_parts[:, 2] += log_s - est.mean[2]
+    return _Move(st, centre, log_s, np.zeros(2), "tracked")
+
+
+def _hold(st: AppearanceState, pred: np.ndarray, j: _Judgement, covers: bool, frame: tuple[int, int]) -> _Move:
+    """Hidden, or in doubt: the box holds the prediction ``pred`` (2,) clipped to the frame of (H, W)
+    px (the particles go on weighing the frame around it), nothing is learnt and the velocity halves.
+    The target is ``lost`` once hidden with a search that ``covers`` the frame."""
+    Hh, Ww = frame
+    centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
+    state = ("lost" if covers else "occluded") if j.hidden else "tracked"
+    return _Move(st, centre, st.log_s, 0.5 * st.velocity, state)
+
+
+def _follow(st: AppearanceState, feat: np.ndarray, est: _Estimate, j: _Judgement, level: float, r_est: float,
+            seen: _ColourSeen | None, frame: tuple[int, int], dt: float, p: AppearanceParams) -> _Move:
+    """Present: the box at the estimate, its scale searched (:func:`_search_scale`) on confident frames
+    that score at least the level of r less ``scale_gate`` and ``scale_min_score``, the velocity a
+    running mean of the moves, and the models learnt (:func:`_learn`)."""
+    Hh, Ww = frame
+    centre, log_s = est.centre, est.log_s
+    if p.scale_search > 0 and j.confident and est.score >= max(level - p.scale_gate, p.scale_min_score):
+        d, refined = _search_scale(feat, replace(st, log_s=log_s), centre, p)
+        log_s = float(np.clip(log_s + p.scale_gain * d, -p.max_log_scale, p.max_log_scale))
+        if p.refine_position:
+            centre = np.array([np.clip(refined[0], 0.0, Ww - 1.0), np.clip(refined[1], 0.0, Hh - 1.0)])
+    # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
+    velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
+    learnt = _learn(st, feat, centre, log_s, r_est, level, seen, j.confident, p)
+    return _Move(learnt, centre, log_s, velocity, "tracked")
+
+
+def _learn_clutter(st: AppearanceState, clutter_seen: tuple[float, float] | None, seen: _ColourSeen | None,
+                   present: bool, p: AppearanceParams) -> tuple[ChiSquare, ChiSquare]:
+    """The clutter's distance distributions (edges, colour) after the frame: they learn the best match
+    away from the estimate on the frames the target is present (or on every frame with
+    ``clutter_while_hidden``)."""
+    # the clutter's moments learn on the frames the target is present: while it is in doubt or hidden
+    # the box is held where it is not, and the best match away from the box may be the target itself
+    # (learnt as clutter, a target that reappears would then never look better than clutter)
+    clutter, cclutter = st.clutter, st.cclutter
+    if clutter_seen is not None and (present or p.clutter_while_hidden):
+        clutter = st.clutter.update(1.0 - clutter_seen[0], p.clutter_rate)
+    if seen is not None and seen.clutter is not None and (present or p.clutter_while_hidden):
+        cclutter = st.cclutter.update(seen.clutter, p.clutter_rate)
+    return clutter, cclutter
+
+
 def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: AppearanceParams,
          rng: np.random.Generator, dt: float = 1.0, bins: np.ndarray | None = None) -> StepResult:
     """One frame: weigh the proposals (and detection particles), estimate, update, resample.
+
+    The steps: the mixture proposal (:func:`_propose`), the observation density
+    (:func:`_log_likelihood`, eq. 7) times the motion prior (:func:`_motion_spread`), the posterior
+    (:func:`_estimate`), whether the estimate is the target (:func:`_place_priors` and
+    :func:`gflow_core.visibility.visibility`), the search for a target in doubt
+    (:func:`_search_options`, :func:`_pick_candidate`), then one of three outcomes -- resumed at a
+    candidate found, held at the prediction, or followed (:func:`_follow_scale`, :func:`_learn`) --
+    and the clutter's learning (:func:`_learn_clutter`).
 
     Parameters
     ----------
@@ -606,60 +979,21 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
     s = float(np.exp(st.log_s))
     bw, bh = st.size0 * s
     levels = _responses(feat, st, pred, p)
-    # x_t ~ (1 - beta) p(x_t | x_{t-1}) + beta N(peak, detect_std)      (mixture proposal)
-    dyn = proposed.copy()
-    dyn[:, :2] += st.velocity * dt
-    n_det = int(round(p.detect_fraction * len(dyn))) if levels else 0
-    if n_det:
-        best = max(levels, key=lambda lv: float(lv.r.max()))
-        _, _, _, loc = cv2.minMaxLoc(best.r)
-        peak = best.origin + np.array(loc, dtype=np.float64) / best.k
-        det = np.column_stack([peak[0] + rng.normal(0.0, p.detect_std, n_det),
-                               peak[1] + rng.normal(0.0, p.detect_std, n_det),
-                               best.log_s + rng.normal(0.0, p.std_log_s, n_det)])
-        parts = np.vstack([dyn[: len(dyn) - n_det], det])
-    else:
-        parts = dyn
+    parts = _propose(st, proposed, levels, p, rng, dt)
     # the colour cue: BC of every box of the current size about the prediction
     colour_on = bins is not None and st.colour0 is not None
     cscan = None
     if colour_on:
         assert bins is not None
         cscan = _colour_scan(bins, st, pred, p.search * max(bw, bh) + 2.0 * float(np.abs(st.velocity).max()) + 10.0)
-    if len(levels) == p.n_scales > 1 and p.scale_from_recent:
-        # position from both exemplars at the last scale, scale from the running exemplar only
-        # (the anchor prefers ever smaller boxes as the appearance moves away from it):
-        # log p = lambda (r(x, y, s_t-1) - 1) + lambda (r_1(x, y, s) - r_1(x, y, s_t-1))
-        mid = len(levels) // 2
-        r = _lookup(levels, parts, level=mid)
-        log_lik = p.lam * (r - 1.0) + p.lam * (_lookup(levels, parts, recent=True)
-                                               - _lookup(levels, parts, recent=True, level=mid))
-    else:
-        r = _lookup(levels, parts)
-        # log p(z | X) = -lambda rho = lambda (r - 1)                      (eq. 7, K exemplars, MAP k)
-        log_lik = p.lam * (r - 1.0)
-    if cscan is not None:
-        # the cues multiply: log p(z_e, z_c | X) = lambda (r - 1) + lambda_c (BC - 1), lambda_c = 20
-        # (Perez et al. 2002: p ~ exp(-lambda D^2), D^2 = 1 - BC)
-        log_lik = log_lik + p.colour_lam * (cscan.at(parts[:, 0], parts[:, 1]) - 1.0)
-    # motion prior: N(x; x_pred, (prior * box)^2), tighter while the target is judged hidden,
-    # then widening as the search does
-    hidden_before = st.hidden_run >= p.hidden_after
-    prior = p.hidden_prior + p.search_growth * (st.hidden_run - p.hidden_after) if hidden_before else p.motion_prior
-    # N(x; x_pred, diag((prior w)^2, (prior h)^2)): a tall box may not jump far sideways
-    # while hidden the std grows with the speed the target had: prior * size + hidden_speed |v|
-    spd = p.hidden_speed * float(np.hypot(*st.velocity)) if hidden_before else 0.0
-    prior, spd = prior * float(np.sqrt(dt)), spd * float(np.sqrt(dt))  # spread over dt periods
-    d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * (prior * bw + spd) ** 2) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * (prior * bh + spd) ** 2)
+    r, log_lik = _log_likelihood(levels, parts, cscan, p)
+    prior, spd = _motion_spread(st, p, dt)
+    sx, sy = prior * bw + spd, prior * bh + spd
+    # the motion prior: d2 = -log N(x; x_pred, diag(sx^2, sy^2)) up to a constant
+    d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * sx ** 2) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * sy ** 2)
     lw = LogWeights(log_lik - d2)
-    W = lw.W
-    # weighted sums by einsum, not BLAS: BLAS splits sums by thread count, and a stage process
-    # (one thread) must give the bits --inline gives
-    mean = np.einsum("i,ij->j", W, parts)
-    score = float(np.einsum("i,i->", W, r))
-    std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
-    centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
-    log_s = float(np.clip(mean[2], -p.max_log_scale, p.max_log_scale))
+    est = _estimate(lw, parts, r, (Hh, Ww), p)
+    centre, log_s = est.centre, est.log_s
     # is the estimate the target? its distance rho = 1 - r against the target's and the
     # clutter's chi-squared distributions (gflow_core.visibility)
     r_est = float(_lookup(levels, np.array([[centre[0], centre[1], log_s]]))[0])
@@ -670,149 +1004,32 @@ def step(st: AppearanceState, feat: np.ndarray, proposed: np.ndarray, p: Appeara
         assert bins is not None
         seen = _colour_at(bins, st, cscan, centre, log_s)
     cues = (Cue(seen.rho, st.ctarget, st.cclutter),) if seen is not None else ()
-    # where the estimate is: a target that is there moved as its motion prior says, so a jump
-    # away from the prediction costs log N(c; pred, S) - log N(pred; pred, S)
-    log_place = _log_place(centre, pred, prior * bw + spd, prior * bh + spd)
-    # a target partly hidden (or changing its look) is where its motion puts it: its match says
-    # little about its place, so under "partial" the estimate's place is weighed by the motion
-    # prior of a hidden target (hidden_prior box sizes plus hidden_speed |v|), not the wide
-    # prior of a target in plain view; a jump to a look-alike a box away is then no "partial"
-    hp = p.hidden_prior * float(np.sqrt(dt))
-    hs = p.hidden_speed * float(np.hypot(*st.velocity)) * float(np.sqrt(dt))
-    log_tight = _log_place(centre, pred, hp * bw + hs, hp * bh + hs)
-    log_place_partial = log_place if hidden_before else log_tight
-    # a target judged hidden stays hidden unless the frames say otherwise: after a hidden frame
-    # the prior that it is back is `reappear` (split evenly between visible and partial), plus,
-    # with `hidden_filter`, what the last frames said (below); after a present frame the three
-    # hypotheses are equally likely a priori
-    if not hidden_before:
-        state_prior = (1.0, 1.0, 1.0)
-    elif p.hidden_filter:
-        # forward filtering of a Markov chain over (visible, partial, hidden): the prior of frame t is
-        #   pi_t(h') = sum_h b_{t-1}(h) T(h, h'),
-        # T(present, .) = (1/3, 1/3, 1/3) (the equal priors after a present frame) and
-        # T(hidden, .) = (q/2, q/2, 1 - q), q = reappear; b_{t-1}(present) = st.back, the filtered
-        # posterior of the last frame (0 on entering the hidden state, so its first frame has the
-        # prior of one hidden frame). Frames of moderate evidence then add up: the posterior odds
-        # of present grow as o_t ~ L_t (2/3 b_{t-1} + q) while b is small (L_t the frame's ratio)
-        # The two ways of being present differ in place: a target present on the last frame was at the
-        # place the evidence was gathered (the held box) and moved as a target partly hidden moves
-        # (hidden_prior box sizes plus hidden_speed |v|: log N_t), a target coming back afresh may be
-        # anywhere the widening prior allows (log_place: log N_w). Both present hypotheses weigh
-        #   log [ (b/3) N_t + (1 - b)(q/2) N_w ] - log [ b/3 + (1 - b) q/2 ],
-        # so evidence gathered at the held box does not carry a jump to a look-alike elsewhere.
-        b = float(st.back)
-        carried, fresh = b / 3.0, (1.0 - b) * 0.5 * p.reappear
-        log_place = float(np.logaddexp(math.log(carried) + log_tight if carried > 0 else -math.inf,
-                                       math.log(fresh) + log_place)) - math.log(carried + fresh)
-        log_place_partial = log_place
-        state_prior = (carried + fresh, carried + fresh, b / 3.0 + (1.0 - b) * (1.0 - p.reappear))
-    else:
-        state_prior = (0.5 * p.reappear, 0.5 * p.reappear, 1.0 - p.reappear)
-    vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=state_prior, log_place=log_place,
-                     log_place_partial=log_place_partial, cues=cues)
-    # the first `warmup` frames the target's distribution is still being learnt: a present target is
-    # taken as confident; whether it is present at all the clutter says from the first frame on
-    warm = st.target.n < p.warmup
-    present = vis.present
-    confident = present and (warm or vis.visible >= 0.5)
-    confidence = 1.0 - vis.hidden if warm else vis.visible
-    run = 0 if present else st.hidden_run + 1
-    # clutter explains the estimate: the box holds the prediction and nothing is learnt; only
-    # after `hidden_after` such frames in a row is the target judged hidden and searched for
-    hidden = run >= p.hidden_after
-    found = None
+    j = _judge(st, p, r_est, cues, centre, pred, (sx, sy), (bw, bh), dt)
+    confidence, run = j.confidence, j.run
+    found, covers = None, False
     if run > 0:
-        cands, covers = _search_lost(feat, st, pred, run, p)
-        # every candidate with its edge trials, its colour cue, and which size it has
-        options: list[tuple[redetect.Candidate, float, tuple[Cue, ...]]] = []
-        for cand in cands:
-            # the search had more chances than the window the clutter was learnt on: under
-            # "hidden" its distance is the best of that many clutter draws
-            trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-            options.append((cand, trials, _colour_cue(bins, st, cand) if colour_on else ()))
-        if colour_on and hidden and seen is not None and seen.clutter is not None:
-            assert bins is not None
-            # the candidates the colour finds, each the best of the colour search's many boxes, once
-            # the target is judged hidden: on the frames in doubt before, an occluder coming across
-            # leaves part of the target in view, whose colours the colour search follows off it
-            for cand, rho_c, area in _colour_candidates(feat, bins, st, pred, run, p):
-                options.append((cand, 1.0, (Cue(rho_c, st.ctarget, st.cclutter, trials=area / seen.area),)))
-        for lf in p.search_scales:  # the size it had first
-            # a candidate away from the prediction must look like the target (no "partial" hypothesis)
-            best_vis, best_cand = 0.0, None
-            for cand, trials, ccue in options:
-                if cand.log_f != lf:
-                    continue
-                vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std,
-                                prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0), cues=ccue)
-                if vf.visible > best_vis:
-                    best_vis, best_cand = vf.visible, cand
-            if best_cand is not None and best_vis >= 0.5:
-                found, confidence, run = best_cand, best_vis, 0
-                break
+        options, covers = _search_options(feat, bins, st, pred, run, j.hidden, clutter_seen, seen, p)
+        picked = _pick_candidate(options, st, p)
+        if picked is not None:
+            (found, confidence), run = picked, 0
     level = 1.0 - st.target.mean() if st.target.n else r_est
     idx = systematic_resample(lw.lw, rng, n)
     new_parts = parts[idx]
-    recent, slow, target = st.recent, st.slow, st.target
-    colour, ctarget, cclutter = st.colour, st.ctarget, st.cclutter
     if found is not None:
-        # re-detected: the track resumes at the candidate, with the particles' spread
-        centre = found.centre.copy()
-        log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
-        new_parts[:, :2] += centre - mean[:2]
-        new_parts[:, 2] += log_s - mean[2]
-        velocity = np.zeros(2)
-        state = "tracked"
-    elif not present:
-        # hidden, or in doubt: the box holds the prediction (the particles go on weighing the
-        # frame around it), nothing is learnt and the velocity decays
-        centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
-        log_s = st.log_s
-        velocity = 0.5 * st.velocity
-        state = ("lost" if covers else "occluded") if hidden else "tracked"
+        mv = _resume(st, found, est, new_parts, p)
+    elif not j.present:
+        mv = _hold(st, pred, j, covers, (Hh, Ww))
     else:
-        if p.scale_search > 0 and confident and score >= max(level - p.scale_gate, p.scale_min_score):
-            d, refined = _search_scale(feat, replace(st, log_s=log_s), centre, p)
-            log_s = float(np.clip(log_s + p.scale_gain * d, -p.max_log_scale, p.max_log_scale))
-            if p.refine_position:
-                centre = np.array([np.clip(refined[0], 0.0, Ww - 1.0), np.clip(refined[1], 0.0, Hh - 1.0)])
-        # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
-        velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
-        state = "tracked"
-        # the target's distance distribution follows it on every frame it is present, so a lasting
-        # change of look (partly hidden for good, new light) becomes the usual look; the exemplars
-        # learn only on confident frames
-        target = st.target.update(1.0 - r_est, p.target_rate)
-        if seen is not None:
-            ctarget = st.ctarget.update(seen.rho, p.target_rate)
-            if confident and st.colour is not None:
-                # q_1 <- (1 - a_c) q_1 + a_c p: the running colour histogram learns on confident frames
-                colour = (1.0 - p.colour_rate) * st.colour + p.colour_rate * seen.hist
-        if p.update_rate > 0:
-            z = _exemplar(feat, centre, log_s, st.size0, st.res)
-            # a poorly explained target (low level of r) learns faster: a = a_0 clip((1 - level) / 0.2, 1, adapt_max)
-            a = p.update_rate * float(np.clip((1.0 - level) / 0.2, 1.0, p.adapt_max))
-            # x~_1 <- (1 - a) x~_1 + a z on every frame the target is present; the long memory
-            # x~_2 <- (1 - a_slow) x~_2 + a_slow z only on confident ones
-            recent = ((1.0 - a) * st.recent + a * z).astype(np.float32)
-            if confident:
-                slow = ((1.0 - p.slow_rate) * st.slow + p.slow_rate * z).astype(np.float32)
-    # the clutter's moments learn on the frames the target is present: while it is in doubt or hidden
-    # the box is held where it is not, and the best match away from the box may be the target itself
-    # (learnt as clutter, a target that reappears would then never look better than clutter)
-    clutter = st.clutter
-    if clutter_seen is not None and (present or p.clutter_while_hidden):
-        clutter = st.clutter.update(1.0 - clutter_seen[0], p.clutter_rate)
-    if seen is not None and seen.clutter is not None and (present or p.clutter_while_hidden):
-        cclutter = st.cclutter.update(seen.clutter, p.clutter_rate)
+        mv = _follow(st, feat, est, j, level, r_est, seen, (Hh, Ww), dt, p)
+    clutter, cclutter = _learn_clutter(st, clutter_seen, seen, j.present, p)
     if p.scale_search > 0:
         # the searched scale is the posterior's: every particle carries it
-        new_parts[:, 2] = log_s
-    new = replace(st, recent=recent, slow=slow, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity,
-                  hidden_run=run, target=target, clutter=clutter, colour=colour, ctarget=ctarget, cclutter=cclutter,
-                  back=(vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0)
-    return StepResult(state=new, box=box_of(centre, log_s, st.size0), mean=mean, std=std, ess=lw.ess,
-                      log_evidence=lw.log_mean, score=score, occluded=not present,
-                      confidence=float(min(max(confidence, 0.0), 1.0)), target_state=state, redetected=found is not None,
-                      r=r_est)
+        new_parts[:, 2] = mv.log_s
+    # while hidden, the filtered probability that the target was present on this frame carries to the next
+    back = (j.vis.visible + j.vis.partial) if st.hidden_run >= p.hidden_after and run > 0 and found is None else 0.0
+    new = replace(mv.learnt, particles=new_parts, centre=mv.centre, log_s=mv.log_s, velocity=mv.velocity,
+                  hidden_run=run, clutter=clutter, cclutter=cclutter, back=back)
+    return StepResult(state=new, box=box_of(mv.centre, mv.log_s, st.size0), mean=est.mean, std=est.std, ess=lw.ess,
+                      log_evidence=lw.log_mean, score=est.score, occluded=not j.present,
+                      confidence=float(min(max(confidence, 0.0), 1.0)), target_state=mv.target_state,
+                      redetected=found is not None, r=r_est)

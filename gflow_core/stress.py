@@ -305,6 +305,192 @@ def _source_frames(case: StressCase, n: int, lead: int, tail: int, span: int,
     return src, (lead, lead + during.shape[0])
 
 
+def _check_plan_inputs(truth: np.ndarray, image_size: tuple[int, int], lead: int, tail: int,
+                       labelled: np.ndarray | None) -> tuple[np.ndarray, tuple[int, int], np.ndarray]:
+    """Check :func:`plan_case`'s inputs before any planning.
+
+    Returns
+    -------
+    t : (N, 4) float64, the truth.
+    size : (W, H) as ints.
+    lab : (N,) bool, the labelled frames (every frame when ``labelled`` is None).
+    """
+    t = _check_truth(truth)
+    W, H = (int(v) for v in image_size)
+    if W < 8 or H < 8:
+        raise ValueError(f"image size must be at least 8x8, got {W}x{H}")
+    if lead < 1 or tail < 1:
+        raise ValueError(f"lead and tail need at least one frame each, got {lead} and {tail}")
+    lab = np.ones(t.shape[0], dtype=bool) if labelled is None else np.asarray(labelled, dtype=bool)
+    if lab.shape != (t.shape[0],) or not lab[0]:
+        raise ValueError(f"labelled must be (N,) = ({t.shape[0]},) bool with frame 0 labelled")
+    return t, (W, H), lab
+
+
+@dataclass
+class _Perturbation:
+    """The per-frame parameters of a derived sequence, as :class:`StressPlan` holds them (T frames).
+
+    boxes : (T, 4) float64, the derived truth (moved by ``shift``).
+    occluder : (T, 4) float64, NaN where no patch is pasted.
+    angle, region, shift, blur, gain, noise : (T,) float64.
+    perturbed : (T,) bool.
+    blur_angle : degrees.
+    """
+
+    boxes: np.ndarray
+    occluder: np.ndarray
+    angle: np.ndarray
+    region: np.ndarray
+    shift: np.ndarray
+    blur: np.ndarray
+    gain: np.ndarray
+    noise: np.ndarray
+    perturbed: np.ndarray
+    blur_angle: float = 0.0
+
+    @classmethod
+    def untouched(cls, boxes: np.ndarray, inside: np.ndarray) -> "_Perturbation":
+        """No change on any of the T = len(boxes) frames; ``perturbed`` starts as the window ``inside`` (T,)."""
+        T = boxes.shape[0]
+        return cls(boxes=boxes, occluder=np.full((T, 4), np.nan), angle=np.zeros(T), region=np.zeros(T),
+                   shift=np.zeros(T), blur=np.zeros(T), gain=np.ones(T), noise=np.zeros(T), perturbed=inside.copy())
+
+
+@dataclass(frozen=True)
+class _Window:
+    """Where the window lies in the derived frames (T of them).
+
+    w0, w1 : its first derived frame and the one after its last.
+    idx : (T,) int, the derived frame numbers.
+    u : (T,) float64, 0 at the window's first frame, 1 at its last (outside [0, 1] beyond it).
+    inside : (T,) bool, the frames of the window.
+    hump : (T,) float64, sin(pi u) inside the window, 0 outside (:func:`_bump`).
+    """
+
+    w0: int
+    w1: int
+    idx: np.ndarray
+    u: np.ndarray
+    inside: np.ndarray
+    hump: np.ndarray
+
+    @classmethod
+    def of(cls, T: int, w0: int, w1: int) -> "_Window":
+        """The window [w0, w1) of T derived frames."""
+        idx = np.arange(T)
+        # u: 0 at the window's first frame, 1 at its last
+        u = (idx - w0) / max(w1 - 1 - w0, 1)
+        inside = (idx >= w0) & (idx < w1)
+        hump = np.where(inside, _bump(u), 0.0)
+        return cls(w0=w0, w1=w1, idx=idx, u=u, inside=inside, hump=hump)
+
+
+def _occlude(pt: _Perturbation, win: _Window) -> None:
+    """``occlude``: one still rectangle over every place the target takes in the window, with a margin
+    of 0.15 box sizes + 2 px each side."""
+    wb = pt.boxes[win.w0:win.w1]
+    x0, y0 = wb[:, 0].min(), wb[:, 1].min()
+    x1, y1 = (wb[:, 0] + wb[:, 2]).max(), (wb[:, 1] + wb[:, 3]).max()
+    mx, my = 0.15 * wb[:, 2].mean() + 2, 0.15 * wb[:, 3].mean() + 2
+    pt.occluder[win.inside] = (x0 - mx, y0 - my, x1 - x0 + 2 * mx, y1 - y0 + 2 * my)
+
+
+def _sweep(pt: _Perturbation, win: _Window) -> None:
+    """``sweep``: a patch three target widths wide, as tall as the target's path, crossing from left
+    of the path to right of it as u goes from 0 to 1."""
+    wb = pt.boxes[win.w0:win.w1]
+    T = pt.boxes.shape[0]
+    ow = 3.0 * wb[:, 2].mean()
+    y0, y1 = wb[:, 1].min(), (wb[:, 1] + wb[:, 3]).max()
+    my = 0.15 * wb[:, 3].mean() + 2
+    xa, xb = wb[:, 0].min() - ow, (wb[:, 0] + wb[:, 2]).max()
+    ox = xa + (xb - xa) * np.clip(win.u, 0, 1)
+    pt.occluder[win.inside] = np.stack([ox, np.full(T, y0 - my), np.full(T, ow), np.full(T, y1 - y0 + 2 * my)],
+                                       1)[win.inside]
+
+
+def _partial(pt: _Perturbation, win: _Window, f: float, rng: np.random.Generator) -> None:
+    """``partial``: a patch covering the fraction ``f`` of the box from a side drawn from ``rng``
+    (left, right or bottom), moving with the target."""
+    x, y, w, h = pt.boxes.T
+    side = ("left", "right", "bottom")[int(rng.integers(3))]
+    if side == "left":
+        r = np.stack([x - 0.3 * w, y - 0.15 * h, (f + 0.3) * w, 1.3 * h], 1)
+    elif side == "right":
+        r = np.stack([x + (1 - f) * w, y - 0.15 * h, (f + 0.3) * w, 1.3 * h], 1)
+    else:
+        r = np.stack([x - 0.15 * w, y + (1 - f) * h, 1.3 * w, (f + 0.3) * h], 1)
+    pt.occluder[win.inside] = r[win.inside]
+
+
+def _slide(pt: _Perturbation, win: _Window) -> None:
+    """``slide``: a patch of 1.2 times the target's size whose top edge goes from the box's bottom
+    to above its top."""
+    x, y, w, h = pt.boxes.T
+    oh = 1.2 * h
+    top = (y + h) - (h + oh) * np.clip(win.u, 0, 1)
+    pt.occluder[win.inside] = np.stack([x - 0.1 * w, top, 1.2 * w, oh], 1)[win.inside]
+
+
+def _look(pt: _Perturbation, win: _Window, f: float) -> None:
+    """``look``: the new top ``f`` of the target, put on from above during the window and kept after it."""
+    x, y, w, h = pt.boxes.T
+    on = win.idx >= win.w0
+    drop = np.where(win.inside, 1.0 - np.clip(win.u, 0, 1), 0.0) * (f + 0.15) * h
+    pt.occluder[on] = np.stack([x - 0.1 * w, y - 0.15 * h - drop, 1.2 * w, (f + 0.15) * h], 1)[on]
+    pt.perturbed = on
+
+
+def _leave(pt: _Perturbation, win: _Window, width: int) -> None:
+    """``leave``: the image (and the truth with it) shifts out through the nearer side edge of a frame
+    ``width`` px wide, far enough to leave a margin, and is out for the middle half of the window."""
+    x, w = pt.boxes[:, 0], pt.boxes[:, 2]
+    w0, w1, u = win.w0, win.w1, win.u
+    c = x[w0] + w[w0] / 2
+    left = c < width / 2
+    margin = 0.2 * w[w0:w1].max() + 4
+    dist = ((x + w)[w0:w1].max() + margin) if left else (width - x[w0:w1].min() + margin)
+    ramp = np.clip(np.minimum(u, 1 - u) / 0.25, 0.0, 1.0)
+    # the image moves, the target moves with it; smoothstep keeps the start and end gentle
+    s = dist * ramp * ramp * (3 - 2 * ramp)
+    pt.shift = np.where(win.inside, -s if left else s, 0.0)
+    pt.boxes[:, 0] += pt.shift
+
+
+def _perturb(case: StressCase, pt: _Perturbation, win: _Window, width: int, rng: np.random.Generator) -> None:
+    """Set the parameters of ``case``'s kind in ``pt`` over the window ``win`` (``rng`` draws the
+    side of ``partial`` and the direction of ``blur``)."""
+    k = case.kind
+    if k == "none":
+        pt.perturbed = np.zeros(pt.boxes.shape[0], dtype=bool)
+    elif k == "occlude":
+        _occlude(pt, win)
+    elif k == "sweep":
+        _sweep(pt, win)
+    elif k == "partial":
+        _partial(pt, win, case.amount, rng)
+    elif k == "slide":
+        _slide(pt, win)
+    elif k in ("roll-target", "roll-camera"):
+        pt.angle = case.amount * win.hump
+        if k == "roll-target":
+            # a disc of 0.55 times the box's diagonal rolls
+            pt.region = np.where(win.inside, 0.55 * np.hypot(pt.boxes[:, 2], pt.boxes[:, 3]), 0.0)
+    elif k == "look":
+        _look(pt, win, case.amount)
+    elif k == "dark":
+        pt.gain = 1.0 - (1.0 - case.amount) * win.hump
+        pt.noise = 15.0 * win.hump
+    elif k == "blur":
+        pt.blur = case.amount * win.hump
+        pt.blur_angle = float(rng.uniform(0.0, 180.0))
+    elif k == "fast":
+        pass  # the window's frames were dropped in _source_frames
+    elif k == "leave":
+        _leave(pt, win, width)
+
+
 def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator,
               lead: int = 30, tail: int = 60, span: int = SPAN, labelled: np.ndarray | None = None) -> StressPlan:
     """Plan the derived sequence of ``case`` on a sequence with ground truth ``truth``.
@@ -325,97 +511,16 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
     -------
     StressPlan
     """
-    t = _check_truth(truth)
-    W, H = (int(v) for v in image_size)
-    if W < 8 or H < 8:
-        raise ValueError(f"image size must be at least 8x8, got {W}x{H}")
-    if lead < 1 or tail < 1:
-        raise ValueError(f"lead and tail need at least one frame each, got {lead} and {tail}")
-    lab = np.ones(t.shape[0], dtype=bool) if labelled is None else np.asarray(labelled, dtype=bool)
-    if lab.shape != (t.shape[0],) or not lab[0]:
-        raise ValueError(f"labelled must be (N,) = ({t.shape[0]},) bool with frame 0 labelled")
+    t, (W, H), lab = _check_plan_inputs(truth, image_size, lead, tail, labelled)
     src, (w0, w1) = _source_frames(case, t.shape[0], lead, tail, span, lab)
     T = src.shape[0]
-    boxes = t[src].copy()
-    idx = np.arange(T)
-    # u: 0 at the window's first frame, 1 at its last
-    u = (idx - w0) / max(w1 - 1 - w0, 1)
-    inside = (idx >= w0) & (idx < w1)
-    hump = np.where(inside, _bump(u), 0.0)
-    occ = np.full((T, 4), np.nan)
-    angle, region, shift = np.zeros(T), np.zeros(T), np.zeros(T)
-    blur, gain, noise = np.zeros(T), np.ones(T), np.zeros(T)
-    perturbed = inside.copy()
-    blur_angle = 0.0
-    x, y, w, h = boxes.T
-    k = case.kind
-    if k == "none":
-        perturbed = np.zeros(T, dtype=bool)
-    elif k == "occlude":
-        # one still rectangle over every place the target takes in the window, with a margin
-        wb = boxes[w0:w1]
-        x0, y0 = wb[:, 0].min(), wb[:, 1].min()
-        x1, y1 = (wb[:, 0] + wb[:, 2]).max(), (wb[:, 1] + wb[:, 3]).max()
-        mx, my = 0.15 * wb[:, 2].mean() + 2, 0.15 * wb[:, 3].mean() + 2
-        occ[inside] = (x0 - mx, y0 - my, x1 - x0 + 2 * mx, y1 - y0 + 2 * my)
-    elif k == "sweep":
-        # three target widths wide, as tall as the target's path; left of it to right of it
-        wb = boxes[w0:w1]
-        ow = 3.0 * wb[:, 2].mean()
-        y0, y1 = wb[:, 1].min(), (wb[:, 1] + wb[:, 3]).max()
-        my = 0.15 * wb[:, 3].mean() + 2
-        xa, xb = wb[:, 0].min() - ow, (wb[:, 0] + wb[:, 2]).max()
-        ox = xa + (xb - xa) * np.clip(u, 0, 1)
-        occ[inside] = np.stack([ox, np.full(T, y0 - my), np.full(T, ow), np.full(T, y1 - y0 + 2 * my)], 1)[inside]
-    elif k == "partial":
-        side = ("left", "right", "bottom")[int(rng.integers(3))]
-        f = case.amount
-        if side == "left":
-            r = np.stack([x - 0.3 * w, y - 0.15 * h, (f + 0.3) * w, 1.3 * h], 1)
-        elif side == "right":
-            r = np.stack([x + (1 - f) * w, y - 0.15 * h, (f + 0.3) * w, 1.3 * h], 1)
-        else:
-            r = np.stack([x - 0.15 * w, y + (1 - f) * h, 1.3 * w, (f + 0.3) * h], 1)
-        occ[inside] = r[inside]
-    elif k == "slide":
-        # the patch's top edge goes from the box's bottom to above its top
-        oh = 1.2 * h
-        top = (y + h) - (h + oh) * np.clip(u, 0, 1)
-        occ[inside] = np.stack([x - 0.1 * w, top, 1.2 * w, oh], 1)[inside]
-    elif k in ("roll-target", "roll-camera"):
-        angle = case.amount * hump
-        if k == "roll-target":
-            region = np.where(inside, 0.55 * np.hypot(w, h), 0.0)
-    elif k == "look":
-        # the new top of the target, put on from above during the window and kept
-        f = case.amount
-        on = idx >= w0
-        drop = np.where(inside, 1.0 - np.clip(u, 0, 1), 0.0) * (f + 0.15) * h
-        occ[on] = np.stack([x - 0.1 * w, y - 0.15 * h - drop, 1.2 * w, (f + 0.15) * h], 1)[on]
-        perturbed = on
-    elif k == "dark":
-        gain = 1.0 - (1.0 - case.amount) * hump
-        noise = 15.0 * hump
-    elif k == "blur":
-        blur = case.amount * hump
-        blur_angle = float(rng.uniform(0.0, 180.0))
-    elif k == "fast":
-        pass  # the window's frames were dropped in _source_frames
-    elif k == "leave":
-        # out through the nearer side edge, far enough to leave a margin; out for the middle half
-        c = x[w0] + w[w0] / 2
-        left = c < W / 2
-        margin = 0.2 * w[w0:w1].max() + 4
-        dist = ((x + w)[w0:w1].max() + margin) if left else (W - x[w0:w1].min() + margin)
-        ramp = np.clip(np.minimum(u, 1 - u) / 0.25, 0.0, 1.0)
-        # the image moves, the target moves with it; smoothstep keeps the start and end gentle
-        s = dist * ramp * ramp * (3 - 2 * ramp)
-        shift = np.where(inside, -s if left else s, 0.0)
-        boxes[:, 0] += shift
-    visible = np.array([visible_fraction(boxes[i], (W, H), occ[i]) for i in range(T)])
-    return StressPlan(case=case, source=src, window=(w0, w1), boxes=boxes, occluder=occ, angle=angle,
-                      region=region, shift=shift, blur=blur, gain=gain, noise=noise, visible=visible,
-                      perturbed=perturbed, labelled=lab[src], blur_angle=blur_angle, image_size=(W, H))
+    win = _Window.of(T, w0, w1)
+    pt = _Perturbation.untouched(t[src].copy(), win.inside)
+    _perturb(case, pt, win, W, rng)
+    visible = np.array([visible_fraction(pt.boxes[i], (W, H), pt.occluder[i]) for i in range(T)])
+    return StressPlan(case=case, source=src, window=(w0, w1), boxes=pt.boxes, occluder=pt.occluder, angle=pt.angle,
+                      region=pt.region, shift=pt.shift, blur=pt.blur, gain=pt.gain, noise=pt.noise, visible=visible,
+                      perturbed=pt.perturbed, labelled=lab[src], blur_angle=pt.blur_angle, image_size=(W, H))
 
 
 def occluder_size(plan: StressPlan) -> tuple[int, int] | None:

@@ -41,7 +41,7 @@ import secrets
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import msgspec
 
@@ -283,8 +283,8 @@ def validate_params(kind: str, params: dict[str, Any], where: str) -> dict[str, 
     return msgspec.to_builtins(msgspec.convert(dict(params), _params_struct(kind), strict=False))
 
 
-def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overrides: dict[str, dict] | None = None) -> Plan:
-    """Parse and validate a graph. ``overrides`` = {stage: {param: value}} is applied before validation."""
+def _read_doc(text: str, filename: str) -> dict:
+    """The graph's YAML as a mapping whose parts remember their lines (:func:`_line`)."""
     import yaml
 
     try:
@@ -295,6 +295,12 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
         raise GraphError(f"{filename}: not valid YAML: {e}") from None
     if not isinstance(doc, dict):
         raise GraphError(f"{filename}: a graph must be a mapping with 'name', 'stream' and 'stages'")
+    return doc
+
+
+def _check_top_level(doc: dict, filename: str, overrides: dict[str, dict]) -> tuple[str, str, str, dict]:
+    """The graph's top-level keys checked: returns its name, stream, ``on_host_lost`` and the mapping
+    of stages (which every stage ``overrides`` names must be in)."""
     unknown = set(doc) - {"name", "stream", "stages", "description", "external", "on_host_lost"}
     if unknown:
         k = sorted(unknown)[0]
@@ -313,79 +319,113 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
     stages_doc = doc.get("stages")
     if not isinstance(stages_doc, dict) or not stages_doc:
         raise GraphError(f"{filename}:{_line(doc, 'stages')}: 'stages' must be a non-empty mapping of stage name -> spec")
-    overrides = overrides or {}
     for sname in overrides:
         if sname not in stages_doc:
             raise GraphError(f"{filename}: override for stage {sname!r}, which the graph does not have "
                              f"(stages: {', '.join(stages_doc)})")
-    plans: dict[str, StagePlan] = {}
-    lines: dict[str, int] = {}  # the line of each stage, and of each of its inputs, for errors
-    input_lines: dict[str, dict[str, int]] = {}
-    port_types: dict[str, tuple] = {}
-    for sname, spec in stages_doc.items():
-        where = f"{filename}:{_line(stages_doc, sname)}"
-        if not isinstance(spec, dict):
-            raise GraphError(f"{where}: stage {sname!r} must be a mapping with at least 'kind'")
-        bad = set(spec) - _STAGE_KEYS
-        if bad:
-            k = sorted(bad)[0]
-            raise GraphError(f"{filename}:{_line(spec, k)}: stage {sname!r}: unknown key {k!r} "
-                             f"(expected {', '.join(sorted(_STAGE_KEYS))})")
-        kind = spec.get("kind")
-        if kind != RECORDER_KIND and kind not in STAGES:
-            known = ", ".join(sorted([*STAGES, RECORDER_KIND]))
-            raise GraphError(f"{filename}:{_line(spec, 'kind')}: stage {sname!r}: unknown stage kind {kind!r} (known: {known})")
-        assert isinstance(kind, str)  # the recorder's kind or a registered one
-        params = dict(spec.get("params") or {})
-        params.update(overrides.get(sname, {}))
-        pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
-        params = validate_params(kind, params, pwhere)
-        cls = None if kind == RECORDER_KIND else STAGES[kind]
-        in_types, out_types = cls.ports(msgspec.convert(params, cls.Params)) if cls else ({}, {})
-        inputs_doc = spec.get("inputs") or {}
-        outputs_doc = spec.get("outputs") or {}
-        if not isinstance(inputs_doc, dict) or not isinstance(outputs_doc, dict):
-            raise GraphError(f"{where}: stage {sname!r}: inputs and outputs must be mappings port -> topic")
-        if cls is not None:
-            for port in inputs_doc:
-                if port not in in_types:
-                    raise GraphError(f"{filename}:{_line(inputs_doc, port)}: stage {sname!r} ({kind}) has no input "
-                                     f"port {port!r} (ports: {', '.join(in_types) or 'none'})")
-            for port in outputs_doc:
-                if port not in out_types:
-                    raise GraphError(f"{filename}:{_line(outputs_doc, port)}: stage {sname!r} ({kind}) has no output "
-                                     f"port {port!r} (ports: {', '.join(out_types) or 'none'})")
-            for port in in_types:
-                if port not in inputs_doc:
-                    raise GraphError(f"{where}: stage {sname!r} ({kind}): input port {port!r} is not connected "
-                                     f"(add inputs: {{{port}: <topic>}})")
-        restart = spec.get("restart", "never")
-        if restart not in ("never", "on-failure"):
-            raise GraphError(f"{filename}:{_line(spec, 'restart')}: stage {sname!r}: restart must be 'never' or 'on-failure'")
-        qos = dict(spec.get("qos") or {})
-        for port, q in qos.items():
-            if q not in ("reliable", "drop"):
-                raise GraphError(f"{filename}:{_line(spec, 'qos')}: stage {sname!r}: qos of {port!r} must be reliable or drop")
-        outs = {p: topic_key(stream, str(outputs_doc.get(p, p))) for p in out_types}
-        ins = {p: topic_key(stream, str(t)) for p, t in inputs_doc.items()}
-        snap = spec.get("snapshot_every", 0)
-        if not isinstance(snap, int) or snap < 0:
-            raise GraphError(f"{filename}:{_line(spec, 'snapshot_every')}: stage {sname!r}: snapshot_every must be "
-                             f"a whole number of frames >= 0, got {snap!r}")
-        host = spec.get("host", "")
-        if not isinstance(host, str) or (host and not _HOST_LABEL.match(host)):
-            raise GraphError(f"{filename}:{_line(spec, 'host')}: stage {sname!r}: host must be a label of letters, "
-                             f"digits, '-' or '_', got {host!r}")
-        plans[sname] = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
-                                 max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap,
-                                 host=host)
-        lines[sname] = _line(stages_doc, sname)
-        input_lines[sname] = {p: _line(inputs_doc, p) for p in inputs_doc}
-        port_types[sname] = (in_types, out_types)
-    # every input must be produced by some stage (or come from outside), with the same message type
-    producers: dict[str, tuple[str, str, type]] = {}
+    return name, stream, on_host_lost, stages_doc
+
+
+@dataclass
+class _ParsedStage:
+    """One stage of a graph file, checked on its own: its plan, the lines of the stage and of each of
+    its inputs (for errors), and its input and output port types (port -> message type)."""
+
+    plan: StagePlan
+    line: int
+    input_lines: dict[str, int]
+    in_types: Mapping[str, type]
+    out_types: Mapping[str, type]
+
+
+def _stage_kind(sname: str, spec: Any, where: str, filename: str) -> str:
+    """The kind of stage ``sname``, whose ``spec`` must be a mapping of known keys naming a known kind."""
+    if not isinstance(spec, dict):
+        raise GraphError(f"{where}: stage {sname!r} must be a mapping with at least 'kind'")
+    bad = set(spec) - _STAGE_KEYS
+    if bad:
+        k = sorted(bad)[0]
+        raise GraphError(f"{filename}:{_line(spec, k)}: stage {sname!r}: unknown key {k!r} "
+                         f"(expected {', '.join(sorted(_STAGE_KEYS))})")
+    kind = spec.get("kind")
+    if kind != RECORDER_KIND and kind not in STAGES:
+        known = ", ".join(sorted([*STAGES, RECORDER_KIND]))
+        raise GraphError(f"{filename}:{_line(spec, 'kind')}: stage {sname!r}: unknown stage kind {kind!r} (known: {known})")
+    assert isinstance(kind, str)  # the recorder's kind or a registered one
+    return kind
+
+
+def _check_ports(sname: str, kind: str, inputs_doc: dict, outputs_doc: dict, in_types: Mapping[str, type],
+                 out_types: Mapping[str, type], where: str, filename: str) -> None:
+    """Every port the stage's ``inputs`` and ``outputs`` name exists, and every input port is connected."""
+    for port in inputs_doc:
+        if port not in in_types:
+            raise GraphError(f"{filename}:{_line(inputs_doc, port)}: stage {sname!r} ({kind}) has no input "
+                             f"port {port!r} (ports: {', '.join(in_types) or 'none'})")
+    for port in outputs_doc:
+        if port not in out_types:
+            raise GraphError(f"{filename}:{_line(outputs_doc, port)}: stage {sname!r} ({kind}) has no output "
+                             f"port {port!r} (ports: {', '.join(out_types) or 'none'})")
+    for port in in_types:
+        if port not in inputs_doc:
+            raise GraphError(f"{where}: stage {sname!r} ({kind}): input port {port!r} is not connected "
+                             f"(add inputs: {{{port}: <topic>}})")
+
+
+def _stage_policy(sname: str, spec: dict, filename: str) -> tuple[str, dict, int, str]:
+    """The stage's restart policy, qos per port, snapshot period (frames) and host label, checked."""
+    restart = spec.get("restart", "never")
+    if restart not in ("never", "on-failure"):
+        raise GraphError(f"{filename}:{_line(spec, 'restart')}: stage {sname!r}: restart must be 'never' or 'on-failure'")
+    qos = dict(spec.get("qos") or {})
+    for port, q in qos.items():
+        if q not in ("reliable", "drop"):
+            raise GraphError(f"{filename}:{_line(spec, 'qos')}: stage {sname!r}: qos of {port!r} must be reliable or drop")
+    snap = spec.get("snapshot_every", 0)
+    if not isinstance(snap, int) or snap < 0:
+        raise GraphError(f"{filename}:{_line(spec, 'snapshot_every')}: stage {sname!r}: snapshot_every must be "
+                         f"a whole number of frames >= 0, got {snap!r}")
+    host = spec.get("host", "")
+    if not isinstance(host, str) or (host and not _HOST_LABEL.match(host)):
+        raise GraphError(f"{filename}:{_line(spec, 'host')}: stage {sname!r}: host must be a label of letters, "
+                         f"digits, '-' or '_', got {host!r}")
+    return restart, qos, snap, host
+
+
+def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides: dict[str, dict],
+                 filename: str) -> _ParsedStage:
+    """Stage ``sname`` of the graph: its kind, its parameters (with ``overrides`` applied) validated,
+    its ports, its wiring to topics of ``stream`` and its policies."""
+    where = f"{filename}:{_line(stages_doc, sname)}"
+    kind = _stage_kind(sname, spec, where, filename)
+    params = dict(spec.get("params") or {})
+    params.update(overrides.get(sname, {}))
+    pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
+    params = validate_params(kind, params, pwhere)
+    cls = None if kind == RECORDER_KIND else STAGES[kind]
+    in_types, out_types = cls.ports(msgspec.convert(params, cls.Params)) if cls else ({}, {})
+    inputs_doc = spec.get("inputs") or {}
+    outputs_doc = spec.get("outputs") or {}
+    if not isinstance(inputs_doc, dict) or not isinstance(outputs_doc, dict):
+        raise GraphError(f"{where}: stage {sname!r}: inputs and outputs must be mappings port -> topic")
+    if cls is not None:
+        _check_ports(sname, kind, inputs_doc, outputs_doc, in_types, out_types, where, filename)
+    restart, qos, snap, host = _stage_policy(sname, spec, filename)
+    outs = {p: topic_key(stream, str(outputs_doc.get(p, p))) for p in out_types}
+    ins = {p: topic_key(stream, str(t)) for p, t in inputs_doc.items()}
+    plan = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
+                     max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap, host=host)
+    return _ParsedStage(plan=plan, line=_line(stages_doc, sname), input_lines={p: _line(inputs_doc, p) for p in inputs_doc},
+                        in_types=in_types, out_types=out_types)
+
+
+def _producers(doc: dict, stages: dict[str, _ParsedStage], stream: str, filename: str
+               ) -> tuple[dict, dict[str, tuple[str, str, type]]]:
+    """The graph's ``external`` topics (topic -> message type name) and the producer of every topic:
+    topic key -> (stage or "outside the graph", port, message type). Two stages may not publish one topic."""
     from stages.messages import MESSAGE_TYPES
 
+    producers: dict[str, tuple[str, str, type]] = {}
     external = doc.get("external") or {}
     if not isinstance(external, dict):
         raise GraphError(f"{filename}:{_line(doc, 'external')}: 'external' must map topic -> message type")
@@ -394,24 +434,31 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
             raise GraphError(f"{filename}:{_line(external, topic)}: external topic {topic!r}: unknown message type "
                              f"{tname!r} (known: {', '.join(sorted(MESSAGE_TYPES))})")
         producers[topic_key(stream, str(topic))] = ("outside the graph", "external", MESSAGE_TYPES[tname])
-    for s in plans.values():
+    for ps in stages.values():
+        s = ps.plan
         if s.kind == RECORDER_KIND:
             continue
         for port, topic in s.outputs.items():
             if topic in producers:
                 other = producers[topic][0]
-                raise GraphError(f"{filename}:{lines[s.name]}: stages {other!r} and {s.name!r} both publish {topic}")
-            producers[topic] = (s.name, port, port_types[s.name][1][port])
-    for s in plans.values():
+                raise GraphError(f"{filename}:{ps.line}: stages {other!r} and {s.name!r} both publish {topic}")
+            producers[topic] = (s.name, port, ps.out_types[port])
+    return external, producers
+
+
+def _check_inputs(stages: dict[str, _ParsedStage], producers: dict[str, tuple[str, str, type]], filename: str) -> None:
+    """Every input is fed by some producer with the message type it expects, and not by its own stage."""
+    for ps in stages.values():
+        s = ps.plan
         if s.kind == RECORDER_KIND:
             continue
         for port, topic in s.inputs.items():
-            line = input_lines[s.name].get(port, lines[s.name])
+            line = ps.input_lines.get(port, ps.line)
             if topic not in producers:
                 raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is not connected: no stage "
                                  f"publishes {topic} (published: {', '.join(sorted(producers)) or 'nothing'})")
             pname, pport, ptype = producers[topic]
-            want = port_types[s.name][0][port]
+            want = ps.in_types[port]
             if ptype is not want:
                 raise GraphError(f"{filename}:{line}: type mismatch: stage {s.name!r} input {port!r} expects "
                                  f"{want.__name__}, but {topic} carries {ptype.__name__} from {pname}.{pport}")
@@ -420,17 +467,41 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
                 raise GraphError(f"{filename}:{line}: stage {s.name!r} input {port!r} is fed by its own output "
                                  f"{pport!r} ({topic}): a cycle that can never start (feed it through a stage "
                                  f"that predicts the next frame, as particle.proposal does)")
-    if not any(s.is_source() for s in plans.values()) and not external:
+
+
+def _check_whole(stages: dict[str, _ParsedStage], external: dict, filename: str) -> None:
+    """What the graph as a whole needs: something to start from, at most one recorder, and a host for
+    every stage or for none."""
+    plans = [ps.plan for ps in stages.values()]
+    if not any(s.is_source() for s in plans) and not external:
         raise GraphError(f"{filename}: the graph has no source stage and no external topics")
-    if sum(1 for s in plans.values() if s.kind == RECORDER_KIND) > 1:
+    if sum(1 for s in plans if s.kind == RECORDER_KIND) > 1:
         raise GraphError(f"{filename}: at most one recorder per graph")
-    placed = [s for s in plans.values() if s.host]
+    placed = [s for s in plans if s.host]
     if placed and len(placed) != len(plans):
-        s = next(s for s in plans.values() if not s.host)
-        raise GraphError(f"{filename}:{lines[s.name]}: stage {s.name!r} has no host, but other stages do: in a graph "
-                         f"placed on hosts every stage needs one (host: {placed[0].host}, say)")
-    return Plan(name=name, stream=stream, stages=plans, source_text=text, base_dir=base_dir,
-                on_host_lost=str(on_host_lost), external=[topic_key(stream, str(t)) for t in external])
+        s = next(s for s in plans if not s.host)
+        raise GraphError(f"{filename}:{stages[s.name].line}: stage {s.name!r} has no host, but other stages do: in a "
+                         f"graph placed on hosts every stage needs one (host: {placed[0].host}, say)")
+
+
+def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overrides: dict[str, dict] | None = None) -> Plan:
+    """Parse and validate a graph. ``overrides`` = {stage: {param: value}} is applied before validation.
+
+    The checks run in order, the first failing one raising :class:`GraphError`: the YAML
+    (:func:`_read_doc`), the top-level keys (:func:`_check_top_level`), each stage on its own
+    (:func:`_parse_stage`), the topics' producers (:func:`_producers`), the wiring of every input
+    (:func:`_check_inputs`) and the graph as a whole (:func:`_check_whole`).
+    """
+    doc = _read_doc(text, filename)
+    overrides = overrides or {}
+    name, stream, on_host_lost, stages_doc = _check_top_level(doc, filename, overrides)
+    stages = {sname: _parse_stage(sname, spec, stages_doc, stream, overrides, filename)
+              for sname, spec in stages_doc.items()}
+    external, producers = _producers(doc, stages, stream, filename)
+    _check_inputs(stages, producers, filename)
+    _check_whole(stages, external, filename)
+    return Plan(name=name, stream=stream, stages={n: ps.plan for n, ps in stages.items()}, source_text=text,
+                base_dir=base_dir, on_host_lost=str(on_host_lost), external=[topic_key(stream, str(t)) for t in external])
 
 
 #: The graphs that ship with gflow (package data, ``pipeline/graphs/*.yaml``).

@@ -114,65 +114,61 @@ def _subject(v, where: str, key: str, streams: bool) -> dict:
     return out
 
 
-def load_router_config(path: str | None = None, **options) -> RouterConfig:
-    """Read and check a router file; ``options`` (listen, tls_cert, tls_key, tls_ca, mtls,
-    users_file) override it. Every error is one line naming the file and the key."""
+def _read_router_file(path: str) -> tuple[dict, Path]:
+    """The mapping of a router file, checked for its top-level keys, and the folder its relative
+    paths start from."""
     import yaml
 
-    data: dict = {}
-    where = "router options"
-    base = Path.cwd()
-    if path:
-        where = path
-        try:
-            data = yaml.safe_load(Path(path).read_text()) or {}
-        except FileNotFoundError:
-            raise RouterConfigError(f"router config not found: {path}") from None
-        except OSError as e:
-            raise RouterConfigError(f"{path}: {e.strerror or e}") from None
-        except yaml.YAMLError as e:
-            mark = getattr(e, "problem_mark", None)
-            raise _fail(path + (f" line {mark.line + 1}" if mark is not None else ""),
-                        f"not valid YAML ({getattr(e, 'problem', None) or e})") from None
-        if not isinstance(data, dict):
-            raise _fail(path, f"expected a mapping with keys {', '.join(_TOP)}")
-        bad = sorted(set(data) - set(_TOP))
-        if bad:
-            raise _fail(path, f"unknown key {bad[0]!r} (expected {', '.join(_TOP)})")
-        base = Path(path).resolve().parent
+    try:
+        data = yaml.safe_load(Path(path).read_text()) or {}
+    except FileNotFoundError:
+        raise RouterConfigError(f"router config not found: {path}") from None
+    except OSError as e:
+        raise RouterConfigError(f"{path}: {e.strerror or e}") from None
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        raise _fail(path + (f" line {mark.line + 1}" if mark is not None else ""),
+                    f"not valid YAML ({getattr(e, 'problem', None) or e})") from None
+    if not isinstance(data, dict):
+        raise _fail(path, f"expected a mapping with keys {', '.join(_TOP)}")
+    bad = sorted(set(data) - set(_TOP))
+    if bad:
+        raise _fail(path, f"unknown key {bad[0]!r} (expected {', '.join(_TOP)})")
+    return data, Path(path).resolve().parent
 
-    def file_of(v, key: str) -> str:
-        if not isinstance(v, str) or not v:
-            raise _fail(where, f"{key} must be a file name, got {v!r}")
-        p = (base / v).resolve()
-        if not p.is_file():
-            raise _fail(where, f"{key}: file not found: {p}")
-        return str(p)
 
-    listen = options.get("listen") or data.get("listen")
-    if listen is None:
-        raise _fail(where, "listen: give at least one endpoint, e.g. tls/0.0.0.0:7447 or tcp/0.0.0.0:7447")
-    listen = [_endpoint(e, where) for e in _str_list(listen, where, "listen")]
-    tls = data.get("tls") or {}
+def _file_of(v, key: str, where: str, base: Path) -> str:
+    """The absolute path of the file ``v`` names under ``key`` (relative to ``base``), which must exist."""
+    if not isinstance(v, str) or not v:
+        raise _fail(where, f"{key} must be a file name, got {v!r}")
+    p = (base / v).resolve()
+    if not p.is_file():
+        raise _fail(where, f"{key}: file not found: {p}")
+    return str(p)
+
+
+def _apply_tls(cfg: RouterConfig, tls: object, options: dict, where: str, base: Path, from_file: bool) -> None:
+    """Fill ``cfg``'s certificate, key, CA and mTLS from the ``tls`` section and the options (which
+    win), and check they fit its listen endpoints and each other (``from_file``: name the file's keys
+    in errors, else the command's options)."""
     if not isinstance(tls, dict):
         raise _fail(where, f"tls must be a mapping of {', '.join(_TLS)}, got {tls!r}")
     bad = sorted(set(tls) - set(_TLS))
     if bad:
         raise _fail(where, f"unknown key tls.{bad[0]} (expected {', '.join(_TLS)})")
-    cfg = RouterConfig(listen=listen, source=where)
-    cfg.tls_cert = options.get("tls_cert") or (file_of(tls["cert"], "tls.cert") if "cert" in tls else "")
-    cfg.tls_key = options.get("tls_key") or (file_of(tls["key"], "tls.key") if "key" in tls else "")
-    cfg.tls_ca = options.get("tls_ca") or (file_of(tls["ca"], "tls.ca") if "ca" in tls else "")
+    cfg.tls_cert = options.get("tls_cert") or (_file_of(tls["cert"], "tls.cert", where, base) if "cert" in tls else "")
+    cfg.tls_key = options.get("tls_key") or (_file_of(tls["key"], "tls.key", where, base) if "key" in tls else "")
+    cfg.tls_ca = options.get("tls_ca") or (_file_of(tls["ca"], "tls.ca", where, base) if "ca" in tls else "")
     mtls = tls.get("mtls", False)
     if not isinstance(mtls, bool):
         raise _fail(where, f"tls.mtls must be true or false, got {mtls!r}")
     cfg.mtls = bool(options.get("mtls")) or mtls
     if bool(cfg.tls_cert) != bool(cfg.tls_key):
         raise _fail(where, "tls: the router's certificate needs its private key and the other way round (cert and key)")
-    if any(e.startswith(("tls/", "quic/")) for e in listen) and not cfg.tls_cert:
+    if any(e.startswith(("tls/", "quic/")) for e in cfg.listen) and not cfg.tls_cert:
         raise _fail(where, "a tls/ listen endpoint needs the router's certificate and key ("
-                    + ("tls.cert, tls.key)" if path else "--tls-cert, --tls-key)"))
-    if cfg.tls_cert and not any(e.startswith(("tls/", "quic/")) for e in listen):
+                    + ("tls.cert, tls.key)" if from_file else "--tls-cert, --tls-key)"))
+    if cfg.tls_cert and not any(e.startswith(("tls/", "quic/")) for e in cfg.listen):
         raise _fail(where, "tls.cert is given but no listen endpoint is tls/HOST:PORT: the certificate would not be used")
     if cfg.mtls and not cfg.tls_ca:
         raise _fail(where, "tls.mtls needs tls.ca, the CA certificate that signed the clients' certificates")
@@ -181,50 +177,85 @@ def load_router_config(path: str | None = None, **options) -> RouterConfig:
     except SecurityError as e:
         raise _fail(where, str(e)) from None
 
+
+def _users_of(data: dict, options: dict, where: str, base: Path) -> dict[str, str] | None:
+    """User name -> password from ``users`` or ``users_file`` (the option wins over the file's key);
+    None when neither is given."""
     users_file = options.get("users_file") or data.get("users_file")
     if "users" in data and users_file:
         raise _fail(where, "give users or users_file, not both")
     if users_file:
-        uf = users_file if options.get("users_file") else file_of(users_file, "users_file")
-        cfg.users = _read_users(uf)
-    elif "users" in data:
+        uf = users_file if options.get("users_file") else _file_of(users_file, "users_file", where, base)
+        return _read_users(uf)
+    if "users" in data:
         users = data["users"]
         if not isinstance(users, dict) or not users:
             raise _fail(where, f"users must be a mapping of user name -> password, got {users!r}")
         for u, pw in users.items():
             if not isinstance(u, str) or not u or ":" in u or not isinstance(pw, (str, int)) or str(pw) == "":
                 raise _fail(where, f"users: {u!r} needs a name without ':' and a non-empty password")
-        cfg.users = {u: str(pw) for u, pw in users.items()}
+        return {u: str(pw) for u, pw in users.items()}
+    return None
 
+
+def _apply_acl(cfg: RouterConfig, acl: object, where: str) -> None:
+    """Fill ``cfg``'s publishers and readers from the ``acl`` section and check that every subject it
+    names can be told apart (usernames need users, certificate names need mTLS)."""
+    if not isinstance(acl, dict):
+        raise _fail(where, f"acl must be a mapping of {', '.join(_ACL)}, got {acl!r}")
+    bad = sorted(set(acl) - set(_ACL))
+    if bad:
+        raise _fail(where, f"unknown key acl.{bad[0]} (expected {', '.join(_ACL)})")
+    pubs = acl.get("publishers")
+    if not isinstance(pubs, list) or not pubs:
+        raise _fail(where, "acl.publishers must list who may publish, e.g. "
+                           "[{streams: ['*'], cert_common_names: [gflow-pipeline]}]")
+    cfg.publishers = [_subject(p, where, f"acl.publishers[{i}]", True) for i, p in enumerate(pubs)]
+    readers = acl.get("readers", "anyone")
+    if isinstance(readers, str):
+        if readers not in ("anyone", "none"):
+            raise _fail(where, f"acl.readers must be anyone, none or a mapping of cert_common_names / usernames, "
+                               f"got {readers!r}")
+    else:
+        readers = _subject(readers, where, "acl.readers", False)
+    cfg.readers = readers
+    cfg.acl = True
+    named = {n for p in cfg.publishers for n in p.get("usernames", [])}
+    if named and not cfg.users:
+        raise _fail(where, "acl names usernames but the router has no users (users or users_file)")
+    if any(p.get("cert_common_names") for p in cfg.publishers) and not cfg.mtls:
+        raise _fail(where, "acl names cert_common_names, which only mTLS clients present: set tls.mtls: true")
+    unknown = sorted(named - set(cfg.users))
+    if unknown:
+        raise _fail(where, f"acl names user {unknown[0]!r}, who is not in users")
+
+
+def load_router_config(path: str | None = None, **options) -> RouterConfig:
+    """Read and check a router file; ``options`` (listen, tls_cert, tls_key, tls_ca, mtls,
+    users_file) override it. Every error is one line naming the file and the key.
+
+    The sections are checked in order: the file itself (:func:`_read_router_file`), ``listen``,
+    ``tls`` (:func:`_apply_tls`), ``users`` / ``users_file`` (:func:`_users_of`), ``acl``
+    (:func:`_apply_acl`) and ``zenoh``.
+    """
+    data: dict = {}
+    where = "router options"
+    base = Path.cwd()
+    if path:
+        where = path
+        data, base = _read_router_file(path)
+    listen = options.get("listen") or data.get("listen")
+    if listen is None:
+        raise _fail(where, "listen: give at least one endpoint, e.g. tls/0.0.0.0:7447 or tcp/0.0.0.0:7447")
+    listen = [_endpoint(e, where) for e in _str_list(listen, where, "listen")]
+    cfg = RouterConfig(listen=listen, source=where)
+    _apply_tls(cfg, data.get("tls") or {}, options, where, base, bool(path))
+    users = _users_of(data, options, where, base)
+    if users is not None:
+        cfg.users = users
     acl = data.get("acl")
     if acl is not None:
-        if not isinstance(acl, dict):
-            raise _fail(where, f"acl must be a mapping of {', '.join(_ACL)}, got {acl!r}")
-        bad = sorted(set(acl) - set(_ACL))
-        if bad:
-            raise _fail(where, f"unknown key acl.{bad[0]} (expected {', '.join(_ACL)})")
-        pubs = acl.get("publishers")
-        if not isinstance(pubs, list) or not pubs:
-            raise _fail(where, "acl.publishers must list who may publish, e.g. "
-                               "[{streams: ['*'], cert_common_names: [gflow-pipeline]}]")
-        cfg.publishers = [_subject(p, where, f"acl.publishers[{i}]", True) for i, p in enumerate(pubs)]
-        readers = acl.get("readers", "anyone")
-        if isinstance(readers, str):
-            if readers not in ("anyone", "none"):
-                raise _fail(where, f"acl.readers must be anyone, none or a mapping of cert_common_names / usernames, "
-                                   f"got {readers!r}")
-        else:
-            readers = _subject(readers, where, "acl.readers", False)
-        cfg.readers = readers
-        cfg.acl = True
-        named = {n for p in cfg.publishers for n in p.get("usernames", [])}
-        if named and not cfg.users:
-            raise _fail(where, "acl names usernames but the router has no users (users or users_file)")
-        if any(p.get("cert_common_names") for p in cfg.publishers) and not cfg.mtls:
-            raise _fail(where, "acl names cert_common_names, which only mTLS clients present: set tls.mtls: true")
-        unknown = sorted(named - set(cfg.users))
-        if unknown:
-            raise _fail(where, f"acl names user {unknown[0]!r}, who is not in users")
+        _apply_acl(cfg, acl, where)
     extra = data.get("zenoh") or {}
     if not isinstance(extra, dict):
         raise _fail(where, f"zenoh must be a mapping of config path -> value, got {extra!r}")
