@@ -76,6 +76,7 @@ from .head_model import MorphableModel, bounding_box
 from .image import FrameData, bilinear_stencil, frame_pyramid, prepare_frame, validate_frame
 from .photometric import Photometric, correct, gain_bias
 from .pose_opinion import (
+    GaussNewtonResult,
     TextureView,
     background_image_terms,
     coarse_to_fine_peak,
@@ -716,24 +717,9 @@ def propose(
     Proposals
     """
     state.check(model)
-    if pyramid is None:
-        pyramid = frame_pyramid(prepare_frame(frame, shape=state.image_shape), cfg.pyramid_levels)
-    elif not pyramid or pyramid[0].shape != tuple(state.image_shape):
-        raise ValueError(f"the frame's pyramid is for {pyramid[0].shape if pyramid else 'no'} frames, the state "
-                         f"tracks {tuple(state.image_shape)}")
+    pyramid = _check_pyramid(state, frame, cfg, pyramid)
     fd = pyramid[0]
-    E = state.n_experts
-    if expert_indices is None:
-        idx = np.arange(E, dtype=np.int64)
-    else:
-        idx = np.asarray(expert_indices)
-        if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
-            raise ValueError(f"expert_indices must be a 1-D integer sequence, got {idx!r}")
-        if idx.size and (idx.min() < 0 or idx.max() >= E):
-            raise ValueError(f"expert_indices must lie in [0, {E}), got {idx.tolist()}")
-        if np.unique(idx).size != idx.size:
-            raise ValueError("expert_indices contain duplicates")
-        idx = idx.astype(np.int64)
+    idx = _expert_rows(state.n_experts, expert_indices)
     if len(rngs) != idx.size:
         raise ValueError(f"need one rng per proposed expert: got {len(rngs)} rngs for {idx.size} experts")
     # p(u_t | u_{t-dt}) and the texels' prediction over the dt periods since the state's frame
@@ -743,31 +729,12 @@ def propose(
     # mean of p(u_t | u_{t-1}): u_{t-1} itself unless its rotation decays toward the identity
     centre = prior_mean(prev, cfg.prior_rotation_decay, cfg.morph_shrink(model.n_bases))
     tv = _texture_view(state, idx, cfg)
-    # u_hat = argmin eq. 14 (Gauss-Newton from u_{t-1}; second background term ignored, first one too
-    # unless gn_background)
     ph = cfg.photometric_model()
     max_rot = math.radians(cfg.max_rotation_deg)
     osq = cfg.outlier_sigmas ** 2
     scale = cfg.scale_limits()
-    reset = cfg.rotation_reset()
-    if reset is not None and state.tex_anchor is not None:
-        # a reset also restarts the texture from the first look (the anchor of texture_decay)
-        reset = dataclasses.replace(reset, anchor_mean=state.tex_anchor,
-                                    anchor_var=np.full(state.tex_anchor.shape, cfg.v_init_var + cfg.psi_v))
-    if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
-            and not math.isfinite(osq) and scale is None and reset is None):
-        gn = gauss_newton_peak(
-            model.bases, fd, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
-            use_background=cfg.gn_background,
-        )
-    else:
-        # departures (see pose_opinion.coarse_to_fine_peak and photometric): pyramid, search, gain/bias
-        gn = coarse_to_fine_peak(
-            model.bases, pyramid, centre, tv, cfg.sigma_w, prior_std,
-            cfg.gn_iterations, start=prev, use_background=cfg.gn_background, photometric=ph,
-            offsets=search_offsets(cfg.search_radius, cfg.search_step), max_rotation=max_rot,
-            search_stride=cfg.search_stride, outlier_sq=osq, scale=scale, reset=reset,
-        )
+    reset = _anchored_reset(state, cfg)
+    gn = _opinion_peak(model, pyramid, prev, centre, tv, prior_std, cfg, ph, reset)
     flags = np.zeros(idx.size, dtype=bool) if gn.reset is None else gn.reset
     if flags.any() and reset is not None and reset.anchor_mean is not None:
         # experts that took the reset are weighed with the first look's texels
@@ -792,6 +759,65 @@ def propose(
         gn_objective=_ro(gn.objective),
         reset=_ro(np.array(flags, dtype=bool)),
         dt=float(dt),
+    )
+
+
+def _check_pyramid(state: ExpertState, frame: np.ndarray, cfg: GFlowConfig,
+                   pyramid: Sequence[FrameData] | None) -> Sequence[FrameData]:
+    """``pyramid`` checked against the state's image size, or made from ``frame`` when None."""
+    if pyramid is None:
+        return frame_pyramid(prepare_frame(frame, shape=state.image_shape), cfg.pyramid_levels)
+    if not pyramid or pyramid[0].shape != tuple(state.image_shape):
+        raise ValueError(f"the frame's pyramid is for {pyramid[0].shape if pyramid else 'no'} frames, the state "
+                         f"tracks {tuple(state.image_shape)}")
+    return pyramid
+
+
+def _expert_rows(E: int, expert_indices: Sequence[int] | np.ndarray | None) -> np.ndarray:
+    """``expert_indices`` checked (1-D, integer, in ``[0, E)``, distinct) as int64; all ``E`` when None."""
+    if expert_indices is None:
+        return np.arange(E, dtype=np.int64)
+    idx = np.asarray(expert_indices)
+    if idx.ndim != 1 or not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"expert_indices must be a 1-D integer sequence, got {idx!r}")
+    if idx.size and (idx.min() < 0 or idx.max() >= E):
+        raise ValueError(f"expert_indices must lie in [0, {E}), got {idx.tolist()}")
+    if np.unique(idx).size != idx.size:
+        raise ValueError("expert_indices contain duplicates")
+    return idx.astype(np.int64)
+
+
+def _anchored_reset(state: ExpertState, cfg: GFlowConfig) -> RotationReset | None:
+    """The frontal reset of ``cfg`` (None: off); with a texture anchor, one that also restarts the texels
+    from the first look (the anchor of ``texture_decay``)."""
+    reset = cfg.rotation_reset()
+    if reset is not None and state.tex_anchor is not None:
+        reset = dataclasses.replace(reset, anchor_mean=state.tex_anchor,
+                                    anchor_var=np.full(state.tex_anchor.shape, cfg.v_init_var + cfg.psi_v))
+    return reset
+
+
+def _opinion_peak(model: MorphableModel, pyramid: Sequence[FrameData], prev: np.ndarray, centre: np.ndarray,
+                  tv: TextureView, prior_std: np.ndarray, cfg: GFlowConfig, ph: Photometric | None,
+                  reset: RotationReset | None) -> GaussNewtonResult:
+    """``u_hat`` = argmin eq. 14 from ``u_{t-1}`` = ``prev`` (E, P) about the prior mean ``centre``: the
+    paper's Gauss-Newton (second background term ignored, the first one too unless ``gn_background``)
+    or, with any departure configured, :func:`.pose_opinion.coarse_to_fine_peak`."""
+    max_rot = math.radians(cfg.max_rotation_deg)
+    osq = cfg.outlier_sigmas ** 2
+    scale = cfg.scale_limits()
+    if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
+            and not math.isfinite(osq) and scale is None and reset is None):
+        return gauss_newton_peak(
+            model.bases, pyramid[0], centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
+            use_background=cfg.gn_background,
+        )
+    # departures (see pose_opinion.coarse_to_fine_peak and photometric): pyramid, search, gain/bias
+    return coarse_to_fine_peak(
+        model.bases, pyramid, centre, tv, cfg.sigma_w, prior_std,
+        cfg.gn_iterations, start=prev, use_background=cfg.gn_background, photometric=ph,
+        offsets=search_offsets(cfg.search_radius, cfg.search_step), max_rotation=max_rot,
+        search_stride=cfg.search_stride, outlier_sq=osq, scale=scale, reset=reset,
     )
 
 
@@ -851,13 +877,8 @@ def update(
     state.check(model)
     img = validate_frame(frame, shape=state.image_shape)
     E = state.n_experts
-    if not np.array_equal(proposals.expert_indices, np.arange(E)):
-        raise ValueError(
-            f"update needs proposals for all {E} experts in order; got indices {proposals.expert_indices.tolist()}"
-        )
+    _check_proposals(proposals, E)
     samples, log_w = proposals.samples, proposals.log_weights
-    if not (np.isfinite(log_w).all() and np.isfinite(samples).all()):
-        raise ValueError("proposals contain NaN or infinite values")
     # the texels are predicted over the periods the proposals' step spans (eq. 9, 10)
     cfg = cfg.at_pace(proposals.dt)
     s = samples.shape[1]
@@ -870,31 +891,10 @@ def update(
     mean_pose = posterior_mean_pose(flat, log_post)
     pose_std = pose_spread(flat, log_post, mean_pose)
     resampled = bool(cfg.resample_ess_fraction >= 1.0 or ess_val < cfg.resample_ess_fraction * E)
-    if resampled:
-        # children drawn from parents in proportion to credibility, u_t from the parent's samples (sec. 3.4)
-        parents, picks = resample_experts(log_cred, log_w, rng)
-        new_log_cred = np.full(E, -np.log(E))
-    else:
-        parents = np.arange(E, dtype=np.int64)
-        picks = pick_samples(normalize_rows(log_w), rng)
-        new_log_cred = log_cred
+    parents, picks, new_log_cred = _children(log_cred, log_w, resampled, rng)
     poses = samples[parents, picks]
     pts = project(model.bases, poses)
-    st = bilinear_stencil(pts, img.shape)
-    y = st.sample(img.reshape(-1))
-    pred_mean, pred_var = predict_texels(state, parents, cfg)
-    restart = proposals.reset[parents]
-    if restart.any() and state.tex_anchor is not None:
-        # children of an expert that took the frontal reset start from the first look's texels
-        pred_mean, pred_var = np.array(pred_mean), np.array(pred_var)
-        pred_mean[restart], pred_var[restart] = state.tex_anchor, cfg.v_init_var + cfg.psi_v
-    y, p_in, r2, vv = explained(y, st.inside, pred_mean, pred_var, cfg)
-    observed = st.inside
-    if math.isfinite(cfg.outlier_sigmas):
-        # outlier vertices (occluder, highlight) are not learned: prediction only
-        observed = observed & (r2 <= cfg.outlier_sigmas ** 2 * vv)
-    # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
-    tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=observed)
+    tex_mean, tex_var, p_in = _learn_texels(state, proposals, parents, pts, img, cfg)
     bg_mean = bg_var = None
     if state.bg_mean is not None:
         assert state.bg_var is not None
@@ -927,6 +927,56 @@ def update(
         inlier_fraction=float(W @ p_in.mean(axis=1) / W.sum()),
     )
     return new_state, est
+
+
+def _check_proposals(proposals: Proposals, E: int) -> None:
+    """Raise ValueError unless ``proposals`` cover the ``E`` experts in order with finite samples and weights."""
+    if not np.array_equal(proposals.expert_indices, np.arange(E)):
+        raise ValueError(
+            f"update needs proposals for all {E} experts in order; got indices {proposals.expert_indices.tolist()}"
+        )
+    if not (np.isfinite(proposals.log_weights).all() and np.isfinite(proposals.samples).all()):
+        raise ValueError("proposals contain NaN or infinite values")
+
+
+def _children(log_cred: np.ndarray, log_w: np.ndarray, resampled: bool, rng: np.random.Generator
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each expert's parent (E,), the sample it takes (E,) and its log credibility (E,) at ``t`` (sec. 3.4).
+
+    Resampling draws children from parents in proportion to credibility (uniform credibility after);
+    otherwise every expert is its own parent and keeps its credibility. ``u_t`` is one of the parent's
+    samples drawn by importance weight either way.
+    """
+    if resampled:
+        parents, picks = resample_experts(log_cred, log_w, rng)
+        return parents, picks, np.full(log_cred.shape[0], -np.log(log_cred.shape[0]))
+    return np.arange(log_cred.shape[0], dtype=np.int64), pick_samples(normalize_rows(log_w), rng), log_cred
+
+
+def _learn_texels(state: ExpertState, proposals: Proposals, parents: np.ndarray, pts: np.ndarray, img: np.ndarray,
+                  cfg: GFlowConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Object texels at ``t`` of the children of ``parents`` (E,) at their vertices ``pts`` (E, n, 2).
+
+    Predict (eq. 9, 10; children of an expert that took the frontal reset start from the first look) then
+    the Kalman update (eq. 7, 8) where the vertex is in the image and, with ``outlier_sigmas``, explained
+    by the texels. Returns the means and variances (E, n) and each vertex's inlier probability (E, n).
+    """
+    st = bilinear_stencil(pts, img.shape)
+    y = st.sample(img.reshape(-1))
+    pred_mean, pred_var = predict_texels(state, parents, cfg)
+    restart = proposals.reset[parents]
+    if restart.any() and state.tex_anchor is not None:
+        # children of an expert that took the frontal reset start from the first look's texels
+        pred_mean, pred_var = np.array(pred_mean), np.array(pred_var)
+        pred_mean[restart], pred_var[restart] = state.tex_anchor, cfg.v_init_var + cfg.psi_v
+    y, p_in, r2, vv = explained(y, st.inside, pred_mean, pred_var, cfg)
+    observed = st.inside
+    if math.isfinite(cfg.outlier_sigmas):
+        # outlier vertices (occluder, highlight) are not learned: prediction only
+        observed = observed & (r2 <= cfg.outlier_sigmas ** 2 * vv)
+    # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
+    tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=observed)
+    return tex_mean, tex_var, p_in
 
 
 def explained(y: np.ndarray, inside: np.ndarray, mean: np.ndarray, var: np.ndarray, cfg: GFlowConfig

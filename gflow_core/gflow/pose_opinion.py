@@ -960,8 +960,19 @@ def coarse_to_fine_peak(
         res = _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
                       max_rotation, outlier_sq, scale)
         return res if reset is None else _frontal_chain(res, reset, *chains)
-    E = u.shape[0]
-    ls = 0.5 ** (L - 1)
+    g_best = _search_best(bases, pyramid[L - 1].image, 0.5 ** (L - 1), prev, u, tv, sigma_w, prior_std, offsets,
+                          max_rotation, search_stride, scale)
+    res = _two_chains(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
+                      max_rotation, outlier_sq, scale, offsets, g_best)
+    return res if reset is None else _frontal_chain(res, reset, *chains)
+
+
+def _search_best(bases: np.ndarray, coarse: np.ndarray, ls: float, prev: np.ndarray, u: np.ndarray,
+                 tv: TextureView, sigma_w: float, prior_std: np.ndarray, offsets: np.ndarray, max_rotation: float,
+                 search_stride: int, scale: tuple[float, float] | None) -> np.ndarray:
+    """Step 1 of :func:`coarse_to_fine_peak`: for each expert, the index (E,) into ``offsets`` (G, 2) of the
+    translation of ``u`` (E, P) with the lowest objective on the coarsest level ``coarse`` (its scale ``ls``
+    = ``2^-(L-1)``); the first on a tie."""
     every = slice(None, None, int(search_stride))
     # the search compares raw intensities with an uncapped cost: with a gain and bias fitted
     # at every grid point low-contrast patches matched too, and with the outlier cap most
@@ -969,7 +980,7 @@ def coarse_to_fine_peak(
     # The candidates differ from u only in l, so the rotated shape g r (h_i c) + l is projected
     # once per expert and only the texture term is evaluated per translation (coarse_search).
     xy = project(bases[every], u)
-    cost = translation_costs(pyramid[L - 1].image, xy[..., 0] * ls, xy[..., 1] * ls, offsets * ls,
+    cost = translation_costs(coarse, xy[..., 0] * ls, xy[..., 1] * ls, offsets * ls,
                              tv.mean[:, every], _fg_weights(tv, sigma_w)[:, every], SEARCH_BLOCK_VERTICES)
     # the rest of the objective (gauss_newton_objective): prior (only its translation part
     # changes with the offset) and the soft walls
@@ -983,7 +994,14 @@ def coarse_to_fine_peak(
     if scale is not None:
         f = f + scale_wall(u, scale)[0][:, None]
     f = np.where(np.isfinite(f), f, np.inf)
-    g_best = np.argmin(f, axis=1)
+    return np.argmin(f, axis=1)
+
+
+def _two_chains(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
+                max_rotation, outlier_sq, scale, offsets, g_best) -> GaussNewtonResult:
+    """Step 2 of :func:`coarse_to_fine_peak` with a search: each expert refined from ``u`` (E, P) and from
+    ``u`` translated by ``offsets[g_best]``, the lower level-0 objective (eq. 14) kept (the first on a tie)."""
+    E = u.shape[0]
     # two chains per expert, refined alike: from u_{t-1} and from the search's best start. Where the
     # best is offsets[0] = (0, 0) the second chain would repeat the first bit for bit (the rows are
     # independent), so it is run only for the experts the search moved, in one batch with the
@@ -1002,8 +1020,7 @@ def coarse_to_fine_peak(
     u_hat[take] = both.u_hat[E:][pick]
     hess[take] = both.hessian[E:][pick]
     obj[take] = both.objective[E:][pick]
-    res = GaussNewtonResult(u_hat, hess, obj)
-    return res if reset is None else _frontal_chain(res, reset, *chains)
+    return GaussNewtonResult(u_hat, hess, obj)
 
 
 def _frontal_chain(res: GaussNewtonResult, reset: RotationReset, bases, pyramid, prev, tv, fg, sigma_w, prior_std,
