@@ -117,6 +117,13 @@ class _Trackers(Mapping):
     def __len__(self) -> int:
         return len(self._all())
 
+    def values(self) -> Any:
+        """Every entry, a broken registration's too (it adds no option; running it says why)."""
+        return self._all().values()
+
+    def items(self) -> Any:
+        return self._all().items()
+
 
 TRACKERS: Mapping[str, Any] = _Trackers()
 
