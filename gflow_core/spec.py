@@ -145,6 +145,9 @@ class TrackerSpec:
             raise SpecError(f"tracker {self.name}: params must be a dataclass, got {self.params!r}")
         if self.graph is None and self.box is None:
             raise SpecError(f"tracker {self.name}: give either the graph it runs in or its box stages (BoxStages)")
+        if self.box is not None and "particles" not in {f.name for f in dataclasses.fields(self.params)}:
+            raise SpecError(f"tracker {self.name}: the box stages need a parameter 'particles' in "
+                            f"{self.params.__name__}")
         if not self.proposal_kind:
             object.__setattr__(self, "proposal_kind", f"{self.name}.proposal")
         if not self.filter_kind:

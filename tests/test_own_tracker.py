@@ -67,7 +67,8 @@ def runs(site, tmp_path_factory) -> dict[str, Path]:
     for mode in ("processes", "inline"):
         csvs[mode] = out / f"{mode}.csv"
         r = gflow(["track", str(crossing), "--init", "204,150,17,50", "--tracker", "ncc", "--seed", "1", "--stop", "30",
-                   "--no-record", "-q", "--out", str(csvs[mode])] + (["--inline"] if mode == "inline" else []),
+                   "-q", "--out", str(csvs[mode])] + (["--record", str(out / "ncc.mcap")] if mode == "processes"
+                                                     else ["--inline", "--no-record"]),
                   env_with(site), cwd=out)
         assert r.returncode == 0, r.stderr
     return csvs
@@ -82,6 +83,14 @@ def test_processes_and_inline_give_the_same_bytes(runs):
                                                                             .open()))[1:]}
     x, y = float(rows[30][1]), float(rows[30][2])
     assert abs(x - truth[29][0]) < 8 and abs(y - truth[29][1]) < 8
+
+
+def test_a_recording_reruns_from_its_snapshot(runs, site):
+    """The filter's snapshots (the spec's to_arrays / from_arrays) restore its state bit for bit."""
+    r = gflow(["rerun", str(runs["processes"].parent / "ncc.mcap"), "--stage", "filter", "--from", "28", "--check"],
+              env_with(site))
+    assert r.returncode == 0 and "from the snapshot at frame" in r.stdout and "identical bit for bit" in r.stdout, \
+        r.stdout + r.stderr
 
 
 def test_python_api_gives_the_cli_boxes(site, runs, monkeypatch):
