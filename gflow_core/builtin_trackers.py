@@ -1,6 +1,7 @@
-"""The specs (:class:`gflow_core.spec.TrackerSpec`) of the trackers gflow ships: dcf, appearance,
-chamfer, m2 and gflow. Each references the tracker's existing modules; a tracker's modules are
-imported when it is used, not when the registry is read.
+"""The specs (:class:`gflow_core.spec.TrackerSpec`) of the trackers gflow ships: dcf (its spec
+beside it, :mod:`gflow_core.dcf.spec`, with what the box stages need), appearance, chamfer, m2 and
+gflow. Each references the tracker's existing modules; a tracker's modules are imported when it
+is used, not when the registry is read.
 """
 
 from __future__ import annotations
@@ -9,19 +10,13 @@ from typing import Any, Mapping
 
 from .appearance_params import AppearanceParams
 from .contour_params import ChamferParams, M2Params
-from .dcf.params import DCFParams
+from .dcf.spec import SPEC as DCF
 from .gflow.params import GFlowParams
 from .params import make
 from .spec import Loader, TrackerSpec
 from .tracker import TrackingFilter
 
 __all__ = ["BUILTIN", "m2_setup", "gflow_setup", "m2_model"]
-
-
-def _dcf() -> TrackingFilter[Any, Any, Any, Any]:
-    from .dcf.tracker import TRACKER
-
-    return TRACKER
 
 
 def _appearance() -> TrackingFilter[Any, Any, Any, Any]:
@@ -111,7 +106,7 @@ BUILTIN: tuple[TrackerSpec, ...] = (
                 origin=_ORIGIN),
     TrackerSpec("chamfer", ChamferParams, _chamfer, graph="chamfer", cli="pipeline.cli.trackers.chamfer",
                 origin=_ORIGIN),
-    TrackerSpec("dcf", DCFParams, _dcf, graph="dcf", cli="pipeline.cli.trackers.dcf", origin=_ORIGIN),
+    DCF,
     TrackerSpec("gflow", GFlowParams, _gflow, setup=gflow_setup, graph="gflow", cli="pipeline.cli.trackers.gflow",
                 origin=_ORIGIN),
     TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2", origin=_ORIGIN),

@@ -7,7 +7,9 @@ the filter stage (kind ``NAME.filter``): their parameters are every field of the
 parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal), as the built-in
 box trackers' stages take; the filter's snapshot holds the state as the spec's ``to_arrays``
 gives it. The stages know the tracker only through its spec (:mod:`stages.registry` asks
-:func:`gflow_core.spec.trackers` for a kind no stage module declares).
+:func:`gflow_core.spec.trackers` for a kind no stage module declares). The correlation-filter
+tracker's stage modules (:mod:`stages.dcf_filter`, :mod:`stages.dcf_proposal`) take what they
+need of it from its spec the same way (:func:`box_filter_spec`, :func:`box_proposal_spec`).
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from .box_tracker import BoxFilterSpec, BoxFilterStage, BoxProposalSpec, BoxProp
 from .messages import NDArray
 from .tracker_params import SeedBoxFields, stage_params
 
-__all__ = ["spec_stage_classes", "SpecProposalFields"]
+__all__ = ["spec_stage_classes", "box_filter_spec", "box_proposal_spec", "SpecProposalFields"]
 
 
 class SpecProposalFields(SeedBoxFields, frozen=True):
@@ -57,6 +59,26 @@ def _codec(spec: TrackerSpec) -> SnapshotCodec:
     return SnapshotCodec(_Snapshot, box.snapshot_version, fields, state)
 
 
+def box_filter_spec(spec: TrackerSpec) -> BoxFilterSpec:
+    """What :class:`~stages.box_tracker.BoxFilterStage` needs of ``spec``'s tracker: its protocol
+    object, its conversions and the snapshot of its state as arrays (:class:`gflow_core.spec.BoxStages`)."""
+    box = spec.box
+    if box is None:
+        raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
+    return BoxFilterSpec(name=spec.name, tracker=spec.tracker(), params=spec.params, proposal=box.proposal,
+                         particles=box.particles, alpha_of=box.alpha_of, particles_of=box.particles_of,
+                         snapshot=_codec(spec))
+
+
+def box_proposal_spec(spec: TrackerSpec) -> BoxProposalSpec:
+    """What :class:`~stages.box_tracker.BoxProposalStage` needs of ``spec``'s tracker: its random walk
+    (the tracker's update is not imported)."""
+    box = spec.box
+    if box is None:
+        raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
+    return BoxProposalSpec(name=spec.name, params=spec.params, walk=box.walk, purpose=box.purpose)
+
+
 def _title(name: str) -> str:
     return "".join(w.capitalize() for w in name.split("_"))
 
@@ -73,10 +95,7 @@ def spec_stage_classes(spec: TrackerSpec) -> dict[str, type[Stage]]:
     proposal_params = stage_params(f"{cap}ProposalParams", cls, SpecProposalFields, __name__,
                                    f"Proposal settings of tracker {spec.name}: every field of {cls.__name__} (the "
                                    f"filter's values), ``seed``, ``init`` and ``timed``.")
-    filt = BoxFilterSpec(name=spec.name, tracker=spec.tracker(), params=cls, proposal=box.proposal,
-                         particles=box.particles, alpha_of=box.alpha_of, particles_of=box.particles_of,
-                         snapshot=_codec(spec))
-    prop = BoxProposalSpec(name=spec.name, params=cls, walk=box.walk, purpose=box.purpose)
+    filt, prop = box_filter_spec(spec), box_proposal_spec(spec)
     doc = f"The {{}} stage of tracker {spec.name} ({spec.origin or 'registered'}): :mod:`stages.spec_box`."
     fcls = type(f"{cap}FilterStage", (BoxFilterStage,),
                 {"kind": spec.filter_kind, "Params": filter_params, "box": filt, "__module__": __name__,
