@@ -188,3 +188,26 @@ def test_the_page_shows_the_example_and_runs_as_written(site, tmp_path):
     r = subprocess.run([sys.executable, "-c", python[1]], env=env, cwd=work, capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 0 and "tracked" in r.stdout, r.stderr
+
+
+def test_a_spec_is_checked_when_it_is_made():
+    """A spec that could not run is refused where it is written, naming what is wrong."""
+    from dataclasses import dataclass
+
+    from gflow_core.spec import BoxStages, SpecError, TrackerSpec
+
+    @dataclass(frozen=True)
+    class NoParticles:
+        sharpness: float = 1.0
+
+    box = BoxStages(walk=lambda *a: a[1], purpose=1, proposal=lambda x, dt: x, particles=lambda s: s,
+                    alpha_of=lambda x: x, particles_of=lambda a: a, to_arrays=lambda s: ({}, {}),
+                    from_arrays=lambda a, v, p: None)
+    with pytest.raises(SpecError, match="lower-case Python identifier"):
+        TrackerSpec("My-Tracker", NoParticles, lambda: None, box=box)  # type: ignore[arg-type,return-value]
+    with pytest.raises(SpecError, match="params must be a dataclass"):
+        TrackerSpec("mine", dict, lambda: None, box=box)  # type: ignore[arg-type,return-value]
+    with pytest.raises(SpecError, match="either the graph it runs in or its box stages"):
+        TrackerSpec("mine", NoParticles, lambda: None)  # type: ignore[arg-type,return-value]
+    with pytest.raises(SpecError, match="need a parameter 'particles' in NoParticles"):
+        TrackerSpec("mine", NoParticles, lambda: None, box=box)  # type: ignore[arg-type,return-value]
