@@ -1,6 +1,6 @@
 """The specs (:class:`gflow_core.spec.TrackerSpec`) of the trackers gflow ships: dcf (its spec
-beside it, :mod:`gflow_core.dcf.spec`, with what the box stages need), appearance, chamfer, m2 and
-gflow. Each references the tracker's existing modules; a tracker's modules are imported when it
+beside it, :mod:`gflow_core.dcf.spec`, with what the box stages need), appearance (beside it too,
+:mod:`gflow_core.appearance_spec`), chamfer, m2 and gflow. Each references the tracker's existing modules; a tracker's modules are imported when it
 is used, not when the registry is read.
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from .appearance_params import AppearanceParams
+from .appearance_spec import SPEC as APPEARANCE
 from .contour_params import ChamferParams, M2Params
 from .dcf.spec import SPEC as DCF
 from .gflow.params import GFlowParams
@@ -17,12 +17,6 @@ from .spec import Loader, TrackerSpec
 from .tracker import TrackingFilter
 
 __all__ = ["BUILTIN", "m2_setup", "gflow_setup", "m2_model"]
-
-
-def _appearance() -> TrackingFilter[Any, Any, Any, Any]:
-    from .appearance_tracker import TRACKER
-
-    return TRACKER
 
 
 def _chamfer() -> TrackingFilter[Any, Any, Any, Any]:
@@ -102,8 +96,7 @@ _ORIGIN = __name__
 
 #: the trackers gflow ships
 BUILTIN: tuple[TrackerSpec, ...] = (
-    TrackerSpec("appearance", AppearanceParams, _appearance, graph="appearance", cli="pipeline.cli.trackers.appearance",
-                origin=_ORIGIN),
+    APPEARANCE,
     TrackerSpec("chamfer", ChamferParams, _chamfer, graph="chamfer", cli="pipeline.cli.trackers.chamfer",
                 origin=_ORIGIN),
     DCF,

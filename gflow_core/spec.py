@@ -75,7 +75,8 @@ class BoxStages:
     alpha_of, particles_of : (N, D) -> (N, 4) and back
         The conversions between the tracker's particles and alpha.
     to_arrays : state -> ({name: array}, {name: plain value})
-        A state as arrays and msgpack-able values, for the filter's snapshots.
+        A state as arrays and msgpack-able values, for the filter's snapshots (None: a tracker
+        whose stage module keeps a snapshot codec of its own; required of a spec without a graph).
     from_arrays : (arrays, values, params) -> state
         The state of a snapshot (``ValueError``, ``KeyError``, ``TypeError`` for a bad one).
     snapshot_version : int
@@ -88,8 +89,8 @@ class BoxStages:
     particles: Callable[[Any], np.ndarray]
     alpha_of: Callable[[np.ndarray], np.ndarray]
     particles_of: Callable[[np.ndarray], np.ndarray]
-    to_arrays: Callable[[Any], tuple[dict[str, np.ndarray], dict[str, Any]]]
-    from_arrays: Callable[[dict[str, np.ndarray], dict[str, Any], Any], Any]
+    to_arrays: Callable[[Any], tuple[dict[str, np.ndarray], dict[str, Any]]] | None = None
+    from_arrays: Callable[[dict[str, np.ndarray], dict[str, Any], Any], Any] | None = None
     snapshot_version: int = 1
 
 
@@ -145,6 +146,9 @@ class TrackerSpec:
             raise SpecError(f"tracker {self.name}: params must be a dataclass, got {self.params!r}")
         if self.graph is None and self.box is None:
             raise SpecError(f"tracker {self.name}: give either the graph it runs in or its box stages (BoxStages)")
+        if self.graph is None and self.box is not None and (self.box.to_arrays is None or self.box.from_arrays is None):
+            raise SpecError(f"tracker {self.name}: its box stages need to_arrays and from_arrays (the filter's "
+                            f"snapshots)")
         if self.box is not None and "particles" not in {f.name for f in dataclasses.fields(self.params)}:
             raise SpecError(f"tracker {self.name}: the box stages need a parameter 'particles' in "
                             f"{self.params.__name__}")

@@ -8,8 +8,9 @@ parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal),
 box trackers' stages take; the filter's snapshot holds the state as the spec's ``to_arrays``
 gives it. The stages know the tracker only through its spec (:mod:`stages.registry` asks
 :func:`gflow_core.spec.trackers` for a kind no stage module declares). The correlation-filter
-tracker's stage modules (:mod:`stages.dcf_filter`, :mod:`stages.dcf_proposal`) take what they
-need of it from its spec the same way (:func:`box_filter_spec`, :func:`box_proposal_spec`).
+and the appearance trackers' stage modules take what they need of them from their specs the same
+way (:func:`box_filter_spec`, :func:`box_proposal_spec`; the appearance filter with a snapshot
+codec of its own).
 """
 
 from __future__ import annotations
@@ -48,26 +49,31 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
 def _codec(spec: TrackerSpec) -> SnapshotCodec:
     box = spec.box
     assert box is not None
+    to_arrays, from_arrays = box.to_arrays, box.from_arrays
+    if to_arrays is None or from_arrays is None:
+        raise ValueError(f"tracker {spec.name}: its spec gives no state as arrays; its filter stage needs a "
+                         f"snapshot codec of its own")
 
     def fields(state: Any) -> dict[str, Any]:
-        arrays, values = box.to_arrays(state)
+        arrays, values = to_arrays(state)
         return {"arrays": {k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, "values": dict(values)}
 
     def state(snap: _Snapshot, core: Any, last: dict) -> Any:
-        return box.from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), core)
+        return from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), core)
 
     return SnapshotCodec(_Snapshot, box.snapshot_version, fields, state)
 
 
-def box_filter_spec(spec: TrackerSpec) -> BoxFilterSpec:
+def box_filter_spec(spec: TrackerSpec, snapshot: SnapshotCodec | None = None) -> BoxFilterSpec:
     """What :class:`~stages.box_tracker.BoxFilterStage` needs of ``spec``'s tracker: its protocol
-    object, its conversions and the snapshot of its state as arrays (:class:`gflow_core.spec.BoxStages`)."""
+    object, its conversions and the snapshot of its state as arrays (:class:`gflow_core.spec.BoxStages`),
+    or ``snapshot``, a codec of the stage module's own."""
     box = spec.box
     if box is None:
         raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
     return BoxFilterSpec(name=spec.name, tracker=spec.tracker(), params=spec.params, proposal=box.proposal,
                          particles=box.particles, alpha_of=box.alpha_of, particles_of=box.particles_of,
-                         snapshot=_codec(spec))
+                         snapshot=snapshot or _codec(spec))
 
 
 def box_proposal_spec(spec: TrackerSpec) -> BoxProposalSpec:
