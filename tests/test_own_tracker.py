@@ -122,8 +122,15 @@ def test_benchmark_scores_it(site, tmp_path):
     assert rows[0]["auc"] > static[0]["auc"]
 
 
-def test_info_and_options_come_from_its_dataclass(site):
+def test_info_and_options_come_from_its_dataclass(site, runs, tmp_path):
     env = env_with(site)
+    # its option reaches its stages: a flatter likelihood gives other boxes than the default's
+    flat = tmp_path / "flat.csv"
+    r = gflow(["track", str(DATA / "crossing"), "--init", "204,150,17,50", "--tracker", "ncc", "--seed", "1", "--stop",
+               "30", "--inline", "--no-record", "-q", "--ncc-sharpness", "2", "--out", str(flat)], env)
+    assert r.returncode == 0, r.stderr
+    rows, default = list(csv.reader(flat.open())), list(csv.reader(runs["inline"].open()))
+    assert len(rows) == len(default) == 31 and rows[1] == default[1] and rows[30] != default[30]
     r = gflow(["info", "ncc"], env)
     assert r.returncode == 0, r.stderr
     assert re.search(r"sharpness\s+20\.0\s+--ncc-sharpness", r.stdout) and "entry point ncc = gflow_ncc:SPEC" in r.stdout
