@@ -16,154 +16,57 @@ from __future__ import annotations
 
 import argparse
 from collections import deque
-from typing import Any, Callable, Mapping
+from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.params import make
+from gflow_core.spec import get as get_spec
 from gflow_core.tracker import Box, Estimate, FrameRng, TrackingFilter, UnusableFrame
 from stages.rng import stream_hash
 
 from .errors import GflowError, UnusableFrameError
 
-__all__ = ["ProtocolBackend", "GraphBackend", "gflow_setup", "appearance_setup", "chamfer_setup", "dcf_setup",
-           "m2_setup", "patch_model", "PROTOCOL_TRACKERS"]
+__all__ = ["ProtocolBackend", "GraphBackend", "load_model_file", "patch_model", "protocol_tracker"]
 
 
-def appearance_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
-    """The appearance tracker's parameters from the API's keywords (it loads no resource)."""
-    from gflow_core.appearance_params import AppearanceParams
-
-    return make(AppearanceParams, params), {}
-
-
-def dcf_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
-    """The correlation-filter tracker's parameters from the API's keywords (it loads no resource)."""
-    from gflow_core.dcf.params import DCFParams
-
-    return make(DCFParams, params), {}
-
-
-def chamfer_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
-    """The chamfer tracker's parameters from the API's keywords (it loads no resource; its Canny
-    thresholds are calibrated on the initial box, as ``gflow track --tracker chamfer`` does)."""
-    from gflow_core.contour_params import ChamferParams
-
-    return make(ChamferParams, params), {}
-
-
-def _m2_model(model: Any) -> tuple[Any, dict[str, Any]]:
-    """(the M2 model, its file's meta) of the ``model`` keyword: a file, an ``M2Model``, or the pair
-    already loaded (:func:`patch_model`)."""
-    from gflow_core.m2.model import M2Model
-
-    if isinstance(model, M2Model):
-        return model, {}
-    if isinstance(model, tuple) and len(model) == 2 and isinstance(model[0], M2Model):
-        return model[0], dict(model[1])
-    if not model:
-        raise GflowError("tracker m2 needs model=MODEL.npz (learn one with `gflow learn m2`)")
-    from pipeline.io.modelfile import load_meta, load_model
+def load_model_file(name: str) -> tuple[Any, Mapping[str, Any], str]:
+    """A model file (or a built-in model's name, ``face``) read for a tracker's setup
+    (:data:`gflow_core.spec.Loader`): (the model, its file's meta, the built-in name or the file's
+    absolute path). A missing or bad file is a :class:`GflowError` saying so."""
+    from pipeline.io.modelfile import BUILTIN_MODELS, load_meta, load_model, model_path
 
     try:
-        obj, meta = load_model(model), load_meta(model)
+        path = model_path(name)
+        obj, meta = load_model(path), load_meta(path)
     except (OSError, ValueError) as e:
         raise GflowError(str(e)) from None
-    if not isinstance(obj, M2Model):
-        raise GflowError(f"{model} holds a {type(obj).__name__}, not an M2 model")
-    return obj, meta
+    return obj, meta, name if name in BUILTIN_MODELS else str(path.resolve())
 
 
 def patch_model(name: str, params: Mapping[str, Any]) -> tuple[bool, dict[str, Any]]:
     """Whether tracker ``name`` with ``params`` is m2 with a patch model (run through its stages),
-    and the parameters with an m2 model file read once (model, meta) for :func:`m2_setup`."""
+    and the parameters with an m2 model file read once (model, meta) for its setup."""
     if name != "m2":
         return False, dict(params)
-    model, meta = _m2_model(params.get("model"))
+    from gflow_core.builtin_trackers import m2_model
+
+    try:
+        model, meta = m2_model(params.get("model"), load_model_file)
+    except ValueError as e:
+        raise GflowError(str(e)) from None
     if model.kind == "patch":
         return True, dict(params)
     return False, {**params, "model": (model, meta)}
 
 
-def m2_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
-    """The M2 tracker's parameters and resources from the API's keywords: ``model`` is a model file
-    of ``gflow learn m2`` or an ``M2Model``; the edges are read with the settings the model was
-    learned with (its profile and g0, its file's Canny thresholds and blur), as ``gflow track
-    --tracker m2`` sets the preprocess stage."""
-    from gflow_core.contour_params import M2Params
-    from gflow_core.contour_protocol import m2_edge_params
-
-    kw = dict(params)
-    model, meta = _m2_model(kw.pop("model", None))
-    return make(M2Params, kw), {"model": model, "edges": m2_edge_params(model, meta)}
-
-
-def _appearance() -> tuple[Any, Any]:
-    from gflow_core.appearance_tracker import TRACKER
-
-    return TRACKER, appearance_setup
-
-
-def _dcf() -> tuple[Any, Any]:
-    from gflow_core.dcf.tracker import TRACKER
-
-    return TRACKER, dcf_setup
-
-
-def _gflow() -> tuple[Any, Any]:
-    from gflow_core.gflow.tracker import TRACKER
-
-    return TRACKER, gflow_setup
-
-
-def _chamfer() -> tuple[Any, Any]:
-    from gflow_core.contour_protocol import CHAMFER
-
-    return CHAMFER, chamfer_setup
-
-
-def _m2() -> tuple[Any, Any]:
-    from gflow_core.contour_protocol import M2
-
-    return M2, m2_setup
-
-
-#: tracker name -> () -> (its TrackingFilter, params -> (its parameter dataclass, resources)), for the
-#: trackers on the protocol (imported when one is made)
-PROTOCOL_TRACKERS: dict[str, Callable[[], tuple[Any, Callable[[Mapping[str, Any]], tuple[Any, dict[str, Any]]]]]] = {
-    "appearance": _appearance, "chamfer": _chamfer, "dcf": _dcf, "gflow": _gflow, "m2": _m2}
-
-
-def gflow_setup(params: Mapping[str, Any]) -> tuple[Any, dict[str, Any]]:
-    """G-flow's parameters and resources from the API's keywords, as ``gflow track --tracker gflow``
-    makes them: ``model`` is ``face`` (the default), ``ellipsoid`` (the generic head with its
-    settings, :data:`gflow_core.gflow.ELLIPSOID`), a model file, or a :class:`MorphableModel`."""
-    from gflow_core.gflow import ELLIPSOID, GFlowParams, MorphableModel
-
-    kw = dict(params)
-    model = kw.pop("model", GFlowParams().model)
-    resources: dict[str, Any] = {}
-    if isinstance(model, MorphableModel):
-        resources["model"] = model
-        return make(GFlowParams, kw, model="(in memory)"), resources
-    if model == "ellipsoid":
-        return make(GFlowParams, dict(ELLIPSOID, **kw)), resources
-    p = make(GFlowParams, kw, model=str(model))
-    if p.model:
-        from pipeline.io.modelfile import BUILTIN_MODELS, load_model, model_path
-
-        try:
-            path = model_path(p.model)
-            obj = load_model(path)
-        except (OSError, ValueError) as e:
-            raise GflowError(str(e)) from None
-        if not isinstance(obj, MorphableModel):
-            raise GflowError(f"{path} holds a {type(obj).__name__}; tracker gflow needs a morphable model file "
-                             f"(kind 'morphable')")
-        resources["model"] = obj
-        if p.model not in BUILTIN_MODELS:
-            p = make(GFlowParams, kw, model=str(path.resolve()))
-    return p, resources
+def protocol_tracker(name: str, params: Mapping[str, Any]) -> tuple[TrackingFilter[Any, Any, Any, Any], Any,
+                                                                    dict[str, Any]]:
+    """(the protocol object, its parameters, its resources) of registered tracker ``name``
+    (:func:`gflow_core.spec.get`) made from the API's keywords: the spec's setup, with model files
+    read by :func:`load_model_file`."""
+    spec = get_spec(name)
+    p, resources = spec.make(params, load_model_file)
+    return spec.tracker(), p, resources
 
 
 class ProtocolBackend:

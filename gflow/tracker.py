@@ -9,13 +9,23 @@ import numpy as np
 
 from gflow_core.tracker import Box, Estimate
 
-from .backends import PROTOCOL_TRACKERS, GraphBackend, ProtocolBackend, patch_model
+from gflow_core import spec as registry
+from gflow_core.builtin_trackers import BUILTIN
+
+from .backends import GraphBackend, ProtocolBackend, patch_model, protocol_tracker
 from .errors import GflowError
 
-__all__ = ["Tracker", "TRACKERS"]
+__all__ = ["Tracker", "TRACKERS", "trackers"]
 
-#: the trackers, as ``gflow track --tracker NAME`` names them
-TRACKERS = ("appearance", "chamfer", "dcf", "gflow", "m2")
+
+def trackers() -> tuple[str, ...]:
+    """The trackers' names, as ``gflow track --tracker NAME`` names them: the built-in ones and those
+    other packages register (entry-point group ``gflow.trackers``, :mod:`gflow_core.spec`)."""
+    return tuple(registry.names())
+
+
+#: the built-in trackers (:func:`trackers` also lists those other packages register)
+TRACKERS = tuple(s.name for s in BUILTIN)
 
 
 def check_box(box: Sequence[float]) -> Box:
@@ -39,8 +49,10 @@ class Tracker:
 
     Parameters
     ----------
-    name : {"appearance", "chamfer", "dcf", "gflow", "m2"}
-        The tracker (``docs/trackers.md``); ``dcf`` is ``gflow track``'s default.
+    name : {"appearance", "chamfer", "dcf", "gflow", "m2"} or a registered tracker
+        The tracker (``docs/trackers.md``); ``dcf`` is ``gflow track``'s default. Another package's
+        tracker registered under the entry-point group ``gflow.trackers`` is named the same way
+        (``docs/own_tracker.md``); its keywords are its parameter dataclass's.
     seed : int >= 0
         Frame ``t`` draws from ``default_rng([seed, crc32("cam0"), t, ...])``, as every stage of the
         shipped graphs does: the same seed gives the boxes of ``gflow track --seed SEED`` bit for bit.
@@ -70,8 +82,10 @@ class Tracker:
     """
 
     def __init__(self, name: str = "dcf", seed: int = 1, *, fps: float = 25.0, **params: Any) -> None:
-        if name not in TRACKERS:
-            raise GflowError(f"unknown tracker {name!r} (choose from {', '.join(TRACKERS)})")
+        try:
+            registry.get(name)
+        except registry.SpecError as e:
+            raise GflowError(str(e)) from None
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise GflowError(f"seed must be an integer >= 0, got {seed!r}")
         if not (math.isfinite(fps) and fps > 0):
@@ -80,9 +94,8 @@ class Tracker:
         self._backend: ProtocolBackend | GraphBackend
         patch, loaded = patch_model(name, params)
         if not patch:
-            impl, setup = PROTOCOL_TRACKERS[name]()
             try:
-                p, resources = setup(loaded)
+                impl, p, resources = protocol_tracker(name, loaded)
             except ValueError as e:
                 raise GflowError(str(e)) from None
             self._backend = ProtocolBackend(impl, p, resources, self.seed, "cam0")

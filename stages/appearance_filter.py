@@ -33,7 +33,8 @@ their distance moments, the hidden-frame count and counters, as msgpack of a sma
 (version 4).
 
 The stage is a registration of :class:`stages.box_tracker.BoxFilterStage` (the stage logic it shares
-with the correlation-filter tracker's); this module holds what is the appearance tracker's own: its
+with the correlation-filter tracker's); what it needs of the tracker comes from its spec
+(:mod:`gflow_core.appearance_spec`), and this module holds what is the appearance tracker's own: its
 snapshot's Struct and codec.
 """
 
@@ -45,13 +46,14 @@ import msgspec
 import numpy as np
 
 from gflow_core import appearance as ap
-from gflow_core.appearance_dynamics import alpha_of, particles_of
 from gflow_core.appearance_params import AppearanceParams
-from gflow_core.appearance_tracker import TRACKER, AppearanceProposal, AppearanceTrack
+from gflow_core.appearance_spec import SPEC
+from gflow_core.appearance_tracker import AppearanceTrack
 
 from .appearance_proposal import AppearanceStageFields
-from .box_tracker import BoxFilterSpec, BoxFilterStage, SnapshotCodec
+from .box_tracker import BoxFilterStage, SnapshotCodec
 from .messages import NDArray
+from .spec_box import box_filter_spec
 from .tracker_params import stage_params
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
@@ -122,13 +124,7 @@ def _snapshot_state(snap: _Snapshot, core: AppearanceParams, last: dict) -> Appe
     return AppearanceTrack(state, str(last.get("target_state", "occluded")))
 
 
-def _particles(track: AppearanceTrack) -> np.ndarray:
-    return track.core.particles
-
-
 class AppearanceFilterStage(BoxFilterStage):
     kind = "appearance.filter"
     Params = AppearanceFilterParams
-    box = BoxFilterSpec(name="appearance", tracker=TRACKER, params=AppearanceParams, proposal=AppearanceProposal,
-                        particles=_particles, alpha_of=alpha_of, particles_of=particles_of,
-                        snapshot=SnapshotCodec(_Snapshot, SNAPSHOT_VERSION, _snapshot_fields, _snapshot_state))
+    box = box_filter_spec(SPEC, SnapshotCodec(_Snapshot, SNAPSHOT_VERSION, _snapshot_fields, _snapshot_state))

@@ -20,10 +20,11 @@ correlation-filter tracker's).
 
 from __future__ import annotations
 
-from gflow_core.appearance_dynamics import PURPOSE_WALK, walk
 from gflow_core.appearance_params import AppearanceParams
+from gflow_core.appearance_spec import SPEC
 
-from .box_tracker import BoxProposalSpec, BoxProposalStage
+from .box_tracker import BoxProposalStage
+from .spec_box import box_proposal_spec
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["AppearanceProposalStage", "AppearanceProposalParams", "AppearanceProposalFields", "AppearanceStageFields"]
@@ -51,4 +52,4 @@ AppearanceProposalParams = stage_params(
 class AppearanceProposalStage(BoxProposalStage):
     kind = "appearance.proposal"
     Params = AppearanceProposalParams
-    box = BoxProposalSpec(name="appearance", params=AppearanceParams, walk=walk, purpose=PURPOSE_WALK)
+    box = box_proposal_spec(SPEC)

@@ -19,30 +19,22 @@ State for ``snapshot()`` / ``restore()``: the tracker's state as arrays and valu
 (:func:`gflow_core.dcf.state.to_arrays`), the step count and the last estimate, as msgpack.
 
 The stage is a registration of :class:`stages.box_tracker.BoxFilterStage` (the stage logic it shares
-with the appearance tracker's); this module holds what is the correlation filter's own: its
-snapshot's Struct and codec.
+with the appearance tracker's); what it needs of the tracker (its protocol object, conversions and
+state as arrays) is the tracker's spec, :mod:`gflow_core.dcf.spec` (:func:`stages.spec_box.box_filter_spec`;
+the snapshot's Struct is :mod:`stages.spec_box`'s, version 1).
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-import msgspec
-import numpy as np
-
-from gflow_core.dcf.dynamics import alpha_of, particles_of
 from gflow_core.dcf.params import DCFParams
-from gflow_core.dcf.state import DCFProposal, DCFState, from_arrays, to_arrays
-from gflow_core.dcf.tracker import TRACKER
+from gflow_core.dcf.spec import SPEC
 
-from .box_tracker import BoxFilterSpec, BoxFilterStage, SnapshotCodec
+from .box_tracker import BoxFilterStage
 from .dcf_proposal import DCFStageFields
-from .messages import NDArray
+from .spec_box import box_filter_spec
 from .tracker_params import stage_params
 
 __all__ = ["DCFFilterStage", "DCFFilterParams"]
-
-SNAPSHOT_VERSION = 1
 
 DCFFilterParams = stage_params(
     "DCFFilterParams", DCFParams, DCFStageFields, __name__,
@@ -50,33 +42,7 @@ DCFFilterParams = stage_params(
     "meanings), ``seed`` and ``init``.")
 
 
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    initialised: bool
-    arrays: dict[str, NDArray] = {}
-    values: dict[str, Any] = {}
-    steps: int = 0
-    last: dict = {}
-
-
-def _snapshot_fields(st: DCFState) -> dict[str, Any]:
-    """The tracker's fields of a snapshot: its state as arrays and values."""
-    arrays, values = to_arrays(st)
-    return {"arrays": {k: NDArray.of(v) for k, v in arrays.items()}, "values": values}
-
-
-def _snapshot_state(snap: _Snapshot, core: DCFParams, last: dict) -> DCFState:
-    """The state of a snapshot (KeyError, IndexError, TypeError, MessageError or ValueError when bad)."""
-    return from_arrays({k: v.array() for k, v in snap.arrays.items()}, snap.values, core)
-
-
-def _particles(st: DCFState) -> np.ndarray:
-    return st.particles
-
-
 class DCFFilterStage(BoxFilterStage):
     kind = "dcf.filter"
     Params = DCFFilterParams
-    box = BoxFilterSpec(name="dcf", tracker=TRACKER, params=DCFParams, proposal=DCFProposal, particles=_particles,
-                        alpha_of=alpha_of, particles_of=particles_of,
-                        snapshot=SnapshotCodec(_Snapshot, SNAPSHOT_VERSION, _snapshot_fields, _snapshot_state))
+    box = box_filter_spec(SPEC)

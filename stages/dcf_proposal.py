@@ -16,10 +16,11 @@ appearance tracker's).
 
 from __future__ import annotations
 
-from gflow_core.dcf.dynamics import PURPOSE_WALK, walk
 from gflow_core.dcf.params import DCFParams
+from gflow_core.dcf.spec import SPEC
 
-from .box_tracker import BoxProposalSpec, BoxProposalStage
+from .box_tracker import BoxProposalStage
+from .spec_box import box_proposal_spec
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["DCFProposalStage", "DCFProposalParams", "DCFProposalFields", "DCFStageFields"]
@@ -47,4 +48,4 @@ DCFProposalParams = stage_params(
 class DCFProposalStage(BoxProposalStage):
     kind = "dcf.proposal"
     Params = DCFProposalParams
-    box = BoxProposalSpec(name="dcf", params=DCFParams, walk=walk, purpose=PURPOSE_WALK)
+    box = box_proposal_spec(SPEC)

@@ -3,6 +3,10 @@
 Every module of the ``stages`` package is scanned and each concrete :class:`Stage`
 subclass with a ``kind`` is registered, so a new stage is one new module.
 
+A registered tracker without stage modules of its own (:class:`gflow_core.spec.TrackerSpec` with
+box stages and no graph file) gets its kinds ``NAME.proposal`` and ``NAME.filter`` from its spec
+(:mod:`stages.spec_box`); the registry of trackers is read only for a kind no module declares.
+
 A module is imported only when one of its kinds is asked for: the scan reads the source
 (``kind = "..."`` in a class body) without importing it, so a stage process pays for its
 own stage's imports only (importing every stage module pulls in scipy.ndimage,
@@ -75,6 +79,14 @@ def _classes(module: str) -> dict[str, type[Stage]]:
     return out
 
 
+def _spec_kinds() -> dict[str, str]:
+    """{kind: tracker name} of the registered trackers whose stages the generic box stages are."""
+    from gflow_core.spec import trackers
+
+    return {k: s.name for s in trackers().values() if s.box is not None and s.graph is None
+            for k in (s.proposal_kind, s.filter_kind)}
+
+
 class _Stages(Mapping):
     """{kind: Stage class}, importing a stage's module when its class is first asked for."""
 
@@ -82,13 +94,25 @@ class _Stages(Mapping):
         self._where = _index()
         self._loaded: dict[str, type[Stage]] = {}
 
+    def _of_spec(self, kind: str) -> type[Stage]:
+        """The generic box stage of kind ``kind`` of a registered tracker (KeyError: none)."""
+        name = _spec_kinds().get(kind)
+        if name is None:
+            raise KeyError(kind)
+        from gflow_core.spec import get
+
+        from .spec_box import spec_stage_classes
+
+        self._loaded.update(spec_stage_classes(get(name)))
+        return self._loaded[kind]
+
     def __getitem__(self, kind: str) -> type[Stage]:
         cls = self._loaded.get(kind)
         if cls is not None:
             return cls
         modules = self._where.get(kind)
         if not modules:
-            raise KeyError(kind)
+            return self._of_spec(kind)
         found = {m: c for m in modules if (c := _classes(m).get(kind)) is not None}
         if len(found) > 1:
             a, b = sorted(found)
@@ -99,13 +123,13 @@ class _Stages(Mapping):
         return cls
 
     def __contains__(self, kind: object) -> bool:
-        return kind in self._where
+        return kind in self._where or kind in _spec_kinds()
 
     def __iter__(self) -> Iterator[str]:
-        return iter(sorted(self._where))
+        return iter(sorted({*self._where, *_spec_kinds()}))
 
     def __len__(self) -> int:
-        return len(self._where)
+        return len({*self._where, *_spec_kinds()})
 
 
 STAGES: Mapping[str, type[Stage]] = _Stages()

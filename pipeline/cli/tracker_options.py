@@ -108,13 +108,14 @@ def tracker_description(name: str) -> dict[str, Any]:
 
     from stages.registry import get_stage_class
 
-    from pipeline.cli.trackers import TRACKERS
+    from pipeline.cli.trackers import TRACKERS, spec_of
     from pipeline.runtime.graph import RECORDER_KIND, load_graph
 
-    mod = TRACKERS[name]
+    mod = TRACKERS[name]  # UnknownTracker (a CliError) for a name not registered
     cls = getattr(mod, "PARAMS", None)
     shared = {i.name for i in describe(cls)} if cls is not None else set()
-    plan = load_graph(mod.GRAPH)
+    make_plan = getattr(mod, "make_plan", None)  # a graph made from the spec (or gflow's shards)
+    plan = make_plan(mod.GRAPH, {}) if make_plan is not None else load_graph(mod.GRAPH)
     stages = []
     for sname, sp in plan.stages.items():
         if sp.kind in (RECORDER_KIND, "source"):
@@ -124,7 +125,8 @@ def tracker_description(name: str) -> dict[str, Any]:
                 "graph": format_value(sp.params.get(f.name))} for f in fields if f.name not in shared]
         stages.append({"stage": sname, "kind": sp.kind, "params": own})
     about = re.sub(r"^``--tracker \w+``(?: \(the default\))?:\s*", "", (mod.__doc__ or "").strip().splitlines()[0])
-    return {"tracker": name, "about": about, "graph": mod.GRAPH,
+    spec = spec_of(name)
+    return {"tracker": name, "about": about, "graph": mod.GRAPH, "registered": spec.origin,
             "parameters": param_table(cls) if cls is not None else [],
             "parameters_of": f"{cls.__module__}.{cls.__qualname__}" if cls is not None else "", "stages": stages}
 
@@ -133,12 +135,19 @@ def print_tracker(name: str, as_json: bool) -> None:
     """Print :func:`tracker_description`."""
     import json
 
+    from pipeline.cli.trackers import spec_of
+
     d = tracker_description(name)
     if as_json:
         print(json.dumps(d, indent=1))
         return
     print(f"tracker {name}: {d['about']}")
-    print(f"graph:   {d['graph']} (gflow run {d['graph']}; gflow track --tracker {name})")
+    if spec_of(name).graph is None:
+        print(f"graph:   made from its spec (source, {name}.proposal, {name}.filter; gflow track --tracker {name})")
+    else:
+        print(f"graph:   {d['graph']} (gflow run {d['graph']}; gflow track --tracker {name})")
+    if not d["registered"].startswith("gflow_core."):
+        print(f"from:    {d['registered']}")
     if d["parameters"]:
         rows = d["parameters"]
         print(f"parameters ({d['parameters_of']}; every stage of the tracker takes them, gflow track sets them with "

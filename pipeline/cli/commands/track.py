@@ -287,8 +287,8 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--points-out", metavar="CSV",
                    help="gflow with a face model: every vertex per frame (frame,landmark,x,y; landmark = the "
                         "reference landmark index it was learned from), for gflow eval --landmarks")
-    p.add_argument("--tracker", default="dcf", choices=sorted(TRACKERS),
-                   help="tracking method (default dcf; README 'Which tracker')")
+    p.add_argument("--tracker", default="dcf", metavar="NAME",  # checked against the registry: plugins too
+                   help=f"tracking method: {', '.join(TRACKERS)} (default dcf; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
     add_record_args(p, "recordings/track-TIME-RUNID.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")

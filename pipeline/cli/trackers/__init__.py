@@ -1,17 +1,136 @@
-"""Trackers that ``gflow track --tracker NAME`` can run.
+"""Trackers that ``gflow track --tracker NAME`` can run: one per registered spec
+(:func:`gflow_core.spec.trackers`, the built-in ones and those of the entry-point group
+``gflow.trackers``).
 
-Each module here has ``NAME``, ``add_args(group)`` and ``overrides(args) -> (graph, {stage:
-{param: value}})``; every module of this package is registered, so a tracker is one module.
+Each entry has ``NAME``, ``GRAPH``, ``PARAMS``, ``add_args(group)``, ``overrides(args) -> (graph,
+{stage: {param: value}})`` and ``make_plan(graph, overrides) -> Plan``. A spec that names its
+options module (``TrackerSpec.cli``, one module of this package per built-in tracker) gets that
+module; any other gets :class:`SpecOptions`: the options of its parameter dataclass, its stages
+given the initial box, the seed and those values, its graph the one made from the spec
+(:func:`pipeline.runtime.spec_graph.spec_plan`) when it has no graph file.
 """
 
 from __future__ import annotations
 
 import importlib
-import pkgutil
+from collections.abc import Iterator, Mapping
+from typing import Any
 
-TRACKERS = {}
-for _info in sorted(pkgutil.iter_modules(__path__), key=lambda i: i.name):
-    _mod = importlib.import_module(f"{__name__}.{_info.name}")
-    TRACKERS[_mod.NAME] = _mod
+from gflow_core.spec import SpecError, TrackerSpec, broken, get, trackers
 
-__all__ = ["TRACKERS"]
+from pipeline.cli.commands.common import CliError
+
+__all__ = ["TRACKERS", "SpecOptions", "UnknownTracker", "spec_of"]
+
+
+class UnknownTracker(CliError, KeyError):
+    """A tracker name that is not registered, or whose registration is broken (one line)."""
+
+    def __str__(self) -> str:
+        return str(self.args[0]) if self.args else ""
+
+
+class SpecOptions:
+    """The ``gflow track`` options of a tracker from its spec alone (module docstring)."""
+
+    def __init__(self, spec: TrackerSpec) -> None:
+        self.spec = spec
+        self.NAME = spec.name
+        self.GRAPH = spec.graph or spec.name
+        self.PARAMS = spec.params
+        self.__doc__ = f"``--tracker {spec.name}``: {spec.about or spec.params.__doc__ or spec.name}"
+
+    def add_args(self, g: Any) -> None:
+        """An option for every parameter of the dataclass that declares one (an option another
+        tracker declares already is left to it: set the value with ``--set STAGE.NAME=VALUE``)."""
+        from gflow_core.params import describe
+
+        from pipeline.cli.tracker_options import add_param_options
+
+        taken = set(getattr(g, "_option_string_actions", {}))
+        if any(i.option in taken for i in describe(self.PARAMS) if i.option):
+            return
+        add_param_options(g, self.PARAMS, self.NAME)
+
+    def overrides(self, args: Any) -> tuple[str, dict[str, dict]]:
+        """Both stages get the initial box, the seed and the options given."""
+        from pipeline.cli.tracker_options import param_values
+
+        shared: dict = {"init": list(args.init), "seed": args.seed}
+        shared.update(param_values(args, self.PARAMS))
+        return self.GRAPH, {"proposal": dict(shared), "filter": dict(shared)}
+
+    def make_plan(self, graph: str, over: dict[str, dict]) -> Any:
+        """The plan of ``graph``: the spec's own when it is the tracker's (and no file of that name)."""
+        from pipeline.runtime.graph import load_graph
+        from pipeline.runtime.spec_graph import spec_plan
+
+        if self.spec.graph is None and graph == self.GRAPH:
+            return spec_plan(self.spec, over)
+        return load_graph(graph, overrides=over)
+
+
+class _Broken:
+    """A registration that cannot be used: it adds no option, and running it is its one-line error."""
+
+    def __init__(self, name: str, why: str) -> None:
+        self.NAME, self.GRAPH, self.PARAMS, self.why = name, name, None, why
+
+    def add_args(self, g: Any) -> None:
+        pass
+
+    def overrides(self, args: Any) -> tuple[str, dict[str, dict]]:
+        raise UnknownTracker(self.why)
+
+
+_modules: dict[str, Any] = {}
+
+
+def _entry(spec: TrackerSpec) -> Any:
+    key = f"{spec.name}:{spec.cli}:{spec.origin}"
+    if key not in _modules:
+        _modules[key] = importlib.import_module(spec.cli) if spec.cli else SpecOptions(spec)
+    return _modules[key]
+
+
+class _Trackers(Mapping):
+    """{name: options of that tracker}, read from the registry each time (a package installed or put
+    on ``sys.path`` meanwhile is seen); a broken registration is listed and fails when run."""
+
+    def _all(self) -> dict[str, Any]:
+        out = {n: _entry(s) for n, s in trackers().items()}
+        out.update({n: _Broken(n, why) for n, why in broken().items() if n not in out})
+        return {n: out[n] for n in sorted(out)}
+
+    def __getitem__(self, name: str) -> Any:
+        try:
+            return _entry(get(name))
+        except SpecError as e:
+            raise UnknownTracker(str(e)) from None
+
+    def __contains__(self, name: object) -> bool:
+        return isinstance(name, str) and name in self._all()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+    def values(self) -> Any:
+        """Every entry, a broken registration's too (it adds no option; running it says why)."""
+        return self._all().values()
+
+    def items(self) -> Any:
+        return self._all().items()
+
+
+TRACKERS: Mapping[str, Any] = _Trackers()
+
+
+def spec_of(name: str) -> TrackerSpec:
+    """The spec of tracker ``name`` (:class:`UnknownTracker` for a name not registered)."""
+    try:
+        return get(name)
+    except SpecError as e:
+        raise UnknownTracker(str(e)) from None

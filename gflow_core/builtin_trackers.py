@@ -1,0 +1,106 @@
+"""The specs (:class:`gflow_core.spec.TrackerSpec`) of the trackers gflow ships: dcf (its spec
+beside it, :mod:`gflow_core.dcf.spec`, with what the box stages need), appearance (beside it too,
+:mod:`gflow_core.appearance_spec`), chamfer, m2 and gflow. Each references the tracker's existing modules; a tracker's modules are imported when it
+is used, not when the registry is read.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+from .appearance_spec import SPEC as APPEARANCE
+from .contour_params import ChamferParams, M2Params
+from .dcf.spec import SPEC as DCF
+from .gflow.params import GFlowParams
+from .params import make
+from .spec import Loader, TrackerSpec
+from .tracker import TrackingFilter
+
+__all__ = ["BUILTIN", "m2_setup", "gflow_setup", "m2_model"]
+
+
+def _chamfer() -> TrackingFilter[Any, Any, Any, Any]:
+    from .contour_protocol import CHAMFER
+
+    return CHAMFER
+
+
+def _m2() -> TrackingFilter[Any, Any, Any, Any]:
+    from .contour_protocol import M2
+
+    return M2
+
+
+def _gflow() -> TrackingFilter[Any, Any, Any, Any]:
+    from .gflow.tracker import TRACKER
+
+    return TRACKER
+
+
+def m2_model(model: Any, load: Loader) -> tuple[Any, dict[str, Any]]:
+    """(the M2 model, its file's meta) of the ``model`` keyword: a file, an ``M2Model``, or the pair
+    already loaded."""
+    from .m2.model import M2Model
+
+    if isinstance(model, M2Model):
+        return model, {}
+    if isinstance(model, tuple) and len(model) == 2 and isinstance(model[0], M2Model):
+        return model[0], dict(model[1])
+    if not model:
+        raise ValueError("tracker m2 needs model=MODEL.npz (learn one with `gflow learn m2`)")
+    obj, meta, _ = load(str(model))
+    if not isinstance(obj, M2Model):
+        raise ValueError(f"{model} holds a {type(obj).__name__}, not an M2 model")
+    return obj, dict(meta)
+
+
+def m2_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
+    """The M2 tracker's parameters and resources: ``model`` is a model file of ``gflow learn m2`` or an
+    ``M2Model``; the edges are read with the settings the model was learned with (its profile and
+    g0, its file's Canny thresholds and blur), as ``gflow track --tracker m2`` sets the preprocess
+    stage."""
+    from .contour_protocol import m2_edge_params
+
+    kw = dict(keywords)
+    model, meta = m2_model(kw.pop("model", None), load)
+    return make(M2Params, kw), {"model": model, "edges": m2_edge_params(model, meta)}
+
+
+def gflow_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
+    """G-flow's parameters and resources, as ``gflow track --tracker gflow`` makes them: ``model`` is
+    ``face`` (the default), ``ellipsoid`` (the generic head with its settings,
+    :data:`gflow_core.gflow.ELLIPSOID`), a model file, or a :class:`MorphableModel`."""
+    from .gflow import ELLIPSOID, MorphableModel
+
+    kw = dict(keywords)
+    model = kw.pop("model", GFlowParams().model)
+    resources: dict[str, Any] = {}
+    if isinstance(model, MorphableModel):
+        resources["model"] = model
+        return make(GFlowParams, kw, model="(in memory)"), resources
+    if model == "ellipsoid":
+        return make(GFlowParams, dict(ELLIPSOID, **kw)), resources
+    p = make(GFlowParams, kw, model=str(model))
+    if p.model:
+        obj, _, ref = load(p.model)
+        if not isinstance(obj, MorphableModel):
+            raise ValueError(f"{ref} holds a {type(obj).__name__}; tracker gflow needs a morphable model file "
+                             f"(kind 'morphable')")
+        resources["model"] = obj
+        if ref != p.model:
+            p = make(GFlowParams, kw, model=ref)
+    return p, resources
+
+
+_ORIGIN = __name__
+
+#: the trackers gflow ships
+BUILTIN: tuple[TrackerSpec, ...] = (
+    APPEARANCE,
+    TrackerSpec("chamfer", ChamferParams, _chamfer, graph="chamfer", cli="pipeline.cli.trackers.chamfer",
+                origin=_ORIGIN),
+    DCF,
+    TrackerSpec("gflow", GFlowParams, _gflow, setup=gflow_setup, graph="gflow", cli="pipeline.cli.trackers.gflow",
+                origin=_ORIGIN),
+    TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2", origin=_ORIGIN),
+)

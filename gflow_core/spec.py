@@ -1,0 +1,238 @@
+"""A tracker as one registration: :class:`TrackerSpec`, and :func:`trackers`, the registry of them.
+
+A spec says everything the rest of gflow needs of a tracker: its name, its parameter dataclass,
+its :class:`~gflow_core.tracker.TrackingFilter` (made by a factory, so the tracker's modules are
+imported only when it runs), how the Python API's keywords become its parameters and resources,
+the graph it runs in and, for a tracker whose state is a particle cloud over a box, what the
+generic box stages need (:class:`BoxStages`). ``gflow.Tracker``, ``gflow track --tracker``,
+``gflow info TRACKER`` and ``gflow benchmark --trackers`` all read the registry.
+
+The built-in trackers' specs are in :mod:`gflow_core.builtin_trackers`; a tracker of another
+package registers its spec under the entry-point group ``gflow.trackers``::
+
+    [project.entry-points."gflow.trackers"]
+    ncc = "gflow_ncc:SPEC"
+
+No file is opened here: a tracker whose resources come from files (a learned model) gets them
+through the ``load`` callable its :attr:`TrackerSpec.setup` is handed by the caller (the
+pipeline's model-file reader).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import sys
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from .params import make
+from .tracker import TrackingFilter
+
+__all__ = ["TrackerSpec", "BoxStages", "SpecError", "Loader", "trackers", "broken", "get", "names",
+           "ENTRY_POINT_GROUP", "plain_setup"]
+
+#: the entry-point group other packages register their trackers' specs in
+ENTRY_POINT_GROUP = "gflow.trackers"
+
+#: ``load(name)`` -> ``(object, meta, ref)``: a model file or a built-in model's name read by the
+#: pipeline (``ref``: the built-in name, or the file's absolute path); raises ``ValueError``
+Loader = Callable[[str], tuple[Any, Mapping[str, Any], str]]
+
+
+class SpecError(ValueError):
+    """A tracker that is not registered, or whose registration is broken (one line, naming it)."""
+
+
+def plain_setup(spec: "TrackerSpec", keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
+    """The setup of a tracker without resources: its parameter dataclass from the keywords."""
+    return make(spec.params, keywords), {}
+
+
+@dataclass(frozen=True)
+class BoxStages:
+    """What the generic box stages (``stages.box_tracker``) need of a tracker whose state holds a
+    particle cloud over a box, beyond its :class:`~gflow_core.tracker.TrackingFilter`.
+
+    The filter's ``observe`` must return an object with ``grey``, the frame's (H, W) grey levels;
+    its estimates are :func:`gflow_core.tracker.box_estimate`'s (their extras: ``alpha``, ``mean``,
+    ``std``, ``ess``, ``log_evidence``, ``score``, ``n``).
+
+    Attributes
+    ----------
+    walk : (params, alpha (N, 4), size0 (w, h), rng, dt) -> alpha (N, 4)
+        The proposal stage's random walk of the posterior's particles, alpha = (x, y, theta, s),
+        drawn from ``rng = FrameRng(seed, crc32(stream), t).stream(purpose)``; ``size0`` is the
+        initial box's size.
+    purpose : int
+        The constant of the walk's draws (``FrameRng.stream(purpose)``).
+    proposal : (particles (N, D), dt) -> proposal
+        The filter's ``update`` argument made of the proposed particles.
+    particles : state -> (N, D)
+        The posterior particles of a state.
+    alpha_of, particles_of : (N, D) -> (N, 4) and back
+        The conversions between the tracker's particles and alpha.
+    to_arrays : state -> ({name: array}, {name: plain value})
+        A state as arrays and msgpack-able values, for the filter's snapshots (None: a tracker
+        whose stage module keeps a snapshot codec of its own; required of a spec without a graph).
+    from_arrays : (arrays, values, params) -> state
+        The state of a snapshot (``ValueError``, ``KeyError``, ``TypeError`` for a bad one).
+    snapshot_version : int
+        The version of what ``to_arrays`` writes.
+    """
+
+    walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray]
+    purpose: int
+    proposal: Callable[[np.ndarray, float], Any]
+    particles: Callable[[Any], np.ndarray]
+    alpha_of: Callable[[np.ndarray], np.ndarray]
+    particles_of: Callable[[np.ndarray], np.ndarray]
+    to_arrays: Callable[[Any], tuple[dict[str, np.ndarray], dict[str, Any]]] | None = None
+    from_arrays: Callable[[dict[str, np.ndarray], dict[str, Any], Any], Any] | None = None
+    snapshot_version: int = 1
+
+
+@dataclass(frozen=True)
+class TrackerSpec:
+    """One tracker, registered once.
+
+    Attributes
+    ----------
+    name : str
+        ``gflow track --tracker NAME``, ``gflow.Tracker(NAME)``.
+    about : str
+        One line: what the tracker is (``gflow info NAME``).
+    params : type
+        Its frozen parameter dataclass (:mod:`gflow_core.params`); a field declared with an
+        ``option`` becomes an option of ``gflow track``.
+    tracker : () -> TrackingFilter
+        Its protocol object (called when the tracker is used).
+    setup : (spec, keywords, load) -> (params, resources)
+        The Python API's keywords as the tracker's parameters and the resources its ``init`` takes
+        (``{"model": ...}``); ``load`` reads a model file (module docstring). Default: the
+        parameters alone (:func:`plain_setup`).
+    graph : str or None
+        The built-in graph it runs in (``pipeline/graphs/GRAPH.yaml``); None: a graph made from
+        the spec (source -> ``NAME.proposal`` -> ``NAME.filter``, the generic box stages).
+    proposal_kind, filter_kind : str
+        The stage kinds of its proposal and filter (default ``NAME.proposal``, ``NAME.filter``).
+    box : BoxStages or None
+        What the generic box stages need; required when ``graph`` is None.
+    cli : str
+        The module of its ``gflow track`` options (``NAME``, ``add_args``, ``overrides``, optionally
+        ``make_plan``), for a tracker whose options are its own; empty: the options of its
+        parameter dataclass, and its stages get the initial box, the seed and those values.
+    """
+
+    name: str
+    params: type
+    tracker: Callable[[], TrackingFilter[Any, Any, Any, Any]]
+    about: str = ""
+    setup: Callable[["TrackerSpec", Mapping[str, Any], Loader], tuple[Any, dict[str, Any]]] = plain_setup
+    graph: str | None = None
+    proposal_kind: str = ""
+    filter_kind: str = ""
+    box: BoxStages | None = None
+    cli: str = ""
+    #: where it was registered (``gflow_core.builtin_trackers`` or the entry point), for messages
+    origin: str = field(default="", compare=False)
+
+    def __post_init__(self) -> None:
+        if not self.name.isidentifier() or self.name != self.name.lower():
+            raise SpecError(f"tracker name {self.name!r} must be a lower-case Python identifier")
+        if not dataclasses.is_dataclass(self.params):
+            raise SpecError(f"tracker {self.name}: params must be a dataclass, got {self.params!r}")
+        if self.graph is None and self.box is None:
+            raise SpecError(f"tracker {self.name}: give either the graph it runs in or its box stages (BoxStages)")
+        if self.graph is None and self.box is not None and (self.box.to_arrays is None or self.box.from_arrays is None):
+            raise SpecError(f"tracker {self.name}: its box stages need to_arrays and from_arrays (the filter's "
+                            f"snapshots)")
+        if self.box is not None and "particles" not in {f.name for f in dataclasses.fields(self.params)}:
+            raise SpecError(f"tracker {self.name}: the box stages need a parameter 'particles' in "
+                            f"{self.params.__name__}")
+        if not self.proposal_kind:
+            object.__setattr__(self, "proposal_kind", f"{self.name}.proposal")
+        if not self.filter_kind:
+            object.__setattr__(self, "filter_kind", f"{self.name}.filter")
+
+    def make(self, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
+        """(params, resources) of the API's keywords (:attr:`setup`)."""
+        return self.setup(self, keywords, load)
+
+
+# ---------------------------------------------------------------------------------------------
+# The registry
+
+_cache: dict[tuple[str, ...], tuple[dict[str, TrackerSpec], dict[str, str]]] = {}
+
+
+def _entry_points() -> list[Any]:
+    from importlib.metadata import entry_points
+
+    return sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name)
+
+
+def _load() -> tuple[dict[str, TrackerSpec], dict[str, str]]:
+    """({name: spec}, {name: why its registration is broken}), read once per ``sys.path``."""
+    key = tuple(sys.path)
+    hit = _cache.get(key)
+    if hit is not None:
+        return hit
+    from .builtin_trackers import BUILTIN
+
+    specs = {s.name: s for s in BUILTIN}
+    bad: dict[str, str] = {}
+    for ep in _entry_points():
+        where = f"entry point {ep.name} = {ep.value} (group {ENTRY_POINT_GROUP})"
+        try:
+            obj = ep.load()
+        except Exception as e:  # noqa: BLE001 (any error of another package's import is its fault)
+            bad[ep.name] = f"tracker {ep.name}: {where} cannot be loaded: {type(e).__name__}: {e}".replace("\n", " ")
+            continue
+        if not isinstance(obj, TrackerSpec):
+            bad[ep.name] = f"tracker {ep.name}: {where} is a {type(obj).__name__}, not a gflow_core.spec.TrackerSpec"
+        elif obj.name != ep.name:
+            bad[ep.name] = f"tracker {ep.name}: {where} holds the spec of tracker {obj.name!r}"
+        elif ep.name in specs:
+            bad[ep.name] = f"tracker {ep.name}: {where} clashes with the built-in tracker {ep.name}"
+        else:
+            specs[ep.name] = dataclasses.replace(obj, origin=where)
+    _cache[key] = (specs, bad)
+    return specs, bad
+
+
+def trackers() -> dict[str, TrackerSpec]:
+    """Every tracker: the built-in ones and those of the entry-point group ``gflow.trackers``, by name
+    (sorted). A broken registration is left out (:func:`broken` says why)."""
+    specs = _load()[0]
+    return {n: specs[n] for n in sorted(specs)}
+
+
+def broken() -> dict[str, str]:
+    """{name: one line saying why} of the entry points of ``gflow.trackers`` that cannot be used."""
+    return dict(_load()[1])
+
+
+def names() -> list[str]:
+    """The names of the usable trackers, sorted."""
+    return sorted(_load()[0])
+
+
+def get(name: str) -> TrackerSpec:
+    """The spec of tracker ``name``; :class:`SpecError` (one line) for a name not registered or a
+    broken registration."""
+    specs, bad = _load()
+    if name in specs:
+        return specs[name]
+    if name in bad:
+        raise SpecError(bad[name])
+    raise SpecError(f"unknown tracker {name!r} (known: {', '.join(sorted(specs))})")
+
+
+def resolve(ref: str) -> Any:
+    """The object ``module:attr`` (or a module) names."""
+    mod, _, attr = ref.partition(":")
+    obj = importlib.import_module(mod)
+    return getattr(obj, attr) if attr else obj

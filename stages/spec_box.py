@@ -1,0 +1,112 @@
+"""The stages of a registered tracker that has no stage modules of its own: the generic box stages
+(:mod:`stages.box_tracker`) driven by its spec (:class:`gflow_core.spec.TrackerSpec` with
+:class:`gflow_core.spec.BoxStages`).
+
+:func:`spec_stage_classes` makes, for one spec, the proposal stage (kind ``NAME.proposal``) and
+the filter stage (kind ``NAME.filter``): their parameters are every field of the tracker's
+parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal), as the built-in
+box trackers' stages take; the filter's snapshot holds the state as the spec's ``to_arrays``
+gives it. The stages know the tracker only through its spec (:mod:`stages.registry` asks
+:func:`gflow_core.spec.trackers` for a kind no stage module declares). The correlation-filter
+and the appearance trackers' stage modules take what they need of them from their specs the same
+way (:func:`box_filter_spec`, :func:`box_proposal_spec`; the appearance filter with a snapshot
+codec of its own).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgspec
+import numpy as np
+
+from gflow_core.spec import TrackerSpec
+
+from .base import Stage
+from .box_tracker import BoxFilterSpec, BoxFilterStage, BoxProposalSpec, BoxProposalStage, SnapshotCodec
+from .messages import NDArray
+from .tracker_params import SeedBoxFields, stage_params
+
+__all__ = ["spec_stage_classes", "box_filter_spec", "box_proposal_spec", "SpecProposalFields"]
+
+
+class SpecProposalFields(SeedBoxFields, frozen=True):
+    """The proposal's own fields: ``seed``, ``init`` and ``timed`` (also read the frames: the noise
+    grows with the time to the next frame)."""
+
+    timed: bool = False
+
+
+class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    version: int
+    initialised: bool
+    arrays: dict[str, NDArray] = {}
+    values: dict[str, Any] = {}
+    steps: int = 0
+    last: dict = {}
+
+
+def _codec(spec: TrackerSpec) -> SnapshotCodec:
+    box = spec.box
+    assert box is not None
+    to_arrays, from_arrays = box.to_arrays, box.from_arrays
+    if to_arrays is None or from_arrays is None:
+        raise ValueError(f"tracker {spec.name}: its spec gives no state as arrays; its filter stage needs a "
+                         f"snapshot codec of its own")
+
+    def fields(state: Any) -> dict[str, Any]:
+        arrays, values = to_arrays(state)
+        return {"arrays": {k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, "values": dict(values)}
+
+    def state(snap: _Snapshot, core: Any, last: dict) -> Any:
+        return from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), core)
+
+    return SnapshotCodec(_Snapshot, box.snapshot_version, fields, state)
+
+
+def box_filter_spec(spec: TrackerSpec, snapshot: SnapshotCodec | None = None) -> BoxFilterSpec:
+    """What :class:`~stages.box_tracker.BoxFilterStage` needs of ``spec``'s tracker: its protocol
+    object, its conversions and the snapshot of its state as arrays (:class:`gflow_core.spec.BoxStages`),
+    or ``snapshot``, a codec of the stage module's own."""
+    box = spec.box
+    if box is None:
+        raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
+    return BoxFilterSpec(name=spec.name, tracker=spec.tracker(), params=spec.params, proposal=box.proposal,
+                         particles=box.particles, alpha_of=box.alpha_of, particles_of=box.particles_of,
+                         snapshot=snapshot or _codec(spec))
+
+
+def box_proposal_spec(spec: TrackerSpec) -> BoxProposalSpec:
+    """What :class:`~stages.box_tracker.BoxProposalStage` needs of ``spec``'s tracker: its random walk
+    (the tracker's update is not imported)."""
+    box = spec.box
+    if box is None:
+        raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
+    return BoxProposalSpec(name=spec.name, params=spec.params, walk=box.walk, purpose=box.purpose)
+
+
+def _title(name: str) -> str:
+    return "".join(w.capitalize() for w in name.split("_"))
+
+
+def spec_stage_classes(spec: TrackerSpec) -> dict[str, type[Stage]]:
+    """{kind: stage class} of the proposal and the filter stage of ``spec``'s tracker."""
+    box = spec.box
+    if box is None:
+        raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
+    cap, cls = _title(spec.name), spec.params
+    filter_params = stage_params(f"{cap}FilterParams", cls, SeedBoxFields, __name__,
+                                 f"Filter settings of tracker {spec.name}: every field of {cls.__name__}, ``seed`` "
+                                 f"and ``init``.")
+    proposal_params = stage_params(f"{cap}ProposalParams", cls, SpecProposalFields, __name__,
+                                   f"Proposal settings of tracker {spec.name}: every field of {cls.__name__} (the "
+                                   f"filter's values), ``seed``, ``init`` and ``timed``.")
+    filt, prop = box_filter_spec(spec), box_proposal_spec(spec)
+    doc = f"The {{}} stage of tracker {spec.name} ({spec.origin or 'registered'}): :mod:`stages.spec_box`."
+    fcls = type(f"{cap}FilterStage", (BoxFilterStage,),
+                {"kind": spec.filter_kind, "Params": filter_params, "box": filt, "__module__": __name__,
+                 "__doc__": doc.format("filter")})
+    pcls = type(f"{cap}ProposalStage", (BoxProposalStage,),
+                {"kind": spec.proposal_kind, "Params": proposal_params, "box": prop, "__module__": __name__,
+                 "__doc__": doc.format("proposal")})
+    return {spec.filter_kind: fcls, spec.proposal_kind: pcls}
