@@ -103,48 +103,19 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
     return plans, skip
 
 
-def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
-    """Run one tracker as ``gflow track`` does, and score its boxes as ``gflow eval`` does."""
-    from pipeline.cli.sequence_benchmark import note, score_row, tracking_seconds
-    from pipeline.cli.commands.track import run_track
+def _stress_plan_of(args):
+    """How each tracker runs on a derived sequence of the stress benchmark: its ``gflow track``
+    options and plan from the first frame on, or why it is skipped."""
+    from pipeline.cli.commands.track import track_args, track_plan
 
-    try:
-        run = run_track(targs, plan)
-    except Exception as e:  # noqa: BLE001 - a tracker that fails is a result of the benchmark, not its end
-        row.note = f"failed: {e}"
-        note(f"{row.sequence} / {row.tracker}: {row.note}")
-        return
-    if run.info.get("interrupted"):
-        raise KeyboardInterrupt
-    run.write_csv(targs.out)
-    row.boxes_csv = targs.out if keep else None
-    try:
-        score_row(row, gt, Path(targs.out))
-    except ValueError as e:
-        row.note = f"not scored: {e}"
-    secs = tracking_seconds(run.recording) or run.seconds
-    row.seconds, row.seconds_total = secs, run.seconds
-    row.fps = len(run.boxes) / secs if secs > 0 else None
-    if run.info.get("errors"):
-        row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
-    note(f"{row.sequence} / {row.tracker}: {len(run.boxes)} frames in {secs:.2f} s"
-         + (f" ({row.fps:.1f} fps)" if row.fps else "")
-         + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
+    def plan_of(seq, name: str, folder: Path):
+        targs = track_args(_track_argv(args, seq, name, 0, None, folder))
+        try:
+            return targs, track_plan(targs)
+        except CliError as e:
+            return str(e)
 
-
-def _opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out: Path, seed: int,
-                keep: bool) -> None:
-    """Run one OpenCV tracker (in its own process) and score it."""
-    from pipeline.cli.sequence_benchmark import run_opencv, score_row
-
-    try:
-        n, secs = run_opencv(name, seq, start, stop, out, seed=seed)
-        score_row(row, gt, out)
-    except (RuntimeError, ValueError, OSError) as e:
-        row.note = f"failed: {e}"
-        return
-    row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
-    row.boxes_csv = str(out) if keep else None
+    return plan_of
 
 
 def _pick_sequences(seqs, text: str | None):
@@ -184,7 +155,8 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
-    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing], donors)
+    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing],
+                                          _stress_plan_of(args), donors)
     mode = "inline" if args.inline else "processes"
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "seed": args.seed, "mode": mode,
             "lead": args.lead, "tail": args.tail, "interrupted": interrupted,
@@ -200,9 +172,9 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
 
 
 def cmd_benchmark(args) -> int:
-    from pipeline.cli.benchmark_tables import format_tables
-    from pipeline.cli.sequence_benchmark import (Row, find_sequences, note, opencv_tracker, plot_precision, plot_success,
-                                                 published_rows, static_box, to_json)
+    from pipeline.cli.benchmark_tables import format_tables, to_json
+    from pipeline.cli.sequence_benchmark import (Row, find_sequences, note, opencv_row, opencv_tracker, plot_precision,
+                                                 plot_success, published_rows, static_box, tracker_row)
     from pipeline.cli.versions import version_text, versions
     from pipeline.io.datasets import parse_range
 
@@ -264,14 +236,14 @@ def cmd_benchmark(args) -> int:
                     k += 1
                     note(f"[{k}/{runs}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
                          + (f" ({plan[1]} frames)" if plan[1] else "") + f", {mode}, seed {args.seed}")
-                    _tracker_row(row, targs, plan, gt, keep)
+                    tracker_row(row, targs, plan, gt, keep)
                 for cv in cv_names:
                     row = Row(seq.name, f"opencv {cv}", "opencv", note=cv_missing.get(cv, ""))
                     rows.append(row)
                     if cv not in cv_missing:
                         k += 1
                         note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
-                        _opencv_row(row, cv, seq, start, stop, gt, folder / f"opencv_{cv}.csv", args.seed, keep)
+                        opencv_row(row, cv, seq, start, stop, gt, folder / f"opencv_{cv}.csv", args.seed, keep)
                 rows.extend(published_rows(seq, gt))
                 rows.append(static_box(seq, gt, start, folder))
                 if not keep:

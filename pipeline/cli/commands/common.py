@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import re
 import sys
 import time
 
@@ -15,6 +14,7 @@ import numpy as np
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import SessionError, ZenohSettings, free_port
+from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
 
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
@@ -36,29 +36,6 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
     if vals[2] <= 0 or vals[3] <= 0:
         raise argparse.ArgumentTypeError(f"box width and height must be positive, got W={vals[2]}, H={vals[3]}")
     return vals
-
-
-_ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^\s?#]+)(\?[^\s#]*)?(#\S*)?$")
-_HOST_PORT = re.compile(r"^(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
-
-
-def parse_endpoint(text: str) -> str:
-    """A zenoh endpoint ``PROTO/HOST:PORT`` (e.g. tcp/127.0.0.1:7447), checked before zenoh sees it.
-    A bare ``HOST:PORT`` is kept as it is: :func:`pipeline.cli.security_options.apply_security` makes it
-    ``tls/`` or ``tcp/``."""
-    hp = _HOST_PORT.match(text.strip())
-    if hp is not None and "/" not in text and 0 <= int(hp.group(2)) <= 65535:
-        return text.strip()
-    m = _ENDPOINT.match(text.strip())
-    if m is None:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a zenoh endpoint; expected PROTO/HOST:PORT, "
-                                         f"e.g. tcp/127.0.0.1:7447")
-    if m["proto"] in ("tcp", "udp", "tls", "quic", "ws"):
-        hp = _HOST_PORT.match(m["addr"])
-        if hp is None or not 0 <= int(hp.group(2)) <= 65535:
-            raise argparse.ArgumentTypeError(f"{text!r}: a {m['proto']} endpoint needs HOST:PORT with a port "
-                                             f"0..65535, e.g. {m['proto']}/127.0.0.1:7447")
-    return text.strip()
 
 
 def positive_float(text: str) -> float:
