@@ -1,7 +1,8 @@
 """``gflow benchmark DATASET...``: every tracker on every sequence folder, one table per tracker.
 
-The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.cli.sequence_benchmark`, the
-tables in :mod:`pipeline.cli.benchmark_tables`, the stress benchmark in :mod:`pipeline.cli.stress_benchmark`;
+The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.evaluation.sequence_benchmark`,
+the tables in :mod:`pipeline.evaluation.benchmark_tables`, the stress benchmark in
+:mod:`pipeline.evaluation.stress_benchmark`;
 each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`.track.run_track`).
 """
 
@@ -36,7 +37,7 @@ def _names(text: str | None, known: list[str], what: str, noun: str) -> list[str
 
 def _opencv_names(text: str | None) -> list[str]:
     """The OpenCV trackers of ``--opencv`` (``none``: no OpenCV tracker)."""
-    from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS
+    from pipeline.evaluation.sequence_benchmark import OPENCV_TRACKERS
 
     if not text or text.strip() == "none":
         return []
@@ -132,8 +133,9 @@ AFTER_MIN = 15
 
 def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
-    from pipeline.cli.sequence_benchmark import note, opencv_tracker
-    from pipeline.cli.stress_benchmark import check_sequences, format_stress, run_stress, select_cases, stress_json
+    from pipeline.evaluation.sequence_benchmark import note, opencv_tracker
+    from pipeline.evaluation.stress_benchmark import (check_sequences, format_stress, run_stress, select_cases,
+                                                      stress_json)
 
     for opt in ("frames", "plot", "precision_plot"):
         if getattr(args, opt):
@@ -172,9 +174,10 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
 
 
 def cmd_benchmark(args) -> int:
-    from pipeline.cli.benchmark_tables import format_tables, to_json
-    from pipeline.cli.sequence_benchmark import (Row, find_sequences, note, opencv_row, opencv_tracker, plot_precision,
-                                                 plot_success, published_rows, static_box, tracker_row)
+    from pipeline.evaluation.benchmark_tables import format_tables, to_json
+    from pipeline.evaluation.sequence_benchmark import (Row, find_sequences, note, opencv_row, opencv_tracker,
+                                                        plot_precision, plot_success, published_rows, static_box,
+                                                        tracker_row)
     from pipeline.cli.versions import version_text, versions
     from pipeline.io.datasets import parse_range
 

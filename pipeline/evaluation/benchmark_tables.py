@@ -24,7 +24,7 @@ import numpy as np
 
 from gflow_core.metrics import OVERLAP_THRESHOLDS
 
-from pipeline.cli.sequence_benchmark import PRECISION_AT, Row
+from pipeline.evaluation.sequence_benchmark import PRECISION_AT, Row
 
 __all__ = ["format_tables", "means_json", "to_json", "Mean", "mean_of"]
 

@@ -8,7 +8,7 @@ target in view, whether the case changed the frame, and the original frame shown
 ``stress.json`` (the case, its window and where its image patch was cut). Where the original
 truth is sparse (a box every 5th frame), the derived ``groundtruth.csv`` and ``visibility.csv``
 hold the frames that show a labelled one, and only those are scored. Each derived
-sequence then runs through :func:`pipeline.cli.sequence_benchmark.tracker_row`, the very
+sequence then runs through :func:`pipeline.evaluation.sequence_benchmark.tracker_row`, the very
 path of ``gflow benchmark`` and ``gflow track``, and OpenCV's CSRT and a box that never moves
 are scored beside it.
 
@@ -42,7 +42,7 @@ from gflow_core.stress import (CASES, PATCH_KINDS, StressCase, StressPlan, fill_
 
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
-from pipeline.cli.sequence_benchmark import Row, Sequence, note
+from pipeline.evaluation.sequence_benchmark import Row, Sequence, note
 
 __all__ = ["StressRow", "Derived", "select_cases", "derive", "check_sequences", "stress_scores", "untouched",
            "format_stress", "stress_json", "run_stress", "AFTER_GAP", "BACK_AT", "VERSION"]
@@ -54,7 +54,7 @@ BACK_AT = 0.8
 #: bumped whenever a derived sequence would come out differently (invalidates caches)
 VERSION = 3
 #: (derived sequence, tracker name, folder for its boxes and recording) -> what
-#: :func:`pipeline.cli.sequence_benchmark.tracker_row` runs (the run's options and plan), or why the
+#: :func:`pipeline.evaluation.sequence_benchmark.tracker_row` runs (the run's options and plan), or why the
 #: tracker is skipped on it
 PlanOf = Callable[[Sequence, str, Path], "tuple[Any, Any] | str"]
 
@@ -530,7 +530,7 @@ def stress_json(rows: list[StressRow], meta: dict, cases: list[StressCase]) -> d
 def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: bool) -> None:
     """Run an OpenCV tracker on a derived sequence, or, with the cache, take its boxes from the
     last run on the same derived sequence (OpenCV's trackers do not change while tuning ours)."""
-    from pipeline.cli.sequence_benchmark import opencv_row, score_row
+    from pipeline.evaluation.sequence_benchmark import opencv_row, score_row
 
     kept = d.seq.path / f"opencv_{name}_seed{seed}_cv{cv2.__version__}.csv"
     info = kept.with_suffix(".json")
@@ -548,7 +548,7 @@ def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: b
 
 def _tracker_rows(d: Derived, names: list[str], folder: Path, extra: dict, plan_of: PlanOf) -> list[StressRow]:
     """Our trackers on one derived sequence, each run exactly as ``gflow benchmark`` runs it."""
-    from pipeline.cli.sequence_benchmark import tracker_row
+    from pipeline.evaluation.sequence_benchmark import tracker_row
 
     rows = []
     for name in names:
@@ -568,7 +568,7 @@ def _tracker_rows(d: Derived, names: list[str], folder: Path, extra: dict, plan_
 
 def _other_rows(args, d: Derived, cv_names: list[str], folder: Path, extra: dict) -> list[StressRow]:
     """OpenCV's trackers and the box that never moves on one derived sequence."""
-    from pipeline.cli.sequence_benchmark import static_box
+    from pipeline.evaluation.sequence_benchmark import static_box
 
     rows = []
     for cvn in cv_names:
