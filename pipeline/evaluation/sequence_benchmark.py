@@ -3,7 +3,7 @@
 A sequence folder holds ``frames/`` and ``groundtruth.csv`` (``frame,x,y,w,h``), and
 optionally ``results/TRACKER.csv``, other trackers' published per-frame boxes (the layout of
 ``../shared/data``). Each selected tracker runs through the same code as ``gflow track``
-(:func:`pipeline.cli.commands.track.run_track`), from the ground-truth box of the first frame,
+(:func:`pipeline.app.track`), from the ground-truth box of the first frame,
 with one seed; its boxes are written with the same CSV writer and scored by the same
 function as ``gflow eval`` (:func:`gflow_core.metrics.score`). Published results, a box that
 never moves ("static box") and, where OpenCV has them, OpenCV's trackers are scored the same
@@ -28,6 +28,7 @@ import numpy as np
 from gflow_core.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
 
 from pipeline.recording.results import read_boxes, write_boxes
+from pipeline.app import TrackPlan
 
 __all__ = ["Sequence", "Row", "find_sequences", "score_row", "static_box", "published_rows", "opencv_tracker",
            "run_opencv", "tracking_seconds", "tracker_row", "opencv_row", "plot_success", "plot_precision",
@@ -276,30 +277,31 @@ def tracking_seconds(recording: str | Path) -> float | None:
     return (last - first) / 1e9
 
 
-def tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
-    """Run one tracker as ``gflow track`` does, and score its boxes as ``gflow eval`` does."""
-    from pipeline.cli.commands.track import run_track
+def tracker_row(row, out: str, plan: TrackPlan, gt: dict, keep: bool) -> None:
+    """Run one tracker's plan as ``gflow track`` does (:func:`pipeline.app.track`), write its boxes
+    to ``out`` and score them as ``gflow eval`` does."""
+    from pipeline.app import track
 
     try:
-        run = run_track(targs, plan)
+        run = track(plan)
     except Exception as e:  # noqa: BLE001 - a tracker that fails is a result of the benchmark, not its end
         row.note = f"failed: {e}"
         note(f"{row.sequence} / {row.tracker}: {row.note}")
         return
     if run.info.get("interrupted"):
         raise KeyboardInterrupt
-    run.write_csv(targs.out)
-    row.boxes_csv = targs.out if keep else None
+    run.write_csv(out)
+    row.boxes_csv = out if keep else None
     try:
-        score_row(row, gt, Path(targs.out))
+        score_row(row, gt, Path(out))
     except ValueError as e:
         row.note = f"not scored: {e}"
-    secs = tracking_seconds(run.recording) or run.seconds
+    secs = (tracking_seconds(run.recording) if run.recording else None) or run.seconds
     row.seconds, row.seconds_total = secs, run.seconds
-    row.fps = len(run.boxes) / secs if secs > 0 else None
+    row.fps = len(run.estimates) / secs if secs > 0 else None
     if run.info.get("errors"):
         row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
-    note(f"{row.sequence} / {row.tracker}: {len(run.boxes)} frames in {secs:.2f} s"
+    note(f"{row.sequence} / {row.tracker}: {len(run.estimates)} frames in {secs:.2f} s"
          + (f" ({row.fps:.1f} fps)" if row.fps else "")
          + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
 

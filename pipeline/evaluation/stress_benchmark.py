@@ -30,7 +30,7 @@ import time
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -40,6 +40,7 @@ from gflow_core.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band
 from gflow_core.stress import (CASES, PATCH_KINDS, StressCase, StressPlan, fill_truth, occluder_size, plan_case,
                                render_frame)
 
+from pipeline.app import TrackPlan
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
 from pipeline.evaluation.sequence_benchmark import Row, Sequence, note
@@ -54,9 +55,9 @@ BACK_AT = 0.8
 #: bumped whenever a derived sequence would come out differently (invalidates caches)
 VERSION = 3
 #: (derived sequence, tracker name, folder for its boxes and recording) -> what
-#: :func:`pipeline.evaluation.sequence_benchmark.tracker_row` runs (the run's options and plan), or why the
+#: :func:`pipeline.evaluation.sequence_benchmark.tracker_row` runs (its boxes CSV and its plan), or why the
 #: tracker is skipped on it
-PlanOf = Callable[[Sequence, str, Path], "tuple[Any, Any] | str"]
+PlanOf = Callable[[Sequence, str, Path], "tuple[str, TrackPlan] | str"]
 
 
 def select_cases(text: str | None) -> list[StressCase]:

@@ -3,7 +3,7 @@
 The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.evaluation.sequence_benchmark`,
 the tables in :mod:`pipeline.evaluation.benchmark_tables`, the stress benchmark in
 :mod:`pipeline.evaluation.stress_benchmark`;
-each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`.track.run_track`).
+each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`pipeline.app.track`).
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
         for name in names:
             targs = track_args(_track_argv(args, seq, name, first[seq.name], stop, work / seq.name))
             try:
-                plans[seq.name, name] = (targs, track_plan(targs))
+                plans[seq.name, name] = (targs.out, track_plan(targs))
             except CliError as e:
                 if getattr(targs, "model", None):
                     raise
@@ -112,7 +112,7 @@ def _stress_plan_of(args):
     def plan_of(seq, name: str, folder: Path):
         targs = track_args(_track_argv(args, seq, name, 0, None, folder))
         try:
-            return targs, track_plan(targs)
+            return targs.out, track_plan(targs)
         except CliError as e:
             return str(e)
 
@@ -235,11 +235,11 @@ def cmd_benchmark(args) -> int:
                         row.note = skip[seq.name, name]
                         note(f"{seq.name} / {name}: {row.note}")
                         continue
-                    targs, plan = plans[seq.name, name]
+                    out, plan = plans[seq.name, name]
                     k += 1
                     note(f"[{k}/{runs}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
-                         + (f" ({plan[1]} frames)" if plan[1] else "") + f", {mode}, seed {args.seed}")
-                    tracker_row(row, targs, plan, gt, keep)
+                         + (f" ({plan.total} frames)" if plan.total else "") + f", {mode}, seed {args.seed}")
+                    tracker_row(row, out, plan, gt, keep)
                 for cv in cv_names:
                     row = Row(seq.name, f"opencv {cv}", "opencv", note=cv_missing.get(cv, ""))
                     rows.append(row)
