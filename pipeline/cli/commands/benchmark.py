@@ -44,6 +44,13 @@ def _opencv_names(text: str | None) -> list[str]:
     return _names(text, list(OPENCV_TRACKERS), "opencv", "OpenCV tracker")
 
 
+def _opencv_missing(names: list[str]) -> dict[str, str]:
+    """{name: why} of the OpenCV trackers this OpenCV does not have."""
+    from pipeline.evaluation.sequence_benchmark import opencv_tracker
+
+    return {c: opencv_tracker(c)[1] for c in names if opencv_tracker(c)[0] is None}
+
+
 def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path) -> list[str]:
     """The ``gflow track`` command line this benchmark run is (the box of frame ``start``, one seed)."""
     box = ",".join(repr(float(v)) for v in seq.groundtruth[start])
@@ -133,7 +140,7 @@ AFTER_MIN = 15
 
 def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
-    from pipeline.evaluation.sequence_benchmark import note, opencv_tracker
+    from pipeline.evaluation.sequence_benchmark import note
     from pipeline.evaluation.stress_benchmark import (check_sequences, format_stress, run_stress, select_cases,
                                                       stress_json)
 
@@ -148,7 +155,7 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     check_sequences(seqs)
     # CSRT beside every tracker by default, where this OpenCV has it
     cv_names = _opencv_names("csrt" if args.opencv is None else args.opencv)
-    cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
+    cv_missing = _opencv_missing(cv_names)
     for c, why in cv_missing.items():
         note(f"opencv {c} not measured: {why}")
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
@@ -175,9 +182,8 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
 
 def cmd_benchmark(args) -> int:
     from pipeline.evaluation.benchmark_tables import format_tables, to_json
-    from pipeline.evaluation.sequence_benchmark import (Row, find_sequences, note, opencv_row, opencv_tracker,
-                                                        plot_precision, plot_success, published_rows, static_box,
-                                                        tracker_row)
+    from pipeline.evaluation.sequence_benchmark import (Row, find_sequences, note, opencv_row, plot_precision,
+                                                        plot_success, published_rows, static_box, tracker_row)
     from pipeline.cli.versions import version_text, versions
     from pipeline.io.datasets import parse_range
 
@@ -212,7 +218,7 @@ def cmd_benchmark(args) -> int:
         if first[seq.name] not in seq.groundtruth:
             raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, "
                            "the first frame to track")
-    cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
+    cv_missing = _opencv_missing(cv_names)
     mode = "inline" if args.inline else "processes"
     keep = bool(args.out_dir)
     rows: list[Row] = []
