@@ -15,6 +15,7 @@ its stages in process.
 from __future__ import annotations
 
 import argparse
+from collections import deque
 from typing import Any, Callable, Mapping
 
 import numpy as np
