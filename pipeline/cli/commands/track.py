@@ -4,6 +4,12 @@ camera (``docs/live.md``).
 Each tracker is a module in ``pipeline/cli/trackers/`` with ``NAME``, ``add_args(parser)``
 (its own options) and ``overrides(args) -> (graph name, {stage: {param: value}})``; it may
 also have ``make_plan(graph, overrides) -> Plan`` when its graph is generated (gflow shards).
+
+The command is a shell over the application layer: its options become a
+:class:`pipeline.app.TrackRequest` (:func:`track_request`), checked here where only the command
+line can say it (another tracker's option, an output path, a whole-frame model), planned by
+:func:`pipeline.app.plan_track` and run by :func:`pipeline.app.track`; the CSV is written from the
+estimates of the run.
 """
 
 from __future__ import annotations
