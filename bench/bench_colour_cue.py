@@ -10,7 +10,7 @@ cue measures it (:mod:`gflow_core.colour`: Perez et al.'s HSV bins, the Bhattach
 coefficient BC, about 12 x 12 samples a box).
 
 For every shared sequence (``../shared/data`` or ``GFLOW_DATA``) the stress case is derived
-(:func:`pipeline.cli.stress_benchmark.derive`, into a temporary folder removed at the end).
+(:func:`pipeline.evaluation.stress_benchmark.derive`, into a temporary folder removed at the end).
 On every 5th frame from the end of the window on, it prints:
 
 * target: BC of the frame-0 box's histogram with the true box's;
@@ -38,8 +38,8 @@ from _util import scratch, table  # noqa: E402
 
 from gflow_core import colour  # noqa: E402
 from gflow_core.stress import CASES  # noqa: E402
-from pipeline.cli.sequence_benchmark import find_sequences  # noqa: E402
-from pipeline.cli.stress_benchmark import derive  # noqa: E402
+from pipeline.evaluation.sequence_benchmark import find_sequences  # noqa: E402
+from pipeline.evaluation.stress_benchmark import derive  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 

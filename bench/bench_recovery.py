@@ -43,8 +43,8 @@ from gflow_core import appearance as ap  # noqa: E402
 from gflow_core.appearance_tracker import TRACKER  # noqa: E402
 from gflow_core.m2.dynamics import random_walk  # noqa: E402
 from gflow_core.stress import CASES  # noqa: E402
-from pipeline.cli.sequence_benchmark import find_sequences  # noqa: E402
-from pipeline.cli.stress_benchmark import derive  # noqa: E402
+from pipeline.evaluation.sequence_benchmark import find_sequences  # noqa: E402
+from pipeline.evaluation.stress_benchmark import derive  # noqa: E402
 from pipeline.cli.trackers import appearance as cli_appearance  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402
 from pipeline.runtime.graph import load_graph  # noqa: E402

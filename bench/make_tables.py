@@ -97,7 +97,7 @@ def shown(argv: tuple[str, ...] | list[str], m2: str = "caviar1-m2.npz") -> str:
 
 def check_opencv(fig: Figures) -> None:
     """The OpenCV trackers the table compares with are in this Python's OpenCV (else exit, saying how)."""
-    from pipeline.cli.sequence_benchmark import opencv_tracker
+    from pipeline.evaluation.sequence_benchmark import opencv_tracker
 
     missing = [c for c in fig.opencv if opencv_tracker(c)[0] is None]
     if missing:

@@ -15,7 +15,6 @@ its stages in process.
 from __future__ import annotations
 
 import argparse
-from collections import deque
 from typing import Any, Mapping
 
 import numpy as np
@@ -119,7 +118,9 @@ class ProtocolBackend:
 
 class GraphBackend:
     """A tracker's built-in graph run in this process, fed one frame at a time (as ``--inline``):
-    m2 with a patch model (graph ``m2_patch``), the one tracker not on the protocol."""
+    m2 with a patch model (graph ``m2_patch``), the one tracker not on the protocol. The graph
+    comes from the application layer (:class:`pipeline.app.TrackRequest`, run by
+    :class:`pipeline.app.PushedRun`), as ``gflow track`` makes it."""
 
     def __init__(self, name: str, seed: int, fps: float, params: Mapping[str, Any]) -> None:
         from pipeline.cli.trackers import TRACKERS
@@ -129,41 +130,32 @@ class GraphBackend:
         self.sets: dict[str, dict[str, Any]] = {k: dict(v) for k, v in dict(kw.pop("set", None) or {}).items()}
         self.options = kw
         self.module = TRACKERS[name]
-        self.hosts: dict[str, Any] = {}
-        self.queue: deque[tuple[str, bytes, int, str]] = deque()
-        self.done: dict[int, Estimate] = {}
+        self.run: Any = None
         self.problems: list[tuple[int, str]] = []
         self._check_options()
 
-    def _argv(self, box: Box) -> list[str]:
-        argv = ["-", "--init", ",".join(repr(float(v)) for v in box), "--out", "-", "--tracker", self.name,
-                "--seed", str(self.seed)]
-        for key, value in self.options.items():
-            opt = "--" + key.replace("_", "-")
-            if value is True:
-                argv.append(opt)
-            elif value is not False and value is not None:
-                argv += [opt, str(value)]
-        for stage, kv in self.sets.items():
-            argv += [a for k, v in kv.items() for a in ("--set", f"{stage}.{k}={_yaml(v)}")]
-        return argv
+    def _request(self, box: Box) -> Any:
+        """The :class:`pipeline.app.TrackRequest` of this tracker's options, checked as ``gflow track``
+        checks them."""
+        from pipeline.app import RequestError, TrackRequest
+        from pipeline.cli.commands.track import check_tracker_options, tracker_params
 
-    def _args(self, box: Box) -> argparse.Namespace:
-        from pipeline.cli.commands.common import CliError
-        from pipeline.cli.commands.track import check_tracker_options, track_args
-
+        given = _as_typed({k: v for k, v in self.options.items() if v is not None})
+        options = argparse.Namespace(**{**_track_defaults(), **given, "tracker": self.name})
         try:
-            args = track_args(self._argv(box))
-            check_tracker_options(args)
-        except CliError as e:
+            check_tracker_options(options)
+        except RequestError as e:
             raise GflowError(str(e)) from None
-        return args
+        sets = tuple(f"{stage}.{k}={_yaml(v)}" for stage, kv in self.sets.items() for k, v in kv.items())
+        return TrackRequest(source="(frames given one at a time)", init=(float(box[0]), float(box[1]), float(box[2]),
+                                                                         float(box[3])),
+                            tracker=self.name, params=tracker_params(options), sets=sets, seed=self.seed,
+                            fps=self.fps, inline=True, quiet=True)
 
     def _check_options(self) -> None:
-        from pipeline.cli.commands.track import _OWN_OPTIONS, _ALSO_USED_BY, add_track_args
+        from pipeline.cli.commands.track import _OWN_OPTIONS, _ALSO_USED_BY
 
-        if not _OWN_OPTIONS:
-            add_track_args(argparse.ArgumentParser(add_help=False))
+        _track_actions()  # registers every tracker's options
         own = {d for t, opts in _OWN_OPTIONS.items() for d in opts
                if t == self.name or self.name in _ALSO_USED_BY.get(d, ())}
         unknown = sorted(set(self.options) - own)
@@ -175,74 +167,66 @@ class GraphBackend:
                                    f"{{'PARAM': VALUE}}}})")
 
     def init(self, image: np.ndarray, box: Box, t: int) -> list[Estimate]:
-        from pipeline.cli.commands.common import CliError
-        from pipeline.runtime.build import make_stage
-        from pipeline.runtime.graph import GraphError, load_graph
-        from pipeline.runtime.stage_host import StageHost
-        from stages.source import SourceStage
+        from pipeline.app import PushedRun, RequestError
+        from pipeline.runtime.graph import GraphError
 
-        args = self._args(box)
+        request = self._request(box)
         try:
-            graph, over = self.module.overrides(args)
-            for sname, kv in self.sets.items():
-                over.setdefault(sname, {}).update(kv)
-            # frames are pushed, never read: the source only validates and stamps them (media time)
-            over.setdefault("source", {}).update(kind="synthetic", fps=self.fps, start=0, stop=None)
-            make_plan = getattr(self.module, "make_plan", None)
-            plan = make_plan(graph, over) if make_plan is not None else load_graph(graph, overrides=over)
-        except (CliError, GraphError, ValueError) as e:
+            self.run = PushedRun(request, self.module)
+        except (RequestError, GraphError, ValueError) as e:
             raise GflowError(str(e)) from None
-        for name, sp in plan.stages.items():
-            if sp.kind == "recorder":
-                continue
-            try:
-                stage = make_stage(plan, name)
-            except (OSError, ValueError) as e:
-                raise GflowError(f"stage {name}: {e}") from None
-            self.hosts[name] = StageHost(stage, sp.inputs, sp.outputs, plan.error_topic, self._publish,
-                                         ahead=False)
-            if isinstance(stage, SourceStage):
-                self.source = self.hosts[name]
-        self.estimate_topics = {t for sp in plan.stages.values() for p, t in sp.outputs.items() if p == "estimate"}
-        self.subscribers: dict[str, list[Any]] = {}
-        for h in self.hosts.values():
-            for topic in h.topics_in.values():
-                self.subscribers.setdefault(topic, []).append(h)
-        self.error_topic = plan.error_topic
+        self.problems = self.run.problems
         return self.update(image, t)
 
-    def _publish(self, topic: str, payload: bytes, seq: int, type_name: str = "") -> None:
-        self.queue.append((topic, payload, seq, type_name))
-
-    def _drain(self) -> list[Estimate]:
-        from stages.messages import decode
-
-        out = []
-        while self.queue:
-            topic, payload, seq, type_name = self.queue.popleft()
-            if topic in self.estimate_topics and type_name != "EndOfStream":
-                out.append(_estimate_of(decode(payload)))
-            elif topic == self.error_topic:
-                report = decode(payload)
-                self.problems.append((seq, f"{report.stage}: {report.kind}: {report.message}"))
-            for h in self.subscribers.get(topic, ()):
-                h.deliver(topic, payload)
-        return out
-
     def update(self, image: np.ndarray | None, t: int, dt: float = 1.0) -> list[Estimate]:
-        from stages.source import RawFrame
-
-        if image is not None:
-            src = self.source
-            outs = src.stage.emit(RawFrame(t, image))
-            src._flush_reports()
-            src._emit(outs)
-        return self._drain()
+        return [_estimate_of(m) for m in self.run.push(image, t)]
 
     def finish(self) -> list[Estimate]:
-        for h in self.hosts.values():
-            h.close("end")
-        return self._drain()
+        return [_estimate_of(m) for m in self.run.finish()]
+
+
+def _track_actions() -> dict[str, argparse.Action]:
+    """``gflow track``'s options by dest (and every tracker's options registered)."""
+    from pipeline.cli.commands.track import add_track_args
+
+    p = argparse.ArgumentParser(add_help=False)
+    add_track_args(p)
+    return {a.dest: a for a in p._actions}
+
+
+def _track_defaults() -> dict[str, Any]:
+    """{dest: default} of every tracker option of ``gflow track``."""
+    from pipeline.cli.commands.track import _OWN_OPTIONS
+
+    _track_actions()
+    return {d: default for opts in _OWN_OPTIONS.values() for d, (_, default) in opts.items()}
+
+
+def _as_typed(options: Mapping[str, Any]) -> dict[str, Any]:
+    """Tracker options given as keywords, converted as ``gflow track`` converts its options
+    (``particles=500`` as ``--particles 500``): a flag takes True / False, a value the option's type."""
+    actions = _track_actions()
+    out = {}
+    for dest, value in options.items():
+        action = actions[dest]
+        if action.nargs == 0:  # a flag (--track-scale)
+            if not isinstance(value, bool):
+                raise GflowError(f"{action.option_strings[0]} is a flag: give True or False, not {value!r}")
+        elif callable(action.type):
+            try:
+                value = action.type(str(value))
+            except argparse.ArgumentTypeError as e:  # argparse's own words
+                raise GflowError(f"argument {action.option_strings[0]}: {e}") from None
+            except (TypeError, ValueError):
+                kind = getattr(action.type, "__name__", "")
+                raise GflowError(f"argument {action.option_strings[0]}: invalid {kind} value: {str(value)!r}") from None
+        else:  # a string option (--model FILE)
+            value = str(value)
+        if action.choices is not None and value not in action.choices:
+            raise GflowError(f"{action.option_strings[0]}: {value!r} is not one of "
+                             f"{', '.join(map(str, action.choices))}")
+        out[dest] = value
+    return out
 
 
 def _yaml(v: Any) -> str:

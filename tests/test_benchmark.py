@@ -184,8 +184,8 @@ def test_processes_tables_match_inline(seq, inline_run):
 def test_means_over_sequences(tmp_path):
     """Two sequences: the mean row is the mean of the two rows, and a tracker skipped on none."""
     from gflow_core.metrics import TrackScore
-    from pipeline.cli.benchmark_tables import format_tables, means_json
-    from pipeline.cli.sequence_benchmark import PRECISION_THRESHOLDS, Row
+    from pipeline.evaluation.benchmark_tables import format_tables, means_json
+    from pipeline.evaluation.sequence_benchmark import PRECISION_THRESHOLDS, Row
 
     def row(seq: str, tracker: str, kind: str, cle: float, auc: float, prec: float) -> Row:
         r = Row(seq, tracker, kind, score=TrackScore(10, cle, auc, auc, 0), fps=30.0 if kind != "baseline" else None)

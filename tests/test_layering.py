@@ -1,6 +1,7 @@
 """The package layers import downwards only: gflow_core < stages < pipeline.io < pipeline.runtime
-< pipeline.recording < pipeline.cli < gflow (the Python API, on top of all of them). A violation
-names the file, the line and the import."""
+< pipeline.recording < pipeline.app (the application layer) < pipeline.evaluation (the benchmarks)
+< pipeline.cli < gflow (the Python API, on top of all of them). A violation names the file, the
+line and the import."""
 
 from __future__ import annotations
 
@@ -8,7 +9,8 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-ORDER = ["gflow_core", "stages", "pipeline.io", "pipeline.runtime", "pipeline.recording", "pipeline.cli", "gflow"]
+ORDER = ["gflow_core", "stages", "pipeline.io", "pipeline.runtime", "pipeline.recording", "pipeline.app",
+         "pipeline.evaluation", "pipeline.cli", "gflow"]
 
 
 def layer(module: str) -> int | None:

@@ -178,8 +178,8 @@ def test_two_runs_deriving_one_sequence_at_once_both_read_complete_frames(data, 
     from concurrent.futures import ThreadPoolExecutor
 
     from gflow_core.stress import CASES
-    from pipeline.cli.sequence_benchmark import find_sequences
-    from pipeline.cli.stress_benchmark import derive
+    from pipeline.evaluation.sequence_benchmark import find_sequences
+    from pipeline.evaluation.stress_benchmark import derive
 
     seqs, _ = find_sequences([str(data)])
     synth, other = sorted(seqs, key=lambda q: q.name != "synth")

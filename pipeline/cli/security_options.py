@@ -29,6 +29,7 @@ import argparse
 import os
 from pathlib import Path
 
+from pipeline.cli.endpoints import parse_endpoint
 from pipeline.runtime.security import Security, SecurityError, load_run_key
 
 __all__ = ["add_security_args", "apply_security", "SECURITY_FILE_KEYS"]
@@ -105,8 +106,6 @@ def _load_file(path: str) -> dict:
 
 def _endpoint(text: str, tls: bool) -> str:
     """``HOST:PORT`` -> ``tls/HOST:PORT`` (with TLS options) or ``tcp/HOST:PORT``; others unchanged."""
-    from pipeline.cli.commands.common import parse_endpoint
-
     if "/" not in text:
         text = ("tls/" if tls else "tcp/") + text
     try:

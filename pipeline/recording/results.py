@@ -283,35 +283,39 @@ class RunOutcome:
     why: str = ""
 
 
-def run_outcome(recording: str | None, plan, info: dict, start: int = 0) -> RunOutcome:
+def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: Mapping[int, Any] | None = None,
+                reported: set[int] | frozenset[int] = frozenset()) -> RunOutcome:
     """Gather a finished run's estimates and say what is missing.
 
     ``info`` is what ``run_plan`` returns (``ok``, ``estimates`` heard live, ``restarts``). The
     frames expected are those the source sent (a truncated video sends fewer than its header
-    says), from ``start`` to the last frame seen."""
+    says), from ``start`` to the last frame seen. ``heard`` are the estimates taken from the run
+    itself ({frame: message}; default: those of ``info["estimates"]``), kept before the
+    recording's; ``reported`` the frames a stage reported a problem with, beside those the
+    recording holds."""
     est, sessions = run_estimates(recording) if recording and Path(recording).is_file() else ({}, RunSessions())
-    heard = []
-    for seq, payload in info.get("estimates", {}).items():
-        if seq in est:
-            continue
-        try:
-            m = decode(payload)
-        except MessageError:
-            continue
-        if isinstance(m, (Estimate, PoseEstimate)) and m.header.seq == seq:
-            est[seq] = m
-            heard.append(seq)
+    if heard is None:
+        heard = {}
+        for seq, payload in info.get("estimates", {}).items():
+            try:
+                m = decode(payload)
+            except MessageError:
+                continue
+            if isinstance(m, (Estimate, PoseEstimate)) and m.header.seq == seq:
+                heard[seq] = m
+    lost = [seq for seq in heard if seq not in est]  # what the recording lost
+    est.update(heard)
     src = next((s for s in plan.stages.values() if s.is_source()), None)
     topic = src.outputs.get("frames", "") if src is not None else ""
     sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
             if est and topic and recording else set())
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
-    reported = reported_frames(recording, plan.stream)
+    reported = reported_frames(recording, plan.stream) | set(reported)
     read = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
     lines = completeness(est, expected, reported, edgeless_frames(plan, read)) + sessions.lines()
-    if heard:
-        lines.append(f"{len(heard)} frame(s) missing from the recording were kept from the live stream: "
-                     f"{frame_ranges(heard)}")
+    if lost and recording:
+        lines.append(f"{len(lost)} frame(s) missing from the recording were kept from the live stream: "
+                     f"{frame_ranges(lost)}")
     for n, k in info.get("restarts", {}).items():
         kind = plan.stages[n].kind if n in plan.stages else ""
         lines.append(f"stage {n} was restarted {k} time(s)" + (

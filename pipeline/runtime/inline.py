@@ -43,8 +43,12 @@ class InlineResult:
 
 
 def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, recording: str | None = None,
-               metadata: dict[str, dict[str, str]] | None = None) -> InlineResult:
-    """Run ``plan`` to the end of its source. Returns counts, wall time and the recording path."""
+               metadata: dict[str, dict[str, str]] | None = None,
+               tap: Callable[[str, bytes, int, str], None] | None = None) -> InlineResult:
+    """Run ``plan`` to the end of its source. Returns counts, wall time and the recording path.
+
+    ``tap(topic, payload, seq, type name)`` sees every message of the run, in the order it is
+    delivered (an estimate sink: :class:`pipeline.app.EstimateSink`)."""
     keep_freed_memory()  # as every stage process does (pipeline/runtime/memory.py)
     queue: deque[tuple[str, bytes, int, str]] = deque()
 
@@ -83,6 +87,8 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     def drain() -> None:
         while queue:
             topic, payload, seq, type_name = queue.popleft()
+            if tap is not None:
+                tap(topic, payload, seq, type_name)
             if rec is not None and keep(topic):
                 rec.write(topic, payload, seq, publish_ns=time.time_ns(), type_name=type_name)
             for h in subscribers.get(topic, ()):

@@ -1,8 +1,9 @@
 """``gflow benchmark DATASET...``: every tracker on every sequence folder, one table per tracker.
 
-The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.cli.sequence_benchmark`, the
-tables in :mod:`pipeline.cli.benchmark_tables`, the stress benchmark in :mod:`pipeline.cli.stress_benchmark`;
-each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`.track.run_track`).
+The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.evaluation.sequence_benchmark`,
+the tables in :mod:`pipeline.evaluation.benchmark_tables`, the stress benchmark in
+:mod:`pipeline.evaluation.stress_benchmark`;
+each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`pipeline.app.track`).
 """
 
 from __future__ import annotations
@@ -36,11 +37,18 @@ def _names(text: str | None, known: list[str], what: str, noun: str) -> list[str
 
 def _opencv_names(text: str | None) -> list[str]:
     """The OpenCV trackers of ``--opencv`` (``none``: no OpenCV tracker)."""
-    from pipeline.cli.sequence_benchmark import OPENCV_TRACKERS
+    from pipeline.evaluation.sequence_benchmark import OPENCV_TRACKERS
 
     if not text or text.strip() == "none":
         return []
     return _names(text, list(OPENCV_TRACKERS), "opencv", "OpenCV tracker")
+
+
+def _opencv_missing(names: list[str]) -> dict[str, str]:
+    """{name: why} of the OpenCV trackers this OpenCV does not have."""
+    from pipeline.evaluation.sequence_benchmark import opencv_tracker
+
+    return {c: opencv_tracker(c)[1] for c in names if opencv_tracker(c)[0] is None}
 
 
 def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path) -> list[str]:
@@ -93,7 +101,7 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
         for name in names:
             targs = track_args(_track_argv(args, seq, name, first[seq.name], stop, work / seq.name))
             try:
-                plans[seq.name, name] = (targs, track_plan(targs))
+                plans[seq.name, name] = (targs.out, track_plan(targs))
             except CliError as e:
                 if getattr(targs, "model", None):
                     raise
@@ -103,48 +111,19 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
     return plans, skip
 
 
-def _tracker_row(row, targs, plan, gt: dict, keep: bool) -> None:
-    """Run one tracker as ``gflow track`` does, and score its boxes as ``gflow eval`` does."""
-    from pipeline.cli.sequence_benchmark import note, score_row, tracking_seconds
-    from pipeline.cli.commands.track import run_track
+def _stress_plan_of(args):
+    """How each tracker runs on a derived sequence of the stress benchmark: its ``gflow track``
+    options and plan from the first frame on, or why it is skipped."""
+    from pipeline.cli.commands.track import track_args, track_plan
 
-    try:
-        run = run_track(targs, plan)
-    except Exception as e:  # noqa: BLE001 - a tracker that fails is a result of the benchmark, not its end
-        row.note = f"failed: {e}"
-        note(f"{row.sequence} / {row.tracker}: {row.note}")
-        return
-    if run.info.get("interrupted"):
-        raise KeyboardInterrupt
-    run.write_csv(targs.out)
-    row.boxes_csv = targs.out if keep else None
-    try:
-        score_row(row, gt, Path(targs.out))
-    except ValueError as e:
-        row.note = f"not scored: {e}"
-    secs = tracking_seconds(run.recording) or run.seconds
-    row.seconds, row.seconds_total = secs, run.seconds
-    row.fps = len(run.boxes) / secs if secs > 0 else None
-    if run.info.get("errors"):
-        row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
-    note(f"{row.sequence} / {row.tracker}: {len(run.boxes)} frames in {secs:.2f} s"
-         + (f" ({row.fps:.1f} fps)" if row.fps else "")
-         + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
+    def plan_of(seq, name: str, folder: Path):
+        targs = track_args(_track_argv(args, seq, name, 0, None, folder))
+        try:
+            return targs.out, track_plan(targs)
+        except CliError as e:
+            return str(e)
 
-
-def _opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out: Path, seed: int,
-                keep: bool) -> None:
-    """Run one OpenCV tracker (in its own process) and score it."""
-    from pipeline.cli.sequence_benchmark import run_opencv, score_row
-
-    try:
-        n, secs = run_opencv(name, seq, start, stop, out, seed=seed)
-        score_row(row, gt, out)
-    except (RuntimeError, ValueError, OSError) as e:
-        row.note = f"failed: {e}"
-        return
-    row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
-    row.boxes_csv = str(out) if keep else None
+    return plan_of
 
 
 def _pick_sequences(seqs, text: str | None):
@@ -161,8 +140,9 @@ AFTER_MIN = 15
 
 def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
-    from pipeline.cli.sequence_benchmark import note, opencv_tracker
-    from pipeline.cli.stress_benchmark import check_sequences, format_stress, run_stress, select_cases, stress_json
+    from pipeline.evaluation.sequence_benchmark import note
+    from pipeline.evaluation.stress_benchmark import (check_sequences, format_stress, run_stress, select_cases,
+                                                      stress_json)
 
     for opt in ("frames", "plot", "precision_plot"):
         if getattr(args, opt):
@@ -175,7 +155,7 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     check_sequences(seqs)
     # CSRT beside every tracker by default, where this OpenCV has it
     cv_names = _opencv_names("csrt" if args.opencv is None else args.opencv)
-    cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
+    cv_missing = _opencv_missing(cv_names)
     for c, why in cv_missing.items():
         note(f"opencv {c} not measured: {why}")
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
@@ -184,7 +164,8 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
-    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing], donors)
+    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing],
+                                          _stress_plan_of(args), donors)
     mode = "inline" if args.inline else "processes"
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "seed": args.seed, "mode": mode,
             "lead": args.lead, "tail": args.tail, "interrupted": interrupted,
@@ -200,9 +181,9 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
 
 
 def cmd_benchmark(args) -> int:
-    from pipeline.cli.benchmark_tables import format_tables
-    from pipeline.cli.sequence_benchmark import (Row, find_sequences, note, opencv_tracker, plot_precision, plot_success,
-                                                 published_rows, static_box, to_json)
+    from pipeline.evaluation.benchmark_tables import format_tables, to_json
+    from pipeline.evaluation.sequence_benchmark import (Row, find_sequences, note, opencv_row, plot_precision,
+                                                        plot_success, published_rows, static_box, tracker_row)
     from pipeline.cli.versions import version_text, versions
     from pipeline.io.datasets import parse_range
 
@@ -237,7 +218,7 @@ def cmd_benchmark(args) -> int:
         if first[seq.name] not in seq.groundtruth:
             raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, "
                            "the first frame to track")
-    cv_missing = {c: opencv_tracker(c)[1] for c in cv_names if opencv_tracker(c)[0] is None}
+    cv_missing = _opencv_missing(cv_names)
     mode = "inline" if args.inline else "processes"
     keep = bool(args.out_dir)
     rows: list[Row] = []
@@ -260,18 +241,18 @@ def cmd_benchmark(args) -> int:
                         row.note = skip[seq.name, name]
                         note(f"{seq.name} / {name}: {row.note}")
                         continue
-                    targs, plan = plans[seq.name, name]
+                    out, plan = plans[seq.name, name]
                     k += 1
                     note(f"[{k}/{runs}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
-                         + (f" ({plan[1]} frames)" if plan[1] else "") + f", {mode}, seed {args.seed}")
-                    _tracker_row(row, targs, plan, gt, keep)
+                         + (f" ({plan.total} frames)" if plan.total else "") + f", {mode}, seed {args.seed}")
+                    tracker_row(row, out, plan, gt, keep)
                 for cv in cv_names:
                     row = Row(seq.name, f"opencv {cv}", "opencv", note=cv_missing.get(cv, ""))
                     rows.append(row)
                     if cv not in cv_missing:
                         k += 1
                         note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
-                        _opencv_row(row, cv, seq, start, stop, gt, folder / f"opencv_{cv}.csv", args.seed, keep)
+                        opencv_row(row, cv, seq, start, stop, gt, folder / f"opencv_{cv}.csv", args.seed, keep)
                 rows.extend(published_rows(seq, gt))
                 rows.append(static_box(seq, gt, start, folder))
                 if not keep:

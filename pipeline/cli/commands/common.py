@@ -3,25 +3,23 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import re
-import sys
-import time
-
-from pathlib import Path
-from typing import Any
+import dataclasses  # noqa: F401 (common.dataclasses: tests replace a run's settings with it)
 
 import numpy as np
 
 from pipeline.runtime.graph import Plan
-from pipeline.runtime.transport import SessionError, ZenohSettings, free_port
+from pipeline.runtime.transport import ZenohSettings
+from pipeline.app import (DEFAULT_ENDPOINT, RecordingTarget, check_stage_values, default_listen, parse_sets,
+                          run_graph, sets_as_given, temporary_recording)
+from pipeline.app import RequestError as CliError  # a user error: printed as one line, exit status 2
+from pipeline.app import place as place_stages
+from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
 
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-
-
-class CliError(Exception):
-    """A user error: printed as one line, exit status 2."""
+__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "check_outputs",
+           "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
+           "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
+           "temporary_recording", "run_plan"]
 
 
 def parse_box(text: str) -> tuple[float, float, float, float]:
@@ -36,29 +34,6 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
     if vals[2] <= 0 or vals[3] <= 0:
         raise argparse.ArgumentTypeError(f"box width and height must be positive, got W={vals[2]}, H={vals[3]}")
     return vals
-
-
-_ENDPOINT = re.compile(r"^(?P<proto>[a-z][a-z0-9-]*)/(?P<addr>[^\s?#]+)(\?[^\s#]*)?(#\S*)?$")
-_HOST_PORT = re.compile(r"^(\[[0-9a-fA-F:.]+\]|[A-Za-z0-9_.-]+):(\d{1,5})$")
-
-
-def parse_endpoint(text: str) -> str:
-    """A zenoh endpoint ``PROTO/HOST:PORT`` (e.g. tcp/127.0.0.1:7447), checked before zenoh sees it.
-    A bare ``HOST:PORT`` is kept as it is: :func:`pipeline.cli.security_options.apply_security` makes it
-    ``tls/`` or ``tcp/``."""
-    hp = _HOST_PORT.match(text.strip())
-    if hp is not None and "/" not in text and 0 <= int(hp.group(2)) <= 65535:
-        return text.strip()
-    m = _ENDPOINT.match(text.strip())
-    if m is None:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a zenoh endpoint; expected PROTO/HOST:PORT, "
-                                         f"e.g. tcp/127.0.0.1:7447")
-    if m["proto"] in ("tcp", "udp", "tls", "quic", "ws"):
-        hp = _HOST_PORT.match(m["addr"])
-        if hp is None or not 0 <= int(hp.group(2)) <= 65535:
-            raise argparse.ArgumentTypeError(f"{text!r}: a {m['proto']} endpoint needs HOST:PORT with a port "
-                                             f"0..65535, e.g. {m['proto']}/127.0.0.1:7447")
-    return text.strip()
 
 
 def positive_float(text: str) -> float:
@@ -83,52 +58,6 @@ def check_outputs(**paths: str | None) -> None:
     for opt, path in paths.items():
         if path:
             check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
-
-
-def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], others: dict[str, dict] | None = None) -> None:
-    """Refuse stage parameters given on the command line that the graph's stage would refuse, in the
-    words of the options that gave them: ``given`` = {how it was given (``--particles 0``,
-    ``--set filter.particles=0``): (stage, parameter, value)}, checked together per stage, on top of
-    the graph's values and ``others`` ({stage: {parameter: value}} set otherwise). A stage the graph
-    does not have is left to the graph's own error. The same line as ``gflow track --particles 0``,
-    with no graph path."""
-    from pipeline.runtime.graph import GraphError, load_graph, params_error
-
-    if not given:
-        return
-    try:
-        stages = load_graph(graph).stages
-    except GraphError:  # the graph's own fault: said by the load that follows, with the overrides
-        return
-    for stage in dict.fromkeys(st for st, _, _ in given.values()):
-        if stage not in stages:
-            continue
-        mine = {how: (param, value) for how, (st, param, value) in given.items() if st == stage}
-        base = {**stages[stage].params, **(others or {}).get(stage, {})}
-        why = params_error(stages[stage].kind, {**base, **{param: value for param, value in mine.values()}})
-        if why is not None:  # named by the values refused alone, else by all of them
-            alone = [how for how, (param, value) in mine.items() if params_error(stages[stage].kind, {**base, param: value})]
-            raise CliError(f"{' '.join(alone or mine)}: {why}")
-
-
-def sets_as_given(items: list[str] | None) -> dict[str, tuple[str, str, Any]]:
-    """Each ``--set stage.param=value`` as :func:`check_stage_values` takes it: {``--set ITEM``: (stage, param, value)}."""
-    return {f"--set {it}": (stage, param, value) for it in items or ()
-            for stage, kv in parse_sets([it]).items() for param, value in kv.items()}
-
-
-def parse_sets(items: list[str]) -> dict[str, dict]:
-    """``stage.param=value`` (value parsed as YAML: numbers, lists, true/false) -> overrides."""
-    import yaml
-
-    out: dict[str, dict] = {}
-    for it in items or []:
-        if "=" not in it or "." not in it.split("=", 1)[0]:
-            raise CliError(f"--set expects stage.param=value, got {it!r}")
-        key, val = it.split("=", 1)
-        stage, param = key.split(".", 1)
-        out.setdefault(stage, {})[param] = yaml.safe_load(val)
-    return out
 
 
 def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:
@@ -174,17 +103,7 @@ def stream_of(key: str) -> str | None:
 def launcher_zenoh(args) -> ZenohSettings:
     """The launcher listens on 7447 (so `gflow topics` finds it) unless busy or told otherwise."""
     security = apply_security(args)
-    if args.listen:
-        listen = tuple(args.listen)
-    else:
-        import socket
-
-        with socket.socket() as s:
-            try:
-                s.bind(("127.0.0.1", 7447))
-                listen = (DEFAULT_ENDPOINT,)
-            except OSError:
-                listen = (f"tcp/127.0.0.1:{free_port()}",)
+    listen = tuple(args.listen) if args.listen else default_listen()
     return ZenohSettings(mode=args.mode, listen=listen, connect=tuple(args.connect or ()), multicast=args.multicast,
                          security=security)
 
@@ -201,72 +120,13 @@ def add_record_args(p: argparse.ArgumentParser, default: str) -> None:
                         "most of a recording's size)")
 
 
-class Recording:
-    """Where a run records, from ``--record / --no-record / --record-topics``.
-
-    ``needed`` are topics the command reads back after the run (``track`` reads the estimates):
-    they are always recorded, and with ``--no-record`` they go to a temporary file that
-    :meth:`cleanup` deletes. ``path`` is what to pass to the launcher (None: no recorder).
-    """
+class Recording(RecordingTarget):
+    """Where a run records, from ``--record / --no-record / --record-topics``
+    (:class:`pipeline.app.RecordingTarget`)."""
 
     def __init__(self, plan: Plan, args, default: str | None, needed: tuple[str, ...] = ()) -> None:
-        import tempfile
-
-        self.tmpdir: str | None = None
-        self.temporary = False
-        rec = plan.recorder()
-        pats = [p.strip() for item in (getattr(args, "record_topics", None) or []) for p in item.split(",") if p.strip()]
-        if rec is None:
-            if pats or needed:
-                raise CliError(f"the graph {plan.name!r} has no recorder stage, so there is nothing to "
-                               + ("select topics of" if pats else "read the results from"))
-            self.path = None
-            return
-        if getattr(args, "no_record", False):
-            if not needed:
-                del plan.stages[rec.name]
-                self.path = None
-                return
-            self.tmpdir = tempfile.mkdtemp(prefix="gflow-norecord-")
-            self.temporary = True
-            self.path = str(Path(self.tmpdir) / "run.mcap")
-            rec.params["topics"] = list(needed)
-            return
-        if pats:
-            rec.params["topics"] = pats + [t for t in needed if t not in pats]
-        self.path = getattr(args, "record", None) or default
-        from pipeline.io.recording_files import refuse_existing
-        from pipeline.runtime.preflight import check_writable
-
-        if self.path:  # a recording never overwrites a file (the recorder also creates it exclusively)
-            refuse_existing(self.path, "--record" if getattr(args, "record", None) else "the recording")
-        path = self.path or plan.recording_path()  # None: named when the run starts, with its run id
-        assert path is not None  # the plan has its recorder
-        given = bool(getattr(args, "record", None))  # the default recordings/ folder is made; a typed one must exist
-        check_writable(path, "--record" if given else "the recording", make_folder=not given)  # before any work
-
-    @property
-    def kept(self) -> str:
-        """How to name the recording to the user."""
-        return "none (--no-record)" if self.temporary or self.path is None else str(self.path)
-
-    def written(self, path: str | None) -> None:
-        """The path the run recorded to (a default one is named when the run starts); a note when
-        its folder holds more than ``GFLOW_RECORDINGS_WARN_MB`` of recordings."""
-        if not self.temporary and path:
-            self.path = path
-            from pipeline.io.recording_files import size_warning
-
-            note = size_warning(Path(path).parent)
-            if note:
-                print(note, file=sys.stderr)
-
-    def cleanup(self) -> None:
-        if self.tmpdir:
-            import shutil
-
-            shutil.rmtree(self.tmpdir, ignore_errors=True)
-            self.tmpdir = None
+        super().__init__(plan, getattr(args, "record", None), getattr(args, "no_record", False),
+                         getattr(args, "record_topics", None) or (), default, needed)
 
 
 def add_zenoh_args(p: argparse.ArgumentParser) -> None:
@@ -296,115 +156,15 @@ def add_placement_args(p: argparse.ArgumentParser, hosts: bool = True) -> None:
 def place(plan: Plan, args) -> tuple[str, ...]:
     """Check ``--host`` against the whole graph and choose the run's stream (see
     :mod:`pipeline.runtime.runid`); return the host labels this process runs."""
-    from pipeline.runtime.placement import local_stages
-    from pipeline.runtime.runid import choose_stream
-
-    hosts = tuple(getattr(args, "hosts", None) or ())
-    local_stages(plan, hosts)  # an unknown label: one line naming the graph's labels
-    if hosts and getattr(args, "inline", False):
-        raise CliError("--host runs the stages placed on this host as processes; it cannot be combined with --inline")
-    if getattr(args, "inline", False) and not getattr(args, "stream", None):
-        return hosts  # one process, no network: nothing to mix with
-    choose_stream(plan, getattr(args, "stream", None), placed=bool(hosts))
-    return hosts
-
-
-def temporary_recording(path: str | None) -> bool:
-    """A recording :class:`Recording` made for ``--no-record`` (read back, then removed)."""
-    return bool(path) and Path(str(path)).parent.name.startswith("gflow-norecord-")
-
-
-def _startup_failure(plan: Plan, launcher, message: str) -> str:
-    """What to tell the user when a run could not start. A live source that cannot be opened says
-    so itself, in one line naming it and what FFmpeg said; the recording, which holds nothing but
-    the start-up's heartbeats, is removed."""
-    from pipeline.runtime.node_plan import EXIT_BAD_SOURCE
-
-    src = next((n for n, s in plan.stages.items() if s.is_source()), None)
-    exit_ = launcher.exits.get(src)
-    if exit_ is None or exit_.returncode != EXIT_BAD_SOURCE or not exit_.last_error:
-        return message
-    if launcher.recording and plan.recorder() is not None:
-        Path(launcher.recording).unlink(missing_ok=True)
-    return f"cannot track {exit_.last_error}"
+    return place_stages(plan, tuple(getattr(args, "hosts", None) or ()), getattr(args, "inline", False),
+                        getattr(args, "stream", None))
 
 
 def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: bool = False, strict: bool = True):
     """Run a plan inline or as processes; return (recording path, seconds, frames, per-stage info).
     With ``strict=False`` a run that did not finish cleanly returns (``info["ok"]`` False) instead of
-    raising, so the caller can keep what was tracked."""
+    raising, so the caller can keep what was tracked (:func:`pipeline.app.run_graph`)."""
     hosts = place(plan, args)
-    if getattr(args, "inline", False):
-        from pipeline.runtime.inline import run_inline
-
-        last = [0.0]
-
-        def progress(n: int) -> None:
-            now = time.monotonic()
-            if not quiet and now - last[0] > 1.0:
-                last[0] = now
-                print(f"  {n}" + (f"/{total}" if total else "") + " frames", file=sys.stderr)
-
-        md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
-              "gflow.config": plan.config_metadata()}
-        r = run_inline(plan, progress=progress, recording=recording, metadata=md)
-        bad = {n: e for n, e in r.errors.items() if e}
-        return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
-    from pipeline.runtime.launcher import Launcher
-    from pipeline.runtime.running import announce
-    from pipeline.runtime.zygote import preload
-
-    preload(s.kind for s in plan.stages.values())  # the stage processes' zygote imports their modules (once)
-
-    zenoh = launcher_zenoh(args)
-    while True:
-        launcher = Launcher(plan, zenoh=zenoh, recording=recording, progress=not quiet,
-                            total_frames=total, hosts=hosts, say_recording=not temporary_recording(recording))
-        endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
-        if not quiet:
-            here = ", ".join(n for n in plan.stages if n in launcher.local)
-            where = f"host {', '.join(hosts)} ({here}); " if hosts else ""
-            reach = (f"a client of {', '.join(launcher.zenoh.connect)}" if launcher.zenoh.mode == "client"
-                     else f"listening on {', '.join(endpoints)}")
-            print(f"{plan.name}: {where}{reach} (stream {plan.stream}; gflow ps, topics, echo and hz find it)",
-                  file=sys.stderr)
-        rec = plan.recorder()
-        with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
-                      camera=plan.seed_stream, no_record=temporary_recording(recording),
-                      recording=(launcher.recording if rec and rec.name in launcher.local
-                                 and not temporary_recording(recording) else None)):
-            try:
-                res = launcher.run()
-            except SessionError as e:  # 7447, free a moment ago, taken by a run started at the same time
-                if args.listen or zenoh.listen != (DEFAULT_ENDPOINT,) or "in use" not in str(e):
-                    raise CliError(str(e)) from None
-                zenoh = dataclasses.replace(zenoh, listen=(f"tcp/127.0.0.1:{free_port()}",))
-                continue  # nothing had started: the session is the launcher's first step
-            except RuntimeError as e:  # start-up: a stage died, a host did not come, the stream is taken
-                raise CliError(_startup_failure(plan, launcher, str(e))) from None
-        break
-    if res.interrupted:
-        print("interrupted: stages stopped, recording closed", file=sys.stderr)
-    for n, ex in res.exits.items():
-        if ex.returncode != 0:
-            print(f"stage {n} exited with status {ex.returncode}: {ex.last_error}", file=sys.stderr)
-    src = next((n for n, s in plan.stages.items() if s.is_source()), None)  # a graph fed from outside has none
-    frames = res.status[src].steps if src in res.status else 0
-    from pipeline.recording.live_record import LIVE_REPORTS  # a live source's reconnects and end: not errors
-
-    info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
-            "errors": sum(e.kind not in LIVE_REPORTS for e in res.errors), "fps": {n: s.fps for n, s in res.status.items()},
-            "interrupted": res.interrupted, "stall": res.stall,
-            "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
-    if res.stall:
-        print(res.stall, file=sys.stderr)
-    unsigned = {n: st.rejected["unsigned"] for n, st in res.status.items() if st.rejected.get("unsigned")}
-    if unsigned:  # --run-key: what came from outside the run was dropped; say so
-        info["unsigned"] = unsigned
-        print("ignored messages not signed with the run key (from outside the run), by stage: "
-              + ", ".join(f"{n} {c}" for n, c in sorted(unsigned.items())), file=sys.stderr)
-    if strict and not res.ok and not res.interrupted:
-        raise CliError("the pipeline did not finish cleanly (see the messages above)")
-    return res.recording, res.seconds, frames, info
-
-
+    return run_graph(plan, inline=getattr(args, "inline", False), zenoh=lambda: launcher_zenoh(args),
+                     listen_given=bool(args.listen), recording=recording, total=total, hosts=hosts, quiet=quiet,
+                     strict=strict)

@@ -27,7 +27,7 @@ def _check_out(out: Path) -> None:
 
 
 def cmd_export_vot(args) -> int:
-    from pipeline.cli.sequence_benchmark import find_sequences
+    from pipeline.evaluation.sequence_benchmark import find_sequences
     from pipeline.io.vot_workspace import (stack_yaml, trackers_ini, workspace_config, write_list,
                                            write_sequence)
 

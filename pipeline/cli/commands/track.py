@@ -4,6 +4,12 @@ camera (``docs/live.md``).
 Each tracker is a module in ``pipeline/cli/trackers/`` with ``NAME``, ``add_args(parser)``
 (its own options) and ``overrides(args) -> (graph name, {stage: {param: value}})``; it may
 also have ``make_plan(graph, overrides) -> Plan`` when its graph is generated (gflow shards).
+
+The command is a shell over the application layer: its options become a
+:class:`pipeline.app.TrackRequest` (:func:`track_request`), checked here where only the command
+line can say it (another tracker's option, an output path, a whole-frame model), planned by
+:func:`pipeline.app.plan_track` and run by :func:`pipeline.app.track`; the CSV is written from the
+estimates of the run.
 """
 
 from __future__ import annotations
@@ -12,26 +18,14 @@ ORDER = 20
 
 import argparse
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
 
-import msgspec
-
-from stages.source import SourceParams
-
-from pipeline.runtime.graph import Plan, load_graph
-from pipeline.recording.results import estimate_columns, renumber, run_outcome, write_boxes
-from pipeline.io.frame_readers import count_frames
+from pipeline.app import TrackPlan, TrackRequest, TrackResult, plan_track, track
 from pipeline.cli.trackers import TRACKERS
-from pipeline.runtime.live_plan import listen_early, live_source, prepare_live
-from pipeline.runtime.preflight import check_source
-from pipeline.recording.live_record import LiveSummary, live_summary
 from pipeline.runtime.trace import mark
-from pipeline.runtime.zygote import preload
-from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
-                                          check_outputs, check_stage_values, parse_box, parse_sets, run_plan,
-                                          sets_as_given)
+from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
+                                          launcher_zenoh, parse_box)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -81,10 +75,6 @@ def check_tracker_options(args) -> None:
             raise CliError(str(e)) from None
 
 
-#: options that only a live source takes: {dest: option}
-_LIVE_OPTIONS = {"reconnect": "--reconnect", "open_timeout": "--open-timeout"}
-
-
 def source_of(args) -> str:
     """The source named by the positional argument or ``--camera N`` (one of the two)."""
     from pipeline.io.live_capture import camera_device
@@ -100,140 +90,49 @@ def source_of(args) -> str:
     return args.source
 
 
-def live_params(source: str, args) -> dict:
-    """Source parameters for a stream URL or a camera device."""
-    for opt, given in (("--start", args.start), ("--realtime", args.realtime)):
-        if given:
-            raise CliError(f"{opt} applies to files; a live source starts at its first frame and runs at its own "
-                           f"pace")
-    params: dict = {"kind": "live", "path": source, "fps": args.fps}
-    for dest in _LIVE_OPTIONS:
-        if getattr(args, dest, None) is not None:
-            params[dest] = getattr(args, dest)
-    if args.stop is not None:
-        params["stop"] = args.stop
-    return params
-
-
 def source_params(source: str, args) -> dict:
-    """Source stage parameters for a path: image folder (or dataset folder with frames/), video, .mcap,
-    or a live source (stream URL, camera device)."""
-    from pipeline.io.live_capture import is_live_source
+    """Source stage parameters for ``source`` with the source options of ``args`` (``fps``,
+    ``realtime``, ``start``, ``stop``, ``reconnect``, ``open_timeout``): :func:`pipeline.app.source_params`."""
+    from pipeline.app import source_params as params_of
 
-    if is_live_source(source):
-        return live_params(source, args)
-    for dest, opt in _LIVE_OPTIONS.items():
-        if getattr(args, dest, None) is not None:
-            raise CliError(f"{opt} is an option of live sources (stream URLs, cameras), not of {source}")
-    p = Path(source)
-    params: dict = {"fps": args.fps, "realtime": args.realtime, "start": args.start}
-    if args.stop is not None:
-        params["stop"] = args.stop
-    if p.is_dir():
-        if (p / "frames").is_dir() and not any(q.suffix.lower() in (".jpg", ".png", ".jpeg", ".bmp") for q in p.iterdir()):
-            p = p / "frames"  # a dataset folder like ../shared/data/caviar1
-        params.update(kind="folder", path=str(p.resolve()))
-    elif p.is_file():
-        params.update(kind="mcap" if p.suffix == ".mcap" else "video", path=str(p.resolve()))
-    else:
-        raise CliError(f"source not found: {source} (give an image folder, a video file or an .mcap recording)")
-    return params
+    return params_of(TrackRequest(source, (0.0, 0.0, 1.0, 1.0), fps=args.fps, realtime=args.realtime, start=args.start,
+                                  stop=args.stop, reconnect=getattr(args, "reconnect", None),
+                                  open_timeout=getattr(args, "open_timeout", None)))
 
 
-@dataclass
-class TrackRun:
-    """What one ``gflow track`` run produced: boxes by frame and how the run went."""
-
-    boxes: dict[int, tuple[float, float, float, float]]
-    states: list[str]
-    recording: str
-    seconds: float
-    frames: int
-    info: dict
-    kept: str = ""  # what the user is told about the recording
-    temporary: bool = False  # --no-record: the recording was removed
-    lines: list[str] = field(default_factory=list)  # what is missing, coasted, restarted
-    incomplete: str = ""  # why the run is incomplete, or ""
-    live: LiveSummary | None = None  # a live source's figures: skipped, gaps, latency
-    confidence: dict[int, float] = field(default_factory=dict)  # the estimates' confidence by frame
-    target_states: dict[int, str] = field(default_factory=dict)  # tracked / occluded / lost by frame
-    points: dict = field(default_factory=dict)  # G-flow face: {frame: (landmark ids (n,), points (n, 2))}
-
-    def write_csv(self, path: str | Path) -> None:
-        """The boxes CSV: frame,x,y,w,h,confidence,state (and a live source's input: ok / damaged)."""
-        write_boxes(path, self.boxes, self.confidence, self.target_states,
-                    self.live.inputs(self.boxes) if self.live is not None else None)
+def tracker_params(args) -> dict:
+    """The tracker options of ``args`` ({dest: value}, every tracker's, as its ``overrides`` reads them)."""
+    return {dest: getattr(args, dest, default) for opts in _OWN_OPTIONS.values() for dest, (_, default) in opts.items()}
 
 
-def track_plan(args) -> tuple[Plan, int | None]:
-    """The plan ``gflow track`` runs for ``args`` and its number of frames (None if unknown).
+def track_request(args) -> TrackRequest:
+    """The :class:`pipeline.app.TrackRequest` of ``gflow track``'s options."""
+    return TrackRequest(source=source_of(args), init=tuple(args.init), tracker=args.tracker, params=tracker_params(args),
+                        sets=tuple(args.set or ()), seed=args.seed, record=args.record, no_record=args.no_record,
+                        record_topics=tuple(args.record_topics or ()), inline=args.inline, fps=args.fps,
+                        realtime=args.realtime, start=args.start, stop=args.stop,
+                        reconnect=getattr(args, "reconnect", None), open_timeout=getattr(args, "open_timeout", None),
+                        graph=args.graph, stream=getattr(args, "stream", None), quiet=args.quiet,
+                        network=None if args.inline else launcher_zenoh(args), listen_given=bool(args.listen))
 
-    Bad options or model files raise here, before anything starts.
-    """
-    tracker = TRACKERS[args.tracker]
+
+def track_plan(args) -> TrackPlan:
+    """The plan ``gflow track`` runs for ``args``. Bad options or model files raise here, before anything starts."""
     check_tracker_options(args)
     check_outputs(out=args.out, record=args.record, points_out=getattr(args, "points_out", None))
     check_points_out(args)
-    graph, overrides = tracker.overrides(args)
-    source = source_of(args)
-    overrides.setdefault("source", {}).update(source_params(source, args))
-    check_stage_values(args.graph or graph, sets_as_given(args.set), overrides)
-    for stage, kv in parse_sets(args.set).items():
-        overrides.setdefault(stage, {}).update(kv)
-    make_plan = getattr(tracker, "make_plan", None)
-    if make_plan is not None:  # a tracker that generates its graph (gflow: K proposal shards)
-        plan = make_plan(args.graph or graph, overrides)
-    else:
-        plan = load_graph(args.graph or graph, overrides=overrides)
-    if not getattr(args, "inline", False):  # the stage processes' zygote imports their modules meanwhile
-        preload(s.kind for s in plan.stages.values())
-    sp = msgspec.convert(plan.stages["source"].params, SourceParams)
-    if sp.kind == "live":  # opened once, by the source stage (a camera or a listen=1 server serves one client)
-        return plan, None
-    first = check_source(sp, args.init)  # readable, --start inside it, --init on the image: before anything starts
-    if args.tracker == "m2":
-        assert first.image is not None  # check_source refuses a first frame without an image
-        check_whole_frame_model(args.model, args.source, first.image.shape)
-    return plan, count_frames(sp)
+    tp = plan_track(track_request(args), TRACKERS[args.tracker])
+    if args.tracker == "m2" and tp.first_image_shape is not None:
+        check_whole_frame_model(args.model, args.source, tp.first_image_shape)
+    return tp
 
 
-def run_track(args, plan: tuple[Plan, int | None] | None = None) -> TrackRun:
-    """Run the tracker of ``args`` (inline or as processes) and gather its boxes from the recording
-    (a temporary one with ``--no-record``, removed here) and the live stream, whatever happened."""
-    plan_, total = plan or track_plan(args)
+def run_track(args, plan: TrackPlan | None = None) -> TrackResult:
+    """Run the tracker of ``args`` (inline or as processes) and gather its estimates from the run,
+    whatever happened (:func:`pipeline.app.track`)."""
+    tp = plan or track_plan(args)
     mark("cli plan checked")
-    rec = plan_.recorder()
-    if rec is not None:  # recordings/track-TIME-RUNID.mcap, named when the run starts (Plan.recording_path)
-        rec.params["path"] = "recordings/track-{time}.mcap"
-    recording = Recording(plan_, args, None, needed=("estimate",))
-    prepare_live(plan_)  # after Recording: --record-topics may ask for the skipped frames
-    live = None
-    # a UDP source's port, bound before anything starts (what a sender sends first is kept)
-    listeners = listen_early(plan_, say=None if args.quiet else lambda line: print(line, file=sys.stderr))
-    try:
-        path, secs, frames, info = run_plan(plan_, args, recording.path, total, quiet=args.quiet, strict=False)
-        recording.written(path)
-        out = run_outcome(path, plan_, info, args.start)  # every frame that was tracked, and what is missing
-        if live_source(plan_) is not None and path:
-            live = live_summary(path)
-    finally:
-        recording.cleanup()
-        for relay in listeners:
-            relay.close()
-    est = out.estimates
-    frame_of = live.frames if live is not None else {}  # a live run's rows are the camera's frames
-    by_seq = estimate_columns(est)
-    boxes, confidence, target_states = (renumber(by_seq[0], frame_of), renumber(by_seq[1], frame_of),
-                                        renumber(by_seq[2], frame_of))
-    # a learned face's points, by the reference landmark each vertex came from
-    points = {frame_of.get(k, k): (v.landmarks.array(), v.mean_points.array()) for k, v in est.items()
-              if getattr(v, "landmarks", None) is not None}
-    return TrackRun(boxes=boxes, states=[v.state for v in est.values()], confidence=confidence,
-                    target_states=target_states,
-                    recording=path, seconds=secs, frames=frames, info=info, kept=recording.kept,
-                    temporary=recording.temporary,
-                    lines=list(out.lines) + (live.lines() if live else []) + [x for r in listeners for x in r.lines()],
-                    incomplete=out.why if out.incomplete else "", live=live, points=points)
+    return track(tp)
 
 
 def check_points_out(args) -> None:
@@ -254,9 +153,10 @@ def cmd_track(args) -> int:
     if getattr(args, "points_out", None):
         from pipeline.io.landmarks import write_points
 
-        write_points(args.points_out, run.points)
-        pts = f"; points: {args.points_out}" + ("" if run.points else " (empty: the model has no landmarks)")
-    n, info = len(run.boxes), run.info
+        points = run.points()
+        write_points(args.points_out, points)
+        pts = f"; points: {args.points_out}" + ("" if points else " (empty: the model has no landmarks)")
+    n, info = len(run.estimates), run.info
     rate = f"{n / max(run.seconds, 1e-9):.1f} fps"
     if run.live is not None and run.live.tracking_s > 0:  # not the waits for a lost stream, nor its end
         rate = f"{n / run.live.tracking_s:.1f} fps over the {run.live.tracking_s:.1f} s the stream was tracked"

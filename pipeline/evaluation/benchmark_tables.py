@@ -1,4 +1,5 @@
-"""The tables of ``gflow benchmark``: one per tracker, AUC as the headline, the mean over sequences.
+"""The tables and the JSON of ``gflow benchmark``: one table per tracker, AUC as the headline, the mean
+over sequences.
 
 Each of our trackers gets a table whose rows are the sequences and whose columns are the
 OTB success-plot AUC (the headline), precision at 20 px, centre location error, success
@@ -21,9 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.cli.sequence_benchmark import PRECISION_AT, Row
+from gflow_core.metrics import OVERLAP_THRESHOLDS
 
-__all__ = ["format_tables", "means_json", "Mean", "mean_of"]
+from pipeline.evaluation.sequence_benchmark import PRECISION_AT, Row
+
+__all__ = ["format_tables", "means_json", "to_json", "Mean", "mean_of"]
 
 
 @dataclass(frozen=True)
@@ -218,3 +221,31 @@ def means_json(rows: list[Row]) -> dict:
             m = mean_of([r for r in rows if r.tracker == name], len(seqs))
             out[name] = None if m is None else m.to_json()
     return out
+
+
+def to_json(rows: list[Row], meta: dict) -> dict:
+    """The benchmark as JSON: ``meta`` plus one object per row (scores as ``gflow eval --json``)."""
+    out = []
+    for r in rows:
+        d: dict = {"sequence": r.sequence, "tracker": r.tracker, "kind": r.kind}
+        if r.score is not None:
+            d.update(r.score.to_json())
+            auc = r.auc
+            assert auc is not None and r.curve is not None  # score_row gives a scored row its curve
+            d["auc"] = round(auc, 4)
+            d["success_curve"] = [round(float(v), 4) for v in r.curve]
+            d["size_within_2x"] = None if r.size_2x is None else round(r.size_2x, 4)
+            d[f"precision_{PRECISION_AT}"] = None if r.precision_at is None else round(r.precision_at, 4)
+        d["fps"] = None if r.fps is None else round(r.fps, 2)
+        if r.seconds is not None:
+            d["seconds"] = round(r.seconds, 3)
+        if r.seconds_total is not None:
+            d["seconds_total"] = round(r.seconds_total, 3)
+        if r.note:
+            d["note"] = r.note
+        if r.boxes_csv:
+            d["boxes"] = r.boxes_csv
+        d.update(r.extra)
+        out.append(d)
+    return dict(meta, overlap_thresholds=[round(float(t), 4) for t in OVERLAP_THRESHOLDS], rows=out,
+                means=means_json(rows))

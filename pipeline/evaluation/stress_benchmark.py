@@ -8,7 +8,7 @@ target in view, whether the case changed the frame, and the original frame shown
 ``stress.json`` (the case, its window and where its image patch was cut). Where the original
 truth is sparse (a box every 5th frame), the derived ``groundtruth.csv`` and ``visibility.csv``
 hold the frames that show a labelled one, and only those are scored. Each derived
-sequence then runs through :func:`pipeline.cli.commands.benchmark._tracker_row`, the very
+sequence then runs through :func:`pipeline.evaluation.sequence_benchmark.tracker_row`, the very
 path of ``gflow benchmark`` and ``gflow track``, and OpenCV's CSRT and a box that never moves
 are scored beside it.
 
@@ -30,6 +30,7 @@ import time
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -39,9 +40,10 @@ from gflow_core.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band
 from gflow_core.stress import (CASES, PATCH_KINDS, StressCase, StressPlan, fill_truth, occluder_size, plan_case,
                                render_frame)
 
+from pipeline.app import TrackPlan
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
-from pipeline.cli.sequence_benchmark import Row, Sequence, note
+from pipeline.evaluation.sequence_benchmark import Row, Sequence, note
 
 __all__ = ["StressRow", "Derived", "select_cases", "derive", "check_sequences", "stress_scores", "untouched",
            "format_stress", "stress_json", "run_stress", "AFTER_GAP", "BACK_AT", "VERSION"]
@@ -52,6 +54,10 @@ AFTER_GAP = 10
 BACK_AT = 0.8
 #: bumped whenever a derived sequence would come out differently (invalidates caches)
 VERSION = 3
+#: (derived sequence, tracker name, folder for its boxes and recording) -> what
+#: :func:`pipeline.evaluation.sequence_benchmark.tracker_row` runs (its boxes CSV and its plan), or why the
+#: tracker is skipped on it
+PlanOf = Callable[[Sequence, str, Path], "tuple[str, TrackPlan] | str"]
 
 
 def select_cases(text: str | None) -> list[StressCase]:
@@ -525,8 +531,7 @@ def stress_json(rows: list[StressRow], meta: dict, cases: list[StressCase]) -> d
 def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: bool) -> None:
     """Run an OpenCV tracker on a derived sequence, or, with the cache, take its boxes from the
     last run on the same derived sequence (OpenCV's trackers do not change while tuning ours)."""
-    from pipeline.cli.commands.benchmark import _opencv_row
-    from pipeline.cli.sequence_benchmark import score_row
+    from pipeline.evaluation.sequence_benchmark import opencv_row, score_row
 
     kept = d.seq.path / f"opencv_{name}_seed{seed}_cv{cv2.__version__}.csv"
     info = kept.with_suffix(".json")
@@ -536,30 +541,26 @@ def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: b
         score_row(r, d.seq.groundtruth, out)
         r.fps, r.boxes_csv = json.loads(info.read_text()).get("fps"), str(out)
         return
-    _opencv_row(r, name, d.seq, 0, None, d.seq.groundtruth, out, seed, True)
+    opencv_row(r, name, d.seq, 0, None, d.seq.groundtruth, out, seed, True)
     if cache and r.score is not None:
         shutil.copyfile(out, kept)
         info.write_text(json.dumps({"fps": r.fps}))
 
 
-def _tracker_rows(args, d: Derived, names: list[str], folder: Path, extra: dict) -> list[StressRow]:
+def _tracker_rows(d: Derived, names: list[str], folder: Path, extra: dict, plan_of: PlanOf) -> list[StressRow]:
     """Our trackers on one derived sequence, each run exactly as ``gflow benchmark`` runs it."""
-    from pipeline.cli.commands.benchmark import _tracker_row, _track_argv
-    from pipeline.cli.commands.common import CliError
-    from pipeline.cli.commands.track import track_args, track_plan
+    from pipeline.evaluation.sequence_benchmark import tracker_row
 
     rows = []
     for name in names:
         row = StressRow(d.origin, d.case.name, name, "tracker", extra=dict(extra))
         rows.append(row)
-        targs = track_args(_track_argv(args, d.seq, name, 0, None, folder))
-        try:
-            plan = track_plan(targs)
-        except CliError as e:
-            row.note = f"skipped: {e}"
+        planned = plan_of(d.seq, name, folder)
+        if isinstance(planned, str):
+            row.note = f"skipped: {planned}"
             continue
         r = Row(d.seq.name, name, "tracker")
-        _tracker_row(r, targs, plan, d.seq.groundtruth, True)
+        tracker_row(r, *planned, d.seq.groundtruth, True)
         _from_row(row, r)
         if r.score is not None and r.boxes_csv:
             stress_scores(row, d, r.boxes_csv)
@@ -568,7 +569,7 @@ def _tracker_rows(args, d: Derived, names: list[str], folder: Path, extra: dict)
 
 def _other_rows(args, d: Derived, cv_names: list[str], folder: Path, extra: dict) -> list[StressRow]:
     """OpenCV's trackers and the box that never moves on one derived sequence."""
-    from pipeline.cli.sequence_benchmark import static_box
+    from pipeline.evaluation.sequence_benchmark import static_box
 
     rows = []
     for cvn in cv_names:
@@ -595,14 +596,14 @@ def check_sequences(seqs: list[Sequence]) -> None:
         _truth(seq, _files(seq))
 
 
-def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str],
+def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str], plan_of: PlanOf,
                donors: list[Sequence] | None = None) -> tuple[list[StressRow], bool, list[StressCase]]:
     """Every tracker, OpenCV tracker (each available) and the still box on every case of every sequence.
 
     ``donors`` are every sequence of the datasets (default ``seqs``): each sequence's image
     patches are cut from the next one among them, so choosing fewer sequences with
-    ``--sequences`` does not change the derived sequences. Returns the rows, whether Ctrl-C
-    stopped it, and the cases."""
+    ``--sequences`` does not change the derived sequences; ``plan_of`` says how each tracker runs
+    on a derived sequence. Returns the rows, whether Ctrl-C stopped it, and the cases."""
     cases = select_cases(args.cases)
     runs = len(seqs) * len(cases)
     rows: list[StressRow] = []
@@ -626,7 +627,7 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                             else f", about {eta:.0f} s left"))
                     extra = {"case_kind": case.kind, "case_length": case.length, "case_amount": case.amount}
                     folder = work / seq.name / case.name
-                    mine = _tracker_rows(args, d, names, folder, extra)
+                    mine = _tracker_rows(d, names, folder, extra, plan_of)
                     rows += mine
                     others = _other_rows(args, d, cv_names, folder, extra)
                     rows += others

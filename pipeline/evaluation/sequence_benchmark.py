@@ -3,7 +3,7 @@
 A sequence folder holds ``frames/`` and ``groundtruth.csv`` (``frame,x,y,w,h``), and
 optionally ``results/TRACKER.csv``, other trackers' published per-frame boxes (the layout of
 ``../shared/data``). Each selected tracker runs through the same code as ``gflow track``
-(:func:`pipeline.cli.commands.track.run_track`), from the ground-truth box of the first frame,
+(:func:`pipeline.app.track`), from the ground-truth box of the first frame,
 with one seed; its boxes are written with the same CSV writer and scored by the same
 function as ``gflow eval`` (:func:`gflow_core.metrics.score`). Published results, a box that
 never moves ("static box") and, where OpenCV has them, OpenCV's trackers are scored the same
@@ -28,9 +28,10 @@ import numpy as np
 from gflow_core.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
 
 from pipeline.recording.results import read_boxes, write_boxes
+from pipeline.app import TrackPlan
 
 __all__ = ["Sequence", "Row", "find_sequences", "score_row", "static_box", "published_rows", "opencv_tracker",
-           "run_opencv", "tracking_seconds", "to_json", "plot_success", "plot_precision",
+           "run_opencv", "tracking_seconds", "tracker_row", "opencv_row", "plot_success", "plot_precision",
            "PRECISION_THRESHOLDS", "PRECISION_AT"]
 
 Box = tuple[float, float, float, float]
@@ -276,34 +277,46 @@ def tracking_seconds(recording: str | Path) -> float | None:
     return (last - first) / 1e9
 
 
-def to_json(rows: list[Row], meta: dict) -> dict:
-    """The benchmark as JSON: ``meta`` plus one object per row (scores as ``gflow eval --json``)."""
-    out = []
-    for r in rows:
-        d: dict = {"sequence": r.sequence, "tracker": r.tracker, "kind": r.kind}
-        if r.score is not None:
-            d.update(r.score.to_json())
-            auc = r.auc
-            assert auc is not None and r.curve is not None  # score_row gives a scored row its curve
-            d["auc"] = round(auc, 4)
-            d["success_curve"] = [round(float(v), 4) for v in r.curve]
-            d["size_within_2x"] = None if r.size_2x is None else round(r.size_2x, 4)
-            d[f"precision_{PRECISION_AT}"] = None if r.precision_at is None else round(r.precision_at, 4)
-        d["fps"] = None if r.fps is None else round(r.fps, 2)
-        if r.seconds is not None:
-            d["seconds"] = round(r.seconds, 3)
-        if r.seconds_total is not None:
-            d["seconds_total"] = round(r.seconds_total, 3)
-        if r.note:
-            d["note"] = r.note
-        if r.boxes_csv:
-            d["boxes"] = r.boxes_csv
-        d.update(r.extra)
-        out.append(d)
-    from pipeline.cli.benchmark_tables import means_json
+def tracker_row(row, out: str, plan: TrackPlan, gt: dict, keep: bool) -> None:
+    """Run one tracker's plan as ``gflow track`` does (:func:`pipeline.app.track`), write its boxes
+    to ``out`` and score them as ``gflow eval`` does."""
+    from pipeline.app import track
 
-    return dict(meta, overlap_thresholds=[round(float(t), 4) for t in OVERLAP_THRESHOLDS], rows=out,
-                means=means_json(rows))
+    try:
+        run = track(plan)
+    except Exception as e:  # noqa: BLE001 - a tracker that fails is a result of the benchmark, not its end
+        row.note = f"failed: {e}"
+        note(f"{row.sequence} / {row.tracker}: {row.note}")
+        return
+    if run.info.get("interrupted"):
+        raise KeyboardInterrupt
+    run.write_csv(out)
+    row.boxes_csv = out if keep else None
+    try:
+        score_row(row, gt, Path(out))
+    except ValueError as e:
+        row.note = f"not scored: {e}"
+    secs = (tracking_seconds(run.recording) if run.recording else None) or run.seconds
+    row.seconds, row.seconds_total = secs, run.seconds
+    row.fps = len(run.estimates) / secs if secs > 0 else None
+    if run.info.get("errors"):
+        row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
+    note(f"{row.sequence} / {row.tracker}: {len(run.estimates)} frames in {secs:.2f} s"
+         + (f" ({row.fps:.1f} fps)" if row.fps else "")
+         + (f", CLE {row.score.cle:.2f} px, success {row.score.success:.3f}" if row.score else ""))
+
+
+def opencv_row(row, name: str, seq, start: int, stop: int | None, gt: dict, out: Path, seed: int,
+                keep: bool) -> None:
+    """Run one OpenCV tracker (in its own process) and score it."""
+    try:
+        n, secs = run_opencv(name, seq, start, stop, out, seed=seed)
+        score_row(row, gt, out)
+    except (RuntimeError, ValueError, OSError) as e:
+        row.note = f"failed: {e}"
+        return
+    row.seconds, row.fps = secs, (n / secs if secs > 0 else None)
+    row.boxes_csv = str(out) if keep else None
 
 
 _STYLE = {"tracker": "-", "opencv": "-.", "published": "--", "baseline": ":"}

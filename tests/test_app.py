@@ -1,0 +1,115 @@
+"""The application layer (pipeline/app.py): a TrackRequest, its plan, and the estimates its run yields.
+
+Real frames (crossing), the real dcf tracker, inline (one process, every message encoded and
+decoded as over zenoh), real MCAP files.
+"""
+
+from __future__ import annotations
+
+import tempfile
+
+import pytest
+
+from conftest import data_dir
+
+from pipeline.app import RequestError, TrackRequest, plan_track, run, track
+from pipeline.cli.trackers import TRACKERS
+from pipeline.recording.results import estimates, read_track
+
+INIT = (204.0, 150.0, 17.0, 50.0)
+
+
+def _request(**kw) -> TrackRequest:
+    base = dict(source=str(data_dir("crossing")), init=INIT, tracker="dcf", seed=1, stop=6, inline=True, quiet=True)
+    return TrackRequest(**{**base, **kw})
+
+
+def test_no_record_writes_no_mcap_and_yields_the_recorded_estimates(tmp_path, monkeypatch) -> None:
+    """The run's estimates come from the run itself: with no_record no recorder runs and no MCAP
+    file is written anywhere (not in the working folder, not in TMPDIR), and the estimates it
+    yields are those a recorded run of the same request writes to its recording, bit for bit."""
+    tmp = tmp_path / "tmp"
+    tmp.mkdir()
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp))
+    import pipeline.runtime.inline as inline
+
+    opened: list[str] = []  # every MCAP file an inline run opens for writing, even one removed at its end
+
+    class Spy(inline.McapRecorder):
+        def open(self):
+            opened.append(str(self.path))
+            return super().open()
+
+    monkeypatch.setattr(inline, "McapRecorder", Spy)
+    plan = plan_track(_request(no_record=True), TRACKERS["dcf"])
+    got = list(run(plan))
+    assert [e.header.seq for e in got] == list(range(6))
+    assert opened == [] and "recorder" not in plan.plan.stages
+    assert list(tmp_path.rglob("*.mcap")) == [], list(tmp_path.rglob("*"))
+
+    rec = tmp_path / "r.mcap"
+    result = track(plan_track(_request(record=str(rec)), TRACKERS["dcf"]))
+    assert opened == [str(rec)]  # the spy sees a recording when there is one
+    assert result.recording == str(rec) and result.kept == str(rec)
+    recorded = estimates(rec)
+    assert list(result.estimates) == list(recorded) == list(range(6))
+    assert [msg_bytes(e) for e in got] == [msg_bytes(recorded[k]) for k in range(6)]
+
+    # the CSV from the estimates is the CSV of gflow track
+    result.write_csv(tmp_path / "b.csv")
+    rows = read_track(tmp_path / "b.csv")
+    assert rows.boxes == {k: tuple(round(v, 2) for v in recorded[k].box) for k in range(6)}
+
+
+def msg_bytes(msg) -> bytes:
+    from stages.messages import encode
+
+    return encode(msg)
+
+
+def test_a_bad_request_says_what_is_wrong_before_anything_runs(tmp_path) -> None:
+    with pytest.raises(RequestError, match="source not found"):
+        plan_track(_request(source=str(tmp_path / "nowhere")), TRACKERS["dcf"])
+    with pytest.raises(RequestError, match="--reconnect is an option of live sources"):
+        plan_track(_request(reconnect=1.0), TRACKERS["dcf"])
+    with pytest.raises(RequestError, match=r"--set expects stage\.param=value"):
+        plan_track(_request(sets=("particles=3",)), TRACKERS["dcf"])
+
+
+def test_the_api_runs_a_patch_model_through_the_app_layer(tmp_path) -> None:
+    """gflow.Tracker with an m2 patch model (the one tracker off the protocol) runs the graph the
+    app layer makes for its request, fed frame by frame (pipeline.app.PushedRun): every estimate
+    equals gflow track --inline's, every field, bit for bit."""
+    import subprocess
+    import sys
+
+    import cv2
+
+    from gflow import Tracker
+    from pipeline.io.frame_readers import folder_frames
+
+    caviar1 = data_dir("caviar1")
+    model = tmp_path / "patch.npz"
+    gflow = [sys.executable, "-m", "pipeline.cli.main"]
+    r = subprocess.run([*gflow, "learn", "m2", str(caviar1), "--boxes", str(caviar1 / "groundtruth.csv"), "--frames",
+                        "0:60", "-K", "4", "--metric", "shuffle", "--patch-size", "16x32", "--out", str(model)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    box = "129,71,30,79"
+    rec = tmp_path / "cli.mcap"
+    r = subprocess.run([*gflow, "track", str(caviar1), "--tracker", "m2", "--model", str(model), "--particles", "150",
+                        "--init", box, "--seed", "3", "--inline", "--stop", "12", "--out", str(tmp_path / "b.csv"),
+                        "--record", str(rec), "-q"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    cli = estimates(rec)
+    t = Tracker("m2", seed=3, model=str(model), particles=150)
+    files = [f for _, f in folder_frames(caviar1 / "frames")[:12]]
+    api = [t.init(cv2.imread(str(files[0])), tuple(float(v) for v in box.split(",")))]
+    api += [t.update(cv2.imread(str(f))) for f in files[1:]] + t.finish()
+    assert [e.frame for e in api] == sorted(cli) == list(range(12))
+    assert len({e.extras["k"] for e in api}) > 1  # the exemplar changes: a run that compares something
+    for e in api:
+        m = cli[e.frame]
+        assert (e.box, e.confidence, e.target_state, e.phase) == (tuple(m.box), m.confidence, m.target_state, m.state)
+        assert (e.extras["k"], e.extras["ess"], e.extras["log_evidence"]) == (m.k, m.ess, m.log_evidence)
