@@ -19,7 +19,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.spec import get as get_spec
+from gflow_core.registry import get as get_spec
 from gflow_core.tracker import Box, Estimate, FrameRng, TrackingFilter, UnusableFrame
 from stages.rng import stream_hash
 
@@ -61,7 +61,7 @@ def patch_model(name: str, params: Mapping[str, Any]) -> tuple[bool, dict[str, A
 def protocol_tracker(name: str, params: Mapping[str, Any]) -> tuple[TrackingFilter[Any, Any, Any, Any], Any,
                                                                     dict[str, Any]]:
     """(the protocol object, its parameters, its resources) of registered tracker ``name``
-    (:func:`gflow_core.spec.get`) made from the API's keywords: the spec's setup, with model files
+    (:func:`gflow_core.registry.get`) made from the API's keywords: the spec's setup, with model files
     read by :func:`load_model_file`."""
     spec = get_spec(name)
     p, resources = spec.make(params, load_model_file)

@@ -9,7 +9,8 @@ import numpy as np
 
 from gflow_core.tracker import Box, Estimate
 
-from gflow_core import spec as registry
+from gflow_core import registry
+from gflow_core.spec import SpecError
 from gflow_core.builtin_trackers import BUILTIN
 
 from .backends import GraphBackend, ProtocolBackend, patch_model, protocol_tracker
@@ -20,7 +21,7 @@ __all__ = ["Tracker", "TRACKERS", "trackers"]
 
 def trackers() -> tuple[str, ...]:
     """The trackers' names, as ``gflow track --tracker NAME`` names them: the built-in ones and those
-    other packages register (entry-point group ``gflow.trackers``, :mod:`gflow_core.spec`)."""
+    other packages register (entry-point group ``gflow.trackers``, :mod:`gflow_core.registry`)."""
     return tuple(registry.names())
 
 
@@ -84,7 +85,7 @@ class Tracker:
     def __init__(self, name: str = "dcf", seed: int = 1, *, fps: float = 25.0, **params: Any) -> None:
         try:
             registry.get(name)
-        except registry.SpecError as e:
+        except SpecError as e:
             raise GflowError(str(e)) from None
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise GflowError(f"seed must be an integer >= 0, got {seed!r}")

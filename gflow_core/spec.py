@@ -1,11 +1,13 @@
-"""A tracker as one registration: :class:`TrackerSpec`, and :func:`trackers`, the registry of them.
+"""A tracker as one registration: :class:`TrackerSpec` (the registry of them is
+:mod:`gflow_core.registry`).
 
 A spec says everything the rest of gflow needs of a tracker: its name, its parameter dataclass,
 its :class:`~gflow_core.tracker.TrackingFilter` (made by a factory, so the tracker's modules are
 imported only when it runs), how the Python API's keywords become its parameters and resources,
 the graph it runs in and, for a tracker whose state is a particle cloud over a box, what the
 generic box stages need (:class:`BoxStages`). ``gflow.Tracker``, ``gflow track --tracker``,
-``gflow info TRACKER`` and ``gflow benchmark --trackers`` all read the registry.
+``gflow info TRACKER`` and ``gflow benchmark --trackers`` all read the registry
+(:func:`gflow_core.registry.trackers`).
 
 The built-in trackers' specs are in :mod:`gflow_core.builtin_trackers`; a tracker of another
 package registers its spec under the entry-point group ``gflow.trackers``::
@@ -21,8 +23,6 @@ pipeline's model-file reader).
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import sys
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping
 
@@ -31,8 +31,7 @@ import numpy as np
 from .params import make
 from .tracker import TrackingFilter
 
-__all__ = ["TrackerSpec", "BoxStages", "SpecError", "Loader", "trackers", "broken", "get", "names",
-           "ENTRY_POINT_GROUP", "plain_setup"]
+__all__ = ["TrackerSpec", "BoxStages", "SpecError", "Loader", "ENTRY_POINT_GROUP", "plain_setup"]
 
 #: the entry-point group other packages register their trackers' specs in
 ENTRY_POINT_GROUP = "gflow.trackers"
@@ -160,79 +159,3 @@ class TrackerSpec:
     def make(self, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
         """(params, resources) of the API's keywords (:attr:`setup`)."""
         return self.setup(self, keywords, load)
-
-
-# ---------------------------------------------------------------------------------------------
-# The registry
-
-_cache: dict[tuple[str, ...], tuple[dict[str, TrackerSpec], dict[str, str]]] = {}
-
-
-def _entry_points() -> list[Any]:
-    from importlib.metadata import entry_points
-
-    return sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda e: e.name)
-
-
-def _load() -> tuple[dict[str, TrackerSpec], dict[str, str]]:
-    """({name: spec}, {name: why its registration is broken}), read once per ``sys.path``."""
-    key = tuple(sys.path)
-    hit = _cache.get(key)
-    if hit is not None:
-        return hit
-    from .builtin_trackers import BUILTIN
-
-    specs = {s.name: s for s in BUILTIN}
-    bad: dict[str, str] = {}
-    for ep in _entry_points():
-        where = f"entry point {ep.name} = {ep.value} (group {ENTRY_POINT_GROUP})"
-        try:
-            obj = ep.load()
-        except Exception as e:  # noqa: BLE001 (any error of another package's import is its fault)
-            bad[ep.name] = f"tracker {ep.name}: {where} cannot be loaded: {type(e).__name__}: {e}".replace("\n", " ")
-            continue
-        if not isinstance(obj, TrackerSpec):
-            bad[ep.name] = f"tracker {ep.name}: {where} is a {type(obj).__name__}, not a gflow_core.spec.TrackerSpec"
-        elif obj.name != ep.name:
-            bad[ep.name] = f"tracker {ep.name}: {where} holds the spec of tracker {obj.name!r}"
-        elif ep.name in specs:
-            bad[ep.name] = f"tracker {ep.name}: {where} clashes with the built-in tracker {ep.name}"
-        else:
-            specs[ep.name] = dataclasses.replace(obj, origin=where)
-    _cache[key] = (specs, bad)
-    return specs, bad
-
-
-def trackers() -> dict[str, TrackerSpec]:
-    """Every tracker: the built-in ones and those of the entry-point group ``gflow.trackers``, by name
-    (sorted). A broken registration is left out (:func:`broken` says why)."""
-    specs = _load()[0]
-    return {n: specs[n] for n in sorted(specs)}
-
-
-def broken() -> dict[str, str]:
-    """{name: one line saying why} of the entry points of ``gflow.trackers`` that cannot be used."""
-    return dict(_load()[1])
-
-
-def names() -> list[str]:
-    """The names of the usable trackers, sorted."""
-    return sorted(_load()[0])
-
-
-def get(name: str) -> TrackerSpec:
-    """The spec of tracker ``name``; :class:`SpecError` (one line) for a name not registered or a
-    broken registration."""
-    specs, bad = _load()
-    if name in specs:
-        return specs[name]
-    if name in bad:
-        raise SpecError(bad[name])
-    raise SpecError(f"unknown tracker {name!r} (known: {', '.join(sorted(specs))})")
-
-
-def resolve(ref: str) -> Any:
-    """The object ``module:attr`` (or a module) names."""
-    mod, _, attr = ref.partition(":")
-    obj = importlib.import_module(mod)
-    return getattr(obj, attr) if attr else obj

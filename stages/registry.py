@@ -81,7 +81,7 @@ def _classes(module: str) -> dict[str, type[Stage]]:
 
 def _spec_kinds() -> dict[str, str]:
     """{kind: tracker name} of the registered trackers whose stages the generic box stages are."""
-    from gflow_core.spec import trackers
+    from gflow_core.registry import trackers
 
     return {k: s.name for s in trackers().values() if s.box is not None and s.graph is None
             for k in (s.proposal_kind, s.filter_kind)}
@@ -99,7 +99,7 @@ class _Stages(Mapping):
         name = _spec_kinds().get(kind)
         if name is None:
             raise KeyError(kind)
-        from gflow_core.spec import get
+        from gflow_core.registry import get
 
         from .spec_box import spec_stage_classes
 

@@ -7,7 +7,7 @@ the filter stage (kind ``NAME.filter``): their parameters are every field of the
 parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal), as the built-in
 box trackers' stages take; the filter's snapshot holds the state as the spec's ``to_arrays``
 gives it. The stages know the tracker only through its spec (:mod:`stages.registry` asks
-:func:`gflow_core.spec.trackers` for a kind no stage module declares). The correlation-filter
+:func:`gflow_core.registry.trackers` for a kind no stage module declares). The correlation-filter
 and the appearance trackers' stage modules take what they need of them from their specs the same
 way (:func:`box_filter_spec`, :func:`box_proposal_spec`; the appearance filter with a snapshot
 codec of its own).

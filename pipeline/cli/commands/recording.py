@@ -68,7 +68,7 @@ def cmd_info(args) -> int:
     from pipeline.cli.trackers import TRACKERS
 
     if args.file in TRACKERS and not Path(args.file).is_file():
-        from pipeline.cli.tracker_options import print_tracker
+        from pipeline.cli.tracker_info import print_tracker
 
         print_tracker(args.file, args.json)
         return 0

@@ -1,5 +1,5 @@
 """Trackers that ``gflow track --tracker NAME`` can run: one per registered spec
-(:func:`gflow_core.spec.trackers`, the built-in ones and those of the entry-point group
+(:func:`gflow_core.registry.trackers`, the built-in ones and those of the entry-point group
 ``gflow.trackers``).
 
 Each entry has ``NAME``, ``GRAPH``, ``PARAMS``, ``add_args(group)``, ``overrides(args) -> (graph,
@@ -16,7 +16,8 @@ import importlib
 from collections.abc import Iterator, Mapping
 from typing import Any
 
-from gflow_core.spec import SpecError, TrackerSpec, broken, get, trackers
+from gflow_core.registry import broken, get, trackers
+from gflow_core.spec import SpecError, TrackerSpec
 
 from pipeline.cli.commands.common import CliError
 
