@@ -34,7 +34,7 @@ from .features import is_grey
 from .params import DCFParams
 from .state import DCFObservation, DCFProposal, DCFState
 
-__all__ = ["DCFTracker", "TRACKER", "StepResult", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
+__all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
 
 #: the streams of a frame's draws: the initial particles, the update (the proposal's: PURPOSE_WALK)
 PURPOSE_INIT, PURPOSE_STEP = 0xDCF0, 0xDCF2
@@ -109,29 +109,65 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
     return (b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * (1.0 - q))
 
 
+def _log_ratio(v: Any) -> float:
+    """log P(visible) / P(hidden) of a :class:`~gflow_core.visibility.Visibility` of equal priors: the log
+    likelihood ratio of the target against clutter."""
+    return math.log(max(v.visible, 1e-300)) - math.log(max(v.hidden, 1e-300))
+
+
+@dataclass(frozen=True)
+class Search:
+    """What the search for a hidden target found: ``found`` the candidate taken back (or None) and its
+    P(visible); whether the search covered the whole frame; the accumulated evidence and the place of the
+    candidate it belongs to (:class:`.state.DCFState`'s ``evidence`` and ``cand``)."""
+
+    found: Any
+    confidence: float
+    covers: bool
+    evidence: float = 0.0
+    cand: tuple[float, float] = (math.nan, math.nan)
+
+
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
-            spread: float, clutter_seen: Any) -> tuple[Any, float, bool]:
+            spread: float, clutter_seen: Any, gate: tuple[float, float]) -> Search:
     """The search for a hidden target over three standard deviations of its place's prior (the motion
-    prior's (sx, sy) widened by ``spread``, in quadrature): (the first candidate judged visible or None,
-    its P(visible), whether the search covered the whole frame)."""
+    prior's (sx, sy) widened by ``spread``, in quadrature), as a sequential test: each frame's best
+    candidate adds its log-likelihood ratio (target against clutter) to the evidence gathered by the
+    candidates before it when it lies within ``gate`` (px, three standard deviations of a frame's motion)
+    of the last one (Page's CUSUM, the repeated sequential probability ratio test), and the target is
+    taken back when the evidence outweighs the prior odds that it is back."""
     Hh, Ww = obs.grey.shape
     sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
     covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
+    best: tuple[Any, float] | None = None
     for cand in tm.search(st.model, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
         # the search had more chances than the window the clutter was learnt on: under "hidden" its
         # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
         # the candidate is placed by the target's prior: log N(x; pred, S) + log A
         trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
         place = _log_place(cand.centre, pred, sx, sy, cand.area)
-        # the colour score of the filter's pick: one draw of the colour clutter
-        ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
-        vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
-                        trials=max(trials, 1.0), log_place=place, cues=ccue)
-        if vf.visible >= 0.5:
-            return cand, vf.visible, covers
-    return None, 0.0, covers
+        # the filter's score alone: the colour model is the target against its surroundings where it was
+        # last seen (Bertinetto et al. 2016), its score elsewhere is not the one its distributions learnt
+        vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(1.0, 0.0, 1.0),
+                        trials=max(trials, 1.0), log_place=place)
+        # lambda_t = log p(z_t | visible) / p(z_t | hidden)
+        lam = _log_ratio(vf)
+        if best is None or lam > best[1]:
+            best = (cand, lam)
+    if best is None:
+        return Search(None, 0.0, covers)
+    cand, lam = best
+    last = st.cand
+    same = abs(cand.centre[0] - last[0]) <= gate[0] and abs(cand.centre[1] - last[1]) <= gate[1]
+    # S_t = max(S_{t-1}, 0) + lambda_t at the last candidate's place, S_t = lambda_t elsewhere (NaN: none)
+    evidence = max(st.evidence, 0.0) + lam if same else lam
+    # back when the posterior odds q / (1 - q) exp(S_t) favour the target (q: the prior a frame it is back)
+    log_odds = evidence + math.log(p.reappear / (1.0 - p.reappear))
+    if log_odds >= 0.0:
+        return Search(cand, 1.0 / (1.0 + math.exp(-log_odds)), covers)
+    return Search(None, 0.0, covers, evidence, (float(cand.centre[0]), float(cand.centre[1])))
 
 
 def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float, Any, Any]:
@@ -147,15 +183,34 @@ def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float,
     return r_est, clutter_seen, colour_seen
 
 
-def _learn_clutter(st: DCFState, clutter_seen: Any, colour_seen: Any, rate: float) -> tuple[ChiSquare, ChiSquare]:
+def _learn_clutter(st: DCFState, clutter_seen: Any, colour_seen: Any, rate: float) -> dict[str, ChiSquare]:
     """The clutter's moments after a frame the target is present (while it is not, the best away from the
-    held box may be the target itself): (the filter's, the colour's)."""
+    held box may be the target itself): the filter's and the colour's, as keywords of the state."""
     clutter, cclutter = st.clutter, st.cclutter
     if clutter_seen is not None:
         clutter = clutter.update(1.0 - clutter_seen[0], rate)
     if colour_seen is not None and colour_seen[1] is not None:
         cclutter = cclutter.update(1.0 - colour_seen[1][0], rate)
-    return clutter, cclutter
+    return {"clutter": clutter, "cclutter": cclutter}
+
+
+def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, r_est: float, colour_seen: Any,
+           confident: bool) -> tuple[float, dict[str, Any]]:
+    """A frame the target is present at ``centre``: (its log scale, the state's learnt parts as keywords).
+    The target's distributions follow it on every such frame, so a lasting change of look becomes the usual
+    look; the model and the scale learn on confident frames only."""
+    c = (float(centre[0]), float(centre[1]))
+    log_s, mdl = st.log_s, st.model
+    if confident and mdl.scale is not None:
+        d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
+        log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
+    learnt: dict[str, Any] = {"target": st.target.update(1.0 - r_est, p.target_rate)}
+    if colour_seen is not None:
+        learnt["ctarget"] = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
+    if confident:
+        learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p, p.rate)
+    return log_s, learnt
+
 
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
@@ -212,18 +267,18 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
     hidden = run >= p.hidden_after
-    found = None
-    covers = False
-    spread = 0.0
+    srch, spread = Search(None, 0.0, False), 0.0
     if run > 0:
         # unseen, the target's place spreads by search_growth mean sides a frame
         spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
-        found, found_conf, covers = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen)
-        if found is not None:
-            confidence, run, spread = found_conf, 0, 0.0
-    idx = systematic_resample(lw.lw, rng, n)
-    new_parts = parts[idx]
-    target, clutter, ctarget, cclutter, mdl = st.target, st.clutter, st.ctarget, st.cclutter, model
+        # a candidate stays the same while it moves less than three standard deviations of the motion prior
+        gate = (3.0 * p.motion_prior * bw * math.sqrt(dt), 3.0 * p.motion_prior * bh * math.sqrt(dt))
+        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen, gate)
+        if srch.found is not None:
+            confidence, run, spread = srch.confidence, 0, 0.0
+    found = srch.found
+    new_parts = parts[systematic_resample(lw.lw, rng, n)]
+    learnt: dict[str, Any] = {}
     if found is not None:
         centre = found.centre.copy()
         log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
@@ -234,29 +289,18 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         # hidden, or in doubt: the box holds the prediction, nothing is learnt, the velocity decays
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
         velocity = p.coast_velocity ** dt * st.velocity
-        state = ("lost" if covers else "occluded") if hidden else "tracked"
+        state = ("lost" if srch.covers else "occluded") if hidden else "tracked"
     else:
-        c = (float(centre[0]), float(centre[1]))
-        if confident and mdl.scale is not None:
-            d = tm.scale_change(mdl, obs.grey, c, log_s, geom, p)
-            log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
-        # the target's distributions follow it on every frame it is present, so a lasting change of look
-        # becomes the usual look; the model learns on confident frames only
-        target = st.target.update(1.0 - r_est, p.target_rate)
-        if colour_seen is not None:
-            ctarget = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
-        if confident:
-            mdl = tm.learn(mdl, obs.image, obs.grey, c, log_s, geom, p, p.rate)
+        log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
     if present:
-        clutter, cclutter = _learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate)
+        learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
-    new = replace(st, model=mdl, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, target=target,
-                  clutter=clutter, ctarget=ctarget, cclutter=cclutter, hidden_run=run, back=back, target_state=state,
-                  spread=spread)
+    new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
+                  target_state=state, spread=spread, evidence=srch.evidence, cand=srch.cand, **learnt)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)
