@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 import numpy as np
+from scipy.special import ndtr
 
 from ..features import to_grey
 from ..particles import LogWeights, systematic_resample
@@ -141,13 +142,18 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
     covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
+    # the probability the target's place prior gives the window searched (clipped to the frame): under
+    # "visible" the target is in it, so its prior there is N(x; pred, S) / P(window)
+    lo = np.maximum(pred - np.array(margin), 0.0)
+    hi = np.minimum(pred + np.array(margin), np.array([Ww - 1.0, Hh - 1.0]))
+    mass = float(np.prod(ndtr((hi - pred) / np.array([sx, sy])) - ndtr((lo - pred) / np.array([sx, sy]))))
     best: tuple[Any, float] | None = None
     for cand in tm.search(st.model, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
         # the search had more chances than the window the clutter was learnt on: under "hidden" its
         # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
-        # the candidate is placed by the target's prior: log N(x; pred, S) + log A
+        # the candidate is placed by the target's prior held to the window: log N(x; pred, S) - log P + log A
         trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-        place = _log_place(cand.centre, pred, sx, sy, cand.area)
+        place = _log_place(cand.centre, pred, sx, sy, cand.area) - math.log(max(mass, 1e-300))
         # the filter's score alone: the colour model is the target against its surroundings where it was
         # last seen (Bertinetto et al. 2016), its score elsewhere is not the one its distributions learnt
         vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(1.0, 0.0, 1.0),
