@@ -7,8 +7,6 @@ bit (a stage's snapshot).
 
 from __future__ import annotations
 
-import math
-
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -64,9 +62,6 @@ class DCFState:
     target_state : how the target was judged on the last frame with evidence (what a coasted frame
         reports).
     spread : px, how far the target's place has spread since it was last seen (0 while it is).
-    evidence : while the target is judged hidden, the search's accumulated log-likelihood ratio (target
-        against clutter) of its candidates at consistent places (Page's CUSUM; 0 otherwise).
-    cand : (x, y) of the search's last candidate while the target is hidden (NaN: none).
     """
 
     geom: Geometry
@@ -83,8 +78,6 @@ class DCFState:
     back: float = 0.0
     target_state: str = "tracked"
     spread: float = 0.0
-    evidence: float = 0.0
-    cand: tuple[float, float] = (math.nan, math.nan)
 
 
 def _real(a: np.ndarray) -> np.ndarray:
@@ -118,8 +111,6 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
               "target": [st.target.m1, st.target.m2, st.target.n], "clutter": [st.clutter.m1, st.clutter.m2, st.clutter.n],
               "ctarget": [st.ctarget.m1, st.ctarget.m2, st.ctarget.n],
               "cclutter": [st.cclutter.m1, st.cclutter.m2, st.cclutter.n],
-              "evidence": float(st.evidence),
-              "cand": [float(st.cand[0]), float(st.cand[1])],
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
     return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}, values
 
@@ -155,5 +146,4 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     target=chi("target"), clutter=chi("clutter"), ctarget=chi("ctarget"), cclutter=chi("cclutter"),
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
-                    spread=float(values["spread"]), evidence=float(values["evidence"]),
-                    cand=(float(values["cand"][0]), float(values["cand"][1])))
+                    spread=float(values["spread"]))

@@ -112,31 +112,25 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
 
 def _log_ratio(v: Any) -> float:
     """log P(visible) / P(hidden) of a :class:`~gflow_core.visibility.Visibility` of equal priors: the log
-    likelihood ratio of the target against clutter."""
+    likelihood ratio of the target against clutter (hidden)."""
     return math.log(max(v.visible, 1e-300)) - math.log(max(v.hidden, 1e-300))
 
 
 @dataclass(frozen=True)
 class Search:
-    """What the search for a hidden target found: ``found`` the candidate taken back (or None) and its
-    P(visible); whether the search covered the whole frame; the accumulated evidence and the place of the
-    candidate it belongs to (:class:`.state.DCFState`'s ``evidence`` and ``cand``)."""
+    """What the search for a hidden target found: ``found`` the candidate taken back (or None), its
+    P(visible), and whether the search covered the whole frame."""
 
     found: Any
     confidence: float
     covers: bool
-    evidence: float = 0.0
-    cand: tuple[float, float] = (math.nan, math.nan)
 
 
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
-            spread: float, clutter_seen: Any, gate: tuple[float, float]) -> Search:
+            spread: float, clutter_seen: Any) -> Search:
     """The search for a hidden target over three standard deviations of its place's prior (the motion
-    prior's (sx, sy) widened by ``spread``, in quadrature), as a sequential test: each frame's best
-    candidate adds its log-likelihood ratio (target against clutter) to the evidence gathered by the
-    candidates before it when it lies within ``gate`` (px, three standard deviations of a frame's motion)
-    of the last one (Page's CUSUM, the repeated sequential probability ratio test), and the target is
-    taken back when the evidence outweighs the prior odds that it is back."""
+    prior's (sx, sy) widened by ``spread``, in quadrature): the first candidate whose log-likelihood
+    ratio (target against clutter) outweighs the prior odds that a hidden target is back is taken."""
     Hh, Ww = obs.grey.shape
     sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
@@ -147,7 +141,6 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
     lo = np.maximum(pred - np.array(margin), 0.0)
     hi = np.minimum(pred + np.array(margin), np.array([Ww - 1.0, Hh - 1.0]))
     mass = float(np.prod(ndtr((hi - pred) / np.array([sx, sy])) - ndtr((lo - pred) / np.array([sx, sy]))))
-    best: tuple[Any, float] | None = None
     for cand in tm.search(st.model, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
         # the search had more chances than the window the clutter was learnt on: under "hidden" its
         # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
@@ -158,22 +151,12 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
         # last seen (Bertinetto et al. 2016), its score elsewhere is not the one its distributions learnt
         vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(1.0, 0.0, 1.0),
                         trials=max(trials, 1.0), log_place=place)
-        # lambda_t = log p(z_t | visible) / p(z_t | hidden)
-        lam = _log_ratio(vf)
-        if best is None or lam > best[1]:
-            best = (cand, lam)
-    if best is None:
-        return Search(None, 0.0, covers)
-    cand, lam = best
-    last = st.cand
-    same = abs(cand.centre[0] - last[0]) <= gate[0] and abs(cand.centre[1] - last[1]) <= gate[1]
-    # S_t = max(S_{t-1}, 0) + lambda_t at the last candidate's place, S_t = lambda_t elsewhere (NaN: none)
-    evidence = max(st.evidence, 0.0) + lam if same else lam
-    # back when the posterior odds q / (1 - q) exp(S_t) favour the target (q: the prior a frame it is back)
-    log_odds = evidence + math.log(p.reappear / (1.0 - p.reappear))
-    if log_odds >= 0.0:
-        return Search(cand, 1.0 / (1.0 + math.exp(-log_odds)), covers)
-    return Search(None, 0.0, covers, evidence, (float(cand.centre[0]), float(cand.centre[1])))
+        # back when the posterior odds q / (1 - q) p(z | visible) / p(z | hidden) favour the target (q: the
+        # prior a frame that a hidden target is back)
+        log_odds = _log_ratio(vf) + math.log(p.reappear / (1.0 - p.reappear))
+        if log_odds >= 0.0:
+            return Search(cand, 1.0 / (1.0 + math.exp(-log_odds)), covers)
+    return Search(None, 0.0, covers)
 
 
 def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float, Any, Any]:
@@ -277,9 +260,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     if run > 0:
         # unseen, the target's place spreads by search_growth mean sides a frame
         spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
-        # a candidate stays the same while it moves less than three standard deviations of the motion prior
-        gate = (3.0 * p.motion_prior * bw * math.sqrt(dt), 3.0 * p.motion_prior * bh * math.sqrt(dt))
-        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen, gate)
+        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen)
         if srch.found is not None:
             confidence, run, spread = srch.confidence, 0, 0.0
     found = srch.found
@@ -306,7 +287,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
-                  target_state=state, spread=spread, evidence=srch.evidence, cand=srch.cand, **learnt)
+                  target_state=state, spread=spread, **learnt)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)
