@@ -53,9 +53,8 @@ BACF and CSRT learn theirs:
   window, so each placement is scored as a window centred there) is slid over three standard
   deviations of that place (:func:`.model.search`), up to the whole frame (``lost``). The best
   placement is taken back only on strong evidence: its filter score against the clutter's as the
-  best of as many draws as the search covered, its place under the spread prior held to the window
-  searched (N(x; pred, S) / P(window): the target, if it is there, is in the window) against a
-  place anywhere in it, and a prior ``reappear`` that a hidden target is back.
+  best of as many draws as the search covered, its colour score, its place under the spread prior
+  against the searched area, and a prior ``reappear`` that a hidden target is back.
 
 Departures from the papers, each measured on the nine shared sequences and their stress cases
 together (docs/trackers.md):
@@ -74,12 +73,7 @@ together (docs/trackers.md):
   parabola's sub-step drifted the box on fixed-size ground truth).
 * Nothing in the papers says whether the target is there; the visibility model, the search and
   the place prior are this project's (as the appearance tracker's), here with the filter's and the
-  colour's scores as cues. The search reads the filter alone: Staple's colour model is the target
-  against its surroundings where it was last seen, and a target back in other surroundings or other
-  light scores like clutter there (crossing's walker, shade to sunlight). Evidence is not gathered
-  over frames (a sequential test, Page's CUSUM, was tried: a look-alike that stays in view gives the
-  same evidence every frame, and summing it took other skaters for skating1's target; the
-  frames' scores are not independent given "clutter", docs/trackers.md).
+  colour's scores as cues.
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),

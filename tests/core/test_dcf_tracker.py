@@ -1,8 +1,8 @@
 """The correlation-filter tracker on the protocol (gflow_core.dcf.tracker): it follows a fast textured
 target that a box that never moves loses, says it has lost a target on noise, reads grey frames as
 grey however they are stored, is a pure function of its state, and its state goes into a snapshot and
-comes back bit for bit; its parameters are refused in one line naming them; a hidden target is
-searched for by the filter alone. On real video (jumping's fast, blurred face) it holds the target."""
+comes back bit for bit; its parameters are refused in one line naming them. On real video (jumping's
+fast, blurred face) it holds the target."""
 
 from __future__ import annotations
 
@@ -15,8 +15,7 @@ import pytest
 from gflow import GflowError, Tracker
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.state import from_arrays, to_arrays
-from gflow_core.dcf.tracker import TRACKER, _search
-from gflow_core.visibility import ChiSquare
+from gflow_core.dcf.tracker import TRACKER
 from gflow_core.metrics import centre_error, iou
 from gflow_core.params import UnknownParameter, make
 from gflow_core.tracker import FrameRng, step
@@ -165,30 +164,3 @@ def test_it_holds_jumpings_fast_blurred_face() -> None:
     err = centre_error(truth, boxes)
     assert err.mean() < 5.0 and err.max() < 15.0
     assert (iou(truth, boxes) > 0.5).mean() >= 0.9
-
-
-
-
-def test_a_hidden_target_is_searched_for_by_the_filter_alone() -> None:
-    """The search for a hidden target reads the filter alone (the colour model is the target against its
-    last surroundings): colour distributions that call every colour clutter change nothing; the target
-    shown again elsewhere is taken back, noise is not."""
-    sc = Scene(lambda t: (120.0, 100.0))
-    tint = np.array([1.0, 0.55, 0.25])
-    frames = [np.clip(sc.frame(t)[..., None] * tint, 0, 255).astype(np.uint8) for t in range(6)]
-    st, _ = _track(frames, sc.truth(0))
-    p = DCFParams()
-    assert st.model.colour_mode == "colour"
-    hidden = dataclasses.replace(st, hidden_run=p.hidden_after, target_state="occluded")
-    back = sc.bg.copy()
-    back[82:118, 85:115] = sc.target
-    obs = TRACKER.observe(p, np.clip(back[..., None] * tint, 0, 255).astype(np.uint8))
-    args = (obs, p, st.centre, (10.0, 10.0), 20.0, None)
-    found = _search(hidden, *args)
-    assert found.found is not None and found.confidence > 0.5
-    assert abs(found.found.centre[0] - 99.5) < 4.0 and abs(found.found.centre[1] - 99.5) < 4.0
-    never = dataclasses.replace(hidden, ctarget=ChiSquare(0.9, 0.82, 50), cclutter=ChiSquare(0.05, 0.003, 50))
-    again = _search(never, *args)
-    assert again.confidence == found.confidence and np.array_equal(again.found.centre, found.found.centre)
-    noise = TRACKER.observe(p, np.random.default_rng(0).integers(0, 256, (H, W, 3), dtype=np.uint8))
-    assert _search(hidden, noise, *args[1:]).found is None
