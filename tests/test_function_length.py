@@ -15,13 +15,6 @@ ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("gflow_core", "stages", "pipeline", "gflow")
 MAX_LINES = 100
 
-#: Functions known to be over the limit whose split is under way, as (file, qualified name). The
-#: test skips them; once one is split (no longer over the limit, or gone), its entry must be
-#: removed here, so the set only shrinks.
-PENDING: frozenset[tuple[str, str]] = frozenset({
-    ("gflow_core/dcf/tracker.py", "step"),
-})
-
 
 def function_lengths(path: Path) -> list[tuple[int, str, int]]:
     """(line, qualified name, length in lines) of every function and method in the file at ``path``."""
@@ -56,17 +49,8 @@ def long_functions() -> dict[tuple[str, str], str]:
 
 
 def test_no_function_over_the_limit() -> None:
-    over = long_functions()
-    bad = [text for key, text in sorted(over.items()) if key not in PENDING]
+    bad = [text for _, text in sorted(long_functions().items())]
     assert not bad, f"functions over {MAX_LINES} lines (split them into named steps):\n" + "\n".join(bad)
-
-
-def test_pending_entries_are_still_over_the_limit() -> None:
-    """A pending function that has been split is taken off PENDING, so the limit then holds for it."""
-    over = long_functions()
-    done = sorted(f"{file} {name}" for file, name in PENDING if (file, name) not in over)
-    assert not done, ("no longer over the limit (or gone): remove from PENDING in tests/test_function_length.py:\n"
-                      + "\n".join(done))
 
 
 def test_lengths_are_measured_as_ast_spans(tmp_path: Path) -> None:

@@ -34,7 +34,7 @@ from .features import is_grey
 from .params import DCFParams
 from .state import DCFObservation, DCFProposal, DCFState
 
-__all__ = ["DCFTracker", "TRACKER", "StepResult", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
+__all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
 
 #: the streams of a frame's draws: the initial particles, the update (the proposal's: PURPOSE_WALK)
 PURPOSE_INIT, PURPOSE_STEP = 0xDCF0, 0xDCF2
@@ -109,11 +109,20 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
     return (b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * (1.0 - q))
 
 
+@dataclass(frozen=True)
+class Search:
+    """What the search for a hidden target found: ``found`` the first candidate judged visible (or None),
+    its P(visible), and whether the search covered the whole frame."""
+
+    found: Any
+    confidence: float
+    covers: bool
+
+
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
-            spread: float, clutter_seen: Any) -> tuple[Any, float, bool]:
+            spread: float, clutter_seen: Any) -> Search:
     """The search for a hidden target over three standard deviations of its place's prior (the motion
-    prior's (sx, sy) widened by ``spread``, in quadrature): (the first candidate judged visible or None,
-    its P(visible), whether the search covered the whole frame)."""
+    prior's (sx, sy) widened by ``spread``, in quadrature)."""
     Hh, Ww = obs.grey.shape
     sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
@@ -130,8 +139,8 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
         vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
                         trials=max(trials, 1.0), log_place=place, cues=ccue)
         if vf.visible >= 0.5:
-            return cand, vf.visible, covers
-    return None, 0.0, covers
+            return Search(cand, vf.visible, covers)
+    return Search(None, 0.0, covers)
 
 
 def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float, Any, Any]:
@@ -147,15 +156,34 @@ def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float,
     return r_est, clutter_seen, colour_seen
 
 
-def _learn_clutter(st: DCFState, clutter_seen: Any, colour_seen: Any, rate: float) -> tuple[ChiSquare, ChiSquare]:
+def _learn_clutter(st: DCFState, clutter_seen: Any, colour_seen: Any, rate: float) -> dict[str, ChiSquare]:
     """The clutter's moments after a frame the target is present (while it is not, the best away from the
-    held box may be the target itself): (the filter's, the colour's)."""
+    held box may be the target itself): the filter's and the colour's, as keywords of the state."""
     clutter, cclutter = st.clutter, st.cclutter
     if clutter_seen is not None:
         clutter = clutter.update(1.0 - clutter_seen[0], rate)
     if colour_seen is not None and colour_seen[1] is not None:
         cclutter = cclutter.update(1.0 - colour_seen[1][0], rate)
-    return clutter, cclutter
+    return {"clutter": clutter, "cclutter": cclutter}
+
+
+def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, r_est: float, colour_seen: Any,
+           confident: bool) -> tuple[float, dict[str, Any]]:
+    """A frame the target is present at ``centre``: (its log scale, the state's learnt parts as keywords).
+    The target's distributions follow it on every such frame, so a lasting change of look becomes the usual
+    look; the model and the scale learn on confident frames only."""
+    c = (float(centre[0]), float(centre[1]))
+    log_s, mdl = st.log_s, st.model
+    if confident and mdl.scale is not None:
+        d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
+        log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
+    learnt: dict[str, Any] = {"target": st.target.update(1.0 - r_est, p.target_rate)}
+    if colour_seen is not None:
+        learnt["ctarget"] = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
+    if confident:
+        learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p, p.rate)
+    return log_s, learnt
+
 
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
@@ -212,18 +240,16 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
     hidden = run >= p.hidden_after
-    found = None
-    covers = False
-    spread = 0.0
+    srch, spread = Search(None, 0.0, False), 0.0
     if run > 0:
         # unseen, the target's place spreads by search_growth mean sides a frame
         spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
-        found, found_conf, covers = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen)
-        if found is not None:
-            confidence, run, spread = found_conf, 0, 0.0
-    idx = systematic_resample(lw.lw, rng, n)
-    new_parts = parts[idx]
-    target, clutter, ctarget, cclutter, mdl = st.target, st.clutter, st.ctarget, st.cclutter, model
+        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen)
+        if srch.found is not None:
+            confidence, run, spread = srch.confidence, 0, 0.0
+    found = srch.found
+    new_parts = parts[systematic_resample(lw.lw, rng, n)]
+    learnt: dict[str, Any] = {}
     if found is not None:
         centre = found.centre.copy()
         log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
@@ -234,29 +260,18 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         # hidden, or in doubt: the box holds the prediction, nothing is learnt, the velocity decays
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
         velocity = p.coast_velocity ** dt * st.velocity
-        state = ("lost" if covers else "occluded") if hidden else "tracked"
+        state = ("lost" if srch.covers else "occluded") if hidden else "tracked"
     else:
-        c = (float(centre[0]), float(centre[1]))
-        if confident and mdl.scale is not None:
-            d = tm.scale_change(mdl, obs.grey, c, log_s, geom, p)
-            log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
-        # the target's distributions follow it on every frame it is present, so a lasting change of look
-        # becomes the usual look; the model learns on confident frames only
-        target = st.target.update(1.0 - r_est, p.target_rate)
-        if colour_seen is not None:
-            ctarget = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
-        if confident:
-            mdl = tm.learn(mdl, obs.image, obs.grey, c, log_s, geom, p, p.rate)
+        log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
     if present:
-        clutter, cclutter = _learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate)
+        learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
-    new = replace(st, model=mdl, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, target=target,
-                  clutter=clutter, ctarget=ctarget, cclutter=cclutter, hidden_run=run, back=back, target_state=state,
-                  spread=spread)
+    new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
+                  target_state=state, spread=spread, **learnt)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)
