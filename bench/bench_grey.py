@@ -1,0 +1,105 @@
+"""The trackers on grey footage: the nine shared sequences with their colour taken away.
+
+    python bench/bench_grey.py                           # dcf and appearance, seed 1, --inline
+    python bench/bench_grey.py --trackers dcf --seed 2
+    python bench/bench_grey.py --sequences caviar1,skating1
+
+Grey video is one of the kinds of footage a tracker tuned on colour loses: the colour cue has
+nothing to say. This writes every frame of each sequence as a one-channel PNG (OpenCV's
+BGR -> grey weights, lossless, so the only change is the colour) into a temporary folder with
+the sequence's ground truth, and runs ``gflow benchmark`` on the colour originals and on the grey
+copies with the same trackers and seed. Where OpenCV's contrib trackers are installed (CSRT,
+KCF), they are run on both too.
+
+Prints, per sequence, each tracker's AUC on colour and on grey and a box that never moves, then
+the means. Sequences that are grey already (all channels equal) give the same figures twice.
+The grey copies are removed at the end (``GFLOW_BENCH_KEEP=1`` keeps them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _util import scratch, table  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data"
+SEQUENCES = "caviar1,crossing,david_indoor,dollar,jumping,skating1,surfer,tiger1,twinnings"
+
+
+def grey_copy(src: Path, dst: Path, names: list[str]) -> None:
+    """Write each sequence of ``src`` in ``names`` to ``dst`` as one-channel PNG frames with its
+    ground truth."""
+    for name in names:
+        out = dst / name / "frames"
+        out.mkdir(parents=True, exist_ok=True)
+        shutil.copy(src / name / "groundtruth.csv", dst / name / "groundtruth.csv")
+        for f in sorted((src / name / "frames").iterdir()):
+            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+            if img is None:
+                raise SystemExit(f"cannot read {f}")
+            cv2.imwrite(str(out / f"{f.stem}.png"), cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
+
+
+def benchmark(data: Path, sequences: str, trackers: str, seed: int, opencv: bool) -> dict[tuple[str, str], float]:
+    """AUC by (tracker, sequence) from one ``gflow benchmark --json`` run (means under sequence "mean")."""
+    argv = [sys.executable, "-m", "pipeline.cli", "benchmark", str(data), "--sequences", sequences,
+            "--trackers", trackers, "--inline", "--seed", str(seed), "--no-fps", "--json", "-q"]
+    if opencv:
+        argv += ["--opencv", "csrt,kcf"]
+    r = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"gflow benchmark on {data} failed: {r.stderr.strip()[-500:]}")
+    out = json.loads(r.stdout)
+    auc = {(row["tracker"], row["sequence"]): row["auc"] for row in out["rows"] if row.get("auc") is not None}
+    auc.update({(name, "mean"): m["auc"] for name, m in out["means"].items()})
+    return auc
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--trackers", default="dcf,appearance", help="trackers to run (default dcf,appearance)")
+    ap.add_argument("--sequences", default=SEQUENCES, help="shared sequences (default: all nine)")
+    ap.add_argument("--seed", type=int, default=1, help="seed (default 1)")
+    args = ap.parse_args()
+    if not DATA.is_dir():
+        raise SystemExit(f"no shared data at {DATA}")
+    names = [s.strip() for s in args.sequences.split(",") if s.strip()]
+    missing = [s for s in names if not (DATA / s / "groundtruth.csv").is_file()]
+    if missing:
+        raise SystemExit(f"--sequences: no sequence {missing[0]!r} in {DATA}")
+    opencv = hasattr(cv2, "TrackerCSRT_create") or hasattr(getattr(cv2, "legacy", None), "TrackerCSRT_create")
+    grey = scratch("gflow-grey-")
+    print(f"writing grey copies of {len(names)} sequences to {grey}", file=sys.stderr)
+    grey_copy(DATA, grey, names)
+    print("running gflow benchmark on the colour originals", file=sys.stderr)
+    colour_auc = benchmark(DATA, ",".join(names), args.trackers, args.seed, opencv)
+    print("running gflow benchmark on the grey copies", file=sys.stderr)
+    grey_auc = benchmark(grey, ",".join(names), args.trackers, args.seed, opencv)
+
+    runs = args.trackers.split(",") + (["opencv csrt", "opencv kcf"] if opencv else []) + ["static box"]
+    header = ["sequence"] + [f"{t} colour / grey" for t in runs]
+    rows = []
+    for seq in names + ["mean"]:
+        cells = []
+        for t in runs:
+            c, g = colour_auc.get((t, seq)), grey_auc.get((t, seq))
+            cells.append("-" if c is None or g is None else f"{c:.3f} / {g:.3f}")
+        rows.append([seq] + cells)
+    print(f"AUC on colour / on grey (seed {args.seed}, --inline"
+          f"{'' if opencv else '; OpenCV contrib not installed: no CSRT/KCF'})")
+    print(table(rows, header))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
