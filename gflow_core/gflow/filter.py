@@ -217,6 +217,11 @@ class GFlowConfig:
         a Gaussian of std ``reset_std_deg`` about the frontal orientation with probability ``reset_rate``;
         experts turned by at least ``reset_min_deg`` also try a peak started frontal
         (:class:`.pose_opinion.RotationReset`). ``reset_rate = 0`` = the random walk alone (the paper).
+    data_temper : float >= 1
+        ``kappa``: the data term's log-likelihood is divided by it in the pose opinion (eq. 14) and
+        the importance weights (eq. 13, 16), a composite likelihood for residuals that are not
+        independent (:mod:`.pose_opinion`); ``1`` = the paper's (the default; measured not to help,
+        docs/faces.md).
     """
 
     n_experts: int
@@ -253,6 +258,7 @@ class GFlowConfig:
     reset_rate: float
     reset_std_deg: float
     reset_min_deg: float
+    data_temper: float = 1.0
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -300,6 +306,8 @@ class GFlowConfig:
             raise ValueError(f"max_rotation_deg must be > 0 (inf = no limit), got {self.max_rotation_deg!r}")
         if math.isnan(self.outlier_sigmas) or self.outlier_sigmas <= 0.0:
             raise ValueError(f"outlier_sigmas must be > 0 (inf = no outlier process), got {self.outlier_sigmas!r}")
+        if not (math.isfinite(self.data_temper) and self.data_temper >= 1.0):
+            raise ValueError(f"data_temper must be finite and >= 1, got {self.data_temper!r}")
         if math.isnan(self.max_scale_change) or self.max_scale_change <= 1.0:
             raise ValueError(f"max_scale_change must be > 1 (inf = no limit), got {self.max_scale_change!r}")
         ref = tuple(float(x) for x in self.scale_reference)
@@ -743,8 +751,10 @@ def propose(
     samples, log_g, sigma_hat = laplace_proposal(gn.u_hat, gn.hessian, cfg.alpha, cfg.n_samples, rngs)
     log_prior = log_pose_prior(centre, samples, prior_std, max_rot, scale, reset)
     bgt = background_image_terms(fd.image, tv, cfg.sigma_w) if tv.has_background else None
-    # full likelihood, eq. 13
+    # full likelihood, eq. 13, tempered: log p(y_t | u, y_{1:t-1}) / kappa (departure from the paper)
     log_lik = log_likelihood(model.bases, fd, samples, tv, cfg.sigma_w, bgt, photometric=ph, outlier_sq=osq)
+    if cfg.data_temper != 1.0:
+        log_lik = log_lik / cfg.data_temper
     # importance weights, eq. 16
     log_w = log_importance_weights(log_prior, log_lik, log_g)
     # likelihood of the expert, eq. 19
@@ -807,7 +817,7 @@ def _opinion_peak(model: MorphableModel, pyramid: Sequence[FrameData], prev: np.
     osq = cfg.outlier_sigmas ** 2
     scale = cfg.scale_limits()
     if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
-            and not math.isfinite(osq) and scale is None and reset is None):
+            and not math.isfinite(osq) and scale is None and reset is None and cfg.data_temper == 1.0):
         return gauss_newton_peak(
             model.bases, pyramid[0], centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
             use_background=cfg.gn_background,
@@ -817,7 +827,7 @@ def _opinion_peak(model: MorphableModel, pyramid: Sequence[FrameData], prev: np.
         model.bases, pyramid, centre, tv, cfg.sigma_w, prior_std,
         cfg.gn_iterations, start=prev, use_background=cfg.gn_background, photometric=ph,
         offsets=search_offsets(cfg.search_radius, cfg.search_step), max_rotation=max_rot,
-        search_stride=cfg.search_stride, outlier_sq=osq, scale=scale, reset=reset,
+        search_stride=cfg.search_stride, outlier_sq=osq, scale=scale, reset=reset, temper=cfg.data_temper,
     )
 
 

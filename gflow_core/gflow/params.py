@@ -91,6 +91,8 @@ class GFlowParams:
                                                    "morph_prior and the model)")
     texture_decay: float = param(0.9, "texels revert toward the first look at this rate per frame (1: the "
                                       "paper's random walk)")
+    data_temper: float = param(1.0, "the data term's log-likelihood (eq. 13, 14) is divided by this: about the "
+                               "number of vertices per independent residual (1: the paper's)")
     reset_rate: float = param(0.01, "probability a frame's pose transition turns the head back to frontal")
     reset_std_deg: float = param(20.0, "std of the frontal reset's rotation, degrees")
     reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "

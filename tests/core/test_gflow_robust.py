@@ -256,3 +256,32 @@ def test_whole_pixel_search_samples_as_the_stencil_does() -> None:
     want2 = stencil_xy(x[:, None, :] + shifts[None, :, 0, None] + 0.5, y[:, None, :] + shifts[None, :, 1, None] + 0.5,
                        img.shape).sample(img.reshape(-1))
     np.testing.assert_allclose(c2, ((want2 - mu[:, None]) ** 2 * w[:, None]).sum(-1), rtol=1e-12)
+
+
+def test_tempered_data_term_is_the_prior_made_kappa_times_as_precise() -> None:
+    """``data_temper = kappa`` divides eq. 14's data term by kappa: the same peak (search included) as the
+    untempered objective with the prior's std divided by sqrt(kappa), with kappa times smaller objective and
+    Hessian; with a tight prior the tempered peak stays nearer the prior's mean."""
+    model, start, true, frame, tv = _scene(20.0)
+    pyr = frame_pyramid(prepare_frame(frame), 3)
+    off = search_offsets(32.0, 8.0)
+    prior = np.array([0.05, 0.05, 0.05, 4.0, 4.0, 1.0])
+    kappa = 4.0
+    plain = coarse_to_fine_peak(model.bases, pyr, start, tv, 1e-3, prior, 5, offsets=off, outlier_sq=9.0)
+    tempered = coarse_to_fine_peak(model.bases, pyr, start, tv, 1e-3, prior, 5, offsets=off, outlier_sq=9.0,
+                                   temper=kappa)
+    same = coarse_to_fine_peak(model.bases, pyr, start, tv, 1e-3, prior / np.sqrt(kappa), 5, offsets=off,
+                               outlier_sq=9.0)
+    np.testing.assert_allclose(tempered.u_hat, same.u_hat, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(kappa * tempered.hessian, same.hessian, rtol=1e-9)
+    np.testing.assert_allclose(kappa * tempered.objective, same.objective, rtol=1e-9)
+    assert _trans_error(tempered.u_hat, start[0]) < _trans_error(plain.u_hat, start[0]) - 0.2
+    # kappa = 1 is the untempered objective, bit for bit
+    one = gauss_newton_objective(model.bases, pyr[0], start, plain.u_hat, tv, 1e-3, prior, temper=1.0)
+    assert one.tobytes() == gauss_newton_objective(model.bases, pyr[0], start, plain.u_hat, tv, 1e-3, prior).tobytes()
+
+
+@pytest.mark.parametrize("bad", [0.5, 0.0, float("nan"), float("inf")])
+def test_data_temper_below_one_or_not_finite_is_refused(bad: float) -> None:
+    with pytest.raises(ValueError, match="data_temper"):
+        paper_config(data_temper=bad)
