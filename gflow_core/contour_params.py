@@ -91,9 +91,20 @@ class ChamferParams(ContourParams):
     std_xy: float = param(1.5, "random walk of the centre per frame, px")
     std_theta: float = param(0.02, "random walk of the angle per frame, radians")
     std_log_s: float = param(0.02, "random walk of log s per frame")
+    template_every: int = param(5, "update the template from the estimate's edges at most every this many frames, "
+                                   "with drift correction (0: the first box's template throughout)")
+    template_drift: float = param(0.05, "epsilon of the drift correction: the first template, aligned again from "
+                                        "the estimate, must land within this many box sizes of it")
+    template_reach: float = param(0.25, "the first template is aligned again over translations within this many box "
+                                        "sizes of the estimate")
+    template_anchor: bool = param(True, "the lost guard's anchor is taken again where the template is")
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if self.template_every < 0 or not all(math.isfinite(v) and v > 0 for v in (self.template_drift,
+                                                                                   self.template_reach)):
+            raise ValueError(f"template_every must be >= 0, template_drift and template_reach positive, got "
+                             f"{self.template_every}, {self.template_drift}, {self.template_reach}")
         if not all(math.isfinite(v) and v >= 0 for v in (self.std_xy, self.std_theta, self.std_log_s)):
             raise ValueError(f"std_xy, std_theta and std_log_s must be finite and >= 0, got {self.std_xy}, "
                              f"{self.std_theta}, {self.std_log_s}")
