@@ -97,14 +97,21 @@ class ChamferParams(ContourParams):
                                         "the estimate, must land within this many box sizes of it")
     template_reach: float = param(0.25, "the first template is aligned again over translations within this many box "
                                         "sizes of the estimate")
+    template_scale: float = param(0.05, "the first template is aligned again at log s changed by this too, and the "
+                                        "template is kept where it fits better at another size (0: the size is not "
+                                        "checked)")
+    template_gain: float = param(3.0, "the template is taken again only where the first template fits the target "
+                                      "this many times worse than on the first template_every frames")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again where the template is")
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        if self.template_every < 0 or not all(math.isfinite(v) and v > 0 for v in (self.template_drift,
-                                                                                   self.template_reach)):
-            raise ValueError(f"template_every must be >= 0, template_drift and template_reach positive, got "
-                             f"{self.template_every}, {self.template_drift}, {self.template_reach}")
+        if self.template_every < 0 or not (math.isfinite(self.template_scale) and self.template_scale >= 0) or not all(math.isfinite(v) and v > 0 for v in (self.template_drift,
+                                                                                   self.template_reach,
+                                                                                   self.template_gain)):
+            raise ValueError(f"template_every and template_scale must be >= 0, template_drift, template_reach and "
+                             f"template_gain positive, got {self.template_every}, {self.template_scale}, "
+                             f"{self.template_drift}, {self.template_reach}, {self.template_gain}")
         if not all(math.isfinite(v) and v >= 0 for v in (self.std_xy, self.std_theta, self.std_log_s)):
             raise ValueError(f"std_xy, std_theta and std_log_s must be finite and >= 0, got {self.std_xy}, "
                              f"{self.std_theta}, {self.std_log_s}")

@@ -18,14 +18,19 @@ Here the "image" is the frame's edge map and the alignment is the chamfer distan
   whole pixels within ``reach`` of the current match (theta and s kept: a local exhaustive search
   stands in for the paper's gradient descent, which the truncated chamfer profile would stop at
   the first plateau);
+* the update is made only where it is needed: where T_1 fits the target at p*_n more than
+  ``template_gain`` times worse than it fitted it on the first frames (its mean rho over the first
+  ``template_every`` frames). Where the first template still explains the target, as on the
+  sequences whose target keeps its outline, an update would only add the risk of drift;
 * :func:`template_at` -- I_n(p*_n): the edge pixels of the box at p*_n, carried back into the
   template's frame by T_{p*_n}^{-1} (as many points at most as the first template was allowed).
 
 Departures: the paper updates every frame and compares the two alignments' parameters; here the
-filter (:mod:`.contour_tracker`) updates at most every ``template_every`` frames, only on frames the
-lost guard judged found, compares the centres in units of the box's size, and takes the lost
-guard's anchor from the same corrected box when it updates the template (the guard verifies
-against the same look).
+filter (:mod:`.contour_tracker`) updates after ``template_every`` frames in a row that the lost
+guard judged found, only where T_1 has come to fit badly (above), compares the centres in units of
+the box's size and requires the same size, and takes the lost guard's anchor again from the same
+corrected box (the guard then verifies against the look the filter follows), where the first
+anchor, aligned again by correlation, agrees as well.
 """
 
 from __future__ import annotations
@@ -37,11 +42,18 @@ from .m2.chamfer import chamfer_distance
 from .m2.tracking import template_from_edges
 from .regions import region
 
-__all__ = ["align_first", "template_at", "anchor_region", "anchor_peak"]
+__all__ = ["align_first", "fit", "template_at", "anchor_region", "anchor_peak"]
+
+
+def fit(chamfer_img: np.ndarray, pts: np.ndarray, alpha: np.ndarray) -> float:
+    """rho(T_alpha x~, z): the chamfer distance (M2 eq. 5) of the template ``pts`` (P, 2) under ``alpha`` (4,)."""
+    return float(chamfer_distance(chamfer_img, similarity.apply_many(np.asarray(alpha, dtype=np.float64)[None], pts),
+                                  np.array([pts.shape[0]]), outside=float(np.max(chamfer_img)))[0])
 
 
 def align_first(chamfer_img: np.ndarray, first: np.ndarray, alpha: np.ndarray, reach: int,
-                log_steps: tuple[float, ...] = (0.0,), lam: float = 1.0, scale_prior: float = 0.0) -> np.ndarray:
+                log_steps: tuple[float, ...] = (0.0,), lam: float = 1.0, scale_prior: float = 0.0
+                ) -> tuple[np.ndarray, float]:
     """p*_n: the first template aligned again from the current match ``alpha``.
 
     Parameters
@@ -57,7 +69,8 @@ def align_first(chamfer_img: np.ndarray, first: np.ndarray, alpha: np.ndarray, r
     Returns
     -------
     (4,) float64 : alpha with the centre (and s) moved to the grid point of least cost (the nearest
-    such point on ties, the unchanged scale first, so a flat neighbourhood keeps p_n).
+    such point on ties, the unchanged scale first, so a flat neighbourhood keeps p_n);
+    float : rho(T_{p*} T_1, z_n) there.
     """
     r = np.arange(-reach, reach + 1, dtype=np.float64)
     dx, dy = np.meshgrid(r, r)
@@ -68,14 +81,15 @@ def align_first(chamfer_img: np.ndarray, first: np.ndarray, alpha: np.ndarray, r
     grid[:, 1] += np.tile(dy.ravel(), len(log_steps))
     grid[:, 3] *= np.exp(np.repeat(np.asarray(log_steps, dtype=np.float64), dx.size))
     # lambda rho(T_p T_1, z_n) at every p of the grid                          (M2 eq. 5)
-    cost = lam * chamfer_distance(chamfer_img, similarity.apply_many(grid, first), np.full(len(grid), first.shape[0]),
-                                  outside=float(np.max(chamfer_img)))
+    rho = chamfer_distance(chamfer_img, similarity.apply_many(grid, first), np.full(len(grid), first.shape[0]),
+                           outside=float(np.max(chamfer_img)))
+    cost = lam * rho
     if scale_prior > 0:
         # + (log s)^2 / (2 scale_prior^2), the filter's prior on the size
         cost = cost + np.log(grid[:, 3]) ** 2 / (2.0 * scale_prior ** 2)
     # the least cost, then the nearest to the start, then the smallest change of scale
-    order = np.lexsort((rank, d2, cost))
-    return grid[int(order[0])]
+    best = int(np.lexsort((rank, d2, cost))[0])
+    return grid[best], float(rho[best])
 
 
 def template_at(edges: np.ndarray, alpha: np.ndarray, size: np.ndarray, max_points: int) -> np.ndarray | None:

@@ -50,7 +50,7 @@ import numpy as np
 from .contour_dynamics import PURPOSE_PROPOSAL
 from . import similarity
 from .contour_params import ChamferParams, ContourParams
-from .contour_template import align_first, anchor_peak, anchor_region, template_at
+from .contour_template import align_first, anchor_peak, anchor_region, fit, template_at
 from .m2 import dynamics as dyn
 from .m2 import lost as lostmod
 from .m2.appearance_metric import (AppearanceKernels, OnlineBank, appearance_log_lik, bank_update, new_bank,
@@ -142,9 +142,10 @@ class ContourState:
     online appearance exemplars; cloud : the resampled posterior; lost : the lost guard's state;
     anchor : its channels of the initial box (or of the box the template was last taken from);
     judged : (confidence, target_state) of the last estimate; first : (P, 2) the first K = 1
-    template, T_1 of the drift correction (None with a learned model); template_at : the frame the
-    template was last taken at; first_anchor : (th, tw, 4) the lost guard's channels of the first
-    box (None: no guard), the first anchor of the drift correction.
+    template, T_1 of the drift correction (None with a learned model); template_clock : the frame
+    the template update counts from (the last update, or the last frame not judged found); first_anchor : (th, tw, 4) the lost guard's channels of the first
+    box (None: no guard), the first anchor of the drift correction; first_fit : (sum, count) of
+    the first template's rho at the estimates of the first frames.
     """
 
     setup: ContourSetup
@@ -157,8 +158,9 @@ class ContourState:
     anchor: Anchor | None = None
     judged: tuple[float, str] = (1.0, "tracked")
     first: np.ndarray | None = None
-    template_at: int = 0
+    template_clock: int = 0
     first_anchor: np.ndarray | None = None
+    first_fit: tuple[float, int] = (0.0, 0)
 
 
 def guard_params(params: ContourParams) -> LostParams | None:
@@ -194,7 +196,7 @@ class ContourFilter:
             model = k1_model(pts, params.lam)
             alpha0 = np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0, 0.0, 1.0])
             cloud = init_particles(alpha0, 0, params.particles, np.array(params.init_spread), rng.stream(PURPOSE_INIT))
-            st = ContourState(setup_, model, cloud, template=pts, anchor=anchor, first=pts, template_at=rng.t,
+            st = ContourState(setup_, model, cloud, template=pts, anchor=anchor, first=pts, template_clock=rng.t,
                               first_anchor=None if anchor is None else anchor.channels)
             est = self.estimate(params, st, rng.t, alpha0, 0, alpha0, np.zeros(4), float(params.particles), 0.0, "init")
             return st, est
@@ -274,9 +276,17 @@ class ContourFilter:
             post, phase, st = self._guard(params, st, obs, post, phase)
         if grey is not None and st.bank is not None and not first and phase == "track":
             st = self._update_bank(params, st, grey, post.map_alpha, post.map_k, rng.t)
-        if (phase == "track" and obs is not None and isinstance(params, ChamferParams) and params.template_every
-                and st.first is not None and rng.t - st.template_at >= params.template_every):
-            st = self._update_template(params, st, obs, post.map_alpha, rng.t)
+        if isinstance(params, ChamferParams) and params.template_every and st.first is not None and not first:
+            if phase != "track" or obs is None:
+                # the update waits for template_every frames judged found in a row
+                st = replace(st, template_clock=rng.t)
+            elif st.first_fit[1] < params.template_every:
+                if obs.chamfer is not None:
+                    # how well T_1 fits the target on the first frames: the reference of template_gain
+                    r = fit(obs.chamfer, st.first, post.map_alpha)
+                    st = replace(st, first_fit=(st.first_fit[0] + r, st.first_fit[1] + 1))
+            elif rng.t - st.template_clock >= params.template_every:
+                st = self._update_template(params, st, obs, post.map_alpha, rng.t)
         st = replace(st, cloud=post.resampled)
         est = self.estimate(params, st, rng.t, post.map_alpha, post.map_k, post.mean_alpha, post.std_alpha, post.ess,
                             post.log_evidence, phase)
@@ -359,9 +369,12 @@ class ContourFilter:
         size = st.setup.ref_size
         box_size = math.sqrt(float(size[0] * size[1])) * float(alpha[3])
         eps, reach = params.template_drift * box_size, params.template_reach * box_size
-        d = params.template_drift
-        a_star = align_first(obs.chamfer, st.first, alpha, max(1, math.ceil(reach)), (0.0, -d, d), params.lam,
-                             params.scale_prior)
+        d = params.template_scale
+        steps = (0.0, -d, d) if d > 0 else (0.0,)
+        a_star, rho1 = align_first(obs.chamfer, st.first, alpha, max(1, math.ceil(reach)), steps, params.lam,
+                                   params.scale_prior)
+        if rho1 <= params.template_gain * st.first_fit[0] / max(st.first_fit[1], 1):
+            return st  # T_1 still fits the target as it did: nothing to update
         # T_{n+1} = I_n(p*_n) if ||p*_n - p_n|| <= epsilon, else T_n (the size: p*_n keeps p_n's)
         if math.hypot(float(a_star[0] - alpha[0]), float(a_star[1] - alpha[1])) > eps or a_star[3] != alpha[3]:
             return st
@@ -376,7 +389,7 @@ class ContourFilter:
             if math.hypot(float(peak[0] - a_star[0]), float(peak[1] - a_star[1])) > max(eps, step):
                 return st
             anchor = replace(anchor, channels=anchor_region(feat, anchor.res, anchor.size, a_star))
-        return replace(st, model=k1_model(pts, params.lam), template=pts, anchor=anchor, template_at=t)
+        return replace(st, model=k1_model(pts, params.lam), template=pts, anchor=anchor, template_clock=t)
 
     # -- the estimate ---------------------------------------------------------------------------
     def box(self, params: ContourParams, st: ContourState, alpha: np.ndarray, k: int) -> Box:

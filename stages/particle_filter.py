@@ -169,8 +169,9 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     lost_ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the target's colour distance
     lost_cclutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of the clutter's best colour distance
     first: NDArray | None = None  # (P, 2) float64 (version 5): the first K = 1 template, T_1 of the drift correction
-    template_at: int = 0  # (version 5) the frame the K = 1 template was last taken at
+    template_clock: int = 0  # (version 5) the frame the template update counts its frames from
     first_anchor: NDArray | None = None  # (th, tw, 4) float32 (version 5): the lost guard's channels of the first box
+    first_fit: tuple[float, int] = (0.0, 0)  # (version 5) sum and count of the first template's rho on the first frames
 
 
 class FilterStage(Stage[FilterFields]):
@@ -377,8 +378,9 @@ class FilterStage(Stage[FilterFields]):
             app_sigma=NDArray.of(st.app.sigma) if st is not None and st.app is not None else None,
             judged=st.judged if st is not None else (1.0, "tracked"),
             first=NDArray.of(st.first) if st is not None and st.first is not None else None,
-            template_at=st.template_at if st is not None else 0,
+            template_clock=st.template_clock if st is not None else 0,
             first_anchor=NDArray.of(st.first_anchor) if st is not None and st.first_anchor is not None else None,
+            first_fit=st.first_fit if st is not None else (0.0, 0),
             **pack_guard(None if st is None else st.anchor, lost))
         return msgspec.msgpack.encode(snap)
 
@@ -450,7 +452,8 @@ class FilterStage(Stage[FilterFields]):
                              f"the anchor's")
         self.state = ContourState(self.setup, model, cloud, template=template, app=app, bank=bank, lost=lost,
                                   anchor=anchor, judged=(float(snap.judged[0]), str(snap.judged[1])),
-                                  first=first, template_at=snap.template_at, first_anchor=first_anchor)
+                                  first=first, template_clock=snap.template_clock, first_anchor=first_anchor,
+                                  first_fit=(float(snap.first_fit[0]), int(snap.first_fit[1])))
 
 
 class ChamferFilterStage(FilterStage):
