@@ -29,6 +29,12 @@ the contour trackers' protocol (:class:`gflow_core.contour_protocol.ContourTrack
 * **Lost guard** (departure, :mod:`.m2.lost`): each tracked frame's estimate is verified against
   the initial box; a lost target's estimate is held, its particles kept near it, and the initial
   box searched for over a widening window until a candidate looks as the target did.
+* **Template update** (chamfer; departure, :mod:`.contour_template`): the K = 1 template, and the
+  lost guard's anchor with it, is taken again from the estimate's box with Matthews et al.'s drift
+  correction (PAMI 2004), after ``template_every`` frames in a row judged found and only where the
+  first template has come to fit the target ``template_gain`` times worse than on the first
+  frames. The paper's template is fixed; the M2 tracker's (``M2Params``, which has no such field)
+  still is.
 * **Blank frames** (sec. 5.1.2, fig. 7): a frame with fewer than ``min_edges`` edge pixels, or one
   that could not be read, carries no evidence: every particle's likelihood is 1 (the posterior is
   the prior, "forced to rely on the prior").
