@@ -95,11 +95,11 @@ class ChamferParams(ContourParams):
                                    "judged found (0: the first box's template throughout)")
     template_gain: float = param(5.0, "the template is taken again only where the first template fits the target "
                                       "this many times worse than on the first template_every frames")
-    template_drift: float = param(0.12, "epsilon of the drift correction: the first template, aligned again from the "
+    template_drift: float = param(0.2, "epsilon of the drift correction: the first template, aligned again from the "
                                         "estimate, must land within this many box sizes of it")
     template_reach: float = param(0.25, "the first template is aligned again over translations within this many box "
                                         "sizes of the estimate")
-    template_scale: float = param(0.05, "the first template is aligned again at log s changed by this much too, and the "
+    template_scale: float = param(0.0, "the first template is aligned again at log s changed by this much too, and the "
                                         "template is kept where it fits better at another size (0: size not checked)")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "
                                         "anchor agrees as well)")

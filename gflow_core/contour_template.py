@@ -14,10 +14,11 @@ and
 
 Here the "image" is the frame's edge map and the alignment is the chamfer distance (M2 eq. 5):
 
-* :func:`align_first` -- p*_n: the translation minimising rho(T_{p} T_1, z_n) over a grid of
-  whole pixels within ``reach`` of the current match (theta and s kept: a local exhaustive search
-  stands in for the paper's gradient descent, which the truncated chamfer profile would stop at
-  the first plateau);
+* :func:`align_first` -- p*_n: the translation (and, if asked, the log s step) minimising the
+  filter's cost lambda rho(T_p T_1, z_n) + (log s)^2 / (2 scale_prior^2) over a grid of whole
+  pixels within ``reach`` of the current match (theta kept: a local exhaustive search stands in
+  for the paper's gradient descent, which the truncated chamfer profile would stop at the first
+  plateau);
 * the update is made only where it is needed: where T_1 fits the target at p*_n more than
   ``template_gain`` times worse than it fitted it on the first frames (its mean rho over the first
   ``template_every`` frames). Where the first template still explains the target, as on the
@@ -28,9 +29,9 @@ Here the "image" is the frame's edge map and the alignment is the chamfer distan
 Departures: the paper updates every frame and compares the two alignments' parameters; here the
 filter (:mod:`.contour_tracker`) updates after ``template_every`` frames in a row that the lost
 guard judged found, only where T_1 has come to fit badly (above), compares the centres in units of
-the box's size and requires the same size, and takes the lost guard's anchor again from the same
-corrected box (the guard then verifies against the look the filter follows), where the first
-anchor, aligned again by correlation, agrees as well.
+the box's size (and, with ``template_scale``, requires the same size), and takes the lost guard's
+anchor again from the same corrected box (the guard then verifies against the look the filter
+follows), where the first anchor, aligned again by correlation (:func:`anchor_peak`), lands as near.
 """
 
 from __future__ import annotations
