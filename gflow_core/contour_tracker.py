@@ -282,14 +282,15 @@ class ContourFilter:
             post, phase, st = self._guard(params, st, obs, post, phase)
         if grey is not None and st.bank is not None and not first and phase == "track":
             st = self._update_bank(params, st, grey, post.map_alpha, post.map_k, rng.t)
-        if isinstance(params, ChamferParams) and params.template_every and st.first is not None and not first:
+        t1 = st.first
+        if isinstance(params, ChamferParams) and params.template_every and t1 is not None and not first:
             if phase != "track" or obs is None:
                 # the update waits for template_every frames judged found in a row
                 st = replace(st, template_clock=rng.t)
             elif st.first_fit[1] < params.template_every:
                 if obs.chamfer is not None:
                     # how well T_1 fits the target on the first frames: the reference of template_gain
-                    r = fit(obs.chamfer, st.first, post.map_alpha)
+                    r = fit(obs.chamfer, t1, post.map_alpha)
                     st = replace(st, first_fit=(st.first_fit[0] + r, st.first_fit[1] + 1))
             elif rng.t - st.template_clock >= params.template_every:
                 st = self._update_template(params, st, obs, post.map_alpha, rng.t)
