@@ -149,9 +149,10 @@ class ContourState:
     anchor : its channels of the initial box (or of the box the template was last taken from);
     judged : (confidence, target_state) of the last estimate; first : (P, 2) the first K = 1
     template, T_1 of the drift correction (None with a learned model); template_clock : the frame
-    the template update counts from (the last update, or the last frame not judged found); first_anchor : (th, tw, 4) the lost guard's channels of the first
-    box (None: no guard), the first anchor of the drift correction; first_fit : (sum, count) of
-    the first template's rho at the estimates of the first frames.
+    the template update counts from (the last update, or the last frame not judged found);
+    first_anchor : (th, tw, 4) the lost guard's channels of the first box (None: no guard), the
+    first anchor of the drift correction; first_fit : (sum, count) of the first template's rho at
+    the estimates of the first frames.
     """
 
     setup: ContourSetup
