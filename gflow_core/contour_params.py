@@ -91,9 +91,27 @@ class ChamferParams(ContourParams):
     std_xy: float = param(1.5, "random walk of the centre per frame, px")
     std_theta: float = param(0.02, "random walk of the angle per frame, radians")
     std_log_s: float = param(0.02, "random walk of log s per frame")
+    template_every: int = param(5, "take the template again (with drift correction) after this many frames in a row "
+                                   "judged found (0: the first box's template throughout)")
+    template_gain: float = param(5.0, "the template is taken again only where the first template fits the target "
+                                      "this many times worse than on the first template_every frames")
+    template_drift: float = param(0.2, "epsilon of the drift correction: the first template, aligned again from the "
+                                        "estimate, must land within this many box sizes of it")
+    template_reach: float = param(0.25, "the first template is aligned again over translations within this many box "
+                                        "sizes of the estimate")
+    template_scale: float = param(0.0, "the first template is aligned again at log s changed by this much too, and the "
+                                        "template is kept where it fits better at another size (0: size not checked)")
+    template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "
+                                        "anchor agrees as well)")
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        positive = (self.template_drift, self.template_reach, self.template_gain)
+        if self.template_every < 0 or not (math.isfinite(self.template_scale) and self.template_scale >= 0) or \
+                not all(math.isfinite(v) and v > 0 for v in positive):
+            raise ValueError(f"template_every and template_scale must be >= 0, template_gain, template_drift and "
+                             f"template_reach positive, got {self.template_every}, {self.template_scale}, "
+                             f"{self.template_gain}, {self.template_drift}, {self.template_reach}")
         if not all(math.isfinite(v) and v >= 0 for v in (self.std_xy, self.std_theta, self.std_log_s)):
             raise ValueError(f"std_xy, std_theta and std_log_s must be finite and >= 0, got {self.std_xy}, "
                              f"{self.std_theta}, {self.std_log_s}")

@@ -29,6 +29,12 @@ the contour trackers' protocol (:class:`gflow_core.contour_protocol.ContourTrack
 * **Lost guard** (departure, :mod:`.m2.lost`): each tracked frame's estimate is verified against
   the initial box; a lost target's estimate is held, its particles kept near it, and the initial
   box searched for over a widening window until a candidate looks as the target did.
+* **Template update** (chamfer; departure, :mod:`.contour_template`): the K = 1 template, and the
+  lost guard's anchor with it, is taken again from the estimate's box with Matthews et al.'s drift
+  correction (PAMI 2004), after ``template_every`` frames in a row judged found and only where the
+  first template has come to fit the target ``template_gain`` times worse than on the first
+  frames. The paper's template is fixed; the M2 tracker's (``M2Params``, which has no such field)
+  still is.
 * **Blank frames** (sec. 5.1.2, fig. 7): a frame with fewer than ``min_edges`` edge pixels, or one
   that could not be read, carries no evidence: every particle's likelihood is 1 (the posterior is
   the prior, "forced to rely on the prior").
@@ -41,6 +47,7 @@ from ``stream(PURPOSE_PROPOSAL)``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from typing import Any, Callable
 
@@ -48,7 +55,8 @@ import numpy as np
 
 from .contour_dynamics import PURPOSE_PROPOSAL
 from . import similarity
-from .contour_params import ContourParams
+from .contour_params import ChamferParams, ContourParams
+from .contour_template import align_first, anchor_peak, anchor_region, fit, template_at
 from .m2 import dynamics as dyn
 from .m2 import lost as lostmod
 from .m2.appearance_metric import (AppearanceKernels, OnlineBank, appearance_log_lik, bank_update, new_bank,
@@ -138,7 +146,13 @@ class ContourState:
     setup : ContourSetup; model : the contour exemplars (calibrated on frame 0); template : (P, 2) the
     K = 1 template (None with a learned model); app : the appearance kernels (calibrated); bank : the
     online appearance exemplars; cloud : the resampled posterior; lost : the lost guard's state;
-    anchor : its channels of the initial box; judged : (confidence, target_state) of the last estimate.
+    anchor : its channels of the initial box (or of the box the template was last taken from);
+    judged : (confidence, target_state) of the last estimate; first : (P, 2) the first K = 1
+    template, T_1 of the drift correction (None with a learned model); template_clock : the frame
+    the template update counts from (the last update, or the last frame not judged found);
+    first_anchor : (th, tw, 4) the lost guard's channels of the first box (None: no guard), the
+    first anchor of the drift correction; first_fit : (sum, count) of the first template's rho at
+    the estimates of the first frames.
     """
 
     setup: ContourSetup
@@ -150,6 +164,10 @@ class ContourState:
     lost: LostState = LostState()
     anchor: Anchor | None = None
     judged: tuple[float, str] = (1.0, "tracked")
+    first: np.ndarray | None = None
+    template_clock: int = 0
+    first_anchor: np.ndarray | None = None
+    first_fit: tuple[float, int] = (0.0, 0)
 
 
 def guard_params(params: ContourParams) -> LostParams | None:
@@ -185,7 +203,8 @@ class ContourFilter:
             model = k1_model(pts, params.lam)
             alpha0 = np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0, 0.0, 1.0])
             cloud = init_particles(alpha0, 0, params.particles, np.array(params.init_spread), rng.stream(PURPOSE_INIT))
-            st = ContourState(setup_, model, cloud, template=pts, anchor=anchor)
+            st = ContourState(setup_, model, cloud, template=pts, anchor=anchor, first=pts, template_clock=rng.t,
+                              first_anchor=None if anchor is None else anchor.channels)
             est = self.estimate(params, st, rng.t, alpha0, 0, alpha0, np.zeros(4), float(params.particles), 0.0, "init")
             return st, est
         learned, learned_ex = setup_.learned, setup_.learned_ex
@@ -264,6 +283,18 @@ class ContourFilter:
             post, phase, st = self._guard(params, st, obs, post, phase)
         if grey is not None and st.bank is not None and not first and phase == "track":
             st = self._update_bank(params, st, grey, post.map_alpha, post.map_k, rng.t)
+        t1 = st.first
+        if isinstance(params, ChamferParams) and params.template_every and t1 is not None and not first:
+            if phase != "track" or obs is None:
+                # the update waits for template_every frames judged found in a row
+                st = replace(st, template_clock=rng.t)
+            elif st.first_fit[1] < params.template_every:
+                if obs.chamfer is not None:
+                    # how well T_1 fits the target on the first frames: the reference of template_gain
+                    r = fit(obs.chamfer, t1, post.map_alpha)
+                    st = replace(st, first_fit=(st.first_fit[0] + r, st.first_fit[1] + 1))
+            elif rng.t - st.template_clock >= params.template_every:
+                st = self._update_template(params, st, obs, post.map_alpha, rng.t)
         st = replace(st, cloud=post.resampled)
         est = self.estimate(params, st, rng.t, post.map_alpha, post.map_k, post.mean_alpha, post.std_alpha, post.ess,
                             post.log_evidence, phase)
@@ -333,6 +364,40 @@ class ContourFilter:
         _, r_best, nearest = appearance_log_lik(z, np.array([k]), app, bank)
         return replace(st, bank=bank_update(bank, z[0], int(nearest[0]), bool(r_best[0] >= params.confident_r), t,
                                             bound=params.online, every=params.online_every))
+
+    def _update_template(self, params: ChamferParams, st: ContourState, obs: ContourObservation, alpha: np.ndarray,
+                         t: int) -> ContourState:
+        """Matthews et al.'s template update with drift correction (:mod:`.contour_template`): the
+        first template aligned again from the estimate ``alpha``; where it lands within epsilon of
+        it, the template is taken again there, and with ``template_anchor`` the lost guard's anchor
+        too, where the first anchor aligned again from there (by correlation) lands within epsilon
+        (or one step of its search) as well; where either does not, nothing is taken."""
+        if obs.chamfer is None or obs.edges is None or st.first is None:
+            return st
+        size = st.setup.ref_size
+        box_size = math.sqrt(float(size[0] * size[1])) * float(alpha[3])
+        eps, reach = params.template_drift * box_size, params.template_reach * box_size
+        d = params.template_scale
+        steps = (0.0, -d, d) if d > 0 else (0.0,)
+        a_star, rho1 = align_first(obs.chamfer, st.first, alpha, max(1, math.ceil(reach)), steps, params.lam,
+                                   params.scale_prior)
+        if rho1 <= params.template_gain * st.first_fit[0] / max(st.first_fit[1], 1):
+            return st  # T_1 still fits the target as it did: nothing to update
+        # T_{n+1} = I_n(p*_n) if ||p*_n - p_n|| <= epsilon, else T_n (the size: p*_n keeps p_n's)
+        if math.hypot(float(a_star[0] - alpha[0]), float(a_star[1] - alpha[1])) > eps or a_star[3] != alpha[3]:
+            return st
+        pts = template_at(obs.edges, a_star, size, params.max_points)
+        if pts is None:
+            return st
+        anchor = st.anchor
+        if anchor is not None and params.template_anchor and obs.channels is not None and st.first_anchor is not None:
+            feat = obs.channels()
+            peak, step = anchor_peak(feat, st.first_anchor, anchor.size, a_star, reach)
+            # the same test for the anchor: ||q*_n - p*_n|| <= epsilon, q*_n the first anchor's peak
+            if math.hypot(float(peak[0] - a_star[0]), float(peak[1] - a_star[1])) > max(eps, step):
+                return st
+            anchor = replace(anchor, channels=anchor_region(feat, anchor.res, anchor.size, a_star))
+        return replace(st, model=k1_model(pts, params.lam), template=pts, anchor=anchor, template_clock=t)
 
     # -- the estimate ---------------------------------------------------------------------------
     def box(self, params: ContourParams, st: ContourState, alpha: np.ndarray, k: int) -> Box:

@@ -59,9 +59,11 @@ problem is reported; it never stops the stream.
 
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
-the lost guard's distance distributions, held estimate and anchor, and counters, as msgpack of a
-small Struct (version 4; version-1 and -2 snapshots still restore, with a fresh guard, and
-version-3 ones with a guard that weighs no colour).
+the lost guard's distance distributions, held estimate and anchor, the chamfer tracker's first
+template and the frame its template was last taken at (template update, :mod:`gflow_core.contour_template`),
+and counters, as msgpack of a small Struct (version 5; version-1 and -2 snapshots still restore, with a
+fresh guard, version-3 ones with a guard that weighs no colour, and versions 1-4, from before the
+template update, with their template as the first one).
 """
 
 from __future__ import annotations
@@ -93,7 +95,7 @@ from .tracker_params import StageFields, stage_params, tracker_params
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
 
-SNAPSHOT_VERSION = 4
+SNAPSHOT_VERSION = 5
 
 
 class FilterFields(StageFields, frozen=True):
@@ -166,6 +168,10 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     anchor_colour: NDArray | None = None  # lost guard (version 4): (N_BINS,) colour histogram of the initial box
     lost_ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the target's colour distance
     lost_cclutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of the clutter's best colour distance
+    first: NDArray | None = None  # (P, 2) float64 (version 5): the first K = 1 template, T_1 of the drift correction
+    template_clock: int = 0  # (version 5) the frame the template update counts its frames from
+    first_anchor: NDArray | None = None  # (th, tw, 4) float32 (version 5): the lost guard's channels of the first box
+    first_fit: tuple[float, int] = (0.0, 0)  # (version 5) sum and count of the first template's rho on the first frames
 
 
 class FilterStage(Stage[FilterFields]):
@@ -371,6 +377,10 @@ class FilterStage(Stage[FilterFields]):
             sigma=NDArray.of(st.model.sigma) if st is not None and self.setup.learned is not None else None,
             app_sigma=NDArray.of(st.app.sigma) if st is not None and st.app is not None else None,
             judged=st.judged if st is not None else (1.0, "tracked"),
+            first=NDArray.of(st.first) if st is not None and st.first is not None else None,
+            template_clock=st.template_clock if st is not None else 0,
+            first_anchor=NDArray.of(st.first_anchor) if st is not None and st.first_anchor is not None else None,
+            first_fit=st.first_fit if st is not None else (0.0, 0),
             **pack_guard(None if st is None else st.anchor, lost))
         return msgspec.msgpack.encode(snap)
 
@@ -381,8 +391,9 @@ class FilterStage(Stage[FilterFields]):
             snap = msgspec.msgpack.decode(data, type=_FilterSnapshot)
         except msgspec.DecodeError as e:
             raise ValueError(f"stage {name!r}: not a particle.filter snapshot: {e}") from None
-        # 1: no online bank, learned widths; 1-2: older guard; 3: no colour in the guard (it restores without)
-        if snap.version not in (1, 2, 3, SNAPSHOT_VERSION):
+        # 1: no online bank, learned widths; 1-2: older guard; 3: no colour in the guard (it restores without);
+        # 1-4: no template update (the template is the first one)
+        if snap.version not in (1, 2, 3, 4, SNAPSHOT_VERSION):
             raise ValueError(f"stage {name!r}: filter snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
         learned = self.setup.learned
         if snap.initialised and (snap.template is None) != (learned is not None):
@@ -394,6 +405,10 @@ class FilterStage(Stage[FilterFields]):
                                    log_w=snap.log_w.array().copy())
                      if snap.alpha is not None and snap.k is not None and snap.log_w is not None else None)
             template = snap.template.array().copy() if snap.template is not None else None
+            first = snap.first.array().copy() if snap.first is not None else template
+            if first is not None and (first.ndim != 2 or first.shape[1] != 2 or first.shape[0] < 1):
+                raise ValueError(f"first template of shape {first.shape}, not (P, 2)")
+            first_anchor = snap.first_anchor.array().copy() if snap.first_anchor is not None else None
             bank = None
             if snap.bank is not None:
                 bank = OnlineBank(patches=snap.bank.patches.array().copy(), usage=snap.bank.usage.array().copy(),
@@ -430,8 +445,15 @@ class FilterStage(Stage[FilterFields]):
                 anchor = unpack_anchor(snap.anchor, snap.anchor_colour, (float(p.init[2]), float(p.init[3])))
             except ValueError as e:
                 raise ValueError(f"stage {name!r}: bad filter snapshot: {e}") from None
+        if first_anchor is None and template is not None and anchor is not None:
+            first_anchor = anchor.channels  # before version 5 the anchor was never taken again
+        if first_anchor is not None and (anchor is None or first_anchor.shape != anchor.channels.shape):
+            raise ValueError(f"stage {name!r}: bad filter snapshot: first anchor of shape {first_anchor.shape}, not "
+                             f"the anchor's")
         self.state = ContourState(self.setup, model, cloud, template=template, app=app, bank=bank, lost=lost,
-                                  anchor=anchor, judged=(float(snap.judged[0]), str(snap.judged[1])))
+                                  anchor=anchor, judged=(float(snap.judged[0]), str(snap.judged[1])),
+                                  first=first, template_clock=snap.template_clock, first_anchor=first_anchor,
+                                  first_fit=(float(snap.first_fit[0]), int(snap.first_fit[1])))
 
 
 class ChamferFilterStage(FilterStage):
