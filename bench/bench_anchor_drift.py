@@ -3,13 +3,13 @@
 One command: ``python bench/bench_anchor_drift.py`` (``--sequence david_indoor --every 3``).
 
 The appearance tracker anchors its model on the region of the first annotated box (exemplar 0,
-never replaced; :mod:`gflow_core.appearance`). If later annotations frame the target
+never replaced; :mod:`gflow_core.appearance.filter`). If later annotations frame the target
 differently from the first one -- a larger margin, a centre placed lower on the face -- a
 tracker faithful to the first box is off the annotation by that much, however well it tracks.
 This benchmark runs the appearance tracker (seed 1) over a shared sequence and, on every
 ``--every``-th frame, searches the frame around the annotated box for the best normalised
 correlation of the tracker's three exemplars (the first box's, and the running ones it has
-then), exactly as the tracker measures it (:func:`gflow_core.appearance._exemplar`):
+then), exactly as the tracker measures it (:func:`gflow_core.appearance.filter._exemplar`):
 
 * **place**: at the tracker's own scale, the offset (dx, dy) of the best match from the
   annotated centre, over +-6 px;
@@ -37,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import table  # noqa: E402
 
 from gflow import Tracker  # noqa: E402
-from gflow_core import appearance as ap  # noqa: E402
+from gflow_core.appearance import filter as ap  # noqa: E402
 
 DATA = Path(os.environ.get("GFLOW_DATA", Path(__file__).resolve().parent.parent.parent / "shared" / "data"))
 EXEMPLARS = ("anchor", "recent", "slow")

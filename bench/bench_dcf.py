@@ -47,8 +47,8 @@ def _tracker(name: str):
         from gflow_core.dcf.tracker import TRACKER
 
         return TRACKER, DCFParams()
-    from gflow_core.appearance_params import AppearanceParams
-    from gflow_core.appearance_tracker import TRACKER as APP
+    from gflow_core.appearance.params import AppearanceParams
+    from gflow_core.appearance.tracker import TRACKER as APP
 
     return APP, AppearanceParams()
 

@@ -8,7 +8,7 @@ and 60 after; :mod:`gflow_core.stress`), and the tracker runs on it twice:
 
 * **in one process, one frame at a time, OpenCV on one thread as in a stage process**, with the
   default cues (edges and colour) and with the edges alone (the filter's work only: grey
-  levels, appearance channels, colour bins and ``gflow_core.appearance.step``, with the
+  levels, appearance channels, colour bins and ``gflow_core.appearance.filter.step``, with the
   proposal's random walk): CPU ms per frame, split by
   what the tracker reported on the frame -- ``tracked``, or ``occluded`` / ``lost`` (it
   searches a widening region, up to the whole frame). The channels are computed in the step
@@ -39,8 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import pct, scratch, table  # noqa: E402
 from bench_pipeline import CpuSampler  # noqa: E402
 
-from gflow_core import appearance as ap  # noqa: E402
-from gflow_core.appearance_tracker import TRACKER  # noqa: E402
+from gflow_core.appearance import filter as ap  # noqa: E402
+from gflow_core.appearance.tracker import TRACKER  # noqa: E402
 from gflow_core.m2.dynamics import random_walk  # noqa: E402
 from gflow_core.stress import CASES  # noqa: E402
 from pipeline.evaluation.sequence_benchmark import find_sequences  # noqa: E402

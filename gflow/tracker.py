@@ -60,7 +60,7 @@ class Tracker:
     fps : float
         The frames' rate (the stamps of a tracker run through its stages; default 25).
     **params
-        For ``appearance``, any parameter of :class:`gflow_core.appearance_params.AppearanceParams`
+        For ``appearance``, any parameter of :class:`gflow_core.appearance.params.AppearanceParams`
         (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For ``dcf``,
         any parameter of :class:`gflow_core.dcf.params.DCFParams` (``gflow info dcf``). For
         ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)

@@ -1,6 +1,6 @@
 """The specs (:class:`gflow_core.spec.TrackerSpec`) of the trackers gflow ships: dcf (its spec
 beside it, :mod:`gflow_core.dcf.spec`, with what the box stages need), appearance (beside it too,
-:mod:`gflow_core.appearance_spec`), chamfer, m2 and gflow. Each references the tracker's existing modules; a tracker's modules are imported when it
+:mod:`gflow_core.appearance.spec`), chamfer, m2 and gflow. Each references the tracker's existing modules; a tracker's modules are imported when it
 is used, not when the registry is read.
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-from .appearance_spec import SPEC as APPEARANCE
+from .appearance.spec import SPEC as APPEARANCE
 from .contour_params import ChamferParams, M2Params
 from .dcf.spec import SPEC as DCF
 from .gflow.params import GFlowParams

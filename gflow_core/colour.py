@@ -1,6 +1,6 @@
 """Colour histograms of boxes: the appearance tracker's second cue.
 
-The edge-orientation channels of :mod:`gflow_core.appearance` say little about a face that
+The edge-orientation channels of :mod:`gflow_core.appearance.filter` say little about a face that
 turns to profile or walks into new light: after such a change the target matches the
 exemplars it trusted no better than the background does. Its colour often still does. This
 module measures colour as the colour-based particle filter of Perez, Hue, Vermaak & Gangnet

@@ -1,6 +1,6 @@
 """Locally normalised edge-orientation channels: a dense, HOG-like appearance feature.
 
-The appearance tracker (:mod:`gflow_core.appearance`) compares image regions by the
+The appearance tracker (:mod:`gflow_core.appearance.filter`) compares image regions by the
 normalised correlation of these channels rather than of grey levels. Orientation energy
 pooled over a small neighbourhood and divided by the local gradient energy changes little
 when the light changes (gain, bias and slow shading cancel), and is far less sensitive to

@@ -1,9 +1,9 @@
 """Filter stage of the appearance tracker: M2 with online exemplars.
 
-An adapter of :class:`gflow_core.appearance_tracker.AppearanceTracker` (``observe``, ``init``,
-``update``, ``coast``); the mathematics is :mod:`gflow_core.appearance` (its docstring lists the
+An adapter of :class:`gflow_core.appearance.tracker.AppearanceTracker` (``observe``, ``init``,
+``update``, ``coast``); the mathematics is :mod:`gflow_core.appearance.filter` (its docstring lists the
 departures from Toyama & Blake 2002). Its parameters are every field of
-:class:`gflow_core.appearance_params.AppearanceParams` (derived from it, defaults included) plus
+:class:`gflow_core.appearance.params.AppearanceParams` (derived from it, defaults included) plus
 ``seed`` and ``init``. This stage adapts the tracker to the pipeline's particle messages:
 
 * Inputs: ``frames`` of frame t (colour or grey; the appearance channels are computed here
@@ -34,7 +34,7 @@ their distance moments, the hidden-frame count and counters, as msgpack of a sma
 
 The stage is a registration of :class:`stages.box_tracker.BoxFilterStage` (the stage logic it shares
 with the correlation-filter tracker's); what it needs of the tracker comes from its spec
-(:mod:`gflow_core.appearance_spec`), and this module holds what is the appearance tracker's own: its
+(:mod:`gflow_core.appearance.spec`), and this module holds what is the appearance tracker's own: its
 snapshot's Struct and codec.
 """
 
@@ -45,10 +45,10 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from gflow_core import appearance as ap
-from gflow_core.appearance_params import AppearanceParams
-from gflow_core.appearance_spec import SPEC
-from gflow_core.appearance_tracker import AppearanceTrack
+from gflow_core.appearance import filter as ap
+from gflow_core.appearance.params import AppearanceParams
+from gflow_core.appearance.spec import SPEC
+from gflow_core.appearance.tracker import AppearanceTrack
 
 from .appearance_proposal import AppearanceStageFields
 from .box_tracker import BoxFilterStage, SnapshotCodec
@@ -63,7 +63,7 @@ SNAPSHOT_VERSION = 4
 
 AppearanceFilterParams = stage_params(
     "AppearanceFilterParams", AppearanceParams, AppearanceStageFields, __name__,
-    "Appearance filter settings: every field of :class:`gflow_core.appearance_params.AppearanceParams` "
+    "Appearance filter settings: every field of :class:`gflow_core.appearance.params.AppearanceParams` "
     "(see it for meanings), ``seed`` and ``init``.")
 
 

@@ -1,12 +1,12 @@
 """Proposal stage of the appearance tracker: the dynamics' random walk about the posterior of t-1.
 
-An adapter of :func:`gflow_core.appearance_dynamics.walk`, the proposal of
-:class:`~gflow_core.appearance_tracker.AppearanceTracker`: input ``particles`` is the resampled
+An adapter of :func:`gflow_core.appearance.dynamics.walk`, the proposal of
+:class:`~gflow_core.appearance.tracker.AppearanceTracker`: input ``particles`` is the resampled
 posterior of frame t-1 (from ``appearance.filter``), output ``proposals`` the particles for frame
 t, drawn with ``FrameRng(seed, crc32(stream), t).stream(PURPOSE_WALK)``. The walk's std for the
 centre is ``std_xy_rel sqrt(w h)`` of the initial box ``init``, so this stage needs it as the
 filter does. Its parameters are every field of
-:class:`gflow_core.appearance_params.AppearanceParams` (the same values as the filter's: ``gflow
+:class:`gflow_core.appearance.params.AppearanceParams` (the same values as the filter's: ``gflow
 track`` sets both), ``seed``, ``init`` and ``timed``.
 
 With ``timed`` (set for live sources by ``pipeline/runtime/live_plan.py``) the stage also reads
@@ -20,8 +20,8 @@ correlation-filter tracker's).
 
 from __future__ import annotations
 
-from gflow_core.appearance_params import AppearanceParams
-from gflow_core.appearance_spec import SPEC
+from gflow_core.appearance.params import AppearanceParams
+from gflow_core.appearance.spec import SPEC
 
 from .box_tracker import BoxProposalStage
 from .spec_box import box_proposal_spec
@@ -45,7 +45,7 @@ class AppearanceProposalFields(AppearanceStageFields, frozen=True):
 
 AppearanceProposalParams = stage_params(
     "AppearanceProposalParams", AppearanceParams, AppearanceProposalFields, __name__,
-    "Appearance proposal settings: every field of :class:`gflow_core.appearance_params.AppearanceParams` "
+    "Appearance proposal settings: every field of :class:`gflow_core.appearance.params.AppearanceParams` "
     "(the filter's values), ``seed``, ``init`` and ``timed``.")
 
 

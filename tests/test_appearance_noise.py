@@ -15,7 +15,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gflow_core.appearance_params import AppearanceParams
+from gflow_core.appearance.params import AppearanceParams
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -90,7 +90,7 @@ def test_a_snapshot_of_another_stage_is_refused(scene):
 def test_stage_parameters_are_the_core_parameters():
     from dataclasses import fields
 
-    from gflow_core.appearance_params import AppearanceParams
+    from gflow_core.appearance.params import AppearanceParams
 
     core = {f.name: f.default for f in fields(AppearanceParams)}
     for params in (AppearanceFilterParams(), AppearanceProposalParams()):

@@ -14,8 +14,8 @@ from contextlib import redirect_stdout
 import msgspec
 import pytest
 
-from gflow_core.appearance_params import AppearanceParams
-from gflow_core.appearance_tracker import AppearanceTracker
+from gflow_core.appearance.params import AppearanceParams
+from gflow_core.appearance.tracker import AppearanceTracker
 from gflow_core.gflow import GFlowParams, GFlowTracker
 from gflow_core.params import describe, format_value
 from gflow_core.tracker import TrackingFilter
@@ -117,6 +117,6 @@ def test_the_command_line_reads_the_parameters_without_importing_the_mathematics
     import the trackers' mathematics (scipy, the G-flow filter), which would slow every start (about 0.3 s)."""
     code = ("import sys; from pipeline.cli.commands.track import add_track_args; import argparse; "
             "add_track_args(argparse.ArgumentParser()); "
-            "print(sorted(m for m in ('gflow_core.gflow.filter', 'gflow_core.appearance', 'scipy') if m in sys.modules))")
+            "print(sorted(m for m in ('gflow_core.gflow.filter', 'gflow_core.appearance.filter', 'scipy') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout

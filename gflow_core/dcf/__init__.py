@@ -1,6 +1,6 @@
 """A particle filter whose likelihood is a discriminative correlation filter learnt online (``--tracker dcf``).
 
-The appearance tracker (:mod:`gflow_core.appearance`) scores the target against exemplars of its own
+The appearance tracker (:mod:`gflow_core.appearance.filter`) scores the target against exemplars of its own
 look; nothing in that score says what the surroundings look like, so a background that resembles
 the target, or a target that changes, is judged by rules tuned on the videos at hand. This tracker
 keeps the particle filter of the papers (particles over (x, y, log s), importance weights from a

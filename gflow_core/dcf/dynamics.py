@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..appearance_dynamics import alpha_of, particles_of
+from ..appearance.dynamics import alpha_of, particles_of
 from ..m2.dynamics import random_walk
 from .params import DCFParams
 

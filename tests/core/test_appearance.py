@@ -1,4 +1,4 @@
-"""The appearance tracker (gflow_core.appearance) on synthetic scenes with ground truth:
+"""The appearance tracker (gflow_core.appearance.filter) on synthetic scenes with ground truth:
 a target that grows and shrinks by 2x, an occluder that crosses the target, fast jumps and
 a change of light. Bounds are loose but each fails for a tracker that loses the target or
 lets its box collapse (a box that never moves is checked to fail them)."""
@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gflow_core import appearance as ap
+from gflow_core.appearance import filter as ap
 from gflow_core.m2.dynamics import random_walk
 from gflow_core.metrics import centre_error, iou
 from gflow_core.orientation import N_BINS, orientation_channels

@@ -1,7 +1,7 @@
 """``--tracker appearance``: M2 with online exemplars of edge-orientation channels.
 
-See :mod:`gflow_core.appearance` for the method and its departures from Toyama & Blake. Its
-parameters are :class:`gflow_core.appearance_params.AppearanceParams` (``gflow info appearance``):
+See :mod:`gflow_core.appearance.filter` for the method and its departures from Toyama & Blake. Its
+parameters are :class:`gflow_core.appearance.params.AppearanceParams` (``gflow info appearance``):
 both stages of the graph take every one of them, so every option here sets both.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from gflow_core.appearance_params import FIXED_SIZE, TRACK_SCALE, AppearanceParams
+from gflow_core.appearance.params import FIXED_SIZE, TRACK_SCALE, AppearanceParams
 
 NAME = "appearance"
 GRAPH = "appearance"

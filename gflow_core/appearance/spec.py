@@ -13,22 +13,22 @@ from typing import Any
 
 import numpy as np
 
-from .appearance_dynamics import PURPOSE_WALK, alpha_of, particles_of, walk
-from .appearance_params import AppearanceParams
-from .spec import BoxStages, TrackerSpec
-from .tracker import TrackingFilter
+from .dynamics import PURPOSE_WALK, alpha_of, particles_of, walk
+from .params import AppearanceParams
+from ..spec import BoxStages, TrackerSpec
+from ..tracker import TrackingFilter
 
 __all__ = ["SPEC"]
 
 
 def _tracker() -> TrackingFilter[Any, Any, Any, Any]:
-    from .appearance_tracker import TRACKER
+    from .tracker import TRACKER
 
     return TRACKER
 
 
 def _proposal(particles: np.ndarray, dt: float) -> Any:
-    from .appearance_tracker import AppearanceProposal
+    from .tracker import AppearanceProposal
 
     return AppearanceProposal(particles, dt)
 

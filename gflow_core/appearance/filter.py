@@ -154,9 +154,9 @@ video it was never trained on:
   & Baker 2004; it pulled the box off the face on david_indoor). ``scale_search = 0`` and
   ``n_scales = 1`` keep the first size.
 
-The parameters, their defaults and help are :class:`gflow_core.appearance_params.AppearanceParams`;
+The parameters, their defaults and help are :class:`gflow_core.appearance.params.AppearanceParams`;
 the tracker protocol's ``init`` / ``propose`` / ``update`` / ``coast`` over this module are
-:mod:`gflow_core.appearance_tracker`.
+:mod:`gflow_core.appearance.tracker`.
 
 Coordinates are image (x, y) pixels with the origin at the top-left pixel centre; boxes are
 (x, y, w, h) with (x, y) the top-left corner, as in ``../shared/data``.
@@ -170,13 +170,13 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from . import colour as col
-from . import redetect
-from .appearance_params import AppearanceParams
-from .orientation import orientation_channels
-from .particles import LogWeights, systematic_resample
-from .regions import region
-from .visibility import ChiSquare, Cue, Visibility, visibility
+from .. import colour as col
+from .. import redetect
+from .params import AppearanceParams
+from ..orientation import orientation_channels
+from ..particles import LogWeights, systematic_resample
+from ..regions import region
+from ..visibility import ChiSquare, Cue, Visibility, visibility
 
 __all__ = ["AppearanceParams", "AppearanceState", "StepResult", "initialise", "step", "features",
            "region", "box_of", "ChiSquare"]

@@ -2,20 +2,20 @@
 
 :class:`AppearanceTracker` is the appearance tracker's :class:`~gflow_core.tracker.TrackingFilter`:
 
-* ``observe`` -- the frame's grey levels and appearance channels (:func:`.appearance.features`);
+* ``observe`` -- the frame's grey levels and appearance channels (:func:`.filter.features`);
 * ``init`` -- the anchor exemplar and the particles about the user's box
-  (:func:`.appearance.initialise`);
+  (:func:`.filter.initialise`);
 * ``propose`` -- the dynamics' random walk on (x, y, log s) about the posterior of frame t-1,
   std ``std_xy_rel sqrt(w0 h0)`` px for the centre and ``std_log_s`` for log s (M2 sec. 4.3 with
   A = I); the velocity term and the particles drawn at the response's peak are added by the
   update, which reads the frame;
-* ``update`` -- :func:`.appearance.step`: the mixture proposal weighed by the exemplar likelihood
+* ``update`` -- :func:`.filter.step`: the mixture proposal weighed by the exemplar likelihood
   and the motion prior, the estimate, whether the target is present, hidden or lost, the search
   for a hidden one, the exemplars' update and resampling;
 * ``coast`` -- the posterior carried over a frame with no evidence: particles and model unchanged,
   the target judged as before, confidence 0.
 
-The proposal's random walk (:mod:`gflow_core.appearance_dynamics`) works on alpha = (x, y,
+The proposal's random walk (:mod:`gflow_core.appearance.dynamics`) works on alpha = (x, y,
 theta, s) with theta = 0 and s = exp(log s), the particles as the pipeline's particle messages
 carry them, so a step here and a step through the stages (``stages/appearance_proposal.py``,
 ``stages/appearance_filter.py``) give the same bits.
@@ -33,12 +33,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from . import appearance as ap
-from . import colour
-from .appearance_dynamics import PURPOSE_WALK, alpha_of, particles_of, walk
-from .appearance_params import AppearanceParams
-from .features import to_grey
-from .tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
+from . import filter as ap
+from .. import colour
+from .dynamics import PURPOSE_WALK, alpha_of, particles_of, walk
+from .params import AppearanceParams
+from ..features import to_grey
+from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 
 __all__ = ["AppearanceTracker", "AppearanceObservation", "AppearanceProposal", "AppearanceTrack", "TRACKER",
            "alpha_of", "particles_of", "walk", "PURPOSE_INIT", "PURPOSE_STEP", "PURPOSE_WALK"]
@@ -78,7 +78,7 @@ class AppearanceProposal:
 
 @dataclass(frozen=True)
 class AppearanceTrack:
-    """The posterior after a frame: the model's state (:class:`.appearance.AppearanceState`) and how
+    """The posterior after a frame: the model's state (:class:`.filter.AppearanceState`) and how
     the target was judged on the last frame with evidence (what a coasted frame reports)."""
 
     core: ap.AppearanceState
@@ -141,7 +141,7 @@ class AppearanceTracker:
 
     def update(self, params: AppearanceParams, state: AppearanceTrack, proposal: AppearanceProposal,
                obs: AppearanceObservation, rng: FrameRng) -> tuple[AppearanceTrack, Estimate]:
-        """:func:`.appearance.step` of the proposal on the frame. The estimate's phase is ``track``,
+        """:func:`.filter.step` of the proposal on the frame. The estimate's phase is ``track``,
         ``redetect`` (the search found a hidden target again this frame), ``occluded`` or ``lost``."""
         res = ap.step(state.core, obs.channels(), proposal.particles, params, rng.stream(PURPOSE_STEP), proposal.dt,
                       obs.bins)

@@ -1,6 +1,6 @@
 """The appearance tracker's dynamics: the proposal's random walk on (x, y, log s) (M2 sec. 4.3, A = I).
 
-Kept apart from :mod:`gflow_core.appearance_tracker` so the proposal stage, which needs only this,
+Kept apart from :mod:`gflow_core.appearance.tracker` so the proposal stage, which needs only this,
 does not import the appearance mathematics (OpenCV's matching, scipy's special functions): a stage
 process pays for its own imports when it starts, which a live source's first frames wait for.
 
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .appearance_params import AppearanceParams
-from .m2.dynamics import random_walk
+from .params import AppearanceParams
+from ..m2.dynamics import random_walk
 
 __all__ = ["alpha_of", "particles_of", "walk", "PURPOSE_WALK"]
 

@@ -1,6 +1,6 @@
 """The appearance tracker's parameters: :class:`AppearanceParams`, the only place their defaults live.
 
-The tracker is :mod:`gflow_core.appearance` (M2 with online exemplars;
+The tracker is :mod:`gflow_core.appearance.filter` (M2 with online exemplars;
 its docstring gives each parameter's role and the measurements behind the defaults, chosen on
 all four shared sequences together). Everything else derives from this dataclass: the stages'
 parameter structs (``stages/appearance_filter.py``, ``stages/appearance_proposal.py``), the
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Mapping
 
-from .params import param
+from ..params import param
 
 __all__ = ["AppearanceParams", "TRACK_SCALE", "FIXED_SIZE"]
 
