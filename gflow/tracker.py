@@ -65,8 +65,8 @@ class Tracker:
         any parameter of :class:`gflow_core.dcf.params.DCFParams` (``gflow info dcf``). For
         ``gflow``, any parameter of :class:`gflow_core.gflow.GFlowParams` (``gflow info gflow``)
         and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For
-        ``chamfer``, any parameter of :class:`gflow_core.contour_params.ChamferParams` (``gflow info
-        chamfer``); for ``m2``, any of :class:`gflow_core.contour_params.M2Params` and ``model`` (a
+        ``chamfer``, any parameter of :class:`gflow_core.contour.params.ChamferParams` (``gflow info
+        chamfer``); for ``m2``, any of :class:`gflow_core.contour.params.M2Params` and ``model`` (a
         file of ``gflow learn m2`` or an ``M2Model``). An m2 patch model runs its stages in process
         and takes the options ``gflow track`` has (``particles=800``) and ``set={"filter": {"lam":
         0.3}}`` for any stage parameter.

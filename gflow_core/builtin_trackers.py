@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import Any, Mapping
 
 from .appearance.spec import SPEC as APPEARANCE
-from .contour_params import ChamferParams, M2Params
+from .contour.params import ChamferParams, M2Params
 from .dcf.spec import SPEC as DCF
 from .gflow.params import GFlowParams
 from .params import make
@@ -20,13 +20,13 @@ __all__ = ["BUILTIN", "m2_setup", "gflow_setup", "m2_model"]
 
 
 def _chamfer() -> TrackingFilter[Any, Any, Any, Any]:
-    from .contour_protocol import CHAMFER
+    from .contour.protocol import CHAMFER
 
     return CHAMFER
 
 
 def _m2() -> TrackingFilter[Any, Any, Any, Any]:
-    from .contour_protocol import M2
+    from .contour.protocol import M2
 
     return M2
 
@@ -59,7 +59,7 @@ def m2_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tu
     ``M2Model``; the edges are read with the settings the model was learned with (its profile and
     g0, its file's Canny thresholds and blur), as ``gflow track --tracker m2`` sets the preprocess
     stage."""
-    from .contour_protocol import m2_edge_params
+    from .contour.protocol import m2_edge_params
 
     kw = dict(keywords)
     model, meta = m2_model(kw.pop("model", None), load)

@@ -1,7 +1,7 @@
 """Filter stage of the contour particle filter: weighs proposals by eq. 7 and resamples.
 
-An adapter of :class:`gflow_core.contour_tracker.ContourFilter`, where the mathematics below
-lives; its parameters are every field of :class:`gflow_core.contour_params.ContourParams`
+An adapter of :class:`gflow_core.contour.tracker.ContourFilter`, where the mathematics below
+lives; its parameters are every field of :class:`gflow_core.contour.params.ContourParams`
 (derived from it, defaults included) plus ``init``, ``seed`` and ``model``.
 
 Inputs: ``features`` of frame t (the chamfer image) and ``proposals`` for frame t.
@@ -60,7 +60,7 @@ problem is reported; it never stops the stream.
 State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no learned
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
 the lost guard's distance distributions, held estimate and anchor, the chamfer tracker's first
-template and the frame its template was last taken at (template update, :mod:`gflow_core.contour_template`),
+template and the frame its template was last taken at (template update, :mod:`gflow_core.contour.template`),
 and counters, as msgpack of a small Struct (version 5; version-1 and -2 snapshots still restore, with a
 fresh guard, version-3 ones with a guard that weighs no colour, and versions 1-4, from before the
 template update, with their template as the first one).
@@ -75,8 +75,8 @@ from typing import Any, ClassVar, Mapping
 import msgspec
 import numpy as np
 
-from gflow_core.contour_params import ChamferParams, ContourParams, M2Params
-from gflow_core.contour_tracker import FILTER, ContourObservation, ContourSetup, ContourState, \
+from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
+from gflow_core.contour.tracker import FILTER, ContourObservation, ContourSetup, ContourState, \
     restore_model, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.appearance_metric import OnlineBank
@@ -118,13 +118,13 @@ class FilterFields(StageFields, frozen=True):
 
 
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,
-                            "Particle filter settings: every field of :class:`gflow_core.contour_params.ContourParams` "
+                            "Particle filter settings: every field of :class:`gflow_core.contour.params.ContourParams` "
                             "(see it for meanings), ``init``, ``seed`` and ``model``.")
 ChamferFilterParams = stage_params("ChamferFilterParams", ChamferParams, FilterFields, __name__,
                                    "The chamfer tracker's filter: every field of "
-                                   ":class:`gflow_core.contour_params.ChamferParams`, ``init`` and ``seed``.")
+                                   ":class:`gflow_core.contour.params.ChamferParams`, ``init`` and ``seed``.")
 M2FilterParams = stage_params("M2FilterParams", M2Params, FilterFields, __name__,
-                              "The M2 tracker's filter: every field of :class:`gflow_core.contour_params.M2Params`, "
+                              "The M2 tracker's filter: every field of :class:`gflow_core.contour.params.M2Params`, "
                               "``init``, ``seed`` and ``model`` (a learned contour model, required).")
 
 

@@ -1,8 +1,8 @@
 """Proposal stage of the contour particle filter: samples p(X_t | X_{t-1}) (M2 sec. 4.3).
 
-An adapter of :func:`gflow_core.contour_dynamics.proposal_dynamics` and
-:func:`~gflow_core.contour_dynamics.propose_cloud`, the proposal of the contour trackers' protocol
-(:class:`~gflow_core.contour_protocol.ContourTracker`).
+An adapter of :func:`gflow_core.contour.dynamics.proposal_dynamics` and
+:func:`~gflow_core.contour.dynamics.propose_cloud`, the proposal of the contour trackers' protocol
+(:class:`~gflow_core.contour.protocol.ContourTracker`).
 
 Input ``particles`` is the resampled posterior of frame t-1 (from the filter stage); the
 output ``proposals`` are the particles for frame t, drawn from the dynamics with the
@@ -33,11 +33,11 @@ from typing import Any, ClassVar, Mapping
 
 import msgspec
 
-from gflow_core.contour_dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 
-from gflow_core.contour_params import ChamferParams, M2Params
+from gflow_core.contour.params import ChamferParams, M2Params
 
 from .base import Output, Params, Stage, StageContext, StageInputError
 from .base import Params as _Params
@@ -96,10 +96,10 @@ class ProposalFields(StageFields, frozen=True):
 
 ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,
                                      "The chamfer tracker's proposal: every field of "
-                                     ":class:`gflow_core.contour_params.ChamferParams` (its random walk: "
+                                     ":class:`gflow_core.contour.params.ChamferParams` (its random walk: "
                                      "``std_xy``, ``std_theta``, ``std_log_s``), ``seed``, ``init`` and ``timed``.")
 M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __name__,
-                                "The M2 tracker's proposal: every field of :class:`gflow_core.contour_params.M2Params`, "
+                                "The M2 tracker's proposal: every field of :class:`gflow_core.contour.params.M2Params`, "
                                 "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
 
 

@@ -2,7 +2,7 @@
 
 The edges and the chamfer image are :func:`gflow_core.features.edges_and_chamfer`, with the Canny
 thresholds of :func:`gflow_core.features.canny_calibrated` when ``calibrate_box`` is set: the
-observation of the contour trackers' protocol (:mod:`gflow_core.contour_protocol`)."""
+observation of the contour trackers' protocol (:mod:`gflow_core.contour.protocol`)."""
 
 from __future__ import annotations
 
@@ -85,7 +85,7 @@ class PreprocessStage(Stage[PreprocessParams]):
                 self.thresholds = features.canny_calibrated(grey, p.blur, p.canny_percentile, p.calibrate_box)
             except ValueError as e:
                 raise StageInputError(f"frame {seq}: {e}") from None
-        # the contour trackers' observation (gflow_core.contour_protocol computes the same)
+        # the contour trackers' observation (gflow_core.contour.protocol computes the same)
         edges, cham = features.edges_and_chamfer(grey, self.thresholds, p.blur, p.canny_percentile, p.profile, p.g0)
         gx, gy = self._gradients(grey)
         self.done += 1

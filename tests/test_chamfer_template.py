@@ -1,4 +1,4 @@
-"""The chamfer tracker's template update with drift correction (gflow_core/contour_template.py):
+"""The chamfer tracker's template update with drift correction (gflow_core/contour/template.py):
 the alignment of the first template, the template taken at a transform, and the filter stage's
 snapshot carrying the updated template, the first one and the anchor bit for bit."""
 
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gflow_core import features
-from gflow_core.contour_template import align_first, template_at
+from gflow_core.contour.template import align_first, template_at
 from stages.base import StageContext
 from stages.messages import NDArray
 from stages.particle_filter import ChamferFilterParams, ChamferFilterStage, _FilterSnapshot

@@ -138,7 +138,7 @@ def test_proposal_dynamics_carries_the_noise_to_the_target_size() -> None:
     angle and scale noise is halved; on a box within the training sizes the learned process is used."""
     from dataclasses import replace
 
-    from gflow_core.contour_dynamics import proposal_dynamics
+    from gflow_core.contour.dynamics import proposal_dynamics
     from gflow_core.m2.curves import Curves
     from gflow_core.m2.model import M2Model
 

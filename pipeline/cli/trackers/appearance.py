@@ -28,7 +28,7 @@ def add_args(g: Any) -> None:
     its help and default; shared with chamfer and m2) and the two size presets."""
     from pipeline.cli.tracker_options import add_param_options
 
-    from gflow_core.contour_params import ChamferParams, M2Params
+    from gflow_core.contour.params import ChamferParams, M2Params
     from gflow_core.dcf.params import DCFParams
 
     add_param_options(g, AppearanceParams, NAME, notes={

@@ -1,6 +1,6 @@
 """``--tracker chamfer``: M2 with K = 1, the template from the edges inside the initial box.
 
-Its parameters are :class:`gflow_core.contour_params.ChamferParams` (``gflow info chamfer``): the
+Its parameters are :class:`gflow_core.contour.params.ChamferParams` (``gflow info chamfer``): the
 proposal and the filter of the graph take every one of them, so every option sets both.
 """
 
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from gflow_core.contour_params import ChamferParams
+from gflow_core.contour.params import ChamferParams
 
 NAME = "chamfer"
 GRAPH = "chamfer"

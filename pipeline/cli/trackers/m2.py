@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from gflow_core.contour_params import M2Params
+from gflow_core.contour.params import M2Params
 
 NAME = "m2"
 #: the tracker's parameters of a contour model (graph ``m2``; every stage but the preprocessing takes them)

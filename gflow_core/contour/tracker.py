@@ -7,7 +7,7 @@ Toyama & Blake (IJCV 2002) weigh the particles X = (alpha, k) by the exemplar li
 
 and resample. This module holds that step for the two contour trackers and the departures the
 pipeline's filter stage (``stages/particle_filter.py``, an adapter of :class:`ContourFilter`) runs, and
-the contour trackers' protocol (:class:`gflow_core.contour_protocol.ContourTracker`) updates with:
+the contour trackers' protocol (:class:`gflow_core.contour.protocol.ContourTracker`) updates with:
 
 * **Initialisation.** With no learned model (the chamfer tracker) the template is the edge pixels
   inside the initial box, K = 1 with likelihood exp(-lambda rho). With a learned model the box
@@ -29,7 +29,7 @@ the contour trackers' protocol (:class:`gflow_core.contour_protocol.ContourTrack
 * **Lost guard** (departure, :mod:`.m2.lost`): each tracked frame's estimate is verified against
   the initial box; a lost target's estimate is held, its particles kept near it, and the initial
   box searched for over a widening window until a candidate looks as the target did.
-* **Template update** (chamfer; departure, :mod:`.contour_template`): the K = 1 template, and the
+* **Template update** (chamfer; departure, :mod:`.template`): the K = 1 template, and the
   lost guard's anchor with it, is taken again from the estimate's box with Matthews et al.'s drift
   correction (PAMI 2004), after ``template_every`` frames in a row judged found and only where the
   first template has come to fit the target ``template_gain`` times worse than on the first
@@ -41,7 +41,7 @@ the contour trackers' protocol (:class:`gflow_core.contour_protocol.ContourTrack
 
 Random draws of frame ``t`` (:class:`~gflow_core.tracker.FrameRng`): the initial cloud from
 ``stream(PURPOSE_INIT)``, k_0 from ``stream(PURPOSE_INIT_K)``, the resampling from
-``stream(PURPOSE_RESAMPLE)``; the proposal's dynamics (:func:`gflow_core.contour_protocol.propose_cloud`)
+``stream(PURPOSE_RESAMPLE)``; the proposal's dynamics (:func:`gflow_core.contour.protocol.propose_cloud`)
 from ``stream(PURPOSE_PROPOSAL)``.
 """
 
@@ -53,22 +53,22 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .contour_dynamics import PURPOSE_PROPOSAL
-from . import similarity
-from .contour_params import ChamferParams, ContourParams
-from .contour_template import align_first, anchor_peak, anchor_region, fit, template_at
-from .m2 import dynamics as dyn
-from .m2 import lost as lostmod
-from .m2.appearance_metric import (AppearanceKernels, OnlineBank, appearance_log_lik, bank_update, new_bank,
+from .dynamics import PURPOSE_PROPOSAL
+from .. import similarity
+from .params import ChamferParams, ContourParams
+from .template import align_first, anchor_peak, anchor_region, fit, template_at
+from ..m2 import dynamics as dyn
+from ..m2 import lost as lostmod
+from ..m2.appearance_metric import (AppearanceKernels, OnlineBank, appearance_log_lik, bank_update, new_bank,
                                    sample_patches_near)
-from .m2.dynamics import sample_categorical
-from .m2.kernel import calibrate_sigma
-from .m2.lost import Anchor, LostParams, LostState
-from .m2.model import M2Model
-from .m2.target_shape import fit_to_box
-from .m2.tracking import ContourExemplars, ParticleCloud, Posterior, curve_box, init_particles, posterior, \
+from ..m2.dynamics import sample_categorical
+from ..m2.kernel import calibrate_sigma
+from ..m2.lost import Anchor, LostParams, LostState
+from ..m2.model import M2Model
+from ..m2.target_shape import fit_to_box
+from ..m2.tracking import ContourExemplars, ParticleCloud, Posterior, curve_box, init_particles, posterior, \
     template_from_edges, weigh
-from .tracker import Box, Estimate, FrameRng
+from ..tracker import Box, Estimate, FrameRng
 
 __all__ = ["ContourFilter", "ContourSetup", "ContourState", "ContourObservation", "FILTER", "setup",
            "k1_model", "restore_model", "guard_params", "PURPOSE_INIT", "PURPOSE_INIT_K", "PURPOSE_RESAMPLE", "PURPOSE_PROPOSAL"]
@@ -178,7 +178,7 @@ def guard_params(params: ContourParams) -> LostParams | None:
 class ContourFilter:
     """The contour particle filter's update, init and box policy (stateless: everything is in
     :class:`ContourState`), on the features of a frame. The proposal and the features are
-    :mod:`gflow_core.contour_protocol`'s, which puts this filter on the tracker protocol."""
+    :mod:`gflow_core.contour.protocol`'s, which puts this filter on the tracker protocol."""
 
     name = "contour"
     Params = ContourParams
@@ -367,7 +367,7 @@ class ContourFilter:
 
     def _update_template(self, params: ChamferParams, st: ContourState, obs: ContourObservation, alpha: np.ndarray,
                          t: int) -> ContourState:
-        """Matthews et al.'s template update with drift correction (:mod:`.contour_template`): the
+        """Matthews et al.'s template update with drift correction (:mod:`.template`): the
         first template aligned again from the estimate ``alpha``; where it lands within epsilon of
         it, the template is taken again there, and with ``template_anchor`` the lost guard's anchor
         too, where the first anchor aligned again from there (by correlation) lands within epsilon

@@ -1,7 +1,7 @@
 """The contour trackers, chamfer and M2, on the tracker protocol of :mod:`gflow_core.tracker`.
 
 :class:`ContourTracker` is the :class:`~gflow_core.tracker.TrackingFilter` of both (:data:`CHAMFER`,
-:data:`M2`), over the filter of :mod:`gflow_core.contour_tracker`:
+:data:`M2`), over the filter of :mod:`gflow_core.contour.tracker`:
 
 * ``observe`` -- the frame's grey levels (:class:`ContourFrame`). Its edges and chamfer image
   (:func:`.features.edges_and_chamfer`, what the preprocess stage computes) depend on the Canny
@@ -11,19 +11,19 @@
   edges in the box), the initial cloud and the proposal's dynamics (:func:`proposal_dynamics`);
 * ``propose`` -- :func:`propose_cloud`: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) (M2 sec.
   4.3; the chamfer tracker's is a random walk with K = 1, the M2 tracker's the learned model's);
-* ``update`` -- :meth:`.contour_tracker.ContourFilter.update`: eq. 7 (x the appearance kernel),
+* ``update`` -- :meth:`.tracker.ContourFilter.update`: eq. 7 (x the appearance kernel),
   resampling, the lost guard and the online bank;
 * ``coast`` -- a frame that could not be used: the proposal weighed by no evidence (the posterior
   is the prior, as the filter stage does when no features arrive).
 
 Random draws of frame ``t`` (:class:`~gflow_core.tracker.FrameRng`): the proposal from
 ``stream(PURPOSE_PROPOSAL)`` (the proposal stage's ``frame_rng(seed, stream, t, PURPOSE)``), the
-filter's as :mod:`.contour_tracker` lists them; so a step here and a step through the stages
+filter's as :mod:`.tracker` lists them; so a step here and a step through the stages
 (``stages/preprocess.py``, ``stages/particle_proposal.py``, ``stages/particle_filter.py``) give
 the same bits.
 
 Resources (``init``): ``model``, the learned M2 model (required by M2, refused by chamfer), and
-``edges``, the :class:`~gflow_core.contour_params.EdgeParams` the model was learned with
+``edges``, the :class:`~gflow_core.contour.params.EdgeParams` the model was learned with
 (:func:`m2_edge_params`; default: the chamfer tracker's, thresholds calibrated on the box).
 """
 
@@ -36,15 +36,15 @@ from typing import Any, Literal, Mapping, cast
 
 import numpy as np
 
-from . import colour, features
-from .contour_params import ChamferParams, ContourParams, EdgeParams, M2Params
-from .contour_dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
-from .contour_tracker import FILTER, ContourObservation, ContourState, setup
-from .m2 import lost as lostmod
-from .m2.dynamics import ARDynamics
-from .m2.model import M2Model
-from .m2.tracking import ParticleCloud
-from .tracker import Box, Estimate, FrameRng
+from .. import colour, features
+from .params import ChamferParams, ContourParams, EdgeParams, M2Params
+from .dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from .tracker import FILTER, ContourObservation, ContourState, setup
+from ..m2 import lost as lostmod
+from ..m2.dynamics import ARDynamics
+from ..m2.model import M2Model
+from ..m2.tracking import ParticleCloud
+from ..tracker import Box, Estimate, FrameRng
 
 __all__ = ["ContourTracker", "ContourFrame", "ContourTrack", "CHAMFER", "M2", "proposal_dynamics", "propose_cloud",
            "m2_edge_params", "PURPOSE_PROPOSAL"]
@@ -61,7 +61,7 @@ class ContourFrame:
 
 @dataclass(frozen=True)
 class ContourTrack:
-    """The posterior after a frame (``filter``, :class:`.contour_tracker.ContourState`) and what is
+    """The posterior after a frame (``filter``, :class:`.tracker.ContourState`) and what is
     fixed for the track: the edge settings and the Canny thresholds chosen on the first frame (None:
     chosen on every frame), the proposal's Markov matrix (K, K) and AR(1) dynamics."""
 

@@ -27,7 +27,7 @@ Here the "image" is the frame's edge map and the alignment is the chamfer distan
   template's frame by T_{p*_n}^{-1} (as many points at most as the first template was allowed).
 
 Departures: the paper updates every frame and compares the two alignments' parameters; here the
-filter (:mod:`.contour_tracker`) updates after ``template_every`` frames in a row that the lost
+filter (:mod:`.tracker`) updates after ``template_every`` frames in a row that the lost
 guard judged found, only where T_1 has come to fit badly (above), compares the centres in units of
 the box's size (and, with ``template_scale``, requires the same size), and takes the lost guard's
 anchor again from the same corrected box (the guard then verifies against the look the filter
@@ -38,10 +38,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from . import redetect, similarity
-from .m2.chamfer import chamfer_distance
-from .m2.tracking import template_from_edges
-from .regions import region
+from .. import redetect, similarity
+from ..m2.chamfer import chamfer_distance
+from ..m2.tracking import template_from_edges
+from ..regions import region
 
 __all__ = ["align_first", "fit", "template_at", "anchor_region", "anchor_peak"]
 

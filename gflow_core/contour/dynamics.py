@@ -1,6 +1,6 @@
 """The contour trackers' proposal (chamfer, m2): p(X_t | X_{t-1}) of M2 sec. 4.3.
 
-Kept apart from :mod:`gflow_core.contour_protocol` so that the proposal stage imports only the
+Kept apart from :mod:`gflow_core.contour.protocol` so that the proposal stage imports only the
 dynamics (numpy), not the filter's image processing (SciPy, OpenCV): a stage process pays at
 start-up only for what it runs.
 
@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from .m2 import dynamics as dyn
-from .m2.dynamics import ARDynamics, at_resolution, sample_markov, scale_mean_at
-from .m2.model import M2Model
-from .m2.tracking import ParticleCloud
-from .tracker import Box
+from ..m2 import dynamics as dyn
+from ..m2.dynamics import ARDynamics, at_resolution, sample_markov, scale_mean_at
+from ..m2.model import M2Model
+from ..m2.tracking import ParticleCloud
+from ..tracker import Box
 
 __all__ = ["PURPOSE_PROPOSAL", "proposal_dynamics", "propose_cloud"]
 

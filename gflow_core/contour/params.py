@@ -1,7 +1,7 @@
 """The contour trackers' parameters: :class:`ChamferParams` and :class:`M2Params`, the only place their
 defaults live, over :class:`ContourParams`, the filter's.
 
-The filter is :mod:`gflow_core.contour_tracker` (Toyama & Blake, IJCV 2002, with the departures
+The filter is :mod:`gflow_core.contour.tracker` (Toyama & Blake, IJCV 2002, with the departures
 listed there). Each tracker's stages (``chamfer.proposal`` / ``chamfer.filter``, ``m2.proposal`` /
 ``m2.filter``: ``stages/particle_proposal.py``, ``stages/particle_filter.py``) take every field of
 its dataclass, so the graph files (``pipeline/graphs/chamfer.yaml``, ``m2.yaml``) name none and are
@@ -18,7 +18,7 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
-from .params import param
+from ..params import param
 
 __all__ = ["ContourParams", "ChamferParams", "M2Params", "EdgeParams", "BOX_POLICIES"]
 
@@ -138,7 +138,7 @@ class M2Params(ContourParams):
 class EdgeParams:
     """What the contour trackers read of a frame: the Canny edges and their chamfer image (the
     preprocess stage's settings; the defaults are the ``chamfer`` graph's). An M2 model brings its
-    own (:func:`gflow_core.contour_protocol.m2_edge_params`)."""
+    own (:func:`gflow_core.contour.protocol.m2_edge_params`)."""
 
     profile: Literal["quadratic", "truncated", "linear"] = param("truncated", "chamfer profile g(u): quadratic u^2, "
                                                                               "truncated min(u^2, g0), linear u")
