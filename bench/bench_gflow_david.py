@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import every_nth, scratch, table  # noqa: E402
 
-from gflow_core.metrics import centre_error, score  # noqa: E402
+from gflow_core.evaluation.metrics import centre_error, score  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
 from pipeline.recording.results import estimates, read_boxes  # noqa: E402
 from pipeline.cli.trackers.gflow import make_plan  # noqa: E402

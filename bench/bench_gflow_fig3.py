@@ -40,7 +40,7 @@ from _util import every_nth, scratch, table  # noqa: E402
 from bench_gflow_david import OPTIC_FLOW, perturbed_box  # noqa: E402  (the special case, the same start errors)
 
 from gflow_core.gflow.landmark_error import SCORED_LANDMARKS, landmark_score  # noqa: E402
-from gflow_core.metrics import score  # noqa: E402
+from gflow_core.evaluation.metrics import score  # noqa: E402
 from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
 from pipeline.io.landmarks import read_landmarks  # noqa: E402
 from pipeline.recording.results import estimates, read_boxes  # noqa: E402

@@ -33,8 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import scratch, table  # noqa: E402
 
 from gflow_core.gflow.landmark_error import landmark_score  # noqa: E402
-from gflow_core.metrics import iou  # noqa: E402
-from gflow_core.stress import CASES  # noqa: E402
+from gflow_core.evaluation.metrics import iou  # noqa: E402
+from gflow_core.evaluation.stress import CASES  # noqa: E402
 from pipeline.evaluation.sequence_benchmark import find_sequences  # noqa: E402
 from pipeline.evaluation.stress_benchmark import derive  # noqa: E402
 from pipeline.io.landmarks import read_landmarks, read_points  # noqa: E402

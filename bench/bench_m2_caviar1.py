@@ -101,7 +101,7 @@ def main() -> int:
         rows.append([f"M2 unsupervised K={args.K}, seed 0", f"{b}-{n - 1}", f"{r['cle_px']:.2f}",
                      f"{r['success_rate_0.5']:.3f}", f"{r['mean_overlap']:.3f}"])
 
-    from gflow_core.metrics import score
+    from gflow_core.evaluation.metrics import score
 
     for key, (name, cle, succ) in PUBLISHED.items():
         f = data / "results" / f"{key}.csv"

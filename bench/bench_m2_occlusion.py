@@ -33,7 +33,7 @@ from _util import scratch, table  # noqa: E402
 
 
 def analyse(rec: Path, gt: dict) -> dict:
-    from gflow_core.metrics import centre_error, iou
+    from gflow_core.evaluation.metrics import centre_error, iou
     from pipeline.recording.results import estimates
 
     est = estimates(rec)

@@ -4,7 +4,7 @@ One command: ``python bench/bench_recovery.py``.
 
 Every shared sequence (``../shared/data``, or ``GFLOW_DATA``) gets the stress case
 ``occlude-150`` (a real image patch hides the target for 150 frames, between 30 frames before
-and 60 after; :mod:`gflow_core.stress`), and the tracker runs on it twice:
+and 60 after; :mod:`gflow_core.evaluation.stress`), and the tracker runs on it twice:
 
 * **in one process, one frame at a time, OpenCV on one thread as in a stage process**, with the
   default cues (edges and colour) and with the edges alone (the filter's work only: grey
@@ -42,7 +42,7 @@ from bench_pipeline import CpuSampler  # noqa: E402
 from gflow_core.appearance import filter as ap  # noqa: E402
 from gflow_core.appearance.tracker import TRACKER  # noqa: E402
 from gflow_core.m2.dynamics import random_walk  # noqa: E402
-from gflow_core.stress import CASES  # noqa: E402
+from gflow_core.evaluation.stress import CASES  # noqa: E402
 from pipeline.evaluation.sequence_benchmark import find_sequences  # noqa: E402
 from pipeline.evaluation.stress_benchmark import derive  # noqa: E402
 from pipeline.cli.trackers import appearance as cli_appearance  # noqa: E402

@@ -11,7 +11,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from gflow_core.metrics import score
+from gflow_core.evaluation.metrics import score
 from gflow_core.synthetic import SyntheticScene
 from pipeline.recording.results import read_boxes
 from stages.appearance_filter import AppearanceFilterParams, AppearanceFilterStage

@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gflow_core.metrics import score
+from gflow_core.evaluation.metrics import score
 from gflow_core.synthetic import SyntheticScene
 from pipeline.cli.main import main
 from pipeline.io.datasets import write_frames
@@ -183,7 +183,7 @@ def test_processes_tables_match_inline(seq, inline_run):
 
 def test_means_over_sequences(tmp_path):
     """Two sequences: the mean row is the mean of the two rows, and a tracker skipped on none."""
-    from gflow_core.metrics import TrackScore
+    from gflow_core.evaluation.metrics import TrackScore
     from pipeline.evaluation.benchmark_tables import format_tables, means_json
     from pipeline.evaluation.sequence_benchmark import PRECISION_THRESHOLDS, Row
 

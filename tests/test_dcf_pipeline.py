@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from gflow import Tracker
-from gflow_core.metrics import score
+from gflow_core.evaluation.metrics import score
 from gflow_core.synthetic import SyntheticScene
 from pipeline.io.frame_readers import folder_frames
 from pipeline.io.mcap_io import iter_records

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import yaml
 
-from gflow_core.metrics import iou
+from gflow_core.evaluation.metrics import iou
 from gflow_core.synthetic import SyntheticScene
 from pipeline.recording.results import read_boxes
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from gflow_core import features, similarity
-from gflow_core.metrics import centre_error, iou, score
+from gflow_core.evaluation.metrics import centre_error, iou, score
 from gflow_core.m2.chamfer import chamfer_distance
 
 

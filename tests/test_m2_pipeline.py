@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import data_dir
-from gflow_core.metrics import score
+from gflow_core.evaluation.metrics import score
 from pipeline.io.datasets import read_avletters, write_frames
 from pipeline.io.modelfile import load_model
 from pipeline.recording.results import estimates, read_boxes, write_boxes

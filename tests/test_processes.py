@@ -97,7 +97,7 @@ def test_inline_and_processes_give_identical_estimates(mp_run, tmp_path):
 
 
 def test_demo_tracks_the_synthetic_target(mp_run):
-    from gflow_core.metrics import score
+    from gflow_core.evaluation.metrics import score
     from pipeline.recording.results import estimates, truth_boxes
 
     _, path = mp_run

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gflow_core.metrics import iou, score
+from gflow_core.evaluation.metrics import iou, score
 from pipeline.recording.results import read_boxes
 
 

@@ -177,7 +177,7 @@ def test_two_runs_deriving_one_sequence_at_once_both_read_complete_frames(data, 
     # both get a complete folder, one folder is kept, nothing half-written is left
     from concurrent.futures import ThreadPoolExecutor
 
-    from gflow_core.stress import CASES
+    from gflow_core.evaluation.stress import CASES
     from pipeline.evaluation.sequence_benchmark import find_sequences
     from pipeline.evaluation.stress_benchmark import derive
 

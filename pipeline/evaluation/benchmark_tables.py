@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gflow_core.metrics import OVERLAP_THRESHOLDS
+from gflow_core.evaluation.metrics import OVERLAP_THRESHOLDS
 
 from pipeline.evaluation.sequence_benchmark import PRECISION_AT, Row
 

@@ -5,7 +5,7 @@ optionally ``results/TRACKER.csv``, other trackers' published per-frame boxes (t
 ``../shared/data``). Each selected tracker runs through the same code as ``gflow track``
 (:func:`pipeline.app.track`), from the ground-truth box of the first frame,
 with one seed; its boxes are written with the same CSV writer and scored by the same
-function as ``gflow eval`` (:func:`gflow_core.metrics.score`). Published results, a box that
+function as ``gflow eval`` (:func:`gflow_core.evaluation.metrics.score`). Published results, a box that
 never moves ("static box") and, where OpenCV has them, OpenCV's trackers are scored the same
 way over the same frames.
 
@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from gflow_core.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
+from gflow_core.evaluation.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
 
 from pipeline.recording.results import read_boxes, write_boxes
 from pipeline.app import TrackPlan

@@ -1,6 +1,6 @@
 """``gflow benchmark DATA --stress``: trackers on sequences derived from real ones by perturbing a window.
 
-For every sequence folder and every stress case (:data:`gflow_core.stress.CASES`), a derived
+For every sequence folder and every stress case (:data:`gflow_core.evaluation.stress.CASES`), a derived
 sequence folder is written: ``frames/`` (the original frames of the run, copied byte for byte
 where the case leaves them alone), ``groundtruth.csv`` (the original truth, moved where the
 image moves), ``visibility.csv`` (``frame,visible,perturbed,source_frame``: the fraction of the
@@ -35,9 +35,9 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from gflow_core.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band_json, band_text, frames_to_recover,
+from gflow_core.evaluation.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band_json, band_text, frames_to_recover,
                                  overlaps, state_score)
-from gflow_core.stress import (CASES, PATCH_KINDS, StressCase, StressPlan, fill_truth, occluder_size, plan_case,
+from gflow_core.evaluation.stress import (CASES, PATCH_KINDS, StressCase, StressPlan, fill_truth, occluder_size, plan_case,
                                render_frame)
 
 from pipeline.app import TrackPlan

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gflow_core.metrics import centre_error, iou
+from gflow_core.evaluation.metrics import centre_error, iou
 from stages.messages import Estimate, MessageError, PoseEstimate, decode
 
 from pipeline.recording.compare import field_diffs

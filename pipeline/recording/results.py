@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, TypeVar
 
-from gflow_core.metrics import TARGET_STATES
+from gflow_core.evaluation.metrics import TARGET_STATES
 from stages.messages import ErrorReport, Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows

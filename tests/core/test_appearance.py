@@ -11,7 +11,7 @@ import pytest
 
 from gflow_core.appearance import filter as ap
 from gflow_core.m2.dynamics import random_walk
-from gflow_core.metrics import centre_error, iou
+from gflow_core.evaluation.metrics import centre_error, iou
 from gflow_core.orientation import N_BINS, orientation_channels
 
 H, W = 240, 320

@@ -16,7 +16,7 @@ from gflow import GflowError, Tracker
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.state import from_arrays, to_arrays
 from gflow_core.dcf.tracker import TRACKER
-from gflow_core.metrics import centre_error, iou
+from gflow_core.evaluation.metrics import centre_error, iou
 from gflow_core.params import UnknownParameter, make
 from gflow_core.tracker import FrameRng, step
 from pipeline.recording.results import read_boxes

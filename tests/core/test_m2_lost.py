@@ -15,7 +15,7 @@ import pytest
 
 from gflow_core import colour
 from gflow_core.m2 import lost
-from gflow_core.metrics import centre_error
+from gflow_core.evaluation.metrics import centre_error
 from gflow_core.visibility import ChiSquare
 from stages.base import StageContext
 from stages.messages import ColourFeatures, Frame, Header, NDArray

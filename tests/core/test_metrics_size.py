@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from gflow_core.metrics import size_kept
+from gflow_core.evaluation.metrics import size_kept
 
 
 def test_a_collapsing_box_on_the_target_fails_while_its_centre_stays():

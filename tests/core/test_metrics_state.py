@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.metrics import frames_to_recover, overlaps, state_score
+from gflow_core.evaluation.metrics import frames_to_recover, overlaps, state_score
 
 
 def test_frames_to_recover_counts_to_the_first_run_on_target():

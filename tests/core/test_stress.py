@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gflow_core.stress import (CASES, KINDS, StressCase, fill_truth, occluder_size, plan_case, render_frame,
+from gflow_core.evaluation.stress import (CASES, KINDS, StressCase, fill_truth, occluder_size, plan_case, render_frame,
                                visible_fraction)
 
 W, H = 200, 150

@@ -189,7 +189,7 @@ def cmd_benchmark(args) -> int:
 
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
     if args.list_cases:
-        from gflow_core.stress import CASES
+        from gflow_core.evaluation.stress import CASES
 
         for c in CASES:
             print(f"{c.name:16s} {c.describe()}")

@@ -13,7 +13,7 @@ from pipeline.cli.commands.common import (Recording, add_placement_args, add_rec
 
 
 def cmd_demo(args) -> int:
-    from gflow_core.metrics import score
+    from gflow_core.evaluation.metrics import score
 
     from gflow_core.synthetic import SyntheticScene
 

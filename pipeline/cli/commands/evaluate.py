@@ -51,7 +51,7 @@ def cmd_eval_landmarks(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from gflow_core.metrics import band_text, score
+    from gflow_core.evaluation.metrics import band_text, score
 
     from pipeline.recording.results import read_boxes, read_track
 
@@ -95,7 +95,7 @@ def _rate(a: int, n: int) -> str:
 
 def _state_score(args, gt: dict, track):
     """How often the predicted state was right, given the truth's visibility file."""
-    from gflow_core.metrics import overlaps, state_score
+    from gflow_core.evaluation.metrics import overlaps, state_score
 
     from pipeline.recording.results import read_visibility
 

@@ -49,7 +49,7 @@ def cmd_plot(args) -> int:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from gflow_core.metrics import centre_error
+    from gflow_core.evaluation.metrics import centre_error
 
     from pipeline.recording.results import estimates, read_boxes, truth_boxes
     from pipeline.cli.commands.common import check_outputs
