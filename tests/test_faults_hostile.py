@@ -48,7 +48,12 @@ def _run(plan, rec, during=None):
 
 def _bad_messages(src: int, rng: np.random.Generator) -> list[tuple[str, bytes]]:
     """(topic, payload) pairs, none of which may be joined; ``src`` is the source's current frame."""
-    ahead = src + 2  # within the flow-control window: a real message of this frame is still to come
+    # a frame the source has not reached yet, so a real message of it is still to come: ``src`` is the
+    # source's last heartbeat (sent every 0.5 s, so 8 frames behind at 15 frames/s, more on a busy
+    # machine), and a frame it has passed would make the bad messages of it late (old or duplicate
+    # seq) instead of bad arrays or values; the checks of shape and values come before the check of
+    # how far ahead a frame is, so a frame well ahead is still judged by its content
+    ahead = src + 30
     nan = np.zeros((5, 4))
     nan[2, 1] = np.nan
     inf = np.ones((5, 4))
