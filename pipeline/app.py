@@ -124,20 +124,26 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
     ``--set filter.particles=0``): (stage, parameter, value)}, checked together per stage, on top of
     the graph's values and ``others`` ({stage: {parameter: value}} set otherwise). A stage the graph
     does not have is left to the graph's own error. The same line as ``gflow track --particles 0``,
-    with no graph path."""
+    with no graph path. A parameter of the graph's tracker block is given as ``tracker.PARAM``
+    (:func:`pipeline.runtime.tracker_checks.check_tracker_values`)."""
     from pipeline.runtime.graph import GraphError, params_error
+    from pipeline.runtime.tracker_checks import check_tracker_values
 
     if not given:
         return
     try:
-        stages = load_graph(graph).stages
+        loaded = load_graph(graph)
     except GraphError:  # the graph's own fault: said by the load that follows, with the overrides
         return
+    why = check_tracker_values(loaded, given, others)
+    if why:
+        raise RequestError(why)
+    stages = loaded.stages
     for stage in dict.fromkeys(st for st, _, _ in given.values()):
         if stage not in stages:
             continue
         mine = {how: (param, value) for how, (st, param, value) in given.items() if st == stage}
-        base = {**stages[stage].params, **(others or {}).get(stage, {})}
+        base = {**loaded.stage_params(stage), **(others or {}).get(stage, {})}
         why = params_error(stages[stage].kind, {**base, **{param: value for param, value in mine.values()}})
         if why is not None:  # named by the values refused alone, else by all of them
             alone = [how for how, (param, value) in mine.items() if params_error(stages[stage].kind, {**base, param: value})]

@@ -6,6 +6,12 @@ tracker takes every one of them under the same name, plus the few fields of its 
 the initial box, its shard): :func:`stage_params` builds the stage's ``msgspec`` struct from the
 two, so graph files are validated against the dataclass (unknown names, wrong types, the
 dataclass's own checks) and a default cannot differ between the core and a stage.
+
+A graph names its tracker's parameters once, in its ``tracker:`` block
+(:mod:`pipeline.runtime.tracker_block`): :func:`block_params` is the struct that block is
+validated with (the dataclass's fields alone), and :func:`tracker_of` says which dataclass a
+stage's struct takes its fields from, so the graph hands every stage of that tracker the one
+block and keeps only the stage's own fields per stage.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ import msgspec
 
 from .base import Params
 
-__all__ = ["StageFields", "SeedBoxFields", "stage_params", "tracker_params"]
+__all__ = ["StageFields", "SeedBoxFields", "stage_params", "tracker_params", "tracker_of", "block_params"]
 
 F = TypeVar("F", bound="StageFields")
 T = TypeVar("T")
@@ -67,8 +73,27 @@ def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: st
 
     struct = msgspec.defstruct(name, spec, bases=(fields,), module=module, kw_only=True, frozen=True,
                                forbid_unknown_fields=True,
-                               namespace={"__post_init__": __post_init__, "__doc__": doc or fields.__doc__})
+                               namespace={"__post_init__": __post_init__, "__doc__": doc or fields.__doc__,
+                                          "__gflow_tracker__": tracker})
     return typing.cast("type[F]", struct)
+
+
+def tracker_of(struct: type) -> type | None:
+    """The tracker's parameter dataclass whose fields the stage struct ``struct`` takes
+    (:func:`stage_params`), or None for a stage of no tracker."""
+    return typing.cast("type | None", getattr(struct, "__gflow_tracker__", None))
+
+
+_blocks: dict[type, type[StageFields]] = {}
+
+
+def block_params(tracker: type) -> type[StageFields]:
+    """The ``msgspec`` struct of a graph's ``tracker:`` block for the dataclass ``tracker``: its
+    fields alone, converted and checked as a stage of that tracker converts and checks them."""
+    if tracker not in _blocks:
+        _blocks[tracker] = stage_params(f"{tracker.__name__}Block", tracker, StageFields, __name__,
+                                        f"The tracker block of {tracker.__name__}.")
+    return _blocks[tracker]
 
 
 def tracker_params(params: Params, tracker: type[T]) -> T:

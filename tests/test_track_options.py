@@ -32,17 +32,32 @@ def test_particles_below_one_is_one_line_for_every_tracker(tmp_path: Path, frame
 
 @pytest.mark.parametrize("argv, said", [
     (["demo", "--particles", "0", "--frames", "3", "--inline"], "--particles 0"),
-    (["track", "FRAMES", "--init", "10,10,20,20", "--out", "b.csv", "--tracker", "chamfer", "--set", "filter.particles=0",
-      "--inline"], "--set filter.particles=0"),
+    (["track", "FRAMES", "--init", "10,10,20,20", "--out", "b.csv", "--tracker", "chamfer", "--set", "tracker.particles=0",
+      "--inline"], "--set tracker.particles=0"),
 ])
 def test_particles_below_one_from_demo_or_set_is_the_same_line(tmp_path: Path, frames: Path, argv: list[str],
                                                                said: str) -> None:
-    """``gflow demo --particles 0`` and ``--set filter.particles=0`` say what ``gflow track --particles 0``
+    """``gflow demo --particles 0`` and ``--set tracker.particles=0`` say what ``gflow track --particles 0``
     says, naming the option as given, not the graph file's path nor the stage kind."""
     r = gflow(*[str(frames) if a == "FRAMES" else a for a in argv], cwd=tmp_path)
     line = one_line_error(r)
     assert f"{said}: particles must be >= 1, got 0" in line, line
     assert ".yaml" not in line and "stage kind" not in line, line
+    assert not (tmp_path / "b.csv").exists() and not list(tmp_path.rglob("*.mcap"))
+
+
+@pytest.mark.parametrize("item, said", [
+    ("tracker.nope=1", "DCFParams has no parameter 'nope'"),
+    ("filter.particles=300", "particles is a parameter of tracker dcf, set once for all its stages: "
+                             "--set tracker.particles=VALUE"),
+    ("proposal.std_xy_rel=0.1", "--set tracker.std_xy_rel=VALUE"),
+])
+def test_a_tracker_parameter_is_set_once_as_tracker_param(tmp_path: Path, frames: Path, item: str, said: str) -> None:
+    """A mistyped ``--set tracker.NAME`` and a tracker parameter given to one stage are one line naming
+    what was given (the stages can never disagree), before anything runs."""
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--set", item, "--inline", cwd=tmp_path)
+    line = one_line_error(r)
+    assert f"--set {item}: " in line and said in line, line
     assert not (tmp_path / "b.csv").exists() and not list(tmp_path.rglob("*.mcap"))
 
 

@@ -44,8 +44,11 @@ def test_every_stage_of_the_tracker_takes_every_parameter_with_the_dataclass_def
             assert f.name in fields, f"{sp.kind} has no parameter {f.name}"
             assert fields[f.name].default == f.default, f"{sp.kind}.{f.name}"
             assert fields[f.name].type == hints[f.name], f"{sp.kind}.{f.name}"
+            # the stage's entry holds its own fields only: the tracker's come from the graph's block
+            assert f.name not in sp.params, f"{name}.yaml sets {sp.name}.{f.name} per stage"
             # and the built-in graph runs the default: it names only what differs from the dataclass
-            assert sp.params[f.name] == msgspec.to_builtins(f.default), f"{name}.yaml sets {sp.name}.{f.name}"
+            assert plan.stage_params(sp.name)[f.name] == msgspec.to_builtins(f.default), f"{name}.yaml sets {f.name}"
+    assert plan.tracker is not None and plan.tracker.name == name
 
 
 @pytest.mark.parametrize("cls, graph, bad", [(GFlowParams, "gflow", {"pyramid_levels": 9}),
@@ -55,10 +58,12 @@ def test_a_stage_refuses_what_the_dataclass_refuses_with_its_message(cls, graph,
 
     with pytest.raises(ValueError) as core:
         cls(**bad)
-    for stage in ("proposal", "filter"):
-        with pytest.raises(GraphError) as refused:
+    with pytest.raises(GraphError) as refused:
+        load_graph(graph, overrides={"tracker": bad})
+    assert str(core.value) in str(refused.value)
+    for stage in ("proposal", "filter"):  # named for one stage: refused, naming the block's parameter
+        with pytest.raises(GraphError, match=f"set tracker.{next(iter(bad))}"):
             load_graph(graph, overrides={stage: bad})
-        assert str(core.value) in str(refused.value)
 
 
 def test_the_command_lines_options_show_the_dataclass_help_and_default() -> None:
@@ -120,3 +125,39 @@ def test_the_command_line_reads_the_parameters_without_importing_the_mathematics
             "print(sorted(m for m in ('gflow_core.gflow.filter', 'gflow_core.appearance.filter', 'scipy') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
+
+
+@pytest.mark.parametrize("name", ["dcf", "appearance"])
+def test_set_tracker_param_changes_what_every_stage_of_the_tracker_uses(name) -> None:
+    """``--set tracker.particles=N`` is one value in the graph's tracker block; every stage of the
+    tracker is built with it (the proposal's and the filter's parameter dataclass alike), and the
+    recording's plan holds the block once and rebuilds the same stages from it."""
+    from pipeline.runtime.build import make_stage
+    from pipeline.runtime.graph import Plan
+
+    box = {"init": [10.0, 10.0, 20.0, 20.0]}
+    plan = load_graph(name, overrides={"tracker": {"particles": 77}, "proposal": box, "filter": box})
+    cores = {s: make_stage(plan, s).core for s in ("proposal", "filter")}
+    assert {s: c.particles for s, c in cores.items()} == {"proposal": 77, "filter": 77}
+    assert cores["proposal"] == cores["filter"] == dataclasses.replace(WITH_PARAMS[name](), particles=77)
+    meta = plan.config_metadata()
+    assert json.loads(meta["tracker"])["params"]["particles"] == 77
+    assert all("particles" not in json.loads(v)["params"] for k, v in meta.items() if k.startswith("stage."))
+    again = Plan.from_metadata({}, meta)
+    assert make_stage(again, "proposal").core == cores["proposal"]
+
+
+def test_a_graph_without_a_tracker_block_keeps_its_per_stage_values() -> None:
+    """Graph files (and recordings' plans) written before the block name the parameters per stage:
+    they are read as they are, and ``tracker`` overrides set every stage of the tracker."""
+    from pipeline.runtime.build import make_stage
+    from pipeline.runtime.graph import GRAPHS_DIR, parse_graph
+
+    text = (GRAPHS_DIR / "dcf.yaml").read_text().replace("\ntracker: dcf", "\n#")
+    text = text.replace("params: {seed: 0}", "params: {seed: 0, particles: 55}")
+    box = {"init": [10.0, 10.0, 20.0, 20.0]}
+    plan = parse_graph(text, "old.yaml", overrides={"proposal": box, "filter": dict(box, particles=44)})
+    assert plan.tracker is None
+    assert make_stage(plan, "proposal").core.particles == 55 and make_stage(plan, "filter").core.particles == 44
+    plan = parse_graph(text, "old.yaml", overrides={"tracker": {"particles": 33}, "proposal": box, "filter": box})
+    assert make_stage(plan, "proposal").core.particles == make_stage(plan, "filter").core.particles == 33

@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Callable
 
 from stages.messages import EndOfStream, ErrorReport, MessageError, Snapshot, decode
+from stages.registry import STAGES
 
 from pipeline.runtime.build import make_stage
 from pipeline.recording.compare import FieldDiff, first_field_diff
@@ -78,11 +79,25 @@ def recorded_plan(path: str | Path) -> Plan:
 
 
 def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
-    """Override parameters of one stage, validated like a graph file."""
+    """Override parameters of one stage, validated like a graph file. A parameter of the plan's
+    tracker block (``tracker.PARAM`` or the bare name) changes the block, which every stage of the
+    tracker takes."""
+    from pipeline.runtime.tracker_block import TRACKER_KEY, own_fields, stage_tracker
+
+    if stage == TRACKER_KEY:
+        if plan.tracker is None:
+            raise GraphError("--set tracker.NAME: the recording's plan names its tracker's parameters per stage "
+                             "(recorded before the tracker block): set them per stage")
+        stage = next((n for n, s in plan.stages.items() if plan.stage_params(n) is not s.params), "")
+        if not stage:
+            raise GraphError("--set tracker.NAME: the recording runs no stage of its tracker")
     sp = plan.stages[stage]
-    params = dict(sp.params)
-    params.update(sets)
-    sp.params = validate_params(sp.kind, params, f"--set for stage {stage!r}")
+    params = validate_params(sp.kind, {**plan.stage_params(stage), **sets}, f"--set for stage {stage!r}")
+    cls = stage_tracker(STAGES[sp.kind].Params) if sp.kind in STAGES else None
+    if plan.tracker is not None and cls is not None:
+        plan.tracker.params = {k: params[k] for k in plan.tracker.params}
+        params = own_fields(params, cls)
+    sp.params = params
 
 
 def late_give_ups(path: str | Path, error_topic: str, stage: str) -> dict[int, frozenset[str]]:
@@ -302,7 +317,7 @@ def rerun_graph(path: str | Path, out: str | Path, sets: dict[str, dict] | None 
 
     plan = recorded_plan(path)
     for stage, kv in (sets or {}).items():
-        if stage not in plan.stages:
+        if stage not in plan.stages and stage != "tracker":
             raise GraphError(f"--set names stage {stage!r}, which the recording does not have")
         apply_sets(plan, stage, kv)
     src = next(s for s in plan.stages.values() if s.is_source())

@@ -17,7 +17,7 @@ __all__ = ["make_stage", "apply_defaults"]
 def load_resources(plan: Plan, sp: StagePlan) -> dict[str, Any]:
     """Files a stage's parameters name (a learned model), loaded here so stages never open files."""
     res: dict[str, Any] = {}
-    model = sp.params.get("model")
+    model = plan.stage_params(sp.name).get("model")  # a stage's own, or its tracker block's (G-flow)
     if model:
         from pipeline.io.modelfile import load_model, model_path  # imported lazily: only trackers with models
 
@@ -40,7 +40,7 @@ def frame_period_ns(plan: Plan) -> float:
 def make_stage(plan: Plan, name: str) -> Stage:
     sp = plan.stages[name]
     cls = get_stage_class(sp.kind)
-    params = msgspec.convert(sp.params, cls.Params)
+    params = msgspec.convert(plan.stage_params(name), cls.Params)
     return cls(params, StageContext(name=name, stream=plan.seed_stream, resources=load_resources(plan, sp),
                                     frame_period_ns=frame_period_ns(plan)))
 

@@ -23,6 +23,11 @@ A graph is YAML::
         kind: recorder
         params: {path: recordings/run-{time}.mcap}
 
+A ``tracker:`` block names the tracker and its parameters once for every stage of it
+(:mod:`pipeline.runtime.tracker_block`)::
+
+    tracker: {name: dcf, params: {particles: 300}}
+
 Outputs default to topics named after their ports; ``outputs: {port: topic}`` renames
 them. ``external: {frames: Frame}`` declares topics fed from outside the graph (by
 ``gflow replay``, say), so a graph of live stages can run without a source.
@@ -49,6 +54,8 @@ from stages.base import Params
 from stages.registry import STAGES
 
 from pipeline.io.recording_files import unique_path
+from pipeline.runtime.tracker_block import (TRACKER_KEY, TrackerBlock, own_fields, parse_block, stage_tracker,
+                                            tracker_fields)
 from pipeline.runtime.transport import topic_key
 
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
@@ -160,6 +167,17 @@ class Plan:
     #: headers with, so a run's results do not depend on its run id ('' : the same as ``stream``)
     camera: str = ""
     external: list[str] = field(default_factory=list)  # topic keys fed from outside the graph
+    #: the tracker and its parameters, named once for every stage of it (None: a graph, or a
+    #: recording's plan, that names them per stage)
+    tracker: TrackerBlock | None = None
+
+    def stage_params(self, name: str) -> dict[str, Any]:
+        """Every parameter stage ``name`` is built with: its own and, for a stage of the graph's
+        tracker, those of the tracker block."""
+        sp = self.stages[name]
+        if self.tracker is None or sp.kind == RECORDER_KIND or stage_tracker(STAGES[sp.kind].Params) is None:
+            return sp.params
+        return {**self.tracker.params, **sp.params}
 
     @property
     def seed_stream(self) -> str:
@@ -197,18 +215,22 @@ class Plan:
 
     def config_metadata(self) -> dict[str, str]:
         """MCAP metadata ``gflow.config``: every stage's resolved plan (kind, parameters with
-        their defaults, wiring, restart and snapshot policy) as JSON, plus the stream and the
-        base folder of relative paths. :meth:`from_metadata` rebuilds the plan from it."""
+        their defaults, wiring, restart and snapshot policy) as JSON, plus the stream, the base
+        folder of relative paths and, once, the tracker block (``tracker``: its name and every
+        parameter). :meth:`from_metadata` rebuilds the plan from it."""
         out = {"stream": self.stream, "graph_name": self.name, "base_dir": str(Path(self.base_dir).resolve())}
         if self.camera and self.camera != self.stream:
             out["camera"] = self.camera
+        if self.tracker is not None:
+            out[TRACKER_KEY] = json.dumps(dataclasses.asdict(self.tracker), sort_keys=True)
         for n, s in self.stages.items():
             out[f"stage.{n}"] = json.dumps(dataclasses.asdict(s), sort_keys=True)
         return out
 
     @classmethod
     def from_metadata(cls, graph: dict[str, str], config: dict[str, str]) -> "Plan":
-        """The plan a recording was made with (see :meth:`config_metadata`)."""
+        """The plan a recording was made with (see :meth:`config_metadata`); a recording made before
+        the tracker block existed holds every stage's parameters itself, read as they are."""
         stages = {}
         for key, val in config.items():
             if key.startswith("stage."):
@@ -217,8 +239,9 @@ class Plan:
                 stages[d["name"]] = StagePlan(**{k: v for k, v in d.items() if k in StagePlan.__dataclass_fields__})
         if not stages:
             raise GraphError("the recording's gflow.config metadata names no stage")
+        block = json.loads(config[TRACKER_KEY]) if TRACKER_KEY in config else None
         return cls(name=config.get("graph_name", graph.get("name", "recorded")), stream=config["stream"],
-                   camera=config.get("camera", ""),
+                   camera=config.get("camera", ""), tracker=TrackerBlock(**block) if block else None,
                    stages=stages, source_text=graph.get("yaml", ""), base_dir=config.get("base_dir", "."))
 
     def recording_path(self) -> str | None:
@@ -301,11 +324,11 @@ def _read_doc(text: str, filename: str) -> dict:
 def _check_top_level(doc: dict, filename: str, overrides: dict[str, dict]) -> tuple[str, str, str, dict]:
     """The graph's top-level keys checked: returns its name, stream, ``on_host_lost`` and the mapping
     of stages (which every stage ``overrides`` names must be in)."""
-    unknown = set(doc) - {"name", "stream", "stages", "description", "external", "on_host_lost"}
+    unknown = set(doc) - {"name", "stream", "stages", "description", "external", "on_host_lost", TRACKER_KEY}
     if unknown:
         k = sorted(unknown)[0]
         raise GraphError(f"{filename}:{_line(doc, k)}: unknown top-level key {k!r} "
-                         f"(expected name, stream, stages, external, on_host_lost, description)")
+                         f"(expected name, stream, tracker, stages, external, on_host_lost, description)")
     on_host_lost = doc.get("on_host_lost", "stop")
     if on_host_lost not in ON_HOST_LOST:
         raise GraphError(f"{filename}:{_line(doc, 'on_host_lost')}: on_host_lost must be stop or wait, "
@@ -320,7 +343,7 @@ def _check_top_level(doc: dict, filename: str, overrides: dict[str, dict]) -> tu
     if not isinstance(stages_doc, dict) or not stages_doc:
         raise GraphError(f"{filename}:{_line(doc, 'stages')}: 'stages' must be a non-empty mapping of stage name -> spec")
     for sname in overrides:
-        if sname not in stages_doc:
+        if sname not in stages_doc and sname != TRACKER_KEY:
             raise GraphError(f"{filename}: override for stage {sname!r}, which the graph does not have "
                              f"(stages: {', '.join(stages_doc)})")
     return name, stream, on_host_lost, stages_doc
@@ -392,18 +415,43 @@ def _stage_policy(sname: str, spec: dict, filename: str) -> tuple[str, dict, int
     return restart, qos, snap, host
 
 
+def _stage_values(sname: str, kind: str, params: dict[str, Any], block: TrackerBlock | None,
+                  overrides: dict[str, dict], pwhere: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """(every parameter the stage is built with, the stage's own ones) of the stage's ``params`` (with
+    its overrides) and the graph's tracker ``block``: a stage of the block's tracker takes the block's
+    values and may name none of them itself; without a block, overrides of ``tracker`` are applied
+    to every stage of a tracker."""
+    cls = stage_tracker(_params_struct(kind))
+    if cls is None:
+        full = validate_params(kind, params, pwhere)
+        return full, full
+    if block is None:
+        full = validate_params(kind, {**params, **overrides.get(TRACKER_KEY, {})}, pwhere)
+        return full, full
+    shared = sorted(set(params) & set(block.params))
+    if shared:
+        raise GraphError(f"{pwhere}: {shared[0]} is a parameter of tracker {block.name}, set once for all its stages "
+                         f"in the graph's tracker block: set tracker.{shared[0]} (--set tracker.{shared[0]}=VALUE)")
+    if set(tracker_fields(cls)) != set(block.params):  # another tracker's block
+        raise GraphError(f"{pwhere}: a stage of the tracker of {cls.__name__}, but the graph's tracker block is "
+                         f"{block.name}'s")
+    full = validate_params(kind, {**block.params, **params}, pwhere)
+    return full, own_fields(full, cls)
+
+
 def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides: dict[str, dict],
-                 filename: str) -> _ParsedStage:
-    """Stage ``sname`` of the graph: its kind, its parameters (with ``overrides`` applied) validated,
-    its ports, its wiring to topics of ``stream`` and its policies."""
+                 filename: str, block: TrackerBlock | None = None) -> _ParsedStage:
+    """Stage ``sname`` of the graph: its kind, its parameters (with ``overrides`` applied; a stage of
+    the tracker of ``block`` takes that tracker's from it) validated, its ports, its wiring to topics
+    of ``stream`` and its policies."""
     where = f"{filename}:{_line(stages_doc, sname)}"
     kind = _stage_kind(sname, spec, where, filename)
     params = dict(spec.get("params") or {})
     params.update(overrides.get(sname, {}))
     pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
-    params = validate_params(kind, params, pwhere)
+    full, params = _stage_values(sname, kind, params, block, overrides, pwhere)
     cls = None if kind == RECORDER_KIND else STAGES[kind]
-    in_types, out_types = cls.ports(msgspec.convert(params, cls.Params)) if cls else ({}, {})
+    in_types, out_types = cls.ports(msgspec.convert(full, cls.Params)) if cls else ({}, {})
     inputs_doc = spec.get("inputs") or {}
     outputs_doc = spec.get("outputs") or {}
     if not isinstance(inputs_doc, dict) or not isinstance(outputs_doc, dict):
@@ -495,13 +543,30 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
     doc = _read_doc(text, filename)
     overrides = overrides or {}
     name, stream, on_host_lost, stages_doc = _check_top_level(doc, filename, overrides)
-    stages = {sname: _parse_stage(sname, spec, stages_doc, stream, overrides, filename)
+    block = _tracker_block(doc, overrides, filename)
+    stages = {sname: _parse_stage(sname, spec, stages_doc, stream, overrides, filename, block)
               for sname, spec in stages_doc.items()}
     external, producers = _producers(doc, stages, stream, filename)
     _check_inputs(stages, producers, filename)
     _check_whole(stages, external, filename)
     return Plan(name=name, stream=stream, stages={n: ps.plan for n, ps in stages.items()}, source_text=text,
-                base_dir=base_dir, on_host_lost=str(on_host_lost), external=[topic_key(stream, str(t)) for t in external])
+                base_dir=base_dir, on_host_lost=str(on_host_lost), external=[topic_key(stream, str(t)) for t in external],
+                tracker=block)
+
+
+def _tracker_block(doc: dict, overrides: dict[str, dict], filename: str) -> TrackerBlock | None:
+    """The graph's tracker block with the overrides of ``tracker`` applied (None: the graph has none)."""
+    if TRACKER_KEY not in doc:
+        if overrides.get(TRACKER_KEY) and not any(
+                isinstance(s, dict) and s.get("kind") in STAGES and stage_tracker(STAGES[s.get("kind")].Params)
+                for s in (doc.get("stages") or {}).values()):
+            raise GraphError(f"{filename}: tracker.{next(iter(overrides[TRACKER_KEY]))}: the graph runs no tracker "
+                             f"whose parameters it could set")
+        return None
+    try:
+        return parse_block(doc[TRACKER_KEY], overrides.get(TRACKER_KEY, {}))
+    except ValueError as e:
+        raise GraphError(f"{filename}:{_line(doc, TRACKER_KEY)}: {e}") from None
 
 
 #: The graphs that ship with gflow (package data, ``pipeline/graphs/*.yaml``).

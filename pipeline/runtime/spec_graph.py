@@ -4,7 +4,8 @@ A tracker whose spec (:class:`gflow_core.spec.TrackerSpec`) gives box stages and
 runs in the graph of the built-in box trackers (``pipeline/graphs/dcf.yaml``): a source, its
 proposal stage (kind ``NAME.proposal``, input ``particles``), its filter stage (kind
 ``NAME.filter``, inputs ``frames`` and ``proposals``) and the recorder. ``gflow track --tracker
-NAME`` fills in the source and, in both stages, the initial box and the seed.
+NAME`` fills in the source and, in both stages, the initial box and the seed; the tracker's
+parameters are the graph's tracker block (``tracker: NAME``), which both stages take.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ def spec_graph_text(spec: TrackerSpec) -> str:
     return f"""\
 name: {spec.name}
 stream: cam0
+tracker: {spec.name}
 stages:
   source:
     kind: source

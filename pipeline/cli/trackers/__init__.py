@@ -43,7 +43,7 @@ class SpecOptions:
 
     def add_args(self, g: Any) -> None:
         """An option for every parameter of the dataclass that declares one (an option another
-        tracker declares already is left to it: set the value with ``--set STAGE.NAME=VALUE``)."""
+        tracker declares already is left to it: set the value with ``--set tracker.NAME=VALUE``)."""
         from gflow_core.params import describe
 
         from pipeline.cli.tracker_options import add_param_options
@@ -54,12 +54,12 @@ class SpecOptions:
         add_param_options(g, self.PARAMS, self.NAME)
 
     def overrides(self, args: Any) -> tuple[str, dict[str, dict]]:
-        """Both stages get the initial box, the seed and the options given."""
+        """Both stages get the initial box and the seed; the options given set the graph's tracker block."""
         from pipeline.cli.tracker_options import param_values
 
         shared: dict = {"init": list(args.init), "seed": args.seed}
-        shared.update(param_values(args, self.PARAMS))
-        return self.GRAPH, {"proposal": dict(shared), "filter": dict(shared)}
+        return self.GRAPH, {"tracker": param_values(args, self.PARAMS), "proposal": dict(shared),
+                            "filter": dict(shared)}
 
     def make_plan(self, graph: str, over: dict[str, dict]) -> Any:
         """The plan of ``graph``: the spec's own when it is the tracker's (and no file of that name)."""

@@ -2,7 +2,8 @@
 
 See :mod:`gflow_core.appearance.filter` for the method and its departures from Toyama & Blake. Its
 parameters are :class:`gflow_core.appearance.params.AppearanceParams` (``gflow info appearance``):
-both stages of the graph take every one of them, so every option here sets both.
+the graph names them once, in its tracker block, and both stages take them from it, so every
+option here sets both.
 """
 
 from __future__ import annotations
@@ -42,13 +43,13 @@ def add_args(g: Any) -> None:
 
 
 def overrides(args: Any) -> tuple[str, dict[str, dict]]:
-    """Both stages get the same appearance parameters, the initial box and the seed."""
+    """The tracker block gets the appearance parameters, both stages the initial box and the seed."""
     from pipeline.cli.tracker_options import param_values
 
     shared: dict = {"init": list(args.init), "seed": args.seed}
-    shared.update(param_values(args, AppearanceParams))
+    block: dict = param_values(args, AppearanceParams)
     if getattr(args, "track_scale", False):
-        shared.update(TRACK_SCALE)
+        block.update(TRACK_SCALE)
     elif getattr(args, "fixed_size", False):
-        shared.update(FIXED_SIZE)
-    return GRAPH, {PROPOSAL: dict(shared), FILTER: dict(shared)}
+        block.update(FIXED_SIZE)
+    return GRAPH, {"tracker": block, PROPOSAL: dict(shared), FILTER: dict(shared)}

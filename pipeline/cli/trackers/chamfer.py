@@ -1,7 +1,8 @@
 """``--tracker chamfer``: M2 with K = 1, the template from the edges inside the initial box.
 
 Its parameters are :class:`gflow_core.contour.params.ChamferParams` (``gflow info chamfer``): the
-proposal and the filter of the graph take every one of them, so every option sets both.
+graph names them once, in its tracker block, and the proposal and the filter take them from it, so
+every option sets both.
 """
 
 from __future__ import annotations
@@ -22,10 +23,12 @@ def add_args(g: Any) -> None:
 
 
 def overrides(args: Any) -> tuple[str, dict[str, dict]]:
-    """Both stages get the initial box, the seed and ``--particles``; the preprocessing calibrates its
-    Canny thresholds on the initial box."""
+    """Both stages get the initial box and the seed, the tracker block ``--particles``; the
+    preprocessing calibrates its Canny thresholds on the initial box."""
     box = list(args.init)
     shared: dict = {"init": box, "seed": args.seed}
+    block: dict = {}
     if getattr(args, "particles", None) is not None:
-        shared["particles"] = args.particles
-    return GRAPH, {"filter": dict(shared), "proposal": dict(shared), "preprocess": {"calibrate_box": box}}
+        block["particles"] = args.particles
+    return GRAPH, {"tracker": block, "filter": dict(shared), "proposal": dict(shared),
+                   "preprocess": {"calibrate_box": box}}

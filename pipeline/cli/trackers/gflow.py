@@ -1,9 +1,9 @@
 """``--tracker gflow``: G-flow (Marks, Hershey, Roddey & Movellan, NIPS 2004) on the graph ``gflow``.
 
-The G-flow parameters must be equal in the proposal stage(s) and the filter, so every
-option here sets all of them (``--gflow-set NAME=VALUE`` does the same for any parameter of
-:class:`gflow_core.gflow.GFlowParams`; ``--set filter.X=...`` alone would make the two
-disagree, which the stages report). ``--shards K`` builds K proposal stages
+The G-flow parameters must be equal in the proposal stage(s) and the filter: the graph names
+them once, in its tracker block, which every one of them takes, and every option here sets it
+(``--gflow-set NAME=VALUE``, kept for the scripts that use it, is ``--set tracker.NAME=VALUE``
+for any parameter of :class:`gflow_core.gflow.GFlowParams`). ``--shards K`` builds K proposal stages
 ``proposal0 .. proposal{K-1}``, each proposing for one block of experts, all feeding the
 filter: :func:`make_plan` generates that graph from the graph file.
 
@@ -48,8 +48,8 @@ def add_args(g) -> None:
     g.add_argument("--shards", type=int, default=1, metavar="K",
                    help="gflow: split the experts across K proposal processes (default 1)")
     g.add_argument("--gflow-set", action="append", metavar="NAME=VALUE", default=None,
-                   help="gflow: set a G-flow parameter in every proposal stage and the filter, e.g. psi_v=3e-4 "
-                        "(`gflow info gflow` lists them)")
+                   help="gflow: set a G-flow parameter of the tracker block (every proposal stage and the filter), "
+                        "e.g. psi_v=3e-4; the same as --set tracker.NAME=VALUE (`gflow info gflow` lists them)")
 
 
 def _gflow_sets(items: list[str] | None) -> dict:
@@ -68,16 +68,17 @@ def _gflow_sets(items: list[str] | None) -> dict:
 
 
 def overrides(args) -> tuple[str, dict[str, dict]]:
-    """Both stages get the same G-flow parameters; the filter also gets the number of shards."""
+    """The tracker block gets the G-flow parameters, every stage the initial box and the seed, the
+    filter also the number of shards."""
     from pipeline.cli.commands.common import CliError
 
     from pipeline.cli.tracker_options import param_values
 
     shared: dict = {"init": list(args.init), "seed": args.seed}
-    shared.update(param_values(args, GFlowParams))
+    block: dict = param_values(args, GFlowParams)
     model = getattr(args, "model", None) or DEFAULT_MODEL
     if model == ELLIPSOID:
-        shared.update(ELLIPSOID_SETTINGS)  # the stages fit the generic head into the initial box
+        block.update(ELLIPSOID_SETTINGS)  # the stages fit the generic head into the initial box
     else:
         from gflow_core.gflow import MorphableModel
 
@@ -88,12 +89,12 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
         if not isinstance(obj, MorphableModel):
             raise CliError(f"{path} holds a {type(obj).__name__}; --tracker gflow needs a morphable model file "
                            f"(kind 'morphable')")
-        shared["model"] = model if model in BUILTIN_MODELS else str(path.resolve())
-    shared.update(_gflow_sets(getattr(args, "gflow_set", None)))
+        block["model"] = model if model in BUILTIN_MODELS else str(path.resolve())
+    block.update(_gflow_sets(getattr(args, "gflow_set", None)))
     shards = int(getattr(args, "shards", 1) or 1)
     if shards < 1:
         raise CliError(f"--shards must be >= 1, got {shards}")
-    return GRAPH, {PROPOSAL: dict(shared), FILTER: dict(shared, shards=shards)}
+    return GRAPH, {"tracker": block, PROPOSAL: dict(shared), FILTER: dict(shared, shards=shards)}
 
 
 def make_plan(graph: str, over: dict[str, dict]) -> Plan:

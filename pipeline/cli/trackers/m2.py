@@ -58,6 +58,7 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
         }
     pre.update(profile=model.profile, g0=model.g0)
     shared = {"model": mpath, "init": box, "seed": args.seed}
+    block: dict = {}
     if getattr(args, "particles", None) is not None:
-        shared["particles"] = args.particles
-    return GRAPH, {"filter": dict(shared), "proposal": dict(shared), "preprocess": pre}
+        block["particles"] = args.particles  # the tracker block: both stages take it
+    return GRAPH, {"tracker": block, "filter": dict(shared), "proposal": dict(shared), "preprocess": pre}

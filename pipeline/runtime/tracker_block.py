@@ -1,0 +1,105 @@
+"""A graph's ``tracker:`` block: the tracker's parameters, named once for every stage of it.
+
+A graph names its tracker and that tracker's parameter values once::
+
+    tracker:
+      name: dcf
+      params: {particles: 300}     # optional: the parameter dataclass's defaults fill in the rest
+
+(``tracker: dcf`` alone takes every default). The block is checked against the tracker's
+parameter dataclass (:attr:`gflow_core.spec.TrackerSpec.params`) as its stages check them
+(:func:`stages.tracker_params.block_params`), and every stage whose parameter struct is made of
+that dataclass (:func:`stages.tracker_params.tracker_of`) takes its values from it: such a stage's
+entry in the graph keeps only its own fields (``seed``, ``init``, ``timed``, ``shards``...). A
+stage naming a tracker parameter itself is refused with a line naming ``tracker.PARAM``, so the
+stages of one run can never disagree. ``--set tracker.PARAM=VALUE`` (an override of the
+pseudo-stage ``tracker``) changes the block.
+
+A graph without a block (older graph files, and the plans of recordings made before the block
+existed) keeps its per-stage values as they are; overrides of ``tracker`` are then applied to
+every stage of a tracker, as the per-stage copies were set before.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import msgspec
+
+from stages.base import Params
+from stages.tracker_params import block_params, tracker_of
+
+__all__ = ["TRACKER_KEY", "TrackerBlock", "parse_block", "tracker_fields", "own_fields", "stage_tracker"]
+
+#: the graph's top-level key of the block, and the pseudo-stage ``--set tracker.PARAM=VALUE`` names
+TRACKER_KEY = "tracker"
+
+
+@dataclass
+class TrackerBlock:
+    """The tracker of a graph and its parameters: ``params`` holds every field of its parameter
+    dataclass (defaults filled in) as plain data, as a stage's struct of that dataclass holds it."""
+
+    name: str
+    params: dict[str, Any]
+
+
+def _dataclass_of(name: str) -> type:
+    """The parameter dataclass of the registered tracker ``name`` (``ValueError``, one line)."""
+    from gflow_core.registry import get
+
+    return get(name).params  # SpecError (a ValueError) names an unknown tracker
+
+
+def tracker_fields(cls: type) -> list[str]:
+    """The names of the fields of a tracker's parameter dataclass, in declaration order."""
+    return [f.name for f in dataclasses.fields(cls)]
+
+
+def block_values(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
+    """``values`` checked as parameters of ``cls`` and completed with its defaults, as plain data.
+    ``ValueError`` (one line, naming the parameter) for an unknown name or a bad value."""
+    known = tracker_fields(cls)
+    unknown = [k for k in values if k not in known]
+    if unknown:
+        raise ValueError(f"{cls.__name__} has no parameter {unknown[0]!r} (known: {', '.join(known)})")
+    try:
+        return msgspec.to_builtins(msgspec.convert(dict(values), block_params(cls), strict=False))
+    except (msgspec.ValidationError, ValueError, TypeError) as e:
+        raise ValueError(str(e)) from None
+
+
+def parse_block(doc: Any, override: Mapping[str, Any]) -> TrackerBlock:
+    """The block of a graph's ``tracker:`` entry (a name, or ``{name: ..., params: {...}}``) with
+    ``override`` ({param: value}) applied; ``ValueError`` (one line) for a bad one."""
+    if isinstance(doc, str):
+        name, values = doc, {}
+    elif isinstance(doc, dict):
+        extra = sorted(set(doc) - {"name", "params"})
+        if extra:
+            raise ValueError(f"tracker: unknown key {extra[0]!r} (expected name and params)")
+        name, values = doc.get("name"), doc.get("params") or {}
+        if not isinstance(values, dict):
+            raise ValueError("tracker: params must be a mapping of parameter -> value")
+    else:
+        raise ValueError("tracker: give the tracker's name (tracker: dcf) or {name: NAME, params: {...}}")
+    if not isinstance(name, str) or not name:
+        raise ValueError("tracker: the block needs the tracker's name (name: dcf)")
+    cls = _dataclass_of(name)
+    try:
+        return TrackerBlock(name=name, params=block_values(cls, {**values, **override}))
+    except ValueError as e:
+        raise ValueError(f"tracker {name}: {e}") from None
+
+
+def stage_tracker(struct: type[Params] | None) -> type | None:
+    """The tracker dataclass a stage's parameter struct is made of (None: a stage of no tracker)."""
+    return tracker_of(struct) if struct is not None else None
+
+
+def own_fields(params: Mapping[str, Any], cls: type) -> dict[str, Any]:
+    """A stage's parameters without those of the tracker dataclass ``cls`` (they live in the block)."""
+    shared = set(tracker_fields(cls))
+    return {k: v for k, v in params.items() if k not in shared}
