@@ -135,9 +135,9 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
         loaded = load_graph(graph)
     except GraphError:  # the graph's own fault: said by the load that follows, with the overrides
         return
-    why = check_tracker_values(loaded, given, others)
-    if why:
-        raise RequestError(why)
+    refused = check_tracker_values(loaded, given, others)
+    if refused:
+        raise RequestError(refused)
     stages = loaded.stages
     for stage in dict.fromkeys(st for st, _, _ in given.values()):
         if stage not in stages:

@@ -40,9 +40,15 @@ def render_folder(folder: Path, n_frames: int = 20, shape=(120, 160), seed: int 
 
 
 def plan_for(folder: Path, init, shards: int = 1, filter_extra: dict | None = None, **params) -> Plan:
-    """The built-in gflow graph on an image folder, the same G-flow parameters in every stage."""
-    shared = dict(params, init=[float(v) for v in init])
-    over = {"source": {"kind": "folder", "path": str(folder)}, "proposal": dict(shared),
+    """The built-in gflow graph on an image folder, the G-flow parameters in its tracker block (every
+    stage takes them), the initial box and the seed in every stage."""
+    import dataclasses
+
+    from gflow_core.gflow import GFlowParams
+
+    block = {k: v for k, v in params.items() if k in {f.name for f in dataclasses.fields(GFlowParams)}}
+    shared = dict({k: v for k, v in params.items() if k not in block}, init=[float(v) for v in init])
+    over = {"source": {"kind": "folder", "path": str(folder)}, "tracker": block, "proposal": dict(shared),
             "filter": dict(shared, shards=shards, **(filter_extra or {}))}
     return make_plan("gflow", over)
 

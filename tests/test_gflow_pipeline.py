@@ -40,7 +40,7 @@ def test_inline_pipeline_is_the_core_filter_bit_for_bit(scene, tmp_path) -> None
     run_inline(plan, recording=str(tmp_path / "run.mcap"))
     est = pose_estimates(tmp_path / "run.mcap")
     assert sorted(est) == list(range(FRAMES))
-    params_ = tracker_params(msgspec.convert(plan.stages["filter"].params, GFlowFilterParams), GFlowParams)
+    params_ = tracker_params(msgspec.convert(plan.stage_params("filter"), GFlowFilterParams), GFlowParams)
     model, pose0 = fit_head_model_to_box(seq.box, frames.shape[1:])
     cfg = params_.config(model, pose0)
     state = init_state(model, pose0, frames[0], cfg)

@@ -157,10 +157,21 @@ def test_model_files(scene, tmp_path, gflow_cmd) -> None:
 
 
 def test_proposal_and_filter_with_different_parameters(scene, tmp_path) -> None:
+    """The graph's tracker block gives every stage the same parameters, so a G-flow parameter given to
+    one stage is refused; a graph that names them per stage (written before the block) can still make
+    them differ, and the digest the messages carry catches it."""
+    from pipeline.runtime.graph import GRAPHS_DIR, parse_graph
+
     folder, seq = scene
+    with pytest.raises(GraphError, match="set tracker.psi_v"):
+        plan_for(folder, seq.box, filter_extra={"psi_v": 1e-3}, **dict(SYNTH, psi_v=1e-5))
+    shared = dict(SYNTH, psi_v=1e-5, init=[float(v) for v in seq.box])
+    text = (GRAPHS_DIR / "gflow.yaml").read_text().replace("\ntracker: gflow", "\n#")
+    plan = parse_graph(text, "per-stage.yaml", overrides={"source": {"kind": "folder", "path": str(folder)},
+                                                          "proposal": shared, "filter": dict(shared, psi_v=1e-3)})
+    assert plan.tracker is None
     rec = tmp_path / "run.mcap"
-    run_inline(plan_for(folder, seq.box, filter_extra={"psi_v": 1e-3}, **dict(SYNTH, psi_v=1e-5)),
-               recording=str(rec))
+    run_inline(plan, recording=str(rec))
     msgs = [e.message for e in errors(rec) if e.stage == "filter"]
     assert msgs and all("another G-flow configuration" in m for m in msgs)
     est = pose_estimates(rec)

@@ -63,8 +63,8 @@ def print_tracker(name: str, as_json: bool) -> None:
         print(f"from:    {d['registered']}")
     if d["parameters"]:
         rows = d["parameters"]
-        print(f"parameters ({d['parameters_of']}; every stage of the tracker takes them, gflow track sets them with "
-              f"the options shown or --set STAGE.NAME=VALUE):")
+        print(f"parameters ({d['parameters_of']}; named once in the graph's tracker block, every stage of the "
+              f"tracker takes them; gflow track sets them with the options shown or --set tracker.NAME=VALUE):")
         w = [max(len(r[k]) for r in rows) for k in ("name", "default", "option")]
         for r in rows:
             print(f"  {r['name']:{w[0]}}  {r['default']:{w[1]}}  {r['option']:{w[2]}}  {r['help']}")

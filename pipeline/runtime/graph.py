@@ -557,9 +557,9 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
 def _tracker_block(doc: dict, overrides: dict[str, dict], filename: str) -> TrackerBlock | None:
     """The graph's tracker block with the overrides of ``tracker`` applied (None: the graph has none)."""
     if TRACKER_KEY not in doc:
-        if overrides.get(TRACKER_KEY) and not any(
-                isinstance(s, dict) and s.get("kind") in STAGES and stage_tracker(STAGES[s.get("kind")].Params)
-                for s in (doc.get("stages") or {}).values()):
+        kinds = [s.get("kind") for s in (doc.get("stages") or {}).values() if isinstance(s, dict)]
+        if overrides.get(TRACKER_KEY) and not any(isinstance(k, str) and k in STAGES
+                                                  and stage_tracker(STAGES[k].Params) for k in kinds):
             raise GraphError(f"{filename}: tracker.{next(iter(overrides[TRACKER_KEY]))}: the graph runs no tracker "
                              f"whose parameters it could set")
         return None

@@ -74,8 +74,10 @@ def block_values(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
 def parse_block(doc: Any, override: Mapping[str, Any]) -> TrackerBlock:
     """The block of a graph's ``tracker:`` entry (a name, or ``{name: ..., params: {...}}``) with
     ``override`` ({param: value}) applied; ``ValueError`` (one line) for a bad one."""
+    values: dict[str, Any] = {}
+    name: Any = doc
     if isinstance(doc, str):
-        name, values = doc, {}
+        pass
     elif isinstance(doc, dict):
         extra = sorted(set(doc) - {"name", "params"})
         if extra:
