@@ -58,7 +58,7 @@ DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 def core_run(folder: Path, truth0: tuple[float, float, float, float], seed: int = 1,
              colour: bool = True) -> dict[str, list[float]]:
     """CPU seconds of each frame's observation (grey levels, channels, colour bins) + step, by the
-    state the tracker reported; ``colour`` False: the edges alone (``--set filter.colour=false``)."""
+    state the tracker reported; ``colour`` False: the edges alone (``--set tracker.colour=false``)."""
     frames = sorted((folder / "frames").glob("*"))
     cv2.setNumThreads(1)  # as in a stage process (pipeline/runtime/stage_host.py)
     p = ap.AppearanceParams(colour=colour)

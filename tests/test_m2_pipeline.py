@@ -169,7 +169,7 @@ def test_m2_recording_reruns_bit_for_bit(caviar1_model, tmp_path, gflow_cmd) -> 
 def test_m2_caviar1_model_takes_the_face_box_shape(caviar1_model, tmp_path, gflow_cmd) -> None:
     """Transfer to a face (jumping) of a model learned on caviar1 pedestrians: the box takes the
     --init box's shape (gflow_core.m2.target_shape), so it overlaps the face. With the model's
-    own (pedestrian) shape, ``--set filter.fit_shape=false --set filter.box=exemplar``, success
+    own (pedestrian) shape, ``--set tracker.fit_shape=false --set tracker.box=exemplar``, success
     on these frames was 0.017."""
     _, model = caviar1_model
     jumping = data_dir("jumping")
