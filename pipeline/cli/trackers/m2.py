@@ -45,18 +45,23 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     box = list(args.init)
     particles = args.particles if getattr(args, "particles", None) is not None else M2Params().particles
     pre: dict = {}
-    if "canny_low" in meta and "canny_high" in meta:
-        pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))
-    if "blur" in meta:
-        pre["blur"] = float(meta["blur"])
     if model.kind == "patch":
+        if "canny_low" in meta and "canny_high" in meta:
+            pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))
+        if "blur" in meta:
+            pre["blur"] = float(meta["blur"])
         crop = "box" if meta.get("crop") == "box" else "frame"
         return "m2_patch", {
             "filter": {"model": mpath, "init": box, "particles": particles, "seed": args.seed, "crop": crop},
             "proposal": {"model": mpath, "seed": args.seed},
             "preprocess": pre,
         }
-    pre.update(profile=model.profile, g0=model.g0)
+    from gflow_core.contour.protocol import m2_edge_params
+
+    # the edge settings the model was learned with, read from its file in one place (the Python API's too)
+    edges = m2_edge_params(model, meta)
+    pre.update(profile=edges.profile, g0=edges.g0, canny_low=edges.canny_low, canny_high=edges.canny_high,
+               blur=edges.blur)
     shared = {"model": mpath, "init": box, "seed": args.seed}
     block: dict = {}
     if getattr(args, "particles", None) is not None:
