@@ -38,6 +38,7 @@ from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 
 from gflow_core.contour.params import ChamferParams, M2Params
+from gflow_core.params import defaults
 
 from .base import Output, Params, Stage, StageContext, StageInputError
 from .base import Params as _Params
@@ -58,17 +59,23 @@ class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True)
     done: int
 
 
+#: the random walk's defaults: the chamfer tracker's (ChamferParams, where they live), not a copy
+_WALK = defaults(ChamferParams)
+
+
 class ProposalParams(Params, frozen=True):
-    """Dynamics of the proposal. ``model``: path of a learned M2 model (empty: random walk).
+    """Dynamics of the proposal. ``model``: path of a learned M2 model (empty: random walk, its
+    ``std_xy``, ``std_theta`` and ``std_log_s`` by default those of
+    :class:`gflow_core.contour.params.ChamferParams`).
 
     ``init`` (x, y, w, h), with a learned contour model: the AR(1) process on log s reverts
     to the scale of this box instead of the learned mean (see the module docstring).
     """
 
     seed: int = 0
-    std_xy: float = 4.0
-    std_theta: float = 0.02
-    std_log_s: float = 0.02
+    std_xy: float = _WALK["std_xy"]
+    std_theta: float = _WALK["std_theta"]
+    std_log_s: float = _WALK["std_log_s"]
     model: str = ""
     init: tuple[float, float, float, float] | None = None
     timed: bool = False  # also read the frames: the noise grows with the time to the next frame
