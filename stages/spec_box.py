@@ -5,7 +5,8 @@
 :func:`spec_stage_classes` makes, for one spec, the proposal stage (kind ``NAME.proposal``) and
 the filter stage (kind ``NAME.filter``): their parameters are every field of the tracker's
 parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal), as the built-in
-box trackers' stages take; the filter's snapshot holds the state as the spec's ``to_arrays``
+box trackers' stages take (the former from the graph's tracker block, ``tracker: NAME``, the same
+for both stages: :mod:`pipeline.runtime.tracker_block`); the filter's snapshot holds the state as the spec's ``to_arrays``
 gives it. The stages know the tracker only through its spec (:mod:`stages.registry` asks
 :func:`gflow_core.registry.trackers` for a kind no stage module declares). The correlation-filter
 and the appearance trackers' stage modules take what they need of them from their specs the same
