@@ -118,12 +118,13 @@ def test_size_options_of_gflow_track():
 
     base = dict(init=[1.0, 2.0, 30.0, 40.0], seed=1, particles=None)
     _, default = cli.overrides(Namespace(**base))
-    assert "scale_search" not in default["filter"] and AppearanceFilterParams().scale_search > 0
+    assert "scale_search" not in default["tracker"] and AppearanceFilterParams().scale_search > 0
     _, fixed = cli.overrides(Namespace(**base, fixed_size=True))
-    assert fixed["filter"]["scale_search"] == 0
+    assert fixed["tracker"]["scale_search"] == 0  # the graph's tracker block: both stages take it
     _, state = cli.overrides(Namespace(**base, track_scale=True))
-    assert state["filter"]["scale_search"] == 0 and state["filter"]["n_scales"] == 3
-    assert state["proposal"]["std_log_s"] > 0
+    assert state["tracker"]["scale_search"] == 0 and state["tracker"]["n_scales"] == 3
+    assert state["tracker"]["std_log_s"] > 0
+    assert "scale_search" not in state["filter"] and "std_log_s" not in state["proposal"]
 
 
 @pytest.mark.slow

@@ -149,7 +149,7 @@ def test_gflow_info_and_track_name_the_tracker(gflow_cmd, tmp_path, frames):
     for t in range(3):
         cv2.imwrite(str(folder / f"{t:06d}.png"), frames[1][t].image.array())
     r = subprocess.run([*gflow_cmd, "track", str(folder), "--tracker", "dcf", "--init", "1,1,5,5", "--set",
-                        "filter.scales=4", "--inline", "--no-record", "--stop", "3", "--out", str(tmp_path / "b.csv")],
+                        "tracker.scales=4", "--inline", "--no-record", "--stop", "3", "--out", str(tmp_path / "b.csv")],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "scales must be odd" in r.stderr and "Traceback" not in r.stderr
 

@@ -58,7 +58,7 @@ def test_david_indoor_face_found_again_after_sixty_hidden_frames_by_its_colour(t
     for colour in ("true", "false"):
         r = subprocess.run([*gflow_cmd, "benchmark", str(data), "--stress", "--sequences", "david_indoor", "--cases",
                             "occlude-60", "--trackers", "appearance", "--opencv", "none", "--inline", "-q", "--json",
-                            "--seed", "1", "--stress-cache", str(tmp_path / "cache"), "--set", f"filter.colour={colour}"],
+                            "--seed", "1", "--stress-cache", str(tmp_path / "cache"), "--set", f"tracker.colour={colour}"],
                            capture_output=True, text=True, timeout=600)
         assert r.returncode == 0, r.stderr
         row = [x for x in json.loads(r.stdout)["rows"] if x["kind"] == "tracker"][0]
