@@ -134,6 +134,7 @@ Numerical safeguards:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -195,6 +196,11 @@ class TextureView:
         Row of ``bg_mean`` / ``bg_var`` of each expert in the batch.
     psi_b : float
         ``Psi_b``; the predicted background variance is ``bg_var + psi_b`` (eq. 10).
+    generic : bool
+        The vertices' pixels, were they background, are read by a generic background: one
+        Gaussian for every pixel, the mean and variance of the frame (of the pyramid level the
+        objective is evaluated on), whose first term of eq. 14 enters at every vertex
+        (:func:`generic_background`; departure from the paper, see the module docstring).
     """
 
     mean: np.ndarray
@@ -203,6 +209,7 @@ class TextureView:
     bg_var: np.ndarray | TiledTexels | None = None
     bg_rows: np.ndarray | None = None
     psi_b: float = 0.0
+    generic: bool = False
 
     @property
     def has_background(self) -> bool:
@@ -216,6 +223,15 @@ class TextureView:
             m, mx, my = st.sample_with_gradient(fm, rows)
             return m, mx, my, var
         return st.sample(fm, rows), var
+
+
+def generic_background(image: np.ndarray) -> tuple[float, float]:
+    """The generic background of a (contrast-normalised) frame ``(H, W)``: every pixel
+    ``N(m, s^2)`` with ``m`` and ``s^2`` the frame's mean and variance (``s^2`` floored at
+    ``1e-6``). Returns ``(m, 1 / s^2)``, the mean and the weight of its first term of eq. 14."""
+    m = float(image.mean())
+    v = float(image.var())
+    return m, 1.0 / max(v, 1e-6)
 
 
 def _flat(stack):
@@ -519,6 +535,7 @@ class _Fit:
         self.level_scale, self.photometric = level_scale, photometric
         self.max_rotation, self.outlier_sq, self.scale = max_rotation, outlier_sq, scale
         self.walls = np.isfinite(max_rotation) or scale is not None
+        self.generic = generic_background(fd.image) if tv.generic else None
         self.mu = tv.mean
         self.w = _fg_weights(tv, sigma_w)  # (E, n)
         if photometric is not None:
@@ -585,6 +602,10 @@ class _Evaluation:
             self.wb = 1.0 / (vb + fit.sigma_w)
             self.rb = yv - self.mb
             f = f - (self.rb * self.rb * self.wb).sum(axis=-1)
+        if fit.generic is not None:
+            # the generic background's first term of eq. 14: - sum_i (y(x_i) - m)^2 / s^2
+            self.rg = yv - fit.generic[0]
+            f = f - fit.generic[1] * (self.rg * self.rg).sum(axis=-1)
         if fit.temper != 1.0:
             # tempered data term (departure from the paper): its log-likelihood times 1 / kappa
             f = f / fit.temper
@@ -651,6 +672,12 @@ class _Evaluation:
         # foreground: g = J^T W r,  H = J^T W J
         g = (J @ wr[:, :, None])[:, :, 0]
         H = (J * w[:, None, :]) @ J.transpose(0, 2, 1)  # a new C-contiguous array
+        Hg = None
+        if fit.generic is not None:
+            # the generic background's term enters with a minus sign, its mean flat:
+            # g -= J^T (r_g / s^2),  H -= J^T J / s^2 (limited as the background's, below)
+            g -= (J @ (fit.generic[1] * self.rg[sl])[:, :, None])[:, :, 0]
+            Hg = fit.generic[1] * (J @ J.transpose(0, 2, 1))
         kappa = fit.temper
         if kappa != 1.0:
             # tempered data term: g and H of 1/kappa times the data's part of eq. 14
@@ -681,7 +708,11 @@ class _Evaluation:
             # background term 1 enters with a minus sign: g -= J_b^T W_b r_b, H -= J_b^T W_b J_b
             g = g - (Jb @ wrb[:, :, None])[:, :, 0] / kappa
             Hb = (Jb * wb[:, None, :]) @ Jb.transpose(0, 2, 1) / kappa
-            H = _safe_hessian(H, Hb)
+            Hg = Hb if Hg is None else Hg / kappa + Hb
+        elif Hg is not None:
+            Hg = Hg / kappa
+        if Hg is not None:
+            H = _safe_hessian(H, Hg)
         return g, H
 
 
@@ -973,14 +1004,14 @@ def coarse_to_fine_peak(
         # same sample: same pose, prior and texels) get the same peak: compute it once
         first, inverse = _distinct_rows(prev, u, tv.mean, tv.var)
         if first.size < u.shape[0]:
-            sub = TextureView(mean=tv.mean[first], var=tv.var[first])
+            sub = TextureView(mean=tv.mean[first], var=tv.var[first], generic=tv.generic)
             res = coarse_to_fine_peak(bases, pyramid, prev[first], sub, sigma_w, prior_std, n_iter, u[first],
                                       use_background, photometric, offsets, max_rotation, search_stride, outlier_sq,
                                       scale, reset, temper)
             return GaussNewtonResult(res.u_hat[inverse], res.hessian[inverse], res.objective[inverse],
                                      None if res.reset is None else res.reset[inverse])
     L = len(pyramid)
-    fg = TextureView(mean=tv.mean, var=tv.var)
+    fg = TextureView(mean=tv.mean, var=tv.var, generic=tv.generic)
     chains = (bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, use_background, photometric, max_rotation,
               outlier_sq, scale, offsets, search_stride, temper)
     if offsets is None or len(offsets) <= 1:
@@ -1009,6 +1040,12 @@ def _search_best(bases: np.ndarray, coarse: np.ndarray, ls: float, prev: np.ndar
     xy = project(bases[every], u)
     cost = translation_costs(coarse, xy[..., 0] * ls, xy[..., 1] * ls, offsets * ls,
                              tv.mean[:, every], _fg_weights(tv, sigma_w)[:, every], SEARCH_BLOCK_VERTICES)
+    if tv.generic:
+        # the generic background's first term of eq. 14 on this level: - sum_i (y(x_i) - m)^2 / s^2
+        gm, gw = generic_background(coarse)
+        xs = xy[..., 0] * ls
+        cost = cost - translation_costs(coarse, xs, xy[..., 1] * ls, offsets * ls, np.full(xs.shape, gm),
+                                        np.full(xs.shape, gw), SEARCH_BLOCK_VERTICES)
     # the rest of the objective (gauss_newton_objective): prior (only its translation part
     # changes with the offset) and the soft walls
     lam = prior_precision(prior_std)
@@ -1082,7 +1119,7 @@ def _frontal_chain(res: GaussNewtonResult, reset: RotationReset, bases, pyramid,
     std = np.array(prior_std, dtype=np.float64)
     std[ROT] = reset.std
     anchor = reset.anchor_view(sel.size)
-    tv_r = _rows_view(tv, sel) if anchor is None else anchor
+    tv_r = _rows_view(tv, sel) if anchor is None else dataclasses.replace(anchor, generic=tv.generic)
     fr = coarse_to_fine_peak(bases, pyramid, centre, tv_r, sigma_w, std, n_iter, start,
                              use_background and anchor is None, photometric, offsets, max_rotation, search_stride,
                              outlier_sq, scale, temper=temper)
@@ -1122,7 +1159,8 @@ def _distinct_rows(*arrays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _rows_view(tv: TextureView, rows: np.ndarray) -> TextureView:
     """The texture opinions of the experts ``rows`` (repeats allowed)."""
     return TextureView(mean=tv.mean[rows], var=tv.var[rows], bg_mean=tv.bg_mean, bg_var=tv.bg_var,
-                       bg_rows=None if tv.bg_rows is None else tv.bg_rows[rows], psi_b=tv.psi_b)
+                       bg_rows=None if tv.bg_rows is None else tv.bg_rows[rows], psi_b=tv.psi_b,
+                       generic=tv.generic)
 
 
 def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
@@ -1291,6 +1329,10 @@ def log_likelihood(
     else:
         r = y - mu
     fg = robust_cost(r * r / vv[:, None, :], outlier_sq).sum(axis=-1)
+    if tv.generic:
+        # the generic background at the vertices (its normalising terms are the same at every pose)
+        gm, gw = generic_background(fd.image)
+        fg = fg - gw * ((y - gm) ** 2).sum(axis=-1)
     logdet_v = np.sum(np.log(vv), axis=-1)
     if not tv.has_background:
         return -0.5 * n * _LOG_2PI - 0.5 * (fg + logdet_v[:, None])
