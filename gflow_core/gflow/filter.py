@@ -826,7 +826,8 @@ def _opinion_peak(model: MorphableModel, pyramid: Sequence[FrameData], prev: np.
     osq = cfg.outlier_sigmas ** 2
     scale = cfg.scale_limits()
     if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
-            and not math.isfinite(osq) and scale is None and reset is None and cfg.data_temper == 1.0):
+            and not math.isfinite(osq) and scale is None and reset is None and cfg.data_temper == 1.0
+            and not cfg.generic_background):
         return gauss_newton_peak(
             model.bases, pyramid[0], centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
             use_background=cfg.gn_background,

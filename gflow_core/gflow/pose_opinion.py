@@ -1168,6 +1168,11 @@ def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_bac
     """``n_iter`` Gauss-Newton steps on every level, coarsest first, from ``u`` (only level 0's
     Hessian is kept: the coarser levels pass on their peak)."""
     res = None
+    generic = tv.generic
+    if generic:
+        # Gauss-Newton climbs the object's term and the prior alone (as without the generic
+        # background); the peak's objective, which the chains are compared by, has the term
+        tv, fg = dataclasses.replace(tv, generic=False), dataclasses.replace(fg, generic=False)
     for lev in range(len(pyramid) - 1, -1, -1):
         res = gauss_newton_peak(
             bases, pyramid[lev], prev, tv if lev == 0 else fg, sigma_w, prior_std, n_iter, start=u,
@@ -1177,6 +1182,10 @@ def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_bac
         )
         u = res.u_hat
     assert res is not None
+    if generic:
+        f = gauss_newton_objective(bases, pyramid[0], prev, res.u_hat, dataclasses.replace(tv, generic=True), sigma_w,
+                                   prior_std, use_background, 1.0, photometric, max_rotation, outlier_sq, scale, temper)
+        res = dataclasses.replace(res, objective=f)
     return res
 
 
