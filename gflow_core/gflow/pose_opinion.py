@@ -84,6 +84,27 @@ Departures from the paper
   residual. Measured on david_indoor (docs/faces.md): it does not keep the experts on the face
   at every 3rd frame, and it loses it at every frame, so it is not used.
 
+* A generic background (``TextureView.generic``, ``GFlowConfig.generic_background``; off by default
+  and in the shipped graphs). Without the background model the paper drops eq. 14's background
+  terms, so the data term is the object's alone: a squared residual ``(y - mu_v)^2 / (sigma_v +
+  sigma_w)`` per vertex, which is smaller on a low-contrast patch than on a face whose texels
+  correlate with it only weakly (david_indoor at every 3rd frame, step 348 -> 351: the face's
+  pixels have a standard deviation of 0.18, the shirt collar's 0.14; the texels correlate 0.40 with
+  the face, 0.25 with the collar, yet eq. 14 prefers the collar). With the generic background the
+  vertices' pixels, were they background, are ``N(m, s^2)``, the frame's mean and variance
+  (:func:`generic_background`, on the level the objective is evaluated on), and eq. 14's first
+  background term ``- sum_i (y(x_i) - m)^2 / s^2`` enters as in the paper: a likelihood ratio of
+  object against background at the vertices, so a featureless patch gains nothing by being claimed
+  (the step above: 50 at the face against 75 on the collar). Its second term is the same at every
+  pose and is dropped. It enters the coarse search, the objective by which the chains are compared
+  (the search's, the previous pose's and the frontal reset's) and the importance weights (eq. 13,
+  16); Gauss-Newton climbs the object's term and the prior alone, as the paper's does without its
+  second background term, because with the generic term in its steps the fitted face grew and
+  turned (david_indoor at every frame, seeds 1-2: 0.092 / 0.098 against 0.077 / 0.075). Measured
+  (docs/faces.md "At a camera's pace"): at every 3rd frame 0.113 / 0.100 / 0.115 (seeds 1-3; 0.108
+  / 0.134 / 0.165 without), at every frame 0.077 / 0.075 (0.070 / 0.067 without): the goal of 0.10
+  at every 3rd frame is not met, so it stays off.
+
 Implementation (speed; the same mathematics, results equal to the straightforward
 version to about 1e-14 relative, measured over 20-30 frames of each shared sequence):
 
