@@ -222,6 +222,11 @@ class GFlowConfig:
         the importance weights (eq. 13, 16), a composite likelihood for residuals that are not
         independent (:mod:`.pose_opinion`); ``1`` = the paper's (the default; measured not to help,
         docs/faces.md).
+    generic_background : bool
+        The object's data term is weighed against a generic background at the vertices (eq. 14's first
+        background term with one Gaussian, the frame's mean and variance, for every pixel:
+        :func:`.pose_opinion.generic_background`), in the search, Gauss-Newton and the weights (eq. 13,
+        16). False: the paper's uninformative background (without ``background``).
     """
 
     n_experts: int
@@ -259,6 +264,7 @@ class GFlowConfig:
     reset_std_deg: float
     reset_min_deg: float
     data_temper: float = 1.0
+    generic_background: bool = False
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -328,6 +334,8 @@ class GFlowConfig:
         if self.reset_rate > 0 and not all(math.isfinite(v) for v in _as_std_tuple(
                 "prior_std_rotation", self.prior_std_rotation, 3)):
             raise ValueError("reset_rate > 0 needs a finite prior_std_rotation (the walk it mixes with)")
+        if not isinstance(self.generic_background, (bool, np.bool_)):
+            raise ValueError(f"generic_background must be True or False, got {self.generic_background!r}")
         if not (0.0 < self.texture_decay <= 1.0):
             raise ValueError(f"texture_decay must be in (0, 1], got {self.texture_decay!r}")
         if not (0.0 < self.resample_ess_fraction <= 1.0):
@@ -682,6 +690,7 @@ def _texture_view(state: ExpertState, idx: np.ndarray, cfg: GFlowConfig) -> Text
         bg_var=state.bg_var,
         bg_rows=idx if state.bg_mean is not None else None,
         psi_b=cfg.psi_b,
+        generic=bool(cfg.generic_background),
     )
 
 
@@ -817,7 +826,8 @@ def _opinion_peak(model: MorphableModel, pyramid: Sequence[FrameData], prev: np.
     osq = cfg.outlier_sigmas ** 2
     scale = cfg.scale_limits()
     if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
-            and not math.isfinite(osq) and scale is None and reset is None and cfg.data_temper == 1.0):
+            and not math.isfinite(osq) and scale is None and reset is None and cfg.data_temper == 1.0
+            and not cfg.generic_background):
         return gauss_newton_peak(
             model.bases, pyramid[0], centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
             use_background=cfg.gn_background,

@@ -93,6 +93,9 @@ class GFlowParams:
                                       "paper's random walk)")
     data_temper: float = param(1.0, "the data term's log-likelihood (eq. 13, 14) is divided by this: about the "
                                "number of vertices per independent residual (1: the paper's)")
+    generic_background: bool = param(False, "the data term is weighed against a generic background at the vertices: "
+                                            "every pixel N(mean, variance of the frame) (eq. 14's first background "
+                                            "term; False: the paper's uninformative background)")
     reset_rate: float = param(0.01, "probability a frame's pose transition turns the head back to frontal")
     reset_std_deg: float = param(20.0, "std of the frontal reset's rotation, degrees")
     reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "

@@ -84,6 +84,27 @@ Departures from the paper
   residual. Measured on david_indoor (docs/faces.md): it does not keep the experts on the face
   at every 3rd frame, and it loses it at every frame, so it is not used.
 
+* A generic background (``TextureView.generic``, ``GFlowConfig.generic_background``; off by default
+  and in the shipped graphs). Without the background model the paper drops eq. 14's background
+  terms, so the data term is the object's alone: a squared residual ``(y - mu_v)^2 / (sigma_v +
+  sigma_w)`` per vertex, which is smaller on a low-contrast patch than on a face whose texels
+  correlate with it only weakly (david_indoor at every 3rd frame, step 348 -> 351: the face's
+  pixels have a standard deviation of 0.18, the shirt collar's 0.14; the texels correlate 0.40 with
+  the face, 0.25 with the collar, yet eq. 14 prefers the collar). With the generic background the
+  vertices' pixels, were they background, are ``N(m, s^2)``, the frame's mean and variance
+  (:func:`generic_background`, on the level the objective is evaluated on), and eq. 14's first
+  background term ``- sum_i (y(x_i) - m)^2 / s^2`` enters as in the paper: a likelihood ratio of
+  object against background at the vertices, so a featureless patch gains nothing by being claimed
+  (the step above: 50 at the face against 75 on the collar). Its second term is the same at every
+  pose and is dropped. It enters the coarse search, the objective by which the chains are compared
+  (the search's, the previous pose's and the frontal reset's) and the importance weights (eq. 13,
+  16); Gauss-Newton climbs the object's term and the prior alone, as the paper's does without its
+  second background term, because with the generic term in its steps the fitted face grew and
+  turned (david_indoor at every frame, seeds 1-2: 0.092 / 0.098 against 0.077 / 0.075). Measured
+  (docs/faces.md "At a camera's pace"): at every 3rd frame 0.113 / 0.100 / 0.115 (seeds 1-3; 0.108
+  / 0.134 / 0.165 without), at every frame 0.077 / 0.075 (0.070 / 0.067 without): the goal of 0.10
+  at every 3rd frame is not met, so it stays off.
+
 Implementation (speed; the same mathematics, results equal to the straightforward
 version to about 1e-14 relative, measured over 20-30 frames of each shared sequence):
 
@@ -134,6 +155,7 @@ Numerical safeguards:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -195,6 +217,11 @@ class TextureView:
         Row of ``bg_mean`` / ``bg_var`` of each expert in the batch.
     psi_b : float
         ``Psi_b``; the predicted background variance is ``bg_var + psi_b`` (eq. 10).
+    generic : bool
+        The vertices' pixels, were they background, are read by a generic background: one
+        Gaussian for every pixel, the mean and variance of the frame (of the pyramid level the
+        objective is evaluated on), whose first term of eq. 14 enters at every vertex
+        (:func:`generic_background`; departure from the paper, see the module docstring).
     """
 
     mean: np.ndarray
@@ -203,6 +230,7 @@ class TextureView:
     bg_var: np.ndarray | TiledTexels | None = None
     bg_rows: np.ndarray | None = None
     psi_b: float = 0.0
+    generic: bool = False
 
     @property
     def has_background(self) -> bool:
@@ -216,6 +244,15 @@ class TextureView:
             m, mx, my = st.sample_with_gradient(fm, rows)
             return m, mx, my, var
         return st.sample(fm, rows), var
+
+
+def generic_background(image: np.ndarray) -> tuple[float, float]:
+    """The generic background of a (contrast-normalised) frame ``(H, W)``: every pixel
+    ``N(m, s^2)`` with ``m`` and ``s^2`` the frame's mean and variance (``s^2`` floored at
+    ``1e-6``). Returns ``(m, 1 / s^2)``, the mean and the weight of its first term of eq. 14."""
+    m = float(image.mean())
+    v = float(image.var())
+    return m, 1.0 / max(v, 1e-6)
 
 
 def _flat(stack):
@@ -519,6 +556,7 @@ class _Fit:
         self.level_scale, self.photometric = level_scale, photometric
         self.max_rotation, self.outlier_sq, self.scale = max_rotation, outlier_sq, scale
         self.walls = np.isfinite(max_rotation) or scale is not None
+        self.generic = generic_background(fd.image) if tv.generic else None
         self.mu = tv.mean
         self.w = _fg_weights(tv, sigma_w)  # (E, n)
         if photometric is not None:
@@ -585,6 +623,10 @@ class _Evaluation:
             self.wb = 1.0 / (vb + fit.sigma_w)
             self.rb = yv - self.mb
             f = f - (self.rb * self.rb * self.wb).sum(axis=-1)
+        if fit.generic is not None:
+            # the generic background's first term of eq. 14: - sum_i (y(x_i) - m)^2 / s^2
+            self.rg = yv - fit.generic[0]
+            f = f - fit.generic[1] * (self.rg * self.rg).sum(axis=-1)
         if fit.temper != 1.0:
             # tempered data term (departure from the paper): its log-likelihood times 1 / kappa
             f = f / fit.temper
@@ -651,6 +693,12 @@ class _Evaluation:
         # foreground: g = J^T W r,  H = J^T W J
         g = (J @ wr[:, :, None])[:, :, 0]
         H = (J * w[:, None, :]) @ J.transpose(0, 2, 1)  # a new C-contiguous array
+        Hg = None
+        if fit.generic is not None:
+            # the generic background's term enters with a minus sign, its mean flat:
+            # g -= J^T (r_g / s^2),  H -= J^T J / s^2 (limited as the background's, below)
+            g -= (J @ (fit.generic[1] * self.rg[sl])[:, :, None])[:, :, 0]
+            Hg = fit.generic[1] * (J @ J.transpose(0, 2, 1))
         kappa = fit.temper
         if kappa != 1.0:
             # tempered data term: g and H of 1/kappa times the data's part of eq. 14
@@ -681,7 +729,11 @@ class _Evaluation:
             # background term 1 enters with a minus sign: g -= J_b^T W_b r_b, H -= J_b^T W_b J_b
             g = g - (Jb @ wrb[:, :, None])[:, :, 0] / kappa
             Hb = (Jb * wb[:, None, :]) @ Jb.transpose(0, 2, 1) / kappa
-            H = _safe_hessian(H, Hb)
+            Hg = Hb if Hg is None else Hg / kappa + Hb
+        elif Hg is not None:
+            Hg = Hg / kappa
+        if Hg is not None:
+            H = _safe_hessian(H, Hg)
         return g, H
 
 
@@ -973,14 +1025,14 @@ def coarse_to_fine_peak(
         # same sample: same pose, prior and texels) get the same peak: compute it once
         first, inverse = _distinct_rows(prev, u, tv.mean, tv.var)
         if first.size < u.shape[0]:
-            sub = TextureView(mean=tv.mean[first], var=tv.var[first])
+            sub = TextureView(mean=tv.mean[first], var=tv.var[first], generic=tv.generic)
             res = coarse_to_fine_peak(bases, pyramid, prev[first], sub, sigma_w, prior_std, n_iter, u[first],
                                       use_background, photometric, offsets, max_rotation, search_stride, outlier_sq,
                                       scale, reset, temper)
             return GaussNewtonResult(res.u_hat[inverse], res.hessian[inverse], res.objective[inverse],
                                      None if res.reset is None else res.reset[inverse])
     L = len(pyramid)
-    fg = TextureView(mean=tv.mean, var=tv.var)
+    fg = TextureView(mean=tv.mean, var=tv.var, generic=tv.generic)
     chains = (bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, use_background, photometric, max_rotation,
               outlier_sq, scale, offsets, search_stride, temper)
     if offsets is None or len(offsets) <= 1:
@@ -1009,6 +1061,12 @@ def _search_best(bases: np.ndarray, coarse: np.ndarray, ls: float, prev: np.ndar
     xy = project(bases[every], u)
     cost = translation_costs(coarse, xy[..., 0] * ls, xy[..., 1] * ls, offsets * ls,
                              tv.mean[:, every], _fg_weights(tv, sigma_w)[:, every], SEARCH_BLOCK_VERTICES)
+    if tv.generic:
+        # the generic background's first term of eq. 14 on this level: - sum_i (y(x_i) - m)^2 / s^2
+        gm, gw = generic_background(coarse)
+        xs = xy[..., 0] * ls
+        cost = cost - translation_costs(coarse, xs, xy[..., 1] * ls, offsets * ls, np.full(xs.shape, gm),
+                                        np.full(xs.shape, gw), SEARCH_BLOCK_VERTICES)
     # the rest of the objective (gauss_newton_objective): prior (only its translation part
     # changes with the offset) and the soft walls
     lam = prior_precision(prior_std)
@@ -1082,7 +1140,7 @@ def _frontal_chain(res: GaussNewtonResult, reset: RotationReset, bases, pyramid,
     std = np.array(prior_std, dtype=np.float64)
     std[ROT] = reset.std
     anchor = reset.anchor_view(sel.size)
-    tv_r = _rows_view(tv, sel) if anchor is None else anchor
+    tv_r = _rows_view(tv, sel) if anchor is None else dataclasses.replace(anchor, generic=tv.generic)
     fr = coarse_to_fine_peak(bases, pyramid, centre, tv_r, sigma_w, std, n_iter, start,
                              use_background and anchor is None, photometric, offsets, max_rotation, search_stride,
                              outlier_sq, scale, temper=temper)
@@ -1122,7 +1180,8 @@ def _distinct_rows(*arrays: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _rows_view(tv: TextureView, rows: np.ndarray) -> TextureView:
     """The texture opinions of the experts ``rows`` (repeats allowed)."""
     return TextureView(mean=tv.mean[rows], var=tv.var[rows], bg_mean=tv.bg_mean, bg_var=tv.bg_var,
-                       bg_rows=None if tv.bg_rows is None else tv.bg_rows[rows], psi_b=tv.psi_b)
+                       bg_rows=None if tv.bg_rows is None else tv.bg_rows[rows], psi_b=tv.psi_b,
+                       generic=tv.generic)
 
 
 def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
@@ -1130,6 +1189,11 @@ def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_bac
     """``n_iter`` Gauss-Newton steps on every level, coarsest first, from ``u`` (only level 0's
     Hessian is kept: the coarser levels pass on their peak)."""
     res = None
+    generic = tv.generic
+    if generic:
+        # Gauss-Newton climbs the object's term and the prior alone (as without the generic
+        # background); the peak's objective, which the chains are compared by, has the term
+        tv, fg = dataclasses.replace(tv, generic=False), dataclasses.replace(fg, generic=False)
     for lev in range(len(pyramid) - 1, -1, -1):
         res = gauss_newton_peak(
             bases, pyramid[lev], prev, tv if lev == 0 else fg, sigma_w, prior_std, n_iter, start=u,
@@ -1139,6 +1203,10 @@ def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_bac
         )
         u = res.u_hat
     assert res is not None
+    if generic:
+        f = gauss_newton_objective(bases, pyramid[0], prev, res.u_hat, dataclasses.replace(tv, generic=True), sigma_w,
+                                   prior_std, use_background, 1.0, photometric, max_rotation, outlier_sq, scale, temper)
+        res = dataclasses.replace(res, objective=f)
     return res
 
 
@@ -1291,6 +1359,10 @@ def log_likelihood(
     else:
         r = y - mu
     fg = robust_cost(r * r / vv[:, None, :], outlier_sq).sum(axis=-1)
+    if tv.generic:
+        # the generic background at the vertices (its normalising terms are the same at every pose)
+        gm, gw = generic_background(fd.image)
+        fg = fg - gw * ((y - gm) ** 2).sum(axis=-1)
     logdet_v = np.sum(np.log(vv), axis=-1)
     if not tv.has_background:
         return -0.5 * n * _LOG_2PI - 0.5 * (fg + logdet_v[:, None])

@@ -285,3 +285,47 @@ def test_tempered_data_term_is_the_prior_made_kappa_times_as_precise() -> None:
 def test_data_temper_below_one_or_not_finite_is_refused(bad: float) -> None:
     with pytest.raises(ValueError, match="data_temper"):
         paper_config(data_temper=bad)
+
+
+def test_generic_background_subtracts_its_first_term_of_eq14_everywhere() -> None:
+    """``TextureView.generic``: eq. 14's data term minus ``sum_i (y(x_i) - m)^2 / s^2`` (the frame's mean and
+    variance) in the objective, the log-likelihood (eq. 13) and the coarse search, at any pose."""
+    from gflow_core.gflow.coarse_search import translation_costs
+    from gflow_core.gflow.geometry import project
+    from gflow_core.gflow.image import bilinear_stencil
+    from gflow_core.gflow.pose_opinion import generic_background, log_likelihood
+
+    model, start, true, frame, tv = _scene(6.0)
+    fd = prepare_frame(frame)
+    gen = dataclasses.replace(tv, generic=True)
+    m, w = generic_background(fd.image)
+    assert m == pytest.approx(frame.mean()) and w == pytest.approx(1.0 / frame.var())
+    poses = np.stack([start[0], true, box_plus(true, np.array([0.02, 0.0, 0.0, 3.0, -2.0, 0.0]))])
+    prev = np.repeat(start, 3, axis=0)
+    tv3 = TextureView(np.repeat(tv.mean, 3, axis=0), np.repeat(tv.var, 3, axis=0))
+    gen3 = dataclasses.replace(tv3, generic=True)
+    y = bilinear_stencil(project(model.bases, poses), fd.shape).sample(fd.flat)  # (3, n)
+    term = w * ((y - m) ** 2).sum(axis=-1)
+    plain = gauss_newton_objective(model.bases, fd, prev, poses, tv3, 1e-3, PRIOR, outlier_sq=9.0)
+    with_bg = gauss_newton_objective(model.bases, fd, prev, poses, gen3, 1e-3, PRIOR, outlier_sq=9.0)
+    np.testing.assert_allclose(plain - with_bg, 0.5 * term, rtol=1e-9)
+    ll = log_likelihood(model.bases, fd, poses[:, None], tv3, 1e-3, outlier_sq=9.0)
+    ll_bg = log_likelihood(model.bases, fd, poses[:, None], gen3, 1e-3, outlier_sq=9.0)
+    np.testing.assert_allclose(ll_bg - ll, 0.5 * term[:, None], rtol=1e-9)
+    # the search's costs on a level: the same term at every translation
+    xy = project(model.bases, start)
+    shifts = search_offsets(8.0, 4.0)
+    c = translation_costs(fd.image, xy[..., 0], xy[..., 1], shifts, np.full(xy.shape[:-1], m),
+                          np.full(xy.shape[:-1], w))
+    ys = bilinear_stencil(xy[:, None] + shifts[None, :, None], fd.shape).sample(fd.flat)
+    np.testing.assert_allclose(c, w * ((ys - m) ** 2).sum(axis=-1), rtol=1e-9)
+    # the peak with the generic background still finds the head, with a positive definite Hessian
+    pk = coarse_to_fine_peak(model.bases, frame_pyramid(fd, 3), start, gen, 1e-3, PRIOR, 5,
+                             offsets=search_offsets(16.0, 8.0), outlier_sq=9.0)
+    assert _trans_error(pk.u_hat, true) < 1.0
+    assert np.all(np.linalg.eigvalsh(pk.hessian) > 0)
+
+
+def test_generic_background_must_be_a_bool() -> None:
+    with pytest.raises(ValueError, match="generic_background"):
+        paper_config(generic_background="yes")
