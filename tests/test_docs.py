@@ -537,10 +537,10 @@ def test_the_two_commands_are_what_ci_runs():
     tests, which is what .ci/run does."""
     code = [b for b in blocks(ROOT / "README.md") if b.lang in SHELL]
     assert shell_lines(code[0])[0][1] == "pip install -e . && gflow demo"
-    assert shell_lines(code[1])[0][1] == "pip install -e '.[test]' && python -m pytest"
+    assert shell_lines(code[1])[0][1] == "pip install -e '.[test]' && python -m pytest -n 2 --dist loadfile"
     ci = (ROOT / ".ci" / "run").read_text()
     assert re.search(r"^python -m pip install -e '\.\[test\]'", ci, re.M)
-    assert re.search(r"^python -m pytest$", ci, re.M)
+    assert re.search(r"^python -m pytest -n 2 --dist loadfile$", ci, re.M)
 
 
 def test_benchmark_commands_exist():
