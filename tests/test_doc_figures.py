@@ -6,8 +6,7 @@ with the command that made it and the versions it ran on. Here:
 
 * the shared-sequence figures of the fast trackers (the default tracker and chamfer, inline,
   seed 1) are measured again on a subset of the shared sequences (:data:`SUBSET`: two
-  pedestrians, a fast face and a grey target labelled every 5th frame; two benchmarks side by side,
-  about 15 s on 2 cores)
+  pedestrians, a fast face and a grey target labelled every 5th frame; about 40 s on 2 cores)
   and must equal the figures docs/accuracy.md prints (AUC, precision at 20 px, CLE, success, at
   the precision printed). After a change that moves them, regenerate the table: ``python
   bench/make_tables.py --only shared``;
@@ -31,8 +30,6 @@ from conftest import data_dir
 ROOT = Path(__file__).resolve().parent.parent
 #: the shared sequences re-measured (the table has all of them): see the module docstring
 SUBSET = ("caviar1", "crossing", "jumping", "dollar")
-#: the subset in two halves of about as many frames (502 and 640), measured at the same time
-HALVES = (("caviar1", "crossing"), ("jumping", "dollar"))
 #: a table's column, the JSON field it prints and the decimals it prints
 COLUMNS = (("AUC", "auc", 3), ("prec@20", "precision_20", 3), ("CLE px", "cle_px", 2), ("success", "success_rate_0.5", 3))
 
@@ -81,22 +78,11 @@ def test_the_fast_trackers_reproduce_the_shared_sequence_table():
     missing = [n for n in names if n not in tables]
     assert not missing, (f"docs/accuracy.md's shared table has no {missing[0]} (the default tracker and chamfer are "
                          "re-measured): regenerate it with `python bench/make_tables.py --only shared`")
-    assert sorted(sum(HALVES, ())) == sorted(SUBSET)
-    # two benchmarks side by side, one per half of the subset (a run's figures depend only on its
-    # sequence, tracker and seed), so that the two cores share the work
-    runs = [subprocess.Popen([sys.executable, "-m", "pipeline.cli", "benchmark", str(data), "--sequences", ",".join(half),
-                              "--trackers", ",".join(names), "--inline", "--seed", "1", "--json", "-q"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT) for half in HALVES]
-    rows = {}
-    for p in runs:
-        try:
-            out, err = p.communicate(timeout=600)
-        finally:
-            if p.poll() is None:
-                p.kill()
-                p.communicate()
-        assert p.returncode == 0, err
-        rows.update({(row["sequence"], row["tracker"]): row for row in json.loads(out)["rows"]})
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "benchmark", str(data), "--sequences", ",".join(SUBSET),
+                        "--trackers", ",".join(names), "--inline", "--seed", "1", "--json", "-q"],
+                       capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert r.returncode == 0, r.stderr
+    rows = {(row["sequence"], row["tracker"]): row for row in json.loads(r.stdout)["rows"]}
     differ = []
     for name in names:
         for seq in SUBSET:
