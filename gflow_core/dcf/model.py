@@ -316,8 +316,7 @@ def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, floa
 
 
 def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold: np.ndarray,
-                   margin: tuple[float, float], log_s: float, geom: Geometry, p: DCFParams,
-                   anchor_weight: float | None = None) -> Response | None:
+                   margin: tuple[float, float], log_s: float, geom: Geometry, p: DCFParams) -> Response | None:
     """The response at every cell of centres within ``margin`` (mx, my) px of ``hold`` whose box lies in
     the frame (or whose centre does, for a box larger than the frame), at scale exp(``log_s``): a map on
     cells, read by bicubic interpolation; None when no centre is left. (Outside the frame the window's
@@ -326,8 +325,7 @@ def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold
     At placement c, the window centred at c scores sum_l sum_u h_l(u) w(u) x_l(c + u), h the detection
     filter in the spatial domain and w the cosine window -- what :func:`respond` gives the window's
     centre -- by sliding h w over the region's cells (:func:`.filter.correlate_valid`); the colour score
-    of the box at c beside it, and the two merged as :func:`respond` merges them. ``anchor_weight``: the
-    anchor's weight in the filter (default ``p.anchor_weight``; 1: the first frame's filter alone)."""
+    of the box at c beside it, and the two merged as :func:`respond` merges them."""
     Hh, Ww = grey.shape
     s = float(np.exp(log_s))
     # the centres whose box (w, h) lies in the frame: [(w - 1) / 2, W - 1 - (w - 1) / 2]
@@ -345,8 +343,7 @@ def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold
     centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
     win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode)
     # h w: the filter times the cosine window, so that a placement is scored as a windowed sample is
-    w = p.anchor_weight if anchor_weight is None else anchor_weight
-    hw = cf.spatial(detection_filter(model, w), (hc, wc)) * geom.window[..., None]
+    hw = cf.spatial(detection_filter(model, p.anchor_weight), (hc, wc)) * geom.window[..., None]
     y_cf = cf.correlate_valid(hw, win.x)
     col = _colour_cells(model, win, geom)
     y_col = None if col is None else col[hc // 2: hc // 2 + 2 * ny + 1, wc // 2: wc // 2 + 2 * nx + 1]

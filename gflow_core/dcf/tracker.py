@@ -23,7 +23,6 @@ from dataclasses import dataclass, replace
 from typing import Any, Mapping
 
 import numpy as np
-from scipy.special import ndtr
 
 from ..features import to_grey
 from ..particles import LogWeights, systematic_resample
@@ -110,12 +109,6 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
     return (b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * 0.5 * q, b / 3.0 + (1.0 - b) * (1.0 - q))
 
 
-def _log_ratio(v: Any) -> float:
-    """log P(visible) / P(hidden) of a :class:`~gflow_core.visibility.Visibility` of equal priors: the log
-    likelihood ratio of the target against clutter (hidden)."""
-    return math.log(max(v.visible, 1e-300)) - math.log(max(v.hidden, 1e-300))
-
-
 @dataclass(frozen=True)
 class Search:
     """What the search for a hidden target found: ``found`` the first candidate judged visible (or None),
@@ -126,53 +119,27 @@ class Search:
     covers: bool
 
 
-def _agrees(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, margin: tuple[float, float],
-            cand: Any) -> bool:
-    """Does the long-memory filter (the first frame's, never updated: the anchor) put its best placement over
-    the region searched within the candidate's box? (LCT, Ma et al. 2015: a conservatively learnt filter
-    confirms a re-detection, so a look-alike the running filter has come to like is not taken back.)"""
-    r = tm.respond_region(st.model, obs.image, obs.grey, pred, margin, st.log_s + cand.log_f, st.geom, p,
-                          anchor_weight=1.0)
-    if r is None or r.cf is None:
-        return False
-    i, j, _ = tm.cf.peak(r.cf)
-    xy = r.point(i, j)
-    s = float(np.exp(st.log_s + cand.log_f))
-    return bool(abs(xy[0] - cand.centre[0]) <= 0.5 * st.geom.size0[0] * s
-                and abs(xy[1] - cand.centre[1]) <= 0.5 * st.geom.size0[1] * s)
-
-
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
             spread: float, clutter_seen: Any) -> Search:
     """The search for a hidden target over three standard deviations of its place's prior (the motion
-    prior's (sx, sy) widened by ``spread``, in quadrature): the first candidate whose log-likelihood
-    ratio (target against clutter) outweighs the prior odds that a hidden target is back, and on which the
-    long-memory filter agrees (:func:`_agrees`), is taken."""
+    prior's (sx, sy) widened by ``spread``, in quadrature)."""
     Hh, Ww = obs.grey.shape
     sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
     covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
-    # the probability the target's place prior gives the window searched (clipped to the frame): under
-    # "visible" the target is in it, so its prior there is N(x; pred, S) / P(window)
-    lo = np.maximum(pred - np.array(margin), 0.0)
-    hi = np.minimum(pred + np.array(margin), np.array([Ww - 1.0, Hh - 1.0]))
-    mass = float(np.prod(ndtr((hi - pred) / np.array([sx, sy])) - ndtr((lo - pred) / np.array([sx, sy]))))
     for cand in tm.search(st.model, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
         # the search had more chances than the window the clutter was learnt on: under "hidden" its
         # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
-        # the candidate is placed by the target's prior held to the window: log N(x; pred, S) - log P + log A
+        # the candidate is placed by the target's prior: log N(x; pred, S) + log A
         trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-        place = _log_place(cand.centre, pred, sx, sy, cand.area) - math.log(max(mass, 1e-300))
-        # the filter's score alone: the colour model is the target against its surroundings where it was
-        # last seen (Bertinetto et al. 2016), its score elsewhere is not the one its distributions learnt
-        vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(1.0, 0.0, 1.0),
-                        trials=max(trials, 1.0), log_place=place)
-        # back when the posterior odds q / (1 - q) p(z | visible) / p(z | hidden) favour the target (q: the
-        # prior a frame that a hidden target is back) and the long-memory filter agrees
-        log_odds = _log_ratio(vf) + math.log(p.reappear / (1.0 - p.reappear))
-        if log_odds >= 0.0 and _agrees(st, obs, p, pred, margin, cand):
-            return Search(cand, 1.0 / (1.0 + math.exp(-log_odds)), covers)
+        place = _log_place(cand.centre, pred, sx, sy, cand.area)
+        # the colour score of the filter's pick: one draw of the colour clutter
+        ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
+        vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
+                        trials=max(trials, 1.0), log_place=place, cues=ccue)
+        if vf.visible >= 0.5:
+            return Search(cand, vf.visible, covers)
     return Search(None, 0.0, covers)
 
 
