@@ -101,12 +101,19 @@ class ChamferParams(ContourParams):
                                         "sizes of the estimate")
     template_scale: float = param(0.0, "the first template is aligned again at log s changed by this much too, and the "
                                         "template is kept where it fits better at another size (0: size not checked)")
+    lost_patience: int = param(0, "after this many frames in a row judged lost with no re-detection, the hold gives way "
+                                  "to the filter's estimate and the guard learns the target's look there again (0: hold "
+                                  "until re-detected)")
+    lost_local: bool = param(False, "an estimate whose look matches the anchor better than anything in the ring "
+                                    "around it is not judged lost")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "
                                         "anchor agrees as well)")
 
     def __post_init__(self) -> None:
         super().__post_init__()
         positive = (self.template_drift, self.template_reach, self.template_gain)
+        if self.lost_patience < 0:
+            raise ValueError(f"lost_patience must be >= 0, got {self.lost_patience}")
         if self.template_every < 0 or not (math.isfinite(self.template_scale) and self.template_scale >= 0) or \
                 not all(math.isfinite(v) and v > 0 for v in positive):
             raise ValueError(f"template_every and template_scale must be >= 0, template_gain, template_drift and "

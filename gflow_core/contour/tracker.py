@@ -317,6 +317,12 @@ class ContourFilter:
         bins = obs.bins if params.lost_colour else None
         seen = lostmod.observe(ch, st.anchor, box, gp, bins)
         lost_st, vis, lost = lostmod.judge(st.lost, seen, (*box, *post.map_alpha, post.map_k), gp)
+        if lost and isinstance(params, ChamferParams) and params.lost_local and \
+                seen.clutter is not None and seen.r > seen.clutter[0]:
+            lost_st, lost = lostmod.found_again(st.lost, seen.r, (*box, *post.map_alpha, post.map_k), gp), False
+        patience = params.lost_patience if isinstance(params, ChamferParams) else 0
+        if lost and patience and lost_st.lost_run > patience:
+            return post, "redetect", self._resume(params, st, ch, box, bins)
         if not lost:
             return post, phase, replace(st, lost=lost_st, judged=(
                 vis.visible if lost_st.found > gp.warmup else 1.0 - vis.hidden, "tracked"))
@@ -354,6 +360,15 @@ class ContourFilter:
         post = replace(post, map_alpha=new_alpha, map_k=h_k,
                        resampled=ParticleCloud(alpha=alpha, k=post.resampled.k, log_w=post.resampled.log_w))
         return post, phase, replace(st, lost=lost_st, judged=judged)
+
+    def _resume(self, params: ContourParams, st: ContourState, ch: np.ndarray, box: Box, bins: np.ndarray | None
+                ) -> ContourState:
+        """The hold gives way (chamfer, ``lost_patience``): the filter's estimate ``box`` is taken as the
+        target, the guard's anchor is taken again there and its distributions are learnt anew."""
+        gp = guard_params(params)
+        assert gp is not None
+        anchor = lostmod.anchor_of(ch, box, gp, bins)
+        return replace(st, anchor=anchor, lost=LostState(), judged=(0.0, "tracked"))
 
     def _update_bank(self, params: ContourParams, st: ContourState, grey: np.ndarray, alpha: np.ndarray, k: int,
                      t: int) -> ContourState:
