@@ -104,6 +104,10 @@ class ChamferParams(ContourParams):
     lost_patience: int = param(0, "after this many frames in a row judged lost with no re-detection, the hold gives way "
                                   "to the filter's estimate and the guard learns the target's look there again (0: hold "
                                   "until re-detected)")
+    lost_warmup: int = param(5, "found frames before the lost guard decides anything (its target and clutter "
+                                "distributions are learnt over them)")
+    lost_follow: bool = param(False, "while lost, report the filter's estimate (within the hold window) rather than "
+                                     "the last found one")
     lost_local: bool = param(False, "an estimate whose look matches the anchor better than anything in the ring "
                                     "around it is not judged lost")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "

@@ -172,7 +172,11 @@ class ContourState:
 
 def guard_params(params: ContourParams) -> LostParams | None:
     """The lost guard's settings (None: no guard)."""
-    return LostParams(window=params.lost_window, growth=params.lost_growth) if params.lost_guard else None
+    if not params.lost_guard:
+        return None
+    if isinstance(params, ChamferParams):
+        return LostParams(window=params.lost_window, growth=params.lost_growth, warmup=params.lost_warmup)
+    return LostParams(window=params.lost_window, growth=params.lost_growth)
 
 
 class ContourFilter:
@@ -355,6 +359,10 @@ class ContourFilter:
             half = (gp.window * h_box[2], gp.window * h_box[3])
             alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - centre + h_alpha[:2],
                                                    (float(h_alpha[0]), float(h_alpha[1])), half)
+            if isinstance(params, ChamferParams) and params.lost_follow:
+                new_alpha = post.map_alpha.copy()
+                new_alpha[:2] = lostmod.bound_positions(new_alpha[None, :2], (float(h_alpha[0]), float(h_alpha[1])),
+                                                        half)[0]
             judged = (vis.visible, "lost" if covers else "occluded")
             phase = "lost"
         post = replace(post, map_alpha=new_alpha, map_k=h_k,
