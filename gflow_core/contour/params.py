@@ -108,6 +108,8 @@ class ChamferParams(ContourParams):
                                 "distributions are learnt over them)")
     lost_follow: bool = param(False, "while lost, report the filter's estimate (within the hold window) rather than "
                                      "the last found one")
+    lost_follow_fit: bool = param(False, "with lost_follow, follow only where the template fits the edges at the "
+                                         "filter's estimate within template_gain times its fit on the first frames")
     lost_local: bool = param(False, "an estimate whose look matches the anchor better than anything in the ring "
                                     "around it is not judged lost")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "

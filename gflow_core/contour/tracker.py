@@ -360,9 +360,13 @@ class ContourFilter:
             alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - centre + h_alpha[:2],
                                                    (float(h_alpha[0]), float(h_alpha[1])), half)
             if isinstance(params, ChamferParams) and params.lost_follow:
-                new_alpha = post.map_alpha.copy()
-                new_alpha[:2] = lostmod.bound_positions(new_alpha[None, :2], (float(h_alpha[0]), float(h_alpha[1])),
-                                                        half)[0]
+                a = post.map_alpha.copy()
+                a[:2] = lostmod.bound_positions(a[None, :2], (float(h_alpha[0]), float(h_alpha[1])), half)[0]
+                n_fit = st.first_fit[1]
+                if not params.lost_follow_fit or (
+                        n_fit and obs.chamfer is not None and st.template is not None and
+                        fit(obs.chamfer, st.template, a) <= params.template_gain * st.first_fit[0] / n_fit):
+                    new_alpha = a
             judged = (vis.visible, "lost" if covers else "occluded")
             phase = "lost"
         post = replace(post, map_alpha=new_alpha, map_k=h_k,
