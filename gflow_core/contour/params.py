@@ -101,25 +101,15 @@ class ChamferParams(ContourParams):
                                         "sizes of the estimate")
     template_scale: float = param(0.0, "the first template is aligned again at log s changed by this much too, and the "
                                         "template is kept where it fits better at another size (0: size not checked)")
-    lost_patience: int = param(0, "after this many frames in a row judged lost with no re-detection, the hold gives way "
-                                  "to the filter's estimate and the guard learns the target's look there again (0: hold "
-                                  "until re-detected)")
-    lost_warmup: int = param(5, "found frames before the lost guard decides anything (its target and clutter "
-                                "distributions are learnt over them)")
-    lost_follow: bool = param(False, "while lost, report the filter's estimate (within the hold window) rather than "
-                                     "the last found one")
-    lost_follow_fit: bool = param(False, "with lost_follow, follow only where the template fits the edges at the "
-                                         "filter's estimate within template_gain times its fit on the first frames")
-    lost_local: bool = param(False, "an estimate whose look matches the anchor better than anything in the ring "
-                                    "around it is not judged lost")
+    lost_follow: bool = param(True, "while the lost guard holds the last found box, report the filter's estimate "
+                                    "(kept within the hold window) where the template still fits the edges there, "
+                                    "within template_gain times its fit on the first frames (false: the last found box)")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "
                                         "anchor agrees as well)")
 
     def __post_init__(self) -> None:
         super().__post_init__()
         positive = (self.template_drift, self.template_reach, self.template_gain)
-        if self.lost_patience < 0:
-            raise ValueError(f"lost_patience must be >= 0, got {self.lost_patience}")
         if self.template_every < 0 or not (math.isfinite(self.template_scale) and self.template_scale >= 0) or \
                 not all(math.isfinite(v) and v > 0 for v in positive):
             raise ValueError(f"template_every and template_scale must be >= 0, template_gain, template_drift and "

@@ -35,6 +35,15 @@ the contour trackers' protocol (:class:`gflow_core.contour.protocol.ContourTrack
   first template has come to fit the target ``template_gain`` times worse than on the first
   frames. The paper's template is fixed; the M2 tracker's (``M2Params``, which has no such field)
   still is.
+* **Following while lost** (chamfer, ``lost_follow``; departure from the guard's hold): while the
+  lost guard holds the last found estimate, the reported estimate is the filter's own MAP estimate,
+  kept within the hold window as the particles are, on frames where the current template still fits
+  the edges there within ``template_gain`` times the first template's mean fit on the first frames
+  (:func:`.template.still_fits`); elsewhere the last found estimate is held. The guard's verification
+  is the correlation of edge-orientation channels with the first box; on a target whose look
+  changes for good (skating1's turning skater) it judges the target lost while the filter is still
+  on it, and a held box then stands still for the rest of the video. The edge model's own test
+  tells the two apart where the look cannot: a filter on clutter has a template that fits badly.
 * **Blank frames** (sec. 5.1.2, fig. 7): a frame with fewer than ``min_edges`` edge pixels, or one
   that could not be read, carries no evidence: every particle's likelihood is 1 (the posterior is
   the prior, "forced to rely on the prior").
@@ -56,7 +65,7 @@ import numpy as np
 from .dynamics import PURPOSE_PROPOSAL
 from .. import similarity
 from .params import ChamferParams, ContourParams
-from .template import align_first, anchor_peak, anchor_region, fit, template_at
+from .template import align_first, anchor_peak, anchor_region, fit, still_fits, template_at
 from ..m2 import dynamics as dyn
 from ..m2 import lost as lostmod
 from ..m2.appearance_metric import (AppearanceKernels, OnlineBank, appearance_log_lik, bank_update, new_bank,
@@ -172,11 +181,7 @@ class ContourState:
 
 def guard_params(params: ContourParams) -> LostParams | None:
     """The lost guard's settings (None: no guard)."""
-    if not params.lost_guard:
-        return None
-    if isinstance(params, ChamferParams):
-        return LostParams(window=params.lost_window, growth=params.lost_growth, warmup=params.lost_warmup)
-    return LostParams(window=params.lost_window, growth=params.lost_growth)
+    return LostParams(window=params.lost_window, growth=params.lost_growth) if params.lost_guard else None
 
 
 class ContourFilter:
@@ -321,12 +326,6 @@ class ContourFilter:
         bins = obs.bins if params.lost_colour else None
         seen = lostmod.observe(ch, st.anchor, box, gp, bins)
         lost_st, vis, lost = lostmod.judge(st.lost, seen, (*box, *post.map_alpha, post.map_k), gp)
-        if lost and isinstance(params, ChamferParams) and params.lost_local and \
-                seen.clutter is not None and seen.r > seen.clutter[0]:
-            lost_st, lost = lostmod.found_again(st.lost, seen.r, (*box, *post.map_alpha, post.map_k), gp), False
-        patience = params.lost_patience if isinstance(params, ChamferParams) else 0
-        if lost and patience and lost_st.lost_run > patience:
-            return post, "redetect", self._resume(params, st, ch, box, bins)
         if not lost:
             return post, phase, replace(st, lost=lost_st, judged=(
                 vis.visible if lost_st.found > gp.warmup else 1.0 - vis.hidden, "tracked"))
@@ -359,28 +358,19 @@ class ContourFilter:
             half = (gp.window * h_box[2], gp.window * h_box[3])
             alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - centre + h_alpha[:2],
                                                    (float(h_alpha[0]), float(h_alpha[1])), half)
-            if isinstance(params, ChamferParams) and params.lost_follow:
+            if isinstance(params, ChamferParams) and params.lost_follow and obs.chamfer is not None \
+                    and st.template is not None:
+                # the filter's estimate, kept within the window as its particles are, is reported where the
+                # template still fits the edges there (the edge model says the outline has not left)
                 a = post.map_alpha.copy()
                 a[:2] = lostmod.bound_positions(a[None, :2], (float(h_alpha[0]), float(h_alpha[1])), half)[0]
-                n_fit = st.first_fit[1]
-                if not params.lost_follow_fit or (
-                        n_fit and obs.chamfer is not None and st.template is not None and
-                        fit(obs.chamfer, st.template, a) <= params.template_gain * st.first_fit[0] / n_fit):
+                if still_fits(obs.chamfer, st.template, a, st.first_fit, params.template_gain):
                     new_alpha = a
             judged = (vis.visible, "lost" if covers else "occluded")
             phase = "lost"
         post = replace(post, map_alpha=new_alpha, map_k=h_k,
                        resampled=ParticleCloud(alpha=alpha, k=post.resampled.k, log_w=post.resampled.log_w))
         return post, phase, replace(st, lost=lost_st, judged=judged)
-
-    def _resume(self, params: ContourParams, st: ContourState, ch: np.ndarray, box: Box, bins: np.ndarray | None
-                ) -> ContourState:
-        """The hold gives way (chamfer, ``lost_patience``): the filter's estimate ``box`` is taken as the
-        target, the guard's anchor is taken again there and its distributions are learnt anew."""
-        gp = guard_params(params)
-        assert gp is not None
-        anchor = lostmod.anchor_of(ch, box, gp, bins)
-        return replace(st, anchor=anchor, lost=LostState(), judged=(0.0, "tracked"))
 
     def _update_bank(self, params: ContourParams, st: ContourState, grey: np.ndarray, alpha: np.ndarray, k: int,
                      t: int) -> ContourState:
