@@ -101,6 +101,9 @@ class ChamferParams(ContourParams):
                                         "sizes of the estimate")
     template_scale: float = param(0.0, "the first template is aligned again at log s changed by this much too, and the "
                                         "template is kept where it fits better at another size (0: size not checked)")
+    lost_follow: bool = param(True, "while the lost guard holds the last found box, report the filter's estimate "
+                                    "(kept within the hold window) where the template still fits the edges there, "
+                                    "within template_gain times its fit on the first frames (false: the last found box)")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "
                                         "anchor agrees as well)")
 

@@ -43,13 +43,26 @@ from ..m2.chamfer import chamfer_distance
 from ..m2.tracking import template_from_edges
 from ..regions import region
 
-__all__ = ["align_first", "fit", "template_at", "anchor_region", "anchor_peak"]
+__all__ = ["align_first", "fit", "still_fits", "template_at", "anchor_region", "anchor_peak"]
 
 
 def fit(chamfer_img: np.ndarray, pts: np.ndarray, alpha: np.ndarray) -> float:
     """rho(T_alpha x~, z): the chamfer distance (M2 eq. 5) of the template ``pts`` (P, 2) under ``alpha`` (4,)."""
     return float(chamfer_distance(chamfer_img, similarity.apply_many(np.asarray(alpha, dtype=np.float64)[None], pts),
                                   np.array([pts.shape[0]]), outside=float(np.max(chamfer_img)))[0])
+
+
+def still_fits(chamfer_img: np.ndarray, pts: np.ndarray, alpha: np.ndarray, first_fit: tuple[float, int],
+               gain: float) -> bool:
+    """Whether the template ``pts`` (P, 2) under ``alpha`` (4,) fits the frame's edges within ``gain``
+    times the first template's mean fit on the first frames, ``first_fit`` (sum of rho, count):
+
+        rho(T_alpha x~, z_n) <= gain * mean(rho_1)                                    (M2 eq. 5)
+
+    False while no first frame has been measured (count 0). The same test, with the same ``gain``,
+    as the one that opens the template update (there on T_1, here on the current template)."""
+    n = int(first_fit[1])
+    return n > 0 and fit(chamfer_img, pts, alpha) <= gain * float(first_fit[0]) / n
 
 
 def align_first(chamfer_img: np.ndarray, first: np.ndarray, alpha: np.ndarray, reach: int,

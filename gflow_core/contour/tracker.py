@@ -35,6 +35,15 @@ the contour trackers' protocol (:class:`gflow_core.contour.protocol.ContourTrack
   first template has come to fit the target ``template_gain`` times worse than on the first
   frames. The paper's template is fixed; the M2 tracker's (``M2Params``, which has no such field)
   still is.
+* **Following while lost** (chamfer, ``lost_follow``; departure from the guard's hold): while the
+  lost guard holds the last found estimate, the reported estimate is the filter's own MAP estimate,
+  kept within the hold window as the particles are, on frames where the current template still fits
+  the edges there within ``template_gain`` times the first template's mean fit on the first frames
+  (:func:`.template.still_fits`); elsewhere the last found estimate is held. The guard's verification
+  is the correlation of edge-orientation channels with the first box; on a target whose look
+  changes for good (skating1's turning skater) it judges the target lost while the filter is still
+  on it, and a held box then stands still for the rest of the video. The edge model's own test
+  tells the two apart where the look cannot: a filter on clutter has a template that fits badly.
 * **Blank frames** (sec. 5.1.2, fig. 7): a frame with fewer than ``min_edges`` edge pixels, or one
   that could not be read, carries no evidence: every particle's likelihood is 1 (the posterior is
   the prior, "forced to rely on the prior").
@@ -56,7 +65,7 @@ import numpy as np
 from .dynamics import PURPOSE_PROPOSAL
 from .. import similarity
 from .params import ChamferParams, ContourParams
-from .template import align_first, anchor_peak, anchor_region, fit, template_at
+from .template import align_first, anchor_peak, anchor_region, fit, still_fits, template_at
 from ..m2 import dynamics as dyn
 from ..m2 import lost as lostmod
 from ..m2.appearance_metric import (AppearanceKernels, OnlineBank, appearance_log_lik, bank_update, new_bank,
@@ -349,6 +358,14 @@ class ContourFilter:
             half = (gp.window * h_box[2], gp.window * h_box[3])
             alpha[:, :2] = lostmod.bound_positions(alpha[:, :2] - centre + h_alpha[:2],
                                                    (float(h_alpha[0]), float(h_alpha[1])), half)
+            if isinstance(params, ChamferParams) and params.lost_follow and obs.chamfer is not None \
+                    and st.template is not None:
+                # the filter's estimate, kept within the window as its particles are, is reported where the
+                # template still fits the edges there (the edge model says the outline has not left)
+                a = post.map_alpha.copy()
+                a[:2] = lostmod.bound_positions(a[None, :2], (float(h_alpha[0]), float(h_alpha[1])), half)[0]
+                if still_fits(obs.chamfer, st.template, a, st.first_fit, params.template_gain):
+                    new_alpha = a
             judged = (vis.visible, "lost" if covers else "occluded")
             phase = "lost"
         post = replace(post, map_alpha=new_alpha, map_k=h_k,
