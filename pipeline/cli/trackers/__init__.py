@@ -21,7 +21,7 @@ from gflow_core.spec import SpecError, TrackerSpec
 
 from pipeline.cli.commands.common import CliError
 
-__all__ = ["TRACKERS", "SpecOptions", "UnknownTracker", "spec_of"]
+__all__ = ["TRACKERS", "SpecOptions", "UnknownTracker", "OptionClash", "spec_of"]
 
 
 class UnknownTracker(CliError, KeyError):
@@ -29,6 +29,15 @@ class UnknownTracker(CliError, KeyError):
 
     def __str__(self) -> str:
         return str(self.args[0]) if self.args else ""
+
+
+class OptionClash(Exception):
+    """A tracker's option that ``gflow track`` has already (``option``; ``where``: the parameter that
+    declares it); ``gflow track --tracker NAME`` says so in one line (:mod:`pipeline.cli.commands.track`)."""
+
+    def __init__(self, option: str, where: str) -> None:
+        super().__init__(f"{option} ({where})")
+        self.option, self.where = option, where
 
 
 class SpecOptions:
@@ -42,24 +51,34 @@ class SpecOptions:
         self.__doc__ = f"``--tracker {spec.name}``: {spec.about or spec.params.__doc__ or spec.name}"
 
     def add_args(self, g: Any) -> None:
-        """An option for every parameter of the dataclass that declares one (an option another
-        tracker declares already is left to it: set the value with ``--set tracker.NAME=VALUE``)."""
+        """An option for every parameter of the dataclass that declares one; :class:`OptionClash`,
+        with nothing added, when one of them is an option ``gflow track`` has already (another
+        tracker's: a parameter of that option's name reads it without declaring it)."""
         from gflow_core.params import describe
 
         from pipeline.cli.tracker_options import add_param_options
 
         taken = set(getattr(g, "_option_string_actions", {}))
-        if any(i.option in taken for i in describe(self.PARAMS) if i.option):
-            return
+        for i in describe(self.PARAMS):
+            if i.option in taken:
+                raise OptionClash(i.option, f"{self.PARAMS.__name__}.{i.name}")
         add_param_options(g, self.PARAMS, self.NAME)
 
     def overrides(self, args: Any) -> tuple[str, dict[str, dict]]:
-        """Both stages get the initial box and the seed; the options given set the graph's tracker block."""
+        """Both stages get the initial box and the seed; the options given set the graph's tracker
+        block: its own, and those of other trackers it reads (a parameter of the option's name, as
+        ``--particles``)."""
+        from gflow_core.params import describe
+
         from pipeline.cli.tracker_options import param_values
 
         shared: dict = {"init": list(args.init), "seed": args.seed}
-        return self.GRAPH, {"tracker": param_values(args, self.PARAMS), "proposal": dict(shared),
-                            "filter": dict(shared)}
+        block: dict = {}
+        for i in describe(self.PARAMS):  # another tracker's option read by name
+            if i.option is None and i.name not in _NOT_SHARED and getattr(args, i.name, None) is not None:
+                block[i.name] = getattr(args, i.name)
+        block.update(param_values(args, self.PARAMS))
+        return self.GRAPH, {"tracker": block, "proposal": dict(shared), "filter": dict(shared)}
 
     def make_plan(self, graph: str, over: dict[str, dict]) -> Any:
         """The plan of ``graph``: the spec's own when it is the tracker's (and no file of that name)."""
@@ -69,6 +88,10 @@ class SpecOptions:
         if self.spec.graph is None and graph == self.GRAPH:
             return spec_plan(self.spec, over)
         return load_graph(graph, overrides=over)
+
+
+#: what a request's options hold besides the trackers' options (never a shared option)
+_NOT_SHARED = frozenset({"tracker", "init", "seed", "source"})
 
 
 class _Broken:
