@@ -3,10 +3,11 @@
 A :class:`TrackRequest` (a frozen value: source, initial box, tracker and its options, seed,
 where to record, ...) becomes a :class:`TrackPlan` (:func:`plan_track`: every check that can
 be made before anything starts, then the graph with its overrides, the source checked and its
-frames counted), and :func:`run` runs it, inline or as processes, yielding the estimates an
-:class:`EstimateSink` took from the run's own messages, in frame order; what the run came to
-(:class:`TrackResult`: the estimates, time, report lines, the recording kept) is the
-generator's return value, and :func:`track` runs a plan to its end and returns it.
+frames counted), and :func:`run` runs it, inline or as processes, yielding each estimate as an
+:class:`EstimateSink` takes it from the run's own messages, while the run goes on (closing the
+generator stops the run); what the run came to (:class:`TrackResult`: the estimates, time,
+report lines, the recording kept) is the generator's return value, and :func:`track` runs a plan
+to its end and returns it.
 
 The estimates come from the run, not from reading its recording back: with ``no_record`` no
 recorder runs and no MCAP file is written (a live source, whose camera frame numbers and
@@ -39,7 +40,8 @@ from pipeline.runtime.transport import SessionError, ZenohSettings, free_port
 from pipeline.recording.live_record import LiveSummary
 from pipeline.recording.results import RunOutcome, estimate_columns, renumber, run_outcome, write_boxes
 
-__all__ = ["RequestError", "TrackRequest", "TrackPlan", "TrackResult", "EstimateSink", "plan_track", "run", "track",
+__all__ = ["RequestError", "TrackRequest", "TrackPlan", "TrackResult", "EstimateSink", "RunStop", "plan_track", "run",
+           "track",
            "run_graph", "PushedRun", "RecordingTarget", "place", "source_params", "check_stage_values", "sets_as_given",
            "parse_sets", "default_listen", "default_zenoh", "DEFAULT_ENDPOINT"]
 
@@ -316,12 +318,14 @@ Tap = Callable[[str, bytes, int, str], None]
 
 def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], listen_given: bool,
               recording: str | None, total: int | None, hosts: tuple[str, ...] = (), quiet: bool = False,
-              strict: bool = True, sink: EstimateSink | None = None, no_record: bool = False):
+              strict: bool = True, sink: EstimateSink | None = None, no_record: bool = False,
+              stop: RunStop | None = None):
     """Run a placed plan inline or as processes; return (recording path, seconds, frames, per-stage info).
 
     ``zenoh()`` gives the settings of a multi-process run (asked only for one); ``sink`` is fed
-    the run's estimates and error reports; ``no_record``: the run keeps no recording (so
-    ``gflow ps`` says). With ``strict=False`` a run that did not finish
+    the run's estimates as they are published (inline) or heard (processes), and its error
+    reports; ``stop`` ends the run early when set from another thread; ``no_record``: the run
+    keeps no recording (so ``gflow ps`` says). With ``strict=False`` a run that did not finish
     cleanly returns (``info["ok"]`` False) instead of raising, so the caller can keep what was
     tracked."""
     if inline:
@@ -337,7 +341,8 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
 
         md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
               "gflow.config": plan.config_metadata()}
-        r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink)
+        r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink,
+                       stop=stop.event if stop is not None else None)
         bad = {n: e for n, e in r.errors.items() if e}
         return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
     from pipeline.runtime.launcher import Launcher
@@ -350,6 +355,10 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
     while True:
         launcher = Launcher(plan, zenoh=settings, recording=recording, progress=not quiet,
                             total_frames=total, hosts=hosts, say_recording=not temporary_recording(recording))
+        if sink is not None:  # each estimate as the launcher hears it
+            launcher.monitor.on_estimate = sink.take
+        if stop is not None:
+            stop.attach(launcher)
         endpoints = [e for e in launcher.zenoh.listen if not e.endswith(":0")]
         if not quiet:
             here = ", ".join(n for n in plan.stages if n in launcher.local)
@@ -412,11 +421,15 @@ class EstimateSink:
 
     estimates : {frame: Estimate | PoseEstimate} of the run's estimate topics.
     reported : the frames a stage reported a problem with (an ``ErrorReport``).
+    on_estimate : called with each estimate the first time its frame's is taken (from the thread
+        that runs the graph, or the launcher's zenoh thread).
     """
 
-    def __init__(self, estimate_topics: Iterable[str] = (), error_topic: str = "") -> None:
+    def __init__(self, estimate_topics: Iterable[str] = (), error_topic: str = "",
+                 on_estimate: Callable[[Estimate | PoseEstimate], None] | None = None) -> None:
         self.topics = set(estimate_topics)
         self.error_topic = error_topic
+        self.on_estimate = on_estimate
         self.estimates: dict[int, Estimate | PoseEstimate] = {}
         self.reported: set[int] = set()
 
@@ -439,7 +452,36 @@ class EstimateSink:
         except MessageError:
             return
         if isinstance(m, (Estimate, PoseEstimate)):
+            new = m.header.seq not in self.estimates
             self.estimates[m.header.seq] = m
+            if new and self.on_estimate is not None:
+                self.on_estimate(m)
+
+
+class RunStop:
+    """Ends a run early, asked from another thread (:func:`run`'s consumer stopping): inline, the
+    source ends before its next frame and every stage closes as at its end; as processes, the
+    launcher stops the stages as on Ctrl-C. Either way the recording is closed properly."""
+
+    def __init__(self) -> None:
+        import threading
+
+        self.event = threading.Event()
+        self._lock = threading.Lock()
+        self._launchers: list[Any] = []
+
+    def attach(self, launcher: Any) -> None:
+        """The launcher of a multi-process run (stopped at once when the stop came first)."""
+        with self._lock:
+            self._launchers.append(launcher)
+            if self.event.is_set():
+                launcher.request_stop()
+
+    def set(self) -> None:
+        with self._lock:
+            self.event.set()
+            for launcher in self._launchers:
+                launcher.request_stop()
 
 
 @dataclass
@@ -597,9 +639,52 @@ class TrackResult:
 
 
 def run(tp: TrackPlan) -> Generator[Estimate | PoseEstimate, None, TrackResult]:
-    """Run a plan (inline or as processes) and yield its estimates in frame order, as the
-    :class:`EstimateSink` took them from the run (and, where it lost one, the recording); the
-    generator's return value is the :class:`TrackResult`, whatever happened to the run."""
+    """Run a plan (inline or as processes) and yield each estimate as the :class:`EstimateSink`
+    takes it from the run, while the run goes on (the graph runs on a thread of its own); at the
+    end, any the sink lost that the recording holds, in frame order. The generator's return value
+    is the :class:`TrackResult`, whatever happened to the run.
+
+    Closing the generator early (``break`` out of a ``for`` loop, ``close()``) stops the run (as
+    :class:`RunStop` says: the stages close, the recording is closed properly) and returns once it
+    has stopped; an error of the run is raised from the generator."""
+    import queue
+    import threading
+
+    items: queue.SimpleQueue = queue.SimpleQueue()
+    end = object()
+    stop = RunStop()
+    outcome: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            outcome["result"] = _execute(tp, items.put, stop)
+        except BaseException as e:  # noqa: BLE001 (raised again in the consumer's thread)
+            outcome["error"] = e
+        finally:
+            items.put(end)
+
+    runner = threading.Thread(target=work, name="gflow-run")
+    runner.start()
+    seen: set[int] = set()
+    try:
+        while (item := items.get()) is not end:
+            seen.add(item.header.seq)
+            yield item
+    finally:
+        if runner.is_alive():  # the consumer stopped early (or was interrupted): end the run
+            stop.set()
+        runner.join()
+    if "error" in outcome:
+        raise outcome["error"]
+    result: TrackResult = outcome["result"]
+    yield from (e for k, e in result.estimates.items() if k not in seen)  # filled in from the recording
+    return result
+
+
+def _execute(tp: TrackPlan, on_estimate: Callable[[Estimate | PoseEstimate], None] | None = None,
+             stop: RunStop | None = None) -> TrackResult:
+    """Run a plan in this thread: what it came to (``on_estimate``: told of each estimate as the
+    sink takes it; ``stop``: ends the run early)."""
     from pipeline.runtime.live_plan import listen_early, live_source, prepare_live
     from pipeline.recording.live_record import live_summary
 
@@ -619,11 +704,11 @@ def run(tp: TrackPlan) -> Generator[Estimate | PoseEstimate, None, TrackResult]:
     try:
         hosts = place(plan, (), req.inline, req.stream)  # the run's stream names its topics
         sink = EstimateSink((t for s in plan.stages.values() for p, t in s.outputs.items() if p == "estimate"),
-                            plan.error_topic)
+                            plan.error_topic, on_estimate)
         path, secs, frames, info = run_graph(plan, inline=req.inline, zenoh=lambda: network or default_zenoh(),
                                              listen_given=req.listen_given, recording=target.path, total=tp.total,
                                              hosts=hosts, quiet=req.quiet, strict=False, sink=sink,
-                                             no_record=req.no_record)
+                                             no_record=req.no_record, stop=stop)
         target.written(path)
         out: RunOutcome = run_outcome(path, plan, info, req.start, heard=sink.estimates, reported=sink.reported)
         if is_live and path:
@@ -632,22 +717,16 @@ def run(tp: TrackPlan) -> Generator[Estimate | PoseEstimate, None, TrackResult]:
         target.cleanup()
         for relay in listeners:
             relay.close()
-    result = TrackResult(estimates=dict(sorted(out.estimates.items())), recording=path, seconds=secs, frames=frames,
-                         info=info, kept=target.kept, temporary=target.temporary or path is None,
-                         lines=list(out.lines) + (live.lines() if live else []) + [x for r in listeners for x in r.lines()],
-                         incomplete=out.why if out.incomplete else "", live=live)
-    yield from result.estimates.values()
-    return result
+    return TrackResult(estimates=dict(sorted(out.estimates.items())), recording=path, seconds=secs, frames=frames,
+                       info=info, kept=target.kept, temporary=target.temporary or path is None,
+                       lines=list(out.lines) + (live.lines() if live else []) + [x for r in listeners for x in r.lines()],
+                       incomplete=out.why if out.incomplete else "", live=live)
 
 
 def track(tp: TrackPlan) -> TrackResult:
-    """Run a plan to its end (:func:`run`) and return what it came to."""
-    gen = run(tp)
-    while True:
-        try:
-            next(gen)
-        except StopIteration as stop:
-            return stop.value
+    """Run a plan to its end in this thread (``gflow track``: Ctrl-C stops it as :func:`run` says)
+    and return what it came to."""
+    return _execute(tp)
 
 
 def default_listen() -> tuple[str, ...]:
