@@ -133,9 +133,10 @@ class TrackerSpec:
 
     Options are shared by name: a tracker reads another tracker's ``gflow track`` option when its
     parameter dataclass has a field of the option's name (``--particles`` of appearance is read by
-    every tracker with a parameter ``particles``), and ``--model`` by every tracker whose
-    ``model_option`` it is. An option a tracker declares that another tracker (or ``gflow track``)
-    declares already is an error naming both (``gflow track --tracker NAME`` says it).
+    every tracker with a parameter ``particles``, declared with that option or none), and
+    ``--model`` by every tracker whose ``model_option`` it is. Any other option a tracker declares
+    that another tracker (or ``gflow track``) has already is an error naming both (``gflow track
+    --tracker NAME`` says it).
     """
 
     name: str
@@ -175,6 +176,11 @@ class TrackerSpec:
             object.__setattr__(self, "proposal_kind", f"{self.name}.proposal")
         if not self.filter_kind:
             object.__setattr__(self, "filter_kind", f"{self.name}.filter")
+
+    @property
+    def model_dest(self) -> str:
+        """The name :attr:`model_option`'s value goes by among the options (``--model`` -> ``model``)."""
+        return self.model_option.lstrip("-").replace("-", "_")
 
     def make(self, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
         """(params, resources) of the API's keywords (:attr:`setup`)."""

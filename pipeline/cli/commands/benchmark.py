@@ -92,7 +92,7 @@ def _request(args, seq, name: str, start: int, stop: int | None, folder: Path) -
     params = {}
     model = model_given(args, name)
     if model:
-        params[spec_of(name).model_option.lstrip("-").replace("-", "_")] = model
+        params[spec_of(name).model_dest] = model
     box = seq.groundtruth[start]
     request = TrackRequest(source=str(seq.path), init=(float(box[0]), float(box[1]), float(box[2]), float(box[3])),
                            tracker=name, params=params, sets=tuple(args.set or ()), seed=args.seed,

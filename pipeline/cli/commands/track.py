@@ -44,8 +44,7 @@ def option_users(dest: str, owner: str) -> set[str]:
 
     users = {owner}
     for name, spec in trackers().items():
-        model_dest = spec.model_option.lstrip("-").replace("-", "_")
-        if dest in {f.name for f in dataclasses.fields(spec.params)} or (spec.model_option and model_dest == dest):
+        if dest in {f.name for f in dataclasses.fields(spec.params)} or (spec.model_option and spec.model_dest == dest):
             users.add(name)
     return users
 

@@ -51,18 +51,25 @@ class SpecOptions:
         self.__doc__ = f"``--tracker {spec.name}``: {spec.about or spec.params.__doc__ or spec.name}"
 
     def add_args(self, g: Any) -> None:
-        """An option for every parameter of the dataclass that declares one; :class:`OptionClash`,
-        with nothing added, when one of them is an option ``gflow track`` has already (another
-        tracker's: a parameter of that option's name reads it without declaring it)."""
+        """An option for every parameter of the dataclass that declares one. An option ``gflow
+        track`` has already is shared when it goes by the parameter's name (``particles`` declaring
+        ``--particles``: read as a parameter of that name reads it); any other is
+        :class:`OptionClash`, with nothing added."""
         from gflow_core.params import describe
 
         from pipeline.cli.tracker_options import add_param_options
 
-        taken = set(getattr(g, "_option_string_actions", {}))
+        taken = dict(getattr(g, "_option_string_actions", {}))
+        shared = set()
         for i in describe(self.PARAMS):
-            if i.option in taken:
+            if i.option in taken and taken[i.option].dest == i.name:
+                shared.add(i.option)
+            elif i.option in taken:
                 raise OptionClash(i.option, f"{self.PARAMS.__name__}.{i.name}")
-        add_param_options(g, self.PARAMS, self.NAME)
+        add_param_options(g, self.PARAMS, self.NAME, skip=frozenset(shared))
+        model = self.spec.model_option
+        if model and model not in getattr(g, "_option_string_actions", {}):  # else shared: m2's --model
+            g.add_argument(model, metavar="MODEL", help=f"{self.NAME}: its model (a file, or a model's name)")
 
     def overrides(self, args: Any) -> tuple[str, dict[str, dict]]:
         """Both stages get the initial box and the seed; the options given set the graph's tracker
@@ -78,6 +85,11 @@ class SpecOptions:
             if i.option is None and i.name not in _NOT_SHARED and getattr(args, i.name, None) is not None:
                 block[i.name] = getattr(args, i.name)
         block.update(param_values(args, self.PARAMS))
+        model = getattr(args, self.spec.model_dest, None) if self.spec.model_option else None
+        if model is not None:  # its parameter ``model``
+            block["model"] = model
+        elif self.spec.model_required:
+            raise CliError(f"--tracker {self.NAME} needs {self.spec.model_option} MODEL")
         return self.GRAPH, {"tracker": block, "proposal": dict(shared), "filter": dict(shared)}
 
     def make_plan(self, graph: str, over: dict[str, dict]) -> Any:
