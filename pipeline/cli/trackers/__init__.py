@@ -60,11 +60,13 @@ class SpecOptions:
         from pipeline.cli.tracker_options import add_param_options
 
         taken = dict(getattr(g, "_option_string_actions", {}))
-        shared = set()
+        shared: set[str] = set()
         for i in describe(self.PARAMS):
-            if i.option in taken and taken[i.option].dest == i.name:
+            if i.option is None or i.option not in taken:
+                continue
+            if taken[i.option].dest == i.name:
                 shared.add(i.option)
-            elif i.option in taken:
+            else:
                 raise OptionClash(i.option, f"{self.PARAMS.__name__}.{i.name}")
         add_param_options(g, self.PARAMS, self.NAME, skip=frozenset(shared))
         model = self.spec.model_option
