@@ -286,7 +286,7 @@ def test_its_shared_and_model_options_reach_its_plan(site, variants, tmp_path):
     crossing = data_dir("crossing")
     env = env_with(site, variants)
     probe = ("import sys; from pipeline.cli.commands.track import track_args, track_plan; "
-             "tp = track_plan(track_args(sys.argv[1:])); print(tp.plan.stages['filter'].params['particles'])")
+             "tp = track_plan(track_args(sys.argv[1:])); print(tp.plan.stage_params('filter')['particles'])")
     r = subprocess.run([sys.executable, "-c", probe, str(crossing), "--init", "204,150,17,50", "--tracker", "ncc",
                         "--particles", "57", "--out", str(tmp_path / "x.csv"), "--inline"], env=env, capture_output=True,
                        text=True, timeout=300)
