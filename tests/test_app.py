@@ -1,4 +1,4 @@
-"""The application layer (pipeline/app.py): a TrackRequest, its plan, and the estimates its run yields.
+"""The application layer (pipeline/app/): a TrackRequest, its plan, and the estimates its run yields.
 
 Real frames (crossing), the real dcf tracker, inline (one process, every message encoded and
 decoded as over zenoh), real MCAP files.
