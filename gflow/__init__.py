@@ -19,6 +19,14 @@ from gflow_core.tracker import Estimate
 
 from .errors import GflowError, UnknownParameter, UnusableFrameError
 from .track import track
-from .tracker import TRACKERS, Tracker
+from .tracker import Tracker, trackers
+
+
+def __getattr__(name: str) -> object:
+    """``gflow.TRACKERS``: the names of the registered trackers, the built-in ones and those other
+    packages register (entry-point group ``gflow.trackers``), read from the registry each time."""
+    if name == "TRACKERS":
+        return trackers()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = ["Tracker", "track", "Estimate", "GflowError", "UnusableFrameError", "UnknownParameter", "TRACKERS"]

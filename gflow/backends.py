@@ -153,11 +153,9 @@ class GraphBackend:
                             fps=self.fps, inline=True, quiet=True)
 
     def _check_options(self) -> None:
-        from pipeline.cli.commands.track import _OWN_OPTIONS, _ALSO_USED_BY
+        from pipeline.cli.commands.track import tracker_options
 
-        _track_actions()  # registers every tracker's options
-        own = {d for t, opts in _OWN_OPTIONS.items() for d in opts
-               if t == self.name or self.name in _ALSO_USED_BY.get(d, ())}
+        own = set(tracker_options(self.name))
         unknown = sorted(set(self.options) - own)
         if unknown:
             from gflow_core.params import UnknownParameter
@@ -196,10 +194,9 @@ def _track_actions() -> dict[str, argparse.Action]:
 
 def _track_defaults() -> dict[str, Any]:
     """{dest: default} of every tracker option of ``gflow track``."""
-    from pipeline.cli.commands.track import _OWN_OPTIONS
+    from pipeline.cli.commands.track import registered_options
 
-    _track_actions()
-    return {d: default for opts in _OWN_OPTIONS.values() for d, (_, default) in opts.items()}
+    return {d: default for opts in registered_options().values() for d, (_, default) in opts.items()}
 
 
 def _as_typed(options: Mapping[str, Any]) -> dict[str, Any]:

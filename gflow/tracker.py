@@ -11,7 +11,6 @@ from gflow_core.tracker import Box, Estimate
 
 from gflow_core import registry
 from gflow_core.spec import SpecError
-from gflow_core.builtin_trackers import BUILTIN
 
 from .backends import GraphBackend, ProtocolBackend, patch_model, protocol_tracker
 from .errors import GflowError
@@ -25,8 +24,12 @@ def trackers() -> tuple[str, ...]:
     return tuple(registry.names())
 
 
-#: the built-in trackers (:func:`trackers` also lists those other packages register)
-TRACKERS = tuple(s.name for s in BUILTIN)
+def __getattr__(name: str) -> Any:
+    """``TRACKERS``: :func:`trackers`, read from the registry each time it is asked for (a tracker
+    another package registers is in it)."""
+    if name == "TRACKERS":
+        return trackers()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def check_box(box: Sequence[float]) -> Box:

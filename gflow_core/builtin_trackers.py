@@ -101,6 +101,7 @@ BUILTIN: tuple[TrackerSpec, ...] = (
                 origin=_ORIGIN),
     DCF,
     TrackerSpec("gflow", GFlowParams, _gflow, setup=gflow_setup, graph="gflow", cli="pipeline.cli.trackers.gflow",
-                origin=_ORIGIN),
-    TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2", origin=_ORIGIN),
+                model_option="--model", origin=_ORIGIN),
+    TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2",
+                model_option="--model", model_required=True, origin=_ORIGIN),
 )

@@ -123,6 +123,20 @@ class TrackerSpec:
         The module of its ``gflow track`` options (``NAME``, ``add_args``, ``overrides``, optionally
         ``make_plan``), for a tracker whose options are its own; empty: the options of its
         parameter dataclass, and its stages get the initial box, the seed and those values.
+    model_option : str
+        The ``gflow track`` option that names the tracker's model (a file or a built-in model's
+        name, read through ``load``), e.g. ``"--model"``; empty: it takes none. ``gflow benchmark``
+        and ``gflow export vot`` give it as ``--NAME-model``.
+    model_required : bool
+        It cannot run without a model: ``gflow benchmark`` skips it, and ``gflow export vot`` leaves
+        it out, unless ``--NAME-model`` is given.
+
+    Options are shared by name: a tracker reads another tracker's ``gflow track`` option when its
+    parameter dataclass has a field of the option's name (``--particles`` of appearance is read by
+    every tracker with a parameter ``particles``, declared with that option or none), and
+    ``--model`` by every tracker whose ``model_option`` it is. Any other option a tracker declares
+    that another tracker (or ``gflow track``) has already is an error naming both (``gflow track
+    --tracker NAME`` says it).
     """
 
     name: str
@@ -135,6 +149,8 @@ class TrackerSpec:
     filter_kind: str = ""
     box: BoxStages | None = None
     cli: str = ""
+    model_option: str = ""
+    model_required: bool = False
     #: where it was registered (``gflow_core.builtin_trackers`` or the entry point), for messages
     origin: str = field(default="", compare=False)
 
@@ -151,10 +167,20 @@ class TrackerSpec:
         if self.box is not None and "particles" not in {f.name for f in dataclasses.fields(self.params)}:
             raise SpecError(f"tracker {self.name}: the box stages need a parameter 'particles' in "
                             f"{self.params.__name__}")
+        if self.model_required and not self.model_option:
+            raise SpecError(f"tracker {self.name}: model_required needs the model_option that names its model")
+        if self.model_option and not self.model_option.startswith("--"):
+            raise SpecError(f"tracker {self.name}: model_option must be an option such as '--model', got "
+                            f"{self.model_option!r}")
         if not self.proposal_kind:
             object.__setattr__(self, "proposal_kind", f"{self.name}.proposal")
         if not self.filter_kind:
             object.__setattr__(self, "filter_kind", f"{self.name}.filter")
+
+    @property
+    def model_dest(self) -> str:
+        """The name :attr:`model_option`'s value goes by among the options (``--model`` -> ``model``)."""
+        return self.model_option.lstrip("-").replace("-", "_")
 
     def make(self, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
         """(params, resources) of the API's keywords (:attr:`setup`)."""

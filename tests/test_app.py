@@ -1,4 +1,4 @@
-"""The application layer (pipeline/app.py): a TrackRequest, its plan, and the estimates its run yields.
+"""The application layer (pipeline/app/): a TrackRequest, its plan, and the estimates its run yields.
 
 Real frames (crossing), the real dcf tracker, inline (one process, every message encoded and
 decoded as over zenoh), real MCAP files.
@@ -113,3 +113,69 @@ def test_the_api_runs_a_patch_model_through_the_app_layer(tmp_path) -> None:
         m = cli[e.frame]
         assert (e.box, e.confidence, e.target_state, e.phase) == (tuple(m.box), m.confidence, m.target_state, m.state)
         assert (e.extras["k"], e.extras["ess"], e.extras["log_evidence"]) == (m.k, m.ess, m.log_evidence)
+
+
+def test_run_yields_each_estimate_while_the_source_still_reads(tmp_path, monkeypatch) -> None:
+    """The estimates come while the run goes on: the source holds its last frame until the consumer
+    has its first estimate (a run that yielded only at its end would read every frame first), and
+    what it yields is what the run recorded, frame by frame."""
+    import threading
+
+    import pipeline.runtime.inline as inline
+
+    first_taken = threading.Event()
+    read: list[int] = []  # the frames the source has read
+    real = inline.open_reader
+
+    def held(params, base_dir="."):
+        for raw in real(params, base_dir):
+            if len(read) == 29:  # the last frame waits for the consumer (a guard of 120 s, should it never come)
+                first_taken.wait(timeout=120)
+            read.append(raw.index)
+            yield raw
+
+    monkeypatch.setattr(inline, "open_reader", held)
+    rec = tmp_path / "r.mcap"
+    gen = run(plan_track(_request(stop=30, record=str(rec)), TRACKERS["dcf"]))
+    first = next(gen)
+    read_then = len(read)
+    first_taken.set()
+    rest = list(gen)
+    assert first.header.seq == 0 and read_then < 30, read_then
+    recorded = estimates(rec)
+    assert [msg_bytes(e) for e in [first, *rest]] == [msg_bytes(recorded[k]) for k in range(30)]
+
+
+def _recording_is_read(rec) -> None:
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "info", str(rec)], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0 and "estimate" in r.stdout, r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("inline", [True, False], ids=["inline", "processes"])
+def test_stopping_early_stops_the_run_and_keeps_a_valid_recording(tmp_path, inline) -> None:
+    """Closing run()'s generator after three estimates stops the run: no stage process is left,
+    the recording is closed properly (gflow info reads it) and holds the frames tracked, from 0."""
+    import contextlib
+
+    import psutil
+
+    caviar1 = data_dir("caviar1")
+    rec = tmp_path / "early.mcap"
+    plan = plan_track(_request(source=str(caviar1), init=(129.0, 71.0, 30.0, 79.0), stop=None, record=str(rec),
+                               inline=inline), TRACKERS["dcf"])
+    me = psutil.Process()
+    before = {p.pid for p in me.children(recursive=True)}
+    with contextlib.closing(run(plan)) as gen:
+        got = [next(gen).header.seq for _ in range(3)]
+        stages = [p for p in me.children(recursive=True) if p.pid not in before]
+    assert got == [0, 1, 2]
+    assert inline or stages, "the stages run as processes"
+    _, alive = psutil.wait_procs(stages, timeout=30)
+    assert not alive, f"stage processes left running: {alive}"
+    _recording_is_read(rec)
+    kept = estimates(rec)
+    assert 3 <= len(kept) < plan.total and sorted(kept) == list(range(len(kept)))

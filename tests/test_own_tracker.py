@@ -218,3 +218,97 @@ def test_a_spec_is_checked_when_it_is_made():
         TrackerSpec("mine", NoParticles, lambda: None)  # type: ignore[arg-type,return-value]
     with pytest.raises(SpecError, match="need a parameter 'particles' in NoParticles"):
         TrackerSpec("mine", NoParticles, lambda: None, box=box)  # type: ignore[arg-type,return-value]
+
+
+#: trackers of another package built from the example's spec: one needing a model, one declaring
+#: appearance's option (shared) and gflow track's --start (a clash); written beside the example
+#: in a site folder of their own
+VARIANTS = '''
+import dataclasses
+
+from gflow_core.params import param
+from gflow_ncc import SPEC, NCCParams
+
+@dataclasses.dataclass(frozen=True)
+class ModelParams(NCCParams):
+    sharpness: float = param(20.0, "likelihood exp(sharpness * ncc)")  # no option: ncc has --ncc-sharpness
+
+
+MODEL = dataclasses.replace(SPEC, name="nccm", params=ModelParams, model_option="--model", model_required=True)
+
+
+@dataclasses.dataclass(frozen=True)
+class ClashParams(ModelParams):
+    particles: int = param(300, "number of particles", option="--particles")  # appearance's, by its name: shared
+    first: int = param(0, "the first frame it tracks", option="--start")  # gflow track's own: a clash
+
+
+CLASH = dataclasses.replace(SPEC, name="clash", params=ClashParams)
+'''
+
+
+@pytest.fixture(scope="module")
+def variants(tmp_path_factory) -> Path:
+    where = install(tmp_path_factory.mktemp("variants"), "gflow-variants",
+                    {"nccm": "gflow_variants:MODEL", "clash": "gflow_variants:CLASH"})
+    (where / "gflow_variants.py").write_text(VARIANTS)
+    return where
+
+
+def test_it_is_in_every_list_of_trackers(site, variants, monkeypatch):
+    """gflow.TRACKERS, the options it shares (its field ``particles`` reads ``--particles``), the
+    benchmark's model options and the VOT workspace's trackers all come from the registry."""
+    import argparse
+
+    import gflow
+    from pipeline.cli.commands.benchmark import model_options
+    from pipeline.cli.commands.export import served_trackers
+    from pipeline.cli.commands.track import option_users, tracker_options
+
+    monkeypatch.syspath_prepend(str(variants))
+    monkeypatch.syspath_prepend(str(site))
+    assert {"ncc", "nccm", "dcf"} <= set(gflow.TRACKERS) and "ncc" in gflow.tracker.TRACKERS
+    assert option_users("particles", "appearance") == {"appearance", "chamfer", "clash", "dcf", "m2", "ncc", "nccm"}
+    assert set(tracker_options("ncc")) == {"particles", "ncc_sharpness"}
+    assert model_options() == {"gflow": "--gflow-model", "m2": "--m2-model", "nccm": "--nccm-model"}
+    none = argparse.Namespace(gflow_model=None, m2_model=None, nccm_model=None)
+    served = served_trackers(none)
+    assert list(served)[0] == "dcf" and "ncc" in served and "clash" in served
+    assert "nccm" not in served and "m2" not in served  # each needs a model nobody gave
+    given = served_trackers(argparse.Namespace(gflow_model="ellipsoid", m2_model=None, nccm_model="m.npz"))
+    assert given["nccm"] == ["--tracker", "nccm", "--model", "m.npz"]
+    assert given["gflow"] == ["--tracker", "gflow", "--model", "ellipsoid"]
+
+
+def test_its_shared_and_model_options_reach_its_plan(site, variants, tmp_path):
+    """``--particles`` (appearance's option) reaches ncc's stages; a tracker needing a model is
+    refused without one and skipped by the benchmark, naming its option."""
+    crossing = data_dir("crossing")
+    env = env_with(site, variants)
+    probe = ("import sys; from pipeline.cli.commands.track import track_args, track_plan; "
+             "tp = track_plan(track_args(sys.argv[1:])); print(tp.plan.stage_params('filter')['particles'])")
+    r = subprocess.run([sys.executable, "-c", probe, str(crossing), "--init", "204,150,17,50", "--tracker", "ncc",
+                        "--particles", "57", "--out", str(tmp_path / "x.csv"), "--inline"], env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0 and r.stdout.strip() == "57", r.stderr
+    r = gflow(["track", str(crossing), "--init", "204,150,17,50", "--tracker", "nccm", "--out", "x.csv", "--inline"], env,
+              cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.strip().endswith("--tracker nccm needs --model MODEL"), r.stderr
+    r = gflow(["benchmark", str(DATA), "--sequences", "crossing", "--trackers", "nccm", "--frames", "0:5", "--inline",
+               "--opencv", "none", "--json", "-q"], env, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    row = next(row for row in json.loads(r.stdout)["rows"] if row["tracker"] == "nccm")
+    assert row["note"] == "skipped: needs --nccm-model MODEL.npz"
+
+
+def test_an_option_another_tracker_has_is_one_line(variants, tmp_path):
+    """A tracker declaring ``--start`` (gflow track's) cannot run from the command line, said in one
+    line naming it, the option and its owner; ``--particles`` on its field ``particles`` is shared,
+    not a clash; every other tracker still runs."""
+    env = env_with(variants, PLUGIN)
+    r = gflow(["track", "in", "--init", "1,1,5,5", "--out", "x.csv", "--tracker", "clash"], env, cwd=tmp_path)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    assert "tracker clash: its option --start (ClashParams.first) is already an option of gflow track" in r.stderr
+    r = gflow(["track", str(DATA / "crossing"), "--init", "204,150,17,50", "--tracker", "dcf", "--particles", "50",
+               "--stop", "3", "--inline", "--no-record", "-q", "--out", str(tmp_path / "dcf.csv")], env, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr

@@ -220,7 +220,7 @@ def test_bad_options_and_a_missing_library_are_one_line_errors(tmp_path):
         ([sys.executable, "-m", "gflow.trax", "--set", "partcles=500"], "partcles"),
         ([sys.executable, "-m", "gflow.trax", "--tracker", "m2"], "needs --model"),
         ([sys.executable, "-m", "pipeline.cli", "trax", "--tracker", "chamfer", "--model", "x.npz"],
-         "--model is an option of --tracker m2 / gflow"),
+         "--model is an option of --tracker gflow / m2"),
         ([sys.executable, "-m", "pipeline.cli", "trax", "--set", "particles"], "--set expects NAME=VALUE"),
     ):
         r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT, stdin=subprocess.DEVNULL)

@@ -36,12 +36,13 @@ def _scalar(tp: Any) -> Any:
     return None
 
 
-def add_param_options(group: Any, cls: type, tracker: str, notes: dict[str, str] | None = None) -> None:
-    """Add an option for every parameter of ``cls`` that names one; its default is None (not given),
-    its help the dataclass's with the default appended (and ``notes[name]``, for an option other
-    trackers read too)."""
+def add_param_options(group: Any, cls: type, tracker: str, notes: dict[str, str] | None = None,
+                      skip: frozenset[str] = frozenset()) -> None:
+    """Add an option for every parameter of ``cls`` that names one (but those in ``skip``); its
+    default is None (not given), its help the dataclass's with the default appended (and
+    ``notes[name]``, for an option other trackers read too)."""
     for info in describe(cls):
-        if info.option is None:
+        if info.option is None or info.option in skip:
             continue
         kind = _scalar(info.type)
         if kind is None:

@@ -9,6 +9,7 @@ the transport's overhead.
 from __future__ import annotations
 
 import logging
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -44,8 +45,10 @@ class InlineResult:
 
 def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, recording: str | None = None,
                metadata: dict[str, dict[str, str]] | None = None,
-               tap: Callable[[str, bytes, int, str], None] | None = None) -> InlineResult:
-    """Run ``plan`` to the end of its source. Returns counts, wall time and the recording path.
+               tap: Callable[[str, bytes, int, str], None] | None = None,
+               stop: threading.Event | None = None) -> InlineResult:
+    """Run ``plan`` to the end of its source (or until ``stop`` is set: the source ends there, and
+    every stage closes as at its end). Returns counts, wall time and the recording path.
 
     ``tap(topic, payload, seq, type name)`` sees every message of the run, in the order it is
     delivered (an estimate sink: :class:`pipeline.app.EstimateSink`)."""
@@ -98,6 +101,8 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     frames = 0
     try:
         for raw in open_reader(src_stage.params, plan.base_dir):
+            if stop is not None and stop.is_set():
+                break
             outs = src_stage.emit(raw)
             src_host._flush_reports()
             src_host._emit(outs)

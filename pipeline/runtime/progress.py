@@ -85,6 +85,7 @@ class ProgressMonitor:
         self.status: dict[str, StageStatus] = {}
         self.errors: list[ErrorReport] = []
         self.estimates: dict[int, bytes] = {}  # every estimate payload of the run's stages heard, by frame
+        self.on_estimate: Callable[[bytes], None] | None = None  # told of each as it is heard (pipeline.app.run)
         self.sessions: set[str] = set()  # the zenoh sessions of the run's stages (they beat)
         self.outside: dict[tuple[str, str], int] = {}  # (topic, session) -> estimates from outside the run
         self.peak_rss: dict[str, float] = {}
@@ -145,6 +146,8 @@ class ProgressMonitor:
         # a copy of every estimate: what the recording lost (a recorder restart) is still known
         if seq >= 0 and type_name in ("Estimate", "PoseEstimate"):
             self.estimates[seq] = payload
+            if self.on_estimate is not None:
+                self.on_estimate(payload)
             if self.live:
                 now = time.time_ns()
                 try:

@@ -3,7 +3,9 @@
 The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.evaluation.sequence_benchmark`,
 the tables in :mod:`pipeline.evaluation.benchmark_tables`, the stress benchmark in
 :mod:`pipeline.evaluation.stress_benchmark`;
-each tracker runs through ``gflow track``'s own code (:func:`.track.track_plan`, :func:`pipeline.app.track`).
+each tracker runs as a :class:`pipeline.app.TrackRequest`, checked and planned as ``gflow track``
+plans its own (:func:`.track.request_plan`) and run by :func:`pipeline.app.track`. The trackers that
+take a model get a ``--NAME-model`` option (:attr:`gflow_core.spec.TrackerSpec.model_option`).
 """
 
 from __future__ import annotations
@@ -14,12 +16,35 @@ import json
 import tempfile
 from pathlib import Path
 
-from pipeline.cli.trackers import TRACKERS
+from pipeline.app import TrackRequest
+from pipeline.cli.trackers import TRACKERS, spec_of
 from pipeline.cli.commands.common import CliError
 
 
-#: the benchmark option that gives each tracker its ``gflow track --model`` file
-MODEL_OPTIONS = {"m2": "--m2-model", "gflow": "--gflow-model"}
+def model_options() -> dict[str, str]:
+    """{tracker: the option giving its model} of the trackers that take one (``--m2-model``):
+    :attr:`gflow_core.spec.TrackerSpec.model_option`."""
+    from gflow_core.registry import trackers
+
+    return {name: f"--{name.replace('_', '-')}-model" for name, spec in trackers().items() if spec.model_option}
+
+
+def add_model_options(p, what: str) -> None:
+    """A ``--NAME-model`` option for every tracker that takes a model (``what``: what it does with it)."""
+    from gflow_core.registry import get
+
+    for name, opt in model_options().items():
+        spec = get(name)
+        p.add_argument(opt, metavar="MODEL", help=f"{what} --tracker {name} with this model, its "
+                       f"gflow track {spec.model_option} (a model file" + (f"; without one, {name} is skipped)"
+                                                                         if spec.model_required else
+                                                                         " or a built-in model's name)"))
+
+
+def model_given(args, name: str) -> str | None:
+    """The model ``--NAME-model`` gave tracker ``name`` (None: none given, or it takes none)."""
+    opt = model_options().get(name)
+    return getattr(args, opt[2:].replace("-", "_"), None) if opt else None
 
 
 def _names(text: str | None, known: list[str], what: str, noun: str) -> list[str]:
@@ -51,32 +76,50 @@ def _opencv_missing(names: list[str]) -> dict[str, str]:
     return {c: opencv_tracker(c)[1] for c in names if opencv_tracker(c)[0] is None}
 
 
-def _track_argv(args, seq, name: str, start: int, stop: int | None, folder: Path) -> list[str]:
-    """The ``gflow track`` command line this benchmark run is (the box of frame ``start``, one seed)."""
-    box = ",".join(repr(float(v)) for v in seq.groundtruth[start])
+def check_models(args) -> None:
+    """Each ``--NAME-model`` given names a file, or a model by a bare word (``face``, ``ellipsoid``)
+    that its tracker checks when it is planned."""
+    for name, opt in model_options().items():
+        model = model_given(args, name)
+        if model and not Path(model).is_file() and not model.isidentifier():
+            raise CliError(f"{opt}: model file not found: {model}")
+
+
+def _request(args, seq, name: str, start: int, stop: int | None, folder: Path) -> tuple[str, TrackRequest]:
+    """Where this benchmark run writes its boxes, and the request it is (the box of frame ``start``,
+    one seed), as ``gflow track`` would make it of the same options."""
     folder.mkdir(parents=True, exist_ok=True)  # the benchmark's own folder (gflow track makes none)
-    argv = [str(seq.path), "--init", box, "--out", str(folder / f"{name}.csv"), "--tracker", name,
-            "--seed", str(args.seed), "--start", str(start), "--record", str(folder / f"{name}.mcap")]
-    if stop is not None:
-        argv += ["--stop", str(stop)]
-    if args.inline:
-        argv.append("--inline")
-    if args.quiet:
-        argv.append("--quiet")
-    model = getattr(args, MODEL_OPTIONS[name][2:].replace("-", "_")) if name in MODEL_OPTIONS else None
+    params = {}
+    model = model_given(args, name)
     if model:
-        argv += ["--model", model]
-    for s in args.set or []:
-        argv += ["--set", s]
-    return argv
+        params[spec_of(name).model_dest] = model
+    box = seq.groundtruth[start]
+    request = TrackRequest(source=str(seq.path), init=(float(box[0]), float(box[1]), float(box[2]), float(box[3])),
+                           tracker=name, params=params, sets=tuple(args.set or ()), seed=args.seed,
+                           record=str(folder / f"{name}.mcap"), inline=args.inline, start=start, stop=stop,
+                           quiet=args.quiet)
+    return str(folder / f"{name}.csv"), request
+
+
+def _planned(args, seq, name: str, start: int, stop: int | None, folder: Path):
+    """(boxes CSV, plan) of one run, or why it is skipped (a tracker needing a model nobody gave, or a
+    request ``gflow track`` would refuse; with a model given, the refusal is raised)."""
+    from pipeline.cli.commands.track import request_plan
+
+    if spec_of(name).model_required and not model_given(args, name):
+        return f"skipped: needs {model_options()[name]} MODEL.npz"
+    out, request = _request(args, seq, name, start, stop, folder)
+    try:
+        return out, request_plan(request, out)
+    except CliError as e:
+        if model_given(args, name):
+            raise
+        return f"skipped: {e}"
 
 
 def _check_paths(args) -> None:
     """Model files, plot names and --out-dir, before any work."""
-    for opt in MODEL_OPTIONS.values():
-        v = getattr(args, opt[2:].replace("-", "_"))
-        if v and not Path(v).is_file():
-            raise CliError(f"{opt}: model file not found: {v}")
+    check_models(args)
     for opt in ("plot", "precision_plot"):
         v = getattr(args, opt)
         if v and Path(v).suffix.lower() not in (".png", ".pdf", ".svg", ".jpg", ".jpeg"):
@@ -88,40 +131,30 @@ def _check_paths(args) -> None:
 
 
 def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None, work: Path):
-    """``gflow track`` options and plan of every (sequence, tracker), or why it is skipped.
+    """Boxes CSV and plan of every (sequence, tracker), or why it is skipped.
 
     Building every plan first makes a bad model file or option fail before any tracking. A
     tracker that cannot run without a model nobody gave is skipped with a note.
     """
-    from pipeline.cli.commands.track import track_args, track_plan
-
     plans: dict[tuple[str, str], tuple] = {}
     skip: dict[tuple[str, str], str] = {}
     for seq in seqs:
         for name in names:
-            targs = track_args(_track_argv(args, seq, name, first[seq.name], stop, work / seq.name))
-            try:
-                plans[seq.name, name] = (targs.out, track_plan(targs))
-            except CliError as e:
-                if getattr(targs, "model", None):
-                    raise
-                needs_model = name in MODEL_OPTIONS and "--model" in str(e)
-                skip[seq.name, name] = f"skipped: needs {MODEL_OPTIONS[name]} MODEL.npz" if needs_model \
-                    else f"skipped: {e}"
+            planned = _planned(args, seq, name, first[seq.name], stop, work / seq.name)
+            if isinstance(planned, str):
+                skip[seq.name, name] = planned
+            else:
+                plans[seq.name, name] = planned
     return plans, skip
 
 
 def _stress_plan_of(args):
-    """How each tracker runs on a derived sequence of the stress benchmark: its ``gflow track``
-    options and plan from the first frame on, or why it is skipped."""
-    from pipeline.cli.commands.track import track_args, track_plan
+    """How each tracker runs on a derived sequence of the stress benchmark: its boxes CSV and plan
+    from the first frame on, or why it is skipped."""
 
     def plan_of(seq, name: str, folder: Path):
-        targs = track_args(_track_argv(args, seq, name, 0, None, folder))
-        try:
-            return targs.out, track_plan(targs)
-        except CliError as e:
-            return str(e)
+        planned = _planned(args, seq, name, 0, None, folder)
+        return planned.removeprefix("skipped: ") if isinstance(planned, str) else planned
 
     return plan_of
 
@@ -304,8 +337,7 @@ def register(sub) -> None:
     p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A "
                                                     "(default: every frame from the first ground-truth box)")
     p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")
-    p.add_argument("--m2-model", metavar="MODEL.npz", help="model for --tracker m2 (without one, m2 is skipped)")
-    p.add_argument("--gflow-model", metavar="MODEL.npz", help="morphable model for the gflow tracker (default: the built-in face model; 'ellipsoid': the generic rigid head)")
+    add_model_options(p, "run")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="stage parameter for every tracker run")
     p.add_argument("--opencv", metavar="NAME,...",
                    help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them (none: no "

@@ -26,6 +26,25 @@ def _check_out(out: Path) -> None:
         raise CliError(f"folder {out.parent} does not exist")
 
 
+def served_trackers(args) -> dict[str, list[str]]:
+    """{tracker: its ``gflow trax`` options} of trackers.ini: every registered tracker, dcf (the
+    default) first; one that needs a model only when ``--NAME-model`` gives it one, which a tracker
+    taking a model gets as ``gflow trax --model`` (a file's absolute path)."""
+    from gflow_core.registry import trackers
+
+    from pipeline.cli.commands.benchmark import model_given
+
+    out: dict[str, list[str]] = {}
+    for name, spec in sorted(trackers().items(), key=lambda kv: (kv[0] != "dcf", kv[0])):
+        model = model_given(args, name)
+        if spec.model_required and not model:
+            continue
+        out[name] = ["--tracker", name]
+        if model:
+            out[name] += ["--model", str(Path(model).resolve()) if Path(model).is_file() else model]
+    return out
+
+
 def cmd_export_vot(args) -> int:
     from pipeline.evaluation.sequence_benchmark import find_sequences
     from pipeline.io.vot_workspace import (stack_yaml, trackers_ini, workspace_config, write_list,
@@ -33,8 +52,9 @@ def cmd_export_vot(args) -> int:
 
     out = Path(args.out)
     _check_out(out)
-    if args.m2_model and not Path(args.m2_model).is_file():
-        raise CliError(f"--m2-model: model file not found: {args.m2_model}")
+    from pipeline.cli.commands.benchmark import check_models
+
+    check_models(args)
     seqs, notes = find_sequences([args.data])
     if args.sequences:
         want = [n.strip() for n in args.sequences.split(",") if n.strip()]
@@ -59,10 +79,7 @@ def cmd_export_vot(args) -> int:
     sparse = [e.name for e in done if not e.dense]
     title = f"gflow export of {Path(args.data).name}: {', '.join(e.name for e in done)}"
     (out / "stack.yaml").write_text(stack_yaml(title, supervised=not sparse))
-    trackers = {"dcf": ["--tracker", "dcf"], "appearance": ["--tracker", "appearance"],
-                "chamfer": ["--tracker", "chamfer"], "gflow": ["--tracker", "gflow"]}
-    if args.m2_model:
-        trackers["m2"] = ["--tracker", "m2", "--model", str(Path(args.m2_model).resolve())]
+    trackers = served_trackers(args)
     (out / "trackers.ini").write_text(trackers_ini(sys.executable, trackers))
     (out / "config.yaml").write_text(workspace_config())
     if sparse:
@@ -89,5 +106,7 @@ def register(sub) -> None:
     v.add_argument("data", metavar="DATA", help="a sequence folder (frames/, groundtruth.csv) or a folder of them")
     v.add_argument("out", metavar="OUT", help="the workspace folder to write (new or empty)")
     v.add_argument("--sequences", metavar="A,B", help="only these sequences of DATA")
-    v.add_argument("--m2-model", metavar="FILE", help="add gflow-m2 to trackers.ini with this model of gflow learn m2")
+    from pipeline.cli.commands.benchmark import add_model_options
+
+    add_model_options(v, "serve")
     v.set_defaults(func=cmd_export_vot)

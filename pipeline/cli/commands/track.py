@@ -17,20 +17,49 @@ from __future__ import annotations
 ORDER = 20
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 from typing import NoReturn
 
 from pipeline.app import TrackPlan, TrackRequest, TrackResult, plan_track, track
-from pipeline.cli.trackers import TRACKERS
+from gflow_core.builtin_trackers import BUILTIN
+
+from pipeline.cli.trackers import TRACKERS, OptionClash
 from pipeline.runtime.trace import mark
 from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
                                           launcher_zenoh, parse_box)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
-#: options one tracker adds that others read too (chamfer, dcf and m2 read appearance's --particles, gflow m2's --model)
-_ALSO_USED_BY = {"particles": ("chamfer", "dcf", "m2"), "model": ("gflow",)}
+#: tracker name -> why its options cannot be added (one of them is another's; filled by register)
+_CLASHES: dict[str, str] = {}
+
+
+def option_users(dest: str, owner: str) -> set[str]:
+    """The trackers that read the option ``dest`` that tracker ``owner`` adds: ``owner``, every tracker
+    with a parameter of that name (chamfer, dcf and m2 read appearance's ``--particles``) and every
+    tracker whose model option it is (:attr:`gflow_core.spec.TrackerSpec.model_option`)."""
+    from gflow_core.registry import trackers
+
+    users = {owner}
+    for name, spec in trackers().items():
+        if dest in {f.name for f in dataclasses.fields(spec.params)} or (spec.model_option and spec.model_dest == dest):
+            users.add(name)
+    return users
+
+
+def registered_options() -> dict[str, dict[str, tuple[str, object]]]:
+    """{tracker: {dest: (option, default)}} of every tracker's ``gflow track`` options (registering them)."""
+    add_track_args(_Parser(prog="gflow track", add_help=False))
+    return _OWN_OPTIONS
+
+
+def tracker_options(name: str) -> dict[str, tuple[str, object]]:
+    """{dest: (option, default)} of the ``gflow track`` options tracker ``name`` reads (its own and
+    those it shares, :func:`option_users`)."""
+    return {dest: opt for owner, opts in registered_options().items() for dest, opt in opts.items()
+            if name in option_users(dest, owner)}
 
 
 def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
@@ -56,13 +85,16 @@ def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
 
 def check_tracker_options(args) -> None:
     """An option of another tracker (``--particles`` with gflow, ``--model`` with chamfer) is an error,
-    not silently ignored; a value the tracker refuses (``--particles 0``) is one line naming the option."""
+    not silently ignored; a value the tracker refuses (``--particles 0``) is one line naming the option;
+    a tracker whose own option is another's (:data:`_CLASHES`) cannot run."""
+    if args.tracker in _CLASHES:
+        raise CliError(_CLASHES[args.tracker])
     for owner, opts in _OWN_OPTIONS.items():
         for dest, (opt, default) in opts.items():
-            if owner == args.tracker or args.tracker in _ALSO_USED_BY.get(dest, ()):
+            users = option_users(dest, owner)
+            if args.tracker in users:
                 continue
             if getattr(args, dest, default) != default:
-                users = sorted({owner, *_ALSO_USED_BY.get(dest, ())})
                 raise CliError(f"{opt} is an option of --tracker {' / '.join(users)}, not of --tracker "
                                f"{args.tracker}")
     from pipeline.cli.tracker_options import check_param_values
@@ -121,9 +153,29 @@ def track_plan(args) -> TrackPlan:
     check_tracker_options(args)
     check_outputs(out=args.out, record=args.record, points_out=getattr(args, "points_out", None))
     check_points_out(args)
-    tp = plan_track(track_request(args), TRACKERS[args.tracker])
-    if args.tracker == "m2" and tp.first_image_shape is not None:
-        check_whole_frame_model(args.model, args.source, tp.first_image_shape)
+    return _planned(track_request(args))
+
+
+def request_plan(request: TrackRequest, out: str) -> TrackPlan:
+    """The plan of a request made without a command line (``gflow benchmark``), its boxes going to
+    ``out``: checked as :func:`track_plan` checks ``gflow track``'s options. ``request.params`` holds
+    the options given, by their ``argparse`` names (``{"model": "m.npz"}``); every other tracker
+    option is its default, as on the command line."""
+    options = argparse.Namespace(**{**option_defaults(), **request.params, "tracker": request.tracker})
+    check_tracker_options(options)
+    check_outputs(out=out, record=request.record)
+    return _planned(dataclasses.replace(request, params=tracker_params(options)))
+
+
+def option_defaults() -> dict[str, object]:
+    """{dest: default} of every tracker's ``gflow track`` options."""
+    return {dest: default for opts in registered_options().values() for dest, (_, default) in opts.items()}
+
+
+def _planned(request: TrackRequest) -> TrackPlan:
+    tp = plan_track(request, TRACKERS[request.tracker])
+    if request.tracker == "m2" and tp.first_image_shape is not None:
+        check_whole_frame_model(str(request.params["model"]), request.source, tp.first_image_shape)
     return tp
 
 
@@ -207,12 +259,23 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--graph", help="graph file to use instead of the tracker's built-in one")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="override a stage parameter")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    for t in TRACKERS.values():
-        g = p.add_argument_group(f"--tracker {t.NAME}")
-        t.add_args(g)
-        _OWN_OPTIONS[t.NAME] = {a.dest: (a.option_strings[0], a.default) for a in g._group_actions}
     add_placement_args(p, hosts=False)
     add_zenoh_args(p)
+    builtin = {s.name for s in BUILTIN}
+    owners = {o: "gflow track" for a in p._actions for o in a.option_strings}
+    _CLASHES.clear()
+    # the built-in trackers' options first: another package's tracker never takes one of theirs
+    for t in sorted(TRACKERS.values(), key=lambda t: (t.NAME not in builtin, t.NAME)):
+        g = p.add_argument_group(f"--tracker {t.NAME}")
+        try:
+            t.add_args(g)
+        except OptionClash as e:
+            _CLASHES[t.NAME] = (f"tracker {t.NAME}: its option {e.option} ({e.where}) is already an option of "
+                                f"{owners.get(e.option, 'gflow track')}; give it another name in its parameters")
+            _OWN_OPTIONS[t.NAME] = {}
+            continue
+        _OWN_OPTIONS[t.NAME] = {a.dest: (a.option_strings[0], a.default) for a in g._group_actions}
+        owners.update({o: f"--tracker {t.NAME}" for a in g._group_actions for o in a.option_strings})
 
 
 def track_args(argv: list[str]) -> argparse.Namespace:

@@ -53,14 +53,20 @@ def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
             out[name.strip()] = yaml.safe_load(value)
         except yaml.YAMLError:
             raise CliError(f"--set {item}: the value is not a number, a word or a list") from None
+    from gflow_core.registry import trackers
+
+    specs = trackers()
     if args.model is not None:
-        if args.tracker is not None and args.tracker not in ("m2", "gflow"):
-            raise CliError(f"--model is an option of --tracker m2 / gflow, not of --tracker {args.tracker}")
+        takes = [n for n, s in specs.items() if s.model_option]  # the trackers that take a model
+        if args.tracker is not None and args.tracker not in takes:
+            raise CliError(f"--model is an option of --tracker {' / '.join(takes)}, not of --tracker {args.tracker}")
         if "model" in out:
             raise CliError("give the model once: --model FILE or --set model=FILE")
         out["model"] = args.model
-    if args.tracker == "m2" and "model" not in out:
-        raise CliError("--tracker m2 needs --model MODEL.npz (learn one with gflow learn m2)")
+    spec = specs.get(args.tracker or "")
+    if spec is not None and spec.model_required and "model" not in out:
+        raise CliError(f"--tracker {spec.name} needs --model MODEL.npz"
+                       + (" (learn one with gflow learn m2)" if spec.name == "m2" else ""))
     return out
 
 

@@ -21,7 +21,7 @@ from gflow_core.spec import SpecError, TrackerSpec
 
 from pipeline.cli.commands.common import CliError
 
-__all__ = ["TRACKERS", "SpecOptions", "UnknownTracker", "spec_of"]
+__all__ = ["TRACKERS", "SpecOptions", "UnknownTracker", "OptionClash", "spec_of"]
 
 
 class UnknownTracker(CliError, KeyError):
@@ -29,6 +29,15 @@ class UnknownTracker(CliError, KeyError):
 
     def __str__(self) -> str:
         return str(self.args[0]) if self.args else ""
+
+
+class OptionClash(Exception):
+    """A tracker's option that ``gflow track`` has already (``option``; ``where``: the parameter that
+    declares it); ``gflow track --tracker NAME`` says so in one line (:mod:`pipeline.cli.commands.track`)."""
+
+    def __init__(self, option: str, where: str) -> None:
+        super().__init__(f"{option} ({where})")
+        self.option, self.where = option, where
 
 
 class SpecOptions:
@@ -42,24 +51,48 @@ class SpecOptions:
         self.__doc__ = f"``--tracker {spec.name}``: {spec.about or spec.params.__doc__ or spec.name}"
 
     def add_args(self, g: Any) -> None:
-        """An option for every parameter of the dataclass that declares one (an option another
-        tracker declares already is left to it: set the value with ``--set tracker.NAME=VALUE``)."""
+        """An option for every parameter of the dataclass that declares one. An option ``gflow
+        track`` has already is shared when it goes by the parameter's name (``particles`` declaring
+        ``--particles``: read as a parameter of that name reads it); any other is
+        :class:`OptionClash`, with nothing added."""
         from gflow_core.params import describe
 
         from pipeline.cli.tracker_options import add_param_options
 
-        taken = set(getattr(g, "_option_string_actions", {}))
-        if any(i.option in taken for i in describe(self.PARAMS) if i.option):
-            return
-        add_param_options(g, self.PARAMS, self.NAME)
+        taken = dict(getattr(g, "_option_string_actions", {}))
+        shared: set[str] = set()
+        for i in describe(self.PARAMS):
+            if i.option is None or i.option not in taken:
+                continue
+            if taken[i.option].dest == i.name:
+                shared.add(i.option)
+            else:
+                raise OptionClash(i.option, f"{self.PARAMS.__name__}.{i.name}")
+        add_param_options(g, self.PARAMS, self.NAME, skip=frozenset(shared))
+        model = self.spec.model_option
+        if model and model not in getattr(g, "_option_string_actions", {}):  # else shared: m2's --model
+            g.add_argument(model, metavar="MODEL", help=f"{self.NAME}: its model (a file, or a model's name)")
 
     def overrides(self, args: Any) -> tuple[str, dict[str, dict]]:
-        """Both stages get the initial box and the seed; the options given set the graph's tracker block."""
+        """Both stages get the initial box and the seed; the options given set the graph's tracker
+        block: its own, and those of other trackers it reads (a parameter of the option's name, as
+        ``--particles``)."""
+        from gflow_core.params import describe
+
         from pipeline.cli.tracker_options import param_values
 
         shared: dict = {"init": list(args.init), "seed": args.seed}
-        return self.GRAPH, {"tracker": param_values(args, self.PARAMS), "proposal": dict(shared),
-                            "filter": dict(shared)}
+        block: dict = {}
+        for i in describe(self.PARAMS):  # another tracker's option read by name
+            if i.option is None and i.name not in _NOT_SHARED and getattr(args, i.name, None) is not None:
+                block[i.name] = getattr(args, i.name)
+        block.update(param_values(args, self.PARAMS))
+        model = getattr(args, self.spec.model_dest, None) if self.spec.model_option else None
+        if model is not None:  # its parameter ``model``
+            block["model"] = model
+        elif self.spec.model_required:
+            raise CliError(f"--tracker {self.NAME} needs {self.spec.model_option} MODEL")
+        return self.GRAPH, {"tracker": block, "proposal": dict(shared), "filter": dict(shared)}
 
     def make_plan(self, graph: str, over: dict[str, dict]) -> Any:
         """The plan of ``graph``: the spec's own when it is the tracker's (and no file of that name)."""
@@ -69,6 +102,10 @@ class SpecOptions:
         if self.spec.graph is None and graph == self.GRAPH:
             return spec_plan(self.spec, over)
         return load_graph(graph, overrides=over)
+
+
+#: what a request's options hold besides the trackers' options (never a shared option)
+_NOT_SHARED = frozenset({"tracker", "init", "seed", "source"})
 
 
 class _Broken:

@@ -29,11 +29,13 @@ def add_args(g: Any) -> None:
     its help and default; shared with chamfer and m2) and the two size presets."""
     from pipeline.cli.tracker_options import add_param_options
 
-    from gflow_core.contour.params import ChamferParams, M2Params
-    from gflow_core.dcf.params import DCFParams
+    from gflow_core.params import defaults
+    from gflow_core.registry import trackers
 
-    add_param_options(g, AppearanceParams, NAME, notes={
-        "particles": f"chamfer {ChamferParams().particles}, dcf {DCFParams().particles}, m2 {M2Params().particles}"})
+    # the other trackers with a parameter ``particles`` read --particles too: their defaults
+    others = {n: defaults(s.params)["particles"] for n, s in trackers().items()
+              if n != NAME and "particles" in defaults(s.params)}
+    add_param_options(g, AppearanceParams, NAME, notes={"particles": ", ".join(f"{n} {v}" for n, v in others.items())})
     g.add_argument("--track-scale", action="store_true",
                    help=f"appearance: scale in the particle state ({_preset(TRACK_SCALE)}) instead of the default "
                         "scale search at the peak; the box drifts smaller on caviar1 and david_indoor "

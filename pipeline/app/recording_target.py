@@ -1,0 +1,92 @@
+"""Where a run of the application layer records (:class:`RecordingTarget`).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Iterable
+
+from pipeline.runtime.graph import Plan
+from pipeline.app.request import RequestError
+
+__all__ = ["RecordingTarget", "temporary_recording"]
+
+# -- where a run records --------------------------------------------------------------------------
+
+
+class RecordingTarget:
+    """Where a run records: ``record`` (a path; None: ``default``, or the graph's own name made when
+    the run starts), ``no_record`` and ``record_topics`` (shell patterns).
+
+    ``needed`` are topics read back after the run: they are always recorded, and with
+    ``no_record`` they go to a temporary file that :meth:`cleanup` deletes; with nothing needed,
+    ``no_record`` removes the recorder stage. ``path`` is what to pass to the launcher (None: no
+    recorder).
+    """
+
+    def __init__(self, plan: Plan, record: str | None, no_record: bool, record_topics: Iterable[str],
+                 default: str | None, needed: tuple[str, ...] = ()) -> None:
+        import tempfile
+
+        self.tmpdir: str | None = None
+        self.temporary = False
+        self.given = bool(record)
+        rec = plan.recorder()
+        pats = [p.strip() for item in record_topics for p in item.split(",") if p.strip()]
+        if rec is None:
+            if pats or needed:
+                raise RequestError(f"the graph {plan.name!r} has no recorder stage, so there is nothing to "
+                                   + ("select topics of" if pats else "read the results from"))
+            self.path = None
+            return
+        if no_record:
+            if not needed:
+                del plan.stages[rec.name]
+                self.path = None
+                return
+            self.tmpdir = tempfile.mkdtemp(prefix="gflow-norecord-")
+            self.temporary = True
+            self.path = str(Path(self.tmpdir) / "run.mcap")
+            rec.params["topics"] = list(needed)
+            return
+        if pats:
+            rec.params["topics"] = pats + [t for t in needed if t not in pats]
+        self.path = record or default
+        from pipeline.io.recording_files import refuse_existing
+        from pipeline.runtime.preflight import check_writable
+
+        if self.path:  # a recording never overwrites a file (the recorder also creates it exclusively)
+            refuse_existing(self.path, "--record" if record else "the recording")
+        path = self.path or plan.recording_path()  # None: named when the run starts, with its run id
+        assert path is not None  # the plan has its recorder
+        # the default recordings/ folder is made; a typed one must exist
+        check_writable(path, "--record" if record else "the recording", make_folder=not record)  # before any work
+
+    @property
+    def kept(self) -> str:
+        """How to name the recording to the user."""
+        return "none (--no-record)" if self.temporary or self.path is None else str(self.path)
+
+    def written(self, path: str | None) -> None:
+        """The path the run recorded to (a default one is named when the run starts); a note when
+        its folder holds more than ``GFLOW_RECORDINGS_WARN_MB`` of recordings."""
+        if not self.temporary and path:
+            self.path = path
+            from pipeline.io.recording_files import size_warning
+
+            note = size_warning(Path(path).parent)
+            if note:
+                print(note, file=sys.stderr)
+
+    def cleanup(self) -> None:
+        if self.tmpdir:
+            import shutil
+
+            shutil.rmtree(self.tmpdir, ignore_errors=True)
+            self.tmpdir = None
+
+
+def temporary_recording(path: str | None) -> bool:
+    """A recording :class:`RecordingTarget` made for ``no_record`` (read back, then removed)."""
+    return bool(path) and Path(str(path)).parent.name.startswith("gflow-norecord-")
