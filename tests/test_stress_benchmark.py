@@ -124,6 +124,37 @@ def test_scores_equal_gflow_eval_and_the_csv_has_the_state(first_run):
     assert json.loads(r.stdout)["success_rate_0.5"] == pytest.approx(app["after"], abs=1e-4)
 
 
+def test_undisturbed_frames_split_by_the_box_count_again_from_the_files(first_run):
+    res, cache, runs, _ = first_run
+    pooled = np.zeros(4, dtype=np.int64)
+    for row in _rows(res, tracker="appearance"):
+        d = _derived(cache, row["sequence"], row["case"])
+        gt = read_boxes(d / "groundtruth.csv")
+        vis, pert = read_visibility(d / "visibility.csv")
+        track = read_track(runs / row["sequence"] / row["case"] / "appearance.csv")
+        assert pert is not None and track.states is not None
+        frames = sorted(gt)
+        # undisturbed: not perturbed and at least a tenth of the target in view; on the target: IoU > 0.5
+        shown = np.array([not pert[f] and vis[f] >= 0.1 for f in frames])
+        on = np.array([_iou(gt[f], track.boxes[f]) > 0.5 for f in frames])
+        said = np.array([track.states[f] for f in frames])
+        counts = [(shown & on).sum(), (shown & on & (said == "tracked")).sum(), (shown & ~on).sum(),
+                  (shown & ~on & np.isin(said, ["occluded", "lost"])).sum()]
+        st = row["state"]
+        assert st["undisturbed_on_target_frames"] + st["undisturbed_off_target_frames"] == st["undisturbed_frames"]
+        assert [st["undisturbed_on_target_frames"], st["undisturbed_off_target_frames"]] == [counts[0], counts[2]]
+        pooled += counts
+    s = res["summary"]["appearance"]
+    assert s["undisturbed_on_target_reported_tracked"] == [pooled[1], pooled[0]]
+    assert s["undisturbed_off_target_reported_occluded_or_lost"] == [pooled[3], pooled[2]]
+
+
+def _iou(a: tuple, b: tuple) -> float:
+    w = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
+    return w * h / (a[2] * a[3] + b[2] * b[3] - w * h)
+
+
 @pytest.mark.parametrize("case, frames", [("occlude-10", "28:38"), ("fast-2", "78:88")])
 def test_untouched_after_is_the_control_run_on_the_same_original_frames(first_run, case, frames):
     res, cache, runs, _ = first_run

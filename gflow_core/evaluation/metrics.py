@@ -196,6 +196,15 @@ class StateScore:
     off : frames with the target in view whose box missed it (overlap at or below the success
         threshold), scored when the overlaps are given; off_tracked : of those, reported
         ``tracked`` -- the box is off the target and the output does not say so (lower is better).
+    shown_on : of the ``shown`` frames, those with the box on the target (overlap above the success
+        threshold; every shown frame when the overlaps are not given); shown_on_tracked : of those,
+        reported ``tracked``. A miss here is a state that is wrong: the box is right and the output
+        says it is not.
+    shown_off : of the ``shown`` frames, those with the box off the target (overlap at or below the
+        threshold); shown_off_hidden : of those, reported ``occluded`` or ``lost``. A frame counted
+        here is one ``shown_rate`` counts as wrong although the state is honest: the box is what
+        is wrong (the tracker did not find the target again).
+        ``shown_right = shown_on_tracked + (shown_off - shown_off_hidden - frames with no state)``.
     bands : per band of :data:`CONFIDENCE_BANDS`, (frames with the target in view, of those with
         the box on it), scored when the confidences and overlaps are given: how far a user may
         trust a confidence (it is P(visible), not a calibrated P(on target)).
@@ -208,6 +217,10 @@ class StateScore:
     off: int = 0
     off_tracked: int = 0
     bands: tuple[tuple[int, int], ...] = ()
+    shown_on: int = 0
+    shown_on_tracked: int = 0
+    shown_off: int = 0
+    shown_off_hidden: int = 0
 
     @property
     def hidden_rate(self) -> float | None:
@@ -221,11 +234,23 @@ class StateScore:
     def off_rate(self) -> float | None:
         return self.off_tracked / self.off if self.off else None
 
+    @property
+    def shown_on_rate(self) -> float | None:
+        return self.shown_on_tracked / self.shown_on if self.shown_on else None
+
+    @property
+    def shown_off_rate(self) -> float | None:
+        return self.shown_off_hidden / self.shown_off if self.shown_off else None
+
     def to_json(self) -> dict:
-        r = self.hidden_rate, self.shown_rate, self.off_rate
+        r = self.hidden_rate, self.shown_rate, self.off_rate, self.shown_on_rate, self.shown_off_rate
         return {"hidden_frames": self.hidden, "hidden_reported_occluded_or_lost": None if r[0] is None else round(r[0], 4),
                 "undisturbed_frames": self.shown, "undisturbed_reported_tracked": None if r[1] is None else round(r[1], 4),
                 "off_target_frames": self.off, "off_target_reported_tracked": None if r[2] is None else round(r[2], 4),
+                "undisturbed_on_target_frames": self.shown_on,
+                "undisturbed_on_target_reported_tracked": None if r[3] is None else round(r[3], 4),
+                "undisturbed_off_target_frames": self.shown_off,
+                "undisturbed_off_target_reported_occluded_or_lost": None if r[4] is None else round(r[4], 4),
                 "confidence_bands": band_json(self.bands)}
 
 
@@ -260,7 +285,8 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
     hidden_below : a frame is hidden when less than this fraction of the target is in view.
     overlap : (F,) the box's overlap (IoU) with the truth on each frame (:func:`overlaps`); with it,
         the frames with the target in view and overlap at or below ``threshold`` are scored for
-        whether they were reported ``tracked`` (``off``, ``off_tracked``).
+        whether they were reported ``tracked`` (``off``, ``off_tracked``), and the undisturbed frames
+        are split by whether the box is on the target (``shown_on``, ``shown_off``).
     confidence : (F,) the confidence reported on each frame (NaN where none); with ``overlap``, the
         frames with the target in view are counted per confidence band (``bands``).
     frames : (F,) increasing frame numbers of the entries, where only some frames are scored
@@ -309,4 +335,6 @@ def state_score(states: list[str | None], visible: ArrayLike, perturbed: ArrayLi
                       for b in range(len(CONFIDENCE_BANDS) + 1))
     return StateScore(hidden=int(scored_hidden.sum()), hidden_right=int((scored_hidden & said_hidden).sum()),
                       shown=int(shown.sum()), shown_right=int((shown & said_tracked).sum()),
-                      off=int(off.sum()), off_tracked=int((off & said_tracked).sum()), bands=bands)
+                      off=int(off.sum()), off_tracked=int((off & said_tracked).sum()), bands=bands,
+                      shown_on=int((shown & on).sum()), shown_on_tracked=int((shown & on & said_tracked).sum()),
+                      shown_off=int((shown & ~on).sum()), shown_off_hidden=int((shown & ~on & said_hidden).sum()))

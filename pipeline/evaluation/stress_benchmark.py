@@ -325,6 +325,11 @@ def _rate(a: int, b: int) -> str:
     return "-" if b == 0 else f"{a / b:.2f}"
 
 
+def _rate_of(a: int, b: int) -> str:
+    """The fraction with its count: ``"0.99 (8,900 / 8,990)"``."""
+    return "-" if b == 0 else f"{a / b:.2f} ({a:,} / {b:,})"
+
+
 COLUMNS = ("sequence", "case", "CLE px", "success", "after", "untouched after", "back in", "hidden ok", "shown ok")
 OTHER_COLUMNS = ("CLE", "success", "after", "back in")
 
@@ -383,6 +388,9 @@ def _summary(rows: list[StressRow]) -> dict:
         "hidden_reported_occluded_or_lost": [sum(s.hidden_right for s in st), sum(s.hidden for s in st)],
         "undisturbed_reported_tracked": [sum(s.shown_right for s in st), sum(s.shown for s in st)],
         "off_target_reported_tracked": [sum(s.off_tracked for s in st), sum(s.off for s in st)],
+        "undisturbed_on_target_reported_tracked": [sum(s.shown_on_tracked for s in st), sum(s.shown_on for s in st)],
+        "undisturbed_off_target_reported_occluded_or_lost": [sum(s.shown_off_hidden for s in st),
+                                                             sum(s.shown_off for s in st)],
         "confidence_bands": band_json([[sum(s.bands[b][i] for s in st if s.bands) for i in (0, 1)]
                                        for b in range(len(CONFIDENCE_BANDS) + 1)]),
     }
@@ -455,6 +463,10 @@ def _overview(rows: list[StressRow], markdown: bool) -> list[str]:
             ("undisturbed frames reported tracked", lambda a: _rate(*a["undisturbed_reported_tracked"])),
             ("off the target yet reported tracked (lower is better)",
              lambda a: _rate(*a["off_target_reported_tracked"])),
+            ("undisturbed, box on the target: reported tracked",
+             lambda a: _rate_of(*a["undisturbed_on_target_reported_tracked"])),
+            ("undisturbed, box off the target: reported occluded/lost",
+             lambda a: _rate_of(*a["undisturbed_off_target_reported_occluded_or_lost"])),
             ("cases worse than a box that never moves", lambda a: str(len(a["worse_than_still_box"])))]
     groups = [g for g in sums[names[0]]["back"] if g != "every case"]
     cells = [[f"got back after {g}"] + [back({"back": sums[n]["back"][g]}) for n in names] for g in groups]
@@ -495,6 +507,9 @@ def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv
     o = a["off_target_reported_tracked"]
     lines.append(f"- box off the target (IoU <= 0.5, target in view) yet reported tracked {_rate(*o)} "
                  f"({o[0]}/{o[1]}; lower is better)")
+    on, off = a["undisturbed_on_target_reported_tracked"], a["undisturbed_off_target_reported_occluded_or_lost"]
+    lines.append(f"- undisturbed frames split by the box (IoU > 0.5: on the target): box on the target, reported "
+                 f"tracked {_rate_of(*on)}; box off the target, reported occluded/lost {_rate_of(*off)}")
     bands = band_text(a["confidence_bands"])
     if bands:
         lines.append(f"- on target by confidence (target in view): {bands}")
