@@ -242,7 +242,10 @@ def _placed_yaml(plan, hosts: dict[str, str]) -> str:
         if s.outputs:
             st["outputs"] = {p: t[len(prefix):] for p, t in s.outputs.items()}
         stages[n] = st
-    return yaml.safe_dump({"name": plan.name, "stream": plan.stream, "stages": stages}, sort_keys=False)
+    doc: dict = {"name": plan.name, "stream": plan.stream, "stages": stages}
+    if plan.tracker is not None:  # the tracker's parameters, named once for all its stages
+        doc["tracker"] = {"name": plan.tracker.name, "params": plan.tracker.params}
+    return yaml.safe_dump(doc, sort_keys=False)
 
 
 def test_proposal_shards_on_two_hosts_equal_one_shard_bit_for_bit(net, tmp_path):

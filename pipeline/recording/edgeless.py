@@ -38,10 +38,12 @@ class EdgelessFrames:
 
 
 def _param(plan: Any, name: str) -> tuple[str, Any] | None:
-    """(stage name, value) of the first stage of ``plan`` whose parameters have ``name`` set."""
-    for sname, s in plan.stages.items():
-        if s.params.get(name) is not None:
-            return sname, s.params[name]
+    """(stage name, value) of the first stage of ``plan`` whose parameters (its own and those of
+    the graph's tracker block) have ``name`` set."""
+    for sname in plan.stages:
+        params = plan.stage_params(sname)
+        if params.get(name) is not None:
+            return sname, params[name]
     return None
 
 
