@@ -323,6 +323,11 @@ def test_eval_reads_old_five_column_files_and_new_seven_column_ones(tmp_path):
     assert st["off_target_frames"] == 4 and st["off_target_reported_tracked"] == pytest.approx(0.5)
     assert [b["frames"] for b in st["confidence_bands"]] == [0, 0, 10, 0, 0]  # every confidence 0.5
     assert st["confidence_bands"][2]["on_target"] == pytest.approx(0.6)
+    # the text says the same split: 6 on target all tracked; 4 off, 2 of them said lost
+    r = _gflow("eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "off.csv"), "--visibility",
+               str(tmp_path / "vis.csv"))
+    assert "box on target:  1.000 (tracked on 6 of 6" in r.stdout, r.stdout
+    assert "box off target: 0.500 (occluded or lost on 2 of 4" in r.stdout, r.stdout
 
 
 def test_read_track_refuses_bad_states_and_mixed_rows(tmp_path):

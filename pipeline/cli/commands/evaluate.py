@@ -83,6 +83,10 @@ def cmd_eval(args) -> int:
             print(f"off the target, said tracked: {_rate(states.off_tracked, states.off)} (tracked on "
                   f"{states.off_tracked} of {states.off} frames with the target in view and IoU <= {args.threshold}; "
                   "lower is better)")
+            print(f"  undisturbed, box on target:  {_rate(states.shown_on_tracked, states.shown_on)} (tracked on "
+                  f"{states.shown_on_tracked} of {states.shown_on}: a miss here is a wrong state)")
+            print(f"  undisturbed, box off target: {_rate(states.shown_off_hidden, states.shown_off)} (occluded or lost "
+                  f"on {states.shown_off_hidden} of {states.shown_off}: the box is wrong and the state says so)")
             bands = band_text(states.to_json()["confidence_bands"])
             if bands:
                 print(f"on target by confidence:     {bands} (frames with the target in view)")
