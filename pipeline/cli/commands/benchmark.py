@@ -338,7 +338,7 @@ def register(sub) -> None:
                                                     "(default: every frame from the first ground-truth box)")
     p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")
     add_model_options(p, "run")
-    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="stage parameter for every tracker run")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="a parameter for every run: of the tracker (tracker.particles=1000) or of one stage; repeatable")
     p.add_argument("--opencv", metavar="NAME,...",
                    help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them (none: no "
                         "OpenCV tracker)")

@@ -46,7 +46,7 @@ def register(sub) -> None:
     p = sub.add_parser("run", help="run a graph file (every stage its own process, or --inline)",
                        description=f"Run a YAML graph. Built-in graphs: {', '.join(builtin_graphs())}.")
     p.add_argument("graph", help="graph file, or the name of a built-in graph")
-    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="override a stage parameter")
+    p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="a parameter of the graph's tracker, once for all its stages (tracker.particles=1000), or of one stage (source.frames=40); repeatable")
     add_record_args(p, "the recorder's path pattern")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     add_placement_args(p)
