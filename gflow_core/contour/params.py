@@ -104,8 +104,6 @@ class ChamferParams(ContourParams):
     lost_follow: bool = param(True, "while the lost guard holds the last found box, report the filter's estimate "
                                     "(kept within the hold window) where the template still fits the edges there, "
                                     "within template_gain times its fit on the first frames (false: the last found box)")
-    speed_noise: float = param(0.0, "EXPERIMENT speed noise")
-    prior_follows: bool = param(False, "EXPERIMENT prior centre at template size")
     template_anchor: bool = param(True, "the lost guard's anchor is taken again with the template (where the first "
                                         "anchor agrees as well)")
 

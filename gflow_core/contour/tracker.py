@@ -85,7 +85,6 @@ __all__ = ["ContourFilter", "ContourSetup", "ContourState", "ContourObservation"
 PURPOSE_INIT = 0x1417
 PURPOSE_RESAMPLE = 0x2E5A
 PURPOSE_INIT_K = 0x1418
-PURPOSE_SPEED = 0x5BD3
 
 
 @dataclass(frozen=True)
@@ -178,11 +177,6 @@ class ContourState:
     template_clock: int = 0
     first_anchor: np.ndarray | None = None
     first_fit: tuple[float, int] = (0.0, 0)
-    size_centre: float = 0.0
-
-
-def st_centre(params: ContourParams, st: ContourState) -> float:
-    return st.size_centre if isinstance(params, ChamferParams) and params.prior_follows else 0.0
 
 
 def guard_params(params: ContourParams) -> LostParams | None:
@@ -282,8 +276,7 @@ class ContourFilter:
             if params.scale_prior > 0 and learned is None:
                 # explicit prior on the size, log s ~ N(0, scale_prior^2) (s relative to the first box):
                 # the directed chamfer distance alone is smallest for a template shrunk onto dense edges
-                c = st_centre(params, state)
-                log_lik = log_lik - (np.log(cloud.alpha[:, 3]) - c) ** 2 / (2.0 * params.scale_prior ** 2)
+                log_lik = log_lik - np.log(cloud.alpha[:, 3]) ** 2 / (2.0 * params.scale_prior ** 2)
         grey = None
         if phase == "track" and state.app is not None and obs is not None and obs.grey is not None:
             grey = obs.grey
@@ -295,8 +288,6 @@ class ContourFilter:
             phase = "init"
         post = posterior(cloud, log_lik, model.K, rng.stream(PURPOSE_RESAMPLE), params.particles)
         st = state
-        if isinstance(params, ChamferParams) and params.speed_noise > 0 and not first and phase == "track":
-            post = _speed_spread(params, cloud, post, rng)
         if obs is not None and not first:
             post, phase, st = self._guard(params, st, obs, post, phase)
         if grey is not None and st.bank is not None and not first and phase == "track":
@@ -423,8 +414,7 @@ class ContourFilter:
             if math.hypot(float(peak[0] - a_star[0]), float(peak[1] - a_star[1])) > max(eps, step):
                 return st
             anchor = replace(anchor, channels=anchor_region(feat, anchor.res, anchor.size, a_star))
-        return replace(st, model=k1_model(pts, params.lam), template=pts, anchor=anchor, template_clock=t,
-                       size_centre=float(np.log(a_star[3])))
+        return replace(st, model=k1_model(pts, params.lam), template=pts, anchor=anchor, template_clock=t)
 
     # -- the estimate ---------------------------------------------------------------------------
     def box(self, params: ContourParams, st: ContourState, alpha: np.ndarray, k: int) -> Box:
@@ -458,16 +448,6 @@ class ContourFilter:
                   "log_evidence": float(log_ev), "contour": contour}
         return Estimate(frame=int(t), box=(b[0], b[1], b[2], b[3]), confidence=float(confidence),
                         target_state=target_state, phase=phase, extras=extras)
-
-
-def _speed_spread(params: ChamferParams, proposal: ParticleCloud, post: Posterior, rng: FrameRng) -> Posterior:
-    d = post.mean_alpha[:2] - proposal.alpha[:, :2].mean(axis=0)
-    sd = params.speed_noise * float(np.hypot(d[0], d[1]))
-    if sd <= 0:
-        return post
-    alpha = post.resampled.alpha.copy()
-    alpha[:, :2] += sd * rng.stream(PURPOSE_SPEED).standard_normal((alpha.shape[0], 2))
-    return replace(post, resampled=replace(post.resampled, alpha=alpha))
 
 
 #: the one instance (it keeps no state)
