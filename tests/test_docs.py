@@ -317,8 +317,9 @@ class PageRun:
         import queue
         import threading
 
-        p = subprocess.Popen(["bash", "-c", "exec " + line], env=self.env, cwd=self.tmp, stdout=subprocess.PIPE,
-                             stderr=subprocess.STDOUT, text=True, start_new_session=True)
+        # PYTHONFAULTHANDLER: a process that does not stop prints where each thread waits on SIGABRT
+        p = subprocess.Popen(["bash", "-c", "exec " + line], env=dict(self.env, PYTHONFAULTHANDLER="1"), cwd=self.tmp,
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
         lines: queue.Queue = queue.Queue()
 
         def read() -> None:
@@ -346,6 +347,12 @@ class PageRun:
             try:
                 p.wait(timeout=30)
             except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGABRT)  # its threads' stacks: what it waits on
+                try:
+                    while (s := lines.get(timeout=10)) is not None:
+                        seen.append(s)
+                except queue.Empty:
+                    pass
                 self.fail(where, line, f"still running 30 s after Ctrl-C\n{''.join(seen)}")
                 return
             if p.returncode != status:
