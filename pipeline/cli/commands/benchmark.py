@@ -134,7 +134,8 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
     """Boxes CSV and plan of every (sequence, tracker), or why it is skipped.
 
     Building every plan first makes a bad model file or option fail before any tracking. A
-    tracker that cannot run without a model nobody gave is skipped with a note.
+    tracker that cannot run without a model nobody gave, or that refuses an option another
+    selected tracker takes, is skipped with a note; a refusal that would skip every run is an error.
     """
     plans: dict[tuple[str, str], tuple] = {}
     skip: dict[tuple[str, str], str] = {}
@@ -145,6 +146,10 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
                 skip[seq.name, name] = planned
             else:
                 plans[seq.name, name] = planned
+    reasons = set(skip.values())
+    if not plans and len(reasons) == 1 and not next(iter(reasons)).startswith("skipped: needs "):
+        # one mistake (a --set no selected tracker takes, a bad option) that would skip every run
+        raise CliError(next(iter(reasons)).removeprefix("skipped: "))
     return plans, skip
 
 
