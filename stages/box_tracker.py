@@ -44,12 +44,64 @@ from gflow_core.tracker import TrackingFilter, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError
 from .messages import Estimate, Frame, Header, Message, MessageError, NDArray, Particles
-from .particle_proposal import cloud_of, counter_snapshot, particles_msg, posterior_input, restored_counter
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["BoxFilterSpec", "BoxFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec"]
+__all__ = ["BoxFilterSpec", "BoxFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec", "cloud_of",
+           "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
+
+PROPOSAL_SNAPSHOT_VERSION = 1
+
+#: a proposal of whole clouds: (the posterior of t-1, rng, dt) -> the proposal of t
+CloudProposal = Callable[[ParticleCloud, np.random.Generator, float], ParticleCloud]
+
+
+class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    version: int
+    done: int
+
+
+def counter_snapshot(done: int) -> bytes:
+    """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
+    return msgspec.msgpack.encode(_ProposalSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
+
+
+def restored_counter(stage: str, data: bytes) -> int:
+    """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
+    try:
+        snap = msgspec.msgpack.decode(data, type=_ProposalSnapshot)
+    except msgspec.DecodeError as e:
+        raise ValueError(f"stage {stage!r}: not a proposal snapshot: {e}") from None
+    if snap.version != PROPOSAL_SNAPSHOT_VERSION:
+        raise ValueError(f"stage {stage!r}: proposal snapshot version {snap.version}, expected "
+                         f"{PROPOSAL_SNAPSHOT_VERSION}")
+    return snap.done
+
+
+def cloud_of(msg: Particles) -> ParticleCloud:
+    """Unpack a Particles message into a validated ParticleCloud."""
+    try:
+        return ParticleCloud(alpha=msg.alpha.array(), k=msg.k.array(), log_w=msg.log_w.array())
+    except (MessageError, ValueError) as e:
+        raise StageInputError(f"particles {msg.header.seq}: {e}") from None
+
+
+def posterior_input(ctx: StageContext, inputs: Mapping[str, Message | None]) -> tuple[Particles, ParticleCloud, float]:
+    """A proposal stage's inputs: the posterior message of frame t-1, its cloud, and the periods from
+    it to frame t (:mod:`stages.time_step`; 1 unless ``timed`` joined frame t as ``frames``)."""
+    msg = inputs["particles"]
+    assert isinstance(msg, Particles)
+    cloud = cloud_of(msg)
+    frame = inputs.get("frames")
+    dt = time_step(ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
+    return msg, cloud, dt
+
+
+def particles_msg(header: Header, kind: str, cloud: ParticleCloud) -> Particles:
+    """The Particles message of a cloud."""
+    return Particles(header=header, kind=kind, alpha=NDArray.of(cloud.alpha), k=NDArray.of(cloud.k),
+                     log_w=NDArray.of(cloud.log_w))
 
 
 @dataclass(frozen=True)
@@ -94,12 +146,18 @@ class BoxProposalSpec:
     """What :class:`BoxProposalStage` needs of one tracker: its ``name``, its parameter dataclass
     ``params`` and its random walk ``walk(params, alpha (N, 4), size0 (w, h), rng, dt) -> alpha
     (N, 4)`` drawn from ``rng = FrameRng(...).stream(purpose)``. The proposal process imports only
-    these (not the tracker's update)."""
+    these (not the tracker's update).
+
+    A tracker whose particles carry more than alpha (the contour trackers' exemplar index k) gives
+    ``clouds(stage params, stage context) -> CloudProposal`` instead of ``walk``: the proposal of
+    whole clouds, made once from the stage's parameters and resources (``ValueError`` for unusable
+    ones); a ``ValueError`` it raises on a cloud is the input's error."""
 
     name: str
-    params: type
-    walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray]
+    params: type | None
+    walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray] | None
     purpose: int
+    clouds: Callable[[Any, StageContext], CloudProposal] | None = None
 
 
 def _article(word: str) -> str:
@@ -270,19 +328,31 @@ class BoxProposalStage(Stage[SeedBoxFields]):
 
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
+        self.done = 0
+        if self.box.clouds is not None:
+            self.propose: CloudProposal = self.box.clouds(params, ctx)
+            return
         if params.init is None:
             raise ValueError(f"the {self.box.name} proposal needs the initial box (its random walk is relative to "
                              "the box's size): set init: [x, y, w, h]")
         self.core: Any = tracker_params(params, self.box.params)
-        self.size0 = (float(params.init[2]), float(params.init[3]))
-        self.done = 0
+        core, size0, walk = self.core, (float(params.init[2]), float(params.init[3])), self.box.walk
+        assert walk is not None
+
+        def propose(cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
+            alpha = walk(core, cloud.alpha, size0, rng, dt)
+            return ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
+
+        self.propose = propose
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         msg, cloud, dt = posterior_input(self.ctx, inputs)
         t = seq + 1
         rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.box.purpose)
-        alpha = self.box.walk(self.core, cloud.alpha, self.size0, rng, dt)
-        out = ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
+        try:
+            out = self.propose(cloud, rng, dt)
+        except ValueError as e:
+            raise StageInputError(f"particles {seq}: {e}") from None
         self.done += 1
         return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]
 

@@ -87,7 +87,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, Stage, StageContext, StageInputError
 from .messages import ColourFeatures, Estimate, Features, Header, Message, MessageError, NDArray, Particles
-from .particle_proposal import cloud_of, particles_msg
+from .box_tracker import cloud_of, particles_msg
 from .lost_snapshot import pack_guard, unpack_anchor, unpack_lost
 from .rng import tracker_rng
 from .tracker_params import StageFields, stage_params, tracker_params

@@ -39,7 +39,7 @@ from gflow_core.m2.tracking import ParticleCloud
 
 from .base import Output, Params, Stage, StageInputError
 from .messages import Estimate, Features, Message, MessageError, NDArray, Particles
-from .particle_proposal import cloud_of, particles_msg
+from .box_tracker import cloud_of, particles_msg
 from .rng import frame_rng
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "crop_patch"]
