@@ -32,7 +32,7 @@ The proposal stage calls the tracker's walk on the message's particles rather th
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping, Protocol
 
 import msgspec
 import numpy as np
@@ -40,7 +40,7 @@ import numpy as np
 from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
-from gflow_core.tracker import TrackingFilter, UnusableFrame
+from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError
 from .messages import Estimate, Frame, Header, Message, MessageError, NDArray, Particles
@@ -48,7 +48,7 @@ from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["BoxFilterSpec", "BoxFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec", "cloud_of",
+__all__ = ["BoxFilterSpec", "BoxFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec", "FilterSide", "cloud_of",
            "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
 
 PROPOSAL_SNAPSHOT_VERSION = 1
@@ -121,6 +121,22 @@ class SnapshotCodec:
     state: Callable[[Any, Any, dict], Any]
 
 
+class FilterSide(Protocol):
+    """What a filter stage calls of a tracker: the filter's side of
+    :class:`gflow_core.tracker.TrackingFilter` (``propose`` is the proposal stage's)."""
+
+    name: str
+
+    def observe(self, params: Any, image: np.ndarray) -> Any: ...
+
+    def init(self, params: Any, obs: Any, box: Box, rng: FrameRng, resources: Mapping[str, Any]
+             ) -> tuple[Any, TrackerEstimate]: ...
+
+    def update(self, params: Any, state: Any, proposal: Any, obs: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]: ...
+
+    def coast(self, params: Any, state: Any, rng: FrameRng, obs: Any = None) -> tuple[Any, TrackerEstimate]: ...
+
+
 @dataclass(frozen=True)
 class BoxFilterSpec:
     """What :class:`BoxFilterStage` needs of one tracker.
@@ -132,13 +148,13 @@ class BoxFilterSpec:
     (x, y, theta, s); ``snapshot`` its :class:`SnapshotCodec`."""
 
     name: str
-    tracker: TrackingFilter[Any, Any, Any, Any]
+    tracker: FilterSide
     params: type
     proposal: Callable[[np.ndarray, float], Any]
     particles: Callable[[Any], np.ndarray]
     alpha_of: Callable[[np.ndarray], np.ndarray]
     particles_of: Callable[[np.ndarray], np.ndarray]
-    snapshot: SnapshotCodec
+    snapshot: SnapshotCodec | None
 
 
 @dataclass(frozen=True)
@@ -165,10 +181,14 @@ def _article(word: str) -> str:
 
 
 class BoxFilterStage(Stage[SeedBoxFields]):
-    """The filter stage of a box tracker (module docstring); a subclass sets ``kind``, ``Params``
-    and ``box``."""
+    """The filter stage of a tracker on the protocol (module docstring); a subclass sets ``kind``,
+    ``Params`` and ``box``. A tracker that reads another message than the frames (the contour
+    trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family; one whose
+    snapshot is not a :class:`SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
 
     box: ClassVar[BoxFilterSpec]
+    #: the input port of the frame's observation (its message type is ``inputs[port]``)
+    port: ClassVar[str] = "frames"
     inputs = {"frames": Frame, "proposals": Particles}
     outputs = {"particles": Particles, "estimate": Estimate}
     drivers = frozenset({"frames"})
@@ -185,7 +205,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         self.last: dict = {}
 
     def required(self, seq: int) -> frozenset[str]:
-        return frozenset({"frames"}) if self.state is None else frozenset(self.inputs)
+        return frozenset({self.port}) if self.state is None else frozenset(self.inputs)
 
     def prepare(self, port: str, msg: Message) -> tuple[tuple[int, ...], Any]:
         """(the frame's grey (H, W), the tracker's observation or the UnusableFrame a uniform frame
@@ -198,7 +218,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         except UnusableFrame as e:
             return to_grey(image).shape, e
 
-    def _observe(self, frame: Frame | None, seq: int) -> Any:
+    def _observe(self, frame: Any, seq: int) -> Any:
         """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
         if frame is None:
             self.report("missing_frame", f"frame {seq}: no frame arrived; coasting", seq)
@@ -217,69 +237,97 @@ class BoxFilterStage(Stage[SeedBoxFields]):
             return None
         return obs
 
-    def _outputs(self, header: Header, est: TrackerEstimate) -> list[Output]:
-        """The posterior and the estimate messages of the tracker's estimate."""
-        assert self.state is not None
-        self.steps += 1
-        x, y, w, h = est.box
-        outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+    def _first_observation(self, seq: int, msg: Any) -> Any:
+        """The observation the tracker starts from (StageInputError when there is none)."""
+        obs = self._observe(msg, seq)
+        if obs is None or msg is None:
+            raise StageInputError(f"frame {seq}: cannot initialise on this frame")
+        return obs
+
+    def _started(self, obs: Any) -> None:
+        """After the first frame: the size every frame must have."""
+        self.shape = obs.grey.shape
+
+    def _proposed(self, seq: int, prop: Message | None) -> Any:
+        """The proposed particles of the ``proposals`` message (the last posterior's, reported, when
+        there are none or they are unusable)."""
+        box, st = self.box, self.state
+        if not isinstance(prop, Particles):
+            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
+            return box.particles(st)
+        n, alpha = self.core.particles, cloud_of(prop).alpha
+        if alpha.shape[0] != n or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
+            self.report("bad_proposals", f"proposals {seq}: {alpha.shape[0]} particles (expected "
+                        f"{n}), non-finite or non-positive scale; reusing the last posterior", seq)
+            return box.particles(st)
+        return box.particles_of(alpha)
+
+    def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
+        """The state and estimate of a frame that could not be used."""
+        return self.box.tracker.coast(self.core, self.state, rng)
+
+    def _last(self, header: Header, est: TrackerEstimate) -> dict:
+        """The last estimate's summary (:meth:`summary`, the snapshot)."""
         e = est.extras
-        self.last = {"seq": header.seq, "box": [round(v, 2) for v in est.box], "ess": round(float(e["ess"]), 1),
-                     "state": est.phase, "score": round(float(e["score"]), 4),
-                     "confidence": round(float(est.confidence), 4), "target_state": est.target_state}
-        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=0, mean=e["mean"], std=e["std"], ess=e["ess"],
-                       n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline), state=est.phase,
-                       confidence=est.confidence, target_state=est.target_state)
+        return {"seq": header.seq, "box": [round(v, 2) for v in est.box], "ess": round(float(e["ess"]), 1),
+                "state": est.phase, "score": round(float(e["score"]), 4),
+                "confidence": round(float(est.confidence), 4), "target_state": est.target_state}
+
+    def _posterior(self) -> ParticleCloud:
+        """The posterior cloud of the state (alpha, k, log w)."""
         parts = self.box.particles(self.state)
         n = len(parts)
-        post = ParticleCloud(alpha=self.box.alpha_of(parts), k=np.zeros(n, np.int64), log_w=np.zeros(n))
-        return [("particles", particles_msg(header, "posterior", post)), ("estimate", msg)]
+        return ParticleCloud(alpha=self.box.alpha_of(parts), k=np.zeros(n, np.int64), log_w=np.zeros(n))
 
-    def _initialise(self, seq: int, frame: Frame | None) -> list[Output]:
+    def _outputs(self, header: Header, est: TrackerEstimate, proposed: Any = None) -> list[Output]:
+        """The posterior and the estimate messages of the tracker's estimate (``proposed``: the
+        particles the update weighed; None on the first frame)."""
+        assert self.state is not None
+        self.steps += 1
+        e = est.extras
+        self.last = self._last(header, est)
+        if "contour" in e:
+            outline = e["contour"]
+        else:
+            x, y, w, h = est.box
+            outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=e.get("k", 0), mean=e["mean"], std=e["std"],
+                       ess=e["ess"], n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline),
+                       state=est.phase, confidence=est.confidence, target_state=est.target_state)
+        return [("particles", particles_msg(header, "posterior", self._posterior())), ("estimate", msg)]
+
+    def _initialise(self, seq: int, msg: Any) -> list[Output]:
         p = self.params
+        obs = self._first_observation(seq, msg)
+        assert p.init is not None
         try:
-            obs = self._observe(frame, seq)
-            if obs is None or frame is None:
-                raise StageInputError(f"frame {seq}: cannot initialise on this frame")
-            assert p.init is not None
-            self.state, est = self.box.tracker.init(self.core, obs, p.init,
-                                                    tracker_rng(p.seed, self.ctx.stream, seq), {})
-        except StageInputError:
-            raise
+            self.state, est = self.box.tracker.init(self.core, obs, p.init, tracker_rng(p.seed, self.ctx.stream, seq),
+                                                    self.resources)
         except ValueError as e:  # a box outside the frame, a frame too small for the tracker's cells
             raise StageInputError(f"frame {seq}: {e}") from None
-        self.shape = obs.grey.shape
-        return self._outputs(frame.header, est)
+        self._started(obs)
+        return self._outputs(msg.header, est)
+
+    #: what the tracker's ``init`` is given besides the frame
+    resources: Mapping[str, Any] = {}
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        frame = inputs.get("frames")
-        frame = frame if isinstance(frame, Frame) else None
+        msg = inputs.get(self.port)
+        msg = msg if isinstance(msg, self.inputs[self.port]) else None
         if self.state is None:
-            return self._initialise(seq, frame)
-        p, n, box = self.params, self.core.particles, self.box
-        st = self.state
-        rng = tracker_rng(p.seed, self.ctx.stream, seq)
+            return self._initialise(seq, msg)
+        rng = tracker_rng(self.params.seed, self.ctx.stream, seq)
         prop = inputs.get("proposals")
-        if isinstance(prop, Particles):
-            alpha = cloud_of(prop).alpha
-            if alpha.shape[0] != n or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
-                self.report("bad_proposals", f"proposals {seq}: {alpha.shape[0]} particles (expected "
-                            f"{n}), non-finite or non-positive scale; reusing the last posterior", seq)
-                proposed = box.particles(st)
-            else:
-                proposed = box.particles_of(alpha)
-        else:
-            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
-            proposed = box.particles(st)
-        obs = self._observe(frame, seq)
+        proposed = self._proposed(seq, prop)
+        obs = self._observe(msg, seq)
+        header = msg.header if msg is not None else self.header(seq, 0)
         if obs is None:
-            self.state, est = box.tracker.coast(self.core, st, rng)
-            return self._outputs(frame.header if frame is not None else self.header(seq, 0), est)
-        assert frame is not None
+            self.state, est = self._coast(proposed, rng)
+            return self._outputs(header, est, proposed)
         # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
-        dt = time_step(self.ctx, frame.header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
-        self.state, est = box.tracker.update(self.core, st, box.proposal(proposed, dt), obs, rng)
-        return self._outputs(frame.header, est)
+        dt = time_step(self.ctx, header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
+        self.state, est = self.box.tracker.update(self.core, self.state, self.box.proposal(proposed, dt), obs, rng)
+        return self._outputs(header, est, proposed)
 
     def summary(self) -> dict:
         """The last estimate (seq, box, ESS, state, the tracker's score at the estimate) and the step count."""
@@ -288,6 +336,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     # -- snapshot / restore ---------------------------------------------------------------
     def snapshot(self) -> bytes:
         codec = self.box.snapshot
+        assert codec is not None
         if self.state is None:
             return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=False, steps=self.steps))
         return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=True,
@@ -295,6 +344,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def restore(self, data: bytes) -> None:
         name, label, codec = self.ctx.name, self.box.name, self.box.snapshot
+        assert codec is not None
         try:
             snap = msgspec.msgpack.decode(data, type=codec.struct)
         except msgspec.DecodeError as e:
@@ -335,9 +385,11 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         if params.init is None:
             raise ValueError(f"the {self.box.name} proposal needs the initial box (its random walk is relative to "
                              "the box's size): set init: [x, y, w, h]")
-        self.core: Any = tracker_params(params, self.box.params)
-        core, size0, walk = self.core, (float(params.init[2]), float(params.init[3])), self.box.walk
-        assert walk is not None
+        tracker, walk = self.box.params, self.box.walk
+        assert tracker is not None and walk is not None
+        self.core: Any = tracker_params(params, tracker)
+        core: Any = self.core
+        size0 = (float(params.init[2]), float(params.init[3]))
 
         def propose(cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
             alpha = walk(core, cloud.alpha, size0, rng, dt)

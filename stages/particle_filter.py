@@ -76,21 +76,21 @@ import msgspec
 import numpy as np
 
 from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
-from gflow_core.contour.tracker import FILTER, ContourObservation, ContourSetup, ContourState, \
-    restore_model, setup
+from gflow_core.contour.features_filter import FEATURE_FILTER
+from gflow_core.contour.tracker import ContourObservation, ContourSetup, ContourState, restore_model, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.appearance_metric import OnlineBank
 from gflow_core.m2.lost import LostState
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.particles import weight_histogram
 from gflow_core.tracker import Estimate as TrackerEstimate
+from gflow_core.tracker import FrameRng
 
-from .base import Output, Stage, StageContext, StageInputError
+from .base import Output, StageContext, StageInputError
+from .box_tracker import BoxFilterSpec, BoxFilterStage, cloud_of
 from .messages import ColourFeatures, Estimate, Features, Header, Message, MessageError, NDArray, Particles
-from .box_tracker import cloud_of, particles_msg
 from .lost_snapshot import pack_guard, unpack_anchor, unpack_lost
-from .rng import tracker_rng
-from .tracker_params import StageFields, stage_params, tracker_params
+from .tracker_params import StageFields, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -174,22 +174,29 @@ class _FilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     first_fit: tuple[float, int] = (0.0, 0)  # (version 5) sum and count of the first template's rho on the first frames
 
 
-class FilterStage(Stage[FilterFields]):
+def _spec(name: str, params: type[ContourParams]) -> BoxFilterSpec:
+    """The contour trackers' filter on the generic stage: the protocol object over the features
+    (:data:`gflow_core.contour.features_filter.FEATURE_FILTER`); the proposal is the proposed cloud
+    itself, and the snapshot this module's own (``snapshot`` / ``restore`` below)."""
+    return BoxFilterSpec(name=name, tracker=FEATURE_FILTER, params=params, proposal=lambda cloud, dt: cloud,
+                         particles=lambda st: st.cloud.alpha, alpha_of=lambda a: a, particles_of=lambda a: a,
+                         snapshot=None)
+
+
+class FilterStage(BoxFilterStage):
     kind = "particle.filter"
     Params = FilterParams
-    #: the tracker's parameter dataclass the stage's parameters derive from
-    Tracker: ClassVar[type[ContourParams]] = ContourParams
+    box = _spec("contour", ContourParams)
     #: whether the stage needs a learned model (the ``model`` resource)
     needs_model: ClassVar[bool] = False
+    port = "features"
     inputs = {"features": Features, "proposals": Particles}
     outputs = {"particles": Particles, "estimate": Estimate}
     drivers = frozenset({"features"})
+    prepare_ports = frozenset()
 
-    def __init__(self, params: FilterFields, ctx: StageContext) -> None:
+    def __init__(self, params: Any, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        if params.init is None:
-            raise ValueError("the filter stage needs an initial box: set init: [x, y, w, h]")
-        self.core = tracker_params(params, self.Tracker)
         if self.needs_model and ctx.resources.get("model") is None:
             raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
                              f"(`gflow learn m2`)")
@@ -197,23 +204,17 @@ class FilterStage(Stage[FilterFields]):
             self.setup: ContourSetup = setup(self.core, params.init, ctx.resources.get("model"))
         except ValueError as e:
             raise ValueError(f"stage {ctx.name!r}: model {params.model!r}: {e}") from None
-        self.state: ContourState | None = None
+        self.resources = {"setup": self.setup}
         # the lost guard's orientation channels of a frame depend on the frame alone: a stage
         # process computes them ahead, on the host's second thread (stages.base, Stage.prepare)
         self.prepare_ports = frozenset({"features"}) if self.core.lost_guard else frozenset()
-        self.last: dict = {}
-        self.steps = 0
         self.warned = False
         self.diagnostics: dict = {}
 
-    def prepare(self, port: str, msg: Message) -> np.ndarray:
+    def prepare(self, port: str, msg: Message) -> Any:
         """The lost guard's (H, W, 4) orientation channels of a feature frame's grey image."""
         assert isinstance(msg, Features)
         return lostmod.channels(msg.grey.array())
-
-    # the first frame only needs features; afterwards both
-    def required(self, seq: int) -> frozenset[str]:
-        return frozenset({"features"}) if self.state is None else frozenset(self.inputs)
 
     def _chamfer(self, feat: Features, seq: int) -> np.ndarray | None:
         try:
@@ -248,7 +249,7 @@ class FilterStage(Stage[FilterFields]):
             return None
         return grey
 
-    def _observe(self, feat: Features | None, seq: int) -> ContourObservation | None:
+    def _observe(self, feat: Any, seq: int) -> ContourObservation | None:
         """The tracker's observation of a features message (None, reported: none arrived). The grey
         image is read only where a cue needs it: the appearance kernels, the lost guard."""
         if feat is None:
@@ -287,7 +288,9 @@ class FilterStage(Stage[FilterFields]):
                         f"(g0 {feat.g0:g}) but the model was learned with {m.profile} (g0 {m.g0:g}); sigma_k and "
                         "d_k do not match these distances (set preprocess.profile / g0)", seq)
 
-    def _initialise(self, seq: int, feat: Features) -> list[Output]:
+    def _first_observation(self, seq: int, feat: Any) -> ContourObservation:
+        if not isinstance(feat, Features):
+            raise StageInputError(f"frame {seq}: cannot initialise without features")
         try:
             feat.edges.array()
         except MessageError as e:
@@ -295,35 +298,12 @@ class FilterStage(Stage[FilterFields]):
         self._check_profile(feat, seq)
         obs = self._observe(feat, seq)
         assert obs is not None
-        try:
-            self.state, est = FILTER.init(self.core, obs, self.setup, tracker_rng(self.params.seed, self.ctx.stream,
-                                                                                    seq))
-        except ValueError as e:
-            raise StageInputError(f"frame {seq}: {e}") from None
-        return self._outputs(feat.header, est, None)
+        return obs
 
-    def _outputs(self, header: Header, est: TrackerEstimate, cloud: ParticleCloud | None) -> list[Output]:
-        """The posterior and the estimate messages (and the weights' diagnostics of ``cloud``)."""
-        assert self.state is not None
-        e = est.extras
-        if cloud is not None:
-            self._diagnose(cloud, np.asarray(e["log_lik"]))
-        self.steps += 1
-        alpha = np.asarray(e["alpha"])
-        self.last = {"seq": header.seq, "alpha": np.round(alpha, 3).tolist(), "ess": round(e["ess"], 1),
-                     "state": est.phase, "k": int(e["k"])}
-        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=e["k"], mean=e["mean"], std=e["std"],
-                       ess=e["ess"], n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(e["contour"]),
-                       state=est.phase, confidence=est.confidence, target_state=est.target_state)
-        return [("particles", particles_msg(header, "posterior", self.state.cloud)), ("estimate", msg)]
+    def _started(self, obs: Any) -> None:
+        pass
 
-    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        feat = inputs.get("features")
-        if self.state is None:
-            if not isinstance(feat, Features):
-                raise StageInputError(f"frame {seq}: cannot initialise without features")
-            return self._initialise(seq, feat)
-        prop = inputs.get("proposals")
+    def _proposed(self, seq: int, prop: Message | None) -> ParticleCloud:
         if isinstance(prop, Particles):
             cloud = cloud_of(prop)
         else:
@@ -334,11 +314,25 @@ class FilterStage(Stage[FilterFields]):
         if cloud.k.size and cloud.k.max() >= self.state.model.K:
             raise StageInputError(f"proposals {seq}: exemplar index {int(cloud.k.max())} beyond the model's "
                                   f"K={self.state.model.K}")
-        feat = feat if isinstance(feat, Features) else None
-        obs = self._observe(feat, seq)
-        self.state, est = FILTER.update(self.core, self.state, cloud, obs,
-                                         tracker_rng(self.params.seed, self.ctx.stream, seq))
-        return self._outputs(feat.header if feat is not None else self.header(seq, 0), est, cloud)
+        return cloud
+
+    def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
+        """No features arrived: the proposals weighed by no evidence (the posterior is the prior)."""
+        return self.box.tracker.update(self.core, self.state, proposed, None, rng)
+
+    def _last(self, header: Header, est: TrackerEstimate) -> dict:
+        e = est.extras
+        return {"seq": header.seq, "alpha": np.round(np.asarray(e["alpha"]), 3).tolist(), "ess": round(e["ess"], 1),
+                "state": est.phase, "k": int(e["k"])}
+
+    def _posterior(self) -> ParticleCloud:
+        return self.state.cloud
+
+    def _outputs(self, header: Header, est: TrackerEstimate, proposed: Any = None) -> list[Output]:
+        """The posterior and the estimate messages (and the weights' diagnostics of ``proposed``)."""
+        if proposed is not None:
+            self._diagnose(proposed, np.asarray(est.extras["log_lik"]))
+        return super()._outputs(header, est)
 
     def _diagnose(self, cloud: ParticleCloud, log_lik: np.ndarray) -> None:
         """Weights before resampling, for ``summary()`` (stepping); not part of any output."""
@@ -461,7 +455,7 @@ class ChamferFilterStage(FilterStage):
 
     kind = "chamfer.filter"
     Params = ChamferFilterParams
-    Tracker = ChamferParams
+    box = _spec("chamfer", ChamferParams)
 
 
 class M2FilterStage(FilterStage):
@@ -470,5 +464,5 @@ class M2FilterStage(FilterStage):
 
     kind = "m2.filter"
     Params = M2FilterParams
-    Tracker = M2Params
+    box = _spec("m2", M2Params)
     needs_model = True

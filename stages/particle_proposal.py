@@ -30,10 +30,14 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar
+
+import numpy as np
 
 from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
 from gflow_core.contour.params import ChamferParams, M2Params
+from gflow_core.m2.dynamics import ARDynamics
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.params import defaults
@@ -98,9 +102,22 @@ M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __
                                 "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
 
 
-def _clouds(needs_model: bool, kind: str) -> Any:
-    """The contour proposal of clouds a stage's parameters and its ``model`` resource make:
-    k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame periods."""
+@dataclass(frozen=True)
+class ContourProposal:
+    """The contour proposal of clouds: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame
+    periods (alpha unchanged with ``fixed_alpha``), :func:`propose_cloud`."""
+
+    markov: np.ndarray
+    dynamics: ARDynamics
+    fixed_alpha: bool
+
+    def __call__(self, cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
+        return propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)
+
+
+def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], CloudProposal]:
+    """The contour proposal a stage's parameters and its ``model`` resource make
+    (:func:`proposal_dynamics`)."""
 
     def clouds(params: Any, ctx: StageContext) -> CloudProposal:
         model = ctx.resources.get("model")
@@ -112,12 +129,7 @@ def _clouds(needs_model: bool, kind: str) -> Any:
                              "not an M2 model")
         # patch exemplars are tracked with no alpha transformations (sec. 5.2)
         walk = None if model is not None else (params.std_xy, params.std_theta, params.std_log_s)
-        markov, dynamics, fixed_alpha = proposal_dynamics(model, params.init, walk)
-
-        def propose(cloud: ParticleCloud, rng: Any, dt: float) -> ParticleCloud:
-            return propose_cloud(cloud, markov, dynamics, rng, dt, fixed_alpha)
-
-        return propose
+        return ContourProposal(*proposal_dynamics(model, params.init, walk))
 
     return clouds
 

@@ -184,8 +184,8 @@ def test_proposal_reverts_log_s_to_the_start_box(contour_model) -> None:
     res = {"model": contour_model}
     p = ProposalStage(ProposalParams(seed=1, model="m.npz", init=box), StageContext("proposal", "s", res))
     learned = ProposalStage(ProposalParams(seed=1, model="m.npz"), StageContext("proposal", "s", res))
-    assert p.dynamics.mean[3] == pytest.approx(np.log(contour_model.alpha_from_box(box)[3]))
-    assert np.array_equal(p.dynamics.mean[:3], contour_model.dynamics.mean[:3])
-    assert np.array_equal(learned.dynamics.mean, contour_model.dynamics.mean)
+    assert p.propose.dynamics.mean[3] == pytest.approx(np.log(contour_model.alpha_from_box(box)[3]))
+    assert np.array_equal(p.propose.dynamics.mean[:3], contour_model.dynamics.mean[:3])
+    assert np.array_equal(learned.propose.dynamics.mean, contour_model.dynamics.mean)
     with pytest.raises(ValueError, match="positive width"):
         ProposalParams(init=(0.0, 0.0, 0.0, 5.0))
