@@ -32,7 +32,7 @@ The proposal stage calls the tracker's walk on the message's particles rather th
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Mapping, Protocol
+from typing import Any, Callable, ClassVar, Mapping, Protocol, cast
 
 import msgspec
 import numpy as np
@@ -187,6 +187,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     snapshot is not a :class:`SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
 
     box: ClassVar[BoxFilterSpec]
+    #: whether the tracker needs the initial box (a patch model's may crop the whole frame)
+    needs_init: ClassVar[bool] = True
     #: the input port of the frame's observation (its message type is ``inputs[port]``)
     port: ClassVar[str] = "frames"
     inputs = {"frames": Frame, "proposals": Particles}
@@ -196,7 +198,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        if params.init is None:
+        if params.init is None and self.needs_init:
             raise ValueError(f"the {self.box.name} filter needs an initial box: set init: [x, y, w, h]")
         self.core: Any = tracker_params(params, self.box.params)
         self.state: Any = None
@@ -299,9 +301,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     def _initialise(self, seq: int, msg: Any) -> list[Output]:
         p = self.params
         obs = self._first_observation(seq, msg)
-        assert p.init is not None
-        try:
-            self.state, est = self.box.tracker.init(self.core, obs, p.init, tracker_rng(p.seed, self.ctx.stream, seq),
+        try:  # init is None only where needs_init is not set: the tracker takes none
+            self.state, est = self.box.tracker.init(self.core, obs, cast(Box, p.init), tracker_rng(p.seed, self.ctx.stream, seq),
                                                     self.resources)
         except ValueError as e:  # a box outside the frame, a frame too small for the tracker's cells
             raise StageInputError(f"frame {seq}: {e}") from None
