@@ -1,12 +1,17 @@
-"""The stages of a box tracker on the protocol: a filter stage and a proposal stage for any tracker
-whose state is a particle cloud over a box (x, y, log s), driven through the tracker's protocol
-object (:class:`gflow_core.tracker.TrackingFilter`).
+"""The stages of a particle-filter tracker on the protocol: a filter stage and a proposal stage for
+any tracker whose state is a particle cloud, driven through the tracker's protocol object
+(:class:`gflow_core.tracker.TrackingFilter`).
 
 The appearance tracker (:mod:`stages.appearance_filter`, :mod:`stages.appearance_proposal`) and the
 correlation-filter tracker (:mod:`stages.dcf_filter`, :mod:`stages.dcf_proposal`) are registrations
 of these two classes: each sets its ``kind``, its ``Params`` and a :class:`BoxFilterSpec` or
 :class:`BoxProposalSpec` naming its protocol object, its parameter dataclass, its particles'
-conversions and its snapshot codec.
+conversions and its snapshot codec. The contour trackers (:mod:`stages.particle_filter`,
+:mod:`stages.particle_proposal`) and M2 with a patch model (:mod:`stages.patch_filter`) are
+registrations too: their filters read the preprocess stage's ``features`` (``port``) and override
+the steps named below (``_observe``, ``_first_observation``, ``_proposed``, ``_coast``, ``_last``,
+``_posterior``, ``snapshot`` / ``restore``); their proposal is a proposal of whole clouds
+(:attr:`BoxProposalSpec.clouds`: the exemplar index k travels with alpha).
 
 * :class:`BoxFilterStage` -- inputs ``frames`` of frame t and ``proposals`` for frame t (a random walk
   on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)); outputs ``particles`` (the

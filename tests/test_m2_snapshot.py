@@ -16,7 +16,8 @@ from gflow_core.m2.learn import learn
 from gflow_core.synthetic import SyntheticScene
 from stages.base import StageContext
 from stages.messages import ColourFeatures, Estimate, Frame, Header, NDArray, Particles, decode, encode
-from stages.particle_filter import FilterParams, FilterStage, _FilterSnapshot
+from gflow_core.contour import state as wire
+from stages.particle_filter import FilterParams, FilterStage
 from stages.particle_proposal import ProposalParams, ProposalStage
 from stages.patch_filter import PatchFilterParams, PatchFilterStage
 from stages.preprocess import PreprocessParams, PreprocessStage
@@ -95,11 +96,11 @@ def test_chamfer_filter_restore_is_bit_exact(scene_features) -> None:
     assert f.state.lost.ctarget.n > 0 and g.state.lost.ctarget == f.state.lost.ctarget
     assert np.array_equal(g.state.anchor.colour, f.state.anchor.colour)
     # a version-3 snapshot (before the colour cue) restores with a guard that weighs the edges alone
-    snap = msgspec.msgpack.decode(f.snapshot(), type=_FilterSnapshot)
+    snap = wire.decode(f.snapshot())
     old = msgspec.structs.replace(snap, version=3, anchor_colour=None, lost_ctarget=(0.0, 0.0, 0),
                                   lost_cclutter=(0.0, 0.0, 0))
     h = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
-    h.restore(msgspec.msgpack.encode(old))
+    h.restore(wire.encode(old))
     assert h.state is not None and h.state.anchor is not None and h.state.anchor.colour is None
     assert h.state.lost.target == f.state.lost.target and h.state.lost.ctarget.n == 0
     # a snapshot before the first frame restores to an uninitialised filter
