@@ -20,6 +20,10 @@ exemplar argmax_k p_t(k) (sec. 5.1.2), the box is the crop box, ``contour`` is e
 
 A frame with (almost) no contrast (grey-level standard deviation below ``blank_std``,
 e.g. a blanked frame) carries no evidence: the particles coast on the Markov dynamics.
+
+State for ``snapshot()`` / ``restore()``: one msgpack encode of
+:class:`gflow_core.m2.patch_protocol.PatchSnapshot` (the particles' exemplars, the crop transform
+and box, and the counters; version 1).
 """
 
 from __future__ import annotations
@@ -30,7 +34,8 @@ import msgspec
 import numpy as np
 
 from gflow_core.m2.model import M2Model
-from gflow_core.m2.patch_protocol import PATCH, PatchParams, PatchState, crop_patch
+from gflow_core.m2 import patch_protocol as patch
+from gflow_core.m2.patch_protocol import PATCH, PatchParams, crop_patch
 from gflow_core.m2.patch_tracking import PatchExemplars
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
@@ -38,11 +43,11 @@ from gflow_core.tracker import FrameRng
 
 from .base import Params, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, BoxFilterStage, cloud_of
-from .messages import Estimate, Features, Header, Message, MessageError, NDArray, Particles
+from .messages import Estimate, Features, Header, Message, MessageError, Particles
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "crop_patch"]
 
-SNAPSHOT_VERSION = 1
+SNAPSHOT_VERSION = patch.SNAPSHOT_VERSION
 
 
 class PatchFilterParams(Params, frozen=True):
@@ -71,16 +76,6 @@ class PatchFilterParams(Params, frozen=True):
             raise ValueError(f"init box must have positive width and height, got {self.init}")
         if self.blank_std < 0:
             raise ValueError(f"blank_std must be >= 0, got {self.blank_std}")
-
-
-class _PatchSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    alpha0: list[float] | None
-    box: list[float] | None
-    k: NDArray | None  # (N,) int64 resampled posterior
-    steps: int
-    last_k: int
-    last_seq: int
 
 
 class PatchFilterStage(BoxFilterStage):
@@ -161,33 +156,18 @@ class PatchFilterStage(BoxFilterStage):
                 "training_frame": int(frames[k]) if k >= 0 and frames is not None else -1}
 
     def snapshot(self) -> bytes:
-        st: PatchState | None = self.state
-        snap = _PatchSnapshot(version=SNAPSHOT_VERSION,
-                              alpha0=None if st is None else [float(v) for v in st.alpha0],
-                              box=None if st is None else list(st.box),
-                              k=None if st is None else NDArray.of(st.k), steps=self.steps,
-                              last_k=int(self.last.get("k", -1)), last_seq=int(self.last.get("seq", -1)))
-        return msgspec.msgpack.encode(snap)
+        last = self.last
+        return patch.encode(patch.snapshot_of(self.state, self.steps, int(last.get("k", -1)), int(last.get("seq", -1))))
 
     def restore(self, data: bytes) -> None:
         name = self.ctx.name
         try:
-            snap = msgspec.msgpack.decode(data, type=_PatchSnapshot)
+            snap = patch.decode(data)
         except msgspec.DecodeError as e:
             raise ValueError(f"stage {name!r}: not a patch.filter snapshot: {e}") from None
-        if snap.version != SNAPSHOT_VERSION:
-            raise ValueError(f"stage {name!r}: patch filter snapshot version {snap.version}, expected "
-                             f"{SNAPSHOT_VERSION}")
         try:
-            k = None if snap.k is None else np.asarray(snap.k.array(), dtype=np.int64).copy()
-        except MessageError as e:
-            raise ValueError(f"stage {name!r}: bad patch filter snapshot: {e}") from None
-        if k is not None and k.size and (k.min() < 0 or k.max() >= self.model.K):
-            raise ValueError(f"stage {name!r}: snapshot particles use exemplars outside [0, {self.model.K})")
-        if (k is None) != (snap.alpha0 is None) or (snap.alpha0 is not None and len(snap.alpha0) != 4) \
-                or (k is not None and snap.box is None):
-            raise ValueError(f"stage {name!r}: inconsistent patch filter snapshot")
+            self.state = patch.state_of(snap, self.model)
+        except ValueError as e:
+            raise ValueError(f"stage {name!r}: {e}") from None
         self.steps = snap.steps
         self.last = {} if snap.last_seq < 0 and snap.last_k < 0 else {"seq": snap.last_seq, "k": snap.last_k}
-        self.state = None if k is None or snap.alpha0 is None or snap.box is None else PatchState(
-            self.model, k, np.array(snap.alpha0, dtype=np.float64), (snap.box[0], snap.box[1], snap.box[2], snap.box[3]))

@@ -1,10 +1,9 @@
 """The contour filter's state as it travels in a snapshot: one msgspec Struct
 (:class:`ContourSnapshot`), encoded and decoded in one call (:func:`encode`, :func:`decode`).
 
-Arrays are fields of type ``np.ndarray``, encoded as a map of ``dtype`` (its name), ``shape`` and
-``data`` (the C-order bytes): the bytes the pipeline's message arrays (``stages.messages.NDArray``)
-encode to, so a snapshot is the same bytes as the field-by-field snapshots of the filter stage
-before it. :func:`snapshot_of` is the snapshot of a :class:`.tracker.ContourState` and the stage's
+Arrays are fields of type ``np.ndarray`` (:mod:`gflow_core.m2.snapshot_arrays`), encoded to the
+bytes the pipeline's message arrays encode to, so a snapshot is the same bytes as the
+field-by-field snapshots of the filter stage before it. :func:`snapshot_of` is the snapshot of a :class:`.tracker.ContourState` and the stage's
 counters; :func:`state_of` the state of a snapshot of any version this code reads.
 
 Versions: 5 (this one); 1 (no online bank) and 2 (an older lost guard: a level and thresholds,
@@ -15,7 +14,6 @@ anchor).
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import msgspec
@@ -24,6 +22,7 @@ import numpy as np
 from ..m2.appearance_metric import OnlineBank
 from ..m2.lost import LostState
 from ..m2.lost_state import anchor_of, guard_fields, lost_of
+from ..m2.snapshot_arrays import snapshot_codec
 from ..m2.tracking import ParticleCloud
 from ..tracker import Box
 from .params import ContourParams
@@ -33,8 +32,6 @@ __all__ = ["ContourSnapshot", "SNAPSHOT_VERSION", "encode", "decode", "snapshot_
 
 SNAPSHOT_VERSION = 5
 _VERSIONS = (1, 2, 3, 4, SNAPSHOT_VERSION)
-_DTYPES = frozenset(["uint8", "int8", "uint16", "int16", "uint32", "int32", "int64", "uint64", "float32", "float64",
-                     "bool"])
 
 
 class LastSummary(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -88,39 +85,7 @@ class ContourSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     first_fit: tuple[float, int] = (0.0, 0)  # (version 5) sum and count of the first template's rho on the first frames
 
 
-def _enc(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        a = np.ascontiguousarray(obj)
-        if a.dtype.name not in _DTYPES:
-            raise ValueError(f"an array of dtype {a.dtype} cannot be in a snapshot")
-        return {"dtype": a.dtype.name, "shape": tuple(int(s) for s in a.shape), "data": a.tobytes()}
-    raise NotImplementedError(f"{type(obj).__name__} is not part of a snapshot")
-
-
-def _dec(kind: type, obj: Any) -> Any:
-    if kind is not np.ndarray:
-        raise NotImplementedError(f"{kind} is not part of a snapshot")
-    try:
-        dtype, shape, data = obj["dtype"], tuple(int(s) for s in obj["shape"]), obj["data"]
-        if dtype not in _DTYPES or min(shape, default=0) < 0 or math.prod(shape) * np.dtype(dtype).itemsize != len(data):
-            raise ValueError
-        return np.frombuffer(data, dtype=dtype).reshape(shape).copy()
-    except (KeyError, TypeError, ValueError):
-        raise ValueError("not an array (dtype, shape, data of that size)") from None
-
-
-_ENCODER = msgspec.msgpack.Encoder(enc_hook=_enc)
-_DECODER = msgspec.msgpack.Decoder(ContourSnapshot, dec_hook=_dec)
-
-
-def encode(snap: ContourSnapshot) -> bytes:
-    """The msgpack bytes of a snapshot."""
-    return _ENCODER.encode(snap)
-
-
-def decode(data: bytes) -> ContourSnapshot:
-    """The snapshot of msgpack bytes (``msgspec.DecodeError`` for anything else)."""
-    return _DECODER.decode(data)
+encode, decode = snapshot_codec(ContourSnapshot)
 
 
 def snapshot_of(st: ContourState | None, steps: int, warned: bool, last: dict) -> ContourSnapshot:

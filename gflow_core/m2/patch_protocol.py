@@ -27,17 +27,21 @@ from dataclasses import dataclass
 from typing import Any, Literal, Mapping
 
 import cv2
+import msgspec
 import numpy as np
 
 from .. import similarity
 from ..features import to_grey
 from ..tracker import Box, Estimate, FrameRng
 from .patch_tracking import PatchExemplars, init_k, patch_posterior, propose_k, weigh_patches
+from .snapshot_arrays import snapshot_codec
 
-__all__ = ["PatchParams", "PatchState", "PatchTracker", "PATCH", "crop_patch", "PURPOSE_INIT_K", "PURPOSE_RESAMPLE"]
+__all__ = ["PatchParams", "PatchState", "PatchTracker", "PATCH", "crop_patch", "PatchSnapshot", "snapshot_of",
+           "state_of", "encode", "decode", "PURPOSE_INIT_K", "PURPOSE_RESAMPLE", "SNAPSHOT_VERSION"]
 
 PURPOSE_INIT_K = 0x1418
 PURPOSE_RESAMPLE = 0x2E5B
+SNAPSHOT_VERSION = 1
 
 
 @dataclass(frozen=True)
@@ -165,3 +169,42 @@ class PatchTracker:
 
 #: the one instance (it keeps no state)
 PATCH = PatchTracker()
+
+
+class PatchSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """A :class:`PatchState` (None: not initialised) and the filter stage's counters, as one Struct
+    (:func:`encode`, :func:`decode`; version 1)."""
+
+    version: int
+    alpha0: list[float] | None
+    box: list[float] | None
+    k: np.ndarray | None  # (N,) int64 resampled posterior
+    steps: int
+    last_k: int
+    last_seq: int
+
+
+encode, decode = snapshot_codec(PatchSnapshot)
+
+
+def snapshot_of(st: PatchState | None, steps: int, last_k: int, last_seq: int) -> PatchSnapshot:
+    """The snapshot of a state and the stage's counters (the last MAP exemplar and its frame)."""
+    return PatchSnapshot(version=SNAPSHOT_VERSION, alpha0=None if st is None else [float(v) for v in st.alpha0],
+                         box=None if st is None else list(st.box), k=None if st is None else st.k, steps=steps,
+                         last_k=last_k, last_seq=last_seq)
+
+
+def state_of(snap: PatchSnapshot, model: PatchExemplars) -> PatchState | None:
+    """The state of a snapshot (None: not initialised); ``ValueError`` naming what does not fit ``model``."""
+    if snap.version != SNAPSHOT_VERSION:
+        raise ValueError(f"patch filter snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
+    k = None if snap.k is None else np.asarray(snap.k, dtype=np.int64)
+    if k is not None and k.size and (k.min() < 0 or k.max() >= model.K):
+        raise ValueError(f"snapshot particles use exemplars outside [0, {model.K})")
+    if (k is None) != (snap.alpha0 is None) or (snap.alpha0 is not None and len(snap.alpha0) != 4) \
+            or (k is not None and (snap.box is None or len(snap.box) != 4)):
+        raise ValueError("inconsistent patch filter snapshot")
+    if k is None or snap.alpha0 is None or snap.box is None:
+        return None
+    b = snap.box
+    return PatchState(model, k, np.array(snap.alpha0, dtype=np.float64), (b[0], b[1], b[2], b[3]))
