@@ -156,6 +156,36 @@ def test_patch_filter_restore_is_bit_exact(scene_features) -> None:
     assert np.array_equal(prop.alpha.array(), parts.alpha.array())
 
 
+def test_the_patch_protocol_steps_as_the_stages_do(scene_features) -> None:
+    """M2 with a patch model on the protocol (gflow_core.m2.patch_protocol.PATCH: observe, init,
+    propose, update) gives the patch filter stage's posterior and estimates bit for bit, blank frames
+    (coasting) included."""
+    from gflow_core.m2.patch_protocol import PATCH, PatchParams
+    from gflow_core.tracker import FrameRng
+    from stages.rng import stream_hash
+
+    feats, frames, _, _ = scene_features
+    model = learn(training.patches_from_frames(frames, (24, 32)), "shuffle", K=3)
+    res, params = {"model": model}, PatchParams(particles=100)
+    f = PatchFilterStage(PatchFilterParams(model="m.npz", particles=100, seed=1), StageContext("filter", "s", res))
+    p = ProposalStage(ProposalParams(seed=1, model="m.npz"), StageContext("proposal", "s", res))
+    rng = lambda t: FrameRng(1, stream_hash("s"), t)  # noqa: E731
+    obs = lambda t: PATCH.observe(params, feats[t].grey.array())  # noqa: E731
+    st, est = PATCH.init(params, obs(0), None, rng(0), {"model": model.to_patch_exemplars()})
+    (_, parts), (_, e) = f.step(0, {"features": feats[0]})
+    phases = []
+    for t in range(N_FRAMES):
+        if t > 0:
+            (_, prop), = p.step(t - 1, {"particles": parts})
+            (_, parts), (_, e) = f.step(t, {"features": feats[t], "proposals": prop})
+            st, est = PATCH.update(params, st, PATCH.propose(params, st, None, rng(t)), obs(t), rng(t))
+        assert np.array_equal(parts.k.array(), st.k) and e.box == est.box
+        assert (e.k, e.state, e.ess, e.log_evidence) == (est.extras["k"], est.phase, est.extras["ess"],
+                                                          est.extras["log_evidence"])
+        phases.append(est.phase)
+    assert phases[0] == "init" and phases[9:11] == ["coast", "coast"] and phases.count("track") == N_FRAMES - 3
+
+
 def test_appearance_filter_restore_is_bit_exact_and_starts_on_the_box(scene_features) -> None:
     """Chamfer x appearance likelihood with a busy online bank (added every 2 frames, bound 3):
     restore is bit exact, and frame 0's estimate is the init box itself."""

@@ -17,8 +17,8 @@ model's patch shape with area averaging (pre-cropped video such as AVLetters), o
 initial box resampled to the patch shape. A frame with (almost) no contrast (grey-level standard
 deviation below ``blank_std``), or none, carries no evidence: the posterior is the prior.
 
-Random draws of frame ``t``: k_0 ~ pi from ``stream(PURPOSE_INIT_K)``, the resampling from
-``stream(PURPOSE_RESAMPLE)``.
+Random draws of frame ``t``: k_0 ~ pi from ``stream(PURPOSE_INIT_K)``, the proposal from
+``stream(PURPOSE_PROPOSAL)`` (the proposal stage's), the resampling from ``stream(PURPOSE_RESAMPLE)``.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ import msgspec
 import numpy as np
 
 from .. import similarity
+from ..contour.dynamics import PURPOSE_PROPOSAL
 from ..features import to_grey
 from ..tracker import Box, Estimate, FrameRng
 from .patch_tracking import PatchExemplars, init_k, patch_posterior, propose_k, weigh_patches
@@ -131,8 +132,10 @@ class PatchTracker:
 
     def propose(self, params: PatchParams, state: PatchState, obs: np.ndarray | None, rng: FrameRng,
                 dt: float = 1.0) -> np.ndarray:
-        """k_t ~ M[k_{t-1}] (:func:`.patch_tracking.propose_k`), from ``rng.stream()``."""
-        return propose_k(state.k, state.model, rng.stream())
+        """k_t ~ M[k_{t-1}] (:func:`.patch_tracking.propose_k`), from ``rng.stream(PURPOSE_PROPOSAL)``: the
+        draws of the pipeline's proposal stage (:func:`gflow_core.contour.dynamics.propose_cloud` with
+        alpha fixed), so a step here and one through the stages give the same bits."""
+        return propose_k(state.k, state.model, rng.stream(PURPOSE_PROPOSAL))
 
     def update(self, params: PatchParams, state: PatchState, proposal: np.ndarray, obs: np.ndarray | None,
                rng: FrameRng) -> tuple[PatchState, Estimate]:
