@@ -8,8 +8,8 @@ of these two classes: each sets its ``kind``, its ``Params`` and a :class:`BoxFi
 :class:`BoxProposalSpec` naming its protocol object, its parameter dataclass, its particles'
 conversions and its snapshot codec. The contour trackers (:mod:`stages.particle_filter`,
 :mod:`stages.particle_proposal`) and M2 with a patch model (:mod:`stages.patch_filter`) are
-registrations too: their filters read the preprocess stage's ``features`` (``port``) and override
-the steps named below (``_observe``, ``_first_observation``, ``_proposed``, ``_coast``, ``_last``,
+registrations too: their filters read the preprocess stage's ``features``
+(:class:`FeaturesFilterStage`) and override the steps named below (``_observe``, ``_first_observation``, ``_proposed``, ``_coast``, ``_last``,
 ``_posterior``, ``snapshot`` / ``restore``); their proposal is a proposal of whole clouds
 (:attr:`BoxProposalSpec.clouds`: the exemplar index k travels with alpha).
 
@@ -48,12 +48,12 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError
-from .messages import Estimate, Frame, Header, Message, MessageError, NDArray, Particles
+from .messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["BoxFilterSpec", "BoxFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec", "FilterSide", "cloud_of",
+__all__ = ["BoxFilterSpec", "BoxFilterStage", "FeaturesFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec", "FilterSide", "cloud_of",
            "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
 
 PROPOSAL_SNAPSHOT_VERSION = 1
@@ -366,6 +366,52 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         except (AssertionError, KeyError, IndexError, TypeError, MessageError, ValueError) as e:
             raise ValueError(f"stage {name!r}: bad {label} snapshot: {e}") from None
         self.shape = None
+
+
+class FeaturesFilterStage(BoxFilterStage):
+    """A filter stage whose observation is the preprocess stage's ``features`` (the contour and patch
+    filters): missing or unusable features are weighed as no evidence (the tracker's ``update`` of the
+    proposals with no observation), missing proposals reuse the last posterior. A subclass gives
+    ``_features``, the observation of a features message."""
+
+    port = "features"
+    inputs = {"features": Features, "proposals": Particles}
+    drivers = frozenset({"features"})
+    prepare_ports = frozenset()
+
+    def _features(self, feat: Features, seq: int) -> Any:
+        """The tracker's observation of a features message (None, reported: unusable)."""
+        raise NotImplementedError(f"{type(self).__name__} reads no features")
+
+    def _observe(self, feat: Any, seq: int) -> Any:
+        if feat is None:
+            self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
+            return None
+        return self._features(feat, seq)
+
+    def _first_observation(self, seq: int, feat: Any) -> Any:
+        if not isinstance(feat, Features):
+            raise StageInputError(f"frame {seq}: cannot initialise without features")
+        obs = self._observe(feat, seq)
+        if obs is None:
+            raise StageInputError(f"frame {seq}: cannot initialise on unusable features")
+        return obs
+
+    def _started(self, obs: Any) -> None:
+        """Features are not held to the first frame's size (each array is checked where it is read)."""
+
+    def _proposed(self, seq: int, prop: Message | None) -> Any:
+        """The proposed cloud (a subclass may take what its tracker's ``update`` takes of it)."""
+        if isinstance(prop, Particles):
+            return cloud_of(prop)
+        # the proposals of this frame were lost: weigh the last posterior instead, so the
+        # proposal -> filter cycle keeps turning
+        self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
+        return self._posterior()
+
+    def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
+        """No usable features: the proposals weighed by no evidence (the posterior is the prior)."""
+        return self.box.tracker.update(self.core, self.state, proposed, None, rng)
 
 
 class BoxProposalStage(Stage[SeedBoxFields]):

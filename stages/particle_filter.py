@@ -47,11 +47,10 @@ from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.particles import weight_histogram
 from gflow_core.tracker import Estimate as TrackerEstimate
-from gflow_core.tracker import FrameRng
 
 from .base import Output, StageContext, StageInputError
-from .box_tracker import BoxFilterSpec, BoxFilterStage, cloud_of
-from .messages import ColourFeatures, Estimate, Features, Header, Message, MessageError, Particles
+from .box_tracker import BoxFilterSpec, FeaturesFilterStage
+from .messages import ColourFeatures, Features, Header, Message, MessageError
 from .tracker_params import StageFields, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
@@ -99,17 +98,12 @@ def _spec(name: str, params: type[ContourParams]) -> BoxFilterSpec:
                          snapshot=None)
 
 
-class FilterStage(BoxFilterStage):
+class FilterStage(FeaturesFilterStage):
     kind = "particle.filter"
     Params = FilterParams
     box = _spec("contour", ContourParams)
     #: whether the stage needs a learned model (the ``model`` resource)
     needs_model: ClassVar[bool] = False
-    port = "features"
-    inputs = {"features": Features, "proposals": Particles}
-    outputs = {"particles": Particles, "estimate": Estimate}
-    drivers = frozenset({"features"})
-    prepare_ports = frozenset()
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
         super().__init__(params, ctx)
@@ -165,12 +159,9 @@ class FilterStage(BoxFilterStage):
             return None
         return grey
 
-    def _observe(self, feat: Any, seq: int) -> ContourObservation | None:
-        """The tracker's observation of a features message (None, reported: none arrived). The grey
-        image is read only where a cue needs it: the appearance kernels, the lost guard."""
-        if feat is None:
-            self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
-            return None
+    def _features(self, feat: Features, seq: int) -> ContourObservation:
+        """The tracker's observation of a features message. The grey image is read only where a cue
+        needs it: the appearance kernels, the lost guard."""
         cham = self._chamfer(feat, seq)
         blank = cham is not None and self._blank(feat)
         wants_grey = self.core.lost_guard or (self.setup.app0 is not None)
@@ -205,36 +196,20 @@ class FilterStage(BoxFilterStage):
                         "d_k do not match these distances (set preprocess.profile / g0)", seq)
 
     def _first_observation(self, seq: int, feat: Any) -> ContourObservation:
-        if not isinstance(feat, Features):
-            raise StageInputError(f"frame {seq}: cannot initialise without features")
-        try:
-            feat.edges.array()
-        except MessageError as e:
-            raise StageInputError(f"frame {seq}: {e}") from None
-        self._check_profile(feat, seq)
-        obs = self._observe(feat, seq)
-        assert obs is not None
-        return obs
-
-    def _started(self, obs: Any) -> None:
-        pass
+        if isinstance(feat, Features):
+            try:
+                feat.edges.array()
+            except MessageError as e:
+                raise StageInputError(f"frame {seq}: {e}") from None
+            self._check_profile(feat, seq)
+        return super()._first_observation(seq, feat)
 
     def _proposed(self, seq: int, prop: Message | None) -> ParticleCloud:
-        if isinstance(prop, Particles):
-            cloud = cloud_of(prop)
-        else:
-            # The proposals of this frame were lost: weigh the last posterior instead, so the
-            # proposal -> filter cycle keeps turning.
-            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
-            cloud = self.state.cloud
+        cloud = super()._proposed(seq, prop)
         if cloud.k.size and cloud.k.max() >= self.state.model.K:
             raise StageInputError(f"proposals {seq}: exemplar index {int(cloud.k.max())} beyond the model's "
                                   f"K={self.state.model.K}")
         return cloud
-
-    def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
-        """No features arrived: the proposals weighed by no evidence (the posterior is the prior)."""
-        return self.box.tracker.update(self.core, self.state, proposed, None, rng)
 
     def _last(self, header: Header, est: TrackerEstimate) -> dict:
         e = est.extras

@@ -39,11 +39,10 @@ from gflow_core.m2.patch_protocol import PATCH, PatchParams, crop_patch
 from gflow_core.m2.patch_tracking import PatchExemplars
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
-from gflow_core.tracker import FrameRng
 
 from .base import Params, StageContext, StageInputError
-from .box_tracker import BoxFilterSpec, BoxFilterStage, cloud_of
-from .messages import Estimate, Features, Header, Message, MessageError, Particles
+from .box_tracker import BoxFilterSpec, FeaturesFilterStage
+from .messages import Features, Header, Message, MessageError
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "crop_patch"]
 
@@ -78,17 +77,12 @@ class PatchFilterParams(Params, frozen=True):
             raise ValueError(f"blank_std must be >= 0, got {self.blank_std}")
 
 
-class PatchFilterStage(BoxFilterStage):
+class PatchFilterStage(FeaturesFilterStage):
     kind = "patch.filter"
     Params = PatchFilterParams
     box = BoxFilterSpec(name="patch", tracker=PATCH, params=PatchParams, proposal=lambda k, dt: k,
                         particles=lambda st: st.k, alpha_of=lambda a: a, particles_of=lambda a: a, snapshot=None)
     needs_init = False
-    port = "features"
-    inputs = {"features": Features, "proposals": Particles}
-    outputs = {"particles": Particles, "estimate": Estimate}
-    drivers = frozenset({"features"})
-    prepare_ports = frozenset()
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
         super().__init__(params, ctx)
@@ -103,11 +97,8 @@ class PatchFilterStage(BoxFilterStage):
         self.model: PatchExemplars = m.to_patch_exemplars()
         self.resources = {"model": self.model}
 
-    def _observe(self, feat: Any, seq: int) -> np.ndarray | None:
+    def _features(self, feat: Features, seq: int) -> np.ndarray | None:
         """The frame's grey image, or None (reported) if the features are unusable."""
-        if feat is None:
-            self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
-            return None
         try:
             grey = feat.grey.array()
         except MessageError as e:
@@ -118,30 +109,11 @@ class PatchFilterStage(BoxFilterStage):
             return None
         return grey
 
-    def _first_observation(self, seq: int, feat: Any) -> np.ndarray:
-        if feat is None:
-            raise StageInputError(f"frame {seq}: cannot initialise without features")
-        grey = self._observe(feat, seq)
-        if grey is None:
-            raise StageInputError(f"frame {seq}: cannot initialise on unusable features")
-        return grey
-
-    def _started(self, obs: Any) -> None:
-        pass
-
     def _proposed(self, seq: int, prop: Message | None) -> np.ndarray:
-        if isinstance(prop, Particles):
-            k = cloud_of(prop).k
-        else:
-            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
-            k = self.state.k
+        k: np.ndarray = super()._proposed(seq, prop).k
         if k.size and (k.min() < 0 or k.max() >= self.model.K):
             raise StageInputError(f"proposals {seq}: exemplar index outside [0, {self.model.K})")
         return k
-
-    def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
-        """No usable features: the proposals weighed by no evidence (the posterior is the prior)."""
-        return self.box.tracker.update(self.core, self.state, proposed, None, rng)
 
     def _last(self, header: Header, est: TrackerEstimate) -> dict:
         return {"seq": header.seq, "k": int(est.extras["k"])}
