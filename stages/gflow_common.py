@@ -6,7 +6,7 @@ NIPS 2004) are adapters of :class:`gflow_core.gflow.GFlowTracker`: the proposal 
 parameters, model and seed, or the proposals of one would be weighed against the textures of the
 other. Both take every field of :class:`gflow_core.gflow.GFlowParams` (derived from it by
 :func:`stages.tracker_params.stage_params`, defaults included), and both compute the same
-:func:`config_digest`, which travels in every :class:`ExpertStates` and :class:`PoseProposals`
+:func:`gflow_core.gflow.split.config_digest`, which travels in every :class:`ExpertStates` and :class:`PoseProposals`
 message and is checked on receipt.
 
 The model is placed the same way in both stages, from the parameters and the size of the first
@@ -27,15 +27,13 @@ shards concatenate to exactly one process's result, and the pipeline equals the 
 
 from __future__ import annotations
 
-import hashlib
 import math
-from dataclasses import asdict
 from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.gflow import (GFlowConfig, GFlowObservation, GFlowParams, ModelSetup, MorphableModel, Proposals,
-                              model_setup)
+from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals, model_setup
+from gflow_core.gflow.split import config_digest
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -46,15 +44,14 @@ from .tracker_params import SeedBoxFields
 
 __all__ = [
     "GFlowStageFields",
-    "config_digest",
     "prepare",
+    "restored_setup",
     "frame_of",
     "check_size",
     "states_msg",
     "unpack_states",
     "proposals_msg",
     "unpack_proposals",
-    "shard_indices",
 ]
 
 
@@ -63,25 +60,22 @@ class GFlowStageFields(SeedBoxFields, frozen=True):
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
     init : (x, y, w, h) initial box of the face in the first usable frame, 0-based pixels.
+    shards : number of proposal stages the experts are split across (``<= n_experts``); the
+        filter has input ports ``proposals0 .. proposals{shards-1}``.
     """
 
+    shards: int = 1
 
-def config_digest(cfg: GFlowConfig, model: MorphableModel, seed: int, contrast_sigma: float = 0.0) -> str:
-    """A short digest of everything that must agree between the proposal and the filter:
-    the configuration, the model's bases (shape and bytes), the seed and how frames are normalised."""
-    h = hashlib.sha256()
-    h.update(repr(sorted(asdict(cfg).items())).encode())
-    h.update(repr((model.bases.shape, int(seed))).encode())
-    if contrast_sigma:
-        h.update(repr(("contrast_sigma", float(contrast_sigma))).encode())
-    h.update(np.ascontiguousarray(model.bases, dtype="<f8").tobytes())
-    return h.hexdigest()[:16]
+    def check(self, tracker: Any) -> None:
+        super().check(tracker)
+        if not 1 <= self.shards <= tracker.n_experts:
+            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {self.shards}")
 
 
 def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
             shape: tuple[int, int]) -> tuple[ModelSetup, str]:
-    """The model placed in the initial box on frames of ``shape``, and its digest (identically in
-    both stages).
+    """The model placed in the initial box on frames of ``shape``, and its digest
+    (:func:`gflow_core.gflow.split.config_digest`; identically in both stages).
 
     Raises
     ------
@@ -95,7 +89,21 @@ def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[s
         setup = model_setup(tracker, fields.init, shape, resources.get("model"))
     except ValueError as e:
         raise StageInputError(str(e)) from None
-    return setup, config_digest(setup.cfg, setup.model, fields.seed, tracker.contrast_sigma)
+    return setup, config_digest(setup, fields.seed)
+
+
+def restored_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
+                   shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
+    """:func:`prepare` for a snapshot made on frames of ``shape`` with digest ``digest``. Raises
+    ValueError when the model cannot be placed or the digest is another configuration's."""
+    try:
+        setup, mine = prepare(fields, tracker, resources, shape)
+    except StageInputError as e:
+        raise ValueError(str(e)) from None
+    if mine != digest:
+        raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
+                         f"{digest}, this stage has {mine})")
+    return setup, mine
 
 
 def frame_of(feat: Features, seq: int, tracker: GFlowParams, shape: tuple[int, int] | None = None) \
@@ -258,8 +266,3 @@ def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: 
         reset=np.zeros(Ep, dtype=bool) if msg.reset is None else _arr(msg.reset, "reset", (Ep,), "bool", where),
         dt=float(msg.dt),
     )
-
-
-def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
-    """The experts of one shard: contiguous blocks of ``range(n_experts)`` (``numpy.array_split``)."""
-    return np.array_split(np.arange(n_experts, dtype=np.int64), shards)[shard]

@@ -58,25 +58,17 @@ from typing import Any, Mapping
 import msgspec
 import numpy as np
 
-from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, GFlowState, Proposals
+from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
+from gflow_core.gflow.split import config_digest, expert_state, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.m2.lost import Anchor, LostState
 from gflow_core.tracker import Estimate
 from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (
-    GFlowStageFields,
-    check_size,
-    config_digest,
-    frame_of,
-    prepare,
-    shard_indices,
-    states_msg,
-    unpack_proposals,
-    unpack_states,
-)
+from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setup, states_msg, unpack_proposals,
+                           unpack_states)
 from .messages import (
     ColourFeatures,
     ExpertStates,
@@ -99,18 +91,7 @@ SNAPSHOT_VERSION = 2  # 2: the lost guard's anchor and distributions (1: none; r
 
 class GFlowFilterFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the proposal stages'),
-    the seed, the initial box and the number of proposal shards.
-
-    shards : number of proposal stages; the filter has input ports ``proposals0 ..
-        proposals{shards-1}``.
-    """
-
-    shards: int = 1
-
-    def check(self, tracker: Any) -> None:
-        super().check(tracker)
-        if not 1 <= self.shards <= tracker.n_experts:
-            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {self.shards}")
+    the seed, the initial box and the number of proposal shards."""
 
 
 GFlowFilterParams = stage_params("GFlowFilterParams", GFlowParams, GFlowFilterFields, __name__)
@@ -306,7 +287,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             self.report("init_box_clipped", f"frame {seq}: initial box {box} reaches outside the {W}x{H} frame; "
                                             f"using {tuple(setup.box.round(2))}", seq)
         self.state = state
-        self.digest = config_digest(setup.cfg, setup.model, self.params.seed, self.tracker.contrast_sigma)
+        self.digest = config_digest(setup, self.params.seed)
         return self._outputs(feat.header, state, est, np.arange(state.experts.n_experts, dtype=np.int64), first=True)
 
     # -- state ------------------------------------------------------------------------------------
@@ -355,22 +336,11 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads 1 and {SNAPSHOT_VERSION}")
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
+            setup, digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
             try:
-                setup, digest = prepare(self.params, self.tracker, self.ctx.resources, snap.image_shape)
+                experts = expert_state(setup, unpack_states(snap.state, setup, digest, "gflow.filter snapshot"))
             except StageInputError as e:
                 raise ValueError(str(e)) from None
-            if digest != snap.digest:
-                raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
-                                 f"{snap.digest}, this stage has {digest})")
-            try:
-                a = unpack_states(snap.state, setup, digest, "gflow.filter snapshot")
-            except StageInputError as e:
-                raise ValueError(str(e)) from None
-            arrs = {k: a[k].copy() for k in ("poses", "tex_mean", "tex_var", "log_credibility")}
-            for v in arrs.values():
-                v.setflags(write=False)
-            experts = ExpertState(bg_mean=None, bg_var=None, image_shape=setup.image_shape, tex_anchor=a["tex_anchor"],
-                                  **arrs)
             anchor, lost, level, look_clutter = self._guard_of(snap, setup.box)
             self.state = GFlowState(setup, experts, snap.confidence, snap.target_state, anchor, lost, level,
                                     look_clutter)
