@@ -1,53 +1,28 @@
 """G-flow filter stage: credibilities, resampling and texture update (Marks et al. 2004, sec. 3.1, 3.3, 3.4).
 
-Inputs: ``features`` of frame t and ``proposals0 .. proposals{K-1}``, the pose opinions
-of the K proposal shards for frame t. Outputs: ``state`` (:class:`ExpertStates`, the
-experts after frame t, which the proposal stages turn into the proposals of t + 1) and
-``estimate`` (:class:`PoseEstimate`).
+Inputs: ``features`` of frame t and ``proposals0 .. proposals{K-1}``, the pose opinions of the K
+proposal shards for frame t. Outputs: ``state`` (:class:`ExpertStates`, the experts after frame t,
+which the proposal stages turn into the proposals of t + 1) and ``estimate`` (:class:`PoseEstimate`).
 
-The stage is an adapter of :class:`gflow_core.gflow.GFlowTracker` (``init``, ``update``,
-``coast``): it unpacks messages into the tracker's arguments and packs its results.
+The stage is an adapter of :class:`gflow_core.gflow.GFlowTracker`: the first usable frame is its
+``init`` (the model placed in ``init``, or a user morphable model, resource ``model``), every other
+frame its ``update`` of the shards' proposals, concatenated, or its ``coast``; the mathematics, the
+estimate's fields and the lost guard's verdicts are documented there and in
+:class:`stages.messages_gflow.PoseEstimate`. The filter never holds the background textures: the
+proposal stages do (``stages/gflow_proposal.py``), and ``init`` runs with ``backgrounds=False``.
+What G-flow reads of frame t, with its colour bins (the preprocess stage's ``colour``; bins that do
+not fit are reported as ``bad_features`` and that frame is judged on edges alone) and the guard's
+orientation channels, depends on the frame alone: the stage makes it in ``prepare``
+(``prepare_ports``), on a stage process's second thread while it waits for the proposals.
 
-Per frame (``GFlowTracker.update``, :func:`gflow_core.gflow.update`): the credibility of each expert (eq. 17 with
-the likelihood estimate of eq. 19), normalised over experts; children drawn from parents
-in proportion to credibility, each taking a pose from its parent's weighted samples
-(sec. 3.4, eq. 15); the Kalman update of the children's object texels (eq. 7-10). The
-filter never holds the background textures: with the background model on, they live in
-the proposal stages (see ``stages/gflow_proposal.py``), and ``update`` runs with
-``bg_mean = None``, which changes nothing else.
+Coasting. A missing or unusable frame, missing or bad proposals (another configuration's digest,
+another shard's experts, wrong shapes), or an update that fails make the filter coast (the experts
+keep their poses and credibilities, their texels are only predicted, eq. 9, 10; ``state =
+"coast"``), and the problem is reported. The state message is published on every frame, so the
+proposal -> filter cycle never stalls.
 
-The estimate (``GFlowTracker.estimate``): ``box`` is, for a learned face (a model with a reference box), the initial box
-moved and scaled with the face (``gflow_core.gflow.face_pose.following_box``), otherwise the
-bounding box of the projected vertices of the posterior mean pose; ``expert_points`` are every
-expert's projected vertices (the paper's figure 2), ``mean_points`` the mean's, ``landmarks`` the
-reference landmark of each vertex; ``pose``, ``pose_std``, ``rotation``, ``spread_px`` and ``ess``
-summarise the posterior, ``yaw_pitch_roll`` and ``expression`` read it as a face. With the lost
-guard (``lost_guard``, on; :mod:`gflow_core.gflow.guard`) ``confidence`` is P(visible) of the box
-and ``target_state`` the guard's verdict (``occluded``/``lost`` while it holds the box and
-searches; state ``lost``, and ``redetect`` on the frame it re-seats the experts); it reads the
-colour bins of :class:`ColourFeatures` (the preprocess stage's ``colour``, on in the graph), and
-bins that do not fit the grey image are reported (``bad_features``) and that frame is judged on
-edges alone. Without the guard ``confidence`` is the fraction of vertices the frame explains as
-the object (``Estimate.inlier_fraction``) and ``target_state`` is ``occluded`` below
-``occluded_below``, ``lost`` below ``lost_below``, else ``tracked``. A coasting frame repeats the
-last observed frame's. The snapshot (version 2) holds the guard's anchor and distributions; a
-version-1 snapshot restores with the guard off.
-
-Per-frame image work. What G-flow reads of frame t, its colour bins and the lost guard's
-orientation channels of the whole frame depend on the frame alone: the stage makes them in
-``prepare`` (``prepare_ports``), which a stage process runs on its second thread as soon as the
-features arrive, while it waits for the proposals; the same arrays either way.
-
-First frame: the model is fitted into ``init`` (generic head) or a user morphable model
-(resource ``model``) is placed in it, and the experts start at that pose (optionally
-jittered by ``init_jitter``, "initialised randomly near the correct pose", sec. 5), with
-object texels read from the frame (``Var(V_1) = v_init_var``).
-
-Coasting. A missing or unusable frame, missing or bad proposals, or an update that fails
-make the filter *coast*: the experts keep their poses and credibilities, their texels are
-only predicted (eq. 9, 10), the estimate says ``state = "coast"``, and the problem is
-reported. The state message is published on every frame, so the proposal -> filter
-cycle never stalls. Nothing is ever NaN.
+The snapshot (version 2) holds the experts, the guard's anchor and distributions; a version-1
+snapshot restores with the guard off.
 """
 
 from __future__ import annotations

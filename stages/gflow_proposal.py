@@ -1,22 +1,16 @@
 """G-flow proposal stage: the experts' pose opinions for frame t (Marks et al. 2004, sec. 3.2).
 
-Inputs: ``features`` of frame t (the grey image is ``y_t``) and ``state``, the experts
-after frame t - 1 (:class:`ExpertStates` from the filter; ``input_offsets = {"state": 1}``
-joins it with frame t). Output: ``proposals`` (:class:`PoseProposals`) of this stage's
-shard of experts for frame t. The stage is an adapter of
-:meth:`gflow_core.gflow.GFlowTracker.propose`; for each expert ``d`` of the shard
-(:func:`gflow_core.gflow.propose`):
+Inputs: ``features`` of frame t (the grey image is ``y_t``) and ``state``, the experts after frame
+t - 1 (:class:`ExpertStates` from the filter; ``input_offsets = {"state": 1}`` joins it with frame
+t). Output: ``proposals`` (:class:`PoseProposals`) of this stage's shard of experts for frame t.
+The stage is an adapter of :meth:`gflow_core.gflow.GFlowTracker.propose` (for each expert: the peak
+of its pose opinion by Gauss-Newton on eq. 14, the Laplace covariance, ``s`` samples and their
+weights, eq. 16, and its likelihood estimate, eq. 19).
 
-* the peak ``u_hat`` of its pose opinion by Gauss-Newton on eq. 14 and the Laplace
-  covariance ``Sigma_hat`` (inverse Hessian);
-* ``s`` samples from ``N(u_hat, alpha Sigma_hat)``;
-* their importance weights (eq. 16) with the full likelihood of eq. 13;
-* the expert's likelihood estimate (eq. 19).
-
-Sharding: with ``shards = K`` the experts are split into K contiguous blocks and this
-stage proposes for block ``shard``. Expert ``i`` of frame ``t`` draws only from
-``default_rng([seed, crc32(stream), t, i])``, so the filter's concatenation of K shards is
-bit for bit the proposals of one stage with ``shards = 1``.
+Sharding: with ``shards = K`` the experts are split into K contiguous blocks
+(:func:`gflow_core.gflow.split.shard_indices`) and this stage proposes for block ``shard``. Expert
+``i`` of frame ``t`` draws only from ``default_rng([seed, crc32(stream), t, i])``, so the filter's
+concatenation of K shards is bit for bit the proposals of one stage with ``shards = 1``.
 
 The background replica. With ``background: true`` the likelihood (eq. 13) needs each
 expert's background texels (E, H, W), which never travel (see ``stages/messages_gflow.py``):
