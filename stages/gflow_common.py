@@ -20,7 +20,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals, model_setup
+from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals, model_setup
 from gflow_core.gflow.split import config_digest
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
@@ -134,19 +134,15 @@ def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -
 # -- messages <-> gflow_core --------------------------------------------------------------
 
 
-def states_msg(header: Header, poses: np.ndarray, tex_mean: np.ndarray, tex_var: np.ndarray,
-               log_credibility: np.ndarray, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
-               first: bool, bg_mean: np.ndarray | None = None, bg_var: np.ndarray | None = None,
-               tex_anchor: np.ndarray | None = None) -> ExpertStates:
-    """Pack the experts after frame ``header.seq`` (backgrounds only for snapshots)."""
-    return ExpertStates(
-        header=header, poses=NDArray.of(np.asarray(poses, np.float64)),
-        tex_mean=NDArray.of(np.asarray(tex_mean, np.float64)), tex_var=NDArray.of(np.asarray(tex_var, np.float64)),
-        log_credibility=NDArray.of(np.asarray(log_credibility, np.float64)),
-        parents=NDArray.of(np.asarray(parents, np.int64)), image_shape=(int(image_shape[0]), int(image_shape[1])),
-        config_digest=digest, first=bool(first),
-        bg_mean=None if bg_mean is None else NDArray.of(bg_mean), bg_var=None if bg_var is None else NDArray.of(bg_var),
-        tex_anchor=None if tex_anchor is None else NDArray.of(np.asarray(tex_anchor, np.float64)))
+def states_msg(header: Header, experts: ExpertState, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
+               first: bool = False) -> ExpertStates:
+    """Pack the experts after frame ``header.seq`` (never their backgrounds: the proposal stages keep them)."""
+    f8 = {k: NDArray.of(np.asarray(getattr(experts, k), np.float64))
+          for k in ("poses", "tex_mean", "tex_var", "log_credibility")}
+    anchor = experts.tex_anchor
+    return ExpertStates(header=header, **f8, parents=NDArray.of(np.asarray(parents, np.int64)),
+                        image_shape=(int(image_shape[0]), int(image_shape[1])), config_digest=digest, first=bool(first),
+                        tex_anchor=None if anchor is None else NDArray.of(np.asarray(anchor, np.float64)))
 
 
 def _arrays(msg: Any, shapes: Mapping[str, tuple[tuple[int, ...], str]], where: str) -> dict[str, np.ndarray]:
@@ -166,8 +162,9 @@ def _arr(nd: NDArray, name: str, shape: tuple[int, ...], dtype: str, where: str)
     return a
 
 
-def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str, where: str) -> dict[str, Any]:
-    """Validate and unpack an ExpertStates message made for ``setup`` (whose digest is ``digest``).
+def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, where: str) -> dict[str, Any]:
+    """Validate and unpack an ExpertStates message made for ``setup`` (whose digest is ``digest``;
+    None: not checked, in a snapshot whose own digest was).
 
     Returns
     -------
@@ -180,7 +177,7 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str, where: str)
         Another configuration or model (digest), another frame size, or arrays of the wrong
         shape, dtype or with non-finite values.
     """
-    if msg.config_digest != digest:
+    if digest is not None and msg.config_digest != digest:
         raise StageInputError(f"{where}: the expert states were made with another G-flow configuration, model or "
                               f"seed (digest {msg.config_digest}, this stage has {digest}); give the proposal "
                               f"and filter stages the same parameters")

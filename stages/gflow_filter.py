@@ -178,9 +178,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     def _outputs(self, header: Header, state: GFlowState, est: Estimate, parents: np.ndarray,
                  first: bool = False) -> list[Output]:
         """The experts after the frame (the proposal stages' input) and the estimate."""
-        st, setup = state.experts, state.setup
-        out_state = states_msg(header, st.poses, st.tex_mean, st.tex_var, st.log_credibility, parents,
-                               setup.image_shape, self.digest, first=first, tex_anchor=st.tex_anchor)
+        out_state = states_msg(header, state.experts, parents, state.setup.image_shape, self.digest, first)
         x = est.extras
         self.last = {"seq": header.seq, "state": est.phase, "box": [round(v, 1) for v in est.box],
                      "ess": round(x["ess"], 1), "spread_px": round(x["spread_px"], 2),
@@ -272,10 +270,9 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     def snapshot(self) -> bytes:
         st = None
         if self.state is not None:
-            s, setup = self.state.experts, self.state.setup
-            st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s.poses, s.tex_mean,
-                            s.tex_var, s.log_credibility, np.arange(s.n_experts, dtype=np.int64),
-                            setup.image_shape, self.digest, first=False, tex_anchor=s.tex_anchor)
+            s = self.state.experts
+            st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s, np.arange(s.n_experts, dtype=np.int64),
+                            self.state.setup.image_shape, self.digest)
         guard: dict[str, Any] = {}
         if self.state is not None and self.state.anchor is not None:
             guard = dict(pack_guard(self.state.anchor, self.state.lost), fit_level=moments(self.state.fit_level),
@@ -313,7 +310,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         if snap.image_shape is not None and snap.state is not None:
             setup, digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
             try:
-                experts = expert_state(setup, unpack_states(snap.state, setup, digest, "gflow.filter snapshot"))
+                experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
             except StageInputError as e:
                 raise ValueError(str(e)) from None
             anchor, lost, level, look_clutter = self._guard_of(snap, setup.box)
