@@ -94,18 +94,12 @@ def restored_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Ma
     return setup, mine
 
 
-def frame_of(feat: Features, seq: int, tracker: GFlowParams, shape: tuple[int, int] | None = None) \
-        -> GFlowObservation:
-    """What G-flow reads of a Features message (:meth:`GFlowTracker.observe_grey` of its grey image).
+def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:
+    """What G-flow reads of a Features message (:meth:`GFlowTracker.observe_grey` of its grey image;
+    both stages read frames with it, so they see bit-identical frames).
 
-    Both stages read frames with this function, so they see bit-identical frames.
-
-    Raises
-    ------
-    StageInputError
-        An undecodable array, not a 2-D uint8 image of at least 2 x 2 pixels, a uniform
-        image (all black, saturated or any single grey level), or another size than
-        ``shape`` (the frames the tracker was initialised on; :func:`check_size`).
+    Raises StageInputError for an undecodable array, not a 2-D uint8 image of at least 2 x 2
+    pixels, or a uniform image (all black, saturated or any single grey level).
     """
     try:
         grey = feat.grey.array()
@@ -117,7 +111,7 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams, shape: tuple[int, i
         raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
     except ValueError as e:
         raise StageInputError(f"frame {seq}: {e}") from None
-    return check_size(obs, seq, shape)
+    return obs
 
 
 def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -> GFlowObservation:

@@ -84,12 +84,12 @@ class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
     image_shape: tuple[int, int] | None
     digest: str
     init_seq: int  # -1: not initialised
-    prev_seq: int  # -1: no previous frame
+    prev_seq: int  # the background replica's fields (BackgroundReplica.fields), arrays as NDArray
     prev_grey: NDArray | None
-    bg_seq: int  # frame the background replica describes; -1: none
-    bg_tile: int  # tile side of the replica (gflow_core.gflow.background)
-    bg_table: NDArray | None  # (E, K) int32 tile ids
-    bg_mean: NDArray | None  # (U, T*T) float64 distinct tiles
+    bg_seq: int
+    bg_tile: int
+    bg_table: NDArray | None
+    bg_mean: NDArray | None
     bg_var: NDArray | None
     steps: int
     init_error: str
@@ -203,22 +203,12 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
                     background_at=self.replica.seq)
 
     def snapshot(self) -> bytes:
-        r = self.replica
-        bank = r.tiles()
-        snap = _Snapshot(
-            version=SNAPSHOT_VERSION,
-            image_shape=None if self.setup is None else self.setup.image_shape,
-            digest=self.digest,
-            init_seq=-1 if self.init_seq is None else self.init_seq,
-            prev_seq=-1 if r.prev_grey is None else r.prev_seq,
-            prev_grey=None if r.prev_grey is None else NDArray.of(r.prev_grey),
-            bg_seq=r.seq if bank is not None else -1,
-            bg_tile=0 if bank is None else bank.layout.tile,
-            bg_table=None if bank is None else NDArray.of(bank.table),
-            bg_mean=None if bank is None else NDArray.of(bank.pool_mean),
-            bg_var=None if bank is None else NDArray.of(bank.pool_var),
-            steps=self.steps, init_error=self.init_error)
-        return msgspec.msgpack.encode(snap)
+        replica: dict[str, Any] = {k: NDArray.of(v) if isinstance(v, np.ndarray) else v
+                                   for k, v in self.replica.fields().items()}
+        return msgspec.msgpack.encode(_Snapshot(
+            version=SNAPSHOT_VERSION, image_shape=None if self.setup is None else self.setup.image_shape,
+            digest=self.digest, init_seq=-1 if self.init_seq is None else self.init_seq, steps=self.steps,
+            init_error=self.init_error, **replica))
 
     def restore(self, data: bytes) -> None:
         try:
@@ -232,9 +222,9 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
             self.setup, self.digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
                                                      snap.digest)
         try:
-            self.replica = BackgroundReplica.of_tiles(
-                self.setup, snap.bg_seq, snap.prev_seq, snap.bg_tile,
-                *(None if a is None else a.array() for a in (snap.prev_grey, snap.bg_table, snap.bg_mean, snap.bg_var)))
+            fields: dict[str, Any] = {k: getattr(snap, k) for k in BackgroundReplica().fields()}
+            fields = {k: v.array() if isinstance(v, NDArray) else v for k, v in fields.items()}
+            self.replica = BackgroundReplica.of_fields(self.setup, **fields)
         except (MessageError, ValueError) as e:
             raise ValueError(f"corrupt gflow.proposal snapshot: {e}") from None
         self.init_seq = None if snap.init_seq < 0 else snap.init_seq

@@ -52,19 +52,20 @@ def test_the_replica_starts_advances_restarts_and_predicts_as_the_tracker(head) 
     assert problem is not None and problem[0] == "background_reset" and r4.seq == 3 and r4.bg is not None
 
 
-def test_the_replica_survives_its_tiles_and_refuses_tiles_that_do_not_fit(head) -> None:
+def test_the_replica_survives_its_snapshot_fields_and_refuses_fields_that_do_not_fit(head) -> None:
     setup, grey, poses = head
     r, _ = BackgroundReplica().seen(0, grey[0]).advance(setup, 1, poses, np.arange(6), first=True)
-    bank = r.tiles()
-    assert bank is not None
-    back = BackgroundReplica.of_tiles(setup, r.seq, 0, bank.layout.tile, grey[0], bank.table, bank.pool_mean,
-                                      bank.pool_var)
-    assert np.array_equal(np.asarray(back.bg[0]), np.asarray(r.bg[0])) and back.prev_seq == 0
+    fields = r.fields()
+    assert fields["bg_seq"] == 0 and fields["bg_table"].shape[0] == 6
+    assert fields["bg_mean"].nbytes < np.asarray(r.bg[0]).nbytes / 2  # distinct tiles, not (E, H, W)
+    back = BackgroundReplica.of_fields(setup, **fields)
+    assert np.array_equal(np.asarray(back.bg[0]), np.asarray(r.bg[0])) and back.fields()["prev_seq"] == 0
+    assert BackgroundReplica.of_fields(None, **BackgroundReplica().fields()) == BackgroundReplica()
     other = dataclasses.replace(setup, cfg=dataclasses.replace(setup.cfg, n_experts=7))
     with pytest.raises(ValueError, match="6 experts, this stage has 7"):
-        BackgroundReplica.of_tiles(other, 0, 0, bank.layout.tile, None, bank.table, bank.pool_mean, bank.pool_var)
+        BackgroundReplica.of_fields(other, **fields)
     with pytest.raises(ValueError, match="without a frame size"):
-        BackgroundReplica.of_tiles(None, 0, 0, bank.layout.tile, None, bank.table, bank.pool_mean, bank.pool_var)
+        BackgroundReplica.of_fields(None, **fields)
 
 
 def test_the_digest_names_the_configuration_and_the_shards_cover_the_experts(head) -> None:

@@ -8,7 +8,7 @@ arguments of these calls and results into messages:
 * :func:`config_digest` -- a digest of everything the proposal and the filter must agree on;
 * :func:`shard_indices` -- the experts of one shard;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
-  advances itself (eq. 7-10), since they never travel, and their compact form for a snapshot;
+  advances itself (eq. 7-10), since they never travel, and its snapshot fields;
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot).
 
 Nothing here is new mathematics: the replica calls :func:`.filter.initial_background`,
@@ -117,25 +117,30 @@ class BackgroundReplica:
             bg = predict_background(self.bg[0], self.bg[1], parents, setup.cfg)
         return dataclasses.replace(self, bg=bg, seq=t1), problem
 
-    def tiles(self) -> TiledBackground | None:
-        """The backgrounds as distinct tiles (what a snapshot keeps), or None."""
-        return None if self.bg is None else self.bg[0].bank
+    def fields(self) -> dict[str, Any]:
+        """The replica as flat snapshot fields: ``prev_seq`` and ``prev_grey`` (H, W) uint8 (-1 and None
+        before a frame), ``bg_seq``, ``bg_tile`` (the tile side), ``bg_table`` (E, K) int32 tile ids and
+        ``bg_mean`` / ``bg_var`` (U, T*T) float64 distinct tiles (-1, 0 and None without backgrounds)."""
+        bank = None if self.bg is None else self.bg[0].bank
+        return dict(prev_seq=-1 if self.prev_grey is None else self.prev_seq, prev_grey=self.prev_grey,
+                    bg_seq=-1 if bank is None else self.seq, bg_tile=0 if bank is None else bank.layout.tile,
+                    bg_table=None if bank is None else bank.table, bg_mean=None if bank is None else bank.pool_mean,
+                    bg_var=None if bank is None else bank.pool_var)
 
     @classmethod
-    def of_tiles(cls, setup: ModelSetup | None, seq: int, prev_seq: int, tile: int, prev_grey: np.ndarray | None,
-                 table: np.ndarray | None, mean: np.ndarray | None, var: np.ndarray | None) -> BackgroundReplica:
-        """The replica of a snapshot: the last frame seen, ``prev_grey`` (H, W) uint8 of frame ``prev_seq``,
-        and the backgrounds of frame ``seq`` with tile side ``tile``, ``table`` (E, K) tile ids, ``mean`` /
-        ``var`` (U, T*T) float64 distinct tiles (None: no backgrounds). Raises ValueError when they do not
-        fit ``setup`` (None: the model was never placed)."""
+    def of_fields(cls, setup: ModelSetup | None, prev_seq: int, prev_grey: np.ndarray | None, bg_seq: int,
+                  bg_tile: int, bg_table: np.ndarray | None, bg_mean: np.ndarray | None,
+                  bg_var: np.ndarray | None) -> BackgroundReplica:
+        """The replica of :meth:`fields` (arrays copied). Raises ValueError when they do not fit ``setup``
+        (None: the model was never placed)."""
         bg = None
-        if table is not None and mean is not None and var is not None:
+        if bg_table is not None and bg_mean is not None and bg_var is not None:
             if setup is None:
                 raise ValueError("a background replica without a frame size")
-            bank = TiledBackground(TileLayout(setup.image_shape, tile), table.astype(np.int32), mean.copy(),
-                                   var.copy())
+            bank = TiledBackground(TileLayout(setup.image_shape, bg_tile), bg_table.astype(np.int32), bg_mean.copy(),
+                                   bg_var.copy())
             if bank.n_experts != setup.cfg.n_experts:
                 raise ValueError(f"a background replica of {bank.n_experts} experts, this stage has "
                                  f"{setup.cfg.n_experts}")
             bg = (bank.mean, bank.var)
-        return cls(bg, seq, prev_seq, None if prev_grey is None else prev_grey.copy())
+        return cls(bg, bg_seq, prev_seq, None if prev_grey is None else prev_grey.copy())
