@@ -163,7 +163,7 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     Returns
     -------
     dict with poses (E, P), tex_mean (E, n), tex_var (E, n), log_credibility (E,), parents (E,), tex_anchor
-    (n,) or None, and bg_mean / bg_var (E, H, W) when the message carries them.
+    (n,) or None (``bg_mean`` / ``bg_var`` are never read: the proposal stages keep their own).
 
     Raises
     ------
@@ -187,10 +187,7 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     if (msg.tex_anchor is not None) != (setup.cfg.texture_decay != 1.0):
         raise StageInputError(f"{where}: the texture anchor is " + ("missing" if msg.tex_anchor is None else
                               "unexpected") + f" for texture_decay {setup.cfg.texture_decay}")
-    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), "float64", where)
-    if msg.bg_mean is not None and msg.bg_var is not None:
-        out.update(_arrays(msg, {"bg_mean": ((E, *setup.image_shape), f8), "bg_var": ((E, *setup.image_shape), f8)},
-                           where))
+    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), f8, where)
     return out
 
 
