@@ -30,17 +30,8 @@ from .messages import ExpertStates, Features, Header, MessageError, NDArray, Pos
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
-__all__ = [
-    "GFlowStageFields",
-    "prepare",
-    "restored_setup",
-    "frame_of",
-    "check_size",
-    "states_msg",
-    "unpack_states",
-    "proposals_msg",
-    "unpack_proposals",
-]
+__all__ = ["GFlowStageFields", "prepare", "restored_setup", "frame_of", "check_size", "states_msg", "unpack_states",
+           "proposals_msg", "unpack_proposals"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -48,16 +39,14 @@ class GFlowStageFields(SeedBoxFields, frozen=True):
 
     seed : random seed (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t, i]``).
     init : (x, y, w, h) initial box of the face in the first usable frame, 0-based pixels.
-    shards : number of proposal stages the experts are split across (``<= n_experts``); the
-        filter has input ports ``proposals0 .. proposals{shards-1}``.
     """
-
-    shards: int = 1
 
     def check(self, tracker: Any) -> None:
         super().check(tracker)
-        if not 1 <= self.shards <= tracker.n_experts:
-            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {self.shards}")
+        # the number of proposal stages: each stage's own field (the proposal's after its shard)
+        shards = getattr(self, "shards")
+        if not 1 <= shards <= tracker.n_experts:
+            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {shards}")
 
 
 def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],

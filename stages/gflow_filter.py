@@ -44,17 +44,8 @@ from gflow_core.visibility import ChiSquare
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setup, states_msg, unpack_proposals,
                            unpack_states)
-from .messages import (
-    ColourFeatures,
-    ExpertStates,
-    Features,
-    Header,
-    Message,
-    MessageError,
-    NDArray,
-    PoseEstimate,
-    PoseProposals,
-)
+from .messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
+                       PoseProposals)
 from .lost_snapshot import moments, pack_guard, unpack_anchor, unpack_lost
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
@@ -66,7 +57,12 @@ SNAPSHOT_VERSION = 2  # 2: the lost guard's anchor and distributions (1: none; r
 
 class GFlowFilterFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the proposal stages'),
-    the seed, the initial box and the number of proposal shards."""
+    the seed, the initial box and the number of proposal shards.
+
+    shards : number of proposal stages; the filter has input ports ``proposals0 .. proposals{shards-1}``.
+    """
+
+    shards: int = 1
 
 
 GFlowFilterParams = stage_params("GFlowFilterParams", GFlowParams, GFlowFilterFields, __name__)

@@ -64,9 +64,11 @@ class GFlowProposalFields(GFlowStageFields, frozen=True):
     seed, the initial box, and which shard of the experts this stage proposes for.
 
     shard : index of this shard, ``0 <= shard < shards``.
+    shards : number of proposal stages the experts are split across (``<= n_experts``).
     """
 
     shard: int = 0
+    shards: int = 1
 
     def check(self, tracker: Any) -> None:
         super().check(tracker)
