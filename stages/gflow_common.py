@@ -1,41 +1,27 @@
-"""What the G-flow proposal and filter stages share: parameters, digest, frames, message packing.
+"""What the G-flow proposal and filter stages share: parameters, model placement, frames, message packing.
 
-The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & Movellan,
-NIPS 2004) are adapters of :class:`gflow_core.gflow.GFlowTracker`: the proposal stage calls its
-``propose``, the filter its ``init``, ``update`` and ``coast``. They must run the same G-flow
-parameters, model and seed, or the proposals of one would be weighed against the textures of the
-other. Both take every field of :class:`gflow_core.gflow.GFlowParams` (derived from it by
-:func:`stages.tracker_params.stage_params`, defaults included), and both compute the same
-:func:`config_digest`, which travels in every :class:`ExpertStates` and :class:`PoseProposals`
-message and is checked on receipt.
-
-The model is placed the same way in both stages, from the parameters and the size of the first
-usable frame (:func:`prepare`, :func:`gflow_core.gflow.model_setup`): a user morphable model
-(the ``model`` resource) or the generic ellipsoid head fitted into the initial box. An initial
-box that sticks out of the frame is clipped to it (and reported); one that misses the frame is
-an error.
-
-Random streams (:class:`gflow_core.tracker.FrameRng` of ``(seed, crc32(stream), t)``), so that
-shards concatenate to exactly one process's result, and the pipeline equals the tracker (and
-:func:`gflow_core.gflow.step`) run in a loop:
-
-* expert ``i`` at frame ``t``: ``default_rng([seed, stream_hash, t, i])``, used by the proposal stage;
-* the filter's resampling at frame ``t``: ``default_rng([seed, stream_hash, t])``;
-* the initial jitter of the experts (filter, first frame only):
-  ``default_rng([seed, stream_hash, t, PURPOSE_INIT])``.
+The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & Movellan, NIPS
+2004) are adapters of :class:`gflow_core.gflow.GFlowTracker`, and what running it split across
+processes needs beyond that (the configuration digest, the shards, the proposals' background
+replica) is :mod:`gflow_core.gflow.split`. Both stages take every field of
+:class:`gflow_core.gflow.GFlowParams` (:func:`stages.tracker_params.stage_params`), place the model
+the same way on the first usable frame (:func:`prepare`: a user morphable model, resource
+``model``, or the generic head fitted into the initial box, clipped to the frame) and compute the
+same digest, which travels in every :class:`ExpertStates` and :class:`PoseProposals` message and is
+checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`) and once on a restore
+(:func:`restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
+``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
-from dataclasses import asdict
 from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.gflow import (GFlowConfig, GFlowObservation, GFlowParams, ModelSetup, MorphableModel, Proposals,
-                              model_setup)
+from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals, model_setup
+from gflow_core.gflow.split import config_digest
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -44,18 +30,8 @@ from .messages import ExpertStates, Features, Header, MessageError, NDArray, Pos
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
-__all__ = [
-    "GFlowStageFields",
-    "config_digest",
-    "prepare",
-    "frame_of",
-    "check_size",
-    "states_msg",
-    "unpack_states",
-    "proposals_msg",
-    "unpack_proposals",
-    "shard_indices",
-]
+__all__ = ["GFlowStageFields", "prepare", "restored_setup", "frame_of", "check_size", "states_msg", "unpack_states",
+           "proposals_msg", "unpack_proposals"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -65,23 +41,18 @@ class GFlowStageFields(SeedBoxFields, frozen=True):
     init : (x, y, w, h) initial box of the face in the first usable frame, 0-based pixels.
     """
 
-
-def config_digest(cfg: GFlowConfig, model: MorphableModel, seed: int, contrast_sigma: float = 0.0) -> str:
-    """A short digest of everything that must agree between the proposal and the filter:
-    the configuration, the model's bases (shape and bytes), the seed and how frames are normalised."""
-    h = hashlib.sha256()
-    h.update(repr(sorted(asdict(cfg).items())).encode())
-    h.update(repr((model.bases.shape, int(seed))).encode())
-    if contrast_sigma:
-        h.update(repr(("contrast_sigma", float(contrast_sigma))).encode())
-    h.update(np.ascontiguousarray(model.bases, dtype="<f8").tobytes())
-    return h.hexdigest()[:16]
+    def check(self, tracker: Any) -> None:
+        super().check(tracker)
+        # the number of proposal stages: each stage's own field (the proposal's after its shard)
+        shards = getattr(self, "shards")
+        if not 1 <= shards <= tracker.n_experts:
+            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {shards}")
 
 
 def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
             shape: tuple[int, int]) -> tuple[ModelSetup, str]:
-    """The model placed in the initial box on frames of ``shape``, and its digest (identically in
-    both stages).
+    """The model placed in the initial box on frames of ``shape``, and its digest
+    (:func:`gflow_core.gflow.split.config_digest`; identically in both stages).
 
     Raises
     ------
@@ -95,21 +66,29 @@ def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[s
         setup = model_setup(tracker, fields.init, shape, resources.get("model"))
     except ValueError as e:
         raise StageInputError(str(e)) from None
-    return setup, config_digest(setup.cfg, setup.model, fields.seed, tracker.contrast_sigma)
+    return setup, config_digest(setup, fields.seed)
 
 
-def frame_of(feat: Features, seq: int, tracker: GFlowParams, shape: tuple[int, int] | None = None) \
-        -> GFlowObservation:
-    """What G-flow reads of a Features message (:meth:`GFlowTracker.observe_grey` of its grey image).
+def restored_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
+                   shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
+    """:func:`prepare` for a snapshot made on frames of ``shape`` with digest ``digest``. Raises
+    ValueError when the model cannot be placed or the digest is another configuration's."""
+    try:
+        setup, mine = prepare(fields, tracker, resources, shape)
+    except StageInputError as e:
+        raise ValueError(str(e)) from None
+    if mine != digest:
+        raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
+                         f"{digest}, this stage has {mine})")
+    return setup, mine
 
-    Both stages read frames with this function, so they see bit-identical frames.
 
-    Raises
-    ------
-    StageInputError
-        An undecodable array, not a 2-D uint8 image of at least 2 x 2 pixels, a uniform
-        image (all black, saturated or any single grey level), or another size than
-        ``shape`` (the frames the tracker was initialised on; :func:`check_size`).
+def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:
+    """What G-flow reads of a Features message (:meth:`GFlowTracker.observe_grey` of its grey image;
+    both stages read frames with it, so they see bit-identical frames).
+
+    Raises StageInputError for an undecodable array, not a 2-D uint8 image of at least 2 x 2
+    pixels, or a uniform image (all black, saturated or any single grey level).
     """
     try:
         grey = feat.grey.array()
@@ -121,7 +100,7 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams, shape: tuple[int, i
         raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
     except ValueError as e:
         raise StageInputError(f"frame {seq}: {e}") from None
-    return check_size(obs, seq, shape)
+    return obs
 
 
 def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -> GFlowObservation:
@@ -138,19 +117,20 @@ def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -
 # -- messages <-> gflow_core --------------------------------------------------------------
 
 
-def states_msg(header: Header, poses: np.ndarray, tex_mean: np.ndarray, tex_var: np.ndarray,
-               log_credibility: np.ndarray, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
-               first: bool, bg_mean: np.ndarray | None = None, bg_var: np.ndarray | None = None,
-               tex_anchor: np.ndarray | None = None) -> ExpertStates:
-    """Pack the experts after frame ``header.seq`` (backgrounds only for snapshots)."""
-    return ExpertStates(
-        header=header, poses=NDArray.of(np.asarray(poses, np.float64)),
-        tex_mean=NDArray.of(np.asarray(tex_mean, np.float64)), tex_var=NDArray.of(np.asarray(tex_var, np.float64)),
-        log_credibility=NDArray.of(np.asarray(log_credibility, np.float64)),
-        parents=NDArray.of(np.asarray(parents, np.int64)), image_shape=(int(image_shape[0]), int(image_shape[1])),
-        config_digest=digest, first=bool(first),
-        bg_mean=None if bg_mean is None else NDArray.of(bg_mean), bg_var=None if bg_var is None else NDArray.of(bg_var),
-        tex_anchor=None if tex_anchor is None else NDArray.of(np.asarray(tex_anchor, np.float64)))
+def states_msg(header: Header, experts: ExpertState, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
+               first: bool = False) -> ExpertStates:
+    """Pack the experts after frame ``header.seq`` (never their backgrounds: the proposal stages keep them)."""
+    f8 = {k: NDArray.of(np.asarray(getattr(experts, k), np.float64))
+          for k in ("poses", "tex_mean", "tex_var", "log_credibility")}
+    anchor = experts.tex_anchor
+    return ExpertStates(header=header, **f8, parents=NDArray.of(np.asarray(parents, np.int64)),
+                        image_shape=(int(image_shape[0]), int(image_shape[1])), config_digest=digest, first=bool(first),
+                        tex_anchor=None if anchor is None else NDArray.of(np.asarray(anchor, np.float64)))
+
+
+def _arrays(msg: Any, shapes: Mapping[str, tuple[tuple[int, ...], str]], where: str) -> dict[str, np.ndarray]:
+    """The arrays of ``msg`` named in ``shapes`` ({field: (shape, dtype)}), checked (:func:`_arr`)."""
+    return {name: _arr(getattr(msg, name), name, shape, dtype, where) for name, (shape, dtype) in shapes.items()}
 
 
 def _arr(nd: NDArray, name: str, shape: tuple[int, ...], dtype: str, where: str) -> np.ndarray:
@@ -165,13 +145,14 @@ def _arr(nd: NDArray, name: str, shape: tuple[int, ...], dtype: str, where: str)
     return a
 
 
-def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str, where: str) -> dict[str, Any]:
-    """Validate and unpack an ExpertStates message made for ``setup`` (whose digest is ``digest``).
+def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, where: str) -> dict[str, Any]:
+    """Validate and unpack an ExpertStates message made for ``setup`` (whose digest is ``digest``;
+    None: not checked, in a snapshot whose own digest was).
 
     Returns
     -------
     dict with poses (E, P), tex_mean (E, n), tex_var (E, n), log_credibility (E,), parents (E,), tex_anchor
-    (n,) or None, and bg_mean / bg_var (E, H, W) when the message carries them.
+    (n,) or None (``bg_mean`` / ``bg_var`` are never read: the proposal stages keep their own).
 
     Raises
     ------
@@ -179,7 +160,7 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str, where: str)
         Another configuration or model (digest), another frame size, or arrays of the wrong
         shape, dtype or with non-finite values.
     """
-    if msg.config_digest != digest:
+    if digest is not None and msg.config_digest != digest:
         raise StageInputError(f"{where}: the expert states were made with another G-flow configuration, model or "
                               f"seed (digest {msg.config_digest}, this stage has {digest}); give the proposal "
                               f"and filter stages the same parameters")
@@ -187,37 +168,29 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str, where: str)
         raise StageInputError(f"{where}: expert states are for {msg.image_shape} frames, this stage tracks "
                               f"{setup.image_shape}")
     E, P, n = setup.cfg.n_experts, setup.model.pose_size, setup.model.n_vertices
-    out: dict[str, Any] = {
-        "poses": _arr(msg.poses, "poses", (E, P), "float64", where),
-        "tex_mean": _arr(msg.tex_mean, "tex_mean", (E, n), "float64", where),
-        "tex_var": _arr(msg.tex_var, "tex_var", (E, n), "float64", where),
-        "log_credibility": _arr(msg.log_credibility, "log_credibility", (E,), "float64", where),
-        "parents": _arr(msg.parents, "parents", (E,), "int64", where),
-    }
+    f8 = "float64"
+    out: dict[str, Any] = _arrays(msg, {"poses": ((E, P), f8), "tex_mean": ((E, n), f8), "tex_var": ((E, n), f8),
+                                        "log_credibility": ((E,), f8), "parents": ((E,), "int64")}, where)
     if out["parents"].min() < 0 or out["parents"].max() >= E:
         raise StageInputError(f"{where}: parents must lie in [0, {E})")
     if (msg.tex_anchor is not None) != (setup.cfg.texture_decay != 1.0):
         raise StageInputError(f"{where}: the texture anchor is " + ("missing" if msg.tex_anchor is None else
                               "unexpected") + f" for texture_decay {setup.cfg.texture_decay}")
-    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), "float64", where)
-    if msg.bg_mean is not None and msg.bg_var is not None:
-        H, W = setup.image_shape
-        out["bg_mean"] = _arr(msg.bg_mean, "bg_mean", (E, H, W), "float64", where)
-        out["bg_var"] = _arr(msg.bg_var, "bg_var", (E, H, W), "float64", where)
+    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), f8, where)
     return out
 
 
-_PROPOSAL_FIELDS = ("expert_indices", "u_hat", "sigma_hat", "samples", "log_weights", "log_evidence", "gn_objective")
+#: the arrays of a PoseProposals message and their number of dimensions (E' first)
+_PROPOSAL_FIELDS = {"expert_indices": 1, "u_hat": 2, "sigma_hat": 3, "samples": 3, "log_weights": 2, "log_evidence": 1,
+                    "gn_objective": 1}
 
 
 def proposals_msg(header: Header, props: Proposals | None, shard: int, shards: int, digest: str) -> PoseProposals:
     """Pack :class:`gflow_core.gflow.Proposals` (or an empty shard when ``props`` is None)."""
-    if props is None:
-        return PoseProposals(header=header, expert_indices=NDArray.of(np.zeros(0, np.int64)),
-                             u_hat=NDArray.of(np.zeros((0, 0))), sigma_hat=NDArray.of(np.zeros((0, 0, 0))),
-                             samples=NDArray.of(np.zeros((0, 0, 0))), log_weights=NDArray.of(np.zeros((0, 0))),
-                             log_evidence=NDArray.of(np.zeros(0)), gn_objective=NDArray.of(np.zeros(0)),
-                             shard=shard, shards=shards, config_digest=digest)
+    if props is None:  # every array without experts
+        empty: dict[str, Any] = {f: NDArray.of(np.zeros((0,) * nd, np.int64 if f == "expert_indices" else np.float64))
+                                 for f, nd in _PROPOSAL_FIELDS.items()}
+        return PoseProposals(header=header, **empty, shard=shard, shards=shards, config_digest=digest)
     return PoseProposals(header=header, **{f: NDArray.of(np.asarray(getattr(props, f))) for f in _PROPOSAL_FIELDS},
                          shard=shard, shards=shards, config_digest=digest,
                          reset=NDArray.of(np.asarray(props.reset, dtype=bool)) if props.reset.any() else None,
@@ -241,25 +214,14 @@ def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: 
     Ep = expected.size
     if Ep and msg.expert_indices.shape == (0,):
         raise StageInputError(f"{where}: the proposal stage had no usable frame or expert state for this frame")
-    P, s = setup.model.pose_size, setup.cfg.n_samples
+    P, s, f8 = setup.model.pose_size, setup.cfg.n_samples, "float64"
     if not (math.isfinite(msg.dt) and 1.0 <= msg.dt <= MAX_TIME_STEP):
         raise StageInputError(f"{where}: dt must be in [1, {MAX_TIME_STEP:g}] frame periods, got {msg.dt!r}")
     idx = _arr(msg.expert_indices, "expert_indices", (Ep,), "int64", where)
     if not np.array_equal(idx, expected):
         raise StageInputError(f"{where}: expert indices {idx.tolist()} are not this shard's {expected.tolist()}")
-    return Proposals(
-        expert_indices=idx,
-        u_hat=_arr(msg.u_hat, "u_hat", (Ep, P), "float64", where),
-        sigma_hat=_arr(msg.sigma_hat, "sigma_hat", (Ep, P, P), "float64", where),
-        samples=_arr(msg.samples, "samples", (Ep, s, P), "float64", where),
-        log_weights=_arr(msg.log_weights, "log_weights", (Ep, s), "float64", where),
-        log_evidence=_arr(msg.log_evidence, "log_evidence", (Ep,), "float64", where),
-        gn_objective=_arr(msg.gn_objective, "gn_objective", (Ep,), "float64", where),
-        reset=np.zeros(Ep, dtype=bool) if msg.reset is None else _arr(msg.reset, "reset", (Ep,), "bool", where),
-        dt=float(msg.dt),
-    )
-
-
-def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
-    """The experts of one shard: contiguous blocks of ``range(n_experts)`` (``numpy.array_split``)."""
-    return np.array_split(np.arange(n_experts, dtype=np.int64), shards)[shard]
+    arrays = _arrays(msg, {"u_hat": ((Ep, P), f8), "sigma_hat": ((Ep, P, P), f8), "samples": ((Ep, s, P), f8),
+                           "log_weights": ((Ep, s), f8), "log_evidence": ((Ep,), f8), "gn_objective": ((Ep,), f8)},
+                     where)
+    reset = np.zeros(Ep, dtype=bool) if msg.reset is None else _arr(msg.reset, "reset", (Ep,), "bool", where)
+    return Proposals(expert_indices=idx, reset=reset, dt=float(msg.dt), **arrays)

@@ -1,53 +1,28 @@
 """G-flow filter stage: credibilities, resampling and texture update (Marks et al. 2004, sec. 3.1, 3.3, 3.4).
 
-Inputs: ``features`` of frame t and ``proposals0 .. proposals{K-1}``, the pose opinions
-of the K proposal shards for frame t. Outputs: ``state`` (:class:`ExpertStates`, the
-experts after frame t, which the proposal stages turn into the proposals of t + 1) and
-``estimate`` (:class:`PoseEstimate`).
+Inputs: ``features`` of frame t and ``proposals0 .. proposals{K-1}``, the pose opinions of the K
+proposal shards for frame t. Outputs: ``state`` (:class:`ExpertStates`, the experts after frame t,
+which the proposal stages turn into the proposals of t + 1) and ``estimate`` (:class:`PoseEstimate`).
 
-The stage is an adapter of :class:`gflow_core.gflow.GFlowTracker` (``init``, ``update``,
-``coast``): it unpacks messages into the tracker's arguments and packs its results.
+The stage is an adapter of :class:`gflow_core.gflow.GFlowTracker`: the first usable frame is its
+``init`` (the model placed in ``init``, or a user morphable model, resource ``model``), every other
+frame its ``update`` of the shards' proposals, concatenated, or its ``coast``; the mathematics, the
+estimate's fields and the lost guard's verdicts are documented there and in
+:class:`stages.messages_gflow.PoseEstimate`. The filter never holds the background textures: the
+proposal stages do (``stages/gflow_proposal.py``), and ``init`` runs with ``backgrounds=False``.
+What G-flow reads of frame t, with its colour bins (the preprocess stage's ``colour``; bins that do
+not fit are reported as ``bad_features`` and that frame is judged on edges alone) and the guard's
+orientation channels, depends on the frame alone: the stage makes it in ``prepare``
+(``prepare_ports``), on a stage process's second thread while it waits for the proposals.
 
-Per frame (``GFlowTracker.update``, :func:`gflow_core.gflow.update`): the credibility of each expert (eq. 17 with
-the likelihood estimate of eq. 19), normalised over experts; children drawn from parents
-in proportion to credibility, each taking a pose from its parent's weighted samples
-(sec. 3.4, eq. 15); the Kalman update of the children's object texels (eq. 7-10). The
-filter never holds the background textures: with the background model on, they live in
-the proposal stages (see ``stages/gflow_proposal.py``), and ``update`` runs with
-``bg_mean = None``, which changes nothing else.
+Coasting. A missing or unusable frame, missing or bad proposals (another configuration's digest,
+another shard's experts, wrong shapes), or an update that fails make the filter coast (the experts
+keep their poses and credibilities, their texels are only predicted, eq. 9, 10; ``state =
+"coast"``), and the problem is reported. The state message is published on every frame, so the
+proposal -> filter cycle never stalls.
 
-The estimate (``GFlowTracker.estimate``): ``box`` is, for a learned face (a model with a reference box), the initial box
-moved and scaled with the face (``gflow_core.gflow.face_pose.following_box``), otherwise the
-bounding box of the projected vertices of the posterior mean pose; ``expert_points`` are every
-expert's projected vertices (the paper's figure 2), ``mean_points`` the mean's, ``landmarks`` the
-reference landmark of each vertex; ``pose``, ``pose_std``, ``rotation``, ``spread_px`` and ``ess``
-summarise the posterior, ``yaw_pitch_roll`` and ``expression`` read it as a face. With the lost
-guard (``lost_guard``, on; :mod:`gflow_core.gflow.guard`) ``confidence`` is P(visible) of the box
-and ``target_state`` the guard's verdict (``occluded``/``lost`` while it holds the box and
-searches; state ``lost``, and ``redetect`` on the frame it re-seats the experts); it reads the
-colour bins of :class:`ColourFeatures` (the preprocess stage's ``colour``, on in the graph), and
-bins that do not fit the grey image are reported (``bad_features``) and that frame is judged on
-edges alone. Without the guard ``confidence`` is the fraction of vertices the frame explains as
-the object (``Estimate.inlier_fraction``) and ``target_state`` is ``occluded`` below
-``occluded_below``, ``lost`` below ``lost_below``, else ``tracked``. A coasting frame repeats the
-last observed frame's. The snapshot (version 2) holds the guard's anchor and distributions; a
-version-1 snapshot restores with the guard off.
-
-Per-frame image work. What G-flow reads of frame t, its colour bins and the lost guard's
-orientation channels of the whole frame depend on the frame alone: the stage makes them in
-``prepare`` (``prepare_ports``), which a stage process runs on its second thread as soon as the
-features arrive, while it waits for the proposals; the same arrays either way.
-
-First frame: the model is fitted into ``init`` (generic head) or a user morphable model
-(resource ``model``) is placed in it, and the experts start at that pose (optionally
-jittered by ``init_jitter``, "initialised randomly near the correct pose", sec. 5), with
-object texels read from the frame (``Var(V_1) = v_init_var``).
-
-Coasting. A missing or unusable frame, missing or bad proposals, or an update that fails
-make the filter *coast*: the experts keep their poses and credibilities, their texels are
-only predicted (eq. 9, 10), the estimate says ``state = "coast"``, and the problem is
-reported. The state message is published on every frame, so the proposal -> filter
-cycle never stalls. Nothing is ever NaN.
+The snapshot (version 2) holds the experts, the guard's anchor and distributions; a version-1
+snapshot restores with the guard off.
 """
 
 from __future__ import annotations
@@ -58,36 +33,19 @@ from typing import Any, Mapping
 import msgspec
 import numpy as np
 
-from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, GFlowState, Proposals
+from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
+from gflow_core.gflow.split import config_digest, expert_state, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.m2.lost import Anchor, LostState
 from gflow_core.tracker import Estimate
 from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (
-    GFlowStageFields,
-    check_size,
-    config_digest,
-    frame_of,
-    prepare,
-    shard_indices,
-    states_msg,
-    unpack_proposals,
-    unpack_states,
-)
-from .messages import (
-    ColourFeatures,
-    ExpertStates,
-    Features,
-    Header,
-    Message,
-    MessageError,
-    NDArray,
-    PoseEstimate,
-    PoseProposals,
-)
+from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setup, states_msg, unpack_proposals,
+                           unpack_states)
+from .messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
+                       PoseProposals)
 from .lost_snapshot import moments, pack_guard, unpack_anchor, unpack_lost
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
@@ -101,16 +59,10 @@ class GFlowFilterFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the proposal stages'),
     the seed, the initial box and the number of proposal shards.
 
-    shards : number of proposal stages; the filter has input ports ``proposals0 ..
-        proposals{shards-1}``.
+    shards : number of proposal stages; the filter has input ports ``proposals0 .. proposals{shards-1}``.
     """
 
     shards: int = 1
-
-    def check(self, tracker: Any) -> None:
-        super().check(tracker)
-        if not 1 <= self.shards <= tracker.n_experts:
-            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {self.shards}")
 
 
 GFlowFilterParams = stage_params("GFlowFilterParams", GFlowParams, GFlowFilterFields, __name__)
@@ -222,9 +174,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     def _outputs(self, header: Header, state: GFlowState, est: Estimate, parents: np.ndarray,
                  first: bool = False) -> list[Output]:
         """The experts after the frame (the proposal stages' input) and the estimate."""
-        st, setup = state.experts, state.setup
-        out_state = states_msg(header, st.poses, st.tex_mean, st.tex_var, st.log_credibility, parents,
-                               setup.image_shape, self.digest, first=first, tex_anchor=st.tex_anchor)
+        out_state = states_msg(header, state.experts, parents, state.setup.image_shape, self.digest, first)
         x = est.extras
         self.last = {"seq": header.seq, "state": est.phase, "box": [round(v, 1) for v in est.box],
                      "ess": round(x["ess"], 1), "spread_px": round(x["spread_px"], 2),
@@ -306,7 +256,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             self.report("init_box_clipped", f"frame {seq}: initial box {box} reaches outside the {W}x{H} frame; "
                                             f"using {tuple(setup.box.round(2))}", seq)
         self.state = state
-        self.digest = config_digest(setup.cfg, setup.model, self.params.seed, self.tracker.contrast_sigma)
+        self.digest = config_digest(setup, self.params.seed)
         return self._outputs(feat.header, state, est, np.arange(state.experts.n_experts, dtype=np.int64), first=True)
 
     # -- state ------------------------------------------------------------------------------------
@@ -316,10 +266,9 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     def snapshot(self) -> bytes:
         st = None
         if self.state is not None:
-            s, setup = self.state.experts, self.state.setup
-            st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s.poses, s.tex_mean,
-                            s.tex_var, s.log_credibility, np.arange(s.n_experts, dtype=np.int64),
-                            setup.image_shape, self.digest, first=False, tex_anchor=s.tex_anchor)
+            s = self.state.experts
+            st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s, np.arange(s.n_experts, dtype=np.int64),
+                            self.state.setup.image_shape, self.digest)
         guard: dict[str, Any] = {}
         if self.state is not None and self.state.anchor is not None:
             guard = dict(pack_guard(self.state.anchor, self.state.lost), fit_level=moments(self.state.fit_level),
@@ -355,22 +304,11 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads 1 and {SNAPSHOT_VERSION}")
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
+            setup, digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
             try:
-                setup, digest = prepare(self.params, self.tracker, self.ctx.resources, snap.image_shape)
+                experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
             except StageInputError as e:
                 raise ValueError(str(e)) from None
-            if digest != snap.digest:
-                raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
-                                 f"{snap.digest}, this stage has {digest})")
-            try:
-                a = unpack_states(snap.state, setup, digest, "gflow.filter snapshot")
-            except StageInputError as e:
-                raise ValueError(str(e)) from None
-            arrs = {k: a[k].copy() for k in ("poses", "tex_mean", "tex_var", "log_credibility")}
-            for v in arrs.values():
-                v.setflags(write=False)
-            experts = ExpertState(bg_mean=None, bg_var=None, image_shape=setup.image_shape, tex_anchor=a["tex_anchor"],
-                                  **arrs)
             anchor, lost, level, look_clutter = self._guard_of(snap, setup.box)
             self.state = GFlowState(setup, experts, snap.confidence, snap.target_state, anchor, lost, level,
                                     look_clutter)

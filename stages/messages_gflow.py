@@ -30,7 +30,7 @@ class ExpertStates(msgspec.Struct, frozen=True, tag=True):
     image_shape : (H, W) of the frames.
     config_digest : digest of the G-flow configuration and model; proposal and filter must agree.
     first : True for the state made from the first frame (the backgrounds start from it).
-    bg_mean, bg_var : (E, H, W) float64 background posteriors, only in snapshots.
+    bg_mean, bg_var : never filled and never read (the proposal stages keep the backgrounds).
     tex_anchor : (n,) float64, the first frame's texels the texture reverts toward (``texture_decay < 1``).
     """
 

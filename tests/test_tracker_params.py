@@ -161,3 +161,16 @@ def test_a_graph_without_a_tracker_block_keeps_its_per_stage_values() -> None:
     assert make_stage(plan, "proposal").core.particles == 55 and make_stage(plan, "filter").core.particles == 44
     plan = parse_graph(text, "old.yaml", overrides={"tracker": {"particles": 33}, "proposal": box, "filter": box})
     assert make_stage(plan, "proposal").core.particles == make_stage(plan, "filter").core.particles == 33
+
+
+@pytest.mark.parametrize("name,value,says", [
+    ("particles", "nan", "particles must be a whole number, got 'nan'"),
+    ("particles", 1.5, "particles must be a whole number, got 1.5"),
+    ("refine_position", "maybe", "refine_position must be true or false, got 'maybe'"),
+])
+def test_a_tracker_value_of_the_wrong_type_is_named_in_plain_words(name, value, says) -> None:
+    from pipeline.runtime.tracker_block import block_values
+
+    with pytest.raises(ValueError) as e:
+        block_values(AppearanceParams, {name: value})
+    assert str(e.value) == says

@@ -17,6 +17,8 @@ import the mathematics. Modules:
   :data:`PAPER` and :data:`ELLIPSOID`.
 * :mod:`.tracker` -- :class:`GFlowTracker`, G-flow on the protocol of :mod:`gflow_core.tracker`
   (what it reads of a frame, the model placed in the box, the estimate, coasting).
+* :mod:`.split` -- G-flow split across processes (the pipeline's stages): the configuration
+  digest, the shards, the proposals' background replica.
 * :mod:`.special_cases` -- constrained optic flow (eq. 21), template matching (eq. 22).
 * :mod:`.synthetic_head` -- synthetic textured-head sequences for tests and benchmarks.
 """

@@ -8,7 +8,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
+from typing import Callable, TextIO
 
 from stages.messages import Capture, MessageError, StageStatus, decode
 
@@ -322,21 +322,19 @@ class _Acks:
 
 
 def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr,
-           announce_endpoints: list[str] | None = None) -> int:
+           announce_endpoints: list[str] | None = None, ready: Callable[[], None] | None = None) -> int:
     """Republish a recording on zenoh, byte for byte, on its recorded topics with its sequence numbers.
 
     Returns the number of messages sent. Heartbeats and control messages of the recorded
     pipeline are never replayed (they would confuse a live one). With ``announce_endpoints``
     the replay announces itself (:mod:`pipeline.runtime.running`) there while it plays, so
-    ``gflow topics`` and friends find it without a launcher.
+    ``gflow topics`` and friends find it without a launcher. ``ready`` is called once the session is
+    open and the replay announced, just before the first message; a Ctrl-C from then on ends the
+    replay and returns the count sent so far.
     """
-    s = _session(settings)
-    bus = Bus(s, signer=Signer.of(settings.security))
-    acks = _Acks()
     records = [r for r in iter_records(path, topics=opts.topics)
                if "/_status/" not in r.topic and not r.topic.endswith("/_control")]
     if not records:
-        s.close()
         raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else ""))
     t_first = min(r.log_ns for r in records)
     keep = []
@@ -349,18 +347,23 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
             continue
         keep.append(r)
     stream = keep[0].topic.split("/")[1] if keep else ""
-    if opts.lockstep:
-        bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
-        bus.subscribe(f"gflow/{stream}/{PROGRESS}/*", acks.on_status)  # each step a worker finished
+    s = _session(settings)
     announcement = None
-    if announce_endpoints and stream:
-        from pipeline.runtime.running import announce
-
-        announcement = announce(stream, announce_endpoints, name=f"replay {Path(path).name}", kind="replay",
-                                recording=str(path))
     n = 0
     loop = 0
-    try:
+    try:  # from here on a Ctrl-C ends the replay with the count sent so far and the session closed
+        bus = Bus(s, signer=Signer.of(settings.security))
+        acks = _Acks()
+        if opts.lockstep:
+            bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
+            bus.subscribe(f"gflow/{stream}/{PROGRESS}/*", acks.on_status)  # each step a worker finished
+        if announce_endpoints and stream:
+            from pipeline.runtime.running import announce
+
+            announcement = announce(stream, announce_endpoints, name=f"replay {Path(path).name}", kind="replay",
+                                    recording=str(path))
+        if ready is not None:
+            ready()
         if opts.lockstep:  # the stages fed in lockstep have declared their subscribers once they beat
             acks.wait(opts.lockstep, -1, opts.ack_timeout)
         time.sleep(opts.settle)  # let other subscribers' declarations arrive before the first sample

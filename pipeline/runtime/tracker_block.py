@@ -23,6 +23,7 @@ every stage of a tracker, as the per-stage copies were set before.
 from __future__ import annotations
 
 import dataclasses
+import re
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -67,8 +68,26 @@ def block_values(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
         raise ValueError(f"{cls.__name__} has no parameter {unknown[0]!r} (known: {', '.join(known)})")
     try:
         return msgspec.to_builtins(msgspec.convert(dict(values), block_params(cls), strict=False))
-    except (msgspec.ValidationError, ValueError, TypeError) as e:
+    except msgspec.ValidationError as e:
+        raise ValueError(_plain_type_error(str(e), values)) from None
+    except (ValueError, TypeError) as e:
         raise ValueError(str(e)) from None
+
+
+#: msgspec's names of the types a parameter can have, as a user reads them
+_KINDS = {"int": "a whole number", "float": "a number", "bool": "true or false", "str": "a string",
+          "array": "a list", "object": "a mapping"}
+_MSGSPEC_TYPE_ERROR = re.compile(r"Expected `([^`]+)`, got `[^`]+` - at `\$\.(\w+)`")
+
+
+def _plain_type_error(message: str, values: Mapping[str, Any]) -> str:
+    """msgspec's ``Expected `int`, got `str` - at `$.particles``` as ``particles must be a whole
+    number, got 'nan'``; any other message as it is."""
+    m = _MSGSPEC_TYPE_ERROR.fullmatch(message)
+    if m is None or m.group(2) not in values:
+        return message
+    kinds = [_KINDS.get(k.strip(), k.strip()) for k in m.group(1).split("|")]
+    return f"{m.group(2)} must be {' or '.join(kinds)}, got {values[m.group(2)]!r}"
 
 
 def parse_block(doc: Any, override: Mapping[str, Any]) -> TrackerBlock:

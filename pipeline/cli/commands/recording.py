@@ -112,10 +112,12 @@ def cmd_replay(args) -> int:
     if not args.listen and settings.mode != "client":
         settings = dataclasses.replace(settings, listen=(f"tcp/127.0.0.1:{free_port()}",))
     where = [e for e in settings.listen if not e.endswith(":0")]
-    print(f"replaying {args.file}; listening on {', '.join(where)}"
-          + (f"; joined {', '.join(str(i['pid']) for i in found)}" if found else ""), file=sys.stderr)
+    def ready() -> None:  # printed once the session is open: a Ctrl-C after this line exits 0
+        print(f"replaying {args.file}; listening on {', '.join(where)}"
+              + (f"; joined {', '.join(str(i['pid']) for i in found)}" if found else ""), file=sys.stderr, flush=True)
+
     try:
-        n = replay(settings, args.file, opts, announce_endpoints=where)
+        n = replay(settings, args.file, opts, announce_endpoints=where, ready=ready)
     except TimeoutError as e:
         raise CliError(str(e)) from None
     print(f"replayed {n} messages from {args.file}", file=sys.stderr)

@@ -276,6 +276,12 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
             continue
         _OWN_OPTIONS[t.NAME] = {a.dest: (a.option_strings[0], a.default) for a in g._group_actions}
         owners.update({o: f"--tracker {t.NAME}" for a in g._group_actions for o in a.option_strings})
+    # added last so a clash with any option is caught, shown first: right after the general options
+    groups = p._action_groups
+    trackers = [g for g in groups if (g.title or "").startswith("--tracker ")]
+    rest = [g for g in groups if g not in trackers]
+    at = next((i + 1 for i, g in enumerate(rest) if g.title == "live sources (docs/live.md)"), len(rest))
+    groups[:] = rest[:at] + trackers + rest[at:]
 
 
 def track_args(argv: list[str]) -> argparse.Namespace:

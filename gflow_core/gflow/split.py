@@ -1,0 +1,146 @@
+"""G-flow split across processes: what the pipeline's proposal and filter stages share and keep.
+
+The pipeline runs G-flow's two steps (:class:`.tracker.GFlowTracker`'s ``propose`` and ``update``)
+in separate processes, with the experts split into shards across proposal processes. This module
+holds what that split needs beyond the protocol, so that the stages only turn messages into the
+arguments of these calls and results into messages:
+
+* :func:`config_digest` -- a digest of everything the proposal and the filter must agree on;
+* :func:`shard_indices` -- the experts of one shard;
+* :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
+  advances itself (eq. 7-10), since they never travel, and its snapshot fields;
+* :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot).
+
+Nothing here is new mathematics: the replica calls :func:`.filter.initial_background`,
+:func:`.filter.advance_background` and :func:`.filter.predict_background`, exactly as the
+one-process tracker advances its backgrounds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from dataclasses import asdict, dataclass
+from typing import Any, Mapping
+
+import numpy as np
+
+from .background import TileLayout, TiledBackground
+from .filter import ExpertState, advance_background, initial_background, predict_background
+from .tracker import ModelSetup
+
+__all__ = ["config_digest", "shard_indices", "BackgroundReplica", "expert_state"]
+
+
+def config_digest(setup: ModelSetup, seed: int) -> str:
+    """A short digest of everything that must agree between the proposal and the filter: the
+    configuration, the model's bases (shape and bytes), the seed and how frames are normalised."""
+    h = hashlib.sha256()
+    h.update(repr(sorted(asdict(setup.cfg).items())).encode())
+    h.update(repr((setup.model.bases.shape, int(seed))).encode())
+    if setup.contrast_sigma:
+        h.update(repr(("contrast_sigma", float(setup.contrast_sigma))).encode())
+    h.update(np.ascontiguousarray(setup.model.bases, dtype="<f8").tobytes())
+    return h.hexdigest()[:16]
+
+
+def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
+    """The experts of one shard: contiguous blocks of ``range(n_experts)`` (``numpy.array_split``)."""
+    return np.array_split(np.arange(n_experts, dtype=np.int64), shards)[shard]
+
+
+def expert_state(setup: ModelSetup, arrays: Mapping[str, Any], bg: tuple[Any, Any] | None = None) -> ExpertState:
+    """The experts of ``arrays`` (``poses`` (E, P), ``tex_mean`` / ``tex_var`` (E, n), ``log_credibility``
+    (E,), ``tex_anchor`` (n,) or None), already checked for shape, as read-only copies, with the
+    backgrounds ``bg`` (mean, var) or none."""
+    arrs = {k: np.array(arrays[k]) for k in ("poses", "tex_mean", "tex_var", "log_credibility")}
+    for v in arrs.values():
+        v.setflags(write=False)
+    bg_mean, bg_var = (None, None) if bg is None else bg
+    return ExpertState(bg_mean=bg_mean, bg_var=bg_var, image_shape=setup.image_shape,
+                       tex_anchor=arrays.get("tex_anchor"), **arrs)
+
+
+@dataclass(frozen=True)
+class BackgroundReplica:
+    """A proposal process's copy of every expert's background textures (sec. 3.1, eq. 7-10).
+
+    The likelihood (eq. 13) needs each expert's background texels, (E, H, W) means and variances,
+    which never travel: every proposal process keeps all E of them (any expert can be a parent)
+    and advances them from the state message (new poses and parents) and the previous frame it
+    saw, as the filter would.
+
+    Attributes
+    ----------
+    bg : (mean, var) of (E, H, W) texels stored once per distinct tile
+        (:class:`.background.TiledTexels`), or None (none yet, or lost).
+    seq : the frame ``bg`` describes; -1 for none.
+    prev_seq : the last usable frame seen; -1 for none.
+    prev_grey : (H, W) uint8 of that frame, or None.
+    """
+
+    bg: tuple[Any, Any] | None = None
+    seq: int = -1
+    prev_seq: int = -1
+    prev_grey: np.ndarray | None = None
+
+    def seen(self, seq: int, grey: np.ndarray) -> BackgroundReplica:
+        """The replica after frame ``seq`` (grey ``(H, W)`` uint8) was seen."""
+        return dataclasses.replace(self, prev_seq=seq, prev_grey=grey)
+
+    def advance(self, setup: ModelSetup, seq: int, poses: np.ndarray, parents: np.ndarray,
+                first: bool) -> tuple[BackgroundReplica, tuple[str, str] | None]:
+        """Bring the backgrounds from frame ``seq - 2`` to ``seq - 1``, the frame of the experts'
+        ``poses`` (E, P) and ``parents`` (E,) (``first``: the experts of the first frame).
+
+        Returns the new replica (``bg`` None when it cannot be had: it cannot start without frame
+        ``seq - 1``) and a problem to report, ``(kind, text)``, or None.
+        """
+        t1 = seq - 1
+        prev = setup.observation(self.prev_grey) if self.prev_grey is not None and self.prev_seq == t1 else None
+        problem = None
+        if first or self.bg is None or self.seq != t1 - 1:
+            if prev is None:
+                return dataclasses.replace(self, bg=None, seq=-1), (
+                    "no_background", f"frame {seq}: the background model cannot start without frame {t1}; "
+                                     f"no proposals for this frame")
+            if not first:
+                problem = ("background_reset", f"frame {seq}: the background replica was at frame {self.seq}, "
+                                               f"not {t1 - 1}; restarted from frame {t1}")
+            # B_1 = the frame, unknown under each expert's object
+            bg = initial_background(setup.model, poses, prev, setup.cfg)
+        elif prev is not None:
+            # each child: its parent's background predicted (eq. 9, 10) and updated with y_{t-1} (eq. 7, 8)
+            bg = advance_background(self.bg[0], self.bg[1], poses, parents, prev, setup.model, setup.cfg)
+        else:
+            # frame t - 1 was not seen here: prediction only, mu unchanged (eq. 9), sigma + Psi_b (eq. 10)
+            bg = predict_background(self.bg[0], self.bg[1], parents, setup.cfg)
+        return dataclasses.replace(self, bg=bg, seq=t1), problem
+
+    def fields(self) -> dict[str, Any]:
+        """The replica as flat snapshot fields: ``prev_seq`` and ``prev_grey`` (H, W) uint8 (-1 and None
+        before a frame), ``bg_seq``, ``bg_tile`` (the tile side), ``bg_table`` (E, K) int32 tile ids and
+        ``bg_mean`` / ``bg_var`` (U, T*T) float64 distinct tiles (-1, 0 and None without backgrounds)."""
+        bank = None if self.bg is None else self.bg[0].bank
+        return dict(prev_seq=-1 if self.prev_grey is None else self.prev_seq, prev_grey=self.prev_grey,
+                    bg_seq=-1 if bank is None else self.seq, bg_tile=0 if bank is None else bank.layout.tile,
+                    bg_table=None if bank is None else bank.table, bg_mean=None if bank is None else bank.pool_mean,
+                    bg_var=None if bank is None else bank.pool_var)
+
+    @classmethod
+    def of_fields(cls, setup: ModelSetup | None, prev_seq: int, prev_grey: np.ndarray | None, bg_seq: int,
+                  bg_tile: int, bg_table: np.ndarray | None, bg_mean: np.ndarray | None,
+                  bg_var: np.ndarray | None) -> BackgroundReplica:
+        """The replica of :meth:`fields` (arrays copied). Raises ValueError when they do not fit ``setup``
+        (None: the model was never placed)."""
+        bg = None
+        if bg_table is not None and bg_mean is not None and bg_var is not None:
+            if setup is None:
+                raise ValueError("a background replica without a frame size")
+            bank = TiledBackground(TileLayout(setup.image_shape, bg_tile), bg_table.astype(np.int32), bg_mean.copy(),
+                                   bg_var.copy())
+            if bank.n_experts != setup.cfg.n_experts:
+                raise ValueError(f"a background replica of {bank.n_experts} experts, this stage has "
+                                 f"{setup.cfg.n_experts}")
+            bg = (bank.mean, bank.var)
+        return cls(bg, bg_seq, prev_seq, None if prev_grey is None else prev_grey.copy())

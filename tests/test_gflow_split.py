@@ -1,0 +1,88 @@
+"""G-flow split across processes (gflow_core.gflow.split): the proposal stage's background replica
+advances, restarts and predicts as the one-process tracker's backgrounds do, survives its snapshot
+form, and the stages' snapshots of another version are refused in one line naming it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import msgspec
+import numpy as np
+import pytest
+
+from gflow_core.gflow import GFlowParams, model_setup
+from gflow_core.gflow.filter import advance_background, initial_background
+from gflow_core.gflow.split import BackgroundReplica, config_digest, shard_indices
+from gflow_core.gflow.synthetic_head import synthetic_sequence
+from gflow_scenes import SYNTH, Cycle, features_msg
+
+
+@pytest.fixture(scope="module")
+def head():
+    seq = synthetic_sequence(np.random.default_rng(3), n_frames=5, image_shape=(60, 80))
+    grey = np.rint(seq.frames * 255).astype(np.uint8)
+    params = GFlowParams(**dict(SYNTH, n_experts=6, background=True))
+    setup = model_setup(params, seq.box, grey.shape[1:])
+    poses = np.repeat(setup.pose0[None], 6, axis=0)
+    return setup, grey, poses
+
+
+def test_the_replica_starts_advances_restarts_and_predicts_as_the_tracker(head) -> None:
+    setup, grey, poses = head
+    parents = np.array([0, 0, 1, 2, 2, 5], np.int64)
+    r, problem = BackgroundReplica().advance(setup, 1, poses, parents, first=True)
+    assert r.bg is None and problem is not None and problem[0] == "no_background"  # frame 0 never seen
+    r, problem = BackgroundReplica().seen(0, grey[0]).advance(setup, 1, poses, parents, first=True)
+    y0, y1 = setup.observation(grey[0]), setup.observation(grey[1])
+    want = initial_background(setup.model, poses, y0, setup.cfg)
+    assert problem is None and r.seq == 0 and np.array_equal(np.asarray(r.bg[0]), np.asarray(want[0]))
+    # the state of frame 1 with frame 1 seen: each child from its parent, updated with y_1 (eq. 7-10)
+    r2, problem = r.seen(1, grey[1]).advance(setup, 2, poses, parents, first=False)
+    want = advance_background(want[0], want[1], poses, parents, y1, setup.model, setup.cfg)
+    assert problem is None and r2.seq == 1
+    assert np.array_equal(np.asarray(r2.bg[0]), np.asarray(want[0]))
+    assert np.array_equal(np.asarray(r2.bg[1]), np.asarray(want[1]))
+    # frame 2 not seen here: prediction only (means of the parents, variances + psi_b)
+    r3, problem = r2.advance(setup, 3, poses, parents, first=False)
+    assert problem is None and r3.seq == 2
+    assert np.array_equal(np.asarray(r3.bg[0]), np.asarray(r2.bg[0])[parents])
+    assert np.allclose(np.asarray(r3.bg[1]), np.asarray(r2.bg[1])[parents] + setup.cfg.psi_b)
+    # a lost state message (the replica is at frame 0 when the state of frame 3 arrives): restarted
+    r4, problem = r.seen(3, grey[3]).advance(setup, 4, poses, parents, first=False)
+    assert problem is not None and problem[0] == "background_reset" and r4.seq == 3 and r4.bg is not None
+
+
+def test_the_replica_survives_its_snapshot_fields_and_refuses_fields_that_do_not_fit(head) -> None:
+    setup, grey, poses = head
+    r, _ = BackgroundReplica().seen(0, grey[0]).advance(setup, 1, poses, np.arange(6), first=True)
+    fields = r.fields()
+    assert fields["bg_seq"] == 0 and fields["bg_table"].shape[0] == 6
+    assert fields["bg_mean"].nbytes < np.asarray(r.bg[0]).nbytes / 2  # distinct tiles, not (E, H, W)
+    back = BackgroundReplica.of_fields(setup, **fields)
+    assert np.array_equal(np.asarray(back.bg[0]), np.asarray(r.bg[0])) and back.fields()["prev_seq"] == 0
+    assert BackgroundReplica.of_fields(None, **BackgroundReplica().fields()) == BackgroundReplica()
+    other = dataclasses.replace(setup, cfg=dataclasses.replace(setup.cfg, n_experts=7))
+    with pytest.raises(ValueError, match="6 experts, this stage has 7"):
+        BackgroundReplica.of_fields(other, **fields)
+    with pytest.raises(ValueError, match="without a frame size"):
+        BackgroundReplica.of_fields(None, **fields)
+
+
+def test_the_digest_names_the_configuration_and_the_shards_cover_the_experts(head) -> None:
+    setup = head[0]
+    assert config_digest(setup, 1) == config_digest(setup, 1) != config_digest(setup, 2)
+    assert config_digest(dataclasses.replace(setup, contrast_sigma=5.0), 1) != config_digest(setup, 1)
+    parts = [shard_indices(10, k, 3) for k in range(3)]
+    assert np.array_equal(np.concatenate(parts), np.arange(10)) and [len(p) for p in parts] == [4, 3, 3]
+
+
+def test_snapshots_of_another_version_are_refused_in_one_line_naming_it(head) -> None:
+    setup, grey, _ = head
+    cyc = Cycle(dict(SYNTH, n_experts=6, seed=1, init=[float(v) for v in setup.box]))
+    for t in range(2):
+        cyc.step(t, features_msg(grey[t], t))
+    for stage, old in ((cyc.proposal, 1), (cyc.filter, 3)):
+        snap = msgspec.msgpack.decode(stage.snapshot())
+        with pytest.raises(ValueError, match=f"snapshot version {old}, this code reads") as e:
+            stage.restore(msgspec.msgpack.encode(dict(snap, version=old)))
+        assert "\n" not in str(e.value)
