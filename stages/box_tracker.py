@@ -1,12 +1,17 @@
-"""The stages of a box tracker on the protocol: a filter stage and a proposal stage for any tracker
-whose state is a particle cloud over a box (x, y, log s), driven through the tracker's protocol
-object (:class:`gflow_core.tracker.TrackingFilter`).
+"""The stages of a particle-filter tracker on the protocol: a filter stage and a proposal stage for
+any tracker whose state is a particle cloud, driven through the tracker's protocol object
+(:class:`gflow_core.tracker.TrackingFilter`).
 
 The appearance tracker (:mod:`stages.appearance_filter`, :mod:`stages.appearance_proposal`) and the
 correlation-filter tracker (:mod:`stages.dcf_filter`, :mod:`stages.dcf_proposal`) are registrations
 of these two classes: each sets its ``kind``, its ``Params`` and a :class:`BoxFilterSpec` or
 :class:`BoxProposalSpec` naming its protocol object, its parameter dataclass, its particles'
-conversions and its snapshot codec.
+conversions and its snapshot codec. The contour trackers (:mod:`stages.particle_filter`,
+:mod:`stages.particle_proposal`) and M2 with a patch model (:mod:`stages.patch_filter`) are
+registrations too: their filters read the preprocess stage's ``features``
+(:class:`FeaturesFilterStage`) and override the steps named below (``_observe``, ``_first_observation``, ``_proposed``, ``_coast``, ``_last``,
+``_posterior``, ``snapshot`` / ``restore``); their proposal is a proposal of whole clouds
+(:attr:`BoxProposalSpec.clouds`: the exemplar index k travels with alpha).
 
 * :class:`BoxFilterStage` -- inputs ``frames`` of frame t and ``proposals`` for frame t (a random walk
   on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)); outputs ``particles`` (the
@@ -32,7 +37,7 @@ The proposal stage calls the tracker's walk on the message's particles rather th
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping, Protocol, cast
 
 import msgspec
 import numpy as np
@@ -40,16 +45,68 @@ import numpy as np
 from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
-from gflow_core.tracker import TrackingFilter, UnusableFrame
+from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError
-from .messages import Estimate, Frame, Header, Message, MessageError, NDArray, Particles
-from .particle_proposal import cloud_of, counter_snapshot, particles_msg, posterior_input, restored_counter
+from .messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["BoxFilterSpec", "BoxFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec"]
+__all__ = ["BoxFilterSpec", "BoxFilterStage", "FeaturesFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec", "FilterSide", "cloud_of",
+           "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
+
+PROPOSAL_SNAPSHOT_VERSION = 1
+
+#: a proposal of whole clouds: (the posterior of t-1, rng, dt) -> the proposal of t
+CloudProposal = Callable[[ParticleCloud, np.random.Generator, float], ParticleCloud]
+
+
+class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    version: int
+    done: int
+
+
+def counter_snapshot(done: int) -> bytes:
+    """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
+    return msgspec.msgpack.encode(_ProposalSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
+
+
+def restored_counter(stage: str, data: bytes) -> int:
+    """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
+    try:
+        snap = msgspec.msgpack.decode(data, type=_ProposalSnapshot)
+    except msgspec.DecodeError as e:
+        raise ValueError(f"stage {stage!r}: not a proposal snapshot: {e}") from None
+    if snap.version != PROPOSAL_SNAPSHOT_VERSION:
+        raise ValueError(f"stage {stage!r}: proposal snapshot version {snap.version}, expected "
+                         f"{PROPOSAL_SNAPSHOT_VERSION}")
+    return snap.done
+
+
+def cloud_of(msg: Particles) -> ParticleCloud:
+    """Unpack a Particles message into a validated ParticleCloud."""
+    try:
+        return ParticleCloud(alpha=msg.alpha.array(), k=msg.k.array(), log_w=msg.log_w.array())
+    except (MessageError, ValueError) as e:
+        raise StageInputError(f"particles {msg.header.seq}: {e}") from None
+
+
+def posterior_input(ctx: StageContext, inputs: Mapping[str, Message | None]) -> tuple[Particles, ParticleCloud, float]:
+    """A proposal stage's inputs: the posterior message of frame t-1, its cloud, and the periods from
+    it to frame t (:mod:`stages.time_step`; 1 unless ``timed`` joined frame t as ``frames``)."""
+    msg = inputs["particles"]
+    assert isinstance(msg, Particles)
+    cloud = cloud_of(msg)
+    frame = inputs.get("frames")
+    dt = time_step(ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
+    return msg, cloud, dt
+
+
+def particles_msg(header: Header, kind: str, cloud: ParticleCloud) -> Particles:
+    """The Particles message of a cloud."""
+    return Particles(header=header, kind=kind, alpha=NDArray.of(cloud.alpha), k=NDArray.of(cloud.k),
+                     log_w=NDArray.of(cloud.log_w))
 
 
 @dataclass(frozen=True)
@@ -69,6 +126,22 @@ class SnapshotCodec:
     state: Callable[[Any, Any, dict], Any]
 
 
+class FilterSide(Protocol):
+    """What a filter stage calls of a tracker: the filter's side of
+    :class:`gflow_core.tracker.TrackingFilter` (``propose`` is the proposal stage's)."""
+
+    name: str
+
+    def observe(self, params: Any, image: np.ndarray) -> Any: ...
+
+    def init(self, params: Any, obs: Any, box: Box, rng: FrameRng, resources: Mapping[str, Any]
+             ) -> tuple[Any, TrackerEstimate]: ...
+
+    def update(self, params: Any, state: Any, proposal: Any, obs: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]: ...
+
+    def coast(self, params: Any, state: Any, rng: FrameRng, obs: Any = None) -> tuple[Any, TrackerEstimate]: ...
+
+
 @dataclass(frozen=True)
 class BoxFilterSpec:
     """What :class:`BoxFilterStage` needs of one tracker.
@@ -80,13 +153,13 @@ class BoxFilterSpec:
     (x, y, theta, s); ``snapshot`` its :class:`SnapshotCodec`."""
 
     name: str
-    tracker: TrackingFilter[Any, Any, Any, Any]
+    tracker: FilterSide
     params: type
     proposal: Callable[[np.ndarray, float], Any]
     particles: Callable[[Any], np.ndarray]
     alpha_of: Callable[[np.ndarray], np.ndarray]
     particles_of: Callable[[np.ndarray], np.ndarray]
-    snapshot: SnapshotCodec
+    snapshot: SnapshotCodec | None
 
 
 @dataclass(frozen=True)
@@ -94,12 +167,18 @@ class BoxProposalSpec:
     """What :class:`BoxProposalStage` needs of one tracker: its ``name``, its parameter dataclass
     ``params`` and its random walk ``walk(params, alpha (N, 4), size0 (w, h), rng, dt) -> alpha
     (N, 4)`` drawn from ``rng = FrameRng(...).stream(purpose)``. The proposal process imports only
-    these (not the tracker's update)."""
+    these (not the tracker's update).
+
+    A tracker whose particles carry more than alpha (the contour trackers' exemplar index k) gives
+    ``clouds(stage params, stage context) -> CloudProposal`` instead of ``walk``: the proposal of
+    whole clouds, made once from the stage's parameters and resources (``ValueError`` for unusable
+    ones); a ``ValueError`` it raises on a cloud is the input's error."""
 
     name: str
-    params: type
-    walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray]
+    params: type | None
+    walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray] | None
     purpose: int
+    clouds: Callable[[Any, StageContext], CloudProposal] | None = None
 
 
 def _article(word: str) -> str:
@@ -107,10 +186,16 @@ def _article(word: str) -> str:
 
 
 class BoxFilterStage(Stage[SeedBoxFields]):
-    """The filter stage of a box tracker (module docstring); a subclass sets ``kind``, ``Params``
-    and ``box``."""
+    """The filter stage of a tracker on the protocol (module docstring); a subclass sets ``kind``,
+    ``Params`` and ``box``. A tracker that reads another message than the frames (the contour
+    trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family; one whose
+    snapshot is not a :class:`SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
 
     box: ClassVar[BoxFilterSpec]
+    #: whether the tracker needs the initial box (a patch model's may crop the whole frame)
+    needs_init: ClassVar[bool] = True
+    #: the input port of the frame's observation (its message type is ``inputs[port]``)
+    port: ClassVar[str] = "frames"
     inputs = {"frames": Frame, "proposals": Particles}
     outputs = {"particles": Particles, "estimate": Estimate}
     drivers = frozenset({"frames"})
@@ -118,7 +203,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        if params.init is None:
+        if params.init is None and self.needs_init:
             raise ValueError(f"the {self.box.name} filter needs an initial box: set init: [x, y, w, h]")
         self.core: Any = tracker_params(params, self.box.params)
         self.state: Any = None
@@ -127,7 +212,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         self.last: dict = {}
 
     def required(self, seq: int) -> frozenset[str]:
-        return frozenset({"frames"}) if self.state is None else frozenset(self.inputs)
+        return frozenset({self.port}) if self.state is None else frozenset(self.inputs)
 
     def prepare(self, port: str, msg: Message) -> tuple[tuple[int, ...], Any]:
         """(the frame's grey (H, W), the tracker's observation or the UnusableFrame a uniform frame
@@ -140,7 +225,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         except UnusableFrame as e:
             return to_grey(image).shape, e
 
-    def _observe(self, frame: Frame | None, seq: int) -> Any:
+    def _observe(self, frame: Any, seq: int) -> Any:
         """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
         if frame is None:
             self.report("missing_frame", f"frame {seq}: no frame arrived; coasting", seq)
@@ -159,69 +244,96 @@ class BoxFilterStage(Stage[SeedBoxFields]):
             return None
         return obs
 
-    def _outputs(self, header: Header, est: TrackerEstimate) -> list[Output]:
-        """The posterior and the estimate messages of the tracker's estimate."""
-        assert self.state is not None
-        self.steps += 1
-        x, y, w, h = est.box
-        outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+    def _first_observation(self, seq: int, msg: Any) -> Any:
+        """The observation the tracker starts from (StageInputError when there is none)."""
+        obs = self._observe(msg, seq)
+        if obs is None or msg is None:
+            raise StageInputError(f"frame {seq}: cannot initialise on this frame")
+        return obs
+
+    def _started(self, obs: Any) -> None:
+        """After the first frame: the size every frame must have."""
+        self.shape = obs.grey.shape
+
+    def _proposed(self, seq: int, prop: Message | None) -> Any:
+        """The proposed particles of the ``proposals`` message (the last posterior's, reported, when
+        there are none or they are unusable)."""
+        box, st = self.box, self.state
+        if not isinstance(prop, Particles):
+            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
+            return box.particles(st)
+        n, alpha = self.core.particles, cloud_of(prop).alpha
+        if alpha.shape[0] != n or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
+            self.report("bad_proposals", f"proposals {seq}: {alpha.shape[0]} particles (expected "
+                        f"{n}), non-finite or non-positive scale; reusing the last posterior", seq)
+            return box.particles(st)
+        return box.particles_of(alpha)
+
+    def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
+        """The state and estimate of a frame that could not be used."""
+        return self.box.tracker.coast(self.core, self.state, rng)
+
+    def _last(self, header: Header, est: TrackerEstimate) -> dict:
+        """The last estimate's summary (:meth:`summary`, the snapshot)."""
         e = est.extras
-        self.last = {"seq": header.seq, "box": [round(v, 2) for v in est.box], "ess": round(float(e["ess"]), 1),
-                     "state": est.phase, "score": round(float(e["score"]), 4),
-                     "confidence": round(float(est.confidence), 4), "target_state": est.target_state}
-        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=0, mean=e["mean"], std=e["std"], ess=e["ess"],
-                       n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline), state=est.phase,
-                       confidence=est.confidence, target_state=est.target_state)
+        return {"seq": header.seq, "box": [round(v, 2) for v in est.box], "ess": round(float(e["ess"]), 1),
+                "state": est.phase, "score": round(float(e["score"]), 4),
+                "confidence": round(float(est.confidence), 4), "target_state": est.target_state}
+
+    def _posterior(self) -> ParticleCloud:
+        """The posterior cloud of the state (alpha, k, log w)."""
         parts = self.box.particles(self.state)
         n = len(parts)
-        post = ParticleCloud(alpha=self.box.alpha_of(parts), k=np.zeros(n, np.int64), log_w=np.zeros(n))
-        return [("particles", particles_msg(header, "posterior", post)), ("estimate", msg)]
+        return ParticleCloud(alpha=self.box.alpha_of(parts), k=np.zeros(n, np.int64), log_w=np.zeros(n))
 
-    def _initialise(self, seq: int, frame: Frame | None) -> list[Output]:
+    def _outputs(self, header: Header, est: TrackerEstimate, proposed: Any = None) -> list[Output]:
+        """The posterior and the estimate messages of the tracker's estimate (``proposed``: the
+        particles the update weighed; None on the first frame)."""
+        assert self.state is not None
+        self.steps += 1
+        e = est.extras
+        self.last = self._last(header, est)
+        if "contour" in e:
+            outline = e["contour"]
+        else:
+            x, y, w, h = est.box
+            outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=e.get("k", 0), mean=e["mean"], std=e["std"],
+                       ess=e["ess"], n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline),
+                       state=est.phase, confidence=est.confidence, target_state=est.target_state)
+        return [("particles", particles_msg(header, "posterior", self._posterior())), ("estimate", msg)]
+
+    def _initialise(self, seq: int, msg: Any) -> list[Output]:
         p = self.params
-        try:
-            obs = self._observe(frame, seq)
-            if obs is None or frame is None:
-                raise StageInputError(f"frame {seq}: cannot initialise on this frame")
-            assert p.init is not None
-            self.state, est = self.box.tracker.init(self.core, obs, p.init,
-                                                    tracker_rng(p.seed, self.ctx.stream, seq), {})
-        except StageInputError:
-            raise
+        obs = self._first_observation(seq, msg)
+        try:  # init is None only where needs_init is not set: the tracker takes none
+            self.state, est = self.box.tracker.init(self.core, obs, cast(Box, p.init), tracker_rng(p.seed, self.ctx.stream, seq),
+                                                    self.resources)
         except ValueError as e:  # a box outside the frame, a frame too small for the tracker's cells
             raise StageInputError(f"frame {seq}: {e}") from None
-        self.shape = obs.grey.shape
-        return self._outputs(frame.header, est)
+        self._started(obs)
+        return self._outputs(msg.header, est)
+
+    #: what the tracker's ``init`` is given besides the frame
+    resources: Mapping[str, Any] = {}
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        frame = inputs.get("frames")
-        frame = frame if isinstance(frame, Frame) else None
+        msg = inputs.get(self.port)
+        msg = msg if isinstance(msg, self.inputs[self.port]) else None
         if self.state is None:
-            return self._initialise(seq, frame)
-        p, n, box = self.params, self.core.particles, self.box
-        st = self.state
-        rng = tracker_rng(p.seed, self.ctx.stream, seq)
+            return self._initialise(seq, msg)
+        rng = tracker_rng(self.params.seed, self.ctx.stream, seq)
         prop = inputs.get("proposals")
-        if isinstance(prop, Particles):
-            alpha = cloud_of(prop).alpha
-            if alpha.shape[0] != n or not np.isfinite(alpha).all() or not (alpha[:, 3] > 0).all():
-                self.report("bad_proposals", f"proposals {seq}: {alpha.shape[0]} particles (expected "
-                            f"{n}), non-finite or non-positive scale; reusing the last posterior", seq)
-                proposed = box.particles(st)
-            else:
-                proposed = box.particles_of(alpha)
-        else:
-            self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
-            proposed = box.particles(st)
-        obs = self._observe(frame, seq)
+        proposed = self._proposed(seq, prop)
+        obs = self._observe(msg, seq)
+        header = msg.header if msg is not None else self.header(seq, 0)
         if obs is None:
-            self.state, est = box.tracker.coast(self.core, st, rng)
-            return self._outputs(frame.header if frame is not None else self.header(seq, 0), est)
-        assert frame is not None
+            self.state, est = self._coast(proposed, rng)
+            return self._outputs(header, est, proposed)
         # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
-        dt = time_step(self.ctx, frame.header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
-        self.state, est = box.tracker.update(self.core, st, box.proposal(proposed, dt), obs, rng)
-        return self._outputs(frame.header, est)
+        dt = time_step(self.ctx, header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
+        self.state, est = self.box.tracker.update(self.core, self.state, self.box.proposal(proposed, dt), obs, rng)
+        return self._outputs(header, est, proposed)
 
     def summary(self) -> dict:
         """The last estimate (seq, box, ESS, state, the tracker's score at the estimate) and the step count."""
@@ -230,6 +342,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     # -- snapshot / restore ---------------------------------------------------------------
     def snapshot(self) -> bytes:
         codec = self.box.snapshot
+        assert codec is not None
         if self.state is None:
             return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=False, steps=self.steps))
         return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=True,
@@ -237,6 +350,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def restore(self, data: bytes) -> None:
         name, label, codec = self.ctx.name, self.box.name, self.box.snapshot
+        assert codec is not None
         try:
             snap = msgspec.msgpack.decode(data, type=codec.struct)
         except msgspec.DecodeError as e:
@@ -252,6 +366,52 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         except (AssertionError, KeyError, IndexError, TypeError, MessageError, ValueError) as e:
             raise ValueError(f"stage {name!r}: bad {label} snapshot: {e}") from None
         self.shape = None
+
+
+class FeaturesFilterStage(BoxFilterStage):
+    """A filter stage whose observation is the preprocess stage's ``features`` (the contour and patch
+    filters): missing or unusable features are weighed as no evidence (the tracker's ``update`` of the
+    proposals with no observation), missing proposals reuse the last posterior. A subclass gives
+    ``_features``, the observation of a features message."""
+
+    port = "features"
+    inputs = {"features": Features, "proposals": Particles}
+    drivers = frozenset({"features"})
+    prepare_ports = frozenset()
+
+    def _features(self, feat: Features, seq: int) -> Any:
+        """The tracker's observation of a features message (None, reported: unusable)."""
+        raise NotImplementedError(f"{type(self).__name__} reads no features")
+
+    def _observe(self, feat: Any, seq: int) -> Any:
+        if feat is None:
+            self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
+            return None
+        return self._features(feat, seq)
+
+    def _first_observation(self, seq: int, feat: Any) -> Any:
+        if not isinstance(feat, Features):
+            raise StageInputError(f"frame {seq}: cannot initialise without features")
+        obs = self._observe(feat, seq)
+        if obs is None:
+            raise StageInputError(f"frame {seq}: cannot initialise on unusable features")
+        return obs
+
+    def _started(self, obs: Any) -> None:
+        """Features are not held to the first frame's size (each array is checked where it is read)."""
+
+    def _proposed(self, seq: int, prop: Message | None) -> Any:
+        """The proposed cloud (a subclass may take what its tracker's ``update`` takes of it)."""
+        if isinstance(prop, Particles):
+            return cloud_of(prop)
+        # the proposals of this frame were lost: weigh the last posterior instead, so the
+        # proposal -> filter cycle keeps turning
+        self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
+        return self._posterior()
+
+    def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
+        """No usable features: the proposals weighed by no evidence (the posterior is the prior)."""
+        return self.box.tracker.update(self.core, self.state, proposed, None, rng)
 
 
 class BoxProposalStage(Stage[SeedBoxFields]):
@@ -270,19 +430,33 @@ class BoxProposalStage(Stage[SeedBoxFields]):
 
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
+        self.done = 0
+        if self.box.clouds is not None:
+            self.propose: CloudProposal = self.box.clouds(params, ctx)
+            return
         if params.init is None:
             raise ValueError(f"the {self.box.name} proposal needs the initial box (its random walk is relative to "
                              "the box's size): set init: [x, y, w, h]")
-        self.core: Any = tracker_params(params, self.box.params)
-        self.size0 = (float(params.init[2]), float(params.init[3]))
-        self.done = 0
+        tracker, walk = self.box.params, self.box.walk
+        assert tracker is not None and walk is not None
+        self.core: Any = tracker_params(params, tracker)
+        core: Any = self.core
+        size0 = (float(params.init[2]), float(params.init[3]))
+
+        def propose(cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
+            alpha = walk(core, cloud.alpha, size0, rng, dt)
+            return ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
+
+        self.propose = propose
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         msg, cloud, dt = posterior_input(self.ctx, inputs)
         t = seq + 1
         rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.box.purpose)
-        alpha = self.box.walk(self.core, cloud.alpha, self.size0, rng, dt)
-        out = ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
+        try:
+            out = self.propose(cloud, rng, dt)
+        except ValueError as e:
+            raise StageInputError(f"particles {seq}: {e}") from None
         self.done += 1
         return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]
 

@@ -1,7 +1,8 @@
 """Proposal stage of the contour particle filter: samples p(X_t | X_{t-1}) (M2 sec. 4.3).
 
-An adapter of :func:`gflow_core.contour.dynamics.proposal_dynamics` and
-:func:`~gflow_core.contour.dynamics.propose_cloud`, the proposal of the contour trackers' protocol
+A registration of :class:`stages.box_tracker.BoxProposalStage` (the stage logic every tracker's
+proposal shares) whose proposal of whole clouds is :func:`gflow_core.contour.dynamics.proposal_dynamics`
+and :func:`~gflow_core.contour.dynamics.propose_cloud`, the proposal of the contour trackers' protocol
 (:class:`~gflow_core.contour.protocol.ContourTracker`).
 
 Input ``particles`` is the resampled posterior of frame t-1 (from the filter stage); the
@@ -29,35 +30,26 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-from typing import Any, ClassVar, Mapping
+from dataclasses import dataclass
+from typing import Any, Callable, ClassVar
 
-import msgspec
+import numpy as np
 
 from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from gflow_core.contour.params import ChamferParams, M2Params
+from gflow_core.m2.dynamics import ARDynamics
 from gflow_core.m2.model import M2Model
 from gflow_core.m2.tracking import ParticleCloud
-
-from gflow_core.contour.params import ChamferParams, M2Params
 from gflow_core.params import defaults
 
-from .base import Output, Params, Stage, StageContext, StageInputError
-from .base import Params as _Params
-from .messages import Frame, Message, MessageError, NDArray, Particles
-from .rng import tracker_rng
-from .time_step import time_step
+from .base import Params, StageContext
+from .box_tracker import BoxProposalSpec, BoxProposalStage, CloudProposal, cloud_of, particles_msg
 from .tracker_params import StageFields, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
 
 PURPOSE = PURPOSE_PROPOSAL  # 0x9209
-SNAPSHOT_VERSION = 1
-
-
-class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    done: int
-
 
 #: the random walk's defaults: the chamfer tracker's (ChamferParams, where they live), not a copy
 _WALK = defaults(ChamferParams)
@@ -110,93 +102,46 @@ M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __
                                 "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
 
 
-def counter_snapshot(done: int) -> bytes:
-    """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
-    return msgspec.msgpack.encode(_ProposalSnapshot(version=SNAPSHOT_VERSION, done=done))
+@dataclass(frozen=True)
+class ContourProposal:
+    """The contour proposal of clouds: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame
+    periods (alpha unchanged with ``fixed_alpha``), :func:`propose_cloud`."""
+
+    markov: np.ndarray
+    dynamics: ARDynamics
+    fixed_alpha: bool
+
+    def __call__(self, cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
+        return propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)
 
 
-def restored_counter(stage: str, data: bytes) -> int:
-    """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
-    try:
-        snap = msgspec.msgpack.decode(data, type=_ProposalSnapshot)
-    except msgspec.DecodeError as e:
-        raise ValueError(f"stage {stage!r}: not a proposal snapshot: {e}") from None
-    if snap.version != SNAPSHOT_VERSION:
-        raise ValueError(f"stage {stage!r}: proposal snapshot version {snap.version}, expected {SNAPSHOT_VERSION}")
-    return snap.done
+def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], CloudProposal]:
+    """The contour proposal a stage's parameters and its ``model`` resource make
+    (:func:`proposal_dynamics`)."""
 
-
-def cloud_of(msg: Particles) -> ParticleCloud:
-    """Unpack a Particles message into a validated ParticleCloud."""
-    try:
-        return ParticleCloud(alpha=msg.alpha.array(), k=msg.k.array(), log_w=msg.log_w.array())
-    except (MessageError, ValueError) as e:
-        raise StageInputError(f"particles {msg.header.seq}: {e}") from None
-
-
-def posterior_input(ctx: StageContext, inputs: Mapping[str, Message | None]) -> tuple[Particles, ParticleCloud, float]:
-    """A proposal stage's inputs: the posterior message of frame t-1, its cloud, and the periods from
-    it to frame t (:mod:`stages.time_step`; 1 unless ``timed`` joined frame t as ``frames``)."""
-    msg = inputs["particles"]
-    assert isinstance(msg, Particles)
-    cloud = cloud_of(msg)
-    frame = inputs.get("frames")
-    dt = time_step(ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
-    return msg, cloud, dt
-
-
-def particles_msg(header, kind: str, cloud: ParticleCloud) -> Particles:
-    return Particles(header=header, kind=kind, alpha=NDArray.of(cloud.alpha), k=NDArray.of(cloud.k),
-                     log_w=NDArray.of(cloud.log_w))
-
-
-class ProposalStage(Stage[ProposalParams]):
-    kind = "particle.proposal"
-    Params: ClassVar[type[_Params]] = ProposalParams  # the chamfer and m2 stages below derive theirs
-    inputs = {"particles": Particles}
-    outputs = {"proposals": Particles}
-    input_offsets = {"frames": -1}  # timed: frame t + 1 joins the posterior of t
-    #: whether the stage needs a learned model (the ``model`` resource)
-    needs_model: ClassVar[bool] = False
-
-    @classmethod
-    def ports(cls, params: ProposalParams) -> tuple[Mapping[str, type], Mapping[str, type]]:
-        return ({"particles": Particles, "frames": Frame} if params.timed else cls.inputs), cls.outputs
-
-    def __init__(self, params: ProposalParams, ctx) -> None:
-        super().__init__(params, ctx)
+    def clouds(params: Any, ctx: StageContext) -> CloudProposal:
         model = ctx.resources.get("model")
-        if self.needs_model and model is None:
-            raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
+        if needs_model and model is None:
+            raise ValueError(f"stage {ctx.name!r}: {kind} needs a learned model: set model: MODEL.npz "
                              f"(`gflow learn m2`)")
         if model is not None and not isinstance(model, M2Model):
             raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
                              "not an M2 model")
         # patch exemplars are tracked with no alpha transformations (sec. 5.2)
         walk = None if model is not None else (params.std_xy, params.std_theta, params.std_log_s)
-        self.markov, self.dynamics, self.fixed_alpha = proposal_dynamics(model, params.init, walk)
-        self.done = 0
+        return ContourProposal(*proposal_dynamics(model, params.init, walk))
 
-    def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        msg, cloud, dt = posterior_input(self.ctx, inputs)
-        t = seq + 1
-        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(PURPOSE)
-        # k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame periods
-        try:
-            out = propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)
-        except ValueError as e:
-            raise StageInputError(f"particles {seq}: {e}") from None
-        self.done += 1
-        return [("proposals", particles_msg(self.header(t, msg.header.stamp_ns), "proposal", out))]
+    return clouds
 
-    def summary(self) -> dict:
-        return {"proposed": self.done}
 
-    def snapshot(self) -> bytes:
-        return counter_snapshot(self.done)
+def _spec(name: str, needs_model: bool, kind: str) -> BoxProposalSpec:
+    return BoxProposalSpec(name=name, params=None, walk=None, purpose=PURPOSE, clouds=_clouds(needs_model, kind))
 
-    def restore(self, data: bytes) -> None:
-        self.done = restored_counter(self.ctx.name, data)
+
+class ProposalStage(BoxProposalStage):
+    kind = "particle.proposal"
+    Params: ClassVar[type[Params]] = ProposalParams
+    box = _spec("contour", False, "particle.proposal")
 
 
 class ChamferProposalStage(ProposalStage):
@@ -204,6 +149,7 @@ class ChamferProposalStage(ProposalStage):
 
     kind = "chamfer.proposal"
     Params = ChamferProposalParams
+    box = _spec("chamfer", False, "chamfer.proposal")
 
 
 class M2ProposalStage(ProposalStage):
@@ -211,4 +157,4 @@ class M2ProposalStage(ProposalStage):
 
     kind = "m2.proposal"
     Params = M2ProposalParams
-    needs_model = True
+    box = _spec("m2", True, "m2.proposal")

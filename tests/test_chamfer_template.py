@@ -12,7 +12,8 @@ from gflow_core import features
 from gflow_core.contour.template import align_first, template_at
 from stages.base import StageContext
 from stages.messages import NDArray
-from stages.particle_filter import ChamferFilterParams, ChamferFilterStage, _FilterSnapshot
+from gflow_core.contour import state as wire
+from stages.particle_filter import ChamferFilterParams, ChamferFilterStage
 from stages.particle_proposal import ChamferProposalParams, ChamferProposalStage
 
 from test_m2_snapshot import N_FRAMES, SNAP_AT, _check_restore, _run, scene_features  # noqa: F401
@@ -84,17 +85,21 @@ def test_chamfer_filter_with_template_update_restores_bit_exact(scene_features) 
     assert g.state.template_clock == f.state.template_clock
     assert np.array_equal(g.state.anchor.channels, f.state.anchor.channels)
     # a version-4 snapshot (before the update) restores with its template as the first one
-    snap = msgspec.msgpack.decode(f.snapshot(), type=_FilterSnapshot)
+    snap = wire.decode(f.snapshot())
+    # its bytes are those of the same Struct with message arrays: the field-by-field snapshots before it
+    as_msgs = msgspec.structs.replace(snap, **{name: NDArray.of(v) for name in snap.__struct_fields__
+                                               if isinstance(v := getattr(snap, name), np.ndarray)})
+    assert snap.bank is None and msgspec.msgpack.encode(as_msgs) == f.snapshot()
     old = msgspec.structs.replace(snap, version=4, first=None, template_clock=0, first_anchor=None, first_fit=(0.0, 0))
     h = make_f()
-    h.restore(msgspec.msgpack.encode(old))
+    h.restore(wire.encode(old))
     assert h.state is not None and h.state.first is not None
     assert np.array_equal(h.state.first, f.state.template) and h.state.template_clock == 0
     assert np.array_equal(h.state.first_anchor, f.state.anchor.channels)
     # a malformed first template is refused with a one-line error
     bad = msgspec.structs.replace(snap, first=NDArray.of(np.zeros((3, 3))))
     with pytest.raises(ValueError, match="bad filter snapshot: first template of shape"):
-        make_f().restore(msgspec.msgpack.encode(bad))
+        make_f().restore(wire.encode(bad))
 
 
 @pytest.mark.parametrize("every, gain", [(0, 1e-3), (2, 1e6)])

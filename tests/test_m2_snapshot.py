@@ -16,7 +16,8 @@ from gflow_core.m2.learn import learn
 from gflow_core.synthetic import SyntheticScene
 from stages.base import StageContext
 from stages.messages import ColourFeatures, Estimate, Frame, Header, NDArray, Particles, decode, encode
-from stages.particle_filter import FilterParams, FilterStage, _FilterSnapshot
+from gflow_core.contour import state as wire
+from stages.particle_filter import FilterParams, FilterStage
 from stages.particle_proposal import ProposalParams, ProposalStage
 from stages.patch_filter import PatchFilterParams, PatchFilterStage
 from stages.preprocess import PreprocessParams, PreprocessStage
@@ -95,11 +96,11 @@ def test_chamfer_filter_restore_is_bit_exact(scene_features) -> None:
     assert f.state.lost.ctarget.n > 0 and g.state.lost.ctarget == f.state.lost.ctarget
     assert np.array_equal(g.state.anchor.colour, f.state.anchor.colour)
     # a version-3 snapshot (before the colour cue) restores with a guard that weighs the edges alone
-    snap = msgspec.msgpack.decode(f.snapshot(), type=_FilterSnapshot)
+    snap = wire.decode(f.snapshot())
     old = msgspec.structs.replace(snap, version=3, anchor_colour=None, lost_ctarget=(0.0, 0.0, 0),
                                   lost_cclutter=(0.0, 0.0, 0))
     h = FilterStage(FilterParams(init=box, particles=200, lam=0.2, seed=4), ctx)
-    h.restore(msgspec.msgpack.encode(old))
+    h.restore(wire.encode(old))
     assert h.state is not None and h.state.anchor is not None and h.state.anchor.colour is None
     assert h.state.lost.target == f.state.lost.target and h.state.lost.ctarget.n == 0
     # a snapshot before the first frame restores to an uninitialised filter
@@ -155,6 +156,36 @@ def test_patch_filter_restore_is_bit_exact(scene_features) -> None:
     assert np.array_equal(prop.alpha.array(), parts.alpha.array())
 
 
+def test_the_patch_protocol_steps_as_the_stages_do(scene_features) -> None:
+    """M2 with a patch model on the protocol (gflow_core.m2.patch_protocol.PATCH: observe, init,
+    propose, update) gives the patch filter stage's posterior and estimates bit for bit, blank frames
+    (coasting) included."""
+    from gflow_core.m2.patch_protocol import PATCH, PatchParams
+    from gflow_core.tracker import FrameRng
+    from stages.rng import stream_hash
+
+    feats, frames, _, _ = scene_features
+    model = learn(training.patches_from_frames(frames, (24, 32)), "shuffle", K=3)
+    res, params = {"model": model}, PatchParams(particles=100)
+    f = PatchFilterStage(PatchFilterParams(model="m.npz", particles=100, seed=1), StageContext("filter", "s", res))
+    p = ProposalStage(ProposalParams(seed=1, model="m.npz"), StageContext("proposal", "s", res))
+    rng = lambda t: FrameRng(1, stream_hash("s"), t)  # noqa: E731
+    obs = lambda t: PATCH.observe(params, feats[t].grey.array())  # noqa: E731
+    st, est = PATCH.init(params, obs(0), None, rng(0), {"model": model.to_patch_exemplars()})
+    (_, parts), (_, e) = f.step(0, {"features": feats[0]})
+    phases = []
+    for t in range(N_FRAMES):
+        if t > 0:
+            (_, prop), = p.step(t - 1, {"particles": parts})
+            (_, parts), (_, e) = f.step(t, {"features": feats[t], "proposals": prop})
+            st, est = PATCH.update(params, st, PATCH.propose(params, st, None, rng(t)), obs(t), rng(t))
+        assert np.array_equal(parts.k.array(), st.k) and e.box == est.box
+        assert (e.k, e.state, e.ess, e.log_evidence) == (est.extras["k"], est.phase, est.extras["ess"],
+                                                          est.extras["log_evidence"])
+        phases.append(est.phase)
+    assert phases[0] == "init" and phases[9:11] == ["coast", "coast"] and phases.count("track") == N_FRAMES - 3
+
+
 def test_appearance_filter_restore_is_bit_exact_and_starts_on_the_box(scene_features) -> None:
     """Chamfer x appearance likelihood with a busy online bank (added every 2 frames, bound 3):
     restore is bit exact, and frame 0's estimate is the init box itself."""
@@ -184,8 +215,8 @@ def test_proposal_reverts_log_s_to_the_start_box(contour_model) -> None:
     res = {"model": contour_model}
     p = ProposalStage(ProposalParams(seed=1, model="m.npz", init=box), StageContext("proposal", "s", res))
     learned = ProposalStage(ProposalParams(seed=1, model="m.npz"), StageContext("proposal", "s", res))
-    assert p.dynamics.mean[3] == pytest.approx(np.log(contour_model.alpha_from_box(box)[3]))
-    assert np.array_equal(p.dynamics.mean[:3], contour_model.dynamics.mean[:3])
-    assert np.array_equal(learned.dynamics.mean, contour_model.dynamics.mean)
+    assert p.propose.dynamics.mean[3] == pytest.approx(np.log(contour_model.alpha_from_box(box)[3]))
+    assert np.array_equal(p.propose.dynamics.mean[:3], contour_model.dynamics.mean[:3])
+    assert np.array_equal(learned.propose.dynamics.mean, contour_model.dynamics.mean)
     with pytest.raises(ValueError, match="positive width"):
         ProposalParams(init=(0.0, 0.0, 0.0, 5.0))
