@@ -2,6 +2,7 @@
 
     python bench/make_tables.py                  # every table (the stress benchmark takes an hour or more)
     python bench/make_tables.py --only shared    # the trackers on the shared sequences (docs/accuracy.md)
+    python bench/make_tables.py --only grey      # the same on grey versions of them (docs/accuracy.md)
     python bench/make_tables.py --list           # the tables, their pages and their commands
 
 A table the docs keep sits in its page between ``<!-- figures: NAME -->`` and
@@ -66,6 +67,11 @@ TABLES = (
             "published trackers and a box that never moves",
             ("benchmark", "../shared/data", "--trackers", TRACKERS, "--m2-model", "{m2}", "--opencv", "csrt,kcf",
              "--inline", "--seed", "1", "--no-fps", "--markdown", "-q", "--plot", "docs/success-shared.png"),
+            opencv=("csrt", "kcf")),
+    Figures("grey", "docs/accuracy.md", "every tracker, OpenCV's CSRT and KCF and a box that never moves on grey "
+            "versions of the shared sequences (--variant grey)",
+            ("benchmark", "../shared/data", "--variant", "grey", "--trackers", TRACKERS, "--m2-model", "{m2}",
+             "--opencv", "csrt,kcf", "--inline", "--seed", "1", "--no-fps", "--markdown", "-q"),
             opencv=("csrt", "kcf")),
     Figures("stress", "docs/stress.md", "the stress benchmark over every shared sequence, every tracker and CSRT: "
             "cases got back per family and per sequence",

@@ -2,7 +2,8 @@
 
 The logic (finding sequences, scoring, JSON and plots) is in :mod:`pipeline.evaluation.sequence_benchmark`,
 the tables in :mod:`pipeline.evaluation.benchmark_tables`, the stress benchmark in
-:mod:`pipeline.evaluation.stress_benchmark`;
+:mod:`pipeline.evaluation.stress_benchmark`, the variants (``--variant grey``) in
+:mod:`pipeline.evaluation.variant_benchmark`;
 each tracker runs as a :class:`pipeline.app.TrackRequest`, checked and planned as ``gflow track``
 plans its own (:func:`.track.request_plan`) and run by :func:`pipeline.app.track`. The trackers that
 take a model get a ``--NAME-model`` option (:attr:`gflow_core.spec.TrackerSpec.model_option`).
@@ -164,6 +165,18 @@ def _stress_plan_of(args):
     return plan_of
 
 
+def _variant(text: str | None):
+    """The variant ``--variant`` names (None: the sequences as they are)."""
+    from gflow_core.evaluation.variants import select_variant
+
+    if text is None:
+        return None
+    try:
+        return select_variant(text)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+
+
 def _pick_sequences(seqs, text: str | None):
     """The sequences named in ``--sequences`` (all when not given)."""
     if text is None:
@@ -234,7 +247,10 @@ def cmd_benchmark(args) -> int:
         return 0
     if not args.datasets:
         raise CliError("the following arguments are required: DATASET (a sequence folder or a folder of them)")
+    variant = _variant(args.variant)
     if args.stress:
+        if variant is not None:
+            raise CliError("--variant is not used with --stress (run one, then the other)")
         _check_paths(args)
         seqs, skipped = find_sequences(args.datasets)
         for s in skipped:
@@ -263,6 +279,14 @@ def cmd_benchmark(args) -> int:
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         work = Path(args.out_dir) if keep else Path(tmp)
+        if variant is not None:
+            from pipeline.evaluation.variant_benchmark import derive_variant
+
+            note(f"writing the {variant.name} variant of {len(seqs)} sequence(s)")
+            try:
+                seqs = [derive_variant(seq, variant, Path(tmp) / "variant", first[seq.name], stop) for seq in seqs]
+            except (ValueError, OSError) as e:
+                raise CliError(f"--variant {variant.name}: {e}") from None
         plans, skip = _plans(args, seqs, names, first, stop, work)
         runs = len(plans) + len(seqs) * (len(cv_names) - len(cv_missing))
         k = 0
@@ -302,14 +326,16 @@ def cmd_benchmark(args) -> int:
             note("interrupted: stopped; the table holds the runs that finished")
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs],
             "frames": [first_frame if args.frames else None, stop], "seed": args.seed, "mode": mode,
-            "skipped": skipped, "interrupted": interrupted, "versions": versions()}
+            "variant": variant.name if variant else None, "skipped": skipped, "interrupted": interrupted,
+            "versions": versions()}
     if args.json:
         print(json.dumps(to_json(rows, meta)))
     else:
         print(format_tables(rows, markdown=args.markdown, fps=not args.no_fps))
         if skipped:
             print("\n" + "\n".join(skipped))
-        print(f"\n{mode}, seed {args.seed}; {version_text(meta['versions'])}")
+        print(f"\n{mode}, seed {args.seed}" + (f", the {variant.name} variant of every sequence" if variant else "")
+              + f"; {version_text(meta['versions'])}")
     if not interrupted:
         if args.plot:
             plot_success(rows, args.plot)
@@ -359,6 +385,13 @@ def register(sub) -> None:
                         "default: a temporary folder, removed at the end")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-frame progress (one line per run still)")
     p.add_argument("--sequences", metavar="NAME,...", help="only these sequences of the datasets (default all)")
+    from gflow_core.evaluation.variants import VARIANTS
+
+    p.add_argument("--variant", metavar="NAME",
+                   help="run every tracker, OpenCV tracker and the box that never moves on a variant of every "
+                        "sequence instead of the sequence itself, its frames written to a temporary folder removed "
+                        "at the end (published results are left out: they were made on the originals). "
+                        + "; ".join(f"{v.name}: {v.describe}" for v in VARIANTS.values()))
     s = p.add_argument_group("stress benchmark (docs/stress.md)")
     s.add_argument("--stress", action="store_true",
                    help="run the trackers on stress cases derived from every sequence (occlusion, roll, change of "
