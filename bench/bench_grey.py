@@ -5,22 +5,20 @@
     python bench/bench_grey.py --sequences caviar1,skating1
 
 Grey video is one of the kinds of footage a tracker tuned on colour loses: the colour cue has
-nothing to say. This writes every frame of each sequence as a one-channel PNG (OpenCV's
-BGR -> grey weights, lossless, so the only change is the colour) into a temporary folder with
-the sequence's ground truth, and runs ``gflow benchmark`` on the colour originals and on the grey
-copies with the same trackers and seed. Where OpenCV's contrib trackers are installed (CSRT,
+nothing to say. This runs ``gflow benchmark`` on the colour originals and with ``--variant grey``
+(every frame as a one-channel PNG, OpenCV's BGR -> grey weights, lossless, so the only change is
+the colour, in a temporary folder the benchmark removes) with the same trackers and seed, and
+prints the two side by side. Where OpenCV's contrib trackers are installed (CSRT,
 KCF), they are run on both too.
 
 Prints, per sequence, each tracker's AUC on colour and on grey and a box that never moves, then
 the means. Sequences that are grey already (all channels equal) give the same figures twice.
-The grey copies are removed at the end (``GFLOW_BENCH_KEEP=1`` keeps them).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -30,30 +28,19 @@ import cv2
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import table  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 SEQUENCES = "caviar1,crossing,david_indoor,dollar,jumping,skating1,surfer,tiger1,twinnings"
 
 
-def grey_copy(src: Path, dst: Path, names: list[str]) -> None:
-    """Write each sequence of ``src`` in ``names`` to ``dst`` as one-channel PNG frames with its
-    ground truth."""
-    for name in names:
-        out = dst / name / "frames"
-        out.mkdir(parents=True, exist_ok=True)
-        shutil.copy(src / name / "groundtruth.csv", dst / name / "groundtruth.csv")
-        for f in sorted((src / name / "frames").iterdir()):
-            img = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            if img is None:
-                raise SystemExit(f"cannot read {f}")
-            cv2.imwrite(str(out / f"{f.stem}.png"), cv2.cvtColor(img, cv2.COLOR_BGR2GRAY))
-
-
-def benchmark(data: Path, sequences: str, trackers: str, seed: int, opencv: bool) -> dict[tuple[str, str], float]:
+def benchmark(data: Path, sequences: str, trackers: str, seed: int, opencv: bool, variant: str | None = None) \
+        -> dict[tuple[str, str], float]:
     """AUC by (tracker, sequence) from one ``gflow benchmark --json`` run (means under sequence "mean")."""
     argv = [sys.executable, "-m", "pipeline.cli", "benchmark", str(data), "--sequences", sequences,
             "--trackers", trackers, "--inline", "--seed", str(seed), "--no-fps", "--json", "-q"]
+    if variant:
+        argv += ["--variant", variant]
     if opencv:
         argv += ["--opencv", "csrt,kcf"]
     r = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True)
@@ -78,13 +65,10 @@ def main() -> int:
     if missing:
         raise SystemExit(f"--sequences: no sequence {missing[0]!r} in {DATA}")
     opencv = hasattr(cv2, "TrackerCSRT_create") or hasattr(getattr(cv2, "legacy", None), "TrackerCSRT_create")
-    grey = scratch("gflow-grey-")
-    print(f"writing grey copies of {len(names)} sequences to {grey}", file=sys.stderr)
-    grey_copy(DATA, grey, names)
     print("running gflow benchmark on the colour originals", file=sys.stderr)
     colour_auc = benchmark(DATA, ",".join(names), args.trackers, args.seed, opencv)
-    print("running gflow benchmark on the grey copies", file=sys.stderr)
-    grey_auc = benchmark(grey, ",".join(names), args.trackers, args.seed, opencv)
+    print("running gflow benchmark --variant grey (grey copies in a temporary folder it removes)", file=sys.stderr)
+    grey_auc = benchmark(DATA, ",".join(names), args.trackers, args.seed, opencv, variant="grey")
 
     runs = args.trackers.split(",") + (["opencv csrt", "opencv kcf"] if opencv else []) + ["static box"]
     header = ["sequence"] + [f"{t} colour / grey" for t in runs]
