@@ -233,3 +233,28 @@ def test_track_points_out_then_eval_landmarks(tmp_path, gflow) -> None:
 
     s = json.loads(r.stdout)
     assert s["frames"] == 6 and s["missing"] == 0 and s["nme"] < 0.15
+
+
+def test_scale_walk_is_relative_to_the_initial_face() -> None:
+    """``scale_walk`` sets the random walk's std of the scale c_1 to that fraction of the initial
+    |c_1| (so a face twice as large walks twice as far), leaves the morph coefficients' stds alone,
+    and a negative or infinite value is refused naming it."""
+    from gflow_core.gflow.geometry import COEF
+    from gflow_core.gflow.params import GFlowParams
+    from gflow_core.gflow.tracker import model_setup
+
+    model = load_model(BUILTIN_MODELS["face"])
+    k = model.n_bases
+    stds = []
+    for box in ((169.0, 76.0, 46.0, 60.0), (100.0, 40.0, 92.0, 120.0)):
+        s = model_setup(GFlowParams(scale_walk=0.01), box, (240, 320), model)
+        c1 = abs(float(s.pose0[COEF][0]))
+        std = s.cfg.prior_std(k)[COEF]
+        assert std[0] == pytest.approx(0.01 * c1)
+        stds.append(std[0])
+        plain = model_setup(GFlowParams(), box, (240, 320), model).cfg.prior_std(k)[COEF]
+        assert plain[0] == pytest.approx(0.2) and np.array_equal(std[1:], plain[1:])
+    assert stds[1] == pytest.approx(2.0 * stds[0], rel=0.02)
+    for bad in (-0.01, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="scale_walk"):
+            GFlowParams(scale_walk=bad)
