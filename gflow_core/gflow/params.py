@@ -99,6 +99,9 @@ class GFlowParams:
     generic_background: bool = param(False, "the data term is weighed against a generic background at the vertices: "
                                             "every pixel N(mean, variance of the frame) (eq. 14's first background "
                                             "term; False: the paper's uninformative background)")
+    texel_noise_adapt: bool = param(False, "each expert's texel update (eq. 7, 8) observes the frame with the noise its "
+                                           "fit shows, max(sigma_w, mean inlier residual^2 - texel variance) (False: "
+                                           "sigma_w, the paper's)")
     reset_rate: float = param(0.01, "probability a frame's pose transition turns the head back to frontal")
     reset_std_deg: float = param(20.0, "std of the frontal reset's rotation, degrees")
     reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "
