@@ -258,3 +258,29 @@ def test_scale_walk_is_relative_to_the_initial_face() -> None:
     for bad in (-0.01, float("inf"), float("nan")):
         with pytest.raises(ValueError, match="scale_walk"):
             GFlowParams(scale_walk=bad)
+
+
+@needs_data
+def test_texel_noise_adapt_learns_less_where_the_frame_does_not_fit() -> None:
+    """``texel_noise_adapt``: a frame the experts' texels explain (the first frame again) is learned
+    exactly as with the fixed ``sigma_w``; a frame they do not (its grey levels inverted) moves the
+    texels less."""
+    import cv2
+
+    from gflow.backends import protocol_tracker
+    from gflow_core.tracker import FrameRng
+
+    img = cv2.imread(str(DATA / "frames" / "000000.jpg"))
+    moved = {}
+    for adapt in (False, True):
+        tracker, params, res = protocol_tracker("gflow", {"texel_noise_adapt": adapt, "lost_guard": False,
+                                                          "n_experts": 4, "n_samples": 2})
+        state, _ = tracker.init(params, tracker.observe(params, img), (169.0, 76.0, 46.0, 60.0), FrameRng(1, 0, 0), res)
+        for name, frame in (("same", img), ("inverted", 255 - img)):
+            obs = tracker.observe(params, frame)
+            prop = tracker.propose(params, state, obs, FrameRng(1, 0, 1))
+            new, _ = tracker.update(params, state, prop, obs, FrameRng(1, 0, 1))
+            # every expert starts with the first look's texels (no jitter), which the prediction keeps
+            moved[adapt, name] = float(np.abs(new.experts.tex_mean - state.experts.tex_mean[0]).mean())
+    assert moved[True, "same"] == moved[False, "same"]
+    assert moved[True, "inverted"] < 0.8 * moved[False, "inverted"]
