@@ -47,6 +47,9 @@ Departures from the paper
   the rotation decay, the texels' prediction and the frontal reset; :func:`propose` takes ``dt``
   and the :class:`Proposals` carry it to :func:`update`. ``dt = 1`` is the one-period model, bit
   for bit.
+* ``texel_noise_adapt`` (off by default; measured not to help, docs/faces.md): the texels'
+  Kalman update (eq. 7, 8) observes the frame with each expert's moment estimate of the
+  observation noise from its residuals, at least ``sigma_w``, instead of ``sigma_w`` itself.
 * See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
   default, safeguards, ``alpha = 0``), :mod:`.texture` (``object_mask="hull"`` with a
   margin) and :mod:`.credibility` (systematic resampling).
