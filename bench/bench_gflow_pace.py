@@ -17,7 +17,8 @@ against the reference landmarks of frames 0, k, 2k, ... The printed commands are
 ``--gflow-set NAME=VALUE`` (repeatable) passes a G-flow parameter to every run (``gflow track
 --gflow-set``), to measure a setting at a camera's pace; ``--window A:B`` adds the landmark NME over
 the frames A <= frame < B alone (default 351:405, where the face turns to profile in bright light
-and comes back: most of the error at every 3rd frame).
+and comes back: most of the error at every 3rd frame); ``--size-window A:B`` gives the tracked face's
+size over the reference's there (default 264:348, where the face shrinks before the turn).
 """
 
 from __future__ import annotations
@@ -79,14 +80,34 @@ def run(cmd: list[str], tmp: Path, show: bool) -> str:
 def window_nme(landmarks: Path, points: Path, lo: int, hi: int) -> float:
     """Mean per-frame landmark NME of the frames ``lo <= frame < hi`` scored in ``points`` (a ``--points-out``
     CSV: frame,landmark,x,y); NaN if none."""
+    return landmark_score(np.load(landmarks)["landmarks"], read_points(points), frames=range(lo, hi)).nme
+
+
+def read_points(points: Path) -> dict[int, dict[int, tuple[float, float]]]:
+    """``{frame: {landmark: (x, y)}}`` of a ``--points-out`` CSV (frame,landmark,x,y)."""
     pts: dict[int, dict[int, tuple[float, float]]] = {}
     with open(points) as f:
         for line in f:
             row = line.strip().split(",")
             if len(row) >= 4 and row[0].isdigit():
                 pts.setdefault(int(row[0]), {})[int(row[1])] = (float(row[2]), float(row[3]))
-    ref = np.load(landmarks)["landmarks"]
-    return landmark_score(ref, pts, frames=range(lo, hi)).nme
+    return pts
+
+
+def size_ratio(landmarks: Path, points: Path, lo: int, hi: int) -> float:
+    """Mean over the frames ``lo <= frame < hi`` of the tracked face's size over the reference's: the RMS
+    distance of the tracked points from their centroid over that of the same landmarks of the reference
+    (1: the size is right); NaN if no frame has both."""
+    pts = read_points(points)
+    ref = np.load(landmarks)["landmarks"][..., :2]
+    ratios = []
+    for t in range(lo, min(hi, len(ref))):
+        ids = [i for i in pts.get(t, {}) if np.isfinite(ref[t, i]).all()]
+        if len(ids) < 3:
+            continue
+        a, b = np.array([pts[t][i] for i in ids]), ref[t, ids]
+        ratios.append(np.sqrt(((a - a.mean(0)) ** 2).sum(1).mean() / ((b - b.mean(0)) ** 2).sum(1).mean()))
+    return float(np.mean(ratios)) if ratios else float("nan")
 
 
 def main() -> None:
@@ -98,11 +119,18 @@ def main() -> None:
                     help="a G-flow parameter for every run (gflow track --gflow-set), repeatable")
     ap.add_argument("--window", default="351:405", metavar="A:B",
                     help="also score frames A <= frame < B alone (default 351:405)")
+    ap.add_argument("--size-window", default="264:348", metavar="A:B",
+                    help="also give the tracked face's size over the reference's, frames A <= frame < B "
+                         "(default 264:348, where the face shrinks by a third before the turn)")
     args = ap.parse_args()
     try:
         lo, hi = (int(v) for v in args.window.split(":"))
     except ValueError:
         raise SystemExit(f"--window must be A:B (two frame numbers), got {args.window!r}") from None
+    try:
+        slo, shi = (int(v) for v in args.size_window.split(":"))
+    except ValueError:
+        raise SystemExit(f"--size-window must be A:B (two frame numbers), got {args.size_window!r}") from None
     if not DATA.is_dir():
         raise SystemExit(f"{DATA} not found: this benchmark needs ../shared/data/david_indoor")
     tmp = scratch("gflow-pace-")
@@ -125,13 +153,14 @@ def main() -> None:
             played = bx["frames"] - bx["missing_predictions"]
             success = bx["success_rate_0.5"] * bx["frames"] / max(played, 1)
             win = window_nme(DATA / "landmarks.npz", points, lo, hi)
-            rows.append([k, n, seed, lm["frames"] - lm["missing"], f"{lm['nme']:.3f}", f"{win:.3f}", f"{lm['px']:.2f}",
-                         f"{bx['cle_px']:.2f}", f"{success:.3f}"])
+            size = size_ratio(DATA / "landmarks.npz", points, slo, shi)
+            rows.append([k, n, seed, lm["frames"] - lm["missing"], f"{lm['nme']:.3f}", f"{win:.3f}", f"{size:.3f}",
+                         f"{lm['px']:.2f}", f"{bx['cle_px']:.2f}", f"{success:.3f}"])
             print(f"  every {k}th frame, seed {seed}: NME {lm['nme']:.3f}, CLE {bx['cle_px']:.2f} px", file=sys.stderr)
     sets = f", --gflow-set {' '.join(args.gflow_set)}" if args.gflow_set else ""
     print(f"\nG-flow on david_indoor at every k-th frame (dt = k), {'inline' if args.inline else 'processes'}{sets}")
     print(table(rows, ["k", "frames played", "seed", "with landmarks", "landmark NME", f"NME {lo}-{hi - 1}",
-                       "landmark px", "box CLE px", "success"]))
+                       f"size {slo}-{shi - 1}", "landmark px", "box CLE px", "success"]))
 
 
 if __name__ == "__main__":

@@ -233,3 +233,54 @@ def test_track_points_out_then_eval_landmarks(tmp_path, gflow) -> None:
 
     s = json.loads(r.stdout)
     assert s["frames"] == 6 and s["missing"] == 0 and s["nme"] < 0.15
+
+
+def test_scale_walk_is_relative_to_the_initial_face() -> None:
+    """``scale_walk`` sets the random walk's std of the scale c_1 to that fraction of the initial
+    |c_1| (so a face twice as large walks twice as far), leaves the morph coefficients' stds alone,
+    and a negative or infinite value is refused naming it."""
+    from gflow_core.gflow.geometry import COEF
+    from gflow_core.gflow.params import GFlowParams
+    from gflow_core.gflow.tracker import model_setup
+
+    model = load_model(BUILTIN_MODELS["face"])
+    k = model.n_bases
+    stds = []
+    for box in ((169.0, 76.0, 46.0, 60.0), (100.0, 40.0, 92.0, 120.0)):
+        s = model_setup(GFlowParams(scale_walk=0.01), box, (240, 320), model)
+        c1 = abs(float(s.pose0[COEF][0]))
+        std = s.cfg.prior_std(k)[COEF]
+        assert std[0] == pytest.approx(0.01 * c1)
+        stds.append(std[0])
+        plain = model_setup(GFlowParams(), box, (240, 320), model).cfg.prior_std(k)[COEF]
+        assert plain[0] == pytest.approx(0.2) and np.array_equal(std[1:], plain[1:])
+    assert stds[1] == pytest.approx(2.0 * stds[0], rel=0.02)
+    for bad in (-0.01, float("inf"), float("nan")):
+        with pytest.raises(ValueError, match="scale_walk"):
+            GFlowParams(scale_walk=bad)
+
+
+@needs_data
+def test_texel_noise_adapt_learns_less_where_the_frame_does_not_fit() -> None:
+    """``texel_noise_adapt``: a frame the experts' texels explain (the first frame again) is learned
+    exactly as with the fixed ``sigma_w``; a frame they do not (its grey levels inverted) moves the
+    texels less."""
+    import cv2
+
+    from gflow.backends import protocol_tracker
+    from gflow_core.tracker import FrameRng
+
+    img = cv2.imread(str(DATA / "frames" / "000000.jpg"))
+    moved = {}
+    for adapt in (False, True):
+        tracker, params, res = protocol_tracker("gflow", {"texel_noise_adapt": adapt, "lost_guard": False,
+                                                          "n_experts": 4, "n_samples": 2})
+        state, _ = tracker.init(params, tracker.observe(params, img), (169.0, 76.0, 46.0, 60.0), FrameRng(1, 0, 0), res)
+        for name, frame in (("same", img), ("inverted", 255 - img)):
+            obs = tracker.observe(params, frame)
+            prop = tracker.propose(params, state, obs, FrameRng(1, 0, 1))
+            new, _ = tracker.update(params, state, prop, obs, FrameRng(1, 0, 1))
+            # every expert starts with the first look's texels (no jitter), which the prediction keeps
+            moved[adapt, name] = float(np.abs(new.experts.tex_mean - state.experts.tex_mean[0]).mean())
+    assert moved[True, "same"] == moved[False, "same"]
+    assert moved[True, "inverted"] < 0.8 * moved[False, "inverted"]

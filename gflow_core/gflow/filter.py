@@ -47,6 +47,9 @@ Departures from the paper
   the rotation decay, the texels' prediction and the frontal reset; :func:`propose` takes ``dt``
   and the :class:`Proposals` carry it to :func:`update`. ``dt = 1`` is the one-period model, bit
   for bit.
+* ``texel_noise_adapt`` (off by default; measured not to help, docs/faces.md): the texels'
+  Kalman update (eq. 7, 8) observes the frame with each expert's moment estimate of the
+  observation noise from its residuals, at least ``sigma_w``, instead of ``sigma_w`` itself.
 * See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
   default, safeguards, ``alpha = 0``), :mod:`.texture` (``object_mask="hull"`` with a
   margin) and :mod:`.credibility` (systematic resampling).
@@ -227,6 +230,11 @@ class GFlowConfig:
         background term with one Gaussian, the frame's mean and variance, for every pixel:
         :func:`.pose_opinion.generic_background`), in the search, Gauss-Newton and the weights (eq. 13,
         16). False: the paper's uninformative background (without ``background``).
+    texel_noise_adapt : bool
+        The object texels' Kalman update (eq. 7, 8) of each expert observes the frame with the noise
+        its fit shows, ``max(sigma_w, mean_i((y_i - mu_i)^2 - sigma_i))`` over its inlier vertices
+        (the moment estimate of the observation noise from the innovations), so texels are learned
+        less at a pose the frame fits poorly. False: ``sigma_w`` (the paper's).
     """
 
     n_experts: int
@@ -265,6 +273,7 @@ class GFlowConfig:
     reset_min_deg: float
     data_temper: float = 1.0
     generic_background: bool = False
+    texel_noise_adapt: bool = False
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -336,6 +345,8 @@ class GFlowConfig:
             raise ValueError("reset_rate > 0 needs a finite prior_std_rotation (the walk it mixes with)")
         if not isinstance(self.generic_background, (bool, np.bool_)):
             raise ValueError(f"generic_background must be True or False, got {self.generic_background!r}")
+        if not isinstance(self.texel_noise_adapt, (bool, np.bool_)):
+            raise ValueError(f"texel_noise_adapt must be True or False, got {self.texel_noise_adapt!r}")
         if not (0.0 < self.texture_decay <= 1.0):
             raise ValueError(f"texture_decay must be in (0, 1], got {self.texture_decay!r}")
         if not (0.0 < self.resample_ess_fraction <= 1.0):
@@ -994,8 +1005,14 @@ def _learn_texels(state: ExpertState, proposals: Proposals, parents: np.ndarray,
     if math.isfinite(cfg.outlier_sigmas):
         # outlier vertices (occluder, highlight) are not learned: prediction only
         observed = observed & (r2 <= cfg.outlier_sigmas ** 2 * vv)
+    sigma_w: float | np.ndarray = cfg.sigma_w
+    if cfg.texel_noise_adapt:
+        # E((y_i - mu_i)^2) = sigma_i + sigma_w: the observation noise the expert's fit shows (E, 1)
+        n_in = np.maximum(observed.sum(axis=1, keepdims=True), 1)
+        excess = np.where(observed, r2 - pred_var, 0.0).sum(axis=1, keepdims=True) / n_in
+        sigma_w = np.maximum(cfg.sigma_w, excess)
     # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
-    tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, cfg.sigma_w, observed=observed)
+    tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, sigma_w, observed=observed)
     return tex_mean, tex_var, p_in
 
 

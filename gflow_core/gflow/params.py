@@ -69,6 +69,9 @@ class GFlowParams:
                                                                   "translation (px; one or 2 numbers)")
     prior_std_coefficients: float | tuple[float, ...] = param(0.2, "std of the pose random walk per frame, morph "
                                                                    "coefficients (one or k numbers)")
+    scale_walk: float = param(0.0, "std of the pose random walk per frame of the scale c_1, a fraction of the "
+                                   "initial box's |c_1| (a relative walk of the face's size; replaces "
+                                   "prior_std_coefficients' c_1 value; 0: that value)")
     resample_ess_fraction: float = param(1.0, "resample the experts when their ESS < this fraction of E "
                                               "(1: every frame, sec. 3.4)")
     prior_rotation_decay: float = param(0.98, "the prior's mean rotation decays toward the initial one at this "
@@ -96,6 +99,9 @@ class GFlowParams:
     generic_background: bool = param(False, "the data term is weighed against a generic background at the vertices: "
                                             "every pixel N(mean, variance of the frame) (eq. 14's first background "
                                             "term; False: the paper's uninformative background)")
+    texel_noise_adapt: bool = param(False, "each expert's texel update (eq. 7, 8) observes the frame with the noise its "
+                                           "fit shows, max(sigma_w, mean inlier residual^2 - texel variance) (False: "
+                                           "sigma_w, the paper's)")
     reset_rate: float = param(0.01, "probability a frame's pose transition turns the head back to frontal")
     reset_std_deg: float = param(20.0, "std of the frontal reset's rotation, degrees")
     reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "
@@ -138,6 +144,8 @@ class GFlowParams:
             raise ValueError(f"head_grid must be at least (2, 2), got {self.head_grid}")
         if len(self.init_jitter) != 3 or not all(math.isfinite(v) and v >= 0 for v in self.init_jitter):
             raise ValueError(f"init_jitter must be three finite numbers >= 0, got {self.init_jitter}")
+        if not (math.isfinite(self.scale_walk) and self.scale_walk >= 0):
+            raise ValueError(f"scale_walk must be finite and >= 0 (0: prior_std_coefficients' own), got {self.scale_walk}")
         if not (math.isfinite(self.lost_hold) and self.lost_hold >= 0):
             raise ValueError(f"lost_hold must be finite and >= 0 (0: the experts are not kept), got {self.lost_hold}")
         if not (self.lost_window > 0 and self.lost_growth >= 0 and self.lost_scales
@@ -154,6 +162,8 @@ class GFlowParams:
 
         * ``max_scale_change`` finite and no ``scale_reference``: the reference is ``c_0``, the
           initial pose's morph coefficients (the wall is relative to the initial box's scale);
+        * ``scale_walk`` > 0: the random walk's std of the scale ``c_1`` is ``scale_walk * |c_1|`` at
+          the initial pose (the other coefficients keep ``prior_std_coefficients``);
         * ``morph_prior`` finite, no ``morph_prior_std`` and a learned model with ``k > 1``:
           ``m_j = morph_prior * morph_std_j * |c_1|`` at the initial pose.
 
@@ -170,6 +180,11 @@ class GFlowParams:
         if pose0 is None:
             raise ValueError("config(model) needs the initial pose too")
         cfg.prior_std(model.n_bases)  # the coefficient stds must match k
+        if self.scale_walk > 0:
+            # std of c_1's walk: scale_walk * |c_1| at the initial box (the face's size changes by a fraction a frame)
+            c = np.broadcast_to(np.asarray(cfg.prior_std_coefficients, dtype=np.float64), (model.n_bases,)).copy()
+            c[0] = self.scale_walk * abs(float(pose0[COEF][0]))
+            cfg = dataclasses.replace(cfg, prior_std_coefficients=tuple(float(v) for v in c))
         if math.isfinite(cfg.max_scale_change) and not cfg.scale_reference:
             cfg = dataclasses.replace(cfg, scale_reference=tuple(float(v) for v in pose0[COEF]))
         if (math.isfinite(self.morph_prior) and not cfg.morph_prior_std and model.morph_std is not None

@@ -98,7 +98,7 @@ def kalman_update(
     mean: np.ndarray,
     var: np.ndarray,
     obs: np.ndarray,
-    sigma_w: float,
+    sigma_w: float | np.ndarray,
     observed: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Kalman update of diagonal texel Gaussians with one observation each (eq. 7, 8).
@@ -109,8 +109,8 @@ def kalman_update(
         Predicted texel means and variances (``var`` in ``[0, inf]``).
     obs : (...) float64
         Observed pixel values ``y_t(x_i)``.
-    sigma_w : float
-        Observation noise variance ``sigma_w > 0``.
+    sigma_w : float or array broadcastable to ``mean``
+        Observation noise variance ``sigma_w > 0`` (one per expert: ``(E, 1)``).
     observed : (...) bool, optional
         Texels without an observation keep the prediction.
 
