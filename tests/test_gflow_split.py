@@ -12,7 +12,7 @@ import pytest
 
 from gflow_core.gflow import GFlowParams, model_setup
 from gflow_core.gflow.filter import advance_background, initial_background
-from gflow_core.gflow.split import BackgroundReplica, config_digest, shard_indices
+from gflow_core.gflow.split import LATER_FIELDS, BackgroundReplica, config_digest, shard_indices
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 from gflow_scenes import SYNTH, Cycle, features_msg
 
@@ -86,3 +86,27 @@ def test_snapshots_of_another_version_are_refused_in_one_line_naming_it(head) ->
         with pytest.raises(ValueError, match=f"snapshot version {old}, this code reads") as e:
             stage.restore(msgspec.msgpack.encode(dict(snap, version=old)))
         assert "\n" not in str(e.value)
+
+
+#: the configuration fields every digest made so far covers (recordings carry those digests)
+DIGESTED = ("n_experts", "n_samples", "alpha", "gn_iterations", "sigma_w", "psi_v", "psi_b", "v_init_var",
+            "b_init_var", "unknown_var", "background", "gn_background", "object_mask", "object_mask_margin",
+            "prior_std_rotation", "prior_std_translation", "prior_std_coefficients", "resample_ess_fraction",
+            "prior_rotation_decay", "pyramid_levels", "search_radius", "search_step", "photometric",
+            "photometric_gain_max", "max_rotation_deg", "search_stride", "outlier_sigmas", "max_scale_change",
+            "scale_reference", "morph_prior_std", "texture_decay", "reset_rate", "reset_std_deg", "reset_min_deg",
+            "data_temper", "generic_background")
+
+
+def test_a_configuration_field_added_later_leaves_the_digest_of_older_recordings_alone(head) -> None:
+    """A new G-flow configuration field must be one of LATER_FIELDS: at its default it stays out of
+    the digest every message carries, so recordings made before it re-run bit for bit."""
+    from gflow_core.gflow.filter import GFlowConfig
+
+    new = [f.name for f in dataclasses.fields(GFlowConfig) if f.name not in DIGESTED]
+    assert sorted(new) == sorted(LATER_FIELDS), f"register {set(new) - set(LATER_FIELDS)} in LATER_FIELDS"
+    setup = head[0]
+    for name, default in LATER_FIELDS.items():
+        assert getattr(setup.cfg, name) == default
+        moved = dataclasses.replace(setup, cfg=dataclasses.replace(setup.cfg, **{name: not default}))
+        assert config_digest(moved, 1) != config_digest(setup, 1)

@@ -29,14 +29,22 @@ from .background import TileLayout, TiledBackground
 from .filter import ExpertState, advance_background, initial_background, predict_background
 from .tracker import ModelSetup
 
-__all__ = ["config_digest", "shard_indices", "BackgroundReplica", "expert_state"]
+__all__ = ["LATER_FIELDS", "config_digest", "shard_indices", "BackgroundReplica", "expert_state"]
+
+
+#: configuration fields added after recordings carried the digest, with the default each had until
+#: then: at that default a field is left out of the digest, so every message of a recording made
+#: before it (all carry the digest) re-runs bit for bit; set away from it, it enters the digest
+LATER_FIELDS: dict[str, Any] = {"texel_noise_adapt": False}
 
 
 def config_digest(setup: ModelSetup, seed: int) -> str:
     """A short digest of everything that must agree between the proposal and the filter: the
-    configuration, the model's bases (shape and bytes), the seed and how frames are normalised."""
+    configuration (but :data:`LATER_FIELDS` at their defaults), the model's bases (shape and bytes),
+    the seed and how frames are normalised."""
     h = hashlib.sha256()
-    h.update(repr(sorted(asdict(setup.cfg).items())).encode())
+    cfg = {k: v for k, v in asdict(setup.cfg).items() if k not in LATER_FIELDS or v != LATER_FIELDS[k]}
+    h.update(repr(sorted(cfg.items())).encode())
     h.update(repr((setup.model.bases.shape, int(seed))).encode())
     if setup.contrast_sigma:
         h.update(repr(("contrast_sigma", float(setup.contrast_sigma))).encode())
