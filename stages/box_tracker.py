@@ -47,7 +47,7 @@ from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
-from .base import Output, Stage, StageContext, StageInputError
+from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
 from .messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
 from .rng import tracker_rng
 from .time_step import time_step
@@ -74,14 +74,7 @@ def counter_snapshot(done: int) -> bytes:
 
 def restored_counter(stage: str, data: bytes) -> int:
     """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
-    try:
-        snap = msgspec.msgpack.decode(data, type=_ProposalSnapshot)
-    except msgspec.DecodeError as e:
-        raise ValueError(f"stage {stage!r}: not a proposal snapshot: {e}") from None
-    if snap.version != PROPOSAL_SNAPSHOT_VERSION:
-        raise ValueError(f"stage {stage!r}: proposal snapshot version {snap.version}, expected "
-                         f"{PROPOSAL_SNAPSHOT_VERSION}")
-    return snap.done
+    return versioned_snapshot(data, _ProposalSnapshot, stage, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
 
 
 def cloud_of(msg: Particles) -> ParticleCloud:
@@ -179,10 +172,6 @@ class BoxProposalSpec:
     walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray] | None
     purpose: int
     clouds: Callable[[Any, StageContext], CloudProposal] | None = None
-
-
-def _article(word: str) -> str:
-    return "an" if word[:1] in "aeiou" else "a"
 
 
 class BoxFilterStage(Stage[SeedBoxFields]):
@@ -354,7 +343,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         try:
             snap = msgspec.msgpack.decode(data, type=codec.struct)
         except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not {_article(self.kind)} {self.kind} snapshot: {e}") from None
+            raise ValueError(f"stage {name!r}: not {article(self.kind)} {self.kind} snapshot: {e}") from None
         if snap.version != codec.version:
             raise ValueError(f"stage {name!r}: {label} snapshot version {snap.version}, expected {codec.version}")
         self.steps, self.last = snap.steps, dict(snap.last)

@@ -13,7 +13,7 @@ import numpy as np
 
 from gflow_core import colour, features
 
-from .base import Output, Params, Stage, StageInputError
+from .base import Output, Params, Stage, StageInputError, versioned_snapshot
 from .messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
 
 __all__ = ["PreprocessStage", "PreprocessParams"]
@@ -125,12 +125,6 @@ class PreprocessStage(Stage[PreprocessParams]):
         return msgspec.msgpack.encode(_PreprocessSnapshot(version=SNAPSHOT_VERSION, done=self.done, thresholds=th))
 
     def restore(self, data: bytes) -> None:
-        try:
-            snap = msgspec.msgpack.decode(data, type=_PreprocessSnapshot)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {self.ctx.name!r}: not a preprocess snapshot: {e}") from None
-        if snap.version != SNAPSHOT_VERSION:
-            raise ValueError(f"stage {self.ctx.name!r}: preprocess snapshot version {snap.version}, expected "
-                             f"{SNAPSHOT_VERSION}")
+        snap = versioned_snapshot(data, _PreprocessSnapshot, self.ctx.name, "preprocess", SNAPSHOT_VERSION)
         self.done = snap.done
         self.thresholds = snap.thresholds
