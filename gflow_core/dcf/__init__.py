@@ -54,7 +54,12 @@ BACF and CSRT learn theirs:
   deviations of that place (:func:`.model.search`), up to the whole frame (``lost``). The best
   placement is taken back only on strong evidence: its filter score against the clutter's as the
   best of as many draws as the search covered, its colour score, its place under the spread prior
-  against the searched area, and a prior ``reappear`` that a hidden target is back.
+  against the searched area, and a prior ``reappear`` that a hidden target is back. With
+  ``search_clutter`` the search also keeps the distribution of its own best placement's distance
+  over the frames the target stayed hidden (TLD's negatives, Kalal et al. 2012, as a distribution
+  of the detector's score) and takes the lower of its density and the window clutter's under
+  "hidden": a placement far better than any the search gave while the target was away is the
+  target come back.
 
 Departures from the papers, each measured on the nine shared sequences and their stress cases
 together (docs/trackers.md):
@@ -73,7 +78,9 @@ together (docs/trackers.md):
   parabola's sub-step drifted the box on fixed-size ground truth).
 * Nothing in the papers says whether the target is there; the visibility model, the search and
   the place prior are this project's (as the appearance tracker's), here with the filter's and the
-  colour's scores as cues.
+  colour's scores as cues. TLD learns its negatives as patches for a classifier; here only
+  the search's best distance a frame is kept, as a distribution, and it may only lower the
+  clutter's density (a target in view but not yet taken back is among those placements too).
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),

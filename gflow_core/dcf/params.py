@@ -74,6 +74,8 @@ class DCFParams:
     reappear: float = param(0.001, "prior probability a frame that a target judged hidden is back")
     search_growth: float = param(0.1, "while the target is unseen its place spreads by this many mean sides a "
                                       "frame (the search covers three standard deviations)")
+    search_clutter: bool = param(True, "judge a hidden target's search candidate also against the distances of the "
+                                        "search's own best placements on the frames it stayed hidden (TLD's negatives)")
     coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
 
     def __post_init__(self) -> None:

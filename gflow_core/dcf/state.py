@@ -62,6 +62,8 @@ class DCFState:
     target_state : how the target was judged on the last frame with evidence (what a coasted frame
         reports).
     spread : px, how far the target's place has spread since it was last seen (0 while it is).
+    sclutter : distribution of the filter's distance at the search's best placement on the frames since the
+        target was last seen (empty while it is; ``search_clutter``).
     """
 
     geom: Geometry
@@ -78,6 +80,7 @@ class DCFState:
     back: float = 0.0
     target_state: str = "tracked"
     spread: float = 0.0
+    sclutter: ChiSquare = ChiSquare()
 
 
 def _real(a: np.ndarray) -> np.ndarray:
@@ -111,6 +114,7 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
               "target": [st.target.m1, st.target.m2, st.target.n], "clutter": [st.clutter.m1, st.clutter.m2, st.clutter.n],
               "ctarget": [st.ctarget.m1, st.ctarget.m2, st.ctarget.n],
               "cclutter": [st.cclutter.m1, st.cclutter.m2, st.cclutter.n],
+              "sclutter": [st.sclutter.m1, st.sclutter.m2, st.sclutter.n],
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
     return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}, values
 
@@ -137,13 +141,15 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                             _complex(arrays["scale_label"]), (int(sm[0]), int(sm[1])))
     model = TargetModel(train, det, anchor, colour, values["colour_mode"], scale)
     def chi(key: str) -> ChiSquare:
-        v = values[key]
+        # a snapshot made before the search's clutter existed has none: an empty distribution
+        v = values[key] if key != "sclutter" else values.get(key, [0.0, 0.0, 0])
         return ChiSquare(float(v[0]), float(v[1]), int(v[2]))
 
 
     return DCFState(geom=geom, model=model, particles=np.array(arrays["particles"]), centre=np.array(arrays["centre"]),
                     log_s=float(values["log_s"]), velocity=np.array(arrays["velocity"]),
                     target=chi("target"), clutter=chi("clutter"), ctarget=chi("ctarget"), cclutter=chi("cclutter"),
+                    sclutter=chi("sclutter"),
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
                     spread=float(values["spread"]))

@@ -112,11 +112,44 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
 @dataclass(frozen=True)
 class Search:
     """What the search for a hidden target found: ``found`` the first candidate judged visible (or None),
-    its P(visible), and whether the search covered the whole frame."""
+    its P(visible), whether the search covered the whole frame, and ``rho`` the filter's distance at the
+    best placement (None: nothing searched)."""
 
     found: Any
     confidence: float
     covers: bool
+    rho: float | None = None
+
+
+def _hidden_log_pdf(st: DCFState, rho: float, trials: float, p: DCFParams) -> float:
+    """log p(rho | hidden) of the search's best placement: the best of ``trials`` draws of the window's
+    clutter (:meth:`ChiSquare.log_pdf_min`) or, with ``search_clutter`` and ``hidden_after`` searches or
+    more since the target was last seen, the density of the search's own best placements on those
+    frames (one-sided, as the clutter's), whichever is lower: placements the search gave while the
+    target stayed hidden are its clutter (TLD's negatives, Kalal et al. 2012 sec. 5), but a target that
+    was in view and not taken back is among them too, so they may only lower the clutter's density."""
+    lh = st.clutter.log_pdf_min(rho, max(trials, 1.0), p.min_std)
+    sc = st.sclutter
+    if p.search_clutter and sc.n >= p.hidden_after:
+        lh = min(lh, sc.log_pdf(min(rho, sc.mode(p.min_std)), p.min_std))
+    return lh
+
+
+def _judge(st: DCFState, cand: Any, trials: float, place: float, p: DCFParams) -> float:
+    """P(visible) of a search candidate against "hidden" (the prior ``reappear`` that a hidden target is
+    back), from the filter's distance (:func:`_hidden_log_pdf` under "hidden"), the colour score and the
+    place term; the rules of :func:`gflow_core.visibility.visibility` with no partial hypothesis."""
+    ms, rho = p.min_std, 1.0 - cand.r
+    # log pi_v + log p_t(max(rho, mode_t)) + log_place  against  log pi_h + log p(rho | hidden)
+    lv = math.log(p.reappear) + st.target.log_pdf(max(rho, st.target.mode(ms)), ms) + place
+    lh = math.log(1.0 - p.reappear) + _hidden_log_pdf(st, rho, trials, p)
+    if cand.r_colour is not None and st.ctarget.n and st.cclutter.n:
+        rc = 1.0 - cand.r_colour
+        lv += st.ctarget.log_pdf(max(rc, st.ctarget.mode(ms)), ms)
+        lh += st.cclutter.log_pdf_min(rc, 1.0, ms)
+    # P(visible) = 1 / (1 + exp(lh - lv))
+    d = lh - lv
+    return 0.0 if d > 700.0 else 1.0 / (1.0 + math.exp(d))
 
 
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
@@ -128,19 +161,25 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
     covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
+    rho: float | None = None
     for cand in tm.search(st.model, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
         # the search had more chances than the window the clutter was learnt on: under "hidden" its
         # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
         # the candidate is placed by the target's prior: log N(x; pred, S) + log A
         trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
         place = _log_place(cand.centre, pred, sx, sy, cand.area)
-        # the colour score of the filter's pick: one draw of the colour clutter
-        ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
-        vf = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std, prior=(p.reappear, 0.0, 1.0 - p.reappear),
-                        trials=max(trials, 1.0), log_place=place, cues=ccue)
-        if vf.visible >= 0.5:
-            return Search(cand, vf.visible, covers)
-    return Search(None, 0.0, covers)
+        rho = 1.0 - cand.r if rho is None else rho
+        if p.search_clutter:
+            visible = _judge(st, cand, trials, place, p)
+        else:
+            # the colour score of the filter's pick: one draw of the colour clutter
+            ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
+            visible = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std,
+                                 prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
+                                 log_place=place, cues=ccue).visible
+        if visible >= 0.5:
+            return Search(cand, visible, covers, rho)
+    return Search(None, 0.0, covers, rho)
 
 
 def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float, Any, Any]:
@@ -268,6 +307,10 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
     if present:
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
+    if p.search_clutter:
+        # the search's best placement on a frame the target stayed hidden is clutter's (TLD's negatives)
+        seen = srch.rho if run > 0 and found is None else None
+        learnt["sclutter"] = st.sclutter.update(seen, p.clutter_rate) if seen is not None else ChiSquare()
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
