@@ -357,3 +357,25 @@ def test_overlay_colours_the_box_by_state_and_writes_the_confidence():
         colours.append(ann.points[-1].outline_color)
     assert texts[0].endswith("target tracked 0.90") and texts[2].endswith("target lost 0.05")
     assert colours[1] == ORANGE and colours[2] == MAGENTA and colours[0] not in (ORANGE, MAGENTA)
+
+
+def test_each_case_s_runs_are_removed_once_scored_without_out_dir(data, tmp_path, monkeypatch):
+    """Without --out-dir a case's recordings and boxes go as soon as it is scored (a whole stress
+    run keeps gigabytes otherwise, until its end), so the next case never finds the last one's."""
+    import argparse
+
+    from pipeline.evaluation.sequence_benchmark import find_sequences
+    from pipeline.evaluation.stress_benchmark import run_stress
+
+    monkeypatch.setenv("TMPDIR", str(tmp_path))
+    seqs, _ = find_sequences([str(data / "synth")])
+    seen: list[list[str]] = []
+
+    def plan_of(seq, name, folder):  # the still box still writes its boxes into the case's folder
+        seen.append(sorted(p.name for p in folder.parent.iterdir()) if folder.parent.is_dir() else [])
+        return "not run in this test"
+
+    args = argparse.Namespace(cases="none,fast-2", stress_cache=None, out_dir=None, seed=1, lead=8, tail=20)
+    rows, interrupted, _ = run_stress(args, seqs, ["appearance"], [], plan_of, donors=find_sequences([str(data)])[0])
+    assert not interrupted and [r.case for r in rows if r.kind == "baseline"] == ["none", "fast-2"]
+    assert seen == [[], []]  # case "none"'s folder was gone when "fast-2" was planned

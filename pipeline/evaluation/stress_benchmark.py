@@ -650,6 +650,8 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                         row.extra["still_success"] = others[-1].success
                     if not args.stress_cache:
                         shutil.rmtree(d.seq.path, ignore_errors=True)
+                    if not args.out_dir:  # scored: its recordings (tens of MB a run) need not wait for the end
+                        shutil.rmtree(folder, ignore_errors=True)
         except KeyboardInterrupt:
             interrupted = True
             note("interrupted: stopped; the tables hold the runs that finished")
