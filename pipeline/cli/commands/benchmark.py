@@ -232,10 +232,9 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
 
 
 def cmd_benchmark(args) -> int:
-    from pipeline.evaluation.benchmark_tables import format_tables, to_json
-    from pipeline.evaluation.sequence_benchmark import (Row, find_sequences, note, opencv_row, plot_precision,
-                                                        plot_success, published_rows, static_box, tracker_row)
-    from pipeline.cli.versions import version_text, versions
+    from pipeline.evaluation.sequence_benchmark import (Row, find_sequences, note, opencv_row, published_rows,
+                                                        static_box, tracker_row)
+    from pipeline.cli.versions import versions
     from pipeline.io.datasets import parse_range
 
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
@@ -328,22 +327,32 @@ def cmd_benchmark(args) -> int:
             "frames": [first_frame if args.frames else None, stop], "seed": args.seed, "mode": mode,
             "variant": variant.name if variant else None, "skipped": skipped, "interrupted": interrupted,
             "versions": versions()}
+    _report(args, rows, meta)
+    return 130 if interrupted else 0
+
+
+def _report(args, rows: list, meta: dict) -> None:
+    """The benchmark's tables (text, Markdown or JSON) on stdout, and its plots unless interrupted."""
+    from pipeline.cli.versions import version_text
+    from pipeline.evaluation.benchmark_tables import format_tables, to_json
+    from pipeline.evaluation.sequence_benchmark import note, plot_precision, plot_success
+
     if args.json:
         print(json.dumps(to_json(rows, meta)))
     else:
         print(format_tables(rows, markdown=args.markdown, fps=not args.no_fps))
-        if skipped:
-            print("\n" + "\n".join(skipped))
-        print(f"\n{mode}, seed {args.seed}" + (f", the {variant.name} variant of every sequence" if variant else "")
+        if meta["skipped"]:
+            print("\n" + "\n".join(meta["skipped"]))
+        print(f"\n{meta['mode']}, seed {args.seed}"
+              + (f", the {meta['variant']} variant of every sequence" if meta["variant"] else "")
               + f"; {version_text(meta['versions'])}")
-    if not interrupted:
+    if not meta["interrupted"]:
         if args.plot:
             plot_success(rows, args.plot)
             note(f"success plot: {args.plot}")
         if args.precision_plot:
             plot_precision(rows, args.precision_plot)
             note(f"precision plot: {args.precision_plot}")
-    return 130 if interrupted else 0
 
 
 def register(sub) -> None:
