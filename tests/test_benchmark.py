@@ -324,3 +324,26 @@ def test_rows_do_not_depend_on_order(seq, tmp_path):
         a, b = ({k: v for k, v in row.items() if k not in ("sequence", "fps", "seconds", "seconds_total")}
                 for row in rows if row["tracker"] == tracker)
         assert a == b, tracker
+
+
+def test_each_temporary_recording_is_removed_once_its_run_is_scored(seq, monkeypatch, capsys):
+    """Without --out-dir a run's recording goes as soon as its boxes are scored and timed (nine
+    sequences and five trackers keep gigabytes otherwise, until the end), and the scores stand."""
+    import pipeline.app
+
+    made: list[tuple[Path, list[bool]]] = []
+    real = pipeline.app.track
+
+    def track(plan, *a, **kw):
+        before = [p.exists() for p, _ in made]  # the earlier runs' recordings, as this run starts
+        run = real(plan, *a, **kw)
+        made.append((Path(run.recording), before))
+        return run
+
+    monkeypatch.setattr(pipeline.app, "track", track)
+    assert main(["benchmark", str(seq), "--trackers", "dcf,appearance", "--frames", "0:8", "--inline",
+                 "--opencv", "none", "--json", "-q"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert [r.get("auc") is not None for r in res["rows"] if r["kind"] == "tracker"] == [True, True], res["rows"]
+    assert len(made) == 2 and made[0][0].suffix == ".mcap"
+    assert made[1][1] == [False]  # the first run's recording was gone when the second started

@@ -298,6 +298,8 @@ def tracker_row(row, out: str, plan: TrackPlan, gt: dict, keep: bool) -> None:
         row.note = f"not scored: {e}"
     secs = (tracking_seconds(run.recording) if run.recording else None) or run.seconds
     row.seconds, row.seconds_total = secs, run.seconds
+    if not keep and run.recording:  # scored and timed: a temporary recording need not wait for the run's end
+        Path(run.recording).unlink(missing_ok=True)
     row.fps = len(run.estimates) / secs if secs > 0 else None
     if run.info.get("errors"):
         row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
