@@ -36,6 +36,7 @@ The proposal stage calls the tracker's walk on the message's particles rather th
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping, Protocol, cast
 
@@ -368,9 +369,9 @@ class FeaturesFilterStage(BoxFilterStage):
     drivers = frozenset({"features"})
     prepare_ports = frozenset()
 
+    @abstractmethod
     def _features(self, feat: Features, seq: int) -> Any:
         """The tracker's observation of a features message (None, reported: unusable)."""
-        raise NotImplementedError(f"{type(self).__name__} reads no features")
 
     def _observe(self, feat: Any, seq: int) -> Any:
         if feat is None:

@@ -23,6 +23,7 @@ DTYPES = frozenset(["uint8", "int8", "uint16", "int16", "uint32", "int32", "int6
 T = TypeVar("T")
 
 
+# msgspec's hooks: NotImplementedError is how a hook says "not a type I encode / decode"
 def _enc(obj: Any) -> Any:
     if isinstance(obj, np.ndarray):
         a = np.ascontiguousarray(obj)
