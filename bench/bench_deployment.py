@@ -27,7 +27,7 @@ from _util import scratch, table  # noqa: E402
 from netns import Net, available  # noqa: E402
 
 from pipeline.io.mcap_io import iter_records  # noqa: E402
-from stages.messages import decode  # noqa: E402
+from gflow_msgs.messages import decode  # noqa: E402
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 

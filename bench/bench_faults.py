@@ -35,7 +35,7 @@ from pipeline.runtime.checkpoint import Checkpoint  # noqa: E402
 from pipeline.recording.results import estimates, read_boxes  # noqa: E402
 from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
 from stages.base import StageContext  # noqa: E402
-from stages.messages import Features, Header, NDArray, decode  # noqa: E402
+from gflow_msgs.messages import Features, Header, NDArray, decode  # noqa: E402
 from stages.particle_filter import FilterParams, FilterStage  # noqa: E402
 from stages.particle_proposal import ProposalParams, ProposalStage  # noqa: E402
 from stages.preprocess import PreprocessParams, PreprocessStage  # noqa: E402

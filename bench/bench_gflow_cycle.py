@@ -45,7 +45,7 @@ def measure(frames: int) -> dict:
     from stages.base import StageContext
     from stages.gflow_filter import GFlowFilterParams, GFlowFilterStage
     from stages.gflow_proposal import GFlowProposalParams, GFlowProposalStage
-    from stages.messages import ColourFeatures, Header, NDArray, decode, encode
+    from gflow_msgs.messages import ColourFeatures, Header, NDArray, decode, encode
 
     files = sorted(p for p in (DATA / "frames").iterdir() if p.suffix == ".jpg")[:frames]
     first = (DATA / "groundtruth.csv").read_text().splitlines()[1].split(",")

@@ -39,7 +39,7 @@ from _util import scratch, table  # noqa: E402
 
 from gflow_core.gflow.landmark_error import landmark_score  # noqa: E402
 from pipeline.io.recorder import McapRecorder  # noqa: E402
-from stages.messages import Capture, Frame, Header, NDArray, encode  # noqa: E402
+from gflow_msgs.messages import Capture, Frame, Header, NDArray, encode  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
 INIT = "169,76,46,60"

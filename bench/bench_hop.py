@@ -106,7 +106,7 @@ def receiver(mode: str, n: int, arg: str, nbytes: int) -> None:
     import zenoh
 
     from pipeline.runtime.transport import Bus, ZenohSettings, open_session
-    from stages.messages import decode
+    from gflow_msgs.messages import decode
 
     if mode == "gflow":  # as every stage process does (pipeline/runtime/node.py)
         from pipeline.runtime.memory import keep_freed_memory
@@ -216,7 +216,7 @@ def hop(mode: str, img: np.ndarray, n: int, fps: float) -> dict:
         return out
 
     from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
-    from stages.messages import Frame, Header, NDArray, encode
+    from gflow_msgs.messages import Frame, Header, NDArray, encode
 
     ep = f"tcp/127.0.0.1:{free_port()}"
     sub = subprocess.Popen(cmd + [ep, str(img.nbytes)], stdout=subprocess.PIPE, text=True, env=env)

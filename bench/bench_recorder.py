@@ -40,7 +40,7 @@ from _util import scratch, table  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402
 from pipeline.io.recorder import McapRecorder  # noqa: E402
 from pipeline.runtime.memory import keep_freed_memory  # noqa: E402
-from stages.messages import Frame, Header, NDArray, encode  # noqa: E402
+from gflow_msgs.messages import Frame, Header, NDArray, encode  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 CAVIAR = Path(os.environ.get("GFLOW_DATA") or ROOT.parent / "shared" / "data") / "caviar1" / "frames"
@@ -52,7 +52,7 @@ sys.path.insert(0, sys.argv[4])
 sys.path.insert(0, sys.argv[4] + "/bench")
 from pipeline.runtime.transport import Bus, ZenohSettings, open_session
 from bench_recorder import images
-from stages.messages import Frame, Header, encode
+from gflow_msgs.messages import Frame, Header, encode
 n, ep, kind = int(sys.argv[1]), sys.argv[2], sys.argv[3]
 imgs = images(kind)
 s = open_session(ZenohSettings(connect=(ep,)))

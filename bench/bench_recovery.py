@@ -50,7 +50,7 @@ from pipeline.io.mcap_io import iter_records  # noqa: E402
 from pipeline.runtime.graph import load_graph  # noqa: E402
 from pipeline.runtime.launcher import Launcher  # noqa: E402
 from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
-from stages.messages import Estimate, decode  # noqa: E402
+from gflow_msgs.messages import Estimate, decode  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 

@@ -236,7 +236,7 @@ def _estimate_of(msg: Any) -> Estimate:
     """The protocol's estimate of an estimate message (its other fields as extras, arrays decoded)."""
     import msgspec
 
-    from stages.messages import NDArray
+    from gflow_msgs.messages import NDArray
 
     extras = {}
     for f in msgspec.structs.fields(type(msg)):

@@ -99,7 +99,7 @@ def _read(source: Any, init: Sequence[float] | None, start: int, stop: int | Non
     from pipeline.io.frame_readers import open_reader
     from pipeline.runtime.preflight import PreflightError, check_source
     from stages.base import StageContext
-    from stages.messages import Frame
+    from gflow_msgs.messages import Frame
     from stages.source import SourceStage
 
     sp = _source_params(source, start, stop, fps)

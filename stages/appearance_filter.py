@@ -52,7 +52,7 @@ from gflow_core.appearance.tracker import AppearanceTrack
 
 from .appearance_proposal import AppearanceStageFields
 from .box_tracker import BoxFilterStage, SnapshotCodec
-from .messages import NDArray
+from gflow_msgs.messages import NDArray
 from .spec_box import box_filter_spec
 from .tracker_params import stage_params
 

@@ -35,7 +35,7 @@ from typing import Any, Callable, ClassVar, Generic, Mapping, TypeVar
 
 import msgspec
 
-from .messages import Header, Message
+from gflow_msgs.messages import Header, Message
 
 __all__ = ["Stage", "StageContext", "StageInputError", "Output", "Params"]
 
@@ -65,7 +65,7 @@ class StageContext:
     frame_period_ns: float = 0.0
 
 
-# (output port, message): a message of stages.messages, or a Foxglove message on a viewer's topic
+# (output port, message): a message of gflow_msgs.messages, or a Foxglove message on a viewer's topic
 Output = tuple[str, Any]
 
 #: a stage's parameter struct

@@ -49,7 +49,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
-from .messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
+from gflow_msgs.messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
@@ -112,7 +112,7 @@ class SnapshotCodec:
     ``version`` the version this code writes and reads; ``fields(state)`` the tracker's fields of a
     snapshot of ``state``; ``state(snap, params, last)`` the state of a decoded snapshot (``last`` is
     the last estimate's summary), raising ``ValueError``, ``KeyError``, ``IndexError``,
-    ``TypeError``, ``AssertionError`` or :class:`~stages.messages.MessageError` for bad content."""
+    ``TypeError``, ``AssertionError`` or :class:`~gflow_msgs.messages.MessageError` for bad content."""
 
     struct: type[Any]
     version: int

@@ -26,7 +26,7 @@ from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
 from .base import StageInputError
-from .messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
+from gflow_msgs.messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 

@@ -8,7 +8,7 @@ The stage is an adapter of :class:`gflow_core.gflow.GFlowTracker`: the first usa
 ``init`` (the model placed in ``init``, or a user morphable model, resource ``model``), every other
 frame its ``update`` of the shards' proposals, concatenated, or its ``coast``; the mathematics, the
 estimate's fields and the lost guard's verdicts are documented there and in
-:class:`stages.messages_gflow.PoseEstimate`. The filter never holds the background textures: the
+:class:`gflow_msgs.gflow.PoseEstimate`. The filter never holds the background textures: the
 proposal stages do (``stages/gflow_proposal.py``), and ``init`` runs with ``backgrounds=False``.
 What G-flow reads of frame t, with its colour bins (the preprocess stage's ``colour``; bins that do
 not fit are reported as ``bad_features`` and that frame is judged on edges alone) and the guard's
@@ -44,7 +44,7 @@ from gflow_core.visibility import ChiSquare
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setup, states_msg, unpack_proposals,
                            unpack_states)
-from .messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
+from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
                        PoseProposals)
 from .lost_snapshot import moments, pack_guard, unpack_anchor, unpack_lost
 from .rng import tracker_rng

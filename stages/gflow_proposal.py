@@ -13,7 +13,7 @@ Sharding: with ``shards = K`` the experts are split into K contiguous blocks
 concatenation of K shards is bit for bit the proposals of one stage with ``shards = 1``.
 
 The background replica. With ``background: true`` the likelihood (eq. 13) needs each
-expert's background texels (E, H, W), which never travel (see ``stages/messages_gflow.py``):
+expert's background texels (E, H, W), which never travel (see ``gflow_msgs/gflow.py``):
 the stage keeps a :class:`gflow_core.gflow.split.BackgroundReplica` of all E of them (any
 expert can be a parent), advanced from the state message and the previous frame it saw exactly
 as the filter would (eq. 7-10), stored as distinct 16 x 16 tiles (a few MB, not 123 MB, for 100
@@ -49,7 +49,7 @@ from gflow_core.gflow.tracker import TRACKER
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, proposals_msg, restored_setup,
                            unpack_states)
-from .messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
+from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import stage_params, tracker_params

@@ -1,5 +1,5 @@
 """The lost guard's snapshot fields (:mod:`gflow_core.m2.lost_state`) with their arrays as message
-arrays (:class:`~stages.messages.NDArray`), for a stage whose snapshot Struct holds those."""
+arrays (:class:`~gflow_msgs.messages.NDArray`), for a stage whose snapshot Struct holds those."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import numpy as np
 from gflow_core.m2.lost import Anchor, LostState
 from gflow_core.m2.lost_state import anchor_of, guard_fields, lost_of, moments
 
-from .messages import MessageError, NDArray
+from gflow_msgs.messages import MessageError, NDArray
 
 __all__ = ["moments", "pack_guard", "unpack_anchor", "unpack_lost"]
 

@@ -22,8 +22,8 @@ import cv2
 import numpy as np
 
 from .base import Output, Params, Stage, StageInputError
-from .messages import Estimate, Frame, Message, MessageError, Particles, PoseEstimate
-from .messages_foxglove import (LINE_LIST, LINE_LOOP, POINTS, Color, CompressedImage, ImageAnnotations,
+from gflow_msgs.messages import Estimate, Frame, Message, MessageError, Particles, PoseEstimate
+from gflow_msgs.foxglove import (LINE_LIST, LINE_LOOP, POINTS, Color, CompressedImage, ImageAnnotations,
                                 PointsAnnotation, TextAnnotation, point, time_of)
 
 __all__ = ["RenderStage", "RenderParams", "annotations_for", "estimate_annotations"]

@@ -50,7 +50,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
-from .messages import ColourFeatures, Features, Header, Message, MessageError
+from gflow_msgs.messages import ColourFeatures, Features, Header, Message, MessageError
 from .tracker_params import StageFields, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",

@@ -42,7 +42,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Params, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
-from .messages import Features, Header, Message, MessageError
+from gflow_msgs.messages import Features, Header, Message, MessageError
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "crop_patch"]
 

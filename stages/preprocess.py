@@ -14,7 +14,7 @@ import numpy as np
 from gflow_core import colour, features
 
 from .base import Output, Params, Stage, StageInputError, versioned_snapshot
-from .messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
+from gflow_msgs.messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
 
 __all__ = ["PreprocessStage", "PreprocessParams"]
 

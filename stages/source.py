@@ -29,7 +29,7 @@ from typing import Literal, Mapping
 import numpy as np
 
 from .base import Output, Params, Stage
-from .messages import Capture, Frame, Message, NDArray
+from gflow_msgs.messages import Capture, Frame, Message, NDArray
 
 __all__ = ["SourceStage", "SourceParams", "RawFrame"]
 

@@ -25,7 +25,7 @@ from gflow_core.spec import TrackerSpec
 
 from .base import Stage
 from .box_tracker import BoxFilterSpec, BoxFilterStage, BoxProposalSpec, BoxProposalStage, SnapshotCodec
-from .messages import NDArray
+from gflow_msgs.messages import NDArray
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["spec_stage_classes", "box_filter_spec", "box_proposal_spec", "SpecProposalFields"]

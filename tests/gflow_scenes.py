@@ -16,7 +16,7 @@ from pipeline.cli.trackers.gflow import make_plan
 from stages.base import StageContext
 from stages.gflow_filter import GFlowFilterParams, GFlowFilterStage
 from stages.gflow_proposal import GFlowProposalParams, GFlowProposalStage
-from stages.messages import Features, Header, NDArray, decode, encode
+from gflow_msgs.messages import Features, Header, NDArray, decode, encode
 
 #: parameters matched to :func:`synthetic_sequence` (as in tests/core/test_gflow_tracking.py)
 SYNTH = dict(n_experts=10, n_samples=8, sigma_w=2e-4, psi_v=1e-5, v_init_var=2e-4, depth_ratio=1.0,

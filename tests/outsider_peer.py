@@ -23,7 +23,7 @@ import zenoh  # noqa: E402
 
 from pipeline.runtime.running import running  # noqa: E402
 from pipeline.runtime.transport import pack_attachment  # noqa: E402
-from stages.messages import Estimate, Header, NDArray, decode, encode  # noqa: E402
+from gflow_msgs.messages import Estimate, Header, NDArray, decode, encode  # noqa: E402
 
 #: the outsider's box: nowhere near caviar1's pedestrian
 BOX = (5.0, 5.0, 30.0, 79.0)

@@ -63,7 +63,7 @@ def test_no_record_writes_no_mcap_and_yields_the_recorded_estimates(tmp_path, mo
 
 
 def msg_bytes(msg) -> bytes:
-    from stages.messages import encode
+    from gflow_msgs.messages import encode
 
     return encode(msg)
 

@@ -17,7 +17,7 @@ from pipeline.recording.results import read_boxes
 from stages.appearance_filter import AppearanceFilterParams, AppearanceFilterStage
 from stages.appearance_proposal import AppearanceProposalParams, AppearanceProposalStage
 from stages.base import StageContext
-from stages.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
+from gflow_msgs.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
 
 N_FRAMES = 16
 SNAP_AT = 6

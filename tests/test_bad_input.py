@@ -19,7 +19,7 @@ from pipeline.runtime.launcher import Launcher
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.results import estimates, read_boxes
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
-from stages.messages import ErrorReport, decode
+from gflow_msgs.messages import ErrorReport, decode
 
 
 def _errors(path) -> list[ErrorReport]:
@@ -123,7 +123,7 @@ def test_graph_with_a_typo_fails_before_launch(tmp_path, gflow_cmd):
 
 def test_nan_and_wrong_shape_features_make_the_filter_coast(tmp_path):
     from stages.base import StageContext
-    from stages.messages import Features, Header, NDArray
+    from gflow_msgs.messages import Features, Header, NDArray
     from stages.particle_filter import FilterParams, FilterStage
 
     plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 3}}))
@@ -138,7 +138,7 @@ def test_nan_and_wrong_shape_features_make_the_filter_coast(tmp_path):
     outs = dict(st.step(0, {"features": good, "proposals": None}))
     nan = np.full((60, 60), np.nan, np.float32)
     bad = Features(Header("t", 1, 0), NDArray.of(e), NDArray.of(e), NDArray.of(nan), "truncated", 100.0)
-    from stages.messages import Particles
+    from gflow_msgs.messages import Particles
 
     prop = outs["particles"]
     prop = Particles(Header("t", 1, 0), "proposal", prop.alpha, prop.k, prop.log_w)

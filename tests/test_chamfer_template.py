@@ -11,7 +11,7 @@ import pytest
 from gflow_core import features
 from gflow_core.contour.template import align_first, template_at
 from stages.base import StageContext
-from stages.messages import NDArray
+from gflow_msgs.messages import NDArray
 from gflow_core.contour import state as wire
 from stages.particle_filter import ChamferFilterParams, ChamferFilterStage
 from stages.particle_proposal import ChamferProposalParams, ChamferProposalStage

@@ -16,7 +16,7 @@ from pipeline.runtime.build import apply_defaults
 from pipeline.recording.compare import field_diffs
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.launcher import Launcher
-from stages.messages import Header, NDArray, Particles, Snapshot, StageStatus, encode
+from gflow_msgs.messages import Header, NDArray, Particles, Snapshot, StageStatus, encode
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -23,7 +23,7 @@ from pipeline.recording.results import read_boxes
 from stages.base import StageContext
 from stages.dcf_filter import DCFFilterParams, DCFFilterStage
 from stages.dcf_proposal import DCFProposalParams, DCFProposalStage
-from stages.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
+from gflow_msgs.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
 
 N_FRAMES = 16
 SNAP_AT = 6

@@ -22,7 +22,7 @@ import pytest
 from netns import Net, available, wait_for
 
 from pipeline.io.mcap_io import iter_records
-from stages.messages import decode
+from gflow_msgs.messages import decode
 
 ROOT = Path(__file__).resolve().parent.parent
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]

@@ -13,7 +13,7 @@ from pipeline.runtime.graph import parse_graph
 from pipeline.runtime.launcher import Launcher
 from pipeline.io.mcap_io import iter_records
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
-from stages.messages import EndOfStream, Frame, Header, NDArray, StageStatus, decode, encode
+from gflow_msgs.messages import EndOfStream, Frame, Header, NDArray, StageStatus, decode, encode
 
 GRAPH = """
 name: drops

@@ -17,7 +17,7 @@ _CHILD = r"""
 import resource, signal, sys
 import numpy as np
 from pipeline.io.recorder import DiskFull, McapRecorder
-from stages.messages import Frame, Header, NDArray, encode
+from gflow_msgs.messages import Frame, Header, NDArray, encode
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # writes past the limit fail with EFBIG instead
 resource.setrlimit(resource.RLIMIT_FSIZE, (600_000, 600_000))
 rng = np.random.default_rng(0)

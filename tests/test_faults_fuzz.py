@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from pipeline.runtime.stage_host import StageHost
 from stages.base import StageContext
-from stages.messages import MESSAGE_TYPES, Frame, Header, MessageError, NDArray, Particles, decode, encode
+from gflow_msgs.messages import MESSAGE_TYPES, Frame, Header, MessageError, NDArray, Particles, decode, encode
 from stages.particle_filter import FilterParams, FilterStage
 from stages.particle_proposal import ProposalParams, ProposalStage
 from stages.preprocess import PreprocessParams, PreprocessStage

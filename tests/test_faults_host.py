@@ -12,7 +12,7 @@ import pytest
 from pipeline.runtime.stage_host import StageHost
 from pipeline.runtime.join import SeqJoin
 from stages.base import StageContext
-from stages.messages import Features, Frame, Header, NDArray, Particles, encode
+from gflow_msgs.messages import Features, Frame, Header, NDArray, Particles, encode
 from stages.particle_filter import FilterParams, FilterStage
 from stages.particle_proposal import ProposalParams, ProposalStage
 from stages.preprocess import PreprocessParams, PreprocessStage

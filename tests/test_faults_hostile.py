@@ -17,7 +17,7 @@ from pipeline.runtime.launcher import Launcher
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.results import estimates
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
-from stages.messages import ErrorReport, Estimate, Frame, Header, NDArray, Particles, decode, encode
+from gflow_msgs.messages import ErrorReport, Estimate, Frame, Header, NDArray, Particles, decode, encode
 
 STOP = 120
 REJECTED = {"malformed_message", "wrong_type", "future_seq", "old_seq", "duplicate_seq", "bad_array", "bad_values",

@@ -15,7 +15,7 @@ from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.inline import run_inline
 from pipeline.io.mcap_io import iter_records
-from stages.messages_foxglove import CompressedImage, ImageAnnotations, foxglove_schema
+from gflow_msgs.foxglove import CompressedImage, ImageAnnotations, foxglove_schema
 
 # The published schemas, reduced to their structure: property -> JSON type (or nested structure).
 TIME = {"sec": "integer", "nsec": "integer"}
@@ -102,8 +102,8 @@ def test_every_render_message_reaches_the_sdk_message_whole(tmp_path):
     schema (as Foxglove decodes it), equals the recorded one field for field."""
     import msgspec
 
-    from stages.messages import decode
-    from stages.messages_foxglove import FOXGLOVE_SCHEMAS
+    from gflow_msgs.messages import decode
+    from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS
     from tests.foxglove_protobuf import decode_with_schema
 
     from pipeline.io.foxglove_messages import sdk_schema, to_sdk

@@ -179,8 +179,8 @@ def test_overlays_draw_the_rotated_axes_and_the_angles() -> None:
     """The render stage's and `gflow render`'s overlays of a face estimate: every expert's points,
     the mean's, the three rotated axes from l (the paper's fig. 2) and the angles in the status line."""
     from gflow_core.gflow.face_pose import rotation_from_angles
-    from stages.messages import Frame, Header, NDArray, PoseEstimate
-    from stages.messages_foxglove import LINE_LIST, POINTS
+    from gflow_msgs.messages import Frame, Header, NDArray, PoseEstimate
+    from gflow_msgs.foxglove import LINE_LIST, POINTS
     from stages.overlay import annotations_for
 
     r = rotation_from_angles(30.0, 0.0, 0.0)

@@ -17,7 +17,7 @@ from gflow_core.gflow import GFlowParams
 from stages.base import StageContext
 from stages.gflow_filter import GFlowFilterParams, GFlowFilterStage
 from stages.gflow_proposal import GFlowProposalParams, GFlowProposalStage
-from stages.messages import ColourFeatures, NDArray
+from gflow_msgs.messages import ColourFeatures, NDArray
 from stages.tracker_params import tracker_params
 from stages.rng import stream_hash
 

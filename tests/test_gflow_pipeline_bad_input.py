@@ -15,7 +15,7 @@ from pipeline.runtime.graph import GraphError
 from pipeline.runtime.inline import run_inline
 from pipeline.io.mcap_io import iter_records
 from pipeline.io.modelfile import save_model
-from stages.messages import decode
+from gflow_msgs.messages import decode
 
 FRAMES = 10
 

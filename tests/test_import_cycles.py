@@ -22,7 +22,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-TOPS = ("gflow_core", "stages", "pipeline", "gflow")
+TOPS = ("gflow_core", "gflow_msgs", "stages", "pipeline", "gflow")
 
 
 def _modules() -> dict[str, Path]:

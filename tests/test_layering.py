@@ -1,4 +1,5 @@
-"""The package layers import downwards only: gflow_core < stages < pipeline.io < pipeline.runtime
+"""The package layers import downwards only: gflow_core < gflow_msgs (the messages, which import
+nothing of gflow) < stages < pipeline.io < pipeline.runtime
 < pipeline.recording < pipeline.app (the application layer) < pipeline.evaluation (the benchmarks)
 < pipeline.cli < gflow (the Python API, on top of all of them). A violation names the file, the
 line and the import."""
@@ -9,7 +10,7 @@ import ast
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-ORDER = ["gflow_core", "stages", "pipeline.io", "pipeline.runtime", "pipeline.recording", "pipeline.app",
+ORDER = ["gflow_core", "gflow_msgs", "stages", "pipeline.io", "pipeline.runtime", "pipeline.recording", "pipeline.app",
          "pipeline.evaluation", "pipeline.cli", "gflow"]
 
 
@@ -35,7 +36,7 @@ def imports(path: Path) -> list[tuple[int, str]]:
 
 def test_imports_point_down():
     bad = []
-    files = [p for top in ("gflow_core", "stages", "pipeline", "gflow") for p in (ROOT / top).rglob("*.py")]
+    files = [p for top in ("gflow_core", "gflow_msgs", "stages", "pipeline", "gflow") for p in (ROOT / top).rglob("*.py")]
     assert len(files) > 50
     for path in files:
         own = layer(".".join(path.relative_to(ROOT).with_suffix("").parts))
@@ -45,6 +46,14 @@ def test_imports_point_down():
             target = layer(name)
             if target is not None and target > own:
                 bad.append(f"{path.relative_to(ROOT)}:{line} imports {name} ({ORDER[own]} may not import {ORDER[target]})")
+    assert not bad, "\n".join(bad)
+
+
+def test_messages_import_nothing_of_gflow():
+    """The messages are the contract between stages, recordings and other programs: msgspec, numpy and
+    the standard library only, so a reader of a recording needs none of gflow's mathematics."""
+    bad = [f"{p.relative_to(ROOT)}:{line} imports {name}" for p in (ROOT / "gflow_msgs").rglob("*.py")
+           for line, name in imports(p) if layer(name) is not None and not name.startswith("gflow_msgs")]
     assert not bad, "\n".join(bad)
 
 

@@ -166,7 +166,7 @@ def clean_frames(stream: Path) -> list[np.ndarray]:
 def recorded_frames(path: Path):
     """(sequence number, (H, W, 3) int16 image) of every frame the source published into the recording."""
     from pipeline.io.mcap_io import iter_records
-    from stages.messages import decode
+    from gflow_msgs.messages import decode
 
     for rec in iter_records(path):
         if rec.type == "Frame" and rec.topic.endswith("/frames"):

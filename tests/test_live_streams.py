@@ -183,7 +183,7 @@ def test_stream_faster_than_the_tracker_skips_and_keeps_latency_bounded(tmp_path
     kept = sum(1 for x in recs if x.type == "Frame" and x.topic.endswith("/skipped"))
     assert frames == s.sent and frames + kept == n  # every frame captured is in the recording
     hb = [x for x in recs if x.type == "StageStatus" and x.topic.endswith("/_status/source")]
-    from stages.messages import decode
+    from gflow_msgs.messages import decode
 
     assert max(decode(x.data).skipped for x in hb) == s.skipped  # and in the source's heartbeats
     rr = gflow("rerun", "f.mcap", "--stage", "source", "--check", cwd=tmp_path)

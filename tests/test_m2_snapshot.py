@@ -15,7 +15,7 @@ from gflow_core.m2 import training
 from gflow_core.m2.learn import learn
 from gflow_core.synthetic import SyntheticScene
 from stages.base import StageContext
-from stages.messages import ColourFeatures, Estimate, Frame, Header, NDArray, Particles, decode, encode
+from gflow_msgs.messages import ColourFeatures, Estimate, Frame, Header, NDArray, Particles, decode, encode
 from gflow_core.contour import state as wire
 from stages.particle_filter import FilterParams, FilterStage
 from stages.particle_proposal import ProposalParams, ProposalStage

@@ -4,7 +4,7 @@ import msgspec
 import numpy as np
 import pytest
 
-from stages.messages import Estimate, Frame, Header, MessageError, NDArray, decode, decode_as, encode, json_schema
+from gflow_msgs.messages import Estimate, Frame, Header, MessageError, NDArray, decode, decode_as, encode, json_schema
 
 
 def test_ndarray_round_trip_keeps_dtype_shape_and_bytes():

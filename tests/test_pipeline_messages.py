@@ -4,7 +4,7 @@ position every few frames, not every frame (each announcement wakes every proces
 from __future__ import annotations
 
 from pipeline.io.mcap_io import iter_records
-from stages.messages import decode
+from gflow_msgs.messages import decode
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.launcher import Launcher

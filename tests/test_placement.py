@@ -199,7 +199,7 @@ def test_a_stage_heartbeat_overtaken_by_its_final_one_does_not_undo_it():
     import io
 
     from pipeline.runtime.progress import Console, ProgressMonitor
-    from stages.messages import Header, StageStatus, encode
+    from gflow_msgs.messages import Header, StageStatus, encode
 
     plan = load_graph("demo_hosts")
     mon = ProgressMonitor(plan, Console(io.StringIO(), enabled=False))

@@ -6,7 +6,7 @@ import numpy as np
 
 from pipeline.runtime.stage_host import StageHost
 from stages.base import StageContext
-from stages.messages import Features, Frame, Header, NDArray, decode, encode
+from gflow_msgs.messages import Features, Frame, Header, NDArray, decode, encode
 from stages.preprocess import PreprocessParams, PreprocessStage
 
 

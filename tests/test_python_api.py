@@ -14,7 +14,7 @@ from gflow import Estimate, GflowError, Tracker, UnknownParameter, UnusableFrame
 from pipeline.io.frame_readers import folder_frames
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.results import read_boxes
-from stages.messages import decode
+from gflow_msgs.messages import decode
 
 
 def cli_estimates(cmd: list[str], tmp_path, name: str = "run") -> dict[int, object]:

@@ -15,7 +15,7 @@ from pipeline.io.mcap_io import iter_records
 WRITER = textwrap.dedent("""
     import sys, time, numpy as np
     from pipeline.io.recorder import McapRecorder
-    from stages.messages import Frame, Header, NDArray, encode
+    from gflow_msgs.messages import Frame, Header, NDArray, encode
     import os
     rec = McapRecorder(sys.argv[1], flush_interval=0.5).open()
     stamp = os.open(sys.argv[2], os.O_WRONLY | os.O_CREAT)  # the last message written: its log time

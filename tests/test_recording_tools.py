@@ -149,7 +149,7 @@ def test_an_input_given_up_as_late_is_given_up_again_by_the_rerun(crossing_run, 
     dropped them when they came. In the recording they come later and the filter's late_input
     report names them: the re-run must step frame 30 without them too, as if they had never come."""
     from pipeline.recording.rerun import check_outputs, rerun_stage
-    from stages.messages import ErrorReport, Header, encode
+    from gflow_msgs.messages import ErrorReport, Header, encode
 
     recs = list(iter_records(crossing_run))
     feats = "gflow/cam0/features"
@@ -180,7 +180,7 @@ def test_rerun_check_passes_on_a_run_whose_filter_gave_an_input_up(crossing_run,
     the re-run's reports were compared against a recording whose reports were not)."""
     from pipeline.recording.rerun import recorded_plan, rerun_stage
     from pipeline.io.recorder import peek_type
-    from stages.messages import ErrorReport, Header, encode
+    from gflow_msgs.messages import ErrorReport, Header, encode
 
     plan = recorded_plan(crossing_run)
     outs = set(plan.stages["filter"].outputs.values()) | {plan.snapshot_topic("filter")}

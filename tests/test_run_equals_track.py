@@ -9,7 +9,7 @@ import sys
 import pytest
 
 from pipeline.io.mcap_io import iter_records
-from stages.messages import decode
+from gflow_msgs.messages import decode
 
 FRAMES = 40
 

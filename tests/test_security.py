@@ -29,7 +29,7 @@ from pipeline.runtime.security import Security, Signer, load_run_key
 from pipeline.runtime.transport import Bus, SessionError, ZenohSettings, free_port, open_session
 from pipeline.recording.results import estimates
 from pipeline.io.mcap_io import iter_records
-from stages.messages import Control, EndOfStream, Estimate, Header, NDArray, StageStatus, decode, encode
+from gflow_msgs.messages import Control, EndOfStream, Estimate, Header, NDArray, StageStatus, decode, encode
 
 x509 = pytest.importorskip("cryptography.x509", reason="the cryptography package makes the test certificates")
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from stages.base import Params, Stage, StageContext
-from stages.messages import Frame
+from gflow_msgs.messages import Frame
 
 from pipeline.runtime.stage_host import StageHost
 

@@ -8,7 +8,7 @@ import numpy as np
 from gflow_core.m2.dynamics import random_walk
 from stages.base import StageContext
 from stages.particle_proposal import ProposalParams, ProposalStage
-from stages.messages import Frame, Header, NDArray, Particles
+from gflow_msgs.messages import Frame, Header, NDArray, Particles
 from stages.time_step import MAX_TIME_STEP, time_step
 
 FILE = StageContext("s", "cam0")

@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 
 from pipeline.cli.main import main
 from pipeline.io.mcap_io import iter_records
-from stages.messages import Estimate, decode
+from gflow_msgs.messages import Estimate, decode
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
-CHECKED = ("gflow_core", "stages", "gflow", "pipeline")
+CHECKED = ("gflow_core", "gflow_msgs", "stages", "gflow", "pipeline")
 
 
 def test_mypy_passes(tmp_path) -> None:

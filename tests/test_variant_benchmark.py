@@ -13,7 +13,7 @@ import pytest
 from gflow_core.evaluation.variants import VARIANTS, grey, select_variant
 from pipeline.io.frame_readers import folder_frames
 from pipeline.io.mcap_io import iter_records
-from stages.messages import Frame, decode
+from gflow_msgs.messages import Frame, decode
 
 from conftest import data_dir
 

@@ -1,7 +1,7 @@
 """Snapshots of a tracker's state as one msgspec Struct whose arrays are ``np.ndarray`` fields.
 
 An array is encoded as a map of ``dtype`` (its name), ``shape`` and ``data`` (the C-order bytes):
-the bytes the pipeline's message arrays (``stages.messages.NDArray``) encode to, so a Struct of this
+the bytes the pipeline's message arrays (``gflow_msgs.messages.NDArray``) encode to, so a Struct of this
 kind and the same Struct with message arrays are the same bytes, and either decodes as the other.
 Decoded arrays are writable copies.
 """

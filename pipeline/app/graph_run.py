@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from stages.messages import ErrorReport, Estimate, MessageError, PoseEstimate, decode
+from gflow_msgs.messages import ErrorReport, Estimate, MessageError, PoseEstimate, decode
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import SessionError, ZenohSettings, free_port

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from stages.messages import ErrorReport, Estimate, PoseEstimate, decode
+from gflow_msgs.messages import ErrorReport, Estimate, PoseEstimate, decode
 
 from pipeline.app.request import RequestError, TrackRequest, _graph_plan
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Generator
 
-from stages.messages import Estimate, PoseEstimate
+from gflow_msgs.messages import Estimate, PoseEstimate
 
 from pipeline.recording.live_record import LiveSummary
 from pipeline.recording.results import RunOutcome, estimate_columns, renumber, run_outcome, write_boxes

@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from stages.messages_foxglove import LINE_LIST, LINE_LOOP, LINE_STRIP, POINTS, Color, ImageAnnotations
+from gflow_msgs.foxglove import LINE_LIST, LINE_LOOP, LINE_STRIP, POINTS, Color, ImageAnnotations
 
 __all__ = ["draw_annotations"]
 

@@ -30,7 +30,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from stages.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
+from gflow_msgs.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
 from stages.overlay import estimate_annotations
 
 from pipeline.io.foxglove_messages import BOX_TOPIC, frame_image, to_sdk

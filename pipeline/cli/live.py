@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, TextIO
 
-from stages.messages import Capture, MessageError, StageStatus, decode
+from gflow_msgs.messages import Capture, MessageError, StageStatus, decode
 
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.plain import describe, to_plain

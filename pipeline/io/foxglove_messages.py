@@ -2,7 +2,7 @@
 the SDK's channels and ``gflow foxglove`` writes them with the SDK's schemas.
 
 The render stage (``stages/overlay.py``) keeps its output in the stage layer's own message
-types (``stages/messages_foxglove.py``: plain msgspec structs, no I/O library), recorded as
+types (``gflow_msgs/foxglove.py``: plain msgspec structs, no I/O library), recorded as
 JSON so that a recording re-runs bit for bit and gflow's tools read it as they read any other
 message. Where the messages leave gflow for Foxglove, this module converts them to the SDK's
 well-known messages (``foxglove.messages.CompressedImage`` / ``ImageAnnotations``), which the
@@ -16,8 +16,8 @@ from typing import Any
 import foxglove
 from foxglove import messages as fm
 
-from stages.messages import Frame, MessageError
-from stages.messages_foxglove import (CircleAnnotation, Color, CompressedImage, ImageAnnotations, Point2,
+from gflow_msgs.messages import Frame, MessageError
+from gflow_msgs.foxglove import (CircleAnnotation, Color, CompressedImage, ImageAnnotations, Point2,
                                       PointsAnnotation, TextAnnotation, Time, time_of)
 
 __all__ = ["to_sdk", "sdk_schema", "SDK_TYPES", "frame_image", "BOX_TOPIC"]

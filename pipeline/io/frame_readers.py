@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 
 from gflow_core.synthetic import SyntheticScene
-from stages.messages import Capture, Frame, MessageError, decode
+from gflow_msgs.messages import Capture, Frame, MessageError, decode
 from stages.source import RawFrame, SourceParams
 
 from pipeline.io.live_capture import LiveCapture

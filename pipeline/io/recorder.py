@@ -48,8 +48,8 @@ from pipeline.io.mcap_io import SOURCE_KEY
 from pipeline.io.mcap_writer import ChunkWriter
 from pipeline.io.recording_files import create_new
 
-from stages.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
-from stages.messages_foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
+from gflow_msgs.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
+from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
 
 __all__ = ["McapRecorder", "DiskFull", "peek_type", "MESSAGE_ENCODING", "SCHEMA_ENCODING"]
 

@@ -8,7 +8,7 @@ from typing import Any
 import msgspec
 import numpy as np
 
-from stages.messages import MessageError, NDArray, decode
+from gflow_msgs.messages import MessageError, NDArray, decode
 
 __all__ = ["FieldDiff", "field_diffs", "first_field_diff"]
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from gflow_core.evaluation.metrics import centre_error, iou
-from stages.messages import Estimate, MessageError, PoseEstimate, decode
+from gflow_msgs.messages import Estimate, MessageError, PoseEstimate, decode
 
 from pipeline.recording.compare import field_diffs
 from pipeline.recording.topics import streams_paired_across_run_ids, without_run_id

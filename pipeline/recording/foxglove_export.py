@@ -27,7 +27,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from stages.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
+from gflow_msgs.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
 from stages.overlay import estimate_annotations
 
 from pipeline.io.foxglove_messages import BOX_TOPIC, frame_image, sdk_schema, to_sdk

@@ -1,7 +1,7 @@
 """What a recording says about a live source: frames captured, sent and skipped, the gaps of
 its reconnects, how it ended, and the latency from capture to estimate.
 
-A live source publishes a :class:`~stages.messages.Capture` for every frame it sends (always
+A live source publishes a :class:`~gflow_msgs.messages.Capture` for every frame it sends (always
 recorded): the camera's frame number of each ``seq``, the frames skipped before it and the
 seconds lost to a reconnect. Its heartbeats count the frames decoded (``captured``), skipped
 and the reconnects; its reports (``reconnected``, ``stream_ended``) are on the errors topic.
@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stages.messages import (NOTICE_KINDS, Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus,
+from gflow_msgs.messages import (NOTICE_KINDS, Capture, ErrorReport, Estimate, MessageError, PoseEstimate, StageStatus,
                              decode)
 
 from pipeline.io.mcap_io import iter_records

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from stages.messages import MessageError, NDArray, decode
+from gflow_msgs.messages import MessageError, NDArray, decode
 
 __all__ = ["describe", "to_plain"]
 

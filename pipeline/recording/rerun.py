@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from stages.messages import EndOfStream, ErrorReport, MessageError, Snapshot, decode
+from gflow_msgs.messages import EndOfStream, ErrorReport, MessageError, Snapshot, decode
 from stages.registry import STAGES
 
 from pipeline.runtime.build import make_stage

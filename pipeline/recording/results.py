@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any, Mapping, TypeVar
 
 from gflow_core.evaluation.metrics import TARGET_STATES
-from stages.messages import ErrorReport, Estimate, Frame, MessageError, PoseEstimate, decode
+from gflow_msgs.messages import ErrorReport, Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows
 from pipeline.io.mcap_io import iter_records

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from stages.messages import Snapshot, decode
+from gflow_msgs.messages import Snapshot, decode
 
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.graph import GraphError
@@ -121,6 +121,6 @@ class Stepper:
 
 
 def _encode(msg) -> bytes:
-    from stages.messages import encode
+    from gflow_msgs.messages import encode
 
     return encode(msg)

@@ -8,7 +8,7 @@
 * the data-section CRC (where the file has one), checked by the reader at the data end;
 * every channel's schema and every message's channel are defined before they are used;
 * every message decodes with the msgspec type of its schema (``gflow.Frame`` ->
-  :class:`stages.messages.Frame`, the Foxglove JSON schemas -> their types); a schema gflow does
+  :class:`gflow_msgs.messages.Frame`, the Foxglove JSON schemas -> their types); a schema gflow does
   not know is not decoded;
 * the message indexes after each chunk count that chunk's messages per channel;
 * the summary: its CRC, the footer's summary offset, the statistics (counts and times), the
@@ -35,8 +35,8 @@ from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from pipeline.io.mcap_io import TORN_END_ERRORS, _check
 from pipeline.io.mcap_writer import crc32
 from pipeline.io.recorder import SCHEMA_PREFIX
-from stages.messages import MESSAGE_TYPES, MessageError, decode, decode_as
-from stages.messages_foxglove import FOXGLOVE_SCHEMAS
+from gflow_msgs.messages import MESSAGE_TYPES, MessageError, decode, decode_as
+from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS
 
 __all__ = ["verify", "VerifyResult", "Progress"]
 

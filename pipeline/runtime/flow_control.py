@@ -17,7 +17,7 @@ import logging
 import threading
 import time
 
-from stages.messages import StageStatus
+from gflow_msgs.messages import StageStatus
 
 from pipeline.runtime.drain import FINISHED
 from pipeline.runtime.graph import Plan

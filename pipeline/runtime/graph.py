@@ -471,7 +471,7 @@ def _producers(doc: dict, stages: dict[str, _ParsedStage], stream: str, filename
                ) -> tuple[dict, dict[str, tuple[str, str, type]]]:
     """The graph's ``external`` topics (topic -> message type name) and the producer of every topic:
     topic key -> (stage or "outside the graph", port, message type). Two stages may not publish one topic."""
-    from stages.messages import MESSAGE_TYPES
+    from gflow_msgs.messages import MESSAGE_TYPES
 
     producers: dict[str, tuple[str, str, type]] = {}
     external = doc.get("external") or {}

@@ -33,7 +33,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Callable, TextIO
 
-from stages.messages import Control, ErrorReport, StageStatus, decode
+from gflow_msgs.messages import Control, ErrorReport, StageStatus, decode
 
 from pipeline.runtime.drain import FINISHED
 from pipeline.runtime.graph import Plan

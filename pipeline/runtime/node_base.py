@@ -41,7 +41,7 @@ from typing import Any
 import psutil
 import zenoh
 
-from stages.messages import Control, Header, StageStatus, decode, encode
+from gflow_msgs.messages import Control, Header, StageStatus, decode, encode
 
 from pipeline.runtime.inbox import BoundedInbox
 from pipeline.runtime.node_plan import NodePlan

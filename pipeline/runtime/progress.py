@@ -16,7 +16,7 @@ import threading
 import time
 from typing import Callable, TextIO
 
-from stages.messages import NOTICE_KINDS, ErrorReport, StageStatus, decode
+from gflow_msgs.messages import NOTICE_KINDS, ErrorReport, StageStatus, decode
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import Bus

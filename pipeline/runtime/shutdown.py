@@ -11,7 +11,7 @@ from __future__ import annotations
 import signal
 import time
 
-from stages.messages import Control, Header, encode
+from gflow_msgs.messages import Control, Header, encode
 
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.supervision import Supervisor

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
-from stages.messages import StageStatus
+from gflow_msgs.messages import StageStatus
 from stages.source import RawFrame, SourceParams, SourceStage
 
 from pipeline.runtime.flow_control import FlowControl

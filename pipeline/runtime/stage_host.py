@@ -38,8 +38,8 @@ if TYPE_CHECKING:
     from concurrent.futures import ThreadPoolExecutor
 
 from stages.base import Stage, StageInputError
-from stages.messages_foxglove import FOXGLOVE_SCHEMAS
-from stages.messages import (NOTICE_KINDS, EndOfStream, ErrorReport, Features, Frame, Header, MessageError, NDArray,
+from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS
+from gflow_msgs.messages import (NOTICE_KINDS, EndOfStream, ErrorReport, Features, Frame, Header, MessageError, NDArray,
                              Particles, Snapshot, decode, encode)
 
 __all__ = ["StageHost", "Publish", "AHEAD_LIMIT"]

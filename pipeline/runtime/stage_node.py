@@ -24,7 +24,7 @@ from typing import Any
 
 import msgspec
 
-from stages.messages import StageStatus
+from gflow_msgs.messages import StageStatus
 
 from pipeline.runtime.build import make_stage
 from pipeline.runtime.checkpoint import Checkpoint, read_checkpoint, write_checkpoint
@@ -145,7 +145,7 @@ class StageNode(NodeBase):
         """After a normal end, wait until what this stage sent has arrived (see ``pipeline.runtime.drain``)."""
         if self.host is None or self.state == "stopped" or self.stop.is_set():
             return
-        from stages.messages_foxglove import FOXGLOVE_SCHEMAS
+        from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS
 
         h = self.host
         consumers = consumers_of(self.plan, self.name)

@@ -112,7 +112,7 @@ def test_a_grey_frame_has_no_colour_and_the_preprocessing_sends_no_bins_for_it()
     preprocess stage asked for colour bins sends them for a colour frame only (the contour trackers'
     lost guard then weighs the edges alone)."""
     from stages.base import StageContext
-    from stages.messages import Frame, Header, NDArray
+    from gflow_msgs.messages import Frame, Header, NDArray
     from stages.preprocess import PreprocessParams, PreprocessStage
 
     rng = np.random.default_rng(0)

@@ -18,7 +18,7 @@ from gflow_core.m2 import lost
 from gflow_core.evaluation.metrics import centre_error
 from gflow_core.visibility import ChiSquare
 from stages.base import StageContext
-from stages.messages import ColourFeatures, Frame, Header, NDArray
+from gflow_msgs.messages import ColourFeatures, Frame, Header, NDArray
 from stages.particle_filter import FilterParams, FilterStage
 from stages.particle_proposal import ProposalParams, ProposalStage
 from stages.preprocess import PreprocessParams, PreprocessStage

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gflow_core.m2.snapshot_arrays import snapshot_codec
-from stages.messages import NDArray
+from gflow_msgs.messages import NDArray
 
 
 class _State(msgspec.Struct, frozen=True):

@@ -134,7 +134,7 @@ def _stage_states(settings, streams: list[str], seconds: float) -> dict[str, dic
     """{stream: {stage: StageStatus}} heard on the heartbeats within ``seconds``."""
     import queue
 
-    from stages.messages import MessageError, StageStatus, decode
+    from gflow_msgs.messages import MessageError, StageStatus, decode
 
     from pipeline.runtime.transport import Bus, open_session
 
@@ -212,7 +212,7 @@ def cmd_ps(args) -> int:
 def cmd_pub(args) -> int:
     import msgspec
 
-    from stages.messages import MESSAGE_TYPES, Header, encode
+    from gflow_msgs.messages import MESSAGE_TYPES, Header, encode
 
     from pipeline.runtime.security import Signer
     from pipeline.runtime.transport import Bus, open_session

@@ -14,7 +14,7 @@ VIDEO_SUFFIXES = (".mp4", ".avi", ".mkv", ".mov")
 
 def _messages(path: str):
     """Per frame: Frame, estimate, posterior particles (decoded), in frame order."""
-    from stages.messages import Estimate, Frame, MessageError, Particles, PoseEstimate, decode
+    from gflow_msgs.messages import Estimate, Frame, MessageError, Particles, PoseEstimate, decode
 
     from pipeline.io.mcap_io import iter_records
 
@@ -40,7 +40,7 @@ def _messages(path: str):
 def cmd_render(args) -> int:
     import cv2
 
-    from stages.messages_foxglove import ImageAnnotations
+    from gflow_msgs.foxglove import ImageAnnotations
     from stages.overlay import annotations_for
 
     from pipeline.cli.draw import draw_annotations

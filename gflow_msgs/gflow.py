@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import msgspec
 
-from .messages_base import Box, Header, NDArray
+from .base import Box, Header, NDArray
 
 __all__ = ["ExpertStates", "PoseProposals", "PoseEstimate"]
 
@@ -89,7 +89,7 @@ class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
     mean_points : (n, 2) float32.
     log_credibility : (E,) float64; parents : (E,) int64.
     state : "init", "track" or "coast".
-    confidence, target_state : as in :class:`stages.messages.Estimate`.
+    confidence, target_state : as in :class:`gflow_msgs.messages.Estimate`.
     landmarks : (n,) int32, for a learned face the reference landmark index of each vertex (the order of
         ``mean_points``); None for other models.
     yaw_pitch_roll : degrees, of the posterior mean pose (``gflow_core.gflow.face_pose``: yaw > 0 nose toward

@@ -28,7 +28,7 @@ __all__ = [
     "MessageError",
 ]
 
-from .messages_base import Box, Header, MessageError, NDArray  # noqa: E402  (re-exported)
+from .base import Box, Header, MessageError, NDArray  # noqa: E402  (re-exported)
 
 class Frame(msgspec.Struct, frozen=True, tag=True):
     """One video frame. ``image`` is (H, W, 3) uint8 BGR or (H, W) uint8 grey.
@@ -221,13 +221,13 @@ class Control(msgspec.Struct, frozen=True, tag=True):
     command: str
 
 
-from .messages_gflow import ExpertStates, PoseEstimate, PoseProposals  # noqa: E402
+from .gflow import ExpertStates, PoseEstimate, PoseProposals  # noqa: E402
 
 Message = Union[Frame, Features, ColourFeatures, Particles, Estimate, ErrorReport, EndOfStream, StageStatus, Control, Snapshot,
                 ExpertStates, PoseProposals, PoseEstimate, Capture]
 MESSAGE_TYPES: dict[str, type] = {t.__name__: t for t in typing.get_args(Message)}
 
-from .messages_foxglove import FOXGLOVE_SCHEMAS, CompressedImage, ImageAnnotations  # noqa: E402
+from .foxglove import FOXGLOVE_SCHEMAS, CompressedImage, ImageAnnotations  # noqa: E402
 
 _encoder = msgspec.msgpack.Encoder()
 _json_encoder = msgspec.json.Encoder()
