@@ -224,34 +224,39 @@ class StateScore:
 
     @property
     def hidden_rate(self) -> float | None:
-        return self.hidden_right / self.hidden if self.hidden else None
+        return _rate(self.hidden_right, self.hidden)
 
     @property
     def shown_rate(self) -> float | None:
-        return self.shown_right / self.shown if self.shown else None
+        return _rate(self.shown_right, self.shown)
 
     @property
     def off_rate(self) -> float | None:
-        return self.off_tracked / self.off if self.off else None
+        return _rate(self.off_tracked, self.off)
 
     @property
     def shown_on_rate(self) -> float | None:
-        return self.shown_on_tracked / self.shown_on if self.shown_on else None
+        return _rate(self.shown_on_tracked, self.shown_on)
 
     @property
     def shown_off_rate(self) -> float | None:
-        return self.shown_off_hidden / self.shown_off if self.shown_off else None
+        return _rate(self.shown_off_hidden, self.shown_off)
 
     def to_json(self) -> dict:
-        r = self.hidden_rate, self.shown_rate, self.off_rate, self.shown_on_rate, self.shown_off_rate
-        return {"hidden_frames": self.hidden, "hidden_reported_occluded_or_lost": None if r[0] is None else round(r[0], 4),
-                "undisturbed_frames": self.shown, "undisturbed_reported_tracked": None if r[1] is None else round(r[1], 4),
-                "off_target_frames": self.off, "off_target_reported_tracked": None if r[2] is None else round(r[2], 4),
-                "undisturbed_on_target_frames": self.shown_on,
-                "undisturbed_on_target_reported_tracked": None if r[3] is None else round(r[3], 4),
+        r = [None if x is None else round(x, 4)
+             for x in (self.hidden_rate, self.shown_rate, self.off_rate, self.shown_on_rate, self.shown_off_rate)]
+        return {"hidden_frames": self.hidden, "hidden_reported_occluded_or_lost": r[0],
+                "undisturbed_frames": self.shown, "undisturbed_reported_tracked": r[1],
+                "off_target_frames": self.off, "off_target_reported_tracked": r[2],
+                "undisturbed_on_target_frames": self.shown_on, "undisturbed_on_target_reported_tracked": r[3],
                 "undisturbed_off_target_frames": self.shown_off,
-                "undisturbed_off_target_reported_occluded_or_lost": None if r[4] is None else round(r[4], 4),
+                "undisturbed_off_target_reported_occluded_or_lost": r[4],
                 "confidence_bands": band_json(self.bands)}
+
+
+def _rate(count: int, frames: int) -> float | None:
+    """``count / frames``, or None when no frame was scored."""
+    return count / frames if frames else None
 
 
 def band_json(bands: tuple[tuple[int, int], ...] | list[list[int]]) -> list[dict]:
