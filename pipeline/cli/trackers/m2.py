@@ -43,14 +43,16 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     meta = load_meta(path)
     mpath = str(path.resolve())
     box = list(args.init)
-    particles = args.particles if getattr(args, "particles", None) is not None else M2Params().particles
     pre: dict = {}
     if model.kind == "patch":
+        from gflow_core.m2.patch_protocol import PatchParams, crop_of
+
+        particles = args.particles if getattr(args, "particles", None) is not None else PatchParams().particles
         if "canny_low" in meta and "canny_high" in meta:
             pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))
         if "blur" in meta:
             pre["blur"] = float(meta["blur"])
-        crop = "box" if meta.get("crop") == "box" else "frame"
+        crop = crop_of(meta)  # as the Python API's setup reads it
         return "m2_patch", {
             "filter": {"model": mpath, "init": box, "particles": particles, "seed": args.seed, "crop": crop},
             "proposal": {"model": mpath, "seed": args.seed},
