@@ -59,7 +59,7 @@ def track(source: str | os.PathLike[str] | Iterable[np.ndarray | None] | Any, in
     """
     from stages.source import SourceParams
 
-    t = Tracker(tracker, seed, fps=fps, **params)
+    t = Tracker(tracker, seed, **params)
     if isinstance(source, (str, os.PathLike, SourceParams)):
         frames, init = _read(source, init, start, stop, fps)
     else:
@@ -157,6 +157,5 @@ def _run(t: Tracker, frames: Iterator[tuple[int, np.ndarray | None, int]], box: 
                 continue  # as the filters do: wait for a usable first frame
         else:
             dt = time_step(ctx, stamp, prev_stamp if seq == t.frame_index + 1 else 0) if image is not None else 1.0
-            yield from sorted(t.step(image, seq, dt), key=lambda e: e.frame)
+            yield from t.step(image, seq, dt)
         prev_stamp = stamp if image is not None else 0
-    yield from sorted(t.finish(), key=lambda e: e.frame)

@@ -12,7 +12,7 @@ from gflow_core.tracker import Box, Estimate
 from gflow_core import registry
 from gflow_core.spec import SpecError
 
-from .backends import GraphBackend, ProtocolBackend, patch_model, protocol_tracker
+from .backends import ProtocolBackend, protocol_tracker
 from .errors import GflowError
 
 __all__ = ["Tracker", "TRACKERS", "trackers"]
@@ -60,8 +60,6 @@ class Tracker:
     seed : int >= 0
         Frame ``t`` draws from ``default_rng([seed, crc32("cam0"), t, ...])``, as every stage of the
         shipped graphs does: the same seed gives the boxes of ``gflow track --seed SEED`` bit for bit.
-    fps : float
-        The frames' rate (the stamps of a tracker run through its stages; default 25).
     **params
         For ``appearance``, any parameter of :class:`gflow_core.appearance.params.AppearanceParams`
         (``gflow info appearance``; its presets: ``Tracker("appearance", **TRACK_SCALE)``). For ``dcf``,
@@ -70,9 +68,8 @@ class Tracker:
         and ``model`` (``face``, ``ellipsoid``, a model file or a ``MorphableModel``). For
         ``chamfer``, any parameter of :class:`gflow_core.contour.params.ChamferParams` (``gflow info
         chamfer``); for ``m2``, any of :class:`gflow_core.contour.params.M2Params` and ``model`` (a
-        file of ``gflow learn m2`` or an ``M2Model``). An m2 patch model runs its stages in process
-        and takes the options ``gflow track`` has (``particles=800``) and ``set={"filter": {"lam":
-        0.3}}`` for any stage parameter.
+        file of ``gflow learn m2`` or an ``M2Model``); with a patch model (shuffle or L2 exemplars),
+        any of :class:`gflow_core.m2.patch_protocol.PatchParams` and ``model``.
 
     Frames are numpy arrays as OpenCV gives them: ``(H, W, 3)`` BGR or ``(H, W)`` grey, uint8; every
     frame the size of the first. Frame indices count from ``init``'s ``frame_index`` (0).
@@ -85,38 +82,31 @@ class Tracker:
         A parameter the tracker does not have.
     """
 
-    def __init__(self, name: str = "dcf", seed: int = 1, *, fps: float = 25.0, **params: Any) -> None:
+    def __init__(self, name: str = "dcf", seed: int = 1, **params: Any) -> None:
         try:
             registry.get(name)
         except SpecError as e:
             raise GflowError(str(e)) from None
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise GflowError(f"seed must be an integer >= 0, got {seed!r}")
-        if not (math.isfinite(fps) and fps > 0):
-            raise GflowError(f"fps must be positive, got {fps}")
         self.name, self.seed = name, int(seed)
-        self._backend: ProtocolBackend | GraphBackend
-        patch, loaded = patch_model(name, params)
-        if not patch:
-            try:
-                impl, p, resources = protocol_tracker(name, loaded)
-            except ValueError as e:
-                raise GflowError(str(e)) from None
-            self._backend = ProtocolBackend(impl, p, resources, self.seed, "cam0")
-        else:
-            self._backend = GraphBackend(name, self.seed, fps, params)
+        try:
+            impl, p, resources = protocol_tracker(name, params)
+        except ValueError as e:
+            raise GflowError(str(e)) from None
+        self._backend = ProtocolBackend(impl, p, resources, self.seed, "cam0")
         self._shape: tuple[int, ...] | None = None
         self._t = -1
 
     @property
     def params(self) -> Any:
-        """The tracker's parameter dataclass (None for m2 with a patch model, run through its stages)."""
-        return self._backend.params if isinstance(self._backend, ProtocolBackend) else None
+        """The tracker's parameter dataclass (m2: ``M2Params`` or, with a patch model, ``PatchParams``)."""
+        return self._backend.params
 
     @property
     def state(self) -> Any:
-        """The posterior after the last frame (None for m2 with a patch model, run through its stages)."""
-        return self._backend.state if isinstance(self._backend, ProtocolBackend) else None
+        """The posterior after the last frame (None before ``init``)."""
+        return self._backend.state
 
     @property
     def frame_index(self) -> int:
@@ -171,31 +161,23 @@ class Tracker:
 
     def coast(self) -> Estimate:
         """No frame for the next index (a frame lost by the source): the posterior carried over it."""
-        if not isinstance(self._backend, ProtocolBackend):
-            raise GflowError("coast() needs a tracker on the protocol (m2 with a patch model runs its stages); "
-                             "gflow.track coasts it over the frames its source loses")
         t = self._t + 1
         return self._one(self.step(None, t), t)
 
     def step(self, frame: np.ndarray | None, t: int, dt: float = 1.0) -> list[Estimate]:
-        """Frame ``t`` (``None``: lost), after every index before it was stepped; the estimates made
-        (a tracker run through its stages may give a lost frame's only with the next frame's)."""
+        """Frame ``t`` (``None``: lost), after every index before it was stepped (indices skipped are
+        lost frames, coasted over): the estimates of those indices and of ``t``, in frame order."""
         if self._t < 0:
             raise GflowError("call init(frame, box) first")
         if t <= self._t:
             raise GflowError(f"frame {t} comes after frame {self._t}")
         out: list[Estimate] = []
         for lost in range(self._t + 1, t):  # indices never given: lost frames
-            if isinstance(self._backend, ProtocolBackend):
-                out += self._backend.update(None, lost)
+            out += self._backend.update(None, lost)
             self._t = lost
         out += self._backend.update(None if frame is None else self._check_frame(frame, t), t, dt)
         self._t = t
         return out
-
-    def finish(self) -> list[Estimate]:
-        """The estimates a tracker gives at the end of its frames (none but for some staged trackers)."""
-        return self._backend.finish() if self._t >= 0 else []
 
     def _one(self, ests: list[Estimate], t: int) -> Estimate:
         for e in ests:

@@ -26,7 +26,7 @@ def _chamfer() -> TrackingFilter[Any, Any, Any, Any]:
 
 
 def _m2() -> TrackingFilter[Any, Any, Any, Any]:
-    from .contour.protocol import M2
+    from .m2.protocol import M2
 
     return M2
 
@@ -56,13 +56,23 @@ def m2_model(model: Any, load: Loader) -> tuple[Any, dict[str, Any]]:
 
 def m2_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:
     """The M2 tracker's parameters and resources: ``model`` is a model file of ``gflow learn m2`` or an
-    ``M2Model``; the edges are read with the settings the model was learned with (its profile and
-    g0, its file's Canny thresholds and blur), as ``gflow track --tracker m2`` sets the preprocess
-    stage."""
-    from .contour.protocol import m2_edge_params
+    ``M2Model``, and the model's kind settles which filter runs (:mod:`gflow_core.m2.protocol`), as
+    ``gflow track --tracker m2`` picks graph ``m2`` or ``m2_patch``.
 
+    * contour exemplars: :class:`~gflow_core.contour.params.M2Params`; the edges are read with the
+      settings the model was learned with (its profile and g0, its file's Canny thresholds and blur,
+      :func:`~gflow_core.contour.protocol.m2_edge_params`), as ``gflow track`` sets the preprocess stage;
+    * patch exemplars: :class:`~gflow_core.m2.patch_protocol.PatchParams`, the patch cut as the
+      model's training patches were (:func:`~gflow_core.m2.patch_protocol.patch_setup`).
+    """
     kw = dict(keywords)
     model, meta = m2_model(kw.pop("model", None), load)
+    if model.kind == "patch":
+        from .m2.patch_protocol import patch_setup
+
+        return patch_setup(model, meta, kw)
+    from .contour.protocol import m2_edge_params
+
     return make(M2Params, kw), {"model": model, "edges": m2_edge_params(model, meta)}
 
 

@@ -77,44 +77,6 @@ def test_a_bad_request_says_what_is_wrong_before_anything_runs(tmp_path) -> None
         plan_track(_request(sets=("particles=3",)), TRACKERS["dcf"])
 
 
-def test_the_api_runs_a_patch_model_through_the_app_layer(tmp_path) -> None:
-    """gflow.Tracker with an m2 patch model (the one tracker off the protocol) runs the graph the
-    app layer makes for its request, fed frame by frame (pipeline.app.PushedRun): every estimate
-    equals gflow track --inline's, every field, bit for bit."""
-    import subprocess
-    import sys
-
-    import cv2
-
-    from gflow import Tracker
-    from pipeline.io.frame_readers import folder_frames
-
-    caviar1 = data_dir("caviar1")
-    model = tmp_path / "patch.npz"
-    gflow = [sys.executable, "-m", "pipeline.cli.main"]
-    r = subprocess.run([*gflow, "learn", "m2", str(caviar1), "--boxes", str(caviar1 / "groundtruth.csv"), "--frames",
-                        "0:60", "-K", "4", "--metric", "shuffle", "--patch-size", "16x32", "--out", str(model)],
-                       capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    box = "129,71,30,79"
-    rec = tmp_path / "cli.mcap"
-    r = subprocess.run([*gflow, "track", str(caviar1), "--tracker", "m2", "--model", str(model), "--particles", "150",
-                        "--init", box, "--seed", "3", "--inline", "--stop", "12", "--out", str(tmp_path / "b.csv"),
-                        "--record", str(rec), "-q"], capture_output=True, text=True, timeout=300)
-    assert r.returncode == 0, r.stderr
-    cli = estimates(rec)
-    t = Tracker("m2", seed=3, model=str(model), particles=150)
-    files = [f for _, f in folder_frames(caviar1 / "frames")[:12]]
-    api = [t.init(cv2.imread(str(files[0])), tuple(float(v) for v in box.split(",")))]
-    api += [t.update(cv2.imread(str(f))) for f in files[1:]] + t.finish()
-    assert [e.frame for e in api] == sorted(cli) == list(range(12))
-    assert len({e.extras["k"] for e in api}) > 1  # the exemplar changes: a run that compares something
-    for e in api:
-        m = cli[e.frame]
-        assert (e.box, e.confidence, e.target_state, e.phase) == (tuple(m.box), m.confidence, m.target_state, m.state)
-        assert (e.extras["k"], e.extras["ess"], e.extras["log_evidence"]) == (m.k, m.ess, m.log_evidence)
-
-
 def test_run_yields_each_estimate_while_the_source_still_reads(tmp_path, monkeypatch) -> None:
     """The estimates come while the run goes on: the source holds its last frame until the consumer
     has its first estimate (a run that yielded only at its end would read every frame first), and

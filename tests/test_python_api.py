@@ -55,6 +55,88 @@ def test_the_api_over_caviar1_gives_gflow_tracks_boxes(caviar1, tmp_path, tracke
     assert_same(api, cli)
 
 
+def _learn(cmd: list[str]) -> None:
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", *cmd, "-q"], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+
+
+def assert_same_patch(api: list[Estimate], cli: dict[int, object]) -> None:
+    """Every field of an m2 patch model's estimates, bit for bit."""
+    assert_same(api, cli)
+    for e in api:
+        m = cli[e.frame]
+        assert (e.extras["k"], e.extras["ess"], e.extras["log_evidence"], e.extras["n"]) == (m.k, m.ess,
+                                                                                            m.log_evidence, m.n)
+        assert e.extras["alpha"] == tuple(m.alpha)
+
+
+@pytest.mark.data
+def test_an_m2_patch_model_gives_gflow_tracks_estimates(tmp_path) -> None:
+    """M2 with a whole-frame patch model (AVLetters mouths, sec. 5.2) runs on the protocol like every
+    tracker: track() of a folder with two frames missing and every tenth frame blanked twice equals
+    gflow track --inline's estimates, every field, bit for bit: the exemplar k, the ESS, the evidence,
+    and the coasted frames (the lost ones and the blank ones)."""
+    from conftest import data_dir
+    from gflow_core.m2.patch_protocol import PatchParams
+    from pipeline.io.datasets import read_avletters, write_frames
+    from stages.source import SourceParams
+
+    src = data_dir("avletters") / "anya.npz"
+    if not src.is_file():
+        pytest.skip(f"real data not available: {src} is missing")
+    model = tmp_path / "mouth.npz"
+    _learn([str(src), "--reps", "1,2", "--letters", "A-C", "--metric", "shuffle", "-K", "6", "--patch-size", "20x15",
+            "--out", str(model)])
+    test, _ = read_avletters(src, [3], "A-C")
+    folder = write_frames(tmp_path / "rep3", test.frames)
+    for lost in (7, 30):
+        (folder / f"{lost:06d}.png").unlink()
+    cli = cli_estimates(["track", str(folder), "--tracker", "m2", "--model", str(model), "--init", "0,0,80,60",
+                         "--seed", "5", "--particles", "150", "--set", "source.blank_every=10", "--set",
+                         "source.blank_count=2", "--inline", "--out", str(tmp_path / "m.csv"), "-q"], tmp_path)
+    source = SourceParams(kind="folder", path=str(folder), blank_every=10, blank_count=2)
+    api = list(track(source, init=(0, 0, 80, 60), tracker="m2", seed=5, model=str(model), particles=150))
+    assert len(api) == len(test) and sorted(cli) == list(range(len(test)))
+    assert_same_patch(api, cli)
+    assert {e.frame for e in api if e.phase == "coast"} == {7, 30} | {f for f in range(len(test)) if f % 10 >= 8}
+    assert len({e.extras["k"] for e in api}) >= 3  # the exemplar follows the mouth: a run that compares something
+    t = Tracker("m2", seed=5, model=str(model), crop="box")
+    assert t.params == PatchParams(crop="box") and t.state is None
+    with pytest.raises(UnknownParameter, match="unknown parameter lam of PatchParams"):
+        Tracker("m2", model=str(model), lam=0.3)
+    with pytest.raises(GflowError, match="particles must be an integer >= 1, got 0"):
+        Tracker("m2", model=str(model), particles=0)
+
+
+@pytest.mark.data
+def test_an_m2_patch_model_cut_from_the_box_gives_gflow_tracks_estimates(caviar1, tmp_path) -> None:
+    """A patch model learned from boxes (the patch is cut from the initial box, ``crop: box``, read
+    from the model file): Tracker fed cv2.imread frames, with one frame lost (coast()), equals gflow
+    track --inline over the folder without that frame, every field, bit for bit."""
+    model = tmp_path / "patch.npz"
+    _learn([str(caviar1), "--boxes", str(caviar1 / "groundtruth.csv"), "--frames", "0:60", "-K", "4", "--metric",
+            "shuffle", "--patch-size", "16x32", "--out", str(model)])
+    files = [f for _, f in folder_frames(caviar1 / "frames")[:12]]
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k, f in enumerate(files):
+        if k != 4:
+            (folder / f.name).symlink_to(f)
+    box = (129.0, 71.0, 30.0, 79.0)
+    cli = cli_estimates(["track", str(folder), "--tracker", "m2", "--model", str(model), "--particles", "150",
+                         "--init", ",".join(map(str, box)), "--seed", "3", "--inline", "--out",
+                         str(tmp_path / "b.csv"), "-q"], tmp_path)
+    t = Tracker("m2", seed=3, model=str(model), particles=150)
+    assert t.params.crop == "box"
+    api = [t.init(cv2.imread(str(files[0])), box)]
+    api += [t.coast() if k == 4 else t.update(cv2.imread(str(f))) for k, f in enumerate(files) if k > 0]
+    assert [e.frame for e in api] == sorted(cli) == list(range(12)) and api[4].phase == "coast"
+    assert len({e.extras["k"] for e in api}) > 1  # the exemplar changes: a run that compares something
+    assert_same_patch(api, cli)
+    assert all(e.box == box for e in api)
+
+
 def test_track_equals_tracker_and_gflow_track_on_the_synthetic_scene(tmp_path) -> None:
     """track() of a source reads the frames the source stage sends; on the built-in scene it starts
     from the scene's true box and equals Tracker fed the same frames, and gflow track."""

@@ -42,6 +42,7 @@ from .dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
 from .tracker import FILTER, ContourObservation, ContourState, setup
 from ..m2 import lost as lostmod
 from ..m2.dynamics import ARDynamics
+from ..m2.edge_settings import BLUR, CANNY_HIGH, CANNY_LOW
 from ..m2.model import M2Model
 from ..m2.tracking import ParticleCloud
 from ..tracker import Box, Estimate, FrameRng
@@ -74,13 +75,14 @@ class ContourTrack:
 
 def m2_edge_params(model: M2Model, meta: Mapping[str, Any]) -> EdgeParams:
     """The edge settings an M2 model was learned with: its chamfer profile and g0, and the Canny
-    thresholds and blur of its file's ``meta`` (the ``m2`` graph's 50, 150 and 1.0 when absent), as
-    ``gflow track --tracker m2`` sets the preprocess stage."""
+    thresholds and blur of its file's ``meta`` (when absent, those models are learned with by
+    default, :data:`gflow_core.m2.edge_settings.LEARN_EDGES`), as ``gflow track --tracker m2`` sets
+    the preprocess stage."""
     low, high = (float(meta["canny_low"]), float(meta["canny_high"])) if "canny_low" in meta and "canny_high" in meta \
-        else (50.0, 150.0)
+        else (CANNY_LOW, CANNY_HIGH)
     profile = cast(Literal["quadratic", "truncated", "linear"], model.profile)  # M2Model checks it
     return EdgeParams(profile=profile, g0=float(model.g0), canny_low=low, canny_high=high,
-                      blur=float(meta.get("blur", 1.0)))
+                      blur=float(meta.get("blur", BLUR)))
 
 
 class ContourTracker:

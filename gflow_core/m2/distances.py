@@ -43,6 +43,7 @@ from .. import similarity
 from ..features import PROFILES, Profile, chamfer_image, edge_map, to_grey
 from .chamfer import chamfer_distance
 from .curves import Curves, PointChamferImage, profile_g
+from .edge_settings import BLUR, CANNY_HIGH, CANNY_LOW, G0, PROFILE
 
 __all__ = ["Metric", "ChamferMetric", "ShuffleMetric", "L2Metric", "make_metric", "METRICS", "check_patches"]
 
@@ -133,9 +134,9 @@ class ChamferMetric(Metric):
     name = "chamfer"
     kind = "curve"
 
-    def __init__(self, profile: str = "quadratic", g0: float = 100.0, upsample: int = 2,
-                 method: Literal["image", "kdtree"] = "image", canny_low: float = 50.0,
-                 canny_high: float = 150.0, blur: float = 1.0) -> None:
+    def __init__(self, profile: str = PROFILE, g0: float = G0, upsample: int = 2,
+                 method: Literal["image", "kdtree"] = "image", canny_low: float = CANNY_LOW,
+                 canny_high: float = CANNY_HIGH, blur: float = BLUR) -> None:
         if profile not in PROFILES:
             raise ValueError(f"unknown chamfer profile {profile!r}; choose one of {PROFILES}")
         if profile == "truncated" and not g0 > 0:

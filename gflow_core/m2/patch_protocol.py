@@ -33,12 +33,14 @@ import numpy as np
 from .. import similarity
 from ..contour.dynamics import PURPOSE_PROPOSAL
 from ..features import to_grey
+from ..params import make, param
 from ..tracker import Box, Estimate, FrameRng
+from .model import M2Model
 from .patch_tracking import PatchExemplars, init_k, patch_posterior, propose_k, weigh_patches
 from .snapshot_arrays import snapshot_codec
 
-__all__ = ["PatchParams", "PatchState", "PatchTracker", "PATCH", "crop_patch", "PatchSnapshot", "snapshot_of",
-           "state_of", "encode", "decode", "PURPOSE_INIT_K", "PURPOSE_RESAMPLE", "SNAPSHOT_VERSION"]
+__all__ = ["PatchParams", "PatchState", "PatchTracker", "PATCH", "crop_patch", "crop_of", "patch_setup", "PatchSnapshot",
+           "snapshot_of", "state_of", "encode", "decode", "PURPOSE_INIT_K", "PURPOSE_RESAMPLE", "SNAPSHOT_VERSION"]
 
 PURPOSE_INIT_K = 0x1418
 PURPOSE_RESAMPLE = 0x2E5B
@@ -47,13 +49,35 @@ SNAPSHOT_VERSION = 1
 
 @dataclass(frozen=True)
 class PatchParams:
-    """crop : how the observed patch is cut from the frame (``frame`` or ``box``, module docstring);
-    particles : number of particles N; blank_std : frames whose grey levels have a smaller standard
-    deviation carry no evidence."""
+    """The parameters of M2 with a patch model (the tracker's own; the model file gives ``crop``,
+    :func:`patch_setup`)."""
 
-    crop: Literal["frame", "box"] = "frame"
-    particles: int = 500
-    blank_std: float = 1.0
+    crop: Literal["frame", "box"] = param("frame", "how the observed patch is cut from the frame: frame (the whole "
+                                                   "frame resized) or box (the initial box resampled)")
+    particles: int = param(500, "number of particles N")
+    blank_std: float = param(1.0, "frames whose grey levels have a smaller standard deviation carry no evidence")
+
+    def __post_init__(self) -> None:
+        if self.crop not in ("frame", "box"):
+            raise ValueError(f"crop must be frame or box, got {self.crop!r}")
+        if isinstance(self.particles, bool) or not isinstance(self.particles, int) or self.particles < 1:
+            raise ValueError(f"particles must be an integer >= 1, got {self.particles!r}")
+        if not self.blank_std >= 0:
+            raise ValueError(f"blank_std must be >= 0, got {self.blank_std}")
+
+
+def crop_of(meta: Mapping[str, Any]) -> Literal["frame", "box"]:
+    """How a patch model's training patches were cut, from its file's ``meta`` (``gflow learn m2
+    --crop``): ``box`` or, by default, ``frame``; the tracker cuts the observed patch alike."""
+    return "box" if meta.get("crop") == "box" else "frame"
+
+
+def patch_setup(model: M2Model, meta: Mapping[str, Any],
+                keywords: Mapping[str, Any]) -> tuple[PatchParams, dict[str, Any]]:
+    """The parameters and resources of M2 with the patch model ``model`` (its file's ``meta``): the
+    keywords as :class:`PatchParams`, ``crop`` the model's unless given (:func:`crop_of`), and the
+    model's :class:`PatchExemplars` as resource ``model``."""
+    return make(PatchParams, {"crop": crop_of(meta), **keywords}), {"model": model.to_patch_exemplars()}
 
 
 @dataclass(frozen=True)
@@ -145,8 +169,9 @@ class PatchTracker:
 
     def coast(self, params: PatchParams, state: PatchState, rng: FrameRng,
               obs: np.ndarray | None = None) -> tuple[PatchState, Estimate]:
-        """The last posterior weighed by no evidence (phase ``coast``)."""
-        return self._weigh(params, state, state.k, None, rng, "track")
+        """Frame ``rng.t`` could not be used: the proposal k_t ~ M[k_{t-1}] weighed by no evidence (phase
+        ``coast``), as the filter stage weighs the proposals of a frame whose features never came."""
+        return self.update(params, state, self.propose(params, state, None, rng), None, rng)
 
     def _weigh(self, params: PatchParams, st: PatchState, k: np.ndarray, obs: np.ndarray | None, rng: FrameRng,
                phase: str) -> tuple[PatchState, Estimate]:

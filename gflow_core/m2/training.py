@@ -34,6 +34,7 @@ import numpy as np
 from .. import similarity
 from ..features import edge_map, to_grey
 from .curves import Curves, subsample_points
+from .edge_settings import BLUR, CANNY_HIGH, CANNY_LOW
 
 __all__ = ["TrainingSet", "median_background", "foreground_mask", "curves_from_background", "curves_from_boxes",
            "patches_from_boxes", "patches_from_frames", "concat_training_sets", "check_frames"]
@@ -171,7 +172,7 @@ def _edge_points(grey: np.ndarray, mask: np.ndarray | None, canny: tuple[float, 
 def curves_from_background(frames: Sequence[np.ndarray] | np.ndarray, background: np.ndarray | None = None, *,
                            threshold: float = 30.0, open_radius: int = 1, close_radius: int = 4,
                            min_area: int = 50, dilate: int = 3, max_points: int = 200, min_points: int = 10,
-                           canny_low: float = 50.0, canny_high: float = 150.0, blur: float = 1.0,
+                           canny_low: float = CANNY_LOW, canny_high: float = CANNY_HIGH, blur: float = BLUR,
                            sequence: int = 0, first_frame: int = 0) -> TrainingSet:
     """The paper's training curves: edges of the background-subtracted foreground (sec. 5.1).
 
@@ -239,7 +240,7 @@ def _box_scale(b: np.ndarray, ref: np.ndarray) -> float:
 def curves_from_boxes(frames: Sequence[np.ndarray] | np.ndarray, boxes: np.ndarray, *, max_points: int = 200,
                       min_points: int = 10, ref_size: tuple[float, float] | None = None,
                       background: np.ndarray | None = None, threshold: float = 30.0, dilate: int = 3,
-                      canny_low: float = 50.0, canny_high: float = 150.0, blur: float = 1.0,
+                      canny_low: float = CANNY_LOW, canny_high: float = CANNY_HIGH, blur: float = BLUR,
                       frame_index: np.ndarray | None = None, sequence: int = 0) -> TrainingSet:
     """Supervised training curves: Canny edges inside ground-truth boxes, roughly aligned by the box.
 

@@ -27,10 +27,9 @@ from pipeline.app.request import (RequestError, TrackPlan, TrackRequest, check_s
 from pipeline.app.recording_target import RecordingTarget, temporary_recording
 from pipeline.app.graph_run import (DEFAULT_ENDPOINT, EstimateSink, RunStop, default_listen, default_zenoh, place,
                                     run_graph)
-from pipeline.app.pushed_run import PushedRun
 from pipeline.app.track_run import TrackResult, run, track
 
 __all__ = ["RequestError", "TrackRequest", "TrackPlan", "TrackResult", "EstimateSink", "RunStop", "plan_track", "run",
            "track",
-           "run_graph", "PushedRun", "RecordingTarget", "place", "source_params", "check_stage_values", "sets_as_given",
+           "run_graph", "RecordingTarget", "place", "source_params", "check_stage_values", "sets_as_given",
            "parse_sets", "default_listen", "default_zenoh", "DEFAULT_ENDPOINT", "temporary_recording"]

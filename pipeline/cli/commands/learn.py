@@ -331,14 +331,20 @@ def register(sub) -> None:
                    help="estimator of d_k, sigma_k: moments (eq. 10, default) or MLE with integer d (eq. 11)")
     q.add_argument("--patch-size", metavar="WxH", help="patch metrics: resample items to W x H pixels "
                                                         "(default: frame size, or the median box size)")
+    from gflow_core.m2 import edge_settings as edge
+
     g = q.add_argument_group("contour exemplars (chamfer)")
     g.add_argument("--max-points", type=int, default=150, help="points kept per training curve (default 150)")
-    g.add_argument("--canny", default="50,150", metavar="LOW,HIGH", help="Canny thresholds (default 50,150); "
+    canny = f"{edge.CANNY_LOW:g},{edge.CANNY_HIGH:g}"
+    g.add_argument("--canny", default=canny, metavar="LOW,HIGH", help=f"Canny thresholds (default {canny}); "
                    "gflow track --tracker m2 uses the same")
-    g.add_argument("--blur", type=float, default=1.0, help="Gaussian blur before Canny, pixels (default 1)")
-    g.add_argument("--profile", choices=["quadratic", "truncated"], default="quadratic",
-                   help="chamfer profile g(u): u^2 (default) or min(u^2, g0) (eq. 4)")
-    g.add_argument("--g0", type=float, default=100.0, help="truncation level of the truncated profile, px^2")
+    g.add_argument("--blur", type=float, default=edge.BLUR,
+                   help=f"Gaussian blur before Canny, pixels (default {edge.BLUR:g})")
+    g.add_argument("--profile", choices=["quadratic", "truncated"], default=edge.PROFILE,
+                   help=f"chamfer profile g(u): u^2 (quadratic) or min(u^2, g0) (truncated; eq. 4; default "
+                        f"{edge.PROFILE})")
+    g.add_argument("--g0", type=float, default=edge.G0,
+                   help=f"truncation level of the truncated profile, px^2 (default {edge.G0:g})")
     g.add_argument("--threshold", type=float, default=30.0, help="background subtraction threshold, grey levels")
     g.add_argument("--background-frames", metavar="A:B",
                    help="frames whose per-pixel median is the background (default: the training frames; a target "

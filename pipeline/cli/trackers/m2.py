@@ -3,7 +3,7 @@
 Contour models run the graph ``m2`` (particle filter over X = (alpha, k)); patch models
 (shuffle / L2, e.g. mouths) run ``m2_patch`` (no alpha transform, sec. 5.2). The
 preprocessing the model was learned with (chamfer profile and g0, Canny thresholds and
-blur, the patch crop) is read from the model file and applied.
+blur; the patch crop) is read from the model file and applied.
 """
 
 from __future__ import annotations
@@ -43,24 +43,21 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     meta = load_meta(path)
     mpath = str(path.resolve())
     box = list(args.init)
-    particles = args.particles if getattr(args, "particles", None) is not None else M2Params().particles
-    pre: dict = {}
     if model.kind == "patch":
-        if "canny_low" in meta and "canny_high" in meta:
-            pre.update(canny_low=float(meta["canny_low"]), canny_high=float(meta["canny_high"]))
-        if "blur" in meta:
-            pre["blur"] = float(meta["blur"])
-        crop = "box" if meta.get("crop") == "box" else "frame"
+        from gflow_core.m2.patch_protocol import PatchParams, crop_of
+
+        # the filter reads the grey image alone (the graph's preprocess computes no edges)
+        particles = args.particles if getattr(args, "particles", None) is not None else PatchParams().particles
+        crop = crop_of(meta)  # as the Python API's setup reads it
         return "m2_patch", {
             "filter": {"model": mpath, "init": box, "particles": particles, "seed": args.seed, "crop": crop},
             "proposal": {"model": mpath, "seed": args.seed},
-            "preprocess": pre,
         }
     from gflow_core.contour.protocol import m2_edge_params
 
     # the edge settings the model was learned with, read from its file in one place (the Python API's too)
     edges = m2_edge_params(model, meta)
-    pre.update(profile=edges.profile, g0=edges.g0, canny_low=edges.canny_low, canny_high=edges.canny_high,
+    pre = dict(profile=edges.profile, g0=edges.g0, canny_low=edges.canny_low, canny_high=edges.canny_high,
                blur=edges.blur)
     shared = {"model": mpath, "init": box, "seed": args.seed}
     block: dict = {}

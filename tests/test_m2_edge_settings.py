@@ -1,0 +1,64 @@
+"""M2's edge settings are named once (gflow_core.m2.edge_settings): `gflow learn m2`'s defaults, a
+model file without thresholds tracked by gflow track and by the Python API, and the m2 graph file's
+preprocess stage (the one copy, a YAML file, held to them here)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+from pathlib import Path
+
+import msgspec
+import yaml
+
+from gflow_core.contour.params import EdgeParams
+from gflow_core.contour.protocol import m2_edge_params
+from gflow_core.m2.curves import Curves
+from gflow_core.m2.dynamics import random_walk
+from gflow_core.m2.edge_settings import LEARN_EDGES
+from gflow_core.m2.model import M2Model
+
+import numpy as np
+
+GRAPHS = Path(__file__).resolve().parent.parent / "pipeline" / "graphs"
+EDGE_FIELDS = ("profile", "g0", "canny_low", "canny_high", "blur")
+
+
+def test_the_m2_graph_preprocesses_with_the_learn_defaults() -> None:
+    pre = yaml.safe_load((GRAPHS / "m2.yaml").read_text())["stages"]["preprocess"]["params"]
+    assert {k: pre[k] for k in EDGE_FIELDS} == {k: getattr(LEARN_EDGES, k) for k in EDGE_FIELDS}
+    # a patch model's graph reads the grey image alone: it names no edge settings
+    patch = yaml.safe_load((GRAPHS / "m2_patch.yaml").read_text())["stages"]["preprocess"]["params"]
+    assert patch == {"edges": False}
+
+
+def test_gflow_learn_m2_defaults_are_the_edge_settings() -> None:
+    from pipeline.cli.commands.learn import register
+
+    p = argparse.ArgumentParser()
+    register(p.add_subparsers())
+    a = p.parse_args(["learn", "m2", "src", "--out", "m.npz"])
+    assert (a.canny, a.blur, a.profile, a.g0) == (f"{LEARN_EDGES.canny_low:g},{LEARN_EDGES.canny_high:g}",
+                                                  LEARN_EDGES.blur, LEARN_EDGES.profile, LEARN_EDGES.g0)
+
+
+def test_a_model_file_without_thresholds_is_tracked_with_the_learn_defaults() -> None:
+    rng, K = np.random.default_rng(0), 2
+    model = M2Model(metric="chamfer", kernel="moments", exemplars=Curves.from_list([rng.normal(0, 10, (20, 2))] * K),
+                    d=np.full(K, 3.0), sigma=np.full(K, 1.0), pi=np.full(K, 1 / K), markov=np.full((K, K), 1 / K),
+                    dynamics=random_walk(2.0, 0.01, 0.01), ref_size=np.array([25.0, 66.0]), profile="truncated",
+                    g0=64.0)
+    e = m2_edge_params(model, {})
+    assert e == dataclasses.replace(LEARN_EDGES, profile="truncated", g0=64.0)
+    own = m2_edge_params(model, {"canny_low": 20, "canny_high": 60, "blur": 0.5})
+    assert (own.canny_low, own.canny_high, own.blur) == (20.0, 60.0, 0.5)
+
+
+def test_the_preprocess_stage_has_every_edge_setting_with_its_default() -> None:
+    """stages.preprocess.PreprocessParams repeats EdgeParams's fields by hand: held to them here until
+    it is derived from the dataclass (as the trackers' stage parameters are)."""
+    from stages.preprocess import PreprocessParams
+
+    fields = {f.name: f.default for f in msgspec.structs.fields(PreprocessParams)}
+    assert {f.name: fields.get(f.name, "(missing)") for f in dataclasses.fields(EdgeParams)} == \
+        {f.name: f.default for f in dataclasses.fields(EdgeParams)}
