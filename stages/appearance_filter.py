@@ -42,7 +42,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import msgspec
 import numpy as np
 
 from gflow_core.appearance import filter as ap
@@ -53,6 +52,7 @@ from gflow_core.appearance.tracker import AppearanceTrack
 from .appearance_proposal import AppearanceStageFields
 from .box_tracker import BoxFilterStage, SnapshotCodec
 from gflow_msgs.messages import NDArray
+from gflow_msgs.snapshots import AppearanceFilterSnapshot
 from .spec_box import box_filter_spec
 from .tracker_params import stage_params
 
@@ -65,30 +65,6 @@ AppearanceFilterParams = stage_params(
     "AppearanceFilterParams", AppearanceParams, AppearanceStageFields, __name__,
     "Appearance filter settings: every field of :class:`gflow_core.appearance.params.AppearanceParams` "
     "(see it for meanings), ``seed`` and ``init``.")
-
-
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    initialised: bool
-    size0: tuple[float, float] = (0.0, 0.0)
-    res: tuple[int, int] = (0, 0)
-    anchor: NDArray | None = None
-    recent: NDArray | None = None
-    slow: NDArray | None = None
-    particles: NDArray | None = None
-    centre: tuple[float, float] = (0.0, 0.0)
-    log_s: float = 0.0
-    velocity: tuple[float, float] = (0.0, 0.0)
-    target: tuple[float, float, int] = (0.0, 0.0, 0)  # moments m1, m2 and count of the target's distance
-    clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # the same of the clutter's best distance
-    hidden_run: int = 0
-    back: float = 0.0  # filtered P(present) of the last frame while the target is hidden
-    colour0: NDArray | None = None  # colour histograms: the first box's and the running one (None: no colour cue)
-    colour: NDArray | None = None
-    ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # moments of the target's and the clutter's colour distance
-    cclutter: tuple[float, float, int] = (0.0, 0.0, 0)
-    steps: int = 0
-    last: dict = {}
 
 
 def _snapshot_fields(track: AppearanceTrack) -> dict[str, Any]:
@@ -106,7 +82,7 @@ def _snapshot_fields(track: AppearanceTrack) -> dict[str, Any]:
         ctarget=(st.ctarget.m1, st.ctarget.m2, st.ctarget.n), cclutter=(st.cclutter.m1, st.cclutter.m2, st.cclutter.n))
 
 
-def _snapshot_state(snap: _Snapshot, core: AppearanceParams, last: dict) -> AppearanceTrack:
+def _snapshot_state(snap: AppearanceFilterSnapshot, core: AppearanceParams, last: dict) -> AppearanceTrack:
     """The state of a snapshot (AssertionError, MessageError or ValueError when bad); the target as the
     last estimate ``last`` judged it (what a coasted frame reports)."""
     assert (snap.anchor is not None and snap.recent is not None and snap.slow is not None
@@ -127,4 +103,5 @@ def _snapshot_state(snap: _Snapshot, core: AppearanceParams, last: dict) -> Appe
 class AppearanceFilterStage(BoxFilterStage):
     kind = "appearance.filter"
     Params = AppearanceFilterParams
-    box = box_filter_spec(SPEC, SnapshotCodec(_Snapshot, SNAPSHOT_VERSION, _snapshot_fields, _snapshot_state))
+    box = box_filter_spec(SPEC, SnapshotCodec(AppearanceFilterSnapshot, SNAPSHOT_VERSION, _snapshot_fields,
+                                              _snapshot_state))

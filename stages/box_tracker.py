@@ -50,6 +50,7 @@ from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
 from gflow_msgs.messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
+from gflow_msgs.snapshots import CounterSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
@@ -63,19 +64,14 @@ PROPOSAL_SNAPSHOT_VERSION = 1
 CloudProposal = Callable[[ParticleCloud, np.random.Generator, float], ParticleCloud]
 
 
-class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    done: int
-
-
 def counter_snapshot(done: int) -> bytes:
     """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
-    return msgspec.msgpack.encode(_ProposalSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
+    return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
 
 
 def restored_counter(stage: str, data: bytes) -> int:
     """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
-    return versioned_snapshot(data, _ProposalSnapshot, stage, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
+    return versioned_snapshot(data, CounterSnapshot, stage, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
 
 
 def cloud_of(msg: Particles) -> ParticleCloud:

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import msgspec
 import numpy as np
 
 from gflow_core.spec import TrackerSpec
@@ -26,6 +25,7 @@ from gflow_core.spec import TrackerSpec
 from .base import Stage
 from .box_tracker import BoxFilterSpec, BoxFilterStage, BoxProposalSpec, BoxProposalStage, SnapshotCodec
 from gflow_msgs.messages import NDArray
+from gflow_msgs.snapshots import BoxFilterSnapshot
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["spec_stage_classes", "box_filter_spec", "box_proposal_spec", "SpecProposalFields"]
@@ -36,15 +36,6 @@ class SpecProposalFields(SeedBoxFields, frozen=True):
     grows with the time to the next frame)."""
 
     timed: bool = False
-
-
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    initialised: bool
-    arrays: dict[str, NDArray] = {}
-    values: dict[str, Any] = {}
-    steps: int = 0
-    last: dict = {}
 
 
 def _codec(spec: TrackerSpec) -> SnapshotCodec:
@@ -59,10 +50,10 @@ def _codec(spec: TrackerSpec) -> SnapshotCodec:
         arrays, values = to_arrays(state)
         return {"arrays": {k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, "values": dict(values)}
 
-    def state(snap: _Snapshot, core: Any, last: dict) -> Any:
+    def state(snap: BoxFilterSnapshot, core: Any, last: dict) -> Any:
         return from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), core)
 
-    return SnapshotCodec(_Snapshot, box.snapshot_version, fields, state)
+    return SnapshotCodec(BoxFilterSnapshot, box.snapshot_version, fields, state)
 
 
 def box_filter_spec(spec: TrackerSpec, snapshot: SnapshotCodec | None = None) -> BoxFilterSpec:
