@@ -29,13 +29,13 @@ on caviar1, measured before the channels were made faster); ``--inline`` compute
 
 State for ``snapshot()`` / ``restore()``: the three exemplars, the particle cloud, the velocity,
 the moments of the target's and the clutter's distance distributions, the colour histograms and
-their distance moments, the hidden-frame count and counters, as msgpack of a small Struct
-(version 4).
+their distance moments, the hidden-frame count and counters, as msgpack of
+:class:`gflow_msgs.snapshots.AppearanceFilterSnapshot` (version 4).
 
 The stage is a registration of :class:`stages.box_tracker.BoxFilterStage` (the stage logic it shares
 with the correlation-filter tracker's); what it needs of the tracker comes from its spec
 (:mod:`gflow_core.appearance.spec`), and this module holds what is the appearance tracker's own: its
-snapshot's Struct and codec.
+snapshot codec. Its proposal stage is made from the spec (:mod:`stages.spec_box`).
 """
 
 from __future__ import annotations
@@ -49,12 +49,11 @@ from gflow_core.appearance.params import AppearanceParams
 from gflow_core.appearance.spec import SPEC
 from gflow_core.appearance.tracker import AppearanceTrack
 
-from .appearance_proposal import AppearanceStageFields
 from .box_tracker import BoxFilterStage, SnapshotCodec
 from gflow_msgs.messages import NDArray
 from gflow_msgs.snapshots import AppearanceFilterSnapshot
 from .spec_box import box_filter_spec
-from .tracker_params import stage_params
+from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
 
@@ -62,7 +61,7 @@ SNAPSHOT_VERSION = 4
 
 
 AppearanceFilterParams = stage_params(
-    "AppearanceFilterParams", AppearanceParams, AppearanceStageFields, __name__,
+    "AppearanceFilterParams", AppearanceParams, SeedBoxFields, __name__,
     "Appearance filter settings: every field of :class:`gflow_core.appearance.params.AppearanceParams` "
     "(see it for meanings), ``seed`` and ``init``.")
 

@@ -2,8 +2,9 @@
 any tracker whose state is a particle cloud, driven through the tracker's protocol object
 (:class:`gflow_core.tracker.TrackingFilter`).
 
-The appearance tracker (:mod:`stages.appearance_filter`, :mod:`stages.appearance_proposal`) and the
-correlation-filter tracker (:mod:`stages.dcf_filter`, :mod:`stages.dcf_proposal`) are registrations
+The stages of every tracker whose spec has box stages (the correlation-filter tracker, the
+appearance tracker; :mod:`stages.spec_box`, the appearance filter with its own snapshot in
+:mod:`stages.appearance_filter`) are registrations
 of these two classes: each sets its ``kind``, its ``Params`` and a :class:`BoxFilterSpec` or
 :class:`BoxProposalSpec` naming its protocol object, its parameter dataclass, its particles'
 conversions and its snapshot codec. The contour trackers (:mod:`stages.particle_filter`,
