@@ -1,8 +1,8 @@
 """Proposal stage of the contour particle filter: samples p(X_t | X_{t-1}) (M2 sec. 4.3).
 
 A registration of :class:`stages.box_tracker.BoxProposalStage` (the stage logic every tracker's
-proposal shares) whose proposal of whole clouds is :func:`gflow_core.contour.dynamics.proposal_dynamics`
-and :func:`~gflow_core.contour.dynamics.propose_cloud`, the proposal of the contour trackers' protocol
+proposal shares) whose proposal of whole clouds is :class:`gflow_core.contour.dynamics.ContourProposal`
+(:func:`~gflow_core.contour.dynamics.proposal_dynamics`), the proposal of the contour trackers' protocol
 (:class:`~gflow_core.contour.protocol.ContourTracker`).
 
 Input ``particles`` is the resampled posterior of frame t-1 (from the filter stage); the
@@ -30,16 +30,11 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
 
-import numpy as np
-
-from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, proposal_dynamics
 from gflow_core.contour.params import ChamferParams, M2Params
-from gflow_core.m2.dynamics import ARDynamics
 from gflow_core.m2.model import M2Model
-from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.params import defaults
 
 from .base import Params, StageContext
@@ -100,19 +95,6 @@ ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, Pro
 M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __name__,
                                 "The M2 tracker's proposal: every field of :class:`gflow_core.contour.params.M2Params`, "
                                 "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
-
-
-@dataclass(frozen=True)
-class ContourProposal:
-    """The contour proposal of clouds: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame
-    periods (alpha unchanged with ``fixed_alpha``), :func:`propose_cloud`."""
-
-    markov: np.ndarray
-    dynamics: ARDynamics
-    fixed_alpha: bool
-
-    def __call__(self, cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
-        return propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)
 
 
 def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], CloudProposal]:
