@@ -8,7 +8,8 @@ from typing import Any, Mapping, cast
 import msgspec
 import numpy as np
 
-__all__ = ["Header", "NDArray", "MessageError", "Box", "ArrayTable", "checked_arrays", "packed_arrays"]
+__all__ = ["Header", "NDArray", "MessageError", "Box", "ArrayTable", "checked_arrays", "packed_arrays",
+           "packed_fields", "unpacked_fields"]
 
 _ALLOWED_DTYPES = frozenset(
     ["uint8", "int8", "uint16", "int16", "uint32", "int32", "int64", "uint64", "float32", "float64", "bool"]
@@ -100,3 +101,12 @@ def packed_arrays(arrays: Mapping[str, Any], table: ArrayTable) -> dict[str, NDA
 Box = tuple[float, float, float, float]
 
 
+def packed_fields(fields: Mapping[str, Any]) -> dict[str, Any]:
+    """``fields`` with each ndarray packed as an :class:`NDArray` (the fields of a snapshot Struct)."""
+    return {k: NDArray.of(v) if isinstance(v, np.ndarray) else v for k, v in fields.items()}
+
+
+def unpacked_fields(fields: Mapping[str, Any]) -> dict[str, Any]:
+    """``fields`` with each :class:`NDArray` unpacked (:meth:`NDArray.array`: read-only; MessageError
+    for a bad one)."""
+    return {k: v.array() if isinstance(v, NDArray) else v for k, v in fields.items()}

@@ -38,6 +38,7 @@ from gflow_core.gflow.filter import concatenate_proposals
 from gflow_core.gflow.split import config_digest, expert_state, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.m2.lost import Anchor, LostState
+from gflow_core.m2.lost_state import anchor_of, guard_fields, lost_of, moments
 from gflow_core.tracker import Estimate
 from gflow_core.visibility import ChiSquare
 
@@ -46,8 +47,8 @@ from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setu
                            unpack_states)
 from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
                        PoseProposals)
+from gflow_msgs.base import packed_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
-from .lost_snapshot import moments, pack_guard, unpack_anchor, unpack_lost
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
 
@@ -248,8 +249,8 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                             self.state.setup.image_shape, self.digest)
         guard: dict[str, Any] = {}
         if self.state is not None and self.state.anchor is not None:
-            guard = dict(pack_guard(self.state.anchor, self.state.lost), fit_level=moments(self.state.fit_level),
-                         look_clutter=moments(self.state.look_clutter))
+            guard = dict(packed_fields(guard_fields(self.state.anchor, self.state.lost)),
+                         fit_level=moments(self.state.fit_level), look_clutter=moments(self.state.look_clutter))
         snap = GFlowFilterSnapshot(version=SNAPSHOT_VERSION,
                                    image_shape=None if self.state is None else self.state.setup.image_shape,
                                    digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
@@ -263,14 +264,16 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     def _guard_of(snap: GFlowFilterSnapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare, ChiSquare]:
         """The lost guard's anchor and state of a snapshot (none in a version-1 snapshot: the guard is off
         for the rest of the run)."""
-        try:
-            anchor = unpack_anchor(snap.anchor, snap.anchor_colour, (float(box[2]), float(box[3])))
-        except ValueError as e:
+        try:  # copies: the guard updates its anchor in place
+            ch = None if snap.anchor is None else snap.anchor.array().copy()
+            hist = None if snap.anchor_colour is None or ch is None else snap.anchor_colour.array().copy()
+            anchor = anchor_of(ch, hist, (float(box[2]), float(box[3])))
+        except ValueError as e:  # MessageError too
             raise ValueError(f"bad gflow.filter snapshot: {e}") from None
         if anchor is None:
             return None, LostState(), ChiSquare(), ChiSquare()
-        lost = unpack_lost(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
-                           snap.lost_cclutter)
+        lost = lost_of(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
+                       snap.lost_cclutter)
         return anchor, lost, ChiSquare(*snap.fit_level), ChiSquare(*snap.look_clutter)
 
     def restore(self, data: bytes) -> None:

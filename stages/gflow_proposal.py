@@ -49,7 +49,8 @@ from gflow_core.gflow.tracker import TRACKER
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, proposals_msg, restored_setup,
                            unpack_states)
-from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
+from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
+from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
@@ -188,12 +189,10 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
                     background_at=self.replica.seq)
 
     def snapshot(self) -> bytes:
-        replica: dict[str, Any] = {k: NDArray.of(v) if isinstance(v, np.ndarray) else v
-                                   for k, v in self.replica.fields().items()}
         return msgspec.msgpack.encode(GFlowProposalSnapshot(
             version=SNAPSHOT_VERSION, image_shape=None if self.setup is None else self.setup.image_shape,
             digest=self.digest, init_seq=-1 if self.init_seq is None else self.init_seq, steps=self.steps,
-            init_error=self.init_error, **replica))
+            init_error=self.init_error, **packed_fields(self.replica.fields())))
 
     def restore(self, data: bytes) -> None:
         try:
@@ -207,8 +206,7 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
             self.setup, self.digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
                                                      snap.digest)
         try:
-            fields: dict[str, Any] = {k: getattr(snap, k) for k in BackgroundReplica().fields()}
-            fields = {k: v.array() if isinstance(v, NDArray) else v for k, v in fields.items()}
+            fields = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
             self.replica = BackgroundReplica.of_fields(self.setup, **fields)
         except (MessageError, ValueError) as e:
             raise ValueError(f"corrupt gflow.proposal snapshot: {e}") from None

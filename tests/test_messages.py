@@ -61,3 +61,15 @@ def test_a_table_of_arrays_packs_and_checks_a_message_s_arrays_by_named_dimensio
         bad.checked("log_credibility", (3,), "float64")
     with pytest.raises(MessageError, match="^parents: array of dtype int64 and shape"):
         NDArray(dtype="int64", shape=(3,), data=memoryview(b"x")).checked("parents", (3,), "int64")
+
+
+def test_a_snapshot_s_fields_pack_their_arrays_and_unpack_them_alone():
+    from gflow_msgs.base import packed_fields, unpacked_fields
+
+    fields = {"grey": np.arange(6, dtype=np.uint8).reshape(2, 3), "seq": 4, "table": None}
+    packed = packed_fields(fields)
+    assert isinstance(packed["grey"], NDArray) and packed["seq"] == 4 and packed["table"] is None
+    back = unpacked_fields(packed)
+    assert back["grey"].dtype == np.uint8 and np.array_equal(back["grey"], fields["grey"]) and back["seq"] == 4
+    with pytest.raises(MessageError):
+        unpacked_fields({"grey": NDArray(dtype="uint8", shape=(2, 3), data=memoryview(b"abc"))})
