@@ -182,8 +182,8 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
 def proposals_msg(header: Header, props: Proposals | None, shard: int, shards: int, digest: str) -> PoseProposals:
     """Pack :class:`gflow_core.gflow.Proposals` (or an empty shard when ``props`` is None)."""
     if props is None:  # every array without experts
-        empty = packed_arrays({f: np.zeros((0,) * len(shape)) for f, (shape, _) in PROPOSAL_ARRAYS.items()},
-                              PROPOSAL_ARRAYS)
+        empty: dict[str, Any] = packed_arrays({f: np.zeros((0,) * len(shape)) for f, (shape, _) in
+                                               PROPOSAL_ARRAYS.items()}, PROPOSAL_ARRAYS)
         return PoseProposals(header=header, **empty, shard=shard, shards=shards, config_digest=digest)
     return PoseProposals(header=header, **packed_arrays({f: getattr(props, f) for f in PROPOSAL_ARRAYS},
                                                         PROPOSAL_ARRAYS),
