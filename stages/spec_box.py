@@ -85,23 +85,22 @@ def _title(name: str) -> str:
 def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
     """The proposal stage (``kind == spec.proposal_kind``) or the filter stage (``spec.filter_kind``)
     of ``spec``'s tracker."""
-    box = spec.box
-    if box is None:
+    if spec.box is None:
         raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
-    cap, cls = _title(spec.name), spec.params
-    doc = f"The {{}} stage of tracker {spec.name} ({spec.origin or 'registered'}): :mod:`stages.spec_box`."
+    base: type[Stage]
+    box: BoxFilterSpec | BoxProposalSpec
+    fields: type[SeedBoxFields]
     if kind == spec.filter_kind:
-        params = stage_params(f"{cap}FilterParams", cls, SeedBoxFields, __name__,
-                              f"Filter settings of tracker {spec.name}: every field of {cls.__name__}, ``seed`` "
-                              f"and ``init``.")
-        return type(f"{cap}FilterStage", (BoxFilterStage,),
-                    {"kind": kind, "Params": params, "box": box_filter_spec(spec), "__module__": __name__,
-                     "__doc__": doc.format("filter")})
-    if kind == spec.proposal_kind:
-        params = stage_params(f"{cap}ProposalParams", cls, SpecProposalFields, __name__,
-                              f"Proposal settings of tracker {spec.name}: every field of {cls.__name__} (the "
-                              f"filter's values), ``seed``, ``init`` and ``timed``.")
-        return type(f"{cap}ProposalStage", (BoxProposalStage,),
-                    {"kind": kind, "Params": params, "box": box_proposal_spec(spec), "__module__": __name__,
-                     "__doc__": doc.format("proposal")})
-    raise KeyError(kind)
+        role, base, fields, box, own = "Filter", BoxFilterStage, SeedBoxFields, box_filter_spec(spec), ""
+    elif kind == spec.proposal_kind:
+        role, base, fields, box = "Proposal", BoxProposalStage, SpecProposalFields, box_proposal_spec(spec)
+        own = " (the filter's values), ``seed``, ``init`` and ``timed``"
+    else:
+        raise KeyError(kind)
+    cap, cls = _title(spec.name), spec.params
+    params = stage_params(f"{cap}{role}Params", cls, fields, __name__, f"{role} settings of tracker {spec.name}: "
+                          f"every field of {cls.__name__}{own or ', ``seed`` and ``init``'}.")
+    return type(f"{cap}{role}Stage", (base,),
+                {"kind": kind, "Params": params, "box": box, "__module__": __name__,
+                 "__doc__": f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}): "
+                            f":mod:`stages.spec_box`."})
