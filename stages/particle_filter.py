@@ -33,7 +33,6 @@ no colour, and versions 1-4, from before the template update, with their templat
 from __future__ import annotations
 
 import functools
-import math
 from typing import Any, ClassVar
 
 import msgspec
@@ -51,7 +50,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import Output, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
 from gflow_msgs.messages import ColourFeatures, Features, Header, Message, MessageError
-from .tracker_params import StageFields, stage_params
+from .tracker_params import StageFields, check_init, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -72,10 +71,7 @@ class FilterFields(StageFields, frozen=True):
     model: str = ""
 
     def check(self, tracker: Any) -> None:
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
-        if self.init is not None and not all(math.isfinite(v) for v in self.init):
-            raise ValueError(f"init box has NaN or infinite values: {self.init}")
+        check_init(self.init)
 
 
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,

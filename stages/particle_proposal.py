@@ -39,7 +39,7 @@ from gflow_core.params import defaults
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalSpec, BoxProposalStage, CloudProposal, cloud_of, particles_msg
-from .tracker_params import StageFields, stage_params
+from .tracker_params import StageFields, check_init, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
@@ -68,8 +68,7 @@ class ProposalParams(Params, frozen=True):
     timed: bool = False  # also read the frames: the noise grows with the time to the next frame
 
     def __post_init__(self) -> None:
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
+        check_init(self.init)
 
 
 class ProposalFields(StageFields, frozen=True):
@@ -84,8 +83,7 @@ class ProposalFields(StageFields, frozen=True):
     timed: bool = False
 
     def check(self, tracker: Any) -> None:
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
+        check_init(self.init)
 
 
 ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,
