@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import msgspec
 
-from .base import Box, Header, NDArray
+from .base import ArrayTable, Box, Header, NDArray
 
-__all__ = ["ExpertStates", "PoseProposals", "PoseEstimate"]
+__all__ = ["ExpertStates", "PoseProposals", "PoseEstimate", "EXPERT_ARRAYS", "PROPOSAL_ARRAYS"]
 
 
 class ExpertStates(msgspec.Struct, frozen=True, tag=True):
@@ -48,6 +48,12 @@ class ExpertStates(msgspec.Struct, frozen=True, tag=True):
     tex_anchor: NDArray | None = None
 
 
+#: the arrays every :class:`ExpertStates` carries (E experts, pose size P, n vertices)
+EXPERT_ARRAYS: ArrayTable = {"poses": (("E", "P"), "float64"), "tex_mean": (("E", "n"), "float64"),
+                             "tex_var": (("E", "n"), "float64"), "log_credibility": (("E",), "float64"),
+                             "parents": (("E",), "int64")}
+
+
 class PoseProposals(msgspec.Struct, frozen=True, tag=True):
     """Pose opinions of a shard of experts for frame ``header.seq`` (sec. 3.2, eq. 14-19).
 
@@ -73,6 +79,13 @@ class PoseProposals(msgspec.Struct, frozen=True, tag=True):
     config_digest: str = ""
     reset: NDArray | None = None
     dt: float = 1.0
+
+
+#: the arrays every :class:`PoseProposals` carries (E' experts of the shard, s samples, pose size P)
+PROPOSAL_ARRAYS: ArrayTable = {"expert_indices": (("E'",), "int64"), "u_hat": (("E'", "P"), "float64"),
+                               "sigma_hat": (("E'", "P", "P"), "float64"), "samples": (("E'", "s", "P"), "float64"),
+                               "log_weights": (("E'", "s"), "float64"), "log_evidence": (("E'",), "float64"),
+                               "gn_objective": (("E'",), "float64")}
 
 
 class PoseEstimate(msgspec.Struct, frozen=True, tag=True):

@@ -29,13 +29,14 @@ on caviar1, measured before the channels were made faster); ``--inline`` compute
 
 State for ``snapshot()`` / ``restore()``: the three exemplars, the particle cloud, the velocity,
 the moments of the target's and the clutter's distance distributions, the colour histograms and
-their distance moments, the hidden-frame count and counters, as msgpack of a small Struct
-(version 4).
+their distance moments, the hidden-frame count and counters, as msgpack of
+:class:`gflow_msgs.snapshots.AppearanceFilterSnapshot` (version 4; the state's fields:
+:mod:`gflow_core.appearance.snapshot_fields`).
 
 The stage is a registration of :class:`stages.box_tracker.BoxFilterStage` (the stage logic it shares
 with the correlation-filter tracker's); what it needs of the tracker comes from its spec
 (:mod:`gflow_core.appearance.spec`), and this module holds what is the appearance tracker's own: its
-snapshot's Struct and codec.
+snapshot codec. Its proposal stage is made from the spec (:mod:`stages.spec_box`).
 """
 
 from __future__ import annotations
@@ -43,18 +44,17 @@ from __future__ import annotations
 from typing import Any
 
 import msgspec
-import numpy as np
 
-from gflow_core.appearance import filter as ap
 from gflow_core.appearance.params import AppearanceParams
+from gflow_core.appearance.snapshot_fields import fields_of, state_of
 from gflow_core.appearance.spec import SPEC
 from gflow_core.appearance.tracker import AppearanceTrack
 
-from .appearance_proposal import AppearanceStageFields
 from .box_tracker import BoxFilterStage, SnapshotCodec
-from gflow_msgs.messages import NDArray
+from gflow_msgs.base import packed_fields, unpacked_fields
+from gflow_msgs.snapshots import AppearanceFilterSnapshot
 from .spec_box import box_filter_spec
-from .tracker_params import stage_params
+from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
 
@@ -62,69 +62,25 @@ SNAPSHOT_VERSION = 4
 
 
 AppearanceFilterParams = stage_params(
-    "AppearanceFilterParams", AppearanceParams, AppearanceStageFields, __name__,
+    "AppearanceFilterParams", AppearanceParams, SeedBoxFields, __name__,
     "Appearance filter settings: every field of :class:`gflow_core.appearance.params.AppearanceParams` "
     "(see it for meanings), ``seed`` and ``init``.")
 
 
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    initialised: bool
-    size0: tuple[float, float] = (0.0, 0.0)
-    res: tuple[int, int] = (0, 0)
-    anchor: NDArray | None = None
-    recent: NDArray | None = None
-    slow: NDArray | None = None
-    particles: NDArray | None = None
-    centre: tuple[float, float] = (0.0, 0.0)
-    log_s: float = 0.0
-    velocity: tuple[float, float] = (0.0, 0.0)
-    target: tuple[float, float, int] = (0.0, 0.0, 0)  # moments m1, m2 and count of the target's distance
-    clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # the same of the clutter's best distance
-    hidden_run: int = 0
-    back: float = 0.0  # filtered P(present) of the last frame while the target is hidden
-    colour0: NDArray | None = None  # colour histograms: the first box's and the running one (None: no colour cue)
-    colour: NDArray | None = None
-    ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # moments of the target's and the clutter's colour distance
-    cclutter: tuple[float, float, int] = (0.0, 0.0, 0)
-    steps: int = 0
-    last: dict = {}
-
-
 def _snapshot_fields(track: AppearanceTrack) -> dict[str, Any]:
     """The tracker's fields of a snapshot: the model's state."""
-    st = track.core
-    return dict(
-        size0=(float(st.size0[0]), float(st.size0[1])),
-        res=(int(st.res[0]), int(st.res[1])), anchor=NDArray.of(st.anchor), recent=NDArray.of(st.recent),
-        slow=NDArray.of(st.slow), particles=NDArray.of(st.particles), centre=(float(st.centre[0]), float(st.centre[1])),
-        log_s=float(st.log_s), velocity=(float(st.velocity[0]), float(st.velocity[1])),
-        target=(st.target.m1, st.target.m2, st.target.n), clutter=(st.clutter.m1, st.clutter.m2, st.clutter.n),
-        hidden_run=int(st.hidden_run), back=float(st.back),
-        colour0=None if st.colour0 is None else NDArray.of(st.colour0),
-        colour=None if st.colour is None else NDArray.of(st.colour),
-        ctarget=(st.ctarget.m1, st.ctarget.m2, st.ctarget.n), cclutter=(st.cclutter.m1, st.cclutter.m2, st.cclutter.n))
+    return packed_fields(fields_of(track.core))
 
 
-def _snapshot_state(snap: _Snapshot, core: AppearanceParams, last: dict) -> AppearanceTrack:
-    """The state of a snapshot (AssertionError, MessageError or ValueError when bad); the target as the
-    last estimate ``last`` judged it (what a coasted frame reports)."""
-    assert (snap.anchor is not None and snap.recent is not None and snap.slow is not None
-            and snap.particles is not None)
-    anchor, recent, slow = snap.anchor.array().copy(), snap.recent.array().copy(), snap.slow.array().copy()
-    parts = snap.particles.array().copy()
-    colour0 = None if snap.colour0 is None else snap.colour0.array().copy()
-    colour = None if snap.colour is None else snap.colour.array().copy()
-    state = ap.AppearanceState(size0=np.array(snap.size0), res=(snap.res[0], snap.res[1]), anchor=anchor,
-                               recent=recent, particles=parts, centre=np.array(snap.centre), log_s=snap.log_s,
-                               velocity=np.array(snap.velocity), slow=slow, target=ap.ChiSquare(*snap.target),
-                               clutter=ap.ChiSquare(*snap.clutter), hidden_run=snap.hidden_run,
-                               back=snap.back, colour0=colour0, colour=colour,
-                               ctarget=ap.ChiSquare(*snap.ctarget), cclutter=ap.ChiSquare(*snap.cclutter))
-    return AppearanceTrack(state, str(last.get("target_state", "occluded")))
+def _snapshot_state(snap: AppearanceFilterSnapshot, core: AppearanceParams, last: dict) -> AppearanceTrack:
+    """The state of a snapshot (MessageError, ValueError or KeyError when bad); the target as the last
+    estimate ``last`` judged it (what a coasted frame reports)."""
+    return AppearanceTrack(state_of(unpacked_fields(msgspec.structs.asdict(snap))),
+                           str(last.get("target_state", "occluded")))
 
 
 class AppearanceFilterStage(BoxFilterStage):
     kind = "appearance.filter"
     Params = AppearanceFilterParams
-    box = box_filter_spec(SPEC, SnapshotCodec(_Snapshot, SNAPSHOT_VERSION, _snapshot_fields, _snapshot_state))
+    box = box_filter_spec(SPEC, SnapshotCodec(AppearanceFilterSnapshot, SNAPSHOT_VERSION, _snapshot_fields,
+                                              _snapshot_state))

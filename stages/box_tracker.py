@@ -2,8 +2,9 @@
 any tracker whose state is a particle cloud, driven through the tracker's protocol object
 (:class:`gflow_core.tracker.TrackingFilter`).
 
-The appearance tracker (:mod:`stages.appearance_filter`, :mod:`stages.appearance_proposal`) and the
-correlation-filter tracker (:mod:`stages.dcf_filter`, :mod:`stages.dcf_proposal`) are registrations
+The stages of every tracker whose spec has box stages (the correlation-filter tracker, the
+appearance tracker; :mod:`stages.spec_box`, the appearance filter with its own snapshot in
+:mod:`stages.appearance_filter`) are registrations
 of these two classes: each sets its ``kind``, its ``Params`` and a :class:`BoxFilterSpec` or
 :class:`BoxProposalSpec` naming its protocol object, its parameter dataclass, its particles'
 conversions and its snapshot codec. The contour trackers (:mod:`stages.particle_filter`,
@@ -50,6 +51,7 @@ from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
 from gflow_msgs.messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
+from gflow_msgs.snapshots import CounterSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, tracker_params
@@ -63,19 +65,14 @@ PROPOSAL_SNAPSHOT_VERSION = 1
 CloudProposal = Callable[[ParticleCloud, np.random.Generator, float], ParticleCloud]
 
 
-class _ProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    done: int
-
-
 def counter_snapshot(done: int) -> bytes:
     """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
-    return msgspec.msgpack.encode(_ProposalSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
+    return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
 
 
 def restored_counter(stage: str, data: bytes) -> int:
     """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
-    return versioned_snapshot(data, _ProposalSnapshot, stage, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
+    return versioned_snapshot(data, CounterSnapshot, stage, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
 
 
 def cloud_of(msg: Particles) -> ParticleCloud:

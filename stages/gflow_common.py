@@ -26,6 +26,8 @@ from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
 from .base import StageInputError
+from gflow_msgs.base import ArrayTable, checked_arrays, packed_arrays
+from gflow_msgs.gflow import EXPERT_ARRAYS, PROPOSAL_ARRAYS
 from gflow_msgs.messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
@@ -120,29 +122,28 @@ def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -
 def states_msg(header: Header, experts: ExpertState, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
                first: bool = False) -> ExpertStates:
     """Pack the experts after frame ``header.seq`` (never their backgrounds: the proposal stages keep them)."""
-    f8 = {k: NDArray.of(np.asarray(getattr(experts, k), np.float64))
-          for k in ("poses", "tex_mean", "tex_var", "log_credibility")}
+    arrays = packed_arrays({k: getattr(experts, k) for k in EXPERT_ARRAYS if k != "parents"} | {"parents": parents},
+                           EXPERT_ARRAYS)
     anchor = experts.tex_anchor
-    return ExpertStates(header=header, **f8, parents=NDArray.of(np.asarray(parents, np.int64)),
-                        image_shape=(int(image_shape[0]), int(image_shape[1])), config_digest=digest, first=bool(first),
+    return ExpertStates(header=header, **arrays, image_shape=(int(image_shape[0]), int(image_shape[1])),
+                        config_digest=digest, first=bool(first),
                         tex_anchor=None if anchor is None else NDArray.of(np.asarray(anchor, np.float64)))
 
 
-def _arrays(msg: Any, shapes: Mapping[str, tuple[tuple[int, ...], str]], where: str) -> dict[str, np.ndarray]:
-    """The arrays of ``msg`` named in ``shapes`` ({field: (shape, dtype)}), checked (:func:`_arr`)."""
-    return {name: _arr(getattr(msg, name), name, shape, dtype, where) for name, (shape, dtype) in shapes.items()}
-
-
 def _arr(nd: NDArray, name: str, shape: tuple[int, ...], dtype: str, where: str) -> np.ndarray:
+    """:meth:`NDArray.checked`, its MessageError a StageInputError prefixed with ``where``."""
     try:
-        a = nd.array()
+        return nd.checked(name, shape, dtype)
     except MessageError as e:
-        raise StageInputError(f"{where}: {name}: {e}") from None
-    if a.shape != shape or a.dtype != np.dtype(dtype):
-        raise StageInputError(f"{where}: {name} must be {dtype} {shape}, got {a.dtype} {a.shape}")
-    if a.dtype.kind == "f" and not np.isfinite(a).all():
-        raise StageInputError(f"{where}: {name} has NaN or infinite values")
-    return a
+        raise StageInputError(f"{where}: {e}") from None
+
+
+def _arrays(msg: Any, table: ArrayTable, dims: Mapping[str, int], where: str) -> dict[str, np.ndarray]:
+    """:func:`~gflow_msgs.base.checked_arrays`, its MessageError a StageInputError prefixed with ``where``."""
+    try:
+        return checked_arrays(msg, table, dims)
+    except MessageError as e:
+        raise StageInputError(f"{where}: {e}") from None
 
 
 def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, where: str) -> dict[str, Any]:
@@ -167,31 +168,25 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     if tuple(msg.image_shape) != tuple(setup.image_shape):
         raise StageInputError(f"{where}: expert states are for {msg.image_shape} frames, this stage tracks "
                               f"{setup.image_shape}")
-    E, P, n = setup.cfg.n_experts, setup.model.pose_size, setup.model.n_vertices
-    f8 = "float64"
-    out: dict[str, Any] = _arrays(msg, {"poses": ((E, P), f8), "tex_mean": ((E, n), f8), "tex_var": ((E, n), f8),
-                                        "log_credibility": ((E,), f8), "parents": ((E,), "int64")}, where)
+    E, n = setup.cfg.n_experts, setup.model.n_vertices
+    out: dict[str, Any] = _arrays(msg, EXPERT_ARRAYS, {"E": E, "P": setup.model.pose_size, "n": n}, where)
     if out["parents"].min() < 0 or out["parents"].max() >= E:
         raise StageInputError(f"{where}: parents must lie in [0, {E})")
     if (msg.tex_anchor is not None) != (setup.cfg.texture_decay != 1.0):
         raise StageInputError(f"{where}: the texture anchor is " + ("missing" if msg.tex_anchor is None else
                               "unexpected") + f" for texture_decay {setup.cfg.texture_decay}")
-    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), f8, where)
+    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), "float64", where)
     return out
-
-
-#: the arrays of a PoseProposals message and their number of dimensions (E' first)
-_PROPOSAL_FIELDS = {"expert_indices": 1, "u_hat": 2, "sigma_hat": 3, "samples": 3, "log_weights": 2, "log_evidence": 1,
-                    "gn_objective": 1}
 
 
 def proposals_msg(header: Header, props: Proposals | None, shard: int, shards: int, digest: str) -> PoseProposals:
     """Pack :class:`gflow_core.gflow.Proposals` (or an empty shard when ``props`` is None)."""
     if props is None:  # every array without experts
-        empty: dict[str, Any] = {f: NDArray.of(np.zeros((0,) * nd, np.int64 if f == "expert_indices" else np.float64))
-                                 for f, nd in _PROPOSAL_FIELDS.items()}
+        empty: dict[str, Any] = packed_arrays({f: np.zeros((0,) * len(shape)) for f, (shape, _) in
+                                               PROPOSAL_ARRAYS.items()}, PROPOSAL_ARRAYS)
         return PoseProposals(header=header, **empty, shard=shard, shards=shards, config_digest=digest)
-    return PoseProposals(header=header, **{f: NDArray.of(np.asarray(getattr(props, f))) for f in _PROPOSAL_FIELDS},
+    return PoseProposals(header=header, **packed_arrays({f: getattr(props, f) for f in PROPOSAL_ARRAYS},
+                                                        PROPOSAL_ARRAYS),
                          shard=shard, shards=shards, config_digest=digest,
                          reset=NDArray.of(np.asarray(props.reset, dtype=bool)) if props.reset.any() else None,
                          dt=float(props.dt))
@@ -214,14 +209,12 @@ def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: 
     Ep = expected.size
     if Ep and msg.expert_indices.shape == (0,):
         raise StageInputError(f"{where}: the proposal stage had no usable frame or expert state for this frame")
-    P, s, f8 = setup.model.pose_size, setup.cfg.n_samples, "float64"
     if not (math.isfinite(msg.dt) and 1.0 <= msg.dt <= MAX_TIME_STEP):
         raise StageInputError(f"{where}: dt must be in [1, {MAX_TIME_STEP:g}] frame periods, got {msg.dt!r}")
     idx = _arr(msg.expert_indices, "expert_indices", (Ep,), "int64", where)
     if not np.array_equal(idx, expected):
         raise StageInputError(f"{where}: expert indices {idx.tolist()} are not this shard's {expected.tolist()}")
-    arrays = _arrays(msg, {"u_hat": ((Ep, P), f8), "sigma_hat": ((Ep, P, P), f8), "samples": ((Ep, s, P), f8),
-                           "log_weights": ((Ep, s), f8), "log_evidence": ((Ep,), f8), "gn_objective": ((Ep,), f8)},
-                     where)
+    dims = {"E'": Ep, "P": setup.model.pose_size, "s": setup.cfg.n_samples}
+    arrays = _arrays(msg, {k: v for k, v in PROPOSAL_ARRAYS.items() if k != "expert_indices"}, dims, where)
     reset = np.zeros(Ep, dtype=bool) if msg.reset is None else _arr(msg.reset, "reset", (Ep,), "bool", where)
     return Proposals(expert_indices=idx, reset=reset, dt=float(msg.dt), **arrays)

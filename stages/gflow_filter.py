@@ -38,6 +38,7 @@ from gflow_core.gflow.filter import concatenate_proposals
 from gflow_core.gflow.split import config_digest, expert_state, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.m2.lost import Anchor, LostState
+from gflow_core.m2.lost_state import anchor_of, guard_fields, lost_of, moments
 from gflow_core.tracker import Estimate
 from gflow_core.visibility import ChiSquare
 
@@ -46,7 +47,8 @@ from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setu
                            unpack_states)
 from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
                        PoseProposals)
-from .lost_snapshot import moments, pack_guard, unpack_anchor, unpack_lost
+from gflow_msgs.base import packed_fields
+from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
 
@@ -66,30 +68,6 @@ class GFlowFilterFields(GFlowStageFields, frozen=True):
 
 
 GFlowFilterParams = stage_params("GFlowFilterParams", GFlowParams, GFlowFilterFields, __name__)
-
-
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Everything the filter keeps between frames (msgpack). ``state`` has no backgrounds."""
-
-    version: int
-    image_shape: tuple[int, int] | None
-    digest: str
-    state: ExpertStates | None
-    steps: int
-    coasted: int
-    init_error: str
-    confidence: float = 1.0  # of the last observed frame
-    target_state: str = "tracked"
-    anchor: NDArray | None = None  # lost guard (version 2): (th, tw, 4) channels of the initial box
-    anchor_colour: NDArray | None = None  # ... (N_BINS,) its colour histogram
-    lost_target: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments m1, m2, count of the target's distance
-    lost_clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of the clutter's best distance
-    lost_ctarget: tuple[float, float, int] = (0.0, 0.0, 0)  # ... of the target's colour distance
-    lost_cclutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of the clutter's best colour distance
-    lost_runs: tuple[int, int] = (0, 0)  # ... found frames, consecutive lost frames
-    held: tuple[float, ...] | None = None  # ... box (x, y, w, h) and pose (P) of the last found frame
-    fit_level: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the first look's misfit when found
-    look_clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of its best misfit beside the target then
 
 
 def estimate_msg(header: Header, est: Estimate) -> PoseEstimate:
@@ -271,33 +249,36 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                             self.state.setup.image_shape, self.digest)
         guard: dict[str, Any] = {}
         if self.state is not None and self.state.anchor is not None:
-            guard = dict(pack_guard(self.state.anchor, self.state.lost), fit_level=moments(self.state.fit_level),
-                         look_clutter=moments(self.state.look_clutter))
-        snap = _Snapshot(version=SNAPSHOT_VERSION,
-                         image_shape=None if self.state is None else self.state.setup.image_shape,
-                         digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
-                         init_error=self.init_error,
-                         confidence=1.0 if self.state is None else self.state.confidence,
-                         target_state="tracked" if self.state is None else self.state.target_state, **guard)
+            guard = dict(packed_fields(guard_fields(self.state.anchor, self.state.lost)),
+                         fit_level=moments(self.state.fit_level), look_clutter=moments(self.state.look_clutter))
+        snap = GFlowFilterSnapshot(version=SNAPSHOT_VERSION,
+                                   image_shape=None if self.state is None else self.state.setup.image_shape,
+                                   digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
+                                   init_error=self.init_error,
+                                   confidence=1.0 if self.state is None else self.state.confidence,
+                                   target_state="tracked" if self.state is None else self.state.target_state,
+                                   **guard)
         return msgspec.msgpack.encode(snap)
 
     @staticmethod
-    def _guard_of(snap: _Snapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare, ChiSquare]:
+    def _guard_of(snap: GFlowFilterSnapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare, ChiSquare]:
         """The lost guard's anchor and state of a snapshot (none in a version-1 snapshot: the guard is off
         for the rest of the run)."""
-        try:
-            anchor = unpack_anchor(snap.anchor, snap.anchor_colour, (float(box[2]), float(box[3])))
-        except ValueError as e:
+        try:  # copies: the guard updates its anchor in place
+            ch = None if snap.anchor is None else snap.anchor.array().copy()
+            hist = None if snap.anchor_colour is None or ch is None else snap.anchor_colour.array().copy()
+            anchor = anchor_of(ch, hist, (float(box[2]), float(box[3])))
+        except ValueError as e:  # MessageError too
             raise ValueError(f"bad gflow.filter snapshot: {e}") from None
         if anchor is None:
             return None, LostState(), ChiSquare(), ChiSquare()
-        lost = unpack_lost(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
-                           snap.lost_cclutter)
+        lost = lost_of(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
+                       snap.lost_cclutter)
         return anchor, lost, ChiSquare(*snap.fit_level), ChiSquare(*snap.look_clutter)
 
     def restore(self, data: bytes) -> None:
         try:
-            snap = msgspec.msgpack.decode(data, type=_Snapshot)
+            snap = msgspec.msgpack.decode(data, type=GFlowFilterSnapshot)
         except msgspec.DecodeError as e:
             raise ValueError(f"not a gflow.filter snapshot: {e}") from None
         if snap.version not in (1, SNAPSHOT_VERSION):

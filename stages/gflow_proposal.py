@@ -49,7 +49,9 @@ from gflow_core.gflow.tracker import TRACKER
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, proposals_msg, restored_setup,
                            unpack_states)
-from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, NDArray, PoseProposals
+from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
+from gflow_msgs.base import packed_fields, unpacked_fields
+from gflow_msgs.snapshots import GFlowProposalSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import stage_params, tracker_params
@@ -77,24 +79,6 @@ class GFlowProposalFields(GFlowStageFields, frozen=True):
 
 
 GFlowProposalParams = stage_params("GFlowProposalParams", GFlowParams, GFlowProposalFields, __name__)
-
-
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Everything a proposal stage keeps between frames (msgpack; arrays as NDArray)."""
-
-    version: int
-    image_shape: tuple[int, int] | None
-    digest: str
-    init_seq: int  # -1: not initialised
-    prev_seq: int  # the background replica's fields (BackgroundReplica.fields), arrays as NDArray
-    prev_grey: NDArray | None
-    bg_seq: int
-    bg_tile: int
-    bg_table: NDArray | None
-    bg_mean: NDArray | None
-    bg_var: NDArray | None
-    steps: int
-    init_error: str
 
 
 class GFlowProposalStage(Stage[GFlowProposalFields]):
@@ -205,16 +189,14 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
                     background_at=self.replica.seq)
 
     def snapshot(self) -> bytes:
-        replica: dict[str, Any] = {k: NDArray.of(v) if isinstance(v, np.ndarray) else v
-                                   for k, v in self.replica.fields().items()}
-        return msgspec.msgpack.encode(_Snapshot(
+        return msgspec.msgpack.encode(GFlowProposalSnapshot(
             version=SNAPSHOT_VERSION, image_shape=None if self.setup is None else self.setup.image_shape,
             digest=self.digest, init_seq=-1 if self.init_seq is None else self.init_seq, steps=self.steps,
-            init_error=self.init_error, **replica))
+            init_error=self.init_error, **packed_fields(self.replica.fields())))
 
     def restore(self, data: bytes) -> None:
         try:
-            snap = msgspec.msgpack.decode(data, type=_Snapshot)
+            snap = msgspec.msgpack.decode(data, type=GFlowProposalSnapshot)
         except msgspec.DecodeError as e:
             raise ValueError(f"not a gflow.proposal snapshot: {e}") from None
         if snap.version != SNAPSHOT_VERSION:
@@ -224,8 +206,7 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
             self.setup, self.digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
                                                      snap.digest)
         try:
-            fields: dict[str, Any] = {k: getattr(snap, k) for k in BackgroundReplica().fields()}
-            fields = {k: v.array() if isinstance(v, NDArray) else v for k, v in fields.items()}
+            fields = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
             self.replica = BackgroundReplica.of_fields(self.setup, **fields)
         except (MessageError, ValueError) as e:
             raise ValueError(f"corrupt gflow.proposal snapshot: {e}") from None

@@ -33,14 +33,13 @@ no colour, and versions 1-4, from before the template update, with their templat
 from __future__ import annotations
 
 import functools
-import math
 from typing import Any, ClassVar
 
 import msgspec
 import numpy as np
 
 from gflow_core.contour import state as wire
-from gflow_core.contour.features_filter import FEATURE_FILTER
+from gflow_core.contour.features_filter import FEATURE_FILTER, exemplar_error, is_blank, reads_grey, same_profile
 from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
@@ -51,7 +50,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import Output, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
 from gflow_msgs.messages import ColourFeatures, Features, Header, Message, MessageError
-from .tracker_params import StageFields, stage_params
+from .tracker_params import StageFields, check_init, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -72,10 +71,7 @@ class FilterFields(StageFields, frozen=True):
     model: str = ""
 
     def check(self, tracker: Any) -> None:
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
-        if self.init is not None and not all(math.isfinite(v) for v in self.init):
-            raise ValueError(f"init box has NaN or infinite values: {self.init}")
+        check_init(self.init)
 
 
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,
@@ -139,14 +135,12 @@ class FilterStage(FeaturesFilterStage):
         return cham
 
     def _blank(self, feat: Features) -> bool:
-        """Fewer than ``min_edges`` edge pixels: a blank frame (sec. 5.1.2, fig. 7)."""
-        if self.core.min_edges <= 0:
-            return False
+        """A blank frame (:func:`~gflow_core.contour.features_filter.is_blank`)."""
         try:
             edges = feat.edges.array()
         except MessageError:
             return False  # the chamfer image decides whether the frame is usable
-        return int(np.count_nonzero(edges)) < self.core.min_edges
+        return is_blank(self.core, edges)
 
     def _grey(self, feat: Features, seq: int) -> np.ndarray | None:
         try:
@@ -164,8 +158,7 @@ class FilterStage(FeaturesFilterStage):
         needs it: the appearance kernels, the lost guard."""
         cham = self._chamfer(feat, seq)
         blank = cham is not None and self._blank(feat)
-        wants_grey = self.core.lost_guard or (self.setup.app0 is not None)
-        grey = self._grey(feat, seq) if wants_grey else None
+        grey = self._grey(feat, seq) if reads_grey(self.core, self.setup) else None
         channels = functools.cache(lambda: self.prepared("features", feat)) if grey is not None else None
         try:
             edges = feat.edges.array()
@@ -189,7 +182,7 @@ class FilterStage(FeaturesFilterStage):
         m = self.setup.learned
         if m is None or self.warned:
             return
-        if feat.profile != m.profile or (m.profile == "truncated" and not np.isclose(feat.g0, m.g0)):
+        if not same_profile(m, feat.profile, feat.g0):
             self.warned = True
             self.report("profile_mismatch", f"frame {seq}: features use the {feat.profile} chamfer profile "
                         f"(g0 {feat.g0:g}) but the model was learned with {m.profile} (g0 {m.g0:g}); sigma_k and "
@@ -206,9 +199,9 @@ class FilterStage(FeaturesFilterStage):
 
     def _proposed(self, seq: int, prop: Message | None) -> ParticleCloud:
         cloud = super()._proposed(seq, prop)
-        if cloud.k.size and cloud.k.max() >= self.state.model.K:
-            raise StageInputError(f"proposals {seq}: exemplar index {int(cloud.k.max())} beyond the model's "
-                                  f"K={self.state.model.K}")
+        problem = exemplar_error(cloud, self.state.model.K)
+        if problem:
+            raise StageInputError(f"proposals {seq}: {problem}")
         return cloud
 
     def _last(self, header: Header, est: TrackerEstimate) -> dict:

@@ -1,8 +1,8 @@
 """Proposal stage of the contour particle filter: samples p(X_t | X_{t-1}) (M2 sec. 4.3).
 
 A registration of :class:`stages.box_tracker.BoxProposalStage` (the stage logic every tracker's
-proposal shares) whose proposal of whole clouds is :func:`gflow_core.contour.dynamics.proposal_dynamics`
-and :func:`~gflow_core.contour.dynamics.propose_cloud`, the proposal of the contour trackers' protocol
+proposal shares) whose proposal of whole clouds is :class:`gflow_core.contour.dynamics.ContourProposal`
+(:func:`~gflow_core.contour.dynamics.proposal_dynamics`), the proposal of the contour trackers' protocol
 (:class:`~gflow_core.contour.protocol.ContourTracker`).
 
 Input ``particles`` is the resampled posterior of frame t-1 (from the filter stage); the
@@ -30,21 +30,16 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any, Callable, ClassVar
 
-import numpy as np
-
-from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, proposal_dynamics
 from gflow_core.contour.params import ChamferParams, M2Params
-from gflow_core.m2.dynamics import ARDynamics
 from gflow_core.m2.model import M2Model
-from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.params import defaults
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalSpec, BoxProposalStage, CloudProposal, cloud_of, particles_msg
-from .tracker_params import StageFields, stage_params
+from .tracker_params import StageFields, check_init, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
@@ -73,8 +68,7 @@ class ProposalParams(Params, frozen=True):
     timed: bool = False  # also read the frames: the noise grows with the time to the next frame
 
     def __post_init__(self) -> None:
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
+        check_init(self.init)
 
 
 class ProposalFields(StageFields, frozen=True):
@@ -89,8 +83,7 @@ class ProposalFields(StageFields, frozen=True):
     timed: bool = False
 
     def check(self, tracker: Any) -> None:
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
+        check_init(self.init)
 
 
 ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,
@@ -100,19 +93,6 @@ ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, Pro
 M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __name__,
                                 "The M2 tracker's proposal: every field of :class:`gflow_core.contour.params.M2Params`, "
                                 "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
-
-
-@dataclass(frozen=True)
-class ContourProposal:
-    """The contour proposal of clouds: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame
-    periods (alpha unchanged with ``fixed_alpha``), :func:`propose_cloud`."""
-
-    markov: np.ndarray
-    dynamics: ARDynamics
-    fixed_alpha: bool
-
-    def __call__(self, cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
-        return propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)
 
 
 def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], CloudProposal]:

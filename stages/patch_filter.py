@@ -43,6 +43,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import Params, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message, MessageError
+from .tracker_params import check_init
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "crop_patch"]
 
@@ -71,8 +72,7 @@ class PatchFilterParams(Params, frozen=True):
             raise ValueError(f"particles must be >= 1, got {self.particles}")
         if self.crop == "box" and self.init is None:
             raise ValueError("crop: box needs the crop box: set init: [x, y, w, h]")
-        if self.init is not None and not (self.init[2] > 0 and self.init[3] > 0):
-            raise ValueError(f"init box must have positive width and height, got {self.init}")
+        check_init(self.init)
         if self.blank_std < 0:
             raise ValueError(f"blank_std must be >= 0, got {self.blank_std}")
 

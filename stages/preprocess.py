@@ -15,18 +15,11 @@ from gflow_core import colour, features
 
 from .base import Output, Params, Stage, StageInputError, versioned_snapshot
 from gflow_msgs.messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
+from gflow_msgs.snapshots import PreprocessSnapshot
 
 __all__ = ["PreprocessStage", "PreprocessParams"]
 
 SNAPSHOT_VERSION = 1
-
-
-class _PreprocessSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """The Canny thresholds calibrated on the first frame, and the frame counter."""
-
-    version: int
-    done: int
-    thresholds: tuple[float, float] | None
 
 
 class PreprocessParams(Params, frozen=True):
@@ -122,9 +115,9 @@ class PreprocessStage(Stage[PreprocessParams]):
         """The thresholds calibrated on the first frame: a restarted stage must not calibrate
         them again on a later frame."""
         th = (float(self.thresholds[0]), float(self.thresholds[1])) if self.thresholds is not None else None
-        return msgspec.msgpack.encode(_PreprocessSnapshot(version=SNAPSHOT_VERSION, done=self.done, thresholds=th))
+        return msgspec.msgpack.encode(PreprocessSnapshot(version=SNAPSHOT_VERSION, done=self.done, thresholds=th))
 
     def restore(self, data: bytes) -> None:
-        snap = versioned_snapshot(data, _PreprocessSnapshot, self.ctx.name, "preprocess", SNAPSHOT_VERSION)
+        snap = versioned_snapshot(data, PreprocessSnapshot, self.ctx.name, "preprocess", SNAPSHOT_VERSION)
         self.done = snap.done
         self.thresholds = snap.thresholds

@@ -1,24 +1,24 @@
-"""The stages of a registered tracker that has no stage modules of its own: the generic box stages
+"""The stages of every registered tracker whose spec has box stages: the generic box stages
 (:mod:`stages.box_tracker`) driven by its spec (:class:`gflow_core.spec.TrackerSpec` with
-:class:`gflow_core.spec.BoxStages`).
+:class:`gflow_core.spec.BoxStages`). The correlation-filter tracker (``dcf``) and the appearance
+tracker's proposal are such stages, as is a tracker another package registers.
 
-:func:`spec_stage_classes` makes, for one spec, the proposal stage (kind ``NAME.proposal``) and
+:func:`spec_stage_class` makes, for one spec, the proposal stage (kind ``NAME.proposal``) and
 the filter stage (kind ``NAME.filter``): their parameters are every field of the tracker's
-parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal), as the built-in
-box trackers' stages take (the former from the graph's tracker block, ``tracker: NAME``, the same
-for both stages: :mod:`pipeline.runtime.tracker_block`); the filter's snapshot holds the state as the spec's ``to_arrays``
-gives it. The stages know the tracker only through its spec (:mod:`stages.registry` asks
-:func:`gflow_core.registry.trackers` for a kind no stage module declares). The correlation-filter
-and the appearance trackers' stage modules take what they need of them from their specs the same
-way (:func:`box_filter_spec`, :func:`box_proposal_spec`; the appearance filter with a snapshot
-codec of its own).
+parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal: also read the
+frames, the noise grows with the time to the next frame), from the graph's tracker block
+(``tracker: NAME``, the same for both stages: :mod:`pipeline.runtime.tracker_block`); the filter's
+snapshot (:class:`gflow_msgs.snapshots.BoxFilterSnapshot`, the spec's ``snapshot_version``) holds
+the state as the spec's ``to_arrays`` gives it. The stages know the tracker only through its spec
+(:mod:`stages.registry` asks :func:`gflow_core.registry.trackers`). A stage module of a tracker with
+a snapshot Struct of its own (the appearance filter) takes the rest from its spec the same way
+(:func:`box_filter_spec` with its codec).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-import msgspec
 import numpy as np
 
 from gflow_core.spec import TrackerSpec
@@ -26,9 +26,10 @@ from gflow_core.spec import TrackerSpec
 from .base import Stage
 from .box_tracker import BoxFilterSpec, BoxFilterStage, BoxProposalSpec, BoxProposalStage, SnapshotCodec
 from gflow_msgs.messages import NDArray
+from gflow_msgs.snapshots import BoxFilterSnapshot
 from .tracker_params import SeedBoxFields, stage_params
 
-__all__ = ["spec_stage_classes", "box_filter_spec", "box_proposal_spec", "SpecProposalFields"]
+__all__ = ["spec_stage_class", "box_filter_spec", "box_proposal_spec", "SpecProposalFields"]
 
 
 class SpecProposalFields(SeedBoxFields, frozen=True):
@@ -36,15 +37,6 @@ class SpecProposalFields(SeedBoxFields, frozen=True):
     grows with the time to the next frame)."""
 
     timed: bool = False
-
-
-class _Snapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    version: int
-    initialised: bool
-    arrays: dict[str, NDArray] = {}
-    values: dict[str, Any] = {}
-    steps: int = 0
-    last: dict = {}
 
 
 def _codec(spec: TrackerSpec) -> SnapshotCodec:
@@ -59,10 +51,10 @@ def _codec(spec: TrackerSpec) -> SnapshotCodec:
         arrays, values = to_arrays(state)
         return {"arrays": {k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, "values": dict(values)}
 
-    def state(snap: _Snapshot, core: Any, last: dict) -> Any:
+    def state(snap: BoxFilterSnapshot, core: Any, last: dict) -> Any:
         return from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), core)
 
-    return SnapshotCodec(_Snapshot, box.snapshot_version, fields, state)
+    return SnapshotCodec(BoxFilterSnapshot, box.snapshot_version, fields, state)
 
 
 def box_filter_spec(spec: TrackerSpec, snapshot: SnapshotCodec | None = None) -> BoxFilterSpec:
@@ -90,24 +82,25 @@ def _title(name: str) -> str:
     return "".join(w.capitalize() for w in name.split("_"))
 
 
-def spec_stage_classes(spec: TrackerSpec) -> dict[str, type[Stage]]:
-    """{kind: stage class} of the proposal and the filter stage of ``spec``'s tracker."""
-    box = spec.box
-    if box is None:
+def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
+    """The proposal stage (``kind == spec.proposal_kind``) or the filter stage (``spec.filter_kind``)
+    of ``spec``'s tracker."""
+    if spec.box is None:
         raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
+    base: type[Stage]
+    box: BoxFilterSpec | BoxProposalSpec
+    fields: type[SeedBoxFields]
+    if kind == spec.filter_kind:
+        role, base, fields, box, own = "Filter", BoxFilterStage, SeedBoxFields, box_filter_spec(spec), ""
+    elif kind == spec.proposal_kind:
+        role, base, fields, box = "Proposal", BoxProposalStage, SpecProposalFields, box_proposal_spec(spec)
+        own = " (the filter's values), ``seed``, ``init`` and ``timed``"
+    else:
+        raise KeyError(kind)
     cap, cls = _title(spec.name), spec.params
-    filter_params = stage_params(f"{cap}FilterParams", cls, SeedBoxFields, __name__,
-                                 f"Filter settings of tracker {spec.name}: every field of {cls.__name__}, ``seed`` "
-                                 f"and ``init``.")
-    proposal_params = stage_params(f"{cap}ProposalParams", cls, SpecProposalFields, __name__,
-                                   f"Proposal settings of tracker {spec.name}: every field of {cls.__name__} (the "
-                                   f"filter's values), ``seed``, ``init`` and ``timed``.")
-    filt, prop = box_filter_spec(spec), box_proposal_spec(spec)
-    doc = f"The {{}} stage of tracker {spec.name} ({spec.origin or 'registered'}): :mod:`stages.spec_box`."
-    fcls = type(f"{cap}FilterStage", (BoxFilterStage,),
-                {"kind": spec.filter_kind, "Params": filter_params, "box": filt, "__module__": __name__,
-                 "__doc__": doc.format("filter")})
-    pcls = type(f"{cap}ProposalStage", (BoxProposalStage,),
-                {"kind": spec.proposal_kind, "Params": proposal_params, "box": prop, "__module__": __name__,
-                 "__doc__": doc.format("proposal")})
-    return {spec.filter_kind: fcls, spec.proposal_kind: pcls}
+    params = stage_params(f"{cap}{role}Params", cls, fields, __name__, f"{role} settings of tracker {spec.name}: "
+                          f"every field of {cls.__name__}{own or ', ``seed`` and ``init``'}.")
+    return type(f"{cap}{role}Stage", (base,),
+                {"kind": kind, "Params": params, "box": box, "__module__": __name__,
+                 "__doc__": f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}): "
+                            f":mod:`stages.spec_box`."})

@@ -25,7 +25,7 @@ import msgspec
 
 from .base import Params
 
-__all__ = ["StageFields", "SeedBoxFields", "stage_params", "tracker_params", "tracker_of", "block_params"]
+__all__ = ["StageFields", "SeedBoxFields", "check_init", "stage_params", "tracker_params", "tracker_of", "block_params"]
 
 F = TypeVar("F", bound="StageFields")
 T = TypeVar("T")
@@ -48,12 +48,17 @@ class SeedBoxFields(StageFields, frozen=True):
     def check(self, tracker: Any) -> None:
         if self.seed < 0:
             raise ValueError(f"seed must be >= 0, got {self.seed}")
-        if self.init is not None:
-            if not all(math.isfinite(v) for v in self.init):
-                raise ValueError(f"init box has NaN or infinite values: {self.init}")
-            if not (self.init[2] > 0 and self.init[3] > 0):
-                raise ValueError(f"init box must have positive width and height, got w={self.init[2]}, "
-                                 f"h={self.init[3]} in {self.init}")
+        check_init(self.init)
+
+
+def check_init(init: tuple[float, float, float, float] | None) -> None:
+    """``ValueError`` for an initial box (x, y, w, h) with NaN or infinite values or without a positive
+    width and height (None: no box, nothing to check)."""
+    if init is not None:
+        if not all(math.isfinite(v) for v in init):
+            raise ValueError(f"init box has NaN or infinite values: {init}")
+        if not (init[2] > 0 and init[3] > 0):
+            raise ValueError(f"init box must have positive width and height, got w={init[2]}, h={init[3]} in {init}")
 
 
 def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "") -> type[F]:

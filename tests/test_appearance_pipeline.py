@@ -15,9 +15,13 @@ from gflow_core.evaluation.metrics import score
 from gflow_core.synthetic import SyntheticScene
 from pipeline.recording.results import read_boxes
 from stages.appearance_filter import AppearanceFilterParams, AppearanceFilterStage
-from stages.appearance_proposal import AppearanceProposalParams, AppearanceProposalStage
 from stages.base import StageContext
+from stages.registry import get_stage_class
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
+
+# the proposal stage is made from the tracker's spec (stages.registry, stages.spec_box)
+AppearanceProposalStage = get_stage_class("appearance.proposal")
+AppearanceProposalParams = AppearanceProposalStage.Params
 
 N_FRAMES = 16
 SNAP_AT = 6

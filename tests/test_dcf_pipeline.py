@@ -1,4 +1,4 @@
-"""The correlation-filter tracker through the pipeline (stages/dcf_proposal.py, stages/dcf_filter.py,
+"""The correlation-filter tracker through the pipeline (its stages made from its spec, stages/spec_box.py,
 graph ``dcf``): stage processes and ``--inline`` write the same bytes, a recording re-runs bit for bit
 (from the start and from a snapshot), ``gflow.Tracker("dcf")`` gives the recorded estimates, and the
 filter stage restores its snapshot bit for bit, coasts over bad frames and refuses another stage's
@@ -21,9 +21,12 @@ from pipeline.io.frame_readers import folder_frames
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.results import read_boxes
 from stages.base import StageContext
-from stages.dcf_filter import DCFFilterParams, DCFFilterStage
-from stages.dcf_proposal import DCFProposalParams, DCFProposalStage
+from stages.registry import get_stage_class
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
+
+# the tracker's stages, made from its spec (stages.registry, stages.spec_box)
+DCFFilterStage, DCFProposalStage = get_stage_class("dcf.filter"), get_stage_class("dcf.proposal")
+DCFFilterParams, DCFProposalParams = DCFFilterStage.Params, DCFProposalStage.Params
 
 N_FRAMES = 16
 SNAP_AT = 6

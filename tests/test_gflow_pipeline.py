@@ -18,6 +18,7 @@ from stages.base import StageContext
 from stages.gflow_filter import GFlowFilterParams, GFlowFilterStage
 from stages.gflow_proposal import GFlowProposalParams, GFlowProposalStage
 from gflow_msgs.messages import ColourFeatures, NDArray
+from gflow_msgs.snapshots import GFlowProposalSnapshot
 from stages.tracker_params import tracker_params
 from stages.rng import stream_hash
 
@@ -106,7 +107,6 @@ def test_the_proposal_snapshot_holds_its_background_replica_compactly(scene) -> 
     """The proposal stage snapshots after every frame (for a restart); its background replica is
     stored as distinct tiles, a fraction of the dense (E, H, W) float64 arrays, and a snapshot
     whose tile table is damaged is refused with a one-line reason."""
-    from stages import gflow_proposal
 
     _, seq, frames = scene
     grey = np.rint(frames * 255).astype(np.uint8)
@@ -117,7 +117,7 @@ def test_the_proposal_snapshot_holds_its_background_replica_compactly(scene) -> 
     snap = cyc.proposal.snapshot()
     dense = 2 * 24 * grey[0].size * 8
     assert len(snap) < dense / 4, (len(snap), dense)
-    s = msgspec.msgpack.decode(snap, type=gflow_proposal._Snapshot)
+    s = msgspec.msgpack.decode(snap, type=GFlowProposalSnapshot)
     bad = msgspec.structs.replace(s, bg_table=type(s.bg_table).of(np.full((24, 80), 10**6, np.int32)))
     with pytest.raises(ValueError, match="tile ids|do not fit"):
         Cycle(params).proposal.restore(msgspec.msgpack.encode(bad))

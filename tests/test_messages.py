@@ -40,3 +40,36 @@ def test_no_pickle_dtype_can_be_sent():
 def test_json_schema_is_inlined_for_viewers():
     s = json_schema(Frame)
     assert "$ref" not in s and s["type"] == "object" and "header" in s["properties"]
+
+
+def test_a_table_of_arrays_packs_and_checks_a_message_s_arrays_by_named_dimensions():
+    from gflow_msgs.base import checked_arrays, packed_arrays
+    from gflow_msgs.gflow import EXPERT_ARRAYS, ExpertStates
+
+    E, P, n = 3, 6, 5
+    arrays = {"poses": np.zeros((E, P), np.float32), "tex_mean": np.ones((E, n)), "tex_var": np.ones((E, n)),
+              "log_credibility": np.zeros(E), "parents": [0, 1, 2]}
+    packed = packed_arrays(arrays, EXPERT_ARRAYS)
+    assert packed["poses"].dtype == "float64" and packed["parents"].dtype == "int64"  # the table's dtypes
+    msg = ExpertStates(header=Header("s", 0, 0), **packed, image_shape=(8, 8), config_digest="d")
+    got = checked_arrays(msg, EXPERT_ARRAYS, {"E": E, "P": P, "n": n})
+    assert got["tex_mean"].shape == (E, n) and got["parents"].tolist() == [0, 1, 2]
+    with pytest.raises(MessageError, match=r"^poses must be float64 \(4, 6\), got float64 \(3, 6\)$"):
+        checked_arrays(msg, EXPERT_ARRAYS, {"E": 4, "P": P, "n": n})
+    bad = NDArray.of(np.array([0.0, np.nan, 1.0]))
+    with pytest.raises(MessageError, match="^log_credibility has NaN or infinite values$"):
+        bad.checked("log_credibility", (3,), "float64")
+    with pytest.raises(MessageError, match="^parents: array of dtype int64 and shape"):
+        NDArray(dtype="int64", shape=(3,), data=memoryview(b"x")).checked("parents", (3,), "int64")
+
+
+def test_a_snapshot_s_fields_pack_their_arrays_and_unpack_them_alone():
+    from gflow_msgs.base import packed_fields, unpacked_fields
+
+    fields = {"grey": np.arange(6, dtype=np.uint8).reshape(2, 3), "seq": 4, "table": None}
+    packed = packed_fields(fields)
+    assert isinstance(packed["grey"], NDArray) and packed["seq"] == 4 and packed["table"] is None
+    back = unpacked_fields(packed)
+    assert back["grey"].dtype == np.uint8 and np.array_equal(back["grey"], fields["grey"]) and back["seq"] == 4
+    with pytest.raises(MessageError):
+        unpacked_fields({"grey": NDArray(dtype="uint8", shape=(2, 3), data=memoryview(b"abc"))})

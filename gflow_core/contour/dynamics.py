@@ -10,6 +10,8 @@ Draws: ``FrameRng(seed, stream_hash, t).stream(PURPOSE_PROPOSAL)``, the proposal
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..m2 import dynamics as dyn
@@ -18,7 +20,7 @@ from ..m2.model import M2Model
 from ..m2.tracking import ParticleCloud
 from ..tracker import Box
 
-__all__ = ["PURPOSE_PROPOSAL", "proposal_dynamics", "propose_cloud"]
+__all__ = ["PURPOSE_PROPOSAL", "proposal_dynamics", "propose_cloud", "ContourProposal"]
 
 #: the stream of a frame's proposal draws
 PURPOSE_PROPOSAL = 0x9209
@@ -56,3 +58,17 @@ def propose_cloud(cloud: ParticleCloud, markov: np.ndarray, dynamics: ARDynamics
     k = sample_markov(cloud.k, markov, rng)
     alpha = cloud.alpha.copy() if fixed_alpha else dynamics.predict(cloud.alpha, rng, dt)
     return ParticleCloud(alpha=alpha, k=k, log_w=np.zeros(cloud.n))
+
+
+@dataclass(frozen=True)
+class ContourProposal:
+    """The contour proposal of clouds: k_t ~ M[k_{t-1}], alpha_t ~ AR(1)(alpha_{t-1}) over dt frame
+    periods (alpha unchanged with ``fixed_alpha``), :func:`propose_cloud`; made with
+    ``ContourProposal(*proposal_dynamics(model, init, walk))``."""
+
+    markov: np.ndarray
+    dynamics: ARDynamics
+    fixed_alpha: bool
+
+    def __call__(self, cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
+        return propose_cloud(cloud, self.markov, self.dynamics, rng, dt, self.fixed_alpha)

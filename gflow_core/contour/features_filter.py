@@ -10,7 +10,9 @@ the features as the preprocess stage computed them, and has no ``propose``: the 
 in a stage of its own (:func:`.dynamics.propose_cloud`), whose clouds ``update`` weighs.
 
 The mathematics is :class:`.tracker.ContourFilter`'s (:data:`.tracker.FILTER`); this module only
-adapts its calls.
+adapts its calls, and says what the filter reads of the features (:func:`reads_grey`,
+:func:`is_blank`, :func:`same_profile`) and what it refuses of a proposal (:func:`exemplar_error`),
+for the stage that reads them from messages.
 """
 
 from __future__ import annotations
@@ -22,10 +24,36 @@ import numpy as np
 from .params import ContourParams, EdgeParams
 from .protocol import CHAMFER
 from .tracker import FILTER, ContourObservation, ContourSetup, ContourState, setup
+from ..m2.model import M2Model
 from ..m2.tracking import ParticleCloud
 from ..tracker import Box, Estimate, FrameRng
 
-__all__ = ["ContourFeatureFilter", "FEATURE_FILTER"]
+__all__ = ["ContourFeatureFilter", "FEATURE_FILTER", "reads_grey", "is_blank", "same_profile", "exemplar_error"]
+
+
+def reads_grey(params: ContourParams, placed: ContourSetup) -> bool:
+    """Whether a cue reads the frame's grey levels: the lost guard, or a learned model's appearance
+    kernels."""
+    return params.lost_guard or placed.app0 is not None
+
+
+def is_blank(params: ContourParams, edges: np.ndarray) -> bool:
+    """Fewer than ``min_edges`` edge pixels in the (H, W) edge map: a blank frame, no evidence
+    (sec. 5.1.2, fig. 7)."""
+    return params.min_edges > 0 and int(np.count_nonzero(edges)) < params.min_edges
+
+
+def same_profile(model: M2Model, profile: str, g0: float) -> bool:
+    """Whether chamfer images made with ``profile`` (and ``g0``) are the distances ``model`` was learned
+    on, so its sigma_k and d_k hold for them."""
+    return profile == model.profile and (model.profile != "truncated" or bool(np.isclose(g0, model.g0)))
+
+
+def exemplar_error(cloud: ParticleCloud, K: int) -> str:
+    """What is wrong with a proposed cloud's exemplar indices for a model of ``K`` exemplars ("": nothing)."""
+    if cloud.k.size and cloud.k.max() >= K:
+        return f"exemplar index {int(cloud.k.max())} beyond the model's K={K}"
+    return ""
 
 
 class ContourFeatureFilter:
@@ -54,8 +82,9 @@ class ContourFeatureFilter:
         """The proposed cloud weighed by the features (no evidence when ``obs`` is None: no features
         arrived), resampled and guarded (:meth:`.tracker.ContourFilter.update`). ``ValueError`` for a
         cloud with an exemplar index beyond the model's K."""
-        if proposal.k.size and proposal.k.max() >= state.model.K:
-            raise ValueError(f"exemplar index {int(proposal.k.max())} beyond the model's K={state.model.K}")
+        problem = exemplar_error(proposal, state.model.K)
+        if problem:
+            raise ValueError(problem)
         return FILTER.update(params, state, proposal, obs, rng)
 
     def coast(self, params: ContourParams, state: ContourState, rng: FrameRng,

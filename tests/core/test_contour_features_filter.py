@@ -5,9 +5,11 @@ bit for bit when handed the same features."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 
-from gflow_core.contour.features_filter import FEATURE_FILTER
+from gflow_core.contour.features_filter import FEATURE_FILTER, exemplar_error, is_blank, same_profile
 from gflow_core.contour.params import ChamferParams
 from gflow_core.contour.protocol import CHAMFER
 from gflow_core.synthetic import SyntheticScene
@@ -37,3 +39,19 @@ def test_the_feature_filter_steps_as_the_contour_protocol_does() -> None:
     assert est2.phase == "coast"
     obs = FEATURE_FILTER.observe(params, scene.render(0))
     assert obs.edges is not None and obs.edges.shape == (120, 160) and obs.chamfer is not None and obs.grey is not None
+
+
+def test_what_the_filter_reads_of_features_and_refuses_of_proposals() -> None:
+    from gflow_core.m2.tracking import ParticleCloud
+
+    edges = np.zeros((20, 30), np.uint8)
+    edges[5, :9] = 255
+    assert is_blank(ChamferParams(min_edges=10), edges) and not is_blank(ChamferParams(min_edges=9), edges)
+    assert not is_blank(ChamferParams(min_edges=0), np.zeros((20, 30), np.uint8))  # the rule off
+    truncated = SimpleNamespace(profile="truncated", g0=100.0)
+    assert same_profile(truncated, "truncated", 100.0 + 1e-9)
+    assert not same_profile(truncated, "truncated", 64.0) and not same_profile(truncated, "quadratic", 100.0)
+    assert same_profile(SimpleNamespace(profile="quadratic", g0=100.0), "quadratic", 64.0)  # g0 unused
+    cloud = ParticleCloud(alpha=np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)), k=np.array([0, 2, 1]), log_w=np.zeros(3))
+    assert exemplar_error(cloud, 3) == ""
+    assert exemplar_error(cloud, 2) == "exemplar index 2 beyond the model's K=2"
