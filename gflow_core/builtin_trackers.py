@@ -6,11 +6,13 @@ is used, not when the registry is read.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Mapping
 
 from .appearance.spec import SPEC as APPEARANCE
 from .contour.params import ChamferParams, M2Params
 from .dcf.spec import SPEC as DCF
+from .m2.edge_settings import LEARN_EDGES
 from .gflow.params import GFlowParams
 from .params import make
 from .spec import Loader, TrackerSpec
@@ -112,6 +114,9 @@ BUILTIN: tuple[TrackerSpec, ...] = (
     DCF,
     TrackerSpec("gflow", GFlowParams, _gflow, setup=gflow_setup, graph="gflow", cli="pipeline.cli.trackers.gflow",
                 model_option="--model", origin=_ORIGIN),
+    # its graph's preprocess reads edges with the settings models are learned with by default (gflow track and
+    # the Python API read a model's own from its file)
     TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2",
-                model_option="--model", model_required=True, origin=_ORIGIN),
+                model_option="--model", model_required=True, preprocess=dataclasses.asdict(LEARN_EDGES),
+                origin=_ORIGIN),
 )

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -130,6 +131,11 @@ class TrackerSpec:
     model_required : bool
         It cannot run without a model: ``gflow benchmark`` skips it, and ``gflow export vot`` leaves
         it out, unless ``--NAME-model`` is given.
+    preprocess : {param: value}
+        What its ``preprocess`` stage reads of a frame, when the graph does not say (e.g. m2: the
+        edge settings its models are learned with by default, :mod:`gflow_core.m2.edge_settings`):
+        the graph loader fills the preprocess stage of a graph whose tracker block names the tracker
+        with these values, under the graph's own and the command line's. Empty: the stage's defaults.
 
     Options are shared by name: a tracker reads another tracker's ``gflow track`` option when its
     parameter dataclass has a field of the option's name (``--particles`` of appearance is read by
@@ -151,6 +157,7 @@ class TrackerSpec:
     cli: str = ""
     model_option: str = ""
     model_required: bool = False
+    preprocess: Mapping[str, Any] = field(default_factory=dict, hash=False)
     #: where it was registered (``gflow_core.builtin_trackers`` or the entry point), for messages
     origin: str = field(default="", compare=False)
 
@@ -172,6 +179,10 @@ class TrackerSpec:
         if self.model_option and not self.model_option.startswith("--"):
             raise SpecError(f"tracker {self.name}: model_option must be an option such as '--model', got "
                             f"{self.model_option!r}")
+        if not isinstance(self.preprocess, Mapping) or not all(isinstance(k, str) for k in self.preprocess):
+            raise SpecError(f"tracker {self.name}: preprocess must map the preprocess stage's parameter names to "
+                            f"values, got {self.preprocess!r}")
+        object.__setattr__(self, "preprocess", MappingProxyType(dict(self.preprocess)))  # read-only, as the spec
         if not self.proposal_kind:
             object.__setattr__(self, "proposal_kind", f"{self.name}.proposal")
         if not self.filter_kind:

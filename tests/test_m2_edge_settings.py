@@ -1,6 +1,6 @@
 """M2's edge settings are named once (gflow_core.m2.edge_settings): `gflow learn m2`'s defaults, a
-model file without thresholds tracked by gflow track and by the Python API, and the m2 graph file's
-preprocess stage (the one copy, a YAML file, held to them here)."""
+model file without thresholds tracked by gflow track and by the Python API, and the m2 graph's
+preprocess stage (filled in from the m2 tracker's registration by the graph loader)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,7 @@ import dataclasses
 from pathlib import Path
 
 import msgspec
+import pytest
 import yaml
 
 from gflow_core.contour.params import EdgeParams
@@ -21,15 +22,29 @@ from gflow_core.m2.model import M2Model
 import numpy as np
 
 GRAPHS = Path(__file__).resolve().parent.parent / "pipeline" / "graphs"
-EDGE_FIELDS = ("profile", "g0", "canny_low", "canny_high", "blur")
+EDGE_FIELDS = tuple(f.name for f in dataclasses.fields(EdgeParams))
 
 
 def test_the_m2_graph_preprocesses_with_the_learn_defaults() -> None:
-    pre = yaml.safe_load((GRAPHS / "m2.yaml").read_text())["stages"]["preprocess"]["params"]
-    assert {k: pre[k] for k in EDGE_FIELDS} == {k: getattr(LEARN_EDGES, k) for k in EDGE_FIELDS}
-    # a patch model's graph reads the grey image alone: it names no edge settings
+    """The graph file names no edge setting; the loaded graph's preprocess stage has the learn defaults,
+    under the graph's own values and the command line's."""
+    from pipeline.runtime.graph import GraphError, load_graph, parse_graph
+
+    text = (GRAPHS / "m2.yaml").read_text()
+    assert not set(yaml.safe_load(text)["stages"]["preprocess"]["params"]) & set(EDGE_FIELDS)
+    pre = load_graph("m2").stages["preprocess"].params
+    assert {k: pre[k] for k in EDGE_FIELDS} == dataclasses.asdict(LEARN_EDGES) and pre["colour"] is True
+    over = load_graph("m2", overrides={"preprocess": {"canny_low": 20}}).stages["preprocess"].params
+    assert (over["canny_low"], over["canny_high"]) == (20.0, LEARN_EDGES.canny_high)
+    own = parse_graph(text.replace("params: {colour: true}", "params: {colour: true, profile: linear}"),
+                      "own.yaml").stages["preprocess"].params
+    assert (own["profile"], own["canny_low"]) == ("linear", LEARN_EDGES.canny_low)
+    with pytest.raises(GraphError, match="own.yaml:.*'preprocess'.*profile"):  # checked with the tracker's values
+        parse_graph(text.replace("params: {colour: true}", "params: {colour: true, profile: curved}"), "own.yaml")
+    # a graph of another tracker, and a patch model's graph (it reads the grey image alone), get none
+    assert load_graph("chamfer").stages["preprocess"].params["canny_low"] is None
     patch = yaml.safe_load((GRAPHS / "m2_patch.yaml").read_text())["stages"]["preprocess"]["params"]
-    assert patch == {"edges": False}
+    assert patch == {"edges": False} and load_graph("m2_patch").stages["preprocess"].params["canny_low"] is None
 
 
 def test_gflow_learn_m2_defaults_are_the_edge_settings() -> None:

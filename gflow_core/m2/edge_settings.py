@@ -6,9 +6,9 @@ distance with profile g(u) (eq. 4-5). A model is learned with settings (``gflow 
 thresholds and blur in its meta), and it is tracked with the same ones
 (:func:`gflow_core.contour.protocol.m2_edge_params`). These are the defaults of both: what
 ``gflow learn m2`` and :mod:`.training` use unless told otherwise, and what a model file that names
-no thresholds is tracked with. The ``m2`` graph's preprocess stage (``pipeline/graphs/m2.yaml``, for
-``gflow run m2``; ``gflow track`` sets it from the model file) carries the same values, and a test
-holds it to them.
+no thresholds is tracked with. The m2 tracker's registration names them as its preprocess stage's
+(:attr:`gflow_core.spec.TrackerSpec.preprocess`), so the ``m2`` graph (``gflow run m2``) reads edges
+with them without repeating them; ``gflow track`` sets the stage from the model file.
 """
 
 from __future__ import annotations

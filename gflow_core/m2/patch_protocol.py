@@ -24,7 +24,7 @@ Random draws of frame ``t``: k_0 ~ pi from ``stream(PURPOSE_INIT_K)``, the propo
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, Mapping
+from typing import Any, Mapping
 
 import cv2
 import msgspec
@@ -33,9 +33,10 @@ import numpy as np
 from .. import similarity
 from ..contour.dynamics import PURPOSE_PROPOSAL
 from ..features import to_grey
-from ..params import make, param
+from ..params import make
 from ..tracker import Box, Estimate, FrameRng
 from .model import M2Model
+from .patch_params import PatchParams, crop_of
 from .patch_tracking import PatchExemplars, init_k, patch_posterior, propose_k, weigh_patches
 from .snapshot_arrays import snapshot_codec
 
@@ -45,31 +46,6 @@ __all__ = ["PatchParams", "PatchState", "PatchTracker", "PATCH", "crop_patch", "
 PURPOSE_INIT_K = 0x1418
 PURPOSE_RESAMPLE = 0x2E5B
 SNAPSHOT_VERSION = 1
-
-
-@dataclass(frozen=True)
-class PatchParams:
-    """The parameters of M2 with a patch model (the tracker's own; the model file gives ``crop``,
-    :func:`patch_setup`)."""
-
-    crop: Literal["frame", "box"] = param("frame", "how the observed patch is cut from the frame: frame (the whole "
-                                                   "frame resized) or box (the initial box resampled)")
-    particles: int = param(500, "number of particles N")
-    blank_std: float = param(1.0, "frames whose grey levels have a smaller standard deviation carry no evidence")
-
-    def __post_init__(self) -> None:
-        if self.crop not in ("frame", "box"):
-            raise ValueError(f"crop must be frame or box, got {self.crop!r}")
-        if isinstance(self.particles, bool) or not isinstance(self.particles, int) or self.particles < 1:
-            raise ValueError(f"particles must be an integer >= 1, got {self.particles!r}")
-        if not self.blank_std >= 0:
-            raise ValueError(f"blank_std must be >= 0, got {self.blank_std}")
-
-
-def crop_of(meta: Mapping[str, Any]) -> Literal["frame", "box"]:
-    """How a patch model's training patches were cut, from its file's ``meta`` (``gflow learn m2
-    --crop``): ``box`` or, by default, ``frame``; the tracker cuts the observed patch alike."""
-    return "box" if meta.get("crop") == "box" else "frame"
 
 
 def patch_setup(model: M2Model, meta: Mapping[str, Any],

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any, Mapping, TypeVar
 
 from gflow_core.evaluation.metrics import TARGET_STATES
+from gflow_core.params import format_value
 from gflow_msgs.messages import ErrorReport, Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows
@@ -18,8 +19,8 @@ from pipeline.io.run_sessions import RunSessions
 from pipeline.recording.edgeless import EdgelessFrames, edgeless_frames
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
-           "write_visibility", "estimates", "run_estimates", "truth_boxes", "frame_ranges", "completeness", "run_outcome",
-           "RunOutcome", "renumber"]
+           "write_visibility", "estimates", "run_estimates", "truth_boxes", "frame_ranges", "completeness",
+           "blank_rule", "run_outcome", "RunOutcome", "renumber"]
 
 Box = tuple[float, float, float, float]
 V = TypeVar("V")
@@ -232,16 +233,37 @@ def reported_frames(recording: str | None, stream: str | None = None) -> set[int
     return out
 
 
+def blank_rule(plan: Any) -> str:
+    """Why a frame that was read held no evidence for the tracker of ``plan`` (a
+    :class:`pipeline.runtime.graph.Plan`, None: not known), as :func:`completeness` says it: the rule
+    of the stage that decides, read from its parameters (defaults filled in, as a plan holds them).
+
+    * M2 with a patch model (``patch.filter``): the grey levels' standard deviation below
+      ``blank_std`` (:mod:`gflow_core.m2.patch_protocol`);
+    * the contour trackers (``particle.filter``, ``m2.filter``, ``chamfer.filter``): fewer edge pixels
+      than ``min_edges`` (M2 sec. 5.1.2).
+    """
+    for name in plan.stages if plan is not None else ():
+        params = plan.stage_params(name)
+        if params.get("blank_std") is not None:
+            std = format_value(params["blank_std"])
+            return f"a grey-level standard deviation below the tracker's blank_std {std}: a blank frame"
+        if params.get("min_edges") is not None:
+            return f"fewer edge pixels than the tracker's min_edges {params['min_edges']}: a blank frame, M2 sec. 5.1.2"
+    return "a blank frame"
+
+
 def completeness(est: dict, expected: range | None, reported: set[int] | None = None,
-                 edgeless: EdgelessFrames | None = None) -> list[str]:
+                 edgeless: EdgelessFrames | None = None, blank: str = "a blank frame") -> list[str]:
     """Lines saying which frames have no estimate and which coasted (empty: every frame tracked).
 
     expected : the frames the source was to send (None: from the first to the last estimate).
     reported : the frames a stage reported a problem with (:func:`reported_frames`): a coasted frame
         among them had no usable input; one not among them was read, but held no evidence for the
-        tracker (the contour trackers' blank frame: fewer edge pixels than ``min_edges``, M2 sec. 5.1.2).
+        tracker: a blank frame, by the tracker's own rule (``blank``, :func:`blank_rule`).
     edgeless : of those, the frames that are not blank but have no edges at the fixed Canny
         thresholds (:func:`pipeline.recording.edgeless.edgeless_frames`), said apart with the thresholds.
+    blank : what made those frames blank for the run's tracker (:func:`blank_rule` of its plan).
     """
     if expected is None:
         expected = range(min(est), max(est) + 1) if est else range(0)
@@ -249,7 +271,7 @@ def completeness(est: dict, expected: range | None, reported: set[int] | None = 
     coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast"]
     reported = reported or set()
     bad = [f for f in coasted if f in reported]
-    blank = [f for f in coasted if f not in reported and (edgeless is None or f not in edgeless.frames)]
+    blanks = [f for f in coasted if f not in reported and (edgeless is None or f not in edgeless.frames)]
     dim = [f for f in coasted if f not in reported and edgeless is not None and f in edgeless.frames]
     lines = []
     if missing:
@@ -257,10 +279,9 @@ def completeness(est: dict, expected: range | None, reported: set[int] | None = 
     if bad:
         lines.append(f"{len(bad)} frame(s) coasted on the dynamics (no usable input, reported in the errors): "
                      f"{frame_ranges(bad)}")
-    if blank:
-        lines.append(f"{len(blank)} frame(s) coasted on the dynamics: the frame was read but held no evidence "
-                     f"(fewer edge pixels than the tracker's min_edges: a blank frame, M2 sec. 5.1.2): "
-                     f"{frame_ranges(blank)}")
+    if blanks:
+        lines.append(f"{len(blanks)} frame(s) coasted on the dynamics: the frame was read but held no evidence "
+                     f"({blank}): {frame_ranges(blanks)}")
     if dim and edgeless is not None:
         lines.append(f"{len(dim)} frame(s) coasted on the dynamics: the frame was read and is not blank, but has "
                      f"no edges at {edgeless.whose} Canny thresholds {edgeless.low:g}/{edgeless.high:g} (fewer edge "
@@ -312,7 +333,7 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
     reported = reported_frames(recording, plan.stream) | set(reported)
     read = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
-    lines = completeness(est, expected, reported, edgeless_frames(plan, read)) + sessions.lines()
+    lines = completeness(est, expected, reported, edgeless_frames(plan, read), blank_rule(plan)) + sessions.lines()
     if lost and recording:
         lines.append(f"{len(lost)} frame(s) missing from the recording were kept from the live stream: "
                      f"{frame_ranges(lost)}")

@@ -28,6 +28,10 @@ A ``tracker:`` block names the tracker and its parameters once for every stage o
 
     tracker: {name: dcf, params: {particles: 300}}
 
+The block's tracker may also name what its ``preprocess`` stage reads of a frame
+(:attr:`gflow_core.spec.TrackerSpec.preprocess`: m2's edge settings): a preprocess stage takes
+those values unless the graph or an override names its own.
+
 Outputs default to topics named after their ports; ``outputs: {port: topic}`` renames
 them. ``external: {frames: Frame}`` declares topics fed from outside the graph (by
 ``gflow replay``, say), so a graph of live stages can run without a source.
@@ -61,6 +65,8 @@ from pipeline.runtime.transport import topic_key
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
 
 RECORDER_KIND = "recorder"
+#: the stage kind whose defaults a graph's tracker may name (:func:`_tracker_preprocess`)
+PREPROCESS_KIND = "preprocess"
 _HOST_LABEL = re.compile(r"^[A-Za-z0-9_-]+$")
 _STAGE_KEYS = {"kind", "params", "inputs", "outputs", "restart", "max_restarts", "qos", "snapshot_every", "host"}
 #: what a run does when a host of the graph disappears (``on_host_lost:`` in the graph)
@@ -439,6 +445,14 @@ def _stage_values(sname: str, kind: str, params: dict[str, Any], block: TrackerB
     return full, own_fields(full, cls)
 
 
+def _tracker_preprocess(tracker: str) -> dict[str, Any]:
+    """The preprocess parameters the registered tracker ``tracker`` names
+    (:attr:`gflow_core.spec.TrackerSpec.preprocess`; a block's tracker is registered)."""
+    from gflow_core.registry import get
+
+    return dict(get(tracker).preprocess)
+
+
 def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides: dict[str, dict],
                  filename: str, block: TrackerBlock | None = None) -> _ParsedStage:
     """Stage ``sname`` of the graph: its kind, its parameters (with ``overrides`` applied; a stage of
@@ -447,6 +461,8 @@ def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides
     where = f"{filename}:{_line(stages_doc, sname)}"
     kind = _stage_kind(sname, spec, where, filename)
     params = dict(spec.get("params") or {})
+    if kind == PREPROCESS_KIND and block is not None:
+        params = {**_tracker_preprocess(block.name), **params}
     params.update(overrides.get(sname, {}))
     pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
     full, params = _stage_values(sname, kind, params, block, overrides, pwhere)

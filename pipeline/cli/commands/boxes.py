@@ -8,8 +8,8 @@ ORDER = 57
 
 from pipeline.io.mcap_io import iter_records, segments
 from pipeline.recording.live_record import live_summary
-from pipeline.recording.results import (completeness, estimate_columns, renumber, reported_frames, run_estimates,
-                                       write_boxes)
+from pipeline.recording.results import (blank_rule, completeness, estimate_columns, renumber, reported_frames,
+                                       run_estimates, write_boxes)
 from pipeline.cli.commands.common import CliError
 
 
@@ -30,10 +30,23 @@ def cmd_boxes(args) -> int:
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))
     for line in torn + sessions.lines():
         print(f"  {line}")
-    gaps = completeness(est, None, reported_frames(args.recording, args.stream))
+    gaps = completeness(est, None, reported_frames(args.recording, args.stream), blank=_blank_rule(args.recording))
     for line in gaps:
         print(f"  {line}")
     return 3 if any("no estimate" in g for g in gaps) else 0
+
+
+def _blank_rule(recording: str) -> str:
+    """What made a read frame blank for the recorded run's tracker (:func:`blank_rule` of its plan), or
+    the plain words when the recording's plan cannot be read (made by another tool, or a stage kind
+    not installed here)."""
+    from pipeline.recording.rerun import recorded_plan
+    from pipeline.runtime.graph import GraphError
+
+    try:
+        return blank_rule(recorded_plan(recording))
+    except (GraphError, ValueError, KeyError, TypeError):
+        return blank_rule(None)
 
 
 def register(sub) -> None:

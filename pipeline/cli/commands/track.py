@@ -64,7 +64,8 @@ def tracker_options(name: str) -> dict[str, tuple[str, object]]:
 
 def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
     """A whole-frame patch model (crop: frame, e.g. AVLetters mouths) sees the frame itself as the
-    patch: on video not cropped like its training frames it cannot track anything."""
+    patch: on video not cropped like its training frames it cannot track anything (unless told to cut
+    the patch from the initial box, ``--crop box``)."""
     import sys
 
     from pipeline.io.modelfile import load_meta
@@ -77,7 +78,8 @@ def check_whole_frame_model(model: str, source: str, shape: tuple) -> None:
     if trained and trained != size:
         raise CliError(f"{model} was learned on whole {trained} frames (a patch model with crop: frame, e.g. cropped "
                        f"mouths); {source} has {size} frames. Such a model only fits video cropped like its training "
-                       f"frames: learn one on this video (gflow learn m2 ... --boxes GT.csv)")
+                       f"frames: learn one on this video (gflow learn m2 ... --boxes GT.csv), or cut the patch from --init "
+                       f"with --crop box")
     print(f"note: {model} is a whole-frame patch model: the state is the exemplar, the box is the whole frame and "
           f"does not move" + ("" if trained else " (the model does not record its training frame size)"),
           file=sys.stderr)
@@ -174,7 +176,7 @@ def option_defaults() -> dict[str, object]:
 
 def _planned(request: TrackRequest) -> TrackPlan:
     tp = plan_track(request, TRACKERS[request.tracker])
-    if request.tracker == "m2" and tp.first_image_shape is not None:
+    if request.tracker == "m2" and tp.first_image_shape is not None and request.params.get("crop") != "box":
         check_whole_frame_model(str(request.params["model"]), request.source, tp.first_image_shape)
     return tp
 
