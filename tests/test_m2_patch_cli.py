@@ -87,6 +87,32 @@ def test_set_tracker_reaches_the_patch_filter(mouths, tmp_path, capsys) -> None:
                                                "of tracker m2, set once for all its stages: --set tracker.blank_std=VALUE")
 
 
+@pytest.mark.data
+def test_a_plan_without_the_tracker_block_still_runs_and_reruns(mouths, tmp_path) -> None:
+    """The m2_patch graph as it was before its tracker block (PatchParams' values in the filter stage): it
+    loads, gflow track's values (and --set tracker.NAME) reach the filter, and its recording, whose plan
+    names them per stage as recordings made before do, re-runs bit for bit."""
+    from pipeline.recording.results import blank_rule
+    from pipeline.recording.rerun import recorded_plan
+
+    text = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "m2_patch.yaml").read_text()
+    old = tmp_path / "old.yaml"
+    head, filt = text.replace("\ntracker: m2", "\n#").split("kind: patch.filter")
+    old.write_text(head + "kind: patch.filter" + filt.replace('params: {seed: 0, model: "model.npz"}',
+                                                              'params: {particles: 500, seed: 0, model: "model.npz", '
+                                                              'crop: frame}'))
+    model, frames = mouths
+    rec = tmp_path / "old.mcap"
+    assert main(["track", str(frames), "--tracker", "m2", "--model", str(model), "--init", "0,0,80,60", "--graph",
+                 str(old), "--particles", "50", "--set", "tracker.blank_std=2.5", "--stop", "12", "--inline", "--out",
+                 str(tmp_path / "b.csv"), "--record", str(rec), "-q"]) == 0
+    plan = recorded_plan(rec)
+    assert plan.tracker is None and {k: plan.stages["filter"].params[k] for k in ("particles", "blank_std")} == \
+        {"particles": 50, "blank_std": 2.5}
+    assert "blank_std 2.5" in blank_rule(plan)
+    assert main(["rerun", str(rec), "--graph", "--check"]) == 0
+
+
 def test_the_blank_rule_is_the_trackers_own() -> None:
     from pipeline.recording.results import blank_rule
     from pipeline.runtime.graph import load_graph
