@@ -39,7 +39,9 @@ import msgspec
 import numpy as np
 
 from gflow_core.contour import state as wire
-from gflow_core.contour.features_filter import FEATURE_FILTER, exemplar_error, is_blank, reads_grey, same_profile
+from gflow_core.contour.features_filter import FEATURE_FILTER
+from gflow_core.contour.observation import (exemplar_error, is_blank, reads_grey, same_profile, usable_chamfer,
+                                            usable_grey)
 from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
@@ -128,14 +130,14 @@ class FilterStage(FeaturesFilterStage):
         except MessageError as e:
             self.report("bad_features", f"frame {seq}: {e}; coasting", seq)
             return None
-        if cham.ndim != 2 or cham.size == 0 or not np.isfinite(cham).all():
+        if not usable_chamfer(cham):
             self.report("bad_features", f"frame {seq}: chamfer image is {cham.shape} {cham.dtype} with "
                         f"non-finite values or wrong shape; coasting", seq)
             return None
         return cham
 
     def _blank(self, feat: Features) -> bool:
-        """A blank frame (:func:`~gflow_core.contour.features_filter.is_blank`)."""
+        """A blank frame (:func:`~gflow_core.contour.observation.is_blank`)."""
         try:
             edges = feat.edges.array()
         except MessageError:
@@ -148,7 +150,7 @@ class FilterStage(FeaturesFilterStage):
         except MessageError as e:
             self.report("bad_features", f"frame {seq}: {e}; chamfer only", seq)
             return None
-        if grey.ndim != 2 or min(grey.shape) < 3:
+        if not usable_grey(grey):
             self.report("bad_features", f"frame {seq}: grey image has shape {grey.shape}; chamfer only", seq)
             return None
         return grey
