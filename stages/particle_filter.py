@@ -52,7 +52,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import Output, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
 from gflow_msgs.messages import ColourFeatures, Features, Header, Message, MessageError
-from .tracker_params import StageFields, check_init, stage_params
+from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -60,20 +60,12 @@ __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", 
 SNAPSHOT_VERSION = wire.SNAPSHOT_VERSION
 
 
-class FilterFields(StageFields, frozen=True):
-    """What the filter stage takes besides the tracker's parameters.
+class FilterFields(SeedBoxFields, frozen=True):
+    """What the filter stage takes besides the tracker's parameters: ``seed`` and ``init``
+    (:class:`~stages.tracker_params.SeedBoxFields`), and ``model``, the path of a learned M2 model with
+    contour exemplars (empty: the K = 1 chamfer tracker)."""
 
-    init : (x, y, w, h) initial box of the target, 0-based pixels.
-    seed : random seed (frame ``t`` draws from ``[seed, crc32(stream), t, purpose]``).
-    model : path of a learned M2 model with contour exemplars (empty: the K = 1 chamfer tracker).
-    """
-
-    init: tuple[float, float, float, float] | None = None
-    seed: int = 0
     model: str = ""
-
-    def check(self, tracker: Any) -> None:
-        check_init(self.init)
 
 
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,
