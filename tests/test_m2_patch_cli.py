@@ -218,3 +218,21 @@ def test_gflow_info_m2_lists_the_parameters_of_both_kinds_of_model() -> None:
     assert "graph:   with a patch model: m2_patch" in text.getvalue()
     assert "gflow_core.m2.patch_params.PatchParams; named once in the graph's tracker block" in text.getvalue()
     assert "--set filter.NAME=VALUE" not in text.getvalue() and "--set tracker.NAME=VALUE" in text.getvalue()
+
+
+def test_the_m2_patch_block_takes_the_variant_its_filter_is_made_of() -> None:
+    """`tracker: m2` in graph m2_patch is PatchParams (the m2 registration's variant the patch filter is
+    made of), with no contour edge settings for its preprocess; the block of another tracker is refused."""
+    from pipeline.runtime.graph import GraphError, load_graph, parse_graph
+    from pipeline.runtime.tracker_block import block_class, is_main_class
+
+    plan = load_graph("m2_patch")
+    assert plan.tracker is not None and plan.tracker.params == dataclasses.asdict(PatchParams())
+    assert block_class(plan.tracker) is PatchParams and not is_main_class(plan.tracker)
+    assert is_main_class(load_graph("m2").tracker)
+    text = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "m2_patch.yaml").read_text()
+    with pytest.raises(GraphError, match=r"p.yaml:\d+: stage 'filter': a stage of the tracker of PatchParams, but "
+                                         r"the graph's tracker block is chamfer's"):
+        parse_graph(text.replace("\ntracker: m2", "\ntracker: chamfer"), "p.yaml")
+    with pytest.raises(GraphError, match="tracker m2: PatchParams has no parameter 'lam'"):
+        load_graph("m2_patch", overrides={"tracker": {"lam": 0.3}})
