@@ -13,6 +13,7 @@ from .appearance.spec import SPEC as APPEARANCE
 from .contour.params import ChamferParams, M2Params
 from .dcf.spec import SPEC as DCF
 from .m2.edge_settings import LEARN_EDGES
+from .m2.patch_params import PatchParams
 from .gflow.params import GFlowParams
 from .params import make
 from .spec import Loader, TrackerSpec
@@ -115,8 +116,8 @@ BUILTIN: tuple[TrackerSpec, ...] = (
     TrackerSpec("gflow", GFlowParams, _gflow, setup=gflow_setup, graph="gflow", cli="pipeline.cli.trackers.gflow",
                 model_option="--model", origin=_ORIGIN),
     # its graph's preprocess reads edges with the settings models are learned with by default (gflow track and
-    # the Python API read a model's own from its file)
+    # the Python API read a model's own from its file); a patch model's parameters are PatchParams (graph m2_patch)
     TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2",
                 model_option="--model", model_required=True, preprocess=dataclasses.asdict(LEARN_EDGES),
-                origin=_ORIGIN),
+                variants=(PatchParams,), origin=_ORIGIN),
 )

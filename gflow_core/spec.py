@@ -136,6 +136,11 @@ class TrackerSpec:
         edge settings its models are learned with by default, :mod:`gflow_core.m2.edge_settings`):
         the graph loader fills the preprocess stage of a graph whose tracker block names the tracker
         with these values, under the graph's own and the command line's. Empty: the stage's defaults.
+    variants : tuple of type
+        Its other parameter dataclasses, each its setup may make instead of ``params`` (m2 with a
+        patch model: :class:`~gflow_core.m2.patch_params.PatchParams`). A graph's tracker block takes
+        the one its stages are made of (:mod:`pipeline.runtime.tracker_block`); ``preprocess``
+        is that of ``params``.
 
     Options are shared by name: a tracker reads another tracker's ``gflow track`` option when its
     parameter dataclass has a field of the option's name (``--particles`` of appearance is read by
@@ -158,6 +163,7 @@ class TrackerSpec:
     model_option: str = ""
     model_required: bool = False
     preprocess: Mapping[str, Any] = field(default_factory=dict, hash=False)
+    variants: tuple[type, ...] = ()
     #: where it was registered (``gflow_core.builtin_trackers`` or the entry point), for messages
     origin: str = field(default="", compare=False)
 
@@ -179,6 +185,8 @@ class TrackerSpec:
         if self.model_option and not self.model_option.startswith("--"):
             raise SpecError(f"tracker {self.name}: model_option must be an option such as '--model', got "
                             f"{self.model_option!r}")
+        if not all(dataclasses.is_dataclass(v) and isinstance(v, type) for v in self.variants):
+            raise SpecError(f"tracker {self.name}: variants must be parameter dataclasses, got {self.variants!r}")
         if not isinstance(self.preprocess, Mapping) or not all(isinstance(k, str) for k in self.preprocess):
             raise SpecError(f"tracker {self.name}: preprocess must map the preprocess stage's parameter names to "
                             f"values, got {self.preprocess!r}")

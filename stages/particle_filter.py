@@ -39,7 +39,9 @@ import msgspec
 import numpy as np
 
 from gflow_core.contour import state as wire
-from gflow_core.contour.features_filter import FEATURE_FILTER, exemplar_error, is_blank, reads_grey, same_profile
+from gflow_core.contour.features_filter import FEATURE_FILTER
+from gflow_core.contour.observation import (exemplar_error, is_blank, reads_grey, same_profile, usable_chamfer,
+                                            usable_grey)
 from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
@@ -50,7 +52,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import Output, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
 from gflow_msgs.messages import ColourFeatures, Features, Header, Message, MessageError
-from .tracker_params import StageFields, check_init, stage_params
+from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -58,20 +60,12 @@ __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", 
 SNAPSHOT_VERSION = wire.SNAPSHOT_VERSION
 
 
-class FilterFields(StageFields, frozen=True):
-    """What the filter stage takes besides the tracker's parameters.
+class FilterFields(SeedBoxFields, frozen=True):
+    """What the filter stage takes besides the tracker's parameters: ``seed`` and ``init``
+    (:class:`~stages.tracker_params.SeedBoxFields`), and ``model``, the path of a learned M2 model with
+    contour exemplars (empty: the K = 1 chamfer tracker)."""
 
-    init : (x, y, w, h) initial box of the target, 0-based pixels.
-    seed : random seed (frame ``t`` draws from ``[seed, crc32(stream), t, purpose]``).
-    model : path of a learned M2 model with contour exemplars (empty: the K = 1 chamfer tracker).
-    """
-
-    init: tuple[float, float, float, float] | None = None
-    seed: int = 0
     model: str = ""
-
-    def check(self, tracker: Any) -> None:
-        check_init(self.init)
 
 
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,
@@ -128,14 +122,14 @@ class FilterStage(FeaturesFilterStage):
         except MessageError as e:
             self.report("bad_features", f"frame {seq}: {e}; coasting", seq)
             return None
-        if cham.ndim != 2 or cham.size == 0 or not np.isfinite(cham).all():
+        if not usable_chamfer(cham):
             self.report("bad_features", f"frame {seq}: chamfer image is {cham.shape} {cham.dtype} with "
                         f"non-finite values or wrong shape; coasting", seq)
             return None
         return cham
 
     def _blank(self, feat: Features) -> bool:
-        """A blank frame (:func:`~gflow_core.contour.features_filter.is_blank`)."""
+        """A blank frame (:func:`~gflow_core.contour.observation.is_blank`)."""
         try:
             edges = feat.edges.array()
         except MessageError:
@@ -148,7 +142,7 @@ class FilterStage(FeaturesFilterStage):
         except MessageError as e:
             self.report("bad_features", f"frame {seq}: {e}; chamfer only", seq)
             return None
-        if grey.ndim != 2 or min(grey.shape) < 3:
+        if not usable_grey(grey):
             self.report("bad_features", f"frame {seq}: grey image has shape {grey.shape}; chamfer only", seq)
             return None
         return grey

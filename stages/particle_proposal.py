@@ -39,7 +39,7 @@ from gflow_core.params import defaults
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalSpec, BoxProposalStage, CloudProposal, cloud_of, particles_msg
-from .tracker_params import StageFields, check_init, stage_params
+from .tracker_params import SeedBoxFields, check_init, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
@@ -71,19 +71,14 @@ class ProposalParams(Params, frozen=True):
         check_init(self.init)
 
 
-class ProposalFields(StageFields, frozen=True):
+class ProposalFields(SeedBoxFields, frozen=True):
     """What the chamfer and m2 proposal stages take besides their tracker's parameters: ``seed``,
-    ``model`` (a learned M2 model's path), ``init`` (the initial box: the AR(1) process on log s
-    reverts to its scale) and ``timed`` (also read the frames: the noise grows with the time to the
-    next frame)."""
+    ``init`` (:class:`~stages.tracker_params.SeedBoxFields`; the AR(1) process on log s reverts to the
+    initial box's scale), ``model`` (a learned M2 model's path) and ``timed`` (also read the frames:
+    the noise grows with the time to the next frame)."""
 
-    seed: int = 0
     model: str = ""
-    init: tuple[float, float, float, float] | None = None
     timed: bool = False
-
-    def check(self, tracker: Any) -> None:
-        check_init(self.init)
 
 
 ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,

@@ -28,7 +28,7 @@ and box, and the counters; version 1).
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Any
 
 import msgspec
 import numpy as np
@@ -40,41 +40,32 @@ from gflow_core.m2.patch_tracking import PatchExemplars
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 
-from .base import Params, StageContext, StageInputError
+from .base import StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message, MessageError
-from .tracker_params import check_init
+from .tracker_params import SeedBoxFields, stage_params
 
-__all__ = ["PatchFilterStage", "PatchFilterParams", "crop_patch"]
+__all__ = ["PatchFilterStage", "PatchFilterParams", "PatchFields", "crop_patch"]
 
 SNAPSHOT_VERSION = patch.SNAPSHOT_VERSION
 
 
-class PatchFilterParams(Params, frozen=True):
-    """Patch filter settings.
-
-    model : path of a learned M2 model with patch exemplars (required).
-    init : (x, y, w, h) crop box (``crop: box``); with ``crop: frame`` it is only reported.
-    crop : how the observed patch is cut from the frame (see the module docstring).
-    particles : number of particles N.
-    blank_std : frames whose grey levels have a smaller standard deviation coast.
-    """
+class PatchFields(SeedBoxFields, frozen=True):
+    """The patch filter's own fields, beside :class:`~gflow_core.m2.patch_params.PatchParams`' (the
+    tracker's, named once in the graph's tracker block): the ``seed``, the ``init`` box (the crop box
+    with ``crop: box``; with ``crop: frame`` it is only reported), and ``model``, the path of a learned
+    M2 model with patch exemplars (required)."""
 
     model: str = ""
-    init: tuple[float, float, float, float] | None = None
-    crop: Literal["frame", "box"] = "frame"
-    particles: int = 500
-    seed: int = 0
-    blank_std: float = 1.0
 
-    def __post_init__(self) -> None:
-        if self.particles < 1:
-            raise ValueError(f"particles must be >= 1, got {self.particles}")
-        if self.crop == "box" and self.init is None:
+    def check(self, tracker: PatchParams) -> None:
+        super().check(tracker)
+        if tracker.crop == "box" and self.init is None:
             raise ValueError("crop: box needs the crop box: set init: [x, y, w, h]")
-        check_init(self.init)
-        if self.blank_std < 0:
-            raise ValueError(f"blank_std must be >= 0, got {self.blank_std}")
+
+
+#: the patch filter's settings: every field of PatchParams and those of :class:`PatchFields`
+PatchFilterParams = stage_params("PatchFilterParams", PatchParams, PatchFields, __name__)
 
 
 class PatchFilterStage(FeaturesFilterStage):

@@ -6,30 +6,34 @@ observation of the contour trackers' protocol (:mod:`gflow_core.contour.protocol
 
 from __future__ import annotations
 
-from typing import Literal, Mapping
+from typing import Mapping
 
 import msgspec
 import numpy as np
 
 from gflow_core import colour, features
+from gflow_core.contour.params import EdgeParams
 
-from .base import Output, Params, Stage, StageInputError, versioned_snapshot
+from .base import Output, Stage, StageInputError, versioned_snapshot
 from gflow_msgs.messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
 from gflow_msgs.snapshots import PreprocessSnapshot
+from .tracker_params import StageFields, stage_params, tracker_params
 
-__all__ = ["PreprocessStage", "PreprocessParams"]
+__all__ = ["PreprocessStage", "PreprocessParams", "PreprocessFields"]
 
 SNAPSHOT_VERSION = 1
 
 
-class PreprocessParams(Params, frozen=True):
-    """Edge and chamfer settings.
+class PreprocessFields(StageFields, frozen=True):
+    """The preprocess stage's own settings, beside the edge settings of
+    :class:`~gflow_core.contour.params.EdgeParams` (``profile``, ``g0``, ``canny_low``, ``canny_high``,
+    ``canny_percentile``, ``blur``: where their defaults and help live).
 
-    canny_low / canny_high: fixed Canny thresholds. Unset, they are chosen from the
-    gradient magnitude (``canny_percentile``): once, from the pixels of ``calibrate_box``
-    in the first frame (the tracked target; ``gflow track`` sets it to the initial box),
-    or, with no box, afresh on every frame over the whole image.
-    profile: quadratic g(u) = u^2 or truncated min(u^2, g0) (M2 eq. 4).
+    calibrate_box: with ``canny_low`` / ``canny_high`` unset, the Canny thresholds are chosen from the
+    gradient magnitude (``canny_percentile``) once, from the pixels of this box in the first frame
+    (the tracked target; ``gflow track`` sets it to the initial box), or, with no box, afresh on
+    every frame over the whole image.
+    gradients: also send the grey image's gradients.
     edges: compute the Canny edges and the chamfer image (default). Off, ``edges`` and
     ``chamfer`` travel as empty arrays: for trackers that read only the grey image (G-flow),
     which saves the distance transform and 450 KB a frame at 320x240 on every hop.
@@ -37,53 +41,54 @@ class PreprocessParams(Params, frozen=True):
     that has colour (none for a grey frame), for the contour trackers' lost guard.
     """
 
-    canny_low: float | None = None
-    canny_high: float | None = None
-    canny_percentile: float = 80.0
     calibrate_box: tuple[float, float, float, float] | None = None
-    blur: float = 1.0
-    profile: Literal["quadratic", "truncated", "linear"] = "truncated"
-    g0: float = 100.0
     gradients: bool = False
     edges: bool = True
     colour: bool = False
 
 
-class PreprocessStage(Stage[PreprocessParams]):
+#: the preprocess stage's settings: every field of EdgeParams and those of :class:`PreprocessFields`
+#: (not a stage of a tracker: a graph's tracker block does not feed it, its tracker's
+#: ``preprocess`` values do, :attr:`gflow_core.spec.TrackerSpec.preprocess`)
+PreprocessParams = stage_params("PreprocessParams", EdgeParams, PreprocessFields, __name__, of_tracker=False)
+
+
+class PreprocessStage(Stage[PreprocessFields]):
     kind = "preprocess"
     Params = PreprocessParams
     inputs = {"frames": Frame}
     outputs = {"features": Features}
 
-    def __init__(self, params: PreprocessParams, ctx) -> None:
+    def __init__(self, params: PreprocessFields, ctx) -> None:
         super().__init__(params, ctx)
+        self.edge: EdgeParams = tracker_params(params, EdgeParams)
         self.done = 0
+        e = self.edge
         self.thresholds: tuple[float, float] | None = (
-            (params.canny_low, params.canny_high) if params.canny_low is not None and params.canny_high is not None
-            else None)
+            (e.canny_low, e.canny_high) if e.canny_low is not None and e.canny_high is not None else None)
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        p = self.params
+        p, e = self.params, self.edge
         frame = inputs["frames"]
         assert isinstance(frame, Frame)
         try:
             img = frame.image.array()
             grey = features.to_grey(img)
-        except (MessageError, ValueError) as e:
-            raise StageInputError(f"frame {seq}: {e}") from None
+        except (MessageError, ValueError) as err:
+            raise StageInputError(f"frame {seq}: {err}") from None
         if not p.edges:
             return [("features", self._grey_only(frame, img, grey))]
         if self.thresholds is None and p.calibrate_box is not None:
             try:
-                self.thresholds = features.canny_calibrated(grey, p.blur, p.canny_percentile, p.calibrate_box)
-            except ValueError as e:
-                raise StageInputError(f"frame {seq}: {e}") from None
+                self.thresholds = features.canny_calibrated(grey, e.blur, e.canny_percentile, p.calibrate_box)
+            except ValueError as err:
+                raise StageInputError(f"frame {seq}: {err}") from None
         # the contour trackers' observation (gflow_core.contour.protocol computes the same)
-        edges, cham = features.edges_and_chamfer(grey, self.thresholds, p.blur, p.canny_percentile, p.profile, p.g0)
+        edges, cham = features.edges_and_chamfer(grey, self.thresholds, e.blur, e.canny_percentile, e.profile, e.g0)
         gx, gy = self._gradients(grey)
         self.done += 1
         msg = self._features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(edges),
-                             chamfer=NDArray.of(cham.astype(np.float32)), profile=p.profile, g0=p.g0,
+                             chamfer=NDArray.of(cham.astype(np.float32)), profile=e.profile, g0=e.g0,
                              grad_x=gx, grad_y=gy, img=img)
         return [("features", msg)]
 
@@ -94,11 +99,11 @@ class PreprocessStage(Stage[PreprocessParams]):
         return NDArray.of(gxa), NDArray.of(gya)
 
     def _grey_only(self, frame: Frame, img: np.ndarray, grey: np.ndarray) -> Features:
-        p = self.params
+        e = self.edge
         gx, gy = self._gradients(grey)
         self.done += 1
         return self._features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(np.zeros(0, np.uint8)),
-                              chamfer=NDArray.of(np.zeros(0, np.float32)), profile=p.profile, g0=p.g0, grad_x=gx,
+                              chamfer=NDArray.of(np.zeros(0, np.float32)), profile=e.profile, g0=e.g0, grad_x=gx,
                               grad_y=gy, img=img)
 
     def _features(self, img: np.ndarray, **fields) -> Features:

@@ -61,11 +61,17 @@ def check_init(init: tuple[float, float, float, float] | None) -> None:
             raise ValueError(f"init box must have positive width and height, got w={init[2]}, h={init[3]} in {init}")
 
 
-def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "") -> type[F]:
+def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "", *,
+                 of_tracker: bool = True) -> type[F]:
     """The ``msgspec`` struct ``name`` with every field of the dataclass ``tracker`` (type and
     default as declared there) and those of ``fields``. Making one runs ``tracker``'s checks, then
     ``fields.check``: a bad value is a ``ValueError`` (``msgspec.ValidationError`` through
-    ``msgspec.convert``) naming the parameter."""
+    ``msgspec.convert``) naming the parameter.
+
+    ``of_tracker``: the struct is a stage of the tracker whose parameters ``tracker`` holds
+    (:func:`tracker_of` names it, and a graph's tracker block feeds the stage). False for a stage
+    that reads settings a dataclass declares without being a stage of a tracker (the preprocess
+    stage, of :class:`gflow_core.contour.params.EdgeParams`): its values stay its own."""
     hints = typing.get_type_hints(tracker)
     own = {f.name for f in msgspec.structs.fields(fields)}
     clash = sorted(own & {f.name for f in dataclasses.fields(tracker)})
@@ -79,7 +85,7 @@ def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: st
     struct = msgspec.defstruct(name, spec, bases=(fields,), module=module, kw_only=True, frozen=True,
                                forbid_unknown_fields=True,
                                namespace={"__post_init__": __post_init__, "__doc__": doc or fields.__doc__,
-                                          "__gflow_tracker__": tracker})
+                                          **({"__gflow_tracker__": tracker} if of_tracker else {})})
     return typing.cast("type[F]", struct)
 
 

@@ -70,10 +70,20 @@ def test_a_model_file_without_thresholds_is_tracked_with_the_learn_defaults() ->
 
 
 def test_the_preprocess_stage_has_every_edge_setting_with_its_default() -> None:
-    """stages.preprocess.PreprocessParams repeats EdgeParams's fields by hand: held to them here until
-    it is derived from the dataclass (as the trackers' stage parameters are)."""
+    """stages.preprocess.PreprocessParams is derived from EdgeParams (every field, its type and default),
+    without being a stage of a tracker: a graph's tracker block does not feed it."""
     from stages.preprocess import PreprocessParams
+    from stages.tracker_params import tracker_of
+    from pipeline.runtime.graph import GraphError, parse_graph
 
     fields = {f.name: f.default for f in msgspec.structs.fields(PreprocessParams)}
     assert {f.name: fields.get(f.name, "(missing)") for f in dataclasses.fields(EdgeParams)} == \
         {f.name: f.default for f in dataclasses.fields(EdgeParams)}
+    assert tracker_of(PreprocessParams) is None
+    with pytest.raises(msgspec.ValidationError, match="profile"):  # EdgeParams' type, as the stage checks it
+        msgspec.convert({"profile": "curved"}, PreprocessParams)
+    text = (GRAPHS / "chamfer.yaml").read_text()
+    pre = parse_graph(text, "c.yaml").stages["preprocess"].params  # the graph's own values, none of the block's
+    assert (pre["profile"], pre["g0"], pre["colour"]) == ("truncated", 100.0, True) and "min_edges" not in pre
+    with pytest.raises(GraphError, match="'preprocess'.*min_edges"):  # a tracker parameter is not the stage's
+        parse_graph(text.replace("colour: true}", "colour: true, min_edges: 2}"), "c.yaml")

@@ -66,6 +66,53 @@ def test_a_patch_models_blank_frames_are_said_by_its_grey_level_rule(mouths, tmp
     assert "min_edges" not in out and "edge pixels" not in out
 
 
+@pytest.mark.data
+def test_set_tracker_reaches_the_patch_filter(mouths, tmp_path, capsys) -> None:
+    """`--set tracker.blank_std=3` (the graph's tracker block, PatchParams) reaches the patch filter: the
+    recorded plan's filter is built with it, and a naming of it for the filter alone is refused."""
+    from pipeline.recording.rerun import recorded_plan
+
+    model, frames = mouths
+    rec = tmp_path / "run.mcap"
+    common = ["track", str(frames), "--tracker", "m2", "--model", str(model), "--init", "0,0,80,60", "--particles",
+              "50", "--stop", "5", "--inline", "--out", str(tmp_path / "b.csv")]
+    assert main([*common, "--set", "tracker.blank_std=3", "--record", str(rec)]) == 0
+    plan = recorded_plan(rec)
+    assert plan.tracker is not None and plan.tracker.name == "m2"
+    assert plan.tracker.params == {"crop": "frame", "particles": 50, "blank_std": 3.0}
+    assert plan.stage_params("filter")["blank_std"] == 3.0 and "blank_std" not in plan.stages["filter"].params
+    capsys.readouterr()
+    assert main([*common, "--set", "filter.blank_std=3", "--no-record"]) == 2
+    assert capsys.readouterr().err.strip() == ("gflow track: error: --set filter.blank_std=3: blank_std is a parameter "
+                                               "of tracker m2, set once for all its stages: --set tracker.blank_std=VALUE")
+
+
+@pytest.mark.data
+def test_a_plan_without_the_tracker_block_still_runs_and_reruns(mouths, tmp_path) -> None:
+    """The m2_patch graph as it was before its tracker block (PatchParams' values in the filter stage): it
+    loads, gflow track's values (and --set tracker.NAME) reach the filter, and its recording, whose plan
+    names them per stage as recordings made before do, re-runs bit for bit."""
+    from pipeline.recording.results import blank_rule
+    from pipeline.recording.rerun import recorded_plan
+
+    text = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "m2_patch.yaml").read_text()
+    old = tmp_path / "old.yaml"
+    head, filt = text.replace("\ntracker: m2", "\n#").split("kind: patch.filter")
+    old.write_text(head + "kind: patch.filter" + filt.replace('params: {seed: 0, model: "model.npz"}',
+                                                              'params: {particles: 500, seed: 0, model: "model.npz", '
+                                                              'crop: frame}'))
+    model, frames = mouths
+    rec = tmp_path / "old.mcap"
+    assert main(["track", str(frames), "--tracker", "m2", "--model", str(model), "--init", "0,0,80,60", "--graph",
+                 str(old), "--particles", "50", "--set", "tracker.blank_std=2.5", "--stop", "12", "--inline", "--out",
+                 str(tmp_path / "b.csv"), "--record", str(rec), "-q"]) == 0
+    plan = recorded_plan(rec)
+    assert plan.tracker is None and {k: plan.stages["filter"].params[k] for k in ("particles", "blank_std")} == \
+        {"particles": 50, "blank_std": 2.5}
+    assert "blank_std 2.5" in blank_rule(plan)
+    assert main(["rerun", str(rec), "--graph", "--check"]) == 0
+
+
 def test_the_blank_rule_is_the_trackers_own() -> None:
     from pipeline.recording.results import blank_rule
     from pipeline.runtime.graph import load_graph
@@ -73,7 +120,7 @@ def test_the_blank_rule_is_the_trackers_own() -> None:
     assert "fewer edge pixels than the tracker's min_edges 1" in blank_rule(load_graph("m2"))
     assert "fewer edge pixels than the tracker's min_edges 3" in blank_rule(
         load_graph("chamfer", overrides={"tracker": {"min_edges": 3}}))
-    patch = blank_rule(load_graph("m2_patch", overrides={"filter": {"blank_std": 0.5}}))
+    patch = blank_rule(load_graph("m2_patch", overrides={"tracker": {"blank_std": 0.5}}))
     assert "blank_std 0.5" in patch and "edge" not in patch
     assert blank_rule(None) == "a blank frame"
 
@@ -91,12 +138,17 @@ def test_patch_params_options_reach_the_filter(mouths) -> None:
     from pipeline.cli.trackers.m2 import overrides
 
     model, _ = mouths
+    from pipeline.runtime.graph import load_graph
+
     graph, over = overrides(_track_args("--model", str(model)))
-    assert graph == "m2_patch" and {k: over["filter"][k] for k in ("crop", "particles", "blank_std")} == \
-        dataclasses.asdict(PatchParams())
+    assert graph == "m2_patch" and over["tracker"] == dataclasses.asdict(PatchParams())
     graph, over = overrides(_track_args("--model", str(model), "--crop", "box", "--blank-std", "4", "--particles", "9"))
-    assert {k: over["filter"][k] for k in ("crop", "particles", "blank_std")} == \
-        {"crop": "box", "particles": 9, "blank_std": 4.0}
+    assert over["tracker"] == {"crop": "box", "particles": 9, "blank_std": 4.0}
+    # the graph's tracker block holds them, and the filter is built with them (naming none itself)
+    plan = load_graph(graph, overrides=over)
+    assert plan.tracker is not None and plan.tracker.params == over["tracker"]
+    assert {k: plan.stage_params("filter")[k] for k in over["tracker"]} == over["tracker"]
+    assert not set(plan.stages["filter"].params) & set(over["tracker"])
     from gflow_core.params import format_value
 
     p = argparse.ArgumentParser()
@@ -154,7 +206,7 @@ def test_gflow_info_m2_lists_the_parameters_of_both_kinds_of_model() -> None:
     d = json.loads(out.getvalue())
     assert d["model"] == "contour" and d["parameters_of"] == "gflow_core.contour.params.M2Params"
     (patch,) = d["models"]
-    assert (patch["model"], patch["graph"], patch["set_by"]) == ("patch", "m2_patch", ["filter"])
+    assert (patch["model"], patch["graph"], patch["set_by"]) == ("patch", "m2_patch", [])  # the tracker block's
     assert patch["parameters_of"] == "gflow_core.m2.patch_params.PatchParams"
     assert [(r["name"], r["option"]) for r in patch["parameters"]] == [(i.name, i.option or "")
                                                                        for i in describe(PatchParams)]
@@ -164,5 +216,23 @@ def test_gflow_info_m2_lists_the_parameters_of_both_kinds_of_model() -> None:
     with redirect_stdout(text):
         assert main(["info", "m2"]) == 0
     assert "graph:   with a patch model: m2_patch" in text.getvalue()
-    assert "gflow_core.m2.patch_params.PatchParams; stage filter takes them" in text.getvalue()
-    assert "--set filter.NAME=VALUE" in text.getvalue()
+    assert "gflow_core.m2.patch_params.PatchParams; named once in the graph's tracker block" in text.getvalue()
+    assert "--set filter.NAME=VALUE" not in text.getvalue() and "--set tracker.NAME=VALUE" in text.getvalue()
+
+
+def test_the_m2_patch_block_takes_the_variant_its_filter_is_made_of() -> None:
+    """`tracker: m2` in graph m2_patch is PatchParams (the m2 registration's variant the patch filter is
+    made of), with no contour edge settings for its preprocess; the block of another tracker is refused."""
+    from pipeline.runtime.graph import GraphError, load_graph, parse_graph
+    from pipeline.runtime.tracker_block import block_class, is_main_class
+
+    plan = load_graph("m2_patch")
+    assert plan.tracker is not None and plan.tracker.params == dataclasses.asdict(PatchParams())
+    assert block_class(plan.tracker) is PatchParams and not is_main_class(plan.tracker)
+    assert is_main_class(load_graph("m2").tracker)
+    text = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "m2_patch.yaml").read_text()
+    with pytest.raises(GraphError, match=r"p.yaml:\d+: stage 'filter': a stage of the tracker of PatchParams, but "
+                                         r"the graph's tracker block is chamfer's"):
+        parse_graph(text.replace("\ntracker: m2", "\ntracker: chamfer"), "p.yaml")
+    with pytest.raises(GraphError, match="tracker m2: PatchParams has no parameter 'lam'"):
+        load_graph("m2_patch", overrides={"tracker": {"lam": 0.3}})

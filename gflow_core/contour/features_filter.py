@@ -10,9 +10,8 @@ the features as the preprocess stage computed them, and has no ``propose``: the 
 in a stage of its own (:func:`.dynamics.propose_cloud`), whose clouds ``update`` weighs.
 
 The mathematics is :class:`.tracker.ContourFilter`'s (:data:`.tracker.FILTER`); this module only
-adapts its calls, and says what the filter reads of the features (:func:`reads_grey`,
-:func:`is_blank`, :func:`same_profile`) and what it refuses of a proposal (:func:`exemplar_error`),
-for the stage that reads them from messages.
+adapts its calls. What the filter reads of the features and what it refuses of a proposal, the
+stage's rules and the Python API's alike, are :mod:`.observation`'s.
 """
 
 from __future__ import annotations
@@ -21,39 +20,14 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .observation import exemplar_error
 from .params import ContourParams, EdgeParams
 from .protocol import CHAMFER
 from .tracker import FILTER, ContourObservation, ContourSetup, ContourState, setup
-from ..m2.model import M2Model
 from ..m2.tracking import ParticleCloud
 from ..tracker import Box, Estimate, FrameRng
 
-__all__ = ["ContourFeatureFilter", "FEATURE_FILTER", "reads_grey", "is_blank", "same_profile", "exemplar_error"]
-
-
-def reads_grey(params: ContourParams, placed: ContourSetup) -> bool:
-    """Whether a cue reads the frame's grey levels: the lost guard, or a learned model's appearance
-    kernels."""
-    return params.lost_guard or placed.app0 is not None
-
-
-def is_blank(params: ContourParams, edges: np.ndarray) -> bool:
-    """Fewer than ``min_edges`` edge pixels in the (H, W) edge map: a blank frame, no evidence
-    (sec. 5.1.2, fig. 7)."""
-    return params.min_edges > 0 and int(np.count_nonzero(edges)) < params.min_edges
-
-
-def same_profile(model: M2Model, profile: str, g0: float) -> bool:
-    """Whether chamfer images made with ``profile`` (and ``g0``) are the distances ``model`` was learned
-    on, so its sigma_k and d_k hold for them."""
-    return profile == model.profile and (model.profile != "truncated" or bool(np.isclose(g0, model.g0)))
-
-
-def exemplar_error(cloud: ParticleCloud, K: int) -> str:
-    """What is wrong with a proposed cloud's exemplar indices for a model of ``K`` exemplars ("": nothing)."""
-    if cloud.k.size and cloud.k.max() >= K:
-        return f"exemplar index {int(cloud.k.max())} beyond the model's K={K}"
-    return ""
+__all__ = ["ContourFeatureFilter", "FEATURE_FILTER"]
 
 
 class ContourFeatureFilter:

@@ -39,6 +39,7 @@ import numpy as np
 from .. import colour, features
 from .params import ChamferParams, ContourParams, EdgeParams, M2Params
 from .dynamics import PURPOSE_PROPOSAL, proposal_dynamics, propose_cloud
+from .observation import exemplar_error, is_blank, reads_grey, usable_chamfer, usable_grey
 from .tracker import FILTER, ContourObservation, ContourState, setup
 from ..m2 import lost as lostmod
 from ..m2.dynamics import ARDynamics
@@ -109,9 +110,10 @@ class ContourTracker:
         grey = frame.grey
         e, cham = features.edges_and_chamfer(grey, thresholds, edges.blur, edges.canny_percentile, edges.profile,
                                              edges.g0)
-        chamfer: np.ndarray | None = cham if cham.ndim == 2 and cham.size and np.isfinite(cham).all() else None
-        blank = chamfer is not None and params.min_edges > 0 and int(np.count_nonzero(e)) < params.min_edges
-        g = grey if wants_grey and grey.ndim == 2 and min(grey.shape) >= 3 else None
+        # the filter stage's rules (.observation): the chamfer image's, the blank frame's, the grey image's
+        chamfer: np.ndarray | None = cham if usable_chamfer(cham) else None
+        blank = chamfer is not None and is_blank(params, e)
+        g = grey if wants_grey and usable_grey(grey) else None
         channels = functools.cache(functools.partial(lostmod.channels, g)) if g is not None else None
         return ContourObservation(edges=e, chamfer=chamfer, blank=blank, grey=g, channels=channels,
                                   bins=frame.bins if g is not None else None)
@@ -133,13 +135,9 @@ class ContourTracker:
         walk = (params.std_xy, params.std_theta, params.std_log_s) if isinstance(params, ChamferParams) else None
         markov, dynamics, fixed = proposal_dynamics(model, box, walk)
         assert not fixed  # setup refuses patch models
-        fobs = self.features(params, obs, edges, thresholds, self._wants_grey(params, setup_.app0 is not None))
+        fobs = self.features(params, obs, edges, thresholds, reads_grey(params, setup_))
         st, est = FILTER.init(params, fobs, setup_, rng)
         return ContourTrack(st, edges, thresholds, markov, dynamics), est
-
-    @staticmethod
-    def _wants_grey(params: ContourParams, appearance: bool) -> bool:
-        return params.lost_guard or appearance
 
     def propose(self, params: ContourParams, state: ContourTrack, obs: ContourFrame | None, rng: FrameRng,
                 dt: float = 1.0) -> ParticleCloud:
@@ -150,11 +148,11 @@ class ContourTracker:
                rng: FrameRng) -> tuple[ContourTrack, Estimate]:
         """The filter's update of ``proposal`` on the frame's features (no evidence when ``obs`` is None).
         The estimate's phase is ``track``, ``coast`` (a blank frame), ``lost`` or ``redetect``."""
-        if proposal.k.size and proposal.k.max() >= state.filter.model.K:
-            raise ValueError(f"exemplar index {int(proposal.k.max())} beyond the model's K={state.filter.model.K}")
-        fobs = None if obs is None else self.features(
-            params, obs, state.edges, state.thresholds,
-            self._wants_grey(params, state.filter.setup.app0 is not None))
+        problem = exemplar_error(proposal, state.filter.model.K)
+        if problem:
+            raise ValueError(problem)
+        fobs = None if obs is None else self.features(params, obs, state.edges, state.thresholds,
+                                                      reads_grey(params, state.filter.setup))
         st, est = FILTER.update(params, state.filter, proposal, fobs, rng)
         return dataclasses.replace(state, filter=st), est
 

@@ -1,9 +1,11 @@
 """The parameters of M2 with a patch model (:class:`PatchParams`), the only place their defaults live.
 
-The tracker is :mod:`gflow_core.m2.patch_protocol`; its stage ``patch.filter`` takes them, ``gflow
-track --tracker m2 --model PATCH.npz``'s options (``--crop``, ``--blank-std``, and ``--particles``
-read by name) and ``gflow info m2`` derive from them, and the Python API's keywords are made into
-them (:func:`gflow_core.m2.patch_protocol.patch_setup`).
+The tracker is :mod:`gflow_core.m2.patch_protocol`; they are the m2 registration's parameters for a
+patch model (a ``variant`` of its spec), named once in graph ``m2_patch``'s tracker block, whose
+stage ``patch.filter`` is made of them; ``gflow track --tracker m2 --model PATCH.npz``'s options
+(``--crop``, ``--blank-std``, and ``--particles`` read by name) and ``gflow info m2`` derive from
+them, and the Python API's keywords are made into them
+(:func:`gflow_core.m2.patch_protocol.patch_setup`).
 
 This module imports no mathematics, so the command line reads it at no cost.
 """

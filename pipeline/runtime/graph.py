@@ -58,8 +58,8 @@ from stages.base import Params
 from stages.registry import STAGES
 
 from pipeline.io.recording_files import unique_path
-from pipeline.runtime.tracker_block import (TRACKER_KEY, TrackerBlock, own_fields, parse_block, stage_tracker,
-                                            tracker_fields)
+from pipeline.runtime.tracker_block import (TRACKER_KEY, TrackerBlock, is_main_class, own_fields, parse_block,
+                                            stage_tracker, tracker_fields)
 from pipeline.runtime.transport import topic_key
 
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
@@ -445,12 +445,13 @@ def _stage_values(sname: str, kind: str, params: dict[str, Any], block: TrackerB
     return full, own_fields(full, cls)
 
 
-def _tracker_preprocess(tracker: str) -> dict[str, Any]:
-    """The preprocess parameters the registered tracker ``tracker`` names
-    (:attr:`gflow_core.spec.TrackerSpec.preprocess`; a block's tracker is registered)."""
+def _tracker_preprocess(block: TrackerBlock) -> dict[str, Any]:
+    """The preprocess parameters the registered tracker of ``block`` names
+    (:attr:`gflow_core.spec.TrackerSpec.preprocess`; a block's tracker is registered), for its own
+    parameter dataclass (none for a variant: m2 with a patch model reads no edges)."""
     from gflow_core.registry import get
 
-    return dict(get(tracker).preprocess)
+    return dict(get(block.name).preprocess) if is_main_class(block) else {}
 
 
 def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides: dict[str, dict],
@@ -462,7 +463,7 @@ def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides
     kind = _stage_kind(sname, spec, where, filename)
     params = dict(spec.get("params") or {})
     if kind == PREPROCESS_KIND and block is not None:
-        params = {**_tracker_preprocess(block.name), **params}
+        params = {**_tracker_preprocess(block), **params}
     params.update(overrides.get(sname, {}))
     pwhere = f"{filename}:{_line(spec, 'params') or _line(stages_doc, sname)}: stage {sname!r}"
     full, params = _stage_values(sname, kind, params, block, overrides, pwhere)
@@ -572,15 +573,16 @@ def parse_graph(text: str, filename: str = "<graph>", base_dir: str = ".", overr
 
 def _tracker_block(doc: dict, overrides: dict[str, dict], filename: str) -> TrackerBlock | None:
     """The graph's tracker block with the overrides of ``tracker`` applied (None: the graph has none)."""
+    kinds = [s.get("kind") for s in (doc.get("stages") or {}).values() if isinstance(s, dict)]
+    classes = frozenset(c for k in kinds if isinstance(k, str) and k in STAGES
+                        and (c := stage_tracker(STAGES[k].Params)) is not None)
     if TRACKER_KEY not in doc:
-        kinds = [s.get("kind") for s in (doc.get("stages") or {}).values() if isinstance(s, dict)]
-        if overrides.get(TRACKER_KEY) and not any(isinstance(k, str) and k in STAGES
-                                                  and stage_tracker(STAGES[k].Params) for k in kinds):
+        if overrides.get(TRACKER_KEY) and not classes:
             raise GraphError(f"{filename}: tracker.{next(iter(overrides[TRACKER_KEY]))}: the graph runs no tracker "
                              f"whose parameters it could set")
         return None
     try:
-        return parse_block(doc[TRACKER_KEY], overrides.get(TRACKER_KEY, {}))
+        return parse_block(doc[TRACKER_KEY], overrides.get(TRACKER_KEY, {}), classes)
     except ValueError as e:
         raise GraphError(f"{filename}:{_line(doc, TRACKER_KEY)}: {e}") from None
 

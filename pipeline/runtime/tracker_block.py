@@ -7,7 +7,9 @@ A graph names its tracker and that tracker's parameter values once::
       params: {particles: 300}     # optional: the parameter dataclass's defaults fill in the rest
 
 (``tracker: dcf`` alone takes every default). The block is checked against the tracker's
-parameter dataclass (:attr:`gflow_core.spec.TrackerSpec.params`) as its stages check them
+parameter dataclass (:attr:`gflow_core.spec.TrackerSpec.params`, or the one of its
+:attr:`~gflow_core.spec.TrackerSpec.variants` the graph's stages are made of: m2's ``PatchParams``
+in graph ``m2_patch``) as its stages check them
 (:func:`stages.tracker_params.block_params`), and every stage whose parameter struct is made of
 that dataclass (:func:`stages.tracker_params.tracker_of`) takes its values from it: such a stage's
 entry in the graph keeps only its own fields (``seed``, ``init``, ``timed``, ``shards``...). A
@@ -32,7 +34,8 @@ import msgspec
 from stages.base import Params
 from stages.tracker_params import block_params, tracker_of
 
-__all__ = ["TRACKER_KEY", "TrackerBlock", "parse_block", "tracker_fields", "own_fields", "stage_tracker"]
+__all__ = ["TRACKER_KEY", "TrackerBlock", "parse_block", "tracker_fields", "own_fields", "stage_tracker",
+           "block_class", "is_main_class"]
 
 #: the graph's top-level key of the block, and the pseudo-stage ``--set tracker.PARAM=VALUE`` names
 TRACKER_KEY = "tracker"
@@ -47,11 +50,32 @@ class TrackerBlock:
     params: dict[str, Any]
 
 
-def _dataclass_of(name: str) -> type:
-    """The parameter dataclass of the registered tracker ``name`` (``ValueError``, one line)."""
+def _classes_of(name: str) -> tuple[type, ...]:
+    """The parameter dataclasses of the registered tracker ``name``, its own first, then its variants
+    (``ValueError``, one line)."""
     from gflow_core.registry import get
 
-    return get(name).params  # SpecError (a ValueError) names an unknown tracker
+    spec = get(name)  # SpecError (a ValueError) names an unknown tracker
+    return (spec.params, *spec.variants)
+
+
+def _dataclass_of(name: str, stages: frozenset[type] = frozenset()) -> type:
+    """The parameter dataclass of the registered tracker ``name`` a graph's block takes: the variant
+    its tracker stages are made of (``stages``), else the tracker's own."""
+    own, *variants = _classes_of(name)
+    return next((v for v in variants if v in stages), own)
+
+
+def block_class(block: TrackerBlock) -> type:
+    """The parameter dataclass of ``block`` (of a graph or a recorded plan): of its tracker's, the one
+    whose fields the block holds."""
+    classes = _classes_of(block.name)
+    return next((c for c in classes if set(tracker_fields(c)) == set(block.params)), classes[0])
+
+
+def is_main_class(block: TrackerBlock) -> bool:
+    """Whether ``block`` holds its tracker's own parameter dataclass (not one of its variants)."""
+    return block_class(block) is _classes_of(block.name)[0]
 
 
 def tracker_fields(cls: type) -> list[str]:
@@ -90,9 +114,10 @@ def _plain_type_error(message: str, values: Mapping[str, Any]) -> str:
     return f"{m.group(2)} must be {' or '.join(kinds)}, got {values[m.group(2)]!r}"
 
 
-def parse_block(doc: Any, override: Mapping[str, Any]) -> TrackerBlock:
+def parse_block(doc: Any, override: Mapping[str, Any], stages: frozenset[type] = frozenset()) -> TrackerBlock:
     """The block of a graph's ``tracker:`` entry (a name, or ``{name: ..., params: {...}}``) with
-    ``override`` ({param: value}) applied; ``ValueError`` (one line) for a bad one."""
+    ``override`` ({param: value}) applied; ``ValueError`` (one line) for a bad one. ``stages``: the
+    parameter dataclasses the graph's tracker stages are made of, which settle a tracker's variant."""
     values: dict[str, Any] = {}
     name: Any = doc
     if isinstance(doc, str):
@@ -108,7 +133,7 @@ def parse_block(doc: Any, override: Mapping[str, Any]) -> TrackerBlock:
         raise ValueError("tracker: give the tracker's name (tracker: dcf) or {name: NAME, params: {...}}")
     if not isinstance(name, str) or not name:
         raise ValueError("tracker: the block needs the tracker's name (name: dcf)")
-    cls = _dataclass_of(name)
+    cls = _dataclass_of(name, stages)
     try:
         return TrackerBlock(name=name, params=block_values(cls, {**values, **override}))
     except ValueError as e:

@@ -13,7 +13,7 @@ from typing import Any
 from stages.registry import STAGES
 
 from pipeline.runtime.graph import RECORDER_KIND, Plan
-from pipeline.runtime.tracker_block import TRACKER_KEY, block_values, stage_tracker
+from pipeline.runtime.tracker_block import TRACKER_KEY, block_class, block_values, stage_tracker
 
 __all__ = ["check_tracker_values"]
 
@@ -39,9 +39,7 @@ def check_tracker_values(plan: Plan, given: dict[str, tuple[str, str, Any]], oth
                     f"--set tracker.{param}=VALUE")
     if not mine:
         return ""
-    from gflow_core.registry import get
-
-    cls = get(block.name).params
+    cls = block_class(block)
     values = {**block.params, **(others or {}).get(TRACKER_KEY, {}), **{p: v for p, v in mine.values()}}
     try:
         block_values(cls, values)

@@ -9,7 +9,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from gflow_core.contour.features_filter import FEATURE_FILTER, exemplar_error, is_blank, same_profile
+from gflow_core.contour.features_filter import FEATURE_FILTER
+from gflow_core.contour.observation import exemplar_error, is_blank, same_profile, usable_chamfer, usable_grey
 from gflow_core.contour.params import ChamferParams
 from gflow_core.contour.protocol import CHAMFER
 from gflow_core.synthetic import SyntheticScene
@@ -48,6 +49,12 @@ def test_what_the_filter_reads_of_features_and_refuses_of_proposals() -> None:
     edges[5, :9] = 255
     assert is_blank(ChamferParams(min_edges=10), edges) and not is_blank(ChamferParams(min_edges=9), edges)
     assert not is_blank(ChamferParams(min_edges=0), np.zeros((20, 30), np.uint8))  # the rule off
+    cham = np.ones((20, 30), np.float32)
+    assert usable_chamfer(cham) and not usable_chamfer(cham[0]) and not usable_chamfer(cham[:0])
+    cham[3, 4] = np.nan
+    assert not usable_chamfer(cham)
+    assert usable_grey(np.zeros((3, 3), np.uint8)) and not usable_grey(np.zeros((2, 30), np.uint8))
+    assert not usable_grey(np.zeros((20, 30, 3), np.uint8))
     truncated = SimpleNamespace(profile="truncated", g0=100.0)
     assert same_profile(truncated, "truncated", 100.0 + 1e-9)
     assert not same_profile(truncated, "truncated", 64.0) and not same_profile(truncated, "quadratic", 100.0)

@@ -7,7 +7,7 @@ blur; the patch crop) is read from the model file and applied.
 
 Each kind of model has its parameter dataclass (:data:`KINDS`): a contour model
 :class:`gflow_core.contour.params.M2Params` (the graph's tracker block), a patch model
-:class:`gflow_core.m2.patch_params.PatchParams` (the ``patch.filter`` stage's). The options of both
+:class:`gflow_core.m2.patch_params.PatchParams` (graph ``m2_patch``'s tracker block). The options of both
 derive from them; an option of one kind given with a model of the other is a one-line error, given
 before anything starts.
 """
@@ -106,7 +106,8 @@ def overrides(args: Any) -> tuple[str, dict[str, dict]]:
         # the filter reads the grey image alone (the graph's preprocess computes no edges)
         p = make(PatchParams, {"crop": crop_of(meta), **particles, **param_values(args, PatchParams)})
         return KINDS["patch"].graph, {
-            "filter": {"model": mpath, "init": box, "seed": args.seed, **dataclasses.asdict(p)},
+            "tracker": dataclasses.asdict(p),  # the graph's tracker block (PatchParams)
+            "filter": {"model": mpath, "init": box, "seed": args.seed},
             "proposal": {"model": mpath, "seed": args.seed},
         }
     from gflow_core.contour.protocol import m2_edge_params
