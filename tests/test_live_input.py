@@ -129,8 +129,12 @@ def test_udp_outage_is_reported_and_frame_numbers_stay_the_cameras(tmp_path: Pat
     first = int(reports[0].split("frames ")[1].split("-")[0])
     assert not set(rows) & set(range(first, first + missed))
     gt = truth(caviar1)
-    err = float(np.mean([cle(tuple(float(v) for v in row[:4]), gt[k]) for k, row in rows.items()]))
-    assert err < 6.0, err  # the rows, compared with the truth of the frames they name, still track
+    errs = {k: cle(tuple(float(v) for v in row[:4]), gt[k]) for k, row in rows.items()}
+    err = float(np.mean(list(errs.values())))
+    # the rows, compared with the truth of the frames they name, still track (on failure: where it
+    # went off, and the run's last progress line, which counts the frames a busy machine skipped)
+    progress = [ln for ln in r.stderr.replace("\r", "\n").splitlines() if "source:" in ln][-1:]
+    assert err < 6.0, (err, {k: round(v) for k, v in errs.items() if v > 20}, progress)
     assert "missed=" in r.stderr  # the progress line
     from pipeline.recording.live_record import live_summary
 
