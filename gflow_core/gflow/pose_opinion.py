@@ -164,7 +164,7 @@ import numpy as np
 from .geometry import (COEF, ROT, TRANS, box_minus, box_plus, pose_quaternions, project,
                        quaternion_matrices, relative_rotvecs)
 from .background import TiledTexels
-from .coarse_search import translation_costs
+from .coarse_search import translation_costs, translation_sums
 from .image import BilinearStencil, FrameData, stencil_xy
 from .photometric import Photometric
 
@@ -188,6 +188,8 @@ __all__ = [
     "background_image_terms",
     "log_likelihood",
     "log_importance_weights",
+    "generic_background",
+    "local_background",
 ]
 
 #: Fraction of foreground-plus-prior curvature the background term may not remove.
@@ -222,6 +224,11 @@ class TextureView:
         Gaussian for every pixel, the mean and variance of the frame (of the pyramid level the
         objective is evaluated on), whose first term of eq. 14 enters at every vertex
         (:func:`generic_background`; departure from the paper, see the module docstring).
+    local : float
+        > 0: the vertices' pixels, were they background, are read by a local background: each
+        pixel ``N(M(x), V(x))``, the frame's mean and variance in a Gaussian window of this std
+        (pixels of level 0) about it, whose two terms of eq. 14 enter at every vertex
+        (:func:`local_background`; departure from the paper, see the module docstring). 0: none.
     """
 
     mean: np.ndarray
@@ -231,6 +238,12 @@ class TextureView:
     bg_rows: np.ndarray | None = None
     psi_b: float = 0.0
     generic: bool = False
+    local: float = 0.0
+
+    @property
+    def frame_background(self) -> bool:
+        """Whether a background read from the frame itself (generic or local) weighs the data term."""
+        return self.generic or self.local > 0
 
     @property
     def has_background(self) -> bool:
@@ -253,6 +266,26 @@ def generic_background(image: np.ndarray) -> tuple[float, float]:
     m = float(image.mean())
     v = float(image.var())
     return m, 1.0 / max(v, 1e-6)
+
+
+def local_background(image: np.ndarray, sigma: float, floor: float) -> np.ndarray:
+    """The local background of a (contrast-normalised) frame ``(H, W)``: every pixel ``x`` is
+    ``N(M(x), V(x))`` with ``M = G * y`` and ``V = max(G * (y - M)^2, floor)``, ``G`` a Gaussian of
+    std ``sigma`` pixels (the background texels of eq. 13 read from the frame around each pixel
+    rather than learnt over past frames; ``floor``: the observation noise ``sigma_w``, below which a
+    pixel's variance cannot fall). Returns its two terms of eq. 14 per pixel, ``(H, W)``::
+
+        B(x) = (y(x) - M(x))^2 / V(x) + log V(x)
+
+    twice the negative log-density of the pixel as background, without its constant; the objective
+    subtracts ``1/2 sum_i B(x_i)`` at the vertices (``B`` bilinearly interpolated).
+    """
+    import cv2
+
+    m = cv2.GaussianBlur(image, (0, 0), sigma, borderType=cv2.BORDER_REFLECT)
+    d = image - m
+    v = np.maximum(cv2.GaussianBlur(d * d, (0, 0), sigma, borderType=cv2.BORDER_REFLECT), floor)
+    return d * d / v + np.log(v)
 
 
 def _flat(stack):
@@ -557,6 +590,8 @@ class _Fit:
         self.max_rotation, self.outlier_sq, self.scale = max_rotation, outlier_sq, scale
         self.walls = np.isfinite(max_rotation) or scale is not None
         self.generic = generic_background(fd.image) if tv.generic else None
+        self.local = (local_background(fd.image, tv.local * level_scale, sigma_w).reshape(-1) if tv.local > 0
+                      else None)
         self.mu = tv.mean
         self.w = _fg_weights(tv, sigma_w)  # (E, n)
         if photometric is not None:
@@ -627,6 +662,9 @@ class _Evaluation:
             # the generic background's first term of eq. 14: - sum_i (y(x_i) - m)^2 / s^2
             self.rg = yv - fit.generic[0]
             f = f - fit.generic[1] * (self.rg * self.rg).sum(axis=-1)
+        if fit.local is not None:
+            # the local background's two terms of eq. 14: - sum_i [(y - M)^2 / V + log V](x_i)
+            f = f - st.sample(fit.local).sum(axis=-1)
         if fit.temper != 1.0:
             # tempered data term (departure from the paper): its log-likelihood times 1 / kappa
             f = f / fit.temper
@@ -1025,14 +1063,14 @@ def coarse_to_fine_peak(
         # same sample: same pose, prior and texels) get the same peak: compute it once
         first, inverse = _distinct_rows(prev, u, tv.mean, tv.var)
         if first.size < u.shape[0]:
-            sub = TextureView(mean=tv.mean[first], var=tv.var[first], generic=tv.generic)
+            sub = TextureView(mean=tv.mean[first], var=tv.var[first], generic=tv.generic, local=tv.local)
             res = coarse_to_fine_peak(bases, pyramid, prev[first], sub, sigma_w, prior_std, n_iter, u[first],
                                       use_background, photometric, offsets, max_rotation, search_stride, outlier_sq,
                                       scale, reset, temper)
             return GaussNewtonResult(res.u_hat[inverse], res.hessian[inverse], res.objective[inverse],
                                      None if res.reset is None else res.reset[inverse])
     L = len(pyramid)
-    fg = TextureView(mean=tv.mean, var=tv.var, generic=tv.generic)
+    fg = TextureView(mean=tv.mean, var=tv.var, generic=tv.generic, local=tv.local)
     chains = (bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, use_background, photometric, max_rotation,
               outlier_sq, scale, offsets, search_stride, temper)
     if offsets is None or len(offsets) <= 1:
@@ -1067,6 +1105,10 @@ def _search_best(bases: np.ndarray, coarse: np.ndarray, ls: float, prev: np.ndar
         xs = xy[..., 0] * ls
         cost = cost - translation_costs(coarse, xs, xy[..., 1] * ls, offsets * ls, np.full(xs.shape, gm),
                                         np.full(xs.shape, gw), SEARCH_BLOCK_VERTICES)
+    if tv.local > 0:
+        # the local background's terms of eq. 14 on this level: - sum_i B(x_i + o) (local_background)
+        cost = cost - translation_sums(local_background(coarse, tv.local * ls, sigma_w), xy[..., 0] * ls,
+                                       xy[..., 1] * ls, offsets * ls, SEARCH_BLOCK_VERTICES)
     # the rest of the objective (gauss_newton_objective): prior (only its translation part
     # changes with the offset) and the soft walls
     lam = prior_precision(prior_std)
@@ -1140,7 +1182,7 @@ def _frontal_chain(res: GaussNewtonResult, reset: RotationReset, bases, pyramid,
     std = np.array(prior_std, dtype=np.float64)
     std[ROT] = reset.std
     anchor = reset.anchor_view(sel.size)
-    tv_r = _rows_view(tv, sel) if anchor is None else dataclasses.replace(anchor, generic=tv.generic)
+    tv_r = _rows_view(tv, sel) if anchor is None else dataclasses.replace(anchor, generic=tv.generic, local=tv.local)
     fr = coarse_to_fine_peak(bases, pyramid, centre, tv_r, sigma_w, std, n_iter, start,
                              use_background and anchor is None, photometric, offsets, max_rotation, search_stride,
                              outlier_sq, scale, temper=temper)
@@ -1181,7 +1223,7 @@ def _rows_view(tv: TextureView, rows: np.ndarray) -> TextureView:
     """The texture opinions of the experts ``rows`` (repeats allowed)."""
     return TextureView(mean=tv.mean[rows], var=tv.var[rows], bg_mean=tv.bg_mean, bg_var=tv.bg_var,
                        bg_rows=None if tv.bg_rows is None else tv.bg_rows[rows], psi_b=tv.psi_b,
-                       generic=tv.generic)
+                       generic=tv.generic, local=tv.local)
 
 
 def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
@@ -1189,11 +1231,11 @@ def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_bac
     """``n_iter`` Gauss-Newton steps on every level, coarsest first, from ``u`` (only level 0's
     Hessian is kept: the coarser levels pass on their peak)."""
     res = None
-    generic = tv.generic
-    if generic:
-        # Gauss-Newton climbs the object's term and the prior alone (as without the generic
-        # background); the peak's objective, which the chains are compared by, has the term
-        tv, fg = dataclasses.replace(tv, generic=False), dataclasses.replace(fg, generic=False)
+    frame_bg = {"generic": tv.generic, "local": tv.local}
+    if tv.frame_background:
+        # Gauss-Newton climbs the object's term and the prior alone (as without the generic or local
+        # background); the peak's objective, which the chains are compared by, has their terms
+        tv, fg = (dataclasses.replace(v, generic=False, local=0.0) for v in (tv, fg))
     for lev in range(len(pyramid) - 1, -1, -1):
         res = gauss_newton_peak(
             bases, pyramid[lev], prev, tv if lev == 0 else fg, sigma_w, prior_std, n_iter, start=u,
@@ -1203,8 +1245,8 @@ def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_bac
         )
         u = res.u_hat
     assert res is not None
-    if generic:
-        f = gauss_newton_objective(bases, pyramid[0], prev, res.u_hat, dataclasses.replace(tv, generic=True), sigma_w,
+    if frame_bg["generic"] or frame_bg["local"]:
+        f = gauss_newton_objective(bases, pyramid[0], prev, res.u_hat, dataclasses.replace(tv, **frame_bg), sigma_w,
                                    prior_std, use_background, 1.0, photometric, max_rotation, outlier_sq, scale, temper)
         res = dataclasses.replace(res, objective=f)
     return res
@@ -1363,6 +1405,9 @@ def log_likelihood(
         # the generic background at the vertices (its normalising terms are the same at every pose)
         gm, gw = generic_background(fd.image)
         fg = fg - gw * ((y - gm) ** 2).sum(axis=-1)
+    if tv.local > 0:
+        # the local background at the vertices, both its terms (its variance changes with the pose)
+        fg = fg - st.sample(local_background(fd.image, tv.local, sigma_w).reshape(-1)).sum(axis=-1)
     logdet_v = np.sum(np.log(vv), axis=-1)
     if not tv.has_background:
         return -0.5 * n * _LOG_2PI - 0.5 * (fg + logdet_v[:, None])
