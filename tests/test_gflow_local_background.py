@@ -3,13 +3,14 @@ the frame read about each pixel, so a flat patch gains nothing by being claimed.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from gflow_core.gflow.coarse_search import translation_costs, translation_sums
 from gflow_core.gflow.filter import GFlowConfig
 from gflow_core.gflow.geometry import make_pose
-from gflow_core.gflow.image import prepare_frame, stencil_xy
+from gflow_core.gflow.image import prepare_frame
 from gflow_core.gflow.params import GFlowParams
 from gflow_core.gflow.pose_opinion import TextureView, local_background, log_likelihood
 
@@ -67,25 +68,6 @@ def test_the_local_background_is_twice_the_negative_log_density_of_each_pixel() 
     np.testing.assert_allclose(local_background(np.full((10, 10), 0.3), 2.0, SIGMA_W), np.log(SIGMA_W))
 
 
-@pytest.mark.parametrize("shifts", [np.array([[0.0, 0.0], [2.0, -1.0], [-3.0, 4.0]]),
-                                    np.array([[0.5, 0.25], [-1.5, 2.0]])])
-def test_translation_sums_are_the_sums_of_the_shifted_samples(shifts) -> None:
-    """Whole-pixel shifts (the lattice) and others (one by one) give the sums of the image sampled at each
-    shifted vertex, vertices near and beyond the border included; translation_costs is unchanged."""
-    rng = np.random.default_rng(3)
-    img = rng.random((20, 30))
-    x = rng.uniform(-3, 32, (4, 7))
-    y = rng.uniform(-3, 22, (4, 7))
-    got = translation_sums(img, x, y, shifts, block_vertices=10)
-    want = np.array([[stencil_xy(x[e] + dx, y[e] + dy, img.shape).sample(img.reshape(-1)).sum() for dx, dy in shifts]
-                     for e in range(4)])
-    np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-12)
-    mu, w = rng.random((4, 7)), rng.random((4, 7))
-    cost = np.array([[(w[e] * (stencil_xy(x[e] + dx, y[e] + dy, img.shape).sample(img.reshape(-1)) - mu[e]) ** 2).sum()
-                      for dx, dy in shifts] for e in range(4)])
-    np.testing.assert_allclose(translation_costs(img, x, y, shifts, mu, w, block_vertices=10), cost, rtol=1e-10)
-
-
 @pytest.mark.parametrize("value, match", [(-1.0, "local_background must be"), (float("nan"), "local_background must be"),
                                           (True, "local_background must be")])
 def test_a_bad_local_background_is_refused_in_one_line(value, match) -> None:
@@ -99,3 +81,55 @@ def test_the_local_and_the_generic_background_are_not_set_together() -> None:
         GFlowParams(local_background=5.0, generic_background=True)
     assert GFlowParams(local_background=5.0).config().local_background == 5.0
     assert GFlowConfig.__dataclass_fields__["local_background"].default == 0.0
+
+
+def test_the_objective_the_chains_are_compared_by_subtracts_half_the_local_terms_at_the_vertices() -> None:
+    """eq. 14 with the local background: the object's objective minus 1/2 sum_i B(x_i), B the local
+    background's two terms of each pixel, bilinearly read at the vertices."""
+    from gflow_core.gflow.image import stencil_xy
+    from gflow_core.gflow.pose_opinion import gauss_newton_objective
+
+    img, bases, face, flat, mu = _scene(np.random.default_rng(5))
+    fd = prepare_frame(img)
+    poses = np.stack([face, flat])
+    tv = TextureView(mean=np.stack([mu, mu]), var=np.full((2, mu.size), 1e-3))
+    std = np.full(poses.shape[1], 5.0)
+    plain = gauss_newton_objective(bases, fd, poses, poses, tv, SIGMA_W, std)
+    local = gauss_newton_objective(bases, fd, poses, poses, TextureView(mean=tv.mean, var=tv.var, local=3.0),
+                                   SIGMA_W, std)
+    b = local_background(img, 3.0, SIGMA_W)
+    for row, pose in enumerate(poses):
+        pts = bases[:, :2, 0] + pose[3:5]
+        at = stencil_xy(pts[:, 0], pts[:, 1], img.shape).sample(b.reshape(-1))
+        np.testing.assert_allclose(local[row], plain[row] - 0.5 * at.sum(), rtol=1e-10)
+    assert local[0] < local[1] and plain[0] > plain[1]
+
+
+def test_shards_of_the_experts_propose_as_one_batch_with_the_local_background() -> None:
+    """The local background is read from the frame alone: proposals made for two shards of the experts
+    are those of one call, bit for bit (the pipeline's proposal processes), and differ from the
+    proposals without it."""
+    from gflow_core.gflow import model_setup
+    from gflow_core.gflow.filter import init_state, propose
+    from gflow_core.gflow.synthetic_head import synthetic_sequence
+    from gflow_core.gflow.tracker import observation
+    from gflow_scenes import SYNTH
+
+    seq = synthetic_sequence(np.random.default_rng(3), n_frames=2, image_shape=(60, 80))
+    grey = np.rint(seq.frames * 255).astype(np.uint8)
+    params = GFlowParams(**dict(SYNTH, n_experts=6, local_background=4.0, init_jitter=(0.05, 2.0, 0.02)))
+    setup = model_setup(params, seq.box, grey.shape[1:])
+    y0, y1 = observation(grey[0], setup.contrast_sigma), observation(grey[1], setup.contrast_sigma)
+    state = init_state(setup.model, setup.pose0, y0, setup.cfg, rng=np.random.default_rng(1),
+                       pose_jitter_std=np.r_[np.full(3, 0.05), np.full(2, 2.0), 0.02 * abs(setup.pose0[5:])])
+
+    def rngs(idx):
+        return [np.random.default_rng([7, int(i)]) for i in idx]
+
+    whole = propose(state, y1, setup.model, setup.cfg, rngs(range(6)), None, 3.0)
+    parts = [propose(state, y1, setup.model, setup.cfg, rngs(ix), ix, 3.0) for ix in ([0, 1, 2], [3, 4, 5])]
+    for name in ("u_hat", "samples", "log_weights", "log_evidence", "gn_objective"):
+        np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(whole, name))
+    off = dataclasses.replace(setup.cfg, local_background=0.0)
+    assert not np.array_equal(propose(state, y1, setup.model, off, rngs(range(6)), None, 3.0).log_weights,
+                              whole.log_weights)

@@ -30,7 +30,7 @@ import numpy as np
 
 from .image import stencil_xy
 
-__all__ = ["translation_costs", "translation_sums"]
+__all__ = ["translation_costs"]
 
 
 def translation_costs(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: np.ndarray, mu: np.ndarray,
@@ -58,9 +58,20 @@ def translation_costs(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: n
     -------
     (E, G) float64
     """
-    E, G = x.shape[0], shifts.shape[0]
+    E, m = x.shape
+    G = shifts.shape[0]
     out = np.empty((E, G))
-    for bs, vals in _shifted_samples(image, x, y, shifts, block_vertices):
+    block = max(1, block_vertices // max(1, G * m))
+    whole = np.all(shifts == np.round(shifts)) and np.isfinite(shifts).all()
+    if whole:
+        lattice = _Lattice(image, shifts.astype(np.intp))
+    for b0 in range(0, E, block):
+        bs = slice(b0, min(E, b0 + block))
+        if whole:
+            vals = lattice.sample(x[bs], y[bs])
+        else:
+            vals = stencil_xy(x[bs, None, :] + shifts[None, :, 0, None], y[bs, None, :] + shifts[None, :, 1, None],
+                              image.shape).sample(image.reshape(-1))
         r = vals - mu[bs, None, :]
         r *= r
         # sum_i w_i r_i^2 for each translation (numpy's own reduction, not a BLAS gemv: the same
@@ -68,34 +79,6 @@ def translation_costs(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: n
         r *= w[bs, None, :]
         out[bs] = r.sum(axis=-1)
     return out
-
-
-def translation_sums(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: np.ndarray,
-                     block_vertices: int = 1 << 16) -> np.ndarray:
-    """``S(e, g) = sum_i b(x_i + o_g)`` for every expert and translation: a per-pixel term ``b`` (the
-    level's image of it, ``(h, w)``; e.g. :func:`.pose_opinion.local_background`) summed at the
-    vertices, sampled as in :func:`translation_costs` (same arguments). Returns ``(E, G)`` float64."""
-    out = np.empty((x.shape[0], shifts.shape[0]))
-    for bs, vals in _shifted_samples(image, x, y, shifts, block_vertices):
-        out[bs] = vals.sum(axis=-1)
-    return out
-
-
-def _shifted_samples(image: np.ndarray, x: np.ndarray, y: np.ndarray, shifts: np.ndarray, block_vertices: int):
-    """Blocks of experts ``bs`` with the bilinear values ``(len(bs), G, m)`` of ``image`` at their vertices
-    ``(x, y)`` (E, m) shifted by each of ``shifts`` (G, 2)."""
-    E, m = x.shape
-    G = shifts.shape[0]
-    block = max(1, block_vertices // max(1, G * m))
-    whole = np.all(shifts == np.round(shifts)) and np.isfinite(shifts).all()
-    lattice = _Lattice(image, shifts.astype(np.intp)) if whole else None
-    for b0 in range(0, E, block):
-        bs = slice(b0, min(E, b0 + block))
-        if lattice is not None:
-            yield bs, lattice.sample(x[bs], y[bs])
-        else:
-            yield bs, stencil_xy(x[bs, None, :] + shifts[None, :, 0, None], y[bs, None, :] + shifts[None, :, 1, None],
-                                 image.shape).sample(image.reshape(-1))
 
 
 class _Lattice:

@@ -238,9 +238,9 @@ class GFlowConfig:
     local_background : float
         > 0: the object's data term is weighed against a local background at the vertices (eq. 14's
         two background terms with each pixel's Gaussian the frame's mean and variance in a Gaussian
-        window of this std, pixels, about it: :func:`.pose_opinion.local_background`), in the search,
-        the chains' comparison and the weights (eq. 13, 16). 0: none (the paper's uninformative
-        background, without ``background``). Not with ``generic_background``.
+        window of this std, pixels, about it: :func:`.pose_opinion.local_background`), in the chains'
+        comparison and the weights (eq. 13, 16); not in Gauss-Newton nor the coarse search. 0: none
+        (the paper's uninformative background, without ``background``). Not with ``generic_background``.
     """
 
     n_experts: int

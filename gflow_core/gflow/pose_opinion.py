@@ -105,6 +105,24 @@ Departures from the paper
   / 0.134 / 0.165 without), at every frame 0.077 / 0.075 (0.070 / 0.067 without): the goal of 0.10
   at every 3rd frame is not met, so it stays off.
 
+* A local background (``TextureView.local``, ``GFlowConfig.local_background`` = ``S`` px; off by
+  default and in the shipped graphs). The paper's background model learns a texel per pixel over
+  past frames (``background``), which a moving camera leaves describing the view before it moved
+  (david_indoor at every 3rd frame: 0.199 / 0.204 / 0.176, seeds 1-3). Here each pixel's
+  background is read from the frame itself, about the pixel: ``N(M(x), V(x))``, the frame's mean
+  and variance in a Gaussian window of std ``S`` (:func:`local_background`; ``V`` at least
+  ``sigma_w``, the observation noise). Both background terms of eq. 14 then count, and the second,
+  ``- log V(x_i)``, changes with the pose: a flat patch (small ``V``), which the background explains
+  well, costs the object its claim. ``B(x) = (y - M)^2 / V + log V`` is a per-pixel image, read
+  bilinearly at the vertices (rather than the residual of the bilinear sample: one image per level,
+  not one per expert). It enters the objective by which the chains are compared and the importance
+  weights (eq. 13, 16, so the credibilities, eq. 19); Gauss-Newton and the coarse translation
+  search keep the object's term and the prior (in the search too it lost tiger1 more often, AUC
+  0.543 against 0.630, and was no better on david_indoor). Measured (docs/faces.md "At a camera's
+  pace"): every 3rd frame 0.102 / 0.107 / 0.098 (seeds 1-3), mean 0.107 over seeds 1-10 against
+  0.135; every frame 0.077 / 0.084 / 0.069 (0.070 / 0.067 / 0.104 without); the nine shared
+  sequences' AUC 0.641 against 0.653: it stays off.
+
 Implementation (speed; the same mathematics, results equal to the straightforward
 version to about 1e-14 relative, measured over 20-30 frames of each shared sequence):
 
@@ -164,7 +182,7 @@ import numpy as np
 from .geometry import (COEF, ROT, TRANS, box_minus, box_plus, pose_quaternions, project,
                        quaternion_matrices, relative_rotvecs)
 from .background import TiledTexels
-from .coarse_search import translation_costs, translation_sums
+from .coarse_search import translation_costs
 from .image import BilinearStencil, FrameData, stencil_xy
 from .photometric import Photometric
 
@@ -1105,10 +1123,6 @@ def _search_best(bases: np.ndarray, coarse: np.ndarray, ls: float, prev: np.ndar
         xs = xy[..., 0] * ls
         cost = cost - translation_costs(coarse, xs, xy[..., 1] * ls, offsets * ls, np.full(xs.shape, gm),
                                         np.full(xs.shape, gw), SEARCH_BLOCK_VERTICES)
-    if tv.local > 0:
-        # the local background's terms of eq. 14 on this level: - sum_i B(x_i + o) (local_background)
-        cost = cost - translation_sums(local_background(coarse, tv.local * ls, sigma_w), xy[..., 0] * ls,
-                                       xy[..., 1] * ls, offsets * ls, SEARCH_BLOCK_VERTICES)
     # the rest of the objective (gauss_newton_objective): prior (only its translation part
     # changes with the offset) and the soft walls
     lam = prior_precision(prior_std)
