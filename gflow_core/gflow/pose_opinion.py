@@ -114,13 +114,14 @@ Departures from the paper
   ``sigma_w``, the observation noise). Both background terms of eq. 14 then count, and the second,
   ``- log V(x_i)``, changes with the pose: a flat patch (small ``V``), which the background explains
   well, costs the object its claim. ``B(x) = (y - M)^2 / V + log V`` is a per-pixel image, read
-  bilinearly at the vertices (rather than the residual of the bilinear sample: one image per level,
-  not one per expert). It enters the objective by which the chains are compared and the importance
+  bilinearly at the vertices (rather than ``B`` of the bilinear sample: one image per frame for
+  every expert and sample). It enters the objective by which the chains are compared and the importance
   weights (eq. 13, 16, so the credibilities, eq. 19); Gauss-Newton and the coarse translation
   search keep the object's term and the prior (in the search too it lost tiger1 more often, AUC
   0.543 against 0.630, and was no better on david_indoor). Measured (docs/faces.md "At a camera's
   pace"): every 3rd frame 0.102 / 0.107 / 0.098 (seeds 1-3), mean 0.107 over seeds 1-10 against
-  0.135; every frame 0.077 / 0.084 / 0.069 (0.070 / 0.067 / 0.104 without); the nine shared
+  0.135; every frame 0.077 / 0.084 / 0.069 (0.070 / 0.067 / 0.104 without; over seeds 1-10 0.075
+  against 0.076, 6 seeds worse); the nine shared
   sequences' AUC 0.641 against 0.653: it stays off.
 
 Implementation (speed; the same mathematics, results equal to the straightforward
