@@ -45,6 +45,7 @@ DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "davi
 INIT = "169,76,46,60"
 FPS = 25.0
 T0 = 1_700_000_000_000_000_000  # a host clock stamp (ns)
+GOAL = 0.10  # the landmark NME asked of G-flow at every 3rd frame
 
 
 def derive(data: Path, k: int, out: Path, stream: str = "cam0") -> int:
@@ -161,6 +162,12 @@ def main() -> None:
     print(f"\nG-flow on david_indoor at every k-th frame (dt = k), {'inline' if args.inline else 'processes'}{sets}")
     print(table(rows, ["k", "frames played", "seed", "with landmarks", "landmark NME", f"NME {lo}-{hi - 1}",
                        f"size {slo}-{shi - 1}", "landmark px", "box CLE px", "success"]))
+    for k in dict.fromkeys(r[0] for r in rows):
+        nme = [float(r[4]) for r in rows if r[0] == k]
+        if len(nme) > 1:
+            # the turn is a matter of chance: over many seeds, how often a run stays within the goal
+            print(f"every {k}th frame, {len(nme)} seeds: mean landmark NME {np.mean(nme):.3f}, "
+                  f"at most {GOAL} on {sum(v <= GOAL for v in nme)} of {len(nme)}")
 
 
 if __name__ == "__main__":

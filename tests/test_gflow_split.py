@@ -108,5 +108,6 @@ def test_a_configuration_field_added_later_leaves_the_digest_of_older_recordings
     setup = head[0]
     for name, default in LATER_FIELDS.items():
         assert getattr(setup.cfg, name) == default
-        moved = dataclasses.replace(setup, cfg=dataclasses.replace(setup.cfg, **{name: not default}))
+        away = (not default) if isinstance(default, bool) else default + 1
+        moved = dataclasses.replace(setup, cfg=dataclasses.replace(setup.cfg, **{name: away}))
         assert config_digest(moved, 1) != config_digest(setup, 1)

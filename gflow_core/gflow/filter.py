@@ -235,6 +235,12 @@ class GFlowConfig:
         its fit shows, ``max(sigma_w, mean_i((y_i - mu_i)^2 - sigma_i))`` over its inlier vertices
         (the moment estimate of the observation noise from the innovations), so texels are learned
         less at a pose the frame fits poorly. False: ``sigma_w`` (the paper's).
+    local_background : float
+        > 0: the object's data term is weighed against a local background at the vertices (eq. 14's
+        two background terms with each pixel's Gaussian the frame's mean and variance in a Gaussian
+        window of this std, pixels, about it: :func:`.pose_opinion.local_background`), in the chains'
+        comparison and the weights (eq. 13, 16); not in Gauss-Newton nor the coarse search. 0: none
+        (the paper's uninformative background, without ``background``). Not with ``generic_background``.
     """
 
     n_experts: int
@@ -274,6 +280,7 @@ class GFlowConfig:
     data_temper: float = 1.0
     generic_background: bool = False
     texel_noise_adapt: bool = False
+    local_background: float = 0.0
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -345,6 +352,13 @@ class GFlowConfig:
             raise ValueError("reset_rate > 0 needs a finite prior_std_rotation (the walk it mixes with)")
         if not isinstance(self.generic_background, (bool, np.bool_)):
             raise ValueError(f"generic_background must be True or False, got {self.generic_background!r}")
+        lb = self.local_background
+        if isinstance(lb, bool) or not isinstance(lb, (int, float, np.floating, np.integer)) or not (
+                math.isfinite(lb) and lb >= 0):
+            raise ValueError(f"local_background must be a window std in pixels >= 0 (0: none), got {lb!r}")
+        if lb > 0 and self.generic_background:
+            raise ValueError("local_background and generic_background are two models of the same background: "
+                             "set one")
         if not isinstance(self.texel_noise_adapt, (bool, np.bool_)):
             raise ValueError(f"texel_noise_adapt must be True or False, got {self.texel_noise_adapt!r}")
         if not (0.0 < self.texture_decay <= 1.0):
@@ -702,6 +716,7 @@ def _texture_view(state: ExpertState, idx: np.ndarray, cfg: GFlowConfig) -> Text
         bg_rows=idx if state.bg_mean is not None else None,
         psi_b=cfg.psi_b,
         generic=bool(cfg.generic_background),
+        local=float(cfg.local_background),
     )
 
 
@@ -838,7 +853,7 @@ def _opinion_peak(model: MorphableModel, pyramid: Sequence[FrameData], prev: np.
     scale = cfg.scale_limits()
     if (cfg.pyramid_levels == 1 and cfg.search_radius == 0.0 and ph is None and not math.isfinite(max_rot)
             and not math.isfinite(osq) and scale is None and reset is None and cfg.data_temper == 1.0
-            and not cfg.generic_background):
+            and not cfg.generic_background and not cfg.local_background):
         return gauss_newton_peak(
             model.bases, pyramid[0], centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations, start=prev,
             use_background=cfg.gn_background,

@@ -102,6 +102,10 @@ class GFlowParams:
     texel_noise_adapt: bool = param(False, "each expert's texel update (eq. 7, 8) observes the frame with the noise its "
                                            "fit shows, max(sigma_w, mean inlier residual^2 - texel variance) (False: "
                                            "sigma_w, the paper's)")
+    local_background: float = param(0.0, "the data term is weighed against a local background at the vertices: every "
+                                          "pixel N(mean, variance of the frame in a Gaussian window of this std, px, "
+                                          "about it) (eq. 14's two background terms; 0: the paper's uninformative "
+                                          "background)")
     reset_rate: float = param(0.01, "probability a frame's pose transition turns the head back to frontal")
     reset_std_deg: float = param(20.0, "std of the frontal reset's rotation, degrees")
     reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "
