@@ -105,6 +105,9 @@ def cmd_replay(args) -> int:
     from pipeline.runtime.transport import free_port
 
     check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+    from pipeline.cli.commands.common import warn_if_torn
+
+    warn_if_torn(args.file)
     if args.topics:  # the names as typed (estimate, gflow/cam0/frames, *): refused before joining if none fits
         opts.topics = recording_topics(args.file, args.topics)
 
