@@ -131,7 +131,7 @@ class Recording(RecordingTarget):
 
 def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("zenoh network (default: peer mode on loopback, multicast scouting off)")
-    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer", help="zenoh session mode")
+    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer", help="zenoh session mode (default peer)")
     g.add_argument("--listen", action="append", metavar="ENDPOINT", type=parse_endpoint,
                    help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
     g.add_argument("--connect", action="append", metavar="ENDPOINT", type=parse_endpoint,

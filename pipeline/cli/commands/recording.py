@@ -160,6 +160,6 @@ def register(sub) -> None:
     p.add_argument("--loop", type=int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
     p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
                    help="before each new frame, wait until these live stages acknowledge the previous one")
-    p.add_argument("--ack-timeout", type=float, default=10.0, help="seconds to wait for an acknowledgement")
+    p.add_argument("--ack-timeout", type=float, default=10.0, help="with --lockstep: seconds to wait for a stage to acknowledge a frame (default 10)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_replay)

@@ -106,5 +106,5 @@ def register(sub) -> None:
     p.add_argument("--scale", type=int, default=2, help="upscale factor (default 2)")
     p.add_argument("--fps", type=float, default=25.0, help="video frame rate (default 25)")
     p.add_argument("--no-particles", dest="particles", action="store_false", help="do not draw the particles")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_render)
