@@ -99,6 +99,7 @@ def test_a_torn_recording_with_nothing_readable_fails(recording: Path, tmp_path:
     assert r.returncode == 2 and "holds no input of stage filter" in r.stderr.splitlines()[-1], r.stderr
     r = gflow("foxglove", str(head), "f.mcap", cwd=tmp_path)
     assert r.returncode == 1 and "no message of" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "f.mcap").exists()
 
 
 def test_a_landmark_file_that_is_not_an_archive_is_called_that(tmp_path: Path) -> None:

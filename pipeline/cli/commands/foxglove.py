@@ -33,15 +33,16 @@ def cmd_foxglove(args) -> int:
     warn_if_torn(args.recording)
     s = export_for_foxglove(args.recording, args.out, image_format=args.image_format, quality=args.quality,
                             topics=topics)
+    if not s.messages:  # exit 1: the copy holds nothing to show, and is not left to look like one
+        os.remove(args.out)
+        print(f"gflow foxglove: no message of {args.recording} could be copied; {args.out} removed", file=sys.stderr)
+        return 1
     print(f"wrote {args.out}: {s.messages} messages on {len(s.by_topic)} topics: "
           f"{describe_topics(s.by_topic, counts=s.by_topic)}")
     left = ([f"{describe_topics(s.left_out, counts=s.left_out)} (binary arrays Foxglove cannot show)"]
             if s.left_out else []) + ([f"{s.markers} end-of-stream markers"] if s.markers else [])
     if left:
         print("left out: " + "; ".join(left))
-    if not s.messages:  # exit 1: the copy holds nothing to show
-        print(f"gflow foxglove: no message of {args.recording} could be copied", file=sys.stderr)
-        return 1
     return 0
 
 
