@@ -321,6 +321,13 @@ class _Acks:
             self.changed.wait(min(left, 0.05))
 
 
+def _window(opts: ReplayOptions) -> str:
+    """The replay window ``opts`` asks for, as the options that set it."""
+    parts = [f"{name} {v}" for name, v in (("--from-seq", opts.start_seq), ("--to-seq", opts.end_seq),
+                                             ("--start", opts.start_s), ("--end", opts.end_s)) if v is not None]
+    return ", ".join(parts) or "the whole recording"
+
+
 def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr,
            announce_endpoints: list[str] | None = None, ready: Callable[[], None] | None = None) -> int:
     """Republish a recording on zenoh, byte for byte, on its recorded topics with its sequence numbers.
@@ -346,7 +353,11 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
                                         or opts.end_seq is not None and r.seq >= opts.end_seq):
             continue
         keep.append(r)
-    stream = keep[0].topic.split("/")[1] if keep else ""
+    if all(r.type == "EndOfStream" for r in keep):  # a window that selects no message is a mistyped one
+        seqs = [r.seq for r in records if r.type != "EndOfStream"] or [0]
+        raise ValueError(f"{path}: no message in the chosen window ({_window(opts)}); it holds frames "
+                         f"{min(seqs)}..{max(seqs)} over {(max(r.log_ns for r in records) - t_first) / 1e9:.3f} s")
+    stream = keep[0].topic.split("/")[1]
     s = _session(settings)
     announcement = None
     n = 0

@@ -64,6 +64,8 @@ def read_landmarks(source: str | os.PathLike, key: str = LANDMARK_KEY, dims: tup
         With a one-line message naming the file and what is wrong.
     """
     p = resolve_landmarks(source)
+    if p.is_file() and not zipfile.is_zipfile(p):  # np.load would take it for a pickle and say so
+        raise ValueError(f"{p}: not a readable landmark file (.npz): it is not a zip archive")
     try:
         with np.load(p, allow_pickle=False) as z:
             if key not in z.files:

@@ -104,7 +104,13 @@ class Stepper:
         return StepView(self.last_seq, ins, outs, self.stage.summary(), self.errors[n_err:])
 
     def jump(self, seq: int) -> str:
-        """Position the stage so that the next step is frame ``seq`` (or the first one after it)."""
+        """Position the stage so that the next step is frame ``seq`` (or the first one after it).
+
+        A frame outside the recorded inputs' range is a ValueError naming the range."""
+        seqs = [r.seq for r in self.records if r.type not in ("EndOfStream", "ErrorReport")]
+        if not seqs or not min(seqs) <= seq <= max(seqs):
+            held = f"frames {min(seqs)}..{max(seqs)}" if seqs else "no frame"
+            raise ValueError(f"no frame {seq} to jump to: {self.path} holds {held} of {self.name}'s inputs")
         usable = [s for s in self.snapshots if s < seq]
         how = "from the start"
         if usable:

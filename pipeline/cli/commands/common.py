@@ -19,7 +19,7 @@ from pipeline.cli.security_options import add_security_args, apply_security
 __all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "check_outputs",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
-           "temporary_recording", "run_plan"]
+           "temporary_recording", "run_plan", "warn_if_torn"]
 
 
 def parse_box(text: str) -> tuple[float, float, float, float]:
@@ -131,7 +131,7 @@ class Recording(RecordingTarget):
 
 def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("zenoh network (default: peer mode on loopback, multicast scouting off)")
-    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer", help="zenoh session mode")
+    g.add_argument("--mode", choices=["peer", "client", "router"], default="peer", help="zenoh session mode (default peer)")
     g.add_argument("--listen", action="append", metavar="ENDPOINT", type=parse_endpoint,
                    help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
     g.add_argument("--connect", action="append", metavar="ENDPOINT", type=parse_endpoint,
@@ -168,3 +168,32 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     return run_graph(plan, inline=getattr(args, "inline", False), zenoh=lambda: launcher_zenoh(args),
                      listen_given=bool(args.listen), recording=recording, total=total, hosts=hosts, quiet=quiet,
                      strict=strict)
+
+
+#: what a properly closed MCAP file ends with (its footer's closing magic)
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+
+
+def warn_if_torn(path: str) -> bool:
+    """Say in one line (on stderr) when a segment of recording ``path`` does not end with an MCAP
+    footer: its writer was killed, or is still writing, and a command reads it only up to where it
+    ends. Costs a seek per segment, not a read of the file. True when one was torn."""
+    import sys
+
+    from pipeline.io.mcap_io import segments
+
+    torn = False
+    for seg in segments(path):
+        try:
+            with open(seg, "rb") as f:
+                size = f.seek(0, 2)
+                f.seek(max(0, size - len(_MCAP_MAGIC)))
+                closed = f.read() == _MCAP_MAGIC and size > 2 * len(_MCAP_MAGIC)
+        except OSError:
+            continue  # the command that reads it names the error
+        if not closed:
+            torn = True
+            print(f"warning: {seg} was not closed properly (its writer was killed, or is still writing): it is read "
+                  f"up to where it ends (`gflow verify` says how much is readable, `gflow recover` salvages it)",
+                  file=sys.stderr)
+    return torn

@@ -22,6 +22,10 @@ def cmd_diff(args) -> int:
                                    where=f"{args.a} or {args.b}")
         except TopicError as bad:
             raise CliError(str(bad)) from None
+    from pipeline.cli.commands.common import warn_if_torn
+
+    for path in (args.a, args.b):
+        warn_if_torn(path)
     res = diff_recordings(args.a, args.b, topics)
     across = next(((d.topic_a, d.topic_b) for d in res.values() if d.topic_a and d.topic_b and d.topic_a != d.topic_b), None)
     if args.json:

@@ -5,6 +5,7 @@ from __future__ import annotations
 ORDER = 59
 
 import os
+import sys
 from pathlib import Path
 
 from pipeline.cli.commands.common import CliError, check_outputs
@@ -19,13 +20,23 @@ def cmd_foxglove(args) -> int:
     if os.path.abspath(args.recording) == os.path.abspath(args.out):
         raise CliError("OUT must be a new file, not the recording itself")
     check_outputs(OUT=args.out)
+    from pipeline.io.recording_files import refuse_existing
+
+    refuse_existing(args.out, "OUT")  # a recording never overwrites a file
     topics = None
     if args.topics:  # as typed (frames, gflow/cam0/estimate, *): one that names nothing is an error
         from pipeline.cli.commands.recording import recording_topics
 
         topics = recording_topics(args.recording, args.topics)
+    from pipeline.cli.commands.common import warn_if_torn
+
+    warn_if_torn(args.recording)
     s = export_for_foxglove(args.recording, args.out, image_format=args.image_format, quality=args.quality,
                             topics=topics)
+    if not s.messages:  # exit 1: the copy holds nothing to show, and is not left to look like one
+        os.remove(args.out)
+        print(f"gflow foxglove: no message of {args.recording} could be copied; {args.out} removed", file=sys.stderr)
+        return 1
     print(f"wrote {args.out}: {s.messages} messages on {len(s.by_topic)} topics: "
           f"{describe_topics(s.by_topic, counts=s.by_topic)}")
     left = ([f"{describe_topics(s.left_out, counts=s.left_out)} (binary arrays Foxglove cannot show)"]

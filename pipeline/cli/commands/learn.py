@@ -345,7 +345,7 @@ def register(sub) -> None:
                         f"{edge.PROFILE})")
     g.add_argument("--g0", type=float, default=edge.G0,
                    help=f"truncation level of the truncated profile, px^2 (default {edge.G0:g})")
-    g.add_argument("--threshold", type=float, default=30.0, help="background subtraction threshold, grey levels")
+    g.add_argument("--threshold", type=float, default=30.0, help="background subtraction threshold, grey levels (default 30)")
     g.add_argument("--background-frames", metavar="A:B",
                    help="frames whose per-pixel median is the background (default: the training frames; a target "
                         "that barely moves in them is part of that median)")

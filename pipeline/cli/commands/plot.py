@@ -61,6 +61,9 @@ def cmd_plot(args) -> int:
         raise CliError(f"{args.out}: matplotlib cannot write {Path(out).suffix!r} files (use .png, .svg or .pdf)")
     plt.close("all")
     check_outputs(OUT=out)
+    from pipeline.cli.commands.common import warn_if_torn
+
+    warn_if_torn(args.file)
     est = estimates(args.file)
     if not est:
         raise CliError(f"{args.file} has no estimates to plot")

@@ -105,6 +105,9 @@ def cmd_replay(args) -> int:
     from pipeline.runtime.transport import free_port
 
     check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+    from pipeline.cli.commands.common import warn_if_torn
+
+    warn_if_torn(args.file)
     if args.topics:  # the names as typed (estimate, gflow/cam0/frames, *): refused before joining if none fits
         opts.topics = recording_topics(args.file, args.topics)
 
@@ -157,6 +160,6 @@ def register(sub) -> None:
     p.add_argument("--loop", type=int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
     p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
                    help="before each new frame, wait until these live stages acknowledge the previous one")
-    p.add_argument("--ack-timeout", type=float, default=10.0, help="seconds to wait for an acknowledgement")
+    p.add_argument("--ack-timeout", type=float, default=10.0, help="with --lockstep: seconds to wait for a stage to acknowledge a frame (default 10)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_replay)

@@ -15,6 +15,9 @@ def cmd_recover(args) -> int:
     if os.path.abspath(args.broken) == os.path.abspath(args.fixed):
         raise CliError("FIXED must be a new file, not the broken recording itself")
     check_outputs(FIXED=args.fixed)
+    from pipeline.io.recording_files import refuse_existing
+
+    refuse_existing(args.fixed, "FIXED")  # a recording never overwrites a file
     r = recover(args.broken, args.fixed)
     state = "the file was complete" if r.complete else f"the file ends early ({r.stopped_because})"
     print(f"recovered {r.messages} messages on {r.channels} channels and {r.metadata} metadata records "

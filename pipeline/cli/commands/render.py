@@ -56,13 +56,20 @@ def cmd_render(args) -> int:
         check_outputs(OUT=args.out)
     elif out.exists() and not out.is_dir():
         raise CliError(f"{args.out} exists and is not a folder")
+    a, _, b = (args.frames or ":").partition(":")
+    if not (a or "0").isdigit() or not (b or "0").isdigit():
+        raise CliError(f"--frames {args.frames}: give A:B, first and end frame numbers (either may be left out)")
+    from pipeline.cli.commands.common import warn_if_torn
+
+    warn_if_torn(args.file)
     frames, est, parts = _messages(args.file)
     seqs = [s for s in sorted(frames) if s in est]
-    if args.frames:
-        a, _, b = args.frames.partition(":")
-        seqs = [s for s in seqs if (not a or s >= int(a)) and (not b or s < int(b))]
     if not seqs:
         raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)")
+    held = f"frames {seqs[0]}..{seqs[-1]}"
+    seqs = [s for s in seqs if (not a or s >= int(a)) and (not b or s < int(b))]
+    if not seqs:
+        raise CliError(f"--frames {args.frames}: no frame to draw; {args.file} holds {held}")
     writer = None
     if not video:
         out.mkdir(parents=True, exist_ok=True)
@@ -99,5 +106,5 @@ def register(sub) -> None:
     p.add_argument("--scale", type=int, default=2, help="upscale factor (default 2)")
     p.add_argument("--fps", type=float, default=25.0, help="video frame rate (default 25)")
     p.add_argument("--no-particles", dest="particles", action="store_false", help="do not draw the particles")
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_render)

@@ -71,6 +71,17 @@ def _chosen(args, outputs: set[str]) -> set[str]:
         raise CliError(str(e)) from None
 
 
+def _check_from(path: str, topics: set[str], from_seq: int) -> None:
+    """Refuse a ``--from`` frame the stage never saw in the recording (one line naming the frames it holds)."""
+    from pipeline.io.mcap_io import iter_records
+
+    seqs = [r.seq for r in iter_records(path, topics=sorted(topics)) if r.type not in ("EndOfStream", "ErrorReport")]
+    if not seqs:
+        raise CliError(f"{path} holds no input of the stage to re-run")
+    if not min(seqs) <= from_seq <= max(seqs):
+        raise CliError(f"--from {from_seq}: {path} holds frames {min(seqs)}..{max(seqs)} of the stage's inputs")
+
+
 def cmd_rerun(args) -> int:
     from pipeline.recording.rerun import (check_outputs, ends_note, recorded_outputs, recorded_plan, rerun_graph, rerun_stage,
                          write_rerun)
@@ -117,6 +128,8 @@ def cmd_rerun(args) -> int:
                       f"stage {args.stage}")
         topics = set(sp.outputs.values()) | ({plan.snapshot_topic(args.stage)} if sp.snapshot_every else set())
         topics = _chosen(args, topics)  # before the re-run: a name that fits no output is the first thing to say
+        if args.from_seq is not None:
+            _check_from(args.file, set(sp.inputs.values()) or set(sp.outputs.values()), args.from_seq)
     res = rerun_stage(args.file, args.stage, stage_sets, args.from_seq)
     if res.note:
         print(f"note: {res.note}", file=sys.stderr)

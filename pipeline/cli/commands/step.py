@@ -30,11 +30,15 @@ def _show(view, out, outputs: set[str] | None = None) -> None:
 def cmd_step(args) -> int:
     from pipeline.recording.stepper import Stepper
 
+    from pipeline.cli.commands.common import CliError, warn_if_torn
+
+    warn_if_torn(args.file)
     st = Stepper(args.file, args.stage)
+    if not st.records:
+        raise CliError(f"{args.file} holds no input of stage {args.stage} to step through")
     out = sys.stdout
     shown = None
     if args.topics:  # the outputs to show, as typed (estimate, gflow/demo/estimate, patterns)
-        from pipeline.cli.commands.common import CliError
         from pipeline.recording.topics import TopicError, select_topics
 
         try:
@@ -42,12 +46,18 @@ def cmd_step(args) -> int:
         except TopicError as e:
             raise CliError(str(e)) from None
         shown = {t.rsplit("/", 1)[-1] for t in chosen}
+    how = ""
+    if args.start:
+        try:
+            how = st.jump(args.start)
+        except ValueError as e:  # before the prompt: a mistyped --start is the first thing to say
+            raise CliError(f"--start: {e}") from None
     interactive = sys.stdin.isatty()
     print(f"stepping {args.stage} ({st.sp.kind}) through {args.file}: {len(st.records)} input messages, "
           f"snapshots at {sorted(st.snapshots) or 'none'}", file=out)
     print(HELP, file=out)
     if args.start:
-        print(f"jumped to frame {args.start} {st.jump(args.start)}", file=out)
+        print(f"jumped to frame {args.start} {how}", file=out)
     last = None
     while True:
         if interactive:
@@ -74,7 +84,11 @@ def cmd_step(args) -> int:
             except ValueError:
                 print("usage: j SEQ", file=out)
                 continue
-            print(f"jumped {st.jump(seq)}", file=out)
+            try:
+                print(f"jumped {st.jump(seq)}", file=out)
+            except ValueError as e:
+                print(e, file=out)
+                continue
             last = st.next()
             if last is not None:
                 _show(last, out, shown)

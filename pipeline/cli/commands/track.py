@@ -201,6 +201,10 @@ def check_points_out(args) -> None:
 
 
 def cmd_track(args) -> int:
+    if args.source and str(args.source).lower().endswith(".mcap"):  # tracked only up to where a torn one ends
+        from pipeline.cli.commands.common import warn_if_torn
+
+        warn_if_torn(args.source)
     run = run_track(args)
     run.write_csv(args.out)
     pts = ""

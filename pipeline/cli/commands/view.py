@@ -79,7 +79,7 @@ def register(sub) -> None:
                                    "particles are not forwarded. In the Foxglove app: Open connection -> Foxglove "
                                    "WebSocket -> ws://HOST:PORT.")
     p.add_argument("--stream", help="the pipeline's stream (default: the one running)")
-    p.add_argument("--host", default="127.0.0.1", help="address to serve on (0.0.0.0 for other machines)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; 0.0.0.0 for other machines)")
     p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765, Foxglove's)")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
     add_zenoh_args(p)

@@ -1,0 +1,111 @@
+"""What the tools answer can be trusted: on a real recording of a real sequence (caviar1, the
+default tracker, 12 frames inline),
+
+* no command replaces an existing recording (``gflow foxglove`` OUT, ``gflow recover`` FIXED);
+* a frame window that selects nothing (``replay --from-seq/--to-seq/--start``, ``rerun --from``,
+  ``step --start``, ``render --frames``) is a one-line error naming the frames the recording holds,
+  not a run over nothing that exits 0;
+* a recording whose writer was killed (its footer missing) is named in one line by every command
+  that reads only what is before the cut, and a command left with nothing to do exits non-zero;
+* a landmark file that is not an .npz archive is called that (not "pickled data").
+
+Every case runs the CLI as a subprocess, as a user would.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import pytest
+
+from conftest import data_dir
+from test_cli_errors import assert_one_line_error, gflow
+
+FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    """caviar1's first frames tracked inline and recorded: frames 0..FRAMES-1."""
+    seq = data_dir("caviar1")
+    where = tmp_path_factory.mktemp("trust")
+    r = gflow("track", str(seq), "--init", "129,71,30,79", "--out", "boxes.csv", "--inline", "--stop", str(FRAMES),
+              "--record", "run.mcap", "-q", cwd=where)
+    assert r.returncode == 0, r.stderr
+    return where / "run.mcap"
+
+
+def _digest(p: Path) -> str:
+    return hashlib.sha256(p.read_bytes()).hexdigest()
+
+
+@pytest.mark.parametrize("cmd", ["foxglove", "recover"])
+def test_no_command_replaces_an_existing_recording(recording: Path, tmp_path: Path, cmd: str) -> None:
+    other = tmp_path / "other.mcap"
+    other.write_bytes(recording.read_bytes())
+    before = _digest(other)
+    r = gflow(cmd, str(recording), str(other), cwd=tmp_path)
+    assert_one_line_error(r, "other.mcap exists", "never overwrites")
+    assert _digest(other) == before
+
+
+@pytest.mark.parametrize("args, words", [
+    (["replay", "--max", "--from-seq", "500"], ["--from-seq 500", f"frames 0..{FRAMES}"]),
+    (["replay", "--max", "--from-seq", "5", "--to-seq", "3"], ["--from-seq 5, --to-seq 3"]),
+    (["replay", "--max", "--start", "1000"], ["--start 1000"]),
+    (["rerun", "--stage", "filter", "--from", "500"], ["--from 500", f"frames 0..{FRAMES}"]),
+    (["step", "--stage", "filter", "--start", "500"], ["--start", "no frame 500", f"frames 0..{FRAMES}"]),
+    (["render", "OUT.mp4", "--frames", "500:600"], ["--frames 500:600", "no frame to draw"]),
+    (["render", "OUT.mp4", "--frames", "x:3"], ["--frames x:3", "A:B"]),
+])
+def test_a_window_that_selects_nothing_is_an_error(recording: Path, tmp_path: Path, args: list[str],
+                                                   words: list[str]) -> None:
+    cmd, *rest = args
+    r = gflow(cmd, str(recording), *rest, cwd=tmp_path)
+    assert_one_line_error(r, *words)
+    assert not list(tmp_path.iterdir()), "nothing is written for a window that selects nothing"
+
+
+def test_a_window_inside_the_recording_still_works(recording: Path, tmp_path: Path) -> None:
+    r = gflow("render", str(recording), "out.mp4", "--frames", "3:5", "-q", cwd=tmp_path)
+    assert r.returncode == 0 and "drew 2 frames" in r.stdout, r.stderr
+    r = gflow("rerun", str(recording), "--stage", "filter", "--from", "4", "--check", cwd=tmp_path)
+    assert r.returncode == 0 and "all identical" in r.stdout, r.stdout + r.stderr
+
+
+def test_a_torn_recording_is_named_by_what_reads_it(recording: Path, tmp_path: Path) -> None:
+    data = recording.read_bytes()
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(data[: int(len(data) * 0.8)])
+    for args in (["plot", str(torn), "p.png"], ["render", str(torn), "v.mp4", "-q"],
+                 ["foxglove", str(torn), "f.mcap"], ["diff", str(torn), str(recording)]):
+        r = gflow(*args, cwd=tmp_path)
+        assert "Traceback" not in r.stderr, r.stderr
+        warned = [ln for ln in r.stderr.splitlines() if "not closed properly" in ln]
+        assert len(warned) == 1 and "torn.mcap" in warned[0], (args, r.stderr)
+    whole = gflow("plot", str(recording), "q.png", cwd=tmp_path)
+    assert whole.returncode == 0 and "not closed" not in whole.stderr, whole.stderr
+
+
+def test_a_torn_recording_with_nothing_readable_fails(recording: Path, tmp_path: Path) -> None:
+    from pipeline.io.mcap_io import iter_records
+
+    data = recording.read_bytes()
+    head = tmp_path / "head.mcap"
+    head.write_bytes(data[: min(len(data) // 2, 3_000_000)])  # the header and metadata, cut inside the first chunk
+    assert not list(iter_records(head, on_truncated=lambda note: None))
+    r = gflow("step", str(head), "--stage", "filter", cwd=tmp_path)
+    assert r.returncode == 2 and "holds no input of stage filter" in r.stderr.splitlines()[-1], r.stderr
+    r = gflow("foxglove", str(head), "f.mcap", cwd=tmp_path)
+    assert r.returncode == 1 and "no message of" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "f.mcap").exists()
+
+
+def test_a_landmark_file_that_is_not_an_archive_is_called_that(tmp_path: Path) -> None:
+    (tmp_path / "ref.npz").write_text("frame,x,y\n")
+    (tmp_path / "p.csv").write_text("frame,landmark,x,y\n0,0,1,1\n")
+    r = gflow("eval", "--landmarks", "ref.npz", "--points", "p.csv", cwd=tmp_path)
+    line = assert_one_line_error(r, "ref.npz", "not a zip archive")
+    assert "pickle" not in line
+
