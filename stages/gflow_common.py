@@ -21,7 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals, model_setup
-from gflow_core.gflow.split import config_digest
+from gflow_core.gflow.split import check_frame_size, config_digest
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -106,14 +106,12 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation
 
 
 def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -> GFlowObservation:
-    """``obs``, if its frame has the size ``shape`` of the frames the tracker started on (None: any).
-
-    Raises StageInputError naming both sizes otherwise."""
-    grey = obs.grey
-    if shape is not None and grey.shape != tuple(shape):
-        raise StageInputError(f"frame {seq}: size {grey.shape[1]}x{grey.shape[0]} differs from the "
-                              f"{shape[1]}x{shape[0]} frames the tracker started on; frame skipped")
-    return obs
+    """:func:`gflow_core.gflow.split.check_frame_size` of frame ``seq``, its ValueError a
+    StageInputError: the frame is skipped."""
+    try:
+        return check_frame_size(obs, shape)
+    except ValueError as e:
+        raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
 
 
 # -- messages <-> gflow_core --------------------------------------------------------------

@@ -9,7 +9,8 @@ arguments of these calls and results into messages:
 * :func:`shard_indices` -- the experts of one shard;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
-* :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot).
+* :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
+* :func:`check_frame_size` -- a later frame checked against the size the model was placed on.
 
 Nothing here is new mathematics: the replica calls :func:`.filter.initial_background`,
 :func:`.filter.advance_background` and :func:`.filter.predict_background`, exactly as the
@@ -27,9 +28,9 @@ import numpy as np
 
 from .background import TileLayout, TiledBackground
 from .filter import ExpertState, advance_background, initial_background, predict_background
-from .tracker import ModelSetup
+from .tracker import GFlowObservation, ModelSetup
 
-__all__ = ["LATER_FIELDS", "config_digest", "shard_indices", "BackgroundReplica", "expert_state"]
+__all__ = ["LATER_FIELDS", "config_digest", "shard_indices", "BackgroundReplica", "expert_state", "check_frame_size"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -67,6 +68,19 @@ def expert_state(setup: ModelSetup, arrays: Mapping[str, Any], bg: tuple[Any, An
     bg_mean, bg_var = (None, None) if bg is None else bg
     return ExpertState(bg_mean=bg_mean, bg_var=bg_var, image_shape=setup.image_shape,
                        tex_anchor=arrays.get("tex_anchor"), **arrs)
+
+
+def check_frame_size(obs: GFlowObservation, shape: tuple[int, int] | None) -> GFlowObservation:
+    """``obs``, if its frame has the size ``shape`` (H, W) of the frames the model was placed on
+    (:attr:`.tracker.ModelSetup.image_shape`; None: not placed yet, any size).
+
+    Raises ValueError naming both sizes otherwise: the experts' poses, textures and backgrounds
+    are for frames of that size."""
+    grey = obs.grey
+    if shape is not None and grey.shape != tuple(shape):
+        raise ValueError(f"size {grey.shape[1]}x{grey.shape[0]} differs from the {shape[1]}x{shape[0]} frames the "
+                         f"tracker started on")
+    return obs
 
 
 @dataclass(frozen=True)
