@@ -9,7 +9,7 @@ the same way on the first usable frame (:func:`prepare`: a user morphable model,
 ``model``, or the generic head fitted into the initial box, clipped to the frame) and compute the
 same digest, which travels in every :class:`ExpertStates` and :class:`PoseProposals` message and is
 checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`) and once on a restore
-(:func:`restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
+(:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
 ``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
 """
 
@@ -20,8 +20,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals, model_setup
-from gflow_core.gflow.split import check_frame_size, config_digest
+from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals
+from gflow_core.gflow.split import check_frame_size, placed
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -32,7 +32,7 @@ from gflow_msgs.messages import ExpertStates, Features, Header, MessageError, ND
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
-__all__ = ["GFlowStageFields", "prepare", "restored_setup", "frame_of", "check_size", "states_msg", "unpack_states",
+__all__ = ["GFlowStageFields", "initial_box", "prepare", "frame_of", "check_size", "states_msg", "unpack_states",
            "proposals_msg", "unpack_proposals"]
 
 
@@ -51,10 +51,17 @@ class GFlowStageFields(SeedBoxFields, frozen=True):
             raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {shards}")
 
 
+def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:
+    """The stage's initial box. Raises StageInputError when it has none."""
+    if fields.init is None:
+        raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
+    return fields.init
+
+
 def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
             shape: tuple[int, int]) -> tuple[ModelSetup, str]:
     """The model placed in the initial box on frames of ``shape``, and its digest
-    (:func:`gflow_core.gflow.split.config_digest`; identically in both stages).
+    (:func:`gflow_core.gflow.split.placed`; identically in both stages).
 
     Raises
     ------
@@ -62,27 +69,10 @@ def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[s
         No initial box, a box outside the frame, a ``model`` resource that is not a morphable
         model, or a model that cannot be placed in the box.
     """
-    if fields.init is None:
-        raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
     try:
-        setup = model_setup(tracker, fields.init, shape, resources.get("model"))
+        return placed(tracker, initial_box(fields), fields.seed, shape, resources.get("model"))
     except ValueError as e:
         raise StageInputError(str(e)) from None
-    return setup, config_digest(setup, fields.seed)
-
-
-def restored_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
-                   shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
-    """:func:`prepare` for a snapshot made on frames of ``shape`` with digest ``digest``. Raises
-    ValueError when the model cannot be placed or the digest is another configuration's."""
-    try:
-        setup, mine = prepare(fields, tracker, resources, shape)
-    except StageInputError as e:
-        raise ValueError(str(e)) from None
-    if mine != digest:
-        raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
-                         f"{digest}, this stage has {mine})")
-    return setup, mine
 
 
 def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:

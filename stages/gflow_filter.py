@@ -35,7 +35,7 @@ import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import config_digest, expert_state, shard_indices
+from gflow_core.gflow.split import config_digest, expert_state, restored_setup, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.m2.lost import Anchor, LostState
 from gflow_core.m2.lost_state import anchor_of, guard_fields, lost_of, moments
@@ -43,7 +43,7 @@ from gflow_core.tracker import Estimate
 from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setup, states_msg, unpack_proposals,
+from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, states_msg, unpack_proposals,
                            unpack_states)
 from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
                        PoseProposals)
@@ -215,11 +215,8 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         except StageInputError as e:
             self.report("bad_features", f"{e}; waiting for a usable first frame", seq)
             return []
-        box = self.params.init
         try:
-            if box is None:
-                raise ValueError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter "
-                                 "stages")
+            box = initial_box(self.params)
             # the filter keeps no backgrounds: the proposal stages start them from this frame
             state, est = TRACKER.init(self.tracker, obs, box, tracker_rng(self.params.seed, self.ctx.stream, seq),
                                       self.ctx.resources, backgrounds=False)
@@ -285,7 +282,8 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads 1 and {SNAPSHOT_VERSION}")
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
-            setup, digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
+            setup, digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed, snap.image_shape,
+                                           self.ctx.resources.get("model"), snap.digest)
             try:
                 experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
             except StageInputError as e:

@@ -6,6 +6,8 @@ holds what that split needs beyond the protocol, so that the stages only turn me
 arguments of these calls and results into messages:
 
 * :func:`config_digest` -- a digest of everything the proposal and the filter must agree on;
+* :func:`placed`, :func:`restored_setup` -- the model placed in the user's box and its digest,
+  identically in every process, and again for a snapshot, which must have the same digest;
 * :func:`shard_indices` -- the experts of one shard;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
@@ -22,15 +24,16 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from dataclasses import asdict, dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from .background import TileLayout, TiledBackground
 from .filter import ExpertState, advance_background, initial_background, predict_background
-from .tracker import GFlowObservation, ModelSetup
+from .params import GFlowParams
+from .tracker import GFlowObservation, ModelSetup, model_setup
 
-__all__ = ["LATER_FIELDS", "config_digest", "shard_indices", "BackgroundReplica", "expert_state", "check_frame_size"]
+__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "shard_indices", "BackgroundReplica", "expert_state", "check_frame_size"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -51,6 +54,30 @@ def config_digest(setup: ModelSetup, seed: int) -> str:
         h.update(repr(("contrast_sigma", float(setup.contrast_sigma))).encode())
     h.update(np.ascontiguousarray(setup.model.bases, dtype="<f8").tobytes())
     return h.hexdigest()[:16]
+
+
+def placed(params: GFlowParams, box: Sequence[float], seed: int, shape: tuple[int, int],
+           model: Any = None) -> tuple[ModelSetup, str]:
+    """The model placed in ``box`` (x, y, w, h) on frames of ``shape`` (H, W)
+    (:func:`.tracker.model_setup`; ``model``: a learned morphable model, None: the generic head) and
+    its digest (:func:`config_digest` with ``seed``): every process of a run calls this on the same
+    first frame and gets the same setup and digest.
+
+    Raises ValueError (:func:`.tracker.model_setup`) when the model cannot be placed in the box."""
+    setup = model_setup(params, box, shape, model)
+    return setup, config_digest(setup, seed)
+
+
+def restored_setup(params: GFlowParams, box: Sequence[float], seed: int, shape: tuple[int, int], model: Any,
+                   digest: str) -> tuple[ModelSetup, str]:
+    """:func:`placed` for a snapshot made on frames of ``shape`` with digest ``digest``.
+
+    Raises ValueError when the model cannot be placed or the digest is another configuration's."""
+    setup, mine = placed(params, box, seed, shape, model)
+    if mine != digest:
+        raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
+                         f"{digest}, this stage has {mine})")
+    return setup, mine
 
 
 def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
