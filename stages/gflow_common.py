@@ -21,7 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_frame_size, placed
+from gflow_core.gflow.split import check_experts, check_frame_size, placed
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -146,23 +146,22 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     Raises
     ------
     StageInputError
-        Another configuration or model (digest), another frame size, or arrays of the wrong
-        shape, dtype or with non-finite values.
+        Another configuration or model (digest), arrays of the wrong shape, dtype or with
+        non-finite values, or experts that are not the setup's
+        (:func:`gflow_core.gflow.split.check_experts`: another frame size, bad parents, a texture
+        anchor missing or unexpected).
     """
     if digest is not None and msg.config_digest != digest:
         raise StageInputError(f"{where}: the expert states were made with another G-flow configuration, model or "
                               f"seed (digest {msg.config_digest}, this stage has {digest}); give the proposal "
                               f"and filter stages the same parameters")
-    if tuple(msg.image_shape) != tuple(setup.image_shape):
-        raise StageInputError(f"{where}: expert states are for {msg.image_shape} frames, this stage tracks "
-                              f"{setup.image_shape}")
-    E, n = setup.cfg.n_experts, setup.model.n_vertices
-    out: dict[str, Any] = _arrays(msg, EXPERT_ARRAYS, {"E": E, "P": setup.model.pose_size, "n": n}, where)
-    if out["parents"].min() < 0 or out["parents"].max() >= E:
-        raise StageInputError(f"{where}: parents must lie in [0, {E})")
-    if (msg.tex_anchor is not None) != (setup.cfg.texture_decay != 1.0):
-        raise StageInputError(f"{where}: the texture anchor is " + ("missing" if msg.tex_anchor is None else
-                              "unexpected") + f" for texture_decay {setup.cfg.texture_decay}")
+    n = setup.model.n_vertices
+    out: dict[str, Any] = _arrays(msg, EXPERT_ARRAYS, {"E": setup.cfg.n_experts, "P": setup.model.pose_size, "n": n},
+                                  where)
+    try:
+        check_experts(setup, msg.image_shape, out["parents"], msg.tex_anchor is not None)
+    except ValueError as e:
+        raise StageInputError(f"{where}: {e}") from None
     out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), "float64", where)
     return out
 

@@ -12,7 +12,9 @@ import pytest
 
 from gflow_core.gflow import GFlowParams, model_setup
 from gflow_core.gflow.filter import advance_background, initial_background
-from gflow_core.gflow.split import LATER_FIELDS, BackgroundReplica, config_digest, shard_indices
+from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_frame_size, config_digest,
+                                    placed, restored_setup, shard_indices)
+from gflow_core.gflow.tracker import TRACKER
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 from gflow_scenes import SYNTH, Cycle, features_msg
 
@@ -74,6 +76,30 @@ def test_the_digest_names_the_configuration_and_the_shards_cover_the_experts(hea
     assert config_digest(dataclasses.replace(setup, contrast_sigma=5.0), 1) != config_digest(setup, 1)
     parts = [shard_indices(10, k, 3) for k in range(3)]
     assert np.array_equal(np.concatenate(parts), np.arange(10)) and [len(p) for p in parts] == [4, 3, 3]
+
+
+def test_every_process_places_the_model_alike_and_refuses_what_is_not_its_own(head) -> None:
+    setup, grey, _ = head
+    params = GFlowParams(**dict(SYNTH, n_experts=6, background=True))
+    box = tuple(float(v) for v in setup.box)
+    again, digest = placed(params, box, 1, grey.shape[1:])
+    assert np.array_equal(again.pose0, setup.pose0) and digest == config_digest(setup, 1)
+    assert restored_setup(params, box, 1, grey.shape[1:], None, digest)[1] == digest
+    with pytest.raises(ValueError, match="another G-flow configuration, model or seed"):
+        restored_setup(params, box, 2, grey.shape[1:], None, digest)
+    with pytest.raises(ValueError, match="lies outside the 80x60 frame"):
+        placed(params, (500.0, 500.0, 10.0, 10.0), 1, grey.shape[1:])
+    obs = TRACKER.observe_grey(params, grey[0])
+    assert check_frame_size(obs, None) is obs and check_frame_size(obs, (60, 80)) is obs
+    with pytest.raises(ValueError, match="size 80x60 differs from the 100x50 frames"):
+        check_frame_size(obs, (50, 100))
+    parents = np.arange(6)
+    check_experts(setup, (60, 80), parents, setup.cfg.texture_decay != 1.0)
+    for shape, par, anchor, why in (((61, 80), parents, False, "for \\(61, 80\\) frames"),
+                                    ((60, 80), parents + 1, False, "parents must lie in \\[0, 6\\)"),
+                                    ((60, 80), parents, True, "texture anchor is unexpected")):
+        with pytest.raises(ValueError, match=why):
+            check_experts(setup, shape, par, anchor)
 
 
 def test_snapshots_of_another_version_are_refused_in_one_line_naming_it(head) -> None:

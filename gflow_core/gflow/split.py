@@ -12,7 +12,8 @@ arguments of these calls and results into messages:
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
-* :func:`check_frame_size` -- a later frame checked against the size the model was placed on.
+* :func:`check_frame_size` -- a later frame checked against the size the model was placed on;
+* :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes.
 
 Nothing here is new mathematics: the replica calls :func:`.filter.initial_background`,
 :func:`.filter.advance_background` and :func:`.filter.predict_background`, exactly as the
@@ -33,7 +34,8 @@ from .filter import ExpertState, advance_background, initial_background, predict
 from .params import GFlowParams
 from .tracker import GFlowObservation, ModelSetup, model_setup
 
-__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "shard_indices", "BackgroundReplica", "expert_state", "check_frame_size"]
+__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "shard_indices", "BackgroundReplica", "expert_state", "check_frame_size",
+           "check_experts"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -108,6 +110,23 @@ def check_frame_size(obs: GFlowObservation, shape: tuple[int, int] | None) -> GF
         raise ValueError(f"size {grey.shape[1]}x{grey.shape[0]} differs from the {shape[1]}x{shape[0]} frames the "
                          f"tracker started on")
     return obs
+
+
+def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.ndarray, has_anchor: bool) -> None:
+    """What experts received from another process must satisfy, beyond their arrays' shapes and
+    dtypes, to be ``setup``'s: made on frames of ``image_shape`` (H, W) equal to the model's,
+    ``parents`` (E,) in ``[0, E)``, and a texture anchor exactly when the texels revert toward it
+    (``texture_decay != 1``).
+
+    Raises ValueError saying which does not hold."""
+    if tuple(image_shape) != tuple(setup.image_shape):
+        raise ValueError(f"expert states are for {image_shape} frames, this stage tracks {setup.image_shape}")
+    E = setup.cfg.n_experts
+    if parents.min() < 0 or parents.max() >= E:
+        raise ValueError(f"parents must lie in [0, {E})")
+    if has_anchor != (setup.cfg.texture_decay != 1.0):
+        raise ValueError("the texture anchor is " + ("unexpected" if has_anchor else "missing") +
+                         f" for texture_decay {setup.cfg.texture_decay}")
 
 
 @dataclass(frozen=True)
