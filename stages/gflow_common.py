@@ -21,7 +21,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_experts, check_frame_size, placed
+from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, placed
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -45,10 +45,8 @@ class GFlowStageFields(SeedBoxFields, frozen=True):
 
     def check(self, tracker: Any) -> None:
         super().check(tracker)
-        # the number of proposal stages: each stage's own field (the proposal's after its shard)
-        shards = getattr(self, "shards")
-        if not 1 <= shards <= tracker.n_experts:
-            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {shards}")
+        # the number of proposal stages and this one's shard (the filter has none): each stage's own fields
+        check_shard(tracker.n_experts, getattr(self, "shard", 0), getattr(self, "shards"))
 
 
 def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:

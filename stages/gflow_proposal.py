@@ -71,11 +71,6 @@ class GFlowProposalFields(GFlowStageFields, frozen=True):
     shard: int = 0
     shards: int = 1
 
-    def check(self, tracker: Any) -> None:
-        super().check(tracker)
-        if not 0 <= self.shard < self.shards:
-            raise ValueError(f"shard must be in [0, shards={self.shards}), got {self.shard}")
-
 
 GFlowProposalParams = stage_params("GFlowProposalParams", GFlowParams, GFlowProposalFields, __name__)
 

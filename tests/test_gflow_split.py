@@ -12,8 +12,8 @@ import pytest
 
 from gflow_core.gflow import GFlowParams, model_setup
 from gflow_core.gflow.filter import advance_background, initial_background
-from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_frame_size, config_digest,
-                                    placed, restored_setup, shard_indices)
+from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_frame_size, check_shard,
+                                    config_digest, placed, restored_setup, shard_indices)
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 from gflow_scenes import SYNTH, Cycle, features_msg
@@ -76,6 +76,11 @@ def test_the_digest_names_the_configuration_and_the_shards_cover_the_experts(hea
     assert config_digest(dataclasses.replace(setup, contrast_sigma=5.0), 1) != config_digest(setup, 1)
     parts = [shard_indices(10, k, 3) for k in range(3)]
     assert np.array_equal(np.concatenate(parts), np.arange(10)) and [len(p) for p in parts] == [4, 3, 3]
+    check_shard(10, 9, 10)
+    for shard, shards, why in ((0, 11, "shards must be in \\[1, n_experts=10\\], got 11"), (0, 0, "got 0"),
+                               (3, 3, "shard must be in \\[0, shards=3\\), got 3"), (-1, 3, "got -1")):
+        with pytest.raises(ValueError, match=why):
+            check_shard(10, shard, shards)
 
 
 def test_every_process_places_the_model_alike_and_refuses_what_is_not_its_own(head) -> None:

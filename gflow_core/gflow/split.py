@@ -8,7 +8,7 @@ arguments of these calls and results into messages:
 * :func:`config_digest` -- a digest of everything the proposal and the filter must agree on;
 * :func:`placed`, :func:`restored_setup` -- the model placed in the user's box and its digest,
   identically in every process, and again for a snapshot, which must have the same digest;
-* :func:`shard_indices` -- the experts of one shard;
+* :func:`check_shard`, :func:`shard_indices` -- which shards a run may have, and the experts of one;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
@@ -34,8 +34,8 @@ from .filter import ExpertState, advance_background, initial_background, predict
 from .params import GFlowParams
 from .tracker import GFlowObservation, ModelSetup, model_setup
 
-__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "shard_indices", "BackgroundReplica", "expert_state", "check_frame_size",
-           "check_experts"]
+__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices",
+           "BackgroundReplica", "expert_state", "check_frame_size", "check_experts"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -80,6 +80,15 @@ def restored_setup(params: GFlowParams, box: Sequence[float], seed: int, shape: 
         raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
                          f"{digest}, this stage has {mine})")
     return setup, mine
+
+
+def check_shard(n_experts: int, shard: int, shards: int) -> None:
+    """ValueError unless ``1 <= shards <= n_experts`` (no shard without an expert) and
+    ``0 <= shard < shards``."""
+    if not 1 <= shards <= n_experts:
+        raise ValueError(f"shards must be in [1, n_experts={n_experts}], got {shards}")
+    if not 0 <= shard < shards:
+        raise ValueError(f"shard must be in [0, shards={shards}), got {shard}")
 
 
 def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
