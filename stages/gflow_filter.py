@@ -142,17 +142,18 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             else:
                 self.state = new
                 self.steps += 1
-                return self._outputs(header, new, est, est.extras["parents"])
+                return self._outputs(header, new, est)
         new, est = TRACKER.coast(self.tracker, state, rng, obs)
         self.state = new
         self.coasted += 1
         self.steps += 1
-        return self._outputs(header, new, est, np.arange(new.experts.n_experts, dtype=np.int64))
+        return self._outputs(header, new, est)
 
-    def _outputs(self, header: Header, state: GFlowState, est: Estimate, parents: np.ndarray,
-                 first: bool = False) -> list[Output]:
-        """The experts after the frame (the proposal stages' input) and the estimate."""
-        out_state = states_msg(header, state.experts, parents, state.setup.image_shape, self.digest, first)
+    def _outputs(self, header: Header, state: GFlowState, est: Estimate, first: bool = False) -> list[Output]:
+        """The experts after the frame (the proposal stages' input: their parents are the estimate's,
+        every expert its own on the first frame and when coasting) and the estimate."""
+        out_state = states_msg(header, state.experts, est.extras["parents"], state.setup.image_shape, self.digest,
+                               first)
         x = est.extras
         self.last = {"seq": header.seq, "state": est.phase, "box": [round(v, 1) for v in est.box],
                      "ess": round(x["ess"], 1), "spread_px": round(x["spread_px"], 2),
@@ -232,7 +233,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                                             f"using {tuple(setup.box.round(2))}", seq)
         self.state = state
         self.digest = config_digest(setup, self.params.seed)
-        return self._outputs(feat.header, state, est, np.arange(state.experts.n_experts, dtype=np.int64), first=True)
+        return self._outputs(feat.header, state, est, first=True)
 
     # -- state ------------------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
