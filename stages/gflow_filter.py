@@ -182,7 +182,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
         them (the preprocess stage's ``colour``) and the guard weighs colour, and what was wrong with
         bad bins ("" when nothing was; then the observation has none)."""
-        if not (self.tracker.lost_guard and self.tracker.lost_colour and isinstance(feat, ColourFeatures)):
+        if not (TRACKER.reads_colour(self.tracker) and isinstance(feat, ColourFeatures)):
             return obs, ""
         try:
             return dataclasses.replace(obs, bins=feat.bins_array(obs.grey.shape)), ""
