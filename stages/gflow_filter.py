@@ -36,18 +36,16 @@ import numpy as np
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
 from gflow_core.gflow.split import config_digest, expert_state, restored_setup, shard_indices
+from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_fields
 from gflow_core.gflow.tracker import TRACKER
-from gflow_core.m2.lost import Anchor, LostState
-from gflow_core.m2.lost_state import anchor_of, guard_fields, lost_of, moments
 from gflow_core.tracker import Estimate
-from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
 from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, states_msg, unpack_proposals,
                            unpack_states)
 from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
                        PoseProposals)
-from gflow_msgs.base import packed_fields
+from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
@@ -245,34 +243,11 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             s = self.state.experts
             st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s, np.arange(s.n_experts, dtype=np.int64),
                             self.state.setup.image_shape, self.digest)
-        guard: dict[str, Any] = {}
-        if self.state is not None and self.state.anchor is not None:
-            guard = dict(packed_fields(guard_fields(self.state.anchor, self.state.lost)),
-                         fit_level=moments(self.state.fit_level), look_clutter=moments(self.state.look_clutter))
         snap = GFlowFilterSnapshot(version=SNAPSHOT_VERSION,
                                    image_shape=None if self.state is None else self.state.setup.image_shape,
                                    digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
-                                   init_error=self.init_error,
-                                   confidence=1.0 if self.state is None else self.state.confidence,
-                                   target_state="tracked" if self.state is None else self.state.target_state,
-                                   **guard)
+                                   init_error=self.init_error, **packed_fields(state_fields(self.state)))
         return msgspec.msgpack.encode(snap)
-
-    @staticmethod
-    def _guard_of(snap: GFlowFilterSnapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare, ChiSquare]:
-        """The lost guard's anchor and state of a snapshot (none in a version-1 snapshot: the guard is off
-        for the rest of the run)."""
-        try:  # copies: the guard updates its anchor in place
-            ch = None if snap.anchor is None else snap.anchor.array().copy()
-            hist = None if snap.anchor_colour is None or ch is None else snap.anchor_colour.array().copy()
-            anchor = anchor_of(ch, hist, (float(box[2]), float(box[3])))
-        except ValueError as e:  # MessageError too
-            raise ValueError(f"bad gflow.filter snapshot: {e}") from None
-        if anchor is None:
-            return None, LostState(), ChiSquare(), ChiSquare()
-        lost = lost_of(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
-                       snap.lost_cclutter)
-        return anchor, lost, ChiSquare(*snap.fit_level), ChiSquare(*snap.look_clutter)
 
     def restore(self, data: bytes) -> None:
         try:
@@ -289,8 +264,10 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                 experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
             except StageInputError as e:
                 raise ValueError(str(e)) from None
-            anchor, lost, level, look_clutter = self._guard_of(snap, setup.box)
-            self.state = GFlowState(setup, experts, snap.confidence, snap.target_state, anchor, lost, level,
-                                    look_clutter)
+            try:
+                fields = unpacked_fields({k: getattr(snap, k) for k in STATE_FIELDS})
+                self.state = state_of_fields(setup, experts, fields)
+            except ValueError as e:  # MessageError too
+                raise ValueError(f"bad gflow.filter snapshot: {e}") from None
             self.digest = digest
         self.steps, self.coasted, self.init_error = snap.steps, snap.coasted, snap.init_error
