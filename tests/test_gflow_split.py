@@ -14,7 +14,9 @@ from gflow_core.gflow import GFlowParams, model_setup
 from gflow_core.gflow.filter import advance_background, initial_background
 from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_frame_size, check_shard,
                                     config_digest, placed, restored_setup, shard_indices)
+from gflow_core.gflow.state_fields import state_fields, state_of_fields
 from gflow_core.gflow.tracker import TRACKER
+from gflow_core.tracker import FrameRng
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 from gflow_scenes import SYNTH, Cycle, features_msg
 
@@ -105,6 +107,27 @@ def test_every_process_places_the_model_alike_and_refuses_what_is_not_its_own(he
                                     ((60, 80), parents, True, "texture anchor is unexpected")):
         with pytest.raises(ValueError, match=why):
             check_experts(setup, shape, par, anchor)
+
+
+def test_the_filters_posterior_survives_its_snapshot_fields(head) -> None:
+    setup, grey, _ = head
+    params = GFlowParams(**dict(SYNTH, n_experts=6))
+    state, _ = TRACKER.init(params, TRACKER.observe_grey(params, grey[0]), tuple(float(v) for v in setup.box),
+                            FrameRng(1, 0, 0), {})
+    assert state_fields(None) == {"confidence": 1.0, "target_state": "tracked"}
+    fields = state_fields(dataclasses.replace(state, confidence=0.25, target_state="occluded"))
+    assert state.anchor is not None and fields["anchor"].shape[2] == 4
+    back = state_of_fields(state.setup, state.experts, fields)
+    assert (back.confidence, back.target_state) == (0.25, "occluded") and back.lost == state.lost
+    assert np.array_equal(back.anchor.channels, state.anchor.channels)
+    assert back.anchor.channels is not state.anchor.channels  # a copy: the guard updates its anchor in place
+    again = state_fields(back)
+    assert again.keys() == fields.keys() and all(
+        np.array_equal(fields[k], v) if isinstance(v, np.ndarray) else fields[k] == v for k, v in again.items())
+    no_guard = state_of_fields(state.setup, state.experts, {"confidence": 1.0, "target_state": "tracked"})
+    assert no_guard.anchor is None  # a snapshot made before the guard: the guard is off
+    with pytest.raises(ValueError, match="not \\(th, tw, 4\\)"):
+        state_of_fields(state.setup, state.experts, dict(fields, anchor=fields["anchor"][..., :3]))
 
 
 def test_snapshots_of_another_version_are_refused_in_one_line_naming_it(head) -> None:
