@@ -161,13 +161,10 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         except StageInputError as e:
             self.report("bad_state", f"{e}; no proposals for frame {seq}", seq)
             return None
-        if s.cfg.background:
-            self.replica, problem = self.replica.advance(s, seq, st["poses"], st["parents"], state_msg.first)
-            if problem is not None:
-                self.report(*problem, seq)
-            if self.replica.bg is None:
-                return None
-        if obs is None:
+        self.replica, problem = self.replica.advance(s, seq, st["poses"], st["parents"], state_msg.first)
+        if problem is not None:
+            self.report(*problem, seq)
+        if obs is None or not self.replica.ready(s):
             return None
         try:
             dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame

@@ -54,6 +54,11 @@ def test_the_replica_starts_advances_restarts_and_predicts_as_the_tracker(head) 
     # a lost state message (the replica is at frame 0 when the state of frame 3 arrives): restarted
     r4, problem = r.seen(3, grey[3]).advance(setup, 4, poses, parents, first=False)
     assert problem is not None and problem[0] == "background_reset" and r4.seq == 3 and r4.bg is not None
+    assert r4.ready(setup) and not BackgroundReplica().ready(setup)
+    # without the background terms there is nothing to keep, and proposals need none
+    off = dataclasses.replace(setup, cfg=dataclasses.replace(setup.cfg, background=False))
+    r5, problem = r.advance(off, 2, poses, parents, first=False)
+    assert r5 is r and problem is None and BackgroundReplica().ready(off)
 
 
 def test_the_replica_survives_its_snapshot_fields_and_refuses_fields_that_do_not_fit(head) -> None:

@@ -171,8 +171,12 @@ class BackgroundReplica:
         ``poses`` (E, P) and ``parents`` (E,) (``first``: the experts of the first frame).
 
         Returns the new replica (``bg`` None when it cannot be had: it cannot start without frame
-        ``seq - 1``) and a problem to report, ``(kind, text)``, or None.
+        ``seq - 1``) and a problem to report, ``(kind, text)``, or None. Without ``background`` (the
+        likelihood without the background terms) there is nothing to keep: the replica is returned
+        as it is.
         """
+        if not setup.cfg.background:
+            return self, None
         t1 = seq - 1
         prev = setup.observation(self.prev_grey) if self.prev_grey is not None and self.prev_seq == t1 else None
         problem = None
@@ -193,6 +197,10 @@ class BackgroundReplica:
             # frame t - 1 was not seen here: prediction only, mu unchanged (eq. 9), sigma + Psi_b (eq. 10)
             bg = predict_background(self.bg[0], self.bg[1], parents, setup.cfg)
         return dataclasses.replace(self, bg=bg, seq=t1), problem
+
+    def ready(self, setup: ModelSetup) -> bool:
+        """Whether proposals can be made for ``setup``: it keeps no backgrounds, or they are here."""
+        return not setup.cfg.background or self.bg is not None
 
     def fields(self) -> dict[str, Any]:
         """The replica as flat snapshot fields: ``prev_seq`` and ``prev_grey`` (H, W) uint8 (-1 and None
