@@ -9,7 +9,7 @@ the same way on the first usable frame (:func:`prepare`: a user morphable model,
 ``model``, or the generic head fitted into the initial box, clipped to the frame) and compute the
 same digest, which travels in every :class:`ExpertStates` and :class:`PoseProposals` message and is
 checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`) and once on a restore
-(:func:`restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
+(:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
 ``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
 """
 
@@ -20,8 +20,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals, model_setup
-from gflow_core.gflow.split import config_digest
+from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals
+from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, placed
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -32,7 +32,7 @@ from gflow_msgs.messages import ExpertStates, Features, Header, MessageError, ND
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
-__all__ = ["GFlowStageFields", "prepare", "restored_setup", "frame_of", "check_size", "states_msg", "unpack_states",
+__all__ = ["GFlowStageFields", "initial_box", "prepare", "frame_of", "check_size", "states_msg", "unpack_states",
            "proposals_msg", "unpack_proposals"]
 
 
@@ -45,16 +45,21 @@ class GFlowStageFields(SeedBoxFields, frozen=True):
 
     def check(self, tracker: Any) -> None:
         super().check(tracker)
-        # the number of proposal stages: each stage's own field (the proposal's after its shard)
-        shards = getattr(self, "shards")
-        if not 1 <= shards <= tracker.n_experts:
-            raise ValueError(f"shards must be in [1, n_experts={tracker.n_experts}], got {shards}")
+        # the number of proposal stages and this one's shard (the filter has none): each stage's own fields
+        check_shard(tracker.n_experts, getattr(self, "shard", 0), getattr(self, "shards"))
+
+
+def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:
+    """The stage's initial box. Raises StageInputError when it has none."""
+    if fields.init is None:
+        raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
+    return fields.init
 
 
 def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
             shape: tuple[int, int]) -> tuple[ModelSetup, str]:
     """The model placed in the initial box on frames of ``shape``, and its digest
-    (:func:`gflow_core.gflow.split.config_digest`; identically in both stages).
+    (:func:`gflow_core.gflow.split.placed`; identically in both stages).
 
     Raises
     ------
@@ -62,27 +67,10 @@ def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[s
         No initial box, a box outside the frame, a ``model`` resource that is not a morphable
         model, or a model that cannot be placed in the box.
     """
-    if fields.init is None:
-        raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
     try:
-        setup = model_setup(tracker, fields.init, shape, resources.get("model"))
+        return placed(tracker, initial_box(fields), fields.seed, shape, resources.get("model"))
     except ValueError as e:
         raise StageInputError(str(e)) from None
-    return setup, config_digest(setup, fields.seed)
-
-
-def restored_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
-                   shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
-    """:func:`prepare` for a snapshot made on frames of ``shape`` with digest ``digest``. Raises
-    ValueError when the model cannot be placed or the digest is another configuration's."""
-    try:
-        setup, mine = prepare(fields, tracker, resources, shape)
-    except StageInputError as e:
-        raise ValueError(str(e)) from None
-    if mine != digest:
-        raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
-                         f"{digest}, this stage has {mine})")
-    return setup, mine
 
 
 def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:
@@ -106,14 +94,12 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation
 
 
 def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -> GFlowObservation:
-    """``obs``, if its frame has the size ``shape`` of the frames the tracker started on (None: any).
-
-    Raises StageInputError naming both sizes otherwise."""
-    grey = obs.grey
-    if shape is not None and grey.shape != tuple(shape):
-        raise StageInputError(f"frame {seq}: size {grey.shape[1]}x{grey.shape[0]} differs from the "
-                              f"{shape[1]}x{shape[0]} frames the tracker started on; frame skipped")
-    return obs
+    """:func:`gflow_core.gflow.split.check_frame_size` of frame ``seq``, its ValueError a
+    StageInputError: the frame is skipped."""
+    try:
+        return check_frame_size(obs, shape)
+    except ValueError as e:
+        raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
 
 
 # -- messages <-> gflow_core --------------------------------------------------------------
@@ -158,23 +144,22 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     Raises
     ------
     StageInputError
-        Another configuration or model (digest), another frame size, or arrays of the wrong
-        shape, dtype or with non-finite values.
+        Another configuration or model (digest), arrays of the wrong shape, dtype or with
+        non-finite values, or experts that are not the setup's
+        (:func:`gflow_core.gflow.split.check_experts`: another frame size, bad parents, a texture
+        anchor missing or unexpected).
     """
     if digest is not None and msg.config_digest != digest:
         raise StageInputError(f"{where}: the expert states were made with another G-flow configuration, model or "
                               f"seed (digest {msg.config_digest}, this stage has {digest}); give the proposal "
                               f"and filter stages the same parameters")
-    if tuple(msg.image_shape) != tuple(setup.image_shape):
-        raise StageInputError(f"{where}: expert states are for {msg.image_shape} frames, this stage tracks "
-                              f"{setup.image_shape}")
-    E, n = setup.cfg.n_experts, setup.model.n_vertices
-    out: dict[str, Any] = _arrays(msg, EXPERT_ARRAYS, {"E": E, "P": setup.model.pose_size, "n": n}, where)
-    if out["parents"].min() < 0 or out["parents"].max() >= E:
-        raise StageInputError(f"{where}: parents must lie in [0, {E})")
-    if (msg.tex_anchor is not None) != (setup.cfg.texture_decay != 1.0):
-        raise StageInputError(f"{where}: the texture anchor is " + ("missing" if msg.tex_anchor is None else
-                              "unexpected") + f" for texture_decay {setup.cfg.texture_decay}")
+    n = setup.model.n_vertices
+    out: dict[str, Any] = _arrays(msg, EXPERT_ARRAYS, {"E": setup.cfg.n_experts, "P": setup.model.pose_size, "n": n},
+                                  where)
+    try:
+        check_experts(setup, msg.image_shape, out["parents"], msg.tex_anchor is not None)
+    except ValueError as e:
+        raise StageInputError(f"{where}: {e}") from None
     out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), "float64", where)
     return out
 

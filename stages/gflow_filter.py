@@ -35,19 +35,17 @@ import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import config_digest, expert_state, shard_indices
+from gflow_core.gflow.split import config_digest, expert_state, restored_setup, shard_indices
+from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_fields
 from gflow_core.gflow.tracker import TRACKER
-from gflow_core.m2.lost import Anchor, LostState
-from gflow_core.m2.lost_state import anchor_of, guard_fields, lost_of, moments
 from gflow_core.tracker import Estimate
-from gflow_core.visibility import ChiSquare
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (GFlowStageFields, check_size, frame_of, restored_setup, states_msg, unpack_proposals,
+from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, states_msg, unpack_proposals,
                            unpack_states)
 from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
                        PoseProposals)
-from gflow_msgs.base import packed_fields
+from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
@@ -142,17 +140,18 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             else:
                 self.state = new
                 self.steps += 1
-                return self._outputs(header, new, est, est.extras["parents"])
+                return self._outputs(header, new, est)
         new, est = TRACKER.coast(self.tracker, state, rng, obs)
         self.state = new
         self.coasted += 1
         self.steps += 1
-        return self._outputs(header, new, est, np.arange(new.experts.n_experts, dtype=np.int64))
+        return self._outputs(header, new, est)
 
-    def _outputs(self, header: Header, state: GFlowState, est: Estimate, parents: np.ndarray,
-                 first: bool = False) -> list[Output]:
-        """The experts after the frame (the proposal stages' input) and the estimate."""
-        out_state = states_msg(header, state.experts, parents, state.setup.image_shape, self.digest, first)
+    def _outputs(self, header: Header, state: GFlowState, est: Estimate, first: bool = False) -> list[Output]:
+        """The experts after the frame (the proposal stages' input: their parents are the estimate's,
+        every expert its own on the first frame and when coasting) and the estimate."""
+        out_state = states_msg(header, state.experts, est.extras["parents"], state.setup.image_shape, self.digest,
+                               first)
         x = est.extras
         self.last = {"seq": header.seq, "state": est.phase, "box": [round(v, 1) for v in est.box],
                      "ess": round(x["ess"], 1), "spread_px": round(x["spread_px"], 2),
@@ -181,7 +180,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
         them (the preprocess stage's ``colour``) and the guard weighs colour, and what was wrong with
         bad bins ("" when nothing was; then the observation has none)."""
-        if not (self.tracker.lost_guard and self.tracker.lost_colour and isinstance(feat, ColourFeatures)):
+        if not (TRACKER.reads_colour(self.tracker) and isinstance(feat, ColourFeatures)):
             return obs, ""
         try:
             return dataclasses.replace(obs, bins=feat.bins_array(obs.grey.shape)), ""
@@ -215,11 +214,8 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         except StageInputError as e:
             self.report("bad_features", f"{e}; waiting for a usable first frame", seq)
             return []
-        box = self.params.init
         try:
-            if box is None:
-                raise ValueError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter "
-                                 "stages")
+            box = initial_box(self.params)
             # the filter keeps no backgrounds: the proposal stages start them from this frame
             state, est = TRACKER.init(self.tracker, obs, box, tracker_rng(self.params.seed, self.ctx.stream, seq),
                                       self.ctx.resources, backgrounds=False)
@@ -235,7 +231,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
                                             f"using {tuple(setup.box.round(2))}", seq)
         self.state = state
         self.digest = config_digest(setup, self.params.seed)
-        return self._outputs(feat.header, state, est, np.arange(state.experts.n_experts, dtype=np.int64), first=True)
+        return self._outputs(feat.header, state, est, first=True)
 
     # -- state ------------------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
@@ -247,34 +243,11 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             s = self.state.experts
             st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s, np.arange(s.n_experts, dtype=np.int64),
                             self.state.setup.image_shape, self.digest)
-        guard: dict[str, Any] = {}
-        if self.state is not None and self.state.anchor is not None:
-            guard = dict(packed_fields(guard_fields(self.state.anchor, self.state.lost)),
-                         fit_level=moments(self.state.fit_level), look_clutter=moments(self.state.look_clutter))
         snap = GFlowFilterSnapshot(version=SNAPSHOT_VERSION,
                                    image_shape=None if self.state is None else self.state.setup.image_shape,
                                    digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
-                                   init_error=self.init_error,
-                                   confidence=1.0 if self.state is None else self.state.confidence,
-                                   target_state="tracked" if self.state is None else self.state.target_state,
-                                   **guard)
+                                   init_error=self.init_error, **packed_fields(state_fields(self.state)))
         return msgspec.msgpack.encode(snap)
-
-    @staticmethod
-    def _guard_of(snap: GFlowFilterSnapshot, box: np.ndarray) -> tuple[Anchor | None, LostState, ChiSquare, ChiSquare]:
-        """The lost guard's anchor and state of a snapshot (none in a version-1 snapshot: the guard is off
-        for the rest of the run)."""
-        try:  # copies: the guard updates its anchor in place
-            ch = None if snap.anchor is None else snap.anchor.array().copy()
-            hist = None if snap.anchor_colour is None or ch is None else snap.anchor_colour.array().copy()
-            anchor = anchor_of(ch, hist, (float(box[2]), float(box[3])))
-        except ValueError as e:  # MessageError too
-            raise ValueError(f"bad gflow.filter snapshot: {e}") from None
-        if anchor is None:
-            return None, LostState(), ChiSquare(), ChiSquare()
-        lost = lost_of(snap.lost_target, snap.lost_clutter, snap.lost_runs, snap.held, snap.lost_ctarget,
-                       snap.lost_cclutter)
-        return anchor, lost, ChiSquare(*snap.fit_level), ChiSquare(*snap.look_clutter)
 
     def restore(self, data: bytes) -> None:
         try:
@@ -285,13 +258,16 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
             raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads 1 and {SNAPSHOT_VERSION}")
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
-            setup, digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
+            setup, digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed, snap.image_shape,
+                                           self.ctx.resources.get("model"), snap.digest)
             try:
                 experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
             except StageInputError as e:
                 raise ValueError(str(e)) from None
-            anchor, lost, level, look_clutter = self._guard_of(snap, setup.box)
-            self.state = GFlowState(setup, experts, snap.confidence, snap.target_state, anchor, lost, level,
-                                    look_clutter)
+            try:
+                fields = unpacked_fields({k: getattr(snap, k) for k in STATE_FIELDS})
+                self.state = state_of_fields(setup, experts, fields)
+            except ValueError as e:  # MessageError too
+                raise ValueError(f"bad gflow.filter snapshot: {e}") from None
             self.digest = digest
         self.steps, self.coasted, self.init_error = snap.steps, snap.coasted, snap.init_error

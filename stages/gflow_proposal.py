@@ -43,12 +43,11 @@ import msgspec
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSetup, Proposals
-from gflow_core.gflow.split import BackgroundReplica, expert_state, shard_indices
+from gflow_core.gflow.split import BackgroundReplica, expert_state, restored_setup, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, proposals_msg, restored_setup,
-                           unpack_states)
+from .gflow_common import GFlowStageFields, check_size, frame_of, initial_box, prepare, proposals_msg, unpack_states
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
@@ -71,11 +70,6 @@ class GFlowProposalFields(GFlowStageFields, frozen=True):
 
     shard: int = 0
     shards: int = 1
-
-    def check(self, tracker: Any) -> None:
-        super().check(tracker)
-        if not 0 <= self.shard < self.shards:
-            raise ValueError(f"shard must be in [0, shards={self.shards}), got {self.shard}")
 
 
 GFlowProposalParams = stage_params("GFlowProposalParams", GFlowParams, GFlowProposalFields, __name__)
@@ -167,13 +161,10 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         except StageInputError as e:
             self.report("bad_state", f"{e}; no proposals for frame {seq}", seq)
             return None
-        if s.cfg.background:
-            self.replica, problem = self.replica.advance(s, seq, st["poses"], st["parents"], state_msg.first)
-            if problem is not None:
-                self.report(*problem, seq)
-            if self.replica.bg is None:
-                return None
-        if obs is None:
+        self.replica, problem = self.replica.advance(s, seq, st["poses"], st["parents"], state_msg.first)
+        if problem is not None:
+            self.report(*problem, seq)
+        if obs is None or not self.replica.ready(s):
             return None
         try:
             dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
@@ -203,8 +194,8 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
             raise ValueError(f"gflow.proposal snapshot version {snap.version}, this code reads {SNAPSHOT_VERSION}")
         self.setup, self.digest = None, ""
         if snap.image_shape is not None:
-            self.setup, self.digest = restored_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
-                                                     snap.digest)
+            self.setup, self.digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed,
+                                                     snap.image_shape, self.ctx.resources.get("model"), snap.digest)
         try:
             fields = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
             self.replica = BackgroundReplica.of_fields(self.setup, **fields)

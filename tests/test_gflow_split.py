@@ -12,7 +12,11 @@ import pytest
 
 from gflow_core.gflow import GFlowParams, model_setup
 from gflow_core.gflow.filter import advance_background, initial_background
-from gflow_core.gflow.split import LATER_FIELDS, BackgroundReplica, config_digest, shard_indices
+from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_frame_size, check_shard,
+                                    config_digest, placed, restored_setup, shard_indices)
+from gflow_core.gflow.state_fields import state_fields, state_of_fields
+from gflow_core.gflow.tracker import TRACKER
+from gflow_core.tracker import FrameRng
 from gflow_core.gflow.synthetic_head import synthetic_sequence
 from gflow_scenes import SYNTH, Cycle, features_msg
 
@@ -50,6 +54,11 @@ def test_the_replica_starts_advances_restarts_and_predicts_as_the_tracker(head) 
     # a lost state message (the replica is at frame 0 when the state of frame 3 arrives): restarted
     r4, problem = r.seen(3, grey[3]).advance(setup, 4, poses, parents, first=False)
     assert problem is not None and problem[0] == "background_reset" and r4.seq == 3 and r4.bg is not None
+    assert r4.ready(setup) and not BackgroundReplica().ready(setup)
+    # without the background terms there is nothing to keep, and proposals need none
+    off = dataclasses.replace(setup, cfg=dataclasses.replace(setup.cfg, background=False))
+    r5, problem = r.advance(off, 2, poses, parents, first=False)
+    assert r5 is r and problem is None and BackgroundReplica().ready(off)
 
 
 def test_the_replica_survives_its_snapshot_fields_and_refuses_fields_that_do_not_fit(head) -> None:
@@ -74,6 +83,56 @@ def test_the_digest_names_the_configuration_and_the_shards_cover_the_experts(hea
     assert config_digest(dataclasses.replace(setup, contrast_sigma=5.0), 1) != config_digest(setup, 1)
     parts = [shard_indices(10, k, 3) for k in range(3)]
     assert np.array_equal(np.concatenate(parts), np.arange(10)) and [len(p) for p in parts] == [4, 3, 3]
+    check_shard(10, 9, 10)
+    for shard, shards, why in ((0, 11, "shards must be in \\[1, n_experts=10\\], got 11"), (0, 0, "got 0"),
+                               (3, 3, "shard must be in \\[0, shards=3\\), got 3"), (-1, 3, "got -1")):
+        with pytest.raises(ValueError, match=why):
+            check_shard(10, shard, shards)
+
+
+def test_every_process_places_the_model_alike_and_refuses_what_is_not_its_own(head) -> None:
+    setup, grey, _ = head
+    params = GFlowParams(**dict(SYNTH, n_experts=6, background=True))
+    box = tuple(float(v) for v in setup.box)
+    again, digest = placed(params, box, 1, grey.shape[1:])
+    assert np.array_equal(again.pose0, setup.pose0) and digest == config_digest(setup, 1)
+    assert restored_setup(params, box, 1, grey.shape[1:], None, digest)[1] == digest
+    with pytest.raises(ValueError, match="another G-flow configuration, model or seed"):
+        restored_setup(params, box, 2, grey.shape[1:], None, digest)
+    with pytest.raises(ValueError, match="lies outside the 80x60 frame"):
+        placed(params, (500.0, 500.0, 10.0, 10.0), 1, grey.shape[1:])
+    obs = TRACKER.observe_grey(params, grey[0])
+    assert check_frame_size(obs, None) is obs and check_frame_size(obs, (60, 80)) is obs
+    with pytest.raises(ValueError, match="size 80x60 differs from the 100x50 frames"):
+        check_frame_size(obs, (50, 100))
+    parents = np.arange(6)
+    check_experts(setup, (60, 80), parents, setup.cfg.texture_decay != 1.0)
+    for shape, par, anchor, why in (((61, 80), parents, False, "for \\(61, 80\\) frames"),
+                                    ((60, 80), parents + 1, False, "parents must lie in \\[0, 6\\)"),
+                                    ((60, 80), parents, True, "texture anchor is unexpected")):
+        with pytest.raises(ValueError, match=why):
+            check_experts(setup, shape, par, anchor)
+
+
+def test_the_filters_posterior_survives_its_snapshot_fields(head) -> None:
+    setup, grey, _ = head
+    params = GFlowParams(**dict(SYNTH, n_experts=6))
+    state, _ = TRACKER.init(params, TRACKER.observe_grey(params, grey[0]), tuple(float(v) for v in setup.box),
+                            FrameRng(1, 0, 0), {})
+    assert state_fields(None) == {"confidence": 1.0, "target_state": "tracked"}
+    fields = state_fields(dataclasses.replace(state, confidence=0.25, target_state="occluded"))
+    assert state.anchor is not None and fields["anchor"].shape[2] == 4
+    back = state_of_fields(state.setup, state.experts, fields)
+    assert (back.confidence, back.target_state) == (0.25, "occluded") and back.lost == state.lost
+    assert np.array_equal(back.anchor.channels, state.anchor.channels)
+    assert back.anchor.channels is not state.anchor.channels  # a copy: the guard updates its anchor in place
+    again = state_fields(back)
+    assert again.keys() == fields.keys() and all(
+        np.array_equal(fields[k], v) if isinstance(v, np.ndarray) else fields[k] == v for k, v in again.items())
+    no_guard = state_of_fields(state.setup, state.experts, {"confidence": 1.0, "target_state": "tracked"})
+    assert no_guard.anchor is None  # a snapshot made before the guard: the guard is off
+    with pytest.raises(ValueError, match="not \\(th, tw, 4\\)"):
+        state_of_fields(state.setup, state.experts, dict(fields, anchor=fields["anchor"][..., :3]))
 
 
 def test_snapshots_of_another_version_are_refused_in_one_line_naming_it(head) -> None:

@@ -6,10 +6,14 @@ holds what that split needs beyond the protocol, so that the stages only turn me
 arguments of these calls and results into messages:
 
 * :func:`config_digest` -- a digest of everything the proposal and the filter must agree on;
-* :func:`shard_indices` -- the experts of one shard;
+* :func:`placed`, :func:`restored_setup` -- the model placed in the user's box and its digest,
+  identically in every process, and again for a snapshot, which must have the same digest;
+* :func:`check_shard`, :func:`shard_indices` -- which shards a run may have, and the experts of one;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
-* :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot).
+* :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
+* :func:`check_frame_size` -- a later frame checked against the size the model was placed on;
+* :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes.
 
 Nothing here is new mathematics: the replica calls :func:`.filter.initial_background`,
 :func:`.filter.advance_background` and :func:`.filter.predict_background`, exactly as the
@@ -21,15 +25,17 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from dataclasses import asdict, dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from .background import TileLayout, TiledBackground
 from .filter import ExpertState, advance_background, initial_background, predict_background
-from .tracker import ModelSetup
+from .params import GFlowParams
+from .tracker import GFlowObservation, ModelSetup, model_setup
 
-__all__ = ["LATER_FIELDS", "config_digest", "shard_indices", "BackgroundReplica", "expert_state"]
+__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices",
+           "BackgroundReplica", "expert_state", "check_frame_size", "check_experts"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -52,6 +58,39 @@ def config_digest(setup: ModelSetup, seed: int) -> str:
     return h.hexdigest()[:16]
 
 
+def placed(params: GFlowParams, box: Sequence[float], seed: int, shape: tuple[int, int],
+           model: Any = None) -> tuple[ModelSetup, str]:
+    """The model placed in ``box`` (x, y, w, h) on frames of ``shape`` (H, W)
+    (:func:`.tracker.model_setup`; ``model``: a learned morphable model, None: the generic head) and
+    its digest (:func:`config_digest` with ``seed``): every process of a run calls this on the same
+    first frame and gets the same setup and digest.
+
+    Raises ValueError (:func:`.tracker.model_setup`) when the model cannot be placed in the box."""
+    setup = model_setup(params, box, shape, model)
+    return setup, config_digest(setup, seed)
+
+
+def restored_setup(params: GFlowParams, box: Sequence[float], seed: int, shape: tuple[int, int], model: Any,
+                   digest: str) -> tuple[ModelSetup, str]:
+    """:func:`placed` for a snapshot made on frames of ``shape`` with digest ``digest``.
+
+    Raises ValueError when the model cannot be placed or the digest is another configuration's."""
+    setup, mine = placed(params, box, seed, shape, model)
+    if mine != digest:
+        raise ValueError(f"the snapshot was made with another G-flow configuration, model or seed (digest "
+                         f"{digest}, this stage has {mine})")
+    return setup, mine
+
+
+def check_shard(n_experts: int, shard: int, shards: int) -> None:
+    """ValueError unless ``1 <= shards <= n_experts`` (no shard without an expert) and
+    ``0 <= shard < shards``."""
+    if not 1 <= shards <= n_experts:
+        raise ValueError(f"shards must be in [1, n_experts={n_experts}], got {shards}")
+    if not 0 <= shard < shards:
+        raise ValueError(f"shard must be in [0, shards={shards}), got {shard}")
+
+
 def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
     """The experts of one shard: contiguous blocks of ``range(n_experts)`` (``numpy.array_split``)."""
     return np.array_split(np.arange(n_experts, dtype=np.int64), shards)[shard]
@@ -67,6 +106,36 @@ def expert_state(setup: ModelSetup, arrays: Mapping[str, Any], bg: tuple[Any, An
     bg_mean, bg_var = (None, None) if bg is None else bg
     return ExpertState(bg_mean=bg_mean, bg_var=bg_var, image_shape=setup.image_shape,
                        tex_anchor=arrays.get("tex_anchor"), **arrs)
+
+
+def check_frame_size(obs: GFlowObservation, shape: tuple[int, int] | None) -> GFlowObservation:
+    """``obs``, if its frame has the size ``shape`` (H, W) of the frames the model was placed on
+    (:attr:`.tracker.ModelSetup.image_shape`; None: not placed yet, any size).
+
+    Raises ValueError naming both sizes otherwise: the experts' poses, textures and backgrounds
+    are for frames of that size."""
+    grey = obs.grey
+    if shape is not None and grey.shape != tuple(shape):
+        raise ValueError(f"size {grey.shape[1]}x{grey.shape[0]} differs from the {shape[1]}x{shape[0]} frames the "
+                         f"tracker started on")
+    return obs
+
+
+def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.ndarray, has_anchor: bool) -> None:
+    """What experts received from another process must satisfy, beyond their arrays' shapes and
+    dtypes, to be ``setup``'s: made on frames of ``image_shape`` (H, W) equal to the model's,
+    ``parents`` (E,) in ``[0, E)``, and a texture anchor exactly when the texels revert toward it
+    (``texture_decay != 1``).
+
+    Raises ValueError saying which does not hold."""
+    if tuple(image_shape) != tuple(setup.image_shape):
+        raise ValueError(f"expert states are for {image_shape} frames, this stage tracks {setup.image_shape}")
+    E = setup.cfg.n_experts
+    if parents.min() < 0 or parents.max() >= E:
+        raise ValueError(f"parents must lie in [0, {E})")
+    if has_anchor != (setup.cfg.texture_decay != 1.0):
+        raise ValueError("the texture anchor is " + ("unexpected" if has_anchor else "missing") +
+                         f" for texture_decay {setup.cfg.texture_decay}")
 
 
 @dataclass(frozen=True)
@@ -102,8 +171,12 @@ class BackgroundReplica:
         ``poses`` (E, P) and ``parents`` (E,) (``first``: the experts of the first frame).
 
         Returns the new replica (``bg`` None when it cannot be had: it cannot start without frame
-        ``seq - 1``) and a problem to report, ``(kind, text)``, or None.
+        ``seq - 1``) and a problem to report, ``(kind, text)``, or None. Without ``background`` (the
+        likelihood without the background terms) there is nothing to keep: the replica is returned
+        as it is.
         """
+        if not setup.cfg.background:
+            return self, None
         t1 = seq - 1
         prev = setup.observation(self.prev_grey) if self.prev_grey is not None and self.prev_seq == t1 else None
         problem = None
@@ -124,6 +197,10 @@ class BackgroundReplica:
             # frame t - 1 was not seen here: prediction only, mu unchanged (eq. 9), sigma + Psi_b (eq. 10)
             bg = predict_background(self.bg[0], self.bg[1], parents, setup.cfg)
         return dataclasses.replace(self, bg=bg, seq=t1), problem
+
+    def ready(self, setup: ModelSetup) -> bool:
+        """Whether proposals can be made for ``setup``: it keeps no backgrounds, or they are here."""
+        return not setup.cfg.background or self.bg is not None
 
     def fields(self) -> dict[str, Any]:
         """The replica as flat snapshot fields: ``prev_seq`` and ``prev_grey`` (H, W) uint8 (-1 and None

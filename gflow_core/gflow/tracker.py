@@ -233,9 +233,15 @@ class GFlowTracker:
         """
         grey = to_grey(image) if np.ndim(image) == 3 else np.asarray(image)
         obs = self.observe_grey(params, grey)
-        if params.lost_guard and params.lost_colour and not col.is_grey(image):
+        if self.reads_colour(params) and not col.is_grey(image):
             obs = dataclasses.replace(obs, bins=col.bins(image))
         return obs
+
+    @staticmethod
+    def reads_colour(params: GFlowParams) -> bool:
+        """Whether the tracker reads a colour frame's bins (:attr:`GFlowObservation.bins`): only the
+        lost guard does, when it weighs colour (``lost_guard`` and ``lost_colour``)."""
+        return params.lost_guard and params.lost_colour
 
     def observe_grey(self, params: GFlowParams, grey: np.ndarray) -> GFlowObservation:
         """:meth:`observe` of a frame already in grey levels ``(H, W)`` uint8."""
