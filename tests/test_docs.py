@@ -317,9 +317,12 @@ class PageRun:
         import queue
         import threading
 
-        # PYTHONFAULTHANDLER: a process that does not stop prints where each thread waits on SIGABRT
+        # PYTHONFAULTHANDLER: a process that does not stop prints where each thread waits on SIGABRT.
+        # SIGINT back to its default in the child: a shell running the tests in the background ignores
+        # it, its children inherit that, and a command started so would never see the Ctrl-C sent below.
         p = subprocess.Popen(["bash", "-c", "exec " + line], env=dict(self.env, PYTHONFAULTHANDLER="1"), cwd=self.tmp,
-                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         lines: queue.Queue = queue.Queue()
 
         def read() -> None:
