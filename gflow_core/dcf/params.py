@@ -78,7 +78,8 @@ class DCFParams:
                                         "search's own best placements on the frames it stayed hidden (TLD's negatives)")
     colour_outlier: float = param(0.01, "probability the colour cue fails: its densities are mixed with a uniform "
                                         "one, so it alone cannot outvote the filter (0: never)")
-    search_min: int = param(3, "searches the search's own clutter must hold before it counts")
+    search_min: int = param(10, "searches the search's own clutter must hold before it counts (as many as the "
+                                "priors' pseudo-samples: a few placements give too narrow a distribution)")
     coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
 
     def __post_init__(self) -> None:
