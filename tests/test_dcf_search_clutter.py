@@ -62,8 +62,9 @@ def test_the_search_clutter_only_ever_lowers_the_hidden_density() -> None:
     sc, frames = _frames()
     st, _ = TRACKER.init(p, TRACKER.observe(p, frames[0]), sc.truth(0), FrameRng(1, 7, 0), {})
     learnt = ChiSquare()
-    for rho in (0.82, 0.81, 0.83, 0.82, 0.80, 0.82):
+    for rho in (0.82, 0.81, 0.83, 0.82, 0.80, 0.82, 0.81, 0.83, 0.82, 0.81, 0.80, 0.82):
         learnt = learnt.update(rho, p.clutter_rate)
+    assert learnt.n >= p.search_min
     with_sc = dataclasses.replace(st, sclutter=learnt)
     off = dataclasses.replace(p, search_clutter=False)
     lower = 0
@@ -76,6 +77,13 @@ def test_the_search_clutter_only_ever_lowers_the_hidden_density() -> None:
     # a placement far better than every one the search gave while hidden is far less likely clutter
     assert _hidden_log_pdf(with_sc, 0.66, 2.5, p) < _hidden_log_pdf(st, 0.66, 2.5, p) - 5.0
     assert lower > 0
-    # fewer than hidden_after searches: the window's clutter alone
-    young = dataclasses.replace(st, sclutter=ChiSquare().update(0.82, p.clutter_rate))
+    # fewer than search_min searches: the window's clutter alone (a handful of placements, a few
+    # thousandths apart, would make the distribution too narrow to judge by)
+    few = ChiSquare()
+    for rho in (0.82, 0.81, 0.83):
+        few = few.update(rho, p.clutter_rate)
+    young = dataclasses.replace(st, sclutter=few)
     assert _hidden_log_pdf(young, 0.66, 2.5, p) == _hidden_log_pdf(st, 0.66, 2.5, p)
+    # ... which the search_min of the previous default (3) would have judged by
+    assert _hidden_log_pdf(young, 0.66, 2.5, dataclasses.replace(p, search_min=3)) < \
+        _hidden_log_pdf(st, 0.66, 2.5, p) - 5.0

@@ -43,7 +43,9 @@ BACF and CSRT learn theirs:
   sigma^2 chi^2_d by running moments (Toyama & Blake eq. 10; :mod:`gflow_core.visibility`): the
   clutter's from the best score away from the estimate in the window (half a box for the filter,
   a box for colour, whose boxes overlap), the target's from the estimate on frames it is present.
-  The two cues multiply (Perez, Vermaak & Blake 2004), with the estimate's place under the motion
+  The two cues multiply (Perez, Vermaak & Blake 2004), the colour's as a cue that may fail (its
+  densities mixed with a uniform one of weight ``colour_outlier``, :mod:`.cues`, so it alone cannot
+  outvote the filter), with the estimate's place under the motion
   prior against clutter's, anywhere in the window, and give P(visible), P(partial), P(hidden);
   ``confidence`` is P(visible). The model learns only when P(visible) >= 1/2, so an occluder is
   not learnt.
@@ -57,7 +59,9 @@ BACF and CSRT learn theirs:
   against the searched area, and a prior ``reappear`` that a hidden target is back. With
   ``search_clutter`` the search also keeps the distribution of its own best placement's distance
   over the frames the target stayed hidden (TLD's negatives, Kalal et al. 2012, as a distribution
-  of the detector's score) and takes the lower of its density and the window clutter's under
+  of the detector's score) and, from ``search_min`` such frames on (as many as the priors'
+  pseudo-samples: a few placements give too narrow a distribution), takes the lower of its density
+  and the window clutter's under
   "hidden": a placement far better than any the search gave while the target was away is the
   target come back.
 
@@ -81,9 +85,14 @@ together (docs/trackers.md):
   colour's scores as cues. TLD learns its negatives as patches for a classifier; here only
   the search's best distance a frame is kept, as a distribution, and it may only lower the
   clutter's density (a target in view but not yet taken back is among those placements too).
+  The colour cue's outlier density is the robust likelihood of multi-cue fusion; its weight
+  (0.01) is a modelling choice, not fitted: it costs david_indoor's ``occlude-60`` on the stress
+  benchmark, where the face came back under other light and only the colour knew it. Ten
+  searches before the search's clutter counts cost tiger1's undisturbed stress control, whose
+  blurred toy was taken back against three.
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
-:mod:`.dynamics` (the proposal's walk), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+:mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

@@ -76,6 +76,10 @@ class DCFParams:
                                       "frame (the search covers three standard deviations)")
     search_clutter: bool = param(True, "judge a hidden target's search candidate also against the distances of the "
                                         "search's own best placements on the frames it stayed hidden (TLD's negatives)")
+    colour_outlier: float = param(0.01, "probability the colour cue fails: its densities are mixed with a uniform "
+                                        "one, so it alone cannot outvote the filter (0: never)")
+    search_min: int = param(10, "searches the search's own clutter must hold before it counts (as many as the "
+                                "priors' pseudo-samples: a few placements give too narrow a distribution)")
     coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
 
     def __post_init__(self) -> None:
@@ -131,6 +135,10 @@ class DCFParams:
                 raise ValueError(f"{name} must be two positive numbers (mean, std), got {v}")
         if self.prior_count < 1:
             raise ValueError(f"prior_count must be >= 1, got {self.prior_count}")
+        if not 0 <= self.colour_outlier < 1:
+            raise ValueError(f"colour_outlier must be in [0, 1), got {self.colour_outlier}")
+        if self.search_min < 1:
+            raise ValueError(f"search_min must be >= 1, got {self.search_min}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

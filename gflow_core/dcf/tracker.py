@@ -29,6 +29,7 @@ from ..particles import LogWeights, systematic_resample
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 from ..visibility import ChiSquare, Cue, visibility
 from . import model as tm
+from .cues import may_fail
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
 from .params import DCFParams
@@ -123,14 +124,14 @@ class Search:
 
 def _hidden_log_pdf(st: DCFState, rho: float, trials: float, p: DCFParams) -> float:
     """log p(rho | hidden) of the search's best placement: the best of ``trials`` draws of the window's
-    clutter (:meth:`ChiSquare.log_pdf_min`) or, with ``search_clutter`` and ``hidden_after`` searches or
+    clutter (:meth:`ChiSquare.log_pdf_min`) or, with ``search_clutter`` and ``search_min`` searches or
     more since the target was last seen, the density of the search's own best placements on those
     frames (one-sided, as the clutter's), whichever is lower: placements the search gave while the
     target stayed hidden are its clutter (TLD's negatives, Kalal et al. 2012 sec. 5), but a target that
     was in view and not taken back is among them too, so they may only lower the clutter's density."""
     lh = st.clutter.log_pdf_min(rho, max(trials, 1.0), p.min_std)
     sc = st.sclutter
-    if p.search_clutter and sc.n >= p.hidden_after:
+    if p.search_clutter and sc.n >= p.search_min:
         lh = min(lh, sc.log_pdf(min(rho, sc.mode(p.min_std)), p.min_std))
     return lh
 
@@ -145,8 +146,9 @@ def _judge(st: DCFState, cand: Any, trials: float, place: float, p: DCFParams) -
     lh = math.log(1.0 - p.reappear) + _hidden_log_pdf(st, rho, trials, p)
     if cand.r_colour is not None and st.ctarget.n and st.cclutter.n:
         rc = 1.0 - cand.r_colour
-        lv += st.ctarget.log_pdf(max(rc, st.ctarget.mode(ms)), ms)
-        lh += st.cclutter.log_pdf_min(rc, 1.0, ms)
+        ct, cc = may_fail(st.ctarget, p.colour_outlier), may_fail(st.cclutter, p.colour_outlier)
+        lv += ct.log_pdf(max(rc, ct.mode(ms)), ms)
+        lh += cc.log_pdf_min(rc, 1.0, ms)
     # P(visible) = 1 / (1 + exp(lh - lv))
     d = lh - lv
     return 0.0 if d > 700.0 else 1.0 / (1.0 + math.exp(d))
@@ -173,13 +175,18 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
             visible = _judge(st, cand, trials, place, p)
         else:
             # the colour score of the filter's pick: one draw of the colour clutter
-            ccue = () if cand.r_colour is None else (Cue(1.0 - cand.r_colour, st.ctarget, st.cclutter),)
+            ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
             visible = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std,
                                  prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
                                  log_place=place, cues=ccue).visible
         if visible >= 0.5:
             return Search(cand, visible, covers, rho)
     return Search(None, 0.0, covers, rho)
+
+
+def _colour_cue(st: DCFState, rho: float, p: DCFParams) -> Cue:
+    """The colour score's distance ``rho`` as a cue that may fail (:mod:`.cues`, ``colour_outlier``)."""
+    return Cue(rho, may_fail(st.ctarget, p.colour_outlier), may_fail(st.cclutter, p.colour_outlier))
 
 
 def _scores(resp: Any, centre: np.ndarray, bw: float, bh: float) -> tuple[float, Any, Any]:
@@ -267,7 +274,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     log_s = st.log_s
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)
-    cues = () if colour_seen is None else (Cue(1.0 - colour_seen[0], st.ctarget, st.cclutter),)
+    cues = () if colour_seen is None else (_colour_cue(st, 1.0 - colour_seen[0], p),)
     hidden_before = st.hidden_run >= p.hidden_after
     # the estimate's place under the target's motion prior against clutter's, uniform over the window:
     # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
