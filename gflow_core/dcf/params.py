@@ -2,8 +2,8 @@
 
 The tracker is :mod:`gflow_core.dcf` (a particle filter whose likelihood is a discriminative
 correlation filter learnt online; its docstring gives each part's role, the papers and the
-departures). Everything else derives from this dataclass: the stages' parameter structs
-(``stages/dcf_proposal.py``, ``stages/dcf_filter.py``), the validation of
+departures). Everything else derives from this dataclass: the stages' parameter structs (made
+from the tracker's spec by ``stages/spec_box.py``), the validation of
 ``pipeline/graphs/dcf.yaml``, ``gflow track --tracker dcf``'s options and their help, ``gflow info
 dcf`` and the keywords of ``gflow.Tracker("dcf", ...)``. The defaults follow the papers where they
 give one (lambda 1e-4, a Gaussian label of 0.1 the target's size, cells of 4 pixels: Henriques et
