@@ -73,19 +73,27 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
     tracked."""
     if inline:
         from pipeline.runtime.inline import run_inline
+        from pipeline.runtime.progress import Console
 
-        last = [0.0]
+        console = Console(sys.stderr, not quiet)  # in place on a terminal, as in a process run
+        last = [time.monotonic(), 0.0]  # when the last line was shown (the first a second in), any shown
 
         def progress(n: int) -> None:
             now = time.monotonic()
-            if not quiet and now - last[0] > 1.0:
-                last[0] = now
-                print(f"  {n}" + (f"/{total}" if total else "") + " frames", file=sys.stderr)
+            if console.enabled and now - last[0] >= 1.0:
+                last[:] = [now, 1.0]
+                console.progress(f"  {n}" + (f"/{total}" if total else "") + " frames")
 
         md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
               "gflow.config": plan.config_metadata()}
-        r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink,
-                       stop=stop.event if stop is not None else None)
+        try:
+            r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink,
+                           stop=stop.event if stop is not None else None)
+            if last[1]:  # the line shown last is the final count, not a count the run went past
+                console.progress(f"  {r.frames}" + (f"/{total}" if total else "") + " frames")
+        finally:
+            if last[1]:
+                console.end()
         bad = {n: e for n, e in r.errors.items() if e}
         return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
     from pipeline.runtime.launcher import Launcher
