@@ -174,3 +174,12 @@ def test_live_tool_mistakes(tmp_path: Path, argv: list[str], named: str) -> None
     (tmp_path / "junk.mcap").write_text("junk\n")
     r = gflow(*argv, cwd=tmp_path)
     assert_one_line_error(r, named)
+
+
+@pytest.mark.parametrize("index", [0, 3])
+def test_frame_of_a_corrupt_image_is_named(tmp_path: Path, frames: Path, index: int) -> None:
+    (frames / f"{index:04d}.png").write_bytes(b"not a png")
+    r = gflow("frame", str(frames), str(index), "f.png", cwd=tmp_path)
+    line = assert_one_line_error(r, f"frame {index}", "cannot be read")
+    assert ("first frame" in line) == (index == 0), line
+    assert not (tmp_path / "f.png").exists()

@@ -98,3 +98,17 @@ def test_eval_frames_scores_only_the_tracked_frames(tmp_path: Path) -> None:
     assert json.loads(every.stdout)["success_rate_0.5"] == 0.6 and json.loads(tracked.stdout)["success_rate_0.5"] == 1.0
     bad = gflow(tmp_path, "eval", "--gt", "gt.csv", "--pred", "p.csv", "--frames", "x:y")
     assert bad.returncode == 2 and "--frames" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_inline_progress_ends_on_the_final_count(tmp_path: Path) -> None:
+    """An --inline run shows no progress line before a second has passed, and a line it shows
+    last is the final count (never a count the run went past, like "1/15 frames")."""
+    d = tmp_path / "frames"
+    d.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(15):
+        cv2.imwrite(str(d / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    r = gflow(tmp_path, "track", str(d), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "--no-record")
+    assert r.returncode == 0, r.stderr
+    counts = [ln.split()[0] for ln in r.stderr.splitlines() if ln.strip().endswith(" frames")]
+    assert counts in ([], [*counts[:-1], "15/15"]), r.stderr

@@ -41,9 +41,26 @@ def test_gflow_rerun_from_a_snapshot(gflow_run, gflow_cmd, stage):
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "from the snapshot at frame" in out.stdout and "all identical" in out.stdout
+    # the inputs the snapshot already consumed (the state port joins frame t + 1) are not fed again
+    assert "old_seq" not in out.stderr and "WARNING" not in out.stderr, out.stderr
 
 
 def test_gflow_changed_parameter_is_caught(gflow_run, gflow_cmd):
     out = subprocess.run([*gflow_cmd, "rerun", str(gflow_run), "--stage", "filter", "--set", "seed=7", "--check"],
                          capture_output=True, text=True, timeout=600)
     assert out.returncode == 1 and "first difference at frame" in out.stdout
+
+
+def test_gflow_proposal_steps_on_after_a_jump(gflow_run):
+    """The proposal's state port joins frame t + 1: after a jump to a snapshot at S, the
+    recorded state of frame S is still fed (it is frame S + 1's input)."""
+    from pipeline.recording.stepper import Stepper
+
+    st = Stepper(gflow_run, "proposal")
+    assert st.jump(40).startswith("from the snapshot at frame")
+    assert not st.errors, st.errors  # the frames stepped to reach 40 had their state
+    views = [st.next() for _ in range(3)]
+    assert all(v is not None for v in views)
+    for v in views:
+        assert v is not None and not v.errors, v.errors
+        assert v.inputs["state"] != "(missing)", v.seq

@@ -59,6 +59,39 @@ def _startup_failure(plan: Plan, launcher, message: str) -> str:
 Tap = Callable[[str, bytes, int, str], None]
 
 
+def _run_inline(plan: Plan, recording: str | None, total: int | None, quiet: bool, sink: EstimateSink | None,
+                stop: RunStop | None):
+    """:func:`run_graph` in this process: its progress line as a process run's (the first a
+    second in, in place on a terminal), ending on the final count when one was shown."""
+    from pipeline.runtime.inline import run_inline
+    from pipeline.runtime.progress import Console
+
+    console = Console(sys.stderr, not quiet)
+    last = [time.monotonic(), 0.0]  # when the last line was shown (the first a second in), any shown
+
+    def line(n: int) -> str:
+        return f"  {n}" + (f"/{total}" if total else "") + " frames"
+
+    def progress(n: int) -> None:
+        now = time.monotonic()
+        if console.enabled and now - last[0] >= 1.0:
+            last[:] = [now, 1.0]
+            console.progress(line(n))
+
+    md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
+          "gflow.config": plan.config_metadata()}
+    try:
+        r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink,
+                       stop=stop.event if stop is not None else None)
+        if last[1]:  # the line shown last is the final count, not a count the run went past
+            console.progress(line(r.frames))
+    finally:
+        if last[1]:
+            console.end()
+    bad = {n: e for n, e in r.errors.items() if e}
+    return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
+
+
 def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], listen_given: bool,
               recording: str | None, total: int | None, hosts: tuple[str, ...] = (), quiet: bool = False,
               strict: bool = True, sink: EstimateSink | None = None, no_record: bool = False,
@@ -72,22 +105,7 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
     cleanly returns (``info["ok"]`` False) instead of raising, so the caller can keep what was
     tracked."""
     if inline:
-        from pipeline.runtime.inline import run_inline
-
-        last = [0.0]
-
-        def progress(n: int) -> None:
-            now = time.monotonic()
-            if not quiet and now - last[0] > 1.0:
-                last[0] = now
-                print(f"  {n}" + (f"/{total}" if total else "") + " frames", file=sys.stderr)
-
-        md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
-              "gflow.config": plan.config_metadata()}
-        r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink,
-                       stop=stop.event if stop is not None else None)
-        bad = {n: e for n, e in r.errors.items() if e}
-        return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
+        return _run_inline(plan, recording, total, quiet, sink, stop)
     from pipeline.runtime.launcher import Launcher
     from pipeline.runtime.running import announce
     from pipeline.runtime.zygote import preload

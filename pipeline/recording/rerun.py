@@ -200,6 +200,8 @@ def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = N
                 if r.topic in late.get(r.seq, ()) and r.type != "EndOfStream":
                     continue  # the live stage gave it up as late (it came after its frame was stepped)
                 consumed.append(r)
+                if restored is not None and r.type != "EndOfStream" and host.frame_of(r.topic, r.seq) <= restored:
+                    continue  # consumed before the snapshot (as the stage's own port offset puts it)
                 host.deliver(r.topic, r.data)
                 if late:
                     _replay_give_ups(host, late)

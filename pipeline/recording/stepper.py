@@ -67,8 +67,8 @@ class Stepper:
         self.host = StageHost(self.stage, self.sp.inputs, self.sp.outputs, self.plan.error_topic, collect)
         self.pos = 0
         self.last_inputs: dict[str, Any] = {}
-        # inputs of the frames a restored snapshot holds are not fed again (the stage consumed
-        # them before the snapshot: fed, each would be an old_seq rejection)
+        # inputs of the frames a restored snapshot holds (after the port's offset) are not fed
+        # again (the stage consumed them before the snapshot: fed, each would be an old_seq rejection)
         self.skip_to = snapshot_seq if snapshot_seq is not None else -1
         if snapshot_seq is not None:
             self.stage.restore(self.snapshots[snapshot_seq])
@@ -95,7 +95,7 @@ class Stepper:
         while self.host.stats.steps == before and self.pos < len(self.records):
             r = self.records[self.pos]
             self.pos += 1
-            if r.seq > self.skip_to:
+            if self.skip_to < 0 or r.type == "EndOfStream" or self.host.frame_of(r.topic, r.seq) > self.skip_to:
                 self.host.deliver(r.topic, r.data)
         if self.host.stats.steps == before:
             return None

@@ -63,7 +63,7 @@ def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawF
     """The first frame the source stage would emit (at ``params.start``).
 
     Raises :class:`PreflightError` when the source cannot be opened, holds no frame at or
-    after ``start``, or its first frame cannot be decoded.
+    after ``start``, or its first frame cannot be decoded (the error names that frame).
     """
     from pipeline.io.frame_readers import count_frames, open_reader
 
@@ -82,7 +82,8 @@ def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawF
             raise PreflightError(f"{where}: no frame can be read (not a video OpenCV can decode, or empty)")
         raise PreflightError(f"{where}: no frame at or after --start {params.start}")
     if frame.image is None:
-        raise PreflightError(f"{where}: the first frame cannot be read: {frame.error}")
+        which = f"frame {frame.index}" + (" (the first frame)" if frame.index == 0 else "")
+        raise PreflightError(f"{where}: {which} cannot be read: {frame.error}")
     return frame
 
 

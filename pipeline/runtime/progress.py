@@ -52,7 +52,8 @@ class Console:
         if not self.enabled:
             return
         if self.out.isatty():
-            self.out.write("\r\033[K" + line[: os.get_terminal_size(self.out.fileno()).columns - 1])
+            cols = os.get_terminal_size(self.out.fileno()).columns  # 0 when the terminal does not say
+            self.out.write("\r\033[K" + (line[: cols - 1] if cols > 1 else line))
         else:
             self.out.write(line + "\n")
         self.out.flush()

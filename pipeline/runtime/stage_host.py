@@ -261,6 +261,13 @@ class StageHost:
         self.pump()
 
     # -- input -------------------------------------------------------------------------------
+    def frame_of(self, topic: str, seq: int) -> int:
+        """The frame an input of header ``seq`` on ``topic`` joins (the port's ``input_offsets``
+        applied): a re-run from a snapshot at frame S skips the inputs of frames <= S, which
+        the restored stage consumed before the snapshot (fed, each is an ``old_seq`` rejection)."""
+        port = self.port_of.get(topic)
+        return seq + (self.stage.input_offsets.get(port, 0) if port is not None else 0)
+
     def deliver(self, topic: str, payload: bytes, pump: bool = True) -> None:
         """Take one payload that arrived on ``topic``; run every step that became ready
         (with ``pump=False``, only store it: a batch is then released by :meth:`pump`)."""
