@@ -149,3 +149,11 @@ def test_set_tracker_on_a_recording_from_before_the_tracker_block(recording: Pat
         outs[name] = [(x.topic, x.seq, x.data) for x in iter_records(tmp_path / f"{name}-50.mcap")
                       if x.topic.endswith(("/estimate", "/proposals", "/particles"))]
     assert outs["old"] and outs["old"] == outs["new"]
+
+
+def test_a_value_set_for_another_stage_is_not_given_to_the_one_rerun(recording: Path, tmp_path: Path) -> None:
+    """``--stage proposal --set filter.seed=7`` set the proposal's seed; it is an error naming both."""
+    r = gflow("rerun", str(recording), "--stage", "proposal", "--set", "filter.seed=7", cwd=tmp_path)
+    assert_one_line_error(r, "--set filter.seed", "--stage proposal", "--graph")
+    r = gflow("rerun", str(recording), "--stage", "proposal", "--set", "proposal.seed=1", "--check", cwd=tmp_path)
+    assert r.returncode == 0 and "all identical" in r.stdout, r.stdout + r.stderr
