@@ -146,6 +146,9 @@ def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stag
     victim.send_signal(signal.SIGKILL)
     out, err = p.communicate(timeout=300)
     assert p.returncode == 0, out + err
+    # no input fed twice: neither the resend of its last outputs nor the recorded inputs it caught
+    # up on before its checkpoint (the proposal's state port joins frame t + 1)
+    assert "duplicate_seq" not in out + err and "old_seq" not in out + err, out + err
     rows, undisturbed = _rows(tmp_path / "run.csv"), _rows(tmp_path / "base.csv")
     assert sorted(rows) == sorted(undisturbed) == list(range(60))
     differ = {f for f in rows if rows[f] != undisturbed[f]}
