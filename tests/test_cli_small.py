@@ -112,3 +112,15 @@ def test_inline_progress_ends_on_the_final_count(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     counts = [ln.split()[0] for ln in r.stderr.splitlines() if ln.strip().endswith(" frames")]
     assert counts in ([], [*counts[:-1], "15/15"]), r.stderr
+
+
+def test_process_progress_ends_on_the_final_count(tmp_path: Path, caviar1: Path) -> None:
+    """A process run that showed a progress line ends on the final counts (every stage at the
+    last frame), not on those of the last one-second tick before the stages finished."""
+    # at 25 fps, 40 frames take 1.6 s: at least one tick is shown while the run goes on
+    r = gflow(tmp_path, "track", str(caviar1), "--init", "129,71,30,79", "--tracker", "chamfer", "--stop", "40",
+              "--realtime", "--out", "b.csv", "--no-record", "--listen", "tcp/127.0.0.1:0")
+    assert r.returncode == 0, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.startswith("source: ")]
+    assert lines, r.stderr
+    assert lines[-1].startswith("source: 40/40 ") and "filter: 40 @" in lines[-1], r.stderr

@@ -76,6 +76,8 @@ def test_a_killed_stage_resumes_and_the_result_is_unchanged(caviar1, tmp_path, u
     out, err = p.communicate(timeout=180)
     assert p.returncode == 0, out + err
     assert f"stage {stage} was restarted 1 time(s)" in out
+    # what it sends again on resuming (its last step's outputs) is no error where it had arrived
+    assert "duplicate_seq" not in out + err, out + err
     rows = _rows(tmp_path / "run.csv")
     assert sorted(rows) == list(range(STOP))  # one row per frame
     differ = {f for f in rows if rows[f] != undisturbed[f]}
@@ -144,7 +146,36 @@ def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stag
     victim.send_signal(signal.SIGKILL)
     out, err = p.communicate(timeout=300)
     assert p.returncode == 0, out + err
+    # no input fed twice: neither the resend of its last outputs nor the recorded inputs it caught
+    # up on before its checkpoint (the proposal's state port joins frame t + 1)
+    assert "duplicate_seq" not in out + err and "old_seq" not in out + err, out + err
     rows, undisturbed = _rows(tmp_path / "run.csv"), _rows(tmp_path / "base.csv")
     assert sorted(rows) == sorted(undisturbed) == list(range(60))
     differ = {f for f in rows if rows[f] != undisturbed[f]}
     assert len(differ) <= WINDOW and differ <= _named_frames(out), (sorted(differ), out)
+
+
+def test_a_repeat_of_the_last_message_is_no_error_but_another_of_its_frame_is() -> None:
+    """A restarted producer sends its last step's outputs again: a consumer that had them takes
+    the byte-identical copy for a repeat; a different message of that frame is still refused."""
+    import numpy as np
+
+    from gflow_msgs.messages import Frame, Header, NDArray, encode
+    from pipeline.runtime.stage_host import StageHost
+    from stages.base import StageContext
+    from stages.preprocess import PreprocessParams, PreprocessStage
+
+    errors: list[str] = []
+    st = PreprocessStage(PreprocessParams(canny_low=20, canny_high=60), StageContext("preprocess", "s"))
+    h = StageHost(st, {"frames": "frames"}, {"features": "features"}, "errors",
+                  lambda t, p, s, n="": errors.append(n) if t == "errors" else None)
+
+    def frame(seq: int, value: int = 0) -> bytes:
+        return encode(Frame(Header("s", seq, 0), NDArray.of(np.full((24, 32, 3), value, np.uint8))))
+
+    for s in range(3):
+        h.deliver("frames", frame(s))
+    h.deliver("frames", frame(2))  # the resend
+    assert h.stats.repeats == 1 and not h.stats.rejected and not errors
+    h.deliver("frames", frame(2, value=9))  # another frame 2
+    assert h.stats.rejected == {"duplicate_seq": 1} and errors == ["ErrorReport"]

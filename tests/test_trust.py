@@ -109,3 +109,51 @@ def test_a_landmark_file_that_is_not_an_archive_is_called_that(tmp_path: Path) -
     line = assert_one_line_error(r, "ref.npz", "not a zip archive")
     assert "pickle" not in line
 
+
+
+def _without_tracker_block(rec: Path, out: Path) -> None:
+    """A copy of ``rec`` whose plan is written as before the tracker block: each stage of the
+    tracker holds its own copy of the tracker's values, and there is no ``tracker`` entry."""
+    import json
+
+    from pipeline.io.mcap_io import iter_records, read_metadata
+    from pipeline.io.recorder import McapRecorder
+
+    md = read_metadata(rec)
+    config = dict(md["gflow.config"])
+    block = json.loads(config.pop("tracker"))
+    for key, val in config.items():
+        if key.startswith("stage."):
+            sp = json.loads(val)
+            if sp["kind"].startswith(block["name"] + "."):
+                sp["params"] = {**block["params"], **sp["params"]}
+                config[key] = json.dumps(sp, sort_keys=True)
+    with McapRecorder(out, metadata={"gflow.graph": md["gflow.graph"], "gflow.config": config}) as w:
+        for r in iter_records(rec):
+            w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns)
+
+
+def test_set_tracker_on_a_recording_from_before_the_tracker_block(recording: Path, tmp_path: Path) -> None:
+    """``rerun --graph --set tracker.X=V`` on a plan that names its tracker's values per stage sets
+    every stage's copy: the re-run is the one of a recording with the block."""
+    from pipeline.io.mcap_io import iter_records
+
+    old = tmp_path / "old.mcap"
+    _without_tracker_block(recording, old)
+    outs = {}
+    for name, rec in (("old", old), ("new", recording)):
+        r = gflow("rerun", str(rec), "--graph", "--set", "tracker.particles=50", "--out", f"{name}-50.mcap",
+                  cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        assert "outputs differ" in r.stdout, r.stdout  # 50 particles, not the recorded 200
+        outs[name] = [(x.topic, x.seq, x.data) for x in iter_records(tmp_path / f"{name}-50.mcap")
+                      if x.topic.endswith(("/estimate", "/proposals", "/particles"))]
+    assert outs["old"] and outs["old"] == outs["new"]
+
+
+def test_a_value_set_for_another_stage_is_not_given_to_the_one_rerun(recording: Path, tmp_path: Path) -> None:
+    """``--stage proposal --set filter.seed=7`` set the proposal's seed; it is an error naming both."""
+    r = gflow("rerun", str(recording), "--stage", "proposal", "--set", "filter.seed=7", cwd=tmp_path)
+    assert_one_line_error(r, "--set filter.seed", "--stage proposal", "--graph")
+    r = gflow("rerun", str(recording), "--stage", "proposal", "--set", "proposal.seed=1", "--check", cwd=tmp_path)
+    assert r.returncode == 0 and "all identical" in r.stdout, r.stdout + r.stderr

@@ -18,7 +18,8 @@ from pipeline.runtime.graph import PROGRESS
 from pipeline.runtime.security import Signer
 from pipeline.runtime.transport import Bus, ZenohSettings, open_reaching
 
-__all__ = ["list_topics", "echo", "hz", "rate_stats", "RateStats", "json_line", "replay", "ReplayOptions"]
+__all__ = ["list_topics", "echo", "hz", "rate_stats", "RateStats", "json_line", "replay", "ReplayOptions",
+           "StreamInUse"]
 
 
 def _session(settings: ZenohSettings):
@@ -273,6 +274,7 @@ class ReplayOptions:
     lockstep : stage names; before sending a frame with a new sequence number, wait until
         each of them has reported (on its heartbeat) that it has processed the previous one.
     ack_timeout : seconds to wait for an acknowledgement before giving up.
+    stream : publish on ``gflow/<stream>/...`` instead of the recorded stream (None: the recorded one).
     """
 
     speed: float | None = 1.0
@@ -285,6 +287,7 @@ class ReplayOptions:
     lockstep: tuple[str, ...] = ()
     ack_timeout: float = 10.0
     settle: float = 1.0
+    stream: str | None = None
 
 
 class _Acks:
@@ -321,6 +324,25 @@ class _Acks:
             self.changed.wait(min(left, 0.05))
 
 
+class StreamInUse(RuntimeError):
+    """A replay would publish into the stream of a pipeline that runs: refused, in one line."""
+
+
+def _stream_holders(session, stream: str, topics: set[str]) -> list[str]:
+    """What runs on ``stream`` now: the pipelines and replays announced on this machine and the
+    stages holding a liveliness token on the network. Empty when nothing does (a replay there is
+    its own run) or when the pipelines announced there take every one of ``topics`` from outside
+    (a graph with ``external`` inputs: what a replay is for)."""
+    from pipeline.runtime.multihost import alive_stages
+    from pipeline.runtime.running import running
+
+    found = running(stream)
+    if found and all(topics <= set(i.get("external") or ()) for i in found):
+        return []
+    held = [f"{i.get('kind', 'pipeline')} {i.get('pid')}" for i in found]
+    return held + [f"stage {n}" for n in sorted(alive_stages(session, stream))]
+
+
 def _window(opts: ReplayOptions) -> str:
     """The replay window ``opts`` asks for, as the options that set it."""
     parts = [f"{name} {v}" for name, v in (("--from-seq", opts.start_seq), ("--to-seq", opts.end_seq),
@@ -338,6 +360,11 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
     ``gflow topics`` and friends find it without a launcher. ``ready`` is called once the session is
     open and the replay announced, just before the first message; a Ctrl-C from then on ends the
     replay and returns the count sent so far.
+
+    A replay is a run of its own: on the recorded stream while no pipeline runs on it; a stream a
+    running pipeline (or another replay) holds is refused (:class:`StreamInUse`, before anything is
+    sent) unless the replay is meant to feed it (``opts.lockstep``, or ``opts.stream`` naming it).
+    ``opts.stream`` republishes under another stream (the payloads unchanged).
     """
     records = [r for r in iter_records(path, topics=opts.topics)
                if "/_status/" not in r.topic and not r.topic.endswith("/_control")]
@@ -357,13 +384,25 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
         seqs = [r.seq for r in records if r.type != "EndOfStream"] or [0]
         raise ValueError(f"{path}: no message in the chosen window ({_window(opts)}); it holds frames "
                          f"{min(seqs)}..{max(seqs)} over {(max(r.log_ns for r in records) - t_first) / 1e9:.3f} s")
-    stream = keep[0].topic.split("/")[1]
+    recorded = keep[0].topic.split("/")[1]
+    stream = opts.stream or recorded
+
+    def key(topic: str) -> str:  # the recorded key, under the stream the replay publishes on
+        parts = topic.split("/", 2)
+        return f"gflow/{stream}/{parts[2]}" if len(parts) == 3 and parts[1] == recorded else topic
+
     s = _session(settings)
     announcement = None
     n = 0
     loop = 0
     try:  # from here on a Ctrl-C ends the replay with the count sent so far and the session closed
         bus = Bus(s, signer=Signer.of(settings.security))
+        if not opts.stream and not opts.lockstep:
+            held = _stream_holders(s, stream, {key(r.topic) for r in keep})
+            if held:
+                raise StreamInUse(f"stream {stream!r} is in use ({', '.join(held)}): replayed there, the recording "
+                                  f"would feed that run; replay beside it with --stream NAME, or into it on purpose "
+                                  f"with --stream {stream}")
         acks = _Acks()
         if opts.lockstep:
             bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
@@ -391,7 +430,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
                     delay = due - time.monotonic()
                     if delay > 0:
                         time.sleep(delay)
-                bus.publish(r.topic, r.data, r.seq, r.type if r.type != "unknown" else "")
+                bus.publish(key(r.topic), r.data, r.seq, r.type if r.type != "unknown" else "")
                 if r.type != "EndOfStream":
                     sent_seq = max(sent_seq, r.seq)
                 n += 1

@@ -81,13 +81,18 @@ def recorded_plan(path: str | Path) -> Plan:
 def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
     """Override parameters of one stage, validated like a graph file. A parameter of the plan's
     tracker block (``tracker.PARAM`` or the bare name) changes the block, which every stage of the
-    tracker takes."""
+    tracker takes; in a plan recorded before the block (each stage of the tracker holds its own copy
+    of the values), ``tracker`` sets every stage's copy, as a graph without a block does."""
     from pipeline.runtime.tracker_block import TRACKER_KEY, own_fields, stage_tracker
 
     if stage == TRACKER_KEY:
         if plan.tracker is None:
-            raise GraphError("--set tracker.NAME: the recording's plan names its tracker's parameters per stage "
-                             "(recorded before the tracker block): set them per stage")
+            copies = [n for n, s in plan.stages.items() if s.kind in STAGES and stage_tracker(STAGES[s.kind].Params)]
+            if not copies:
+                raise GraphError("--set tracker.NAME: the recording runs no stage of a tracker")
+            for name in copies:
+                apply_sets(plan, name, sets)
+            return
         stage = next((n for n, s in plan.stages.items() if plan.stage_params(n) is not s.params), "")
         if not stage:
             raise GraphError("--set tracker.NAME: the recording runs no stage of its tracker")

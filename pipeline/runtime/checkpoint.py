@@ -19,7 +19,8 @@ class Checkpoint(msgspec.Struct, frozen=True):
     """What a restarted stage resumes from: its snapshot after frame ``seq`` (None for a
     stateless stage), the last seq it sent on each output port, and the messages that step
     published ((topic, payload, seq, type name)): a kill can come before zenoh has put them
-    on the wire, so a restarted stage sends them again (downstream counts a duplicate)."""
+    on the wire, so a restarted stage sends them again (a consumer that had them takes the
+    copy, the same bytes as the last message on its port, for a repeat: no error)."""
 
     seq: int
     data: bytes | None

@@ -238,6 +238,7 @@ class Launcher:
             # a stage's last heartbeat leaves just before its process exits: hear it before the
             # session closes (under load it can arrive after the exit is seen)
             monitor.await_final([n for n, e in sup.exits.items() if e.returncode == 0], 2.0)
+            monitor.show_final()
             self.console.end()
             session.close()
             shutil.rmtree(self.run_dir, ignore_errors=True)

@@ -96,6 +96,7 @@ class ProgressMonitor:
         self.heard = threading.Condition(self.lock)  # notified on every heartbeat
         self._progress_at: dict[str, tuple[tuple, float]] = {}
         self._last_line = 0.0
+        self._shown = False  # a progress line was written: the run ends on its final one
 
     def subscribe(self, bus: Bus) -> None:
         """Listen to the heartbeats, the errors and the estimates of the graph."""
@@ -218,6 +219,13 @@ class ProgressMonitor:
         if self.console.enabled and now - self._last_line >= 1.0:
             self.console.progress(self.line())
             self._last_line = now
+            self._shown = True
+
+    def show_final(self) -> None:
+        """Once the stages' final heartbeats are in: write the progress line again when one was
+        shown, so the run ends on its final counts, not on those of the last one-second tick."""
+        if self.console.enabled and self._shown:
+            self.console.progress(self.line())
 
     def check_stall(self, workers: list[str], alive: Callable[[str], bool], now: float) -> None:
         """Raise :class:`Stalled` when a live stage of ``workers`` has not moved for

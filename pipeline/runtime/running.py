@@ -9,6 +9,7 @@ Folder: ``$GFLOW_RUNTIME_DIR``, else ``$XDG_RUNTIME_DIR/gflow``, else
      "endpoints": ["tcp/127.0.0.1:7447"], "stages": ["source", ...], "started": 1763870000.1,
      "recording": "recordings/demo-....mcap", "camera": "demo", "no_record": false}
 
+``external`` lists the topics the graph takes from outside (``gflow replay`` may feed those).
 ``recording`` is None where this launcher does not record (``no_record`` true for a ``--no-record`` run).
 
 ``stream`` is the run's own stream (``demo-3f9c2a``: see ``pipeline.runtime.runid``), ``camera``
@@ -74,15 +75,17 @@ class Announcement:
 
 def announce(stream: str, endpoints: list[str] | tuple[str, ...], *, name: str = "", stages: list[str] | None = None,
              kind: str = "pipeline", recording: str | None = None, camera: str = "",
-             no_record: bool = False) -> Announcement:
+             no_record: bool = False, external: list[str] | None = None) -> Announcement:
     """Write this process's file (atomically) and return the handle that removes it. ``no_record``:
-    a ``--no-record`` run (its results read from a temporary file, not announced as a recording)."""
+    a ``--no-record`` run (its results read from a temporary file, not announced as a recording);
+    ``external``: the topics its graph takes from outside (a replay may feed them)."""
     d = runtime_dir()
     d.mkdir(parents=True, exist_ok=True, mode=0o700)
     pid = os.getpid()
     info = {"kind": kind, "name": name or stream, "stream": stream, "pid": pid,
             "endpoints": [e.replace("0.0.0.0", "127.0.0.1") for e in endpoints], "stages": list(stages or []),
-            "started": time.time(), "recording": recording, "camera": camera or stream, "no_record": no_record}
+            "started": time.time(), "recording": recording, "camera": camera or stream, "no_record": no_record,
+            "external": list(external or [])}
     path = d / f"{stream}-{pid}.json"
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(info))

@@ -11,6 +11,8 @@ flow-control window ahead of the source when the source's position is known), it
 larger than the frame size the source declared) and, for particles, finite values. A
 message that fails is counted per kind (``HostStats.rejected``, sent in the heartbeat),
 reported on the error topic, and never joined.
+A port's last message again, byte for byte (a restarted producer resends its last step's
+outputs), is no error: it is counted (``HostStats.repeats``) and ignored.
 
 Preparing ahead (``ahead``, on in a stage process, off in ``--inline``): a message on one of
 the stage's ``prepare_ports`` is handed, once joined, to ``stage.prepare`` on a second
@@ -63,6 +65,7 @@ class HostStats:
     received: dict[str, int] = field(default_factory=dict)
     rejected: dict[str, int] = field(default_factory=dict)  # bad input messages, by kind
     lost: int = 0  # frames stepped with nothing, or given up, after a fault
+    repeats: int = 0  # a port's last message again, byte for byte (a restarted producer resends it)
 
     def fps(self) -> float:
         if self.steps < 2 or self.last_step_ns <= self.first_step_ns:
@@ -119,6 +122,7 @@ class StageHost:
         self.frame_shape: tuple[int, int] | None = None  # (H, W) the source declared
         self.on_step = on_step
         self.replayed_upto: dict[str, int] = {}  # after a restart: inputs already taken from the recording
+        self.last_in: dict[str, bytes] = {}  # port -> the last payload that came on it
         self.hold = False  # a peer is restarting: do not give inputs up for lateness (see tick)
         self._head: tuple[int, float] = (-1, 0.0)  # (lowest pending seq, when tick first saw it lowest)
         self.stats = HostStats()
@@ -277,6 +281,12 @@ class StageHost:
         if port is None:
             return
         self.stats.received[port] = self.stats.received.get(port, 0) + 1
+        if self.last_in.get(port) == payload:
+            # the message before, byte for byte: a restarted producer sends its last step's outputs
+            # again (they may not have left before it was killed); what the first copy did stands
+            self.stats.repeats += 1
+            return
+        self.last_in[port] = payload
         try:
             msg = decode(payload)
         except MessageError as e:

@@ -135,7 +135,8 @@ class StageNode(NodeBase):
         return ck.seq
 
     def resend_last(self) -> None:
-        """Publish again what the step before a kill published (duplicates are counted downstream)."""
+        """Publish again what the step before a kill published (a consumer that had it ignores the
+        byte-identical repeat: :meth:`StageHost.deliver`)."""
         for topic, payload, seq, type_name in self.resend:
             self.publish(topic, payload, seq, type_name)
         self.resend = []

@@ -93,18 +93,25 @@ def recording_topics(path: str, patterns: list[str]) -> list[str]:
 
 
 def cmd_replay(args) -> int:
-    from pipeline.cli.live import ReplayOptions, replay
+    from pipeline.cli.live import ReplayOptions, StreamInUse, replay
 
     opts = ReplayOptions(speed=None if args.max else args.speed, topics=args.topics, start_seq=args.from_seq,
                          end_seq=args.to_seq, start_s=args.start, end_s=args.end, loops=args.loop,
                          lockstep=tuple(s for s in (args.lockstep or "").split(",") if s),
-                         ack_timeout=args.ack_timeout)
+                         ack_timeout=args.ack_timeout, stream=args.stream)
     import dataclasses
 
     from pipeline.io.mcap_io import _check as check_mcap
     from pipeline.runtime.transport import free_port
 
     check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+    if args.stream:
+        from pipeline.runtime.transport import topic_key
+
+        try:
+            topic_key(args.stream, "x")
+        except ValueError as e:
+            raise CliError(f"--stream: {e}") from None
     from pipeline.cli.commands.common import warn_if_torn
 
     warn_if_torn(args.file)
@@ -121,7 +128,7 @@ def cmd_replay(args) -> int:
 
     try:
         n = replay(settings, args.file, opts, announce_endpoints=where, ready=ready)
-    except TimeoutError as e:
+    except (TimeoutError, StreamInUse) as e:
         raise CliError(str(e)) from None
     print(f"replayed {n} messages from {args.file}", file=sys.stderr)
     return 0
@@ -160,6 +167,9 @@ def register(sub) -> None:
     p.add_argument("--loop", type=int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
     p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
                    help="before each new frame, wait until these live stages acknowledge the previous one")
+    p.add_argument("--stream", metavar="NAME",
+                   help="publish on gflow/NAME/... instead of the recorded stream (a stream a running pipeline holds "
+                        "is refused unless named here or fed with --lockstep)")
     p.add_argument("--ack-timeout", type=float, default=10.0, help="with --lockstep: seconds to wait for a stage to acknowledge a frame (default 10)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_replay)

@@ -13,13 +13,19 @@ from pipeline.cli.commands.common import CliError, parse_sets
 ORDER = 52
 
 
-def _stage_sets(items: list[str] | None) -> dict[str, object]:
+def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
+    """{param: value} of ``--set`` for a re-run of ``stage``: ``PARAM=V``, ``STAGE.PARAM=V`` or
+    ``tracker.PARAM=V``; a value named for another stage is an error (it would set ``stage``'s)."""
     out: dict[str, object] = {}
     for it in items or []:
         if "=" not in it:
             raise CliError(f"--set expects key=value, got {it!r}")
         k, v = it.split("=", 1)
-        out[k.split(".", 1)[1] if "." in k else k] = yaml.safe_load(v)
+        owner, _, name = k.rpartition(".")
+        if owner not in ("", stage, "tracker"):
+            raise CliError(f"--set {k}: --stage {stage} re-runs {stage} alone; set its parameters ({stage}.{name} "
+                           f"or {name}), or re-run --stage {owner} or --graph")
+        out[name] = yaml.safe_load(v)
     return out
 
 
@@ -119,7 +125,7 @@ def cmd_rerun(args) -> int:
         return rc if args.check else 0
     if not args.stage:
         raise CliError("say which stage to re-run with --stage NAME, or --graph for all of them")
-    stage_sets = _stage_sets(args.set)
+    stage_sets = _stage_sets(args.set, args.stage)
     plan = recorded_plan(args.file)
     if args.stage in plan.stages:  # an unknown stage: rerun_stage names the graph's
         sp = plan.stages[args.stage]
