@@ -47,7 +47,8 @@ from gflow_core.gflow.split import BackgroundReplica, expert_state, restored_set
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import GFlowStageFields, check_size, frame_of, initial_box, prepare, proposals_msg, unpack_states
+from .gflow_common import GFlowStageFields, check_size, frame_of, initial_box, prepare, unpack_states
+from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
@@ -129,7 +130,7 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         if obs is not None:
             self.replica = self.replica.seen(seq, obs.grey)
         self.steps += 1
-        msg = proposals_msg(header, out, self.params.shard, self.params.shards, self.digest)
+        msg = proposals_of(header, out, self.params.shard, self.params.shards, self.digest)
         self.last = {"seq": seq, "experts": int(self.indices.size) if out is not None else 0}
         return [("proposals", msg)]
 
