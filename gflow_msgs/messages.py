@@ -24,7 +24,7 @@ import numpy as np
 
 __all__ = [
     "Header", "NDArray", "Frame", "Features", "ColourFeatures", "Particles", "Estimate", "ErrorReport", "EndOfStream",
-    "StageStatus", "Control", "Snapshot", "Capture", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
+    "StageStatus", "Control", "Snapshot", "Capture", "estimate_of", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
     "MessageError",
 ]
 
@@ -124,6 +124,22 @@ class Estimate(msgspec.Struct, frozen=True, tag=True):
     state: str = "track"
     confidence: float = 1.0
     target_state: str = "tracked"
+
+
+def estimate_of(header: Header, est: Any) -> Estimate:
+    """The message of a particle-filter tracker's estimate of a frame (``gflow_core.tracker.Estimate``:
+    ``box``, ``phase``, ``confidence``, ``target_state`` and the ``extras`` ``alpha``, ``mean``, ``std``,
+    ``ess``, ``n``, ``log_evidence``, and ``k`` and the (P, 2) ``contour`` where the tracker has them;
+    without a contour, the box's outline is drawn)."""
+    e = est.extras
+    if "contour" in e:
+        outline = e["contour"]
+    else:
+        x, y, w, h = est.box
+        outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+    return Estimate(header=header, box=est.box, alpha=e["alpha"], k=e.get("k", 0), mean=e["mean"], std=e["std"],
+                    ess=e["ess"], n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline),
+                    state=est.phase, confidence=est.confidence, target_state=est.target_state)
 
 
 class ErrorReport(msgspec.Struct, frozen=True, tag=True):

@@ -50,7 +50,8 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
-from gflow_msgs.messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
+from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
+                                 estimate_of)
 from gflow_msgs.snapshots import CounterSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
@@ -278,17 +279,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         particles the update weighed; None on the first frame)."""
         assert self.state is not None
         self.steps += 1
-        e = est.extras
         self.last = self._last(header, est)
-        if "contour" in e:
-            outline = e["contour"]
-        else:
-            x, y, w, h = est.box
-            outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
-        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=e.get("k", 0), mean=e["mean"], std=e["std"],
-                       ess=e["ess"], n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline),
-                       state=est.phase, confidence=est.confidence, target_state=est.target_state)
-        return [("particles", particles_msg(header, "posterior", self._posterior())), ("estimate", msg)]
+        return [("particles", particles_msg(header, "posterior", self._posterior())), ("estimate", estimate_of(header, est))]
 
     def _initialise(self, seq: int, msg: Any) -> list[Output]:
         p = self.params
@@ -369,6 +361,19 @@ class FeaturesFilterStage(BoxFilterStage):
     @abstractmethod
     def _features(self, feat: Features, seq: int) -> Any:
         """The tracker's observation of a features message (None, reported: unusable)."""
+
+    def _grey(self, feat: Features, seq: int, usable: Callable[[np.ndarray], bool], then: str) -> np.ndarray | None:
+        """The features' grey image, or None when it cannot be read or is not ``usable``, reported as
+        ``bad_features`` ending with ``then`` (what the filter does without it)."""
+        try:
+            grey = feat.grey.array()
+        except MessageError as e:
+            self.report("bad_features", f"frame {seq}: {e}; {then}", seq)
+            return None
+        if not usable(grey):
+            self.report("bad_features", f"frame {seq}: grey image has shape {grey.shape}; {then}", seq)
+            return None
+        return grey
 
     def _observe(self, feat: Any, seq: int) -> Any:
         if feat is None:

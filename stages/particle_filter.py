@@ -136,23 +136,12 @@ class FilterStage(FeaturesFilterStage):
             return False  # the chamfer image decides whether the frame is usable
         return is_blank(self.core, edges)
 
-    def _grey(self, feat: Features, seq: int) -> np.ndarray | None:
-        try:
-            grey = feat.grey.array()
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; chamfer only", seq)
-            return None
-        if not usable_grey(grey):
-            self.report("bad_features", f"frame {seq}: grey image has shape {grey.shape}; chamfer only", seq)
-            return None
-        return grey
-
     def _features(self, feat: Features, seq: int) -> ContourObservation:
         """The tracker's observation of a features message. The grey image is read only where a cue
         needs it: the appearance kernels, the lost guard."""
         cham = self._chamfer(feat, seq)
         blank = cham is not None and self._blank(feat)
-        grey = self._grey(feat, seq) if reads_grey(self.core, self.setup) else None
+        grey = self._grey(feat, seq, usable_grey, "chamfer only") if reads_grey(self.core, self.setup) else None
         channels = functools.cache(lambda: self.prepared("features", feat)) if grey is not None else None
         try:
             edges = feat.edges.array()
