@@ -280,7 +280,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         assert self.state is not None
         self.steps += 1
         self.last = self._last(header, est)
-        return [("particles", particles_msg(header, "posterior", self._posterior())), ("estimate", estimate_of(header, est))]
+        return [("particles", particles_msg(header, "posterior", self._posterior())),
+                ("estimate", estimate_of(header, est))]
 
     def _initialise(self, seq: int, msg: Any) -> list[Output]:
         p = self.params
@@ -391,6 +392,20 @@ class FeaturesFilterStage(BoxFilterStage):
 
     def _started(self, obs: Any) -> None:
         """Features are not held to the first frame's size (each array is checked where it is read)."""
+
+    def _restored(self, data: bytes, decode: Callable[[bytes], Any], state_of: Callable[[Any], Any]) -> Any:
+        """A snapshot of the tracker's own codec (``decode``) restored: sets the state ``state_of`` the decoded
+        snapshot gives and returns that snapshot; ValueError in one line naming the stage otherwise."""
+        name = self.ctx.name
+        try:
+            snap = decode(data)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {name!r}: not {article(self.kind)} {self.kind} snapshot: {e}") from None
+        try:
+            self.state = state_of(snap)
+        except ValueError as e:
+            raise ValueError(f"stage {name!r}: {e}") from None
+        return snap
 
     def _proposed(self, seq: int, prop: Message | None) -> Any:
         """The proposed cloud (a subclass may take what its tracker's ``update`` takes of it)."""

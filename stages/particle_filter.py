@@ -35,7 +35,6 @@ from __future__ import annotations
 import functools
 from typing import Any, ClassVar
 
-import msgspec
 import numpy as np
 
 from gflow_core.contour import state as wire
@@ -225,15 +224,7 @@ class FilterStage(FeaturesFilterStage):
         return wire.encode(wire.snapshot_of(self.state, self.steps, self.warned, self.last))
 
     def restore(self, data: bytes) -> None:
-        name = self.ctx.name
-        try:
-            snap = wire.decode(data)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not a particle.filter snapshot: {e}") from None
-        try:
-            self.state = wire.state_of(snap, self.setup, self.core, self.params.init)
-        except ValueError as e:
-            raise ValueError(f"stage {name!r}: {e}") from None
+        snap = self._restored(data, wire.decode, lambda s: wire.state_of(s, self.setup, self.core, self.params.init))
         self.steps, self.warned, self.last = snap.steps, snap.warned, wire.last_of(snap)
 
 

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import msgspec
 import numpy as np
 
 from gflow_core.m2.model import M2Model
@@ -115,14 +114,6 @@ class PatchFilterStage(FeaturesFilterStage):
         return patch.encode(patch.snapshot_of(self.state, self.steps, int(last.get("k", -1)), int(last.get("seq", -1))))
 
     def restore(self, data: bytes) -> None:
-        name = self.ctx.name
-        try:
-            snap = patch.decode(data)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not a patch.filter snapshot: {e}") from None
-        try:
-            self.state = patch.state_of(snap, self.model)
-        except ValueError as e:
-            raise ValueError(f"stage {name!r}: {e}") from None
+        snap = self._restored(data, patch.decode, lambda snap: patch.state_of(snap, self.model))
         self.steps = snap.steps
         self.last = {} if snap.last_seq < 0 and snap.last_k < 0 else {"seq": snap.last_seq, "k": snap.last_k}
