@@ -16,12 +16,14 @@ checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Mapping, TypeVar
+
+import msgspec
 
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, placed
+from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, placed, restored_setup
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -32,7 +34,9 @@ from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
 __all__ = ["GFlowStageFields", "initial_box", "prepare", "frame_of", "check_size", "unpack_states",
-           "unpack_proposals"]
+           "unpack_proposals", "decoded_snapshot", "snapshot_setup"]
+
+S = TypeVar("S")
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -99,6 +103,26 @@ def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -
         return check_frame_size(obs, shape)
     except ValueError as e:
         raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
+
+
+def decoded_snapshot(data: bytes, struct: type[S], kind: str, versions: tuple[int, ...]) -> S:
+    """A G-flow stage's snapshot decoded as ``struct`` and of one of ``versions``; ValueError in one line
+    naming the stage ``kind`` otherwise."""
+    try:
+        snap = msgspec.msgpack.decode(data, type=struct)
+    except msgspec.DecodeError as e:
+        raise ValueError(f"not a {kind} snapshot: {e}") from None
+    version = getattr(snap, "version")
+    if version not in versions:
+        raise ValueError(f"{kind} snapshot version {version}, this code reads {' and '.join(map(str, versions))}")
+    return snap
+
+
+def snapshot_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
+                   image_shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
+    """The model placed again for a snapshot made on frames of ``image_shape`` with ``digest``
+    (:func:`gflow_core.gflow.split.restored_setup`: ValueError for another configuration's)."""
+    return restored_setup(tracker, initial_box(fields), fields.seed, image_shape, resources.get("model"), digest)
 
 
 # -- messages -> gflow_core ---------------------------------------------------------------

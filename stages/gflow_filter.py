@@ -35,13 +35,14 @@ import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import config_digest, expert_state, restored_setup, shard_indices
+from gflow_core.gflow.split import config_digest, expert_state, shard_indices
 from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
 from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import GFlowStageFields, check_size, frame_of, initial_box, unpack_proposals, unpack_states
+from .gflow_common import (GFlowStageFields, check_size, decoded_snapshot, frame_of, initial_box, snapshot_setup,
+                           unpack_proposals, unpack_states)
 from gflow_msgs.gflow import pose_estimate_of, states_of
 from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, PoseEstimate,
                                  PoseProposals)
@@ -232,16 +233,10 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
-        try:
-            snap = msgspec.msgpack.decode(data, type=GFlowFilterSnapshot)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"not a gflow.filter snapshot: {e}") from None
-        if snap.version not in (1, SNAPSHOT_VERSION):
-            raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads 1 and {SNAPSHOT_VERSION}")
+        snap = decoded_snapshot(data, GFlowFilterSnapshot, self.kind, (1, SNAPSHOT_VERSION))
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
-            setup, digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed, snap.image_shape,
-                                           self.ctx.resources.get("model"), snap.digest)
+            setup, digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
             try:
                 experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
             except StageInputError as e:
