@@ -331,12 +331,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     def restore(self, data: bytes) -> None:
         name, label, codec = self.ctx.name, self.box.name, self.box.snapshot
         assert codec is not None
-        try:
-            snap = msgspec.msgpack.decode(data, type=codec.struct)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not {article(self.kind)} {self.kind} snapshot: {e}") from None
-        if snap.version != codec.version:
-            raise ValueError(f"stage {name!r}: {label} snapshot version {snap.version}, expected {codec.version}")
+        snap = versioned_snapshot(data, codec.struct, name, self.kind, codec.version)
         self.steps, self.last = snap.steps, dict(snap.last)
         if not snap.initialised:
             self.state, self.shape = None, None

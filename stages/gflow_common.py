@@ -16,9 +16,7 @@ checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
 
 from __future__ import annotations
 
-from typing import Any, Mapping, TypeVar
-
-import msgspec
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -34,9 +32,7 @@ from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
 __all__ = ["GFlowStageFields", "initial_box", "prepare", "frame_of", "check_size", "unpack_states",
-           "unpack_proposals", "decoded_snapshot", "snapshot_setup"]
-
-S = TypeVar("S")
+           "unpack_proposals", "snapshot_setup"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -103,19 +99,6 @@ def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -
         return check_frame_size(obs, shape)
     except ValueError as e:
         raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
-
-
-def decoded_snapshot(data: bytes, struct: type[S], kind: str, versions: tuple[int, ...]) -> S:
-    """A G-flow stage's snapshot decoded as ``struct`` and of one of ``versions``; ValueError in one line
-    naming the stage ``kind`` otherwise."""
-    try:
-        snap = msgspec.msgpack.decode(data, type=struct)
-    except msgspec.DecodeError as e:
-        raise ValueError(f"not a {kind} snapshot: {e}") from None
-    version = getattr(snap, "version")
-    if version not in versions:
-        raise ValueError(f"{kind} snapshot version {version}, this code reads {' and '.join(map(str, versions))}")
-    return snap
 
 
 def snapshot_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],

@@ -40,8 +40,8 @@ from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_f
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
-from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (GFlowStageFields, check_size, decoded_snapshot, frame_of, initial_box, snapshot_setup,
+from .base import Output, Stage, StageContext, StageInputError, versioned_snapshot
+from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, snapshot_setup,
                            unpack_proposals, unpack_states)
 from gflow_msgs.gflow import pose_estimate_of, states_of
 from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, PoseEstimate,
@@ -233,7 +233,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
-        snap = decoded_snapshot(data, GFlowFilterSnapshot, self.kind, (1, SNAPSHOT_VERSION))
+        snap = versioned_snapshot(data, GFlowFilterSnapshot, self.ctx.name, self.kind, (1, SNAPSHOT_VERSION))
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
             setup, digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)

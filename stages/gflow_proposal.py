@@ -46,8 +46,8 @@ from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSet
 from gflow_core.gflow.split import BackgroundReplica, expert_state, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
-from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (GFlowStageFields, check_size, decoded_snapshot, frame_of, prepare, snapshot_setup,
+from .base import Output, Stage, StageContext, StageInputError, versioned_snapshot
+from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, snapshot_setup,
                            unpack_states)
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
@@ -188,7 +188,7 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
             init_error=self.init_error, **packed_fields(self.replica.fields())))
 
     def restore(self, data: bytes) -> None:
-        snap = decoded_snapshot(data, GFlowProposalSnapshot, self.kind, (SNAPSHOT_VERSION,))
+        snap = versioned_snapshot(data, GFlowProposalSnapshot, self.ctx.name, self.kind, SNAPSHOT_VERSION)
         self.setup, self.digest = None, ""
         if snap.image_shape is not None:
             self.setup, self.digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
