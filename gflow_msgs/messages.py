@@ -24,8 +24,8 @@ import numpy as np
 
 __all__ = [
     "Header", "NDArray", "Frame", "Features", "ColourFeatures", "Particles", "Estimate", "ErrorReport", "EndOfStream",
-    "StageStatus", "Control", "Snapshot", "Capture", "estimate_of", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
-    "MessageError",
+    "StageStatus", "Control", "Snapshot", "Capture", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate",
+    "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema", "MessageError", "estimate_of", "bins_of",
 ]
 
 from .base import Box, Header, MessageError, NDArray  # noqa: E402  (re-exported)
@@ -79,6 +79,18 @@ class ColourFeatures(Features, frozen=True, tag=True):
         if b.shape != tuple(shape) or b.dtype != np.uint8:
             raise MessageError(f"colour bins of {b.dtype} {b.shape}, not uint8 {tuple(shape)}")
         return b
+
+
+def bins_of(feat: Features, shape: tuple[int, ...]) -> tuple[np.ndarray | None, str]:
+    """The colour bins a features message carries for a grey image of ``shape`` (:meth:`ColourFeatures.bins_array`;
+    None when it carries none: a grey frame, or a recording made before them) and what is wrong with them
+    ("" when nothing is; None then)."""
+    if not isinstance(feat, ColourFeatures):
+        return None, ""
+    try:
+        return feat.bins_array(shape), ""
+    except MessageError as e:
+        return None, str(e)
 
 
 class Particles(msgspec.Struct, frozen=True, tag=True):

@@ -44,8 +44,7 @@ from .base import Output, Stage, StageContext, StageInputError, versioned_snapsh
 from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, snapshot_setup,
                            unpack_proposals, unpack_states)
 from gflow_msgs.gflow import pose_estimate_of, states_of
-from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, PoseEstimate,
-                                 PoseProposals)
+from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .rng import tracker_rng
@@ -163,12 +162,10 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
         them (the preprocess stage's ``colour``) and the guard weighs colour, and what was wrong with
         bad bins ("" when nothing was; then the observation has none)."""
-        if not (TRACKER.reads_colour(self.tracker) and isinstance(feat, ColourFeatures)):
+        if not TRACKER.reads_colour(self.tracker):
             return obs, ""
-        try:
-            return dataclasses.replace(obs, bins=feat.bins_array(obs.grey.shape)), ""
-        except MessageError as e:
-            return obs, str(e)
+        bins, problem = bins_of(feat, obs.grey.shape)
+        return (obs if bins is None else dataclasses.replace(obs, bins=bins)), problem
 
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
         """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""

@@ -39,8 +39,8 @@ import numpy as np
 
 from gflow_core.contour import state as wire
 from gflow_core.contour.features_filter import FEATURE_FILTER
-from gflow_core.contour.observation import (exemplar_error, is_blank, reads_grey, same_profile, usable_chamfer,
-                                            usable_grey)
+from gflow_core.contour.observation import (exemplar_error, is_blank, reads_colour, reads_grey, same_profile,
+                                            usable_chamfer, usable_grey)
 from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
@@ -50,7 +50,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
-from gflow_msgs.messages import ColourFeatures, Features, Header, Message, MessageError
+from gflow_msgs.messages import Features, Header, Message, MessageError, bins_of
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
@@ -146,19 +146,18 @@ class FilterStage(FeaturesFilterStage):
             edges = feat.edges.array()
         except MessageError:
             edges = None
-        bins = self._bins(feat, grey, seq) if self.core.lost_guard and self.core.lost_colour else None
+        bins = self._bins(feat, grey, seq) if reads_colour(self.core) else None
         return ContourObservation(edges=edges, chamfer=cham, blank=blank, grey=grey, channels=channels, bins=bins)
 
     def _bins(self, feat: Features, grey: np.ndarray | None, seq: int) -> np.ndarray | None:
-        """The frame's colour bins (None: not sent -- a recording made before them -- or unusable, reported:
-        the lost guard then weighs the edges alone)."""
-        if not isinstance(feat, ColourFeatures) or grey is None:
+        """The frame's colour bins (None: not sent, or unusable and reported: the lost guard then weighs the
+        edges alone)."""
+        if grey is None:
             return None
-        try:
-            return feat.bins_array(grey.shape)
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; edges only", seq)
-            return None
+        bins, problem = bins_of(feat, grey.shape)
+        if problem:
+            self.report("bad_features", f"frame {seq}: {problem}; edges only", seq)
+        return bins
 
     def _check_profile(self, feat: Features, seq: int) -> None:
         m = self.setup.learned
