@@ -12,6 +12,13 @@ checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the pa
 checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
 (:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
 ``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
+
+They are not registrations of the generic box stages (:mod:`stages.box_tracker`): what travels is
+not a particle cloud but the experts (:class:`ExpertStates`, whose backgrounds stay in the proposal
+processes) and sharded pose opinions (one port a shard, each checked against the digest), the time
+step travels with the proposals, a first frame the model cannot be placed on is waited past rather
+than refused, and an update that fails coasts. Each of these is a step the box stages would have to
+hand over, which would leave them nothing of their own.
 """
 
 from __future__ import annotations
