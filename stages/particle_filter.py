@@ -116,16 +116,8 @@ class FilterStage(FeaturesFilterStage):
         return lostmod.channels(msg.grey.array())
 
     def _chamfer(self, feat: Features, seq: int) -> np.ndarray | None:
-        try:
-            cham = feat.chamfer.array()
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; coasting", seq)
-            return None
-        if not usable_chamfer(cham):
-            self.report("bad_features", f"frame {seq}: chamfer image is {cham.shape} {cham.dtype} with "
-                        f"non-finite values or wrong shape; coasting", seq)
-            return None
-        return cham
+        return self._usable(feat, seq, "chamfer", usable_chamfer, lambda c: f"chamfer image is {c.shape} {c.dtype} "
+                            "with non-finite values or wrong shape", "coasting")
 
     def _blank(self, feat: Features) -> bool:
         """A blank frame (:func:`~gflow_core.contour.observation.is_blank`)."""
