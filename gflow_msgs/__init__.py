@@ -2,7 +2,8 @@
 
 ``messages.py`` holds the tagged union every stage sends (:data:`~gflow_msgs.messages.Message`),
 its encoder and decoder and their JSON schemas; ``base.py`` the header, box and array types;
-``gflow.py`` G-flow's messages; ``foxglove.py`` Foxglove's well-known schemas. This package imports
+``gflow.py`` G-flow's messages; ``foxglove.py`` Foxglove's well-known schemas;
+``annotations.py`` an estimate's overlays in them. This package imports
 msgspec, numpy and the standard library only (``tests/test_layering.py``), so a program that reads
 a recording needs nothing else of gflow.
 """

@@ -13,11 +13,16 @@ its replica as distinct tiles, see ``stages/gflow_proposal.py``).
 
 from __future__ import annotations
 
+import math
+from typing import Any, Mapping
+
 import msgspec
+import numpy as np
 
-from .base import ArrayTable, Box, Header, NDArray
+from .base import ArrayTable, Box, Header, MessageError, NDArray, checked_arrays, packed_arrays
 
-__all__ = ["ExpertStates", "PoseProposals", "PoseEstimate", "EXPERT_ARRAYS", "PROPOSAL_ARRAYS"]
+__all__ = ["ExpertStates", "PoseProposals", "PoseEstimate", "EXPERT_ARRAYS", "PROPOSAL_ARRAYS", "states_of",
+           "read_states", "proposals_of", "read_proposals", "pose_estimate_of"]
 
 
 class ExpertStates(msgspec.Struct, frozen=True, tag=True):
@@ -129,3 +134,99 @@ class PoseEstimate(msgspec.Struct, frozen=True, tag=True):
     landmarks: NDArray | None = None
     yaw_pitch_roll: tuple[float, float, float] = (0.0, 0.0, 0.0)
     expression: tuple[float, ...] = ()
+
+
+# -- packing and reading: what travels, checked on receipt (a MessageError says what is wrong) ------------------
+
+
+def states_of(header: Header, experts: Any, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
+              first: bool = False) -> ExpertStates:
+    """The experts after frame ``header.seq``: ``experts`` has the arrays of :data:`EXPERT_ARRAYS`
+    but ``parents`` (given apart, (E,)) as attributes and ``tex_anchor`` (n,) or None
+    (``gflow_core.gflow.filter.ExpertState``); never their backgrounds (the proposal stages keep them)."""
+    arrays = packed_arrays({k: getattr(experts, k) for k in EXPERT_ARRAYS if k != "parents"} | {"parents": parents},
+                           EXPERT_ARRAYS)
+    anchor = experts.tex_anchor
+    return ExpertStates(header=header, **arrays, image_shape=(int(image_shape[0]), int(image_shape[1])),
+                        config_digest=digest, first=bool(first),
+                        tex_anchor=None if anchor is None else NDArray.of(np.asarray(anchor, np.float64)))
+
+
+def read_states(msg: ExpertStates, dims: Mapping[str, int], digest: str | None) -> dict[str, Any]:
+    """The arrays of an :class:`ExpertStates` made with the configuration digest ``digest`` (None: not
+    checked), with ``dims`` E (experts), P (pose size) and n (vertices): poses (E, P), tex_mean (E, n),
+    tex_var (E, n), log_credibility (E,), parents (E,), tex_anchor (n,) or None (``bg_mean`` /
+    ``bg_var`` are never read).
+
+    Raises MessageError for another digest or an array of the wrong shape, dtype or with non-finite values."""
+    if digest is not None and msg.config_digest != digest:
+        raise MessageError(f"the expert states were made with another G-flow configuration, model or seed (digest "
+                           f"{msg.config_digest}, this stage has {digest}); give the proposal and filter stages the "
+                           f"same parameters")
+    out: dict[str, Any] = checked_arrays(msg, EXPERT_ARRAYS, dims)
+    out["tex_anchor"] = None if msg.tex_anchor is None else msg.tex_anchor.checked("tex_anchor", (dims["n"],),
+                                                                                    "float64")
+    return out
+
+
+def proposals_of(header: Header, props: Any, shard: int, shards: int, digest: str) -> PoseProposals:
+    """Pack a shard's proposals (``props`` has the arrays of :data:`PROPOSAL_ARRAYS`, ``reset`` (E',)
+    bool and ``dt`` as attributes: ``gflow_core.gflow.Proposals``), or an empty shard when ``props``
+    is None (every array without experts)."""
+    if props is None:
+        empty: dict[str, Any] = packed_arrays({f: np.zeros((0,) * len(shape)) for f, (shape, _) in
+                                               PROPOSAL_ARRAYS.items()}, PROPOSAL_ARRAYS)
+        return PoseProposals(header=header, **empty, shard=shard, shards=shards, config_digest=digest)
+    return PoseProposals(header=header, **packed_arrays({f: getattr(props, f) for f in PROPOSAL_ARRAYS},
+                                                        PROPOSAL_ARRAYS),
+                         shard=shard, shards=shards, config_digest=digest,
+                         reset=NDArray.of(np.asarray(props.reset, dtype=bool)) if props.reset.any() else None,
+                         dt=float(props.dt))
+
+
+def read_proposals(msg: PoseProposals, digest: str, shard: int, shards: int, expected: np.ndarray,
+                   dims: Mapping[str, int], max_dt: float) -> dict[str, Any]:
+    """The arrays of shard ``shard`` of ``shards``'s proposals, whose experts are ``expected`` (E',), made
+    with the digest ``digest``, for pose size P and s samples (``dims``): the arrays of
+    :data:`PROPOSAL_ARRAYS`, ``reset`` (E',) bool and ``dt`` in [1, ``max_dt``] frame periods.
+
+    Raises MessageError for another digest or shard, an empty shard (its proposal stage had no usable
+    frame or state), a bad ``dt``, other experts, or an array of the wrong shape, dtype or values."""
+    if msg.config_digest != digest:
+        raise MessageError(f"proposals made with another G-flow configuration, model or seed (digest "
+                           f"{msg.config_digest}, the filter has {digest}); give every proposal stage and the "
+                           f"filter the same parameters")
+    if (msg.shard, msg.shards) != (shard, shards):
+        raise MessageError(f"expected shard {shard} of {shards}, got shard {msg.shard} of {msg.shards}; check the "
+                           f"proposal stages' shard / shards parameters and the filter's wiring")
+    Ep = expected.size
+    if Ep and msg.expert_indices.shape == (0,):
+        raise MessageError("the proposal stage had no usable frame or expert state for this frame")
+    if not (math.isfinite(msg.dt) and 1.0 <= msg.dt <= max_dt):
+        raise MessageError(f"dt must be in [1, {max_dt:g}] frame periods, got {msg.dt!r}")
+    idx = msg.expert_indices.checked("expert_indices", (Ep,), "int64")
+    if not np.array_equal(idx, expected):
+        raise MessageError(f"expert indices {idx.tolist()} are not this shard's {expected.tolist()}")
+    arrays = checked_arrays(msg, {k: v for k, v in PROPOSAL_ARRAYS.items() if k != "expert_indices"},
+                            {"E'": Ep, **dims})
+    reset = np.zeros(Ep, dtype=bool) if msg.reset is None else msg.reset.checked("reset", (Ep,), "bool")
+    return {"expert_indices": idx, "reset": reset, "dt": float(msg.dt), **arrays}
+
+
+def pose_estimate_of(header: Header, est: Any) -> PoseEstimate:
+    """The message of G-flow's estimate of a frame (``gflow_core.tracker.Estimate``: ``box``, ``phase``,
+    ``confidence``, ``target_state`` and the ``extras`` its tracker documents; points as float32)."""
+    x = est.extras
+    landmarks = x["landmarks"]
+    return PoseEstimate(
+        header=header, box=est.box, pose=tuple(float(v) for v in x["pose"]),
+        pose_std=tuple(float(v) for v in x["pose_std"]), rotation=tuple(float(v) for v in np.ravel(x["rotation"])),
+        spread_px=float(x["spread_px"]), ess=float(x["ess"]),
+        expert_points=NDArray.of(np.asarray(x["expert_points"], dtype=np.float32)),
+        mean_points=NDArray.of(np.asarray(x["mean_points"], dtype=np.float32)),
+        log_credibility=NDArray.of(np.asarray(x["log_credibility"], dtype=np.float64)),
+        parents=NDArray.of(np.asarray(x["parents"], dtype=np.int64)), resampled=bool(x["resampled"]),
+        state=est.phase, confidence=float(est.confidence), target_state=est.target_state,
+        landmarks=None if landmarks is None else NDArray.of(np.asarray(landmarks, dtype=np.int32)),
+        yaw_pitch_roll=(float(x["yaw_pitch_roll"][0]), float(x["yaw_pitch_roll"][1]), float(x["yaw_pitch_roll"][2])),
+        expression=tuple(float(v) for v in x["expression"]))

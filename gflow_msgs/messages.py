@@ -24,8 +24,8 @@ import numpy as np
 
 __all__ = [
     "Header", "NDArray", "Frame", "Features", "ColourFeatures", "Particles", "Estimate", "ErrorReport", "EndOfStream",
-    "StageStatus", "Control", "Snapshot", "Capture", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate", "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema",
-    "MessageError",
+    "StageStatus", "Control", "Snapshot", "Capture", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate",
+    "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema", "MessageError", "estimate_of", "bins_of",
 ]
 
 from .base import Box, Header, MessageError, NDArray  # noqa: E402  (re-exported)
@@ -81,6 +81,18 @@ class ColourFeatures(Features, frozen=True, tag=True):
         return b
 
 
+def bins_of(feat: Features, shape: tuple[int, ...]) -> tuple[np.ndarray | None, str]:
+    """The colour bins a features message carries for a grey image of ``shape`` (:meth:`ColourFeatures.bins_array`;
+    None when it carries none: a grey frame, or a recording made before them) and what is wrong with them
+    ("" when nothing is; None then)."""
+    if not isinstance(feat, ColourFeatures):
+        return None, ""
+    try:
+        return feat.bins_array(shape), ""
+    except MessageError as e:
+        return None, str(e)
+
+
 class Particles(msgspec.Struct, frozen=True, tag=True):
     """A particle cloud over X = (alpha, k): alpha (N, 4) float64, k (N,) int64, log_w (N,) float64.
 
@@ -124,6 +136,22 @@ class Estimate(msgspec.Struct, frozen=True, tag=True):
     state: str = "track"
     confidence: float = 1.0
     target_state: str = "tracked"
+
+
+def estimate_of(header: Header, est: Any) -> Estimate:
+    """The message of a particle-filter tracker's estimate of a frame (``gflow_core.tracker.Estimate``:
+    ``box``, ``phase``, ``confidence``, ``target_state`` and the ``extras`` ``alpha``, ``mean``, ``std``,
+    ``ess``, ``n``, ``log_evidence``, and ``k`` and the (P, 2) ``contour`` where the tracker has them;
+    without a contour, the box's outline is drawn)."""
+    e = est.extras
+    if "contour" in e:
+        outline = e["contour"]
+    else:
+        x, y, w, h = est.box
+        outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
+    return Estimate(header=header, box=est.box, alpha=e["alpha"], k=e.get("k", 0), mean=e["mean"], std=e["std"],
+                    ess=e["ess"], n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline),
+                    state=est.phase, confidence=est.confidence, target_state=est.target_state)
 
 
 class ErrorReport(msgspec.Struct, frozen=True, tag=True):

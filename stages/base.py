@@ -177,17 +177,19 @@ class Stage(ABC, Generic[P]):
 T = TypeVar("T")
 
 
-def versioned_snapshot(data: bytes, struct: type[T], stage: str, what: str, version: int) -> T:
+def versioned_snapshot(data: bytes, struct: type[T], stage: str, what: str, version: int | tuple[int, ...]) -> T:
     """A stage's snapshot decoded as ``struct`` (a ``msgspec.Struct`` with a ``version`` field) and
-    checked to be of ``version``; ``ValueError`` in one line naming the stage and ``what`` (``not a
-    preprocess snapshot: ...``, ``preprocess snapshot version 3, expected 2``) otherwise."""
+    checked to be of ``version`` (or one of several a stage still reads); ``ValueError`` in one line naming
+    the stage and ``what`` (``not a preprocess snapshot: ...``, ``preprocess snapshot version 3, expected
+    2``) otherwise."""
     try:
         snap = msgspec.msgpack.decode(data, type=struct)
     except msgspec.DecodeError as e:
         raise ValueError(f"stage {stage!r}: not {article(what)} {what} snapshot: {e}") from None
-    found = getattr(snap, "version")
-    if found != version:
-        raise ValueError(f"stage {stage!r}: {what} snapshot version {found}, expected {version}")
+    found, versions = getattr(snap, "version"), version if isinstance(version, tuple) else (version,)
+    if found not in versions:
+        raise ValueError(f"stage {stage!r}: {what} snapshot version {found}, expected "
+                         f"{' or '.join(map(str, versions))}")
     return snap
 
 

@@ -50,7 +50,8 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.tracker import Box, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
-from gflow_msgs.messages import Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles
+from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
+                                 estimate_of)
 from gflow_msgs.snapshots import CounterSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
@@ -278,17 +279,9 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         particles the update weighed; None on the first frame)."""
         assert self.state is not None
         self.steps += 1
-        e = est.extras
         self.last = self._last(header, est)
-        if "contour" in e:
-            outline = e["contour"]
-        else:
-            x, y, w, h = est.box
-            outline = np.array([[x, y], [x + w, y], [x + w, y + h], [x, y + h]], dtype=np.float32)
-        msg = Estimate(header=header, box=est.box, alpha=e["alpha"], k=e.get("k", 0), mean=e["mean"], std=e["std"],
-                       ess=e["ess"], n=e["n"], log_evidence=e["log_evidence"], contour=NDArray.of(outline),
-                       state=est.phase, confidence=est.confidence, target_state=est.target_state)
-        return [("particles", particles_msg(header, "posterior", self._posterior())), ("estimate", msg)]
+        return [("particles", particles_msg(header, "posterior", self._posterior())),
+                ("estimate", estimate_of(header, est))]
 
     def _initialise(self, seq: int, msg: Any) -> list[Output]:
         p = self.params
@@ -338,12 +331,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     def restore(self, data: bytes) -> None:
         name, label, codec = self.ctx.name, self.box.name, self.box.snapshot
         assert codec is not None
-        try:
-            snap = msgspec.msgpack.decode(data, type=codec.struct)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not {article(self.kind)} {self.kind} snapshot: {e}") from None
-        if snap.version != codec.version:
-            raise ValueError(f"stage {name!r}: {label} snapshot version {snap.version}, expected {codec.version}")
+        snap = versioned_snapshot(data, codec.struct, name, self.kind, codec.version)
         self.steps, self.last = snap.steps, dict(snap.last)
         if not snap.initialised:
             self.state, self.shape = None, None
@@ -370,6 +358,24 @@ class FeaturesFilterStage(BoxFilterStage):
     def _features(self, feat: Features, seq: int) -> Any:
         """The tracker's observation of a features message (None, reported: unusable)."""
 
+    def _usable(self, feat: Features, seq: int, field: str, usable: Callable[[np.ndarray], bool],
+                says: Callable[[np.ndarray], str], then: str) -> np.ndarray | None:
+        """The features' array ``field``, or None when it cannot be read or is not ``usable`` (``says(array)``
+        why), reported as ``bad_features`` ending with ``then`` (what the filter does without it)."""
+        try:
+            a = getattr(feat, field).array()
+        except MessageError as e:
+            self.report("bad_features", f"frame {seq}: {e}; {then}", seq)
+            return None
+        if not usable(a):
+            self.report("bad_features", f"frame {seq}: {says(a)}; {then}", seq)
+            return None
+        return a
+
+    def _grey(self, feat: Features, seq: int, usable: Callable[[np.ndarray], bool], then: str) -> np.ndarray | None:
+        """The features' grey image (:meth:`_usable`)."""
+        return self._usable(feat, seq, "grey", usable, lambda g: f"grey image has shape {g.shape}", then)
+
     def _observe(self, feat: Any, seq: int) -> Any:
         if feat is None:
             self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
@@ -386,6 +392,20 @@ class FeaturesFilterStage(BoxFilterStage):
 
     def _started(self, obs: Any) -> None:
         """Features are not held to the first frame's size (each array is checked where it is read)."""
+
+    def _restored(self, data: bytes, decode: Callable[[bytes], Any], state_of: Callable[[Any], Any]) -> Any:
+        """A snapshot of the tracker's own codec (``decode``) restored: sets the state ``state_of`` the decoded
+        snapshot gives and returns that snapshot; ValueError in one line naming the stage otherwise."""
+        name = self.ctx.name
+        try:
+            snap = decode(data)
+        except msgspec.DecodeError as e:
+            raise ValueError(f"stage {name!r}: not {article(self.kind)} {self.kind} snapshot: {e}") from None
+        try:
+            self.state = state_of(snap)
+        except ValueError as e:
+            raise ValueError(f"stage {name!r}: {e}") from None
+        return snap
 
     def _proposed(self, seq: int, prop: Message | None) -> Any:
         """The proposed cloud (a subclass may take what its tracker's ``update`` takes of it)."""

@@ -1,4 +1,4 @@
-"""What the G-flow proposal and filter stages share: parameters, model placement, frames, message packing.
+"""What the G-flow proposal and filter stages share: parameters, model placement, frames, messages read.
 
 The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & Movellan, NIPS
 2004) are adapters of :class:`gflow_core.gflow.GFlowTracker`, and what running it split across
@@ -8,32 +8,38 @@ replica) is :mod:`gflow_core.gflow.split`. Both stages take every field of
 the same way on the first usable frame (:func:`prepare`: a user morphable model, resource
 ``model``, or the generic head fitted into the initial box, clipped to the frame) and compute the
 same digest, which travels in every :class:`ExpertStates` and :class:`PoseProposals` message and is
-checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`) and once on a restore
+checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
+checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
 (:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
 ``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
+
+They are not registrations of the generic box stages (:mod:`stages.box_tracker`): what travels is
+not a particle cloud but the experts (:class:`ExpertStates`, whose backgrounds stay in the proposal
+processes) and sharded pose opinions (one port a shard, each checked against the digest), the time
+step travels with the proposals, a first frame the model cannot be placed on is waited past rather
+than refused, and an update that fails coasts. Each of these is a step the box stages would have to
+hand over, which would leave them nothing of their own.
 """
 
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping
 
 import numpy as np
 
-from gflow_core.gflow import ExpertState, GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, placed
+from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
+from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, placed, restored_setup
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
 from .base import StageInputError
-from gflow_msgs.base import ArrayTable, checked_arrays, packed_arrays
-from gflow_msgs.gflow import EXPERT_ARRAYS, PROPOSAL_ARRAYS
-from gflow_msgs.messages import ExpertStates, Features, Header, MessageError, NDArray, PoseProposals
+from gflow_msgs.gflow import read_proposals, read_states
+from gflow_msgs.messages import ExpertStates, Features, MessageError, PoseProposals
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields
 
-__all__ = ["GFlowStageFields", "initial_box", "prepare", "frame_of", "check_size", "states_msg", "unpack_states",
-           "proposals_msg", "unpack_proposals"]
+__all__ = ["GFlowStageFields", "initial_box", "prepare", "frame_of", "check_size", "unpack_states",
+           "unpack_proposals", "snapshot_setup"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -102,104 +108,36 @@ def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -
         raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
 
 
-# -- messages <-> gflow_core --------------------------------------------------------------
+def snapshot_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
+                   image_shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
+    """The model placed again for a snapshot made on frames of ``image_shape`` with ``digest``
+    (:func:`gflow_core.gflow.split.restored_setup`: ValueError for another configuration's)."""
+    return restored_setup(tracker, initial_box(fields), fields.seed, image_shape, resources.get("model"), digest)
 
 
-def states_msg(header: Header, experts: ExpertState, parents: np.ndarray, image_shape: tuple[int, int], digest: str,
-               first: bool = False) -> ExpertStates:
-    """Pack the experts after frame ``header.seq`` (never their backgrounds: the proposal stages keep them)."""
-    arrays = packed_arrays({k: getattr(experts, k) for k in EXPERT_ARRAYS if k != "parents"} | {"parents": parents},
-                           EXPERT_ARRAYS)
-    anchor = experts.tex_anchor
-    return ExpertStates(header=header, **arrays, image_shape=(int(image_shape[0]), int(image_shape[1])),
-                        config_digest=digest, first=bool(first),
-                        tex_anchor=None if anchor is None else NDArray.of(np.asarray(anchor, np.float64)))
-
-
-def _arr(nd: NDArray, name: str, shape: tuple[int, ...], dtype: str, where: str) -> np.ndarray:
-    """:meth:`NDArray.checked`, its MessageError a StageInputError prefixed with ``where``."""
-    try:
-        return nd.checked(name, shape, dtype)
-    except MessageError as e:
-        raise StageInputError(f"{where}: {e}") from None
-
-
-def _arrays(msg: Any, table: ArrayTable, dims: Mapping[str, int], where: str) -> dict[str, np.ndarray]:
-    """:func:`~gflow_msgs.base.checked_arrays`, its MessageError a StageInputError prefixed with ``where``."""
-    try:
-        return checked_arrays(msg, table, dims)
-    except MessageError as e:
-        raise StageInputError(f"{where}: {e}") from None
+# -- messages -> gflow_core ---------------------------------------------------------------
 
 
 def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, where: str) -> dict[str, Any]:
-    """Validate and unpack an ExpertStates message made for ``setup`` (whose digest is ``digest``;
-    None: not checked, in a snapshot whose own digest was).
-
-    Returns
-    -------
-    dict with poses (E, P), tex_mean (E, n), tex_var (E, n), log_credibility (E,), parents (E,), tex_anchor
-    (n,) or None (``bg_mean`` / ``bg_var`` are never read: the proposal stages keep their own).
-
-    Raises
-    ------
-    StageInputError
-        Another configuration or model (digest), arrays of the wrong shape, dtype or with
-        non-finite values, or experts that are not the setup's
-        (:func:`gflow_core.gflow.split.check_experts`: another frame size, bad parents, a texture
-        anchor missing or unexpected).
-    """
-    if digest is not None and msg.config_digest != digest:
-        raise StageInputError(f"{where}: the expert states were made with another G-flow configuration, model or "
-                              f"seed (digest {msg.config_digest}, this stage has {digest}); give the proposal "
-                              f"and filter stages the same parameters")
-    n = setup.model.n_vertices
-    out: dict[str, Any] = _arrays(msg, EXPERT_ARRAYS, {"E": setup.cfg.n_experts, "P": setup.model.pose_size, "n": n},
-                                  where)
+    """:func:`gflow_msgs.gflow.read_states` of a message made for ``setup`` (whose digest is ``digest``;
+    None: not checked, in a snapshot whose own digest was), then
+    :func:`gflow_core.gflow.split.check_experts` (another frame size, bad parents, a texture anchor
+    missing or unexpected); either's error a StageInputError prefixed with ``where``."""
     try:
+        out = read_states(msg, {"E": setup.cfg.n_experts, "P": setup.model.pose_size, "n": setup.model.n_vertices},
+                          digest)
         check_experts(setup, msg.image_shape, out["parents"], msg.tex_anchor is not None)
-    except ValueError as e:
+    except ValueError as e:  # MessageError too
         raise StageInputError(f"{where}: {e}") from None
-    out["tex_anchor"] = None if msg.tex_anchor is None else _arr(msg.tex_anchor, "tex_anchor", (n,), "float64", where)
     return out
-
-
-def proposals_msg(header: Header, props: Proposals | None, shard: int, shards: int, digest: str) -> PoseProposals:
-    """Pack :class:`gflow_core.gflow.Proposals` (or an empty shard when ``props`` is None)."""
-    if props is None:  # every array without experts
-        empty: dict[str, Any] = packed_arrays({f: np.zeros((0,) * len(shape)) for f, (shape, _) in
-                                               PROPOSAL_ARRAYS.items()}, PROPOSAL_ARRAYS)
-        return PoseProposals(header=header, **empty, shard=shard, shards=shards, config_digest=digest)
-    return PoseProposals(header=header, **packed_arrays({f: getattr(props, f) for f in PROPOSAL_ARRAYS},
-                                                        PROPOSAL_ARRAYS),
-                         shard=shard, shards=shards, config_digest=digest,
-                         reset=NDArray.of(np.asarray(props.reset, dtype=bool)) if props.reset.any() else None,
-                         dt=float(props.dt))
 
 
 def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: int, shards: int,
                      expected: np.ndarray, where: str) -> Proposals:
-    """Validate a shard's PoseProposals and return :class:`gflow_core.gflow.Proposals`.
-
-    An empty shard (the proposal stage had no usable frame or state) raises
-    StageInputError saying so.
-    """
-    if msg.config_digest != digest:
-        raise StageInputError(f"{where}: proposals made with another G-flow configuration, model or seed (digest "
-                              f"{msg.config_digest}, the filter has {digest}); give every proposal stage and "
-                              f"the filter the same parameters")
-    if (msg.shard, msg.shards) != (shard, shards):
-        raise StageInputError(f"{where}: expected shard {shard} of {shards}, got shard {msg.shard} of {msg.shards}; "
-                              f"check the proposal stages' shard / shards parameters and the filter's wiring")
-    Ep = expected.size
-    if Ep and msg.expert_indices.shape == (0,):
-        raise StageInputError(f"{where}: the proposal stage had no usable frame or expert state for this frame")
-    if not (math.isfinite(msg.dt) and 1.0 <= msg.dt <= MAX_TIME_STEP):
-        raise StageInputError(f"{where}: dt must be in [1, {MAX_TIME_STEP:g}] frame periods, got {msg.dt!r}")
-    idx = _arr(msg.expert_indices, "expert_indices", (Ep,), "int64", where)
-    if not np.array_equal(idx, expected):
-        raise StageInputError(f"{where}: expert indices {idx.tolist()} are not this shard's {expected.tolist()}")
-    dims = {"E'": Ep, "P": setup.model.pose_size, "s": setup.cfg.n_samples}
-    arrays = _arrays(msg, {k: v for k, v in PROPOSAL_ARRAYS.items() if k != "expert_indices"}, dims, where)
-    reset = np.zeros(Ep, dtype=bool) if msg.reset is None else _arr(msg.reset, "reset", (Ep,), "bool", where)
-    return Proposals(expert_indices=idx, reset=reset, dt=float(msg.dt), **arrays)
+    """:class:`gflow_core.gflow.Proposals` of a shard's message (:func:`gflow_msgs.gflow.read_proposals`;
+    its error, an empty shard's too, a StageInputError prefixed with ``where``)."""
+    try:
+        return Proposals(**read_proposals(msg, digest, shard, shards, expected,
+                                          {"P": setup.model.pose_size, "s": setup.cfg.n_samples}, MAX_TIME_STEP))
+    except MessageError as e:
+        raise StageInputError(f"{where}: {e}") from None

@@ -35,22 +35,22 @@ import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import config_digest, expert_state, restored_setup, shard_indices
+from gflow_core.gflow.split import config_digest, expert_state, shard_indices
 from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
-from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, states_msg, unpack_proposals,
-                           unpack_states)
-from gflow_msgs.messages import (ColourFeatures, ExpertStates, Features, Header, Message, MessageError, NDArray, PoseEstimate,
-                       PoseProposals)
+from .base import Output, Stage, StageContext, StageInputError, versioned_snapshot
+from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, snapshot_setup,
+                           unpack_proposals, unpack_states)
+from gflow_msgs.gflow import pose_estimate_of, states_of
+from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .rng import tracker_rng
 from .tracker_params import stage_params, tracker_params
 
-__all__ = ["GFlowFilterStage", "GFlowFilterParams", "estimate_msg"]
+__all__ = ["GFlowFilterStage", "GFlowFilterParams"]
 
 SNAPSHOT_VERSION = 2  # 2: the lost guard's anchor and distributions (1: none; restores without the guard)
 
@@ -66,24 +66,6 @@ class GFlowFilterFields(GFlowStageFields, frozen=True):
 
 
 GFlowFilterParams = stage_params("GFlowFilterParams", GFlowParams, GFlowFilterFields, __name__)
-
-
-def estimate_msg(header: Header, est: Estimate) -> PoseEstimate:
-    """Pack :meth:`gflow_core.gflow.GFlowTracker.estimate`'s estimate (points as float32)."""
-    x = est.extras
-    landmarks = x["landmarks"]
-    return PoseEstimate(
-        header=header, box=est.box, pose=tuple(float(v) for v in x["pose"]),
-        pose_std=tuple(float(v) for v in x["pose_std"]), rotation=tuple(float(v) for v in np.ravel(x["rotation"])),
-        spread_px=float(x["spread_px"]), ess=float(x["ess"]),
-        expert_points=NDArray.of(np.asarray(x["expert_points"], dtype=np.float32)),
-        mean_points=NDArray.of(np.asarray(x["mean_points"], dtype=np.float32)),
-        log_credibility=NDArray.of(np.asarray(x["log_credibility"], dtype=np.float64)),
-        parents=NDArray.of(np.asarray(x["parents"], dtype=np.int64)), resampled=bool(x["resampled"]),
-        state=est.phase, confidence=float(est.confidence), target_state=est.target_state,
-        landmarks=None if landmarks is None else NDArray.of(np.asarray(landmarks, dtype=np.int32)),
-        yaw_pitch_roll=(float(x["yaw_pitch_roll"][0]), float(x["yaw_pitch_roll"][1]), float(x["yaw_pitch_roll"][2])),
-        expression=tuple(float(v) for v in x["expression"]))
 
 
 class GFlowFilterStage(Stage[GFlowFilterFields]):
@@ -150,13 +132,13 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
     def _outputs(self, header: Header, state: GFlowState, est: Estimate, first: bool = False) -> list[Output]:
         """The experts after the frame (the proposal stages' input: their parents are the estimate's,
         every expert its own on the first frame and when coasting) and the estimate."""
-        out_state = states_msg(header, state.experts, est.extras["parents"], state.setup.image_shape, self.digest,
+        out_state = states_of(header, state.experts, est.extras["parents"], state.setup.image_shape, self.digest,
                                first)
         x = est.extras
         self.last = {"seq": header.seq, "state": est.phase, "box": [round(v, 1) for v in est.box],
                      "ess": round(x["ess"], 1), "spread_px": round(x["spread_px"], 2),
                      "confidence": round(est.confidence, 3)}
-        return [("state", out_state), ("estimate", estimate_msg(header, est))]
+        return [("state", out_state), ("estimate", pose_estimate_of(header, est))]
 
     def prepare(self, port: str, msg: Message) -> tuple[GFlowObservation, str]:
         """What G-flow reads of a frame, with the colour bins and the orientation channels the lost
@@ -180,12 +162,10 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
         them (the preprocess stage's ``colour``) and the guard weighs colour, and what was wrong with
         bad bins ("" when nothing was; then the observation has none)."""
-        if not (TRACKER.reads_colour(self.tracker) and isinstance(feat, ColourFeatures)):
+        if not TRACKER.reads_colour(self.tracker):
             return obs, ""
-        try:
-            return dataclasses.replace(obs, bins=feat.bins_array(obs.grey.shape)), ""
-        except MessageError as e:
-            return obs, str(e)
+        bins, problem = bins_of(feat, obs.grey.shape)
+        return (obs if bins is None else dataclasses.replace(obs, bins=bins)), problem
 
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
         """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""
@@ -241,7 +221,7 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         st = None
         if self.state is not None:
             s = self.state.experts
-            st = states_msg(self.header(int(self.last.get("seq", 0)), 0), s, np.arange(s.n_experts, dtype=np.int64),
+            st = states_of(self.header(int(self.last.get("seq", 0)), 0), s, np.arange(s.n_experts, dtype=np.int64),
                             self.state.setup.image_shape, self.digest)
         snap = GFlowFilterSnapshot(version=SNAPSHOT_VERSION,
                                    image_shape=None if self.state is None else self.state.setup.image_shape,
@@ -250,16 +230,10 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         return msgspec.msgpack.encode(snap)
 
     def restore(self, data: bytes) -> None:
-        try:
-            snap = msgspec.msgpack.decode(data, type=GFlowFilterSnapshot)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"not a gflow.filter snapshot: {e}") from None
-        if snap.version not in (1, SNAPSHOT_VERSION):
-            raise ValueError(f"gflow.filter snapshot version {snap.version}, this code reads 1 and {SNAPSHOT_VERSION}")
+        snap = versioned_snapshot(data, GFlowFilterSnapshot, self.ctx.name, self.kind, (1, SNAPSHOT_VERSION))
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
-            setup, digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed, snap.image_shape,
-                                           self.ctx.resources.get("model"), snap.digest)
+            setup, digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
             try:
                 experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
             except StageInputError as e:

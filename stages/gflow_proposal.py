@@ -43,11 +43,13 @@ import msgspec
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSetup, Proposals
-from gflow_core.gflow.split import BackgroundReplica, expert_state, restored_setup, shard_indices
+from gflow_core.gflow.split import BackgroundReplica, expert_state, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
-from .base import Output, Stage, StageContext, StageInputError
-from .gflow_common import GFlowStageFields, check_size, frame_of, initial_box, prepare, proposals_msg, unpack_states
+from .base import Output, Stage, StageContext, StageInputError, versioned_snapshot
+from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, snapshot_setup,
+                           unpack_states)
+from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
@@ -129,7 +131,7 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         if obs is not None:
             self.replica = self.replica.seen(seq, obs.grey)
         self.steps += 1
-        msg = proposals_msg(header, out, self.params.shard, self.params.shards, self.digest)
+        msg = proposals_of(header, out, self.params.shard, self.params.shards, self.digest)
         self.last = {"seq": seq, "experts": int(self.indices.size) if out is not None else 0}
         return [("proposals", msg)]
 
@@ -186,16 +188,11 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
             init_error=self.init_error, **packed_fields(self.replica.fields())))
 
     def restore(self, data: bytes) -> None:
-        try:
-            snap = msgspec.msgpack.decode(data, type=GFlowProposalSnapshot)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"not a gflow.proposal snapshot: {e}") from None
-        if snap.version != SNAPSHOT_VERSION:
-            raise ValueError(f"gflow.proposal snapshot version {snap.version}, this code reads {SNAPSHOT_VERSION}")
+        snap = versioned_snapshot(data, GFlowProposalSnapshot, self.ctx.name, self.kind, SNAPSHOT_VERSION)
         self.setup, self.digest = None, ""
         if snap.image_shape is not None:
-            self.setup, self.digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed,
-                                                     snap.image_shape, self.ctx.resources.get("model"), snap.digest)
+            self.setup, self.digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
+                                                     snap.digest)
         try:
             fields = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
             self.replica = BackgroundReplica.of_fields(self.setup, **fields)

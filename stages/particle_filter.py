@@ -35,13 +35,12 @@ from __future__ import annotations
 import functools
 from typing import Any, ClassVar
 
-import msgspec
 import numpy as np
 
 from gflow_core.contour import state as wire
 from gflow_core.contour.features_filter import FEATURE_FILTER
-from gflow_core.contour.observation import (exemplar_error, is_blank, reads_grey, same_profile, usable_chamfer,
-                                            usable_grey)
+from gflow_core.contour.observation import (exemplar_error, is_blank, reads_colour, reads_grey, same_profile,
+                                            usable_chamfer, usable_grey)
 from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
@@ -51,7 +50,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
-from gflow_msgs.messages import ColourFeatures, Features, Header, Message, MessageError
+from gflow_msgs.messages import Features, Header, Message, MessageError, bins_of
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
@@ -117,16 +116,8 @@ class FilterStage(FeaturesFilterStage):
         return lostmod.channels(msg.grey.array())
 
     def _chamfer(self, feat: Features, seq: int) -> np.ndarray | None:
-        try:
-            cham = feat.chamfer.array()
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; coasting", seq)
-            return None
-        if not usable_chamfer(cham):
-            self.report("bad_features", f"frame {seq}: chamfer image is {cham.shape} {cham.dtype} with "
-                        f"non-finite values or wrong shape; coasting", seq)
-            return None
-        return cham
+        return self._usable(feat, seq, "chamfer", usable_chamfer, lambda c: f"chamfer image is {c.shape} {c.dtype} "
+                            "with non-finite values or wrong shape", "coasting")
 
     def _blank(self, feat: Features) -> bool:
         """A blank frame (:func:`~gflow_core.contour.observation.is_blank`)."""
@@ -136,41 +127,29 @@ class FilterStage(FeaturesFilterStage):
             return False  # the chamfer image decides whether the frame is usable
         return is_blank(self.core, edges)
 
-    def _grey(self, feat: Features, seq: int) -> np.ndarray | None:
-        try:
-            grey = feat.grey.array()
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; chamfer only", seq)
-            return None
-        if not usable_grey(grey):
-            self.report("bad_features", f"frame {seq}: grey image has shape {grey.shape}; chamfer only", seq)
-            return None
-        return grey
-
     def _features(self, feat: Features, seq: int) -> ContourObservation:
         """The tracker's observation of a features message. The grey image is read only where a cue
         needs it: the appearance kernels, the lost guard."""
         cham = self._chamfer(feat, seq)
         blank = cham is not None and self._blank(feat)
-        grey = self._grey(feat, seq) if reads_grey(self.core, self.setup) else None
+        grey = self._grey(feat, seq, usable_grey, "chamfer only") if reads_grey(self.core, self.setup) else None
         channels = functools.cache(lambda: self.prepared("features", feat)) if grey is not None else None
         try:
             edges = feat.edges.array()
         except MessageError:
             edges = None
-        bins = self._bins(feat, grey, seq) if self.core.lost_guard and self.core.lost_colour else None
+        bins = self._bins(feat, grey, seq) if reads_colour(self.core) else None
         return ContourObservation(edges=edges, chamfer=cham, blank=blank, grey=grey, channels=channels, bins=bins)
 
     def _bins(self, feat: Features, grey: np.ndarray | None, seq: int) -> np.ndarray | None:
-        """The frame's colour bins (None: not sent -- a recording made before them -- or unusable, reported:
-        the lost guard then weighs the edges alone)."""
-        if not isinstance(feat, ColourFeatures) or grey is None:
+        """The frame's colour bins (None: not sent, or unusable and reported: the lost guard then weighs the
+        edges alone)."""
+        if grey is None:
             return None
-        try:
-            return feat.bins_array(grey.shape)
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; edges only", seq)
-            return None
+        bins, problem = bins_of(feat, grey.shape)
+        if problem:
+            self.report("bad_features", f"frame {seq}: {problem}; edges only", seq)
+        return bins
 
     def _check_profile(self, feat: Features, seq: int) -> None:
         m = self.setup.learned
@@ -236,15 +215,7 @@ class FilterStage(FeaturesFilterStage):
         return wire.encode(wire.snapshot_of(self.state, self.steps, self.warned, self.last))
 
     def restore(self, data: bytes) -> None:
-        name = self.ctx.name
-        try:
-            snap = wire.decode(data)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not a particle.filter snapshot: {e}") from None
-        try:
-            self.state = wire.state_of(snap, self.setup, self.core, self.params.init)
-        except ValueError as e:
-            raise ValueError(f"stage {name!r}: {e}") from None
+        snap = self._restored(data, wire.decode, lambda s: wire.state_of(s, self.setup, self.core, self.params.init))
         self.steps, self.warned, self.last = snap.steps, snap.warned, wire.last_of(snap)
 
 

@@ -35,41 +35,15 @@ from typing import Any, Callable, ClassVar
 from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, proposal_dynamics
 from gflow_core.contour.params import ChamferParams, M2Params
 from gflow_core.m2.model import M2Model
-from gflow_core.params import defaults
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalSpec, BoxProposalStage, CloudProposal, cloud_of, particles_msg
-from .tracker_params import SeedBoxFields, check_init, stage_params
+from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
 
 PURPOSE = PURPOSE_PROPOSAL  # 0x9209
-
-#: the random walk's defaults: the chamfer tracker's (ChamferParams, where they live), not a copy
-_WALK = defaults(ChamferParams)
-
-
-class ProposalParams(Params, frozen=True):
-    """Dynamics of the proposal. ``model``: path of a learned M2 model (empty: random walk, its
-    ``std_xy``, ``std_theta`` and ``std_log_s`` by default those of
-    :class:`gflow_core.contour.params.ChamferParams`).
-
-    ``init`` (x, y, w, h), with a learned contour model: the AR(1) process on log s reverts
-    to the scale of this box instead of the learned mean (see the module docstring).
-    """
-
-    seed: int = 0
-    std_xy: float = _WALK["std_xy"]
-    std_theta: float = _WALK["std_theta"]
-    std_log_s: float = _WALK["std_log_s"]
-    model: str = ""
-    init: tuple[float, float, float, float] | None = None
-    timed: bool = False  # also read the frames: the noise grows with the time to the next frame
-
-    def __post_init__(self) -> None:
-        check_init(self.init)
-
 
 class ProposalFields(SeedBoxFields, frozen=True):
     """What the chamfer and m2 proposal stages take besides their tracker's parameters: ``seed``,
@@ -81,6 +55,14 @@ class ProposalFields(SeedBoxFields, frozen=True):
     timed: bool = False
 
 
+#: the generic proposal (graphs of your own, ``gflow demo``): the random walk is ChamferParams' (declared,
+#: defaulted and checked there), not a copy
+ProposalParams = stage_params("ProposalParams", ChamferParams, ProposalFields, __name__,
+                              "Dynamics of the generic proposal: ``seed``, ``init`` (with a learned contour model "
+                              "the AR(1) process on log s reverts to this box's scale), ``model`` (a learned M2 "
+                              "model's path; empty: the random walk), ``timed`` and the random walk's ``std_xy``, "
+                              "``std_theta``, ``std_log_s`` (:class:`gflow_core.contour.params.ChamferParams`).",
+                              only=("std_xy", "std_theta", "std_log_s"))
 ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,
                                      "The chamfer tracker's proposal: every field of "
                                      ":class:`gflow_core.contour.params.ChamferParams` (its random walk: "

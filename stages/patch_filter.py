@@ -30,7 +30,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import msgspec
 import numpy as np
 
 from gflow_core.m2.model import M2Model
@@ -42,7 +41,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import StageContext, StageInputError
 from .box_tracker import BoxFilterSpec, FeaturesFilterStage
-from gflow_msgs.messages import Features, Header, Message, MessageError
+from gflow_msgs.messages import Features, Header, Message
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "PatchFields", "crop_patch"]
@@ -89,16 +88,8 @@ class PatchFilterStage(FeaturesFilterStage):
         self.resources = {"model": self.model}
 
     def _features(self, feat: Features, seq: int) -> np.ndarray | None:
-        """The frame's grey image, or None (reported) if the features are unusable."""
-        try:
-            grey = feat.grey.array()
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; coasting", seq)
-            return None
-        if grey.ndim != 2 or min(grey.shape) < 2:
-            self.report("bad_features", f"frame {seq}: grey image has shape {grey.shape}; coasting", seq)
-            return None
-        return grey
+        """The frame's grey image, (H, W) with both sides at least 2 pixels, or None (reported): coasting."""
+        return self._grey(feat, seq, lambda g: g.ndim == 2 and min(g.shape) >= 2, "coasting")
 
     def _proposed(self, seq: int, prop: Message | None) -> np.ndarray:
         k: np.ndarray = super()._proposed(seq, prop).k
@@ -123,14 +114,6 @@ class PatchFilterStage(FeaturesFilterStage):
         return patch.encode(patch.snapshot_of(self.state, self.steps, int(last.get("k", -1)), int(last.get("seq", -1))))
 
     def restore(self, data: bytes) -> None:
-        name = self.ctx.name
-        try:
-            snap = patch.decode(data)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not a patch.filter snapshot: {e}") from None
-        try:
-            self.state = patch.state_of(snap, self.model)
-        except ValueError as e:
-            raise ValueError(f"stage {name!r}: {e}") from None
+        snap = self._restored(data, patch.decode, lambda snap: patch.state_of(snap, self.model))
         self.steps = snap.steps
         self.last = {} if snap.last_seq < 0 and snap.last_k < 0 else {"seq": snap.last_seq, "k": snap.last_k}

@@ -76,35 +76,26 @@ class PreprocessStage(Stage[PreprocessFields]):
             grey = features.to_grey(img)
         except (MessageError, ValueError) as err:
             raise StageInputError(f"frame {seq}: {err}") from None
-        if not p.edges:
-            return [("features", self._grey_only(frame, img, grey))]
-        if self.thresholds is None and p.calibrate_box is not None:
-            try:
-                self.thresholds = features.canny_calibrated(grey, e.blur, e.canny_percentile, p.calibrate_box)
-            except ValueError as err:
-                raise StageInputError(f"frame {seq}: {err}") from None
-        # the contour trackers' observation (gflow_core.contour.protocol computes the same)
-        edges, cham = features.edges_and_chamfer(grey, self.thresholds, e.blur, e.canny_percentile, e.profile, e.g0)
-        gx, gy = self._gradients(grey)
+        if not p.edges:  # grey only: edges and chamfer travel empty
+            edges, cham = np.zeros(0, np.uint8), np.zeros(0, np.float32)
+        else:
+            if self.thresholds is None and p.calibrate_box is not None:
+                try:
+                    self.thresholds = features.canny_calibrated(grey, e.blur, e.canny_percentile, p.calibrate_box)
+                except ValueError as err:
+                    raise StageInputError(f"frame {seq}: {err}") from None
+            # the contour trackers' observation (gflow_core.contour.protocol computes the same)
+            edges, cham = features.edges_and_chamfer(grey, self.thresholds, e.blur, e.canny_percentile, e.profile,
+                                                     e.g0)
+        gx = gy = None
+        if p.gradients:
+            gxa, gya = features.gradients(grey)
+            gx, gy = NDArray.of(gxa), NDArray.of(gya)
         self.done += 1
         msg = self._features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(edges),
                              chamfer=NDArray.of(cham.astype(np.float32)), profile=e.profile, g0=e.g0,
                              grad_x=gx, grad_y=gy, img=img)
         return [("features", msg)]
-
-    def _gradients(self, grey: np.ndarray) -> tuple[NDArray | None, NDArray | None]:
-        if not self.params.gradients:
-            return None, None
-        gxa, gya = features.gradients(grey)
-        return NDArray.of(gxa), NDArray.of(gya)
-
-    def _grey_only(self, frame: Frame, img: np.ndarray, grey: np.ndarray) -> Features:
-        e = self.edge
-        gx, gy = self._gradients(grey)
-        self.done += 1
-        return self._features(header=frame.header, grey=NDArray.of(grey), edges=NDArray.of(np.zeros(0, np.uint8)),
-                              chamfer=NDArray.of(np.zeros(0, np.float32)), profile=e.profile, g0=e.g0, grad_x=gx,
-                              grad_y=gy, img=img)
 
     def _features(self, img: np.ndarray, **fields) -> Features:
         """The message: :class:`ColourFeatures` with the frame's colour bins when asked for and the frame

@@ -62,7 +62,7 @@ def check_init(init: tuple[float, float, float, float] | None) -> None:
 
 
 def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "", *,
-                 of_tracker: bool = True) -> type[F]:
+                 of_tracker: bool = True, only: tuple[str, ...] | None = None) -> type[F]:
     """The ``msgspec`` struct ``name`` with every field of the dataclass ``tracker`` (type and
     default as declared there) and those of ``fields``. Making one runs ``tracker``'s checks, then
     ``fields.check``: a bad value is a ``ValueError`` (``msgspec.ValidationError`` through
@@ -71,16 +71,25 @@ def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: st
     ``of_tracker``: the struct is a stage of the tracker whose parameters ``tracker`` holds
     (:func:`tracker_of` names it, and a graph's tracker block feeds the stage). False for a stage
     that reads settings a dataclass declares without being a stage of a tracker (the preprocess
-    stage, of :class:`gflow_core.contour.params.EdgeParams`): its values stay its own."""
+    stage, of :class:`gflow_core.contour.params.EdgeParams`): its values stay its own.
+
+    ``only``: the struct takes these fields of ``tracker`` alone (a stage that reads a few of a
+    tracker's settings, as the generic proposal its random walk); it is then no stage of the
+    tracker (``of_tracker`` is ignored), and its checks are ``tracker``'s with the other fields at
+    their defaults."""
     hints = typing.get_type_hints(tracker)
     own = {f.name for f in msgspec.structs.fields(fields)}
-    clash = sorted(own & {f.name for f in dataclasses.fields(tracker)})
+    taken = [f for f in dataclasses.fields(tracker) if only is None or f.name in only]
+    if only is not None and len(taken) != len(only):
+        raise TypeError(f"{tracker.__name__} has no field {sorted(set(only) - {f.name for f in taken})}")
+    clash = sorted(own & {f.name for f in taken})
     if clash:
         raise TypeError(f"{fields.__name__} redeclares {', '.join(clash)} of {tracker.__name__}")
-    spec = [(f.name, hints[f.name], f.default) for f in dataclasses.fields(tracker)]
+    spec = [(f.name, hints[f.name], f.default) for f in taken]
+    of_tracker = of_tracker and only is None
 
     def __post_init__(self: F) -> None:
-        self.check(tracker_params(self, tracker))
+        self.check(tracker(**{f.name: getattr(self, f.name) for f in taken}))
 
     struct = msgspec.defstruct(name, spec, bases=(fields,), module=module, kw_only=True, frozen=True,
                                forbid_unknown_fields=True,

@@ -90,7 +90,7 @@ def test_a_snapshot_of_another_stage_is_refused(frames):
     filt, _ = _stages(sc.truth_box(0))
     with pytest.raises(ValueError, match="not a dcf.filter snapshot"):
         filt.restore(b"\x01\x02garbage")
-    with pytest.raises(ValueError, match="dcf snapshot version 9"):
+    with pytest.raises(ValueError, match="dcf.filter snapshot version 9"):
         filt.restore(msgspec.msgpack.encode({"version": 9, "initialised": False}))
 
 

@@ -181,7 +181,7 @@ def test_overlays_draw_the_rotated_axes_and_the_angles() -> None:
     from gflow_core.gflow.face_pose import rotation_from_angles
     from gflow_msgs.messages import Frame, Header, NDArray, PoseEstimate
     from gflow_msgs.foxglove import LINE_LIST, POINTS
-    from stages.overlay import annotations_for
+    from gflow_msgs.annotations import annotations_for
 
     r = rotation_from_angles(30.0, 0.0, 0.0)
     h = Header(stream="s", seq=4, stamp_ns=0)

@@ -16,7 +16,7 @@ from gflow_core.synthetic import SyntheticScene
 from pipeline.io.datasets import write_frames
 from pipeline.recording.results import read_boxes, read_track, read_visibility, write_boxes
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray
-from stages.overlay import MAGENTA, ORANGE, annotations_for
+from gflow_msgs.annotations import MAGENTA, ORANGE, annotations_for
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 FRAMES = 60

@@ -174,3 +174,23 @@ def test_a_tracker_value_of_the_wrong_type_is_named_in_plain_words(name, value, 
     with pytest.raises(ValueError) as e:
         block_values(AppearanceParams, {name: value})
     assert str(e.value) == says
+
+
+def test_the_generic_proposal_takes_the_random_walk_of_chamfer_params_alone() -> None:
+    """particle.proposal (the demo's, graphs of your own) declares no standard deviation of its own: its
+    random walk's fields, defaults and checks are ChamferParams', and it takes no other ChamferParams field."""
+    from gflow_core.contour.params import ChamferParams
+    from gflow_core.params import defaults
+    from stages.particle_proposal import ProposalFields, ProposalParams
+    from stages.tracker_params import stage_params, tracker_of
+
+    walk = ("std_xy", "std_theta", "std_log_s")
+    p = ProposalParams()
+    assert {k: getattr(p, k) for k in walk} == {k: defaults(ChamferParams)[k] for k in walk}
+    assert tracker_of(ProposalParams) is None  # no stage of a tracker: a graph's tracker block does not feed it
+    with pytest.raises(ValueError, match="std_xy, std_theta and std_log_s must be finite and >= 0"):
+        msgspec.convert({"std_theta": -0.1}, ProposalParams)
+    with pytest.raises(msgspec.ValidationError, match="unknown field `lam`"):
+        msgspec.convert({"lam": 0.3}, ProposalParams)
+    with pytest.raises(TypeError, match="has no field"):
+        stage_params("Bad", ChamferParams, ProposalFields, __name__, only=("std_xy", "std_z"))

@@ -40,6 +40,11 @@ def reads_grey(params: ContourParams, placed: ContourSetup) -> bool:
     return params.lost_guard or placed.app0 is not None
 
 
+def reads_colour(params: ContourParams) -> bool:
+    """Whether a cue reads a colour frame's bins: the lost guard, when it weighs colour."""
+    return params.lost_guard and params.lost_colour
+
+
 def is_blank(params: ContourParams, edges: np.ndarray) -> bool:
     """Fewer than ``min_edges`` edge pixels in the (H, W) edge map: a blank frame, no evidence
     (sec. 5.1.2, fig. 7)."""

@@ -31,7 +31,7 @@ import time
 from dataclasses import dataclass, field
 
 from gflow_msgs.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
-from stages.overlay import estimate_annotations
+from gflow_msgs.annotations import estimate_annotations
 
 from pipeline.io.foxglove_messages import BOX_TOPIC, frame_image, to_sdk
 from pipeline.recording.plain import to_plain

@@ -14,7 +14,7 @@ every message's topic and times and writes:
 * every estimate's box (and the ground truth a synthetic frame carries) as
   ``foxglove.ImageAnnotations`` on ``gflow/<stream>/box``, stamped with its frame, so an Image
   panel on ``frames`` draws the box whatever made the run (the render stage's overlays of
-  :func:`stages.overlay.estimate_annotations`, without particles);
+  :func:`gflow_msgs.annotations.estimate_annotations`, without particles);
 * nothing of the large binary messages (features, particles, proposals, snapshots, G-flow
   states) nor the end-of-stream markers: they are counted as left out, by topic and apart.
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from gflow_msgs.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
-from stages.overlay import estimate_annotations
+from gflow_msgs.annotations import estimate_annotations
 
 from pipeline.io.foxglove_messages import BOX_TOPIC, frame_image, sdk_schema, to_sdk
 from pipeline.io.mcap_io import iter_records, read_metadata

@@ -41,7 +41,7 @@ def cmd_render(args) -> int:
     import cv2
 
     from gflow_msgs.foxglove import ImageAnnotations
-    from stages.overlay import annotations_for
+    from gflow_msgs.annotations import annotations_for
 
     from pipeline.cli.draw import draw_annotations
 
