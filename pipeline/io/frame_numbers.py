@@ -20,7 +20,20 @@ again, a camera that resets), is a discontinuity: the numbers go on from the hos
 estimate of the frames missed, and the stream's timestamps count from there again. (The host
 time since the previous frame alone would not do: a demuxer hands over the last frame before a
 pause only when data comes again.) A repeated timestamp (a camera's clock jitter rounded to its
-frame period) takes the next number.
+frame period) takes the next number, and a step of one frame period is never a discontinuity.
+
+The first frame may have waited: in a backlog that built up while the source opened (a sender
+that began first, a relay that kept its datagrams from before the pipeline started, a server
+that sends what it encoded before the client came), every frame comes late and the value falls
+with each one read from it, so the smallest value seen is no bound on the offset, and frames
+after an outage inside the backlog would seem to come from the future. So the smallest value
+starts at what the first frame's would be had it been sent when the host began to keep the
+stream (``since_ns``: the open, or the relay's binding): a jump is then judged against the host
+time since the stream could first have arrived, and a clock that jumps further ahead than that
+(plus :data:`SLACK_S`) is still a discontinuity.
+
+Whichever way a frame is numbered, its number is the last one's plus one plus the frames missed
+before it, so the frames numbered and the frames missed add up to the camera's span.
 """
 
 from __future__ import annotations
@@ -61,10 +74,13 @@ class FrameNumbers:
     ----------
     rate : frames per second to estimate the frames a host-clock gap held (the stream's
         declared rate, else the nominal ``--fps``).
+    since_ns : host clock (ns) from which the stream's data may have been kept for the first frame
+        (the open's start; a relay's binding); 0: the first frame's own stamp.
     """
 
-    def __init__(self, rate: float) -> None:
+    def __init__(self, rate: float, since_ns: int = 0) -> None:
         self.rate = rate
+        self.since_ns = since_ns
         self.last = -1  # the last frame's number
         self._last_pts: float | None = None  # the last frame's timestamp (None: it had none)
         self._last_ns = 0
@@ -89,7 +105,7 @@ class FrameNumbers:
             out = Numbered(self.last + 1 + missed, missed, False)
         else:
             step = int(round(pts - self._last_pts))
-            if step >= 1 and offset >= self._offset - SLACK_S:
+            if step == 1 or (step > 1 and offset >= self._offset - SLACK_S):
                 out, retake = Numbered(self.last + step, step - 1, True), False
             elif step == 0 and not reopened:  # a repeated timestamp: the next number (and the next period)
                 out, retake = Numbered(self.last + 1, 0, True), False
@@ -100,7 +116,10 @@ class FrameNumbers:
                        f"the stream's clock jumped {step} frame periods, {self._offset - offset:.1f} s further than "
                        f"the time that passed here")
                 out = Numbered(self.last + 1 + missed, missed, False, why)
-        self._offset = offset if retake else min(self._offset, offset)
+        if self.last < 0 and has_pts and self.since_ns:  # the first frame: sent at the earliest when kept from
+            self._offset = min(offset, self.since_ns / 1e9 - pts / self.rate)
+        else:
+            self._offset = offset if retake else min(self._offset, offset)
         self.last = out.frame
         self._last_pts = pts if has_pts else None
         self._last_ns = stamp_ns
