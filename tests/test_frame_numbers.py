@@ -92,6 +92,11 @@ def test_a_sender_restarted_mid_stream_or_ahead_on_a_reconnect_is_numbered_by_th
     # 1 s after the last frame
     out = feed(FrameNumbers(RATE), [(500, 0.0), (501, 0.04), (35, 1.04), (36, 1.08)])
     assert [n.frame for n in out] == [0, 1, 26, 27] and out[2].missed == 24 and "went back" in out[2].jump
+    # the same when the demuxer hands the last frame before the pause over with the first after it:
+    # the gap counts from when that frame came by its timestamp (1.96 s), not from when it was read
+    frames = [(500 + i, 0.04 * i) for i in range(49)] + [(549, 3.0), (35, 3.0), (36, 3.04)]
+    out = feed(FrameNumbers(RATE), frames)
+    assert [n.frame for n in out][48:] == [48, 49, 75, 76] and out[50].missed == 25 and "went back" in out[50].jump
     # a reconnect after 2 s to a sender whose clock is 100 s ahead: no 2500 frames missed
     out = feed(FrameNumbers(RATE), [(500, 0.0), (501, 0.04), (3000, 2.04), (3001, 2.08)], reopened_at=2)
     assert [n.frame for n in out] == [0, 1, 51, 52] and out[2].missed == 49 and "jumped" in out[2].jump
