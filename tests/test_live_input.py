@@ -140,6 +140,7 @@ def test_udp_outage_is_reported_and_frame_numbers_stay_the_cameras(tmp_path: Pat
 
     s = live_summary(tmp_path / "r.mcap")
     assert s is not None and s.missed == missed
+    assert s.captured + s.missed == N, (s.captured, s.missed)  # every frame sent arrived or is counted missed
     # each frame recorded from the first keyframe after the gap (until it, frames are decoded without
     # their references) is the camera's frame of its number, not the one `missed` earlier
     clean = clean_frames(stream)
