@@ -140,6 +140,7 @@ def test_udp_outage_is_reported_and_frame_numbers_stay_the_cameras(tmp_path: Pat
 
     s = live_summary(tmp_path / "r.mcap")
     assert s is not None and s.missed == missed
+    assert s.captured + s.missed == N, (s.captured, s.missed)  # every frame sent arrived or is counted missed
     # each frame recorded from the first keyframe after the gap (until it, frames are decoded without
     # their references) is the camera's frame of its number, not the one `missed` earlier
     clean = clean_frames(stream)
@@ -152,6 +153,50 @@ def test_udp_outage_is_reported_and_frame_numbers_stay_the_cameras(tmp_path: Pat
     assert right, "no frame was recorded after the gap"
     assert max(right) < 0.5 < min(shifted), (max(right), min(shifted))
     rerun_source_is_identical(tmp_path)
+
+
+def test_an_outage_in_the_backlog_of_a_late_source_keeps_the_cameras_frame_numbers(stream: Path) -> None:
+    """A source that opens after the stream was sent (a busy machine's slow start, at its worst): the
+    relay kept it from before the sender began, so the frames before the outage and after it are
+    all read in one burst, the stream's clock running seconds ahead of the host's. The frames after
+    the outage keep the camera's numbers (the gap counted by the timestamps, not taken for a clock
+    from the future), and each frame's image is the camera's frame of its number."""
+    from pipeline.io.live_capture import LiveCapture
+    from pipeline.io.udp_relay import UdpRelay
+
+    relay = UdpRelay(f"udp://127.0.0.1:{free_port()}")
+    port = int(relay.url.rsplit(":", 1)[1])
+    sender = subprocess.Popen([sys.executable, str(ROOT / "tests" / "ts_sender.py"), str(stream), "udp", str(port),
+                               "--outage", "2:2.2"], stdout=subprocess.PIPE, text=True)
+    numbered: dict[int, np.ndarray] = {}
+    missed = 0
+    try:
+        assert "outage" in sender.communicate(timeout=60)[0]  # all of it sent, and waiting in the relay
+        cap = LiveCapture(relay.url, url=relay.relay_url, reconnect=0, keep_skipped=True).open()
+        try:
+            while N - 1 not in numbered:  # the camera's last frame (a capture that numbers short ends by its timeout)
+                f = cap.take(timeout=30)
+                if f is None:
+                    break
+                numbered.update({c.frame: c.image for c in f.skipped_frames})
+                numbered[f.frame] = f.image
+                missed += f.missed
+        finally:
+            cap.close()
+    finally:
+        if sender.poll() is None:
+            sender.kill()
+        relay.close()
+    frames = sorted(numbered)
+    assert frames[0] == 0 and frames[-1] == N - 1, (frames[:3], frames[-3:])
+    gaps = [(a, b) for a, b in zip(frames, frames[1:]) if b != a + 1]
+    assert len(gaps) == 1 and 50 <= gaps[0][1] - gaps[0][0] - 1 <= 62 and missed == gaps[0][1] - gaps[0][0] - 1, gaps
+    assert len(frames) + missed == N  # frames received and frames missed add up to the camera's span
+    clean = clean_frames(stream)
+    after = [k for k in frames if k >= gaps[0][1] + KEYFRAME_EVERY]  # decoded from their references again
+    right = [float(np.abs(numbered[k].astype(np.int16) - clean[k]).mean()) for k in after]
+    shifted = [float(np.abs(numbered[k].astype(np.int16) - clean[k - missed]).mean()) for k in after]
+    assert after and max(right) < 0.5 < min(shifted), (max(right), min(shifted))
 
 
 def clean_frames(stream: Path) -> list[np.ndarray]:

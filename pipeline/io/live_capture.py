@@ -46,6 +46,7 @@ import numpy as np
 
 from pipeline.io.ffmpeg_messages import ffmpeg_messages, is_damage
 from pipeline.io.frame_numbers import FrameNumbers
+from pipeline.io.udp_relay import kept_since
 
 __all__ = ["LiveCapture", "LiveFrame", "LiveSourceError", "is_live_source", "camera_device", "READ_TIMEOUT_S"]
 
@@ -145,7 +146,7 @@ class LiveCapture:
     def __init__(self, source: str, fps: float = 25.0, open_timeout: float = 10.0, reconnect: float = 5.0,
                  keep_skipped: bool = False, stop: int | None = None, url: str = "") -> None:
         self.source = source
-        self.url = url or source
+        self.url, self._kept_since = kept_since(url or source)  # a relay's URL says since when it kept the stream
         self.fps = fps
         self.open_timeout = open_timeout
         self.reconnect = reconnect
@@ -180,6 +181,7 @@ class LiveCapture:
                                   f"{', '.join(cams) or 'none'})")
         self._messages.start()
         self._listening = True
+        opened_ns = time.time_ns()  # frames from here on may wait in buffers (a relay's: since it was bound)
         try:
             cap, first, stamp = self._open_once(self.open_timeout)
         except LiveSourceError:
@@ -189,7 +191,7 @@ class LiveCapture:
         self.shape = tuple(first.shape)
         fps = float(cap.get(CAP_PROP_FPS))
         self.declared_fps = fps if 0 < fps < 1000 else 0.0
-        self._numbers = FrameNumbers(self.declared_fps or self.fps)
+        self._numbers = FrameNumbers(self.declared_fps or self.fps, since_ns=self._kept_since or opened_ns)
         self._decoded(cap, first, stamp, [])
         self._thread = threading.Thread(target=self._read_loop, name="live-capture", daemon=True)
         self._thread.start()

@@ -8,7 +8,10 @@ of the video than the user meant.
 
 :class:`UdpRelay` binds the port at once, in the launching process, and keeps every datagram
 from then on; the source stage reads them as an MPEG-TS byte stream over a TCP connection on
-loopback (``relay_url``), which FFmpeg opens as it would the UDP port. ``gflow track udp://...``
+loopback (``relay_url``), which FFmpeg opens as it would the UDP port. The URL also says since
+when the relay has kept the stream (:data:`KEPT_SINCE`, removed before FFmpeg sees it): the
+first frames read may have waited that long, which the frame numbers allow for
+(:mod:`pipeline.io.frame_numbers`). ``gflow track udp://...``
 binds it first thing (:func:`bind_early`, called by ``pipeline/cli/main.py`` before its imports). The datagrams are kept
 in memory while no reader is connected (at most ``max_bytes``: beyond that the oldest are
 dropped and counted), and passed on as they come while one is. A reader that reconnects (the
@@ -30,12 +33,15 @@ import threading
 import time
 from urllib.parse import parse_qs, urlsplit
 
-__all__ = ["UdpRelay", "relayed_udp", "bind_early", "relay_for", "joined_midway"]
+__all__ = ["UdpRelay", "relayed_udp", "bind_early", "relay_for", "joined_midway", "kept_since", "KEPT_SINCE"]
 
 #: the receive buffer asked of the kernel for the bound port
 RCVBUF = 8 * 2**20
 #: bytes kept while no reader is connected
 MAX_BYTES = 256 * 2**20
+#: the relay URL's parameter that says since when (host clock, ns) the relay has kept the stream:
+#: its first frames may have waited that long (pipeline/io/frame_numbers.py); the reader removes it
+KEPT_SINCE = "gflow_kept_since_ns"
 
 
 def relayed_udp(url: str) -> tuple[str, int] | None:
@@ -97,6 +103,7 @@ class UdpRelay:
         self._on_first = None  # told (on the relay's thread) when the first datagram comes
         self._lock = threading.Lock()
         self.bound_at = time.time()
+        bound_ns = time.time_ns()
         self.first_at = 0.0  # when the first datagram came (0: none yet)
         self.midway: str | None = None  # why the first datagram is not its stream's start (None: it is)
         self.datagrams = 0
@@ -114,7 +121,7 @@ class UdpRelay:
             raise
         self._udp.setblocking(False)
         self._tcp.setblocking(False)
-        self.relay_url = f"tcp://127.0.0.1:{self._tcp.getsockname()[1]}"
+        self.relay_url = f"tcp://127.0.0.1:{self._tcp.getsockname()[1]}?{KEPT_SINCE}={bound_ns}"
         self._pending: collections.deque[bytes] = collections.deque()
         self._pending_bytes = 0
         self._client: socket.socket | None = None
@@ -242,6 +249,17 @@ class UdpRelay:
 
 #: relays bound by :func:`bind_early`, by URL, until the run takes them (:func:`relay_for`)
 _EARLY: dict[str, UdpRelay] = {}
+
+
+def kept_since(url: str) -> tuple[str, int]:
+    """``url`` without the relay's :data:`KEPT_SINCE` parameter, and its time (``url`` and 0 when it has none)."""
+    head, _, query = url.partition("?")
+    params = query.split("&") if query else []
+    since = [q.split("=", 1)[1] for q in params if q.startswith(KEPT_SINCE + "=")]
+    if not since:
+        return url, 0
+    rest = [q for q in params if not q.startswith(KEPT_SINCE + "=")]
+    return head + ("?" + "&".join(rest) if rest else ""), int(since[-1]) if since[-1].isdigit() else 0
 
 
 def bind_early(argv: list[str]) -> None:
