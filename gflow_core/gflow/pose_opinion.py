@@ -124,6 +124,21 @@ Departures from the paper
   against 0.076, 6 seeds worse); the nine shared
   sequences' AUC 0.641 against 0.653: it stays off.
 
+* Self-occlusion (``TextureView.vis``, ``GFlowConfig.self_occlusion``; off by default and in the
+  shipped graphs). The paper sees every vertex at every pose (the one-to-one ``a_v`` of eq. 2-4), so
+  the far side of a turned face is scored on whatever lies beyond the head. With visibility weights
+  ``v_i in [0, 1]`` (:mod:`.visibility`: back-facing vertices by their normals; no depth order),
+  computed by the caller at each expert's previous pose and held for the frame, each vertex's texture
+  term of eq. 13 and 14 counts ``v_i`` times and the rest, ``1 - v_i``, is its expectation under the
+  texel's Gaussian, ``E (y - mu_v)^2 / (sigma_v + sigma_w) = 1`` (the normalising term ``log(sigma_v +
+  sigma_w)`` stays whole), so that experts hiding different vertices compare: in the search, every
+  level of Gauss-Newton (gradient and Hessian weighted alike), the chains' comparison, the gain and
+  bias and the likelihood of the weights; a generic or local background's terms at a vertex count
+  ``v_i`` times too (a hidden vertex claims no pixel). The texel update is the caller's
+  (:func:`.filter.update`). Measured (docs/faces.md "At a camera's pace"): every 3rd frame
+  0.116 / 0.103 / 0.153 at ``0.2`` (seeds 1-3; mean over seeds 1-10 0.141 against 0.135), every frame
+  0.093 / 0.066 / 0.077 (0.070 / 0.067 / 0.104 without): it stays off.
+
 Implementation (speed; the same mathematics, results equal to the straightforward
 version to about 1e-14 relative, measured over 20-30 frames of each shared sequence):
 
