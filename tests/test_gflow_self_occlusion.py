@@ -129,30 +129,39 @@ def test_a_hidden_texel_keeps_its_prediction_and_a_visible_one_learns() -> None:
     np.testing.assert_array_equal(part[0, keep], full[0, keep])
 
 
-def test_every_vertex_seen_is_the_paper_bit_for_bit_and_a_turned_expert_proposes_otherwise() -> None:
-    """Off by default. At the first pose every vertex of the head faces the camera, so with a tiny ``C``
-    every weight is 1 and the proposals are bit for bit those without self-occlusion; an expert turned by
-    50 degrees hides part of its head and proposes differently."""
+def _synthetic_experts(n_experts: int, jitter: float = 0.0, **changes):
+    """A synthetic head's first two frames (:mod:`gflow_core.gflow.synthetic_head`), the model placed in its
+    box and the experts at the first frame (their rotation jittered by ``jitter`` radians): ``(setup,
+    state, y1)``."""
     from gflow_core.gflow import model_setup
     from gflow_core.gflow.synthetic_head import synthetic_sequence
     from gflow_core.gflow.tracker import observation
     from gflow_scenes import SYNTH
 
-    assert GFlowConfig.__dataclass_fields__["self_occlusion"].default == 0.0
-    assert GFlowParams().self_occlusion == 0.0
     seq = synthetic_sequence(np.random.default_rng(3), n_frames=2, image_shape=(60, 80))
     grey = np.rint(seq.frames * 255).astype(np.uint8)
-    params = GFlowParams(**dict(SYNTH, n_experts=4))
-    setup = model_setup(params, seq.box, grey.shape[1:])
-    y0, y1 = observation(grey[0], setup.contrast_sigma), observation(grey[1], setup.contrast_sigma)
-    state = init_state(setup.model, setup.pose0, y0, setup.cfg)
+    setup = model_setup(GFlowParams(**dict(SYNTH, n_experts=n_experts, **changes)), seq.box, grey.shape[1:])
+    y0, y1 = (observation(g, setup.contrast_sigma) for g in grey)
+    std = np.r_[np.full(3, jitter), np.full(2, 2.0), 0.02 * abs(setup.pose0[5:])] if jitter else None
+    state = init_state(setup.model, setup.pose0, y0, setup.cfg, rng=np.random.default_rng(1), pose_jitter_std=std)
+    return setup, state, y1
 
-    def rngs():
-        return [np.random.default_rng([7, i]) for i in range(4)]
+
+def _rngs(idx):
+    return [np.random.default_rng([7, int(i)]) for i in idx]
+
+
+def test_every_vertex_seen_is_the_paper_bit_for_bit_and_a_turned_expert_proposes_otherwise() -> None:
+    """Off by default. At the first pose every vertex of the head faces the camera, so with a tiny ``C``
+    every weight is 1 and the proposals are bit for bit those without self-occlusion; an expert turned by
+    50 degrees hides part of its head and proposes differently."""
+    assert GFlowConfig.__dataclass_fields__["self_occlusion"].default == 0.0
+    assert GFlowParams().self_occlusion == 0.0
+    setup, state, y1 = _synthetic_experts(4)
 
     def both(st, c):
-        return (propose(st, y1, setup.model, setup.cfg, rngs()),
-                propose(st, y1, setup.model, dataclasses.replace(setup.cfg, self_occlusion=c), rngs()))
+        return (propose(st, y1, setup.model, setup.cfg, _rngs(range(4))),
+                propose(st, y1, setup.model, dataclasses.replace(setup.cfg, self_occlusion=c), _rngs(range(4))))
 
     off, seen = both(state, 1e-9)
     for name in ("u_hat", "samples", "log_weights", "log_evidence", "gn_objective"):
@@ -173,23 +182,8 @@ def test_a_bad_self_occlusion_is_refused_in_one_line(value) -> None:
 def test_shards_of_the_experts_propose_as_one_batch_with_self_occlusion() -> None:
     """Each expert's visibility is its own pose's: proposals made for two shards of the experts are
     those of one call, bit for bit (the pipeline's proposal processes)."""
-    from gflow_core.gflow import model_setup
-    from gflow_core.gflow.synthetic_head import synthetic_sequence
-    from gflow_core.gflow.tracker import observation
-    from gflow_scenes import SYNTH
-
-    seq = synthetic_sequence(np.random.default_rng(3), n_frames=2, image_shape=(60, 80))
-    grey = np.rint(seq.frames * 255).astype(np.uint8)
-    params = GFlowParams(**dict(SYNTH, n_experts=6, self_occlusion=0.3, init_jitter=(0.3, 2.0, 0.02)))
-    setup = model_setup(params, seq.box, grey.shape[1:])
-    y0, y1 = observation(grey[0], setup.contrast_sigma), observation(grey[1], setup.contrast_sigma)
-    state = init_state(setup.model, setup.pose0, y0, setup.cfg, rng=np.random.default_rng(1),
-                       pose_jitter_std=np.r_[np.full(3, 0.3), np.full(2, 2.0), 0.02 * abs(setup.pose0[5:])])
-
-    def rngs(idx):
-        return [np.random.default_rng([7, int(i)]) for i in idx]
-
-    whole = propose(state, y1, setup.model, setup.cfg, rngs(range(6)), None, 3.0)
-    parts = [propose(state, y1, setup.model, setup.cfg, rngs(ix), ix, 3.0) for ix in ([0, 1, 2], [3, 4, 5])]
+    setup, state, y1 = _synthetic_experts(6, jitter=0.3, self_occlusion=0.3)
+    whole = propose(state, y1, setup.model, setup.cfg, _rngs(range(6)), None, 3.0)
+    parts = [propose(state, y1, setup.model, setup.cfg, _rngs(ix), ix, 3.0) for ix in ([0, 1, 2], [3, 4, 5])]
     for name in ("u_hat", "samples", "log_weights", "log_evidence", "gn_objective"):
         np.testing.assert_array_equal(np.concatenate([getattr(p, name) for p in parts]), getattr(whole, name))
