@@ -137,7 +137,8 @@ Departures from the paper
   ``v_i`` times too (a hidden vertex claims no pixel). The texel update is the caller's
   (:func:`.filter.update`). Measured (docs/faces.md "At a camera's pace"): every 3rd frame
   0.116 / 0.103 / 0.153 at ``0.2`` (seeds 1-3; mean over seeds 1-10 0.141 against 0.135), every frame
-  0.093 / 0.066 / 0.077 (0.070 / 0.067 / 0.104 without): it stays off.
+  0.093 / 0.066 / 0.077 (0.070 / 0.067 / 0.104 without), the nine shared sequences' AUC 0.605 against
+  0.653: it stays off.
 
 Implementation (speed; the same mathematics, results equal to the straightforward
 version to about 1e-14 relative, measured over 20-30 frames of each shared sequence):
