@@ -94,6 +94,7 @@ from .pose_opinion import (
 )
 from .background import TiledBackground, TiledTexels
 from .texture import anchored_predict, kalman_update, object_mask
+from .visibility import vertex_normals, visibility_weights
 
 __all__ = [
     "GFlowConfig",
@@ -241,6 +242,12 @@ class GFlowConfig:
         window of this std, pixels, about it: :func:`.pose_opinion.local_background`), in the chains'
         comparison and the weights (eq. 13, 16); not in Gauss-Newton nor the coarse search. 0: none
         (the paper's uninformative background, without ``background``). Not with ``generic_background``.
+    self_occlusion : float in [0, 1]
+        > 0: ``c0`` of the vertices' visibility (:mod:`.visibility`): a vertex whose normal, rotated
+        with the head, faces the camera with a cosine below ``c0`` counts as partly hidden by the head
+        itself (weight ``cos / c0``, none at or past edge-on): its texture term in the search,
+        Gauss-Newton and the weights (eq. 13, 14, 16) is weighted by it at the expert's previous pose,
+        and its texel's update (eq. 7, 8) at the new pose. 0: every vertex visible (the paper's).
     """
 
     n_experts: int
@@ -281,6 +288,7 @@ class GFlowConfig:
     generic_background: bool = False
     texel_noise_adapt: bool = False
     local_background: float = 0.0
+    self_occlusion: float = 0.0
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -359,6 +367,9 @@ class GFlowConfig:
         if lb > 0 and self.generic_background:
             raise ValueError("local_background and generic_background are two models of the same background: "
                              "set one")
+        so = self.self_occlusion
+        if isinstance(so, bool) or not isinstance(so, (int, float, np.floating, np.integer)) or not 0 <= so <= 1:
+            raise ValueError(f"self_occlusion must be a cosine in [0, 1] (0: every vertex visible), got {so!r}")
         if not isinstance(self.texel_noise_adapt, (bool, np.bool_)):
             raise ValueError(f"texel_noise_adapt must be True or False, got {self.texel_noise_adapt!r}")
         if not (0.0 < self.texture_decay <= 1.0):
@@ -705,7 +716,16 @@ def predict_texels(state: ExpertState, rows: np.ndarray, cfg: GFlowConfig) -> tu
                             state.tex_anchor)
 
 
-def _texture_view(state: ExpertState, idx: np.ndarray, cfg: GFlowConfig) -> TextureView:
+def vertex_visibility(model: MorphableModel, poses: np.ndarray, cfg: GFlowConfig) -> np.ndarray | None:
+    """Each vertex's visibility weight ``(..., n)`` at poses ``(..., P)`` (:mod:`.visibility`); None with
+    ``self_occlusion`` 0 (every vertex visible)."""
+    if cfg.self_occlusion <= 0:
+        return None
+    return visibility_weights(vertex_normals(model.bases), poses, float(cfg.self_occlusion))
+
+
+def _texture_view(state: ExpertState, idx: np.ndarray, cfg: GFlowConfig, vis: np.ndarray | None = None
+                  ) -> TextureView:
     # predicted texture (eq. 9, 10): mean unchanged, variance + Psi (or reverting toward the first look)
     mean, var = predict_texels(state, idx, cfg)
     return TextureView(
@@ -717,6 +737,7 @@ def _texture_view(state: ExpertState, idx: np.ndarray, cfg: GFlowConfig) -> Text
         psi_b=cfg.psi_b,
         generic=bool(cfg.generic_background),
         local=float(cfg.local_background),
+        vis=vis,
     )
 
 
@@ -771,7 +792,8 @@ def propose(
     prev = state.poses[idx]
     # mean of p(u_t | u_{t-1}): u_{t-1} itself unless its rotation decays toward the identity
     centre = prior_mean(prev, cfg.prior_rotation_decay, cfg.morph_shrink(model.n_bases))
-    tv = _texture_view(state, idx, cfg)
+    # self-occlusion: which vertices the head hides at each expert's previous pose
+    tv = _texture_view(state, idx, cfg, vertex_visibility(model, prev, cfg))
     ph = cfg.photometric_model()
     max_rot = math.radians(cfg.max_rotation_deg)
     osq = cfg.outlier_sigmas ** 2
@@ -940,7 +962,8 @@ def update(
     parents, picks, new_log_cred = _children(log_cred, log_w, resampled, rng)
     poses = samples[parents, picks]
     pts = project(model.bases, poses)
-    tex_mean, tex_var, p_in = _learn_texels(state, proposals, parents, pts, img, cfg)
+    tex_mean, tex_var, p_in = _learn_texels(state, proposals, parents, pts, img, cfg,
+                                            vertex_visibility(model, poses, cfg))
     bg_mean = bg_var = None
     if state.bg_mean is not None:
         assert state.bg_var is not None
@@ -1000,12 +1023,14 @@ def _children(log_cred: np.ndarray, log_w: np.ndarray, resampled: bool, rng: np.
 
 
 def _learn_texels(state: ExpertState, proposals: Proposals, parents: np.ndarray, pts: np.ndarray, img: np.ndarray,
-                  cfg: GFlowConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  cfg: GFlowConfig, vis: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Object texels at ``t`` of the children of ``parents`` (E,) at their vertices ``pts`` (E, n, 2).
 
     Predict (eq. 9, 10; children of an expert that took the frontal reset start from the first look) then
     the Kalman update (eq. 7, 8) where the vertex is in the image and, with ``outlier_sigmas``, explained
-    by the texels. Returns the means and variances (E, n) and each vertex's inlier probability (E, n).
+    by the texels; with visibility weights ``vis`` (E, n) (self-occlusion at the children's poses) the
+    observation noise is ``sigma_w / vis`` and a hidden vertex (``vis = 0``) keeps its prediction.
+    Returns the means and variances (E, n) and each vertex's inlier probability (E, n).
     """
     st = bilinear_stencil(pts, img.shape)
     y = st.sample(img.reshape(-1))
@@ -1026,6 +1051,10 @@ def _learn_texels(state: ExpertState, proposals: Proposals, parents: np.ndarray,
         n_in = np.maximum(observed.sum(axis=1, keepdims=True), 1)
         excess = np.where(observed, r2 - pred_var, 0.0).sum(axis=1, keepdims=True) / n_in
         sigma_w = np.maximum(cfg.sigma_w, excess)
+    if vis is not None:
+        # self-occlusion: a partly hidden vertex observes its texel through noise sigma_w / v_i, a hidden one not
+        observed = observed & (vis > 0.0)
+        sigma_w = sigma_w / np.maximum(vis, 1e-12)
     # object texels: predict (eq. 9, 10) then update (eq. 7, 8) where the vertex is in the image
     tex_mean, tex_var = kalman_update(pred_mean, pred_var, y, sigma_w, observed=observed)
     return tex_mean, tex_var, p_in

@@ -106,6 +106,9 @@ class GFlowParams:
                                           "pixel N(mean, variance of the frame in a Gaussian window of this std, px, "
                                           "about it) (eq. 14's two background terms; 0: the paper's uninformative "
                                           "background)")
+    self_occlusion: float = param(0.0, "vertices the head itself hides: a vertex whose normal faces the camera with a "
+                                       "cosine below this counts cos / this of its texture term and texel update "
+                                       "(none edge-on or beyond; 0: every vertex visible, the paper's)")
     reset_rate: float = param(0.01, "probability a frame's pose transition turns the head back to frontal")
     reset_std_deg: float = param(20.0, "std of the frontal reset's rotation, degrees")
     reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "

@@ -124,6 +124,22 @@ Departures from the paper
   against 0.076, 6 seeds worse); the nine shared
   sequences' AUC 0.641 against 0.653: it stays off.
 
+* Self-occlusion (``TextureView.vis``, ``GFlowConfig.self_occlusion``; off by default and in the
+  shipped graphs). The paper sees every vertex at every pose (the one-to-one ``a_v`` of eq. 2-4), so
+  the far side of a turned face is scored on whatever lies beyond the head. With visibility weights
+  ``v_i in [0, 1]`` (:mod:`.visibility`: back-facing vertices by their normals; no depth order),
+  computed by the caller at each expert's previous pose and held for the frame, each vertex's texture
+  term of eq. 13 and 14 counts ``v_i`` times and the rest, ``1 - v_i``, is its expectation under the
+  texel's Gaussian, ``E (y - mu_v)^2 / (sigma_v + sigma_w) = 1`` (the normalising term ``log(sigma_v +
+  sigma_w)`` stays whole), so that experts hiding different vertices compare: in the search, every
+  level of Gauss-Newton (gradient and Hessian weighted alike), the chains' comparison, the gain and
+  bias and the likelihood of the weights; a generic or local background's terms at a vertex count
+  ``v_i`` times too (a hidden vertex claims no pixel). The texel update is the caller's
+  (:func:`.filter.update`). Measured (docs/faces.md "At a camera's pace"): every 3rd frame
+  0.116 / 0.103 / 0.153 at ``0.2`` (seeds 1-3; mean over seeds 1-10 0.141 against 0.135), every frame
+  0.093 / 0.066 / 0.077 (0.070 / 0.067 / 0.104 without), the nine shared sequences' AUC 0.605 against
+  0.653: it stays off.
+
 Implementation (speed; the same mathematics, results equal to the straightforward
 version to about 1e-14 relative, measured over 20-30 frames of each shared sequence):
 
@@ -248,6 +264,11 @@ class TextureView:
         pixel ``N(M(x), V(x))``, the frame's mean and variance in a Gaussian window of this std
         (pixels of level 0) about it, whose two terms of eq. 14 enter at every vertex
         (:func:`local_background`; departure from the paper, see the module docstring). 0: none.
+    vis : (E, n) float64 in [0, 1] or None
+        Each vertex's visibility weight ``v_i`` (:mod:`.visibility`, at the expert's previous pose):
+        its texture term counts ``v_i`` times and the rest of it is replaced by its expectation under
+        the texel's Gaussian (departure from the paper, see the module docstring). None: every vertex
+        visible (the paper's).
     """
 
     mean: np.ndarray
@@ -258,6 +279,7 @@ class TextureView:
     psi_b: float = 0.0
     generic: bool = False
     local: float = 0.0
+    vis: np.ndarray | None = None
 
     @property
     def frame_background(self) -> bool:
@@ -613,11 +635,16 @@ class _Fit:
                       else None)
         self.mu = tv.mean
         self.w = _fg_weights(tv, sigma_w)  # (E, n)
+        self.vis = tv.vis
+        if tv.vis is not None:
+            # the hidden part of each vertex's term: its expectation, E (y - mu_v)^2 / (sigma_v + sigma_w) = 1
+            self.hidden = np.sum(1.0 - tv.vis, axis=-1)
         if photometric is not None:
-            # normal equations of gain_bias: the parts that do not depend on y
+            # normal equations of gain_bias (over the visible vertices): the parts that do not depend on y
             self.la = 1.0 / photometric.gain_std ** 2
-            self.wmu = self.w * self.mu
-            sw = np.sum(self.w, axis=-1)
+            self.wv = self.w if tv.vis is None else self.w * tv.vis
+            self.wmu = self.wv * self.mu
+            sw = np.sum(self.wv, axis=-1)
             self.sm = np.sum(self.wmu, axis=-1)
             smm = np.sum(self.wmu * self.mu, axis=-1)
             self.a11, self.a22 = smm + self.la, sw + 1.0 / photometric.bias_std ** 2
@@ -653,7 +680,7 @@ class _Evaluation:
         mu, w = fit.mu, fit.w
         if fit.photometric is not None:
             # gain and bias (photometric.gain_bias), r = y - (a mu_v + b)
-            sy = (w * yv).sum(axis=-1)
+            sy = (fit.wv * yv).sum(axis=-1)
             smy = (fit.wmu * yv).sum(axis=-1)
             a = ((smy + fit.la) * fit.a22 - fit.sm * sy) / fit.det
             a = np.clip(a, 1.0 / fit.photometric.gain_max, fit.photometric.gain_max)
@@ -664,11 +691,17 @@ class _Evaluation:
         e2 = w * r * r
         if np.isfinite(fit.outlier_sq):
             # outlier process: vertices beyond the cap cost a constant, so they drop out of the step
-            f = np.minimum(e2, fit.outlier_sq).sum(axis=-1)
+            c = np.minimum(e2, fit.outlier_sq)
             self.w_eff = np.where(e2 <= fit.outlier_sq, w, 0.0)
         else:
-            f = e2.sum(axis=-1)
-            self.w_eff = w
+            c, self.w_eff = e2, w
+        vis = fit.vis
+        if vis is None:
+            f = c.sum(axis=-1)
+        else:
+            # self-occlusion: v_i of each vertex's term, its expectation (1) for the rest
+            f = (vis * c).sum(axis=-1) + fit.hidden
+            self.w_eff = self.w_eff * vis
         self.r = r
         if fit.background:
             tv = fit.tv
@@ -680,10 +713,14 @@ class _Evaluation:
         if fit.generic is not None:
             # the generic background's first term of eq. 14: - sum_i (y(x_i) - m)^2 / s^2
             self.rg = yv - fit.generic[0]
+            if vis is not None:
+                # a hidden vertex claims no pixel: no likelihood ratio there
+                self.rg = self.rg * np.sqrt(vis)
             f = f - fit.generic[1] * (self.rg * self.rg).sum(axis=-1)
         if fit.local is not None:
             # the local background's two terms of eq. 14: - sum_i [(y - M)^2 / V + log V](x_i)
-            f = f - st.sample(fit.local).sum(axis=-1)
+            b = st.sample(fit.local)
+            f = f - (b if vis is None else vis * b).sum(axis=-1)
         if fit.temper != 1.0:
             # tempered data term (departure from the paper): its log-likelihood times 1 / kappa
             f = f / fit.temper
@@ -754,8 +791,10 @@ class _Evaluation:
         if fit.generic is not None:
             # the generic background's term enters with a minus sign, its mean flat:
             # g -= J^T (r_g / s^2),  H -= J^T J / s^2 (limited as the background's, below)
-            g -= (J @ (fit.generic[1] * self.rg[sl])[:, :, None])[:, :, 0]
-            Hg = fit.generic[1] * (J @ J.transpose(0, 2, 1))
+            g -= (J @ (fit.generic[1] * self.rg[sl] * (1.0 if fit.vis is None else np.sqrt(fit.vis[sl])))[:, :, None]
+                  )[:, :, 0]
+            Jv = J if fit.vis is None else J * np.sqrt(fit.vis[sl])[:, None, :]
+            Hg = fit.generic[1] * (Jv @ Jv.transpose(0, 2, 1))
         kappa = fit.temper
         if kappa != 1.0:
             # tempered data term: g and H of 1/kappa times the data's part of eq. 14
@@ -1080,16 +1119,17 @@ def coarse_to_fine_peak(
     if not (use_background and tv.has_background):
         # experts that are copies of one another (resampled children of one parent that drew the
         # same sample: same pose, prior and texels) get the same peak: compute it once
-        first, inverse = _distinct_rows(prev, u, tv.mean, tv.var)
+        first, inverse = _distinct_rows(prev, u, tv.mean, tv.var, *(() if tv.vis is None else (tv.vis,)))
         if first.size < u.shape[0]:
-            sub = TextureView(mean=tv.mean[first], var=tv.var[first], generic=tv.generic, local=tv.local)
+            sub = TextureView(mean=tv.mean[first], var=tv.var[first], generic=tv.generic, local=tv.local,
+                              vis=None if tv.vis is None else tv.vis[first])
             res = coarse_to_fine_peak(bases, pyramid, prev[first], sub, sigma_w, prior_std, n_iter, u[first],
                                       use_background, photometric, offsets, max_rotation, search_stride, outlier_sq,
                                       scale, reset, temper)
             return GaussNewtonResult(res.u_hat[inverse], res.hessian[inverse], res.objective[inverse],
                                      None if res.reset is None else res.reset[inverse])
     L = len(pyramid)
-    fg = TextureView(mean=tv.mean, var=tv.var, generic=tv.generic, local=tv.local)
+    fg = TextureView(mean=tv.mean, var=tv.var, generic=tv.generic, local=tv.local, vis=tv.vis)
     chains = (bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, use_background, photometric, max_rotation,
               outlier_sq, scale, offsets, search_stride, temper)
     if offsets is None or len(offsets) <= 1:
@@ -1116,14 +1156,16 @@ def _search_best(bases: np.ndarray, coarse: np.ndarray, ls: float, prev: np.ndar
     # The candidates differ from u only in l, so the rotated shape g r (h_i c) + l is projected
     # once per expert and only the texture term is evaluated per translation (coarse_search).
     xy = project(bases[every], u)
+    # self-occlusion: each vertex's term times its visibility (the rest is the same at every offset)
+    vis = 1.0 if tv.vis is None else tv.vis[:, every]
     cost = translation_costs(coarse, xy[..., 0] * ls, xy[..., 1] * ls, offsets * ls,
-                             tv.mean[:, every], _fg_weights(tv, sigma_w)[:, every], SEARCH_BLOCK_VERTICES)
+                             tv.mean[:, every], _fg_weights(tv, sigma_w)[:, every] * vis, SEARCH_BLOCK_VERTICES)
     if tv.generic:
         # the generic background's first term of eq. 14 on this level: - sum_i (y(x_i) - m)^2 / s^2
         gm, gw = generic_background(coarse)
         xs = xy[..., 0] * ls
         cost = cost - translation_costs(coarse, xs, xy[..., 1] * ls, offsets * ls, np.full(xs.shape, gm),
-                                        np.full(xs.shape, gw), SEARCH_BLOCK_VERTICES)
+                                        np.full(xs.shape, gw) * vis, SEARCH_BLOCK_VERTICES)
     # the rest of the objective (gauss_newton_objective): prior (only its translation part
     # changes with the offset) and the soft walls
     lam = prior_precision(prior_std)
@@ -1197,7 +1239,8 @@ def _frontal_chain(res: GaussNewtonResult, reset: RotationReset, bases, pyramid,
     std = np.array(prior_std, dtype=np.float64)
     std[ROT] = reset.std
     anchor = reset.anchor_view(sel.size)
-    tv_r = _rows_view(tv, sel) if anchor is None else dataclasses.replace(anchor, generic=tv.generic, local=tv.local)
+    tv_r = _rows_view(tv, sel) if anchor is None else dataclasses.replace(
+        anchor, generic=tv.generic, local=tv.local, vis=None if tv.vis is None else tv.vis[sel])
     fr = coarse_to_fine_peak(bases, pyramid, centre, tv_r, sigma_w, std, n_iter, start,
                              use_background and anchor is None, photometric, offsets, max_rotation, search_stride,
                              outlier_sq, scale, temper=temper)
@@ -1238,7 +1281,7 @@ def _rows_view(tv: TextureView, rows: np.ndarray) -> TextureView:
     """The texture opinions of the experts ``rows`` (repeats allowed)."""
     return TextureView(mean=tv.mean[rows], var=tv.var[rows], bg_mean=tv.bg_mean, bg_var=tv.bg_var,
                        bg_rows=None if tv.bg_rows is None else tv.bg_rows[rows], psi_b=tv.psi_b,
-                       generic=tv.generic, local=tv.local)
+                       generic=tv.generic, local=tv.local, vis=None if tv.vis is None else tv.vis[rows])
 
 
 def _refine(bases, pyramid, prev, tv, fg, sigma_w, prior_std, n_iter, u, use_background, photometric,
@@ -1399,9 +1442,11 @@ def log_likelihood(
     y = st.sample(fd.flat)
     vv = tv.var + sigma_w  # (E, n)
     mu = tv.mean[:, None, :]
+    vis = None if tv.vis is None else tv.vis[:, None, :]
     if photometric is not None:
-        # gain_bias with the sums that do not involve y taken once per expert (the same values)
-        w = 1.0 / vv
+        # gain_bias with the sums that do not involve y taken once per expert (the same values), over the
+        # visible vertices
+        w = 1.0 / vv if tv.vis is None else tv.vis / vv
         wmu = w * tv.mean
         la = 1.0 / photometric.gain_std ** 2
         sm = wmu.sum(axis=-1)[:, None]
@@ -1415,14 +1460,20 @@ def log_likelihood(
         r = y - (a[..., None] * mu + b[..., None])
     else:
         r = y - mu
-    fg = robust_cost(r * r / vv[:, None, :], outlier_sq).sum(axis=-1)
+    rc = robust_cost(r * r / vv[:, None, :], outlier_sq)
+    if vis is None:
+        fg = rc.sum(axis=-1)
+    else:
+        # self-occlusion: v_i of each vertex's term, its expectation under the texel's Gaussian (1) for the rest
+        fg = (vis * rc).sum(axis=-1) + (1.0 - vis).sum(axis=-1)
+    one = 1.0 if vis is None else vis
     if tv.generic:
         # the generic background at the vertices (its normalising terms are the same at every pose)
         gm, gw = generic_background(fd.image)
-        fg = fg - gw * ((y - gm) ** 2).sum(axis=-1)
+        fg = fg - gw * (one * (y - gm) ** 2).sum(axis=-1)
     if tv.local > 0:
         # the local background at the vertices, both its terms (its variance changes with the pose)
-        fg = fg - st.sample(local_background(fd.image, tv.local, sigma_w).reshape(-1)).sum(axis=-1)
+        fg = fg - (one * st.sample(local_background(fd.image, tv.local, sigma_w).reshape(-1))).sum(axis=-1)
     logdet_v = np.sum(np.log(vv), axis=-1)
     if not tv.has_background:
         return -0.5 * n * _LOG_2PI - 0.5 * (fg + logdet_v[:, None])
