@@ -41,7 +41,7 @@ __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_s
 #: configuration fields added after recordings carried the digest, with the default each had until
 #: then: at that default a field is left out of the digest, so every message of a recording made
 #: before it (all carry the digest) re-runs bit for bit; set away from it, it enters the digest
-LATER_FIELDS: dict[str, Any] = {"texel_noise_adapt": False, "local_background": 0.0}
+LATER_FIELDS: dict[str, Any] = {"texel_noise_adapt": False, "local_background": 0.0, "self_occlusion": 0.0}
 
 
 def config_digest(setup: ModelSetup, seed: int) -> str:
