@@ -49,7 +49,7 @@ from gflow_core.particles import weight_histogram
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
-from .box_tracker import BoxFilterSpec, FeaturesFilterStage
+from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message, MessageError, bins_of
 from .tracker_params import SeedBoxFields, stage_params
 
@@ -78,19 +78,12 @@ M2FilterParams = stage_params("M2FilterParams", M2Params, FilterFields, __name__
                               "``init``, ``seed`` and ``model`` (a learned contour model, required).")
 
 
-def _spec(name: str, params: type[ContourParams]) -> BoxFilterSpec:
-    """The contour trackers' filter on the generic stage: the protocol object over the features
-    (:data:`gflow_core.contour.features_filter.FEATURE_FILTER`); the proposal is the proposed cloud
-    itself, and the snapshot this module's own (``snapshot`` / ``restore`` below)."""
-    return BoxFilterSpec(name=name, tracker=FEATURE_FILTER, params=params, proposal=lambda cloud, dt: cloud,
-                         particles=lambda st: st.cloud.alpha, alpha_of=lambda a: a, particles_of=lambda a: a,
-                         snapshot=None)
-
-
 class FilterStage(FeaturesFilterStage):
     kind = "particle.filter"
     Params = FilterParams
-    box = _spec("contour", ContourParams)
+    #: the filter side of the tracker protocol over the preprocess stage's features; the proposal is the
+    #: proposed cloud itself, and the snapshot this module's own (``snapshot`` / ``restore`` below)
+    tracker = FEATURE_FILTER
     #: whether the stage needs a learned model (the ``model`` resource)
     needs_model: ClassVar[bool] = False
 
@@ -224,7 +217,6 @@ class ChamferFilterStage(FilterStage):
 
     kind = "chamfer.filter"
     Params = ChamferFilterParams
-    box = _spec("chamfer", ChamferParams)
 
 
 class M2FilterStage(FilterStage):
@@ -233,5 +225,4 @@ class M2FilterStage(FilterStage):
 
     kind = "m2.filter"
     Params = M2FilterParams
-    box = _spec("m2", M2Params)
     needs_model = True

@@ -30,14 +30,14 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, proposal_dynamics
 from gflow_core.contour.params import ChamferParams, M2Params
 from gflow_core.m2.model import M2Model
 
 from .base import Params, StageContext
-from .box_tracker import BoxProposalSpec, BoxProposalStage, CloudProposal, cloud_of, particles_msg
+from .box_tracker import BoxProposalStage, CloudProposal, cloud_of, particles_msg
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
@@ -72,14 +72,18 @@ M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __
                                 "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
 
 
-def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], CloudProposal]:
-    """The contour proposal a stage's parameters and its ``model`` resource make
-    (:func:`proposal_dynamics`)."""
+class ProposalStage(BoxProposalStage):
+    kind = "particle.proposal"
+    Params: ClassVar[type[Params]] = ProposalParams
+    #: whether the stage needs a learned model (the ``model`` resource): its dynamics
+    needs_model: ClassVar[bool] = False
 
-    def clouds(params: Any, ctx: StageContext) -> CloudProposal:
+    def _clouds(self, params: Any, ctx: StageContext) -> CloudProposal:
+        """The contour proposal the stage's parameters and its ``model`` resource make
+        (:func:`proposal_dynamics`)."""
         model = ctx.resources.get("model")
-        if needs_model and model is None:
-            raise ValueError(f"stage {ctx.name!r}: {kind} needs a learned model: set model: MODEL.npz "
+        if self.needs_model and model is None:
+            raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
                              f"(`gflow learn m2`)")
         if model is not None and not isinstance(model, M2Model):
             raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
@@ -88,17 +92,9 @@ def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], Cloud
         walk = None if model is not None else (params.std_xy, params.std_theta, params.std_log_s)
         return ContourProposal(*proposal_dynamics(model, params.init, walk))
 
-    return clouds
-
-
-def _spec(name: str, needs_model: bool, kind: str) -> BoxProposalSpec:
-    return BoxProposalSpec(name=name, params=None, walk=None, purpose=PURPOSE, clouds=_clouds(needs_model, kind))
-
-
-class ProposalStage(BoxProposalStage):
-    kind = "particle.proposal"
-    Params: ClassVar[type[Params]] = ProposalParams
-    box = _spec("contour", False, "particle.proposal")
+    @property
+    def purpose(self) -> int:
+        return PURPOSE
 
 
 class ChamferProposalStage(ProposalStage):
@@ -106,7 +102,6 @@ class ChamferProposalStage(ProposalStage):
 
     kind = "chamfer.proposal"
     Params = ChamferProposalParams
-    box = _spec("chamfer", False, "chamfer.proposal")
 
 
 class M2ProposalStage(ProposalStage):
@@ -114,4 +109,4 @@ class M2ProposalStage(ProposalStage):
 
     kind = "m2.proposal"
     Params = M2ProposalParams
-    box = _spec("m2", True, "m2.proposal")
+    needs_model = True

@@ -40,7 +40,7 @@ from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import StageContext, StageInputError
-from .box_tracker import BoxFilterSpec, FeaturesFilterStage
+from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message
 from .tracker_params import SeedBoxFields, stage_params
 
@@ -70,8 +70,7 @@ PatchFilterParams = stage_params("PatchFilterParams", PatchParams, PatchFields, 
 class PatchFilterStage(FeaturesFilterStage):
     kind = "patch.filter"
     Params = PatchFilterParams
-    box = BoxFilterSpec(name="patch", tracker=PATCH, params=PatchParams, proposal=lambda k, dt: k,
-                        particles=lambda st: st.k, alpha_of=lambda a: a, particles_of=lambda a: a, snapshot=None)
+    tracker = PATCH
     needs_init = False
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
