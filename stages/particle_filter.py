@@ -44,8 +44,7 @@ from gflow_core.contour.observation import (exemplar_error, is_blank, reads_colo
 from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
-from gflow_core.m2.tracking import ParticleCloud
-from gflow_core.particles import weight_histogram
+from gflow_core.m2.tracking import ParticleCloud, weight_diagnostics
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
@@ -180,23 +179,9 @@ class FilterStage(FeaturesFilterStage):
 
     def _outputs(self, header: Header, est: TrackerEstimate, proposed: Any = None) -> list[Output]:
         """The posterior and the estimate messages (and the weights' diagnostics of ``proposed``)."""
-        if proposed is not None:
-            self._diagnose(proposed, np.asarray(est.extras["log_lik"]))
+        if proposed is not None:  # for summary() (stepping); not part of any output
+            self.diagnostics = weight_diagnostics(proposed, np.asarray(est.extras["log_lik"]))
         return super()._outputs(header, est)
-
-    def _diagnose(self, cloud: ParticleCloud, log_lik: np.ndarray) -> None:
-        """Weights before resampling, for ``summary()`` (stepping); not part of any output."""
-        lw = cloud.log_w + log_lik
-        if not np.isfinite(lw).any():
-            self.diagnostics = {}
-            return
-        best = int(np.argmax(lw))
-        self.diagnostics = {
-            "weights_N*W": weight_histogram(lw),
-            "best_particle": {"alpha": np.round(cloud.alpha[best], 3).tolist(), "k": int(cloud.k[best]),
-                              "log_lik": round(float(log_lik[best]), 4)},
-            "log_lik_range": [round(float(log_lik.min()), 4), round(float(log_lik.max()), 4)],
-        }
 
     def summary(self) -> dict:
         """The last estimate (seq, MAP alpha, ESS, state), the histogram of the relative weights

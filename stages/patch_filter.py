@@ -78,12 +78,11 @@ class PatchFilterStage(FeaturesFilterStage):
         m = ctx.resources.get("model")
         if m is None:
             raise ValueError(f"stage {ctx.name!r}: the patch filter needs a learned model: set model: MODEL.npz")
-        if not isinstance(m, M2Model) or m.kind != "patch":
-            what = f"an M2 model with {m.metric} contour exemplars" if isinstance(m, M2Model) else type(m).__name__
-            raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is {what}; the patch filter needs patch "
-                             "exemplars (shuffle or l2)")
-        self.m2 = m
-        self.model: PatchExemplars = m.to_patch_exemplars()
+        try:
+            self.model: PatchExemplars = patch.patch_model(m)
+        except ValueError as e:
+            raise ValueError(f"stage {ctx.name!r}: model {params.model!r} {e}") from None
+        self.m2: M2Model = m
         self.resources = {"model": self.model}
 
     def _features(self, feat: Features, seq: int) -> np.ndarray | None:
