@@ -41,10 +41,12 @@ from gflow_core.contour import state as wire
 from gflow_core.contour.features_filter import FEATURE_FILTER
 from gflow_core.contour.observation import (exemplar_error, is_blank, reads_colour, reads_grey, same_profile,
                                             usable_chamfer, usable_grey)
-from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
+from gflow_core.builtin_trackers import CHAMFER, M2
+from gflow_core.contour.params import ContourParams
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.tracking import ParticleCloud, weight_diagnostics
+from gflow_core.spec import TrackerSpec
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
@@ -69,12 +71,6 @@ class FilterFields(SeedBoxFields, frozen=True):
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,
                             "Particle filter settings: every field of :class:`gflow_core.contour.params.ContourParams` "
                             "(see it for meanings), ``init``, ``seed`` and ``model``.")
-ChamferFilterParams = stage_params("ChamferFilterParams", ChamferParams, FilterFields, __name__,
-                                   "The chamfer tracker's filter: every field of "
-                                   ":class:`gflow_core.contour.params.ChamferParams`, ``init`` and ``seed``.")
-M2FilterParams = stage_params("M2FilterParams", M2Params, FilterFields, __name__,
-                              "The M2 tracker's filter: every field of :class:`gflow_core.contour.params.M2Params`, "
-                              "``init``, ``seed`` and ``model`` (a learned contour model, required).")
 
 
 class FilterStage(FeaturesFilterStage):
@@ -197,17 +193,19 @@ class FilterStage(FeaturesFilterStage):
         self.steps, self.warned, self.last = snap.steps, snap.warned, wire.last_of(snap)
 
 
-class ChamferFilterStage(FilterStage):
-    """The chamfer tracker's filter (graph ``chamfer``): its parameters derive from ``ChamferParams``."""
+def _filter_of(spec: TrackerSpec) -> type[FilterStage]:
+    """The filter stage of a contour tracker, made from its spec: kind ``spec.filter_kind``, parameters
+    every field of ``spec.params`` with those of :class:`FilterFields`, a learned model required when
+    the spec's is (``model_required``)."""
+    cap, cls = spec.name.capitalize(), spec.params
+    params = stage_params(f"{cap}FilterParams", cls, FilterFields, __name__,
+                          f"The {spec.name} tracker's filter: every field of :class:`{cls.__module__}.{cls.__name__}`, "
+                          f"``init``, ``seed`` and ``model``{' (a learned contour model, required)' * spec.model_required}.")
+    return type(f"{cap}FilterStage", (FilterStage,),
+                {"kind": spec.filter_kind, "Params": params, "needs_model": spec.model_required, "__module__": __name__,
+                 "__doc__": f"The {spec.name} tracker's filter (graph ``{spec.graph}``), made from its spec."})
 
-    kind = "chamfer.filter"
-    Params = ChamferFilterParams
 
-
-class M2FilterStage(FilterStage):
-    """The M2 tracker's filter (graph ``m2``): its parameters derive from ``M2Params``; a learned
-    contour model is required."""
-
-    kind = "m2.filter"
-    Params = M2FilterParams
-    needs_model = True
+ChamferFilterStage = _filter_of(CHAMFER)
+M2FilterStage = _filter_of(M2)
+ChamferFilterParams, M2FilterParams = ChamferFilterStage.Params, M2FilterStage.Params

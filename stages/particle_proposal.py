@@ -33,8 +33,10 @@ from __future__ import annotations
 from typing import Any, ClassVar
 
 from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, proposal_dynamics
-from gflow_core.contour.params import ChamferParams, M2Params
+from gflow_core.builtin_trackers import CHAMFER, M2
+from gflow_core.contour.params import ChamferParams
 from gflow_core.m2.model import M2Model
+from gflow_core.spec import TrackerSpec
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalStage, CloudProposal, cloud_of, particles_msg
@@ -63,13 +65,6 @@ ProposalParams = stage_params("ProposalParams", ChamferParams, ProposalFields, _
                               "model's path; empty: the random walk), ``timed`` and the random walk's ``std_xy``, "
                               "``std_theta``, ``std_log_s`` (:class:`gflow_core.contour.params.ChamferParams`).",
                               only=("std_xy", "std_theta", "std_log_s"))
-ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,
-                                     "The chamfer tracker's proposal: every field of "
-                                     ":class:`gflow_core.contour.params.ChamferParams` (its random walk: "
-                                     "``std_xy``, ``std_theta``, ``std_log_s``), ``seed``, ``init`` and ``timed``.")
-M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __name__,
-                                "The M2 tracker's proposal: every field of :class:`gflow_core.contour.params.M2Params`, "
-                                "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
 
 
 class ProposalStage(BoxProposalStage):
@@ -97,16 +92,20 @@ class ProposalStage(BoxProposalStage):
         return PURPOSE
 
 
-class ChamferProposalStage(ProposalStage):
-    """The chamfer tracker's proposal (graph ``chamfer``): the random walk of ``ChamferParams``."""
+def _proposal_of(spec: TrackerSpec) -> type[ProposalStage]:
+    """The proposal stage of a contour tracker, made from its spec: kind ``spec.proposal_kind``,
+    parameters every field of ``spec.params`` with those of :class:`ProposalFields`, a learned model
+    (its dynamics) required when the spec's is (``model_required``)."""
+    cap, cls = spec.name.capitalize(), spec.params
+    params = stage_params(f"{cap}ProposalParams", cls, ProposalFields, __name__,
+                          f"The {spec.name} tracker's proposal: every field of :class:`{cls.__module__}.{cls.__name__}`, "
+                          f"``seed``, ``model``{' (required: its dynamics)' * spec.model_required}, ``init`` and ``timed``.")
+    return type(f"{cap}ProposalStage", (ProposalStage,),
+                {"kind": spec.proposal_kind, "Params": params, "needs_model": spec.model_required,
+                 "__module__": __name__, "__doc__": f"The {spec.name} tracker's proposal (graph ``{spec.graph}``): "
+                 f"{'the learned model' if spec.model_required else 'the random walk'}'s dynamics, made from its spec."})
 
-    kind = "chamfer.proposal"
-    Params = ChamferProposalParams
 
-
-class M2ProposalStage(ProposalStage):
-    """The M2 tracker's proposal (graph ``m2``): the learned model's dynamics (a model is required)."""
-
-    kind = "m2.proposal"
-    Params = M2ProposalParams
-    needs_model = True
+ChamferProposalStage = _proposal_of(CHAMFER)
+M2ProposalStage = _proposal_of(M2)
+ChamferProposalParams, M2ProposalParams = ChamferProposalStage.Params, M2ProposalStage.Params
