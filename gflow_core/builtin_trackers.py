@@ -19,7 +19,7 @@ from .params import make
 from .spec import Loader, TrackerSpec
 from .tracker import TrackingFilter
 
-__all__ = ["BUILTIN", "m2_setup", "gflow_setup", "m2_model"]
+__all__ = ["BUILTIN", "CHAMFER", "M2", "m2_setup", "gflow_setup", "m2_model"]
 
 
 def _chamfer() -> TrackingFilter[Any, Any, Any, Any]:
@@ -107,17 +107,22 @@ def gflow_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) ->
 
 _ORIGIN = __name__
 
+#: the chamfer tracker (K = 1 exemplar learnt from the first frame; graph ``chamfer``)
+CHAMFER = TrackerSpec("chamfer", ChamferParams, _chamfer, graph="chamfer", cli="pipeline.cli.trackers.chamfer",
+                      origin=_ORIGIN)
+#: M2 with a learned model. Its graph's preprocess reads edges with the settings models are learned with by
+#: default (gflow track and the Python API read a model's own from its file); a patch model's parameters are
+#: PatchParams (graph m2_patch)
+M2 = TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2",
+                 model_option="--model", model_required=True, preprocess=dataclasses.asdict(LEARN_EDGES),
+                 variants=(PatchParams,), origin=_ORIGIN)
+
 #: the trackers gflow ships
 BUILTIN: tuple[TrackerSpec, ...] = (
     APPEARANCE,
-    TrackerSpec("chamfer", ChamferParams, _chamfer, graph="chamfer", cli="pipeline.cli.trackers.chamfer",
-                origin=_ORIGIN),
+    CHAMFER,
     DCF,
     TrackerSpec("gflow", GFlowParams, _gflow, setup=gflow_setup, graph="gflow", cli="pipeline.cli.trackers.gflow",
                 model_option="--model", origin=_ORIGIN),
-    # its graph's preprocess reads edges with the settings models are learned with by default (gflow track and
-    # the Python API read a model's own from its file); a patch model's parameters are PatchParams (graph m2_patch)
-    TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2",
-                model_option="--model", model_required=True, preprocess=dataclasses.asdict(LEARN_EDGES),
-                variants=(PatchParams,), origin=_ORIGIN),
+    M2,
 )

@@ -32,7 +32,7 @@ from typing import Any, Mapping, Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["Box", "Estimate", "box_estimate", "box_step_estimate", "FrameRng", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
+__all__ = ["Box", "Estimate", "box_estimate", "box_step_estimate", "FrameRng", "FilterSide", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
 
 #: (x, y, w, h) in pixels
 Box = tuple[float, float, float, float]
@@ -141,11 +141,14 @@ S = TypeVar("S")
 O = TypeVar("O")  # noqa: E741 (the observation)
 Q = TypeVar("Q")
 P_in = TypeVar("P_in", contravariant=True)  # the parameters, which a filter only reads
+Q_in = TypeVar("Q_in", contravariant=True)  # the proposals, which the filter's side only reads
 
 
-class TrackingFilter(Protocol[P_in, S, O, Q]):
-    """A tracker as a two-stage filter over parameters ``P``, states ``S``, observations ``O`` and
-    proposals ``Q``. The implementations keep no state of their own: everything is in ``S``."""
+class FilterSide(Protocol[P_in, S, O, Q_in]):
+    """The filter's side of a tracker (:class:`TrackingFilter` without ``propose``): what a filter
+    stage calls, whose proposals come from another stage (a tracker over the preprocess stage's
+    features, :data:`gflow_core.contour.features_filter.FEATURE_FILTER`, is one alone). The
+    implementations keep no state of their own: everything is in ``S``."""
 
     #: the tracker's name (``gflow track --tracker NAME``)
     name: str
@@ -162,18 +165,23 @@ class TrackingFilter(Protocol[P_in, S, O, Q]):
         caller loaded for the tracker (a learned model, under ``"model"``): the core opens no file."""
         ...
 
-    def propose(self, params: P_in, state: S, obs: O, rng: FrameRng, dt: float = 1.0) -> Q:
-        """Hypotheses for frame ``rng.t`` from the posterior ``state`` at the previous frame; ``dt``
-        is the time since that frame in nominal frame periods (1 for files)."""
-        ...
-
-    def update(self, params: P_in, state: S, proposal: Q, obs: O, rng: FrameRng) -> tuple[S, Estimate]:
+    def update(self, params: P_in, state: S, proposal: Q_in, obs: O, rng: FrameRng) -> tuple[S, Estimate]:
         """The posterior at frame ``rng.t``: ``proposal`` weighed by the evidence of ``obs``."""
         ...
 
     def coast(self, params: P_in, state: S, rng: FrameRng, obs: O | None = None) -> tuple[S, Estimate]:
         """The posterior carried over frame ``rng.t``, which could not be used (``obs`` is the frame
         when it was readable but its proposals or update failed)."""
+        ...
+
+
+class TrackingFilter(FilterSide[P_in, S, O, Q], Protocol[P_in, S, O, Q]):
+    """A tracker as a two-stage filter over parameters ``P``, states ``S``, observations ``O`` and
+    proposals ``Q``: its :class:`FilterSide` and ``propose``."""
+
+    def propose(self, params: P_in, state: S, obs: O, rng: FrameRng, dt: float = 1.0) -> Q:
+        """Hypotheses for frame ``rng.t`` from the posterior ``state`` at the previous frame; ``dt``
+        is the time since that frame in nominal frame periods (1 for files)."""
         ...
 
 

@@ -53,7 +53,6 @@ from gflow_core.appearance.tracker import AppearanceTrack
 from .box_tracker import BoxFilterStage, SnapshotCodec
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import AppearanceFilterSnapshot
-from .spec_box import box_filter_spec
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["AppearanceFilterStage", "AppearanceFilterParams"]
@@ -82,5 +81,6 @@ def _snapshot_state(snap: AppearanceFilterSnapshot, core: AppearanceParams, last
 class AppearanceFilterStage(BoxFilterStage):
     kind = "appearance.filter"
     Params = AppearanceFilterParams
-    box = box_filter_spec(SPEC, SnapshotCodec(AppearanceFilterSnapshot, SNAPSHOT_VERSION, _snapshot_fields,
-                                              _snapshot_state))
+    tracker = SPEC.tracker()
+    box = SPEC.box
+    codec = SnapshotCodec(AppearanceFilterSnapshot, SNAPSHOT_VERSION, _snapshot_fields, _snapshot_state)

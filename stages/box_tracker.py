@@ -5,14 +5,15 @@ any tracker whose state is a particle cloud, driven through the tracker's protoc
 The stages of every tracker whose spec has box stages (the correlation-filter tracker, the
 appearance tracker; :mod:`stages.spec_box`, the appearance filter with its own snapshot in
 :mod:`stages.appearance_filter`) are registrations
-of these two classes: each sets its ``kind``, its ``Params`` and a :class:`BoxFilterSpec` or
-:class:`BoxProposalSpec` naming its protocol object, its parameter dataclass, its particles'
-conversions and its snapshot codec. The contour trackers (:mod:`stages.particle_filter`,
+of these two classes: each sets its ``kind``, its ``Params`` (made of the tracker's parameter
+dataclass) and what its spec says (:class:`gflow_core.spec.TrackerSpec`): the filter its protocol
+object and the spec's :class:`gflow_core.spec.BoxStages` (the particles' conversions), the proposal
+the spec's ``BoxStages`` (the random walk); the filter also its :class:`SnapshotCodec`. The contour trackers (:mod:`stages.particle_filter`,
 :mod:`stages.particle_proposal`) and M2 with a patch model (:mod:`stages.patch_filter`) are
 registrations too: their filters read the preprocess stage's ``features``
 (:class:`FeaturesFilterStage`) and override the steps named below (``_observe``, ``_first_observation``, ``_proposed``, ``_coast``, ``_last``,
 ``_posterior``, ``snapshot`` / ``restore``); their proposal is a proposal of whole clouds
-(:attr:`BoxProposalSpec.clouds`: the exemplar index k travels with alpha).
+(``BoxProposalStage._clouds``: the exemplar index k travels with alpha).
 
 * :class:`BoxFilterStage` -- inputs ``frames`` of frame t and ``proposals`` for frame t (a random walk
   on alpha = (x, y, theta, s); theta is ignored and s = exp(log s)); outputs ``particles`` (the
@@ -39,7 +40,7 @@ from __future__ import annotations
 
 from abc import abstractmethod
 from dataclasses import dataclass
-from typing import Any, Callable, ClassVar, Mapping, Protocol, cast
+from typing import Any, Callable, ClassVar, Mapping, cast
 
 import msgspec
 import numpy as np
@@ -47,7 +48,8 @@ import numpy as np
 from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
-from gflow_core.tracker import Box, FrameRng, UnusableFrame
+from gflow_core.spec import BoxStages
+from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
@@ -55,10 +57,9 @@ from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, Mes
 from gflow_msgs.snapshots import CounterSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
-from .tracker_params import SeedBoxFields, tracker_params
+from .tracker_params import SeedBoxFields, core_params
 
-__all__ = ["BoxFilterSpec", "BoxFilterStage", "FeaturesFilterStage", "BoxProposalSpec", "BoxProposalStage", "SnapshotCodec", "FilterSide", "cloud_of",
-           "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
+__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of", "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
 
 PROPOSAL_SNAPSHOT_VERSION = 1
 
@@ -118,68 +119,20 @@ class SnapshotCodec:
     state: Callable[[Any, Any, dict], Any]
 
 
-class FilterSide(Protocol):
-    """What a filter stage calls of a tracker: the filter's side of
-    :class:`gflow_core.tracker.TrackingFilter` (``propose`` is the proposal stage's)."""
-
-    name: str
-
-    def observe(self, params: Any, image: np.ndarray) -> Any: ...
-
-    def init(self, params: Any, obs: Any, box: Box, rng: FrameRng, resources: Mapping[str, Any]
-             ) -> tuple[Any, TrackerEstimate]: ...
-
-    def update(self, params: Any, state: Any, proposal: Any, obs: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]: ...
-
-    def coast(self, params: Any, state: Any, rng: FrameRng, obs: Any = None) -> tuple[Any, TrackerEstimate]: ...
-
-
-@dataclass(frozen=True)
-class BoxFilterSpec:
-    """What :class:`BoxFilterStage` needs of one tracker.
-
-    ``name`` is the tracker's name in messages (``"dcf"``); ``tracker`` its protocol object
-    (``TRACKER``); ``params`` its parameter dataclass; ``proposal(particles, dt)`` its proposal of
-    (N, 3) particles (x, y, log s); ``particles(state)`` the (N, 3) posterior particles of a state;
-    ``alpha_of`` / ``particles_of`` the conversions between (N, 3) particles and (N, 4) alpha =
-    (x, y, theta, s); ``snapshot`` its :class:`SnapshotCodec`."""
-
-    name: str
-    tracker: FilterSide
-    params: type
-    proposal: Callable[[np.ndarray, float], Any]
-    particles: Callable[[Any], np.ndarray]
-    alpha_of: Callable[[np.ndarray], np.ndarray]
-    particles_of: Callable[[np.ndarray], np.ndarray]
-    snapshot: SnapshotCodec | None
-
-
-@dataclass(frozen=True)
-class BoxProposalSpec:
-    """What :class:`BoxProposalStage` needs of one tracker: its ``name``, its parameter dataclass
-    ``params`` and its random walk ``walk(params, alpha (N, 4), size0 (w, h), rng, dt) -> alpha
-    (N, 4)`` drawn from ``rng = FrameRng(...).stream(purpose)``. The proposal process imports only
-    these (not the tracker's update).
-
-    A tracker whose particles carry more than alpha (the contour trackers' exemplar index k) gives
-    ``clouds(stage params, stage context) -> CloudProposal`` instead of ``walk``: the proposal of
-    whole clouds, made once from the stage's parameters and resources (``ValueError`` for unusable
-    ones); a ``ValueError`` it raises on a cloud is the input's error."""
-
-    name: str
-    params: type | None
-    walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray] | None
-    purpose: int
-    clouds: Callable[[Any, StageContext], CloudProposal] | None = None
-
-
 class BoxFilterStage(Stage[SeedBoxFields]):
     """The filter stage of a tracker on the protocol (module docstring); a subclass sets ``kind``,
-    ``Params`` and ``box``. A tracker that reads another message than the frames (the contour
-    trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family; one whose
-    snapshot is not a :class:`SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
+    ``Params`` (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass),
+    ``tracker``, ``box`` and ``codec``. A tracker that reads another message than the frames (the
+    contour trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family;
+    one whose snapshot is not a :class:`SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
 
-    box: ClassVar[BoxFilterSpec]
+    #: the filter side of the tracker's protocol (``observe``, ``init``, ``update``, ``coast``)
+    tracker: ClassVar[FilterSide[Any, Any, Any, Any]]
+    #: the particles' conversions and the proposal of the tracker's spec (None: a stage that overrides
+    #: ``_proposal``, ``_proposed`` and ``_posterior``)
+    box: ClassVar[BoxStages | None] = None
+    #: how the state travels in the snapshot (None: a stage with ``snapshot`` / ``restore`` of its own)
+    codec: ClassVar[SnapshotCodec | None] = None
     #: whether the tracker needs the initial box (a patch model's may crop the whole frame)
     needs_init: ClassVar[bool] = True
     #: the input port of the frame's observation (its message type is ``inputs[port]``)
@@ -192,8 +145,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
         if params.init is None and self.needs_init:
-            raise ValueError(f"the {self.box.name} filter needs an initial box: set init: [x, y, w, h]")
-        self.core: Any = tracker_params(params, self.box.params)
+            raise ValueError(f"the {self.label} filter needs an initial box: set init: [x, y, w, h]")
+        self.core: Any = core_params(params)
         self.state: Any = None
         self.shape: tuple[int, ...] | None = None
         self.steps = 0
@@ -208,7 +161,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         assert isinstance(msg, Frame)
         image = msg.image.array()
         try:
-            obs = self.box.tracker.observe(self.core, image)
+            obs = self.tracker.observe(self.core, image)
             return obs.grey.shape, obs
         except UnusableFrame as e:
             return to_grey(image).shape, e
@@ -247,6 +200,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         """The proposed particles of the ``proposals`` message (the last posterior's, reported, when
         there are none or they are unusable)."""
         box, st = self.box, self.state
+        assert box is not None
         if not isinstance(prop, Particles):
             self.report("missing_proposals", f"frame {seq}: no proposals arrived; reusing the last posterior", seq)
             return box.particles(st)
@@ -259,7 +213,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
         """The state and estimate of a frame that could not be used."""
-        return self.box.tracker.coast(self.core, self.state, rng)
+        return self.tracker.coast(self.core, self.state, rng)
 
     def _last(self, header: Header, est: TrackerEstimate) -> dict:
         """The last estimate's summary (:meth:`summary`, the snapshot)."""
@@ -270,6 +224,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def _posterior(self) -> ParticleCloud:
         """The posterior cloud of the state (alpha, k, log w)."""
+        assert self.box is not None
         parts = self.box.particles(self.state)
         n = len(parts)
         return ParticleCloud(alpha=self.box.alpha_of(parts), k=np.zeros(n, np.int64), log_w=np.zeros(n))
@@ -287,8 +242,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         p = self.params
         obs = self._first_observation(seq, msg)
         try:  # init is None only where needs_init is not set: the tracker takes none
-            self.state, est = self.box.tracker.init(self.core, obs, cast(Box, p.init), tracker_rng(p.seed, self.ctx.stream, seq),
-                                                    self.resources)
+            self.state, est = self.tracker.init(self.core, obs, cast(Box, p.init), tracker_rng(p.seed, self.ctx.stream, seq),
+                                                self.resources)
         except ValueError as e:  # a box outside the frame, a frame too small for the tracker's cells
             raise StageInputError(f"frame {seq}: {e}") from None
         self._started(obs)
@@ -312,8 +267,19 @@ class BoxFilterStage(Stage[SeedBoxFields]):
             return self._outputs(header, est, proposed)
         # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
         dt = time_step(self.ctx, header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
-        self.state, est = self.box.tracker.update(self.core, self.state, self.box.proposal(proposed, dt), obs, rng)
+        self.state, est = self.tracker.update(self.core, self.state, self._proposal(proposed, dt), obs, rng)
         return self._outputs(header, est, proposed)
+
+    def _proposal(self, proposed: Any, dt: float) -> Any:
+        """The ``update`` argument of the proposed particles, ``dt`` periods after the posterior they came
+        from (the spec's ``proposal``)."""
+        assert self.box is not None
+        return self.box.proposal(proposed, dt)
+
+    @property
+    def label(self) -> str:
+        """The tracker's name in reports: the stage kind's first part (``dcf`` of ``dcf.filter``)."""
+        return self.kind.split(".")[0]
 
     def summary(self) -> dict:
         """The last estimate (seq, box, ESS, state, the tracker's score at the estimate) and the step count."""
@@ -321,7 +287,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     # -- snapshot / restore ---------------------------------------------------------------
     def snapshot(self) -> bytes:
-        codec = self.box.snapshot
+        codec = self.codec
         assert codec is not None
         if self.state is None:
             return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=False, steps=self.steps))
@@ -329,7 +295,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
                                                    **codec.fields(self.state), steps=self.steps, last=self.last))
 
     def restore(self, data: bytes) -> None:
-        name, label, codec = self.ctx.name, self.box.name, self.box.snapshot
+        name, label, codec = self.ctx.name, self.label, self.codec
         assert codec is not None
         snap = versioned_snapshot(data, codec.struct, name, self.kind, codec.version)
         self.steps, self.last = snap.steps, dict(snap.last)
@@ -418,14 +384,22 @@ class FeaturesFilterStage(BoxFilterStage):
 
     def _coast(self, proposed: Any, rng: FrameRng) -> tuple[Any, TrackerEstimate]:
         """No usable features: the proposals weighed by no evidence (the posterior is the prior)."""
-        return self.box.tracker.update(self.core, self.state, proposed, None, rng)
+        return self.tracker.update(self.core, self.state, proposed, None, rng)
+
+    def _proposal(self, proposed: Any, dt: float) -> Any:
+        """The proposed particles are the ``update`` argument."""
+        return proposed
 
 
 class BoxProposalStage(Stage[SeedBoxFields]):
     """The proposal stage of a box tracker (module docstring); a subclass sets ``kind``, ``Params``
-    (with the field ``timed``) and ``box``."""
+    (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass, with the field
+    ``timed``), and ``box``, the random walk of the tracker's spec. A tracker whose particles carry
+    more than alpha (the contour trackers' exemplar index k) sets ``purpose`` and overrides
+    ``_clouds`` instead: its proposal of whole clouds."""
 
-    box: ClassVar[BoxProposalSpec]
+    #: the random walk and its draws' constant, of the tracker's spec
+    box: ClassVar[BoxStages]
     inputs = {"particles": Particles}
     outputs = {"proposals": Particles}
     input_offsets = {"frames": -1}  # timed: frame t + 1 joins the posterior of t
@@ -438,15 +412,22 @@ class BoxProposalStage(Stage[SeedBoxFields]):
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
         self.done = 0
-        if self.box.clouds is not None:
-            self.propose: CloudProposal = self.box.clouds(params, ctx)
-            return
+        self.propose: CloudProposal = self._clouds(params, ctx)
+
+    @property
+    def purpose(self) -> int:
+        """The constant of the proposal's draws (``FrameRng.stream(purpose)``)."""
+        return self.box.purpose
+
+    def _clouds(self, params: Any, ctx: StageContext) -> CloudProposal:
+        """The proposal of whole clouds, made once from the stage's parameters and resources
+        (``ValueError`` for unusable ones); a ``ValueError`` it raises on a cloud is the input's error.
+        Here: the spec's walk of alpha, relative to the initial box's size."""
         if params.init is None:
-            raise ValueError(f"the {self.box.name} proposal needs the initial box (its random walk is relative to "
-                             "the box's size): set init: [x, y, w, h]")
-        tracker, walk = self.box.params, self.box.walk
-        assert tracker is not None and walk is not None
-        self.core: Any = tracker_params(params, tracker)
+            raise ValueError(f"the {self.kind.split('.')[0]} proposal needs the initial box (its random walk is "
+                             "relative to the box's size): set init: [x, y, w, h]")
+        walk = self.box.walk
+        self.core: Any = core_params(params)
         core: Any = self.core
         size0 = (float(params.init[2]), float(params.init[3]))
 
@@ -454,12 +435,12 @@ class BoxProposalStage(Stage[SeedBoxFields]):
             alpha = walk(core, cloud.alpha, size0, rng, dt)
             return ParticleCloud(alpha=alpha, k=np.zeros(cloud.n, np.int64), log_w=np.zeros(cloud.n))
 
-        self.propose = propose
+        return propose
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         msg, cloud, dt = posterior_input(self.ctx, inputs)
         t = seq + 1
-        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.box.purpose)
+        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.purpose)
         try:
             out = self.propose(cloud, rng, dt)
         except ValueError as e:

@@ -41,15 +41,16 @@ from gflow_core.contour import state as wire
 from gflow_core.contour.features_filter import FEATURE_FILTER
 from gflow_core.contour.observation import (exemplar_error, is_blank, reads_colour, reads_grey, same_profile,
                                             usable_chamfer, usable_grey)
-from gflow_core.contour.params import ChamferParams, ContourParams, M2Params
+from gflow_core.builtin_trackers import CHAMFER, M2
+from gflow_core.contour.params import ContourParams
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
-from gflow_core.m2.tracking import ParticleCloud
-from gflow_core.particles import weight_histogram
+from gflow_core.m2.tracking import ParticleCloud, weight_diagnostics
+from gflow_core.spec import TrackerSpec
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
-from .box_tracker import BoxFilterSpec, FeaturesFilterStage
+from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message, MessageError, bins_of
 from .tracker_params import SeedBoxFields, stage_params
 
@@ -70,27 +71,14 @@ class FilterFields(SeedBoxFields, frozen=True):
 FilterParams = stage_params("FilterParams", ContourParams, FilterFields, __name__,
                             "Particle filter settings: every field of :class:`gflow_core.contour.params.ContourParams` "
                             "(see it for meanings), ``init``, ``seed`` and ``model``.")
-ChamferFilterParams = stage_params("ChamferFilterParams", ChamferParams, FilterFields, __name__,
-                                   "The chamfer tracker's filter: every field of "
-                                   ":class:`gflow_core.contour.params.ChamferParams`, ``init`` and ``seed``.")
-M2FilterParams = stage_params("M2FilterParams", M2Params, FilterFields, __name__,
-                              "The M2 tracker's filter: every field of :class:`gflow_core.contour.params.M2Params`, "
-                              "``init``, ``seed`` and ``model`` (a learned contour model, required).")
-
-
-def _spec(name: str, params: type[ContourParams]) -> BoxFilterSpec:
-    """The contour trackers' filter on the generic stage: the protocol object over the features
-    (:data:`gflow_core.contour.features_filter.FEATURE_FILTER`); the proposal is the proposed cloud
-    itself, and the snapshot this module's own (``snapshot`` / ``restore`` below)."""
-    return BoxFilterSpec(name=name, tracker=FEATURE_FILTER, params=params, proposal=lambda cloud, dt: cloud,
-                         particles=lambda st: st.cloud.alpha, alpha_of=lambda a: a, particles_of=lambda a: a,
-                         snapshot=None)
 
 
 class FilterStage(FeaturesFilterStage):
     kind = "particle.filter"
     Params = FilterParams
-    box = _spec("contour", ContourParams)
+    #: the filter side of the tracker protocol over the preprocess stage's features; the proposal is the
+    #: proposed cloud itself, and the snapshot this module's own (``snapshot`` / ``restore`` below)
+    tracker = FEATURE_FILTER
     #: whether the stage needs a learned model (the ``model`` resource)
     needs_model: ClassVar[bool] = False
 
@@ -187,23 +175,9 @@ class FilterStage(FeaturesFilterStage):
 
     def _outputs(self, header: Header, est: TrackerEstimate, proposed: Any = None) -> list[Output]:
         """The posterior and the estimate messages (and the weights' diagnostics of ``proposed``)."""
-        if proposed is not None:
-            self._diagnose(proposed, np.asarray(est.extras["log_lik"]))
+        if proposed is not None:  # for summary() (stepping); not part of any output
+            self.diagnostics = weight_diagnostics(proposed, np.asarray(est.extras["log_lik"]))
         return super()._outputs(header, est)
-
-    def _diagnose(self, cloud: ParticleCloud, log_lik: np.ndarray) -> None:
-        """Weights before resampling, for ``summary()`` (stepping); not part of any output."""
-        lw = cloud.log_w + log_lik
-        if not np.isfinite(lw).any():
-            self.diagnostics = {}
-            return
-        best = int(np.argmax(lw))
-        self.diagnostics = {
-            "weights_N*W": weight_histogram(lw),
-            "best_particle": {"alpha": np.round(cloud.alpha[best], 3).tolist(), "k": int(cloud.k[best]),
-                              "log_lik": round(float(log_lik[best]), 4)},
-            "log_lik_range": [round(float(log_lik.min()), 4), round(float(log_lik.max()), 4)],
-        }
 
     def summary(self) -> dict:
         """The last estimate (seq, MAP alpha, ESS, state), the histogram of the relative weights
@@ -219,19 +193,19 @@ class FilterStage(FeaturesFilterStage):
         self.steps, self.warned, self.last = snap.steps, snap.warned, wire.last_of(snap)
 
 
-class ChamferFilterStage(FilterStage):
-    """The chamfer tracker's filter (graph ``chamfer``): its parameters derive from ``ChamferParams``."""
+def _filter_of(spec: TrackerSpec) -> type[FilterStage]:
+    """The filter stage of a contour tracker, made from its spec: kind ``spec.filter_kind``, parameters
+    every field of ``spec.params`` with those of :class:`FilterFields`, a learned model required when
+    the spec's is (``model_required``)."""
+    cap, cls = spec.name.capitalize(), spec.params
+    params = stage_params(f"{cap}FilterParams", cls, FilterFields, __name__,
+                          f"The {spec.name} tracker's filter: every field of :class:`{cls.__module__}.{cls.__name__}`, "
+                          f"``init``, ``seed`` and ``model``{' (a learned contour model, required)' * spec.model_required}.")
+    return type(f"{cap}FilterStage", (FilterStage,),
+                {"kind": spec.filter_kind, "Params": params, "needs_model": spec.model_required, "__module__": __name__,
+                 "__doc__": f"The {spec.name} tracker's filter (graph ``{spec.graph}``), made from its spec."})
 
-    kind = "chamfer.filter"
-    Params = ChamferFilterParams
-    box = _spec("chamfer", ChamferParams)
 
-
-class M2FilterStage(FilterStage):
-    """The M2 tracker's filter (graph ``m2``): its parameters derive from ``M2Params``; a learned
-    contour model is required."""
-
-    kind = "m2.filter"
-    Params = M2FilterParams
-    box = _spec("m2", M2Params)
-    needs_model = True
+ChamferFilterStage = _filter_of(CHAMFER)
+M2FilterStage = _filter_of(M2)
+ChamferFilterParams, M2FilterParams = ChamferFilterStage.Params, M2FilterStage.Params

@@ -30,14 +30,16 @@ The stage keeps no state that its outputs depend on; its snapshot holds the step
 
 from __future__ import annotations
 
-from typing import Any, Callable, ClassVar
+from typing import Any, ClassVar
 
 from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, proposal_dynamics
-from gflow_core.contour.params import ChamferParams, M2Params
+from gflow_core.builtin_trackers import CHAMFER, M2
+from gflow_core.contour.params import ChamferParams
 from gflow_core.m2.model import M2Model
+from gflow_core.spec import TrackerSpec
 
 from .base import Params, StageContext
-from .box_tracker import BoxProposalSpec, BoxProposalStage, CloudProposal, cloud_of, particles_msg
+from .box_tracker import BoxProposalStage, CloudProposal, cloud_of, particles_msg
 from .tracker_params import SeedBoxFields, stage_params
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
@@ -63,23 +65,20 @@ ProposalParams = stage_params("ProposalParams", ChamferParams, ProposalFields, _
                               "model's path; empty: the random walk), ``timed`` and the random walk's ``std_xy``, "
                               "``std_theta``, ``std_log_s`` (:class:`gflow_core.contour.params.ChamferParams`).",
                               only=("std_xy", "std_theta", "std_log_s"))
-ChamferProposalParams = stage_params("ChamferProposalParams", ChamferParams, ProposalFields, __name__,
-                                     "The chamfer tracker's proposal: every field of "
-                                     ":class:`gflow_core.contour.params.ChamferParams` (its random walk: "
-                                     "``std_xy``, ``std_theta``, ``std_log_s``), ``seed``, ``init`` and ``timed``.")
-M2ProposalParams = stage_params("M2ProposalParams", M2Params, ProposalFields, __name__,
-                                "The M2 tracker's proposal: every field of :class:`gflow_core.contour.params.M2Params`, "
-                                "``seed``, ``model`` (required: its dynamics), ``init`` and ``timed``.")
 
 
-def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], CloudProposal]:
-    """The contour proposal a stage's parameters and its ``model`` resource make
-    (:func:`proposal_dynamics`)."""
+class ProposalStage(BoxProposalStage):
+    kind = "particle.proposal"
+    Params: ClassVar[type[Params]] = ProposalParams
+    #: whether the stage needs a learned model (the ``model`` resource): its dynamics
+    needs_model: ClassVar[bool] = False
 
-    def clouds(params: Any, ctx: StageContext) -> CloudProposal:
+    def _clouds(self, params: Any, ctx: StageContext) -> CloudProposal:
+        """The contour proposal the stage's parameters and its ``model`` resource make
+        (:func:`proposal_dynamics`)."""
         model = ctx.resources.get("model")
-        if needs_model and model is None:
-            raise ValueError(f"stage {ctx.name!r}: {kind} needs a learned model: set model: MODEL.npz "
+        if self.needs_model and model is None:
+            raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
                              f"(`gflow learn m2`)")
         if model is not None and not isinstance(model, M2Model):
             raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
@@ -88,30 +87,25 @@ def _clouds(needs_model: bool, kind: str) -> Callable[[Any, StageContext], Cloud
         walk = None if model is not None else (params.std_xy, params.std_theta, params.std_log_s)
         return ContourProposal(*proposal_dynamics(model, params.init, walk))
 
-    return clouds
+    @property
+    def purpose(self) -> int:
+        return PURPOSE
 
 
-def _spec(name: str, needs_model: bool, kind: str) -> BoxProposalSpec:
-    return BoxProposalSpec(name=name, params=None, walk=None, purpose=PURPOSE, clouds=_clouds(needs_model, kind))
+def _proposal_of(spec: TrackerSpec) -> type[ProposalStage]:
+    """The proposal stage of a contour tracker, made from its spec: kind ``spec.proposal_kind``,
+    parameters every field of ``spec.params`` with those of :class:`ProposalFields`, a learned model
+    (its dynamics) required when the spec's is (``model_required``)."""
+    cap, cls = spec.name.capitalize(), spec.params
+    params = stage_params(f"{cap}ProposalParams", cls, ProposalFields, __name__,
+                          f"The {spec.name} tracker's proposal: every field of :class:`{cls.__module__}.{cls.__name__}`, "
+                          f"``seed``, ``model``{' (required: its dynamics)' * spec.model_required}, ``init`` and ``timed``.")
+    return type(f"{cap}ProposalStage", (ProposalStage,),
+                {"kind": spec.proposal_kind, "Params": params, "needs_model": spec.model_required,
+                 "__module__": __name__, "__doc__": f"The {spec.name} tracker's proposal (graph ``{spec.graph}``): "
+                 f"{'the learned model' if spec.model_required else 'the random walk'}'s dynamics, made from its spec."})
 
 
-class ProposalStage(BoxProposalStage):
-    kind = "particle.proposal"
-    Params: ClassVar[type[Params]] = ProposalParams
-    box = _spec("contour", False, "particle.proposal")
-
-
-class ChamferProposalStage(ProposalStage):
-    """The chamfer tracker's proposal (graph ``chamfer``): the random walk of ``ChamferParams``."""
-
-    kind = "chamfer.proposal"
-    Params = ChamferProposalParams
-    box = _spec("chamfer", False, "chamfer.proposal")
-
-
-class M2ProposalStage(ProposalStage):
-    """The M2 tracker's proposal (graph ``m2``): the learned model's dynamics (a model is required)."""
-
-    kind = "m2.proposal"
-    Params = M2ProposalParams
-    box = _spec("m2", True, "m2.proposal")
+ChamferProposalStage = _proposal_of(CHAMFER)
+M2ProposalStage = _proposal_of(M2)
+ChamferProposalParams, M2ProposalParams = ChamferProposalStage.Params, M2ProposalStage.Params

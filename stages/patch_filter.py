@@ -40,7 +40,7 @@ from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import StageContext, StageInputError
-from .box_tracker import BoxFilterSpec, FeaturesFilterStage
+from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message
 from .tracker_params import SeedBoxFields, stage_params
 
@@ -70,8 +70,7 @@ PatchFilterParams = stage_params("PatchFilterParams", PatchParams, PatchFields, 
 class PatchFilterStage(FeaturesFilterStage):
     kind = "patch.filter"
     Params = PatchFilterParams
-    box = BoxFilterSpec(name="patch", tracker=PATCH, params=PatchParams, proposal=lambda k, dt: k,
-                        particles=lambda st: st.k, alpha_of=lambda a: a, particles_of=lambda a: a, snapshot=None)
+    tracker = PATCH
     needs_init = False
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
@@ -79,12 +78,11 @@ class PatchFilterStage(FeaturesFilterStage):
         m = ctx.resources.get("model")
         if m is None:
             raise ValueError(f"stage {ctx.name!r}: the patch filter needs a learned model: set model: MODEL.npz")
-        if not isinstance(m, M2Model) or m.kind != "patch":
-            what = f"an M2 model with {m.metric} contour exemplars" if isinstance(m, M2Model) else type(m).__name__
-            raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is {what}; the patch filter needs patch "
-                             "exemplars (shuffle or l2)")
-        self.m2 = m
-        self.model: PatchExemplars = m.to_patch_exemplars()
+        try:
+            self.model: PatchExemplars = patch.patch_model(m)
+        except ValueError as e:
+            raise ValueError(f"stage {ctx.name!r}: model {params.model!r} {e}") from None
+        self.m2: M2Model = m
         self.resources = {"model": self.model}
 
     def _features(self, feat: Features, seq: int) -> np.ndarray | None:

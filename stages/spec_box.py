@@ -12,7 +12,7 @@ snapshot (:class:`gflow_msgs.snapshots.BoxFilterSnapshot`, the spec's ``snapshot
 the state as the spec's ``to_arrays`` gives it. The stages know the tracker only through its spec
 (:mod:`stages.registry` asks :func:`gflow_core.registry.trackers`). A stage module of a tracker with
 a snapshot Struct of its own (the appearance filter) takes the rest from its spec the same way
-(:func:`box_filter_spec` with its codec).
+(its protocol object and :class:`~gflow_core.spec.BoxStages` with a codec of its own).
 """
 
 from __future__ import annotations
@@ -24,12 +24,12 @@ import numpy as np
 from gflow_core.spec import TrackerSpec
 
 from .base import Stage
-from .box_tracker import BoxFilterSpec, BoxFilterStage, BoxProposalSpec, BoxProposalStage, SnapshotCodec
+from .box_tracker import BoxFilterStage, BoxProposalStage, SnapshotCodec
 from gflow_msgs.messages import NDArray
 from gflow_msgs.snapshots import BoxFilterSnapshot
 from .tracker_params import SeedBoxFields, stage_params
 
-__all__ = ["spec_stage_class", "box_filter_spec", "box_proposal_spec", "SpecProposalFields"]
+__all__ = ["spec_stage_class", "SpecProposalFields"]
 
 
 class SpecProposalFields(SeedBoxFields, frozen=True):
@@ -57,27 +57,6 @@ def _codec(spec: TrackerSpec) -> SnapshotCodec:
     return SnapshotCodec(BoxFilterSnapshot, box.snapshot_version, fields, state)
 
 
-def box_filter_spec(spec: TrackerSpec, snapshot: SnapshotCodec | None = None) -> BoxFilterSpec:
-    """What :class:`~stages.box_tracker.BoxFilterStage` needs of ``spec``'s tracker: its protocol
-    object, its conversions and the snapshot of its state as arrays (:class:`gflow_core.spec.BoxStages`),
-    or ``snapshot``, a codec of the stage module's own."""
-    box = spec.box
-    if box is None:
-        raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
-    return BoxFilterSpec(name=spec.name, tracker=spec.tracker(), params=spec.params, proposal=box.proposal,
-                         particles=box.particles, alpha_of=box.alpha_of, particles_of=box.particles_of,
-                         snapshot=snapshot or _codec(spec))
-
-
-def box_proposal_spec(spec: TrackerSpec) -> BoxProposalSpec:
-    """What :class:`~stages.box_tracker.BoxProposalStage` needs of ``spec``'s tracker: its random walk
-    (the tracker's update is not imported)."""
-    box = spec.box
-    if box is None:
-        raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
-    return BoxProposalSpec(name=spec.name, params=spec.params, walk=box.walk, purpose=box.purpose)
-
-
 def _title(name: str) -> str:
     return "".join(w.capitalize() for w in name.split("_"))
 
@@ -88,12 +67,12 @@ def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
     if spec.box is None:
         raise ValueError(f"tracker {spec.name} has no box stages (BoxStages) in its spec")
     base: type[Stage]
-    box: BoxFilterSpec | BoxProposalSpec
     fields: type[SeedBoxFields]
     if kind == spec.filter_kind:
-        role, base, fields, box, own = "Filter", BoxFilterStage, SeedBoxFields, box_filter_spec(spec), ""
+        role, base, fields, own = "Filter", BoxFilterStage, SeedBoxFields, ""
+        what = {"tracker": spec.tracker(), "codec": _codec(spec)}
     elif kind == spec.proposal_kind:
-        role, base, fields, box = "Proposal", BoxProposalStage, SpecProposalFields, box_proposal_spec(spec)
+        role, base, fields, what = "Proposal", BoxProposalStage, SpecProposalFields, {}
         own = " (the filter's values), ``seed``, ``init`` and ``timed``"
     else:
         raise KeyError(kind)
@@ -101,6 +80,6 @@ def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
     params = stage_params(f"{cap}{role}Params", cls, fields, __name__, f"{role} settings of tracker {spec.name}: "
                           f"every field of {cls.__name__}{own or ', ``seed`` and ``init``'}.")
     return type(f"{cap}{role}Stage", (base,),
-                {"kind": kind, "Params": params, "box": box, "__module__": __name__,
+                {"kind": kind, "Params": params, "box": spec.box, **what, "__module__": __name__,
                  "__doc__": f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}): "
                             f":mod:`stages.spec_box`."})

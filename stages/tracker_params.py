@@ -25,7 +25,7 @@ import msgspec
 
 from .base import Params
 
-__all__ = ["StageFields", "SeedBoxFields", "check_init", "stage_params", "tracker_params", "tracker_of", "block_params"]
+__all__ = ["StageFields", "SeedBoxFields", "check_init", "stage_params", "tracker_params", "core_params", "tracker_of", "block_params"]
 
 F = TypeVar("F", bound="StageFields")
 T = TypeVar("T")
@@ -119,3 +119,12 @@ def block_params(tracker: type) -> type[StageFields]:
 def tracker_params(params: Params, tracker: type[T]) -> T:
     """The tracker's dataclass of a stage's parameters (the fields of the same names)."""
     return tracker(**{f.name: getattr(params, f.name) for f in dataclasses.fields(typing.cast(Any, tracker))})
+
+
+def core_params(params: Params) -> Any:
+    """The tracker's dataclass of the parameters of one of its stages (the dataclass :func:`stage_params`
+    made the stage's struct of: :func:`tracker_of`)."""
+    tracker = tracker_of(type(params))
+    if tracker is None:
+        raise TypeError(f"{type(params).__name__} is not the parameters of a tracker's stage")
+    return tracker_params(params, tracker)

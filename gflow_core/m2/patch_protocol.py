@@ -40,12 +40,21 @@ from .patch_params import PatchParams, crop_of
 from .patch_tracking import PatchExemplars, init_k, patch_posterior, propose_k, weigh_patches
 from .snapshot_arrays import snapshot_codec
 
-__all__ = ["PatchParams", "PatchState", "PatchTracker", "PATCH", "crop_patch", "crop_of", "patch_setup", "PatchSnapshot",
+__all__ = ["PatchParams", "PatchState", "PatchTracker", "PATCH", "crop_patch", "crop_of", "patch_setup", "patch_model", "PatchSnapshot",
            "snapshot_of", "state_of", "encode", "decode", "PURPOSE_INIT_K", "PURPOSE_RESAMPLE", "SNAPSHOT_VERSION"]
 
 PURPOSE_INIT_K = 0x1418
 PURPOSE_RESAMPLE = 0x2E5B
 SNAPSHOT_VERSION = 1
+
+
+def patch_model(model: Any) -> PatchExemplars:
+    """The patch exemplars of a learned model; ``ValueError`` saying what it is instead (no M2 model, or one
+    with contour exemplars)."""
+    if not isinstance(model, M2Model) or model.kind != "patch":
+        what = f"an M2 model with {model.metric} contour exemplars" if isinstance(model, M2Model) else type(model).__name__
+        raise ValueError(f"is {what}; the patch filter needs patch exemplars (shuffle or l2)")
+    return model.to_patch_exemplars()
 
 
 def patch_setup(model: M2Model, meta: Mapping[str, Any],

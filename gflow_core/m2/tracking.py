@@ -31,14 +31,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .. import similarity
-from ..particles import LogWeights, systematic_resample
+from ..particles import LogWeights, systematic_resample, weight_histogram
 from .chamfer import chamfer_distance
 from .dynamics import ARDynamics, sample_markov
 
 #: Default particles per block in :func:`weigh`.
 WEIGH_CHUNK = 256
 
-__all__ = ["ContourExemplars", "ParticleCloud", "Posterior", "propose", "weigh", "posterior",
+__all__ = ["ContourExemplars", "ParticleCloud", "Posterior", "propose", "weigh", "posterior", "weight_diagnostics",
            "init_particles", "template_from_edges"]
 
 
@@ -341,6 +341,22 @@ def posterior(proposed: ParticleCloud, log_lik: np.ndarray, K: int, rng: np.rand
     return Posterior(map_alpha=proposed.alpha[i_map].copy(), map_k=int(proposed.k[i_map]), mean_alpha=mean,
                      std_alpha=std, ess=weights.ess, log_evidence=weights.log_mean, k_hist=k_hist,
                      resampled=resampled)
+
+
+def weight_diagnostics(proposed: ParticleCloud, log_lik: np.ndarray) -> dict:
+    """The weights of ``proposed`` before resampling, for stepping through a filter (no output depends on
+    them): the histogram of the relative weights N W_i, the best particle (alpha, k, its log-likelihood)
+    and the range of ``log_lik`` (N,); empty when no weight is finite."""
+    lw = proposed.log_w + log_lik
+    if not np.isfinite(lw).any():
+        return {}
+    best = int(np.argmax(lw))
+    return {
+        "weights_N*W": weight_histogram(lw),
+        "best_particle": {"alpha": np.round(proposed.alpha[best], 3).tolist(), "k": int(proposed.k[best]),
+                          "log_lik": round(float(log_lik[best]), 4)},
+        "log_lik_range": [round(float(log_lik.min()), 4), round(float(log_lik.max()), 4)],
+    }
 
 
 def curve_box(points: np.ndarray) -> tuple[float, float, float, float]:
