@@ -5,10 +5,10 @@ The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & M
 processes needs beyond that (the configuration digest, the shards, the proposals' background
 replica) is :mod:`gflow_core.gflow.split`. Both stages take every field of
 :class:`gflow_core.gflow.GFlowParams` (:func:`stages.tracker_params.stage_params`), place the model
-the same way on the first usable frame (:func:`prepare`: a user morphable model, resource
-``model``, or the generic head fitted into the initial box, clipped to the frame) and compute the
-same digest, which travels in every :class:`ExpertStates` and :class:`PoseProposals` message and is
-checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
+the same way on the first usable frame (:func:`gflow_core.gflow.split.placed`, the filter's through
+its tracker's ``init``: a user morphable model, resource ``model``, or the generic head fitted into
+the initial box, clipped to the frame) and compute the same digest, which travels in every
+:class:`ExpertStates` and :class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
 checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
 (:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
 ``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
@@ -34,8 +34,7 @@ from typing import Any, Mapping, TypeVar
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import (check_experts, check_frame_size, check_shard, message_dims, placed,
-                                    restored_setup)
+from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, message_dims, restored_setup
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -45,8 +44,8 @@ from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, P
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["GFlowStageFields", "GFlowStage", "initial_box", "prepare", "frame_of", "check_size", "unpack_states",
-           "unpack_proposals", "snapshot_setup"]
+__all__ = ["GFlowStageFields", "GFlowStage", "initial_box", "frame_of", "unpack_states", "unpack_proposals",
+           "snapshot_setup"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -96,10 +95,12 @@ class GFlowStage(Stage[F]):
             obs, problem = self.prepared("features", feat)
             if problem:
                 self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
-            return check_size(obs, seq, shape)
+            return check_frame_size(obs, shape)
         except StageInputError as e:
             self.report("bad_features", f"{e}; {then}", seq)
-            return None
+        except ValueError as e:  # another size than the frames the model was placed on
+            self.report("bad_features", f"frame {seq}: {e}; frame skipped; {then}", seq)
+        return None
 
     def _init_failed(self, seq: int, error: str, then: str = "") -> None:
         """Report that the model cannot be placed on frame ``seq`` (``error``; ``then``: what the stage does
@@ -114,23 +115,6 @@ def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:
     if fields.init is None:
         raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
     return fields.init
-
-
-def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
-            shape: tuple[int, int]) -> tuple[ModelSetup, str]:
-    """The model placed in the initial box on frames of ``shape``, and its digest
-    (:func:`gflow_core.gflow.split.placed`; identically in both stages).
-
-    Raises
-    ------
-    StageInputError
-        No initial box, a box outside the frame, a ``model`` resource that is not a morphable
-        model, or a model that cannot be placed in the box.
-    """
-    try:
-        return placed(tracker, initial_box(fields), fields.seed, shape, resources.get("model"))
-    except ValueError as e:
-        raise StageInputError(str(e)) from None
 
 
 def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:
@@ -151,15 +135,6 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation
     except ValueError as e:
         raise StageInputError(f"frame {seq}: {e}") from None
     return obs
-
-
-def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -> GFlowObservation:
-    """:func:`gflow_core.gflow.split.check_frame_size` of frame ``seq``, its ValueError a
-    StageInputError: the frame is skipped."""
-    try:
-        return check_frame_size(obs, shape)
-    except ValueError as e:
-        raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
 
 
 def snapshot_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],

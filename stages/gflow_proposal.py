@@ -43,11 +43,11 @@ import msgspec
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSetup, Proposals
-from gflow_core.gflow.split import BackgroundReplica, expert_state, shard_indices
+from gflow_core.gflow.split import BackgroundReplica, expert_state, placed, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, StageContext, StageInputError, versioned_snapshot
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, prepare, snapshot_setup, unpack_states
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_states
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
@@ -126,9 +126,10 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
         """Place the model on the first usable frame, as the filter does on the same frame."""
         if obs is None:
             return
-        try:
-            self.setup, self.digest = prepare(self.params, self.tracker, self.ctx.resources, obs.grey.shape)
-        except StageInputError as e:
+        try:  # no initial box, a box outside the frame, a model resource that cannot be placed in it
+            self.setup, self.digest = placed(self.tracker, initial_box(self.params), self.params.seed, obs.grey.shape,
+                                             self.ctx.resources.get("model"))
+        except ValueError as e:
             self._init_failed(seq, str(e))
             return
         self.init_seq = seq
