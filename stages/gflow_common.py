@@ -5,10 +5,10 @@ The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & M
 processes needs beyond that (the configuration digest, the shards, the proposals' background
 replica) is :mod:`gflow_core.gflow.split`. Both stages take every field of
 :class:`gflow_core.gflow.GFlowParams` (:func:`stages.tracker_params.stage_params`), place the model
-the same way on the first usable frame (:func:`prepare`: a user morphable model, resource
-``model``, or the generic head fitted into the initial box, clipped to the frame) and compute the
-same digest, which travels in every :class:`ExpertStates` and :class:`PoseProposals` message and is
-checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
+the same way on the first usable frame (:func:`gflow_core.gflow.split.placed`, the filter's through
+its tracker's ``init``: a user morphable model, resource ``model``, or the generic head fitted into
+the initial box, clipped to the frame) and compute the same digest, which travels in every
+:class:`ExpertStates` and :class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
 checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
 (:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
 ``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
@@ -18,28 +18,34 @@ not a particle cloud but the experts (:class:`ExpertStates`, whose backgrounds s
 processes) and sharded pose opinions (one port a shard, each checked against the digest), the time
 step travels with the proposals, a first frame the model cannot be placed on is waited past rather
 than refused, and an update that fails coasts. Each of these is a step the box stages would have to
-hand over, which would leave them nothing of their own.
+hand over, which would leave them nothing of their own. What the two G-flow stages do alike is
+:class:`GFlowStage`'s: the tracker's parameters, a frame's features read into the prepared
+observation (or reported missing or bad, with what the stage does without it), and a first frame
+the model cannot be placed on reported once and waited past. The rules themselves are the
+tracker's (:meth:`gflow_core.gflow.GFlowTracker.update_or_coast`, ``with_bins``) and
+:mod:`gflow_core.gflow.split`'s (the digest, the shards, the arrays' dimensions,
+:func:`gflow_core.gflow.split.message_dims`).
 """
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import Any, Mapping, TypeVar
 
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, placed, restored_setup
+from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, message_dims, restored_setup
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
-from .base import StageInputError
+from .base import Stage, StageContext, StageInputError
 from gflow_msgs.gflow import read_proposals, read_states
-from gflow_msgs.messages import ExpertStates, Features, MessageError, PoseProposals
+from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from .time_step import MAX_TIME_STEP
-from .tracker_params import SeedBoxFields
+from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["GFlowStageFields", "initial_box", "prepare", "frame_of", "check_size", "unpack_states",
-           "unpack_proposals", "snapshot_setup"]
+__all__ = ["GFlowStageFields", "GFlowStage", "initial_box", "frame_of", "unpack_states", "unpack_proposals",
+           "snapshot_setup"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -55,28 +61,60 @@ class GFlowStageFields(SeedBoxFields, frozen=True):
         check_shard(tracker.n_experts, getattr(self, "shard", 0), getattr(self, "shards"))
 
 
+F = TypeVar("F", bound=GFlowStageFields)
+
+
+class GFlowStage(Stage[F]):
+    """What both G-flow stages do alike (module docstring). A subclass sets ``kind``, ``Params``,
+    ``inputs`` and ``outputs`` and gives :meth:`prepare`: (the frame's observation as the stage reads it,
+    what was wrong with its colour bins or "")."""
+
+    drivers = frozenset({"features"})
+    prepare_ports = frozenset({"features"})
+
+    def __init__(self, params: F, ctx: StageContext) -> None:
+        super().__init__(params, ctx)
+        self.tracker: GFlowParams = tracker_params(params, GFlowParams)
+        self.digest = ""
+        self.steps = 0
+        self.init_error = ""
+        self.last: dict[str, Any] = {}
+
+    def _frame(self, feat: Message | None, seq: int, shape: tuple[int, int] | None, then: str,
+               missing: bool = True) -> GFlowObservation | None:
+        """:meth:`prepare`'s observation of frame ``seq``'s features (made ahead or now), of a frame of
+        ``shape`` (H, W) (None: any size), or None when there is none: no features (reported as
+        ``missing_features`` when ``missing``) or a frame that cannot be used (``bad_features``), each
+        report ending with ``then``, what the stage does without it. Bad colour bins are reported too:
+        the lost guard weighs the edges alone on that frame."""
+        if not isinstance(feat, Features):
+            if missing:
+                self.report("missing_features", f"frame {seq}: no features arrived; {then}", seq)
+            return None
+        try:
+            obs, problem = self.prepared("features", feat)
+            if problem:
+                self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
+            return check_frame_size(obs, shape)
+        except StageInputError as e:
+            self.report("bad_features", f"{e}; {then}", seq)
+        except ValueError as e:  # another size than the frames the model was placed on
+            self.report("bad_features", f"frame {seq}: {e}; frame skipped; {then}", seq)
+        return None
+
+    def _init_failed(self, seq: int, error: str, then: str = "") -> None:
+        """Report that the model cannot be placed on frame ``seq`` (``error``; ``then``: what the stage does
+        meanwhile), once for each distinct reason rather than on every frame it waits past."""
+        if error != self.init_error:
+            self.init_error = error
+            self.report("init_failed", f"frame {seq}: {error}" + (f"; {then}" if then else ""), seq)
+
+
 def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:
     """The stage's initial box. Raises StageInputError when it has none."""
     if fields.init is None:
         raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
     return fields.init
-
-
-def prepare(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
-            shape: tuple[int, int]) -> tuple[ModelSetup, str]:
-    """The model placed in the initial box on frames of ``shape``, and its digest
-    (:func:`gflow_core.gflow.split.placed`; identically in both stages).
-
-    Raises
-    ------
-    StageInputError
-        No initial box, a box outside the frame, a ``model`` resource that is not a morphable
-        model, or a model that cannot be placed in the box.
-    """
-    try:
-        return placed(tracker, initial_box(fields), fields.seed, shape, resources.get("model"))
-    except ValueError as e:
-        raise StageInputError(str(e)) from None
 
 
 def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:
@@ -99,15 +137,6 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation
     return obs
 
 
-def check_size(obs: GFlowObservation, seq: int, shape: tuple[int, int] | None) -> GFlowObservation:
-    """:func:`gflow_core.gflow.split.check_frame_size` of frame ``seq``, its ValueError a
-    StageInputError: the frame is skipped."""
-    try:
-        return check_frame_size(obs, shape)
-    except ValueError as e:
-        raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
-
-
 def snapshot_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
                    image_shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
     """The model placed again for a snapshot made on frames of ``image_shape`` with ``digest``
@@ -124,8 +153,7 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     :func:`gflow_core.gflow.split.check_experts` (another frame size, bad parents, a texture anchor
     missing or unexpected); either's error a StageInputError prefixed with ``where``."""
     try:
-        out = read_states(msg, {"E": setup.cfg.n_experts, "P": setup.model.pose_size, "n": setup.model.n_vertices},
-                          digest)
+        out = read_states(msg, message_dims(setup), digest)
         check_experts(setup, msg.image_shape, out["parents"], msg.tex_anchor is not None)
     except ValueError as e:  # MessageError too
         raise StageInputError(f"{where}: {e}") from None
@@ -137,7 +165,6 @@ def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: 
     """:class:`gflow_core.gflow.Proposals` of a shard's message (:func:`gflow_msgs.gflow.read_proposals`;
     its error, an empty shard's too, a StageInputError prefixed with ``where``)."""
     try:
-        return Proposals(**read_proposals(msg, digest, shard, shards, expected,
-                                          {"P": setup.model.pose_size, "s": setup.cfg.n_samples}, MAX_TIME_STEP))
+        return Proposals(**read_proposals(msg, digest, shard, shards, expected, message_dims(setup), MAX_TIME_STEP))
     except MessageError as e:
         raise StageInputError(f"{where}: {e}") from None

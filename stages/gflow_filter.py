@@ -6,7 +6,7 @@ which the proposal stages turn into the proposals of t + 1) and ``estimate`` (:c
 
 The stage is an adapter of :class:`gflow_core.gflow.GFlowTracker`: the first usable frame is its
 ``init`` (the model placed in ``init``, or a user morphable model, resource ``model``), every other
-frame its ``update`` of the shards' proposals, concatenated, or its ``coast``; the mathematics, the
+frame its ``update_or_coast`` of the shards' proposals, concatenated; the mathematics, the
 estimate's fields and the lost guard's verdicts are documented there and in
 :class:`gflow_msgs.gflow.PoseEstimate`. The filter never holds the background textures: the
 proposal stages do (``stages/gflow_proposal.py``), and ``init`` runs with ``backgrounds=False``.
@@ -18,7 +18,8 @@ orientation channels, depends on the frame alone: the stage makes it in ``prepar
 Coasting. A missing or unusable frame, missing or bad proposals (another configuration's digest,
 another shard's experts, wrong shapes), or an update that fails make the filter coast (the experts
 keep their poses and credibilities, their texels are only predicted, eq. 9, 10; ``state =
-"coast"``), and the problem is reported. The state message is published on every frame, so the
+"coast"``; the rule is the tracker's, :meth:`gflow_core.gflow.GFlowTracker.update_or_coast`), and
+the problem is reported. The state message is published on every frame, so the
 proposal -> filter cycle never stalls.
 
 The snapshot (version 2) holds the experts, the guard's anchor and distributions; a version-1
@@ -27,7 +28,6 @@ snapshot restores with the guard off.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Mapping
 
 import msgspec
@@ -40,15 +40,15 @@ from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_f
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
-from .base import Output, Stage, StageContext, StageInputError, versioned_snapshot
-from .gflow_common import (GFlowStageFields, check_size, frame_of, initial_box, snapshot_setup,
-                           unpack_proposals, unpack_states)
+from .base import Output, StageContext, StageInputError, versioned_snapshot
+from .gflow_common import (GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_proposals,
+                           unpack_states)
 from gflow_msgs.gflow import pose_estimate_of, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .rng import tracker_rng
-from .tracker_params import stage_params, tracker_params
+from .tracker_params import stage_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams"]
 
@@ -68,13 +68,11 @@ class GFlowFilterFields(GFlowStageFields, frozen=True):
 GFlowFilterParams = stage_params("GFlowFilterParams", GFlowParams, GFlowFilterFields, __name__)
 
 
-class GFlowFilterStage(Stage[GFlowFilterFields]):
+class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
     kind = "gflow.filter"
     Params = GFlowFilterParams
     inputs = {"features": Features, "proposals0": PoseProposals}
     outputs = {"state": ExpertStates, "estimate": PoseEstimate}
-    drivers = frozenset({"features"})
-    prepare_ports = frozenset({"features"})
 
     @classmethod
     def ports(cls, params: GFlowFilterFields) -> tuple[Mapping[str, type], Mapping[str, type]]:
@@ -84,14 +82,9 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
 
     def __init__(self, params: GFlowFilterFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        self.tracker: GFlowParams = tracker_params(params, GFlowParams)
         self.state: GFlowState | None = None
-        self.digest = ""
         self.shard_idx = [shard_indices(self.tracker.n_experts, k, params.shards) for k in range(params.shards)]
-        self.steps = 0
         self.coasted = 0
-        self.init_error = ""
-        self.last: dict[str, Any] = {}
 
     # the first frame only needs features; afterwards the proposals of every shard too
     def required(self, seq: int) -> frozenset[str]:
@@ -102,30 +95,16 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         feat = inputs.get("features")
         if self.state is None:
             return self._initialise(seq, feat)
-        state = self.state
-        obs = None
-        if isinstance(feat, Features):
-            try:
-                obs = check_size(self._observed(feat, seq), seq, state.setup.image_shape)
-            except StageInputError as e:
-                self.report("bad_features", f"{e}; coasting", seq)
-        else:
-            self.report("missing_features", f"frame {seq}: no features arrived; coasting", seq)
+        obs = self._frame(feat, seq, self.state.setup.image_shape, "coasting")
         props = self._proposals(seq, inputs) if obs is not None else None
         header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
-        rng = tracker_rng(self.params.seed, self.ctx.stream, seq)
-        if obs is not None and props is not None:
-            try:
-                new, est = TRACKER.update(self.tracker, state, props, obs, rng)
-            except (ValueError, np.linalg.LinAlgError) as e:
-                self.report("update_failed", f"frame {seq}: {type(e).__name__}: {e}; coasting", seq)
-            else:
-                self.state = new
-                self.steps += 1
-                return self._outputs(header, new, est)
-        new, est = TRACKER.coast(self.tracker, state, rng, obs)
+        # the update of the shards' proposals, or coasting without them, without the frame or when it fails
+        new, est, failure = TRACKER.update_or_coast(self.tracker, self.state, props, obs,
+                                                    tracker_rng(self.params.seed, self.ctx.stream, seq))
+        if failure is not None:
+            self.report("update_failed", f"frame {seq}: {failure}; coasting", seq)
         self.state = new
-        self.coasted += 1
+        self.coasted += int(obs is None or props is None or failure is not None)
         self.steps += 1
         return self._outputs(header, new, est)
 
@@ -147,25 +126,10 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         what was wrong with the bins ("" when nothing was). Raises StageInputError for a frame that
         cannot be used."""
         assert isinstance(msg, Features)
-        obs, problem = self._with_bins(msg, frame_of(msg, msg.header.seq, self.tracker))
-        return TRACKER.with_channels(self.tracker, obs), problem
-
-    def _observed(self, feat: Features, seq: int) -> GFlowObservation:
-        """:meth:`prepare`'s observation of ``feat`` (made ahead or now), its bins' problem reported:
-        the guard weighs the edges alone on that frame."""
-        obs, problem = self.prepared("features", feat)
-        if problem:
-            self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
-        return obs
-
-    def _with_bins(self, feat: Features, obs: GFlowObservation) -> tuple[GFlowObservation, str]:
-        """``obs`` with the frame's colour bins for the lost guard's colour cue, when the features carry
-        them (the preprocess stage's ``colour``) and the guard weighs colour, and what was wrong with
-        bad bins ("" when nothing was; then the observation has none)."""
-        if not TRACKER.reads_colour(self.tracker):
-            return obs, ""
-        bins, problem = bins_of(feat, obs.grey.shape)
-        return (obs if bins is None else dataclasses.replace(obs, bins=bins)), problem
+        obs = frame_of(msg, msg.header.seq, self.tracker)
+        # the features' colour bins (the preprocess stage's ``colour``), read only when the guard weighs colour
+        bins, problem = bins_of(msg, obs.grey.shape) if TRACKER.reads_colour(self.tracker) else (None, "")
+        return TRACKER.with_channels(self.tracker, TRACKER.with_bins(self.tracker, obs, bins)), problem
 
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
         """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""
@@ -187,22 +151,17 @@ class GFlowFilterStage(Stage[GFlowFilterFields]):
         return concatenate_proposals(parts)
 
     def _initialise(self, seq: int, feat: Message | None) -> list[Output]:
-        if not isinstance(feat, Features):
+        obs = self._frame(feat, seq, None, "waiting for a usable first frame", missing=False)
+        if obs is None:
             return []
-        try:
-            obs = self._observed(feat, seq)
-        except StageInputError as e:
-            self.report("bad_features", f"{e}; waiting for a usable first frame", seq)
-            return []
+        assert isinstance(feat, Features)
         try:
             box = initial_box(self.params)
             # the filter keeps no backgrounds: the proposal stages start them from this frame
             state, est = TRACKER.init(self.tracker, obs, box, tracker_rng(self.params.seed, self.ctx.stream, seq),
                                       self.ctx.resources, backgrounds=False)
         except ValueError as e:
-            if str(e) != self.init_error:  # once, not on every frame
-                self.init_error = str(e)
-                self.report("init_failed", f"frame {seq}: {e}; not tracking", seq)
+            self._init_failed(seq, str(e), "not tracking")
             return []
         setup = state.setup
         if setup.clipped:

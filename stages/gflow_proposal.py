@@ -43,19 +43,18 @@ import msgspec
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSetup, Proposals
-from gflow_core.gflow.split import BackgroundReplica, expert_state, shard_indices
+from gflow_core.gflow.split import BackgroundReplica, expert_state, placed, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
-from .base import Output, Stage, StageContext, StageInputError, versioned_snapshot
-from .gflow_common import (GFlowStageFields, check_size, frame_of, prepare, snapshot_setup,
-                           unpack_states)
+from .base import Output, StageContext, StageInputError, versioned_snapshot
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_states
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
 from .rng import tracker_rng
 from .time_step import time_step
-from .tracker_params import stage_params, tracker_params
+from .tracker_params import stage_params
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 
@@ -77,26 +76,19 @@ class GFlowProposalFields(GFlowStageFields, frozen=True):
 GFlowProposalParams = stage_params("GFlowProposalParams", GFlowParams, GFlowProposalFields, __name__)
 
 
-class GFlowProposalStage(Stage[GFlowProposalFields]):
+class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
     kind = "gflow.proposal"
     Params = GFlowProposalParams
     inputs = {"features": Features, "state": ExpertStates}
     outputs = {"proposals": PoseProposals}
-    drivers = frozenset({"features"})
     input_offsets = {"state": 1}
-    prepare_ports = frozenset({"features"})
 
     def __init__(self, params: GFlowProposalFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        self.tracker: GFlowParams = tracker_params(params, GFlowParams)
         self.indices = shard_indices(self.tracker.n_experts, params.shard, params.shards)
         self.setup: ModelSetup | None = None
-        self.digest = ""
         self.init_seq: int | None = None
         self.replica = BackgroundReplica()  # and the last usable frame
-        self.steps = 0
-        self.init_error = ""
-        self.last: dict[str, Any] = {}
 
     def required(self, seq: int) -> frozenset[str]:
         # before (and at) the frame the filter starts from there is no state to wait for
@@ -105,23 +97,18 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         return frozenset({"features", "state"})
 
     # -- one frame ---------------------------------------------------------------------------
-    def prepare(self, port: str, msg: Message) -> GFlowObservation:
+    def prepare(self, port: str, msg: Message) -> tuple[GFlowObservation, str]:
         """What G-flow reads of a frame and the pyramid its proposals need (:meth:`GFlowTracker.with_pyramid`),
         which depend on the frame alone: made as soon as it arrives, while the stage waits for the
-        experts. Raises StageInputError for a frame that cannot be used."""
+        experts; and "" (the proposals read no colour bins). Raises StageInputError for a frame that
+        cannot be used."""
         assert isinstance(msg, Features)
-        return TRACKER.with_pyramid(self.tracker, frame_of(msg, msg.header.seq, self.tracker))
+        return TRACKER.with_pyramid(self.tracker, frame_of(msg, msg.header.seq, self.tracker)), ""
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         feat = inputs.get("features")
-        obs = None
-        if isinstance(feat, Features):
-            try:
-                obs = check_size(self.prepared("features", feat), seq, self.setup.image_shape if self.setup else None)
-            except StageInputError as e:
-                self.report("bad_features", f"{e}; no proposals for this frame", seq)
-        elif self.init_seq is not None:
-            self.report("missing_features", f"frame {seq}: no features arrived; no proposals for this frame", seq)
+        obs = self._frame(feat, seq, self.setup.image_shape if self.setup else None, "no proposals for this frame",
+                          missing=self.init_seq is not None)
         if self.init_seq is None:
             self._initialise(seq, obs)
             return []
@@ -139,12 +126,11 @@ class GFlowProposalStage(Stage[GFlowProposalFields]):
         """Place the model on the first usable frame, as the filter does on the same frame."""
         if obs is None:
             return
-        try:
-            self.setup, self.digest = prepare(self.params, self.tracker, self.ctx.resources, obs.grey.shape)
-        except StageInputError as e:
-            if str(e) != self.init_error:  # say it once, not on every frame
-                self.init_error = str(e)
-                self.report("init_failed", f"frame {seq}: {e}", seq)
+        try:  # no initial box, a box outside the frame, a model resource that cannot be placed in it
+            self.setup, self.digest = placed(self.tracker, initial_box(self.params), self.params.seed, obs.grey.shape,
+                                             self.ctx.resources.get("model"))
+        except ValueError as e:
+            self._init_failed(seq, str(e))
             return
         self.init_seq = seq
         self.replica = self.replica.seen(seq, obs.grey)

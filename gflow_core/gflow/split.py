@@ -11,6 +11,7 @@ arguments of these calls and results into messages:
 * :func:`check_shard`, :func:`shard_indices` -- which shards a run may have, and the experts of one;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
+* :func:`message_dims` -- the dimensions of the arrays that travel (E, P, n, s);
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
 * :func:`check_frame_size` -- a later frame checked against the size the model was placed on;
 * :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes.
@@ -34,7 +35,7 @@ from .filter import ExpertState, advance_background, initial_background, predict
 from .params import GFlowParams
 from .tracker import GFlowObservation, ModelSetup, model_setup
 
-__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices",
+__all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
            "BackgroundReplica", "expert_state", "check_frame_size", "check_experts"]
 
 
@@ -94,6 +95,13 @@ def check_shard(n_experts: int, shard: int, shards: int) -> None:
 def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
     """The experts of one shard: contiguous blocks of ``range(n_experts)`` (``numpy.array_split``)."""
     return np.array_split(np.arange(n_experts, dtype=np.int64), shards)[shard]
+
+
+def message_dims(setup: ModelSetup) -> dict[str, int]:
+    """The dimensions of the arrays that travel between the processes for ``setup``: ``E`` experts,
+    pose size ``P``, ``n`` vertices and ``s`` samples of each expert's pose opinion."""
+    return {"E": setup.cfg.n_experts, "P": setup.model.pose_size, "n": setup.model.n_vertices,
+            "s": setup.cfg.n_samples}
 
 
 def expert_state(setup: ModelSetup, arrays: Mapping[str, Any], bg: tuple[Any, Any] | None = None) -> ExpertState:

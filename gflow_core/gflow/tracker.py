@@ -266,6 +266,15 @@ class GFlowTracker:
             return obs
         return dataclasses.replace(obs, channels=guard.channels(obs.grey))
 
+    def with_bins(self, params: GFlowParams, obs: GFlowObservation, bins: np.ndarray | None) -> GFlowObservation:
+        """``obs`` with a colour frame's bins ``bins`` (H, W) uint8 made elsewhere (a pipeline's
+        preprocess stage, :func:`gflow_core.colour.bins`) when the tracker reads colour
+        (:meth:`reads_colour`); ``obs`` as it is without bins (a grey frame, or bins that could not be
+        used: the lost guard then weighs edges alone) or when it does not read them."""
+        if bins is None or not self.reads_colour(params):
+            return obs
+        return dataclasses.replace(obs, bins=bins)
+
     # -- the filter -----------------------------------------------------------------------------
     def init(self, params: GFlowParams, obs: GFlowObservation, box: Box, rng: FrameRng,
              resources: Mapping[str, Any], *, backgrounds: bool = True) -> tuple[GFlowState, Estimate]:
@@ -436,6 +445,25 @@ class GFlowTracker:
         out = dataclasses.replace(state, experts=dataclasses.replace(st, tex_mean=tex_mean, tex_var=tex_var,
                                                                      bg_mean=bg_mean, bg_var=bg_var))
         return out, self.summary_estimate(out, rng.t, "coast")
+
+    def update_or_coast(self, params: GFlowParams, state: GFlowState, proposal: Proposals | None,
+                        obs: GFlowObservation | None, rng: FrameRng) -> tuple[GFlowState, Estimate, str | None]:
+        """:meth:`update` with ``proposal`` and ``obs`` when there are both, else :meth:`coast`; an update
+        that fails (a ``ValueError`` or ``LinAlgError`` of degenerate proposals) coasts too, so one bad
+        frame never ends the track.
+
+        Returns the state, the estimate (phase ``coast`` when it coasted) and, when the update failed,
+        why (``"LinAlgError: ..."``; None otherwise)."""
+        failure = None
+        if obs is not None and proposal is not None:
+            try:
+                new, est = self.update(params, state, proposal, obs, rng)
+            except (ValueError, np.linalg.LinAlgError) as e:
+                failure = f"{type(e).__name__}: {e}"
+            else:
+                return new, est, None
+        new, est = self.coast(params, state, rng, obs)
+        return new, est, failure
 
     # -- the estimate ---------------------------------------------------------------------------
     def summary_estimate(self, state: GFlowState, t: int, phase: str) -> Estimate:
