@@ -179,3 +179,9 @@ def test_a_repeat_of_the_last_message_is_no_error_but_another_of_its_frame_is() 
     assert h.stats.repeats == 1 and not h.stats.rejected and not errors
     h.deliver("frames", frame(2, value=9))  # another frame 2
     assert h.stats.rejected == {"duplicate_seq": 1} and errors == ["ErrorReport"]
+    # killed after sending frame 3, before its checkpoint: it resends frame 2 (its checkpoint's
+    # outputs) and then steps frame 3 again, the same bytes as before the kill
+    h.deliver("frames", frame(3))
+    h.deliver("frames", frame(2))
+    h.deliver("frames", frame(3))
+    assert h.stats.repeats == 3 and h.stats.rejected == {"duplicate_seq": 1}, (h.stats.repeats, h.stats.rejected)

@@ -11,8 +11,8 @@ flow-control window ahead of the source when the source's position is known), it
 larger than the frame size the source declared) and, for particles, finite values. A
 message that fails is counted per kind (``HostStats.rejected``, sent in the heartbeat),
 reported on the error topic, and never joined.
-A port's last message again, byte for byte (a restarted producer resends its last step's
-outputs), is no error: it is counted (``HostStats.repeats``) and ignored.
+One of a port's last :data:`REPEAT_MEMORY` messages again, byte for byte (a restarted producer
+resends its last step's outputs, then steps again from its checkpoint), is no error: it is counted (``HostStats.repeats``) and ignored.
 
 Preparing ahead (``ahead``, on in a stage process, off in ``--inline``): a message on one of
 the stage's ``prepare_ports`` is handed, once joined, to ``stage.prepare`` on a second
@@ -52,6 +52,9 @@ Publish = Callable[[str, bytes, int, str], None]
 
 #: prepared results a host holds at most (each may be a frame's features: 1.8 MB at 384x288x4 float32)
 AHEAD_LIMIT = 4
+#: messages per port remembered to tell a restarted producer's repeats (byte for byte) from errors:
+#: the step before its checkpoint and the step it was killed in
+REPEAT_MEMORY = 3
 
 
 @dataclass
@@ -122,7 +125,9 @@ class StageHost:
         self.frame_shape: tuple[int, int] | None = None  # (H, W) the source declared
         self.on_step = on_step
         self.replayed_upto: dict[str, int] = {}  # after a restart: inputs already taken from the recording
-        self.last_in: dict[str, bytes] = {}  # port -> the last payload that came on it
+        # port -> the last payloads that came on it (a restarted producer resends its last step's
+        # outputs, then steps again from its checkpoint: both may have arrived before the kill)
+        self.last_in: dict[str, deque[bytes]] = {}
         self.hold = False  # a peer is restarting: do not give inputs up for lateness (see tick)
         self._head: tuple[int, float] = (-1, 0.0)  # (lowest pending seq, when tick first saw it lowest)
         self.stats = HostStats()
@@ -281,12 +286,14 @@ class StageHost:
         if port is None:
             return
         self.stats.received[port] = self.stats.received.get(port, 0) + 1
-        if self.last_in.get(port) == payload:
-            # the message before, byte for byte: a restarted producer sends its last step's outputs
-            # again (they may not have left before it was killed); what the first copy did stands
+        recent = self.last_in.setdefault(port, deque(maxlen=REPEAT_MEMORY))
+        if payload in recent:
+            # a message before, byte for byte: a restarted producer sends its last step's outputs
+            # again (they may not have left before it was killed) and then steps again from its
+            # checkpoint, written after the step before the kill; what the first copy did stands
             self.stats.repeats += 1
             return
-        self.last_in[port] = payload
+        recent.append(payload)
         try:
             msg = decode(payload)
         except MessageError as e:
