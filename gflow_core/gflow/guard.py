@@ -81,7 +81,7 @@ G-flow's likelihood still reads the grey levels alone. No I/O here.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
@@ -291,23 +291,15 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     places, the target against clutter (:func:`_away_wins`). A candidate within the estimate's box
     re-seats them only where ``fit`` confirms it (:func:`_confirms`).
 
-    With ``witness``, an estimate the edges judge lost is tracked where G-flow's first look vouches for
-    it (:func:`witnessed`); the edges' and the first look's target distributions do not learn from
-    such a frame.
+    With ``witness``, an estimate the edges judge lost whose box is reported (the first look fits it
+    better than the held place) is reported ``tracked`` where the first look vouches for it
+    (:func:`witnessed`); the guard's state, its search and the box are as without it (phase ``lost``).
     """
     seen = lostmod.observe(channels, anchor, box, p, bins)
     held_now = (*box, *(float(v) for v in pose))
     weighed = lostmod.colour_weighed(seen.colour, lost)
     st, vis, is_lost = lostmod.judge(lost, seen, held_now, p)
     f_est = None if fit is None else fit(pose)
-    if is_lost and witness and seen.r > -1.0 and f_est is not None and ring_fit is not None:
-        wvis = witnessed(f_est, ring_fit(pose, box), level, look_clutter, p)
-        if wvis is not None:
-            # the edges no longer recognise the first box, G-flow's first look still does: found here,
-            # held here, but nothing learnt from the frame (the edges' distance is not the target's)
-            st = replace(lost, lost_run=0, held=tuple(float(v) for v in held_now))
-            return GuardStep(st, box, None, float(wvis.visible + wvis.partial), "tracked", "track", level, None,
-                             look_clutter)
     if not is_lost:
         if f_est is not None and not weighed:
             level = level.update(1.0 - f_est, p.rate)
@@ -350,6 +342,12 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     if fit is not None and f_est is not None and not weighed and fit(h_pose) <= f_est:
         # the first look fits the estimate better than the held place (a face turning in the image plane
         # fails the axis-bound verification while the experts follow it): report the experts' box
+        wvis = None if not witness or ring_fit is None else witnessed(f_est, ring_fit(pose, box), level, look_clutter, p)
+        if wvis is not None:
+            # ... and where G-flow's first look vouches for it, report it tracked (the guard still holds and
+            # searches: nothing else changes)
+            return GuardStep(st, box, None, float(wvis.visible + wvis.partial), "tracked", "lost", level, None,
+                             look_clutter)
         return GuardStep(st, box, None, float(vis.visible), state, "lost", level, None, look_clutter)
     return GuardStep(st, h_box, None, float(vis.visible), state, "lost", level, h_pose, look_clutter)
 
