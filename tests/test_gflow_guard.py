@@ -40,21 +40,21 @@ def test_no_witness_where_clutter_beside_fits_as_well_an_occluder_or_before_the_
 
 
 def test_witness_keeps_david_indoors_turning_face_tracked() -> None:
-    """david_indoor frames 300-325: the face turns down and away, and the edge template of the first
-    (frontal) box no longer recognises it (frames 310-318 judged occluded without the witness, while the
-    estimate is within a few pixels of the truth); with the witness those frames are tracked, near the
-    truth."""
+    """david_indoor frames 305-335: the face turns down and away and walks into bright light, and the
+    edge template of the first (frontal) box no longer recognises it (frames 310-318 and 322-335 judged
+    occluded or lost without the witness, while the box is within a few pixels of the truth); with the
+    witness those frames are reported tracked, and the box is where it was."""
     from tests.conftest import data_dir
     from gflow import Tracker
 
     d = data_dir("david_indoor")
-    frames = sorted(glob.glob(str(d / "frames" / "*")))[:326]
-    gt = np.loadtxt(d / "groundtruth.csv", delimiter=",", skiprows=1)[:326, 1:]
+    frames = sorted(glob.glob(str(d / "frames" / "*")))[:336]
+    gt = np.loadtxt(d / "groundtruth.csv", delimiter=",", skiprows=1)[:336, 1:]
     t = Tracker("gflow", seed=1, lost_witness=True)
     ests = [t.init(cv2.imread(frames[0]), (169.0, 76.0, 46.0, 60.0)) if i == 0 else t.update(cv2.imread(f))
             for i, f in enumerate(frames)]
     boxes = np.array([e.box for e in ests])
     err = np.hypot(*(boxes[:, :2] + boxes[:, 2:] / 2 - gt[:, :2] - gt[:, 2:] / 2).T)
     states = [e.target_state for e in ests]
-    assert all(s == "tracked" for s in states[305:326]), states[305:326]
-    assert err[305:326].max() < 20.0, err[305:326]
+    assert all(s == "tracked" for s in states[305:336]), states[305:336]
+    assert err[305:336].max() < 20.0, err[305:336]
