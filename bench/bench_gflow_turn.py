@@ -16,7 +16,11 @@ one run of the tracker, not bit for bit the pipeline's), on every k-th frame of
 * the guard's ``target_state`` and confidence, and ``r``, the normalised correlation of the edge
   channels of the first frame's box with the estimate's box (what the guard judges by,
   :func:`gflow_core.m2.lost.observe`), with the same at the ground-truth box, and the best ``r`` of the
-  clutter beside the estimate.
+  clutter beside the estimate;
+* G-flow's first look (:func:`gflow_core.gflow.guard.first_look_fit`): its fit at the estimate, its best
+  fit beside it (:func:`gflow_core.gflow.guard.first_look_clutter`), and P(visible), P(present) of its
+  misfit against the guard's distributions of it on found frames (what ``lost_witness`` judges by,
+  :func:`gflow_core.gflow.guard.witnessed`, with the fit beside it).
 
 ``--set NAME=VALUE`` (repeatable) sets a G-flow parameter (``self_occlusion=0.2``, say). Writes nothing.
 """

@@ -346,8 +346,8 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
         if wvis is not None:
             # ... and where G-flow's first look vouches for it, report it tracked (the guard still holds and
             # searches: nothing else changes)
-            return GuardStep(st, box, None, float(wvis.visible + wvis.partial), "tracked", "lost", level, None,
-                             look_clutter)
+            # confidence: the first look's P(visible), low on a turned face (part of it is judged hidden)
+            return GuardStep(st, box, None, float(wvis.visible), "tracked", "lost", level, None, look_clutter)
         return GuardStep(st, box, None, float(vis.visible), state, "lost", level, None, look_clutter)
     return GuardStep(st, h_box, None, float(vis.visible), state, "lost", level, h_pose, look_clutter)
 
