@@ -16,7 +16,11 @@ one run of the tracker, not bit for bit the pipeline's), on every k-th frame of
 * the guard's ``target_state`` and confidence, and ``r``, the normalised correlation of the edge
   channels of the first frame's box with the estimate's box (what the guard judges by,
   :func:`gflow_core.m2.lost.observe`), with the same at the ground-truth box, and the best ``r`` of the
-  clutter beside the estimate.
+  clutter beside the estimate;
+* G-flow's first look (:func:`gflow_core.gflow.guard.first_look_fit`): its fit at the estimate, its best
+  fit beside it (:func:`gflow_core.gflow.guard.first_look_clutter`), and P(visible), P(present) of its
+  misfit against the guard's distributions of it on found frames (what ``lost_witness`` judges by,
+  :func:`gflow_core.gflow.guard.witnessed`, with the fit beside it).
 
 ``--set NAME=VALUE`` (repeatable) sets a G-flow parameter (``self_occlusion=0.2``, say). Writes nothing.
 """
@@ -37,12 +41,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import table  # noqa: E402
 
 from gflow_core.gflow import GFlowParams, GFlowTracker  # noqa: E402
+from gflow_core.gflow import guard  # noqa: E402
 from gflow_core.gflow.face_pose import yaw_pitch_roll  # noqa: E402
 from gflow_core.gflow.geometry import rotation_matrices  # noqa: E402
 from gflow_core.gflow.landmark_error import NORMALISING_PAIR, SCORED_LANDMARKS  # noqa: E402
 from gflow_core.gflow.tracker import guard_params  # noqa: E402
 from gflow_core.m2 import lost as lostmod  # noqa: E402
 from gflow_core.tracker import FrameRng  # noqa: E402
+from gflow_core.visibility import visibility  # noqa: E402
 from pipeline.io.modelfile import load_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -124,13 +130,19 @@ def main() -> None:
         ypr = yaw_pitch_roll(rotation_matrices(state.experts.poses)).mean(0)
         seen = lostmod.observe(obs.channels, state.anchor, tuple(est.box), gp, obs.bins)
         seen_gt = lostmod.observe(obs.channels, state.anchor, tuple(float(v) for v in gt[t]), gp, obs.bins)
+        pose = np.asarray(est.extras["pose"], dtype=np.float64)
+        look = guard.first_look_fit(state.experts, obs.y, state.setup.model, state.setup.cfg)(pose)
+        ring = guard.first_look_clutter(state.experts, obs.y, state.setup.model, state.setup.cfg, gp.ring)(
+            pose, tuple(float(v) for v in est.box))
+        wv = visibility(1.0 - look, state.fit_level, state.look_clutter, gp.min_std)
         rows.append([t, "%.0f / %.0f / %.0f" % tuple(ypr), "%.0f / %.0f / %.0f" % tuple(ypr_ref), f"{nme:.3f}",
                      est.target_state, f"{est.confidence:.3f}", f"{seen.r:.3f}", f"{seen_gt.r:.3f}",
-                     "-" if seen.clutter is None else f"{seen.clutter[0]:.3f}"])
+                     "-" if seen.clutter is None else f"{seen.clutter[0]:.3f}", f"{look:.3f}", f"{ring:.3f}",
+                     f"{wv.visible:.3f}", f"{wv.present:.3f}"])
     sets = f", {' '.join(args.set)}" if args.set else ""
     print(f"G-flow on david_indoor at every {args.every}th frame, seed {args.seed}, one process{sets}")
     print(table(rows, ["frame", "yaw/pitch/roll", "reference", "NME", "state", "confidence", "r estimate",
-                       "r truth", "r clutter"]))
+                       "r truth", "r clutter", "look", "look clutter", "look P(visible)", "look P(present)"]))
     print(f"landmark NME over frames 0-{hi - 1}: {np.nanmean(nmes):.3f}")
 
 

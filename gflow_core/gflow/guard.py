@@ -97,7 +97,7 @@ from .image import FrameData, bilinear_stencil
 from .pose_opinion import TextureView, coarse_to_fine_peak, search_offsets
 
 __all__ = ["GuardStep", "guard_params", "anchor_of", "channels", "step", "reseat_pose", "reseat", "settle",
-           "first_look_fit"]
+           "first_look_fit", "witnessed"]
 
 #: (H, W) uint8 grey -> (H, W, 4) the guard's orientation channels
 channels = lostmod.channels
@@ -278,7 +278,7 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
          fit: Callable[[np.ndarray], float] | None = None, level: ChiSquare = ChiSquare(),
          place: Callable[[tuple[float, float, float, float]], np.ndarray] | None = None,
          ring_fit: Callable[[np.ndarray, tuple[float, float, float, float]], float] | None = None,
-         look_clutter: ChiSquare = ChiSquare()) -> GuardStep:
+         look_clutter: ChiSquare = ChiSquare(), witness: bool = False) -> GuardStep:
     """Judge the estimate ``box`` (x, y, w, h) of pose ``pose`` (P,) on a frame's orientation channels
     (H, W, 4) and colour bins (H, W) or None; hold and search while lost (:mod:`gflow_core.m2.lost`).
 
@@ -290,6 +290,10 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     :func:`reseat_pose`): where colour is weighed at once, else only on a likelihood ratio of both
     places, the target against clutter (:func:`_away_wins`). A candidate within the estimate's box
     re-seats them only where ``fit`` confirms it (:func:`_confirms`).
+
+    With ``witness``, an estimate the edges judge lost whose box is reported (the first look fits it
+    better than the held place) is reported ``tracked`` where the first look vouches for it
+    (:func:`witnessed`); the guard's state, its search and the box are as without it (phase ``lost``).
     """
     seen = lostmod.observe(channels, anchor, box, p, bins)
     held_now = (*box, *(float(v) for v in pose))
@@ -338,8 +342,38 @@ def step(lost: LostState, anchor: Anchor, p: LostParams, channels: np.ndarray, b
     if fit is not None and f_est is not None and not weighed and fit(h_pose) <= f_est:
         # the first look fits the estimate better than the held place (a face turning in the image plane
         # fails the axis-bound verification while the experts follow it): report the experts' box
+        wvis = None if not witness or ring_fit is None else witnessed(f_est, ring_fit(pose, box), level, look_clutter, p)
+        if wvis is not None:
+            # ... and where G-flow's first look vouches for it, report it tracked (the guard still holds and
+            # searches: nothing else changes)
+            # confidence: the first look's P(visible), low on a turned face (part of it is judged hidden)
+            return GuardStep(st, box, None, float(wvis.visible), "tracked", "lost", level, None, look_clutter)
         return GuardStep(st, box, None, float(vis.visible), state, "lost", level, None, look_clutter)
     return GuardStep(st, h_box, None, float(vis.visible), state, "lost", level, h_pose, look_clutter)
+
+
+def witnessed(f_est: float, f_ring: float, level: ChiSquare, look_clutter: ChiSquare, p: LostParams
+              ) -> Visibility | None:
+    """G-flow's own verdict on an estimate the edges judge lost: the visibility of the first look's
+    misfit ``1 - f_est`` at the estimate (:func:`first_look_fit`) against its distributions on found
+    frames, the target's ``level`` and the clutter's ``look_clutter`` (:func:`gflow_core.visibility.visibility`),
+    where it is judged the target, as it looks or part hidden (:attr:`.Visibility.present`: the
+    turned face's misfit rises above the frontal one's), the first look fits the estimate
+    better than the best place beside it on this frame (``f_ring``, :func:`first_look_clutter`: the
+    clutter does not explain it), and those distributions tell the target from clutter
+    (:func:`_discriminates`); else None.
+
+    A departure from the contour trackers' guard, whose edge anchor is the first box, never updated, so
+    that an occluder is not learnt. The first look is the first frame's texels too, but on G-flow's 3-D
+    vertices, which turn with the head: on david_indoor, as the face turns and walks into bright light,
+    the edges' correlation with the first box falls below the clutter's (frames 306-348) while the first
+    look still fits the estimate better than anything beside it. It is a witness rather than an updated
+    template, in the manner of TLD's P-N constraints and LCT's long-term filter: nothing is learnt from a
+    witnessed frame, and an occluder, which does not fit the face's first look, is not witnessed."""
+    if not _discriminates(level, look_clutter, p) or f_est <= f_ring:
+        return None
+    vis = visibility(1.0 - f_est, level, look_clutter, p.min_std)
+    return vis if vis.present else None
 
 
 def _away_wins(seen: lostmod.Observation, cand: redetect.Candidate, st: LostState, lost: LostState,

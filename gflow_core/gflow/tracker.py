@@ -347,9 +347,9 @@ class GFlowTracker:
                        guard.first_look_fit(new, obs.y, s.model, s.cfg), state.fit_level,
                        place=lambda box: self._place(params, s, new, obs, box),
                        ring_fit=guard.first_look_clutter(new, obs.y, s.model, s.cfg, gp.ring),
-                       look_clutter=state.look_clutter)
+                       look_clutter=state.look_clutter, witness=params.lost_witness)
         if g.pose is None:
-            if g.target_state != "tracked" and g.lost.held is not None and params.lost_hold > 0:
+            if g.phase == "lost" and g.lost.held is not None and params.lost_hold > 0:
                 new = self._hold(s, new, g.lost.held, params.lost_hold)
             out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter)
             if g.held_pose is not None:
