@@ -20,7 +20,8 @@ import typing
 from dataclasses import dataclass
 from typing import Any, Mapping, TypeVar, cast
 
-__all__ = ["param", "ParamInfo", "describe", "defaults", "make", "UnknownParameter", "format_value"]
+__all__ = ["param", "ParamInfo", "describe", "defaults", "make", "UnknownParameter", "format_value", "added_later",
+           "as_recorded"]
 
 T = TypeVar("T")
 
@@ -29,7 +30,10 @@ class UnknownParameter(TypeError):
     """A parameter name the tracker does not have (the message lists the ones it has)."""
 
 
-def param(default: Any, help: str, *, option: str | None = None) -> Any:
+_NOT_LATER = object()
+
+
+def param(default: Any, help: str, *, option: str | None = None, before: Any = _NOT_LATER) -> Any:
     """A dataclass field with its default, its help text and, optionally, its command-line option.
 
     Parameters
@@ -37,8 +41,25 @@ def param(default: Any, help: str, *, option: str | None = None) -> Any:
     default : the default value (immutable: a number, a string, a tuple, None).
     help : what the parameter does, in one sentence (shown by ``--help`` and ``gflow info``).
     option : the option of ``gflow track`` that sets it (``--experts``), if it has one of its own.
+    before : for a parameter added after recordings were made, and on by default, the value that
+        is what the code did before it existed: a recorded plan without the parameter is read
+        with it (:func:`as_recorded`), so the recording re-runs bit for bit.
     """
-    return dataclasses.field(default=default, metadata={"help": help, "option": option})
+    meta = {"help": help, "option": option}
+    if before is not _NOT_LATER:
+        meta["before"] = before
+    return dataclasses.field(default=default, metadata=meta)
+
+
+def added_later(cls: type) -> dict[str, Any]:
+    """``{name: value before it existed}`` of the parameters of ``cls`` declared with ``before``."""
+    return {f.name: f.metadata["before"] for f in dataclasses.fields(cls) if "before" in f.metadata}
+
+
+def as_recorded(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
+    """A recorded plan's ``values`` for ``cls``, with each parameter added later that they lack
+    at the value it had before it existed (not today's default)."""
+    return {**{k: v for k, v in added_later(cls).items() if k not in values}, **values}
 
 
 @dataclass(frozen=True)

@@ -58,8 +58,9 @@ from stages.base import Params
 from stages.registry import STAGES
 
 from pipeline.io.recording_files import unique_path
-from pipeline.runtime.tracker_block import (TRACKER_KEY, TrackerBlock, is_main_class, own_fields, parse_block,
-                                            stage_tracker, tracker_fields)
+from gflow_core.params import as_recorded
+from pipeline.runtime.tracker_block import (TRACKER_KEY, TrackerBlock, block_class, is_main_class, own_fields,
+                                            parse_block, stage_tracker, tracker_fields)
 from pipeline.runtime.transport import topic_key
 
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
@@ -246,8 +247,9 @@ class Plan:
         if not stages:
             raise GraphError("the recording's gflow.config metadata names no stage")
         block = json.loads(config[TRACKER_KEY]) if TRACKER_KEY in config else None
+        tracker = _as_recorded(TrackerBlock(**block) if block else None, stages)
         return cls(name=config.get("graph_name", graph.get("name", "recorded")), stream=config["stream"],
-                   camera=config.get("camera", ""), tracker=TrackerBlock(**block) if block else None,
+                   camera=config.get("camera", ""), tracker=tracker,
                    stages=stages, source_text=graph.get("yaml", ""), base_dir=config.get("base_dir", "."))
 
     def recording_path(self) -> str | None:
@@ -263,6 +265,23 @@ class Plan:
         if "{run}" not in path and "{time}" in path:
             p = p.with_name(f"{p.stem}-{run}{p.suffix}")
         return str(unique_path(p))
+
+
+def _as_recorded(block: TrackerBlock | None, stages: dict[str, StagePlan]) -> TrackerBlock | None:
+    """A recorded plan's parameters with each parameter added since at the value the code had before
+    it existed (``gflow_core.params.param(before=...)``): in the tracker block, or, in a plan recorded
+    before the block, in each stage's copy. A tracker or stage kind no longer known is left as it is
+    (validating the plan names it)."""
+    if block is not None:
+        try:
+            return TrackerBlock(block.name, as_recorded(block_class(block), block.params))
+        except ValueError:
+            return block
+    for s in stages.values():
+        cls = stage_tracker(STAGES[s.kind].Params) if s.kind in STAGES else None
+        if cls is not None:
+            s.params = as_recorded(cls, s.params)
+    return None
 
 
 #: the key chunk of the per-step progress heartbeats (:meth:`Plan.progress_topic`)

@@ -69,8 +69,12 @@ def _dataclass_of(name: str, stages: frozenset[type] = frozenset()) -> type:
 def block_class(block: TrackerBlock) -> type:
     """The parameter dataclass of ``block`` (of a graph or a recorded plan): of its tracker's, the one
     whose fields the block holds."""
+    from gflow_core.params import added_later
+
     classes = _classes_of(block.name)
-    return next((c for c in classes if set(tracker_fields(c)) == set(block.params)), classes[0])
+    held = set(block.params)  # a block recorded before a parameter was added lacks it
+    return next((c for c in classes if held <= set(tracker_fields(c)) and set(tracker_fields(c)) - held
+                 <= set(added_later(c))), classes[0])
 
 
 def is_main_class(block: TrackerBlock) -> bool:
