@@ -1,0 +1,100 @@
+"""A long-term correlation filter kept beside the adaptive one (``longterm``), in the manner of LCT.
+
+Ma, Yang, Zhang & Yang (LCT, CVPR 2015, sec. 3.2-3.3) keep two filters: the translation filter,
+learnt on every frame, and a long-term "appearance" filter learnt only on frames whose response
+peak is above a threshold (their T_a). The second filter changes slowly and only on frames where
+the target is clearly itself, so it is what the tracker trusts when it must say whether it still
+holds the target (their detection confidence, the peak of that filter), and it is the template
+that an online detector looks for over the frame once the tracker has lost the target.
+
+Here, beside the adaptive filter of :mod:`.model`:
+
+* the long-term filter is solved as the adaptive one is (:func:`.model.learn`, the same window,
+  features and mask), from the first frame's sample, and then learnt at ``longterm_rate`` on frames
+  that the tracker judges present and confident *and* on which the long-term filter itself is sure:
+  the log-likelihood ratio of its distance rho_lt = 1 - y_lt at the estimate, under its target's
+  distribution against its clutter's (both learnt from the run), at least ``longterm_level`` nats
+  (LCT's fixed T_a on the peak, here a level against what the run has shown);
+* its distance at the estimate is a third cue of the visibility judgement, the detection
+  confidence's witness (``longterm_witness``), with its own learnt target and clutter distributions
+  (the clutter's from its best response half a box away, as the adaptive filter's), mixed with an
+  outlier density of weight ``longterm_outlier`` (:mod:`.cues`) because it shares its features with
+  the adaptive filter and may not be counted as wholly independent evidence;
+* while the target is hidden, the search slides the long-term filter, not the adaptive one, over
+  the area searched (:func:`.model.search` on :func:`view`), and a candidate is accepted by the
+  likelihood ratio of its long-term distance under the target's distribution against the clutter
+  the window showed and the search's own best placements while the target stayed hidden
+  (``search_clutter``), with the colour score and the place term as before.
+
+Departures from LCT: LCT's re-detector is a random-fern classifier trained on the tracker's
+positives and negatives, and its confidence threshold T_r and update threshold T_a are fixed; here
+the re-detector is the long-term filter slid over the region, and both decisions are likelihood
+ratios and levels learnt from the run. LCT's long-term filter is on HOG of the target alone (no
+padding); here it shares the adaptive filter's window and mask.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..visibility import ChiSquare
+from . import filter as cf
+from .model import Geometry, TargetModel, learn
+from .params import DCFParams
+
+__all__ = ["LongTerm", "init_longterm", "view", "reliable", "learn_longterm"]
+
+
+@dataclass(frozen=True)
+class LongTerm:
+    """The long-term filter and what the run has shown of its scores.
+
+    train : its running average (as :class:`.model.TargetModel`'s); det : its detection filter,
+        (hc, wc // 2 + 1, C) complex; target : distribution of its distance rho_lt = 1 - y_lt at the
+        estimate on frames the target was present; clutter : of its best distance half a box away or
+        more on those frames; sclutter : of the search's best placement while the target stayed hidden
+        (empty while it is seen); updates : frames it has learnt on after the first.
+    """
+
+    train: cf.Spectrum | np.ndarray
+    det: np.ndarray
+    target: ChiSquare
+    clutter: ChiSquare
+    sclutter: ChiSquare = ChiSquare()
+    updates: int = 0
+
+
+def init_longterm(model: TargetModel, target: ChiSquare, clutter: ChiSquare) -> LongTerm:
+    """The long-term filter of the first frame's model (its running average and filter), with the prior
+    distributions ``target`` and ``clutter`` of its distance."""
+    return LongTerm(model.train, model.det, target, clutter)
+
+
+def view(model: TargetModel, lt: LongTerm) -> TargetModel:
+    """``model`` with the long-term filter as its detection filter (its own anchor, so the anchor's
+    weight leaves it as it is), the adaptive model's colour histograms and scale filter."""
+    return replace(model, train=lt.train, det=lt.det, anchor=lt.det)
+
+
+def reliable(lt: LongTerm, rho: float, p: DCFParams) -> bool:
+    """Whether a present, confident frame whose long-term distance at the estimate is ``rho`` may teach
+    the long-term filter: the log-likelihood ratio of ``rho`` under the long-term target's distribution
+    against its clutter's, each one-sided beyond its mode (:func:`gflow_core.visibility.visibility`'s
+    rule), is at least ``longterm_level`` nats (LCT's fixed T_a on the peak, here a level against the
+    distributions the run has learnt)."""
+    ms = p.min_std
+    # log p_t(max(rho, mode_t)) - log p_c(min(rho, mode_c)) >= level
+    lr = lt.target.log_pdf(max(rho, lt.target.mode(ms)), ms) - lt.clutter.log_pdf(min(rho, lt.clutter.mode(ms)), ms)
+    return lr >= p.longterm_level
+
+
+def learn_longterm(lt: LongTerm, model: TargetModel, image: np.ndarray, grey: np.ndarray,
+                   centre: tuple[float, float], log_s: float, geom: Geometry, p: DCFParams) -> LongTerm:
+    """The long-term filter after the sample of the box at ``centre``, scale exp(``log_s``), at
+    ``longterm_rate`` (:func:`.model.learn` on :func:`view`; the colour and scale it returns are the
+    adaptive model's concern and are dropped)."""
+    q = replace(p, colour_rate=0.0)
+    m = learn(view(model, lt), image, grey, centre, log_s, geom, q, p.longterm_rate, scale=False)
+    return replace(lt, train=m.train, det=m.det, updates=lt.updates + 1)
