@@ -80,8 +80,8 @@ def test_a_frame_teaches_the_long_term_filter_only_when_its_distance_is_the_targ
     assert reliable(lt, 0.54, p)
     assert not reliable(lt, 0.85, p)
     # a stricter level refuses what a looser one takes
-    assert reliable(lt, 0.70, dataclasses.replace(p, longterm_level=0.0))
-    assert not reliable(lt, 0.70, dataclasses.replace(p, longterm_level=20.0))
+    assert reliable(lt, 0.56, dataclasses.replace(p, longterm_level=1.0))
+    assert not reliable(lt, 0.56, dataclasses.replace(p, longterm_level=-1.0))
 
 
 def test_without_longterm_nothing_is_kept_and_an_old_snapshot_restores() -> None:

@@ -11,10 +11,10 @@ Here, beside the adaptive filter of :mod:`.model`:
 
 * the long-term filter is solved as the adaptive one is (:func:`.model.learn`, the same window,
   features and mask), from the first frame's sample, and then learnt at ``longterm_rate`` on frames
-  that the tracker judges present and confident *and* on which the long-term filter itself is sure:
-  the log-likelihood ratio of its distance rho_lt = 1 - y_lt at the estimate, under its target's
-  distribution against its clutter's (both learnt from the run), at least ``longterm_level`` nats
-  (LCT's fixed T_a on the peak, here a level against what the run has shown);
+  that the tracker judges present and confident *and* on which the long-term filter itself scores
+  the estimate as it usually scores the target: its distance rho_lt = 1 - y_lt at the estimate no
+  more than ``longterm_level`` standard deviations above its running mean on present frames (LCT's
+  fixed T_a on the peak, here a level learnt from the run);
 * its distance at the estimate is a third cue of the visibility judgement, the detection
   confidence's witness (``longterm_witness``), with its own learnt target and clutter distributions
   (the clutter's from its best response half a box away, as the adaptive filter's), mixed with an
@@ -35,6 +35,7 @@ padding); here it shares the adaptive filter's window and mask.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -80,14 +81,11 @@ def view(model: TargetModel, lt: LongTerm) -> TargetModel:
 
 def reliable(lt: LongTerm, rho: float, p: DCFParams) -> bool:
     """Whether a present, confident frame whose long-term distance at the estimate is ``rho`` may teach
-    the long-term filter: the log-likelihood ratio of ``rho`` under the long-term target's distribution
-    against its clutter's, each one-sided beyond its mode (:func:`gflow_core.visibility.visibility`'s
-    rule), is at least ``longterm_level`` nats (LCT's fixed T_a on the peak, here a level against the
-    distributions the run has learnt)."""
-    ms = p.min_std
-    # log p_t(max(rho, mode_t)) - log p_c(min(rho, mode_c)) >= level
-    lr = lt.target.log_pdf(max(rho, lt.target.mode(ms)), ms) - lt.clutter.log_pdf(min(rho, lt.clutter.mode(ms)), ms)
-    return lr >= p.longterm_level
+    the long-term filter: rho at most the mean of that distance on present frames plus ``longterm_level``
+    of its standard deviations (LCT's fixed T_a on the peak, here a level learnt from the run)."""
+    var = max(lt.target.m2 - lt.target.m1 * lt.target.m1, p.min_std * p.min_std)
+    # rho_lt <= E[rho_lt] + level sd[rho_lt]
+    return rho <= lt.target.mean() + p.longterm_level * math.sqrt(var)
 
 
 def learn_longterm(lt: LongTerm, model: TargetModel, image: np.ndarray, grey: np.ndarray,

@@ -182,7 +182,11 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
     rho: float | None = None
     ds = _dists(st, lt)
-    for cand in tm.search(st.model if lt is None else view(st.model, lt), obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
+    # the sizes searched: search_sizes of them, search_size_step apart in log size, about the held one
+    k = p.search_sizes // 2
+    sizes = tuple(float(i * p.search_size_step) for i in sorted(range(-k, k + 1), key=abs))
+    searched = st.model if lt is None else view(st.model, lt)
+    for cand in tm.search(searched, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p, sizes):
         # the search had more chances than the window the clutter was learnt on: under "hidden" its
         # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
         # the candidate is placed by the target's prior: log N(x; pred, S) + log A
