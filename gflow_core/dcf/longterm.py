@@ -20,11 +20,14 @@ Here, beside the adaptive filter of :mod:`.model`:
   (the clutter's from its best response half a box away, as the adaptive filter's), mixed with an
   outlier density of weight ``longterm_outlier`` (:mod:`.cues`) because it shares its features with
   the adaptive filter and may not be counted as wholly independent evidence;
-* while the target is hidden, the search slides the long-term filter, not the adaptive one, over
-  the area searched (:func:`.model.search` on :func:`view`), and a candidate is accepted by the
-  likelihood ratio of its long-term distance under the target's distribution against the clutter
-  the window showed and the search's own best placements while the target stayed hidden
-  (``search_clutter``), with the colour score and the place term as before.
+* while the target is hidden, the search slides the long-term filter over the area searched after
+  the adaptive one (:func:`.model.search` on :func:`view`), and its candidate is accepted by the
+  likelihood ratio of its long-term distance under the long-term target's distribution against the
+  clutter the window showed (the best of as many draws as both searches covered) and the search's
+  own best long-term placements while the target stayed hidden (``search_clutter``), with the
+  colour score and the place term as before. The adaptive filter alone took jumping's face back
+  within a few frames after a blur where the long-term one alone took thirty: it follows a target
+  that changes fast; the long-term one keeps the look a drifting or polluted filter has lost.
 
 Departures from LCT: LCT's re-detector is a random-fern classifier trained on the tracker's
 positives and negatives, and its confidence threshold T_r and update threshold T_a are fixed; here

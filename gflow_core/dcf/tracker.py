@@ -115,12 +115,13 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
 class Search:
     """What the search for a hidden target found: ``found`` the first candidate judged visible (or None),
     its P(visible), whether the search covered the whole frame, and ``rho`` the filter's distance at the
-    best placement (None: nothing searched)."""
+    best placement at the held size (None: nothing searched), ``rho_lt`` the long-term filter's."""
 
     found: Any
     confidence: float
     covers: bool
     rho: float | None = None
+    rho_lt: float | None = None
 
 
 @dataclass(frozen=True)
@@ -173,37 +174,38 @@ def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: D
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
             spread: float, clutter_seen: Any, lt: LongTerm | None = None) -> Search:
     """The search for a hidden target over three standard deviations of its place's prior (the motion
-    prior's (sx, sy) widened by ``spread``, in quadrature); with ``lt``, the long-term filter is the
-    template and its distributions judge the candidates."""
+    prior's (sx, sy) widened by ``spread``, in quadrature), at ``search_sizes`` sizes; with ``lt``, the
+    long-term filter is slid too, after the adaptive one, each judged by its own distributions."""
     Hh, Ww = obs.grey.shape
     sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
     covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
-    rho: float | None = None
-    ds = _dists(st, lt)
     # the sizes searched: search_sizes of them, search_size_step apart in log size, about the held one
     k = p.search_sizes // 2
     sizes = tuple(float(i * p.search_size_step) for i in sorted(range(-k, k + 1), key=abs))
-    searched = st.model if lt is None else view(st.model, lt)
-    for cand in tm.search(searched, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p, sizes):
-        # the search had more chances than the window the clutter was learnt on: under "hidden" its
-        # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
-        # the candidate is placed by the target's prior: log N(x; pred, S) + log A
-        trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-        place = _log_place(cand.centre, pred, sx, sy, cand.area)
-        rho = 1.0 - cand.r if rho is None else rho
-        if p.search_clutter:
-            visible = _judge(st, ds, cand, trials, place, p)
-        else:
-            # the colour score of the filter's pick: one draw of the colour clutter
-            ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
-            visible = visibility(1.0 - cand.r, ds.target, ds.clutter, p.min_std,
-                                 prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
-                                 log_place=place, cues=ccue).visible
-        if visible >= 0.5:
-            return Search(cand, visible, covers, rho)
-    return Search(None, 0.0, covers, rho)
+    templates = [(st.model, _dists(st, None))] + ([] if lt is None else [(view(st.model, lt), _dists(st, lt))])
+    rhos: list[float | None] = [None, None]
+    for which, (searched, ds) in enumerate(templates):
+        for cand in tm.search(searched, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p, sizes):
+            # the search had more chances than the window the clutter was learnt on: under "hidden" its
+            # distance is the best of that many clutter draws, anywhere in the area searched by every
+            # template; under "visible" the candidate is placed by the target's prior: log N(x; pred, S) + log A
+            trials = len(templates) * cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+            place = _log_place(cand.centre, pred, sx, sy, cand.area)
+            if rhos[which] is None:
+                rhos[which] = 1.0 - cand.r
+            if p.search_clutter:
+                visible = _judge(st, ds, cand, trials, place, p)
+            else:
+                # the colour score of the filter's pick: one draw of the colour clutter
+                ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
+                visible = visibility(1.0 - cand.r, ds.target, ds.clutter, p.min_std,
+                                     prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
+                                     log_place=place, cues=ccue).visible
+            if visible >= 0.5:
+                return Search(cand, visible, covers, rhos[0], rhos[1])
+    return Search(None, 0.0, covers, rhos[0], rhos[1])
 
 
 def _colour_cue(st: DCFState, rho: float, p: DCFParams) -> Cue:
@@ -374,13 +376,12 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     if p.search_clutter:
         # the search's best placement on a frame the target stayed hidden is clutter's (TLD's negatives)
-        seen = srch.rho if run > 0 and found is None else None
-        sc = st.sclutter if lt is None else lt.sclutter
-        sc = sc.update(seen, p.clutter_rate) if seen is not None else ChiSquare()
-        if lt is None:
-            learnt["sclutter"] = sc
-        else:
-            lt = replace(lt, sclutter=sc)
+        hid = run > 0 and found is None
+        learnt["sclutter"] = st.sclutter.update(srch.rho, p.clutter_rate) if hid and srch.rho is not None \
+            else ChiSquare()
+        if lt is not None:
+            lt = replace(lt, sclutter=lt.sclutter.update(srch.rho_lt, p.clutter_rate) if hid and srch.rho_lt is not None
+                         else ChiSquare())
     if lt is not None:
         learnt["longterm"] = _learn_longterm(st, lt, lt_seen, obs, p, centre, log_s,
                                              present and found is None, confident and present and found is None)
