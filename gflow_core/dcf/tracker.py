@@ -327,7 +327,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     log_s = st.log_s
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)
-    cues = () if colour_seen is None else (_colour_cue(st, 1.0 - colour_seen[0], p),)
+    cues: tuple[Cue, ...] = () if colour_seen is None else (_colour_cue(st, 1.0 - colour_seen[0], p),)
     lt_seen = None
     if lt is not None:
         # the long-term filter's distance at the estimate and its best half a box away (as the adaptive one's)
