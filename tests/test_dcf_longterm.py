@@ -114,3 +114,24 @@ def test_its_parameters_are_checked() -> None:
     for bad in ({"longterm_rate": 0.0}, {"longterm_outlier": 1.0}, {"longterm_level": float("nan")}):
         with pytest.raises(ValueError, match="longterm"):
             DCFParams(**bad)
+
+
+def test_the_search_tries_other_sizes_only_as_the_sizes_prior_spreads(monkeypatch) -> None:
+    import gflow_core.dcf.tracker as tr
+
+    sc, frames = _frames()
+    p = DCFParams(search_sizes=5, search_size_step=0.2)
+    st, _ = TRACKER.init(p, TRACKER.observe(p, frames[0]), sc.truth(0), FrameRng(1, 7, 0), {})
+    obs = TRACKER.observe(p, frames[HIDE[0] + 2])
+    tried: list[tuple[float, ...]] = []
+    real = tr.tm.search
+
+    def spy(*args, **kw):
+        tried.append(tuple(args[-1]))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(tr.tm, "search", spy)
+    for size_sd, want in ((0.0, (0.0,)), (0.1, (0.0, -0.2, 0.2)), (1.0, (0.0, -0.2, 0.2, -0.4, 0.4))):
+        tried.clear()
+        tr._search(st, obs, p, st.centre, (5.0, 5.0), 0.0, None, None, size_sd)
+        assert tried == [want], (size_sd, tried)

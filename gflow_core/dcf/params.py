@@ -81,9 +81,12 @@ class DCFParams:
     search_min: int = param(10, "searches the search's own clutter must hold before it counts (as many as the "
                                 "priors' pseudo-samples: a few placements give too narrow a distribution)")
     coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
-    search_sizes: int = param(1, "sizes the search for a hidden target tries (odd): the held size and, each way, "
-                                 "(search_sizes - 1) / 2 more, search_size_step apart in log size")
+    search_sizes: int = param(1, "sizes the search for a hidden target may try at most (odd): the held size and, "
+                                 "each way, up to (search_sizes - 1) / 2 more, search_size_step apart in log size, "
+                                 "within three standard deviations of the size's prior")
     search_size_step: float = param(0.2, "log-size step between the sizes the search tries")
+    search_size_growth: float = param(0.005, "while the target is unseen the std of its log size grows by this "
+                                             "much a frame (the search tries the sizes within three of it)")
     longterm: bool = param(False, "keep a long-term filter beside the adaptive one, learnt only on reliable frames, "
                                   "and search for a hidden target with it (LCT; gflow_core.dcf.longterm)")
     longterm_rate: float = param(0.01, "learning rate of the long-term filter on reliable frames")
@@ -156,6 +159,8 @@ class DCFParams:
                                                                      and self.search_size_step > 0):
             raise ValueError(f"search_sizes must be odd and >= 1 and search_size_step positive, got "
                              f"{self.search_sizes}, {self.search_size_step}")
+        if not (math.isfinite(self.search_size_growth) and self.search_size_growth >= 0):
+            raise ValueError(f"search_size_growth must be finite and >= 0, got {self.search_size_growth}")
         if self.search_min < 1:
             raise ValueError(f"search_min must be >= 1, got {self.search_min}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:

@@ -172,17 +172,19 @@ def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: D
 
 
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
-            spread: float, clutter_seen: Any, lt: LongTerm | None = None) -> Search:
+            spread: float, clutter_seen: Any, lt: LongTerm | None = None, size_sd: float = 0.0) -> Search:
     """The search for a hidden target over three standard deviations of its place's prior (the motion
-    prior's (sx, sy) widened by ``spread``, in quadrature), at ``search_sizes`` sizes; with ``lt``, the
-    long-term filter is slid too, after the adaptive one, each judged by its own distributions."""
+    prior's (sx, sy) widened by ``spread``, in quadrature) and of its log size's prior (std ``size_sd``
+    about the held size: the sizes ``search_size_step`` apart within three of it, at most
+    ``search_sizes``); with ``lt``, the long-term filter is slid too, after the adaptive one, each
+    judged by its own distributions."""
     Hh, Ww = obs.grey.shape
     sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
     covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
-    # the sizes searched: search_sizes of them, search_size_step apart in log size, about the held one
-    k = p.search_sizes // 2
+    # the sizes searched: search_size_step apart in log size about the held one, within 3 size_sd
+    k = min(p.search_sizes // 2, int(3.0 * size_sd / p.search_size_step))
     sizes = tuple(float(i * p.search_size_step) for i in sorted(range(-k, k + 1), key=abs))
     templates = [(st.model, _dists(st, None))] + ([] if lt is None else [(view(st.model, lt), _dists(st, lt))])
     rhos: list[float | None] = [None, None]
@@ -193,6 +195,11 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
             # template; under "visible" the candidate is placed by the target's prior: log N(x; pred, S) + log A
             trials = len(templates) * cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
             place = _log_place(cand.centre, pred, sx, sy, cand.area)
+            if k > 0:
+                # the size's prior against clutter's, uniform over the sizes searched (as the place's):
+                # log N(log f; 0, size_sd^2) + log((2 k + 1) step)
+                place += -cand.log_f ** 2 / (2.0 * size_sd * size_sd) - 0.5 * math.log(2.0 * math.pi * size_sd * size_sd) \
+                    + math.log((2 * k + 1) * p.search_size_step)
             if rhos[which] is None:
                 rhos[which] = 1.0 - cand.r
             if p.search_clutter:
@@ -350,7 +357,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     if run > 0:
         # unseen, the target's place spreads by search_growth mean sides a frame
         spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
-        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen, lt)
+        # unseen, the target's log size spreads by search_size_growth a frame
+        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen, lt, p.search_size_growth * run)
         if srch.found is not None:
             confidence, run, spread = srch.confidence, 0, 0.0
     found = srch.found
