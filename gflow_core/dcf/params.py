@@ -92,7 +92,7 @@ class DCFParams:
     longterm_rate: float = param(0.01, "learning rate of the long-term filter on reliable frames")
     longterm_level: float = param(1.0, "a frame may teach the long-term filter when its distance at the estimate is at "
                                        "most its mean on present frames plus this many standard deviations")
-    longterm_witness: bool = param(True, "with longterm, the long-term filter's distance at the estimate is a cue of "
+    longterm_witness: bool = param(False, "with longterm, the long-term filter's distance at the estimate is a cue of "
                                          "whether the target is there")
     longterm_outlier: float = param(0.05, "probability the long-term filter's cue fails (its densities mixed with a "
                                           "uniform one, as colour_outlier)")
