@@ -16,22 +16,7 @@ from gflow_core.dcf.state import from_arrays, to_arrays
 from gflow_core.dcf.tracker import TRACKER
 from gflow_core.tracker import FrameRng, step
 from gflow_core.visibility import ChiSquare
-from tests.core.test_dcf_tracker import Scene
-
-HIDE = (10, 30)  # frames [10, 30): a patch of background covers the target
-
-
-def _frames():
-    sc = Scene(lambda t: (110.0 + 1.5 * t, 95.0), seed=3)
-    frames = []
-    for t in range(42):
-        img = sc.frame(t)
-        if HIDE[0] <= t < HIDE[1]:
-            x, y, w, h = (int(round(v)) for v in sc.truth(t))
-            img[y - 4:y + h + 4, x - 4:x + w + 4] = sc.bg[y - 4:y + h + 4, x - 4:x + w + 4].astype(np.uint8)
-        frames.append(img)
-    return sc, frames
-
+from tests.test_dcf_search_clutter import HIDE, _frames  # a target hidden by background on frames [10, 30)
 
 def _same(a: LongTerm, b: LongTerm) -> bool:
     return (np.array_equal(a.det, b.det) and a.target == b.target and a.clutter == b.clutter
