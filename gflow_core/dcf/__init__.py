@@ -64,6 +64,15 @@ BACF and CSRT learn theirs:
   and the window clutter's under
   "hidden": a placement far better than any the search gave while the target was away is the
   target come back.
+  The target's log size, unseen, spreads too (``search_size_growth`` a frame): the search tries the
+  sizes ``search_size_step`` apart within three standard deviations of it (at most
+  ``search_sizes``), each candidate's size under that prior against a size uniform over those
+  tried added to its place term; a target back after a long occlusion is seldom the size it had.
+* **A long-term filter** (:mod:`.longterm`, ``longterm``; LCT, Ma et al. CVPR 2015): a second
+  filter learnt at ``longterm_rate`` only on confident frames whose long-term score at the estimate
+  is within ``longterm_level`` standard deviations of its mean; with ``longterm_witness`` its
+  distance at the estimate is a third cue, and while the target is hidden the search slides it
+  after the adaptive filter, its candidates judged by its own distributions.
 
 Departures from the papers, each measured on the nine shared sequences and their stress cases
 together (docs/trackers.md):
@@ -90,9 +99,14 @@ together (docs/trackers.md):
   benchmark, where the face came back under other light and only the colour knew it. Ten
   searches before the search's clutter counts cost tiger1's undisturbed stress control, whose
   blurred toy was taken back against three.
+* LCT re-detects with a random-fern classifier and decides by fixed thresholds on the long-term
+  filter's peak (T_r, T_a); here the re-detector is the long-term filter slid over the searched
+  region beside the adaptive one, and its decisions are likelihood ratios and levels learnt from
+  the run (:mod:`.longterm`). Searching several sizes is TLD's and LCT's scanning over scales; the
+  spreading size prior that limits it is this project's.
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
-:mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+:mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

@@ -208,11 +208,12 @@ class Response:
     cubic: bool = False
     cf: np.ndarray | None = None
     colour: np.ndarray | None = None
+    lt: np.ndarray | None = None
 
     def at(self, xy: np.ndarray, part: str = "y") -> np.ndarray:
-        """(N,) the response (``part`` "y"; "cf": the filter's alone; "colour": the colour score) at image
-        points ``xy`` (N, 2); the map's minimum outside it."""
-        m = {"y": self.y, "cf": self.cf, "colour": self.colour}[part]
+        """(N,) the response (``part`` "y"; "cf": the filter's alone; "colour": the colour score; "lt": the
+        long-term filter's, :mod:`.longterm`) at image points ``xy`` (N, 2); the map's minimum outside it."""
+        m = {"y": self.y, "cf": self.cf, "colour": self.colour, "lt": self.lt}[part]
         assert m is not None
         u = ((xy[:, 0] - self.origin[0]) * self.q[0]).astype(np.float32).reshape(-1, 1)
         v = ((xy[:, 1] - self.origin[1]) * self.q[1]).astype(np.float32).reshape(-1, 1)
@@ -239,7 +240,7 @@ class Response:
         """The best response (``part`` as :meth:`at`) at centres farther than ``half`` (hx, hy) image px from
         ``xy`` in x or y (the best look-alike away from the estimate), and the image area (px^2) of those
         centres; None when fewer than 16 map positions are left."""
-        m = {"y": self.y, "cf": self.cf, "colour": self.colour}[part]
+        m = {"y": self.y, "cf": self.cf, "colour": self.colour, "lt": self.lt}[part]
         assert m is not None
         h, w = m.shape
         xs = self.origin[0] + np.arange(w) / self.q[0]
@@ -259,21 +260,25 @@ def _colour_cells(model: TargetModel, win: Window, geom: Geometry) -> np.ndarray
 
 
 def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
-            geom: Geometry, p: DCFParams) -> Response:
-    """The response over the window centred at ``centre`` at scale exp(``log_s``) (module docstring)."""
+            geom: Geometry, p: DCFParams, second: np.ndarray | None = None) -> Response:
+    """The response over the window centred at ``centre`` at scale exp(``log_s``) (module docstring);
+    with ``second``, a second detection filter (hc, wc // 2 + 1, C) complex, its response on the same
+    window as the map ``lt``."""
     k = geom.k(log_s)
     win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode)
+    z_hat = cf.spectrum(win.x, geom.window)
     # Y_cf = sum_l conj(A_l) Z_l / (B + lambda)                                  (DSST eq. 6)
-    y_hat = cf.respond(detection_filter(model, p.anchor_weight), cf.spectrum(win.x, geom.window))
+    y_hat = cf.respond(detection_filter(model, p.anchor_weight), z_hat)
     wc, hc = geom.cells
     y_cf = cf.centred(cf.upsample(y_hat, (hc, wc), geom.cell))
+    y_lt = None if second is None else cf.centred(cf.upsample(cf.respond(second, z_hat), (hc, wc), geom.cell))
     col = _colour_cells(model, win, geom)
     y_col = None if col is None else cf.centred(cf.upsample(np.fft.rfft2(np.fft.ifftshift(col)), (hc, wc), geom.cell))
     # y = (1 - alpha) y_cf + alpha y_hist                                      (Staple eq. 2)
     y = y_cf if y_col is None else (1.0 - p.colour_weight) * y_cf + p.colour_weight * y_col
     # index (h // 2, w // 2) is displacement 0: the target at the window's centre
     origin = (win.centre[0] - (y.shape[1] // 2) / k[0], win.centre[1] - (y.shape[0] // 2) / k[1])
-    return Response(y, origin, k, cf=y_cf, colour=y_col)
+    return Response(y, origin, k, cf=y_cf, colour=y_col, lt=y_lt)
 
 
 def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,

@@ -81,6 +81,21 @@ class DCFParams:
     search_min: int = param(10, "searches the search's own clutter must hold before it counts (as many as the "
                                 "priors' pseudo-samples: a few placements give too narrow a distribution)")
     coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
+    search_sizes: int = param(1, "sizes the search for a hidden target may try at most (odd): the held size and, "
+                                 "each way, up to (search_sizes - 1) / 2 more, search_size_step apart in log size, "
+                                 "within three standard deviations of the size's prior")
+    search_size_step: float = param(0.2, "log-size step between the sizes the search tries")
+    search_size_growth: float = param(0.005, "while the target is unseen the std of its log size grows by this "
+                                             "much a frame (the search tries the sizes within three of it)")
+    longterm: bool = param(False, "keep a long-term filter beside the adaptive one, learnt only on reliable frames, "
+                                  "and search for a hidden target with it (LCT; gflow_core.dcf.longterm)")
+    longterm_rate: float = param(0.01, "learning rate of the long-term filter on reliable frames")
+    longterm_level: float = param(1.0, "a frame may teach the long-term filter when its distance at the estimate is at "
+                                       "most its mean on present frames plus this many standard deviations")
+    longterm_witness: bool = param(False, "with longterm, the long-term filter's distance at the estimate is a cue of "
+                                         "whether the target is there")
+    longterm_outlier: float = param(0.05, "probability the long-term filter's cue fails (its densities mixed with a "
+                                          "uniform one, as colour_outlier)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -137,6 +152,15 @@ class DCFParams:
             raise ValueError(f"prior_count must be >= 1, got {self.prior_count}")
         if not 0 <= self.colour_outlier < 1:
             raise ValueError(f"colour_outlier must be in [0, 1), got {self.colour_outlier}")
+        if not (0 < self.longterm_rate <= 1 and 0 <= self.longterm_outlier < 1 and math.isfinite(self.longterm_level)):
+            raise ValueError(f"longterm_rate must be in (0, 1], longterm_outlier in [0, 1) and longterm_level finite, "
+                             f"got {self.longterm_rate}, {self.longterm_outlier}, {self.longterm_level}")
+        if self.search_sizes < 1 or self.search_sizes % 2 == 0 or not (math.isfinite(self.search_size_step)
+                                                                     and self.search_size_step > 0):
+            raise ValueError(f"search_sizes must be odd and >= 1 and search_size_step positive, got "
+                             f"{self.search_sizes}, {self.search_size_step}")
+        if not (math.isfinite(self.search_size_growth) and self.search_size_growth >= 0):
+            raise ValueError(f"search_size_growth must be finite and >= 0, got {self.search_size_growth}")
         if self.search_min < 1:
             raise ValueError(f"search_min must be >= 1, got {self.search_min}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:

@@ -15,6 +15,7 @@ import numpy as np
 from ..visibility import ChiSquare
 from . import filter as cf
 from .histogram import ColourModel
+from .longterm import LongTerm
 from .model import Geometry, TargetModel, geometry
 from .params import DCFParams
 from .scale import ScaleFilter
@@ -64,6 +65,7 @@ class DCFState:
     spread : px, how far the target's place has spread since it was last seen (0 while it is).
     sclutter : distribution of the filter's distance at the search's best placement on the frames since the
         target was last seen (empty while it is; ``search_clutter``).
+    longterm : the long-term filter and its distributions (``longterm``; :mod:`.longterm`), or None.
     """
 
     geom: Geometry
@@ -81,6 +83,11 @@ class DCFState:
     target_state: str = "tracked"
     spread: float = 0.0
     sclutter: ChiSquare = ChiSquare()
+    longterm: LongTerm | None = None
+
+
+def _chi_values(d: ChiSquare) -> list[float]:
+    return [d.m1, d.m2, d.n]
 
 
 def _real(a: np.ndarray) -> np.ndarray:
@@ -116,6 +123,15 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
               "cclutter": [st.cclutter.m1, st.cclutter.m2, st.cclutter.n],
               "sclutter": [st.sclutter.m1, st.sclutter.m2, st.sclutter.n],
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
+    lt = st.longterm
+    if lt is not None:
+        arrays["lt_det"] = _real(lt.det)
+        if isinstance(lt.train, cf.Spectrum):
+            arrays.update(lt_train_num=_real(lt.train.num), lt_train_den=lt.train.den)
+        else:
+            arrays["lt_train_x"] = _real(lt.train)
+        values.update(lt_target=_chi_values(lt.target), lt_clutter=_chi_values(lt.clutter),
+                      lt_sclutter=_chi_values(lt.sclutter), lt_updates=int(lt.updates))
     return {k: np.asarray(v, dtype=np.float64) for k, v in arrays.items()}, values
 
 
@@ -146,10 +162,19 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
         return ChiSquare(float(v[0]), float(v[1]), int(v[2]))
 
 
+    longterm = None
+    if "lt_det" in arrays:
+        lt_det = _complex(arrays["lt_det"])
+        if lt_det.shape != det.shape:
+            raise ValueError(f"long-term filter of shape {lt_det.shape} does not fit the window of {wc}x{hc} cells")
+        lt_train: cf.Spectrum | np.ndarray = (cf.Spectrum(_complex(arrays["lt_train_num"]), np.array(arrays["lt_train_den"]))
+                                              if "lt_train_num" in arrays else _complex(arrays["lt_train_x"]))
+        longterm = LongTerm(lt_train, lt_det, chi("lt_target"), chi("lt_clutter"), chi("lt_sclutter"),
+                            int(values["lt_updates"]))
     return DCFState(geom=geom, model=model, particles=np.array(arrays["particles"]), centre=np.array(arrays["centre"]),
                     log_s=float(values["log_s"]), velocity=np.array(arrays["velocity"]),
                     target=chi("target"), clutter=chi("clutter"), ctarget=chi("ctarget"), cclutter=chi("cclutter"),
                     sclutter=chi("sclutter"),
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
-                    spread=float(values["spread"]))
+                    spread=float(values["spread"]), longterm=longterm)

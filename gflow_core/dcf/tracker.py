@@ -32,6 +32,7 @@ from . import model as tm
 from .cues import may_fail
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
+from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .state import DCFObservation, DCFProposal, DCFState
 
@@ -114,15 +115,31 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
 class Search:
     """What the search for a hidden target found: ``found`` the first candidate judged visible (or None),
     its P(visible), whether the search covered the whole frame, and ``rho`` the filter's distance at the
-    best placement (None: nothing searched)."""
+    best placement at the held size (None: nothing searched), ``rho_lt`` the long-term filter's."""
 
     found: Any
     confidence: float
     covers: bool
     rho: float | None = None
+    rho_lt: float | None = None
 
 
-def _hidden_log_pdf(st: DCFState, rho: float, trials: float, p: DCFParams) -> float:
+@dataclass(frozen=True)
+class Dists:
+    """The distributions a search candidate's filter distance is judged by: the target's on present
+    frames, the window's clutter and the search's own best placements while hidden (of the adaptive
+    filter, or of the long-term one when it is the search's template)."""
+
+    target: ChiSquare
+    clutter: ChiSquare
+    sclutter: ChiSquare
+
+
+def _dists(st: DCFState, lt: LongTerm | None) -> Dists:
+    return Dists(st.target, st.clutter, st.sclutter) if lt is None else Dists(lt.target, lt.clutter, lt.sclutter)
+
+
+def _hidden_log_pdf(st: Dists, rho: float, trials: float, p: DCFParams) -> float:
     """log p(rho | hidden) of the search's best placement: the best of ``trials`` draws of the window's
     clutter (:meth:`ChiSquare.log_pdf_min`) or, with ``search_clutter`` and ``search_min`` searches or
     more since the target was last seen, the density of the search's own best placements on those
@@ -136,14 +153,14 @@ def _hidden_log_pdf(st: DCFState, rho: float, trials: float, p: DCFParams) -> fl
     return lh
 
 
-def _judge(st: DCFState, cand: Any, trials: float, place: float, p: DCFParams) -> float:
+def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: DCFParams) -> float:
     """P(visible) of a search candidate against "hidden" (the prior ``reappear`` that a hidden target is
     back), from the filter's distance (:func:`_hidden_log_pdf` under "hidden"), the colour score and the
     place term; the rules of :func:`gflow_core.visibility.visibility` with no partial hypothesis."""
     ms, rho = p.min_std, 1.0 - cand.r
     # log pi_v + log p_t(max(rho, mode_t)) + log_place  against  log pi_h + log p(rho | hidden)
-    lv = math.log(p.reappear) + st.target.log_pdf(max(rho, st.target.mode(ms)), ms) + place
-    lh = math.log(1.0 - p.reappear) + _hidden_log_pdf(st, rho, trials, p)
+    lv = math.log(p.reappear) + ds.target.log_pdf(max(rho, ds.target.mode(ms)), ms) + place
+    lh = math.log(1.0 - p.reappear) + _hidden_log_pdf(ds, rho, trials, p)
     if cand.r_colour is not None and st.ctarget.n and st.cclutter.n:
         rc = 1.0 - cand.r_colour
         ct, cc = may_fail(st.ctarget, p.colour_outlier), may_fail(st.cclutter, p.colour_outlier)
@@ -155,33 +172,47 @@ def _judge(st: DCFState, cand: Any, trials: float, place: float, p: DCFParams) -
 
 
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
-            spread: float, clutter_seen: Any) -> Search:
+            spread: float, clutter_seen: Any, lt: LongTerm | None = None, size_sd: float = 0.0) -> Search:
     """The search for a hidden target over three standard deviations of its place's prior (the motion
-    prior's (sx, sy) widened by ``spread``, in quadrature)."""
+    prior's (sx, sy) widened by ``spread``, in quadrature) and of its log size's prior (std ``size_sd``
+    about the held size: the sizes ``search_size_step`` apart within three of it, at most
+    ``search_sizes``); with ``lt``, the long-term filter is slid too, after the adaptive one, each
+    judged by its own distributions."""
     Hh, Ww = obs.grey.shape
     sx, sy = float(np.hypot(s_xy[0], spread)), float(np.hypot(s_xy[1], spread))
     margin = (3.0 * sx + 10.0, 3.0 * sy + 10.0)
     covers = (pred[0] - margin[0] <= 0 and pred[0] + margin[0] >= Ww - 1
               and pred[1] - margin[1] <= 0 and pred[1] + margin[1] >= Hh - 1)
-    rho: float | None = None
-    for cand in tm.search(st.model, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p):
-        # the search had more chances than the window the clutter was learnt on: under "hidden" its
-        # distance is the best of that many clutter draws, anywhere in the area searched; under "visible"
-        # the candidate is placed by the target's prior: log N(x; pred, S) + log A
-        trials = cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-        place = _log_place(cand.centre, pred, sx, sy, cand.area)
-        rho = 1.0 - cand.r if rho is None else rho
-        if p.search_clutter:
-            visible = _judge(st, cand, trials, place, p)
-        else:
-            # the colour score of the filter's pick: one draw of the colour clutter
-            ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
-            visible = visibility(1.0 - cand.r, st.target, st.clutter, p.min_std,
-                                 prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
-                                 log_place=place, cues=ccue).visible
-        if visible >= 0.5:
-            return Search(cand, visible, covers, rho)
-    return Search(None, 0.0, covers, rho)
+    # the sizes searched: search_size_step apart in log size about the held one, within 3 size_sd
+    k = min(p.search_sizes // 2, int(3.0 * size_sd / p.search_size_step))
+    sizes = tuple(float(i * p.search_size_step) for i in sorted(range(-k, k + 1), key=abs))
+    templates = [(st.model, _dists(st, None))] + ([] if lt is None else [(view(st.model, lt), _dists(st, lt))])
+    rhos: list[float | None] = [None, None]
+    for which, (searched, ds) in enumerate(templates):
+        for cand in tm.search(searched, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p, sizes):
+            # the search had more chances than the window the clutter was learnt on: under "hidden" its
+            # distance is the best of that many clutter draws, anywhere in the area searched by every
+            # template; under "visible" the candidate is placed by the target's prior: log N(x; pred, S) + log A
+            trials = len(templates) * cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+            place = _log_place(cand.centre, pred, sx, sy, cand.area)
+            if k > 0:
+                # the size's prior against clutter's, uniform over the sizes searched (as the place's):
+                # log N(log f; 0, size_sd^2) + log((2 k + 1) step)
+                place += -cand.log_f ** 2 / (2.0 * size_sd * size_sd) - 0.5 * math.log(2.0 * math.pi * size_sd * size_sd) \
+                    + math.log((2 * k + 1) * p.search_size_step)
+            if rhos[which] is None:
+                rhos[which] = 1.0 - cand.r
+            if p.search_clutter:
+                visible = _judge(st, ds, cand, trials, place, p)
+            else:
+                # the colour score of the filter's pick: one draw of the colour clutter
+                ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
+                visible = visibility(1.0 - cand.r, ds.target, ds.clutter, p.min_std,
+                                     prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
+                                     log_place=place, cues=ccue).visible
+            if visible >= 0.5:
+                return Search(cand, visible, covers, rhos[0], rhos[1])
+    return Search(None, 0.0, covers, rhos[0], rhos[1])
 
 
 def _colour_cue(st: DCFState, rho: float, p: DCFParams) -> Cue:
@@ -231,6 +262,33 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     return log_s, learnt
 
 
+def _longterm_of(st: DCFState, p: DCFParams) -> LongTerm | None:
+    """The state's long-term filter with ``longterm`` (made from the adaptive model when the state has none,
+    as a snapshot from before it); None without."""
+    if not p.longterm:
+        return None
+    if st.longterm is not None:
+        return st.longterm
+    return init_longterm(st.model, _prior(p.prior_target, p.prior_count), _prior(p.prior_clutter, p.prior_count))
+
+
+def _learn_longterm(st: DCFState, lt: LongTerm, seen: Any, obs: DCFObservation, p: DCFParams, centre: np.ndarray,
+                    log_s: float, present: bool, confident: bool) -> LongTerm:
+    """The long-term filter after a frame (:mod:`.longterm`): on a present frame its distances learnt; on a
+    confident one whose long-term distance is reliable against the run's (judged before this frame
+    counts), the filter learnt at the estimate."""
+    if not present or seen is None:
+        return lt
+    rho, away = seen
+    ok = confident and reliable(lt, rho, p)
+    new = replace(lt, target=lt.target.update(rho, p.target_rate),
+                  clutter=lt.clutter if away is None else lt.clutter.update(1.0 - away[0], p.clutter_rate))
+    if ok:
+        c = (float(centre[0]), float(centre[1]))
+        new = learn_longterm(new, st.model, obs.image, obs.grey, c, log_s, st.geom, p)
+    return new
+
+
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
     """One frame: the response at the prediction, the particles weighed, the estimate, the target's
@@ -255,7 +313,9 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     s = float(np.exp(st.log_s))
     bw, bh = geom.size0[0] * s, geom.size0[1] * s
     extra = speed_noise(p, st.velocity, dt)
-    resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p)
+    lt = _longterm_of(st, p)
+    resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p,
+                      None if lt is None else lt.det)
     parts = _particles(st, proposed, resp.peak()[0], extra, p, rng, dt)
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
@@ -274,7 +334,14 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     log_s = st.log_s
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)
-    cues = () if colour_seen is None else (_colour_cue(st, 1.0 - colour_seen[0], p),)
+    cues: tuple[Cue, ...] = () if colour_seen is None else (_colour_cue(st, 1.0 - colour_seen[0], p),)
+    lt_seen = None
+    if lt is not None:
+        # the long-term filter's distance at the estimate and its best half a box away (as the adaptive one's)
+        lt_seen = (1.0 - float(resp.at(centre[None, :], "lt")[0]), resp.best_away(centre, (0.5 * bw, 0.5 * bh), "lt"))
+        if p.longterm_witness:
+            cues = cues + (Cue(lt_seen[0], may_fail(lt.target, p.longterm_outlier),
+                               may_fail(lt.clutter, p.longterm_outlier)),)
     hidden_before = st.hidden_run >= p.hidden_after
     # the estimate's place under the target's motion prior against clutter's, uniform over the window:
     # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
@@ -290,7 +357,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     if run > 0:
         # unseen, the target's place spreads by search_growth mean sides a frame
         spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
-        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen)
+        # unseen, the target's log size spreads by search_size_growth a frame
+        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen, lt, p.search_size_growth * run)
         if srch.found is not None:
             confidence, run, spread = srch.confidence, 0, 0.0
     found = srch.found
@@ -316,8 +384,15 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     if p.search_clutter:
         # the search's best placement on a frame the target stayed hidden is clutter's (TLD's negatives)
-        seen = srch.rho if run > 0 and found is None else None
-        learnt["sclutter"] = st.sclutter.update(seen, p.clutter_rate) if seen is not None else ChiSquare()
+        hid = run > 0 and found is None
+        learnt["sclutter"] = st.sclutter.update(srch.rho, p.clutter_rate) if hid and srch.rho is not None \
+            else ChiSquare()
+        if lt is not None:
+            lt = replace(lt, sclutter=lt.sclutter.update(srch.rho_lt, p.clutter_rate) if hid and srch.rho_lt is not None
+                         else ChiSquare())
+    if lt is not None:
+        learnt["longterm"] = _learn_longterm(st, lt, lt_seen, obs, p, centre, log_s,
+                                             present and found is None, confident and present and found is None)
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
@@ -340,12 +415,14 @@ def initialise(obs: DCFObservation, box: Box, p: DCFParams, rng: np.random.Gener
     geom = tm.geometry((w, h), p)
     mdl = tm.init_model(obs.image, obs.grey, obs.is_grey, (float(centre[0]), float(centre[1])), geom, p)
     n = p.particles
+    lt = init_longterm(mdl, _prior(p.prior_target, p.prior_count), _prior(p.prior_clutter, p.prior_count)) \
+        if p.longterm else None
     # x_0 ~ N(centre, 1 px), log s_0 = 0
     parts = np.column_stack([centre[0] + rng.normal(0.0, 1.0, n), centre[1] + rng.normal(0.0, 1.0, n), np.zeros(n)])
     return DCFState(geom=geom, model=mdl, particles=parts, centre=centre, log_s=0.0, velocity=np.zeros(2),
                     target=_prior(p.prior_target, p.prior_count), clutter=_prior(p.prior_clutter, p.prior_count),
                     ctarget=_prior(p.prior_colour_target, p.prior_count),
-                    cclutter=_prior(p.prior_colour_clutter, p.prior_count))
+                    cclutter=_prior(p.prior_colour_clutter, p.prior_count), longterm=lt)
 
 
 class DCFTracker:
