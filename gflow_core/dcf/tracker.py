@@ -289,6 +289,30 @@ def _learn_longterm(st: DCFState, lt: LongTerm, seen: Any, obs: DCFObservation, 
     return new
 
 
+def _longterm_seen(resp: tm.Response, centre: np.ndarray, bw: float, bh: float, lt: LongTerm | None, p: DCFParams
+                   ) -> tuple[tuple[float, tuple[float, float] | None] | None, tuple[Cue, ...]]:
+    """The long-term filter's distance at the estimate and its best half a box away (as the adaptive
+    one's), and its cue of presence when ``longterm_witness`` asks for one (none without the filter)."""
+    if lt is None:
+        return None, ()
+    lt_seen = (1.0 - float(resp.at(centre[None, :], "lt")[0]), resp.best_away(centre, (0.5 * bw, 0.5 * bh), "lt"))
+    if not p.longterm_witness:
+        return lt_seen, ()
+    return lt_seen, (Cue(lt_seen[0], may_fail(lt.target, p.longterm_outlier), may_fail(lt.clutter, p.longterm_outlier)),)
+
+
+def _learn_search_clutter(st: DCFState, lt: LongTerm | None, srch: Search, hid: bool, p: DCFParams,
+                          learnt: dict[str, Any]) -> LongTerm | None:
+    """The search's best placement on a frame the target stayed hidden (``hid``) is clutter's (TLD's
+    negatives): learnt into ``learnt["sclutter"]``, and the long-term filter's into the returned ``lt``."""
+    learnt["sclutter"] = st.sclutter.update(srch.rho, p.clutter_rate) if hid and srch.rho is not None \
+        else ChiSquare()
+    if lt is not None:
+        lt = replace(lt, sclutter=lt.sclutter.update(srch.rho_lt, p.clutter_rate) if hid and srch.rho_lt is not None
+                     else ChiSquare())
+    return lt
+
+
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
     """One frame: the response at the prediction, the particles weighed, the estimate, the target's
@@ -335,13 +359,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)
     cues: tuple[Cue, ...] = () if colour_seen is None else (_colour_cue(st, 1.0 - colour_seen[0], p),)
-    lt_seen = None
-    if lt is not None:
-        # the long-term filter's distance at the estimate and its best half a box away (as the adaptive one's)
-        lt_seen = (1.0 - float(resp.at(centre[None, :], "lt")[0]), resp.best_away(centre, (0.5 * bw, 0.5 * bh), "lt"))
-        if p.longterm_witness:
-            cues = cues + (Cue(lt_seen[0], may_fail(lt.target, p.longterm_outlier),
-                               may_fail(lt.clutter, p.longterm_outlier)),)
+    lt_seen, lt_cues = _longterm_seen(resp, centre, bw, bh, lt, p)
+    cues = cues + lt_cues
     hidden_before = st.hidden_run >= p.hidden_after
     # the estimate's place under the target's motion prior against clutter's, uniform over the window:
     # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
@@ -383,13 +402,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     if present:
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     if p.search_clutter:
-        # the search's best placement on a frame the target stayed hidden is clutter's (TLD's negatives)
-        hid = run > 0 and found is None
-        learnt["sclutter"] = st.sclutter.update(srch.rho, p.clutter_rate) if hid and srch.rho is not None \
-            else ChiSquare()
-        if lt is not None:
-            lt = replace(lt, sclutter=lt.sclutter.update(srch.rho_lt, p.clutter_rate) if hid and srch.rho_lt is not None
-                         else ChiSquare())
+        lt = _learn_search_clutter(st, lt, srch, run > 0 and found is None, p, learnt)
     if lt is not None:
         learnt["longterm"] = _learn_longterm(st, lt, lt_seen, obs, p, centre, log_s,
                                              present and found is None, confident and present and found is None)
