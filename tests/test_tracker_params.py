@@ -157,7 +157,10 @@ def test_a_parameter_added_later_is_read_from_an_older_plan_as_the_code_before_i
     from pipeline.runtime.build import make_stage
     from pipeline.runtime.graph import Plan
 
+    from gflow_core.dcf.params import DCFParams
+
     assert added_later(GFlowParams) == {"lost_witness": False} and GFlowParams().lost_witness is True
+    assert added_later(DCFParams) == {"colour_outlier": 0.0, "search_min": 3}
     box = {"init": [10.0, 10.0, 20.0, 20.0]}
     plan = load_graph("gflow", overrides={"proposal": box, "filter": box})
     assert plan.tracker is not None and plan.tracker.params["lost_witness"] is True

@@ -77,9 +77,9 @@ class DCFParams:
     search_clutter: bool = param(True, "judge a hidden target's search candidate also against the distances of the "
                                         "search's own best placements on the frames it stayed hidden (TLD's negatives)")
     colour_outlier: float = param(0.01, "probability the colour cue fails: its densities are mixed with a uniform "
-                                        "one, so it alone cannot outvote the filter (0: never)")
+                                        "one, so it alone cannot outvote the filter (0: never)", before=0.0)
     search_min: int = param(10, "searches the search's own clutter must hold before it counts (as many as the "
-                                "priors' pseudo-samples: a few placements give too narrow a distribution)")
+                                "priors' pseudo-samples: a few placements give too narrow a distribution)", before=3)
     coast_velocity: float = param(0.5, "while the target is unseen its velocity decays by this factor a frame")
     search_sizes: int = param(1, "sizes the search for a hidden target may try at most (odd): the held size and, "
                                  "each way, up to (search_sizes - 1) / 2 more, search_size_step apart in log size, "
