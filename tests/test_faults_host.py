@@ -65,8 +65,10 @@ def test_bad_messages_are_rejected_counted_and_never_joined():
     assert sink.seqs("features", "Features") == [0, 1, 2]
     bad = {
         "future_seq": encode(_frame(3 + 9 + 1000)),
-        "old_seq": encode(_frame(1)),
-        "duplicate_seq": encode(_frame(2)),
+        # another message of a frame already consumed (a byte-identical copy is a restarted
+        # producer's repeat, counted and ignored: test_faults_restart.py)
+        "old_seq": encode(_frame(1, rng=np.random.default_rng(101))),
+        "duplicate_seq": encode(_frame(2, rng=np.random.default_rng(102))),
         "malformed_message": b"\x93\x01\x02 garbage",
         "wrong_type": encode(_particles(3)),
     }
