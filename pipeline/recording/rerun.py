@@ -85,7 +85,9 @@ def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
     of the values), ``tracker`` sets every stage's copy, as a graph without a block does."""
     from pipeline.runtime.tracker_block import TRACKER_KEY, own_fields, stage_tracker
 
+    where = f"--set for stage {stage!r}"
     if stage == TRACKER_KEY:
+        where = "--set tracker.NAME"
         if plan.tracker is None:
             copies = [n for n, s in plan.stages.items() if s.kind in STAGES and stage_tracker(STAGES[s.kind].Params)]
             if not copies:
@@ -97,7 +99,7 @@ def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
         if not stage:
             raise GraphError("--set tracker.NAME: the recording runs no stage of its tracker")
     sp = plan.stages[stage]
-    params = validate_params(sp.kind, {**plan.stage_params(stage), **sets}, f"--set for stage {stage!r}")
+    params = validate_params(sp.kind, {**plan.stage_params(stage), **sets}, where)
     cls = stage_tracker(STAGES[sp.kind].Params) if sp.kind in STAGES else None
     if plan.tracker is not None and cls is not None:
         plan.tracker.params = {k: params[k] for k in plan.tracker.params}
