@@ -148,40 +148,38 @@ def test_set_tracker_param_changes_what_every_stage_of_the_tracker_uses(name) ->
 
 
 def test_a_parameter_added_later_is_read_from_an_older_plan_as_the_code_before_it_behaved() -> None:
-    """A recorded plan that lacks a parameter added since (``param(before=...)``: G-flow's
-    ``lost_witness``, on by default) is read at the value the code had before it, in the tracker
-    block and in a plan recorded before the block, so the recording re-runs bit for bit; a plan that
-    names it keeps its value, and a new graph takes today's default."""
-    from gflow_core.gflow.params import GFlowParams
+    """A recorded plan that lacks a parameter added since (``param(before=...)``: dcf's
+    ``colour_outlier``, 0.01 by default, 0 before it existed) is read at the value the code had before
+    it, in the tracker block and in a plan recorded before the block, so the recording re-runs bit
+    for bit; a plan that names it keeps its value, and a new graph takes today's default."""
+    from gflow_core.dcf.params import DCFParams
     from gflow_core.params import added_later
     from pipeline.runtime.build import make_stage
     from pipeline.runtime.graph import Plan
 
-    from gflow_core.dcf.params import DCFParams
-
-    assert added_later(GFlowParams) == {"lost_witness": False} and GFlowParams().lost_witness is True
     assert added_later(DCFParams) == {"colour_outlier": 0.0, "search_min": 3}
+    assert (DCFParams().colour_outlier, DCFParams().search_min) == (0.01, 10)
     box = {"init": [10.0, 10.0, 20.0, 20.0]}
-    plan = load_graph("gflow", overrides={"proposal": box, "filter": box})
-    assert plan.tracker is not None and plan.tracker.params["lost_witness"] is True
+    plan = load_graph("dcf", overrides={"proposal": box, "filter": box})
+    assert plan.tracker is not None and plan.tracker.params["colour_outlier"] == 0.01
     meta = plan.config_metadata()
-    assert Plan.from_metadata({}, meta).tracker.params["lost_witness"] is True  # named: kept
+    assert Plan.from_metadata({}, meta).tracker.params["colour_outlier"] == 0.01  # named: kept
     block = json.loads(meta["tracker"])
-    del block["params"]["lost_witness"]
+    del block["params"]["colour_outlier"]
     old = Plan.from_metadata({}, {**meta, "tracker": json.dumps(block)})
-    assert old.tracker.params["lost_witness"] is False
-    assert make_stage(old, "filter").tracker.lost_witness is False
+    assert old.tracker.params["colour_outlier"] == 0.0
+    assert make_stage(old, "filter").core.colour_outlier == 0.0
     # before the block: each stage of the tracker held every value
     per_stage = {k: v for k, v in meta.items() if k != "tracker"}
     for k, v in meta.items():
-        if k.startswith("stage.") and json.loads(v)["kind"].startswith("gflow."):
+        if k.startswith("stage.") and json.loads(v)["kind"].startswith("dcf."):
             d = json.loads(v)
             d["params"] = {**{n: x for n, x in block["params"].items()}, **d["params"]}
             per_stage[k] = json.dumps(d)
     old = Plan.from_metadata({}, per_stage)
     assert old.tracker is None
-    assert {n: s.params["lost_witness"] for n, s in old.stages.items() if s.kind.startswith("gflow.")} == \
-        {"proposal": False, "filter": False}
+    assert {n: s.params["colour_outlier"] for n, s in old.stages.items() if s.kind.startswith("dcf.")} == \
+        {"proposal": 0.0, "filter": 0.0}
 
 
 def test_a_graph_without_a_tracker_block_keeps_its_per_stage_values() -> None:

@@ -132,10 +132,10 @@ class GFlowParams:
                                    "the target is hidden, search for it and re-seat the experts where it is "
                                    "found (gflow_core/gflow/guard.py)")
     lost_colour: bool = param(True, "the lost guard weighs the box's colour histogram too (colour frames)")
-    lost_witness: bool = param(True, "G-flow's first look witnesses for the box when the edges call it lost: "
-                                     "tracked while its misfit is judged the target's against the found frames' "
-                                     "and the clutter's and it fits the box better than anything beside it "
-                                     "(gflow_core/gflow/guard.py)", before=False)
+    lost_witness: bool = param(False, "G-flow's first look witnesses for the box when the edges call it lost: "
+                                      "tracked while its misfit is judged the target's against the found frames' "
+                                      "and the clutter's and it fits the box better than anything beside it "
+                                      "(gflow_core/gflow/guard.py)")
     lost_window: float = param(1.5, "half-width of the first re-detection window, in box sizes")
     lost_growth: float = param(0.1, "the re-detection window widens by this many box sizes a lost frame")
     lost_hold: float = param(1.0, "while the target is held, the experts are kept within this many box sizes of "
