@@ -96,6 +96,14 @@ class DCFParams:
                                          "whether the target is there")
     longterm_outlier: float = param(0.05, "probability the long-term filter's cue fails (its densities mixed with a "
                                           "uniform one, as colour_outlier)")
+    augment: float = param(0.0, "weight of warped copies of the first window (rolled, resized, blurred) in the first "
+                                "filter's sample (MOSSE, UPDT; gflow_core.dcf.augment; 0: the first window alone)",
+                           before=0.0)
+    augment_roll: float = param(30.0, "the copies roll the first window by up to this many degrees each way (at a "
+                                      "third, two thirds and all of it)")
+    augment_scale: float = param(0.1, "the copies resize the first window by exp(+-this) (0: none)")
+    augment_blur: float = param(2.0, "a copy blurs the first window by a Gaussian of this sigma, template pixels "
+                                     "(0: none)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -163,6 +171,11 @@ class DCFParams:
             raise ValueError(f"search_size_growth must be finite and >= 0, got {self.search_size_growth}")
         if self.search_min < 1:
             raise ValueError(f"search_min must be >= 1, got {self.search_min}")
+        if not (0 <= self.augment <= 1 and 0 <= self.augment_roll <= 90 and math.isfinite(self.augment_scale)
+                and 0 <= self.augment_scale <= 1 and math.isfinite(self.augment_blur) and self.augment_blur >= 0):
+            raise ValueError(f"augment must be in [0, 1], augment_roll in [0, 90] degrees, augment_scale in [0, 1] and "
+                             f"augment_blur finite and >= 0, got {self.augment}, {self.augment_roll}, "
+                             f"{self.augment_scale}, {self.augment_blur}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")
