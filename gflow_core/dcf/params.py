@@ -104,6 +104,9 @@ class DCFParams:
     augment_scale: float = param(0.1, "the copies resize the first window by exp(+-this) (0: none)")
     augment_blur: float = param(2.0, "a copy blurs the first window by a Gaussian of this sigma, template pixels "
                                      "(0: none)")
+    young: float = param(0.0, "while the running filter is young its rate is max(rate, 1 / (young + n + 1)), n the frames "
+                              "the target was seen on before: the mean of the frames seen, the first counting for "
+                              "this many (gflow_core.dcf.rates; 0: rate from the first frame)", before=0.0)
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -176,6 +179,8 @@ class DCFParams:
             raise ValueError(f"augment must be in [0, 1], augment_roll in [0, 90] degrees, augment_scale in [0, 1] and "
                              f"augment_blur finite and >= 0, got {self.augment}, {self.augment_roll}, "
                              f"{self.augment_scale}, {self.augment_blur}")
+        if not (math.isfinite(self.young) and self.young >= 0):
+            raise ValueError(f"young must be finite and >= 0, got {self.young}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

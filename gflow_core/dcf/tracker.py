@@ -34,6 +34,7 @@ from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
+from .rates import filter_rate
 from .state import DCFObservation, DCFProposal, DCFState
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
@@ -258,7 +259,8 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     if colour_seen is not None:
         learnt["ctarget"] = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
     if confident:
-        learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p, p.rate)
+        learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p,
+                                   filter_rate(p, st.target.n - p.prior_count))
     return log_s, learnt
 
 
