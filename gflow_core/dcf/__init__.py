@@ -23,7 +23,7 @@ BACF and CSRT learn theirs:
   is kept as an anchor and detection uses (1 - ``anchor_weight``) the running filter + that anchor.
   Two options, off by default: with ``augment`` the first sample averages in warped copies of the
   first window -- rolled, resized, blurred about the target (:mod:`.augment`; MOSSE, Bolme et al.
-  2010, sec. 3.2; UPDT, Bhat et al. ECCV 2018) -- and with ``young`` the running filter's rate is
+  2010; UPDT, Bhat et al. ECCV 2018) -- and with ``young`` the running filter's rate is
   max(``rate``, 1 / (``young`` + n + 1)) after n frames the target was seen on, the mean of the
   frames seen while that is faster (:mod:`.rates`).
 * **Colour** (:mod:`.histogram`): Staple's model (Bertinetto et al., CVPR 2016): histograms of the

@@ -2,9 +2,9 @@
 
 The filter of the first frame is the average of one sample: it knows the target only as it looked
 then, and its response falls off quickly when the target rolls, blurs or changes size before the
-running average has seen it do so. Bolme et al. (MOSSE, CVPR 2010, sec. 3.2) train the initial
+running average has seen it do so. Bolme et al. (MOSSE, CVPR 2010) train the initial
 filter on eight random small affine perturbations of the first frame's patch; Bhat et al. (UPDT,
-ECCV 2018, sec. 4.2) on a fixed set of copies -- rotations, blur, shifts, flips, dropout. Here a
+ECCV 2018) on a fixed set of copies -- rotations, blur, shifts, flips, dropout. Here a
 fixed set (no random draw, so the model does not depend on the seed):
 
 * rotations of the window about the target's centre by +-a/3, +-2a/3 and +-a, a = ``augment_roll``
@@ -99,6 +99,6 @@ def first_sample(x_hat: np.ndarray, grey: np.ndarray, centre: tuple[float, float
     if not xs:
         return first
     rest = [cf.train(x, label_hat) for x in xs]
-    # A_0 = (1 - w) A(I_0) + w mean_j A(T_j I_0), B_0 likewise                    (DSST eq. 5, MOSSE sec. 3.2)
+    # A_0 = (1 - w) A(I_0) + w mean_j A(T_j I_0), B_0 likewise                    (DSST eq. 5; MOSSE's initial filter)
     return cf.blend(first, cf.Spectrum(np.mean([r.num for r in rest], axis=0), np.mean([r.den for r in rest], axis=0)),
                     w)
