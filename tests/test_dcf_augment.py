@@ -112,7 +112,10 @@ def test_mistyped_settings_are_refused_by_name(bad: dict) -> None:
         DCFParams(**bad)
 
 
-def test_recordings_made_before_read_both_as_off() -> None:
+def test_both_are_off_by_default_so_older_recordings_read_them_as_the_code_before() -> None:
+    """Off by default, neither needs ``param(before=...)``: a plan recorded before they existed reads
+    today's default, which is what the code did then (turned on by default, each would need before=0)."""
     from gflow_core.params import added_later
-    later = added_later(DCFParams)
-    assert later["augment"] == 0.0 and later["young"] == 0.0
+    p = DCFParams()
+    assert (p.augment, p.young) == (0.0, 0.0)
+    assert "augment" not in added_later(DCFParams) and "young" not in added_later(DCFParams)

@@ -97,8 +97,7 @@ class DCFParams:
     longterm_outlier: float = param(0.05, "probability the long-term filter's cue fails (its densities mixed with a "
                                           "uniform one, as colour_outlier)")
     augment: float = param(0.0, "weight of warped copies of the first window (rolled, resized, blurred) in the first "
-                                "filter's sample (MOSSE, UPDT; gflow_core.dcf.augment; 0: the first window alone)",
-                           before=0.0)
+                                "filter's sample (MOSSE, UPDT; gflow_core.dcf.augment; 0: the first window alone)")
     augment_roll: float = param(30.0, "the copies roll the first window by up to this many degrees each way (at a "
                                       "third, two thirds and all of it)")
     augment_scale: float = param(0.1, "the copies resize the first window by exp(+-this) (0: none)")
@@ -106,7 +105,7 @@ class DCFParams:
                                      "(0: none)")
     young: float = param(0.0, "while the running filter is young its rate is max(rate, 1 / (young + n + 1)), n the frames "
                               "the target was seen on before: the mean of the frames seen, the first counting for "
-                              "this many (gflow_core.dcf.rates; 0: rate from the first frame)", before=0.0)
+                              "this many (gflow_core.dcf.rates; 0: rate from the first frame)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
