@@ -59,22 +59,12 @@ from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, core_params
 
-__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of", "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
+__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of", "particles_msg"]
 
-PROPOSAL_SNAPSHOT_VERSION = 1
+PROPOSAL_SNAPSHOT_VERSION = 1  # a proposal stage's snapshot: its step counter (CounterSnapshot)
 
 #: a proposal of whole clouds: (the posterior of t-1, rng, dt) -> the proposal of t
 CloudProposal = Callable[[ParticleCloud, np.random.Generator, float], ParticleCloud]
-
-
-def counter_snapshot(done: int) -> bytes:
-    """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
-    return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
-
-
-def restored_counter(stage: str, data: bytes) -> int:
-    """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
-    return versioned_snapshot(data, CounterSnapshot, stage, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
 
 
 def cloud_of(msg: Particles) -> ParticleCloud:
@@ -83,17 +73,6 @@ def cloud_of(msg: Particles) -> ParticleCloud:
         return ParticleCloud(alpha=msg.alpha.array(), k=msg.k.array(), log_w=msg.log_w.array())
     except (MessageError, ValueError) as e:
         raise StageInputError(f"particles {msg.header.seq}: {e}") from None
-
-
-def posterior_input(ctx: StageContext, inputs: Mapping[str, Message | None]) -> tuple[Particles, ParticleCloud, float]:
-    """A proposal stage's inputs: the posterior message of frame t-1, its cloud, and the periods from
-    it to frame t (:mod:`stages.time_step`; 1 unless ``timed`` joined frame t as ``frames``)."""
-    msg = inputs["particles"]
-    assert isinstance(msg, Particles)
-    cloud = cloud_of(msg)
-    frame = inputs.get("frames")
-    dt = time_step(ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
-    return msg, cloud, dt
 
 
 def particles_msg(header: Header, kind: str, cloud: ParticleCloud) -> Particles:
@@ -438,7 +417,11 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         return propose
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        msg, cloud, dt = posterior_input(self.ctx, inputs)
+        msg, frame = inputs["particles"], inputs.get("frames")
+        assert isinstance(msg, Particles)
+        cloud = cloud_of(msg)
+        # the periods from the posterior of t-1 to frame t (1 unless ``timed`` joined frame t as ``frames``)
+        dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
         t = seq + 1
         rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.purpose)
         try:
@@ -452,7 +435,7 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         return {"proposed": self.done}
 
     def snapshot(self) -> bytes:
-        return counter_snapshot(self.done)
+        return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=self.done))
 
     def restore(self, data: bytes) -> None:
-        self.done = restored_counter(self.ctx.name, data)
+        self.done = versioned_snapshot(data, CounterSnapshot, self.ctx.name, "proposal", PROPOSAL_SNAPSHOT_VERSION).done

@@ -39,11 +39,11 @@ from gflow_core.m2.model import M2Model
 from gflow_core.spec import TrackerSpec
 
 from .base import Params, StageContext
-from .box_tracker import BoxProposalStage, CloudProposal, cloud_of, particles_msg
+from .box_tracker import BoxProposalStage, CloudProposal
 from .tracker_params import SeedBoxFields, stage_params, tracker_stage
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
-           "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
+           "M2ProposalStage", "M2ProposalParams"]
 
 PURPOSE = PURPOSE_PROPOSAL  # 0x9209
 
