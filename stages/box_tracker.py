@@ -49,13 +49,12 @@ from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
-from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame
+from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, tracker_rng
 
 from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
                                  estimate_of)
 from gflow_msgs.snapshots import CounterSnapshot
-from .rng import tracker_rng
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, core_params
 

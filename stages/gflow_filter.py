@@ -47,7 +47,7 @@ from gflow_msgs.gflow import pose_estimate_of, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
-from .rng import tracker_rng
+from gflow_core.tracker import tracker_rng
 from .tracker_params import stage_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams"]

@@ -52,7 +52,7 @@ from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
-from .rng import tracker_rng
+from gflow_core.tracker import tracker_rng
 from .time_step import time_step
 from .tracker_params import stage_params
 
