@@ -35,27 +35,20 @@ MODULES: dict[str, str] = {
 }
 
 
-def _spec_kinds() -> dict[str, str | None]:
-    """{kind: its module, or None for the generic box stages} of the registered trackers' stages."""
+def _spec_kinds() -> dict[str, tuple[str | None, str]]:
+    """{kind: (its module, or None for the generic box stages; the tracker whose spec gives it)} of the
+    registered trackers' stages. A kind several specs give (a spec copied with ``dataclasses.replace``
+    keeps its kinds) is the tracker's it is named for (``NAME.filter``), else the last one's by name."""
     from gflow_core.registry import trackers
 
-    out: dict[str, str | None] = {}
+    out: dict[str, tuple[str | None, str]] = {}
     for s in trackers().values():
-        out.update({k: None for k in (s.proposal_kind, s.filter_kind) if s.box is not None})
-        out.update(s.stages)
+        kinds: dict[str, str | None] = {k: None for k in (s.proposal_kind, s.filter_kind) if s.box is not None}
+        kinds.update(s.stages)
+        for k, module in kinds.items():
+            if k not in out or out[k][1] != k.split(".")[0]:
+                out[k] = (module, s.name)
     return out
-
-
-def _box_stage(kind: str) -> type[Stage]:
-    """The generic box stage of ``kind``, made from its tracker's spec (KeyError: no tracker has it)."""
-    from gflow_core.registry import trackers
-
-    from .spec_box import spec_stage_class
-
-    for spec in trackers().values():
-        if spec.box is not None and kind in (spec.proposal_kind, spec.filter_kind):
-            return spec_stage_class(spec, kind)
-    raise KeyError(kind)
 
 
 class _Stages(Mapping):
@@ -66,9 +59,13 @@ class _Stages(Mapping):
 
     def _load(self, kind: str) -> type[Stage]:
         """The class of ``kind`` (KeyError: none)."""
-        module = MODULES[kind] if kind in MODULES else _spec_kinds()[kind]
-        if module is None:
-            return _box_stage(kind)
+        module, name = (MODULES[kind], "") if kind in MODULES else _spec_kinds()[kind]
+        if module is None:  # the generic box stages, made from the tracker's spec
+            from gflow_core.registry import get
+
+            from .spec_box import spec_stage_class
+
+            return spec_stage_class(get(name), kind)
         mod = importlib.import_module(module)
         for cls in vars(mod).values():
             if isinstance(cls, type) and issubclass(cls, Stage) and cls.__dict__.get("kind") == kind:
