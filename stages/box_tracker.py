@@ -51,14 +51,14 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
 from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, tracker_rng
 
-from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
+from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
-                                 estimate_of)
-from gflow_msgs.snapshots import CounterSnapshot
+                                 estimate_of, particles_msg)
+from gflow_msgs.snapshots import CounterSnapshot, article, versioned_snapshot
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, core_params
 
-__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of", "particles_msg"]
+__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of"]
 
 PROPOSAL_SNAPSHOT_VERSION = 1  # a proposal stage's snapshot: its step counter (CounterSnapshot)
 
@@ -72,12 +72,6 @@ def cloud_of(msg: Particles) -> ParticleCloud:
         return ParticleCloud(alpha=msg.alpha.array(), k=msg.k.array(), log_w=msg.log_w.array())
     except (MessageError, ValueError) as e:
         raise StageInputError(f"particles {msg.header.seq}: {e}") from None
-
-
-def particles_msg(header: Header, kind: str, cloud: ParticleCloud) -> Particles:
-    """The Particles message of a cloud."""
-    return Particles(header=header, kind=kind, alpha=NDArray.of(cloud.alpha), k=NDArray.of(cloud.k),
-                     log_w=NDArray.of(cloud.log_w))
 
 
 @dataclass(frozen=True)
