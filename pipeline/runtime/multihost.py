@@ -60,15 +60,20 @@ def node_listen(launcher: ZenohSettings) -> tuple[str, ...]:
     return tuple(dict.fromkeys(out)) or ("tcp/127.0.0.1:0",)
 
 
-def alive_stages(session: zenoh.Session, stream: str, timeout: float = 1.0) -> set[str]:
-    """The stages of ``stream`` that hold a liveliness token anywhere on the network now."""
+def _token_names(session: zenoh.Session, key: str, timeout: float) -> set[str]:
+    """The last chunk of every liveliness token matching ``key`` anywhere on the network now."""
     names = set()
-    for reply in session.liveliness().get(f"gflow/{stream}/_alive/*", timeout=timeout):
+    for reply in session.liveliness().get(key, timeout=timeout):
         try:
             names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
         except Exception:  # an error reply: nothing to add
             continue
     return names
+
+
+def alive_stages(session: zenoh.Session, stream: str, timeout: float = 1.0) -> set[str]:
+    """The stages of ``stream`` that hold a liveliness token anywhere on the network now."""
+    return _token_names(session, f"gflow/{stream}/_alive/*", timeout)
 
 
 def replay_token(stream: str) -> str:
@@ -79,13 +84,7 @@ def replay_token(stream: str) -> str:
 
 def replays_on(session: zenoh.Session, stream: str, timeout: float = 1.0) -> set[str]:
     """The process ids of the replays publishing on ``stream`` anywhere on the network now."""
-    pids = set()
-    for reply in session.liveliness().get(f"gflow/{stream}/_replay/*", timeout=timeout):
-        try:
-            pids.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
-        except Exception:  # an error reply: nothing to add
-            continue
-    return pids
+    return _token_names(session, f"gflow/{stream}/_replay/*", timeout)
 
 
 def stream_in_use(session: zenoh.Session, stream: str, local: set[str], external: bool = False) -> str:
