@@ -95,7 +95,6 @@ from .pose_opinion import (
 from .background import TiledBackground, TiledTexels
 from .texture import anchored_predict, kalman_update, object_mask
 from .visibility import vertex_normals, visibility_weights
-from .walk import walk_growth
 
 __all__ = [
     "GFlowConfig",
@@ -290,7 +289,6 @@ class GFlowConfig:
     texel_noise_adapt: bool = False
     local_background: float = 0.0
     self_occlusion: float = 0.0
-    walk_memory: float = 0.0
 
     def __post_init__(self) -> None:
         for nm in ("n_experts", "n_samples"):
@@ -374,10 +372,6 @@ class GFlowConfig:
             raise ValueError(f"self_occlusion must be a cosine in [0, 1] (0: every vertex visible), got {so!r}")
         if not isinstance(self.texel_noise_adapt, (bool, np.bool_)):
             raise ValueError(f"texel_noise_adapt must be True or False, got {self.texel_noise_adapt!r}")
-        wm = self.walk_memory
-        if isinstance(wm, bool) or not isinstance(wm, (int, float, np.floating, np.integer)) or not (
-                math.isfinite(wm) and wm >= 0):
-            raise ValueError(f"walk_memory must be a time in frame periods >= 0 (0: a random walk), got {wm!r}")
         if not (0.0 < self.texture_decay <= 1.0):
             raise ValueError(f"texture_decay must be in (0, 1], got {self.texture_decay!r}")
         if not (0.0 < self.resample_ess_fraction <= 1.0):
@@ -420,10 +414,10 @@ class GFlowConfig:
             raise ValueError(f"dt must be finite and >= 1 frame period, got {dt!r}")
         if dt == 1.0:
             return self
-        s = math.sqrt(walk_growth(dt, self.walk_memory))
+        s = math.sqrt(dt)
 
         def walk(v: float | tuple[float, ...]) -> tuple[float, ...]:
-            # std over dt periods: sqrt(g(dt)) std, sqrt(dt) std for a random walk  (inf stays inf)
+            # std over dt periods of a random walk: sqrt(dt) std  (inf stays inf)
             return tuple(x * s for x in cast("tuple[float, ...]", v))
 
         a = self.texture_decay

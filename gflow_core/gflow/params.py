@@ -142,10 +142,6 @@ class GFlowParams:
                                   "where it was last found (0: wherever G-flow takes them)")
     lost_scales: tuple[float, ...] = param((1.0, 0.93, 1.07), "sizes (multiples of the held size) searched when "
                                                              "re-detecting")
-    walk_memory: float = param(0.0, "correlation time of the pose's velocity, frame periods: over a step of dt "
-                                    "periods the walk's variance grows as an integrated Ornstein-Uhlenbeck "
-                                    "motion's (dt / tau - 1 + exp(-dt / tau)), not as dt (0: a random walk; "
-                                    "dt = 1 unchanged)")
 
     def __post_init__(self) -> None:
         self.config()  # every check of GFlowConfig
