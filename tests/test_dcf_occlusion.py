@@ -21,6 +21,7 @@ from gflow_core.dcf.state import from_arrays, to_arrays
 from gflow_core.dcf.tracker import TRACKER, _dists, _judge, _learn
 from gflow_core.tracker import FrameRng, step
 from tests.core.test_dcf_tracker import Scene
+from tests.test_dcf_search_clutter import hidden_frames
 
 HIDE = (12, 24)  # frames [12, 24): a patch of background covers the target
 
@@ -103,15 +104,7 @@ def test_the_colour_cue_fails_more_often_in_the_search_when_asked() -> None:
 
 
 def _hidden_frames(speed: float):
-    sc = Scene(lambda t: (60.0 + speed * t, 95.0), seed=3)
-    frames = []
-    for t in range(HIDE[1] + 10):
-        img = sc.frame(t)
-        if HIDE[0] <= t < HIDE[1]:
-            x, y, w, h = (int(round(v)) for v in sc.truth(t))
-            img[y - 4:y + h + 4, x - 4:x + w + 4] = sc.bg[y - 4:y + h + 4, x - 4:x + w + 4].astype(np.uint8)
-        frames.append(img)
-    return sc, frames
+    return hidden_frames(lambda t: (60.0 + speed * t, 95.0), HIDE, HIDE[1] + 10)
 
 
 def test_after_a_redetection_the_motion_prior_is_widened_by_the_typical_speed() -> None:
