@@ -67,7 +67,8 @@ class DCFState:
         target was last seen (empty while it is; ``search_clutter``).
     longterm : the long-term filter and its distributions (``longterm``; :mod:`.longterm`), or None.
     speed2 : px^2 / frame^2, running mean of |v|^2 on the frames the target was tracked
-        (``redetect_speed``; 0 without).
+        (``redetect_speed``; 0 without), from 0 at rate ``target_rate`` (so low over the first
+        1 / target_rate tracked frames).
     """
 
     geom: Geometry

@@ -405,8 +405,9 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         new_parts[:, :2] += centre - mean[:2]
         velocity = np.zeros(2)
         state = "tracked"
-        if p.redetect_speed:
-            # the velocity is unknown, v ~ N(0, (E|v|^2 / 2) I): the next frame's prior is wider by its std
+        if p.redetect_speed and hidden_before:
+            # after the target was judged hidden its velocity is unknown, v ~ N(0, (E|v|^2 / 2) I): the next
+            # frame's prior is wider by its std (a frame in doubt only: the velocity was known a frame ago)
             spread = math.sqrt(0.5 * st.speed2)
     elif not present:
         # hidden, or in doubt: the box holds the prediction, nothing is learnt, the velocity decays
