@@ -106,9 +106,9 @@ class DCFParams:
     search_colour_outlier: float = param(0.0, "probability the colour cue fails on a search candidate, if above "
                                               "colour_outlier: the colour model is learnt against the target's "
                                               "surroundings, not the places the search looks")
-    redetect_speed: bool = param(False, "after the search finds a hidden target its velocity is unknown: the next "
-                                        "frame's motion prior is widened by the target's typical speed, learnt on "
-                                        "the frames it was tracked")
+    redetect_speed: bool = param(False, "after the search finds a target judged hidden its velocity is unknown: "
+                                        "the next frame's motion prior is widened by the target's typical speed, "
+                                        "learnt on the frames it was tracked")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
