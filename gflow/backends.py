@@ -15,7 +15,7 @@ import numpy as np
 
 from gflow_core.registry import get as get_spec
 from gflow_core.tracker import Box, Estimate, FrameRng, TrackingFilter, UnusableFrame
-from stages.rng import stream_hash
+from gflow_core.tracker import stream_hash
 
 from .errors import GflowError, UnusableFrameError
 

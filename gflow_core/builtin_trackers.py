@@ -109,13 +109,16 @@ _ORIGIN = __name__
 
 #: the chamfer tracker (K = 1 exemplar learnt from the first frame; graph ``chamfer``)
 CHAMFER = TrackerSpec("chamfer", ChamferParams, _chamfer, graph="chamfer", cli="pipeline.cli.trackers.chamfer",
+                      stages={"chamfer.proposal": "stages.particle_proposal", "chamfer.filter": "stages.particle_filter"},
                       origin=_ORIGIN)
 #: M2 with a learned model. Its graph's preprocess reads edges with the settings models are learned with by
 #: default (gflow track and the Python API read a model's own from its file); a patch model's parameters are
 #: PatchParams (graph m2_patch)
 M2 = TrackerSpec("m2", M2Params, _m2, setup=m2_setup, graph="m2", cli="pipeline.cli.trackers.m2",
                  model_option="--model", model_required=True, preprocess=dataclasses.asdict(LEARN_EDGES),
-                 variants=(PatchParams,), origin=_ORIGIN)
+                 variants=(PatchParams,), origin=_ORIGIN,
+                 stages={"m2.proposal": "stages.particle_proposal", "m2.filter": "stages.particle_filter",
+                         "patch.filter": "stages.patch_filter"})
 
 #: the trackers gflow ships
 BUILTIN: tuple[TrackerSpec, ...] = (
@@ -123,6 +126,7 @@ BUILTIN: tuple[TrackerSpec, ...] = (
     CHAMFER,
     DCF,
     TrackerSpec("gflow", GFlowParams, _gflow, setup=gflow_setup, graph="gflow", cli="pipeline.cli.trackers.gflow",
-                model_option="--model", origin=_ORIGIN),
+                model_option="--model", origin=_ORIGIN,
+                stages={"gflow.proposal": "stages.gflow_proposal", "gflow.filter": "stages.gflow_filter"}),
     M2,
 )

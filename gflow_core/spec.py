@@ -136,6 +136,12 @@ class TrackerSpec:
         edge settings its models are learned with by default, :mod:`gflow_core.m2.edge_settings`):
         the graph loader fills the preprocess stage of a graph whose tracker block names the tracker
         with these values, under the graph's own and the command line's. Empty: the stage's defaults.
+    stages : {kind: module}
+        Its stage classes that are modules of their own, by kind: the dotted module that defines the
+        class of each (``{"gflow.filter": "stages.gflow_filter"}``; a tracker of another package may
+        name its own). The stage registry (``stages.registry``) imports a module when its kind is
+        first run; a kind of ``proposal_kind`` / ``filter_kind`` not named here is the generic box
+        stages' (``box``). A variant's stage (m2's ``patch.filter``) is named here too.
     variants : tuple of type
         Its other parameter dataclasses, each its setup may make instead of ``params`` (m2 with a
         patch model: :class:`~gflow_core.m2.patch_params.PatchParams`). A graph's tracker block takes
@@ -164,6 +170,7 @@ class TrackerSpec:
     model_required: bool = False
     preprocess: Mapping[str, Any] = field(default_factory=dict, hash=False)
     variants: tuple[type, ...] = ()
+    stages: Mapping[str, str] = field(default_factory=dict, hash=False)
     #: where it was registered (``gflow_core.builtin_trackers`` or the entry point), for messages
     origin: str = field(default="", compare=False)
 
@@ -191,6 +198,12 @@ class TrackerSpec:
             raise SpecError(f"tracker {self.name}: preprocess must map the preprocess stage's parameter names to "
                             f"values, got {self.preprocess!r}")
         object.__setattr__(self, "preprocess", MappingProxyType(dict(self.preprocess)))  # read-only, as the spec
+        if not isinstance(self.stages, Mapping) or not all(
+                isinstance(k, str) and isinstance(m, str) and all(p.isidentifier() for p in m.split("."))
+                for k, m in self.stages.items()):
+            raise SpecError(f"tracker {self.name}: stages must map stage kinds to dotted module names, got "
+                            f"{self.stages!r}")
+        object.__setattr__(self, "stages", MappingProxyType(dict(self.stages)))
         if not self.proposal_kind:
             object.__setattr__(self, "proposal_kind", f"{self.name}.proposal")
         if not self.filter_kind:

@@ -27,12 +27,14 @@ is ``(x, y, w, h)``, its top-left corner and its size.
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["Box", "Estimate", "box_estimate", "box_step_estimate", "FrameRng", "FilterSide", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
+__all__ = ["Box", "Estimate", "box_estimate", "box_step_estimate", "FrameRng", "stream_hash", "frame_rng",
+           "tracker_rng", "FilterSide", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
 
 #: (x, y, w, h) in pixels
 Box = tuple[float, float, float, float]
@@ -55,7 +57,7 @@ class FrameRng:
     ``path`` separates independent draws within the frame: G-flow's expert ``i`` draws from
     ``stream(i)`` and its resampling from ``stream()``; a particle filter's proposal and filter
     from ``stream(PURPOSE)`` with a constant of their own. ``stream_hash`` is the CRC-32 of the
-    camera's stream name (``stages.rng.stream_hash``; ``cam0`` in the shipped graphs).
+    camera's stream name (:func:`stream_hash`; ``cam0`` in the shipped graphs).
     """
 
     seed: int
@@ -70,6 +72,29 @@ class FrameRng:
     def stream(self, *path: int) -> np.random.Generator:
         """The generator of one independent draw of this frame."""
         return np.random.default_rng([int(self.seed), int(self.stream_hash), int(self.t), *(int(p) for p in path)])
+
+
+# Explicit random streams: frame ``t`` of stage ``purpose`` draws from
+# ``np.random.default_rng([seed, stream_hash, t, purpose])`` and nothing else, so a stage's
+# outputs depend only on its configuration, its seed and the ordered inputs it consumed.
+
+
+def stream_hash(stream: str) -> int:
+    """A stable 32-bit hash of a stream id (CRC-32; Python's ``hash`` is salted per process)."""
+    return zlib.crc32(stream.encode("utf-8"))
+
+
+def frame_rng(seed: int, stream: str, seq: int, purpose: int) -> np.random.Generator:
+    """The generator for one frame of one stage. ``purpose`` separates draws inside a stage."""
+    if seed < 0 or seq < 0:
+        raise ValueError(f"seed and seq must be non-negative, got seed={seed}, seq={seq}")
+    return np.random.default_rng([seed, stream_hash(stream), seq, purpose])
+
+
+def tracker_rng(seed: int, stream: str, seq: int) -> FrameRng:
+    """The draws of one frame for a tracker: ``FrameRng(seed, stream_hash(stream), seq)``, whose
+    ``stream(purpose)`` is :func:`frame_rng`'s generator."""
+    return FrameRng(int(seed), stream_hash(stream), int(seq))
 
 
 @dataclass(frozen=True)

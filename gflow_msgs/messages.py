@@ -25,7 +25,8 @@ import numpy as np
 __all__ = [
     "Header", "NDArray", "Frame", "Features", "ColourFeatures", "Particles", "Estimate", "ErrorReport", "EndOfStream",
     "StageStatus", "Control", "Snapshot", "Capture", "FOXGLOVE_TYPES", "ExpertStates", "PoseProposals", "PoseEstimate",
-    "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema", "MessageError", "estimate_of", "bins_of",
+    "Message", "MESSAGE_TYPES", "encode", "decode", "decode_as", "json_schema", "MessageError", "estimate_of",
+    "particles_msg", "bins_of",
 ]
 
 from .base import Box, Header, MessageError, NDArray  # noqa: E402  (re-exported)
@@ -136,6 +137,12 @@ class Estimate(msgspec.Struct, frozen=True, tag=True):
     state: str = "track"
     confidence: float = 1.0
     target_state: str = "tracked"
+
+
+def particles_msg(header: Header, kind: str, cloud: Any) -> Particles:
+    """The Particles message of a cloud (``gflow_core.m2.tracking.ParticleCloud``: ``alpha``, ``k``, ``log_w``)."""
+    return Particles(header=header, kind=kind, alpha=NDArray.of(cloud.alpha), k=NDArray.of(cloud.k),
+                     log_w=NDArray.of(cloud.log_w))
 
 
 def estimate_of(header: Header, est: Any) -> Estimate:

@@ -6,12 +6,13 @@ A stage's ``snapshot()`` is one msgpack encode of one of these Structs, carried 
 are never renamed, retyped or reordered, and a new field gets a default and goes at the end (the
 stage's snapshot version says which fields a snapshot has). Arrays are :class:`NDArray`; a Struct
 may nest a message (:class:`~gflow_msgs.gflow.ExpertStates`). The version numbers, and what each
-stage reads of older versions, are the stages' (``stages/``).
+stage reads of older versions, are the stages' (``stages/``); :func:`versioned_snapshot` reads one
+back and checks its version.
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, TypeVar
 
 import msgspec
 
@@ -19,7 +20,7 @@ from .base import NDArray
 from .gflow import ExpertStates
 
 __all__ = ["PreprocessSnapshot", "CounterSnapshot", "BoxFilterSnapshot", "AppearanceFilterSnapshot",
-           "GFlowProposalSnapshot", "GFlowFilterSnapshot"]
+           "GFlowProposalSnapshot", "GFlowFilterSnapshot", "versioned_snapshot", "article"]
 
 
 class PreprocessSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -116,3 +117,28 @@ class GFlowFilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=Tru
     held: tuple[float, ...] | None = None  # ... box (x, y, w, h) and pose (P) of the last found frame
     fit_level: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the first look's misfit when found
     look_clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of its best misfit beside the target then
+
+
+T = TypeVar("T")
+
+
+def versioned_snapshot(data: bytes, struct: type[T], stage: str, what: str, version: int | tuple[int, ...]) -> T:
+    """A stage's snapshot decoded as ``struct`` (a ``msgspec.Struct`` with a ``version`` field) and
+    checked to be of ``version`` (or one of several a stage still reads); ``ValueError`` in one line naming
+    the stage and ``what`` (``not a preprocess snapshot: ...``, ``preprocess snapshot version 3, expected
+    2``) otherwise."""
+    try:
+        snap = msgspec.msgpack.decode(data, type=struct)
+    except msgspec.DecodeError as e:
+        raise ValueError(f"stage {stage!r}: not {article(what)} {what} snapshot: {e}") from None
+    found, versions = getattr(snap, "version"), version if isinstance(version, tuple) else (version,)
+    if found not in versions:
+        raise ValueError(f"stage {stage!r}: {what} snapshot version {found}, expected "
+                         f"{' or '.join(map(str, versions))}")
+    return snap
+
+
+def article(word: str) -> str:
+    """'an' before a vowel, else 'a'."""
+    return "an" if word[:1].lower() in "aeiou" else "a"
+

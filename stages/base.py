@@ -172,28 +172,3 @@ class Stage(ABC, Generic[P]):
 
     def driver_ports(self) -> frozenset[str]:
         return frozenset(self.inputs) if self.drivers is None else self.drivers
-
-
-T = TypeVar("T")
-
-
-def versioned_snapshot(data: bytes, struct: type[T], stage: str, what: str, version: int | tuple[int, ...]) -> T:
-    """A stage's snapshot decoded as ``struct`` (a ``msgspec.Struct`` with a ``version`` field) and
-    checked to be of ``version`` (or one of several a stage still reads); ``ValueError`` in one line naming
-    the stage and ``what`` (``not a preprocess snapshot: ...``, ``preprocess snapshot version 3, expected
-    2``) otherwise."""
-    try:
-        snap = msgspec.msgpack.decode(data, type=struct)
-    except msgspec.DecodeError as e:
-        raise ValueError(f"stage {stage!r}: not {article(what)} {what} snapshot: {e}") from None
-    found, versions = getattr(snap, "version"), version if isinstance(version, tuple) else (version,)
-    if found not in versions:
-        raise ValueError(f"stage {stage!r}: {what} snapshot version {found}, expected "
-                         f"{' or '.join(map(str, versions))}")
-    return snap
-
-
-def article(word: str) -> str:
-    """'an' before a vowel, else 'a'."""
-    return "an" if word[:1].lower() in "aeiou" else "a"
-

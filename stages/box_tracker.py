@@ -49,32 +49,21 @@ from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
-from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame
+from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, tracker_rng
 
-from .base import Output, Stage, StageContext, StageInputError, article, versioned_snapshot
+from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
-                                 estimate_of)
-from gflow_msgs.snapshots import CounterSnapshot
-from .rng import tracker_rng
+                                 estimate_of, particles_msg)
+from gflow_msgs.snapshots import CounterSnapshot, article, versioned_snapshot
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, core_params
 
-__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of", "particles_msg", "posterior_input", "counter_snapshot", "restored_counter"]
+__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of"]
 
-PROPOSAL_SNAPSHOT_VERSION = 1
+PROPOSAL_SNAPSHOT_VERSION = 1  # a proposal stage's snapshot: its step counter (CounterSnapshot)
 
 #: a proposal of whole clouds: (the posterior of t-1, rng, dt) -> the proposal of t
 CloudProposal = Callable[[ParticleCloud, np.random.Generator, float], ParticleCloud]
-
-
-def counter_snapshot(done: int) -> bytes:
-    """The snapshot of a proposal stage: its step counter (its outputs depend on no other state)."""
-    return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=done))
-
-
-def restored_counter(stage: str, data: bytes) -> int:
-    """The step counter of a :func:`counter_snapshot` (``ValueError`` naming ``stage`` otherwise)."""
-    return versioned_snapshot(data, CounterSnapshot, stage, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
 
 
 def cloud_of(msg: Particles) -> ParticleCloud:
@@ -83,23 +72,6 @@ def cloud_of(msg: Particles) -> ParticleCloud:
         return ParticleCloud(alpha=msg.alpha.array(), k=msg.k.array(), log_w=msg.log_w.array())
     except (MessageError, ValueError) as e:
         raise StageInputError(f"particles {msg.header.seq}: {e}") from None
-
-
-def posterior_input(ctx: StageContext, inputs: Mapping[str, Message | None]) -> tuple[Particles, ParticleCloud, float]:
-    """A proposal stage's inputs: the posterior message of frame t-1, its cloud, and the periods from
-    it to frame t (:mod:`stages.time_step`; 1 unless ``timed`` joined frame t as ``frames``)."""
-    msg = inputs["particles"]
-    assert isinstance(msg, Particles)
-    cloud = cloud_of(msg)
-    frame = inputs.get("frames")
-    dt = time_step(ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
-    return msg, cloud, dt
-
-
-def particles_msg(header: Header, kind: str, cloud: ParticleCloud) -> Particles:
-    """The Particles message of a cloud."""
-    return Particles(header=header, kind=kind, alpha=NDArray.of(cloud.alpha), k=NDArray.of(cloud.k),
-                     log_w=NDArray.of(cloud.log_w))
 
 
 @dataclass(frozen=True)
@@ -438,7 +410,11 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         return propose
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        msg, cloud, dt = posterior_input(self.ctx, inputs)
+        msg, frame = inputs["particles"], inputs.get("frames")
+        assert isinstance(msg, Particles)
+        cloud = cloud_of(msg)
+        # the periods from the posterior of t-1 to frame t (1 unless ``timed`` joined frame t as ``frames``)
+        dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
         t = seq + 1
         rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.purpose)
         try:
@@ -452,7 +428,7 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         return {"proposed": self.done}
 
     def snapshot(self) -> bytes:
-        return counter_snapshot(self.done)
+        return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=self.done))
 
     def restore(self, data: bytes) -> None:
-        self.done = restored_counter(self.ctx.name, data)
+        self.done = versioned_snapshot(data, CounterSnapshot, self.ctx.name, "proposal", PROPOSAL_SNAPSHOT_VERSION).done

@@ -40,14 +40,14 @@ from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_f
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
-from .base import Output, StageContext, StageInputError, versioned_snapshot
+from .base import Output, StageContext, StageInputError
 from .gflow_common import (GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_proposals,
                            unpack_states)
 from gflow_msgs.gflow import pose_estimate_of, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
-from gflow_msgs.snapshots import GFlowFilterSnapshot
-from .rng import tracker_rng
+from gflow_msgs.snapshots import GFlowFilterSnapshot, versioned_snapshot
+from gflow_core.tracker import tracker_rng
 from .tracker_params import stage_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams"]

@@ -46,13 +46,13 @@ from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSet
 from gflow_core.gflow.split import BackgroundReplica, expert_state, placed, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
-from .base import Output, StageContext, StageInputError, versioned_snapshot
+from .base import Output, StageContext, StageInputError
 from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_states
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
-from gflow_msgs.snapshots import GFlowProposalSnapshot
-from .rng import tracker_rng
+from gflow_msgs.snapshots import GFlowProposalSnapshot, versioned_snapshot
+from gflow_core.tracker import tracker_rng
 from .time_step import time_step
 from .tracker_params import stage_params
 

@@ -52,7 +52,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import Output, StageContext, StageInputError
 from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message, MessageError, bins_of
-from .tracker_params import SeedBoxFields, stage_params
+from .tracker_params import SeedBoxFields, stage_params, tracker_stage
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -197,13 +197,12 @@ def _filter_of(spec: TrackerSpec) -> type[FilterStage]:
     """The filter stage of a contour tracker, made from its spec: kind ``spec.filter_kind``, parameters
     every field of ``spec.params`` with those of :class:`FilterFields`, a learned model required when
     the spec's is (``model_required``)."""
-    cap, cls = spec.name.capitalize(), spec.params
-    params = stage_params(f"{cap}FilterParams", cls, FilterFields, __name__,
-                          f"The {spec.name} tracker's filter: every field of :class:`{cls.__module__}.{cls.__name__}`, "
-                          f"``init``, ``seed`` and ``model``{' (a learned contour model, required)' * spec.model_required}.")
-    return type(f"{cap}FilterStage", (FilterStage,),
-                {"kind": spec.filter_kind, "Params": params, "needs_model": spec.model_required, "__module__": __name__,
-                 "__doc__": f"The {spec.name} tracker's filter (graph ``{spec.graph}``), made from its spec."})
+    cls = spec.params
+    return tracker_stage(FilterStage, spec, "Filter", FilterFields, __name__,
+                         f"The {spec.name} tracker's filter: every field of :class:`{cls.__module__}.{cls.__name__}`, "
+                         f"``init``, ``seed`` and ``model``{' (a learned contour model, required)' * spec.model_required}.",
+                         f"The {spec.name} tracker's filter (graph ``{spec.graph}``), made from its spec.",
+                         needs_model=spec.model_required)
 
 
 ChamferFilterStage = _filter_of(CHAMFER)

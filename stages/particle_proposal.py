@@ -39,11 +39,11 @@ from gflow_core.m2.model import M2Model
 from gflow_core.spec import TrackerSpec
 
 from .base import Params, StageContext
-from .box_tracker import BoxProposalStage, CloudProposal, cloud_of, particles_msg
-from .tracker_params import SeedBoxFields, stage_params
+from .box_tracker import BoxProposalStage, CloudProposal
+from .tracker_params import SeedBoxFields, stage_params, tracker_stage
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
-           "M2ProposalStage", "M2ProposalParams", "cloud_of", "particles_msg"]
+           "M2ProposalStage", "M2ProposalParams"]
 
 PURPOSE = PURPOSE_PROPOSAL  # 0x9209
 
@@ -96,14 +96,13 @@ def _proposal_of(spec: TrackerSpec) -> type[ProposalStage]:
     """The proposal stage of a contour tracker, made from its spec: kind ``spec.proposal_kind``,
     parameters every field of ``spec.params`` with those of :class:`ProposalFields`, a learned model
     (its dynamics) required when the spec's is (``model_required``)."""
-    cap, cls = spec.name.capitalize(), spec.params
-    params = stage_params(f"{cap}ProposalParams", cls, ProposalFields, __name__,
-                          f"The {spec.name} tracker's proposal: every field of :class:`{cls.__module__}.{cls.__name__}`, "
-                          f"``seed``, ``model``{' (required: its dynamics)' * spec.model_required}, ``init`` and ``timed``.")
-    return type(f"{cap}ProposalStage", (ProposalStage,),
-                {"kind": spec.proposal_kind, "Params": params, "needs_model": spec.model_required,
-                 "__module__": __name__, "__doc__": f"The {spec.name} tracker's proposal (graph ``{spec.graph}``): "
-                 f"{'the learned model' if spec.model_required else 'the random walk'}'s dynamics, made from its spec."})
+    cls = spec.params
+    return tracker_stage(ProposalStage, spec, "Proposal", ProposalFields, __name__,
+                         f"The {spec.name} tracker's proposal: every field of :class:`{cls.__module__}.{cls.__name__}`, "
+                         f"``seed``, ``model``{' (required: its dynamics)' * spec.model_required}, ``init`` and ``timed``.",
+                         f"The {spec.name} tracker's proposal (graph ``{spec.graph}``): "
+                         f"{'the learned model' if spec.model_required else 'the random walk'}'s dynamics, made from its spec.",
+                         needs_model=spec.model_required)
 
 
 ChamferProposalStage = _proposal_of(CHAMFER)

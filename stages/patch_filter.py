@@ -34,7 +34,7 @@ import numpy as np
 
 from gflow_core.m2.model import M2Model
 from gflow_core.m2 import patch_protocol as patch
-from gflow_core.m2.patch_protocol import PATCH, PatchParams, crop_patch
+from gflow_core.m2.patch_protocol import PATCH, PatchParams
 from gflow_core.m2.patch_tracking import PatchExemplars
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
@@ -44,7 +44,7 @@ from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message
 from .tracker_params import SeedBoxFields, stage_params
 
-__all__ = ["PatchFilterStage", "PatchFilterParams", "PatchFields", "crop_patch"]
+__all__ = ["PatchFilterStage", "PatchFilterParams", "PatchFields"]
 
 SNAPSHOT_VERSION = patch.SNAPSHOT_VERSION
 

@@ -14,9 +14,9 @@ import numpy as np
 from gflow_core import colour, features
 from gflow_core.contour.params import EdgeParams
 
-from .base import Output, Stage, StageInputError, versioned_snapshot
+from .base import Output, Stage, StageInputError
 from gflow_msgs.messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
-from gflow_msgs.snapshots import PreprocessSnapshot
+from gflow_msgs.snapshots import PreprocessSnapshot, versioned_snapshot
 from .tracker_params import StageFields, stage_params, tracker_params
 
 __all__ = ["PreprocessStage", "PreprocessParams", "PreprocessFields"]

@@ -4,15 +4,16 @@ Two sources, read without importing any stage module (a stage process pays for i
 imports only: importing every stage module pulls in scipy.ndimage, scipy.spatial and the G-flow
 model, about 0.4 s of CPU per process at start-up):
 
-* :data:`MODULES`, the stage modules and the kinds each declares: the generic stages (source,
-  preprocess, render) and the trackers whose stages are modules of their own (the contour and patch
-  trackers, G-flow, and the appearance tracker's filter with its own snapshot Struct). A new stage
-  module is one line here (``tests/test_stage_registry.py`` checks the table against the classes);
-* the registry of trackers (:func:`gflow_core.registry.trackers`): every tracker whose spec has box
-  stages (:class:`gflow_core.spec.BoxStages`) gets its kinds ``NAME.proposal`` and ``NAME.filter``
-  (``proposal_kind``, ``filter_kind``) from its spec, as the generic box stages
-  (:mod:`stages.spec_box`), unless :data:`MODULES` names a module for the kind. A tracker is
-  registered once, by its spec, and its stages follow.
+* :data:`MODULES`, the generic stages, which belong to no tracker: the source, the preprocess and
+  render stages, and the generic contour stages ``particle.proposal`` / ``particle.filter`` (graphs
+  of your own, ``gflow demo``). A new generic stage module is one line here
+  (``tests/test_stage_registry.py`` checks the table against the classes);
+* the registry of trackers (:func:`gflow_core.registry.trackers`): a tracker's spec names the
+  modules of its stage classes that are modules of their own (:attr:`gflow_core.spec.TrackerSpec.stages`:
+  the contour and patch trackers, G-flow, the appearance tracker's filter with its own snapshot
+  Struct), and every other kind ``NAME.proposal`` / ``NAME.filter`` (``proposal_kind``,
+  ``filter_kind``) of a spec with box stages (:class:`gflow_core.spec.BoxStages`) is the generic box
+  stages' (:mod:`stages.spec_box`). A tracker is registered once, by its spec, and its stages follow.
 """
 
 from __future__ import annotations
@@ -24,25 +25,30 @@ from .base import Stage
 
 __all__ = ["STAGES", "MODULES", "get_stage_class"]
 
-#: {kind: module of the ``stages`` package that defines its class}
+#: {kind: module} of the generic stages (module docstring)
 MODULES: dict[str, str] = {
-    "source": "source",
-    "preprocess": "preprocess",
-    "render": "overlay",
-    "particle.proposal": "particle_proposal", "chamfer.proposal": "particle_proposal", "m2.proposal": "particle_proposal",
-    "particle.filter": "particle_filter", "chamfer.filter": "particle_filter", "m2.filter": "particle_filter",
-    "patch.filter": "patch_filter",
-    "appearance.filter": "appearance_filter",
-    "gflow.proposal": "gflow_proposal", "gflow.filter": "gflow_filter",
+    "source": "stages.source",
+    "preprocess": "stages.preprocess",
+    "render": "stages.overlay",
+    "particle.proposal": "stages.particle_proposal",
+    "particle.filter": "stages.particle_filter",
 }
 
 
-def _spec_kinds() -> dict[str, str]:
-    """{kind: tracker name} of the registered trackers whose stages are the generic box stages."""
+def _spec_kinds() -> dict[str, tuple[str | None, str]]:
+    """{kind: (its module, or None for the generic box stages; the tracker whose spec gives it)} of the
+    registered trackers' stages. A kind several specs give (a spec copied with ``dataclasses.replace``
+    keeps its kinds) is the tracker's it is named for (``NAME.filter``), else the last one's by name."""
     from gflow_core.registry import trackers
 
-    return {k: s.name for s in trackers().values() if s.box is not None
-            for k in (s.proposal_kind, s.filter_kind) if k not in MODULES}
+    out: dict[str, tuple[str | None, str]] = {}
+    for s in trackers().values():
+        kinds: dict[str, str | None] = {k: None for k in (s.proposal_kind, s.filter_kind) if s.box is not None}
+        kinds.update(s.stages)
+        for k, module in kinds.items():
+            if k not in out or out[k][1] != k.split(".")[0]:
+                out[k] = (module, s.name)
+    return out
 
 
 class _Stages(Mapping):
@@ -53,21 +59,18 @@ class _Stages(Mapping):
 
     def _load(self, kind: str) -> type[Stage]:
         """The class of ``kind`` (KeyError: none)."""
-        module = MODULES.get(kind)
-        if module is not None:
-            mod = importlib.import_module(f"{__package__}.{module}")
-            for cls in vars(mod).values():
-                if isinstance(cls, type) and issubclass(cls, Stage) and cls.__dict__.get("kind") == kind:
-                    return cls
-            raise RuntimeError(f"stage kind {kind!r}: {mod.__name__} defines no stage class of that kind")
-        name = _spec_kinds().get(kind)
-        if name is None:
-            raise KeyError(kind)
-        from gflow_core.registry import get
+        module, name = (MODULES[kind], "") if kind in MODULES else _spec_kinds()[kind]
+        if module is None:  # the generic box stages, made from the tracker's spec
+            from gflow_core.registry import get
 
-        from .spec_box import spec_stage_class
+            from .spec_box import spec_stage_class
 
-        return spec_stage_class(get(name), kind)
+            return spec_stage_class(get(name), kind)
+        mod = importlib.import_module(module)
+        for cls in vars(mod).values():
+            if isinstance(cls, type) and issubclass(cls, Stage) and cls.__dict__.get("kind") == kind:
+                return cls
+        raise RuntimeError(f"stage kind {kind!r}: {mod.__name__} defines no stage class of that kind")
 
     def __getitem__(self, kind: str) -> type[Stage]:
         cls = self._loaded.get(kind)

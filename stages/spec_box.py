@@ -27,7 +27,7 @@ from .base import Stage
 from .box_tracker import BoxFilterStage, BoxProposalStage, SnapshotCodec
 from gflow_msgs.messages import NDArray
 from gflow_msgs.snapshots import BoxFilterSnapshot
-from .tracker_params import SeedBoxFields, stage_params
+from .tracker_params import SeedBoxFields, tracker_stage
 
 __all__ = ["spec_stage_class", "SpecProposalFields"]
 
@@ -57,10 +57,6 @@ def _codec(spec: TrackerSpec) -> SnapshotCodec:
     return SnapshotCodec(BoxFilterSnapshot, box.snapshot_version, fields, state)
 
 
-def _title(name: str) -> str:
-    return "".join(w.capitalize() for w in name.split("_"))
-
-
 def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
     """The proposal stage (``kind == spec.proposal_kind``) or the filter stage (``spec.filter_kind``)
     of ``spec``'s tracker."""
@@ -76,10 +72,7 @@ def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
         own = " (the filter's values), ``seed``, ``init`` and ``timed``"
     else:
         raise KeyError(kind)
-    cap, cls = _title(spec.name), spec.params
-    params = stage_params(f"{cap}{role}Params", cls, fields, __name__, f"{role} settings of tracker {spec.name}: "
-                          f"every field of {cls.__name__}{own or ', ``seed`` and ``init``'}.")
-    return type(f"{cap}{role}Stage", (base,),
-                {"kind": kind, "Params": params, "box": spec.box, **what, "__module__": __name__,
-                 "__doc__": f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}): "
-                            f":mod:`stages.spec_box`."})
+    return tracker_stage(base, spec, role, fields, __name__, f"{role} settings of tracker {spec.name}: every field of "
+                         f"{spec.params.__name__}{own or ', ``seed`` and ``init``'}.",
+                         f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}): "
+                         f":mod:`stages.spec_box`.", box=spec.box, **what)

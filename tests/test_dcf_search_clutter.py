@@ -18,16 +18,22 @@ from tests.core.test_dcf_tracker import Scene
 HIDE = (10, 30)  # frames [10, 30): a patch of background covers the target
 
 
-def _frames():
-    sc = Scene(lambda t: (110.0 + 1.5 * t, 95.0), seed=3)
+def hidden_frames(path, hide: tuple[int, int], n: int):
+    """The scene of a target moving along ``path`` and its ``n`` frames, a patch of background over the
+    target on frames [hide[0], hide[1])."""
+    sc = Scene(path, seed=3)
     frames = []
-    for t in range(42):
+    for t in range(n):
         img = sc.frame(t)
-        if HIDE[0] <= t < HIDE[1]:
+        if hide[0] <= t < hide[1]:
             x, y, w, h = (int(round(v)) for v in sc.truth(t))
             img[y - 4:y + h + 4, x - 4:x + w + 4] = sc.bg[y - 4:y + h + 4, x - 4:x + w + 4].astype(np.uint8)
         frames.append(img)
     return sc, frames
+
+
+def _frames():
+    return hidden_frames(lambda t: (110.0 + 1.5 * t, 95.0), HIDE, 42)
 
 
 def test_the_search_learns_its_clutter_while_the_target_is_hidden_and_forgets_it_when_seen() -> None:

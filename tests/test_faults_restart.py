@@ -117,6 +117,8 @@ def test_a_stage_killed_after_its_last_frame_restarts_and_the_run_ends(caviar1, 
     r = out["r"]
     assert r.ok and r.exits["filter"].restarts == 1, r.exits
     assert sorted(estimates(rec)) == list(range(30))
+    # its progress goes on from its checkpoint: 30 frames done, not the restarted process's 0
+    assert r.status["filter"].steps == 30, r.status["filter"]
 
 
 @pytest.mark.parametrize("stage,extra", [("filter", []), ("proposal", ["--background", "--experts", "8"])])

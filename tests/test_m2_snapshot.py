@@ -162,7 +162,7 @@ def test_the_patch_protocol_steps_as_the_stages_do(scene_features) -> None:
     (coasting) included."""
     from gflow_core.m2.patch_protocol import PATCH, PatchParams
     from gflow_core.tracker import FrameRng
-    from stages.rng import stream_hash
+    from gflow_core.tracker import stream_hash
 
     feats, frames, _, _ = scene_features
     model = learn(training.patches_from_frames(frames, (24, 32)), "shuffle", K=3)

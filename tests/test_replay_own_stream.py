@@ -86,3 +86,28 @@ def test_a_replay_beside_it_keeps_to_its_own_stream_and_into_it_on_purpose(recor
     assert r.returncode == 0, r.stderr
     got = _drain(heard, len(recorded))
     assert [k for k, _ in got] == ["gflow/demo/estimate"] * len(recorded)
+
+
+def test_a_pipeline_started_on_a_stream_a_replay_publishes_on_is_refused(recording: Path, gflow_cmd) -> None:
+    """The other order: the replay first (looping, its own endpoint), then a run joining it on the
+    same stream would take the replayed frames for its own. Refused in one line, before it starts."""
+    port = free_port()
+    replay = subprocess.Popen([*gflow_cmd, "replay", str(recording), "--loop", "0", "--speed", "1",
+                               "--listen", f"tcp/127.0.0.1:{port}"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                              text=True)
+    try:
+        assert replay.stderr is not None
+        line = replay.stderr.readline()  # printed once the replay is announced and its token declared
+        assert line.startswith("replaying"), line
+        r = subprocess.run([*gflow_cmd, "run", "demo", "--stream", "demo", "--connect", f"tcp/127.0.0.1:{port}",
+                            "--no-record"], capture_output=True, text=True, timeout=120)
+        error = [ln for ln in r.stderr.splitlines() if "error" in ln]  # one line, no traceback
+        assert r.returncode == 2 and len(error) == 1 and "Traceback" not in r.stderr, r.stderr
+        assert "stream 'demo' is in use" in error[0] and f"gflow replay (pid {replay.pid})" in error[0], error[0]
+        # another stream beside it is no clash
+        ok = subprocess.run([*gflow_cmd, "run", "demo", "--stream", "beside", "--connect", f"tcp/127.0.0.1:{port}",
+                             "--no-record"], capture_output=True, text=True, timeout=300)
+        assert ok.returncode == 0, ok.stderr
+    finally:
+        replay.terminate()
+        replay.communicate(timeout=30)

@@ -4,8 +4,8 @@ Kept apart from :mod:`gflow_core.contour.protocol` so that the proposal stage im
 dynamics (numpy), not the filter's image processing (SciPy, OpenCV): a stage process pays at
 start-up only for what it runs.
 
-Draws: ``FrameRng(seed, stream_hash, t).stream(PURPOSE_PROPOSAL)``, the proposal stage's
-``frame_rng(seed, stream, t, PURPOSE)``.
+Draws: ``FrameRng(seed, stream_hash, t).stream(PURPOSE_PROPOSAL)``, the same generator as
+:func:`gflow_core.tracker.frame_rng` ``(seed, stream, t, PURPOSE)`` that the proposal stage draws from.
 """
 
 from __future__ import annotations

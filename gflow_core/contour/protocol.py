@@ -17,7 +17,7 @@
   is the prior, as the filter stage does when no features arrive).
 
 Random draws of frame ``t`` (:class:`~gflow_core.tracker.FrameRng`): the proposal from
-``stream(PURPOSE_PROPOSAL)`` (the proposal stage's ``frame_rng(seed, stream, t, PURPOSE)``), the
+``stream(PURPOSE_PROPOSAL)`` (:func:`gflow_core.tracker.frame_rng`, as the proposal stage draws), the
 filter's as :mod:`.tracker` lists them; so a step here and a step through the stages
 (``stages/preprocess.py``, ``stages/particle_proposal.py``, ``stages/particle_filter.py``) give
 the same bits.

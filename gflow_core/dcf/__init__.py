@@ -114,10 +114,19 @@ together (docs/trackers.md):
   region beside the adaptive one, and its decisions are likelihood ratios and levels learnt from
   the run (:mod:`.longterm`). Searching several sizes is TLD's and LCT's scanning over scales; the
   spreading size prior that limits it is this project's.
+* Off by default, measured on the stress cases (docs/trackers.md): the search may judge several
+  separate peaks and condition its place prior on the region searched (:mod:`.reacquire`; TLD's and
+  LCT's several candidates), a frame may teach the model only when its distance is within
+  ``learn_level`` deviations of the target's (:mod:`.gate`; MOSSE's and LMCF's gated updates, here a
+  level of the learnt distribution rather than a fraction of a mean peak), the colour cue may fail
+  more often on a search candidate (``search_colour_outlier``: the colour model is learnt against the
+  target's own surroundings), and after a re-detection the unknown velocity widens the next frame's
+  prior by the typical speed learnt on tracked frames (``redetect_speed``).
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
 :mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
+:mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

@@ -38,13 +38,13 @@ padding); here it shares the adaptive filter's window and mask.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
 import numpy as np
 
 from ..visibility import ChiSquare
 from . import filter as cf
+from .gate import within
 from .model import Geometry, TargetModel, learn
 from .params import DCFParams
 
@@ -86,9 +86,7 @@ def reliable(lt: LongTerm, rho: float, p: DCFParams) -> bool:
     """Whether a present, confident frame whose long-term distance at the estimate is ``rho`` may teach
     the long-term filter: rho at most the mean of that distance on present frames plus ``longterm_level``
     of its standard deviations (LCT's fixed T_a on the peak, here a level learnt from the run)."""
-    var = max(lt.target.m2 - lt.target.m1 * lt.target.m1, p.min_std * p.min_std)
-    # rho_lt <= E[rho_lt] + level sd[rho_lt]
-    return rho <= lt.target.mean() + p.longterm_level * math.sqrt(var)
+    return within(lt.target, rho, p.longterm_level, p.min_std)
 
 
 def learn_longterm(lt: LongTerm, model: TargetModel, image: np.ndarray, grey: np.ndarray,

@@ -96,6 +96,19 @@ class DCFParams:
                                          "whether the target is there")
     longterm_outlier: float = param(0.05, "probability the long-term filter's cue fails (its densities mixed with a "
                                           "uniform one, as colour_outlier)")
+    search_peaks: int = param(1, "separate placements of each size the search for a hidden target judges (1: its "
+                                 "best only; gflow_core.dcf.reacquire)")
+    search_truncate: bool = param(False, "judge a search candidate's place by the motion prior conditioned on the "
+                                         "region searched (gflow_core.dcf.reacquire)")
+    learn_level: float = param(0.0, "a confident frame teaches the filter, colour and scale only when its distance at "
+                                    "the estimate is at most the target's mean plus this many standard deviations "
+                                    "(0: every confident frame; gflow_core.dcf.gate)")
+    search_colour_outlier: float = param(0.0, "probability the colour cue fails on a search candidate, if above "
+                                              "colour_outlier: the colour model is learnt against the target's "
+                                              "surroundings, not the places the search looks")
+    redetect_speed: bool = param(False, "after the search finds a target judged hidden its velocity is unknown: "
+                                        "the next frame's motion prior is widened by the target's typical speed, "
+                                        "learnt on the frames it was tracked")
     augment: float = param(0.0, "weight of warped copies of the first window (rolled, resized, blurred) in the first "
                                 "filter's sample (MOSSE, UPDT; gflow_core.dcf.augment; 0: the first window alone)")
     augment_roll: float = param(30.0, "the copies roll the first window by up to this many degrees each way (at a "
@@ -160,6 +173,8 @@ class DCFParams:
                 raise ValueError(f"{name} must be two positive numbers (mean, std), got {v}")
         if self.prior_count < 1:
             raise ValueError(f"prior_count must be >= 1, got {self.prior_count}")
+        if not 0 <= self.search_colour_outlier < 1:
+            raise ValueError(f"search_colour_outlier must be in [0, 1), got {self.search_colour_outlier}")
         if not 0 <= self.colour_outlier < 1:
             raise ValueError(f"colour_outlier must be in [0, 1), got {self.colour_outlier}")
         if not (0 < self.longterm_rate <= 1 and 0 <= self.longterm_outlier < 1 and math.isfinite(self.longterm_level)):
@@ -171,6 +186,10 @@ class DCFParams:
                              f"{self.search_sizes}, {self.search_size_step}")
         if not (math.isfinite(self.search_size_growth) and self.search_size_growth >= 0):
             raise ValueError(f"search_size_growth must be finite and >= 0, got {self.search_size_growth}")
+        if not (math.isfinite(self.learn_level) and self.learn_level >= 0):
+            raise ValueError(f"learn_level must be finite and >= 0, got {self.learn_level}")
+        if self.search_peaks < 1:
+            raise ValueError(f"search_peaks must be >= 1, got {self.search_peaks}")
         if self.search_min < 1:
             raise ValueError(f"search_min must be >= 1, got {self.search_min}")
         if not (0 <= self.augment <= 1 and 0 <= self.augment_roll <= 90 and math.isfinite(self.augment_scale)

@@ -66,6 +66,9 @@ class DCFState:
     sclutter : distribution of the filter's distance at the search's best placement on the frames since the
         target was last seen (empty while it is; ``search_clutter``).
     longterm : the long-term filter and its distributions (``longterm``; :mod:`.longterm`), or None.
+    speed2 : px^2 / frame^2, running mean of |v|^2 on the frames the target was tracked
+        (``redetect_speed``; 0 without), from 0 at rate ``target_rate`` (so low over the first
+        1 / target_rate tracked frames).
     """
 
     geom: Geometry
@@ -84,6 +87,7 @@ class DCFState:
     spread: float = 0.0
     sclutter: ChiSquare = ChiSquare()
     longterm: LongTerm | None = None
+    speed2: float = 0.0
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -123,6 +127,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
               "cclutter": [st.cclutter.m1, st.cclutter.m2, st.cclutter.n],
               "sclutter": [st.sclutter.m1, st.sclutter.m2, st.sclutter.n],
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
+    if st.speed2:
+        values["speed2"] = float(st.speed2)
     lt = st.longterm
     if lt is not None:
         arrays["lt_det"] = _real(lt.det)
@@ -177,4 +183,4 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     sclutter=chi("sclutter"),
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
-                    spread=float(values["spread"]), longterm=longterm)
+                    spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)))

@@ -32,9 +32,11 @@ from . import model as tm
 from .cues import may_fail
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
+from .gate import within
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .rates import filter_rate
+from .reacquire import log_truncation, search_peaks
 from .state import DCFObservation, DCFProposal, DCFState
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
@@ -164,7 +166,8 @@ def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: D
     lh = math.log(1.0 - p.reappear) + _hidden_log_pdf(ds, rho, trials, p)
     if cand.r_colour is not None and st.ctarget.n and st.cclutter.n:
         rc = 1.0 - cand.r_colour
-        ct, cc = may_fail(st.ctarget, p.colour_outlier), may_fail(st.cclutter, p.colour_outlier)
+        eps = max(p.colour_outlier, p.search_colour_outlier)
+        ct, cc = may_fail(st.ctarget, eps), may_fail(st.cclutter, eps)
         lv += ct.log_pdf(max(rc, ct.mode(ms)), ms)
         lh += cc.log_pdf_min(rc, 1.0, ms)
     # P(visible) = 1 / (1 + exp(lh - lv))
@@ -189,13 +192,19 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
     sizes = tuple(float(i * p.search_size_step) for i in sorted(range(-k, k + 1), key=abs))
     templates = [(st.model, _dists(st, None))] + ([] if lt is None else [(view(st.model, lt), _dists(st, lt))])
     rhos: list[float | None] = [None, None]
+    # with search_truncate, the place prior is conditioned on the region searched (.reacquire)
+    log_z = log_truncation(pred, sx, sy, margin, (Ww, Hh)) if p.search_truncate else 0.0
     for which, (searched, ds) in enumerate(templates):
-        for cand in tm.search(searched, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p, sizes):
+        best: Search | None = None
+        for cand in (tm.search(searched, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p, sizes)
+                     if p.search_peaks == 1 else
+                     search_peaks(searched, obs.image, obs.grey, pred, margin, st.log_s, st.geom, p, sizes,
+                                  p.search_peaks)):
             # the search had more chances than the window the clutter was learnt on: under "hidden" its
             # distance is the best of that many clutter draws, anywhere in the area searched by every
             # template; under "visible" the candidate is placed by the target's prior: log N(x; pred, S) + log A
             trials = len(templates) * cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-            place = _log_place(cand.centre, pred, sx, sy, cand.area)
+            place = _log_place(cand.centre, pred, sx, sy, cand.area) + log_z
             if k > 0:
                 # the size's prior against clutter's, uniform over the sizes searched (as the place's):
                 # log N(log f; 0, size_sd^2) + log((2 k + 1) step)
@@ -211,8 +220,13 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                 visible = visibility(1.0 - cand.r, ds.target, ds.clutter, p.min_std,
                                      prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
                                      log_place=place, cues=ccue).visible
-            if visible >= 0.5:
+            if visible >= 0.5 and p.search_peaks == 1:
                 return Search(cand, visible, covers, rhos[0], rhos[1])
+            if visible >= 0.5 and (best is None or visible > best.confidence):
+                # several placements judged: the likeliest target among them (.reacquire)
+                best = Search(cand, visible, covers)
+        if best is not None:
+            return replace(best, rho=rhos[0], rho_lt=rhos[1])
     return Search(None, 0.0, covers, rhos[0], rhos[1])
 
 
@@ -252,6 +266,8 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     look; the model and the scale learn on confident frames only."""
     c = (float(centre[0]), float(centre[1]))
     log_s, mdl = st.log_s, st.model
+    # with learn_level, a frame teaches the model only when the target was seen as well as usual (.gate)
+    confident = confident and (p.learn_level <= 0 or within(st.target, 1.0 - r_est, p.learn_level, p.min_std))
     if confident and mdl.scale is not None:
         d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
         log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
@@ -391,6 +407,10 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         new_parts[:, :2] += centre - mean[:2]
         velocity = np.zeros(2)
         state = "tracked"
+        if p.redetect_speed and hidden_before:
+            # after the target was judged hidden its velocity is unknown, v ~ N(0, (E|v|^2 / 2) I): the next
+            # frame's prior is wider by its std (a frame in doubt only: the velocity was known a frame ago)
+            spread = math.sqrt(0.5 * st.speed2)
     elif not present:
         # hidden, or in doubt: the box holds the prediction, nothing is learnt, the velocity decays
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
@@ -401,6 +421,9 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
         log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
+        if p.redetect_speed:
+            # E|v|^2 <- (1 - a) E|v|^2 + a |v|^2 on tracked frames, a = target_rate
+            learnt["speed2"] = (1.0 - p.target_rate) * st.speed2 + p.target_rate * float(velocity @ velocity)
     if present:
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     if p.search_clutter:

@@ -406,7 +406,12 @@ class GFlowConfig:
         seen by each proposal stage's replica, are not changed, nor is the translation search
         (``search_radius``): its 32 px are 3.7 standard deviations of the walk over 3 periods, and a
         search grown as the walk's spread (times ``sqrt(dt)``) lost the face more often on david_indoor
-        played at every 3rd frame (landmark NME 0.178 against 0.136, mean of seeds 1-3).
+        played at every 3rd frame (landmark NME 0.178 against 0.136, mean of seeds 1-3). The head's
+        motion keeps its velocity for a few periods (david_indoor's reference landmarks move 2.7 times
+        as far over three frames as over one, not ``sqrt(3)`` times), but a walk grown as such a motion's
+        (an integrated Ornstein-Uhlenbeck velocity of correlation time 1 or 3 periods: ``2.4`` or ``2.7``
+        times a period's std over 3 periods) lost the face more often there too (mean NME of seeds 1-3 0.196 and 0.162; docs/faces.md): the
+        wider translation walk makes the clutter beside the face cheaper at the head's turn.
 
         Raises ``ValueError`` unless ``dt`` is finite and ``>= 1``.
         """

@@ -15,6 +15,7 @@ from gflow_msgs.messages import Capture, MessageError, StageStatus, decode
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.plain import describe, to_plain
 from pipeline.runtime.graph import PROGRESS
+from pipeline.runtime.multihost import replay_token
 from pipeline.runtime.security import Signer
 from pipeline.runtime.transport import Bus, ZenohSettings, open_reaching
 
@@ -333,14 +334,15 @@ def _stream_holders(session, stream: str, topics: set[str]) -> list[str]:
     stages holding a liveliness token on the network. Empty when nothing does (a replay there is
     its own run) or when the pipelines announced there take every one of ``topics`` from outside
     (a graph with ``external`` inputs: what a replay is for)."""
-    from pipeline.runtime.multihost import alive_stages
+    from pipeline.runtime.multihost import alive_stages, replays_on
     from pipeline.runtime.running import running
 
     found = running(stream)
     if found and all(topics <= set(i.get("external") or ()) for i in found):
         return []
     held = [f"{i.get('kind', 'pipeline')} {i.get('pid')}" for i in found]
-    return held + [f"stage {n}" for n in sorted(alive_stages(session, stream))]
+    return held + [f"stage {n}" for n in sorted(alive_stages(session, stream))] + [
+        f"replay {p}" for p in sorted(replays_on(session, stream)) if f"replay {p}" not in held]
 
 
 def _window(opts: ReplayOptions) -> str:
@@ -392,7 +394,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
         return f"gflow/{stream}/{parts[2]}" if len(parts) == 3 and parts[1] == recorded else topic
 
     s = _session(settings)
-    announcement = None
+    announcement = token = None
     n = 0
     loop = 0
     try:  # from here on a Ctrl-C ends the replay with the count sent so far and the session closed
@@ -403,6 +405,8 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
                 raise StreamInUse(f"stream {stream!r} is in use ({', '.join(held)}): replayed there, the recording "
                                   f"would feed that run; replay beside it with --stream NAME, or into it on purpose "
                                   f"with --stream {stream}")
+        # while it plays, a token says so on the network: a pipeline started there later is refused
+        token = s.liveliness().declare_token(replay_token(stream))
         acks = _Acks()
         if opts.lockstep:
             bus.subscribe(f"gflow/{stream}/_status/*", acks.on_status)
@@ -438,6 +442,8 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
         pass
     finally:
         time.sleep(0.2)
+        if token is not None:
+            token.undeclare()
         if announcement is not None:
             announcement.close()
         s.close()

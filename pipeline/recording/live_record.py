@@ -49,7 +49,8 @@ class LiveSummary:
     captured : frames decoded since the source opened (its last heartbeat, or at least the
         frames accounted for by the captures).
     skipped : frames decoded and not sent (the newest frame wins).
-    gaps : (camera frame after the gap, seconds) of each reconnect.
+    gaps : (camera frame number of the first frame sent after the gap, seconds lost) of each
+        reconnect (frames decoded after the gap and skipped before it are not named).
     reports : the source's reports (reconnects, frames missed, damaged input, the end), in order.
     latency_ms : capture to recorded estimate, one per estimate.
     missed : frames that never arrived (gaps in the stream's timestamps, reconnects).

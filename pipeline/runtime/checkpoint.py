@@ -20,12 +20,15 @@ class Checkpoint(msgspec.Struct, frozen=True):
     stateless stage), the last seq it sent on each output port, and the messages that step
     published ((topic, payload, seq, type name)): a kill can come before zenoh has put them
     on the wire, so a restarted stage sends them again (a consumer that had them takes the
-    copy, the same bytes as the last message on its port, for a repeat: no error)."""
+    copy, the same bytes as the last message on its port, for a repeat: no error). ``steps``
+    counts the steps done up to and including ``seq``, so a restarted stage's progress goes on
+    from it (0 in checkpoints written before it was kept)."""
 
     seq: int
     data: bytes | None
     max_out: dict[str, int]
     sent: list[tuple[str, bytes, int, str]] = []
+    steps: int = 0
 
 
 def write_checkpoint(path: Path, ck: Checkpoint) -> None:

@@ -188,7 +188,7 @@ class Launcher:
             mark("launcher session")
             bus = Bus(session, signer=Signer.of(self.zenoh.security))
             if self.hosts or self.zenoh.connect:  # another run may hold this stream on the network
-                busy = stream_in_use(session, plan.stream, self.local)
+                busy = stream_in_use(session, plan.stream, self.local, external=bool(plan.external))
                 if busy:
                     session.close()
                     raise RuntimeError(busy)

@@ -7,11 +7,16 @@ default: a short cut is survived by TCP and noticed by nobody). A launcher watch
 of the stages of other hosts: one that vanishes before its stage has said ``done`` means its
 host is lost, reported by name; the run then stops cleanly (``on_host_lost: stop``, the
 default) or waits for it (``on_host_lost: wait``; the stages hold their inputs meanwhile).
+
+A ``gflow replay`` holds ``gflow/<stream>/_replay/<pid>`` while it publishes: a launcher that
+joins the network refuses a stream a replay publishes on, unless its graph takes topics from
+outside (what a replay is for).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import threading
 import time
 from typing import Callable
@@ -22,7 +27,7 @@ from pipeline.runtime.graph import Plan
 from pipeline.runtime.placement import describe_hosts
 from pipeline.runtime.transport import ZenohSettings
 
-__all__ = ["host_gateway", "node_listen", "stream_in_use", "HostWatch"]
+__all__ = ["host_gateway", "node_listen", "stream_in_use", "replay_token", "replays_on", "HostWatch"]
 
 _FINISHED = ("done", "stopped", "draining")
 
@@ -55,10 +60,10 @@ def node_listen(launcher: ZenohSettings) -> tuple[str, ...]:
     return tuple(dict.fromkeys(out)) or ("tcp/127.0.0.1:0",)
 
 
-def alive_stages(session: zenoh.Session, stream: str, timeout: float = 1.0) -> set[str]:
-    """The stages of ``stream`` that hold a liveliness token anywhere on the network now."""
+def _token_names(session: zenoh.Session, key: str, timeout: float) -> set[str]:
+    """The last chunk of every liveliness token matching ``key`` anywhere on the network now."""
     names = set()
-    for reply in session.liveliness().get(f"gflow/{stream}/_alive/*", timeout=timeout):
+    for reply in session.liveliness().get(key, timeout=timeout):
         try:
             names.add(str(reply.ok.key_expr).rsplit("/", 1)[-1])
         except Exception:  # an error reply: nothing to add
@@ -66,14 +71,35 @@ def alive_stages(session: zenoh.Session, stream: str, timeout: float = 1.0) -> s
     return names
 
 
-def stream_in_use(session: zenoh.Session, stream: str, local: set[str]) -> str:
+def alive_stages(session: zenoh.Session, stream: str, timeout: float = 1.0) -> set[str]:
+    """The stages of ``stream`` that hold a liveliness token anywhere on the network now."""
+    return _token_names(session, f"gflow/{stream}/_alive/*", timeout)
+
+
+def replay_token(stream: str) -> str:
+    """The liveliness token a ``gflow replay`` holds while it publishes on ``stream`` (not under
+    ``_alive``: a replay is no stage a pipeline's nodes wait for)."""
+    return f"gflow/{stream}/_replay/{os.getpid()}"
+
+
+def replays_on(session: zenoh.Session, stream: str, timeout: float = 1.0) -> set[str]:
+    """The process ids of the replays publishing on ``stream`` anywhere on the network now."""
+    return _token_names(session, f"gflow/{stream}/_replay/*", timeout)
+
+
+def stream_in_use(session: zenoh.Session, stream: str, local: set[str], external: bool = False) -> str:
     """A one-line refusal when stages this host would start already run on ``stream`` (another
-    run on the same network), else ''."""
+    run on the same network), or a replay publishes there and the graph takes nothing from
+    outside (``external``: a replay may feed it), else ''."""
     clash = sorted(alive_stages(session, stream) & local)
-    if not clash:
-        return ""
-    return (f"stream {stream!r} is in use: stage(s) {', '.join(clash)} already run on it (another run on this "
-            f"network); give this run its own --stream")
+    if clash:
+        return (f"stream {stream!r} is in use: stage(s) {', '.join(clash)} already run on it (another run on "
+                f"this network); give this run its own --stream")
+    replays = [] if external else sorted(replays_on(session, stream))
+    if replays:
+        return (f"stream {stream!r} is in use: gflow replay (pid {', '.join(replays)}) publishes on it, and this "
+                f"graph takes no topic from outside; give this run its own --stream")
+    return ""
 
 
 class HostWatch:

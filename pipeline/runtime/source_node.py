@@ -143,8 +143,8 @@ class SourceNode(StageNode):
                 self.send_status()
         host._emit(outs)
         if outs:
-            self.checkpoint(raw.index)
             host.stats.steps += 1
+            self.checkpoint(raw.index)
         now = time.perf_counter_ns()
         host.stats.first_step_ns = host.stats.first_step_ns or now
         host.stats.last_step_ns = now

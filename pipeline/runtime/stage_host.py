@@ -69,6 +69,11 @@ class HostStats:
     rejected: dict[str, int] = field(default_factory=dict)  # bad input messages, by kind
     lost: int = 0  # frames stepped with nothing, or given up, after a fault
     repeats: int = 0  # a port's last message again, byte for byte (a restarted producer resends it)
+    resumed_steps: int = 0  # steps done by the processes before a restart (from the checkpoint)
+
+    def total_steps(self) -> int:
+        """Steps of this stage over the run: this process's and, restarted, those before it."""
+        return self.steps + self.resumed_steps
 
     def fps(self) -> float:
         if self.steps < 2 or self.last_step_ns <= self.first_step_ns:
@@ -403,16 +408,16 @@ class StageHost:
             self._emit(outputs, seq)
             if self.snapshot_every and seq % self.snapshot_every == 0:
                 self._snapshot(seq)
-            if self.on_step is not None:
-                self.on_step(seq)
-            if self.ahead:
-                self._forget_prepared(seq)
             st = self.stats
             st.steps += 1
             st.busy_ns += t1 - t0
             st.last_step_ns = t1
             if st.first_step_ns == 0:
                 st.first_step_ns = t1
+            if self.on_step is not None:  # the checkpoint, which counts this step
+                self.on_step(seq)
+            if self.ahead:
+                self._forget_prepared(seq)
         if self.join.finished:
             self.close("end")
 

@@ -95,7 +95,7 @@ class StageNode(NodeBase):
         if h is None:
             return {"steps": 0}
         s = h.stats
-        return {"steps": s.steps, "fps": round(s.fps(), 2), "dropped": dict(h.join.gaps), "errors": s.errors,
+        return {"steps": s.total_steps(), "fps": round(s.fps(), 2), "dropped": dict(h.join.gaps), "errors": s.errors,
                 "last_error": s.last_error[-300:], "last_seq": h.join.done_below,
                 "busy_ms": round(s.busy_ns / s.steps / 1e6, 3) if s.steps else 0.0, "lost": s.lost,
                 "waiting": h.waiting() if not h.closed else ""}
@@ -112,7 +112,8 @@ class StageNode(NodeBase):
         h = self.host
         data = h.stage.snapshot() if h is not None and not self.sp.is_source() else None
         write_checkpoint(path, Checkpoint(seq=seq, data=data, max_out=dict(h.max_out) if h else {},
-                                          sent=list(h.last_sent) if h is not None else []))
+                                          sent=list(h.last_sent) if h is not None else [],
+                                          steps=h.stats.total_steps() if h is not None else 0))
 
     def _restore(self) -> int:
         """Load the checkpoint of a restarted stage; return the last frame it had done (-1: none)."""
@@ -128,6 +129,7 @@ class StageNode(NodeBase):
             log.warning("[%s] checkpoint %s unusable (%s); starting afresh", self.name, path, e)
             return -1
         h.max_out.update(ck.max_out)
+        h.stats.resumed_steps = ck.steps
         self.resend = list(ck.sent)  # the last step's outputs may not have left: sent again on resuming
         h.join.done_below = ck.seq
         h.join.resumed = True
