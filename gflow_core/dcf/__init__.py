@@ -21,6 +21,11 @@ BACF and CSRT learn theirs:
   become part of the target. Learnt online from the running average of the windowed samples at rate
   ``rate`` (BACF sec. 3.3), only on frames the tracker is confident of; the first frame's filter
   is kept as an anchor and detection uses (1 - ``anchor_weight``) the running filter + that anchor.
+  Two options, off by default: with ``augment`` the first sample averages in warped copies of the
+  first window -- rolled, resized, blurred about the target (:mod:`.augment`; MOSSE, Bolme et al.
+  2010; UPDT, Bhat et al. ECCV 2018) -- and with ``young`` the running filter's rate is
+  max(``rate``, 1 / (``young`` + n + 1)) after n frames the target was seen on, the mean of the
+  frames seen while that is faster (:mod:`.rates`).
 * **Colour** (:mod:`.histogram`): Staple's model (Bertinetto et al., CVPR 2016): histograms of the
   box and of its surroundings, the per-pixel probability that a colour is the target's, averaged
   over the box; merged with the filter's response as (1 - alpha) y_cf + alpha y_hist (Staple eq. 2).
@@ -99,6 +104,11 @@ together (docs/trackers.md):
   benchmark, where the face came back under other light and only the colour knew it. Ten
   searches before the search's clutter counts cost tiger1's undisturbed stress control, whose
   blurred toy was taken back against three.
+* MOSSE and UPDT solve the initial regression over all the warped copies (their energies summed in the
+  denominator); with the mask the filter here is solved from the copies' averaged sample, as BACF's
+  from the running average of frames, and the copies are a fixed set (no random affine draws, no
+  shifted copies: the label stays at the window's centre). The young filter's rate counts the frames
+  the target was judged present on, not only the confident ones it learnt from (:mod:`.rates`).
 * LCT re-detects with a random-fern classifier and decides by fixed thresholds on the long-term
   filter's peak (T_r, T_a); here the re-detector is the long-term filter slid over the searched
   region beside the adaptive one, and its decisions are likelihood ratios and levels learnt from
@@ -115,6 +125,8 @@ together (docs/trackers.md):
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
-:mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter), :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+:mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
+:mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
+:mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

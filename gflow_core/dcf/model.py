@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from . import filter as cf
+from .augment import first_sample
 from .constrained import box_mask, solve_masked
 from .features import colour_bins, cosine_window, hog, intensity, sample, N_COLOUR_BINS, N_GREY_BINS
 from .histogram import ColourModel, colour_score, histograms, learn_colour
@@ -174,6 +175,10 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
     win = window(image, grey, centre, geom.template, geom.k(0.0), geom.cell, mode)
     x_hat = cf.spectrum(win.x, geom.window)
     train: cf.Spectrum | np.ndarray = cf.train(x_hat, geom.label_hat) if geom.mask is None else x_hat
+    if p.augment > 0:
+        # the first sample with warped copies of the window averaged in (module .augment)
+        train = first_sample(x_hat, grey, centre, geom.template, geom.k(0.0), geom.label_hat if geom.mask is None
+                             else None, lambda g: cf.spectrum(cells_of(g, geom.cell), geom.window), p)
     det = _solve(train, geom, p)
     colour = None
     if mode is not None:

@@ -109,6 +109,16 @@ class DCFParams:
     redetect_speed: bool = param(False, "after the search finds a target judged hidden its velocity is unknown: "
                                         "the next frame's motion prior is widened by the target's typical speed, "
                                         "learnt on the frames it was tracked")
+    augment: float = param(0.0, "weight of warped copies of the first window (rolled, resized, blurred) in the first "
+                                "filter's sample (MOSSE, UPDT; gflow_core.dcf.augment; 0: the first window alone)")
+    augment_roll: float = param(30.0, "the copies roll the first window by up to this many degrees each way (at a "
+                                      "third, two thirds and all of it)")
+    augment_scale: float = param(0.1, "the copies resize the first window by exp(+-this) (0: none)")
+    augment_blur: float = param(2.0, "a copy blurs the first window by a Gaussian of this sigma, template pixels "
+                                     "(0: none)")
+    young: float = param(0.0, "while the running filter is young its rate is max(rate, 1 / (young + n + 1)), n the frames "
+                              "the target was seen on before: the mean of the frames seen, the first counting for "
+                              "this many (gflow_core.dcf.rates; 0: rate from the first frame)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -182,6 +192,13 @@ class DCFParams:
             raise ValueError(f"search_peaks must be >= 1, got {self.search_peaks}")
         if self.search_min < 1:
             raise ValueError(f"search_min must be >= 1, got {self.search_min}")
+        if not (0 <= self.augment <= 1 and 0 <= self.augment_roll <= 90 and math.isfinite(self.augment_scale)
+                and 0 <= self.augment_scale <= 1 and math.isfinite(self.augment_blur) and self.augment_blur >= 0):
+            raise ValueError(f"augment must be in [0, 1], augment_roll in [0, 90] degrees, augment_scale in [0, 1] and "
+                             f"augment_blur finite and >= 0, got {self.augment}, {self.augment_roll}, "
+                             f"{self.augment_scale}, {self.augment_blur}")
+        if not (math.isfinite(self.young) and self.young >= 0):
+            raise ValueError(f"young must be finite and >= 0, got {self.young}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

@@ -35,6 +35,7 @@ from .features import is_grey
 from .gate import within
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
+from .rates import filter_rate
 from .reacquire import log_truncation, search_peaks
 from .state import DCFObservation, DCFProposal, DCFState
 
@@ -274,7 +275,8 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     if colour_seen is not None:
         learnt["ctarget"] = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
     if confident:
-        learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p, p.rate)
+        learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p,
+                                   filter_rate(p, st.target.n - p.prior_count))
     return log_s, learnt
 
 
