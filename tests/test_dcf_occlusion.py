@@ -88,7 +88,7 @@ def test_the_gate_is_the_long_term_filters_rule_and_refuses_a_frame_seen_badly()
 
 
 def test_the_colour_cue_fails_more_often_in_the_search_when_asked() -> None:
-    p = DCFParams()
+    p = DCFParams(search_colour_outlier=0.0)  # as colour_outlier everywhere
     _, st = _state(p)
     ds = _dists(st, None)
     # a placement the filter likes but whose colours are the clutter's
@@ -109,7 +109,8 @@ def _hidden_frames(speed: float):
 
 def test_after_a_redetection_the_motion_prior_is_widened_by_the_typical_speed() -> None:
     sc, frames = _hidden_frames(4.0)
-    p = DCFParams(redetect_speed=True)
+    p = DCFParams()  # on by default
+    assert p.redetect_speed
     st, _ = TRACKER.init(p, TRACKER.observe(p, frames[0]), sc.truth(0), FrameRng(1, 7, 0), {})
     found = []
     for t in range(1, len(frames)):
@@ -132,8 +133,8 @@ def test_after_a_redetection_the_motion_prior_is_widened_by_the_typical_speed() 
     assert any(t >= HIDE[1] for t in found), f"the target was never found again: {found}"
     assert st.hidden_run == 0 and est.target_state == "tracked"
     assert abs(est.box[0] - sc.truth(len(frames) - 1)[0]) < 6.0
-    # off (the default): nothing learnt, nothing kept in a snapshot
-    off = DCFParams()
+    # off (as recordings made before it run): nothing learnt, nothing kept in a snapshot
+    off = DCFParams(redetect_speed=False)
     st, _ = TRACKER.init(off, TRACKER.observe(off, frames[0]), sc.truth(0), FrameRng(1, 7, 0), {})
     for t in range(1, HIDE[0]):
         st, _ = step(TRACKER, off, st, TRACKER.observe(off, frames[t]), FrameRng(1, 7, t))

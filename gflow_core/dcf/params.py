@@ -103,12 +103,12 @@ class DCFParams:
     learn_level: float = param(0.0, "a confident frame teaches the filter, colour and scale only when its distance at "
                                     "the estimate is at most the target's mean plus this many standard deviations "
                                     "(0: every confident frame; gflow_core.dcf.gate)")
-    search_colour_outlier: float = param(0.0, "probability the colour cue fails on a search candidate, if above "
+    search_colour_outlier: float = param(0.1, "probability the colour cue fails on a search candidate, if above "
                                               "colour_outlier: the colour model is learnt against the target's "
-                                              "surroundings, not the places the search looks")
-    redetect_speed: bool = param(False, "after the search finds a target judged hidden its velocity is unknown: "
-                                        "the next frame's motion prior is widened by the target's typical speed, "
-                                        "learnt on the frames it was tracked")
+                                              "surroundings, not the places the search looks", before=0.0)
+    redetect_speed: bool = param(True, "after the search finds a target judged hidden its velocity is unknown: "
+                                       "the next frame's motion prior is widened by the target's typical speed, "
+                                       "learnt on the frames it was tracked", before=False)
     augment: float = param(0.0, "weight of warped copies of the first window (rolled, resized, blurred) in the first "
                                 "filter's sample (MOSSE, UPDT; gflow_core.dcf.augment; 0: the first window alone)")
     augment_roll: float = param(30.0, "the copies roll the first window by up to this many degrees each way (at a "
