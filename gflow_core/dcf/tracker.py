@@ -331,6 +331,20 @@ def _learn_search_clutter(st: DCFState, lt: LongTerm | None, srch: Search, hid: 
     return lt
 
 
+def _take_found(st: DCFState, found: Any, p: DCFParams, parts: np.ndarray, mean: np.ndarray, hidden_before: bool,
+                spread: float) -> tuple[np.ndarray, float, float]:
+    """A target the search found again: its centre, its log size, and the next frame's spread of its
+    place; ``parts`` ((N, 3) resampled particles) move with it, in place."""
+    centre = found.centre.copy()
+    log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
+    parts[:, :2] += centre - mean[:2]
+    if p.redetect_speed and hidden_before:
+        # after the target was judged hidden its velocity is unknown, v ~ N(0, (E|v|^2 / 2) I): the next
+        # frame's prior is wider by its std (a frame in doubt only: the velocity was known a frame ago)
+        spread = math.sqrt(0.5 * st.speed2)
+    return centre, log_s, spread
+
+
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
     """One frame: the response at the prediction, the particles weighed, the estimate, the target's
@@ -402,15 +416,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     new_parts = parts[systematic_resample(lw.lw, rng, n)]
     learnt: dict[str, Any] = {}
     if found is not None:
-        centre = found.centre.copy()
-        log_s = float(np.clip(st.log_s + found.log_f, -p.max_log_scale, p.max_log_scale))
-        new_parts[:, :2] += centre - mean[:2]
-        velocity = np.zeros(2)
-        state = "tracked"
-        if p.redetect_speed and hidden_before:
-            # after the target was judged hidden its velocity is unknown, v ~ N(0, (E|v|^2 / 2) I): the next
-            # frame's prior is wider by its std (a frame in doubt only: the velocity was known a frame ago)
-            spread = math.sqrt(0.5 * st.speed2)
+        centre, log_s, spread = _take_found(st, found, p, new_parts, mean, hidden_before, spread)
+        velocity, state = np.zeros(2), "tracked"
     elif not present:
         # hidden, or in doubt: the box holds the prediction, nothing is learnt, the velocity decays
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
