@@ -130,6 +130,14 @@ def test_replay_speed_must_be_positive(tmp_path: Path, speed: str) -> None:
     assert_one_line_error(r, "--speed", "> 0")
 
 
+@pytest.mark.parametrize("opt,value,named", [("--loop", "-1", ">= 0"), ("--from-seq", "-3", ">= 0"),
+                                              ("--to-seq", "x", "whole number")])
+def test_replay_counts_must_be_whole_and_not_negative(tmp_path: Path, opt: str, value: str, named: str) -> None:
+    """``--loop -1`` replayed nothing and said so as a success."""
+    r = gflow("replay", "x.mcap", f"{opt}={value}", cwd=tmp_path)
+    assert_one_line_error(r, opt, named)
+
+
 @pytest.mark.parametrize("endpoint", ["foo", "tcp/127.0.0.1", "tcp/127.0.0.1:99999"])
 def test_malformed_endpoint(tmp_path: Path, endpoint: str) -> None:
     r = gflow("topics", "--connect", endpoint, cwd=tmp_path)

@@ -47,6 +47,17 @@ def positive_float(text: str) -> float:
     return v
 
 
+def nonnegative_int(text: str) -> int:
+    """A whole number >= 0 (argparse type)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
 def check_outputs(**paths: str | None) -> None:
     """Refuse, before any work, output paths that are folders or cannot be written.
 
