@@ -54,7 +54,7 @@ from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, tracker
 from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
                                  estimate_of, particles_msg)
-from gflow_msgs.snapshots import CounterSnapshot, article, versioned_snapshot
+from gflow_msgs.snapshots import CounterSnapshot, article
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, core_params
 
@@ -257,19 +257,22 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         """The last estimate (seq, box, ESS, state, the tracker's score at the estimate) and the step count."""
         return dict(self.last, steps=self.steps)
 
-    # -- snapshot / restore ---------------------------------------------------------------
-    def snapshot(self) -> bytes:
+    # -- snapshot / restore: the tracker's SnapshotCodec in the stage's snapshot struct ---------
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.codec is not None:
+            cls.snapshot_struct, cls.snapshot_versions = cls.codec.struct, (cls.codec.version,)
+
+    def snapshot_fields(self) -> dict[str, Any]:
         codec = self.codec
         assert codec is not None
         if self.state is None:
-            return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=False, steps=self.steps))
-        return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=True,
-                                                   **codec.fields(self.state), steps=self.steps, last=self.last))
+            return {"initialised": False, "steps": self.steps}
+        return {"initialised": True, **codec.fields(self.state), "steps": self.steps, "last": self.last}
 
-    def restore(self, data: bytes) -> None:
+    def restore_fields(self, snap: Any) -> None:
         name, label, codec = self.ctx.name, self.label, self.codec
         assert codec is not None
-        snap = versioned_snapshot(data, codec.struct, name, self.kind, codec.version)
         self.steps, self.last = snap.steps, dict(snap.last)
         if not snap.initialised:
             self.state, self.shape = None, None
@@ -427,8 +430,12 @@ class BoxProposalStage(Stage[SeedBoxFields]):
     def summary(self) -> dict[str, Any]:
         return {"proposed": self.done}
 
-    def snapshot(self) -> bytes:
-        return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=self.done))
+    snapshot_struct = CounterSnapshot
+    snapshot_versions = (PROPOSAL_SNAPSHOT_VERSION,)
+    snapshot_what = "proposal"
 
-    def restore(self, data: bytes) -> None:
-        self.done = versioned_snapshot(data, CounterSnapshot, self.ctx.name, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
+    def snapshot_fields(self) -> dict[str, Any]:
+        return {"done": self.done}
+
+    def restore_fields(self, snap: CounterSnapshot) -> None:
+        self.done = snap.done

@@ -10,7 +10,7 @@ its tracker's ``init``: a user morphable model, resource ``model``, or the gener
 the initial box, clipped to the frame) and compute the same digest, which travels in every
 :class:`ExpertStates` and :class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
 checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
-(:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
+(:func:`gflow_core.gflow.split.restored_setup`, :func:`gflow_core.gflow.split.restored_state`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
 ``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
 
 They are not registrations of the generic box stages (:mod:`stages.box_tracker`): what travels is
@@ -29,12 +29,12 @@ tracker's (:meth:`gflow_core.gflow.GFlowTracker.update_or_coast`, ``with_bins``)
 
 from __future__ import annotations
 
-from typing import Any, Mapping, TypeVar
+from typing import Any, TypeVar
 
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, message_dims, restored_setup
+from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, message_dims
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -44,8 +44,7 @@ from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, P
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["GFlowStageFields", "GFlowStage", "initial_box", "frame_of", "unpack_states", "unpack_proposals",
-           "snapshot_setup"]
+__all__ = ["GFlowStageFields", "GFlowStage", "initial_box", "frame_of", "unpack_states", "unpack_proposals"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -135,13 +134,6 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation
     except ValueError as e:
         raise StageInputError(f"frame {seq}: {e}") from None
     return obs
-
-
-def snapshot_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
-                   image_shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
-    """The model placed again for a snapshot made on frames of ``image_shape`` with ``digest``
-    (:func:`gflow_core.gflow.split.restored_setup`: ValueError for another configuration's)."""
-    return restored_setup(tracker, initial_box(fields), fields.seed, image_shape, resources.get("model"), digest)
 
 
 # -- messages -> gflow_core ---------------------------------------------------------------

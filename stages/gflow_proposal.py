@@ -39,27 +39,22 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-import msgspec
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSetup, Proposals
-from gflow_core.gflow.split import BackgroundReplica, expert_state, placed, shard_indices
+from gflow_core.gflow.split import BackgroundReplica, expert_state, placed, restored_setup, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_states
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, unpack_states
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
-from gflow_msgs.snapshots import GFlowProposalSnapshot, versioned_snapshot
-from gflow_core.tracker import tracker_rng
+from gflow_msgs.snapshots import GFlowProposalSnapshot
 from .time_step import time_step
 from .tracker_params import stage_params
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
-
-SNAPSHOT_VERSION = 2  # 2: the background replica as distinct tiles (1: dense (E, H, W) arrays)
-
 
 class GFlowProposalFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the filter's), the
@@ -113,7 +108,7 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
             self._initialise(seq, obs)
             return []
         assert self.setup is not None
-        header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
+        header = self.header_of(feat if isinstance(feat, Features) else None, seq)
         out = self._propose(seq, obs, inputs.get("state"), header.stamp_ns)
         if obs is not None:
             self.replica = self.replica.seen(seq, obs.grey)
@@ -157,7 +152,7 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
         try:
             dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
             return TRACKER.propose(self.tracker, GFlowState(s, expert_state(s, st, self.replica.bg)), obs,
-                                   tracker_rng(self.params.seed, self.ctx.stream, seq), dt, self.indices)
+                                   self.rng(seq), dt, self.indices)
         except (ValueError, np.linalg.LinAlgError) as e:
             self.report("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals", seq)
             return None
@@ -167,18 +162,20 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
         return dict(self.last, steps=self.steps, shard=f"{self.params.shard}/{self.params.shards}",
                     background_at=self.replica.seq)
 
-    def snapshot(self) -> bytes:
-        return msgspec.msgpack.encode(GFlowProposalSnapshot(
-            version=SNAPSHOT_VERSION, image_shape=None if self.setup is None else self.setup.image_shape,
-            digest=self.digest, init_seq=-1 if self.init_seq is None else self.init_seq, steps=self.steps,
-            init_error=self.init_error, **packed_fields(self.replica.fields())))
+    # -- snapshot / restore: the model's placement and the background replica (as distinct tiles) ---------
+    snapshot_struct = GFlowProposalSnapshot
+    snapshot_versions = (2,)  # 2: the background replica as distinct tiles (1: dense (E, H, W) arrays)
 
-    def restore(self, data: bytes) -> None:
-        snap = versioned_snapshot(data, GFlowProposalSnapshot, self.ctx.name, self.kind, SNAPSHOT_VERSION)
+    def snapshot_fields(self) -> dict[str, Any]:
+        return dict(image_shape=None if self.setup is None else self.setup.image_shape, digest=self.digest,
+                    init_seq=-1 if self.init_seq is None else self.init_seq, steps=self.steps,
+                    init_error=self.init_error, **packed_fields(self.replica.fields()))
+
+    def restore_fields(self, snap: GFlowProposalSnapshot) -> None:
         self.setup, self.digest = None, ""
         if snap.image_shape is not None:
-            self.setup, self.digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
-                                                     snap.digest)
+            self.setup, self.digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed,
+                                                     snap.image_shape, self.ctx.resources.get("model"), snap.digest)
         try:
             fields = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
             self.replica = BackgroundReplica.of_fields(self.setup, **fields)

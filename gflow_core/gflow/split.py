@@ -14,7 +14,10 @@ arguments of these calls and results into messages:
 * :func:`message_dims` -- the dimensions of the arrays that travel (E, P, n, s);
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
 * :func:`check_frame_size` -- a later frame checked against the size the model was placed on;
-* :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes.
+* :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes;
+* :func:`start_filter`, :func:`restored_state` -- the filter process's posterior at the first frame
+  (without backgrounds, which the proposal processes keep) with its digest, and again from the
+  arrays and fields of a snapshot.
 
 Nothing here is new mathematics: the replica calls :func:`.filter.initial_background`,
 :func:`.filter.advance_background` and :func:`.filter.predict_background`, exactly as the
@@ -33,10 +36,12 @@ import numpy as np
 from .background import TileLayout, TiledBackground
 from .filter import ExpertState, advance_background, initial_background, predict_background
 from .params import GFlowParams
-from .tracker import GFlowObservation, ModelSetup, model_setup
+from .state_fields import state_of_fields
+from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_setup
+from ..tracker import Estimate, FrameRng
 
 __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
-           "BackgroundReplica", "expert_state", "check_frame_size", "check_experts"]
+           "BackgroundReplica", "expert_state", "check_frame_size", "check_experts", "start_filter", "restored_state"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -144,6 +149,31 @@ def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.n
     if has_anchor != (setup.cfg.texture_decay != 1.0):
         raise ValueError("the texture anchor is " + ("unexpected" if has_anchor else "missing") +
                          f" for texture_decay {setup.cfg.texture_decay}")
+
+
+def start_filter(params: GFlowParams, obs: GFlowObservation, box: Sequence[float], seed: int, rng: FrameRng,
+                 model: Any = None) -> tuple[GFlowState, Estimate, str]:
+    """The filter process's posterior at the first frame (:meth:`.tracker.GFlowTracker.init` keeping no
+    backgrounds: the proposal processes start them from this frame), its estimate and the digest
+    (:func:`config_digest` with ``seed``) its messages carry.
+
+    Raises ValueError when the model cannot be placed in ``box``."""
+    state, est = TRACKER.init(params, obs, (box[0], box[1], box[2], box[3]), rng, {"model": model},
+                              backgrounds=False)
+    return state, est, config_digest(state.setup, seed)
+
+
+def restored_state(params: GFlowParams, box: Sequence[float], seed: int, shape: tuple[int, int], model: Any,
+                   digest: str, read: Any, fields: Mapping[str, Any]) -> GFlowState:
+    """The filter process's posterior of a snapshot made on frames of ``shape`` (H, W) with ``digest``: the
+    model placed again (:func:`restored_setup`), the experts of the arrays ``read(setup)`` gives (the
+    snapshot's experts read for ``setup``'s dimensions, :func:`message_dims`) and the rest of the state of
+    ``fields`` (:func:`.state_fields.state_of_fields`).
+
+    Raises ValueError when the model cannot be placed, the digest is another configuration's or the
+    arrays or fields do not fit."""
+    setup, _ = restored_setup(params, box, seed, shape, model, digest)
+    return state_of_fields(setup, expert_state(setup, read(setup)), fields)
 
 
 @dataclass(frozen=True)
