@@ -203,6 +203,35 @@ class Stage(ABC, Generic[P]):
     def header(self, seq: int, stamp_ns: int) -> Header:
         return Header(stream=self.ctx.stream, seq=seq, stamp_ns=stamp_ns)
 
+    def observed(self, port: str, msg: Message | None, seq: int, then: str, missing: bool = True) -> Any:
+        """What :meth:`prepare` makes of the input ``msg`` of ``port`` for frame ``seq`` (made ahead or now,
+        :meth:`prepared`), or None, reported, when there is none: no message (``missing_frame`` or
+        ``missing_features``, when ``missing``) or one :meth:`prepare` cannot read (it raised ``ValueError``,
+        :class:`StageInputError` and ``MessageError`` among them: ``bad_frame`` or ``bad_features``), each
+        report ending with ``then``, what the stage does without it."""
+        noun = "frame" if port == "frames" else port
+        if msg is None:
+            if missing:
+                self.report(f"missing_{noun}", f"frame {seq}: no {noun} arrived; {then}", seq)
+            return None
+        try:
+            return self.prepared(port, msg)
+        except ValueError as e:
+            self.report(f"bad_{noun}", f"frame {seq}: {e}; {then}", seq)
+            return None
+
+    def same_size(self, port: str, seq: int, shape: tuple[int, ...], started: tuple[int, ...] | None,
+                  then: str) -> bool:
+        """Whether frame ``seq``, of ``shape`` (H, W), has the size of the frames the stage started on
+        (``started``; None: not started, any size); reported as ``bad_frame`` or ``bad_features`` (the input
+        of ``port``) when not: the tracker's state is for frames of that size."""
+        if started is None or tuple(shape) == tuple(started):
+            return True
+        self.report("bad_frame" if port == "frames" else f"bad_{port}",
+                    f"frame {seq}: size {shape[1]}x{shape[0]} differs from the {started[1]}x{started[0]} frames "
+                    f"the tracker started on; frame skipped; {then}", seq)
+        return False
+
     def header_of(self, msg: Message | None, seq: int) -> Header:
         """The header of the input ``msg`` of frame ``seq``, or one without a stamp when it did not come."""
         return msg.header if msg is not None else self.header(seq, 0)

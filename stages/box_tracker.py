@@ -140,22 +140,13 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def _observe(self, frame: Any, seq: int) -> Any:
         """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
-        if frame is None:
-            self.report("missing_frame", f"frame {seq}: no frame arrived; coasting", seq)
+        got = self.observed("frames", frame, seq, "coasting")
+        if got is None or not self.same_size("frames", seq, got[0], self.shape, "coasting"):
             return None
-        try:
-            shape, obs = self.prepared("frames", frame)
-        except (MessageError, ValueError) as e:
-            self.report("bad_frame", f"frame {seq}: {e}; coasting", seq)
-            return None
-        if self.shape is not None and shape != self.shape:
-            self.report("bad_frame", f"frame {seq}: {shape[1]}x{shape[0]} but the stream is "
-                        f"{self.shape[1]}x{self.shape[0]}; coasting", seq)
-            return None
-        if isinstance(obs, UnusableFrame):
+        if isinstance(got[1], UnusableFrame):
             self.report("blank_frame", f"frame {seq}: uniform frame, no evidence; coasting", seq)
             return None
-        return obs
+        return got[1]
 
     def _first_observation(self, seq: int, msg: Any) -> Any:
         """The observation the tracker starts from (StageInputError when there is none)."""
@@ -319,8 +310,7 @@ class FeaturesFilterStage(BoxFilterStage):
 
     def _observe(self, feat: Any, seq: int) -> Any:
         if feat is None:
-            self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
-            return None
+            return self.observed("features", None, seq, "coasting on the dynamics")
         return self._features(feat, seq)
 
     def _first_observation(self, seq: int, feat: Any) -> Any:

@@ -34,7 +34,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, message_dims
+from gflow_core.gflow.split import check_experts, check_shard, message_dims
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
@@ -81,25 +81,17 @@ class GFlowStage(Stage[F]):
 
     def _frame(self, feat: Message | None, seq: int, shape: tuple[int, int] | None, then: str,
                missing: bool = True) -> GFlowObservation | None:
-        """:meth:`prepare`'s observation of frame ``seq``'s features (made ahead or now), of a frame of
-        ``shape`` (H, W) (None: any size), or None when there is none: no features (reported as
-        ``missing_features`` when ``missing``) or a frame that cannot be used (``bad_features``), each
-        report ending with ``then``, what the stage does without it. Bad colour bins are reported too:
-        the lost guard weighs the edges alone on that frame."""
-        if not isinstance(feat, Features):
-            if missing:
-                self.report("missing_features", f"frame {seq}: no features arrived; {then}", seq)
+        """:meth:`prepare`'s observation of frame ``seq``'s features (:meth:`~stages.base.Stage.observed`), of
+        a frame of ``shape`` (H, W) (None: any size, :meth:`~stages.base.Stage.same_size`), or None when there
+        is none, reported (``missing_features`` only when ``missing``) with ``then``, what the stage does
+        without it. Bad colour bins are reported too: the lost guard weighs the edges alone on that frame."""
+        got = self.observed("features", feat if isinstance(feat, Features) else None, seq, then, missing)
+        if got is None:
             return None
-        try:
-            obs, problem = self.prepared("features", feat)
-            if problem:
-                self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
-            return check_frame_size(obs, shape)
-        except StageInputError as e:
-            self.report("bad_features", f"{e}; {then}", seq)
-        except ValueError as e:  # another size than the frames the model was placed on
-            self.report("bad_features", f"frame {seq}: {e}; frame skipped; {then}", seq)
-        return None
+        obs, problem = got
+        if problem:
+            self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
+        return obs if self.same_size("features", seq, obs.grey.shape, shape, then) else None
 
     def _init_failed(self, seq: int, error: str, then: str = "") -> None:
         """Report that the model cannot be placed on frame ``seq`` (``error``; ``then``: what the stage does
@@ -116,7 +108,7 @@ def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:
     return fields.init
 
 
-def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:
+def frame_of(feat: Features, tracker: GFlowParams) -> GFlowObservation:
     """What G-flow reads of a Features message (:meth:`GFlowTracker.observe_grey` of its grey image;
     both stages read frames with it, so they see bit-identical frames).
 
@@ -124,16 +116,13 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation
     pixels, or a uniform image (all black, saturated or any single grey level).
     """
     try:
-        grey = feat.grey.array()
+        return TRACKER.observe_grey(tracker, feat.grey.array())
     except MessageError as e:
-        raise StageInputError(f"frame {seq}: grey image: {e}") from None
-    try:
-        obs = TRACKER.observe_grey(tracker, grey)
+        raise StageInputError(f"grey image: {e}") from None
     except UnusableFrame as e:
-        raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
+        raise StageInputError(f"{e}; frame skipped") from None
     except ValueError as e:
-        raise StageInputError(f"frame {seq}: {e}") from None
-    return obs
+        raise StageInputError(str(e)) from None
 
 
 # -- messages -> gflow_core ---------------------------------------------------------------

@@ -119,7 +119,7 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
         what was wrong with the bins ("" when nothing was). Raises StageInputError for a frame that
         cannot be used."""
         assert isinstance(msg, Features)
-        obs = frame_of(msg, msg.header.seq, self.tracker)
+        obs = frame_of(msg, self.tracker)
         # the features' colour bins (the preprocess stage's ``colour``), read only when the guard weighs colour
         bins, problem = bins_of(msg, obs.grey.shape) if TRACKER.reads_colour(self.tracker) else (None, "")
         return TRACKER.with_channels(self.tracker, TRACKER.with_bins(self.tracker, obs, bins)), problem

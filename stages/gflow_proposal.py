@@ -98,7 +98,7 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
         experts; and "" (the proposals read no colour bins). Raises StageInputError for a frame that
         cannot be used."""
         assert isinstance(msg, Features)
-        return TRACKER.with_pyramid(self.tracker, frame_of(msg, msg.header.seq, self.tracker)), ""
+        return TRACKER.with_pyramid(self.tracker, frame_of(msg, self.tracker)), ""
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         feat = inputs.get("features")

@@ -12,8 +12,9 @@ import pytest
 
 from gflow_core.gflow import GFlowParams, model_setup
 from gflow_core.gflow.filter import advance_background, initial_background
-from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_frame_size, check_shard,
-                                    config_digest, placed, restored_setup, shard_indices)
+from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_shard,
+                                    config_digest, placed, restored_setup, restored_state, shard_indices,
+                                    start_filter)
 from gflow_core.gflow.state_fields import state_fields, state_of_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import FrameRng
@@ -102,9 +103,11 @@ def test_every_process_places_the_model_alike_and_refuses_what_is_not_its_own(he
     with pytest.raises(ValueError, match="lies outside the 80x60 frame"):
         placed(params, (500.0, 500.0, 10.0, 10.0), 1, grey.shape[1:])
     obs = TRACKER.observe_grey(params, grey[0])
-    assert check_frame_size(obs, None) is obs and check_frame_size(obs, (60, 80)) is obs
-    with pytest.raises(ValueError, match="size 80x60 differs from the 100x50 frames"):
-        check_frame_size(obs, (50, 100))
+    state, est, started = start_filter(params, obs, box, 1, FrameRng(1, 0, 0))
+    # the filter process's start: the same placement and digest, and no backgrounds (its proposals keep them)
+    assert started == digest and est.phase == "init" and state.experts.bg_mean is None
+    with pytest.raises(ValueError, match="another G-flow configuration, model or seed"):
+        restored_state(params, box, 2, grey.shape[1:], None, digest, lambda s: {}, {})
     parents = np.arange(6)
     check_experts(setup, (60, 80), parents, setup.cfg.texture_decay != 1.0)
     for shape, par, anchor, why in (((61, 80), parents, False, "for \\(61, 80\\) frames"),

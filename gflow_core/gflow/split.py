@@ -13,7 +13,6 @@ arguments of these calls and results into messages:
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
 * :func:`message_dims` -- the dimensions of the arrays that travel (E, P, n, s);
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
-* :func:`check_frame_size` -- a later frame checked against the size the model was placed on;
 * :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes;
 * :func:`start_filter`, :func:`restored_state` -- the filter process's posterior at the first frame
   (without backgrounds, which the proposal processes keep) with its digest, and again from the
@@ -41,7 +40,7 @@ from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_se
 from ..tracker import Estimate, FrameRng
 
 __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
-           "BackgroundReplica", "expert_state", "check_frame_size", "check_experts", "start_filter", "restored_state"]
+           "BackgroundReplica", "expert_state", "check_experts", "start_filter", "restored_state"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -119,19 +118,6 @@ def expert_state(setup: ModelSetup, arrays: Mapping[str, Any], bg: tuple[Any, An
     bg_mean, bg_var = (None, None) if bg is None else bg
     return ExpertState(bg_mean=bg_mean, bg_var=bg_var, image_shape=setup.image_shape,
                        tex_anchor=arrays.get("tex_anchor"), **arrs)
-
-
-def check_frame_size(obs: GFlowObservation, shape: tuple[int, int] | None) -> GFlowObservation:
-    """``obs``, if its frame has the size ``shape`` (H, W) of the frames the model was placed on
-    (:attr:`.tracker.ModelSetup.image_shape`; None: not placed yet, any size).
-
-    Raises ValueError naming both sizes otherwise: the experts' poses, textures and backgrounds
-    are for frames of that size."""
-    grey = obs.grey
-    if shape is not None and grey.shape != tuple(shape):
-        raise ValueError(f"size {grey.shape[1]}x{grey.shape[0]} differs from the {shape[1]}x{shape[0]} frames the "
-                         f"tracker started on")
-    return obs
 
 
 def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.ndarray, has_anchor: bool) -> None:
