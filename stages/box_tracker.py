@@ -3,8 +3,7 @@ any tracker whose state is a particle cloud, driven through the tracker's protoc
 (:class:`gflow_core.tracker.TrackingFilter`).
 
 The stages of every tracker whose spec has box stages (the correlation-filter tracker, the
-appearance tracker; :mod:`stages.spec_box`, the appearance filter with its own snapshot in
-:mod:`stages.appearance_filter`) are registrations
+appearance tracker; :mod:`stages.spec_box`) are registrations
 of these two classes: each sets its ``kind``, its ``Params`` (made of the tracker's parameter
 dataclass) and what its spec says (:class:`gflow_core.spec.TrackerSpec`): the filter its protocol
 object and the spec's :class:`gflow_core.spec.BoxStages` (the particles' conversions), the proposal
