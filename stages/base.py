@@ -232,6 +232,16 @@ class Stage(ABC, Generic[P]):
                     f"the tracker started on; frame skipped; {then}", seq)
         return False
 
+    def learned_model(self, required: bool = True) -> Any:
+        """The learned model the pipeline loaded for the stage (resource ``model``, from its ``model``
+        parameter), or None when there is none and it is not ``required``; ``ValueError`` in one line
+        naming the stage when a required one is missing."""
+        model = self.ctx.resources.get("model")
+        if model is None and required:
+            raise ValueError(f"stage {self.ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
+                             f"(`gflow learn m2`)")
+        return model
+
     def header_of(self, msg: Message | None, seq: int) -> Header:
         """The header of the input ``msg`` of frame ``seq``, or one without a stamp when it did not come."""
         return msg.header if msg is not None else self.header(seq, 0)

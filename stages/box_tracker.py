@@ -115,8 +115,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        if params.init is None and self.needs_init:
-            raise ValueError(f"the {self.label} filter needs an initial box: set init: [x, y, w, h]")
+        if self.needs_init:
+            params.initial_box(f"the {self.label} filter")
         self.core: Any = core_params(params)
         self.state: Any = None
         self.shape: tuple[int, ...] | None = None
@@ -387,13 +387,12 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         """The proposal of whole clouds, made once from the stage's parameters and resources
         (``ValueError`` for unusable ones); a ``ValueError`` it raises on a cloud is the input's error.
         Here: the spec's walk of alpha, relative to the initial box's size."""
-        if params.init is None:
-            raise ValueError(f"the {self.kind.split('.')[0]} proposal needs the initial box (its random walk is "
-                             "relative to the box's size): set init: [x, y, w, h]")
+        box = params.initial_box(f"the {self.kind.split('.')[0]} proposal",
+                                 " (its random walk is relative to the box's size)")
         walk = self.box.walk
         self.core: Any = core_params(params)
         core: Any = self.core
-        size0 = (float(params.init[2]), float(params.init[3]))
+        size0 = (float(box[2]), float(box[3]))
 
         def propose(cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
             alpha = walk(core, cloud.alpha, size0, rng, dt)

@@ -44,7 +44,7 @@ from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, P
 from .time_step import MAX_TIME_STEP
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["GFlowStageFields", "GFlowStage", "initial_box", "frame_of", "unpack_states", "unpack_proposals"]
+__all__ = ["GFlowStageFields", "GFlowStage", "frame_of", "unpack_states", "unpack_proposals"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -93,19 +93,16 @@ class GFlowStage(Stage[F]):
             self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
         return obs if self.same_size("features", seq, obs.grey.shape, shape, then) else None
 
+    def initial_box(self) -> tuple[float, float, float, float]:
+        """The stage's initial box; ValueError when it has none."""
+        return self.params.initial_box("G-flow", " (on the proposal and filter stages)")
+
     def _init_failed(self, seq: int, error: str, then: str = "") -> None:
         """Report that the model cannot be placed on frame ``seq`` (``error``; ``then``: what the stage does
         meanwhile), once for each distinct reason rather than on every frame it waits past."""
         if error != self.init_error:
             self.init_error = error
             self.report("init_failed", f"frame {seq}: {error}" + (f"; {then}" if then else ""), seq)
-
-
-def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:
-    """The stage's initial box. Raises StageInputError when it has none."""
-    if fields.init is None:
-        raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
-    return fields.init
 
 
 def frame_of(feat: Features, tracker: GFlowParams) -> GFlowObservation:

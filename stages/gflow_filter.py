@@ -40,7 +40,7 @@ from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, unpack_proposals, unpack_states
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_proposals, unpack_states
 from gflow_msgs.gflow import pose_estimate_of, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
@@ -149,10 +149,10 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
             return []
         assert isinstance(feat, Features)
         try:
-            box = initial_box(self.params)
+            box = self.initial_box()
             # the filter keeps no backgrounds: the proposal stages start them from this frame
             state, est, self.digest = start_filter(self.tracker, obs, box, self.params.seed, self.rng(seq),
-                                                   self.ctx.resources.get("model"))
+                                                   self.learned_model(False))
         except ValueError as e:
             self._init_failed(seq, str(e), "not tracking")
             return []
@@ -188,8 +188,8 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
             experts = snap.state
             try:
                 self.state = restored_state(
-                    self.tracker, initial_box(self.params), self.params.seed, snap.image_shape,
-                    self.ctx.resources.get("model"), snap.digest,
+                    self.tracker, self.initial_box(), self.params.seed, snap.image_shape,
+                    self.learned_model(False), snap.digest,
                     lambda setup: unpack_states(experts, setup, None, "expert states"),
                     unpacked_fields({k: getattr(snap, k) for k in STATE_FIELDS}))
             except ValueError as e:  # MessageError and StageInputError too

@@ -46,7 +46,7 @@ from gflow_core.gflow.split import BackgroundReplica, expert_state, placed, rest
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, unpack_states
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
@@ -122,8 +122,8 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
         if obs is None:
             return
         try:  # no initial box, a box outside the frame, a model resource that cannot be placed in it
-            self.setup, self.digest = placed(self.tracker, initial_box(self.params), self.params.seed, obs.grey.shape,
-                                             self.ctx.resources.get("model"))
+            self.setup, self.digest = placed(self.tracker, self.initial_box(), self.params.seed, obs.grey.shape,
+                                             self.learned_model(False))
         except ValueError as e:
             self._init_failed(seq, str(e))
             return
@@ -174,8 +174,8 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
     def restore_fields(self, snap: GFlowProposalSnapshot) -> None:
         self.setup, self.digest = None, ""
         if snap.image_shape is not None:
-            self.setup, self.digest = restored_setup(self.tracker, initial_box(self.params), self.params.seed,
-                                                     snap.image_shape, self.ctx.resources.get("model"), snap.digest)
+            self.setup, self.digest = restored_setup(self.tracker, self.initial_box(), self.params.seed,
+                                                     snap.image_shape, self.learned_model(False), snap.digest)
         try:
             fields = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
             self.replica = BackgroundReplica.of_fields(self.setup, **fields)
