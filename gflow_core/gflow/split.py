@@ -11,6 +11,9 @@ arguments of these calls and results into messages:
 * :func:`check_shard`, :func:`shard_indices` -- which shards a run may have, and the experts of one;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
+* :class:`ProposalShard` -- what a proposal process keeps between frames (the model placed on the
+  first usable frame, the replica) and its step: the replica brought to the experts' frame, then
+  the pose opinions of its shard of experts;
 * :func:`message_dims` -- the dimensions of the arrays that travel (E, P, n, s);
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
 * :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes;
@@ -33,14 +36,14 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .background import TileLayout, TiledBackground
-from .filter import ExpertState, advance_background, initial_background, predict_background
+from .filter import ExpertState, Proposals, advance_background, initial_background, predict_background
 from .params import GFlowParams
 from .state_fields import state_of_fields
 from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_setup
 from ..tracker import Estimate, FrameRng
 
 __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
-           "BackgroundReplica", "expert_state", "check_experts", "start_filter", "restored_state"]
+           "BackgroundReplica", "ProposalShard", "expert_state", "check_experts", "start_filter", "restored_state"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -253,3 +256,65 @@ class BackgroundReplica:
                                  f"{setup.cfg.n_experts}")
             bg = (bank.mean, bank.var)
         return cls(bg, bg_seq, prev_seq, None if prev_grey is None else prev_grey.copy())
+
+
+@dataclass(frozen=True)
+class ProposalShard:
+    """What a proposal process of G-flow split across processes keeps between frames (sec. 3.2): the
+    model placed on the first usable frame (``setup``, its ``digest``, that frame ``init_seq``; None
+    before) and the :class:`BackgroundReplica` with the last usable frame it saw. Its methods return a
+    new value."""
+
+    setup: ModelSetup | None = None
+    digest: str = ""
+    init_seq: int | None = None
+    replica: BackgroundReplica = BackgroundReplica()
+
+    def started(self, params: GFlowParams, box: Sequence[float], seed: int, seq: int, grey: np.ndarray,
+                model: Any = None) -> ProposalShard:
+        """The model placed on frame ``seq`` (grey ``(H, W)`` uint8) as the filter places it there
+        (:func:`placed`); raises ValueError when it cannot be."""
+        setup, digest = placed(params, box, seed, grey.shape, model)
+        return ProposalShard(setup, digest, seq, self.replica.seen(seq, grey))
+
+    def seen(self, seq: int, grey: np.ndarray) -> ProposalShard:
+        """The shard after frame ``seq`` (grey ``(H, W)`` uint8) was seen (:meth:`BackgroundReplica.seen`)."""
+        return dataclasses.replace(self, replica=self.replica.seen(seq, grey))
+
+    def propose(self, params: GFlowParams, seq: int, experts: Mapping[str, Any], first: bool,
+                obs: GFlowObservation | None, rng: Any, dt: float,
+                indices: np.ndarray) -> tuple[ProposalShard, Proposals | None, list[tuple[str, str]]]:
+        """Frame ``seq``'s step: the replica brought to frame ``seq - 1`` with the ``experts`` of that frame
+        (the arrays of an expert-state message, checked: ``poses``, ``parents`` ...; ``first``: the first
+        frame's), then the pose opinions of the experts ``indices`` (E',) for frame ``seq``
+        (:meth:`.tracker.GFlowTracker.propose` with ``rng`` over ``dt`` frame periods), none without the
+        frame ``obs`` or the backgrounds the likelihood needs.
+
+        Returns the new shard, the proposals (None: none) and the problems to report, ``(kind, text)``:
+        the replica's, and ``propose_failed`` when the proposals could not be made."""
+        s = self.setup
+        assert s is not None
+        replica, problem = self.replica.advance(s, seq, experts["poses"], experts["parents"], first)
+        problems = [] if problem is None else [problem]
+        out = None
+        if obs is not None and replica.ready(s):
+            try:
+                out = TRACKER.propose(params, GFlowState(s, expert_state(s, experts, replica.bg)), obs, rng, dt, indices)
+            except (ValueError, np.linalg.LinAlgError) as e:
+                problems.append(("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals"))
+        return dataclasses.replace(self, replica=replica), out, problems
+
+    def fields(self) -> dict[str, Any]:
+        """The shard as flat snapshot fields: ``image_shape`` (H, W) (None before the model was placed),
+        ``digest``, ``init_seq`` (-1: not placed) and the replica's (:meth:`BackgroundReplica.fields`)."""
+        return dict(image_shape=None if self.setup is None else self.setup.image_shape, digest=self.digest,
+                    init_seq=-1 if self.init_seq is None else self.init_seq, **self.replica.fields())
+
+    @classmethod
+    def of_fields(cls, setup: ModelSetup | None, init_seq: int, digest: str, replica: Mapping[str, Any]
+                  ) -> ProposalShard:
+        """The shard of :meth:`fields` with the model placed again (``setup``, :func:`restored_setup` of the
+        fields' ``image_shape`` and ``digest``; None when it was not placed). Raises ValueError when the
+        replica's fields do not fit it."""
+        return cls(setup, digest if setup is not None else "", None if init_seq < 0 else init_seq,
+                   BackgroundReplica.of_fields(setup, **replica))
