@@ -2,27 +2,37 @@
 
 The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & Movellan, NIPS
 2004) are adapters of :class:`gflow_core.gflow.GFlowTracker`, and what running it split across
-processes needs beyond that (the configuration digest, the shards, the proposals' background
-replica) is :mod:`gflow_core.gflow.split`. Both stages take every field of
-:class:`gflow_core.gflow.GFlowParams` (:func:`stages.tracker_params.stage_params`), place the model
-the same way on the first usable frame (:func:`gflow_core.gflow.split.placed`, the filter's through
-its tracker's ``init``: a user morphable model, resource ``model``, or the generic head fitted into
-the initial box, clipped to the frame) and compute the same digest, which travels in every
-:class:`ExpertStates` and :class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
-checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
-(:func:`gflow_core.gflow.split.restored_setup`, :func:`gflow_core.gflow.split.restored_state`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
-``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
+processes needs beyond that (the configuration digest, the shards, what a proposal process keeps
+and does with a frame, the filter process's start and restore) is :mod:`gflow_core.gflow.split`.
+Both stages take every field of :class:`gflow_core.gflow.GFlowParams`
+(:func:`stages.tracker_params.stage_params`), place the model the same way on the first usable
+frame (:meth:`gflow_core.gflow.split.ProposalShard.started`, :func:`gflow_core.gflow.split.start_filter`:
+a user morphable model, resource ``model``, or the generic head fitted into the initial box, clipped
+to the frame) and compute the same digest, which travels in every :class:`ExpertStates` and
+:class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`,
+:func:`unpack_proposals`: the packing and checking of the messages is :mod:`gflow_msgs.gflow`'s)
+and once on a restore (:func:`gflow_core.gflow.split.restored_setup`,
+:func:`gflow_core.gflow.split.restored_state`). The digest stays although a graph's tracker block now
+hands every stage one parameter block: the messages of every G-flow recording carry it (a
+recording re-runs bit for bit only if it is made the same way), and a graph file without a tracker
+block still names the parameters per stage, which it guards. Random streams:
+:mod:`gflow_core.gflow.tracker` (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t,
+i]``, so shards concatenate to one process's result).
 
 They are not registrations of the generic box stages (:mod:`stages.box_tracker`): what travels is
 not a particle cloud but the experts (:class:`ExpertStates`, whose backgrounds stay in the proposal
-processes) and sharded pose opinions (one port a shard, each checked against the digest), the time
-step travels with the proposals, a first frame the model cannot be placed on is waited past rather
-than refused, and an update that fails coasts. Each of these is a step the box stages would have to
-hand over, which would leave them nothing of their own. What the two G-flow stages do alike is
-:class:`GFlowStage`'s: the tracker's parameters, a frame's features read into the prepared
-observation (or reported missing or bad, with what the stage does without it), and a first frame
-the model cannot be placed on reported once and waited past. The rules themselves are the
-tracker's (:meth:`gflow_core.gflow.GFlowTracker.update_or_coast`, ``with_bins``) and
+processes) and sharded pose opinions (one port a shard, each checked against the digest), the
+proposal stage keeps state (the background replica) and reads the frames as well as the posterior,
+the time step travels with the proposals, a first frame the model cannot be placed on is waited
+past rather than refused, and an update that fails coasts. Each of these is a step the box stages
+would have to hand over, which would leave them nothing of their own. What every tracker's stages
+do alike is :class:`stages.base.Stage`'s: a frame's features read into the prepared observation or
+reported missing or bad with what the stage does without it (``observed``), the frame's size
+(``same_size``), the frame's draws (``rng``), the snapshot (``snapshot_struct``,
+``snapshot_fields``, ``restore_fields``). What the two G-flow stages do alike besides is
+:class:`GFlowStage`'s: the tracker's parameters, the colour bins' problems, and a first frame the
+model cannot be placed on reported once and waited past. The rules themselves are the tracker's
+(:meth:`gflow_core.gflow.GFlowTracker.update_or_coast`, ``with_bins``) and
 :mod:`gflow_core.gflow.split`'s (the digest, the shards, the arrays' dimensions,
 :func:`gflow_core.gflow.split.message_dims`).
 """
