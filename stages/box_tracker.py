@@ -7,7 +7,7 @@ appearance tracker; :mod:`stages.spec_box`) are registrations
 of these two classes: each sets its ``kind``, its ``Params`` (made of the tracker's parameter
 dataclass) and what its spec says (:class:`gflow_core.spec.TrackerSpec`): the filter its protocol
 object and the spec's :class:`gflow_core.spec.BoxStages` (the particles' conversions), the proposal
-the spec's ``BoxStages`` (the random walk); the filter also its :class:`SnapshotCodec`. The contour trackers (:mod:`stages.particle_filter`,
+the spec's ``BoxStages`` (the random walk); the filter also its :class:`~gflow_msgs.snapshots.SnapshotCodec`. The contour trackers (:mod:`stages.particle_filter`,
 :mod:`stages.particle_proposal`) and M2 with a patch model (:mod:`stages.patch_filter`) are
 registrations too: their filters read the preprocess stage's ``features``
 (:class:`FeaturesFilterStage`) and override the steps named below (``_observe``, ``_first_observation``, ``_proposed``, ``_coast``, ``_last``,
@@ -22,7 +22,7 @@ registrations too: their filters read the preprocess stage's ``features``
   and ``target_state`` (``tracked``, ``occluded``, ``lost``). A missing, undecodable, uniform or
   wrongly sized frame, or missing proposals, make it coast and are reported; they never stop the
   stream. The frame's observation (``TRACKER.observe``) is the stage's ``prepare`` work
-  (:mod:`stages.base`). Its snapshot is the tracker's :class:`SnapshotCodec` Struct.
+  (:mod:`stages.base`). Its snapshot is the tracker's :class:`~gflow_msgs.snapshots.SnapshotCodec` Struct.
 * :class:`BoxProposalStage` -- input ``particles``, the resampled posterior of frame t-1; output
   ``proposals``, the particles for frame t from the tracker's random walk drawn with
   ``FrameRng(seed, crc32(stream), t).stream(PURPOSE_WALK)``; its std is relative to the size of the
@@ -38,7 +38,6 @@ The proposal stage calls the tracker's walk on the message's particles rather th
 from __future__ import annotations
 
 from abc import abstractmethod
-from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping, cast
 
 import msgspec
@@ -51,13 +50,13 @@ from gflow_core.spec import BoxStages
 from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, tracker_rng
 
 from .base import Output, Stage, StageContext, StageInputError
-from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
+from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
                                  estimate_of, particles_msg)
-from gflow_msgs.snapshots import CounterSnapshot, article
+from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, article
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, core_params
 
-__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of"]
+__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "cloud_of"]
 
 PROPOSAL_SNAPSHOT_VERSION = 1  # a proposal stage's snapshot: its step counter (CounterSnapshot)
 
@@ -73,29 +72,12 @@ def cloud_of(msg: Particles) -> ParticleCloud:
         raise StageInputError(f"particles {msg.header.seq}: {e}") from None
 
 
-@dataclass(frozen=True)
-class SnapshotCodec:
-    """How a tracker's state travels in a filter snapshot.
-
-    ``struct`` is a ``msgspec.Struct`` with the fields ``version: int``, ``initialised: bool``,
-    ``steps: int = 0`` and ``last: dict = {}`` besides the tracker's own (each with a default);
-    ``version`` the version this code writes and reads; ``fields(state)`` the tracker's fields of a
-    snapshot of ``state``; ``state(snap, params, last)`` the state of a decoded snapshot (``last`` is
-    the last estimate's summary), raising ``ValueError``, ``KeyError``, ``IndexError``,
-    ``TypeError``, ``AssertionError`` or :class:`~gflow_msgs.messages.MessageError` for bad content."""
-
-    struct: type[Any]
-    version: int
-    fields: Callable[[Any], dict[str, Any]]
-    state: Callable[[Any, Any, dict], Any]
-
-
 class BoxFilterStage(Stage[SeedBoxFields]):
     """The filter stage of a tracker on the protocol (module docstring); a subclass sets ``kind``,
     ``Params`` (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass),
     ``tracker``, ``box`` and ``codec``. A tracker that reads another message than the frames (the
     contour trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family;
-    one whose snapshot is not a :class:`SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
+    one whose snapshot is not a :class:`~gflow_msgs.snapshots.SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
 
     #: the filter side of the tracker's protocol (``observe``, ``init``, ``update``, ``coast``)
     tracker: ClassVar[FilterSide[Any, Any, Any, Any]]

@@ -17,18 +17,11 @@ Struct with the arrays and values as its fields. The stages know the tracker onl
 
 from __future__ import annotations
 
-from typing import Any
-
-import msgspec
-import numpy as np
-
 from gflow_core.spec import TrackerSpec
 
 from .base import Stage
-from .box_tracker import BoxFilterStage, BoxProposalStage, SnapshotCodec
-from gflow_msgs.messages import NDArray
-from gflow_msgs import snapshots
-from gflow_msgs.snapshots import BoxFilterSnapshot
+from .box_tracker import BoxFilterStage, BoxProposalStage
+from gflow_msgs.snapshots import SnapshotCodec, arrays_codec
 from .tracker_params import SeedBoxFields, tracker_stage
 
 __all__ = ["spec_stage_class", "SpecProposalFields"]
@@ -42,37 +35,16 @@ class SpecProposalFields(SeedBoxFields, frozen=True):
 
 
 def _codec(spec: TrackerSpec) -> SnapshotCodec:
+    """The filter's snapshot codec of the state the spec gives as arrays (:func:`gflow_msgs.snapshots.arrays_codec`)."""
     box = spec.box
     assert box is not None
-    to_arrays, from_arrays = box.to_arrays, box.from_arrays
-    if to_arrays is None or from_arrays is None:
+    if box.to_arrays is None or box.from_arrays is None:
         raise ValueError(f"tracker {spec.name}: its spec gives no state as arrays; its filter stage needs a "
                          f"snapshot codec of its own")
-
-    if box.snapshot:  # a Struct of the tracker's own, whose fields are the state's arrays and values
-        struct = getattr(snapshots, box.snapshot, None)
-        if not isinstance(struct, type):
-            raise ValueError(f"tracker {spec.name}: gflow_msgs.snapshots has no snapshot Struct {box.snapshot!r}")
-
-        def flat(state: Any) -> dict[str, Any]:
-            arrays, values = to_arrays(state)
-            return {**{k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, **values}
-
-        def of_flat(snap: Any, core: Any, last: dict) -> Any:
-            fields = msgspec.structs.asdict(snap)
-            arrays = {k: v.array() for k, v in fields.items() if isinstance(v, NDArray)}
-            return from_arrays(arrays, {k: v for k, v in fields.items() if k not in arrays}, core)
-
-        return SnapshotCodec(struct, box.snapshot_version, flat, of_flat)
-
-    def fields(state: Any) -> dict[str, Any]:
-        arrays, values = to_arrays(state)
-        return {"arrays": {k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, "values": dict(values)}
-
-    def state(snap: BoxFilterSnapshot, core: Any, last: dict) -> Any:
-        return from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), core)
-
-    return SnapshotCodec(BoxFilterSnapshot, box.snapshot_version, fields, state)
+    try:
+        return arrays_codec(box.to_arrays, box.from_arrays, box.snapshot_version, box.snapshot)
+    except ValueError as e:
+        raise ValueError(f"tracker {spec.name}: {e}") from None
 
 
 def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
