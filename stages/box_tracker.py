@@ -47,7 +47,7 @@ from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
-from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, tracker_rng
+from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
@@ -186,7 +186,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         p = self.params
         obs = self._first_observation(seq, msg)
         try:  # init is None only where needs_init is not set: the tracker takes none
-            self.state, est = self.tracker.init(self.core, obs, cast(Box, p.init), tracker_rng(p.seed, self.ctx.stream, seq),
+            self.state, est = self.tracker.init(self.core, obs, cast(Box, p.init), self.rng(seq),
                                                 self.resources)
         except ValueError as e:  # a box outside the frame, a frame too small for the tracker's cells
             raise StageInputError(f"frame {seq}: {e}") from None
@@ -201,11 +201,11 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         msg = msg if isinstance(msg, self.inputs[self.port]) else None
         if self.state is None:
             return self._initialise(seq, msg)
-        rng = tracker_rng(self.params.seed, self.ctx.stream, seq)
+        rng = self.rng(seq)
         prop = inputs.get("proposals")
         proposed = self._proposed(seq, prop)
         obs = self._observe(msg, seq)
-        header = msg.header if msg is not None else self.header(seq, 0)
+        header = self.header_of(msg, seq)
         if obs is None:
             self.state, est = self._coast(proposed, rng)
             return self._outputs(header, est, proposed)
@@ -389,7 +389,7 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         # the periods from the posterior of t-1 to frame t (1 unless ``timed`` joined frame t as ``frames``)
         dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
         t = seq + 1
-        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.purpose)
+        rng = self.rng(t).stream(self.purpose)
         try:
             out = self.propose(cloud, rng, dt)
         except ValueError as e:
