@@ -10,7 +10,7 @@ frame (:meth:`gflow_core.gflow.split.ProposalShard.started`, :func:`gflow_core.g
 a user morphable model, resource ``model``, or the generic head fitted into the initial box, clipped
 to the frame) and compute the same digest, which travels in every :class:`ExpertStates` and
 :class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`,
-:func:`unpack_proposals`: the packing and checking of the messages is :mod:`gflow_msgs.gflow`'s)
+:func:`gflow_msgs.gflow.read_shards`: the packing and checking of the messages is :mod:`gflow_msgs.gflow`'s)
 and once on a restore (:func:`gflow_core.gflow.split.restored_setup`,
 :func:`gflow_core.gflow.split.restored_state`). The digest stays although a graph's tracker block now
 hands every stage one parameter block: the messages of every G-flow recording carry it (a
@@ -41,20 +41,17 @@ from __future__ import annotations
 
 from typing import Any, TypeVar
 
-import numpy as np
-
-from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
+from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup
 from gflow_core.gflow.split import check_experts, check_shard, message_dims
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
 from .base import Stage, StageContext, StageInputError
-from gflow_msgs.gflow import read_proposals, read_states
-from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
-from .time_step import MAX_TIME_STEP
+from gflow_msgs.gflow import read_states
+from gflow_msgs.messages import ExpertStates, Features, Message, MessageError
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["GFlowStageFields", "GFlowStage", "frame_of", "unpack_states", "unpack_proposals"]
+__all__ = ["GFlowStageFields", "GFlowStage", "frame_of", "unpack_states"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -146,13 +143,3 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     except ValueError as e:  # MessageError too
         raise StageInputError(f"{where}: {e}") from None
     return out
-
-
-def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: int, shards: int,
-                     expected: np.ndarray, where: str) -> Proposals:
-    """:class:`gflow_core.gflow.Proposals` of a shard's message (:func:`gflow_msgs.gflow.read_proposals`;
-    its error, an empty shard's too, a StageInputError prefixed with ``where``)."""
-    try:
-        return Proposals(**read_proposals(msg, digest, shard, shards, expected, message_dims(setup), MAX_TIME_STEP))
-    except MessageError as e:
-        raise StageInputError(f"{where}: {e}") from None

@@ -34,17 +34,18 @@ import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import restored_state, shard_indices, start_filter
+from gflow_core.gflow.split import message_dims, restored_state, shard_indices, start_filter
 from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_proposals, unpack_states
-from gflow_msgs.gflow import pose_estimate_of, states_of
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
+from gflow_msgs.gflow import pose_estimate_of, read_shards, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
+from .time_step import MAX_TIME_STEP
 from .tracker_params import stage_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams"]
@@ -125,23 +126,16 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
         return TRACKER.with_channels(self.tracker, TRACKER.with_bins(self.tracker, obs, bins)), problem
 
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
-        """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""
+        """Every shard's proposals for ``seq`` (:func:`gflow_msgs.gflow.read_shards`), concatenated; None
+        (reported) if any is missing or bad."""
         assert self.state is not None
-        shards = self.params.shards
-        parts = []
-        for k in range(shards):
-            msg = inputs.get(f"proposals{k}")
-            if not isinstance(msg, PoseProposals):
-                self.report("missing_proposals", f"frame {seq}: no proposals from shard {k} of {shards}; coasting",
-                            seq)
-                return None
-            try:
-                parts.append(unpack_proposals(msg, self.state.setup, self.digest, k, shards, self.shard_idx[k],
-                                              f"frame {seq}: proposals of shard {k}"))
-            except StageInputError as e:
-                self.report("bad_proposals", f"{e}; coasting", seq)
-                return None
-        return concatenate_proposals(parts)
+        msgs = [inputs.get(f"proposals{k}") for k in range(self.params.shards)]
+        parts, problem = read_shards(msgs, self.digest, self.shard_idx, message_dims(self.state.setup), MAX_TIME_STEP)
+        if parts is None:
+            assert problem is not None
+            self.report(problem[0], f"frame {seq}: {problem[1]}; coasting", seq)
+            return None
+        return concatenate_proposals([Proposals(**p) for p in parts])
 
     def _initialise(self, seq: int, feat: Message | None) -> list[Output]:
         obs = self._frame(feat, seq, None, "waiting for a usable first frame", missing=False)
