@@ -81,6 +81,13 @@ class BoxStages:
         The state of a snapshot (``ValueError``, ``KeyError``, ``TypeError`` for a bad one).
     snapshot_version : int
         The version of what ``to_arrays`` writes.
+    snapshot : str
+        The name of the Struct of ``gflow_msgs.snapshots`` its filter's snapshots are when they are
+        not the generic ``BoxFilterSnapshot`` (whose fields ``arrays`` and ``values`` hold what
+        ``to_arrays`` gives): a Struct whose own fields are those arrays and values, beside
+        ``version``, ``initialised``, ``steps`` and ``last`` (the appearance tracker's, whose format is
+        older than the generic one). ``from_arrays`` is then handed its array fields and every other
+        field, ``last`` among them. Empty: the generic Struct.
     """
 
     walk: Callable[[Any, np.ndarray, tuple[float, float], np.random.Generator, float], np.ndarray]
@@ -92,6 +99,7 @@ class BoxStages:
     to_arrays: Callable[[Any], tuple[dict[str, np.ndarray], dict[str, Any]]] | None = None
     from_arrays: Callable[[dict[str, np.ndarray], dict[str, Any], Any], Any] | None = None
     snapshot_version: int = 1
+    snapshot: str = ""
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ its replica as distinct tiles, see ``stages/gflow_proposal.py``).
 from __future__ import annotations
 
 import math
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import msgspec
 import numpy as np
@@ -22,7 +22,7 @@ import numpy as np
 from .base import ArrayTable, Box, Header, MessageError, NDArray, checked_arrays, packed_arrays
 
 __all__ = ["ExpertStates", "PoseProposals", "PoseEstimate", "EXPERT_ARRAYS", "PROPOSAL_ARRAYS", "states_of",
-           "read_states", "proposals_of", "read_proposals", "pose_estimate_of"]
+           "read_states", "proposals_of", "read_proposals", "read_shards", "pose_estimate_of"]
 
 
 class ExpertStates(msgspec.Struct, frozen=True, tag=True):
@@ -211,6 +211,24 @@ def read_proposals(msg: PoseProposals, digest: str, shard: int, shards: int, exp
                             {"E'": Ep, **dims})
     reset = np.zeros(Ep, dtype=bool) if msg.reset is None else msg.reset.checked("reset", (Ep,), "bool")
     return {"expert_indices": idx, "reset": reset, "dt": float(msg.dt), **arrays}
+
+
+def read_shards(msgs: Sequence[Any], digest: str, expected: Sequence[np.ndarray], dims: Mapping[str, int],
+                max_dt: float) -> tuple[list[dict[str, Any]] | None, tuple[str, str] | None]:
+    """The proposals of every shard of a frame, ``msgs[k]`` shard ``k``'s message (None: it did not come),
+    each read with :func:`read_proposals` (its experts ``expected[k]``).
+
+    Returns (one :func:`read_proposals` dict a shard, None) or, at the first shard that did not come or
+    does not read, (None, (kind, why)): ``missing_proposals`` or ``bad_proposals``."""
+    shards, parts = len(msgs), []
+    for k, msg in enumerate(msgs):
+        if not isinstance(msg, PoseProposals):
+            return None, ("missing_proposals", f"no proposals from shard {k} of {shards}")
+        try:
+            parts.append(read_proposals(msg, digest, k, shards, expected[k], dims, max_dt))
+        except MessageError as e:
+            return None, ("bad_proposals", f"proposals of shard {k}: {e}")
+    return parts, None
 
 
 def pose_estimate_of(header: Header, est: Any) -> PoseEstimate:

@@ -12,15 +12,18 @@ back and checks its version.
 
 from __future__ import annotations
 
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping, TypeVar
 
 import msgspec
+import numpy as np
 
 from .base import NDArray
 from .gflow import ExpertStates
 
 __all__ = ["PreprocessSnapshot", "CounterSnapshot", "BoxFilterSnapshot", "AppearanceFilterSnapshot",
-           "GFlowProposalSnapshot", "GFlowFilterSnapshot", "versioned_snapshot", "article"]
+           "GFlowProposalSnapshot", "GFlowFilterSnapshot", "versioned_snapshot", "article", "SnapshotCodec",
+           "arrays_codec"]
 
 
 class PreprocessSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -142,3 +145,56 @@ def article(word: str) -> str:
     """'an' before a vowel, else 'a'."""
     return "an" if word[:1].lower() in "aeiou" else "a"
 
+
+
+@dataclass(frozen=True)
+class SnapshotCodec:
+    """How a tracker's state travels in its filter stage's snapshot.
+
+    ``struct`` is a ``msgspec.Struct`` with the fields ``version: int``, ``initialised: bool``,
+    ``steps: int = 0`` and ``last: dict = {}`` besides the tracker's own (each with a default);
+    ``version`` the version this code writes and reads; ``fields(state)`` the tracker's fields of a
+    snapshot of ``state``; ``state(snap, params, last)`` the state of a decoded snapshot (``last`` is
+    the last estimate's summary), raising ``ValueError``, ``KeyError``, ``IndexError``,
+    ``TypeError``, ``AssertionError`` or :class:`~gflow_msgs.base.MessageError` for bad content."""
+
+    struct: type[Any]
+    version: int
+    fields: Callable[[Any], dict[str, Any]]
+    state: Callable[[Any, Any, dict], Any]
+
+
+ToArrays = Callable[[Any], tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]
+FromArrays = Callable[[dict[str, np.ndarray], dict[str, Any], Any], Any]
+
+
+def arrays_codec(to_arrays: ToArrays, from_arrays: FromArrays, version: int, struct: str = "") -> SnapshotCodec:
+    """The codec of a state a tracker gives as arrays and plain values (``to_arrays(state)`` -> (arrays,
+    values); ``from_arrays(arrays, values, params)`` -> state): :class:`BoxFilterSnapshot`, whose fields
+    ``arrays`` and ``values`` hold them, or, when ``struct`` names a Struct of this module (a format older
+    than the generic one: :class:`AppearanceFilterSnapshot`), that Struct with the arrays and values as its
+    own fields, ``from_arrays`` then handed its array fields and every other one (``last`` among them).
+    ``ValueError`` when ``struct`` names none."""
+    if not struct:
+        def fields(state: Any) -> dict[str, Any]:
+            arrays, values = to_arrays(state)
+            return {"arrays": {k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, "values": dict(values)}
+
+        def state_of(snap: Any, params: Any, last: dict) -> Any:
+            return from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), params)
+
+        return SnapshotCodec(BoxFilterSnapshot, version, fields, state_of)
+    own = globals().get(struct)
+    if not (isinstance(own, type) and issubclass(own, msgspec.Struct)):
+        raise ValueError(f"gflow_msgs.snapshots has no snapshot Struct {struct!r}")
+
+    def flat(state: Any) -> dict[str, Any]:
+        arrays, values = to_arrays(state)
+        return {**{k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, **values}
+
+    def of_flat(snap: Any, params: Any, last: dict) -> Any:
+        fields = msgspec.structs.asdict(snap)
+        arrays = {k: v.array() for k, v in fields.items() if isinstance(v, NDArray)}
+        return from_arrays(arrays, {k: v for k, v in fields.items() if k not in arrays}, params)
+
+    return SnapshotCodec(own, version, flat, of_flat)

@@ -35,7 +35,9 @@ from typing import Any, Callable, ClassVar, Generic, Mapping, TypeVar
 
 import msgspec
 
+from gflow_core.tracker import FrameRng, tracker_rng
 from gflow_msgs.messages import Header, Message
+from gflow_msgs.snapshots import versioned_snapshot
 
 __all__ = ["Stage", "StageContext", "StageInputError", "Output", "Params"]
 
@@ -92,6 +94,11 @@ class Stage(ABC, Generic[P]):
     input_offsets: ClassVar[Mapping[str, int]] = {}
     #: input ports whose messages ``prepare`` may be called on ahead of their step
     prepare_ports: frozenset[str] = frozenset()  # a stage may choose its own from its parameters
+    #: the ``msgspec.Struct`` of the stage's snapshot, with a ``version`` field (:mod:`gflow_msgs.snapshots`;
+    #: None: a stage that keeps no state between frames, or encodes its snapshot itself)
+    snapshot_struct: ClassVar[type[Any] | None] = None
+    #: the snapshot versions :meth:`restore` reads, oldest first; the last is the one :meth:`snapshot` writes
+    snapshot_versions: ClassVar[tuple[int, ...]] = (1,)
 
     def __init__(self, params: P, ctx: StageContext) -> None:
         self.params: P = params
@@ -150,12 +157,38 @@ class Stage(ABC, Generic[P]):
         """The whole internal state after the last ``step``, as bytes (msgpack of a
         stage-specific struct, never pickle), or None for a stage that keeps no state
         between frames. ``restore(snapshot())`` on a fresh instance with the same
-        parameters, then the inputs that follow, must give the same outputs bit for bit."""
-        return None
+        parameters, then the inputs that follow, must give the same outputs bit for bit.
+
+        By default one encode of :attr:`snapshot_struct` made of :meth:`snapshot_fields` and the
+        version the stage writes (the last of :attr:`snapshot_versions`)."""
+        if self.snapshot_struct is None:
+            return None
+        return msgspec.msgpack.encode(self.snapshot_struct(version=self.snapshot_versions[-1],
+                                                           **self.snapshot_fields()))
 
     def restore(self, data: bytes) -> None:
-        """Load a state made by :meth:`snapshot`. Stateless stages accept only ``None``."""
-        raise TypeError(f"stage kind {self.kind!r} keeps no state, so it has nothing to restore")
+        """Load a state made by :meth:`snapshot`. Stateless stages accept only ``None``.
+
+        By default :attr:`snapshot_struct` decoded and its version checked
+        (:func:`gflow_msgs.snapshots.versioned_snapshot`: ``ValueError`` in one line naming the stage
+        and :attr:`snapshot_what`), then handed to :meth:`restore_fields`."""
+        if self.snapshot_struct is None:
+            raise TypeError(f"stage kind {self.kind!r} keeps no state, so it has nothing to restore")
+        self.restore_fields(versioned_snapshot(data, self.snapshot_struct, self.ctx.name, self.snapshot_what,
+                                               self.snapshot_versions))
+
+    @property
+    def snapshot_what(self) -> str:
+        """What the stage's snapshot is called in a restore's errors (``gflow.filter snapshot ...``)."""
+        return self.kind
+
+    def snapshot_fields(self) -> dict[str, Any]:
+        """The fields of :attr:`snapshot_struct` but ``version``: what the stage keeps between frames."""
+        raise TypeError(f"stage kind {self.kind!r} names a snapshot struct but gives no snapshot_fields()")
+
+    def restore_fields(self, snap: Any) -> None:
+        """Take the state of a decoded :attr:`snapshot_struct` of a version the stage reads."""
+        raise TypeError(f"stage kind {self.kind!r} names a snapshot struct but gives no restore_fields()")
 
     def drain_reports(self) -> list[tuple[str, str, int]]:
         """Return and clear the ``(kind, message, seq)`` problems reported since the last call."""
@@ -169,6 +202,54 @@ class Stage(ABC, Generic[P]):
 
     def header(self, seq: int, stamp_ns: int) -> Header:
         return Header(stream=self.ctx.stream, seq=seq, stamp_ns=stamp_ns)
+
+    def observed(self, port: str, msg: Message | None, seq: int, then: str, missing: bool = True) -> Any:
+        """What :meth:`prepare` makes of the input ``msg`` of ``port`` for frame ``seq`` (made ahead or now,
+        :meth:`prepared`), or None, reported, when there is none: no message (``missing_frame`` or
+        ``missing_features``, when ``missing``) or one :meth:`prepare` cannot read (it raised ``ValueError``,
+        :class:`StageInputError` and ``MessageError`` among them: ``bad_frame`` or ``bad_features``), each
+        report ending with ``then``, what the stage does without it."""
+        noun = "frame" if port == "frames" else port
+        if msg is None:
+            if missing:
+                self.report(f"missing_{noun}", f"frame {seq}: no {noun} arrived; {then}", seq)
+            return None
+        try:
+            return self.prepared(port, msg)
+        except ValueError as e:
+            self.report(f"bad_{noun}", f"frame {seq}: {e}; {then}", seq)
+            return None
+
+    def same_size(self, port: str, seq: int, shape: tuple[int, ...], started: tuple[int, ...] | None,
+                  then: str) -> bool:
+        """Whether frame ``seq``, of ``shape`` (H, W), has the size of the frames the stage started on
+        (``started``; None: not started, any size); reported as ``bad_frame`` or ``bad_features`` (the input
+        of ``port``) when not: the tracker's state is for frames of that size."""
+        if started is None or tuple(shape) == tuple(started):
+            return True
+        self.report("bad_frame" if port == "frames" else f"bad_{port}",
+                    f"frame {seq}: size {shape[1]}x{shape[0]} differs from the {started[1]}x{started[0]} frames "
+                    f"the tracker started on; frame skipped; {then}", seq)
+        return False
+
+    def learned_model(self, required: bool = True) -> Any:
+        """The learned model the pipeline loaded for the stage (resource ``model``, from its ``model``
+        parameter), or None when there is none and it is not ``required``; ``ValueError`` in one line
+        naming the stage when a required one is missing."""
+        model = self.ctx.resources.get("model")
+        if model is None and required:
+            raise ValueError(f"stage {self.ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
+                             f"(`gflow learn m2`)")
+        return model
+
+    def header_of(self, msg: Message | None, seq: int) -> Header:
+        """The header of the input ``msg`` of frame ``seq``, or one without a stamp when it did not come."""
+        return msg.header if msg is not None else self.header(seq, 0)
+
+    def rng(self, seq: int) -> FrameRng:
+        """The tracker's draws of frame ``seq``, ``FrameRng(seed, crc32(stream), seq)``, for a stage whose
+        parameters have a ``seed`` (a tracker's stage)."""
+        return tracker_rng(getattr(self.params, "seed"), self.ctx.stream, seq)
 
     def driver_ports(self) -> frozenset[str]:
         return frozenset(self.inputs) if self.drivers is None else self.drivers

@@ -3,12 +3,11 @@ any tracker whose state is a particle cloud, driven through the tracker's protoc
 (:class:`gflow_core.tracker.TrackingFilter`).
 
 The stages of every tracker whose spec has box stages (the correlation-filter tracker, the
-appearance tracker; :mod:`stages.spec_box`, the appearance filter with its own snapshot in
-:mod:`stages.appearance_filter`) are registrations
+appearance tracker; :mod:`stages.spec_box`) are registrations
 of these two classes: each sets its ``kind``, its ``Params`` (made of the tracker's parameter
 dataclass) and what its spec says (:class:`gflow_core.spec.TrackerSpec`): the filter its protocol
 object and the spec's :class:`gflow_core.spec.BoxStages` (the particles' conversions), the proposal
-the spec's ``BoxStages`` (the random walk); the filter also its :class:`SnapshotCodec`. The contour trackers (:mod:`stages.particle_filter`,
+the spec's ``BoxStages`` (the random walk); the filter also its :class:`~gflow_msgs.snapshots.SnapshotCodec`. The contour trackers (:mod:`stages.particle_filter`,
 :mod:`stages.particle_proposal`) and M2 with a patch model (:mod:`stages.patch_filter`) are
 registrations too: their filters read the preprocess stage's ``features``
 (:class:`FeaturesFilterStage`) and override the steps named below (``_observe``, ``_first_observation``, ``_proposed``, ``_coast``, ``_last``,
@@ -23,7 +22,7 @@ registrations too: their filters read the preprocess stage's ``features``
   and ``target_state`` (``tracked``, ``occluded``, ``lost``). A missing, undecodable, uniform or
   wrongly sized frame, or missing proposals, make it coast and are reported; they never stop the
   stream. The frame's observation (``TRACKER.observe``) is the stage's ``prepare`` work
-  (:mod:`stages.base`). Its snapshot is the tracker's :class:`SnapshotCodec` Struct.
+  (:mod:`stages.base`). Its snapshot is the tracker's :class:`~gflow_msgs.snapshots.SnapshotCodec` Struct.
 * :class:`BoxProposalStage` -- input ``particles``, the resampled posterior of frame t-1; output
   ``proposals``, the particles for frame t from the tracker's random walk drawn with
   ``FrameRng(seed, crc32(stream), t).stream(PURPOSE_WALK)``; its std is relative to the size of the
@@ -39,7 +38,6 @@ The proposal stage calls the tracker's walk on the message's particles rather th
 from __future__ import annotations
 
 from abc import abstractmethod
-from dataclasses import dataclass
 from typing import Any, Callable, ClassVar, Mapping, cast
 
 import msgspec
@@ -49,16 +47,16 @@ from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
-from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, tracker_rng
+from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame
 
 from .base import Output, Stage, StageContext, StageInputError
-from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, NDArray, Particles,
+from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
                                  estimate_of, particles_msg)
-from gflow_msgs.snapshots import CounterSnapshot, article, versioned_snapshot
+from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, article
 from .time_step import time_step
 from .tracker_params import SeedBoxFields, core_params
 
-__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "SnapshotCodec", "cloud_of"]
+__all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "cloud_of"]
 
 PROPOSAL_SNAPSHOT_VERSION = 1  # a proposal stage's snapshot: its step counter (CounterSnapshot)
 
@@ -74,29 +72,12 @@ def cloud_of(msg: Particles) -> ParticleCloud:
         raise StageInputError(f"particles {msg.header.seq}: {e}") from None
 
 
-@dataclass(frozen=True)
-class SnapshotCodec:
-    """How a tracker's state travels in a filter snapshot.
-
-    ``struct`` is a ``msgspec.Struct`` with the fields ``version: int``, ``initialised: bool``,
-    ``steps: int = 0`` and ``last: dict = {}`` besides the tracker's own (each with a default);
-    ``version`` the version this code writes and reads; ``fields(state)`` the tracker's fields of a
-    snapshot of ``state``; ``state(snap, params, last)`` the state of a decoded snapshot (``last`` is
-    the last estimate's summary), raising ``ValueError``, ``KeyError``, ``IndexError``,
-    ``TypeError``, ``AssertionError`` or :class:`~gflow_msgs.messages.MessageError` for bad content."""
-
-    struct: type[Any]
-    version: int
-    fields: Callable[[Any], dict[str, Any]]
-    state: Callable[[Any, Any, dict], Any]
-
-
 class BoxFilterStage(Stage[SeedBoxFields]):
     """The filter stage of a tracker on the protocol (module docstring); a subclass sets ``kind``,
     ``Params`` (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass),
     ``tracker``, ``box`` and ``codec``. A tracker that reads another message than the frames (the
     contour trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family;
-    one whose snapshot is not a :class:`SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
+    one whose snapshot is not a :class:`~gflow_msgs.snapshots.SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
 
     #: the filter side of the tracker's protocol (``observe``, ``init``, ``update``, ``coast``)
     tracker: ClassVar[FilterSide[Any, Any, Any, Any]]
@@ -116,8 +97,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def __init__(self, params: SeedBoxFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        if params.init is None and self.needs_init:
-            raise ValueError(f"the {self.label} filter needs an initial box: set init: [x, y, w, h]")
+        if self.needs_init:
+            params.initial_box(f"the {self.label} filter")
         self.core: Any = core_params(params)
         self.state: Any = None
         self.shape: tuple[int, ...] | None = None
@@ -140,22 +121,13 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def _observe(self, frame: Any, seq: int) -> Any:
         """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
-        if frame is None:
-            self.report("missing_frame", f"frame {seq}: no frame arrived; coasting", seq)
+        got = self.observed("frames", frame, seq, "coasting")
+        if got is None or not self.same_size("frames", seq, got[0], self.shape, "coasting"):
             return None
-        try:
-            shape, obs = self.prepared("frames", frame)
-        except (MessageError, ValueError) as e:
-            self.report("bad_frame", f"frame {seq}: {e}; coasting", seq)
-            return None
-        if self.shape is not None and shape != self.shape:
-            self.report("bad_frame", f"frame {seq}: {shape[1]}x{shape[0]} but the stream is "
-                        f"{self.shape[1]}x{self.shape[0]}; coasting", seq)
-            return None
-        if isinstance(obs, UnusableFrame):
+        if isinstance(got[1], UnusableFrame):
             self.report("blank_frame", f"frame {seq}: uniform frame, no evidence; coasting", seq)
             return None
-        return obs
+        return got[1]
 
     def _first_observation(self, seq: int, msg: Any) -> Any:
         """The observation the tracker starts from (StageInputError when there is none)."""
@@ -214,7 +186,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         p = self.params
         obs = self._first_observation(seq, msg)
         try:  # init is None only where needs_init is not set: the tracker takes none
-            self.state, est = self.tracker.init(self.core, obs, cast(Box, p.init), tracker_rng(p.seed, self.ctx.stream, seq),
+            self.state, est = self.tracker.init(self.core, obs, cast(Box, p.init), self.rng(seq),
                                                 self.resources)
         except ValueError as e:  # a box outside the frame, a frame too small for the tracker's cells
             raise StageInputError(f"frame {seq}: {e}") from None
@@ -229,11 +201,11 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         msg = msg if isinstance(msg, self.inputs[self.port]) else None
         if self.state is None:
             return self._initialise(seq, msg)
-        rng = tracker_rng(self.params.seed, self.ctx.stream, seq)
+        rng = self.rng(seq)
         prop = inputs.get("proposals")
         proposed = self._proposed(seq, prop)
         obs = self._observe(msg, seq)
-        header = msg.header if msg is not None else self.header(seq, 0)
+        header = self.header_of(msg, seq)
         if obs is None:
             self.state, est = self._coast(proposed, rng)
             return self._outputs(header, est, proposed)
@@ -257,19 +229,22 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         """The last estimate (seq, box, ESS, state, the tracker's score at the estimate) and the step count."""
         return dict(self.last, steps=self.steps)
 
-    # -- snapshot / restore ---------------------------------------------------------------
-    def snapshot(self) -> bytes:
+    # -- snapshot / restore: the tracker's SnapshotCodec in the stage's snapshot struct ---------
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        if cls.codec is not None:
+            cls.snapshot_struct, cls.snapshot_versions = cls.codec.struct, (cls.codec.version,)
+
+    def snapshot_fields(self) -> dict[str, Any]:
         codec = self.codec
         assert codec is not None
         if self.state is None:
-            return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=False, steps=self.steps))
-        return msgspec.msgpack.encode(codec.struct(version=codec.version, initialised=True,
-                                                   **codec.fields(self.state), steps=self.steps, last=self.last))
+            return {"initialised": False, "steps": self.steps}
+        return {"initialised": True, **codec.fields(self.state), "steps": self.steps, "last": self.last}
 
-    def restore(self, data: bytes) -> None:
+    def restore_fields(self, snap: Any) -> None:
         name, label, codec = self.ctx.name, self.label, self.codec
         assert codec is not None
-        snap = versioned_snapshot(data, codec.struct, name, self.kind, codec.version)
         self.steps, self.last = snap.steps, dict(snap.last)
         if not snap.initialised:
             self.state, self.shape = None, None
@@ -316,8 +291,7 @@ class FeaturesFilterStage(BoxFilterStage):
 
     def _observe(self, feat: Any, seq: int) -> Any:
         if feat is None:
-            self.report("missing_features", f"frame {seq}: no features arrived; coasting on the dynamics", seq)
-            return None
+            return self.observed("features", None, seq, "coasting on the dynamics")
         return self._features(feat, seq)
 
     def _first_observation(self, seq: int, feat: Any) -> Any:
@@ -395,13 +369,12 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         """The proposal of whole clouds, made once from the stage's parameters and resources
         (``ValueError`` for unusable ones); a ``ValueError`` it raises on a cloud is the input's error.
         Here: the spec's walk of alpha, relative to the initial box's size."""
-        if params.init is None:
-            raise ValueError(f"the {self.kind.split('.')[0]} proposal needs the initial box (its random walk is "
-                             "relative to the box's size): set init: [x, y, w, h]")
+        box = params.initial_box(f"the {self.kind.split('.')[0]} proposal",
+                                 " (its random walk is relative to the box's size)")
         walk = self.box.walk
         self.core: Any = core_params(params)
         core: Any = self.core
-        size0 = (float(params.init[2]), float(params.init[3]))
+        size0 = (float(box[2]), float(box[3]))
 
         def propose(cloud: ParticleCloud, rng: np.random.Generator, dt: float) -> ParticleCloud:
             alpha = walk(core, cloud.alpha, size0, rng, dt)
@@ -416,7 +389,7 @@ class BoxProposalStage(Stage[SeedBoxFields]):
         # the periods from the posterior of t-1 to frame t (1 unless ``timed`` joined frame t as ``frames``)
         dt = time_step(self.ctx, frame.header.stamp_ns, msg.header.stamp_ns) if isinstance(frame, Frame) else 1.0
         t = seq + 1
-        rng = tracker_rng(self.params.seed, self.ctx.stream, t).stream(self.purpose)
+        rng = self.rng(t).stream(self.purpose)
         try:
             out = self.propose(cloud, rng, dt)
         except ValueError as e:
@@ -427,8 +400,12 @@ class BoxProposalStage(Stage[SeedBoxFields]):
     def summary(self) -> dict[str, Any]:
         return {"proposed": self.done}
 
-    def snapshot(self) -> bytes:
-        return msgspec.msgpack.encode(CounterSnapshot(version=PROPOSAL_SNAPSHOT_VERSION, done=self.done))
+    snapshot_struct = CounterSnapshot
+    snapshot_versions = (PROPOSAL_SNAPSHOT_VERSION,)
+    snapshot_what = "proposal"
 
-    def restore(self, data: bytes) -> None:
-        self.done = versioned_snapshot(data, CounterSnapshot, self.ctx.name, "proposal", PROPOSAL_SNAPSHOT_VERSION).done
+    def snapshot_fields(self) -> dict[str, Any]:
+        return {"done": self.done}
+
+    def restore_fields(self, snap: CounterSnapshot) -> None:
+        self.done = snap.done

@@ -2,50 +2,56 @@
 
 The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & Movellan, NIPS
 2004) are adapters of :class:`gflow_core.gflow.GFlowTracker`, and what running it split across
-processes needs beyond that (the configuration digest, the shards, the proposals' background
-replica) is :mod:`gflow_core.gflow.split`. Both stages take every field of
-:class:`gflow_core.gflow.GFlowParams` (:func:`stages.tracker_params.stage_params`), place the model
-the same way on the first usable frame (:func:`gflow_core.gflow.split.placed`, the filter's through
-its tracker's ``init``: a user morphable model, resource ``model``, or the generic head fitted into
-the initial box, clipped to the frame) and compute the same digest, which travels in every
-:class:`ExpertStates` and :class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`, :func:`unpack_proposals`: the packing and
-checking of the messages is :mod:`gflow_msgs.gflow`'s) and once on a restore
-(:func:`gflow_core.gflow.split.restored_setup`). Random streams: :mod:`gflow_core.gflow.tracker` (expert ``i`` of frame
-``t`` draws from ``[seed, crc32(stream), t, i]``, so shards concatenate to one process's result).
+processes needs beyond that (the configuration digest, the shards, what a proposal process keeps
+and does with a frame, the filter process's start and restore) is :mod:`gflow_core.gflow.split`.
+Both stages take every field of :class:`gflow_core.gflow.GFlowParams`
+(:func:`stages.tracker_params.stage_params`), place the model the same way on the first usable
+frame (:meth:`gflow_core.gflow.split.ProposalShard.started`, :func:`gflow_core.gflow.split.start_filter`:
+a user morphable model, resource ``model``, or the generic head fitted into the initial box, clipped
+to the frame) and compute the same digest, which travels in every :class:`ExpertStates` and
+:class:`PoseProposals` message and is checked once on receipt (:func:`unpack_states`,
+:func:`gflow_msgs.gflow.read_shards`: the packing and checking of the messages is :mod:`gflow_msgs.gflow`'s)
+and once on a restore (:func:`gflow_core.gflow.split.restored_setup`,
+:func:`gflow_core.gflow.split.restored_state`). The digest stays although a graph's tracker block now
+hands every stage one parameter block: the messages of every G-flow recording carry it (a
+recording re-runs bit for bit only if it is made the same way), and a graph file without a tracker
+block still names the parameters per stage, which it guards. Random streams:
+:mod:`gflow_core.gflow.tracker` (expert ``i`` of frame ``t`` draws from ``[seed, crc32(stream), t,
+i]``, so shards concatenate to one process's result).
 
 They are not registrations of the generic box stages (:mod:`stages.box_tracker`): what travels is
 not a particle cloud but the experts (:class:`ExpertStates`, whose backgrounds stay in the proposal
-processes) and sharded pose opinions (one port a shard, each checked against the digest), the time
-step travels with the proposals, a first frame the model cannot be placed on is waited past rather
-than refused, and an update that fails coasts. Each of these is a step the box stages would have to
-hand over, which would leave them nothing of their own. What the two G-flow stages do alike is
-:class:`GFlowStage`'s: the tracker's parameters, a frame's features read into the prepared
-observation (or reported missing or bad, with what the stage does without it), and a first frame
-the model cannot be placed on reported once and waited past. The rules themselves are the
-tracker's (:meth:`gflow_core.gflow.GFlowTracker.update_or_coast`, ``with_bins``) and
+processes) and sharded pose opinions (one port a shard, each checked against the digest), the
+proposal stage keeps state (the background replica) and reads the frames as well as the posterior,
+the time step travels with the proposals, a first frame the model cannot be placed on is waited
+past rather than refused, and an update that fails coasts. Each of these is a step the box stages
+would have to hand over, which would leave them nothing of their own. What every tracker's stages
+do alike is :class:`stages.base.Stage`'s: a frame's features read into the prepared observation or
+reported missing or bad with what the stage does without it (``observed``), the frame's size
+(``same_size``), the frame's draws (``rng``), the snapshot (``snapshot_struct``,
+``snapshot_fields``, ``restore_fields``). What the two G-flow stages do alike besides is
+:class:`GFlowStage`'s: the tracker's parameters, the colour bins' problems, and a first frame the
+model cannot be placed on reported once and waited past. The rules themselves are the tracker's
+(:meth:`gflow_core.gflow.GFlowTracker.update_or_coast`, ``with_bins``) and
 :mod:`gflow_core.gflow.split`'s (the digest, the shards, the arrays' dimensions,
 :func:`gflow_core.gflow.split.message_dims`).
 """
 
 from __future__ import annotations
 
-from typing import Any, Mapping, TypeVar
+from typing import Any, TypeVar
 
-import numpy as np
-
-from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup, Proposals
-from gflow_core.gflow.split import check_experts, check_frame_size, check_shard, message_dims, restored_setup
+from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup
+from gflow_core.gflow.split import check_experts, check_shard, message_dims
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import UnusableFrame
 
 from .base import Stage, StageContext, StageInputError
-from gflow_msgs.gflow import read_proposals, read_states
-from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
-from .time_step import MAX_TIME_STEP
+from gflow_msgs.gflow import read_states
+from gflow_msgs.messages import ExpertStates, Features, Message, MessageError
 from .tracker_params import SeedBoxFields, tracker_params
 
-__all__ = ["GFlowStageFields", "GFlowStage", "initial_box", "frame_of", "unpack_states", "unpack_proposals",
-           "snapshot_setup"]
+__all__ = ["GFlowStageFields", "GFlowStage", "frame_of", "unpack_states"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -82,25 +88,21 @@ class GFlowStage(Stage[F]):
 
     def _frame(self, feat: Message | None, seq: int, shape: tuple[int, int] | None, then: str,
                missing: bool = True) -> GFlowObservation | None:
-        """:meth:`prepare`'s observation of frame ``seq``'s features (made ahead or now), of a frame of
-        ``shape`` (H, W) (None: any size), or None when there is none: no features (reported as
-        ``missing_features`` when ``missing``) or a frame that cannot be used (``bad_features``), each
-        report ending with ``then``, what the stage does without it. Bad colour bins are reported too:
-        the lost guard weighs the edges alone on that frame."""
-        if not isinstance(feat, Features):
-            if missing:
-                self.report("missing_features", f"frame {seq}: no features arrived; {then}", seq)
+        """:meth:`prepare`'s observation of frame ``seq``'s features (:meth:`~stages.base.Stage.observed`), of
+        a frame of ``shape`` (H, W) (None: any size, :meth:`~stages.base.Stage.same_size`), or None when there
+        is none, reported (``missing_features`` only when ``missing``) with ``then``, what the stage does
+        without it. Bad colour bins are reported too: the lost guard weighs the edges alone on that frame."""
+        got = self.observed("features", feat if isinstance(feat, Features) else None, seq, then, missing)
+        if got is None:
             return None
-        try:
-            obs, problem = self.prepared("features", feat)
-            if problem:
-                self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
-            return check_frame_size(obs, shape)
-        except StageInputError as e:
-            self.report("bad_features", f"{e}; {then}", seq)
-        except ValueError as e:  # another size than the frames the model was placed on
-            self.report("bad_features", f"frame {seq}: {e}; frame skipped; {then}", seq)
-        return None
+        obs, problem = got
+        if problem:
+            self.report("bad_features", f"frame {seq}: {problem}; the lost guard weighs edges only", seq)
+        return obs if self.same_size("features", seq, obs.grey.shape, shape, then) else None
+
+    def initial_box(self) -> tuple[float, float, float, float]:
+        """The stage's initial box; ValueError when it has none."""
+        return self.params.initial_box("G-flow", " (on the proposal and filter stages)")
 
     def _init_failed(self, seq: int, error: str, then: str = "") -> None:
         """Report that the model cannot be placed on frame ``seq`` (``error``; ``then``: what the stage does
@@ -110,14 +112,7 @@ class GFlowStage(Stage[F]):
             self.report("init_failed", f"frame {seq}: {error}" + (f"; {then}" if then else ""), seq)
 
 
-def initial_box(fields: GFlowStageFields) -> tuple[float, float, float, float]:
-    """The stage's initial box. Raises StageInputError when it has none."""
-    if fields.init is None:
-        raise StageInputError("G-flow needs an initial box: set init: [x, y, w, h] on the proposal and filter stages")
-    return fields.init
-
-
-def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation:
+def frame_of(feat: Features, tracker: GFlowParams) -> GFlowObservation:
     """What G-flow reads of a Features message (:meth:`GFlowTracker.observe_grey` of its grey image;
     both stages read frames with it, so they see bit-identical frames).
 
@@ -125,23 +120,13 @@ def frame_of(feat: Features, seq: int, tracker: GFlowParams) -> GFlowObservation
     pixels, or a uniform image (all black, saturated or any single grey level).
     """
     try:
-        grey = feat.grey.array()
+        return TRACKER.observe_grey(tracker, feat.grey.array())
     except MessageError as e:
-        raise StageInputError(f"frame {seq}: grey image: {e}") from None
-    try:
-        obs = TRACKER.observe_grey(tracker, grey)
+        raise StageInputError(f"grey image: {e}") from None
     except UnusableFrame as e:
-        raise StageInputError(f"frame {seq}: {e}; frame skipped") from None
+        raise StageInputError(f"{e}; frame skipped") from None
     except ValueError as e:
-        raise StageInputError(f"frame {seq}: {e}") from None
-    return obs
-
-
-def snapshot_setup(fields: GFlowStageFields, tracker: GFlowParams, resources: Mapping[str, Any],
-                   image_shape: tuple[int, int], digest: str) -> tuple[ModelSetup, str]:
-    """The model placed again for a snapshot made on frames of ``image_shape`` with ``digest``
-    (:func:`gflow_core.gflow.split.restored_setup`: ValueError for another configuration's)."""
-    return restored_setup(tracker, initial_box(fields), fields.seed, image_shape, resources.get("model"), digest)
+        raise StageInputError(str(e)) from None
 
 
 # -- messages -> gflow_core ---------------------------------------------------------------
@@ -158,13 +143,3 @@ def unpack_states(msg: ExpertStates, setup: ModelSetup, digest: str | None, wher
     except ValueError as e:  # MessageError too
         raise StageInputError(f"{where}: {e}") from None
     return out
-
-
-def unpack_proposals(msg: PoseProposals, setup: ModelSetup, digest: str, shard: int, shards: int,
-                     expected: np.ndarray, where: str) -> Proposals:
-    """:class:`gflow_core.gflow.Proposals` of a shard's message (:func:`gflow_msgs.gflow.read_proposals`;
-    its error, an empty shard's too, a StageInputError prefixed with ``where``)."""
-    try:
-        return Proposals(**read_proposals(msg, digest, shard, shards, expected, message_dims(setup), MAX_TIME_STEP))
-    except MessageError as e:
-        raise StageInputError(f"{where}: {e}") from None

@@ -30,30 +30,25 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-import msgspec
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
 from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import config_digest, expert_state, shard_indices
-from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields, state_of_fields
+from gflow_core.gflow.split import message_dims, restored_state, shard_indices, start_filter
+from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import (GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_proposals,
-                           unpack_states)
-from gflow_msgs.gflow import pose_estimate_of, states_of
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
+from gflow_msgs.gflow import pose_estimate_of, read_shards, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
-from gflow_msgs.snapshots import GFlowFilterSnapshot, versioned_snapshot
-from gflow_core.tracker import tracker_rng
+from gflow_msgs.snapshots import GFlowFilterSnapshot
+from .time_step import MAX_TIME_STEP
 from .tracker_params import stage_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams"]
-
-SNAPSHOT_VERSION = 2  # 2: the lost guard's anchor and distributions (1: none; restores without the guard)
-
 
 class GFlowFilterFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the proposal stages'),
@@ -97,10 +92,9 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
             return self._initialise(seq, feat)
         obs = self._frame(feat, seq, self.state.setup.image_shape, "coasting")
         props = self._proposals(seq, inputs) if obs is not None else None
-        header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
+        header = self.header_of(feat if isinstance(feat, Features) else None, seq)
         # the update of the shards' proposals, or coasting without them, without the frame or when it fails
-        new, est, failure = TRACKER.update_or_coast(self.tracker, self.state, props, obs,
-                                                    tracker_rng(self.params.seed, self.ctx.stream, seq))
+        new, est, failure = TRACKER.update_or_coast(self.tracker, self.state, props, obs, self.rng(seq))
         if failure is not None:
             self.report("update_failed", f"frame {seq}: {failure}; coasting", seq)
         self.state = new
@@ -126,29 +120,22 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
         what was wrong with the bins ("" when nothing was). Raises StageInputError for a frame that
         cannot be used."""
         assert isinstance(msg, Features)
-        obs = frame_of(msg, msg.header.seq, self.tracker)
+        obs = frame_of(msg, self.tracker)
         # the features' colour bins (the preprocess stage's ``colour``), read only when the guard weighs colour
         bins, problem = bins_of(msg, obs.grey.shape) if TRACKER.reads_colour(self.tracker) else (None, "")
         return TRACKER.with_channels(self.tracker, TRACKER.with_bins(self.tracker, obs, bins)), problem
 
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
-        """Every shard's proposals for ``seq``, concatenated; None (reported) if any is missing or bad."""
+        """Every shard's proposals for ``seq`` (:func:`gflow_msgs.gflow.read_shards`), concatenated; None
+        (reported) if any is missing or bad."""
         assert self.state is not None
-        shards = self.params.shards
-        parts = []
-        for k in range(shards):
-            msg = inputs.get(f"proposals{k}")
-            if not isinstance(msg, PoseProposals):
-                self.report("missing_proposals", f"frame {seq}: no proposals from shard {k} of {shards}; coasting",
-                            seq)
-                return None
-            try:
-                parts.append(unpack_proposals(msg, self.state.setup, self.digest, k, shards, self.shard_idx[k],
-                                              f"frame {seq}: proposals of shard {k}"))
-            except StageInputError as e:
-                self.report("bad_proposals", f"{e}; coasting", seq)
-                return None
-        return concatenate_proposals(parts)
+        msgs = [inputs.get(f"proposals{k}") for k in range(self.params.shards)]
+        parts, problem = read_shards(msgs, self.digest, self.shard_idx, message_dims(self.state.setup), MAX_TIME_STEP)
+        if parts is None:
+            assert problem is not None
+            self.report(problem[0], f"frame {seq}: {problem[1]}; coasting", seq)
+            return None
+        return concatenate_proposals([Proposals(**p) for p in parts])
 
     def _initialise(self, seq: int, feat: Message | None) -> list[Output]:
         obs = self._frame(feat, seq, None, "waiting for a usable first frame", missing=False)
@@ -156,10 +143,10 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
             return []
         assert isinstance(feat, Features)
         try:
-            box = initial_box(self.params)
+            box = self.initial_box()
             # the filter keeps no backgrounds: the proposal stages start them from this frame
-            state, est = TRACKER.init(self.tracker, obs, box, tracker_rng(self.params.seed, self.ctx.stream, seq),
-                                      self.ctx.resources, backgrounds=False)
+            state, est, self.digest = start_filter(self.tracker, obs, box, self.params.seed, self.rng(seq),
+                                                   self.learned_model(False))
         except ValueError as e:
             self._init_failed(seq, str(e), "not tracking")
             return []
@@ -169,38 +156,37 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
             self.report("init_box_clipped", f"frame {seq}: initial box {box} reaches outside the {W}x{H} frame; "
                                             f"using {tuple(setup.box.round(2))}", seq)
         self.state = state
-        self.digest = config_digest(setup, self.params.seed)
         return self._outputs(feat.header, state, est, first=True)
 
     # -- state ------------------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
         return dict(self.last, steps=self.steps, coasted=self.coasted)
 
-    def snapshot(self) -> bytes:
+    # -- snapshot / restore: the experts as they travel, the rest of the posterior as its fields ----------
+    snapshot_struct = GFlowFilterSnapshot
+    snapshot_versions = (1, 2)  # 2: the lost guard's anchor and distributions (1: none; restores without the guard)
+
+    def snapshot_fields(self) -> dict[str, Any]:
         st = None
         if self.state is not None:
             s = self.state.experts
             st = states_of(self.header(int(self.last.get("seq", 0)), 0), s, np.arange(s.n_experts, dtype=np.int64),
-                            self.state.setup.image_shape, self.digest)
-        snap = GFlowFilterSnapshot(version=SNAPSHOT_VERSION,
-                                   image_shape=None if self.state is None else self.state.setup.image_shape,
-                                   digest=self.digest, state=st, steps=self.steps, coasted=self.coasted,
-                                   init_error=self.init_error, **packed_fields(state_fields(self.state)))
-        return msgspec.msgpack.encode(snap)
+                           self.state.setup.image_shape, self.digest)
+        return dict(image_shape=None if self.state is None else self.state.setup.image_shape, digest=self.digest,
+                    state=st, steps=self.steps, coasted=self.coasted, init_error=self.init_error,
+                    **packed_fields(state_fields(self.state)))
 
-    def restore(self, data: bytes) -> None:
-        snap = versioned_snapshot(data, GFlowFilterSnapshot, self.ctx.name, self.kind, (1, SNAPSHOT_VERSION))
+    def restore_fields(self, snap: GFlowFilterSnapshot) -> None:
         self.state, self.digest = None, ""
         if snap.image_shape is not None and snap.state is not None:
-            setup, digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape, snap.digest)
+            experts = snap.state
             try:
-                experts = expert_state(setup, unpack_states(snap.state, setup, None, "gflow.filter snapshot"))
-            except StageInputError as e:
-                raise ValueError(str(e)) from None
-            try:
-                fields = unpacked_fields({k: getattr(snap, k) for k in STATE_FIELDS})
-                self.state = state_of_fields(setup, experts, fields)
-            except ValueError as e:  # MessageError too
+                self.state = restored_state(
+                    self.tracker, self.initial_box(), self.params.seed, snap.image_shape,
+                    self.learned_model(False), snap.digest,
+                    lambda setup: unpack_states(experts, setup, None, "expert states"),
+                    unpacked_fields({k: getattr(snap, k) for k in STATE_FIELDS}))
+            except ValueError as e:  # MessageError and StageInputError too
                 raise ValueError(f"bad gflow.filter snapshot: {e}") from None
-            self.digest = digest
+            self.digest = snap.digest
         self.steps, self.coasted, self.init_error = snap.steps, snap.coasted, snap.init_error

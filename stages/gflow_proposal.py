@@ -39,27 +39,21 @@ from __future__ import annotations
 
 from typing import Any, Mapping
 
-import msgspec
-import numpy as np
 
-from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, ModelSetup, Proposals
-from gflow_core.gflow.split import BackgroundReplica, expert_state, placed, shard_indices
+from gflow_core.gflow import GFlowObservation, GFlowParams, Proposals
+from gflow_core.gflow.split import BackgroundReplica, ProposalShard, restored_setup, shard_indices
 from gflow_core.gflow.tracker import TRACKER
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, initial_box, snapshot_setup, unpack_states
+from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
-from gflow_msgs.snapshots import GFlowProposalSnapshot, versioned_snapshot
-from gflow_core.tracker import tracker_rng
+from gflow_msgs.snapshots import GFlowProposalSnapshot
 from .time_step import time_step
 from .tracker_params import stage_params
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
-
-SNAPSHOT_VERSION = 2  # 2: the background replica as distinct tiles (1: dense (E, H, W) arrays)
-
 
 class GFlowProposalFields(GFlowStageFields, frozen=True):
     """The G-flow parameters (:class:`gflow_core.gflow.GFlowParams`, equal to the filter's), the
@@ -86,13 +80,11 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
     def __init__(self, params: GFlowProposalFields, ctx: StageContext) -> None:
         super().__init__(params, ctx)
         self.indices = shard_indices(self.tracker.n_experts, params.shard, params.shards)
-        self.setup: ModelSetup | None = None
-        self.init_seq: int | None = None
-        self.replica = BackgroundReplica()  # and the last usable frame
+        self.shard = ProposalShard()  # the model placed, the background replica and the last usable frame
 
     def required(self, seq: int) -> frozenset[str]:
         # before (and at) the frame the filter starts from there is no state to wait for
-        if self.init_seq is None or seq <= self.init_seq:
+        if self.shard.init_seq is None or seq <= self.shard.init_seq:
             return frozenset({"features"})
         return frozenset({"features", "state"})
 
@@ -103,87 +95,71 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
         experts; and "" (the proposals read no colour bins). Raises StageInputError for a frame that
         cannot be used."""
         assert isinstance(msg, Features)
-        return TRACKER.with_pyramid(self.tracker, frame_of(msg, msg.header.seq, self.tracker)), ""
+        return TRACKER.with_pyramid(self.tracker, frame_of(msg, self.tracker)), ""
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
-        feat = inputs.get("features")
-        obs = self._frame(feat, seq, self.setup.image_shape if self.setup else None, "no proposals for this frame",
-                          missing=self.init_seq is not None)
-        if self.init_seq is None:
-            self._initialise(seq, obs)
+        feat, setup = inputs.get("features"), self.shard.setup
+        obs = self._frame(feat, seq, setup.image_shape if setup else None, "no proposals for this frame",
+                          missing=self.shard.init_seq is not None)
+        if self.shard.init_seq is None:
+            if obs is not None:  # the model placed on the first usable frame, as the filter does on the same frame
+                try:  # no initial box, a box outside the frame, a model resource that cannot be placed in it
+                    self.shard = self.shard.started(self.tracker, self.initial_box(), self.params.seed, seq, obs.grey,
+                                                    self.learned_model(False))
+                except ValueError as e:
+                    self._init_failed(seq, str(e))
             return []
-        assert self.setup is not None
-        header = feat.header if isinstance(feat, Features) else self.header(seq, 0)
+        header = self.header_of(feat if isinstance(feat, Features) else None, seq)
         out = self._propose(seq, obs, inputs.get("state"), header.stamp_ns)
         if obs is not None:
-            self.replica = self.replica.seen(seq, obs.grey)
+            self.shard = self.shard.seen(seq, obs.grey)
         self.steps += 1
-        msg = proposals_of(header, out, self.params.shard, self.params.shards, self.digest)
+        msg = proposals_of(header, out, self.params.shard, self.params.shards, self.shard.digest)
         self.last = {"seq": seq, "experts": int(self.indices.size) if out is not None else 0}
         return [("proposals", msg)]
-
-    def _initialise(self, seq: int, obs: GFlowObservation | None) -> None:
-        """Place the model on the first usable frame, as the filter does on the same frame."""
-        if obs is None:
-            return
-        try:  # no initial box, a box outside the frame, a model resource that cannot be placed in it
-            self.setup, self.digest = placed(self.tracker, initial_box(self.params), self.params.seed, obs.grey.shape,
-                                             self.ctx.resources.get("model"))
-        except ValueError as e:
-            self._init_failed(seq, str(e))
-            return
-        self.init_seq = seq
-        self.replica = self.replica.seen(seq, obs.grey)
 
     def _propose(self, seq: int, obs: GFlowObservation | None, state_msg: Message | None,
                  stamp_ns: int = 0) -> Proposals | None:
         """Advance the background replica to t - 1, then propose for frame t (None: no proposals)."""
-        s = self.setup
+        s = self.shard.setup
         assert s is not None
         if not isinstance(state_msg, ExpertStates):
             self.report("missing_state", f"frame {seq}: the expert state of frame {seq - 1} did not arrive; "
                                          f"no proposals for this frame", seq)
             return None
         try:
-            st = unpack_states(state_msg, s, self.digest, f"expert state {seq - 1}")
+            st = unpack_states(state_msg, s, self.shard.digest, f"expert state {seq - 1}")
         except StageInputError as e:
             self.report("bad_state", f"{e}; no proposals for frame {seq}", seq)
             return None
-        self.replica, problem = self.replica.advance(s, seq, st["poses"], st["parents"], state_msg.first)
-        if problem is not None:
-            self.report(*problem, seq)
-        if obs is None or not self.replica.ready(s):
-            return None
-        try:
-            dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
-            return TRACKER.propose(self.tracker, GFlowState(s, expert_state(s, st, self.replica.bg)), obs,
-                                   tracker_rng(self.params.seed, self.ctx.stream, seq), dt, self.indices)
-        except (ValueError, np.linalg.LinAlgError) as e:
-            self.report("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals", seq)
-            return None
+        dt = time_step(self.ctx, stamp_ns, state_msg.header.stamp_ns)  # periods since the state's frame
+        self.shard, out, problems = self.shard.propose(self.tracker, seq, st, state_msg.first, obs, self.rng(seq), dt,
+                                                       self.indices)
+        for kind, text in problems:
+            self.report(kind, text, seq)
+        return out
 
     # -- state ------------------------------------------------------------------------------------
     def summary(self) -> dict[str, Any]:
         return dict(self.last, steps=self.steps, shard=f"{self.params.shard}/{self.params.shards}",
-                    background_at=self.replica.seq)
+                    background_at=self.shard.replica.seq)
 
-    def snapshot(self) -> bytes:
-        return msgspec.msgpack.encode(GFlowProposalSnapshot(
-            version=SNAPSHOT_VERSION, image_shape=None if self.setup is None else self.setup.image_shape,
-            digest=self.digest, init_seq=-1 if self.init_seq is None else self.init_seq, steps=self.steps,
-            init_error=self.init_error, **packed_fields(self.replica.fields())))
+    # -- snapshot / restore: the model's placement and the background replica (as distinct tiles) ---------
+    snapshot_struct = GFlowProposalSnapshot
+    snapshot_versions = (2,)  # 2: the background replica as distinct tiles (1: dense (E, H, W) arrays)
 
-    def restore(self, data: bytes) -> None:
-        snap = versioned_snapshot(data, GFlowProposalSnapshot, self.ctx.name, self.kind, SNAPSHOT_VERSION)
-        self.setup, self.digest = None, ""
+    def snapshot_fields(self) -> dict[str, Any]:
+        return dict(steps=self.steps, init_error=self.init_error, **packed_fields(self.shard.fields()))
+
+    def restore_fields(self, snap: GFlowProposalSnapshot) -> None:
+        setup = None
         if snap.image_shape is not None:
-            self.setup, self.digest = snapshot_setup(self.params, self.tracker, self.ctx.resources, snap.image_shape,
-                                                     snap.digest)
+            setup, _ = restored_setup(self.tracker, self.initial_box(), self.params.seed, snap.image_shape,
+                                      self.learned_model(False), snap.digest)
         try:
-            fields = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
-            self.replica = BackgroundReplica.of_fields(self.setup, **fields)
+            replica = unpacked_fields({k: getattr(snap, k) for k in BackgroundReplica().fields()})
+            self.shard = ProposalShard.of_fields(setup, snap.init_seq, snap.digest, replica)
         except (MessageError, ValueError) as e:
             raise ValueError(f"corrupt gflow.proposal snapshot: {e}") from None
-        self.init_seq = None if snap.init_seq < 0 else snap.init_seq
         self.steps = snap.steps
         self.init_error = snap.init_error

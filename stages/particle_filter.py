@@ -84,11 +84,8 @@ class FilterStage(FeaturesFilterStage):
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        if self.needs_model and ctx.resources.get("model") is None:
-            raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
-                             f"(`gflow learn m2`)")
         try:
-            self.setup: ContourSetup = setup(self.core, params.init, ctx.resources.get("model"))
+            self.setup: ContourSetup = setup(self.core, params.init, self.learned_model(self.needs_model))
         except ValueError as e:
             raise ValueError(f"stage {ctx.name!r}: model {params.model!r}: {e}") from None
         self.resources = {"setup": self.setup}

@@ -76,10 +76,7 @@ class ProposalStage(BoxProposalStage):
     def _clouds(self, params: Any, ctx: StageContext) -> CloudProposal:
         """The contour proposal the stage's parameters and its ``model`` resource make
         (:func:`proposal_dynamics`)."""
-        model = ctx.resources.get("model")
-        if self.needs_model and model is None:
-            raise ValueError(f"stage {ctx.name!r}: {self.kind} needs a learned model: set model: MODEL.npz "
-                             f"(`gflow learn m2`)")
+        model = self.learned_model(self.needs_model)
         if model is not None and not isinstance(model, M2Model):
             raise ValueError(f"stage {ctx.name!r}: model {params.model!r} is a {type(model).__name__}, "
                              "not an M2 model")

@@ -75,9 +75,7 @@ class PatchFilterStage(FeaturesFilterStage):
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
         super().__init__(params, ctx)
-        m = ctx.resources.get("model")
-        if m is None:
-            raise ValueError(f"stage {ctx.name!r}: the patch filter needs a learned model: set model: MODEL.npz")
+        m = self.learned_model()
         try:
             self.model: PatchExemplars = patch.patch_model(m)
         except ValueError as e:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from typing import Mapping
 
-import msgspec
 import numpy as np
 
 from gflow_core import colour, features
@@ -16,7 +15,7 @@ from gflow_core.contour.params import EdgeParams
 
 from .base import Output, Stage, StageInputError
 from gflow_msgs.messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
-from gflow_msgs.snapshots import PreprocessSnapshot, versioned_snapshot
+from gflow_msgs.snapshots import PreprocessSnapshot
 from .tracker_params import StageFields, stage_params, tracker_params
 
 __all__ = ["PreprocessStage", "PreprocessParams", "PreprocessFields"]
@@ -107,13 +106,15 @@ class PreprocessStage(Stage[PreprocessFields]):
     def summary(self) -> dict:
         return {"frames": self.done, "canny_thresholds": self.thresholds}
 
-    def snapshot(self) -> bytes:
+    snapshot_struct = PreprocessSnapshot
+    snapshot_versions = (SNAPSHOT_VERSION,)
+
+    def snapshot_fields(self) -> dict:
         """The thresholds calibrated on the first frame: a restarted stage must not calibrate
         them again on a later frame."""
         th = (float(self.thresholds[0]), float(self.thresholds[1])) if self.thresholds is not None else None
-        return msgspec.msgpack.encode(PreprocessSnapshot(version=SNAPSHOT_VERSION, done=self.done, thresholds=th))
+        return {"done": self.done, "thresholds": th}
 
-    def restore(self, data: bytes) -> None:
-        snap = versioned_snapshot(data, PreprocessSnapshot, self.ctx.name, "preprocess", SNAPSHOT_VERSION)
+    def restore_fields(self, snap: PreprocessSnapshot) -> None:
         self.done = snap.done
         self.thresholds = snap.thresholds

@@ -1,7 +1,7 @@
 """The stages of every registered tracker whose spec has box stages: the generic box stages
 (:mod:`stages.box_tracker`) driven by its spec (:class:`gflow_core.spec.TrackerSpec` with
 :class:`gflow_core.spec.BoxStages`). The correlation-filter tracker (``dcf``) and the appearance
-tracker's proposal are such stages, as is a tracker another package registers.
+tracker have such stages, as has a tracker another package registers.
 
 :func:`spec_stage_class` makes, for one spec, the proposal stage (kind ``NAME.proposal``) and
 the filter stage (kind ``NAME.filter``): their parameters are every field of the tracker's
@@ -9,24 +9,19 @@ parameter dataclass plus ``seed`` and ``init`` (and ``timed`` for the proposal: 
 frames, the noise grows with the time to the next frame), from the graph's tracker block
 (``tracker: NAME``, the same for both stages: :mod:`pipeline.runtime.tracker_block`); the filter's
 snapshot (:class:`gflow_msgs.snapshots.BoxFilterSnapshot`, the spec's ``snapshot_version``) holds
-the state as the spec's ``to_arrays`` gives it. The stages know the tracker only through its spec
-(:mod:`stages.registry` asks :func:`gflow_core.registry.trackers`). A stage module of a tracker with
-a snapshot Struct of its own (the appearance filter) takes the rest from its spec the same way
-(its protocol object and :class:`~gflow_core.spec.BoxStages` with a codec of its own).
+the state as the spec's ``to_arrays`` gives it, or, for a spec that names a snapshot Struct of its own
+(``BoxStages.snapshot``: the appearance tracker's ``AppearanceFilterSnapshot``, version 4), is that
+Struct with the arrays and values as its fields. The stages know the tracker only through its spec
+(:mod:`stages.registry` asks :func:`gflow_core.registry.trackers`).
 """
 
 from __future__ import annotations
 
-from typing import Any
-
-import numpy as np
-
 from gflow_core.spec import TrackerSpec
 
 from .base import Stage
-from .box_tracker import BoxFilterStage, BoxProposalStage, SnapshotCodec
-from gflow_msgs.messages import NDArray
-from gflow_msgs.snapshots import BoxFilterSnapshot
+from .box_tracker import BoxFilterStage, BoxProposalStage
+from gflow_msgs.snapshots import SnapshotCodec, arrays_codec
 from .tracker_params import SeedBoxFields, tracker_stage
 
 __all__ = ["spec_stage_class", "SpecProposalFields"]
@@ -40,21 +35,16 @@ class SpecProposalFields(SeedBoxFields, frozen=True):
 
 
 def _codec(spec: TrackerSpec) -> SnapshotCodec:
+    """The filter's snapshot codec of the state the spec gives as arrays (:func:`gflow_msgs.snapshots.arrays_codec`)."""
     box = spec.box
     assert box is not None
-    to_arrays, from_arrays = box.to_arrays, box.from_arrays
-    if to_arrays is None or from_arrays is None:
+    if box.to_arrays is None or box.from_arrays is None:
         raise ValueError(f"tracker {spec.name}: its spec gives no state as arrays; its filter stage needs a "
                          f"snapshot codec of its own")
-
-    def fields(state: Any) -> dict[str, Any]:
-        arrays, values = to_arrays(state)
-        return {"arrays": {k: NDArray.of(np.asarray(v)) for k, v in arrays.items()}, "values": dict(values)}
-
-    def state(snap: BoxFilterSnapshot, core: Any, last: dict) -> Any:
-        return from_arrays({k: v.array() for k, v in snap.arrays.items()}, dict(snap.values), core)
-
-    return SnapshotCodec(BoxFilterSnapshot, box.snapshot_version, fields, state)
+    try:
+        return arrays_codec(box.to_arrays, box.from_arrays, box.snapshot_version, box.snapshot)
+    except ValueError as e:
+        raise ValueError(f"tracker {spec.name}: {e}") from None
 
 
 def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:

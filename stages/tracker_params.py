@@ -54,6 +54,12 @@ class SeedBoxFields(StageFields, frozen=True):
             raise ValueError(f"seed must be >= 0, got {self.seed}")
         check_init(self.init)
 
+    def initial_box(self, who: str, why: str = "") -> tuple[float, float, float, float]:
+        """``init``; when there is none, ``ValueError`` in one line saying that ``who`` needs it (``why``)."""
+        if self.init is None:
+            raise ValueError(f"{who} needs an initial box{why}: set init: [x, y, w, h]")
+        return self.init
+
 
 def check_init(init: tuple[float, float, float, float] | None) -> None:
     """``ValueError`` for an initial box (x, y, w, h) with NaN or infinite values or without a positive

@@ -14,12 +14,13 @@ import pytest
 from gflow_core.evaluation.metrics import score
 from gflow_core.synthetic import SyntheticScene
 from pipeline.recording.results import read_boxes
-from stages.appearance_filter import AppearanceFilterParams, AppearanceFilterStage
 from stages.base import StageContext
 from stages.registry import get_stage_class
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
 
-# the proposal stage is made from the tracker's spec (stages.registry, stages.spec_box)
+# the two stages are made from the tracker's spec (stages.registry, stages.spec_box)
+AppearanceFilterStage = get_stage_class("appearance.filter")
+AppearanceFilterParams = AppearanceFilterStage.Params
 AppearanceProposalStage = get_stage_class("appearance.proposal")
 AppearanceProposalParams = AppearanceProposalStage.Params
 

@@ -85,6 +85,20 @@ def test_restore_is_bit_exact_and_bad_frames_coast(frames):
     assert np.mean(err) < 5.0
 
 
+def test_a_frame_of_another_size_coasts_and_is_said_as_every_tracker_says_it(frames):
+    """The frame-size rule is every tracker's (stages.base.Stage.same_size): a frame of another size than
+    the first is reported naming both sizes, and the filter coasts over it."""
+    sc, fr = frames
+    filt, prop = _stages(sc.truth_box(0))
+    (_, parts), _ = filt.step(0, {"frames": fr[0]})
+    (_, proposals), = prop.step(0, {"particles": parts})
+    small = Frame(Header("s", 1, 40_000_000), NDArray.of(np.ascontiguousarray(fr[1].image.array()[:100, :150])))
+    out = dict(filt.step(1, {"frames": small, "proposals": proposals}))
+    assert out["estimate"].state == "coast"
+    assert filt.drain_reports() == [("bad_frame", "frame 1: size 150x100 differs from the 160x120 frames the "
+                                                  "tracker started on; frame skipped; coasting", 1)]
+
+
 def test_a_snapshot_of_another_stage_is_refused(frames):
     sc, _ = frames
     filt, _ = _stages(sc.truth_box(0))

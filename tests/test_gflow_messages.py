@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from gflow_msgs.base import Header, MessageError
-from gflow_msgs.gflow import proposals_of, read_proposals, read_states, states_of
+from gflow_msgs.gflow import proposals_of, read_proposals, read_shards, read_states, states_of
 from gflow_msgs.messages import decode, encode
 
 H = Header(stream="s", seq=3, stamp_ns=0)
@@ -64,3 +64,12 @@ def test_a_shards_proposals_come_back_and_what_is_not_the_filters_is_refused() -
     empty = decode(encode(proposals_of(H, None, 1, 2, "abc")))
     with pytest.raises(MessageError, match="had no usable frame or expert state"):
         read_proposals(empty, "abc", 1, 2, idx, dims, 25.0)
+    # every shard of a frame: each read as its own, or the first that did not come or does not read named
+    first = decode(encode(proposals_of(H, _proposals(rng, np.array([0, 1])), 0, 2, "abc")))
+    parts, problem = read_shards([first, msg], "abc", [np.array([0, 1]), idx], dims, 25.0)
+    assert problem is None and [p["expert_indices"].tolist() for p in parts] == [[0, 1], [2, 3]]
+    assert read_shards([first, None], "abc", [np.array([0, 1]), idx], dims, 25.0) == (
+        None, ("missing_proposals", "no proposals from shard 1 of 2"))
+    parts, problem = read_shards([msg, first], "abc", [np.array([0, 1]), idx], dims, 25.0)
+    assert parts is None and problem is not None and problem[0] == "bad_proposals"
+    assert problem[1].startswith("proposals of shard 0: expected shard 0 of 2, got shard 1 of 2")

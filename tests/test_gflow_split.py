@@ -12,8 +12,9 @@ import pytest
 
 from gflow_core.gflow import GFlowParams, model_setup
 from gflow_core.gflow.filter import advance_background, initial_background
-from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, check_experts, check_frame_size, check_shard,
-                                    config_digest, placed, restored_setup, shard_indices)
+from gflow_core.gflow.split import (LATER_FIELDS, BackgroundReplica, ProposalShard, check_experts, check_shard,
+                                    config_digest, placed, restored_setup, restored_state, shard_indices,
+                                    start_filter)
 from gflow_core.gflow.state_fields import state_fields, state_of_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import FrameRng
@@ -77,6 +78,38 @@ def test_the_replica_survives_its_snapshot_fields_and_refuses_fields_that_do_not
         BackgroundReplica.of_fields(None, **fields)
 
 
+def test_a_proposal_shard_places_proposes_and_survives_its_snapshot_fields(head) -> None:
+    """What a proposal process keeps (split.ProposalShard): the model placed on the first usable frame
+    as the filter places it, proposals of any partition of the experts concatenating to one shard's bit
+    for bit, the replica brought to the experts' frame, and its snapshot fields restoring it."""
+    setup, grey, _ = head
+    params = GFlowParams(**dict(SYNTH, n_experts=6, background=True))
+    box = tuple(float(v) for v in setup.box)
+    state, _, digest = start_filter(params, TRACKER.observe_grey(params, grey[0]), box, 1, FrameRng(1, 0, 0))
+    experts = {k: getattr(state.experts, k) for k in ("poses", "tex_mean", "tex_var", "log_credibility", "tex_anchor")}
+    experts["parents"] = np.arange(6, dtype=np.int64)
+    obs, outs = TRACKER.observe_grey(params, grey[1]), []
+    for idx in (np.arange(6), np.arange(4), np.arange(4, 6)):
+        shard = ProposalShard().started(params, box, 1, 0, grey[0])
+        assert shard.digest == digest and shard.init_seq == 0
+        shard, props, problems = shard.propose(params, 1, experts, True, obs, FrameRng(1, 0, 1), 1.0, idx)
+        assert problems == [] and props is not None and shard.replica.seq == 0
+        outs.append(props)
+    assert np.array_equal(outs[0].u_hat, np.concatenate([outs[1].u_hat, outs[2].u_hat]))
+    assert np.array_equal(outs[0].log_evidence, np.concatenate([outs[1].log_evidence, outs[2].log_evidence]))
+    # without the frame: the replica still advances, and there are no proposals
+    idle, none, _ = ProposalShard().started(params, box, 1, 0, grey[0]).propose(
+        params, 1, experts, True, None, FrameRng(1, 0, 1), 1.0, np.arange(6))
+    assert none is None and idle.replica.seq == 0
+    fields = shard.fields()
+    assert fields["image_shape"] == (60, 80) and fields["digest"] == digest and fields["init_seq"] == 0
+    replica = {k: v for k, v in fields.items() if k not in ("image_shape", "digest", "init_seq")}
+    back = ProposalShard.of_fields(shard.setup, 0, digest, replica).fields()
+    assert back.keys() == fields.keys() and all(
+        np.array_equal(v, fields[k]) if isinstance(v, np.ndarray) else v == fields[k] for k, v in back.items())
+    assert ProposalShard.of_fields(None, -1, digest, BackgroundReplica().fields()) == ProposalShard()
+
+
 def test_the_digest_names_the_configuration_and_the_shards_cover_the_experts(head) -> None:
     setup = head[0]
     assert config_digest(setup, 1) == config_digest(setup, 1) != config_digest(setup, 2)
@@ -102,9 +135,11 @@ def test_every_process_places_the_model_alike_and_refuses_what_is_not_its_own(he
     with pytest.raises(ValueError, match="lies outside the 80x60 frame"):
         placed(params, (500.0, 500.0, 10.0, 10.0), 1, grey.shape[1:])
     obs = TRACKER.observe_grey(params, grey[0])
-    assert check_frame_size(obs, None) is obs and check_frame_size(obs, (60, 80)) is obs
-    with pytest.raises(ValueError, match="size 80x60 differs from the 100x50 frames"):
-        check_frame_size(obs, (50, 100))
+    state, est, started = start_filter(params, obs, box, 1, FrameRng(1, 0, 0))
+    # the filter process's start: the same placement and digest, and no backgrounds (its proposals keep them)
+    assert started == digest and est.phase == "init" and state.experts.bg_mean is None
+    with pytest.raises(ValueError, match="another G-flow configuration, model or seed"):
+        restored_state(params, box, 2, grey.shape[1:], None, digest, lambda s: {}, {})
     parents = np.arange(6)
     check_experts(setup, (60, 80), parents, setup.cfg.texture_decay != 1.0)
     for shape, par, anchor, why in (((61, 80), parents, False, "for \\(61, 80\\) frames"),

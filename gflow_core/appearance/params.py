@@ -3,7 +3,7 @@
 The tracker is :mod:`gflow_core.appearance.filter` (M2 with online exemplars;
 its docstring gives each parameter's role and the measurements behind the defaults, chosen on
 all four shared sequences together). Everything else derives from this dataclass: the stages'
-parameter structs (``stages/appearance_filter.py``, ``stages/spec_box.py``), the
+parameter structs (``stages/spec_box.py``), the
 validation of ``pipeline/graphs/appearance.yaml``, ``gflow track``'s options and their help,
 ``gflow info appearance`` and the keywords of ``gflow.Tracker("appearance", ...)``.
 

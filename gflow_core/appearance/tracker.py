@@ -17,8 +17,8 @@
 
 The proposal's random walk (:mod:`gflow_core.appearance.dynamics`) works on alpha = (x, y,
 theta, s) with theta = 0 and s = exp(log s), the particles as the pipeline's particle messages
-carry them, so a step here and a step through the stages (``stages/spec_box.py``,
-``stages/appearance_filter.py``) give the same bits.
+carry them, so a step here and a step through the stages (``stages/spec_box.py``) give the same
+bits.
 
 Random draws of frame ``t`` (:class:`~gflow_core.tracker.FrameRng`): the initial particles from
 ``stream(PURPOSE_INIT)``, the proposal from ``stream(PURPOSE_WALK)``, the update's detection

@@ -11,10 +11,15 @@ arguments of these calls and results into messages:
 * :func:`check_shard`, :func:`shard_indices` -- which shards a run may have, and the experts of one;
 * :class:`BackgroundReplica` -- the background textures (E, H, W) a proposal process keeps and
   advances itself (eq. 7-10), since they never travel, and its snapshot fields;
+* :class:`ProposalShard` -- what a proposal process keeps between frames (the model placed on the
+  first usable frame, the replica) and its step: the replica brought to the experts' frame, then
+  the pose opinions of its shard of experts;
 * :func:`message_dims` -- the dimensions of the arrays that travel (E, P, n, s);
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
-* :func:`check_frame_size` -- a later frame checked against the size the model was placed on;
-* :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes.
+* :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes;
+* :func:`start_filter`, :func:`restored_state` -- the filter process's posterior at the first frame
+  (without backgrounds, which the proposal processes keep) with its digest, and again from the
+  arrays and fields of a snapshot.
 
 Nothing here is new mathematics: the replica calls :func:`.filter.initial_background`,
 :func:`.filter.advance_background` and :func:`.filter.predict_background`, exactly as the
@@ -31,12 +36,14 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .background import TileLayout, TiledBackground
-from .filter import ExpertState, advance_background, initial_background, predict_background
+from .filter import ExpertState, Proposals, advance_background, initial_background, predict_background
 from .params import GFlowParams
-from .tracker import GFlowObservation, ModelSetup, model_setup
+from .state_fields import state_of_fields
+from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_setup
+from ..tracker import Estimate, FrameRng
 
 __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
-           "BackgroundReplica", "expert_state", "check_frame_size", "check_experts"]
+           "BackgroundReplica", "ProposalShard", "expert_state", "check_experts", "start_filter", "restored_state"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -116,19 +123,6 @@ def expert_state(setup: ModelSetup, arrays: Mapping[str, Any], bg: tuple[Any, An
                        tex_anchor=arrays.get("tex_anchor"), **arrs)
 
 
-def check_frame_size(obs: GFlowObservation, shape: tuple[int, int] | None) -> GFlowObservation:
-    """``obs``, if its frame has the size ``shape`` (H, W) of the frames the model was placed on
-    (:attr:`.tracker.ModelSetup.image_shape`; None: not placed yet, any size).
-
-    Raises ValueError naming both sizes otherwise: the experts' poses, textures and backgrounds
-    are for frames of that size."""
-    grey = obs.grey
-    if shape is not None and grey.shape != tuple(shape):
-        raise ValueError(f"size {grey.shape[1]}x{grey.shape[0]} differs from the {shape[1]}x{shape[0]} frames the "
-                         f"tracker started on")
-    return obs
-
-
 def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.ndarray, has_anchor: bool) -> None:
     """What experts received from another process must satisfy, beyond their arrays' shapes and
     dtypes, to be ``setup``'s: made on frames of ``image_shape`` (H, W) equal to the model's,
@@ -144,6 +138,31 @@ def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.n
     if has_anchor != (setup.cfg.texture_decay != 1.0):
         raise ValueError("the texture anchor is " + ("unexpected" if has_anchor else "missing") +
                          f" for texture_decay {setup.cfg.texture_decay}")
+
+
+def start_filter(params: GFlowParams, obs: GFlowObservation, box: Sequence[float], seed: int, rng: FrameRng,
+                 model: Any = None) -> tuple[GFlowState, Estimate, str]:
+    """The filter process's posterior at the first frame (:meth:`.tracker.GFlowTracker.init` keeping no
+    backgrounds: the proposal processes start them from this frame), its estimate and the digest
+    (:func:`config_digest` with ``seed``) its messages carry.
+
+    Raises ValueError when the model cannot be placed in ``box``."""
+    state, est = TRACKER.init(params, obs, (box[0], box[1], box[2], box[3]), rng, {"model": model},
+                              backgrounds=False)
+    return state, est, config_digest(state.setup, seed)
+
+
+def restored_state(params: GFlowParams, box: Sequence[float], seed: int, shape: tuple[int, int], model: Any,
+                   digest: str, read: Any, fields: Mapping[str, Any]) -> GFlowState:
+    """The filter process's posterior of a snapshot made on frames of ``shape`` (H, W) with ``digest``: the
+    model placed again (:func:`restored_setup`), the experts of the arrays ``read(setup)`` gives (the
+    snapshot's experts read for ``setup``'s dimensions, :func:`message_dims`) and the rest of the state of
+    ``fields`` (:func:`.state_fields.state_of_fields`).
+
+    Raises ValueError when the model cannot be placed, the digest is another configuration's or the
+    arrays or fields do not fit."""
+    setup, _ = restored_setup(params, box, seed, shape, model, digest)
+    return state_of_fields(setup, expert_state(setup, read(setup)), fields)
 
 
 @dataclass(frozen=True)
@@ -237,3 +256,65 @@ class BackgroundReplica:
                                  f"{setup.cfg.n_experts}")
             bg = (bank.mean, bank.var)
         return cls(bg, bg_seq, prev_seq, None if prev_grey is None else prev_grey.copy())
+
+
+@dataclass(frozen=True)
+class ProposalShard:
+    """What a proposal process of G-flow split across processes keeps between frames (sec. 3.2): the
+    model placed on the first usable frame (``setup``, its ``digest``, that frame ``init_seq``; None
+    before) and the :class:`BackgroundReplica` with the last usable frame it saw. Its methods return a
+    new value."""
+
+    setup: ModelSetup | None = None
+    digest: str = ""
+    init_seq: int | None = None
+    replica: BackgroundReplica = BackgroundReplica()
+
+    def started(self, params: GFlowParams, box: Sequence[float], seed: int, seq: int, grey: np.ndarray,
+                model: Any = None) -> ProposalShard:
+        """The model placed on frame ``seq`` (grey ``(H, W)`` uint8) as the filter places it there
+        (:func:`placed`); raises ValueError when it cannot be."""
+        setup, digest = placed(params, box, seed, grey.shape, model)
+        return ProposalShard(setup, digest, seq, self.replica.seen(seq, grey))
+
+    def seen(self, seq: int, grey: np.ndarray) -> ProposalShard:
+        """The shard after frame ``seq`` (grey ``(H, W)`` uint8) was seen (:meth:`BackgroundReplica.seen`)."""
+        return dataclasses.replace(self, replica=self.replica.seen(seq, grey))
+
+    def propose(self, params: GFlowParams, seq: int, experts: Mapping[str, Any], first: bool,
+                obs: GFlowObservation | None, rng: Any, dt: float,
+                indices: np.ndarray) -> tuple[ProposalShard, Proposals | None, list[tuple[str, str]]]:
+        """Frame ``seq``'s step: the replica brought to frame ``seq - 1`` with the ``experts`` of that frame
+        (the arrays of an expert-state message, checked: ``poses``, ``parents`` ...; ``first``: the first
+        frame's), then the pose opinions of the experts ``indices`` (E',) for frame ``seq``
+        (:meth:`.tracker.GFlowTracker.propose` with ``rng`` over ``dt`` frame periods), none without the
+        frame ``obs`` or the backgrounds the likelihood needs.
+
+        Returns the new shard, the proposals (None: none) and the problems to report, ``(kind, text)``:
+        the replica's, and ``propose_failed`` when the proposals could not be made."""
+        s = self.setup
+        assert s is not None
+        replica, problem = self.replica.advance(s, seq, experts["poses"], experts["parents"], first)
+        problems = [] if problem is None else [problem]
+        out = None
+        if obs is not None and replica.ready(s):
+            try:
+                out = TRACKER.propose(params, GFlowState(s, expert_state(s, experts, replica.bg)), obs, rng, dt, indices)
+            except (ValueError, np.linalg.LinAlgError) as e:
+                problems.append(("propose_failed", f"frame {seq}: {type(e).__name__}: {e}; no proposals"))
+        return dataclasses.replace(self, replica=replica), out, problems
+
+    def fields(self) -> dict[str, Any]:
+        """The shard as flat snapshot fields: ``image_shape`` (H, W) (None before the model was placed),
+        ``digest``, ``init_seq`` (-1: not placed) and the replica's (:meth:`BackgroundReplica.fields`)."""
+        return dict(image_shape=None if self.setup is None else self.setup.image_shape, digest=self.digest,
+                    init_seq=-1 if self.init_seq is None else self.init_seq, **self.replica.fields())
+
+    @classmethod
+    def of_fields(cls, setup: ModelSetup | None, init_seq: int, digest: str, replica: Mapping[str, Any]
+                  ) -> ProposalShard:
+        """The shard of :meth:`fields` with the model placed again (``setup``, :func:`restored_setup` of the
+        fields' ``image_shape`` and ``digest``; None when it was not placed). Raises ValueError when the
+        replica's fields do not fit it."""
+        return cls(setup, digest if setup is not None else "", None if init_seq < 0 else init_seq,
+                   BackgroundReplica.of_fields(setup, **replica))
