@@ -16,7 +16,7 @@ from pipeline.app import place as place_stages
 from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
 
-__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "check_outputs",
+__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "warn_if_torn"]
@@ -47,6 +47,17 @@ def positive_float(text: str) -> float:
     return v
 
 
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0 (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (np.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
+    return v
+
+
 def nonnegative_int(text: str) -> int:
     """A whole number >= 0 (argparse type)."""
     try:
@@ -55,6 +66,17 @@ def nonnegative_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
     if v < 0:
         raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
+def positive_int(text: str) -> int:
+    """A whole number >= 1 (argparse type)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
     return v
 
 
@@ -68,7 +90,21 @@ def check_outputs(**paths: str | None) -> None:
 
     for opt, path in paths.items():
         if path:
-            check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
+            name = opt if opt.isupper() else "--" + opt.replace("_", "-")
+            refuse_recording(path, name)
+            check_writable(path, name)
+
+
+def refuse_recording(path: str, option: str) -> None:
+    """Refuse to write over a recording: ``path`` is an existing file that begins as an MCAP file
+    does (whatever its name), so a CSV, model or picture written there would destroy it."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(_MCAP_MAGIC))
+    except OSError:
+        return  # no such file (or not readable: check_writable names it)
+    if head == _MCAP_MAGIC:
+        raise CliError(f"{option} {path} is a recording; gflow never writes over one: give another name")
 
 
 def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, refuse_recording
 from pipeline.cli.trackers import TRACKERS
 #: what to run when the ``trax`` module is missing (``gflow.trax.INSTALL_HINT`` says the same)
 INSTALL_HINT = "pip install 'gflow[vot]' (or pip install vot-trax)"
@@ -90,6 +90,8 @@ def cmd_trax(args: argparse.Namespace) -> int:
         raise CliError(f"--seed must be >= 0, got {args.seed}")
     if args.out and not Path(args.out).resolve().parent.is_dir():
         raise CliError(f"--out {args.out}: folder {Path(args.out).parent} does not exist")
+    if args.out:
+        refuse_recording(args.out, "--out")
     sys.stdout.flush()
     sys.stderr.flush()
     os.execv(sys.executable, [sys.executable, "-m", "gflow.trax", *argv_of(args)])
