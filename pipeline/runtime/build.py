@@ -56,9 +56,9 @@ def needs_initial_box(cls: type[Stage]) -> bool:
     if gflow is not None and issubclass(cls, gflow.GFlowStage):
         return True
     if box is not None and issubclass(cls, box.BoxFilterStage):
-        return bool(cls.needs_init)  # type: ignore[attr-defined]
+        return bool(getattr(cls, "needs_init"))
     if box is not None and issubclass(cls, box.BoxProposalStage):
-        return cls._clouds is box.BoxProposalStage._clouds  # type: ignore[attr-defined]
+        return getattr(cls, "_clouds") is box.BoxProposalStage._clouds
     return False
 
 

@@ -1,0 +1,180 @@
+"""Answers a user can trust: a mistake on the command line is one line naming it, found before
+any work; no command writes over a recording; a restarted recorder's count goes on.
+
+The mistakes run in this process (``main([...])``, as ``gflow`` runs them, without the start-up
+of a new interpreter per case) on tiny image folders and a short recording of the synthetic
+scene written into tmp folders; the restarted recorder is a real multi-process run.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.cli.main import main
+from pipeline.runtime.build import apply_defaults
+from pipeline.runtime.graph import load_graph
+from pipeline.runtime.launcher import Launcher
+from pipeline.runtime.transport import ZenohSettings, free_port
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> Path:
+    """A folder with frames/ (six 64x48 textured frames), broken/ (the same, frame 3 not an
+    image) and demo.mcap (10 frames of the synthetic scene, inline)."""
+    d = tmp_path_factory.mktemp("trust")
+    rng = np.random.default_rng(0)
+    for name in ("frames", "broken"):
+        (d / name).mkdir()
+        for i in range(6):
+            cv2.imwrite(str(d / name / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    (d / "broken" / "0003.png").write_bytes(b"not a png")
+    assert main(["demo", "--frames", "10", "--inline", "--record", str(d / "demo.mcap")]) == 0
+    return d
+
+
+def cli(args: list[str], capsys) -> tuple[int, str]:
+    """Run ``gflow ARGS`` here; its exit status and what it wrote on stderr."""
+    capsys.readouterr()
+    try:
+        rc = main(args)
+    except SystemExit as e:  # argparse's refusals exit
+        rc = int(e.code or 0)
+    return rc, capsys.readouterr().err
+
+
+def one_line_error(rc: int, err: str, *words: str) -> str:
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc != 0 and len(lines) == 1, (rc, err)
+    assert "internal error" not in lines[0] and "Traceback" not in err, err
+    for w in words:
+        assert w in lines[0], lines[0]
+    return lines[0]
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "b.csv", "--tracker", "gflow", "--shards", "0"],
+     ["--shards", ">= 1"]),
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "b.csv", "--record-topics", "estimat"],
+     ["--record-topics", "'estimat'", "estimate"]),
+    (["demo", "--frames", "3", "--inline", "--record-topics", "nosuch"], ["--record-topics", "'nosuch'"]),
+    (["demo", "--frames", "3", "--inline", "--seed", "-1"], ["--seed -1"]),
+    (["replay", "{d}/demo.mcap", "--max", "--start", "-1"], ["--start", ">= 0"]),
+    (["replay", "{d}/demo.mcap", "--max", "--start", "nan"], ["--start", ">= 0"]),
+    (["replay", "{d}/demo.mcap", "--max", "--lockstep", "filter", "--ack-timeout", "-1"], ["--ack-timeout"]),
+    (["render", "{d}/demo.mcap", "o.mp4", "--scale", "0", "-q"], ["--scale", ">= 1"]),
+    (["render", "{d}/demo.mcap", "o.mp4", "--fps", "nan", "-q"], ["--fps", "> 0"]),
+    (["foxglove", "{d}/demo.mcap", "f.mcap", "--quality", "0"], ["--quality", "1-100"]),
+    (["foxglove", "{d}/demo.mcap", "f.mcap", "--quality", "101"], ["--quality", "1-100"]),
+    (["frame", "{d}/frames", "0", "f.xyz"], ["f.xyz", "'.xyz'"]),
+    (["frame", "{d}/frames", "0", "f.png", "--grid", "-5"], ["--grid", ">= 1"]),
+    (["frame", "{d}/frames", "0", "f.png", "--scale", "0"], ["--scale", ">= 1"]),
+    (["eval", "--gt", "{d}/gt.csv", "--pred", "{d}/gt.csv", "--threshold", "2"], ["--threshold", "[0, 1]"]),
+    (["eval", "--gt", "{d}/gt.csv", "--pred", "{d}/gt.csv", "--threshold", "nan"], ["--threshold", "[0, 1]"]),
+    (["eval", "--gt", "{d}/gt.csv", "--pred", "{d}/demo.mcap"], ["demo.mcap", "not a box CSV"]),
+    (["learn", "m2", "{d}/frames", "-K", "2", "--blur", "-1", "--out", "m.npz", "-q"], ["--blur", ">= 0"]),
+    (["learn", "m2", "{d}/frames", "-K", "2", "--g0", "nan", "--out", "m.npz", "-q"], ["--g0", "> 0"]),
+    (["echo", "demo/estimate", "-n", "0", "--timeout", "0.5"], ["--count", ">= 1"]),
+    (["pub", "gflow/demo/_control", "Control", '{"command": "stop"}', "-n", "0"], ["--count", ">= 1"]),
+    (["pub", "gflow/demo/_control", "Control", '{"command": "stop"}', "--seq", "-1"], ["--seq", ">= 0"]),
+    (["view", "--port", "99999", "--duration", "0.5"], ["--port", "1-65535"]),
+])
+def test_mistake_is_one_line_before_any_work(files: Path, tmp_path: Path, monkeypatch, capsys, argv: list[str],
+                                             words: list[str]) -> None:
+    (files / "gt.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n")
+    monkeypatch.chdir(tmp_path)
+    rc, err = cli([a.replace("{d}", str(files)) for a in argv], capsys)
+    one_line_error(rc, err, *words)
+    assert not list(tmp_path.iterdir()), "nothing is written before a mistake is found"
+
+
+@pytest.mark.parametrize("argv,option", [
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "{x}", "--no-record", "--inline", "-q"], "--out"),
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "b.csv", "--points-out", "{x}", "--tracker",
+      "gflow", "--no-record", "--inline", "-q"], "--points-out"),
+    (["boxes", "{d}/demo.mcap", "--out", "{x}"], "--out"),
+    (["learn", "m2", "{d}/frames", "--metric", "l2", "-K", "2", "--out", "{x}", "-q"], "--out"),
+    (["frame", "{d}/frames", "0", "{x}"], "OUT"),
+    (["trax", "--out", "{x}"], "--out"),  # in a process of its own: gflow trax execs its server
+])
+def test_no_command_writes_over_a_recording(files: Path, tmp_path: Path, monkeypatch, capsys, argv: list[str],
+                                            option: str) -> None:
+    """A CSV, model or picture given the name of an existing recording (whatever its name) is refused
+    and the recording is left as it was: these commands wrote over it."""
+    if argv[0] == "trax" and importlib.util.find_spec("trax") is None:
+        pytest.skip("gflow trax needs the vot-trax package")
+    monkeypatch.chdir(tmp_path)
+    x = tmp_path / "kept.csv"  # a recording under any name is one
+    before = (files / "demo.mcap").read_bytes()
+    x.write_bytes(before)
+    args = [a.replace("{d}", str(files)).replace("{x}", str(x)) for a in argv]
+    if argv[0] == "trax":
+        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], capture_output=True, text=True,
+                           timeout=60, stdin=subprocess.DEVNULL)
+        rc, err = r.returncode, r.stderr
+    else:
+        rc, err = cli(args, capsys)
+    one_line_error(rc, err, option, "is a recording", "never writes over")
+    assert x.read_bytes() == before
+
+
+@pytest.mark.parametrize("graph", ["gflow", "dcf", "chamfer"])
+def test_a_graph_without_its_initial_box_is_one_message(files: Path, tmp_path: Path, monkeypatch, capsys,
+                                                        graph: str) -> None:
+    """The same words for every tracker, naming every stage that lacks the box; the G-flow graph ran
+    without one, warned at frame 0 that it could not start and exited 0."""
+    monkeypatch.chdir(tmp_path)
+    rc, err = cli(["run", graph, "--inline", "--set", f"source.path={files / 'frames'}"], capsys)
+    line = one_line_error(rc, err, "need", "an initial box: set init: [x, y, w, h]", ".init=[X,Y,W,H]",
+                          "--init X,Y,W,H")
+    assert ("'proposal'" in line) == (graph != "chamfer") and "'filter'" in line, line
+    assert not list(tmp_path.rglob("*.mcap"))
+
+
+def test_learn_says_a_skipped_frame_even_when_quiet(files: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    """-q silences progress, not damaged input: the model was written from five of six frames
+    without a word."""
+    monkeypatch.chdir(tmp_path)
+    rc, err = cli(["learn", "m2", str(files / "broken"), "--metric", "l2", "-K", "2", "--out", "m.npz", "-q"], capsys)
+    assert rc == 0 and (tmp_path / "m.npz").is_file()
+    assert [ln for ln in err.splitlines() if ln.strip()] == [
+        "warning: frame 3 skipped: 0003.png is not a decodable image (9 bytes)"], err
+
+
+def test_a_restarted_recorder_counts_on(tmp_path: Path) -> None:
+    """The recorder's heartbeat counts its messages; one killed and restarted (a new segment file)
+    goes on from what the one before reported, as a restarted stage's steps do, instead of from 0."""
+    plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 150, "realtime": True, "fps": 30},
+                                                        "filter": {"particles": 100}}))
+    seen: list[tuple[int, int]] = []  # (pid, steps) of the recorder's heartbeats, in order
+    launcher = Launcher(plan, zenoh=ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",)),
+                        recording=str(tmp_path / "run.mcap"), progress=False,
+                        on_status=lambda st: seen.append((st["recorder"].pid, st["recorder"].steps))
+                        if "recorder" in st else None)
+    th = threading.Thread(target=launcher.run, daemon=True)
+    th.start()
+    deadline = time.monotonic() + 120
+    while not seen or seen[-1][1] < 150:
+        assert time.monotonic() < deadline and th.is_alive(), f"the recorder reported only {seen[-1:]}"
+        time.sleep(0.05)
+    first = launcher.pids["recorder"][0]
+    os.kill(first, signal.SIGKILL)
+    while not any(pid != first for pid, _ in seen):
+        assert time.monotonic() < deadline and th.is_alive(), "the recorder was not restarted"
+        time.sleep(0.05)
+    th.join(120)
+    before = max(steps for pid, steps in seen if pid == first)
+    after = [steps for pid, steps in seen if pid != first]
+    assert after[0] >= before, (before, after[:5])
+    assert after == sorted(after)
+    assert (tmp_path / "run.part1.mcap").is_file()  # the restarted recorder wrote the rest to its segment
