@@ -20,7 +20,11 @@ def _refuse_unmatched(plan: Plan, patterns: list[str]) -> None:
     full = {plan.error_topic, plan.control_topic}
     for name, sp in plan.stages.items():
         full |= {*sp.outputs.values(), plan.snapshot_topic(name), plan.status_topic(name)}
+    from pipeline.runtime.live_plan import SKIPPED_TOPIC, live_source
+
     names = sorted(t.split("/", 2)[2] for t in full if t.count("/") >= 2) + ["captures"]
+    if live_source(plan) is not None:
+        names.append(SKIPPED_TOPIC)  # the frames a live source skips: published when it is recorded
     for pat in patterns:
         if not any(fnmatch.fnmatchcase(n, pat) for n in names):
             raise RequestError(f"--record-topics: {pat!r} names no topic of the run (its topics: "
