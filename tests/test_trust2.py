@@ -178,3 +178,59 @@ def test_a_restarted_recorder_counts_on(tmp_path: Path) -> None:
     assert after[0] >= before, (before, after[:5])
     assert after == sorted(after)
     assert (tmp_path / "run.part1.mcap").is_file()  # the restarted recorder wrote the rest to its segment
+
+
+def test_a_foxglove_copy_verifies(files: Path, tmp_path: Path, capsys) -> None:
+    """gflow verify read the Foxglove images of a gflow foxglove copy (protobuf) as gflow's own
+    messages and called every copy DAMAGED, with nothing to salvage."""
+    copy = tmp_path / "fox.mcap"
+    assert cli(["foxglove", str(files / "demo.mcap"), str(copy)], capsys)[0] == 0
+    capsys.readouterr()
+    assert main(["verify", str(copy)]) == 0
+    out = capsys.readouterr().out
+    assert "OK" in out and "DAMAGED" not in out, out
+    # and a payload that is not the schema's message is still found (a protobuf varint tag running past the end)
+    from mcap.reader import make_reader
+
+    from pipeline.recording.verify import _protobuf_decoder
+
+    with open(copy, "rb") as f:
+        schema = next(s for s in make_reader(f).get_summary().schemas.values()
+                      if s.name == "foxglove.CompressedImage")
+    with pytest.raises(Exception, match="not a protobuf foxglove.CompressedImage"):
+        _protobuf_decoder(schema)(b"\x0a\xff\xff\xff\xff\x0f")
+
+
+def test_an_out_dir_used_before_is_refused_not_skipped(files: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    """gflow benchmark --out-dir where a run's recording already is: every such run was 'skipped' and
+    the benchmark exited 0 having run no tracker."""
+    seq = tmp_path / "data" / "seqA"
+    (seq / "frames").mkdir(parents=True)
+    for p in (files / "frames").iterdir():
+        (seq / "frames" / p.name).write_bytes(p.read_bytes())
+    (seq / "groundtruth.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    kept = tmp_path / "od" / "seqA" / "dcf.mcap"
+    kept.parent.mkdir(parents=True)
+    kept.write_bytes((files / "demo.mcap").read_bytes())
+    monkeypatch.chdir(tmp_path)
+    rc, err = cli(["benchmark", str(tmp_path / "data"), "--trackers", "dcf", "--inline", "-q", "--out-dir", "od"],
+                  capsys)
+    one_line_error(rc, err, "--out-dir od", "dcf.mcap exists", "never overwritten")
+    assert kept.read_bytes() == (files / "demo.mcap").read_bytes()
+    assert sorted(p.name for p in kept.parent.iterdir()) == ["dcf.mcap"], "nothing run before the refusal"
+
+
+def test_output_to_a_closed_pipe_is_no_error(files: Path) -> None:
+    """``gflow info r.mcap | head -1``: the reader going away printed 'gflow info: error: Broken pipe'."""
+    p = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "info", str(files / "demo.mcap")],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    assert p.stdout is not None and p.stderr is not None
+    p.stdout.close()  # before it writes: its first line goes to a pipe nobody reads
+    err = p.stderr.read().decode()
+    assert p.wait(60) == 141 and err == "", err
+
+
+def test_a_negative_value_is_explained(files: Path, capsys) -> None:
+    """--init -5,50,20,30 (a box from left of the image) said only 'expected one argument'."""
+    rc, err = cli(["track", str(files / "frames"), "--init", "-5,10,20,20", "--out", "b.csv"], capsys)
+    one_line_error(rc, err, "--init", "--init=-5")

@@ -109,6 +109,9 @@ def _planned(args, seq, name: str, start: int, stop: int | None, folder: Path):
 
     if spec_of(name).model_required and not model_given(args, name):
         return f"skipped: needs {model_options()[name]} MODEL.npz"
+    if (folder / f"{name}.mcap").exists():  # an error, not a skipped run: every run of an --out-dir used before
+        raise CliError(f"--out-dir {args.out_dir}: {folder / f'{name}.mcap'} exists (an earlier run's); a recording "
+                       f"is never overwritten: give a new folder")
     out, request = _request(args, seq, name, start, stop, folder)
     try:
         return out, request_plan(request, out)
