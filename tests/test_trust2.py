@@ -234,3 +234,27 @@ def test_a_negative_value_is_explained(files: Path, capsys) -> None:
     """--init -5,50,20,30 (a box from left of the image) said only 'expected one argument'."""
     rc, err = cli(["track", str(files / "frames"), "--init", "-5,10,20,20", "--out", "b.csv"], capsys)
     one_line_error(rc, err, "--init", "--init=-5")
+
+
+@pytest.mark.parametrize("argv,words", [
+    # a box outside the frame ran, warned on every frame and exited 0 (gflow track checked --init)
+    (["run", "demo", "--inline", "--set", "source.frames=3", "--set", "filter.init=[1000,1000,5,5]"],
+     ["stage 'filter' init:", "outside the 320x240 image"]),
+    # the first frame of a graph's folder cannot be read: said before the run, as gflow track does
+    (["run", "dcf", "--inline", "--set", "source.path={d}/broken", "--set", "source.start=3", "--set",
+      "filter.init=[1,1,9,9]", "--set", "proposal.init=[1,1,9,9]"], ["frame 3 cannot be read"]),
+    # a file that is not a model went into trackers.ini and failed when the toolkit ran it
+    (["export", "vot", "{d}", "ws", "--m2-model", "{d}/gt.csv"], ["--m2-model", "gt.csv"]),
+    # it compared nothing, said nothing and exited 0
+    (["rerun", "{d}/demo.mcap", "--stage", "source", "--check"], ["'source'", "no recorded inputs"]),
+    # an empty file was also 'not closed properly', a warning line before the error
+    (["track", "{d}/empty.mcap", "--init", "1,1,5,5", "--out", "b.csv"], ["empty.mcap", "not an MCAP file"]),
+])
+def test_more_mistakes_before_any_work(files: Path, tmp_path: Path, monkeypatch, capsys, argv: list[str],
+                                       words: list[str]) -> None:
+    (files / "gt.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n")
+    (files / "empty.mcap").write_bytes(b"")
+    monkeypatch.chdir(tmp_path)
+    rc, err = cli([a.replace("{d}", str(files)) for a in argv], capsys)
+    one_line_error(rc, err, *words)
+    assert not list(tmp_path.iterdir()), "nothing is written before a mistake is found"

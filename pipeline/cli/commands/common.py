@@ -233,6 +233,8 @@ def warn_if_torn(path: str) -> bool:
     for seg in segments(path):
         try:
             with open(seg, "rb") as f:
+                if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+                    continue  # not an MCAP file at all: the command that reads it says so, in one line
                 size = f.seek(0, 2)
                 f.seek(max(0, size - len(_MCAP_MAGIC)))
                 closed = f.read() == _MCAP_MAGIC and size > 2 * len(_MCAP_MAGIC)
