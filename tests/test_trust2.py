@@ -88,6 +88,7 @@ def one_line_error(rc: int, err: str, *words: str) -> str:
     (["pub", "gflow/demo/_control", "Control", '{"command": "stop"}', "-n", "0"], ["--count", ">= 1"]),
     (["pub", "gflow/demo/_control", "Control", '{"command": "stop"}', "--seq", "-1"], ["--seq", ">= 0"]),
     (["view", "--port", "99999", "--duration", "0.5"], ["--port", "1-65535"]),
+    (["benchmark", "{d}", "--json", "--markdown"], ["--markdown", "--json"]),
 ])
 def test_mistake_is_one_line_before_any_work(files: Path, tmp_path: Path, monkeypatch, capsys, argv: list[str],
                                              words: list[str]) -> None:
@@ -258,3 +259,25 @@ def test_more_mistakes_before_any_work(files: Path, tmp_path: Path, monkeypatch,
     rc, err = cli([a.replace("{d}", str(files)) for a in argv], capsys)
     one_line_error(rc, err, *words)
     assert not list(tmp_path.iterdir()), "nothing is written before a mistake is found"
+
+
+def test_damage_inside_a_recording_is_said(files: Path, tmp_path: Path) -> None:
+    """A chunk that fails its CRC in the middle of a recording (its end intact, so not 'torn'): plot,
+    render, replay, foxglove, diff and track --inline showed or computed what came before it and said
+    nothing; now one warning line names the file and the byte."""
+    from pipeline.io.mcap_io import iter_records, read_metadata
+    from pipeline.io.recorder import McapRecorder
+
+    src, bad = files / "demo.mcap", tmp_path / "bad.mcap"
+    with McapRecorder(bad, chunk_size=64 * 1024, metadata=read_metadata(src)) as w:  # many chunks
+        for r in iter_records(src):
+            w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns, type_name=r.type)
+    data = bytearray(bad.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 64] = bytes(b ^ 0xFF for b in data[mid:mid + 64])
+    bad.write_bytes(bytes(data))
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "plot", str(bad), str(tmp_path / "p.png")],
+                       capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 0 and (tmp_path / "p.png").is_file(), r.stderr
+    assert len(lines) == 1 and "bad.mcap: recording is damaged at byte" in lines[0], r.stderr

@@ -385,8 +385,9 @@ def register(sub) -> None:
     p.add_argument("--opencv", metavar="NAME,...",
                    help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them (none: no "
                         "OpenCV tracker)")
-    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    p.add_argument("--markdown", action="store_true", help="print the tables as Markdown")
+    form = p.add_mutually_exclusive_group()  # --markdown with --json printed JSON alone, without a word
+    form.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    form.add_argument("--markdown", action="store_true", help="print the tables as Markdown")
     p.add_argument("--no-fps", action="store_true",
                    help="leave the frames/s out of the tables (for tables kept beside other measurements: speed "
                         "depends on the machine and its load; docs/performance.md measures it)")
