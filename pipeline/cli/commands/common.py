@@ -36,48 +36,38 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
     return vals
 
 
+def _at_least(text: str, kind: type, least: float, inclusive: bool) -> float:
+    """``text`` read as a finite ``kind`` (float or int) above ``least`` (or equal, with ``inclusive``),
+    or ``argparse.ArgumentTypeError`` saying what it must be (the argparse types below)."""
+    whole = kind is int
+    try:
+        v = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {'a whole number' if whole else 'a number'}, got {text!r}") from None
+    if not (np.isfinite(v) and (v >= least if inclusive else v > least)):
+        raise argparse.ArgumentTypeError(f"must be {'' if whole else 'a number '}{'>=' if inclusive else '>'} "
+                                         f"{least:g}, got {text.strip()}")
+    return v
+
+
 def positive_float(text: str) -> float:
     """A finite number > 0 (argparse type)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text}")
-    return v
+    return float(_at_least(text, float, 0, inclusive=False))
 
 
 def nonnegative_float(text: str) -> float:
     """A finite number >= 0 (argparse type)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (np.isfinite(v) and v >= 0):
-        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text}")
-    return v
+    return float(_at_least(text, float, 0, inclusive=True))
 
 
 def nonnegative_int(text: str) -> int:
     """A whole number >= 0 (argparse type)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
+    return int(_at_least(text, int, 0, inclusive=True))
 
 
 def positive_int(text: str) -> int:
     """A whole number >= 1 (argparse type)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
+    return int(_at_least(text, int, 1, inclusive=True))
 
 
 def check_outputs(**paths: str | None) -> None:
