@@ -89,14 +89,24 @@ def one_line_error(rc: int, err: str, *words: str) -> str:
     (["pub", "gflow/demo/_control", "Control", '{"command": "stop"}', "--seq", "-1"], ["--seq", ">= 0"]),
     (["view", "--port", "99999", "--duration", "0.5"], ["--port", "1-65535"]),
     (["benchmark", "{d}", "--json", "--markdown"], ["--markdown", "--json"]),
+    # the CSV was written over the recording at the end of the run; the points over the boxes
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "r.mcap", "--record", "r.mcap"],
+     ["--record r.mcap is also --out"]),
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "b.csv", "--points-out", "./b.csv", "--tracker",
+      "gflow"], ["--points-out ./b.csv is also --out"]),
+    # the model was written over a training frame
+    (["learn", "m2", "{d}/frames", "--metric", "l2", "-K", "2", "--out", "{d}/frames/0001.png", "-q"],
+     ["0001.png", "ends in .npz"]),
 ])
 def test_mistake_is_one_line_before_any_work(files: Path, tmp_path: Path, monkeypatch, capsys, argv: list[str],
                                              words: list[str]) -> None:
     (files / "gt.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n")
     monkeypatch.chdir(tmp_path)
+    frame = (files / "frames" / "0001.png").read_bytes()
     rc, err = cli([a.replace("{d}", str(files)) for a in argv], capsys)
     one_line_error(rc, err, *words)
     assert not list(tmp_path.iterdir()), "nothing is written before a mistake is found"
+    assert (files / "frames" / "0001.png").read_bytes() == frame
 
 
 @pytest.mark.parametrize("argv,option", [

@@ -16,7 +16,7 @@ from pipeline.app import place as place_stages
 from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
 
-__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "refuse_recording",
+__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "warn_if_torn"]
@@ -76,13 +76,27 @@ def check_outputs(**paths: str | None) -> None:
     ``check_outputs(out=args.out, record=args.record)``: each keyword names the option (an
     upper-case keyword, ``FIXED=...``, names a positional argument).
     """
+    from pathlib import Path
+
     from pipeline.runtime.preflight import check_writable
 
+    given: dict[Path, str] = {}  # two outputs on one file: the last one written would be all that is left
     for opt, path in paths.items():
         if path:
             name = opt if opt.isupper() else "--" + opt.replace("_", "-")
+            same = given.setdefault(Path(path).resolve(), name)
+            if same != name:
+                raise CliError(f"{name} {path} is also {same}: give each output a file of its own")
             refuse_recording(path, name)
             check_writable(path, name)
+
+
+def check_model_out(path: str) -> None:
+    """``gflow learn --out``: a new model file is named .npz (``gflow info`` and ``gflow track`` know it by
+    that); any other name, a training frame's say, would be written over with the model."""
+    check_outputs(out=path)
+    if not path.lower().endswith(".npz"):
+        raise CliError(f"--out {path}: a model file's name ends in .npz")
 
 
 def refuse_recording(path: str, option: str) -> None:

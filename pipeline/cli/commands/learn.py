@@ -256,9 +256,9 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
 
 
 def cmd_learn(args) -> int:
-    from pipeline.cli.commands.common import check_outputs
+    from pipeline.cli.commands.common import check_model_out
 
-    check_outputs(out=args.out)
+    check_model_out(args.out)
     from gflow_core.m2.learn import learn
 
     from pipeline.io.modelfile import save_model
