@@ -291,3 +291,13 @@ def test_damage_inside_a_recording_is_said(files: Path, tmp_path: Path) -> None:
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 0 and (tmp_path / "p.png").is_file(), r.stderr
     assert len(lines) == 1 and "bad.mcap: recording is damaged at byte" in lines[0], r.stderr
+
+
+def test_trax_checks_the_values_it_is_given(tmp_path: Path) -> None:
+    """gflow trax --set particles=abc started the TraX server, which ended in a traceback."""
+    if importlib.util.find_spec("trax") is None:
+        pytest.skip("gflow trax needs the vot-trax package")
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "trax", "--set", "particles=abc"],
+                       capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=tmp_path)
+    one_line_error(r.returncode, r.stderr, "--set particles=abc", "particles must be a whole number")
+    assert "@@TRAX" not in r.stdout, "refused before the server starts"

@@ -67,7 +67,26 @@ def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
     if spec is not None and spec.model_required and "model" not in out:
         raise CliError(f"--tracker {spec.name} needs --model MODEL.npz"
                        + (" (learn one with gflow learn m2)" if spec.name == "m2" else ""))
+    from pipeline.cli.commands.track import DEFAULT_TRACKER
+
+    _check_values(out, specs.get(args.tracker or DEFAULT_TRACKER))
     return out
+
+
+def _check_values(params: dict[str, Any], spec) -> None:
+    """The values of the tracker's parameters among ``params``, checked in gflow track's words (a
+    wrong type reached the tracker and ended the server with a traceback); other names are the
+    tracker's to refuse."""
+    from pipeline.runtime.tracker_block import block_values, tracker_fields
+
+    if spec is None:
+        return
+    mine = {k: v for k, v in params.items() if k in tracker_fields(spec.params)}
+    try:
+        block_values(spec.params, mine)
+    except ValueError as e:
+        how = " ".join(f"--set {k}={v}" for k, v in mine.items() if k in str(e)) or "--set"
+        raise CliError(f"{how}: {e}") from None
 
 
 def argv_of(args: argparse.Namespace) -> list[str]:
