@@ -31,7 +31,7 @@ from pipeline.runtime.transport import ZenohSettings, free_port
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> Path:
     """A folder with frames/ (six 64x48 textured frames), broken/ (the same, frame 3 not an
-    image) and demo.mcap (10 frames of the synthetic scene, inline)."""
+    image), demo.mcap (10 frames of the synthetic scene, inline) and dcf.mcap (gflow track of frames/)."""
     d = tmp_path_factory.mktemp("trust")
     rng = np.random.default_rng(0)
     for name in ("frames", "broken"):
@@ -40,6 +40,8 @@ def files(tmp_path_factory) -> Path:
             cv2.imwrite(str(d / name / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
     (d / "broken" / "0003.png").write_bytes(b"not a png")
     assert main(["demo", "--frames", "10", "--inline", "--record", str(d / "demo.mcap")]) == 0
+    assert main(["track", str(d / "frames"), "--init", "10,10,20,20", "--out", str(d / "dcf.csv"), "--inline", "-q",
+                 "--record", str(d / "dcf.mcap")]) == 0
     return d
 
 
@@ -258,6 +260,8 @@ def test_a_negative_value_is_explained(files: Path, capsys) -> None:
     (["export", "vot", "{d}", "ws", "--m2-model", "{d}/gt.csv"], ["--m2-model", "gt.csv"]),
     # it compared nothing, said nothing and exited 0
     (["rerun", "{d}/demo.mcap", "--stage", "source", "--check"], ["'source'", "no recorded inputs"]),
+    # named '--set tracker.NAME', not the value refused
+    (["rerun", "{d}/dcf.mcap", "--graph", "--set", "tracker.particles=0"], ["--set tracker.particles=0", ">= 1"]),
     # an empty file was also 'not closed properly', a warning line before the error
     (["track", "{d}/empty.mcap", "--init", "1,1,5,5", "--out", "b.csv"], ["empty.mcap", "not an MCAP file"]),
 ])
