@@ -258,8 +258,6 @@ def test_a_negative_value_is_explained(files: Path, capsys) -> None:
       "filter.init=[1,1,9,9]", "--set", "proposal.init=[1,1,9,9]"], ["frame 3 cannot be read"]),
     # a file that is not a model went into trackers.ini and failed when the toolkit ran it
     (["export", "vot", "{d}", "ws", "--m2-model", "{d}/gt.csv"], ["--m2-model", "gt.csv"]),
-    # it compared nothing, said nothing and exited 0
-    (["rerun", "{d}/demo.mcap", "--stage", "source", "--check"], ["'source'", "no recorded inputs"]),
     # named '--set tracker.NAME', not the value refused
     (["rerun", "{d}/dcf.mcap", "--graph", "--set", "tracker.particles=0"], ["--set tracker.particles=0", ">= 1"]),
     # an empty file was also 'not closed properly', a warning line before the error

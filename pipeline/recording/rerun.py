@@ -156,9 +156,6 @@ def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = N
     sp = plan.stages[stage]
     if sp.kind == "recorder":
         raise GraphError("the recorder has no outputs to re-run")
-    if sp.is_source():  # it compared nothing and said nothing, with exit status 0
-        raise GraphError(f"stage {stage!r} is the source: it has no recorded inputs to re-run it from "
-                         f"(--graph re-runs every stage from its recorded frames)")
     if sets:
         apply_sets(plan, stage, sets)
     outputs: list[tuple[str, int, bytes]] = []
