@@ -12,6 +12,25 @@ from pipeline.app.request import RequestError
 
 __all__ = ["RecordingTarget", "temporary_recording"]
 
+def _refuse_unmatched(plan: Plan, patterns: list[str]) -> None:
+    """Refuse a ``--record-topics`` pattern that names no topic of the run (a mistyped name would
+    otherwise keep only the errors and heartbeats, and say so only when the recording is read)."""
+    import fnmatch
+
+    full = {plan.error_topic, plan.control_topic}
+    for name, sp in plan.stages.items():
+        full |= {*sp.outputs.values(), plan.snapshot_topic(name), plan.status_topic(name)}
+    from pipeline.runtime.live_plan import SKIPPED_TOPIC, live_source
+
+    names = sorted(t.split("/", 2)[2] for t in full if t.count("/") >= 2) + ["captures"]
+    if live_source(plan) is not None:
+        names.append(SKIPPED_TOPIC)  # the frames a live source skips: published when it is recorded
+    for pat in patterns:
+        if not any(fnmatch.fnmatchcase(n, pat) for n in names):
+            raise RequestError(f"--record-topics: {pat!r} names no topic of the run (its topics: "
+                               f"{', '.join(n for n in names if not n.startswith('_'))})")
+
+
 # -- where a run records --------------------------------------------------------------------------
 
 
@@ -51,6 +70,7 @@ class RecordingTarget:
             rec.params["topics"] = list(needed)
             return
         if pats:
+            _refuse_unmatched(plan, pats)
             rec.params["topics"] = pats + [t for t in needed if t not in pats]
         self.path = record or default
         from pipeline.io.recording_files import refuse_existing

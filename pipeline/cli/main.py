@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 
 from pipeline.runtime.zygote import start_early
@@ -29,6 +30,7 @@ if sys.argv and sys.argv[0].endswith(("gflow", "pipeline/cli/__main__.py", "pipe
 
 import argparse  # noqa: E402
 import logging  # noqa: E402
+import re  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
 from pipeline.cli.commands import command_modules  # noqa: E402
@@ -60,6 +62,9 @@ class _Parser(argparse.ArgumentParser):
     """argparse, with a usage mistake reported in one line (the usage is one --help away)."""
 
     def error(self, message: str) -> NoReturn:
+        m = re.fullmatch(r"argument (--[\w-]+)(?:/-\w)?: expected one argument", message)
+        if m:  # argparse takes a value such as -5,50,20,30 for an option, and says nothing of why
+            message += f" (a value that starts with '-' is written {m.group(1)}=VALUE, e.g. {m.group(1)}=-5,...)"
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
@@ -92,6 +97,9 @@ def main(argv: list[str] | None = None) -> int:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote
         print(f"gflow {args.command}: error: {msg}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # the reader of the output has gone (gflow info r.mcap | head): not an error to report
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit's flush of stdout is quiet
+        return 141  # as a shell reports a command ended by SIGPIPE
     except OSError as e:  # a file that cannot be read or written: name it, no traceback
         where = f"{e.filename}: " if e.filename else ""
         print(f"gflow {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)

@@ -16,11 +16,14 @@ def csv_rows(path: str | Path, columns: str, what: str):
         raise FileNotFoundError(f"{what} file not found: {p}")
     n = columns.count(",") + 1
     with open(p, newline="") as f:
-        for lineno, row in enumerate(csv.reader(f), start=1):
-            if not row or not "".join(row).strip():
-                continue
-            if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
-                continue  # header
-            if len(row) < n:
-                raise ValueError(f"{p}:{lineno}: expected {columns}, got {len(row)} column(s)")
-            yield lineno, row
+        try:
+            for lineno, row in enumerate(csv.reader(f), start=1):
+                if not row or not "".join(row).strip():
+                    continue
+                if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
+                    continue  # header
+                if len(row) < n:
+                    raise ValueError(f"{p}:{lineno}: expected {columns}, got {len(row)} column(s)")
+                yield lineno, row
+        except (UnicodeDecodeError, csv.Error) as e:  # a recording or picture given for a CSV
+            raise ValueError(f"{p}: not a {what} CSV file ({columns} as text): {e}") from None

@@ -12,6 +12,7 @@ recording's segments after it, as one recording (:func:`segments`).
 from __future__ import annotations
 
 import json
+import logging
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,6 +34,19 @@ class TruncatedRecording(Exception):
 class Damaged(str):
     """What ``on_truncated`` is told when a record fails to read with more of the file after it
     (corrupt, e.g. two writers on one file), rather than at a torn end."""
+
+
+#: the damaged recordings already said (once per process, however often a command reads one)
+_DAMAGE_SAID: set[str] = set()
+
+
+def _say_damage(text: str) -> None:
+    """Warn, once per file, of damage inside a recording that a reader without ``on_truncated`` met:
+    what such a command shows or computes stops there, and the file's end (which the commands'
+    check for a torn file looks at) is intact, so nothing else would say it."""
+    if text not in _DAMAGE_SAID:
+        _DAMAGE_SAID.add(text)
+        logging.getLogger("gflow.recording").warning("%s", text)
 
 
 # What reading a torn or corrupt file raises: the mcap reader's own errors, struct's (a file torn
@@ -141,6 +155,8 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
                 raise TruncatedRecording(text) from None
             if on_truncated is not None:
                 on_truncated(text)
+            elif isinstance(text, Damaged):
+                _say_damage(text)
 
 
 def recorded_topics(path: str | Path) -> list[str]:

@@ -87,7 +87,7 @@ def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
 
     where = f"--set for stage {stage!r}"
     if stage == TRACKER_KEY:
-        where = "--set tracker.NAME"
+        where = " ".join(f"--set tracker.{k}={v}" for k, v in sets.items()) or "--set tracker.NAME"
         if plan.tracker is None:
             copies = [n for n, s in plan.stages.items() if s.kind in STAGES and stage_tracker(STAGES[s.kind].Params)]
             if not copies:

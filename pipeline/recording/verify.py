@@ -8,8 +8,9 @@
 * the data-section CRC (where the file has one), checked by the reader at the data end;
 * every channel's schema and every message's channel are defined before they are used;
 * every message decodes with the msgspec type of its schema (``gflow.Frame`` ->
-  :class:`gflow_msgs.messages.Frame`, the Foxglove JSON schemas -> their types); a schema gflow does
-  not know is not decoded;
+  :class:`gflow_msgs.messages.Frame`, the Foxglove JSON schemas -> their types); a protobuf schema
+  (a ``gflow foxglove`` copy) is decoded with its own FileDescriptorSet where google.protobuf is
+  installed; a schema gflow does not know is not decoded;
 * the message indexes after each chunk count that chunk's messages per channel;
 * the summary: its CRC, the footer's summary offset, the statistics (counts and times), the
   chunk indexes (offset, length, sizes, times of every chunk, and no other) and the metadata
@@ -86,10 +87,36 @@ class _ChunkSeen:
     per_channel: dict[int, int]
 
 
+def _protobuf_decoder(schema: Schema) -> Callable[[bytes], Any] | None:
+    """A callable that parses a protobuf payload of ``schema`` (its data a FileDescriptorSet, as
+    ``gflow foxglove`` writes them); None without google.protobuf (then it is not decoded)."""
+    try:
+        from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+        from google.protobuf.message import DecodeError
+    except ImportError:
+        return None
+    try:
+        pool = descriptor_pool.DescriptorPool()
+        for f in descriptor_pb2.FileDescriptorSet.FromString(schema.data).file:
+            pool.Add(f)
+        cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(schema.name))
+    except (DecodeError, KeyError, TypeError) as e:
+        raise _Fault(f"schema {schema.id} ({schema.name}): not a protobuf FileDescriptorSet of it ({e})") from None
+
+    def check(data: bytes) -> Any:
+        try:
+            return cls.FromString(data)
+        except DecodeError as e:
+            raise MessageError(f"not a protobuf {schema.name}: {e}") from None
+    return check
+
+
 def _message_decoder(schema: Schema | None) -> Callable[[bytes], Any] | None:
     """A callable that decodes (and so checks) a payload of ``schema``; None when gflow does not know it."""
     if schema is None:
         return None
+    if schema.encoding == "protobuf":  # a Foxglove well-known schema as gflow foxglove writes it
+        return _protobuf_decoder(schema)
     name = schema.name
     if name.startswith(SCHEMA_PREFIX) and name[len(SCHEMA_PREFIX):] in MESSAGE_TYPES:
         typ = MESSAGE_TYPES[name[len(SCHEMA_PREFIX):]]

@@ -11,7 +11,7 @@ from stages.registry import get_stage_class
 
 from pipeline.runtime.graph import GraphError, Plan, StagePlan
 
-__all__ = ["make_stage", "apply_defaults"]
+__all__ = ["make_stage", "apply_defaults", "needs_initial_box", "missing_initial_box"]
 
 
 def load_resources(plan: Plan, sp: StagePlan) -> dict[str, Any]:
@@ -45,11 +45,46 @@ def make_stage(plan: Plan, name: str) -> Stage:
                                     frame_period_ns=frame_period_ns(plan)))
 
 
+def needs_initial_box(cls: type[Stage]) -> bool:
+    """Whether a stage of class ``cls`` cannot track without its initial box ``init``: a G-flow
+    stage (the model is placed in it), a box filter that says so (``needs_init``; a patch model's
+    may crop the whole frame) and a box proposal whose random walk is relative to the box's size
+    (one that overrides ``_clouds`` draws without it)."""
+    import sys
+
+    gflow, box = sys.modules.get("stages.gflow_common"), sys.modules.get("stages.box_tracker")  # loaded with cls
+    if gflow is not None and issubclass(cls, gflow.GFlowStage):
+        return True
+    if box is not None and issubclass(cls, box.BoxFilterStage):
+        return bool(getattr(cls, "needs_init"))
+    if box is not None and issubclass(cls, box.BoxProposalStage):
+        return getattr(cls, "_clouds") is box.BoxProposalStage._clouds
+    return False
+
+
+def missing_initial_box(plan: Plan, names) -> str | None:
+    """The one message for stages of ``names`` that need an initial box and have none (None: all
+    have theirs), naming every such stage and how to give the box."""
+    names = set(names)
+    lacking = [n for n in plan.stages if n in names and not (plan.stages[n].kind == "recorder" or plan.stages[n].is_source())
+               and plan.stage_params(n).get("init") is None and needs_initial_box(get_stage_class(plan.stages[n].kind))]
+    if not lacking:
+        return None
+    which = " and ".join(f"{n!r} ({plan.stages[n].kind})" for n in lacking)
+    sets = " ".join(f"--set {n}.init=[X,Y,W,H]" for n in lacking)
+    return (f"stage{'s' if len(lacking) > 1 else ''} {which} need{'' if len(lacking) > 1 else 's'} an initial box: "
+            f"set init: [x, y, w, h] in the graph (on the command line: {sets}; gflow track: --init X,Y,W,H)")
+
+
 def check_stages(plan: Plan, names) -> None:
     """Build each stage of ``names`` (not the source, not the recorder) once, here, so a stage that
     cannot start (a filter without its initial box, a missing model) is a :class:`GraphError`
     naming it before any process starts or any recording is made. Building a stage is cheap: its
-    parameters and resources, no frame."""
+    parameters and resources, no frame. Stages without the initial box they need are named
+    together first, in one line (:func:`missing_initial_box`)."""
+    lacking = missing_initial_box(plan, names)
+    if lacking:
+        raise GraphError(lacking)
     for name in names:
         sp = plan.stages[name]
         if sp.kind == "recorder" or sp.is_source():

@@ -16,8 +16,14 @@ from __future__ import annotations
 import logging
 import queue
 import sys
+import threading
 import time
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+import msgspec
+
+from pipeline.runtime.checkpoint import Checkpoint, read_checkpoint, write_checkpoint
 
 from pipeline.runtime.graph import RecorderParams, recorded_topic_filter
 from pipeline.runtime.inbox import BoundedInbox
@@ -42,6 +48,12 @@ class RecorderNode(NodeBase):
         self.recorder: McapRecorder | None = None
         self.ended: set[str] = set()  # topics whose end of stream it has recorded, for its heartbeat
         self.keep = recorded_topic_filter(self.sp.params, self.plan.stream)  # the recorder's topics (--record-topics)
+        # a restarted recorder's count goes on from what the one before it reported (Checkpoint.steps)
+        state_dir = node_plan.state_dir
+        self.checkpoint_path = (Path(state_dir) / f"{self.name}.ckpt"
+                                if state_dir and self.sp.restart == "on-failure" else None)
+        self.earlier = self._earlier_messages()
+        self._checkpoint_lock = threading.Lock()  # heartbeats come from two threads
 
     def make_inbox(self) -> queue.SimpleQueue | BoundedInbox:
         return BoundedInbox(RECORDER_INBOX_BYTES)
@@ -53,8 +65,26 @@ class RecorderNode(NodeBase):
         if self.keep(key):  # with the publisher's session: the results leave out what came from outside the run
             self.inbox.put((key, payload, pub_ns, seq, type_name, source))
 
+    def _earlier_messages(self) -> int:
+        """The messages the recorders before this one (a restart's earlier segments) had reported."""
+        path = self.checkpoint_path
+        if path is None or not self.restarts or not path.is_file():
+            return 0
+        try:
+            return read_checkpoint(path).steps
+        except (OSError, msgspec.DecodeError) as e:
+            log.warning("[%s] checkpoint %s unusable (%s); counting messages from 0", self.name, path, e)
+            return 0
+
     def report(self) -> dict[str, Any]:
-        return {"steps": self.recorder.messages if self.recorder is not None else 0, "ended": tuple(sorted(self.ended))}
+        steps = self.earlier + (self.recorder.messages if self.recorder is not None else 0)
+        if self.checkpoint_path is not None and steps > self.earlier:  # what a restart goes on from: what was said
+            try:
+                with self._checkpoint_lock:
+                    write_checkpoint(self.checkpoint_path, Checkpoint(seq=-1, data=None, max_out={}, steps=steps))
+            except OSError as e:  # the run's folder gone at the very end: the count is only for a restart
+                log.debug("[%s] checkpoint not written: %s", self.name, e)
+        return {"steps": steps, "ended": tuple(sorted(self.ended))}
 
     def finishing(self) -> bool:
         rec = self.recorder

@@ -39,12 +39,12 @@ def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
 def cmd_learn_gflow(args) -> int:
     from gflow_core.gflow.morphable_learn import learn_morphable
 
-    from pipeline.cli.commands.common import check_outputs
+    from pipeline.cli.commands.common import check_model_out
     from pipeline.io.datasets import parse_range
     from pipeline.io.landmarks import read_landmarks, resolve_landmarks
     from pipeline.io.modelfile import save_model
 
-    check_outputs(out=args.out)
+    check_model_out(args.out)
     if args.k < 1:
         raise CliError(f"-k must be a positive number of morph bases, got {args.k}")
     n_vertices = None if args.vertices in ("all", "0") else _positive_int(args.vertices)

@@ -109,6 +109,9 @@ def _planned(args, seq, name: str, start: int, stop: int | None, folder: Path):
 
     if spec_of(name).model_required and not model_given(args, name):
         return f"skipped: needs {model_options()[name]} MODEL.npz"
+    if (folder / f"{name}.mcap").exists():  # an error, not a skipped run: every run of an --out-dir used before
+        raise CliError(f"--out-dir {args.out_dir}: {folder / f'{name}.mcap'} exists (an earlier run's); a recording "
+                       f"is never overwritten: give a new folder")
     out, request = _request(args, seq, name, start, stop, folder)
     try:
         return out, request_plan(request, out)
@@ -382,8 +385,9 @@ def register(sub) -> None:
     p.add_argument("--opencv", metavar="NAME,...",
                    help="also run OpenCV trackers (csrt, kcf, mil, ...) where this OpenCV has them (none: no "
                         "OpenCV tracker)")
-    p.add_argument("--json", action="store_true", help="print JSON instead of the table")
-    p.add_argument("--markdown", action="store_true", help="print the tables as Markdown")
+    form = p.add_mutually_exclusive_group()  # --markdown with --json printed JSON alone, without a word
+    form.add_argument("--json", action="store_true", help="print JSON instead of the table")
+    form.add_argument("--markdown", action="store_true", help="print the tables as Markdown")
     p.add_argument("--no-fps", action="store_true",
                    help="leave the frames/s out of the tables (for tables kept beside other measurements: speed "
                         "depends on the machine and its load; docs/performance.md measures it)")

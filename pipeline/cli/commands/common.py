@@ -16,7 +16,7 @@ from pipeline.app import place as place_stages
 from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
 
-__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "check_outputs",
+__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "warn_if_torn"]
@@ -36,26 +36,38 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
     return vals
 
 
+def _at_least(text: str, kind: type, least: float, inclusive: bool) -> float:
+    """``text`` read as a finite ``kind`` (float or int) above ``least`` (or equal, with ``inclusive``),
+    or ``argparse.ArgumentTypeError`` saying what it must be (the argparse types below)."""
+    whole = kind is int
+    try:
+        v = kind(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected {'a whole number' if whole else 'a number'}, got {text!r}") from None
+    if not (np.isfinite(v) and (v >= least if inclusive else v > least)):
+        raise argparse.ArgumentTypeError(f"must be {'' if whole else 'a number '}{'>=' if inclusive else '>'} "
+                                         f"{least:g}, got {text.strip()}")
+    return v
+
+
 def positive_float(text: str) -> float:
     """A finite number > 0 (argparse type)."""
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not (np.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"must be a number > 0, got {text}")
-    return v
+    return float(_at_least(text, float, 0, inclusive=False))
+
+
+def nonnegative_float(text: str) -> float:
+    """A finite number >= 0 (argparse type)."""
+    return float(_at_least(text, float, 0, inclusive=True))
 
 
 def nonnegative_int(text: str) -> int:
     """A whole number >= 0 (argparse type)."""
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
+    return int(_at_least(text, int, 0, inclusive=True))
+
+
+def positive_int(text: str) -> int:
+    """A whole number >= 1 (argparse type)."""
+    return int(_at_least(text, int, 1, inclusive=True))
 
 
 def check_outputs(**paths: str | None) -> None:
@@ -64,11 +76,39 @@ def check_outputs(**paths: str | None) -> None:
     ``check_outputs(out=args.out, record=args.record)``: each keyword names the option (an
     upper-case keyword, ``FIXED=...``, names a positional argument).
     """
+    from pathlib import Path
+
     from pipeline.runtime.preflight import check_writable
 
+    given: dict[Path, str] = {}  # two outputs on one file: the last one written would be all that is left
     for opt, path in paths.items():
         if path:
-            check_writable(path, opt if opt.isupper() else "--" + opt.replace("_", "-"))
+            name = opt if opt.isupper() else "--" + opt.replace("_", "-")
+            same = given.setdefault(Path(path).resolve(), name)
+            if same != name:
+                raise CliError(f"{name} {path} is also {same}: give each output a file of its own")
+            refuse_recording(path, name)
+            check_writable(path, name)
+
+
+def check_model_out(path: str) -> None:
+    """``gflow learn --out``: a new model file is named .npz (``gflow info`` and ``gflow track`` know it by
+    that); any other name, a training frame's say, would be written over with the model."""
+    check_outputs(out=path)
+    if not path.lower().endswith(".npz"):
+        raise CliError(f"--out {path}: a model file's name ends in .npz")
+
+
+def refuse_recording(path: str, option: str) -> None:
+    """Refuse to write over a recording: ``path`` is an existing file that begins as an MCAP file
+    does (whatever its name), so a CSV, model or picture written there would destroy it."""
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(_MCAP_MAGIC))
+    except OSError:
+        return  # no such file (or not readable: check_writable names it)
+    if head == _MCAP_MAGIC:
+        raise CliError(f"{option} {path} is a recording; gflow never writes over one: give another name")
 
 
 def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:
@@ -197,6 +237,8 @@ def warn_if_torn(path: str) -> bool:
     for seg in segments(path):
         try:
             with open(seg, "rb") as f:
+                if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+                    continue  # not an MCAP file at all: the command that reads it says so, in one line
                 size = f.seek(0, 2)
                 f.seek(max(0, size - len(_MCAP_MAGIC)))
                 closed = f.read() == _MCAP_MAGIC and size > 2 * len(_MCAP_MAGIC)

@@ -22,7 +22,9 @@ def cmd_demo(args) -> int:
     check_outputs(record=args.record)
     overrides = {"source": {"frames": args.frames}, "filter": {"particles": args.particles, "seed": args.seed},
                  "proposal": {"seed": args.seed}}
-    check_stage_values("demo", {f"--particles {args.particles}": ("filter", "particles", args.particles)}, overrides)
+    check_stage_values("demo", {f"--particles {args.particles}": ("filter", "particles", args.particles),
+                                f"--seed {args.seed}": ("filter", "seed", args.seed)},
+                       {k: v for k, v in overrides.items() if k != "filter"})  # each value named by its own option
     plan = apply_defaults(load_graph("demo", overrides=overrides))
     recording = Recording(plan, args, None, needed=("estimate",))  # named with the run id when it starts
     print(f"gflow demo: synthetic scene, {args.frames} frames, {args.particles} particles, "
@@ -69,7 +71,7 @@ def register(sub) -> None:
                                    "recordings/demo-*.mcap, and prints the tracking error and throughput.")
     p.add_argument("--frames", type=int, default=120, help="number of frames (default 120)")
     p.add_argument("--particles", type=int, default=500, help="number of particles (default 500)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the filter and proposal stages")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the filter and proposal stages (default 0)")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     add_record_args(p, "recordings/demo-TIME-RUNID.mcap")
     add_placement_args(p, hosts=False)

@@ -4,9 +4,21 @@ from __future__ import annotations
 
 ORDER = 30
 
+import argparse
 import json
 
 from pipeline.cli.commands.common import CliError
+
+
+def overlap_threshold(text: str) -> float:
+    """An overlap (IoU) threshold, a number in [0, 1] (argparse type)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1], got {text!r}") from None
+    if not 0.0 <= v <= 1.0:  # NaN fails this too
+        raise argparse.ArgumentTypeError(f"an overlap is in [0, 1], got {text}")
+    return v
 
 
 def _frame_range(text: str) -> tuple[int, int | None]:
@@ -142,6 +154,6 @@ def register(sub) -> None:
     p.add_argument("--frames", metavar="A:B",
                    help="score only frames A <= frame < B (e.g. 150: after a run with --start 150); by default every "
                         "ground-truth frame counts and a frame with no prediction is a failure")
-    p.add_argument("--threshold", type=float, default=0.5, help="overlap (IoU) threshold of the success rate (default 0.5)")
+    p.add_argument("--threshold", type=overlap_threshold, default=0.5, help="overlap (IoU) threshold of the success rate (default 0.5)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_eval)

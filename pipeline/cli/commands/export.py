@@ -26,6 +26,21 @@ def _check_out(out: Path) -> None:
         raise CliError(f"folder {out.parent} does not exist")
 
 
+def _read_models(args) -> None:
+    """Read each model file given, as the served tracker will: a file that is not a model was written
+    into trackers.ini and found only when the toolkit ran it."""
+    from pipeline.cli.commands.benchmark import model_given, model_options
+    from pipeline.io.modelfile import load_model
+
+    for name, opt in model_options().items():
+        model = model_given(args, name)
+        if model and Path(model).is_file():
+            try:
+                load_model(model)
+            except ValueError as e:
+                raise CliError(f"{opt}: {e}") from None
+
+
 def served_trackers(args) -> dict[str, list[str]]:
     """{tracker: its ``gflow trax`` options} of trackers.ini: every registered tracker, dcf (the
     default) first; one that needs a model only when ``--NAME-model`` gives it one, which a tracker
@@ -55,6 +70,7 @@ def cmd_export_vot(args) -> int:
     from pipeline.cli.commands.benchmark import check_models
 
     check_models(args)
+    _read_models(args)
     seqs, notes = find_sequences([args.data])
     if args.sequences:
         want = [n.strip() for n in args.sequences.split(",") if n.strip()]

@@ -4,11 +4,23 @@ from __future__ import annotations
 
 ORDER = 59
 
+import argparse
 import os
 import sys
 from pathlib import Path
 
 from pipeline.cli.commands.common import CliError, check_outputs
+
+
+def jpeg_quality(text: str) -> int:
+    """A JPEG quality, a whole number 1-100 (argparse type)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number 1-100, got {text!r}") from None
+    if not 1 <= v <= 100:
+        raise argparse.ArgumentTypeError(f"must be 1-100, got {v}")
+    return v
 
 
 def cmd_foxglove(args) -> int:
@@ -61,5 +73,5 @@ def register(sub) -> None:
     p.add_argument("--topics", nargs="+", metavar="TOPIC",
                    help="copy only these topics: the name in the stream (frames estimate), the full name with or "
                         "without the run id, or a shell pattern")
-    p.add_argument("--quality", type=int, default=90, help="JPEG quality 1-100 (default 90)")
+    p.add_argument("--quality", type=jpeg_quality, default=90, help="JPEG quality 1-100 (default 90)")
     p.set_defaults(func=cmd_foxglove)

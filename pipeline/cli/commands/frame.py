@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Literal
 
-from pipeline.cli.commands.common import CliError, check_outputs
+from pipeline.cli.commands.common import CliError, check_outputs, positive_int
 
 
 def grid_picture(img, step: int, scale: int):
@@ -50,6 +50,9 @@ def cmd_frame(args) -> int:
     from pipeline.runtime.preflight import PreflightError, first_frame
 
     check_outputs(OUT=args.out)
+    if not cv2.haveImageWriter(args.out):
+        raise CliError(f"{args.out}: OpenCV cannot write {Path(args.out).suffix or 'files without an extension'!r} "
+                       f"pictures (give a .png or .jpg)")
     p = Path(args.source)
     kind: Literal["folder", "video", "mcap"]
     if p.is_dir():
@@ -90,6 +93,6 @@ def register(sub) -> None:
     p.add_argument("source", help="image folder (or dataset folder with frames/), video file or .mcap recording")
     p.add_argument("index", type=int, help="frame index (0 = the first)")
     p.add_argument("out", help="picture to write (.png or .jpg)")
-    p.add_argument("--grid", type=int, metavar="PX", help="grid spacing in source pixels (default by image size)")
-    p.add_argument("--scale", type=int, help="magnification (default 3 for small images, 2, or 1 for large)")
+    p.add_argument("--grid", type=positive_int, metavar="PX", help="grid spacing in source pixels (default by image size)")
+    p.add_argument("--scale", type=positive_int, help="magnification (default 3 for small images, 2, or 1 for large)")
     p.set_defaults(func=cmd_frame)

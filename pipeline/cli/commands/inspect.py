@@ -15,7 +15,8 @@ import sys
 import time
 from typing import Any, cast
 
-from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, stream_of, tool_zenoh
+from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_int, positive_float, positive_int,
+                                          stream_of, tool_zenoh)
 
 
 def _run_stream(stream: str) -> str:
@@ -294,7 +295,7 @@ def register(sub) -> None:
                               "--timeout 2", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("topic", help="the name in the stream (estimate), the full name with or without the run id "
                                  "(gflow/cam0/estimate), or a pattern (cam0/**, _status/*)")
-    p.add_argument("-n", "--count", type=int, help="stop after N messages")
+    p.add_argument("-n", "--count", type=positive_int, help="stop after N messages")
     p.add_argument("--timeout", type=positive_float, help="stop after this many seconds")
     p.add_argument("--json", action="store_true", help="one JSON object per message (small arrays as lists)")
     add_zenoh_args(p)
@@ -323,8 +324,8 @@ def register(sub) -> None:
     p.add_argument("topic", help="topic, e.g. gflow/cam0/_control")
     p.add_argument("type", help="message type, e.g. Control, Estimate")
     p.add_argument("fields", nargs="?", help="JSON object of the message's fields (default {})")
-    p.add_argument("--seq", type=int, default=0, help="header sequence number (default 0)")
-    p.add_argument("-n", "--count", type=int, default=1, help="how many times to publish (default 1)")
+    p.add_argument("--seq", type=nonnegative_int, default=0, help="header sequence number (default 0)")
+    p.add_argument("-n", "--count", type=positive_int, default=1, help="how many times to publish (default 1)")
     p.add_argument("--rate", type=positive_float, default=1.0, help="messages per second with -n > 1 (default 1)")
     p.add_argument("--wait", type=positive_float, default=5.0, help="seconds to wait for a subscriber (default 5)")
     add_zenoh_args(p)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, nonnegative_float, positive_float
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -191,8 +191,8 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
         if args.reps or args.letters:
             raise CliError("--reps and --letters select AVLetters utterances; the source is not an .npz file")
         seq = read_frames(path, start, stop)
-        for i, why in seq.skipped:
-            _log(args, f"  warning: frame {i} skipped: {why}")
+        for i, why in seq.skipped:  # damaged input is said even with -q (which silences progress)
+            print(f"warning: frame {i} skipped: {why}", file=sys.stderr, flush=True)
     meta["frames"] = f"{int(seq.frame_index[0])}:{int(seq.frame_index[-1]) + 1}"
     meta["frame_size"] = f"{seq.frames[0].shape[1]}x{seq.frames[0].shape[0]}"  # checked by track (crop: frame)
     n = len(seq)
@@ -256,9 +256,9 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
 
 
 def cmd_learn(args) -> int:
-    from pipeline.cli.commands.common import check_outputs
+    from pipeline.cli.commands.common import check_model_out
 
-    check_outputs(out=args.out)
+    check_model_out(args.out)
     from gflow_core.m2.learn import learn
 
     from pipeline.io.modelfile import save_model
@@ -338,14 +338,14 @@ def register(sub) -> None:
     canny = f"{edge.CANNY_LOW:g},{edge.CANNY_HIGH:g}"
     g.add_argument("--canny", default=canny, metavar="LOW,HIGH", help=f"Canny thresholds (default {canny}); "
                    "gflow track --tracker m2 uses the same")
-    g.add_argument("--blur", type=float, default=edge.BLUR,
+    g.add_argument("--blur", type=nonnegative_float, default=edge.BLUR,
                    help=f"Gaussian blur before Canny, pixels (default {edge.BLUR:g})")
     g.add_argument("--profile", choices=["quadratic", "truncated"], default=edge.PROFILE,
                    help=f"chamfer profile g(u): u^2 (quadratic) or min(u^2, g0) (truncated; eq. 4; default "
                         f"{edge.PROFILE})")
-    g.add_argument("--g0", type=float, default=edge.G0,
+    g.add_argument("--g0", type=positive_float, default=edge.G0,
                    help=f"truncation level of the truncated profile, px^2 (default {edge.G0:g})")
-    g.add_argument("--threshold", type=float, default=30.0, help="background subtraction threshold, grey levels (default 30)")
+    g.add_argument("--threshold", type=nonnegative_float, default=30.0, help="background subtraction threshold, grey levels (default 30)")
     g.add_argument("--background-frames", metavar="A:B",
                    help="frames whose per-pixel median is the background (default: the training frames; a target "
                         "that barely moves in them is part of that median)")

@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError, add_zenoh_args, nonnegative_int, positive_float, tool_zenoh
+from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_float, nonnegative_int, positive_float,
+                                          tool_zenoh)
 
 # file suffix -> callable(path, as_json) printing a description; other modules add to it
 DESCRIBERS: dict = {}
@@ -162,14 +163,14 @@ def register(sub) -> None:
                         "run id (gflow/cam0/frames), or a shell pattern (gflow/*/estimate)")
     p.add_argument("--from-seq", type=nonnegative_int, metavar="SEQ", help="first frame to replay")
     p.add_argument("--to-seq", type=nonnegative_int, metavar="SEQ", help="stop before this frame")
-    p.add_argument("--start", type=float, metavar="S", help="start this many seconds into the recording")
-    p.add_argument("--end", type=float, metavar="S", help="stop this many seconds into the recording")
+    p.add_argument("--start", type=nonnegative_float, metavar="S", help="start this many seconds into the recording")
+    p.add_argument("--end", type=nonnegative_float, metavar="S", help="stop this many seconds into the recording")
     p.add_argument("--loop", type=nonnegative_int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
     p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
                    help="before each new frame, wait until these live stages acknowledge the previous one")
     p.add_argument("--stream", metavar="NAME",
                    help="publish on gflow/NAME/... instead of the recorded stream (a stream a running pipeline holds "
                         "is refused unless named here or fed with --lockstep)")
-    p.add_argument("--ack-timeout", type=float, default=10.0, help="with --lockstep: seconds to wait for a stage to acknowledge a frame (default 10)")
+    p.add_argument("--ack-timeout", type=positive_float, default=10.0, help="with --lockstep: seconds to wait for a stage to acknowledge a frame (default 10)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_replay)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, positive_float, positive_int
 
 ORDER = 58
 
@@ -103,8 +103,8 @@ def register(sub) -> None:
     p.add_argument("file", help="MCAP recording")
     p.add_argument("out", help="OUT.mp4 / OUT.avi for a video, or a folder for PNG frames")
     p.add_argument("--frames", metavar="A:B", help="only frames A..B-1")
-    p.add_argument("--scale", type=int, default=2, help="upscale factor (default 2)")
-    p.add_argument("--fps", type=float, default=25.0, help="video frame rate (default 25)")
+    p.add_argument("--scale", type=positive_int, default=2, help="upscale factor (default 2)")
+    p.add_argument("--fps", type=positive_float, default=25.0, help="video frame rate (default 25)")
     p.add_argument("--no-particles", dest="particles", action="store_false", help="do not draw the particles")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_render)

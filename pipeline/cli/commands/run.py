@@ -22,6 +22,7 @@ def cmd_run(args) -> int:
     held = plan.recorder()
     local = local_stages(plan, args.hosts)  # an unknown --host label is the first thing to say
     check_stages(plan, local)  # a stage that cannot start (no initial box, say): before any process or recording
+    _check_initial_boxes(plan, local)
     if args.record and args.hosts and held is not None and held.host not in args.hosts:
         raise CliError(f"--record: the recorder runs on host {held.host}, not on {', '.join(args.hosts)}; "
                        f"give --record to the command of host {held.host}")
@@ -40,6 +41,31 @@ def cmd_run(args) -> int:
         rec = f"on host {held.host}"
     print(f"{plan.name}{hosts}: {frames} frames in {secs:.2f} s; stream {plan.stream}; recording: {rec}")
     return 130 if info.get("interrupted") else 0
+
+
+def _check_initial_boxes(plan, local) -> None:
+    """The initial boxes of the stages run here against the first frame of a source run here that
+    is not live (a folder, a video, a recording, the synthetic scene), as gflow track checks
+    --init, before any process starts: a box outside the frame ran, warned on every frame and exited 0.
+    A live source's stage checks them when it opens the stream."""
+    import msgspec
+    from stages.source import SourceParams
+
+    from pipeline.runtime.preflight import check_box_in_image, first_frame
+
+    src = next((s for s in plan.stages.values() if s.is_source()), None)
+    if src is None or src.name not in local:
+        return
+    params = msgspec.convert(src.params, SourceParams)
+    boxes = {n: plan.stage_params(n).get("init") for n in local if n != src.name and plan.stages[n].kind != "recorder"}
+    boxes = {n: b for n, b in boxes.items() if b is not None and len(b) == 4}
+    if params.host_clock or not boxes:
+        return
+    frame = first_frame(params, plan.base_dir)
+    assert frame.image is not None  # first_frame refuses a frame without an image
+    h, w = frame.image.shape[:2]
+    for name, box in boxes.items():
+        check_box_in_image(box, w, h, what=f"stage {name!r} init:")
 
 
 def register(sub) -> None:

@@ -169,6 +169,10 @@ def request_plan(request: TrackRequest, out: str) -> TrackPlan:
     return _planned(dataclasses.replace(request, params=tracker_params(options)))
 
 
+#: the tracker of gflow track (and of gflow trax, gflow.Tracker) without --tracker
+DEFAULT_TRACKER = "dcf"
+
+
 def option_defaults() -> dict[str, object]:
     """{dest: default} of every tracker's ``gflow track`` options."""
     return {dest: default for opts in registered_options().values() for dest, (_, default) in opts.items()}
@@ -245,7 +249,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--points-out", metavar="CSV",
                    help="gflow with a face model: every vertex per frame (frame,landmark,x,y; landmark = the "
                         "reference landmark index it was learned from), for gflow eval --landmarks")
-    p.add_argument("--tracker", default="dcf", metavar="NAME",  # checked against the registry: plugins too
+    p.add_argument("--tracker", default=DEFAULT_TRACKER, metavar="NAME",  # checked against the registry: plugins too
                    help=f"tracking method: {', '.join(TRACKERS)} (default dcf; README 'Which tracker')")
     p.add_argument("--seed", type=int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
     add_record_args(p, "recordings/track-TIME-RUNID.mcap")

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, refuse_recording
 from pipeline.cli.trackers import TRACKERS
 #: what to run when the ``trax`` module is missing (``gflow.trax.INSTALL_HINT`` says the same)
 INSTALL_HINT = "pip install 'gflow[vot]' (or pip install vot-trax)"
@@ -67,7 +67,26 @@ def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
     if spec is not None and spec.model_required and "model" not in out:
         raise CliError(f"--tracker {spec.name} needs --model MODEL.npz"
                        + (" (learn one with gflow learn m2)" if spec.name == "m2" else ""))
+    from pipeline.cli.commands.track import DEFAULT_TRACKER
+
+    _check_values(out, specs.get(args.tracker or DEFAULT_TRACKER))
     return out
+
+
+def _check_values(params: dict[str, Any], spec) -> None:
+    """The values of the tracker's parameters among ``params``, checked in gflow track's words (a
+    wrong type reached the tracker and ended the server with a traceback); other names are the
+    tracker's to refuse."""
+    from pipeline.runtime.tracker_block import block_values, tracker_fields
+
+    if spec is None:
+        return
+    mine = {k: v for k, v in params.items() if k in tracker_fields(spec.params)}
+    try:
+        block_values(spec.params, mine)
+    except ValueError as e:
+        how = " ".join(f"--set {k}={v}" for k, v in mine.items() if k in str(e)) or "--set"
+        raise CliError(f"{how}: {e}") from None
 
 
 def argv_of(args: argparse.Namespace) -> list[str]:
@@ -90,6 +109,8 @@ def cmd_trax(args: argparse.Namespace) -> int:
         raise CliError(f"--seed must be >= 0, got {args.seed}")
     if args.out and not Path(args.out).resolve().parent.is_dir():
         raise CliError(f"--out {args.out}: folder {Path(args.out).parent} does not exist")
+    if args.out:
+        refuse_recording(args.out, "--out")
     sys.stdout.flush()
     sys.stderr.flush()
     os.execv(sys.executable, [sys.executable, "-m", "gflow.trax", *argv_of(args)])

@@ -4,10 +4,19 @@ from __future__ import annotations
 
 ORDER = 62
 
+import argparse
 import sys
 import time
 
-from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, tool_zenoh
+from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, positive_int, tool_zenoh
+
+
+def tcp_port(text: str) -> int:
+    """A TCP port, 1-65535 (argparse type)."""
+    v = positive_int(text)
+    if v > 65535:
+        raise argparse.ArgumentTypeError(f"a port is 1-65535, got {v}")
+    return v
 
 
 def _await_run(args, end: float | None) -> bool:
@@ -80,7 +89,7 @@ def register(sub) -> None:
                                    "WebSocket -> ws://HOST:PORT.")
     p.add_argument("--stream", help="the pipeline's stream (default: the one running)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; 0.0.0.0 for other machines)")
-    p.add_argument("--port", type=int, default=8765, help="WebSocket port (default 8765, Foxglove's)")
+    p.add_argument("--port", type=tcp_port, default=8765, help="WebSocket port (default 8765, Foxglove's)")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_view)

@@ -91,7 +91,8 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
                            f"(kind 'morphable')")
         block["model"] = model if model in BUILTIN_MODELS else str(path.resolve())
     block.update(_gflow_sets(getattr(args, "gflow_set", None)))
-    shards = int(getattr(args, "shards", 1) or 1)
+    given = getattr(args, "shards", None)
+    shards = 1 if given is None else int(given)  # 0 is a mistake to name, not the default
     if shards < 1:
         raise CliError(f"--shards must be >= 1, got {shards}")
     return GRAPH, {"tracker": block, PROPOSAL: dict(shared), FILTER: dict(shared, shards=shards)}
