@@ -21,9 +21,13 @@ the scale still learn on confident frames only (P(visible) >= 1/2), and the conf
 P(visible) as judged: a tentative frame in doubt says so.
 
 Departures: the trackers cited delete a tentative track that misses (its existence was in doubt);
-here existence is given by the user and only the judgement of "hidden" waits. ``confirm`` = 10, as
-many as the priors' pseudo-frames (``prior_count``): the point where the learnt frames weigh as much
-as the prior in the distribution's moments.
+here existence is given by the user and only the judgement of "hidden" waits. The length measured is
+``confirm`` = 10, as many as the priors' pseudo-frames (``prior_count``): the point where the learnt
+frames weigh as much as the prior in the distribution's moments.
+
+Off by default (0): the frames in doubt teach a wide distribution (tiger1's toy 0.73 +- 0.12), which a
+still occluder later fits, and a target hidden during its first frames is learnt as the target
+(``docs/trackers.md``, dcf, "A new track tentative for its first frames").
 """
 
 from __future__ import annotations
