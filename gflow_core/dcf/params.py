@@ -119,6 +119,9 @@ class DCFParams:
     young: float = param(0.0, "while the running filter is young its rate is max(rate, 1 / (young + n + 1)), n the frames "
                               "the target was seen on before: the mean of the frames seen, the first counting for "
                               "this many (gflow_core.dcf.rates; 0: rate from the first frame)")
+    confirm: int = param(0, "a new track is tentative until the target's distance distribution has learnt this many "
+                            "frames beyond the prior's: until then a frame in doubt is taken as the target's and "
+                            "it cannot be judged hidden (gflow_core.dcf.confirm; 0: judged from the first frame)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -199,6 +202,8 @@ class DCFParams:
                              f"{self.augment_scale}, {self.augment_blur}")
         if not (math.isfinite(self.young) and self.young >= 0):
             raise ValueError(f"young must be finite and >= 0, got {self.young}")
+        if self.confirm < 0:
+            raise ValueError(f"confirm must be >= 0, got {self.confirm}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

@@ -29,6 +29,7 @@ from ..particles import LogWeights, systematic_resample
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 from ..visibility import ChiSquare, Cue, visibility
 from . import model as tm
+from .confirm import tentative
 from .cues import may_fail
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
@@ -399,7 +400,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     log_place = _log_place(centre, pred, sx, sy, resp.area())
     prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
-    present = vis.present
+    present = vis.present or tentative(st.target, p)  # a tentative track's frame in doubt is the target's (.confirm)
     confident = vis.visible >= 0.5
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
