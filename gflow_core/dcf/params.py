@@ -122,10 +122,6 @@ class DCFParams:
     confirm: int = param(10, "a new track is tentative until the target's distance distribution has learnt this many "
                             "frames beyond the prior's: until then a frame in doubt is taken as the target's and "
                             "it cannot be judged hidden (gflow_core.dcf.confirm; 0: judged from the first frame)", before=0)
-    search_clutter_mix: bool = param(False, "under \"hidden\" a search candidate's distance has the density of an even "
-                                            "mixture of the window clutter's and the search's own clutter's (once it "
-                                            "holds search_min searches), not the lower of the two "
-                                            "(gflow_core.dcf.reacquire)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

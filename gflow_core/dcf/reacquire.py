@@ -35,7 +35,7 @@ import numpy as np
 from . import model as tm
 from .params import DCFParams
 
-__all__ = ["peaks", "search_peaks", "log_truncation", "log_mix"]
+__all__ = ["peaks", "search_peaks", "log_truncation"]
 
 
 def peaks(y: np.ndarray, half: tuple[int, int], k: int) -> list[tuple[int, int, float]]:
@@ -98,10 +98,3 @@ def log_truncation(pred: np.ndarray, sx: float, sy: float, pred_margin: tuple[fl
     zx = _mass(max(0.0, pred[0] - pred_margin[0]), min(W - 1.0, pred[0] + pred_margin[0]), float(pred[0]), sx)
     zy = _mass(max(0.0, pred[1] - pred_margin[1]), min(H - 1.0, pred[1] + pred_margin[1]), float(pred[1]), sy)
     return -math.log(max(zx, 1e-300) * max(zy, 1e-300))
-
-
-def log_mix(a: float, b: float) -> float:
-    """log((exp(a) + exp(b)) / 2): the log density of an even mixture of two densities given as logs."""
-    # log((e^a + e^b) / 2) = max + log(1 + e^(min - max)) - log 2
-    hi, lo = max(a, b), min(a, b)
-    return hi + math.log1p(math.exp(lo - hi)) - math.log(2.0)

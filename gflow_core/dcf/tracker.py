@@ -37,7 +37,7 @@ from .gate import within
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .rates import filter_rate
-from .reacquire import log_mix, log_truncation, search_peaks
+from .reacquire import log_truncation, search_peaks
 from .state import DCFObservation, DCFProposal, DCFState
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
@@ -153,9 +153,7 @@ def _hidden_log_pdf(st: Dists, rho: float, trials: float, p: DCFParams) -> float
     lh = st.clutter.log_pdf_min(rho, max(trials, 1.0), p.min_std)
     sc = st.sclutter
     if p.search_clutter and sc.n >= p.search_min:
-        ls = sc.log_pdf(min(rho, sc.mode(p.min_std)), p.min_std)
-        # with search_clutter_mix: p(rho | hidden) = (p_window + p_search) / 2 (.reacquire)
-        lh = log_mix(lh, ls) if p.search_clutter_mix else min(lh, ls)
+        lh = min(lh, sc.log_pdf(min(rho, sc.mode(p.min_std)), p.min_std))
     return lh
 
 
