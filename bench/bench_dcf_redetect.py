@@ -170,9 +170,19 @@ def main() -> int:
         if not hasattr(p, k):
             print(f"bench_dcf_redetect: dcf has no parameter {k!r}")
             return 2
-        p = replace(p, **{k: type(getattr(p, k))(v if not isinstance(getattr(p, k), bool) else v == "true")})
+        old = getattr(p, k)
+        try:
+            if isinstance(old, bool) and v not in ("true", "false"):
+                raise ValueError(f"{k} is true or false, got {v!r}")
+            p = replace(p, **{k: v == "true" if isinstance(old, bool) else type(old)(v)})
+        except (TypeError, ValueError) as e:
+            print(f"bench_dcf_redetect: --set {s}: {e}")
+            return 2
     seqs, _ = find_sequences([str(data)])
     want = {s for s in args.sequences.split(",") if s}
+    if want - {s.name for s in seqs}:
+        print(f"bench_dcf_redetect: no sequence {', '.join(sorted(want - {s.name for s in seqs}))} in {data}")
+        return 2
     tmp = scratch("gflow-dcf-redetect-")
     rows = []
     for i, seq in enumerate(seqs):
