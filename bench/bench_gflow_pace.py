@@ -19,6 +19,14 @@ against the reference landmarks of frames 0, k, 2k, ... The printed commands are
 the frames A <= frame < B alone (default 351:405, where the face turns to profile in bright light
 and comes back: most of the error at every 3rd frame); ``--size-window A:B`` gives the tracked face's
 size over the reference's there (default 264:348, where the face shrinks before the turn).
+
+``--rates`` prints instead how fast the pose changes on the data, for the pose walk's standard deviations:
+the RMS change over T = 1, 3 and 12 frames of the log of the face's size and of its rotation (body frame,
+about the model's x (pitch), y (yaw) and z (roll) axes), from the Procrustes fit of the built-in model's
+mean shape to david_indoor's reference landmarks (frames 0-339, before the turn to profile), and of the
+log size of the ground-truth boxes of every sequence whose boxes change size; beside them the rate per
+period of a random walk with that change over 12 frames (``RMS(12) / sqrt(12)``: jitter of the reference
+counts little there) and over the 9 periods from 3 to 12 (``sqrt((MS(12) - MS(3)) / 9)``: none of it).
 """
 
 from __future__ import annotations
@@ -111,6 +119,59 @@ def size_ratio(landmarks: Path, points: Path, lo: int, hi: int) -> float:
     return float(np.mean(ratios)) if ratios else float("nan")
 
 
+def _rate_row(name: str, what: str, d: dict[int, np.ndarray]) -> list:
+    """A row of ``--rates``: the RMS changes ``d[T]`` (mean squares, per axis) over T = 1, 3, 12 frames and
+    the per-period rates of a random walk with those changes."""
+    rms = {t: np.sqrt(v) for t, v in d.items()}
+    fmt = (lambda v: " ".join(f"{x:.2f}" for x in np.atleast_1d(v)))
+    return [name, what, fmt(rms[1]), fmt(rms[3]), fmt(rms[12]), fmt(rms[12] / np.sqrt(12.0)),
+            fmt(np.sqrt(np.maximum(d[12] - d[3], 0.0) / 9.0))]
+
+
+def rates() -> None:
+    """``--rates``: how fast the face's size and rotation change per frame period (module docstring)."""
+    from scipy.spatial.transform import Rotation
+
+    from bench_gflow_turn import reference_rotation
+    from pipeline.io.modelfile import load_model
+
+    model = load_model(Path(__file__).resolve().parent.parent / "pipeline" / "models" / "face.npz")
+    ref = np.load(DATA / "landmarks.npz")["landmarks"].astype(np.float64)[:340, model.landmarks]
+    mean = model.bases[:, :, 0] - model.bases[:, :, 0].mean(0)
+    rot, logs = [], []
+    for p in ref:
+        r = reference_rotation(p, model.bases[:, :, 0])
+        rot.append(r)
+        # log of the Procrustes scale: p - centre ~ s R mean
+        logs.append(np.nan if r is None else np.log(np.sum((p - p.mean(0)) * (mean @ r.T)) / np.sum(mean * mean)))
+    ls = np.array(logs)
+    rows = []
+    d_rot, d_size = {}, {}
+    for t in (1, 3, 12):
+        # body-frame increments r_s^T r_{s+t}, as the pose walk's rotation vector (degrees)
+        inc = np.array([np.degrees(Rotation.from_matrix(rot[s].T @ rot[s + t]).as_rotvec())
+                        for s in range(len(rot) - t) if rot[s] is not None and rot[s + t] is not None])
+        d_rot[t] = (inc ** 2).mean(0)
+        dl = 100.0 * (ls[t:] - ls[:-t])
+        d_size[t] = np.mean(dl[np.isfinite(dl)] ** 2)
+    rows.append(_rate_row("david_indoor landmarks 0-339", "rotation x y z, degrees", d_rot))
+    rows.append(_rate_row("david_indoor landmarks 0-339", "log size, %", d_size))
+    for seq in sorted(p for p in DATA.parent.iterdir() if (p / "groundtruth.csv").is_file()):
+        gt = np.loadtxt(seq / "groundtruth.csv", delimiter=",", skiprows=1, ndmin=2)
+        ok = (gt[:, 3] > 0) & (gt[:, 4] > 0)
+        lb = np.full(int(gt[:, 0].max()) + 1, np.nan)
+        lb[gt[ok, 0].astype(int)] = 50.0 * np.log(gt[ok, 3] * gt[ok, 4])  # 100 log sqrt(w h): %
+        d = {}
+        for t in (1, 3, 12):
+            dl = lb[t:] - lb[:-t]
+            dl = dl[np.isfinite(dl)]
+            d[t] = np.mean(dl ** 2) if len(dl) else 0.0
+        if min(d.values()) > 0:  # the MIL boxes keep one size (and are labelled every 5th frame): no rate
+            rows.append(_rate_row(f"{seq.name} boxes", "log size, %", d))
+    print("RMS change of the pose over T frames, and the rate per period of a random walk with it")
+    print(table(rows, ["data", "of", "T = 1", "T = 3", "T = 12", "RMS(12) / sqrt 12", "sqrt((MS(12) - MS(3)) / 9)"]))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--every", default="1,3", help="play every k-th frame, for each k listed (default 1,3)")
@@ -123,7 +184,14 @@ def main() -> None:
     ap.add_argument("--size-window", default="264:348", metavar="A:B",
                     help="also give the tracked face's size over the reference's, frames A <= frame < B "
                          "(default 264:348, where the face shrinks by a third before the turn)")
+    ap.add_argument("--rates", action="store_true", help="print how fast the face's size and rotation change per "
+                                                           "frame period (the data's), and nothing else")
     args = ap.parse_args()
+    if args.rates:
+        if not DATA.is_dir():
+            raise SystemExit(f"{DATA} not found: --rates needs ../shared/data/david_indoor")
+        rates()
+        return
     try:
         lo, hi = (int(v) for v in args.window.split(":"))
     except ValueError:

@@ -47,6 +47,11 @@ Departures from the paper
   the rotation decay, the texels' prediction and the frontal reset; :func:`propose` takes ``dt``
   and the :class:`Proposals` carry it to :func:`update`. ``dt = 1`` is the one-period model, bit
   for bit.
+* ``scale_walk`` (:class:`.params.GFlowParams`, off by default; the paper leaves the pose
+  transition open, sec. 2): the scale ``c_1``'s walk is a fraction of the first box's ``|c_1|``
+  a period instead of ``prior_std_coefficients``' absolute 0.2 (0.2-0.5 % of the nine shared
+  sequences' first boxes, against the 1-3 % a period their size-varying boxes and david_indoor's
+  landmarks change by); measured over ten seeds in docs/faces.md, "The size's walk".
 * ``texel_noise_adapt`` (off by default; measured not to help, docs/faces.md): the texels'
   Kalman update (eq. 7, 8) observes the frame with each expert's moment estimate of the
   observation noise from its residuals, at least ``sigma_w``, instead of ``sigma_w`` itself.
@@ -393,7 +398,10 @@ class GFlowConfig:
         the same bits):
 
         * the pose random walk (eq. 4's ``u_t = u_{t-1} + noise``, sec. 2 leaves it open) over ``dt``
-          periods: its standard deviations times ``sqrt(dt)``;
+          periods: its standard deviations times ``sqrt(dt)`` (the scale ``c_1``'s too, also when
+          :class:`.params.GFlowParams` ``scale_walk`` made it relative to the first box's face: the
+          face's log size on david_indoor's reference landmarks changes by 1.9 % RMS over one frame
+          and 3.3 % over three, about ``sqrt(3)`` times; ``bench/bench_gflow_pace.py --rates``);
         * the prior mean's rotation decay ``a`` (:func:`.pose_opinion.prior_mean`): ``a^dt``;
         * the object texels (eq. 4's ``V_t = V_{t-1} + Z``; with ``texture_decay = a < 1`` the AR(1)
           process of :func:`.texture.anchored_predict`): ``a^dt`` and
