@@ -119,15 +119,15 @@ together (docs/trackers.md):
   LCT's several candidates), a frame may teach the model only when its distance is within
   ``learn_level`` deviations of the target's (:mod:`.gate`; MOSSE's and LMCF's gated updates, here a
   level of the learnt distribution rather than a fraction of a mean peak).
+  A new track may be tentative for its first ``confirm`` frames (:mod:`.confirm`): a frame in doubt is
+  then the target's and it cannot be judged hidden (the track confirmation of multi-target trackers,
+  SORT's ``min_hits`` and DeepSORT's ``n_init``, which delete a tentative track that misses; here the
+  user's box says the target exists, and only the judgement of "hidden" waits).
 * On by default (measured on the stress cases of seeds 1-3, docs/trackers.md): the colour cue fails
   more often on a search candidate (``search_colour_outlier`` 0.1: the colour model is learnt against
   the target's own surroundings, not the places the search looks), and after a re-detection of a
   target judged hidden the unknown velocity widens the next frame's prior by the typical speed
-  learnt on tracked frames (``redetect_speed``). A new track is tentative for its first ``confirm``
-  (10) frames (:mod:`.confirm`): a frame in doubt is then the target's and it cannot be judged hidden
-  (the track confirmation of multi-target trackers, SORT's ``min_hits`` and DeepSORT's ``n_init``,
-  which delete a tentative track that misses; here the user's box says the target exists, and only
-  the judgement of "hidden" waits). Recordings made before them re-run with them off.
+  learnt on tracked frames (``redetect_speed``). Recordings made before them re-run with both off.
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),

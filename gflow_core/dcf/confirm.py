@@ -25,9 +25,8 @@ here existence is given by the user and only the judgement of "hidden" waits. Th
 ``confirm`` = 10, as many as the priors' pseudo-frames (``prior_count``): the point where the learnt
 frames weigh as much as the prior in the distribution's moments.
 
-On by default (10; 0 judges from the first frame, as before it). Its costs: the frames in doubt teach a
-wide distribution (tiger1's toy 0.73 +- 0.12), which a still occluder later fits, and a target hidden
-during its first frames is learnt as the target
+Off by default (0): the frames in doubt teach a wide distribution (tiger1's toy 0.73 +- 0.12), which a
+still occluder later fits, and a target hidden during its first frames is learnt as the target
 (``docs/trackers.md``, dcf, "A new track tentative for its first frames").
 """
 
