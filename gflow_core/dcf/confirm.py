@@ -26,7 +26,9 @@ here existence is given by the user and only the judgement of "hidden" waits. Th
 frames weigh as much as the prior in the distribution's moments.
 
 Off by default (0): the frames in doubt teach a wide distribution (tiger1's toy 0.73 +- 0.12), which a
-still occluder later fits, and a target hidden during its first frames is learnt as the target
+still occluder later fits, a target hidden during its first frames is learnt as the target, and
+on frames of random noise the frames in doubt teach the target's distribution the noise's, so noise
+is reported ``tracked`` at confidence 0.9 by frame 20
 (``docs/trackers.md``, dcf, "A new track tentative for its first frames").
 """
 
