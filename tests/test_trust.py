@@ -46,7 +46,7 @@ def test_no_command_replaces_an_existing_recording(recording: Path, tmp_path: Pa
     other.write_bytes(recording.read_bytes())
     before = _digest(other)
     r = gflow(cmd, str(recording), str(other), cwd=tmp_path)
-    assert_one_line_error(r, "other.mcap exists", "never overwrites")
+    assert_one_line_error(r, "other.mcap is a recording", "never writes over one")
     assert _digest(other) == before
 
 
