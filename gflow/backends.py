@@ -90,4 +90,4 @@ class ProtocolBackend:
             except (ValueError, np.linalg.LinAlgError) as e:
                 self.problems.append((t, f"frame {t}: {type(e).__name__}: {e}; coasting"))
         self.state, est = self.impl.coast(self.params, self.state, self.rng(t), obs)
-        return [est if image is not None else unseen(est)]  # a frame not seen: as the filter stages say
+        return [unseen(est)]  # no image used: the target was not seen, as the filter stages say

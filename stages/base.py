@@ -42,15 +42,16 @@ from gflow_msgs.snapshots import versioned_snapshot
 
 __all__ = ["Stage", "StageContext", "StageInputError", "Output", "Params", "unseen"]
 
-#: what a filter reports of a target on a frame it never saw (the frame did not arrive or could not be
-#: read): hidden from it, the box where the dynamics expect it (docs/stress.md, "Confidence and state")
+#: what a filter reports of a target on a frame it coasted over without an image it could use (the
+#: frame did not arrive, could not be read, or was uniform): hidden from it, the box where the dynamics
+#: expect it (docs/stress.md, "Confidence and state")
 UNSEEN_STATE = "occluded"
 
 
 def unseen(est: Estimate) -> Estimate:
-    """The estimate of a frame coasted without its image: never ``tracked``, since nothing was seen
-    (the tracker's own ``occluded`` or ``lost`` is kept; the tracker's state is not changed, so the
-    frames after it are tracked as before)."""
+    """The estimate of a frame coasted without a usable image: never ``tracked``, since nothing was
+    seen (the tracker's own ``occluded`` or ``lost`` is kept; the tracker's state is not changed, so
+    the frames after it are tracked as before)."""
     return est if est.target_state != "tracked" else dataclasses.replace(est, target_state=UNSEEN_STATE)
 
 

@@ -104,7 +104,6 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         self.shape: tuple[int, ...] | None = None
         self.steps = 0
         self.last: dict = {}
-        self.seen = False  # whether the last frame observed arrived and could be read
 
     def required(self, seq: int) -> frozenset[str]:
         return frozenset({self.port}) if self.state is None else frozenset(self.inputs)
@@ -122,11 +121,9 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def _observe(self, frame: Any, seq: int) -> Any:
         """The tracker's observation of the frame, or None (reported) when the frame cannot be used."""
-        self.seen = False
         got = self.observed("frames", frame, seq, "coasting")
         if got is None or not self.same_size("frames", seq, got[0], self.shape, "coasting"):
             return None
-        self.seen = True  # a uniform frame was seen: the tracker judges what it shows
         if isinstance(got[1], UnusableFrame):
             self.report("blank_frame", f"frame {seq}: uniform frame, no evidence; coasting", seq)
             return None
@@ -211,7 +208,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         header = self.header_of(msg, seq)
         if obs is None:
             self.state, est = self._coast(proposed, rng)
-            return self._outputs(header, est if self.seen else unseen(est), proposed)
+            return self._outputs(header, unseen(est), proposed)  # no image used: the target was not seen
         # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
         dt = time_step(self.ctx, header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
         self.state, est = self.tracker.update(self.core, self.state, self._proposal(proposed, dt), obs, rng)
@@ -293,7 +290,6 @@ class FeaturesFilterStage(BoxFilterStage):
         return self._usable(feat, seq, "grey", usable, lambda g: f"grey image has shape {g.shape}", then)
 
     def _observe(self, feat: Any, seq: int) -> Any:
-        self.seen = False  # features that did not arrive or cannot be read: the frame was not seen
         if feat is None:
             return self.observed("features", None, seq, "coasting on the dynamics")
         return self._features(feat, seq)

@@ -98,9 +98,10 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
         if failure is not None:
             self.report("update_failed", f"frame {seq}: {failure}; coasting", seq)
         self.state = new
-        self.coasted += int(obs is None or props is None or failure is not None)
+        coasted = obs is None or props is None or failure is not None
+        self.coasted += int(coasted)
         self.steps += 1
-        return self._outputs(header, new, est if obs is not None else unseen(est))
+        return self._outputs(header, new, unseen(est) if coasted else est)  # coasted: the target was not seen
 
     def _outputs(self, header: Header, state: GFlowState, est: Estimate, first: bool = False) -> list[Output]:
         """The experts after the frame (the proposal stages' input: their parents are the estimate's,
