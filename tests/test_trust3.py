@@ -41,21 +41,25 @@ def rows(path: Path) -> list[list[str]]:
     return [ln.split(",") for ln in path.read_text().splitlines()[1:]]
 
 
-@pytest.mark.parametrize("tracker", ["dcf", "gflow"])
-def test_a_frame_never_seen_is_not_reported_tracked(files: Path, tmp_path: Path, tracker: str) -> None:
-    """Frame 3 cannot be read: the filter coasts over it. Its row said ``confidence 0.000, tracked``;
-    now the target is ``occluded`` (hidden from the tracker, the box where it is expected), and the
-    frames before it are as in the run of the whole folder."""
+@pytest.mark.parametrize("tracker,folder,extra", [
+    ("dcf", "broken", []), ("gflow", "broken", []),
+    ("dcf", "frames", ["--set", "source.blank_every=4", "--set", "source.blank_count=1"]),  # frame 3 uniform
+])
+def test_a_frame_never_seen_is_not_reported_tracked(files: Path, tmp_path: Path, tracker: str, folder: str,
+                                                    extra: list[str]) -> None:
+    """Frame 3 cannot be read (or is blank): the filter coasts over it. Its row said ``tracked``
+    (``confidence 0.000`` for dcf); now the target is ``occluded`` (hidden from the tracker, the box
+    where it is expected), and the frames before it are as in the run of the whole folder."""
     out = {}
-    for name in ("frames", "broken"):
+    for name, more in (("whole", []), ("hit", extra)):
         out[name] = tmp_path / f"{name}.csv"
-        assert main(["track", str(files / name), "--init", "10,10,20,20", "--tracker", tracker, "--inline", "-q",
-                     "--no-record", "--out", str(out[name])]) == 0
-    whole, broken = rows(out["frames"]), rows(out["broken"])
-    assert [r[0] for r in broken] == ["0", "1", "2", "3", "4", "5"]
-    assert broken[:3] == whole[:3]
-    assert broken[3][6] == "occluded", broken[3]
-    assert whole[3][6] != "occluded" or tracker == "gflow", whole[3]  # the frame seen is the tracker's judgement
+        src = files / ("frames" if name == "whole" else folder)
+        assert main(["track", str(src), "--init", "10,10,20,20", "--tracker", tracker, "--inline", "-q",
+                     "--no-record", "--out", str(out[name]), *more]) == 0
+    whole, hit = rows(out["whole"]), rows(out["hit"])
+    assert [r[0] for r in hit] == ["0", "1", "2", "3", "4", "5"]
+    assert hit[:3] == whole[:3]
+    assert hit[3][6] == "occluded" and whole[3][6] == "tracked", (hit[3], whole[3])
 
 
 def test_the_stage_relabels_only_the_frame_it_did_not_see() -> None:
@@ -99,17 +103,9 @@ def test_a_new_picture_is_still_written(files: Path, tmp_path: Path, monkeypatch
 def test_damage_inside_a_recording_is_said_once_by_a_multi_process_track(files: Path, tmp_path: Path) -> None:
     """A chunk that fails its CRC in the middle of the recording tracked: ``--inline`` said it, the
     multi-process run (the source in a process of its own) tracked the frames before it in silence."""
-    from pipeline.io.mcap_io import iter_records, read_metadata
-    from pipeline.io.recorder import McapRecorder
+    from conftest import damaged_copy
 
-    src, bad = files / "demo.mcap", tmp_path / "bad.mcap"
-    with McapRecorder(bad, chunk_size=64 * 1024, metadata=read_metadata(src)) as w:  # many chunks
-        for r in iter_records(src):
-            w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns, type_name=r.type)
-    data = bytearray(bad.read_bytes())
-    mid = len(data) // 2
-    data[mid:mid + 64] = bytes(b ^ 0xFF for b in data[mid:mid + 64])
-    bad.write_bytes(bytes(data))
+    bad = damaged_copy(files / "demo.mcap", tmp_path / "bad.mcap")
     r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(bad), "--init", "100,80,40,40",
                         "--out", str(tmp_path / "b.csv"), "--no-record"], capture_output=True, text=True,
                        timeout=120, cwd=tmp_path)
