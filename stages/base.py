@@ -29,8 +29,8 @@ Join semantics (implemented by ``pipeline.runtime.join.SeqJoin``)
 
 from __future__ import annotations
 
-from abc import ABC, abstractmethod
 import dataclasses
+from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Generic, Mapping, TypeVar
 
