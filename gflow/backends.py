@@ -17,6 +17,8 @@ from gflow_core.registry import get as get_spec
 from gflow_core.tracker import Box, Estimate, FrameRng, TrackingFilter, UnusableFrame
 from gflow_core.tracker import stream_hash
 
+from stages.base import unseen
+
 from .errors import GflowError, UnusableFrameError
 
 __all__ = ["ProtocolBackend", "load_model_file", "protocol_tracker"]
@@ -88,4 +90,4 @@ class ProtocolBackend:
             except (ValueError, np.linalg.LinAlgError) as e:
                 self.problems.append((t, f"frame {t}: {type(e).__name__}: {e}; coasting"))
         self.state, est = self.impl.coast(self.params, self.state, self.rng(t), obs)
-        return [est]
+        return [unseen(est)]  # no image used: the target was not seen, as the filter stages say

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 import types
 from pathlib import Path
@@ -124,6 +125,9 @@ def _read(source: Any, init: Sequence[float] | None, start: int, stop: int | Non
             for port, msg in stage.emit(raw):
                 if port == "frames" and isinstance(msg, Frame):
                     yield msg.header.seq, msg.image.array(), msg.header.stamp_ns
+            for kind, message, _ in stage.drain_reports():  # a recording damaged inside: said, as by the CLI
+                if kind == "damaged_input":
+                    logging.getLogger("gflow.recording").warning("%s", message)
     return frames(), init
 
 

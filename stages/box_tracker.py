@@ -49,7 +49,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
 from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame
 
-from .base import Output, Stage, StageContext, StageInputError
+from .base import Output, Stage, StageContext, StageInputError, unseen
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
                                  estimate_of, particles_msg)
 from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, article
@@ -208,7 +208,7 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         header = self.header_of(msg, seq)
         if obs is None:
             self.state, est = self._coast(proposed, rng)
-            return self._outputs(header, est, proposed)
+            return self._outputs(header, unseen(est), proposed)  # no image used: the target was not seen
         # periods since the posterior the proposals came from (its stamp: the proposal stage keeps it)
         dt = time_step(self.ctx, header.stamp_ns, prop.header.stamp_ns) if isinstance(prop, Particles) else 1.0
         self.state, est = self.tracker.update(self.core, self.state, self._proposal(proposed, dt), obs, rng)

@@ -39,7 +39,7 @@ from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate
 
-from .base import Output, StageContext, StageInputError
+from .base import Output, StageContext, StageInputError, unseen
 from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
 from gflow_msgs.gflow import pose_estimate_of, read_shards, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
@@ -98,9 +98,10 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
         if failure is not None:
             self.report("update_failed", f"frame {seq}: {failure}; coasting", seq)
         self.state = new
-        self.coasted += int(obs is None or props is None or failure is not None)
+        coasted = obs is None or props is None or failure is not None
+        self.coasted += int(coasted)
         self.steps += 1
-        return self._outputs(header, new, est)
+        return self._outputs(header, new, unseen(est) if coasted else est)  # coasted: the target was not seen
 
     def _outputs(self, header: Header, state: GFlowState, est: Estimate, first: bool = False) -> list[Output]:
         """The experts after the frame (the proposal stages' input: their parents are the estimate's,

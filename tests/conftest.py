@@ -87,3 +87,17 @@ def read_mcap_js(path: Path, stream: bool = False) -> dict:
     return json.loads(out.stdout)
 
 
+def damaged_copy(src: Path, bad: Path) -> Path:
+    """``src`` rewritten into ``bad`` in many small chunks, 64 bytes in the middle flipped: a chunk that
+    fails its CRC inside the file, its end intact (so not 'torn')."""
+    from pipeline.io.mcap_io import iter_records, read_metadata
+    from pipeline.io.recorder import McapRecorder
+
+    with McapRecorder(bad, chunk_size=64 * 1024, metadata=read_metadata(src)) as w:  # many chunks
+        for r in iter_records(src):
+            w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns, type_name=r.type)
+    data = bytearray(bad.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 64] = bytes(b ^ 0xFF for b in data[mid:mid + 64])
+    bad.write_bytes(bytes(data))
+    return bad

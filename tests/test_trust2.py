@@ -277,17 +277,9 @@ def test_damage_inside_a_recording_is_said(files: Path, tmp_path: Path) -> None:
     """A chunk that fails its CRC in the middle of a recording (its end intact, so not 'torn'): plot,
     render, replay, foxglove, diff and track --inline showed or computed what came before it and said
     nothing; now one warning line names the file and the byte."""
-    from pipeline.io.mcap_io import iter_records, read_metadata
-    from pipeline.io.recorder import McapRecorder
+    from conftest import damaged_copy
 
-    src, bad = files / "demo.mcap", tmp_path / "bad.mcap"
-    with McapRecorder(bad, chunk_size=64 * 1024, metadata=read_metadata(src)) as w:  # many chunks
-        for r in iter_records(src):
-            w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns, type_name=r.type)
-    data = bytearray(bad.read_bytes())
-    mid = len(data) // 2
-    data[mid:mid + 64] = bytes(b ^ 0xFF for b in data[mid:mid + 64])
-    bad.write_bytes(bytes(data))
+    bad = damaged_copy(files / "demo.mcap", tmp_path / "bad.mcap")
     r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "plot", str(bad), str(tmp_path / "p.png")],
                        capture_output=True, text=True, timeout=120)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]

@@ -100,7 +100,7 @@ def _recorded_captures(path: Path) -> tuple[dict[int, Capture], dict[int, tuple[
     from pipeline.io.mcap_io import iter_records
 
     captures, skipped = {}, {}
-    for rec in iter_records(path):
+    for rec in iter_records(path, on_truncated=lambda text: None):  # damage: said by _read_mcap
         if rec.type == "Capture" and rec.topic.endswith("/captures"):
             try:
                 c = decode(rec.data)
@@ -132,12 +132,14 @@ class _LiveFields(TypedDict, total=False):
 def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = False) -> Iterator[RawFrame]:
     """The recorded frames; with ``host_clock``, with their recorded stamps and what the live
     source said about each (its Capture, and the skipped frames recorded before it), so a live
-    run re-runs as it was tracked."""
-    from pipeline.io.mcap_io import iter_records
+    run re-runs as it was tracked. A recording damaged inside (a record that cannot be read with more
+    of the file after it) ends with a frame with no image whose ``events`` say so (``damaged_input``)."""
+    from pipeline.io.mcap_io import Damaged, iter_records
 
     captures, skipped = _recorded_captures(path) if host_clock else ({}, {})
-    prev_frame = -1
-    for rec in iter_records(path):
+    prev_frame = last = -1
+    damage: list[str] = []  # what iter_records says of a record that failed with more of the file after it
+    for rec in iter_records(path, on_truncated=lambda text: damage.append(text) if isinstance(text, Damaged) else None):
         if not rec.topic.endswith("/frames"):
             continue
         try:
@@ -157,10 +159,13 @@ def _read_mcap(path: Path, start: int, stop: int | None, host_clock: bool = Fals
                                          skipped=c.skipped if c else 0, gap_s=c.gap_s if c else 0.0,
                                          missed=c.missed if c else 0, damaged=c.damaged if c else False)
                              if host_clock else {})
+        last = s
         try:
             yield RawFrame(s, msg.image.array(), truth=msg.truth, name=msg.source, **live)
         except MessageError as e:
             yield RawFrame(s, None, str(e), name=msg.source, **live)
+    if damage:  # the frames after the damage are lost: the source stage reports it (one line, every way it runs)
+        yield RawFrame(max(last + 1, start), None, events=(("damaged_input", str(damage[0])),))
 
 
 def _read_synthetic(p: SourceParams) -> Iterator[RawFrame]:

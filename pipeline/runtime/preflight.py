@@ -81,6 +81,8 @@ def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawF
         if params.kind == "video":
             raise PreflightError(f"{where}: no frame can be read (not a video OpenCV can decode, or empty)")
         raise PreflightError(f"{where}: no frame at or after --start {params.start}")
+    if frame.image is None and frame.events and not frame.error:  # only reports: no frame was read
+        raise PreflightError(f"{where}: no frame at or after --start {params.start}: {frame.events[0][1]}")
     if frame.image is None:
         which = f"frame {frame.index}" + (" (the first frame)" if frame.index == 0 else "")
         raise PreflightError(f"{where}: {which} cannot be read: {frame.error}")

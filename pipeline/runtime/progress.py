@@ -41,8 +41,9 @@ class Console:
         self.out = out
         self.enabled = enabled
 
-    def say(self, text: str) -> None:
-        if self.enabled:
+    def say(self, text: str, always: bool = False) -> None:
+        """One line (``always``: even when the console is off, as damaged input is said with -q)."""
+        if self.enabled or always:
             if self.out.isatty():
                 self.out.write("\r\033[K")
             self.out.write(text + "\n")
@@ -134,7 +135,7 @@ class ProgressMonitor:
                 self.errors.append(msg)
                 n = sum(e.kind not in NOTICE_KINDS for e in self.errors)
             if msg.kind in NOTICE_KINDS:  # a live stream's reconnect or end: news, not an error
-                self.console.say(f"{msg.stage}: {msg.message}")
+                self.console.say(f"{msg.stage}: {msg.message}", always=msg.kind == "damaged_input")
             elif n <= PRINTED_ERRORS:
                 self.console.say(f"error from {msg.stage} [{msg.kind}] {msg.message}")
             elif n == PRINTED_ERRORS + 1:

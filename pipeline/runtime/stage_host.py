@@ -151,7 +151,8 @@ class StageHost:
     # -- errors ------------------------------------------------------------------------------
     def report(self, kind: str, message: str, seq: int = -1, topic: str = "") -> None:
         if kind in NOTICE_KINDS:  # a live stream's reconnect or end: news, not an error
-            log.info("[%s] %s: %s", self.name, kind, message)
+            # (damaged input is said: what it held is lost; a process run's console says every notice)
+            (log.warning if kind == "damaged_input" else log.info)("[%s] %s: %s", self.name, kind, message)
         else:
             self.stats.errors += 1
             self.stats.last_error = f"{kind}: {message}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import dataclasses  # noqa: F401 (common.dataclasses: tests replace a run's settings with it)
 
 import numpy as np
@@ -97,6 +98,15 @@ def check_model_out(path: str) -> None:
     check_outputs(out=path)
     if not path.lower().endswith(".npz"):
         raise CliError(f"--out {path}: a model file's name ends in .npz")
+
+
+def check_new_picture(path: str, option: str = "OUT") -> None:
+    """:func:`check_outputs`, and refuse an existing file: a video or picture written there would
+    replace it (as a recording is never written over)."""
+    check_outputs(**{option: path})
+    if os.path.lexists(path):
+        raise CliError(f"{path} exists; gflow never writes over a picture or video: give another name "
+                       f"(or remove it first)")
 
 
 def refuse_recording(path: str, option: str) -> None:

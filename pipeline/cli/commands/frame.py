@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Literal
 
-from pipeline.cli.commands.common import CliError, check_outputs, positive_int
+from pipeline.cli.commands.common import CliError, check_new_picture, positive_int
 
 
 def grid_picture(img, step: int, scale: int):
@@ -49,7 +49,7 @@ def cmd_frame(args) -> int:
 
     from pipeline.runtime.preflight import PreflightError, first_frame
 
-    check_outputs(OUT=args.out)
+    check_new_picture(args.out)
     if not cv2.haveImageWriter(args.out):
         raise CliError(f"{args.out}: OpenCV cannot write {Path(args.out).suffix or 'files without an extension'!r} "
                        f"pictures (give a .png or .jpg)")

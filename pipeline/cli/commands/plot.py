@@ -52,7 +52,7 @@ def cmd_plot(args) -> int:
     from gflow_core.evaluation.metrics import centre_error
 
     from pipeline.recording.results import estimates, read_boxes, truth_boxes
-    from pipeline.cli.commands.common import check_outputs
+    from pipeline.cli.commands.common import check_new_picture, check_outputs
 
     if Path(args.out).is_dir():
         check_outputs(OUT=args.out)  # says it is a folder
@@ -60,7 +60,7 @@ def cmd_plot(args) -> int:
     if Path(out).suffix.lower().lstrip(".") not in plt.gcf().canvas.get_supported_filetypes():
         raise CliError(f"{args.out}: matplotlib cannot write {Path(out).suffix!r} files (use .png, .svg or .pdf)")
     plt.close("all")
-    check_outputs(OUT=out)
+    check_new_picture(out)
     from pipeline.cli.commands.common import warn_if_torn
 
     warn_if_torn(args.file)

@@ -51,9 +51,9 @@ def cmd_render(args) -> int:
         raise CliError(f"{args.out}: unknown output kind {out.suffix!r}; give a video ({', '.join(VIDEO_SUFFIXES)}) "
                        f"or a folder name for PNG frames")
     if video:
-        from pipeline.cli.commands.common import check_outputs
+        from pipeline.cli.commands.common import check_new_picture
 
-        check_outputs(OUT=args.out)
+        check_new_picture(args.out)
     elif out.exists() and not out.is_dir():
         raise CliError(f"{args.out} exists and is not a folder")
     a, _, b = (args.frames or ":").partition(":")
@@ -70,6 +70,10 @@ def cmd_render(args) -> int:
     seqs = [s for s in seqs if (not a or s >= int(a)) and (not b or s < int(b))]
     if not seqs:
         raise CliError(f"--frames {args.frames}: no frame to draw; {args.file} holds {held}")
+    there = [out / f"{s:06d}.png" for s in seqs if not video and (out / f"{s:06d}.png").exists()]
+    if there:
+        raise CliError(f"{out} already holds {len(there)} of the pictures it would write ({there[0].name}, ...); "
+                       f"gflow never writes over a picture: give another folder (or empty it first)")
     writer = None
     if not video:
         out.mkdir(parents=True, exist_ok=True)
