@@ -22,14 +22,14 @@ from pipeline.cli.main import main
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory) -> Path:
-    """frames/ (six 64x48 textured frames), broken/ (the same, frame 3 not an image) and demo.mcap
-    (10 frames of the synthetic scene, inline)."""
+    """frames/ (six 64x48 frames of one still textured scene: the target is there to be tracked),
+    broken/ (the same, frame 3 not an image) and demo.mcap (10 frames of the synthetic scene, inline)."""
     d = tmp_path_factory.mktemp("trust3")
     rng = np.random.default_rng(0)
     for name in ("frames", "broken"):
         (d / name).mkdir()
+    img = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
     for i in range(6):
-        img = rng.integers(0, 255, (48, 64, 3), dtype=np.uint8)
         for name in ("frames", "broken"):
             cv2.imwrite(str(d / name / f"{i:04d}.png"), img)
     (d / "broken" / "0003.png").write_bytes(b"not a png")
