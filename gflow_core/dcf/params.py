@@ -122,6 +122,10 @@ class DCFParams:
     confirm: int = param(0, "a new track is tentative until the target's distance distribution has learnt this many "
                             "frames beyond the prior's: until then a frame in doubt is taken as the target's and "
                             "it cannot be judged hidden (gflow_core.dcf.confirm; 0: judged from the first frame)")
+    search_negatives: int = param(0, "with search_clutter, a place the search's best placement fell at on this many "
+                                     "frames while the target stayed hidden is remembered, and a candidate there is "
+                                     "judged also as that place's clutter (TLD's negatives as places; "
+                                     "gflow_core.dcf.negatives; 0: no memory of places)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -202,6 +206,8 @@ class DCFParams:
                              f"{self.augment_scale}, {self.augment_blur}")
         if not (math.isfinite(self.young) and self.young >= 0):
             raise ValueError(f"young must be finite and >= 0, got {self.young}")
+        if self.search_negatives < 0:
+            raise ValueError(f"search_negatives must be >= 0, got {self.search_negatives}")
         if self.confirm < 0:
             raise ValueError(f"confirm must be >= 0, got {self.confirm}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:

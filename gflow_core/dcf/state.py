@@ -16,6 +16,7 @@ from ..visibility import ChiSquare
 from . import filter as cf
 from .histogram import ColourModel
 from .longterm import LongTerm
+from .negatives import Place, from_array, to_array
 from .model import Geometry, TargetModel, geometry
 from .params import DCFParams
 from .scale import ScaleFilter
@@ -69,6 +70,8 @@ class DCFState:
     speed2 : px^2 / frame^2, running mean of |v|^2 on the frames the target was tracked
         (``redetect_speed``; 0 without), from 0 at rate ``target_rate`` (so low over the first
         1 / target_rate tracked frames).
+    negatives : the places the search's best placement kept falling at on the frames since the target was
+        last seen (empty while it is; ``search_negatives``; :mod:`.negatives`).
     """
 
     geom: Geometry
@@ -88,6 +91,7 @@ class DCFState:
     sclutter: ChiSquare = ChiSquare()
     longterm: LongTerm | None = None
     speed2: float = 0.0
+    negatives: tuple[Place, ...] = ()
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -129,6 +133,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
     if st.speed2:
         values["speed2"] = float(st.speed2)
+    if st.negatives:
+        arrays["negatives"] = to_array(st.negatives)
     lt = st.longterm
     if lt is not None:
         arrays["lt_det"] = _real(lt.det)
@@ -183,4 +189,5 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     sclutter=chi("sclutter"),
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
-                    spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)))
+                    spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
+                    negatives=from_array(arrays["negatives"]) if "negatives" in arrays else ())

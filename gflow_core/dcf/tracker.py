@@ -37,6 +37,7 @@ from .gate import within
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .rates import filter_rate
+from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
 from .state import DCFObservation, DCFProposal, DCFState
 
@@ -119,13 +120,15 @@ def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
 class Search:
     """What the search for a hidden target found: ``found`` the first candidate judged visible (or None),
     its P(visible), whether the search covered the whole frame, and ``rho`` the filter's distance at the
-    best placement at the held size (None: nothing searched), ``rho_lt`` the long-term filter's."""
+    best placement at the held size (None: nothing searched), ``rho_lt`` the long-term filter's, ``best``
+    the adaptive filter's best placement over every size and peak: its centre (2,) and distance."""
 
     found: Any
     confidence: float
     covers: bool
     rho: float | None = None
     rho_lt: float | None = None
+    best: tuple[np.ndarray, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -157,14 +160,20 @@ def _hidden_log_pdf(st: Dists, rho: float, trials: float, p: DCFParams) -> float
     return lh
 
 
-def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: DCFParams) -> float:
+def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: DCFParams,
+           negs: tuple[neg.Place, ...] = ()) -> float:
     """P(visible) of a search candidate against "hidden" (the prior ``reappear`` that a hidden target is
-    back), from the filter's distance (:func:`_hidden_log_pdf` under "hidden"), the colour score and the
-    place term; the rules of :func:`gflow_core.visibility.visibility` with no partial hypothesis."""
+    back), from the filter's distance (:func:`_hidden_log_pdf` under "hidden", or the density of the
+    clutter at a place of ``negs`` the candidate is at, if larger: :mod:`.negatives`), the colour score and
+    the place term; the rules of :func:`gflow_core.visibility.visibility` with no partial hypothesis."""
     ms, rho = p.min_std, 1.0 - cand.r
     # log pi_v + log p_t(max(rho, mode_t)) + log_place  against  log pi_h + log p(rho | hidden)
     lv = math.log(p.reappear) + ds.target.log_pdf(max(rho, ds.target.mode(ms)), ms) + place
-    lh = math.log(1.0 - p.reappear) + _hidden_log_pdf(ds, rho, trials, p)
+    lh_rho = _hidden_log_pdf(ds, rho, trials, p)
+    if negs:
+        # log p(rho | hidden) = max(log p_search(rho), log p_place(rho)): a remembered place may only add clutter
+        lh_rho = max(lh_rho, neg.log_pdf(negs, cand.centre, rho, _half(st), p.search_negatives, ms))
+    lh = math.log(1.0 - p.reappear) + lh_rho
     if cand.r_colour is not None and st.ctarget.n and st.cclutter.n:
         rc = 1.0 - cand.r_colour
         eps = max(p.colour_outlier, p.search_colour_outlier)
@@ -193,6 +202,7 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
     sizes = tuple(float(i * p.search_size_step) for i in sorted(range(-k, k + 1), key=abs))
     templates = [(st.model, _dists(st, None))] + ([] if lt is None else [(view(st.model, lt), _dists(st, lt))])
     rhos: list[float | None] = [None, None]
+    top: tuple[np.ndarray, float] | None = None
     # with search_truncate, the place prior is conditioned on the region searched (.reacquire)
     log_z = log_truncation(pred, sx, sy, margin, (Ww, Hh)) if p.search_truncate else 0.0
     for which, (searched, ds) in enumerate(templates):
@@ -213,8 +223,10 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                     + math.log((2 * k + 1) * p.search_size_step)
             if rhos[which] is None:
                 rhos[which] = 1.0 - cand.r
+            if which == 0 and (top is None or 1.0 - cand.r < top[1]):
+                top = (cand.centre, 1.0 - cand.r)
             if p.search_clutter:
-                visible = _judge(st, ds, cand, trials, place, p)
+                visible = _judge(st, ds, cand, trials, place, p, st.negatives if which == 0 else ())
             else:
                 # the colour score of the filter's pick: one draw of the colour clutter
                 ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
@@ -228,7 +240,7 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                 best = Search(cand, visible, covers)
         if best is not None:
             return replace(best, rho=rhos[0], rho_lt=rhos[1])
-    return Search(None, 0.0, covers, rhos[0], rhos[1])
+    return Search(None, 0.0, covers, rhos[0], rhos[1], top)
 
 
 def _colour_cue(st: DCFState, rho: float, p: DCFParams) -> Cue:
@@ -323,13 +335,24 @@ def _longterm_seen(resp: tm.Response, centre: np.ndarray, bw: float, bh: float, 
 def _learn_search_clutter(st: DCFState, lt: LongTerm | None, srch: Search, hid: bool, p: DCFParams,
                           learnt: dict[str, Any]) -> LongTerm | None:
     """The search's best placement on a frame the target stayed hidden (``hid``) is clutter's (TLD's
-    negatives): learnt into ``learnt["sclutter"]``, and the long-term filter's into the returned ``lt``."""
+    negatives): learnt into ``learnt["sclutter"]``, the long-term filter's into the returned ``lt``, and with
+    ``search_negatives`` its place into ``learnt["negatives"]``."""
     learnt["sclutter"] = st.sclutter.update(srch.rho, p.clutter_rate) if hid and srch.rho is not None \
         else ChiSquare()
     if lt is not None:
         lt = replace(lt, sclutter=lt.sclutter.update(srch.rho_lt, p.clutter_rate) if hid and srch.rho_lt is not None
                      else ChiSquare())
+    if p.search_negatives:
+        # ... and where it was: a place of the search's negatives (.negatives); forgotten once the target is seen
+        learnt["negatives"] = neg.learn(st.negatives, srch.best[0], srch.best[1], _half(st), p.clutter_rate) \
+            if hid and srch.best is not None else ()
     return lt
+
+
+def _half(st: DCFState) -> tuple[float, float]:
+    """Half the held box's (width, height), px: how near a placement is to a remembered place to be at it."""
+    s = 0.5 * float(np.exp(st.log_s))
+    return st.geom.size0[0] * s, st.geom.size0[1] * s
 
 
 def _take_found(st: DCFState, found: Any, p: DCFParams, parts: np.ndarray, mean: np.ndarray, hidden_before: bool,
