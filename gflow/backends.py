@@ -15,9 +15,7 @@ import numpy as np
 
 from gflow_core.registry import get as get_spec
 from gflow_core.tracker import Box, Estimate, FrameRng, TrackingFilter, UnusableFrame
-from gflow_core.tracker import stream_hash
-
-from stages.base import unseen
+from gflow_core.tracker import stream_hash, unseen
 
 from .errors import GflowError, UnusableFrameError
 

@@ -28,12 +28,13 @@ is ``(x, y, w, h)``, its top-left corner and its size.
 from __future__ import annotations
 
 import zlib
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Protocol, TypeVar
 
 import numpy as np
 
-__all__ = ["Box", "Estimate", "box_estimate", "box_step_estimate", "FrameRng", "stream_hash", "frame_rng",
+__all__ = ["Box", "Estimate", "unseen", "box_estimate", "box_step_estimate", "FrameRng", "stream_hash", "frame_rng",
            "tracker_rng", "FilterSide", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
 
 #: (x, y, w, h) in pixels
@@ -214,3 +215,16 @@ def step(f: TrackingFilter[P, S, O, Q], params: P, state: S, obs: O, rng: FrameR
          dt: float = 1.0) -> tuple[S, Estimate]:
     """One frame: ``f.update(params, state, f.propose(params, state, obs, rng, dt), obs, rng)``."""
     return f.update(params, state, f.propose(params, state, obs, rng, dt), obs, rng)
+
+
+#: what a tracker reports of a target on a frame it coasted over without an image it could use (the
+#: frame did not arrive, could not be read, or was uniform): hidden from it, the box where the dynamics
+#: expect it (docs/stress.md, "Confidence and state")
+UNSEEN_STATE = "occluded"
+
+
+def unseen(est: Estimate) -> Estimate:
+    """The estimate of a frame coasted without a usable image: never ``tracked``, since nothing was
+    seen (the tracker's own ``occluded`` or ``lost`` is kept; the tracker's state is not changed, so
+    the frames after it are tracked as before)."""
+    return est if est.target_state != "tracked" else dataclasses.replace(est, target_state=UNSEEN_STATE)

@@ -29,31 +29,17 @@ Join semantics (implemented by ``pipeline.runtime.join.SeqJoin``)
 
 from __future__ import annotations
 
-import dataclasses
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from typing import Any, Callable, ClassVar, Generic, Mapping, TypeVar
 
 import msgspec
 
-from gflow_core.tracker import Estimate, FrameRng, tracker_rng
+from gflow_core.tracker import FrameRng, tracker_rng
 from gflow_msgs.messages import Header, Message
 from gflow_msgs.snapshots import versioned_snapshot
 
-__all__ = ["Stage", "StageContext", "StageInputError", "Output", "Params", "unseen"]
-
-#: what a filter reports of a target on a frame it coasted over without an image it could use (the
-#: frame did not arrive, could not be read, or was uniform): hidden from it, the box where the dynamics
-#: expect it (docs/stress.md, "Confidence and state")
-UNSEEN_STATE = "occluded"
-
-
-def unseen(est: Estimate) -> Estimate:
-    """The estimate of a frame coasted without a usable image: never ``tracked``, since nothing was
-    seen (the tracker's own ``occluded`` or ``lost`` is kept; the tracker's state is not changed, so
-    the frames after it are tracked as before)."""
-    return est if est.target_state != "tracked" else dataclasses.replace(est, target_state=UNSEEN_STATE)
-
+__all__ = ["Stage", "StageContext", "StageInputError", "Output", "Params"]
 
 class StageInputError(ValueError):
     """An input a stage cannot use (bad shape, NaNs, empty edge map...). The stage skips it."""

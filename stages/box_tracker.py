@@ -47,9 +47,9 @@ from gflow_core.features import to_grey
 from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
-from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame
+from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, unseen
 
-from .base import Output, Stage, StageContext, StageInputError, unseen
+from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
                                  estimate_of, particles_msg)
 from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, article

@@ -37,9 +37,9 @@ from gflow_core.gflow.filter import concatenate_proposals
 from gflow_core.gflow.split import message_dims, restored_state, shard_indices, start_filter
 from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields
 from gflow_core.gflow.tracker import TRACKER
-from gflow_core.tracker import Estimate
+from gflow_core.tracker import Estimate, unseen
 
-from .base import Output, StageContext, StageInputError, unseen
+from .base import Output, StageContext, StageInputError
 from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
 from gflow_msgs.gflow import pose_estimate_of, read_shards, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of

@@ -65,7 +65,7 @@ def test_a_frame_never_seen_is_not_reported_tracked(files: Path, tmp_path: Path,
 def test_the_stage_relabels_only_the_frame_it_did_not_see() -> None:
     """``unseen`` turns ``tracked`` into ``occluded`` and keeps the tracker's own ``occluded``/``lost``."""
     from gflow_core.tracker import Estimate
-    from stages.base import unseen
+    from gflow_core.tracker import unseen
 
     for said, then in (("tracked", "occluded"), ("occluded", "occluded"), ("lost", "lost")):
         est = Estimate(frame=3, box=(1.0, 2.0, 3.0, 4.0), confidence=0.0, target_state=said, phase="coast")
