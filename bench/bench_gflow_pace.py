@@ -172,6 +172,17 @@ def rates() -> None:
     print(table(rows, ["data", "of", "T = 1", "T = 3", "T = 12", "RMS(12) / sqrt 12", "sqrt((MS(12) - MS(3)) / 9)"]))
 
 
+def whole_numbers(option: str, text: str, least: int) -> list[int]:
+    """A comma-separated list of whole numbers >= ``least``, or a one-line exit naming ``option``."""
+    try:
+        values = [int(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if not values or min(values) < least:
+        raise SystemExit(f"{option} must be whole numbers >= {least}, comma-separated, got {text!r}")
+    return values
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--every", default="1,3", help="play every k-th frame, for each k listed (default 1,3)")
@@ -200,16 +211,17 @@ def main() -> None:
         slo, shi = (int(v) for v in args.size_window.split(":"))
     except ValueError:
         raise SystemExit(f"--size-window must be A:B (two frame numbers), got {args.size_window!r}") from None
+    everies, seeds = whole_numbers("--every", args.every, 1), whole_numbers("--seeds", args.seeds, 0)
     if not DATA.is_dir():
         raise SystemExit(f"{DATA} not found: this benchmark needs ../shared/data/david_indoor")
     tmp = scratch("gflow-pace-")
     rows = []
-    for k in (int(v) for v in args.every.split(",")):
+    for k in everies:
         rec = tmp / f"david-every{k}.mcap"
         n = derive(DATA, k, rec)
-        for seed in (int(v) for v in args.seeds.split(",")):
+        for seed in seeds:
             boxes, points = tmp / f"d{k}-{seed}.csv", tmp / f"p{k}-{seed}.csv"
-            show = seed == int(args.seeds.split(",")[0])
+            show = seed == seeds[0]
             run(["gflow", "track", str(rec), "--tracker", "gflow", "--init", INIT, "--seed", str(seed),
                  "--set", "source.clock=host", "--out", str(boxes), "--points-out", str(points), "--no-record", "-q",
                  *(["--inline"] if args.inline else []), *(a for kv in args.gflow_set for a in ("--gflow-set", kv))],
