@@ -112,3 +112,22 @@ def test_damage_inside_a_recording_is_said_once_by_a_multi_process_track(files: 
     said = [ln for ln in (r.stdout + r.stderr).splitlines() if "recording is damaged at byte" in ln]
     assert r.returncode == 0 and len(said) == 1 and "bad.mcap" in said[0], r.stdout + r.stderr
     assert 0 < len(rows(tmp_path / "b.csv")) < 10  # the frames before the damage were tracked
+
+
+@pytest.mark.parametrize("setting,words", [
+    ("filter.particles=abc", ("particles must be a whole number", "'abc'")),
+    ("filter.lost_guard=maybe", ("lost_guard must be true or false",)),
+    ("filter.nonexist=3", ("no parameter 'nonexist'", "known parameters: seed")),
+])
+def test_a_stage_setting_of_the_wrong_kind_is_said_plainly(tmp_path: Path, monkeypatch, capsys, setting: str,
+                                                           words: tuple[str, ...]) -> None:
+    """``gflow run --set STAGE.PARAM=V`` gave msgspec's ``Expected `int`, got `str` - at `$.particles```;
+    it now says what the parameter takes, in the words the tracker block's ``--set`` uses."""
+    monkeypatch.chdir(tmp_path)
+    graph = Path(__file__).resolve().parents[1] / "pipeline" / "graphs" / "demo.yaml"
+    capsys.readouterr()
+    rc = main(["run", str(graph), "--set", setting])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2 and len(err) == 1, err
+    assert "Expected `" not in err[0] and all(w in err[0] for w in words), err
+    assert not list(tmp_path.iterdir()), "nothing may be written before the graph is checked"

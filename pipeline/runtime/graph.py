@@ -60,7 +60,7 @@ from stages.registry import STAGES
 from pipeline.io.recording_files import unique_path
 from gflow_core.params import as_recorded
 from pipeline.runtime.tracker_block import (TRACKER_KEY, TrackerBlock, block_class, is_main_class, own_fields,
-                                            parse_block, stage_tracker, tracker_fields)
+                                            parse_block, plain_type_error, stage_tracker, tracker_fields)
 from pipeline.runtime.transport import topic_key
 
 __all__ = ["GraphError", "StagePlan", "Plan", "load_graph", "parse_graph", "RecorderParams", "RECORDER_KIND"]
@@ -316,11 +316,17 @@ def params_error(kind: str, params: dict[str, Any]) -> str | None:
     try:
         msgspec.convert(dict(params), typ, strict=False)
     except (msgspec.ValidationError, ValueError, TypeError) as e:
-        # the names a stage takes help with a mistyped name, not with a value out of range
-        known = (f" (known parameters: {', '.join(f.name for f in msgspec.structs.fields(typ))})"
-                 if "unknown field" in str(e) else "")
-        return f"{e}{known}"
+        unknown = _UNKNOWN_FIELD.fullmatch(str(e))
+        if unknown is not None:
+            # the names a stage takes help with a mistyped name, not with a value out of range
+            known = ', '.join(f.name for f in msgspec.structs.fields(typ))
+            return f"no parameter {unknown.group(1)!r} (known parameters: {known})"
+        return plain_type_error(str(e), params)
     return None
+
+
+#: msgspec's wording of a name the struct does not have
+_UNKNOWN_FIELD = re.compile(r"Object contains unknown field `([^`]+)`")
 
 
 def validate_params(kind: str, params: dict[str, Any], where: str) -> dict[str, Any]:

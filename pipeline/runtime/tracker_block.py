@@ -97,7 +97,7 @@ def block_values(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
     try:
         return msgspec.to_builtins(msgspec.convert(dict(values), block_params(cls), strict=False))
     except msgspec.ValidationError as e:
-        raise ValueError(_plain_type_error(str(e), values)) from None
+        raise ValueError(plain_type_error(str(e), values)) from None
     except (ValueError, TypeError) as e:
         raise ValueError(str(e)) from None
 
@@ -108,7 +108,7 @@ _KINDS = {"int": "a whole number", "float": "a number", "bool": "true or false",
 _MSGSPEC_TYPE_ERROR = re.compile(r"Expected `([^`]+)`, got `[^`]+` - at `\$\.(\w+)`")
 
 
-def _plain_type_error(message: str, values: Mapping[str, Any]) -> str:
+def plain_type_error(message: str, values: Mapping[str, Any]) -> str:
     """msgspec's ``Expected `int`, got `str` - at `$.particles``` as ``particles must be a whole
     number, got 'nan'``; any other message as it is."""
     m = _MSGSPEC_TYPE_ERROR.fullmatch(message)
