@@ -144,6 +144,14 @@ def test_bad_input_is_a_one_line_error(tmp_path):
     make_sequence(tmp_path / "sizes", n=4)
     cv2.imwrite(str(tmp_path / "sizes" / "frames" / "000003.png"), np.zeros((10, 10, 3), np.uint8))
     check([str(tmp_path / "sizes"), str(tmp_path / "ws7")], "a VOT sequence has one frame size")
+    # a damaged frame in the second sequence used to leave the first written and the workspace half made
+    both = tmp_path / "both"
+    make_sequence(both / "a", n=4)
+    shutil.copytree(tmp_path / "broken", both / "b")
+    (tmp_path / "ws8").mkdir()
+    check([str(both), str(tmp_path / "ws8")], "nothing was written to")
+    assert not any((tmp_path / "ws8").iterdir())
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith((".ws", "ws")) and p.name != "ws8"]
 
 
 def _toolkit_overlap(gt: dict, pred: dict, size: tuple[int, int]) -> float:

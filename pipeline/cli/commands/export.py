@@ -11,7 +11,9 @@ from __future__ import annotations
 
 ORDER = 33
 
+import shutil
 import sys
+import tempfile
 from pathlib import Path
 
 from pipeline.cli.commands.common import CliError
@@ -62,8 +64,6 @@ def served_trackers(args) -> dict[str, list[str]]:
 
 def cmd_export_vot(args) -> int:
     from pipeline.evaluation.sequence_benchmark import find_sequences
-    from pipeline.io.vot_workspace import (stack_yaml, trackers_ini, workspace_config, write_list,
-                                           write_sequence)
 
     out = Path(args.out)
     _check_out(out)
@@ -81,16 +81,37 @@ def cmd_export_vot(args) -> int:
         seqs = [s for s in seqs if s.name in want]
     for n in notes:
         print(f"note: {n}", file=sys.stderr)
-    done = []
+    # written beside OUT and moved into place whole, so that a damaged frame or Ctrl-C leaves no
+    # half-written workspace behind
+    final = out.resolve()
+    work = Path(tempfile.mkdtemp(prefix=f".{final.name}.partial-", dir=final.parent))
     try:
-        for s in seqs:
-            e = write_sequence(out / "sequences" / s.name, s.name, s.path / "frames", s.groundtruth)
-            done.append(e)
-            how = "copied" if e.copied else "re-encoded as PNG"
-            print(f"{e.name}: {e.length} frames from frame {e.first} ({e.labelled} with ground truth), "
-                  f"{e.size[0]}x{e.size[1]}, {how}")
+        done = _write_workspace(args, seqs, work)
+        if final.is_dir():
+            final.rmdir()  # checked empty above
+        work.rename(final)
     except ValueError as err:
-        raise CliError(f"{err} (the workspace in {out} is incomplete: remove it)") from None
+        raise CliError(f"{err} (nothing was written to {out})") from None
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    trackers = served_trackers(args)
+    print(f"VOT workspace in {out}: {len(done)} sequences; trackers {', '.join('gflow-' + t for t in trackers)}; "
+          f"run: vot evaluate --workspace {out} gflow-dcf")
+    return 0
+
+
+def _write_workspace(args, seqs: list, out: Path) -> list:
+    """Every file of the workspace in the folder ``out``; the sequences written (their entries).
+    ``ValueError`` for a frame or ground truth that cannot be read."""
+    from pipeline.io.vot_workspace import stack_yaml, trackers_ini, workspace_config, write_list, write_sequence
+
+    done = []
+    for s in seqs:
+        e = write_sequence(out / "sequences" / s.name, s.name, s.path / "frames", s.groundtruth)
+        done.append(e)
+        how = "copied" if e.copied else "re-encoded as PNG"
+        print(f"{e.name}: {e.length} frames from frame {e.first} ({e.labelled} with ground truth), "
+              f"{e.size[0]}x{e.size[1]}, {how}")
     write_list(out / "sequences", [e.name for e in done])
     sparse = [e.name for e in done if not e.dense]
     title = f"gflow export of {Path(args.data).name}: {', '.join(e.name for e in done)}"
@@ -102,9 +123,7 @@ def cmd_export_vot(args) -> int:
         print(f"note: {', '.join(sparse)} {'has' if len(sparse) == 1 else 'have'} frames without ground truth "
               f"(written as nan rows, which the toolkit leaves out of its analyses); the stack has no reinit "
               f"experiment, which needs a box on every frame")
-    print(f"VOT workspace in {out}: {len(done)} sequences; trackers {', '.join('gflow-' + t for t in trackers)}; "
-          f"run: vot evaluate --workspace {out} gflow-dcf")
-    return 0
+    return done
 
 
 def register(sub) -> None:
