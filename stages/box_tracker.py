@@ -54,7 +54,7 @@ from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, Mes
                                  estimate_of, particles_msg)
 from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, article
 from .time_step import time_step
-from .tracker_params import SeedBoxFields, core_params
+from gflow_msgs.params import SeedBoxFields, core_params
 
 __all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "cloud_of"]
 
@@ -74,7 +74,7 @@ def cloud_of(msg: Particles) -> ParticleCloud:
 
 class BoxFilterStage(Stage[SeedBoxFields]):
     """The filter stage of a tracker on the protocol (module docstring); a subclass sets ``kind``,
-    ``Params`` (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass),
+    ``Params`` (:func:`~gflow_msgs.params.stage_params` of the tracker's parameter dataclass),
     ``tracker``, ``box`` and ``codec``. A tracker that reads another message than the frames (the
     contour trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family;
     one whose snapshot is not a :class:`~gflow_msgs.snapshots.SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
@@ -339,7 +339,7 @@ class FeaturesFilterStage(BoxFilterStage):
 
 class BoxProposalStage(Stage[SeedBoxFields]):
     """The proposal stage of a box tracker (module docstring); a subclass sets ``kind``, ``Params``
-    (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass, with the field
+    (:func:`~gflow_msgs.params.stage_params` of the tracker's parameter dataclass, with the field
     ``timed``), and ``box``, the random walk of the tracker's spec. A tracker whose particles carry
     more than alpha (the contour trackers' exemplar index k) sets ``purpose`` and overrides
     ``_clouds`` instead: its proposal of whole clouds."""

@@ -5,7 +5,7 @@ The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & M
 processes needs beyond that (the configuration digest, the shards, what a proposal process keeps
 and does with a frame, the filter process's start and restore) is :mod:`gflow_core.gflow.split`.
 Both stages take every field of :class:`gflow_core.gflow.GFlowParams`
-(:func:`stages.tracker_params.stage_params`), place the model the same way on the first usable
+(:func:`gflow_msgs.params.stage_params`), place the model the same way on the first usable
 frame (:meth:`gflow_core.gflow.split.ProposalShard.started`, :func:`gflow_core.gflow.split.start_filter`:
 a user morphable model, resource ``model``, or the generic head fitted into the initial box, clipped
 to the frame) and compute the same digest, which travels in every :class:`ExpertStates` and
@@ -49,7 +49,7 @@ from gflow_core.tracker import UnusableFrame
 from .base import Stage, StageContext, StageInputError
 from gflow_msgs.gflow import read_states
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError
-from .tracker_params import SeedBoxFields, tracker_params
+from gflow_msgs.params import SeedBoxFields, tracker_params
 
 __all__ = ["GFlowStageFields", "GFlowStage", "frame_of", "unpack_states"]
 

@@ -46,7 +46,7 @@ from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEst
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .time_step import MAX_TIME_STEP
-from .tracker_params import stage_params
+from gflow_msgs.params import stage_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams"]
 

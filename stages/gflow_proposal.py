@@ -51,7 +51,7 @@ from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, P
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
 from .time_step import time_step
-from .tracker_params import stage_params
+from gflow_msgs.params import stage_params
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 

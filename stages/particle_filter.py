@@ -52,7 +52,8 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import Output, StageContext, StageInputError
 from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message, MessageError, bins_of
-from .tracker_params import SeedBoxFields, stage_params, tracker_stage
+from gflow_msgs.params import SeedBoxFields, stage_params
+from .spec_box import tracker_stage
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -62,7 +63,7 @@ SNAPSHOT_VERSION = wire.SNAPSHOT_VERSION
 
 class FilterFields(SeedBoxFields, frozen=True):
     """What the filter stage takes besides the tracker's parameters: ``seed`` and ``init``
-    (:class:`~stages.tracker_params.SeedBoxFields`), and ``model``, the path of a learned M2 model with
+    (:class:`~gflow_msgs.params.SeedBoxFields`), and ``model``, the path of a learned M2 model with
     contour exemplars (empty: the K = 1 chamfer tracker)."""
 
     model: str = ""

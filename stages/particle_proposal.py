@@ -40,7 +40,8 @@ from gflow_core.spec import TrackerSpec
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalStage, CloudProposal
-from .tracker_params import SeedBoxFields, stage_params, tracker_stage
+from gflow_msgs.params import SeedBoxFields, stage_params
+from .spec_box import tracker_stage
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams"]
@@ -49,7 +50,7 @@ PURPOSE = PURPOSE_PROPOSAL  # 0x9209
 
 class ProposalFields(SeedBoxFields, frozen=True):
     """What the chamfer and m2 proposal stages take besides their tracker's parameters: ``seed``,
-    ``init`` (:class:`~stages.tracker_params.SeedBoxFields`; the AR(1) process on log s reverts to the
+    ``init`` (:class:`~gflow_msgs.params.SeedBoxFields`; the AR(1) process on log s reverts to the
     initial box's scale), ``model`` (a learned M2 model's path) and ``timed`` (also read the frames:
     the noise grows with the time to the next frame)."""
 

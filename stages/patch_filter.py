@@ -42,7 +42,7 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 from .base import StageContext, StageInputError
 from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message
-from .tracker_params import SeedBoxFields, stage_params
+from gflow_msgs.params import SeedBoxFields, stage_params
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "PatchFields"]
 

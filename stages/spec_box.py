@@ -17,14 +17,19 @@ Struct with the arrays and values as its fields. The stages know the tracker onl
 
 from __future__ import annotations
 
+import typing
+from typing import Any, TypeVar
+
 from gflow_core.spec import TrackerSpec
 
 from .base import Stage
 from .box_tracker import BoxFilterStage, BoxProposalStage
+from gflow_msgs.params import SeedBoxFields, StageFields, stage_params
 from gflow_msgs.snapshots import SnapshotCodec, arrays_codec
-from .tracker_params import SeedBoxFields, tracker_stage
 
-__all__ = ["spec_stage_class", "SpecProposalFields"]
+__all__ = ["spec_stage_class", "SpecProposalFields", "tracker_stage"]
+
+S = TypeVar("S", bound=type)
 
 
 class SpecProposalFields(SeedBoxFields, frozen=True):
@@ -66,3 +71,17 @@ def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
                          f"{spec.params.__name__}{own or ', ``seed`` and ``init``'}.",
                          f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}): "
                          f":mod:`stages.spec_box`.", box=spec.box, **what)
+
+
+def tracker_stage(base: S, spec: TrackerSpec, role: str, fields: type[StageFields], module: str, params_doc: str,
+                  doc: str, **attrs: Any) -> S:
+    """The ``role`` (``"Proposal"`` or ``"Filter"``) stage of ``spec``'s tracker, a subclass of ``base``
+    named ``{Name}{role}Stage`` in ``module``: its kind ``spec.proposal_kind`` or ``spec.filter_kind``,
+    its ``Params`` the struct ``{Name}{role}Params`` of every field of ``spec.params`` and those of
+    ``fields`` (:func:`gflow_msgs.params.stage_params`, documented by ``params_doc``), its docstring ``doc`` and the
+    class attributes ``attrs``."""
+    cap = "".join(w.capitalize() for w in spec.name.split("_"))
+    kind = {"Proposal": spec.proposal_kind, "Filter": spec.filter_kind}[role]
+    params = stage_params(f"{cap}{role}Params", spec.params, fields, module, params_doc)
+    return typing.cast(S, type(f"{cap}{role}Stage", (base,), {"kind": kind, "Params": params, "__module__": module,
+                                                              "__doc__": doc, **attrs}))
