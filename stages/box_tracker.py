@@ -271,24 +271,6 @@ class FeaturesFilterStage(BoxFilterStage):
     def _features(self, feat: Features, seq: int) -> Any:
         """The tracker's observation of a features message (None, reported: unusable)."""
 
-    def _usable(self, feat: Features, seq: int, field: str, usable: Callable[[np.ndarray], bool],
-                says: Callable[[np.ndarray], str], then: str) -> np.ndarray | None:
-        """The features' array ``field``, or None when it cannot be read or is not ``usable`` (``says(array)``
-        why), reported as ``bad_features`` ending with ``then`` (what the filter does without it)."""
-        try:
-            a = getattr(feat, field).array()
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; {then}", seq)
-            return None
-        if not usable(a):
-            self.report("bad_features", f"frame {seq}: {says(a)}; {then}", seq)
-            return None
-        return a
-
-    def _grey(self, feat: Features, seq: int, usable: Callable[[np.ndarray], bool], then: str) -> np.ndarray | None:
-        """The features' grey image (:meth:`_usable`)."""
-        return self._usable(feat, seq, "grey", usable, lambda g: f"grey image has shape {g.shape}", then)
-
     def _observe(self, feat: Any, seq: int) -> Any:
         if feat is None:
             return self.observed("features", None, seq, "coasting on the dynamics")
