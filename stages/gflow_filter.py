@@ -33,8 +33,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
-from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import message_dims, restored_state, shard_indices, start_filter
+from gflow_core.gflow.split import joined_proposals, message_dims, restored_state, shard_indices, start_filter
 from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate, unseen
@@ -136,7 +135,7 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
             assert problem is not None
             self.report(problem[0], f"frame {seq}: {problem[1]}; coasting", seq)
             return None
-        return concatenate_proposals([Proposals(**p) for p in parts])
+        return joined_proposals(parts)
 
     def _initialise(self, seq: int, feat: Message | None) -> list[Output]:
         obs = self._frame(feat, seq, None, "waiting for a usable first frame", missing=False)

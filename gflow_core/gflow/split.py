@@ -17,6 +17,7 @@ arguments of these calls and results into messages:
 * :func:`message_dims` -- the dimensions of the arrays that travel (E, P, n, s);
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
 * :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes;
+* :func:`joined_proposals` -- the pose opinions of every shard for one frame, as one proposal;
 * :func:`start_filter`, :func:`restored_state` -- the filter process's posterior at the first frame
   (without backgrounds, which the proposal processes keep) with its digest, and again from the
   arrays and fields of a snapshot.
@@ -36,14 +37,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from .background import TileLayout, TiledBackground
-from .filter import ExpertState, Proposals, advance_background, initial_background, predict_background
+from .filter import (ExpertState, Proposals, advance_background, concatenate_proposals, initial_background,
+                     predict_background)
 from .params import GFlowParams
 from .state_fields import state_of_fields
 from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_setup
 from ..tracker import Estimate, FrameRng
 
 __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
-           "BackgroundReplica", "ProposalShard", "expert_state", "check_experts", "start_filter", "restored_state"]
+           "BackgroundReplica", "ProposalShard", "expert_state", "check_experts", "joined_proposals", "start_filter",
+           "restored_state"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -138,6 +141,12 @@ def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.n
     if has_anchor != (setup.cfg.texture_decay != 1.0):
         raise ValueError("the texture anchor is " + ("unexpected" if has_anchor else "missing") +
                          f" for texture_decay {setup.cfg.texture_decay}")
+
+
+def joined_proposals(parts: Sequence[Mapping[str, Any]]) -> Proposals:
+    """The proposals of one frame of every shard, each the fields of :class:`.filter.Proposals` (the arrays
+    read from a shard's message, its ``dt``), joined in expert order (:func:`.filter.concatenate_proposals`)."""
+    return concatenate_proposals([Proposals(**p) for p in parts])
 
 
 def start_filter(params: GFlowParams, obs: GFlowObservation, box: Sequence[float], seed: int, rng: FrameRng,
