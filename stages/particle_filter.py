@@ -44,7 +44,6 @@ from gflow_core.contour.params import ContourParams
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.tracking import ParticleCloud, weight_diagnostics
-from gflow_core.spec import TrackerSpec
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
@@ -159,18 +158,7 @@ class FilterStage(FeaturesFilterStage):
         self.steps, self.warned, self.last = snap.steps, snap.warned, wire.last_of(snap)
 
 
-def _filter_of(spec: TrackerSpec) -> type[FilterStage]:
-    """The filter stage of a contour tracker, made from its spec: kind ``spec.filter_kind``, parameters
-    every field of ``spec.params`` with those of :class:`FilterFields`, a learned model required when
-    the spec's is (``model_required``)."""
-    cls = spec.params
-    return tracker_stage(FilterStage, spec, "Filter", FilterFields, __name__,
-                         f"The {spec.name} tracker's filter: every field of :class:`{cls.__module__}.{cls.__name__}`, "
-                         f"``init``, ``seed`` and ``model``{' (a learned contour model, required)' * spec.model_required}.",
-                         f"The {spec.name} tracker's filter (graph ``{spec.graph}``), made from its spec.",
-                         needs_model=spec.model_required)
-
-
-ChamferFilterStage = _filter_of(CHAMFER)
-M2FilterStage = _filter_of(M2)
+#: the chamfer and m2 trackers' filters, made from their specs (a learned contour model required where the spec's is)
+ChamferFilterStage, M2FilterStage = (tracker_stage(FilterStage, s, "Filter", FilterFields, __name__,
+                                                   needs_model=s.model_required) for s in (CHAMFER, M2))
 ChamferFilterParams, M2FilterParams = ChamferFilterStage.Params, M2FilterStage.Params

@@ -36,7 +36,6 @@ from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, propo
 from gflow_core.builtin_trackers import CHAMFER, M2
 from gflow_core.contour.params import ChamferParams
 from gflow_core.m2.model import M2Model
-from gflow_core.spec import TrackerSpec
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalStage, CloudProposal
@@ -90,19 +89,8 @@ class ProposalStage(BoxProposalStage):
         return PURPOSE
 
 
-def _proposal_of(spec: TrackerSpec) -> type[ProposalStage]:
-    """The proposal stage of a contour tracker, made from its spec: kind ``spec.proposal_kind``,
-    parameters every field of ``spec.params`` with those of :class:`ProposalFields`, a learned model
-    (its dynamics) required when the spec's is (``model_required``)."""
-    cls = spec.params
-    return tracker_stage(ProposalStage, spec, "Proposal", ProposalFields, __name__,
-                         f"The {spec.name} tracker's proposal: every field of :class:`{cls.__module__}.{cls.__name__}`, "
-                         f"``seed``, ``model``{' (required: its dynamics)' * spec.model_required}, ``init`` and ``timed``.",
-                         f"The {spec.name} tracker's proposal (graph ``{spec.graph}``): "
-                         f"{'the learned model' if spec.model_required else 'the random walk'}'s dynamics, made from its spec.",
-                         needs_model=spec.model_required)
-
-
-ChamferProposalStage = _proposal_of(CHAMFER)
-M2ProposalStage = _proposal_of(M2)
+#: the chamfer and m2 trackers' proposals, made from their specs (a learned model, its dynamics, required where
+#: the spec's is)
+ChamferProposalStage, M2ProposalStage = (tracker_stage(ProposalStage, s, "Proposal", ProposalFields, __name__,
+                                                       needs_model=s.model_required) for s in (CHAMFER, M2))
 ChamferProposalParams, M2ProposalParams = ChamferProposalStage.Params, M2ProposalStage.Params
