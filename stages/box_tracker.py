@@ -40,7 +40,6 @@ from __future__ import annotations
 from abc import abstractmethod
 from typing import Any, Callable, ClassVar, Mapping, cast
 
-import msgspec
 import numpy as np
 
 from gflow_core.features import to_grey
@@ -52,7 +51,7 @@ from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, unseen
 from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
                                  estimate_of, particles_msg)
-from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, article
+from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, decoded
 from .time_step import time_step
 from gflow_msgs.params import SeedBoxFields, core_params
 
@@ -236,24 +235,16 @@ class BoxFilterStage(Stage[SeedBoxFields]):
             cls.snapshot_struct, cls.snapshot_versions = cls.codec.struct, (cls.codec.version,)
 
     def snapshot_fields(self) -> dict[str, Any]:
-        codec = self.codec
-        assert codec is not None
-        if self.state is None:
-            return {"initialised": False, "steps": self.steps}
-        return {"initialised": True, **codec.fields(self.state), "steps": self.steps, "last": self.last}
+        assert self.codec is not None
+        return self.codec.snapshot(self.state, self.steps, self.last)
 
     def restore_fields(self, snap: Any) -> None:
-        name, label, codec = self.ctx.name, self.label, self.codec
-        assert codec is not None
+        assert self.codec is not None
         self.steps, self.last = snap.steps, dict(snap.last)
-        if not snap.initialised:
-            self.state, self.shape = None, None
-            return
         try:
-            self.state = codec.state(snap, self.core, self.last)
-        except (AssertionError, KeyError, IndexError, TypeError, MessageError, ValueError) as e:
-            raise ValueError(f"stage {name!r}: bad {label} snapshot: {e}") from None
-        self.shape = None
+            self.state, self.shape = self.codec.restored(snap, self.core, self.last), None
+        except ValueError as e:
+            raise ValueError(f"stage {self.ctx.name!r}: bad {self.label} snapshot: {e}") from None
 
 
 class FeaturesFilterStage(BoxFilterStage):
@@ -290,15 +281,11 @@ class FeaturesFilterStage(BoxFilterStage):
     def _restored(self, data: bytes, decode: Callable[[bytes], Any], state_of: Callable[[Any], Any]) -> Any:
         """A snapshot of the tracker's own codec (``decode``) restored: sets the state ``state_of`` the decoded
         snapshot gives and returns that snapshot; ValueError in one line naming the stage otherwise."""
-        name = self.ctx.name
-        try:
-            snap = decode(data)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not {article(self.kind)} {self.kind} snapshot: {e}") from None
+        snap = decoded(data, decode, self.ctx.name, self.kind)
         try:
             self.state = state_of(snap)
         except ValueError as e:
-            raise ValueError(f"stage {name!r}: {e}") from None
+            raise ValueError(f"stage {self.ctx.name!r}: {e}") from None
         return snap
 
     def _proposed(self, seq: int, prop: Message | None) -> Any:
