@@ -25,9 +25,8 @@ State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no l
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
 the lost guard's distance distributions, held estimate and anchor, the chamfer tracker's first
 template and the frame its template was last taken at (template update, :mod:`gflow_core.contour.template`),
-and counters: one msgpack encode of :class:`gflow_core.contour.state.ContourSnapshot` (version 5;
-version-1 and -2 snapshots still restore, with a fresh guard, version-3 ones with a guard that weighs
-no colour, and versions 1-4, from before the template update, with their template as the first one).
+and counters: one msgpack encode of :class:`gflow_core.contour.state.ContourSnapshot`, whose module
+says which older versions restore and how.
 """
 
 from __future__ import annotations
