@@ -1,8 +1,9 @@
 """The package layers import downwards only: gflow_core < gflow_msgs (the messages, which import
 nothing of gflow) < stages < pipeline.io < pipeline.runtime
 < pipeline.recording < pipeline.app (the application layer) < pipeline.evaluation (the benchmarks)
-< pipeline.cli < gflow (the Python API, on top of all of them). A violation names the file, the
-line and the import."""
+< pipeline.cli < gflow (the Python API, on top of all of them), and a stage imports of a tracker's
+package only the modules of its stages' interface. A violation names the file, the line and the
+import."""
 
 from __future__ import annotations
 
