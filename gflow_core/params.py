@@ -3,7 +3,7 @@
 Each field of a tracker's parameter dataclass is declared with :func:`param`, which keeps its
 help text beside its default (and, for the few parameters worth a command-line option of their
 own, the option's name). Everything else is derived from the dataclass, never copied: the
-stages' parameter structs (``stages/tracker_params.py``), through them the validation of graph
+stages' parameter structs (``gflow_msgs/params.py``), through them the validation of graph
 files, the options of ``gflow track`` with their help, ``gflow info TRACKER`` and the keyword
 arguments of the Python API.
 

@@ -2,7 +2,7 @@
 packages register under the entry-point group ``gflow.trackers`` (:data:`~gflow_core.spec.ENTRY_POINT_GROUP`).
 
 ``gflow.Tracker``, ``gflow track --tracker``, ``gflow info TRACKER``, ``gflow benchmark --trackers``
-and the stage registry all ask it. It is read once per ``sys.path``.
+and the stage registry (:func:`stage_kinds`) all ask it. It is read once per ``sys.path``.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 from .builtin_trackers import BUILTIN
 from .spec import ENTRY_POINT_GROUP, SpecError, TrackerSpec
 
-__all__ = ["trackers", "broken", "get", "names"]
+__all__ = ["trackers", "broken", "get", "names", "stage_kinds"]
 
 _cache: dict[tuple[str, ...], tuple[dict[str, TrackerSpec], dict[str, str]]] = {}
 
@@ -78,3 +78,19 @@ def get(name: str) -> TrackerSpec:
     if name in bad:
         raise SpecError(bad[name])
     raise SpecError(f"unknown tracker {name!r} (known: {', '.join(sorted(specs))})")
+
+
+def stage_kinds() -> dict[str, tuple[str | None, str]]:
+    """{kind: (the module of its stage class, or None for the generic box stages; the tracker whose spec
+    gives it)} of every registered tracker's stages: the kinds its spec names a module for
+    (:attr:`~gflow_core.spec.TrackerSpec.stages`), and ``proposal_kind`` / ``filter_kind`` of a spec with
+    box stages. A kind several specs give (a spec copied with ``dataclasses.replace`` keeps its kinds)
+    is the tracker's it is named for (``NAME.filter``), else the last one's by name."""
+    out: dict[str, tuple[str | None, str]] = {}
+    for s in trackers().values():
+        kinds: dict[str, str | None] = {k: None for k in (s.proposal_kind, s.filter_kind) if s.box is not None}
+        kinds.update(s.stages)
+        for k, module in kinds.items():
+            if k not in out or out[k][1] != k.split(".")[0]:
+                out[k] = (module, s.name)
+    return out

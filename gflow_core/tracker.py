@@ -35,7 +35,8 @@ from typing import Any, Mapping, Protocol, TypeVar
 import numpy as np
 
 __all__ = ["Box", "Estimate", "unseen", "box_estimate", "box_step_estimate", "FrameRng", "stream_hash", "frame_rng",
-           "tracker_rng", "FilterSide", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES"]
+           "tracker_rng", "FilterSide", "TrackingFilter", "UnusableFrame", "step", "TARGET_STATES", "PHASES",
+           "time_step", "MAX_TIME_STEP"]
 
 #: (x, y, w, h) in pixels
 Box = tuple[float, float, float, float]
@@ -96,6 +97,31 @@ def tracker_rng(seed: int, stream: str, seq: int) -> FrameRng:
     """The draws of one frame for a tracker: ``FrameRng(seed, stream_hash(stream), seq)``, whose
     ``stream(purpose)`` is :func:`frame_rng`'s generator."""
     return FrameRng(int(seed), stream_hash(stream), int(seq))
+
+
+#: the longest step a tracker is told (25 periods: one second at 25 frames/s). After a longer gap
+#: (a reconnect) the motion models' spread already covers any motion a tracker could follow,
+#: and the search windows that grow with it stay affordable.
+MAX_TIME_STEP = 25.0
+
+
+def time_step(period_ns: float, stamp_ns: int, prev_stamp_ns: int) -> float:
+    """The ``dt`` of :meth:`TrackingFilter.propose`: the time from the frame stamped ``prev_stamp_ns`` to
+    the one stamped ``stamp_ns``, in nominal frame periods of ``period_ns``, within [1, :data:`MAX_TIME_STEP`].
+
+    A tracker's motion model is tuned per frame. A live source skips frames when the tracker is
+    slower than the camera (the newest frame wins) and loses some while it reconnects, so the
+    frames a tracker sees are not one period apart: its motion noise and proposal widths must grow
+    with the time that passed.
+
+    1.0 when the stamps are media time (``period_ns`` is 0: files keep their bits, since multiplying
+    by 1.0 and taking sqrt(1.0) are exact) or either stamp is missing (0: a message made without a
+    frame). Never below 1: a live source delivers at most one frame a period, and the host stamps of
+    frames decoded in a burst are closer together than the camera took them.
+    """
+    if period_ns <= 0 or stamp_ns <= 0 or prev_stamp_ns <= 0:
+        return 1.0
+    return min(MAX_TIME_STEP, max(1.0, (stamp_ns - prev_stamp_ns) / period_ns))
 
 
 @dataclass(frozen=True)

@@ -12,18 +12,19 @@ back and checks its version.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, TypeVar
 
 import msgspec
 import numpy as np
 
-from .base import NDArray
+from .base import MessageError, NDArray
 from .gflow import ExpertStates
 
 __all__ = ["PreprocessSnapshot", "CounterSnapshot", "BoxFilterSnapshot", "AppearanceFilterSnapshot",
            "GFlowProposalSnapshot", "GFlowFilterSnapshot", "versioned_snapshot", "article", "SnapshotCodec",
-           "arrays_codec"]
+           "arrays_codec", "decoded"]
 
 
 class PreprocessSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
@@ -130,15 +131,21 @@ def versioned_snapshot(data: bytes, struct: type[T], stage: str, what: str, vers
     checked to be of ``version`` (or one of several a stage still reads); ``ValueError`` in one line naming
     the stage and ``what`` (``not a preprocess snapshot: ...``, ``preprocess snapshot version 3, expected
     2``) otherwise."""
-    try:
-        snap = msgspec.msgpack.decode(data, type=struct)
-    except msgspec.DecodeError as e:
-        raise ValueError(f"stage {stage!r}: not {article(what)} {what} snapshot: {e}") from None
+    snap = decoded(data, functools.partial(msgspec.msgpack.decode, type=struct), stage, what)
     found, versions = getattr(snap, "version"), version if isinstance(version, tuple) else (version,)
     if found not in versions:
         raise ValueError(f"stage {stage!r}: {what} snapshot version {found}, expected "
                          f"{' or '.join(map(str, versions))}")
     return snap
+
+
+def decoded(data: bytes, decode: Callable[[bytes], T], stage: str, what: str) -> T:
+    """``decode(data)``; ``ValueError`` in one line naming the stage and ``what`` (``not a preprocess
+    snapshot: ...``) for bytes it cannot decode (``msgspec.DecodeError``)."""
+    try:
+        return decode(data)
+    except msgspec.DecodeError as e:
+        raise ValueError(f"stage {stage!r}: not {article(what)} {what} snapshot: {e}") from None
 
 
 def article(word: str) -> str:
@@ -162,6 +169,22 @@ class SnapshotCodec:
     version: int
     fields: Callable[[Any], dict[str, Any]]
     state: Callable[[Any, Any, dict], Any]
+
+    def snapshot(self, state: Any, steps: int, last: dict) -> dict[str, Any]:
+        """The fields of :attr:`struct` but ``version`` for a filter stage's ``state`` (None: not initialised),
+        its step count and its last estimate's summary."""
+        if state is None:
+            return {"initialised": False, "steps": steps}
+        return {"initialised": True, **self.fields(state), "steps": steps, "last": last}
+
+    def restored(self, snap: Any, params: Any, last: dict) -> Any:
+        """The state of a decoded snapshot (None: not initialised); ``ValueError`` for bad content."""
+        if not snap.initialised:
+            return None
+        try:
+            return self.state(snap, params, last)
+        except (AssertionError, KeyError, IndexError, TypeError, MessageError, ValueError) as e:
+            raise ValueError(str(e)) from None
 
 
 ToArrays = Callable[[Any], tuple[Mapping[str, np.ndarray], Mapping[str, Any]]]

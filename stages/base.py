@@ -37,16 +37,13 @@ import msgspec
 
 from gflow_core.tracker import FrameRng, tracker_rng
 from gflow_msgs.messages import Header, Message
+from gflow_msgs.params import Params
 from gflow_msgs.snapshots import versioned_snapshot
 
 __all__ = ["Stage", "StageContext", "StageInputError", "Output", "Params"]
 
 class StageInputError(ValueError):
     """An input a stage cannot use (bad shape, NaNs, empty edge map...). The stage skips it."""
-
-
-class Params(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
-    """Base of every stage's parameter struct: unknown keys are errors, not silently ignored."""
 
 
 @dataclass(frozen=True)

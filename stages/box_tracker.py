@@ -40,7 +40,6 @@ from __future__ import annotations
 from abc import abstractmethod
 from typing import Any, Callable, ClassVar, Mapping, cast
 
-import msgspec
 import numpy as np
 
 from gflow_core.features import to_grey
@@ -52,9 +51,9 @@ from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, unseen
 from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
                                  estimate_of, particles_msg)
-from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, article
+from gflow_msgs.snapshots import CounterSnapshot, SnapshotCodec, decoded
 from .time_step import time_step
-from .tracker_params import SeedBoxFields, core_params
+from gflow_msgs.params import SeedBoxFields, core_params
 
 __all__ = ["BoxFilterStage", "FeaturesFilterStage", "BoxProposalStage", "cloud_of"]
 
@@ -74,7 +73,7 @@ def cloud_of(msg: Particles) -> ParticleCloud:
 
 class BoxFilterStage(Stage[SeedBoxFields]):
     """The filter stage of a tracker on the protocol (module docstring); a subclass sets ``kind``,
-    ``Params`` (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass),
+    ``Params`` (:func:`~gflow_msgs.params.stage_params` of the tracker's parameter dataclass),
     ``tracker``, ``box`` and ``codec``. A tracker that reads another message than the frames (the
     contour trackers' features) sets ``port`` and its ports and overrides the ``_observe`` family;
     one whose snapshot is not a :class:`~gflow_msgs.snapshots.SnapshotCodec`'s overrides ``snapshot`` / ``restore``."""
@@ -236,24 +235,16 @@ class BoxFilterStage(Stage[SeedBoxFields]):
             cls.snapshot_struct, cls.snapshot_versions = cls.codec.struct, (cls.codec.version,)
 
     def snapshot_fields(self) -> dict[str, Any]:
-        codec = self.codec
-        assert codec is not None
-        if self.state is None:
-            return {"initialised": False, "steps": self.steps}
-        return {"initialised": True, **codec.fields(self.state), "steps": self.steps, "last": self.last}
+        assert self.codec is not None
+        return self.codec.snapshot(self.state, self.steps, self.last)
 
     def restore_fields(self, snap: Any) -> None:
-        name, label, codec = self.ctx.name, self.label, self.codec
-        assert codec is not None
+        assert self.codec is not None
         self.steps, self.last = snap.steps, dict(snap.last)
-        if not snap.initialised:
-            self.state, self.shape = None, None
-            return
         try:
-            self.state = codec.state(snap, self.core, self.last)
-        except (AssertionError, KeyError, IndexError, TypeError, MessageError, ValueError) as e:
-            raise ValueError(f"stage {name!r}: bad {label} snapshot: {e}") from None
-        self.shape = None
+            self.state, self.shape = self.codec.restored(snap, self.core, self.last), None
+        except ValueError as e:
+            raise ValueError(f"stage {self.ctx.name!r}: bad {self.label} snapshot: {e}") from None
 
 
 class FeaturesFilterStage(BoxFilterStage):
@@ -270,24 +261,6 @@ class FeaturesFilterStage(BoxFilterStage):
     @abstractmethod
     def _features(self, feat: Features, seq: int) -> Any:
         """The tracker's observation of a features message (None, reported: unusable)."""
-
-    def _usable(self, feat: Features, seq: int, field: str, usable: Callable[[np.ndarray], bool],
-                says: Callable[[np.ndarray], str], then: str) -> np.ndarray | None:
-        """The features' array ``field``, or None when it cannot be read or is not ``usable`` (``says(array)``
-        why), reported as ``bad_features`` ending with ``then`` (what the filter does without it)."""
-        try:
-            a = getattr(feat, field).array()
-        except MessageError as e:
-            self.report("bad_features", f"frame {seq}: {e}; {then}", seq)
-            return None
-        if not usable(a):
-            self.report("bad_features", f"frame {seq}: {says(a)}; {then}", seq)
-            return None
-        return a
-
-    def _grey(self, feat: Features, seq: int, usable: Callable[[np.ndarray], bool], then: str) -> np.ndarray | None:
-        """The features' grey image (:meth:`_usable`)."""
-        return self._usable(feat, seq, "grey", usable, lambda g: f"grey image has shape {g.shape}", then)
 
     def _observe(self, feat: Any, seq: int) -> Any:
         if feat is None:
@@ -308,15 +281,11 @@ class FeaturesFilterStage(BoxFilterStage):
     def _restored(self, data: bytes, decode: Callable[[bytes], Any], state_of: Callable[[Any], Any]) -> Any:
         """A snapshot of the tracker's own codec (``decode``) restored: sets the state ``state_of`` the decoded
         snapshot gives and returns that snapshot; ValueError in one line naming the stage otherwise."""
-        name = self.ctx.name
-        try:
-            snap = decode(data)
-        except msgspec.DecodeError as e:
-            raise ValueError(f"stage {name!r}: not {article(self.kind)} {self.kind} snapshot: {e}") from None
+        snap = decoded(data, decode, self.ctx.name, self.kind)
         try:
             self.state = state_of(snap)
         except ValueError as e:
-            raise ValueError(f"stage {name!r}: {e}") from None
+            raise ValueError(f"stage {self.ctx.name!r}: {e}") from None
         return snap
 
     def _proposed(self, seq: int, prop: Message | None) -> Any:
@@ -339,7 +308,7 @@ class FeaturesFilterStage(BoxFilterStage):
 
 class BoxProposalStage(Stage[SeedBoxFields]):
     """The proposal stage of a box tracker (module docstring); a subclass sets ``kind``, ``Params``
-    (:func:`~stages.tracker_params.stage_params` of the tracker's parameter dataclass, with the field
+    (:func:`~gflow_msgs.params.stage_params` of the tracker's parameter dataclass, with the field
     ``timed``), and ``box``, the random walk of the tracker's spec. A tracker whose particles carry
     more than alpha (the contour trackers' exemplar index k) sets ``purpose`` and overrides
     ``_clouds`` instead: its proposal of whole clouds."""

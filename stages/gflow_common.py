@@ -5,7 +5,7 @@ The two stages (``gflow.proposal``, ``gflow.filter``; Marks, Hershey, Roddey & M
 processes needs beyond that (the configuration digest, the shards, what a proposal process keeps
 and does with a frame, the filter process's start and restore) is :mod:`gflow_core.gflow.split`.
 Both stages take every field of :class:`gflow_core.gflow.GFlowParams`
-(:func:`stages.tracker_params.stage_params`), place the model the same way on the first usable
+(:func:`gflow_msgs.params.stage_params`), place the model the same way on the first usable
 frame (:meth:`gflow_core.gflow.split.ProposalShard.started`, :func:`gflow_core.gflow.split.start_filter`:
 a user morphable model, resource ``model``, or the generic head fitted into the initial box, clipped
 to the frame) and compute the same digest, which travels in every :class:`ExpertStates` and
@@ -43,15 +43,13 @@ from typing import Any, TypeVar
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, ModelSetup
 from gflow_core.gflow.split import check_experts, check_shard, message_dims
-from gflow_core.gflow.tracker import TRACKER
-from gflow_core.tracker import UnusableFrame
 
 from .base import Stage, StageContext, StageInputError
 from gflow_msgs.gflow import read_states
-from gflow_msgs.messages import ExpertStates, Features, Message, MessageError
-from .tracker_params import SeedBoxFields, tracker_params
+from gflow_msgs.messages import ExpertStates, Features, Message
+from gflow_msgs.params import SeedBoxFields, tracker_params
 
-__all__ = ["GFlowStageFields", "GFlowStage", "frame_of", "unpack_states"]
+__all__ = ["GFlowStageFields", "GFlowStage", "unpack_states"]
 
 
 class GFlowStageFields(SeedBoxFields, frozen=True):
@@ -110,23 +108,6 @@ class GFlowStage(Stage[F]):
         if error != self.init_error:
             self.init_error = error
             self.report("init_failed", f"frame {seq}: {error}" + (f"; {then}" if then else ""), seq)
-
-
-def frame_of(feat: Features, tracker: GFlowParams) -> GFlowObservation:
-    """What G-flow reads of a Features message (:meth:`GFlowTracker.observe_grey` of its grey image;
-    both stages read frames with it, so they see bit-identical frames).
-
-    Raises StageInputError for an undecodable array, not a 2-D uint8 image of at least 2 x 2
-    pixels, or a uniform image (all black, saturated or any single grey level).
-    """
-    try:
-        return TRACKER.observe_grey(tracker, feat.grey.array())
-    except MessageError as e:
-        raise StageInputError(f"grey image: {e}") from None
-    except UnusableFrame as e:
-        raise StageInputError(f"{e}; frame skipped") from None
-    except ValueError as e:
-        raise StageInputError(str(e)) from None
 
 
 # -- messages -> gflow_core ---------------------------------------------------------------

@@ -33,20 +33,20 @@ from typing import Any, Mapping
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
-from gflow_core.gflow.filter import concatenate_proposals
-from gflow_core.gflow.split import message_dims, restored_state, shard_indices, start_filter
+from gflow_core.gflow.split import (filter_observation, joined_proposals, message_dims, restored_state, shard_indices,
+                                   start_filter)
 from gflow_core.gflow.state_fields import STATE_FIELDS, state_fields
 from gflow_core.gflow.tracker import TRACKER
 from gflow_core.tracker import Estimate, unseen
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
+from .gflow_common import GFlowStage, GFlowStageFields, unpack_states
 from gflow_msgs.gflow import pose_estimate_of, read_shards, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowFilterSnapshot
 from .time_step import MAX_TIME_STEP
-from .tracker_params import stage_params
+from gflow_msgs.params import stage_params
 
 __all__ = ["GFlowFilterStage", "GFlowFilterParams"]
 
@@ -115,16 +115,12 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
         return [("state", out_state), ("estimate", pose_estimate_of(header, est))]
 
     def prepare(self, port: str, msg: Message) -> tuple[GFlowObservation, str]:
-        """What G-flow reads of a frame, with the colour bins and the orientation channels the lost
-        guard reads (:meth:`GFlowTracker.with_channels`), which depend on the frame alone: made as
-        soon as it arrives, while the stage waits for the proposals. Returns the observation and
-        what was wrong with the bins ("" when nothing was). Raises StageInputError for a frame that
-        cannot be used."""
+        """What G-flow reads of a frame, with the colour bins and the orientation channels the lost guard
+        reads (:func:`gflow_core.gflow.split.filter_observation`), which depend on the frame alone: made
+        as soon as it arrives, while the stage waits for the proposals. Returns the observation and what
+        was wrong with the bins ("" when nothing was). Raises ValueError for a frame that cannot be used."""
         assert isinstance(msg, Features)
-        obs = frame_of(msg, self.tracker)
-        # the features' colour bins (the preprocess stage's ``colour``), read only when the guard weighs colour
-        bins, problem = bins_of(msg, obs.grey.shape) if TRACKER.reads_colour(self.tracker) else (None, "")
-        return TRACKER.with_channels(self.tracker, TRACKER.with_bins(self.tracker, obs, bins)), problem
+        return filter_observation(self.tracker, msg.grey.array, lambda shape: bins_of(msg, shape))
 
     def _proposals(self, seq: int, inputs: Mapping[str, Message | None]) -> Proposals | None:
         """Every shard's proposals for ``seq`` (:func:`gflow_msgs.gflow.read_shards`), concatenated; None
@@ -136,7 +132,7 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
             assert problem is not None
             self.report(problem[0], f"frame {seq}: {problem[1]}; coasting", seq)
             return None
-        return concatenate_proposals([Proposals(**p) for p in parts])
+        return joined_proposals(parts)
 
     def _initialise(self, seq: int, feat: Message | None) -> list[Output]:
         obs = self._frame(feat, seq, None, "waiting for a usable first frame", missing=False)

@@ -41,17 +41,17 @@ from typing import Any, Mapping
 
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, Proposals
-from gflow_core.gflow.split import BackgroundReplica, ProposalShard, restored_setup, shard_indices
-from gflow_core.gflow.tracker import TRACKER
+from gflow_core.gflow.split import (BackgroundReplica, ProposalShard, proposal_observation, restored_setup,
+                                   shard_indices)
 
 from .base import Output, StageContext, StageInputError
-from .gflow_common import GFlowStage, GFlowStageFields, frame_of, unpack_states
+from .gflow_common import GFlowStage, GFlowStageFields, unpack_states
 from gflow_msgs.gflow import proposals_of
 from gflow_msgs.messages import ExpertStates, Features, Message, MessageError, PoseProposals
 from gflow_msgs.base import packed_fields, unpacked_fields
 from gflow_msgs.snapshots import GFlowProposalSnapshot
 from .time_step import time_step
-from .tracker_params import stage_params
+from gflow_msgs.params import stage_params
 
 __all__ = ["GFlowProposalStage", "GFlowProposalParams"]
 
@@ -90,12 +90,12 @@ class GFlowProposalStage(GFlowStage[GFlowProposalFields]):
 
     # -- one frame ---------------------------------------------------------------------------
     def prepare(self, port: str, msg: Message) -> tuple[GFlowObservation, str]:
-        """What G-flow reads of a frame and the pyramid its proposals need (:meth:`GFlowTracker.with_pyramid`),
-        which depend on the frame alone: made as soon as it arrives, while the stage waits for the
-        experts; and "" (the proposals read no colour bins). Raises StageInputError for a frame that
-        cannot be used."""
+        """What G-flow reads of a frame and the pyramid its proposals need
+        (:func:`gflow_core.gflow.split.proposal_observation`), which depend on the frame alone: made as
+        soon as it arrives, while the stage waits for the experts; and "" (the proposals read no colour
+        bins). Raises ValueError for a frame that cannot be used."""
         assert isinstance(msg, Features)
-        return TRACKER.with_pyramid(self.tracker, frame_of(msg, self.tracker)), ""
+        return proposal_observation(self.tracker, msg.grey.array), ""
 
     def step(self, seq: int, inputs: Mapping[str, Message | None]) -> list[Output]:
         feat, setup = inputs.get("features"), self.shard.setup

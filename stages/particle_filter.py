@@ -25,34 +25,31 @@ State for ``snapshot()`` / ``restore()``: the K = 1 template (when there is no l
 model), the resampled particle cloud, the calibrated kernel widths and the online bank,
 the lost guard's distance distributions, held estimate and anchor, the chamfer tracker's first
 template and the frame its template was last taken at (template update, :mod:`gflow_core.contour.template`),
-and counters: one msgpack encode of :class:`gflow_core.contour.state.ContourSnapshot` (version 5;
-version-1 and -2 snapshots still restore, with a fresh guard, version-3 ones with a guard that weighs
-no colour, and versions 1-4, from before the template update, with their template as the first one).
+and counters: one msgpack encode of :class:`gflow_core.contour.state.ContourSnapshot`, whose module
+says which older versions restore and how.
 """
 
 from __future__ import annotations
 
-import functools
 from typing import Any, ClassVar
 
 import numpy as np
 
 from gflow_core.contour import state as wire
 from gflow_core.contour.features_filter import FEATURE_FILTER
-from gflow_core.contour.observation import (exemplar_error, is_blank, reads_colour, reads_grey, same_profile,
-                                            usable_chamfer, usable_grey)
+from gflow_core.contour.observation import exemplar_error, observation_of, profile_problem
 from gflow_core.builtin_trackers import CHAMFER, M2
 from gflow_core.contour.params import ContourParams
 from gflow_core.contour.tracker import ContourObservation, ContourSetup, setup
 from gflow_core.m2 import lost as lostmod
 from gflow_core.m2.tracking import ParticleCloud, weight_diagnostics
-from gflow_core.spec import TrackerSpec
 from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import Output, StageContext, StageInputError
 from .box_tracker import FeaturesFilterStage
 from gflow_msgs.messages import Features, Header, Message, MessageError, bins_of
-from .tracker_params import SeedBoxFields, stage_params, tracker_stage
+from gflow_msgs.params import SeedBoxFields, stage_params
+from .spec_box import tracker_stage
 
 __all__ = ["FilterStage", "FilterParams", "FilterFields", "ChamferFilterStage", "ChamferFilterParams",
            "M2FilterStage", "M2FilterParams"]
@@ -62,7 +59,7 @@ SNAPSHOT_VERSION = wire.SNAPSHOT_VERSION
 
 class FilterFields(SeedBoxFields, frozen=True):
     """What the filter stage takes besides the tracker's parameters: ``seed`` and ``init``
-    (:class:`~stages.tracker_params.SeedBoxFields`), and ``model``, the path of a learned M2 model with
+    (:class:`~gflow_msgs.params.SeedBoxFields`), and ``model``, the path of a learned M2 model with
     contour exemplars (empty: the K = 1 chamfer tracker)."""
 
     model: str = ""
@@ -100,51 +97,21 @@ class FilterStage(FeaturesFilterStage):
         assert isinstance(msg, Features)
         return lostmod.channels(msg.grey.array())
 
-    def _chamfer(self, feat: Features, seq: int) -> np.ndarray | None:
-        return self._usable(feat, seq, "chamfer", usable_chamfer, lambda c: f"chamfer image is {c.shape} {c.dtype} "
-                            "with non-finite values or wrong shape", "coasting")
-
-    def _blank(self, feat: Features) -> bool:
-        """A blank frame (:func:`~gflow_core.contour.observation.is_blank`)."""
-        try:
-            edges = feat.edges.array()
-        except MessageError:
-            return False  # the chamfer image decides whether the frame is usable
-        return is_blank(self.core, edges)
-
     def _features(self, feat: Features, seq: int) -> ContourObservation:
-        """The tracker's observation of a features message. The grey image is read only where a cue
-        needs it: the appearance kernels, the lost guard."""
-        cham = self._chamfer(feat, seq)
-        blank = cham is not None and self._blank(feat)
-        grey = self._grey(feat, seq, usable_grey, "chamfer only") if reads_grey(self.core, self.setup) else None
-        channels = functools.cache(lambda: self.prepared("features", feat)) if grey is not None else None
-        try:
-            edges = feat.edges.array()
-        except MessageError:
-            edges = None
-        bins = self._bins(feat, grey, seq) if reads_colour(self.core) else None
-        return ContourObservation(edges=edges, chamfer=cham, blank=blank, grey=grey, channels=channels, bins=bins)
-
-    def _bins(self, feat: Features, grey: np.ndarray | None, seq: int) -> np.ndarray | None:
-        """The frame's colour bins (None: not sent, or unusable and reported: the lost guard then weighs the
-        edges alone)."""
-        if grey is None:
-            return None
-        bins, problem = bins_of(feat, grey.shape)
-        if problem:
-            self.report("bad_features", f"frame {seq}: {problem}; edges only", seq)
-        return bins
+        """The tracker's observation of a features message (:func:`~gflow_core.contour.observation.observation_of`),
+        what it could not use reported."""
+        obs, problems = observation_of(self.core, self.setup, lambda field: getattr(feat, field).array(),
+                                       lambda shape: bins_of(feat, shape), lambda: self.prepared("features", feat))
+        for problem in problems:
+            self.report("bad_features", f"frame {seq}: {problem}", seq)
+        return obs
 
     def _check_profile(self, feat: Features, seq: int) -> None:
         m = self.setup.learned
-        if m is None or self.warned:
-            return
-        if not same_profile(m, feat.profile, feat.g0):
+        problem = profile_problem(m, feat.profile, feat.g0) if m is not None and not self.warned else ""
+        if problem:
             self.warned = True
-            self.report("profile_mismatch", f"frame {seq}: features use the {feat.profile} chamfer profile "
-                        f"(g0 {feat.g0:g}) but the model was learned with {m.profile} (g0 {m.g0:g}); sigma_k and "
-                        "d_k do not match these distances (set preprocess.profile / g0)", seq)
+            self.report("profile_mismatch", f"frame {seq}: {problem}", seq)
 
     def _first_observation(self, seq: int, feat: Any) -> ContourObservation:
         if isinstance(feat, Features):
@@ -190,18 +157,7 @@ class FilterStage(FeaturesFilterStage):
         self.steps, self.warned, self.last = snap.steps, snap.warned, wire.last_of(snap)
 
 
-def _filter_of(spec: TrackerSpec) -> type[FilterStage]:
-    """The filter stage of a contour tracker, made from its spec: kind ``spec.filter_kind``, parameters
-    every field of ``spec.params`` with those of :class:`FilterFields`, a learned model required when
-    the spec's is (``model_required``)."""
-    cls = spec.params
-    return tracker_stage(FilterStage, spec, "Filter", FilterFields, __name__,
-                         f"The {spec.name} tracker's filter: every field of :class:`{cls.__module__}.{cls.__name__}`, "
-                         f"``init``, ``seed`` and ``model``{' (a learned contour model, required)' * spec.model_required}.",
-                         f"The {spec.name} tracker's filter (graph ``{spec.graph}``), made from its spec.",
-                         needs_model=spec.model_required)
-
-
-ChamferFilterStage = _filter_of(CHAMFER)
-M2FilterStage = _filter_of(M2)
+#: the chamfer and m2 trackers' filters, made from their specs (a learned contour model required where the spec's is)
+ChamferFilterStage, M2FilterStage = (tracker_stage(FilterStage, s, "Filter", FilterFields, __name__,
+                                                   needs_model=s.model_required) for s in (CHAMFER, M2))
 ChamferFilterParams, M2FilterParams = ChamferFilterStage.Params, M2FilterStage.Params

@@ -36,11 +36,11 @@ from gflow_core.contour.dynamics import PURPOSE_PROPOSAL, ContourProposal, propo
 from gflow_core.builtin_trackers import CHAMFER, M2
 from gflow_core.contour.params import ChamferParams
 from gflow_core.m2.model import M2Model
-from gflow_core.spec import TrackerSpec
 
 from .base import Params, StageContext
 from .box_tracker import BoxProposalStage, CloudProposal
-from .tracker_params import SeedBoxFields, stage_params, tracker_stage
+from gflow_msgs.params import SeedBoxFields, stage_params
+from .spec_box import tracker_stage
 
 __all__ = ["ProposalStage", "ProposalParams", "ProposalFields", "ChamferProposalStage", "ChamferProposalParams",
            "M2ProposalStage", "M2ProposalParams"]
@@ -49,7 +49,7 @@ PURPOSE = PURPOSE_PROPOSAL  # 0x9209
 
 class ProposalFields(SeedBoxFields, frozen=True):
     """What the chamfer and m2 proposal stages take besides their tracker's parameters: ``seed``,
-    ``init`` (:class:`~stages.tracker_params.SeedBoxFields`; the AR(1) process on log s reverts to the
+    ``init`` (:class:`~gflow_msgs.params.SeedBoxFields`; the AR(1) process on log s reverts to the
     initial box's scale), ``model`` (a learned M2 model's path) and ``timed`` (also read the frames:
     the noise grows with the time to the next frame)."""
 
@@ -89,19 +89,8 @@ class ProposalStage(BoxProposalStage):
         return PURPOSE
 
 
-def _proposal_of(spec: TrackerSpec) -> type[ProposalStage]:
-    """The proposal stage of a contour tracker, made from its spec: kind ``spec.proposal_kind``,
-    parameters every field of ``spec.params`` with those of :class:`ProposalFields`, a learned model
-    (its dynamics) required when the spec's is (``model_required``)."""
-    cls = spec.params
-    return tracker_stage(ProposalStage, spec, "Proposal", ProposalFields, __name__,
-                         f"The {spec.name} tracker's proposal: every field of :class:`{cls.__module__}.{cls.__name__}`, "
-                         f"``seed``, ``model``{' (required: its dynamics)' * spec.model_required}, ``init`` and ``timed``.",
-                         f"The {spec.name} tracker's proposal (graph ``{spec.graph}``): "
-                         f"{'the learned model' if spec.model_required else 'the random walk'}'s dynamics, made from its spec.",
-                         needs_model=spec.model_required)
-
-
-ChamferProposalStage = _proposal_of(CHAMFER)
-M2ProposalStage = _proposal_of(M2)
+#: the chamfer and m2 trackers' proposals, made from their specs (a learned model, its dynamics, required where
+#: the spec's is)
+ChamferProposalStage, M2ProposalStage = (tracker_stage(ProposalStage, s, "Proposal", ProposalFields, __name__,
+                                                       needs_model=s.model_required) for s in (CHAMFER, M2))
 ChamferProposalParams, M2ProposalParams = ChamferProposalStage.Params, M2ProposalStage.Params

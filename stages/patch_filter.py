@@ -41,8 +41,8 @@ from gflow_core.tracker import Estimate as TrackerEstimate
 
 from .base import StageContext, StageInputError
 from .box_tracker import FeaturesFilterStage
-from gflow_msgs.messages import Features, Header, Message
-from .tracker_params import SeedBoxFields, stage_params
+from gflow_msgs.messages import Features, Header, Message, MessageError
+from gflow_msgs.params import SeedBoxFields, stage_params
 
 __all__ = ["PatchFilterStage", "PatchFilterParams", "PatchFields"]
 
@@ -85,7 +85,15 @@ class PatchFilterStage(FeaturesFilterStage):
 
     def _features(self, feat: Features, seq: int) -> np.ndarray | None:
         """The frame's grey image, (H, W) with both sides at least 2 pixels, or None (reported): coasting."""
-        return self._grey(feat, seq, lambda g: g.ndim == 2 and min(g.shape) >= 2, "coasting")
+        try:
+            g = feat.grey.array()
+            problem = "" if g.ndim == 2 and min(g.shape) >= 2 else f"grey image has shape {g.shape}"
+        except MessageError as e:
+            problem = str(e)
+        if problem:
+            self.report("bad_features", f"frame {seq}: {problem}; coasting", seq)
+            return None
+        return g
 
     def _proposed(self, seq: int, prop: Message | None) -> np.ndarray:
         k: np.ndarray = super()._proposed(seq, prop).k

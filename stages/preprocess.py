@@ -16,7 +16,7 @@ from gflow_core.contour.params import EdgeParams
 from .base import Output, Stage, StageInputError
 from gflow_msgs.messages import ColourFeatures, Features, Frame, Message, MessageError, NDArray
 from gflow_msgs.snapshots import PreprocessSnapshot
-from .tracker_params import StageFields, stage_params, tracker_params
+from gflow_msgs.params import StageFields, stage_params, tracker_params
 
 __all__ = ["PreprocessStage", "PreprocessParams", "PreprocessFields"]
 

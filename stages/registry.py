@@ -8,7 +8,7 @@ model, about 0.4 s of CPU per process at start-up):
   render stages, and the generic contour stages ``particle.proposal`` / ``particle.filter`` (graphs
   of your own, ``gflow demo``). A new generic stage module is one line here
   (``tests/test_stage_registry.py`` checks the table against the classes);
-* the registry of trackers (:func:`gflow_core.registry.trackers`): a tracker's spec names the
+* the registry of trackers (:func:`gflow_core.registry.stage_kinds`): a tracker's spec names the
   modules of its stage classes that are modules of their own (:attr:`gflow_core.spec.TrackerSpec.stages`:
   the contour and patch trackers, G-flow, the appearance tracker's filter with its own snapshot
   Struct), and every other kind ``NAME.proposal`` / ``NAME.filter`` (``proposal_kind``,
@@ -36,19 +36,10 @@ MODULES: dict[str, str] = {
 
 
 def _spec_kinds() -> dict[str, tuple[str | None, str]]:
-    """{kind: (its module, or None for the generic box stages; the tracker whose spec gives it)} of the
-    registered trackers' stages. A kind several specs give (a spec copied with ``dataclasses.replace``
-    keeps its kinds) is the tracker's it is named for (``NAME.filter``), else the last one's by name."""
-    from gflow_core.registry import trackers
+    """:func:`gflow_core.registry.stage_kinds`, the registry read only when a kind is not in :data:`MODULES`."""
+    from gflow_core.registry import stage_kinds
 
-    out: dict[str, tuple[str | None, str]] = {}
-    for s in trackers().values():
-        kinds: dict[str, str | None] = {k: None for k in (s.proposal_kind, s.filter_kind) if s.box is not None}
-        kinds.update(s.stages)
-        for k, module in kinds.items():
-            if k not in out or out[k][1] != k.split(".")[0]:
-                out[k] = (module, s.name)
-    return out
+    return stage_kinds()
 
 
 class _Stages(Mapping):

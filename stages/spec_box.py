@@ -17,14 +17,19 @@ Struct with the arrays and values as its fields. The stages know the tracker onl
 
 from __future__ import annotations
 
+import typing
+from typing import Any, TypeVar
+
 from gflow_core.spec import TrackerSpec
 
 from .base import Stage
 from .box_tracker import BoxFilterStage, BoxProposalStage
+from gflow_msgs.params import SeedBoxFields, StageFields, stage_params
 from gflow_msgs.snapshots import SnapshotCodec, arrays_codec
-from .tracker_params import SeedBoxFields, tracker_stage
 
-__all__ = ["spec_stage_class", "SpecProposalFields"]
+__all__ = ["spec_stage_class", "SpecProposalFields", "tracker_stage"]
+
+S = TypeVar("S", bound=type)
 
 
 class SpecProposalFields(SeedBoxFields, frozen=True):
@@ -55,14 +60,28 @@ def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
     base: type[Stage]
     fields: type[SeedBoxFields]
     if kind == spec.filter_kind:
-        role, base, fields, own = "Filter", BoxFilterStage, SeedBoxFields, ""
+        role, base, fields = "Filter", BoxFilterStage, SeedBoxFields
         what = {"tracker": spec.tracker(), "codec": _codec(spec)}
     elif kind == spec.proposal_kind:
         role, base, fields, what = "Proposal", BoxProposalStage, SpecProposalFields, {}
-        own = " (the filter's values), ``seed``, ``init`` and ``timed``"
     else:
         raise KeyError(kind)
-    return tracker_stage(base, spec, role, fields, __name__, f"{role} settings of tracker {spec.name}: every field of "
-                         f"{spec.params.__name__}{own or ', ``seed`` and ``init``'}.",
-                         f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}): "
-                         f":mod:`stages.spec_box`.", box=spec.box, **what)
+    return tracker_stage(base, spec, role, fields, __name__, ": :mod:`stages.spec_box`", box=spec.box, **what)
+
+
+def tracker_stage(base: S, spec: TrackerSpec, role: str, fields: type[StageFields], module: str, about: str = "",
+                  **attrs: Any) -> S:
+    """The ``role`` (``"Proposal"`` or ``"Filter"``) stage of ``spec``'s tracker, a subclass of ``base``
+    named ``{Name}{role}Stage`` in ``module``: its kind ``spec.proposal_kind`` or ``spec.filter_kind``,
+    its ``Params`` the struct ``{Name}{role}Params`` of every field of ``spec.params`` and those of
+    ``fields`` (:func:`gflow_msgs.params.stage_params`), its docstring naming the tracker and ending with
+    ``about``, and the class attributes ``attrs``."""
+    cap = "".join(w.capitalize() for w in spec.name.split("_"))
+    kind = {"Proposal": spec.proposal_kind, "Filter": spec.filter_kind}[role]
+    cls, own = spec.params, fields
+    params = stage_params(f"{cap}{role}Params", cls, fields, module,
+                          f"{role} settings of tracker {spec.name}: every field of :class:`{cls.__module__}."
+                          f"{cls.__qualname__}` and those of :class:`{own.__module__}.{own.__qualname__}`.")
+    doc = f"The {role.lower()} stage of tracker {spec.name} ({spec.origin or 'registered'}){about}."
+    return typing.cast(S, type(f"{cap}{role}Stage", (base,), {"kind": kind, "Params": params, "__module__": module,
+                                                              "__doc__": doc, **attrs}))

@@ -19,7 +19,7 @@ from stages.gflow_filter import GFlowFilterParams, GFlowFilterStage
 from stages.gflow_proposal import GFlowProposalParams, GFlowProposalStage
 from gflow_msgs.messages import ColourFeatures, NDArray
 from gflow_msgs.snapshots import GFlowProposalSnapshot
-from stages.tracker_params import tracker_params
+from gflow_msgs.params import tracker_params
 from gflow_core.tracker import stream_hash
 
 FRAMES = 16

@@ -73,7 +73,7 @@ def test_the_preprocess_stage_has_every_edge_setting_with_its_default() -> None:
     """stages.preprocess.PreprocessParams is derived from EdgeParams (every field, its type and default),
     without being a stage of a tracker: a graph's tracker block does not feed it."""
     from stages.preprocess import PreprocessParams
-    from stages.tracker_params import tracker_of
+    from gflow_msgs.params import tracker_of
     from pipeline.runtime.graph import GraphError, parse_graph
 
     fields = {f.name: f.default for f in msgspec.structs.fields(PreprocessParams)}

@@ -218,7 +218,7 @@ def test_the_generic_proposal_takes_the_random_walk_of_chamfer_params_alone() ->
     from gflow_core.contour.params import ChamferParams
     from gflow_core.params import defaults
     from stages.particle_proposal import ProposalFields, ProposalParams
-    from stages.tracker_params import stage_params, tracker_of
+    from gflow_msgs.params import stage_params, tracker_of
 
     walk = ("std_xy", "std_theta", "std_log_s")
     p = ProposalParams()

@@ -14,9 +14,12 @@ arguments of these calls and results into messages:
 * :class:`ProposalShard` -- what a proposal process keeps between frames (the model placed on the
   first usable frame, the replica) and its step: the replica brought to the experts' frame, then
   the pose opinions of its shard of experts;
+* :func:`frame_observation`, :func:`filter_observation`, :func:`proposal_observation` -- what each
+  process reads of a frame's grey image as it travels, so that every process sees the same bits;
 * :func:`message_dims` -- the dimensions of the arrays that travel (E, P, n, s);
 * :func:`expert_state` -- the experts rebuilt from the arrays that travel (a message, a snapshot);
 * :func:`check_experts` -- what travelling experts must satisfy beyond their arrays' shapes;
+* :func:`joined_proposals` -- the pose opinions of every shard for one frame, as one proposal;
 * :func:`start_filter`, :func:`restored_state` -- the filter process's posterior at the first frame
   (without backgrounds, which the proposal processes keep) with its digest, and again from the
   arrays and fields of a snapshot.
@@ -31,19 +34,21 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 from dataclasses import asdict, dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from .background import TileLayout, TiledBackground
-from .filter import ExpertState, Proposals, advance_background, initial_background, predict_background
+from .filter import (ExpertState, Proposals, advance_background, concatenate_proposals, initial_background,
+                     predict_background)
 from .params import GFlowParams
 from .state_fields import state_of_fields
 from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_setup
-from ..tracker import Estimate, FrameRng
+from ..tracker import Estimate, FrameRng, UnusableFrame
 
 __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
-           "BackgroundReplica", "ProposalShard", "expert_state", "check_experts", "start_filter", "restored_state"]
+           "BackgroundReplica", "ProposalShard", "frame_observation", "filter_observation", "proposal_observation", "expert_state", "check_experts", "joined_proposals", "start_filter",
+           "restored_state"]
 
 
 #: configuration fields added after recordings carried the digest, with the default each had until
@@ -104,6 +109,41 @@ def shard_indices(n_experts: int, shard: int, shards: int) -> np.ndarray:
     return np.array_split(np.arange(n_experts, dtype=np.int64), shards)[shard]
 
 
+def frame_observation(params: GFlowParams, grey: Callable[[], np.ndarray]) -> GFlowObservation:
+    """What G-flow reads of a frame whose grey image ``grey()`` gives (the preprocess stage's features):
+    :meth:`.tracker.GFlowTracker.observe_grey`. Every process reads frames with it, so they see
+    bit-identical frames.
+
+    Raises ValueError saying what is wrong: a grey image ``grey()`` cannot read (its ValueError), one
+    that is not a 2-D uint8 image of at least 2 x 2 pixels, or a uniform one (all black, saturated or
+    any single grey level: the frame is skipped)."""
+    try:
+        g = grey()
+    except ValueError as e:
+        raise ValueError(f"grey image: {e}") from None
+    try:
+        return TRACKER.observe_grey(params, g)
+    except UnusableFrame as e:
+        raise ValueError(f"{e}; frame skipped") from None
+
+
+def filter_observation(params: GFlowParams, grey: Callable[[], np.ndarray],
+                       bins: Callable[[tuple[int, ...]], tuple[np.ndarray | None, str]]) -> tuple[GFlowObservation, str]:
+    """The filter process's observation of a frame (:func:`frame_observation`) with the colour bins
+    ``bins((H, W))`` gives (bins or None, what is wrong with them or ""), asked only when the tracker reads
+    colour (:meth:`.tracker.GFlowTracker.with_bins`), and the lost guard's orientation channels
+    (:meth:`~.tracker.GFlowTracker.with_channels`); and what was wrong with the bins ("": nothing)."""
+    obs = frame_observation(params, grey)
+    b, problem = bins(obs.grey.shape) if TRACKER.reads_colour(params) else (None, "")
+    return TRACKER.with_channels(params, TRACKER.with_bins(params, obs, b)), problem
+
+
+def proposal_observation(params: GFlowParams, grey: Callable[[], np.ndarray]) -> GFlowObservation:
+    """A proposal process's observation of a frame (:func:`frame_observation`) with the pyramid its
+    Gauss-Newton reads (:meth:`.tracker.GFlowTracker.with_pyramid`)."""
+    return TRACKER.with_pyramid(params, frame_observation(params, grey))
+
+
 def message_dims(setup: ModelSetup) -> dict[str, int]:
     """The dimensions of the arrays that travel between the processes for ``setup``: ``E`` experts,
     pose size ``P``, ``n`` vertices and ``s`` samples of each expert's pose opinion."""
@@ -138,6 +178,12 @@ def check_experts(setup: ModelSetup, image_shape: tuple[int, int], parents: np.n
     if has_anchor != (setup.cfg.texture_decay != 1.0):
         raise ValueError("the texture anchor is " + ("unexpected" if has_anchor else "missing") +
                          f" for texture_decay {setup.cfg.texture_decay}")
+
+
+def joined_proposals(parts: Sequence[Mapping[str, Any]]) -> Proposals:
+    """The proposals of one frame of every shard, each the fields of :class:`.filter.Proposals` (the arrays
+    read from a shard's message, its ``dt``), joined in expert order (:func:`.filter.concatenate_proposals`)."""
+    return concatenate_proposals([Proposals(**p) for p in parts])
 
 
 def start_filter(params: GFlowParams, obs: GFlowObservation, box: Sequence[float], seed: int, rng: FrameRng,

@@ -10,8 +10,8 @@ A graph names its tracker and that tracker's parameter values once::
 parameter dataclass (:attr:`gflow_core.spec.TrackerSpec.params`, or the one of its
 :attr:`~gflow_core.spec.TrackerSpec.variants` the graph's stages are made of: m2's ``PatchParams``
 in graph ``m2_patch``) as its stages check them
-(:func:`stages.tracker_params.block_params`), and every stage whose parameter struct is made of
-that dataclass (:func:`stages.tracker_params.tracker_of`) takes its values from it: such a stage's
+(:func:`gflow_msgs.params.block_params`), and every stage whose parameter struct is made of
+that dataclass (:func:`gflow_msgs.params.tracker_of`) takes its values from it: such a stage's
 entry in the graph keeps only its own fields (``seed``, ``init``, ``timed``, ``shards``...). A
 stage naming a tracker parameter itself is refused with a line naming ``tracker.PARAM``, so the
 stages of one run can never disagree. ``--set tracker.PARAM=VALUE`` (an override of the
@@ -32,7 +32,7 @@ from typing import Any, Mapping
 import msgspec
 
 from stages.base import Params
-from stages.tracker_params import block_params, tracker_of
+from gflow_msgs.params import block_params, tracker_of
 
 __all__ = ["TRACKER_KEY", "TrackerBlock", "parse_block", "tracker_fields", "own_fields", "stage_tracker",
            "block_class", "is_main_class"]

@@ -1,5 +1,8 @@
 """A stage's parameters derived from its tracker's parameter dataclass, never copied from it.
 
+These structs are the contract between graph files (recorded with every run) and the stages, so
+they sit with the messages and, like them, import nothing of gflow: the dataclass is an argument.
+
 A tracker's parameters live in one frozen dataclass in ``gflow_core`` (for G-flow,
 :class:`gflow_core.gflow.GFlowParams`): names, types, defaults, checks and help. A stage of that
 tracker takes every one of them under the same name, plus the few fields of its own (the seed,
@@ -23,16 +26,15 @@ from typing import Any, TypeVar
 
 import msgspec
 
-from gflow_core.spec import TrackerSpec
-
-from .base import Params
-
-__all__ = ["StageFields", "SeedBoxFields", "check_init", "stage_params", "tracker_params", "core_params", "tracker_of",
-           "block_params", "tracker_stage"]
+__all__ = ["Params", "StageFields", "SeedBoxFields", "check_init", "stage_params", "tracker_params", "core_params",
+           "tracker_of", "block_params"]
 
 F = TypeVar("F", bound="StageFields")
 T = TypeVar("T")
-S = TypeVar("S", bound=type)
+
+
+class Params(msgspec.Struct, forbid_unknown_fields=True, frozen=True, kw_only=True):
+    """Base of every stage's parameter struct: unknown keys are errors, not silently ignored."""
 
 
 class StageFields(Params, frozen=True):
@@ -138,17 +140,3 @@ def core_params(params: Params) -> Any:
     if tracker is None:
         raise TypeError(f"{type(params).__name__} is not the parameters of a tracker's stage")
     return tracker_params(params, tracker)
-
-
-def tracker_stage(base: S, spec: TrackerSpec, role: str, fields: type[StageFields], module: str, params_doc: str,
-                  doc: str, **attrs: Any) -> S:
-    """The ``role`` (``"Proposal"`` or ``"Filter"``) stage of ``spec``'s tracker, a subclass of ``base``
-    named ``{Name}{role}Stage`` in ``module``: its kind ``spec.proposal_kind`` or ``spec.filter_kind``,
-    its ``Params`` the struct ``{Name}{role}Params`` of every field of ``spec.params`` and those of
-    ``fields`` (:func:`stage_params`, documented by ``params_doc``), its docstring ``doc`` and the
-    class attributes ``attrs``."""
-    cap = "".join(w.capitalize() for w in spec.name.split("_"))
-    kind = {"Proposal": spec.proposal_kind, "Filter": spec.filter_kind}[role]
-    params = stage_params(f"{cap}{role}Params", spec.params, fields, module, params_doc)
-    return typing.cast(S, type(f"{cap}{role}Stage", (base,), {"kind": kind, "Params": params, "__module__": module,
-                                                              "__doc__": doc, **attrs}))
