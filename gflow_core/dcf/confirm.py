@@ -34,10 +34,16 @@ is reported ``tracked`` at confidence 0.9 by frame 20
 
 from __future__ import annotations
 
-from ..visibility import ChiSquare
-from .params import DCFParams
+from typing import Any
 
-__all__ = ["tentative"]
+import numpy as np
+
+from ..visibility import ChiSquare
+from .coherence import coherent, flow
+from .params import DCFParams
+from .state import DCFObservation, DCFState
+
+__all__ = ["tentative", "taken", "remember"]
 
 
 def tentative(target: ChiSquare, p: DCFParams) -> bool:
@@ -45,3 +51,31 @@ def tentative(target: ChiSquare, p: DCFParams) -> bool:
     prior's ``prior_count`` pseudo-frames and the frames the target was taken as present on) has learnt
     fewer than ``p.confirm`` frames of its own (module docstring); never with ``confirm`` 0."""
     return target.n - p.prior_count < p.confirm
+
+
+def _grey8(obs: DCFObservation) -> np.ndarray:
+    """The frame's grey levels as (H, W) uint8 (what Lucas-Kanade reads)."""
+    return np.clip(np.rint(obs.grey), 0, 255).astype(np.uint8)
+
+
+def taken(st: DCFState, obs: DCFObservation, centre: np.ndarray, p: DCFParams) -> bool:
+    """Whether a frame in doubt is taken as the target's: only while the track is tentative, and with
+    ``confirm_flow`` only when the points of the last frame's box moved coherently to the filter's
+    estimate ``centre`` (2,) on this frame (:func:`.coherence.coherent`): noise, which has no motion, and
+    a flat occluder, which has no texture, are refused and judged as the visibility model says."""
+    if not tentative(st.target, p):
+        return False
+    if not p.confirm_flow:
+        return True
+    if st.last_grey is None or st.last_grey.shape != obs.grey.shape:
+        return False
+    s = float(np.exp(st.log_s))
+    size = (st.geom.size0[0] * s, st.geom.size0[1] * s)
+    box = (float(st.centre[0] - (size[0] - 1) / 2.0), float(st.centre[1] - (size[1] - 1) / 2.0), size[0], size[1])
+    return coherent(flow(st.last_grey, _grey8(obs), box), centre - st.centre, size)
+
+
+def remember(target: ChiSquare, obs: DCFObservation, p: DCFParams) -> Any:
+    """The frame's grey levels for the next frame's flow while the track (whose target distribution is now
+    ``target``) is still tentative and ``confirm_flow`` asks for it; None otherwise."""
+    return _grey8(obs) if p.confirm_flow and tentative(target, p) else None
