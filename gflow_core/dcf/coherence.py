@@ -100,8 +100,9 @@ def flow(prev: np.ndarray, cur: np.ndarray, box: tuple[float, float, float, floa
     p0 = np.stack(np.meshgrid(gx, gy), axis=-1).reshape(-1, 1, 2).astype(np.float32)
     win = (WINDOW, WINDOW)
     # forward p0 -> p1 on (t-1, t), backward p1 -> p0b on (t, t-1)
-    p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, None, winSize=win, maxLevel=LEVELS, criteria=_CRITERIA)
-    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, None, winSize=win, maxLevel=LEVELS, criteria=_CRITERIA)
+    # (nextPts is an output: without OPTFLOW_USE_INITIAL_FLOW its values are not read)
+    p1, st1, _ = cv2.calcOpticalFlowPyrLK(prev, cur, p0, p0.copy(), winSize=win, maxLevel=LEVELS, criteria=_CRITERIA)
+    p0b, st2, _ = cv2.calcOpticalFlowPyrLK(cur, prev, p1, p1.copy(), winSize=win, maxLevel=LEVELS, criteria=_CRITERIA)
     a, b, back = p0[:, 0].astype(np.float64), p1[:, 0].astype(np.float64), p0b[:, 0].astype(np.float64)
     ok = (st1[:, 0] == 1) & (st2[:, 0] == 1) & np.isfinite(b).all(axis=1) & np.isfinite(back).all(axis=1)
     if not ok.any():
