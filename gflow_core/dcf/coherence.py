@@ -6,8 +6,7 @@ tracked to frame t by pyramidal Lucas-Kanade and back again; a point whose backw
 return where it started, or whose patches at t-1 and t are unlike (normalised cross-correlation,
 NCC), was not tracked; the box moves by the median displacement of the points that were.
 Here the check is the evidence a tentative track (:mod:`.confirm`) asks of a frame in doubt before it
-takes it as the target's: the box's texture moved coherently from frame t-1 to frame t, and to where
-the filter placed it.
+takes it as the target's: the texture of the last frame's box moved coherently to frame t.
 
 * Random noise (independent from frame to frame) has no motion: the points' patches at t-1 and t are
   unrelated, NCC about 0 (the NCC of two independent patches of n pixels has std 1 / sqrt(n), 0.09 for
@@ -21,13 +20,14 @@ the filter placed it.
 The rules, with their sources: the 10 x 10 grid of points, and a median forward-backward error
 above 10 px is a failure (Kalal et al. 2010); at least half the points tracked both ways (Median
 Flow keeps the better half of the points; fewer than half tracked at all leaves no half to keep);
-median NCC at least 0.5 (more than five standard deviations of two independent patches' NCC above 0:
-ours, where Median Flow ranks by NCC and keeps the better half); and the box moved by the median
-displacement overlaps the filter's box with IoU at least 0.5 (the benchmark's own test that two
-boxes are on the same target).
+and median NCC at least 0.5 (more than five standard deviations of two independent patches' NCC
+above 0: ours, where Median Flow ranks by NCC and keeps the better half).
 
 Departures: Median Flow uses the check to move the box; here the box is the filter's, and the flow
-only witnesses it. Lucas-Kanade's windows are 11 x 11 pixels over 3 pyramid levels (OpenCV's
+only witnesses that the frame holds a texture that moved. The flow's displacement is not required to
+agree with the filter's: measured on jumping's stress clips, where the face jumps 24 px in a frame,
+the filter's box lags it (9 px) on the very frame in doubt; refusing that frame (the boxes' IoU
+under 0.5) lost the face on frames 9-15 and cost every jumping case 0.02-0.3 of success on seed 1. Lucas-Kanade's windows are 11 x 11 pixels over 3 pyramid levels (OpenCV's
 defaults are 21 x 21, Median Flow's 3 x 3 over 5); NCC is read over the same window.
 """
 
@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["Flow", "flow", "coherent", "GRID", "WINDOW", "LEVELS", "MIN_TRACKED", "MAX_FB", "MIN_NCC", "MIN_IOU"]
+__all__ = ["Flow", "flow", "coherent", "GRID", "WINDOW", "LEVELS", "MIN_TRACKED", "MAX_FB", "MIN_NCC"]
 
 #: points per side of the box's grid (Kalal et al. 2010's 10 x 10)
 GRID = 10
@@ -50,8 +50,6 @@ MIN_TRACKED = 0.5
 MAX_FB = 10.0
 #: the median NCC of a point's patches at t-1 and t below which they are unrelated
 MIN_NCC = 0.5
-#: the IoU of the box moved by the flow and the filter's box below which they disagree
-MIN_IOU = 0.5
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03)
 
@@ -114,15 +112,6 @@ def flow(prev: np.ndarray, cur: np.ndarray, box: tuple[float, float, float, floa
     return Flow(float(ok.mean()), float(np.median(fb)), float(np.median(ncc)), np.median(b - a, axis=0))
 
 
-def _iou_shifted(d: np.ndarray, w: float, h: float) -> float:
-    """IoU of two w x h boxes ``d`` (2,) px apart."""
-    iw, ih = max(0.0, w - abs(float(d[0]))), max(0.0, h - abs(float(d[1])))
-    return iw * ih / (2.0 * w * h - iw * ih)
-
-
-def coherent(f: Flow, moved: np.ndarray, size: tuple[float, float]) -> bool:
-    """Whether the flow ``f`` says the box's texture moved coherently, and by about ``moved`` (2,) px,
-    the filter's displacement of the box of ``size`` (w, h) (the rules of the module docstring)."""
-    if f.tracked < MIN_TRACKED or not f.fb <= MAX_FB or f.ncc < MIN_NCC:
-        return False
-    return _iou_shifted(f.shift - moved, size[0], size[1]) >= MIN_IOU
+def coherent(f: Flow) -> bool:
+    """Whether the flow ``f`` says the box's texture moved coherently (the rules of the module docstring)."""
+    return f.tracked >= MIN_TRACKED and f.fb <= MAX_FB and f.ncc >= MIN_NCC

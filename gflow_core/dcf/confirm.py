@@ -58,11 +58,11 @@ def _grey8(obs: DCFObservation) -> np.ndarray:
     return np.clip(np.rint(obs.grey), 0, 255).astype(np.uint8)
 
 
-def taken(st: DCFState, obs: DCFObservation, centre: np.ndarray, p: DCFParams) -> bool:
+def taken(st: DCFState, obs: DCFObservation, p: DCFParams) -> bool:
     """Whether a frame in doubt is taken as the target's: only while the track is tentative, and with
-    ``confirm_flow`` only when the points of the last frame's box moved coherently to the filter's
-    estimate ``centre`` (2,) on this frame (:func:`.coherence.coherent`): noise, which has no motion, and
-    a flat occluder, which has no texture, are refused and judged as the visibility model says."""
+    ``confirm_flow`` only when the points of the last frame's box moved coherently to this frame
+    (:func:`.coherence.coherent`): noise, which has no motion, and a flat occluder, which has no texture,
+    are refused and judged as the visibility model says."""
     if not tentative(st.target, p):
         return False
     if not p.confirm_flow:
@@ -72,7 +72,7 @@ def taken(st: DCFState, obs: DCFObservation, centre: np.ndarray, p: DCFParams) -
     s = float(np.exp(st.log_s))
     size = (st.geom.size0[0] * s, st.geom.size0[1] * s)
     box = (float(st.centre[0] - (size[0] - 1) / 2.0), float(st.centre[1] - (size[1] - 1) / 2.0), size[0], size[1])
-    return coherent(flow(st.last_grey, _grey8(obs), box), centre - st.centre, size)
+    return coherent(flow(st.last_grey, _grey8(obs), box))
 
 
 def remember(target: ChiSquare, obs: DCFObservation, p: DCFParams) -> Any:

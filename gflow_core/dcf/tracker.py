@@ -423,7 +423,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     log_place = _log_place(centre, pred, sx, sy, resp.area())
     prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
-    present = vis.present or taken(st, obs, centre, p)  # a tentative track's frame in doubt, if it moved (.confirm)
+    present = vis.present or taken(st, obs, p)  # a tentative track's frame in doubt, if its box moved (.confirm)
     confident = vis.visible >= 0.5
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
