@@ -126,6 +126,9 @@ class DCFParams:
                                      "frames while the target stayed hidden is remembered, and a candidate there is "
                                      "judged also as that place's clutter (TLD's negatives as places; "
                                      "gflow_core.dcf.negatives; 0: no memory of places)")
+    confirm_flow: bool = param(True, "with confirm, a tentative track takes a frame in doubt only when the box's points "
+                                     "move coherently from the frame before to where the filter put it (the "
+                                     "forward-backward check of Median Flow; gflow_core.dcf.coherence)", before=False)
 
     def __post_init__(self) -> None:
         if self.particles < 1:

@@ -72,6 +72,8 @@ class DCFState:
         1 / target_rate tracked frames).
     negatives : the places the search's best placement kept falling at on the frames since the target was
         last seen (empty while it is; ``search_negatives``; :mod:`.negatives`).
+    last_grey : (H, W) uint8 grey levels of the last frame while the track is tentative and
+        ``confirm_flow`` asks for its flow (:mod:`.confirm`), else None.
     """
 
     geom: Geometry
@@ -92,6 +94,7 @@ class DCFState:
     longterm: LongTerm | None = None
     speed2: float = 0.0
     negatives: tuple[Place, ...] = ()
+    last_grey: np.ndarray | None = None
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -135,6 +138,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["speed2"] = float(st.speed2)
     if st.negatives:
         arrays["negatives"] = to_array(st.negatives)
+    if st.last_grey is not None:
+        arrays["last_grey"] = st.last_grey
     lt = st.longterm
     if lt is not None:
         arrays["lt_det"] = _real(lt.det)
@@ -190,4 +195,5 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
-                    negatives=from_array(arrays["negatives"]) if "negatives" in arrays else ())
+                    negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
+                    last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)

@@ -29,7 +29,7 @@ from ..particles import LogWeights, systematic_resample
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 from ..visibility import ChiSquare, Cue, visibility
 from . import model as tm
-from .confirm import tentative
+from .confirm import remember, taken
 from .cues import may_fail
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
@@ -423,7 +423,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     log_place = _log_place(centre, pred, sx, sy, resp.area())
     prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
-    present = vis.present or tentative(st.target, p)  # a tentative track's frame in doubt is the target's (.confirm)
+    present = vis.present or taken(st, obs, p)  # a tentative track's frame in doubt, if its box moved (.confirm)
     confident = vis.visible >= 0.5
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
@@ -465,7 +465,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     new_parts[:, 2] = log_s
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
-                  target_state=state, spread=spread, **learnt)
+                  target_state=state, spread=spread, last_grey=remember(learnt.get("target", st.target), obs, p), **learnt)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)
@@ -491,7 +491,8 @@ def initialise(obs: DCFObservation, box: Box, p: DCFParams, rng: np.random.Gener
     return DCFState(geom=geom, model=mdl, particles=parts, centre=centre, log_s=0.0, velocity=np.zeros(2),
                     target=_prior(p.prior_target, p.prior_count), clutter=_prior(p.prior_clutter, p.prior_count),
                     ctarget=_prior(p.prior_colour_target, p.prior_count),
-                    cclutter=_prior(p.prior_colour_clutter, p.prior_count), longterm=lt)
+                    cclutter=_prior(p.prior_colour_clutter, p.prior_count), longterm=lt,
+                    last_grey=remember(_prior(p.prior_target, p.prior_count), obs, p))
 
 
 class DCFTracker:

@@ -86,6 +86,21 @@ def test_on_noise_it_says_the_target_is_gone() -> None:
         assert ests[-1].target_state == "lost" and ests[-1].confidence < 0.5
 
 
+def test_on_noise_a_tentative_track_says_the_target_is_gone_for_want_of_motion() -> None:
+    """The same frames with a tentative start (``confirm`` 10): the frames in doubt are refused because
+    the box's points have no coherent motion (``confirm_flow``), so the target is judged gone as without
+    ``confirm``; taken without that evidence, the noise is reported tracked to the end."""
+    rng = np.random.default_rng(0)
+    for shape in ((120, 160, 3), (120, 160)):
+        frames = [rng.integers(0, 256, shape, dtype=np.uint8) for _ in range(25)]
+        _, ests = _track(frames, (60.0, 40.0, 30.0, 30.0), DCFParams(confirm=10))
+        assert not any(e.target_state == "tracked" and e.confidence >= 0.99 for e in ests[1:])
+        assert all(e.target_state in ("occluded", "lost") for e in ests[5:])
+        assert ests[-1].target_state == "lost" and ests[-1].confidence < 0.5
+        _, blind = _track(frames, (60.0, 40.0, 30.0, 30.0), DCFParams(confirm=10, confirm_flow=False))
+        assert blind[-1].target_state == "tracked"
+
+
 def test_grey_frames_are_read_as_grey_however_they_are_stored() -> None:
     """One channel or three equal ones: the colour model is a grey-level one and the boxes are the same
     bits; a colour frame gets a colour model."""
@@ -130,6 +145,25 @@ def test_the_state_goes_into_arrays_and_comes_back_bit_for_bit() -> None:
         assert e1 == e2
     with pytest.raises(ValueError, match="does not fit the window"):
         from_arrays(arrays, values, dataclasses.replace(p, padding=1.0))
+
+
+def test_a_tentative_tracks_last_frame_goes_into_arrays_and_comes_back_bit_for_bit() -> None:
+    """With ``confirm`` the state holds the last frame's grey levels while the track is tentative (the
+    flow of a frame in doubt reads them): a snapshot keeps them, and they are dropped once confirmed."""
+    sc = Scene(lambda t: (120.0 + 3.0 * t, 90.0))
+    frames = [sc.frame(t) for t in range(16)]
+    p = DCFParams(confirm=10)
+    st, _ = _track(frames[:4], sc.truth(0), p)
+    assert st.last_grey is not None and st.last_grey.dtype == np.uint8 and st.last_grey.shape == (H, W)
+    arrays, values = to_arrays(st)
+    back = from_arrays({k: v.copy() for k, v in arrays.items()}, dict(values), p)
+    assert back.last_grey is not None and np.array_equal(back.last_grey, st.last_grey)
+    for t in range(4, 16):
+        obs = TRACKER.observe(p, frames[t])
+        st, e1 = step(TRACKER, p, st, obs, FrameRng(1, 7, t))
+        back, e2 = step(TRACKER, p, back, obs, FrameRng(1, 7, t))
+        assert e1 == e2
+    assert st.last_grey is None and "last_grey" not in to_arrays(st)[0]
 
 
 @pytest.mark.parametrize("kw, message", [
