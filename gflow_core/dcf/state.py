@@ -72,6 +72,8 @@ class DCFState:
         1 / target_rate tracked frames).
     negatives : the places the search's best placement kept falling at on the frames since the target was
         last seen (empty while it is; ``search_negatives``; :mod:`.negatives`).
+    angle : radians, the target's roll: the windows of the target are sampled rolled by it (``roll_step``;
+        :mod:`.rotation`; 0 without).
     """
 
     geom: Geometry
@@ -92,6 +94,7 @@ class DCFState:
     longterm: LongTerm | None = None
     speed2: float = 0.0
     negatives: tuple[Place, ...] = ()
+    angle: float = 0.0
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -133,6 +136,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
     if st.speed2:
         values["speed2"] = float(st.speed2)
+    if st.angle:
+        values["angle"] = float(st.angle)
     if st.negatives:
         arrays["negatives"] = to_array(st.negatives)
     lt = st.longterm
@@ -190,4 +195,5 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
+                    angle=float(values.get("angle", 0.0)),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else ())
