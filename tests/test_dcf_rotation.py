@@ -106,9 +106,9 @@ def test_the_response_of_a_rolled_window_is_read_where_the_target_is() -> None:
 
 
 def test_the_roll_search_finds_a_rolled_targets_angle() -> None:
-    """From upright, a few searches of the target rolled by 25 degrees (each moves the angle by half a
-    step at most) reach it within 3 degrees; without ``roll_step`` the angle is held."""
-    p = DCFParams(roll_step=10.0)
+    """From upright, a few searches of the target rolled by 25 degrees reach it within about half a step
+    (a held roll that scores best of the three is kept); without ``roll_step`` the angle is held."""
+    p = DCFParams(roll_step=10.0, roll_margin=0.0)
     up = Scene(lambda t: 0.0).frame(0)
     geom = tm.geometry((30.0, 44.0), p)
     mdl = tm.init_model(up, up.astype(np.float32), True, C, geom, p)
@@ -116,8 +116,22 @@ def test_the_roll_search_finds_a_rolled_targets_angle() -> None:
     theta = 0.0
     for _ in range(8):
         theta = angle_change(mdl, img, img.astype(np.float32), C, 0.0, theta, geom, p)
-    assert abs(math.degrees(theta) - 25.0) < 3.0
+    assert abs(math.degrees(theta) - 25.0) < 6.0
     assert angle_change(mdl, img, img.astype(np.float32), C, 0.0, 0.1, geom, DCFParams()) == 0.1
+
+
+def test_the_held_roll_is_kept_unless_another_beats_it_by_the_margin() -> None:
+    """On the upright target the held roll of 0 is kept exactly (the parabola's lean is not taken); on
+    the target rolled by 25 degrees a held 0 gives way; with a margin above any score's gain it does not."""
+    p = DCFParams(roll_step=10.0)
+    up = Scene(lambda t: 0.0).frame(0)
+    geom = tm.geometry((30.0, 44.0), p)
+    mdl = tm.init_model(up, up.astype(np.float32), True, C, geom, p)
+    now = Scene(lambda t: 0.0).frame(1)
+    assert angle_change(mdl, now, now.astype(np.float32), C, 0.0, 0.0, geom, p) == 0.0
+    img = Scene(lambda t: math.radians(25.0)).frame(1)
+    assert angle_change(mdl, img, img.astype(np.float32), C, 0.0, 0.0, geom, p) > math.radians(5.0)
+    assert angle_change(mdl, img, img.astype(np.float32), C, 0.0, 0.0, geom, DCFParams(roll_step=10.0, roll_margin=5.0)) == 0.0
 
 
 def test_refine_finds_the_vertex_of_a_parabola_and_holds_a_range_end() -> None:
@@ -131,7 +145,7 @@ def test_the_gate_searches_only_when_the_target_looks_unusual() -> None:
     assert held(target, 0.9, DCFParams())  # no roll_step: always held
     assert held(target, 0.55, DCFParams(roll_step=10.0, roll_gate=1.5))
     assert not held(target, 0.6, DCFParams(roll_step=10.0, roll_gate=1.5))
-    assert not held(target, 0.3, DCFParams(roll_step=10.0))  # no gate: every present frame
+    assert not held(target, 0.3, DCFParams(roll_step=10.0, roll_gate=0.0))  # no gate: every present frame
 
 
 def _track(frames, box, p):
@@ -150,7 +164,8 @@ def test_the_tracker_follows_a_target_rolling_to_40_degrees_and_keeps_its_roll_i
     the roll stays 0."""
     sc = Scene(lambda t: math.radians(min(2.0 * t, 40.0)), shift=lambda t: (0.5 * t, 0.0))
     frames = [sc.frame(t) for t in range(26)]
-    p = DCFParams(roll_step=10.0)  # searched every frame (roll_gate holds a roll the filter adapts to)
+    # searched every frame, without hysteresis (the gate holds a slow roll the filter adapts to; below)
+    p = DCFParams(roll_step=10.0, roll_gate=0.0, roll_margin=0.0)
     st, ests, angles = _track(frames, sc.truth(0), p)
     truth = np.array([sc.truth(t) for t in range(26)])
     assert centre_error(truth, np.array([e.box for e in ests])).max() < 1.0
@@ -163,7 +178,8 @@ def test_the_tracker_follows_a_target_rolling_to_40_degrees_and_keeps_its_roll_i
 
 
 @pytest.mark.parametrize("name,value", [("roll_step", -1.0), ("roll_step", 50.0), ("roll_steps", 0),
-                                        ("roll_max", 0.0), ("roll_gate", float("nan")), ("roll_prior", -1.0)])
+                                        ("roll_max", 0.0), ("roll_gate", float("nan")), ("roll_prior", -1.0),
+                                        ("roll_margin", -0.1)])
 def test_bad_roll_parameters_are_refused_in_one_line_naming_them(name: str, value: float) -> None:
     with pytest.raises(ValueError, match=name):
         DCFParams(**{name: value})
@@ -184,13 +200,13 @@ def test_on_caviar1_rolled_to_35_degrees_it_holds_the_target_the_upright_filter_
     boxes, labelled = fill_truth({int(k): tuple(v) for k, v in gt.items()})
     case = next(c for c in CASES if c.name == "roll-target-35")
     first = cv2.imread(str(files[0]))
-    plan = plan_case(case, boxes, (first.shape[1], first.shape[0]), np.random.default_rng(0), tail=30,
+    plan = plan_case(case, boxes, (first.shape[1], first.shape[0]), np.random.default_rng(0),
                      labelled=labelled)
     frames = [render_frame(cv2.imread(str(files[int(s)])), plan, i) for i, s in enumerate(plan.source)]
     after = [i for i in range(plan.window[1], len(plan)) if plan.labelled[i]]
     truth = plan.boxes[after]
     on = []
-    for p in (DCFParams(roll_step=10.0, roll_gate=1.5), DCFParams()):
+    for p in (DCFParams(roll_step=10.0), DCFParams()):
         _, ests, _ = _track(frames, tuple(plan.boxes[0]), p)
         on.append(float((iou(truth, np.array([ests[i].box for i in after])) > 0.5).mean()))
     assert on[0] >= 0.9 and on[1] < on[0], on

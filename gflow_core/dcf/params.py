@@ -134,8 +134,9 @@ class DCFParams:
     roll_reach: int = param(1, "a roll's score is its response's best within this many cells of the window's centre")
     roll_prior: float = param(0.02, "a roll's score is lowered by this times its squared angle (radians): the prior "
                                     "that the target is upright")
-    roll_gate: float = param(0.0, "the roll is searched only on a frame whose distance at the estimate exceeds the "
+    roll_gate: float = param(1.5, "the roll is searched only on a frame whose distance at the estimate exceeds the "
                                   "target's mean by this many standard deviations (0: every present frame)")
+    roll_margin: float = param(0.02, "the held roll is kept unless another scores more than this above it (response units)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -222,10 +223,12 @@ class DCFParams:
             raise ValueError(f"confirm must be >= 0, got {self.confirm}")
         if not (math.isfinite(self.roll_step) and 0 <= self.roll_step <= 45 and self.roll_steps >= 1
                 and 0 < self.roll_max <= 90 and self.roll_reach >= 0 and math.isfinite(self.roll_prior)
-                and self.roll_prior >= 0 and math.isfinite(self.roll_gate) and self.roll_gate >= 0):
+                and self.roll_prior >= 0 and math.isfinite(self.roll_gate) and self.roll_gate >= 0
+                and math.isfinite(self.roll_margin) and self.roll_margin >= 0):
             raise ValueError(f"roll_step must be in [0, 45] degrees, roll_steps >= 1, roll_max in (0, 90], roll_reach "
-                             f">= 0, roll_prior and roll_gate finite and >= 0, got {self.roll_step}, {self.roll_steps}, "
-                             f"{self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}")
+                             f">= 0, roll_prior, roll_gate and roll_margin finite and >= 0, got {self.roll_step}, "
+                             f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
+                             f"{self.roll_margin}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

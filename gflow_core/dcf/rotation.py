@@ -15,8 +15,10 @@ parabola through it and its two neighbours (as DSST's and SAMF's scale search, h
 the rotation-aware correlation trackers of Zhang et al. 2015 and Li & Zhu's LDES, AAAI 2019, which
 estimates scale and rotation jointly by phase correlation in log-polar coordinates, estimate the
 same angle differently). A prior pulls ``theta`` back towards upright: each angle's score is
-lowered by ``roll_prior`` times its squared angle in radians, so that noise alone does not turn
-an upright target's window.
+lowered by ``roll_prior`` times its squared angle in radians. The held angle is kept unless another
+scores more than ``roll_margin`` above it (hysteresis): a parabola through three nearly equal
+scores leans one way or the other, and on a target that changes its look rather than its roll
+those leans walked the window round by 20 degrees (caviar1's ``look`` stress case).
 
 Departures: the scale filter (:mod:`.scale`) and the search for a hidden target
 (:func:`.model.search`) keep their windows upright; the first frame's filter (the anchor) is
@@ -85,8 +87,13 @@ def angle_change(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre
     scores = angle_scores(model, image, grey, centre, log_s, angles, geom, p)
     # the roll's prior: score(a) - roll_prior a^2
     scores = scores - p.roll_prior * angles ** 2
+    held_at, j = int(np.argmin(np.abs(angles - theta))), int(np.argmax(scores))
+    if j == held_at or scores[j] <= scores[held_at] + p.roll_margin:
+        # the held roll scores best, or another beats it by no more than roll_margin: held, so that
+        # neither a parabola's lean nor noise walks the window round
+        return theta
     if len(angles) < 3:
-        return float(angles[int(np.argmax(scores))])
+        return float(angles[j])
     return refine(angles, scores)
 
 
