@@ -146,6 +146,10 @@ def test_the_gate_searches_only_when_the_target_looks_unusual() -> None:
     assert held(target, 0.55, DCFParams(roll_step=10.0, roll_gate=1.5))
     assert not held(target, 0.6, DCFParams(roll_step=10.0, roll_gate=1.5))
     assert not held(target, 0.3, DCFParams(roll_step=10.0, roll_gate=0.0))  # no gate: every present frame
+    # with roll_return the gate holds an upright window only
+    assert held(target, 0.55, DCFParams(roll_step=10.0, roll_return=True), 0.0)
+    assert not held(target, 0.55, DCFParams(roll_step=10.0, roll_return=True), 0.2)
+    assert held(target, 0.55, DCFParams(roll_step=10.0), 0.2)
 
 
 def _track(frames, box, p):

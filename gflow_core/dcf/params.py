@@ -137,6 +137,8 @@ class DCFParams:
     roll_gate: float = param(1.5, "the roll is searched only on a frame whose distance at the estimate exceeds the "
                                   "target's mean by this many standard deviations (0: every present frame)")
     roll_margin: float = param(0.02, "the held roll is kept unless another scores more than this above it (response units)")
+    roll_return: bool = param(False, "while the held roll is not upright it is searched on every present frame (the gate "
+                                     "holds an upright window only)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

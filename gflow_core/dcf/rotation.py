@@ -97,9 +97,13 @@ def angle_change(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre
     return refine(angles, scores)
 
 
-def held(target: ChiSquare, rho: float, p: DCFParams) -> bool:
-    """Whether the frame keeps the held roll unsearched: always without ``roll_step``; with ``roll_gate``,
-    when the filter's distance ``rho`` at the estimate is at most the target's mean on present frames
-    plus ``roll_gate`` standard deviations (the target looks as usual, so it has not rolled away from
-    the held angle; :func:`.gate.within`)."""
-    return p.roll_step <= 0 or (p.roll_gate > 0 and within(target, rho, p.roll_gate, p.min_std))
+def held(target: ChiSquare, rho: float, p: DCFParams, theta: float = 0.0) -> bool:
+    """Whether the frame keeps the held roll ``theta`` unsearched: always without ``roll_step``; with
+    ``roll_gate``, when the filter's distance ``rho`` at the estimate is at most the target's mean on
+    present frames plus ``roll_gate`` standard deviations (the target looks as usual, so it has not
+    rolled away from the held angle; :func:`.gate.within`) -- with ``roll_return``, only while the
+    held roll is upright: the filter learns a rolled window as it goes, so a target that rolls back
+    may keep looking usual at the old angle."""
+    if p.roll_step <= 0:
+        return True
+    return p.roll_gate > 0 and (theta == 0.0 or not p.roll_return) and within(target, rho, p.roll_gate, p.min_std)
