@@ -26,6 +26,13 @@ BACF and CSRT learn theirs:
   2010; UPDT, Bhat et al. ECCV 2018) -- and with ``young`` the running filter's rate is
   max(``rate``, 1 / (``young`` + n + 1)) after n frames the target was seen on, the mean of the
   frames seen while that is faster (:mod:`.rates`).
+* **Roll** (:mod:`.rotation`, ``roll_step``, off by default): the target's in-plane angle is kept in
+  the state and every window of the target is sampled rolled by it, so the filter learns and detects
+  the target upright; the angle is searched as DSST searches scale (the filter applied to windows
+  rolled a step either way, the best refined by a parabola), only on frames whose distance at the
+  estimate is unusual (``roll_gate``), and held unless another angle beats it by ``roll_margin``.
+  Departures: the scale filter and the search for a hidden target keep upright windows; the box
+  reported stays axis-aligned.
 * **Colour** (:mod:`.histogram`): Staple's model (Bertinetto et al., CVPR 2016): histograms of the
   box and of its surroundings, the per-pixel probability that a colour is the target's, averaged
   over the box; merged with the filter's response as (1 - alpha) y_cf + alpha y_hist (Staple eq. 2).
@@ -134,6 +141,6 @@ Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:
 :mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
-track), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+track), :mod:`.rotation` (the target's roll), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

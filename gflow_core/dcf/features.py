@@ -16,13 +16,15 @@
 * :func:`cosine_window` -- the Hann window that tapers a sample's borders (Bolme et al. 2010;
   Henriques et al. 2015, sec. 6.1).
 * :func:`sample` -- a window of the frame around a centre, resampled so that ``k`` output pixels
-  span one image pixel (anti-aliased when shrinking).
+  span one image pixel (anti-aliased when shrinking), rolled by an angle about the centre if asked.
 
 Images are indexed (row, col); points are (x, y) pixels with the origin at the top-left pixel
 centre.
 """
 
 from __future__ import annotations
+
+import math
 
 import cv2
 import numpy as np
@@ -150,7 +152,7 @@ def cosine_window(h: int, w: int) -> np.ndarray:
 
 
 def sample(image: np.ndarray, centre: tuple[float, float], out_size: tuple[int, int],
-           k: float | tuple[float, float]) -> np.ndarray:
+           k: float | tuple[float, float], angle: float = 0.0) -> np.ndarray:
     """The window of ``image`` centred at ``centre`` (x, y), resampled so that ``k`` output pixels span
     one image pixel: output pixel (u, v) shows image point ``centre + ((u, v) - (out - 1) / 2) / k``.
 
@@ -160,6 +162,9 @@ def sample(image: np.ndarray, centre: tuple[float, float], out_size: tuple[int, 
     out_size : (w, h) of the output in pixels.
     k : output pixels per image pixel, one number or (kx, ky); below 1 the image is blurred first
         (sigma 0.4 / k) against aliasing.
+    angle : radians the window is rolled by about ``centre``: output pixel (u, v) shows image point
+        ``centre + R(angle) ((u, v) - (out - 1) / 2) / k`` (x right, y down: a positive angle turns the
+        window clockwise on the screen), so a target rolled by ``angle`` comes out upright.
 
     Returns
     -------
@@ -171,6 +176,9 @@ def sample(image: np.ndarray, centre: tuple[float, float], out_size: tuple[int, 
     H, W = image.shape[:2]
     # the image pixels the window covers, plus a margin for the blur and the interpolation
     half_w, half_h = 0.5 * ow / kx, 0.5 * oh / ky
+    if angle:
+        # a rolled window covers at most the circle about its corners
+        half_w = half_h = float(np.hypot(half_w, half_h))
     kmin = min(kx, ky)
     blur = 0.4 / kmin if kmin < 1 else 0.0
     m = 2.0 + 3.0 * blur
@@ -182,7 +190,14 @@ def sample(image: np.ndarray, centre: tuple[float, float], out_size: tuple[int, 
     if blur > 0 and crop.shape[0] > 1 and crop.shape[1] > 1:
         crop = cv2.GaussianBlur(crop, (0, 0), blur)
     # output (u, v) -> crop (x, y) = centre - (x0, y0) + ((u, v) - (out - 1) / 2) / k
-    M = np.array([[1.0 / kx, 0.0, cx - x0 - (ow - 1) / 2.0 / kx],
-                  [0.0, 1.0 / ky, cy - y0 - (oh - 1) / 2.0 / ky]], dtype=np.float64)
+    if angle:
+        # output (u, v) -> crop (x, y) = centre - (x0, y0) + R(angle) diag(1 / kx, 1 / ky) ((u, v) - (out - 1) / 2)
+        c, s = math.cos(angle), math.sin(angle)
+        a = np.array([[c / kx, -s / ky], [s / kx, c / ky]])
+        o = np.array([(ow - 1) / 2.0, (oh - 1) / 2.0])
+        M = np.column_stack([a, np.array([cx - x0, cy - y0]) - a @ o])
+    else:
+        M = np.array([[1.0 / kx, 0.0, cx - x0 - (ow - 1) / 2.0 / kx],
+                      [0.0, 1.0 / ky, cy - y0 - (oh - 1) / 2.0 / ky]], dtype=np.float64)
     return cv2.warpAffine(crop, M, (ow, oh), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                           borderMode=cv2.BORDER_REPLICATE)

@@ -36,7 +36,7 @@ from .histogram import ColourModel, colour_score, histograms, learn_colour
 from .params import DCFParams
 from .scale import ScaleFilter, detect_scale, init_scale, learn_scale
 
-__all__ = ["Geometry", "geometry", "TargetModel", "Response", "Window", "window", "respond", "init_model", "learn",
+__all__ = ["Geometry", "geometry", "TargetModel", "Response", "Window", "window", "respond", "upright", "init_model", "learn",
            "search", "Candidate", "scale_change", "respond_region"]
 
 
@@ -106,13 +106,20 @@ class Window:
     k: tuple[float, float]
 
 
-def _valid(shape: tuple[int, int], size: tuple[int, int], centre: tuple[float, float], k: tuple[float, float]
-           ) -> np.ndarray:
-    """(h, w) bool: template pixel (u, v) of a window of ``size`` (w, h) shows a point inside a frame of
-    ``shape`` (H, W)."""
+def _valid(shape: tuple[int, int], size: tuple[int, int], centre: tuple[float, float], k: tuple[float, float],
+           angle: float = 0.0) -> np.ndarray:
+    """(h, w) bool: template pixel (u, v) of a window of ``size`` (w, h) rolled by ``angle``
+    (:func:`.features.sample`) shows a point inside a frame of ``shape`` (H, W)."""
     H, W = shape
-    u = centre[0] + (np.arange(size[0]) - (size[0] - 1) / 2.0) / k[0]
-    v = centre[1] + (np.arange(size[1]) - (size[1] - 1) / 2.0) / k[1]
+    u = (np.arange(size[0]) - (size[0] - 1) / 2.0) / k[0]
+    v = (np.arange(size[1]) - (size[1] - 1) / 2.0) / k[1]
+    if angle:
+        # (x, y) = centre + R(angle) (u, v)
+        c, s = np.cos(angle), np.sin(angle)
+        x = centre[0] + c * u[None, :] - s * v[:, None]
+        y = centre[1] + s * u[None, :] + c * v[:, None]
+        return (y >= -0.5) & (y <= H - 0.5) & (x >= -0.5) & (x <= W - 0.5)
+    u, v = centre[0] + u, centre[1] + v
     return ((v >= -0.5) & (v <= H - 0.5))[:, None] & ((u >= -0.5) & (u <= W - 0.5))[None, :]
 
 
@@ -122,17 +129,18 @@ def cells_of(patch: np.ndarray, cell: int) -> np.ndarray:
 
 
 def window(image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], size: tuple[int, int],
-           k: tuple[float, float], cell: int, colour: str | None) -> Window:
-    """The window of ``size`` (w, h) template px at ``centre``, sampled at ``k``: its cells and, with
-    ``colour`` (``"colour"``: ``image`` is BGR; ``"grey"``: the grey levels), its colour bins."""
+           k: tuple[float, float], cell: int, colour: str | None, angle: float = 0.0) -> Window:
+    """The window of ``size`` (w, h) template px at ``centre``, sampled at ``k`` and rolled by ``angle``
+    radians (:func:`.features.sample`): its cells and, with ``colour`` (``"colour"``: ``image`` is BGR;
+    ``"grey"``: the grey levels), its colour bins."""
     if colour == "colour":
-        patch = sample(image, centre, size, k)
+        patch = sample(image, centre, size, k, angle)
         g = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY).astype(np.float32)
         bins: np.ndarray | None = colour_bins(patch, grey=False)
     else:
-        g = sample(grey, centre, size, k)
+        g = sample(grey, centre, size, k, angle)
         bins = colour_bins(np.clip(g, 0, 255).astype(np.uint8), grey=True) if colour == "grey" else None
-    valid = _valid(grey.shape, size, centre, k) if bins is not None else None
+    valid = _valid(grey.shape, size, centre, k, angle) if bins is not None else None
     return Window(cells_of(g, cell), bins, valid, (float(centre[0]), float(centre[1])), k)
 
 
@@ -264,13 +272,31 @@ def _colour_cells(model: TargetModel, win: Window, geom: Geometry) -> np.ndarray
     return colour_score(model.colour, win.bins, geom.cell, geom.box_cells)
 
 
+def upright(y: np.ndarray, k: tuple[float, float], angle: float) -> np.ndarray:
+    """A centred response map ``y`` (h, w) of a window rolled by ``angle`` (index (h // 2, w // 2) the
+    window's centre, index offset t the image offset R(angle) K^-1 t, K = diag(kx, ky)) resampled onto
+    the unrolled window's grid (index offset t' the image offset K^-1 t'); positions the rolled window
+    did not cover take the map's minimum."""
+    if not angle:
+        return y
+    c, s = np.cos(angle), np.sin(angle)
+    kx, ky = k
+    # t = K R(angle)^T K^-1 t'
+    a = np.array([[c, s * kx / ky], [-s * ky / kx, c]])
+    o = np.array([y.shape[1] // 2, y.shape[0] // 2], dtype=np.float64)
+    m = np.column_stack([a, o - a @ o])
+    return cv2.warpAffine(y.astype(np.float32), m, (y.shape[1], y.shape[0]), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                          borderMode=cv2.BORDER_CONSTANT, borderValue=float(y.min())).astype(np.float64)
+
+
 def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
-            geom: Geometry, p: DCFParams, second: np.ndarray | None = None) -> Response:
+            geom: Geometry, p: DCFParams, second: np.ndarray | None = None, angle: float = 0.0) -> Response:
     """The response over the window centred at ``centre`` at scale exp(``log_s``) (module docstring);
     with ``second``, a second detection filter (hc, wc // 2 + 1, C) complex, its response on the same
-    window as the map ``lt``."""
+    window as the map ``lt``. With ``angle``, the window is rolled by it (the target's roll,
+    :mod:`.rotation`) and the maps are turned back onto the unrolled window's grid (:func:`upright`)."""
     k = geom.k(log_s)
-    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode)
+    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle)
     z_hat = cf.spectrum(win.x, geom.window)
     # Y_cf = sum_l conj(A_l) Z_l / (B + lambda)                                  (DSST eq. 6)
     y_hat = cf.respond(detection_filter(model, p.anchor_weight), z_hat)
@@ -280,6 +306,11 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
     col = _colour_cells(model, win, geom)
     y_col = None if col is None else cf.centred(cf.upsample(np.fft.rfft2(np.fft.ifftshift(col)), (hc, wc), geom.cell))
     # y = (1 - alpha) y_cf + alpha y_hist                                      (Staple eq. 2)
+    if angle:
+        # the maps of the rolled window on the unrolled window's grid
+        y_cf = upright(y_cf, k, angle)
+        y_lt = None if y_lt is None else upright(y_lt, k, angle)
+        y_col = None if y_col is None else upright(y_col, k, angle)
     y = y_cf if y_col is None else (1.0 - p.colour_weight) * y_cf + p.colour_weight * y_col
     # index (h // 2, w // 2) is displacement 0: the target at the window's centre
     origin = (win.centre[0] - (y.shape[1] // 2) / k[0], win.centre[1] - (y.shape[0] // 2) / k[1])
@@ -287,12 +318,13 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
 
 
 def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
-          geom: Geometry, p: DCFParams, rate: float, scale: bool = True) -> TargetModel:
-    """The model after the sample of the box at ``centre``, scale exp(``log_s``): the running filter at
-    ``rate`` (DSST eq. 5), the colour histograms at ``colour_rate`` (Staple eq. 7-8) and, with ``scale``,
-    the scale filter at ``scale_rate``. The anchor is never changed."""
+          geom: Geometry, p: DCFParams, rate: float, scale: bool = True, angle: float = 0.0) -> TargetModel:
+    """The model after the sample of the box at ``centre``, scale exp(``log_s``), rolled by ``angle`` (so
+    the filter learns the target upright, :mod:`.rotation`): the running filter at ``rate`` (DSST eq. 5),
+    the colour histograms at ``colour_rate`` (Staple eq. 7-8) and, with ``scale``, the scale filter at
+    ``scale_rate``. The anchor is never changed."""
     k = geom.k(log_s)
-    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode)
+    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle)
     x_hat = cf.spectrum(win.x, geom.window)
     train: cf.Spectrum | np.ndarray
     if isinstance(model.train, cf.Spectrum):

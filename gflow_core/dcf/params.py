@@ -129,6 +129,19 @@ class DCFParams:
     confirm_flow: bool = param(True, "with confirm, a tentative track takes a frame in doubt only when the box's points "
                                      "move coherently from the frame before to where the filter put it (the "
                                      "forward-backward check of Median Flow; gflow_core.dcf.coherence)", before=False)
+    roll_step: float = param(0.0, "the target's roll is searched each present frame at this many degrees each way of "
+                                  "the held one, and the filter sees the window rolled by it (gflow_core.dcf.rotation; "
+                                  "0: the window stays upright)", before=0.0)
+    roll_steps: int = param(1, "rolls tried each way of the held one, roll_step apart")
+    roll_max: float = param(60.0, "the target's roll stays within this many degrees of upright")
+    roll_reach: int = param(1, "a roll's score is its response's best within this many cells of the window's centre")
+    roll_prior: float = param(0.02, "a roll's score is lowered by this times its squared angle (radians): the prior "
+                                    "that the target is upright")
+    roll_gate: float = param(1.5, "the roll is searched only on a frame whose distance at the estimate exceeds the "
+                                  "target's mean by this many standard deviations (0: every present frame)")
+    roll_margin: float = param(0.02, "the held roll is kept unless another scores more than this above it (response units)")
+    roll_return: bool = param(False, "while the held roll is not upright it is searched on every present frame (the gate "
+                                     "holds an upright window only)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -213,6 +226,14 @@ class DCFParams:
             raise ValueError(f"search_negatives must be >= 0, got {self.search_negatives}")
         if self.confirm < 0:
             raise ValueError(f"confirm must be >= 0, got {self.confirm}")
+        if not (math.isfinite(self.roll_step) and 0 <= self.roll_step <= 45 and self.roll_steps >= 1
+                and 0 < self.roll_max <= 90 and self.roll_reach >= 0 and math.isfinite(self.roll_prior)
+                and self.roll_prior >= 0 and math.isfinite(self.roll_gate) and self.roll_gate >= 0
+                and math.isfinite(self.roll_margin) and self.roll_margin >= 0):
+            raise ValueError(f"roll_step must be in [0, 45] degrees, roll_steps >= 1, roll_max in (0, 90], roll_reach "
+                             f">= 0, roll_prior, roll_gate and roll_margin finite and >= 0, got {self.roll_step}, "
+                             f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
+                             f"{self.roll_margin}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

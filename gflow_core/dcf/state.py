@@ -74,6 +74,8 @@ class DCFState:
         last seen (empty while it is; ``search_negatives``; :mod:`.negatives`).
     last_grey : (H, W) uint8 grey levels of the last frame while the track is tentative and
         ``confirm_flow`` asks for its flow (:mod:`.confirm`), else None.
+    angle : radians, the target's roll: the windows of the target are sampled rolled by it (``roll_step``;
+        :mod:`.rotation`; 0 without).
     """
 
     geom: Geometry
@@ -95,6 +97,7 @@ class DCFState:
     speed2: float = 0.0
     negatives: tuple[Place, ...] = ()
     last_grey: np.ndarray | None = None
+    angle: float = 0.0
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -136,6 +139,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
               "scale_model": None if m.scale is None else [int(v) for v in m.scale.model]}
     if st.speed2:
         values["speed2"] = float(st.speed2)
+    if st.angle:
+        values["angle"] = float(st.angle)
     if st.negatives:
         arrays["negatives"] = to_array(st.negatives)
     if st.last_grey is not None:
@@ -195,5 +200,6 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
+                    angle=float(values.get("angle", 0.0)),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)

@@ -39,6 +39,7 @@ from .params import DCFParams
 from .rates import filter_rate
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
+from .rotation import angle_change, held
 from .state import DCFObservation, DCFProposal, DCFState
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
@@ -281,15 +282,18 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     log_s, mdl = st.log_s, st.model
     # with learn_level, a frame teaches the model only when the target was seen as well as usual (.gate)
     confident = confident and (p.learn_level <= 0 or within(st.target, 1.0 - r_est, p.learn_level, p.min_std))
+    # with roll_step, the target's roll searched about the held one (.rotation)
+    angle = st.angle if held(st.target, 1.0 - r_est, p, st.angle) \
+        else angle_change(mdl, obs.image, obs.grey, c, log_s, st.angle, st.geom, p)
     if confident and mdl.scale is not None:
         d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
         log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
-    learnt: dict[str, Any] = {"target": st.target.update(1.0 - r_est, p.target_rate)}
+    learnt: dict[str, Any] = {"target": st.target.update(1.0 - r_est, p.target_rate), "angle": angle}
     if colour_seen is not None:
         learnt["ctarget"] = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
     if confident:
         learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p,
-                                   filter_rate(p, st.target.n - p.prior_count))
+                                   filter_rate(p, st.target.n - p.prior_count), angle=angle)
     return log_s, learnt
 
 
@@ -395,7 +399,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     extra = speed_noise(p, st.velocity, dt)
     lt = _longterm_of(st, p)
     resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p,
-                      None if lt is None else lt.det)
+                      None if lt is None else lt.det, st.angle)
     parts = _particles(st, proposed, resp.peak()[0], extra, p, rng, dt)
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle

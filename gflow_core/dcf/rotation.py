@@ -1,0 +1,109 @@
+"""The target's roll: in-plane rotation searched as DSST searches scale.
+
+The correlation filter is learnt on an upright window, so a target that rolls decorrelates from it
+and the tracker loses it (a roll of 35 degrees is enough). Here the target's roll angle ``theta`` is
+part of the state, and every window the tracker samples of the target -- to detect it
+(:func:`.model.respond`) and to learn it (:func:`.model.learn`) -- is sampled rolled by ``theta``
+about its centre (:func:`.features.sample`), so the filter keeps seeing the target upright. The
+reported box stays the axis-aligned box of the target's size at its centre.
+
+:func:`angle_change` updates ``theta`` on a frame the target is present: the detection filter is
+applied to the windows at the estimate rolled by ``theta + i roll_step`` (``i = -roll_steps ..
+roll_steps``), each scored by its response's maximum within ``roll_reach`` cells of the window's
+centre (the placement may differ a little with the angle), and the best angle is refined by the
+parabola through it and its two neighbours (as DSST's and SAMF's scale search, here over the roll;
+the rotation-aware correlation trackers of Zhang et al. 2015 and Li & Zhu's LDES, AAAI 2019, which
+estimates scale and rotation jointly by phase correlation in log-polar coordinates, estimate the
+same angle differently). A prior pulls ``theta`` back towards upright: each angle's score is
+lowered by ``roll_prior`` times its squared angle in radians. The held angle is kept unless another
+scores more than ``roll_margin`` above it (hysteresis): a parabola through three nearly equal
+scores leans one way or the other, and on a target that changes its look rather than its roll
+those leans walked the window round by 20 degrees (caviar1's ``look`` stress case).
+
+Departures: the scale filter (:mod:`.scale`) and the search for a hidden target
+(:func:`.model.search`) keep their windows upright; the first frame's filter (the anchor) is
+the first box upright, so the target is taken to be upright when it is given. Everything is
+deterministic (no random draws).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import filter as cf
+from .model import Geometry, TargetModel, detection_filter, window
+from .gate import within
+from .params import DCFParams
+from ..visibility import ChiSquare
+
+__all__ = ["angle_scores", "refine", "angle_change", "held"]
+
+
+def angle_scores(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
+                 angles: np.ndarray, geom: Geometry, p: DCFParams) -> np.ndarray:
+    """(A,) float64: for each roll ``angles`` (A,) radians, the detection filter's response to the window
+    at ``centre``, scale exp(``log_s``), rolled by it: the maximum of the response within ``roll_reach``
+    cells of the window's centre (on the cells, no upsampling)."""
+    k = geom.k(log_s)
+    det = detection_filter(model, p.anchor_weight)
+    wc, hc = geom.cells
+    r = p.roll_reach
+    out = np.empty(len(angles))
+    for i, a in enumerate(angles):
+        win = window(image, grey, centre, geom.template, k, geom.cell, None, float(a))
+        # Y = sum_l D_l Z_l                                                          (DSST eq. 6)
+        y = cf.centred(np.fft.irfft2(cf.respond(det, cf.spectrum(win.x, geom.window)), s=(hc, wc)))
+        out[i] = float(y[hc // 2 - r: hc // 2 + r + 1, wc // 2 - r: wc // 2 + r + 1].max())
+    return out
+
+
+def refine(angles: np.ndarray, scores: np.ndarray) -> float:
+    """The angle of the best score, refined by the parabola through it and its neighbours (equally spaced
+    ``angles``; at the ends of the range, the end itself)."""
+    j = int(np.argmax(scores))
+    if j == 0 or j == len(scores) - 1:
+        return float(angles[j])
+    ym, y0, yp = float(scores[j - 1]), float(scores[j]), float(scores[j + 1])
+    curv = ym - 2.0 * y0 + yp
+    if curv >= 0.0:
+        return float(angles[j])
+    step = float(angles[j + 1] - angles[j])
+    # the vertex of the parabola through (-1, ym), (0, y0), (1, yp): x* = (ym - yp) / (2 (ym - 2 y0 + yp))
+    return float(angles[j]) + step * min(max(0.5 * (ym - yp) / curv, -0.5), 0.5)
+
+
+def angle_change(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
+                 theta: float, geom: Geometry, p: DCFParams) -> float:
+    """The target's roll (radians) after a frame it is present at ``centre``: the best of the rolls
+    ``theta + i roll_step`` (module docstring), within ``roll_max`` degrees of upright; ``theta``
+    itself without ``roll_step``."""
+    if p.roll_step <= 0:
+        return theta
+    step, lim = math.radians(p.roll_step), math.radians(p.roll_max)
+    angles = np.clip(theta + step * np.arange(-p.roll_steps, p.roll_steps + 1), -lim, lim)
+    angles = np.unique(angles)
+    scores = angle_scores(model, image, grey, centre, log_s, angles, geom, p)
+    # the roll's prior: score(a) - roll_prior a^2
+    scores = scores - p.roll_prior * angles ** 2
+    held_at, j = int(np.argmin(np.abs(angles - theta))), int(np.argmax(scores))
+    if j == held_at or scores[j] <= scores[held_at] + p.roll_margin:
+        # the held roll scores best, or another beats it by no more than roll_margin: held, so that
+        # neither a parabola's lean nor noise walks the window round
+        return theta
+    if len(angles) < 3:
+        return float(angles[j])
+    return refine(angles, scores)
+
+
+def held(target: ChiSquare, rho: float, p: DCFParams, theta: float = 0.0) -> bool:
+    """Whether the frame keeps the held roll ``theta`` unsearched: always without ``roll_step``; with
+    ``roll_gate``, when the filter's distance ``rho`` at the estimate is at most the target's mean on
+    present frames plus ``roll_gate`` standard deviations (the target looks as usual, so it has not
+    rolled away from the held angle; :func:`.gate.within`) -- with ``roll_return``, only while the
+    held roll is upright: the filter learns a rolled window as it goes, so a target that rolls back
+    may keep looking usual at the old angle."""
+    if p.roll_step <= 0:
+        return True
+    return p.roll_gate > 0 and (theta == 0.0 or not p.roll_return) and within(target, rho, p.roll_gate, p.min_std)
