@@ -33,9 +33,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench._util import pct, table  # noqa: E402
-from gflow_core.tracker import FrameRng  # noqa: E402
+from gflow_core.tracker import FrameRng, stream_hash  # noqa: E402
 from pipeline.recording.results import read_boxes  # noqa: E402
-from stages.rng import stream_hash  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 SEQUENCES = ("caviar1", "crossing", "david_indoor", "dollar", "jumping", "skating1", "surfer", "tiger1", "twinnings")
