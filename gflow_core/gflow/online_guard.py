@@ -14,10 +14,11 @@ al. 2017, Lukezic et al. 2017), with the default tracker's own pieces, called as
 (:mod:`gflow_core.dcf.model`: fHOG and intensity cells, a filter held to the box by ADMM, the first
 frame's filter kept as an anchor, DSST's scale filter), on grey levels alone (G-flow reads no colour):
 
-* **Where the face is.** Each frame the filter is slid over centres within ``window + growth * dt``
-  box sizes of where it last placed the face (:func:`gflow_core.dcf.model.respond_region`): the
-  search grows with ``dt``, the frame periods since the last frame seen. The peak is refined on the
-  filter's window there (:func:`gflow_core.dcf.model.respond`), within one cell of the region's peak.
+* **Where the face is.** Each frame the filter's response over its window about where it last placed
+  the face (:func:`gflow_core.dcf.model.respond`: the target plus ``padding`` mean sides, every shift
+  at once by FFT) is searched for its peak over centres within ``window + growth * dt`` box sizes of
+  that place: the search grows with ``dt``, the frame periods since the last frame seen (up to the
+  window, 1.5 box sizes each way with dcf's padding of 3, which the cosine window tapers).
 * **Is it the face?** The distance rho = 1 - y at the peak against two distributions learnt by
   running moments (Toyama & Blake 2002, eq. 10; :func:`gflow_core.visibility.visibility`): the
   face's, on frames it is learnt from, and the clutter's, the best response more than half a box
@@ -34,7 +35,7 @@ frame's filter kept as an anchor, DSST's scale filter), on grey levels alone (G-
   occluded or lost and the model places the face within the experts' box, the frame is reported
   ``tracked`` with the experts' box; the guard's state, its hold on the experts and its search are as
   without it, so the experts move exactly as they would without the model.
-* **Re-seating** (``patience`` finite): where the model places the face farther than ``apart`` box
+* **Re-seating** (``patience`` > 0): where the model places the face farther than ``apart`` box
   sizes from the experts' box in x or y, at one place, for ``patience`` frame periods (frames on which
   it is not placed neither count nor end the count), every expert is re-seated at the face's box as
   after a loss (:func:`.guard.settle`, :func:`.guard.reseat`). On david_indoor it helps at every 3rd
@@ -69,7 +70,7 @@ class OnlineParams:
 
     window, growth : the search covers centres within ``window + growth * dt`` box sizes of the
         face's last place (``dt`` frame periods since the last frame seen).
-    patience : frame periods the face must be placed away from the experts before they are re-seated.
+    patience : frame periods the face must be placed away from the experts before they are re-seated (0: never).
     apart : away from the experts: its centre farther than this many box sizes from theirs in x or y.
     warmup : frames learnt from without the visibility gate (the experts start on the face).
     dcf : the filter's settings (:class:`gflow_core.dcf.params.DCFParams`, no colour).
@@ -77,7 +78,7 @@ class OnlineParams:
 
     window: float = 0.5
     growth: float = 0.25
-    patience: float = float("inf")
+    patience: float = 0.0
     apart: float = 0.25
     warmup: int = 5
     dcf: DCFParams = DCFParams(colour_weight=0.0)
@@ -164,14 +165,10 @@ def look(face: OnlineFace, grey: np.ndarray, experts_box: Box, dt: float, p: Onl
     s = float(np.exp(face.log_s))
     size = (geom.size0[0] * s, geom.size0[1] * s)
     reach = p.window + p.growth * max(float(dt), 1.0)
-    region = tm.respond_region(face.model, grey, grey, np.asarray(face.centre), (reach * size[0], reach * size[1]),
-                               face.log_s, geom, d)
-    c = np.asarray(face.centre, dtype=np.float64)
-    if region is not None:
-        c, _ = region.peak()
-    # refined on the filter's window about the region's peak (a map on template pixels), within a cell of it
-    resp = tm.respond(face.model, grey, grey, (float(c[0]), float(c[1])), face.log_s, geom, d)
-    i, j, y = _peak_near(resp, c, geom.cell / resp.q[0], geom.cell / resp.q[1])
+    # the filter's window about the face's last place (the target plus 3 mean sides each way: wider than
+    # the search at the rates met), its peak over the centres within reach of that place
+    resp = tm.respond(face.model, grey, grey, face.centre, face.log_s, geom, d)
+    i, j, y = _peak_near(resp, np.asarray(face.centre), reach * size[0], reach * size[1])
     c = resp.point(i, j)
     away = resp.best_away(c, (0.5 * size[0], 0.5 * size[1]))
     # rho = 1 - y, the distance of the peak; the clutter's, the best response half a box or more away
@@ -212,7 +209,7 @@ def overrule(g: GuardStep, seen: OnlineSeen, box: Box, pose: np.ndarray, p: Onli
     else ``tracked``, with ``box`` reported, where it places the face within the experts' box. Returns
     the step and the online model."""
     face = seen.face
-    if seen.placed and face.apart >= p.patience:
+    if p.patience > 0 and seen.placed and face.apart >= p.patience:
         face = dataclasses.replace(face, apart=0.0)
         new_box = seen.box
         new_pose = place(new_box)

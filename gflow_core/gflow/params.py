@@ -148,8 +148,8 @@ class GFlowParams:
     online_window: float = param(0.5, "the online guard searches within this many box sizes of the face's last place, "
                                       "plus online_growth a frame period since the last frame seen")
     online_growth: float = param(0.25, "the online guard's search widens by this many box sizes a frame period")
-    online_patience: float = param(math.inf, "frame periods the online guard must place the face away from the "
-                                             "experts before they are re-seated there (inf: never)")
+    online_patience: float = param(0.0, "frame periods the online guard must place the face away from the experts "
+                                        "before they are re-seated there (0: never)")
     online_apart: float = param(0.25, "the online guard places the face away from the experts where its centre is "
                                       "farther than this many box sizes from theirs in x or y")
 
@@ -175,7 +175,7 @@ class GFlowParams:
                              f"{self.lost_window}, {self.lost_growth}, {self.lost_scales}")
         if not (self.online_window > 0 and self.online_growth >= 0 and self.online_patience >= 0
                 and self.online_apart > 0 and math.isfinite(self.online_window) and math.isfinite(self.online_growth)
-                and math.isfinite(self.online_apart)):
+                and math.isfinite(self.online_apart) and math.isfinite(self.online_patience)):
             raise ValueError(f"online_window and online_apart must be positive, online_growth and online_patience "
                              f">= 0, got {self.online_window}, {self.online_apart}, {self.online_growth}, "
                              f"{self.online_patience}")
