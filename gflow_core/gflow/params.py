@@ -142,6 +142,16 @@ class GFlowParams:
                                   "where it was last found (0: wherever G-flow takes them)")
     lost_scales: tuple[float, ...] = param((1.0, 0.93, 1.07), "sizes (multiples of the held size) searched when "
                                                              "re-detecting")
+    online_guard: bool = param(False, "the lost guard keeps a correlation filter of the face learnt online where the "
+                                      "experts agree with it: it vouches for the experts' box and re-seats them where "
+                                      "it places the face away from them (gflow_core/gflow/online_guard.py)")
+    online_window: float = param(0.5, "the online guard searches within this many box sizes of the face's last place, "
+                                      "plus online_growth a frame period since the last frame seen")
+    online_growth: float = param(0.25, "the online guard's search widens by this many box sizes a frame period")
+    online_patience: float = param(0.0, "frame periods the online guard must place the face away from the experts "
+                                        "before they are re-seated there (0: never)")
+    online_apart: float = param(0.25, "the online guard places the face away from the experts where its centre is "
+                                      "farther than this many box sizes from theirs in x or y")
 
     def __post_init__(self) -> None:
         self.config()  # every check of GFlowConfig
@@ -163,6 +173,12 @@ class GFlowParams:
                 and all(math.isfinite(v) and v > 0 for v in self.lost_scales)):
             raise ValueError(f"lost_window must be positive, lost_growth >= 0 and lost_scales positive, got "
                              f"{self.lost_window}, {self.lost_growth}, {self.lost_scales}")
+        if not (self.online_window > 0 and self.online_growth >= 0 and self.online_patience >= 0
+                and self.online_apart > 0 and math.isfinite(self.online_window) and math.isfinite(self.online_growth)
+                and math.isfinite(self.online_apart) and math.isfinite(self.online_patience)):
+            raise ValueError(f"online_window and online_apart must be positive, online_growth and online_patience "
+                             f">= 0, got {self.online_window}, {self.online_apart}, {self.online_growth}, "
+                             f"{self.online_patience}")
         if not 0.0 <= self.lost_below <= self.occluded_below <= 1.0:
             raise ValueError(f"need 0 <= lost_below <= occluded_below <= 1, got {self.lost_below}, "
                              f"{self.occluded_below}")

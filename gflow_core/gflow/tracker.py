@@ -26,7 +26,7 @@ from ..features import to_grey
 from ..m2.lost import Anchor, LostParams, LostState, bound_positions
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame
 from ..visibility import ChiSquare
-from . import guard
+from . import guard, online_guard
 from .credibility import ess, pose_spread, posterior_mean_pose
 from .face_pose import expression, following_box, yaw_pitch_roll
 from .filter import (
@@ -193,6 +193,7 @@ class GFlowState:
     lost : the lost guard's state (:mod:`.guard`).
     fit_level : the guard's running moments of the first look's misfit on found frames.
     look_clutter : ... and of its best misfit beside the estimate there (:func:`.guard.first_look_clutter`).
+    online : the online guard's model of the face (:mod:`.online_guard`), None without it.
     """
 
     setup: ModelSetup
@@ -203,6 +204,15 @@ class GFlowState:
     lost: LostState = LostState()
     fit_level: ChiSquare = ChiSquare()
     look_clutter: ChiSquare = ChiSquare()
+    online: online_guard.OnlineFace | None = None
+
+
+def online_params(params: GFlowParams) -> online_guard.OnlineParams | None:
+    """The online guard's settings (:mod:`.online_guard`), None without it (or without the lost guard)."""
+    if not (params.online_guard and params.lost_guard):
+        return None
+    return online_guard.OnlineParams(window=params.online_window, growth=params.online_growth,
+                                     patience=params.online_patience, apart=params.online_apart)
 
 
 def guard_params(params: GFlowParams, dt: float = 1.0) -> LostParams | None:
@@ -301,7 +311,9 @@ class GFlowTracker:
         x, y, w, h = (float(v) for v in setup.box)
         anchor = None if gp is None else guard.anchor_of(obs.grey, (x, y, w, h), gp,
                                                          obs.bins if params.lost_colour else None)
-        state = GFlowState(setup, experts, anchor=anchor)
+        op = online_params(params)
+        online = None if op is None or anchor is None else online_guard.start(obs.grey, (x, y, w, h), op)
+        state = GFlowState(setup, experts, anchor=anchor, online=online)
         return state, self.summary_estimate(state, rng.t, "init")
 
     def propose(self, params: GFlowParams, state: GFlowState, obs: GFlowObservation, rng: FrameRng,
@@ -338,7 +350,8 @@ class GFlowTracker:
         if gp is None or state.anchor is None:
             conf = min(max(est.inlier_fraction, 0.0), 1.0)
             judged = "lost" if conf < params.lost_below else "occluded" if conf < params.occluded_below else "tracked"
-            out = GFlowState(s, new, conf, judged, state.anchor, state.lost, state.fit_level, state.look_clutter)
+            out = GFlowState(s, new, conf, judged, state.anchor, state.lost, state.fit_level, state.look_clutter,
+                             state.online)
             return out, self._estimate_of(out, rng.t, "track", est)
         channels = self.with_channels(params, obs).channels
         assert channels is not None  # the guard is on
@@ -348,10 +361,18 @@ class GFlowTracker:
                        place=lambda box: self._place(params, s, new, obs, box),
                        ring_fit=guard.first_look_clutter(new, obs.y, s.model, s.cfg, gp.ring),
                        look_clutter=state.look_clutter, witness=params.lost_witness)
+        online, op = state.online, online_params(params)
+        if op is not None:
+            # the online model of the face vouches for the experts' box or re-seats them (.online_guard)
+            ebox = self._box(s, est.pose, est.bbox)
+            face = online if online is not None else online_guard.start(obs.grey, ebox, op)
+            g, online = online_guard.overrule(g, online_guard.look(face, obs.grey, ebox, proposal.dt, op), ebox,
+                                              est.pose, op, lambda box: self._place(params, s, new, obs, box))
         if g.pose is None:
             if g.phase == "lost" and g.lost.held is not None and params.lost_hold > 0:
                 new = self._hold(s, new, g.lost.held, params.lost_hold)
-            out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter)
+            out = GFlowState(s, new, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter,
+                             online)
             if g.held_pose is not None:
                 # the held box is reported: the face where it was last found, its points with it
                 return out, self._held_estimate(out, rng.t, est, g.box, g.held_pose)
@@ -364,7 +385,8 @@ class GFlowTracker:
             bg_mean, bg_var = advance_background(state.experts.bg_mean, state.experts.bg_var, seated.poses,
                                                  np.arange(seated.n_experts, dtype=np.int64), obs.y, s.model, s.cfg)
             seated = dataclasses.replace(seated, bg_mean=bg_mean, bg_var=bg_var)
-        out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter)
+        out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter,
+                         online)
         return out, self.summary_estimate(out, rng.t, g.phase)
 
     def _place(self, params: GFlowParams, setup: ModelSetup, experts: ExpertState, obs: GFlowObservation,
