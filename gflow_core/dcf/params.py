@@ -119,9 +119,10 @@ class DCFParams:
     young: float = param(0.0, "while the running filter is young its rate is max(rate, 1 / (young + n + 1)), n the frames "
                               "the target was seen on before: the mean of the frames seen, the first counting for "
                               "this many (gflow_core.dcf.rates; 0: rate from the first frame)")
-    confirm: int = param(0, "a new track is tentative until the target's distance distribution has learnt this many "
-                            "frames beyond the prior's: until then a frame in doubt is taken as the target's and "
-                            "it cannot be judged hidden (gflow_core.dcf.confirm; 0: judged from the first frame)")
+    confirm: int = param(10, "a new track is tentative until the target's distance distribution has learnt this many "
+                             "frames beyond the prior's: until then a frame in doubt is taken as the target's and "
+                             "it cannot be judged hidden (gflow_core.dcf.confirm; 0: judged from the first frame)",
+                         before=0)
     search_negatives: int = param(0, "with search_clutter, a place the search's best placement fell at on this many "
                                      "frames while the target stayed hidden is remembered, and a candidate there is "
                                      "judged also as that place's clutter (TLD's negatives as places; "
