@@ -29,7 +29,7 @@ from ..particles import LogWeights, systematic_resample
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 from ..visibility import ChiSquare, Cue, visibility
 from . import model as tm
-from .confirm import remember, taken
+from .confirm import remember, taken, tentative
 from .cues import may_fail
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
@@ -283,7 +283,7 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     # with learn_level, a frame teaches the model only when the target was seen as well as usual (.gate)
     confident = confident and (p.learn_level <= 0 or within(st.target, 1.0 - r_est, p.learn_level, p.min_std))
     # with roll_step, the target's roll searched about the held one (.rotation)
-    angle = st.angle if held(st.target, 1.0 - r_est, p, st.angle) \
+    angle = st.angle if held(st.target, 1.0 - r_est, p, st.angle) or tentative(st.target, p) \
         else angle_change(mdl, obs.image, obs.grey, c, log_s, st.angle, st.geom, p)
     if confident and mdl.scale is not None:
         d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
