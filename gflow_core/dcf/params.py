@@ -130,9 +130,9 @@ class DCFParams:
     confirm_flow: bool = param(True, "with confirm, a tentative track takes a frame in doubt only when the box's points "
                                      "move coherently from the frame before to where the filter put it (the "
                                      "forward-backward check of Median Flow; gflow_core.dcf.coherence)", before=False)
-    roll_step: float = param(10.0, "the target's roll is searched at this many degrees each way of the held one, on a "
-                                   "confirmed track's frames where the target looks unusual (roll_gate), and the filter "
-                                   "sees the window rolled by it (gflow_core.dcf.rotation; 0: the window stays upright)",
+    roll_step: float = param(0.0, "the target's roll is searched at this many degrees each way of the held one, on a "
+                                  "confirmed track's frames where the target looks unusual (roll_gate), and the filter "
+                                  "sees the window rolled by it (gflow_core.dcf.rotation; 0: the window stays upright)",
                              before=0.0)
     roll_steps: int = param(1, "rolls tried each way of the held one, roll_step apart")
     roll_max: float = param(60.0, "the target's roll stays within this many degrees of upright")
