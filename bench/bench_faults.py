@@ -104,6 +104,10 @@ def run(tmp: Path, victim: str | None) -> tuple[dict, float | None, bool]:
 
 
 def main() -> None:
+    import argparse
+
+    argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                            formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
     with tempfile.TemporaryDirectory(prefix="gflow-bench-faults-") as d:
         tmp = Path(d)
         print("checkpoint per step (snapshot + atomic write):")

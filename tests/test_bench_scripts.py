@@ -1,0 +1,40 @@
+"""Every script under ``bench/`` starts: ``python bench/X.py --help`` prints its usage and exits 0.
+
+A script that imports a module that has moved fails at import, long before anyone runs it for its
+figures (``bench_dcf.py`` imported ``stages.rng`` after it had gone). The scripts run here in one
+interpreter, one after another, so the check costs the imports once."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+SCRIPTS = sorted(p.name for p in (ROOT / "bench").glob("*.py") if not p.name.startswith("_"))
+
+_RUN_ALL = r"""
+import contextlib, io, runpy, sys
+failed = []
+for name in sys.argv[1:]:
+    sys.argv = [f"bench/{name}", "--help"]
+    out = io.StringIO()
+    try:
+        with contextlib.redirect_stdout(out):
+            runpy.run_path(f"bench/{name}", run_name="__main__")
+        failed.append(f"{name}: no usage printed for --help")
+    except SystemExit as e:
+        if e.code not in (0, None) or "usage" not in out.getvalue():
+            failed.append(f"{name}: --help exited {e.code!r}")
+    except BaseException as e:  # an import that fails, a module that moved
+        failed.append(f"{name}: {type(e).__name__}: {e}")
+print("\n".join(failed))
+"""
+
+
+def test_every_bench_script_starts_and_explains_itself() -> None:
+    assert len(SCRIPTS) > 20, SCRIPTS
+    r = subprocess.run([sys.executable, "-c", _RUN_ALL, *SCRIPTS], cwd=ROOT, capture_output=True, text=True,
+                       timeout=600, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert not r.stdout.strip(), r.stdout
