@@ -29,11 +29,11 @@ rolled", is not refused), and a new roll is taken only when H0 is refused and th
 distance is back within that level (the roll explains the unusual look) and beats the held roll by
 ``roll_margin``. When no roll explains the frame -- the face turning out of plane, a change of look,
 the box on something else -- the held roll relaxes ``roll_relax`` degrees towards upright, the prior's
-angle, instead of following the best of several poor scores. On grey david_indoor the face turning
-away made a window rolled by -10 degrees score a little better than the upright one (0.617 against
-0.566, the target's usual 0.60 +- 0.04); the roll was taken, then -20 degrees once the box had slid
-off the face (every score 0.27-0.36), and the rolled filter never came back to the face the upright
-one found again 25 frames later. Departure: the papers' rotation searches (above) take the best
+angle, instead of following the best of several poor scores. On grey david_indoor a window rolled
+by -10 degrees scored a little better than the upright one as the man walked into a lit room (0.617
+against 0.566, the target's usual 0.60 +- 0.04) and was taken; when he turned to profile the box slid
+off the face, the roll walked on to -20 degrees on scores no roll explained (0.27-0.36), and the
+rolled filter never came back to the face the upright one found again 25 frames later. Departure: the papers' rotation searches (above) take the best
 angle; here an angle must also fit the target's learnt distribution, as the tracker's presence
 judgement does, and the relaxation is a fixed step, not a posterior over the roll.
 
