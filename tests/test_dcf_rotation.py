@@ -15,7 +15,7 @@ import pytest
 from gflow_core.dcf import model as tm
 from gflow_core.dcf.features import sample
 from gflow_core.dcf.params import DCFParams
-from gflow_core.dcf.rotation import angle_change, held, refine
+from gflow_core.dcf.rotation import angle_change, angle_scores, explained, held, refine
 from gflow_core.dcf.state import from_arrays, to_arrays
 from gflow_core.dcf.tracker import TRACKER
 from gflow_core.evaluation.metrics import centre_error
@@ -132,6 +132,48 @@ def test_the_held_roll_is_kept_unless_another_beats_it_by_the_margin() -> None:
     img = Scene(lambda t: math.radians(25.0)).frame(1)
     assert angle_change(mdl, img, img.astype(np.float32), C, 0.0, 0.0, geom, p) > math.radians(5.0)
     assert angle_change(mdl, img, img.astype(np.float32), C, 0.0, 0.0, geom, DCFParams(roll_step=10.0, roll_margin=5.0)) == 0.0
+
+
+def _usual(rho: float, sd: float = 0.03) -> ChiSquare:
+    """A target distance distribution of mean ``rho`` and std ``sd``."""
+    return ChiSquare(rho, rho * rho + sd * sd, 50)
+
+
+def test_a_roll_is_taken_only_when_it_explains_an_unusual_look() -> None:
+    """On the target rolled by 25 degrees: if the upright window's distance is within the target's usual
+    distribution, the held upright roll is kept (H0: no roll), though without ``roll_explain`` the search
+    rolls the window; if it is not but the window rolled 10 degrees is, the roll is taken; if no roll
+    explains the frame the held roll relaxes ``roll_relax`` degrees towards upright."""
+    p = DCFParams(roll_step=10.0, roll_explain=1.5, roll_relax=10.0)
+    up = Scene(lambda t: 0.0).frame(0)
+    geom = tm.geometry((30.0, 44.0), p)
+    mdl = tm.init_model(up, up.astype(np.float32), True, C, geom, p)
+    img = Scene(lambda t: math.radians(25.0)).frame(1)
+    g = img.astype(np.float32)
+    raw = angle_scores(mdl, img, g, C, 0.0, np.radians([-10.0, 0.0, 10.0]), geom, p)
+    rho_up, rho_10 = 1.0 - raw[1], 1.0 - raw[2]
+    assert rho_10 < rho_up - 0.1  # the rolled window matches better: the search alone would roll
+    without = angle_change(mdl, img, g, C, 0.0, 0.0, geom, DCFParams(roll_step=10.0), _usual(rho_up))
+    assert without > math.radians(5.0)
+    # the upright window looks as usual: no roll evidenced, held
+    assert angle_change(mdl, img, g, C, 0.0, 0.0, geom, p, _usual(rho_up)) == 0.0
+    # the upright window is unusual, the rolled one usual: the roll explains the look
+    assert angle_change(mdl, img, g, C, 0.0, 0.0, geom, p, _usual(rho_10)) > math.radians(5.0)
+    # no roll explains the frame (every window far above the usual): back towards upright, not past it
+    far = _usual(rho_10 - 0.3, 0.02)
+    assert angle_change(mdl, img, g, C, 0.0, math.radians(30.0), geom, p, far) == pytest.approx(math.radians(20.0))
+    assert angle_change(mdl, img, g, C, 0.0, math.radians(-4.0), geom, p, far) == 0.0
+
+
+def test_explained_keeps_a_held_roll_a_better_one_does_not_beat_by_the_margin() -> None:
+    """A roll that explains the look but beats the held one by no more than ``roll_margin`` is not taken;
+    one that beats it by more is (at the range's end, the angle itself)."""
+    a = np.radians([0.0, 10.0])
+    t = _usual(0.4)
+    p = DCFParams(roll_step=10.0, roll_explain=1.5, roll_margin=0.02)
+    raw = np.array([0.45, 0.61])  # held 0: rho 0.55, 5 sd above; 10 degrees: rho 0.39, usual
+    assert explained(a, raw, raw, 0, 0.0, t, p) == pytest.approx(a[1])
+    assert explained(a, raw, raw, 0, 0.0, t, DCFParams(roll_step=10.0, roll_explain=1.5, roll_margin=0.2)) == 0.0
 
 
 def test_refine_finds_the_vertex_of_a_parabola_and_holds_a_range_end() -> None:

@@ -144,6 +144,11 @@ class DCFParams:
     roll_margin: float = param(0.02, "the held roll is kept unless another scores more than this above it (response units)")
     roll_return: bool = param(False, "while the held roll is not upright it is searched on every present frame (the gate "
                                      "holds an upright window only)")
+    roll_explain: float = param(0.0, "a new roll is taken only when the held one's distance is above the target's mean "
+                                     "plus this many standard deviations and the new one's is within it (the roll "
+                                     "explains the unusual look; gflow_core.dcf.rotation.explained; 0: the best roll)")
+    roll_relax: float = param(0.0, "with roll_explain, on a frame no roll explains the held roll moves this many degrees "
+                                   "towards upright")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -231,11 +236,14 @@ class DCFParams:
         if not (math.isfinite(self.roll_step) and 0 <= self.roll_step <= 45 and self.roll_steps >= 1
                 and 0 < self.roll_max <= 90 and self.roll_reach >= 0 and math.isfinite(self.roll_prior)
                 and self.roll_prior >= 0 and math.isfinite(self.roll_gate) and self.roll_gate >= 0
-                and math.isfinite(self.roll_margin) and self.roll_margin >= 0):
+                and math.isfinite(self.roll_margin) and self.roll_margin >= 0
+                and math.isfinite(self.roll_explain) and self.roll_explain >= 0
+                and math.isfinite(self.roll_relax) and self.roll_relax >= 0):
             raise ValueError(f"roll_step must be in [0, 45] degrees, roll_steps >= 1, roll_max in (0, 90], roll_reach "
-                             f">= 0, roll_prior, roll_gate and roll_margin finite and >= 0, got {self.roll_step}, "
+                             f">= 0, roll_prior, roll_gate, roll_margin, roll_explain and roll_relax finite and >= 0, got "
+                             f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
-                             f"{self.roll_margin}")
+                             f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

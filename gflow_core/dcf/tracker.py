@@ -284,7 +284,7 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     confident = confident and (p.learn_level <= 0 or within(st.target, 1.0 - r_est, p.learn_level, p.min_std))
     # with roll_step, the target's roll searched about the held one (.rotation)
     angle = st.angle if held(st.target, 1.0 - r_est, p, st.angle) or tentative(st.target, p) \
-        else angle_change(mdl, obs.image, obs.grey, c, log_s, st.angle, st.geom, p)
+        else angle_change(mdl, obs.image, obs.grey, c, log_s, st.angle, st.geom, p, st.target)
     if confident and mdl.scale is not None:
         d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
         log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
