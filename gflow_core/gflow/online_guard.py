@@ -41,8 +41,15 @@ frame's filter kept as an anchor, DSST's scale filter), on grey levels alone (G-
   after a loss (:func:`.guard.settle`, :func:`.guard.reseat`). On david_indoor it helps at every 3rd
   frame and hurts at every frame, where the model loses the face in profile and re-seats the experts,
   who had kept it, on the wall (docs/faces.md, "An online model of the face"): off by default.
+* **As a likelihood** (``cue`` > 0, :func:`cue`): the model's response at each pose sample's box, as the
+  default tracker turns it into a likelihood (``exp(kappa y)``) and mixed with a uniform density of weight
+  ``floor``, multiplies the sample's importance weight (Marks et al. eq. 16), a second cue as in the
+  multi-cue fusion of Perez, Vermaak & Blake (Proc. IEEE 2004), where a cue that may fail is mixed with a
+  uniform density; the paper's likelihood is the texture's alone. It only reweights the samples the experts
+  drew: at david_indoor's turn every expert's chain leaves the face for the collar, and no sample is left
+  on the face to prefer (docs/faces.md, "The online model as a likelihood"): off by default.
 
-Nothing here draws a random number. No I/O.
+Nothing here draws a random number. No I/O. The model travels in a snapshot as :mod:`.online_fields`.
 """
 
 from __future__ import annotations
