@@ -344,7 +344,8 @@ class GFlowTracker:
         ``redetect``), at the pose where the first look fits the frame there (:meth:`_place`). The
         confidence is the guard's P(visible); without the guard it is the fraction of vertices the frame
         explains as the object (``Estimate.inlier_fraction``), below ``occluded_below`` the target is
-        occluded, below ``lost_below`` lost."""
+        occluded, below ``lost_below`` lost. With the online guard's ``online_cue``, its model of the face
+        weighs every sample first (:meth:`_with_cue`)."""
         s = state.setup
         op = online_params(params)
         resp = None
