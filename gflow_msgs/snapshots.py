@@ -100,7 +100,7 @@ class GFlowProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=T
 
 
 class GFlowFilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Everything the G-flow filter stage keeps between frames (version 2). ``state`` has no backgrounds."""
+    """Everything the G-flow filter stage keeps between frames (version 3). ``state`` has no backgrounds."""
 
     version: int
     image_shape: tuple[int, int] | None
@@ -121,6 +121,8 @@ class GFlowFilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=Tru
     held: tuple[float, ...] | None = None  # ... box (x, y, w, h) and pose (P) of the last found frame
     fit_level: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the first look's misfit when found
     look_clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of its best misfit beside the target then
+    online: NDArray | None = None  # online guard (version 3): its model's arrays, one flat float64 vector
+    online_values: dict[str, Any] | None = None  # ... their names and shapes, and the model's plain values
 
 
 T = TypeVar("T")

@@ -22,8 +22,9 @@ keep their poses and credibilities, their texels are only predicted, eq. 9, 10; 
 the problem is reported. The state message is published on every frame, so the
 proposal -> filter cycle never stalls.
 
-The snapshot (version 2) holds the experts, the guard's anchor and distributions; a version-1
-snapshot restores with the guard off.
+The snapshot (version 3) holds the experts, the guard's anchor and distributions and the online
+guard's model of the face; a version-2 snapshot restores with that model started afresh on the next
+frame, a version-1 snapshot with the guard off.
 """
 
 from __future__ import annotations
@@ -161,7 +162,9 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
 
     # -- snapshot / restore: the experts as they travel, the rest of the posterior as its fields ----------
     snapshot_struct = GFlowFilterSnapshot
-    snapshot_versions = (1, 2)  # 2: the lost guard's anchor and distributions (1: none; restores without the guard)
+    # 2: the lost guard's anchor and distributions (1: none; restores without the guard); 3: the online guard's
+    # model of the face (2: none; restores with the model started afresh)
+    snapshot_versions = (1, 2, 3)
 
     def snapshot_fields(self) -> dict[str, Any]:
         st = None

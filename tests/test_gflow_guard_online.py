@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from gflow_core.gflow import online_guard as og
+from gflow_core.gflow.online_fields import face_fields, face_of_fields
 from gflow_core.gflow.guard import GuardStep
 from gflow_core.gflow.params import GFlowParams
 from gflow_core.m2.lost import LostState
@@ -96,10 +97,48 @@ def test_re_seating_after_patience_periods_away() -> None:
     assert abs(out.box[0] + (out.box[2] - 1) / 2 - 104) <= 3 and face.apart == 0.0
 
 
+def test_as_a_cue_it_prefers_the_face_within_the_bound_of_its_uniform_floor() -> None:
+    """The cue's likelihood is 1 at the response's peak (the face), falls toward ``floor`` away from it, and
+    never gives one box more than ``1 / floor`` times another's weight."""
+    p = og.OnlineParams(cue=30.0, floor=0.1)
+    face = _taught()
+    resp = og.response(face, _scene(104, 100), p)
+    at = np.array([[104.0, 100.0], [104.0 + 0.8 * W, 100.0], [104.0, 100.0 - 0.8 * H], [1e4, 1e4]])
+    log_l = og.cue(resp, at, p)
+    assert log_l[0] > math.log(0.6) and log_l[0] <= 0.0
+    assert np.all(log_l[1:] < log_l[0] - 1.0) and np.all(log_l >= math.log(0.1) - 1e-12)
+    assert log_l[3] == pytest.approx(math.log(0.1), abs=1e-3)  # outside the window: the map's minimum
+    flat = og.cue(resp, at, og.OnlineParams(cue=30.0, floor=1.0))
+    assert np.all(flat == 0.0)  # a floor of 1: no cue at all
+
+
+def test_the_model_survives_its_snapshot_fields_bit_for_bit() -> None:
+    face = _taught()
+    flat, values = face_fields(face)
+    back = face_of_fields(flat, values, P)
+    assert back.centre == face.centre and back.log_s == face.log_s and back.learnt == face.learnt
+    assert back.target == face.target and back.clutter == face.clutter and back.apart == face.apart
+    for a, b in ((back.model.det, face.model.det), (back.model.anchor, face.model.anchor),
+                 (back.model.scale.num, face.model.scale.num), (back.model.scale.den, face.model.scale.den)):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    # the restored model goes on exactly as the original
+    nxt = og.look(face, _scene(103, 101), _box(103, 101), 1.0, P)
+    again = og.look(back, _scene(103, 101), _box(103, 101), 1.0, P)
+    assert nxt.box == again.box and np.array_equal(nxt.face.model.det, again.face.model.det)
+    with pytest.raises(ValueError, match="left over"):
+        face_of_fields(np.concatenate([flat, [0.0]]), values, P)
+    with pytest.raises(ValueError, match="runs past"):
+        face_of_fields(flat[:-1], values, P)
+    with pytest.raises(ValueError, match="missing or malformed"):
+        face_of_fields(flat, {k: v for k, v in values.items() if k != "centre"}, P)
+
+
 def test_off_by_default_and_bad_settings_refused() -> None:
     assert GFlowParams().online_guard is False and GFlowParams().online_patience == 0.0
+    assert GFlowParams().online_cue == 0.0
     for bad in ({"online_window": 0.0}, {"online_growth": -1.0}, {"online_patience": math.nan},
-                {"online_patience": math.inf}, {"online_apart": 0.0}):
+                {"online_patience": math.inf}, {"online_apart": 0.0}, {"online_cue": -1.0},
+                {"online_cue": math.inf}, {"online_floor": 0.0}, {"online_floor": 1.5}):
         with pytest.raises(ValueError, match="online_"):
             GFlowParams(**bad)
 

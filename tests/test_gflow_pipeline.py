@@ -84,6 +84,42 @@ def test_snapshot_restore_then_continue_equals_a_straight_run(scene) -> None:
         Cycle(params).filter.restore(b"\x80\x04garbage")
 
 
+def test_a_restart_mid_stream_with_the_online_guard_continues_as_the_straight_run(scene) -> None:
+    """The online guard's model of the face travels in the filter's snapshot: restored mid-stream, the run
+    goes on bit for bit (its cue weighs the experts' samples, so a model started afresh would not), and a
+    version-2 snapshot, made before the model was kept, restores with the model started afresh."""
+    _, seq, frames = scene
+    grey = np.rint(frames * 255).astype(np.uint8)
+    params = dict(SYNTH, seed=4, init=[float(v) for v in seq.box], online_guard=True, online_cue=30.0)
+    straight = Cycle(params)
+    want = [straight.step(t, features_msg(grey[t], t)) for t in range(FRAMES)]
+    resumed = Cycle(params)
+    got = []
+    for t in range(FRAMES):
+        if t in (2, 9):
+            before = resumed.filter.state.online
+            resumed.restart_from_snapshots()
+            after = resumed.filter.state.online
+            assert after is not None and after.learnt == before.learnt and after.centre == before.centre
+            assert np.array_equal(after.model.det, before.model.det)
+        got.append(resumed.step(t, features_msg(grey[t], t)))
+    assert got == want
+    # a version-2 snapshot has no online model: restored, it starts afresh on the next frame
+    old = msgspec.msgpack.decode(resumed.filter.snapshot())
+    assert old["online"] is not None and old["version"] == 3
+    old = {k: v for k, v in old.items() if not k.startswith("online")}
+    resumed.filter.restore(msgspec.msgpack.encode(dict(old, version=2)))
+    assert resumed.filter.state.online is None and resumed.filter.state.anchor is not None
+    resumed.step(FRAMES - 1, features_msg(grey[FRAMES - 1], FRAMES - 1))
+    assert resumed.filter.state.online is not None
+    # a damaged model is refused in one line
+    bad = msgspec.msgpack.decode(straight.filter.snapshot())
+    bad["online_values"]["parts"][0][1] = [3, 3, 3]
+    with pytest.raises(ValueError, match="bad gflow.filter snapshot: online model") as e:
+        Cycle(params).filter.restore(msgspec.msgpack.encode(bad))
+    assert "\n" not in str(e.value)
+
+
 def test_tracks_a_rendered_head_with_known_pose(tmp_path) -> None:
     """30 frames of 160x120: a textured head turning by up to (10, 20, 8) degrees and moving
     (15, 8) px, its texture drifting, with noise, then quantised to 8 bits by the PNG files."""

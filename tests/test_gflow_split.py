@@ -175,7 +175,7 @@ def test_snapshots_of_another_version_are_refused_in_one_line_naming_it(head) ->
     cyc = Cycle(dict(SYNTH, n_experts=6, seed=1, init=[float(v) for v in setup.box]))
     for t in range(2):
         cyc.step(t, features_msg(grey[t], t))
-    for stage, old in ((cyc.proposal, 1), (cyc.filter, 3)):
+    for stage, old in ((cyc.proposal, 1), (cyc.filter, 4)):
         snap = msgspec.msgpack.decode(stage.snapshot())
         with pytest.raises(ValueError, match=f"snapshot version {old}, expected") as e:
             stage.restore(msgspec.msgpack.encode(dict(snap, version=old)))

@@ -41,8 +41,15 @@ frame's filter kept as an anchor, DSST's scale filter), on grey levels alone (G-
   after a loss (:func:`.guard.settle`, :func:`.guard.reseat`). On david_indoor it helps at every 3rd
   frame and hurts at every frame, where the model loses the face in profile and re-seats the experts,
   who had kept it, on the wall (docs/faces.md, "An online model of the face"): off by default.
+* **As a likelihood** (``cue`` > 0, :func:`cue`): the model's response at each pose sample's box, as the
+  default tracker turns it into a likelihood (``exp(kappa y)``) and mixed with a uniform density of weight
+  ``floor``, multiplies the sample's importance weight (Marks et al. eq. 16), a second cue as in the
+  multi-cue fusion of Perez, Vermaak & Blake (Proc. IEEE 2004), where a cue that may fail is mixed with a
+  uniform density; the paper's likelihood is the texture's alone. It only reweights the samples the experts
+  drew: at david_indoor's turn every expert's chain leaves the face for the collar, and no sample is left
+  on the face to prefer (docs/faces.md, "The online model as a likelihood"): off by default.
 
-Nothing here draws a random number. No I/O.
+Nothing here draws a random number. No I/O. The model travels in a snapshot as :mod:`.online_fields`.
 """
 
 from __future__ import annotations
@@ -59,7 +66,7 @@ from ..dcf.params import DCFParams
 from ..visibility import ChiSquare, visibility
 from .guard import GuardStep
 
-__all__ = ["OnlineParams", "OnlineFace", "OnlineSeen", "start", "look", "overrule"]
+__all__ = ["OnlineParams", "OnlineFace", "OnlineSeen", "start", "response", "cue", "look", "overrule"]
 
 Box = tuple[float, float, float, float]
 
@@ -74,6 +81,9 @@ class OnlineParams:
     apart : away from the experts: its centre farther than this many box sizes from theirs in x or y.
     warmup : frames learnt from without the visibility gate (the experts start on the face).
     dcf : the filter's settings (:class:`gflow_core.dcf.params.DCFParams`, no colour).
+    cue : sharpness kappa of the model's likelihood ``exp(kappa y)`` in the experts' importance weights
+        (0: not a cue; :func:`cue`).
+    floor : the weight of the uniform density the cue is mixed with (a cue that may fail).
     """
 
     window: float = 0.5
@@ -82,6 +92,8 @@ class OnlineParams:
     apart: float = 0.25
     warmup: int = 5
     dcf: DCFParams = DCFParams(colour_weight=0.0)
+    cue: float = 0.0
+    floor: float = 0.1
 
 
 @dataclass(frozen=True)
@@ -158,16 +170,41 @@ def _peak_near(resp: tm.Response, c: np.ndarray, hx: float, hy: float) -> tuple[
     return cf.peak(y)
 
 
-def look(face: OnlineFace, grey: np.ndarray, experts_box: Box, dt: float, p: OnlineParams) -> OnlineSeen:
+def response(face: OnlineFace, grey: np.ndarray, p: OnlineParams) -> tm.Response:
+    """The filter's response on ``grey`` (H, W) uint8 over its window about the face's last place (the
+    target plus ``padding`` mean sides each way, :func:`gflow_core.dcf.model.respond`)."""
+    return tm.respond(face.model, grey, grey, face.centre, face.log_s, face.geom, p.dcf)
+
+
+def cue(resp: tm.Response, centres: np.ndarray, p: OnlineParams) -> np.ndarray:
+    """The model's log-likelihood of boxes centred at ``centres`` (N, 2) (x, y) px, a cue of the
+    experts' importance weights (module docstring), (N,).
+
+    ``p(y | u) = floor + (1 - floor) exp(kappa (y(u) - y_max))``: the correlation filter's likelihood
+    of the default tracker (``exp(kappa y)``, y the response at the box's centre; the map's minimum
+    outside the window) over its maximum ``y_max`` on the window, mixed with a uniform density of
+    weight ``floor``, as a cue that may fail is in multi-cue fusion (Perez, Vermaak & Blake 2004,
+    sec. 3): the factor a cue can give one box over another is at most ``1 / floor``.
+    """
+    y = resp.at(np.asarray(centres, dtype=np.float64).reshape(-1, 2))
+    # p(y | u) = eps + (1 - eps) exp(kappa (y(u) - y_max))          (a cue mixed with a uniform density)
+    lik = p.floor + (1.0 - p.floor) * np.exp(p.cue * (y - float(resp.y.max())))
+    return np.log(lik)
+
+
+def look(face: OnlineFace, grey: np.ndarray, experts_box: Box, dt: float, p: OnlineParams,
+         resp: tm.Response | None = None) -> OnlineSeen:
     """Place the face on ``grey`` (H, W) uint8, ``dt`` frame periods after the last frame seen, judge
-    it, and learn from it where it is judged visible within ``experts_box`` (module docstring)."""
+    it, and learn from it where it is judged visible within ``experts_box`` (module docstring).
+    ``resp``: the model's :func:`response` on ``grey``, when made already."""
     d, geom = p.dcf, face.geom
     s = float(np.exp(face.log_s))
     size = (geom.size0[0] * s, geom.size0[1] * s)
     reach = p.window + p.growth * max(float(dt), 1.0)
     # the filter's window about the face's last place (the target plus 3 mean sides each way: wider than
     # the search at the rates met), its peak over the centres within reach of that place
-    resp = tm.respond(face.model, grey, grey, face.centre, face.log_s, geom, d)
+    if resp is None:
+        resp = response(face, grey, p)
     i, j, y = _peak_near(resp, np.asarray(face.centre), reach * size[0], reach * size[1])
     c = resp.point(i, j)
     away = resp.best_away(c, (0.5 * size[0], 0.5 * size[1]))

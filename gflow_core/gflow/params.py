@@ -152,6 +152,10 @@ class GFlowParams:
                                         "before they are re-seated there (0: never)")
     online_apart: float = param(0.25, "the online guard places the face away from the experts where its centre is "
                                       "farther than this many box sizes from theirs in x or y")
+    online_cue: float = param(0.0, "sharpness kappa of the online guard's likelihood exp(kappa y) of each pose sample's "
+                                   "box, a second cue in the experts' importance weights (0: not a cue)")
+    online_floor: float = param(0.1, "weight of the uniform density the online guard's cue is mixed with (the factor "
+                                     "it can give one box over another is at most 1 / online_floor)")
 
     def __post_init__(self) -> None:
         self.config()  # every check of GFlowConfig
@@ -179,6 +183,9 @@ class GFlowParams:
             raise ValueError(f"online_window and online_apart must be positive, online_growth and online_patience "
                              f">= 0, got {self.online_window}, {self.online_apart}, {self.online_growth}, "
                              f"{self.online_patience}")
+        if not (math.isfinite(self.online_cue) and self.online_cue >= 0 and 0 < self.online_floor <= 1):
+            raise ValueError(f"online_cue must be finite and >= 0 (0: not a cue) and online_floor in (0, 1], got "
+                             f"{self.online_cue}, {self.online_floor}")
         if not 0.0 <= self.lost_below <= self.occluded_below <= 1.0:
             raise ValueError(f"need 0 <= lost_below <= occluded_below <= 1, got {self.lost_below}, "
                              f"{self.occluded_below}")

@@ -43,7 +43,7 @@ from .filter import (ExpertState, Proposals, advance_background, concatenate_pro
                      predict_background)
 from .params import GFlowParams
 from .state_fields import state_of_fields
-from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_setup
+from .tracker import TRACKER, GFlowObservation, GFlowState, ModelSetup, model_setup, online_params
 from ..tracker import Estimate, FrameRng, UnusableFrame
 
 __all__ = ["LATER_FIELDS", "config_digest", "placed", "restored_setup", "check_shard", "shard_indices", "message_dims",
@@ -208,7 +208,7 @@ def restored_state(params: GFlowParams, box: Sequence[float], seed: int, shape: 
     Raises ValueError when the model cannot be placed, the digest is another configuration's or the
     arrays or fields do not fit."""
     setup, _ = restored_setup(params, box, seed, shape, model, digest)
-    return state_of_fields(setup, expert_state(setup, read(setup)), fields)
+    return state_of_fields(setup, expert_state(setup, read(setup)), fields, online_params(params))
 
 
 @dataclass(frozen=True)

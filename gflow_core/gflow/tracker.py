@@ -27,7 +27,7 @@ from ..m2.lost import Anchor, LostParams, LostState, bound_positions
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame
 from ..visibility import ChiSquare
 from . import guard, online_guard
-from .credibility import ess, pose_spread, posterior_mean_pose
+from .credibility import ess, log_evidence, pose_spread, posterior_mean_pose
 from .face_pose import expression, following_box, yaw_pitch_roll
 from .filter import (
     ExpertState,
@@ -212,7 +212,8 @@ def online_params(params: GFlowParams) -> online_guard.OnlineParams | None:
     if not (params.online_guard and params.lost_guard):
         return None
     return online_guard.OnlineParams(window=params.online_window, growth=params.online_growth,
-                                     patience=params.online_patience, apart=params.online_apart)
+                                     patience=params.online_patience, apart=params.online_apart,
+                                     cue=params.online_cue, floor=params.online_floor)
 
 
 def guard_params(params: GFlowParams, dt: float = 1.0) -> LostParams | None:
@@ -343,8 +344,15 @@ class GFlowTracker:
         ``redetect``), at the pose where the first look fits the frame there (:meth:`_place`). The
         confidence is the guard's P(visible); without the guard it is the fraction of vertices the frame
         explains as the object (``Estimate.inlier_fraction``), below ``occluded_below`` the target is
-        occluded, below ``lost_below`` lost."""
+        occluded, below ``lost_below`` lost. With the online guard's ``online_cue``, its model of the face
+        weighs every sample first (:meth:`_with_cue`)."""
         s = state.setup
+        op = online_params(params)
+        resp = None
+        if op is not None and op.cue > 0 and state.online is not None:
+            # the online model of the face, a second cue in the importance weights (eq. 16; .online_guard.cue)
+            resp = online_guard.response(state.online, obs.grey, op)
+            proposal = self._with_cue(s, proposal, resp, op)
         new, est = update(state.experts, proposal, obs.y, s.model, s.cfg, rng.stream())
         gp = guard_params(params, proposal.dt)
         if gp is None or state.anchor is None:
@@ -361,12 +369,12 @@ class GFlowTracker:
                        place=lambda box: self._place(params, s, new, obs, box),
                        ring_fit=guard.first_look_clutter(new, obs.y, s.model, s.cfg, gp.ring),
                        look_clutter=state.look_clutter, witness=params.lost_witness)
-        online, op = state.online, online_params(params)
+        online = state.online
         if op is not None:
             # the online model of the face vouches for the experts' box or re-seats them (.online_guard)
             ebox = self._box(s, est.pose, est.bbox)
             face = online if online is not None else online_guard.start(obs.grey, ebox, op)
-            g, online = online_guard.overrule(g, online_guard.look(face, obs.grey, ebox, proposal.dt, op), ebox,
+            g, online = online_guard.overrule(g, online_guard.look(face, obs.grey, ebox, proposal.dt, op, resp), ebox,
                                               est.pose, op, lambda box: self._place(params, s, new, obs, box))
         if g.pose is None:
             if g.phase == "lost" and g.lost.held is not None and params.lost_hold > 0:
@@ -388,6 +396,27 @@ class GFlowTracker:
         out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter,
                          online)
         return out, self.summary_estimate(out, rng.t, g.phase)
+
+    def _with_cue(self, setup: ModelSetup, proposal: Proposals, resp: Any, op: online_guard.OnlineParams
+                  ) -> Proposals:
+        """``proposal`` with the online model's likelihood of each sample's box (:meth:`_box`) as a second cue:
+        its log added to the sample's log importance weight (eq. 16) and the expert's likelihood (eq. 19)
+        re-estimated from the weights so fused (the cues' likelihoods multiplied, Perez, Vermaak & Blake 2004)."""
+        samples = proposal.samples
+        if setup.model.reference_box is not None:
+            boxes = following_box(samples, setup.pose0, setup.box)
+        else:
+            boxes = bounding_box(project(setup.model.bases, samples.reshape(-1, samples.shape[-1]))
+                                 ).reshape(*samples.shape[:2], 4)
+        # the box's centre as the online model places it: x + (w - 1) / 2
+        centres = boxes[..., :2] + 0.5 * (boxes[..., 2:] - 1.0)
+        log_l = online_guard.cue(resp, centres.reshape(-1, 2), op).reshape(samples.shape[:2])
+        # w_t(d, e) p_online(y_t | u^(d, e))                                  (eq. 16, times the second cue)
+        log_w = proposal.log_weights + log_l
+        log_w.setflags(write=False)
+        ev = log_evidence(log_w)
+        ev.setflags(write=False)
+        return dataclasses.replace(proposal, log_weights=log_w, log_evidence=ev)
 
     def _place(self, params: GFlowParams, setup: ModelSetup, experts: ExpertState, obs: GFlowObservation,
                box: tuple[float, float, float, float]) -> np.ndarray:
