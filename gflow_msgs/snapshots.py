@@ -23,7 +23,7 @@ from .base import MessageError, NDArray
 from .gflow import ExpertStates
 
 __all__ = ["PreprocessSnapshot", "CounterSnapshot", "BoxFilterSnapshot", "AppearanceFilterSnapshot",
-           "GFlowProposalSnapshot", "GFlowFilterSnapshot", "versioned_snapshot", "article", "SnapshotCodec",
+           "GFlowProposalSnapshot", "GFlowFilterSnapshotV2", "GFlowFilterSnapshot", "versioned_snapshot", "article", "SnapshotCodec",
            "arrays_codec", "decoded"]
 
 
@@ -99,8 +99,10 @@ class GFlowProposalSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=T
     init_error: str
 
 
-class GFlowFilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
-    """Everything the G-flow filter stage keeps between frames (version 3). ``state`` has no backgrounds."""
+class GFlowFilterSnapshotV2(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    """Everything the G-flow filter stage keeps between frames without the online guard's model (versions 1
+    and 2; written as version 2 whenever there is no such model, so that its bytes are those of the runs
+    recorded before version 3). ``state`` has no backgrounds."""
 
     version: int
     image_shape: tuple[int, int] | None
@@ -121,6 +123,12 @@ class GFlowFilterSnapshot(msgspec.Struct, frozen=True, forbid_unknown_fields=Tru
     held: tuple[float, ...] | None = None  # ... box (x, y, w, h) and pose (P) of the last found frame
     fit_level: tuple[float, float, int] = (0.0, 0.0, 0)  # ... moments of the first look's misfit when found
     look_clutter: tuple[float, float, int] = (0.0, 0.0, 0)  # ... and of its best misfit beside the target then
+
+
+class GFlowFilterSnapshot(GFlowFilterSnapshotV2, frozen=True, forbid_unknown_fields=True):
+    """The G-flow filter stage's snapshot with the online guard's model of the face (version 3); every
+    version decodes as it (a version-2 snapshot with ``online`` None)."""
+
     online: NDArray | None = None  # online guard (version 3): its model's arrays, one flat float64 vector
     online_values: dict[str, Any] | None = None  # ... their names and shapes, and the model's plain values
 

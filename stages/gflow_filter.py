@@ -23,14 +23,16 @@ the problem is reported. The state message is published on every frame, so the
 proposal -> filter cycle never stalls.
 
 The snapshot (version 3) holds the experts, the guard's anchor and distributions and the online
-guard's model of the face; a version-2 snapshot restores with that model started afresh on the next
-frame, a version-1 snapshot with the guard off.
+guard's model of the face; without that model it is written as version 2, byte for byte as before
+version 3, so older recordings re-run bit for bit. A version-2 snapshot restores with the model
+started afresh on the next frame, a version-1 snapshot with the guard off.
 """
 
 from __future__ import annotations
 
 from typing import Any, Mapping
 
+import msgspec
 import numpy as np
 
 from gflow_core.gflow import GFlowObservation, GFlowParams, GFlowState, Proposals
@@ -45,7 +47,7 @@ from .gflow_common import GFlowStage, GFlowStageFields, unpack_states
 from gflow_msgs.gflow import pose_estimate_of, read_shards, states_of
 from gflow_msgs.messages import ExpertStates, Features, Header, Message, PoseEstimate, PoseProposals, bins_of
 from gflow_msgs.base import packed_fields, unpacked_fields
-from gflow_msgs.snapshots import GFlowFilterSnapshot
+from gflow_msgs.snapshots import GFlowFilterSnapshot, GFlowFilterSnapshotV2
 from .time_step import MAX_TIME_STEP
 from gflow_msgs.params import stage_params
 
@@ -165,6 +167,16 @@ class GFlowFilterStage(GFlowStage[GFlowFilterFields]):
     # 2: the lost guard's anchor and distributions (1: none; restores without the guard); 3: the online guard's
     # model of the face (2: none; restores with the model started afresh)
     snapshot_versions = (1, 2, 3)
+
+    def snapshot(self) -> bytes | None:
+        """Version 3 where the online guard keeps a model of the face; version 2 (without its two fields)
+        otherwise, byte for byte the snapshot the runs recorded before version 3 hold, so that they re-run
+        bit for bit."""
+        fields = self.snapshot_fields()
+        if fields.get("online") is None and fields.get("online_values") is None:
+            fields.pop("online", None), fields.pop("online_values", None)
+            return msgspec.msgpack.encode(GFlowFilterSnapshotV2(version=2, **fields))
+        return msgspec.msgpack.encode(GFlowFilterSnapshot(version=3, **fields))
 
     def snapshot_fields(self) -> dict[str, Any]:
         st = None

@@ -120,6 +120,26 @@ def test_a_restart_mid_stream_with_the_online_guard_continues_as_the_straight_ru
     assert "\n" not in str(e.value)
 
 
+def test_without_the_online_guard_the_snapshot_is_version_2_as_before(scene) -> None:
+    """Without the online guard's model the filter writes the version-2 snapshot, without version 3's two
+    fields, so the snapshots of a run recorded before version 3 are re-made byte for byte by a re-run
+    (``gflow rerun --check`` compares them); it restores and the run goes on as the straight one."""
+    _, seq, frames = scene
+    grey = np.rint(frames * 255).astype(np.uint8)
+    params = dict(SYNTH, seed=4, init=[float(v) for v in seq.box])
+    straight = Cycle(params)
+    want = [straight.step(t, features_msg(grey[t], t)) for t in range(FRAMES)]
+    snap = msgspec.msgpack.decode(straight.filter.snapshot())
+    assert snap["version"] == 2 and not any(k.startswith("online") for k in snap)
+    resumed = Cycle(params)
+    got = []
+    for t in range(FRAMES):
+        if t == 5:
+            resumed.restart_from_snapshots()
+        got.append(resumed.step(t, features_msg(grey[t], t)))
+    assert got == want
+
+
 def test_tracks_a_rendered_head_with_known_pose(tmp_path) -> None:
     """30 frames of 160x120: a textured head turning by up to (10, 20, 8) degrees and moving
     (15, 8) px, its texture drifting, with noise, then quantised to 8 bits by the PNG files."""
