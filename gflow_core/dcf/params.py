@@ -130,7 +130,7 @@ class DCFParams:
     confirm_flow: bool = param(True, "with confirm, a tentative track takes a frame in doubt only when the box's points "
                                      "move coherently from the frame before to where the filter put it (the "
                                      "forward-backward check of Median Flow; gflow_core.dcf.coherence)", before=False)
-    roll_step: float = param(0.0, "the target's roll is searched at this many degrees each way of the held one, on a "
+    roll_step: float = param(10.0, "the target's roll is searched at this many degrees each way of the held one, on a "
                                   "confirmed track's frames where the target looks unusual (roll_gate), and the filter "
                                   "sees the window rolled by it (gflow_core.dcf.rotation; 0: the window stays upright)",
                              before=0.0)
@@ -144,11 +144,12 @@ class DCFParams:
     roll_margin: float = param(0.02, "the held roll is kept unless another scores more than this above it (response units)")
     roll_return: bool = param(False, "while the held roll is not upright it is searched on every present frame (the gate "
                                      "holds an upright window only)")
-    roll_explain: float = param(0.0, "a new roll is taken only when the held one's distance is above the target's mean "
+    roll_explain: float = param(2.0, "a new roll is taken only when the held one's distance is above the target's mean "
                                      "plus this many standard deviations and the new one's is within it (the roll "
-                                     "explains the unusual look; gflow_core.dcf.rotation.explained; 0: the best roll)")
-    roll_relax: float = param(0.0, "with roll_explain, on a frame no roll explains the held roll moves this many degrees "
-                                   "towards upright")
+                                     "explains the unusual look; gflow_core.dcf.rotation.explained; 0: the best roll)",
+                                before=0.0)
+    roll_relax: float = param(10.0, "with roll_explain, on a frame no roll explains the held roll moves this many degrees "
+                                    "towards upright", before=0.0)
 
     def __post_init__(self) -> None:
         if self.particles < 1:
