@@ -26,11 +26,14 @@ BACF and CSRT learn theirs:
   2010; UPDT, Bhat et al. ECCV 2018) -- and with ``young`` the running filter's rate is
   max(``rate``, 1 / (``young`` + n + 1)) after n frames the target was seen on, the mean of the
   frames seen while that is faster (:mod:`.rates`).
-* **Roll** (:mod:`.rotation`, ``roll_step``, off by default): the target's in-plane angle is kept in
+* **Roll** (:mod:`.rotation`, ``roll_step``): the target's in-plane angle is kept in
   the state and every window of the target is sampled rolled by it, so the filter learns and detects
   the target upright; the angle is searched as DSST searches scale (the filter applied to windows
   rolled a step either way, the best refined by a parabola), only on frames whose distance at the
-  estimate is unusual (``roll_gate``), and held unless another angle beats it by ``roll_margin``.
+  estimate is unusual (``roll_gate``), and held unless another angle beats it by ``roll_margin``;
+  a new angle is taken only when it explains the unusual look (its distance back within
+  ``roll_explain`` standard deviations of the target's), and with none explaining the frame the
+  held one relaxes towards upright (``roll_relax``).
   Departures: the scale filter and the search for a hidden target keep upright windows; the box
   reported stays axis-aligned.
 * **Colour** (:mod:`.histogram`): Staple's model (Bertinetto et al., CVPR 2016): histograms of the
