@@ -4,7 +4,7 @@ reaching the tracker (dt = k), scored with the landmark metric (README "Faces").
 One command: ``python bench/bench_gflow_pace.py [--every 1,3] [--seeds 1] [--inline]``
 
 A live camera faster than the tracker makes it skip frames; the stages then measure the time since
-the frame they last saw in nominal periods (``stages/time_step.py``) from the frames' host stamps.
+the frame they last saw in nominal periods (``gflow_core.tracker.time_step``) from the frames' host stamps.
 To play a sequence that way, each k-th frame of ../shared/data/david_indoor is written to an MCAP
 recording as a live source would record it: frames numbered 0, 1, 2, ... stamped k frame periods
 (of 25 frames/s) apart, each with its Capture message naming the camera's frame (0, k, 2k, ...) and
@@ -51,6 +51,7 @@ from _util import scratch, table  # noqa: E402
 from gflow_core.gflow import GFlowParams  # noqa: E402
 from gflow_core.gflow.landmark_error import landmark_score  # noqa: E402
 from pipeline.io.recorder import McapRecorder  # noqa: E402
+from pipeline.runtime.tracker_block import plain_type_error  # noqa: E402
 from gflow_msgs.messages import Capture, Frame, Header, NDArray, encode  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
@@ -205,7 +206,7 @@ def checked_sets(items: list[str]) -> None:
     try:
         msgspec.convert(values, GFlowParams)
     except (msgspec.ValidationError, ValueError, TypeError) as e:
-        raise SystemExit(f"--gflow-set {' '.join(items)}: {e}") from None
+        raise SystemExit(f"--gflow-set {' '.join(items)}: {plain_type_error(str(e), values)}") from None
 
 
 def main() -> None:

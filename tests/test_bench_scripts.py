@@ -38,3 +38,17 @@ def test_every_bench_script_starts_and_explains_itself() -> None:
                        timeout=600, stdin=subprocess.DEVNULL)
     assert r.returncode == 0, r.stderr[-2000:]
     assert not r.stdout.strip(), r.stdout
+
+
+def test_the_pace_benchmark_refuses_a_bad_gflow_setting_in_one_line_before_any_work() -> None:
+    """``bench_gflow_pace.py --gflow-set`` of an unknown name, a value of the wrong kind or one G-flow
+    refuses: one line naming it, in the user's words (not msgspec's), and nothing run (no frame
+    written or tracked is reported)."""
+    for setting, says in (("nonexist=1", "no parameter 'nonexist'"),
+                          ("online_cue=abc", "online_cue must be a number, got 'abc'"),
+                          ("online_cue=-3", "online_cue must be finite")):
+        r = subprocess.run([sys.executable, "bench/bench_gflow_pace.py", "--gflow-set", setting], cwd=ROOT,
+                           capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+        assert r.returncode != 0 and says in r.stderr, (setting, r.stderr)
+        assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+        assert not r.stdout.strip(), r.stdout
