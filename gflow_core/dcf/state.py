@@ -21,7 +21,7 @@ from .model import Geometry, TargetModel, geometry
 from .params import DCFParams
 from .scale import ScaleFilter
 
-__all__ = ["DCFObservation", "DCFProposal", "DCFState", "to_arrays", "from_arrays"]
+__all__ = ["DCFObservation", "DCFProposal", "DCFState", "model_arrays", "model_of_arrays", "to_arrays", "from_arrays"]
 
 
 @dataclass(frozen=True)
@@ -116,20 +116,47 @@ def _complex(a: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.float64).view(np.complex128)
 
 
+def model_arrays(m: TargetModel) -> dict[str, np.ndarray]:
+    """The target model's arrays by name, as float64 (complex ones with real and imaginary parts interleaved
+    on their last axis): the filters, the colour histograms, the scale filter. :func:`model_of_arrays`
+    inverts it bit for bit."""
+    arrays = {"det": _real(m.det), "anchor": _real(m.anchor)}
+    if isinstance(m.train, cf.Spectrum):
+        arrays.update(train_num=_real(m.train.num), train_den=_real(m.train.den))
+    else:
+        arrays["train_x"] = _real(m.train)
+    if m.colour is not None:
+        arrays.update(colour_fg=_real(m.colour.fg), colour_bg=_real(m.colour.bg))
+    if m.scale is not None:
+        arrays.update(scale_num=_real(m.scale.num), scale_den=_real(m.scale.den), scale_label=_real(m.scale.label_hat))
+    return arrays
+
+
+def model_of_arrays(arrays: Mapping[str, np.ndarray], colour_mode: str, scale_model: Any, geom: Geometry) -> TargetModel:
+    """The target model of :func:`model_arrays`' ``arrays`` (``KeyError`` for a part missing, ``ValueError``
+    for a filter that does not fit ``geom``'s window); ``scale_model`` the scale filter's (h, w) model size."""
+    wc, hc = geom.cells
+    det, anchor = _complex(arrays["det"]), _complex(arrays["anchor"])
+    if det.shape[:2] != (hc, wc // 2 + 1) or anchor.shape != det.shape:
+        raise ValueError(f"filter of shape {det.shape} does not fit the window of {wc}x{hc} cells")
+    train: cf.Spectrum | np.ndarray
+    if "train_num" in arrays:
+        train = cf.Spectrum(_complex(arrays["train_num"]), np.array(arrays["train_den"]))
+    else:
+        train = _complex(arrays["train_x"])
+    colour = ColourModel(np.array(arrays["colour_fg"]), np.array(arrays["colour_bg"])) if "colour_fg" in arrays else None
+    scale = None
+    if "scale_num" in arrays:
+        scale = ScaleFilter(_complex(arrays["scale_num"]), np.array(arrays["scale_den"]),
+                            _complex(arrays["scale_label"]), (int(scale_model[0]), int(scale_model[1])))
+    return TargetModel(train, det, anchor, colour, colour_mode, scale)
+
+
 def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The state as named float64 arrays (complex ones with real and imaginary parts interleaved on their
     last axis) and plain values, for a snapshot; :func:`from_arrays` inverts it bit for bit."""
     m = st.model
-    arrays = {"particles": st.particles, "centre": st.centre, "velocity": st.velocity, "det": _real(m.det),
-              "anchor": _real(m.anchor)}
-    if isinstance(m.train, cf.Spectrum):
-        arrays.update(train_num=_real(m.train.num), train_den=m.train.den)
-    else:
-        arrays["train_x"] = _real(m.train)
-    if m.colour is not None:
-        arrays.update(colour_fg=m.colour.fg, colour_bg=m.colour.bg)
-    if m.scale is not None:
-        arrays.update(scale_num=_real(m.scale.num), scale_den=m.scale.den, scale_label=_real(m.scale.label_hat))
+    arrays = {"particles": st.particles, "centre": st.centre, "velocity": st.velocity, **model_arrays(m)}
     values = {"size0": [float(v) for v in st.geom.size0], "log_s": float(st.log_s), "hidden_run": int(st.hidden_run),
               "back": float(st.back), "target_state": st.target_state, "spread": float(st.spread), "colour_mode": m.colour_mode,
               "target": [st.target.m1, st.target.m2, st.target.n], "clutter": [st.clutter.m1, st.clutter.m2, st.clutter.n],
@@ -163,21 +190,8 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
     size0 = values["size0"]
     geom = geometry((float(size0[0]), float(size0[1])), p)
     wc, hc = geom.cells
-    det, anchor = _complex(arrays["det"]), _complex(arrays["anchor"])
-    if det.shape[:2] != (hc, wc // 2 + 1) or anchor.shape != det.shape:
-        raise ValueError(f"filter of shape {det.shape} does not fit the window of {wc}x{hc} cells")
-    train: cf.Spectrum | np.ndarray
-    if "train_num" in arrays:
-        train = cf.Spectrum(_complex(arrays["train_num"]), np.array(arrays["train_den"]))
-    else:
-        train = _complex(arrays["train_x"])
-    colour = ColourModel(np.array(arrays["colour_fg"]), np.array(arrays["colour_bg"])) if "colour_fg" in arrays else None
-    scale = None
-    if "scale_num" in arrays:
-        sm = values["scale_model"]
-        scale = ScaleFilter(_complex(arrays["scale_num"]), np.array(arrays["scale_den"]),
-                            _complex(arrays["scale_label"]), (int(sm[0]), int(sm[1])))
-    model = TargetModel(train, det, anchor, colour, values["colour_mode"], scale)
+    model = model_of_arrays(arrays, values["colour_mode"], values.get("scale_model"), geom)
+    det = model.det
     def chi(key: str) -> ChiSquare:
         # a snapshot made before the search's clutter existed has none: an empty distribution
         v = values[key] if key != "sclutter" else values.get(key, [0.0, 0.0, 0])

@@ -3,7 +3,8 @@
 A process that snapshots G-flow's posterior (the pipeline's filter stage) stores the model as two fields
 (:func:`.state_fields.state_fields`): ``online``, every array of the filter (the running average it is solved
 from, the detection filter, the first frame's anchor, DSST's scale filter) as one flat float64 vector (complex
-arrays with their real and imaginary parts interleaved), and ``online_values``, the parts' names and shapes and
+arrays with their real and imaginary parts interleaved; :func:`gflow_core.dcf.state.model_arrays`, as the
+default tracker's snapshot stores its model), and ``online_values``, the parts' names and shapes and
 the model's plain values (the first box's size, where it last placed the face, its log scale, its distance
 distributions, the frames learnt from, the periods placed away from the experts). The window's geometry is not
 stored: it is made again from the first box's size and the filter's settings, as the default tracker's snapshot
@@ -16,36 +17,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..dcf import filter as cf
 from ..dcf import model as tm
-from ..dcf.histogram import ColourModel
-from ..dcf.scale import ScaleFilter
+from ..dcf.state import model_arrays, model_of_arrays
 from ..visibility import ChiSquare
 from .online_guard import OnlineFace, OnlineParams
 
 __all__ = ["face_fields", "face_of_fields"]
-
-
-def _real(a: np.ndarray) -> np.ndarray:
-    """A complex array as float64 (..., 2 n) (real and imaginary parts interleaved); a real one as float64."""
-    if np.iscomplexobj(a):
-        return np.ascontiguousarray(a, dtype=np.complex128).view(np.float64)
-    return np.ascontiguousarray(a, dtype=np.float64)
-
-
-def _parts(face: OnlineFace) -> dict[str, np.ndarray]:
-    """The model's arrays by name (complex ones as they are)."""
-    m = face.model
-    out: dict[str, np.ndarray] = {"det": m.det, "anchor": m.anchor}
-    if isinstance(m.train, cf.Spectrum):
-        out.update(train_num=m.train.num, train_den=m.train.den)
-    else:
-        out["train_x"] = m.train
-    if m.colour is not None:
-        out.update(colour_fg=m.colour.fg, colour_bg=m.colour.bg)
-    if m.scale is not None:
-        out.update(scale_num=m.scale.num, scale_den=m.scale.den, scale_label=m.scale.label_hat)
-    return out
 
 
 def _chi(d: ChiSquare) -> list[float]:
@@ -55,10 +32,10 @@ def _chi(d: ChiSquare) -> list[float]:
 def face_fields(face: OnlineFace) -> tuple[np.ndarray, dict[str, Any]]:
     """``face`` as (``online``, ``online_values``): (N,) float64, every array of the filter flattened in
     turn, and the plain values naming them (module docstring). :func:`face_of_fields` inverts it bit for bit."""
-    parts = _parts(face)
-    flat = [_real(a).ravel() for a in parts.values()]
+    parts = model_arrays(face.model)
+    flat = [a.ravel() for a in parts.values()]
     m = face.model
-    values = {"parts": [[k, [int(v) for v in a.shape], bool(np.iscomplexobj(a))] for k, a in parts.items()],
+    values = {"parts": [[k, [int(v) for v in a.shape]] for k, a in parts.items()],
               "size0": [float(v) for v in face.geom.size0], "centre": [float(v) for v in face.centre],
               "log_s": float(face.log_s), "target": _chi(face.target), "clutter": _chi(face.clutter),
               "learnt": int(face.learnt), "apart": float(face.apart), "colour_mode": m.colour_mode,
@@ -67,16 +44,18 @@ def face_fields(face: OnlineFace) -> tuple[np.ndarray, dict[str, Any]]:
 
 
 def _split(flat: np.ndarray, parts: list) -> dict[str, np.ndarray]:
-    """The arrays of ``flat`` (N,) by the ``parts`` [name, shape, complex] of :func:`face_fields` (copies)."""
+    """The float64 arrays of ``flat`` (N,) by the ``parts`` [name, shape] of :func:`face_fields` (copies)."""
     out: dict[str, np.ndarray] = {}
     at = 0
-    for name, shape, is_complex in parts:
+    for part in parts:
+        if not isinstance(part, (list, tuple)) or len(part) != 2:
+            raise ValueError(f"online model: part {part!r} is not [name, shape]")
+        name, shape = part
         shape = tuple(int(v) for v in shape)
-        n = int(np.prod(shape, dtype=np.int64)) * (2 if is_complex else 1)
+        n = int(np.prod(shape, dtype=np.int64))
         if at + n > flat.size:
             raise ValueError(f"online model: part {name!r} of shape {shape} runs past the {flat.size} stored values")
-        a = np.array(flat[at:at + n], dtype=np.float64)
-        out[str(name)] = a.view(np.complex128).reshape(shape) if is_complex else a.reshape(shape)
+        out[str(name)] = np.array(flat[at:at + n], dtype=np.float64).reshape(shape)
         at += n
     if at != flat.size:
         raise ValueError(f"online model: {flat.size - at} stored values left over after its parts")
@@ -90,16 +69,10 @@ def face_of_fields(flat: np.ndarray, values: Mapping[str, Any], p: OnlineParams)
         a = _split(np.asarray(flat, dtype=np.float64).ravel(), list(values["parts"]))
         size0 = (float(values["size0"][0]), float(values["size0"][1]))
         geom = tm.geometry(size0, p.dcf)
-        wc, hc = geom.cells
-        det, anchor = a["det"], a["anchor"]
-        if det.shape[:2] != (hc, wc // 2 + 1) or anchor.shape != det.shape:
-            raise ValueError(f"online model: filter of shape {det.shape} does not fit the window of {wc}x{hc} cells")
-        train = cf.Spectrum(a["train_num"], a["train_den"]) if "train_num" in a else a["train_x"]
-        colour = ColourModel(a["colour_fg"], a["colour_bg"]) if "colour_fg" in a else None
-        sm = values["scale_model"]
-        scale = None if "scale_num" not in a else ScaleFilter(a["scale_num"], a["scale_den"], a["scale_label"],
-                                                               (int(sm[0]), int(sm[1])))
-        model = tm.TargetModel(train, det, anchor, colour, values["colour_mode"], scale)
+        try:
+            model = model_of_arrays(a, values["colour_mode"], values["scale_model"], geom)
+        except ValueError as e:
+            raise ValueError(f"online model: {e}") from None
         t, c = values["target"], values["clutter"]
         return OnlineFace(geom, model, (float(values["centre"][0]), float(values["centre"][1])),
                           float(values["log_s"]), ChiSquare(float(t[0]), float(t[1]), int(t[2])),
