@@ -6,7 +6,9 @@ default tracker, 12 frames inline),
   ``step --start``, ``render --frames``) is a one-line error naming the frames the recording holds,
   not a run over nothing that exits 0;
 * a recording whose writer was killed (its footer missing) is named in one line by every command
-  that reads only what is before the cut, and a command left with nothing to do exits non-zero;
+  that reads only what is before the cut, and a command left with nothing to do exits non-zero,
+  naming the cut rather than blaming the run (``boxes``: not "no estimates" alone; ``rerun``: not
+  "record every topic");
 * a landmark file that is not an .npz archive is called that (not "pickled data").
 
 Every case runs the CLI as a subprocess, as a user would.
@@ -100,6 +102,16 @@ def test_a_torn_recording_with_nothing_readable_fails(recording: Path, tmp_path:
     r = gflow("foxglove", str(head), "f.mcap", cwd=tmp_path)
     assert r.returncode == 1 and "no message of" in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "f.mcap").exists()
+    # the cut is named, not taken for what the run recorded ("no estimates", "record every topic")
+    r = gflow("boxes", str(head), "--out", "b.csv", cwd=tmp_path)
+    assert_one_line_error(r, "head.mcap holds no estimates", "ends early", "gflow recover")
+    for scope in (["--stage", "filter"], ["--graph"]):
+        r = gflow("rerun", str(head), *scope, "--check", cwd=tmp_path)
+        assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
+        last = r.stderr.strip().splitlines()[-1]
+        assert "not in what can be read of" in last and "ends early" in last and "record every topic" not in last, last
+        assert sum("not closed properly" in ln for ln in r.stderr.splitlines()) == 1, r.stderr
+    assert not (tmp_path / "b.csv").exists()
 
 
 def test_a_landmark_file_that_is_not_an_archive_is_called_that(tmp_path: Path) -> None:

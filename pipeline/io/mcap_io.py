@@ -146,11 +146,12 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             except (OSError, ValueError):
                 pos = size = 0
             text: str
+            why = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__  # EndOfFile has no message
             if pos < size:  # bytes after the record that failed: the file is damaged, not just cut short
-                text = Damaged(f"{p}: recording is damaged at byte {pos} of {size} ({type(e).__name__}: {e}); "
+                text = Damaged(f"{p}: recording is damaged at byte {pos} of {size} ({why}); "
                                f"nothing after it can be read (`gflow recover` keeps what is before it)")
             else:
-                text = f"{p}: recording ends early ({type(e).__name__}: {e}); it was not closed properly (try `gflow recover`)"
+                text = f"{p}: recording ends early ({why}); it was not closed properly (try `gflow recover`)"
             if strict:
                 raise TruncatedRecording(text) from None
             if on_truncated is not None:

@@ -18,8 +18,9 @@ def cmd_boxes(args) -> int:
     torn: list[str] = []
     list(iter_records(args.recording, topics=["-"], on_truncated=torn.append))  # checks the file; notes a torn end
     est, sessions = run_estimates(args.recording, stream=args.stream)  # the run's own: what came from outside is said
-    if not est:
-        raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else ""))
+    if not est:  # a torn recording says where it ends, so "no estimates" is not taken for what the run made
+        raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else "")
+                       + (f": the {torn[0].split(': ', 1)[-1]}" if torn else ""))
     live = live_summary(args.recording, stream=args.stream)  # a live run: rows are the camera's frames
     frame_of = live.frames if live is not None else {}
     by_seq = estimate_columns(est)

@@ -20,7 +20,7 @@ from pipeline.cli.security_options import add_security_args, apply_security
 __all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
-           "temporary_recording", "run_plan", "warn_if_torn"]
+           "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
 
 
 def parse_box(text: str) -> tuple[float, float, float, float]:
@@ -235,28 +235,36 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
 _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
-def warn_if_torn(path: str) -> bool:
-    """Say in one line (on stderr) when a segment of recording ``path`` does not end with an MCAP
-    footer: its writer was killed, or is still writing, and a command reads it only up to where it
-    ends. Costs a seek per segment, not a read of the file. True when one was torn."""
-    import sys
-
+def torn_segments(path: str) -> list[str]:
+    """The segments of recording ``path`` that do not end with an MCAP footer (their writer was
+    killed, or is still writing). Costs a seek per segment, not a read of the file; a file that is
+    not MCAP at all, or cannot be opened, is left to the command that reads it to name."""
     from pipeline.io.mcap_io import segments
 
-    torn = False
+    torn = []
     for seg in segments(path):
         try:
             with open(seg, "rb") as f:
                 if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
-                    continue  # not an MCAP file at all: the command that reads it says so, in one line
+                    continue
                 size = f.seek(0, 2)
                 f.seek(max(0, size - len(_MCAP_MAGIC)))
                 closed = f.read() == _MCAP_MAGIC and size > 2 * len(_MCAP_MAGIC)
         except OSError:
-            continue  # the command that reads it names the error
+            continue
         if not closed:
-            torn = True
-            print(f"warning: {seg} was not closed properly (its writer was killed, or is still writing): it is read "
-                  f"up to where it ends (`gflow verify` says how much is readable, `gflow recover` salvages it)",
-                  file=sys.stderr)
+            torn.append(str(seg))
     return torn
+
+
+def warn_if_torn(path: str) -> bool:
+    """Say in one line (on stderr) when a segment of recording ``path`` does not end with an MCAP
+    footer (:func:`torn_segments`): a command reads it only up to where it ends. True when one was torn."""
+    import sys
+
+    torn = torn_segments(path)
+    for seg in torn:
+        print(f"warning: {seg} was not closed properly (its writer was killed, or is still writing): it is read "
+              f"up to where it ends (`gflow verify` says how much is readable, `gflow recover` salvages it)",
+              file=sys.stderr)
+    return bool(torn)

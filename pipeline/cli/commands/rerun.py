@@ -49,6 +49,7 @@ def _cannot_check(path: str, plan, needs: set[str], compares: set[str], what: st
     """A :class:`CliError` saying what cannot be re-run or checked and why: the recording lacks
     topics the re-run is fed (``needs``: it would step nothing) or every topic it is compared with
     (``compares``); ``--record-topics`` chose what was kept."""
+    from pipeline.cli.commands.common import torn_segments
     from pipeline.io.mcap_io import recorded_topics
 
     have = set(recorded_topics(path))
@@ -56,6 +57,10 @@ def _cannot_check(path: str, plan, needs: set[str], compares: set[str], what: st
     rec = plan.recorder()
     kept = list(rec.params.get("topics") or ["*"]) if rec is not None else ["*"]
     why = f" (it was recorded with --record-topics {','.join(kept)})" if "*" not in kept else ""
+    if missing and torn_segments(path):  # not what was recorded, but what a torn file lets be read
+        it = "it is" if len(missing) == 1 else "they are"
+        raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in what can be read of {path}, "
+                       f"which ends early (its writer was killed); `gflow recover` salvages what is before the cut")
     if missing:
         it = "it is" if len(missing) == 1 else "they are"
         raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in {path}{why}, and a re-run is fed "
@@ -94,7 +99,9 @@ def cmd_rerun(args) -> int:
 
     if not Path(args.file).is_file():
         raise CliError(f"recording not found: {args.file}")
-    from pipeline.cli.commands.common import check_outputs as check_output_paths
+    from pipeline.cli.commands.common import check_outputs as check_output_paths, warn_if_torn
+
+    warn_if_torn(args.file)  # a torn recording is re-run only up to where it ends: say so before any verdict
 
     check_output_paths(out=args.out)
     if args.out:  # a recording never overwrites a file
