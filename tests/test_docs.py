@@ -384,6 +384,7 @@ def pages_with_code() -> list[Path]:
 
 
 @pytest.mark.parametrize("page", pages_with_code(), ids=lambda p: str(p.relative_to(ROOT)))
+@pytest.mark.timeout(900)  # a page runs many commands (debugging.md: over ten, 67 s at load 12); each line has TIMEOUT
 def test_page_code_runs(page: Path, tmp_path, monkeypatch):
     run = PageRun(page, tmp_path, monkeypatch)
     try:
