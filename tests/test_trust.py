@@ -169,3 +169,20 @@ def test_a_value_set_for_another_stage_is_not_given_to_the_one_rerun(recording: 
     assert_one_line_error(r, "--set filter.seed", "--stage proposal", "--graph")
     r = gflow("rerun", str(recording), "--stage", "proposal", "--set", "proposal.seed=1", "--check", cwd=tmp_path)
     assert r.returncode == 0 and "all identical" in r.stdout, r.stdout + r.stderr
+
+
+@pytest.mark.parametrize("given, flag, kind, wanted", [
+    ("frame,x,y,w,h,confidence,state\n0,40.00,40.00,20.00,50.00,1.000,tracked\n", "--points", "box", "points"),
+    ("frame,landmark,x,y\n0,33,10.0,20.0\n", "--pred", "points", "box"),
+])
+def test_a_csv_of_another_kind_is_called_that(tmp_path: Path, given: str, flag: str, kind: str, wanted: str) -> None:
+    """A boxes file given for face points (or the reverse) is named as such, not "not numbers" at its line 2."""
+    (tmp_path / "f.csv").write_text(given)
+    if flag == "--points":
+        args = ["eval", "--landmarks", str(data_dir("david_indoor") / "landmarks.npz"), "--points", "f.csv"]
+    else:
+        (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n0,1,1,5,5\n")
+        args = ["eval", "--gt", "gt.csv", "--pred", "f.csv"]
+    r = gflow(*args, cwd=tmp_path)
+    line = assert_one_line_error(r, "f.csv is a", f"{kind} file", f"not a {wanted} file")
+    assert "not numbers" not in line

@@ -21,9 +21,25 @@ def csv_rows(path: str | Path, columns: str, what: str):
                 if not row or not "".join(row).strip():
                     continue
                 if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
+                    _refuse_other_kind(p, row, columns, what)
                     continue  # header
                 if len(row) < n:
                     raise ValueError(f"{p}:{lineno}: expected {columns}, got {len(row)} column(s)")
                 yield lineno, row
         except (UnicodeDecodeError, csv.Error) as e:  # a recording or picture given for a CSV
             raise ValueError(f"{p}: not a {what} CSV file ({columns} as text): {e}") from None
+
+
+#: the header gflow writes on each kind of CSV it reads (``--out``, ``--points-out``, visibility)
+KINDS = {"frame,x,y,w,h": "box", "frame,landmark,x,y": "points", "frame,visible": "visibility"}
+
+
+def _refuse_other_kind(p: Path, header: list[str], columns: str, what: str) -> None:
+    """A one-line error when the header line is gflow's header of another kind of file (a boxes
+    file given for points, say), whose rows would otherwise fail as "not numbers" further on."""
+    names = [h.strip().lower() for h in header]
+    for cols, kind in KINDS.items():
+        k = cols.split(",")
+        if kind != what and names[:len(k)] == k and names[:len(columns.split(","))] != columns.split(","):
+            raise ValueError(f"{p} is a {kind} file ({','.join(names)}), not a {what} file ({columns})")
+
