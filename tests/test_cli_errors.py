@@ -191,3 +191,12 @@ def test_frame_of_a_corrupt_image_is_named(tmp_path: Path, frames: Path, index: 
     line = assert_one_line_error(r, f"frame {index}", "cannot be read")
     assert ("first frame" in line) == (index == 0), line
     assert not (tmp_path / "f.png").exists()
+
+
+@pytest.mark.parametrize("argv", [["track", "frames", "--init", "1,1,5,5", "--out", "b.csv"],
+                                  ["benchmark", "data"], ["trax"]])
+def test_a_negative_seed_is_refused_as_the_option(tmp_path: Path, argv: list[str]) -> None:
+    """``--seed -1`` was refused by a stage of the built-in graph, naming its YAML file and line."""
+    r = gflow(*argv, "--seed=-1", cwd=tmp_path)
+    line = assert_one_line_error(r, "--seed", ">= 0")
+    assert ".yaml" not in line

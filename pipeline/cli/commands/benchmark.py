@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pipeline.app import TrackRequest
 from pipeline.cli.trackers import TRACKERS, spec_of
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, nonnegative_int
 
 
 def model_options() -> dict[str, str]:
@@ -376,7 +376,7 @@ def register(sub) -> None:
                    help="a sequence folder (frames/ + groundtruth.csv) or a folder of them")
     p.add_argument("--trackers", metavar="NAME,...",
                    help=f"trackers to run (default all: {', '.join(sorted(TRACKERS))})")
-    p.add_argument("--seed", type=int, default=1, help="random seed of every run (default 1)")
+    p.add_argument("--seed", type=nonnegative_int, default=1, help="random seed of every run (default 1)")
     p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A "
                                                     "(default: every frame from the first ground-truth box)")
     p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")

@@ -28,7 +28,7 @@ from gflow_core.builtin_trackers import BUILTIN
 from pipeline.cli.trackers import TRACKERS, OptionClash
 from pipeline.runtime.trace import mark
 from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          launcher_zenoh, parse_box)
+                                          launcher_zenoh, nonnegative_int, parse_box)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -251,7 +251,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
                         "reference landmark index it was learned from), for gflow eval --landmarks")
     p.add_argument("--tracker", default=DEFAULT_TRACKER, metavar="NAME",  # checked against the registry: plugins too
                    help=f"tracking method: {', '.join(TRACKERS)} (default dcf; README 'Which tracker')")
-    p.add_argument("--seed", type=int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
+    p.add_argument("--seed", type=nonnegative_int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
     add_record_args(p, "recordings/track-TIME-RUNID.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     p.add_argument("--fps", type=float, default=25.0,

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipeline.cli.commands.common import CliError, refuse_recording
+from pipeline.cli.commands.common import CliError, nonnegative_int, refuse_recording
 from pipeline.cli.trackers import TRACKERS
 #: what to run when the ``trax`` module is missing (``gflow.trax.INSTALL_HINT`` says the same)
 INSTALL_HINT = "pip install 'gflow[vot]' (or pip install vot-trax)"
@@ -26,7 +26,7 @@ def add_trax_args(p: argparse.ArgumentParser) -> None:
     """The options of ``gflow trax`` and ``python -m gflow.trax``."""
     p.add_argument("--tracker", choices=sorted(TRACKERS),
                    help="the tracker to serve (default: gflow track's default tracker; README 'Which tracker')")
-    p.add_argument("--seed", type=int, default=1,
+    p.add_argument("--seed", type=nonnegative_int, default=1,
                    help="random seed (default 1, as gflow track's): the boxes of gflow track --inline --seed SEED")
     p.add_argument("--model", metavar="FILE",
                    help="m2: the model of gflow learn m2 (required); gflow: face (default), ellipsoid or a model "
