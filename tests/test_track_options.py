@@ -48,6 +48,7 @@ def test_particles_below_one_from_demo_or_set_is_the_same_line(tmp_path: Path, f
 
 @pytest.mark.parametrize("item, said", [
     ("tracker.nope=1", "DCFParams has no parameter 'nope'"),
+    ("tracker.particle=10", "DCFParams has no parameter 'particle' (did you mean 'particles'?"),
     ("filter.particles=300", "particles is a parameter of tracker dcf, set once for all its stages: "
                              "--set tracker.particles=VALUE"),
     ("proposal.std_xy_rel=0.1", "--set tracker.std_xy_rel=VALUE"),

@@ -25,6 +25,7 @@ every stage of a tracker, as the per-stage copies were set before.
 from __future__ import annotations
 
 import dataclasses
+import difflib
 import re
 from dataclasses import dataclass
 from typing import Any, Mapping
@@ -93,7 +94,9 @@ def block_values(cls: type, values: Mapping[str, Any]) -> dict[str, Any]:
     known = tracker_fields(cls)
     unknown = [k for k in values if k not in known]
     if unknown:
-        raise ValueError(f"{cls.__name__} has no parameter {unknown[0]!r} (known: {', '.join(known)})")
+        close = difflib.get_close_matches(unknown[0], known, n=1)  # a typo is named first, before the whole list
+        hint = f"did you mean {close[0]!r}? " if close else ""
+        raise ValueError(f"{cls.__name__} has no parameter {unknown[0]!r} ({hint}known: {', '.join(known)})")
     try:
         return msgspec.to_builtins(msgspec.convert(dict(values), block_params(cls), strict=False))
     except msgspec.ValidationError as e:

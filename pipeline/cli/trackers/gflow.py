@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import difflib
 from pathlib import Path
 
 import yaml
@@ -62,7 +63,9 @@ def _gflow_sets(items: list[str] | None) -> dict:
             raise CliError(f"--gflow-set expects NAME=VALUE, got {it!r}")
         k, v = it.split("=", 1)
         if k.strip() not in known:
-            raise CliError(f"--gflow-set {it}: G-flow has no parameter {k.strip()!r} (`gflow info gflow` lists them)")
+            close = difflib.get_close_matches(k.strip(), known, n=1)
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise CliError(f"--gflow-set {it}: G-flow has no parameter {k.strip()!r} ({hint}`gflow info gflow` lists them)")
         out[k.strip()] = yaml.safe_load(v)
     return out
 
