@@ -153,9 +153,6 @@ class DCFParams:
     detect_peaks: int = param(1, "the particles drawn at the response are shared among this many separate peaks of it, "
                                  "each half a box from every better one (a boosted particle filter's proposal, "
                                  "Okuma et al. 2004; gflow_core.dcf.proposal; 1: the best peak only)")
-    estimate_mode: bool = param(False, "the estimate is the mean of the posterior's heaviest mode (the particles "
-                                       "within half a box of the one with the most weight that near), not of every "
-                                       "particle (gflow_core.dcf.mode)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

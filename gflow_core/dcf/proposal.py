@@ -16,9 +16,12 @@ d_k the K detections; here d_k are the ``detect_peaks`` best separate maxima of 
 half a box from every better one, :func:`gflow_core.dcf.reacquire.peaks`), and the motion prior and the
 likelihood weigh each, as they weigh every particle.
 
-Departure: Okuma et al. take every detection their Adaboost cascade accepts; here a fixed number of the
+Departures: Okuma et al. take every detection their Adaboost cascade accepts; here a fixed number of the
 response's peaks are taken, each given an equal share of the particles whatever its value (a peak far
-below the best gets particles whose weights the likelihood makes negligible).
+below the best gets particles whose weights the likelihood makes negligible). Their importance weights
+divide by the proposal's density, p(z | x) p(x | x_{t-1}) / q(x); the tracker's weights, with one peak
+or several, are p(z | x) p(x | x_{t-1}) alone, so a peak that draws particles gains posterior mass by
+drawing them (dividing by q was measured and loses more than it gets back: docs/trackers.md, dcf).
 """
 
 from __future__ import annotations
@@ -48,3 +51,4 @@ def assign(n: int, k: int) -> np.ndarray:
     """(n,) the peak each of ``n`` particles drawn at the response is about: 0, 1, ..., k - 1, 0, 1, ...
     (equal shares, the best peak's at least as large as any other's)."""
     return np.arange(n) % max(k, 1)
+

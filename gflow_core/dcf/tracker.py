@@ -36,7 +36,6 @@ from .features import is_grey
 from .gate import within
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
-from .mode import heaviest_mode
 from .proposal import assign, detections
 from .rates import filter_rate
 from . import negatives as neg
@@ -113,14 +112,6 @@ def _particles(st: DCFState, proposed: np.ndarray, peak_xy: np.ndarray, extra: f
         parts = dyn
     parts[:, 2] = st.log_s
     return parts
-
-
-def _centre(parts: np.ndarray, W: np.ndarray, mean: np.ndarray, p: DCFParams, half: tuple[float, float],
-            frame: tuple[int, int]) -> np.ndarray:
-    """The estimate's centre (2,) within the ``frame`` (W, H): the posterior's mean (3,) ``mean`` or, with
-    ``estimate_mode``, the mean of its heaviest mode (:mod:`.mode`, ``half`` the box's half sides)."""
-    c = heaviest_mode(parts, W, half) if p.estimate_mode else mean
-    return np.array([np.clip(c[0], 0.0, frame[0] - 1.0), np.clip(c[1], 0.0, frame[1] - 1.0)])
 
 
 def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
@@ -427,7 +418,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     # weighted sums by einsum, not BLAS: the same bits in one thread and in many
     mean = np.einsum("i,ij->j", W, parts)
     std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
-    centre = _centre(parts, W, mean, p, (0.5 * bw, 0.5 * bh), (Ww, Hh))
+    centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
     log_s = st.log_s
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)

@@ -1,5 +1,4 @@
-"""dcf through fast motion: the particles drawn at several peaks of the response (gflow_core.dcf.proposal)
-and the estimate as the mean of the posterior's heaviest mode (gflow_core.dcf.mode)."""
+"""dcf through fast motion: the particles drawn at several peaks of the response (gflow_core.dcf.proposal)."""
 
 from __future__ import annotations
 
@@ -7,7 +6,6 @@ import numpy as np
 import pytest
 
 from gflow_core.dcf import model as tm
-from gflow_core.dcf.mode import heaviest_mode
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.proposal import assign, detections
 from gflow_core.dcf.tracker import _particles
@@ -55,22 +53,8 @@ def test_the_particles_at_the_response_are_shared_equally_among_the_peaks() -> N
     assert assign(5, 2).tolist() == [0, 1, 0, 1, 0]
 
 
-def test_the_estimate_is_the_heavier_modes_mean_where_the_mean_lies_between_two() -> None:
-    """Two groups of particles 40 px apart holding 0.6 and 0.4 of the weight: the plain mean lies between
-    them, on neither; the heaviest mode's mean is the heavier group's. With one group, the two agree."""
-    rng = np.random.default_rng(3)
-    a = np.column_stack([rng.normal(100.0, 1.0, 50), rng.normal(80.0, 1.0, 50), np.zeros(50)])
-    b = np.column_stack([rng.normal(140.0, 1.0, 50), rng.normal(80.0, 1.0, 50), np.zeros(50)])
-    parts = np.vstack([a, b])
-    W = np.concatenate([np.full(50, 0.6 / 50), np.full(50, 0.4 / 50)])
-    mean = W @ parts[:, :2]
-    assert 110.0 < mean[0] < 125.0
-    mode = heaviest_mode(parts, W, (15.0, 15.0))
-    np.testing.assert_allclose(mode, a[:, :2].mean(axis=0), atol=1e-9)
-    np.testing.assert_allclose(heaviest_mode(a, np.full(50, 0.02), (15.0, 15.0)), a[:, :2].mean(axis=0), atol=1e-9)
-
-
 @pytest.mark.parametrize("kw", [{"detect_peaks": 0}])
 def test_bad_values_are_refused(kw) -> None:
     with pytest.raises(ValueError, match="detect_peaks must be >= 1"):
         DCFParams(**kw)
+
