@@ -150,6 +150,9 @@ class DCFParams:
                                 before=0.0)
     roll_relax: float = param(10.0, "with roll_explain, on a frame no roll explains the held roll moves this many degrees "
                                     "towards upright", before=0.0)
+    detect_peaks: int = param(1, "the particles drawn at the response are shared among this many separate peaks of it, "
+                                 "each half a box from every better one (a boosted particle filter's proposal, "
+                                 "Okuma et al. 2004; gflow_core.dcf.proposal; 1: the best peak only)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -245,6 +248,8 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
+        if self.detect_peaks < 1:
+            raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

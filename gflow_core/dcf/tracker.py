@@ -36,6 +36,7 @@ from .features import is_grey
 from .gate import within
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
+from .proposal import assign, detections
 from .rates import filter_rate
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
@@ -93,15 +94,18 @@ def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float, area: floa
 def _particles(st: DCFState, proposed: np.ndarray, peak_xy: np.ndarray, extra: float, p: DCFParams,
                rng: np.random.Generator, dt: float) -> np.ndarray:
     """The (N, 3) particles of frame t: the proposal's walk moved by the velocity and the speed's share of
-    the noise, a ``detect_fraction`` of them drawn about the response's peak instead; log s is the state's."""
+    the noise, a ``detect_fraction`` of them drawn about the response's peaks ``peak_xy`` (K, 2) instead, in
+    equal shares (:mod:`.proposal`); log s is the state's."""
     # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
     dyn = proposed.copy()
     dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
-    # x_t ~ (1 - b) p(x_t | x_t-1) + b N(peak, detect_std^2)          (mixture proposal, b = detect_fraction)
+    # x_t ~ (1 - b) p(x_t | x_t-1) + b (1 / K) sum_k N(peak_k, detect_std^2)   (mixture proposal, b = detect_fraction;
+    # the K = detect_peaks best separate peaks of the response: .proposal, Okuma et al. 2004 eq. 2)
     n_det = int(round(p.detect_fraction * len(dyn)))
     if n_det:
-        det = np.column_stack([peak_xy[0] + rng.normal(0.0, p.detect_std, n_det),
-                               peak_xy[1] + rng.normal(0.0, p.detect_std, n_det),
+        at = peak_xy[assign(n_det, len(peak_xy))]
+        det = np.column_stack([at[:, 0] + rng.normal(0.0, p.detect_std, n_det),
+                               at[:, 1] + rng.normal(0.0, p.detect_std, n_det),
                                np.full(n_det, st.log_s)])
         parts = np.vstack([dyn[: len(dyn) - n_det], det])
     else:
@@ -400,7 +404,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     lt = _longterm_of(st, p)
     resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p,
                       None if lt is None else lt.det, st.angle)
-    parts = _particles(st, proposed, resp.peak()[0], extra, p, rng, dt)
+    parts = _particles(st, proposed, detections(resp, (0.5 * bw, 0.5 * bh), p.detect_peaks), extra, p, rng, dt)
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
     log_lik = p.kappa * y
