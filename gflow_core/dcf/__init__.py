@@ -51,6 +51,8 @@ BACF and CSRT learn theirs:
   filter, which holds v), and every particle is weighed by a motion prior N(pred, (``motion_prior``
   box + ``speed_noise`` |v| dt)^2), so the spread follows the target's observed speed and the time
   since the last frame seen (dt periods).
+  With ``detect_peaks`` > 1 (off) the particles drawn at the response are shared among its best
+  separate peaks (:mod:`.proposal`; Okuma et al.'s boosted proposal), not given to the best alone.
 * **Scale** (:mod:`.scale`): DSST's 1-D scale filter (17 scales 2 % apart, as fDSST samples) at the
   estimate, on confident frames; the particles carry the scale it finds.
 * **Is it the target?** Two cues, each a distance rho = 1 - y at the estimate: the filter's
