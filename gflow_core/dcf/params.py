@@ -150,6 +150,9 @@ class DCFParams:
                                 before=0.0)
     roll_relax: float = param(10.0, "with roll_explain, on a frame no roll explains the held roll moves this many degrees "
                                     "towards upright", before=0.0)
+    roll_best: bool = param(False, "with roll_explain, the roll is the best scoring of those that explain the frame, the "
+                                   "held one among them (by more than roll_margin), not the held one whenever it explains "
+                                   "it (gflow_core.dcf.rotation.explained)", before=False)
 
     def __post_init__(self) -> None:
         if self.particles < 1:

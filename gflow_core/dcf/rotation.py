@@ -133,10 +133,11 @@ def explained(angles: np.ndarray, raw: np.ndarray, scores: np.ndarray, held_at: 
     object): no roll explains the frame, and the held roll relaxes ``roll_relax`` degrees towards
     upright, the prior's angle."""
     ms, lvl = p.min_std, p.roll_explain
-    # H0: rho(theta) <= E[rho] + roll_explain sd[rho]
-    if within(target, 1.0 - float(raw[held_at]), lvl, ms):
-        return theta
     ok = np.array([within(target, 1.0 - float(r), lvl, ms) for r in raw])
+    # H0: rho(theta) <= E[rho] + roll_explain sd[rho]; with roll_best, the held roll is one explained roll
+    # among the others and is kept only when none beats it by roll_margin
+    if ok[held_at] and not p.roll_best:
+        return theta
     if ok.any():
         j = int(np.flatnonzero(ok)[np.argmax(scores[ok])])
         if scores[j] <= scores[held_at] + p.roll_margin:
