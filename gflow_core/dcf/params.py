@@ -152,7 +152,7 @@ class DCFParams:
                                     "towards upright", before=0.0)
     roll_best: bool = param(False, "with roll_explain, the roll is the best scoring of those that explain the frame, the "
                                    "held one among them (by more than roll_margin), not the held one whenever it explains "
-                                   "it (gflow_core.dcf.rotation.explained)", before=False)
+                                   "it (gflow_core.dcf.rotation.explained)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

@@ -37,6 +37,17 @@ rolled filter never came back to the face the upright one found again 25 frames 
 angle; here an angle must also fit the target's learnt distribution, as the tracker's presence
 judgement does, and the relaxation is a fixed step, not a posterior over the roll.
 
+With ``roll_best`` as well the held roll has no privilege beyond ``roll_margin``: the roll is the best
+scoring of those that explain the frame, the held one among them, as the papers' searches take the
+best angle, with the test of fit deciding only which angles may be taken (and the relaxation when
+none may). Without it H0 is kept whenever the held window is within the level, and the level follows
+the target's distances learnt on every present frame: a target whose distance spreads widely (tiger1's
+toy, 0.65 +- 0.11) keeps an upright window within 2 sd long after the window rolled by 10 degrees
+scores far better (tiger1's ``roll-camera-20``: 0.183 upright against 0.226 rolled at frame 46, the
+level at a score of 0.13), and a target that rolls steadily drags the mean with it (caviar1's
+``roll-target-35``: the rolled window 0.227 against the held 0.185, within the level at 0.16), so
+the box leaves the target while the roll stays put.
+
 Departures: the scale filter (:mod:`.scale`) and the search for a hidden target
 (:func:`.model.search`) keep their windows upright; the first frame's filter (the anchor) is
 the first box upright, so the target is taken to be upright when it is given. Everything is
@@ -129,7 +140,9 @@ def explained(angles: np.ndarray, raw: np.ndarray, scores: np.ndarray, held_at: 
     usual there once the placement is free within ``roll_reach``): ``theta`` is kept. H1, "it rolled
     by a": H0 is refused and a's distance is within that level (the roll explains the unusual look),
     and a beats the held roll by more than ``roll_margin``: the best such a is taken (refined by the
-    parabola when it is the best of all). Neither (an out-of-plane turn, a change of look, another
+    parabola when it is the best of all). With ``roll_best`` the held roll is not kept for being within
+    the level alone: it is one of the rolls that explain the frame, and is kept only when no other of
+    them beats it by more than ``roll_margin``. Neither (an out-of-plane turn, a change of look, another
     object): no roll explains the frame, and the held roll relaxes ``roll_relax`` degrees towards
     upright, the prior's angle."""
     ms, lvl = p.min_std, p.roll_explain
