@@ -153,6 +153,10 @@ class DCFParams:
     roll_best: bool = param(False, "with roll_explain, the roll is the best scoring of those that explain the frame, the "
                                    "held one among them (by more than roll_margin), not the held one whenever it explains "
                                    "it (gflow_core.dcf.rotation.explained)")
+    roll_detect: bool = param(False, "the roll is searched also when the target is detected, before its presence is "
+                                     "judged, on frames its score at the response's peak is unusual (roll_gate): a "
+                                     "rolled window that explains the look gives the particles their response "
+                                     "(SAMF's joint search over the roll; gflow_core.dcf.rotation.detect)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

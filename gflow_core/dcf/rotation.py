@@ -57,16 +57,17 @@ deterministic (no random draws).
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 
 from . import filter as cf
-from .model import Geometry, TargetModel, detection_filter, window
+from .model import Geometry, Response, TargetModel, detection_filter, window
 from .gate import within
 from .params import DCFParams
 from ..visibility import ChiSquare
 
-__all__ = ["angle_scores", "refine", "angle_change", "explained", "held"]
+__all__ = ["angle_scores", "refine", "angle_change", "explained", "held", "detect"]
 
 
 def angle_scores(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
@@ -172,3 +173,41 @@ def held(target: ChiSquare, rho: float, p: DCFParams, theta: float = 0.0) -> boo
     if p.roll_step <= 0:
         return True
     return p.roll_gate > 0 and (theta == 0.0 or not p.roll_return) and within(target, rho, p.roll_gate, p.min_std)
+
+
+def _filter_peak(resp: Response) -> float:
+    """The filter's own response (not merged with colour) at the merged response's peak."""
+    xy, _ = resp.peak()
+    return float(resp.at(xy[None, :], "cf")[0])
+
+
+def detect(resp: Response, respond: Callable[[float], Response], theta: float, target: ChiSquare,
+           p: DCFParams) -> tuple[Response, float]:
+    """With ``roll_detect``, the roll searched when the target is detected, before the particles are weighed
+    and its presence judged (SAMF's joint search of place and scale, Li & Zhu 2014, over the roll): when
+    the filter's score at the peak of ``resp`` (the response of the window rolled by the held ``theta``)
+    is unusual (beyond ``roll_gate`` standard deviations of the target's distance ``target``), the
+    windows rolled ``roll_step`` either way (``respond(angle)``) are read too, and the best of those whose
+    score at their own peak explains the look (within ``roll_explain`` standard deviations; any without
+    ``roll_explain``) and beats the held one by more than ``roll_margin`` (each lowered by the prior
+    ``roll_prior`` a^2) is taken: (its response, its angle). Otherwise (``resp``, ``theta``)."""
+    if p.roll_step <= 0 or not p.roll_detect:
+        return resp, theta
+    held_score = _filter_peak(resp)
+    if within(target, 1.0 - held_score, p.roll_gate, p.min_std):
+        return resp, theta
+    step, lim = math.radians(p.roll_step), math.radians(p.roll_max)
+    best, best_resp, best_angle = held_score - p.roll_prior * theta ** 2 + p.roll_margin, resp, theta
+    for i in range(1, p.roll_steps + 1):
+        for a in (theta - i * step, theta + i * step):
+            a = float(np.clip(a, -lim, lim))
+            if a == theta:
+                continue
+            r = respond(a)
+            sc = _filter_peak(r)
+            if p.roll_explain > 0 and not within(target, 1.0 - sc, p.roll_explain, p.min_std):
+                continue
+            # the roll's prior: score(a) - roll_prior a^2
+            if sc - p.roll_prior * a ** 2 > best:
+                best, best_resp, best_angle = sc - p.roll_prior * a ** 2, r, a
+    return best_resp, best_angle

@@ -39,7 +39,7 @@ from .params import DCFParams
 from .rates import filter_rate
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
-from .rotation import angle_change, held
+from .rotation import angle_change, detect, held
 from .state import DCFObservation, DCFProposal, DCFState
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
@@ -400,6 +400,12 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     lt = _longterm_of(st, p)
     resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p,
                       None if lt is None else lt.det, st.angle)
+    if p.roll_detect and not tentative(st.target, p):
+        # with roll_detect, the roll searched at detection (.rotation.detect); the state holds the angle taken
+        resp, angle = detect(resp, lambda a: tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])),
+                                                        st.log_s, geom, p, None if lt is None else lt.det, a),
+                             st.angle, st.target, p)
+        st = replace(st, angle=angle)
     parts = _particles(st, proposed, resp.peak()[0], extra, p, rng, dt)
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
