@@ -15,7 +15,7 @@ import pytest
 from gflow_core.dcf import model as tm
 from gflow_core.dcf.features import sample
 from gflow_core.dcf.params import DCFParams
-from gflow_core.dcf.rotation import angle_change, angle_scores, explained, held, refine
+from gflow_core.dcf.rotation import angle_change, angle_scores, detect, explained, held, refine
 from gflow_core.dcf.state import from_arrays, to_arrays
 from gflow_core.dcf.tracker import TRACKER
 from gflow_core.evaluation.metrics import centre_error
@@ -195,6 +195,34 @@ def test_with_roll_best_an_explained_roll_that_beats_an_explained_held_one_is_ta
     assert explained(a, raw, raw, 0, 0.0, _usual(0.4, 0.1), on) == 0.0
     # neither is: the held roll relaxes towards upright, as without roll_best
     assert explained(a, np.array([0.1, 0.2]), np.array([0.1, 0.2]), 1, a[1], t, on) == pytest.approx(0.0)
+
+
+def test_with_roll_detect_a_rolled_window_that_explains_the_look_is_taken_at_detection() -> None:
+    """The target rolled by 10 degrees, detected with a filter learnt upright: the upright window's score at
+    its peak is unusual, the window rolled by 10 degrees scores better and within the target's usual
+    distances, so ``detect`` returns its response and its angle; without ``roll_detect``, when the upright
+    score is usual (the gate shut), or when no rolled window explains the look, the held roll and its
+    response are kept."""
+    p = DCFParams(roll_step=10.0, roll_explain=2.0, roll_detect=True)
+    up = Scene(lambda t: 0.0).frame(0)
+    geom = tm.geometry((30.0, 44.0), p)
+    mdl = tm.init_model(up, up.astype(np.float32), True, C, geom, p)
+    img = Scene(lambda t: math.radians(10.0)).frame(1)
+    g = img.astype(np.float32)
+
+    def respond(a: float) -> tm.Response:
+        return tm.respond(mdl, img, g, C, 0.0, geom, p, angle=a)
+
+    r0 = respond(0.0)
+    s0 = float(r0.at(r0.peak()[0][None, :], "cf")[0])
+    s10 = float(respond(math.radians(10.0)).at(respond(math.radians(10.0)).peak()[0][None, :], "cf")[0])
+    assert s10 > s0 + 0.1
+    usual = _usual(1.0 - s10, 0.03)  # the rolled score is the usual one; the upright one is far above it
+    r, a = detect(r0, respond, 0.0, usual, p)
+    assert a == pytest.approx(math.radians(10.0)) and r is not r0
+    assert detect(r0, respond, 0.0, usual, DCFParams(roll_step=10.0, roll_explain=2.0))[1] == 0.0
+    assert detect(r0, respond, 0.0, _usual(1.0 - s0, 0.03), p)[1] == 0.0  # the upright look is usual: shut
+    assert detect(r0, respond, 0.0, _usual(1.0 - s10 - 0.3, 0.02), p)[1] == 0.0  # nothing explains it
 
 
 def test_refine_finds_the_vertex_of_a_parabola_and_holds_a_range_end() -> None:
