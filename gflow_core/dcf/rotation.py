@@ -48,6 +48,18 @@ level at a score of 0.13), and a target that rolls steadily drags the mean with 
 ``roll-target-35``: the rolled window 0.227 against the held 0.185, within the level at 0.16), so
 the box leaves the target while the roll stays put.
 
+:func:`angle_change` runs only on frames the target was judged present, after the particles were
+weighed by the held roll's response. A roll fast enough to collapse the filter's score at the held
+angle is judged a disappearance instead (tiger1's ``roll-camera-20`` with seed 2's draws: hidden on
+frames 47-50 with the box still on the toy, then the search takes clutter). With ``roll_detect`` the
+roll is also searched when the target is detected (:func:`detect`): on a confirmed track's frame whose
+filter score at the response's peak is beyond ``roll_gate``, the windows rolled ``roll_step`` either
+way are read as well, and the best whose own peak explains the look beats the held one by more than
+``roll_margin``, its response weighs the particles and judges the target's presence -- SAMF's joint
+search of place and scale (Li & Zhu, ECCV workshops 2014), over the roll. Departure: SAMF searches
+its scales on every frame; here only on frames the held roll's look is unusual, and the scale filter
+stays DSST's.
+
 Departures: the scale filter (:mod:`.scale`) and the search for a hidden target
 (:func:`.model.search`) keep their windows upright; the first frame's filter (the anchor) is
 the first box upright, so the target is taken to be upright when it is given. Everything is
