@@ -153,6 +153,13 @@ class DCFParams:
     detect_peaks: int = param(1, "the particles drawn at the response are shared among this many separate peaks of it, "
                                  "each half a box from every better one (a boosted particle filter's proposal, "
                                  "Okuma et al. 2004; gflow_core.dcf.proposal; 1: the best peak only)")
+    roll_best: bool = param(False, "with roll_explain, the roll is the best scoring of those that explain the frame, the "
+                                   "held one among them (by more than roll_margin), not the held one whenever it explains "
+                                   "it (gflow_core.dcf.rotation.explained)")
+    roll_detect: bool = param(False, "the roll is searched also when the target is detected, before its presence is "
+                                     "judged, on frames its score at the response's peak is unusual (roll_gate): a "
+                                     "rolled window that explains the look gives the particles their response "
+                                     "(SAMF's joint search over the roll; gflow_core.dcf.rotation.detect)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

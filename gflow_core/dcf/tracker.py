@@ -40,7 +40,7 @@ from .proposal import assign, detections
 from .rates import filter_rate
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
-from .rotation import angle_change, held
+from .rotation import angle_change, detect, held
 from .state import DCFObservation, DCFProposal, DCFState
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
@@ -377,6 +377,24 @@ def _take_found(st: DCFState, found: Any, p: DCFParams, parts: np.ndarray, mean:
     return centre, log_s, spread
 
 
+def _respond(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, lt: LongTerm | None
+             ) -> tuple[tm.Response, DCFState]:
+    """The response of the window at the prediction ``pred`` rolled by the held roll; with ``roll_detect``
+    on a confirmed track, the roll searched at detection (:func:`.rotation.detect`), the state returned
+    holding the roll taken."""
+    c = (float(pred[0]), float(pred[1]))
+
+    def respond(angle: float) -> tm.Response:
+        return tm.respond(st.model, obs.image, obs.grey, c, st.log_s, st.geom, p, None if lt is None else lt.det,
+                          angle)
+
+    resp = respond(st.angle)
+    if not p.roll_detect or tentative(st.target, p):
+        return resp, st
+    resp, angle = detect(resp, respond, st.angle, st.target, p)
+    return resp, replace(st, angle=angle)
+
+
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
     """One frame: the response at the prediction, the particles weighed, the estimate, the target's
@@ -394,7 +412,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     n = p.particles
     if proposed.ndim != 2 or proposed.shape[1] != 3 or not np.isfinite(proposed).all():
         raise ValueError(f"proposals must be finite (N, 3) = (x, y, log s), got {proposed.shape}")
-    geom, model = st.geom, st.model
+    geom = st.geom
     Hh, Ww = obs.grey.shape
     # constant velocity: the prediction c_{t-1} + v dt
     pred = st.centre + st.velocity * dt
@@ -402,8 +420,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     bw, bh = geom.size0[0] * s, geom.size0[1] * s
     extra = speed_noise(p, st.velocity, dt)
     lt = _longterm_of(st, p)
-    resp = tm.respond(model, obs.image, obs.grey, (float(pred[0]), float(pred[1])), st.log_s, geom, p,
-                      None if lt is None else lt.det, st.angle)
+    resp, st = _respond(st, obs, p, pred, lt)
     parts = _particles(st, proposed, detections(resp, (0.5 * bw, 0.5 * bh), p.detect_peaks), extra, p, rng, dt)
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
