@@ -41,10 +41,10 @@ from .filter import (ExpertState, GFlowConfig, Proposals, _anchored_reset, _ro, 
 from .geometry import TRANS, box_minus, box_plus
 from .head_model import MorphableModel
 from .image import FrameData
-from .pose_opinion import (coarse_to_fine_peak, log_importance_weights, log_likelihood, log_pose_prior,
+from .pose_opinion import (GaussNewtonResult, coarse_to_fine_peak, log_importance_weights, log_likelihood, log_pose_prior,
                            prior_mean)
 
-__all__ = ["detector_starts", "mixture_proposals"]
+__all__ = ["detector_starts", "detector_peaks", "mixture_proposals"]
 
 _LOG_2PI = math.log(2.0 * math.pi)
 
@@ -71,13 +71,42 @@ def _log_gauss(centre: np.ndarray, hessian: np.ndarray, alpha: float, poses: np.
     return -0.5 * P * (_LOG_2PI + math.log(alpha)) + half_logdet[:, None] - 0.5 * z2
 
 
+def _weighing(state: ExpertState, proposals: Proposals, model: MorphableModel, cfg: GFlowConfig):
+    """What expert d's weights need, as :func:`.filter.propose` has them: the transition's mean (E, P),
+    the prior's std (P,), the predicted texels (the first look's for experts that took the frontal reset),
+    the frontal reset, the rotation wall (radians) and the scale wall."""
+    prior_std = cfg.prior_std(model.n_bases)
+    prev = state.poses
+    centre = prior_mean(prev, cfg.prior_rotation_decay, cfg.morph_shrink(model.n_bases))
+    tv = _texture_view(state, np.arange(state.n_experts, dtype=np.int64), cfg, vertex_visibility(model, prev, cfg))
+    reset = _anchored_reset(state, cfg)
+    if proposals.reset.any() and reset is not None and reset.anchor_mean is not None:
+        # experts that took the frontal reset are weighed with the first look's texels, as in propose
+        tv = _with_anchor(tv, proposals.reset, reset)
+    return centre, prior_std, tv, reset, math.radians(cfg.max_rotation_deg), cfg.scale_limits()
+
+
+def detector_peaks(state: ExpertState, proposals: Proposals, pyramid: tuple[FrameData, ...], model: MorphableModel,
+                   cfg: GFlowConfig, starts: np.ndarray) -> GaussNewtonResult:
+    """Each expert's detector component: the peak ``u_det`` (E, P) of its own objective (eq. 14, its
+    texels and transition from ``state`` at t - 1, over the ``proposals.dt`` periods) found by coarse-to-fine
+    Gauss-Newton on ``pyramid`` (frame t's) from ``starts`` (E, P) without a translation search, and the
+    Hessian there (``Sigma_det^-1``)."""
+    cfg = cfg.at_pace(proposals.dt)
+    centre, prior_std, tv, _, max_rot, scale = _weighing(state, proposals, model, cfg)
+    return coarse_to_fine_peak(model.bases, pyramid, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations,
+                               start=np.asarray(starts, dtype=np.float64), use_background=False,
+                               photometric=cfg.photometric_model(), offsets=None, max_rotation=max_rot,
+                               outlier_sq=cfg.outlier_sigmas ** 2, scale=scale, temper=cfg.data_temper)
+
+
 def mixture_proposals(state: ExpertState, proposals: Proposals, pyramid: tuple[FrameData, ...],
                       model: MorphableModel, cfg: GFlowConfig, starts: np.ndarray, share: float,
                       rng: np.random.Generator) -> Proposals:
     """``proposals`` (every expert's, from ``state`` at t - 1) with the last ``round(share s)`` samples of
-    each expert drawn from its detector component about ``starts`` (E, P) (:func:`detector_starts`) and
-    every weight corrected for the mixture (module docstring). ``pyramid``: frame t's
-    (:func:`.image.frame_pyramid`). ``rng`` draws ``standard_normal((E, m, P))`` and nothing else.
+    each expert drawn from its detector component about ``starts`` (E, P) (:func:`detector_starts`,
+    :func:`detector_peaks`) and every weight corrected for the mixture (module docstring). ``pyramid``:
+    frame t's (:func:`.image.frame_pyramid`). ``rng`` draws ``standard_normal((E, m, P))`` and nothing else.
     Returns ``proposals`` itself when no sample is to be drawn (``round(share s) == 0`` or ``alpha == 0``).
     Raises ValueError with the background model (the experts' backgrounds are not where the weights are).
     """
@@ -88,28 +117,14 @@ def mixture_proposals(state: ExpertState, proposals: Proposals, pyramid: tuple[F
     if cfg.background:
         raise ValueError("online_mix needs background off: the experts' background textures are not kept where "
                          "the weights are corrected")
+    det = detector_peaks(state, proposals, pyramid, model, cfg, starts)
     cfg = cfg.at_pace(proposals.dt)
-    prior_std = cfg.prior_std(model.n_bases)
-    prev = state.poses
-    idx = np.arange(E, dtype=np.int64)
-    centre = prior_mean(prev, cfg.prior_rotation_decay, cfg.morph_shrink(model.n_bases))
-    tv = _texture_view(state, idx, cfg, vertex_visibility(model, prev, cfg))
-    reset = _anchored_reset(state, cfg)
-    if proposals.reset.any() and reset is not None and reset.anchor_mean is not None:
-        # experts that took the frontal reset are weighed with the first look's texels, as in propose
-        tv = _with_anchor(tv, proposals.reset, reset)
-    max_rot = math.radians(cfg.max_rotation_deg)
-    scale = cfg.scale_limits()
-    # u_det^(d): the peak of expert d's eq. 14 from its opinion moved to the detector's place (no search)
-    det = coarse_to_fine_peak(model.bases, pyramid, centre, tv, cfg.sigma_w, prior_std, cfg.gn_iterations,
-                              start=np.asarray(starts, dtype=np.float64), use_background=False,
-                              photometric=cfg.photometric_model(), offsets=None, max_rotation=max_rot,
-                              outlier_sq=cfg.outlier_sigmas ** 2, scale=scale, temper=cfg.data_temper)
+    centre, prior_std, tv, reset, max_rot, scale = _weighing(state, proposals, model, cfg)
     L = np.linalg.cholesky(det.hessian)
     z = rng.standard_normal((E, m, P))
     # d = sqrt(alpha) L^-T z ~ N(0, alpha Sigma_det)
-    new = box_plus(det.u_hat[:, None, :], np.sqrt(cfg.alpha) * np.linalg.solve(L.transpose(0, 2, 1)[:, None],
-                                                                                   z[..., None])[..., 0])
+    d = np.linalg.solve(L.transpose(0, 2, 1)[:, None], z[..., None])[..., 0]
+    new = box_plus(det.u_hat[:, None, :], np.sqrt(cfg.alpha) * d)
     # p(u | u_{t-1}) p(y_t | u, ...) of the new samples, as propose weighs its own (eq. 13, tempered)
     log_lik = log_likelihood(model.bases, pyramid[0], new, tv, cfg.sigma_w, None, photometric=cfg.photometric_model(),
                              outlier_sq=cfg.outlier_sigmas ** 2)
@@ -126,6 +141,6 @@ def mixture_proposals(state: ExpertState, proposals: Proposals, pyramid: tuple[F
     # q(u) = (1 - a) g(u | u_hat, alpha Sigma_hat) + a g(u | u_det, alpha Sigma_det)
     log_q = np.logaddexp(math.log1p(-a) + log_own, math.log(a) + log_det) if a < 1.0 else log_det
     # w = p(u | u_{t-1}) p(y_t | u) / q(u)                                 (eq. 16 with the mixture)
-    log_w = log_importance_weights(log_pl, 0.0, log_q)
+    log_w = log_importance_weights(log_pl, np.zeros_like(log_pl), log_q)
     return dataclasses.replace(proposals, samples=_ro(samples), log_weights=_ro(log_w),
                                log_evidence=_ro(log_evidence(log_w)))
