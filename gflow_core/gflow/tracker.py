@@ -424,11 +424,13 @@ class GFlowTracker:
                        resp: Any, op: online_guard.OnlineParams, rng: FrameRng) -> Proposals:
         """``proposal`` drawn from the mixture of the experts' opinions and the online model's detection
         (:func:`.mixture.mixture_proposals`, ``online_mix`` of each expert's samples) where the model places
-        the face on this frame (:func:`.online_guard.place`); ``proposal`` itself where it does not."""
+        the face on this frame, fully or partly (:func:`.online_guard.place`: P(visible) + P(partial) >=
+        P(hidden), the gate its learning uses; a turning face is judged partly visible); ``proposal`` itself
+        where it does not."""
         assert state.online is not None
         s = state.setup
         place, _, vis = online_guard.place(state.online, resp, proposal.dt, op)
-        if vis.visible < 0.5:
+        if not vis.present:
             return proposal
         starts = detector_starts(proposal.u_hat, self._centres(s, proposal.u_hat), place)
         pyramid = self.with_pyramid(params, obs).pyramid
