@@ -48,6 +48,9 @@ frame's filter kept as an anchor, DSST's scale filter), on grey levels alone (G-
   uniform density; the paper's likelihood is the texture's alone. It only reweights the samples the experts
   drew: at david_indoor's turn every expert's chain leaves the face for the collar, and no sample is left
   on the face to prefer (docs/faces.md, "The online model as a likelihood"): off by default.
+* **As a detector** (``online_mix`` of :class:`.params.GFlowParams`, :mod:`.mixture`): where it judges the face
+  present (:func:`place`), a share of each expert's samples is drawn about its place and every weight is
+  corrected for the mixture proposal (ICONDENSATION); off by default.
 
 Nothing here draws a random number. No I/O. The model travels in a snapshot as :mod:`.online_fields`.
 """
