@@ -41,8 +41,8 @@ from .filter import (ExpertState, GFlowConfig, Proposals, _anchored_reset, _ro, 
 from .geometry import TRANS, box_minus, box_plus
 from .head_model import MorphableModel
 from .image import FrameData
-from .pose_opinion import (GaussNewtonResult, coarse_to_fine_peak, log_importance_weights, log_likelihood, log_pose_prior,
-                           prior_mean)
+from .pose_opinion import (GaussNewtonResult, RotationReset, TextureView, coarse_to_fine_peak,
+                           log_importance_weights, log_likelihood, log_pose_prior, prior_mean)
 
 __all__ = ["detector_starts", "detector_peaks", "mixture_proposals"]
 
@@ -71,7 +71,8 @@ def _log_gauss(centre: np.ndarray, hessian: np.ndarray, alpha: float, poses: np.
     return -0.5 * P * (_LOG_2PI + math.log(alpha)) + half_logdet[:, None] - 0.5 * z2
 
 
-def _weighing(state: ExpertState, proposals: Proposals, model: MorphableModel, cfg: GFlowConfig):
+def _weighing(state: ExpertState, proposals: Proposals, model: MorphableModel, cfg: GFlowConfig
+              ) -> tuple[np.ndarray, np.ndarray, TextureView, RotationReset | None, float, tuple[float, float] | None]:
     """What expert d's weights need, as :func:`.filter.propose` has them: the transition's mean (E, P),
     the prior's std (P,), the predicted texels (the first look's for experts that took the frontal reset),
     the frontal reset, the rotation wall (radians) and the scale wall."""
