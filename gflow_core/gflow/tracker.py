@@ -10,8 +10,9 @@ learned face, the confidence and the target's state) and coasting over a frame i
 Random draws (:class:`gflow_core.tracker.FrameRng` of frame ``t``): expert ``i`` proposes from
 ``stream(i)``, the update resamples from ``stream()``, and the experts' initial jitter (first
 frame only) comes from ``stream(PURPOSE_INIT)``, the samples the mixture proposal draws about the
-online model's place of the face (``online_mix``, :mod:`.mixture`) from ``stream(PURPOSE_MIX)``. So proposals made for any partition of the
-experts (the pipeline's shards) concatenate to those of one call, bit for bit.
+online model's place of the face (``online_mix``, :mod:`.mixture`) from ``stream(PURPOSE_MIX)``. So
+proposals made for any partition of the experts (the pipeline's shards) concatenate to those of one
+call, bit for bit.
 """
 
 from __future__ import annotations

@@ -74,11 +74,11 @@ def test_the_weights_are_corrected_for_the_mixture(seq) -> None:
     out = mixture_proposals(state, props, pyramid, model, cfg, starts, share, np.random.default_rng(3))
     det = detector_peaks(state, props, pyramid, model, cfg, starts)
     u = out.samples[0]
-    prior = log_pose_prior(state.poses, out.samples, cfg.prior_std(model.n_bases), math.radians(cfg.max_rotation_deg),
-                           cfg.scale_limits())[0]
+    prior = log_pose_prior(state.poses, out.samples, cfg.prior_std(model.n_bases),
+                           math.radians(cfg.max_rotation_deg), cfg.scale_limits())[0]
     tv = TextureView(mean=state.tex_mean, var=state.tex_var + cfg.psi_v)
-    lik = log_likelihood(model.bases, pyramid[0], out.samples, tv, cfg.sigma_w, None, photometric=cfg.photometric_model(),
-                         outlier_sq=cfg.outlier_sigmas ** 2)[0]
+    lik = log_likelihood(model.bases, pyramid[0], out.samples, tv, cfg.sigma_w, None,
+                         photometric=cfg.photometric_model(), outlier_sq=cfg.outlier_sigmas ** 2)[0]
     own = multivariate_normal(np.zeros(u.shape[1]), cfg.alpha * props.sigma_hat[0]).logpdf(box_minus(props.u_hat[0], u))
     at_det = multivariate_normal(np.zeros(u.shape[1]), cfg.alpha * np.linalg.inv(det.hessian[0])
                                  ).logpdf(box_minus(det.u_hat[0], u))
