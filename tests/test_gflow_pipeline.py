@@ -120,6 +120,28 @@ def test_a_restart_mid_stream_with_the_online_guard_continues_as_the_straight_ru
     assert "\n" not in str(e.value)
 
 
+def test_the_mixture_proposal_acts_and_a_restart_continues_as_the_straight_run(scene) -> None:
+    """With ``online_mix`` the filter draws a share of the samples about the online model's place of the face
+    (its own random stream): the run differs from the one without, and restored mid-stream from the
+    snapshots it goes on bit for bit (the filter's draws depend on the frame alone)."""
+    _, seq, frames = scene
+    grey = np.rint(frames * 255).astype(np.uint8)
+    base = dict(SYNTH, seed=4, init=[float(v) for v in seq.box], online_guard=True)
+    plain = Cycle(base)
+    without = [plain.step(t, features_msg(grey[t], t)) for t in range(FRAMES)]
+    params = dict(base, online_mix=0.25)
+    straight = Cycle(params)
+    want = [straight.step(t, features_msg(grey[t], t)) for t in range(FRAMES)]
+    assert want[0] == without[0] and want[1:] != without[1:]
+    resumed = Cycle(params)
+    got = []
+    for t in range(FRAMES):
+        if t in (3, 10):
+            resumed.restart_from_snapshots()
+        got.append(resumed.step(t, features_msg(grey[t], t)))
+    assert got == want
+
+
 def test_without_the_online_guard_the_snapshot_is_version_2_as_before(scene) -> None:
     """Without the online guard's model the filter writes the version-2 snapshot, without version 3's two
     fields, so the snapshots of a run recorded before version 3 are re-made byte for byte by a re-run

@@ -48,6 +48,9 @@ frame's filter kept as an anchor, DSST's scale filter), on grey levels alone (G-
   uniform density; the paper's likelihood is the texture's alone. It only reweights the samples the experts
   drew: at david_indoor's turn every expert's chain leaves the face for the collar, and no sample is left
   on the face to prefer (docs/faces.md, "The online model as a likelihood"): off by default.
+* **As a detector** (``online_mix`` of :class:`.params.GFlowParams`, :mod:`.mixture`): where it judges the face
+  present (:func:`place`), a share of each expert's samples is drawn about its place and every weight is
+  corrected for the mixture proposal (ICONDENSATION); off by default.
 
 Nothing here draws a random number. No I/O. The model travels in a snapshot as :mod:`.online_fields`.
 """
@@ -63,10 +66,10 @@ import numpy as np
 from ..dcf import filter as cf
 from ..dcf import model as tm
 from ..dcf.params import DCFParams
-from ..visibility import ChiSquare, visibility
+from ..visibility import ChiSquare, Visibility, visibility
 from .guard import GuardStep
 
-__all__ = ["OnlineParams", "OnlineFace", "OnlineSeen", "start", "response", "cue", "look", "overrule"]
+__all__ = ["OnlineParams", "OnlineFace", "OnlineSeen", "start", "response", "cue", "place", "look", "overrule"]
 
 Box = tuple[float, float, float, float]
 
@@ -192,26 +195,37 @@ def cue(resp: tm.Response, centres: np.ndarray, p: OnlineParams) -> np.ndarray:
     return np.log(lik)
 
 
+def place(face: OnlineFace, resp: tm.Response, dt: float, p: OnlineParams
+          ) -> tuple[tuple[float, float], float, Visibility]:
+    """Where the model places the face on a frame whose :func:`response` is ``resp``, ``dt`` frame periods
+    after the last frame seen: the response's peak over the centres within ``window + growth * dt`` box
+    sizes of the face's last place, (x, y) px; the peak's distance rho = 1 - y; and the visibility judged
+    from it (P(visible) >= 1/2: the face is placed there; module docstring)."""
+    s = float(np.exp(face.log_s))
+    size = (face.geom.size0[0] * s, face.geom.size0[1] * s)
+    reach = p.window + p.growth * max(float(dt), 1.0)
+    # the filter's window about the face's last place (the target plus 3 mean sides each way: wider than
+    # the search at the rates met), its peak over the centres within reach of that place
+    i, j, y = _peak_near(resp, np.asarray(face.centre), reach * size[0], reach * size[1])
+    c = resp.point(i, j)
+    # rho = 1 - y, the distance of the peak; the clutter's, the best response half a box or more away
+    rho = 1.0 - y
+    vis = visibility(rho, face.target, face.clutter, p.dcf.min_std)
+    return (float(c[0]), float(c[1])), rho, vis
+
+
 def look(face: OnlineFace, grey: np.ndarray, experts_box: Box, dt: float, p: OnlineParams,
          resp: tm.Response | None = None) -> OnlineSeen:
     """Place the face on ``grey`` (H, W) uint8, ``dt`` frame periods after the last frame seen, judge
     it, and learn from it where it is judged visible within ``experts_box`` (module docstring).
     ``resp``: the model's :func:`response` on ``grey``, when made already."""
     d, geom = p.dcf, face.geom
-    s = float(np.exp(face.log_s))
-    size = (geom.size0[0] * s, geom.size0[1] * s)
-    reach = p.window + p.growth * max(float(dt), 1.0)
-    # the filter's window about the face's last place (the target plus 3 mean sides each way: wider than
-    # the search at the rates met), its peak over the centres within reach of that place
     if resp is None:
         resp = response(face, grey, p)
-    i, j, y = _peak_near(resp, np.asarray(face.centre), reach * size[0], reach * size[1])
-    c = resp.point(i, j)
-    away = resp.best_away(c, (0.5 * size[0], 0.5 * size[1]))
-    # rho = 1 - y, the distance of the peak; the clutter's, the best response half a box or more away
-    rho = 1.0 - y
-    vis = visibility(rho, face.target, face.clutter, d.min_std)
-    centre = (float(c[0]), float(c[1]))
+    centre, rho, vis = place(face, resp, dt, p)
+    s = float(np.exp(face.log_s))
+    size = (geom.size0[0] * s, geom.size0[1] * s)
+    away = resp.best_away(np.asarray(centre), (0.5 * size[0], 0.5 * size[1]))
     agree = _within(centre, experts_box, 0.5)
     warm = face.learnt < p.warmup
     placed = bool(vis.visible >= 0.5)

@@ -156,6 +156,9 @@ class GFlowParams:
                                    "box, a second cue in the experts' importance weights (0: not a cue)")
     online_floor: float = param(0.1, "weight of the uniform density the online guard's cue is mixed with (the factor "
                                      "it can give one box over another is at most 1 / online_floor)")
+    online_mix: float = param(0.0, "share of each expert's pose samples drawn about the online guard's place of the "
+                                   "face, the weights corrected for the mixture proposal (ICONDENSATION; "
+                                   "gflow_core/gflow/mixture.py; 0: none)")
 
     def __post_init__(self) -> None:
         self.config()  # every check of GFlowConfig
@@ -186,6 +189,12 @@ class GFlowParams:
         if not (math.isfinite(self.online_cue) and self.online_cue >= 0 and 0 < self.online_floor <= 1):
             raise ValueError(f"online_cue must be finite and >= 0 (0: not a cue) and online_floor in (0, 1], got "
                              f"{self.online_cue}, {self.online_floor}")
+        if not 0.0 <= self.online_mix <= 1.0:
+            raise ValueError(f"online_mix must be in [0, 1] (0: no samples about the online model's place), got "
+                             f"{self.online_mix}")
+        if self.online_mix > 0 and self.background:
+            raise ValueError("online_mix needs background off (the filter, where the weights are corrected, keeps no "
+                             "background textures)")
         if not 0.0 <= self.lost_below <= self.occluded_below <= 1.0:
             raise ValueError(f"need 0 <= lost_below <= occluded_below <= 1, got {self.lost_below}, "
                              f"{self.occluded_below}")

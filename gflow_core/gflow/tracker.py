@@ -9,8 +9,10 @@ learned face, the confidence and the target's state) and coasting over a frame i
 
 Random draws (:class:`gflow_core.tracker.FrameRng` of frame ``t``): expert ``i`` proposes from
 ``stream(i)``, the update resamples from ``stream()``, and the experts' initial jitter (first
-frame only) comes from ``stream(PURPOSE_INIT)``. So proposals made for any partition of the
-experts (the pipeline's shards) concatenate to those of one call, bit for bit.
+frame only) comes from ``stream(PURPOSE_INIT)``, the samples the mixture proposal draws about the
+online model's place of the face (``online_mix``, :mod:`.mixture`) from ``stream(PURPOSE_MIX)``. So
+proposals made for any partition of the experts (the pipeline's shards) concatenate to those of one
+call, bit for bit.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from .filter import (
 )
 from .geometry import COEF, TRANS, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box, fit_head_model_to_box, pose_for_box
+from .mixture import detector_starts, mixture_proposals
 from .image import FrameData, frame_pyramid, local_contrast, prepare_frame
 from .params import GFlowParams
 
@@ -50,6 +53,8 @@ __all__ = ["GFlowTracker", "GFlowState", "GFlowObservation", "ModelSetup", "mode
 
 #: ``FrameRng.stream`` path of the experts' initial jitter
 PURPOSE_INIT = 0x6F10
+#: the draws of the mixture proposal's samples about the online model's place (:mod:`.mixture`)
+PURPOSE_MIX = 0x6F11
 _PROPOSAL_ARRAYS = ("u_hat", "sigma_hat", "samples", "log_weights", "log_evidence", "gn_objective")
 
 
@@ -349,10 +354,14 @@ class GFlowTracker:
         s = state.setup
         op = online_params(params)
         resp = None
-        if op is not None and op.cue > 0 and state.online is not None:
-            # the online model of the face, a second cue in the importance weights (eq. 16; .online_guard.cue)
+        if op is not None and state.online is not None and (op.cue > 0 or params.online_mix > 0):
             resp = online_guard.response(state.online, obs.grey, op)
-            proposal = self._with_cue(s, proposal, resp, op)
+            if params.online_mix > 0:
+                # samples drawn about where the online model places the face too, weights for the mixture (.mixture)
+                proposal = self._with_detector(params, state, proposal, obs, resp, op, rng)
+            if op.cue > 0:
+                # the online model of the face, a second cue in the importance weights (eq. 16; .online_guard.cue)
+                proposal = self._with_cue(s, proposal, resp, op)
         new, est = update(state.experts, proposal, obs.y, s.model, s.cfg, rng.stream())
         gp = guard_params(params, proposal.dt)
         if gp is None or state.anchor is None:
@@ -403,13 +412,7 @@ class GFlowTracker:
         its log added to the sample's log importance weight (eq. 16) and the expert's likelihood (eq. 19)
         re-estimated from the weights so fused (the cues' likelihoods multiplied, Perez, Vermaak & Blake 2004)."""
         samples = proposal.samples
-        if setup.model.reference_box is not None:
-            boxes = following_box(samples, setup.pose0, setup.box)
-        else:
-            boxes = bounding_box(project(setup.model.bases, samples.reshape(-1, samples.shape[-1]))
-                                 ).reshape(*samples.shape[:2], 4)
-        # the box's centre as the online model places it: x + (w - 1) / 2
-        centres = boxes[..., :2] + 0.5 * (boxes[..., 2:] - 1.0)
+        centres = self._centres(setup, samples)
         log_l = online_guard.cue(resp, centres.reshape(-1, 2), op).reshape(samples.shape[:2])
         # w_t(d, e) p_online(y_t | u^(d, e))                                  (eq. 16, times the second cue)
         log_w = proposal.log_weights + log_l
@@ -417,6 +420,36 @@ class GFlowTracker:
         ev = log_evidence(log_w)
         ev.setflags(write=False)
         return dataclasses.replace(proposal, log_weights=log_w, log_evidence=ev)
+
+    def _with_detector(self, params: GFlowParams, state: GFlowState, proposal: Proposals, obs: GFlowObservation,
+                       resp: Any, op: online_guard.OnlineParams, rng: FrameRng) -> Proposals:
+        """``proposal`` drawn from the mixture of the experts' opinions and the online model's detection
+        (:func:`.mixture.mixture_proposals`, ``online_mix`` of each expert's samples) where the model places
+        the face on this frame, fully or partly (:func:`.online_guard.place`: P(visible) + P(partial) >=
+        P(hidden), the gate its learning uses; a turning face is judged partly visible); ``proposal`` itself
+        where it does not."""
+        assert state.online is not None
+        s = state.setup
+        place, _, vis = online_guard.place(state.online, resp, proposal.dt, op)
+        if not vis.present:
+            return proposal
+        starts = detector_starts(proposal.u_hat, self._centres(s, proposal.u_hat), place)
+        pyramid = self.with_pyramid(params, obs).pyramid
+        assert pyramid is not None
+        return mixture_proposals(state.experts, proposal, pyramid, s.model, s.cfg, starts, params.online_mix,
+                                 rng.stream(PURPOSE_MIX))
+
+    @staticmethod
+    def _centres(setup: ModelSetup, poses: np.ndarray) -> np.ndarray:
+        """The centres (..., 2) (x, y) of the boxes of poses (..., P) (:meth:`_box`), as the online model
+        places a box's centre: x + (w - 1) / 2."""
+        if setup.model.reference_box is not None:
+            boxes = following_box(poses, setup.pose0, setup.box)
+        else:
+            boxes = bounding_box(project(setup.model.bases, poses.reshape(-1, poses.shape[-1]))
+                                 ).reshape(*poses.shape[:-1], 4)
+        # the box's centre as the online model places it: x + (w - 1) / 2
+        return boxes[..., :2] + 0.5 * (boxes[..., 2:] - 1.0)
 
     def _place(self, params: GFlowParams, setup: ModelSetup, experts: ExpertState, obs: GFlowObservation,
                box: tuple[float, float, float, float]) -> np.ndarray:
