@@ -62,6 +62,24 @@ def test_a_tracker_parameter_is_set_once_as_tracker_param(tmp_path: Path, frames
     assert not (tmp_path / "b.csv").exists() and not list(tmp_path.rglob("*.mcap"))
 
 
+@pytest.mark.parametrize("items, named, said", [
+    (["online_mix=2"], "--gflow-set online_mix=2", "online_mix must be in [0, 1]"),
+    (["online_mix=abc"], "--gflow-set online_mix=abc", "online_mix must be a number"),
+    (["online_mix=0.3", "background=true"], "--gflow-set online_mix=0.3 --gflow-set background=true",
+     "online_mix needs background off"),
+])
+def test_a_bad_gflow_set_is_named_as_typed(tmp_path: Path, frames: Path, items: list[str], named: str,
+                                           said: str) -> None:
+    """A G-flow value out of range, of the wrong kind or at odds with another is refused naming the
+    ``--gflow-set`` options as typed, not the graph file (``gflow.yaml:26: tracker gflow``) it lands in."""
+    sets = [a for it in items for a in ("--gflow-set", it)]
+    r = gflow("track", str(frames), "--tracker", "gflow", "--init", "10,10,20,20", "--out", "b.csv", *sets, "--inline",
+              cwd=tmp_path)
+    line = one_line_error(r)
+    assert line.startswith(f"gflow track: error: {named}: ") and said in line and ".yaml" not in line, line
+    assert not (tmp_path / "b.csv").exists() and not list(tmp_path.rglob("*.mcap"))
+
+
 @pytest.mark.parametrize("opt, name", [("--out", "x.csv"), ("--record", "r.mcap"), ("--points-out", "p.csv")])
 def test_output_in_a_missing_folder_is_refused(tmp_path: Path, frames: Path, opt: str, name: str) -> None:
     """A mistyped folder is one line naming the option and the folder; no folder is created."""

@@ -70,6 +70,31 @@ def _gflow_sets(items: list[str] | None) -> dict:
     return out
 
 
+def _check_sets(block: dict, items: list[str] | None) -> None:
+    """Refuse, naming the ``--gflow-set`` options as typed (not the graph file the values land in), a
+    block of G-flow parameters they make invalid; the options named are those refused alone, else all."""
+    from pipeline.cli.commands.common import CliError
+    from pipeline.runtime.tracker_block import block_values
+
+    if not items:
+        return
+    try:
+        block_values(GFlowParams, block)
+    except ValueError as e:
+        names = {it: it.split("=", 1)[0].strip() for it in items}
+        base = {k: v for k, v in block.items() if k not in names.values()}
+
+        def refused(it: str) -> bool:
+            try:
+                block_values(GFlowParams, {**base, names[it]: block[names[it]]})
+            except ValueError:
+                return True
+            return False
+
+        alone = [it for it in items if refused(it)]
+        raise CliError(" ".join(f"--gflow-set {it}" for it in alone or items) + f": {e}") from None
+
+
 def overrides(args) -> tuple[str, dict[str, dict]]:
     """The tracker block gets the G-flow parameters, every stage the initial box and the seed, the
     filter also the number of shards."""
@@ -94,6 +119,7 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
                            f"(kind 'morphable')")
         block["model"] = model if model in BUILTIN_MODELS else str(path.resolve())
     block.update(_gflow_sets(getattr(args, "gflow_set", None)))
+    _check_sets(block, getattr(args, "gflow_set", None))
     given = getattr(args, "shards", None)
     shards = 1 if given is None else int(given)  # 0 is a mistake to name, not the default
     if shards < 1:
