@@ -53,6 +53,10 @@ BACF and CSRT learn theirs:
   since the last frame seen (dt periods).
   With ``detect_peaks`` > 1 (off) the particles drawn at the response are shared among its best
   separate peaks (:mod:`.proposal`; Okuma et al.'s boosted proposal), not given to the best alone.
+  With ``motion_switch`` > 0 (off) the motion switches between constant velocity and a manoeuvre (no
+  mean velocity, the target's speed as the noise) by a Markov chain, each particle drawing its mode and
+  the likelihood picking it (:mod:`.modes`; Isard & Blake's mixed-state Condensation, ICCV 1998, with
+  the modes collapsed to one probability a frame as in Blom & Bar-Shalom's IMM).
 * **Scale** (:mod:`.scale`): DSST's 1-D scale filter (17 scales 2 % apart, as fDSST samples) at the
   estimate, on confident frames; the particles carry the scale it finds.
 * **Is it the target?** Two cues, each a distance rho = 1 - y at the estimate: the filter's
@@ -143,7 +147,7 @@ together (docs/trackers.md):
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
-:mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
+:mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
 track), :mod:`.rotation` (the target's roll), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`

@@ -78,6 +78,8 @@ class DCFState:
         :mod:`.rotation`; 0 without).
     manoeuvre : the posterior probability that the target is manoeuvring, not moving at constant velocity
         (``motion_switch``; :mod:`.modes`; 0 without).
+    recent : the short-run mean of the target's distance on the frames it was present (``rate_adapt``;
+        :mod:`.rates`; 0 without).
     """
 
     geom: Geometry
@@ -101,6 +103,7 @@ class DCFState:
     last_grey: np.ndarray | None = None
     angle: float = 0.0
     manoeuvre: float = 0.0
+    recent: float = 0.0
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -173,6 +176,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["angle"] = float(st.angle)
     if st.manoeuvre:
         values["manoeuvre"] = float(st.manoeuvre)
+    if st.recent:
+        values["recent"] = float(st.recent)
     if st.negatives:
         arrays["negatives"] = to_array(st.negatives)
     if st.last_grey is not None:
@@ -220,5 +225,6 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     back=float(values["back"]), target_state=str(values["target_state"]),
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
                     angle=float(values.get("angle", 0.0)), manoeuvre=float(values.get("manoeuvre", 0.0)),
+                    recent=float(values.get("recent", 0.0)),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)

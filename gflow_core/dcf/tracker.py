@@ -38,7 +38,7 @@ from . import modes as mm
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .proposal import assign, detections
-from .rates import filter_rate
+from .rates import adapted, filter_rate, recent
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
 from .rotation import angle_change, detect, held
@@ -327,11 +327,15 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
         d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
         log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
     learnt: dict[str, Any] = {"target": st.target.update(1.0 - r_est, p.target_rate), "angle": angle}
+    if p.rate_adapt > 0:
+        # with rate_adapt, the distance's short-run mean S_t (.rates)
+        learnt["recent"] = recent(p, st.recent, st.target, 1.0 - r_est)
     if colour_seen is not None:
         learnt["ctarget"] = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
     if confident:
         learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p,
-                                   filter_rate(p, st.target.n - p.prior_count), angle=angle)
+                                   adapted(p, filter_rate(p, st.target.n - p.prior_count), st.target,
+                                           learnt.get("recent", 0.0)), angle=angle)
     return log_s, learnt
 
 
