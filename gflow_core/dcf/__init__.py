@@ -25,7 +25,10 @@ BACF and CSRT learn theirs:
   first window -- rolled, resized, blurred about the target (:mod:`.augment`; MOSSE, Bolme et al.
   2010; UPDT, Bhat et al. ECCV 2018) -- and with ``young`` the running filter's rate is
   max(``rate``, 1 / (``young`` + n + 1)) after n frames the target was seen on, the mean of the
-  frames seen while that is faster (:mod:`.rates`).
+  frames seen while that is faster (:mod:`.rates`); with ``rate_adapt`` (off) the rate is raised while the
+  target's distance runs above its mean, max(rate, 1 - (1 - rate) rho_bar / S_t), S_t its short-run
+  mean (the gain of a local-level Kalman filter whose innovation variance is matched to the one
+  observed, Mehra 1970; :mod:`.rates`).
 * **Roll** (:mod:`.rotation`, ``roll_step``): the target's in-plane angle is kept in
   the state and every window of the target is sampled rolled by it, so the filter learns and detects
   the target upright; the angle is searched as DSST searches scale (the filter applied to windows
@@ -139,6 +142,10 @@ together (docs/trackers.md):
   then the target's and it cannot be judged hidden (the track confirmation of multi-target trackers,
   SORT's ``min_hits`` and DeepSORT's ``n_init``, which delete a tentative track that misses; here the
   user's box says the target exists, and only the judgement of "hidden" waits).
+  The motion may switch between constant velocity and a manoeuvre (``motion_switch``, :mod:`.modes`:
+  the modes collapsed to one probability a frame, one velocity shared), and the filter's rate may
+  follow the distance's rise (``rate_adapt``, :mod:`.rates`: the innovation's variance from running
+  means, not a window's sample covariance); both lose more fast-motion cases than they get back.
 * On by default (measured on the stress cases of seeds 1-3, docs/trackers.md): the colour cue fails
   more often on a search candidate (``search_colour_outlier`` 0.1: the colour model is learnt against
   the target's own surroundings, not the places the search looks), and after a re-detection of a
