@@ -25,10 +25,10 @@ scored lower frame after frame until it is judged hidden with the box on it. The
 the estimate of a local-level model, the look a_t = a_{t-1} + w (variance q) seen as x_t = a_t + e
 (variance r), whose steady-state Kalman gain is the rate eta; the innovation's variance is then S_0
 = P + r and r = (1 - eta) S_0. Matching the innovation's variance to the one observed (Mehra, IEEE
-TAC 1970; the adaptive Kalman filter), with the distance rho = 1 - y at the estimate as the
-innovation's size (1 - the normalised correlation, half the squared distance of the normalised
-sample from the model), S_0 the target's mean distance rho_bar (:mod:`gflow_core.visibility`, its
-long-run mean at ``target_rate``) and S_t the distance's short-run mean at rate a = ``rate_adapt``,
+TAC 1970; the adaptive Kalman filter), with the distance rho = 1 - y at the estimate taken as the
+innovation's variance (it grows as the frame's sample departs from the model), S_0 the target's mean
+distance rho_bar (:mod:`gflow_core.visibility`, its long-run mean at ``target_rate``) and S_t the
+distance's short-run mean at rate a = ``rate_adapt``,
 
     S_t = (1 - a) S_{t-1} + a rho_t,
     eta_t = max(eta, 1 - (1 - eta) rho_bar / S_t),             (K = 1 - r / S)
@@ -37,7 +37,9 @@ so the rate rises while the target's distance runs above its usual level and is 
 long-run mean has caught up or the distance fallen back. Departures: Mehra estimates q and r from
 the innovations' sample covariance over a window; here r is fixed by eta and the target's mean
 distance, S is a running mean, and only the filter's rate adapts (the colour model's and the scale
-filter's do not). The rule learns only on the frames the tracker is confident of, as every rate.
+filter's do not); the distance is a response, not a squared innovation, so the matching is an
+analogy, not the Kalman filter of the sample. The filter learns only on the frames the tracker is
+confident of, as at every rate; S follows every frame the target is judged present on.
 """
 
 from __future__ import annotations
