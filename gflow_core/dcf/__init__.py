@@ -25,7 +25,10 @@ BACF and CSRT learn theirs:
   first window -- rolled, resized, blurred about the target (:mod:`.augment`; MOSSE, Bolme et al.
   2010; UPDT, Bhat et al. ECCV 2018) -- and with ``young`` the running filter's rate is
   max(``rate``, 1 / (``young`` + n + 1)) after n frames the target was seen on, the mean of the
-  frames seen while that is faster (:mod:`.rates`).
+  frames seen while that is faster (:mod:`.rates`); with ``rate_adapt`` (off) the rate is raised while the
+  target's distance runs above its mean, max(rate, 1 - (1 - rate) rho_bar / S_t), S_t its short-run
+  mean (the gain of a local-level Kalman filter whose innovation variance is matched to the one
+  observed, Mehra 1970; :mod:`.rates`).
 * **Roll** (:mod:`.rotation`, ``roll_step``): the target's in-plane angle is kept in
   the state and every window of the target is sampled rolled by it, so the filter learns and detects
   the target upright; the angle is searched as DSST searches scale (the filter applied to windows
@@ -53,6 +56,10 @@ BACF and CSRT learn theirs:
   since the last frame seen (dt periods).
   With ``detect_peaks`` > 1 (off) the particles drawn at the response are shared among its best
   separate peaks (:mod:`.proposal`; Okuma et al.'s boosted proposal), not given to the best alone.
+  With ``motion_switch`` > 0 (off) the motion switches between constant velocity and a manoeuvre (no
+  mean velocity, the target's speed as the noise) by a Markov chain, each particle drawing its mode and
+  the likelihood picking it (:mod:`.modes`; Isard & Blake's mixed-state Condensation, ICCV 1998, with
+  the modes collapsed to one probability a frame as in Blom & Bar-Shalom's IMM).
 * **Scale** (:mod:`.scale`): DSST's 1-D scale filter (17 scales 2 % apart, as fDSST samples) at the
   estimate, on confident frames; the particles carry the scale it finds.
 * **Is it the target?** Two cues, each a distance rho = 1 - y at the estimate: the filter's
@@ -135,6 +142,10 @@ together (docs/trackers.md):
   then the target's and it cannot be judged hidden (the track confirmation of multi-target trackers,
   SORT's ``min_hits`` and DeepSORT's ``n_init``, which delete a tentative track that misses; here the
   user's box says the target exists, and only the judgement of "hidden" waits).
+  The motion may switch between constant velocity and a manoeuvre (``motion_switch``, :mod:`.modes`:
+  the modes collapsed to one probability a frame, one velocity shared), and the filter's rate may
+  follow the distance's rise (``rate_adapt``, :mod:`.rates`: the innovation's variance from running
+  means, not a window's sample covariance); both lose more fast-motion cases than they get back.
 * On by default (measured on the stress cases of seeds 1-3, docs/trackers.md): the colour cue fails
   more often on a search candidate (``search_colour_outlier`` 0.1: the colour model is learnt against
   the target's own surroundings, not the places the search looks), and after a re-detection of a
@@ -143,7 +154,7 @@ together (docs/trackers.md):
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
-:mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
+:mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
 track), :mod:`.rotation` (the target's roll), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`

@@ -160,6 +160,13 @@ class DCFParams:
                                      "judged, on frames its score at the response's peak is unusual (roll_gate): a "
                                      "rolled window that explains the look gives the particles their response "
                                      "(SAMF's joint search over the roll; gflow_core.dcf.rotation.detect)")
+    motion_switch: float = param(0.0, "the motion model switches between constant velocity and a manoeuvre (the target "
+                                      "turned or stopped: no mean velocity, its speed as the noise) with this "
+                                      "probability a frame, the likelihood picking the mode (a mixed-state particle "
+                                      "filter, Isard & Blake 1998; gflow_core.dcf.modes; 0: constant velocity only)")
+    rate_adapt: float = param(0.0, "the filter's rate rises while the target's distance runs above its mean: "
+                                   "max(rate, 1 - (1 - rate) mean / S), S the distance's running mean at this rate "
+                                   "(the adaptive Kalman gain of innovation matching; gflow_core.dcf.rates; 0: rate)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -255,8 +262,9 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
-        if self.detect_peaks < 1:
-            raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
+        if self.detect_peaks < 1 or not 0 <= self.motion_switch < 1 or not 0 <= self.rate_adapt <= 1:
+            raise ValueError(f"detect_peaks must be >= 1, motion_switch in [0, 1) and rate_adapt in [0, 1], got "
+                             f"{self.detect_peaks}, {self.motion_switch}, {self.rate_adapt}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")

@@ -76,6 +76,10 @@ class DCFState:
         ``confirm_flow`` asks for its flow (:mod:`.confirm`), else None.
     angle : radians, the target's roll: the windows of the target are sampled rolled by it (``roll_step``;
         :mod:`.rotation`; 0 without).
+    manoeuvre : the posterior probability that the target is manoeuvring, not moving at constant velocity
+        (``motion_switch``; :mod:`.modes`; 0 without).
+    recent : the short-run mean of the target's distance on the frames it was present (``rate_adapt``;
+        :mod:`.rates`; 0 without).
     """
 
     geom: Geometry
@@ -98,6 +102,8 @@ class DCFState:
     negatives: tuple[Place, ...] = ()
     last_grey: np.ndarray | None = None
     angle: float = 0.0
+    manoeuvre: float = 0.0
+    recent: float = 0.0
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -168,6 +174,10 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["speed2"] = float(st.speed2)
     if st.angle:
         values["angle"] = float(st.angle)
+    if st.manoeuvre:
+        values["manoeuvre"] = float(st.manoeuvre)
+    if st.recent:
+        values["recent"] = float(st.recent)
     if st.negatives:
         arrays["negatives"] = to_array(st.negatives)
     if st.last_grey is not None:
@@ -214,6 +224,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
-                    angle=float(values.get("angle", 0.0)),
+                    angle=float(values.get("angle", 0.0)), manoeuvre=float(values.get("manoeuvre", 0.0)),
+                    recent=float(values.get("recent", 0.0)),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)

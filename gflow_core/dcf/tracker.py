@@ -34,10 +34,11 @@ from .cues import may_fail
 from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
 from .gate import within
+from . import modes as mm
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .proposal import assign, detections
-from .rates import filter_rate
+from .rates import adapted, filter_rate, recent
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
 from .rotation import angle_change, detect, held
@@ -92,13 +93,18 @@ def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float, area: floa
 
 
 def _particles(st: DCFState, proposed: np.ndarray, peak_xy: np.ndarray, extra: float, p: DCFParams,
-               rng: np.random.Generator, dt: float) -> np.ndarray:
+               rng: np.random.Generator, dt: float, mot: mm.Motion | None = None) -> np.ndarray:
     """The (N, 3) particles of frame t: the proposal's walk moved by the velocity and the speed's share of
-    the noise, a ``detect_fraction`` of them drawn about the response's peaks ``peak_xy`` (K, 2) instead, in
-    equal shares (:mod:`.proposal`); log s is the state's."""
-    # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
+    the noise (with ``mot``, by each particle's motion mode: :mod:`.modes`), a ``detect_fraction`` of them
+    drawn about the response's peaks ``peak_xy`` (K, 2) instead, in equal shares (:mod:`.proposal`); log s
+    is the state's."""
     dyn = proposed.copy()
-    dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
+    if mot is None:
+        # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
+        dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
+    else:
+        # each particle's mode m ~ pi_t, and x_t = x~_t + (pred_m - c_t-1) + noise_m w_2 (.modes)
+        dyn[:, :2] = mm.move(mot, dyn[:, :2], mm.draw(mot, len(dyn), rng), rng)
     # x_t ~ (1 - b) p(x_t | x_t-1) + b (1 / K) sum_k N(peak_k, detect_std^2)   (mixture proposal, b = detect_fraction;
     # the K = detect_peaks best separate peaks of the response: .proposal, Okuma et al. 2004 eq. 2)
     n_det = int(round(p.detect_fraction * len(dyn)))
@@ -112,6 +118,34 @@ def _particles(st: DCFState, proposed: np.ndarray, peak_xy: np.ndarray, extra: f
         parts = dyn
     parts[:, 2] = st.log_s
     return parts
+
+
+def _motion(st: DCFState, p: DCFParams, bw: float, bh: float, dt: float
+            ) -> tuple[np.ndarray, float, float, float, mm.Motion | None]:
+    """The motion's prediction of frame t (the window's centre), the speed's share beta |v| dt of the noise,
+    the motion prior's std (sx, sy) px, and with ``motion_switch`` the two modes' prior (:mod:`.modes`)."""
+    extra = speed_noise(p, st.velocity, dt)
+    # the motion prior N(x; pred, diag(sx^2, sy^2)), sx = prior w sqrt(dt) + beta |v| dt, widened while the
+    # target is unseen by the spread its place has gathered since (added in quadrature)
+    sx = float(np.hypot(p.motion_prior * bw * math.sqrt(dt) + extra, st.spread))
+    sy = float(np.hypot(p.motion_prior * bh * math.sqrt(dt) + extra, st.spread))
+    if p.motion_switch <= 0:
+        # constant velocity: the prediction c_{t-1} + v dt
+        return st.centre + st.velocity * dt, extra, sx, sy, None
+    # two motion modes: the window at their mixture's mean prediction c_{t-1} + pi_t(0) v dt
+    mot = mm.predict(p, st.manoeuvre, st.centre, st.velocity, (bw, bh), extra, st.spread, dt)
+    return mot.mean, extra, sx, sy, mot
+
+
+def _log_prior(parts: np.ndarray, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None
+               ) -> tuple[np.ndarray, np.ndarray | None]:
+    """(N,) the motion prior's log density of the (N, 3) particles up to a constant: -d^2 / 2 about ``pred``
+    of std (sx, sy), or with the modes ``mot`` the mixture's log sum_m pi_m N(x; pred_m, S_m), and then (N,)
+    the manoeuvre's responsibility of each (else None)."""
+    if mot is None:
+        d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * sx * sx) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * sy * sy)
+        return -d2, None
+    return mm.log_prior(mot, parts[:, :2])
 
 
 def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
@@ -293,11 +327,15 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
         d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
         log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
     learnt: dict[str, Any] = {"target": st.target.update(1.0 - r_est, p.target_rate), "angle": angle}
+    if p.rate_adapt > 0:
+        # with rate_adapt, the distance's short-run mean S_t (.rates)
+        learnt["recent"] = recent(p, st.recent, st.target, 1.0 - r_est)
     if colour_seen is not None:
         learnt["ctarget"] = st.ctarget.update(1.0 - colour_seen[0], p.target_rate)
     if confident:
         learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p,
-                                   filter_rate(p, st.target.n - p.prior_count), angle=angle)
+                                   adapted(p, filter_rate(p, st.target.n - p.prior_count), st.target,
+                                           learnt.get("recent", 0.0)), angle=angle)
     return log_s, learnt
 
 
@@ -414,23 +452,18 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         raise ValueError(f"proposals must be finite (N, 3) = (x, y, log s), got {proposed.shape}")
     geom = st.geom
     Hh, Ww = obs.grey.shape
-    # constant velocity: the prediction c_{t-1} + v dt
-    pred = st.centre + st.velocity * dt
     s = float(np.exp(st.log_s))
     bw, bh = geom.size0[0] * s, geom.size0[1] * s
-    extra = speed_noise(p, st.velocity, dt)
+    pred, extra, sx, sy, mot = _motion(st, p, bw, bh, dt)
     lt = _longterm_of(st, p)
     resp, st = _respond(st, obs, p, pred, lt)
-    parts = _particles(st, proposed, detections(resp, (0.5 * bw, 0.5 * bh), p.detect_peaks), extra, p, rng, dt)
+    parts = _particles(st, proposed, detections(resp, (0.5 * bw, 0.5 * bh), p.detect_peaks), extra, p, rng, dt,
+                       mot)
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
     log_lik = p.kappa * y
-    # the motion prior N(x; pred, diag(sx^2, sy^2)), sx = prior w sqrt(dt) + beta |v| dt, widened while the
-    # target is unseen by the spread its place has gathered since (added in quadrature)
-    sx = float(np.hypot(p.motion_prior * bw * math.sqrt(dt) + extra, st.spread))
-    sy = float(np.hypot(p.motion_prior * bh * math.sqrt(dt) + extra, st.spread))
-    d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * sx * sx) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * sy * sy)
-    lw = LogWeights(log_lik - d2)
+    log_prior, resp1 = _log_prior(parts, pred, sx, sy, mot)
+    lw = LogWeights(log_lik + log_prior)
     W = lw.W
     # weighted sums by einsum, not BLAS: the same bits in one thread and in many
     mean = np.einsum("i,ij->j", W, parts)
@@ -445,7 +478,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     hidden_before = st.hidden_run >= p.hidden_after
     # the estimate's place under the target's motion prior against clutter's, uniform over the window:
     # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
-    log_place = _log_place(centre, pred, sx, sy, resp.area())
+    log_place = _log_place(centre, pred, sx, sy, resp.area()) if mot is None else mm.log_place(mot, centre, resp.area())
     prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
     present = vis.present or taken(st, obs, p)  # a tentative track's frame in doubt, if its box moved (.confirm)
@@ -488,6 +521,9 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         learnt["longterm"] = _learn_longterm(st, lt, lt_seen, obs, p, centre, log_s,
                                              present and found is None, confident and present and found is None)
     new_parts[:, 2] = log_s
+    if mot is not None and resp1 is not None:
+        # mu_t(1): the weighted responsibilities on a frame the target was tracked; else pi_t(1) (.modes)
+        learnt["manoeuvre"] = mm.posterior(W, resp1) if present and found is None else float(mot.pi[1])
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
                   target_state=state, spread=spread, last_grey=remember(learnt.get("target", st.target), obs, p), **learnt)
