@@ -9,7 +9,9 @@ peaks at the row of the target's present scale.
 
 Departures: 17 scales, as fDSST (Danelljan et al., PAMI 2017) samples, without its PCA and
 interpolation of the response to 33; the peak is refined by a parabola through its
-neighbours (sub-step).
+neighbours (sub-step). With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
+the response read as a likelihood times a Gaussian prior on the log size (:func:`size_posterior`);
+DSST has no prior on the size.
 """
 
 from __future__ import annotations
