@@ -146,6 +146,10 @@ together (docs/trackers.md):
   the modes collapsed to one probability a frame, one velocity shared), and the filter's rate may
   follow the distance's rise (``rate_adapt``, :mod:`.rates`: the innovation's variance from running
   means, not a window's sample covariance); both lose more fast-motion cases than they get back.
+  user's box says the target exists, and only the judgement of "hidden" waits). With ``scale_prior``
+  the scale filter's pick is the mode of its response read as a likelihood, exp(``kappa`` y), times a
+  Gaussian prior on the log size about the first box's (:mod:`.sizeprior`; DSST has no prior on the
+  size; chamfer's ``scale_prior``).
 * On by default (measured on the stress cases of seeds 1-3, docs/trackers.md): the colour cue fails
   more often on a search candidate (``search_colour_outlier`` 0.1: the colour model is learnt against
   the target's own surroundings, not the places the search looks), and after a re-detection of a
@@ -156,7 +160,7 @@ Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
 :mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
-:mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
+:mod:`.augment` (the first filter's warped copies), :mod:`.sizeprior` (a prior on the size), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
 track), :mod:`.rotation` (the target's roll), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

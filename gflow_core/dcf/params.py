@@ -167,6 +167,9 @@ class DCFParams:
     rate_adapt: float = param(0.0, "the filter's rate rises while the target's distance runs above its mean: "
                                    "max(rate, 1 - (1 - rate) mean / S), S the distance's running mean at this rate "
                                    "(the adaptive Kalman gain of innovation matching; gflow_core.dcf.rates; 0: rate)")
+    scale_prior: float = param(0.0, "std of a Gaussian prior on the box's log size about the first box's: the scale "
+                                    "filter's pick maximises kappa times its response plus the prior's log-density "
+                                    "(gflow_core.dcf.scale.size_posterior; 0: the response's peak alone)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -262,12 +265,18 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
+        self._check_scale_prior()
         if self.detect_peaks < 1 or not 0 <= self.motion_switch < 1 or not 0 <= self.rate_adapt <= 1:
             raise ValueError(f"detect_peaks must be >= 1, motion_switch in [0, 1) and rate_adapt in [0, 1], got "
                              f"{self.detect_peaks}, {self.motion_switch}, {self.rate_adapt}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")
+
+    def _check_scale_prior(self) -> None:
+        """``scale_prior`` (gflow_core.dcf.sizeprior) is a std: finite and >= 0 (0: no prior)."""
+        if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
+            raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
 
     def walk_std(self, box: tuple[float, float, float, float]) -> float:
         """The std (px) of the proposal's random walk of the centre for the initial ``box`` (x, y, w, h):

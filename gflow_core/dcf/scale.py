@@ -9,7 +9,9 @@ peaks at the row of the target's present scale.
 
 Departures: 17 scales, as fDSST (Danelljan et al., PAMI 2017) samples, without its PCA and
 interpolation of the response to 33; the peak is refined by a parabola through its
-neighbours (sub-step).
+neighbours (sub-step). With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
+the response read as a likelihood times a Gaussian prior on the log size (:func:`size_posterior`);
+DSST has no prior on the size.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import numpy as np
 
 from .features import hog, sample
 
-__all__ = ["ScaleFilter", "model_size", "scale_sample", "init_scale", "learn_scale", "detect_scale"]
+__all__ = ["ScaleFilter", "model_size", "scale_sample", "init_scale", "learn_scale", "detect_scale", "size_posterior"]
 
 
 @dataclass(frozen=True)
@@ -90,17 +92,20 @@ def learn_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float], 
 
 
 def detect_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float],
-                 step: float, cell: int, lam: float, refine: bool = False) -> tuple[float, np.ndarray]:
+                 step: float, cell: int, lam: float, refine: bool = False,
+                 prior: tuple[float, float, float] | None = None) -> tuple[float, np.ndarray]:
     """The log-scale change at ``centre`` and the response over the scales (S,).
 
     y = F^-1 { sum_d conj(A_d) Z_d / (B + lambda) } (DSST eq. 6) over the scale index; its peak,
-    refined by a parabola through the neighbours, gives the change n* log a."""
+    refined by a parabola through the neighbours, gives the change n* log a. With ``prior`` =
+    (log s, sigma, kappa) the peak is that of :func:`size_posterior` instead (the held box's log size
+    log s relative to the first box, a Gaussian prior of std sigma on it, the response's sharpness kappa)."""
     n = len(sf.den)
     z = np.fft.fft(scale_sample(grey, centre, size, _factors(n, step), sf.model, cell), axis=0)
     # sum_d conj(A_d) Z_d (einsum: a fixed order of summation)
     s = np.einsum("sd,sd->s", np.conj(sf.num), z)
     y = np.fft.ifft(s / (sf.den + lam)).real
-    i = int(np.argmax(y))
+    i = int(np.argmax(y)) if prior is None else int(np.argmax(size_posterior(y, step, *prior)))
     d = float(i - (n - 1) // 2)
     if refine and 0 < i < n - 1:
         a, b, c = y[i - 1], y[i], y[i + 1]
@@ -109,3 +114,18 @@ def detect_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float],
             # the vertex of the parabola through (i - 1, a), (i, b), (i + 1, c)
             d += float(np.clip(0.5 * (a - c) / den, -0.5, 0.5))
     return d * float(np.log(step)), y
+
+
+def size_posterior(y: np.ndarray, step: float, log_s: float, sigma: float, kappa: float) -> np.ndarray:
+    """(S,) the log-posterior over the scale filter's S scales of a box whose log size relative to the first
+    box is ``log_s``: the response read as a likelihood, p(z | s) ~ exp(kappa y) (as the particles read the
+    translation response), times a Gaussian prior log s ~ N(0, sigma^2) on the size (the first box's).
+
+    log p(n | z) = kappa y_n - (log s + n log a)^2 / (2 sigma^2) + const, n the scale index about the middle.
+    A response that barely prefers a neighbouring size (a flat top) no longer moves the box away from the
+    first size frame after frame; a clear preference still does."""
+    n = len(y)
+    # log s_n = log s + n log a, n = -(S - 1) / 2 ... (S - 1) / 2
+    ls = log_s + (np.arange(n) - (n - 1) // 2) * float(np.log(step))
+    # log p(n | z) = kappa y_n - log s_n^2 / (2 sigma^2)
+    return kappa * np.asarray(y, dtype=np.float64) - 0.5 * ls ** 2 / sigma ** 2

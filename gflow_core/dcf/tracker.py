@@ -42,6 +42,7 @@ from .rates import adapted, filter_rate, recent
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
 from .rotation import angle_change, detect, held
+from . import sizeprior
 from .state import DCFObservation, DCFProposal, DCFState
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
@@ -324,7 +325,8 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
     angle = st.angle if held(st.target, 1.0 - r_est, p, st.angle) or tentative(st.target, p) \
         else angle_change(mdl, obs.image, obs.grey, c, log_s, st.angle, st.geom, p, st.target)
     if confident and mdl.scale is not None:
-        d = tm.scale_change(mdl, obs.grey, c, log_s, st.geom, p)
+        # with scale_prior, the pick under a prior on the size (.sizeprior)
+        d = (sizeprior.scale_change if p.scale_prior > 0 else tm.scale_change)(mdl, obs.grey, c, log_s, st.geom, p)
         log_s = float(np.clip(log_s + d, -p.max_log_scale, p.max_log_scale))
     learnt: dict[str, Any] = {"target": st.target.update(1.0 - r_est, p.target_rate), "angle": angle}
     if p.rate_adapt > 0:
