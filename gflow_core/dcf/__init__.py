@@ -146,7 +146,7 @@ together (docs/trackers.md):
   the modes collapsed to one probability a frame, one velocity shared), and the filter's rate may
   follow the distance's rise (``rate_adapt``, :mod:`.rates`: the innovation's variance from running
   means, not a window's sample covariance); both lose more fast-motion cases than they get back.
-  user's box says the target exists, and only the judgement of "hidden" waits). With ``scale_prior``
+  With ``scale_prior``
   the scale filter's pick is the mode of its response read as a likelihood, exp(``kappa`` y), times a
   Gaussian prior on the log size about the first box's (:mod:`.sizeprior`; DSST has no prior on the
   size; chamfer's ``scale_prior``).

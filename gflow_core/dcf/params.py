@@ -265,16 +265,17 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
-        self._check_scale_prior()
-        if self.detect_peaks < 1 or not 0 <= self.motion_switch < 1 or not 0 <= self.rate_adapt <= 1:
-            raise ValueError(f"detect_peaks must be >= 1, motion_switch in [0, 1) and rate_adapt in [0, 1], got "
-                             f"{self.detect_peaks}, {self.motion_switch}, {self.rate_adapt}")
+        self._check_motion_and_size()
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")
 
-    def _check_scale_prior(self) -> None:
-        """``scale_prior`` (gflow_core.dcf.sizeprior) is a std: finite and >= 0 (0: no prior)."""
+    def _check_motion_and_size(self) -> None:
+        """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1]
+        and ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior)."""
+        if self.detect_peaks < 1 or not 0 <= self.motion_switch < 1 or not 0 <= self.rate_adapt <= 1:
+            raise ValueError(f"detect_peaks must be >= 1, motion_switch in [0, 1) and rate_adapt in [0, 1], got "
+                             f"{self.detect_peaks}, {self.motion_switch}, {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
 
