@@ -160,6 +160,10 @@ class DCFParams:
                                      "judged, on frames its score at the response's peak is unusual (roll_gate): a "
                                      "rolled window that explains the look gives the particles their response "
                                      "(SAMF's joint search over the roll; gflow_core.dcf.rotation.detect)")
+    verify: float = param(0.0, "a re-detection (the search's candidate, a rolled window at detection) is taken only when "
+                               "the first frame's filter scores it within this many standard deviations of its distance "
+                               "at the target on confident frames (TLD's conservative similarity; "
+                               "gflow_core.dcf.verify; 0: not checked)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -255,6 +259,8 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
+        if not (math.isfinite(self.verify) and self.verify >= 0):
+            raise ValueError(f"verify must be finite and >= 0, got {self.verify}")
         if self.detect_peaks < 1:
             raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:

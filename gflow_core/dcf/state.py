@@ -76,6 +76,8 @@ class DCFState:
         ``confirm_flow`` asks for its flow (:mod:`.confirm`), else None.
     angle : radians, the target's roll: the windows of the target are sampled rolled by it (``roll_step``;
         :mod:`.rotation`; 0 without).
+    vtarget, vclutter : distributions of the first frame's filter's distance at the estimate and of its best
+        half a box away on confident frames (``verify``; :mod:`.verify`; empty without).
     """
 
     geom: Geometry
@@ -98,6 +100,8 @@ class DCFState:
     negatives: tuple[Place, ...] = ()
     last_grey: np.ndarray | None = None
     angle: float = 0.0
+    vtarget: ChiSquare = ChiSquare()
+    vclutter: ChiSquare = ChiSquare()
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -168,6 +172,9 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["speed2"] = float(st.speed2)
     if st.angle:
         values["angle"] = float(st.angle)
+    if st.vtarget.n:
+        values["vtarget"] = _chi_values(st.vtarget)
+        values["vclutter"] = _chi_values(st.vclutter)
     if st.negatives:
         arrays["negatives"] = to_array(st.negatives)
     if st.last_grey is not None:
@@ -194,7 +201,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
     det = model.det
     def chi(key: str) -> ChiSquare:
         # a snapshot made before the search's clutter existed has none: an empty distribution
-        v = values[key] if key != "sclutter" else values.get(key, [0.0, 0.0, 0])
+        v = values[key] if key not in ("sclutter", "vtarget", "vclutter") else values.get(key, [0.0, 0.0, 0])
         return ChiSquare(float(v[0]), float(v[1]), int(v[2]))
 
 
@@ -214,6 +221,6 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     hidden_run=int(values["hidden_run"]),
                     back=float(values["back"]), target_state=str(values["target_state"]),
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
-                    angle=float(values.get("angle", 0.0)),
+                    angle=float(values.get("angle", 0.0)), vtarget=chi("vtarget"), vclutter=chi("vclutter"),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)
