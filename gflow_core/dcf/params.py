@@ -197,7 +197,7 @@ class DCFParams:
             raise ValueError(f"kappa must be positive, got {self.kappa}")
         if not 0 <= self.detect_fraction < 1:
             raise ValueError(f"detect_fraction must be in [0, 1), got {self.detect_fraction}")
-        for name in ("detect_std", "std_xy_rel", "speed_noise", "search_growth"):
+        for name in ("detect_std", "std_xy_rel", "speed_noise", "search_growth", "verify"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {v}")
@@ -259,8 +259,6 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
-        if not (math.isfinite(self.verify) and self.verify >= 0):
-            raise ValueError(f"verify must be finite and >= 0, got {self.verify}")
         if self.detect_peaks < 1:
             raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
