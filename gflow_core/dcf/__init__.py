@@ -135,6 +135,11 @@ together (docs/trackers.md):
   then the target's and it cannot be judged hidden (the track confirmation of multi-target trackers,
   SORT's ``min_hits`` and DeepSORT's ``n_init``, which delete a tentative track that misses; here the
   user's box says the target exists, and only the judgement of "hidden" waits).
+  A re-detection -- the search's candidate, a rolled window taken at detection (``roll_detect``) -- may
+  be checked by the first frame's filter before it is taken (``verify``, :mod:`.verify`): TLD's
+  conservative similarity (Kalal et al. 2012, sec. 5), the similarity to the early exemplars only,
+  here the anchor's distance judged by its own learnt target and clutter distributions rather than a
+  fixed threshold on a patch's correlation.
 * On by default (measured on the stress cases of seeds 1-3, docs/trackers.md): the colour cue fails
   more often on a search candidate (``search_colour_outlier`` 0.1: the colour model is learnt against
   the target's own surroundings, not the places the search looks), and after a re-detection of a
@@ -145,7 +150,7 @@ Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
 :mod:`.dynamics` (the proposal's walk), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
-:mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
+:mod:`.verify` (a re-detection checked by the first filter), :mod:`.augment` (the first filter's warped copies), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
 track), :mod:`.rotation` (the target's roll), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

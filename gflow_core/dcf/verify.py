@@ -3,44 +3,45 @@
 Two ways the tracker takes a placement it did not track to: the search for a hidden target
 (:func:`gflow_core.dcf.tracker.step`, over several sizes with ``search_sizes``) and the roll searched
 at detection (``roll_detect``, :func:`.rotation.detect`). Both judge the candidate by the adaptive
-filter, the filter learnt on every confident frame: its score says the placement looks like what the
-filter has lately learnt, and the filter may have learnt the look of a neighbour, of the target at
-another size, or of the occluder as it came in. On the stress cases each option got cases back and
-lost others that way: with ``search_sizes=5`` a placement off the surfer, or the jumper's face at the
-wrong size, was taken back; with ``roll_detect`` a rolled window of the patch covering the target was
-taken on the frame the patch came.
+filter, learnt on every confident frame: its score says the placement looks like what the filter has
+lately learnt, and that may be a neighbour, the target at another size, or the occluder. On the stress
+cases each option got cases back and lost others that way: with ``search_sizes=5`` a placement off the
+surfer, at another size, was taken back; with ``roll_detect`` a rolled window of the patch covering the
+target was taken while the target was judged hidden behind it.
 
-TLD (Kalal, Mikolajczyk & Matas, PAMI 2012, sec. 5.2 and 5.4) keeps two similarities of a patch to the
-object model: the relative one, to every positive exemplar, and the *conservative* one, to the
-earliest half of them only, and it lets the detector re-initialise the tracker -- and a patch teach
-the model -- only on the conservative similarity, because the early exemplars were added before any
-drift could enter the model. Here the conservative model is the first frame's filter, the anchor
-(never updated; :class:`.model.TargetModel`), and its score is the similarity:
+TLD (Kalal, Mikolajczyk & Matas, PAMI 2012, sec. 5: its object model and integrator) keeps two
+similarities of a patch to the object model: the relative one, to every positive exemplar, and the
+*conservative* one, to the earliest half of them only, and it lets the detector re-initialise the
+tracker -- and a patch teach the model -- only on the conservative similarity, because the early
+exemplars were added before any drift could enter the model. Here the conservative model is the first
+frame's filter, the anchor (never updated; :class:`.model.TargetModel`), and its response is the
+similarity:
 
-* on every confident frame (the frames the model learns from) the anchor's distance
-  rho_c = 1 - y_a at the estimate -- y_a the anchor's response to the window there, rolled by the held
-  roll, at its best within ``roll_reach`` cells of the centre (:func:`conservative`) -- is learnt into
-  its own distribution, rho_c ~ sigma^2 chi^2_d by running moments (Toyama & Blake eq. 10,
-  :class:`gflow_core.visibility.ChiSquare`), from the prior of the target's distance;
-  and so, from the same window, is the anchor's clutter: its best distance half a box or more from
-  the centre (TLD's negatives, the patches about the target; :func:`conservative`);
+* on every confident frame (the frames the model learns from) the anchor's response to the window at
+  the estimate, rolled by the held roll (:func:`conservative`), gives two distances, each learnt into
+  its own distribution, rho ~ sigma^2 chi^2_d by running moments (Toyama & Blake eq. 10,
+  :class:`gflow_core.visibility.ChiSquare`), from the priors of the filter's: the target's,
+  rho_c = 1 - y_a at the response's best within ``roll_reach`` cells of the centre, and the clutter's,
+  its best half a box or more away (TLD's negatives, the patches about the target);
 * a candidate the adaptive filter has judged the target -- a search placement at its size, a rolled
   window at its peak -- is taken only when the anchor's distance there is within ``verify`` standard
-  deviations above the target's mean *and* at least as likely under the anchor's target distribution as
-  under its clutter's (:func:`accepted`; both densities one-sided, as the visibility judgement's). The
-  level alone is lax where the anchor has always scored the target poorly: on crossing's ``occlude-25``
-  (seed 3, ``roll_detect``) its distance at the pedestrian was 0.71 +- 0.11, so the rolled window of
-  the patch covering him (0.84) was within two deviations and taken. Refused, the search goes on to its
-  next candidate (or reports the target still hidden), and the roll at detection keeps the held roll.
+  deviations above the target's mean *and* at least as likely under the target's distribution as under
+  the clutter's (:func:`accepted`; both densities one-sided, as the visibility judgement's). The level
+  alone is lax where the anchor has always scored the target poorly: on crossing's ``occlude-25`` (seed
+  3, ``roll_detect``) the anchor's distance at the pedestrian was 0.71 +- 0.11, so the rolled window of
+  the patch covering him (0.84) was within two deviations; the clutter's (0.90 +- 0.06) explains it
+  better. Refused, the search goes on to its next candidate (or reports the target still hidden), and
+  the roll at detection keeps the held roll.
 
 Departures from TLD: TLD's object model is a set of normalised patches compared by normalised
-cross-correlation, its conservative set the first half of the positives added, and its thresholds
-on the similarity fixed (0.5-0.7); here the conservative model is the first frame's filter alone,
-its score a correlation filter's response, and the threshold a level of the distribution that
-filter's score has at the target on confident frames, so a target that the anchor has always
-scored poorly (a changing look) is not refused more often than a steady one. TLD also decides
-between the tracker and the detector by the conservative similarity; here only candidates the
-tracker did not track to are checked: the tracked estimate is judged as before.
+cross-correlation, its conservative set the first half of the positives added, and its decision a fixed
+threshold on a similarity; here the conservative model is the first frame's filter alone, its score a
+correlation filter's response, and the decision a level of that score's learnt distribution at the
+target and a likelihood ratio against its clutter's, so a target that the anchor has always scored
+poorly (a changing look) is not refused more often than a steady one. TLD's relative similarity weighs
+the negatives patch by patch; here the clutter is one distribution of the anchor's best score about the
+target. TLD also picks between the tracker and the detector by the conservative similarity; here only
+the candidates the tracker did not track to are checked, and the tracked estimate is judged as before.
 """
 
 from __future__ import annotations
