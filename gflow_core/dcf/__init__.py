@@ -135,8 +135,9 @@ together (docs/trackers.md):
   then the target's and it cannot be judged hidden (the track confirmation of multi-target trackers,
   SORT's ``min_hits`` and DeepSORT's ``n_init``, which delete a tentative track that misses; here the
   user's box says the target exists, and only the judgement of "hidden" waits).
-  A re-detection -- the search's candidate, a rolled window taken at detection (``roll_detect``) -- may
-  be checked by the first frame's filter before it is taken (``verify``, :mod:`.verify`): TLD's
+  A re-detection the options add -- the search's placement at another size (``search_sizes``), a rolled
+  window taken at detection (``roll_detect``) -- may be checked by the first frame's filter before it
+  is taken (``verify``, :mod:`.verify`): TLD's
   conservative similarity (Kalal et al. 2012, sec. 5), the similarity to the early exemplars only,
   here the anchor's distance judged by its own learnt target and clutter distributions rather than a
   fixed threshold on a patch's correlation.

@@ -160,10 +160,10 @@ class DCFParams:
                                      "judged, on frames its score at the response's peak is unusual (roll_gate): a "
                                      "rolled window that explains the look gives the particles their response "
                                      "(SAMF's joint search over the roll; gflow_core.dcf.rotation.detect)")
-    verify: float = param(0.0, "a re-detection (the search's candidate, a rolled window at detection) is taken only when "
-                               "the first frame's filter scores it within this many standard deviations of its distance "
-                               "at the target on confident frames (TLD's conservative similarity; "
-                               "gflow_core.dcf.verify; 0: not checked)")
+    verify: float = param(0.0, "a re-detection the search found at another size, or a rolled window at detection, is taken "
+                               "only when the first frame's filter scores it within this many standard deviations of its "
+                               "distance at the target on confident frames and likelier the target than clutter (TLD's "
+                               "conservative similarity; gflow_core.dcf.verify; 0: not checked)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

@@ -239,8 +239,9 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                 visible = visibility(1.0 - cand.r, ds.target, ds.clutter, p.min_std,
                                      prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
                                      log_place=place, cues=ccue).visible
-            if visible >= 0.5 and not _verified(st, obs, cand.centre, st.log_s + cand.log_f, st.angle, p):
-                continue
+            if visible >= 0.5 and cand.log_f != 0.0 and not _verified(st, obs, cand.centre, st.log_s + cand.log_f,
+                                                                      st.angle, p):
+                continue  # with verify, a placement at another size is taken only if the first filter agrees
             if visible >= 0.5 and p.search_peaks == 1:
                 return Search(cand, visible, covers, rhos[0], rhos[1])
             if visible >= 0.5 and (best is None or visible > best.confidence):

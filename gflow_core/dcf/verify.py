@@ -23,8 +23,8 @@ similarity:
   :class:`gflow_core.visibility.ChiSquare`), from the priors of the filter's: the target's,
   rho_c = 1 - y_a at the response's best within ``roll_reach`` cells of the centre, and the clutter's,
   its best half a box or more away (TLD's negatives, the patches about the target);
-* a candidate the adaptive filter has judged the target -- a search placement at its size, a rolled
-  window at its peak -- is taken only when the anchor's distance there is within ``verify`` standard
+* a candidate the adaptive filter has judged the target -- a search placement at another size than the
+  held one (``search_sizes``), a rolled window at its peak (``roll_detect``) -- is taken only when the anchor's distance there is within ``verify`` standard
   deviations above the target's mean *and* at least as likely under the target's distribution as under
   the clutter's (:func:`accepted`; both densities one-sided, as the visibility judgement's). The level
   alone is lax where the anchor has always scored the target poorly: on crossing's ``occlude-25`` (seed
@@ -41,7 +41,12 @@ target and a likelihood ratio against its clutter's, so a target that the anchor
 poorly (a changing look) is not refused more often than a steady one. TLD's relative similarity weighs
 the negatives patch by patch; here the clutter is one distribution of the anchor's best score about the
 target. TLD also picks between the tracker and the detector by the conservative similarity; here only
-the candidates the tracker did not track to are checked, and the tracked estimate is judged as before.
+what the two options add is checked, and the tracked estimate and the search's placements at the held
+size are judged as before: the first filter refuses a target come back looking otherwise as readily as
+an impostor. On surfer's ``occlude-25`` (seed 1, ``search_sizes=5``) the surfer back at the held size
+scored 0.69 under the anchor, refused at two deviations (0.48 +- 0.08), and the case was lost -- as
+high as the placement off the surfer, at another size, that the check refused on its ``occlude-60``
+(0.68-0.69).
 """
 
 from __future__ import annotations
