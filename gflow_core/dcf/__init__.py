@@ -150,6 +150,12 @@ together (docs/trackers.md):
   the scale filter's pick is the mode of its response read as a likelihood, exp(``kappa`` y), times a
   Gaussian prior on the log size about the first box's (:mod:`.sizeprior`; DSST has no prior on the
   size; chamfer's ``scale_prior``).
+  A re-detection the options add -- the search's placement at another size (``search_sizes``), a rolled
+  window taken at detection (``roll_detect``) -- may be checked by the first frame's filter before it
+  is taken (``verify``, :mod:`.verify`): TLD's
+  conservative similarity (Kalal et al. 2012, sec. 5), the similarity to the early exemplars only,
+  here the anchor's distance judged by its own learnt target and clutter distributions rather than a
+  fixed threshold on a patch's correlation.
 * On by default (measured on the stress cases of seeds 1-3, docs/trackers.md): the colour cue fails
   more often on a search candidate (``search_colour_outlier`` 0.1: the colour model is learnt against
   the target's own surroundings, not the places the search looks), and after a re-detection of a
@@ -160,7 +166,7 @@ Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
 :mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
-:mod:`.augment` (the first filter's warped copies), :mod:`.sizeprior` (a prior on the size), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
+:mod:`.verify` (a re-detection checked by the first filter), :mod:`.augment` (the first filter's warped copies), :mod:`.sizeprior` (a prior on the size), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
 track), :mod:`.rotation` (the target's roll), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

@@ -170,6 +170,10 @@ class DCFParams:
     scale_prior: float = param(0.0, "std of a Gaussian prior on the box's log size about the first box's: the scale "
                                     "filter's pick maximises kappa times its response plus the prior's log-density "
                                     "(gflow_core.dcf.scale.size_posterior; 0: the response's peak alone)")
+    verify: float = param(0.0, "a re-detection the search found at another size, or a rolled window at detection, is taken "
+                               "only when the first frame's filter scores it within this many standard deviations of its "
+                               "distance at the target on confident frames and likelier the target than clutter (TLD's "
+                               "conservative similarity; gflow_core.dcf.verify; 0: not checked)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -203,7 +207,7 @@ class DCFParams:
             raise ValueError(f"kappa must be positive, got {self.kappa}")
         if not 0 <= self.detect_fraction < 1:
             raise ValueError(f"detect_fraction must be in [0, 1), got {self.detect_fraction}")
-        for name in ("detect_std", "std_xy_rel", "speed_noise", "search_growth"):
+        for name in ("detect_std", "std_xy_rel", "speed_noise", "search_growth", "verify"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {v}")

@@ -194,7 +194,7 @@ def _filter_peak(resp: Response) -> float:
 
 
 def detect(resp: Response, respond: Callable[[float], Response], theta: float, target: ChiSquare,
-           p: DCFParams) -> tuple[Response, float]:
+           p: DCFParams, verify: Callable[[Response, float], bool] | None = None) -> tuple[Response, float]:
     """With ``roll_detect``, the roll searched when the target is detected, before the particles are weighed
     and its presence judged (SAMF's joint search of place and scale, Li & Zhu 2014, over the roll): when
     the filter's score at the peak of ``resp`` (the response of the window rolled by the held ``theta``)
@@ -202,7 +202,9 @@ def detect(resp: Response, respond: Callable[[float], Response], theta: float, t
     windows rolled ``roll_step`` either way (``respond(angle)``) are read too, and the best of those whose
     score at their own peak explains the look (within ``roll_explain`` standard deviations; any without
     ``roll_explain``) and beats the held one by more than ``roll_margin`` (each lowered by the prior
-    ``roll_prior`` a^2) is taken: (its response, its angle). Otherwise (``resp``, ``theta``)."""
+    ``roll_prior`` a^2) is taken: (its response, its angle). Otherwise (``resp``, ``theta``). With ``verify``
+    (``verify(response, angle)``, :mod:`.verify`), a rolled window that would be taken must also pass it:
+    refused, the next best is tried."""
     if p.roll_step <= 0 or not p.roll_detect:
         return resp, theta
     held_score = _filter_peak(resp)
@@ -220,6 +222,6 @@ def detect(resp: Response, respond: Callable[[float], Response], theta: float, t
             if p.roll_explain > 0 and not within(target, 1.0 - sc, p.roll_explain, p.min_std):
                 continue
             # the roll's prior: score(a) - roll_prior a^2
-            if sc - p.roll_prior * a ** 2 > best:
+            if sc - p.roll_prior * a ** 2 > best and (verify is None or verify(r, a)):
                 best, best_resp, best_angle = sc - p.roll_prior * a ** 2, r, a
     return best_resp, best_angle

@@ -80,6 +80,8 @@ class DCFState:
         (``motion_switch``; :mod:`.modes`; 0 without).
     recent : the short-run mean of the target's distance on the frames it was present (``rate_adapt``;
         :mod:`.rates`; 0 without).
+    vtarget, vclutter : distributions of the first frame's filter's distance at the estimate and of its best
+        half a box away on confident frames (``verify``; :mod:`.verify`; empty without).
     """
 
     geom: Geometry
@@ -104,6 +106,8 @@ class DCFState:
     angle: float = 0.0
     manoeuvre: float = 0.0
     recent: float = 0.0
+    vtarget: ChiSquare = ChiSquare()
+    vclutter: ChiSquare = ChiSquare()
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -178,6 +182,9 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["manoeuvre"] = float(st.manoeuvre)
     if st.recent:
         values["recent"] = float(st.recent)
+    if st.vtarget.n:
+        values["vtarget"] = _chi_values(st.vtarget)
+        values["vclutter"] = _chi_values(st.vclutter)
     if st.negatives:
         arrays["negatives"] = to_array(st.negatives)
     if st.last_grey is not None:
@@ -204,7 +211,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
     det = model.det
     def chi(key: str) -> ChiSquare:
         # a snapshot made before the search's clutter existed has none: an empty distribution
-        v = values[key] if key != "sclutter" else values.get(key, [0.0, 0.0, 0])
+        v = values[key] if key not in ("sclutter", "vtarget", "vclutter") else values.get(key, [0.0, 0.0, 0])
         return ChiSquare(float(v[0]), float(v[1]), int(v[2]))
 
 
@@ -226,5 +233,6 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
                     angle=float(values.get("angle", 0.0)), manoeuvre=float(values.get("manoeuvre", 0.0)),
                     recent=float(values.get("recent", 0.0)),
+                    vtarget=chi("vtarget"), vclutter=chi("vclutter"),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)

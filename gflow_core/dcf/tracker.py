@@ -44,6 +44,7 @@ from .reacquire import log_truncation, search_peaks
 from .rotation import angle_change, detect, held
 from . import sizeprior
 from .state import DCFObservation, DCFProposal, DCFState
+from .verify import accepted, conservative, learn_conservative
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
 
@@ -273,6 +274,9 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                 visible = visibility(1.0 - cand.r, ds.target, ds.clutter, p.min_std,
                                      prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
                                      log_place=place, cues=ccue).visible
+            if visible >= 0.5 and cand.log_f != 0.0 and not _verified(st, obs, cand.centre, st.log_s + cand.log_f,
+                                                                      st.angle, p):
+                continue  # with verify, a placement at another size is taken only if the first filter agrees
             if visible >= 0.5 and p.search_peaks == 1:
                 return Search(cand, visible, covers, rhos[0], rhos[1])
             if visible >= 0.5 and (best is None or visible > best.confidence):
@@ -338,6 +342,10 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
         learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p,
                                    adapted(p, filter_rate(p, st.target.n - p.prior_count), st.target,
                                            learnt.get("recent", 0.0)), angle=angle)
+        if p.verify > 0:
+            # with verify, the anchor's distances at the target and about it on confident frames (.verify)
+            learnt["vtarget"], learnt["vclutter"] = learn_conservative(*_conservative_of(st, p), conservative(
+                mdl, obs.image, obs.grey, c, log_s, angle, st.geom, p), p)
     return log_s, learnt
 
 
@@ -431,8 +439,27 @@ def _respond(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, 
     resp = respond(st.angle)
     if not p.roll_detect or tentative(st.target, p):
         return resp, st
-    resp, angle = detect(resp, respond, st.angle, st.target, p)
+    resp, angle = detect(resp, respond, st.angle, st.target, p,
+                         None if p.verify <= 0 else lambda r, a: _verified(st, obs, r.peak()[0], st.log_s, a, p))
     return resp, replace(st, angle=angle)
+
+
+def _conservative_of(st: DCFState, p: DCFParams) -> tuple[ChiSquare, ChiSquare]:
+    """The anchor's distance distributions on confident frames, the target's and the clutter's (``verify``;
+    :mod:`.verify`); the priors of the filter's before any frame (or in a state from before the option)."""
+    if not st.vtarget.n:
+        return _prior(p.prior_target, p.prior_count), _prior(p.prior_clutter, p.prior_count)
+    return st.vtarget, st.vclutter
+
+
+def _verified(st: DCFState, obs: DCFObservation, centre: np.ndarray, log_s: float, angle: float, p: DCFParams) -> bool:
+    """With ``verify``, whether a re-detection at ``centre`` (x, y), log scale ``log_s``, roll ``angle`` is the
+    target by the first frame's filter (:func:`.verify.accepted`); always without."""
+    if p.verify <= 0:
+        return True
+    ls = float(np.clip(log_s, -p.max_log_scale, p.max_log_scale))
+    rho_c, _ = conservative(st.model, obs.image, obs.grey, (float(centre[0]), float(centre[1])), ls, angle, st.geom, p)
+    return accepted(*_conservative_of(st, p), rho_c, p)
 
 
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
