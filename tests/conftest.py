@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,13 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
+
+# The tests press Ctrl-C (SIGINT) on the processes they start, as a user at a terminal does. A suite
+# started as a background job of a non-interactive shell (`nohup ... &`, some CI runners) inherits
+# SIGINT ignored, and every process it starts would inherit that too and never see the Ctrl-C; so the
+# suite takes SIGINT back as an interactive Python process has it (its children then start with it).
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 DATA = Path(os.environ.get("GFLOW_DATA", ROOT.parent / "shared" / "data"))
 JS = ROOT / "tests" / "js"
 
