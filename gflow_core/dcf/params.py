@@ -277,9 +277,12 @@ class DCFParams:
     def _check_motion_and_size(self) -> None:
         """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1]
         and ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior)."""
-        if self.detect_peaks < 1 or not 0 <= self.motion_switch < 1 or not 0 <= self.rate_adapt <= 1:
-            raise ValueError(f"detect_peaks must be >= 1, motion_switch in [0, 1) and rate_adapt in [0, 1], got "
-                             f"{self.detect_peaks}, {self.motion_switch}, {self.rate_adapt}")
+        if self.detect_peaks < 1:
+            raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
+        if not 0 <= self.motion_switch < 1:
+            raise ValueError(f"motion_switch must be in [0, 1), got {self.motion_switch}")
+        if not 0 <= self.rate_adapt <= 1:
+            raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
 

@@ -115,5 +115,5 @@ def test_with_modes_a_step_is_the_same_bits_for_a_seed_and_after_a_snapshot() ->
 
 @pytest.mark.parametrize("v", [-0.1, 1.0, float("nan")])
 def test_bad_values_are_refused(v) -> None:
-    with pytest.raises(ValueError, match="motion_switch in \\[0, 1\\)"):
+    with pytest.raises(ValueError, match="motion_switch must be in \\[0, 1\\)"):
         DCFParams(motion_switch=v)

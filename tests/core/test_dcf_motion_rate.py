@@ -78,5 +78,5 @@ def test_with_the_adaptive_rate_the_state_goes_into_arrays_and_comes_back_bit_fo
 
 @pytest.mark.parametrize("v", [-0.1, 1.5, float("nan")])
 def test_bad_values_are_refused(v) -> None:
-    with pytest.raises(ValueError, match="rate_adapt in \\[0, 1\\]"):
+    with pytest.raises(ValueError, match="rate_adapt must be in \\[0, 1\\]"):
         DCFParams(rate_adapt=v)
