@@ -1,0 +1,133 @@
+"""Answers a user can trust, from the command line as a user types it: Ctrl-C stops every
+long-running command however it was started, and no command writes over an output file that is
+already there.
+
+A background job of a non-interactive shell (``nohup gflow replay ... &``) inherits SIGINT ignored:
+each test here starts the command that way, waits until it is at work (the line it prints then),
+sends SIGINT and waits for it to end by itself. The refusals run in this process (``main([...])``).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.cli.main import main
+from pipeline.runtime.transport import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> Path:
+    """A folder with frames/ (six 64x48 textured frames), gt.csv (a box per frame) and demo.mcap
+    (10 frames of the synthetic scene, inline)."""
+    d = tmp_path_factory.mktemp("cli-trust")
+    rng = np.random.default_rng(0)
+    (d / "frames").mkdir()
+    for i in range(6):
+        cv2.imwrite(str(d / "frames" / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    (d / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    assert main(["demo", "--frames", "10", "--inline", "--record", str(d / "demo.mcap")]) == 0
+    return d
+
+
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as `nohup CMD &` in a non-interactive shell
+
+
+class _Started:
+    """``gflow ARGS`` started (with SIGINT ignored, by default); its output (stdout and stderr) read on a thread, line by line."""
+
+    def __init__(self, args: list[str], cwd: Path, ignore_sigint: bool = True) -> None:
+        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        self.p = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], cwd=cwd, env=env, text=True,
+                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  preexec_fn=_ignore_sigint if ignore_sigint else None)
+        self.lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.err: list[str] = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        for line in self.p.stdout:
+            self.err.append(line)
+            self.lines.put(line)
+
+    def wait_for(self, marker: str, timeout: float = 60) -> None:
+        """Until a line of its output holds ``marker`` (the command is at work)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            try:
+                if marker in self.lines.get(timeout=0.2):
+                    return
+            except queue.Empty:
+                assert self.p.poll() is None, f"ended before {marker!r}: {''.join(self.err)}"
+        pytest.fail(f"no {marker!r} in {timeout} s: {''.join(self.err)}")
+
+    def stop(self) -> None:
+        if self.p.poll() is None:
+            self.p.kill()
+            self.p.wait()
+
+
+@pytest.fixture
+def replaying(files: Path):
+    """A recording replayed until stopped (SIGINT as usual): a live stream for echo, hz and view."""
+    r = _Started(["replay", str(files / "demo.mcap"), "--loop", "0", "--stream", f"live{os.getpid()}"], files,
+                 ignore_sigint=False)
+    r.wait_for("replaying")
+    yield f"live{os.getpid()}"
+    r.p.send_signal(signal.SIGINT)
+    try:
+        r.p.wait(30)
+    finally:
+        r.stop()
+
+
+def _stops_on_sigint(args: list[str], marker: str, cwd: Path) -> tuple[int, str]:
+    c = _Started(args, cwd)
+    try:
+        c.wait_for(marker)
+        c.p.send_signal(signal.SIGINT)
+        try:
+            rc = c.p.wait(30)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"gflow {args[0]} started with SIGINT ignored did not stop on SIGINT in 30 s")
+        c.reader.join(10)  # the last lines, up to the end of the output
+        return rc, "".join(c.err)
+    finally:
+        c.stop()
+
+
+def test_replay_started_with_sigint_ignored_stops_on_it(files: Path) -> None:
+    rc, err = _stops_on_sigint(["replay", str(files / "demo.mcap"), "--loop", "0"], "replaying", files)
+    assert rc in (0, 130) and "Traceback" not in err, err
+
+
+def test_step_started_with_sigint_ignored_stops_on_it(files: Path) -> None:
+    rc, err = _stops_on_sigint(["step", str(files / "demo.mcap"), "--stage", "filter"], "stepping filter", files)
+    assert rc == 130 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("tool,marker", [("echo", "pipeline"), ("hz", "pipeline")])
+def test_live_tools_started_with_sigint_ignored_stop_on_it(files: Path, replaying: str, tool: str,
+                                                           marker: str) -> None:
+    rc, err = _stops_on_sigint([tool, f"{replaying}/frames"], marker, files)
+    assert rc in (0, 130) and "Traceback" not in err, err
+
+
+def test_view_started_with_sigint_ignored_stops_on_it(files: Path, replaying: str) -> None:
+    pytest.importorskip("foxglove")
+    rc, err = _stops_on_sigint(["view", "--stream", replaying, "--port", str(free_port())], "Foxglove: open", files)
+    assert rc in (0, 130) and "forwarded" in err and "Traceback" not in err, err
