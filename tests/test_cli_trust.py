@@ -131,3 +131,59 @@ def test_view_started_with_sigint_ignored_stops_on_it(files: Path, replaying: st
     pytest.importorskip("foxglove")
     rc, err = _stops_on_sigint(["view", "--stream", replaying, "--port", str(free_port())], "Foxglove: open", files)
     assert rc in (0, 130) and "forwarded" in err and "Traceback" not in err, err
+
+
+def _cli(args: list[str], capsys) -> tuple[int, str]:
+    """``gflow ARGS`` run here: its exit status and what it wrote on stderr."""
+    capsys.readouterr()
+    try:
+        rc = main(args)
+    except SystemExit as e:  # argparse's refusals exit
+        rc = int(e.code or 0)
+    return rc, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv,kept", [
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "old.csv", "--inline", "--no-record", "-q"],
+     "old.csv"),
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "b.csv", "--points-out", "old.csv",
+      "--tracker", "gflow", "--inline", "--no-record", "-q"], "old.csv"),
+    (["boxes", "{d}/demo.mcap", "--out", "old.csv"], "old.csv"),
+    (["learn", "m2", "{d}/frames", "--boxes", "{d}/gt.csv", "-K", "2", "--out", "old.npz", "-q"], "old.npz"),
+    (["learn", "gflow", "{d}/nothing.npz", "--out", "old.npz", "-q"], "old.npz"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--plot", "old.png"],
+     "old.png"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--precision-plot",
+      "old.png"], "old.png"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--out-dir", "od"],
+     "od/seqA/dcf.csv"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--out-dir", "od"],
+     "od/seqA/static_box.csv"),
+])
+def test_no_command_writes_over_an_earlier_output(files: Path, tmp_path: Path, monkeypatch, capsys,
+                                                   argv: list[str], kept: str) -> None:
+    """Boxes, face points, a model or a plot already there were replaced without a word (a recording,
+    picture or video already was refused); the earlier file is kept, and nothing is run."""
+    seq = files / "data" / "seqA"
+    if not seq.exists():  # a sequence folder for gflow benchmark
+        (seq / "frames").mkdir(parents=True)
+        for p in (files / "frames").iterdir():
+            (seq / "frames" / p.name).write_bytes(p.read_bytes())
+        (seq / "groundtruth.csv").write_bytes((files / "gt.csv").read_bytes())
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / kept).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / kept).write_text("an earlier answer\n")
+    rc, err = _cli([a.replace("{d}", str(files)) for a in argv], capsys)
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("benchmark: skipped")]
+    assert rc == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert kept in lines[0] and "exists" in lines[0] and ("never writes over" in lines[0]
+                                                         or "never overwritten" in lines[0]), lines[0]
+    assert (tmp_path / kept).read_text() == "an earlier answer\n"
+    assert sorted(p.name for p in (tmp_path / kept).parent.iterdir()) == [Path(kept).name], "nothing written"
+
+
+def test_a_new_output_is_still_written(files: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    rc, err = _cli(["boxes", str(files / "demo.mcap"), "--out", "new.csv"], capsys)
+    assert rc == 0 and (tmp_path / "new.csv").read_text().startswith("frame,x,y,w,h"), err
+

@@ -10,11 +10,11 @@ from pipeline.io.mcap_io import iter_records, segments
 from pipeline.recording.live_record import live_summary
 from pipeline.recording.results import (blank_rule, completeness, estimate_columns, renumber, reported_frames,
                                        run_estimates, write_boxes)
-from pipeline.cli.commands.common import CliError, check_outputs
+from pipeline.cli.commands.common import CliError, check_new_file
 
 
 def cmd_boxes(args) -> int:
-    check_outputs(out=args.out)  # before reading: a folder, or a recording it would write over
+    check_new_file(out=args.out)  # before reading: a folder, or a file it would write over
     torn: list[str] = []
     list(iter_records(args.recording, topics=["-"], on_truncated=torn.append))  # checks the file; notes a torn end
     est, sessions = run_estimates(args.recording, stream=args.stream)  # the run's own: what came from outside is said

@@ -27,8 +27,8 @@ from gflow_core.builtin_trackers import BUILTIN
 
 from pipeline.cli.trackers import TRACKERS, OptionClash
 from pipeline.runtime.trace import mark
-from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          launcher_zenoh, nonnegative_int, parse_box)
+from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_new_file,
+                                          check_outputs, launcher_zenoh, nonnegative_int, parse_box)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -155,6 +155,7 @@ def track_plan(args) -> TrackPlan:
     check_tracker_options(args)
     check_outputs(out=args.out, record=args.record, points_out=getattr(args, "points_out", None))
     check_points_out(args)
+    check_new_file(out=args.out, points_out=getattr(args, "points_out", None))  # an earlier run's boxes
     return _planned(track_request(args))
 
 
