@@ -187,3 +187,13 @@ def test_a_new_output_is_still_written(files: Path, tmp_path: Path, monkeypatch,
     rc, err = _cli(["boxes", str(files / "demo.mcap"), "--out", "new.csv"], capsys)
     assert rc == 0 and (tmp_path / "new.csv").read_text().startswith("frame,x,y,w,h"), err
 
+
+@pytest.mark.parametrize("argv", [["echo", "{s}/estimat", "--timeout", "1"],
+                                  ["hz", "{s}/estimat", "--duration", "1", "--wait", "1"]])
+def test_a_live_topic_that_nothing_publishes_is_named_with_what_does(replaying: str, capsys, argv: list[str]) -> None:
+    """A mistyped topic waited in silence and then said only that nothing came."""
+    rc, err = _cli([a.replace("{s}", replaying) for a in argv], capsys)
+    last = err.strip().splitlines()[-1]
+    assert rc == 1 and f"gflow/{replaying}/estimat" in last, err
+    assert f"gflow/{replaying}/ has:" in last and "estimate" in last.split("has:")[1] and "_status" not in last, last
+
