@@ -197,3 +197,14 @@ def test_a_live_topic_that_nothing_publishes_is_named_with_what_does(replaying: 
     assert rc == 1 and f"gflow/{replaying}/estimat" in last, err
     assert f"gflow/{replaying}/ has:" in last and "estimate" in last.split("has:")[1] and "_status" not in last, last
 
+
+@pytest.mark.parametrize("flag", ["--pred", "--gt"])
+def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: Path, capsys, flag: str) -> None:
+    """The later row replaced the earlier one without a word and was scored."""
+    twice = tmp_path / "twice.csv"
+    twice.write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n0,40,40,20,20\n")
+    other = {"--pred": "--gt", "--gt": "--pred"}[flag]
+    rc, err = _cli(["eval", flag, str(twice), other, str(files / "gt.csv")], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
