@@ -208,3 +208,21 @@ def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: P
     lines = err.strip().splitlines()
     assert rc == 2 and len(lines) == 1, err
     assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("extra,words", [
+    (["--start", "4", "--stop", "2"], ["--start 4 --stop 2", "no frame to track"]),
+    (["--stop", "0"], ["--stop", ">= 1"]),
+    (["--start=-1"], ["--start", ">= 0"]),
+    (["--fps", "0"], ["--fps", "> 0"]),
+])
+def test_a_frame_range_or_rate_out_of_range_names_the_option(files: Path, tmp_path: Path, capsys, extra: list[str],
+                                                             words: list[str]) -> None:
+    """These were refused naming the built-in graph file and its source stage, not the option typed."""
+    rc, err = _cli(["track", str(files / "frames"), "--init", "10,10,20,20", "--out", str(tmp_path / "b.csv"),
+                    "--inline", "--no-record", "-q", *extra], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and ".yaml" not in lines[0], err
+    assert all(w in lines[0] for w in words), lines[0]
+    assert not (tmp_path / "b.csv").exists()
+
