@@ -226,3 +226,12 @@ def test_a_frame_range_or_rate_out_of_range_names_the_option(files: Path, tmp_pa
     assert all(w in lines[0] for w in words), lines[0]
     assert not (tmp_path / "b.csv").exists()
 
+
+def test_a_frame_past_the_end_of_a_torn_recording_says_it_is_torn(files: Path, tmp_path: Path, capsys) -> None:
+    """It said only that there is no such frame, as of a recording that ended there."""
+    torn = tmp_path / "torn.mcap"
+    data = (files / "demo.mcap").read_bytes()
+    torn.write_bytes(data[: len(data) // 2])
+    rc, err = _cli(["frame", str(torn), "9", str(tmp_path / "f.png")], capsys)
+    assert rc == 2 and "no frame at or after frame 9" in err and "Traceback" not in err, err
+    assert f"{torn} was not closed properly" in err, err
