@@ -235,3 +235,18 @@ def test_a_frame_past_the_end_of_a_torn_recording_says_it_is_torn(files: Path, t
     rc, err = _cli(["frame", str(torn), "9", str(tmp_path / "f.png")], capsys)
     assert rc == 2 and "no frame at or after frame 9" in err and "Traceback" not in err, err
     assert f"{torn} was not closed properly" in err, err
+
+
+@pytest.mark.parametrize("argv", [["ps", "--stream", "nosuch"], ["topics", "--stream", "nosuch", "--duration", "0.5"],
+                                  ["echo", "nosuch/estimate", "--timeout", "0.5"],
+                                  ["view", "--stream", "nosuch", "--duration", "0.5"]])
+def test_a_stream_that_is_not_running_is_named_with_those_that_are(replaying: str, capsys, argv: list[str]) -> None:
+    """A mistyped stream was said to run nowhere 'on this machine', as if nothing ran at all."""
+    capsys.readouterr()
+    try:
+        rc = main(argv)
+    except SystemExit as e:
+        rc = int(e.code or 0)
+    out = capsys.readouterr()
+    last = (out.out + out.err).strip().splitlines()[-1]
+    assert rc != 0 and "nosuch" in last and "running: " in last and replaying in last.split("running: ")[1], last
