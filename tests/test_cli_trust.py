@@ -250,3 +250,10 @@ def test_a_stream_that_is_not_running_is_named_with_those_that_are(replaying: st
     out = capsys.readouterr()
     last = (out.out + out.err).strip().splitlines()[-1]
     assert rc != 0 and "nosuch" in last and "running: " in last and replaying in last.split("running: ")[1], last
+
+
+def test_boxes_of_a_stream_the_recording_lacks_names_the_one_it_has(files: Path, tmp_path: Path, capsys) -> None:
+    rc, err = _cli(["boxes", str(files / "demo.mcap"), "--out", str(tmp_path / "b.csv"), "--stream", "cam9"], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and "'cam9'" in lines[0], err
+    assert lines[0].endswith("it holds estimates of stream demo"), lines[0]
