@@ -257,3 +257,26 @@ def test_boxes_of_a_stream_the_recording_lacks_names_the_one_it_has(files: Path,
     lines = err.strip().splitlines()
     assert rc == 2 and len(lines) == 1 and "'cam9'" in lines[0], err
     assert lines[0].endswith("it holds estimates of stream demo"), lines[0]
+
+
+def test_an_inline_track_stopped_by_ctrl_c_keeps_its_boxes(tmp_path: Path) -> None:
+    """As a multi-process run: the boxes of the frames tracked are written, and the recording is
+    closed. Inline, the run ended in 'interrupted' with no boxes at all."""
+    rng = np.random.default_rng(1)
+    (tmp_path / "frames").mkdir()
+    for i in range(200):
+        cv2.imwrite(str(tmp_path / "frames" / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    c = _Started(["track", "frames", "--init", "10,10,20,20", "--inline", "--realtime", "--fps", "20", "--out", "b.csv",
+                  "--record", "r.mcap"], tmp_path, ignore_sigint=False)
+    try:
+        c.wait_for("/200 frames")  # the progress line: frames are being tracked
+        c.p.send_signal(signal.SIGINT)
+        rc = c.p.wait(60)
+        c.reader.join(10)
+    finally:
+        c.stop()
+    out = "".join(c.err)
+    assert rc == 130 and "interrupted: stages closed, recording closed" in out and "Traceback" not in out, out
+    rows = (tmp_path / "b.csv").read_text().splitlines()
+    assert rows[0].startswith("frame,x,y,w,h") and 2 <= len(rows) < 201, out
+    assert main(["verify", str(tmp_path / "r.mcap")]) == 0
