@@ -48,8 +48,9 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
                metadata: dict[str, dict[str, str]] | None = None,
                tap: Callable[[str, bytes, int, str], None] | None = None,
                stop: threading.Event | None = None) -> InlineResult:
-    """Run ``plan`` to the end of its source (or until ``stop`` is set: the source ends there, and
-    every stage closes as at its end). Returns counts, wall time and the recording path.
+    """Run ``plan`` to the end of its source (or until ``stop`` is set, or Ctrl-C: the source ends
+    there, and every stage closes as at its end; ``interrupted`` says it was Ctrl-C). Returns
+    counts, wall time and the recording path.
 
     ``tap(topic, payload, seq, type name)`` sees every message of the run, in the order it is
     delivered (an estimate sink: :class:`pipeline.app.EstimateSink`)."""
