@@ -89,7 +89,10 @@ def _run_inline(plan: Plan, recording: str | None, total: int | None, quiet: boo
         if last[1]:
             console.end()
     bad = {n: e for n, e in r.errors.items() if e}
-    return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad}
+    if r.interrupted:  # as a multi-process run's Ctrl-C: what was tracked is kept
+        print("interrupted: stages closed, recording closed", file=sys.stderr)
+    return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad,
+                                              "interrupted": r.interrupted}
 
 
 def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], listen_given: bool,

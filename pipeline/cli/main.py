@@ -82,10 +82,24 @@ def build_parser() -> argparse.ArgumentParser:
     return ap
 
 
+def _take_sigint_back() -> None:
+    """Ctrl-C (SIGINT) stops every command, however it was started. A background job of a
+    non-interactive shell (``nohup gflow replay ... &``) inherits SIGINT ignored; the launcher and
+    ``gflow router`` take it regardless (:class:`pipeline.runtime.signals.StopSignals`), and so
+    the tools that stop on ``KeyboardInterrupt`` (replay, echo, hz, view, step, benchmark...) get
+    Python's own handler back. SIGHUP, which ``nohup`` ignores on purpose, is left as it is."""
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     mark("cli parsed")
+    _take_sigint_back()
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
                         format="%(levelname)s %(name)s: %(message)s")
     if args.command is None:

@@ -38,13 +38,24 @@ def _box_row(p: Path, lineno: int, row: list[str]) -> tuple[int, Box]:
     return frame, box
 
 
+def _box_rows(p: Path):
+    """(line number, row, frame, box) of every row of a boxes CSV; a frame given twice is an error
+    naming both lines (the later row replaced the earlier one without a word, and was scored)."""
+    first: dict[int, int] = {}
+    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
+        frame, box = _box_row(p, lineno, row)
+        if frame in first:
+            raise ValueError(f"{p}:{lineno}: frame {frame} again (first at line {first[frame]}): one box a frame")
+        first[frame] = lineno
+        yield lineno, row, frame, box
+
+
 def read_boxes(path: str | Path) -> dict[int, Box]:
     """Read ``frame,x,y,w,h`` rows (a header line is optional; columns after the fifth, such as
     ``confidence,state``, are not read). Errors name the file and line."""
     p = Path(path)
     out: dict[int, Box] = {}
-    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
-        frame, box = _box_row(p, lineno, row)
+    for _, _, frame, box in _box_rows(p):
         out[frame] = box
     if not out:
         raise ValueError(f"{p}: no boxes")
@@ -68,8 +79,7 @@ def read_track(path: str | Path) -> TrackRows:
     boxes: dict[int, Box] = {}
     conf: dict[int, float] = {}
     states: dict[int, str] = {}
-    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
-        frame, box = _box_row(p, lineno, row)
+    for lineno, row, frame, box in _box_rows(p):
         boxes[frame] = box
         if len(row) < 7:
             if states:

@@ -37,6 +37,7 @@ class InlineResult:
     steps: dict[str, int] = field(default_factory=dict)
     errors: dict[str, int] = field(default_factory=dict)
     messages: int = 0
+    interrupted: bool = False  # Ctrl-C ended the source early
 
     @property
     def fps(self) -> float:
@@ -47,8 +48,9 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
                metadata: dict[str, dict[str, str]] | None = None,
                tap: Callable[[str, bytes, int, str], None] | None = None,
                stop: threading.Event | None = None) -> InlineResult:
-    """Run ``plan`` to the end of its source (or until ``stop`` is set: the source ends there, and
-    every stage closes as at its end). Returns counts, wall time and the recording path.
+    """Run ``plan`` to the end of its source (or until ``stop`` is set, or Ctrl-C: the source ends
+    there, and every stage closes as at its end; ``interrupted`` says it was Ctrl-C). Returns
+    counts, wall time and the recording path.
 
     ``tap(topic, payload, seq, type name)`` sees every message of the run, in the order it is
     delivered (an estimate sink: :class:`pipeline.app.EstimateSink`)."""
@@ -99,17 +101,22 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
 
     t0 = time.perf_counter()
     frames = 0
+    interrupted = False
     try:
-        for raw in open_reader(src_stage.params, plan.base_dir):
-            if stop is not None and stop.is_set():
-                break
-            outs = src_stage.emit(raw)
-            src_host._flush_reports()
-            src_host._emit(outs)
-            frames += sum(port == "frames" for port, _ in outs)  # not a live source's captures
-            drain()
-            if progress is not None:
-                progress(frames)
+        try:
+            for raw in open_reader(src_stage.params, plan.base_dir):
+                if stop is not None and stop.is_set():
+                    break
+                outs = src_stage.emit(raw)
+                src_host._flush_reports()
+                src_host._emit(outs)
+                frames += sum(port == "frames" for port, _ in outs)  # not a live source's captures
+                drain()
+                if progress is not None:
+                    progress(frames)
+        except KeyboardInterrupt:  # Ctrl-C: the frames so far are the run, which ends as at its source's end
+            interrupted = True
+            queue.clear()  # what the step cut short was sending
         src_host.close("end")
         drain()
         for h in hosts.values():  # stages whose drivers never ended (a broken graph) still close
@@ -122,5 +129,5 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     dt = time.perf_counter() - t0
     return InlineResult(frames=frames, seconds=dt, recording=path if rec else None,
                         steps={n: h.stats.steps for n, h in hosts.items()},
-                        errors={n: h.stats.errors for n, h in hosts.items()},
+                        errors={n: h.stats.errors for n, h in hosts.items()}, interrupted=interrupted,
                         messages=rec.messages if rec else 0)

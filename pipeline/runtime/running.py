@@ -128,6 +128,9 @@ def running(stream: str | None = None, everyone: bool = False) -> list[dict]:
 def describe_none(stream: str | None = None) -> str:
     """The one-line message for 'nothing is running'."""
     what = f"no running gflow pipeline with stream {stream!r}" if stream else "no running gflow pipeline"
+    others = sorted({str(i.get("stream")) for i in running()}) if stream else []
+    if others:  # a mistyped stream: say which run
+        return f"{what} on this machine; running: {', '.join(others)}"
     return (f"{what} on this machine (none announced in {runtime_dir()}); start one (gflow demo, track, run, "
             f"replay) or give --connect ENDPOINT")
 

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from pipeline.app import TrackRequest
 from pipeline.cli.trackers import TRACKERS, spec_of
-from pipeline.cli.commands.common import CliError, nonnegative_int
+from pipeline.cli.commands.common import CliError, check_new_picture, nonnegative_int
 
 
 def model_options() -> dict[str, str]:
@@ -130,8 +130,22 @@ def _check_paths(args) -> None:
             raise CliError(f"--{opt.replace('_', '-')} {v}: give a .png (or .pdf, .svg, .jpg) file name")
         if v and not Path(v).resolve().parent.is_dir():
             raise CliError(f"--{opt.replace('_', '-')} {v}: folder {Path(v).parent} does not exist")
+        if v:
+            check_new_picture(v, opt)  # an earlier plot
     if args.out_dir and Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
         raise CliError(f"--out-dir {args.out_dir} is a file, not a folder")
+
+
+def _refuse_earlier_runs(args, seqs, names: list[str], cv_names: list[str]) -> None:
+    """An --out-dir used before: refuse, before any work, a run whose boxes (DIR/SEQUENCE/NAME.csv)
+    or recording would replace an earlier run's (the boxes were written over without a word)."""
+    files = [f"{n}.{ext}" for n in names for ext in ("mcap", "csv")] + [f"opencv_{c}.csv" for c in cv_names]
+    for seq in seqs:
+        for f in files + ["static_box.csv"]:
+            path = Path(args.out_dir) / seq.name / f
+            if path.exists():
+                raise CliError(f"--out-dir {args.out_dir}: {path} exists (an earlier run's); a run's boxes and "
+                               f"recording are never overwritten: give a new folder")
 
 
 def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None, work: Path):
@@ -277,6 +291,8 @@ def cmd_benchmark(args) -> int:
     cv_missing = _opencv_missing(cv_names)
     mode = "inline" if args.inline else "processes"
     keep = bool(args.out_dir)
+    if keep:
+        _refuse_earlier_runs(args, seqs, names, [c for c in cv_names if c not in cv_missing])
     rows: list[Row] = []
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:

@@ -10,17 +10,17 @@ from pipeline.io.mcap_io import iter_records, segments
 from pipeline.recording.live_record import live_summary
 from pipeline.recording.results import (blank_rule, completeness, estimate_columns, renumber, reported_frames,
                                        run_estimates, write_boxes)
-from pipeline.cli.commands.common import CliError, check_outputs
+from pipeline.cli.commands.common import CliError, check_new_file
 
 
 def cmd_boxes(args) -> int:
-    check_outputs(out=args.out)  # before reading: a folder, or a recording it would write over
+    check_new_file(out=args.out)  # before reading: a folder, or a file it would write over
     torn: list[str] = []
     list(iter_records(args.recording, topics=["-"], on_truncated=torn.append))  # checks the file; notes a torn end
     est, sessions = run_estimates(args.recording, stream=args.stream)  # the run's own: what came from outside is said
     if not est:  # a torn recording says where it ends, so "no estimates" is not taken for what the run made
         raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else "")
-                       + (f": the {torn[0].split(': ', 1)[-1]}" if torn else ""))
+                       + (f": the {torn[0].split(': ', 1)[-1]}" if torn else "") + _streams_with_estimates(args))
     live = live_summary(args.recording, stream=args.stream)  # a live run: rows are the camera's frames
     frame_of = live.frames if live is not None else {}
     by_seq = estimate_columns(est)
@@ -36,6 +36,18 @@ def cmd_boxes(args) -> int:
     for line in gaps:
         print(f"  {line}")
     return 3 if any("no estimate" in g for g in gaps) else 0
+
+
+def _streams_with_estimates(args) -> str:
+    """``; it holds estimates of stream cam0`` when --stream named another one (a mistyped stream)."""
+    from pipeline.io.mcap_io import recorded_topics
+    from pipeline.recording.topics import split_topic
+
+    if not args.stream:
+        return ""
+    pairs = [split_topic(t) for t in recorded_topics(args.recording)]
+    streams = sorted({p[0] for p in pairs if p is not None and p[1] == "estimate"})
+    return f"; it holds estimates of stream {', '.join(streams)}" if streams else ""
 
 
 def _blank_rule(recording: str) -> str:

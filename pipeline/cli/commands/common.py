@@ -17,7 +17,7 @@ from pipeline.app import place as place_stages
 from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
 
-__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "check_model_out", "refuse_recording",
+__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -84,12 +84,28 @@ def check_outputs(**paths: str | None) -> None:
     given: dict[Path, str] = {}  # two outputs on one file: the last one written would be all that is left
     for opt, path in paths.items():
         if path:
-            name = opt if opt.isupper() else "--" + opt.replace("_", "-")
+            name = _option_name(opt)
             same = given.setdefault(Path(path).resolve(), name)
             if same != name:
                 raise CliError(f"{name} {path} is also {same}: give each output a file of its own")
             refuse_recording(path, name)
             check_writable(path, name)
+
+
+def _option_name(keyword: str) -> str:
+    """The option as typed for a keyword of :func:`check_outputs` (``points_out`` -> ``--points-out``)."""
+    return keyword if keyword.isupper() else "--" + keyword.replace("_", "-")
+
+
+def check_new_file(**paths: str | None) -> None:
+    """:func:`check_outputs`, and refuse a file that is already there: boxes, face points or a model
+    written over it would replace an earlier answer without a word (as a recording, a picture or
+    a video is never written over). Keywords as :func:`check_outputs`'s."""
+    check_outputs(**paths)
+    for opt, path in paths.items():
+        if path and os.path.lexists(path):
+            raise CliError(f"{_option_name(opt)} {path} exists; gflow never writes over an earlier output: "
+                           f"give another name (or remove it first)")
 
 
 def check_model_out(path: str) -> None:
@@ -98,6 +114,7 @@ def check_model_out(path: str) -> None:
     check_outputs(out=path)
     if not path.lower().endswith(".npz"):
         raise CliError(f"--out {path}: a model file's name ends in .npz")
+    check_new_file(out=path)  # an earlier model
 
 
 def check_new_picture(path: str, option: str = "OUT") -> None:

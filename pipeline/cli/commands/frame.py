@@ -65,6 +65,10 @@ def cmd_frame(args) -> int:
         raise CliError(f"source not found: {args.source} (give an image folder, a video file or an .mcap recording)")
     if args.index < 0:
         raise CliError(f"frame index must be >= 0, got {args.index}")
+    if kind == "mcap":  # read only up to where a torn one ends: said before a frame past it is missing
+        from pipeline.cli.commands.common import warn_if_torn
+
+        warn_if_torn(str(p))
     try:
         raw = first_frame(SourceParams(kind=kind, path=str(p), start=args.index, stop=args.index + 1))
     except PreflightError as e:

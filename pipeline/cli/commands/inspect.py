@@ -99,6 +99,24 @@ def cmd_topics(args) -> int:
     return 0 if counts else 1
 
 
+def _heard_instead(settings, key: str, seconds: float = 1.5) -> str:
+    """What the stream of ``key`` publishes, listened to for ``seconds``: the end of the line that
+    says nothing came on ``key``, so that a mistyped topic is plain (``; gflow/cam0/ has: estimate,
+    frames, ...``)."""
+    import io
+
+    from pipeline.cli.live import list_topics
+
+    parts = key.split("/")
+    prefix = "/".join(parts[:2]) + "/" if len(parts) > 2 and "*" not in parts[1] else "gflow/"
+    counts = list_topics(settings, seconds, out=io.StringIO(), key=prefix + "**", as_json=True)
+    names = sorted(k[len(prefix):] for k in counts  # the heartbeats left out: every stage has one
+                   if not any(c == "_status" or c.startswith("@") for c in k.split("/")))
+    if not names:
+        return f"; nothing heard on {prefix}** in {seconds:g} s either"
+    return f"; {prefix} has: " + ", ".join(names[:30]) + (", ..." if len(names) > 30 else "")
+
+
 def cmd_echo(args) -> int:
     from pipeline.cli.live import echo
 
@@ -109,8 +127,8 @@ def cmd_echo(args) -> int:
         _say_where(found)
     n = echo(settings, key, args.count, args.timeout, as_json=args.json)
     if n == 0:
-        print(f"gflow echo: no message on {key}" + (f" in {args.timeout:g} s" if args.timeout else ""),
-              file=sys.stderr)
+        print(f"gflow echo: no message on {key}" + (f" in {args.timeout:g} s" if args.timeout else "")
+              + (_heard_instead(settings, key) if args.timeout else ""), file=sys.stderr)
         return 1
     return 0
 
@@ -126,7 +144,8 @@ def cmd_hz(args) -> int:
     _say_where(found)
     st = hz(settings, key, args.duration, wait=args.wait, window=args.window)
     if st is None:
-        print(f"gflow hz: fewer than 2 messages on {key} (waited {args.wait:g} s for the first)", file=sys.stderr)
+        print(f"gflow hz: fewer than 2 messages on {key} (waited {args.wait:g} s for the first)"
+              + _heard_instead(settings, key), file=sys.stderr)
         return 1
     return 0
 

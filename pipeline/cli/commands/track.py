@@ -27,8 +27,9 @@ from gflow_core.builtin_trackers import BUILTIN
 
 from pipeline.cli.trackers import TRACKERS, OptionClash
 from pipeline.runtime.trace import mark
-from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          launcher_zenoh, nonnegative_int, parse_box)
+from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_new_file,
+                                          check_outputs, launcher_zenoh, nonnegative_int, parse_box,
+                                          positive_float, positive_int)
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -155,6 +156,10 @@ def track_plan(args) -> TrackPlan:
     check_tracker_options(args)
     check_outputs(out=args.out, record=args.record, points_out=getattr(args, "points_out", None))
     check_points_out(args)
+    if args.stop is not None and args.stop <= args.start:
+        raise CliError(f"--start {args.start} --stop {args.stop}: no frame to track (--stop is the frame after the "
+                       f"last one, so it must be greater than --start)")
+    check_new_file(out=args.out, points_out=getattr(args, "points_out", None))  # an earlier run's boxes
     return _planned(track_request(args))
 
 
@@ -254,12 +259,12 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=nonnegative_int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
     add_record_args(p, "recordings/track-TIME-RUNID.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
-    p.add_argument("--fps", type=float, default=25.0,
+    p.add_argument("--fps", type=positive_float, default=25.0,
                    help="source frame rate, for time stamps and --realtime; of a live source, the nominal rate "
                         "the trackers measure time in (default 25)")
     p.add_argument("--realtime", action="store_true", help="play the source at --fps instead of as fast as possible")
-    p.add_argument("--start", type=int, default=0, help="first frame index")
-    p.add_argument("--stop", type=int, help="stop before this frame index (live: after this many frames decoded)")
+    p.add_argument("--start", type=nonnegative_int, default=0, help="first frame index")
+    p.add_argument("--stop", type=positive_int, help="stop before this frame index (live: after this many frames decoded)")
     g = p.add_argument_group("live sources (docs/live.md)")
     g.add_argument("--camera", type=int, metavar="N", help="track camera N (/dev/videoN) instead of a SOURCE")
     g.add_argument("--reconnect", type=float, metavar="S",

@@ -43,11 +43,13 @@ def cmd_view(args) -> int:
     from pipeline.cli.foxglove_bridge import FoxgloveBridge
 
     end = None if args.duration is None else time.monotonic() + args.duration
-    if not _await_run(args, end):
-        print("gflow view: no pipeline started" + (f" with stream {args.stream}" if args.stream else ""),
-              file=sys.stderr)
-        return 1
     from pipeline.runtime.running import runs_of_camera, running
+
+    if not _await_run(args, end):
+        others = sorted({str(i.get("stream")) for i in running()}) if args.stream else []
+        print("gflow view: no pipeline started" + (f" with stream {args.stream}" if args.stream else "")
+              + (f"; running: {', '.join(others)}" if others else ""), file=sys.stderr)
+        return 1
 
     if args.stream and not running(args.stream) and len(runs_of_camera(args.stream)) == 1:
         args.stream = runs_of_camera(args.stream)[0]["stream"]  # the graph's stream (cam0): its run

@@ -1,0 +1,282 @@
+"""Answers a user can trust, from the command line as a user types it: Ctrl-C stops every
+long-running command however it was started, and no command writes over an output file that is
+already there.
+
+A background job of a non-interactive shell (``nohup gflow replay ... &``) inherits SIGINT ignored:
+each test here starts the command that way, waits until it is at work (the line it prints then),
+sends SIGINT and waits for it to end by itself. The refusals run in this process (``main([...])``).
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipeline.cli.main import main
+from pipeline.runtime.transport import free_port
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory) -> Path:
+    """A folder with frames/ (six 64x48 textured frames), gt.csv (a box per frame) and demo.mcap
+    (10 frames of the synthetic scene, inline)."""
+    d = tmp_path_factory.mktemp("cli-trust")
+    rng = np.random.default_rng(0)
+    (d / "frames").mkdir()
+    for i in range(6):
+        cv2.imwrite(str(d / "frames" / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    (d / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    assert main(["demo", "--frames", "10", "--inline", "--record", str(d / "demo.mcap")]) == 0
+    return d
+
+
+def _ignore_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # as `nohup CMD &` in a non-interactive shell
+
+
+class _Started:
+    """``gflow ARGS`` started (with SIGINT ignored, by default); its output (stdout and stderr) read on a thread, line by line."""
+
+    def __init__(self, args: list[str], cwd: Path, ignore_sigint: bool = True) -> None:
+        env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+        self.p = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], cwd=cwd, env=env, text=True,
+                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                  preexec_fn=_ignore_sigint if ignore_sigint else None)
+        self.lines: queue.SimpleQueue[str] = queue.SimpleQueue()
+        self.err: list[str] = []
+        self.reader = threading.Thread(target=self._read, daemon=True)
+        self.reader.start()
+
+    def _read(self) -> None:
+        for line in self.p.stdout:
+            self.err.append(line)
+            self.lines.put(line)
+
+    def wait_for(self, marker: str, timeout: float = 60) -> None:
+        """Until a line of its output holds ``marker`` (the command is at work)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            try:
+                if marker in self.lines.get(timeout=0.2):
+                    return
+            except queue.Empty:
+                assert self.p.poll() is None, f"ended before {marker!r}: {''.join(self.err)}"
+        pytest.fail(f"no {marker!r} in {timeout} s: {''.join(self.err)}")
+
+    def stop(self) -> None:
+        if self.p.poll() is None:
+            self.p.kill()
+            self.p.wait()
+
+
+@pytest.fixture
+def replaying(files: Path):
+    """A recording replayed until stopped (SIGINT as usual): a live stream for echo, hz and view."""
+    r = _Started(["replay", str(files / "demo.mcap"), "--loop", "0", "--stream", f"live{os.getpid()}"], files,
+                 ignore_sigint=False)
+    r.wait_for("replaying")
+    yield f"live{os.getpid()}"
+    r.p.send_signal(signal.SIGINT)
+    try:
+        r.p.wait(30)
+    finally:
+        r.stop()
+
+
+def _stops_on_sigint(args: list[str], marker: str, cwd: Path) -> tuple[int, str]:
+    c = _Started(args, cwd)
+    try:
+        c.wait_for(marker)
+        c.p.send_signal(signal.SIGINT)
+        try:
+            rc = c.p.wait(30)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"gflow {args[0]} started with SIGINT ignored did not stop on SIGINT in 30 s")
+        c.reader.join(10)  # the last lines, up to the end of the output
+        return rc, "".join(c.err)
+    finally:
+        c.stop()
+
+
+def test_replay_started_with_sigint_ignored_stops_on_it(files: Path) -> None:
+    rc, err = _stops_on_sigint(["replay", str(files / "demo.mcap"), "--loop", "0"], "replaying", files)
+    assert rc in (0, 130) and "Traceback" not in err, err
+
+
+def test_step_started_with_sigint_ignored_stops_on_it(files: Path) -> None:
+    rc, err = _stops_on_sigint(["step", str(files / "demo.mcap"), "--stage", "filter"], "stepping filter", files)
+    assert rc == 130 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("tool,marker", [("echo", "pipeline"), ("hz", "pipeline")])
+def test_live_tools_started_with_sigint_ignored_stop_on_it(files: Path, replaying: str, tool: str,
+                                                           marker: str) -> None:
+    rc, err = _stops_on_sigint([tool, f"{replaying}/frames"], marker, files)
+    assert rc in (0, 130) and "Traceback" not in err, err
+
+
+def test_view_started_with_sigint_ignored_stops_on_it(files: Path, replaying: str) -> None:
+    pytest.importorskip("foxglove")
+    rc, err = _stops_on_sigint(["view", "--stream", replaying, "--port", str(free_port())], "Foxglove: open", files)
+    assert rc in (0, 130) and "forwarded" in err and "Traceback" not in err, err
+
+
+def _cli(args: list[str], capsys) -> tuple[int, str]:
+    """``gflow ARGS`` run here: its exit status and what it wrote on stderr."""
+    capsys.readouterr()
+    try:
+        rc = main(args)
+    except SystemExit as e:  # argparse's refusals exit
+        rc = int(e.code or 0)
+    return rc, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv,kept", [
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "old.csv", "--inline", "--no-record", "-q"],
+     "old.csv"),
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "b.csv", "--points-out", "old.csv",
+      "--tracker", "gflow", "--inline", "--no-record", "-q"], "old.csv"),
+    (["boxes", "{d}/demo.mcap", "--out", "old.csv"], "old.csv"),
+    (["learn", "m2", "{d}/frames", "--boxes", "{d}/gt.csv", "-K", "2", "--out", "old.npz", "-q"], "old.npz"),
+    (["learn", "gflow", "{d}/nothing.npz", "--out", "old.npz", "-q"], "old.npz"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--plot", "old.png"],
+     "old.png"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--precision-plot",
+      "old.png"], "old.png"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--out-dir", "od"],
+     "od/seqA/dcf.csv"),
+    (["benchmark", "{d}/data", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--out-dir", "od"],
+     "od/seqA/static_box.csv"),
+])
+def test_no_command_writes_over_an_earlier_output(files: Path, tmp_path: Path, monkeypatch, capsys,
+                                                   argv: list[str], kept: str) -> None:
+    """Boxes, face points, a model or a plot already there were replaced without a word (a recording,
+    picture or video already was refused); the earlier file is kept, and nothing is run."""
+    seq = files / "data" / "seqA"
+    if not seq.exists():  # a sequence folder for gflow benchmark
+        (seq / "frames").mkdir(parents=True)
+        for p in (files / "frames").iterdir():
+            (seq / "frames" / p.name).write_bytes(p.read_bytes())
+        (seq / "groundtruth.csv").write_bytes((files / "gt.csv").read_bytes())
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / kept).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / kept).write_text("an earlier answer\n")
+    rc, err = _cli([a.replace("{d}", str(files)) for a in argv], capsys)
+    lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("benchmark: skipped")]
+    assert rc == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert kept in lines[0] and "exists" in lines[0] and ("never writes over" in lines[0]
+                                                         or "never overwritten" in lines[0]), lines[0]
+    assert (tmp_path / kept).read_text() == "an earlier answer\n"
+    assert sorted(p.name for p in (tmp_path / kept).parent.iterdir()) == [Path(kept).name], "nothing written"
+
+
+def test_a_new_output_is_still_written(files: Path, tmp_path: Path, monkeypatch, capsys) -> None:
+    monkeypatch.chdir(tmp_path)
+    rc, err = _cli(["boxes", str(files / "demo.mcap"), "--out", "new.csv"], capsys)
+    assert rc == 0 and (tmp_path / "new.csv").read_text().startswith("frame,x,y,w,h"), err
+
+
+@pytest.mark.parametrize("argv", [["echo", "{s}/estimat", "--timeout", "1"],
+                                  ["hz", "{s}/estimat", "--duration", "1", "--wait", "1"]])
+def test_a_live_topic_that_nothing_publishes_is_named_with_what_does(replaying: str, capsys, argv: list[str]) -> None:
+    """A mistyped topic waited in silence and then said only that nothing came."""
+    rc, err = _cli([a.replace("{s}", replaying) for a in argv], capsys)
+    last = err.strip().splitlines()[-1]
+    assert rc == 1 and f"gflow/{replaying}/estimat" in last, err
+    assert f"gflow/{replaying}/ has:" in last and "estimate" in last.split("has:")[1] and "_status" not in last, last
+
+
+@pytest.mark.parametrize("flag", ["--pred", "--gt"])
+def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: Path, capsys, flag: str) -> None:
+    """The later row replaced the earlier one without a word and was scored."""
+    twice = tmp_path / "twice.csv"
+    twice.write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n0,40,40,20,20\n")
+    other = {"--pred": "--gt", "--gt": "--pred"}[flag]
+    rc, err = _cli(["eval", flag, str(twice), other, str(files / "gt.csv")], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
+
+
+@pytest.mark.parametrize("extra,words", [
+    (["--start", "4", "--stop", "2"], ["--start 4 --stop 2", "no frame to track"]),
+    (["--stop", "0"], ["--stop", ">= 1"]),
+    (["--start=-1"], ["--start", ">= 0"]),
+    (["--fps", "0"], ["--fps", "> 0"]),
+])
+def test_a_frame_range_or_rate_out_of_range_names_the_option(files: Path, tmp_path: Path, capsys, extra: list[str],
+                                                             words: list[str]) -> None:
+    """These were refused naming the built-in graph file and its source stage, not the option typed."""
+    rc, err = _cli(["track", str(files / "frames"), "--init", "10,10,20,20", "--out", str(tmp_path / "b.csv"),
+                    "--inline", "--no-record", "-q", *extra], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and ".yaml" not in lines[0], err
+    assert all(w in lines[0] for w in words), lines[0]
+    assert not (tmp_path / "b.csv").exists()
+
+
+def test_a_frame_past_the_end_of_a_torn_recording_says_it_is_torn(files: Path, tmp_path: Path, capsys) -> None:
+    """It said only that there is no such frame, as of a recording that ended there."""
+    torn = tmp_path / "torn.mcap"
+    data = (files / "demo.mcap").read_bytes()
+    torn.write_bytes(data[: len(data) // 2])
+    rc, err = _cli(["frame", str(torn), "9", str(tmp_path / "f.png")], capsys)
+    assert rc == 2 and "no frame at or after frame 9" in err and "Traceback" not in err, err
+    assert f"{torn} was not closed properly" in err, err
+
+
+@pytest.mark.parametrize("argv", [["ps", "--stream", "nosuch"], ["topics", "--stream", "nosuch", "--duration", "0.5"],
+                                  ["echo", "nosuch/estimate", "--timeout", "0.5"],
+                                  ["view", "--stream", "nosuch", "--duration", "0.5"]])
+def test_a_stream_that_is_not_running_is_named_with_those_that_are(replaying: str, capsys, argv: list[str]) -> None:
+    """A mistyped stream was said to run nowhere 'on this machine', as if nothing ran at all."""
+    capsys.readouterr()
+    try:
+        rc = main(argv)
+    except SystemExit as e:
+        rc = int(e.code or 0)
+    out = capsys.readouterr()
+    last = (out.out + out.err).strip().splitlines()[-1]
+    assert rc != 0 and "nosuch" in last and "running: " in last and replaying in last.split("running: ")[1], last
+
+
+def test_boxes_of_a_stream_the_recording_lacks_names_the_one_it_has(files: Path, tmp_path: Path, capsys) -> None:
+    rc, err = _cli(["boxes", str(files / "demo.mcap"), "--out", str(tmp_path / "b.csv"), "--stream", "cam9"], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and "'cam9'" in lines[0], err
+    assert lines[0].endswith("it holds estimates of stream demo"), lines[0]
+
+
+def test_an_inline_track_stopped_by_ctrl_c_keeps_its_boxes(tmp_path: Path) -> None:
+    """As a multi-process run: the boxes of the frames tracked are written, and the recording is
+    closed. Inline, the run ended in 'interrupted' with no boxes at all."""
+    rng = np.random.default_rng(1)
+    (tmp_path / "frames").mkdir()
+    for i in range(200):
+        cv2.imwrite(str(tmp_path / "frames" / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    c = _Started(["track", "frames", "--init", "10,10,20,20", "--inline", "--realtime", "--fps", "20", "--out", "b.csv",
+                  "--record", "r.mcap"], tmp_path, ignore_sigint=False)
+    try:
+        c.wait_for("/200 frames")  # the progress line: frames are being tracked
+        c.p.send_signal(signal.SIGINT)
+        rc = c.p.wait(60)
+        c.reader.join(10)
+    finally:
+        c.stop()
+    out = "".join(c.err)
+    assert rc == 130 and "interrupted: stages closed, recording closed" in out and "Traceback" not in out, out
+    rows = (tmp_path / "b.csv").read_text().splitlines()
+    assert rows[0].startswith("frame,x,y,w,h") and 2 <= len(rows) < 201, out
+    assert main(["verify", str(tmp_path / "r.mcap")]) == 0
