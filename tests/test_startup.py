@@ -79,3 +79,17 @@ def test_stage_processes_fork_from_the_zygote_and_cost_less_cpu(tmp_path):
     cpu_exec, lines = _cold_run(tmp_path, "exec", GFLOW_ZYGOTE="0")
     assert not any(ln.endswith(" node forked") for ln in lines)
     assert cpu_fork < 0.8 * cpu_exec, (cpu_fork, cpu_exec)
+
+
+def test_a_stage_stopped_while_it_is_being_born_exits_quietly():
+    """A stop that reaches a stage forked by the zygote before its handlers are set (the launcher
+    stopping a run whose source could not open) ends it with 130 and no traceback on stderr."""
+    code = ("import os, signal, socket\n"
+            "from pipeline.runtime import zygote\n"
+            "mask = signal.pthread_sigmask(signal.SIG_BLOCK, zygote._STOPS)  # as the zygote forks it\n"
+            "os.kill(os.getpid(), signal.SIGINT)  # the launcher's stop, pending until the stage takes it\n"
+            "a, b = socket.socketpair()\n"
+            "zygote._stage({'plan': 'none.json', 'name': 'x', 'env': {}}, os.dup(2), os.getppid(), a, mask)\n")
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120, cwd=ROOT)
+    assert r.returncode == 130 and "Traceback" not in r.stderr, (r.returncode, r.stderr)

@@ -261,8 +261,11 @@ class Supervisor:
                     os.killpg(p.popen.pid, sig)
                     if sig in (signal.SIGINT, signal.SIGTERM):
                         os.killpg(p.popen.pid, signal.SIGCONT)  # a stopped (SIGSTOP) stage must see it too
-                except ProcessLookupError:
-                    pass
+                except ProcessLookupError:  # no group yet: a stage forked by the zygote, before its setsid
+                    try:
+                        os.kill(p.popen.pid, sig)
+                    except ProcessLookupError:
+                        pass
 
     def wait(self, names: Iterable[str], timeout: float) -> bool:
         """Wait up to ``timeout`` s in all for the processes of ``names`` to exit; whether they did."""

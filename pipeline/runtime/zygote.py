@@ -15,6 +15,13 @@ gives every stage), and without OpenCV (which starts a thread at import; measure
 process that had run OpenCV and BLAS work hangs in ``cv2.setNumThreads``). Anything else -- no
 zygote, a launcher not in the ``gflow`` process, a restart -- starts ``python -m
 pipeline.runtime.node`` as before. ``GFLOW_ZYGOTE=0`` turns it off.
+
+A stop (SIGINT, SIGTERM, SIGHUP) may reach a stage process while it is still being born: the
+launcher stops the run when the source cannot open its input, and signals each stage's process
+group as soon as the group exists, which is the moment the stage calls ``setsid``. So the zygote
+forks with the stop signals blocked, the stage process takes them only once its own handlers are
+set, and a stage stopped before its node has started exits at once (code 130), quietly: a stop
+asked for is not a fault, and the user sees the reason the run stopped, not a traceback.
 """
 
 from __future__ import annotations
@@ -36,6 +43,11 @@ PR_SET_NAME = 15
 PR_SET_CHILD_SUBREAPER = 36
 #: the environment a stage process gets by default (the launcher's ``threads_per_stage`` = 1)
 ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+#: the signals that stop a stage (pipeline.runtime.signals.STOP_SIGNALS, not imported here: the
+#: zygote imports as little as it can before it forks)
+_STOPS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+#: the exit code of a stage stopped before its node started (128 + SIGINT, as a shell reports it)
+STOPPED_BEFORE_START = 130
 #: commands of ``gflow`` that start stage processes
 LAUNCHING = ("track", "run", "demo")
 
@@ -224,13 +236,15 @@ def _serve(sock: socket.socket, parent: int) -> None:
             os.close(fds[0])
             sock.sendall(b"-1\n")
             continue
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, _STOPS)  # the stage takes them once it can
         pid = os.fork()
         if pid == 0:
             grandchild = os.fork()
             if grandchild == 0:
-                _stage(req, fds[0], parent, sock)
+                _stage(req, fds[0], parent, sock, mask)
             sock.sendall(f"{grandchild}\n".encode())
             os._exit(0)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
         os.close(fds[0])
         os.waitpid(pid, 0)  # once it has exited, its child is the launcher's
 
@@ -271,8 +285,12 @@ def _set_title(plan: str, name: str) -> None:
             pass
 
 
-def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> None:
-    """The stage process: what ``python -m pipeline.runtime.node PLAN NAME`` does, in a fork."""
+def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket, mask: set | None = None) -> None:
+    """The stage process: what ``python -m pipeline.runtime.node PLAN NAME`` does, in a fork.
+
+    It starts with the stop signals blocked (:func:`_serve`) and takes them back (``mask``, the
+    zygote's own signal mask) once its handlers are set; a stop that lands before its node has
+    started (a ``KeyboardInterrupt`` from SIGINT) ends it with :data:`STOPPED_BEFORE_START`."""
     code = 1
     try:
         from pipeline.runtime.trace import mark
@@ -287,8 +305,10 @@ def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> Non
         os.dup2(stderr_fd, 2)
         os.close(null)
         os.close(stderr_fd)
-        for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        for s in _STOPS:
             signal.signal(s, signal.SIG_DFL if s != signal.SIGINT else signal.default_int_handler)
+        if mask is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # a stop sent meanwhile lands here
         _set_title(req["plan"], req["name"])
         os.environ.clear()
         os.environ.update(req["env"])
@@ -301,6 +321,8 @@ def _stage(req: dict, stderr_fd: int, launcher: int, sock: socket.socket) -> Non
         code = main([req["plan"], req["name"]])
     except SystemExit as e:
         code = e.code if isinstance(e.code, int) else 1
+    except KeyboardInterrupt:  # stopped before the node took its signals: asked for, not a fault
+        code = STOPPED_BEFORE_START
     except BaseException:  # noqa: BLE001  (as the interpreter would: the traceback on stderr, exit 1)
         import traceback
 
