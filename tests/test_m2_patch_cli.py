@@ -75,14 +75,14 @@ def test_set_tracker_reaches_the_patch_filter(mouths, tmp_path, capsys) -> None:
     model, frames = mouths
     rec = tmp_path / "run.mcap"
     common = ["track", str(frames), "--tracker", "m2", "--model", str(model), "--init", "0,0,80,60", "--particles",
-              "50", "--stop", "5", "--inline", "--out", str(tmp_path / "b.csv")]
-    assert main([*common, "--set", "tracker.blank_std=3", "--record", str(rec)]) == 0
+              "50", "--stop", "5", "--inline"]
+    assert main([*common, "--out", str(tmp_path / "b.csv"), "--set", "tracker.blank_std=3", "--record", str(rec)]) == 0
     plan = recorded_plan(rec)
     assert plan.tracker is not None and plan.tracker.name == "m2"
     assert plan.tracker.params == {"crop": "frame", "particles": 50, "blank_std": 3.0}
     assert plan.stage_params("filter")["blank_std"] == 3.0 and "blank_std" not in plan.stages["filter"].params
     capsys.readouterr()
-    assert main([*common, "--set", "filter.blank_std=3", "--no-record"]) == 2
+    assert main([*common, "--out", str(tmp_path / "b2.csv"), "--set", "filter.blank_std=3", "--no-record"]) == 2
     assert capsys.readouterr().err.strip() == ("gflow track: error: --set filter.blank_std=3: blank_std is a parameter "
                                                "of tracker m2, set once for all its stages: --set tracker.blank_std=VALUE")
 
