@@ -28,7 +28,12 @@ Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
   inliers, or fewer than ``MIN_SHARE`` of the points tracked both ways: a frame whose background is
   flat, blurred or mostly moving says nothing reliable of the camera; and a fit that moves no corner of
   the frame by ``MIN_MOTION`` px is taken as a still camera (the fit's own noise, some 0.05 px on a still
-  frame, would only jitter the state);
+  frame, would only jitter the state); its roll is kept only beyond ``MIN_ROLL`` (1 degree) and its zoom
+  beyond ``MIN_ZOOM`` (2 %, the scale filter's own step), each with ``SIMILARITY_INLIERS`` inliers or more,
+  else the motion is the fit's shift at the target's centre: the small rolls and zooms of a moving
+  background add up (a person walking towards the camera behind david_indoor's face gave a zoom of
+  -0.26 % a frame, a fifth of the box's size over the sequence, and a few dozen points on surfer's water
+  rolls of 1-3 degrees a frame that were not there);
 * frames are not downscaled (BoT-SORT halves them); the LK pyramid has ``LEVELS`` levels beyond the
   frame's own, so shifts of some 100 px are followed;
 * BoT-SORT transforms the Kalman state's (x, y, w, h) and velocities by the 2 x 2 part; here the place
@@ -50,7 +55,7 @@ import cv2
 import numpy as np
 
 __all__ = ["CameraMotion", "IDENTITY", "estimate", "grey8", "MAX_CORNERS", "MARGIN", "MIN_INLIERS", "MIN_SHARE",
-           "MIN_MOTION", "MAX_FB", "THRESHOLD", "WINDOW", "LEVELS"]
+           "MIN_MOTION", "MIN_ROLL", "MIN_ZOOM", "SIMILARITY_INLIERS", "MAX_FB", "THRESHOLD", "WINDOW", "LEVELS"]
 
 #: corners at most, their quality relative to the best (Shi & Tomasi) and their least distance apart, px
 MAX_CORNERS, QUALITY, MIN_DISTANCE = 300, 0.01, 7
@@ -68,6 +73,9 @@ THRESHOLD = 1.5
 MIN_INLIERS, MIN_SHARE = 20, 0.5
 #: px: a fit that moves no corner of the frame by this much is a still camera (the identity)
 MIN_MOTION = 0.5
+#: the fit's roll (radians) and zoom (log scale) are kept only beyond these and with SIMILARITY_INLIERS inliers
+#: or more; else the camera's motion is the fit's shift at the target's centre
+MIN_ROLL, MIN_ZOOM, SIMILARITY_INLIERS = math.radians(1.0), 0.02, 100
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 30, 0.01)
 
@@ -173,6 +181,22 @@ def _tracks(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray) -> tuple[np.ndarr
     return p0[:, 0].astype(np.float64), b, fb <= MAX_FB
 
 
+def _reduced(mo: CameraMotion, box: tuple[float, float, float, float]) -> CameraMotion:
+    """The fit ``mo`` with its roll phi dropped when |phi| < MIN_ROLL, its zoom s when |log s| < MIN_ZOOM, and both
+    with fewer than SIMILARITY_INLIERS inliers, keeping where it puts the centre c of ``box`` (x, y, w, h): A' =
+    s' R(phi'), b' = A c + b - A' c."""
+    phi, ls = mo.angle, mo.log_scale
+    many = mo.inliers >= SIMILARITY_INLIERS
+    phi = phi if many and abs(phi) >= MIN_ROLL else 0.0
+    ls = ls if many and abs(ls) >= MIN_ZOOM else 0.0
+    c = np.array([box[0] + (box[2] - 1) / 2.0, box[1] + (box[3] - 1) / 2.0])
+    # A' = s' R(phi')   (eq. 1)
+    a = math.exp(ls) * np.array([[math.cos(phi), -math.sin(phi)], [math.sin(phi), math.cos(phi)]])
+    # b' = A c + b - A' c: the target's centre goes where the fit puts it
+    b = mo.apply(c[None, :])[0] - a @ c
+    return CameraMotion(np.column_stack([a, b]), mo.inliers)
+
+
 def estimate(prev: np.ndarray, cur: np.ndarray, box: tuple[float, float, float, float]) -> CameraMotion:
     """The background's similarity from frame t-1 to frame t.
 
@@ -200,7 +224,7 @@ def estimate(prev: np.ndarray, cur: np.ndarray, box: tuple[float, float, float, 
     k = 0 if inl is None else int(inl.sum())
     if m is None or not np.isfinite(m).all() or k < MIN_INLIERS or k < MIN_SHARE * n:
         return IDENTITY
-    mo = CameraMotion(np.asarray(m, dtype=np.float64), k)
+    mo = _reduced(CameraMotion(np.asarray(m, dtype=np.float64), k), box)
     H, W = prev.shape
     corners = np.array([[0.0, 0.0], [W - 1.0, 0.0], [0.0, H - 1.0], [W - 1.0, H - 1.0]])
     # a still camera: max_corners |A x + b - x| < MIN_MOTION (below the fit's noise, which would only jitter the state)

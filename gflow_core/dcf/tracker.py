@@ -468,13 +468,17 @@ def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFP
     motion from the last frame to ``obs`` (:func:`.camera.estimate`: the background's similarity x_t = A x_{t-1}
     + b, A = s R(phi)): the last estimate's centre and the particles through it, their log size by log s, the
     velocity turned by A and, with ``roll_step``, the held roll by phi (within ``roll_max``). Unchanged without
-    the option, without the last frame's grey levels, when the fit is refused or the camera still, and while the
-    target is judged hidden: the camera is then taken to follow it, its place held in the frame (as without the
-    option), since a camera that pans after a target would carry the prediction away with the background."""
+    the option, without the last frame's grey levels, when the fit is refused or the camera still, while the
+    target is judged hidden -- the camera is then taken to follow it, its place held in the frame (as without the
+    option), since a camera that pans after a target would carry the prediction away with the background -- and
+    while its box is not inside the frame (its centre is clipped to the frame, so not where the target is)."""
+    box = box_of(st.centre, st.log_s, st.geom.size0)
+    H, W = obs.grey.shape
     if not p.camera_motion or st.last_grey is None or st.last_grey.shape != obs.grey.shape \
-            or st.hidden_run >= p.hidden_after:
+            or st.hidden_run >= p.hidden_after or not (box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= W
+                                                       and box[1] + box[3] <= H):
         return st, proposed
-    mo = cam.estimate(st.last_grey, cam.grey8(obs.grey), box_of(st.centre, st.log_s, st.geom.size0))
+    mo = cam.estimate(st.last_grey, cam.grey8(obs.grey), box)
     if mo.still:
         return st, proposed
     lim, ls = p.max_log_scale, mo.log_scale
