@@ -468,7 +468,9 @@ def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFP
     motion from the last frame to ``obs`` (:func:`.camera.estimate`: the background's similarity x_t = A x_{t-1}
     + b, A = s R(phi)): the last estimate's centre and the particles through it, their log size by log s, the
     velocity turned by A and, with ``roll_step``, the held roll by phi (within ``roll_max``). Unchanged without
-    the option, without the last frame's grey levels, when the fit is refused or the camera still, while the
+    the option, without the last frame's grey levels, when the fit is refused or the camera still, when it neither
+    rolls nor zooms and shifts the target's centre by less than the motion prior's std (``motion_prior`` sqrt(w h):
+    the prior covers it, and the fit's own errors would enter the prediction in full), while the
     target is judged hidden -- the camera is then taken to follow it, its place held in the frame (as without the
     option), since a camera that pans after a target would carry the prediction away with the background -- and
     while its box is not inside the frame (its centre is clipped to the frame, so not where the target is)."""
@@ -479,7 +481,10 @@ def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFP
                                                        and box[1] + box[3] <= H):
         return st, proposed
     mo = cam.estimate(st.last_grey, cam.grey8(obs.grey), box)
-    if mo.still:
+    c = st.centre
+    # with neither roll nor zoom, a shift |A c + b - c| within the motion prior's std (motion_prior sqrt(w h)) is left to it
+    if mo.still or (mo.angle == 0.0 and mo.log_scale == 0.0
+                    and np.hypot(*(mo.apply(c[None, :])[0] - c)) < p.motion_prior * math.sqrt(box[2] * box[3])):
         return st, proposed
     lim, ls = p.max_log_scale, mo.log_scale
     moved = proposed.copy()
