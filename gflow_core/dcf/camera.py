@@ -30,20 +30,27 @@ Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
   the frame by ``MIN_MOTION`` px is taken as a still camera (the fit's own noise, some 0.05 px on a still
   frame, would only jitter the state); its roll is kept only beyond ``MIN_ROLL`` (1 degree) and its zoom
   beyond ``MIN_ZOOM`` (2 %, the scale filter's own step), each with ``SIMILARITY_INLIERS`` inliers or more,
-  else the motion is the fit's shift at the target's centre: the small rolls and zooms of a moving
-  background add up (a person walking towards the camera behind david_indoor's face gave a zoom of
-  -0.26 % a frame, a fifth of the box's size over the sequence, and a few dozen points on surfer's water
-  rolls of 1-3 degrees a frame that were not there);
-* frames are not downscaled (BoT-SORT halves them); the LK pyramid has ``LEVELS`` levels beyond the
-  frame's own, so shifts of some 100 px are followed;
+  else the motion is the fit's shift at the target's centre: small rolls and zooms add up (david_indoor's
+  fits zoomed out by 0.26 % a frame on average, -1.66 in log size over the sequence, and the box shrank
+  from 46 to 19 px wide; a few dozen points on surfer's water gave rolls of 1-3 degrees a frame that were
+  not there);
+* frames are not downscaled (BoT-SORT halves them); each point is tracked from no motion and, when the
+  frames' phase correlation (Kuglin & Hines 1975) finds a shift of a pixel or more, from that shift too,
+  the track that comes back closer kept: a 50 px jolt of a fine texture was beyond the ``LEVELS``-level
+  pyramid alone;
 * BoT-SORT transforms the Kalman state's (x, y, w, h) and velocities by the 2 x 2 part; here the place
   goes through the similarity, the log size adds log s, the velocity turns by A, and the rotation is
-  handed to the target's roll (BoT-SORT has no roll).
+  handed to the target's roll (BoT-SORT has no roll);
+* BoT-SORT compensates every frame; the tracker leaves a shift within the motion prior's std (with no
+  roll or zoom) to the prior, since the fit's own errors would enter the prediction in full (skating1's
+  panning camera, followed frame by frame, lost the skater: AUC 0.335 against 0.604), and compensates
+  nothing while the target is judged hidden (the camera is taken to follow it) or while its box is not
+  inside the frame.
 
-Deterministic: OpenCV's RANSAC draws from a generator it seeds itself on every call
-(``cv::RNG((uint64)-1)`` in ``RANSACPointSetRegistrator::run``), so the same two frames give the same
-bits in every call and process (checked by ``tests/core/test_dcf_camera.py``); the corners' order
-breaks ties by address in the image, LK tracks every point alone.
+Deterministic: OpenCV's RANSAC seeds its own generator on every call, so the same two frames give the
+same bits in every call and in another process (checked by ``tests/core/test_dcf_camera.py``), and no
+draw comes from the tracker's streams; phase correlation is a Fourier transform, LK tracks every point
+alone.
 """
 
 from __future__ import annotations
