@@ -167,6 +167,6 @@ Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:
 :mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.verify` (a re-detection checked by the first filter), :mod:`.augment` (the first filter's warped copies), :mod:`.sizeprior` (a prior on the size), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
-track), :mod:`.rotation` (the target's roll), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+track), :mod:`.rotation` (the target's roll), :mod:`.camera` (the camera's own motion, ``camera_motion``), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

@@ -174,6 +174,10 @@ class DCFParams:
                                "only when the first frame's filter scores it within this many standard deviations of its "
                                "distance at the target on confident frames and likelier the target than clutter (TLD's "
                                "conservative similarity; gflow_core.dcf.verify; 0: not checked)")
+    camera_motion: bool = param(False, "the camera's own motion from the last frame, a similarity fitted to the "
+                                       "background's corners tracked by Lucas-Kanade, moves the prediction, the "
+                                       "particles, the size, the velocity and the roll before the frame is weighed "
+                                       "(BoT-SORT's camera motion compensation; gflow_core.dcf.camera)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

@@ -73,7 +73,8 @@ class DCFState:
     negatives : the places the search's best placement kept falling at on the frames since the target was
         last seen (empty while it is; ``search_negatives``; :mod:`.negatives`).
     last_grey : (H, W) uint8 grey levels of the last frame while the track is tentative and
-        ``confirm_flow`` asks for its flow (:mod:`.confirm`), else None.
+        ``confirm_flow`` asks for its flow (:mod:`.confirm`), and on every frame with ``camera_motion``
+        (:mod:`.camera`), else None.
     angle : radians, the target's roll: the windows of the target are sampled rolled by it (``roll_step``;
         :mod:`.rotation`; 0 without).
     manoeuvre : the posterior probability that the target is manoeuvring, not moving at constant velocity

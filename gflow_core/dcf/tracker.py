@@ -28,6 +28,7 @@ from ..features import to_grey
 from ..particles import LogWeights, systematic_resample
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 from ..visibility import ChiSquare, Cue, visibility
+from . import camera as cam
 from . import model as tm
 from .confirm import remember, taken, tentative
 from .cues import may_fail
@@ -462,6 +463,43 @@ def _verified(st: DCFState, obs: DCFObservation, centre: np.ndarray, log_s: floa
     return accepted(*_conservative_of(st, p), rho_c, p)
 
 
+def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams) -> tuple[DCFState, np.ndarray]:
+    """With ``camera_motion``, the state and the proposal's (N, 3) particles (x, y, log s) moved by the camera's
+    motion from the last frame to ``obs`` (:func:`.camera.estimate`: the background's similarity x_t = A x_{t-1}
+    + b, A = s R(phi)): the last estimate's centre and the particles through it, their log size by log s, the
+    velocity turned by A and, with ``roll_step``, the held roll by phi (within ``roll_max``). Unchanged without
+    the option, without the last frame's grey levels, when the fit is refused or the camera still, when it neither
+    rolls nor zooms and shifts the target's centre by less than the motion prior's std (``motion_prior`` sqrt(w h):
+    the prior covers it, and the fit's own errors would enter the prediction in full), while the
+    target is judged hidden -- the camera is then taken to follow it, its place held in the frame (as without the
+    option), since a camera that pans after a target would carry the prediction away with the background -- and
+    while its box is not inside the frame (its centre is clipped to the frame, so not where the target is)."""
+    box = box_of(st.centre, st.log_s, st.geom.size0)
+    H, W = obs.grey.shape
+    if not p.camera_motion or st.last_grey is None or st.last_grey.shape != obs.grey.shape \
+            or st.hidden_run >= p.hidden_after or not (box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= W
+                                                       and box[1] + box[3] <= H):
+        return st, proposed
+    mo = cam.estimate(st.last_grey, cam.grey8(obs.grey), box)
+    c = st.centre
+    # with neither roll nor zoom, a shift |A c + b - c| within the motion prior's std (motion_prior sqrt(w h)) is left to it
+    if mo.still or (mo.angle == 0.0 and mo.log_scale == 0.0
+                    and np.hypot(*(mo.apply(c[None, :])[0] - c)) < p.motion_prior * math.sqrt(box[2] * box[3])):
+        return st, proposed
+    lim, ls = p.max_log_scale, mo.log_scale
+    moved = proposed.copy()
+    # x_t = A x_{t-1} + b, log s_t = log s_{t-1} + log s   (.camera, eq. 1)
+    moved[:, :2] = mo.apply(proposed[:, :2])
+    moved[:, 2] = np.clip(proposed[:, 2] + ls, -lim, lim)
+    angle = st.angle
+    if p.roll_step > 0:
+        # theta_t = theta_{t-1} + phi: the target rolls with the frame (.rotation samples its window rolled by it)
+        angle = float(np.clip(st.angle + mo.angle, -math.radians(p.roll_max), math.radians(p.roll_max)))
+    # v_t = A v_{t-1}: the velocity seen in the new frame
+    return replace(st, centre=mo.apply(st.centre[None, :])[0], log_s=float(np.clip(st.log_s + ls, -lim, lim)),
+                   velocity=mo.linear @ st.velocity, angle=angle), moved
+
+
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
     """One frame: the response at the prediction, the particles weighed, the estimate, the target's
@@ -479,6 +517,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     n = p.particles
     if proposed.ndim != 2 or proposed.shape[1] != 3 or not np.isfinite(proposed).all():
         raise ValueError(f"proposals must be finite (N, 3) = (x, y, log s), got {proposed.shape}")
+    st, proposed = _compensate(st, obs, proposed, p)  # with camera_motion, the camera's motion (.camera)
     geom = st.geom
     Hh, Ww = obs.grey.shape
     s = float(np.exp(st.log_s))
@@ -555,10 +594,16 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         learnt["manoeuvre"] = mm.posterior(W, resp1) if present and found is None else float(mot.pi[1])
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
-                  target_state=state, spread=spread, last_grey=remember(learnt.get("target", st.target), obs, p), **learnt)
+                  target_state=state, spread=spread, last_grey=_last_grey(learnt.get("target", st.target), obs, p), **learnt)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)
+
+
+def _last_grey(target: ChiSquare, obs: DCFObservation, p: DCFParams) -> np.ndarray | None:
+    """The frame's grey levels kept for the next frame: always with ``camera_motion`` (:mod:`.camera`), else
+    while a tentative track's flow needs them (:func:`.confirm.remember`)."""
+    return cam.grey8(obs.grey) if p.camera_motion else remember(target, obs, p)
 
 
 def initialise(obs: DCFObservation, box: Box, p: DCFParams, rng: np.random.Generator) -> DCFState:
@@ -582,7 +627,7 @@ def initialise(obs: DCFObservation, box: Box, p: DCFParams, rng: np.random.Gener
                     target=_prior(p.prior_target, p.prior_count), clutter=_prior(p.prior_clutter, p.prior_count),
                     ctarget=_prior(p.prior_colour_target, p.prior_count),
                     cclutter=_prior(p.prior_colour_clutter, p.prior_count), longterm=lt,
-                    last_grey=remember(_prior(p.prior_target, p.prior_count), obs, p))
+                    last_grey=_last_grey(_prior(p.prior_target, p.prior_count), obs, p))
 
 
 class DCFTracker:
