@@ -109,3 +109,15 @@ def damaged_copy(src: Path, bad: Path) -> Path:
     data[mid:mid + 64] = bytes(b ^ 0xFF for b in data[mid:mid + 64])
     bad.write_bytes(bytes(data))
     return bad
+
+
+def cli(args: list[str], capsys) -> tuple[int, str]:
+    """Run ``gflow ARGS`` in this process: its exit status and what it wrote on stderr."""
+    from pipeline.cli.main import main
+
+    capsys.readouterr()
+    try:
+        rc = main(args)
+    except SystemExit as e:  # argparse's refusals exit
+        rc = int(e.code or 0)
+    return rc, capsys.readouterr().err

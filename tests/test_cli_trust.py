@@ -22,6 +22,8 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import cli
+
 from pipeline.cli.main import main
 from pipeline.runtime.transport import free_port
 
@@ -133,14 +135,6 @@ def test_view_started_with_sigint_ignored_stops_on_it(files: Path, replaying: st
     assert rc in (0, 130) and "forwarded" in err and "Traceback" not in err, err
 
 
-def _cli(args: list[str], capsys) -> tuple[int, str]:
-    """``gflow ARGS`` run here: its exit status and what it wrote on stderr."""
-    capsys.readouterr()
-    try:
-        rc = main(args)
-    except SystemExit as e:  # argparse's refusals exit
-        rc = int(e.code or 0)
-    return rc, capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv,kept", [
@@ -173,7 +167,7 @@ def test_no_command_writes_over_an_earlier_output(files: Path, tmp_path: Path, m
     monkeypatch.chdir(tmp_path)
     (tmp_path / kept).parent.mkdir(parents=True, exist_ok=True)
     (tmp_path / kept).write_text("an earlier answer\n")
-    rc, err = _cli([a.replace("{d}", str(files)) for a in argv], capsys)
+    rc, err = cli([a.replace("{d}", str(files)) for a in argv], capsys)
     lines = [ln for ln in err.splitlines() if ln.strip() and not ln.startswith("benchmark: skipped")]
     assert rc == 2 and len(lines) == 1 and "Traceback" not in err, err
     assert kept in lines[0] and "exists" in lines[0] and ("never writes over" in lines[0]
@@ -184,7 +178,7 @@ def test_no_command_writes_over_an_earlier_output(files: Path, tmp_path: Path, m
 
 def test_a_new_output_is_still_written(files: Path, tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.chdir(tmp_path)
-    rc, err = _cli(["boxes", str(files / "demo.mcap"), "--out", "new.csv"], capsys)
+    rc, err = cli(["boxes", str(files / "demo.mcap"), "--out", "new.csv"], capsys)
     assert rc == 0 and (tmp_path / "new.csv").read_text().startswith("frame,x,y,w,h"), err
 
 
@@ -192,7 +186,7 @@ def test_a_new_output_is_still_written(files: Path, tmp_path: Path, monkeypatch,
                                   ["hz", "{s}/estimat", "--duration", "1", "--wait", "1"]])
 def test_a_live_topic_that_nothing_publishes_is_named_with_what_does(replaying: str, capsys, argv: list[str]) -> None:
     """A mistyped topic waited in silence and then said only that nothing came."""
-    rc, err = _cli([a.replace("{s}", replaying) for a in argv], capsys)
+    rc, err = cli([a.replace("{s}", replaying) for a in argv], capsys)
     last = err.strip().splitlines()[-1]
     assert rc == 1 and f"gflow/{replaying}/estimat" in last, err
     assert f"gflow/{replaying}/ has:" in last and "estimate" in last.split("has:")[1] and "_status" not in last, last
@@ -204,7 +198,7 @@ def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: P
     twice = tmp_path / "twice.csv"
     twice.write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n0,40,40,20,20\n")
     other = {"--pred": "--gt", "--gt": "--pred"}[flag]
-    rc, err = _cli(["eval", flag, str(twice), other, str(files / "gt.csv")], capsys)
+    rc, err = cli(["eval", flag, str(twice), other, str(files / "gt.csv")], capsys)
     lines = err.strip().splitlines()
     assert rc == 2 and len(lines) == 1, err
     assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
@@ -219,7 +213,7 @@ def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: P
 def test_a_frame_range_or_rate_out_of_range_names_the_option(files: Path, tmp_path: Path, capsys, extra: list[str],
                                                              words: list[str]) -> None:
     """These were refused naming the built-in graph file and its source stage, not the option typed."""
-    rc, err = _cli(["track", str(files / "frames"), "--init", "10,10,20,20", "--out", str(tmp_path / "b.csv"),
+    rc, err = cli(["track", str(files / "frames"), "--init", "10,10,20,20", "--out", str(tmp_path / "b.csv"),
                     "--inline", "--no-record", "-q", *extra], capsys)
     lines = err.strip().splitlines()
     assert rc == 2 and len(lines) == 1 and ".yaml" not in lines[0], err
@@ -232,7 +226,7 @@ def test_a_frame_past_the_end_of_a_torn_recording_says_it_is_torn(files: Path, t
     torn = tmp_path / "torn.mcap"
     data = (files / "demo.mcap").read_bytes()
     torn.write_bytes(data[: len(data) // 2])
-    rc, err = _cli(["frame", str(torn), "9", str(tmp_path / "f.png")], capsys)
+    rc, err = cli(["frame", str(torn), "9", str(tmp_path / "f.png")], capsys)
     assert rc == 2 and "no frame at or after frame 9" in err and "Traceback" not in err, err
     assert f"{torn} was not closed properly" in err, err
 
@@ -253,7 +247,7 @@ def test_a_stream_that_is_not_running_is_named_with_those_that_are(replaying: st
 
 
 def test_boxes_of_a_stream_the_recording_lacks_names_the_one_it_has(files: Path, tmp_path: Path, capsys) -> None:
-    rc, err = _cli(["boxes", str(files / "demo.mcap"), "--out", str(tmp_path / "b.csv"), "--stream", "cam9"], capsys)
+    rc, err = cli(["boxes", str(files / "demo.mcap"), "--out", str(tmp_path / "b.csv"), "--stream", "cam9"], capsys)
     lines = err.strip().splitlines()
     assert rc == 2 and len(lines) == 1 and "'cam9'" in lines[0], err
     assert lines[0].endswith("it holds estimates of stream demo"), lines[0]

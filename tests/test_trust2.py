@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import cli
 from pipeline.cli.main import main
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
@@ -45,14 +46,6 @@ def files(tmp_path_factory) -> Path:
     return d
 
 
-def cli(args: list[str], capsys) -> tuple[int, str]:
-    """Run ``gflow ARGS`` here; its exit status and what it wrote on stderr."""
-    capsys.readouterr()
-    try:
-        rc = main(args)
-    except SystemExit as e:  # argparse's refusals exit
-        rc = int(e.code or 0)
-    return rc, capsys.readouterr().err
 
 
 def one_line_error(rc: int, err: str, *words: str) -> str:
