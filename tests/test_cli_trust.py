@@ -204,6 +204,23 @@ def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: P
     assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
 
 
+def test_a_frame_given_twice_in_a_visibility_or_points_file_is_refused(tmp_path: Path) -> None:
+    """As in a boxes file: the later row of a frame (or of a frame's landmark) replaced the earlier one."""
+    from pipeline.io.landmarks import read_points
+    from pipeline.recording.results import read_visibility
+
+    vis = tmp_path / "visible.csv"
+    vis.write_text("frame,visible\n0,1.0\n1,0.5\n0,0.0\n")
+    with pytest.raises(ValueError, match=r"visible.csv:4: frame 0 again \(first at line 2\)"):
+        read_visibility(vis)
+    pts = tmp_path / "points.csv"
+    pts.write_text("frame,landmark,x,y\n0,0,1,2\n0,1,3,4\n0,0,5,6\n")
+    with pytest.raises(ValueError, match=r"points.csv:4: frame 0 landmark 0 again \(first at line 2\)"):
+        read_points(pts)
+    pts.write_text("frame,landmark,x,y\n0,0,1,2\n0,1,3,4\n1,0,5,6\n")  # the same landmark on another frame
+    assert read_points(pts) == {0: {0: (1.0, 2.0), 1: (3.0, 4.0)}, 1: {0: (5.0, 6.0)}}
+
+
 @pytest.mark.parametrize("extra,words", [
     (["--start", "4", "--stop", "2"], ["--start 4 --stop 2", "no frame to track"]),
     (["--stop", "0"], ["--stop", ">= 1"]),

@@ -111,6 +111,7 @@ def read_points(path: str | os.PathLike) -> dict[int, dict[int, tuple[float, flo
     """Read a points file: ``{frame: {landmark: (x, y)}}`` (a header line is optional)."""
     p = Path(path)
     out: dict[int, dict[int, tuple[float, float]]] = {}
+    first: dict[tuple[int, int], int] = {}
     for lineno, row in csv_rows(p, "frame,landmark,x,y", "points"):
         try:
             frame, lm = int(row[0]), int(row[1])
@@ -119,6 +120,10 @@ def read_points(path: str | os.PathLike) -> dict[int, dict[int, tuple[float, flo
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ValueError(f"{p}:{lineno}: point has NaN or inf")
+        if (frame, lm) in first:  # the later row would replace the earlier one without a word
+            raise ValueError(f"{p}:{lineno}: frame {frame} landmark {lm} again (first at line "
+                             f"{first[frame, lm]}): one point a landmark a frame")
+        first[frame, lm] = lineno
         out.setdefault(frame, {})[lm] = (x, y)
     if not out:
         raise ValueError(f"{p}: no points")

@@ -134,6 +134,7 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
     p = Path(path)
     vis: dict[int, float] = {}
     pert: dict[int, bool] = {}
+    first: dict[int, int] = {}
     for lineno, row in csv_rows(p, "frame,visible", "visibility"):
         try:
             frame, v = int(row[0]), float(row[1])
@@ -143,6 +144,9 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{p}:{lineno}: visible {row[1]} is outside [0, 1]")
+        if frame in first:  # the later row would replace the earlier one without a word
+            raise ValueError(f"{p}:{lineno}: frame {frame} again (first at line {first[frame]}): one row a frame")
+        first[frame] = lineno
         vis[frame] = v
     if not vis:
         raise ValueError(f"{p}: no rows")
