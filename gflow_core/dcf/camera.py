@@ -176,16 +176,12 @@ def _lk(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray, guess: np.ndarray) ->
 
 def _tracks(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The corners (N, 1, 2) float32 ``p0`` of ``prev`` tracked to ``cur``: ((N, 2) float64 where they started,
-    (N, 2) where they landed, (N,) bool whether the track came back within MAX_FB px). Each point is tracked
-    from no motion and, when the frame's phase correlation finds a shift of a pixel or more, from that shift
-    too (a jolt beyond Lucas-Kanade's pyramid on a fine texture), keeping the track that comes back closer."""
-    b, fb = _lk(prev, cur, p0, np.zeros(2))
+    (N, 2) where they landed, (N,) their forward-backward error, px, inf for a point lost either way). Each point is tracked
+    from the frame's shift by phase correlation when it is a pixel or more (a jolt beyond Lucas-Kanade's pyramid
+    on a fine texture), else from no motion."""
     shift = _shift(prev, cur)
-    if np.hypot(*shift) >= 1.0:
-        b2, fb2 = _lk(prev, cur, p0, shift)
-        better = fb2 < fb
-        b, fb = np.where(better[:, None], b2, b), np.where(better, fb2, fb)
-    return p0[:, 0].astype(np.float64), b, fb <= MAX_FB
+    b, fb = _lk(prev, cur, p0, shift if np.hypot(*shift) >= 1.0 else np.zeros(2))
+    return p0[:, 0].astype(np.float64), b, fb
 
 
 def _reduced(mo: CameraMotion, box: tuple[float, float, float, float]) -> CameraMotion:
@@ -221,7 +217,8 @@ def estimate(prev: np.ndarray, cur: np.ndarray, box: tuple[float, float, float, 
     p0 = cv2.goodFeaturesToTrack(prev, MAX_CORNERS, QUALITY, MIN_DISTANCE, mask=_mask(prev.shape, box))
     if p0 is None or len(p0) < MIN_INLIERS:
         return IDENTITY
-    a, b, ok = _tracks(prev, cur, p0.astype(np.float32))
+    a, b, fb = _tracks(prev, cur, p0.astype(np.float32))
+    ok = fb <= MAX_FB
     n = int(ok.sum())
     if n < MIN_INLIERS:
         return IDENTITY

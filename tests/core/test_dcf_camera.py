@@ -150,6 +150,75 @@ def test_a_camera_jolt_is_followed_with_the_camera_motion_and_lost_without() -> 
     assert centre_error(truth[12:], np.array([e.box for e in off[12:]])).max() > 20.0
 
 
+class Panned(Jolted):
+    """The scene filmed by a camera that pans steadily: frame t is shifted by (-``pan`` t, 0) px (the background
+    wraps round); the target is not drawn on the frames of ``hidden`` (the background shows where it stands)."""
+
+    def __init__(self, path, pan: int, hidden: range = range(0), seed: int = 0) -> None:
+        super().__init__(path, 0, (0, 0), seed=seed)
+        self.pan, self.hidden = pan, hidden
+
+    def shift(self, t: int) -> tuple[int, int]:
+        return (-self.pan * t, 0)
+
+    def frame(self, t: int) -> np.ndarray:
+        if t not in self.hidden:
+            return super().frame(t)
+        img = np.roll(self.bg.copy(), (0, -self.pan * t), axis=(0, 1))
+        img += np.random.default_rng([self.seed, t]).normal(0.0, 3.0, img.shape)
+        return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def test_a_steady_pan_is_left_to_the_velocity_which_stays_in_the_image() -> None:
+    """A target standing still in a scene the camera pans across at 10 px a frame: with ``camera_motion`` the
+    velocity is the image's, the pan's -10 px a frame (as without the option), not the target's own 0, and the
+    state's camera share of it comes to the pan's too; the boxes follow the target within 3 px."""
+    sc = Panned(lambda t: (235.0, 100.0), 10)
+    frames = [sc.frame(t) for t in range(16)]
+    st, on = _track(frames, sc.truth(0), DCFParams(camera_motion=True))
+    truth = np.array([sc.truth(t) for t in range(16)])
+    assert centre_error(truth, np.array([e.box for e in on])).max() < 3.0
+    assert np.hypot(*(st.velocity - (-10.0, 0.0))) < 1.0
+    assert np.hypot(*(np.asarray(st.camera_velocity) - (-10.0, 0.0))) < 1.0
+    arrays, values = to_arrays(st)
+    assert from_arrays(arrays, values, DCFParams(camera_motion=True)).camera_velocity == st.camera_velocity
+
+
+def test_a_target_hidden_while_the_camera_pans_coasts_in_the_image_as_without_the_option() -> None:
+    """A pan of 10 px a frame (beyond the motion prior's std, so compensated while the target is seen) and the
+    target not in the frames 12 to 19: judged hidden, its box coasts in the image as the box without the option
+    does (within 2 px on every hidden frame), its velocity the image's decaying; a camera taken to follow a hidden
+    target would hold it where it was last seen, 10 px and more from the box without the option."""
+    sc = Panned(lambda t: (235.0, 100.0), 10, hidden=range(12, 20))
+    frames = [sc.frame(t) for t in range(20)]
+    _, on = _track(frames, sc.truth(0), DCFParams(camera_motion=True))
+    _, off = _track(frames, sc.truth(0))
+    assert on[-1].target_state != "tracked" and off[-1].target_state != "tracked"
+    truth = np.array([sc.truth(t) for t in range(12)])
+    assert centre_error(truth, np.array([e.box for e in on[:12]])).max() < 3.0
+    assert centre_error(np.array([e.box for e in on[12:]]), np.array([e.box for e in off[12:]])).max() < 2.0
+
+
+def test_a_box_near_the_frame_edge_is_not_moved_but_the_camera_is_measured() -> None:
+    """A jolt of (25, 0) px while the target's box lies 10 px from the frame's left edge (inside the frame, within
+    half its width of the edge, where it may hold the edge rather than the target): the state and the particles are
+    not moved, and the camera's shift at the target, 25 px, is measured all the same (for its share of the velocity);
+    40 px from the edge the same jolt moves them by it."""
+    from gflow_core.dcf.tracker import _compensate
+
+    p = DCFParams(camera_motion=True)
+    for x, moved in ((25.0, False), (55.0, True)):
+        sc = Jolted(lambda t, x=x: (x, 100.0), 4, (25, 0))
+        frames = [sc.frame(t) for t in range(5)]
+        st, _ = _track(frames[:4], sc.truth(0), p)
+        parts = st.particles.copy()
+        st2, parts2, d = _compensate(st, TRACKER.observe(p, frames[4]), parts, p, 1.0)
+        assert abs(d[0] - 25.0) < 1.0 and abs(d[1]) < 1.0
+        assert np.array_equal(st2.centre, st.centre) != moved and np.array_equal(parts2, parts) != moved
+        if moved:
+            assert abs(st2.centre[0] - st.centre[0] - 25.0) < 1.0
+
+
 def test_on_a_still_camera_the_option_changes_nothing() -> None:
     """A still camera (the frames' noise only): every frame's fit is the identity, and the boxes are those of
     the tracker without the option, bit for bit."""
