@@ -14,9 +14,10 @@ RANSAC, x_t = A x_{t-1} + b with A = s R(phi):
     A = [[s cos phi, -s sin phi], [s sin phi, s cos phi]],   (eq. 1)
 
 and the state's prediction moved through it. :func:`estimate` gives (A, b) and the inliers; the
-tracker (:func:`gflow_core.dcf.tracker.step`) moves the last estimate's centre and the proposal's
-particles through it, adds log s to their log size, turns the velocity by A and adds phi to the
-target's held roll (:mod:`.rotation`: the window is sampled rolled by it).
+tracker (:func:`gflow_core.dcf.tracker.step`) keeps its velocity in the image and the camera's share u of
+it (the fit's shift at the target, smoothed as the velocity is), moves the last estimate's centre and the
+proposal's particles by the rest, A x + b - u, adds log s to their log size, turns the velocity by A and
+adds phi to the target's held roll (:mod:`.rotation`: the window is sampled rolled by it).
 
 Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
 
@@ -34,18 +35,26 @@ Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
   fits zoomed out by 0.26 % a frame on average, -1.66 in log size over the sequence, and the box shrank
   from 46 to 19 px wide; a few dozen points on surfer's water gave rolls of 1-3 degrees a frame that were
   not there);
-* frames are not downscaled (BoT-SORT halves them); each point is tracked from no motion and, when the
-  frames' phase correlation (Kuglin & Hines 1975) finds a shift of a pixel or more, from that shift too,
-  the track that comes back closer kept: a 50 px jolt of a fine texture was beyond the ``LEVELS``-level
-  pyramid alone;
-* BoT-SORT transforms the Kalman state's (x, y, w, h) and velocities by the 2 x 2 part; here the place
-  goes through the similarity, the log size adds log s, the velocity turns by A, and the rotation is
-  handed to the target's roll (BoT-SORT has no roll);
-* BoT-SORT compensates every frame; the tracker leaves a shift within the motion prior's std (with no
+* frames are not downscaled (BoT-SORT halves them: at half size a 12 degree roll of tiger1 kept fewer than
+  ``SIMILARITY_INLIERS`` inliers, and its roll was dropped); each point is tracked from the frames' shift by
+  phase correlation (Kuglin & Hines 1975) when it is a pixel or more, else from no motion: a 50 px jolt of a
+  fine texture was beyond the ``LEVELS``-level pyramid alone (tracking from both and keeping the closer gave
+  the same fits, within 0.35 px at the frame's corners on 29 frame pairs each of four sequences, in 1.6-1.8
+  times the time on three of them);
+* BoT-SORT transforms the Kalman state's (x, y, w, h) and velocities by the 2 x 2 part, its velocity the
+  target's against the background; here the velocity stays the image's (as without the option) and the state
+  keeps the camera's share u of it, so the place goes through the similarity less u (a steady pan is left to
+  the constant-velocity model, the camera's change of motion -- a jolt, a roll, a pan starting or stopping --
+  is compensated), the log size adds log s, the velocity turns by A, and the rotation is handed to the
+  target's roll (BoT-SORT has no roll);
+* BoT-SORT compensates every frame; the tracker leaves a change within the motion prior's std (with no
   roll or zoom) to the prior, since the fit's own errors would enter the prediction in full (skating1's
-  panning camera, followed frame by frame, lost the skater: AUC 0.335 against 0.604), and compensates
-  nothing while the target is judged hidden (the camera is taken to follow it) or while its box is not
-  inside the frame.
+  panning camera, followed frame by frame, lost the skater: AUC 0.335 against 0.604), and moves nothing
+  while the target is judged hidden (its velocity coasts in the image: a target that left with the image
+  goes on with it, one the camera follows stays put; a velocity against the background held a target that
+  left the frame at its edge) or while its box widened by ``MARGIN`` is not inside the frame (a box at the
+  edge may hold the edge, or what it cut off: carried with the image as it came back, it lost caviar1's and
+  tiger1's ``leave-40``).
 
 Deterministic: OpenCV's RANSAC seeds its own generator on every call, so the same two frames give the
 same bits in every call and in another process (checked by ``tests/core/test_dcf_camera.py``), and no

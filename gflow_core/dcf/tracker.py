@@ -492,10 +492,7 @@ def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFP
     c = st.centre
     # d = A c + b - c: the camera's shift at the target's centre
     d = mo.apply(c[None, :])[0] - c
-    # the box widened by the corners' margin (.camera.MARGIN of its sides each way) inside the frame: one nearer the
-    # edge may hold the edge, or what it cut off, rather than the target
-    mx, my = cam.MARGIN * box[2], cam.MARGIN * box[3]
-    inside = box[0] >= mx and box[1] >= my and box[0] + box[2] + mx <= W and box[1] + box[3] + my <= H
+    inside = box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= W and box[1] + box[3] <= H
     # with neither roll nor zoom, a change |d - u dt| within the motion prior's std (motion_prior sqrt(w h)) is left to it
     if not inside or (mo.angle == 0.0 and mo.log_scale == 0.0
                       and np.hypot(*(d - u)) < p.motion_prior * math.sqrt(box[2] * box[3])):

@@ -199,24 +199,27 @@ def test_a_target_hidden_while_the_camera_pans_coasts_in_the_image_as_without_th
     assert centre_error(np.array([e.box for e in on[12:]]), np.array([e.box for e in off[12:]])).max() < 2.0
 
 
-def test_a_box_near_the_frame_edge_is_not_moved_but_the_camera_is_measured() -> None:
-    """A jolt of (25, 0) px while the target's box lies 10 px from the frame's left edge (inside the frame, within
-    half its width of the edge, where it may hold the edge rather than the target): the state and the particles are
-    not moved, and the camera's shift at the target, 25 px, is measured all the same (for its share of the velocity);
-    40 px from the edge the same jolt moves them by it."""
+def test_a_box_across_the_frame_edge_is_not_moved_but_the_camera_is_measured() -> None:
+    """A jolt of (25, 0) px while the target's box crosses the frame's left edge (its centre clipped to the frame,
+    so not where the target is): the state and the particles are not moved, and the camera's shift at the
+    target, 25 px, is measured all the same (for its share of the velocity); with the box inside the frame the
+    same jolt moves them by it."""
+    from dataclasses import replace
+
     from gflow_core.dcf.tracker import _compensate
 
     p = DCFParams(camera_motion=True)
-    for x, moved in ((25.0, False), (55.0, True)):
-        sc = Jolted(lambda t, x=x: (x, 100.0), 4, (25, 0))
-        frames = [sc.frame(t) for t in range(5)]
-        st, _ = _track(frames[:4], sc.truth(0), p)
-        parts = st.particles.copy()
-        st2, parts2, d = _compensate(st, TRACKER.observe(p, frames[4]), parts, p, 1.0)
-        assert abs(d[0] - 25.0) < 1.0 and abs(d[1]) < 1.0
-        assert np.array_equal(st2.centre, st.centre) != moved and np.array_equal(parts2, parts) != moved
-        if moved:
-            assert abs(st2.centre[0] - st.centre[0] - 25.0) < 1.0
+    sc = Jolted(lambda t: (55.0, 100.0), 4, (25, 0))
+    frames = [sc.frame(t) for t in range(5)]
+    st, _ = _track(frames[:4], sc.truth(0), p)
+    obs = TRACKER.observe(p, frames[4])
+    parts = st.particles.copy()
+    st2, parts2, d = _compensate(st, obs, parts, p, 1.0)
+    assert abs(st2.centre[0] - st.centre[0] - 25.0) < 1.0 and abs(d[0] - 25.0) < 1.0 and abs(d[1]) < 1.0
+    edge = replace(st, centre=np.array([8.0, st.centre[1]]))  # a box 30 px wide about x = 8 crosses x = 0
+    st3, parts3, d3 = _compensate(edge, obs, parts, p, 1.0)
+    assert np.array_equal(st3.centre, edge.centre) and np.array_equal(parts3, parts)
+    assert abs(d3[0] - 25.0) < 1.0 and abs(d3[1]) < 1.0
 
 
 def test_on_a_still_camera_the_option_changes_nothing() -> None:
