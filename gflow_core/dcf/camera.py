@@ -52,9 +52,7 @@ Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
   panning camera, followed frame by frame, lost the skater: AUC 0.335 against 0.604), and moves nothing
   while the target is judged hidden (its velocity coasts in the image: a target that left with the image
   goes on with it, one the camera follows stays put; a velocity against the background held a target that
-  left the frame at its edge) or while its box widened by ``MARGIN`` is not inside the frame (a box at the
-  edge may hold the edge, or what it cut off: carried with the image as it came back, it lost caviar1's and
-  tiger1's ``leave-40``).
+  left the frame at its edge) or while its box is not inside the frame (its centre is clipped to the frame).
 
 Deterministic: OpenCV's RANSAC seeds its own generator on every call, so the same two frames give the
 same bits in every call and in another process (checked by ``tests/core/test_dcf_camera.py``), and no
