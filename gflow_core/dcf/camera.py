@@ -14,10 +14,9 @@ RANSAC, x_t = A x_{t-1} + b with A = s R(phi):
     A = [[s cos phi, -s sin phi], [s sin phi, s cos phi]],   (eq. 1)
 
 and the state's prediction moved through it. :func:`estimate` gives (A, b) and the inliers; the
-tracker (:func:`gflow_core.dcf.tracker.step`) keeps its velocity in the image and the camera's share u of
-it (the fit's shift at the target, smoothed as the velocity is), moves the last estimate's centre and the
-proposal's particles by the rest, A x + b - u, adds log s to their log size, turns the velocity by A and
-adds phi to the target's held roll (:mod:`.rotation`: the window is sampled rolled by it).
+tracker (:func:`gflow_core.dcf.tracker.step`) moves the last estimate's centre and the proposal's
+particles through it, adds log s to their log size, turns the velocity by A and adds phi to the
+target's held roll (:mod:`.rotation`: the window is sampled rolled by it).
 
 Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
 
@@ -41,18 +40,14 @@ Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
   fine texture was beyond the ``LEVELS``-level pyramid alone (tracking from both and keeping the closer gave
   the same fits, within 0.35 px at the frame's corners on 29 frame pairs each of four sequences, in 1.6-1.8
   times the time on three of them);
-* BoT-SORT transforms the Kalman state's (x, y, w, h) and velocities by the 2 x 2 part, its velocity the
-  target's against the background; here the velocity stays the image's (as without the option) and the state
-  keeps the camera's share u of it, so the place goes through the similarity less u (a steady pan is left to
-  the constant-velocity model, the camera's change of motion -- a jolt, a roll, a pan starting or stopping --
-  is compensated), the log size adds log s, the velocity turns by A, and the rotation is handed to the
-  target's roll (BoT-SORT has no roll);
-* BoT-SORT compensates every frame; the tracker leaves a change within the motion prior's std (with no
+* BoT-SORT transforms the Kalman state's (x, y, w, h) and velocities by the 2 x 2 part; here the place
+  goes through the similarity, the log size adds log s, the velocity turns by A, and the rotation is
+  handed to the target's roll (BoT-SORT has no roll);
+* BoT-SORT compensates every frame; the tracker leaves a shift within the motion prior's std (with no
   roll or zoom) to the prior, since the fit's own errors would enter the prediction in full (skating1's
-  panning camera, followed frame by frame, lost the skater: AUC 0.335 against 0.604), and moves nothing
-  while the target is judged hidden (its velocity coasts in the image: a target that left with the image
-  goes on with it, one the camera follows stays put; a velocity against the background held a target that
-  left the frame at its edge) or while its box is not inside the frame (its centre is clipped to the frame).
+  panning camera, followed frame by frame, lost the skater: AUC 0.335 against 0.604), and compensates
+  nothing while the target is judged hidden (the camera is taken to follow it) or while its box is not
+  inside the frame.
 
 Deterministic: OpenCV's RANSAC seeds its own generator on every call, so the same two frames give the
 same bits in every call and in another process (checked by ``tests/core/test_dcf_camera.py``), and no
@@ -183,9 +178,9 @@ def _lk(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray, guess: np.ndarray) ->
 
 def _tracks(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The corners (N, 1, 2) float32 ``p0`` of ``prev`` tracked to ``cur``: ((N, 2) float64 where they started,
-    (N, 2) where they landed, (N,) their forward-backward error, px, inf for a point lost either way). Each point is tracked
-    from the frame's shift by phase correlation when it is a pixel or more (a jolt beyond Lucas-Kanade's pyramid
-    on a fine texture), else from no motion."""
+    (N, 2) where they landed, (N,) their forward-backward error, px, inf for a point lost either way). Each
+    point is tracked once, from the frame's shift by phase correlation when it is a pixel or more (a jolt beyond
+    Lucas-Kanade's pyramid on a fine texture), else from no motion."""
     shift = _shift(prev, cur)
     b, fb = _lk(prev, cur, p0, shift if np.hypot(*shift) >= 1.0 else np.zeros(2))
     return p0[:, 0].astype(np.float64), b, fb

@@ -176,9 +176,8 @@ class DCFParams:
                                "conservative similarity; gflow_core.dcf.verify; 0: not checked)")
     camera_motion: bool = param(False, "the camera's own motion from the last frame, a similarity fitted to the "
                                        "background's corners tracked by Lucas-Kanade, moves the prediction, the "
-                                       "particles, the size, the velocity and the roll before the frame is weighed, "
-                                       "less the camera's share of the velocity (kept in the image: a steady pan "
-                                       "is left to it) (BoT-SORT's camera motion compensation; gflow_core.dcf.camera)")
+                                       "particles, the size, the velocity and the roll before the frame is weighed "
+                                       "(BoT-SORT's camera motion compensation; gflow_core.dcf.camera)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

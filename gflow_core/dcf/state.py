@@ -83,8 +83,6 @@ class DCFState:
         :mod:`.rates`; 0 without).
     vtarget, vclutter : distributions of the first frame's filter's distance at the estimate and of its best
         half a box away on confident frames (``verify``; :mod:`.verify`; empty without).
-    camera_velocity : (2,) float64 px / frame, the camera's share of ``velocity``: the background's shift at the
-        target's centre, smoothed and decayed as the velocity is (``camera_motion``; :mod:`.camera`; 0 without).
     """
 
     geom: Geometry
@@ -111,7 +109,6 @@ class DCFState:
     recent: float = 0.0
     vtarget: ChiSquare = ChiSquare()
     vclutter: ChiSquare = ChiSquare()
-    camera_velocity: tuple[float, float] = (0.0, 0.0)
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -186,8 +183,6 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["manoeuvre"] = float(st.manoeuvre)
     if st.recent:
         values["recent"] = float(st.recent)
-    if any(st.camera_velocity):
-        values["camera_velocity"] = [float(v) for v in st.camera_velocity]
     if st.vtarget.n:
         values["vtarget"] = _chi_values(st.vtarget)
         values["vclutter"] = _chi_values(st.vclutter)
@@ -240,6 +235,5 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     angle=float(values.get("angle", 0.0)), manoeuvre=float(values.get("manoeuvre", 0.0)),
                     recent=float(values.get("recent", 0.0)),
                     vtarget=chi("vtarget"), vclutter=chi("vclutter"),
-                    camera_velocity=tuple(float(v) for v in values.get("camera_velocity", (0.0, 0.0))),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)

@@ -463,72 +463,41 @@ def _verified(st: DCFState, obs: DCFObservation, centre: np.ndarray, log_s: floa
     return accepted(*_conservative_of(st, p), rho_c, p)
 
 
-def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, dt: float
-                ) -> tuple[DCFState, np.ndarray, np.ndarray]:
-    """With ``camera_motion``, the state and the proposal's (N, 3) particles (x, y, log s) moved by the change of
-    the camera's motion from the last frame to ``obs`` (:func:`.camera.estimate`: the background's similarity x_t =
-    A x_{t-1} + b, A = s R(phi)), and the camera's shift d (2,) px at the target's centre over the frame.
-
-    The velocity is kept in the image, as without the option, so it already carries the camera's smoothed motion
-    u (``camera_velocity``); what the constant-velocity prediction lacks is the rest, A x + b - u dt: the last
-    estimate's centre and the particles go through it, their log size adds log s, the velocity and u turn by A and,
-    with ``roll_step``, the held roll adds phi (within ``roll_max``). A steady pan is left to the velocity; a jolt,
-    a roll, a zoom or a pan starting or stopping is compensated. Nothing is moved when that shift is within the motion
-    prior's std (``motion_prior`` sqrt(w h)) with neither roll nor zoom (the prior covers it, and the fit's own
-    errors would enter the prediction in full), and while the target's box is not inside the frame (its centre is
-    clipped to the frame, so not where the target is; d is measured all the same, for u). Nothing is measured -- d
-    is taken as u dt, the camera keeping its motion -- without the option or the last frame's grey levels, when the
-    fit is refused, and while the target is judged hidden (its velocity and u coast in the image, as the velocity
-    does without the option: a target that left with the image goes on with it, one the camera follows stays put)."""
-    u = np.asarray(st.camera_velocity, dtype=np.float64) * dt
+def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams) -> tuple[DCFState, np.ndarray]:
+    """With ``camera_motion``, the state and the proposal's (N, 3) particles (x, y, log s) moved by the camera's
+    motion from the last frame to ``obs`` (:func:`.camera.estimate`: the background's similarity x_t = A x_{t-1}
+    + b, A = s R(phi)): the last estimate's centre and the particles through it, their log size by log s, the
+    velocity turned by A and, with ``roll_step``, the held roll by phi (within ``roll_max``). Unchanged without
+    the option, without the last frame's grey levels, when the fit is refused or the camera still, when it neither
+    rolls nor zooms and shifts the target's centre by less than the motion prior's std (``motion_prior`` sqrt(w h):
+    the prior covers it, and the fit's own errors would enter the prediction in full), while the
+    target is judged hidden -- the camera is then taken to follow it, its place held in the frame (as without the
+    option), since a camera that pans after a target would carry the prediction away with the background -- and
+    while its box is not inside the frame (its centre is clipped to the frame, so not where the target is)."""
     box = box_of(st.centre, st.log_s, st.geom.size0)
     H, W = obs.grey.shape
     if not p.camera_motion or st.last_grey is None or st.last_grey.shape != obs.grey.shape \
-            or st.hidden_run >= p.hidden_after:
-        return st, proposed, u
+            or st.hidden_run >= p.hidden_after or not (box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= W
+                                                       and box[1] + box[3] <= H):
+        return st, proposed
     mo = cam.estimate(st.last_grey, cam.grey8(obs.grey), box)
-    if not mo.inliers:
-        return st, proposed, u
     c = st.centre
-    # d = A c + b - c: the camera's shift at the target's centre
-    d = mo.apply(c[None, :])[0] - c
-    inside = box[0] >= 0 and box[1] >= 0 and box[0] + box[2] <= W and box[1] + box[3] <= H
-    # with neither roll nor zoom, a change |d - u dt| within the motion prior's std (motion_prior sqrt(w h)) is left to it
-    if not inside or (mo.angle == 0.0 and mo.log_scale == 0.0
-                      and np.hypot(*(d - u)) < p.motion_prior * math.sqrt(box[2] * box[3])):
-        return st, proposed, d
+    # with neither roll nor zoom, a shift |A c + b - c| within the motion prior's std (motion_prior sqrt(w h)) is left to it
+    if mo.still or (mo.angle == 0.0 and mo.log_scale == 0.0
+                    and np.hypot(*(mo.apply(c[None, :])[0] - c)) < p.motion_prior * math.sqrt(box[2] * box[3])):
+        return st, proposed
     lim, ls = p.max_log_scale, mo.log_scale
     moved = proposed.copy()
-    # x_t = A x_{t-1} + b - u dt, log s_t = log s_{t-1} + log s   (.camera, eq. 1, less the velocity's share)
-    moved[:, :2] = mo.apply(proposed[:, :2]) - u
+    # x_t = A x_{t-1} + b, log s_t = log s_{t-1} + log s   (.camera, eq. 1)
+    moved[:, :2] = mo.apply(proposed[:, :2])
     moved[:, 2] = np.clip(proposed[:, 2] + ls, -lim, lim)
     angle = st.angle
     if p.roll_step > 0:
         # theta_t = theta_{t-1} + phi: the target rolls with the frame (.rotation samples its window rolled by it)
         angle = float(np.clip(st.angle + mo.angle, -math.radians(p.roll_max), math.radians(p.roll_max)))
-    # v_t = A v_{t-1}, u_t = A u_{t-1}: the velocities seen in the new frame
-    turned = mo.linear @ np.asarray(st.camera_velocity, dtype=np.float64)
-    return replace(st, centre=mo.apply(c[None, :])[0] - u, log_s=float(np.clip(st.log_s + ls, -lim, lim)),
-                   velocity=mo.linear @ st.velocity, camera_velocity=(float(turned[0]), float(turned[1])),
-                   angle=angle), moved, d
-
-
-def _camera_velocity(st: DCFState, d: np.ndarray, found: bool, present: bool, p: DCFParams, dt: float
-                     ) -> dict[str, Any]:
-    """With ``camera_motion``, the camera's share u of the velocity after the frame, updated as the velocity is:
-    0 on a re-detection, decayed by ``coast_velocity`` while the target is unseen, else u <- m u + (1 - m) d / dt
-    with d the camera's shift at the target over the frame (:func:`_compensate`); nothing without the option."""
-    if not p.camera_motion:
-        return {}
-    u = np.asarray(st.camera_velocity, dtype=np.float64)
-    if found:
-        u = np.zeros(2)
-    elif not present:
-        u = p.coast_velocity ** dt * u
-    else:
-        # u <- m u + (1 - m) d / dt, as v <- m v + (1 - m) (c_t - c_{t-1}) / dt
-        u = p.velocity_memory * u + (1.0 - p.velocity_memory) * d / dt
-    return {"camera_velocity": (float(u[0]), float(u[1]))}
+    # v_t = A v_{t-1}: the velocity seen in the new frame
+    return replace(st, centre=mo.apply(st.centre[None, :])[0], log_s=float(np.clip(st.log_s + ls, -lim, lim)),
+                   velocity=mo.linear @ st.velocity, angle=angle), moved
 
 
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
@@ -548,8 +517,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     n = p.particles
     if proposed.ndim != 2 or proposed.shape[1] != 3 or not np.isfinite(proposed).all():
         raise ValueError(f"proposals must be finite (N, 3) = (x, y, log s), got {proposed.shape}")
-    last = st.centre  # in frame t-1's image: the velocity is the image's, with or without camera_motion
-    st, proposed, cam_shift = _compensate(st, obs, proposed, p, dt)  # with camera_motion, its change (.camera)
+    st, proposed = _compensate(st, obs, proposed, p)  # with camera_motion, the camera's motion (.camera)
     geom = st.geom
     Hh, Ww = obs.grey.shape
     s = float(np.exp(st.log_s))
@@ -607,13 +575,12 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         state = ("lost" if srch.covers else "occluded") if hidden else "tracked"
     else:
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
-        velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - last) / dt
+        velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
         log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
         if p.redetect_speed:
             # E|v|^2 <- (1 - a) E|v|^2 + a |v|^2 on tracked frames, a = target_rate
             learnt["speed2"] = (1.0 - p.target_rate) * st.speed2 + p.target_rate * float(velocity @ velocity)
-    learnt.update(_camera_velocity(st, cam_shift, found is not None, present, p, dt))
     if present:
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     if p.search_clutter:
