@@ -83,6 +83,22 @@ def test_frames_that_say_nothing_of_the_camera_give_the_identity() -> None:
     assert still.still and still.inliers >= cam.MIN_INLIERS
 
 
+def test_each_corner_is_tracked_once_each_way_even_through_a_jolt(monkeypatch) -> None:
+    """Lucas-Kanade runs one pass forward and one back a frame, from the phase correlation's shift on a 45 px
+    jolt (which it then recovers within 0.1 px at the frame's corners) and from no motion on a still frame: two
+    calls, not four (tracking from both guesses and keeping the closer gave the same fits in 1.6-1.8 times
+    the time)."""
+    calls = []
+    real = cv2.calcOpticalFlowPyrLK
+    monkeypatch.setattr(cam.cv2, "calcOpticalFlowPyrLK", lambda *a, **k: calls.append(1) or real(*a, **k))
+    g = _tiger()
+    w, m = _warp(g, 0.0, 1.0, (45.0, 0.0))
+    mo = cam.estimate(g, w, BOX)
+    assert len(calls) == 2 and _corner_error(mo.matrix, m, g.shape) < 0.1
+    calls.clear()
+    assert cam.estimate(g, g, BOX).still and len(calls) == 2
+
+
 _CHILD = """
 import cv2, sys
 import numpy as np
