@@ -34,14 +34,10 @@ Departures from BoT-SORT's ``GMC`` (its sparse optical-flow mode):
   fits zoomed out by 0.26 % a frame on average, -1.66 in log size over the sequence, and the box shrank
   from 46 to 19 px wide; a few dozen points on surfer's water gave rolls of 1-3 degrees a frame that were
   not there);
-* frames are not downscaled (BoT-SORT halves them: at half size a 12 degree roll of tiger1 kept fewer than
-  ``SIMILARITY_INLIERS`` inliers, and its roll was dropped); each point is tracked from no motion and, when
-  the frames' phase correlation (Kuglin & Hines 1975) finds a shift of a pixel or more, the points whose track
-  did not come back within ``MAX_FB`` px are tracked again from that shift, the track that comes back closer
-  kept: a 50 px jolt of a fine texture was beyond the ``LEVELS``-level pyramid alone (tracking every point from
-  both gave the same fits, within 0.03 px at the frame's corners on 29 frame pairs each of four sequences, in
-  1.0-1.5 times the time; tracking every point once, from the shift alone, gave fits up to 0.35 px apart on
-  skating1, and 61 of seed 1's 72 fast, blur, roll and leave cases got back against 65);
+* frames are not downscaled (BoT-SORT halves them); each point is tracked from no motion and, when the
+  frames' phase correlation (Kuglin & Hines 1975) finds a shift of a pixel or more, from that shift too,
+  the track that comes back closer kept: a 50 px jolt of a fine texture was beyond the ``LEVELS``-level
+  pyramid alone;
 * BoT-SORT transforms the Kalman state's (x, y, w, h) and velocities by the 2 x 2 part; here the place
   goes through the similarity, the log size adds log s, the velocity turns by A, and the rotation is
   handed to the target's roll (BoT-SORT has no roll);
@@ -180,20 +176,16 @@ def _lk(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray, guess: np.ndarray) ->
 
 def _tracks(prev: np.ndarray, cur: np.ndarray, p0: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The corners (N, 1, 2) float32 ``p0`` of ``prev`` tracked to ``cur``: ((N, 2) float64 where they started,
-    (N, 2) where they landed, (N,) their forward-backward error, px, inf for a point lost either way). Each
-    point is tracked from no motion; when the frame's phase correlation finds a shift of a pixel or more, the
-    points whose track did not come back within MAX_FB px are tracked again from that shift (a jolt beyond
-    Lucas-Kanade's pyramid on a fine texture), the track that comes back closer kept."""
+    (N, 2) where they landed, (N,) bool whether the track came back within MAX_FB px). Each point is tracked
+    from no motion and, when the frame's phase correlation finds a shift of a pixel or more, from that shift
+    too (a jolt beyond Lucas-Kanade's pyramid on a fine texture), keeping the track that comes back closer."""
     b, fb = _lk(prev, cur, p0, np.zeros(2))
-    again = fb > MAX_FB
-    if again.any():
-        shift = _shift(prev, cur)
-        if np.hypot(*shift) >= 1.0:
-            b2, fb2 = _lk(prev, cur, p0[again], shift)
-            better = fb2 < fb[again]
-            b[again] = np.where(better[:, None], b2, b[again])
-            fb[again] = np.where(better, fb2, fb[again])
-    return p0[:, 0].astype(np.float64), b, fb
+    shift = _shift(prev, cur)
+    if np.hypot(*shift) >= 1.0:
+        b2, fb2 = _lk(prev, cur, p0, shift)
+        better = fb2 < fb
+        b, fb = np.where(better[:, None], b2, b), np.where(better, fb2, fb)
+    return p0[:, 0].astype(np.float64), b, fb <= MAX_FB
 
 
 def _reduced(mo: CameraMotion, box: tuple[float, float, float, float]) -> CameraMotion:
@@ -229,8 +221,7 @@ def estimate(prev: np.ndarray, cur: np.ndarray, box: tuple[float, float, float, 
     p0 = cv2.goodFeaturesToTrack(prev, MAX_CORNERS, QUALITY, MIN_DISTANCE, mask=_mask(prev.shape, box))
     if p0 is None or len(p0) < MIN_INLIERS:
         return IDENTITY
-    a, b, fb = _tracks(prev, cur, p0.astype(np.float32))
-    ok = fb <= MAX_FB
+    a, b, ok = _tracks(prev, cur, p0.astype(np.float32))
     n = int(ok.sum())
     if n < MIN_INLIERS:
         return IDENTITY

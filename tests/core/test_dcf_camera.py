@@ -83,26 +83,6 @@ def test_frames_that_say_nothing_of_the_camera_give_the_identity() -> None:
     assert still.still and still.inliers >= cam.MIN_INLIERS
 
 
-def test_lucas_kanade_runs_again_from_the_shift_only_for_the_points_it_lost(monkeypatch) -> None:
-    """Every corner is tracked from no motion, one pass forward and one back; on a shift of 3 px or a jolt of 45 px
-    (a pixel or more by phase correlation) only the points whose track did not come back (a few at the frame's
-    edge; fewer than a fifth) are tracked again from the shift (tracking every point from both guesses gave the
-    same fits in 1.2-1.5 times the time); on a still frame nothing runs again. The fits are within
-    0.1 px at the frame's corners."""
-    calls = []
-    real = cv2.calcOpticalFlowPyrLK
-    monkeypatch.setattr(cam.cv2, "calcOpticalFlowPyrLK", lambda *a, **k: calls.append(len(a[2])) or real(*a, **k))
-    g = _tiger()
-    for shift in ((3.0, 0.0), (45.0, 0.0)):
-        calls.clear()
-        w, m = _warp(g, 0.0, 1.0, shift)
-        mo = cam.estimate(g, w, BOX)
-        assert _corner_error(mo.matrix, m, g.shape) < 0.1
-        assert len(calls) == 4 and calls[0] == calls[1] and 0 < calls[2] == calls[3] < calls[0] / 5
-    calls.clear()
-    assert cam.estimate(g, g, BOX).still and len(calls) == 2
-
-
 _CHILD = """
 import cv2, sys
 import numpy as np
