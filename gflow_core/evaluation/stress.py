@@ -34,7 +34,7 @@ import numpy as np
 from .metrics import HIDDEN_BELOW
 
 __all__ = ["KINDS", "StressCase", "CASES", "SPAN", "StressPlan", "plan_case", "render_frame", "visible_fraction",
-           "occluder_size", "fill_truth", "HIDDEN_BELOW"]
+           "occluder_size", "fill_truth", "HIDDEN_BELOW", "motion_kernel"]
 
 #: the kinds of perturbation
 KINDS = ("none", "occlude", "sweep", "partial", "slide", "roll-target", "roll-camera", "look", "dark", "blur", "fast",
@@ -550,7 +550,7 @@ def _paste(img: np.ndarray, rect: np.ndarray, patch: np.ndarray) -> None:
     img[b0:b1, a0:a1] = resized[b0 - py:b1 - py, a0 - px:a1 - px]
 
 
-def _motion_kernel(length: float, angle: float) -> np.ndarray:
+def motion_kernel(length: float, angle: float) -> np.ndarray:
     """A normalised line kernel of ``length`` pixels at ``angle`` degrees, (K, K) float32."""
     k = int(math.ceil(length)) | 1
     ker = np.zeros((k, k), np.float32)
@@ -619,6 +619,6 @@ def render_frame(image: np.ndarray, plan: StressPlan, i: int, patch: np.ndarray 
             f += rng.normal(0.0, plan.noise[i], size=f.shape).astype(np.float32)
         out = np.clip(f + 0.5, 0, 255).astype(np.uint8)
     if plan.blur[i] >= 2.0:
-        out = cv2.filter2D(out, -1, _motion_kernel(float(plan.blur[i]), plan.blur_angle),
+        out = cv2.filter2D(out, -1, motion_kernel(float(plan.blur[i]), plan.blur_angle),
                            borderType=cv2.BORDER_REFLECT101)
     return out
