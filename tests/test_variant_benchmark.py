@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -10,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from gflow_core.evaluation.variants import VARIANTS, grey, select_variant
+from gflow_core.evaluation.variants import BLUR_LENGTH, VARIANTS, blur, grey, half, select_variant
 from pipeline.io.frame_readers import folder_frames
+from pipeline.recording.results import read_boxes
 from pipeline.io.mcap_io import iter_records
 from gflow_msgs.messages import Frame, decode
 
@@ -32,7 +34,7 @@ def test_grey_is_the_luma_of_every_pixel():
     with pytest.raises(ValueError, match="not"):
         grey(np.zeros((4, 4, 4), np.uint8))
     assert select_variant("grey") is VARIANTS["grey"]
-    with pytest.raises(ValueError, match=r"unknown variant 'gray' .*known: grey"):
+    with pytest.raises(ValueError, match=r"unknown variant 'gray' .*known: grey, blur, fast, small"):
         select_variant("gray")
 
 
@@ -40,7 +42,7 @@ def test_bad_variant_is_a_one_line_error():
     r = subprocess.run([*GFLOW, "benchmark", "no/such/folder", "--variant", "gray"], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2
-    assert r.stderr.strip().splitlines() == ["gflow benchmark: error: unknown variant 'gray' in --variant (known: grey)"]
+    assert r.stderr.strip().splitlines() == ["gflow benchmark: error: unknown variant 'gray' in --variant (known: grey, blur, fast, small)"]
 
 
 def test_grey_variant_tracks_grey_frames_and_prints_the_table(tmp_path):
@@ -64,3 +66,71 @@ def test_grey_variant_tracks_grey_frames_and_prints_the_table(tmp_path):
     assert np.array_equal(first[..., 0], grey(original))
     # the derived frames lived in a temporary folder: only the runs' boxes and recordings are kept
     assert sorted(p.name for p in (out / "crossing").iterdir()) == ["dcf.csv", "dcf.mcap", "static_box.csv"]
+
+
+def test_blur_smears_each_frame_its_own_way_and_the_same_way_every_run():
+    rng = np.random.default_rng(3)
+    bgr = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    a, b = blur(bgr, 7), blur(bgr, 8)
+    assert a.shape == bgr.shape and a.dtype == np.uint8
+    assert np.array_equal(a, blur(bgr.copy(), 7))  # drawn from the frame's index: the same on every run
+    assert not np.array_equal(a, b)  # another frame, another kernel
+    # a line kernel of at least BLUR_LENGTH[0] px averages noise down; the mean level stays
+    assert a.astype(float).std() < 0.8 * bgr.astype(float).std()
+    assert abs(a.astype(float).mean() - bgr.astype(float).mean()) < 2.0
+    assert BLUR_LENGTH[0] >= 2.0
+    with pytest.raises(ValueError, match="index"):
+        blur(bgr, -1)
+
+
+def test_small_halves_frames_and_boxes_and_fast_keeps_every_third_frame_numbered_on():
+    bgr = np.zeros((12, 20, 3), np.uint8)
+    bgr[2:6, 4:12] = 200
+    h = half(bgr)
+    assert h.shape == (6, 10, 3)
+    assert h[1:3, 2:6].min() == 200 and h[3:, :].max() == 0 and h[:, 6:].max() == 0  # the block at half its place, size
+    assert half(bgr[:11]).shape == (6, 10, 3)  # an odd side rounds
+    small, fast = VARIANTS["small"], VARIANTS["fast"]
+    assert small.truth({4: (10.0, 20.0, 30.0, 40.0)}, 4) == {4: (5.0, 10.0, 15.0, 20.0)}
+    assert not small.keeps_truth and not fast.keeps_truth and VARIANTS["grey"].keeps_truth
+    # fast from frame 10: 10, 13, 16 kept as 10, 11, 12; 11, 12 and anything before 10 dropped
+    assert [fast.index(f, 10) for f in (9, 10, 11, 12, 13, 16)] == [None, 10, None, None, 11, 12]
+    truth = {f: (float(f), 0.0, 5.0, 5.0) for f in range(0, 20, 5)}  # labelled every 5th frame
+    assert fast.truth(truth, 0) == {0: (0.0, 0.0, 5.0, 5.0), 5: (15.0, 0.0, 5.0, 5.0)}
+    assert np.array_equal(fast.transform(bgr, 3), bgr)
+
+
+def _benchmark(seq: Path, variant: str, frames: str, out: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([*GFLOW, "benchmark", str(seq), "--variant", variant, "--trackers", "dcf", "--opencv",
+                           "none", "--frames", frames, "--inline", "--seed", "1", "--json", "--no-fps", "-q",
+                           "--out-dir", str(out)], capture_output=True, text=True, timeout=120)
+
+
+def _frames_given(recording: Path) -> list[np.ndarray]:
+    return [m.image.array() for m in (decode(rec.data) for rec in iter_records(recording) if rec.type == "Frame")
+            if isinstance(m, Frame)]
+
+
+def test_fast_and_small_variants_give_the_tracker_the_kept_frames_and_score_the_carried_truth(tmp_path):
+    crossing = data_dir("crossing")
+    originals = dict(folder_frames(crossing / "frames"))
+    # fast: frames 2..10 of the original are 2, 5, 8 kept, numbered 2, 3, 4
+    r = _benchmark(crossing, "fast", "2:11", tmp_path / "fast")
+    assert r.returncode == 0, r.stderr
+    frames = _frames_given(tmp_path / "fast" / "crossing" / "dcf.mcap")
+    assert len(frames) == 3
+    for got, f in zip(frames, (2, 5, 8)):
+        assert np.array_equal(got, cv2.imread(str(originals[f]), cv2.IMREAD_COLOR))
+    boxes = (tmp_path / "fast" / "crossing" / "dcf.csv").read_text().splitlines()[1:]
+    assert [int(line.split(",")[0]) for line in boxes] == [2, 3, 4]
+    rows = {row["tracker"]: row for row in json.loads(r.stdout)["rows"] if row["sequence"] == "crossing"}
+    assert rows["dcf"]["frames"] == 3
+    # small: the frames at half size, the truth's box halved (the first frame's box starts the tracker)
+    r = _benchmark(crossing, "small", "0:4", tmp_path / "small")
+    assert r.returncode == 0, r.stderr
+    frames = _frames_given(tmp_path / "small" / "crossing" / "dcf.mcap")
+    first = cv2.imread(str(originals[0]), cv2.IMREAD_COLOR)
+    assert len(frames) == 4 and frames[0].shape == half(first).shape
+    truth = read_boxes(crossing / "groundtruth.csv")[0]
+    got = [float(v) for v in (tmp_path / "small" / "crossing" / "dcf.csv").read_text().splitlines()[1].split(",")[1:5]]
+    assert np.allclose(got, [v / 2 for v in truth], atol=0.01)

@@ -1,15 +1,29 @@
-"""Variants of a sequence: every frame changed the same way, the truth untouched (pure functions).
+"""Variants of a sequence: every frame changed the same way, the truth carried along (pure functions).
 
 A variant turns each frame of a sequence into the frame of another kind of footage with the same
-target in the same place, so a benchmark can score the trackers on footage they were not tuned on
+target, so a benchmark can score the trackers on footage they were not tuned on
 (``gflow benchmark DATA --variant NAME``; the files are written by
-:mod:`pipeline.evaluation.variant_benchmark`).
+:mod:`pipeline.evaluation.variant_benchmark`). Each stands for a kind of video the trackers are
+expected to hold without having been tuned on it:
 
 * ``grey`` -- grey footage: every frame to its grey levels with OpenCV's BGR -> grey weights
   (``Y = 0.299 R + 0.587 G + 0.114 B``, rounded), one channel. A folder source decodes a
   one-channel image into three equal channels, which is how grey video in colour containers
   (the grey sequences of OTB, JPEG frames with three equal channels) reaches a tracker: the two
-  are the same frames to every tracker.
+  are the same frames to every tracker. The truth is the original's.
+* ``blur`` -- a shaking, blurring camera: every frame smeared by a line kernel (the stress cases'
+  :func:`~gflow_core.evaluation.stress.motion_kernel`) of a length drawn from 4 to 16 px and a
+  direction drawn from 0 to 180 degrees, both drawn afresh for each frame from a generator seeded
+  by the frame's index, so a frame is blurred the same way whatever the run. The truth is the
+  original's.
+* ``fast`` -- fast motion: only every 3rd frame is kept, from the first frame tracked, and the
+  kept frames are numbered on (original ``start + 3 k`` becomes ``start + k``), so the target moves
+  three times as far between frames for the whole sequence. The truth is the kept frames' boxes
+  (on a sequence labelled every 5th frame, every 15th original frame is scored).
+* ``small`` -- a small target: every frame at half its width and height (OpenCV's area
+  interpolation), every box halved with it (``x, y, w, h -> x/2, y/2, w/2, h/2``).
+
+The four are kept apart so a loss can be put down to one kind of change.
 """
 
 from __future__ import annotations
@@ -20,33 +34,116 @@ from typing import Callable
 import cv2
 import numpy as np
 
-__all__ = ["Variant", "VARIANTS", "grey", "select_variant"]
+from gflow_core.evaluation.stress import motion_kernel
+
+__all__ = ["Variant", "VARIANTS", "grey", "blur", "half", "same", "select_variant"]
+
+Box = tuple[float, float, float, float]
+
+#: the range of the ``blur`` variant's line kernel's length, px
+BLUR_LENGTH = (4.0, 16.0)
+#: the ``blur`` variant's generator is seeded by (this, the frame's index)
+BLUR_SEED = 0xB1
 
 
-def grey(image: np.ndarray) -> np.ndarray:
-    """The grey levels of a frame: (H, W) uint8 of (H, W, 3) BGR uint8 (or of (H, W), returned as is)."""
+def grey(image: np.ndarray, index: int = 0) -> np.ndarray:
+    """The grey levels of a frame: (H, W) uint8 of (H, W, 3) BGR uint8 (or of (H, W), returned as is).
+    ``index`` (the frame's) is not used."""
     if image.ndim == 2:
         return image
-    if image.ndim != 3 or image.shape[2] != 3:
-        raise ValueError(f"a frame is (H, W) or (H, W, 3), not {image.shape}")
+    _check_frame(image)
     # ITU-R BT.601 luma: Y = 0.299 R + 0.587 G + 0.114 B
     return cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
 
 
+def blur(image: np.ndarray, index: int) -> np.ndarray:
+    """Frame ``index`` smeared by a line kernel drawn for it: (H, W[, 3]) uint8 -> the same shape.
+
+    The length is uniform on :data:`BLUR_LENGTH`, the direction uniform on [0, 180) degrees, both
+    from ``np.random.default_rng((BLUR_SEED, index))``: the same frame is blurred the same way on
+    every run. Edges are mirrored (OpenCV's ``BORDER_REFLECT101``)."""
+    if image.ndim != 2:
+        _check_frame(image)
+    if index < 0:
+        raise ValueError(f"a frame's index is 0 or more, not {index}")
+    rng = np.random.default_rng((BLUR_SEED, index))
+    length = float(rng.uniform(*BLUR_LENGTH))
+    angle = float(rng.uniform(0.0, 180.0))
+    return cv2.filter2D(image, -1, motion_kernel(length, angle), borderType=cv2.BORDER_REFLECT101)
+
+
+def half(image: np.ndarray, index: int = 0) -> np.ndarray:
+    """A frame at half its width and height, (H, W[, 3]) -> (round(H/2), round(W/2)[, 3]), by area
+    interpolation (each pixel the mean of the 2 x 2 it covers). ``index`` is not used."""
+    if image.ndim != 2:
+        _check_frame(image)
+    h, w = image.shape[:2]
+    if h < 2 or w < 2:
+        raise ValueError(f"a frame of {w} x {h} px is too small to halve")
+    return cv2.resize(image, (max(1, round(w / 2)), max(1, round(h / 2))), interpolation=cv2.INTER_AREA)
+
+
+def same(image: np.ndarray, index: int = 0) -> np.ndarray:
+    """The frame as it is (the ``fast`` variant changes which frames are kept, not how they look)."""
+    return image
+
+
+def _check_frame(image: np.ndarray) -> None:
+    if image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"a frame is (H, W) or (H, W, 3), not {image.shape}")
+
+
 @dataclass(frozen=True)
 class Variant:
-    """One variant: its ``name`` (``--variant NAME``), what it does, and the frame transform
-    (BGR (H, W, 3) uint8 -> the frame to write, (H, W) or (H, W, 3) uint8)."""
+    """One variant: its ``name`` (``--variant NAME``), what it does, the frame transform
+    ((H, W, 3) BGR uint8 and the frame's original index -> the frame to write, (H', W') or
+    (H', W', 3) uint8), the frames it keeps (every ``step``-th from the first tracked, numbered on)
+    and the factor ``scale`` the transform scales frames by, which the truth's boxes get too."""
 
     name: str
     describe: str
-    transform: Callable[[np.ndarray], np.ndarray]
+    transform: Callable[[np.ndarray, int], np.ndarray]
+    step: int = 1
+    scale: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.step < 1 or self.scale <= 0:
+            raise ValueError(f"variant {self.name!r}: step is 1 or more and scale above 0")
+
+    def index(self, frame: int, start: int) -> int | None:
+        """The derived index of original frame ``frame`` of a run from ``start``: ``start + (frame -
+        start) / step``, or None for a frame the variant leaves out (before ``start``, or between
+        kept ones)."""
+        if frame < start or (frame - start) % self.step:
+            return None
+        return start + (frame - start) // self.step
+
+    def truth(self, boxes: dict[int, Box], start: int) -> dict[int, Box]:
+        """The truth of the derived sequence: each kept frame's box by its derived index, scaled."""
+        s = self.scale
+        out: dict[int, Box] = {}
+        for f, (x, y, w, h) in boxes.items():
+            j = self.index(f, start)
+            if j is not None:
+                out[j] = (x * s, y * s, w * s, h * s)
+        return out
+
+    @property
+    def keeps_truth(self) -> bool:
+        """Whether the derived sequence's truth is the original's, file for file."""
+        return self.step == 1 and self.scale == 1.0
 
 
 #: the variants by name
 VARIANTS: dict[str, Variant] = {
     "grey": Variant("grey", "every frame to one channel of grey levels (OpenCV's BGR -> grey weights, written "
                             "losslessly); the tracker sees three equal channels, as in grey JPEG video", grey),
+    "blur": Variant("blur", f"every frame smeared by a line kernel {BLUR_LENGTH[0]:g}-{BLUR_LENGTH[1]:g} px long in a "
+                            "direction drawn afresh for each frame, as from a shaking camera", blur),
+    "fast": Variant("fast", "only every 3rd frame kept, from the first tracked: the target moves three times as far "
+                            "between frames", same, step=3),
+    "small": Variant("small", "every frame and every box at half the width and height: a small target", half,
+                     scale=0.5),
 }
 
 
