@@ -195,7 +195,8 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
                             _n_bins(mode))
     scale = None
     if p.scales > 1:
-        scale = init_scale(grey, centre, geom.size0, p.scales, p.scale_step, p.scale_area, p.cell)
+        scale = init_scale(grey, centre, geom.size0, p.scales, p.scale_step, p.scale_area, p.cell,
+                           p.scale_upsample)
     return TargetModel(train, det, det, colour, mode, scale)
 
 
