@@ -3,6 +3,7 @@
     python bench/make_tables.py                  # every table (the stress benchmark takes an hour or more)
     python bench/make_tables.py --only shared    # the trackers on the shared sequences (docs/accuracy.md)
     python bench/make_tables.py --only grey      # the same on grey versions of them (docs/accuracy.md)
+    python bench/make_tables.py --only blur      # ... blurred, every 3rd frame (fast), half size (small)
     python bench/make_tables.py --list           # the tables, their pages and their commands
 
 A table the docs keep sits in its page between ``<!-- figures: NAME -->`` and
@@ -73,6 +74,12 @@ TABLES = (
             ("benchmark", "../shared/data", "--variant", "grey", "--trackers", TRACKERS, "--m2-model", "{m2}",
              "--opencv", "csrt,kcf", "--inline", "--seed", "1", "--no-fps", "--markdown", "-q"),
             opencv=("csrt", "kcf")),
+    *(Figures(v, "docs/accuracy.md", f"every tracker, OpenCV's CSRT and KCF and a box that never moves on the {v} "
+              f"variant of the shared sequences (--variant {v}: {what})",
+              ("benchmark", "../shared/data", "--variant", v, "--trackers", TRACKERS, "--m2-model", "{m2}",
+               "--opencv", "csrt,kcf", "--inline", "--seed", "1", "--no-fps", "--markdown", "-q"),
+              opencv=("csrt", "kcf"))
+      for v, what in (("blur", "a blurring camera"), ("fast", "every 3rd frame"), ("small", "half the size"))),
     Figures("stress", "docs/stress.md", "the stress benchmark over every shared sequence, every tracker and CSRT: "
             "cases got back per family and per sequence",
             ("benchmark", "../shared/data", "--stress", "--trackers", STRESS_TRACKERS, "--m2-model", "{m2}", "--opencv",

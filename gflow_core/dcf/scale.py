@@ -13,7 +13,7 @@ neighbours (sub-step). DSST resamples a target larger than its model area down t
 a smaller one at its own size; here (``scale_upsample``, on by default) a smaller one is resampled
 up to the model area too. A target of 16 x 18 px at its own size gives a sample of 4 x 4 cells of
 4 px, in which a step of 2 % in scale moves an edge by a third of a pixel: the response over the
-scales is all but flat and the parabola's refinement walks the size (on the shared sequences at
+scales is all but flat and its peak wanders from frame to frame, walking the size (on the shared sequences at
 half size, ``gflow benchmark --variant small``, the surfer's box grew from 16 x 18 to 24 x 26 with
 its centre within 5 px, and jumping's face shrank from 19 to 14 px as it grew). Resampled to the
 model area, every target is seen at the same number of cells. With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
