@@ -138,6 +138,10 @@ def measure(fig: Figures, m2: str) -> str:
     from pipeline.cli.versions import version_text
 
     argv = [a.replace("{m2}", m2) for a in fig.argv]
+    for opt in ("--plot", "--precision-plot"):
+        if opt in argv:
+            # the picture is this table's own, made again with it (gflow never writes over a picture)
+            (ROOT / argv[argv.index(opt) + 1]).unlink(missing_ok=True)
     load0 = os.getloadavg()[0]
     t0, c0 = time.monotonic(), resource.getrusage(resource.RUSAGE_CHILDREN)
     out = gflow(argv)
