@@ -50,9 +50,9 @@ class DCFParams:
     scale_rate: float = param(0.025, "learning rate of the scale filter")
     scale_lam: float = param(0.01, "lambda of the scale filter")
     scale_area: int = param(1024, "pixels of the scale filter's sample at most")
-    scale_upsample: bool = param(True, "a target smaller than scale_area pixels is resampled up to it for the scale "
-                                       "filter's sample, as larger ones are resampled down (false: sampled at its own "
-                                       "size, DSST's rule)", before=False)
+    scale_upsample: bool = param(False, "a target smaller than scale_area pixels is resampled up to it for the scale "
+                                        "filter's sample, as larger ones are resampled down (false: sampled at its own "
+                                        "size, DSST's rule)")
     max_log_scale: float = param(1.3862943611198906, "bound on |log s|: the box stays within [1/4, 4] times its "
                                                      "first size")
     kappa: float = param(30.0, "sharpness of the likelihood p(z | X) ~ exp(kappa y(X)), y the response")

@@ -10,13 +10,15 @@ peaks at the row of the target's present scale.
 Departures: 17 scales, as fDSST (Danelljan et al., PAMI 2017) samples, without its PCA and
 interpolation of the response to 33; the peak is refined by a parabola through its
 neighbours (sub-step). DSST resamples a target larger than its model area down to it and samples
-a smaller one at its own size; here (``scale_upsample``, on by default) a smaller one is resampled
+a smaller one at its own size; with ``scale_upsample`` (off by default) a smaller one is resampled
 up to the model area too. A target of 16 x 18 px at its own size gives a sample of 4 x 4 cells of
 4 px, in which a step of 2 % in scale moves an edge by a third of a pixel: the response over the
-scales is all but flat and its peak wanders from frame to frame, walking the size (on the shared sequences at
-half size, ``gflow benchmark --variant small``, the surfer's box grew from 16 x 18 to 24 x 26 with
+scales is all but flat and its peak wanders from frame to frame, walking the size (on the shared
+sequences at half size, ``gflow benchmark --variant small``, the surfer's box grew from 16 x 18 to 24 x 26 with
 its centre within 5 px, and jumping's face shrank from 19 to 14 px as it grew). Resampled to the
-model area, every target is seen at the same number of cells. With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
+model area, every target is seen at the same number of cells; it stays off because on the stress
+cases of crossing's 17 px wide pedestrian and jumping's face (920 px) it did worse
+(docs/trackers.md). With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
 the response read as a likelihood times a Gaussian prior on the log size (:func:`size_posterior`);
 DSST has no prior on the size.
 """
