@@ -1,8 +1,8 @@
 """The trackers on grey footage: the nine shared sequences with their colour taken away.
 
-    python bench/bench_grey.py                           # dcf and appearance, seed 1, --inline
-    python bench/bench_grey.py --trackers dcf --seed 2
-    python bench/bench_grey.py --sequences caviar1,skating1
+    python bench/bench_variants.py                           # dcf and appearance, seed 1, --inline
+    python bench/bench_variants.py --trackers dcf --seed 2
+    python bench/bench_variants.py --sequences caviar1,skating1
 
 Grey video is one of the kinds of footage a tracker tuned on colour loses: the colour cue has
 nothing to say. This runs ``gflow benchmark`` on the colour originals and with ``--variant grey``
