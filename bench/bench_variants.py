@@ -1,18 +1,19 @@
-"""The trackers on grey footage: the nine shared sequences with their colour taken away.
+"""The trackers on other kinds of footage: the nine shared sequences as they are and as a variant.
 
-    python bench/bench_variants.py                           # dcf and appearance, seed 1, --inline
-    python bench/bench_variants.py --trackers dcf --seed 2
-    python bench/bench_variants.py --sequences caviar1,skating1
+    python bench/bench_variants.py                           # grey, dcf and appearance, seed 1, --inline
+    python bench/bench_variants.py --variant fast --trackers dcf
+    python bench/bench_variants.py --trackers dcf --seed 2 --sequences caviar1,skating1
 
-Grey video is one of the kinds of footage a tracker tuned on colour loses: the colour cue has
-nothing to say. This runs ``gflow benchmark`` on the colour originals and with ``--variant grey``
-(every frame as a one-channel PNG, OpenCV's BGR -> grey weights, lossless, so the only change is
-the colour, in a temporary folder the benchmark removes) with the same trackers and seed, and
-prints the two side by side. Where OpenCV's contrib trackers are installed (CSRT,
-KCF), they are run on both too.
+A tracker tuned on some footage loses on other kinds: grey video (the colour cue has nothing to
+say), a blurring camera, a target faster than the frames come, a small target. This runs ``gflow
+benchmark`` on the originals and with ``--variant NAME`` (``grey``, ``blur``, ``fast``, ``small``:
+docs/accuracy.md; the variant's frames are written losslessly to a temporary folder the benchmark
+removes) with the same trackers and seed, and prints the two side by side. Where OpenCV's contrib
+trackers are installed (CSRT, KCF), they are run on both too.
 
-Prints, per sequence, each tracker's AUC on colour and on grey and a box that never moves, then
-the means. Sequences that are grey already (all channels equal) give the same figures twice.
+Prints, per sequence, each tracker's AUC on the originals and on the variant and a box that never
+moves, then the means. On ``grey``, sequences that are grey already (all channels equal) give the
+same figures twice.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import table  # noqa: E402
+from gflow_core.evaluation.variants import VARIANTS  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 SEQUENCES = "caviar1,crossing,david_indoor,dollar,jumping,skating1,surfer,tiger1,twinnings"
@@ -57,6 +59,8 @@ def main() -> int:
     ap.add_argument("--trackers", default="dcf,appearance", help="trackers to run (default dcf,appearance)")
     ap.add_argument("--sequences", default=SEQUENCES, help="shared sequences (default: all nine)")
     ap.add_argument("--seed", type=int, default=1, help="seed (default 1)")
+    ap.add_argument("--variant", default="grey", choices=sorted(VARIANTS),
+                    help="the variant beside the originals (default grey; docs/accuracy.md)")
     args = ap.parse_args()
     if not DATA.is_dir():
         raise SystemExit(f"no shared data at {DATA}")
@@ -65,21 +69,22 @@ def main() -> int:
     if missing:
         raise SystemExit(f"--sequences: no sequence {missing[0]!r} in {DATA}")
     opencv = hasattr(cv2, "TrackerCSRT_create") or hasattr(getattr(cv2, "legacy", None), "TrackerCSRT_create")
-    print("running gflow benchmark on the colour originals", file=sys.stderr)
-    colour_auc = benchmark(DATA, ",".join(names), args.trackers, args.seed, opencv)
-    print("running gflow benchmark --variant grey (grey copies in a temporary folder it removes)", file=sys.stderr)
-    grey_auc = benchmark(DATA, ",".join(names), args.trackers, args.seed, opencv, variant="grey")
+    print("running gflow benchmark on the originals", file=sys.stderr)
+    original_auc = benchmark(DATA, ",".join(names), args.trackers, args.seed, opencv)
+    print(f"running gflow benchmark --variant {args.variant} (its frames in a temporary folder it removes)",
+          file=sys.stderr)
+    variant_auc = benchmark(DATA, ",".join(names), args.trackers, args.seed, opencv, variant=args.variant)
 
     runs = args.trackers.split(",") + (["opencv csrt", "opencv kcf"] if opencv else []) + ["static box"]
-    header = ["sequence"] + [f"{t} colour / grey" for t in runs]
+    header = ["sequence"] + [f"{t} original / {args.variant}" for t in runs]
     rows = []
     for seq in names + ["mean"]:
         cells = []
         for t in runs:
-            c, g = colour_auc.get((t, seq)), grey_auc.get((t, seq))
+            c, g = original_auc.get((t, seq)), variant_auc.get((t, seq))
             cells.append("-" if c is None or g is None else f"{c:.3f} / {g:.3f}")
         rows.append([seq] + cells)
-    print(f"AUC on colour / on grey (seed {args.seed}, --inline"
+    print(f"AUC on the originals / on the {args.variant} variant (seed {args.seed}, --inline"
           f"{'' if opencv else '; OpenCV contrib not installed: no CSRT/KCF'})")
     print(table(rows, header))
     return 0
