@@ -92,6 +92,10 @@ BACF and CSRT learn theirs:
   sizes ``search_size_step`` apart within three standard deviations of it (at most
   ``search_sizes``), each candidate's size under that prior against a size uniform over those
   tried added to its place term; a target back after a long occlusion is seldom the size it had.
+  With ``search_size_volume`` clutter's place and size are uniform over the volume searched (the
+  areas summed over the sizes times the step); off, the number of sizes is counted a second time,
+  favouring every candidate of the wider search by that factor in odds (the option is off so that
+  recordings re-run; docs/trackers.md gives what it changes).
 * **A long-term filter** (:mod:`.longterm`, ``longterm``; LCT, Ma et al. CVPR 2015): a second
   filter learnt at ``longterm_rate`` only on confident frames whose long-term score at the estimate
   is within ``longterm_level`` standard deviations of its mean; with ``longterm_witness`` its

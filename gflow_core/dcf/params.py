@@ -90,6 +90,10 @@ class DCFParams:
     search_size_step: float = param(0.2, "log-size step between the sizes the search tries")
     search_size_growth: float = param(0.005, "while the target is unseen the std of its log size grows by this "
                                              "much a frame (the search tries the sizes within three of it)")
+    search_size_volume: bool = param(False, "with search_sizes, clutter's place and size are uniform over the volume "
+                                            "searched (the areas summed over the sizes times search_size_step); "
+                                            "off: the number of sizes is counted twice, once in the area and once "
+                                            "in the size's term", before=False)
     longterm: bool = param(False, "keep a long-term filter beside the adaptive one, learnt only on reliable frames, "
                                   "and search for a hidden target with it (LCT; gflow_core.dcf.longterm)")
     longterm_rate: float = param(0.01, "learning rate of the long-term filter on reliable frames")

@@ -260,9 +260,12 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
             place = _log_place(cand.centre, pred, sx, sy, cand.area) + log_z
             if k > 0:
                 # the size's prior against clutter's, uniform over the sizes searched (as the place's):
-                # log N(log f; 0, size_sd^2) + log((2 k + 1) step)
+                # log N(log f; 0, size_sd^2) + log((2 k + 1) step); with search_size_volume, log step alone:
+                # log A above already sums the area over the 2 k + 1 sizes, so clutter is uniform over the
+                # volume searched, sum(A_i) step, and the sizes' number is not counted twice
+                n_sizes = 1 if p.search_size_volume else 2 * k + 1
                 place += -cand.log_f ** 2 / (2.0 * size_sd * size_sd) - 0.5 * math.log(2.0 * math.pi * size_sd * size_sd) \
-                    + math.log((2 * k + 1) * p.search_size_step)
+                    + math.log(n_sizes * p.search_size_step)
             if rhos[which] is None:
                 rhos[which] = 1.0 - cand.r
             if which == 0 and (top is None or 1.0 - cand.r < top[1]):
