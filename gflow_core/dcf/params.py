@@ -94,7 +94,7 @@ class DCFParams:
                                             "searched (the areas summed over the sizes times search_size_step); "
                                             "off: the number of sizes is counted twice, once in the area and once "
                                             "in the size's term", before=False)
-    search_track: float = param(0.0, "with search_clutter, the search's best placements on the frames a target is "
+    search_track: float = param(0.95, "with search_clutter, the search's best placements on the frames a target is "
                                        "hidden are a candidate track, taken as the target when the evidence of all "
                                        "its frames, its scores and its motion as one object, gives it this "
                                        "probability or more (in [0.5, 1); Wald's upper threshold 1 - alpha; a track "

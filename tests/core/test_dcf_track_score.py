@@ -26,7 +26,7 @@ from pipeline.recording.results import read_boxes
 
 from conftest import data_dir
 
-P = DCFParams(search_track=0.5)
+P = DCFParams()
 SIDE, CELL, AREA = 30.0, (3.0, 3.0), 200.0 * 300.0
 
 
@@ -92,10 +92,10 @@ def test_the_track_survives_a_snapshot_bit_for_bit() -> None:
 
 
 def test_the_option_is_checked_and_off_for_recordings_made_before_it() -> None:
-    from gflow_core.params import as_recorded
+    from gflow_core.params import added_later
 
-    assert DCFParams().search_track == 0.0
-    assert as_recorded(DCFParams, {}).get("search_track", 0.0) == 0.0
+    assert DCFParams().search_track == 0.95
+    assert added_later(DCFParams)["search_track"] == 0.0
     for bad in (0.3, 1.0, -0.1, float("nan")):
         with pytest.raises(ValueError, match="search_track"):
             DCFParams(search_track=bad)
@@ -107,7 +107,7 @@ def _fast_surfer_overlap(search_track: bool) -> float:
     truth = read_boxes(seq / "groundtruth.csv")
     paths = dict(folder_frames(seq / "frames"))
     kept = [i for i in sorted(paths) if i % 3 == 0]
-    tracker = Tracker("dcf", seed=1, search_track=0.5 if search_track else 0.0)
+    tracker = Tracker("dcf", seed=1, search_track=0.95 if search_track else 0.0)
     overlaps = []
     for i in kept:
         image = cv2.imread(str(paths[i]), cv2.IMREAD_COLOR)
