@@ -21,6 +21,7 @@ from gflow_core.dcf import trackscore as ts
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.state import from_arrays, to_arrays
 from gflow_core.dcf.tracker import TRACKER
+from gflow_core.evaluation.metrics import iou
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes
 
@@ -116,15 +117,8 @@ def _fast_surfer_overlap(search_track: bool) -> float:
             continue
         box = tracker.update(image).box
         if i in truth:
-            overlaps.append(_iou(box, truth[i]))
+            overlaps.append(float(iou(np.array([truth[i]]), np.array([box]))[0]))
     return float(np.mean(overlaps))
-
-
-def _iou(a, b) -> float:
-    ix = max(0.0, min(a[0] + a[2], b[0] + b[2]) - max(a[0], b[0]))
-    iy = max(0.0, min(a[1] + a[3], b[1] + b[3]) - max(a[1], b[1]))
-    inter = ix * iy
-    return inter / (a[2] * a[3] + b[2] * b[3] - inter)
 
 
 def test_the_surfer_at_every_third_frame_is_found_again() -> None:
