@@ -96,6 +96,12 @@ BACF and CSRT learn theirs:
   areas summed over the sizes times the step); off, the number of sizes is counted a second time,
   favouring every candidate of the wider search by that factor in odds (the option is off so that
   recordings re-run; docs/trackers.md gives what it changes).
+  A frame alone may not outweigh ``reappear`` where the target comes back looking unlike what the
+  filter learnt; with ``search_track`` (:mod:`.trackscore`) the search's best placements are a
+  candidate track, scored as radar trackers confirm a new track (Blackman & Popoli 1999: the
+  kinematic log likelihood ratios summed, against clutter uniform or standing still, and the
+  signal's mean, as the look is one object's), and taken when its probability reaches
+  ``search_track`` (Wald's upper threshold 1 - alpha, 0.95).
 * **A long-term filter** (:mod:`.longterm`, ``longterm``; LCT, Ma et al. CVPR 2015): a second
   filter learnt at ``longterm_rate`` only on confident frames whose long-term score at the estimate
   is within ``longterm_level`` standard deviations of its mean; with ``longterm_witness`` its

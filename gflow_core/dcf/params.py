@@ -94,6 +94,11 @@ class DCFParams:
                                             "searched (the areas summed over the sizes times search_size_step); "
                                             "off: the number of sizes is counted twice, once in the area and once "
                                             "in the size's term", before=False)
+    search_track: float = param(0.95, "with search_clutter, the search's best placements on the frames a target is "
+                                       "hidden are a candidate track, taken as the target when the evidence of all "
+                                       "its frames, its scores and its motion as one object, gives it this "
+                                       "probability or more (in [0.5, 1); Wald's upper threshold 1 - alpha; a track "
+                                       "score, gflow_core.dcf.trackscore; 0: off, each frame judged alone)", before=0.0)
     longterm: bool = param(False, "keep a long-term filter beside the adaptive one, learnt only on reliable frames, "
                                   "and search for a hidden target with it (LCT; gflow_core.dcf.longterm)")
     longterm_rate: float = param(0.01, "learning rate of the long-term filter on reliable frames")
@@ -265,6 +270,8 @@ class DCFParams:
                              f"{self.augment_scale}, {self.augment_blur}")
         if not (math.isfinite(self.young) and self.young >= 0):
             raise ValueError(f"young must be finite and >= 0, got {self.young}")
+        if not (self.search_track == 0 or 0.5 <= self.search_track < 1):
+            raise ValueError(f"search_track must be 0 (off) or in [0.5, 1), got {self.search_track}")
         if self.search_negatives < 0:
             raise ValueError(f"search_negatives must be >= 0, got {self.search_negatives}")
         if self.confirm < 0:

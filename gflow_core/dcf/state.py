@@ -20,6 +20,7 @@ from .negatives import Place, from_array, to_array
 from .model import Geometry, TargetModel, geometry
 from .params import DCFParams
 from .scale import ScaleFilter
+from .trackscore import Track
 
 __all__ = ["DCFObservation", "DCFProposal", "DCFState", "model_arrays", "model_of_arrays", "to_arrays", "from_arrays"]
 
@@ -83,6 +84,8 @@ class DCFState:
         :mod:`.rates`; 0 without).
     vtarget, vclutter : distributions of the first frame's filter's distance at the estimate and of its best
         half a box away on confident frames (``verify``; :mod:`.verify`; empty without).
+    track : while the target is hidden, the search's best placements as a candidate track (``search_track``;
+        :mod:`.trackscore`; None without).
     """
 
     geom: Geometry
@@ -109,6 +112,7 @@ class DCFState:
     recent: float = 0.0
     vtarget: ChiSquare = ChiSquare()
     vclutter: ChiSquare = ChiSquare()
+    track: Track | None = None
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -190,6 +194,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         arrays["negatives"] = to_array(st.negatives)
     if st.last_grey is not None:
         arrays["last_grey"] = st.last_grey
+    if st.track is not None:
+        arrays["track"] = st.track.to_array()
     lt = st.longterm
     if lt is not None:
         arrays["lt_det"] = _real(lt.det)
@@ -236,4 +242,5 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     recent=float(values.get("recent", 0.0)),
                     vtarget=chi("vtarget"), vclutter=chi("vclutter"),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
-                    last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None)
+                    last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None,
+                    track=Track.of_array(arrays["track"]) if "track" in arrays else None)

@@ -42,6 +42,7 @@ from .proposal import assign, detections
 from .rates import adapted, filter_rate, recent
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
+from . import trackscore as ts
 from .rotation import angle_change, detect, held
 from . import sizeprior
 from .state import DCFObservation, DCFProposal, DCFState
@@ -163,7 +164,9 @@ class Search:
     """What the search for a hidden target found: ``found`` the first candidate judged visible (or None),
     its P(visible), whether the search covered the whole frame, and ``rho`` the filter's distance at the
     best placement at the held size (None: nothing searched), ``rho_lt`` the long-term filter's, ``best``
-    the adaptive filter's best placement over every size and peak: its centre (2,) and distance."""
+    the adaptive filter's best placement over every size and peak: its centre (2,) and distance; ``top``
+    that placement's candidate, its signal log likelihood ratio (the filter's and colour's terms of
+    :func:`_judge` without the prior and the place) and its place term (``search_track``; else None)."""
 
     found: Any
     confidence: float
@@ -171,6 +174,7 @@ class Search:
     rho: float | None = None
     rho_lt: float | None = None
     best: tuple[np.ndarray, float] | None = None
+    top: tuple[Any, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -208,6 +212,15 @@ def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: D
     back), from the filter's distance (:func:`_hidden_log_pdf` under "hidden", or the density of the
     clutter at a place of ``negs`` the candidate is at, if larger: :mod:`.negatives`), the colour score and
     the place term; the rules of :func:`gflow_core.visibility.visibility` with no partial hypothesis."""
+    lv, lh = _log_joint(st, ds, cand, trials, place, p, negs)
+    # P(visible) = 1 / (1 + exp(lh - lv))
+    d = lh - lv
+    return 0.0 if d > 700.0 else 1.0 / (1.0 + math.exp(d))
+
+
+def _log_joint(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: DCFParams,
+               negs: tuple[neg.Place, ...] = ()) -> tuple[float, float]:
+    """log p(candidate, visible) and log p(candidate, hidden) of :func:`_judge`, up to one constant."""
     ms, rho = p.min_std, 1.0 - cand.r
     # log pi_v + log p_t(max(rho, mode_t)) + log_place  against  log pi_h + log p(rho | hidden)
     lv = math.log(p.reappear) + ds.target.log_pdf(max(rho, ds.target.mode(ms)), ms) + place
@@ -222,9 +235,7 @@ def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: D
         ct, cc = may_fail(st.ctarget, eps), may_fail(st.cclutter, eps)
         lv += ct.log_pdf(max(rc, ct.mode(ms)), ms)
         lh += cc.log_pdf_min(rc, 1.0, ms)
-    # P(visible) = 1 / (1 + exp(lh - lv))
-    d = lh - lv
-    return 0.0 if d > 700.0 else 1.0 / (1.0 + math.exp(d))
+    return lv, lh
 
 
 def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
@@ -245,6 +256,7 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
     templates = [(st.model, _dists(st, None))] + ([] if lt is None else [(view(st.model, lt), _dists(st, lt))])
     rhos: list[float | None] = [None, None]
     top: tuple[np.ndarray, float] | None = None
+    top_cand: tuple[Any, float, float] | None = None
     # with search_truncate, the place prior is conditioned on the region searched (.reacquire)
     log_z = log_truncation(pred, sx, sy, margin, (Ww, Hh)) if p.search_truncate else 0.0
     for which, (searched, ds) in enumerate(templates):
@@ -268,10 +280,16 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                     + math.log(n_sizes * p.search_size_step)
             if rhos[which] is None:
                 rhos[which] = 1.0 - cand.r
-            if which == 0 and (top is None or 1.0 - cand.r < top[1]):
+            better = which == 0 and (top is None or 1.0 - cand.r < top[1])
+            if better:
                 top = (cand.centre, 1.0 - cand.r)
             if p.search_clutter:
-                visible = _judge(st, ds, cand, trials, place, p, st.negatives if which == 0 else ())
+                lv, lh = _log_joint(st, ds, cand, trials, place, p, st.negatives if which == 0 else ())
+                # P(visible) = 1 / (1 + exp(lh - lv))
+                visible = 0.0 if lh - lv > 700.0 else 1.0 / (1.0 + math.exp(lh - lv))
+                if better and p.search_track:
+                    # the signal: lv - lh less the prior's log odds and the place (.trackscore)
+                    top_cand = (cand, lv - lh - (math.log(p.reappear) - math.log(1.0 - p.reappear)) - place, place)
             else:
                 # the colour score of the filter's pick: one draw of the colour clutter
                 ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
@@ -288,7 +306,7 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                 best = Search(cand, visible, covers)
         if best is not None:
             return replace(best, rho=rhos[0], rho_lt=rhos[1])
-    return Search(None, 0.0, covers, rhos[0], rhos[1], top)
+    return Search(None, 0.0, covers, rhos[0], rhos[1], top, top_cand)
 
 
 def _colour_cue(st: DCFState, rho: float, p: DCFParams) -> Cue:
@@ -413,6 +431,24 @@ def _half(st: DCFState) -> tuple[float, float]:
     """Half the held box's (width, height), px: how near a placement is to a remembered place to be at it."""
     s = 0.5 * float(np.exp(st.log_s))
     return st.geom.size0[0] * s, st.geom.size0[1] * s
+
+
+def _track(st: DCFState, obs: DCFObservation, srch: Search, p: DCFParams, s: float, bw: float, bh: float, dt: float
+           ) -> tuple[ts.Track, Search]:
+    """The candidate track extended by the search's best placement (:mod:`.trackscore`), and the search
+    with it as ``found`` when the track's probability is ``search_track`` or more over two frames or more (and with ``verify``,
+    the first frame's filter agrees: :mod:`.verify`)."""
+    assert srch.top is not None
+    cand, signal, place = srch.top
+    geom = st.geom
+    cell = (geom.cell / geom.k0[0] * s, geom.cell / geom.k0[1] * s)
+    track = ts.extend(st.track, cand.centre, signal, place, 0.5 * (bw + bh), cell, st.speed2, cand.area, dt, p)
+    odds = ts.log_odds(track, p)
+    # P(visible) >= search_track: log odds >= logit(search_track)
+    if track.n >= 2 and odds >= math.log(p.search_track / (1.0 - p.search_track)) and _verified(st, obs, cand.centre, st.log_s + cand.log_f, st.angle, p):
+        # P(visible) = 1 / (1 + exp(-log odds))
+        return track, replace(srch, found=cand, confidence=1.0 / (1.0 + math.exp(-odds)))
+    return track, srch
 
 
 def _take_found(st: DCFState, found: Any, p: DCFParams, parts: np.ndarray, mean: np.ndarray, hidden_before: bool,
@@ -558,11 +594,15 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     run = 0 if present else st.hidden_run + 1
     hidden = run >= p.hidden_after
     srch, spread = Search(None, 0.0, False), 0.0
+    track: ts.Track | None = None
     if run > 0:
         # unseen, the target's place spreads by search_growth mean sides a frame
         spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
         # unseen, the target's log size spreads by search_size_growth a frame
         srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen, lt, p.search_size_growth * run)
+        if srch.found is None and srch.top is not None:
+            # with search_track, the search's best placements as a candidate track judged over its frames
+            track, srch = _track(st, obs, srch, p, s, bw, bh, dt)
         if srch.found is not None:
             confidence, run, spread = srch.confidence, 0, 0.0
     found = srch.found
@@ -597,7 +637,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         learnt["manoeuvre"] = mm.posterior(W, resp1) if present and found is None else float(mot.pi[1])
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
-                  target_state=state, spread=spread, last_grey=_last_grey(learnt.get("target", st.target), obs, p), **learnt)
+                  target_state=state, spread=spread, track=track if srch.found is None else None, last_grey=_last_grey(learnt.get("target", st.target), obs, p), **learnt)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)
