@@ -433,6 +433,25 @@ def _half(st: DCFState) -> tuple[float, float]:
     return st.geom.size0[0] * s, st.geom.size0[1] * s
 
 
+def _unseen(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s_xy: tuple[float, float],
+            clutter_seen: Any, lt: LongTerm | None, run: int, s: float, dt: float
+            ) -> tuple[Search, float, ts.Track | None]:
+    """On a frame the target is unseen (``run`` > 0 frames in a row), the search for it (:func:`_search`), its
+    place's spread and, with ``search_track``, the candidate track (:func:`_track`); else nothing searched."""
+    if run <= 0:
+        return Search(None, 0.0, False), 0.0, None
+    bw, bh = st.geom.size0[0] * s, st.geom.size0[1] * s
+    # unseen, the target's place spreads by search_growth mean sides a frame
+    spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
+    # unseen, the target's log size spreads by search_size_growth a frame
+    srch = _search(st, obs, p, pred, s_xy, spread, clutter_seen, lt, p.search_size_growth * run)
+    if srch.found is not None or srch.top is None:
+        return srch, spread, None
+    # with search_track, the search's best placements as a candidate track judged over its frames
+    track, srch = _track(st, obs, srch, p, s, bw, bh, dt)
+    return srch, spread, track
+
+
 def _track(st: DCFState, obs: DCFObservation, srch: Search, p: DCFParams, s: float, bw: float, bh: float, dt: float
            ) -> tuple[ts.Track, Search]:
     """The candidate track extended by the search's best placement (:mod:`.trackscore`), and the search
@@ -593,18 +612,9 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
     hidden = run >= p.hidden_after
-    srch, spread = Search(None, 0.0, False), 0.0
-    track: ts.Track | None = None
-    if run > 0:
-        # unseen, the target's place spreads by search_growth mean sides a frame
-        spread = st.spread + p.search_growth * 0.5 * (bw + bh) * dt
-        # unseen, the target's log size spreads by search_size_growth a frame
-        srch = _search(st, obs, p, pred, (sx, sy), spread, clutter_seen, lt, p.search_size_growth * run)
-        if srch.found is None and srch.top is not None:
-            # with search_track, the search's best placements as a candidate track judged over its frames
-            track, srch = _track(st, obs, srch, p, s, bw, bh, dt)
-        if srch.found is not None:
-            confidence, run, spread = srch.confidence, 0, 0.0
+    srch, spread, track = _unseen(st, obs, p, pred, (sx, sy), clutter_seen, lt, run, s, dt)
+    if srch.found is not None:
+        confidence, run, spread = srch.confidence, 0, 0.0
     found = srch.found
     new_parts = parts[systematic_resample(lw.lw, rng, n)]
     learnt: dict[str, Any] = {}
