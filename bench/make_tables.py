@@ -79,7 +79,8 @@ TABLES = (
               ("benchmark", "../shared/data", "--variant", v, "--trackers", TRACKERS, "--m2-model", "{m2}",
                "--opencv", "csrt,kcf", "--inline", "--seed", "1", "--no-fps", "--markdown", "-q"),
               opencv=("csrt", "kcf"))
-      for v, what in (("blur", "a blurring camera"), ("fast", "every 3rd frame"), ("small", "half the size"))),
+      for v, what in (("blur", "a blurring camera"), ("fast", "every 3rd frame"), ("small", "half the size"),
+                      ("fast+blur", "every 3rd frame of a blurring camera, fast motion with blur"))),
     Figures("stress", "docs/stress.md", "the stress benchmark over every shared sequence, every tracker and CSRT: "
             "cases got back per family and per sequence",
             ("benchmark", "../shared/data", "--stress", "--trackers", STRESS_TRACKERS, "--m2-model", "{m2}", "--opencv",

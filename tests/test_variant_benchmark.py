@@ -36,13 +36,18 @@ def test_grey_is_the_luma_of_every_pixel():
     assert select_variant("grey") is VARIANTS["grey"]
     with pytest.raises(ValueError, match=r"unknown variant 'gray' .*known: grey, blur, fast, small"):
         select_variant("gray")
+    with pytest.raises(ValueError, match=r"unknown variant 'slow'"):
+        select_variant("fast+slow")
+    with pytest.raises(ValueError, match="twice"):
+        select_variant("blur+blur")
 
 
 def test_bad_variant_is_a_one_line_error():
     r = subprocess.run([*GFLOW, "benchmark", "no/such/folder", "--variant", "gray"], capture_output=True, text=True,
                        timeout=60)
     assert r.returncode == 2
-    assert r.stderr.strip().splitlines() == ["gflow benchmark: error: unknown variant 'gray' in --variant (known: grey, blur, fast, small)"]
+    assert r.stderr.strip().splitlines() == ["gflow benchmark: error: unknown variant 'gray' in --variant (known: grey, "
+                                             "blur, fast, small, or several joined by '+')"]
 
 
 def test_grey_variant_tracks_grey_frames_and_prints_the_table(tmp_path):
@@ -134,3 +139,18 @@ def test_fast_and_small_variants_give_the_tracker_the_kept_frames_and_score_the_
     truth = read_boxes(crossing / "groundtruth.csv")[0]
     got = [float(v) for v in (tmp_path / "small" / "crossing" / "dcf.csv").read_text().splitlines()[1].split(",")[1:5]]
     assert np.allclose(got, [v / 2 for v in truth], atol=0.01)
+
+
+def test_a_combination_applies_each_in_turn_and_keeps_and_scales_as_both():
+    """fast+blur: every 3rd frame, each blurred as blur blurs its original index; small+fast: half size too."""
+    rng = np.random.default_rng(5)
+    bgr = rng.integers(0, 256, (40, 50, 3), dtype=np.uint8)
+    fb = select_variant(" fast + blur ")
+    assert (fb.name, fb.step, fb.scale) == ("fast+blur", 3, 1.0) and not fb.keeps_truth
+    assert np.array_equal(fb.transform(bgr, 9), blur(bgr, 9))  # the kept frame, blurred by its own index
+    assert [fb.index(f, 2) for f in (2, 3, 5, 8)] == [2, None, 3, 4]
+    sf = select_variant("small+fast+grey")
+    assert (sf.step, sf.scale) == (3, 0.5)
+    assert np.array_equal(sf.transform(bgr, 0), grey(half(bgr)))
+    assert sf.truth({0: (10.0, 20.0, 8.0, 6.0), 1: (0.0, 0.0, 1.0, 1.0), 3: (4.0, 4.0, 2.0, 2.0)}, 0) == {
+        0: (5.0, 10.0, 4.0, 3.0), 1: (2.0, 2.0, 1.0, 1.0)}

@@ -23,7 +23,11 @@ expected to hold without having been tuned on it:
 * ``small`` -- a small target: every frame at half its width and height (OpenCV's area
   interpolation), every box halved with it (``x, y, w, h -> x/2, y/2, w/2, h/2``).
 
-The four are kept apart so a loss can be put down to one kind of change.
+The four are kept apart so a loss can be put down to one kind of change, and they combine with
+``+`` where a kind of video is two of them at once: ``fast+blur`` is fast motion with blur (every 3rd
+frame, each kept frame smeared as ``blur`` smears it). A combination applies the transforms in the
+order named, keeps every ``step``-th frame of the product of the steps and scales by the product of
+the scales (:func:`select_variant`).
 """
 
 from __future__ import annotations
@@ -36,7 +40,7 @@ import numpy as np
 
 from gflow_core.evaluation.stress import motion_kernel
 
-__all__ = ["Variant", "VARIANTS", "grey", "blur", "half", "same", "select_variant"]
+__all__ = ["Variant", "VARIANTS", "grey", "blur", "half", "same", "select_variant", "combine"]
 
 Box = tuple[float, float, float, float]
 
@@ -148,8 +152,32 @@ VARIANTS: dict[str, Variant] = {
 
 
 def select_variant(name: str) -> Variant:
-    """The variant called ``name``; ValueError (one line naming the known ones) for any other."""
-    v = VARIANTS.get(name.strip())
-    if v is None:
-        raise ValueError(f"unknown variant {name!r} in --variant (known: {', '.join(VARIANTS)})")
-    return v
+    """The variant called ``name``, or the combination ``A+B[+...]`` of known ones (each at most once);
+    ValueError (one line naming the known ones) for any other."""
+    parts = [p.strip() for p in name.split("+")]
+    for p in parts:
+        if p not in VARIANTS:
+            raise ValueError(f"unknown variant {p!r} in --variant (known: {', '.join(VARIANTS)}, or several "
+                             f"joined by '+')")
+    if len(set(parts)) != len(parts):
+        raise ValueError(f"--variant {name!r} names a variant twice")
+    if len(parts) == 1:
+        return VARIANTS[parts[0]]
+    return combine([VARIANTS[p] for p in parts])
+
+
+def combine(variants: list[Variant]) -> Variant:
+    """The variants one after another: their transforms in order (each given the frame's original index),
+    every product-of-steps-th frame kept, scaled by the product of the scales."""
+    transforms = [v.transform for v in variants]
+
+    def transform(image: np.ndarray, index: int) -> np.ndarray:
+        for t in transforms:
+            image = t(image, index)
+        return image
+
+    step, scale = 1, 1.0
+    for v in variants:
+        step, scale = step * v.step, scale * v.scale
+    return Variant("+".join(v.name for v in variants), "; then ".join(v.describe for v in variants), transform,
+                   step=step, scale=scale)

@@ -420,7 +420,8 @@ def register(sub) -> None:
                    help="run every tracker, OpenCV tracker and the box that never moves on a variant of every "
                         "sequence instead of the sequence itself, its frames written to a temporary folder removed "
                         "at the end (published results are left out: they were made on the originals). "
-                        + "; ".join(f"{v.name}: {v.describe}" for v in VARIANTS.values()))
+                        + "; ".join(f"{v.name}: {v.describe}" for v in VARIANTS.values())
+                        + ". Several join with '+' and apply in turn: fast+blur is fast motion with blur")
     s = p.add_argument_group("stress benchmark (docs/stress.md)")
     s.add_argument("--stress", action="store_true",
                    help="run the trackers on stress cases derived from every sequence (occlusion, roll, change of "
