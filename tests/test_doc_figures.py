@@ -38,7 +38,7 @@ def blocks(page: Path) -> dict[str, str]:
     """The figure blocks of a page: {name: text between its markers}."""
     text = page.read_text()
     return {m.group(1): m.group(2) for m in
-            re.finditer(r"<!-- figures: ([\w-]+) -->\n(.*?)<!-- end figures: \1 -->", text, re.S)}
+            re.finditer(r"<!-- figures: ([\w+-]+) -->\n(.*?)<!-- end figures: \1 -->", text, re.S)}
 
 
 def tracker_tables(block: str) -> dict[str, dict[str, dict[str, str]]]:
