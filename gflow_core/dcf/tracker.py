@@ -212,8 +212,11 @@ def _judge(st: DCFState, ds: Dists, cand: Any, trials: float, place: float, p: D
     back), from the filter's distance (:func:`_hidden_log_pdf` under "hidden", or the density of the
     clutter at a place of ``negs`` the candidate is at, if larger: :mod:`.negatives`), the colour score and
     the place term; the rules of :func:`gflow_core.visibility.visibility` with no partial hypothesis."""
-    lv, lh = _log_joint(st, ds, cand, trials, place, p, negs)
-    # P(visible) = 1 / (1 + exp(lh - lv))
+    return _p_visible(*_log_joint(st, ds, cand, trials, place, p, negs))
+
+
+def _p_visible(lv: float, lh: float) -> float:
+    """P(visible) = 1 / (1 + exp(lh - lv)) of the log joint probabilities of "visible" and "hidden"."""
     d = lh - lv
     return 0.0 if d > 700.0 else 1.0 / (1.0 + math.exp(d))
 
@@ -285,11 +288,10 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                 top = (cand.centre, 1.0 - cand.r)
             if p.search_clutter:
                 lv, lh = _log_joint(st, ds, cand, trials, place, p, st.negatives if which == 0 else ())
-                # P(visible) = 1 / (1 + exp(lh - lv))
-                visible = 0.0 if lh - lv > 700.0 else 1.0 / (1.0 + math.exp(lh - lv))
+                visible = _p_visible(lv, lh)
                 if better and p.search_track:
                     # the signal: lv - lh less the prior's log odds and the place (.trackscore)
-                    top_cand = (cand, lv - lh - (math.log(p.reappear) - math.log(1.0 - p.reappear)) - place, place)
+                    top_cand = (cand, lv - lh - ts.logit(p.reappear) - place, place)
             else:
                 # the colour score of the filter's pick: one draw of the colour clutter
                 ccue = () if cand.r_colour is None else (_colour_cue(st, 1.0 - cand.r_colour, p),)
@@ -455,8 +457,8 @@ def _unseen(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
 def _track(st: DCFState, obs: DCFObservation, srch: Search, p: DCFParams, s: float, bw: float, bh: float, dt: float
            ) -> tuple[ts.Track, Search]:
     """The candidate track extended by the search's best placement (:mod:`.trackscore`), and the search
-    with it as ``found`` when the track's probability is ``search_track`` or more over two frames or more (and with ``verify``,
-    the first frame's filter agrees: :mod:`.verify`)."""
+    with it as ``found`` when the track's probability is ``search_track`` or more over two frames or more
+    (and with ``verify``, the first frame's filter agrees: :mod:`.verify`)."""
     assert srch.top is not None
     cand, signal, place = srch.top
     geom = st.geom
@@ -464,7 +466,8 @@ def _track(st: DCFState, obs: DCFObservation, srch: Search, p: DCFParams, s: flo
     track = ts.extend(st.track, cand.centre, signal, place, 0.5 * (bw + bh), cell, st.speed2, cand.area, dt, p)
     odds = ts.log_odds(track, p)
     # P(visible) >= search_track: log odds >= logit(search_track)
-    if track.n >= 2 and odds >= math.log(p.search_track / (1.0 - p.search_track)) and _verified(st, obs, cand.centre, st.log_s + cand.log_f, st.angle, p):
+    if (track.n >= 2 and odds >= ts.logit(p.search_track)
+            and _verified(st, obs, cand.centre, st.log_s + cand.log_f, st.angle, p)):
         # P(visible) = 1 / (1 + exp(-log odds))
         return track, replace(srch, found=cand, confidence=1.0 / (1.0 + math.exp(-odds)))
     return track, srch
@@ -647,7 +650,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         learnt["manoeuvre"] = mm.posterior(W, resp1) if present and found is None else float(mot.pi[1])
     back = (vis.visible + vis.partial) if hidden_before and run > 0 and found is None else 0.0
     new = replace(st, particles=new_parts, centre=centre, log_s=log_s, velocity=velocity, hidden_run=run, back=back,
-                  target_state=state, spread=spread, track=track if srch.found is None else None, last_grey=_last_grey(learnt.get("target", st.target), obs, p), **learnt)
+                  target_state=state, spread=spread, track=track if srch.found is None else None,
+                  last_grey=_last_grey(learnt.get("target", st.target), obs, p), **learnt)
     return StepResult(state=new, box=box_of(centre, log_s, geom.size0), mean=mean, std=std, ess=lw.ess,
                       log_evidence=lw.log_mean, score=r_est, confidence=float(min(max(confidence, 0.0), 1.0)),
                       target_state=state, redetected=found is not None)

@@ -61,7 +61,7 @@ import numpy as np
 from .dynamics import speed_noise
 from .params import DCFParams
 
-__all__ = ["Track", "extend", "log_odds", "GATE"]
+__all__ = ["Track", "extend", "log_odds", "logit", "GATE"]
 
 #: chi-square with 2 degrees of freedom at 99 %: a placement farther from the track's prediction starts a new one
 GATE = 9.21
@@ -96,9 +96,14 @@ class Track:
         return cls(a[:2].copy(), a[2:4].copy(), float(a[4]), float(a[5]), int(a[6]))
 
 
+def logit(q: float) -> float:
+    """log(q / (1 - q)) of a probability q in (0, 1): the log odds a prior or a threshold stands for."""
+    return math.log(q) - math.log(1.0 - q)
+
+
 def log_odds(track: Track, p: DCFParams) -> float:
     """The log odds that the track is the target: logit(reappear) + its score."""
-    return math.log(p.reappear) - math.log(1.0 - p.reappear) + track.score
+    return logit(p.reappear) + track.score
 
 
 def extend(track: Track | None, centre: np.ndarray, signal: float, place: float, side: float, cell: tuple[float, float],
@@ -113,7 +118,7 @@ def extend(track: Track | None, centre: np.ndarray, signal: float, place: float,
     speed2 : px^2 / frame^2, the target's learnt E|v|^2; area : px^2 the search covered; dt : frame periods.
     """
     c = np.asarray(centre, dtype=np.float64)
-    if track is None or log_odds(track, p) < math.log(p.reappear) - math.log(1.0 - p.reappear):
+    if track is None or log_odds(track, p) < logit(p.reappear):
         return Track(c.copy(), np.zeros(2), signal, place, 1)
     # q_t = c_{t-1} + v dt
     q = track.centre + track.velocity * dt
