@@ -6,7 +6,8 @@ models, and the response they give a new frame.
   number of cells a side; the cosine window and the Gaussian label (sigma = ``label_sigma``
   sqrt(w h), Henriques et al. 2015 sec. 6.1) on those cells.
 * :class:`TargetModel` -- the running filter (DSST eq. 5), the first frame's filter (the anchor,
-  never updated), Staple's colour model (:mod:`.histogram`) and the scale filter (:mod:`.scale`).
+  never updated), Staple's colour model (:mod:`.histogram`) and the scale filter (:mod:`.scale`,
+  which keeps its own first frame's filter as its anchor: ``scale_anchor``).
 * :func:`respond` -- the response over a window centred on a prediction: the filter detection
   uses, (1 - w) the running one + w the anchor (numerators and denominators alike), applied to
   the window's fHOG and intensity cells (DSST eq. 6), merged with the colour score
@@ -37,7 +38,7 @@ from .params import DCFParams
 from .scale import ScaleFilter, detect_scale, init_scale, learn_scale
 
 __all__ = ["Geometry", "geometry", "TargetModel", "Response", "Window", "window", "respond", "upright", "init_model", "learn",
-           "search", "Candidate", "scale_change", "respond_region"]
+           "search", "Candidate", "scale_change", "scale_anchor", "respond_region"]
 
 
 @dataclass(frozen=True)
@@ -196,7 +197,7 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
     scale = None
     if p.scales > 1:
         scale = init_scale(grey, centre, geom.size0, p.scales, p.scale_step, p.scale_area, p.cell,
-                           p.scale_upsample)
+                           p.scale_upsample, p.scale_anchor)
     return TargetModel(train, det, det, colour, mode, scale)
 
 
@@ -347,6 +348,12 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
     return TargetModel(train, _solve(train, geom, p), model.anchor, colour, model.colour_mode, sf)
 
 
+def scale_anchor(p: DCFParams) -> float:
+    """The first frame's weight in the scale filter's detection: ``anchor_weight`` with ``scale_anchor``,
+    as in the translation filter's (:mod:`.scale`), else 0."""
+    return p.anchor_weight if p.scale_anchor else 0.0
+
+
 def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, float], log_s: float, geom: Geometry,
                  p: DCFParams) -> float:
     """The log-scale change the scale filter finds at ``centre`` (0 without one)."""
@@ -354,7 +361,7 @@ def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, floa
         return 0.0
     s = float(np.exp(log_s))
     d, _ = detect_scale(model.scale, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
-                        p.scale_lam)
+                        p.scale_lam, anchor=scale_anchor(p))
     return d
 
 

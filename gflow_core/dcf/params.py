@@ -50,6 +50,9 @@ class DCFParams:
     scale_rate: float = param(0.025, "learning rate of the scale filter")
     scale_lam: float = param(0.01, "lambda of the scale filter")
     scale_area: int = param(1024, "pixels of the scale filter's sample at most")
+    scale_anchor: bool = param(False, "the scale filter detects with the first frame's scale filter mixed in at "
+                                      "anchor_weight, as the translation filter does, so the box's size stays tied to "
+                                      "the first box's (gflow_core.dcf.scale; false: DSST's running filter alone)")
     scale_upsample: bool = param(False, "a target smaller than scale_area pixels is resampled up to it for the scale "
                                         "filter's sample, as larger ones are resampled down (false: sampled at its own "
                                         "size, DSST's rule)")

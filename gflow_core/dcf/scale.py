@@ -21,6 +21,25 @@ cases of crossing's 17 px wide pedestrian and jumping's face (920 px) it did wor
 (docs/trackers.md). With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
 the response read as a likelihood times a Gaussian prior on the log size (:func:`size_posterior`);
 DSST has no prior on the size.
+
+The first frame's filter (``scale_anchor``, off by default): DSST's scale filter is a running average only
+(eq. 5), so nothing ties its idea of the target's size to the size the user gave. Where its response
+over the scales is flat (a small target, blur), a slight lean toward one side takes a step, the
+filter learns the box at the new size as its middle, and the size walks with nothing pulling it back
+(the half-size surfer's head grew from 16 x 18 to 24 x 26 px). The tracker's translation filter has
+the same weakness and the same remedy already: detection uses (1 - w) the running filter plus w the
+first frame's, never updated (``anchor_weight``, :mod:`.model`). With ``scale_anchor`` the scale
+filter keeps its first frame's numerator and denominator beside the running ones and detects with the
+same mixture, w = ``anchor_weight``:
+
+    y = F^-1 { sum_d conj((1 - w) A_d + w A0_d) Z_d / ((1 - w) B + w B0 + lambda) }.
+
+The first frame's filter answers the target's size relative to the first box, at whatever size the
+box now has (its rows are the first box times a^n), so a size that really changes is still followed.
+Departure: DSST and fDSST have no anchor in either filter; the anchor of the translation filter is
+ours too (:mod:`.model`). It is off by default: on the shared sequences it adds AUC on the whole and on
+blurred and half-size footage, but loses it on every 3rd frame and on grey david_indoor, and gets
+fewer stress cases back (docs/trackers.md, "The scale filter's first frame").
 """
 
 from __future__ import annotations
@@ -37,12 +56,16 @@ __all__ = ["ScaleFilter", "model_size", "scale_sample", "init_scale", "learn_sca
 @dataclass(frozen=True)
 class ScaleFilter:
     """The scale filter: ``num`` (S, D) complex128 and ``den`` (S,) float64 (DSST eq. 5), ``label_hat``
-    (S,) the DFT of the desired response, ``model`` (w, h) the samples' size in pixels."""
+    (S,) the DFT of the desired response, ``model`` (w, h) the samples' size in pixels; ``anchor_num``
+    (S, D) and ``anchor_den`` (S,) the first frame's ``num`` and ``den``, never updated (None in a model
+    from before they were kept: detection then uses the running filter alone)."""
 
     num: np.ndarray
     den: np.ndarray
     label_hat: np.ndarray
     model: tuple[int, int]
+    anchor_num: np.ndarray | None = None
+    anchor_den: np.ndarray | None = None
 
 
 def model_size(size0: tuple[float, float], area: int, cell: int, upsample: bool = False) -> tuple[int, int]:
@@ -78,10 +101,10 @@ def _factors(n: int, step: float) -> np.ndarray:
 
 
 def init_scale(grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float], n: int, step: float,
-               area: int, cell: int, upsample: bool = False) -> ScaleFilter:
+               area: int, cell: int, upsample: bool = False, anchor: bool = False) -> ScaleFilter:
     """The scale filter of the first frame: one sample (DSST eq. 3); the label is a Gaussian over the
     scale index of std sqrt(S) / 4 peaked at the middle row (DSST sec. 4). ``upsample``: see
-    :func:`model_size`."""
+    :func:`model_size`; ``anchor``: keep this frame's filter beside the running one (``scale_anchor``)."""
     model = model_size(size, area, cell, upsample)
     idx = np.arange(n) - (n - 1) // 2
     sigma = np.sqrt(n) / 4.0
@@ -91,7 +114,8 @@ def init_scale(grey: np.ndarray, centre: tuple[float, float], size: tuple[float,
     # A = conj(G) F, B = sum_d |F_d|^2                                          (DSST eq. 3)
     num = np.conj(label_hat)[:, None] * f
     den = (f.real ** 2 + f.imag ** 2).sum(axis=1)
-    return ScaleFilter(num, den, label_hat, model)
+    # with anchor, the first frame's numerator and denominator kept beside the running ones (scale_anchor)
+    return ScaleFilter(num, den, label_hat, model, num if anchor else None, den if anchor else None)
 
 
 def learn_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float],
@@ -102,23 +126,30 @@ def learn_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float], 
     # A <- (1 - eta) A + eta conj(G) F,  B <- (1 - eta) B + eta sum_d |F_d|^2
     num = (1.0 - rate) * sf.num + rate * np.conj(sf.label_hat)[:, None] * f
     den = (1.0 - rate) * sf.den + rate * (f.real ** 2 + f.imag ** 2).sum(axis=1)
-    return ScaleFilter(num, den, sf.label_hat, sf.model)
+    return ScaleFilter(num, den, sf.label_hat, sf.model, sf.anchor_num, sf.anchor_den)
 
 
 def detect_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float], size: tuple[float, float],
                  step: float, cell: int, lam: float, refine: bool = False,
-                 prior: tuple[float, float, float] | None = None) -> tuple[float, np.ndarray]:
+                 prior: tuple[float, float, float] | None = None, anchor: float = 0.0) -> tuple[float, np.ndarray]:
     """The log-scale change at ``centre`` and the response over the scales (S,).
 
     y = F^-1 { sum_d conj(A_d) Z_d / (B + lambda) } (DSST eq. 6) over the scale index; its peak,
     refined by a parabola through the neighbours, gives the change n* log a. With ``prior`` =
     (log s, sigma, kappa) the peak is that of :func:`size_posterior` instead (the held box's log size
-    log s relative to the first box, a Gaussian prior of std sigma on it, the response's sharpness kappa)."""
+    log s relative to the first box, a Gaussian prior of std sigma on it, the response's sharpness kappa).
+    With ``anchor`` w > 0 (and the first frame's filter kept), A and B are (1 - w) the running ones plus
+    w the first frame's (module docstring)."""
     n = len(sf.den)
     z = np.fft.fft(scale_sample(grey, centre, size, _factors(n, step), sf.model, cell), axis=0)
+    num, den = sf.num, sf.den
+    if anchor > 0 and sf.anchor_num is not None and sf.anchor_den is not None:
+        # A = (1 - w) A_t + w A_0,  B = (1 - w) B_t + w B_0: the first frame's filter mixed in
+        num = (1.0 - anchor) * sf.num + anchor * sf.anchor_num
+        den = (1.0 - anchor) * sf.den + anchor * sf.anchor_den
     # sum_d conj(A_d) Z_d (einsum: a fixed order of summation)
-    s = np.einsum("sd,sd->s", np.conj(sf.num), z)
-    y = np.fft.ifft(s / (sf.den + lam)).real
+    s = np.einsum("sd,sd->s", np.conj(num), z)
+    y = np.fft.ifft(s / (den + lam)).real
     i = int(np.argmax(y)) if prior is None else int(np.argmax(size_posterior(y, step, *prior)))
     d = float(i - (n - 1) // 2)
     if refine and 0 < i < n - 1:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import Geometry, TargetModel
+from .model import Geometry, TargetModel, scale_anchor
 from .params import DCFParams
 from .scale import detect_scale
 
@@ -34,5 +34,5 @@ def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, floa
         return 0.0
     s = float(np.exp(log_s))
     d, _ = detect_scale(model.scale, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
-                        p.scale_lam, prior=(log_s, p.scale_prior, p.kappa))
+                        p.scale_lam, prior=(log_s, p.scale_prior, p.kappa), anchor=scale_anchor(p))
     return d

@@ -144,6 +144,8 @@ def model_arrays(m: TargetModel) -> dict[str, np.ndarray]:
         arrays.update(colour_fg=_real(m.colour.fg), colour_bg=_real(m.colour.bg))
     if m.scale is not None:
         arrays.update(scale_num=_real(m.scale.num), scale_den=_real(m.scale.den), scale_label=_real(m.scale.label_hat))
+        if m.scale.anchor_num is not None and m.scale.anchor_den is not None:
+            arrays.update(scale_anchor_num=_real(m.scale.anchor_num), scale_anchor_den=_real(m.scale.anchor_den))
     return arrays
 
 
@@ -162,8 +164,11 @@ def model_of_arrays(arrays: Mapping[str, np.ndarray], colour_mode: str, scale_mo
     colour = ColourModel(np.array(arrays["colour_fg"]), np.array(arrays["colour_bg"])) if "colour_fg" in arrays else None
     scale = None
     if "scale_num" in arrays:
+        has_anchor = "scale_anchor_num" in arrays
         scale = ScaleFilter(_complex(arrays["scale_num"]), np.array(arrays["scale_den"]),
-                            _complex(arrays["scale_label"]), (int(scale_model[0]), int(scale_model[1])))
+                            _complex(arrays["scale_label"]), (int(scale_model[0]), int(scale_model[1])),
+                            _complex(arrays["scale_anchor_num"]) if has_anchor else None,
+                            np.array(arrays["scale_anchor_den"]) if has_anchor else None)
     return TargetModel(train, det, anchor, colour, colour_mode, scale)
 
 
