@@ -6,8 +6,8 @@ models, and the response they give a new frame.
   number of cells a side; the cosine window and the Gaussian label (sigma = ``label_sigma``
   sqrt(w h), Henriques et al. 2015 sec. 6.1) on those cells.
 * :class:`TargetModel` -- the running filter (DSST eq. 5), the first frame's filter (the anchor,
-  never updated), Staple's colour model (:mod:`.histogram`) and the scale filter (:mod:`.scale`,
-  which keeps its own first frame's filter as its anchor: ``scale_anchor``).
+  never updated), Staple's colour model (:mod:`.histogram`) and the scale filter (:mod:`.scale`;
+  with ``scale_anchor``, off by default, it keeps its own first frame's filter as its anchor).
 * :func:`respond` -- the response over a window centred on a prediction: the filter detection
   uses, (1 - w) the running one + w the anchor (numerators and denominators alike), applied to
   the window's fHOG and intensity cells (DSST eq. 6), merged with the colour score

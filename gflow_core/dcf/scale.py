@@ -57,8 +57,8 @@ __all__ = ["ScaleFilter", "model_size", "scale_sample", "init_scale", "learn_sca
 class ScaleFilter:
     """The scale filter: ``num`` (S, D) complex128 and ``den`` (S,) float64 (DSST eq. 5), ``label_hat``
     (S,) the DFT of the desired response, ``model`` (w, h) the samples' size in pixels; ``anchor_num``
-    (S, D) and ``anchor_den`` (S,) the first frame's ``num`` and ``den``, never updated (None in a model
-    from before they were kept: detection then uses the running filter alone)."""
+    (S, D) and ``anchor_den`` (S,) the first frame's ``num`` and ``den``, never updated (None unless
+    ``scale_anchor`` kept them: detection then uses the running filter alone)."""
 
     num: np.ndarray
     den: np.ndarray
