@@ -26,7 +26,7 @@ from gflow_core.evaluation.metrics import OVERLAP_THRESHOLDS
 
 from pipeline.evaluation.sequence_benchmark import PRECISION_AT, Row
 
-__all__ = ["format_tables", "means_json", "to_json", "Mean", "mean_of"]
+__all__ = ["format_tables", "means_json", "to_json", "Mean", "mean_of", "scored", "names_of", "table", "title"]
 
 
 @dataclass(frozen=True)
@@ -46,13 +46,13 @@ class Mean:
                 "success_rate_0.5": round(self.success, 4)}
 
 
-def _scored(rows: list[Row]) -> list[Row]:
+def scored(rows: list[Row]) -> list[Row]:
     return [r for r in rows if r.score is not None and r.auc is not None and r.precision_at is not None]
 
 
 def mean_of(rows: list[Row], of: int) -> Mean | None:
     """The mean of the scored ``rows`` (one tracker, one row per sequence), or None if none is scored."""
-    ok = _scored(rows)
+    ok = scored(rows)
     if not ok:
         return None
     return Mean(sequences=len(ok), of=of, auc=float(np.mean([r.auc for r in ok])),
@@ -65,7 +65,7 @@ def _f(v: float | None, fmt: str) -> str:
     return "-" if v is None or not math.isfinite(v) else format(v, fmt)
 
 
-def _names(rows: list[Row], kind: str) -> list[str]:
+def names_of(rows: list[Row], kind: str) -> list[str]:
     return list(dict.fromkeys(r.tracker for r in rows if r.kind == kind))
 
 
@@ -75,7 +75,7 @@ def _short(name: str) -> str:
 
 
 def _best_published(rows: list[Row], seq: str) -> Row | None:
-    pub = [r for r in _scored(rows) if r.sequence == seq and r.kind == "published"]
+    pub = [r for r in scored(rows) if r.sequence == seq and r.kind == "published"]
     return max(pub, key=lambda r: r.auc or 0.0) if pub else None
 
 
@@ -104,7 +104,7 @@ def _head(fps: bool) -> list[str]:
     return ["sequence", "frames scored", "AUC", f"prec@{PRECISION_AT}", "CLE px", "success"] + (["fps"] if fps else [])
 
 
-def _table(head: list[str], cells: list[list[str]], markdown: bool, left: set[int]) -> str:
+def table(head: list[str], cells: list[list[str]], markdown: bool, left: set[int]) -> str:
     """A table as Markdown or as aligned text (columns in ``left`` left-aligned, the others right); a
     last column ``note`` that is empty on every row is left out."""
     if head[-1] == "note" and not any(c[-1] for c in cells):
@@ -120,7 +120,7 @@ def _table(head: list[str], cells: list[list[str]], markdown: bool, left: set[in
     return "\n".join([line(head), line(["-" * w for w in widths])] + [line(c) for c in cells])
 
 
-def _title(name: str, what: str, markdown: bool) -> str:
+def title(name: str, what: str, markdown: bool) -> str:
     return f"**{name}** ({what})" if markdown else f"{name} ({what})"
 
 
@@ -139,7 +139,7 @@ def _tracker_table(rows: list[Row], name: str, seqs: list[str], others: list[str
                         if has_published else []) + [r.note if r is not None else ""])
     mine = [by[seq, name] for seq in seqs if (seq, name) in by]
     m = mean_of(mine, len(seqs))
-    on = [r.sequence for r in _scored(mine)]
+    on = [r.sequence for r in scored(mine)]
     beside = []
     for o in others:
         theirs = [by[s, o] for s in on if (s, o) in by]
@@ -147,7 +147,7 @@ def _tracker_table(rows: list[Row], name: str, seqs: list[str], others: list[str
         beside.append("-" if mo is None or mo.sequences < len(on) else f"{mo.auc:.3f}")
     cells.append([_mean_label(m, len(seqs))] + _mean_figures(m, fps) + beside + (["-"] if has_published else [])
                  + [""])
-    return _table(head, cells, markdown, left={0, len(head) - 1})
+    return table(head, cells, markdown, left={0, len(head) - 1})
 
 
 def _plain_table(rows: list[Row], name: str, seqs: list[str], markdown: bool, fps: bool) -> str:
@@ -157,26 +157,26 @@ def _plain_table(rows: list[Row], name: str, seqs: list[str], markdown: bool, fp
     cells = [[seq] + _figures(by.get(seq), fps) + [by[seq].note if seq in by else ""] for seq in seqs if seq in by]
     m = mean_of(list(by.values()), len(seqs))
     cells.append([_mean_label(m, len(seqs))] + _mean_figures(m, fps) + [""])
-    return _table(head, cells, markdown, left={0, len(head) - 1})
+    return table(head, cells, markdown, left={0, len(head) - 1})
 
 
 def _published_table(rows: list[Row], markdown: bool) -> str:
     head = ["sequence", "tracker"] + _head(False)[1:] + ["note"]
     cells = [[r.sequence, r.tracker] + _figures(r, False) + [r.note] for r in rows if r.kind == "published"]
-    return _table(head, cells, markdown, left={0, 1, len(head) - 1})
+    return table(head, cells, markdown, left={0, 1, len(head) - 1})
 
 
 def _means_table(rows: list[Row], seqs: list[str], markdown: bool) -> str:
     """Every tracker's means side by side; for ours, on how many sequences its AUC is above the
     static box's, and on which it is below each comparison's."""
-    auc = {(r.sequence, r.tracker): float(r.auc) for r in _scored(rows) if r.auc is not None}
-    still = {r.sequence: auc[r.sequence, r.tracker] for r in _scored(rows) if r.kind == "baseline"}
-    others = _names(rows, "opencv") + _names(rows, "baseline")
+    auc = {(r.sequence, r.tracker): float(r.auc) for r in scored(rows) if r.auc is not None}
+    still = {r.sequence: auc[r.sequence, r.tracker] for r in scored(rows) if r.kind == "baseline"}
+    others = names_of(rows, "opencv") + names_of(rows, "baseline")
     head = ["tracker", "kind", "sequences", "AUC", f"prec@{PRECISION_AT}", "CLE px", "success", "AUC above static box"] \
         + [f"AUC below {_short(o)} on" for o in others]
     cells = []
     for kind in ("tracker", "opencv", "baseline"):
-        for name in _names(rows, kind):
+        for name in names_of(rows, kind):
             m = mean_of([r for r in rows if r.tracker == name], len(seqs))
             mine = {q: a for (q, n), a in auc.items() if n == name}
             above = sum(q in still and a > still[q] for q, a in mine.items())
@@ -185,29 +185,29 @@ def _means_table(rows: list[Row], seqs: list[str], markdown: bool) -> str:
                      if kind == "tracker" else "-" for o in others]
             cells.append([name, kind, "0" if m is None else str(m.sequences)] + _mean_figures(m, False)[1:] + [vs]
                          + below)
-    return _table(head, cells, markdown, left={0, 1} | set(range(8, len(head))))
+    return table(head, cells, markdown, left={0, 1} | set(range(8, len(head))))
 
 
 def format_tables(rows: list[Row], markdown: bool = False, fps: bool = True) -> str:
     """Every table of a benchmark run (see the module docstring); ``fps=False`` leaves out frames/s."""
     seqs = list(dict.fromkeys(r.sequence for r in rows))
-    ours, cv = _names(rows, "tracker"), _names(rows, "opencv")
-    others = cv + _names(rows, "baseline")
+    ours, cv = names_of(rows, "tracker"), names_of(rows, "opencv")
+    others = cv + names_of(rows, "baseline")
     has_published = any(r.kind == "published" for r in rows)
     out: list[str] = []
     beside = ", ".join(_short(o) for o in others) + (", best published" if has_published else "")
     for name in ours:
-        out += [_title(name, "tracker" + (f"; beside it the AUC of {beside}" if beside else ""), markdown), "",
+        out += [title(name, "tracker" + (f"; beside it the AUC of {beside}" if beside else ""), markdown), "",
                 _tracker_table(rows, name, seqs, others, has_published, markdown, fps), ""]
     for name in others:
         kind = next(r.kind for r in rows if r.tracker == name)
-        out += [_title(name, {"opencv": "OpenCV", "baseline": "the first box, held still"}.get(kind, kind), markdown),
+        out += [title(name, {"opencv": "OpenCV", "baseline": "the first box, held still"}.get(kind, kind), markdown),
                 "", _plain_table(rows, name, seqs, markdown, fps), ""]
     if has_published:
-        out += [_title("published trackers", "their published boxes, scored the same way", markdown), "",
+        out += [title("published trackers", "their published boxes, scored the same way", markdown), "",
                 _published_table(rows, markdown), ""]
     if len(ours) + len(others) > 1:
-        out += [_title("means over the sequences", "every tracker", markdown), "",
+        out += [title("means over the sequences", "every tracker", markdown), "",
                 _means_table(rows, seqs, markdown), ""]
     return "\n".join(out).rstrip()
 
@@ -217,7 +217,7 @@ def means_json(rows: list[Row]) -> dict:
     seqs = list(dict.fromkeys(r.sequence for r in rows))
     out = {}
     for kind in ("tracker", "opencv", "baseline"):
-        for name in _names(rows, kind):
+        for name in names_of(rows, kind):
             m = mean_of([r for r in rows if r.tracker == name], len(seqs))
             out[name] = None if m is None else m.to_json()
     return out

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 ORDER = 31
 
+import copy
 import json
 import tempfile
 from pathlib import Path
@@ -136,13 +137,14 @@ def _check_paths(args) -> None:
         raise CliError(f"--out-dir {args.out_dir} is a file, not a folder")
 
 
-def _refuse_earlier_runs(args, seqs, names: list[str], cv_names: list[str]) -> None:
-    """An --out-dir used before: refuse, before any work, a run whose boxes (DIR/SEQUENCE/NAME.csv)
-    or recording would replace an earlier run's (the boxes were written over without a word)."""
+def _refuse_earlier_runs(args, seqs, names: list[str], cv_names: list[str], seeds: list[int]) -> None:
+    """An --out-dir used before: refuse, before any work, a run whose boxes (DIR/SEQUENCE/NAME.csv,
+    DIR/seed-S/SEQUENCE/NAME.csv with several seeds) or recording would replace an earlier run's (the
+    boxes were written over without a word)."""
     files = [f"{n}.{ext}" for n in names for ext in ("mcap", "csv")] + [f"opencv_{c}.csv" for c in cv_names]
-    for seq in seqs:
+    for seq, seed in ((q, s) for q in seqs for s in seeds):
         for f in files + ["static_box.csv"]:
-            path = Path(args.out_dir) / seq.name / f
+            path = _seed_dir(Path(args.out_dir), seed, seeds) / seq.name / f
             if path.exists():
                 raise CliError(f"--out-dir {args.out_dir}: {path} exists (an earlier run's); a run's boxes and "
                                f"recording are never overwritten: give a new folder")
@@ -202,15 +204,41 @@ def _pick_sequences(seqs, text: str | None):
     return [s for s in seqs if s.name in want]
 
 
+def _seeds(args) -> list[int]:
+    """The seeds to run: ``--seeds`` (each a whole benchmark), else ``--seed`` (default 1)."""
+    from pipeline.evaluation.seed_means import parse_seeds
+
+    if args.seeds is None:
+        return [1 if args.seed is None else args.seed]
+    if args.seed is not None:
+        raise CliError("give --seed or --seeds, not both (--seeds 1,2,3 runs the benchmark once per seed)")
+    try:
+        return parse_seeds(args.seeds)
+    except ValueError as e:
+        raise CliError(str(e)) from None
+
+
+def _with_seed(args, seed: int):
+    """``args`` with ``seed`` as its one seed (the options of one of the runs of ``--seeds``)."""
+    one = copy.copy(args)
+    one.seed = seed
+    return one
+
+
+def _seed_dir(work: Path, seed: int, seeds: list[int]) -> Path:
+    """Where a seed's runs write: ``work`` itself with one seed, ``work/seed-S`` with several."""
+    return work if len(seeds) == 1 else work / f"seed-{seed}"
+
+
 #: frames after the window the stress benchmark needs at least (the "after" score starts 10 frames after it)
 AFTER_MIN = 15
 
 
-def _cmd_stress(args, names: list[str], seqs, donors) -> int:
-    """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence."""
+def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int]) -> int:
+    """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence, once per
+    seed (with several, each seed's tables in turn, its runs kept under ``--out-dir``/seed-S)."""
     from pipeline.evaluation.sequence_benchmark import note
-    from pipeline.evaluation.stress_benchmark import (check_sequences, format_stress, run_stress, select_cases,
-                                                      stress_json)
+    from pipeline.evaluation.stress_benchmark import check_sequences, format_stress, run_stress, select_cases, stress_json
 
     for opt in ("frames", "plot", "precision_plot"):
         if getattr(args, opt):
@@ -232,25 +260,95 @@ def _cmd_stress(args, names: list[str], seqs, donors) -> int:
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
-    rows, interrupted, cases = run_stress(args, seqs, runnable, [c for c in cv_names if c not in cv_missing],
-                                          _stress_plan_of(args), donors)
-    mode = "inline" if args.inline else "processes"
-    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs], "seed": args.seed, "mode": mode,
-            "lead": args.lead, "tail": args.tail, "interrupted": interrupted,
-            "skipped": sorted({f"{n}: {w}" for (_, n), w in skip.items()}),
-            "opencv_missing": cv_missing}
+    meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs],
+            "mode": "inline" if args.inline else "processes", "lead": args.lead, "tail": args.tail,
+            "skipped": sorted({f"{n}: {w}" for (_, n), w in skip.items()}), "opencv_missing": cv_missing}
+    done: list[dict] = []
+    interrupted = False
+    for seed in seeds:
+        one = _with_seed(args, seed)
+        if args.out_dir:
+            one.out_dir = str(_seed_dir(Path(args.out_dir), seed, seeds))
+        if len(seeds) > 1:
+            note(f"seed {seed} ({seeds.index(seed) + 1} of {len(seeds)})")
+        rows, interrupted, cases = run_stress(one, seqs, runnable, [c for c in cv_names if c not in cv_missing],
+                                              _stress_plan_of(one), donors)
+        run_meta = dict(meta, seed=seed, interrupted=interrupted)
+        if args.json:
+            done.append(stress_json(rows, run_meta, cases))
+        else:
+            print((f"\n{'## ' if args.markdown else ''}seed {seed}\n\n" if len(seeds) > 1 else "")
+                  + format_stress(rows, markdown=args.markdown))
+        if interrupted:
+            break
     if args.json:
-        print(json.dumps(stress_json(rows, meta, cases)))
+        print(json.dumps(done[0] if len(seeds) == 1 else dict(meta, seeds=seeds[:len(done)], runs=done)))
     else:
-        print(format_stress(rows, markdown=args.markdown))
         for line in meta["skipped"] + [f"opencv {c}: {w}" for c, w in cv_missing.items()]:
             print(f"\nnot run: {line}")
     return 130 if interrupted else 0
 
 
+def _run_seed(args, seqs, names: list[str], cv: tuple[list[str], dict[str, str]], first: dict[str, int],
+              stop: int | None, folder: Path, planned: tuple[dict, dict], count: list[int]) -> tuple[list, bool]:
+    """Every tracker, OpenCV tracker and the box that never moves on every sequence with ``args.seed``,
+    writing under ``folder``; the rows and whether the user interrupted. ``count`` is [runs done, runs in
+    all], for the progress lines."""
+    from pipeline.evaluation.sequence_benchmark import Row, note, opencv_row, published_rows, static_box, tracker_row
+
+    cv_names, cv_missing = cv
+    plans, skip = planned
+    keep, mode = bool(args.out_dir), "inline" if args.inline else "processes"
+    rows: list[Row] = []
+    try:
+        for seq in seqs:
+            start = first[seq.name]
+            gt = seq.truth(start, stop)
+            (folder / seq.name).mkdir(parents=True, exist_ok=True)
+            for name in names:
+                row = Row(seq.name, name, "tracker")
+                rows.append(row)
+                if (seq.name, name) in skip:
+                    row.note = skip[seq.name, name]
+                    note(f"{seq.name} / {name}: {row.note}")
+                    continue
+                out, plan = plans[seq.name, name]
+                count[0] += 1
+                note(f"[{count[0]}/{count[1]}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
+                     + (f" ({plan.total} frames)" if plan.total else "") + f", {mode}, seed {args.seed}")
+                tracker_row(row, out, plan, gt, keep)
+            for c in cv_names:
+                row = Row(seq.name, f"opencv {c}", "opencv", note=cv_missing.get(c, ""))
+                rows.append(row)
+                if c not in cv_missing:
+                    count[0] += 1
+                    note(f"[{count[0]}/{count[1]}] {seq.name} / opencv {c}")
+                    opencv_row(row, c, seq, start, stop, gt, folder / seq.name / f"opencv_{c}.csv", args.seed, keep)
+            rows.extend(published_rows(seq, gt))
+            rows.append(static_box(seq, gt, start, folder / seq.name))
+            if not keep:
+                rows[-1].boxes_csv = None
+    except KeyboardInterrupt:
+        if rows and rows[-1].score is None and not rows[-1].note:
+            rows[-1].note = "interrupted"
+        note("interrupted: stopped; the table holds the runs that finished")
+        return rows, True
+    return rows, False
+
+
+def _first_frames(args, seqs, first_frame: int) -> dict[str, int]:
+    """The first frame to track of each sequence: A of --frames A:B, else its first ground-truth frame
+    (a CliError where the sequence has no box for it)."""
+    first = {seq.name: first_frame if args.frames else min(seq.groundtruth) for seq in seqs}
+    for seq in seqs:
+        if first[seq.name] not in seq.groundtruth:
+            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, "
+                           "the first frame to track")
+    return first
+
+
 def cmd_benchmark(args) -> int:
-    from pipeline.evaluation.sequence_benchmark import (Row, find_sequences, note, opencv_row, published_rows,
-                                                        static_box, tracker_row)
+    from pipeline.evaluation.sequence_benchmark import find_sequences, note
     from pipeline.cli.versions import versions
     from pipeline.io.datasets import parse_range
 
@@ -263,6 +361,8 @@ def cmd_benchmark(args) -> int:
         return 0
     if not args.datasets:
         raise CliError("the following arguments are required: DATASET (a sequence folder or a folder of them)")
+    seeds = _seeds(args)
+    args.seed = seeds[0]
     variant = _variant(args.variant)
     if args.stress:
         if variant is not None:
@@ -271,7 +371,7 @@ def cmd_benchmark(args) -> int:
         seqs, skipped = find_sequences(args.datasets)
         for s in skipped:
             note(s)
-        return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences), seqs)
+        return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences), seqs, seeds)
     for opt, default in (("cases", None), ("stress_cache", None), ("lead", 30), ("tail", 60)):
         if getattr(args, opt) != default:
             raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
@@ -282,21 +382,15 @@ def cmd_benchmark(args) -> int:
     for s in skipped:
         note(s)
     seqs = _pick_sequences(seqs, args.sequences)
-    # the first frame to track: A of --frames A:B, else each sequence's first ground-truth frame
-    first = {seq.name: first_frame if args.frames else min(seq.groundtruth) for seq in seqs}
-    for seq in seqs:
-        if first[seq.name] not in seq.groundtruth:
-            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, "
-                           "the first frame to track")
+    first = _first_frames(args, seqs, first_frame)
     cv_missing = _opencv_missing(cv_names)
-    mode = "inline" if args.inline else "processes"
-    keep = bool(args.out_dir)
-    if keep:
-        _refuse_earlier_runs(args, seqs, names, [c for c in cv_names if c not in cv_missing])
-    rows: list[Row] = []
+    cv_run = [c for c in cv_names if c not in cv_missing]
+    if args.out_dir:
+        _refuse_earlier_runs(args, seqs, names, cv_run, seeds)
+    runs: list[list] = []
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
-        work = Path(args.out_dir) if keep else Path(tmp)
+        work = Path(args.out_dir) if args.out_dir else Path(tmp)
         if variant is not None:
             from pipeline.evaluation.variant_benchmark import derive_variant
 
@@ -305,49 +399,53 @@ def cmd_benchmark(args) -> int:
                 seqs = [derive_variant(seq, variant, Path(tmp) / "variant", first[seq.name], stop) for seq in seqs]
             except (ValueError, OSError) as e:
                 raise CliError(f"--variant {variant.name}: {e}") from None
-        plans, skip = _plans(args, seqs, names, first, stop, work)
-        runs = len(plans) + len(seqs) * (len(cv_names) - len(cv_missing))
-        k = 0
-        try:
-            for seq in seqs:
-                start = first[seq.name]
-                gt = seq.truth(start, stop)
-                folder = work / seq.name
-                folder.mkdir(parents=True, exist_ok=True)
-                for name in names:
-                    row = Row(seq.name, name, "tracker")
-                    rows.append(row)
-                    if (seq.name, name) in skip:
-                        row.note = skip[seq.name, name]
-                        note(f"{seq.name} / {name}: {row.note}")
-                        continue
-                    out, plan = plans[seq.name, name]
-                    k += 1
-                    note(f"[{k}/{runs}] {seq.name} / {name}: frames {start}:{'' if stop is None else stop}"
-                         + (f" ({plan.total} frames)" if plan.total else "") + f", {mode}, seed {args.seed}")
-                    tracker_row(row, out, plan, gt, keep)
-                for cv in cv_names:
-                    row = Row(seq.name, f"opencv {cv}", "opencv", note=cv_missing.get(cv, ""))
-                    rows.append(row)
-                    if cv not in cv_missing:
-                        k += 1
-                        note(f"[{k}/{runs}] {seq.name} / opencv {cv}")
-                        opencv_row(row, cv, seq, start, stop, gt, folder / f"opencv_{cv}.csv", args.seed, keep)
-                rows.extend(published_rows(seq, gt))
-                rows.append(static_box(seq, gt, start, folder))
-                if not keep:
-                    rows[-1].boxes_csv = None
-        except KeyboardInterrupt:
-            interrupted = True
-            if rows and rows[-1].score is None and not rows[-1].note:
-                rows[-1].note = "interrupted"
-            note("interrupted: stopped; the table holds the runs that finished")
+        # every seed's plans first: a bad option or model fails before any tracking
+        planned = {k: _plans(_with_seed(args, k), seqs, names, first, stop, _seed_dir(work, k, seeds)) for k in seeds}
+        count = [0, sum(len(p[0]) for p in planned.values()) + len(seeds) * len(seqs) * len(cv_run)]
+        for seed in seeds:
+            rows, interrupted = _run_seed(_with_seed(args, seed), seqs, names, (cv_names, cv_missing), first, stop,
+                                          _seed_dir(work, seed, seeds), planned[seed], count)
+            runs.append(rows)
+            if interrupted:
+                break
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs],
-            "frames": [first_frame if args.frames else None, stop], "seed": args.seed, "mode": mode,
-            "variant": variant.name if variant else None, "skipped": skipped, "interrupted": interrupted,
-            "versions": versions()}
-    _report(args, rows, meta)
+            "frames": [first_frame if args.frames else None, stop], "seed": args.seed,
+            "mode": "inline" if args.inline else "processes", "variant": variant.name if variant else None,
+            "skipped": skipped, "interrupted": interrupted, "versions": versions()}
+    if len(seeds) == 1:
+        _report(args, runs[0], meta)
+    else:
+        _report_seeds(args, runs, seeds[:len(runs)], meta)
     return 130 if interrupted else 0
+
+
+def _report_seeds(args, runs: list[list], seeds: list[int], meta: dict) -> None:
+    """The benchmark of several seeds: each tracker's AUC with every seed, then the usual tables of the
+    means over the seeds (:mod:`pipeline.evaluation.seed_means`); its plots of those means."""
+    from pipeline.cli.versions import version_text
+    from pipeline.evaluation.benchmark_tables import format_tables
+    from pipeline.evaluation.seed_means import format_seed_tables, mean_rows, seeds_json
+    from pipeline.evaluation.sequence_benchmark import note, plot_precision, plot_success
+
+    meta = {k: v for k, v in meta.items() if k != "seed"}
+    if args.json:
+        print(json.dumps(seeds_json(runs, [dict(meta, seed=s) for s in seeds], seeds, meta)))
+    means = mean_rows(runs, seeds)
+    if not args.json:
+        print(format_seed_tables(runs, seeds, markdown=args.markdown) + "\n")
+        print(format_tables(means, markdown=args.markdown, fps=not args.no_fps))
+        if meta["skipped"]:
+            print("\n" + "\n".join(meta["skipped"]))
+        print(f"\n{meta['mode']}, seeds {', '.join(map(str, seeds))} (the tables after the AUC of each seed: the "
+              "means over the seeds)" + (f", the {meta['variant']} variant of every sequence" if meta["variant"] else "")
+              + f"; {version_text(meta['versions'])}")
+    if not meta["interrupted"]:
+        if args.plot:
+            plot_success(means, args.plot)
+            note(f"success plot (the means over the seeds): {args.plot}")
+        if args.precision_plot:
+            plot_precision(means, args.precision_plot)
+            note(f"precision plot (the means over the seeds): {args.precision_plot}")
 
 
 def _report(args, rows: list, meta: dict) -> None:
@@ -392,7 +490,12 @@ def register(sub) -> None:
                    help="a sequence folder (frames/ + groundtruth.csv) or a folder of them")
     p.add_argument("--trackers", metavar="NAME,...",
                    help=f"trackers to run (default all: {', '.join(sorted(TRACKERS))})")
-    p.add_argument("--seed", type=nonnegative_int, default=1, help="random seed of every run (default 1)")
+    p.add_argument("--seed", type=nonnegative_int, help="random seed of every run (default 1)")
+    p.add_argument("--seeds", metavar="LIST",
+                   help="run the whole benchmark once per seed (1,2,3 or 1-5) and print each tracker's AUC with every "
+                        "seed, their mean, lowest and highest, then the usual tables of the means over the seeds "
+                        "(with --stress: each seed's tables in turn); one result can hang on one frame where a "
+                        "look-alike takes the target with one seed and not with another")
     p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A "
                                                     "(default: every frame from the first ground-truth box)")
     p.add_argument("--inline", action="store_true", help="run each tracker in this process instead of as processes")
