@@ -412,64 +412,41 @@ def cmd_benchmark(args) -> int:
             "frames": [first_frame if args.frames else None, stop], "seed": args.seed,
             "mode": "inline" if args.inline else "processes", "variant": variant.name if variant else None,
             "skipped": skipped, "interrupted": interrupted, "versions": versions()}
-    if len(seeds) == 1:
-        _report(args, runs[0], meta)
-    else:
-        _report_seeds(args, runs, seeds[:len(runs)], meta)
+    _report(args, runs, seeds[:len(runs)], meta)
     return 130 if interrupted else 0
 
 
-def _report_seeds(args, runs: list[list], seeds: list[int], meta: dict) -> None:
-    """The benchmark of several seeds: each tracker's AUC with every seed, then the usual tables of the
-    means over the seeds (:mod:`pipeline.evaluation.seed_means`); its plots of those means."""
+def _report(args, runs: list[list], seeds: list[int], meta: dict) -> None:
+    """The benchmark's tables (text, Markdown or JSON) on stdout, and its plots unless interrupted. With
+    several seeds: each tracker's AUC with every seed first, then the tables and plots of the means over
+    the seeds (:mod:`pipeline.evaluation.seed_means`); the JSON holds every seed's run and the means."""
     from pipeline.cli.versions import version_text
-    from pipeline.evaluation.benchmark_tables import format_tables
+    from pipeline.evaluation.benchmark_tables import format_tables, to_json
     from pipeline.evaluation.seed_means import format_seed_tables, mean_rows, seeds_json
     from pipeline.evaluation.sequence_benchmark import note, plot_precision, plot_success
 
-    meta = {k: v for k, v in meta.items() if k != "seed"}
+    several = len(seeds) > 1
+    rows = mean_rows(runs, seeds) if several else runs[0]
     if args.json:
-        print(json.dumps(seeds_json(runs, [dict(meta, seed=s) for s in seeds], seeds, meta)))
-    means = mean_rows(runs, seeds)
-    if not args.json:
-        print(format_seed_tables(runs, seeds, markdown=args.markdown) + "\n")
-        print(format_tables(means, markdown=args.markdown, fps=not args.no_fps))
-        if meta["skipped"]:
-            print("\n" + "\n".join(meta["skipped"]))
-        print(f"\n{meta['mode']}, seeds {', '.join(map(str, seeds))} (the tables after the AUC of each seed: the "
-              "means over the seeds)" + (f", the {meta['variant']} variant of every sequence" if meta["variant"] else "")
-              + f"; {version_text(meta['versions'])}")
-    if not meta["interrupted"]:
-        if args.plot:
-            plot_success(means, args.plot)
-            note(f"success plot (the means over the seeds): {args.plot}")
-        if args.precision_plot:
-            plot_precision(means, args.precision_plot)
-            note(f"precision plot (the means over the seeds): {args.precision_plot}")
-
-
-def _report(args, rows: list, meta: dict) -> None:
-    """The benchmark's tables (text, Markdown or JSON) on stdout, and its plots unless interrupted."""
-    from pipeline.cli.versions import version_text
-    from pipeline.evaluation.benchmark_tables import format_tables, to_json
-    from pipeline.evaluation.sequence_benchmark import note, plot_precision, plot_success
-
-    if args.json:
-        print(json.dumps(to_json(rows, meta)))
+        common = {k: v for k, v in meta.items() if k != "seed"}
+        print(json.dumps(seeds_json(runs, [dict(common, seed=s) for s in seeds], seeds, common) if several
+                         else to_json(rows, meta)))
     else:
+        if several:
+            print(format_seed_tables(runs, seeds, markdown=args.markdown) + "\n")
         print(format_tables(rows, markdown=args.markdown, fps=not args.no_fps))
         if meta["skipped"]:
             print("\n" + "\n".join(meta["skipped"]))
-        print(f"\n{meta['mode']}, seed {args.seed}"
-              + (f", the {meta['variant']} variant of every sequence" if meta["variant"] else "")
-              + f"; {version_text(meta['versions'])}")
+        which = (f"seeds {', '.join(map(str, seeds))} (the tables after the AUC of each seed: the means over the seeds)"
+                 if several else f"seed {args.seed}")
+        print(f"\n{meta['mode']}, {which}" + (f", the {meta['variant']} variant of every sequence" if meta["variant"]
+                                              else "") + f"; {version_text(meta['versions'])}")
     if not meta["interrupted"]:
-        if args.plot:
-            plot_success(rows, args.plot)
-            note(f"success plot: {args.plot}")
-        if args.precision_plot:
-            plot_precision(rows, args.precision_plot)
-            note(f"precision plot: {args.precision_plot}")
+        of = " (the means over the seeds)" if several else ""
+        for path, plot, what in ((args.plot, plot_success, "success"), (args.precision_plot, plot_precision, "precision")):
+            if path:
+                plot(rows, path)
+                note(f"{what} plot{of}: {path}")
 
 
 def register(sub) -> None:
