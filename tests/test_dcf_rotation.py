@@ -302,7 +302,7 @@ def test_on_caviar1_rolled_to_35_degrees_it_holds_the_target_the_upright_filter_
     labelled frames after the roll; the upright filter's is on it on fewer. So is it with ``roll_explain``
     and ``roll_best`` (the best of the rolls that explain the frame); with ``roll_explain`` alone it is
     not: the held upright window stays within the target's learnt spread as the target rolls away, so
-    H0 is never refused (docs/trackers.md)."""
+    H0 is never refused (docs/dcf-development.md)."""
     from gflow_core.evaluation.metrics import iou
     from gflow_core.evaluation.stress import CASES, fill_truth, plan_case, render_frame
     from pipeline.recording.results import read_boxes

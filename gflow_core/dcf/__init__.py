@@ -95,7 +95,7 @@ BACF and CSRT learn theirs:
   With ``search_size_volume`` clutter's place and size are uniform over the volume searched (the
   areas summed over the sizes times the step); off, the number of sizes is counted a second time,
   favouring every candidate of the wider search by that factor in odds (the option is off so that
-  recordings re-run; docs/trackers.md gives what it changes).
+  recordings re-run; docs/dcf-development.md gives what it changes).
   A frame alone may not outweigh ``reappear`` where the target comes back looking unlike what the
   filter learnt; with ``search_track`` (:mod:`.trackscore`) the search's best placements are a
   candidate track, scored as radar trackers confirm a new track (Blackman & Popoli 1999: the
@@ -143,7 +143,7 @@ together (docs/trackers.md):
   region beside the adaptive one, and its decisions are likelihood ratios and levels learnt from
   the run (:mod:`.longterm`). Searching several sizes is TLD's and LCT's scanning over scales; the
   spreading size prior that limits it is this project's.
-* Off by default, measured on the stress cases (docs/trackers.md): the search may judge several
+* Off by default, measured on the stress cases (docs/dcf-development.md): the search may judge several
   separate peaks and condition its place prior on the region searched (:mod:`.reacquire`; TLD's and
   LCT's several candidates), a frame may teach the model only when its distance is within
   ``learn_level`` deviations of the target's (:mod:`.gate`; MOSSE's and LMCF's gated updates, here a
@@ -169,7 +169,7 @@ together (docs/trackers.md):
   conservative similarity (Kalal et al. 2012, sec. 5), the similarity to the early exemplars only,
   here the anchor's distance judged by its own learnt target and clutter distributions rather than a
   fixed threshold on a patch's correlation.
-* On by default (measured on the stress cases of seeds 1-3, docs/trackers.md): the colour cue fails
+* On by default (measured on the stress cases of seeds 1-3, docs/dcf-development.md): the colour cue fails
   more often on a search candidate (``search_colour_outlier`` 0.1: the colour model is learnt against
   the target's own surroundings, not the places the search looks), and after a re-detection of a
   target judged hidden the unknown velocity widens the next frame's prior by the typical speed

@@ -6,7 +6,7 @@ distribution is a prior of ``prior_count`` pseudo-frames (rho 0.55 +- 0.15); aft
 one or two frames it is still mostly that prior. A target that does not look as the prior guessed --
 on tiger1 from frame 55 a toy in fast, blurred motion, whose distance is 0.83-0.89 on frames 3-5
 against the prior's 0.55 -- is then judged hidden on its third frame in doubt and never taken back
-(``docs/trackers.md``): what was tested there was the prior, not the target.
+(``docs/dcf-development.md``): what was tested there was the prior, not the target.
 
 Multi-target trackers keep a new track *tentative* until it is confirmed by its first frames (track
 initiation by M of N hits, Blackman & Popoli 1999; SORT's ``min_hits``; DeepSORT's ``n_init``, Wojke
@@ -37,7 +37,7 @@ evidence the frames in doubt taught the target's distribution the noise's, and n
 Off by default (0): the frames in doubt teach a wide distribution (tiger1's toy 0.73 +- 0.12), which a
 still occluder later fits (jumping's ``occlude-150`` on seed 3, tiger1's ``occlude-25``); the flow
 check does not change that, since a blurred target that moves is what it takes
-(``docs/trackers.md``, dcf, "A new track tentative for its first frames" and "Evidence that the box
+(``docs/dcf-development.md``, "A new track tentative for its first frames" and "Evidence that the box
 moved").
 """
 

@@ -21,7 +21,7 @@ response's peaks are taken, each given an equal share of the particles whatever 
 below the best gets particles whose weights the likelihood makes negligible). Their importance weights
 divide by the proposal's density, p(z | x) p(x | x_{t-1}) / q(x); the tracker's weights, with one peak
 or several, are p(z | x) p(x | x_{t-1}) alone, so a peak that draws particles gains posterior mass by
-drawing them (dividing by q was measured and loses more than it gets back: docs/trackers.md, dcf).
+drawing them (dividing by q was measured and loses more than it gets back: docs/dcf-development.md).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ sequences at half size, ``gflow benchmark --variant small``, the surfer's box gr
 its centre within 5 px, and jumping's face shrank from 19 to 14 px as it grew). Resampled to the
 model area, every target is seen at the same number of cells; it stays off because on the stress
 cases of crossing's 17 px wide pedestrian and jumping's face (920 px) it did worse
-(docs/trackers.md). With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
+(docs/dcf-development.md). With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
 the response read as a likelihood times a Gaussian prior on the log size (:func:`size_posterior`);
 DSST has no prior on the size.
 
@@ -39,7 +39,7 @@ box now has (its rows are the first box times a^n), so a size that really change
 Departure: DSST and fDSST have no anchor in either filter; the anchor of the translation filter is
 ours too (:mod:`.model`). It is off by default: on the shared sequences it adds AUC on the whole and on
 blurred and half-size footage, but loses it on every 3rd frame and on grey david_indoor, and gets
-fewer stress cases back (docs/trackers.md, "The scale filter's first frame").
+fewer stress cases back (docs/dcf-development.md, "The scale filter's first frame").
 """
 
 from __future__ import annotations

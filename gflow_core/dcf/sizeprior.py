@@ -4,7 +4,7 @@ DSST takes the peak of its 1-D scale filter's response (Danelljan et al., BMVC 2
 response is broad over the 17 scales 2 % apart: neighbouring sizes often score within a few percent
 of each other, and the peak's side decides each step. On twinnings and tiger1 such steps took the box
 to 1.3-1.55 times its first size; the frozen first-frame filter and a pixel check agree that the
-target itself looked that much larger, while those labels keep one size (docs/trackers.md, dcf), so
+target itself looked that much larger, while those labels keep one size (docs/dcf-development.md), so
 the prior trades the targets that change size for the labels that do not. Here the response is read
 as a likelihood over the target's log size, p(z | s) ~ exp(kappa y) (as the particles read the
 translation response), and a Gaussian prior log s ~ N(0, ``scale_prior``^2) on the size relative to the first

@@ -35,7 +35,7 @@ Departures, each for a way the search's best placement is not radar's false alar
 * *The signal is counted once.* Radar's false alarms are independent from scan to scan, so their
   signal terms add. A look-alike in view is the same object on every frame and scores alike on every
   one: summed, its evidence grows without limit (a sequential test that summed it, tried before this
-  one, took another skater on skating1's ``occlude-25`` before the occluder left: ``docs/trackers.md``,
+  one, took another skater on skating1's ``occlude-25`` before the occluder left: ``docs/dcf-development.md``,
   "Re-detection that sums evidence over frames"). Here the score is the kinematic terms summed and the
   signal terms' *mean*: the look is evidence about one object, seen n times.
 * *Clutter may stand still.* Where nothing moves, the best placement on a still object falls on the
@@ -48,7 +48,7 @@ Departures, each for a way the search's best placement is not radar's false alar
 
 Still a moving look-alike is a moving object: on jumping's ``occlude-25`` (seed 1) the jumper's body
 below the hidden face moved as one object for three frames, at P 0.55, and with ``search_track=0.5``
-it was taken (``docs/trackers.md``, dcf, "A candidate track").
+it was taken (``docs/dcf-development.md``, "A candidate track").
 """
 
 from __future__ import annotations

@@ -89,7 +89,7 @@ def test_the_scale_filters_first_frame_survives_a_snapshot_bit_for_bit() -> None
 
 
 def test_it_is_off_by_default() -> None:
-    """A trade measured on the shared sequences, their variants and the stress cases (docs/trackers.md), so
+    """A trade measured on the shared sequences, their variants and the stress cases (docs/dcf-development.md), so
     the default keeps DSST's running scale filter alone."""
     assert DCFParams().scale_anchor is False
     assert "scale_anchor" not in added_later(DCFParams)
