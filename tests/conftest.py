@@ -33,6 +33,37 @@ def data_dir(name: str) -> Path:
     return p
 
 
+# The test files that take longest (seconds of wall time on 2 busy cores, --durations), longest first.
+# `-n 2 --dist loadfile` hands whole files to the two workers; by default xdist hands out the files
+# with the most tests first, which leaves the long files with few tests (test_doc_figures: 3 tests,
+# over a minute) to the end, where one worker runs them while the other has nothing left to do. Handed
+# out first, they run while the other worker works through the many short files, and both end
+# together. A name that is no longer a test file is simply not found; files not named keep xdist's order.
+LONGEST_FIRST = ("test_docs", "test_stress_benchmark", "test_faults_restart", "test_doc_figures", "test_python_api",
+                 "test_live_streams", "test_recording_tools", "test_live_input", "test_deployment",
+                 "test_real_tracking", "test_cli_errors", "test_m2_pipeline", "test_cli_trust", "test_run_equals_track",
+                 "test_benchmark", "test_live_tools", "test_security", "core/test_appearance", "test_live",
+                 "test_faults_recording", "test_gflow_guard_online", "test_dcf_rotation", "test_trust",
+                 "test_gflow_rerun", "test_types", "test_trax", "test_gflow_lost_witness", "test_faults_hostile")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Under xdist, the files of :data:`LONGEST_FIRST` first, in its order; then the others by their
+    number of tests, most first (xdist's own order, which it is told not to apply on top)."""
+    if not hasattr(config, "workerinput"):
+        return  # not an xdist worker: the collection order is left alone
+    rank = {f"tests/{name}.py": i for i, name in enumerate(LONGEST_FIRST)}
+    count: dict[str, int] = {}
+    for item in items:
+        count[item.nodeid.split("::")[0]] = count.get(item.nodeid.split("::")[0], 0) + 1
+    items.sort(key=lambda item: (rank.get(f := item.nodeid.split("::")[0], len(rank)), -count[f], f))
+
+
+def pytest_configure(config):
+    if getattr(config.option, "dist", "no") == "loadfile":
+        config.option.loadscopereorder = False  # the order is pytest_collection_modifyitems'
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _private_runtime_dir(tmp_path_factory):
     """Pipelines started by the tests announce themselves (pipeline.runtime.running) in a folder of the

@@ -22,6 +22,9 @@ from pipeline.recording.results import estimates
 STOP = 60  # frames: enough to kill mid-run, few enough to keep the test fast
 KILL_AT = 20  # estimates in the recording when the stage is killed
 WINDOW = 8  # the source's flow-control window: at most this many frames are in flight
+# what is under test is the restart; an input given up as late (GFLOW_LATE_S, default 3 s) on a heavily
+# loaded machine is another mechanism, whose coasting frames differ from the undisturbed run's
+ENV = {**os.environ, "GFLOW_LATE_S": "60"}
 
 
 def _track(caviar1: Path, tmp: Path, name: str) -> list[str]:
@@ -54,7 +57,7 @@ def undisturbed(tmp_path_factory) -> dict[int, tuple[str, ...]]:
 
     caviar1 = data_dir("caviar1")
     tmp = tmp_path_factory.mktemp("undisturbed")
-    out = subprocess.run([*_track(caviar1, tmp, "base"), "-q"], capture_output=True, text=True, timeout=300)
+    out = subprocess.run([*_track(caviar1, tmp, "base"), "-q"], capture_output=True, text=True, timeout=300, env=ENV)
     assert out.returncode == 0, out.stderr
     return _rows(tmp / "base.csv")
 
@@ -65,7 +68,7 @@ def test_a_killed_stage_resumes_and_the_result_is_unchanged(caviar1, tmp_path, u
     # played at 25 fps: a fast pipeline would otherwise finish before the kill (the estimates
     # reach the recording at its 0.5 s flushes); the results do not depend on the pace
     p = subprocess.Popen([*_track(caviar1, tmp_path, "run"), "--realtime"], stdout=subprocess.PIPE,
-                         stderr=subprocess.PIPE, text=True)
+                         stderr=subprocess.PIPE, text=True, env=ENV)
     deadline = time.monotonic() + 120
     while not (rec.exists() and rec.stat().st_size > 64 and len(estimates(rec)) >= KILL_AT):
         assert time.monotonic() < deadline and p.poll() is None, "the pipeline did not get going"
@@ -130,9 +133,7 @@ def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stag
     david = data_dir("david_indoor")
     cmd = [sys.executable, "-m", "pipeline.cli.main", "track", str(david), "--tracker", "gflow", "--init", "169,76,46,60",
            "--stop", "60", "--listen", "tcp/127.0.0.1:0", *extra]
-    # what is under test is the restart; an input given up as late (GFLOW_LATE_S, default 3 s) on a
-    # heavily loaded machine is another mechanism, whose coasting frames differ from the base run's
-    env = {**os.environ, "GFLOW_LATE_S": "60"}
+    env = ENV
     base = subprocess.run([*cmd, "--out", str(tmp_path / "base.csv"), "--record", str(tmp_path / "base.mcap"), "-q"],
                           capture_output=True, text=True, timeout=300, env=env)
     assert base.returncode == 0, base.stderr
