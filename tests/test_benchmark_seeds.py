@@ -15,6 +15,7 @@ from gflow_core.evaluation.metrics import TrackScore
 from gflow_core.synthetic import SyntheticScene
 from pipeline.cli.main import main
 from pipeline.evaluation.seed_means import format_seed_tables, mean_rows, parse_seeds
+from pipeline.evaluation.stress_seeds import format_stress_seeds
 from pipeline.evaluation.sequence_benchmark import Row
 from pipeline.io.datasets import write_frames
 from pipeline.recording.results import write_boxes
@@ -131,3 +132,23 @@ def test_stress_runs_each_seed(seq, tmp_path):
     assert [{k: v for k, v in r.items() if k not in ("fps", "seconds", "seconds_total", "boxes")}
             for r in both["runs"][1]["rows"]] == timeless
     assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["seed-1", "seed-2"]
+    # as text: each seed's tables, then the summaries side by side, each figure the seed's JSON's
+    r = subprocess.run([*GFLOW, "benchmark", str(seq), *stress[:-1], "--seeds", "1,2", "--markdown"],
+                       capture_output=True, text=True, timeout=240)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert "## seed 1" in lines and "## seed 2" in lines and "## every seed" in lines
+    assert "|  | seed 1 | seed 2 |" in lines
+    back = [ln for ln in lines if ln.startswith("| got back, every case |")]
+    want = [f"{a} / {b}" for a, b in (run["summary"]["chamfer"]["back"]["every case"] for run in both["runs"])]
+    assert back == [f"| got back, every case | {want[0]} | {want[1]} |"]
+
+
+def test_stress_seeds_table_marks_what_a_seed_lacks():
+    summary = {"back": {"every case": [3, 4], "fast motion": [1, 2]}, "mean_success": 0.5,
+               "hidden_reported_occluded_or_lost": [9, 10]}
+    text = format_stress_seeds([{"dcf": summary}, {}], [1, 2])
+    assert "got back, every case" in text and "3 / 4" in text and "9 / 10 (0.900)" in text and "0.500" in text
+    rows = {ln.split("  ")[0]: ln for ln in text.splitlines()}
+    assert rows["got back, rolls <= 35 degrees"].split()[-2:] == ["-", "-"]  # no such group: not a zero
+    assert rows["mean success"].split()[-1] == "-"  # the second seed has no dcf at all

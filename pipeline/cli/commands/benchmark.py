@@ -264,6 +264,7 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int]) -> int:
             "mode": "inline" if args.inline else "processes", "lead": args.lead, "tail": args.tail,
             "skipped": sorted({f"{n}: {w}" for (_, n), w in skip.items()}), "opencv_missing": cv_missing}
     done: list[dict] = []
+    summaries: list[dict] = []
     interrupted = False
     for seed in seeds:
         one = _with_seed(args, seed)
@@ -274,9 +275,9 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int]) -> int:
         rows, interrupted, cases = run_stress(one, seqs, runnable, [c for c in cv_names if c not in cv_missing],
                                               _stress_plan_of(one), donors)
         run_meta = dict(meta, seed=seed, interrupted=interrupted)
-        if args.json:
-            done.append(stress_json(rows, run_meta, cases))
-        else:
+        done.append(stress_json(rows, run_meta, cases))
+        summaries.append(done[-1]["summary"])
+        if not args.json:
             print((f"\n{'## ' if args.markdown else ''}seed {seed}\n\n" if len(seeds) > 1 else "")
                   + format_stress(rows, markdown=args.markdown))
         if interrupted:
@@ -284,6 +285,11 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int]) -> int:
     if args.json:
         print(json.dumps(done[0] if len(seeds) == 1 else dict(meta, seeds=seeds[:len(done)], runs=done)))
     else:
+        if len(summaries) > 1:
+            from pipeline.evaluation.stress_seeds import format_stress_seeds
+
+            print(f"\n{'## ' if args.markdown else ''}every seed\n\n"
+                  + format_stress_seeds(summaries, seeds[:len(summaries)], markdown=args.markdown))
         for line in meta["skipped"] + [f"opencv {c}: {w}" for c, w in cv_missing.items()]:
             print(f"\nnot run: {line}")
     return 130 if interrupted else 0
@@ -471,7 +477,8 @@ def register(sub) -> None:
     p.add_argument("--seeds", metavar="LIST",
                    help="run the whole benchmark once per seed (1,2,3 or 1-5) and print each tracker's AUC with every "
                         "seed, their mean, lowest and highest, then the usual tables of the means over the seeds "
-                        "(with --stress: each seed's tables in turn); one result can hang on one frame where a "
+                        "(with --stress: each seed's tables in turn, then each seed's cases got back and reported states "
+                        "side by side); one result can hang on one frame where a "
                         "look-alike takes the target with one seed and not with another")
     p.add_argument("--frames", metavar="A:B", help="track frames A to B-1 only, from the ground-truth box of frame A "
                                                     "(default: every frame from the first ground-truth box)")
