@@ -4,8 +4,12 @@ seed's rows equal to a run with ``--seed`` alone, and the means over the seeds."
 from __future__ import annotations
 
 import json
+import queue
+import signal
 import subprocess
 import sys
+import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -152,3 +156,36 @@ def test_stress_seeds_table_marks_what_a_seed_lacks():
     rows = {ln.split("  ")[0]: ln for ln in text.splitlines()}
     assert rows["got back, rolls <= 35 degrees"].split()[-2:] == ["-", "-"]  # no such group: not a zero
     assert rows["mean success"].split()[-1] == "-"  # the second seed has no dcf at all
+
+
+def test_a_seed_interrupted_midway_is_left_out(seq):
+    """SIGINT during the second seed: exit 130, and the tables hold the first seed, which finished."""
+    # frames paced at 10 fps, so the second seed's run is still going when the signal comes
+    p = subprocess.Popen([*GFLOW, "benchmark", str(seq), "--trackers", "chamfer", "--opencv", "none", "--json", "--seeds",
+                          "1,2", "--set", "source.realtime=true", "--set", "source.fps=10"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    lines: queue.Queue[str] = queue.Queue()
+    reader = threading.Thread(target=lambda: [lines.put(ln) for ln in p.stderr], daemon=True)  # type: ignore[union-attr]
+    reader.start()
+    seen: list[str] = []
+    deadline = time.monotonic() + 120
+    # the second seed's run under way: its progress line, then a source line with frames sent
+    while not (any("seed 2" in ln for ln in seen)
+               and any(ln.startswith("source: ") and not ln.startswith("source: 0")
+                       for ln in seen[next(i for i, ln in enumerate(seen) if "seed 2" in ln):])):
+        assert time.monotonic() < deadline and p.poll() is None, "".join(seen)
+        try:
+            seen.append(lines.get(timeout=1.0))
+        except queue.Empty:
+            pass
+    p.send_signal(signal.SIGINT)
+    p.wait(timeout=60)
+    out = p.stdout.read()  # type: ignore[union-attr]
+    reader.join(timeout=30)  # stderr to its end
+    while not lines.empty():
+        seen.append(lines.get())
+    assert p.returncode == 130, "".join(seen)
+    res = json.loads(out)
+    assert res["seed"] == 1 and res["interrupted"] is True and "seeds" not in res
+    assert _row(res, "chamfer")["frames"] == FRAMES  # seed 1's run, whole
+    assert any("seed 2 was interrupted: the tables hold seeds 1" in ln for ln in seen), "".join(seen)

@@ -276,7 +276,8 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int]) -> int:
                                               _stress_plan_of(one), donors)
         run_meta = dict(meta, seed=seed, interrupted=interrupted)
         done.append(stress_json(rows, run_meta, cases))
-        summaries.append(done[-1]["summary"])
+        if not interrupted:  # a seed stopped midway is not set beside the others
+            summaries.append(done[-1]["summary"])
         if not args.json:
             print((f"\n{'## ' if args.markdown else ''}seed {seed}\n\n" if len(seeds) > 1 else "")
                   + format_stress(rows, markdown=args.markdown))
@@ -418,6 +419,11 @@ def cmd_benchmark(args) -> int:
             "frames": [first_frame if args.frames else None, stop], "seed": args.seed,
             "mode": "inline" if args.inline else "processes", "variant": variant.name if variant else None,
             "skipped": skipped, "interrupted": interrupted, "versions": versions()}
+    if interrupted and len(runs) > 1:
+        # a seed stopped midway is left out of the means: the tables hold the seeds that finished
+        note(f"seed {seeds[len(runs) - 1]} was interrupted: the tables hold seeds "
+             f"{', '.join(map(str, seeds[:len(runs) - 1]))}")
+        runs = runs[:-1]
     _report(args, runs, seeds[:len(runs)], meta)
     return 130 if interrupted else 0
 
