@@ -152,3 +152,36 @@ def cli(args: list[str], capsys) -> tuple[int, str]:
     except SystemExit as e:  # argparse's refusals exit
         rc = int(e.code or 0)
     return rc, capsys.readouterr().err
+
+
+class StderrLines:
+    """The lines a running process (``subprocess.Popen``, text mode) writes on stderr, read on a thread as
+    they come, so a test can wait for one (:meth:`until`) and then read them all (:meth:`rest`)."""
+
+    def __init__(self, p: subprocess.Popen) -> None:
+        import queue
+        import threading
+
+        self.p, self.seen, self._q = p, [], queue.Queue()
+        self._reader = threading.Thread(target=lambda: [self._q.put(ln) for ln in p.stderr], daemon=True)
+        self._reader.start()
+
+    def until(self, done, timeout: float) -> None:
+        """Wait until ``done(lines so far)``; fail (with the lines) after ``timeout`` s or if the process ends."""
+        import queue
+        import time
+
+        deadline = time.monotonic() + timeout
+        while not done(self.seen):
+            assert time.monotonic() < deadline and self.p.poll() is None, "".join(self.seen)
+            try:
+                self.seen.append(self._q.get(timeout=1.0))
+            except queue.Empty:
+                pass
+
+    def rest(self) -> list[str]:
+        """Every line, once the process has closed its stderr."""
+        self._reader.join(timeout=30)
+        while not self._q.empty():
+            self.seen.append(self._q.get())
+        return self.seen

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import json
 import os
-import queue
 import re
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -23,7 +21,7 @@ from pipeline.cli.main import main
 from pipeline.io.datasets import write_frames
 from pipeline.recording.results import read_boxes, write_boxes
 
-from conftest import data_dir
+from conftest import StderrLines, data_dir
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 FRAMES = 30
@@ -257,19 +255,11 @@ def test_ctrl_c_stops_cleanly(seq, tmp_path):
     # frames paced at 5 fps, so the run is still going when the signal comes
     p = subprocess.Popen([*GFLOW, "benchmark", str(seq), "--trackers", "chamfer", "--set", "source.realtime=true",
                           "--set", "source.fps=5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
-    lines: queue.Queue[str] = queue.Queue()
-    threading.Thread(target=lambda: [lines.put(ln) for ln in p.stderr], daemon=True).start()  # type: ignore[union-attr]
-    seen = []
-    deadline = time.monotonic() + 90
-    while not any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen):
-        assert time.monotonic() < deadline and p.poll() is None, "".join(seen)
-        try:
-            seen.append(lines.get(timeout=1.0))
-        except queue.Empty:
-            pass
+    err = StderrLines(p)
+    err.until(lambda seen: any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen), 90)
     p.send_signal(signal.SIGINT)
     p.wait(timeout=60)
-    assert p.returncode == 130, "".join(seen)
+    assert p.returncode == 130, "".join(err.rest())
     assert not list(tmp.glob("gflow-benchmark-*")), "the temporary folder was left behind"
 
 

@@ -4,12 +4,9 @@ seed's rows equal to a run with ``--seed`` alone, and the means over the seeds."
 from __future__ import annotations
 
 import json
-import queue
 import signal
 import subprocess
 import sys
-import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +20,8 @@ from pipeline.evaluation.stress_seeds import format_stress_seeds
 from pipeline.evaluation.sequence_benchmark import Row
 from pipeline.io.datasets import write_frames
 from pipeline.recording.results import write_boxes
+
+from conftest import StderrLines
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 FRAMES = 30
@@ -164,26 +163,18 @@ def test_a_seed_interrupted_midway_is_left_out(seq):
     p = subprocess.Popen([*GFLOW, "benchmark", str(seq), "--trackers", "chamfer", "--opencv", "none", "--json", "--seeds",
                           "1,2", "--set", "source.realtime=true", "--set", "source.fps=10"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    lines: queue.Queue[str] = queue.Queue()
-    reader = threading.Thread(target=lambda: [lines.put(ln) for ln in p.stderr], daemon=True)  # type: ignore[union-attr]
-    reader.start()
-    seen: list[str] = []
-    deadline = time.monotonic() + 120
-    # the second seed's run under way: its progress line, then a source line with frames sent
-    while not (any("seed 2" in ln for ln in seen)
-               and any(ln.startswith("source: ") and not ln.startswith("source: 0")
-                       for ln in seen[next(i for i, ln in enumerate(seen) if "seed 2" in ln):])):
-        assert time.monotonic() < deadline and p.poll() is None, "".join(seen)
-        try:
-            seen.append(lines.get(timeout=1.0))
-        except queue.Empty:
-            pass
+    err = StderrLines(p)
+
+    def second_seed_going(seen: list[str]) -> bool:
+        """The second seed's progress line, then a source line with frames sent."""
+        at = next((i for i, ln in enumerate(seen) if "seed 2" in ln), None)
+        return at is not None and any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen[at:])
+
+    err.until(second_seed_going, 120)
     p.send_signal(signal.SIGINT)
     p.wait(timeout=60)
     out = p.stdout.read()  # type: ignore[union-attr]
-    reader.join(timeout=30)  # stderr to its end
-    while not lines.empty():
-        seen.append(lines.get())
+    seen = err.rest()
     assert p.returncode == 130, "".join(seen)
     res = json.loads(out)
     assert res["seed"] == 1 and res["interrupted"] is True and "seeds" not in res
