@@ -51,8 +51,8 @@ Departures from the paper
   transition open, sec. 2): the scale ``c_1``'s walk is a fraction of the first box's ``|c_1|``
   a period instead of ``prior_std_coefficients``' absolute 0.2 (0.2-0.5 % of the nine shared
   sequences' first boxes, against the 1-3 % a period their size-varying boxes and david_indoor's
-  landmarks change by); measured over ten seeds in docs/faces.md, "The size's walk".
-* ``texel_noise_adapt`` (off by default; measured not to help, docs/faces.md): the texels'
+  landmarks change by); measured over ten seeds in docs/gflow-development.md, "The size's walk".
+* ``texel_noise_adapt`` (off by default; measured not to help, docs/gflow-development.md): the texels'
   Kalman update (eq. 7, 8) observes the frame with each expert's moment estimate of the
   observation noise from its residuals, at least ``sigma_w``, instead of ``sigma_w`` itself.
 * See also :mod:`.pose_opinion` (Gauss-Newton without the background term by
@@ -230,7 +230,7 @@ class GFlowConfig:
         ``kappa``: the data term's log-likelihood is divided by it in the pose opinion (eq. 14) and
         the importance weights (eq. 13, 16), a composite likelihood for residuals that are not
         independent (:mod:`.pose_opinion`); ``1`` = the paper's (the default; measured not to help,
-        docs/faces.md).
+        docs/gflow-development.md).
     generic_background : bool
         The object's data term is weighed against a generic background at the vertices (eq. 14's first
         background term with one Gaussian, the frame's mean and variance, for every pixel:
@@ -418,7 +418,7 @@ class GFlowConfig:
         motion keeps its velocity for a few periods (david_indoor's reference landmarks move 2.7 times
         as far over three frames as over one, not ``sqrt(3)`` times), but a walk grown as such a motion's
         (an integrated Ornstein-Uhlenbeck velocity of correlation time 1 or 3 periods: ``2.4`` or ``2.7``
-        times a period's std over 3 periods) lost the face more often there too (mean NME of seeds 1-3 0.196 and 0.162; docs/faces.md): the
+        times a period's std over 3 periods) lost the face more often there too (mean NME of seeds 1-3 0.196 and 0.162; docs/gflow-development.md): the
         wider translation walk makes the clutter beside the face cheaper at the head's turn.
 
         Raises ``ValueError`` unless ``dt`` is finite and ``>= 1``.

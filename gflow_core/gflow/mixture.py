@@ -24,8 +24,8 @@ computes it, tempered by ``data_temper``) and the transition density are evaluat
 The expert's likelihood (eq. 19) is the mean of the corrected weights.
 
 What it cannot do is make the likelihood prefer the face: it puts samples there, and the weights
-(with ``online_cue``, the model's own likelihood besides) judge them. docs/faces.md, "At a camera's
-pace", has the figures. Nothing here draws but from the generator it is given. No I/O.
+(with ``online_cue``, the model's own likelihood besides) judge them. docs/gflow-development.md,
+"A mixture proposal that draws from the online model", has the figures. Nothing here draws but from the generator it is given. No I/O.
 """
 
 from __future__ import annotations

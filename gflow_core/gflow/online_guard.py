@@ -40,14 +40,14 @@ frame's filter kept as an anchor, DSST's scale filter), on grey levels alone (G-
   it is not placed neither count nor end the count), every expert is re-seated at the face's box as
   after a loss (:func:`.guard.settle`, :func:`.guard.reseat`). On david_indoor it helps at every 3rd
   frame and hurts at every frame, where the model loses the face in profile and re-seats the experts,
-  who had kept it, on the wall (docs/faces.md, "An online model of the face"): off by default.
+  who had kept it, on the wall (docs/gflow-development.md, "An online model of the face"): off by default.
 * **As a likelihood** (``cue`` > 0, :func:`cue`): the model's response at each pose sample's box, as the
   default tracker turns it into a likelihood (``exp(kappa y)``) and mixed with a uniform density of weight
   ``floor``, multiplies the sample's importance weight (Marks et al. eq. 16), a second cue as in the
   multi-cue fusion of Perez, Vermaak & Blake (Proc. IEEE 2004), where a cue that may fail is mixed with a
   uniform density; the paper's likelihood is the texture's alone. It only reweights the samples the experts
   drew: at david_indoor's turn every expert's chain leaves the face for the collar, and no sample is left
-  on the face to prefer (docs/faces.md, "The online model as a likelihood"): off by default.
+  on the face to prefer (docs/gflow-development.md, "The online model as a likelihood"): off by default.
 * **As a detector** (``online_mix`` of :class:`.params.GFlowParams`, :mod:`.mixture`): where it judges the face
   present (:func:`place`), a share of each expert's samples is drawn about its place and every weight is
   corrected for the mixture proposal (ICONDENSATION); off by default.

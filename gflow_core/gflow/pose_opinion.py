@@ -81,7 +81,7 @@ Departures from the paper
   normalising terms; search, every level, gradient and Hessian, so ``Sigma_hat`` grows by
   ``kappa``) and in eq. 13 for the weights (the caller, :mod:`.filter`). For the peak this is the
   prior made ``kappa`` times as precise. The outlier cap stays on the untempered standardised
-  residual. Measured on david_indoor (docs/faces.md): it does not keep the experts on the face
+  residual. Measured on david_indoor (docs/gflow-development.md): it does not keep the experts on the face
   at every 3rd frame, and it loses it at every frame, so it is not used.
 
 * A generic background (``TextureView.generic``, ``GFlowConfig.generic_background``; off by default
@@ -101,7 +101,7 @@ Departures from the paper
   16); Gauss-Newton climbs the object's term and the prior alone, as the paper's does without its
   second background term, because with the generic term in its steps the fitted face grew and
   turned (david_indoor at every frame, seeds 1-2: 0.092 / 0.098 against 0.077 / 0.075). Measured
-  (docs/faces.md "At a camera's pace"): at every 3rd frame 0.113 / 0.100 / 0.115 (seeds 1-3; 0.108
+  (docs/gflow-development.md): at every 3rd frame 0.113 / 0.100 / 0.115 (seeds 1-3; 0.108
   / 0.134 / 0.165 without), at every frame 0.077 / 0.075 (0.070 / 0.067 without): the goal of 0.10
   at every 3rd frame is not met, so it stays off.
 
@@ -118,8 +118,8 @@ Departures from the paper
   every expert and sample). It enters the objective by which the chains are compared and the importance
   weights (eq. 13, 16, so the credibilities, eq. 19); Gauss-Newton and the coarse translation
   search keep the object's term and the prior (in the search too it lost tiger1 more often, AUC
-  0.543 against 0.630, and was no better on david_indoor). Measured (docs/faces.md "At a camera's
-  pace"): every 3rd frame 0.102 / 0.107 / 0.098 (seeds 1-3), mean 0.107 over seeds 1-10 against
+  0.543 against 0.630, and was no better on david_indoor). Measured (docs/gflow-development.md,
+  "The face against its surroundings"): every 3rd frame 0.102 / 0.107 / 0.098 (seeds 1-3), mean 0.107 over seeds 1-10 against
   0.135; every frame 0.077 / 0.084 / 0.069 (0.070 / 0.067 / 0.104 without; over seeds 1-10 0.075
   against 0.076, 6 seeds worse); the nine shared
   sequences' AUC 0.641 against 0.653: it stays off.
@@ -135,7 +135,7 @@ Departures from the paper
   level of Gauss-Newton (gradient and Hessian weighted alike), the chains' comparison, the gain and
   bias and the likelihood of the weights; a generic or local background's terms at a vertex count
   ``v_i`` times too (a hidden vertex claims no pixel). The texel update is the caller's
-  (:func:`.filter.update`). Measured (docs/faces.md "At a camera's pace"): every 3rd frame
+  (:func:`.filter.update`). Measured (docs/gflow-development.md, "Self-occlusion"): every 3rd frame
   0.116 / 0.103 / 0.153 at ``0.2`` (seeds 1-3; mean over seeds 1-10 0.141 against 0.135), every frame
   0.093 / 0.066 / 0.077 (0.070 / 0.067 / 0.104 without), the nine shared sequences' AUC 0.605 against
   0.653: it stays off.

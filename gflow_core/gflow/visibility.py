@@ -31,7 +31,7 @@ expert's previous pose, its remainder replaced by its expectation under the texe
 its texel's Kalman update (eq. 7-8) observes the frame with noise ``sigma_w / v_i`` at the new pose
 (none at ``v_i = 0``: the texel keeps its prediction). It is off by default: on david_indoor it did not
 bring the landmark NME at every 3rd frame to 0.10, and it cost the nine shared sequences' AUC
-(docs/faces.md, "At a camera's pace").
+(docs/gflow-development.md, "Self-occlusion").
 """
 
 from __future__ import annotations
