@@ -35,9 +35,7 @@ from typing import NoReturn  # noqa: E402
 
 from pipeline.cli.commands import command_module, command_modules  # noqa: E402
 from pipeline.cli.commands.common import CliError  # noqa: E402
-from pipeline.runtime.graph import GraphError  # noqa: E402
 from pipeline.runtime.trace import mark  # noqa: E402
-from pipeline.runtime.transport import SessionError  # noqa: E402
 
 __all__ = ["main", "build_parser"]
 
@@ -111,6 +109,18 @@ def _take_sigint_back() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """The errors that are the user's (one line, exit status 2): a request that cannot run, a graph's
+    mistake, a file that is missing, a bad value, a zenoh session that cannot open. The classes of
+    the modules the command never imported are left out (no such error can have been raised), so
+    that naming them costs no import."""
+    out: list[type[BaseException]] = [CliError, FileNotFoundError, ValueError]
+    for module, name in (("pipeline.runtime.graph", "GraphError"), ("pipeline.runtime.transport", "SessionError")):
+        if module in sys.modules:
+            out.append(getattr(sys.modules[module], name))
+    return tuple(out)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser(command_word(sys.argv[1:] if argv is None else argv))
     args = ap.parse_args(argv)
@@ -123,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except (CliError, GraphError, FileNotFoundError, ValueError, SessionError) as e:
+    except _user_errors() as e:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote
         print(f"gflow {args.command}: error: {msg}", file=sys.stderr)
         return 2
