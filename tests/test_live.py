@@ -79,14 +79,15 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
     # long enough to outlast the tools on a busy machine; stopped when they are done
     launcher, th, result, port, rec = _start(tmp_path, frames=3000)
     conn = ["--connect", f"tcp/127.0.0.1:{port}"]
-    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "3", *conn], capture_output=True, text=True, timeout=60)
+    # each tool listens as long as its assertion needs: topics from the first message, hz to its first report
+    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "1", *conn], capture_output=True, text=True, timeout=60)
     assert "gflow/demo/features" in topics.stdout and "Features" in topics.stdout, topics.stdout
     echo = subprocess.run([*gflow_cmd, "echo", "gflow/demo/estimate", "-n", "3", "--timeout", "20", *conn],
                           capture_output=True, text=True, timeout=60)
     assert echo.returncode == 0, echo.stderr
     lines = [ln for ln in echo.stdout.splitlines() if ln.startswith("gflow/demo/estimate: Estimate seq=")]
     assert len(lines) == 3, echo.stdout
-    hz = subprocess.run([*gflow_cmd, "hz", "gflow/demo/frames", "--duration", "2.5", *conn],
+    hz = subprocess.run([*gflow_cmd, "hz", "gflow/demo/frames", "--duration", "1.5", *conn],
                         capture_output=True, text=True, timeout=60)
     assert hz.returncode == 0 and "average rate" in hz.stdout, hz.stdout + hz.stderr
     rate = float(hz.stdout.splitlines()[-1].split("average rate ")[1].split(" Hz")[0])

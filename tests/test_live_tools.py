@@ -76,13 +76,18 @@ def test_tools_find_the_running_pipeline(pipeline) -> None:
 
     out = _wait(running, "gflow ps to show the source running")
     assert f"pid {proc.pid}" in out and "filter" in out and "recorder" in out
-    ps = json.loads(_gflow(rt, "ps", "--json").stdout)
+    # ps listens until every stage of the announcement has been heard, not for all of --listen-for
+    t = time.monotonic()
+    ps = json.loads(_gflow(rt, "ps", "--json", "--listen-for", "30").stdout)
+    assert time.monotonic() - t < 20, "gflow ps listened for all of --listen-for though every stage beat"
     assert ps[0]["pid"] == proc.pid and ps[0]["states"]["filter"]["state"] in ("running", "ready")
+    assert set(ps[0]["states"]) == set(info["stages"])
 
-    topics = _gflow(rt, "topics", "--duration", "2")
+    # each tool listens as long as its assertion needs: topics from the first message, hz to its first report
+    topics = _gflow(rt, "topics", "--duration", "1")
     assert topics.returncode == 0, topics.stderr
     assert "gflow/demo/estimate" in topics.stdout and "Estimate" in topics.stdout and "KiB/s" in topics.stdout
-    tj = json.loads(_gflow(rt, "topics", "--duration", "2", "--json").stdout)
+    tj = json.loads(_gflow(rt, "topics", "--duration", "1", "--json").stdout)
     assert tj["gflow/demo/frames"]["type"] == "Frame" and tj["gflow/demo/frames"]["bytes_per_s"] > 0
 
     echo = _gflow(rt, "echo", "gflow/demo/estimate", "-n", "2", "--timeout", "30")
@@ -96,7 +101,7 @@ def test_tools_find_the_running_pipeline(pipeline) -> None:
     assert obj["topic"] == "gflow/demo/estimate" and msg["type"] == "Estimate"
     assert len(msg["box"]) == 4 and msg["header"]["stream"] == "demo" and msg["n"] == 100
 
-    hz = _gflow(rt, "hz", "gflow/demo/frames", "--duration", "2.5")
+    hz = _gflow(rt, "hz", "gflow/demo/frames", "--duration", "1.5")
     assert hz.returncode == 0, hz.stderr
     lines = [ln for ln in hz.stdout.splitlines() if "average rate" in ln]
     assert lines, hz.stdout

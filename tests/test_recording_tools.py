@@ -127,6 +127,39 @@ def test_sigkilled_recorder_is_recovered(tmp_path, gflow_cmd):
     assert "gflow.config" in js["metadata"]
 
 
+def test_one_reading_answers_what_the_readers_of_the_whole_file_do(crossing_run, tmp_path):
+    """A finished run's recording is read once (read_run, for run_outcome and the benchmark's
+    timing): the run's estimates and sessions, the frames sent, the frames reported in errors
+    (of the run's stream only) and the tracking span equal those of the readers that each read
+    the whole file, on a copy of a real run with error reports and an outsider's estimate added."""
+    from gflow_msgs.messages import ErrorReport, Header, encode
+    from pipeline.evaluation.sequence_benchmark import tracking_seconds
+    from pipeline.io.mcap_io import read_metadata
+    from pipeline.io.recorder import McapRecorder
+    from pipeline.recording.results import read_run, reported_frames, run_estimates
+
+    rec = tmp_path / "copy.mcap"
+    with McapRecorder(rec, metadata=read_metadata(crossing_run)) as w:
+        for r in iter_records(crossing_run):
+            w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns, type_name=r.type,
+                    source=r.source)
+            if r.type == "Frame" and r.seq in (3, 17, 40):  # reported on the run's stream, and on another one
+                stream = "cam0" if r.seq != 40 else "other"
+                w.write(f"gflow/{stream}/errors", encode(ErrorReport(Header(stream, r.seq, 0), "filter", "late_input",
+                                                                     "x")), r.seq, publish_ns=r.publish_ns,
+                        type_name="ErrorReport", source=r.source)
+            if r.type == "Estimate" and r.seq == 50:  # the same estimate from a session outside the run
+                w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, type_name=r.type, source="0badc0de")
+    run = read_run(rec, frames_topic="gflow/cam0/frames", errors_stream="cam0")
+    est, sessions = run_estimates(rec)
+    assert run.estimates == est and len(est) == 120 and run.sessions == sessions and sessions.lines()
+    assert run.sent == {r.seq for r in iter_records(rec, topics=["gflow/cam0/frames"]) if r.type == "Frame"}
+    assert run.sent == set(range(120))
+    assert run.reported == reported_frames(str(rec), "cam0") == {3, 17}
+    assert read_run(rec).reported == reported_frames(str(rec)) == {3, 17, 40}
+    assert run.tracking_seconds == tracking_seconds(rec) and run.tracking_seconds > 0
+
+
 def test_independent_reader_reads_recordings(crossing_run):
     from pipeline.io.mcap_io import summarize
 

@@ -22,14 +22,39 @@ optionally, ``make_plan(graph, overrides)``).
 
 from __future__ import annotations
 
-from pipeline.app.request import (RequestError, TrackPlan, TrackRequest, check_stage_values, parse_sets, plan_track,
-                                  sets_as_given, source_params)
-from pipeline.app.recording_target import RecordingTarget, temporary_recording
-from pipeline.app.graph_run import (DEFAULT_ENDPOINT, EstimateSink, RunStop, default_listen, default_zenoh, place,
-                                    run_graph)
-from pipeline.app.track_run import TrackResult, run, track
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported when first asked for (__getattr__ below)
+    from pipeline.app.errors import RequestError
+    from pipeline.app.request import (TrackPlan, TrackRequest, check_stage_values, parse_sets, plan_track,
+                                      sets_as_given, source_params)
+    from pipeline.app.recording_target import RecordingTarget, temporary_recording
+    from pipeline.app.graph_run import (DEFAULT_ENDPOINT, EstimateSink, RunStop, default_listen, default_zenoh, place,
+                                        run_graph)
+    from pipeline.app.track_run import TrackResult, run, track
+
+#: name -> the module of this package that defines it. A module is imported when one of its names is
+#: first asked for, so that ``pipeline.app.errors`` (which the ``gflow`` command names at every start)
+#: does not bring the whole application layer (about 0.1 s of CPU) with it.
+_WHERE = {"RequestError": "errors",
+          **dict.fromkeys(("TrackPlan", "TrackRequest", "check_stage_values", "parse_sets", "plan_track",
+                           "sets_as_given", "source_params"), "request"),
+          **dict.fromkeys(("RecordingTarget", "temporary_recording"), "recording_target"),
+          **dict.fromkeys(("DEFAULT_ENDPOINT", "EstimateSink", "RunStop", "default_listen", "default_zenoh", "place",
+                           "run_graph"), "graph_run"),
+          **dict.fromkeys(("TrackResult", "run", "track"), "track_run")}
 
 __all__ = ["RequestError", "TrackRequest", "TrackPlan", "TrackResult", "EstimateSink", "RunStop", "plan_track", "run",
            "track",
            "run_graph", "RecordingTarget", "place", "source_params", "check_stage_values", "sets_as_given",
            "parse_sets", "default_listen", "default_zenoh", "DEFAULT_ENDPOINT", "temporary_recording"]
+
+
+def __getattr__(name: str) -> Any:
+    where = _WHERE.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{where}"), name)
+    globals()[name] = value
+    return value

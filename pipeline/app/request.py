@@ -16,15 +16,12 @@ from stages.source import SourceParams
 
 from pipeline.runtime.graph import Plan, load_graph
 from pipeline.runtime.transport import ZenohSettings
+from pipeline.app.errors import RequestError
 
 __all__ = ["RequestError", "TrackRequest", "TrackPlan", "plan_track", "source_params", "check_stage_values",
            "sets_as_given", "parse_sets", "Box"]
 
 Box = tuple[float, float, float, float]
-
-
-class RequestError(Exception):
-    """A request that cannot run, said in one line naming what is wrong (``gflow``: exit status 2)."""
 
 
 @dataclass(frozen=True)

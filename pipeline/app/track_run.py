@@ -33,6 +33,9 @@ class TrackResult:
     lines: list[str] = field(default_factory=list)  # what is missing, coasted, restarted
     incomplete: str = ""  # why the run is incomplete, or ""
     live: LiveSummary | None = None  # a live source's figures: skipped, gaps, latency
+    #: wall time from the first frame published to the last estimate, read from the recording with
+    #: the estimates (None without a recording, or when it holds no such span)
+    tracking_seconds: float | None = None
 
     @property
     def frame_of(self) -> dict[int, int]:
@@ -139,7 +142,7 @@ def _execute(tp: TrackPlan, on_estimate: Callable[[Estimate | PoseEstimate], Non
     return TrackResult(estimates=dict(sorted(out.estimates.items())), recording=path, seconds=secs, frames=frames,
                        info=info, kept=target.kept, temporary=target.temporary or path is None,
                        lines=list(out.lines) + (live.lines() if live else []) + [x for r in listeners for x in r.lines()],
-                       incomplete=out.why if out.incomplete else "", live=live)
+                       incomplete=out.why if out.incomplete else "", live=live, tracking_seconds=out.tracking_seconds)
 
 
 def track(tp: TrackPlan) -> TrackResult:

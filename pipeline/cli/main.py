@@ -33,11 +33,9 @@ import logging  # noqa: E402
 import re  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
-from pipeline.cli.commands import command_modules  # noqa: E402
+from pipeline.cli.commands import command_module, command_modules  # noqa: E402
 from pipeline.cli.commands.common import CliError  # noqa: E402
-from pipeline.runtime.graph import GraphError  # noqa: E402
 from pipeline.runtime.trace import mark  # noqa: E402
-from pipeline.runtime.transport import SessionError  # noqa: E402
 
 __all__ = ["main", "build_parser"]
 
@@ -68,7 +66,22 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def command_word(argv: list[str]) -> str | None:
+    """The command ``gflow ARGV`` names: its first word that is not an option (gflow's own options,
+    ``-v``, ``--version``, ``-h``, take no value), or None (also after ``-h`` or ``--version``,
+    which answer for every command)."""
+    for a in argv:
+        if a in ("-h", "--help", "--version"):
+            return None
+        if not a.startswith("-"):
+            return a
+    return None
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The ``gflow`` parser: with every command, or, given ``command`` (a command's name), with that
+    command's module alone (what ``gflow COMMAND ...`` parses the same; a name that is no command
+    gets every command, so the error lists them)."""
     ap = _Parser(
         prog="gflow",
         description="gflow: a streaming dataflow tracker for video. Every stage is its own process, "
@@ -77,7 +90,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--version", action=_Version)
     ap.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
     sub = ap.add_subparsers(dest="command", metavar="COMMAND")
-    for mod in command_modules():
+    one = command_module(command) if command else None
+    for mod in [one] if one is not None else command_modules():
         mod.register(sub)
     return ap
 
@@ -95,8 +109,20 @@ def _take_sigint_back() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """The errors that are the user's (one line, exit status 2): a request that cannot run, a graph's
+    mistake, a file that is missing, a bad value, a zenoh session that cannot open. The classes of
+    the modules the command never imported are left out (no such error can have been raised), so
+    that naming them costs no import."""
+    out: list[type[BaseException]] = [CliError, FileNotFoundError, ValueError]
+    for module, name in (("pipeline.runtime.graph", "GraphError"), ("pipeline.runtime.transport", "SessionError")):
+        if module in sys.modules:
+            out.append(getattr(sys.modules[module], name))
+    return tuple(out)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = build_parser()
+    ap = build_parser(command_word(sys.argv[1:] if argv is None else argv))
     args = ap.parse_args(argv)
     mark("cli parsed")
     _take_sigint_back()
@@ -107,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
-    except (CliError, GraphError, FileNotFoundError, ValueError, SessionError) as e:
+    except _user_errors() as e:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote
         print(f"gflow {args.command}: error: {msg}", file=sys.stderr)
         return 2

@@ -296,7 +296,10 @@ def tracker_row(row, out: str, plan: TrackPlan, gt: dict, keep: bool) -> None:
         score_row(row, gt, Path(out))
     except ValueError as e:
         row.note = f"not scored: {e}"
-    secs = (tracking_seconds(run.recording) if run.recording else None) or run.seconds
+    # the span was read with the estimates (one pass over the recording); read it here only if it was not
+    span = run.tracking_seconds if run.tracking_seconds is not None else (
+        tracking_seconds(run.recording) if run.recording else None)
+    secs = span or run.seconds
     row.seconds, row.seconds_total = secs, run.seconds
     if not keep and run.recording:  # scored and timed: a temporary recording need not wait for the run's end
         Path(run.recording).unlink(missing_ok=True)

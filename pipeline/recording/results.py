@@ -20,7 +20,7 @@ from pipeline.recording.edgeless import EdgelessFrames, edgeless_frames
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
            "write_visibility", "estimates", "run_estimates", "truth_boxes", "frame_ranges", "completeness",
-           "blank_rule", "run_outcome", "RunOutcome", "renumber"]
+           "blank_rule", "run_outcome", "RunOutcome", "renumber", "read_run", "RecordedRun"]
 
 Box = tuple[float, float, float, float]
 V = TypeVar("V")
@@ -182,23 +182,75 @@ def run_estimates(recording: str | Path, stream: str | None = None
                   ) -> tuple[dict[int, Estimate | PoseEstimate], RunSessions]:
     """:func:`estimates`, and what the recording says of the run's sessions: the messages from
     outside the run (another zenoh session on the run's estimate topic) that were left out."""
+    run = read_run(recording, stream)
+    return run.estimates, run.sessions
+
+
+@dataclass
+class RecordedRun:
+    """What one reading of a finished run's recording says (:func:`read_run`)."""
+
+    estimates: dict[int, Estimate | PoseEstimate]  # the run's own (:func:`run_estimates`)
+    sessions: RunSessions
+    sent: set[int]  # the frames of Frame messages on ``frames_topic``
+    reported: set[int]  # the frames of ErrorReports (:func:`reported_frames` of ``errors_stream``)
+    first_frame_ns: int | None  # the publish time of the first Frame message (any topic)
+    last_estimate_ns: int | None  # the latest publish time of an estimate (any topic, any session)
+
+    @property
+    def tracking_seconds(self) -> float | None:
+        """Wall time from the first Frame published to the last estimate (None when not both, or none
+        after it): :func:`pipeline.evaluation.sequence_benchmark.tracking_seconds`."""
+        first, last = self.first_frame_ns, self.last_estimate_ns
+        return None if first is None or last is None or last <= first else (last - first) / 1e9
+
+
+def read_run(recording: str | Path, stream: str | None = None, frames_topic: str = "",
+             errors_stream: str | None = None) -> RecordedRun:
+    """Everything :func:`run_outcome` and the benchmark's timing want of a recording, read in one
+    pass: the file is decompressed and its CRCs checked once, not once per question (a run's
+    recording holds every frame, and reading it back cost as much as a tenth of a short run).
+
+    stream : only the estimates of this stream (:func:`run_estimates`).
+    frames_topic : the topic whose Frame messages are the frames sent.
+    errors_stream : the stream whose errors topic :func:`reported_frames` reads (None: any ``*/errors``).
+    """
     sessions = RunSessions()
     found: list[tuple[str, str, Estimate | PoseEstimate]] = []
+    sent: set[int] = set()
+    reported: set[int] = set()
+    first: int | None = None
+    last: int | None = None
+    errors = f"gflow/{errors_stream}/errors" if errors_stream else None
     for r in iter_records(recording):
         sessions.add(r)
-        if r.type not in ("Estimate", "PoseEstimate") or (stream and not r.topic.startswith(f"gflow/{stream}/")):
+        if r.type == "Frame":
+            first = r.publish_ns if first is None else first
+            if r.topic == frames_topic:
+                sent.add(r.seq)
+        if r.topic.endswith("/errors") and (errors is None or r.topic == errors):
+            try:
+                m = decode(r.data)
+            except MessageError:
+                m = None
+            if isinstance(m, ErrorReport):
+                reported.add(m.header.seq)
+        if r.type not in ("Estimate", "PoseEstimate"):
+            continue
+        last = r.publish_ns if last is None else max(last, r.publish_ns)
+        if stream and not r.topic.startswith(f"gflow/{stream}/"):
             continue
         try:
-            m = decode(r.data)
+            est = decode(r.data)
         except MessageError:
             continue
-        if isinstance(m, (Estimate, PoseEstimate)):
-            found.append((r.topic, r.source, m))
+        if isinstance(est, (Estimate, PoseEstimate)):
+            found.append((r.topic, r.source, est))
     out: dict[int, Estimate | PoseEstimate] = {}
-    for topic, source, m in found:  # whose they are is known once the whole recording was read
+    for topic, source, est in found:  # whose they are is known once the whole recording was read
         if sessions.is_own(topic, source):
-            out[m.header.seq] = m
-    return out, sessions
+            out[est.header.seq] = est
+    return RecordedRun(out, sessions, sent, reported, first, last)
 
 
 def truth_boxes(recording: str | Path) -> dict[int, Box]:
@@ -316,6 +368,7 @@ class RunOutcome:
     lines: list[str] = field(default_factory=list)
     incomplete: bool = False
     why: str = ""
+    tracking_seconds: float | None = None  # from the first frame published to the last estimate (RecordedRun)
 
 
 def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: Mapping[int, Any] | None = None,
@@ -328,7 +381,11 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
     itself ({frame: message}; default: those of ``info["estimates"]``), kept before the
     recording's; ``reported`` the frames a stage reported a problem with, beside those the
     recording holds."""
-    est, sessions = run_estimates(recording) if recording and Path(recording).is_file() else ({}, RunSessions())
+    src = next((s for s in plan.stages.values() if s.is_source()), None)
+    topic = src.outputs.get("frames", "") if src is not None else ""
+    read = read_run(recording, frames_topic=topic, errors_stream=plan.stream) if recording and Path(
+        recording).is_file() else None
+    est, sessions = (read.estimates, read.sessions) if read is not None else ({}, RunSessions())
     if heard is None:
         heard = {}
         for seq, payload in info.get("estimates", {}).items():
@@ -340,14 +397,16 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
                 heard[seq] = m
     lost = [seq for seq in heard if seq not in est]  # what the recording lost
     est.update(heard)
-    src = next((s for s in plan.stages.values() if s.is_source()), None)
-    topic = src.outputs.get("frames", "") if src is not None else ""
-    sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
-            if est and topic and recording else set())
+    if read is not None:  # the frames sent and the frames reported, from the same reading
+        sent = read.sent if est and topic else set()
+        reported = read.reported | set(reported)
+    else:
+        sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
+                if est and topic and recording else set())
+        reported = reported_frames(recording, plan.stream) | set(reported)
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
-    reported = reported_frames(recording, plan.stream) | set(reported)
-    read = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
-    lines = completeness(est, expected, reported, edgeless_frames(plan, read), blank_rule(plan)) + sessions.lines()
+    coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
+    lines = completeness(est, expected, reported, edgeless_frames(plan, coasted), blank_rule(plan)) + sessions.lines()
     if lost and recording:
         lines.append(f"{len(lost)} frame(s) missing from the recording were kept from the live stream: "
                      f"{frame_ranges(lost)}")
@@ -360,4 +419,5 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
     incomplete = not info.get("ok", True) or bool(missing)
     why = (f"{len(missing)} frame(s) have no estimate: {frame_ranges(missing)}" if missing
            else "the pipeline did not finish cleanly" if incomplete else "")
-    return RunOutcome(est, expected, lines, incomplete, why)
+    return RunOutcome(est, expected, lines, incomplete, why,
+                      tracking_seconds=read.tracking_seconds if read is not None else None)

@@ -3,19 +3,39 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import os
 import dataclasses  # noqa: F401 (common.dataclasses: tests replace a run's settings with it)
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import ZenohSettings
-from pipeline.app import (DEFAULT_ENDPOINT, RecordingTarget, check_stage_values, default_listen, parse_sets,
-                          run_graph, sets_as_given, temporary_recording)
-from pipeline.app import RequestError as CliError  # a user error: printed as one line, exit status 2
-from pipeline.app import place as place_stages
+from pipeline.app.errors import RequestError as CliError  # a user error: printed as one line, exit status 2
 from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
+
+if TYPE_CHECKING:  # imported when first asked for (__getattr__ below)
+    from pipeline.runtime.graph import Plan
+    from pipeline.app import (DEFAULT_ENDPOINT, check_stage_values, parse_sets, sets_as_given,
+                              temporary_recording)
+    from pipeline.cli.commands._recording import Recording
+
+#: what this module hands on from the application layer (and :class:`Recording`), imported when a
+#: command first asks for it: the commands that run no graph (info, verify, eval, the live tools...)
+#: start without the application layer (about 0.1 s of CPU at every start)
+_LAZY = {**dict.fromkeys(("DEFAULT_ENDPOINT", "check_stage_values", "parse_sets", "sets_as_given",
+                          "temporary_recording"), "pipeline.app"),
+         "Recording": "pipeline.cli.commands._recording"}
+
+
+def __getattr__(name: str) -> Any:
+    where = _LAZY.get(name)
+    if where is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(where), name)
+    globals()[name] = value
+    return value
 
 __all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
@@ -143,6 +163,8 @@ def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:
     listen = tuple(args.listen or ())
     connect = tuple(args.connect or ())
     if default_connect and not connect and args.mode != "router":
+        from pipeline.app import DEFAULT_ENDPOINT
+
         connect = (DEFAULT_ENDPOINT,)
     if not listen:
         listen = ("tcp/127.0.0.1:0",)
@@ -180,6 +202,8 @@ def stream_of(key: str) -> str | None:
 
 def launcher_zenoh(args) -> ZenohSettings:
     """The launcher listens on 7447 (so `gflow topics` finds it) unless busy or told otherwise."""
+    from pipeline.app import default_listen
+
     security = apply_security(args)
     listen = tuple(args.listen) if args.listen else default_listen()
     return ZenohSettings(mode=args.mode, listen=listen, connect=tuple(args.connect or ()), multicast=args.multicast,
@@ -196,15 +220,6 @@ def add_record_args(p: argparse.ArgumentParser, default: str) -> None:
                    help="record only these topics, as shell patterns on the name after gflow/STREAM/, e.g. "
                         "'estimate,particles' or '*' (errors and heartbeats are always kept; raw frames are "
                         "most of a recording's size)")
-
-
-class Recording(RecordingTarget):
-    """Where a run records, from ``--record / --no-record / --record-topics``
-    (:class:`pipeline.app.RecordingTarget`)."""
-
-    def __init__(self, plan: Plan, args, default: str | None, needed: tuple[str, ...] = ()) -> None:
-        super().__init__(plan, getattr(args, "record", None), getattr(args, "no_record", False),
-                         getattr(args, "record_topics", None) or (), default, needed)
 
 
 def add_zenoh_args(p: argparse.ArgumentParser) -> None:
@@ -234,6 +249,8 @@ def add_placement_args(p: argparse.ArgumentParser, hosts: bool = True) -> None:
 def place(plan: Plan, args) -> tuple[str, ...]:
     """Check ``--host`` against the whole graph and choose the run's stream (see
     :mod:`pipeline.runtime.runid`); return the host labels this process runs."""
+    from pipeline.app import place as place_stages
+
     return place_stages(plan, tuple(getattr(args, "hosts", None) or ()), getattr(args, "inline", False),
                         getattr(args, "stream", None))
 
@@ -242,6 +259,8 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     """Run a plan inline or as processes; return (recording path, seconds, frames, per-stage info).
     With ``strict=False`` a run that did not finish cleanly returns (``info["ok"]`` False) instead of
     raising, so the caller can keep what was tracked (:func:`pipeline.app.run_graph`)."""
+    from pipeline.app import run_graph
+
     hosts = place(plan, args)
     return run_graph(plan, inline=getattr(args, "inline", False), zenoh=lambda: launcher_zenoh(args),
                      listen_given=bool(args.listen), recording=recording, total=total, hosts=hosts, quiet=quiet,

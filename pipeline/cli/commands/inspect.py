@@ -150,8 +150,10 @@ def cmd_hz(args) -> int:
     return 0
 
 
-def _stage_states(settings, streams: list[str], seconds: float) -> dict[str, dict]:
-    """{stream: {stage: StageStatus}} heard on the heartbeats within ``seconds``."""
+def _stage_states(settings, streams: list[str], seconds: float,
+                  expect: dict[str, set[str]] | None = None) -> dict[str, dict]:
+    """{stream: {stage: StageStatus}} heard on the heartbeats within ``seconds``, or until every stage
+    ``expect`` names ({stream: stages}) has been heard (each stage's first heartbeat then)."""
     import queue
 
     from gflow_msgs.messages import MessageError, StageStatus, decode
@@ -176,6 +178,8 @@ def _stage_states(settings, streams: list[str], seconds: float) -> dict[str, dic
             continue
         if isinstance(m, StageStatus):
             out.setdefault(m.header.stream, {})[m.stage] = m
+            if expect and all(names <= set(out.get(st, {})) for st, names in expect.items()):
+                break
     s.close()
     return out
 
@@ -203,7 +207,9 @@ def cmd_ps(args) -> int:
     for info in found:
         settings, _ = tool_zenoh(argparse.Namespace(connect=info["endpoints"], listen=None, mode="peer",
                                                     multicast=False), require=False)
-        states = _stage_states(settings, [info["stream"]], args.listen_for).get(info["stream"], {})
+        stages = set(info.get("stages") or ())
+        states = _stage_states(settings, [info["stream"]], args.listen_for,
+                               {info["stream"]: stages} if stages else None).get(info["stream"], {})
         if args.json:
             rows.append(dict(info, states={n: {"state": st.state, "steps": st.steps, "fps": st.fps,
                                                 "last_seq": st.last_seq, "errors": st.errors, "rss_mb": st.rss_mb,
@@ -288,7 +294,8 @@ def register(sub) -> None:
     p.add_argument("--all", action="store_true", help="also other users' pipelines (a runtime folder they share)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--listen-for", type=positive_float, default=1.2, metavar="S",
-                   help="seconds to collect heartbeats (default 1.2; stages beat every 0.5 s)")
+                   help="seconds to collect heartbeats, at most: it ends once every stage of the pipeline has "
+                        "been heard (default 1.2; stages beat every 0.5 s)")
     p.add_argument("--where", dest="verbose_dir", action="store_true", help="also say where the announcements are")
     p.set_defaults(func=cmd_ps)
 
