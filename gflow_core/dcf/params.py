@@ -193,6 +193,12 @@ class DCFParams:
                                        "background's corners tracked by Lucas-Kanade, moves the prediction, the "
                                        "particles, the size, the velocity and the roll before the frame is weighed "
                                        "(BoT-SORT's camera motion compensation; gflow_core.dcf.camera)")
+    segment: float = param(0.0, "the masked filter's support is CSR-DCF's spatial reliability map within the box: the "
+                                "cells whose colour posterior (the colour model's histograms times a spatial prior) "
+                                "is at least this times its largest on the box, recomputed on every frame the filter "
+                                "learns (gflow_core.dcf.reliability; CSRT: 0.5; 0: the box)")
+    segment_cover: float = param(0.05, "with segment, a map covering less than this fraction of the box is replaced "
+                                       "by the box (CSRT: 0.05)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -291,6 +297,7 @@ class DCFParams:
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
         self._check_motion_and_size()
+        self._check_segment()
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")
@@ -306,6 +313,15 @@ class DCFParams:
             raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
+
+    def _check_segment(self) -> None:
+        """``segment`` and ``segment_cover`` fractions in [0, 1]; the map needs the masked filter and the colour
+        model it is made from (gflow_core.dcf.reliability)."""
+        if not (0 <= self.segment <= 1 and 0 <= self.segment_cover <= 1):
+            raise ValueError(f"segment and segment_cover must be in [0, 1], got {self.segment}, {self.segment_cover}")
+        if self.segment > 0 and not (self.mask > 0 and self.colour_weight > 0):
+            raise ValueError(f"segment needs the masked filter and the colour model (mask and colour_weight > 0), "
+                             f"got mask {self.mask}, colour_weight {self.colour_weight}")
 
     def walk_std(self, box: tuple[float, float, float, float]) -> float:
         """The std (px) of the proposal's random walk of the centre for the initial ``box`` (x, y, w, h):
