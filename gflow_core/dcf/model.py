@@ -154,7 +154,9 @@ class TargetModel:
         without a mask, the windowed samples' spectra (BACF sec. 3.3) with one; det : the filter as
         detection applies it (:func:`.filter.detector`), (hc, wc // 2 + 1, C) complex; anchor : the first
         frame's, never updated; colour : Staple's histograms (None: no colour model); colour_mode :
-        ``"colour"``, ``"grey"`` or None; scale : the scale filter (None: fixed size).
+        ``"colour"``, ``"grey"`` or None; scale : the scale filter (None: fixed size); support : with
+        ``segment`` and ``segment_rate``, the running average of the reliability maps (hc, wc) float64
+        (:func:`_support`), else None.
     """
 
     train: cf.Spectrum | np.ndarray
@@ -163,6 +165,7 @@ class TargetModel:
     colour: ColourModel | None
     colour_mode: str | None
     scale: ScaleFilter | None
+    support: np.ndarray | None = None
 
 
 def _n_bins(mode: str | None) -> int:
@@ -178,14 +181,23 @@ def _solve(train: cf.Spectrum | np.ndarray, geom: Geometry, p: DCFParams, mask: 
     return solve_masked(train, geom.label_hat, geom.mask if mask is None else mask, p.lam, p.mu, p.admm_iterations)
 
 
-def _support(colour: ColourModel | None, win: Window, geom: Geometry, p: DCFParams) -> np.ndarray | None:
-    """With ``segment``, the spatial reliability map of ``win`` from the histograms ``colour``
-    (:func:`.reliability.reliability`); None (the box) without it, without colour bins or when the map
-    is uninformative or too small."""
+def _support(colour: ColourModel | None, win: Window, geom: Geometry, p: DCFParams,
+             running: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """With ``segment``, the mask the filter is solved under and the running average of the maps: the
+    spatial reliability map of ``win`` from the histograms ``colour`` (:func:`.reliability.reliability`;
+    the box when the map is uninformative or too small) or, with ``segment_rate``, the cells where the
+    running average s <- (1 - segment_rate) s + segment_rate m (``running`` s; None: the first frame, s = m)
+    is at least 1/2. (None, None) without ``segment`` or without colour bins: the box."""
     if p.segment <= 0 or colour is None or win.bins is None or win.valid is None or geom.mask is None:
-        return None
+        return None, None
     box = (geom.size0[0] * geom.k0[0], geom.size0[1] * geom.k0[1])
-    return reliability(colour, win.bins, win.valid, box, geom.cell, geom.mask, p.segment, p.segment_cover)
+    m = reliability(colour, win.bins, win.valid, box, geom.cell, geom.mask, p.segment, p.segment_cover)
+    if p.segment_rate <= 0:
+        return m, None
+    m = geom.mask if m is None else m
+    # s <- (1 - segment_rate) s + segment_rate m; the support: the cells with s >= 1/2
+    s = m.copy() if running is None else (1.0 - p.segment_rate) * running + p.segment_rate * m
+    return (s >= 0.5).astype(np.float64), s
 
 
 def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple[float, float], geom: Geometry,
@@ -206,12 +218,13 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
         colour = histograms(win.bins, win.valid, (geom.size0[0] * geom.k0[0], geom.size0[1] * geom.k0[1]),
                             _n_bins(mode))
     # with segment, the first filter (the anchor too) is solved under the first frame's reliability map
-    det = _solve(train, geom, p, _support(colour, win, geom, p))
+    mask, support = _support(colour, win, geom, p, None)
+    det = _solve(train, geom, p, mask)
     scale = None
     if p.scales > 1:
         scale = init_scale(grey, centre, geom.size0, p.scales, p.scale_step, p.scale_area, p.cell,
                            p.scale_upsample, p.scale_anchor)
-    return TargetModel(train, det, det, colour, mode, scale)
+    return TargetModel(train, det, det, colour, mode, scale, support)
 
 
 def detection_filter(model: TargetModel, w: float) -> np.ndarray:
@@ -359,8 +372,8 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
         sf = learn_scale(sf, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
                          p.scale_rate)
     # with segment, the running average is solved under this frame's reliability map (CSR-DCF sec. 3.1)
-    return TargetModel(train, _solve(train, geom, p, _support(colour, win, geom, p)), model.anchor, colour,
-                       model.colour_mode, sf)
+    mask, support = _support(colour, win, geom, p, model.support)
+    return TargetModel(train, _solve(train, geom, p, mask), model.anchor, colour, model.colour_mode, sf, support)
 
 
 def scale_anchor(p: DCFParams) -> float:

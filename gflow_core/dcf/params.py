@@ -199,6 +199,9 @@ class DCFParams:
                                 "learns (gflow_core.dcf.reliability; CSRT: 0.5; 0: the box)")
     segment_cover: float = param(0.05, "with segment, a map covering less than this fraction of the box is replaced "
                                        "by the box (CSRT: 0.05)")
+    segment_rate: float = param(0.0, "with segment, the filter is solved under the cells where the running average "
+                                     "of the maps at this rate is at least 1/2 (the support of CSR-DCF's running "
+                                     "average of filters, each solved under its frame's map; 0: this frame's map)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -317,8 +320,9 @@ class DCFParams:
     def _check_segment(self) -> None:
         """``segment`` and ``segment_cover`` fractions in [0, 1]; the map needs the masked filter and the colour
         model it is made from (gflow_core.dcf.reliability)."""
-        if not (0 <= self.segment <= 1 and 0 <= self.segment_cover <= 1):
-            raise ValueError(f"segment and segment_cover must be in [0, 1], got {self.segment}, {self.segment_cover}")
+        if not (0 <= self.segment <= 1 and 0 <= self.segment_cover <= 1 and 0 <= self.segment_rate <= 1):
+            raise ValueError(f"segment, segment_cover and segment_rate must be in [0, 1], got {self.segment}, "
+                             f"{self.segment_cover}, {self.segment_rate}")
         if self.segment > 0 and not (self.mask > 0 and self.colour_weight > 0):
             raise ValueError(f"segment needs the masked filter and the colour model (mask and colour_weight > 0), "
                              f"got mask {self.mask}, colour_weight {self.colour_weight}")
