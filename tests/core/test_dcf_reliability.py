@@ -147,3 +147,39 @@ def test_bad_values_are_refused_in_one_line(kw, message) -> None:
     with pytest.raises(ValueError) as e:
         make(DCFParams, kw)
     assert message in str(e.value) and "\n" not in str(e.value)
+
+
+def test_with_a_rate_the_support_is_the_running_maps_majority_and_goes_into_a_snapshot() -> None:
+    """With ``segment_rate`` the first support is the first map; a frame whose map is the box moves the running
+    average by the rate only (the hole stays out of the support, so the filter has no weight there); the
+    running average goes into the state's arrays and comes back bit for bit."""
+    from gflow_core.dcf.state import from_arrays, to_arrays
+    from gflow_core.dcf.tracker import TRACKER
+    from gflow_core.tracker import FrameRng, step
+
+    p = DCFParams(segment=0.5, segment_rate=0.1, **WINDOW)
+    on, geom = _model(p)
+    first = _map(_patch())
+    assert on.support is not None and np.array_equal(on.support, first)
+    # a frame of the target without its hole: its map is the box (one colour throughout)
+    plain = _patch(hole=False)
+    c = ((WIN * CELL - 1) / 2.0, (WIN * CELL - 1) / 2.0)
+    after = tm.learn(on, plain, plain.mean(axis=2).astype(np.float32), c, 0.0, geom, p, 0.02)
+    assert after.support is not None
+    assert np.allclose(after.support, 0.9 * first + 0.1 * geom.mask)
+    hole = slice(_lo(HOLE) + 1, _lo(HOLE) + HOLE - 1), slice(_lo(HOLE) + 1, _lo(HOLE) + HOLE - 1)
+    h = cf.spatial(after.det, geom.cells[::-1])
+    assert np.abs(h[hole]).max() <= 1e-9 * np.abs(h).max()
+    # the snapshot
+    frames, box = _frames(10)
+    q = DCFParams(segment=0.5, segment_rate=0.1)
+    st, _ = _track(frames[:5], box, q)
+    assert st.model.support is not None
+    arrays, values = to_arrays(st)
+    back = from_arrays({k: v.copy() for k, v in arrays.items()}, dict(values), q)
+    assert np.array_equal(back.model.support, st.model.support)
+    for t in range(5, 10):
+        obs = TRACKER.observe(q, frames[t])
+        st, e1 = step(TRACKER, q, st, obs, FrameRng(1, 7, t))
+        back, e2 = step(TRACKER, q, back, obs, FrameRng(1, 7, t))
+        assert e1 == e2
