@@ -181,14 +181,17 @@ def _solve(train: cf.Spectrum | np.ndarray, geom: Geometry, p: DCFParams, mask: 
     return solve_masked(train, geom.label_hat, geom.mask if mask is None else mask, p.lam, p.mu, p.admm_iterations)
 
 
-def _support(colour: ColourModel | None, win: Window, geom: Geometry, p: DCFParams,
+def _support(colour: ColourModel | None, mode: str | None, win: Window, geom: Geometry, p: DCFParams,
              running: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
     """With ``segment``, the mask the filter is solved under and the running average of the maps: the
     spatial reliability map of ``win`` from the histograms ``colour`` (:func:`.reliability.reliability`;
     the box when the map is uninformative or too small) or, with ``segment_rate``, the cells where the
     running average s <- (1 - segment_rate) s + segment_rate m (``running`` s; None: the first frame, s = m)
-    is at least 1/2. (None, None) without ``segment`` or without colour bins: the box."""
+    is at least 1/2. (None, None) without ``segment``, without colour bins, or on grey footage (``mode``
+    ``"grey"``) without ``segment_grey``: the box."""
     if p.segment <= 0 or colour is None or win.bins is None or win.valid is None or geom.mask is None:
+        return None, None
+    if mode == "grey" and not p.segment_grey:
         return None, None
     box = (geom.size0[0] * geom.k0[0], geom.size0[1] * geom.k0[1])
     m = reliability(colour, win.bins, win.valid, box, geom.cell, geom.mask, p.segment, p.segment_cover)
@@ -218,7 +221,7 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
         colour = histograms(win.bins, win.valid, (geom.size0[0] * geom.k0[0], geom.size0[1] * geom.k0[1]),
                             _n_bins(mode))
     # with segment, the first filter (the anchor too) is solved under the first frame's reliability map
-    mask, support = _support(colour, win, geom, p, None)
+    mask, support = _support(colour, mode, win, geom, p, None)
     det = _solve(train, geom, p, mask)
     scale = None
     if p.scales > 1:
@@ -372,7 +375,7 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
         sf = learn_scale(sf, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
                          p.scale_rate)
     # with segment, the running average is solved under this frame's reliability map (CSR-DCF sec. 3.1)
-    mask, support = _support(colour, win, geom, p, model.support)
+    mask, support = _support(colour, model.colour_mode, win, geom, p, model.support)
     return TargetModel(train, _solve(train, geom, p, mask), model.anchor, colour, model.colour_mode, sf, support)
 
 

@@ -202,6 +202,9 @@ class DCFParams:
     segment_rate: float = param(0.0, "with segment, the filter is solved under the cells where the running average "
                                      "of the maps at this rate is at least 1/2 (the support of CSR-DCF's running "
                                      "average of filters, each solved under its frame's map; 0: this frame's map)")
+    segment_grey: bool = param(False, "with segment, grey footage too is segmented, on its 32 grey levels (false: grey "
+                                      "footage keeps the box, as CSR-DCF's own code turns segmentation off on grey "
+                                      "images)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

@@ -5,6 +5,7 @@ the box, gives the box; off (0, the default) the tracker is the box's, and bad v
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 
@@ -183,3 +184,14 @@ def test_with_a_rate_the_support_is_the_running_maps_majority_and_goes_into_a_sn
         st, e1 = step(TRACKER, q, st, obs, FrameRng(1, 7, t))
         back, e2 = step(TRACKER, q, back, obs, FrameRng(1, 7, t))
         assert e1 == e2
+
+
+def test_grey_footage_keeps_the_box_unless_asked() -> None:
+    """On grey frames the map is used only with ``segment_grey``: without it the track is the box's bit for bit."""
+    frames, box = _frames(8)
+    grey = [np.repeat(cv2.cvtColor(f, cv2.COLOR_BGR2GRAY)[..., None], 3, axis=2) for f in frames]
+    _, ref = _track(grey, box)
+    _, off = _track(grey, box, DCFParams(segment=0.5))
+    _, on = _track(grey, box, DCFParams(segment=0.5, segment_grey=True))
+    assert [e.box for e in off] == [e.box for e in ref]
+    assert [e.box for e in on] != [e.box for e in ref]
