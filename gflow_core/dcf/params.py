@@ -197,11 +197,11 @@ class DCFParams:
                                 "cells whose colour posterior (the colour model's histograms times a spatial prior) "
                                 "is at least this times its largest on the box, recomputed on every frame the filter "
                                 "learns (gflow_core.dcf.reliability; CSRT: 0.5; 0: the box)")
-    segment_cover: float = param(0.05, "with segment, a map covering less than this fraction of the box is replaced "
-                                       "by the box (CSRT: 0.05)")
-    segment_rate: float = param(0.0, "with segment, the filter is solved under the cells where the running average "
-                                     "of the maps at this rate is at least 1/2 (the support of CSR-DCF's running "
-                                     "average of filters, each solved under its frame's map; 0: this frame's map)")
+    segment_cover: float = param(0.5, "with segment, a map covering less than this fraction of the box is replaced "
+                                      "by the box (CSRT: 0.05)")
+    segment_rate: float = param(0.02, "with segment, the filter is solved under the cells where the running average "
+                                      "of the maps at this rate is at least 1/2 (the support of CSR-DCF's running "
+                                      "average of filters, each solved under its frame's map; 0: this frame's map)")
     segment_grey: bool = param(False, "with segment, grey footage too is segmented, on its 32 grey levels (false: grey "
                                       "footage keeps the box, as CSR-DCF's own code turns segmentation off on grey "
                                       "images)")

@@ -25,8 +25,12 @@ So, with L_O = p(m = 1) rho_O k and L_B = (1 - p(m = 1)) rho_B (1 - k),
 
 then regularised, thresholded at ``threshold`` times its largest value on the box (OpenCV's CSRT: 0.5),
 dilated by one cell (a 3 x 3 cross, as CSRT's 3 x 3 ellipse) and replaced by the plain box when it
-covers less than ``cover`` of the box (CSRT: 5 %). The filter is solved under the map of the frame it
-learns from.
+covers less than ``cover`` of the box (CSRT: 5 %; ``segment_cover``). The filter is solved under the
+map of the frame it learns from or, with ``segment_rate`` (:func:`gflow_core.dcf.model.learn`), under
+the cells where the running average of the maps is at least 1/2: CSR-DCF averages filters, each solved
+under its own frame's map (h <- (1 - eta) h + eta h_t, as OpenCV's CSRT), so a cell one frame's map
+leaves out keeps the weight earlier frames gave it, while here the running sample is solved again
+every frame under one mask.
 
 Departures:
 
@@ -36,6 +40,10 @@ Departures:
 * the map is kept within the box of the masked filter (:func:`.constrained.box_mask`) before the
   dilation: pixels beyond it that share the target's colours (leaves about a green toy) would otherwise
   become support, the very clutter the map is meant to shed; CSR-DCF takes them too;
+* grey footage keeps the box unless ``segment_grey`` (as CSR-DCF's own MATLAB code, which turns
+  segmentation off on grey images; measured, 32 grey levels cost tiger1, jumping and twinnings);
+* the threshold is relative to the map's largest value on the box (as OpenCV's CSRT), and the map
+  falls back to the box when it covers less than half of it by default (CSRT: 5 %);
 * a map is uninformative -- the box is used -- when the colour alone (the posterior without the
   spatial prior) varies by less than ``FLAT`` over the box's cells: a target whose colours differ
   nowhere in its box from its surroundings' (grey video of a target of its background's grey levels:

@@ -137,9 +137,9 @@ def test_off_it_tracks_as_the_box_does_and_on_it_tracks_otherwise() -> None:
 
 
 @pytest.mark.parametrize("kw, message", [
-    ({"segment": 1.5}, "segment, segment_cover and segment_rate must be in [0, 1], got 1.5, 0.05, 0.0"),
-    ({"segment": float("nan")}, "segment, segment_cover and segment_rate must be in [0, 1], got nan, 0.05, 0.0"),
-    ({"segment_cover": -0.1}, "segment, segment_cover and segment_rate must be in [0, 1], got 0.0, -0.1, 0.0"),
+    ({"segment": 1.5}, "segment, segment_cover and segment_rate must be in [0, 1], got 1.5, 0.5, 0.02"),
+    ({"segment": float("nan")}, "segment, segment_cover and segment_rate must be in [0, 1], got nan, 0.5, 0.02"),
+    ({"segment_cover": -0.1}, "segment, segment_cover and segment_rate must be in [0, 1], got 0.0, -0.1, 0.02"),
     ({"segment": 0.5, "mask": 0.0}, "segment needs the masked filter and the colour model (mask and colour_weight "
                                     "> 0), got mask 0.0, colour_weight 0.3"),
     ({"segment": 0.5, "colour_weight": 0.0}, "segment needs the masked filter and the colour model"),
