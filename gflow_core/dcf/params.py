@@ -302,15 +302,16 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
-        self._check_motion_and_size()
-        self._check_segment()
+        self._check_motion_size_and_support()
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")
 
-    def _check_motion_and_size(self) -> None:
-        """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1]
-        and ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior)."""
+    def _check_motion_size_and_support(self) -> None:
+        """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1],
+        ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior), and the filter's
+        support (:meth:`_check_segment`)."""
+        self._check_segment()
         if self.detect_peaks < 1:
             raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
         if not 0 <= self.motion_switch < 1:
