@@ -113,7 +113,7 @@ together (docs/trackers.md):
 
 * KCF, DSST and Staple keep a filter as large as their window; BACF and CSR-DCF constrain it. Here
   the constraint is a box of the target's size (not BACF's exact target size in cells, nor
-  CSR-DCF's colour segmentation), solved by two ADMM iterations a frame from zero, with mu starting
+  CSR-DCF's colour segmentation, which ``segment``, off, adds within the box: :mod:`.reliability`), solved by two ADMM iterations a frame from zero, with mu starting
   at ``mu`` times the sample's mean energy per frequency (scale-free) and growing threefold an
   iteration; the detection uses the constrained filter h rather than BACF's g. Without the mask
   (``mask`` 0) the filter is DSST's closed form with numerator and denominator averaged.
@@ -180,6 +180,6 @@ Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:
 :mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.verify` (a re-detection checked by the first filter), :mod:`.augment` (the first filter's warped copies), :mod:`.sizeprior` (a prior on the size), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
-track), :mod:`.rotation` (the target's roll), :mod:`.camera` (the camera's own motion, ``camera_motion``), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+track), :mod:`.rotation` (the target's roll), :mod:`.camera` (the camera's own motion, ``camera_motion``), :mod:`.reliability` (CSR-DCF's spatial reliability map, ``segment``), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

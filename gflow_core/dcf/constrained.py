@@ -34,7 +34,8 @@ iterations, the target moved by 6 px scored 0.54 with mu0 = 0.03 and the best pl
 or more from it 0.20 (0.19 and 0.10 with mu0 = 1; the closed form without a mask: 0.84 and 0.06).
 
 Departures: the mask is a box of the target's size times ``mask`` (not the target's own size in
-cells as BACF, nor CSR-DCF's colour segmentation); the detection uses h, which meets the
+cells as BACF, nor CSR-DCF's colour segmentation, which ``segment``, off by default, adds within the box:
+:mod:`.reliability`); the detection uses h, which meets the
 constraint exactly, rather than BACF's g.
 """
 

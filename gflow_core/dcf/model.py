@@ -35,6 +35,7 @@ from .constrained import box_mask, solve_masked
 from .features import colour_bins, cosine_window, hog, intensity, sample, N_COLOUR_BINS, N_GREY_BINS
 from .histogram import ColourModel, colour_score, histograms, learn_colour
 from .params import DCFParams
+from .reliability import reliability
 from .scale import ScaleFilter, detect_scale, init_scale, learn_scale
 
 __all__ = ["Geometry", "geometry", "TargetModel", "Response", "Window", "window", "respond", "upright", "init_model", "learn",
@@ -153,7 +154,9 @@ class TargetModel:
         without a mask, the windowed samples' spectra (BACF sec. 3.3) with one; det : the filter as
         detection applies it (:func:`.filter.detector`), (hc, wc // 2 + 1, C) complex; anchor : the first
         frame's, never updated; colour : Staple's histograms (None: no colour model); colour_mode :
-        ``"colour"``, ``"grey"`` or None; scale : the scale filter (None: fixed size).
+        ``"colour"``, ``"grey"`` or None; scale : the scale filter (None: fixed size); support : with
+        ``segment`` and ``segment_rate``, the running average of the reliability maps (hc, wc) float64
+        (:func:`_support`), else None.
     """
 
     train: cf.Spectrum | np.ndarray
@@ -162,18 +165,42 @@ class TargetModel:
     colour: ColourModel | None
     colour_mode: str | None
     scale: ScaleFilter | None
+    support: np.ndarray | None = None
 
 
 def _n_bins(mode: str | None) -> int:
     return N_COLOUR_BINS if mode == "colour" else N_GREY_BINS
 
 
-def _solve(train: cf.Spectrum | np.ndarray, geom: Geometry, p: DCFParams) -> np.ndarray:
-    """The detection filter of the running average: closed form (DSST eq. 3) or under the mask (ADMM)."""
+def _solve(train: cf.Spectrum | np.ndarray, geom: Geometry, p: DCFParams, mask: np.ndarray | None = None) -> np.ndarray:
+    """The detection filter of the running average: closed form (DSST eq. 3) or under the mask (ADMM):
+    ``mask`` (hc, wc) if given (the frame's reliability map), else the box."""
     if isinstance(train, cf.Spectrum):
         return cf.detector(train, p.lam)
     assert geom.mask is not None
-    return solve_masked(train, geom.label_hat, geom.mask, p.lam, p.mu, p.admm_iterations)
+    return solve_masked(train, geom.label_hat, geom.mask if mask is None else mask, p.lam, p.mu, p.admm_iterations)
+
+
+def _support(colour: ColourModel | None, mode: str | None, win: Window, geom: Geometry, p: DCFParams,
+             running: np.ndarray | None) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """With ``segment``, the mask the filter is solved under and the running average of the maps: the
+    spatial reliability map of ``win`` from the histograms ``colour`` (:func:`.reliability.reliability`;
+    the box when the map is uninformative or too small) or, with ``segment_rate``, the cells where the
+    running average s <- (1 - segment_rate) s + segment_rate m (``running`` s; None: the first frame, s = m)
+    is at least 1/2. (None, None) without ``segment``, without colour bins, or on grey footage (``mode``
+    ``"grey"``) without ``segment_grey``: the box."""
+    if p.segment <= 0 or colour is None or win.bins is None or win.valid is None or geom.mask is None:
+        return None, None
+    if mode == "grey" and not p.segment_grey:
+        return None, None
+    box = (geom.size0[0] * geom.k0[0], geom.size0[1] * geom.k0[1])
+    m = reliability(colour, win.bins, win.valid, box, geom.cell, geom.mask, p.segment, p.segment_cover)
+    if p.segment_rate <= 0:
+        return m, None
+    m = geom.mask if m is None else m
+    # s <- (1 - segment_rate) s + segment_rate m; the support: the cells with s >= 1/2
+    s = m.copy() if running is None else (1.0 - p.segment_rate) * running + p.segment_rate * m
+    return (s >= 0.5).astype(np.float64), s
 
 
 def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple[float, float], geom: Geometry,
@@ -188,17 +215,19 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
         # the first sample with warped copies of the window averaged in (module .augment)
         train = first_sample(x_hat, grey, centre, geom.template, geom.k(0.0), geom.label_hat if geom.mask is None
                              else None, lambda g: cf.spectrum(cells_of(g, geom.cell), geom.window), p)
-    det = _solve(train, geom, p)
     colour = None
     if mode is not None:
         assert win.bins is not None and win.valid is not None
         colour = histograms(win.bins, win.valid, (geom.size0[0] * geom.k0[0], geom.size0[1] * geom.k0[1]),
                             _n_bins(mode))
+    # with segment, the first filter (the anchor too) is solved under the first frame's reliability map
+    mask, support = _support(colour, mode, win, geom, p, None)
+    det = _solve(train, geom, p, mask)
     scale = None
     if p.scales > 1:
         scale = init_scale(grey, centre, geom.size0, p.scales, p.scale_step, p.scale_area, p.cell,
                            p.scale_upsample, p.scale_anchor)
-    return TargetModel(train, det, det, colour, mode, scale)
+    return TargetModel(train, det, det, colour, mode, scale, support)
 
 
 def detection_filter(model: TargetModel, w: float) -> np.ndarray:
@@ -345,7 +374,9 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
         s = float(np.exp(log_s))
         sf = learn_scale(sf, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
                          p.scale_rate)
-    return TargetModel(train, _solve(train, geom, p), model.anchor, colour, model.colour_mode, sf)
+    # with segment, the running average is solved under this frame's reliability map (CSR-DCF sec. 3.1)
+    mask, support = _support(colour, model.colour_mode, win, geom, p, model.support)
+    return TargetModel(train, _solve(train, geom, p, mask), model.anchor, colour, model.colour_mode, sf, support)
 
 
 def scale_anchor(p: DCFParams) -> float:

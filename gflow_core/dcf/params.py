@@ -193,6 +193,18 @@ class DCFParams:
                                        "background's corners tracked by Lucas-Kanade, moves the prediction, the "
                                        "particles, the size, the velocity and the roll before the frame is weighed "
                                        "(BoT-SORT's camera motion compensation; gflow_core.dcf.camera)")
+    segment: float = param(0.0, "the masked filter's support is CSR-DCF's spatial reliability map within the box: the "
+                                "cells whose colour posterior (the colour model's histograms times a spatial prior) "
+                                "is at least this times its largest on the box, recomputed on every frame the filter "
+                                "learns (gflow_core.dcf.reliability; CSRT: 0.5; 0: the box)")
+    segment_cover: float = param(0.5, "with segment, a map covering less than this fraction of the box is replaced "
+                                      "by the box (CSRT: 0.05)")
+    segment_rate: float = param(0.02, "with segment, the filter is solved under the cells where the running average "
+                                      "of the maps at this rate is at least 1/2 (the support of CSR-DCF's running "
+                                      "average of filters, each solved under its frame's map; 0: this frame's map)")
+    segment_grey: bool = param(False, "with segment, grey footage too is segmented, on its 32 grey levels (false: grey "
+                                      "footage keeps the box, as CSR-DCF's own code turns segmentation off on grey "
+                                      "images)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -290,14 +302,16 @@ class DCFParams:
                              f"{self.roll_step}, "
                              f"{self.roll_steps}, {self.roll_max}, {self.roll_reach}, {self.roll_prior}, {self.roll_gate}, "
                              f"{self.roll_margin}, {self.roll_explain}, {self.roll_relax}")
-        self._check_motion_and_size()
+        self._check_motion_size_and_support()
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")
 
-    def _check_motion_and_size(self) -> None:
-        """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1]
-        and ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior)."""
+    def _check_motion_size_and_support(self) -> None:
+        """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1],
+        ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior), and the filter's
+        support (:meth:`_check_segment`)."""
+        self._check_segment()
         if self.detect_peaks < 1:
             raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
         if not 0 <= self.motion_switch < 1:
@@ -306,6 +320,16 @@ class DCFParams:
             raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
+
+    def _check_segment(self) -> None:
+        """``segment`` and ``segment_cover`` fractions in [0, 1]; the map needs the masked filter and the colour
+        model it is made from (gflow_core.dcf.reliability)."""
+        if not (0 <= self.segment <= 1 and 0 <= self.segment_cover <= 1 and 0 <= self.segment_rate <= 1):
+            raise ValueError(f"segment, segment_cover and segment_rate must be in [0, 1], got {self.segment}, "
+                             f"{self.segment_cover}, {self.segment_rate}")
+        if self.segment > 0 and not (self.mask > 0 and self.colour_weight > 0):
+            raise ValueError(f"segment needs the masked filter and the colour model (mask and colour_weight > 0), "
+                             f"got mask {self.mask}, colour_weight {self.colour_weight}")
 
     def walk_std(self, box: tuple[float, float, float, float]) -> float:
         """The std (px) of the proposal's random walk of the centre for the initial ``box`` (x, y, w, h):

@@ -146,6 +146,8 @@ def model_arrays(m: TargetModel) -> dict[str, np.ndarray]:
         arrays.update(scale_num=_real(m.scale.num), scale_den=_real(m.scale.den), scale_label=_real(m.scale.label_hat))
         if m.scale.anchor_num is not None and m.scale.anchor_den is not None:
             arrays.update(scale_anchor_num=_real(m.scale.anchor_num), scale_anchor_den=_real(m.scale.anchor_den))
+    if m.support is not None:
+        arrays["support"] = np.ascontiguousarray(m.support, dtype=np.float64)
     return arrays
 
 
@@ -169,7 +171,8 @@ def model_of_arrays(arrays: Mapping[str, np.ndarray], colour_mode: str, scale_mo
                             _complex(arrays["scale_label"]), (int(scale_model[0]), int(scale_model[1])),
                             _complex(arrays["scale_anchor_num"]) if has_anchor else None,
                             np.array(arrays["scale_anchor_den"]) if has_anchor else None)
-    return TargetModel(train, det, anchor, colour, colour_mode, scale)
+    support = np.array(arrays["support"]) if "support" in arrays else None
+    return TargetModel(train, det, anchor, colour, colour_mode, scale, support)
 
 
 def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
