@@ -4,7 +4,7 @@ The masked filter (:mod:`.constrained`) is held to a box of the target's size; i
 background (a small toy among leaves, a walker's legs apart) it still learns the background inside the
 box. Lukezic, Vojir, Cehovin, Matas & Kristan ("Discriminative correlation filter with channel and
 spatial reliability", CVPR 2017, sec. 3.1; OpenCV's CSRT) make the mask m the pixels that look like the
-target. Each pixel x of colour y gets the posterior (CSR-DCF eq. 2)
+target. Each pixel x of colour y gets the posterior (CSR-DCF sec. 3.1)
 
     p(m = 1 | y, x)  ~  p(y | m = 1, x) p(x | m = 1) p(m = 1),
 
@@ -88,7 +88,7 @@ def posterior(colour: ColourModel, bins: np.ndarray, valid: np.ndarray, box: tup
     # p(m = 1) = |O| / (|O| + |B|), the box's share of the window's pixels in the frame
     p_o = min(box[0] * box[1], float(n_valid)) / n_valid
     k = 0.5 if prior is None else prior
-    # L_O = p(m = 1) rho_O(y) k(x),  L_B = (1 - p(m = 1)) rho_B(y) (1 - k(x))           (CSR-DCF eq. 2)
+    # L_O = p(m = 1) rho_O(y) k(x),  L_B = (1 - p(m = 1)) rho_B(y) (1 - k(x))      (CSR-DCF sec. 3.1)
     lo = p_o * colour.fg[bins] * k
     lb = (1.0 - p_o) * colour.bg[bins] * (1.0 - k)
     den = lo + lb
