@@ -133,9 +133,9 @@ def reliability(colour: ColourModel, bins: np.ndarray, valid: np.ndarray, box: t
     # regularisation: a Gaussian of SMOOTH cells (in place of CSR-DCF's MRF)
     p = cv2.GaussianBlur(p, (0, 0), SMOOTH, borderType=cv2.BORDER_REPLICATE)
     top = float(p[inside].max())
-    m = ((p >= threshold * top) & inside).astype(np.uint8)
+    m0 = ((p >= threshold * top) & inside).astype(np.uint8)
     # dilated by one cell (CSRT: a 3 x 3 ellipse)
-    m = cv2.dilate(m, cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)))
+    m = np.asarray(cv2.dilate(m0, cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))))
     if top <= 0 or float(m[inside].sum()) < cover * float(inside.sum()):
         return None
     return m.astype(np.float64)
