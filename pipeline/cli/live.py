@@ -110,8 +110,8 @@ def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | 
                 k, p, ns = q.get(timeout=0.1)
             except queue.Empty:
                 continue
+            n += 1  # counted first: a Ctrl-C right after the line is printed must not say none came
             print(json_line(k, p, ns) if as_json else f"{k}: {describe(p)}", file=out, flush=True)
-            n += 1
     except KeyboardInterrupt:
         pass
     finally:
