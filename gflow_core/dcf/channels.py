@@ -40,6 +40,16 @@ Departures:
   those of the cyclic response on cells, over 3 x 3 neighbourhoods (the MATLAB code: ``imregionalmax``);
 * the first frame's filter (the anchor) keeps the first frame's weights: it stands for the first frame's
   tracker, never updated, and weighting it by the running weights would let it drift with them;
+* the intensity channel is left out of the weighting unless ``channel_intensity``: it keeps a weight of
+  1 and the 31 fHOG channels share theirs (:func:`scaled`). Its largest response is on another scale
+  than theirs -- cell means of grey levels in [-0.5, 0.5] against clipped gradient histograms -- and
+  the learning reliability compares the channels' largest responses as they are: on skating1 and tiger1
+  it gave the intensity 3 to 5 times the mean weight, growing over the run, which cost skating1 (0.288
+  against 0.604 on the nine, seed 1: docs/dcf-development.md);
+* the detection reliability was at its floor of 1/2 on nearly every channel and frame measured (the
+  fHOG channels' responses over the wide window each have rival modes: on the first 40 frames of
+  skating1 the second mode's median was 0.72-0.95 of the first's), so in practice the weights are
+  the learning reliability's -- OpenCV's CSRT's form;
 * the long-term filter (:mod:`.longterm`) and the scale filter are not weighted;
 * the rate is the filter's own on that frame (``rate``, or what ``young`` / ``rate_adapt`` make of it),
   as the MATLAB code's default and OpenCV's set both rates to 0.02.
@@ -107,8 +117,14 @@ def blend(w: np.ndarray, new: np.ndarray, rate: float) -> np.ndarray:
     return out / float(out.sum())
 
 
-def scaled(det: np.ndarray, w: np.ndarray) -> np.ndarray:
+def scaled(det: np.ndarray, w: np.ndarray, intensity: bool) -> np.ndarray:
     """The filter ``det`` (h, w', C) with channel d multiplied by C w_d (the weights at a mean of 1, so equal
-    weights leave the filter as it is)."""
+    weights leave the filter as it is); without ``intensity`` the last channel (the intensity,
+    :func:`.model.cells_of`) keeps 1 and the others are multiplied by (C - 1) w_d / sum_(k < C) w_k."""
     # D_d <- C w_d D_d
-    return det * (w.size * w)[None, None, :]
+    f = w.size * w
+    rest = float(w[:-1].sum())
+    if not intensity:
+        # D_d <- (C - 1) w_d / sum_(k < C) w_k D_d  (d < C),  D_C <- D_C
+        f = np.append((w.size - 1) * w[:-1] / rest if rest > 0 else np.ones(w.size - 1), 1.0)
+    return det * f[None, None, :]

@@ -236,13 +236,14 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
     # with channel_weights, the first weights: the learning reliability alone (CSR-DCF; .channels), which the
     # anchor keeps
     w0 = ch.combine(ch.learning(ch.responses(det, x_hat, (geom.cells[1], geom.cells[0]))))
-    return TargetModel(train, det, ch.scaled(det, w0), colour, mode, scale, support, w0)
+    return TargetModel(train, det, ch.scaled(det, w0, p.channel_intensity), colour, mode, scale, support, w0)
 
 
-def detection_filter(model: TargetModel, w: float) -> np.ndarray:
+def detection_filter(model: TargetModel, w: float, intensity: bool) -> np.ndarray:
     """The filter detection uses: (1 - w) the running filter + w the anchor; with channel weights, the
-    running filter's channels weighted by them (:func:`.channels.scaled`; the anchor holds its own)."""
-    det = model.det if model.channels is None else ch.scaled(model.det, model.channels)
+    running filter's channels weighted by them (:func:`.channels.scaled`, the intensity channel too with
+    ``intensity``, ``channel_intensity``; the anchor holds its own)."""
+    det = model.det if model.channels is None else ch.scaled(model.det, model.channels, intensity)
     if w <= 0:
         return det
     return (1.0 - w) * det + w * model.anchor
@@ -341,7 +342,7 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
     win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle)
     z_hat = cf.spectrum(win.x, geom.window)
     # Y_cf = sum_l conj(A_l) Z_l / (B + lambda)                                  (DSST eq. 6)
-    y_hat = cf.respond(detection_filter(model, p.anchor_weight), z_hat)
+    y_hat = cf.respond(detection_filter(model, p.anchor_weight, p.channel_intensity), z_hat)
     wc, hc = geom.cells
     y_cf = cf.centred(cf.upsample(y_hat, (hc, wc), geom.cell))
     y_lt = None if second is None else cf.centred(cf.upsample(cf.respond(second, z_hat), (hc, wc), geom.cell))
@@ -448,7 +449,7 @@ def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold
     centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
     win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode)
     # h w: the filter times the cosine window, so that a placement is scored as a windowed sample is
-    hw = cf.spatial(detection_filter(model, p.anchor_weight), (hc, wc)) * geom.window[..., None]
+    hw = cf.spatial(detection_filter(model, p.anchor_weight, p.channel_intensity), (hc, wc)) * geom.window[..., None]
     y_cf = cf.correlate_valid(hw, win.x)
     col = _colour_cells(model, win, geom)
     y_col = None if col is None else col[hc // 2: hc // 2 + 2 * ny + 1, wc // 2: wc // 2 + 2 * nx + 1]
