@@ -43,8 +43,8 @@ Departures:
 * the intensity channel is left out of the weighting unless ``channel_intensity``: it keeps a weight of
   1 and the 31 fHOG channels share theirs (:func:`scaled`). Its largest response is on another scale
   than theirs -- cell means of grey levels in [-0.5, 0.5] against clipped gradient histograms -- and
-  the learning reliability compares the channels' largest responses as they are: on skating1 and tiger1
-  it gave the intensity 3 to 5 times the mean weight, growing over the run, which cost skating1 (0.288
+  the learning reliability compares the channels' largest responses as they are: on skating1 it gave the
+  intensity 2.8 times the mean weight on the first frame and 5.2 by frame 300, and cost skating1 (0.288
   against 0.604 on the nine, seed 1: docs/dcf-development.md);
 * the detection reliability was at its floor of 1/2 on nearly every channel and frame measured (the
   fHOG channels' responses over the wide window each have rival modes: on the first 40 frames of
