@@ -39,7 +39,8 @@ Departures:
   were weighed in (the same frame, the window shifted by the motion found) -- and its local maxima are
   those of the cyclic response on cells, over 3 x 3 neighbourhoods (the MATLAB code: ``imregionalmax``);
 * the first frame's filter (the anchor) keeps the first frame's weights: it stands for the first frame's
-  tracker, never updated, and weighting it by the running weights would let it drift with them;
+  tracker, never updated, and weighting it by the running weights would let it drift with them (``verify``,
+  which scores with the anchor alone, so reads the first frame's weighted filter);
 * the intensity channel is left out of the weighting unless ``channel_intensity``: it keeps a weight of
   1 and the 31 fHOG channels share theirs (:func:`scaled`). Its largest response is on another scale
   than theirs -- cell means of grey levels in [-0.5, 0.5] against clipped gradient histograms -- and
@@ -92,7 +93,7 @@ def detection(y: np.ndarray) -> np.ndarray:
     n = (y - lo) / np.where(flat, 1.0, span)
     # the local maxima: cells at least as high as every neighbour (the response is cyclic)
     peaks = n >= maximum_filter(n, size=(3, 3, 1), mode="wrap")
-    h, w, c = n.shape
+    c = n.shape[-1]
     first = np.argmax(n.reshape(-1, c), axis=0)
     peaks.reshape(-1, c)[first, np.arange(c)] = False
     rho2 = np.where(peaks, n, 0.0).reshape(-1, c).max(axis=0)
