@@ -117,6 +117,10 @@ together (docs/trackers.md):
   at ``mu`` times the sample's mean energy per frequency (scale-free) and growing threefold an
   iteration; the detection uses the constrained filter h rather than BACF's g. Without the mask
   (``mask`` 0) the filter is DSST's closed form with numerator and denominator averaged.
+* Every feature channel's response counts alike at detection; CSR-DCF weights each by its channel
+  reliability, which ``channel_weights``, off, adds (:mod:`.channels`: the weights at a mean of 1, the
+  learning reliability of the running filter, the detection reliability read at the estimate, the anchor
+  keeping the first frame's weights).
 * Staple's colour histograms are learnt over the whole window's ring, and its score is computed on
   the filter's cells (so the two responses add cell for cell and are upsampled together).
 * fHOG here bins each pixel to its own cell (no bilinear spatial vote) and takes the grey level's
@@ -180,6 +184,6 @@ Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:
 :mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.verify` (a re-detection checked by the first filter), :mod:`.augment` (the first filter's warped copies), :mod:`.sizeprior` (a prior on the size), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
-track), :mod:`.rotation` (the target's roll), :mod:`.camera` (the camera's own motion, ``camera_motion``), :mod:`.reliability` (CSR-DCF's spatial reliability map, ``segment``), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
+track), :mod:`.rotation` (the target's roll), :mod:`.camera` (the camera's own motion, ``camera_motion``), :mod:`.reliability` (CSR-DCF's spatial reliability map, ``segment``), :mod:`.channels` (CSR-DCF's channel reliability, ``channel_weights``), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`
 (the :class:`~gflow_core.tracker.TrackingFilter`).
 """

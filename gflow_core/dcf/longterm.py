@@ -78,8 +78,9 @@ def init_longterm(model: TargetModel, target: ChiSquare, clutter: ChiSquare) -> 
 
 def view(model: TargetModel, lt: LongTerm) -> TargetModel:
     """``model`` with the long-term filter as its detection filter (its own anchor, so the anchor's
-    weight leaves it as it is), the adaptive model's colour histograms and scale filter."""
-    return replace(model, train=lt.train, det=lt.det, anchor=lt.det)
+    weight leaves it as it is), the adaptive model's colour histograms and scale filter; unweighted by the
+    adaptive filter's channel weights (``channel_weights``, :mod:`.channels`)."""
+    return replace(model, train=lt.train, det=lt.det, anchor=lt.det, channels=None)
 
 
 def reliable(lt: LongTerm, rho: float, p: DCFParams) -> bool:

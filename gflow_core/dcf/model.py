@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from . import channels as ch
 from . import filter as cf
 from .augment import first_sample
 from .constrained import box_mask, solve_masked
@@ -156,7 +157,9 @@ class TargetModel:
         frame's, never updated; colour : Staple's histograms (None: no colour model); colour_mode :
         ``"colour"``, ``"grey"`` or None; scale : the scale filter (None: fixed size); support : with
         ``segment`` and ``segment_rate``, the running average of the reliability maps (hc, wc) float64
-        (:func:`_support`), else None.
+        (:func:`_support`), else None; channels : with ``channel_weights``, the running channel weights (C,)
+        float64 summing to 1 (:mod:`.channels`; the anchor holds the first frame's weights, multiplied in),
+        else None.
     """
 
     train: cf.Spectrum | np.ndarray
@@ -166,6 +169,7 @@ class TargetModel:
     colour_mode: str | None
     scale: ScaleFilter | None
     support: np.ndarray | None = None
+    channels: np.ndarray | None = None
 
 
 def _n_bins(mode: str | None) -> int:
@@ -227,14 +231,22 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
     if p.scales > 1:
         scale = init_scale(grey, centre, geom.size0, p.scales, p.scale_step, p.scale_area, p.cell,
                            p.scale_upsample, p.scale_anchor)
-    return TargetModel(train, det, det, colour, mode, scale, support)
+    if not p.channel_weights:
+        return TargetModel(train, det, det, colour, mode, scale, support)
+    # with channel_weights, the first weights: the learning reliability alone (CSR-DCF; .channels), which the
+    # anchor keeps
+    w0 = ch.combine(ch.learning(ch.responses(det, x_hat, (geom.cells[1], geom.cells[0]))))
+    return TargetModel(train, det, ch.scaled(det, w0, p.channel_intensity), colour, mode, scale, support, w0)
 
 
-def detection_filter(model: TargetModel, w: float) -> np.ndarray:
-    """The filter detection uses: (1 - w) the running filter + w the anchor."""
+def detection_filter(model: TargetModel, w: float, intensity: bool) -> np.ndarray:
+    """The filter detection uses: (1 - w) the running filter + w the anchor; with channel weights, the
+    running filter's channels weighted by them (:func:`.channels.scaled`, the intensity channel too with
+    ``intensity``, ``channel_intensity``; the anchor holds its own)."""
+    det = model.det if model.channels is None else ch.scaled(model.det, model.channels, intensity)
     if w <= 0:
-        return model.det
-    return (1.0 - w) * model.det + w * model.anchor
+        return det
+    return (1.0 - w) * det + w * model.anchor
 
 
 @dataclass(frozen=True)
@@ -330,7 +342,7 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
     win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle)
     z_hat = cf.spectrum(win.x, geom.window)
     # Y_cf = sum_l conj(A_l) Z_l / (B + lambda)                                  (DSST eq. 6)
-    y_hat = cf.respond(detection_filter(model, p.anchor_weight), z_hat)
+    y_hat = cf.respond(detection_filter(model, p.anchor_weight, p.channel_intensity), z_hat)
     wc, hc = geom.cells
     y_cf = cf.centred(cf.upsample(y_hat, (hc, wc), geom.cell))
     y_lt = None if second is None else cf.centred(cf.upsample(cf.respond(second, z_hat), (hc, wc), geom.cell))
@@ -376,7 +388,20 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
                          p.scale_rate)
     # with segment, the running average is solved under this frame's reliability map (CSR-DCF sec. 3.1)
     mask, support = _support(colour, model.colour_mode, win, geom, p, model.support)
-    return TargetModel(train, _solve(train, geom, p, mask), model.anchor, colour, model.colour_mode, sf, support)
+    det = _solve(train, geom, p, mask)
+    return TargetModel(train, det, model.anchor, colour, model.colour_mode, sf, support,
+                       _channels(model, det, x_hat, geom, rate))
+
+
+def _channels(model: TargetModel, det: np.ndarray, x_hat: np.ndarray, geom: Geometry, rate: float) -> np.ndarray | None:
+    """The running channel weights after the sample of spectrum ``x_hat`` (None without them): the detection
+    reliability of the filter before the update, ``model.det``, and the learning reliability of the one
+    after it, ``det``, both on the sample (:mod:`.channels`), their product averaged in at ``rate``."""
+    if model.channels is None:
+        return None
+    shape = (geom.cells[1], geom.cells[0])
+    frame = ch.combine(ch.learning(ch.responses(det, x_hat, shape)), ch.detection(ch.responses(model.det, x_hat, shape)))
+    return ch.blend(model.channels, frame, rate)
 
 
 def scale_anchor(p: DCFParams) -> float:
@@ -424,7 +449,7 @@ def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold
     centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
     win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode)
     # h w: the filter times the cosine window, so that a placement is scored as a windowed sample is
-    hw = cf.spatial(detection_filter(model, p.anchor_weight), (hc, wc)) * geom.window[..., None]
+    hw = cf.spatial(detection_filter(model, p.anchor_weight, p.channel_intensity), (hc, wc)) * geom.window[..., None]
     y_cf = cf.correlate_valid(hw, win.x)
     col = _colour_cells(model, win, geom)
     y_col = None if col is None else col[hc // 2: hc // 2 + 2 * ny + 1, wc // 2: wc // 2 + 2 * nx + 1]

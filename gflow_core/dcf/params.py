@@ -205,6 +205,13 @@ class DCFParams:
     segment_grey: bool = param(False, "with segment, grey footage too is segmented, on its 32 grey levels (false: grey "
                                       "footage keeps the box, as CSR-DCF's own code turns segmentation off on grey "
                                       "images)")
+    channel_weights: bool = param(False, "each feature channel's response is weighted at detection by CSR-DCF's channel "
+                                         "reliability: the largest value of its response on the sample it was learnt from "
+                                         "times 1 - min(second peak / first, 1/2) of its response on the frame, averaged at "
+                                         "the filter's rate (gflow_core.dcf.channels; false: every channel counts alike)")
+    channel_intensity: bool = param(False, "with channel_weights, the intensity channel is weighted too, as CSR-DCF weights "
+                                           "every channel (false: it keeps a weight of 1 and the 31 fHOG channels share "
+                                           "theirs; its largest response is on another scale than theirs)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
@@ -309,9 +316,12 @@ class DCFParams:
 
     def _check_motion_size_and_support(self) -> None:
         """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1],
-        ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior), and the filter's
-        support (:meth:`_check_segment`)."""
+        ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior), the filter's
+        support (:meth:`_check_segment`) and ``channel_weights`` and ``channel_intensity`` bools."""
         self._check_segment()
+        for name in ("channel_weights", "channel_intensity"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be true or false, got {getattr(self, name)!r}")
         if self.detect_peaks < 1:
             raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
         if not 0 <= self.motion_switch < 1:

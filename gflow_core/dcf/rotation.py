@@ -88,7 +88,7 @@ def angle_scores(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre
     at ``centre``, scale exp(``log_s``), rolled by it: the maximum of the response within ``roll_reach``
     cells of the window's centre (on the cells, no upsampling)."""
     k = geom.k(log_s)
-    det = detection_filter(model, p.anchor_weight)
+    det = detection_filter(model, p.anchor_weight, p.channel_intensity)
     wc, hc = geom.cells
     r = p.roll_reach
     out = np.empty(len(angles))

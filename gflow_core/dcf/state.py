@@ -148,6 +148,8 @@ def model_arrays(m: TargetModel) -> dict[str, np.ndarray]:
             arrays.update(scale_anchor_num=_real(m.scale.anchor_num), scale_anchor_den=_real(m.scale.anchor_den))
     if m.support is not None:
         arrays["support"] = np.ascontiguousarray(m.support, dtype=np.float64)
+    if m.channels is not None:
+        arrays["channels"] = np.ascontiguousarray(m.channels, dtype=np.float64)
     return arrays
 
 
@@ -172,7 +174,10 @@ def model_of_arrays(arrays: Mapping[str, np.ndarray], colour_mode: str, scale_mo
                             _complex(arrays["scale_anchor_num"]) if has_anchor else None,
                             np.array(arrays["scale_anchor_den"]) if has_anchor else None)
     support = np.array(arrays["support"]) if "support" in arrays else None
-    return TargetModel(train, det, anchor, colour, colour_mode, scale, support)
+    channels = np.array(arrays["channels"]) if "channels" in arrays else None
+    if channels is not None and channels.shape != (det.shape[2],):
+        raise ValueError(f"channel weights of shape {channels.shape} do not fit a filter of {det.shape[2]} channels")
+    return TargetModel(train, det, anchor, colour, colour_mode, scale, support, channels)
 
 
 def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
