@@ -101,7 +101,9 @@ BACF and CSRT learn theirs:
   candidate track, scored as radar trackers confirm a new track (Blackman & Popoli 1999: the
   kinematic log likelihood ratios summed, against clutter uniform or standing still, and the
   signal's mean, as the look is one object's), and taken when its probability reaches
-  ``search_track`` (Wald's upper threshold 1 - alpha, 0.95).
+  ``search_track`` (0.95); with ``search_track_wald`` (on) it is dropped only at Wald's lower
+  threshold for equal error rates, the upper one mirrored, so a track whose look scores like
+  clutter is kept while its motion may still outweigh it.
 * **A long-term filter** (:mod:`.longterm`, ``longterm``; LCT, Ma et al. CVPR 2015): a second
   filter learnt at ``longterm_rate`` only on confident frames whose long-term score at the estimate
   is within ``longterm_level`` standard deviations of its mean; with ``longterm_witness`` its

@@ -102,6 +102,10 @@ class DCFParams:
                                        "its frames, its scores and its motion as one object, gives it this "
                                        "probability or more (in [0.5, 1); Wald's upper threshold 1 - alpha; a track "
                                        "score, gflow_core.dcf.trackscore; 0: off, each frame judged alone)", before=0.0)
+    search_track_wald: bool = param(True, "with search_track, a candidate track is dropped when its score falls to "
+                                          "Wald's lower threshold for equal error rates, the upper one mirrored "
+                                          "(-(logit(search_track) - logit(reappear))); false: as soon as its score "
+                                          "is below 0, the prior's odds", before=False)
     longterm: bool = param(False, "keep a long-term filter beside the adaptive one, learnt only on reliable frames, "
                                   "and search for a hidden target with it (LCT; gflow_core.dcf.longterm)")
     longterm_rate: float = param(0.01, "learning rate of the long-term filter on reliable frames")
