@@ -28,9 +28,9 @@ The first frame of a track is scored as the single-frame judgement scores it (si
 under the hidden target's prior), so a track of one frame is judged exactly as before, and the track's
 log odds are logit(reappear) + score. It is taken when its probability reaches ``search_track`` over two
 frames or more: the upper threshold, log A = logit(search_track) - logit(reappear) on the score (about 9.9
-nats at the defaults). By default a score below 0 (log odds below the prior's) drops it, and the next
-placement starts a new one: a first frame whose look runs against the target ends the track before its
-motion can count. That is not Wald's lower threshold for any error rates (B = beta / (1 - alpha) = 1 would
+nats at the defaults). Without ``search_track_wald`` a score below 0 (log odds below the prior's) drops
+it, and the next placement starts a new one: a first frame whose look runs against the target ends the
+track before its motion can count. That is not Wald's lower threshold for any error rates (B = beta / (1 - alpha) = 1 would
 make A = (1 - beta) / alpha = 1 too). With ``search_track_wald`` the lower threshold is Wald's for equal
 error rates, log B = -log A (Wald 1945), so a track that moves as one object while its look scores like
 clutter (a blurred target, one whose colour changed while it was hidden) is kept until its motion
@@ -122,6 +122,7 @@ def lower(p: DCFParams) -> float:
     logit(search_track) - logit(reappear) the upper one (Wald 1945: A = (1 - beta) / alpha, B = beta / (1 - alpha))."""
     if not p.search_track_wald:
         return 0.0
+    # log B = -log A,  log A = logit(search_track) - logit(reappear)
     return -(logit(p.search_track) - logit(p.reappear))
 
 
@@ -137,6 +138,7 @@ def extend(track: Track | None, centre: np.ndarray, signal: float, place: float,
     speed2 : px^2 / frame^2, the target's learnt E|v|^2; area : px^2 the search covered; dt : frame periods.
     """
     c = np.asarray(centre, dtype=np.float64)
+    # the score below the lower threshold B (or no track yet): this placement starts a new one
     if track is None or track.score < lower(p):
         return Track(c.copy(), np.zeros(2), signal, place, 1)
     # q_t = c_{t-1} + v dt
