@@ -24,21 +24,21 @@ crosses the upper threshold and dropped below the lower one. Each frame adds two
   and no velocity, the target's learnt speed E|v|^2 / 2 per axis, as ``redetect_speed``) against the
   clutter's place.
 
-The first frame of a track is scored as the single-frame judgement scores it (signal plus the place
-under the hidden target's prior), so a track of one frame is judged exactly as before, and the track's
-log odds are logit(reappear) + score. It is taken when its probability reaches ``search_track`` over two
-frames or more: the upper threshold, log A = logit(search_track) - logit(reappear) on the score (about 9.9
-nats at the defaults). Without ``search_track_wald`` a score below 0 (log odds below the prior's) drops
-it, and the next placement starts a new one: a first frame whose look runs against the target ends the
-track before its motion can count. That is not Wald's lower threshold for any error rates (B = beta / (1 - alpha) = 1 would
-make A = (1 - beta) / alpha = 1 too). With ``search_track_wald`` the lower threshold is Wald's for equal
-error rates, log B = -log A (Wald 1945), so a track that moves as one object while its look scores like
-clutter (a blurred target, one whose colour changed while it was hidden) is kept until its motion
-outweighs its look or its score falls to -log A. It is on by default; recordings made before it keep the
-old rule. Measured (``docs/dcf-development.md``, "A candidate track kept to Wald's lower threshold"): on
-the nine sequences as they are, grey, blurred and at half size every row of seeds 1-3 is the same; at
-every 3rd frame tiger1's AUC is 0.179 / 0.204 / 0.238 against 0.143 / 0.141 / 0.169 (still far below
-CSRT's 0.540).
+The first frame of a track is scored as the single-frame judgement scores it (signal plus the place under
+the hidden target's prior), so a track of one frame is judged exactly as before, and the track's log odds
+are logit(reappear) + score. It is taken when its probability reaches ``search_track`` over two frames or
+more: the upper threshold, log A = logit(search_track) - logit(reappear) on the score (about 9.9 nats at
+the defaults). Without ``search_track_wald`` a score below 0 (log odds below the prior's) drops it, and
+the next placement starts a new one: a first frame whose look runs against the target ends the track
+before its motion can count. That is not Wald's lower threshold for any error rates (B = beta / (1 -
+alpha) = 1 would make A = (1 - beta) / alpha = 1 too). With ``search_track_wald`` the lower threshold is
+Wald's for equal error rates, log B = -log A (Wald 1945), so a track that moves as one object while its
+look scores like clutter (a blurred target, one whose colour changed while it was hidden) is kept until
+its motion outweighs its look or its score falls to -log A. It is on by default; recordings made before it
+keep the old rule. Measured (``docs/dcf-development.md``, "A candidate track kept to Wald's lower
+threshold"): on the nine sequences as they are, grey, blurred and at half size every row of seeds 1-3 is
+the same; at every 3rd frame tiger1's AUC is 0.179 / 0.204 / 0.238 against 0.143 / 0.141 / 0.169 (still
+far below CSRT's 0.540).
 
 Departures, each for a way the search's best placement is not radar's false alarm:
 
