@@ -200,3 +200,25 @@ def test_a_negative_seed_is_refused_as_the_option(tmp_path: Path, argv: list[str
     r = gflow(*argv, "--seed=-1", cwd=tmp_path)
     line = assert_one_line_error(r, "--seed", ">= 0")
     assert ".yaml" not in line
+
+
+@pytest.mark.parametrize("argv,named,hint", [
+    (["track", "frames", "--init", "1,1,5,5", "--out", "b.csv", "--trakcer", "dcf"], "--trakcer", "--tracker?"),
+    (["track", "frames", "--init", "1,1,5,5", "--out", "b.csv", "--seeed=3"], "--seeed=3", "--seed?"),
+    (["render", "r.mcap", "--out", "x.mp4"], "--out", "without --out"),
+    (["boxes", "r.mcap", "--out", "b.csv", "extra"], "extra", None),
+])
+def test_an_unknown_argument_is_named_by_its_command(tmp_path: Path, frames: Path, argv: list[str], named: str,
+                                                     hint: str | None) -> None:
+    """argparse reports an argument no option takes as the top-level ``gflow``'s mistake, pointing at
+    ``gflow --help``, which does not list the command's options; it is the command's, with its closest
+    option (or, for an option that is a positional, how it is given)."""
+    r = gflow(*argv, cwd=tmp_path)
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error: unrecognized arguments:", named,
+                                 f"'gflow {argv[0]} --help'")
+    if hint is not None:
+        assert hint in line, line
+    else:
+        assert "did you mean" not in line, line
+    _no_recording(tmp_path)
+    assert not (tmp_path / "b.csv").exists()

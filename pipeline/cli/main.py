@@ -59,6 +59,8 @@ class _Version(argparse.Action):
 class _Parser(argparse.ArgumentParser):
     """argparse, with a usage mistake reported in one line (the usage is one --help away)."""
 
+    commands: dict[str, argparse.ArgumentParser]
+
     def error(self, message: str) -> NoReturn:
         m = re.fullmatch(r"argument (--[\w-]+)(?:/-\w)?: expected one argument", message)
         if m:  # argparse takes a value such as -5,50,20,30 for an option, and says nothing of why
@@ -93,7 +95,35 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     one = command_module(command) if command else None
     for mod in [one] if one is not None else command_modules():
         mod.register(sub)
+    ap.commands = dict(sub.choices)  # each command's own parser, to report its mistakes (parse)
     return ap
+
+
+def _options(parser: argparse.ArgumentParser) -> list[str]:
+    """The long options ``parser`` takes (``--out``, ``--frames``...)."""
+    return [o for a in parser._actions for o in a.option_strings if o.startswith("--")]
+
+
+def parse(ap: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """``ap.parse_args(argv)``, but an argument no option takes is reported by the command's own parser
+    (argparse reports it as the top-level ``gflow``'s, whose --help does not list the command's options),
+    with the command's closest option when one is close."""
+    import difflib
+
+    args, extra = ap.parse_known_args(argv)
+    parser = getattr(ap, "commands", {}).get(getattr(args, "command", None) or "", ap)
+    if extra:
+        message = f"unrecognized arguments: {' '.join(extra)}"
+        word = next((e.split("=", 1)[0][2:] for e in extra if e.startswith("--")), None)
+        positional = [a.dest for a in parser._actions if not a.option_strings]
+        names = {o[2:]: o for o in _options(parser)}
+        close = difflib.get_close_matches(word, list(names), n=1, cutoff=0.75) if word else []
+        if word and word.replace("-", "_") in positional:
+            message += f" ({word} is given by its place, without --{word}: see the usage)"
+        elif close:
+            message += f" (did you mean {names[close[0]]}?)"
+        parser.error(message)
+    return args
 
 
 def _take_sigint_back() -> None:
@@ -123,7 +153,7 @@ def _user_errors() -> tuple[type[BaseException], ...]:
 
 def main(argv: list[str] | None = None) -> int:
     ap = build_parser(command_word(sys.argv[1:] if argv is None else argv))
-    args = ap.parse_args(argv)
+    args = parse(ap, argv)
     mark("cli parsed")
     _take_sigint_back()
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
