@@ -140,22 +140,33 @@ _NAME_LAB = cv2.cvtColor((_NAME_RGB[None, :, ::-1] / 255.0).astype(np.float32), 
 _NAME_SIGMA = 20.0
 
 
+def _name_table() -> np.ndarray:
+    """(32^3, 11) float32: each colour bin's membership of the names (:func:`colour_bins`' bins of a colour frame,
+    the bin's centre colour), centred -- a table as the CN tracker's, indexed by 32 levels a channel."""
+    q = (np.arange(32, dtype=np.float32) * 8.0 + 3.5) / 255.0
+    b, g, r = np.meshgrid(q, q, q, indexing="ij")  # bin (B >> 3) * 1024 + (G >> 3) * 32 + (R >> 3)
+    lab = cv2.cvtColor(np.stack([b, g, r], axis=-1).reshape(1, -1, 3), cv2.COLOR_BGR2Lab)[0]
+    # d2_n = |lab - lab_n|^2, p_n = exp(-d2_n / 2 sigma^2) / sum_m exp(-d2_m / 2 sigma^2)
+    d2 = ((lab[:, None, :] - _NAME_LAB[None, :, :]) ** 2).sum(-1)
+    e = np.exp(-(d2 - d2.min(-1, keepdims=True)) / (2.0 * _NAME_SIGMA ** 2))
+    return (e / e.sum(-1, keepdims=True) - 1.0 / N_NAMES).astype(np.float32)
+
+
+_NAME_TABLE = _name_table()
+
+
 def colour_names(patch: np.ndarray, cell: int) -> np.ndarray:
     """Cell means of each pixel's membership of the 11 basic colour names, centred: (h / cell, w / cell, 11)
     float32 of a BGR patch (h, w, 3) uint8. A pixel's membership of name n is
-    exp(-|lab - lab_n|^2 / (2 sigma^2)) normalised over the names, lab_n the name's prototype.
+    exp(-|lab - lab_n|^2 / (2 sigma^2)) normalised over the names, lab the centre of its colour bin (32 levels
+    a channel, as :func:`colour_bins`) in CIELab and lab_n the name's prototype, read from a table.
 
     Departure: the colour-name feature of the CN tracker (Danelljan et al. CVPR 2014) and CSRT maps a
     pixel to the 11 names by van de Weijer et al.'s table learnt from images (TIP 2009); here by soft
     nearness to a prototype of each name in CIELab."""
-    lab = cv2.cvtColor(patch.astype(np.float32) / np.float32(255.0), cv2.COLOR_BGR2Lab)
-    h, w = lab.shape[:2]
-    # d2_n = |lab - lab_n|^2, p_n = exp(-d2_n / 2 sigma^2) / sum_m exp(-d2_m / 2 sigma^2)
-    d2 = ((lab[:, :, None, :] - _NAME_LAB[None, None, :, :]) ** 2).sum(-1)
-    e = np.exp(-(d2 - d2.min(-1, keepdims=True)) / np.float32(2.0 * _NAME_SIGMA ** 2))
-    pn = e / e.sum(-1, keepdims=True)
-    m = pn.reshape(h // cell, cell, w // cell, cell, N_NAMES).mean(axis=(1, 3))
-    return (m - np.float32(1.0 / N_NAMES)).astype(np.float32)
+    h, w = patch.shape[:2]
+    pn = _NAME_TABLE[colour_bins(patch, grey=False)]
+    return pn.reshape(h // cell, cell, w // cell, cell, N_NAMES).mean(axis=(1, 3), dtype=np.float32)
 
 
 def is_grey(image: np.ndarray) -> bool:
