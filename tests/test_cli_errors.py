@@ -222,3 +222,13 @@ def test_an_unknown_argument_is_named_by_its_command(tmp_path: Path, frames: Pat
         assert "did you mean" not in line, line
     _no_recording(tmp_path)
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("content", [b"", b"garbage\n"])
+def test_foxglove_refuses_a_non_mcap_input_before_writing_out(tmp_path: Path, content: bytes) -> None:
+    """``gflow foxglove junk.mcap out.mcap`` created out.mcap (46 bytes) before it found the input was
+    not MCAP, and left it there, so the next try was refused as writing over it."""
+    (tmp_path / "junk.mcap").write_bytes(content)
+    r = gflow("foxglove", "junk.mcap", "out.mcap", cwd=tmp_path)
+    assert_one_line_error(r, "junk.mcap", "not an MCAP file")
+    assert not (tmp_path / "out.mcap").exists()
