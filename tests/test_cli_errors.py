@@ -232,3 +232,15 @@ def test_foxglove_refuses_a_non_mcap_input_before_writing_out(tmp_path: Path, co
     r = gflow("foxglove", "junk.mcap", "out.mcap", cwd=tmp_path)
     assert_one_line_error(r, "junk.mcap", "not an MCAP file")
     assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("source", [["--camera", "99"], ["tcp://127.0.0.1:1", "--open-timeout", "5"]])
+def test_inline_live_source_that_cannot_open_leaves_no_recording(tmp_path: Path, source: list[str]) -> None:
+    """``gflow track --camera 99 --inline`` (or a stream that refuses on loopback) left an empty
+    recording in recordings/, where the same run as processes removes it."""
+    if source[0] == "--camera" and Path("/dev/video99").exists():
+        pytest.skip("this machine has a /dev/video99")
+    r = gflow("track", *source, "--init", "10,10,20,20", "--out", "b.csv", "--inline", "-q", cwd=tmp_path)
+    assert_one_line_error(r, source[0].removeprefix("--"))
+    _no_recording(tmp_path)
+    assert not (tmp_path / "b.csv").exists()
