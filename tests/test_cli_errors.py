@@ -244,3 +244,19 @@ def test_inline_live_source_that_cannot_open_leaves_no_recording(tmp_path: Path,
     assert_one_line_error(r, source[0].removeprefix("--"))
     _no_recording(tmp_path)
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("extra,named", [(["--frames", "50:60"], "no box for frame 50"),
+                                         (["--set", "foo"], "--set"),
+                                         (["--stress", "--set", "foo"], "--set")])
+def test_benchmark_error_is_not_preceded_by_a_skipped_folder_note(tmp_path: Path, frames: Path, extra: list[str],
+                                                                  named: str) -> None:
+    """A DATA folder holding a folder that is no sequence (../shared/data has avletters/) printed
+    "benchmark: skipped ..." on stderr before every mistake's error, which took two lines."""
+    seq = tmp_path / "data" / "seq1"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(5)))
+    (tmp_path / "data" / "notes").mkdir()
+    r = gflow("benchmark", "data", "--trackers", "dcf", "--opencv", "none", "--inline", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
