@@ -260,3 +260,28 @@ def test_benchmark_error_is_not_preceded_by_a_skipped_folder_note(tmp_path: Path
     (tmp_path / "data" / "notes").mkdir()
     r = gflow("benchmark", "data", "--trackers", "dcf", "--opencv", "none", "--inline", *extra, cwd=tmp_path)
     assert_one_line_error(r, named)
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["render", "r.mcap", "out.mp4", "--frames", "10:3"], "--frames 10:3"),
+    (["render", "r.mcap", "out.mp4", "--frames", "5:5"], "--frames 5:5"),
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames=-2:3"], "--frames -2:3"),
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames", "4:1"], "--frames 4:1"),
+])
+def test_an_empty_or_reversed_frame_range_is_refused_first(tmp_path: Path, argv: list[str], named: str) -> None:
+    """render read the whole recording before saying a reversed --frames held no frame; eval took a negative
+    A; both read ``--frames 5`` as frames 5 on, where benchmark and learn read it as frame 5 alone."""
+    (tmp_path / "r.mcap").write_bytes(b"")  # not read: the range is refused before the recording is opened
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named, "0 <= A < B")
+    assert not (tmp_path / "out.mp4").exists()
+
+
+def test_eval_frames_a_alone_is_frame_a(tmp_path: Path) -> None:
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    r = gflow("eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames", "2", "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    assert json.loads(r.stdout)["frames"] == 1
