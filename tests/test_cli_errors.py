@@ -285,3 +285,17 @@ def test_eval_frames_a_alone_is_frame_a(tmp_path: Path) -> None:
     import json
 
     assert json.loads(r.stdout)["frames"] == 1
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--max-points", "0"], "--max-points"),
+    (["--background-frames", "4:1"], "--background-frames 4:1"),
+    (["--metric", "shuffle", "--shuffle-radius=-1"], "--shuffle-radius"),
+])
+def test_learn_m2_values_are_refused_by_their_option_first(tmp_path: Path, frames: Path, extra: list[str],
+                                                           named: str) -> None:
+    """``--max-points 0`` was refused as ``max_points`` and ``--background-frames 4:1`` as "frame range"
+    (naming no option), after the training frames were read; ``--shuffle-radius -1`` after them too."""
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert not (tmp_path / "m.npz").exists()
