@@ -222,3 +222,80 @@ def test_an_unknown_argument_is_named_by_its_command(tmp_path: Path, frames: Pat
         assert "did you mean" not in line, line
     _no_recording(tmp_path)
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("content", [b"", b"garbage\n"])
+def test_foxglove_refuses_a_non_mcap_input_before_writing_out(tmp_path: Path, content: bytes) -> None:
+    """``gflow foxglove junk.mcap out.mcap`` created out.mcap (46 bytes) before it found the input was
+    not MCAP, and left it there, so the next try was refused as writing over it."""
+    (tmp_path / "junk.mcap").write_bytes(content)
+    r = gflow("foxglove", "junk.mcap", "out.mcap", cwd=tmp_path)
+    assert_one_line_error(r, "junk.mcap", "not an MCAP file")
+    assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("source", [["--camera", "99"], ["tcp://127.0.0.1:1", "--open-timeout", "5"]])
+def test_inline_live_source_that_cannot_open_leaves_no_recording(tmp_path: Path, source: list[str]) -> None:
+    """``gflow track --camera 99 --inline`` (or a stream that refuses on loopback) left an empty
+    recording in recordings/, where the same run as processes removes it."""
+    if source[0] == "--camera" and Path("/dev/video99").exists():
+        pytest.skip("this machine has a /dev/video99")
+    r = gflow("track", *source, "--init", "10,10,20,20", "--out", "b.csv", "--inline", "-q", cwd=tmp_path)
+    assert_one_line_error(r, source[0].removeprefix("--"))
+    _no_recording(tmp_path)
+    assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("extra,named", [(["--frames", "50:60"], "no box for frame 50"),
+                                         (["--set", "foo"], "--set"),
+                                         (["--stress", "--set", "foo"], "--set")])
+def test_benchmark_error_is_not_preceded_by_a_skipped_folder_note(tmp_path: Path, frames: Path, extra: list[str],
+                                                                  named: str) -> None:
+    """A DATA folder holding a folder that is no sequence (../shared/data has avletters/) printed
+    "benchmark: skipped ..." on stderr before every mistake's error, which took two lines."""
+    seq = tmp_path / "data" / "seq1"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(5)))
+    (tmp_path / "data" / "notes").mkdir()
+    r = gflow("benchmark", "data", "--trackers", "dcf", "--opencv", "none", "--inline", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["render", "r.mcap", "out.mp4", "--frames", "10:3"], "--frames 10:3"),
+    (["render", "r.mcap", "out.mp4", "--frames", "5:5"], "--frames 5:5"),
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames=-2:3"], "--frames -2:3"),
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames", "4:1"], "--frames 4:1"),
+])
+def test_an_empty_or_reversed_frame_range_is_refused_first(tmp_path: Path, argv: list[str], named: str) -> None:
+    """render read the whole recording before saying a reversed --frames held no frame; eval took a negative
+    A; both read ``--frames 5`` as frames 5 on, where benchmark and learn read it as frame 5 alone."""
+    (tmp_path / "r.mcap").write_bytes(b"")  # not read: the range is refused before the recording is opened
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named, "0 <= A < B")
+    assert not (tmp_path / "out.mp4").exists()
+
+
+def test_eval_frames_a_alone_is_frame_a(tmp_path: Path) -> None:
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    r = gflow("eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames", "2", "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    assert json.loads(r.stdout)["frames"] == 1
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--max-points", "0"], "--max-points"),
+    (["--background-frames", "4:1"], "--background-frames 4:1"),
+    (["--metric", "shuffle", "--shuffle-radius=-1"], "--shuffle-radius"),
+])
+def test_learn_m2_values_are_refused_by_their_option_first(tmp_path: Path, frames: Path, extra: list[str],
+                                                           named: str) -> None:
+    """``--max-points 0`` was refused as ``max_points`` and ``--background-frames 4:1`` as "frame range"
+    (naming no option), after the training frames were read; ``--shuffle-radius -1`` after them too."""
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert not (tmp_path / "m.npz").exists()
