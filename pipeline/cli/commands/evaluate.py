@@ -155,8 +155,8 @@ def register(sub) -> None:
     p.add_argument("--points", metavar="P.csv",
                    help="tracked points CSV (frame,landmark,x,y), e.g. from gflow track --points-out")
     p.add_argument("--frames", metavar="A:B",
-                   help="score only frames A <= frame < B (e.g. 150: after a run with --start 150; A alone: frame A); by default every "
-                        "ground-truth frame counts and a frame with no prediction is a failure")
+                   help="score only frames A <= frame < B ('150:' after a run with --start 150; A alone: frame A); "
+                        "by default every ground-truth frame counts and a frame with no prediction is a failure")
     p.add_argument("--threshold", type=overlap_threshold, default=0.5, help="overlap (IoU) threshold of the success rate (default 0.5)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_eval)

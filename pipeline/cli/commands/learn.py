@@ -371,7 +371,8 @@ def register(sub) -> None:
     g.add_argument("--no-background-mask", action="store_true",
                    help="with --boxes: keep every edge in the box (default: only the moving foreground's)")
     g = q.add_argument_group("patch exemplars (shuffle, l2)")
-    g.add_argument("--shuffle-radius", type=nonnegative_int, default=1, help="shuffle neighbourhood radius r (default 1: 3x3)")
+    g.add_argument("--shuffle-radius", type=nonnegative_int, default=1,
+                   help="shuffle neighbourhood radius r (default 1: 3x3)")
     g = q.add_argument_group("AVLetters (.npz source)")
     g.add_argument("--reps", metavar="1,2", help="repetitions to train on (default: all)")
     g.add_argument("--letters", metavar="A-Z", help="letters to train on, e.g. A-E or A,B,C (default: all)")
