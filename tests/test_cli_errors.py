@@ -46,6 +46,21 @@ def frames(tmp_path: Path) -> Path:
     return d
 
 
+@pytest.fixture(scope="module")
+def demo_mcap(tmp_path_factory) -> Path:
+    """A closed recording of 20 frames of the synthetic scene (``gflow demo --inline``); tests cut copies of it."""
+    where = tmp_path_factory.mktemp("demo")
+    r = gflow("demo", "--frames", "20", "--inline", "--record", "demo.mcap", cwd=where)
+    assert r.returncode == 0, r.stderr
+    return where / "demo.mcap"
+
+
+def torn_copy(rec: Path, dest: Path, size: int) -> Path:
+    """The first ``size`` bytes of ``rec`` in ``dest``: a recording whose writer was killed there."""
+    dest.write_bytes(rec.read_bytes()[:size])
+    return dest
+
+
 def _no_recording(cwd: Path) -> None:
     assert not list(cwd.rglob("*.mcap")), "a mistake found before the start must not leave a recording"
 
@@ -299,3 +314,15 @@ def test_learn_m2_values_are_refused_by_their_option_first(tmp_path: Path, frame
     r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
     assert_one_line_error(r, named)
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("size", [3000, 20000])  # cut before the metadata, and after it inside the first chunk
+def test_recover_with_nothing_to_recover_leaves_no_output(tmp_path: Path, demo_mcap: Path, size: int) -> None:
+    """It printed "recovered 0 messages ... into out.mcap", then "nothing could be recovered", and left
+    out.mcap holding only the metadata, to be taken for a recording (and refused as one next time)."""
+    torn_copy(demo_mcap, tmp_path / "trunc.mcap", size)
+    r = gflow("recover", "trunc.mcap", "out.mcap", cwd=tmp_path)
+    assert r.returncode == 1 and not r.stdout, r.stdout
+    assert_one_line_error(r, "gflow recover: error: nothing could be recovered from trunc.mcap", "no chunk is complete",
+                          "out.mcap not written")
+    assert not (tmp_path / "out.mcap").exists()
