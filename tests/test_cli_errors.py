@@ -326,3 +326,12 @@ def test_recover_with_nothing_to_recover_leaves_no_output(tmp_path: Path, demo_m
     assert_one_line_error(r, "gflow recover: error: nothing could be recovered from trunc.mcap", "no chunk is complete",
                           "out.mcap not written")
     assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("argv", [["ps", "--stream", "nosuch"], ["ps", "--stream", "nosuch", "--json"]])
+def test_ps_of_a_stream_not_running_is_an_error_of_ps(tmp_path: Path, argv: list[str]) -> None:
+    """It printed the bare sentence (not ``gflow ps: error: ...``) and exited 1, where topics, echo and view
+    refuse a stream that is not running as a mistake (exit 2)."""
+    r = gflow(*argv, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, "gflow ps: error:", "'nosuch'")
