@@ -82,6 +82,8 @@ class Record:
 
 def _check(path: str | Path) -> Path:
     p = Path(path)
+    if p.is_dir():  # there, so "not found" would send the user looking for a file that exists
+        raise IsADirectoryError(f"{p} is a folder, not a recording file (give an .mcap file)")
     if not p.is_file():
         raise FileNotFoundError(f"recording not found: {p}")
     with open(p, "rb") as f:

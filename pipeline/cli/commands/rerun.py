@@ -98,7 +98,8 @@ def cmd_rerun(args) -> int:
                          write_rerun)
 
     if not Path(args.file).is_file():
-        raise CliError(f"recording not found: {args.file}")
+        raise CliError(f"{args.file} is a folder, not a recording file (give an .mcap file)" if Path(args.file).is_dir()
+                       else f"recording not found: {args.file}")
     from pipeline.cli.commands.common import check_outputs as check_output_paths, warn_if_torn
 
     warn_if_torn(args.file)  # a torn recording is re-run only up to where it ends: say so before any verdict
