@@ -351,3 +351,13 @@ def test_a_folder_given_for_a_file_is_called_a_folder(tmp_path: Path, argv: list
     line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a {kind}")
     assert "not found" not in line, line
     assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("folder,words", [("nosuch", ["nosuch does not exist"]), ("afile", ["afile is not a folder"])])
+def test_clean_names_a_missing_folder_as_missing(tmp_path: Path, folder: str, words: list[str]) -> None:
+    """``gflow clean --keep 1 nosuch`` said "is not a folder" of a path that is not there at all."""
+    (tmp_path / "afile").write_text("x")
+    r = gflow("clean", "--keep", "1", folder, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, "gflow clean: error:", *words)
+    assert (tmp_path / "afile").read_text() == "x"
