@@ -361,3 +361,12 @@ def test_clean_names_a_missing_folder_as_missing(tmp_path: Path, folder: str, wo
     assert r.returncode == 2
     assert_one_line_error(r, "gflow clean: error:", *words)
     assert (tmp_path / "afile").read_text() == "x"
+
+
+@pytest.mark.parametrize("value,words", [("0", [">= 1, got 0"]), ("-3", [">= 1, got -3"]), ("x", ["whole number"])])
+def test_demo_frames_is_refused_as_the_option(tmp_path: Path, value: str, words: list[str]) -> None:
+    """``gflow demo --frames 0`` said "synthetic scene needs at least one frame", naming no option."""
+    r = gflow("demo", f"--frames={value}", cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, "gflow demo: error: argument --frames:", *words)
+    _no_recording(tmp_path)
