@@ -370,3 +370,25 @@ def test_demo_frames_is_refused_as_the_option(tmp_path: Path, value: str, words:
     assert r.returncode == 2
     assert_one_line_error(r, "gflow demo: error: argument --frames:", *words)
     _no_recording(tmp_path)
+
+
+@pytest.mark.parametrize("argv,size,words", [
+    # cut before the metadata: "no gflow.config metadata: it was not written by gflow's recorder"
+    (["rerun", "trunc.mcap", "--graph"], 1000, ["holds no gflow.config metadata"]),
+    (["step", "trunc.mcap", "--stage", "filter"], 1000, ["holds no gflow.config metadata"]),
+    # cut inside the first chunk: "holds no input", "no frame at or after", as of what the run recorded
+    (["step", "trunc.mcap", "--stage", "filter"], 20000, ["holds no input of stage filter"]),
+    (["track", "trunc.mcap", "--init", "10,10,20,20", "--out", "b.csv"], 20000, ["no frame at or after --start 0"]),
+    (["frame", "trunc.mcap", "0", "f.png"], 20000, ["no frame at or after frame 0"]),
+])
+def test_a_torn_recording_is_said_to_be_torn_in_the_error(tmp_path: Path, demo_mcap: Path, argv: list[str], size: int,
+                                                          words: list[str]) -> None:
+    """A recording cut by a killed writer was said to be not gflow's, or to hold no frame, after a warning line
+    that it was torn; the one error line now says it ends early and that `gflow recover` salvages it."""
+    torn_copy(demo_mcap, tmp_path / "trunc.mcap", size)
+    r = gflow(*argv, cwd=tmp_path)
+    assert r.returncode == 2
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error:", *words, "it ends early", "`gflow recover` salvages")
+    assert "not written by gflow" not in line, line
+    assert not (tmp_path / "b.csv").exists() and not (tmp_path / "f.png").exists()
+    _no_recording(tmp_path.joinpath("recordings"))
