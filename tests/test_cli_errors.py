@@ -46,6 +46,21 @@ def frames(tmp_path: Path) -> Path:
     return d
 
 
+@pytest.fixture(scope="module")
+def demo_mcap(tmp_path_factory) -> Path:
+    """A closed recording of 20 frames of the synthetic scene (``gflow demo --inline``); tests cut copies of it."""
+    where = tmp_path_factory.mktemp("demo")
+    r = gflow("demo", "--frames", "20", "--inline", "--record", "demo.mcap", cwd=where)
+    assert r.returncode == 0, r.stderr
+    return where / "demo.mcap"
+
+
+def torn_copy(rec: Path, dest: Path, size: int) -> Path:
+    """The first ``size`` bytes of ``rec`` in ``dest``: a recording whose writer was killed there."""
+    dest.write_bytes(rec.read_bytes()[:size])
+    return dest
+
+
 def _no_recording(cwd: Path) -> None:
     assert not list(cwd.rglob("*.mcap")), "a mistake found before the start must not leave a recording"
 
@@ -222,3 +237,158 @@ def test_an_unknown_argument_is_named_by_its_command(tmp_path: Path, frames: Pat
         assert "did you mean" not in line, line
     _no_recording(tmp_path)
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("content", [b"", b"garbage\n"])
+def test_foxglove_refuses_a_non_mcap_input_before_writing_out(tmp_path: Path, content: bytes) -> None:
+    """``gflow foxglove junk.mcap out.mcap`` created out.mcap (46 bytes) before it found the input was
+    not MCAP, and left it there, so the next try was refused as writing over it."""
+    (tmp_path / "junk.mcap").write_bytes(content)
+    r = gflow("foxglove", "junk.mcap", "out.mcap", cwd=tmp_path)
+    assert_one_line_error(r, "junk.mcap", "not an MCAP file")
+    assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("source", [["--camera", "99"], ["tcp://127.0.0.1:1", "--open-timeout", "5"]])
+def test_inline_live_source_that_cannot_open_leaves_no_recording(tmp_path: Path, source: list[str]) -> None:
+    """``gflow track --camera 99 --inline`` (or a stream that refuses on loopback) left an empty
+    recording in recordings/, where the same run as processes removes it."""
+    if source[0] == "--camera" and Path("/dev/video99").exists():
+        pytest.skip("this machine has a /dev/video99")
+    r = gflow("track", *source, "--init", "10,10,20,20", "--out", "b.csv", "--inline", "-q", cwd=tmp_path)
+    assert_one_line_error(r, source[0].removeprefix("--"))
+    _no_recording(tmp_path)
+    assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("extra,named", [(["--frames", "50:60"], "no box for frame 50"),
+                                         (["--set", "foo"], "--set"),
+                                         (["--stress", "--set", "foo"], "--set")])
+def test_benchmark_error_is_not_preceded_by_a_skipped_folder_note(tmp_path: Path, frames: Path, extra: list[str],
+                                                                  named: str) -> None:
+    """A DATA folder holding a folder that is no sequence (../shared/data has avletters/) printed
+    "benchmark: skipped ..." on stderr before every mistake's error, which took two lines."""
+    seq = tmp_path / "data" / "seq1"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(5)))
+    (tmp_path / "data" / "notes").mkdir()
+    r = gflow("benchmark", "data", "--trackers", "dcf", "--opencv", "none", "--inline", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["render", "r.mcap", "out.mp4", "--frames", "10:3"], "--frames 10:3"),
+    (["render", "r.mcap", "out.mp4", "--frames", "5:5"], "--frames 5:5"),
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames=-2:3"], "--frames -2:3"),
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames", "4:1"], "--frames 4:1"),
+])
+def test_an_empty_or_reversed_frame_range_is_refused_first(tmp_path: Path, argv: list[str], named: str) -> None:
+    """render read the whole recording before saying a reversed --frames held no frame; eval took a negative
+    A; both read ``--frames 5`` as frames 5 on, where benchmark and learn read it as frame 5 alone."""
+    (tmp_path / "r.mcap").write_bytes(b"")  # not read: the range is refused before the recording is opened
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named, "0 <= A < B")
+    assert not (tmp_path / "out.mp4").exists()
+
+
+def test_eval_frames_a_alone_is_frame_a(tmp_path: Path) -> None:
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    r = gflow("eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames", "2", "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    import json
+
+    assert json.loads(r.stdout)["frames"] == 1
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--max-points", "0"], "--max-points"),
+    (["--background-frames", "4:1"], "--background-frames 4:1"),
+    (["--metric", "shuffle", "--shuffle-radius=-1"], "--shuffle-radius"),
+])
+def test_learn_m2_values_are_refused_by_their_option_first(tmp_path: Path, frames: Path, extra: list[str],
+                                                           named: str) -> None:
+    """``--max-points 0`` was refused as ``max_points`` and ``--background-frames 4:1`` as "frame range"
+    (naming no option), after the training frames were read; ``--shuffle-radius -1`` after them too."""
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("size", [3000, 20000])  # cut before the metadata, and after it inside the first chunk
+def test_recover_with_nothing_to_recover_leaves_no_output(tmp_path: Path, demo_mcap: Path, size: int) -> None:
+    """It printed "recovered 0 messages ... into out.mcap", then "nothing could be recovered", and left
+    out.mcap holding only the metadata, to be taken for a recording (and refused as one next time)."""
+    torn_copy(demo_mcap, tmp_path / "trunc.mcap", size)
+    r = gflow("recover", "trunc.mcap", "out.mcap", cwd=tmp_path)
+    assert r.returncode == 1 and not r.stdout, r.stdout
+    assert_one_line_error(r, "gflow recover: error: nothing could be recovered from trunc.mcap", "no chunk is complete",
+                          "out.mcap not written")
+    assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("argv", [["ps", "--stream", "nosuch"], ["ps", "--stream", "nosuch", "--json"]])
+def test_ps_of_a_stream_not_running_is_an_error_of_ps(tmp_path: Path, argv: list[str]) -> None:
+    """It printed the bare sentence (not ``gflow ps: error: ...``) and exited 1, where topics, echo and view
+    refuse a stream that is not running as a mistake (exit 2)."""
+    r = gflow(*argv, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, "gflow ps: error:", "'nosuch'")
+
+
+@pytest.mark.parametrize("argv,kind", [
+    (["run", "adir"], "graph file"),
+    (["verify", "adir"], "recording file"),
+    (["foxglove", "adir", "out.mcap"], "recording file"),
+    (["rerun", "adir", "--graph"], "recording file"),
+    (["recover", "adir", "out.mcap"], "recording file"),
+])
+def test_a_folder_given_for_a_file_is_called_a_folder(tmp_path: Path, argv: list[str], kind: str) -> None:
+    """They said "not found" of a folder that is there, sending the user to look for a file that exists."""
+    (tmp_path / "adir").mkdir()
+    r = gflow(*argv, cwd=tmp_path)
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a {kind}")
+    assert "not found" not in line, line
+    assert not (tmp_path / "out.mcap").exists()
+
+
+@pytest.mark.parametrize("folder,words", [("nosuch", ["nosuch does not exist"]), ("afile", ["afile is not a folder"])])
+def test_clean_names_a_missing_folder_as_missing(tmp_path: Path, folder: str, words: list[str]) -> None:
+    """``gflow clean --keep 1 nosuch`` said "is not a folder" of a path that is not there at all."""
+    (tmp_path / "afile").write_text("x")
+    r = gflow("clean", "--keep", "1", folder, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, "gflow clean: error:", *words)
+    assert (tmp_path / "afile").read_text() == "x"
+
+
+@pytest.mark.parametrize("value,words", [("0", [">= 1, got 0"]), ("-3", [">= 1, got -3"]), ("x", ["whole number"])])
+def test_demo_frames_is_refused_as_the_option(tmp_path: Path, value: str, words: list[str]) -> None:
+    """``gflow demo --frames 0`` said "synthetic scene needs at least one frame", naming no option."""
+    r = gflow("demo", f"--frames={value}", cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, "gflow demo: error: argument --frames:", *words)
+    _no_recording(tmp_path)
+
+
+@pytest.mark.parametrize("argv,size,words", [
+    # cut before the metadata: "no gflow.config metadata: it was not written by gflow's recorder"
+    (["rerun", "trunc.mcap", "--graph"], 1000, ["holds no gflow.config metadata"]),
+    (["step", "trunc.mcap", "--stage", "filter"], 1000, ["holds no gflow.config metadata"]),
+    # cut inside the first chunk: "holds no input", "no frame at or after", as of what the run recorded
+    (["step", "trunc.mcap", "--stage", "filter"], 20000, ["holds no input of stage filter"]),
+    (["track", "trunc.mcap", "--init", "10,10,20,20", "--out", "b.csv"], 20000, ["no frame at or after --start 0"]),
+    (["frame", "trunc.mcap", "0", "f.png"], 20000, ["no frame at or after frame 0"]),
+])
+def test_a_torn_recording_is_said_to_be_torn_in_the_error(tmp_path: Path, demo_mcap: Path, argv: list[str], size: int,
+                                                          words: list[str]) -> None:
+    """A recording cut by a killed writer was said to be not gflow's, or to hold no frame, after a warning line
+    that it was torn; the one error line now says it ends early and that `gflow recover` salvages it."""
+    torn_copy(demo_mcap, tmp_path / "trunc.mcap", size)
+    r = gflow(*argv, cwd=tmp_path)
+    assert r.returncode == 2
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error:", *words, "it ends early", "`gflow recover` salvages")
+    assert "not written by gflow" not in line, line
+    assert not (tmp_path / "b.csv").exists() and not (tmp_path / "f.png").exists()
+    _no_recording(tmp_path.joinpath("recordings"))

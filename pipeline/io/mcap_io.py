@@ -24,7 +24,7 @@ from mcap.reader import NonSeekingReader, make_reader
 from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
-           "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY"]
+           "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY", "torn_segments", "torn_cause"]
 
 
 class TruncatedRecording(Exception):
@@ -82,6 +82,8 @@ class Record:
 
 def _check(path: str | Path) -> Path:
     p = Path(path)
+    if p.is_dir():  # there, so "not found" would send the user looking for a file that exists
+        raise IsADirectoryError(f"{p} is a folder, not a recording file (give an .mcap file)")
     if not p.is_file():
         raise FileNotFoundError(f"recording not found: {p}")
     with open(p, "rb") as f:
@@ -158,6 +160,42 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
                 on_truncated(text)
             elif isinstance(text, Damaged):
                 _say_damage(text)
+
+
+#: what a properly closed MCAP file begins and ends with (its header's and footer's magic)
+_MAGIC = b"\x89MCAP0\r\n"
+
+
+def torn_segments(path: str | Path) -> list[str]:
+    """The segments of recording ``path`` that do not end with an MCAP footer (their writer was
+    killed, or is still writing). Costs a seek per segment, not a read of the file; a file that is
+    not MCAP at all, or cannot be opened, is left to the command that reads it to name."""
+    torn = []
+    for seg in segments(path):
+        try:
+            with open(seg, "rb") as f:
+                if f.read(len(_MAGIC)) != _MAGIC:
+                    continue
+                size = f.seek(0, 2)
+                f.seek(max(0, size - len(_MAGIC)))
+                closed = f.read() == _MAGIC and size > 2 * len(_MAGIC)
+        except OSError:
+            continue
+        if not closed:
+            torn.append(str(seg))
+    return torn
+
+
+def torn_cause(path: str | Path) -> str:
+    """Why a recording may lack what a command looks for, when a segment of it is torn ("" when every
+    one was closed): said in the command's error, so a cut is not taken for what the run recorded
+    (or for a file another program wrote)."""
+    torn = torn_segments(path)
+    if not torn:
+        return ""
+    which = "it" if torn[0] == str(path) else f"its segment {torn[0]}"
+    return (f"{which} ends early, torn where its writer was killed (or is still writing); `gflow recover` "
+            f"salvages its complete chunks")
 
 
 def recorded_topics(path: str | Path) -> list[str]:

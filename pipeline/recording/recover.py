@@ -34,6 +34,8 @@ class RecoverResult:
 def recover(broken: str | Path, fixed: str | Path) -> RecoverResult:
     """Copy every readable record of ``broken`` into ``fixed``."""
     src = Path(broken)
+    if src.is_dir():  # there, so "not found" would send the user looking for a file that exists
+        raise IsADirectoryError(f"{src} is a folder, not a recording file (give an .mcap file)")
     if not src.is_file():
         raise FileNotFoundError(f"recording not found: {src}")
     with open(src, "rb") as f:

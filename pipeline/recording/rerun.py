@@ -74,7 +74,11 @@ def recorded_plan(path: str | Path) -> Plan:
     """The plan (graph, parameters, wiring) a recording was made with."""
     md = read_metadata(path)
     if "gflow.config" not in md:
-        raise GraphError(f"{path} has no gflow.config metadata: it was not written by gflow's recorder")
+        from pipeline.io.mcap_io import torn_cause
+
+        torn = torn_cause(path)  # cut before its metadata: gflow's, but torn, which "not written by gflow" hides
+        raise GraphError(f"{path} holds no gflow.config metadata: {torn}" if torn else
+                         f"{path} has no gflow.config metadata: it was not written by gflow's recorder")
     return Plan.from_metadata(md.get("gflow.graph", {}), md["gflow.config"])
 
 

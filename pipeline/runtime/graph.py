@@ -623,6 +623,9 @@ def load_graph(path: str | Path, overrides: dict[str, dict] | None = None, base_
         builtin = GRAPHS_DIR / (p.name if p.suffix else p.name + ".yaml")
         if builtin.is_file():
             p = builtin
+        elif p.is_dir():  # there, so "not found" would send the user looking for a file that exists
+            raise GraphError(f"{path} is a folder, not a graph file (give a .yaml file, or a built-in graph: "
+                             f"{', '.join(builtin_graphs())})")
         else:
             raise GraphError(f"graph file not found: {path} (built-in graphs: {', '.join(builtin_graphs())})")
     return parse_graph(p.read_text(), str(p), base_dir or ".", overrides)

@@ -13,6 +13,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 from stages.source import SourceStage
@@ -102,9 +103,11 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     t0 = time.perf_counter()
     frames = 0
     interrupted = False
+    opened = False  # the source gave something: before that, a failure is its opening's (removed below)
     try:
         try:
             for raw in open_reader(src_stage.params, plan.base_dir):
+                opened = True
                 if stop is not None and stop.is_set():
                     break
                 outs = src_stage.emit(raw)
@@ -123,6 +126,14 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
             if not h.closed:
                 h.close("end")
         drain()
+    except BaseException:
+        if rec is not None and path and not opened:
+            # a source that cannot be opened (a camera that is not there, a stream that refuses): the
+            # recording holds nothing but its metadata, and is removed, as a process run's is
+            rec.close()
+            rec = None
+            Path(path).unlink(missing_ok=True)
+        raise
     finally:
         if rec is not None:
             rec.close()

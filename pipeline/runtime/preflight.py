@@ -80,13 +80,24 @@ def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawF
             raise PreflightError(f"--start {params.start} is beyond the end of {where} ({n} frames: 0..{n - 1})")
         if params.kind == "video":
             raise PreflightError(f"{where}: no frame can be read (not a video OpenCV can decode, or empty)")
-        raise PreflightError(f"{where}: no frame at or after --start {params.start}")
+        raise PreflightError(f"{where}: no frame at or after --start {params.start}" + _torn(params))
     if frame.image is None and frame.events and not frame.error:  # only reports: no frame was read
         raise PreflightError(f"{where}: no frame at or after --start {params.start}: {frame.events[0][1]}")
     if frame.image is None:
         which = f"frame {frame.index}" + (" (the first frame)" if frame.index == 0 else "")
         raise PreflightError(f"{where}: {which} cannot be read: {frame.error}")
     return frame
+
+
+def _torn(params: SourceParams) -> str:
+    """``: it ends early ...`` for a recording source cut by a killed writer, so a frame missing past
+    the cut is not taken for the end of what was recorded ("" for any other source)."""
+    if params.kind != "mcap" or not params.path:
+        return ""
+    from pipeline.io.mcap_io import torn_cause
+
+    torn = torn_cause(params.path)
+    return f": {torn}" if torn else ""
 
 
 def check_box_in_image(box, width: int, height: int, what: str = "--init") -> None:

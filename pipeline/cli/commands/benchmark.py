@@ -234,9 +234,10 @@ def _seed_dir(work: Path, seed: int, seeds: list[int]) -> Path:
 AFTER_MIN = 15
 
 
-def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int]) -> int:
+def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int], skipped: list[str]) -> int:
     """``gflow benchmark DATA --stress``: the trackers on stress cases derived from every sequence, once per
-    seed (with several, each seed's tables in turn, its runs kept under ``--out-dir``/seed-S)."""
+    seed (with several, each seed's tables in turn, its runs kept under ``--out-dir``/seed-S); ``skipped``,
+    the folders of DATA that are no sequence, are noted once the options are checked."""
     from pipeline.evaluation.sequence_benchmark import note
     from pipeline.evaluation.stress_benchmark import check_sequences, format_stress, run_stress, select_cases, stress_json
 
@@ -257,6 +258,8 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int]) -> int:
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         # every tracker's options and model files checked on the original sequences, before any work
         _, skip = _plans(args, seqs, names, {s.name: min(s.groundtruth) for s in seqs}, None, Path(tmp))
+    for line in skipped:  # after the checks: a mistake's error is the one line on stderr
+        note(line)
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
@@ -376,9 +379,7 @@ def cmd_benchmark(args) -> int:
             raise CliError("--variant is not used with --stress (run one, then the other)")
         _check_paths(args)
         seqs, skipped = find_sequences(args.datasets)
-        for s in skipped:
-            note(s)
-        return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences), seqs, seeds)
+        return _cmd_stress(args, names, _pick_sequences(seqs, args.sequences), seqs, seeds, skipped)
     for opt, default in (("cases", None), ("stress_cache", None), ("lead", 30), ("tail", 60)):
         if getattr(args, opt) != default:
             raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
@@ -386,8 +387,6 @@ def cmd_benchmark(args) -> int:
     first_frame, stop = parse_range(args.frames)
     _check_paths(args)
     seqs, skipped = find_sequences(args.datasets)
-    for s in skipped:
-        note(s)
     seqs = _pick_sequences(seqs, args.sequences)
     first = _first_frames(args, seqs, first_frame)
     cv_missing = _opencv_missing(cv_names)
@@ -408,6 +407,8 @@ def cmd_benchmark(args) -> int:
                 raise CliError(f"--variant {variant.name}: {e}") from None
         # every seed's plans first: a bad option or model fails before any tracking
         planned = {k: _plans(_with_seed(args, k), seqs, names, first, stop, _seed_dir(work, k, seeds)) for k in seeds}
+        for s in skipped:  # once every check has passed: a mistake's error is the one line on stderr
+            note(s)
         count = [0, sum(len(p[0]) for p in planned.values()) + len(seeds) * len(seqs) * len(cv_run)]
         for seed in seeds:
             rows, interrupted = _run_seed(_with_seed(args, seed), seqs, names, (cv_names, cv_missing), first, stop,

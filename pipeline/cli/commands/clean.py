@@ -15,6 +15,8 @@ def cmd_clean(args) -> int:
     from pipeline.cli.commands.common import CliError
 
     folder = Path(args.folder)
+    if not folder.exists():  # a mistyped name: "not a folder" would have the user look at a file that is not there
+        raise CliError(f"{folder} does not exist (give the folder of recordings to clean)")
     if not folder.is_dir():
         raise CliError(f"{folder} is not a folder")
     if args.keep < 0:

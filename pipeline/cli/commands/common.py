@@ -273,24 +273,11 @@ _MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 def torn_segments(path: str) -> list[str]:
     """The segments of recording ``path`` that do not end with an MCAP footer (their writer was
-    killed, or is still writing). Costs a seek per segment, not a read of the file; a file that is
-    not MCAP at all, or cannot be opened, is left to the command that reads it to name."""
-    from pipeline.io.mcap_io import segments
+    killed, or is still writing): :func:`pipeline.io.mcap_io.torn_segments`, imported when asked for
+    so that a command that reads no recording does not import the MCAP reader."""
+    from pipeline.io.mcap_io import torn_segments as torn
 
-    torn = []
-    for seg in segments(path):
-        try:
-            with open(seg, "rb") as f:
-                if f.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
-                    continue
-                size = f.seek(0, 2)
-                f.seek(max(0, size - len(_MCAP_MAGIC)))
-                closed = f.read() == _MCAP_MAGIC and size > 2 * len(_MCAP_MAGIC)
-        except OSError:
-            continue
-        if not closed:
-            torn.append(str(seg))
-    return torn
+    return torn(path)
 
 
 def warn_if_torn(path: str) -> bool:

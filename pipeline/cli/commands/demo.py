@@ -9,7 +9,7 @@ import sys
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.cli.commands.common import (Recording, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          check_stage_values, run_plan)
+                                          check_stage_values, positive_int, run_plan)
 
 
 def cmd_demo(args) -> int:
@@ -69,7 +69,8 @@ def register(sub) -> None:
                                    "source -> preprocess -> proposal -> filter -> render (the overlays Foxglove "
                                    "shows), each in its own process, records every message to "
                                    "recordings/demo-*.mcap, and prints the tracking error and throughput.")
-    p.add_argument("--frames", type=int, default=120, help="number of frames (default 120)")
+    # checked as typed: the scene's own check names no option ("synthetic scene needs at least one frame")
+    p.add_argument("--frames", type=positive_int, default=120, help="number of frames (default 120)")
     p.add_argument("--particles", type=int, default=500, help="number of particles (default 500)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the filter and proposal stages (default 0)")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")

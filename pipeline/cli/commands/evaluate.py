@@ -22,11 +22,14 @@ def overlap_threshold(text: str) -> float:
 
 
 def _frame_range(text: str) -> tuple[int, int | None]:
-    a, sep, b = text.partition(":")
+    """``--frames`` read as every command reads it (:func:`pipeline.io.datasets.parse_range`: ``5`` is frame
+    5 alone, as in benchmark and learn, not frames 5 on), a reversed or negative range refused by name."""
+    from pipeline.io.datasets import parse_range
+
     try:
-        return int(a) if a else 0, int(b) if b else None
-    except ValueError:
-        raise CliError(f"--frames expects A:B (frame numbers, either may be left out), got {text!r}") from None
+        return parse_range(text)
+    except ValueError as e:
+        raise CliError(f"--frames {text}: {e}") from None
 
 
 def cmd_eval_landmarks(args) -> int:
@@ -152,8 +155,8 @@ def register(sub) -> None:
     p.add_argument("--points", metavar="P.csv",
                    help="tracked points CSV (frame,landmark,x,y), e.g. from gflow track --points-out")
     p.add_argument("--frames", metavar="A:B",
-                   help="score only frames A <= frame < B (e.g. 150: after a run with --start 150); by default every "
-                        "ground-truth frame counts and a frame with no prediction is a failure")
+                   help="score only frames A <= frame < B ('150:' after a run with --start 150; A alone: frame A); "
+                        "by default every ground-truth frame counts and a frame with no prediction is a failure")
     p.add_argument("--threshold", type=overlap_threshold, default=0.5, help="overlap (IoU) threshold of the success rate (default 0.5)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.set_defaults(func=cmd_eval)

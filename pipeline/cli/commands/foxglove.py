@@ -7,7 +7,6 @@ ORDER = 59
 import argparse
 import os
 import sys
-from pathlib import Path
 
 from pipeline.cli.commands.common import CliError, check_outputs
 
@@ -27,8 +26,9 @@ def cmd_foxglove(args) -> int:
     from pipeline.recording.foxglove_export import export_for_foxglove
     from pipeline.recording.topics import describe_topics
 
-    if not Path(args.recording).is_file():
-        raise CliError(f"recording not found: {args.recording}")
+    from pipeline.io.mcap_io import _check as check_mcap
+
+    check_mcap(args.recording)  # missing or not MCAP: refused before OUT is created, not after
     if os.path.abspath(args.recording) == os.path.abspath(args.out):
         raise CliError("OUT must be a new file, not the recording itself")
     check_outputs(OUT=args.out)

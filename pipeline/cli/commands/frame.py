@@ -65,14 +65,14 @@ def cmd_frame(args) -> int:
         raise CliError(f"source not found: {args.source} (give an image folder, a video file or an .mcap recording)")
     if args.index < 0:
         raise CliError(f"frame index must be >= 0, got {args.index}")
-    if kind == "mcap":  # read only up to where a torn one ends: said before a frame past it is missing
-        from pipeline.cli.commands.common import warn_if_torn
-
-        warn_if_torn(str(p))
-    try:
+    try:  # a frame past where a torn recording ends: the error says the recording is torn
         raw = first_frame(SourceParams(kind=kind, path=str(p), start=args.index, stop=args.index + 1))
     except PreflightError as e:
         raise CliError(str(e).replace("--start", "frame")) from None
+    if kind == "mcap":  # read only up to where a torn one ends: said once the frame is found
+        from pipeline.cli.commands.common import warn_if_torn
+
+        warn_if_torn(str(p))
     if raw.index != args.index:
         raise CliError(f"{args.source} has no frame {args.index} (the next one is {raw.index})")
     assert raw.image is not None  # first_frame refuses a frame without an image

@@ -199,8 +199,10 @@ def cmd_ps(args) -> int:
     found = running(args.stream, everyone=args.all)
     if not found:
         others = [] if args.all else running(args.stream, everyone=True)
-        print(describe_none(args.stream) + (f" ({len(others)} of other users: gflow ps --all)" if others else ""),
-              file=sys.stderr)
+        why = describe_none(args.stream) + (f" ({len(others)} of other users: gflow ps --all)" if others else "")
+        if args.stream:  # a stream named that is not running: the user's mistake (a typo), said as topics/echo say it
+            raise CliError(why)
+        print(why, file=sys.stderr)  # nothing running at all: the answer, not a mistake (exit 1, as before)
         return 1
     if args.json:
         rows = []

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cli.commands.common import CliError, nonnegative_float, positive_float
+from pipeline.cli.commands.common import CliError, nonnegative_float, nonnegative_int, positive_float, positive_int
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -255,6 +255,22 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
     return ts, meta, greys
 
 
+def check_values(args) -> None:
+    """The frame ranges, Canny thresholds and patch size, each refused by its option's name before any
+    frame is read (they were read where used, after the training video, and a range's error named none)."""
+    from pipeline.io.datasets import parse_range
+
+    for opt in ("frames", "background_frames"):
+        text = getattr(args, opt)
+        try:
+            parse_range(text)
+        except ValueError as e:
+            raise CliError(f"--{opt.replace('_', '-')} {text}: {e}") from None
+    parse_pair(args.canny, "--canny")
+    if args.patch_size:
+        parse_size(args.patch_size)
+
+
 def cmd_learn(args) -> int:
     from pipeline.cli.commands.common import check_model_out
 
@@ -265,6 +281,7 @@ def cmd_learn(args) -> int:
 
     if args.K < 1:
         raise CliError(f"-K must be a positive number of exemplars, got {args.K}")
+    check_values(args)
     ts, meta, greys = training_set(args)
     n = len(ts)
     if args.K >= n:
@@ -334,7 +351,7 @@ def register(sub) -> None:
     from gflow_core.m2 import edge_settings as edge
 
     g = q.add_argument_group("contour exemplars (chamfer)")
-    g.add_argument("--max-points", type=int, default=150, help="points kept per training curve (default 150)")
+    g.add_argument("--max-points", type=positive_int, default=150, help="points kept per training curve (default 150)")
     canny = f"{edge.CANNY_LOW:g},{edge.CANNY_HIGH:g}"
     g.add_argument("--canny", default=canny, metavar="LOW,HIGH", help=f"Canny thresholds (default {canny}); "
                    "gflow track --tracker m2 uses the same")
@@ -354,7 +371,8 @@ def register(sub) -> None:
     g.add_argument("--no-background-mask", action="store_true",
                    help="with --boxes: keep every edge in the box (default: only the moving foreground's)")
     g = q.add_argument_group("patch exemplars (shuffle, l2)")
-    g.add_argument("--shuffle-radius", type=int, default=1, help="shuffle neighbourhood radius r (default 1: 3x3)")
+    g.add_argument("--shuffle-radius", type=nonnegative_int, default=1,
+                   help="shuffle neighbourhood radius r (default 1: 3x3)")
     g = q.add_argument_group("AVLetters (.npz source)")
     g.add_argument("--reps", metavar="1,2", help="repetitions to train on (default: all)")
     g.add_argument("--letters", metavar="A-Z", help="letters to train on, e.g. A-E or A,B,C (default: all)")

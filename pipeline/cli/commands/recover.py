@@ -19,14 +19,17 @@ def cmd_recover(args) -> int:
 
     refuse_existing(args.fixed, "FIXED")  # a recording never overwrites a file
     r = recover(args.broken, args.fixed)
+    if r.messages == 0:  # exit 1: nothing was saved; a FIXED of metadata alone is not left to look like a recording
+        os.remove(args.fixed)
+        why = (f"no chunk is complete before where it stops ({r.stopped_because})" if not r.complete
+               else "it holds no message")
+        print(f"gflow recover: error: nothing could be recovered from {args.broken}: {why}; {args.fixed} not written",
+              file=sys.stderr)
+        return 1
     state = "the file was complete" if r.complete else f"the file ends early ({r.stopped_because})"
     print(f"recovered {r.messages} messages on {r.channels} channels and {r.metadata} metadata records "
           f"into {args.fixed}; {state}")
-    if r.messages == 0:  # exit 1: nothing was saved, whatever the file holds
-        print(f"gflow recover: nothing could be recovered from {args.broken}", file=sys.stderr)
-        return 1
     return 0
-
 
 def register(sub) -> None:
     p = sub.add_parser("recover", help="salvage every complete chunk of a recording whose writer was killed",

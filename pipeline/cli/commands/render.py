@@ -56,9 +56,12 @@ def cmd_render(args) -> int:
         check_new_picture(args.out)
     elif out.exists() and not out.is_dir():
         raise CliError(f"{args.out} exists and is not a folder")
-    a, _, b = (args.frames or ":").partition(":")
-    if not (a or "0").isdigit() or not (b or "0").isdigit():
-        raise CliError(f"--frames {args.frames}: give A:B, first and end frame numbers (either may be left out)")
+    from pipeline.io.datasets import parse_range
+
+    try:  # as every command reads --frames (5: frame 5 alone); a reversed range refused before the reading
+        first, end = parse_range(args.frames)
+    except ValueError as e:
+        raise CliError(f"--frames {args.frames}: {e}") from None
     from pipeline.cli.commands.common import warn_if_torn
 
     warn_if_torn(args.file)
@@ -67,7 +70,7 @@ def cmd_render(args) -> int:
     if not seqs:
         raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)")
     held = f"frames {seqs[0]}..{seqs[-1]}"
-    seqs = [s for s in seqs if (not a or s >= int(a)) and (not b or s < int(b))]
+    seqs = [s for s in seqs if s >= first and (end is None or s < end)]
     if not seqs:
         raise CliError(f"--frames {args.frames}: no frame to draw; {args.file} holds {held}")
     there = [out / f"{s:06d}.png" for s in seqs if not video and (out / f"{s:06d}.png").exists()]
@@ -106,7 +109,7 @@ def register(sub) -> None:
                                    "particles or experts, MAP contour or mesh, a status line) into each frame.")
     p.add_argument("file", help="MCAP recording")
     p.add_argument("out", help="OUT.mp4 / OUT.avi for a video, or a folder for PNG frames")
-    p.add_argument("--frames", metavar="A:B", help="only frames A..B-1")
+    p.add_argument("--frames", metavar="A:B", help="only frames A..B-1 (A alone: frame A)")
     p.add_argument("--scale", type=positive_int, default=2, help="upscale factor (default 2)")
     p.add_argument("--fps", type=positive_float, default=25.0, help="video frame rate (default 25)")
     p.add_argument("--no-particles", dest="particles", action="store_false", help="do not draw the particles")

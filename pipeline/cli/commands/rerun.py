@@ -88,7 +88,10 @@ def _check_from(path: str, topics: set[str], from_seq: int) -> None:
 
     seqs = [r.seq for r in iter_records(path, topics=sorted(topics)) if r.type not in ("EndOfStream", "ErrorReport")]
     if not seqs:
-        raise CliError(f"{path} holds no input of the stage to re-run")
+        from pipeline.io.mcap_io import torn_cause
+
+        torn = torn_cause(path)
+        raise CliError(f"{path} holds no input of the stage to re-run" + (f": {torn}" if torn else ""))
     if not min(seqs) <= from_seq <= max(seqs):
         raise CliError(f"--from {from_seq}: {path} holds frames {min(seqs)}..{max(seqs)} of the stage's inputs")
 
@@ -98,10 +101,9 @@ def cmd_rerun(args) -> int:
                          write_rerun)
 
     if not Path(args.file).is_file():
-        raise CliError(f"recording not found: {args.file}")
+        raise CliError(f"{args.file} is a folder, not a recording file (give an .mcap file)" if Path(args.file).is_dir()
+                       else f"recording not found: {args.file}")
     from pipeline.cli.commands.common import check_outputs as check_output_paths, warn_if_torn
-
-    warn_if_torn(args.file)  # a torn recording is re-run only up to where it ends: say so before any verdict
 
     check_output_paths(out=args.out)
     if args.out:  # a recording never overwrites a file
@@ -115,6 +117,7 @@ def cmd_rerun(args) -> int:
         plan0 = recorded_plan(args.file)
         _cannot_check(args.file, plan0, {t for s in plan0.stages.values() if s.is_source() for t in s.outputs.values()},
                       set(), "the graph")
+        warn_if_torn(args.file)  # re-run only up to where it ends: said before any verdict (a check's error says it)
         from pipeline.io.recording_files import unique_path
 
         out = args.out or str(unique_path(str(Path(args.file).with_suffix("")) + "-rerun.mcap"))
@@ -143,6 +146,7 @@ def cmd_rerun(args) -> int:
         topics = _chosen(args, topics)  # before the re-run: a name that fits no output is the first thing to say
         if args.from_seq is not None:
             _check_from(args.file, set(sp.inputs.values()) or set(sp.outputs.values()), args.from_seq)
+        warn_if_torn(args.file)  # re-run only up to where it ends: said before any verdict (a check's error says it)
     res = rerun_stage(args.file, args.stage, stage_sets, args.from_seq)
     if res.note:
         print(f"note: {res.note}", file=sys.stderr)

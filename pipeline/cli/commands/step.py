@@ -32,10 +32,12 @@ def cmd_step(args) -> int:
 
     from pipeline.cli.commands.common import CliError, warn_if_torn
 
-    warn_if_torn(args.file)
-    st = Stepper(args.file, args.stage)
-    if not st.records:
-        raise CliError(f"{args.file} holds no input of stage {args.stage} to step through")
+    from pipeline.io.mcap_io import torn_cause
+
+    st = Stepper(args.file, args.stage)  # a torn file cut before its metadata is said so here
+    if not st.records:  # a torn file says where it ends, so the cut is not taken for what the run recorded
+        torn = torn_cause(args.file)
+        raise CliError(f"{args.file} holds no input of stage {args.stage} to step through" + (f": {torn}" if torn else ""))
     out = sys.stdout
     shown = None
     if args.topics:  # the outputs to show, as typed (estimate, gflow/demo/estimate, patterns)
@@ -52,6 +54,7 @@ def cmd_step(args) -> int:
             how = st.jump(args.start)
         except ValueError as e:  # before the prompt: a mistyped --start is the first thing to say
             raise CliError(f"--start: {e}") from None
+    warn_if_torn(args.file)  # after the checks, whose errors say it themselves: stepped only up to where it ends
     interactive = sys.stdin.isatty()
     print(f"stepping {args.stage} ({st.sp.kind}) through {args.file}: {len(st.records)} input messages, "
           f"snapshots at {sorted(st.snapshots) or 'none'}", file=out)

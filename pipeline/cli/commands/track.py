@@ -210,11 +210,12 @@ def check_points_out(args) -> None:
 
 
 def cmd_track(args) -> int:
+    plan = track_plan(args)  # every check, the source's first frame too (a torn recording's error says it is torn)
     if args.source and str(args.source).lower().endswith(".mcap"):  # tracked only up to where a torn one ends
         from pipeline.cli.commands.common import warn_if_torn
 
         warn_if_torn(args.source)
-    run = run_track(args)
+    run = run_track(args, plan)
     run.write_csv(args.out)
     pts = ""
     if getattr(args, "points_out", None):

@@ -62,7 +62,7 @@ def cmd_verify(args) -> int:
     for path in args.files:
         try:
             ok, line = verify_line(path, busy, args.quiet)
-        except (FileNotFoundError, ValueError) as e:  # missing, empty or not MCAP: one line, then the next file
+        except (FileNotFoundError, IsADirectoryError, ValueError) as e:  # missing, a folder, empty or not MCAP: one line
             size = Path(path).stat().st_size if Path(path).is_file() else -1
             why = f"{path} is empty (0 bytes), not an MCAP recording" if size == 0 else " ".join(str(e).split())
             print(f"gflow verify: error: {why}", file=sys.stderr)

@@ -142,7 +142,8 @@ def make_plan(graph: str, over: dict[str, dict]) -> Plan:
     if not p.is_file():
         p = GRAPHS_DIR / (p.name if p.suffix else p.name + ".yaml")
         if not p.is_file():
-            raise GraphError(f"graph file not found: {graph}")
+            raise GraphError(f"{graph} is a folder, not a graph file" if Path(graph).is_dir()
+                             else f"graph file not found: {graph}")
     return parse_graph(sharded_graph_text(p.read_text(), shards, str(p)), f"{p} ({shards} proposal shards)", ".",
                        shard_overrides(over, shards))
 
