@@ -10,7 +10,10 @@ BACF and CSRT learn theirs:
 
 * **Features** (:mod:`.features`): fHOG on cells of 4 pixels (Felzenszwalb et al. 2010; 31 channels)
   and the cells' mean grey level, over a window of the target plus ``padding`` times its mean side,
-  resampled to ``template``^2 template pixels; a cosine window tapers it (Bolme et al. 2010).
+  resampled to ``template``^2 template pixels; a cosine window tapers it (Bolme et al. 2010). With
+  ``colour_names`` (off) the cells of a colour frame also hold the 11 colour names (the CN tracker's
+  feature, Danelljan et al. CVPR 2014, and CSRT's), by prototypes in CIELab rather than van de Weijer
+  et al.'s learnt table.
 * **The filter** (:mod:`.filter`, :mod:`.constrained`): ridge regression of a Gaussian label (sigma
   ``label_sigma`` sqrt(w h)) on every shift of the window, solved per frequency in the Fourier
   domain (Henriques et al. PAMI 2015, eq. 12; Danelljan et al. BMVC 2014, eq. 3; Bolme et al. CVPR

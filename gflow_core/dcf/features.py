@@ -9,6 +9,10 @@
   gradient is that of the grey levels (fHOG takes the colour channel of largest gradient).
   It works on a batch of patches at once (the scale filter samples 17 of them a frame).
 * :func:`intensity` -- the cell means of the grey levels, centred (KCF and CSRT add it to HOG).
+* :func:`colour_names` -- the cell means of each pixel's membership of the 11 basic colour names,
+  centred (the CN tracker's and CSRT's colour feature; with ``colour_names``, off by default, on
+  colour frames), by soft nearness to a prototype of each name in CIELab (a departure: those
+  trackers use van de Weijer et al.'s table learnt from images).
 * :func:`colour_bins` -- per-pixel histogram bins for Staple's colour model: 32 levels per
   channel of a colour frame (32^3 bins), 32 grey levels of a grey one.
 * :func:`is_grey` -- whether a frame is grey (one channel, or three equal ones: JPEG frames of
@@ -29,7 +33,7 @@ import math
 import cv2
 import numpy as np
 
-__all__ = ["N_HOG", "N_ORIENT", "hog", "intensity", "colour_bins", "is_grey", "cosine_window", "sample",
+__all__ = ["N_HOG", "N_ORIENT", "N_NAMES", "hog", "intensity", "colour_names", "colour_bins", "is_grey", "cosine_window", "sample",
            "N_COLOUR_BINS", "N_GREY_BINS", "GREY_TOLERANCE"]
 
 #: contrast-sensitive orientations of fHOG (over 2 pi); the insensitive ones are half as many
@@ -124,6 +128,45 @@ def intensity(patches: np.ndarray, cell: int) -> np.ndarray:
     *lead, H, W = g.shape
     m = g.reshape(*lead, H // cell, cell, W // cell, cell).mean(axis=(-3, -1))
     return (m / np.float32(255.0) - np.float32(0.5))[..., None]
+
+
+#: the 11 basic colour terms (Berlin & Kay 1969) as sRGB prototypes: black, blue, brown, grey, green, orange,
+#: pink, purple, red, white, yellow
+_NAME_RGB = np.array([[0, 0, 0], [40, 70, 200], [130, 80, 40], [128, 128, 128], [40, 160, 60], [245, 135, 30],
+                      [245, 165, 195], [130, 50, 160], [215, 30, 35], [255, 255, 255], [240, 220, 40]], np.float32)
+N_NAMES = len(_NAME_RGB)
+#: the prototypes in CIELab (L 0-100), and the spread of a name about its prototype (Lab units)
+_NAME_LAB = cv2.cvtColor((_NAME_RGB[None, :, ::-1] / 255.0).astype(np.float32), cv2.COLOR_BGR2Lab)[0]
+_NAME_SIGMA = 20.0
+
+
+def _name_table() -> np.ndarray:
+    """(32^3, 11) float32: each colour bin's membership of the names (:func:`colour_bins`' bins of a colour frame,
+    the bin's centre colour), centred -- a table as the CN tracker's, indexed by 32 levels a channel."""
+    q = (np.arange(32, dtype=np.float32) * 8.0 + 3.5) / 255.0
+    b, g, r = np.meshgrid(q, q, q, indexing="ij")  # bin (B >> 3) * 1024 + (G >> 3) * 32 + (R >> 3)
+    lab = cv2.cvtColor(np.stack([b, g, r], axis=-1).reshape(1, -1, 3), cv2.COLOR_BGR2Lab)[0]
+    # d2_n = |lab - lab_n|^2, p_n = exp(-d2_n / 2 sigma^2) / sum_m exp(-d2_m / 2 sigma^2)
+    d2 = ((lab[:, None, :] - _NAME_LAB[None, :, :]) ** 2).sum(-1)
+    e = np.exp(-(d2 - d2.min(-1, keepdims=True)) / (2.0 * _NAME_SIGMA ** 2))
+    return (e / e.sum(-1, keepdims=True) - 1.0 / N_NAMES).astype(np.float32)
+
+
+_NAME_TABLE = _name_table()
+
+
+def colour_names(patch: np.ndarray, cell: int) -> np.ndarray:
+    """Cell means of each pixel's membership of the 11 basic colour names, centred: (h / cell, w / cell, 11)
+    float32 of a BGR patch (h, w, 3) uint8. A pixel's membership of name n is
+    exp(-|lab - lab_n|^2 / (2 sigma^2)) normalised over the names, lab the centre of its colour bin (32 levels
+    a channel, as :func:`colour_bins`) in CIELab and lab_n the name's prototype, read from a table.
+
+    Departure: the colour-name feature of the CN tracker (Danelljan et al. CVPR 2014) and CSRT maps a
+    pixel to the 11 names by van de Weijer et al.'s table learnt from images (TIP 2009); here by soft
+    nearness to a prototype of each name in CIELab."""
+    h, w = patch.shape[:2]
+    pn = _NAME_TABLE[colour_bins(patch, grey=False)]
+    return pn.reshape(h // cell, cell, w // cell, cell, N_NAMES).mean(axis=(1, 3), dtype=np.float32)
 
 
 def is_grey(image: np.ndarray) -> bool:

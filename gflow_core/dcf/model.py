@@ -33,7 +33,7 @@ from . import channels as ch
 from . import filter as cf
 from .augment import first_sample
 from .constrained import box_mask, solve_masked
-from .features import colour_bins, cosine_window, hog, intensity, sample, N_COLOUR_BINS, N_GREY_BINS
+from .features import colour_bins, colour_names, cosine_window, hog, intensity, sample, N_COLOUR_BINS, N_GREY_BINS
 from .histogram import ColourModel, colour_score, histograms, learn_colour
 from .params import DCFParams
 from .reliability import reliability
@@ -126,25 +126,37 @@ def _valid(shape: tuple[int, int], size: tuple[int, int], centre: tuple[float, f
     return ((v >= -0.5) & (v <= H - 0.5))[:, None] & ((u >= -0.5) & (u <= W - 0.5))[None, :]
 
 
-def cells_of(patch: np.ndarray, cell: int) -> np.ndarray:
-    """(h / cell, w / cell, 32) float32: fHOG and intensity cells of a grey patch (h, w) float32."""
-    return np.concatenate([hog(patch, cell), intensity(patch, cell)], axis=-1)
+def cells_of(patch: np.ndarray, cell: int, names: np.ndarray | None = None) -> np.ndarray:
+    """(h / cell, w / cell, 32) float32: fHOG and intensity cells of a grey patch (h, w) float32; with the
+    colour names' cells ``names`` (h / cell, w / cell, 11) between them, 43 (the intensity stays the last
+    channel, which :mod:`.channels` leaves out of its weighting)."""
+    parts = [hog(patch, cell)] + ([] if names is None else [names]) + [intensity(patch, cell)]
+    return np.concatenate(parts, axis=-1)
 
 
 def window(image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], size: tuple[int, int],
-           k: tuple[float, float], cell: int, colour: str | None, angle: float = 0.0) -> Window:
+           k: tuple[float, float], cell: int, colour: str | None, angle: float = 0.0, names: bool = False) -> Window:
     """The window of ``size`` (w, h) template px at ``centre``, sampled at ``k`` and rolled by ``angle``
     radians (:func:`.features.sample`): its cells and, with ``colour`` (``"colour"``: ``image`` is BGR;
-    ``"grey"``: the grey levels), its colour bins."""
-    if colour == "colour":
+    ``"grey"``: the grey levels), its colour bins; with ``names`` (``image`` BGR) the cells hold the colour
+    names too (:func:`.features.colour_names`)."""
+    bins: np.ndarray | None = None
+    if colour == "colour" or names:
         patch = sample(image, centre, size, k, angle)
         g = cv2.cvtColor(patch, cv2.COLOR_BGR2GRAY).astype(np.float32)
-        bins: np.ndarray | None = colour_bins(patch, grey=False)
+        if colour == "colour":
+            bins = colour_bins(patch, grey=False)
     else:
         g = sample(grey, centre, size, k, angle)
         bins = colour_bins(np.clip(g, 0, 255).astype(np.uint8), grey=True) if colour == "grey" else None
     valid = _valid(grey.shape, size, centre, k, angle) if bins is not None else None
-    return Window(cells_of(g, cell), bins, valid, (float(centre[0]), float(centre[1])), k)
+    x = cells_of(g, cell, colour_names(patch, cell) if names else None)
+    return Window(x, bins, valid, (float(centre[0]), float(centre[1])), k)
+
+
+def names_of(mode: str | None, p: DCFParams) -> bool:
+    """Whether the filter's cells hold the colour names: ``colour_names`` on a colour frame."""
+    return p.colour_names and mode == "colour"
 
 
 @dataclass(frozen=True)
@@ -212,7 +224,7 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
     """The model of the first frame's box centred at ``centre``: the filter of its window (DSST eq. 3,
     or under the mask), which is also the anchor, the colour histograms and the scale filter."""
     mode = None if p.colour_weight <= 0 else ("grey" if is_grey else "colour")
-    win = window(image, grey, centre, geom.template, geom.k(0.0), geom.cell, mode)
+    win = window(image, grey, centre, geom.template, geom.k(0.0), geom.cell, mode, names=names_of(mode, p))
     x_hat = cf.spectrum(win.x, geom.window)
     train: cf.Spectrum | np.ndarray = cf.train(x_hat, geom.label_hat) if geom.mask is None else x_hat
     if p.augment > 0:
@@ -339,7 +351,8 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
     window as the map ``lt``. With ``angle``, the window is rolled by it (the target's roll,
     :mod:`.rotation`) and the maps are turned back onto the unrolled window's grid (:func:`upright`)."""
     k = geom.k(log_s)
-    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle)
+    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle,
+                 names_of(model.colour_mode, p))
     z_hat = cf.spectrum(win.x, geom.window)
     # Y_cf = sum_l conj(A_l) Z_l / (B + lambda)                                  (DSST eq. 6)
     y_hat = cf.respond(detection_filter(model, p.anchor_weight, p.channel_intensity), z_hat)
@@ -367,7 +380,8 @@ def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple
     the colour histograms at ``colour_rate`` (Staple eq. 7-8) and, with ``scale``, the scale filter at
     ``scale_rate``. The anchor is never changed."""
     k = geom.k(log_s)
-    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle)
+    win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle,
+                 names_of(model.colour_mode, p))
     x_hat = cf.spectrum(win.x, geom.window)
     train: cf.Spectrum | np.ndarray
     if isinstance(model.train, cf.Spectrum):
@@ -447,7 +461,8 @@ def respond_region(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold
     ny = int(np.ceil(0.5 * (y1 - y0) * ky / geom.cell))
     cw, ch = wc + 2 * nx, hc + 2 * ny
     centre = (0.5 * (x0 + x1), 0.5 * (y0 + y1))
-    win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode)
+    win = window(image, grey, centre, (cw * geom.cell, ch * geom.cell), (kx, ky), geom.cell, model.colour_mode,
+                 names=names_of(model.colour_mode, p))
     # h w: the filter times the cosine window, so that a placement is scored as a windowed sample is
     hw = cf.spatial(detection_filter(model, p.anchor_weight, p.channel_intensity), (hc, wc)) * geom.window[..., None]
     y_cf = cf.correlate_valid(hw, win.x)

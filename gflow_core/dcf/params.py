@@ -189,6 +189,9 @@ class DCFParams:
     scale_prior: float = param(0.0, "std of a Gaussian prior on the box's log size about the first box's: the scale "
                                     "filter's pick maximises kappa times its response plus the prior's log-density "
                                     "(gflow_core.dcf.scale.size_posterior; 0: the response's peak alone)")
+    colour_names: bool = param(False, "the filter's cells hold the 11 colour names of a colour frame beside fHOG and "
+                                      "the intensity (the CN tracker's and CSRT's feature, by prototypes in CIELab; "
+                                      "needs colour_weight > 0; gflow_core.dcf.features.colour_names)")
     verify: float = param(0.0, "a re-detection the search found at another size, or a rolled window at detection, is taken "
                                "only when the first frame's filter scores it within this many standard deviations of its "
                                "distance at the target on confident frames and likelier the target than clutter (TLD's "

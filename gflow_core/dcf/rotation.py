@@ -74,7 +74,7 @@ from typing import Callable
 import numpy as np
 
 from . import filter as cf
-from .model import Geometry, Response, TargetModel, detection_filter, window
+from .model import Geometry, Response, TargetModel, detection_filter, names_of, window
 from .gate import within
 from .params import DCFParams
 from ..visibility import ChiSquare
@@ -93,7 +93,7 @@ def angle_scores(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre
     r = p.roll_reach
     out = np.empty(len(angles))
     for i, a in enumerate(angles):
-        win = window(image, grey, centre, geom.template, k, geom.cell, None, float(a))
+        win = window(image, grey, centre, geom.template, k, geom.cell, None, float(a), names_of(model.colour_mode, p))
         # Y = sum_l D_l Z_l                                                          (DSST eq. 6)
         y = cf.centred(np.fft.irfft2(cf.respond(det, cf.spectrum(win.x, geom.window)), s=(hc, wc)))
         out[i] = float(y[hc // 2 - r: hc // 2 + r + 1, wc // 2 - r: wc // 2 + r + 1].max())

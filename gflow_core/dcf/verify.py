@@ -58,7 +58,7 @@ import numpy as np
 from ..visibility import ChiSquare
 from . import filter as cf
 from .gate import within
-from .model import Geometry, TargetModel, window
+from .model import Geometry, TargetModel, names_of, window
 from .params import DCFParams
 
 __all__ = ["conservative", "accepted", "learn_conservative"]
@@ -73,7 +73,7 @@ def conservative(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre
     box or more from the centre (in x or y)."""
     k = geom.k(log_s)
     wc, hc = geom.cells
-    win = window(image, grey, centre, geom.template, k, geom.cell, None, float(angle))
+    win = window(image, grey, centre, geom.template, k, geom.cell, None, float(angle), names_of(model.colour_mode, p))
     # Y_a = sum_l conj(A_l) Z_l / (B + lambda), the first frame's filter                 (DSST eq. 6)
     y = cf.centred(cf.upsample(cf.respond(model.anchor, cf.spectrum(win.x, geom.window)), (hc, wc), geom.cell))
     h, w = y.shape
