@@ -17,7 +17,7 @@ from gflow_core.dcf.histogram import histograms
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.reliability import reliability
 from gflow_core.params import added_later, make
-from tests.core.test_dcf_tracker import _texture, _track
+from tests.core.test_dcf_tracker import _resumed, _texture, _track
 
 CELL = 4
 #: the window (37 cells a side), the box (14 cells) and the hole in it (6 cells), all centred
@@ -154,10 +154,6 @@ def test_with_a_rate_the_support_is_the_running_maps_majority_and_goes_into_a_sn
     """With ``segment_rate`` the first support is the first map; a frame whose map is the box moves the running
     average by the rate only (the hole stays out of the support, so the filter has no weight there); the
     running average goes into the state's arrays and comes back bit for bit."""
-    from gflow_core.dcf.state import from_arrays, to_arrays
-    from gflow_core.dcf.tracker import TRACKER
-    from gflow_core.tracker import FrameRng, step
-
     p = DCFParams(segment=0.5, segment_rate=0.1, **WINDOW)
     on, geom = _model(p)
     first = _map(_patch())
@@ -176,14 +172,8 @@ def test_with_a_rate_the_support_is_the_running_maps_majority_and_goes_into_a_sn
     q = DCFParams(segment=0.5, segment_rate=0.1)
     st, _ = _track(frames[:5], box, q)
     assert st.model.support is not None
-    arrays, values = to_arrays(st)
-    back = from_arrays({k: v.copy() for k, v in arrays.items()}, dict(values), q)
-    assert np.array_equal(back.model.support, st.model.support)
-    for t in range(5, 10):
-        obs = TRACKER.observe(q, frames[t])
-        st, e1 = step(TRACKER, q, st, obs, FrameRng(1, 7, t))
-        back, e2 = step(TRACKER, q, back, obs, FrameRng(1, 7, t))
-        assert e1 == e2
+    back = _resumed(st, frames, 5, q)
+    assert back.model.support is not None and np.array_equal(back.model.support, st.model.support)
 
 
 def test_grey_footage_keeps_the_box_unless_asked() -> None:

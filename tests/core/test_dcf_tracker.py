@@ -62,6 +62,19 @@ def _track(frames, box, params=None, seed=1):
     return st, out
 
 
+def _resumed(st, frames, start: int, params: DCFParams, seed: int = 1):
+    """The state ``st`` after frames[:start] through a snapshot (:func:`to_arrays` / :func:`from_arrays`), then
+    frames[start:] stepped from both it and ``st``, every estimate asserted equal; the state read back."""
+    arrays, values = to_arrays(st)
+    back = from_arrays({k: v.copy() for k, v in arrays.items()}, dict(values), params)
+    for t in range(start, len(frames)):
+        obs = TRACKER.observe(params, frames[t])
+        st, e1 = step(TRACKER, params, st, obs, FrameRng(seed, 7, t))
+        back, e2 = step(TRACKER, params, back, obs, FrameRng(seed, 7, t))
+        assert e1 == e2
+    return from_arrays({k: v.copy() for k, v in arrays.items()}, dict(values), params)
+
+
 def test_it_follows_a_fast_target_that_a_still_box_loses() -> None:
     """Up to 9 px a frame, turning back and forth: every frame within 4 px of the truth."""
     sc = Scene(lambda t: (130.0 + 70.0 * np.sin(t / 7.0), 100.0 + 40.0 * np.sin(t / 5.0)))
