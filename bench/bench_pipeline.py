@@ -35,6 +35,7 @@ from pipeline.runtime.inline import run_inline  # noqa: E402
 from pipeline.runtime.launcher import Launcher  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402
 from pipeline.recording.results import read_boxes  # noqa: E402
+from pipeline.cli.commands.track import DEFAULT_TRACKER  # noqa: E402
 from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
@@ -226,7 +227,7 @@ def main() -> None:
     print(table(rows, ["stage"] + [h for t in trackers for h in (f"{t} CPU ms/f", f"{t} CPU s", f"{t} RSS MB")]))
     starts = cli_startup(out, max(2, args.repeat))
     if starts:
-        print(f"\nstart-up of `gflow track caviar1 --stop 10` (new process, appearance, processes) to its first "
+        print(f"\nstart-up of `gflow track caviar1 --stop 10` (new process, {DEFAULT_TRACKER}, the default tracker, processes) to its first "
               f"estimate: {', '.join(f'{t:.2f}' for t in starts)} s")
     print(f"load after: {' '.join(f'{x:.2f}' for x in psutil.getloadavg())}")
 

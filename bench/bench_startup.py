@@ -34,6 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import scratch, table  # noqa: E402
 
+from pipeline.cli.commands.track import DEFAULT_TRACKER  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402
 from pipeline.recording.results import read_boxes  # noqa: E402
 
@@ -126,7 +127,8 @@ def main() -> None:
                      f"{statistics.median(firsts):.2f}" if firsts else "-",
                      f"{statistics.median(r['wall'] for r in rs):.2f}" if rs else "-",
                      f"{statistics.median(r['cpu'] for r in rs):.2f}" if rs else "-"])
-    print("`gflow track caviar1 --stop 5` (appearance, processes): new process to the first estimate recorded")
+    print(f"`gflow track caviar1 --stop 5` ({DEFAULT_TRACKER}, the default tracker, processes): new process to the first "
+          "estimate recorded")
     print(table(rows, ["code", "path", "runs", "to first estimate s", "median s", "median wall s (to exit)",
                        "median CPU s (all processes)"]))
     rs = runs["this"]
