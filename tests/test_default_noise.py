@@ -1,4 +1,4 @@
-"""The default tracker on video that holds nothing like its target: frames of fresh random noise.
+"""The default tracker (dcf) on video that holds nothing like its target: frames of fresh random noise.
 The box it was given on the first frame holds noise that never comes back, so from the next frame on
 the tracker's own model must say the box holds clutter: low confidence at once, and the target
 judged hidden once its doubt has lasted ``hidden_after`` frames. And on real video the first frames
@@ -15,14 +15,14 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from gflow_core.appearance.params import AppearanceParams
+from gflow_core.dcf.params import DCFParams
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def track(tmp_path: Path, source: Path, init: str, stop: int) -> list[list[str]]:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(source), "--init", init, "--out",
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(source), "--tracker", "dcf", "--init", init, "--out",
                         "b.csv", "--stop", str(stop), "--inline", "--no-record", "-q"], cwd=tmp_path, env=env,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
@@ -38,7 +38,7 @@ def test_random_noise_is_not_reported_tracked(tmp_path: Path) -> None:
     rows = track(tmp_path, tmp_path / "noise", "100,80,40,60", 30)
     assert len(rows) == 30 and rows[0][6] == "tracked"
     assert all(float(r[5]) < 0.5 for r in rows[1:]), [r[5] for r in rows[:10]]
-    after = AppearanceParams().hidden_after
+    after = DCFParams().hidden_after
     assert all(r[6] in ("occluded", "lost") for r in rows[after:]), [r[6] for r in rows[:10]]
 
 
