@@ -392,3 +392,18 @@ def test_a_torn_recording_is_said_to_be_torn_in_the_error(tmp_path: Path, demo_m
     assert "not written by gflow" not in line, line
     assert not (tmp_path / "b.csv").exists() and not (tmp_path / "f.png").exists()
     _no_recording(tmp_path.joinpath("recordings"))
+
+
+def test_the_commands_check_a_recording_through_the_public_name() -> None:
+    """foxglove and replay refused a missing or non-MCAP input through ``pipeline.io.mcap_io._check``, a
+    private name a change inside the module could rename; the check is the module's public ``check_recording``."""
+    import ast
+
+    from pipeline.io import mcap_io
+
+    assert "check_recording" in mcap_io.__all__ and not hasattr(mcap_io, "_check")
+    for f in (ROOT / "pipeline").rglob("*.py"):
+        for node in ast.walk(ast.parse(f.read_text(), str(f))):
+            if isinstance(node, ast.ImportFrom) and node.module == "pipeline.io.mcap_io":
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                assert not private, f"{f.relative_to(ROOT)}:{node.lineno} imports {private} of pipeline.io.mcap_io"

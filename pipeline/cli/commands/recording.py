@@ -102,10 +102,10 @@ def cmd_replay(args) -> int:
                          ack_timeout=args.ack_timeout, stream=args.stream)
     import dataclasses
 
-    from pipeline.io.mcap_io import _check as check_mcap
+    from pipeline.io.mcap_io import check_recording
     from pipeline.runtime.transport import free_port
 
-    check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+    check_recording(args.file)  # a missing or non-MCAP file is refused before joining the network
     if args.stream:
         from pipeline.runtime.transport import topic_key
 
