@@ -343,12 +343,14 @@ def test_ps_of_a_stream_not_running_is_an_error_of_ps(tmp_path: Path, argv: list
     (["foxglove", "adir", "out.mcap"], "recording file"),
     (["rerun", "adir", "--graph"], "recording file"),
     (["recover", "adir", "out.mcap"], "recording file"),
+    (["info", "adir"], "recording file"),  # said "do not know how to describe adir"
+    (["info", "adir.npz"], "model file"),  # said "model file not found"
 ])
 def test_a_folder_given_for_a_file_is_called_a_folder(tmp_path: Path, argv: list[str], kind: str) -> None:
     """They said "not found" of a folder that is there, sending the user to look for a file that exists."""
-    (tmp_path / "adir").mkdir()
+    (tmp_path / argv[1]).mkdir()
     r = gflow(*argv, cwd=tmp_path)
-    line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a {kind}")
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error: {argv[1]} is a folder, not a {kind}")
     assert "not found" not in line, line
     assert not (tmp_path / "out.mcap").exists()
 
