@@ -409,3 +409,12 @@ def test_the_commands_check_a_recording_through_the_public_name() -> None:
             if isinstance(node, ast.ImportFrom) and node.module == "pipeline.io.mcap_io":
                 private = [a.name for a in node.names if a.name.startswith("_")]
                 assert not private, f"{f.relative_to(ROOT)}:{node.lineno} imports {private} of pipeline.io.mcap_io"
+
+
+@pytest.mark.parametrize("keep,words", [("-1", ["must be >= 0, got -1"]), ("x", ["whole number", "'x'"])])
+def test_clean_refuses_a_bad_keep_before_looking_at_the_folder(tmp_path: Path, keep: str, words: list[str]) -> None:
+    """``gflow clean --keep -1 nosuch`` said ``nosuch does not exist``: fixed, the next try met the bad --keep."""
+    r = gflow("clean", f"--keep={keep}", "nosuch", cwd=tmp_path)
+    assert r.returncode == 2
+    line = assert_one_line_error(r, "gflow clean: error: argument --keep:", *words)
+    assert "nosuch" not in line, line
