@@ -418,3 +418,14 @@ def test_clean_refuses_a_bad_keep_before_looking_at_the_folder(tmp_path: Path, k
     assert r.returncode == 2
     line = assert_one_line_error(r, "gflow clean: error: argument --keep:", *words)
     assert "nosuch" not in line, line
+
+
+@pytest.mark.parametrize("argv", [["learn", "gflow", "lm.npz", "--out", "m.npz"], ["benchmark", "data"]])
+@pytest.mark.parametrize("value,words", [("4:1", ["0 <= A < B"]), ("abc", ["must look like A:B"])])
+def test_a_bad_frame_range_names_frames(tmp_path: Path, argv: list[str], value: str, words: list[str]) -> None:
+    """``gflow learn gflow --frames 4:1`` (and benchmark's) said "frame range needs 0 <= A < B", naming no option,
+    where learn m2, render and eval say ``--frames 4:1: ...``."""
+    r = gflow(*argv, "--frames", value, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, f"gflow {argv[0]}: error: --frames {value}: frame range", *words)
+    assert not (tmp_path / "m.npz").exists()

@@ -258,14 +258,10 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
 def check_values(args) -> None:
     """The frame ranges, Canny thresholds and patch size, each refused by its option's name before any
     frame is read (they were read where used, after the training video, and a range's error named none)."""
-    from pipeline.io.datasets import parse_range
+    from pipeline.cli.commands.common import frame_range
 
     for opt in ("frames", "background_frames"):
-        text = getattr(args, opt)
-        try:
-            parse_range(text)
-        except ValueError as e:
-            raise CliError(f"--{opt.replace('_', '-')} {text}: {e}") from None
+        frame_range(getattr(args, opt), f"--{opt.replace('_', '-')}")
     parse_pair(args.canny, "--canny")
     if args.patch_size:
         parse_size(args.patch_size)
