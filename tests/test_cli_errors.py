@@ -429,3 +429,21 @@ def test_a_bad_frame_range_names_frames(tmp_path: Path, argv: list[str], value: 
     assert r.returncode == 2
     assert_one_line_error(r, f"gflow {argv[0]}: error: --frames {value}: frame range", *words)
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--shuffle-radius", "1"], "--shuffle-radius is an option of --metric shuffle, not of --metric chamfer"),
+    (["--metric", "l2", "--shuffle-radius", "2"],
+     "--shuffle-radius is an option of --metric shuffle, not of --metric l2"),
+    (["--metric", "shuffle", "--canny", "50,150"], "--canny is an option of --metric chamfer, not of --metric shuffle"),
+    (["--metric", "l2", "--no-appearance"], "--no-appearance is an option of --metric chamfer, not of --metric l2"),
+    (["--patch-size", "10x10"], "--patch-size is an option of --metric shuffle / l2, not of --metric chamfer"),
+])
+def test_learn_m2_refuses_an_option_its_metric_does_not_use(tmp_path: Path, frames: Path, extra: list[str],
+                                                            named: str) -> None:
+    """``--shuffle-radius`` with chamfer, or ``--canny`` with shuffle, was taken and ignored: the model was
+    learned without it, and nothing said so (even typed with its default value, it says the user meant it)."""
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, f"gflow learn: error: {named}")
+    assert not (tmp_path / "m.npz").exists()
