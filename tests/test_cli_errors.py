@@ -382,6 +382,12 @@ def test_demo_frames_is_refused_as_the_option(tmp_path: Path, value: str, words:
     (["step", "trunc.mcap", "--stage", "filter"], 20000, ["holds no input of stage filter"]),
     (["track", "trunc.mcap", "--init", "10,10,20,20", "--out", "b.csv"], 20000, ["no frame at or after --start 0"]),
     (["frame", "trunc.mcap", "0", "f.png"], 20000, ["no frame at or after frame 0"]),
+    # rerun said "which ends early (its writer was killed); `gflow recover` salvages what is before the cut"
+    (["rerun", "trunc.mcap", "--graph"], 20000, ["cannot re-run the graph: gflow/demo/frames: it is not in what can "
+                                                 "be read of trunc.mcap: it ends early, torn where its writer was "
+                                                 "killed (or is still writing); `gflow recover` salvages its complete "
+                                                 "chunks"]),
+    (["rerun", "trunc.mcap", "--stage", "filter"], 20000, ["cannot re-run stage filter:", "not in what can be read"]),
 ])
 def test_a_torn_recording_is_said_to_be_torn_in_the_error(tmp_path: Path, demo_mcap: Path, argv: list[str], size: int,
                                                           words: list[str]) -> None:
