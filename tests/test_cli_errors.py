@@ -19,10 +19,10 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def gflow(*args: str, cwd: Path, timeout: float = 60.0) -> subprocess.CompletedProcess:
+def gflow(*args: str, cwd: Path, timeout: float = 60.0, **popen) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+                          text=True, timeout=timeout, **popen)
 
 
 def assert_one_line_error(r: subprocess.CompletedProcess, *words: str) -> str:
@@ -453,3 +453,29 @@ def test_learn_m2_refuses_an_option_its_metric_does_not_use(tmp_path: Path, fram
     assert r.returncode == 2
     assert_one_line_error(r, f"gflow learn: error: {named}")
     assert not (tmp_path / "m.npz").exists()
+
+
+def _files_up_to(limit: int):
+    """A ``preexec_fn`` under which a write past ``limit`` bytes of a file fails (EFBIG), as on a full disk."""
+    def limit_files() -> None:
+        import resource
+        import signal
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails instead of the signal killing the process
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return limit_files
+
+
+def test_recover_failing_midway_leaves_no_partial_file(tmp_path: Path, demo_mcap: Path) -> None:
+    """``gflow recover SRC FIXED`` wrote straight into FIXED: stopped midway (a full disk), it left the part
+    written, a recording that looks like one. It now writes beside FIXED and takes the name once closed."""
+    room = demo_mcap.stat().st_size // 4
+    r = gflow("recover", str(demo_mcap), "out.mcap", cwd=tmp_path, preexec_fn=_files_up_to(room))
+    assert r.returncode == 1
+    assert_one_line_error(r, f"gflow recover: error: recovering {demo_mcap} failed: File too large;",
+                          "out.mcap not written")
+    assert not list(tmp_path.iterdir()), "neither FIXED nor its temporary file may be left"
+    r = gflow("recover", str(demo_mcap), "out.mcap", cwd=tmp_path)  # with room: the whole recording
+    assert r.returncode == 0 and "recovered" in r.stdout, r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["out.mcap"]
+    assert gflow("verify", "out.mcap", cwd=tmp_path).returncode == 0
