@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -19,8 +20,9 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def gflow(*args: str, cwd: Path, timeout: float = 60.0, **popen) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+def gflow(*args: str, cwd: Path, timeout: float = 60.0, env: dict[str, str] | None = None,
+          **popen) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
     return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=timeout, **popen)
 
@@ -479,3 +481,27 @@ def test_recover_failing_midway_leaves_no_partial_file(tmp_path: Path, demo_mcap
     assert r.returncode == 0 and "recovered" in r.stdout, r.stderr
     assert [p.name for p in tmp_path.iterdir()] == ["out.mcap"]
     assert gflow("verify", "out.mcap", cwd=tmp_path).returncode == 0
+
+
+def _no_pipelines(tmp_path: Path) -> dict[str, str]:
+    """The environment of a live tool that finds no pipeline announced (an empty runtime folder of its own)."""
+    (tmp_path / "rt").mkdir()
+    return {"GFLOW_RUNTIME_DIR": str(tmp_path / "rt")}
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["echo", "", "--timeout", "30"], ["topic '' is empty"]),
+    (["echo", "x//y", "--timeout", "30"], ["topic 'x//y' is malformed (key expression gflow/x//y): empty chunks"]),
+    (["echo", "cam0/a#b", "--timeout", "30"], ["topic 'cam0/a#b' is malformed", "forbidden characters"]),
+    (["hz", "x//y", "--wait", "30"], ["topic 'x//y' is malformed (key expression gflow/x//y)"]),
+    (["hz", " ", "--wait", "30"], ["topic ' ' is empty"]),
+    (["pub", "x//y", "Control", "{}", "--wait", "30"], ["topic 'x//y' is malformed"]),
+])
+def test_a_malformed_topic_is_refused_before_any_wait(tmp_path: Path, argv: list[str], words: list[str]) -> None:
+    """``gflow echo 'x//y' --timeout 30`` waited its 30 s for a pipeline, then said none runs; with one running,
+    zenoh's own error came out as an internal error of gflow. The topic is checked before anything else."""
+    t0 = time.monotonic()
+    r = gflow(*argv, cwd=tmp_path, env=_no_pipelines(tmp_path), timeout=20)
+    assert r.returncode == 2 and time.monotonic() - t0 < 10
+    assert_one_line_error(r, f"gflow {argv[0]}: error:", *words)
+

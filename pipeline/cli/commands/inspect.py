@@ -47,6 +47,22 @@ def _key_expr(topic: str) -> str:
     return "/".join(c if c in ("*", "**") else c.replace("*", "$*").replace("?", "$*") for c in topic.split("/"))
 
 
+def _check_topic(topic: str) -> None:
+    """Refuse, before any wait, a topic that makes no zenoh key expression (``''``, ``x//y``, ``a#b``,
+    ``a/**/**/b``): the subscriber would raise only once a pipeline had been waited for and joined. The
+    key is checked as :func:`_key` builds it, with any stream in the place of one not yet resolved."""
+    from pipeline.runtime.transport import check_key_expr
+
+    if not topic.strip():
+        raise CliError(f"topic {topic!r} is empty: give one, e.g. estimate, gflow/cam0/estimate or cam0/**")
+    key = _key_expr(f"gflow/*/{topic}" if _in_stream(topic) else topic if topic.startswith("gflow/")
+                    else f"gflow/{topic}")
+    try:
+        check_key_expr(key)
+    except ValueError as e:
+        raise CliError(f"topic {topic!r} is malformed (key expression {key}): {e}") from None
+
+
 def _key(topic: str) -> str:
     """The key expression for a topic as the user typed it (pipeline/recording/topics.py): the name
     in the stream (``estimate``: of the one pipeline running, or of any while none or several run),
@@ -120,6 +136,7 @@ def _heard_instead(settings, key: str, seconds: float = 1.5) -> str:
 def cmd_echo(args) -> int:
     from pipeline.cli.live import echo
 
+    _check_topic(args.topic)
     _await_pipeline(args, args.topic, args.timeout or 0.0)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
@@ -138,6 +155,7 @@ def cmd_hz(args) -> int:
 
     if args.window is not None and args.window < 1:
         raise CliError(f"--window must be at least 1 gap, got {args.window}")
+    _check_topic(args.topic)
     _await_pipeline(args, args.topic, args.wait)  # --wait: also for a run that has not started yet
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
@@ -245,6 +263,7 @@ def cmd_pub(args) -> int:
     from pipeline.runtime.security import Signer
     from pipeline.runtime.transport import Bus, open_session
 
+    _check_topic(args.topic)
     key = _key(args.topic)
     typ = MESSAGE_TYPES.get(args.type)
     if typ is None:
