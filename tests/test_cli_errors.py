@@ -505,3 +505,35 @@ def test_a_malformed_topic_is_refused_before_any_wait(tmp_path: Path, argv: list
     assert r.returncode == 2 and time.monotonic() - t0 < 10
     assert_one_line_error(r, f"gflow {argv[0]}: error:", *words)
 
+
+def test_an_echo_or_hz_wait_that_runs_out_is_no_mistake(tmp_path: Path) -> None:
+    """``gflow echo demo/estimate --timeout 0.5`` with no pipeline started in that time ended in ``gflow echo: error:
+    no running gflow pipeline ...``, exit 2, as a mistyped command would; it is an answer (exit 1), said as echo
+    says that a topic stayed silent."""
+    env = _no_pipelines(tmp_path)
+    for argv, key in ((["echo", "demo/estimate", "--timeout", "0.5"], "gflow/demo/estimate"),
+                      (["hz", "demo/frames", "--wait", "0.5"], "gflow/demo/frames")):
+        r = gflow(*argv, cwd=tmp_path, env=env)
+        last = r.stderr.strip().splitlines()[-1]
+        assert r.returncode == 1 and "Traceback" not in r.stderr and "error" not in r.stderr, r.stderr
+        assert last.startswith(f"gflow {argv[0]}: no message on {key} in 0.5 s: no running gflow pipeline with "
+                               f"stream 'demo'"), last
+    r = gflow("echo", "demo/estimate", cwd=tmp_path, env=env)  # not waited for: a stream not running is a mistake
+    assert r.returncode == 2
+    assert_one_line_error(r, "gflow echo: error: no running gflow pipeline with stream 'demo'")
+
+
+def test_echo_on_a_silent_topic_of_a_reached_peer_exits_1(tmp_path: Path) -> None:
+    """The same answer when the network is reached (loopback, multicast scouting off, an explicit endpoint)
+    and nothing comes on the topic: ``no message on KEY in N s``, exit 1, never ``error:``."""
+    from pipeline.runtime.transport import ZenohSettings, free_port, open_session
+
+    port = free_port()
+    peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
+    try:
+        r = gflow("echo", "gflow/quiet/estimate", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.3",
+                  cwd=tmp_path, env=_no_pipelines(tmp_path))
+    finally:
+        peer.close()
+    assert r.returncode == 1 and "error" not in r.stderr, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith("gflow echo: no message on gflow/quiet/estimate in 0.3 s")
