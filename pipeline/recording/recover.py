@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import BinaryIO
+from typing import IO
 
 from mcap.exceptions import EndOfFile
 from mcap.stream_reader import StreamReader
@@ -58,7 +58,7 @@ def recover(broken: str | Path, fixed: str | Path) -> RecoverResult:
     return result
 
 
-def _copy(fin: BinaryIO, fout: BinaryIO) -> RecoverResult:
+def _copy(fin: IO[bytes], fout: IO[bytes]) -> RecoverResult:
     """Every complete record of the MCAP stream ``fin`` written to ``fout`` as a closed MCAP file."""
     schemas: dict[int, int] = {}
     channels: dict[int, int] = {}
