@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import cv2
@@ -19,10 +20,11 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 
 
-def gflow(*args: str, cwd: Path, timeout: float = 60.0) -> subprocess.CompletedProcess:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+def gflow(*args: str, cwd: Path, timeout: float = 60.0, env: dict[str, str] | None = None,
+          **popen) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
     return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+                          text=True, timeout=timeout, **popen)
 
 
 def assert_one_line_error(r: subprocess.CompletedProcess, *words: str) -> str:
@@ -343,12 +345,14 @@ def test_ps_of_a_stream_not_running_is_an_error_of_ps(tmp_path: Path, argv: list
     (["foxglove", "adir", "out.mcap"], "recording file"),
     (["rerun", "adir", "--graph"], "recording file"),
     (["recover", "adir", "out.mcap"], "recording file"),
+    (["info", "adir"], "recording file"),  # said "do not know how to describe adir"
+    (["info", "adir.npz"], "model file"),  # said "model file not found"
 ])
 def test_a_folder_given_for_a_file_is_called_a_folder(tmp_path: Path, argv: list[str], kind: str) -> None:
     """They said "not found" of a folder that is there, sending the user to look for a file that exists."""
-    (tmp_path / "adir").mkdir()
+    (tmp_path / argv[1]).mkdir()
     r = gflow(*argv, cwd=tmp_path)
-    line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a {kind}")
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error: {argv[1]} is a folder, not a {kind}")
     assert "not found" not in line, line
     assert not (tmp_path / "out.mcap").exists()
 
@@ -380,6 +384,12 @@ def test_demo_frames_is_refused_as_the_option(tmp_path: Path, value: str, words:
     (["step", "trunc.mcap", "--stage", "filter"], 20000, ["holds no input of stage filter"]),
     (["track", "trunc.mcap", "--init", "10,10,20,20", "--out", "b.csv"], 20000, ["no frame at or after --start 0"]),
     (["frame", "trunc.mcap", "0", "f.png"], 20000, ["no frame at or after frame 0"]),
+    # rerun said "which ends early (its writer was killed); `gflow recover` salvages what is before the cut"
+    (["rerun", "trunc.mcap", "--graph"], 20000, ["cannot re-run the graph: gflow/demo/frames: it is not in what can "
+                                                 "be read of trunc.mcap: it ends early, torn where its writer was "
+                                                 "killed (or is still writing); `gflow recover` salvages its complete "
+                                                 "chunks"]),
+    (["rerun", "trunc.mcap", "--stage", "filter"], 20000, ["cannot re-run stage filter:", "not in what can be read"]),
 ])
 def test_a_torn_recording_is_said_to_be_torn_in_the_error(tmp_path: Path, demo_mcap: Path, argv: list[str], size: int,
                                                           words: list[str]) -> None:
@@ -392,3 +402,138 @@ def test_a_torn_recording_is_said_to_be_torn_in_the_error(tmp_path: Path, demo_m
     assert "not written by gflow" not in line, line
     assert not (tmp_path / "b.csv").exists() and not (tmp_path / "f.png").exists()
     _no_recording(tmp_path.joinpath("recordings"))
+
+
+def test_the_commands_check_a_recording_through_the_public_name() -> None:
+    """foxglove and replay refused a missing or non-MCAP input through ``pipeline.io.mcap_io._check``, a
+    private name a change inside the module could rename; the check is the module's public ``check_recording``."""
+    import ast
+
+    from pipeline.io import mcap_io
+
+    assert "check_recording" in mcap_io.__all__ and not hasattr(mcap_io, "_check")
+    for f in (ROOT / "pipeline").rglob("*.py"):
+        for node in ast.walk(ast.parse(f.read_text(), str(f))):
+            if isinstance(node, ast.ImportFrom) and node.module == "pipeline.io.mcap_io":
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                assert not private, f"{f.relative_to(ROOT)}:{node.lineno} imports {private} of pipeline.io.mcap_io"
+
+
+@pytest.mark.parametrize("keep,words", [("-1", ["must be >= 0, got -1"]), ("x", ["whole number", "'x'"])])
+def test_clean_refuses_a_bad_keep_before_looking_at_the_folder(tmp_path: Path, keep: str, words: list[str]) -> None:
+    """``gflow clean --keep -1 nosuch`` said ``nosuch does not exist``: fixed, the next try met the bad --keep."""
+    r = gflow("clean", f"--keep={keep}", "nosuch", cwd=tmp_path)
+    assert r.returncode == 2
+    line = assert_one_line_error(r, "gflow clean: error: argument --keep:", *words)
+    assert "nosuch" not in line, line
+
+
+@pytest.mark.parametrize("argv", [["learn", "gflow", "lm.npz", "--out", "m.npz"], ["benchmark", "data"]])
+@pytest.mark.parametrize("value,words", [("4:1", ["0 <= A < B"]), ("abc", ["must look like A:B"])])
+def test_a_bad_frame_range_names_frames(tmp_path: Path, argv: list[str], value: str, words: list[str]) -> None:
+    """``gflow learn gflow --frames 4:1`` (and benchmark's) said "frame range needs 0 <= A < B", naming no option,
+    where learn m2, render and eval say ``--frames 4:1: ...``."""
+    r = gflow(*argv, "--frames", value, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, f"gflow {argv[0]}: error: --frames {value}: frame range", *words)
+    assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--shuffle-radius", "1"], "--shuffle-radius is an option of --metric shuffle, not of --metric chamfer"),
+    (["--metric", "l2", "--shuffle-radius", "2"],
+     "--shuffle-radius is an option of --metric shuffle, not of --metric l2"),
+    (["--metric", "shuffle", "--canny", "50,150"], "--canny is an option of --metric chamfer, not of --metric shuffle"),
+    (["--metric", "l2", "--no-appearance"], "--no-appearance is an option of --metric chamfer, not of --metric l2"),
+    (["--patch-size", "10x10"], "--patch-size is an option of --metric shuffle / l2, not of --metric chamfer"),
+])
+def test_learn_m2_refuses_an_option_its_metric_does_not_use(tmp_path: Path, frames: Path, extra: list[str],
+                                                            named: str) -> None:
+    """``--shuffle-radius`` with chamfer, or ``--canny`` with shuffle, was taken and ignored: the model was
+    learned without it, and nothing said so (even typed with its default value, it says the user meant it)."""
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, f"gflow learn: error: {named}")
+    assert not (tmp_path / "m.npz").exists()
+
+
+def _files_up_to(limit: int):
+    """A ``preexec_fn`` under which a write past ``limit`` bytes of a file fails (EFBIG), as on a full disk."""
+    def limit_files() -> None:
+        import resource
+        import signal
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails instead of the signal killing the process
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return limit_files
+
+
+def test_recover_failing_midway_leaves_no_partial_file(tmp_path: Path, demo_mcap: Path) -> None:
+    """``gflow recover SRC FIXED`` wrote straight into FIXED: stopped midway (a full disk), it left the part
+    written, a recording that looks like one. It now writes beside FIXED and takes the name once closed."""
+    room = demo_mcap.stat().st_size // 4
+    r = gflow("recover", str(demo_mcap), "out.mcap", cwd=tmp_path, preexec_fn=_files_up_to(room))
+    assert r.returncode == 1
+    assert_one_line_error(r, f"gflow recover: error: recovering {demo_mcap} failed: File too large;",
+                          "out.mcap not written")
+    assert not list(tmp_path.iterdir()), "neither FIXED nor its temporary file may be left"
+    r = gflow("recover", str(demo_mcap), "out.mcap", cwd=tmp_path)  # with room: the whole recording
+    assert r.returncode == 0 and "recovered" in r.stdout, r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["out.mcap"]
+    assert gflow("verify", "out.mcap", cwd=tmp_path).returncode == 0
+
+
+def _no_pipelines(tmp_path: Path) -> dict[str, str]:
+    """The environment of a live tool that finds no pipeline announced (an empty runtime folder of its own)."""
+    (tmp_path / "rt").mkdir()
+    return {"GFLOW_RUNTIME_DIR": str(tmp_path / "rt")}
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["echo", "", "--timeout", "30"], ["topic '' is empty"]),
+    (["echo", "x//y", "--timeout", "30"], ["topic 'x//y' is malformed (key expression gflow/x//y): empty chunks"]),
+    (["echo", "cam0/a#b", "--timeout", "30"], ["topic 'cam0/a#b' is malformed", "forbidden characters"]),
+    (["hz", "x//y", "--wait", "30"], ["topic 'x//y' is malformed (key expression gflow/x//y)"]),
+    (["hz", " ", "--wait", "30"], ["topic ' ' is empty"]),
+    (["pub", "x//y", "Control", "{}", "--wait", "30"], ["topic 'x//y' is malformed"]),
+])
+def test_a_malformed_topic_is_refused_before_any_wait(tmp_path: Path, argv: list[str], words: list[str]) -> None:
+    """``gflow echo 'x//y' --timeout 30`` waited its 30 s for a pipeline, then said none runs; with one running,
+    zenoh's own error came out as an internal error of gflow. The topic is checked before anything else."""
+    t0 = time.monotonic()
+    r = gflow(*argv, cwd=tmp_path, env=_no_pipelines(tmp_path), timeout=20)
+    assert r.returncode == 2 and time.monotonic() - t0 < 10
+    assert_one_line_error(r, f"gflow {argv[0]}: error:", *words)
+
+
+def test_an_echo_or_hz_wait_that_runs_out_is_no_mistake(tmp_path: Path) -> None:
+    """``gflow echo demo/estimate --timeout 0.5`` with no pipeline started in that time ended in ``gflow echo: error:
+    no running gflow pipeline ...``, exit 2, as a mistyped command would; it is an answer (exit 1), said as echo
+    says that a topic stayed silent."""
+    env = _no_pipelines(tmp_path)
+    for argv, key in ((["echo", "demo/estimate", "--timeout", "0.5"], "gflow/demo/estimate"),
+                      (["hz", "demo/frames", "--wait", "0.5"], "gflow/demo/frames")):
+        r = gflow(*argv, cwd=tmp_path, env=env)
+        last = r.stderr.strip().splitlines()[-1]
+        assert r.returncode == 1 and "Traceback" not in r.stderr and "error" not in r.stderr, r.stderr
+        assert last.startswith(f"gflow {argv[0]}: no message on {key} in 0.5 s: no running gflow pipeline with "
+                               f"stream 'demo'"), last
+    r = gflow("echo", "demo/estimate", cwd=tmp_path, env=env)  # not waited for: a stream not running is a mistake
+    assert r.returncode == 2
+    assert_one_line_error(r, "gflow echo: error: no running gflow pipeline with stream 'demo'")
+
+
+def test_echo_on_a_silent_topic_of_a_reached_peer_exits_1(tmp_path: Path) -> None:
+    """The same answer when the network is reached (loopback, multicast scouting off, an explicit endpoint)
+    and nothing comes on the topic: ``no message on KEY in N s``, exit 1, never ``error:``."""
+    from pipeline.runtime.transport import ZenohSettings, free_port, open_session
+
+    port = free_port()
+    peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
+    try:
+        r = gflow("echo", "gflow/quiet/estimate", "--connect", f"tcp/127.0.0.1:{port}", "--timeout", "0.3",
+                  cwd=tmp_path, env=_no_pipelines(tmp_path))
+    finally:
+        peer.close()
+    assert r.returncode == 1 and "error" not in r.stderr, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith("gflow echo: no message on gflow/quiet/estimate in 0.3 s")

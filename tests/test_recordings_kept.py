@@ -230,3 +230,30 @@ def test_a_run_whose_default_port_is_taken_at_the_last_moment_still_runs(tmp_pat
     err = capsys.readouterr().err
     assert "listening on tcp/127.0.0.1:7447" in err and "in use" not in err, err
     assert len(list((tmp_path / "recordings").glob("*.mcap"))) == 1
+
+
+def test_a_file_written_beside_never_takes_a_name_that_is_there(tmp_path: Path) -> None:
+    """What ``gflow recover`` writes under a temporary name (``create_beside``) takes FIXED's name only while
+    nothing has it (``move_new``): a file that appeared there meanwhile is kept, the new one removed."""
+    from pipeline.io.recording_files import RecordingExists, create_beside, move_new
+
+    out, tmp = create_beside(tmp_path / "fixed.mcap")
+    with out:
+        out.write(b"new")
+    assert tmp.parent == tmp_path and tmp.name.startswith(".fixed.mcap.") and tmp.suffix == ".tmp"
+    assert oct(tmp.stat().st_mode & 0o777) == oct(0o666 & ~_umask())  # as open(path, "wb") makes it
+    (tmp_path / "fixed.mcap").write_bytes(b"there first")
+    with pytest.raises(RecordingExists, match="fixed.mcap appeared while it was being written"):
+        move_new(tmp, tmp_path / "fixed.mcap")
+    assert (tmp_path / "fixed.mcap").read_bytes() == b"there first" and not tmp.exists()
+    out, tmp = create_beside(tmp_path / "other.mcap")
+    with out:
+        out.write(b"new")
+    move_new(tmp, tmp_path / "other.mcap")
+    assert (tmp_path / "other.mcap").read_bytes() == b"new" and not tmp.exists()
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask

@@ -24,7 +24,8 @@ from mcap.reader import NonSeekingReader, make_reader
 from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
-           "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY", "torn_segments", "torn_cause"]
+           "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY", "torn_segments", "torn_cause",
+           "check_recording"]
 
 
 class TruncatedRecording(Exception):
@@ -80,7 +81,10 @@ class Record:
     source: str = ""  # the zenoh session that published it ("" when the recording does not say)
 
 
-def _check(path: str | Path) -> Path:
+def check_recording(path: str | Path) -> Path:
+    """``path`` as a Path when it is an MCAP file; else a one-line error naming it: a folder
+    (:class:`IsADirectoryError`), nothing there (:class:`FileNotFoundError`) or another kind of
+    file (:class:`ValueError`). Commands call it to refuse an input before they write anything."""
     p = Path(path)
     if p.is_dir():  # there, so "not found" would send the user looking for a file that exists
         raise IsADirectoryError(f"{p} is a folder, not a recording file (give an .mcap file)")
@@ -130,7 +134,7 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
     strict : raise :class:`TruncatedRecording` at a torn end instead of stopping quietly.
     on_truncated : callable(str) told when the file ended early.
     """
-    p = _check(path)
+    p = check_recording(path)
     want = set(topics) if topics else None
     with open(p, "rb") as f:
         reader = NonSeekingReader(f, validate_crcs=True)
@@ -203,7 +207,7 @@ def recorded_topics(path: str | Path) -> list[str]:
     file is read to its last complete chunk)."""
     out: set[str] = set()
     for seg in segments(path):
-        p = _check(seg) if seg == Path(path) else seg
+        p = check_recording(seg) if seg == Path(path) else seg
         summary = None
         with open(p, "rb") as f:
             try:
@@ -219,7 +223,7 @@ def recorded_topics(path: str | Path) -> list[str]:
 
 def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     """The MCAP metadata records, by name. Works on truncated files too."""
-    p = _check(path)
+    p = check_recording(path)
     out: dict[str, dict[str, str]] = {}
     with open(p, "rb") as f:
         try:

@@ -122,11 +122,15 @@ def read_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     ------
     FileNotFoundError
         The file does not exist.
+    IsADirectoryError
+        A folder was given.
     ValueError
         The file is not a readable npz archive (truncated, corrupt, not a zip), or holds
         pickled (object) arrays. The message names the file.
     """
     p = Path(path)
+    if p.is_dir():  # there, so "not found" would send the user looking for a file that exists
+        raise IsADirectoryError(f"{p} is a folder, not a model file (give an .npz file)")
     if not p.is_file():
         raise FileNotFoundError(f"model file not found: {p}")
     with open(p, "rb") as f:

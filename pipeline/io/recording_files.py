@@ -7,6 +7,9 @@
   still be given one name, the second one fails with a one-line error instead of destroying the
   first one's file.
 * ``--record FILE`` naming a file that exists is refused before the run starts (:func:`refuse_existing`).
+* A file written in one go from another (``gflow recover``) is written under a hidden temporary name
+  beside its own (:func:`create_beside`) and moved there once complete (:func:`move_new`): a failure
+  midway (a full disk) leaves no partial file under the name asked for.
 
 A folder of recordings grows by a few hundred KB a frame (raw frames are most of it):
 :func:`folder_recordings` lists its recordings (each with its segment files) newest first, which
@@ -18,12 +21,13 @@ from __future__ import annotations
 
 import os
 import re
+import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-__all__ = ["RecordingExists", "unique_path", "create_new", "refuse_existing", "StoredRecording", "folder_recordings",
-           "size_warning", "warn_mb", "WARN_MB"]
+__all__ = ["RecordingExists", "unique_path", "create_new", "create_beside", "move_new", "refuse_existing",
+           "StoredRecording", "folder_recordings", "size_warning", "warn_mb", "WARN_MB"]
 
 #: the size of a recordings folder above which a run warns (MB), unless GFLOW_RECORDINGS_WARN_MB says
 WARN_MB = 2000.0
@@ -64,6 +68,40 @@ def create_new(path: str | os.PathLike) -> IO[bytes]:
     except FileExistsError:
         raise RecordingExists(f"{path} exists (another run writing the same file?); a recording never "
                               f"overwrites a file") from None
+
+
+def create_beside(path: str | os.PathLike) -> tuple[IO[bytes], Path]:
+    """A new file in ``path``'s folder under a hidden temporary name (``.NAME.XXXXXXXX.tmp``: not taken for
+    a recording), and that name: written there, it is moved to ``path`` by :func:`move_new` once complete,
+    or removed by the caller on failure. Created as ``open(path, "wb")`` would create ``path`` (the umask's
+    permissions, not a temporary file's 0600)."""
+    p = Path(path)
+    while True:
+        tmp = p.with_name(f".{p.name}.{secrets.token_hex(4)}.tmp")
+        try:
+            return os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "wb"), tmp
+        except FileExistsError:  # a name drawn twice: draw another
+            continue
+
+
+def move_new(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
+    """Move the complete file ``tmp`` (:func:`create_beside`) to ``path`` in one step, never over a file there:
+    a hard link, which fails on an existing ``path`` (:class:`RecordingExists`, ``tmp`` removed), then the
+    temporary name removed; on a file system without hard links, a rename after a last look."""
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        os.unlink(tmp)
+        raise RecordingExists(f"{path} appeared while it was being written; a recording never overwrites a file: "
+                              f"give a new name or remove it first") from None
+    except OSError:  # no hard links here (some network and FAT file systems)
+        if os.path.lexists(path):
+            os.unlink(tmp)
+            raise RecordingExists(f"{path} appeared while it was being written; a recording never overwrites a "
+                                  f"file: give a new name or remove it first") from None
+        os.rename(tmp, path)
+        return
+    os.unlink(tmp)
 
 
 _SEGMENT = re.compile(r"^(?P<stem>.+)\.part\d+$")

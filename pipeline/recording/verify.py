@@ -33,7 +33,7 @@ from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, M
                           MetadataIndex, Schema, Statistics)
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
-from pipeline.io.mcap_io import TORN_END_ERRORS, _check
+from pipeline.io.mcap_io import TORN_END_ERRORS, check_recording
 from pipeline.io.mcap_writer import crc32
 from pipeline.io.recorder import SCHEMA_PREFIX
 from gflow_msgs.messages import MESSAGE_TYPES, MessageError, decode, decode_as
@@ -312,7 +312,7 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
     Raises ``FileNotFoundError`` for a missing file and ``ValueError`` for one that is not MCAP
     (empty, or other magic bytes); every other fault is the result's ``damage``.
     """
-    p = _check(path)
+    p = check_recording(path)
     size = p.stat().st_size
     r = VerifyResult(str(path), size=size)
     w = _Walk(r)

@@ -34,7 +34,7 @@ import zenoh
 from pipeline.runtime.security import Security, Signer, explain_refusal
 
 __all__ = ["ZenohSettings", "SessionError", "open_session", "open_reaching", "reached", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment",
-           "sample_source"]
+           "sample_source", "check_key_expr"]
 
 Mode = Literal["peer", "client", "router"]
 
@@ -169,6 +169,19 @@ def topic_key(stream: str, topic: str) -> str:
     if not stream or "/" in stream or "*" in stream:
         raise ValueError(f"stream id must be a non-empty name without '/' or '*', got {stream!r}")
     return f"gflow/{stream}/{topic}"
+
+
+def check_key_expr(key: str) -> str:
+    """``key`` when zenoh takes it as a key expression; else a :class:`ValueError` saying why in zenoh's
+    words (``empty chunks are forbidden, ...``, ``` `#` and `?` are forbidden characters```), without the
+    location in zenoh's source its message ends with. Made before a session opens: a subscriber declared
+    on such a key raises only then."""
+    try:
+        zenoh.KeyExpr(key)
+    except zenoh.ZError as e:
+        why = str(e).split(" at /")[0].rstrip(".")
+        raise ValueError(why.removeprefix(f"Invalid Key Expr `{key}`: ")) from None
+    return key
 
 
 def sample_source(sample: zenoh.Sample) -> str:

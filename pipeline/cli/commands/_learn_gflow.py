@@ -39,8 +39,7 @@ def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
 def cmd_learn_gflow(args) -> int:
     from gflow_core.gflow.morphable_learn import learn_morphable
 
-    from pipeline.cli.commands.common import check_model_out
-    from pipeline.io.datasets import parse_range
+    from pipeline.cli.commands.common import check_model_out, frame_range
     from pipeline.io.landmarks import read_landmarks, resolve_landmarks
     from pipeline.io.modelfile import save_model
 
@@ -48,7 +47,7 @@ def cmd_learn_gflow(args) -> int:
     if args.k < 1:
         raise CliError(f"-k must be a positive number of morph bases, got {args.k}")
     n_vertices = None if args.vertices in ("all", "0") else _positive_int(args.vertices)
-    start, stop = parse_range(args.frames)
+    start, stop = frame_range(args.frames)
     if args.boxes is not None and args.boxes and len(args.boxes) != len(args.sources):
         raise CliError(f"--boxes: give one box file per source ({len(args.sources)}), or none to use each source's "
                        f"groundtruth.csv")

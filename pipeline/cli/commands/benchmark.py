@@ -20,7 +20,7 @@ from pathlib import Path
 
 from pipeline.app import TrackRequest
 from pipeline.cli.trackers import TRACKERS, spec_of
-from pipeline.cli.commands.common import CliError, check_new_picture, nonnegative_int
+from pipeline.cli.commands.common import CliError, check_new_picture, frame_range, nonnegative_int
 
 
 def model_options() -> dict[str, str]:
@@ -360,8 +360,6 @@ def _first_frames(args, seqs, first_frame: int) -> dict[str, int]:
 def cmd_benchmark(args) -> int:
     from pipeline.evaluation.sequence_benchmark import find_sequences, note
     from pipeline.cli.versions import versions
-    from pipeline.io.datasets import parse_range
-
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
     if args.list_cases:
         from gflow_core.evaluation.stress import CASES
@@ -384,7 +382,7 @@ def cmd_benchmark(args) -> int:
         if getattr(args, opt) != default:
             raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
     cv_names = _opencv_names(args.opencv)
-    first_frame, stop = parse_range(args.frames)
+    first_frame, stop = frame_range(args.frames)
     _check_paths(args)
     seqs, skipped = find_sequences(args.datasets)
     seqs = _pick_sequences(seqs, args.sequences)

@@ -19,8 +19,6 @@ def cmd_clean(args) -> int:
         raise CliError(f"{folder} does not exist (give the folder of recordings to clean)")
     if not folder.is_dir():
         raise CliError(f"{folder} is not a folder")
-    if args.keep < 0:
-        raise CliError(f"--keep must be 0 or more, got {args.keep}")
     recs = folder_recordings(folder)
     busy = {Path(str(i["recording"])).resolve() for i in running() if i.get("recording")}
     kept = recs[:args.keep]
@@ -45,6 +43,8 @@ def cmd_clean(args) -> int:
 
 
 def register(sub) -> None:
+    from pipeline.cli.commands.common import nonnegative_int
+
     p = sub.add_parser("clean", help="remove all but the newest N recordings of a folder (default recordings/)",
                        description="Removes the oldest recordings of a folder (each .mcap with its segment files "
                                    "NAME.partN.mcap), keeping the newest N and any a running pipeline is writing. "
@@ -54,7 +54,9 @@ def register(sub) -> None:
                               "  gflow clean --keep 5\n  gflow clean runs/ --keep 0",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("folder", nargs="?", default="recordings", help="the folder of recordings (default recordings)")
-    p.add_argument("--keep", type=int, required=True, metavar="N", help="how many of the newest recordings to keep")
+    # a whole number >= 0, refused as parsed: before the folder is looked at
+    p.add_argument("--keep", type=nonnegative_int, required=True, metavar="N",
+                   help="how many of the newest recordings to keep")
     p.add_argument("-n", "--dry-run", action="store_true", help="say what would be removed, remove nothing")
     p.add_argument("--list", dest="verbose_list", action="store_true", help="name each recording removed")
     p.set_defaults(func=cmd_clean)

@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
+__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -89,6 +89,18 @@ def nonnegative_int(text: str) -> int:
 def positive_int(text: str) -> int:
     """A whole number >= 1 (argparse type)."""
     return int(_at_least(text, int, 1, inclusive=True))
+
+
+def frame_range(text: str | None, option: str = "--frames") -> tuple[int, int | None]:
+    """``--frames A:B`` as every command reads it (:func:`pipeline.io.datasets.parse_range`: ``5`` is frame 5
+    alone, ``A:`` frame A on, none every frame) -> (start, stop); a malformed, negative or empty range is a
+    :class:`CliError` naming ``option`` and the value typed."""
+    from pipeline.io.datasets import parse_range
+
+    try:
+        return parse_range(text)
+    except ValueError as e:
+        raise CliError(f"{option} {text}: {e}") from None
 
 
 def check_outputs(**paths: str | None) -> None:

@@ -7,7 +7,7 @@ ORDER = 30
 import argparse
 import json
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, frame_range
 
 
 def overlap_threshold(text: str) -> float:
@@ -19,17 +19,6 @@ def overlap_threshold(text: str) -> float:
     if not 0.0 <= v <= 1.0:  # NaN fails this too
         raise argparse.ArgumentTypeError(f"an overlap is in [0, 1], got {text}")
     return v
-
-
-def _frame_range(text: str) -> tuple[int, int | None]:
-    """``--frames`` read as every command reads it (:func:`pipeline.io.datasets.parse_range`: ``5`` is frame
-    5 alone, as in benchmark and learn, not frames 5 on), a reversed or negative range refused by name."""
-    from pipeline.io.datasets import parse_range
-
-    try:
-        return parse_range(text)
-    except ValueError as e:
-        raise CliError(f"--frames {text}: {e}") from None
 
 
 def cmd_eval_landmarks(args) -> int:
@@ -46,7 +35,7 @@ def cmd_eval_landmarks(args) -> int:
     pts = read_points(args.points)
     frames = None
     if args.frames:
-        lo, hi = _frame_range(args.frames)
+        lo, hi = frame_range(args.frames)
         frames = range(lo, ref.shape[0] if hi is None else min(hi, ref.shape[0]))
     try:
         s = landmark_score(ref, pts, frames=frames)
@@ -77,7 +66,7 @@ def cmd_eval(args) -> int:
                        "(face points)")
     gt, pred = read_boxes(args.gt), read_boxes(args.pred)
     if args.frames:
-        lo, hi = _frame_range(args.frames)
+        lo, hi = frame_range(args.frames)
         gt = {k: v for k, v in gt.items() if k >= lo and (hi is None or k < hi)}
         if not gt:
             raise CliError(f"no ground-truth frame in --frames {args.frames}")

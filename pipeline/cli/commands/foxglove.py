@@ -26,9 +26,9 @@ def cmd_foxglove(args) -> int:
     from pipeline.recording.foxglove_export import export_for_foxglove
     from pipeline.recording.topics import describe_topics
 
-    from pipeline.io.mcap_io import _check as check_mcap
+    from pipeline.io.mcap_io import check_recording
 
-    check_mcap(args.recording)  # missing or not MCAP: refused before OUT is created, not after
+    check_recording(args.recording)  # missing or not MCAP: refused before OUT is created, not after
     if os.path.abspath(args.recording) == os.path.abspath(args.out):
         raise CliError("OUT must be a new file, not the recording itself")
     check_outputs(OUT=args.out)

@@ -47,6 +47,22 @@ def _key_expr(topic: str) -> str:
     return "/".join(c if c in ("*", "**") else c.replace("*", "$*").replace("?", "$*") for c in topic.split("/"))
 
 
+def _check_topic(topic: str) -> None:
+    """Refuse, before any wait, a topic that makes no zenoh key expression (``''``, ``x//y``, ``a#b``,
+    ``a/**/**/b``): the subscriber would raise only once a pipeline had been waited for and joined. The
+    key is checked as :func:`_key` builds it, with any stream in the place of one not yet resolved."""
+    from pipeline.runtime.transport import check_key_expr
+
+    if not topic.strip():
+        raise CliError(f"topic {topic!r} is empty: give one, e.g. estimate, gflow/cam0/estimate or cam0/**")
+    key = _key_expr(f"gflow/*/{topic}" if _in_stream(topic) else topic if topic.startswith("gflow/")
+                    else f"gflow/{topic}")
+    try:
+        check_key_expr(key)
+    except ValueError as e:
+        raise CliError(f"topic {topic!r} is malformed (key expression {key}): {e}") from None
+
+
 def _key(topic: str) -> str:
     """The key expression for a topic as the user typed it (pipeline/recording/topics.py): the name
     in the stream (``estimate``: of the one pipeline running, or of any while none or several run),
@@ -65,20 +81,33 @@ def _key(topic: str) -> str:
     return _key_expr("/".join(["gflow", _run_stream(stream), *parts[2:]]))
 
 
-def _await_pipeline(args, topic: str | None, wait: float) -> None:
+def _await_pipeline(args, topic: str | None, wait: float) -> bool:
     """Wait up to ``wait`` s for a pipeline to be announced on this machine (of the stream ``topic``
-    names, if it names one), so a tool started before its run does not give up at once."""
+    names, if it names one), so a tool started before its run does not give up at once. False when
+    none came within ``wait`` s (:func:`_none_came`); True otherwise, also when there is nothing to
+    wait for (no ``wait``, or endpoints given: the tool does not look for an announced pipeline)."""
     from pipeline.runtime.running import await_running
 
     if wait <= 0 or args.connect or args.mode == "router" or args.multicast:
-        return
+        return True
     stream = stream_of(topic if topic.startswith("gflow/") else f"gflow/{topic}") if topic and not _in_stream(
         topic) else None
     if await_running(stream, until=time.monotonic()):
-        return
+        return True
     print(f"waiting up to {wait:g} s for a pipeline" + (f" of stream {stream}" if stream else "") + " to start",
           file=sys.stderr, flush=True)
-    await_running(stream, until=time.monotonic() + wait)
+    return await_running(stream, until=time.monotonic() + wait)
+
+
+def _none_came(tool: str, topic: str, seconds: float) -> int:
+    """Exit 1, saying in one line that no message came on ``topic`` in the ``seconds`` waited for a pipeline
+    to start, and what runs instead: a wait that ran out is an answer, as a topic that stays silent is (exit
+    1), not a mistake in the command line (exit 2: a malformed topic, a stream not running and not waited for)."""
+    from pipeline.runtime.running import describe_none
+
+    key = _key(topic)
+    print(f"gflow {tool}: no message on {key} in {seconds:g} s: {describe_none(stream_of(key))}", file=sys.stderr)
+    return 1
 
 
 def _say_where(found: list[dict]) -> None:
@@ -120,7 +149,9 @@ def _heard_instead(settings, key: str, seconds: float = 1.5) -> str:
 def cmd_echo(args) -> int:
     from pipeline.cli.live import echo
 
-    _await_pipeline(args, args.topic, args.timeout or 0.0)
+    _check_topic(args.topic)
+    if not _await_pipeline(args, args.topic, args.timeout or 0.0):
+        return _none_came("echo", args.topic, args.timeout)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     if not args.json:
@@ -138,7 +169,9 @@ def cmd_hz(args) -> int:
 
     if args.window is not None and args.window < 1:
         raise CliError(f"--window must be at least 1 gap, got {args.window}")
-    _await_pipeline(args, args.topic, args.wait)  # --wait: also for a run that has not started yet
+    _check_topic(args.topic)
+    if not _await_pipeline(args, args.topic, args.wait):  # --wait: also for a run that has not started yet
+        return _none_came("hz", args.topic, args.wait)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     _say_where(found)
@@ -245,6 +278,7 @@ def cmd_pub(args) -> int:
     from pipeline.runtime.security import Signer
     from pipeline.runtime.transport import Bus, open_session
 
+    _check_topic(args.topic)
     key = _key(args.topic)
     typ = MESSAGE_TYPES.get(args.type)
     if typ is None:
@@ -320,7 +354,13 @@ def register(sub) -> None:
                                    "fields (arrays as dtype and shape), or one JSON object per line with --json. "
                                    "Exits 1 when no message came.",
                        epilog="examples:\n  gflow echo gflow/demo/estimate -n 5\n  gflow echo demo/_status/* --json "
-                              "--timeout 2", formatter_class=argparse.RawDescriptionHelpFormatter)
+                              "--timeout 2\n\n"
+                              "exit status:\n  0  messages came (or Ctrl-C after at least one)\n"
+                              "  1  no message came: within --timeout (also when no pipeline started in that time), "
+                              "or before Ctrl-C\n"
+                              "  2  a mistake in the command: a malformed topic, a stream that is not running (without "
+                              "--timeout,\n     which waits for it), an endpoint that reaches nothing, a bad option",
+                       formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("topic", help="the name in the stream (estimate), the full name with or without the run id "
                                  "(gflow/cam0/estimate), or a pattern (cam0/**, _status/*)")
     p.add_argument("-n", "--count", type=positive_int, help="stop after N messages")
@@ -332,7 +372,9 @@ def register(sub) -> None:
     p = sub.add_parser("hz", help="measure the rate of a live topic",
                        description="Waits for the first message, then prints every second the average rate and the "
                                    "min / max / standard deviation of the gaps between messages, over a rolling "
-                                   "window (like ros2 topic hz). Exits 1 when fewer than 2 messages came.")
+                                   "window (like ros2 topic hz). Exits 1 when fewer than 2 messages came (also when "
+                                   "no pipeline started within --wait), 2 at a mistake in the command (a malformed "
+                                   "topic, a bad option).")
     p.add_argument("topic", help="the name in the stream (frames), the full name with or without the run id "
                                  "(gflow/cam0/frames), or a pattern")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")

@@ -56,6 +56,34 @@ def parse_pair(text: str, name: str) -> tuple[float, float]:
     return a, b
 
 
+#: the options of some metrics only, with the metrics that use them (the others would ignore them)
+METRIC_OPTIONS: dict[str, tuple[str, ...]] = {
+    **dict.fromkeys(("--max-points", "--canny", "--blur", "--profile", "--g0", "--threshold", "--background-frames",
+                     "--no-appearance", "--no-background-mask"), ("chamfer",)),
+    "--patch-size": ("shuffle", "l2"),
+    "--shuffle-radius": ("shuffle",),
+}
+
+
+class _Given(argparse.Action):
+    """An option of :data:`METRIC_OPTIONS`: its value stored as argparse's own ``store`` does (a flag,
+    ``nargs=0``: its ``const``), and the option noted in ``namespace.given``, so that one typed for a metric
+    that does not use it is refused (:func:`check_metric_options`), even when typed with its default value."""
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        setattr(namespace, self.dest, self.const if self.nargs == 0 else values)
+        namespace.given = (*getattr(namespace, "given", ()), self.option_strings[0])
+
+
+def check_metric_options(args) -> None:
+    """Refuse an option typed that the chosen ``--metric`` does not use (``--shuffle-radius`` with chamfer,
+    ``--canny`` with shuffle): the model would be learned without it, and nothing would say so."""
+    for opt in getattr(args, "given", ()):
+        metrics = METRIC_OPTIONS[opt]
+        if args.metric not in metrics:
+            raise CliError(f"{opt} is an option of --metric {' / '.join(metrics)}, not of --metric {args.metric}")
+
+
 class _Progress:
     """Prints ``learn: STAGE done/total`` on stderr, at most about twice a second per stage."""
 
@@ -258,14 +286,10 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
 def check_values(args) -> None:
     """The frame ranges, Canny thresholds and patch size, each refused by its option's name before any
     frame is read (they were read where used, after the training video, and a range's error named none)."""
-    from pipeline.io.datasets import parse_range
+    from pipeline.cli.commands.common import frame_range
 
     for opt in ("frames", "background_frames"):
-        text = getattr(args, opt)
-        try:
-            parse_range(text)
-        except ValueError as e:
-            raise CliError(f"--{opt.replace('_', '-')} {text}: {e}") from None
+        frame_range(getattr(args, opt), f"--{opt.replace('_', '-')}")
     parse_pair(args.canny, "--canny")
     if args.patch_size:
         parse_size(args.patch_size)
@@ -274,6 +298,7 @@ def check_values(args) -> None:
 def cmd_learn(args) -> int:
     from pipeline.cli.commands.common import check_model_out
 
+    check_metric_options(args)
     check_model_out(args.out)
     from gflow_core.m2.learn import learn
 
@@ -346,32 +371,34 @@ def register(sub) -> None:
     q.add_argument("-K", type=int, default=20, help="number of exemplars (default 20)")
     q.add_argument("--kernel", choices=["moments", "mle"], default="moments",
                    help="estimator of d_k, sigma_k: moments (eq. 10, default) or MLE with integer d (eq. 11)")
-    q.add_argument("--patch-size", metavar="WxH", help="patch metrics: resample items to W x H pixels "
-                                                        "(default: frame size, or the median box size)")
+    q.add_argument("--patch-size", action=_Given, metavar="WxH",
+                   help="patch metrics: resample items to W x H pixels (default: frame size, or the median box size)")
     from gflow_core.m2 import edge_settings as edge
 
     g = q.add_argument_group("contour exemplars (chamfer)")
-    g.add_argument("--max-points", type=positive_int, default=150, help="points kept per training curve (default 150)")
+    g.add_argument("--max-points", action=_Given, type=positive_int, default=150,
+                   help="points kept per training curve (default 150)")
     canny = f"{edge.CANNY_LOW:g},{edge.CANNY_HIGH:g}"
-    g.add_argument("--canny", default=canny, metavar="LOW,HIGH", help=f"Canny thresholds (default {canny}); "
-                   "gflow track --tracker m2 uses the same")
-    g.add_argument("--blur", type=nonnegative_float, default=edge.BLUR,
+    g.add_argument("--canny", action=_Given, default=canny, metavar="LOW,HIGH",
+                   help=f"Canny thresholds (default {canny}); gflow track --tracker m2 uses the same")
+    g.add_argument("--blur", action=_Given, type=nonnegative_float, default=edge.BLUR,
                    help=f"Gaussian blur before Canny, pixels (default {edge.BLUR:g})")
-    g.add_argument("--profile", choices=["quadratic", "truncated"], default=edge.PROFILE,
+    g.add_argument("--profile", action=_Given, choices=["quadratic", "truncated"], default=edge.PROFILE,
                    help=f"chamfer profile g(u): u^2 (quadratic) or min(u^2, g0) (truncated; eq. 4; default "
                         f"{edge.PROFILE})")
-    g.add_argument("--g0", type=positive_float, default=edge.G0,
+    g.add_argument("--g0", action=_Given, type=positive_float, default=edge.G0,
                    help=f"truncation level of the truncated profile, px^2 (default {edge.G0:g})")
-    g.add_argument("--threshold", type=nonnegative_float, default=30.0, help="background subtraction threshold, grey levels (default 30)")
-    g.add_argument("--background-frames", metavar="A:B",
+    g.add_argument("--threshold", action=_Given, type=nonnegative_float, default=30.0,
+                   help="background subtraction threshold, grey levels (default 30)")
+    g.add_argument("--background-frames", action=_Given, metavar="A:B",
                    help="frames whose per-pixel median is the background (default: the training frames; a target "
                         "that barely moves in them is part of that median)")
-    g.add_argument("--no-appearance", dest="appearance", action="store_false",
+    g.add_argument("--no-appearance", dest="appearance", action=_Given, nargs=0, const=False, default=True,
                    help="with --boxes: do not learn appearance exemplars (edge-orientation patches) beside chamfer")
-    g.add_argument("--no-background-mask", action="store_true",
+    g.add_argument("--no-background-mask", action=_Given, nargs=0, const=True, default=False,
                    help="with --boxes: keep every edge in the box (default: only the moving foreground's)")
     g = q.add_argument_group("patch exemplars (shuffle, l2)")
-    g.add_argument("--shuffle-radius", type=nonnegative_int, default=1,
+    g.add_argument("--shuffle-radius", action=_Given, type=nonnegative_int, default=1,
                    help="shuffle neighbourhood radius r (default 1: 3x3)")
     g = q.add_argument_group("AVLetters (.npz source)")
     g.add_argument("--reps", metavar="1,2", help="repetitions to train on (default: all)")

@@ -74,6 +74,10 @@ def cmd_info(args) -> int:
         print_tracker(args.file, args.json)
         return 0
     suffix = Path(args.file).suffix.lower()
+    if Path(args.file).is_dir() and suffix != ".npz":  # a model file's name: its reader says it is a folder
+        from pipeline.io.mcap_io import check_recording
+
+        check_recording(args.file)  # "adir is a folder, not a recording file", as every command that reads one says
     fn = DESCRIBERS.get(suffix)
     if fn is None:
         raise CliError(f"do not know how to describe {args.file} (known: {', '.join(sorted(DESCRIBERS))} files, or a "
@@ -102,10 +106,10 @@ def cmd_replay(args) -> int:
                          ack_timeout=args.ack_timeout, stream=args.stream)
     import dataclasses
 
-    from pipeline.io.mcap_io import _check as check_mcap
+    from pipeline.io.mcap_io import check_recording
     from pipeline.runtime.transport import free_port
 
-    check_mcap(args.file)  # a missing or non-MCAP file is refused before joining the network
+    check_recording(args.file)  # a missing or non-MCAP file is refused before joining the network
     if args.stream:
         from pipeline.runtime.transport import topic_key
 

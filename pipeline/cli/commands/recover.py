@@ -18,9 +18,16 @@ def cmd_recover(args) -> int:
     from pipeline.io.recording_files import refuse_existing
 
     refuse_existing(args.fixed, "FIXED")  # a recording never overwrites a file
-    r = recover(args.broken, args.fixed)
+    from pipeline.io.mcap_io import check_recording
+
+    check_recording(args.broken)  # a folder, missing or not MCAP: the user's mistake (exit 2), before any write
+    try:
+        r = recover(args.broken, args.fixed)  # written beside FIXED and moved there once closed
+    except OSError as e:  # a full disk, say, midway: exit 1, as a run that went wrong; nothing is left of FIXED
+        print(f"gflow recover: error: recovering {args.broken} failed: {e.strerror or e}; {args.fixed} not written",
+              file=sys.stderr)
+        return 1
     if r.messages == 0:  # exit 1: nothing was saved; a FIXED of metadata alone is not left to look like a recording
-        os.remove(args.fixed)
         why = (f"no chunk is complete before where it stops ({r.stopped_because})" if not r.complete
                else "it holds no message")
         print(f"gflow recover: error: nothing could be recovered from {args.broken}: {why}; {args.fixed} not written",

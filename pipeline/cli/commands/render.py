@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError, positive_float, positive_int
+from pipeline.cli.commands.common import CliError, frame_range, positive_float, positive_int
 
 ORDER = 58
 
@@ -56,12 +56,7 @@ def cmd_render(args) -> int:
         check_new_picture(args.out)
     elif out.exists() and not out.is_dir():
         raise CliError(f"{args.out} exists and is not a folder")
-    from pipeline.io.datasets import parse_range
-
-    try:  # as every command reads --frames (5: frame 5 alone); a reversed range refused before the reading
-        first, end = parse_range(args.frames)
-    except ValueError as e:
-        raise CliError(f"--frames {args.frames}: {e}") from None
+    first, end = frame_range(args.frames)  # a reversed range refused before the reading
     from pipeline.cli.commands.common import warn_if_torn
 
     warn_if_torn(args.file)

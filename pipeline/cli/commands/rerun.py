@@ -49,18 +49,17 @@ def _cannot_check(path: str, plan, needs: set[str], compares: set[str], what: st
     """A :class:`CliError` saying what cannot be re-run or checked and why: the recording lacks
     topics the re-run is fed (``needs``: it would step nothing) or every topic it is compared with
     (``compares``); ``--record-topics`` chose what was kept."""
-    from pipeline.cli.commands.common import torn_segments
-    from pipeline.io.mcap_io import recorded_topics
+    from pipeline.io.mcap_io import recorded_topics, torn_cause
 
     have = set(recorded_topics(path))
     missing = sorted(needs - have)
     rec = plan.recorder()
     kept = list(rec.params.get("topics") or ["*"]) if rec is not None else ["*"]
     why = f" (it was recorded with --record-topics {','.join(kept)})" if "*" not in kept else ""
-    if missing and torn_segments(path):  # not what was recorded, but what a torn file lets be read
+    torn = torn_cause(path) if missing else ""
+    if torn:  # not what was recorded, but what a torn file lets be read: said as every command says it
         it = "it is" if len(missing) == 1 else "they are"
-        raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in what can be read of {path}, "
-                       f"which ends early (its writer was killed); `gflow recover` salvages what is before the cut")
+        raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in what can be read of {path}: {torn}")
     if missing:
         it = "it is" if len(missing) == 1 else "they are"
         raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in {path}{why}, and a re-run is fed "
