@@ -65,6 +65,9 @@ class DCFParams:
                                     "of the initial box")
     speed_noise: float = param(0.5, "the centre's noise grows by this many times the speed |v| (px / frame)")
     velocity_memory: float = param(0.5, "m of the velocity v <- m v + (1 - m) (c_t - c_{t-1}) / dt")
+    motion_fit: float = param(0.0, "the motion's gain g of the prediction c + g v dt is learnt from the tracked "
+                                   "displacements at this rate, by regression with the prior g ~ N(1, 1) "
+                                   "(gflow_core.dcf.motion_fit; 0: g = 1, constant velocity)")
     motion_prior: float = param(0.25, "std of the motion prior about the prediction, in box sizes, plus the speed's share")
     target_rate: float = param(0.05, "rate of the running moments of the target's score distribution")
     clutter_rate: float = param(0.05, "rate of the running moments of the clutter's score distribution")
@@ -258,6 +261,8 @@ class DCFParams:
                 raise ValueError(f"{name} must be finite and >= 0, got {v}")
         if not 0 <= self.coast_velocity <= 1:
             raise ValueError(f"coast_velocity must be in [0, 1], got {self.coast_velocity}")
+        if not 0 <= self.motion_fit < 1:
+            raise ValueError(f"motion_fit must be in [0, 1), got {self.motion_fit}")
         if not 0 <= self.velocity_memory < 1:
             raise ValueError(f"velocity_memory must be in [0, 1), got {self.velocity_memory}")
         if not self.motion_prior > 0:

@@ -86,6 +86,8 @@ class DCFState:
         half a box away on confident frames (``verify``; :mod:`.verify`; empty without).
     track : while the target is hidden, the search's best placements as a candidate track (``search_track``;
         :mod:`.trackscore`; None without).
+    motion_fit : the sums (A, B) of the motion model's learnt gain (``motion_fit``; :mod:`.motion_fit`; (0, 0)
+        without).
     """
 
     geom: Geometry
@@ -113,6 +115,7 @@ class DCFState:
     vtarget: ChiSquare = ChiSquare()
     vclutter: ChiSquare = ChiSquare()
     track: Track | None = None
+    motion_fit: tuple[float, float] = (0.0, 0.0)
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -200,6 +203,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["manoeuvre"] = float(st.manoeuvre)
     if st.recent:
         values["recent"] = float(st.recent)
+    if any(st.motion_fit):
+        values["motion_fit"] = [float(v) for v in st.motion_fit]
     if st.vtarget.n:
         values["vtarget"] = _chi_values(st.vtarget)
         values["vclutter"] = _chi_values(st.vclutter)
@@ -253,6 +258,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
                     angle=float(values.get("angle", 0.0)), manoeuvre=float(values.get("manoeuvre", 0.0)),
                     recent=float(values.get("recent", 0.0)),
+                    motion_fit=tuple(float(v) for v in values.get("motion_fit", (0.0, 0.0))),
                     vtarget=chi("vtarget"), vclutter=chi("vclutter"),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None,

@@ -36,6 +36,7 @@ from .dynamics import PURPOSE_WALK, alpha_of, particles_of, speed_noise, walk
 from .features import is_grey
 from .gate import within
 from . import modes as mm
+from . import motion_fit
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .proposal import assign, detections
@@ -104,8 +105,9 @@ def _particles(st: DCFState, proposed: np.ndarray, peak_xy: np.ndarray, extra: f
     is the state's."""
     dyn = proposed.copy()
     if mot is None:
-        # x_t = x~_t + v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics)
-        dyn[:, :2] += st.velocity * dt + extra * rng.standard_normal((len(dyn), 2))
+        # x_t = x~_t + g v dt + beta |v| dt w_2: the speed's share of the dynamics' noise (module .dynamics;
+        # g the gain learnt with motion_fit, module .motion_fit, else 1)
+        dyn[:, :2] += _velocity(st, p) * dt + extra * rng.standard_normal((len(dyn), 2))
     else:
         # each particle's mode m ~ pi_t, and x_t = x~_t + (pred_m - c_t-1) + noise_m w_2 (.modes)
         dyn[:, :2] = mm.move(mot, dyn[:, :2], mm.draw(mot, len(dyn), rng), rng)
@@ -124,6 +126,11 @@ def _particles(st: DCFState, proposed: np.ndarray, peak_xy: np.ndarray, extra: f
     return parts
 
 
+def _velocity(st: DCFState, p: DCFParams) -> np.ndarray:
+    """(2,) px / frame the prediction carries on: g v, g the gain learnt with ``motion_fit`` (.motion_fit), else v."""
+    return st.velocity if p.motion_fit <= 0 else motion_fit.gain(st.motion_fit) * st.velocity
+
+
 def _motion(st: DCFState, p: DCFParams, bw: float, bh: float, dt: float
             ) -> tuple[np.ndarray, float, float, float, mm.Motion | None]:
     """The motion's prediction of frame t (the window's centre), the speed's share beta |v| dt of the noise,
@@ -134,8 +141,8 @@ def _motion(st: DCFState, p: DCFParams, bw: float, bh: float, dt: float
     sx = float(np.hypot(p.motion_prior * bw * math.sqrt(dt) + extra, st.spread))
     sy = float(np.hypot(p.motion_prior * bh * math.sqrt(dt) + extra, st.spread))
     if p.motion_switch <= 0:
-        # constant velocity: the prediction c_{t-1} + v dt
-        return st.centre + st.velocity * dt, extra, sx, sy, None
+        # constant velocity: the prediction c_{t-1} + v dt (g v dt with motion_fit)
+        return st.centre + _velocity(st, p) * dt, extra, sx, sy, None
     # two motion modes: the window at their mixture's mean prediction c_{t-1} + pi_t(0) v dt
     mot = mm.predict(p, st.manoeuvre, st.centre, st.velocity, (bw, bh), extra, st.spread, dt)
     return mot.mean, extra, sx, sy, mot
@@ -634,6 +641,10 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
         log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
+        if p.motion_fit > 0:
+            # the regression d_t = g v_{t-1} dt + e, e ~ N(0, sx sy I), at rate motion_fit (.motion_fit)
+            learnt["motion_fit"] = motion_fit.update(st.motion_fit, centre - st.centre, st.velocity * dt, sx * sy,
+                                                     p.motion_fit)
         if p.redetect_speed:
             # E|v|^2 <- (1 - a) E|v|^2 + a |v|^2 on tracked frames, a = target_rate
             learnt["speed2"] = (1.0 - p.target_rate) * st.speed2 + p.target_rate * float(velocity @ velocity)
