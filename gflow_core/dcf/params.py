@@ -261,8 +261,6 @@ class DCFParams:
                 raise ValueError(f"{name} must be finite and >= 0, got {v}")
         if not 0 <= self.coast_velocity <= 1:
             raise ValueError(f"coast_velocity must be in [0, 1], got {self.coast_velocity}")
-        if not 0 <= self.motion_fit < 1:
-            raise ValueError(f"motion_fit must be in [0, 1), got {self.motion_fit}")
         if not 0 <= self.velocity_memory < 1:
             raise ValueError(f"velocity_memory must be in [0, 1), got {self.velocity_memory}")
         if not self.motion_prior > 0:
@@ -327,7 +325,7 @@ class DCFParams:
                              f"{self.reappear}")
 
     def _check_motion_size_and_support(self) -> None:
-        """``detect_peaks`` >= 1, ``motion_switch`` a probability below 1, ``rate_adapt`` a rate in [0, 1],
+        """``detect_peaks`` >= 1, ``motion_switch`` and ``motion_fit`` in [0, 1), ``rate_adapt`` a rate in [0, 1],
         ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior), the filter's
         support (:meth:`_check_segment`) and ``channel_weights`` and ``channel_intensity`` bools."""
         self._check_segment()
@@ -338,6 +336,8 @@ class DCFParams:
             raise ValueError(f"detect_peaks must be >= 1, got {self.detect_peaks}")
         if not 0 <= self.motion_switch < 1:
             raise ValueError(f"motion_switch must be in [0, 1), got {self.motion_switch}")
+        if not 0 <= self.motion_fit < 1:
+            raise ValueError(f"motion_fit must be in [0, 1), got {self.motion_fit}")
         if not 0 <= self.rate_adapt <= 1:
             raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
