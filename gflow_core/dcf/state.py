@@ -8,7 +8,7 @@ bit (a stage's snapshot).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -116,6 +116,12 @@ class DCFState:
     vclutter: ChiSquare = ChiSquare()
     track: Track | None = None
     motion_fit: tuple[float, float] = (0.0, 0.0)
+
+
+def _pair(v: Sequence[float]) -> tuple[float, float]:
+    """Two numbers of a snapshot's values, as a pair of floats."""
+    a, b = v
+    return float(a), float(b)
 
 
 def _chi_values(d: ChiSquare) -> list[float]:
@@ -258,7 +264,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
                     angle=float(values.get("angle", 0.0)), manoeuvre=float(values.get("manoeuvre", 0.0)),
                     recent=float(values.get("recent", 0.0)),
-                    motion_fit=tuple(float(v) for v in values.get("motion_fit", (0.0, 0.0))),
+                    motion_fit=_pair(values.get("motion_fit", (0.0, 0.0))),
                     vtarget=chi("vtarget"), vclutter=chi("vclutter"),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None,
