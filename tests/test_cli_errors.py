@@ -537,3 +537,19 @@ def test_echo_on_a_silent_topic_of_a_reached_peer_exits_1(tmp_path: Path) -> Non
         peer.close()
     assert r.returncode == 1 and "error" not in r.stderr, r.stderr
     assert r.stderr.strip().splitlines()[-1].startswith("gflow echo: no message on gflow/quiet/estimate in 0.3 s")
+
+
+def test_pub_with_no_subscriber_is_no_mistake(tmp_path: Path) -> None:
+    """``gflow pub`` on a topic nobody took within ``--wait`` said ``gflow pub: error: no subscriber ...`` and exited 2,
+    as a mistyped command would; nothing arriving is an answer (exit 1), said as echo says a topic stayed silent."""
+    from pipeline.runtime.transport import ZenohSettings, free_port, open_session
+
+    port = free_port()
+    peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
+    try:
+        r = gflow("pub", "gflow/quiet/_control", "Control", '{"command": "stop"}', "--connect",
+                  f"tcp/127.0.0.1:{port}", "--wait", "0.3", cwd=tmp_path, env=_no_pipelines(tmp_path))
+    finally:
+        peer.close()
+    assert r.returncode == 1 and "error" not in r.stderr, r.stderr
+    assert_one_line_error(r, "gflow pub: no subscriber of gflow/quiet/_control appeared within 0.3 s; nothing sent")
