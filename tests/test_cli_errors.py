@@ -578,3 +578,14 @@ def test_a_write_failing_during_the_work_is_a_failed_run(tmp_path: Path, frames:
                 for a in args], cwd=tmp_path)
     assert r.returncode == 2
     assert_one_line_error(r, "the folder no does not exist")
+
+
+@pytest.mark.parametrize("before", [[], ["good.mcap"]])
+def test_verify_of_a_folder_is_a_mistake_in_the_command(tmp_path: Path, demo_mcap: Path, before: list[str]) -> None:
+    """``gflow verify adir`` exited 1, as for a damaged file, where every other command refuses a folder given for a
+    recording as a mistake (exit 2); now it says so in the same words before it reads any file."""
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "good.mcap").write_bytes(demo_mcap.read_bytes())
+    r = gflow("verify", *before, "adir", cwd=tmp_path)
+    assert r.returncode == 2 and not r.stdout, r.stdout
+    assert_one_line_error(r, "gflow verify: error: adir is a folder, not a recording file (give an .mcap file)")
