@@ -589,3 +589,44 @@ def test_verify_of_a_folder_is_a_mistake_in_the_command(tmp_path: Path, demo_mca
     r = gflow("verify", *before, "adir", cwd=tmp_path)
     assert r.returncode == 2 and not r.stdout, r.stdout
     assert_one_line_error(r, "gflow verify: error: adir is a folder, not a recording file (give an .mcap file)")
+
+
+def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: Path, monkeypatch) -> None:
+    """``gflow echo --timeout T`` waited up to T s for a pipeline to start, then T s more for its messages: a run
+    announced just before T made the wait nearly 2T. T now counts from the start, the pipeline's wait included."""
+    import threading
+
+    from pipeline.runtime.running import announce
+    from pipeline.runtime.transport import ZenohSettings, free_port, open_session
+
+    env = _no_pipelines(tmp_path)
+    monkeypatch.setenv("GFLOW_RUNTIME_DIR", env["GFLOW_RUNTIME_DIR"])
+    port = free_port()
+    peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))  # publishes nothing
+    cmd = [sys.executable, "-m", "pipeline.cli.main", "echo", "gflow/quiet/estimate", "--timeout", "4"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(ROOT), **env))
+    lines: list[tuple[float, str]] = []
+    reader = threading.Thread(target=lambda: lines.extend((time.monotonic(), ln) for ln in proc.stderr), daemon=True)
+    reader.start()
+    announcement = None
+    try:
+        deadline = time.monotonic() + 30
+        while not lines and time.monotonic() < deadline:  # "waiting up to 4 s for a pipeline of stream quiet ..."
+            time.sleep(0.02)
+        assert lines and "waiting up to 4 s" in lines[0][1], lines
+        time.sleep(3.6)  # the run starts 3.6 s into the 4
+        announcement = announce("quiet", [f"tcp/127.0.0.1:{port}"], name="quiet")
+        proc.wait(timeout=30)
+        reader.join(timeout=5)
+    finally:
+        if announcement is not None:
+            announcement.close()
+        peer.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 1, lines
+    last_at, last = lines[-1]
+    assert last.startswith("gflow echo: no message on gflow/quiet/estimate in 4 s"), last
+    # 4 s, then 1.5 s listening to what the stream has for the line (5.5 s measured); before, 3.6 + 4 + 1.5 s
+    assert last_at - lines[0][0] < 7.5, [(round(t - lines[0][0], 2), ln) for t, ln in lines]

@@ -150,13 +150,14 @@ def cmd_echo(args) -> int:
     from pipeline.cli.live import echo
 
     _check_topic(args.topic)
+    t0 = time.monotonic()  # --timeout bounds the whole wait: for a pipeline to start, then for its messages
     if not _await_pipeline(args, args.topic, args.timeout or 0.0):
         return _none_came("echo", args.topic, args.timeout)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     if not args.json:
         _say_where(found)
-    n = echo(settings, key, args.count, args.timeout, as_json=args.json)
+    n = echo(settings, key, args.count, args.timeout, as_json=args.json, since=t0)
     if n == 0:
         print(f"gflow echo: no message on {key}" + (f" in {args.timeout:g} s" if args.timeout else "")
               + (_heard_instead(settings, key) if args.timeout else ""), file=sys.stderr)
@@ -366,7 +367,10 @@ def register(sub) -> None:
     p.add_argument("topic", help="the name in the stream (estimate), the full name with or without the run id "
                                  "(gflow/cam0/estimate), or a pattern (cam0/**, _status/*)")
     p.add_argument("-n", "--count", type=positive_int, help="stop after N messages")
-    p.add_argument("--timeout", type=positive_float, help="stop after this many seconds")
+    p.add_argument("--timeout", type=positive_float, metavar="S",
+                   help="stop after S seconds in all, counted from the start, a wait for the pipeline to start "
+                        "included (when no message came, the error names the topics the stream has, listened to "
+                        "for 1.5 s more)")
     p.add_argument("--json", action="store_true", help="one JSON object per message (small arrays as lists)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_echo)
