@@ -630,3 +630,26 @@ def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: 
     assert last.startswith("gflow echo: no message on gflow/quiet/estimate in 4 s"), last
     # 4 s, then 1.5 s listening to what the stream has for the line (5.5 s measured); before, 3.6 + 4 + 1.5 s
     assert last_at - lines[0][0] < 7.5, [(round(t - lines[0][0], 2), ln) for t, ln in lines]
+
+
+@pytest.mark.parametrize("extra,said", [
+    (["--no-appearance"], "--no-appearance does not apply without --boxes: appearance exemplars are learned from "
+                          "the boxes only"),
+    (["--no-background-mask"], "--no-background-mask does not apply without --boxes: it keeps every edge in a box"),
+    (["--boxes", "gt.csv", "--no-background-mask", "--threshold", "20"],
+     "--threshold does not apply with --no-background-mask: it is the background subtraction's"),
+    (["--boxes", "gt.csv", "--no-background-mask", "--background-frames", "0:3"],
+     "--background-frames does not apply with --no-background-mask: the background masks the edges in the boxes"),
+    (["--g0", "50"], "--g0 does not apply with --profile quadratic (the default): it is the truncation level of "
+                     "--profile truncated"),
+    (["--profile", "quadratic", "--g0", "50"], "--g0 does not apply with --profile quadratic: it is"),
+])
+def test_learn_m2_refuses_a_contour_option_its_way_of_training_leaves_unused(tmp_path: Path, frames: Path,
+                                                                             extra: list[str], said: str) -> None:
+    """``--no-appearance`` and ``--no-background-mask`` without ``--boxes``, ``--threshold`` and ``--background-frames``
+    with ``--no-background-mask``, and ``--g0`` with the quadratic profile were taken and ignored without a word."""
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(5)))
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, f"gflow learn: error: {said}")
+    assert not (tmp_path / "m.npz").exists()
