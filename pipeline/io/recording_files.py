@@ -28,7 +28,8 @@ from typing import IO
 
 from pipeline.io.path_errors import PathMistake
 
-__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new", "refuse_existing",
+__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new",
+           "refuse_existing",
            "StoredRecording", "folder_recordings", "size_warning", "warn_mb", "WARN_MB"]
 
 #: the size of a recordings folder above which a run warns (MB), unless GFLOW_RECORDINGS_WARN_MB says

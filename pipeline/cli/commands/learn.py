@@ -77,7 +77,7 @@ class _Given(argparse.Action):
 
 
 def _masked(args) -> bool:
-    """Contour items cut from boxes and masked by the moving foreground (``--boxes`` without ``--no-background-mask``)."""
+    """Contour items cut from boxes and masked by the moving foreground (``--boxes``, no ``--no-background-mask``)."""
     return args.boxes is not None and not args.no_background_mask
 
 

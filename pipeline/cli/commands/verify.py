@@ -92,8 +92,9 @@ def register(sub) -> None:
                                    "the file holds, that every message's channel and schema exist and that every "
                                    "message decodes as its gflow type. One line per file: OK, DAMAGED (what, where, "
                                    "and how many messages gflow recover can salvage) or IN PROGRESS (a running "
-                                   "pipeline is writing it). Exit 1 when any file is damaged or unreadable (missing, empty, "
-                                   "not MCAP); 2 when a folder is given for a recording (nothing is read).",
+                                   "pipeline is writing it). Exit 1 when any file is damaged or unreadable "
+                                   "(missing, empty, not MCAP); 2 when a folder is given for a recording (nothing "
+                                   "is read).",
                        epilog="examples:\n  gflow verify run.mcap\n  gflow verify recordings/*.mcap --quiet",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("files", nargs="+", metavar="RECORDING", help="MCAP recordings")
