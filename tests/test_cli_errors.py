@@ -537,3 +537,119 @@ def test_echo_on_a_silent_topic_of_a_reached_peer_exits_1(tmp_path: Path) -> Non
         peer.close()
     assert r.returncode == 1 and "error" not in r.stderr, r.stderr
     assert r.stderr.strip().splitlines()[-1].startswith("gflow echo: no message on gflow/quiet/estimate in 0.3 s")
+
+
+def test_pub_with_no_subscriber_is_no_mistake(tmp_path: Path) -> None:
+    """``gflow pub`` on a topic nobody took within ``--wait`` said ``gflow pub: error: no subscriber ...`` and exited 2,
+    as a mistyped command would; nothing arriving is an answer (exit 1), said as echo says a topic stayed silent."""
+    from pipeline.runtime.transport import ZenohSettings, free_port, open_session
+
+    port = free_port()
+    peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))
+    try:
+        r = gflow("pub", "gflow/quiet/_control", "Control", '{"command": "stop"}', "--connect",
+                  f"tcp/127.0.0.1:{port}", "--wait", "0.3", cwd=tmp_path, env=_no_pipelines(tmp_path))
+    finally:
+        peer.close()
+    assert r.returncode == 1 and "error" not in r.stderr, r.stderr
+    assert_one_line_error(r, "gflow pub: no subscriber of gflow/quiet/_control appeared within 0.3 s; nothing sent")
+
+
+@pytest.mark.parametrize("argv,room,words", [
+    (["boxes", "{rec}", "--out", "b.csv"], 20, ["gflow boxes: error: File too large"]),
+    (["frame", "{frames}", "0", "f.png"], 100, ["gflow frame: error: f.png: File too large"]),
+    (["learn", "m2", "{frames}", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q"], 100,
+     ["gflow learn: error: File too large"]),
+])
+def test_a_write_failing_during_the_work_is_a_failed_run(tmp_path: Path, frames: Path, demo_mcap: Path,
+                                                         argv: list[str], room: int, words: list[str]) -> None:
+    """Every OSError was exit 2, a mistake in the command, also a write that failed once the work was done (a
+    full disk); ``gflow frame`` said ``OpenCV cannot write f.png (use .png or .jpg)`` after libpng's own line.
+    The paths named are checked first (exit 2); the system failing during the work is exit 1."""
+    out = tmp_path / "out"
+    out.mkdir()
+    args = [a.replace("{rec}", str(demo_mcap)).replace("{frames}", str(frames)) for a in argv]
+    r = gflow(*args, cwd=out, preexec_fn=_files_up_to(room))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, *words)
+    assert not (out / "f.png").exists()
+    # the same output in a folder that does not exist: refused before any work, exit 2
+    r = gflow(*[a.replace("b.csv", "no/b.csv").replace("f.png", "no/f.png").replace("m.npz", "no/m.npz")
+                for a in args], cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, "the folder no does not exist")
+
+
+@pytest.mark.parametrize("before", [[], ["good.mcap"]])
+def test_verify_of_a_folder_is_a_mistake_in_the_command(tmp_path: Path, demo_mcap: Path, before: list[str]) -> None:
+    """``gflow verify adir`` exited 1, as for a damaged file, where every other command refuses a folder given for a
+    recording as a mistake (exit 2); now it says so in the same words before it reads any file."""
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "good.mcap").write_bytes(demo_mcap.read_bytes())
+    r = gflow("verify", *before, "adir", cwd=tmp_path)
+    assert r.returncode == 2 and not r.stdout, r.stdout
+    assert_one_line_error(r, "gflow verify: error: adir is a folder, not a recording file (give an .mcap file)")
+
+
+def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: Path, monkeypatch) -> None:
+    """``gflow echo --timeout T`` waited up to T s for a pipeline to start, then T s more for its messages: a run
+    announced just before T made the wait nearly 2T. T now counts from the start, the pipeline's wait included."""
+    import threading
+
+    from pipeline.runtime.running import announce
+    from pipeline.runtime.transport import ZenohSettings, free_port, open_session
+
+    env = _no_pipelines(tmp_path)
+    monkeypatch.setenv("GFLOW_RUNTIME_DIR", env["GFLOW_RUNTIME_DIR"])
+    port = free_port()
+    peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))  # publishes nothing
+    cmd = [sys.executable, "-m", "pipeline.cli.main", "echo", "gflow/quiet/estimate", "--timeout", "4"]
+    proc = subprocess.Popen(cmd, cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                            env=dict(os.environ, PYTHONPATH=str(ROOT), **env))
+    lines: list[tuple[float, str]] = []
+    reader = threading.Thread(target=lambda: lines.extend((time.monotonic(), ln) for ln in proc.stderr), daemon=True)
+    reader.start()
+    announcement = None
+    try:
+        deadline = time.monotonic() + 30
+        while not lines and time.monotonic() < deadline:  # "waiting up to 4 s for a pipeline of stream quiet ..."
+            time.sleep(0.02)
+        assert lines and "waiting up to 4 s" in lines[0][1], lines
+        time.sleep(3.6)  # the run starts 3.6 s into the 4
+        announcement = announce("quiet", [f"tcp/127.0.0.1:{port}"], name="quiet")
+        proc.wait(timeout=30)
+        reader.join(timeout=5)
+    finally:
+        if announcement is not None:
+            announcement.close()
+        peer.close()
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 1, lines
+    last_at, last = lines[-1]
+    assert last.startswith("gflow echo: no message on gflow/quiet/estimate in 4 s"), last
+    # 4 s, then 1.5 s listening to what the stream has for the line (5.5 s measured); before, 3.6 + 4 + 1.5 s
+    assert last_at - lines[0][0] < 7.5, [(round(t - lines[0][0], 2), ln) for t, ln in lines]
+
+
+@pytest.mark.parametrize("extra,said", [
+    (["--no-appearance"], "--no-appearance does not apply without --boxes: appearance exemplars are learned from "
+                          "the boxes only"),
+    (["--no-background-mask"], "--no-background-mask does not apply without --boxes: it keeps every edge in a box"),
+    (["--boxes", "gt.csv", "--no-background-mask", "--threshold", "20"],
+     "--threshold does not apply with --no-background-mask: it is the background subtraction's"),
+    (["--boxes", "gt.csv", "--no-background-mask", "--background-frames", "0:3"],
+     "--background-frames does not apply with --no-background-mask: the background masks the edges in the boxes"),
+    (["--g0", "50"], "--g0 does not apply with --profile quadratic (the default): it is the truncation level of "
+                     "--profile truncated"),
+    (["--profile", "quadratic", "--g0", "50"], "--g0 does not apply with --profile quadratic: it is"),
+])
+def test_learn_m2_refuses_a_contour_option_its_way_of_training_leaves_unused(tmp_path: Path, frames: Path,
+                                                                             extra: list[str], said: str) -> None:
+    """``--no-appearance`` and ``--no-background-mask`` without ``--boxes``, ``--threshold`` and ``--background-frames``
+    with ``--no-background-mask``, and ``--g0`` with the quadratic profile were taken and ignored without a word."""
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(5)))
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
+    assert r.returncode == 2
+    assert_one_line_error(r, f"gflow learn: error: {said}")
+    assert not (tmp_path / "m.npz").exists()

@@ -91,8 +91,12 @@ def json_line(key: str, payload: bytes, pub_ns: int) -> str:
 
 
 def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | None, out: TextIO = sys.stdout,
-         as_json: bool = False) -> int:
-    """Print messages on ``key`` (a key expression) as they arrive; returns how many."""
+         as_json: bool = False, since: float | None = None) -> int:
+    """Print messages on ``key`` (a key expression) as they arrive; returns how many. ``timeout`` (s) counts
+    from ``since`` (a ``time.monotonic()``: the caller's start, so that what it waited for before, a
+    pipeline to start, is part of it), or from the call."""
+    begun = time.monotonic()
+    end = None if timeout is None else (begun if since is None else since) + timeout
     s = _session(settings)
     q: queue.SimpleQueue = queue.SimpleQueue()
     Bus(s).subscribe(key, lambda k, p, ns, seq: q.put((k, p, ns)))
@@ -101,7 +105,7 @@ def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | 
     told = False
     try:
         while count is None or n < count:
-            if timeout is not None and time.monotonic() - start > timeout:
+            if end is not None and time.monotonic() > end:
                 break
             if not told and n == 0 and time.monotonic() - start > 2.0:
                 print(f"waiting for messages on {key} (Ctrl-C to stop)", file=sys.stderr, flush=True)

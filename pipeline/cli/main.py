@@ -141,11 +141,14 @@ def _take_sigint_back() -> None:
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     """The errors that are the user's (one line, exit status 2): a request that cannot run, a graph's
-    mistake, a file that is missing, a bad value, a zenoh session that cannot open. The classes of
-    the modules the command never imported are left out (no such error can have been raised), so
-    that naming them costs no import."""
-    out: list[type[BaseException]] = [CliError, FileNotFoundError, ValueError]
-    for module, name in (("pipeline.runtime.graph", "GraphError"), ("pipeline.runtime.transport", "SessionError")):
+    mistake, a path named that is refused before any work (missing, a folder given for a file, an
+    output that exists: :mod:`pipeline.io.path_errors`), a bad value, a zenoh session that cannot
+    open. Any other OSError is the system failing during the work (exit status 1, :func:`main`). The
+    classes of the modules the command never imported are left out (no such error can have been
+    raised), so that naming them costs no import."""
+    out: list[type[BaseException]] = [CliError, ValueError]
+    for module, name in (("pipeline.runtime.graph", "GraphError"), ("pipeline.runtime.transport", "SessionError"),
+                         ("pipeline.io.path_errors", "PathMistake")):
         if module in sys.modules:
             out.append(getattr(sys.modules[module], name))
     return tuple(out)
@@ -170,10 +173,10 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:  # the reader of the output has gone (gflow info r.mcap | head): not an error to report
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit's flush of stdout is quiet
         return 141  # as a shell reports a command ended by SIGPIPE
-    except OSError as e:  # a file that cannot be read or written: name it, no traceback
+    except OSError as e:  # the system failed during the work (a full disk, a write refused): name it, exit 1
         where = f"{e.filename}: " if e.filename else ""
         print(f"gflow {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
-        return 2
+        return 1
     except KeyboardInterrupt:
         print(f"gflow {args.command}: interrupted", file=sys.stderr)
         return 130

@@ -60,6 +60,10 @@ def _load_file(path: str) -> dict:
         data = yaml.safe_load(p.read_text())
     except FileNotFoundError:
         raise SecurityError(f"security file not found: {path}") from None
+    except IsADirectoryError:
+        raise SecurityError(f"{path} is a folder, not a security file (give a .yaml file)") from None
+    except OSError as e:
+        raise SecurityError(f"security file {path}: {e.strerror or e}") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""

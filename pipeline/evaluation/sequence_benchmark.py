@@ -27,6 +27,7 @@ import numpy as np
 
 from gflow_core.evaluation.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
 
+from pipeline.io.path_errors import MissingPath
 from pipeline.recording.results import read_boxes, write_boxes
 from pipeline.app import TrackPlan
 
@@ -106,7 +107,7 @@ def find_sequences(paths: list[str]) -> tuple[list[Sequence], list[str]]:
     for text in paths:
         p = Path(text)
         if not p.exists():
-            raise FileNotFoundError(f"dataset folder not found: {text}")
+            raise MissingPath(f"dataset folder not found: {text}")
         if not p.is_dir():
             raise ValueError(f"{text} is not a folder (give a sequence folder with frames/ and groundtruth.csv, "
                              "or a folder of them)")

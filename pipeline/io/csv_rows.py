@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
+from pipeline.io.path_errors import MissingPath
+
 __all__ = ["csv_rows"]
 
 
@@ -13,7 +15,7 @@ def csv_rows(path: str | Path, columns: str, what: str):
     header line are skipped; a short row or a missing file is an error naming the file (and line)."""
     p = Path(path)
     if not p.is_file():
-        raise FileNotFoundError(f"{what} file not found: {p}")
+        raise MissingPath(f"{what} file not found: {p}")
     n = columns.count(",") + 1
     with open(p, newline="") as f:
         try:

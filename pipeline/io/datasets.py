@@ -23,6 +23,7 @@ import numpy as np
 from stages.source import SourceParams
 
 from pipeline.io.frame_readers import IMAGE_EXTENSIONS, open_reader
+from pipeline.io.path_errors import MissingPath
 
 __all__ = ["FrameSequence", "read_frames", "resolve_source", "AVLetters", "read_avletters", "write_frames",
            "parse_range"]
@@ -77,7 +78,7 @@ def resolve_source(source: str | os.PathLike) -> tuple[Literal["folder", "video"
         return "folder", p
     if p.is_file():
         return ("avletters" if p.suffix.lower() == ".npz" else "video"), p
-    raise FileNotFoundError(f"training source not found: {source} (give an image folder, a dataset folder with "
+    raise MissingPath(f"training source not found: {source} (give an image folder, a dataset folder with "
                             "frames/, a video file or an AVLetters .npz)")
 
 
@@ -135,7 +136,7 @@ class AVLetters:
     def load(cls, path: str | os.PathLike) -> "AVLetters":
         p = Path(path)
         if not p.is_file():
-            raise FileNotFoundError(f"AVLetters file not found: {p}")
+            raise MissingPath(f"AVLetters file not found: {p}")
         try:
             with np.load(p, allow_pickle=False) as d:
                 arrays = {k: np.asarray(d[k]) for k in d.files}

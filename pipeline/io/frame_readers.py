@@ -19,6 +19,7 @@ from gflow_msgs.messages import Capture, Frame, MessageError, decode
 from stages.source import RawFrame, SourceParams
 
 from pipeline.io.live_capture import LiveCapture
+from pipeline.io.path_errors import MissingPath
 
 __all__ = ["open_reader", "open_live", "read_live", "IMAGE_EXTENSIONS", "count_frames", "folder_frames"]
 
@@ -27,10 +28,10 @@ IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".pgm", ".
 
 def _folder_files(path: Path) -> list[Path]:
     if not path.is_dir():
-        raise FileNotFoundError(f"image folder not found: {path}")
+        raise MissingPath(f"image folder not found: {path}")
     files = sorted(p for p in path.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS)
     if not files:
-        raise FileNotFoundError(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in {path}")
+        raise MissingPath(f"no images ({', '.join(IMAGE_EXTENSIONS)}) in {path}")
     return files
 
 
@@ -72,7 +73,7 @@ def _read_folder(files: list[Path], start: int, stop: int | None) -> Iterator[Ra
 
 def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
     if not path.is_file():
-        raise FileNotFoundError(f"video file not found: {path}")
+        raise MissingPath(f"video file not found: {path}")
     cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
         raise ValueError(f"OpenCV cannot open {path} as a video")
@@ -216,7 +217,7 @@ def open_reader(p: SourceParams, base_dir: str | os.PathLike = ".") -> Iterator[
         return _read_video(path, p.start, p.stop)
     if p.kind == "mcap":
         if not path.is_file():
-            raise FileNotFoundError(f"MCAP file not found: {path}")
+            raise MissingPath(f"MCAP file not found: {path}")
         return _read_mcap(path, p.start, p.stop, p.host_clock)
     raise ValueError(f"unknown source kind {p.kind!r}")
 

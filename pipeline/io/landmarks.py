@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.io.csv_rows import csv_rows
+from pipeline.io.path_errors import MissingPath
 
 __all__ = ["LANDMARK_KEY", "resolve_landmarks", "read_landmarks", "read_points", "write_points"]
 
@@ -38,10 +39,10 @@ def resolve_landmarks(source: str | os.PathLike) -> Path:
     if p.is_dir():
         q = p / "landmarks.npz"
         if not q.is_file():
-            raise FileNotFoundError(f"{p} is a folder without landmarks.npz")
+            raise MissingPath(f"{p} is a folder without landmarks.npz")
         return q
     if not p.is_file():
-        raise FileNotFoundError(f"landmark file not found: {p}")
+        raise MissingPath(f"landmark file not found: {p}")
     return p
 
 

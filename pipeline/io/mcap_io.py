@@ -21,6 +21,7 @@ from typing import Iterator
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
+from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
@@ -83,13 +84,14 @@ class Record:
 
 def check_recording(path: str | Path) -> Path:
     """``path`` as a Path when it is an MCAP file; else a one-line error naming it: a folder
-    (:class:`IsADirectoryError`), nothing there (:class:`FileNotFoundError`) or another kind of
-    file (:class:`ValueError`). Commands call it to refuse an input before they write anything."""
+    (:class:`~pipeline.io.path_errors.FolderForFile`, an IsADirectoryError), nothing there
+    (:class:`~pipeline.io.path_errors.MissingPath`, a FileNotFoundError) or another kind of file
+    (:class:`ValueError`). Commands call it to refuse an input before they write anything."""
     p = Path(path)
     if p.is_dir():  # there, so "not found" would send the user looking for a file that exists
-        raise IsADirectoryError(f"{p} is a folder, not a recording file (give an .mcap file)")
+        raise FolderForFile(f"{p} is a folder, not a recording file (give an .mcap file)")
     if not p.is_file():
-        raise FileNotFoundError(f"recording not found: {p}")
+        raise MissingPath(f"recording not found: {p}")
     with open(p, "rb") as f:
         magic = f.read(8)
     if magic != b"\x89MCAP0\r\n":

@@ -31,6 +31,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from pipeline.io.path_errors import FolderForFile, MissingPath
+
 __all__ = ["save_model", "load_model", "load_meta", "read_arrays", "describe", "KINDS", "META_PREFIX",
            "BUILTIN_MODELS", "model_path"]
 
@@ -130,9 +132,9 @@ def read_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
     """
     p = Path(path)
     if p.is_dir():  # there, so "not found" would send the user looking for a file that exists
-        raise IsADirectoryError(f"{p} is a folder, not a model file (give an .npz file)")
+        raise FolderForFile(f"{p} is a folder, not a model file (give an .npz file)")
     if not p.is_file():
-        raise FileNotFoundError(f"model file not found: {p}")
+        raise MissingPath(f"model file not found: {p}")
     with open(p, "rb") as f:
         magic = f.read(4)
     if magic != b"PK\x03\x04":

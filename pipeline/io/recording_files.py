@@ -26,7 +26,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-__all__ = ["RecordingExists", "unique_path", "create_new", "create_beside", "move_new", "refuse_existing",
+from pipeline.io.path_errors import PathMistake
+
+__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new",
+           "refuse_existing",
            "StoredRecording", "folder_recordings", "size_warning", "warn_mb", "WARN_MB"]
 
 #: the size of a recordings folder above which a run warns (MB), unless GFLOW_RECORDINGS_WARN_MB says
@@ -35,6 +38,12 @@ WARN_MB = 2000.0
 
 class RecordingExists(FileExistsError):
     """A recording would overwrite a file that exists."""
+
+
+class OutputExists(RecordingExists, PathMistake):
+    """The output the user named exists, found before any work (:func:`refuse_existing`): a mistake in the
+    command, where a file that appears under the name while it is written (:func:`create_new`,
+    :func:`move_new`) is a run that failed."""
 
 
 def _taken(p: Path) -> bool:
@@ -54,10 +63,10 @@ def unique_path(path: str | os.PathLike) -> Path:
 
 
 def refuse_existing(path: str | os.PathLike, what: str = "--record") -> None:
-    """A :class:`RecordingExists` when ``path`` exists: a recording never replaces a file."""
+    """An :class:`OutputExists` when ``path`` exists: a recording never replaces a file."""
     p = Path(path)
     if _taken(p) and not p.is_dir():
-        raise RecordingExists(f"{what} {path} exists; a recording never overwrites a file: give a new name "
+        raise OutputExists(f"{what} {path} exists; a recording never overwrites a file: give a new name "
                               f"or remove it first")
 
 

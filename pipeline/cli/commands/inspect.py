@@ -150,13 +150,14 @@ def cmd_echo(args) -> int:
     from pipeline.cli.live import echo
 
     _check_topic(args.topic)
+    t0 = time.monotonic()  # --timeout bounds the whole wait: for a pipeline to start, then for its messages
     if not _await_pipeline(args, args.topic, args.timeout or 0.0):
         return _none_came("echo", args.topic, args.timeout)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     if not args.json:
         _say_where(found)
-    n = echo(settings, key, args.count, args.timeout, as_json=args.json)
+    n = echo(settings, key, args.count, args.timeout, as_json=args.json, since=t0)
     if n == 0:
         print(f"gflow echo: no message on {key}" + (f" in {args.timeout:g} s" if args.timeout else "")
               + (_heard_instead(settings, key) if args.timeout else ""), file=sys.stderr)
@@ -307,8 +308,10 @@ def cmd_pub(args) -> int:
         end = time.monotonic() + args.wait
         # zenoh's stub says matching_status is a bool; it is a MatchingStatus, whose .matching is the bool
         while not cast(Any, pub.matching_status).matching:
-            if time.monotonic() > end:
-                raise CliError(f"no subscriber of {key} appeared within {args.wait:g} s; nothing sent")
+            if time.monotonic() > end:  # nothing arrived: an answer (exit 1), as echo's silent topic, not a mistake
+                print(f"gflow pub: no subscriber of {key} appeared within {args.wait:g} s; nothing sent",
+                      file=sys.stderr)
+                return 1
             time.sleep(0.02)
         for i in range(args.count):
             if i:
@@ -364,7 +367,10 @@ def register(sub) -> None:
     p.add_argument("topic", help="the name in the stream (estimate), the full name with or without the run id "
                                  "(gflow/cam0/estimate), or a pattern (cam0/**, _status/*)")
     p.add_argument("-n", "--count", type=positive_int, help="stop after N messages")
-    p.add_argument("--timeout", type=positive_float, help="stop after this many seconds")
+    p.add_argument("--timeout", type=positive_float, metavar="S",
+                   help="stop after S seconds in all, counted from the start, a wait for the pipeline to start "
+                        "included (when no message came, the error names the topics the stream has, listened to "
+                        "for 1.5 s more)")
     p.add_argument("--json", action="store_true", help="one JSON object per message (small arrays as lists)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_echo)
@@ -389,7 +395,11 @@ def register(sub) -> None:
                        description="Builds a gflow message from JSON fields (the header is filled in: stream from the "
                                    "topic, --seq, the current time), waits until the topic has a subscriber, and "
                                    "publishes it.",
-                       epilog="example: gflow pub gflow/demo/_control Control '{\"command\": \"stop\"}'",
+                       epilog="example: gflow pub gflow/demo/_control Control '{\"command\": \"stop\"}'\n\n"
+                              "exit status:\n  0  sent\n"
+                              "  1  no subscriber of the topic appeared within --wait: nothing sent\n"
+                              "  2  a mistake in the command: a malformed topic, an unknown type, FIELDS that are not "
+                              "the type's,\n     a stream that is not running (without --connect), a bad option",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("topic", help="topic, e.g. gflow/cam0/_control")
     p.add_argument("type", help="message type, e.g. Control, Estimate")

@@ -29,6 +29,7 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -75,13 +76,42 @@ class _Given(argparse.Action):
         namespace.given = (*getattr(namespace, "given", ()), self.option_strings[0])
 
 
+def _masked(args) -> bool:
+    """Contour items cut from boxes and masked by the moving foreground (``--boxes``, no ``--no-background-mask``)."""
+    return args.boxes is not None and not args.no_background_mask
+
+
+#: the contour options that apply in some ways of training only: (option, whether it applies, when it does not, why)
+MODE_OPTIONS: tuple[tuple[str, Callable[[argparse.Namespace], bool], str, str], ...] = (
+    ("--no-appearance", lambda a: a.boxes is not None, "without --boxes",
+     "appearance exemplars are learned from the boxes only, so none are learned without it"),
+    ("--no-background-mask", lambda a: a.boxes is not None, "without --boxes",
+     "it keeps every edge in a box, and without --boxes the training edges are those of the foreground found by "
+     "background subtraction"),
+    ("--threshold", lambda a: a.boxes is None or _masked(a), "with --no-background-mask",
+     "it is the background subtraction's, and --no-background-mask keeps every edge in the box, the background "
+     "not subtracted"),
+    ("--background-frames", lambda a: a.boxes is None or _masked(a), "with --no-background-mask",
+     "the background masks the edges in the boxes, which --no-background-mask leaves out"),
+    ("--g0", lambda a: a.profile == "truncated", "with --profile quadratic",
+     "it is the truncation level of --profile truncated, min(u^2, g0)"),
+)
+
+
 def check_metric_options(args) -> None:
     """Refuse an option typed that the chosen ``--metric`` does not use (``--shuffle-radius`` with chamfer,
-    ``--canny`` with shuffle): the model would be learned without it, and nothing would say so."""
-    for opt in getattr(args, "given", ()):
+    ``--canny`` with shuffle), or that the way of training chosen leaves unused (:data:`MODE_OPTIONS`:
+    ``--no-appearance`` without ``--boxes``, ``--g0`` with the quadratic profile): the model would be learned
+    without it, and nothing would say so."""
+    given = getattr(args, "given", ())
+    for opt in given:
         metrics = METRIC_OPTIONS[opt]
         if args.metric not in metrics:
             raise CliError(f"{opt} is an option of --metric {' / '.join(metrics)}, not of --metric {args.metric}")
+    for opt, applies, when, why in MODE_OPTIONS:
+        if opt in given and not applies(args):
+            default = " (the default)" if opt == "--g0" and "--profile" not in given else ""
+            raise CliError(f"{opt} does not apply {when}{default}: {why}")
 
 
 class _Progress:

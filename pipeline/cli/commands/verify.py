@@ -57,18 +57,23 @@ def verify_line(path: str, busy: dict[Path, dict], quiet: bool) -> tuple[bool, s
 
 
 def cmd_verify(args) -> int:
+    from pipeline.io.mcap_io import check_recording
+
+    for path in args.files:  # a folder where a recording is named: a mistake in the command (exit 2), said as every
+        if Path(path).is_dir():  # command says it, before any file is read (a missing or damaged file is an answer)
+            check_recording(path)
     busy = _being_written()
     bad = 0
     for path in args.files:
         try:
             ok, line = verify_line(path, busy, args.quiet)
-        except (FileNotFoundError, IsADirectoryError, ValueError) as e:  # missing, a folder, empty or not MCAP: one line
+        except (FileNotFoundError, IsADirectoryError, ValueError) as e:  # missing, empty or not MCAP: one line
             size = Path(path).stat().st_size if Path(path).is_file() else -1
             why = f"{path} is empty (0 bytes), not an MCAP recording" if size == 0 else " ".join(str(e).split())
             print(f"gflow verify: error: {why}", file=sys.stderr)
             bad += 1
             continue
-        except OSError as e:  # unreadable (permissions, a folder): name it
+        except OSError as e:  # unreadable (permissions): name it
             print(f"gflow verify: error: {path}: {e.strerror or e}", file=sys.stderr)
             bad += 1
             continue
@@ -87,7 +92,9 @@ def register(sub) -> None:
                                    "the file holds, that every message's channel and schema exist and that every "
                                    "message decodes as its gflow type. One line per file: OK, DAMAGED (what, where, "
                                    "and how many messages gflow recover can salvage) or IN PROGRESS (a running "
-                                   "pipeline is writing it). Exit 1 when any file is damaged or unreadable.",
+                                   "pipeline is writing it). Exit 1 when any file is damaged or unreadable "
+                                   "(missing, empty, not MCAP); 2 when a folder is given for a recording (nothing "
+                                   "is read).",
                        epilog="examples:\n  gflow verify run.mcap\n  gflow verify recordings/*.mcap --quiet",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("files", nargs="+", metavar="RECORDING", help="MCAP recordings")
