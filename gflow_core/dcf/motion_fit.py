@@ -24,7 +24,8 @@ constant-velocity model, g = 0 the last place (a window where CSRT and KCF put t
 Departures: the auto-regressive coefficient is a scalar shared by x and y (a 2x2 matrix needs more
 frames than a jolting target keeps one regime for), it is clipped to [0, 1] (a negative gain, an
 oscillation's, predicts a reversal whose timing one coefficient cannot know), and the noise variance
-is the prior's, not fitted.
+is the prior's, not fitted. With ``motion_switch`` the two modes make the prediction (:mod:`.modes`) and the
+gain is learnt but not applied.
 """
 
 from __future__ import annotations
