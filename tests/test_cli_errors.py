@@ -591,9 +591,15 @@ def test_verify_of_a_folder_is_a_mistake_in_the_command(tmp_path: Path, demo_mca
     assert_one_line_error(r, "gflow verify: error: adir is a folder, not a recording file (give an .mcap file)")
 
 
-def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: Path, monkeypatch) -> None:
-    """``gflow echo --timeout T`` waited up to T s for a pipeline to start, then T s more for its messages: a run
-    announced just before T made the wait nearly 2T. T now counts from the start, the pipeline's wait included."""
+@pytest.mark.parametrize("tool,opt,said", [
+    ("echo", "--timeout", "gflow echo: no message on gflow/quiet/estimate in 4 s"),
+    ("hz", "--wait", "gflow hz: fewer than 2 messages on gflow/quiet/estimate (waited 4 s for the first)"),
+])
+def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: Path, monkeypatch, tool: str,
+                                                                      opt: str, said: str) -> None:
+    """``gflow echo --timeout T`` (and ``gflow hz --wait T``) waited up to T s for a pipeline to start, then T s more
+    for its messages: a run announced just before T made the wait nearly 2T. T now counts from the start, the
+    pipeline's wait included."""
     import threading
 
     from pipeline.runtime.running import announce
@@ -603,7 +609,7 @@ def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: 
     monkeypatch.setenv("GFLOW_RUNTIME_DIR", env["GFLOW_RUNTIME_DIR"])
     port = free_port()
     peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))  # publishes nothing
-    cmd = [sys.executable, "-m", "pipeline.cli.main", "echo", "gflow/quiet/estimate", "--timeout", "4"]
+    cmd = [sys.executable, "-m", "pipeline.cli.main", tool, "gflow/quiet/estimate", opt, "4"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
                             env=dict(os.environ, PYTHONPATH=str(ROOT), **env))
     lines: list[tuple[float, str]] = []
@@ -627,7 +633,7 @@ def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: 
             proc.kill()
     assert proc.returncode == 1, lines
     last_at, last = lines[-1]
-    assert last.startswith("gflow echo: no message on gflow/quiet/estimate in 4 s"), last
+    assert last.startswith(said), last
     # 4 s, then 1.5 s listening to what the stream has for the line (5.5 s measured); before, 3.6 + 4 + 1.5 s
     assert last_at - lines[0][0] < 7.5, [(round(t - lines[0][0], 2), ln) for t, ln in lines]
 
