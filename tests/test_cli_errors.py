@@ -659,3 +659,23 @@ def test_learn_m2_refuses_a_contour_option_its_way_of_training_leaves_unused(tmp
     assert r.returncode == 2
     assert_one_line_error(r, f"gflow learn: error: {said}")
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("out,said", [
+    ("o.mp4", "gflow render: error: o.mp4: the video was not written whole (0 of its 20 frames can be read back; "
+              "a full disk?); nothing written"),
+    ("o.avi", "gflow render: error: o.avi: the video was not written whole"),
+    ("pngs", "gflow render: error: pngs/000000.png: File too large"),
+])
+def test_render_failing_midway_is_a_failed_run_that_leaves_nothing(tmp_path: Path, demo_mcap: Path, out: str,
+                                                                   said: str) -> None:
+    """``gflow render`` ignored a write that failed: ``cv2.imwrite``'s answer was not looked at and OpenCV's video
+    writer says nothing, so on a full disk it exited 0 with a broken video under the name asked for. The video is
+    now written beside its name, read back and moved there whole; a picture that fails takes the others with it."""
+    r = gflow("render", str(demo_mcap), out, "-q", cwd=tmp_path, preexec_fn=_files_up_to(100_000))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, said)
+    assert not list(tmp_path.iterdir()), "neither the output nor a temporary file may be left"
+    r = gflow("render", str(demo_mcap), out, "-q", cwd=tmp_path)  # with room: the whole of it, the retry not refused
+    assert r.returncode == 0, r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == [out]
