@@ -556,7 +556,7 @@ def test_pub_with_no_subscriber_is_no_mistake(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("argv,room,words", [
-    (["boxes", "{rec}", "--out", "b.csv"], 20, ["gflow boxes: error: File too large"]),
+    (["boxes", "{rec}", "--out", "b.csv"], 20, ["gflow boxes: error: b.csv: File too large"]),
     (["frame", "{frames}", "0", "f.png"], 100, ["gflow frame: error: f.png: File too large"]),
     (["learn", "m2", "{frames}", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q"], 100,
      ["gflow learn: error: File too large"]),
@@ -679,3 +679,16 @@ def test_render_failing_midway_is_a_failed_run_that_leaves_nothing(tmp_path: Pat
     r = gflow("render", str(demo_mcap), out, "-q", cwd=tmp_path)  # with room: the whole of it, the retry not refused
     assert r.returncode == 0, r.stderr
     assert [p.name for p in tmp_path.iterdir()] == [out]
+
+
+def test_boxes_failing_midway_leaves_no_partial_csv(tmp_path: Path, demo_mcap: Path) -> None:
+    """``gflow boxes REC --out b.csv`` wrote straight into b.csv: stopped midway (a full disk), it left the rows
+    written, and the retry was refused as b.csv existing. It now writes beside b.csv and takes the name once whole."""
+    r = gflow("boxes", str(demo_mcap), "--out", "b.csv", cwd=tmp_path, preexec_fn=_files_up_to(200))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow boxes: error: b.csv: File too large")
+    assert not list(tmp_path.iterdir()), "neither b.csv nor its temporary file may be left"
+    r = gflow("boxes", str(demo_mcap), "--out", "b.csv", cwd=tmp_path)  # with room: the retry is not refused
+    assert r.returncode == 0 and "20 boxes" in r.stdout, r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["b.csv"]
+    assert len((tmp_path / "b.csv").read_text().splitlines()) == 21
