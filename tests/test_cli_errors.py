@@ -692,3 +692,20 @@ def test_boxes_failing_midway_leaves_no_partial_csv(tmp_path: Path, demo_mcap: P
     assert r.returncode == 0 and "20 boxes" in r.stdout, r.stderr
     assert [p.name for p in tmp_path.iterdir()] == ["b.csv"]
     assert len((tmp_path / "b.csv").read_text().splitlines()) == 21
+
+
+@pytest.mark.parametrize("argv", [
+    ["eval", "--gt", "adir", "--pred", "b.csv"],
+    ["eval", "--gt", "b.csv", "--pred", "adir"],
+    ["plot", "{rec}", "p.png", "--gt", "adir"],
+])
+def test_a_folder_given_for_a_box_file_is_called_a_folder(tmp_path: Path, demo_mcap: Path, argv: list[str]) -> None:
+    """``gflow eval --gt adir`` and ``gflow plot --gt adir`` said ``box file not found: adir`` of a folder that is
+    there; a folder given for a file is a mistake in the command, said as the other commands say it."""
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "b.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n")
+    r = gflow(*[a.replace("{rec}", str(demo_mcap)) for a in argv], cwd=tmp_path)
+    assert r.returncode == 2
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a box file (give a .csv file)")
+    assert "not found" not in line, line
+    assert not (tmp_path / "p.png").exists()
