@@ -556,7 +556,7 @@ def test_pub_with_no_subscriber_is_no_mistake(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("argv,room,words", [
-    (["boxes", "{rec}", "--out", "b.csv"], 20, ["gflow boxes: error: File too large"]),
+    (["boxes", "{rec}", "--out", "b.csv"], 20, ["gflow boxes: error: b.csv: File too large"]),
     (["frame", "{frames}", "0", "f.png"], 100, ["gflow frame: error: f.png: File too large"]),
     (["learn", "m2", "{frames}", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q"], 100,
      ["gflow learn: error: File too large"]),
@@ -591,9 +591,15 @@ def test_verify_of_a_folder_is_a_mistake_in_the_command(tmp_path: Path, demo_mca
     assert_one_line_error(r, "gflow verify: error: adir is a folder, not a recording file (give an .mcap file)")
 
 
-def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: Path, monkeypatch) -> None:
-    """``gflow echo --timeout T`` waited up to T s for a pipeline to start, then T s more for its messages: a run
-    announced just before T made the wait nearly 2T. T now counts from the start, the pipeline's wait included."""
+@pytest.mark.parametrize("tool,opt,said", [
+    ("echo", "--timeout", "gflow echo: no message on gflow/quiet/estimate in 4 s"),
+    ("hz", "--wait", "gflow hz: fewer than 2 messages on gflow/quiet/estimate (waited 4 s for the first)"),
+])
+def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: Path, monkeypatch, tool: str,
+                                                                      opt: str, said: str) -> None:
+    """``gflow echo --timeout T`` (and ``gflow hz --wait T``) waited up to T s for a pipeline to start, then T s more
+    for its messages: a run announced just before T made the wait nearly 2T. T now counts from the start, the
+    pipeline's wait included."""
     import threading
 
     from pipeline.runtime.running import announce
@@ -603,7 +609,7 @@ def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: 
     monkeypatch.setenv("GFLOW_RUNTIME_DIR", env["GFLOW_RUNTIME_DIR"])
     port = free_port()
     peer = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",), multicast=False))  # publishes nothing
-    cmd = [sys.executable, "-m", "pipeline.cli.main", "echo", "gflow/quiet/estimate", "--timeout", "4"]
+    cmd = [sys.executable, "-m", "pipeline.cli.main", tool, "gflow/quiet/estimate", opt, "4"]
     proc = subprocess.Popen(cmd, cwd=tmp_path, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
                             env=dict(os.environ, PYTHONPATH=str(ROOT), **env))
     lines: list[tuple[float, str]] = []
@@ -627,7 +633,7 @@ def test_echo_timeout_bounds_the_wait_for_a_pipeline_and_its_messages(tmp_path: 
             proc.kill()
     assert proc.returncode == 1, lines
     last_at, last = lines[-1]
-    assert last.startswith("gflow echo: no message on gflow/quiet/estimate in 4 s"), last
+    assert last.startswith(said), last
     # 4 s, then 1.5 s listening to what the stream has for the line (5.5 s measured); before, 3.6 + 4 + 1.5 s
     assert last_at - lines[0][0] < 7.5, [(round(t - lines[0][0], 2), ln) for t, ln in lines]
 
@@ -653,3 +659,53 @@ def test_learn_m2_refuses_a_contour_option_its_way_of_training_leaves_unused(tmp
     assert r.returncode == 2
     assert_one_line_error(r, f"gflow learn: error: {said}")
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("out,said", [
+    ("o.mp4", "gflow render: error: o.mp4: the video was not written whole (0 of its 20 frames can be read back; "
+              "a full disk?); nothing written"),
+    ("o.avi", "gflow render: error: o.avi: the video was not written whole"),
+    ("pngs", "gflow render: error: pngs/000000.png: File too large"),
+])
+def test_render_failing_midway_is_a_failed_run_that_leaves_nothing(tmp_path: Path, demo_mcap: Path, out: str,
+                                                                   said: str) -> None:
+    """``gflow render`` ignored a write that failed: ``cv2.imwrite``'s answer was not looked at and OpenCV's video
+    writer says nothing, so on a full disk it exited 0 with a broken video under the name asked for. The video is
+    now written beside its name, read back and moved there whole; a picture that fails takes the others with it."""
+    r = gflow("render", str(demo_mcap), out, "-q", cwd=tmp_path, preexec_fn=_files_up_to(100_000))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, said)
+    assert not list(tmp_path.iterdir()), "neither the output nor a temporary file may be left"
+    r = gflow("render", str(demo_mcap), out, "-q", cwd=tmp_path)  # with room: the whole of it, the retry not refused
+    assert r.returncode == 0, r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == [out]
+
+
+def test_boxes_failing_midway_leaves_no_partial_csv(tmp_path: Path, demo_mcap: Path) -> None:
+    """``gflow boxes REC --out b.csv`` wrote straight into b.csv: stopped midway (a full disk), it left the rows
+    written, and the retry was refused as b.csv existing. It now writes beside b.csv and takes the name once whole."""
+    r = gflow("boxes", str(demo_mcap), "--out", "b.csv", cwd=tmp_path, preexec_fn=_files_up_to(200))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow boxes: error: b.csv: File too large")
+    assert not list(tmp_path.iterdir()), "neither b.csv nor its temporary file may be left"
+    r = gflow("boxes", str(demo_mcap), "--out", "b.csv", cwd=tmp_path)  # with room: the retry is not refused
+    assert r.returncode == 0 and "20 boxes" in r.stdout, r.stderr
+    assert [p.name for p in tmp_path.iterdir()] == ["b.csv"]
+    assert len((tmp_path / "b.csv").read_text().splitlines()) == 21
+
+
+@pytest.mark.parametrize("argv", [
+    ["eval", "--gt", "adir", "--pred", "b.csv"],
+    ["eval", "--gt", "b.csv", "--pred", "adir"],
+    ["plot", "{rec}", "p.png", "--gt", "adir"],
+])
+def test_a_folder_given_for_a_box_file_is_called_a_folder(tmp_path: Path, demo_mcap: Path, argv: list[str]) -> None:
+    """``gflow eval --gt adir`` and ``gflow plot --gt adir`` said ``box file not found: adir`` of a folder that is
+    there; a folder given for a file is a mistake in the command, said as the other commands say it."""
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "b.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n")
+    r = gflow(*[a.replace("{rec}", str(demo_mcap)) for a in argv], cwd=tmp_path)
+    assert r.returncode == 2
+    line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a box file (give a .csv file)")
+    assert "not found" not in line, line
+    assert not (tmp_path / "p.png").exists()

@@ -176,10 +176,13 @@ def rate_stats(times: list[float], window: int | None = None) -> RateStats | Non
 
 
 def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: TextIO = sys.stdout,
-       wait: float = 10.0, window: int | None = None, every: float = 1.0) -> RateStats | None:
+       wait: float = 10.0, window: int | None = None, every: float = 1.0,
+       since: float | None = None) -> RateStats | None:
     """A rolling rate on ``key``: wait up to ``wait`` s for the first message, then print the rate,
     min / max / std of the gaps over the last ``window`` messages every ``every`` s, for
-    ``duration`` s (None: until Ctrl-C). Returns the last statistics (None: fewer than 2 messages)."""
+    ``duration`` s (None: until Ctrl-C). Returns the last statistics (None: fewer than 2 messages).
+    ``wait`` counts from ``since`` (a ``time.monotonic()``: the caller's start, so that what it waited for
+    before, a pipeline to start, is part of it), or from the call."""
     s = _session(settings)
     q: queue.SimpleQueue = queue.SimpleQueue()
     # arrival (monotonic), latency (ms, NaN when the stamp is not the host clock)
@@ -214,12 +217,12 @@ def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: Te
         return st
 
     try:
-        t_wait = time.monotonic()
+        wait_end = (time.monotonic() if since is None else since) + wait
         while not times:
             try:
                 take(q.get(timeout=0.05))
             except queue.Empty:
-                if time.monotonic() - t_wait > wait:
+                if time.monotonic() > wait_end:
                     return None
         end = None if duration is None else times[0] + duration
         next_print = times[0] + every

@@ -5,15 +5,17 @@ from __future__ import annotations
 import csv
 from pathlib import Path
 
-from pipeline.io.path_errors import MissingPath
+from pipeline.io.path_errors import FolderForFile, MissingPath
 
 __all__ = ["csv_rows"]
 
 
 def csv_rows(path: str | Path, columns: str, what: str):
     """``(line number, row)`` of a CSV file of ``columns`` (e.g. ``"frame,x,y,w,h"``): blank lines and a
-    header line are skipped; a short row or a missing file is an error naming the file (and line)."""
+    header line are skipped; a short row, a missing file or a folder is an error naming the file (and line)."""
     p = Path(path)
+    if p.is_dir():
+        raise FolderForFile(f"{p} is a folder, not a {what} file (give a .csv file)")
     if not p.is_file():
         raise MissingPath(f"{what} file not found: {p}")
     n = columns.count(",") + 1

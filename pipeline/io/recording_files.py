@@ -79,14 +79,15 @@ def create_new(path: str | os.PathLike) -> IO[bytes]:
                               f"overwrites a file") from None
 
 
-def create_beside(path: str | os.PathLike) -> tuple[IO[bytes], Path]:
+def create_beside(path: str | os.PathLike, suffix: str = "") -> tuple[IO[bytes], Path]:
     """A new file in ``path``'s folder under a hidden temporary name (``.NAME.XXXXXXXX.tmp``: not taken for
     a recording), and that name: written there, it is moved to ``path`` by :func:`move_new` once complete,
     or removed by the caller on failure. Created as ``open(path, "wb")`` would create ``path`` (the umask's
-    permissions, not a temporary file's 0600)."""
+    permissions, not a temporary file's 0600). ``suffix`` ends the name (``.tmp.mp4``), for a writer that
+    takes the file's kind from its name."""
     p = Path(path)
     while True:
-        tmp = p.with_name(f".{p.name}.{secrets.token_hex(4)}.tmp")
+        tmp = p.with_name(f".{p.name}.{secrets.token_hex(4)}.tmp{suffix}")
         try:
             return os.fdopen(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), "wb"), tmp
         except FileExistsError:  # a name drawn twice: draw another

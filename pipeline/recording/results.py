@@ -4,6 +4,7 @@ says about tracking."""
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -104,22 +105,48 @@ def read_track(path: str | Path) -> TrackRows:
 
 
 def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, float] | None = None,
-                states: dict[int, str] | None = None, inputs: dict[int, str] | None = None) -> None:
+                states: dict[int, str] | None = None, inputs: dict[int, str] | None = None,
+                new: bool = False) -> None:
     """Write ``frame,x,y,w,h`` rows, and ``confidence,state`` after them when given (for every frame),
     and ``input`` after those when given (a live source: ``ok``, or ``damaged`` for a frame decoded
-    from damaged data)."""
+    from damaged data). ``new``: written under a hidden temporary name beside ``path`` and moved there once
+    complete, never over a file (:func:`pipeline.io.recording_files.move_new`), so a write that fails midway
+    (a full disk: an OSError naming ``path``) leaves no part of the file behind."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
+    if not new:
+        with open(p, "w", newline="") as f:
+            _write_box_rows(f, boxes, confidence, states, inputs)
+        return
+    from pipeline.io.recording_files import create_beside, move_new
+
+    raw, tmp = create_beside(p)
+    try:
+        with io.TextIOWrapper(raw, encoding="utf-8", newline="") as f:
+            _write_box_rows(f, boxes, confidence, states, inputs)
+    except OSError as e:
+        raw.close()  # closed with the wrapper, unless the wrapper's last flush failed
+        tmp.unlink(missing_ok=True)
+        raise OSError(e.errno, e.strerror, str(path)) from None
+    except BaseException:
+        raw.close()
+        tmp.unlink(missing_ok=True)
+        raise
+    move_new(tmp, p)
+
+
+def _write_box_rows(f, boxes: dict[int, Box], confidence: dict[int, float] | None, states: dict[int, str] | None,
+                    inputs: dict[int, str] | None) -> None:
+    """The rows of :func:`write_boxes` into the text file ``f``."""
     full = confidence is not None and states is not None
-    with open(p, "w", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
-        w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else [])
-                   + (["input"] if full and inputs is not None else []))
-        for k in sorted(boxes):
-            extra = [f"{confidence[k]:.3f}", states[k]] if confidence is not None and states is not None else []
-            if extra and inputs is not None:
-                extra.append(inputs.get(k, "ok"))
-            w.writerow([k, *(f"{v:.2f}" for v in boxes[k]), *extra])
+    w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
+    w.writerow(["frame", "x", "y", "w", "h"] + (["confidence", "state"] if full else [])
+               + (["input"] if full and inputs is not None else []))
+    for k in sorted(boxes):
+        extra = [f"{confidence[k]:.3f}", states[k]] if confidence is not None and states is not None else []
+        if extra and inputs is not None:
+            extra.append(inputs.get(k, "ok"))
+        w.writerow([k, *(f"{v:.2f}" for v in boxes[k]), *extra])
 
 
 def estimate_columns(est: dict[int, Any]) -> tuple[dict[int, Box], dict[int, float], dict[int, str]]:

@@ -26,7 +26,8 @@ def cmd_boxes(args) -> int:
     by_seq = estimate_columns(est)
     boxes, confidence, states = (renumber(by_seq[0], frame_of), renumber(by_seq[1], frame_of),
                                  renumber(by_seq[2], frame_of))
-    write_boxes(args.out, boxes, confidence, states, live.inputs(boxes) if live is not None else None)
+    # beside its name, moved there once complete: a write that fails leaves no part of the file to refuse a retry
+    write_boxes(args.out, boxes, confidence, states, live.inputs(boxes) if live is not None else None, new=True)
     segs = segments(args.recording)
     print(f"{len(boxes)} boxes, frames {min(boxes)}-{max(boxes)}, written to {args.out}"
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))

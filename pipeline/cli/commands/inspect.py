@@ -171,12 +171,13 @@ def cmd_hz(args) -> int:
     if args.window is not None and args.window < 1:
         raise CliError(f"--window must be at least 1 gap, got {args.window}")
     _check_topic(args.topic)
+    t0 = time.monotonic()  # --wait bounds the whole wait: for a pipeline to start, then for its first message
     if not _await_pipeline(args, args.topic, args.wait):  # --wait: also for a run that has not started yet
         return _none_came("hz", args.topic, args.wait)
     key = _key(args.topic)
     settings, found = tool_zenoh(args, stream_of(key))
     _say_where(found)
-    st = hz(settings, key, args.duration, wait=args.wait, window=args.window)
+    st = hz(settings, key, args.duration, wait=args.wait, window=args.window, since=t0)
     if st is None:
         print(f"gflow hz: fewer than 2 messages on {key} (waited {args.wait:g} s for the first)"
               + _heard_instead(settings, key), file=sys.stderr)
@@ -385,9 +386,9 @@ def register(sub) -> None:
                                  "(gflow/cam0/frames), or a pattern")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("--window", type=int, metavar="N", help="statistics over the last N gaps (default: all)")
-    p.add_argument("--wait", type=positive_float, default=10.0,
-                   help="seconds to wait for the first message, and for the pipeline to start when none runs yet "
-                        "(default 10)")
+    p.add_argument("--wait", type=positive_float, default=10.0, metavar="S",
+                   help="wait up to S seconds in all for the first message, counted from the start, a wait for the "
+                        "pipeline to start when none runs yet included (default 10)")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_hz)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import sys
 from pathlib import Path
 
@@ -38,13 +39,6 @@ def _messages(path: str):
 
 
 def cmd_render(args) -> int:
-    import cv2
-
-    from gflow_msgs.foxglove import ImageAnnotations
-    from gflow_msgs.annotations import annotations_for
-
-    from pipeline.cli.draw import draw_annotations
-
     out = Path(args.out)
     video = out.suffix.lower() in VIDEO_SUFFIXES
     if out.suffix and not video and not out.is_dir():
@@ -72,30 +66,113 @@ def cmd_render(args) -> int:
     if there:
         raise CliError(f"{out} already holds {len(there)} of the pictures it would write ({there[0].name}, ...); "
                        f"gflow never writes over a picture: give another folder (or empty it first)")
-    writer = None
-    if not video:
-        out.mkdir(parents=True, exist_ok=True)
+    pictures = _pictures(args, frames, est, parts, seqs)
+    if video:
+        _write_video(out, pictures, args.fps)
+    else:
+        _write_pictures(out, pictures)
+    print(f"drew {len(seqs)} frames into {out}")
+    return 0
+
+
+def _pictures(args, frames: dict, est: dict, parts: dict, seqs: list[int]):
+    """Per frame of ``seqs``: (seq, the frame with its overlays drawn), saying the progress on stderr."""
+    import cv2
+
+    from gflow_msgs.annotations import annotations_for
+    from gflow_msgs.foxglove import ImageAnnotations
+
+    from pipeline.cli.draw import draw_annotations
+
     for i, s in enumerate(seqs):
         ann: ImageAnnotations = annotations_for(frames[s], est[s], parts.get(s) if args.particles else None)
         img = frames[s].image.array()
         if img.ndim == 2:
             img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
-        pic = draw_annotations(img, ann, args.scale)
-        if video:
+        yield s, draw_annotations(img, ann, args.scale)
+        if not args.quiet and (i % 50 == 0 or i == len(seqs) - 1):
+            print(f"  {i + 1}/{len(seqs)} frames", file=sys.stderr)
+
+
+def _write_video(out: Path, pictures, fps: float) -> None:
+    """Write ``pictures`` into the video ``out``: under a hidden temporary name beside it (``create_beside``),
+    moved to ``out`` once read back whole (``move_new``). OpenCV's writer says nothing of a write that failed (a
+    full disk), hence the reading back: a video not whole is an OSError naming ``out`` (exit status 1), and
+    neither ``out`` nor the temporary file is left."""
+    import cv2
+    from cv2.utils import logging as cv_log
+
+    from pipeline.io.recording_files import create_beside, move_new
+
+    f, tmp = create_beside(out, suffix=out.suffix)
+    f.close()  # the name is ours; OpenCV writes it
+    writer = None
+    n = 0
+    level = cv_log.getLogLevel()
+    cv_log.setLogLevel(cv_log.LOG_LEVEL_ERROR)  # its warning at each failed frame: the one line is said below
+    try:
+        for _, pic in pictures:
             if writer is None:
                 fourcc = cv2.VideoWriter.fourcc(*("mp4v" if out.suffix.lower() in (".mp4", ".mov") else "MJPG"))
-                writer = cv2.VideoWriter(str(out), fourcc, args.fps, (pic.shape[1], pic.shape[0]))
+                writer = cv2.VideoWriter(str(tmp), fourcc, fps, (pic.shape[1], pic.shape[0]))
                 if not writer.isOpened():
                     raise CliError(f"OpenCV cannot write {out} (try an .avi or a folder of PNGs)")
             writer.write(pic)
-        else:
-            cv2.imwrite(str(out / f"{s:06d}.png"), pic)
-        if not args.quiet and (i % 50 == 0 or i == len(seqs) - 1):
-            print(f"  {i + 1}/{len(seqs)} frames", file=sys.stderr)
-    if writer is not None:
-        writer.release()
-    print(f"drew {len(seqs)} frames into {out}")
-    return 0
+            n += 1
+        if writer is not None:
+            writer.release()
+            writer = None
+        _check_video(tmp, out, n)
+        move_new(tmp, out)
+    except BaseException:
+        if writer is not None:
+            writer.release()
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        cv_log.setLogLevel(level)
+
+
+def _check_video(tmp: Path, out: Path, n: int) -> None:
+    """An OSError naming ``out`` unless the video written to ``tmp`` is there, not empty, and holds ``n`` frames."""
+    import cv2
+
+    size = tmp.stat().st_size
+    got = 0
+    if size:
+        cap = cv2.VideoCapture(str(tmp))
+        try:
+            got = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
+        finally:
+            cap.release()
+    if got < n:
+        raise OSError(errno.EIO, f"the video was not written whole ({max(got, 0)} of its {n} frames can be read back; "
+                                 f"a full disk?); nothing written", str(out))
+
+
+def _write_pictures(out: Path, pictures) -> None:
+    """Write each picture as ``out/SEQ.png`` (none of them there: checked before). A write that fails (a full
+    disk) is an OSError naming the picture (exit status 1), and the pictures written before it are removed, with
+    ``out`` when it was made for them: a retry finds the folder as it was."""
+    from pipeline.cli.commands.frame import _write_picture
+
+    made = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    try:
+        for s, pic in pictures:
+            path = out / f"{s:06d}.png"
+            _write_picture(str(path), pic)
+            written.append(path)
+    except OSError:
+        for p in written:
+            p.unlink(missing_ok=True)
+        if made:
+            try:
+                out.rmdir()
+            except OSError:
+                pass
+        raise
 
 
 def register(sub) -> None:
