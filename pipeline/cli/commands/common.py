@@ -303,3 +303,23 @@ def warn_if_torn(path: str) -> bool:
               f"up to where it ends (`gflow verify` says how much is readable, `gflow recover` salvages it)",
               file=sys.stderr)
     return bool(torn)
+
+
+def write_picture(path: str, pic) -> None:
+    """Encode ``pic`` as ``path``'s kind (checked writable before the frame was read) and write it. A write
+    that fails (a full disk) is an OSError naming ``path`` (exit status 1: the command ran and failed) and
+    leaves no part of the picture behind; encoding in memory keeps the image library's own complaint off
+    stderr."""
+    import cv2
+    from pathlib import Path
+
+    ok, data = cv2.imencode(Path(path).suffix, pic)
+    if not ok:
+        raise OSError(f"{path}: OpenCV could not encode the picture")
+    try:
+        with open(path, "xb") as f:  # never over a file (check_new_picture refused one that was there)
+            f.write(data.tobytes())
+    except OSError as e:
+        if not isinstance(e, FileExistsError):
+            Path(path).unlink(missing_ok=True)
+        raise OSError(e.errno, e.strerror, path) from None

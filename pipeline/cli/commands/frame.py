@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Literal
 
-from pipeline.cli.commands.common import CliError, check_new_picture, positive_int
+from pipeline.cli.commands.common import CliError, check_new_picture, positive_int, write_picture
 
 
 def grid_picture(img, step: int, scale: int):
@@ -40,25 +40,6 @@ def grid_picture(img, step: int, scale: int):
         if major or step * scale >= 2 * th:
             cv2.putText(pic, str(y), (2, Y + th + 2), font, fs, (0, 0, 0), 1, cv2.LINE_AA)
     return pic
-
-
-def _write_picture(path: str, pic) -> None:
-    """Encode ``pic`` as ``path``'s kind (checked writable before the frame was read) and write it. A write
-    that fails (a full disk) is an OSError naming ``path`` (exit status 1: the command ran and failed) and
-    leaves no part of the picture behind; encoding in memory keeps the image library's own complaint off
-    stderr."""
-    import cv2
-
-    ok, data = cv2.imencode(Path(path).suffix, pic)
-    if not ok:
-        raise OSError(f"{path}: OpenCV could not encode the picture")
-    try:
-        with open(path, "xb") as f:  # never over a file (check_new_picture refused one that was there)
-            f.write(data.tobytes())
-    except OSError as e:
-        if not isinstance(e, FileExistsError):
-            Path(path).unlink(missing_ok=True)
-        raise OSError(e.errno, e.strerror, path) from None
 
 
 def cmd_frame(args) -> int:
@@ -98,7 +79,7 @@ def cmd_frame(args) -> int:
     h, w = raw.image.shape[:2]
     scale = args.scale or (3 if max(w, h) <= 200 else 2 if max(w, h) <= 500 else 1)
     step = args.grid or (10 if max(w, h) <= 200 else 20 if max(w, h) <= 500 else 50)
-    _write_picture(args.out, grid_picture(raw.image, step, scale))
+    write_picture(args.out, grid_picture(raw.image, step, scale))
     print(f"wrote {args.out}: frame {args.index} of {args.source}, {w}x{h} pixels, grid every {step} px, drawn "
           f"{scale}x; read the box's top-left corner (x on top, y on the left) and its size, then "
           f"gflow track {args.source} --init X,Y,W,H" + (f" --start {args.index}" if args.index else ""),

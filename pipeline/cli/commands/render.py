@@ -154,7 +154,7 @@ def _write_pictures(out: Path, pictures) -> None:
     """Write each picture as ``out/SEQ.png`` (none of them there: checked before). A write that fails (a full
     disk) is an OSError naming the picture (exit status 1), and the pictures written before it are removed, with
     ``out`` when it was made for them: a retry finds the folder as it was."""
-    from pipeline.cli.commands.frame import _write_picture
+    from pipeline.cli.commands.common import write_picture
 
     made = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
@@ -162,7 +162,7 @@ def _write_pictures(out: Path, pictures) -> None:
     try:
         for s, pic in pictures:
             path = out / f"{s:06d}.png"
-            _write_picture(str(path), pic)
+            write_picture(str(path), pic)
             written.append(path)
     except OSError:
         for p in written:
