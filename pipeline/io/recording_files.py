@@ -98,17 +98,17 @@ def move_new(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
     """Move the complete file ``tmp`` (:func:`create_beside`) to ``path`` in one step, never over a file there:
     a hard link, which fails on an existing ``path`` (:class:`RecordingExists`, ``tmp`` removed), then the
     temporary name removed; on a file system without hard links, a rename after a last look."""
+    appeared = (f"{path} appeared while it was being written; a recording never overwrites a file: give a new "
+                f"name or remove it first")
     try:
         os.link(tmp, path)
     except FileExistsError:
         os.unlink(tmp)
-        raise RecordingExists(f"{path} appeared while it was being written; a recording never overwrites a file: "
-                              f"give a new name or remove it first") from None
+        raise RecordingExists(appeared) from None
     except OSError:  # no hard links here (some network and FAT file systems)
         if os.path.lexists(path):
             os.unlink(tmp)
-            raise RecordingExists(f"{path} appeared while it was being written; a recording never overwrites a "
-                                  f"file: give a new name or remove it first") from None
+            raise RecordingExists(appeared) from None
         os.rename(tmp, path)
         return
     os.unlink(tmp)
