@@ -709,3 +709,19 @@ def test_a_folder_given_for_a_box_file_is_called_a_folder(tmp_path: Path, demo_m
     line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a box file (give a .csv file)")
     assert "not found" not in line, line
     assert not (tmp_path / "p.png").exists()
+
+
+def test_track_failing_to_write_its_boxes_leaves_no_partial_csv(tmp_path: Path, frames: Path) -> None:
+    """``gflow track ... --out b.csv`` wrote straight into b.csv: a write that failed midway (a full disk) left the
+    rows written, and the retry was refused as b.csv existing. It now writes beside b.csv, as ``gflow boxes`` does."""
+    out = tmp_path / "out"
+    out.mkdir()
+    args = ["track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "--no-record", "-q"]
+    r = gflow(*args, cwd=out, preexec_fn=_files_up_to(100))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow track: error: b.csv: File too large")
+    assert not list(out.iterdir()), "neither b.csv nor its temporary file may be left"
+    r = gflow(*args, cwd=out)  # with room: the retry is not refused
+    assert r.returncode == 0, r.stderr
+    assert [p.name for p in out.iterdir()] == ["b.csv"]
+    assert len((out / "b.csv").read_text().splitlines()) == 6

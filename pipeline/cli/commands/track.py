@@ -216,7 +216,8 @@ def cmd_track(args) -> int:
 
         warn_if_torn(args.source)
     run = run_track(args, plan)
-    run.write_csv(args.out)
+    # beside its name, moved there once complete: a write that fails leaves no part of the file to refuse a retry
+    run.write_csv(args.out, new=True)
     pts = ""
     if getattr(args, "points_out", None):
         from pipeline.io.landmarks import write_points
