@@ -352,7 +352,7 @@ def cmd_learn(args) -> int:
     t0 = time.monotonic()
     model = learn(ts, args.metric, K=args.K, kernel=args.kernel, metric_params=metric_params, frames=greys,
                   progress=_Progress(args.quiet))
-    out = save_model(args.out, model, meta=meta)
+    out = save_model(args.out, model, meta=meta, new=True)
     d = model.d
     print(f"learned M2 model: K={model.K} {model.metric} exemplars from {n} items in {time.monotonic() - t0:.1f} s; "
           f"d_k median {np.median(d):.1f} (range {d.min():.1f}-{d.max():.1f}), sigma_k median "
