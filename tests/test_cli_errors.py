@@ -726,3 +726,19 @@ def test_track_failing_to_write_its_boxes_leaves_no_partial_csv(tmp_path: Path, 
     assert r.returncode == 0, r.stderr
     assert [p.name for p in out.iterdir()] == ["b.csv"]
     assert len((out / "b.csv").read_text().splitlines()) == 6
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "demo", "--inline"],
+    ["demo", "--frames", "3", "--inline"],
+    ["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--inline"],
+])
+def test_inline_refuses_a_bad_security_option_as_processes_do(tmp_path: Path, frames: Path, argv: list[str]) -> None:
+    """``gflow run demo --security adir --inline`` ran and exited 0: --inline opens no zenoh session, so the
+    security options were never read. They are now checked as without --inline, before the run."""
+    (tmp_path / "adir").mkdir()
+    r = gflow(*[a.replace("{frames}", str(frames)) for a in argv], "--security", "adir", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a security file")
+    assert not (tmp_path / "b.csv").exists()
+    _no_recording(tmp_path)

@@ -27,6 +27,7 @@ from gflow_core.builtin_trackers import BUILTIN
 
 from pipeline.cli.trackers import TRACKERS, OptionClash
 from pipeline.runtime.trace import mark
+from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_new_file,
                                           check_outputs, launcher_zenoh, nonnegative_int, parse_box,
                                           positive_float, positive_int)
@@ -142,6 +143,8 @@ def tracker_params(args) -> dict:
 
 def track_request(args) -> TrackRequest:
     """The :class:`pipeline.app.TrackRequest` of ``gflow track``'s options."""
+    if args.inline:  # zenoh is not opened, but a bad --security file or TLS option is refused all the same
+        apply_security(args)
     return TrackRequest(source=source_of(args), init=tuple(args.init), tracker=args.tracker, params=tracker_params(args),
                         sets=tuple(args.set or ()), seed=args.seed, record=args.record, no_record=args.no_record,
                         record_topics=tuple(args.record_topics or ()), inline=args.inline, fps=args.fps,
