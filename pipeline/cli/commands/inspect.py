@@ -278,7 +278,7 @@ def cmd_pub(args) -> int:
     from gflow_msgs.messages import MESSAGE_TYPES, Header, encode
 
     from pipeline.runtime.security import Signer
-    from pipeline.runtime.transport import Bus, open_session
+    from pipeline.runtime.transport import Bus, open_session, reached
 
     _check_topic(args.topic)
     key = _key(args.topic)
@@ -304,6 +304,12 @@ def cmd_pub(args) -> int:
     settings, found = tool_zenoh(args, stream)
     s = open_session(settings)
     try:
+        # an endpoint that leads nowhere opens without error: without this, it was said as "no subscriber"
+        if settings.connect and not reached(s):
+            print(f"gflow pub: error: reached nothing at {', '.join(settings.connect)} within 3 s (is a gflow "
+                  f"pipeline or a zenoh router listening there, on an address this host can reach?); nothing sent",
+                  file=sys.stderr)
+            return 1
         bus = Bus(s, signer=Signer.of(settings.security))
         pub = bus.publisher(key)
         end = time.monotonic() + args.wait
@@ -398,7 +404,8 @@ def register(sub) -> None:
                                    "publishes it.",
                        epilog="example: gflow pub gflow/demo/_control Control '{\"command\": \"stop\"}'\n\n"
                               "exit status:\n  0  sent\n"
-                              "  1  no subscriber of the topic appeared within --wait: nothing sent\n"
+                              "  1  no subscriber of the topic appeared within --wait, or nothing was reached at "
+                              "the endpoints: nothing sent\n"
                               "  2  a mistake in the command: a malformed topic, an unknown type, FIELDS that are not "
                               "the type's,\n     a stream that is not running (without --connect), a bad option",
                        formatter_class=argparse.RawDescriptionHelpFormatter)
