@@ -756,3 +756,19 @@ def test_pub_to_an_endpoint_that_leads_nowhere_says_so(tmp_path: Path) -> None:
     assert r.returncode == 1, r.stderr
     line = assert_one_line_error(r, f"gflow pub: error: reached nothing at tcp/127.0.0.1:{port}", "nothing sent")
     assert "subscriber" not in line, line
+
+
+@pytest.mark.parametrize("tool,topic,opt,said", [
+    ("echo", "cam0/est*", "--timeout", "gflow echo: no message on gflow/cam0/est* in 0.5 s"),
+    ("echo", "cam0/est$*", "--timeout", "gflow echo: no message on gflow/cam0/est$* in 0.5 s"),
+    ("hz", "cam0/est?", "--wait", "gflow hz: no message on gflow/cam0/est? in 0.5 s"),
+    ("hz", "cam0/*$*ate", "--wait", "gflow hz: no message on gflow/cam0/*$*ate in 0.5 s"),
+])
+def test_a_wildcard_topic_is_named_as_typed(tmp_path: Path, tool: str, topic: str, opt: str, said: str) -> None:
+    """A topic's shell wildcards were named in zenoh's escaped form (``est*`` as ``gflow/cam0/est$*``), and zenoh's
+    own ``$*``, typed as such, was escaped again (``est$$*``) and refused as malformed. ``$*`` is now kept, and the
+    messages name the topic as typed (its stream and ``gflow/`` filled in)."""
+    r = gflow(tool, topic, opt, "0.5", cwd=tmp_path, env=_no_pipelines(tmp_path))
+    assert r.returncode == 1, r.stderr
+    assert "Traceback" not in r.stderr and "$$" not in r.stderr, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith(said), r.stderr
