@@ -772,3 +772,23 @@ def test_a_wildcard_topic_is_named_as_typed(tmp_path: Path, tool: str, topic: st
     assert r.returncode == 1, r.stderr
     assert "Traceback" not in r.stderr and "$$" not in r.stderr, r.stderr
     assert r.stderr.strip().splitlines()[-1].startswith(said), r.stderr
+
+
+@pytest.mark.parametrize("argv,item,close", [
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--inline"], "tracker.search_siz=2",
+     "did you mean 'search_sizes'? also close: "),
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--inline"], "tracker.zzz=1", None),
+    (["run", "dcf", "--inline"], "tracker.partcles=4", "did you mean 'particles'?"),
+])
+def test_an_unknown_tracker_parameter_names_the_closest_not_all(tmp_path: Path, frames: Path, argv: list[str],
+                                                                 item: str, close: str | None) -> None:
+    """``--set tracker.NOSUCH=1`` listed every parameter of the tracker on the one line (93 of dcf's). It now names
+    the closest (difflib) and the command that lists them all, ``gflow info TRACKER``."""
+    r = gflow(*[a.replace("{frames}", str(frames)) for a in argv], "--set", item, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    name = item.split(".", 1)[1].split("=")[0]
+    line = assert_one_line_error(r, f"--set {item}: DCFParams has no parameter {name!r} (", "`gflow info dcf` lists all")
+    assert (close in line) if close else ("did you mean" not in line), line
+    assert "known:" not in line and "admm_iterations" not in line and len(line) < 250, line
+    assert not (tmp_path / "b.csv").exists()
+    _no_recording(tmp_path)
