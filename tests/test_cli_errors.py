@@ -792,3 +792,34 @@ def test_an_unknown_tracker_parameter_names_the_closest_not_all(tmp_path: Path, 
     assert "known:" not in line and "admm_iterations" not in line and len(line) < 250, line
     assert not (tmp_path / "b.csv").exists()
     _no_recording(tmp_path)
+
+
+def test_a_value_the_learning_refuses_is_a_failed_run_not_a_mistake(tmp_path: Path) -> None:
+    """A ValueError was exit 2, a mistake in the command, wherever it was raised: also one the learning itself
+    raised, once every option and the training frames had been checked. Raised after the work began it is now the
+    work failing, exit 1; the mistakes found before (here -K too large) stay exit 2."""
+    same = tmp_path / "same"
+    same.mkdir()
+    for i in range(6):  # six black frames: every patch alike, so no distance to learn a kernel width from
+        cv2.imwrite(str(same / f"{i:04d}.png"), np.zeros((48, 64, 3), np.uint8))
+    r = gflow("learn", "m2", str(same), "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", cwd=tmp_path)
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow learn: error: need at least 2 non-zero validation distances")
+    assert not (tmp_path / "m.npz").exists()
+    r = gflow("learn", "m2", str(same), "--metric", "l2", "-K", "6", "--out", "m.npz", "-q", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, "gflow learn: error: -K 6 exemplars but only 6 training item(s)")
+
+
+def test_a_bad_value_met_after_the_track_ran_is_a_failed_run(tmp_path: Path, frames: Path) -> None:
+    """``GFLOW_RECORDINGS_WARN_MB=abc`` is read when the recording is kept, after the run: its ValueError was exit 2,
+    a mistake in the command, for a run that had tracked every frame. Met once the track's checks were done, it is
+    now the run failing, exit 1; the same ValueError class before the run (a bad --set value) stays exit 2."""
+    env = {"GFLOW_RECORDINGS_WARN_MB": "abc"}
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "-q", cwd=tmp_path, env=env)
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow track: error: GFLOW_RECORDINGS_WARN_MB must be a number of MB >= 0, got 'abc'")
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "--set",
+              "tracker.particles=0", cwd=tmp_path, env=env)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, "--set tracker.particles=0: particles must be >= 1, got 0")

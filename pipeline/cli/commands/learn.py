@@ -326,7 +326,7 @@ def check_values(args) -> None:
 
 
 def cmd_learn(args) -> int:
-    from pipeline.cli.commands.common import check_model_out
+    from pipeline.cli.commands.common import check_model_out, start_work
 
     check_metric_options(args)
     check_model_out(args.out)
@@ -343,6 +343,7 @@ def cmd_learn(args) -> int:
         raise CliError(f"-K {args.K} exemplars but only {n} training item(s): K must be smaller than the number of "
                        "items (the items that are not exemplars are the validation set of sec. 4.2); use a smaller "
                        "-K or more frames")
+    start_work()  # the options and training frames checked: a value the learning refuses is its failure (exit 1)
     if args.metric == "chamfer":
         metric_params = {"profile": args.profile, "g0": args.g0}
     elif args.metric == "shuffle":

@@ -196,8 +196,11 @@ def _planned(request: TrackRequest) -> TrackPlan:
 def run_track(args, plan: TrackPlan | None = None) -> TrackResult:
     """Run the tracker of ``args`` (inline or as processes) and gather its estimates from the run,
     whatever happened (:func:`pipeline.app.track`)."""
+    from pipeline.cli.commands.common import start_work
+
     tp = plan or track_plan(args)
     mark("cli plan checked")
+    start_work()  # every check done: a bad value met from here on is the run failing (exit 1), not a mistake
     return track(tp)
 
 
