@@ -559,20 +559,21 @@ def test_pub_with_no_subscriber_is_no_mistake(tmp_path: Path) -> None:
     (["boxes", "{rec}", "--out", "b.csv"], 20, ["gflow boxes: error: b.csv: File too large"]),
     (["frame", "{frames}", "0", "f.png"], 100, ["gflow frame: error: f.png: File too large"]),
     (["learn", "m2", "{frames}", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q"], 100,
-     ["gflow learn: error: File too large"]),
+     ["gflow learn: error: m.npz: File too large"]),
 ])
 def test_a_write_failing_during_the_work_is_a_failed_run(tmp_path: Path, frames: Path, demo_mcap: Path,
                                                          argv: list[str], room: int, words: list[str]) -> None:
     """Every OSError was exit 2, a mistake in the command, also a write that failed once the work was done (a
     full disk); ``gflow frame`` said ``OpenCV cannot write f.png (use .png or .jpg)`` after libpng's own line.
-    The paths named are checked first (exit 2); the system failing during the work is exit 1."""
+    The paths named are checked first (exit 2); the system failing during the work is exit 1. ``gflow learn`` left
+    m.npz.tmp behind and did not name the model file; it now leaves nothing and names it."""
     out = tmp_path / "out"
     out.mkdir()
     args = [a.replace("{rec}", str(demo_mcap)).replace("{frames}", str(frames)) for a in argv]
     r = gflow(*args, cwd=out, preexec_fn=_files_up_to(room))
     assert r.returncode == 1, r.stderr
     assert_one_line_error(r, *words)
-    assert not (out / "f.png").exists()
+    assert not list(out.iterdir()), "neither the output nor a temporary file may be left (learn left m.npz.tmp)"
     # the same output in a folder that does not exist: refused before any work, exit 2
     r = gflow(*[a.replace("b.csv", "no/b.csv").replace("f.png", "no/f.png").replace("m.npz", "no/m.npz")
                 for a in args], cwd=tmp_path)
@@ -709,3 +710,116 @@ def test_a_folder_given_for_a_box_file_is_called_a_folder(tmp_path: Path, demo_m
     line = assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a box file (give a .csv file)")
     assert "not found" not in line, line
     assert not (tmp_path / "p.png").exists()
+
+
+def test_track_failing_to_write_its_boxes_leaves_no_partial_csv(tmp_path: Path, frames: Path) -> None:
+    """``gflow track ... --out b.csv`` wrote straight into b.csv: a write that failed midway (a full disk) left the
+    rows written, and the retry was refused as b.csv existing. It now writes beside b.csv, as ``gflow boxes`` does."""
+    out = tmp_path / "out"
+    out.mkdir()
+    args = ["track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "--no-record", "-q"]
+    r = gflow(*args, cwd=out, preexec_fn=_files_up_to(100))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow track: error: b.csv: File too large")
+    assert not list(out.iterdir()), "neither b.csv nor its temporary file may be left"
+    r = gflow(*args, cwd=out)  # with room: the retry is not refused
+    assert r.returncode == 0, r.stderr
+    assert [p.name for p in out.iterdir()] == ["b.csv"]
+    assert len((out / "b.csv").read_text().splitlines()) == 6
+
+
+@pytest.mark.parametrize("argv", [
+    ["run", "demo", "--inline"],
+    ["demo", "--frames", "3", "--inline"],
+    ["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--inline"],
+])
+def test_inline_refuses_a_bad_security_option_as_processes_do(tmp_path: Path, frames: Path, argv: list[str]) -> None:
+    """``gflow run demo --security adir --inline`` ran and exited 0: --inline opens no zenoh session, so the
+    security options were never read. They are now checked as without --inline, before the run."""
+    (tmp_path / "adir").mkdir()
+    r = gflow(*[a.replace("{frames}", str(frames)) for a in argv], "--security", "adir", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, f"gflow {argv[0]}: error: adir is a folder, not a security file")
+    assert not (tmp_path / "b.csv").exists()
+    _no_recording(tmp_path)
+
+
+def test_pub_to_an_endpoint_that_leads_nowhere_says_so(tmp_path: Path) -> None:
+    """``gflow pub ... --connect`` an endpoint nobody listens on said ``no subscriber of ... appeared``, as if a
+    pipeline had been reached that did not take the topic. A session opens there without error; pub now asks
+    whether anything was reached and says that nothing was, exit 1 (nothing sent), as for no subscriber."""
+    from pipeline.runtime.transport import free_port
+
+    port = free_port()  # nobody listens there
+    r = gflow("pub", "gflow/quiet/_control", "Control", '{"command": "stop"}', "--connect", f"tcp/127.0.0.1:{port}",
+              "--wait", "0.3", cwd=tmp_path, env=_no_pipelines(tmp_path))
+    assert r.returncode == 1, r.stderr
+    line = assert_one_line_error(r, f"gflow pub: error: reached nothing at tcp/127.0.0.1:{port}", "nothing sent")
+    assert "subscriber" not in line, line
+
+
+@pytest.mark.parametrize("tool,topic,opt,said", [
+    ("echo", "cam0/est*", "--timeout", "gflow echo: no message on gflow/cam0/est* in 0.5 s"),
+    ("echo", "cam0/est$*", "--timeout", "gflow echo: no message on gflow/cam0/est$* in 0.5 s"),
+    ("hz", "cam0/est?", "--wait", "gflow hz: no message on gflow/cam0/est? in 0.5 s"),
+    ("hz", "cam0/*$*ate", "--wait", "gflow hz: no message on gflow/cam0/*$*ate in 0.5 s"),
+])
+def test_a_wildcard_topic_is_named_as_typed(tmp_path: Path, tool: str, topic: str, opt: str, said: str) -> None:
+    """A topic's shell wildcards were named in zenoh's escaped form (``est*`` as ``gflow/cam0/est$*``), and zenoh's
+    own ``$*``, typed as such, was escaped again (``est$$*``) and refused as malformed. ``$*`` is now kept, and the
+    messages name the topic as typed (its stream and ``gflow/`` filled in)."""
+    r = gflow(tool, topic, opt, "0.5", cwd=tmp_path, env=_no_pipelines(tmp_path))
+    assert r.returncode == 1, r.stderr
+    assert "Traceback" not in r.stderr and "$$" not in r.stderr, r.stderr
+    assert r.stderr.strip().splitlines()[-1].startswith(said), r.stderr
+
+
+@pytest.mark.parametrize("argv,item,close", [
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--inline"], "tracker.search_siz=2",
+     "did you mean 'search_sizes'? also close: "),
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--inline"], "tracker.zzz=1", None),
+    (["run", "dcf", "--inline"], "tracker.partcles=4", "did you mean 'particles'?"),
+])
+def test_an_unknown_tracker_parameter_names_the_closest_not_all(tmp_path: Path, frames: Path, argv: list[str],
+                                                                 item: str, close: str | None) -> None:
+    """``--set tracker.NOSUCH=1`` listed every parameter of the tracker on the one line (93 of dcf's). It now names
+    the closest (difflib) and the command that lists them all, ``gflow info TRACKER``."""
+    r = gflow(*[a.replace("{frames}", str(frames)) for a in argv], "--set", item, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    name = item.split(".", 1)[1].split("=")[0]
+    line = assert_one_line_error(r, f"--set {item}: DCFParams has no parameter {name!r} (", "`gflow info dcf` lists all")
+    assert (close in line) if close else ("did you mean" not in line), line
+    assert "known:" not in line and "admm_iterations" not in line and len(line) < 250, line
+    assert not (tmp_path / "b.csv").exists()
+    _no_recording(tmp_path)
+
+
+def test_a_value_the_learning_refuses_is_a_failed_run_not_a_mistake(tmp_path: Path) -> None:
+    """A ValueError was exit 2, a mistake in the command, wherever it was raised: also one the learning itself
+    raised, once every option and the training frames had been checked. Raised after the work began it is now the
+    work failing, exit 1; the mistakes found before (here -K too large) stay exit 2."""
+    same = tmp_path / "same"
+    same.mkdir()
+    for i in range(6):  # six black frames: every patch alike, so no distance to learn a kernel width from
+        cv2.imwrite(str(same / f"{i:04d}.png"), np.zeros((48, 64, 3), np.uint8))
+    r = gflow("learn", "m2", str(same), "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", cwd=tmp_path)
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow learn: error: need at least 2 non-zero validation distances")
+    assert not (tmp_path / "m.npz").exists()
+    r = gflow("learn", "m2", str(same), "--metric", "l2", "-K", "6", "--out", "m.npz", "-q", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, "gflow learn: error: -K 6 exemplars but only 6 training item(s)")
+
+
+def test_a_bad_value_met_after_the_track_ran_is_a_failed_run(tmp_path: Path, frames: Path) -> None:
+    """``GFLOW_RECORDINGS_WARN_MB=abc`` is read when the recording is kept, after the run: its ValueError was exit 2,
+    a mistake in the command, for a run that had tracked every frame. Met once the track's checks were done, it is
+    now the run failing, exit 1; the same ValueError class before the run (a bad --set value) stays exit 2."""
+    env = {"GFLOW_RECORDINGS_WARN_MB": "abc"}
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "-q", cwd=tmp_path, env=env)
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, "gflow track: error: GFLOW_RECORDINGS_WARN_MB must be a number of MB >= 0, got 'abc'")
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "--set",
+              "tracker.particles=0", cwd=tmp_path, env=env)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, "--set tracker.particles=0: particles must be >= 1, got 0")

@@ -110,7 +110,7 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
         return
     refused = check_tracker_values(loaded, given, others)
     if refused:
-        raise RequestError(refused)
+        raise RequestError(_unknown_tracker_param(loaded, given) or refused)
     stages = loaded.stages
     for stage in dict.fromkeys(st for st, _, _ in given.values()):
         if stage not in stages:
@@ -121,6 +121,29 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
         if why is not None:  # named by the values refused alone, else by all of them
             alone = [how for how, (param, value) in mine.items() if params_error(stages[stage].kind, {**base, param: value})]
             raise RequestError(f"{' '.join(alone or mine)}: {why}")
+
+
+def _unknown_tracker_param(plan: Plan, given: dict[str, tuple[str, str, Any]]) -> str:
+    """The first ``tracker.PARAM`` of ``given`` that ``plan``'s tracker block does not have, said with the
+    closest names and where to find them all (``gflow info TRACKER``), or ''. The tracker's own words list
+    every parameter (a hundred, for dcf) on the one line."""
+    import difflib
+
+    from pipeline.runtime.tracker_block import TRACKER_KEY, block_class, tracker_fields
+
+    block = plan.tracker
+    if block is None:
+        return ""
+    cls = block_class(block)
+    known = tracker_fields(cls)
+    for how, (stage, param, _) in given.items():
+        if stage == TRACKER_KEY and param not in known:
+            close = difflib.get_close_matches(param, known, n=3)
+            hint = (f"did you mean {close[0]!r}? " + (f"also close: {', '.join(map(repr, close[1:]))}; "
+                                                     if close[1:] else "")) if close else ""
+            return (f"{how}: {cls.__name__} has no parameter {param!r} ({hint}`gflow info {block.name}` lists all "
+                    f"{len(known)})")
+    return ""
 
 
 # -- the source ---------------------------------------------------------------------------------

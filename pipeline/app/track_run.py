@@ -54,10 +54,12 @@ class TrackResult:
         return {frame_of.get(k, k): (v.landmarks.array(), v.mean_points.array()) for k, v in self.estimates.items()
                 if getattr(v, "landmarks", None) is not None}
 
-    def write_csv(self, path: str | Path) -> None:
-        """The boxes CSV: frame,x,y,w,h,confidence,state (and a live source's input: ok / damaged)."""
+    def write_csv(self, path: str | Path, new: bool = False) -> None:
+        """The boxes CSV: frame,x,y,w,h,confidence,state (and a live source's input: ok / damaged). ``new``:
+        written beside ``path`` and moved there once complete, never over a file (:func:`write_boxes`)."""
         boxes, confidence, states = self.columns()
-        write_boxes(path, boxes, confidence, states, self.live.inputs(boxes) if self.live is not None else None)
+        write_boxes(path, boxes, confidence, states, self.live.inputs(boxes) if self.live is not None else None,
+                    new=new)
 
 
 def run(tp: TrackPlan) -> Generator[Estimate | PoseEstimate, None, TrackResult]:

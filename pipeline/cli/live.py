@@ -91,10 +91,11 @@ def json_line(key: str, payload: bytes, pub_ns: int) -> str:
 
 
 def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | None, out: TextIO = sys.stdout,
-         as_json: bool = False, since: float | None = None) -> int:
+         as_json: bool = False, since: float | None = None, name: str | None = None) -> int:
     """Print messages on ``key`` (a key expression) as they arrive; returns how many. ``timeout`` (s) counts
     from ``since`` (a ``time.monotonic()``: the caller's start, so that what it waited for before, a
-    pipeline to start, is part of it), or from the call."""
+    pipeline to start, is part of it), or from the call. ``name``: the topic as the user typed it, for
+    the messages (default ``key``)."""
     begun = time.monotonic()
     end = None if timeout is None else (begun if since is None else since) + timeout
     s = _session(settings)
@@ -108,7 +109,7 @@ def echo(settings: ZenohSettings, key: str, count: int | None, timeout: float | 
             if end is not None and time.monotonic() > end:
                 break
             if not told and n == 0 and time.monotonic() - start > 2.0:
-                print(f"waiting for messages on {key} (Ctrl-C to stop)", file=sys.stderr, flush=True)
+                print(f"waiting for messages on {name or key} (Ctrl-C to stop)", file=sys.stderr, flush=True)
                 told = True
             try:
                 k, p, ns = q.get(timeout=0.1)
@@ -177,12 +178,13 @@ def rate_stats(times: list[float], window: int | None = None) -> RateStats | Non
 
 def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: TextIO = sys.stdout,
        wait: float = 10.0, window: int | None = None, every: float = 1.0,
-       since: float | None = None) -> RateStats | None:
+       since: float | None = None, name: str | None = None) -> RateStats | None:
     """A rolling rate on ``key``: wait up to ``wait`` s for the first message, then print the rate,
     min / max / std of the gaps over the last ``window`` messages every ``every`` s, for
     ``duration`` s (None: until Ctrl-C). Returns the last statistics (None: fewer than 2 messages).
     ``wait`` counts from ``since`` (a ``time.monotonic()``: the caller's start, so that what it waited for
-    before, a pipeline to start, is part of it), or from the call."""
+    before, a pipeline to start, is part of it), or from the call. ``name``: the topic as the user typed
+    it, for the lines printed (default ``key``)."""
     s = _session(settings)
     q: queue.SimpleQueue = queue.SimpleQueue()
     # arrival (monotonic), latency (ms, NaN when the stamp is not the host clock)
@@ -239,7 +241,7 @@ def hz(settings: ZenohSettings, key: str, duration: float | None = None, out: Te
                 st = stats()
                 if st is not None:
                     last = st
-                    print(st.line(key), file=out, flush=True)
+                    print(st.line(name or key), file=out, flush=True)
     except KeyboardInterrupt:
         pass
     finally:

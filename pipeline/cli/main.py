@@ -34,7 +34,7 @@ import re  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
 from pipeline.cli.commands import command_module, command_modules  # noqa: E402
-from pipeline.cli.commands.common import CliError  # noqa: E402
+from pipeline.cli.commands.common import CliError, start_work, work_started  # noqa: E402
 from pipeline.runtime.trace import mark  # noqa: E402
 
 __all__ = ["main", "build_parser"]
@@ -139,19 +139,27 @@ def _take_sigint_back() -> None:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
-def _user_errors() -> tuple[type[BaseException], ...]:
-    """The errors that are the user's (one line, exit status 2): a request that cannot run, a graph's
-    mistake, a path named that is refused before any work (missing, a folder given for a file, an
-    output that exists: :mod:`pipeline.io.path_errors`), a bad value, a zenoh session that cannot
-    open. Any other OSError is the system failing during the work (exit status 1, :func:`main`). The
-    classes of the modules the command never imported are left out (no such error can have been
-    raised), so that naming them costs no import."""
-    out: list[type[BaseException]] = [CliError, ValueError]
+def _mistakes() -> tuple[type[BaseException], ...]:
+    """The errors that are a mistake in the command whenever they are raised (exit status 2): a request
+    that cannot run, a graph's mistake, a path named that is refused before any work (missing, a folder
+    given for a file, an output that exists: :mod:`pipeline.io.path_errors`), a zenoh session that cannot
+    open, a security option that cannot be used. The classes of the modules the command never imported
+    are left out (no such error can have been raised), so that naming them costs no import."""
+    out: list[type[BaseException]] = [CliError]
     for module, name in (("pipeline.runtime.graph", "GraphError"), ("pipeline.runtime.transport", "SessionError"),
-                         ("pipeline.io.path_errors", "PathMistake")):
+                         ("pipeline.io.path_errors", "PathMistake"), ("pipeline.runtime.security", "SecurityError")):
         if module in sys.modules:
             out.append(getattr(sys.modules[module], name))
     return tuple(out)
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    """The errors said in one line as ``error:``: the :func:`_mistakes` (exit status 2), and a bad value (a
+    ValueError): a mistake in the command (exit status 2) when raised before the command's work began, the
+    work failing (exit status 1) after (:func:`pipeline.cli.commands.common.start_work`: gflow track once
+    its plan is checked, gflow learn once its training frames are read, gflow benchmark once every run is
+    planned). Any other OSError is the system failing during the work (exit status 1, :func:`main`)."""
+    return (*_mistakes(), ValueError)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -164,12 +172,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         ap.print_help()
         return 2
+    start_work(False)  # main may run several commands in one process (the tests do)
     try:
         return int(args.func(args) or 0)
     except _user_errors() as e:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote
         print(f"gflow {args.command}: error: {msg}", file=sys.stderr)
-        return 2
+        return 1 if work_started() and not isinstance(e, _mistakes()) else 2
     except BrokenPipeError:  # the reader of the output has gone (gflow info r.mcap | head): not an error to report
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit's flush of stdout is quiet
         return 141  # as a shell reports a command ended by SIGPIPE

@@ -85,8 +85,10 @@ def _meta_arrays(meta: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
     return out
 
 
-def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None = None) -> Path:
-    """Write a model to ``path`` (``.npz``), atomically (a temporary file renamed into place).
+def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None = None, new: bool = False) -> Path:
+    """Write a model to ``path`` (``.npz``), atomically: under a hidden temporary name beside it
+    (:func:`pipeline.io.recording_files.create_beside`), moved into place once complete. A write that
+    fails (a full disk: an OSError naming ``path``) leaves neither file.
 
     Parameters
     ----------
@@ -94,6 +96,8 @@ def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None
     obj : M2Model or MorphableModel.
     meta : optional file-level metadata {name: number | str | 1-d array}, stored as
         ``meta_<name>`` and returned by :func:`load_meta`.
+    new : never over a file (:func:`pipeline.io.recording_files.move_new`: a file that appeared under
+        ``path`` while the model was written is an error); otherwise a file there is replaced.
 
     Returns
     -------
@@ -108,12 +112,24 @@ def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None
     for k, a in arrays.items():
         if np.asarray(a).dtype == object:
             raise ValueError(f"model array {k!r} has dtype object; model files hold plain arrays only")
+    from pipeline.io.recording_files import create_beside, move_new
+
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    tmp = p.with_name(p.name + ".tmp")
-    with open(tmp, "wb") as f:
-        np.savez(f, **arrays)
-    os.replace(tmp, p)
+    f, tmp = create_beside(p)
+    try:
+        with f:
+            np.savez(f, **arrays)
+    except OSError as e:
+        tmp.unlink(missing_ok=True)
+        raise OSError(e.errno, e.strerror, str(path)) from None
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    if new:
+        move_new(tmp, p)
+    else:
+        os.replace(tmp, p)
     return p
 
 

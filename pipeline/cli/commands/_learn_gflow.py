@@ -76,7 +76,7 @@ def cmd_learn_gflow(args) -> int:
             "vertices": m.n_vertices, "boxes": "yes" if boxes else "no",
             "explained": face.explained, "residual_rms": face.residual_rms,
             "command": "gflow learn gflow " + " ".join(sys.argv[3:]) if sys.argv[1:3] == ["learn", "gflow"] else ""}
-    out = save_model(args.out, m, meta=meta)
+    out = save_model(args.out, m, meta=meta, new=True)
     expl = ", ".join(f"{100 * v:.0f}%" for v in face.explained) or "none (k = 1)"
     print(f"learned a morphable face model: k={m.n_bases} bases (the mean shape and {m.n_bases - 1} morphs), "
           f"n={m.n_vertices} vertices, from {face.frames} frames; deformation variance per morph: {expl}; "

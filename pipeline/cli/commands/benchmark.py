@@ -20,7 +20,7 @@ from pathlib import Path
 
 from pipeline.app import TrackRequest
 from pipeline.cli.trackers import TRACKERS, spec_of
-from pipeline.cli.commands.common import CliError, check_new_picture, frame_range, nonnegative_int
+from pipeline.cli.commands.common import CliError, check_new_picture, frame_range, nonnegative_int, start_work
 
 
 def model_options() -> dict[str, str]:
@@ -258,6 +258,7 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int], skipped:
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         # every tracker's options and model files checked on the original sequences, before any work
         _, skip = _plans(args, seqs, names, {s.name: min(s.groundtruth) for s in seqs}, None, Path(tmp))
+    start_work()  # every check done: a bad value met from here on is the benchmark failing (exit 1)
     for line in skipped:  # after the checks: a mistake's error is the one line on stderr
         note(line)
     for (seq, name), why in sorted(skip.items()):
@@ -405,6 +406,7 @@ def cmd_benchmark(args) -> int:
                 raise CliError(f"--variant {variant.name}: {e}") from None
         # every seed's plans first: a bad option or model fails before any tracking
         planned = {k: _plans(_with_seed(args, k), seqs, names, first, stop, _seed_dir(work, k, seeds)) for k in seeds}
+        start_work()  # every check done: a bad value met from here on is the benchmark failing (exit 1)
         for s in skipped:  # once every check has passed: a mistake's error is the one line on stderr
             note(s)
         count = [0, sum(len(p[0]) for p in planned.values()) + len(seeds) * len(seqs) * len(cv_run)]

@@ -37,10 +37,27 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
+__all__ = ["CliError", "start_work", "work_started", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
+
+
+#: whether the command running has begun its work (:func:`start_work`)
+_work_started = [False]
+
+
+def start_work(started: bool = True) -> None:
+    """Say that the command's checks are done and its work begins: from here on a ValueError is the work
+    failing (``gflow``: exit status 1), not a mistake in the command found before any work (exit status 2).
+    The errors that name a mistake whenever they come (:class:`CliError`, a path refused, a graph's mistake...)
+    stay exit status 2. ``start_work(False)``: not begun (``gflow``, as each command starts)."""
+    _work_started[0] = started
+
+
+def work_started() -> bool:
+    """Whether the command running has said its work began (:func:`start_work`)."""
+    return _work_started[0]
 
 
 def parse_box(text: str) -> tuple[float, float, float, float]:

@@ -8,6 +8,7 @@ import sys
 
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
+from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (Recording, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
                                           check_stage_values, positive_int, run_plan)
 
@@ -20,6 +21,7 @@ def cmd_demo(args) -> int:
     from pipeline.recording.results import estimates
 
     check_outputs(record=args.record)
+    apply_security(args)  # read when zenoh opens; --inline opens none, and a bad file is refused all the same
     overrides = {"source": {"frames": args.frames}, "filter": {"particles": args.particles, "seed": args.seed},
                  "proposal": {"seed": args.seed}}
     check_stage_values("demo", {f"--particles {args.particles}": ("filter", "particles", args.particles),

@@ -43,14 +43,24 @@ def _in_stream(topic: str) -> bool:
 
 
 def _key_expr(topic: str) -> str:
-    """A topic as typed, with shell wildcards, as a zenoh key expression (``est*`` -> ``est$*``)."""
-    return "/".join(c if c in ("*", "**") else c.replace("*", "$*").replace("?", "$*") for c in topic.split("/"))
+    """A topic as typed, with shell wildcards, as a zenoh key expression (``est*`` -> ``est$*``); zenoh's own
+    ``$*``, typed as such, is kept (it was escaped again, to ``$$*``, and refused as malformed), and wildcards
+    side by side are one (zenoh refuses ``$*$*``)."""
+    import re
+
+    def chunk(c: str) -> str:
+        if c in ("*", "**"):
+            return c
+        c = "$*".join(part.replace("*", "$*").replace("?", "$*") for part in c.split("$*"))
+        return re.sub(r"(?:\$\*){2,}", "$*", c)
+    return "/".join(chunk(c) for c in topic.split("/"))
 
 
 def _check_topic(topic: str) -> None:
     """Refuse, before any wait, a topic that makes no zenoh key expression (``''``, ``x//y``, ``a#b``,
     ``a/**/**/b``): the subscriber would raise only once a pipeline had been waited for and joined. The
-    key is checked as :func:`_key` builds it, with any stream in the place of one not yet resolved."""
+    key is checked as :func:`_topic` and :func:`_key_expr` build it, with any stream in the place of one not
+    yet resolved."""
     from pipeline.runtime.transport import check_key_expr
 
     if not topic.strip():
@@ -63,22 +73,22 @@ def _check_topic(topic: str) -> None:
         raise CliError(f"topic {topic!r} is malformed (key expression {key}): {e}") from None
 
 
-def _key(topic: str) -> str:
-    """The key expression for a topic as the user typed it (pipeline/recording/topics.py): the name
-    in the stream (``estimate``: of the one pipeline running, or of any while none or several run),
+def _topic(topic: str) -> str:
+    """The full name of a topic as the user typed it (pipeline/recording/topics.py), wildcards as typed: the
+    name in the stream (``estimate``: of the one pipeline running, or of any while none or several run),
     the full name with or without ``gflow/`` and with or without the run id (STREAM resolved by
-    :func:`_run_stream`), shell wildcards."""
+    :func:`_run_stream`). What the messages name; zenoh is given its :func:`_key_expr`."""
     from pipeline.runtime.running import running
 
     if _in_stream(topic):  # of the one pipeline running, or of any while none or several run
         streams = sorted({str(i.get("stream")) for i in running()})
-        return _key_expr(f"gflow/{streams[0] if len(streams) == 1 else '*'}/{topic}")
+        return f"gflow/{streams[0] if len(streams) == 1 else '*'}/{topic}"
     key = topic if topic.startswith("gflow/") else f"gflow/{topic}"
     stream = stream_of(key)
     if stream is None:
-        return _key_expr(key)
+        return key
     parts = key.split("/", 2)
-    return _key_expr("/".join(["gflow", _run_stream(stream), *parts[2:]]))
+    return "/".join(["gflow", _run_stream(stream), *parts[2:]])
 
 
 def _await_pipeline(args, topic: str | None, wait: float) -> bool:
@@ -105,8 +115,8 @@ def _none_came(tool: str, topic: str, seconds: float) -> int:
     1), not a mistake in the command line (exit 2: a malformed topic, a stream not running and not waited for)."""
     from pipeline.runtime.running import describe_none
 
-    key = _key(topic)
-    print(f"gflow {tool}: no message on {key} in {seconds:g} s: {describe_none(stream_of(key))}", file=sys.stderr)
+    name = _topic(topic)
+    print(f"gflow {tool}: no message on {name} in {seconds:g} s: {describe_none(stream_of(name))}", file=sys.stderr)
     return 1
 
 
@@ -153,13 +163,14 @@ def cmd_echo(args) -> int:
     t0 = time.monotonic()  # --timeout bounds the whole wait: for a pipeline to start, then for its messages
     if not _await_pipeline(args, args.topic, args.timeout or 0.0):
         return _none_came("echo", args.topic, args.timeout)
-    key = _key(args.topic)
+    name = _topic(args.topic)  # as typed, in the messages; zenoh is given its key expression
+    key = _key_expr(name)
     settings, found = tool_zenoh(args, stream_of(key))
     if not args.json:
         _say_where(found)
-    n = echo(settings, key, args.count, args.timeout, as_json=args.json, since=t0)
+    n = echo(settings, key, args.count, args.timeout, as_json=args.json, since=t0, name=name)
     if n == 0:
-        print(f"gflow echo: no message on {key}" + (f" in {args.timeout:g} s" if args.timeout else "")
+        print(f"gflow echo: no message on {name}" + (f" in {args.timeout:g} s" if args.timeout else "")
               + (_heard_instead(settings, key) if args.timeout else ""), file=sys.stderr)
         return 1
     return 0
@@ -174,12 +185,13 @@ def cmd_hz(args) -> int:
     t0 = time.monotonic()  # --wait bounds the whole wait: for a pipeline to start, then for its first message
     if not _await_pipeline(args, args.topic, args.wait):  # --wait: also for a run that has not started yet
         return _none_came("hz", args.topic, args.wait)
-    key = _key(args.topic)
+    name = _topic(args.topic)  # as typed, in the messages; zenoh is given its key expression
+    key = _key_expr(name)
     settings, found = tool_zenoh(args, stream_of(key))
     _say_where(found)
-    st = hz(settings, key, args.duration, wait=args.wait, window=args.window, since=t0)
+    st = hz(settings, key, args.duration, wait=args.wait, window=args.window, since=t0, name=name)
     if st is None:
-        print(f"gflow hz: fewer than 2 messages on {key} (waited {args.wait:g} s for the first)"
+        print(f"gflow hz: fewer than 2 messages on {name} (waited {args.wait:g} s for the first)"
               + _heard_instead(settings, key), file=sys.stderr)
         return 1
     return 0
@@ -278,10 +290,11 @@ def cmd_pub(args) -> int:
     from gflow_msgs.messages import MESSAGE_TYPES, Header, encode
 
     from pipeline.runtime.security import Signer
-    from pipeline.runtime.transport import Bus, open_session
+    from pipeline.runtime.transport import Bus, open_session, reached
 
     _check_topic(args.topic)
-    key = _key(args.topic)
+    name = _topic(args.topic)  # as typed, in the messages; zenoh is given its key expression
+    key = _key_expr(name)
     typ = MESSAGE_TYPES.get(args.type)
     if typ is None:
         raise CliError(f"unknown message type {args.type!r} (known: {', '.join(sorted(MESSAGE_TYPES))})")
@@ -293,7 +306,7 @@ def cmd_pub(args) -> int:
         raise CliError("FIELDS must be a JSON object, e.g. '{\"command\": \"stop\"}'")
     stream = stream_of(key)
     if stream is None:
-        raise CliError(f"publish on a concrete topic gflow/<stream>/<name>, not {key!r}")
+        raise CliError(f"publish on a concrete topic gflow/<stream>/<name>, not {name!r}")
     fields.setdefault("header", {})
     fields["header"] = dict({"stream": stream, "seq": args.seq, "stamp_ns": time.time_ns()}, **fields["header"])
     try:
@@ -304,13 +317,19 @@ def cmd_pub(args) -> int:
     settings, found = tool_zenoh(args, stream)
     s = open_session(settings)
     try:
+        # an endpoint that leads nowhere opens without error: without this, it was said as "no subscriber"
+        if settings.connect and not reached(s):
+            print(f"gflow pub: error: reached nothing at {', '.join(settings.connect)} within 3 s (is a gflow "
+                  f"pipeline or a zenoh router listening there, on an address this host can reach?); nothing sent",
+                  file=sys.stderr)
+            return 1
         bus = Bus(s, signer=Signer.of(settings.security))
         pub = bus.publisher(key)
         end = time.monotonic() + args.wait
         # zenoh's stub says matching_status is a bool; it is a MatchingStatus, whose .matching is the bool
         while not cast(Any, pub.matching_status).matching:
             if time.monotonic() > end:  # nothing arrived: an answer (exit 1), as echo's silent topic, not a mistake
-                print(f"gflow pub: no subscriber of {key} appeared within {args.wait:g} s; nothing sent",
+                print(f"gflow pub: no subscriber of {name} appeared within {args.wait:g} s; nothing sent",
                       file=sys.stderr)
                 return 1
             time.sleep(0.02)
@@ -321,7 +340,7 @@ def cmd_pub(args) -> int:
         time.sleep(0.2)  # let the samples leave before the session closes
     finally:
         s.close()
-    print(f"published {args.count} {args.type} on {key}", file=sys.stderr)
+    print(f"published {args.count} {args.type} on {name}", file=sys.stderr)
     return 0
 
 
@@ -398,7 +417,8 @@ def register(sub) -> None:
                                    "publishes it.",
                        epilog="example: gflow pub gflow/demo/_control Control '{\"command\": \"stop\"}'\n\n"
                               "exit status:\n  0  sent\n"
-                              "  1  no subscriber of the topic appeared within --wait: nothing sent\n"
+                              "  1  no subscriber of the topic appeared within --wait, or nothing was reached at "
+                              "the endpoints: nothing sent\n"
                               "  2  a mistake in the command: a malformed topic, an unknown type, FIELDS that are not "
                               "the type's,\n     a stream that is not running (without --connect), a bad option",
                        formatter_class=argparse.RawDescriptionHelpFormatter)

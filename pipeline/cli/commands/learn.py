@@ -326,7 +326,7 @@ def check_values(args) -> None:
 
 
 def cmd_learn(args) -> int:
-    from pipeline.cli.commands.common import check_model_out
+    from pipeline.cli.commands.common import check_model_out, start_work
 
     check_metric_options(args)
     check_model_out(args.out)
@@ -343,6 +343,7 @@ def cmd_learn(args) -> int:
         raise CliError(f"-K {args.K} exemplars but only {n} training item(s): K must be smaller than the number of "
                        "items (the items that are not exemplars are the validation set of sec. 4.2); use a smaller "
                        "-K or more frames")
+    start_work()  # the options and training frames checked: a value the learning refuses is its failure (exit 1)
     if args.metric == "chamfer":
         metric_params = {"profile": args.profile, "g0": args.g0}
     elif args.metric == "shuffle":
@@ -352,7 +353,7 @@ def cmd_learn(args) -> int:
     t0 = time.monotonic()
     model = learn(ts, args.metric, K=args.K, kernel=args.kernel, metric_params=metric_params, frames=greys,
                   progress=_Progress(args.quiet))
-    out = save_model(args.out, model, meta=meta)
+    out = save_model(args.out, model, meta=meta, new=True)
     d = model.d
     print(f"learned M2 model: K={model.K} {model.metric} exemplars from {n} items in {time.monotonic() - t0:.1f} s; "
           f"d_k median {np.median(d):.1f} (range {d.min():.1f}-{d.max():.1f}), sigma_k median "

@@ -10,6 +10,7 @@ from pipeline.runtime.build import apply_defaults, check_stages
 from pipeline.runtime.graph import builtin_graphs, load_graph
 from pipeline.runtime.live_plan import listen_early, prepare_live
 from pipeline.runtime.placement import local_stages
+from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
                                           check_outputs, check_stage_values, parse_sets, run_plan,
                                           sets_as_given)
@@ -17,6 +18,7 @@ from pipeline.cli.commands.common import (CliError, Recording, add_placement_arg
 
 def cmd_run(args) -> int:
     check_outputs(record=args.record)
+    apply_security(args)  # read when zenoh opens; --inline opens none, and a bad file is refused all the same
     check_stage_values(args.graph, sets_as_given(args.set))
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     held = plan.recorder()

@@ -27,6 +27,7 @@ from gflow_core.builtin_trackers import BUILTIN
 
 from pipeline.cli.trackers import TRACKERS, OptionClash
 from pipeline.runtime.trace import mark
+from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_new_file,
                                           check_outputs, launcher_zenoh, nonnegative_int, parse_box,
                                           positive_float, positive_int)
@@ -142,6 +143,8 @@ def tracker_params(args) -> dict:
 
 def track_request(args) -> TrackRequest:
     """The :class:`pipeline.app.TrackRequest` of ``gflow track``'s options."""
+    if args.inline:  # zenoh is not opened, but a bad --security file or TLS option is refused all the same
+        apply_security(args)
     return TrackRequest(source=source_of(args), init=tuple(args.init), tracker=args.tracker, params=tracker_params(args),
                         sets=tuple(args.set or ()), seed=args.seed, record=args.record, no_record=args.no_record,
                         record_topics=tuple(args.record_topics or ()), inline=args.inline, fps=args.fps,
@@ -193,8 +196,11 @@ def _planned(request: TrackRequest) -> TrackPlan:
 def run_track(args, plan: TrackPlan | None = None) -> TrackResult:
     """Run the tracker of ``args`` (inline or as processes) and gather its estimates from the run,
     whatever happened (:func:`pipeline.app.track`)."""
+    from pipeline.cli.commands.common import start_work
+
     tp = plan or track_plan(args)
     mark("cli plan checked")
+    start_work()  # every check done: a bad value met from here on is the run failing (exit 1), not a mistake
     return track(tp)
 
 
@@ -216,7 +222,8 @@ def cmd_track(args) -> int:
 
         warn_if_torn(args.source)
     run = run_track(args, plan)
-    run.write_csv(args.out)
+    # beside its name, moved there once complete: a write that fails leaves no part of the file to refuse a retry
+    run.write_csv(args.out, new=True)
     pts = ""
     if getattr(args, "points_out", None):
         from pipeline.io.landmarks import write_points
