@@ -1,7 +1,9 @@
 """When a hidden target comes back, what does dcf's search see? A measurement, not a tracker.
 
 One command: ``python bench/bench_dcf_redetect.py`` (``--case occlude-60 --seed 1 --sequences A,B
---set NAME=V``; ``--frames`` prints every frame after the window instead of the table).
+--set NAME=V``; ``--frames`` prints every frame after the window instead of the table; ``--variant
+fast`` measures every frame of a variant of the footage, ``gflow benchmark --variant``'s, instead of
+a stress case).
 
 For every shared sequence (``../shared/data`` or ``GFLOW_DATA``) the stress case is derived as
 ``gflow benchmark --stress`` derives it (:func:`pipeline.evaluation.stress_benchmark.derive`, into
@@ -9,7 +11,7 @@ a temporary folder removed at the end) and ``dcf`` is stepped over it frame by f
 benchmark's random streams. On the frames from the window's end on where the target is in view
 and the tracker searches for it (the target judged hidden or in doubt), the search's judgement of
 a placement is split into its terms, natural logs of "visible" against "hidden"
-(``gflow_core.dcf.tracker._judge``): the filter's distance (against the lower of the window
+(``gflow_core.dcf.tracker._log_joint``): the filter's distance (against the lower of the window
 clutter's and the search's own clutter's densities), the colour score's, the place under the
 motion prior against clutter's anywhere in the region searched, and the prior odds that a hidden
 target is back. It prints, per sequence:
@@ -18,7 +20,14 @@ target is back. It prints, per sequence:
   placement (the one judged) overlaps the true box (IoU > 0.5);
 * the terms at the search's best placement, and at the true box's centre read at the held size
   and at the true box's size (medians over the searched frames);
-* taken: the frame the search took a placement back (and whether it was on the target).
+* taken: the frame the search took a placement back (and whether it was on the target);
+* lead: how far the best placement at the held size scores above the runner-up, the best placement
+  half a box or more away from it (the filter's response), median over the searched frames whose best
+  placement is on the target; and the same over every search made while the target is covered
+  (visibility 0.5 or less: the stress case's window), with the share of those whose lead is at
+  least the median lead on target. A lead seen mostly on the target would be evidence the
+  filter's absolute score cannot give (a ratio test: the frame's best match is unique); one seen as
+  often among clutter is none.
 
 A case whose target is never the best placement needs another search; one whose target is the best
 placement but whose terms add up to less than the prior's odds needs other evidence.
@@ -48,7 +57,10 @@ from gflow_core.dcf.params import DCFParams  # noqa: E402
 from gflow_core.evaluation.stress import CASES  # noqa: E402
 from gflow_core.tracker import FrameRng, stream_hash  # noqa: E402
 from pipeline.evaluation.sequence_benchmark import find_sequences  # noqa: E402
+from gflow_core.dcf.reacquire import peaks  # noqa: E402
+from gflow_core.evaluation.variants import select_variant  # noqa: E402
 from pipeline.evaluation.stress_benchmark import derive  # noqa: E402
+from pipeline.evaluation.variant_benchmark import derive_variant  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data"
 
@@ -87,18 +99,35 @@ def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: b
     """Step dcf over the derived sequence in ``folder``; the search's terms after ``window``."""
     frames = sorted((folder / "frames").glob("*"))
     gt = {int(r[0]): tuple(r[1:]) for r in np.loadtxt(folder / "groundtruth.csv", delimiter=",", skiprows=1)}
-    vis = {int(r[0]): float(r[1]) for r in np.loadtxt(folder / "visibility.csv", delimiter=",", skiprows=1,
-                                                      usecols=(0, 1))}
+    # a variant of the footage has no visibility file: the target is in view on every frame
+    vis = {} if not (folder / "visibility.csv").exists() else {
+        int(r[0]): float(r[1]) for r in np.loadtxt(folder / "visibility.csv", delimiter=",", skiprows=1, usecols=(0, 1))}
     judged: list = []
-    orig = T._judge
+    orig = T._log_joint
 
-    def spy(st, ds, cand, trials, place, pp):
-        v = orig(st, ds, cand, trials, place, pp)
-        judged.append((cand, ds, trials, place, v))
-        return v
+    def spy(st, ds, cand, trials, place, pp, negs=()):
+        # every judgement of a search candidate goes through _log_joint (_judge's, and the search's own
+        # with search_clutter): P(visible) from its two log joints
+        lv, lh = orig(st, ds, cand, trials, place, pp, negs)
+        judged.append((cand, ds, trials, place, T._p_visible(lv, lh)))
+        return lv, lh
 
-    T._judge = spy
-    out = {"searched": 0, "best_on": 0, "best": [], "held": [], "true": [], "taken": None}
+    leads: list[float] = []
+    search = tm.search
+
+    def spy_search(model, image, grey, hold, margin, log_s, geom, pp, log_sizes=(0.0,)):
+        # the lead of the best placement at the held size over the runner-up half a box or more away
+        r = tm.respond_region(model, image, grey, hold, margin, log_s, geom, pp)
+        if r is not None and r.cf is not None:
+            s = float(np.exp(log_s))
+            pk = peaks(r.cf, (int(0.5 * geom.size0[1] * s * r.q[1]), int(0.5 * geom.size0[0] * s * r.q[0])), 2)
+            if len(pk) == 2:
+                leads.append(pk[0][2] - pk[1][2])
+        return search(model, image, grey, hold, margin, log_s, geom, pp, log_sizes)
+
+    T._log_joint, tm.search = spy, spy_search
+    out = {"searched": 0, "best_on": 0, "best": [], "held": [], "true": [], "taken": None, "lead_on": [],
+           "lead_hidden": []}
     try:
         st = None
         h = stream_hash("cam0")
@@ -109,12 +138,15 @@ def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: b
                 st, _ = T.TRACKER.init(p, obs, gt[0], rng, {})
                 continue
             judged.clear()
+            leads.clear()
             prev = st
             prop = T.TRACKER.propose(p, st, obs, rng)
             res = T.step(st, obs, prop.particles, p, rng.stream(T.PURPOSE_STEP), 1.0)
             st = res.state
             g = gt.get(t)
-            if t < window[1] or g is None or vis.get(t, 0.0) <= 0.5 or not judged:
+            if vis.get(t, 1.0) <= 0.5 and leads:
+                out["lead_hidden"].append(leads[0])
+            if t < window[1] or g is None or vis.get(t, 1.0) <= 0.5 or not judged:
                 continue
             acc = [j for j in judged if j[4] >= 0.5]
             cand, ds, trials, place, v = acc[0] if acc else judged[0]
@@ -123,6 +155,8 @@ def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: b
             on = iou((cand.centre[0] - (w - 1) / 2, cand.centre[1] - (hh - 1) / 2, w, hh), g) > 0.5
             out["searched"] += 1
             out["best_on"] += on
+            if on and leads:
+                out["lead_on"].append(leads[0])
             out["best"].append(terms(prev, ds, cand, trials, place, p))
             gc = np.array([g[0] + (g[2] - 1) / 2.0, g[1] + (g[3] - 1) / 2.0])
             size = prev.geom.size0[0] * prev.geom.size0[1] * float(np.exp(2 * prev.log_s))
@@ -140,7 +174,7 @@ def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: b
                       f"P {v:.3f}" + "".join(f" | {k} lf {r[0]:+.2f} rho {r[1]:.3f} [{fs(r[2])}]"
                                               for k, r in row.items()))
     finally:
-        T._judge = orig
+        T._log_joint, tm.search = orig, search
     return out
 
 
@@ -155,11 +189,18 @@ def main() -> int:
     ap.add_argument("--sequences", default="", help="only these sequences (comma-separated)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=V", help="a dcf parameter")
     ap.add_argument("--frames", action="store_true", help="print every searched frame after the window")
+    ap.add_argument("--variant", default="", help="measure every frame of this variant of the footage (fast, "
+                                                  "blur, fast+blur, ...: gflow benchmark --variant) instead of --case")
     args = ap.parse_args()
     data = Path(os.environ.get("GFLOW_DATA", DATA))
     case = next((c for c in CASES if c.name == args.case), None)
     if case is None:
         print(f"bench_dcf_redetect: unknown case {args.case!r} (known: {', '.join(c.name for c in CASES)})")
+        return 2
+    try:
+        variant = select_variant(args.variant) if args.variant else None
+    except ValueError as e:
+        print(f"bench_dcf_redetect: {e}")
         return 2
     if not data.is_dir():
         print(f"bench_dcf_redetect: no data at {data} (set GFLOW_DATA)")
@@ -188,19 +229,30 @@ def main() -> int:
     for i, seq in enumerate(seqs):
         if want and seq.name not in want:
             continue
-        d = derive(seq, case, seqs[(i + 1) % len(seqs)], tmp, args.seed, 30, 60)
+        if variant is not None:
+            folder, window = derive_variant(seq, variant, tmp / variant.name, min(seq.groundtruth), None).path, (0, 0)
+        else:
+            d = derive(seq, case, seqs[(i + 1) % len(seqs)], tmp, args.seed, 30, 60)
+            folder, window = d.seq.path, d.plan.window
         if args.frames:
             print(seq.name)
-        m = run(d.seq.path, d.plan.window, p, args.seed, args.frames)
+        m = run(folder, window, p, args.seed, args.frames)
+        on = float(np.median(m["lead_on"])) if m["lead_on"] else None
+        hid = m["lead_hidden"]
         taken = "-" if m["taken"] is None else f"{m['taken'][0]} ({'on' if m['taken'][1] else 'off'} target)"
         rows.append([seq.name, m["searched"], m["best_on"],
                      " ".join(_med(m["best"], k) for k in range(4)),
                      " ".join(_med(m["held"], k) for k in range(2)),
-                     " ".join(_med(m["true"], k) for k in range(2)), taken])
-    print(f"dcf's search on the frames after the window of {case.name} with the target in view, seed {args.seed}; "
+                     " ".join(_med(m["true"], k) for k in range(2)), taken,
+                     "-" if on is None else f"{on:.3f}",
+                     "-" if not hid else f"{np.median(hid):.3f}" + ("" if on is None else
+                                                                   f" ({np.mean(np.array(hid) >= on):.2f} >= on)")])
+    what = f"every frame of the {variant.name} variant" if variant is not None else \
+        f"the frames after the window of {case.name}"
+    print(f"dcf's search on {what} with the target in view, seed {args.seed}; "
           "medians of the log-odds terms (filter, colour[, place, prior])")
     print(table(rows, ["sequence", "searched", "best on", "at best: f c place prior", "truth, held size: f c",
-                       "truth, true size: f c", "taken at"]))
+                       "truth, true size: f c", "taken at", "lead on target", "lead while covered"]))
     return 0
 
 
