@@ -811,14 +811,16 @@ def test_a_value_the_learning_refuses_is_a_failed_run_not_a_mistake(tmp_path: Pa
     assert_one_line_error(r, "gflow learn: error: -K 6 exemplars but only 6 training item(s)")
 
 
-def test_a_bad_value_met_after_the_track_ran_is_a_failed_run(tmp_path: Path, frames: Path) -> None:
-    """``GFLOW_RECORDINGS_WARN_MB=abc`` is read when the recording is kept, after the run: its ValueError was exit 2,
-    a mistake in the command, for a run that had tracked every frame. Met once the track's checks were done, it is
-    now the run failing, exit 1; the same ValueError class before the run (a bad --set value) stays exit 2."""
+def test_a_bad_recordings_limit_is_refused_before_the_track_runs(tmp_path: Path, frames: Path) -> None:
+    """``GFLOW_RECORDINGS_WARN_MB=abc`` is read when the recording is kept, after the run; it was met only then,
+    and the run that had tracked every frame failed without writing its boxes. It is checked with the other
+    options, before any work (exit 2, nothing written); a bad --set value is the same mistake."""
     env = {"GFLOW_RECORDINGS_WARN_MB": "abc"}
     r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "-q", cwd=tmp_path, env=env)
-    assert r.returncode == 1, r.stderr
+    assert r.returncode == 2, r.stderr
     assert_one_line_error(r, "gflow track: error: GFLOW_RECORDINGS_WARN_MB must be a number of MB >= 0, got 'abc'")
+    assert not (tmp_path / "b.csv").exists()
+    assert not list(tmp_path.glob("recordings/*.mcap")), "a recording was made before the mistake was said"
     r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--inline", "--set",
               "tracker.particles=0", cwd=tmp_path, env=env)
     assert r.returncode == 2, r.stderr

@@ -73,8 +73,13 @@ class RecordingTarget:
             _refuse_unmatched(plan, pats)
             rec.params["topics"] = pats + [t for t in needed if t not in pats]
         self.path = record or default
-        from pipeline.io.recording_files import refuse_existing
+        from pipeline.io.recording_files import refuse_existing, warn_mb
         from pipeline.runtime.preflight import check_writable
+
+        try:  # read once the recording is written (its folder's size): a bad value is refused before any work
+            warn_mb()
+        except ValueError as e:
+            raise RequestError(str(e)) from None
 
         if self.path:  # a recording never overwrites a file (the recorder also creates it exclusively)
             refuse_existing(self.path, "--record" if record else "the recording")
