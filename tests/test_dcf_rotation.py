@@ -220,7 +220,7 @@ def test_with_roll_detect_a_rolled_window_that_explains_the_look_is_taken_at_det
     usual = _usual(1.0 - s10, 0.03)  # the rolled score is the usual one; the upright one is far above it
     r, a = detect(r0, respond, 0.0, usual, p)
     assert a == pytest.approx(math.radians(10.0)) and r is not r0
-    assert detect(r0, respond, 0.0, usual, DCFParams(roll_step=10.0, roll_explain=2.0))[1] == 0.0
+    assert detect(r0, respond, 0.0, usual, DCFParams(roll_step=10.0, roll_explain=2.0, roll_detect=False))[1] == 0.0
     assert detect(r0, respond, 0.0, _usual(1.0 - s0, 0.03), p)[1] == 0.0  # the upright look is usual: shut
     assert detect(r0, respond, 0.0, _usual(1.0 - s10 - 0.3, 0.02), p)[1] == 0.0  # nothing explains it
 
@@ -302,7 +302,8 @@ def test_on_caviar1_rolled_to_35_degrees_it_holds_the_target_the_upright_filter_
     labelled frames after the roll; the upright filter's is on it on fewer. So is it with ``roll_explain``
     and ``roll_best`` (the best of the rolls that explain the frame); with ``roll_explain`` alone it is
     not: the held upright window stays within the target's learnt spread as the target rolls away, so
-    H0 is never refused (docs/dcf-development.md)."""
+    H0 is never refused (docs/dcf-development.md). Those four without the roll at detection; the default,
+    with it (``roll_detect``), holds the target too."""
     from gflow_core.evaluation.metrics import iou
     from gflow_core.evaluation.stress import CASES, fill_truth, plan_case, render_frame
     from pipeline.recording.results import read_boxes
@@ -319,10 +320,12 @@ def test_on_caviar1_rolled_to_35_degrees_it_holds_the_target_the_upright_filter_
     after = [i for i in range(plan.window[1], len(plan)) if plan.labelled[i]]
     truth = plan.boxes[after]
     on = []
-    for p in (DCFParams(roll_step=10.0, roll_explain=0.0), DCFParams(roll_step=0.0),
-              DCFParams(roll_step=10.0, roll_explain=2.0, roll_relax=10.0, roll_best=True),
-              DCFParams(roll_step=10.0, roll_explain=2.0, roll_relax=10.0, roll_best=False)):
+    for p in (DCFParams(roll_step=10.0, roll_explain=0.0, roll_detect=False), DCFParams(roll_step=0.0),
+              DCFParams(roll_step=10.0, roll_explain=2.0, roll_relax=10.0, roll_best=True, roll_detect=False),
+              DCFParams(roll_step=10.0, roll_explain=2.0, roll_relax=10.0, roll_best=False, roll_detect=False),
+              DCFParams()):
         _, ests, _ = _track(frames, tuple(plan.boxes[0]), p)
         on.append(float((iou(truth, np.array([ests[i].box for i in after])) > 0.5).mean()))
     assert on[0] >= 0.9 and on[1] < on[0], on
     assert on[2] >= 0.9 and on[3] < on[2], on
+    assert DCFParams().roll_detect and on[4] >= 0.9, on

@@ -53,9 +53,9 @@ class DCFParams:
     scale_anchor: bool = param(False, "the scale filter detects with the first frame's scale filter mixed in at "
                                       "anchor_weight, as the translation filter does, so the box's size stays tied to "
                                       "the first box's (gflow_core.dcf.scale; false: DSST's running filter alone)")
-    scale_upsample: bool = param(False, "a target smaller than scale_area pixels is resampled up to it for the scale "
-                                        "filter's sample, as larger ones are resampled down (false: sampled at its own "
-                                        "size, DSST's rule)")
+    scale_upsample: bool = param(True, "a target smaller than scale_area pixels is resampled up to it for the scale "
+                                       "filter's sample, as larger ones are resampled down (false: sampled at its own "
+                                       "size, DSST's rule)", before=False)
     max_log_scale: float = param(1.3862943611198906, "bound on |log s|: the box stays within [1/4, 4] times its "
                                                      "first size")
     kappa: float = param(30.0, "sharpness of the likelihood p(z | X) ~ exp(kappa y(X)), y the response")
@@ -178,10 +178,10 @@ class DCFParams:
     roll_best: bool = param(False, "with roll_explain, the roll is the best scoring of those that explain the frame, the "
                                    "held one among them (by more than roll_margin), not the held one whenever it explains "
                                    "it (gflow_core.dcf.rotation.explained)")
-    roll_detect: bool = param(False, "the roll is searched also when the target is detected, before its presence is "
-                                     "judged, on frames its score at the response's peak is unusual (roll_gate): a "
-                                     "rolled window that explains the look gives the particles their response "
-                                     "(SAMF's joint search over the roll; gflow_core.dcf.rotation.detect)")
+    roll_detect: bool = param(True, "the roll is searched also when the target is detected, before its presence is "
+                                    "judged, on frames its score at the response's peak is unusual (roll_gate): a "
+                                    "rolled window that explains the look gives the particles their response "
+                                    "(SAMF's joint search over the roll; gflow_core.dcf.rotation.detect)", before=False)
     motion_switch: float = param(0.0, "the motion model switches between constant velocity and a manoeuvre (the target "
                                       "turned or stopped: no mean velocity, its speed as the noise) with this "
                                       "probability a frame, the likelihood picking the mode (a mixed-state particle "
@@ -192,9 +192,9 @@ class DCFParams:
     scale_prior: float = param(0.0, "std of a Gaussian prior on the box's log size about the first box's: the scale "
                                     "filter's pick maximises kappa times its response plus the prior's log-density "
                                     "(gflow_core.dcf.scale.size_posterior; 0: the response's peak alone)")
-    colour_names: bool = param(False, "the filter's cells hold the 11 colour names of a colour frame beside fHOG and "
-                                      "the intensity (the CN tracker's and CSRT's feature, by prototypes in CIELab; "
-                                      "needs colour_weight > 0; gflow_core.dcf.features.colour_names)")
+    colour_names: bool = param(True, "the filter's cells hold the 11 colour names of a colour frame beside fHOG and "
+                                     "the intensity (the CN tracker's and CSRT's feature, by prototypes in CIELab; "
+                                     "needs colour_weight > 0; gflow_core.dcf.features.colour_names)", before=False)
     verify: float = param(0.0, "a re-detection the search found at another size, or a rolled window at detection, is taken "
                                "only when the first frame's filter scores it within this many standard deviations of its "
                                "distance at the target on confident frames and likelier the target than clutter (TLD's "

@@ -83,7 +83,8 @@ class OnlineParams:
     patience : frame periods the face must be placed away from the experts before they are re-seated (0: never).
     apart : away from the experts: its centre farther than this many box sizes from theirs in x or y.
     warmup : frames learnt from without the visibility gate (the experts start on the face).
-    dcf : the filter's settings (:class:`gflow_core.dcf.params.DCFParams`, no colour).
+    dcf : the filter's settings (:class:`gflow_core.dcf.params.DCFParams`, no colour; the small target's scale
+        sampling and the roll at detection off, as the guard was measured with).
     cue : sharpness kappa of the model's likelihood ``exp(kappa y)`` in the experts' importance weights
         (0: not a cue; :func:`cue`).
     floor : the weight of the uniform density the cue is mixed with (a cue that may fail).
@@ -94,7 +95,7 @@ class OnlineParams:
     patience: float = 0.0
     apart: float = 0.25
     warmup: int = 5
-    dcf: DCFParams = DCFParams(colour_weight=0.0)
+    dcf: DCFParams = DCFParams(colour_weight=0.0, scale_upsample=False, roll_detect=False)
     cue: float = 0.0
     floor: float = 0.1
 

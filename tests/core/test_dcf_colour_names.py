@@ -1,8 +1,8 @@
 """dcf's colour-name cells (``colour_names``; gflow_core.dcf.features.colour_names, the CN tracker's and CSRT's
 colour feature by prototypes in CIELab): each name wins on its own colour and the memberships sum to one (so
 the centred cells sum to 0); on a colour frame the filter holds 43 channels with the intensity last, on a grey
-one the option changes nothing; off (the default) the track is today's bit for bit; the filter goes into a
-snapshot and comes back bit for bit."""
+one the option changes nothing; it is on by default, and a plan recorded before it existed reads it off; the
+filter goes into a snapshot and comes back bit for bit."""
 
 from __future__ import annotations
 
@@ -50,15 +50,15 @@ def _colour_scene(n: int, seed: int = 4) -> tuple[list[np.ndarray], tuple[float,
     return frames, sc.truth(0)
 
 
-def test_off_it_tracks_as_before_on_a_colour_frame_it_holds_43_channels() -> None:
+def test_on_by_default_a_colour_frame_holds_43_channels_and_off_32() -> None:
     frames, box = _colour_scene(6)
     _, ref = _track(frames, box)
+    assert DCFParams().colour_names is True and added_later(DCFParams)["colour_names"] is False
     st_off, off = _track(frames, box, DCFParams(colour_names=False))
-    assert DCFParams().colour_names is False and "colour_names" not in added_later(DCFParams)
-    assert [e.box for e in off] == [e.box for e in ref] and st_off.model.det.shape[-1] == 32
+    assert st_off.model.det.shape[-1] == 32
     st_on, on = _track(frames, box, DCFParams(colour_names=True))
     assert st_on.model.det.shape[-1] == 32 + N_NAMES and st_on.model.anchor.shape == st_on.model.det.shape
-    assert [e.box for e in on] != [e.box for e in ref]
+    assert [e.box for e in on] == [e.box for e in ref] and [e.box for e in off] != [e.box for e in ref]
     # the cells: fHOG, the names, and the intensity last (channel_weights leaves it out by its place)
     grey = cv2.cvtColor(frames[0], cv2.COLOR_BGR2GRAY).astype(np.float32)
     centre, k = (box[0] + 0.5 * (box[2] - 1), box[1] + 0.5 * (box[3] - 1)), (1.0, 1.0)

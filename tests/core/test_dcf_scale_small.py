@@ -1,4 +1,4 @@
-"""The scale filter on a small target (``scale_upsample``, off by default): the sample is resampled up to the model area,
+"""The scale filter on a small target (``scale_upsample``, on by default): the sample is resampled up to the model area,
 so a target of a few cells is seen at as many cells as a large one and its box keeps its size.
 
 Real frames: ../shared/data/surfer at half its size (``gflow benchmark --variant small``), a 16 x 18 px

@@ -164,10 +164,16 @@ def _fast_overlap(name: str, seed: int = 1, **params: object) -> float:
     return float(np.mean(overlaps))
 
 
+#: the tracker as the surfer's loss was traced: before colour names, the small target's scale and the roll at
+#: detection were on by default (with them the jolt does not lose the head: mean overlap about 0.64 without the track)
+TRACED = {"colour_names": False, "scale_upsample": False, "roll_detect": False}
+
+
 def test_the_surfer_at_every_third_frame_is_found_again() -> None:
     """Without the track the head is lost to a camera jolt and never taken back (mean overlap about 0.1);
     with it the search's placements on the head are taken after a few frames."""
-    without, with_track = _fast_overlap("surfer", search_track=0.0), _fast_overlap("surfer", search_track=0.95)
+    without = _fast_overlap("surfer", search_track=0.0, **TRACED)
+    with_track = _fast_overlap("surfer", search_track=0.95, **TRACED)
     assert without < 0.3  # the check can fail: without the track the head stays lost
     assert with_track > 0.45
 
