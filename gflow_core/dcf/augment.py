@@ -60,8 +60,9 @@ def warps(p: DCFParams) -> list[tuple[float, float, float]]:
 def copies(grey: np.ndarray, centre: tuple[float, float], size: tuple[int, int], k: tuple[float, float],
            p: DCFParams) -> list[np.ndarray]:
     """The warped copies (:func:`warps`) of the window of ``size`` (w, h) template px at ``centre`` sampled at
-    ``k`` from ``grey`` (H, W) float32: a list of (h, w) float32 patches, each rotated, resized and blurred
-    about the window's centre; the image's border is replicated outside it (as :func:`.features.sample`)."""
+    ``k`` from ``grey`` (H, W) float32, or a colour frame (H, W, 3) uint8 BGR: a list of (h, w) (or (h, w, 3))
+    float32 patches, each rotated, resized and blurred about the window's centre; the image's border is
+    replicated outside it (as :func:`.features.sample`)."""
     w, h = int(size[0]), int(size[1])
     out = []
     for angle, log_f, blur in warps(p):
@@ -86,8 +87,9 @@ def first_sample(x_hat: np.ndarray, grey: np.ndarray, centre: tuple[float, float
                  p: DCFParams) -> cf.Spectrum | np.ndarray:
     """The first sample with the copies averaged in (module docstring).
 
-    x_hat : (hc, wc // 2 + 1, C) complex, the first window's spectrum; ``spectrum`` maps a (h, w) grey
-    patch to such a spectrum (its cells, windowed). With ``label_hat`` (the label's rfft2) the closed
+    x_hat : (hc, wc // 2 + 1, C) complex, the first window's spectrum; ``grey`` the frame the copies are
+    warped from, (H, W) grey float32 or (H, W, 3) BGR uint8 (with the colour names, which need the colour);
+    ``spectrum`` maps a copy, (h, w) or (h, w, 3), to such a spectrum (its cells, windowed). With ``label_hat`` (the label's rfft2) the closed
     form's numerator and denominator (:class:`.filter.Spectrum`, DSST eq. 3, averaged as eq. 5), without
     it the sample itself (the masked filter's, BACF sec. 3.3)."""
     xs = [spectrum(c) for c in copies(grey, centre, size, k, p)]

@@ -228,9 +228,19 @@ def init_model(image: np.ndarray, grey: np.ndarray, is_grey: bool, centre: tuple
     x_hat = cf.spectrum(win.x, geom.window)
     train: cf.Spectrum | np.ndarray = cf.train(x_hat, geom.label_hat) if geom.mask is None else x_hat
     if p.augment > 0:
-        # the first sample with warped copies of the window averaged in (module .augment)
-        train = first_sample(x_hat, grey, centre, geom.template, geom.k(0.0), geom.label_hat if geom.mask is None
-                             else None, lambda g: cf.spectrum(cells_of(g, geom.cell), geom.window), p)
+        # the first sample with warped copies of the window averaged in (module .augment); with the colour names
+        # the copies are of the colour frame, so that their cells hold the names as the window's do
+        names = names_of(mode, p)
+
+        def copy_spectrum(c: np.ndarray) -> np.ndarray:
+            if not names:
+                return cf.spectrum(cells_of(c, geom.cell), geom.window)
+            c8 = np.clip(np.rint(c), 0, 255).astype(np.uint8)  # the colour copy's own levels, as the window's
+            g = cv2.cvtColor(c8, cv2.COLOR_BGR2GRAY).astype(np.float32)
+            return cf.spectrum(cells_of(g, geom.cell, colour_names(c8, geom.cell)), geom.window)
+
+        train = first_sample(x_hat, image if names else grey, centre, geom.template,
+                             geom.k(0.0), geom.label_hat if geom.mask is None else None, copy_spectrum, p)
     colour = None
     if mode is not None:
         assert win.bins is not None and win.valid is not None
