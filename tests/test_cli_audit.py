@@ -1,0 +1,78 @@
+"""The recording tools' answers, checked against mistakes and damaged input on the real command line:
+a filter that matches nothing, a file damaged or not what it is named for, an option out of range,
+an output already there -- each a non-zero exit with a line naming the file or option and what is
+wrong (never a traceback, never an empty success), and nothing written over.
+
+Every case runs ``gflow`` as a subprocess on real MCAP files: one short recording of the synthetic
+scene made once (``gflow demo --inline``) and copies of it cut, flipped or rewritten.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import damaged_copy
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def gflow(*args: str, cwd: Path, timeout: float = 60.0, stdin: str | None = None) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=timeout, input=stdin if stdin is not None else "",
+                          stdin=None)
+
+
+def error_line(r: subprocess.CompletedProcess, *words: str, rc: int | None = None) -> str:
+    """The last line of stderr, of a command that failed without a traceback, holding ``words``."""
+    assert r.returncode != 0 and (rc is None or r.returncode == rc), (r.returncode, r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert lines, r.stdout
+    for w in words:
+        assert w in lines[-1], lines[-1]
+    return lines[-1]
+
+
+def one_line_error(r: subprocess.CompletedProcess, *words: str, rc: int | None = None) -> str:
+    line = error_line(r, *words, rc=rc)
+    assert len([ln for ln in r.stderr.splitlines() if ln.strip()]) == 1, r.stderr
+    return line
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory) -> Path:
+    """A folder holding demo.mcap (8 frames of the synthetic scene, closed) and damaged copies of it:
+    damaged.mcap (a chunk in the middle fails its CRC; many small chunks), head.mcap (the header's
+    bytes flipped: the file still ends as a closed one does), torn.mcap (its first 300 bytes: no
+    message)."""
+    d = tmp_path_factory.mktemp("audit")
+    r = gflow("demo", "--frames", "8", "--inline", "--record", "demo.mcap", cwd=d)
+    assert r.returncode == 0, r.stderr
+    data = (d / "demo.mcap").read_bytes()
+    damaged_copy(d / "demo.mcap", d / "damaged.mcap")
+    head = bytearray(data)
+    head[20:36] = bytes(b ^ 0xFF for b in head[20:36])
+    (d / "head.mcap").write_bytes(bytes(head))
+    (d / "torn.mcap").write_bytes(data[:300])
+    return d
+
+
+# -- damage the readers must not take for an empty recording ----------------------------------------------
+
+
+def test_a_closed_recording_damaged_near_its_start_is_called_damaged(rec: Path, tmp_path: Path) -> None:
+    """A damaged record length had the reader run to the end of the file, which it took for a torn end:
+    `gflow info` said the file 'was not closed properly', and diff, plot and the rest read it as a
+    recording with no message, without a word of damage."""
+    r = gflow("info", str(rec / "head.mcap"), cwd=tmp_path)
+    assert r.returncode == 1 and "damaged" in r.stdout and "not closed properly" not in r.stdout, r.stdout
+    r = gflow("plot", str(rec / "head.mcap"), "p.png", cwd=tmp_path)
+    assert r.returncode == 2 and "head.mcap: recording is damaged" in r.stderr, r.stderr
+    assert not (tmp_path / "p.png").exists()
