@@ -76,3 +76,30 @@ def test_a_closed_recording_damaged_near_its_start_is_called_damaged(rec: Path, 
     r = gflow("plot", str(rec / "head.mcap"), "p.png", cwd=tmp_path)
     assert r.returncode == 2 and "head.mcap: recording is damaged" in r.stderr, r.stderr
     assert not (tmp_path / "p.png").exists()
+
+
+# -- gflow diff --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("a,b", [("torn.mcap", "torn.mcap"), ("head.mcap", "torn.mcap")])
+def test_diff_of_recordings_with_nothing_to_compare_is_an_error(rec: Path, tmp_path: Path, a: str, b: str) -> None:
+    """Two recordings with no message that can be read were 'identical' (exit 0)."""
+    r = gflow("diff", str(rec / a), str(rec / b), cwd=tmp_path)
+    line = error_line(r, "nothing to compare", rc=2)
+    assert "identical" not in r.stdout
+    assert ("damaged" in line) == (a == "head.mcap"), line
+
+
+def test_diff_of_a_damaged_recording_says_what_was_not_compared(rec: Path, tmp_path: Path) -> None:
+    """A damaged recording diffed with itself was 'identical' (exit 0), though nothing after the damage
+    was compared."""
+    for args in ([], ["--json"]):
+        r = gflow("diff", str(rec / "damaged.mcap"), str(rec / "damaged.mcap"), *args, cwd=tmp_path)
+        assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+        if not args:
+            last = r.stdout.strip().splitlines()[-1]
+            assert "nothing after the damage was compared" in last and "damaged.mcap" in last, last
+        else:
+            assert "damaged.mcap: recording is damaged" in r.stderr.strip().splitlines()[-1], r.stderr
+    r = gflow("diff", str(rec / "demo.mcap"), str(rec / "demo.mcap"), cwd=tmp_path)  # an intact one still is
+    assert r.returncode == 0 and r.stdout.strip().endswith("identical"), r.stdout
