@@ -103,3 +103,37 @@ def test_diff_of_a_damaged_recording_says_what_was_not_compared(rec: Path, tmp_p
             assert "damaged.mcap: recording is damaged" in r.stderr.strip().splitlines()[-1], r.stderr
     r = gflow("diff", str(rec / "demo.mcap"), str(rec / "demo.mcap"), cwd=tmp_path)  # an intact one still is
     assert r.returncode == 0 and r.stdout.strip().endswith("identical"), r.stdout
+
+
+# -- gflow rerun -------------------------------------------------------------------------------------------
+
+
+def test_rerun_graph_with_topics_matching_nothing_is_refused_before_it_runs(rec: Path, tmp_path: Path) -> None:
+    """The whole graph was re-run and its recording written beside the input, then --topics refused."""
+    (tmp_path / "demo.mcap").write_bytes((rec / "demo.mcap").read_bytes())
+    r = gflow("rerun", "demo.mcap", "--graph", "--topics", "nosuch", cwd=tmp_path)
+    one_line_error(r, "'nosuch'", "estimate", rc=2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.mcap"], "no re-run recording"
+
+
+def test_rerun_of_a_damaged_recording_is_not_a_check(rec: Path, tmp_path: Path) -> None:
+    """'all identical bit for bit' and exit 0 with --check, though nothing after the damage was re-run."""
+    r = gflow("rerun", str(rec / "damaged.mcap"), "--stage", "filter", "--check", cwd=tmp_path)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, (r.stdout, r.stderr)
+    last = r.stdout.strip().splitlines()[-1]
+    assert "not a check of the whole run" in last and "damaged.mcap: recording is damaged" in last, last
+
+
+def test_rerun_of_a_recording_damaged_before_its_stage_inputs_names_the_damage(rec: Path, tmp_path: Path) -> None:
+    """It re-ran '0 steps' and reported '2 of 0 outputs differ'; a header damaged was 'not written by
+    gflow's recorder'."""
+    cut = tmp_path / "early.mcap"  # its only data chunk damaged: the metadata after it is still read
+    data = bytearray((rec / "demo.mcap").read_bytes())
+    data[len(data) // 10:len(data) // 10 + 16] = bytes(b ^ 0xFF for b in data[len(data) // 10:len(data) // 10 + 16])
+    cut.write_bytes(bytes(data))
+    r = gflow("rerun", str(cut), "--stage", "filter", cwd=tmp_path)
+    error_line(r, "holds no input of stage filter", "early.mcap: recording is damaged", rc=2)
+    for cmd in ("rerun", "step"):
+        r = gflow(cmd, str(rec / "head.mcap"), "--stage", "filter", cwd=tmp_path)
+        one_line_error(r, "head.mcap: recording is damaged", rc=2)
+        assert "not written by gflow" not in r.stderr
