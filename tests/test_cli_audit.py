@@ -137,3 +137,24 @@ def test_rerun_of_a_recording_damaged_before_its_stage_inputs_names_the_damage(r
         r = gflow(cmd, str(rec / "head.mcap"), "--stage", "filter", cwd=tmp_path)
         one_line_error(r, "head.mcap: recording is damaged", rc=2)
         assert "not written by gflow" not in r.stderr
+
+
+# -- gflow step, fed by a script ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("script,line,words", [
+    ("n\nj abc\nn\n", 2, ["usage: j SEQ"]),
+    ("j 9999\nn\n", 1, ["no frame 9999", "frames 0..8"]),
+])
+def test_step_stops_at_a_jump_its_script_cannot_make(rec: Path, tmp_path: Path, script: str, line: int,
+                                               words: list[str]) -> None:
+    """Commands piped in: a jump that could not be made was answered on stdout and the script went on
+    (exit 0) from where it was, the frames after it shown as if they were the ones asked for."""
+    r = gflow("step", str(rec / "demo.mcap"), "--stage", "filter", cwd=tmp_path, stdin=script)
+    one_line_error(r, f"standard input line {line}:", *words, rc=2)
+    assert r.stdout.count("--- frame ") == script[:line * 2].count("n\n"), r.stdout
+
+
+def test_step_script_without_mistakes_still_runs_to_its_end(rec: Path, tmp_path: Path) -> None:
+    r = gflow("step", str(rec / "demo.mcap"), "--stage", "filter", cwd=tmp_path, stdin="n\nj 3\ns\nq\n")
+    assert r.returncode == 0 and r.stderr == "" and "--- frame 3 " in r.stdout, (r.stdout, r.stderr)

@@ -62,7 +62,19 @@ def cmd_step(args) -> int:
     if args.start:
         print(f"jumped to frame {args.start} {how}", file=out)
     last = None
+    n = 0  # the line of standard input read last (a script's)
+
+    def mistake(text: str) -> None:
+        """A jump that could not be made: at the terminal, say it and read the next command; from a script,
+        stop with it (exit 2), as the commands after it would show and step other frames than it meant."""
+        if interactive:
+            print(text, file=out)
+        else:
+            out.flush()
+            raise CliError(f"standard input line {n}: {text}")
+
     while True:
+        n += 1
         if interactive:
             try:
                 line = input("step> ").strip()
@@ -85,12 +97,12 @@ def cmd_step(args) -> int:
             try:
                 seq = int(arg)
             except ValueError:
-                print("usage: j SEQ", file=out)
+                mistake(f"{line!r}: usage: j SEQ")
                 continue
             try:
                 print(f"jumped {st.jump(seq)}", file=out)
             except ValueError as e:
-                print(e, file=out)
+                mistake(str(e))
                 continue
             last = st.next()
             if last is not None:
@@ -109,7 +121,7 @@ def cmd_step(args) -> int:
         elif cmd in ("q", "quit", "exit"):
             break
         else:
-            print(f"unknown command {cmd!r}; h for help", file=out)
+            print(f"unknown command {cmd!r}; h for help", file=out)  # it moved nothing: the script goes on
     return 0
 
 
