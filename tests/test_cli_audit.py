@@ -158,3 +158,31 @@ def test_step_stops_at_a_jump_its_script_cannot_make(rec: Path, tmp_path: Path, 
 def test_step_script_without_mistakes_still_runs_to_its_end(rec: Path, tmp_path: Path) -> None:
     r = gflow("step", str(rec / "demo.mcap"), "--stage", "filter", cwd=tmp_path, stdin="n\nj 3\ns\nq\n")
     assert r.returncode == 0 and r.stderr == "" and "--- frame 3 " in r.stdout, (r.stdout, r.stderr)
+
+
+# -- gflow plot, gflow frame: sizes and ground truth -------------------------------------------------------
+
+
+@pytest.mark.parametrize("value,words", [("0", ["--dpi", "1-1000", "got 0"]), ("100000", ["--dpi", "1-1000"])])
+def test_plot_dpi_out_of_range_names_the_option_before_any_work(rec: Path, tmp_path: Path, value: str,
+                                                                words: list[str]) -> None:
+    """0 was refused after the recording was read as 'dpi must be positive', naming no option; 100000
+    ended in 'internal error: MemoryError'."""
+    r = gflow("plot", str(rec / "demo.mcap"), "p.png", "--dpi", value, cwd=tmp_path)
+    one_line_error(r, *words, rc=2)
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_plot_ground_truth_of_other_frames_is_refused(rec: Path, tmp_path: Path) -> None:
+    """A plot was written with an empty error panel, exit 0, as of a run with no ground truth given."""
+    (tmp_path / "far.csv").write_text("frame,x,y,w,h\n5000,10,10,20,20\n5001,10,10,20,20\n")
+    r = gflow("plot", str(rec / "demo.mcap"), "p.png", "--gt", "far.csv", cwd=tmp_path)
+    one_line_error(r, "--gt far.csv", "5000..5001", "demo.mcap", rc=2)
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_frame_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path) -> None:
+    """--scale 1000 ended in an out-of-memory 'internal error' from OpenCV."""
+    r = gflow("frame", str(rec / "demo.mcap"), "2", "f.png", "--scale", "1000", cwd=tmp_path)
+    one_line_error(r, "--scale 1000", "320x240", "at most 102", rc=2)
+    assert not (tmp_path / "f.png").exists()
