@@ -186,3 +186,16 @@ def test_frame_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path) -> 
     r = gflow("frame", str(rec / "demo.mcap"), "2", "f.png", "--scale", "1000", cwd=tmp_path)
     one_line_error(r, "--scale 1000", "320x240", "at most 102", rc=2)
     assert not (tmp_path / "f.png").exists()
+
+
+# -- gflow eval --------------------------------------------------------------------------------------------
+
+
+def test_eval_of_points_on_none_of_the_reference_frames_is_refused(tmp_path: Path) -> None:
+    """Scored 'NME nan', 'error nan px' with exit 0; boxes on no ground-truth frame were already refused."""
+    rng = np.random.default_rng(0)
+    np.savez(tmp_path / "ref.npz", landmarks=rng.uniform(0, 100, (5, 468, 2)))
+    (tmp_path / "far.csv").write_text("frame,landmark,x,y\n" + "".join(f"900,{i},1,2\n" for i in (33, 133, 263)))
+    r = gflow("eval", "--landmarks", "ref.npz", "--points", "far.csv", cwd=tmp_path)
+    one_line_error(r, "no frame has both", "ref.npz: frames 0..4", "far.csv: frames 900..900", rc=2)
+    assert r.stdout == ""
