@@ -199,3 +199,36 @@ def test_eval_of_points_on_none_of_the_reference_frames_is_refused(tmp_path: Pat
     r = gflow("eval", "--landmarks", "ref.npz", "--points", "far.csv", cwd=tmp_path)
     one_line_error(r, "no frame has both", "ref.npz: frames 0..4", "far.csv: frames 900..900", rc=2)
     assert r.stdout == ""
+
+
+# -- gflow export vot --------------------------------------------------------------------------------------
+
+
+@pytest.fixture()
+def two_sequences(tmp_path: Path) -> Path:
+    """data/good (3 frames and their boxes) and data/bad (a groundtruth.csv with a row of words)."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    for name in ("good", "bad"):
+        (tmp_path / "data" / name / "frames").mkdir(parents=True)
+        for i in range(3):
+            cv2.imwrite(str(tmp_path / "data" / name / "frames" / f"{i:04d}.png"),
+                        rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    (tmp_path / "data" / "good" / "groundtruth.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n")
+    (tmp_path / "data" / "bad" / "groundtruth.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,abc,10,20,20\n")
+    return tmp_path
+
+
+def test_export_vot_of_chosen_sequences_reads_only_those(two_sequences: Path) -> None:
+    """A sequence left out by --sequences, with a bad groundtruth.csv, refused the whole export (and a
+    mistyped name in --sequences was hidden behind it)."""
+    r = gflow("export", "vot", "data", "ws", "--sequences", "good", cwd=two_sequences)
+    assert r.returncode == 0 and (two_sequences / "ws" / "sequences" / "good" / "groundtruth.txt").is_file(), r.stderr
+    assert not (two_sequences / "ws" / "sequences" / "bad").exists()
+    for chosen, words in (("nosuch", ["unknown sequence nosuch", "known: bad, good"]),
+                          ("", ["(none given)"]),
+                          ("bad", ["bad/groundtruth.csv:3", "not numbers"])):
+        r = gflow("export", "vot", "data", "ws2", "--sequences", chosen, cwd=two_sequences)
+        one_line_error(r, *words, rc=2)
+        assert not (two_sequences / "ws2").exists()
