@@ -250,3 +250,13 @@ def test_clean_leaves_alone_a_file_named_mcap_that_is_not_a_recording(rec: Path,
     assert r.returncode == 0 and "removed 1 recording(s)" in r.stdout, (r.stdout, r.stderr)
     assert sorted(p.name for p in runs.iterdir()) == ["new.mcap", "notes.mcap"]
     assert "notes.mcap" in r.stderr and "not MCAP" in r.stderr, r.stderr
+
+
+def test_a_recording_with_bytes_after_its_end_is_called_damaged(rec: Path, tmp_path: Path) -> None:
+    """A second copy appended (two writers on one file) was not read, and `gflow info` said nothing of
+    it (exit 0) though `gflow verify` calls the file damaged."""
+    data = (rec / "demo.mcap").read_bytes()
+    (tmp_path / "twice.mcap").write_bytes(data + data)
+    r = gflow("info", "twice.mcap", cwd=tmp_path)
+    assert r.returncode == 1 and f"{len(data)} bytes after its closing magic bytes" in r.stdout, r.stdout
+    assert "the recording is damaged" in r.stderr, r.stderr

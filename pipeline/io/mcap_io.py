@@ -176,14 +176,27 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
                                f"says where it is, `gflow recover` keeps what is before it)")
             else:
                 text = f"{p}: recording ends early ({why}); it was not closed properly (try `gflow recover`)"
-            if isinstance(text, Damaged):
-                _DAMAGE_FOUND.setdefault(str(p), text)
-            if strict:
-                raise TruncatedRecording(text) from None
-            if on_truncated is not None:
-                on_truncated(text)
-            elif isinstance(text, Damaged):
-                _say_damage(text)
+            _tell(text, strict, on_truncated)
+        else:
+            try:
+                pos, size = f.tell(), p.stat().st_size
+            except (OSError, ValueError):
+                pos = size = 0
+            if pos < size:  # bytes after the footer (two writers on one file, a copy appended): not read
+                _tell(Damaged(f"{p}: recording is damaged: {size - pos} bytes after its closing magic bytes at byte "
+                              f"{pos}; they are not read (`gflow verify` says more)"), strict, on_truncated)
+
+
+def _tell(text: str, strict: bool, on_truncated) -> None:
+    """Say where a recording's reading stopped early (see :func:`_iter_file`)."""
+    if isinstance(text, Damaged):
+        _DAMAGE_FOUND.setdefault(text.split(": recording is damaged", 1)[0], text)
+    if strict:
+        raise TruncatedRecording(text) from None
+    if on_truncated is not None:
+        on_truncated(text)
+    elif isinstance(text, Damaged):
+        _say_damage(text)
 
 
 #: what a properly closed MCAP file begins and ends with (its header's and footer's magic)
