@@ -260,3 +260,14 @@ def test_a_recording_with_bytes_after_its_end_is_called_damaged(rec: Path, tmp_p
     r = gflow("info", "twice.mcap", cwd=tmp_path)
     assert r.returncode == 1 and f"{len(data)} bytes after its closing magic bytes" in r.stdout, r.stdout
     assert "the recording is damaged" in r.stderr, r.stderr
+
+
+# -- gflow foxglove ----------------------------------------------------------------------------------------
+
+
+def test_foxglove_of_topics_it_cannot_show_names_the_option(rec: Path, tmp_path: Path) -> None:
+    """'no message of demo.mcap could be copied' (exit 1), as of a damaged recording, when --topics chose
+    only features and particles, which a Foxglove copy leaves out."""
+    r = gflow("foxglove", str(rec / "demo.mcap"), "f.mcap", "--topics", "features", "particles", cwd=tmp_path)
+    one_line_error(r, "--topics features particles", "Foxglove cannot show", "features, particles", rc=2)
+    assert not (tmp_path / "f.mcap").exists()
