@@ -271,3 +271,14 @@ def test_foxglove_of_topics_it_cannot_show_names_the_option(rec: Path, tmp_path:
     r = gflow("foxglove", str(rec / "demo.mcap"), "f.mcap", "--topics", "features", "particles", cwd=tmp_path)
     one_line_error(r, "--topics features particles", "Foxglove cannot show", "features, particles", rc=2)
     assert not (tmp_path / "f.mcap").exists()
+
+
+@pytest.mark.parametrize("size,words", [(0, ["is empty (0 bytes)"]), (4, ["ends after 4 bytes", "torn"])])
+@pytest.mark.parametrize("cmd", [["info"], ["diff", "{rec}/demo.mcap"], ["replay"]])
+def test_an_empty_or_barely_begun_recording_is_called_so(rec: Path, tmp_path: Path, size: int, words: list[str],
+                                                         cmd: list[str]) -> None:
+    """Both were 'not an MCAP file (bad magic bytes ...)', b'' for an empty one."""
+    (tmp_path / "r.mcap").write_bytes((rec / "demo.mcap").read_bytes()[:size])
+    r = gflow(*[c.replace("{rec}", str(rec)) for c in cmd], "r.mcap", cwd=tmp_path)
+    one_line_error(r, "r.mcap", *words, rc=2)
+    assert "bad magic" not in r.stderr

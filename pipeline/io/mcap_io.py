@@ -106,6 +106,11 @@ def check_recording(path: str | Path) -> Path:
         raise MissingPath(f"recording not found: {p}")
     with open(p, "rb") as f:
         magic = f.read(8)
+    if not magic:  # "bad magic bytes b''" had the user look for bytes in a file that has none
+        raise ValueError(f"{p} is empty (0 bytes), not an MCAP recording")
+    if magic != b"\x89MCAP0\r\n" and b"\x89MCAP0\r\n".startswith(magic):
+        raise ValueError(f"{p} ends after {len(magic)} bytes, inside the MCAP magic bytes: a recording torn before "
+                         f"its first record, with nothing to read")
     if magic != b"\x89MCAP0\r\n":
         raise ValueError(f"{p} is not an MCAP file (bad magic bytes {magic!r})")
     return p
