@@ -9,22 +9,6 @@ import sys
 from pathlib import Path
 
 
-def _not_a_recording(path: Path) -> bool:
-    """Whether ``path`` holds bytes that are not an MCAP file's (an empty file is a recorder's that wrote
-    nothing: removed with the rest)."""
-    from pipeline.io.mcap_io import check_recording
-
-    try:
-        if path.stat().st_size == 0:
-            return False
-        check_recording(path)
-    except ValueError:
-        return True
-    except OSError:  # gone, or not readable: folder_recordings' count of it stands
-        return False
-    return False
-
-
 def cmd_clean(args) -> int:
     from pipeline.io.recording_files import StoredRecording, folder_recordings
     from pipeline.runtime.running import running
@@ -35,9 +19,7 @@ def cmd_clean(args) -> int:
         raise CliError(f"{folder} does not exist (give the folder of recordings to clean)")
     if not folder.is_dir():
         raise CliError(f"{folder} is not a folder")
-    recs, foreign = [], []
-    for r in folder_recordings(folder):  # a file named .mcap that is not one holds something else: not ours to remove
-        (foreign if _not_a_recording(r.path) else recs).append(r)
+    recs = folder_recordings(folder)
     busy = {Path(str(i["recording"])).resolve() for i in running() if i.get("recording")}
     kept = recs[:args.keep]
     drop: list[StoredRecording] = []
@@ -57,9 +39,6 @@ def cmd_clean(args) -> int:
         for r in drop:
             print(f"  {r.path} ({r.bytes / 1e6:.1f} MB{', ' + str(len(r.files)) + ' files' if len(r.files) > 1 else ''})",
                   file=sys.stderr)
-    if foreign:
-        print(f"left alone: {', '.join(str(r.path) for r in foreign)} (named .mcap, but not MCAP files)",
-              file=sys.stderr)
     return 0
 
 
