@@ -107,10 +107,10 @@ def check_recording(path: str | Path) -> Path:
     with open(p, "rb") as f:
         magic = f.read(8)
     if not magic:  # "bad magic bytes b''" had the user look for bytes in a file that has none
-        raise ValueError(f"{p} is empty (0 bytes), not an MCAP recording")
+        raise ValueError(f"{p} is empty (0 bytes), not an MCAP file")
     if magic != b"\x89MCAP0\r\n" and b"\x89MCAP0\r\n".startswith(magic):
-        raise ValueError(f"{p} ends after {len(magic)} bytes, inside the MCAP magic bytes: a recording torn before "
-                         f"its first record, with nothing to read")
+        raise ValueError(f"{p} is not an MCAP file yet: it ends after {len(magic)} bytes, inside the MCAP magic "
+                         f"bytes (a recording torn before its first record, with nothing to read)")
     if magic != b"\x89MCAP0\r\n":
         raise ValueError(f"{p} is not an MCAP file (bad magic bytes {magic!r})")
     return p
