@@ -264,3 +264,14 @@ def test_an_empty_or_barely_begun_recording_is_called_so(rec: Path, tmp_path: Pa
     r = gflow(*[c.replace("{rec}", str(rec)) for c in cmd], "r.mcap", cwd=tmp_path)
     one_line_error(r, "r.mcap", *words, rc=2)
     assert "bad magic" not in r.stderr
+
+
+def test_frame_of_a_recording_kept_without_frames_says_so(tmp_path: Path) -> None:
+    """'no frame at or after frame 0', as if frame 0 were missing, of a run recorded with --record-topics
+    estimate (which keeps no frame at all)."""
+    r = gflow("demo", "--frames", "3", "--inline", "--record", "est.mcap", "--record-topics", "estimate",
+              cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = gflow("frame", "est.mcap", "0", "f.png", cwd=tmp_path)
+    one_line_error(r, "est.mcap holds no frames", "estimate", rc=2)
+    assert not (tmp_path / "f.png").exists()

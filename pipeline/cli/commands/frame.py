@@ -69,6 +69,14 @@ def cmd_frame(args) -> int:
         raise CliError(f"source not found: {args.source} (give an image folder, a video file or an .mcap recording)")
     if args.index < 0:
         raise CliError(f"frame index must be >= 0, got {args.index}")
+    if kind == "mcap":  # "no frame at or after frame 0" of a recording with none sent the user looking for frame 0
+        from pipeline.io.mcap_io import recorded_topics
+        from pipeline.recording.topics import describe_topics
+
+        topics = recorded_topics(p)
+        if topics and not any(t.endswith("/frames") for t in topics):
+            raise CliError(f"{args.source} holds no frames to draw (it was recorded without them; it holds "
+                           f"{describe_topics(topics)})")
     try:  # a frame past where a torn recording ends: the error says the recording is torn
         raw = first_frame(SourceParams(kind=kind, path=str(p), start=args.index, stop=args.index + 1))
     except PreflightError as e:
