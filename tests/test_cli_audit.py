@@ -275,3 +275,14 @@ def test_frame_of_a_recording_kept_without_frames_says_so(tmp_path: Path) -> Non
     r = gflow("frame", "est.mcap", "0", "f.png", cwd=tmp_path)
     one_line_error(r, "est.mcap holds no frames", "estimate", rc=2)
     assert not (tmp_path / "f.png").exists()
+
+
+# -- gflow replay ------------------------------------------------------------------------------------------
+
+
+def test_replay_speed_too_slow_for_the_clock_is_refused_as_parsed(rec: Path, tmp_path: Path) -> None:
+    """--speed 1e-308 passed (it is > 0), joined the network and ended in 'internal error: OverflowError'
+    at its first wait."""
+    r = gflow("replay", str(rec / "demo.mcap"), "--speed", "1e-308", cwd=tmp_path)
+    one_line_error(r, "--speed", ">= 0.001", "1e-308", rc=2)
+    assert "replaying" not in r.stderr
