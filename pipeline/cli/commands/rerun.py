@@ -148,7 +148,7 @@ def cmd_rerun(args) -> int:
             _check_from(args.file, set(sp.inputs.values()) or set(sp.outputs.values()), args.from_seq)
         warn_if_torn(args.file)  # re-run only up to where it ends: said before any verdict (a check's error says it)
     res = rerun_stage(args.file, args.stage, stage_sets, args.from_seq)
-    if not res.inputs and args.from_seq is None:  # "0 outputs compared" is no check of the stage
+    if not res.inputs and not res.steps and args.from_seq is None:  # "0 of 0 outputs" is no check of it
         from pipeline.io.mcap_io import damage_cause, torn_cause
 
         why = damage_cause(args.file) or torn_cause(args.file)
