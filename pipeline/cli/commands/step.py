@@ -36,7 +36,9 @@ def cmd_step(args) -> int:
 
     st = Stepper(args.file, args.stage)  # a torn file cut before its metadata is said so here
     if not st.records:  # a torn file says where it ends, so the cut is not taken for what the run recorded
-        torn = torn_cause(args.file)
+        from pipeline.io.mcap_io import damage_cause
+
+        torn = damage_cause(args.file) or torn_cause(args.file)
         raise CliError(f"{args.file} holds no input of stage {args.stage} to step through" + (f": {torn}" if torn else ""))
     out = sys.stdout
     shown = None
