@@ -39,7 +39,8 @@ def stage_latency(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             if i >= 0:
                 frames.append(seq)
                 lat.append((t - ins_a[i]) / 1e6)
-        out[name] = (np.array(frames), np.array(lat))
+        if frames:  # none when no input reached the stage before its outputs (a re-run's recording): no line
+            out[name] = (np.array(frames), np.array(lat))
     return out
 
 
@@ -83,8 +84,11 @@ def cmd_plot(args) -> int:
 
     warn_if_torn(args.file)
     est = estimates(args.file)
-    if not est:
-        raise CliError(f"{args.file} has no estimates to plot")
+    if not est:  # a damaged or torn file says where it ends, so the cut is not taken for what the run recorded
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(args.file) or torn_cause(args.file)
+        raise CliError(f"{args.file} has no estimates to plot" + (f": {why}" if why else ""))
     gt = read_boxes(args.gt) if args.gt else truth_boxes(args.file)
     seqs = sorted(est)
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
