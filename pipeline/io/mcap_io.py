@@ -26,7 +26,7 @@ from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
            "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY", "torn_segments", "torn_cause",
-           "check_recording"]
+           "check_recording", "damage_cause"]
 
 
 class TruncatedRecording(Exception):
@@ -40,6 +40,18 @@ class Damaged(str):
 
 #: the damaged recordings already said (once per process, however often a command reads one)
 _DAMAGE_SAID: set[str] = set()
+#: {file: what was found damaged in it}, for every file a reader of this process found damaged
+_DAMAGE_FOUND: dict[str, str] = {}
+
+
+def damage_cause(path: str | Path) -> str:
+    """What damage a reader of this process met in recording ``path`` (or a segment of it), as the
+    one line that says it ("" when none was met): for a command whose answer (nothing to step, no
+    estimate, nothing compared) would otherwise be taken for what the run recorded."""
+    for seg in segments(path):
+        if str(seg) in _DAMAGE_FOUND:
+            return _DAMAGE_FOUND[str(seg)]
+    return ""
 
 
 def _say_damage(text: str) -> None:
@@ -94,6 +106,11 @@ def check_recording(path: str | Path) -> Path:
         raise MissingPath(f"recording not found: {p}")
     with open(p, "rb") as f:
         magic = f.read(8)
+    if not magic:  # "bad magic bytes b''" had the user look for bytes in a file that has none
+        raise ValueError(f"{p} is empty (0 bytes), not an MCAP file")
+    if magic != b"\x89MCAP0\r\n" and b"\x89MCAP0\r\n".startswith(magic):
+        raise ValueError(f"{p} is not an MCAP file yet: it ends after {len(magic)} bytes, inside the MCAP magic "
+                         f"bytes (a recording torn before its first record, with nothing to read)")
     if magic != b"\x89MCAP0\r\n":
         raise ValueError(f"{p} is not an MCAP file (bad magic bytes {magic!r})")
     return p
@@ -158,18 +175,48 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             if pos < size:  # bytes after the record that failed: the file is damaged, not just cut short
                 text = Damaged(f"{p}: recording is damaged at byte {pos} of {size} ({why}); "
                                f"nothing after it can be read (`gflow recover` keeps what is before it)")
+            elif _closed(p):  # a damaged length had the reader run to the end of a file that was closed
+                text = Damaged(f"{p}: recording is damaged: a record cannot be read ({why}), yet the file ends as "
+                               f"a closed recording does; nothing after the damage can be read (`gflow verify` "
+                               f"says where it is, `gflow recover` keeps what is before it)")
             else:
                 text = f"{p}: recording ends early ({why}); it was not closed properly (try `gflow recover`)"
-            if strict:
-                raise TruncatedRecording(text) from None
-            if on_truncated is not None:
-                on_truncated(text)
-            elif isinstance(text, Damaged):
-                _say_damage(text)
+            _tell(text, strict, on_truncated)
+        else:
+            try:
+                pos, size = f.tell(), p.stat().st_size
+            except (OSError, ValueError):
+                pos = size = 0
+            if pos < size:  # bytes after the footer (two writers on one file, a copy appended): not read
+                _tell(Damaged(f"{p}: recording is damaged: {size - pos} bytes after its closing magic bytes at byte "
+                              f"{pos}; they are not read (`gflow verify` says more)"), strict, on_truncated)
+
+
+def _tell(text: str, strict: bool, on_truncated) -> None:
+    """Say where a recording's reading stopped early (see :func:`_iter_file`)."""
+    if isinstance(text, Damaged):
+        _DAMAGE_FOUND.setdefault(text.split(": recording is damaged", 1)[0], text)
+    if strict:
+        raise TruncatedRecording(text) from None
+    if on_truncated is not None:
+        on_truncated(text)
+    elif isinstance(text, Damaged):
+        _say_damage(text)
 
 
 #: what a properly closed MCAP file begins and ends with (its header's and footer's magic)
 _MAGIC = b"\x89MCAP0\r\n"
+
+
+def _closed(path: str | Path) -> bool:
+    """Whether the file ends with an MCAP footer's closing magic bytes (its writer closed it)."""
+    try:
+        with open(path, "rb") as f:
+            size = f.seek(0, 2)
+            f.seek(max(0, size - len(_MAGIC)))
+            return f.read() == _MAGIC and size > 2 * len(_MAGIC)
+    except OSError:
+        return False
 
 
 def torn_segments(path: str | Path) -> list[str]:

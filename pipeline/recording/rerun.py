@@ -74,10 +74,14 @@ def recorded_plan(path: str | Path) -> Plan:
     """The plan (graph, parameters, wiring) a recording was made with."""
     md = read_metadata(path)
     if "gflow.config" not in md:
-        from pipeline.io.mcap_io import torn_cause
+        from pipeline.io.mcap_io import damage_cause, torn_cause
 
         torn = torn_cause(path)  # cut before its metadata: gflow's, but torn, which "not written by gflow" hides
+        if not torn:  # or damaged where its metadata is: the first record read says so (without a warning line)
+            next(iter_records(path, on_truncated=lambda _text: None), None)
+        damage = "" if torn else damage_cause(path)
         raise GraphError(f"{path} holds no gflow.config metadata: {torn}" if torn else
+                         f"no gflow.config metadata can be read: {damage}" if damage else
                          f"{path} has no gflow.config metadata: it was not written by gflow's recorder")
     return Plan.from_metadata(md.get("gflow.graph", {}), md["gflow.config"])
 

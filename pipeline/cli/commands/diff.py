@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 
@@ -27,6 +28,17 @@ def cmd_diff(args) -> int:
     for path in (args.a, args.b):
         warn_if_torn(path)
     res = diff_recordings(args.a, args.b, topics)
+    from pipeline.io.mcap_io import damage_cause, torn_cause
+
+    if not any(d.same or d.differ or d.only_a or d.only_b for d in res.values()):
+        # nothing compared is no evidence that they are the same
+        files = list(dict.fromkeys((args.a, args.b)))
+        why = "; ".join(damage_cause(p) or (f"{p}: {torn_cause(p)}" if torn_cause(p) else "") for p in files)
+        which = f"neither {args.a} nor {args.b} holds a" if len(files) == 2 else f"{args.a} holds no"
+        why = why.strip("; ")
+        raise CliError(f"nothing to compare: {which} message that can be read" + (f" ({why})" if why else ""))
+    # a damaged file is compared only up to the damage: its verdict is not the recording's
+    damaged = "; ".join(c for c in dict.fromkeys(damage_cause(p) for p in (args.a, args.b)) if c)
     across = next(((d.topic_a, d.topic_b) for d in res.values() if d.topic_a and d.topic_b and d.topic_a != d.topic_b), None)
     if args.json:
         print(json.dumps({t: {"topic_a": d.topic_a, "topic_b": d.topic_b, "types": sorted(d.types), "same": d.same,
@@ -34,7 +46,9 @@ def cmd_diff(args) -> int:
                               "fields": {k: (None if np.isnan(v) else v) for k, v in d.fields.items()},
                               "estimates": [e.__dict__ for e in d.estimates if e.centre_px or e.pose]}
                           for t, d in res.items()}, indent=1))
-        return 0 if all(d.identical for d in res.values()) else 1
+        if damaged:
+            print(f"gflow diff: {damaged}", file=sys.stderr)
+        return 0 if all(d.identical for d in res.values()) and not damaged else 1
     print(f"A = {args.a}\nB = {args.b}")
     if across is not None:
         print(f"paired across run ids: A's {stream_prefix([across[0]])} with B's {stream_prefix([across[1]])} "
@@ -59,6 +73,10 @@ def cmd_diff(args) -> int:
             for e in d.estimates:
                 print(f"  {e.seq:6d} {e.centre_px:10.3f} {e.overlap:8.3f} {e.pose:15.6g}")
     same = all(d.identical for d in res.values())
+    if damaged:  # exit 1 either way: what could not be read was not compared
+        print(f"\n{'identical up to the damage' if same else 'the recordings differ'}; nothing after the damage was "
+              f"compared: {damaged}")
+        return 1
     print("\nidentical" if same else "\nthe recordings differ")
     return 0 if same else 1
 

@@ -44,6 +44,10 @@ def cmd_eval_landmarks(args) -> int:
     if s.frames == 0:
         raise CliError(f"{args.landmarks} has no frame with the scored landmarks" +
                        (f" in --frames {args.frames}" if args.frames else ""))
+    if s.missing == s.frames:  # as for boxes: an error of NaN px over no frame is no score
+        raise CliError(f"no frame has both reference landmarks ({args.landmarks}: frames 0..{ref.shape[0] - 1}) and "
+                       f"tracked points ({args.points}: frames {min(pts)}..{max(pts)})"
+                       + (f" in --frames {args.frames}" if args.frames else "") + "; are the frame numbers aligned?")
     if args.json:
         print(json.dumps(s.to_json()))
     else:

@@ -19,6 +19,11 @@ from pathlib import Path
 from pipeline.cli.commands.common import CliError
 
 
+def _is_sequence(folder: Path) -> bool:
+    """A sequence folder, as ``gflow benchmark`` finds one: ``frames/`` and ``groundtruth.csv``."""
+    return (folder / "frames").is_dir() and (folder / "groundtruth.csv").is_file()
+
+
 def _check_out(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise CliError(f"{out} is a file; give a new folder for the workspace")
@@ -71,8 +76,23 @@ def cmd_export_vot(args) -> int:
 
     check_models(args)
     _read_models(args)
-    seqs, notes = find_sequences([args.data])
-    if args.sequences:
+    data = Path(args.data)
+    if args.sequences is not None and data.is_dir() and not _is_sequence(data):
+        # chosen by folder name before any is read: a sequence left out with a bad groundtruth.csv
+        # refused the export of the ones chosen (and hid a mistyped name)
+        want = [n.strip() for n in args.sequences.split(",") if n.strip()]
+        known = sorted(c.name for c in data.iterdir() if c.is_dir() and not c.name.startswith(".") and _is_sequence(c))
+        unknown = [n for n in want if n not in known]
+        if known and (unknown or not want):
+            raise CliError(f"unknown sequence {unknown[0] if unknown else '(none given)'} in --sequences (known: "
+                           f"{', '.join(known)})")
+        if known:
+            seqs, notes = find_sequences([str(data / n) for n in dict.fromkeys(want)])
+        else:  # none there: find_sequences says what the folder is instead
+            seqs, notes = find_sequences([args.data])
+    else:
+        seqs, notes = find_sequences([args.data])
+    if args.sequences is not None:  # '' too: it names no sequence, not all of them
         want = [n.strip() for n in args.sequences.split(",") if n.strip()]
         unknown = [n for n in want if n not in {s.name for s in seqs}]
         if unknown or not want:

@@ -47,7 +47,14 @@ def cmd_foxglove(args) -> int:
                             topics=topics)
     if not s.messages:  # exit 1: the copy holds nothing to show, and is not left to look like one
         os.remove(args.out)
-        print(f"gflow foxglove: no message of {args.recording} could be copied; {args.out} removed", file=sys.stderr)
+        if topics and s.left_out:  # the topics chosen are all ones Foxglove cannot show: the option is the mistake
+            raise CliError(f"--topics {' '.join(args.topics)}: Foxglove cannot show "
+                           f"{describe_topics(s.left_out)} (binary arrays), so there is nothing to copy")
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(args.recording) or torn_cause(args.recording)
+        print(f"gflow foxglove: no message of {args.recording} could be copied" + (f" ({why})" if why else "")
+              + f"; {args.out} removed", file=sys.stderr)
         return 1
     print(f"wrote {args.out}: {s.messages} messages on {len(s.by_topic)} topics: "
           f"{describe_topics(s.by_topic, counts=s.by_topic)}")

@@ -12,6 +12,10 @@ from typing import Literal
 from pipeline.cli.commands.common import CliError, check_new_picture, positive_int, write_picture
 
 
+#: the longest side of the picture written, in pixels (PNG and JPEG viewers' common limit)
+MAX_SIDE = 32767
+
+
 def grid_picture(img, step: int, scale: int):
     """The image scaled by ``scale``, with grid lines every ``step`` source pixels and their
     coordinates in a margin on the top (x) and the left (y)."""
@@ -65,6 +69,14 @@ def cmd_frame(args) -> int:
         raise CliError(f"source not found: {args.source} (give an image folder, a video file or an .mcap recording)")
     if args.index < 0:
         raise CliError(f"frame index must be >= 0, got {args.index}")
+    if kind == "mcap":  # "no frame at or after frame 0" of a recording with none sent the user looking for frame 0
+        from pipeline.io.mcap_io import recorded_topics
+        from pipeline.recording.topics import describe_topics
+
+        topics = recorded_topics(p)
+        if topics and not any(t.endswith("/frames") for t in topics):
+            raise CliError(f"{args.source} holds no frames to draw (it was recorded without them; it holds "
+                           f"{describe_topics(topics)})")
     try:  # a frame past where a torn recording ends: the error says the recording is torn
         raw = first_frame(SourceParams(kind=kind, path=str(p), start=args.index, stop=args.index + 1))
     except PreflightError as e:
@@ -79,6 +91,9 @@ def cmd_frame(args) -> int:
     h, w = raw.image.shape[:2]
     scale = args.scale or (3 if max(w, h) <= 200 else 2 if max(w, h) <= 500 else 1)
     step = args.grid or (10 if max(w, h) <= 200 else 20 if max(w, h) <= 500 else 50)
+    if max(w, h) * scale > MAX_SIDE:  # it ended in an out-of-memory 'internal error' (or a picture no viewer opens)
+        raise CliError(f"--scale {scale}: frame {args.index} ({w}x{h}) drawn {scale}x is {w * scale}x{h * scale} "
+                       f"pixels, more than {MAX_SIDE} a side; give a --scale of at most {max(1, MAX_SIDE // max(w, h))}")
     write_picture(args.out, grid_picture(raw.image, step, scale))
     print(f"wrote {args.out}: frame {args.index} of {args.source}, {w}x{h} pixels, grid every {step} px, drawn "
           f"{scale}x; read the box's top-left corner (x on top, y on the left) and its size, then "

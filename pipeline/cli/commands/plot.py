@@ -39,8 +39,27 @@ def stage_latency(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
             if i >= 0:
                 frames.append(seq)
                 lat.append((t - ins_a[i]) / 1e6)
-        out[name] = (np.array(frames), np.array(lat))
+        if frames:  # none when no input reached the stage before its outputs (a re-run's recording): no line
+            out[name] = (np.array(frames), np.array(lat))
     return out
+
+
+#: the largest --dpi: the figure is 10 x 9 inches, so 1000 dpi is a picture of 10000 x 9000 pixels
+MAX_DPI = 1000
+
+
+def dpi(text: str) -> int:
+    """A resolution in dots per inch, 1 to :data:`MAX_DPI` (argparse type): 0 was refused only after the
+    recording was read, and a large one ended in an out-of-memory 'internal error'."""
+    import argparse
+
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number of dots per inch, got {text!r}") from None
+    if not 1 <= v <= MAX_DPI:
+        raise argparse.ArgumentTypeError(f"must be 1-{MAX_DPI}, got {v}")
+    return v
 
 
 def cmd_plot(args) -> int:
@@ -65,13 +84,19 @@ def cmd_plot(args) -> int:
 
     warn_if_torn(args.file)
     est = estimates(args.file)
-    if not est:
-        raise CliError(f"{args.file} has no estimates to plot")
+    if not est:  # a damaged or torn file says where it ends, so the cut is not taken for what the run recorded
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(args.file) or torn_cause(args.file)
+        raise CliError(f"{args.file} has no estimates to plot" + (f": {why}" if why else ""))
     gt = read_boxes(args.gt) if args.gt else truth_boxes(args.file)
     seqs = sorted(est)
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
     ax = axes[0]
     both = [s for s in seqs if s in gt]
+    if args.gt and not both:  # a plot of no error at all would pass for one of a run without ground truth
+        raise CliError(f"--gt {args.gt}: none of its frames ({min(gt)}..{max(gt)}) is a frame of the estimates of "
+                       f"{args.file} ({seqs[0]}..{seqs[-1]}); are the frame numbers aligned?")
     if both:
         err = centre_error(np.array([gt[s] for s in both]), np.array([est[s].box for s in both]))
         ax.plot(both, err, lw=1.2, color="C3")
@@ -117,5 +142,6 @@ def register(sub) -> None:
     p.add_argument("file", help="MCAP recording")
     p.add_argument("out", help="output image: .png, .svg or .pdf (no suffix: .png is added)")
     p.add_argument("--gt", help="ground truth CSV (default: the synthetic scene's truth, if recorded)")
-    p.add_argument("--dpi", type=int, default=100, help="resolution of a PNG in dots per inch (default 100)")
+    p.add_argument("--dpi", type=dpi, default=100, help=f"resolution of a PNG in dots per inch, 1-{MAX_DPI} "
+                                                         "(default 100)")
     p.set_defaults(func=cmd_plot)

@@ -97,6 +97,22 @@ def recording_topics(path: str, patterns: list[str]) -> list[str]:
         raise CliError(str(e)) from None
 
 
+#: the slowest --speed: 1000 times slower than recorded (a slower one waited past what a sleep can take)
+MIN_SPEED = 0.001
+
+
+def replay_speed(text: str) -> float:
+    """A timing factor, a finite number >= :data:`MIN_SPEED` (argparse type): ``--speed 1e-308`` ended in an
+    'internal error' (a wait of more seconds than the clock holds) once the first message was sent."""
+    import argparse
+
+    v = positive_float(text)  # a number > 0 (not NaN, not inf)
+    if v < MIN_SPEED:
+        raise argparse.ArgumentTypeError(f"must be >= {MIN_SPEED:g} (1000 times slower than recorded), got "
+                                         f"{text.strip()}")
+    return v
+
+
 def cmd_replay(args) -> int:
     from pipeline.cli.live import ReplayOptions, StreamInUse, replay
 
@@ -159,8 +175,8 @@ def register(sub) -> None:
                        formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
     p.add_argument("file", help="MCAP recording")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--speed", type=positive_float, default=1.0,
-                   help="timing factor on the original timing, > 0 (default 1; 2 = twice as fast)")
+    g.add_argument("--speed", type=replay_speed, default=1.0,
+                   help=f"timing factor on the original timing, >= {MIN_SPEED:g} (default 1; 2 = twice as fast)")
     g.add_argument("--max", action="store_true", help="as fast as possible")
     p.add_argument("--topics", nargs="+", metavar="TOPIC",
                    help="only these topics: the name in the stream (frames), the full name with or without the "

@@ -116,6 +116,8 @@ def cmd_rerun(args) -> int:
         plan0 = recorded_plan(args.file)
         _cannot_check(args.file, plan0, {t for s in plan0.stages.values() if s.is_source() for t in s.outputs.values()},
                       set(), "the graph")
+        # before the re-run: a name that fits no output is the first thing to say (not after a recording is written)
+        topics = _chosen(args, {t for s in plan0.stages.values() for t in s.outputs.values()})
         warn_if_torn(args.file)  # re-run only up to where it ends: said before any verdict (a check's error says it)
         from pipeline.io.recording_files import unique_path
 
@@ -124,13 +126,12 @@ def cmd_rerun(args) -> int:
         plan, res = rerun_graph(args.file, out, sets)
         print(f"re-ran the whole graph from the recorded frames: {res.frames} frames in {time.perf_counter() - t0:.2f} s; "
               f"new recording: {out}")
-        topics = _chosen(args, {t for s in plan.stages.values() for t in s.outputs.values()})
         from pipeline.io.mcap_io import iter_records
 
         new = [(r.topic, r.seq, r.data) for r in iter_records(out, topics=sorted(topics)) if r.type != "ErrorReport"]
         old = recorded_outputs(args.file, topics)
         bad = check_outputs(old, new)
-        rc = _report(bad, len(old), "graph", ends_note(old))
+        rc = _report(bad, len(old), "graph", ends_note(old)) or _damaged(args.file, "graph")
         return rc if args.check else 0
     if not args.stage:
         raise CliError("say which stage to re-run with --stage NAME, or --graph for all of them")
@@ -147,6 +148,11 @@ def cmd_rerun(args) -> int:
             _check_from(args.file, set(sp.inputs.values()) or set(sp.outputs.values()), args.from_seq)
         warn_if_torn(args.file)  # re-run only up to where it ends: said before any verdict (a check's error says it)
     res = rerun_stage(args.file, args.stage, stage_sets, args.from_seq)
+    if not res.inputs and not res.steps and args.from_seq is None:  # "0 of 0 outputs" is no check of it
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(args.file) or torn_cause(args.file)
+        raise CliError(f"{args.file} holds no input of stage {args.stage} to re-run" + (f": {why}" if why else ""))
     if res.note:
         print(f"note: {res.note}", file=sys.stderr)
     fps = res.steps / res.seconds if res.seconds > 0 else float("inf")
@@ -166,8 +172,20 @@ def cmd_rerun(args) -> int:
     # names the live wait in seconds)
     new = [o for o in res.outputs if o[0] != plan.error_topic and o[0] in topics]
     bad = check_outputs(old, new, res.start_after)
-    rc = _report(bad, len(old), args.stage, ends_note(old))
+    rc = _report(bad, len(old), args.stage, ends_note(old)) or _damaged(args.file, args.stage)
     return rc if (args.check or not stage_sets) and rc else 0
+
+
+def _damaged(path: str, label: str) -> int:
+    """1 (and the line saying why) when ``path`` was found damaged while re-run and compared: its outputs
+    after the damage were neither re-run nor compared, so "all identical" is not a check of the run."""
+    from pipeline.io.mcap_io import damage_cause
+
+    why = damage_cause(path)
+    if not why:
+        return 0
+    print(f"{label}: compared only up to the damage, so not a check of the whole run: {why}")
+    return 1
 
 
 def register(sub) -> None:

@@ -36,7 +36,9 @@ def cmd_step(args) -> int:
 
     st = Stepper(args.file, args.stage)  # a torn file cut before its metadata is said so here
     if not st.records:  # a torn file says where it ends, so the cut is not taken for what the run recorded
-        torn = torn_cause(args.file)
+        from pipeline.io.mcap_io import damage_cause
+
+        torn = damage_cause(args.file) or torn_cause(args.file)
         raise CliError(f"{args.file} holds no input of stage {args.stage} to step through" + (f": {torn}" if torn else ""))
     out = sys.stdout
     shown = None
@@ -62,7 +64,19 @@ def cmd_step(args) -> int:
     if args.start:
         print(f"jumped to frame {args.start} {how}", file=out)
     last = None
+    n = 0  # the line of standard input read last (a script's)
+
+    def mistake(text: str) -> None:
+        """A jump that could not be made: at the terminal, say it and read the next command; from a script,
+        stop with it (exit 2), as the commands after it would show and step other frames than it meant."""
+        if interactive:
+            print(text, file=out)
+        else:
+            out.flush()
+            raise CliError(f"standard input line {n}: {text}")
+
     while True:
+        n += 1
         if interactive:
             try:
                 line = input("step> ").strip()
@@ -85,12 +99,12 @@ def cmd_step(args) -> int:
             try:
                 seq = int(arg)
             except ValueError:
-                print("usage: j SEQ", file=out)
+                mistake(f"{line!r}: usage: j SEQ")
                 continue
             try:
                 print(f"jumped {st.jump(seq)}", file=out)
             except ValueError as e:
-                print(e, file=out)
+                mistake(str(e))
                 continue
             last = st.next()
             if last is not None:
@@ -109,7 +123,7 @@ def cmd_step(args) -> int:
         elif cmd in ("q", "quit", "exit"):
             break
         else:
-            print(f"unknown command {cmd!r}; h for help", file=out)
+            print(f"unknown command {cmd!r}; h for help", file=out)  # it moved nothing: the script goes on
     return 0
 
 

@@ -1,0 +1,297 @@
+"""The recording tools' answers, checked against mistakes and damaged input on the real command line:
+a filter that matches nothing, a file damaged or not what it is named for, an option out of range,
+an output already there -- each a non-zero exit with a line naming the file or option and what is
+wrong (never a traceback, never an empty success), and nothing written over.
+
+Every case runs ``gflow`` as a subprocess on real MCAP files: one short recording of the synthetic
+scene made once (``gflow demo --inline``) and copies of it cut, flipped or rewritten.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import damaged_copy
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def gflow(*args: str, cwd: Path, timeout: float = 60.0, stdin: str | None = None) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
+                          text=True, timeout=timeout, input=stdin if stdin is not None else "",
+                          stdin=None)
+
+
+def error_line(r: subprocess.CompletedProcess, *words: str, rc: int | None = None) -> str:
+    """The last line of stderr, of a command that failed without a traceback, holding ``words``."""
+    assert r.returncode != 0 and (rc is None or r.returncode == rc), (r.returncode, r.stdout, r.stderr)
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr, r.stderr
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert lines, r.stdout
+    for w in words:
+        assert w in lines[-1], lines[-1]
+    return lines[-1]
+
+
+def one_line_error(r: subprocess.CompletedProcess, *words: str, rc: int | None = None) -> str:
+    line = error_line(r, *words, rc=rc)
+    assert len([ln for ln in r.stderr.splitlines() if ln.strip()]) == 1, r.stderr
+    return line
+
+
+@pytest.fixture(scope="module")
+def rec(tmp_path_factory) -> Path:
+    """A folder holding demo.mcap (8 frames of the synthetic scene, closed) and damaged copies of it:
+    damaged.mcap (a chunk in the middle fails its CRC; many small chunks), head.mcap (the header's
+    bytes flipped: the file still ends as a closed one does), torn.mcap (its first 300 bytes: no
+    message)."""
+    d = tmp_path_factory.mktemp("audit")
+    r = gflow("demo", "--frames", "8", "--inline", "--record", "demo.mcap", cwd=d)
+    assert r.returncode == 0, r.stderr
+    data = (d / "demo.mcap").read_bytes()
+    damaged_copy(d / "demo.mcap", d / "damaged.mcap")
+    head = bytearray(data)
+    head[20:36] = bytes(b ^ 0xFF for b in head[20:36])
+    (d / "head.mcap").write_bytes(bytes(head))
+    (d / "torn.mcap").write_bytes(data[:300])
+    return d
+
+
+# -- damage the readers must not take for an empty recording ----------------------------------------------
+
+
+def test_a_closed_recording_damaged_near_its_start_is_called_damaged(rec: Path, tmp_path: Path) -> None:
+    """A damaged record length had the reader run to the end of the file, which it took for a torn end:
+    `gflow info` said the file 'was not closed properly', and diff, plot and the rest read it as a
+    recording with no message, without a word of damage."""
+    r = gflow("info", str(rec / "head.mcap"), cwd=tmp_path)
+    assert r.returncode == 1 and "damaged" in r.stdout and "not closed properly" not in r.stdout, r.stdout
+    r = gflow("plot", str(rec / "head.mcap"), "p.png", cwd=tmp_path)
+    error_line(r, "has no estimates to plot", "head.mcap: recording is damaged", rc=2)
+    assert not (tmp_path / "p.png").exists()
+
+
+# -- gflow diff --------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("a,b", [("torn.mcap", "torn.mcap"), ("head.mcap", "torn.mcap")])
+def test_diff_of_recordings_with_nothing_to_compare_is_an_error(rec: Path, tmp_path: Path, a: str, b: str) -> None:
+    """Two recordings with no message that can be read were 'identical' (exit 0)."""
+    r = gflow("diff", str(rec / a), str(rec / b), cwd=tmp_path)
+    line = error_line(r, "nothing to compare", rc=2)
+    assert "identical" not in r.stdout
+    assert ("damaged" in line) == (a == "head.mcap"), line
+
+
+def test_diff_of_a_damaged_recording_says_what_was_not_compared(rec: Path, tmp_path: Path) -> None:
+    """A damaged recording diffed with itself was 'identical' (exit 0), though nothing after the damage
+    was compared."""
+    for args in ([], ["--json"]):
+        r = gflow("diff", str(rec / "damaged.mcap"), str(rec / "damaged.mcap"), *args, cwd=tmp_path)
+        assert r.returncode == 1 and "Traceback" not in r.stderr, r.stderr
+        if not args:
+            last = r.stdout.strip().splitlines()[-1]
+            assert "nothing after the damage was compared" in last and "damaged.mcap" in last, last
+        else:
+            assert "damaged.mcap: recording is damaged" in r.stderr.strip().splitlines()[-1], r.stderr
+    r = gflow("diff", str(rec / "demo.mcap"), str(rec / "demo.mcap"), cwd=tmp_path)  # an intact one still is
+    assert r.returncode == 0 and r.stdout.strip().endswith("identical"), r.stdout
+
+
+# -- gflow rerun -------------------------------------------------------------------------------------------
+
+
+def test_rerun_graph_with_topics_matching_nothing_is_refused_before_it_runs(rec: Path, tmp_path: Path) -> None:
+    """The whole graph was re-run and its recording written beside the input, then --topics refused."""
+    (tmp_path / "demo.mcap").write_bytes((rec / "demo.mcap").read_bytes())
+    r = gflow("rerun", "demo.mcap", "--graph", "--topics", "nosuch", cwd=tmp_path)
+    one_line_error(r, "'nosuch'", "estimate", rc=2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.mcap"], "no re-run recording"
+
+
+def test_rerun_of_a_damaged_recording_is_not_a_check(rec: Path, tmp_path: Path) -> None:
+    """'all identical bit for bit' and exit 0 with --check, though nothing after the damage was re-run."""
+    r = gflow("rerun", str(rec / "damaged.mcap"), "--stage", "filter", "--check", cwd=tmp_path)
+    assert r.returncode == 1 and "Traceback" not in r.stderr, (r.stdout, r.stderr)
+    last = r.stdout.strip().splitlines()[-1]
+    assert "not a check of the whole run" in last and "damaged.mcap: recording is damaged" in last, last
+
+
+def test_rerun_of_a_recording_damaged_before_its_stage_inputs_names_the_damage(rec: Path, tmp_path: Path) -> None:
+    """It re-ran '0 steps' and reported '2 of 0 outputs differ'; a header damaged was 'not written by
+    gflow's recorder'."""
+    cut = tmp_path / "early.mcap"  # its only data chunk damaged: the metadata after it is still read
+    data = bytearray((rec / "demo.mcap").read_bytes())
+    data[len(data) // 10:len(data) // 10 + 16] = bytes(b ^ 0xFF for b in data[len(data) // 10:len(data) // 10 + 16])
+    cut.write_bytes(bytes(data))
+    r = gflow("rerun", str(cut), "--stage", "filter", cwd=tmp_path)
+    error_line(r, "holds no input of stage filter", "early.mcap: recording is damaged", rc=2)
+    for cmd in ("rerun", "step"):
+        r = gflow(cmd, str(rec / "head.mcap"), "--stage", "filter", cwd=tmp_path)
+        one_line_error(r, "head.mcap: recording is damaged", rc=2)
+        assert "not written by gflow" not in r.stderr
+
+
+# -- gflow step, fed by a script ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("script,line,words", [
+    ("n\nj abc\nn\n", 2, ["usage: j SEQ"]),
+    ("j 9999\nn\n", 1, ["no frame 9999", "frames 0..8"]),
+])
+def test_step_stops_at_a_jump_its_script_cannot_make(rec: Path, tmp_path: Path, script: str, line: int,
+                                               words: list[str]) -> None:
+    """Commands piped in: a jump that could not be made was answered on stdout and the script went on
+    (exit 0) from where it was, the frames after it shown as if they were the ones asked for."""
+    r = gflow("step", str(rec / "demo.mcap"), "--stage", "filter", cwd=tmp_path, stdin=script)
+    one_line_error(r, f"standard input line {line}:", *words, rc=2)
+    assert r.stdout.count("--- frame ") == script[:line * 2].count("n\n"), r.stdout
+
+
+def test_step_script_without_mistakes_still_runs_to_its_end(rec: Path, tmp_path: Path) -> None:
+    r = gflow("step", str(rec / "demo.mcap"), "--stage", "filter", cwd=tmp_path, stdin="n\nj 3\ns\nq\n")
+    assert r.returncode == 0 and r.stderr == "" and "--- frame 3 " in r.stdout, (r.stdout, r.stderr)
+
+
+# -- gflow plot, gflow frame: sizes and ground truth -------------------------------------------------------
+
+
+@pytest.mark.parametrize("value,words", [("0", ["--dpi", "1-1000", "got 0"]), ("100000", ["--dpi", "1-1000"])])
+def test_plot_dpi_out_of_range_names_the_option_before_any_work(rec: Path, tmp_path: Path, value: str,
+                                                                words: list[str]) -> None:
+    """0 was refused after the recording was read as 'dpi must be positive', naming no option; 100000
+    ended in 'internal error: MemoryError'."""
+    r = gflow("plot", str(rec / "demo.mcap"), "p.png", "--dpi", value, cwd=tmp_path)
+    one_line_error(r, *words, rc=2)
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_plot_ground_truth_of_other_frames_is_refused(rec: Path, tmp_path: Path) -> None:
+    """A plot was written with an empty error panel, exit 0, as of a run with no ground truth given."""
+    (tmp_path / "far.csv").write_text("frame,x,y,w,h\n5000,10,10,20,20\n5001,10,10,20,20\n")
+    r = gflow("plot", str(rec / "demo.mcap"), "p.png", "--gt", "far.csv", cwd=tmp_path)
+    one_line_error(r, "--gt far.csv", "5000..5001", "demo.mcap", rc=2)
+    assert not (tmp_path / "p.png").exists()
+
+
+def test_plot_of_a_rerun_recording_prints_no_numpy_warnings(rec: Path, tmp_path: Path) -> None:
+    """A re-run's recording has outputs with no input published before them: each such stage's empty
+    latency series printed numpy's 'Mean of empty slice' RuntimeWarnings (four lines) before 'wrote'."""
+    r = gflow("rerun", str(rec / "demo.mcap"), "--stage", "filter", "--out", "r.mcap", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = gflow("plot", "r.mcap", "p.png", cwd=tmp_path)
+    assert r.returncode == 0 and r.stderr == "" and (tmp_path / "p.png").is_file(), r.stderr
+
+
+def test_frame_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path) -> None:
+    """--scale 1000 ended in an out-of-memory 'internal error' from OpenCV."""
+    r = gflow("frame", str(rec / "demo.mcap"), "2", "f.png", "--scale", "1000", cwd=tmp_path)
+    one_line_error(r, "--scale 1000", "320x240", "at most 102", rc=2)
+    assert not (tmp_path / "f.png").exists()
+
+
+# -- gflow eval --------------------------------------------------------------------------------------------
+
+
+def test_eval_of_points_on_none_of_the_reference_frames_is_refused(tmp_path: Path) -> None:
+    """Scored 'NME nan', 'error nan px' with exit 0; boxes on no ground-truth frame were already refused."""
+    rng = np.random.default_rng(0)
+    np.savez(tmp_path / "ref.npz", landmarks=rng.uniform(0, 100, (5, 468, 2)))
+    (tmp_path / "far.csv").write_text("frame,landmark,x,y\n" + "".join(f"900,{i},1,2\n" for i in (33, 133, 263)))
+    r = gflow("eval", "--landmarks", "ref.npz", "--points", "far.csv", cwd=tmp_path)
+    one_line_error(r, "no frame has both", "ref.npz: frames 0..4", "far.csv: frames 900..900", rc=2)
+    assert r.stdout == ""
+
+
+# -- gflow export vot --------------------------------------------------------------------------------------
+
+
+@pytest.fixture()
+def two_sequences(tmp_path: Path) -> Path:
+    """data/good (3 frames and their boxes) and data/bad (a groundtruth.csv with a row of words)."""
+    import cv2
+
+    rng = np.random.default_rng(0)
+    for name in ("good", "bad"):
+        (tmp_path / "data" / name / "frames").mkdir(parents=True)
+        for i in range(3):
+            cv2.imwrite(str(tmp_path / "data" / name / "frames" / f"{i:04d}.png"),
+                        rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    (tmp_path / "data" / "good" / "groundtruth.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n")
+    (tmp_path / "data" / "bad" / "groundtruth.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,abc,10,20,20\n")
+    return tmp_path
+
+
+def test_export_vot_of_chosen_sequences_reads_only_those(two_sequences: Path) -> None:
+    """A sequence left out by --sequences, with a bad groundtruth.csv, refused the whole export (and a
+    mistyped name in --sequences was hidden behind it)."""
+    r = gflow("export", "vot", "data", "ws", "--sequences", "good", cwd=two_sequences)
+    assert r.returncode == 0 and (two_sequences / "ws" / "sequences" / "good" / "groundtruth.txt").is_file(), r.stderr
+    assert not (two_sequences / "ws" / "sequences" / "bad").exists()
+    for chosen, words in (("nosuch", ["unknown sequence nosuch", "known: bad, good"]),
+                          ("", ["(none given)"]),
+                          ("bad", ["bad/groundtruth.csv:3", "not numbers"])):
+        r = gflow("export", "vot", "data", "ws2", "--sequences", chosen, cwd=two_sequences)
+        one_line_error(r, *words, rc=2)
+        assert not (two_sequences / "ws2").exists()
+
+
+def test_a_recording_with_bytes_after_its_end_is_called_damaged(rec: Path, tmp_path: Path) -> None:
+    """A second copy appended (two writers on one file) was not read, and `gflow info` said nothing of
+    it (exit 0) though `gflow verify` calls the file damaged."""
+    data = (rec / "demo.mcap").read_bytes()
+    (tmp_path / "twice.mcap").write_bytes(data + data)
+    r = gflow("info", "twice.mcap", cwd=tmp_path)
+    assert r.returncode == 1 and f"{len(data)} bytes after its closing magic bytes" in r.stdout, r.stdout
+    assert "the recording is damaged" in r.stderr, r.stderr
+
+
+# -- gflow foxglove ----------------------------------------------------------------------------------------
+
+
+def test_foxglove_of_topics_it_cannot_show_names_the_option(rec: Path, tmp_path: Path) -> None:
+    """'no message of demo.mcap could be copied' (exit 1), as of a damaged recording, when --topics chose
+    only features and particles, which a Foxglove copy leaves out."""
+    r = gflow("foxglove", str(rec / "demo.mcap"), "f.mcap", "--topics", "features", "particles", cwd=tmp_path)
+    one_line_error(r, "--topics features particles", "Foxglove cannot show", "features, particles", rc=2)
+    assert not (tmp_path / "f.mcap").exists()
+
+
+@pytest.mark.parametrize("size,words", [(0, ["is empty (0 bytes)"]), (4, ["ends after 4 bytes", "torn"])])
+@pytest.mark.parametrize("cmd", [["info"], ["diff", "{rec}/demo.mcap"], ["replay"]])
+def test_an_empty_or_barely_begun_recording_is_called_so(rec: Path, tmp_path: Path, size: int, words: list[str],
+                                                         cmd: list[str]) -> None:
+    """Both were 'not an MCAP file (bad magic bytes ...)', b'' for an empty one."""
+    (tmp_path / "r.mcap").write_bytes((rec / "demo.mcap").read_bytes()[:size])
+    r = gflow(*[c.replace("{rec}", str(rec)) for c in cmd], "r.mcap", cwd=tmp_path)
+    one_line_error(r, "r.mcap", *words, rc=2)
+    assert "bad magic" not in r.stderr
+
+
+def test_frame_of_a_recording_kept_without_frames_says_so(tmp_path: Path) -> None:
+    """'no frame at or after frame 0', as if frame 0 were missing, of a run recorded with --record-topics
+    estimate (which keeps no frame at all)."""
+    r = gflow("demo", "--frames", "3", "--inline", "--record", "est.mcap", "--record-topics", "estimate",
+              cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = gflow("frame", "est.mcap", "0", "f.png", cwd=tmp_path)
+    one_line_error(r, "est.mcap holds no frames", "estimate", rc=2)
+    assert not (tmp_path / "f.png").exists()
+
+
+# -- gflow replay ------------------------------------------------------------------------------------------
+
+
+def test_replay_speed_too_slow_for_the_clock_is_refused_as_parsed(rec: Path, tmp_path: Path) -> None:
+    """--speed 1e-308 passed (it is > 0), joined the network and ended in 'internal error: OverflowError'
+    at its first wait."""
+    r = gflow("replay", str(rec / "demo.mcap"), "--speed", "1e-308", cwd=tmp_path)
+    one_line_error(r, "--speed", ">= 0.001", "1e-308", rc=2)
+    assert "replaying" not in r.stderr
