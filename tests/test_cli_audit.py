@@ -243,6 +243,24 @@ def test_export_vot_of_chosen_sequences_reads_only_those(two_sequences: Path) ->
         assert not (two_sequences / "ws2").exists()
 
 
+# -- gflow clean -------------------------------------------------------------------------------------------
+
+
+def test_clean_leaves_alone_a_file_named_mcap_that_is_not_a_recording(rec: Path, tmp_path: Path) -> None:
+    """Every *.mcap was removed as a recording, whatever it held (notes, another program's data)."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    (runs / "old.mcap").write_bytes((rec / "torn.mcap").read_bytes())
+    os.utime(runs / "old.mcap", (1, 1))
+    (runs / "notes.mcap").write_text("not a recording\n")
+    os.utime(runs / "notes.mcap", (2, 2))  # older than old.mcap: it would be the first to go
+    (runs / "new.mcap").write_bytes((rec / "torn.mcap").read_bytes())
+    r = gflow("clean", "runs", "--keep", "1", cwd=tmp_path)
+    assert r.returncode == 0 and "removed 1 recording(s)" in r.stdout, (r.stdout, r.stderr)
+    assert sorted(p.name for p in runs.iterdir()) == ["new.mcap", "notes.mcap"]
+    assert "notes.mcap" in r.stderr and "not MCAP" in r.stderr, r.stderr
+
+
 def test_a_recording_with_bytes_after_its_end_is_called_damaged(rec: Path, tmp_path: Path) -> None:
     """A second copy appended (two writers on one file) was not read, and `gflow info` said nothing of
     it (exit 0) though `gflow verify` calls the file damaged."""

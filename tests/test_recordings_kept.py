@@ -146,16 +146,20 @@ def test_no_record_names_no_recording(tmp_path: Path) -> None:
     assert "recording to" not in r.stderr and "gflow-norecord" not in r.stderr + r.stdout, r.stderr
 
 
+#: the first bytes of every MCAP file
+MAGIC = b"\x89MCAP0\r\n"
+
+
 def _fake_recordings(folder: Path, n: int) -> list[Path]:
     folder.mkdir(parents=True, exist_ok=True)
     out = []
     for i in range(n):
         p = folder / f"run-{i}.mcap"
-        p.write_bytes(b"x" * 1000)
+        p.write_bytes(MAGIC + b"x" * 992)  # an MCAP file's beginning: clean removes only those
         os.utime(p, (1_000_000 + i * 10, 1_000_000 + i * 10))
         out.append(p)
     seg = folder / "run-0.part1.mcap"  # the oldest one has a segment of a restarted recorder
-    seg.write_bytes(b"y" * 500)
+    seg.write_bytes(MAGIC + b"y" * 492)
     os.utime(seg, (1_000_000, 1_000_000))
     return out
 

@@ -9,6 +9,19 @@ import sys
 from pathlib import Path
 
 
+def _not_a_recording(path: Path) -> bool:
+    """Whether ``path`` holds bytes that do not begin as an MCAP file's (its magic, ``\\x89MCAP0\\r\\n``). A torn
+    or damaged recording begins as one and is a recording to clean; an empty file is a recorder's that wrote
+    nothing, cleaned with the rest; a file cut inside the magic is one whose writer died at once."""
+    magic = b"\x89MCAP0\r\n"
+    try:
+        with open(path, "rb") as f:
+            head = f.read(len(magic))
+    except OSError:  # gone, or not readable: folder_recordings' count of it stands
+        return False
+    return not magic.startswith(head) if len(head) < len(magic) else head != magic
+
+
 def cmd_clean(args) -> int:
     from pipeline.io.recording_files import StoredRecording, folder_recordings
     from pipeline.runtime.running import running
@@ -19,7 +32,9 @@ def cmd_clean(args) -> int:
         raise CliError(f"{folder} does not exist (give the folder of recordings to clean)")
     if not folder.is_dir():
         raise CliError(f"{folder} is not a folder")
-    recs = folder_recordings(folder)
+    recs, foreign = [], []
+    for r in folder_recordings(folder):  # a file named .mcap that is not one holds something else: not ours to remove
+        (foreign if _not_a_recording(r.path) else recs).append(r)
     busy = {Path(str(i["recording"])).resolve() for i in running() if i.get("recording")}
     kept = recs[:args.keep]
     drop: list[StoredRecording] = []
@@ -39,6 +54,9 @@ def cmd_clean(args) -> int:
         for r in drop:
             print(f"  {r.path} ({r.bytes / 1e6:.1f} MB{', ' + str(len(r.files)) + ' files' if len(r.files) > 1 else ''})",
                   file=sys.stderr)
+    if foreign:
+        print(f"left alone: {', '.join(str(r.path) for r in foreign)} (named .mcap, but not MCAP files)",
+              file=sys.stderr)
     return 0
 
 
