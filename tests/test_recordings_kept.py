@@ -261,3 +261,31 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_points_written_new_leave_nothing_on_a_failed_write_and_never_replace_a_file(tmp_path: Path) -> None:
+    """``gflow track --points-out`` wrote its CSV directly: a write that failed midway (a full disk) left part of
+    it, which a retry then refused as an existing file. Written new, a failure leaves nothing and names the file;
+    a file that appeared meanwhile is not replaced."""
+    import errno
+
+    import numpy as np
+
+    from pipeline.io.landmarks import read_points, write_points
+    from pipeline.io.recording_files import RecordingExists
+
+    class FullDisk(dict):
+        def __getitem__(self, frame: int):
+            if frame == 2:
+                raise OSError(errno.ENOSPC, "No space left on device")
+            return super().__getitem__(frame)
+
+    pts = FullDisk({k: (np.arange(3), np.full((3, 2), float(k))) for k in range(4)})
+    with pytest.raises(OSError, match="points.csv"):
+        write_points(tmp_path / "points.csv", pts, new=True)
+    assert not list(tmp_path.iterdir()), "neither the file nor its temporary one may be left"
+    write_points(tmp_path / "points.csv", dict(pts), new=True)
+    assert sorted(read_points(tmp_path / "points.csv")) == [0, 1, 2, 3]
+    with pytest.raises(RecordingExists):
+        write_points(tmp_path / "points.csv", dict(pts), new=True)
+    assert [p.name for p in tmp_path.iterdir()] == ["points.csv"]

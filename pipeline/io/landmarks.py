@@ -89,8 +89,9 @@ def read_landmarks(source: str | os.PathLike, key: str = LANDMARK_KEY, dims: tup
     return a
 
 
-def write_points(path: str | os.PathLike, points: dict[int, tuple[np.ndarray, np.ndarray]]) -> Path:
-    """Write ``frame,landmark,x,y`` rows.
+def write_points(path: str | os.PathLike, points: dict[int, tuple[np.ndarray, np.ndarray]], new: bool = False) -> Path:
+    """Write ``frame,landmark,x,y`` rows. ``new``: beside ``path`` and moved there once complete, never over a
+    file (:func:`pipeline.io.recording_files.write_text_new`): a write that fails leaves no part of it.
 
     Parameters
     ----------
@@ -98,13 +99,22 @@ def write_points(path: str | os.PathLike, points: dict[int, tuple[np.ndarray, np
     """
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    with open(p, "w", newline="") as f:
+
+    def rows(f) -> None:
         w = csv.writer(f, lineterminator="\n")  # LF: a CSV reads the same on every platform and in diff
         w.writerow(["frame", "landmark", "x", "y"])
         for frame in sorted(points):
             lm, xy = points[frame]
             for i, (x, y) in zip(np.asarray(lm).tolist(), np.asarray(xy, dtype=np.float64).tolist()):
                 w.writerow([int(frame), int(i), f"{x:.3f}", f"{y:.3f}"])
+
+    if new:
+        from pipeline.io.recording_files import write_text_new
+
+        write_text_new(p, rows)
+        return p
+    with open(p, "w", newline="") as f:
+        rows(f)
     return p
 
 

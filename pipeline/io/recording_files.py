@@ -24,11 +24,11 @@ import re
 import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
+from typing import IO, Callable, TextIO
 
 from pipeline.io.path_errors import PathMistake
 
-__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new",
+__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new", "write_text_new",
            "refuse_existing",
            "StoredRecording", "folder_recordings", "size_warning", "warn_mb", "WARN_MB"]
 
@@ -113,6 +113,27 @@ def move_new(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
         return
     os.unlink(tmp)
 
+
+
+def write_text_new(path: str | os.PathLike, write: Callable[[TextIO], None]) -> None:
+    """A text file at ``path`` written by ``write(f)`` under a hidden temporary name beside it and moved there once
+    complete, never over a file (:func:`create_beside`, :func:`move_new`): a write that fails midway (a full disk:
+    an OSError naming ``path``) leaves no part of the file behind."""
+    import io
+
+    raw, tmp = create_beside(path)
+    try:
+        with io.TextIOWrapper(raw, encoding="utf-8", newline="") as f:
+            write(f)
+    except OSError as e:
+        raw.close()  # closed with the wrapper, unless the wrapper's last flush failed
+        tmp.unlink(missing_ok=True)
+        raise OSError(e.errno, e.strerror, str(path)) from None
+    except BaseException:
+        raw.close()
+        tmp.unlink(missing_ok=True)
+        raise
+    move_new(tmp, path)
 
 _SEGMENT = re.compile(r"^(?P<stem>.+)\.part\d+$")
 

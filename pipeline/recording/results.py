@@ -4,7 +4,6 @@ says about tracking."""
 from __future__ import annotations
 
 import csv
-import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -118,21 +117,9 @@ def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, f
         with open(p, "w", newline="") as f:
             _write_box_rows(f, boxes, confidence, states, inputs)
         return
-    from pipeline.io.recording_files import create_beside, move_new
+    from pipeline.io.recording_files import write_text_new
 
-    raw, tmp = create_beside(p)
-    try:
-        with io.TextIOWrapper(raw, encoding="utf-8", newline="") as f:
-            _write_box_rows(f, boxes, confidence, states, inputs)
-    except OSError as e:
-        raw.close()  # closed with the wrapper, unless the wrapper's last flush failed
-        tmp.unlink(missing_ok=True)
-        raise OSError(e.errno, e.strerror, str(path)) from None
-    except BaseException:
-        raw.close()
-        tmp.unlink(missing_ok=True)
-        raise
-    move_new(tmp, p)
+    write_text_new(p, lambda f: _write_box_rows(f, boxes, confidence, states, inputs))
 
 
 def _write_box_rows(f, boxes: dict[int, Box], confidence: dict[int, float] | None, states: dict[int, str] | None,

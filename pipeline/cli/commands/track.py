@@ -229,7 +229,7 @@ def cmd_track(args) -> int:
         from pipeline.io.landmarks import write_points
 
         points = run.points()
-        write_points(args.points_out, points)
+        write_points(args.points_out, points, new=True)  # as the boxes: no part of it left by a failed write
         pts = f"; points: {args.points_out}" + ("" if points else " (empty: the model has no landmarks)")
     n, info = len(run.estimates), run.info
     rate = f"{n / max(run.seconds, 1e-9):.1f} fps"
