@@ -161,7 +161,8 @@ def test_a_parameter_added_later_is_read_from_an_older_plan_as_the_code_before_i
                                       "redetect_speed": False, "confirm": 0, "confirm_flow": False,
                                       "roll_step": 0.0, "roll_explain": 0.0, "roll_relax": 0.0,
                                       "search_size_volume": False, "search_track": 0.0,
-                                      "search_track_wald": False}
+                                      "search_track_wald": False, "scale_upsample": False, "roll_detect": False,
+                                      "colour_names": False}
     assert (DCFParams().colour_outlier, DCFParams().search_min) == (0.01, 10)
     box = {"init": [10.0, 10.0, 20.0, 20.0]}
     plan = load_graph("dcf", overrides={"proposal": box, "filter": box})

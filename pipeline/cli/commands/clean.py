@@ -32,7 +32,8 @@ def cmd_clean(args) -> int:
         raise CliError(f"{folder} does not exist (give the folder of recordings to clean)")
     if not folder.is_dir():
         raise CliError(f"{folder} is not a folder")
-    recs, foreign = [], []
+    recs: list[StoredRecording] = []
+    foreign: list[StoredRecording] = []
     for r in folder_recordings(folder):  # a file named .mcap that is not one holds something else: not ours to remove
         (foreign if _not_a_recording(r.path) else recs).append(r)
     busy = {Path(str(i["recording"])).resolve() for i in running() if i.get("recording")}
