@@ -313,3 +313,14 @@ def test_replay_speed_too_slow_for_the_clock_is_refused_as_parsed(rec: Path, tmp
     r = gflow("replay", str(rec / "demo.mcap"), "--speed", "1e-308", cwd=tmp_path)
     one_line_error(r, "--speed", ">= 0.001", "1e-308", rc=2)
     assert "replaying" not in r.stderr
+
+
+def test_a_whole_number_past_64_bits_is_read_as_one(tmp_path: Path) -> None:
+    """``--keep 99999999999999999999999999`` said "invalid nonnegative_int value" (numpy's isfinite overflows on an
+    int past 64 bits, and argparse reported the type); it is a whole number, read as such, and a negative one is
+    refused by its rule."""
+    (tmp_path / "runs").mkdir()
+    r = gflow("clean", "runs", "--keep", "9" * 26, "--dry-run", cwd=tmp_path)
+    assert r.returncode == 0 and "would remove 0 recording(s)" in r.stdout, (r.stdout, r.stderr)
+    r = gflow("clean", "runs", "--keep", "-" + "9" * 26, cwd=tmp_path)
+    assert r.returncode == 2 and "must be >= 0" in r.stderr and "invalid" not in r.stderr, r.stderr

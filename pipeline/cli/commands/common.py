@@ -82,7 +82,8 @@ def _at_least(text: str, kind: type, least: float, inclusive: bool) -> float:
         v = kind(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {'a whole number' if whole else 'a number'}, got {text!r}") from None
-    if not (np.isfinite(v) and (v >= least if inclusive else v > least)):
+    # a whole number is finite however large (np.isfinite overflows on one past 64 bits)
+    if not ((whole or np.isfinite(v)) and (v >= least if inclusive else v > least)):
         raise argparse.ArgumentTypeError(f"must be {'' if whole else 'a number '}{'>=' if inclusive else '>'} "
                                          f"{least:g}, got {text.strip()}")
     return v
