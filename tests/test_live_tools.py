@@ -185,3 +185,16 @@ def test_ps_says_a_no_record_run_is_not_recording(tmp_path: Path) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(10)
+
+
+def test_lockstep_names_the_stages_it_heard_when_one_never_beats() -> None:
+    """``gflow replay --lockstep nosuch`` waited its whole --ack-timeout, then said only that nosuch never beat;
+    the stages it did hear are named beside it, so a mistyped name shows."""
+    from pipeline.cli.live import _Acks
+
+    acks = _Acks()
+    acks.last.update({"filter": 4, "proposal": 4})
+    with pytest.raises(TimeoutError, match=r"no heartbeat from nosuch .*heard from: filter, proposal\)"):
+        acks.wait(("nosuch",), -1, 0.05)
+    with pytest.raises(TimeoutError, match=r"acknowledgement of frame 9 from filter .*\?\)$"):
+        _Acks().wait(("filter",), 9, 0.05)

@@ -328,8 +328,11 @@ class _Acks:
             left = end - time.monotonic()
             if left <= 0:
                 what = "heartbeat" if seq < 0 else f"acknowledgement of frame {seq}"
+                # the stages that were heard: a mistyped name shows beside the real ones
+                heard = sorted(set(self.last) - set(behind))
                 raise TimeoutError(f"lockstep: no {what} from {', '.join(behind)} "
-                                   f"within {timeout:.0f} s (are they running, on this network?)")
+                                   f"within {timeout:.0f} s (are they running, on this network?"
+                                   + (f" heard from: {', '.join(heard)})" if heard else ")"))
             self.changed.clear()
             self.changed.wait(min(left, 0.05))
 
