@@ -21,6 +21,7 @@ from typing import Iterator
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
+from pipeline.io.mcap_writer import MAGIC
 from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
 
@@ -108,10 +109,10 @@ def check_recording(path: str | Path) -> Path:
         magic = f.read(8)
     if not magic:  # "bad magic bytes b''" had the user look for bytes in a file that has none
         raise ValueError(f"{p} is empty (0 bytes), not an MCAP file")
-    if magic != b"\x89MCAP0\r\n" and b"\x89MCAP0\r\n".startswith(magic):
+    if magic != MAGIC and MAGIC.startswith(magic):
         raise ValueError(f"{p} is not an MCAP file yet: it ends after {len(magic)} bytes, inside the MCAP magic "
                          f"bytes (a recording torn before its first record, with nothing to read)")
-    if magic != b"\x89MCAP0\r\n":
+    if magic != MAGIC:
         raise ValueError(f"{p} is not an MCAP file (bad magic bytes {magic!r})")
     return p
 
@@ -204,17 +205,14 @@ def _tell(text: str, strict: bool, on_truncated) -> None:
         _say_damage(text)
 
 
-#: what a properly closed MCAP file begins and ends with (its header's and footer's magic)
-_MAGIC = b"\x89MCAP0\r\n"
-
 
 def _closed(path: str | Path) -> bool:
     """Whether the file ends with an MCAP footer's closing magic bytes (its writer closed it)."""
     try:
         with open(path, "rb") as f:
             size = f.seek(0, 2)
-            f.seek(max(0, size - len(_MAGIC)))
-            return f.read() == _MAGIC and size > 2 * len(_MAGIC)
+            f.seek(max(0, size - len(MAGIC)))
+            return f.read() == MAGIC and size > 2 * len(MAGIC)
     except OSError:
         return False
 
@@ -227,11 +225,11 @@ def torn_segments(path: str | Path) -> list[str]:
     for seg in segments(path):
         try:
             with open(seg, "rb") as f:
-                if f.read(len(_MAGIC)) != _MAGIC:
+                if f.read(len(MAGIC)) != MAGIC:
                     continue
                 size = f.seek(0, 2)
-                f.seek(max(0, size - len(_MAGIC)))
-                closed = f.read() == _MAGIC and size > 2 * len(_MAGIC)
+                f.seek(max(0, size - len(MAGIC)))
+                closed = f.read() == MAGIC and size > 2 * len(MAGIC)
         except OSError:
             continue
         if not closed:

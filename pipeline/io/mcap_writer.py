@@ -55,6 +55,7 @@ def _sync_file_range() -> Callable[[int, int, int], int] | None:
 
 _write_back = _sync_file_range()
 
+#: the first and last bytes of every MCAP file (the header's and the footer's magic); the one copy the project reads
 MAGIC = b"\x89MCAP0\r\n"
 crc32: Callable[..., int] = _crc32
 

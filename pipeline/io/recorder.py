@@ -45,7 +45,7 @@ from mcap.data_stream import RecordBuilder
 from mcap.records import DataEnd, Footer
 
 from pipeline.io.mcap_io import SOURCE_KEY
-from pipeline.io.mcap_writer import ChunkWriter
+from pipeline.io.mcap_writer import MAGIC, ChunkWriter
 from pipeline.io.recording_files import create_new
 
 from gflow_msgs.messages import FOXGLOVE_TYPES, MESSAGE_TYPES, json_schema
@@ -53,7 +53,6 @@ from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS, foxglove_schema
 
 __all__ = ["McapRecorder", "DiskFull", "peek_type", "MESSAGE_ENCODING", "SCHEMA_ENCODING"]
 
-MAGIC = b"\x89MCAP0\r\n"
 RESERVE_BYTES = 256 * 1024
 _FULL = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
 

@@ -34,14 +34,13 @@ from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, M
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
 from pipeline.io.mcap_io import TORN_END_ERRORS, check_recording
-from pipeline.io.mcap_writer import crc32
+from pipeline.io.mcap_writer import MAGIC, crc32
 from pipeline.io.recorder import SCHEMA_PREFIX
 from gflow_msgs.messages import MESSAGE_TYPES, MessageError, decode, decode_as
 from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS
 
 __all__ = ["verify", "VerifyResult", "Progress"]
 
-_MAGIC = b"\x89MCAP0\r\n"
 _FOXGLOVE_BY_SCHEMA: dict[str, type] = {name: typ for typ, name in FOXGLOVE_SCHEMAS.items()}
 
 #: told (bytes read, file size, messages checked) after each chunk
@@ -384,7 +383,7 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
             w.check_summary(footer[0], footer[1], f)
         except EndOfFile:
             f.seek(max(0, size - 8))
-            if size > 16 and f.read(8) == _MAGIC:  # a closed file: a damaged length ran a record past its end
+            if size > 16 and f.read(len(MAGIC)) == MAGIC:  # a closed file: a damaged length ran a record past its end
                 start = last_at if at >= size else at  # the record that swallowed the rest, or the one cut short
                 r.damage = (f"byte {start}: a record runs to or past the end of the file, which ends with its closing "
                             f"magic bytes (the record's length is damaged)")

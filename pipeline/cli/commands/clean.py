@@ -13,7 +13,8 @@ def _not_a_recording(path: Path) -> bool:
     """Whether ``path`` holds bytes that do not begin as an MCAP file's (its magic, ``\\x89MCAP0\\r\\n``). A torn
     or damaged recording begins as one and is a recording to clean; an empty file is a recorder's that wrote
     nothing, cleaned with the rest; a file cut inside the magic is one whose writer died at once."""
-    magic = b"\x89MCAP0\r\n"
+    from pipeline.io.mcap_writer import MAGIC as magic
+
     try:
         with open(path, "rb") as f:
             head = f.read(len(magic))

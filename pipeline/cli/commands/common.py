@@ -179,12 +179,14 @@ def check_new_picture(path: str, option: str = "OUT") -> None:
 def refuse_recording(path: str, option: str) -> None:
     """Refuse to write over a recording: ``path`` is an existing file that begins as an MCAP file
     does (whatever its name), so a CSV, model or picture written there would destroy it."""
+    from pipeline.io.mcap_writer import MAGIC
+
     try:
         with open(path, "rb") as f:
-            head = f.read(len(_MCAP_MAGIC))
+            head = f.read(len(MAGIC))
     except OSError:
         return  # no such file (or not readable: check_writable names it)
-    if head == _MCAP_MAGIC:
+    if head == MAGIC:
         raise CliError(f"{option} {path} is a recording; gflow never writes over one: give another name")
 
 
@@ -297,8 +299,6 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
                      strict=strict)
 
 
-#: what a properly closed MCAP file ends with (its footer's closing magic)
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 def torn_segments(path: str) -> list[str]:
