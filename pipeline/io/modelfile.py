@@ -87,7 +87,7 @@ def _meta_arrays(meta: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
 
 def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None = None, new: bool = False) -> Path:
     """Write a model to ``path`` (``.npz``), atomically: under a hidden temporary name beside it
-    (:func:`pipeline.io.recording_files.create_beside`), moved into place once complete. A write that
+    (:func:`pipeline.io.recording_files.write_beside`), moved into place once complete. A write that
     fails (a full disk: an OSError naming ``path``) leaves neither file.
 
     Parameters
@@ -112,24 +112,11 @@ def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None
     for k, a in arrays.items():
         if np.asarray(a).dtype == object:
             raise ValueError(f"model array {k!r} has dtype object; model files hold plain arrays only")
-    from pipeline.io.recording_files import create_beside, move_new
+    from pipeline.io.recording_files import write_beside
 
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
-    f, tmp = create_beside(p)
-    try:
-        with f:
-            np.savez(f, **arrays)
-    except OSError as e:
-        tmp.unlink(missing_ok=True)
-        raise OSError(e.errno, e.strerror, str(path)) from None
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    if new:
-        move_new(tmp, p)
-    else:
-        os.replace(tmp, p)
+    write_beside(p, lambda f: np.savez(f, **arrays), replace=not new)
     return p
 
 

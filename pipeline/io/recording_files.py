@@ -28,7 +28,7 @@ from typing import IO, Callable, TextIO
 
 from pipeline.io.path_errors import PathMistake
 
-__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new", "write_text_new",
+__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new", "write_beside", "write_text_new",
            "refuse_existing",
            "StoredRecording", "folder_recordings", "size_warning", "warn_mb", "WARN_MB"]
 
@@ -115,25 +115,41 @@ def move_new(tmp: str | os.PathLike, path: str | os.PathLike) -> None:
 
 
 
-def write_text_new(path: str | os.PathLike, write: Callable[[TextIO], None]) -> None:
-    """A text file at ``path`` written by ``write(f)`` under a hidden temporary name beside it and moved there once
-    complete, never over a file (:func:`create_beside`, :func:`move_new`): a write that fails midway (a full disk:
-    an OSError naming ``path``) leaves no part of the file behind."""
-    import io
-
-    raw, tmp = create_beside(path)
+def write_beside(path: str | os.PathLike, write: Callable[[IO[bytes]], None], replace: bool = False) -> None:
+    """A file at ``path`` written by ``write(f)`` (``f`` binary) under a hidden temporary name beside it and moved
+    there once complete (:func:`create_beside`): never over a file (:func:`move_new`), or with ``replace`` over
+    one in one step (``os.replace``). A write that fails midway (a full disk: an OSError naming ``path``) leaves
+    no part of the file behind."""
+    f, tmp = create_beside(path)
     try:
-        with io.TextIOWrapper(raw, encoding="utf-8", newline="") as f:
+        with f:
             write(f)
     except OSError as e:
-        raw.close()  # closed with the wrapper, unless the wrapper's last flush failed
+        f.close()  # closed by the with, unless its last flush failed
         tmp.unlink(missing_ok=True)
         raise OSError(e.errno, e.strerror, str(path)) from None
     except BaseException:
-        raw.close()
+        f.close()
         tmp.unlink(missing_ok=True)
         raise
-    move_new(tmp, path)
+    if replace:
+        os.replace(tmp, path)
+    else:
+        move_new(tmp, path)
+
+
+def write_text_new(path: str | os.PathLike, write: Callable[[TextIO], None]) -> None:
+    """A text file (UTF-8) at ``path`` written by ``write(f)``, as :func:`write_beside` writes one: never over a
+    file, and a failed write leaves nothing."""
+    import io
+
+    def text(raw: IO[bytes]) -> None:
+        buf = io.StringIO(newline="")  # the rows in memory first (a CSV of boxes or points), then one write
+        write(buf)
+        raw.write(buf.getvalue().encode("utf-8"))
+
+    write_beside(path, text)
+
 
 _SEGMENT = re.compile(r"^(?P<stem>.+)\.part\d+$")
 
