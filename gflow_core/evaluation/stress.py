@@ -34,14 +34,17 @@ import numpy as np
 from .metrics import HIDDEN_BELOW
 
 __all__ = ["KINDS", "StressCase", "CASES", "SPAN", "StressPlan", "plan_case", "render_frame", "visible_fraction",
-           "occluder_size", "fill_truth", "HIDDEN_BELOW", "motion_kernel"]
+           "occluder_size", "fill_truth", "HIDDEN_BELOW", "motion_kernel", "COPY_KINDS", "target_copy"]
 
 #: the kinds of perturbation
 KINDS = ("none", "occlude", "sweep", "partial", "slide", "roll-target", "roll-camera", "look", "dark", "blur", "fast",
-         "leave")
+         "leave", "distract")
 
 #: kinds that paste an image patch (the occluder, or the new part of the look)
 PATCH_KINDS = ("none", "occlude", "sweep", "partial", "slide", "look")
+
+#: kinds whose patch is the target itself (a copy cut from the sequence, not a donor's patch)
+COPY_KINDS = ("distract",)
 
 
 
@@ -74,7 +77,11 @@ class StressCase:
         * ``blur``: linear motion blur of up to ``amount`` pixels, and back;
         * ``fast``: only every ``amount``-th frame of the window is kept;
         * ``leave``: the image shifts sideways until the target is out of the frame, stays
-          out, and comes back (the uncovered strip is black).
+          out, and comes back (the uncovered strip is black);
+        * ``distract``: a mirrored copy of the target, of its size, passes in front of it from one
+          side to the other (a second face or walker crossing the first) and walks on at the same
+          pace after the window, so a tracker that follows the look rather than the target leaves
+          with it.
     length : length of the window in original frames.
     amount : the kind's strength (see ``kind``).
     """
@@ -103,7 +110,7 @@ class StressCase:
     @property
     def persistent(self) -> bool:
         """Whether the change stays after the window (a change of look)."""
-        return self.kind == "look"
+        return self.kind in ("look", "distract")
 
     def describe(self) -> str:
         """One line saying what the case does."""
@@ -122,6 +129,7 @@ class StressCase:
             "blur": f"motion blur up to {a:g} px and back in {n} frames",
             "fast": f"one frame in {int(a)} of {n} kept (motion {int(a)}x faster)",
             "leave": f"the target leaves the frame and comes back in {n} frames",
+            "distract": f"a mirrored copy of the target passes in front of it in {n} frames and walks on",
         }[self.kind]
         return text
 
@@ -148,6 +156,7 @@ CASES: tuple[StressCase, ...] = (
     StressCase("fast-2", "fast", 60, 2),
     StressCase("fast-3", "fast", 60, 3),
     StressCase("leave-40", "leave", 40),
+    StressCase("distract-40", "distract", 40),
 )
 
 
@@ -458,9 +467,22 @@ def _leave(pt: _Perturbation, win: _Window, width: int) -> None:
     pt.boxes[:, 0] += pt.shift
 
 
+def _distract(pt: _Perturbation, win: _Window, rng: np.random.Generator) -> None:
+    """``distract``: a copy of the target's size at its height, its left edge going from 2.5 box widths
+    on one side of the box (drawn from ``rng``) to 2.5 on the other as u goes from 0 to 1, and on at
+    that pace after the window (it covers the target fully at u = 1/2)."""
+    x, y, w, h = pt.boxes.T
+    sign = 1.0 if rng.integers(2) else -1.0
+    # offset of the copy from the box, in box widths: -2.5 -> +2.5 over the window, then onwards
+    off = sign * (-2.5 + 5.0 * win.u) * w
+    on = win.idx >= win.w0
+    pt.occluder[on] = np.stack([x + off, y, w, h], 1)[on]
+    pt.perturbed = on
+
+
 def _perturb(case: StressCase, pt: _Perturbation, win: _Window, width: int, rng: np.random.Generator) -> None:
     """Set the parameters of ``case``'s kind in ``pt`` over the window ``win`` (``rng`` draws the
-    side of ``partial`` and the direction of ``blur``)."""
+    side of ``partial``, the direction of ``blur`` and the side ``distract``'s copy comes from)."""
     k = case.kind
     if k == "none":
         pt.perturbed = np.zeros(pt.boxes.shape[0], dtype=bool)
@@ -489,6 +511,8 @@ def _perturb(case: StressCase, pt: _Perturbation, win: _Window, width: int, rng:
         pass  # the window's frames were dropped in _source_frames
     elif k == "leave":
         _leave(pt, win, width)
+    elif k == "distract":
+        _distract(pt, win, rng)
 
 
 def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator,
@@ -529,6 +553,19 @@ def occluder_size(plan: StressPlan) -> tuple[int, int] | None:
     if o.shape[0] == 0:
         return None
     return int(math.ceil(o[:, 2].max())), int(math.ceil(o[:, 3].max()))
+
+
+def target_copy(image: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """The target's look for ``distract``: the pixels of ``box`` (x, y, w, h) in ``image`` (clipped to it),
+    mirrored left to right, so the copy is like the target and not the same picture.
+
+    Returns (h', w', C) or (h', w') uint8, a new array. Raises ``ValueError`` if the box is not in the image."""
+    H, W = image.shape[:2]
+    x0, y0 = max(int(round(box[0])), 0), max(int(round(box[1])), 0)
+    x1, y1 = min(int(round(box[0] + box[2])), W), min(int(round(box[1] + box[3])), H)
+    if x1 - x0 < 2 or y1 - y0 < 2:
+        raise ValueError(f"the target's box {tuple(float(v) for v in box)} is not in the {W}x{H} image")
+    return image[y0:y1, x0:x1][:, ::-1].copy()
 
 
 def _paste(img: np.ndarray, rect: np.ndarray, patch: np.ndarray) -> None:

@@ -37,8 +37,8 @@ import numpy as np
 
 from gflow_core.evaluation.metrics import (CONFIDENCE_BANDS, HIDDEN_BELOW, StateScore, band_json, band_text, frames_to_recover,
                                  overlaps, state_score)
-from gflow_core.evaluation.stress import (CASES, PATCH_KINDS, StressCase, StressPlan, fill_truth, occluder_size, plan_case,
-                               render_frame)
+from gflow_core.evaluation.stress import (CASES, COPY_KINDS, PATCH_KINDS, StressCase, StressPlan, fill_truth, occluder_size,
+                               plan_case, render_frame, target_copy)
 
 from pipeline.app import TrackPlan
 from pipeline.io.frame_readers import folder_frames
@@ -213,7 +213,15 @@ def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: i
     if meta is None:
         patch, patch_from = None, ""
         need = occluder_size(plan)
-        if need is not None:
+        if case.kind in COPY_KINDS:  # the target's own look at the window's start, mirrored
+            w0 = plan.window[0]
+            f = truth.first + int(plan.source[w0])
+            look = cv2.imread(str(files[f]), cv2.IMREAD_COLOR)
+            if look is None:
+                raise ValueError(f"{files[f]}: not a decodable image")
+            patch = target_copy(look, plan.boxes[w0])
+            patch_from = f"{seq.name} frame {f}, the target's box mirrored"
+        elif need is not None:
             patch, patch_from = _cut_patch(donor, need, {truth.first + int(f) for f in plan.source} if donor is seq
                                            else set(), rng)
         folder.parent.mkdir(parents=True, exist_ok=True)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from gflow_core.evaluation.stress import (CASES, KINDS, StressCase, fill_truth, occluder_size, plan_case, render_frame,
-                               visible_fraction)
+                               target_copy, visible_fraction)
 
 W, H = 200, 150
 
@@ -230,3 +230,27 @@ def test_sparse_truth_starts_every_run_on_a_labelled_frame_and_marks_the_labelle
         assert dense.labelled.all()
     with pytest.raises(ValueError, match="frame 0 labelled"):
         plan_case(CASES[0], _truth(n), (W, H), np.random.default_rng(0), labelled=~labelled)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_distract_copy_crosses_the_target_and_walks_on(seed):
+    """The copy starts 2.5 widths to one side, covers the target at the window's middle, ends 2.5
+    widths on the other side and keeps going after the window; the truth never moves with it."""
+    p = _plan(StressCase("d", "distract", 40), seed=seed)
+    w0, w1 = p.window
+    off = (p.occluder[:, 0] - p.boxes[:, 0]) / p.boxes[:, 2]
+    assert np.isnan(p.occluder[:w0]).all() and not np.isnan(p.occluder[w0:]).any()
+    assert abs(off[w0]) == pytest.approx(2.5) and off[w1 - 1] == pytest.approx(-off[w0])
+    assert np.all(np.diff(np.sign(off[w0]) * off[w0:]) < 0)  # it moves across, one way, and on after the window
+    assert p.visible[w0] == pytest.approx(1.0) and p.visible[(w0 + w1) // 2] < 0.1
+    assert np.allclose(p.boxes, _truth()[p.source]) and p.perturbed[w0:].all() and not p.perturbed[:w0].any()
+    assert np.allclose(p.occluder[:, 2:][w0:], p.boxes[:, 2:][w0:])  # the target's size
+
+
+def test_target_copy_is_the_box_mirrored_and_refuses_a_box_outside():
+    img = _image()
+    c = target_copy(img, np.array([10.0, 20.0, 30.0, 40.0]))
+    assert c.shape == (40, 30, 3) and np.array_equal(c, img[20:60, 10:40][:, ::-1])
+    assert target_copy(img, np.array([-10.0, -5.0, 30.0, 40.0])).shape == (35, 20, 3)  # clipped to the image
+    with pytest.raises(ValueError, match="not in the 200x150 image"):
+        target_copy(img, np.array([500.0, 20.0, 30.0, 40.0]))
