@@ -78,10 +78,10 @@ class StressCase:
         * ``fast``: only every ``amount``-th frame of the window is kept;
         * ``leave``: the image shifts sideways until the target is out of the frame, stays
           out, and comes back (the uncovered strip is black);
-        * ``distract``: a mirrored copy of the target, of its size, passes in front of it from one
-          side to the other (a second face or walker crossing the first) and walks on at the same
-          pace after the window, so a tracker that follows the look rather than the target leaves
-          with it.
+        * ``distract``: a mirrored copy of the target, of its size, walks in a straight line at a
+          steady pace in front of it, from one side to the other, covering it in the window's
+          middle (a second face or walker crossing the first), and walks on after the window, so a
+          tracker that follows the look rather than the target leaves with it.
     length : length of the window in original frames.
     amount : the kind's strength (see ``kind``).
     """
@@ -468,15 +468,19 @@ def _leave(pt: _Perturbation, win: _Window, width: int) -> None:
 
 
 def _distract(pt: _Perturbation, win: _Window, rng: np.random.Generator) -> None:
-    """``distract``: a copy of the target's size at its height, its left edge going from 2.5 box widths
-    on one side of the box (drawn from ``rng``) to 2.5 on the other as u goes from 0 to 1, and on at
-    that pace after the window (it covers the target fully at u = 1/2)."""
+    """``distract``: a copy of the target's size at the window's middle frame walks in a straight line at a
+    steady pace, level with the target's centre there, from 2.5 box widths on one side of it (drawn from
+    ``rng``) to 2.5 on the other as u goes from 0 to 1, and on after the window: it covers the target at
+    u = 1/2 and moves on its own, as a passer-by does, whatever the target and the camera do."""
     x, y, w, h = pt.boxes.T
+    mid = win.w0 + int(round(0.5 * (win.w1 - 1 - win.w0)))
+    cx, cy, wm, hm = x[mid] + 0.5 * w[mid], y[mid] + 0.5 * h[mid], w[mid], h[mid]
     sign = 1.0 if rng.integers(2) else -1.0
-    # offset of the copy from the box, in box widths: -2.5 -> +2.5 over the window, then onwards
-    off = sign * (-2.5 + 5.0 * win.u) * w
+    # the copy's centre: (cx + sign (5 u - 2.5) w_mid, cy), u = 1/2 at the middle frame
+    ux = cx + sign * (5.0 * (win.idx - mid) / max(win.w1 - 1 - win.w0, 1)) * wm
     on = win.idx >= win.w0
-    pt.occluder[on] = np.stack([x + off, y, w, h], 1)[on]
+    T = pt.boxes.shape[0]
+    pt.occluder[on] = np.stack([ux - 0.5 * wm, np.full(T, cy - 0.5 * hm), np.full(T, wm), np.full(T, hm)], 1)[on]
     pt.perturbed = on
 
 

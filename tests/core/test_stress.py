@@ -233,18 +233,23 @@ def test_sparse_truth_starts_every_run_on_a_labelled_frame_and_marks_the_labelle
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
-def test_distract_copy_crosses_the_target_and_walks_on(seed):
-    """The copy starts 2.5 widths to one side, covers the target at the window's middle, ends 2.5
-    widths on the other side and keeps going after the window; the truth never moves with it."""
+def test_distract_copy_crosses_the_target_in_a_straight_line_and_walks_on(seed):
+    """The copy walks at a steady pace, level, from 2.5 widths to one side of the target's place at the
+    window's middle to 2.5 on the other, covers the target there and keeps going after the window; the
+    truth never moves with it."""
     p = _plan(StressCase("d", "distract", 40), seed=seed)
     w0, w1 = p.window
-    off = (p.occluder[:, 0] - p.boxes[:, 0]) / p.boxes[:, 2]
-    assert np.isnan(p.occluder[:w0]).all() and not np.isnan(p.occluder[w0:]).any()
-    assert abs(off[w0]) == pytest.approx(2.5) and off[w1 - 1] == pytest.approx(-off[w0])
-    assert np.all(np.diff(np.sign(off[w0]) * off[w0:]) < 0)  # it moves across, one way, and on after the window
-    assert p.visible[w0] == pytest.approx(1.0) and p.visible[(w0 + w1) // 2] < 0.1
+    mid = w0 + round(0.5 * (w1 - 1 - w0))
+    o = p.occluder
+    assert np.isnan(o[:w0]).all() and not np.isnan(o[w0:]).any()
+    step = np.diff(o[w0:, 0])
+    assert np.allclose(step, step[0]) and abs(step[0]) > 0 and np.ptp(o[w0:, 1]) == 0  # straight and steady
+    c = p.boxes[mid, :2] + p.boxes[mid, 2:] / 2
+    assert np.allclose(o[mid, :2] + o[mid, 2:] / 2, c, atol=abs(step[0]))  # over the target in the middle
+    start = (o[w0, 0] + o[w0, 2] / 2 - c[0]) / p.boxes[mid, 2]
+    assert 2.3 < abs(start) < 2.7 and np.sign(step[0]) == -np.sign(start)
+    assert p.visible[w0] == pytest.approx(1.0) and p.visible[mid] < 0.2
     assert np.allclose(p.boxes, _truth()[p.source]) and p.perturbed[w0:].all() and not p.perturbed[:w0].any()
-    assert np.allclose(p.occluder[:, 2:][w0:], p.boxes[:, 2:][w0:])  # the target's size
 
 
 def test_target_copy_is_the_box_mirrored_and_refuses_a_box_outside():
