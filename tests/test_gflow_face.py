@@ -75,6 +75,28 @@ def test_learn_gflow_bad_input_is_one_line(tmp_path, gflow, args, message) -> No
     assert len(r.stderr.strip().splitlines()) == 1, r.stderr
 
 
+@pytest.mark.parametrize(("args", "rc", "message"), [
+    (["-k", "50"], 2, "-k 50 morph bases need at least 50 frames with landmarks, got 39"),
+    (["-k", "3", "--frames", "4:6"], 2, "got 1 in --frames 4:6"),
+    (["--boxes", "{d}/far.csv"], 2, "no frame has both landmarks and a box"),
+    (["--frames", "5:6"], 2, "no frame in --frames 5:6 has all its landmarks"),
+    (["-k", "2", "--frames", "0:4"], 1, "a frame's landmarks all coincide"),  # found by the learning: its failure
+])
+def test_learn_gflow_exit_status_says_mistake_or_failure(tmp_path, gflow, args, rc, message) -> None:
+    """A mistake in the command (too few training frames for -k, boxes on no training frame) is found before the
+    learning begins (exit 2); training data the learning refuses is its failure (exit 1). Every refusal was exit 2."""
+    x = _synthetic_landmarks(tmp_path / "landmarks.npz")
+    x[2] = 0.0  # a frame's landmarks all in one point
+    np.savez(tmp_path / "landmarks.npz", landmarks=x.astype(np.float32))
+    (tmp_path / "far.csv").write_text("frame,x,y,w,h\n1000,140,95,40,50\n")
+    r = gflow("learn", "gflow", str(tmp_path / "landmarks.npz"), "--out", str(tmp_path / "m.npz"), "-q",
+              *[a.replace("{d}", str(tmp_path)) for a in args])
+    assert r.returncode == rc, (r.returncode, r.stderr)
+    assert r.stderr.strip() == r.stderr.strip().splitlines()[0] and "Traceback" not in r.stderr, r.stderr
+    assert "gflow learn: error: cannot learn a face model: " in r.stderr and message in r.stderr, r.stderr
+    assert not (tmp_path / "m.npz").exists()
+
+
 def test_learn_gflow_refuses_2d_landmarks(tmp_path, gflow) -> None:
     np.savez(tmp_path / "flat.npz", landmarks=np.zeros((5, 468, 2), np.float32))
     r = gflow("learn", "gflow", str(tmp_path / "flat.npz"), "--out", str(tmp_path / "m.npz"))

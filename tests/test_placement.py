@@ -47,8 +47,11 @@ def test_every_run_gets_its_own_stream_and_keeps_its_random_draws():
         choose_stream(load_graph("demo"), "a/b", placed=False)
 
 
-@pytest.mark.parametrize("tool", [["topics", "--duration", "1"], ["echo", "gflow/x/estimate", "--timeout", "1"]])
+@pytest.mark.parametrize("tool", [["topics", "--duration", "1"], ["echo", "gflow/x/estimate", "--timeout", "1"],
+                                  ["hz", "gflow/x/estimate", "--wait", "1"],
+                                  ["pub", "gflow/x/_control", "Control", '{"command": "stop"}', "--wait", "1"]])
 def test_live_tools_that_reach_nothing_say_so(tool, tmp_path):
+    """Each in the same words, exit 2 (pub said it with exit 1, as if a wait for a subscriber had run out)."""
     import subprocess
     import sys
 
@@ -58,6 +61,7 @@ def test_live_tools_that_reach_nothing_say_so(tool, tmp_path):
                        cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "reached nothing at tcp/127.0.0.1:" in r.stderr, r.stderr
+    assert r.stderr.startswith(f"gflow {tool[0]}: error: ") and "within 3 s (is a gflow pipeline" in r.stderr, r.stderr
 
 
 def test_a_recorder_only_graph_records_until_the_end_of_stream(tmp_path):

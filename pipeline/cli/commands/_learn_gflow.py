@@ -39,7 +39,7 @@ def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
 def cmd_learn_gflow(args) -> int:
     from gflow_core.gflow.morphable_learn import learn_morphable
 
-    from pipeline.cli.commands.common import check_model_out, frame_range
+    from pipeline.cli.commands.common import check_model_out, frame_range, start_work
     from pipeline.io.landmarks import read_landmarks, resolve_landmarks
     from pipeline.io.modelfile import save_model
 
@@ -67,10 +67,12 @@ def cmd_learn_gflow(args) -> int:
         if not args.quiet:
             ok = int(np.isfinite(lm[sel]).all(axis=(1, 2)).sum())
             print(f"read {path}: {lm.shape[1]} landmarks, {frames.size} frames ({ok} with a face)", file=sys.stderr)
+    _check_enough(tracks, boxes, args.k, args.frames)
+    start_work()  # the options and training frames checked: a value the learning refuses is its failure (exit 1)
     try:
         face = learn_morphable(tracks, k=args.k, n_vertices=n_vertices, boxes=boxes if boxes else None)
     except ValueError as e:
-        raise CliError(f"cannot learn a face model: {e}") from None
+        raise ValueError(f"cannot learn a face model: {e}") from None
     m = face.model
     meta = {"source": ";".join(names), "frames": ";".join(used), "training_frames": face.frames, "k": m.n_bases,
             "vertices": m.n_vertices, "boxes": "yes" if boxes else "no",
@@ -82,6 +84,22 @@ def cmd_learn_gflow(args) -> int:
           f"n={m.n_vertices} vertices, from {face.frames} frames; deformation variance per morph: {expl}; "
           f"residual {face.residual_rms:.4f} face heights RMS; written to {out}")
     return 0
+
+
+def _check_enough(tracks: list[np.ndarray], boxes: list[np.ndarray], k: int, frames: str | None) -> None:
+    """The training frames enough for ``-k`` (and, with --boxes, one with a box): a mistake in the command
+    (exit 2), said before the learning begins, rather than the learning's failure."""
+    where = f" in --frames {frames}" if frames else ""
+    good = [np.isfinite(t).all(axis=(1, 2)) for t in tracks]
+    n = int(sum(g.sum() for g in good))
+    if n == 0:
+        raise CliError(f"cannot learn a face model: no frame{where} has all its landmarks (every frame has a NaN)")
+    if n < k:
+        raise CliError(f"cannot learn a face model: -k {k} morph bases need at least {k} frames with landmarks, "
+                       f"got {n}{where}; use a smaller -k or more frames")
+    if boxes and not any((np.isfinite(b[g]).all(axis=1) & (b[g][:, 2] > 0) & (b[g][:, 3] > 0)).any()
+                         for b, g in zip(boxes, good)):
+        raise CliError(f"cannot learn a face model: no frame{where} has both landmarks and a box (--boxes)")
 
 
 def _positive_int(text: str) -> int:

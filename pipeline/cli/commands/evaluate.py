@@ -59,27 +59,40 @@ def cmd_eval_landmarks(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from gflow_core.evaluation.metrics import band_text, score
+    from gflow_core.evaluation.metrics import band_text
 
-    from pipeline.recording.results import read_boxes, read_track
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
+    from pipeline.recording.results import read_track
 
     if args.landmarks or args.points:
         return cmd_eval_landmarks(args)
     if not (args.gt and args.pred):
         raise CliError("gflow eval needs --gt GT.csv --pred PRED.csv (boxes), or --landmarks REF.npz --points P.csv "
                        "(face points)")
-    gt, pred = read_boxes(args.gt), read_boxes(args.pred)
+    truth, boxes = read_scored_boxes(args.gt), read_scored_boxes(args.pred)  # damage said before any scoring
     if args.frames:
         lo, hi = frame_range(args.frames)
-        gt = {k: v for k, v in gt.items() if k >= lo and (hi is None or k < hi)}
-        if not gt:
+        truth = truth.frames(lo, hi)
+        if not (truth.boxes or truth.empty):
             raise CliError(f"no ground-truth frame in --frames {args.frames}")
-    states = _state_score(args, gt, read_track(args.pred)) if args.visibility else None
-    s = score(gt, pred, threshold=args.threshold)
+    gt, pred = truth.boxes, boxes.boxes  # the rows of no box left out: absent targets, failed predictions
+    absent = len(truth.empty)
+    if not gt:
+        raise CliError(f"{args.gt}: the target is absent (w or h <= 0, or NaN) on every ground-truth frame"
+                       + (f" in --frames {args.frames}" if args.frames else "") + ": nothing to score")
+    failed = len(boxes.empty & gt.keys())  # missing predictions too: overlap 0, a miss
+    states = _state_score(args, gt, pred, read_track(args.pred)) if args.visibility else None
+    s = _score(gt, pred, failed, args.threshold)
     if args.json:
-        print(json.dumps(dict(s.to_json(), **({"state": states.to_json()} if states else {}))))
+        extra = {"absent_frames": absent, "empty_predictions": failed}
+        if s.cle != s.cle:  # no frame with both boxes: null, not JSON's missing NaN
+            extra["cle_px"] = None
+        print(json.dumps(dict(s.to_json(), **extra, **({"state": states.to_json()} if states else {}))))
     else:
-        print(f"frames with ground truth: {s.frames} (missing predictions: {s.missing})")
+        print(f"frames with ground truth: {s.frames} (missing predictions: {s.missing}"
+              + (f", {failed} of them a box of no size" if failed else "") + ")")
+        if absent:
+            print(f"frames left out, the target absent: {absent} (w or h 0, or NaN, in {args.gt})")
         print(f"centre location error (CLE): {s.cle:.2f} px")
         print(f"mean overlap (IoU):          {s.mean_overlap:.3f}")
         print(f"success rate (IoU > {args.threshold}):   {s.success:.3f}")
@@ -105,7 +118,17 @@ def _rate(a: int, n: int) -> str:
     return "-" if n == 0 else f"{a / n:.3f}"
 
 
-def _state_score(args, gt: dict, track):
+def _score(gt: dict, pred: dict, failed: int, threshold: float):
+    """The boxes' score; a tracker that gave no box on any frame with a box of truth (each a failure) scores
+    overlap 0 and success 0, its centre error undefined (NaN: averaged over no frame)."""
+    from gflow_core.evaluation.metrics import TrackScore, score
+
+    if failed and not gt.keys() & pred.keys():
+        return TrackScore(frames=len(gt), cle=float("nan"), mean_overlap=0.0, success=0.0, missing=len(gt))
+    return score(gt, pred, threshold=threshold)
+
+
+def _state_score(args, gt: dict, pred: dict, track):
     """How often the predicted state was right, given the truth's visibility file."""
     from gflow_core.evaluation.metrics import overlaps, state_score
 
@@ -121,12 +144,14 @@ def _state_score(args, gt: dict, track):
         raise CliError(f"{args.visibility} has no row for frame {missing[0]} of the ground truth")
     return state_score([track.states.get(f) for f in frames], [vis[f] for f in frames],
                        None if pert is None else [pert[f] for f in frames],
-                       overlap=overlaps(gt, track.boxes), threshold=args.threshold,
+                       overlap=overlaps(gt, pred), threshold=args.threshold,
                        confidence=None if track.confidence is None else
                        [track.confidence.get(f, float("nan")) for f in frames], frames=frames)
 
 
 def register(sub) -> None:
+    from pipeline.evaluation.scored_boxes import CONVENTION
+
     p = sub.add_parser("eval", help="score predicted boxes (or face points) against ground truth",
                        description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU) "
                                    "and success rate (IoU > 0.5); with --visibility, how often the reported state was "
@@ -134,9 +159,12 @@ def register(sub) -> None:
                                    "the box was on the target at each level of confidence. Face points (--landmarks, "
                                    "--points): the mean distance of the eye corners "
                                    "33, 133, 362, 263 and mouth corners 61, 291 from the reference, in pixels and over "
-                                   "the reference 33-263 distance (NME), over the frames with a reference.")
-    p.add_argument("--gt", help="ground truth CSV (frame,x,y,w,h)")
-    p.add_argument("--pred", help="predicted CSV (frame,x,y,w,h, optionally confidence,state)")
+                                   "the reference 33-263 distance (NME), over the frames with a reference. "
+                                   "Boxes of no size, as OTB scores them: " + CONVENTION + ".")
+    p.add_argument("--gt", help="ground truth CSV (frame,x,y,w,h; w or h 0, or NaN: the target is absent, the frame "
+                                "left out)")
+    p.add_argument("--pred", help="predicted CSV (frame,x,y,w,h, optionally confidence,state; w or h 0, or NaN: no "
+                                  "box, a failure)")
     p.add_argument("--visibility", metavar="CSV",
                    help="frame,visible[,perturbed] of the truth (a stress sequence's visibility.csv): also report how "
                         "often the predicted state was right (occluded or lost when less than 10%% of the target is "

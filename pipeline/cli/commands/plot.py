@@ -62,15 +62,43 @@ def dpi(text: str) -> int:
     return v
 
 
+def recorded_truth(path: str):
+    """The synthetic scene's truth carried by the recording, its boxes of no size (target absent) apart."""
+    from pipeline.evaluation.scored_boxes import ScoredBoxes, has_size
+    from pipeline.recording.results import truth_boxes
+
+    boxes = truth_boxes(path)
+    return ScoredBoxes({f: b for f, b in boxes.items() if has_size(b)},
+                       frozenset(f for f, b in boxes.items() if not has_size(b)))
+
+
+def _error_panel(ax, both: list[int], gt: dict, est: dict, absent: list[int]) -> str:
+    """Plot the centre error on the frames with a box of truth; an estimate of no size (w or h <= 0, or NaN) is
+    a miss, not a distance: a gap in the line, out of the mean. Returns the panel's title."""
+    from gflow_core.evaluation.metrics import centre_error
+
+    from pipeline.evaluation.scored_boxes import has_size
+
+    hit = np.array([has_size(est[s].box) for s in both])
+    err = np.full(len(both), np.nan)
+    if hit.any():
+        err[hit] = centre_error(np.array([gt[s] for s, h in zip(both, hit) if h]),
+                                np.array([est[s].box for s, h in zip(both, hit) if h]))
+    ax.plot(both, err, lw=1.2, color="C3")
+    said = [f"no box (a miss) on {int((~hit).sum())}"] if not hit.all() else []
+    said += [f"target absent on {len(absent)}, left out"] if absent else []
+    mean = f"mean {np.nanmean(err):.2f} px over {int(hit.sum())} frames" if hit.any() else "no box on any frame"
+    return f"centre location error ({mean}" + "".join(f"; {t}" for t in said) + ")"
+
+
 def cmd_plot(args) -> int:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from gflow_core.evaluation.metrics import centre_error
-
-    from pipeline.recording.results import estimates, read_boxes, truth_boxes
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
+    from pipeline.recording.results import estimates
     from pipeline.cli.commands.common import check_new_picture, check_outputs
 
     if Path(args.out).is_dir():
@@ -89,18 +117,21 @@ def cmd_plot(args) -> int:
 
         why = damage_cause(args.file) or torn_cause(args.file)
         raise CliError(f"{args.file} has no estimates to plot" + (f": {why}" if why else ""))
-    gt = read_boxes(args.gt) if args.gt else truth_boxes(args.file)
+    truth = read_scored_boxes(args.gt) if args.gt else recorded_truth(args.file)  # damage said before plotting
+    gt = truth.boxes
     seqs = sorted(est)
     fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True)
     ax = axes[0]
     both = [s for s in seqs if s in gt]
-    if args.gt and not both:  # a plot of no error at all would pass for one of a run without ground truth
-        raise CliError(f"--gt {args.gt}: none of its frames ({min(gt)}..{max(gt)}) is a frame of the estimates of "
-                       f"{args.file} ({seqs[0]}..{seqs[-1]}); are the frame numbers aligned?")
+    absent = [s for s in seqs if s in truth.empty]  # frames with the target absent: left out
+    if args.gt and not (both or absent):  # a plot of no error at all would pass for one of a run without ground truth
+        given = gt.keys() | truth.empty
+        raise CliError(f"--gt {args.gt}: none of its frames ({min(given)}..{max(given)}) is a frame of the estimates "
+                       f"of {args.file} ({seqs[0]}..{seqs[-1]}); are the frame numbers aligned?")
     if both:
-        err = centre_error(np.array([gt[s] for s in both]), np.array([est[s].box for s in both]))
-        ax.plot(both, err, lw=1.2, color="C3")
-        ax.set_title(f"centre location error (mean {err.mean():.2f} px over {len(both)} frames)")
+        ax.set_title(_error_panel(ax, both, gt, est, absent))
+    elif absent:
+        ax.set_title(f"centre location error: the target is absent on every frame with ground truth ({len(absent)})")
     else:
         ax.set_title("centre location error: no ground truth (give --gt GT.csv)")
     ax.set_ylabel("CLE (px)")
@@ -141,7 +172,10 @@ def register(sub) -> None:
                        epilog="example: gflow plot run.mcap --gt ../shared/data/caviar1/groundtruth.csv plot.png")
     p.add_argument("file", help="MCAP recording")
     p.add_argument("out", help="output image: .png, .svg or .pdf (no suffix: .png is added)")
-    p.add_argument("--gt", help="ground truth CSV (default: the synthetic scene's truth, if recorded)")
+    p.add_argument("--gt", help="ground truth CSV (default: the synthetic scene's truth, if recorded). A row with w or "
+                                "h 0, or NaN, marks the target absent: that frame is left out; an estimate of no "
+                                "size is a miss (a gap in the line); a negative width or height is an error naming "
+                                "the line")
     p.add_argument("--dpi", type=dpi, default=100, help=f"resolution of a PNG in dots per inch, 1-{MAX_DPI} "
                                                          "(default 100)")
     p.set_defaults(func=cmd_plot)

@@ -67,8 +67,9 @@ def cmd_step(args) -> int:
     n = 0  # the line of standard input read last (a script's)
 
     def mistake(text: str) -> None:
-        """A jump that could not be made: at the terminal, say it and read the next command; from a script,
-        stop with it (exit 2), as the commands after it would show and step other frames than it meant."""
+        """A command that could not be carried out (a jump that could not be made, a command not known): at the
+        terminal, say it and read the next command; from a script, stop with it (exit 2), as the commands after
+        it would show and step other frames than it meant."""
         if interactive:
             print(text, file=out)
         else:
@@ -123,7 +124,7 @@ def cmd_step(args) -> int:
         elif cmd in ("q", "quit", "exit"):
             break
         else:
-            print(f"unknown command {cmd!r}; h for help", file=out)  # it moved nothing: the script goes on
+            mistake(f"unknown command {cmd!r}; h for help")
     return 0
 
 
