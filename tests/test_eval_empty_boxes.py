@@ -110,3 +110,30 @@ def test_plot_leaves_out_frames_with_the_target_absent(demo: Path, tmp_path: Pat
         r = gflow("plot", str(demo), "p.png", "--gt", gt, cwd=tmp_path)
         assert r.returncode == 0 and (tmp_path / "p.png").is_file(), r.stderr
         (tmp_path / "p.png").unlink()
+
+
+def test_benchmark_scores_boxes_of_no_size_as_eval_does(tmp_path: Path) -> None:
+    """`gflow benchmark` read a dataset's truth and a published tracker's boxes as boxes whatever their size: a
+    frame the target is absent on was scored (overlap 0), and a published failure written 0,0,0,0 counted in the
+    centre error as a box at the corner. It now reads them as `gflow eval` does, and its rows equal eval's."""
+    from gflow_core.synthetic import SyntheticScene
+    from pipeline.io.datasets import write_frames
+    from pipeline.recording.results import write_boxes
+
+    root = tmp_path / "synth"
+    scene = SyntheticScene(n_frames=12, seed=3, period=60)
+    write_frames(root / "frames", [scene.render(t) for t in range(12)])
+    truth = {t: scene.truth_box(t) for t in range(12)}
+    write_boxes(root / "groundtruth.csv", {**truth, 5: (0.0, 0.0, 0.0, 0.0)})  # the target absent on frame 5
+    write_boxes(root / "results" / "other.csv", {**truth, 3: (0.0, 0.0, 0.0, 0.0)})  # a failure on frame 3
+    r = gflow("benchmark", str(root), "--trackers", "chamfer", "--opencv", "none", "--inline", "--json", "-q",
+              "--out-dir", str(tmp_path / "runs"), cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    rows = {x["tracker"]: x for x in json.loads(r.stdout)["rows"]}
+    other = rows["other"]
+    assert other["frames"] == 11 and other["missing_predictions"] == 1 and other["cle_px"] == 0.0, other
+    for name in ("other", "chamfer", "static box"):
+        ev = json.loads(gflow("eval", "--gt", str(root / "groundtruth.csv"), "--pred", rows[name]["boxes"], "--json",
+                              cwd=tmp_path).stdout)
+        assert ev.pop("absent_frames") == 1 and ev.pop("empty_predictions") == (name == "other")
+        assert {k: rows[name][k] for k in ev} == ev, name

@@ -28,7 +28,8 @@ import numpy as np
 from gflow_core.evaluation.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
 
 from pipeline.io.path_errors import MissingPath
-from pipeline.recording.results import read_boxes, write_boxes
+from pipeline.evaluation.scored_boxes import read_scored_boxes
+from pipeline.recording.results import write_boxes
 from pipeline.app import TrackPlan
 
 __all__ = ["Sequence", "Row", "find_sequences", "score_row", "static_box", "published_rows", "opencv_tracker",
@@ -94,7 +95,10 @@ def _is_sequence(p: Path) -> bool:
 
 
 def _load(p: Path) -> Sequence:
-    gt = read_boxes(p / "groundtruth.csv")
+    # a row of no size (w or h 0, or NaN) marks the target absent: left out, as gflow eval leaves it out
+    gt = read_scored_boxes(p / "groundtruth.csv").boxes
+    if not gt:
+        raise ValueError(f"{p / 'groundtruth.csv'}: the target is absent (w or h 0, or NaN) on every frame")
     res = tuple(sorted((p / "results").glob("*.csv"))) if (p / "results").is_dir() else ()
     return Sequence(name=p.name, path=p, groundtruth=gt, results=res)
 
@@ -135,8 +139,9 @@ def find_sequences(paths: list[str]) -> tuple[list[Sequence], list[str]]:
 
 
 def score_row(row: Row, gt: dict[int, Box], csv_path: Path) -> Row:
-    """Score the boxes in ``csv_path`` as ``gflow eval --gt ... --pred csv_path`` does, over ``gt``'s frames."""
-    pred = read_boxes(csv_path)
+    """Score the boxes in ``csv_path`` as ``gflow eval --gt ... --pred csv_path`` does, over ``gt``'s frames (a
+    box of no size, as a published tracker writes a failure, is a miss)."""
+    pred = read_scored_boxes(csv_path).boxes
     row.score = score(gt, pred)
     row.curve = success_curve(gt, pred)
     row.precision = precision_curve(gt, pred, PRECISION_THRESHOLDS)
