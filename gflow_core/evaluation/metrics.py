@@ -24,6 +24,11 @@ def _boxes(b: np.ndarray, name: str) -> np.ndarray:
         raise ValueError(f"{name} boxes must be (N, 4) = (x, y, w, h), got shape {b.shape}")
     if not np.isfinite(b).all():
         raise ValueError(f"{name} boxes contain NaN or inf")
+    neg = np.flatnonzero((b[:, 2:] < 0).any(axis=1))
+    if neg.size:
+        # a box reaching back from its corner would be scored with its centre on the wrong side of it
+        raise ValueError(f"{name} box {int(neg[0])} has a negative width or height ({b[neg[0], 2]:g} x "
+                         f"{b[neg[0], 3]:g}): a box of no size is w = 0 or h = 0")
     return b
 
 

@@ -26,3 +26,21 @@ def test_only_frames_on_target_count():
     assert size_kept(gt, pred) == pytest.approx(0.5)
     assert size_kept(gt, {1: (50.0, 50.0, 1.0, 1.0)}) is None
     assert size_kept(gt, {}) is None
+
+
+def test_a_negative_width_or_height_is_refused_and_a_box_of_no_size_overlaps_nothing():
+    """A box reaching back from its corner had its centre on the wrong side of it: (30, 30, -20, -20) against
+    (10, 10, 20, 20) scored a centre error of 0, a hit. It is refused, naming the box; a box of no size
+    (w or h 0) is a box that overlaps nothing."""
+    import numpy as np
+
+    from gflow_core.evaluation.metrics import centre_error, iou, score
+
+    g = np.array([[10.0, 10.0, 20.0, 20.0], [10.0, 10.0, 20.0, 20.0]])
+    with pytest.raises(ValueError, match="predicted box 1 has a negative width or height"):
+        centre_error(g, np.array([[10.0, 10.0, 20.0, 20.0], [30.0, 30.0, -20.0, -20.0]]))
+    with pytest.raises(ValueError, match="ground-truth box 0 has a negative"):
+        iou(np.array([[10.0, 10.0, -1.0, 20.0]]), g[:1])
+    with pytest.raises(ValueError, match="negative width or height"):
+        score({0: (10, 10, 20, 20)}, {0: (30, 30, -20, -20)})
+    assert iou(g[:1], np.array([[10.0, 10.0, 0.0, 20.0]]))[0] == 0.0
