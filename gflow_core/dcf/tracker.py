@@ -41,6 +41,7 @@ from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .proposal import assign, detections
 from .rates import adapted, filter_rate, recent
+from .lookalike import beside
 from . import negatives as neg
 from .reacquire import log_truncation, search_peaks
 from . import trackscore as ts
@@ -618,6 +619,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
     present = vis.present or taken(st, obs, p)  # a tentative track's frame in doubt, if its box moved (.confirm)
+    if p.lookalike_doubt and present and beside(st.target, st.clutter, clutter_seen, p.min_std):
+        present = False  # a look-alike beside the estimate: the frame is in doubt (.lookalike)
     confident = vis.visible >= 0.5
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
