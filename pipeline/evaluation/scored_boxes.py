@@ -54,7 +54,8 @@ def read_scored_boxes(path: str | Path) -> ScoredBoxes:
     for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
         try:
             frame = int(row[0])
-            box = tuple(float(v) for v in row[1:5])
+            x, y, w, h = (float(v) for v in row[1:5])
+            box: Box = (x, y, w, h)
         except ValueError:
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
         if any(math.isinf(v) for v in box):

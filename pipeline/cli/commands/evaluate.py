@@ -84,7 +84,7 @@ def cmd_eval(args) -> int:
     states = _state_score(args, gt, pred, read_track(args.pred)) if args.visibility else None
     s = _score(gt, pred, failed, args.threshold)
     if args.json:
-        extra = {"absent_frames": absent, "empty_predictions": failed}
+        extra: dict[str, int | None] = {"absent_frames": absent, "empty_predictions": failed}
         if s.cle != s.cle:  # no frame with both boxes: null, not JSON's missing NaN
             extra["cle_px"] = None
         print(json.dumps(dict(s.to_json(), **extra, **({"state": states.to_json()} if states else {}))))
