@@ -1,13 +1,10 @@
 """dcf with a look-alike beside the target (``lookalike_doubt``, :mod:`gflow_core.dcf.lookalike`): the unit
-rule, and caviar1's stress case ``distract-40`` on the real frames, where a mirrored copy of the standing
-woman walks across her and the default leaves with it."""
+rule, and skating1 on the real frames, where other skaters pass beside the target."""
 
 from __future__ import annotations
 
 import json
 import subprocess
-
-import pytest
 
 from gflow_core.dcf.lookalike import beside
 from gflow_core.visibility import ChiSquare
@@ -28,23 +25,21 @@ def test_a_runner_up_that_scores_as_the_target_is_a_look_alike():
     assert not beside(ChiSquare(), clutter, (0.38, 100.0), 0.02)  # nothing learnt of the target yet
 
 
-def _distract(flag: str, tmp_path, gflow_cmd) -> dict:
+def _skating1(flag: str, gflow_cmd) -> dict:
     from tests.conftest import data_dir
 
-    data = data_dir("caviar1").parent
-    r = subprocess.run([*gflow_cmd, "benchmark", str(data), "--stress", "--sequences", "caviar1", "--cases",
-                        "distract-40", "--trackers", "dcf", "--opencv", "none", "--inline", "-q", "--json", "--seed",
-                        "1", "--stress-cache", str(tmp_path / "cache"), "--set", f"tracker.lookalike_doubt={flag}"],
-                       capture_output=True, text=True, timeout=600)
+    data = data_dir("skating1").parent
+    r = subprocess.run([*gflow_cmd, "benchmark", str(data), "--sequences", "skating1", "--trackers", "dcf", "--opencv",
+                        "none", "--inline", "-q", "--json", "--no-fps", "--seed", "1", "--set",
+                        f"tracker.lookalike_doubt={flag}"], capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
-    return next(x for x in json.loads(r.stdout)["rows"] if x["kind"] == "tracker")
+    return next(x for x in json.loads(r.stdout)["rows"] if x["tracker"] == "dcf")
 
 
-def test_caviar1_standing_woman_is_kept_when_her_copy_walks_across(tmp_path, gflow_cmd):
-    """Without the rule the estimate takes up the copy's pace when it covers her and leaves with it
-    (reported tracked); with it the frames the copy is beside her are in doubt, the box holds, and she is
-    tracked again after the window."""
-    off, on = _distract("false", tmp_path, gflow_cmd), _distract("true", tmp_path, gflow_cmd)
-    print({"off": (off["back"], off["after"]), "on": (on["back"], on["after"])})
-    assert not off["back"], "the default kept her: the case no longer tests the rule"
-    assert on["back"] and on["after"] >= 0.8
+def test_skating1_is_not_learnt_off_onto_the_skaters_beside_her(gflow_cmd):
+    """skating1 (seed 1): other skaters pass beside the target under stage light. Learning from the frames
+    one of them scores as she does gave AUC 0.49 and a centre error of 45 px; with those frames teaching
+    nothing, 0.57 and 5.9 px."""
+    off, on = _skating1("false", gflow_cmd), _skating1("true", gflow_cmd)
+    print({"off": (off["auc"], off["cle_px"]), "on": (on["auc"], on["cle_px"])})
+    assert on["auc"] > off["auc"] + 0.05 and on["cle_px"] < off["cle_px"] / 2

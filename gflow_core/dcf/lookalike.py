@@ -1,4 +1,4 @@
-"""A look-alike beside the target puts the frame in doubt (``lookalike_doubt``).
+"""A look-alike beside the target: the frame teaches nothing (``lookalike_doubt``).
 
 The filter's response has one peak where the target is alone. Where a second object scores as the
 target does -- another skater, a copy of the target walking past -- the response has two, and the
@@ -13,14 +13,15 @@ when its distance ``rho = 1 - y`` is likelier under the target's distribution th
 
     log p(rho | target) > log p(rho | clutter),
 
-and a frame with one is in doubt, as a frame clutter explains: the box holds the prediction, the
-velocity decays, nothing is learnt, and after ``hidden_after`` such frames the target is judged
-hidden and searched for. So the model and the velocity are not taken along by a look-alike, and the
-clutter's distribution does not learn it either (clutter is learnt on present frames only).
+and a frame with one teaches nothing: the box is the particles' estimate, as on any tracked frame, but
+the filters, the colour model, the size, the clutter's distribution and the velocity are not updated
+from it. A look-alike that stays beside the target (a second skater) is then never learnt into the
+model or into the clutter, and the velocity is not updated while one is near.
 
-Departures: LMCF measures multimodality by the ratio of a secondary peak to the main one with a
-fixed threshold, and keeps tracking the main peak; here the secondary peak is judged against the
-learnt distances and the frame is not tracked, as the tracker's other frames in doubt are not.
+Departures: LMCF judges the response by its peak and its average peak-to-correlation energy against
+their running means, with fixed ratios; here the secondary peak is judged against the learnt distances. Holding the box
+as well, as a frame clutter explains holds it, kept a standing target from a copy walking across it
+(``distract-40``) but lost dollar's note to its twin beside it on one seed (docs/dcf-development.md).
 """
 
 from __future__ import annotations

@@ -223,9 +223,9 @@ class DCFParams:
                                            "every channel (false: it keeps a weight of 1 and the 31 fHOG channels share "
                                            "theirs; its largest response is on another scale than theirs)")
     lookalike_doubt: bool = param(False, "a frame whose best response half a box or more from the estimate is likelier "
-                                         "the target's distance than the clutter's (a look-alike beside the target) is "
-                                         "in doubt: the box holds the prediction and nothing is learnt, as when clutter "
-                                         "explains the estimate (LMCF's multimodal response; gflow_core.dcf.lookalike)")
+                                         "the target's distance than the clutter's (a look-alike beside the target) "
+                                         "teaches nothing: the filters, colour model, size, clutter and velocity are not "
+                                         "updated from it (LMCF's multimodal response; gflow_core.dcf.lookalike)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:

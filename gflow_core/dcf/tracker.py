@@ -580,8 +580,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     obs : frame t.
     proposed : (N, 3) float64 particles (x, y, log s) of the proposal's random walk about the posterior
         of t-1; the velocity and the speed's share of the noise are added here (:mod:`.dynamics`).
-    rng : the update's generator of frame t.
-    dt : frame periods since frame t-1.
+    rng, dt : the update's generator of frame t, and the frame periods since frame t-1.
     """
     n = p.particles
     if proposed.ndim != 2 or proposed.shape[1] != 3 or not np.isfinite(proposed).all():
@@ -619,8 +618,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
     present = vis.present or taken(st, obs, p)  # a tentative track's frame in doubt, if its box moved (.confirm)
-    if p.lookalike_doubt and present and beside(st.target, st.clutter, clutter_seen, p.min_std):
-        present = False  # a look-alike beside the estimate: the frame is in doubt (.lookalike)
+    doubt = p.lookalike_doubt and present and beside(st.target, st.clutter, clutter_seen, p.min_std)  # .lookalike
     confident = vis.visible >= 0.5
     confidence = vis.visible
     run = 0 if present else st.hidden_run + 1
@@ -639,6 +637,8 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         centre = np.array([np.clip(pred[0], 0.0, Ww - 1.0), np.clip(pred[1], 0.0, Hh - 1.0)])
         velocity = p.coast_velocity ** dt * st.velocity
         state = ("lost" if srch.covers else "occluded") if hidden else "tracked"
+    elif doubt:  # a look-alike beside it: tracked, but the model, size, clutter and velocity learn nothing
+        velocity, state = st.velocity, "tracked"
     else:
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
@@ -651,7 +651,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         if p.redetect_speed:
             # E|v|^2 <- (1 - a) E|v|^2 + a |v|^2 on tracked frames, a = target_rate
             learnt["speed2"] = (1.0 - p.target_rate) * st.speed2 + p.target_rate * float(velocity @ velocity)
-    if present:
+    if present and not doubt:
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     if p.search_clutter:
         lt = _learn_search_clutter(st, lt, srch, run > 0 and found is None, p, learnt)
