@@ -379,3 +379,18 @@ def test_each_case_s_runs_are_removed_once_scored_without_out_dir(data, tmp_path
     rows, interrupted, _ = run_stress(args, seqs, ["appearance"], [], plan_of, donors=find_sequences([str(data)])[0])
     assert not interrupted and [r.case for r in rows if r.kind == "baseline"] == ["none", "fast-2"]
     assert seen == [[], []]  # case "none"'s folder was gone when "fast-2" was planned
+
+
+def test_list_cases_lists_every_case_or_those_cases_names():
+    """--list-cases printed every case whatever --cases said; it lists the ones --cases names, and a name
+    it does not know is a one-line error."""
+    from gflow_core.evaluation.stress import CASES
+
+    every = _gflow("benchmark", "--list-cases")
+    assert every.returncode == 0 and len(every.stdout.splitlines()) == len(CASES)
+    some = _gflow("benchmark", "--list-cases", "--cases", "roll-camera,distract")
+    assert some.returncode == 0, some.stderr
+    assert [ln.split()[0] for ln in some.stdout.splitlines()] == ["roll-camera-20", "roll-camera-35", "roll-camera-45",
+                                                                  "distract-40"]
+    bad = _gflow("benchmark", "--list-cases", "--cases", "nope")
+    assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "unknown stress case 'nope'" in bad.stderr

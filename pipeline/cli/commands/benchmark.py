@@ -363,9 +363,13 @@ def cmd_benchmark(args) -> int:
     from pipeline.cli.versions import versions
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
     if args.list_cases:
-        from gflow_core.evaluation.stress import CASES
+        from pipeline.evaluation.stress_benchmark import select_cases
 
-        for c in CASES:
+        try:
+            chosen = select_cases(args.cases)  # with --cases, the cases it names (a mistyped one is an error)
+        except ValueError as e:
+            raise CliError(str(e)) from None
+        for c in chosen:
             print(f"{c.name:16s} {c.describe()}")
         return 0
     if not args.datasets:
@@ -524,7 +528,8 @@ def register(sub) -> None:
                         "OpenCV tracker)")
     s.add_argument("--cases", metavar="NAME,...",
                    help="only these stress cases (a name, or a kind such as occlude or roll-camera; see --list-cases)")
-    s.add_argument("--list-cases", action="store_true", help="print the stress cases and exit")
+    s.add_argument("--list-cases", action="store_true", help="print the stress cases (with --cases, those it names) "
+                                                             "and exit")
     s.add_argument("--lead", type=int, default=30, metavar="N",
                    help="frames tracked before each stress window (default 30)")
     s.add_argument("--tail", type=int, default=60, metavar="N",
