@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from pipeline.io.csv_rows import csv_rows
+from pipeline.recording.results import box_rows
 
 __all__ = ["ScoredBoxes", "read_scored_boxes", "has_size", "CONVENTION"]
 
@@ -50,26 +50,16 @@ def read_scored_boxes(path: str | Path) -> ScoredBoxes:
     p = Path(path)
     boxes: dict[int, Box] = {}
     empty: set[int] = set()
-    first: dict[int, int] = {}
-    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
-        try:
-            frame = int(row[0])
-            x, y, w, h = (float(v) for v in row[1:5])
-            box: Box = (x, y, w, h)
-        except ValueError:
-            raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
-        if any(math.isinf(v) for v in box):
-            raise ValueError(f"{p}:{lineno}: box has inf")
+    seen = False
+    for lineno, row, frame, box in box_rows(p, allow_nan=True):
+        seen = True
         if box[2] < 0 or box[3] < 0:
             raise ValueError(f"{p}:{lineno}: negative width or height (w={row[3].strip()}, h={row[4].strip()}): a box "
                              "of no size is written w=0 or h=0 (or NaN)")
-        if frame in first:
-            raise ValueError(f"{p}:{lineno}: frame {frame} again (first at line {first[frame]}): one box a frame")
-        first[frame] = lineno
         if has_size(box):
             boxes[frame] = box
         else:
             empty.add(frame)
-    if not first:
+    if not seen:
         raise ValueError(f"{p}: no boxes")
     return ScoredBoxes(boxes, frozenset(empty))

@@ -26,24 +26,27 @@ Box = tuple[float, float, float, float]
 V = TypeVar("V")
 
 
-def _box_row(p: Path, lineno: int, row: list[str]) -> tuple[int, Box]:
+def _box_row(p: Path, lineno: int, row: list[str], allow_nan: bool) -> tuple[int, Box]:
     try:
         frame = int(row[0])
         x, y, w, h = (float(v) for v in row[1:5])  # csv_rows gives at least five columns
     except ValueError:
         raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
     box = (x, y, w, h)
-    if not all(math.isfinite(v) for v in box):
-        raise ValueError(f"{p}:{lineno}: box has NaN or inf")
+    if any(math.isinf(v) for v in box):
+        raise ValueError(f"{p}:{lineno}: box has inf")
+    if not allow_nan and any(math.isnan(v) for v in box):
+        raise ValueError(f"{p}:{lineno}: box has NaN")
     return frame, box
 
 
-def _box_rows(p: Path):
+def box_rows(p: Path, allow_nan: bool = False):
     """(line number, row, frame, box) of every row of a boxes CSV; a frame given twice is an error
-    naming both lines (the later row replaced the earlier one without a word, and was scored)."""
+    naming both lines (the later row replaced the earlier one without a word, and was scored). NaN is
+    an error unless ``allow_nan`` (a row of no box, :mod:`pipeline.evaluation.scored_boxes`); inf always."""
     first: dict[int, int] = {}
     for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
-        frame, box = _box_row(p, lineno, row)
+        frame, box = _box_row(p, lineno, row, allow_nan)
         if frame in first:
             raise ValueError(f"{p}:{lineno}: frame {frame} again (first at line {first[frame]}): one box a frame")
         first[frame] = lineno
@@ -55,7 +58,7 @@ def read_boxes(path: str | Path) -> dict[int, Box]:
     ``confidence,state``, are not read). Errors name the file and line."""
     p = Path(path)
     out: dict[int, Box] = {}
-    for _, _, frame, box in _box_rows(p):
+    for _, _, frame, box in box_rows(p):
         out[frame] = box
     if not out:
         raise ValueError(f"{p}: no boxes")
@@ -79,7 +82,7 @@ def read_track(path: str | Path) -> TrackRows:
     boxes: dict[int, Box] = {}
     conf: dict[int, float] = {}
     states: dict[int, str] = {}
-    for lineno, row, frame, box in _box_rows(p):
+    for lineno, row, frame, box in box_rows(p):
         boxes[frame] = box
         if len(row) < 7:
             if states:
