@@ -17,6 +17,7 @@ Every case runs the CLI as a subprocess, as a user would.
 from __future__ import annotations
 
 import hashlib
+import struct
 from pathlib import Path
 
 import pytest
@@ -36,6 +37,40 @@ def recording(tmp_path_factory) -> Path:
               "--record", "run.mcap", "-q", cwd=where)
     assert r.returncode == 0, r.stderr
     return where / "run.mcap"
+
+
+@pytest.fixture(scope="module")
+def chunked(tmp_path_factory) -> Path:
+    """The same run recorded with a chunk closed after every message: the layout the recorder's 0.5 s flush
+    timer gives a run on a machine so loaded that the run outlasts it (on an idle one the run is done in
+    0.2 s and its chunks are closed by size, 4 MB, alone)."""
+    seq = data_dir("caviar1")
+    where = tmp_path_factory.mktemp("trust-chunked")
+    r = gflow("track", str(seq), "--init", "129,71,30,79", "--out", "boxes.csv", "--inline", "--stop", str(FRAMES),
+              "--record", "run.mcap", "--set", "recorder.flush_interval=0.0001", "-q", cwd=where)
+    assert r.returncode == 0, r.stderr
+    return where / "run.mcap"
+
+
+@pytest.fixture(params=["recording", "chunked"])
+def any_layout(request) -> Path:
+    """The run's recording as the recorder lays it out on an idle machine, and on a loaded one."""
+    return request.getfixturevalue(request.param)
+
+
+def _chunks(data: bytes) -> list[tuple[int, int]]:
+    """(start, end) byte offsets of the chunk records of an MCAP file, in file order: where a cut falls is said by
+    the file's own layout, not by a fraction of its size (the layout depends on how fast the run went)."""
+    out, pos = [], 8  # after the magic bytes; each record: opcode u8, length u64, content
+    while pos + 9 <= len(data):
+        op, n = struct.unpack_from("<BQ", data, pos)
+        if op == 0x06:  # Chunk
+            out.append((pos, pos + 9 + n))
+        elif op == 0x0F:  # DataEnd
+            break
+        pos += 9 + n
+    assert out, "a recording holds its messages in chunks"
+    return out
 
 
 def _digest(p: Path) -> str:
@@ -76,26 +111,34 @@ def test_a_window_inside_the_recording_still_works(recording: Path, tmp_path: Pa
     assert r.returncode == 0 and "all identical" in r.stdout, r.stdout + r.stderr
 
 
-def test_a_torn_recording_is_named_by_what_reads_it(recording: Path, tmp_path: Path) -> None:
+def test_a_torn_recording_is_named_by_what_reads_it(any_layout: Path, tmp_path: Path) -> None:
+    """Cut inside its last chunk (so what is before the cut is there to read, whatever the layout; a cut at 80 %
+    of the bytes fell wherever the run's timing had put the chunks), every output in this test's own folder."""
+    recording = any_layout
     data = recording.read_bytes()
     torn = tmp_path / "torn.mcap"
-    torn.write_bytes(data[: int(len(data) * 0.8)])
-    for args in (["plot", str(torn), "p.png"], ["render", str(torn), "v.mp4", "-q"],
-                 ["foxglove", str(torn), "f.mcap"], ["diff", str(torn), str(recording)]):
+    start, end = _chunks(data)[-1]
+    torn.write_bytes(data[: (start + end) // 2])
+    for args in (["plot", str(torn), str(tmp_path / "p.png")], ["render", str(torn), str(tmp_path / "v.mp4"), "-q"],
+                 ["foxglove", str(torn), str(tmp_path / "f.mcap")], ["diff", str(torn), str(recording)]):
         r = gflow(*args, cwd=tmp_path)
         assert "Traceback" not in r.stderr, r.stderr
         warned = [ln for ln in r.stderr.splitlines() if "not closed properly" in ln]
         assert len(warned) == 1 and "torn.mcap" in warned[0], (args, r.stderr)
-    whole = gflow("plot", str(recording), "q.png", cwd=tmp_path)
+    whole = gflow("plot", str(recording), str(tmp_path / "q.png"), cwd=tmp_path)
     assert whole.returncode == 0 and "not closed" not in whole.stderr, whole.stderr
 
 
-def test_a_torn_recording_with_nothing_readable_fails(recording: Path, tmp_path: Path) -> None:
+def test_a_torn_recording_with_nothing_readable_fails(any_layout: Path, tmp_path: Path) -> None:
+    """Cut inside its first chunk, wherever the run's timing put that chunk's end: a cut at a fixed 3 MB was inside
+    it only when the run was fast (on a loaded machine the 0.5 s flush timer closed the first chunk sooner, and
+    the "nothing readable" file held messages)."""
     from pipeline.io.mcap_io import iter_records
 
-    data = recording.read_bytes()
+    data = any_layout.read_bytes()
     head = tmp_path / "head.mcap"
-    head.write_bytes(data[: min(len(data) // 2, 3_000_000)])  # the header and metadata, cut inside the first chunk
+    start, end = _chunks(data)[0]
+    head.write_bytes(data[: (start + end) // 2])  # the header and metadata, cut inside the first chunk
     assert not list(iter_records(head, on_truncated=lambda note: None))
     r = gflow("step", str(head), "--stage", "filter", cwd=tmp_path)
     assert r.returncode == 2 and "holds no input of stage filter" in r.stderr.splitlines()[-1], r.stderr

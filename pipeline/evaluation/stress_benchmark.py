@@ -45,7 +45,7 @@ from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
 from pipeline.evaluation.sequence_benchmark import Row, Sequence, note
 
-__all__ = ["StressRow", "Derived", "select_cases", "derive", "check_sequences", "stress_scores", "untouched",
+__all__ = ["StressRow", "Derived", "CaseNotBuilt", "select_cases", "derive", "check_sequences", "stress_scores", "untouched",
            "format_stress", "stress_json", "run_stress", "AFTER_GAP", "BACK_AT", "VERSION"]
 
 #: the "after" score starts this many frames after the window ends
@@ -58,6 +58,12 @@ VERSION = 3
 #: :func:`pipeline.evaluation.sequence_benchmark.tracker_row` runs (its boxes CSV and its plan), or why the
 #: tracker is skipped on it
 PlanOf = Callable[[Sequence, str, Path], "tuple[str, TrackPlan] | str"]
+
+
+class CaseNotBuilt(ValueError):
+    """A case that cannot be made on a sequence (``distract`` with nothing of the target in the image at the
+    window's start, so no look of it to copy): :func:`run_stress` skips that case of that sequence, says so in
+    one line and in the tables, and goes on with the others."""
 
 
 def select_cases(text: str | None) -> list[StressCase]:
@@ -219,7 +225,10 @@ def derive(seq: Sequence, case: StressCase, donor: Sequence, root: Path, seed: i
             look = cv2.imread(str(files[f]), cv2.IMREAD_COLOR)
             if look is None:
                 raise ValueError(f"{files[f]}: not a decodable image")
-            patch = target_copy(look, plan.boxes[w0])
+            try:  # the box clipped to the image; nothing of it inside: this case cannot be made here
+                patch = target_copy(look, plan.boxes[w0])
+            except ValueError as e:
+                raise CaseNotBuilt(f"on frame {f}, the window's start, {e}: no look of the target to copy") from None
             patch_from = f"{seq.name} frame {f}, the target's box mirrored"
         elif need is not None:
             patch, patch_from = _cut_patch(donor, need, {truth.first + int(f) for f in plan.source} if donor is seq
@@ -391,6 +400,7 @@ def _summary(rows: list[StressRow]) -> dict:
         "back": {g: back(p) for g, p in groups.items()},
         "mean_success": None if not ok else round(float(np.mean([r.success for r in ok])), 4),
         "mean_after": None if not scored else round(float(np.mean([r.after for r in scored])), 4),
+        "skipped_cases": [f"{r.sequence}/{r.case}" for r in every if r.extra.get("case_skipped")],
         "worse_than_still_box": [f"{r.sequence}/{r.case}" for r in every if r.success is not None
                                  and r.extra.get("still_success") is not None and r.success < r.extra["still_success"]],
         "hidden_reported_occluded_or_lost": [sum(s.hidden_right for s in st), sum(s.hidden for s in st)],
@@ -479,6 +489,8 @@ def _overview(rows: list[StressRow], markdown: bool) -> list[str]:
     groups = [g for g in sums[names[0]]["back"] if g != "every case"]
     cells = [[f"got back after {g}"] + [back({"back": sums[n]["back"][g]}) for n in names] for g in groups]
     cells += [[what] + [get(sums[n]) for n in names] for what, get in rate]
+    if any(sums[n]["skipped_cases"] for n in names):  # said only when some were: the table of a full run is as it was
+        cells.append(["cases skipped (could not be made)"] + [str(len(sums[n]["skipped_cases"])) for n in names])
     out += [_table(("over every case",) + head, cells, markdown, right_from=1, last_left=False), ""]
     return out
 
@@ -521,6 +533,10 @@ def _summary_lines(name: str, mine: list[StressRow], theirs: list[StressRow], cv
     bands = band_text(a["confidence_bands"])
     if bands:
         lines.append(f"- on target by confidence (target in view): {bands}")
+    skipped = a["skipped_cases"]
+    if skipped:
+        lines.append(f"- skipped, the case could not be made on the sequence (not in the counts above): "
+                     f"{len(skipped)} case(s): {', '.join(skipped)}")
     worse = a["worse_than_still_box"]
     lines.append(f"- worse than a box that never moves (success): {len(worse)} case(s)"
                  + (f": {', '.join(worse)}" if worse else ""))
@@ -612,6 +628,16 @@ def _other_rows(args, d: Derived, cv_names: list[str], folder: Path, extra: dict
     return rows + [still]
 
 
+def _skipped_rows(seq: str, case: StressCase, names: list[str], cv_names: list[str], extra: dict,
+                  why: str) -> list[StressRow]:
+    """The rows of a case that could not be made on ``seq`` (:class:`CaseNotBuilt`): every tracker's, OpenCV's
+    and the still box's, unscored, their note saying why (``extra``'s ``case_skipped`` marks them)."""
+    kinds = [(n, "tracker") for n in names] + [(f"opencv {c}", "opencv") for c in cv_names] + [("still box",
+                                                                                              "baseline")]
+    return [StressRow(seq, case.name, n, k, note=f"skipped: {why}", extra=dict(extra, case_skipped=True))
+            for n, k in kinds]
+
+
 def check_sequences(seqs: list[Sequence]) -> None:
     """Every sequence has an image and a ground-truth box for every frame from 0 on (ValueError
     naming the first that does not), checked before any work."""
@@ -642,13 +668,18 @@ def run_stress(args, seqs: list[Sequence], names: list[str], cv_names: list[str]
                 donor = pool[(pool.index(seq) + 1) % len(pool)]
                 for case in cases:
                     done += 1
-                    d = derive(seq, case, donor, cache, args.seed, args.lead, args.tail)
+                    extra = {"case_kind": case.kind, "case_length": case.length, "case_amount": case.amount}
+                    try:
+                        d = derive(seq, case, donor, cache, args.seed, args.lead, args.tail)
+                    except CaseNotBuilt as e:  # one odd sequence does not stop the run: said, and in the tables
+                        note(f"[{done}/{runs}] {seq.name} / {case.name}: skipped: {e}")
+                        rows += _skipped_rows(seq.name, case, names, cv_names, extra, str(e))
+                        continue
                     eta = (time.monotonic() - t0) / max(done - 1, 1) * (runs - done + 1) if done > 1 else None
                     note(f"[{done}/{runs}] {seq.name} / {case.name}: {len(d.plan)} frames, window "
                          f"{d.plan.window[0]}:{d.plan.window[1]}" + (" (cached)" if d.cached else "")
                          + ("" if eta is None else f", about {eta / 60:.0f} min left" if eta >= 120
                             else f", about {eta:.0f} s left"))
-                    extra = {"case_kind": case.kind, "case_length": case.length, "case_amount": case.amount}
                     folder = work / seq.name / case.name
                     mine = _tracker_rows(d, names, folder, extra, plan_of)
                     rows += mine

@@ -75,14 +75,16 @@ class TrackRows:
     states: dict[int, str] | None
 
 
-def read_track(path: str | Path) -> TrackRows:
+def read_track(path: str | Path, allow_nan: bool = False) -> TrackRows:
     """Read ``frame,x,y,w,h[,confidence,state]`` rows. A file has the two extra columns on every
-    row or on none; a confidence outside [0, 1] or an unknown state is an error naming the line."""
+    row or on none; a confidence outside [0, 1] or an unknown state is an error naming the line.
+    ``allow_nan``: a row with NaN in its box is read (a row of no box, as
+    :mod:`pipeline.evaluation.scored_boxes` reads it: a miss), its confidence and state too."""
     p = Path(path)
     boxes: dict[int, Box] = {}
     conf: dict[int, float] = {}
     states: dict[int, str] = {}
-    for lineno, row, frame, box in box_rows(p):
+    for lineno, row, frame, box in box_rows(p, allow_nan=allow_nan):
         boxes[frame] = box
         if len(row) < 7:
             if states:

@@ -259,3 +259,17 @@ def test_target_copy_is_the_box_mirrored_and_refuses_a_box_outside():
     assert target_copy(img, np.array([-10.0, -5.0, 30.0, 40.0])).shape == (35, 20, 3)  # clipped to the image
     with pytest.raises(ValueError, match="not in the 200x150 image"):
         target_copy(img, np.array([500.0, 20.0, 30.0, 40.0]))
+
+
+def test_distract_copy_and_path_of_a_box_in_the_image_are_as_before():
+    """Pinned: the copy is the box's pixels mirrored, the box clipped to the image where it is partly out, and the
+    path the copy walks (the values the code gave before a box outside the image was made a skipped case)."""
+    p = _plan(StressCase("d", "distract", 40), seed=0)
+    w0 = p.window[0]
+    img = _image()
+    x, y = (int(round(v)) for v in p.boxes[w0, :2])
+    assert np.array_equal(target_copy(img, p.boxes[w0]), img[y:y + 30, x:x + 20][:, ::-1])
+    assert np.array_equal(target_copy(img, np.array([-10.0, -5.0, 30.0, 40.0])), img[0:35, 0:20][:, ::-1])
+    assert np.array_equal(target_copy(img, np.array([185.0, 130.0, 30.0, 40.0])), img[130:150, 185:200][:, ::-1])
+    np.testing.assert_array_equal(p.occluder[w0], [3.7179487179487154, 46.67449242510589, 20.0, 30.0])
+    np.testing.assert_array_equal(p.occluder[-1], [257.56410256410254, 46.67449242510589, 20.0, 30.0])

@@ -81,7 +81,8 @@ def cmd_eval(args) -> int:
         raise CliError(f"{args.gt}: the target is absent (w or h <= 0, or NaN) on every ground-truth frame"
                        + (f" in --frames {args.frames}" if args.frames else "") + ": nothing to score")
     failed = len(boxes.empty & gt.keys())  # missing predictions too: overlap 0, a miss
-    states = _state_score(args, gt, pred, read_track(args.pred)) if args.visibility else None
+    # the states of every row, those of no box too (NaN or w, h 0: a miss for the boxes, as read above)
+    states = _state_score(args, gt, pred, read_track(args.pred, allow_nan=True)) if args.visibility else None
     s = _score(gt, pred, failed, args.threshold)
     if args.json:
         extra: dict[str, int | None] = {"absent_frames": absent, "empty_predictions": failed}

@@ -72,22 +72,40 @@ def recorded_truth(path: str):
                        frozenset(f for f, b in boxes.items() if not has_size(b)))
 
 
-def _error_panel(ax, both: list[int], gt: dict, est: dict, absent: list[int]) -> str:
-    """Plot the centre error on the frames with a box of truth; an estimate of no size (w or h <= 0, or NaN) is
-    a miss, not a distance: a gap in the line, out of the mean. Returns the panel's title."""
+def error_series(seqs: list[int], truth, boxes: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The centre error to plot: (frames, error in px, miss), each (F,), over the frames from the first to the last
+    estimate (``seqs``, sorted) that have a row of truth (``truth``, :class:`ScoredBoxes`; a frame of the estimates
+    without one is not in the series). The error is NaN, a gap in the line rather than a line drawn straight across,
+    where the target is absent (a truth row of no size, left out as ``gflow eval`` leaves it out) and where there is
+    no estimate or one of no size (``boxes``: box by frame; ``miss`` True there: a miss, out of the mean)."""
     from gflow_core.evaluation.metrics import centre_error
 
     from pipeline.evaluation.scored_boxes import has_size
 
-    hit = np.array([has_size(est[s].box) for s in both])
-    err = np.full(len(both), np.nan)
+    lo, hi = (seqs[0], seqs[-1]) if seqs else (0, -1)
+    frames = np.array(sorted(f for f in truth.boxes.keys() | truth.empty if lo <= f <= hi), dtype=np.int64)
+    shown = np.array([f in truth.boxes for f in frames], dtype=bool)
+    hit = np.array([f in truth.boxes and f in boxes and has_size(boxes[f]) for f in frames], dtype=bool)
+    err = np.full(len(frames), np.nan)
     if hit.any():
-        err[hit] = centre_error(np.array([gt[s] for s, h in zip(both, hit) if h]),
-                                np.array([est[s].box for s, h in zip(both, hit) if h]))
-    ax.plot(both, err, lw=1.2, color="C3")
-    said = [f"no box (a miss) on {int((~hit).sum())}"] if not hit.all() else []
-    said += [f"target absent on {len(absent)}, left out"] if absent else []
-    mean = f"mean {np.nanmean(err):.2f} px over {int(hit.sum())} frames" if hit.any() else "no box on any frame"
+        err[hit] = centre_error(np.array([truth.boxes[f] for f in frames[hit]]),
+                                np.array([boxes[f] for f in frames[hit]]))
+    return frames, err, shown & ~hit
+
+
+def _error_panel(ax, seqs: list[int], truth, est: dict) -> str:
+    """Plot the centre error (:func:`error_series`): a gap in the line where the target is absent or the estimate
+    missing or of no size (w or h <= 0, or NaN: a miss, out of the mean). Returns the panel's title."""
+    frames, err, miss = error_series(seqs, truth, {s: e.box for s, e in est.items()})
+    ax.plot(frames, err, lw=1.2, color="C3")
+    ok = np.isfinite(err)
+    alone = ok & ~np.r_[False, ok[:-1]] & ~np.r_[ok[1:], False]  # a frame between two gaps: no line, so a dot
+    if alone.any():
+        ax.plot(frames[alone], err[alone], ".", ms=3, color="C3")
+    absent = int((~ok & ~miss).sum())
+    said = [f"no box (a miss) on {int(miss.sum())}"] if miss.any() else []
+    said += [f"target absent on {absent}, left out"] if absent else []
+    mean = f"mean {np.nanmean(err):.2f} px over {int(ok.sum())} frames" if ok.any() else "no box on any frame"
     return f"centre location error ({mean}" + "".join(f"; {t}" for t in said) + ")"
 
 
@@ -129,7 +147,7 @@ def cmd_plot(args) -> int:
         raise CliError(f"--gt {args.gt}: none of its frames ({min(given)}..{max(given)}) is a frame of the estimates "
                        f"of {args.file} ({seqs[0]}..{seqs[-1]}); are the frame numbers aligned?")
     if both:
-        ax.set_title(_error_panel(ax, both, gt, est, absent))
+        ax.set_title(_error_panel(ax, seqs, truth, est))
     elif absent:
         ax.set_title(f"centre location error: the target is absent on every frame with ground truth ({len(absent)})")
     else:
