@@ -48,7 +48,8 @@ TRACKERS = "dcf,appearance,chamfer,m2,gflow"
 #: the trackers of the stress table of every tracker (its run takes about two hours); the default's
 #: own stress table ("stress-default") is made apart
 STRESS_TRACKERS = "appearance,chamfer,m2,gflow"
-#: the cases of that table, named so that a case added later gets a table of its own ("stress-distract")
+#: the cases of that table, named so that a case added later gets a table of its own ("stress-distract",
+#: "stress-confetti")
 #: instead of another two hours of every case
 STRESS_CASES = ("none,occlude-10,occlude-25,occlude-60,occlude-150,sweep-40,partial-33,partial-67,slide-60,"
                 "roll-target-35,roll-camera-20,roll-camera-35,roll-camera-45,look,dark-40,blur-30,fast-2,fast-3,leave-40")
@@ -93,6 +94,11 @@ TABLES = (
     Figures("stress-distract", "docs/stress.md", "every tracker and CSRT where a copy of the target passes in front "
             "of it (the stress case distract-40), over every shared sequence",
             ("benchmark", "../shared/data", "--stress", "--cases", "distract", "--trackers", TRACKERS, "--m2-model",
+             "{m2}", "--opencv", "csrt", "--inline", "--seed", "1", "--markdown", "-q"),
+            keep_from="### every tracker", opencv=("csrt",)),
+    Figures("stress-confetti", "docs/stress.md", "every tracker and CSRT where a shower of flakes falls in front of "
+            "the target (the stress case confetti-40), over every shared sequence",
+            ("benchmark", "../shared/data", "--stress", "--cases", "confetti", "--trackers", TRACKERS, "--m2-model",
              "{m2}", "--opencv", "csrt", "--inline", "--seed", "1", "--markdown", "-q"),
             keep_from="### every tracker", opencv=("csrt",)),
     Figures("stress-default", "docs/stress.md", "the stress benchmark over every shared sequence, the default tracker",

@@ -26,7 +26,7 @@ Angles are in degrees, counter-clockwise on screen (OpenCV's convention).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -34,11 +34,11 @@ import numpy as np
 from .metrics import HIDDEN_BELOW
 
 __all__ = ["KINDS", "StressCase", "CASES", "SPAN", "StressPlan", "plan_case", "render_frame", "visible_fraction",
-           "occluder_size", "fill_truth", "HIDDEN_BELOW", "motion_kernel", "COPY_KINDS", "target_copy"]
+           "occluder_size", "fill_truth", "HIDDEN_BELOW", "motion_kernel", "COPY_KINDS", "target_copy", "flakes_at"]
 
 #: the kinds of perturbation
 KINDS = ("none", "occlude", "sweep", "partial", "slide", "roll-target", "roll-camera", "look", "dark", "blur", "fast",
-         "leave", "distract")
+         "leave", "distract", "confetti")
 
 #: kinds that paste an image patch (the occluder, or the new part of the look)
 PATCH_KINDS = ("none", "occlude", "sweep", "partial", "slide", "look")
@@ -81,7 +81,11 @@ class StressCase:
         * ``distract``: a mirrored copy of the target, of its size, walks in a straight line at a
           steady pace in front of it, from one side to the other, covering it in the window's
           middle (a second face or walker crossing the first), and walks on after the window, so a
-          tracker that follows the look rather than the target leaves with it.
+          tracker that follows the look rather than the target leaves with it;
+        * ``confetti``: a shower of small flakes of bright colours (grey levels on grey footage), each
+          tumbling as it falls, drifts across the whole frame in front of the target for the window;
+          ``amount`` is the fraction of the frame the flakes cover (a celebration, snow or sparks: the
+          target stays in view, broken up by many small moving occluders and colours that are not its own).
     length : length of the window in original frames.
     amount : the kind's strength (see ``kind``).
     """
@@ -104,6 +108,9 @@ class StressCase:
             raise ValueError(f"stress case {self.name!r}: amount is the darkest gain in [0, 1), got {self.amount}")
         if self.kind == "blur" and self.amount < 2:
             raise ValueError(f"stress case {self.name!r}: amount is a blur length of at least 2 px, got {self.amount}")
+        if self.kind == "confetti" and not 0.0 < self.amount < 0.5:
+            raise ValueError(f"stress case {self.name!r}: amount is the fraction of the frame the flakes cover, in "
+                             f"(0, 0.5), got {self.amount}")
         if self.kind == "fast" and (self.amount != int(self.amount) or self.amount < 2):
             raise ValueError(f"stress case {self.name!r}: amount is the frame step, an integer >= 2, got {self.amount}")
 
@@ -130,6 +137,7 @@ class StressCase:
             "fast": f"one frame in {int(a)} of {n} kept (motion {int(a)}x faster)",
             "leave": f"the target leaves the frame and comes back in {n} frames",
             "distract": f"a mirrored copy of the target passes in front of it in {n} frames and walks on",
+            "confetti": f"a shower of tumbling flakes covering {a:.0%} of the frame falls in front of it for {n} frames",
         }[self.kind]
         return text
 
@@ -157,6 +165,7 @@ CASES: tuple[StressCase, ...] = (
     StressCase("fast-3", "fast", 60, 3),
     StressCase("leave-40", "leave", 40),
     StressCase("distract-40", "distract", 40),
+    StressCase("confetti-40", "confetti", 40, 0.25),
 )
 
 
@@ -185,6 +194,11 @@ class StressPlan:
         others' boxes are interpolated for the plan and are not scored).
     blur_angle : direction of the motion blur, degrees.
     image_size : (W, H).
+    flakes : (K, 9) float64, ``confetti``'s flakes (none for the other kinds): each row x0, y0 (its
+        centre at the window's first frame, px), vx, vy (px a frame), a (half its length, px), phase,
+        spin (its tumble: the half width is a |cos(phase + spin t)| 0.6, t frames into the window, rad),
+        tilt (degrees) and hue (OpenCV's 0-180); :func:`flakes_at` places them on a frame.
+    shower : (T,) bool, the frames the flakes fall on (None: none).
     """
 
     case: StressCase
@@ -203,6 +217,8 @@ class StressPlan:
     labelled: np.ndarray
     blur_angle: float
     image_size: tuple[int, int]
+    flakes: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
+    shower: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.source.shape[0])
@@ -210,7 +226,8 @@ class StressPlan:
     def changed(self, i: int) -> bool:
         """Whether derived frame ``i``'s image differs from its original frame's."""
         return bool(not np.isnan(self.occluder[i, 0]) or self.angle[i] != 0.0 or self.shift[i] != 0.0
-                    or self.blur[i] >= 2.0 or self.gain[i] != 1.0 or self.noise[i] > 0.0)
+                    or self.blur[i] >= 2.0 or self.gain[i] != 1.0 or self.noise[i] > 0.0
+                    or (self.shower is not None and bool(self.shower[i])))
 
 
 def _check_truth(truth: np.ndarray) -> np.ndarray:
@@ -357,6 +374,8 @@ class _Perturbation:
     noise: np.ndarray
     perturbed: np.ndarray
     blur_angle: float = 0.0
+    flakes: np.ndarray = field(default_factory=lambda: np.zeros((0, 9)))
+    shower: np.ndarray | None = None
 
     @classmethod
     def untouched(cls, boxes: np.ndarray, inside: np.ndarray) -> "_Perturbation":
@@ -484,10 +503,105 @@ def _distract(pt: _Perturbation, win: _Window, rng: np.random.Generator) -> None
     pt.perturbed = on
 
 
-def _perturb(case: StressCase, pt: _Perturbation, win: _Window, width: int, rng: np.random.Generator) -> None:
+#: ``confetti``: a flake's half length, in units of sqrt(w h) of the target's box at the window's start
+FLAKE_SIZE = (0.06, 0.14)
+#: a flake's half width at its broadest, in units of its half length
+FLAKE_WIDTH = 0.6
+#: the most flakes a shower has
+MAX_FLAKES = 4000
+
+
+def _confetti(pt: _Perturbation, win: _Window, cover: float, size: tuple[int, int], rng: np.random.Generator) -> None:
+    """``confetti``: flakes of the target's scale, as many as cover the fraction ``cover`` of the frame,
+    placed uniformly at the window's start, each falling at its own pace (1-3 % of the frame's height a
+    frame), drifting sideways, tumbling (its breadth a |cos(phase + spin t)|) and of a hue of its own; they
+    live on the frame widened by a margin m = 2 max(a) each side and wrap round it, so the shower keeps its
+    density to the window's end."""
+    W, H = size
+    x, y, w, h = pt.boxes[win.w0]
+    s = math.sqrt(w * h)
+    lo, hi = FLAKE_SIZE
+    a = np.maximum(rng.uniform(lo * s, hi * s, MAX_FLAKES), 1.5)
+    m = 2.0 * float(a.max())
+    # a flake's mean area as drawn, its half axes widened by the half pixel the raster adds:
+    # pi E[(a + 1/2)(b + 1/2)], b = FLAKE_WIDTH a |cos|, E|cos| = 2 / pi
+    e_cos = 2.0 / math.pi
+    area = math.pi * float(np.mean((a + 0.5) * (FLAKE_WIDTH * a * e_cos + 0.5)))
+    # flakes at uniform places overlap as a Poisson process does: cover = 1 - exp(-K area / domain)
+    k = int(min(max(round(-math.log(1.0 - cover) * (W + 2 * m) * (H + 2 * m) / area), 1), MAX_FLAKES))
+    a = a[:k]
+    m = 2.0 * float(a.max())  # the margin flakes_at wraps on
+    pt.flakes = np.column_stack([
+        rng.uniform(-m, W + m, k), rng.uniform(-m, H + m, k),  # x0, y0
+        rng.normal(0.0, 0.005 * W, k), rng.uniform(0.01, 0.03, k) * H,  # vx, vy
+        a, rng.uniform(0.0, 2.0 * math.pi, k), rng.uniform(0.1, 0.4, k),  # a, phase, spin
+        rng.uniform(0.0, 180.0, k), rng.uniform(0.0, 180.0, k)])  # tilt, hue
+    pt.shower = win.inside.copy()
+
+
+def flakes_at(plan: StressPlan, i: int) -> np.ndarray:
+    """``confetti``'s flakes on derived frame ``i``: (K, 6) float64, each row cx, cy, the ellipse's half axes
+    (a, b), its tilt (degrees) and hue; (0, 6) on a frame with none. A flake leaving one edge of the frame
+    comes back on the opposite one."""
+    if plan.shower is None or not plan.shower[i] or plan.flakes.shape[0] == 0:
+        return np.zeros((0, 6))
+    W, H = plan.image_size
+    f = plan.flakes
+    t = float(i - plan.window[0])
+    a = f[:, 4]
+    m = 2.0 * a.max()
+    # c(t) = c_0 + v t, wrapped onto [-m, W + m) x [-m, H + m)
+    cx = np.mod(f[:, 0] + f[:, 2] * t + m, W + 2.0 * m) - m
+    cy = np.mod(f[:, 1] + f[:, 3] * t + m, H + 2.0 * m) - m
+    # the tumble: b = FLAKE_WIDTH a |cos(phase + spin t)|, at least half a pixel
+    b = np.maximum(FLAKE_WIDTH * a * np.abs(np.cos(f[:, 5] + f[:, 6] * t)), 0.5)
+    return np.column_stack([cx, cy, a, b, f[:, 7], f[:, 8]])
+
+
+def _draw_flakes(img: np.ndarray, fl: np.ndarray, colour: bool, offset: tuple[float, float] = (0.0, 0.0),
+                 value: float | None = None) -> None:
+    """Draw the flakes ``fl`` (:func:`flakes_at`) into ``img`` in place, shifted by -``offset``: in their hues
+    (saturation 220, value 240) where ``colour``, else in the grey level of that colour; every one in
+    ``value`` if given (a mask)."""
+    shift = 4  # cv2's sub-pixel bits
+    one = float(1 << shift)
+    for cx, cy, a, b, tilt, hue in fl:
+        if value is not None:
+            c: tuple[float, ...] = (value,) * (3 if img.ndim == 3 else 1)
+        else:
+            bgr = cv2.cvtColor(np.array([[[hue, 220, 240]]], np.uint8), cv2.COLOR_HSV2BGR)[0, 0]
+            if colour and img.ndim == 3:
+                c = tuple(float(v) for v in bgr)
+            else:
+                g = 0.114 * bgr[0] + 0.587 * bgr[1] + 0.299 * bgr[2]
+                c = (g,) * (3 if img.ndim == 3 else 1)
+        centre = (int(round((cx - offset[0]) * one)), int(round((cy - offset[1]) * one)))
+        axes = (int(round(a * one)), int(round(b * one)))
+        cv2.ellipse(img, centre, axes, float(tilt), 0.0, 360.0, c, -1, cv2.LINE_8, shift)
+
+
+def _covered(plan: StressPlan, i: int, box: np.ndarray) -> float:
+    """The fraction of ``box`` (x, y, w, h) in view on frame ``i`` (in the frame, not under the patch) that no
+    flake covers, as a fraction of the box's area (:func:`visible_fraction` with the flakes)."""
+    x, y, w, h = (float(v) for v in box)
+    W, H = plan.image_size
+    x0, y0, x1, y1 = max(int(math.floor(x)), 0), max(int(math.floor(y)), 0), min(int(math.ceil(x + w)), W), \
+        min(int(math.ceil(y + h)), H)
+    if x1 <= x0 or y1 <= y0 or w * h <= 0:
+        return 0.0
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
+    _draw_flakes(mask, flakes_at(plan, i), False, (float(x0), float(y0)), 255.0)
+    free = float((mask == 0).mean())
+    return visible_fraction(box, (W, H), plan.occluder[i]) * free
+
+
+def _perturb(case: StressCase, pt: _Perturbation, win: _Window, size: tuple[int, int],
+             rng: np.random.Generator) -> None:
     """Set the parameters of ``case``'s kind in ``pt`` over the window ``win`` (``rng`` draws the
-    side of ``partial``, the direction of ``blur`` and the side ``distract``'s copy comes from)."""
+    side of ``partial``, the direction of ``blur``, the side ``distract``'s copy comes from and
+    ``confetti``'s flakes); ``size`` is the frame's (W, H)."""
     k = case.kind
+    width = size[0]
     if k == "none":
         pt.perturbed = np.zeros(pt.boxes.shape[0], dtype=bool)
     elif k == "occlude":
@@ -517,6 +631,8 @@ def _perturb(case: StressCase, pt: _Perturbation, win: _Window, width: int, rng:
         _leave(pt, win, width)
     elif k == "distract":
         _distract(pt, win, rng)
+    elif k == "confetti":
+        _confetti(pt, win, case.amount, size, rng)
 
 
 def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], rng: np.random.Generator,
@@ -544,11 +660,17 @@ def plan_case(case: StressCase, truth: np.ndarray, image_size: tuple[int, int], 
     T = src.shape[0]
     win = _Window.of(T, w0, w1)
     pt = _Perturbation.untouched(t[src].copy(), win.inside)
-    _perturb(case, pt, win, W, rng)
+    _perturb(case, pt, win, (W, H), rng)
     visible = np.array([visible_fraction(pt.boxes[i], (W, H), pt.occluder[i]) for i in range(T)])
-    return StressPlan(case=case, source=src, window=(w0, w1), boxes=pt.boxes, occluder=pt.occluder, angle=pt.angle,
+    plan = StressPlan(case=case, source=src, window=(w0, w1), boxes=pt.boxes, occluder=pt.occluder, angle=pt.angle,
                       region=pt.region, shift=pt.shift, blur=pt.blur, gain=pt.gain, noise=pt.noise, visible=visible,
-                      perturbed=pt.perturbed, labelled=lab[src], blur_angle=pt.blur_angle, image_size=(W, H))
+                      perturbed=pt.perturbed, labelled=lab[src], blur_angle=pt.blur_angle, image_size=(W, H),
+                      flakes=pt.flakes, shower=pt.shower)
+    if pt.shower is not None:
+        # the flakes cover part of the box: its fraction in view counts them too
+        for i in np.flatnonzero(pt.shower):
+            visible[i] = _covered(plan, int(i), pt.boxes[i])
+    return plan
 
 
 def occluder_size(plan: StressPlan) -> tuple[int, int] | None:
@@ -652,6 +774,11 @@ def render_frame(image: np.ndarray, plan: StressPlan, i: int, patch: np.ndarray 
         if patch is None:
             raise ValueError(f"stress case {plan.case.name!r} pastes an image patch: give one")
         _paste(out, plan.occluder[i], patch)
+    if plan.shower is not None and plan.shower[i]:
+        # flakes in their colours on a colour frame, in grey levels on a grey one (equal channels)
+        colour = out.ndim == 3 and not (np.array_equal(out[..., 0], out[..., 1])
+                                        and np.array_equal(out[..., 1], out[..., 2]))
+        _draw_flakes(out, flakes_at(plan, i), colour)
     if plan.gain[i] != 1.0 or plan.noise[i] > 0:
         f = out.astype(np.float32) * np.float32(plan.gain[i])
         if plan.noise[i] > 0:
