@@ -100,6 +100,16 @@ def caviar1_m2_model(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="session")
+def demo8(tmp_path_factory) -> Path:
+    """The recording of `gflow demo --frames 8 --inline` (the synthetic scene): a small real run to read."""
+    d = tmp_path_factory.mktemp("demo8")
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "demo", "--frames", "8", "--inline", "--record",
+                        "demo.mcap"], cwd=d, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stderr
+    return d / "demo.mcap"
+
+
 @pytest.fixture
 def gflow_cmd() -> list[str]:
     """The gflow command as the user runs it (the console script), falling back to python -m."""

@@ -88,12 +88,9 @@ def test_negative_width_or_height_is_damage_named_by_line(tmp_path: Path, which:
     assert r.stdout == ""
 
 
-@pytest.fixture(scope="module")
-def demo(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("plot")
-    r = gflow("demo", "--frames", "8", "--inline", "--record", "demo.mcap", cwd=d)
-    assert r.returncode == 0, r.stderr
-    return d / "demo.mcap"
+@pytest.fixture
+def demo(demo8: Path) -> Path:
+    return demo8
 
 
 def test_plot_refuses_ground_truth_with_a_negative_size(demo: Path, tmp_path: Path) -> None:

@@ -48,12 +48,9 @@ def gflow(*args: str, cwd: Path) -> subprocess.CompletedProcess:
                           text=True, timeout=120, stdin=subprocess.DEVNULL)
 
 
-@pytest.fixture(scope="module")
-def demo(tmp_path_factory) -> Path:
-    d = tmp_path_factory.mktemp("plotgaps")
-    r = gflow("demo", "--frames", "8", "--inline", "--record", "demo.mcap", cwd=d)
-    assert r.returncode == 0, r.stderr
-    return d / "demo.mcap"
+@pytest.fixture
+def demo(demo8: Path) -> Path:
+    return demo8
 
 
 def test_the_plotted_line_breaks_on_the_frames_with_the_target_absent(demo: Path, tmp_path: Path) -> None:
