@@ -91,16 +91,16 @@ TABLES = (
             ("benchmark", "../shared/data", "--stress", "--cases", STRESS_CASES, "--trackers", STRESS_TRACKERS,
              "--m2-model", "{m2}", "--opencv", "csrt", "--inline", "--seed", "1", "--markdown", "-q"),
             keep_from="### every tracker", opencv=("csrt",)),
-    Figures("stress-distract", "docs/stress.md", "every tracker and CSRT where a copy of the target passes in front "
+    Figures("stress-distract", "docs/stress.md", "every tracker, CSRT and KCF where a copy of the target passes in front "
             "of it (the stress case distract-40), over every shared sequence",
             ("benchmark", "../shared/data", "--stress", "--cases", "distract", "--trackers", TRACKERS, "--m2-model",
-             "{m2}", "--opencv", "csrt", "--inline", "--seed", "1", "--markdown", "-q"),
-            keep_from="### every tracker", opencv=("csrt",)),
-    Figures("stress-confetti", "docs/stress.md", "every tracker and CSRT where a shower of flakes falls in front of "
+             "{m2}", "--opencv", "csrt,kcf", "--inline", "--seed", "1", "--markdown", "-q"),
+            keep_from="### every tracker", opencv=("csrt", "kcf")),
+    Figures("stress-confetti", "docs/stress.md", "every tracker, CSRT and KCF where a shower of flakes falls in front of "
             "the target (the stress case confetti-40), over every shared sequence",
             ("benchmark", "../shared/data", "--stress", "--cases", "confetti", "--trackers", TRACKERS, "--m2-model",
-             "{m2}", "--opencv", "csrt", "--inline", "--seed", "1", "--markdown", "-q"),
-            keep_from="### every tracker", opencv=("csrt",)),
+             "{m2}", "--opencv", "csrt,kcf", "--inline", "--seed", "1", "--markdown", "-q"),
+            keep_from="### every tracker", opencv=("csrt", "kcf")),
     Figures("stress-default", "docs/stress.md", "the stress benchmark over every shared sequence, the default tracker",
             ("benchmark", "../shared/data", "--stress", "--trackers", "dcf", "--opencv", "none", "--inline", "--seed",
              "1", "--markdown", "-q")),
