@@ -131,16 +131,12 @@ def test_udp_outage_is_reported_and_frame_numbers_stay_the_cameras(tmp_path: Pat
     gt = truth(caviar1)
     errs = {k: cle(tuple(float(v) for v in row[:4]), gt[k]) for k, row in rows.items()}
     err = float(np.median(list(errs.values())))
-    # the rows after the gap fit the truth of the frames they name, not of the frames `missed` earlier
-    after = [k for k in rows if k >= first + missed]
-    own = float(np.median([errs[k] for k in after]))
-    earlier = float(np.median([cle(tuple(float(v) for v in rows[k][:4]), gt[k - missed]) for k in after]))
-    # the rows, compared with the truth of the frames they name, still track (the median: a busy machine
-    # skips frames, and the frames decoded without their references just after the gap may lose the
-    # walker for a few rows; on failure: where it went off, and the run's last progress line)
+    # the rows, compared with the truth of the frames they name, still track: the median, since a busy
+    # machine skips frames and the frames decoded without their references just after the gap may lose the
+    # walker for a stretch of rows (that the rows keep the camera's numbers is checked on the recorded images
+    # below; on failure: where it went off, and the run's last progress line)
     progress = [ln for ln in r.stderr.replace("\r", "\n").splitlines() if "source:" in ln][-1:]
-    assert err < 6.0 and own < earlier, (err, own, earlier, {k: round(v) for k, v in errs.items() if v > 20},
-                                         progress)
+    assert err < 6.0, (err, {k: round(v) for k, v in errs.items() if v > 20}, progress)
     assert "missed=" in r.stderr  # the progress line
     from pipeline.recording.live_record import live_summary
 
