@@ -100,6 +100,20 @@ def caviar1_m2_model(tmp_path_factory) -> Path:
     return out
 
 
+def synthetic_sequence(folder: Path, seed: int, frames: int, move=None) -> Path:
+    """A sequence folder (frames/ and groundtruth.csv) of the synthetic scene with ``seed``, ``frames`` long;
+    ``move(t, box)``, if given, changes the truth written for frame t (a target that leaves the image)."""
+    from gflow_core.synthetic import SyntheticScene
+    from pipeline.io.datasets import write_frames
+    from pipeline.recording.results import write_boxes
+
+    scene = SyntheticScene(n_frames=frames, seed=seed, period=90)
+    write_frames(folder / "frames", [scene.render(t) for t in range(frames)])
+    boxes = {t: scene.truth_box(t) for t in range(frames)}
+    write_boxes(folder / "groundtruth.csv", boxes if move is None else {t: move(t, b) for t, b in boxes.items()})
+    return folder
+
+
 @pytest.fixture(scope="session")
 def demo8(tmp_path_factory) -> Path:
     """The recording of `gflow demo --frames 8 --inline` (the synthetic scene): a small real run to read."""

@@ -12,9 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gflow_core.synthetic import SyntheticScene
-from pipeline.io.datasets import write_frames
 from pipeline.recording.results import read_boxes, read_track, read_visibility, write_boxes
+from conftest import synthetic_sequence
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray
 from gflow_msgs.annotations import MAGENTA, ORANGE, annotations_for
 
@@ -29,9 +28,7 @@ def data(tmp_path_factory) -> Path:
     """Two sequence folders (each the other's donor of image patches)."""
     root = tmp_path_factory.mktemp("stressdata")
     for name, seed in (("synth", 3), ("other", 5)):
-        scene = SyntheticScene(n_frames=FRAMES, seed=seed, period=90)
-        write_frames(root / name / "frames", [scene.render(t) for t in range(FRAMES)])
-        write_boxes(root / name / "groundtruth.csv", {t: scene.truth_box(t) for t in range(FRAMES)})
+        synthetic_sequence(root / name, seed, FRAMES)
     return root
 
 

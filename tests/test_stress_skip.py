@@ -12,9 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from gflow_core.synthetic import SyntheticScene
-from pipeline.io.datasets import write_frames
-from pipeline.recording.results import write_boxes
+from conftest import synthetic_sequence
 
 FRAMES = 60
 STRESS = ["--stress", "--cases", "none,distract", "--lead", "8", "--tail", "20", "--trackers", "appearance",
@@ -25,13 +23,8 @@ STRESS = ["--stress", "--cases", "none,distract", "--lead", "8", "--tail", "20",
 def data(tmp_path_factory) -> Path:
     """``synth``, and ``odd``, whose target is in the image on its first frames only (leaves it at frame 5)."""
     root = tmp_path_factory.mktemp("stressskip")
-    for name, seed, out in (("synth", 3, False), ("odd", 5, True)):
-        scene = SyntheticScene(n_frames=FRAMES, seed=seed, period=90)
-        write_frames(root / name / "frames", [scene.render(t) for t in range(FRAMES)])
-        boxes = {t: scene.truth_box(t) for t in range(FRAMES)}
-        if out:
-            boxes = {t: (b[0] + (5000 if t >= 5 else 0), *b[1:]) for t, b in boxes.items()}
-        write_boxes(root / name / "groundtruth.csv", boxes)
+    synthetic_sequence(root / "synth", 3, FRAMES)
+    synthetic_sequence(root / "odd", 5, FRAMES, move=lambda t, b: (b[0] + (5000 if t >= 5 else 0), *b[1:]))
     return root
 
 
