@@ -40,9 +40,9 @@ Departures from the paper
   consecutive frames can be the same outline up to rasterisation; two renderings of one outline at
   sub-pixel offsets are about 0.24 px^2 apart (quadratic profile, 16x42 px), and such a cluster's
   moments fit is the quantisation noise's: rho_bar 0.32-0.33 px^2, d about the number of its
-  exemplar's points (23-33 for 30-41 points), sigma 0.1. Its normaliser -d_k log sigma_k, 20-40 nats
-  above the other exemplars' once the kernels are calibrated on another target, then chooses it on
-  every frame wherever its few points fit.
+  exemplar's points (23-33 for 30-41 points), sigma 0.1. Calibrated on another target (caviar1's
+  first box), its kernel is 13-23 nats above the pooled one at the same distance (the normaliser
+  -d_k log sigma_k), and its exemplar is chosen on nearly every frame wherever its few points fit.
 """
 
 from __future__ import annotations
