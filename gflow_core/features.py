@@ -7,6 +7,11 @@ the chamfer profile g(.) of Toyama & Blake (2002), eq. 4-5:
     gamma(z, r) = min_{s'} g(|r_z(s') - r|)
 
 with the quadratic profile g(u) = u^2 or the truncated profile g(u) = min(u^2, g0).
+
+Departure (off by default, ``preprocess.match_resolution``): :func:`resampled_edges` computes the
+edges and the chamfer image on the frame resampled by a factor f, one level of an image pyramid, and
+reads them back on the frame's grid, so an M2 model meets a target larger than its training targets
+at its own resolution; the paper matches at the frame's resolution.
 """
 
 from __future__ import annotations
