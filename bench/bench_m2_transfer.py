@@ -3,6 +3,8 @@
     python bench/bench_m2_transfer.py                 # seeds 1-6, --inline
     python bench/bench_m2_transfer.py --seeds 1,2,3
     python bench/bench_m2_transfer.py --root ../main   # the code of another checkout, to compare
+    python bench/bench_m2_transfer.py --set preprocess.match_resolution=true   # a parameter for every run
+    python bench/bench_m2_transfer.py --learn-args="--kernel-floor 0.5"         # options of both learnings
 
 Learns two models with `gflow learn m2` (K = 20, from the ground-truth boxes): one on caviar1
 frames 0-149 (a 28x73 px walker), one on all of crossing (a 16x42 px walker), and runs `gflow
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -45,9 +48,10 @@ def gflow(*argv: str) -> str:
     return r.stdout
 
 
-def run(model: Path, seq: str, frames: str | None, seed: int) -> tuple[float, float, float]:
+def run(model: Path, seq: str, frames: str | None, seed: int, sets: list[str]) -> tuple[float, float, float]:
     argv = ["benchmark", str(DATA), "--sequences", seq, "--trackers", "m2", "--m2-model", str(model), "--inline",
             "--seed", str(seed), "--json", "-q"] + (["--frames", frames] if frames else [])
+    argv += [a for kv in sets for a in ("--set", kv)]
     row = next(r for r in json.loads(gflow(*argv))["rows"] if r["tracker"] == "m2")
     return row["cle_px"], row["auc"], row["success_rate_0.5"]
 
@@ -57,6 +61,10 @@ def main() -> int:
     ap.add_argument("--seeds", default="1,2,3,4,5,6", help="seeds to run (default 1-6)")
     ap.add_argument("--root", metavar="DIR", help="run the gflow of this checkout (its pipeline/ is imported from "
                                                   "there), e.g. the code before a change")
+    ap.add_argument("--set", action="append", default=[], metavar="STAGE.PARAM=VALUE",
+                    help="a parameter of every tracking run, as gflow benchmark --set takes it; repeatable")
+    ap.add_argument("--learn-args", default="", metavar="ARGS",
+                    help="options added to both `gflow learn m2` commands, e.g. --learn-args=\"--kernel-floor 0.5\"")
     args = ap.parse_args()
     global CODE
     if args.root:
@@ -68,22 +76,24 @@ def main() -> int:
     seeds = [int(s) for s in args.seeds.split(",")]
     tmp = scratch("gflow-bench-m2-transfer-")
     cav, cross = tmp / "caviar1-0-149.npz", tmp / "crossing.npz"
+    more = shlex.split(args.learn_args)
     gflow("learn", "m2", str(DATA / "caviar1"), "--boxes", str(DATA / "caviar1" / "groundtruth.csv"), "--frames",
-          "0:150", "-K", "20", "--out", str(cav), "-q")
+          "0:150", "-K", "20", "--out", str(cav), "-q", *more)
     gflow("learn", "m2", str(DATA / "crossing"), "--boxes", str(DATA / "crossing" / "groundtruth.csv"), "-K", "20",
-          "--out", str(cross), "-q")
+          "--out", str(cross), "-q", *more)
     cases = [("caviar1 0-149 -> crossing", cav, "crossing", None),
              ("crossing -> caviar1", cross, "caviar1", None),
              ("caviar1 0-149 -> caviar1 150-381", cav, "caviar1", "150:"),
              ("caviar1 0-149 -> caviar1 (all)", cav, "caviar1", None)]
     rows = []
     for name, model, seq, frames in cases:
-        res = np.array([run(model, seq, frames, s) for s in seeds])
+        res = np.array([run(model, seq, frames, s, args.set) for s in seeds])
         rows.append([name, " / ".join(f"{v:.2f}" for v in res[:, 0]), f"{res[:, 0].mean():.2f}",
                      " / ".join(f"{v:.3f}" for v in res[:, 1]), f"{res[:, 1].mean():.3f}",
                      f"{res[:, 2].min():.3f}-{res[:, 2].max():.3f}"])
         print(f"{name}: done", file=sys.stderr, flush=True)
-    print(f"M2 transfer, seeds {args.seeds}, --inline (CLE px, AUC of the success plot, success at IoU 0.5)")
+    extra = "".join(f", --set {kv}" for kv in args.set) + (f", learned with {args.learn_args}" if more else "")
+    print(f"M2 transfer, seeds {args.seeds}, --inline{extra} (CLE px, AUC of the success plot, success at IoU 0.5)")
     print(table(rows, ["model -> sequence", "CLE per seed", "mean", "AUC per seed", "mean", "success"]))
     return 0
 

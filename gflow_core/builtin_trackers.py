@@ -65,6 +65,8 @@ def m2_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tu
     * contour exemplars: :class:`~gflow_core.contour.params.M2Params`; the edges are read with the
       settings the model was learned with (its profile and g0, its file's Canny thresholds and blur,
       :func:`~gflow_core.contour.protocol.m2_edge_params`), as ``gflow track`` sets the preprocess stage;
+      the keyword ``match_resolution`` (default False) reads them at the model's resolution, as
+      ``--set preprocess.match_resolution=true`` does;
     * patch exemplars: :class:`~gflow_core.m2.patch_protocol.PatchParams`, the patch cut as the
       model's training patches were (:func:`~gflow_core.m2.patch_protocol.patch_setup`).
     """
@@ -76,7 +78,9 @@ def m2_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tu
         return patch_setup(model, meta, kw)
     from .contour.protocol import m2_edge_params
 
-    return make(M2Params, kw), {"model": model, "edges": m2_edge_params(model, meta)}
+    # match_resolution: an edge setting (the preprocess stage's in a graph), given here among the keywords
+    edges = dataclasses.replace(m2_edge_params(model, meta), match_resolution=bool(kw.pop("match_resolution", False)))
+    return make(M2Params, kw), {"model": model, "edges": edges}
 
 
 def gflow_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tuple[Any, dict[str, Any]]:

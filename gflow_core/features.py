@@ -7,17 +7,24 @@ the chamfer profile g(.) of Toyama & Blake (2002), eq. 4-5:
     gamma(z, r) = min_{s'} g(|r_z(s') - r|)
 
 with the quadratic profile g(u) = u^2 or the truncated profile g(u) = min(u^2, g0).
+
+Departure (off by default, ``preprocess.match_resolution``): :func:`resampled_edges` computes the
+edges and the chamfer image on the frame resampled by a factor f, one level of an image pyramid, and
+reads them back on the frame's grid, so an M2 model meets a target larger than its training targets
+at its own resolution; the paper matches at the frame's resolution.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Literal
 
 import cv2
 import numpy as np
 
 __all__ = ["to_grey", "to_uint8", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image",
-           "canny_calibrated", "edges_and_chamfer", "PROFILES"]
+           "canny_calibrated", "edges_and_chamfer", "resampled_edges", "resample_grey", "resampled_size",
+           "upsample_to", "PROFILES"]
 
 PROFILES = ("linear", "quadratic", "truncated")
 Profile = Literal["linear", "quadratic", "truncated"]
@@ -150,13 +157,95 @@ def canny_calibrated(grey: np.ndarray, blur: float, percentile: float,
 
 
 def edges_and_chamfer(grey: np.ndarray, thresholds: tuple[float, float] | None, blur: float, percentile: float,
-                      profile: Profile, g0: float) -> tuple[np.ndarray, np.ndarray]:
+                      profile: Profile, g0: float, resample: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
     """What the contour trackers read of a grey frame: the Canny edge map (:func:`edge_map` with
     ``thresholds``, or chosen on the whole frame when None) and its chamfer image
-    (:func:`chamfer_image`). Returns ((H, W) uint8, (H, W) float32)."""
+    (:func:`chamfer_image`). Returns ((H, W) uint8, (H, W) float32).
+
+    With ``resample`` f != 1 both are computed on the frame resampled by f (:func:`resampled_edges`),
+    as one level of an image pyramid, and mapped back to the frame's (H, W) grid: the chamfer values
+    are then in the resampled frame's (squared) pixels."""
     low, high = thresholds if thresholds is not None else (None, None)
+    if resample != 1.0:
+        return resampled_edges(grey, resample, (low, high), blur, percentile, profile, g0)
     edges = edge_map(grey, low, high, blur, percentile)
     return edges, chamfer_image(edges, profile, g0)
+
+
+def resampled_size(shape: tuple[int, ...], f: float) -> tuple[int, int]:
+    """(rows, cols) of an (H, W) image resampled by ``f``: each side rounded, at least 2."""
+    if not (math.isfinite(f) and f > 0):
+        raise ValueError(f"resampling factor must be finite and positive, got {f}")
+    return max(2, int(round(shape[0] * f))), max(2, int(round(shape[1] * f)))
+
+
+def resample_grey(grey: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """An (H, W) uint8 grey image resampled to ``size`` = (rows, cols): the mean over each output
+    pixel's footprint when shrinking (OpenCV's area interpolation, a pyramid level's anti-aliasing),
+    bilinear when enlarging. Returns (rows, cols) uint8."""
+    rows, cols = size
+    shrink = rows * cols < grey.shape[0] * grey.shape[1]
+    return cv2.resize(grey, (cols, rows), interpolation=cv2.INTER_AREA if shrink else cv2.INTER_LINEAR)
+
+
+def _axis_map(n_full: int, n_small: int) -> tuple[np.ndarray, np.ndarray]:
+    """The small grid's coordinate of each full-grid pixel centre along one axis, c' = (c + 1/2) n_small /
+    n_full - 1/2 (the pixel-area convention of :func:`resample_grey`), as the lower neighbour (n_full,)
+    intp and the weight of the upper one (n_full,) float32, clamped to the small grid."""
+    c = (np.arange(n_full, dtype=np.float64) + 0.5) * (n_small / n_full) - 0.5
+    c = np.clip(c, 0.0, n_small - 1.0)
+    i0 = np.minimum(np.floor(c).astype(np.intp), n_small - 2)
+    return i0, (c - i0).astype(np.float32)
+
+
+def upsample_to(img: np.ndarray, shape: tuple[int, int], nearest: bool = False) -> np.ndarray:
+    """A (h, w) image of a grid resampled from an (H, W) one, read back at the (H, W) grid's pixel
+    centres (:func:`_axis_map`): bilinearly (float32), or the nearest pixel (``nearest``, same dtype).
+
+    Parameters
+    ----------
+    img : (h, w) array, h, w >= 2; shape : (H, W).
+
+    Returns
+    -------
+    (H, W) float32, or img's dtype with ``nearest``.
+    """
+    r0, fr = _axis_map(shape[0], img.shape[0])
+    c0, fc = _axis_map(shape[1], img.shape[1])
+    if nearest:
+        return img[np.ix_(r0 + (fr >= 0.5), c0 + (fc >= 0.5))]
+    a = img.astype(np.float32)
+    # (1 - w) a_0 + w a_1: exactly a_0 at w = 0 and a_1 at w = 1 (a grid read back on itself is unchanged)
+    wc, wr = fc[None, :], fr[:, None]
+    top = (1 - wc) * a[r0][:, c0] + wc * a[r0][:, c0 + 1]
+    bot = (1 - wc) * a[r0 + 1][:, c0] + wc * a[r0 + 1][:, c0 + 1]
+    return (1 - wr) * top + wr * bot
+
+
+def resampled_edges(grey: np.ndarray, f: float, thresholds: tuple[float | None, float | None], blur: float,
+                    percentile: float, profile: Profile, g0: float) -> tuple[np.ndarray, np.ndarray]:
+    """Edges and chamfer image of a grey frame at another resolution, on the frame's own grid.
+
+    The (H, W) frame is resampled by ``f`` (:func:`resample_grey`), its Canny edges
+    (:func:`edge_map`: the blur in the resampled frame's pixels) and chamfer image
+    (:func:`chamfer_image`) computed there, and both read back at the (H, W) pixel centres
+    (:func:`upsample_to`: the chamfer image bilinearly, the edges at the nearest pixel). A point p of
+    the frame then reads gamma of the resampled frame at f p: distances measured as they would be on
+    a target f times its size, in that frame's (squared, for the quadratic profile) pixels, to the map
+    back's interpolation: a point between the resampled frame's pixels reads gamma interpolated twice,
+    which for the quadratic profile near an edge adds about a quarter px^2 at f = 0.5 (measured on a
+    synthetic outline, ``tests/test_m2_transfer.py``).
+
+    Returns
+    -------
+    edges : (H, W) uint8, 255 on the resampled frame's edges; chamfer : (H, W) float32.
+    """
+    g = to_grey(grey)
+    small = resample_grey(g, resampled_size(g.shape, f))
+    edges = edge_map(small, thresholds[0], thresholds[1], blur, percentile)
+    cham = chamfer_image(edges, profile, g0)
+    shape = (g.shape[0], g.shape[1])
+    return upsample_to(edges, shape, nearest=True), upsample_to(cham, shape)
 
 
 #: below this squared image diagonal (1024 px), OpenCV's distances are made exact (see distance_transform)

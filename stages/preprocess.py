@@ -1,8 +1,9 @@
 """Preprocessing stage: grey levels, gradients, Canny edges, the chamfer image (M2 eq. 4-5) and colour bins.
 
 The edges and the chamfer image are :func:`gflow_core.features.edges_and_chamfer`, with the Canny
-thresholds of :func:`gflow_core.features.canny_calibrated` when ``calibrate_box`` is set: the
-observation of the contour trackers' protocol (:mod:`gflow_core.contour.protocol`)."""
+thresholds of :func:`gflow_core.features.canny_calibrated` when ``calibrate_box`` is set, on the frame
+resampled by ``model_scale`` with ``match_resolution`` (:class:`~gflow_core.contour.params.EdgeParams`):
+the observation of the contour trackers' protocol (:mod:`gflow_core.contour.protocol`)."""
 
 from __future__ import annotations
 
@@ -85,7 +86,7 @@ class PreprocessStage(Stage[PreprocessFields]):
                     raise StageInputError(f"frame {seq}: {err}") from None
             # the contour trackers' observation (gflow_core.contour.protocol computes the same)
             edges, cham = features.edges_and_chamfer(grey, self.thresholds, e.blur, e.canny_percentile, e.profile,
-                                                     e.g0)
+                                                     e.g0, e.resample)
         gx = gy = None
         if p.gradients:
             gxa, gya = features.gradients(grey)

@@ -152,3 +152,18 @@ class EdgeParams:
     canny_percentile: float = param(80.0, "percentile of the gradient magnitude in the box that calibrates the "
                                           "high threshold")
     blur: float = param(1.0, "std of the Gaussian pre-blur, px (0: none)")
+    match_resolution: bool = param(False, "compute the edges and the chamfer image on the frame resampled by "
+                                          "model_scale (an image pyramid's level), so a target larger than a learned "
+                                          "model's training targets is matched at the model's resolution")
+    model_scale: float = param(1.0, "a learned model's reference size over the tracked target's first box where the "
+                                    "target is larger than the model's largest training target, else 1 (gflow track "
+                                    "--tracker m2 sets it from the model file and --init)")
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.model_scale) and self.model_scale > 0):
+            raise ValueError(f"model_scale must be finite and positive, got {self.model_scale}")
+
+    @property
+    def resample(self) -> float:
+        """The factor the frame is resampled by before its edges are read (1: none)."""
+        return self.model_scale if self.match_resolution else 1.0

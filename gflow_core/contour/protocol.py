@@ -24,7 +24,10 @@ the same bits.
 
 Resources (``init``): ``model``, the learned M2 model (required by M2, refused by chamfer), and
 ``edges``, the :class:`~gflow_core.contour.params.EdgeParams` the model was learned with
-(:func:`m2_edge_params`; default: the chamfer tracker's, thresholds calibrated on the box).
+(:func:`m2_edge_params`; default: the chamfer tracker's, thresholds calibrated on the box). With a
+learned contour model, ``init`` sets their ``model_scale`` from the model and the box
+(:meth:`gflow_core.m2.model.M2Model.match_scale`) unless they give one other than 1, as ``gflow track``
+does; ``match_resolution`` applies it.
 """
 
 from __future__ import annotations
@@ -109,7 +112,7 @@ class ContourTracker:
         guard's orientation channels (computed when first asked) where a cue needs them."""
         grey = frame.grey
         e, cham = features.edges_and_chamfer(grey, thresholds, edges.blur, edges.canny_percentile, edges.profile,
-                                             edges.g0)
+                                             edges.g0, edges.resample)
         # the filter stage's rules (.observation): the chamfer image's, the blank frame's, the grey image's
         chamfer: np.ndarray | None = cham if usable_chamfer(cham) else None
         blank = chamfer is not None and is_blank(params, e)
@@ -129,6 +132,9 @@ class ContourTracker:
         if not self.needs_model and model is not None:
             raise ValueError(f"tracker {self.name} takes no model")
         edges = resources.get("edges") or EdgeParams()
+        if isinstance(model, M2Model) and model.kind == "curve" and edges.model_scale == 1.0:
+            # the resolution a larger target is matched at with match_resolution (as gflow track sets it)
+            edges = dataclasses.replace(edges, model_scale=model.match_scale(box))
         thresholds = ((edges.canny_low, edges.canny_high) if edges.canny_low is not None and edges.canny_high is not None
                       else features.canny_calibrated(obs.grey, edges.blur, edges.canny_percentile, box))
         setup_ = setup(params, box, model)

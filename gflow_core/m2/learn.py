@@ -170,7 +170,8 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
                    d_range: tuple[float, float] = (0.5, 1000.0), trivial_ratio: float | None = None,
                    markov_prior: float = 1.0, translation: Literal["random_walk", "ar"] = "random_walk",
                    noise_floor: np.ndarray = DEFAULT_NOISE_FLOOR, step: np.ndarray = DEFAULT_STEP,
-                   bounds: np.ndarray = DEFAULT_BOUNDS, frames: Sequence[np.ndarray] | None = None,
+                   bounds: np.ndarray = DEFAULT_BOUNDS, kernel_floor: float = 0.0,
+                   frames: Sequence[np.ndarray] | None = None,
                    appearance_area: int = DEFAULT_MAX_AREA, progress: Progress | None = None) -> LearnResult:
     """:func:`learn`, returning the intermediate results too (see :class:`LearnResult`)."""
     if kernel not in KERNEL_METHODS:
@@ -191,7 +192,7 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
     if progress:
         progress("kernel", 0, 1)
     kf = fit_kernels(val.rho[val.is_validation], val.k[val.is_validation], K, method=kernel,
-                     min_samples=min_samples, d_range=d_range, trivial_ratio=trivial_ratio)
+                     min_samples=min_samples, d_range=d_range, trivial_ratio=trivial_ratio, min_rho=kernel_floor)
     if progress:
         progress("kernel", 1, 1)
         progress("dynamics", 0, 1)
@@ -250,7 +251,9 @@ def learn(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric 
         symmetric (True: align and cluster by the symmetrised distance), init ("best" | "spaced"),
         n_candidates (3), max_iter (50), min_samples (10), d_range ((0.5, 1000)),
         trivial_ratio (None), markov_prior (1.0), translation ("random_walk" | "ar"),
-        noise_floor ((4,)), step, bounds (alignment search, beta units);
+        noise_floor ((4,)), step, bounds (alignment search, beta units); kernel_floor (0.0: a cluster
+        whose mean validation distance is at most this gets the pooled kernel, :func:`.kernel.fit_kernels`'s
+        ``min_rho``);
         frames (the grey frame of every training item: also learn appearance exemplars and
         kernels, :mod:`.appearance_metric`), appearance_area (grid points per appearance exemplar);
         see :func:`learn_detailed` and the modules it calls.

@@ -234,6 +234,14 @@ class M2Model:
         s = np.sqrt(w * h / (self.ref_size[0] * self.ref_size[1]))
         return np.array([x + (w - 1) / 2.0, y + (h - 1) / 2.0, 0.0, s])
 
+    def match_scale(self, box: tuple[float, float, float, float]) -> float:
+        """The factor that resamples a frame so a target whose first box is ``box`` appears at the
+        model's reference size: 1 / s_0 (s_0 of :meth:`alpha_from_box`) where s_0 exceeds
+        ``train_scale`` (a target larger than every training target), else 1 (within the training
+        sizes, and for files of format 2 and older, which do not say)."""
+        s0 = float(self.alpha_from_box(box)[3])
+        return 1.0 / s0 if s0 > self.train_scale else 1.0
+
     # ----------------------------------------------------------------------------------
 
     def to_arrays(self) -> dict[str, np.ndarray]:

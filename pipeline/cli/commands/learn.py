@@ -60,7 +60,7 @@ def parse_pair(text: str, name: str) -> tuple[float, float]:
 #: the options of some metrics only, with the metrics that use them (the others would ignore them)
 METRIC_OPTIONS: dict[str, tuple[str, ...]] = {
     **dict.fromkeys(("--max-points", "--canny", "--blur", "--profile", "--g0", "--threshold", "--background-frames",
-                     "--no-appearance", "--no-background-mask"), ("chamfer",)),
+                     "--no-appearance", "--no-background-mask", "--kernel-floor"), ("chamfer",)),
     "--patch-size": ("shuffle", "l2"),
     "--shuffle-radius": ("shuffle",),
 }
@@ -351,8 +351,9 @@ def cmd_learn(args) -> int:
     else:
         metric_params = {}
     t0 = time.monotonic()
+    floor = {"kernel_floor": args.kernel_floor} if args.metric == "chamfer" else {}
     model = learn(ts, args.metric, K=args.K, kernel=args.kernel, metric_params=metric_params, frames=greys,
-                  progress=_Progress(args.quiet))
+                  progress=_Progress(args.quiet), **floor)
     out = save_model(args.out, model, meta=meta, new=True)
     d = model.d
     print(f"learned M2 model: K={model.K} {model.metric} exemplars from {n} items in {time.monotonic() - t0:.1f} s; "
@@ -419,6 +420,11 @@ def register(sub) -> None:
                         f"{edge.PROFILE})")
     g.add_argument("--g0", action=_Given, type=positive_float, default=edge.G0,
                    help=f"truncation level of the truncated profile, px^2 (default {edge.G0:g})")
+    g.add_argument("--kernel-floor", action=_Given, type=nonnegative_float, default=0.0, metavar="RHO",
+                   help="a cluster whose mean validation distance is at most RHO px^2 gets the pooled kernel, as one "
+                        "with too few samples does: distances that small are the pixel grid's (a small training "
+                        "target), and their kernel would win every frame on another target (default 0: none; 0.5 "
+                        "is twice the distance between two renderings of one 16x42 px outline)")
     g.add_argument("--threshold", action=_Given, type=nonnegative_float, default=30.0,
                    help="background subtraction threshold, grey levels (default 30)")
     g.add_argument("--background-frames", action=_Given, metavar="A:B",

@@ -114,8 +114,9 @@ def overrides(args: Any) -> tuple[str, dict[str, dict]]:
 
     # the edge settings the model was learned with, read from its file in one place (the Python API's too)
     edges = m2_edge_params(model, meta)
+    # and the factor that resamples the frame to the model's resolution (applied with preprocess.match_resolution)
     pre = dict(profile=edges.profile, g0=edges.g0, canny_low=edges.canny_low, canny_high=edges.canny_high,
-               blur=edges.blur)
+               blur=edges.blur, model_scale=model.match_scale(tuple(box)))
     shared = {"model": mpath, "init": box, "seed": args.seed}
     block: dict = {**particles, **param_values(args, M2Params)}  # the tracker block: both stages take it
     return GRAPH, {"tracker": block, "filter": dict(shared), "proposal": dict(shared), "preprocess": pre}
