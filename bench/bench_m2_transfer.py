@@ -4,7 +4,7 @@
     python bench/bench_m2_transfer.py --seeds 1,2,3
     python bench/bench_m2_transfer.py --root ../main   # the code of another checkout, to compare
     python bench/bench_m2_transfer.py --set preprocess.match_resolution=true   # a parameter for every run
-    python bench/bench_m2_transfer.py --learn-args="--kernel-floor 0.5"         # options of both learnings
+    python bench/bench_m2_transfer.py --learn-args="--kernel-floor 0"           # options of both learnings
 
 Learns two models with `gflow learn m2` (K = 20, from the ground-truth boxes): one on caviar1
 frames 0-149 (a 28x73 px walker), one on all of crossing (a 16x42 px walker), and runs `gflow
@@ -64,7 +64,7 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="STAGE.PARAM=VALUE",
                     help="a parameter of every tracking run, as gflow benchmark --set takes it; repeatable")
     ap.add_argument("--learn-args", default="", metavar="ARGS",
-                    help="options added to both `gflow learn m2` commands, e.g. --learn-args=\"--kernel-floor 0.5\"")
+                    help="options added to both `gflow learn m2` commands, e.g. --learn-args=\"--kernel-floor 0\"")
     args = ap.parse_args()
     global CODE
     if args.root:

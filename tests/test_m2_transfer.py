@@ -128,14 +128,14 @@ def _learn(seq: Path, out: Path, *more: str) -> M2Model:
 def test_the_kernel_floor_lets_a_crossing_model_follow_caviar1(crossing, caviar1, tmp_path) -> None:
     """Learned on crossing's 16x42 px walker, two kernels are the pixel grid's (mean distance about 0.33
     px^2, d over 20) and their exemplar is the MAP one on nearly every frame of caviar1, where the box
-    rides above the walker; with --kernel-floor 0.5 they get the pooled kernel and the box follows her
-    (frames 0-79, seed 1)."""
+    rides above the walker (--kernel-floor 0, as models learned before the floor); with the default floor,
+    0.5, they get the pooled kernel and the box follows her (frames 0-79, seed 1)."""
     import gflow
     from pipeline.io.frame_readers import folder_frames
     from pipeline.recording.results import read_boxes
 
-    plain = _learn(crossing, tmp_path / "plain.npz")
-    floored = _learn(crossing, tmp_path / "floor.npz", "--kernel-floor", "0.5")
+    plain = _learn(crossing, tmp_path / "plain.npz", "--kernel-floor", "0")
+    floored = _learn(crossing, tmp_path / "floor.npz")
     assert (plain.d * plain.sigma ** 2).min() < 0.5 and plain.d.max() > 20
     assert (floored.d * floored.sigma ** 2).min() >= 0.5 and floored.d.max() < 5
     gt = read_boxes(caviar1 / "groundtruth.csv")

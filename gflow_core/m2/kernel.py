@@ -34,7 +34,8 @@ Departures from the paper
   deviation is about 0.6 d at N = 10 and 0.3 d at N = 30, with an upward bias
   (bench/bench_m2_polygons.py), and with K = 100 exemplars on caviar1 four-sample
   clusters gave d from 100 to 1000 against a pooled d of about 13.
-* With ``min_rho`` > 0 (``gflow learn m2 --kernel-floor``), a cluster whose mean validation
+* With ``min_rho`` > 0 (``gflow learn m2 --kernel-floor``; :data:`CURVE_KERNEL_FLOOR` for contour
+  models by default), a cluster whose mean validation
   distance rho_bar is at most ``min_rho`` gets the pooled estimate too: its distances are the pixel
   grid's, not the target's variation. On a small training target (crossing's walker, 16x42 px)
   consecutive frames can be the same outline up to rasterisation; two renderings of one outline at
@@ -52,8 +53,12 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+#: the pixel floor of a contour model's kernels, px^2 (the module docstring's departure): twice the
+#: distance between two renderings of one 16x42 px outline at sub-pixel offsets
+CURVE_KERNEL_FLOOR = 0.5
+
 __all__ = ["moments", "mle", "mle_objective", "MLE_D1_RATIO", "PAPER_NOTE_RATIO", "KernelFit",
-           "fit_kernels", "log_kernel", "KERNEL_METHODS"]
+           "fit_kernels", "log_kernel", "KERNEL_METHODS", "CURVE_KERNEL_FLOOR"]
 
 #: rho_a / rho_g above which eq. 11 is maximised by d = 1 (L(1) > L(2)): 2 pi / e.
 MLE_D1_RATIO = 2.0 * np.pi / np.e

@@ -52,7 +52,7 @@ from .align import DEFAULT_BOUNDS, DEFAULT_STEP, refine_alpha
 from .curves import Curves
 from .distances import Items, Metric, make_metric
 from .exemplars import ExemplarFit, check_k, learn_exemplars
-from .kernel import KERNEL_METHODS, KernelFit, fit_kernels
+from .kernel import CURVE_KERNEL_FLOOR, KERNEL_METHODS, KernelFit, fit_kernels
 from .learn_dynamics import DEFAULT_NOISE_FLOOR, learn_ar, learn_markov, split_runs
 from .model import M2Model
 from .training import TrainingSet
@@ -170,13 +170,15 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
                    d_range: tuple[float, float] = (0.5, 1000.0), trivial_ratio: float | None = None,
                    markov_prior: float = 1.0, translation: Literal["random_walk", "ar"] = "random_walk",
                    noise_floor: np.ndarray = DEFAULT_NOISE_FLOOR, step: np.ndarray = DEFAULT_STEP,
-                   bounds: np.ndarray = DEFAULT_BOUNDS, kernel_floor: float = 0.0,
+                   bounds: np.ndarray = DEFAULT_BOUNDS, kernel_floor: float | None = None,
                    frames: Sequence[np.ndarray] | None = None,
                    appearance_area: int = DEFAULT_MAX_AREA, progress: Progress | None = None) -> LearnResult:
     """:func:`learn`, returning the intermediate results too (see :class:`LearnResult`)."""
     if kernel not in KERNEL_METHODS:
         raise ValueError(f"unknown kernel estimator {kernel!r}; choose one of {KERNEL_METHODS}")
     m = make_metric(metric, **(metric_params or {}))
+    # the kernels' pixel floor: a contour model's by default, none for patches (their distances are not px^2)
+    floor = (CURVE_KERNEL_FLOOR if m.kind == "curve" else 0.0) if kernel_floor is None else kernel_floor
     ts = _as_training(items, m)
     z = m.check_items(ts.items)
     T = m.n_items(z)
@@ -192,7 +194,7 @@ def learn_detailed(items: TrainingSet | Curves | np.ndarray | list, metric: str 
     if progress:
         progress("kernel", 0, 1)
     kf = fit_kernels(val.rho[val.is_validation], val.k[val.is_validation], K, method=kernel,
-                     min_samples=min_samples, d_range=d_range, trivial_ratio=trivial_ratio, min_rho=kernel_floor)
+                     min_samples=min_samples, d_range=d_range, trivial_ratio=trivial_ratio, min_rho=floor)
     if progress:
         progress("kernel", 1, 1)
         progress("dynamics", 0, 1)
@@ -251,9 +253,9 @@ def learn(items: TrainingSet | Curves | np.ndarray | list, metric: str | Metric 
         symmetric (True: align and cluster by the symmetrised distance), init ("best" | "spaced"),
         n_candidates (3), max_iter (50), min_samples (10), d_range ((0.5, 1000)),
         trivial_ratio (None), markov_prior (1.0), translation ("random_walk" | "ar"),
-        noise_floor ((4,)), step, bounds (alignment search, beta units); kernel_floor (0.0: a cluster
-        whose mean validation distance is at most this gets the pooled kernel, :func:`.kernel.fit_kernels`'s
-        ``min_rho``);
+        noise_floor ((4,)), step, bounds (alignment search, beta units); kernel_floor (None: 0.5 px^2 for
+        contour models, :data:`.kernel.CURVE_KERNEL_FLOOR`, and 0 for patch models; a cluster whose mean
+        validation distance is at most this gets the pooled kernel, :func:`.kernel.fit_kernels`'s ``min_rho``);
         frames (the grey frame of every training item: also learn appearance exemplars and
         kernels, :mod:`.appearance_metric`), appearance_area (grid points per appearance exemplar);
         see :func:`learn_detailed` and the modules it calls.

@@ -406,6 +406,7 @@ def register(sub) -> None:
     q.add_argument("--patch-size", action=_Given, metavar="WxH",
                    help="patch metrics: resample items to W x H pixels (default: frame size, or the median box size)")
     from gflow_core.m2 import edge_settings as edge
+    from gflow_core.m2.kernel import CURVE_KERNEL_FLOOR
 
     g = q.add_argument_group("contour exemplars (chamfer)")
     g.add_argument("--max-points", action=_Given, type=positive_int, default=150,
@@ -420,11 +421,12 @@ def register(sub) -> None:
                         f"{edge.PROFILE})")
     g.add_argument("--g0", action=_Given, type=positive_float, default=edge.G0,
                    help=f"truncation level of the truncated profile, px^2 (default {edge.G0:g})")
-    g.add_argument("--kernel-floor", action=_Given, type=nonnegative_float, default=0.0, metavar="RHO",
+    g.add_argument("--kernel-floor", action=_Given, type=nonnegative_float, default=CURVE_KERNEL_FLOOR, metavar="RHO",
                    help="a cluster whose mean validation distance is at most RHO px^2 gets the pooled kernel, as one "
                         "with too few samples does: distances that small are the pixel grid's (a small training "
-                        "target), and their kernel would win every frame on another target (default 0: none; 0.5 "
-                        "is twice the distance between two renderings of one 16x42 px outline)")
+                        "target), and their kernel would win every frame on another target (default "
+                        f"{CURVE_KERNEL_FLOOR:g}: twice the distance between two renderings of one 16x42 px outline; "
+                        "0: none, as models learned before it)")
     g.add_argument("--threshold", action=_Given, type=nonnegative_float, default=30.0,
                    help="background subtraction threshold, grey levels (default 30)")
     g.add_argument("--background-frames", action=_Given, metavar="A:B",
