@@ -85,7 +85,8 @@ TABLES = (
                "--opencv", "csrt,kcf", "--inline", "--seed", "1", "--no-fps", "--markdown", "-q"),
               opencv=("csrt", "kcf"))
       for v, what in (("blur", "a blurring camera"), ("fast", "every 3rd frame"), ("small", "half the size"),
-                      ("fast+blur", "every 3rd frame of a blurring camera, fast motion with blur"))),
+                      ("fast+blur", "every 3rd frame of a blurring camera, fast motion with blur"),
+                      ("noise", "a noisy camera in poor light, JPEG-compressed"))),
     Figures("stress", "docs/stress.md", "the stress benchmark over every shared sequence, every tracker and CSRT: "
             "cases got back per family and per sequence",
             ("benchmark", "../shared/data", "--stress", "--cases", STRESS_CASES, "--trackers", STRESS_TRACKERS,

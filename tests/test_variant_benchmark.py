@@ -11,7 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from gflow_core.evaluation.variants import BLUR_LENGTH, VARIANTS, blur, grey, half, select_variant
+from gflow_core.evaluation.variants import (BLUR_LENGTH, JPEG_QUALITY, NOISE_READ, NOISE_SHOT, VARIANTS, blur, grey, half,
+                                           noise, select_variant)
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes
 from pipeline.io.mcap_io import iter_records
@@ -47,7 +48,7 @@ def test_bad_variant_is_a_one_line_error():
                        timeout=60)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == ["gflow benchmark: error: unknown variant 'gray' in --variant (known: grey, "
-                                             "blur, fast, small, or several joined by '+')"]
+                                             "blur, fast, small, noise, or several joined by '+')"]
 
 
 def test_grey_variant_tracks_grey_frames_and_prints_the_table(tmp_path):
@@ -154,3 +155,32 @@ def test_a_combination_applies_each_in_turn_and_keeps_and_scales_as_both():
     assert np.array_equal(sf.transform(bgr, 0), grey(half(bgr)))
     assert sf.truth({0: (10.0, 20.0, 8.0, 6.0), 1: (0.0, 0.0, 1.0, 1.0), 3: (4.0, 4.0, 2.0, 2.0)}, 0) == {
         0: (5.0, 10.0, 4.0, 3.0), 1: (2.0, 2.0, 1.0, 1.0)}
+
+
+def test_noise_is_a_sensors_noise_then_jpeg_the_same_bits_every_run():
+    """A flat frame gets noise whose spread grows with the level (as a sensor's), the same draw for the same
+    frame index and another for another index; the frame is then JPEG-compressed (8 x 8 blocks, so a flat
+    frame stays near its level); an equal-channel frame stays grey, a colour one gets noise of its own per
+    channel."""
+    dark, bright = np.full((64, 64, 3), 30, np.uint8), np.full((64, 64, 3), 220, np.uint8)
+    a, b = noise(dark, 7), noise(bright, 7)
+    assert a.shape == dark.shape and a.dtype == np.uint8
+    assert np.array_equal(a, noise(dark, 7)) and not np.array_equal(a, noise(dark, 8))
+    for img, out in ((dark, a), (bright, b)):
+        assert (out[..., 0] == out[..., 1]).all() and (out[..., 0] == out[..., 2]).all()
+        assert abs(float(out.mean()) - float(img[0, 0, 0])) < 1.5
+    # the spread before the codec is sqrt(a I + b); the codec smooths it, but keeps the order
+    s_dark, s_bright = float(a[..., 0].std()), float(b[..., 0].std())
+    assert 1.0 < s_dark < np.sqrt(NOISE_SHOT * 30 + NOISE_READ ** 2)
+    assert s_bright > 1.3 * s_dark
+    colour = np.dstack([dark[..., 0], np.full((64, 64), 120, np.uint8), bright[..., 0]])
+    c = noise(colour, 3)
+    assert not np.array_equal(c[..., 0].astype(int) - 30, c[..., 2].astype(int) - 220)
+    # a grey (H, W) frame stays (H, W)
+    g = noise(dark[..., 0], 1)
+    assert g.shape == (64, 64) and g.dtype == np.uint8
+    with pytest.raises(ValueError, match="index"):
+        noise(dark, -1)
+    with pytest.raises(ValueError, match="not"):
+        noise(np.zeros((4, 4, 4), np.uint8), 0)
+    assert VARIANTS["noise"].keeps_truth and str(JPEG_QUALITY) in VARIANTS["noise"].describe

@@ -99,6 +99,9 @@ BACF and CSRT learn theirs:
   areas summed over the sizes times the step); off, the number of sizes is counted a second time,
   favouring every candidate of the wider search by that factor in odds (the option is off so that
   recordings re-run; docs/dcf-development.md gives what it changes).
+  With ``search_size_track`` a placement at another size than the held one is never taken on one
+  frame's P(visible): only as the candidate track below, judged over its frames (off: measured on
+  the cases the sizes change, it got no more back than the default).
   A frame alone may not outweigh ``reappear`` where the target comes back looking unlike what the
   filter learnt; with ``search_track`` (:mod:`.trackscore`) the search's best placements are a
   candidate track, scored as radar trackers confirm a new track (Blackman & Popoli 1999: the

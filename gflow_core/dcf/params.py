@@ -93,6 +93,9 @@ class DCFParams:
     search_sizes: int = param(1, "sizes the search for a hidden target may try at most (odd): the held size and, "
                                  "each way, up to (search_sizes - 1) / 2 more, search_size_step apart in log size, "
                                  "within three standard deviations of the size's prior")
+    search_size_track: bool = param(False, "with search_sizes, a placement at another size than the held one is "
+                                           "never taken on one frame's evidence: only as a candidate track judged "
+                                           "over its frames (search_track)")
     search_size_step: float = param(0.2, "log-size step between the sizes the search tries")
     search_size_growth: float = param(0.005, "while the target is unseen the std of its log size grows by this "
                                              "much a frame (the search tries the sizes within three of it)")

@@ -306,6 +306,8 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
                 visible = visibility(1.0 - cand.r, ds.target, ds.clutter, p.min_std,
                                      prior=(p.reappear, 0.0, 1.0 - p.reappear), trials=max(trials, 1.0),
                                      log_place=place, cues=ccue).visible
+            if visible >= 0.5 and cand.log_f != 0.0 and p.search_size_track:
+                continue  # with search_size_track, another size only as a candidate track (_track)
             if visible >= 0.5 and cand.log_f != 0.0 and not _verified(st, obs, cand.centre, st.log_s + cand.log_f,
                                                                       st.angle, p):
                 continue  # with verify, a placement at another size is taken only if the first filter agrees

@@ -22,8 +22,17 @@ expected to hold without having been tuned on it:
   (on a sequence labelled every 5th frame, every 15th original frame is scored).
 * ``small`` -- a small target: every frame at half its width and height (OpenCV's area
   interpolation), every box halved with it (``x, y, w, h -> x/2, y/2, w/2, h/2``).
+* ``noise`` -- a cheap camera in poor light, streamed: every pixel gets the noise of a camera's
+  sensor, Gaussian with a variance that grows with the signal (the Poisson-Gaussian model of
+  raw data, Foi et al., IEEE TIP 2008: ``var = a I + b``, :data:`NOISE_SHOT` and
+  :data:`NOISE_READ`), drawn afresh for each frame from a generator seeded by the frame's index;
+  then the frame is JPEG-compressed at quality :data:`JPEG_QUALITY` and decoded, as a camera or
+  stream on a thin link does. A frame whose channels are equal (grey footage in a colour
+  container) gets the same noise in each channel, as one grey sensor gives it. The truth is the
+  original's. The codec is OpenCV's: the noise is the same bits everywhere, the compressed frame
+  may differ in its last bits with another build's JPEG library.
 
-The four are kept apart so a loss can be put down to one kind of change, and they combine with
+The five are kept apart so a loss can be put down to one kind of change, and they combine with
 ``+`` where a kind of video is two of them at once: ``fast+blur`` is fast motion with blur (every 3rd
 frame, each kept frame smeared as ``blur`` smears it). A combination applies the transforms in the
 order named, keeps every ``step``-th frame of the product of the steps and scales by the product of
@@ -40,7 +49,7 @@ import numpy as np
 
 from gflow_core.evaluation.stress import motion_kernel
 
-__all__ = ["Variant", "VARIANTS", "grey", "blur", "half", "same", "select_variant", "combine"]
+__all__ = ["Variant", "VARIANTS", "grey", "blur", "half", "noise", "same", "select_variant", "combine"]
 
 Box = tuple[float, float, float, float]
 
@@ -48,6 +57,13 @@ Box = tuple[float, float, float, float]
 BLUR_LENGTH = (4.0, 16.0)
 #: the ``blur`` variant's generator is seeded by (this, the frame's index)
 BLUR_SEED = 0xB1
+#: the ``noise`` variant's sensor noise: var = NOISE_SHOT * I + NOISE_READ ** 2 (grey levels^2, I in 0..255)
+NOISE_SHOT = 1.0
+NOISE_READ = 5.0
+#: the ``noise`` variant's JPEG quality (OpenCV's scale, 0-100; 75 is a camera's usual)
+JPEG_QUALITY = 20
+#: the ``noise`` variant's generator is seeded by (this, the frame's index)
+NOISE_SEED = 0x7015E
 
 
 def grey(image: np.ndarray, index: int = 0) -> np.ndarray:
@@ -85,6 +101,32 @@ def half(image: np.ndarray, index: int = 0) -> np.ndarray:
     if h < 2 or w < 2:
         raise ValueError(f"a frame of {w} x {h} px is too small to halve")
     return cv2.resize(image, (max(1, round(w / 2)), max(1, round(h / 2))), interpolation=cv2.INTER_AREA)
+
+
+def noise(image: np.ndarray, index: int) -> np.ndarray:
+    """Frame ``index`` through a noisy sensor and a JPEG codec: (H, W[, 3]) uint8 -> the same shape.
+
+    The noise is N(0, NOISE_SHOT I + NOISE_READ^2) per pixel and channel (one draw for the three channels of a
+    frame whose channels are equal), from ``np.random.default_rng((NOISE_SEED, index))``; the result, rounded and
+    clipped to 0..255, is JPEG-encoded at :data:`JPEG_QUALITY` and decoded."""
+    if image.ndim != 2:
+        _check_frame(image)
+    if index < 0:
+        raise ValueError(f"a frame's index is 0 or more, not {index}")
+    rng = np.random.default_rng((NOISE_SEED, index))
+    equal = image.ndim == 3 and bool((image[..., 0] == image[..., 1]).all() and (image[..., 0] == image[..., 2]).all())
+    plane = image[..., 0] if equal else image
+    f = plane.astype(np.float64)
+    # I' = I + sqrt(a I + b) n, n ~ N(0, 1): the Poisson-Gaussian sensor (Foi et al. 2008)
+    noisy = f + np.sqrt(NOISE_SHOT * f + NOISE_READ ** 2) * rng.standard_normal(f.shape)
+    out = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+    if not ok:
+        raise ValueError(f"frame {index}: JPEG encoding failed")
+    decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if equal:
+        return np.repeat(decoded[..., None], 3, axis=2)
+    return decoded
 
 
 def same(image: np.ndarray, index: int = 0) -> np.ndarray:
@@ -148,6 +190,9 @@ VARIANTS: dict[str, Variant] = {
                             "between frames", same, step=3),
     "small": Variant("small", "every frame and every box at half the width and height: a small target", half,
                      scale=0.5),
+    "noise": Variant("noise", "every frame through a noisy sensor (variance growing with the signal, drawn afresh "
+                              f"for each frame) and JPEG at quality {JPEG_QUALITY}: a cheap camera in poor light, "
+                              "streamed", noise),
 }
 
 
