@@ -124,6 +124,8 @@ def noise(image: np.ndarray, index: int) -> np.ndarray:
     if not ok:
         raise ValueError(f"frame {index}: JPEG encoding failed")
     decoded = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    if decoded is None:
+        raise ValueError(f"frame {index}: JPEG decoding failed")
     if equal:
         return np.repeat(decoded[..., None], 3, axis=2)
     return decoded
