@@ -8,6 +8,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -21,6 +22,13 @@ ROOT = Path(__file__).resolve().parent.parent
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 DATA = Path(os.environ.get("GFLOW_DATA", ROOT.parent / "shared" / "data"))
+
+# matplotlib (gflow plot, gflow benchmark --plot) keeps a font cache in its config folder, one for the whole
+# user by default; test processes run side by side (`pytest -n 2`), and the commands they start, would write
+# it at once and could read each other's half-written file. Each test process, and what it starts, has a
+# folder of its own, removed at its end (pytest_unconfigure).
+MPL_CONFIG = Path(tempfile.mkdtemp(prefix=f"gflow-mpl-{os.getpid()}-"))
+os.environ["MPLCONFIGDIR"] = str(MPL_CONFIG)
 JS = ROOT / "tests" / "js"
 
 
@@ -62,6 +70,10 @@ def pytest_collection_modifyitems(config, items):
 def pytest_configure(config):
     if getattr(config.option, "dist", "no") == "loadfile":
         config.option.loadscopereorder = False  # the order is pytest_collection_modifyitems'
+
+
+def pytest_unconfigure(config):
+    shutil.rmtree(MPL_CONFIG, ignore_errors=True)
 
 
 @pytest.fixture(autouse=True, scope="session")

@@ -74,3 +74,17 @@ def test_the_plotted_line_breaks_on_the_frames_with_the_target_absent(demo: Path
         assert "target absent on 2, left out" in plt.gcf().axes[0].get_title()
     finally:
         plt.close("all")
+
+
+def test_matplotlib_caches_its_fonts_in_this_test_process_own_folder(tmp_path: Path) -> None:
+    """Test processes side by side (`pytest -n 2`), and the gflow commands they start, wrote one font cache in the
+    user's matplotlib folder at once; each test process has its own (tests/conftest.py), which what it starts
+    inherits."""
+    import matplotlib
+
+    own = Path(os.environ["MPLCONFIGDIR"])
+    assert own.is_dir() and f"gflow-mpl-{os.getpid()}-" in own.name
+    assert Path(matplotlib.get_cachedir()) == own
+    r = subprocess.run([sys.executable, "-c", "import matplotlib; print(matplotlib.get_cachedir())"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and Path(r.stdout.strip()) == own, (r.stdout, r.stderr)
