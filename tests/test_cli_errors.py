@@ -826,3 +826,30 @@ def test_a_bad_recordings_limit_is_refused_before_the_track_runs(tmp_path: Path,
               "tracker.particles=0", cwd=tmp_path, env=env)
     assert r.returncode == 2, r.stderr
     assert_one_line_error(r, "--set tracker.particles=0: particles must be >= 1, got 0")
+
+@pytest.mark.parametrize("rows,named", [
+    ("0,10,10,20,20\n1,10,10,-20,20\n", ["boxes.csv:2", "negative width or height"]),
+    (None, ["box file not found", "nosuch.csv"]),
+])
+def test_learn_m2_refuses_damaged_or_missing_boxes_before_reading_frames(tmp_path: Path, frames: Path, rows: str | None,
+                                                                         named: list[str]) -> None:
+    """A negative width in --boxes was taken as a box (and learning failed later with "no edge points"), and a
+    missing --boxes file was named only after every training frame was read: both are said first, by file and line,
+    as `gflow eval` says them."""
+    name = "nosuch.csv"
+    if rows is not None:
+        (tmp_path / "boxes.csv").write_text(rows)
+        name = "boxes.csv"
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "--boxes", name, cwd=tmp_path)
+    assert_one_line_error(r, *named)  # one line: not "read N training frame(s)" before it
+    assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
+
+
+def test_learn_m2_leaves_out_the_frames_whose_box_row_says_the_target_is_absent(tmp_path: Path, frames: Path) -> None:
+    """A NaN row (the target absent, as `gflow eval` reads ground truth) stopped the learning ("box has NaN"), and a
+    row of no size (w, h 0) was cut as a training item; both frames are now left out: three items from five frames."""
+    (tmp_path / "boxes.csv").write_text("0,10,10,30,30\n1,nan,nan,nan,nan\n2,12,10,30,30\n3,14,10,0,0\n4,16,10,30,30\n")
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "--boxes", "boxes.csv", "--metric", "l2",
+              "--patch-size", "8x8", cwd=tmp_path)
+    assert "box has NaN" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert "training items: 3 patches" in r.stderr, r.stderr

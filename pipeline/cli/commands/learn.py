@@ -138,9 +138,11 @@ def _log(args, msg: str) -> None:
 
 
 def _box_array(path: str, index: np.ndarray) -> np.ndarray:
-    from pipeline.recording.results import read_boxes
+    """(frames, 4) boxes of the training frames ``index``, NaN where the file has none or a row of no box (the
+    target absent: w or h 0, or NaN, as ``gflow eval`` reads the truth); a negative size is refused."""
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
 
-    gt = read_boxes(path)
+    gt = read_scored_boxes(path).boxes
     boxes = np.full((index.size, 4), np.nan)
     for i, f in enumerate(index):
         if int(f) in gt:
@@ -168,6 +170,10 @@ def _sources_and_boxes(args) -> list[tuple[str, str | None]]:
     if len(boxes) != len(sources):
         raise CliError(f"--boxes lists {len(boxes)} file(s) for {len(sources)} source(s): give one per source, or "
                        "--boxes alone to use each folder's groundtruth.csv")
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
+
+    for b in boxes:  # a missing or damaged file is said before any training frame is read
+        read_scored_boxes(b)
     return list(zip(sources, boxes))
 
 
