@@ -197,6 +197,14 @@ def test_frame_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path) -> 
     assert not (tmp_path / "f.png").exists()
 
 
+@pytest.mark.parametrize("out", ["v.mp4", "pictures"])
+def test_render_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path, out: str) -> None:
+    """gflow render --scale 1000 ended in an out-of-memory 'internal error' from OpenCV, as gflow frame's did."""
+    r = gflow("render", str(rec / "demo.mcap"), out, "--scale", "1000", cwd=tmp_path)
+    one_line_error(r, "--scale 1000", "320x240", "at most 102", rc=2)
+    assert not list(tmp_path.iterdir())
+
+
 # -- gflow eval --------------------------------------------------------------------------------------------
 
 
