@@ -853,3 +853,16 @@ def test_learn_m2_leaves_out_the_frames_whose_box_row_says_the_target_is_absent(
               "--patch-size", "8x8", cwd=tmp_path)
     assert "box has NaN" not in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert "training items: 3 patches" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--frames", "90:99"], "--frames 90:99: no decodable frame"),
+    (["--background-frames", "90:99"], "--background-frames 90:99: no decodable frame"),
+])
+def test_learn_m2_frame_range_past_the_end_names_its_option(tmp_path: Path, frames: Path, extra: list[str],
+                                                            named: str) -> None:
+    """"no decodable frame ... for frames 90:99" named neither option: --frames and --background-frames were not
+    told apart."""
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "-q", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
