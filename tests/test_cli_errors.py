@@ -866,3 +866,22 @@ def test_learn_m2_frame_range_past_the_end_names_its_option(tmp_path: Path, fram
     r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "-q", *extra, cwd=tmp_path)
     assert_one_line_error(r, named)
     assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("source,extra,named", [
+    ("udp://127.0.0.1:notaport", [], ["udp://127.0.0.1:notaport", "Port could not be cast"]),
+    ("rtsp://127.0.0.1:99999/x", [], ["rtsp://127.0.0.1:99999/x", "Port out of range"]),
+    ("rtsp://127.0.0.1:1/x", ["--reconnect", "-1"], ["argument --reconnect", ">= 0"]),
+    ("rtsp://127.0.0.1:1/x", ["--reconnect", "nan"], ["argument --reconnect", ">= 0"]),
+    ("rtsp://127.0.0.1:1/x", ["--open-timeout", "0"], ["argument --open-timeout", "> 0"]),
+    ("rtsp://127.0.0.1:1/x", ["--camera", "-1"], ["argument --camera", ">= 0"]),
+])
+def test_a_live_source_mistake_is_refused_before_anything_is_opened(tmp_path: Path, source: str, extra: list[str],
+                                                                    named: list[str]) -> None:
+    """A URL whose port is no number was waited on for --open-timeout, then "nothing received" (exit 1); --reconnect
+    -1 (or NaN) and --open-timeout 0 were refused by the source stage, naming the graph file's line and its
+    parameters, not the option; --camera -1 said "no camera at /dev/video-1"."""
+    r = gflow("track", source, "--init", "1,1,10,10", "--out", "b.csv", "--inline", "--no-record", *extra,
+              cwd=tmp_path)
+    assert_one_line_error(r, *named)
+    assert r.returncode == 2 and not (tmp_path / "b.csv").exists()

@@ -154,6 +154,12 @@ _LIVE_OPTIONS = {"reconnect": "--reconnect", "open_timeout": "--open-timeout"}
 
 def _live_params(request: TrackRequest) -> dict:
     """Source parameters for a stream URL or a camera device."""
+    from urllib.parse import urlsplit
+
+    try:  # a port that is no number (udp://host:notaport) was waited on for --open-timeout, then "nothing received"
+        urlsplit(request.source).port
+    except ValueError as e:
+        raise RequestError(f"{request.source}: not a stream URL gflow can open: {e}") from None
     for opt, given in (("--start", request.start), ("--realtime", request.realtime)):
         if given:
             raise RequestError(f"{opt} applies to files; a live source starts at its first frame and runs at its own "

@@ -252,6 +252,18 @@ def cmd_track(args) -> int:
     return 0
 
 
+def reconnect_seconds(text: str) -> float:
+    """``--reconnect``: a number of seconds >= 0, or inf (argparse type). A negative one or NaN was refused only by
+    the source stage, naming the graph file's line and its parameters rather than the option."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not v >= 0:  # NaN fails this too
+        raise argparse.ArgumentTypeError(f"must be a number >= 0 (or inf), got {text.strip()}")
+    return v
+
+
 def add_track_args(p: argparse.ArgumentParser) -> None:
     """The options of ``gflow track`` (also parsed by ``gflow benchmark`` to run a tracker the same way)."""
     p.add_argument("source", nargs="?",
@@ -274,10 +286,11 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=nonnegative_int, default=0, help="first frame index")
     p.add_argument("--stop", type=positive_int, help="stop before this frame index (live: after this many frames decoded)")
     g = p.add_argument_group("live sources (docs/live.md)")
-    g.add_argument("--camera", type=int, metavar="N", help="track camera N (/dev/videoN) instead of a SOURCE")
-    g.add_argument("--reconnect", type=float, metavar="S",
-                   help="seconds to keep reopening a lost stream before the run ends (default 5; 0: end at once)")
-    g.add_argument("--open-timeout", type=float, metavar="S",
+    g.add_argument("--camera", type=nonnegative_int, metavar="N", help="track camera N (/dev/videoN) instead of a SOURCE")
+    g.add_argument("--reconnect", type=reconnect_seconds, metavar="S",
+                   help="seconds to keep reopening a lost stream before the run ends (default 5; 0: end at once; "
+                        "inf: until it is back or Ctrl-C)")
+    g.add_argument("--open-timeout", type=positive_float, metavar="S",
                    help="seconds opening the stream may take before it is an error (default 10)")
     p.add_argument("--graph", help="graph file to use instead of the tracker's built-in one")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="a parameter of the tracker, once for all its stages (tracker.particles=1000), or of one stage (source.stop=100); repeatable")
