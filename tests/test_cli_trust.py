@@ -205,6 +205,24 @@ def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: P
     assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
 
 
+@pytest.mark.parametrize("flag", ["--pred", "--gt"])
+def test_a_negative_frame_in_a_boxes_file_is_refused(files: Path, tmp_path: Path, capsys, flag: str) -> None:
+    """A ground-truth row of frame -1 (no source has one) was scored as a frame the tracker missed."""
+    neg = tmp_path / "neg.csv"
+    neg.write_text("frame,x,y,w,h\n-1,10,10,20,20\n0,11,10,20,20\n")
+    other = {"--pred": "--gt", "--gt": "--pred"}[flag]
+    rc, err = cli(["eval", flag, str(neg), other, str(files / "gt.csv")], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    assert f"{neg}:2: frame -1: frame numbers start at 0" in lines[0], lines[0]
+    vis = tmp_path / "visible.csv"
+    vis.write_text("frame,visible\n-1,1.0\n0,0.5\n")
+    from pipeline.recording.results import read_visibility
+
+    with pytest.raises(ValueError, match=r"visible.csv:2: frame -1: frame numbers start at 0"):
+        read_visibility(vis)
+
+
 def test_a_frame_given_twice_in_a_visibility_or_points_file_is_refused(tmp_path: Path) -> None:
     """As in a boxes file: the later row of a frame (or of a frame's landmark) replaced the earlier one."""
     from pipeline.io.landmarks import read_points

@@ -32,6 +32,8 @@ def _box_row(p: Path, lineno: int, row: list[str], allow_nan: bool) -> tuple[int
         x, y, w, h = (float(v) for v in row[1:5])  # csv_rows gives at least five columns
     except ValueError:
         raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+    if frame < 0:  # no source has one; in a ground truth it was scored as a frame the tracker missed
+        raise ValueError(f"{p}:{lineno}: frame {frame}: frame numbers start at 0")
     box = (x, y, w, h)
     if any(math.isinf(v) for v in box):
         raise ValueError(f"{p}:{lineno}: box has inf")
@@ -176,6 +178,8 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
                 pert[frame] = bool(int(row[2]))
         except ValueError:
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if frame < 0:
+            raise ValueError(f"{p}:{lineno}: frame {frame}: frame numbers start at 0")
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{p}:{lineno}: visible {row[1]} is outside [0, 1]")
         if frame in first:  # the later row would replace the earlier one without a word
