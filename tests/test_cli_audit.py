@@ -105,6 +105,25 @@ def test_diff_of_a_damaged_recording_says_what_was_not_compared(rec: Path, tmp_p
     assert r.returncode == 0 and r.stdout.strip().endswith("identical"), r.stdout
 
 
+@pytest.mark.parametrize("args, status", [
+    (["boxes", "{r}", "--out", "OUT"], 3),
+    (["render", "{r}", "OUT", "-q"], 1),
+    (["plot", "{r}", "OUT"], 1),
+    (["foxglove", "{r}", "OUT"], 1),
+])
+def test_an_output_of_a_damaged_recording_is_not_reported_as_whole(rec: Path, tmp_path: Path, args: list[str],
+                                                                   status: int) -> None:
+    """boxes, render, plot and foxglove wrote what could be read before the damage and exited 0, as if the run had
+    ended there, though the recording goes on after it; the output is kept, the exit status says it is partial."""
+    out = {"boxes": "b.csv", "render": "v.mp4", "plot": "p.png", "foxglove": "f.mcap"}[args[0]]
+    r = gflow(*[a.replace("{r}", str(rec / "damaged.mcap")).replace("OUT", out) for a in args], cwd=tmp_path)
+    line = error_line(r, f"{out} holds only what was read before the damage in", "damaged.mcap", rc=status)
+    assert line.startswith(f"gflow {args[0]}: ") and (tmp_path / out).is_file()
+    assert sum("recording is damaged" in ln for ln in r.stdout.splitlines() + r.stderr.splitlines()) == 1, r
+    whole = gflow(*[a.replace("{r}", str(rec / "demo.mcap")).replace("OUT", "whole-" + out) for a in args], cwd=tmp_path)
+    assert whole.returncode == 0 and not whole.stderr.strip(), whole.stderr  # an intact one still is whole
+
+
 # -- gflow rerun -------------------------------------------------------------------------------------------
 
 

@@ -27,7 +27,7 @@ from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
            "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY", "torn_segments", "torn_cause",
-           "check_recording", "damage_cause"]
+           "check_recording", "damage_cause", "damage_told"]
 
 
 class TruncatedRecording(Exception):
@@ -53,6 +53,13 @@ def damage_cause(path: str | Path) -> str:
         if str(seg) in _DAMAGE_FOUND:
             return _DAMAGE_FOUND[str(seg)]
     return ""
+
+
+def damage_told(text: str) -> None:
+    """The damage ``text`` (an ``on_truncated`` report) is said by the command that was told it: the readers of this
+    process that meet it later do not warn of it again (a command would name the same damage twice)."""
+    if isinstance(text, Damaged):
+        _DAMAGE_SAID.add(text)
 
 
 def _say_damage(text: str) -> None:

@@ -323,6 +323,22 @@ def warn_if_torn(path: str) -> bool:
     return bool(torn)
 
 
+def partial_if_damaged(recording: str, command: str, wrote: str, status: int = 1) -> int:
+    """The exit status of ``gflow COMMAND`` that wrote ``wrote`` from ``recording``: 0, or ``status`` when a reader of
+    this process met damage inside the recording (:func:`pipeline.io.mcap_io.damage_cause`: bytes follow the record
+    that failed, or the file's end, and were not read, so ``wrote`` lacks them), said in a line on stderr. The output
+    is kept (what could be read), but is not reported as a whole one."""
+    import sys
+
+    from pipeline.io.mcap_io import damage_cause
+
+    if not damage_cause(recording):
+        return 0
+    print(f"gflow {command}: {wrote} holds only what was read before the damage in {recording}; what the recording "
+          f"holds after it is not in it (`gflow verify` says where the damage is)", file=sys.stderr)
+    return status
+
+
 def write_picture(path: str, pic) -> None:
     """Encode ``pic`` as ``path``'s kind (checked writable before the frame was read) and write it. A write
     that fails (a full disk) is an OSError naming ``path`` (exit status 1: the command ran and failed) and

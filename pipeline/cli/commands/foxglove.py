@@ -62,7 +62,9 @@ def cmd_foxglove(args) -> int:
             if s.left_out else []) + ([f"{s.markers} end-of-stream markers"] if s.markers else [])
     if left:
         print("left out: " + "; ".join(left))
-    return 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return partial_if_damaged(args.recording, "foxglove", args.out)
 
 
 def register(sub) -> None:

@@ -73,7 +73,9 @@ def cmd_render(args) -> int:
     else:
         _write_pictures(out, pictures)
     print(f"drew {len(seqs)} frames into {out}")
-    return 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return partial_if_damaged(args.file, "render", str(out))
 
 
 def _refuse_scale_past_any_picture(args, frames: dict, seqs: list[int]) -> None:
