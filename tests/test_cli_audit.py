@@ -124,6 +124,14 @@ def test_an_output_of_a_damaged_recording_is_not_reported_as_whole(rec: Path, tm
     assert whole.returncode == 0 and not whole.stderr.strip(), whole.stderr  # an intact one still is whole
 
 
+def test_a_replay_of_a_damaged_recording_is_not_reported_as_whole(rec: Path, tmp_path: Path) -> None:
+    """It said "replayed N messages" and exited 0, what came after the damage never sent."""
+    r = gflow("replay", str(rec / "damaged.mcap"), "--max", cwd=tmp_path)
+    error_line(r, "the replay holds only what was read before the damage in", "damaged.mcap", rc=1)
+    whole = gflow("replay", str(rec / "demo.mcap"), "--max", cwd=tmp_path)
+    assert whole.returncode == 0 and "replayed" in whole.stderr, whole.stderr
+
+
 # -- gflow rerun -------------------------------------------------------------------------------------------
 
 

@@ -152,7 +152,9 @@ def cmd_replay(args) -> int:
     except (TimeoutError, StreamInUse) as e:
         raise CliError(str(e)) from None
     print(f"replayed {n} messages from {args.file}", file=sys.stderr)
-    return 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return partial_if_damaged(args.file, "replay", "the replay")
 
 
 def register(sub) -> None:
