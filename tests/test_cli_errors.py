@@ -885,3 +885,17 @@ def test_a_live_source_mistake_is_refused_before_anything_is_opened(tmp_path: Pa
               cwd=tmp_path)
     assert_one_line_error(r, *named)
     assert r.returncode == 2 and not (tmp_path / "b.csv").exists()
+
+
+def test_benchmark_refuses_ground_truth_past_the_last_frame(tmp_path: Path, frames: Path) -> None:
+    """A ground-truth box for frame 7 of a five-frame sequence was scored as a frame the tracker missed (a success
+    of 5 / 6 at best), where `gflow export vot` refuses the same folder."""
+    seq = tmp_path / "data" / "s"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("".join(f"{f},10,10,20,20\n" for f in (0, 1, 2, 3, 4, 7)))
+    for argv in (["benchmark", "data", "--trackers", "appearance", "--inline", "--opencv", "none", "-q"],
+                 ["export", "vot", "data", "ws"]):
+        r = gflow(*argv, cwd=tmp_path)
+        assert_one_line_error(r, "ground truth for frame 7, after the last frame of", "(4)")
+        assert r.returncode == 2 and not (tmp_path / "ws").exists()
