@@ -205,6 +205,31 @@ def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: P
     assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
 
 
+def test_a_boxes_file_with_a_byte_order_mark_keeps_its_first_row(tmp_path: Path, capsys) -> None:
+    """A file saved with a byte-order mark (some editors and spreadsheets write one) and no header had its first row
+    skipped as a header: frame 0 was left out of the scores without a word."""
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
+
+    plain, bom = tmp_path / "plain.csv", tmp_path / "bom.csv"
+    plain.write_text("0,10,10,20,20\n1,10,10,20,20\n")
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    assert read_scored_boxes(bom).boxes == read_scored_boxes(plain).boxes == {0: (10.0, 10.0, 20.0, 20.0),
+                                                                              1: (10.0, 10.0, 20.0, 20.0)}
+    rc, err = cli(["eval", "--gt", str(bom), "--pred", str(plain)], capsys)
+    assert rc == 0, err
+
+
+@pytest.mark.parametrize("text", ["0\t10\t10\t20\t20\n", "0;10;10;20;20\n1;10;10;20;20\n", "0 10 10 20 20\n"])
+def test_a_boxes_file_separated_by_other_than_commas_is_named_so(tmp_path: Path, capsys, text: str) -> None:
+    """Its first line was skipped as a header: a one-row file was called "no boxes", and a longer one refused at its
+    second line for its column count, neither naming the separator."""
+    f = tmp_path / "tabs.csv"
+    f.write_text(text)
+    rc, err = cli(["eval", "--gt", str(f), "--pred", str(f)], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and f"{f}:1: numbers separated by tabs, semicolons or spaces" in lines[0], err
+
+
 @pytest.mark.parametrize("flag", ["--pred", "--gt"])
 def test_a_negative_frame_in_a_boxes_file_is_refused(files: Path, tmp_path: Path, capsys, flag: str) -> None:
     """A ground-truth row of frame -1 (no source has one) was scored as a frame the tracker missed."""
