@@ -899,3 +899,24 @@ def test_benchmark_refuses_ground_truth_past_the_last_frame(tmp_path: Path, fram
         r = gflow(*argv, cwd=tmp_path)
         assert_one_line_error(r, "ground truth for frame 7, after the last frame of", "(4)")
         assert r.returncode == 2 and not (tmp_path / "ws").exists()
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--pred", "other.csv"], "--pred given 2 times"),
+    (["eval", "--gt", "gt.csv", "--pred=gt.csv", "--pr", "other.csv"], "--pred given 2 times"),
+    (["learn", "m2", "frames", "--out", "a.npz", "--out", "b.npz", "-K", "2"], "--out given 2 times"),
+    (["track", "frames", "--init", "1,1,9,9", "--init", "2,2,9,9", "--out", "b.csv", "--inline"], "--init given 2"),
+])
+def test_an_option_of_one_value_given_twice_is_refused(tmp_path: Path, frames: Path, argv: list[str],
+                                                       named: str) -> None:
+    """argparse kept the last value without a word: `eval --pred a.csv --pred b.csv` scored b.csv alone."""
+    (tmp_path / "gt.csv").write_text("0,10,10,20,20\n")
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named, "give it once")
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["frames", "gt.csv"]
+
+
+def test_options_that_add_up_may_be_given_again(tmp_path: Path, frames: Path) -> None:
+    r = gflow("track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--no-record", "-q", "--set",
+              "tracker.particles=50", "--set", "tracker.rate=0.03", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr

@@ -123,7 +123,42 @@ def parse(ap: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Names
         elif close:
             message += f" (did you mean {names[close[0]]}?)"
         parser.error(message)
+    _refuse_repeated(parser, sys.argv[1:] if argv is None else argv)
     return args
+
+
+def _refuse_repeated(parser: argparse.ArgumentParser, argv: list[str]) -> None:
+    """An option of one value given twice (``gflow eval --pred a.csv --pred b.csv``): argparse keeps the last one
+    without a word, so the command would run on a value the user may not have meant; refused naming the option.
+    Options that add up (``--set``, ``--connect``) and flags are left alone."""
+    tokens = list(argv)
+    word = command_word(tokens)
+    tokens = tokens[tokens.index(word) + 1:] if word in tokens else tokens
+    while True:  # a command with commands of its own (learn m2, export vot): the one named
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        name = next((t for t in tokens if not t.startswith("-") and sub is not None and t in sub.choices), None)
+        if sub is None or name is None:
+            break
+        parser, tokens = sub.choices[name], tokens[tokens.index(name) + 1:]
+    given: dict[str, list[str]] = {}
+    for t in tokens:
+        if t == "--":
+            break
+        action = _option_action(parser, t.split("=", 1)[0]) if t.startswith("-") else None
+        if isinstance(action, argparse._StoreAction):
+            given.setdefault(action.dest, []).append(t.split("=", 1)[0])
+    twice = next((names for names in given.values() if len(names) > 1), None)
+    if twice:
+        parser.error(f"{twice[0]} given {len(twice)} times; give it once (the last one would be used without a word)")
+
+
+def _option_action(parser: argparse.ArgumentParser, name: str) -> argparse.Action | None:
+    """The action of option ``name`` as argparse reads it: exactly, or a long option's unambiguous prefix."""
+    found = parser._option_string_actions.get(name)
+    if found is not None or not name.startswith("--"):
+        return found
+    close = {a for o, a in parser._option_string_actions.items() if o.startswith(name)}
+    return close.pop() if len(close) == 1 else None
 
 
 def _take_sigint_back() -> None:
