@@ -920,3 +920,16 @@ def test_options_that_add_up_may_be_given_again(tmp_path: Path, frames: Path) ->
     r = gflow("track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--no-record", "-q", "--set",
               "tracker.particles=50", "--set", "tracker.rate=0.03", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--set", "tracker.rate=0.5", "--set",
+      "tracker.rate=0.6"], "--set tracker.rate given twice (0.5, then 0.6)"),
+    (["run", "demo", "--inline", "--set", "source.frames=3", "--set", "source.frames=4"],
+     "--set source.frames given twice (3, then 4)"),
+])
+def test_a_parameter_set_twice_is_refused(tmp_path: Path, frames: Path, argv: list[str], named: str) -> None:
+    """The later --set of one parameter replaced the earlier one without a word."""
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["frames"]
