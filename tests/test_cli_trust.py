@@ -265,6 +265,18 @@ def test_a_frame_given_twice_in_a_visibility_or_points_file_is_refused(tmp_path:
     assert read_points(pts) == {0: {0: (1.0, 2.0), 1: (3.0, 4.0)}, 1: {0: (5.0, 6.0)}}
 
 
+@pytest.mark.parametrize("stop,said", [("99", True), ("6", False), ("4", False)])
+def test_a_stop_past_the_end_of_the_frames_is_said(files: Path, tmp_path: Path, capsys, stop: str, said: bool) -> None:
+    """--stop 99 on six frames tracked frames 0-5 and said only "tracked 6 frames", as if --stop had been met."""
+    from pipeline.cli.main import main
+
+    capsys.readouterr()
+    assert main(["track", str(files / "frames"), "--init", "10,10,20,20", "--out", str(tmp_path / "b.csv"), "--inline",
+                 "--no-record", "-q", "--stop", stop]) == 0
+    out = capsys.readouterr().out
+    assert (f"--stop {stop} is past the end of {files / 'frames'}: its last frame is 5, tracked to it" in out) == said, out
+
+
 @pytest.mark.parametrize("extra,words", [
     (["--start", "4", "--stop", "2"], ["--start 4 --stop 2", "no frame to track"]),
     (["--stop", "0"], ["--stop", ">= 1"]),

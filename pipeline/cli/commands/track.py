@@ -236,7 +236,7 @@ def cmd_track(args) -> int:
     if run.live is not None and run.live.tracking_s > 0:  # not the waits for a lost stream, nor its end
         rate = f"{n / run.live.tracking_s:.1f} fps over the {run.live.tracking_s:.1f} s the stream was tracked"
     print(f"tracked {n} frames in {run.seconds:.2f} s ({rate}); boxes: {args.out}{pts}; recording: {run.kept}")
-    for line in run.lines:
+    for line in run.lines + _stop_past_the_end(args, run):
         print(f"  {line}")
     errs = info.get("errors")
     if errs:  # a count (processes) or {stage: count} (inline)
@@ -250,6 +250,15 @@ def cmd_track(args) -> int:
         print(f"the run is incomplete: {run.incomplete}", file=sys.stderr)
         return 3
     return 0
+
+
+def _stop_past_the_end(args, run: TrackResult) -> list[str]:
+    """A line when a file's frames ended before ``--stop`` (the run tracked to the last one; nothing said so, and a
+    --stop past the end reads as though that many frames were tracked)."""
+    if args.stop is None or run.live is not None or not run.estimates or max(run.estimates) + 1 >= args.stop:
+        return []
+    last = max(run.estimates)
+    return [f"--stop {args.stop} is past the end of {args.source}: its last frame is {last}, tracked to it"]
 
 
 def reconnect_seconds(text: str) -> float:
