@@ -394,7 +394,11 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
     records = [r for r in iter_records(path, topics=opts.topics)
                if "/_status/" not in r.topic and not r.topic.endswith("/_control")]
     if not records:
-        raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else ""))
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(path) or torn_cause(path)  # the cut, not taken for what the run recorded
+        raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else "")
+                         + (f": {why}" if why else ""))
     t_first = min(r.log_ns for r in records)
     keep = []
     for r in records:

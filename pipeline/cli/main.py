@@ -35,6 +35,7 @@ from typing import NoReturn  # noqa: E402
 
 from pipeline.cli.commands import command_module, command_modules  # noqa: E402
 from pipeline.cli.commands.common import CliError, start_work, work_started  # noqa: E402
+from pipeline.io import damage_notes  # noqa: E402
 from pipeline.runtime.trace import mark  # noqa: E402
 
 __all__ = ["main", "build_parser"]
@@ -208,31 +209,40 @@ def main(argv: list[str] | None = None) -> int:
         ap.print_help()
         return 2
     start_work(False)  # main may run several commands in one process (the tests do)
+    damage_notes.defer()  # damage inside a recording: said once, by the command's last line or after it
     try:
-        return int(args.func(args) or 0)
+        rc = int(args.func(args) or 0)
     except _user_errors() as e:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote
-        print(f"gflow {args.command}: error: {msg}", file=sys.stderr)
-        return 1 if work_started() and not isinstance(e, _mistakes()) else 2
+        return _last_word(args, f"gflow {args.command}: error: {msg}",
+                          1 if work_started() and not isinstance(e, _mistakes()) else 2)
     except BrokenPipeError:  # the reader of the output has gone (gflow info r.mcap | head): not an error to report
+        damage_notes.flush()
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit's flush of stdout is quiet
         return 141  # as a shell reports a command ended by SIGPIPE
     except OSError as e:  # the system failed during the work (a full disk, a write refused): name it, exit 1
         where = f"{e.filename}: " if e.filename else ""
-        print(f"gflow {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
-        return 1
+        return _last_word(args, f"gflow {args.command}: error: {where}{e.strerror or e}", 1)
     except KeyboardInterrupt:
-        print(f"gflow {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return _last_word(args, f"gflow {args.command}: interrupted", 130)
     except RuntimeError as e:  # a run that could not start or went wrong (e.g. a stage never came up)
-        print(f"gflow {args.command}: error: {' '.join(str(e).split())}", file=sys.stderr)
-        return 1
+        return _last_word(args, f"gflow {args.command}: error: {' '.join(str(e).split())}", 1)
     except Exception as e:  # a bug: one line for the user, the traceback with -vv
         if args.verbose >= 2:
+            damage_notes.flush()
             raise
-        print(f"gflow {args.command}: internal error: {type(e).__name__}: {' '.join(str(e).split())} "
-              f"(a bug in gflow; run with -vv for the traceback)", file=sys.stderr)
-        return 1
+        return _last_word(args, f"gflow {args.command}: internal error: {type(e).__name__}: "
+                                f"{' '.join(str(e).split())} (a bug in gflow; run with -vv for the traceback)", 1)
+    damage_notes.flush()
+    return rc
+
+
+def _last_word(args, line: str, rc: int) -> int:
+    """Print the command's last ``line`` on stderr, after the damage warnings it does not already hold
+    (:mod:`pipeline.io.damage_notes`); return ``rc``."""
+    damage_notes.flush(line)
+    print(line, file=sys.stderr)
+    return rc
 
 
 if __name__ == "__main__":

@@ -21,6 +21,7 @@ from typing import Iterator
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
+from pipeline.io import damage_notes
 from pipeline.io.mcap_writer import MAGIC
 from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
@@ -60,6 +61,7 @@ def damage_told(text: str) -> None:
     process that meet it later do not warn of it again (a command would name the same damage twice)."""
     if isinstance(text, Damaged):
         _DAMAGE_SAID.add(text)
+        damage_notes.told(text)
 
 
 def _say_damage(text: str) -> None:
@@ -68,7 +70,7 @@ def _say_damage(text: str) -> None:
     check for a torn file looks at) is intact, so nothing else would say it."""
     if text not in _DAMAGE_SAID:
         _DAMAGE_SAID.add(text)
-        logging.getLogger("gflow.recording").warning("%s", text)
+        damage_notes.keep(text)  # logged at once, or (gflow) when the command ends, unless its last line said it
 
 
 # What reading a torn or corrupt file raises: the mcap reader's own errors, struct's (a file torn

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 ORDER = 57
 
-from pipeline.io.mcap_io import damage_told, iter_records, segments
+from pipeline.io.mcap_io import Damaged, damage_told, iter_records, segments
 from pipeline.recording.live_record import live_summary
 from pipeline.recording.results import (blank_rule, completeness, estimate_columns, renumber, reported_frames,
                                        run_estimates, write_boxes)
@@ -33,7 +33,7 @@ def cmd_boxes(args) -> int:
     segs = segments(args.recording)
     print(f"{len(boxes)} boxes, frames {min(boxes)}-{max(boxes)}, written to {args.out}"
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))
-    for line in torn + sessions.lines():
+    for line in [t for t in torn if not isinstance(t, Damaged)] + sessions.lines():  # damage: said on stderr below
         print(f"  {line}")
     gaps = completeness(est, None, reported_frames(args.recording, args.stream), blank=_blank_rule(args.recording))
     for line in gaps:

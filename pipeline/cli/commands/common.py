@@ -326,16 +326,17 @@ def warn_if_torn(path: str) -> bool:
 def partial_if_damaged(recording: str, command: str, wrote: str, status: int = 1) -> int:
     """The exit status of ``gflow COMMAND`` that wrote ``wrote`` from ``recording``: 0, or ``status`` when a reader of
     this process met damage inside the recording (:func:`pipeline.io.mcap_io.damage_cause`: bytes follow the record
-    that failed, or the file's end, and were not read, so ``wrote`` lacks them), said in a line on stderr. The output
-    is kept (what could be read), but is not reported as a whole one."""
+    that failed, or the file's end, and were not read, so ``wrote`` lacks them), said in one line on stderr with the
+    damage. The output is kept (what could be read), but is not reported as a whole one."""
     import sys
 
-    from pipeline.io.mcap_io import damage_cause
+    from pipeline.io.mcap_io import damage_cause, damage_told
 
-    if not damage_cause(recording):
+    damage = damage_cause(recording)
+    if not damage:
         return 0
-    print(f"gflow {command}: {wrote} holds only what was read before the damage in {recording}; what the recording "
-          f"holds after it is not in it (`gflow verify` says where the damage is)", file=sys.stderr)
+    damage_told(damage)  # said here: not warned again when the command ends
+    print(f"gflow {command}: {wrote} holds only what was read before the damage: {damage}", file=sys.stderr)
     return status
 
 

@@ -48,6 +48,9 @@ def describe_recording(path: str, as_json: bool) -> int:
             v1 = v if len(v) < 200 else v[:200] + f"... ({len(v)} chars)"
             print(f"  {k}: {v1}" if "\n" not in v1 else f"  {k}: |\n    " + v1.replace("\n", "\n    "))
     if bad:  # exit 1: a script must not take this file for a good recording
+        from pipeline.io.mcap_io import damage_cause, damage_told
+
+        damage_told(damage_cause(path))  # said above, in the WARNING line of the summary
         print(f"gflow info: {path}: {bad} ({s.messages} messages read)", file=sys.stderr)
         return 1
     return 0

@@ -56,8 +56,12 @@ def cmd_render(args) -> int:
     warn_if_torn(args.file)
     frames, est, parts = _messages(args.file)
     seqs = [s for s in sorted(frames) if s in est]
-    if not seqs:
-        raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)")
+    if not seqs:  # a damaged or torn file says where it ends, so the cut is not taken for what the run recorded
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(args.file) or torn_cause(args.file)
+        raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)"
+                       + (f": {why}" if why else ""))
     held = f"frames {seqs[0]}..{seqs[-1]}"
     seqs = [s for s in seqs if s >= first and (end is None or s < end)]
     if not seqs:

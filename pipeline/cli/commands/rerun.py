@@ -183,11 +183,12 @@ def cmd_rerun(args) -> int:
 def _damaged(path: str, label: str) -> int:
     """1 (and the line saying why) when ``path`` was found damaged while re-run and compared: its outputs
     after the damage were neither re-run nor compared, so "all identical" is not a check of the run."""
-    from pipeline.io.mcap_io import damage_cause
+    from pipeline.io.mcap_io import damage_cause, damage_told
 
     why = damage_cause(path)
     if not why:
         return 0
+    damage_told(why)  # said here: not warned again when the command ends
     print(f"{label}: compared only up to the damage, so not a check of the whole run: {why}")
     return 1
 
