@@ -933,3 +933,18 @@ def test_a_parameter_set_twice_is_refused(tmp_path: Path, frames: Path, argv: li
     r = gflow(*argv, cwd=tmp_path)
     assert_one_line_error(r, named)
     assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["frames"]
+
+
+def test_view_on_a_port_in_use_is_refused_before_waiting_for_a_pipeline(tmp_path: Path) -> None:
+    """It waited for a pipeline to start (until --duration, or for ever), and only then found the port taken."""
+    pytest.importorskip("foxglove", reason="gflow view needs the foxglove-sdk package")
+    import socket
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        r = gflow("view", "--port", str(port), "--duration", "30", cwd=tmp_path,
+                  env={"GFLOW_RUNTIME_DIR": str(tmp_path)})  # no pipeline announced here: it would wait 30 s
+    assert_one_line_error(r, f"cannot serve on 127.0.0.1:{port}", "in use")
+    assert r.returncode == 2

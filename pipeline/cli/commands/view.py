@@ -19,6 +19,19 @@ def tcp_port(text: str) -> int:
     return v
 
 
+def _refuse_port_in_use(host: str, port: int) -> None:
+    """Refuse, before waiting for a pipeline, a ``--host``/``--port`` that cannot be served on (another program
+    holds the port, or the address is not this machine's): it was said only once a pipeline had started."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds it (TIME_WAIT is no owner)
+            s.bind((host, port))
+    except OSError as e:
+        raise CliError(f"cannot serve on {host}:{port}: {e.strerror or e}") from None
+
+
 def _await_run(args, end: float | None) -> bool:
     """Wait for a pipeline (of ``--stream``: the run's stream or its graph's) to be announced on
     this machine, until ``end`` (None: until Ctrl-C); True when one runs. With ``--connect`` the
@@ -42,6 +55,7 @@ def cmd_view(args) -> int:
         raise CliError("gflow view needs the foxglove-sdk package: pip install foxglove-sdk") from None
     from pipeline.cli.foxglove_bridge import FoxgloveBridge
 
+    _refuse_port_in_use(args.host, args.port)
     end = None if args.duration is None else time.monotonic() + args.duration
     from pipeline.runtime.running import runs_of_camera, running
 
