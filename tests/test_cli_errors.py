@@ -948,3 +948,14 @@ def test_view_on_a_port_in_use_is_refused_before_waiting_for_a_pipeline(tmp_path
                   env={"GFLOW_RUNTIME_DIR": str(tmp_path)})  # no pipeline announced here: it would wait 30 s
     assert_one_line_error(r, f"cannot serve on 127.0.0.1:{port}", "in use")
     assert r.returncode == 2
+
+
+@pytest.mark.parametrize("argv", [["run", "demo", "--inline", "--no-record", "--stream", ""],
+                                  ["boxes", "x.mcap", "--out", "b.csv", "--stream", ""],
+                                  ["replay", "x.mcap", "--max", "--stream", ""], ["ps", "--stream", ""]])
+def test_an_empty_stream_name_is_refused(tmp_path: Path, argv: list[str]) -> None:
+    """`--stream ''` (an empty shell variable) was taken for no --stream at all: `run` made a run of the default
+    stream, `boxes` wrote every stream's estimates, and nothing said so."""
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, "argument --stream", "non-empty name")
+    assert r.returncode == 2 and not list(tmp_path.iterdir())

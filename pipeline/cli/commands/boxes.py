@@ -10,7 +10,7 @@ from pipeline.io.mcap_io import Damaged, damage_told, iter_records, segments
 from pipeline.recording.live_record import live_summary
 from pipeline.recording.results import (blank_rule, completeness, estimate_columns, renumber, reported_frames,
                                        run_estimates, write_boxes)
-from pipeline.cli.commands.common import CliError, check_new_file
+from pipeline.cli.commands.common import CliError, check_new_file, stream_name
 
 
 def cmd_boxes(args) -> int:
@@ -77,5 +77,5 @@ def register(sub) -> None:
                        epilog="example: gflow boxes recordings/track-20260101-120000.mcap --out boxes.csv")
     p.add_argument("recording", help="the .mcap recording (its NAME.partN.mcap segments are read too)")
     p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h,confidence,state)")
-    p.add_argument("--stream", help="only this stream's estimates (default: all)")
+    p.add_argument("--stream", type=stream_name, help="only this stream's estimates (default: all)")
     p.set_defaults(func=cmd_boxes)

@@ -265,11 +265,19 @@ def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     add_security_args(p.add_argument_group("security (TLS, login, signed runs: docs/security.md)"))
 
 
+def stream_name(text: str) -> str:
+    """A stream's name (argparse type): not empty (``--stream ''``, an empty shell variable, was taken for no --stream
+    at all), without '/' or '*' (they would reach into other streams' topics)."""
+    if not text.strip() or "/" in text or "*" in text:
+        raise argparse.ArgumentTypeError(f"a stream is a non-empty name without '/' or '*', got {text!r}")
+    return text
+
+
 def add_placement_args(p: argparse.ArgumentParser, hosts: bool = True) -> None:
     """``--stream NAME`` (the run's stream; default: the graph's plus a new run id) and, for
     ``gflow run``, ``--host LABEL`` (repeatable: start only the stages placed there)."""
     g = p.add_argument_group("placement and run id (docs/deployment.md)")
-    g.add_argument("--stream", metavar="NAME",
+    g.add_argument("--stream", metavar="NAME", type=stream_name,
                    help="this run's stream: topics are gflow/NAME/... (default: the graph's stream plus a new run id, "
                         "so two runs never mix; with --host, the graph's stream: give every host the same NAME)")
     if hosts:

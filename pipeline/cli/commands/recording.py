@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_float, nonnegative_int, positive_float,
-                                          tool_zenoh)
+                                          stream_name, tool_zenoh)
 
 # file suffix -> callable(path, as_json) printing a description; other modules add to it
 DESCRIBERS: dict = {}
@@ -193,7 +193,7 @@ def register(sub) -> None:
     p.add_argument("--loop", type=nonnegative_int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
     p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
                    help="before each new frame, wait until these live stages acknowledge the previous one")
-    p.add_argument("--stream", metavar="NAME",
+    p.add_argument("--stream", metavar="NAME", type=stream_name,
                    help="publish on gflow/NAME/... instead of the recorded stream (a stream a running pipeline holds "
                         "is refused unless named here or fed with --lockstep)")
     p.add_argument("--ack-timeout", type=positive_float, default=10.0, help="with --lockstep: seconds to wait for a stage to acknowledge a frame (default 10)")

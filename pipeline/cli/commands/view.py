@@ -8,7 +8,7 @@ import argparse
 import sys
 import time
 
-from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, positive_int, tool_zenoh
+from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, positive_int, stream_name, tool_zenoh
 
 
 def tcp_port(text: str) -> int:
@@ -103,7 +103,7 @@ def register(sub) -> None:
                                    "the run. Started before the run, it waits for it. Features and "
                                    "particles are not forwarded. In the Foxglove app: Open connection -> Foxglove "
                                    "WebSocket -> ws://HOST:PORT.")
-    p.add_argument("--stream", help="the pipeline's stream (default: the one running)")
+    p.add_argument("--stream", type=stream_name, help="the pipeline's stream (default: the one running)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; 0.0.0.0 for other machines)")
     p.add_argument("--port", type=tcp_port, default=8765, help="WebSocket port (default 8765, Foxglove's)")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
