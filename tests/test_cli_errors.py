@@ -959,3 +959,21 @@ def test_an_empty_stream_name_is_refused(tmp_path: Path, argv: list[str]) -> Non
     r = gflow(*argv, cwd=tmp_path)
     assert_one_line_error(r, "argument --stream", "non-empty name")
     assert r.returncode == 2 and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["render", "{rec}", ""], "argument OUT: empty"),
+    (["diff", "{rec}", "{rec}", "--topics", ""], "argument --topics: empty"),
+    (["track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--record", ""],
+     "argument --record: empty"),
+    (["boxes", "{rec}", "--out", ""], "argument --out: empty"),
+])
+def test_an_empty_argument_is_refused_naming_it(tmp_path: Path, frames: Path, demo_mcap: Path, argv: list[str],
+                                                named: str) -> None:
+    """An argument given as '' (an unset shell variable) was read as not given or as the current folder: `render
+    run.mcap ''` drew its PNGs into the current folder, `--record ''` kept the default recording, `--topics ''`
+    compared every topic, `boxes --out ''` said "PosixPath('.') has an empty name"."""
+    before = sorted(p.name for p in tmp_path.iterdir())
+    r = gflow(*[a.replace("{rec}", str(demo_mcap)) for a in argv], cwd=tmp_path)
+    assert_one_line_error(r, named, "give a non-empty name or value")
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == before

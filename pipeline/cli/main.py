@@ -124,23 +124,44 @@ def parse(ap: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Names
         elif close:
             message += f" (did you mean {names[close[0]]}?)"
         parser.error(message)
-    _refuse_repeated(parser, sys.argv[1:] if argv is None else argv)
+    parser, tokens = _command_parser(parser, sys.argv[1:] if argv is None else argv)
+    _refuse_repeated(parser, tokens)
+    _refuse_empty(parser, args)
     return args
 
 
-def _refuse_repeated(parser: argparse.ArgumentParser, argv: list[str]) -> None:
-    """An option of one value given twice (``gflow eval --pred a.csv --pred b.csv``): argparse keeps the last one
-    without a word, so the command would run on a value the user may not have meant; refused naming the option.
-    Options that add up (``--set``, ``--connect``) and flags are left alone."""
+def _command_parser(parser: argparse.ArgumentParser, argv: list[str]) -> tuple[argparse.ArgumentParser, list[str]]:
+    """The parser of the command ``argv`` names, a command's own command included (learn m2, export vot), and the
+    words of ``argv`` after its name."""
     tokens = list(argv)
     word = command_word(tokens)
     tokens = tokens[tokens.index(word) + 1:] if word in tokens else tokens
-    while True:  # a command with commands of its own (learn m2, export vot): the one named
+    while True:
         sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
         name = next((t for t in tokens if not t.startswith("-") and sub is not None and t in sub.choices), None)
         if sub is None or name is None:
-            break
+            return parser, tokens
         parser, tokens = sub.choices[name], tokens[tokens.index(name) + 1:]
+
+
+def _refuse_empty(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """An argument given as '' (an unset shell variable: ``--out "$OUT"``): argparse takes it, and the command read
+    it as not given (``--record ''``: the default recording; ``--topics ''``: every topic) or as the current folder
+    (``gflow render run.mcap ''`` drew into it); refused naming the option. A live tool's topic says it itself."""
+    for a in parser._actions:
+        v = getattr(args, a.dest, None) if a.dest not in (argparse.SUPPRESS, "help", "topic") else None
+        values = v if isinstance(v, list) else [v]
+        if any(isinstance(x, str) and not x.strip() for x in values):
+            name = max(a.option_strings, key=len) if a.option_strings else (a.metavar or a.dest).upper()
+            parser.error(f"argument {name}: empty ({next(x for x in values if isinstance(x, str))!r}): give a "
+                         f"non-empty name or value")
+
+
+def _refuse_repeated(parser: argparse.ArgumentParser, tokens: list[str]) -> None:
+    """An option of one value given twice (``gflow eval --pred a.csv --pred b.csv``): argparse keeps the last one
+    without a word, so the command would run on a value the user may not have meant; refused naming the option.
+    Options that add up (``--set``, ``--connect``) and flags are left alone. ``tokens``: the words after the
+    command's name."""
     given: dict[str, list[str]] = {}
     for t in tokens:
         if t == "--":
