@@ -152,7 +152,8 @@ def _refuse_empty(parser: argparse.ArgumentParser, args: argparse.Namespace) -> 
         v = getattr(args, a.dest, None) if a.dest not in (argparse.SUPPRESS, "help", "topic") else None
         values = v if isinstance(v, list) else [v]
         if any(isinstance(x, str) and not x.strip() for x in values):
-            name = max(a.option_strings, key=len) if a.option_strings else (a.metavar or a.dest).upper()
+            shown = a.metavar if isinstance(a.metavar, str) else a.dest  # a tuple metavar names several values
+            name = max(a.option_strings, key=len) if a.option_strings else shown.upper()
             parser.error(f"argument {name}: empty ({next(x for x in values if isinstance(x, str))!r}): give a "
                          f"non-empty name or value")
 
