@@ -12,7 +12,7 @@ removes) with the same trackers and seed, and prints the two side by side. Where
 trackers are installed (CSRT, KCF), they are run on both too.
 
 Prints, per sequence, each tracker's AUC on the originals and on the variant and a box that never
-moves, then the means. On ``grey``, sequences that are grey already (all channels equal) give the
+moves, then the means, to the four decimals of the benchmark's JSON. On ``grey``, sequences that are grey already (all channels equal) give the
 same figures twice.
 """
 
@@ -82,7 +82,9 @@ def main() -> int:
         cells = []
         for t in runs:
             c, g = original_auc.get((t, seq)), variant_auc.get((t, seq))
-            cells.append("-" if c is None or g is None else f"{c:.3f} / {g:.3f}")
+            # the JSON's four decimals as they are: rounded again to three, 0.6005 (0.60048) would print 0.601
+            # where gflow benchmark's own tables print 0.600
+            cells.append("-" if c is None or g is None else f"{c:.4f} / {g:.4f}")
         rows.append([seq] + cells)
     print(f"AUC on the originals / on the {args.variant} variant (seed {args.seed}, --inline"
           f"{'' if opencv else '; OpenCV contrib not installed: no CSRT/KCF'})")

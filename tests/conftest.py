@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
 import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
@@ -21,6 +23,25 @@ ROOT = Path(__file__).resolve().parent.parent
 if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
     signal.signal(signal.SIGINT, signal.default_int_handler)
 DATA = Path(os.environ.get("GFLOW_DATA", ROOT.parent / "shared" / "data"))
+
+
+
+def _own_mpl_config() -> Path:
+    """matplotlib (gflow plot, gflow benchmark --plot) keeps a font cache in its config folder, one for the whole
+    user by default; test processes run side by side (`pytest -n 2`), and the commands they start, would write it at
+    once and could read each other's half-written file. Each test process, and what it starts, has a folder of its
+    own, removed when the process ends (at exit: a script that imports this module for a helper, outside pytest,
+    leaves none behind either); one per process, however often the module is run in it."""
+    mine = Path(os.environ.get("MPLCONFIGDIR", ""))
+    if mine.name.startswith(f"gflow-mpl-{os.getpid()}-") and mine.is_dir():
+        return mine
+    made = Path(tempfile.mkdtemp(prefix=f"gflow-mpl-{os.getpid()}-"))
+    atexit.register(shutil.rmtree, made, True)
+    os.environ["MPLCONFIGDIR"] = str(made)
+    return made
+
+
+MPL_CONFIG = _own_mpl_config()
 JS = ROOT / "tests" / "js"
 
 

@@ -105,6 +105,51 @@ def test_diff_of_a_damaged_recording_says_what_was_not_compared(rec: Path, tmp_p
     assert r.returncode == 0 and r.stdout.strip().endswith("identical"), r.stdout
 
 
+@pytest.mark.parametrize("args, status", [
+    (["boxes", "{r}", "--out", "OUT"], 3),
+    (["render", "{r}", "OUT", "-q"], 1),
+    (["plot", "{r}", "OUT"], 1),
+    (["foxglove", "{r}", "OUT"], 1),
+])
+def test_an_output_of_a_damaged_recording_is_not_reported_as_whole(rec: Path, tmp_path: Path, args: list[str],
+                                                                   status: int) -> None:
+    """boxes, render, plot and foxglove wrote what could be read before the damage and exited 0, as if the run had
+    ended there, though the recording goes on after it; the output is kept, the exit status says it is partial."""
+    out = {"boxes": "b.csv", "render": "v.mp4", "plot": "p.png", "foxglove": "f.mcap"}[args[0]]
+    r = gflow(*[a.replace("{r}", str(rec / "damaged.mcap")).replace("OUT", out) for a in args], cwd=tmp_path)
+    # one line, naming the damage, which was said twice by some of them (a warning, then their own words)
+    line = one_line_error(r, f"{out} holds only what was read before the damage: ", "damaged.mcap: recording is "
+                          "damaged at byte", rc=status)
+    assert line.startswith(f"gflow {args[0]}: ") and (tmp_path / out).is_file()
+    assert sum("recording is damaged" in ln for ln in r.stdout.splitlines() + r.stderr.splitlines()) == 1, r
+    whole = gflow(*[a.replace("{r}", str(rec / "demo.mcap")).replace("OUT", "whole-" + out) for a in args], cwd=tmp_path)
+    assert whole.returncode == 0 and not whole.stderr.strip(), whole.stderr  # an intact one still is whole
+
+
+@pytest.mark.parametrize("args", [["info", "{r}"], ["boxes", "{r}", "--out", "b.csv"], ["render", "{r}", "v.mp4"],
+                                  ["plot", "{r}", "p.png"], ["foxglove", "{r}", "f.mcap"], ["replay", "{r}", "--max"],
+                                  ["rerun", "{r}", "--stage", "filter"], ["frame", "{r}", "0", "f.png"]])
+def test_a_recording_damaged_in_its_only_chunk_is_said_in_one_line(rec: Path, tmp_path: Path, args: list[str]) -> None:
+    """Every message in one chunk, the chunk damaged: most commands said the damage twice, a warning and then their
+    error repeating it (render and replay: a warning, then "no frame" / "nothing to replay" without it)."""
+    data = bytearray((rec / "demo.mcap").read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 64] = bytes(b ^ 0xFF for b in data[mid:mid + 64])
+    (tmp_path / "one.mcap").write_bytes(bytes(data))
+    r = gflow(*[a.replace("{r}", "one.mcap") for a in args], cwd=tmp_path)
+    assert r.returncode != 0 and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]  # (info's report on stdout says where, as it did)
+    assert len(lines) == 1 and "one.mcap" in lines[0] and "damaged" in lines[0], r.stderr
+
+
+def test_a_replay_of_a_damaged_recording_is_not_reported_as_whole(rec: Path, tmp_path: Path) -> None:
+    """It said "replayed N messages" and exited 0, what came after the damage never sent."""
+    r = gflow("replay", str(rec / "damaged.mcap"), "--max", cwd=tmp_path)
+    error_line(r, "the replay holds only what was read before the damage: ", "damaged.mcap: recording is damaged", rc=1)
+    whole = gflow("replay", str(rec / "demo.mcap"), "--max", cwd=tmp_path)
+    assert whole.returncode == 0 and "replayed" in whole.stderr, whole.stderr
+
+
 # -- gflow rerun -------------------------------------------------------------------------------------------
 
 
@@ -195,6 +240,14 @@ def test_frame_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path) -> 
     r = gflow("frame", str(rec / "demo.mcap"), "2", "f.png", "--scale", "1000", cwd=tmp_path)
     one_line_error(r, "--scale 1000", "320x240", "at most 102", rc=2)
     assert not (tmp_path / "f.png").exists()
+
+
+@pytest.mark.parametrize("out", ["v.mp4", "pictures"])
+def test_render_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path, out: str) -> None:
+    """gflow render --scale 1000 ended in an out-of-memory 'internal error' from OpenCV, as gflow frame's did."""
+    r = gflow("render", str(rec / "demo.mcap"), out, "--scale", "1000", cwd=tmp_path)
+    one_line_error(r, "--scale 1000", "320x240", "at most 102", rc=2)
+    assert not list(tmp_path.iterdir())
 
 
 # -- gflow eval --------------------------------------------------------------------------------------------

@@ -826,3 +826,154 @@ def test_a_bad_recordings_limit_is_refused_before_the_track_runs(tmp_path: Path,
               "tracker.particles=0", cwd=tmp_path, env=env)
     assert r.returncode == 2, r.stderr
     assert_one_line_error(r, "--set tracker.particles=0: particles must be >= 1, got 0")
+
+@pytest.mark.parametrize("rows,named", [
+    ("0,10,10,20,20\n1,10,10,-20,20\n", ["boxes.csv:2", "negative width or height"]),
+    (None, ["box file not found", "nosuch.csv"]),
+])
+def test_learn_m2_refuses_damaged_or_missing_boxes_before_reading_frames(tmp_path: Path, frames: Path, rows: str | None,
+                                                                         named: list[str]) -> None:
+    """A negative width in --boxes was taken as a box (and learning failed later with "no edge points"), and a
+    missing --boxes file was named only after every training frame was read: both are said first, by file and line,
+    as `gflow eval` says them."""
+    name = "nosuch.csv"
+    if rows is not None:
+        (tmp_path / "boxes.csv").write_text(rows)
+        name = "boxes.csv"
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "--boxes", name, cwd=tmp_path)
+    assert_one_line_error(r, *named)  # one line: not "read N training frame(s)" before it
+    assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
+
+
+def test_learn_m2_leaves_out_the_frames_whose_box_row_says_the_target_is_absent(tmp_path: Path, frames: Path) -> None:
+    """A NaN row (the target absent, as `gflow eval` reads ground truth) stopped the learning ("box has NaN"), and a
+    row of no size (w, h 0) was cut as a training item; both frames are now left out: three items from five frames."""
+    (tmp_path / "boxes.csv").write_text("0,10,10,30,30\n1,nan,nan,nan,nan\n2,12,10,30,30\n3,14,10,0,0\n4,16,10,30,30\n")
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "--boxes", "boxes.csv", "--metric", "l2",
+              "--patch-size", "8x8", cwd=tmp_path)
+    assert "box has NaN" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert "training items: 3 patches" in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--frames", "90:99"], "--frames 90:99: no decodable frame"),
+    (["--background-frames", "90:99"], "--background-frames 90:99: no decodable frame"),
+])
+def test_learn_m2_frame_range_past_the_end_names_its_option(tmp_path: Path, frames: Path, extra: list[str],
+                                                            named: str) -> None:
+    """"no decodable frame ... for frames 90:99" named neither option: --frames and --background-frames were not
+    told apart."""
+    r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "-q", *extra, cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("source,extra,named", [
+    ("udp://127.0.0.1:notaport", [], ["udp://127.0.0.1:notaport", "Port could not be cast"]),
+    ("rtsp://127.0.0.1:99999/x", [], ["rtsp://127.0.0.1:99999/x", "Port out of range"]),
+    ("rtsp://127.0.0.1:1/x", ["--reconnect", "-1"], ["argument --reconnect", ">= 0"]),
+    ("rtsp://127.0.0.1:1/x", ["--reconnect", "nan"], ["argument --reconnect", ">= 0"]),
+    ("rtsp://127.0.0.1:1/x", ["--open-timeout", "0"], ["argument --open-timeout", "> 0"]),
+    ("rtsp://127.0.0.1:1/x", ["--camera", "-1"], ["argument --camera", ">= 0"]),
+])
+def test_a_live_source_mistake_is_refused_before_anything_is_opened(tmp_path: Path, source: str, extra: list[str],
+                                                                    named: list[str]) -> None:
+    """A URL whose port is no number was waited on for --open-timeout, then "nothing received" (exit 1); --reconnect
+    -1 (or NaN) and --open-timeout 0 were refused by the source stage, naming the graph file's line and its
+    parameters, not the option; --camera -1 said "no camera at /dev/video-1"."""
+    r = gflow("track", source, "--init", "1,1,10,10", "--out", "b.csv", "--inline", "--no-record", *extra,
+              cwd=tmp_path)
+    assert_one_line_error(r, *named)
+    assert r.returncode == 2 and not (tmp_path / "b.csv").exists()
+
+
+def test_benchmark_refuses_ground_truth_past_the_last_frame(tmp_path: Path, frames: Path) -> None:
+    """A ground-truth box for frame 7 of a five-frame sequence was scored as a frame the tracker missed (a success
+    of 5 / 6 at best), where `gflow export vot` refuses the same folder."""
+    seq = tmp_path / "data" / "s"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("".join(f"{f},10,10,20,20\n" for f in (0, 1, 2, 3, 4, 7)))
+    for argv in (["benchmark", "data", "--trackers", "appearance", "--inline", "--opencv", "none", "-q"],
+                 ["export", "vot", "data", "ws"]):
+        r = gflow(*argv, cwd=tmp_path)
+        assert_one_line_error(r, "ground truth for frame 7, after the last frame of", "(4)")
+        assert r.returncode == 2 and not (tmp_path / "ws").exists()
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--pred", "other.csv"], "--pred given 2 times"),
+    (["eval", "--gt", "gt.csv", "--pred=gt.csv", "--pr", "other.csv"], "--pred given 2 times"),
+    (["learn", "m2", "frames", "--out", "a.npz", "--out", "b.npz", "-K", "2"], "--out given 2 times"),
+    (["track", "frames", "--init", "1,1,9,9", "--init", "2,2,9,9", "--out", "b.csv", "--inline"], "--init given 2"),
+])
+def test_an_option_of_one_value_given_twice_is_refused(tmp_path: Path, frames: Path, argv: list[str],
+                                                       named: str) -> None:
+    """argparse kept the last value without a word: `eval --pred a.csv --pred b.csv` scored b.csv alone."""
+    (tmp_path / "gt.csv").write_text("0,10,10,20,20\n")
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named, "give it once")
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["frames", "gt.csv"]
+
+
+def test_options_that_add_up_may_be_given_again(tmp_path: Path, frames: Path) -> None:
+    r = gflow("track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--no-record", "-q", "--set",
+              "tracker.particles=50", "--set", "tracker.rate=0.03", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--set", "tracker.rate=0.5", "--set",
+      "tracker.rate=0.6"], "--set tracker.rate given twice (0.5, then 0.6)"),
+    (["run", "demo", "--inline", "--set", "source.frames=3", "--set", "source.frames=4"],
+     "--set source.frames given twice (3, then 4)"),
+])
+def test_a_parameter_set_twice_is_refused(tmp_path: Path, frames: Path, argv: list[str], named: str) -> None:
+    """The later --set of one parameter replaced the earlier one without a word."""
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, named)
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["frames"]
+
+
+def test_view_on_a_port_in_use_is_refused_before_waiting_for_a_pipeline(tmp_path: Path) -> None:
+    """It waited for a pipeline to start (until --duration, or for ever), and only then found the port taken."""
+    pytest.importorskip("foxglove", reason="gflow view needs the foxglove-sdk package")
+    import socket
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        r = gflow("view", "--port", str(port), "--duration", "30", cwd=tmp_path,
+                  env={"GFLOW_RUNTIME_DIR": str(tmp_path)})  # no pipeline announced here: it would wait 30 s
+    assert_one_line_error(r, f"cannot serve on 127.0.0.1:{port}", "in use")
+    assert r.returncode == 2
+
+
+@pytest.mark.parametrize("argv", [["run", "demo", "--inline", "--no-record", "--stream", ""],
+                                  ["boxes", "x.mcap", "--out", "b.csv", "--stream", ""],
+                                  ["replay", "x.mcap", "--max", "--stream", ""], ["ps", "--stream", ""]])
+def test_an_empty_stream_name_is_refused(tmp_path: Path, argv: list[str]) -> None:
+    """`--stream ''` (an empty shell variable) was taken for no --stream at all: `run` made a run of the default
+    stream, `boxes` wrote every stream's estimates, and nothing said so."""
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, "argument --stream", "non-empty name")
+    assert r.returncode == 2 and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize("argv,named", [
+    (["render", "{rec}", ""], "argument OUT: empty"),
+    (["diff", "{rec}", "{rec}", "--topics", ""], "argument --topics: empty"),
+    (["track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--record", ""],
+     "argument --record: empty"),
+    (["boxes", "{rec}", "--out", ""], "argument --out: empty"),
+])
+def test_an_empty_argument_is_refused_naming_it(tmp_path: Path, frames: Path, demo_mcap: Path, argv: list[str],
+                                                named: str) -> None:
+    """An argument given as '' (an unset shell variable) was read as not given or as the current folder: `render
+    run.mcap ''` drew its PNGs into the current folder, `--record ''` kept the default recording, `--topics ''`
+    compared every topic, `boxes --out ''` said "PosixPath('.') has an empty name"."""
+    before = sorted(p.name for p in tmp_path.iterdir())
+    r = gflow(*[a.replace("{rec}", str(demo_mcap)) for a in argv], cwd=tmp_path)
+    assert_one_line_error(r, named, "give a non-empty name or value")
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == before

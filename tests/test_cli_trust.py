@@ -205,6 +205,49 @@ def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: P
     assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
 
 
+def test_a_boxes_file_with_a_byte_order_mark_keeps_its_first_row(tmp_path: Path, capsys) -> None:
+    """A file saved with a byte-order mark (some editors and spreadsheets write one) and no header had its first row
+    skipped as a header: frame 0 was left out of the scores without a word."""
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
+
+    plain, bom = tmp_path / "plain.csv", tmp_path / "bom.csv"
+    plain.write_text("0,10,10,20,20\n1,10,10,20,20\n")
+    bom.write_bytes(b"\xef\xbb\xbf" + plain.read_bytes())
+    assert read_scored_boxes(bom).boxes == read_scored_boxes(plain).boxes == {0: (10.0, 10.0, 20.0, 20.0),
+                                                                              1: (10.0, 10.0, 20.0, 20.0)}
+    rc, err = cli(["eval", "--gt", str(bom), "--pred", str(plain)], capsys)
+    assert rc == 0, err
+
+
+@pytest.mark.parametrize("text", ["0\t10\t10\t20\t20\n", "0;10;10;20;20\n1;10;10;20;20\n", "0 10 10 20 20\n"])
+def test_a_boxes_file_separated_by_other_than_commas_is_named_so(tmp_path: Path, capsys, text: str) -> None:
+    """Its first line was skipped as a header: a one-row file was called "no boxes", and a longer one refused at its
+    second line for its column count, neither naming the separator."""
+    f = tmp_path / "tabs.csv"
+    f.write_text(text)
+    rc, err = cli(["eval", "--gt", str(f), "--pred", str(f)], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1 and f"{f}:1: numbers separated by tabs, semicolons or spaces" in lines[0], err
+
+
+@pytest.mark.parametrize("flag", ["--pred", "--gt"])
+def test_a_negative_frame_in_a_boxes_file_is_refused(files: Path, tmp_path: Path, capsys, flag: str) -> None:
+    """A ground-truth row of frame -1 (no source has one) was scored as a frame the tracker missed."""
+    neg = tmp_path / "neg.csv"
+    neg.write_text("frame,x,y,w,h\n-1,10,10,20,20\n0,11,10,20,20\n")
+    other = {"--pred": "--gt", "--gt": "--pred"}[flag]
+    rc, err = cli(["eval", flag, str(neg), other, str(files / "gt.csv")], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    assert f"{neg}:2: frame -1: frame numbers start at 0" in lines[0], lines[0]
+    vis = tmp_path / "visible.csv"
+    vis.write_text("frame,visible\n-1,1.0\n0,0.5\n")
+    from pipeline.recording.results import read_visibility
+
+    with pytest.raises(ValueError, match=r"visible.csv:2: frame -1: frame numbers start at 0"):
+        read_visibility(vis)
+
+
 def test_a_frame_given_twice_in_a_visibility_or_points_file_is_refused(tmp_path: Path) -> None:
     """As in a boxes file: the later row of a frame (or of a frame's landmark) replaced the earlier one."""
     from pipeline.io.landmarks import read_points
@@ -220,6 +263,18 @@ def test_a_frame_given_twice_in_a_visibility_or_points_file_is_refused(tmp_path:
         read_points(pts)
     pts.write_text("frame,landmark,x,y\n0,0,1,2\n0,1,3,4\n1,0,5,6\n")  # the same landmark on another frame
     assert read_points(pts) == {0: {0: (1.0, 2.0), 1: (3.0, 4.0)}, 1: {0: (5.0, 6.0)}}
+
+
+@pytest.mark.parametrize("stop,said", [("99", True), ("6", False), ("4", False)])
+def test_a_stop_past_the_end_of_the_frames_is_said(files: Path, tmp_path: Path, capsys, stop: str, said: bool) -> None:
+    """--stop 99 on six frames tracked frames 0-5 and said only "tracked 6 frames", as if --stop had been met."""
+    from pipeline.cli.main import main
+
+    capsys.readouterr()
+    assert main(["track", str(files / "frames"), "--init", "10,10,20,20", "--out", str(tmp_path / "b.csv"), "--inline",
+                 "--no-record", "-q", "--stop", stop]) == 0
+    out = capsys.readouterr().out
+    assert (f"--stop {stop} is past the end of {files / 'frames'}: its last frame is 5, tracked to it" in out) == said, out
 
 
 @pytest.mark.parametrize("extra,words", [

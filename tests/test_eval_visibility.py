@@ -70,3 +70,19 @@ def test_visibility_accepts_the_rows_of_no_box_plain_eval_scores(tmp_path: Path)
 def test_visibility_still_refuses_a_malformed_row_by_file_and_line(tmp_path: Path, row: str, words: list) -> None:
     args = files(tmp_path, PRED.replace("1,nan,nan,nan,nan,0.0,tracked", row))
     one_line_error(gflow("eval", *args, cwd=tmp_path), *words)
+
+
+def test_visibility_accepts_a_nan_confidence_on_a_row_of_no_box(tmp_path: Path) -> None:
+    """A row of no box has no confidence to give: NaN there was refused ("confidence nan is outside [0, 1]") though
+    the row is a miss whatever its confidence; its state is still read."""
+    args = files(tmp_path, PRED.replace("1,nan,nan,nan,nan,0.0,tracked", "1,nan,nan,nan,nan,nan,tracked")
+                 .replace("2,20,20,0,0,0.1,lost", "2,20,20,0,0,nan,lost"))
+    r = gflow("eval", *args, "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    st = json.loads(r.stdout)["state"]
+    assert st["off_target_frames"] == 2 and st["off_target_reported_tracked"] == 0.5, st
+
+
+def test_visibility_refuses_a_nan_confidence_on_a_row_with_a_box(tmp_path: Path) -> None:
+    args = files(tmp_path, PRED.replace("3,10,10,20,20,0.9,tracked", "3,10,10,20,20,nan,tracked"))
+    one_line_error(gflow("eval", *args, cwd=tmp_path), "pred.csv:5", "confidence nan", "column 6", "no box")

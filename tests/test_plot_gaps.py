@@ -74,3 +74,30 @@ def test_the_plotted_line_breaks_on_the_frames_with_the_target_absent(demo: Path
         assert "target absent on 2, left out" in plt.gcf().axes[0].get_title()
     finally:
         plt.close("all")
+
+
+def test_matplotlib_caches_its_fonts_in_this_test_process_own_folder(tmp_path: Path) -> None:
+    """Test processes side by side (`pytest -n 2`), and the gflow commands they start, wrote one font cache in the
+    user's matplotlib folder at once; each test process has its own (tests/conftest.py), which what it starts
+    inherits."""
+    import matplotlib
+
+    own = Path(os.environ["MPLCONFIGDIR"])
+    assert own.is_dir() and f"gflow-mpl-{os.getpid()}-" in own.name
+    assert Path(matplotlib.get_cachedir()) == own
+    r = subprocess.run([sys.executable, "-c", "import matplotlib; print(matplotlib.get_cachedir())"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0 and Path(r.stdout.strip()) == own, (r.stdout, r.stderr)
+    assert [p for p in own.parent.glob(f"gflow-mpl-{os.getpid()}-*")] == [own]
+
+
+def test_a_script_importing_conftest_leaves_no_matplotlib_folder_behind(tmp_path: Path) -> None:
+    """A script that imported tests/conftest.py for a helper (synthetic_sequence, damaged_copy) left its folder in
+    the temporary folder: it was removed only by pytest_unconfigure, which such a script never runs."""
+    env = dict(os.environ, TMPDIR=str(tmp_path))
+    env.pop("MPLCONFIGDIR")
+    r = subprocess.run([sys.executable, "-c", "import os, sys; sys.path.insert(0, sys.argv[1]); import conftest; "
+                        "print(os.environ['MPLCONFIGDIR'])", str(ROOT / "tests")], capture_output=True, text=True,
+                       timeout=60, env=env)
+    assert r.returncode == 0 and Path(r.stdout.strip()).parent == tmp_path, (r.stdout, r.stderr)
+    assert not list(tmp_path.iterdir())

@@ -73,3 +73,14 @@ def test_a_zstd_recording_reruns_bit_for_bit(tmp_path: Path) -> None:
     for stage in ("preprocess", "filter"):
         r = gflow(tmp_path, "rerun", "z.mcap", "--stage", stage, "--check")
         assert r.returncode == 0 and "all identical bit for bit" in r.stdout, r.stdout + r.stderr
+
+
+def test_record_topics_that_choose_nothing_or_are_dropped_are_refused(tmp_path: Path) -> None:
+    """`--record-topics ''` (an empty shell variable) recorded every topic, and `--no-record --record-topics estimate`
+    dropped the patterns without a word; both are refused before the run, naming the option, and nothing is written."""
+    for extra in (["--record", "r.mcap", "--record-topics", ""], ["--record", "r.mcap", "--record-topics", ","],
+                  ["--no-record", "--record-topics", "estimate"]):
+        r = gflow(tmp_path, "run", "demo", "--inline", "--set", "source.frames=3", *extra)
+        lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+        assert r.returncode == 2 and len(lines) == 1 and "--record-topics" in lines[0], (extra, r.stderr)
+        assert not list(tmp_path.glob("*.mcap")) and not (tmp_path / "recordings").exists(), extra

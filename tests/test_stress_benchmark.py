@@ -288,6 +288,18 @@ def test_mistakes_are_one_line_errors(data, args, msg):
     assert len(r.stderr.strip().splitlines()) <= 2
 
 
+def test_an_out_dir_of_an_earlier_stress_run_is_refused_before_any_case_is_derived(first_run, data, tmp_path):
+    """It was refused only once the first case had been derived and its progress said (and not at all with no
+    tracker recording there: the OpenCV and still box CSVs were written over)."""
+    _, _, runs, _ = first_run
+    before = {p: p.stat().st_mtime_ns for p in runs.rglob("*") if p.is_file()}
+    r = _gflow("benchmark", str(data), *STRESS, "--stress-cache", str(tmp_path / "cache"), "--out-dir", str(runs))
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 2 and len(lines) == 1 and "exists (an earlier run's)" in lines[0], r.stderr
+    assert not (tmp_path / "cache").exists()  # nothing derived
+    assert {p: p.stat().st_mtime_ns for p in runs.rglob("*") if p.is_file()} == before
+
+
 def test_eval_reads_old_five_column_files_and_new_seven_column_ones(tmp_path):
     gt = {f: (10.0 + f, 20.0, 30.0, 40.0) for f in range(10)}
     write_boxes(tmp_path / "gt.csv", gt)

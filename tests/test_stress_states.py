@@ -79,3 +79,36 @@ def test_tables_print_the_split_with_its_counts(rows, markdown):
 def test_counts_take_thousands_separators():
     from pipeline.evaluation.stress_benchmark import _rate_of
     assert _rate_of(8900, 8990) == "0.99 (8,900 / 8,990)" and _rate_of(0, 0) == "-"
+
+
+class _Plan:
+    """What :func:`stress_scores` reads of a :class:`StressPlan`: its window, length, visibility and perturbation."""
+
+    def __init__(self, n: int, window: tuple[int, int]) -> None:
+        self.window, self.visible, self.perturbed = window, np.ones(n), np.zeros(n, dtype=bool)
+
+    def __len__(self) -> int:
+        return len(self.visible)
+
+
+def test_stress_scores_read_a_row_of_no_box_as_gflow_eval_does(tmp_path):
+    """A NaN row in a tracker's CSV stopped the stress scoring ("box has NaN") though `gflow eval` scores it as a
+    miss; now both score it overlap 0, and its state is still read."""
+    from types import SimpleNamespace
+
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
+    from pipeline.evaluation.sequence_benchmark import Sequence
+    from pipeline.evaluation.stress_benchmark import AFTER_GAP, stress_scores
+
+    n = AFTER_GAP + 6
+    gt = {f: ON for f in range(n)}
+    rows = [f"{f},10,10,20,20,0.9,tracked" for f in range(n)]
+    rows[AFTER_GAP + 2] = f"{AFTER_GAP + 2},nan,nan,nan,nan,nan,lost"
+    csv = tmp_path / "boxes.csv"
+    csv.write_text("frame,x,y,w,h,confidence,state\n" + "\n".join(rows) + "\n")
+    d = SimpleNamespace(seq=Sequence("s", tmp_path, gt, ()), plan=_Plan(n, (0, 0)))
+    row = stress_scores(StressRow("s", "none", "dcf", "tracker"), d, csv)
+    assert row.overlap is not None
+    np.testing.assert_array_equal(row.overlap, overlaps(gt, read_scored_boxes(csv).boxes))
+    assert row.overlap[AFTER_GAP + 2] == 0.0 and row.after == 5 / 6
+    assert row.state is not None and row.state.shown_off == 1 and row.state.shown_off_hidden == 1

@@ -88,7 +88,10 @@ def test_no_command_replaces_an_existing_recording(recording: Path, tmp_path: Pa
 
 
 @pytest.mark.parametrize("args, words", [
-    (["replay", "--max", "--from-seq", "500"], ["--from-seq 500", f"frames 0..{FRAMES}"]),
+    # the frames recorded, 0..11 (it said 0..12: the proposals for the next frame carry its number)
+    (["replay", "--max", "--from-seq", "500"], ["--from-seq 500", f"frames 0..{FRAMES - 1} over"]),
+    (["replay", "--max", "--from-seq", "500", "--topics", "estimate"], ["--from-seq 500", "no frame",
+                                                                        f"sequence numbers 0..{FRAMES - 1}"]),
     (["replay", "--max", "--from-seq", "5", "--to-seq", "3"], ["--from-seq 5, --to-seq 3"]),
     (["replay", "--max", "--start", "1000"], ["--start 1000"]),
     (["rerun", "--stage", "filter", "--from", "500"], ["--from 500", f"frames 0..{FRAMES}"]),

@@ -52,7 +52,14 @@ class RecordingTarget:
         self.temporary = False
         self.given = bool(record)
         rec = plan.recorder()
-        pats = [p.strip() for item in record_topics for p in item.split(",") if p.strip()]
+        items = list(record_topics)
+        pats = [p.strip() for item in items for p in item.split(",") if p.strip()]
+        if items and not pats:  # --record-topics '' (an empty shell variable): it chose nothing, not everything
+            raise RequestError(f"--record-topics {','.join(items)!r} names no topic (give shell patterns, e.g. "
+                               "'estimate,particles', or '*' for every topic)")
+        if pats and no_record:  # the patterns would be dropped without a word
+            raise RequestError("--record-topics chooses the topics of the recording, and --no-record keeps none: "
+                               "give one or the other")
         if rec is None:
             if pats or needed:
                 raise RequestError(f"the graph {plan.name!r} has no recorder stage, so there is nothing to "

@@ -76,11 +76,15 @@ def parse_sets(items: Iterable[str] | None) -> dict[str, dict]:
     import yaml
 
     out: dict[str, dict] = {}
+    given: dict[str, str] = {}
     for it in items or []:
         if "=" not in it or "." not in it.split("=", 1)[0]:
             raise RequestError(f"--set expects stage.param=value, got {it!r}")
         key, val = it.split("=", 1)
         stage, param = key.split(".", 1)
+        if key in given:  # the later value would replace the earlier one without a word
+            raise RequestError(f"--set {key} given twice ({given[key]}, then {val}): give it once")
+        given[key] = val
         out.setdefault(stage, {})[param] = yaml.safe_load(val)
     return out
 
@@ -154,6 +158,12 @@ _LIVE_OPTIONS = {"reconnect": "--reconnect", "open_timeout": "--open-timeout"}
 
 def _live_params(request: TrackRequest) -> dict:
     """Source parameters for a stream URL or a camera device."""
+    from urllib.parse import urlsplit
+
+    try:  # a port that is no number (udp://host:notaport) was waited on for --open-timeout, then "nothing received"
+        urlsplit(request.source).port
+    except ValueError as e:
+        raise RequestError(f"{request.source}: not a stream URL gflow can open: {e}") from None
     for opt, given in (("--start", request.start), ("--realtime", request.realtime)):
         if given:
             raise RequestError(f"{opt} applies to files; a live source starts at its first frame and runs at its own "

@@ -364,6 +364,17 @@ def _window(opts: ReplayOptions) -> str:
     return ", ".join(parts) or "the whole recording"
 
 
+def _held(records: list) -> str:
+    """What a recording's ``records`` span, as a replay window names it: its frames (the sequence numbers of its
+    Frame messages), or, with none recorded, the sequence numbers of its messages (a stage's output for frame k
+    may carry k + 1: the particles it sends on for the next frame)."""
+    frames = [r.seq for r in records if r.type == "Frame"]
+    if frames:
+        return f"frames {min(frames)}..{max(frames)}"
+    seqs = [r.seq for r in records if r.type != "EndOfStream"] or [0]
+    return f"no frame; the messages chosen carry sequence numbers {min(seqs)}..{max(seqs)}"
+
+
 def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr,
            announce_endpoints: list[str] | None = None, ready: Callable[[], None] | None = None) -> int:
     """Republish a recording on zenoh, byte for byte, on its recorded topics with its sequence numbers.
@@ -383,7 +394,11 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
     records = [r for r in iter_records(path, topics=opts.topics)
                if "/_status/" not in r.topic and not r.topic.endswith("/_control")]
     if not records:
-        raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else ""))
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(path) or torn_cause(path)  # the cut, not taken for what the run recorded
+        raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else "")
+                         + (f": {why}" if why else ""))
     t_first = min(r.log_ns for r in records)
     keep = []
     for r in records:
@@ -395,9 +410,8 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
             continue
         keep.append(r)
     if all(r.type == "EndOfStream" for r in keep):  # a window that selects no message is a mistyped one
-        seqs = [r.seq for r in records if r.type != "EndOfStream"] or [0]
-        raise ValueError(f"{path}: no message in the chosen window ({_window(opts)}); it holds frames "
-                         f"{min(seqs)}..{max(seqs)} over {(max(r.log_ns for r in records) - t_first) / 1e9:.3f} s")
+        raise ValueError(f"{path}: no message in the chosen window ({_window(opts)}); it holds {_held(records)} over "
+                         f"{(max(r.log_ns for r in records) - t_first) / 1e9:.3f} s")
     recorded = keep[0].topic.split("/")[1]
     stream = opts.stream or recorded
 

@@ -35,6 +35,7 @@ from typing import NoReturn  # noqa: E402
 
 from pipeline.cli.commands import command_module, command_modules  # noqa: E402
 from pipeline.cli.commands.common import CliError, start_work, work_started  # noqa: E402
+from pipeline.io import damage_notes  # noqa: E402
 from pipeline.runtime.trace import mark  # noqa: E402
 
 __all__ = ["main", "build_parser"]
@@ -123,7 +124,64 @@ def parse(ap: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Names
         elif close:
             message += f" (did you mean {names[close[0]]}?)"
         parser.error(message)
+    parser, tokens = _command_parser(parser, sys.argv[1:] if argv is None else argv)
+    _refuse_repeated(parser, tokens)
+    _refuse_empty(parser, args)
     return args
+
+
+def _command_parser(parser: argparse.ArgumentParser, argv: list[str]) -> tuple[argparse.ArgumentParser, list[str]]:
+    """The parser of the command ``argv`` names, a command's own command included (learn m2, export vot), and the
+    words of ``argv`` after its name."""
+    tokens = list(argv)
+    word = command_word(tokens)
+    tokens = tokens[tokens.index(word) + 1:] if word in tokens else tokens
+    while True:
+        sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        name = next((t for t in tokens if not t.startswith("-") and sub is not None and t in sub.choices), None)
+        if sub is None or name is None:
+            return parser, tokens
+        parser, tokens = sub.choices[name], tokens[tokens.index(name) + 1:]
+
+
+def _refuse_empty(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """An argument given as '' (an unset shell variable: ``--out "$OUT"``): argparse takes it, and the command read
+    it as not given (``--record ''``: the default recording; ``--topics ''``: every topic) or as the current folder
+    (``gflow render run.mcap ''`` drew into it); refused naming the option. A live tool's topic says it itself."""
+    for a in parser._actions:
+        v = getattr(args, a.dest, None) if a.dest not in (argparse.SUPPRESS, "help", "topic") else None
+        values = v if isinstance(v, list) else [v]
+        if any(isinstance(x, str) and not x.strip() for x in values):
+            shown = a.metavar if isinstance(a.metavar, str) else a.dest  # a tuple metavar names several values
+            name = max(a.option_strings, key=len) if a.option_strings else shown.upper()
+            parser.error(f"argument {name}: empty ({next(x for x in values if isinstance(x, str))!r}): give a "
+                         f"non-empty name or value")
+
+
+def _refuse_repeated(parser: argparse.ArgumentParser, tokens: list[str]) -> None:
+    """An option of one value given twice (``gflow eval --pred a.csv --pred b.csv``): argparse keeps the last one
+    without a word, so the command would run on a value the user may not have meant; refused naming the option.
+    Options that add up (``--set``, ``--connect``) and flags are left alone. ``tokens``: the words after the
+    command's name."""
+    given: dict[str, list[str]] = {}
+    for t in tokens:
+        if t == "--":
+            break
+        action = _option_action(parser, t.split("=", 1)[0]) if t.startswith("-") else None
+        if isinstance(action, argparse._StoreAction):
+            given.setdefault(action.dest, []).append(t.split("=", 1)[0])
+    twice = next((names for names in given.values() if len(names) > 1), None)
+    if twice:
+        parser.error(f"{twice[0]} given {len(twice)} times; give it once (the last one would be used without a word)")
+
+
+def _option_action(parser: argparse.ArgumentParser, name: str) -> argparse.Action | None:
+    """The action of option ``name`` as argparse reads it: exactly, or a long option's unambiguous prefix."""
+    found = parser._option_string_actions.get(name)
+    if found is not None or not name.startswith("--"):
+        return found
+    close = {a for o, a in parser._option_string_actions.items() if o.startswith(name)}
+    return close.pop() if len(close) == 1 else None
 
 
 def _take_sigint_back() -> None:
@@ -173,31 +231,40 @@ def main(argv: list[str] | None = None) -> int:
         ap.print_help()
         return 2
     start_work(False)  # main may run several commands in one process (the tests do)
+    damage_notes.defer()  # damage inside a recording: said once, by the command's last line or after it
     try:
-        return int(args.func(args) or 0)
+        rc = int(args.func(args) or 0)
     except _user_errors() as e:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote
-        print(f"gflow {args.command}: error: {msg}", file=sys.stderr)
-        return 1 if work_started() and not isinstance(e, _mistakes()) else 2
+        return _last_word(args, f"gflow {args.command}: error: {msg}",
+                          1 if work_started() and not isinstance(e, _mistakes()) else 2)
     except BrokenPipeError:  # the reader of the output has gone (gflow info r.mcap | head): not an error to report
+        damage_notes.flush()
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # so the exit's flush of stdout is quiet
         return 141  # as a shell reports a command ended by SIGPIPE
     except OSError as e:  # the system failed during the work (a full disk, a write refused): name it, exit 1
         where = f"{e.filename}: " if e.filename else ""
-        print(f"gflow {args.command}: error: {where}{e.strerror or e}", file=sys.stderr)
-        return 1
+        return _last_word(args, f"gflow {args.command}: error: {where}{e.strerror or e}", 1)
     except KeyboardInterrupt:
-        print(f"gflow {args.command}: interrupted", file=sys.stderr)
-        return 130
+        return _last_word(args, f"gflow {args.command}: interrupted", 130)
     except RuntimeError as e:  # a run that could not start or went wrong (e.g. a stage never came up)
-        print(f"gflow {args.command}: error: {' '.join(str(e).split())}", file=sys.stderr)
-        return 1
+        return _last_word(args, f"gflow {args.command}: error: {' '.join(str(e).split())}", 1)
     except Exception as e:  # a bug: one line for the user, the traceback with -vv
         if args.verbose >= 2:
+            damage_notes.flush()
             raise
-        print(f"gflow {args.command}: internal error: {type(e).__name__}: {' '.join(str(e).split())} "
-              f"(a bug in gflow; run with -vv for the traceback)", file=sys.stderr)
-        return 1
+        return _last_word(args, f"gflow {args.command}: internal error: {type(e).__name__}: "
+                                f"{' '.join(str(e).split())} (a bug in gflow; run with -vv for the traceback)", 1)
+    damage_notes.flush()
+    return rc
+
+
+def _last_word(args, line: str, rc: int) -> int:
+    """Print the command's last ``line`` on stderr, after the damage warnings it does not already hold
+    (:mod:`pipeline.io.damage_notes`); return ``rc``."""
+    damage_notes.flush(line)
+    print(line, file=sys.stderr)
+    return rc
 
 
 if __name__ == "__main__":

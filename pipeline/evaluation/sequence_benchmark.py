@@ -27,6 +27,7 @@ import numpy as np
 
 from gflow_core.evaluation.metrics import OVERLAP_THRESHOLDS, TrackScore, precision_curve, score, size_kept, success_curve
 
+from pipeline.io.frame_readers import folder_frames
 from pipeline.io.path_errors import MissingPath
 from pipeline.evaluation.scored_boxes import read_scored_boxes
 from pipeline.recording.results import write_boxes
@@ -99,6 +100,11 @@ def _load(p: Path) -> Sequence:
     gt = read_scored_boxes(p / "groundtruth.csv").boxes
     if not gt:
         raise ValueError(f"{p / 'groundtruth.csv'}: the target is absent (w or h 0, or NaN) on every frame")
+    frames = [i for i, _ in folder_frames(p / "frames")]
+    beyond = [f for f in gt if not frames or f > frames[-1]]
+    if beyond:  # scored as frames the tracker missed, though no tracker could see them (gflow export vot refuses them)
+        raise ValueError(f"{p / 'groundtruth.csv'}: ground truth for frame {min(beyond)}, after the last frame of "
+                         + (f"{p / 'frames'} ({frames[-1]})" if frames else f"{p / 'frames'}, which holds no image"))
     res = tuple(sorted((p / "results").glob("*.csv"))) if (p / "results").is_dir() else ()
     return Sequence(name=p.name, path=p, groundtruth=gt, results=res)
 

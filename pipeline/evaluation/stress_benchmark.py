@@ -41,6 +41,7 @@ from gflow_core.evaluation.stress import (CASES, COPY_KINDS, PATCH_KINDS, Stress
                                plan_case, render_frame, target_copy)
 
 from pipeline.app import TrackPlan
+from pipeline.evaluation.scored_boxes import read_scored_boxes
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
 from pipeline.evaluation.sequence_benchmark import Row, Sequence, note
@@ -282,11 +283,13 @@ class StressRow:
 
 def stress_scores(row: StressRow, d: Derived, boxes_csv: str | Path) -> StressRow:
     """Score a tracker's boxes (and states, if the CSV has them) on a derived sequence, on the
-    frames that have ground truth (every frame, or those showing a labelled original)."""
+    frames that have ground truth (every frame, or those showing a labelled original). The boxes are
+    read as ``gflow eval`` reads them (:func:`pipeline.evaluation.scored_boxes.read_scored_boxes`): a row of
+    no box (NaN, or w or h 0) is a miss, overlap 0; its state is still read."""
     gt = d.seq.groundtruth
-    track = read_track(boxes_csv)
+    track = read_track(boxes_csv, allow_nan=True)
     frames = np.array(sorted(gt), dtype=np.int64)
-    ov = overlaps(gt, track.boxes)
+    ov = overlaps(gt, read_scored_boxes(boxes_csv).boxes)
     w0, w1 = d.plan.window
     row.frames, row.window = len(frames), (w0, w1)
     after = ov[frames >= w1 + AFTER_GAP]

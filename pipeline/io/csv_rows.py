@@ -19,13 +19,16 @@ def csv_rows(path: str | Path, columns: str, what: str):
     if not p.is_file():
         raise MissingPath(f"{what} file not found: {p}")
     n = columns.count(",") + 1
-    with open(p, newline="") as f:
+    # utf-8-sig: a byte-order mark (as some editors and spreadsheets write) is not part of the first cell, which
+    # would otherwise not read as a frame number, and the first row would be skipped as a header
+    with open(p, newline="", encoding="utf-8-sig") as f:
         try:
             for lineno, row in enumerate(csv.reader(f), start=1):
                 if not row or not "".join(row).strip():
                     continue
                 if lineno == 1 and not row[0].strip().lstrip("-").isdigit():
                     _refuse_other_kind(p, row, columns, what)
+                    _refuse_other_separators(p, row, columns)
                     continue  # header
                 if len(row) < n:
                     raise ValueError(f"{p}:{lineno}: expected {columns}, got {len(row)} column(s)")
@@ -36,6 +39,18 @@ def csv_rows(path: str | Path, columns: str, what: str):
 
 #: the header gflow writes on each kind of CSV it reads (``--out``, ``--points-out``, visibility)
 KINDS = {"frame,x,y,w,h": "box", "frame,landmark,x,y": "points", "frame,visible": "visibility"}
+
+
+def _refuse_other_separators(p: Path, header: list[str], columns: str) -> None:
+    """A one-line error when the line taken for a header is a row of numbers separated by tabs, semicolons or spaces
+    rather than commas: it would be skipped as a header, and every row after it too fail or, in a file of one row,
+    the file called empty."""
+    import re
+
+    cells = [c for c in re.split(r"[\s;]+", ",".join(header).strip()) if c]
+    if len(cells) >= columns.count(",") + 1 and cells[0].lstrip("-").isdigit():
+        raise ValueError(f"{p}:1: numbers separated by tabs, semicolons or spaces; gflow reads {columns} separated "
+                         f"by commas")
 
 
 def _refuse_other_kind(p: Path, header: list[str], columns: str, what: str) -> None:

@@ -21,13 +21,14 @@ from typing import Iterator
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
+from pipeline.io import damage_notes
 from pipeline.io.mcap_writer import MAGIC
 from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
            "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY", "torn_segments", "torn_cause",
-           "check_recording", "damage_cause"]
+           "check_recording", "damage_cause", "damage_told"]
 
 
 class TruncatedRecording(Exception):
@@ -55,13 +56,21 @@ def damage_cause(path: str | Path) -> str:
     return ""
 
 
+def damage_told(text: str) -> None:
+    """The damage ``text`` (an ``on_truncated`` report) is said by the command that was told it: the readers of this
+    process that meet it later do not warn of it again (a command would name the same damage twice)."""
+    if isinstance(text, Damaged):
+        _DAMAGE_SAID.add(text)
+        damage_notes.told(text)
+
+
 def _say_damage(text: str) -> None:
     """Warn, once per file, of damage inside a recording that a reader without ``on_truncated`` met:
     what such a command shows or computes stops there, and the file's end (which the commands'
     check for a torn file looks at) is intact, so nothing else would say it."""
     if text not in _DAMAGE_SAID:
         _DAMAGE_SAID.add(text)
-        logging.getLogger("gflow.recording").warning("%s", text)
+        damage_notes.keep(text)  # logged at once, or (gflow) when the command ends, unless its last line said it
 
 
 # What reading a torn or corrupt file raises: the mcap reader's own errors, struct's (a file torn

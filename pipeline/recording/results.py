@@ -32,6 +32,8 @@ def _box_row(p: Path, lineno: int, row: list[str], allow_nan: bool) -> tuple[int
         x, y, w, h = (float(v) for v in row[1:5])  # csv_rows gives at least five columns
     except ValueError:
         raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+    if frame < 0:  # no source has one; in a ground truth it was scored as a frame the tracker missed
+        raise ValueError(f"{p}:{lineno}: frame {frame}: frame numbers start at 0")
     box = (x, y, w, h)
     if any(math.isinf(v) for v in box):
         raise ValueError(f"{p}:{lineno}: box has inf")
@@ -77,9 +79,10 @@ class TrackRows:
 
 def read_track(path: str | Path, allow_nan: bool = False) -> TrackRows:
     """Read ``frame,x,y,w,h[,confidence,state]`` rows. A file has the two extra columns on every
-    row or on none; a confidence outside [0, 1] or an unknown state is an error naming the line.
-    ``allow_nan``: a row with NaN in its box is read (a row of no box, as
-    :mod:`pipeline.evaluation.scored_boxes` reads it: a miss), its confidence and state too."""
+    row or on none; a confidence outside [0, 1] or an unknown state is an error naming the line and
+    column. ``allow_nan``: a row with NaN in its box is read (a row of no box, as
+    :mod:`pipeline.evaluation.scored_boxes` reads it: a miss), its confidence and state too. A row of no box
+    (NaN, or w or h 0) may have NaN for its confidence; a row with a box may not."""
     p = Path(path)
     boxes: dict[int, Box] = {}
     conf: dict[int, float] = {}
@@ -93,19 +96,33 @@ def read_track(path: str | Path, allow_nan: bool = False) -> TrackRows:
             continue
         if len(boxes) > 1 and not states:
             raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have five (frame,x,y,w,h)")
-        try:
-            c = float(row[5])
-        except ValueError:
-            raise ValueError(f"{p}:{lineno}: confidence is not a number: {row[5]!r}") from None
-        if not 0.0 <= c <= 1.0:
-            raise ValueError(f"{p}:{lineno}: confidence {row[5]} is outside [0, 1]")
-        s = row[6].strip()
-        if s not in TARGET_STATES:
-            raise ValueError(f"{p}:{lineno}: unknown state {s!r} (known: {', '.join(TARGET_STATES)})")
-        conf[frame], states[frame] = c, s
+        conf[frame], states[frame] = _confidence(p, lineno, row, box), _state(p, lineno, row)
     if not boxes:
         raise ValueError(f"{p}: no boxes")
     return TrackRows(boxes, conf or None, states or None)
+
+
+def _confidence(p: Path, lineno: int, row: list[str], box: Box) -> float:
+    """The confidence (column 6) of a row, in [0, 1]; NaN only on a row that holds no box (NaN in x, y, w or h,
+    or w or h 0: the tracker gave no box, so no confidence in one either)."""
+    try:
+        c = float(row[5])
+    except ValueError:
+        raise ValueError(f"{p}:{lineno}: confidence is not a number (column 6): {row[5]!r}") from None
+    if math.isnan(c) and (any(math.isnan(v) for v in box) or box[2] == 0 or box[3] == 0):
+        return c
+    if not 0.0 <= c <= 1.0:  # NaN fails this too: a box with no confidence in it
+        raise ValueError(f"{p}:{lineno}: confidence {row[5].strip()} is outside [0, 1] (column 6"
+                         + ("; NaN only on a row of no box, NaN or w or h 0)" if math.isnan(c) else ")"))
+    return c
+
+
+def _state(p: Path, lineno: int, row: list[str]) -> str:
+    """The target state (column 7) of a row, one of :data:`TARGET_STATES`."""
+    s = row[6].strip()
+    if s not in TARGET_STATES:
+        raise ValueError(f"{p}:{lineno}: unknown state {s!r} (column 7; known: {', '.join(TARGET_STATES)})")
+    return s
 
 
 def write_boxes(path: str | Path, boxes: dict[int, Box], confidence: dict[int, float] | None = None,
@@ -161,6 +178,8 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
                 pert[frame] = bool(int(row[2]))
         except ValueError:
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if frame < 0:
+            raise ValueError(f"{p}:{lineno}: frame {frame}: frame numbers start at 0")
         if not 0.0 <= v <= 1.0:
             raise ValueError(f"{p}:{lineno}: visible {row[1]} is outside [0, 1]")
         if frame in first:  # the later row would replace the earlier one without a word

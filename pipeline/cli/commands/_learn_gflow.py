@@ -23,12 +23,12 @@ DEFAULT_VERTICES = 160
 
 def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
     """(frames, 4) boxes of a landmark file's frames (NaN rows where the box file has none)."""
-    from pipeline.recording.results import read_boxes
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
 
     path = Path(box_file) if box_file else source.parent / "groundtruth.csv"
     if not path.is_file():
         raise CliError(f"--boxes: {path} not found" + ("" if box_file else f" (the ground truth beside {source})"))
-    b = read_boxes(path)
+    b = read_scored_boxes(path).boxes  # rows of no box (the target absent) left out; a negative size refused
     out = np.full((frames, 4), np.nan)
     for f, box in b.items():
         if 0 <= f < frames:

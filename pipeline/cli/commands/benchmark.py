@@ -230,6 +230,18 @@ def _seed_dir(work: Path, seed: int, seeds: list[int]) -> Path:
     return work if len(seeds) == 1 else work / f"seed-{seed}"
 
 
+def _refuse_earlier_stress_runs(args, seqs, cases: list[str], seeds: list[int]) -> None:
+    """An --out-dir a stress benchmark wrote before: refuse, before any case is derived, a run whose folder
+    (DIR[/seed-S]/SEQUENCE/CASE) already holds an earlier run's boxes or recordings (it was said only once the first
+    case had been derived and run, and an OpenCV or still box CSV of an earlier run would be written over)."""
+    for seq, case, seed in ((q, c, k) for q in seqs for c in cases for k in seeds):
+        folder = _seed_dir(Path(args.out_dir), seed, seeds) / seq.name / case
+        held = sorted(folder.iterdir()) if folder.is_dir() else []
+        if held:
+            raise CliError(f"--out-dir {args.out_dir}: {held[0]} exists (an earlier run's); a run's boxes and "
+                           f"recordings are never overwritten: give a new folder")
+
+
 #: frames after the window the stress benchmark needs at least (the "after" score starts 10 frames after it)
 AFTER_MIN = 15
 
@@ -248,8 +260,10 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int], skipped:
         raise CliError(f"--lead needs at least 1 frame and --tail at least {AFTER_MIN} (got {args.lead}, {args.tail})")
     if args.stress_cache and Path(args.stress_cache).exists() and not Path(args.stress_cache).is_dir():
         raise CliError(f"--stress-cache {args.stress_cache} is a file, not a folder")
-    select_cases(args.cases)
+    cases = select_cases(args.cases)
     check_sequences(seqs)
+    if args.out_dir:
+        _refuse_earlier_stress_runs(args, seqs, [c.name for c in cases], seeds)
     # CSRT beside every tracker by default, where this OpenCV has it
     cv_names = _opencv_names("csrt" if args.opencv is None else args.opencv)
     cv_missing = _opencv_missing(cv_names)

@@ -6,17 +6,19 @@ from __future__ import annotations
 
 ORDER = 57
 
-from pipeline.io.mcap_io import iter_records, segments
+from pipeline.io.mcap_io import Damaged, damage_told, iter_records, segments
 from pipeline.recording.live_record import live_summary
 from pipeline.recording.results import (blank_rule, completeness, estimate_columns, renumber, reported_frames,
                                        run_estimates, write_boxes)
-from pipeline.cli.commands.common import CliError, check_new_file
+from pipeline.cli.commands.common import CliError, check_new_file, stream_name
 
 
 def cmd_boxes(args) -> int:
     check_new_file(out=args.out)  # before reading: a folder, or a file it would write over
     torn: list[str] = []
     list(iter_records(args.recording, topics=["-"], on_truncated=torn.append))  # checks the file; notes a torn end
+    for text in torn:  # said below with the boxes (or in the error): the reading of the estimates does not warn again
+        damage_told(text)
     est, sessions = run_estimates(args.recording, stream=args.stream)  # the run's own: what came from outside is said
     if not est:  # a torn recording says where it ends, so "no estimates" is not taken for what the run made
         raise CliError(f"{args.recording} holds no estimates" + (f" for stream {args.stream!r}" if args.stream else "")
@@ -31,12 +33,14 @@ def cmd_boxes(args) -> int:
     segs = segments(args.recording)
     print(f"{len(boxes)} boxes, frames {min(boxes)}-{max(boxes)}, written to {args.out}"
           + (f" (from {len(segs)} segments)" if len(segs) > 1 else ""))
-    for line in torn + sessions.lines():
+    for line in [t for t in torn if not isinstance(t, Damaged)] + sessions.lines():  # damage: said on stderr below
         print(f"  {line}")
     gaps = completeness(est, None, reported_frames(args.recording, args.stream), blank=_blank_rule(args.recording))
     for line in gaps:
         print(f"  {line}")
-    return 3 if any("no estimate" in g for g in gaps) else 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return 3 if any("no estimate" in g for g in gaps) else partial_if_damaged(args.recording, "boxes", args.out, 3)
 
 
 def _streams_with_estimates(args) -> str:
@@ -68,9 +72,10 @@ def register(sub) -> None:
     p = sub.add_parser("boxes", help="write the boxes (frame,x,y,w,h,confidence,state) tracked in a recording",
                        description="Rebuild the box CSV of a run from its recording: closed, torn (a killed "
                                    "recorder), recovered, or in segments (a restarted recorder). Names the frames "
-                                   "that have no estimate (exit status 3) and those that coasted.",
+                                   "that have no estimate (exit status 3) and those that coasted; a recording "
+                                   "damaged inside gives the boxes before the damage, with exit status 3 too.",
                        epilog="example: gflow boxes recordings/track-20260101-120000.mcap --out boxes.csv")
     p.add_argument("recording", help="the .mcap recording (its NAME.partN.mcap segments are read too)")
     p.add_argument("--out", required=True, metavar="CSV", help="output boxes (frame,x,y,w,h,confidence,state)")
-    p.add_argument("--stream", help="only this stream's estimates (default: all)")
+    p.add_argument("--stream", type=stream_name, help="only this stream's estimates (default: all)")
     p.set_defaults(func=cmd_boxes)

@@ -265,11 +265,19 @@ def add_zenoh_args(p: argparse.ArgumentParser) -> None:
     add_security_args(p.add_argument_group("security (TLS, login, signed runs: docs/security.md)"))
 
 
+def stream_name(text: str) -> str:
+    """A stream's name (argparse type): not empty (``--stream ''``, an empty shell variable, was taken for no --stream
+    at all), without '/' or '*' (they would reach into other streams' topics)."""
+    if not text.strip() or "/" in text or "*" in text:
+        raise argparse.ArgumentTypeError(f"a stream is a non-empty name without '/' or '*', got {text!r}")
+    return text
+
+
 def add_placement_args(p: argparse.ArgumentParser, hosts: bool = True) -> None:
     """``--stream NAME`` (the run's stream; default: the graph's plus a new run id) and, for
     ``gflow run``, ``--host LABEL`` (repeatable: start only the stages placed there)."""
     g = p.add_argument_group("placement and run id (docs/deployment.md)")
-    g.add_argument("--stream", metavar="NAME",
+    g.add_argument("--stream", metavar="NAME", type=stream_name,
                    help="this run's stream: topics are gflow/NAME/... (default: the graph's stream plus a new run id, "
                         "so two runs never mix; with --host, the graph's stream: give every host the same NAME)")
     if hosts:
@@ -321,6 +329,23 @@ def warn_if_torn(path: str) -> bool:
               f"up to where it ends (`gflow verify` says how much is readable, `gflow recover` salvages it)",
               file=sys.stderr)
     return bool(torn)
+
+
+def partial_if_damaged(recording: str, command: str, wrote: str, status: int = 1) -> int:
+    """The exit status of ``gflow COMMAND`` that wrote ``wrote`` from ``recording``: 0, or ``status`` when a reader of
+    this process met damage inside the recording (:func:`pipeline.io.mcap_io.damage_cause`: bytes follow the record
+    that failed, or the file's end, and were not read, so ``wrote`` lacks them), said in one line on stderr with the
+    damage. The output is kept (what could be read), but is not reported as a whole one."""
+    import sys
+
+    from pipeline.io.mcap_io import damage_cause, damage_told
+
+    damage = damage_cause(recording)
+    if not damage:
+        return 0
+    damage_told(damage)  # said here: not warned again when the command ends
+    print(f"gflow {command}: {wrote} holds only what was read before the damage: {damage}", file=sys.stderr)
+    return status
 
 
 def write_picture(path: str, pic) -> None:

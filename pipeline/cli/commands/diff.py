@@ -48,6 +48,7 @@ def cmd_diff(args) -> int:
                           for t, d in res.items()}, indent=1))
         if damaged:
             print(f"gflow diff: {damaged}", file=sys.stderr)
+            _told(args)
         return 0 if all(d.identical for d in res.values()) and not damaged else 1
     print(f"A = {args.a}\nB = {args.b}")
     if across is not None:
@@ -74,11 +75,20 @@ def cmd_diff(args) -> int:
                 print(f"  {e.seq:6d} {e.centre_px:10.3f} {e.overlap:8.3f} {e.pose:15.6g}")
     same = all(d.identical for d in res.values())
     if damaged:  # exit 1 either way: what could not be read was not compared
+        _told(args)
         print(f"\n{'identical up to the damage' if same else 'the recordings differ'}; nothing after the damage was "
               f"compared: {damaged}")
         return 1
     print("\nidentical" if same else "\nthe recordings differ")
     return 0 if same else 1
+
+
+def _told(args) -> None:
+    """The damage of either recording is said by diff's own line: not warned again when the command ends."""
+    from pipeline.io.mcap_io import damage_cause, damage_told
+
+    for p in (args.a, args.b):
+        damage_told(damage_cause(p))
 
 
 def register(sub) -> None:

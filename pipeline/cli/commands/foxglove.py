@@ -50,9 +50,10 @@ def cmd_foxglove(args) -> int:
         if topics and s.left_out:  # the topics chosen are all ones Foxglove cannot show: the option is the mistake
             raise CliError(f"--topics {' '.join(args.topics)}: Foxglove cannot show "
                            f"{describe_topics(s.left_out)} (binary arrays), so there is nothing to copy")
-        from pipeline.io.mcap_io import damage_cause, torn_cause
+        from pipeline.io.mcap_io import damage_cause, damage_told, torn_cause
 
         why = damage_cause(args.recording) or torn_cause(args.recording)
+        damage_told(why)  # said in the line below: not warned again when the command ends
         print(f"gflow foxglove: no message of {args.recording} could be copied" + (f" ({why})" if why else "")
               + f"; {args.out} removed", file=sys.stderr)
         return 1
@@ -62,7 +63,9 @@ def cmd_foxglove(args) -> int:
             if s.left_out else []) + ([f"{s.markers} end-of-stream markers"] if s.markers else [])
     if left:
         print("left out: " + "; ".join(left))
-    return 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return partial_if_damaged(args.recording, "foxglove", args.out)
 
 
 def register(sub) -> None:

@@ -16,7 +16,7 @@ import time
 from typing import Any, cast
 
 from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_int, positive_float, positive_int,
-                                          stream_of, tool_zenoh)
+                                          stream_name, stream_of, tool_zenoh)
 
 
 def _run_stream(stream: str) -> str:
@@ -345,7 +345,7 @@ def register(sub) -> None:
                        description="Lists the user's pipelines (and replays) running on this machine, as announced "
                                    "in the user's runtime folder, with each stage's state, progress, rate and memory "
                                    "from its heartbeat.")
-    p.add_argument("--stream", help="only the pipeline of this stream")
+    p.add_argument("--stream", type=stream_name, help="only the pipeline of this stream")
     p.add_argument("--all", action="store_true", help="also other users' pipelines (a runtime folder they share)")
     p.add_argument("--json", action="store_true", help="print JSON")
     p.add_argument("--listen-for", type=positive_float, default=1.2, metavar="S",
@@ -363,7 +363,7 @@ def register(sub) -> None:
     p.add_argument("--wait", type=positive_float, default=10.0,
                    help="seconds to wait for the first message, e.g. while a pipeline just started comes up "
                         "(default 10)")
-    p.add_argument("--stream", help="only the pipeline of this stream (when several run)")
+    p.add_argument("--stream", type=stream_name, help="only the pipeline of this stream (when several run)")
     p.add_argument("--json", action="store_true", help="print JSON: type, messages, rate_hz, bytes_per_s per topic")
     add_zenoh_args(p)
     p.set_defaults(func=cmd_topics)

@@ -138,9 +138,11 @@ def _log(args, msg: str) -> None:
 
 
 def _box_array(path: str, index: np.ndarray) -> np.ndarray:
-    from pipeline.recording.results import read_boxes
+    """(frames, 4) boxes of the training frames ``index``, NaN where the file has none or a row of no box (the
+    target absent: w or h 0, or NaN, as ``gflow eval`` reads the truth); a negative size is refused."""
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
 
-    gt = read_boxes(path)
+    gt = read_scored_boxes(path).boxes
     boxes = np.full((index.size, 4), np.nan)
     for i, f in enumerate(index):
         if int(f) in gt:
@@ -168,6 +170,10 @@ def _sources_and_boxes(args) -> list[tuple[str, str | None]]:
     if len(boxes) != len(sources):
         raise CliError(f"--boxes lists {len(boxes)} file(s) for {len(sources)} source(s): give one per source, or "
                        "--boxes alone to use each folder's groundtruth.csv")
+    from pipeline.evaluation.scored_boxes import read_scored_boxes
+
+    for b in boxes:  # a missing or damaged file is said before any training frame is read
+        read_scored_boxes(b)
     return list(zip(sources, boxes))
 
 
@@ -182,7 +188,7 @@ def training_set(args):
         return _training_set_one(args, *pairs[0], sequence=0, ref_size=None)
     from gflow_core.m2 import training
 
-    from pipeline.io.datasets import parse_range, read_frames, resolve_source
+    from pipeline.io.datasets import parse_range, resolve_source
 
     kinds = [resolve_source(s)[0] for s, _ in pairs]
     if "avletters" in kinds:
@@ -194,7 +200,7 @@ def training_set(args):
         start, stop = parse_range(args.frames)
         sizes = []
         for s, b in pairs:
-            idx = read_frames(resolve_source(s)[1], start, stop).frame_index
+            idx = _read_frames_of(resolve_source(s)[1], start, stop, "--frames", args.frames).frame_index
             bx = _box_array(b, idx)
             sizes.append(bx[np.isfinite(bx).all(axis=1), 2:])
         ref = np.median(np.concatenate(sizes), axis=0)
@@ -219,13 +225,26 @@ def training_set(args):
     return ts, meta, g_all
 
 
+def _read_frames_of(path, start: int, stop: int | None, option: str, given: str | None):
+    """:func:`pipeline.io.datasets.read_frames` of ``start:stop``; a range with no frame decoded is an error naming
+    ``option`` when the user gave it (``given``), so that --frames and --background-frames are told apart."""
+    from pipeline.io.datasets import read_frames
+
+    try:
+        return read_frames(path, start, stop)
+    except ValueError as e:
+        if given:
+            raise CliError(f"{option} {given}: {e}") from None
+        raise
+
+
 def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, ref_size):
     """One training sequence: (TrainingSet, metadata, grey frames of the items or None)."""
     from gflow_core.features import to_grey
     from gflow_core.m2 import training
     from gflow_core.m2.distances import METRICS
 
-    from pipeline.io.datasets import parse_range, read_avletters, read_frames, resolve_source
+    from pipeline.io.datasets import parse_range, read_avletters, resolve_source
 
     kind, path = resolve_source(source)
     metric_kind = METRICS[args.metric].kind
@@ -248,7 +267,7 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
     else:
         if args.reps or args.letters:
             raise CliError("--reps and --letters select AVLetters utterances; the source is not an .npz file")
-        seq = read_frames(path, start, stop)
+        seq = _read_frames_of(path, start, stop, "--frames", args.frames)
         for i, why in seq.skipped:  # damaged input is said even with -q (which silences progress)
             print(f"warning: frame {i} skipped: {why}", file=sys.stderr, flush=True)
     meta["frames"] = f"{int(seq.frame_index[0])}:{int(seq.frame_index[-1]) + 1}"
@@ -266,7 +285,8 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
             if kind == "avletters":
                 raise CliError("--background-frames needs a video or an image folder")
             b0, b1 = parse_range(args.background_frames)
-            bg = training.median_background(read_frames(path, b0, b1).frames)
+            bg = training.median_background(_read_frames_of(path, b0, b1, "--background-frames",
+                                                            args.background_frames).frames)
             meta["background_frames"] = args.background_frames
         else:
             bg = training.median_background(seq.frames)

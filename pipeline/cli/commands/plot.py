@@ -179,7 +179,9 @@ def cmd_plot(args) -> int:
     fig.tight_layout()
     fig.savefig(out, dpi=args.dpi)
     print(f"wrote {out}")
-    return 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return partial_if_damaged(args.file, "plot", out)
 
 
 def register(sub) -> None:

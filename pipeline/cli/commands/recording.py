@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 
 from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_float, nonnegative_int, positive_float,
-                                          tool_zenoh)
+                                          stream_name, tool_zenoh)
 
 # file suffix -> callable(path, as_json) printing a description; other modules add to it
 DESCRIBERS: dict = {}
@@ -48,6 +48,9 @@ def describe_recording(path: str, as_json: bool) -> int:
             v1 = v if len(v) < 200 else v[:200] + f"... ({len(v)} chars)"
             print(f"  {k}: {v1}" if "\n" not in v1 else f"  {k}: |\n    " + v1.replace("\n", "\n    "))
     if bad:  # exit 1: a script must not take this file for a good recording
+        from pipeline.io.mcap_io import damage_cause, damage_told
+
+        damage_told(damage_cause(path))  # said above, in the WARNING line of the summary
         print(f"gflow info: {path}: {bad} ({s.messages} messages read)", file=sys.stderr)
         return 1
     return 0
@@ -152,7 +155,9 @@ def cmd_replay(args) -> int:
     except (TimeoutError, StreamInUse) as e:
         raise CliError(str(e)) from None
     print(f"replayed {n} messages from {args.file}", file=sys.stderr)
-    return 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return partial_if_damaged(args.file, "replay", "the replay")
 
 
 def register(sub) -> None:
@@ -188,7 +193,7 @@ def register(sub) -> None:
     p.add_argument("--loop", type=nonnegative_int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
     p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
                    help="before each new frame, wait until these live stages acknowledge the previous one")
-    p.add_argument("--stream", metavar="NAME",
+    p.add_argument("--stream", metavar="NAME", type=stream_name,
                    help="publish on gflow/NAME/... instead of the recorded stream (a stream a running pipeline holds "
                         "is refused unless named here or fed with --lockstep)")
     p.add_argument("--ack-timeout", type=positive_float, default=10.0, help="with --lockstep: seconds to wait for a stage to acknowledge a frame (default 10)")

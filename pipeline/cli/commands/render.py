@@ -56,12 +56,17 @@ def cmd_render(args) -> int:
     warn_if_torn(args.file)
     frames, est, parts = _messages(args.file)
     seqs = [s for s in sorted(frames) if s in est]
-    if not seqs:
-        raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)")
+    if not seqs:  # a damaged or torn file says where it ends, so the cut is not taken for what the run recorded
+        from pipeline.io.mcap_io import damage_cause, torn_cause
+
+        why = damage_cause(args.file) or torn_cause(args.file)
+        raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)"
+                       + (f": {why}" if why else ""))
     held = f"frames {seqs[0]}..{seqs[-1]}"
     seqs = [s for s in seqs if s >= first and (end is None or s < end)]
     if not seqs:
         raise CliError(f"--frames {args.frames}: no frame to draw; {args.file} holds {held}")
+    _refuse_scale_past_any_picture(args, frames, seqs)
     there = [out / f"{s:06d}.png" for s in seqs if not video and (out / f"{s:06d}.png").exists()]
     if there:
         raise CliError(f"{out} already holds {len(there)} of the pictures it would write ({there[0].name}, ...); "
@@ -72,7 +77,21 @@ def cmd_render(args) -> int:
     else:
         _write_pictures(out, pictures)
     print(f"drew {len(seqs)} frames into {out}")
-    return 0
+    from pipeline.cli.commands.common import partial_if_damaged
+
+    return partial_if_damaged(args.file, "render", str(out))
+
+
+def _refuse_scale_past_any_picture(args, frames: dict, seqs: list[int]) -> None:
+    """``--scale`` that draws a frame of ``seqs`` larger than any picture a side (frame.py's ``MAX_SIDE``): refused
+    before any drawing, naming the largest scale that fits (it ended in OpenCV's out-of-memory 'internal error')."""
+    from pipeline.cli.commands.frame import MAX_SIDE
+
+    h, w = max((tuple(frames[s].image.shape[:2]) for s in seqs), key=max)
+    if max(w, h) * args.scale > MAX_SIDE:
+        raise CliError(f"--scale {args.scale}: {args.file}'s frames ({w}x{h}) drawn {args.scale}x are "
+                       f"{w * args.scale}x{h * args.scale} pixels, more than {MAX_SIDE} a side; give a --scale of at "
+                       f"most {max(1, MAX_SIDE // max(w, h))}")
 
 
 def _pictures(args, frames: dict, est: dict, parts: dict, seqs: list[int]):

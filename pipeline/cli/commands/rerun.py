@@ -17,6 +17,7 @@ def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
     """{param: value} of ``--set`` for a re-run of ``stage``: ``PARAM=V``, ``STAGE.PARAM=V`` or
     ``tracker.PARAM=V``; a value named for another stage is an error (it would set ``stage``'s)."""
     out: dict[str, object] = {}
+    given: dict[str, str] = {}
     for it in items or []:
         if "=" not in it:
             raise CliError(f"--set expects key=value, got {it!r}")
@@ -25,6 +26,9 @@ def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
         if owner not in ("", stage, "tracker"):
             raise CliError(f"--set {k}: --stage {stage} re-runs {stage} alone; set its parameters ({stage}.{name} "
                            f"or {name}), or re-run --stage {owner} or --graph")
+        if name in given:  # the later value would replace the earlier one without a word
+            raise CliError(f"--set {name} given twice ({given[name]}, then {v}): give it once")
+        given[name] = v
         out[name] = yaml.safe_load(v)
     return out
 
@@ -179,11 +183,12 @@ def cmd_rerun(args) -> int:
 def _damaged(path: str, label: str) -> int:
     """1 (and the line saying why) when ``path`` was found damaged while re-run and compared: its outputs
     after the damage were neither re-run nor compared, so "all identical" is not a check of the run."""
-    from pipeline.io.mcap_io import damage_cause
+    from pipeline.io.mcap_io import damage_cause, damage_told
 
     why = damage_cause(path)
     if not why:
         return 0
+    damage_told(why)  # said here: not warned again when the command ends
     print(f"{label}: compared only up to the damage, so not a check of the whole run: {why}")
     return 1
 

@@ -236,7 +236,7 @@ def cmd_track(args) -> int:
     if run.live is not None and run.live.tracking_s > 0:  # not the waits for a lost stream, nor its end
         rate = f"{n / run.live.tracking_s:.1f} fps over the {run.live.tracking_s:.1f} s the stream was tracked"
     print(f"tracked {n} frames in {run.seconds:.2f} s ({rate}); boxes: {args.out}{pts}; recording: {run.kept}")
-    for line in run.lines:
+    for line in run.lines + _stop_past_the_end(args, run):
         print(f"  {line}")
     errs = info.get("errors")
     if errs:  # a count (processes) or {stage: count} (inline)
@@ -250,6 +250,27 @@ def cmd_track(args) -> int:
         print(f"the run is incomplete: {run.incomplete}", file=sys.stderr)
         return 3
     return 0
+
+
+def _stop_past_the_end(args, run: TrackResult) -> list[str]:
+    """A line when a file's frames ended before ``--stop`` (the run tracked to the last one; nothing said so, and a
+    --stop past the end reads as though that many frames were tracked)."""
+    if args.stop is None or run.live is not None or not run.estimates or max(run.estimates) + 1 >= args.stop:
+        return []
+    last = max(run.estimates)
+    return [f"--stop {args.stop} is past the end of {args.source}: its last frame is {last}, tracked to it"]
+
+
+def reconnect_seconds(text: str) -> float:
+    """``--reconnect``: a number of seconds >= 0, or inf (argparse type). A negative one or NaN was refused only by
+    the source stage, naming the graph file's line and its parameters rather than the option."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of seconds, got {text!r}") from None
+    if not v >= 0:  # NaN fails this too
+        raise argparse.ArgumentTypeError(f"must be a number >= 0 (or inf), got {text.strip()}")
+    return v
 
 
 def add_track_args(p: argparse.ArgumentParser) -> None:
@@ -274,10 +295,11 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=nonnegative_int, default=0, help="first frame index")
     p.add_argument("--stop", type=positive_int, help="stop before this frame index (live: after this many frames decoded)")
     g = p.add_argument_group("live sources (docs/live.md)")
-    g.add_argument("--camera", type=int, metavar="N", help="track camera N (/dev/videoN) instead of a SOURCE")
-    g.add_argument("--reconnect", type=float, metavar="S",
-                   help="seconds to keep reopening a lost stream before the run ends (default 5; 0: end at once)")
-    g.add_argument("--open-timeout", type=float, metavar="S",
+    g.add_argument("--camera", type=nonnegative_int, metavar="N", help="track camera N (/dev/videoN) instead of a SOURCE")
+    g.add_argument("--reconnect", type=reconnect_seconds, metavar="S",
+                   help="seconds to keep reopening a lost stream before the run ends (default 5; 0: end at once; "
+                        "inf: until it is back or Ctrl-C)")
+    g.add_argument("--open-timeout", type=positive_float, metavar="S",
                    help="seconds opening the stream may take before it is an error (default 10)")
     p.add_argument("--graph", help="graph file to use instead of the tracker's built-in one")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="a parameter of the tracker, once for all its stages (tracker.particles=1000), or of one stage (source.stop=100); repeatable")

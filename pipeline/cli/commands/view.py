@@ -8,7 +8,7 @@ import argparse
 import sys
 import time
 
-from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, positive_int, tool_zenoh
+from pipeline.cli.commands.common import CliError, add_zenoh_args, positive_float, positive_int, stream_name, tool_zenoh
 
 
 def tcp_port(text: str) -> int:
@@ -17,6 +17,19 @@ def tcp_port(text: str) -> int:
     if v > 65535:
         raise argparse.ArgumentTypeError(f"a port is 1-65535, got {v}")
     return v
+
+
+def _refuse_port_in_use(host: str, port: int) -> None:
+    """Refuse, before waiting for a pipeline, a ``--host``/``--port`` that cannot be served on (another program
+    holds the port, or the address is not this machine's): it was said only once a pipeline had started."""
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
+            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds it (TIME_WAIT is no owner)
+            s.bind((host, port))
+    except OSError as e:
+        raise CliError(f"cannot serve on {host}:{port}: {e.strerror or e}") from None
 
 
 def _await_run(args, end: float | None) -> bool:
@@ -42,6 +55,7 @@ def cmd_view(args) -> int:
         raise CliError("gflow view needs the foxglove-sdk package: pip install foxglove-sdk") from None
     from pipeline.cli.foxglove_bridge import FoxgloveBridge
 
+    _refuse_port_in_use(args.host, args.port)
     end = None if args.duration is None else time.monotonic() + args.duration
     from pipeline.runtime.running import runs_of_camera, running
 
@@ -89,7 +103,7 @@ def register(sub) -> None:
                                    "the run. Started before the run, it waits for it. Features and "
                                    "particles are not forwarded. In the Foxglove app: Open connection -> Foxglove "
                                    "WebSocket -> ws://HOST:PORT.")
-    p.add_argument("--stream", help="the pipeline's stream (default: the one running)")
+    p.add_argument("--stream", type=stream_name, help="the pipeline's stream (default: the one running)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1; 0.0.0.0 for other machines)")
     p.add_argument("--port", type=tcp_port, default=8765, help="WebSocket port (default 8765, Foxglove's)")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
