@@ -193,16 +193,22 @@ def test_a_live_topic_that_nothing_publishes_is_named_with_what_does(replaying: 
     assert f"gflow/{replaying}/ has:" in last and "estimate" in last.split("has:")[1] and "_status" not in last, last
 
 
+def _refused_eval(files: Path, bad: Path, flag: str, capsys) -> str:
+    """``gflow eval`` with ``bad`` as ``flag`` (the other file the good ground truth): its one line of refusal,
+    asserted exit 2."""
+    other = {"--pred": "--gt", "--gt": "--pred"}[flag]
+    rc, err = cli(["eval", flag, str(bad), other, str(files / "gt.csv")], capsys)
+    lines = err.strip().splitlines()
+    assert rc == 2 and len(lines) == 1, err
+    return lines[0]
+
+
 @pytest.mark.parametrize("flag", ["--pred", "--gt"])
 def test_a_frame_given_twice_in_a_boxes_file_is_refused(files: Path, tmp_path: Path, capsys, flag: str) -> None:
     """The later row replaced the earlier one without a word and was scored."""
     twice = tmp_path / "twice.csv"
     twice.write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11,10,20,20\n0,40,40,20,20\n")
-    other = {"--pred": "--gt", "--gt": "--pred"}[flag]
-    rc, err = cli(["eval", flag, str(twice), other, str(files / "gt.csv")], capsys)
-    lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 1, err
-    assert f"{twice}:4: frame 0 again (first at line 2)" in lines[0], lines[0]
+    assert f"{twice}:4: frame 0 again (first at line 2)" in _refused_eval(files, twice, flag, capsys)
 
 
 def test_a_boxes_file_with_a_byte_order_mark_keeps_its_first_row(tmp_path: Path, capsys) -> None:
@@ -235,11 +241,7 @@ def test_a_negative_frame_in_a_boxes_file_is_refused(files: Path, tmp_path: Path
     """A ground-truth row of frame -1 (no source has one) was scored as a frame the tracker missed."""
     neg = tmp_path / "neg.csv"
     neg.write_text("frame,x,y,w,h\n-1,10,10,20,20\n0,11,10,20,20\n")
-    other = {"--pred": "--gt", "--gt": "--pred"}[flag]
-    rc, err = cli(["eval", flag, str(neg), other, str(files / "gt.csv")], capsys)
-    lines = err.strip().splitlines()
-    assert rc == 2 and len(lines) == 1, err
-    assert f"{neg}:2: frame -1: frame numbers start at 0" in lines[0], lines[0]
+    assert f"{neg}:2: frame -1: frame numbers start at 0" in _refused_eval(files, neg, flag, capsys)
     vis = tmp_path / "visible.csv"
     vis.write_text("frame,visible\n-1,1.0\n0,0.5\n")
     from pipeline.recording.results import read_visibility

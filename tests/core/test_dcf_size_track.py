@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import cv2
 import numpy as np
 
 from gflow_core.dcf import model as tm
@@ -15,38 +14,11 @@ from gflow_core.dcf import tracker as tr
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.tracker import TRACKER
 from gflow_core.params import as_recorded
-from gflow_core.visibility import ChiSquare
-
-H, W = 200, 260
-BOX = (30.0, 36.0)
-_RNG = np.random.default_rng(4)
-
-
-def _texture(h: int, w: int, cell: float) -> np.ndarray:
-    small = _RNG.uniform(0, 255, size=(max(2, int(h / cell)), max(2, int(w / cell)))).astype(np.float32)
-    return cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
-
-
-BG = _texture(H, W, 10.0)
-TARGET = _texture(36, 30, 5.0)
-
-
-def _frame(with_target: bool) -> np.ndarray:
-    img = BG.copy()
-    if with_target:
-        img[82:118, 115:145] = TARGET
-    return np.clip(img, 0, 255).astype(np.uint8)
-
-
-def _usual(mean: float, sd: float, n: int = 30) -> ChiSquare:
-    return ChiSquare(mean, mean * mean + sd * sd, n)
-
+from dcf_scene import frame, hidden
 
 def _hidden(p: DCFParams) -> tr.DCFState:
-    """A target held at (130, 100), hidden for 40 frames (its log size's std 0.2 at the default growth: five
-    sizes searched): its distances usual at 0.5, the clutter's at 0.9."""
-    st = tr.initialise(TRACKER.observe(p, _frame(True)), (115.5, 82.5, *BOX), p, np.random.default_rng(0))
-    return dataclasses.replace(st, target=_usual(0.5, 0.05), clutter=_usual(0.9, 0.03), hidden_run=40)
+    """Hidden for 40 frames: its log size's std 0.2 at the default growth, so five sizes are searched."""
+    return hidden(p, run=40)
 
 
 def _offer(monkeypatch, log_f: float) -> None:
@@ -59,7 +31,7 @@ def _offer(monkeypatch, log_f: float) -> None:
 
 def _unseen(st: tr.DCFState, p: DCFParams) -> tuple[tr.Search, object]:
     """One unseen frame's search and its candidate track."""
-    srch, _, track = tr._unseen(st, TRACKER.observe(p, _frame(False)), p, np.array([130.0, 100.0]), (10.0, 10.0),
+    srch, _, track = tr._unseen(st, TRACKER.observe(p, frame(False)), p, np.array([130.0, 100.0]), (10.0, 10.0),
                                 None, None, st.hidden_run, 1.0, 1.0)
     return srch, track
 

@@ -8,7 +8,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import cv2
 import numpy as np
 import pytest
 
@@ -16,39 +15,9 @@ from gflow_core.dcf import model as tm
 from gflow_core.dcf import tracker as tr
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.tracker import TRACKER
-from gflow_core.visibility import ChiSquare
+from dcf_scene import frame, hidden
 
-H, W = 200, 260
-BOX = (30.0, 36.0)
-_RNG = np.random.default_rng(3)
-
-
-def _texture(h: int, w: int, cell: float) -> np.ndarray:
-    small = _RNG.uniform(0, 255, size=(max(2, int(h / cell)), max(2, int(w / cell)))).astype(np.float32)
-    return cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
-
-
-BG = _texture(H, W, 10.0)
-TARGET = _texture(36, 30, 5.0)
-
-
-def _frame(with_target: bool) -> np.ndarray:
-    """The background, with the target (h, w) centred at (130, 100) if ``with_target``."""
-    img = BG.copy()
-    if with_target:
-        img[82:118, 115:145] = TARGET
-    return np.clip(img, 0, 255).astype(np.uint8)
-
-
-def _usual(mean: float, sd: float, n: int = 30) -> ChiSquare:
-    return ChiSquare(mean, mean * mean + sd * sd, n)
-
-
-def _hidden(p: DCFParams) -> tr.DCFState:
-    """A target held at (130, 100), hidden for 5 frames: its filter's distances usual at 0.5, the clutter's
-    at 0.9."""
-    st = tr.initialise(TRACKER.observe(p, _frame(True)), (115.5, 82.5, *BOX), p, np.random.default_rng(0))
-    return dataclasses.replace(st, target=_usual(0.5, 0.05), clutter=_usual(0.9, 0.03), hidden_run=5)
+_frame, _hidden = frame, hidden
 
 
 def _offer(monkeypatch, rho: float, log_f: float) -> None:
