@@ -289,7 +289,7 @@ def test_export_vot_of_chosen_sequences_reads_only_those(two_sequences: Path) ->
     assert r.returncode == 0 and (two_sequences / "ws" / "sequences" / "good" / "groundtruth.txt").is_file(), r.stderr
     assert not (two_sequences / "ws" / "sequences" / "bad").exists()
     for chosen, words in (("nosuch", ["unknown sequence nosuch", "known: bad, good"]),
-                          ("", ["(none given)"]),
+                          ("", ["argument --sequences: empty"]),
                           ("bad", ["bad/groundtruth.csv:3", "not numbers"])):
         r = gflow("export", "vot", "data", "ws2", "--sequences", chosen, cwd=two_sequences)
         one_line_error(r, *words, rc=2)

@@ -922,19 +922,6 @@ def test_options_that_add_up_may_be_given_again(tmp_path: Path, frames: Path) ->
     assert r.returncode == 0, r.stderr
 
 
-@pytest.mark.parametrize("argv,named", [
-    (["track", "frames", "--init", "20,10,20,20", "--out", "b.csv", "--inline", "--set", "tracker.rate=0.5", "--set",
-      "tracker.rate=0.6"], "--set tracker.rate given twice (0.5, then 0.6)"),
-    (["run", "demo", "--inline", "--set", "source.frames=3", "--set", "source.frames=4"],
-     "--set source.frames given twice (3, then 4)"),
-])
-def test_a_parameter_set_twice_is_refused(tmp_path: Path, frames: Path, argv: list[str], named: str) -> None:
-    """The later --set of one parameter replaced the earlier one without a word."""
-    r = gflow(*argv, cwd=tmp_path)
-    assert_one_line_error(r, named)
-    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["frames"]
-
-
 def test_view_on_a_port_in_use_is_refused_before_waiting_for_a_pipeline(tmp_path: Path) -> None:
     """It waited for a pipeline to start (until --duration, or for ever), and only then found the port taken."""
     pytest.importorskip("foxglove", reason="gflow view needs the foxglove-sdk package")

@@ -76,15 +76,11 @@ def parse_sets(items: Iterable[str] | None) -> dict[str, dict]:
     import yaml
 
     out: dict[str, dict] = {}
-    given: dict[str, str] = {}
     for it in items or []:
         if "=" not in it or "." not in it.split("=", 1)[0]:
             raise RequestError(f"--set expects stage.param=value, got {it!r}")
         key, val = it.split("=", 1)
         stage, param = key.split(".", 1)
-        if key in given:  # the later value would replace the earlier one without a word
-            raise RequestError(f"--set {key} given twice ({given[key]}, then {val}): give it once")
-        given[key] = val
         out.setdefault(stage, {})[param] = yaml.safe_load(val)
     return out
 

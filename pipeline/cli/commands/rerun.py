@@ -17,7 +17,6 @@ def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
     """{param: value} of ``--set`` for a re-run of ``stage``: ``PARAM=V``, ``STAGE.PARAM=V`` or
     ``tracker.PARAM=V``; a value named for another stage is an error (it would set ``stage``'s)."""
     out: dict[str, object] = {}
-    given: dict[str, str] = {}
     for it in items or []:
         if "=" not in it:
             raise CliError(f"--set expects key=value, got {it!r}")
@@ -26,9 +25,6 @@ def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
         if owner not in ("", stage, "tracker"):
             raise CliError(f"--set {k}: --stage {stage} re-runs {stage} alone; set its parameters ({stage}.{name} "
                            f"or {name}), or re-run --stage {owner} or --graph")
-        if name in given:  # the later value would replace the earlier one without a word
-            raise CliError(f"--set {name} given twice ({given[name]}, then {v}): give it once")
-        given[name] = v
         out[name] = yaml.safe_load(v)
     return out
 
