@@ -42,12 +42,22 @@ def _box_row(p: Path, lineno: int, row: list[str], allow_nan: bool) -> tuple[int
     return frame, box
 
 
+#: the names of the columns of a boxes CSV gflow writes, by their number
+_COLUMN_NAMES = {5: " (frame,x,y,w,h)", 7: " (frame,x,y,w,h,confidence,state)"}
+
+
 def box_rows(p: Path, allow_nan: bool = False):
     """(line number, row, frame, box) of every row of a boxes CSV; a frame given twice is an error
-    naming both lines (the later row replaced the earlier one without a word, and was scored). NaN is
+    naming both lines (the later row replaced the earlier one without a word, and was scored), and so is
+    a row with more or fewer columns than the first (the first bad line named). NaN is
     an error unless ``allow_nan`` (a row of no box, :mod:`pipeline.evaluation.scored_boxes`); inf always."""
     first: dict[int, int] = {}
+    width: tuple[int, int] | None = None  # (columns, line) of the first row
     for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
+        width = width or (len(row), lineno)
+        if len(row) != width[0]:  # a row cut short or run on (a lost comma, a half-pasted row) was read as it came
+            raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have {width[0]}"
+                             f"{_COLUMN_NAMES.get(width[0], '')} (from line {width[1]}): every row has the same columns")
         frame, box = _box_row(p, lineno, row, allow_nan)
         if frame in first:
             raise ValueError(f"{p}:{lineno}: frame {frame} again (first at line {first[frame]}): one box a frame")
@@ -57,7 +67,7 @@ def box_rows(p: Path, allow_nan: bool = False):
 
 def read_boxes(path: str | Path) -> dict[int, Box]:
     """Read ``frame,x,y,w,h`` rows (a header line is optional; columns after the fifth, such as
-    ``confidence,state``, are not read). Errors name the file and line."""
+    ``confidence,state``, are not read, but every row has as many as the first). Errors name the file and line."""
     p = Path(path)
     out: dict[int, Box] = {}
     for _, _, frame, box in box_rows(p):
@@ -79,7 +89,7 @@ class TrackRows:
 
 def read_track(path: str | Path, allow_nan: bool = False) -> TrackRows:
     """Read ``frame,x,y,w,h[,confidence,state]`` rows. A file has the two extra columns on every
-    row or on none; a confidence outside [0, 1] or an unknown state is an error naming the line and
+    row or on none (:func:`box_rows`); a confidence outside [0, 1] or an unknown state is an error naming the line and
     column. ``allow_nan``: a row with NaN in its box is read (a row of no box, as
     :mod:`pipeline.evaluation.scored_boxes` reads it: a miss), its confidence and state too. A row of no box
     (NaN, or w or h 0) may have NaN for its confidence; a row with a box may not."""
@@ -89,13 +99,8 @@ def read_track(path: str | Path, allow_nan: bool = False) -> TrackRows:
     states: dict[int, str] = {}
     for lineno, row, frame, box in box_rows(p, allow_nan=allow_nan):
         boxes[frame] = box
-        if len(row) < 7:
-            if states:
-                raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h,confidence,state like the rows before, "
-                                 f"got {len(row)} column(s)")
+        if len(row) < 7:  # every row has the columns of the first (box_rows)
             continue
-        if len(boxes) > 1 and not states:
-            raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have five (frame,x,y,w,h)")
         conf[frame], states[frame] = _confidence(p, lineno, row, box), _state(p, lineno, row)
     if not boxes:
         raise ValueError(f"{p}: no boxes")
