@@ -98,3 +98,53 @@ def test_eval_refuses_truth_of_mixed_widths_in_one_line(tmp_path: Path, capsys) 
     (tmp_path / "p.csv").write_text("frame,x,y,w,h\n0,1,2,3,4\n1,1,2,3,4\n")
     rc, err = cli(["eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "p.csv")], capsys)
     assert rc == 2 and f"gt.csv:3: 6 columns, but the rows before have 5" in one_line(err), err
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    """A folder of two sequence folders (a and b: frames/ of four 64x48 frames and groundtruth.csv)."""
+    d = tmp_path_factory.mktemp("trust5-data") / "data"
+    rng = np.random.default_rng(1)
+    for name in ("a", "b"):
+        (d / name / "frames").mkdir(parents=True)
+        for i in range(4):
+            cv2.imwrite(str(d / name / "frames" / f"{i:06d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+        (d / name / "groundtruth.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(4)))
+    return d
+
+
+@pytest.mark.parametrize("argv,said", [
+    (["benchmark", "{d}", "--trackers", "dcf,dcf"], "--trackers 'dcf,dcf': dcf is named twice"),
+    (["benchmark", "{d}", "--trackers", "dcf, m2,dcf"], "--trackers 'dcf, m2,dcf': dcf is named twice"),
+    (["benchmark", "{d}", "--trackers", "dcf,,chamfer"], "--trackers 'dcf,,chamfer': an empty name between commas"),
+    (["benchmark", "{d}", "--trackers", "dcf,"], "--trackers 'dcf,': an empty name between commas"),
+    (["benchmark", "{d}", "--sequences", "a,a"], "--sequences 'a,a': a is named twice"),
+    (["benchmark", "{d}", "--opencv", "csrt,kcf,csrt"], "--opencv 'csrt,kcf,csrt': csrt is named twice"),
+    (["benchmark", "{d}", "--stress", "--cases", "look,look"], "--cases 'look,look': look is named twice"),
+    (["benchmark", "{d}", "--stress", "--cases", "occlude,occlude-25"],
+     "--cases 'occlude,occlude-25': occlude-25 is named twice (by occlude and by occlude-25)"),
+    (["benchmark", "{d}", "--stress", "--cases", "roll,roll-camera"], "roll-camera-20 is named twice"),
+    (["benchmark", "--list-cases", "--cases", "dark,dark-40"], "dark-40 is named twice"),
+    (["benchmark", "{d}", "--stress", "--sequences", "b,b"], "--sequences 'b,b': b is named twice"),
+    (["export", "vot", "{d}", "{t}/ws", "--sequences", "a,b,a"], "--sequences 'a,b,a': a is named twice"),
+    (["export", "vot", "{d}/a", "{t}/ws", "--sequences", "a,a"], "--sequences 'a,a': a is named twice"),
+])
+def test_a_name_listed_twice_is_refused(data: Path, tmp_path: Path, monkeypatch, capsys, argv: list[str],
+                                        said: str) -> None:
+    """``--trackers dcf,dcf`` ran dcf once without a word (``--sequences``, ``--opencv``, ``--cases``, and
+    export vot's ``--sequences`` alike), and ``dcf,,chamfer`` dropped the empty name: the user may have meant
+    another name there. Refused in one line naming the repeat, before any work."""
+    monkeypatch.chdir(tmp_path)
+    rc, err = cli([a.replace("{d}", str(data)).replace("{t}", str(tmp_path)) for a in argv], capsys)
+    assert rc == 2 and said in one_line(err), err
+    assert not list(tmp_path.iterdir()), "nothing may be written before the options are checked"
+
+
+def test_distinct_names_are_still_taken(data: Path, capsys) -> None:
+    """Names given once each, with spaces after the commas, are read as before."""
+    capsys.readouterr()
+    from pipeline.cli.main import main
+
+    assert main(["benchmark", "--list-cases", "--cases", "occlude, look"]) == 0
+    listed = [ln.split()[0] for ln in capsys.readouterr().out.splitlines()]
+    assert listed == ["occlude-10", "occlude-25", "occlude-60", "occlude-150", "look"], listed

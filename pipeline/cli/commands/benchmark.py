@@ -51,15 +51,20 @@ def model_given(args, name: str) -> str | None:
 
 def _names(text: str | None, known: list[str], what: str, noun: str) -> list[str]:
     """The names of a comma-separated option ``--what``, each one of ``known`` (a ``noun``)."""
+    from pipeline.app.names import comma_names
+
     if text is None:
         return list(known)
-    names = [n.strip() for n in text.split(",") if n.strip()]
+    try:
+        names = comma_names(text, f"--{what}")  # a name given twice (run once without a word) is refused
+    except ValueError as e:
+        raise CliError(str(e)) from None
     if not names:
         raise CliError(f"--{what} needs at least one name (known: {', '.join(known)})")
     bad = [n for n in names if n not in known]
     if bad:
         raise CliError(f"unknown {noun} {bad[0]!r} in --{what} (known: {', '.join(known)})")
-    return list(dict.fromkeys(names))
+    return names
 
 
 def _opencv_names(text: str | None) -> list[str]:
