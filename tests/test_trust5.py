@@ -148,3 +148,32 @@ def test_distinct_names_are_still_taken(data: Path, capsys) -> None:
     assert main(["benchmark", "--list-cases", "--cases", "occlude, look"]) == 0
     listed = [ln.split()[0] for ln in capsys.readouterr().out.splitlines()]
     assert listed == ["occlude-10", "occlude-25", "occlude-60", "occlude-150", "look"], listed
+
+
+def _missing_opencv() -> str:
+    """An OpenCV tracker this OpenCV does not have (CSRT in OpenCV 5 without contrib), or skip."""
+    from pipeline.evaluation.sequence_benchmark import OPENCV_TRACKERS, opencv_tracker
+
+    missing = [c for c in OPENCV_TRACKERS if opencv_tracker(c)[0] is None]
+    if not missing:
+        pytest.skip("this OpenCV has every OpenCV tracker gflow knows, so none is noted missing")
+    return missing[0]
+
+
+@pytest.mark.parametrize("extra", [["--stress", "--cases", "none"], ["--variant", "blur"], ["--opencv", "{cv}"],
+                                   ["--stress", "--cases", "none", "--opencv", "{cv}"]])
+@pytest.mark.parametrize("setting,said", [
+    ("tracker.nonexist=3", "--set tracker.nonexist=3: DCFParams has no parameter 'nonexist'"),
+    ("nonsense", "--set expects stage.param=value, got 'nonsense'"),
+])
+def test_a_bad_set_is_said_before_any_note_or_work(data: Path, tmp_path: Path, monkeypatch, capsys,
+                                                   extra: list[str], setting: str, said: str) -> None:
+    """``gflow benchmark --stress --set BAD`` said ``benchmark: opencv csrt not measured: ...`` before the --set's
+    error, and ``--variant blur --set BAD`` said ``writing the blur variant`` and wrote it first: every option is
+    now checked before any note or work, and the error is the one line."""
+    monkeypatch.chdir(tmp_path)
+    cv = _missing_opencv() if "{cv}" in extra else ""
+    rc, err = cli(["benchmark", str(data / "a"), "--trackers", "dcf", "--inline", "--set", setting,
+                   *[a.replace("{cv}", cv) for a in extra]], capsys)
+    assert rc == 2 and said in one_line(err), err
+    assert not list(tmp_path.iterdir())

@@ -272,14 +272,14 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int], skipped:
     # CSRT beside every tracker by default, where this OpenCV has it
     cv_names = _opencv_names("csrt" if args.opencv is None else args.opencv)
     cv_missing = _opencv_missing(cv_names)
-    for c, why in cv_missing.items():
-        note(f"opencv {c} not measured: {why}")
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         # every tracker's options and model files checked on the original sequences, before any work
         _, skip = _plans(args, seqs, names, {s.name: min(s.groundtruth) for s in seqs}, None, Path(tmp))
     start_work()  # every check done: a bad value met from here on is the benchmark failing (exit 1)
     for line in skipped:  # after the checks: a mistake's error is the one line on stderr
         note(line)
+    for c, why in cv_missing.items():  # after them too (it came before a bad --set's error)
+        note(f"opencv {c} not measured: {why}")
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
@@ -393,6 +393,9 @@ def cmd_benchmark(args) -> int:
         return 0
     if not args.datasets:
         raise CliError("the following arguments are required: DATASET (a sequence folder or a folder of them)")
+    from pipeline.app import parse_sets
+
+    parse_sets(args.set)  # a --set not of the form stage.param=value, before any folder is read
     seeds = _seeds(args)
     args.seed = seeds[0]
     variant = _variant(args.variant)
@@ -422,6 +425,9 @@ def cmd_benchmark(args) -> int:
         if variant is not None:
             from pipeline.evaluation.variant_benchmark import derive_variant
 
+            # every tracker's options and model files checked on the originals before the variant is written (a
+            # bad --set was said after the note and the work of writing every frame)
+            _plans(args, seqs, names, first, stop, Path(tmp) / "check")
             note(f"writing the {variant.name} variant of {len(seqs)} sequence(s)")
             try:
                 seqs = [derive_variant(seq, variant, Path(tmp) / "variant", first[seq.name], stop) for seq in seqs]
