@@ -177,3 +177,38 @@ def test_a_bad_set_is_said_before_any_note_or_work(data: Path, tmp_path: Path, m
                    *[a.replace("{cv}", cv) for a in extra]], capsys)
     assert rc == 2 and said in one_line(err), err
     assert not list(tmp_path.iterdir())
+
+
+def _bench_m2_transfer():
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "bench" / "bench_m2_transfer.py"
+    spec = importlib.util.spec_from_file_location("bench_m2_transfer", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_bench_m2_transfer_rounds_each_figure_once() -> None:
+    """The script took the benchmark JSON's figures, already rounded to 4 decimals, and printed their mean
+    rounded again: an AUC of 0.73649 with every seed was printed 0.737 (its JSON 0.7365, rounded up)."""
+    res = np.array([[2.0, 0.73649, 0.5], [2.0, 0.73649, 0.6]])
+    assert _bench_m2_transfer().figures(res) == ["2.00 / 2.00", "2.00", "0.736 / 0.736", "0.736", "0.500-0.600"]
+
+
+def test_bench_m2_transfer_scores_the_boxes_unrounded(data: Path, tmp_path: Path) -> None:
+    """The figures come from the run's boxes, scored as the benchmark scores them, not from its rounded JSON; a
+    JSON that disagrees beyond its rounding (other frames scored) stops the script rather than print either."""
+    from pipeline.evaluation.sequence_benchmark import Row, find_sequences, score_row
+
+    bench = _bench_m2_transfer()
+    boxes = tmp_path / "m2.csv"
+    boxes.write_text("frame,x,y,w,h\n0,10,10,20,20\n1,11.3,10,20,20\n2,13.7,12.1,19,21\n3,17,9,23,20\n")
+    (seq,), _ = find_sequences([str(data / "a")])
+    want = score_row(Row("a", "m2", "tracker"), seq.truth(0, None), boxes)
+    assert round(want.auc, 4) != want.auc  # a figure the JSON rounds
+    row = {"boxes": str(boxes), "cle_px": round(want.score.cle, 3), "auc": round(want.auc, 4),
+           "success_rate_0.5": round(want.score.success, 4)}
+    assert bench.score(row, data / "a", [None, None]) == (want.score.cle, want.auc, want.score.success)
+    with pytest.raises(SystemExit, match="auc"):
+        bench.score(dict(row, auc=row["auc"] + 0.01), data / "a", [None, None])
