@@ -212,3 +212,51 @@ def test_bench_m2_transfer_scores_the_boxes_unrounded(data: Path, tmp_path: Path
     assert bench.score(row, data / "a", [None, None]) == (want.score.cle, want.auc, want.score.success)
     with pytest.raises(SystemExit, match="auc"):
         bench.score(dict(row, auc=row["auc"] + 0.01), data / "a", [None, None])
+
+
+@pytest.fixture(scope="module")
+def stripes(tmp_path_factory) -> Path:
+    """Six 320x240 frames of one fine, low-contrast texture: vertical stripes 2 px wide, grey levels 100 and 130.
+    Canny at 50/150 finds no edge in it; at thresholds chosen from its own gradients it has edges at full
+    resolution, and none once resampled by 1/2 (each 2x2 block of pixels averages a stripe pair away)."""
+    d = tmp_path_factory.mktemp("stripes") / "frames"
+    d.mkdir()
+    x = np.mgrid[0:240, 0:320][1]
+    for i in range(6):
+        cv2.imwrite(str(d / f"{i:04d}.png"), (100 + (x // 2) % 2 * 30).astype(np.uint8))
+    return d
+
+
+def _coast_lines(capsys, argv: list[str]) -> list[str]:
+    from pipeline.cli.main import main
+
+    capsys.readouterr()
+    assert main(argv) == 0
+    out = capsys.readouterr()
+    return [ln for ln in (out.out + out.err).splitlines() if "coasted" in ln]
+
+
+@pytest.mark.parametrize("match", [True, False])
+def test_edgeless_reads_the_edges_at_the_resolution_the_tracker_read_them(caviar1_m2_model: Path, stripes: Path,
+                                                                        tmp_path: Path, capsys, match: bool) -> None:
+    """With ``preprocess.match_resolution=true`` the tracker reads the edges of the frame resampled to the model's
+    resolution (here by 1/2, the box twice the model's reference size). The report looked for edges at the frame's
+    own resolution: on a fine texture the tracker sees as uniform it said "not blank, but has no edges at the
+    model's Canny thresholds 50/150 ... set others", and with the thresholds it suggested (null: each frame's
+    own) the tracker coasted on every frame again. It now looks where the tracker looked: a blank frame; and the
+    report's answer agrees with what the tracker does once the advice is followed."""
+    from pipeline.io.modelfile import load_model
+
+    rw, rh = load_model(caviar1_m2_model).ref_size
+    box = f"100,40,{2 * rw:g},{2 * rh:g}"  # twice the model's reference size: resampled by 1/2
+    argv = ["track", str(stripes), "--tracker", "m2", "--model", str(caviar1_m2_model), "--init", box, "--inline",
+            "--no-record"] + (["--set", "preprocess.match_resolution=true"] if match else [])
+    lines = _coast_lines(capsys, argv + ["--out", str(tmp_path / "fixed.csv")])
+    assert len(lines) == 1, lines
+    said_blank = "a blank frame" in lines[0]
+    assert said_blank == match and ("is not blank" in lines[0]) == (not match), lines
+    # the advice followed (thresholds chosen from each frame's gradients): a blank frame coasts again, a frame
+    # that was not blank has edges now
+    again = _coast_lines(capsys, argv + ["--set", "preprocess.canny_low=null", "--set", "preprocess.canny_high=null",
+                                         "--out", str(tmp_path / "own.csv")])
+    assert bool(again) == said_blank, (lines, again)
