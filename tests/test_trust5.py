@@ -260,3 +260,23 @@ def test_edgeless_reads_the_edges_at_the_resolution_the_tracker_read_them(caviar
     again = _coast_lines(capsys, argv + ["--set", "preprocess.canny_low=null", "--set", "preprocess.canny_high=null",
                                          "--out", str(tmp_path / "own.csv")])
     assert bool(again) == said_blank, (lines, again)
+
+
+@pytest.mark.parametrize("argv,said", [
+    (["learn", "m2", "{d}", "{d}", "--metric", "l2", "-K", "2"], "source {d} is given twice; give each source once"),
+    (["learn", "m2", "{d}", "{t}/link", "--metric", "l2", "-K", "2"], "source {t}/link is given twice (as {d} and as"),
+    (["learn", "gflow", "{t}/lm", "{t}/lm/landmarks.npz"],
+     "landmark source {t}/lm/landmarks.npz is given twice (as {t}/lm and as {t}/lm/landmarks.npz)"),
+])
+def test_a_training_source_given_twice_is_refused(frames: Path, tmp_path: Path, monkeypatch, capsys,
+                                                  argv: list[str], said: str) -> None:
+    """``gflow learn m2 A A`` learned from every frame of A twice, as two sequences, without a word (and
+    ``learn gflow`` alike, also with a folder and its landmarks.npz): refused naming the source, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "link").symlink_to(frames)
+    (tmp_path / "lm").mkdir()
+    np.savez(tmp_path / "lm" / "landmarks.npz", landmarks=np.zeros((4, 468, 3), np.float32))
+    fill = (lambda a: a.replace("{d}", str(frames)).replace("{t}", str(tmp_path)))
+    rc, err = cli([fill(a) for a in argv] + ["--out", str(tmp_path / "m.npz"), "-q"], capsys)
+    assert rc == 2 and fill(said) in one_line(err), err
+    assert not (tmp_path / "m.npz").exists()

@@ -51,6 +51,9 @@ def cmd_learn_gflow(args) -> int:
     if args.boxes is not None and args.boxes and len(args.boxes) != len(args.sources):
         raise CliError(f"--boxes: give one box file per source ({len(args.sources)}), or none to use each source's "
                        f"groundtruth.csv")
+    from pipeline.cli.commands.common import refuse_same_source
+
+    refuse_same_source([resolve_landmarks(src) for src in args.sources], list(args.sources), "landmark source")
     tracks, boxes, names, used = [], [], [], []
     for i, src in enumerate(args.sources):
         path = resolve_landmarks(src)

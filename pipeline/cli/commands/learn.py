@@ -154,7 +154,11 @@ def _box_array(path: str, index: np.ndarray) -> np.ndarray:
 
 def _sources_and_boxes(args) -> list[tuple[str, str | None]]:
     """(source, boxes CSV or None) per training sequence, from SOURCE... and --boxes [CSV...]."""
+    from pipeline.cli.commands.common import refuse_same_source
+    from pipeline.io.datasets import resolve_source
+
     sources = list(args.source)
+    refuse_same_source([resolve_source(s)[1] for s in sources], sources, "source")
     boxes = args.boxes
     if boxes is None:
         return [(s, None) for s in sources]
