@@ -280,3 +280,25 @@ def test_a_training_source_given_twice_is_refused(frames: Path, tmp_path: Path, 
     rc, err = cli([fill(a) for a in argv] + ["--out", str(tmp_path / "m.npz"), "-q"], capsys)
     assert rc == 2 and fill(said) in one_line(err), err
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.fixture(scope="module")
+def demo_mcap(tmp_path_factory) -> Path:
+    """A closed recording of 10 frames of the synthetic scene (``gflow demo --inline``)."""
+    from pipeline.cli.main import main
+
+    out = tmp_path_factory.mktemp("trust5-demo") / "demo.mcap"
+    assert main(["demo", "--frames", "10", "--inline", "--record", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("value,said", [
+    (",", "--lockstep ',' names no stage"),
+    ("filter,filter", "--lockstep 'filter,filter': filter is named twice"),
+    ("filter,,proposal", "--lockstep 'filter,,proposal': an empty name between commas"),
+])
+def test_replay_lockstep_names_are_checked_before_replaying(demo_mcap: Path, capsys, value: str, said: str) -> None:
+    """``gflow replay --lockstep ,`` replayed with no lockstep without a word, and ``filter,filter`` waited 10 s
+    for heartbeats and then said "no heartbeat from filter, filter": refused at once, before any message is sent."""
+    rc, err = cli(["replay", str(demo_mcap), "--max", f"--lockstep={value}"], capsys)
+    assert rc == 2 and said in one_line(err), err
