@@ -302,3 +302,16 @@ def test_replay_lockstep_names_are_checked_before_replaying(demo_mcap: Path, cap
     for heartbeats and then said "no heartbeat from filter, filter": refused at once, before any message is sent."""
     rc, err = cli(["replay", str(demo_mcap), "--max", f"--lockstep={value}"], capsys)
     assert rc == 2 and said in one_line(err), err
+
+
+@pytest.mark.parametrize("extra", [[], ["--stress"]])
+def test_a_model_for_a_tracker_not_run_is_refused(data: Path, tmp_path: Path, monkeypatch, capsys,
+                                                  extra: list[str]) -> None:
+    """``gflow benchmark --trackers dcf --m2-model M`` ran dcf alone, the model neither read nor used (here not even
+    a model: a CSV), and nothing said so; refused naming the option, before any work."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n0,1,2,3,4\n")
+    rc, err = cli(["benchmark", str(data), "--trackers", "dcf", "--m2-model", str(tmp_path / "gt.csv"), "--inline",
+                   *extra], capsys)
+    assert rc == 2 and "--m2-model gives --tracker m2 its model, but --trackers dcf does not run m2" in one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gt.csv"]

@@ -127,6 +127,15 @@ def _planned(args, seq, name: str, start: int, stop: int | None, folder: Path):
         return f"skipped: {e}"
 
 
+def _refuse_unused_models(args, names: list[str]) -> None:
+    """A ``--NAME-model`` given for a tracker ``--trackers`` leaves out (``--trackers dcf --m2-model M``): the model
+    was neither read nor used, and nothing said so."""
+    for name, opt in model_options().items():
+        if model_given(args, name) and name not in names:
+            raise CliError(f"{opt} gives --tracker {name} its model, but --trackers {args.trackers} does not run "
+                           f"{name}: add {name} to --trackers, or leave {opt} out")
+
+
 def _check_paths(args) -> None:
     """Model files, plot names and --out-dir, before any work."""
     check_models(args)
@@ -381,6 +390,7 @@ def cmd_benchmark(args) -> int:
     from pipeline.evaluation.sequence_benchmark import find_sequences, note
     from pipeline.cli.versions import versions
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
+    _refuse_unused_models(args, names)
     if args.list_cases:
         from pipeline.evaluation.stress_benchmark import select_cases
 
