@@ -315,3 +315,16 @@ def test_a_model_for_a_tracker_not_run_is_refused(data: Path, tmp_path: Path, mo
                    *extra], capsys)
     assert rc == 2 and "--m2-model gives --tracker m2 its model, but --trackers dcf does not run m2" in one_line(err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gt.csv"]
+
+
+def test_eval_says_no_centre_error_rather_than_nan(tmp_path: Path, capsys) -> None:
+    """A tracker with no box on any frame of truth scores overlap 0 (its JSON's cle_px is null), but the text said
+    ``centre location error (CLE): nan px``; it now says there is none, and why."""
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,10,10,20,20\n")
+    (tmp_path / "p.csv").write_text("frame,x,y,w,h\n0,nan,nan,nan,nan\n1,1,1,0,0\n")
+    from pipeline.cli.main import main
+
+    capsys.readouterr()
+    assert main(["eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "p.csv")]) == 0
+    out = capsys.readouterr().out
+    assert "nan" not in out.lower() and "CLE): none (no frame with ground truth has a predicted box)" in out, out
