@@ -328,3 +328,13 @@ def test_eval_says_no_centre_error_rather_than_nan(tmp_path: Path, capsys) -> No
     assert main(["eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "p.csv")]) == 0
     out = capsys.readouterr().out
     assert "nan" not in out.lower() and "CLE): none (no frame with ground truth has a predicted box)" in out, out
+
+
+def test_learn_gflow_refuses_landmarks_of_another_layout(tmp_path: Path, capsys) -> None:
+    """Ten landmarks a frame (not MediaPipe Face Mesh's 468) were learned from until the learning failed (exit 1)
+    with "frontal landmarks (33, 263, 61, 291) must lie in [0, 10)"; a mistake in the input, said before learning."""
+    rng = np.random.default_rng(0)
+    np.savez(tmp_path / "lm.npz", landmarks=(rng.normal(size=(20, 10, 3)) * 50 + 200).astype(np.float32))
+    rc, err = cli(["learn", "gflow", str(tmp_path / "lm.npz"), "--out", str(tmp_path / "m.npz"), "-q"], capsys)
+    assert rc == 2 and f"{tmp_path / 'lm.npz'}: 10 landmarks a frame" in one_line(err), err
+    assert not (tmp_path / "m.npz").exists()
