@@ -338,3 +338,19 @@ def test_learn_gflow_refuses_landmarks_of_another_layout(tmp_path: Path, capsys)
     rc, err = cli(["learn", "gflow", str(tmp_path / "lm.npz"), "--out", str(tmp_path / "m.npz"), "-q"], capsys)
     assert rc == 2 and f"{tmp_path / 'lm.npz'}: 10 landmarks a frame" in one_line(err), err
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("typ,fields,said", [
+    ("Control", '{"comand": "stop"}', "FIELDS: Control has no field 'comand' (its fields: header, command)"),
+    ("Control", '{"command": "stop", "header": {"sq": 3}}', "FIELDS: Control's header has no field 'sq'"),
+    ("Control", '{"command": "halt"}', "FIELDS: no stage acts on Control command 'halt' (known: start, stop)"),
+    ("Estimate", '{"box": [1, 2, 3, 4], "boxx": 1}', "FIELDS: Estimate has no field 'boxx'"),
+])
+def test_pub_refuses_a_field_the_message_does_not_have(tmp_path: Path, capsys, typ: str, fields: str,
+                                                       said: str) -> None:
+    """``gflow pub ... Control '{"command": "stop", "header": {"sq": 3}}'`` sent the message without the field
+    mistyped (msgspec drops what it does not know), and ``{"command": "halt"}`` went to stages that log it and
+    ignore it; refused before any session opens."""
+    rc, err = cli(["pub", "gflow/cam0/_control" if typ == "Control" else "gflow/cam0/estimate", typ, fields,
+                   "--wait", "0.2"], capsys)
+    assert rc == 2 and said in one_line(err), err
