@@ -354,3 +354,21 @@ def test_pub_refuses_a_field_the_message_does_not_have(tmp_path: Path, capsys, t
     rc, err = cli(["pub", "gflow/cam0/_control" if typ == "Control" else "gflow/cam0/estimate", typ, fields,
                    "--wait", "0.2"], capsys)
     assert rc == 2 and said in one_line(err), err
+
+
+@pytest.mark.parametrize("text,said", [
+    ("frame,visible\n0,1\n1,0.5,1\n", "v.csv:3: 3 columns, but the rows before have 2 (from line 2)"),
+    ("frame,visible,perturbed\n0,1,1\n1,0.5\n", "v.csv:3: 2 columns, but the rows before have 3 (from line 2)"),
+    ("frame,visible,perturbed\n0,1,0\n1,0.5,2\n", "v.csv:3: perturbed 2 is not 0 or 1 (column 3)"),
+])
+def test_a_visibility_file_of_uneven_rows_is_refused_by_line(tmp_path: Path, capsys, text: str, said: str) -> None:
+    """A visibility file with the perturbed column on some rows only was refused as "the perturbed column is missing
+    on some rows", naming no line, and a perturbed value of 2 was read as perturbed; both name the line now, as a
+    boxes file's errors do."""
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n0,10,10,20,20\n1,10,10,20,20\n")
+    (tmp_path / "p.csv").write_text("frame,x,y,w,h,confidence,state\n0,10,10,20,20,0.9,tracked\n"
+                                    "1,10,10,20,20,0.9,tracked\n")
+    (tmp_path / "v.csv").write_text(text)
+    rc, err = cli(["eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "p.csv"), "--visibility",
+                   str(tmp_path / "v.csv")], capsys)
+    assert rc == 2 and said in one_line(err), err

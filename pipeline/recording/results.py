@@ -176,13 +176,20 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
     vis: dict[int, float] = {}
     pert: dict[int, bool] = {}
     first: dict[int, int] = {}
+    width: tuple[int, int] | None = None  # (columns, line) of the first row
     for lineno, row in csv_rows(p, "frame,visible", "visibility"):
+        width = width or (len(row), lineno)
+        if len(row) != width[0]:  # the perturbed column on some rows only was said naming no line
+            raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have {width[0]} (from line "
+                             f"{width[1]}): every row has the same columns (frame,visible[,perturbed,source_frame])")
         try:
             frame, v = int(row[0]), float(row[1])
             if len(row) >= 3:
                 pert[frame] = bool(int(row[2]))
         except ValueError:
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if len(row) >= 3 and row[2].strip() not in ("0", "1"):  # 2 or -1 was read as perturbed
+            raise ValueError(f"{p}:{lineno}: perturbed {row[2].strip()} is not 0 or 1 (column 3)")
         if frame < 0:
             raise ValueError(f"{p}:{lineno}: frame {frame}: frame numbers start at 0")
         if not 0.0 <= v <= 1.0:
@@ -193,8 +200,6 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
         vis[frame] = v
     if not vis:
         raise ValueError(f"{p}: no rows")
-    if pert and len(pert) != len(vis):
-        raise ValueError(f"{p}: the perturbed column is missing on some rows")
     return vis, pert or None
 
 
