@@ -54,8 +54,10 @@ def test_a_command_of_a_command_says_its_errors_under_its_own_name(frames: Path,
 
 @pytest.mark.parametrize("text,line,words", [
     ("0,1,2,3,4\n1,1,2,3,4,0.5\n", 2, "6 columns, but the rows before have 5 (frame,x,y,w,h) (from line 1)"),
-    ("frame,x,y,w,h\n0,1,2,3,4\n1,1,2,3,4\n2,1,2,3,4,0.9,tracked\n", 4, "7 columns, but the rows before have 5"),
-    ("0,1,2,3,4,0.5,tracked\n1,1,2,3,4\n", 2, "5 columns, but the rows before have 7 (frame,x,y,w,h,confidence,state)"),
+    ("frame,x,y,w,h\n0,1,2,3,4\n1,1,2,3,4\n2,1,2,3,4,0.9,tracked\n", 4,
+     "7 columns, but the rows before have 5"),
+    ("0,1,2,3,4,0.5,tracked\n1,1,2,3,4\n", 2,
+     "5 columns, but the rows before have 7 (frame,x,y,w,h,confidence,state)"),
     ("0,1,2,3,4,\n1,1,2,3,4\n", 2, "5 columns, but the rows before have 6"),  # a trailing comma on the first row
 ])
 def test_read_boxes_refuses_rows_of_different_widths(tmp_path: Path, text: str, line: int, words: str) -> None:
@@ -97,7 +99,7 @@ def test_eval_refuses_truth_of_mixed_widths_in_one_line(tmp_path: Path, capsys) 
     (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n0,1,2,3,4\n1,1,2,3,4,9\n")
     (tmp_path / "p.csv").write_text("frame,x,y,w,h\n0,1,2,3,4\n1,1,2,3,4\n")
     rc, err = cli(["eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "p.csv")], capsys)
-    assert rc == 2 and f"gt.csv:3: 6 columns, but the rows before have 5" in one_line(err), err
+    assert rc == 2 and "gt.csv:3: 6 columns, but the rows before have 5" in one_line(err), err
 
 
 @pytest.fixture(scope="module")
@@ -357,8 +359,9 @@ def test_pub_refuses_a_field_the_message_does_not_have(tmp_path: Path, capsys, t
 
 
 @pytest.mark.parametrize("text,said", [
-    ("frame,visible\n0,1\n1,0.5,1\n", "v.csv:3: 3 columns, but the rows before have 2 (from line 2)"),
-    ("frame,visible,perturbed\n0,1,1\n1,0.5\n", "v.csv:3: 2 columns, but the rows before have 3 (from line 2)"),
+    ("frame,visible\n0,1\n1,0.5,1\n", "v.csv:3: 3 columns, but the rows before have 2 (frame,visible) (from line 2)"),
+    ("frame,visible,perturbed\n0,1,1\n1,0.5\n",
+     "v.csv:3: 2 columns, but the rows before have 3 (frame,visible,perturbed) (from line 2)"),
     ("frame,visible,perturbed\n0,1,0\n1,0.5,2\n", "v.csv:3: perturbed 2 is not 0 or 1 (column 3)"),
 ])
 def test_a_visibility_file_of_uneven_rows_is_refused_by_line(tmp_path: Path, capsys, text: str, said: str) -> None:
@@ -372,3 +375,14 @@ def test_a_visibility_file_of_uneven_rows_is_refused_by_line(tmp_path: Path, cap
     rc, err = cli(["eval", "--gt", str(tmp_path / "gt.csv"), "--pred", str(tmp_path / "p.csv"), "--visibility",
                    str(tmp_path / "v.csv")], capsys)
     assert rc == 2 and said in one_line(err), err
+
+
+def test_a_points_file_of_uneven_rows_is_refused_by_line(tmp_path: Path) -> None:
+    """A points file (frame,landmark,x,y) took a row run on (``0,61,5,6,7``: its last value dropped) as it came."""
+    from pipeline.io.landmarks import read_points
+
+    p = tmp_path / "pts.csv"
+    p.write_text("frame,landmark,x,y\n0,33,1,2\n0,61,5,6,7\n")
+    with pytest.raises(ValueError, match=r"pts.csv:3: 5 columns, but the rows before have 4 \(frame,landmark,x,y\) "
+                                         r"\(from line 2\)"):
+        read_points(p)

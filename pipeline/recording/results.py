@@ -42,22 +42,13 @@ def _box_row(p: Path, lineno: int, row: list[str], allow_nan: bool) -> tuple[int
     return frame, box
 
 
-#: the names of the columns of a boxes CSV gflow writes, by their number
-_COLUMN_NAMES = {5: " (frame,x,y,w,h)", 7: " (frame,x,y,w,h,confidence,state)"}
-
-
 def box_rows(p: Path, allow_nan: bool = False):
     """(line number, row, frame, box) of every row of a boxes CSV; a frame given twice is an error
     naming both lines (the later row replaced the earlier one without a word, and was scored), and so is
     a row with more or fewer columns than the first (the first bad line named). NaN is
     an error unless ``allow_nan`` (a row of no box, :mod:`pipeline.evaluation.scored_boxes`); inf always."""
     first: dict[int, int] = {}
-    width: tuple[int, int] | None = None  # (columns, line) of the first row
-    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
-        width = width or (len(row), lineno)
-        if len(row) != width[0]:  # a row cut short or run on (a lost comma, a half-pasted row) was read as it came
-            raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have {width[0]}"
-                             f"{_COLUMN_NAMES.get(width[0], '')} (from line {width[1]}): every row has the same columns")
+    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):  # every row with the columns of the first
         frame, box = _box_row(p, lineno, row, allow_nan)
         if frame in first:
             raise ValueError(f"{p}:{lineno}: frame {frame} again (first at line {first[frame]}): one box a frame")
@@ -176,12 +167,7 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
     vis: dict[int, float] = {}
     pert: dict[int, bool] = {}
     first: dict[int, int] = {}
-    width: tuple[int, int] | None = None  # (columns, line) of the first row
-    for lineno, row in csv_rows(p, "frame,visible", "visibility"):
-        width = width or (len(row), lineno)
-        if len(row) != width[0]:  # the perturbed column on some rows only was said naming no line
-            raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have {width[0]} (from line "
-                             f"{width[1]}): every row has the same columns (frame,visible[,perturbed,source_frame])")
+    for lineno, row in csv_rows(p, "frame,visible", "visibility"):  # every row with the columns of the first
         try:
             frame, v = int(row[0]), float(row[1])
             if len(row) >= 3:
