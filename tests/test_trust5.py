@@ -386,3 +386,20 @@ def test_a_points_file_of_uneven_rows_is_refused_by_line(tmp_path: Path) -> None
     with pytest.raises(ValueError, match=r"pts.csv:3: 5 columns, but the rows before have 4 \(frame,landmark,x,y\) "
                                          r"\(from line 2\)"):
         read_points(p)
+
+
+def test_step_refuses_a_recording_without_the_stage_inputs(tmp_path: Path, monkeypatch, capsys) -> None:
+    """``gflow step`` of a recording made with ``--record-topics estimate,features`` (no proposals) said
+    "stepping filter ... N input messages", and every step joined nothing: "end of the recording", exit 0. Refused
+    naming the topics missing, as ``gflow rerun`` refuses it."""
+    import io
+
+    from pipeline.cli.main import main
+
+    rec = tmp_path / "part.mcap"
+    assert main(["demo", "--frames", "5", "--inline", "--record", str(rec), "--record-topics", "estimate,features"]) == 0
+    monkeypatch.setattr("sys.stdin", io.StringIO("n\nn\nq\n"))
+    rc, err = cli(["step", str(rec), "--stage", "filter"], capsys)
+    assert rc == 2 and "cannot step stage filter: gflow/demo/proposals: it is not in" in \
+        one_line(err), err
+    assert "--record-topics estimate,features" in err

@@ -35,6 +35,12 @@ def cmd_step(args) -> int:
     from pipeline.io.mcap_io import torn_cause
 
     st = Stepper(args.file, args.stage)  # a torn file cut before its metadata is said so here
+    from pipeline.cli.commands.rerun import _cannot_check
+
+    # an input topic the recording lacks (--record-topics, a Foxglove copy): every frame would join nothing, and
+    # stepping said "end of the recording" at the first step, exit 0
+    produced = {t for s in st.plan.stages.values() for t in s.outputs.values()}
+    _cannot_check(args.file, st.plan, set(st.sp.inputs.values()) & produced, set(), f"stage {args.stage}", "step")
     if not st.records:  # a torn file says where it ends, so the cut is not taken for what the run recorded
         from pipeline.io.mcap_io import damage_cause
 
