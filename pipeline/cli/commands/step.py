@@ -35,17 +35,17 @@ def cmd_step(args) -> int:
     from pipeline.io.mcap_io import torn_cause
 
     st = Stepper(args.file, args.stage)  # a torn file cut before its metadata is said so here
+    if not st.records:  # a torn file says where it ends, so the cut is not taken for what the run recorded
+        from pipeline.io.mcap_io import damage_cause
+
+        torn = damage_cause(args.file) or torn_cause(args.file)
+        raise CliError(f"{args.file} holds no input of stage {args.stage} to step through" + (f": {torn}" if torn else ""))
     from pipeline.cli.commands.rerun import _cannot_check
 
     # an input topic the recording lacks (--record-topics, a Foxglove copy): every frame would join nothing, and
     # stepping said "end of the recording" at the first step, exit 0
     produced = {t for s in st.plan.stages.values() for t in s.outputs.values()}
     _cannot_check(args.file, st.plan, set(st.sp.inputs.values()) & produced, set(), f"stage {args.stage}", "step")
-    if not st.records:  # a torn file says where it ends, so the cut is not taken for what the run recorded
-        from pipeline.io.mcap_io import damage_cause
-
-        torn = damage_cause(args.file) or torn_cause(args.file)
-        raise CliError(f"{args.file} holds no input of stage {args.stage} to step through" + (f": {torn}" if torn else ""))
     out = sys.stdout
     shown = None
     if args.topics:  # the outputs to show, as typed (estimate, gflow/demo/estimate, patterns)
