@@ -403,3 +403,21 @@ def test_step_refuses_a_recording_without_the_stage_inputs(tmp_path: Path, monke
     assert rc == 2 and "cannot step stage filter: gflow/demo/proposals: it is not in" in \
         one_line(err), err
     assert "--record-topics estimate,features" in err
+
+
+@pytest.mark.parametrize("option,value,said", [
+    ("--reps", "1,1", "--reps '1,1': 1 is named twice"),
+    ("--reps", "1,x", "--reps '1,x': 'x' is not a repetition number"),
+    ("--reps", "1,,2", "--reps '1,,2': an empty name between commas"),
+    ("--letters", "A-C,B", "--letters 'A-C,B': B is named twice"),
+    ("--letters", "A,A", "A is named twice"),
+    ("--letters", "Z-A", "--letters 'Z-A': Z-A runs backwards; write A-Z"),
+])
+def test_learn_m2_refuses_repeated_or_malformed_utterance_lists(frames: Path, tmp_path: Path, capsys, option: str,
+                                                                value: str, said: str) -> None:
+    """``--reps 1,1`` and ``--letters A-C,B`` learned each utterance once without a word, ``--reps 1,x`` said
+    Python's "invalid literal for int() with base 10: 'x'", and ``--letters Z-A`` "no utterance with ... letters
+    Z-A"; each is refused naming the option, before any source is read."""
+    rc, err = cli(["learn", "m2", str(frames), "--metric", "shuffle", "-K", "2", "--out", str(tmp_path / "m.npz"),
+                   "-q", f"{option}={value}"], capsys)
+    assert rc == 2 and said in one_line(err), err
