@@ -163,7 +163,7 @@ def _missing_opencv() -> str:
 
 
 @pytest.mark.parametrize("extra", [["--stress", "--cases", "none"], ["--variant", "blur"], ["--opencv", "{cv}"],
-                                   ["--stress", "--cases", "none", "--opencv", "{cv}"]])
+                                   ["--stress", "--cases", "none", "--opencv", "{cv}"], ["--out-dir", "od"]])
 @pytest.mark.parametrize("setting,said", [
     ("tracker.nonexist=3", "--set tracker.nonexist=3: DCFParams has no parameter 'nonexist'"),
     ("nonsense", "--set expects stage.param=value, got 'nonsense'"),
@@ -172,7 +172,8 @@ def test_a_bad_set_is_said_before_any_note_or_work(data: Path, tmp_path: Path, m
                                                    extra: list[str], setting: str, said: str) -> None:
     """``gflow benchmark --stress --set BAD`` said ``benchmark: opencv csrt not measured: ...`` before the --set's
     error, and ``--variant blur --set BAD`` said ``writing the blur variant`` and wrote it first: every option is
-    now checked before any note or work, and the error is the one line."""
+    now checked before any note or work, and the error is the one line; nor is ``--out-dir`` touched (a refused
+    benchmark left DIR/SEQUENCE folders behind)."""
     monkeypatch.chdir(tmp_path)
     cv = _missing_opencv() if "{cv}" in extra else ""
     rc, err = cli(["benchmark", str(data / "a"), "--trackers", "dcf", "--inline", "--set", setting,

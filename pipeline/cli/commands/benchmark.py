@@ -432,12 +432,13 @@ def cmd_benchmark(args) -> int:
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         work = Path(args.out_dir) if args.out_dir else Path(tmp)
+        # every tracker's options and model files checked in a folder of this run's own, before the variant is
+        # written (a bad --set was said after its note and the work of writing every frame) or --out-dir is
+        # touched (a refused benchmark left DIR/SEQUENCE folders behind)
+        _plans(args, seqs, names, first, stop, Path(tmp) / "check")
         if variant is not None:
             from pipeline.evaluation.variant_benchmark import derive_variant
 
-            # every tracker's options and model files checked on the originals before the variant is written (a
-            # bad --set was said after the note and the work of writing every frame)
-            _plans(args, seqs, names, first, stop, Path(tmp) / "check")
             note(f"writing the {variant.name} variant of {len(seqs)} sequence(s)")
             try:
                 seqs = [derive_variant(seq, variant, Path(tmp) / "variant", first[seq.name], stop) for seq in seqs]
