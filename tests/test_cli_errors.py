@@ -435,7 +435,8 @@ def test_a_bad_frame_range_names_frames(tmp_path: Path, argv: list[str], value: 
     where learn m2, render and eval say ``--frames 4:1: ...``."""
     r = gflow(*argv, "--frames", value, cwd=tmp_path)
     assert r.returncode == 2
-    assert_one_line_error(r, f"gflow {argv[0]}: error: --frames {value}: frame range", *words)
+    said_as = " ".join(argv[:2]) if argv[0] == "learn" else argv[0]  # a command's own command is named too
+    assert_one_line_error(r, f"gflow {said_as}: error: --frames {value}: frame range", *words)
     assert not (tmp_path / "m.npz").exists()
 
 
@@ -453,7 +454,7 @@ def test_learn_m2_refuses_an_option_its_metric_does_not_use(tmp_path: Path, fram
     learned without it, and nothing said so (even typed with its default value, it says the user meant it)."""
     r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
     assert r.returncode == 2
-    assert_one_line_error(r, f"gflow learn: error: {named}")
+    assert_one_line_error(r, f"gflow learn m2: error: {named}")
     assert not (tmp_path / "m.npz").exists()
 
 
@@ -559,7 +560,7 @@ def test_pub_with_no_subscriber_is_no_mistake(tmp_path: Path) -> None:
     (["boxes", "{rec}", "--out", "b.csv"], 20, ["gflow boxes: error: b.csv: File too large"]),
     (["frame", "{frames}", "0", "f.png"], 100, ["gflow frame: error: f.png: File too large"]),
     (["learn", "m2", "{frames}", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q"], 100,
-     ["gflow learn: error: m.npz: File too large"]),
+     ["gflow learn m2: error: m.npz: File too large"]),
 ])
 def test_a_write_failing_during_the_work_is_a_failed_run(tmp_path: Path, frames: Path, demo_mcap: Path,
                                                          argv: list[str], room: int, words: list[str]) -> None:
@@ -658,7 +659,7 @@ def test_learn_m2_refuses_a_contour_option_its_way_of_training_leaves_unused(tmp
     (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(5)))
     r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", *extra, cwd=tmp_path)
     assert r.returncode == 2
-    assert_one_line_error(r, f"gflow learn: error: {said}")
+    assert_one_line_error(r, f"gflow learn m2: error: {said}")
     assert not (tmp_path / "m.npz").exists()
 
 
@@ -805,11 +806,11 @@ def test_a_value_the_learning_refuses_is_a_failed_run_not_a_mistake(tmp_path: Pa
         cv2.imwrite(str(same / f"{i:04d}.png"), np.zeros((48, 64, 3), np.uint8))
     r = gflow("learn", "m2", str(same), "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", cwd=tmp_path)
     assert r.returncode == 1, r.stderr
-    assert_one_line_error(r, "gflow learn: error: need at least 2 non-zero validation distances")
+    assert_one_line_error(r, "gflow learn m2: error: need at least 2 non-zero validation distances")
     assert not (tmp_path / "m.npz").exists()
     r = gflow("learn", "m2", str(same), "--metric", "l2", "-K", "6", "--out", "m.npz", "-q", cwd=tmp_path)
     assert r.returncode == 2, r.stderr
-    assert_one_line_error(r, "gflow learn: error: -K 6 exemplars but only 6 training item(s)")
+    assert_one_line_error(r, "gflow learn m2: error: -K 6 exemplars but only 6 training item(s)")
 
 
 def test_a_bad_recordings_limit_is_refused_before_the_track_runs(tmp_path: Path, frames: Path) -> None:

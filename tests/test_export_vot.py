@@ -122,7 +122,7 @@ def test_bad_input_is_a_one_line_error(tmp_path):
         r = gflow("export", "vot", *args)
         assert r.returncode == 2, (args, r.stdout, r.stderr)
         lines = r.stderr.strip().splitlines()
-        assert len(lines) == 1 and lines[0].startswith("gflow export: error: ") and says in lines[0], r.stderr
+        assert len(lines) == 1 and lines[0].startswith("gflow export vot: error: ") and says in lines[0], r.stderr
 
     make_sequence(tmp_path / "ok")
     (tmp_path / "full").mkdir()

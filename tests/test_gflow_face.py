@@ -93,7 +93,7 @@ def test_learn_gflow_exit_status_says_mistake_or_failure(tmp_path, gflow, args, 
               *[a.replace("{d}", str(tmp_path)) for a in args])
     assert r.returncode == rc, (r.returncode, r.stderr)
     assert r.stderr.strip() == r.stderr.strip().splitlines()[0] and "Traceback" not in r.stderr, r.stderr
-    assert "gflow learn: error: cannot learn a face model: " in r.stderr and message in r.stderr, r.stderr
+    assert "gflow learn gflow: error: cannot learn a face model: " in r.stderr and message in r.stderr, r.stderr
     assert not (tmp_path / "m.npz").exists()
 
 

@@ -184,6 +184,14 @@ def _option_action(parser: argparse.ArgumentParser, name: str) -> argparse.Actio
     return close.pop() if len(close) == 1 else None
 
 
+def command_prog(ap: argparse.ArgumentParser, args: argparse.Namespace, argv: list[str] | None) -> str:
+    """The name the command's errors are said under: its parser's ``prog``, a command's own command included
+    (``gflow learn m2``, ``gflow export vot``), as argparse says a usage mistake of it; so that a command's
+    every error starts alike, whether argparse or the command found it."""
+    parser = getattr(ap, "commands", {}).get(getattr(args, "command", None) or "", ap)
+    return _command_parser(parser, sys.argv[1:] if argv is None else argv)[0].prog
+
+
 def _take_sigint_back() -> None:
     """Ctrl-C (SIGINT) stops every command, however it was started. A background job of a
     non-interactive shell (``nohup gflow replay ... &``) inherits SIGINT ignored; the launcher and
@@ -230,13 +238,14 @@ def main(argv: list[str] | None = None) -> int:
     if args.command is None:
         ap.print_help()
         return 2
+    prog = command_prog(ap, args, argv)
     start_work(False)  # main may run several commands in one process (the tests do)
     damage_notes.defer()  # damage inside a recording: said once, by the command's last line or after it
     try:
         rc = int(args.func(args) or 0)
     except _user_errors() as e:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote
-        return _last_word(args, f"gflow {args.command}: error: {msg}",
+        return _last_word(f"{prog}: error: {msg}",
                           1 if work_started() and not isinstance(e, _mistakes()) else 2)
     except BrokenPipeError:  # the reader of the output has gone (gflow info r.mcap | head): not an error to report
         damage_notes.flush()
@@ -244,22 +253,22 @@ def main(argv: list[str] | None = None) -> int:
         return 141  # as a shell reports a command ended by SIGPIPE
     except OSError as e:  # the system failed during the work (a full disk, a write refused): name it, exit 1
         where = f"{e.filename}: " if e.filename else ""
-        return _last_word(args, f"gflow {args.command}: error: {where}{e.strerror or e}", 1)
+        return _last_word(f"{prog}: error: {where}{e.strerror or e}", 1)
     except KeyboardInterrupt:
-        return _last_word(args, f"gflow {args.command}: interrupted", 130)
+        return _last_word(f"{prog}: interrupted", 130)
     except RuntimeError as e:  # a run that could not start or went wrong (e.g. a stage never came up)
-        return _last_word(args, f"gflow {args.command}: error: {' '.join(str(e).split())}", 1)
+        return _last_word(f"{prog}: error: {' '.join(str(e).split())}", 1)
     except Exception as e:  # a bug: one line for the user, the traceback with -vv
         if args.verbose >= 2:
             damage_notes.flush()
             raise
-        return _last_word(args, f"gflow {args.command}: internal error: {type(e).__name__}: "
+        return _last_word(f"{prog}: internal error: {type(e).__name__}: "
                                 f"{' '.join(str(e).split())} (a bug in gflow; run with -vv for the traceback)", 1)
     damage_notes.flush()
     return rc
 
 
-def _last_word(args, line: str, rc: int) -> int:
+def _last_word(line: str, rc: int) -> int:
     """Print the command's last ``line`` on stderr, after the damage warnings it does not already hold
     (:mod:`pipeline.io.damage_notes`); return ``rc``."""
     damage_notes.flush(line)

@@ -41,6 +41,7 @@ from gflow_core.evaluation.stress import (CASES, COPY_KINDS, PATCH_KINDS, Stress
                                plan_case, render_frame, target_copy)
 
 from pipeline.app import TrackPlan
+from pipeline.app.names import comma_names
 from pipeline.evaluation.scored_boxes import read_scored_boxes
 from pipeline.io.frame_readers import folder_frames
 from pipeline.recording.results import read_boxes, read_track, write_boxes, write_visibility
@@ -69,18 +70,23 @@ class CaseNotBuilt(ValueError):
 
 def select_cases(text: str | None) -> list[StressCase]:
     """The cases named in ``text`` (comma-separated names or name prefixes: ``occlude`` is every
-    ``occlude-*``), in the order of :data:`CASES`; None: every case."""
+    ``occlude-*``), in the order of :data:`CASES`; None: every case. ValueError for a case named twice
+    (also by a name and a prefix)."""
     if text is None:
         return list(CASES)
-    want = [n.strip() for n in text.split(",") if n.strip()]
+    want = comma_names(text, "--cases")  # a name given twice or an empty one is refused
     if not want:
         raise ValueError(f"--cases needs at least one name (known: {', '.join(c.name for c in CASES)})")
-    chosen: set[str] = set()
+    chosen: dict[str, str] = {}  # case -> the name that chose it
     for w in want:
         hit = [c.name for c in CASES if c.name == w or c.name.startswith(w + "-") or c.kind == w]
         if not hit:
             raise ValueError(f"unknown stress case {w!r} (known: {', '.join(c.name for c in CASES)})")
-        chosen.update(hit)
+        again = next((h for h in hit if h in chosen), None)
+        if again is not None:  # a case and its kind (occlude-20,occlude): it was run once without a word
+            raise ValueError(f"--cases {text!r}: {again} is named twice (by {chosen[again]} and by {w}); give each "
+                             "case once")
+        chosen.update(dict.fromkeys(hit, w))
     return [c for c in CASES if c.name in chosen]
 
 

@@ -7,7 +7,9 @@ The contour trackers coast on a frame whose edge map has fewer than ``min_edges`
 at them either, though it is not blank. This module re-reads such frames from the source and
 tells the two apart: a frame holds edges when Canny at thresholds chosen from its own gradients
 (:func:`gflow_core.features.edge_map` without thresholds, at the stage's ``canny_percentile``)
-finds at least ``min_edges`` pixels; a blank (uniform) frame finds none there either.
+finds at least ``min_edges`` pixels; a blank (uniform) frame finds none there either. The edges are
+read as the tracker read them: with ``match_resolution``, on the frame resampled by ``model_scale``
+and counted on the frame's grid (:func:`gflow_core.features.edges_and_chamfer`).
 """
 
 from __future__ import annotations
@@ -71,13 +73,18 @@ def edgeless_frames(plan: Any, coasted: list[int]) -> EdgelessFrames | None:
         return None
     want = set(coasted)
     sp = msgspec.structs.replace(sp, start=max(sp.start, min(want)), stop=max(want) + 1)
+    # the resolution the tracker read the edges at: with match_resolution, the frame resampled by model_scale (a
+    # fine texture it smooths away is blank there at any thresholds, and was said to be "not blank")
+    f = float(pre.get("model_scale") or 1.0) if pre.get("match_resolution") else 1.0
     found: set[int] = set()
     try:
         for raw in open_reader(sp, plan.base_dir):
             if raw.index in want and raw.image is not None:
                 grey = features.to_grey(raw.image)
-                own = features.edge_map(grey, None, None, float(pre.get("blur", 1.0)),
-                                        float(pre.get("canny_percentile", 80.0)))
+                # the tracker's edge map, but at thresholds chosen from the frame's own gradients
+                own, _ = features.edges_and_chamfer(grey, None, float(pre.get("blur", 1.0)),
+                                                    float(pre.get("canny_percentile", 80.0)),
+                                                    pre.get("profile", "truncated"), float(pre.get("g0", 100.0)), f)
                 if int(np.count_nonzero(own)) >= int(edges[1]):
                     found.add(raw.index)
             if raw.index >= max(want):

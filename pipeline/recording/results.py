@@ -44,10 +44,11 @@ def _box_row(p: Path, lineno: int, row: list[str], allow_nan: bool) -> tuple[int
 
 def box_rows(p: Path, allow_nan: bool = False):
     """(line number, row, frame, box) of every row of a boxes CSV; a frame given twice is an error
-    naming both lines (the later row replaced the earlier one without a word, and was scored). NaN is
+    naming both lines (the later row replaced the earlier one without a word, and was scored), and so is
+    a row with more or fewer columns than the first (the first bad line named). NaN is
     an error unless ``allow_nan`` (a row of no box, :mod:`pipeline.evaluation.scored_boxes`); inf always."""
     first: dict[int, int] = {}
-    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):
+    for lineno, row in csv_rows(p, "frame,x,y,w,h", "box"):  # every row with the columns of the first
         frame, box = _box_row(p, lineno, row, allow_nan)
         if frame in first:
             raise ValueError(f"{p}:{lineno}: frame {frame} again (first at line {first[frame]}): one box a frame")
@@ -57,7 +58,7 @@ def box_rows(p: Path, allow_nan: bool = False):
 
 def read_boxes(path: str | Path) -> dict[int, Box]:
     """Read ``frame,x,y,w,h`` rows (a header line is optional; columns after the fifth, such as
-    ``confidence,state``, are not read). Errors name the file and line."""
+    ``confidence,state``, are not read, but every row has as many as the first). Errors name the file and line."""
     p = Path(path)
     out: dict[int, Box] = {}
     for _, _, frame, box in box_rows(p):
@@ -79,7 +80,7 @@ class TrackRows:
 
 def read_track(path: str | Path, allow_nan: bool = False) -> TrackRows:
     """Read ``frame,x,y,w,h[,confidence,state]`` rows. A file has the two extra columns on every
-    row or on none; a confidence outside [0, 1] or an unknown state is an error naming the line and
+    row or on none (:func:`box_rows`); a confidence outside [0, 1] or an unknown state is an error naming the line and
     column. ``allow_nan``: a row with NaN in its box is read (a row of no box, as
     :mod:`pipeline.evaluation.scored_boxes` reads it: a miss), its confidence and state too. A row of no box
     (NaN, or w or h 0) may have NaN for its confidence; a row with a box may not."""
@@ -89,13 +90,8 @@ def read_track(path: str | Path, allow_nan: bool = False) -> TrackRows:
     states: dict[int, str] = {}
     for lineno, row, frame, box in box_rows(p, allow_nan=allow_nan):
         boxes[frame] = box
-        if len(row) < 7:
-            if states:
-                raise ValueError(f"{p}:{lineno}: expected frame,x,y,w,h,confidence,state like the rows before, "
-                                 f"got {len(row)} column(s)")
+        if len(row) < 7:  # every row has the columns of the first (box_rows)
             continue
-        if len(boxes) > 1 and not states:
-            raise ValueError(f"{p}:{lineno}: {len(row)} columns, but the rows before have five (frame,x,y,w,h)")
         conf[frame], states[frame] = _confidence(p, lineno, row, box), _state(p, lineno, row)
     if not boxes:
         raise ValueError(f"{p}: no boxes")
@@ -171,13 +167,15 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
     vis: dict[int, float] = {}
     pert: dict[int, bool] = {}
     first: dict[int, int] = {}
-    for lineno, row in csv_rows(p, "frame,visible", "visibility"):
+    for lineno, row in csv_rows(p, "frame,visible", "visibility"):  # every row with the columns of the first
         try:
             frame, v = int(row[0]), float(row[1])
             if len(row) >= 3:
                 pert[frame] = bool(int(row[2]))
         except ValueError:
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if len(row) >= 3 and row[2].strip() not in ("0", "1"):  # 2 or -1 was read as perturbed
+            raise ValueError(f"{p}:{lineno}: perturbed {row[2].strip()} is not 0 or 1 (column 3)")
         if frame < 0:
             raise ValueError(f"{p}:{lineno}: frame {frame}: frame numbers start at 0")
         if not 0.0 <= v <= 1.0:
@@ -188,8 +186,6 @@ def read_visibility(path: str | Path) -> tuple[dict[int, float], dict[int, bool]
         vis[frame] = v
     if not vis:
         raise ValueError(f"{p}: no rows")
-    if pert and len(pert) != len(vis):
-        raise ValueError(f"{p}: the perturbed column is missing on some rows")
     return vis, pert or None
 
 

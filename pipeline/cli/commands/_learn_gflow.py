@@ -51,10 +51,14 @@ def cmd_learn_gflow(args) -> int:
     if args.boxes is not None and args.boxes and len(args.boxes) != len(args.sources):
         raise CliError(f"--boxes: give one box file per source ({len(args.sources)}), or none to use each source's "
                        f"groundtruth.csv")
+    from pipeline.cli.commands.common import refuse_same_source
+
+    refuse_same_source([resolve_landmarks(src) for src in args.sources], list(args.sources), "landmark source")
     tracks, boxes, names, used = [], [], [], []
     for i, src in enumerate(args.sources):
         path = resolve_landmarks(src)
         lm = read_landmarks(path, key=args.key, dims=(3,))
+        _refuse_other_layout(path, lm.shape[1])
         sel = slice(start, stop)
         frames = np.arange(lm.shape[0])[sel]
         if frames.size == 0:
@@ -84,6 +88,18 @@ def cmd_learn_gflow(args) -> int:
           f"n={m.n_vertices} vertices, from {face.frames} frames; deformation variance per morph: {expl}; "
           f"residual {face.residual_rms:.4f} face heights RMS; written to {out}")
     return 0
+
+
+def _refuse_other_layout(path, n: int) -> None:
+    """Landmarks of another layout than MediaPipe Face Mesh's (fewer than its eye and mouth corners need): the
+    learning failed after reading every file, exit 1, with "frontal landmarks (33, 263, 61, 291) must lie in
+    [0, n)"; a mistake in the input, said before any learning and naming the file."""
+    from gflow_core.gflow.morphable_learn import EVAL_LANDMARKS, FRONTAL_MEDIAPIPE
+
+    corners = sorted(set(FRONTAL_MEDIAPIPE) | set(EVAL_LANDMARKS))
+    if n <= corners[-1]:
+        raise CliError(f"{path}: {n} landmarks a frame; gflow learn gflow reads MediaPipe Face Mesh's layout (468, the "
+                       f"eye and mouth corners at {', '.join(map(str, corners))})")
 
 
 def _check_enough(tracks: list[np.ndarray], boxes: list[np.ndarray], k: int, frames: str | None) -> None:

@@ -51,15 +51,20 @@ def model_given(args, name: str) -> str | None:
 
 def _names(text: str | None, known: list[str], what: str, noun: str) -> list[str]:
     """The names of a comma-separated option ``--what``, each one of ``known`` (a ``noun``)."""
+    from pipeline.app.names import comma_names
+
     if text is None:
         return list(known)
-    names = [n.strip() for n in text.split(",") if n.strip()]
+    try:
+        names = comma_names(text, f"--{what}")  # a name given twice (run once without a word) is refused
+    except ValueError as e:
+        raise CliError(str(e)) from None
     if not names:
         raise CliError(f"--{what} needs at least one name (known: {', '.join(known)})")
     bad = [n for n in names if n not in known]
     if bad:
         raise CliError(f"unknown {noun} {bad[0]!r} in --{what} (known: {', '.join(known)})")
-    return list(dict.fromkeys(names))
+    return names
 
 
 def _opencv_names(text: str | None) -> list[str]:
@@ -120,6 +125,15 @@ def _planned(args, seq, name: str, start: int, stop: int | None, folder: Path):
         if model_given(args, name):
             raise
         return f"skipped: {e}"
+
+
+def _refuse_unused_models(args, names: list[str]) -> None:
+    """A ``--NAME-model`` given for a tracker ``--trackers`` leaves out (``--trackers dcf --m2-model M``): the model
+    was neither read nor used, and nothing said so."""
+    for name, opt in model_options().items():
+        if model_given(args, name) and name not in names:
+            raise CliError(f"{opt} gives --tracker {name} its model, but --trackers {args.trackers} does not run "
+                           f"{name}: add {name} to --trackers, or leave {opt} out")
 
 
 def _check_paths(args) -> None:
@@ -267,14 +281,14 @@ def _cmd_stress(args, names: list[str], seqs, donors, seeds: list[int], skipped:
     # CSRT beside every tracker by default, where this OpenCV has it
     cv_names = _opencv_names("csrt" if args.opencv is None else args.opencv)
     cv_missing = _opencv_missing(cv_names)
-    for c, why in cv_missing.items():
-        note(f"opencv {c} not measured: {why}")
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         # every tracker's options and model files checked on the original sequences, before any work
         _, skip = _plans(args, seqs, names, {s.name: min(s.groundtruth) for s in seqs}, None, Path(tmp))
     start_work()  # every check done: a bad value met from here on is the benchmark failing (exit 1)
     for line in skipped:  # after the checks: a mistake's error is the one line on stderr
         note(line)
+    for c, why in cv_missing.items():  # after them too (it came before a bad --set's error)
+        note(f"opencv {c} not measured: {why}")
     for (seq, name), why in sorted(skip.items()):
         note(f"{seq} / {name}: {why}")
     runnable = [n for n in names if not any(k[1] == n for k in skip)]
@@ -376,6 +390,7 @@ def cmd_benchmark(args) -> int:
     from pipeline.evaluation.sequence_benchmark import find_sequences, note
     from pipeline.cli.versions import versions
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
+    _refuse_unused_models(args, names)
     if args.list_cases:
         from pipeline.evaluation.stress_benchmark import select_cases
 
@@ -388,6 +403,9 @@ def cmd_benchmark(args) -> int:
         return 0
     if not args.datasets:
         raise CliError("the following arguments are required: DATASET (a sequence folder or a folder of them)")
+    from pipeline.app import parse_sets
+
+    parse_sets(args.set)  # a --set not of the form stage.param=value, before any folder is read
     seeds = _seeds(args)
     args.seed = seeds[0]
     variant = _variant(args.variant)
@@ -414,6 +432,10 @@ def cmd_benchmark(args) -> int:
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         work = Path(args.out_dir) if args.out_dir else Path(tmp)
+        # every tracker's options and model files checked in a folder of this run's own, before the variant is
+        # written (a bad --set was said after its note and the work of writing every frame) or --out-dir is
+        # touched (a refused benchmark left DIR/SEQUENCE folders behind)
+        _plans(args, seqs, names, first, stop, Path(tmp) / "check")
         if variant is not None:
             from pipeline.evaluation.variant_benchmark import derive_variant
 

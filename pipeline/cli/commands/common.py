@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "start_work", "work_started", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
+__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -58,6 +58,22 @@ def start_work(started: bool = True) -> None:
 def work_started() -> bool:
     """Whether the command running has said its work began (:func:`start_work`)."""
     return _work_started[0]
+
+
+def refuse_same_source(paths: list, given: list[str], what: str) -> None:
+    """A training source named twice (``gflow learn m2 A A``, or a dataset folder and its ``frames/``): each of its
+    frames was learned from twice without a word, as if it were twice as common. ``paths``: the files or folders
+    the sources ``given`` resolve to; refused naming both, before any is read."""
+    from pathlib import Path
+
+    seen: dict = {}
+    for path, text in zip(paths, given):
+        key = Path(path).resolve()
+        if key in seen:
+            also = "" if seen[key] == text else f" (as {seen[key]} and as {text})"
+            raise CliError(f"{what} {text} is given twice{also}; give each {what} once (its frames would be learned "
+                           "from twice)")
+        seen[key] = text
 
 
 def parse_box(text: str) -> tuple[float, float, float, float]:

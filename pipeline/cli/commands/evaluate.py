@@ -94,7 +94,8 @@ def cmd_eval(args) -> int:
               + (f", {failed} of them a box of no size" if failed else "") + ")")
         if absent:
             print(f"frames left out, the target absent: {absent} (w or h 0, or NaN, in {args.gt})")
-        print(f"centre location error (CLE): {s.cle:.2f} px")
+        print(f"centre location error (CLE): {s.cle:.2f} px" if s.cle == s.cle else  # NaN: averaged over no frame
+              "centre location error (CLE): none (no frame with ground truth has a predicted box)")
         print(f"mean overlap (IoU):          {s.mean_overlap:.3f}")
         print(f"success rate (IoU > {args.threshold}):   {s.success:.3f}")
         if states:

@@ -24,6 +24,16 @@ def _is_sequence(folder: Path) -> bool:
     return (folder / "frames").is_dir() and (folder / "groundtruth.csv").is_file()
 
 
+def _wanted(text: str) -> list[str]:
+    """The sequences ``--sequences`` names; one named twice (exported once without a word) is refused."""
+    from pipeline.app.names import comma_names
+
+    try:
+        return comma_names(text, "--sequences")
+    except ValueError as e:
+        raise CliError(str(e)) from None
+
+
 def _check_out(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise CliError(f"{out} is a file; give a new folder for the workspace")
@@ -80,20 +90,20 @@ def cmd_export_vot(args) -> int:
     if args.sequences is not None and data.is_dir() and not _is_sequence(data):
         # chosen by folder name before any is read: a sequence left out with a bad groundtruth.csv
         # refused the export of the ones chosen (and hid a mistyped name)
-        want = [n.strip() for n in args.sequences.split(",") if n.strip()]
+        want = _wanted(args.sequences)
         known = sorted(c.name for c in data.iterdir() if c.is_dir() and not c.name.startswith(".") and _is_sequence(c))
         unknown = [n for n in want if n not in known]
         if known and (unknown or not want):
             raise CliError(f"unknown sequence {unknown[0] if unknown else '(none given)'} in --sequences (known: "
                            f"{', '.join(known)})")
         if known:
-            seqs, notes = find_sequences([str(data / n) for n in dict.fromkeys(want)])
+            seqs, notes = find_sequences([str(data / n) for n in want])
         else:  # none there: find_sequences says what the folder is instead
             seqs, notes = find_sequences([args.data])
     else:
         seqs, notes = find_sequences([args.data])
     if args.sequences is not None:  # '' too: it names no sequence, not all of them
-        want = [n.strip() for n in args.sequences.split(",") if n.strip()]
+        want = _wanted(args.sequences)
         unknown = [n for n in want if n not in {s.name for s in seqs}]
         if unknown or not want:
             raise CliError(f"unknown sequence {unknown[0] if unknown else '(none given)'} in --sequences (known: "

@@ -307,6 +307,7 @@ def cmd_pub(args) -> int:
     stream = stream_of(key)
     if stream is None:
         raise CliError(f"publish on a concrete topic gflow/<stream>/<name>, not {name!r}")
+    _refuse_unknown_fields(fields, typ, Header, args.type)
     fields.setdefault("header", {})
     fields["header"] = dict({"stream": stream, "seq": args.seq, "stamp_ns": time.time_ns()}, **fields["header"])
     try:
@@ -338,6 +339,30 @@ def cmd_pub(args) -> int:
         s.close()
     print(f"published {args.count} {args.type} on {name}", file=sys.stderr)
     return 0
+
+
+#: the commands a stage acts on (pipeline.runtime.node_base): another is logged and ignored by every stage
+CONTROL_COMMANDS = ("start", "stop")
+
+
+def _refuse_unknown_fields(fields: dict, typ: type, header: type, name: str) -> None:
+    """A field of FIELDS (or of its header) that message type ``typ`` does not have (``{"comand": "stop"}``,
+    ``{"header": {"sq": 5}}``): msgspec drops it, and the message went out without it, without a word; and a
+    Control command no stage acts on (``{"command": "halt"}``), which every stage logged and ignored."""
+    import msgspec
+    import msgspec.inspect
+
+    for given, struct, where in ((fields, typ, name), (fields.get("header"), header, f"{name}'s header")):
+        if not isinstance(given, dict):
+            continue
+        known = [f.name for f in msgspec.structs.fields(struct)]
+        tag = getattr(msgspec.inspect.type_info(struct), "tag_field", None)  # "type" of a tagged message
+        unknown = [k for k in given if k not in known and k != tag]
+        if unknown:
+            raise CliError(f"FIELDS: {where} has no field {unknown[0]!r} (its fields: {', '.join(known)})")
+    if name == "Control" and fields.get("command") not in (None, *CONTROL_COMMANDS):
+        raise CliError(f"FIELDS: no stage acts on Control command {fields['command']!r} (known: "
+                       f"{', '.join(CONTROL_COMMANDS)})")
 
 
 def register(sub) -> None:

@@ -154,7 +154,11 @@ def _box_array(path: str, index: np.ndarray) -> np.ndarray:
 
 def _sources_and_boxes(args) -> list[tuple[str, str | None]]:
     """(source, boxes CSV or None) per training sequence, from SOURCE... and --boxes [CSV...]."""
+    from pipeline.cli.commands.common import refuse_same_source
+    from pipeline.io.datasets import resolve_source
+
     sources = list(args.source)
+    refuse_same_source([resolve_source(s)[1] for s in sources], sources, "source")
     boxes = args.boxes
     if boxes is None:
         return [(s, None) for s in sources]
@@ -254,7 +258,7 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
     if kind == "avletters":
         if box_csv:
             raise CliError("--boxes does not apply to an AVLetters file (its frames are cropped mouths)")
-        reps = None if not args.reps else [int(r) for r in args.reps.split(",")]
+        reps = None if not args.reps else parse_reps(args.reps)
         seq, _ = read_avletters(path, reps, args.letters)
         meta.update(reps=args.reps or "all", letters=args.letters or "all")
         if args.frames:
@@ -333,9 +337,47 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
     return ts, meta, greys
 
 
+def parse_reps(text: str) -> list[int]:
+    """``--reps 1,2`` -> [1, 2]: repetition numbers (whole, >= 1), each once. A CliError naming the option for
+    anything else: ``1,x`` said Python's "invalid literal for int() with base 10: 'x'", ``1,1`` was read as 1."""
+    from pipeline.app.names import comma_names
+
+    try:
+        parts = comma_names(text, "--reps")
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    bad = next((r for r in parts if not r.isdigit() or int(r) < 1), None)
+    if bad is not None or not parts:
+        raise CliError(f"--reps {text!r}: {bad!r} is not a repetition number (1, 2, ...)" if bad is not None
+                       else f"--reps {text!r} names no repetition")
+    return [int(r) for r in parts]
+
+
+def check_letters(text: str) -> None:
+    """``--letters``: each letter once, a range from an earlier letter to a later one. ``A-C,B`` was read as A-C
+    without a word (B in it twice), and ``Z-A`` as no letter at all ("no utterance with ... letters Z-A")."""
+    from pipeline.app.names import comma_names
+
+    try:
+        parts = comma_names(text.upper().replace(" ", ""), "--letters")
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    seen: set[str] = set()
+    for part in parts:
+        a, _, b = part.partition("-")
+        if b and len(a) == len(b) == 1 and a.isalpha() and b.isalpha() and a > b:
+            raise CliError(f"--letters {text!r}: {part} runs backwards; write {b}-{a}")
+        span = [chr(c) for c in range(ord(a), ord(b) + 1)] if b and len(a) == len(b) == 1 else [part]
+        twice = next((c for c in span if c in seen), None)
+        if twice is not None:
+            raise CliError(f"--letters {text!r}: {twice} is named twice; give each letter once")
+        seen.update(span)
+
+
 def check_values(args) -> None:
-    """The frame ranges, Canny thresholds and patch size, each refused by its option's name before any
-    frame is read (they were read where used, after the training video, and a range's error named none)."""
+    """The frame ranges, Canny thresholds, patch size, repetitions and letters, each refused by its option's name
+    before any frame is read (they were read where used, after the training video, and a range's error named
+    none)."""
     from pipeline.cli.commands.common import frame_range
 
     for opt in ("frames", "background_frames"):
@@ -343,6 +385,10 @@ def check_values(args) -> None:
     parse_pair(args.canny, "--canny")
     if args.patch_size:
         parse_size(args.patch_size)
+    if args.reps:
+        parse_reps(args.reps)
+    if args.letters:
+        check_letters(args.letters)
 
 
 def cmd_learn(args) -> int:

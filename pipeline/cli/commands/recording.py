@@ -116,12 +116,28 @@ def replay_speed(text: str) -> float:
     return v
 
 
+def _lockstep(text: str | None) -> tuple[str, ...]:
+    """The stages ``--lockstep`` names: ``,`` (nothing named) was replayed with no lockstep without a word, and a
+    stage named twice waited for its heartbeat and then said ``no heartbeat from filter, filter``."""
+    from pipeline.app.names import comma_names
+
+    if text is None:
+        return ()
+    try:
+        names = comma_names(text, "--lockstep")
+    except ValueError as e:
+        raise CliError(str(e)) from None
+    if not names:
+        raise CliError(f"--lockstep {text!r} names no stage (give the stages' names, e.g. filter,proposal)")
+    return tuple(names)
+
+
 def cmd_replay(args) -> int:
     from pipeline.cli.live import ReplayOptions, StreamInUse, replay
 
     opts = ReplayOptions(speed=None if args.max else args.speed, topics=args.topics, start_seq=args.from_seq,
                          end_seq=args.to_seq, start_s=args.start, end_s=args.end, loops=args.loop,
-                         lockstep=tuple(s for s in (args.lockstep or "").split(",") if s),
+                         lockstep=_lockstep(args.lockstep),
                          ack_timeout=args.ack_timeout, stream=args.stream)
     import dataclasses
 

@@ -45,10 +45,11 @@ def _report(mismatches, compared: int, label: str, note: str = "") -> int:
     return 1
 
 
-def _cannot_check(path: str, plan, needs: set[str], compares: set[str], what: str) -> None:
+def _cannot_check(path: str, plan, needs: set[str], compares: set[str], what: str, verb: str = "re-run") -> None:
     """A :class:`CliError` saying what cannot be re-run or checked and why: the recording lacks
     topics the re-run is fed (``needs``: it would step nothing) or every topic it is compared with
-    (``compares``); ``--record-topics`` chose what was kept."""
+    (``compares``); ``--record-topics`` chose what was kept. ``verb``: what is done with it (``gflow step``:
+    ``step``)."""
     from pipeline.io.mcap_io import recorded_topics, torn_cause
 
     have = set(recorded_topics(path))
@@ -59,11 +60,12 @@ def _cannot_check(path: str, plan, needs: set[str], compares: set[str], what: st
     torn = torn_cause(path) if missing else ""
     if torn:  # not what was recorded, but what a torn file lets be read: said as every command says it
         it = "it is" if len(missing) == 1 else "they are"
-        raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in what can be read of {path}: {torn}")
+        raise CliError(f"cannot {verb} {what}: {', '.join(missing)}: {it} not in what can be read of {path}: {torn}")
     if missing:
         it = "it is" if len(missing) == 1 else "they are"
-        raise CliError(f"cannot re-run {what}: {', '.join(missing)}: {it} not in {path}{why}, and a re-run is fed "
-                       f"what was recorded; record every topic (or these too) to check {what}")
+        raise CliError(f"cannot {verb} {what}: {', '.join(missing)}: {it} not in {path}{why}, and a {verb} is fed "
+                       f"what was recorded; record every topic (or these too) to {'check' if verb == 're-run' else verb} "
+                       f"{what}")
     if compares and not compares & have:
         raise CliError(f"cannot check {what}: none of its outputs ({', '.join(sorted(compares))}) is in {path}{why}, "
                        f"so there is nothing to compare with")

@@ -27,19 +27,30 @@ def _show(view, out, outputs: set[str] | None = None) -> None:
     print("state:   " + json.dumps(view.summary, default=str), file=out)
 
 
-def cmd_step(args) -> int:
+def _stepper(args):
+    """The :class:`~pipeline.recording.stepper.Stepper` of ``args.stage`` through ``args.file``, refused when the
+    recording holds none of the stage's inputs (a torn file says where it ends, so the cut is not taken for what
+    the run recorded) or lacks one of their topics (``--record-topics``, a Foxglove copy: every frame would join
+    nothing, and stepping said "end of the recording" at the first step, exit 0)."""
     from pipeline.recording.stepper import Stepper
 
-    from pipeline.cli.commands.common import CliError, warn_if_torn
-
-    from pipeline.io.mcap_io import torn_cause
+    from pipeline.cli.commands.common import CliError
+    from pipeline.cli.commands.rerun import _cannot_check
+    from pipeline.io.mcap_io import damage_cause, torn_cause
 
     st = Stepper(args.file, args.stage)  # a torn file cut before its metadata is said so here
-    if not st.records:  # a torn file says where it ends, so the cut is not taken for what the run recorded
-        from pipeline.io.mcap_io import damage_cause
-
+    if not st.records:
         torn = damage_cause(args.file) or torn_cause(args.file)
         raise CliError(f"{args.file} holds no input of stage {args.stage} to step through" + (f": {torn}" if torn else ""))
+    produced = {t for s in st.plan.stages.values() for t in s.outputs.values()}
+    _cannot_check(args.file, st.plan, set(st.sp.inputs.values()) & produced, set(), f"stage {args.stage}", "step")
+    return st
+
+
+def cmd_step(args) -> int:
+    from pipeline.cli.commands.common import CliError, warn_if_torn
+
+    st = _stepper(args)
     out = sys.stdout
     shown = None
     if args.topics:  # the outputs to show, as typed (estimate, gflow/demo/estimate, patterns)
