@@ -1,43 +1,48 @@
-"""The target's own flow as a second mode of the motion prior (``flow_mix``; off at 0).
+"""The target's own displacement, matched frame to frame, as a second mode of the motion prior (``flow_mix``;
+off at 0).
 
 The constant-velocity prediction c_{t-1} + v dt is the past's guess of where the target went. When
 the target speeds up, turns, or is seen only every third frame (a live run that skips frames), it
 overshoots or falls short by more than the motion prior's spread, the filter's window is centred
 where the target is not, and the particles are pulled there (tiger1 at every 3rd frame, the toy
-jumping 20-40 px a frame). The frames themselves say where the box's texture went: a grid of the last
-box's points tracked to this frame by pyramidal Lucas-Kanade and back again (:mod:`.coherence`, the
-forward-backward check of Kalal et al., ICPR 2010, whose median displacement moves the Median Flow
-tracker's box). Here that displacement d enters as a second mode of a mixture prior beside the
-constant-velocity one, as the two modes of a mixed-state particle filter (:mod:`.modes`; Isard &
-Blake, ICCV 1998):
+jumping 20-40 px a frame). The frames themselves say where the box went: the last frame's box, cut
+from its grey levels, matched over this frame by normalised cross-correlation within ``REACH`` box
+sides each way (:func:`matched`), its peak refined to a sub-pixel place by a parabola on each axis.
+That displacement d enters as a second mode of a mixture prior beside the constant-velocity one, as
+the two modes of a mixed-state particle filter (:mod:`.modes`; Isard & Blake, ICCV 1998):
 
     p(c_t) = pi_t(0) N(c_t; c_{t-1} + v dt, S_0) + pi_t(1) N(c_t; c_{t-1} + d, S_1),     (eq. 1)
 
-S_0 = (sigma_p sqrt(dt) + beta |v| dt)^2 I as without the flow, S_1 = (sigma_p sqrt(dt))^2 I (the flow's
+S_0 = (sigma_p sqrt(dt) + beta |v| dt)^2 I as without the mode, S_1 = (sigma_p sqrt(dt))^2 I (the
 measured displacement carries no speed's share), both widened by the place's spread in quadrature;
-and the flow mode's prior probability follows a Markov chain that leaves a mode with probability
+and the second mode's prior probability follows a Markov chain that leaves a mode with probability
 q = ``flow_mix`` a frame,
 
     pi_t(1) = (1 - q) mu_{t-1}(1) + q (1 - mu_{t-1}(1)),                                  (eq. 2)
 
-mu_{t-1}(1) the flow mode's posterior after frame t-1, the particles' weighted responsibilities (the
-tracker keeps it in the state's ``manoeuvre``, as :mod:`.modes` does). Each particle of the proposal
-draws its mode from pi_t and moves by it; the filter's window is centred at the mixture's mean
-c_{t-1} + pi_t(0) v dt + pi_t(1) d. The likelihood picks the mode: where the flow saw the target go,
-its particles score.
+mu_{t-1}(1) its posterior after frame t-1, the particles' weighted responsibilities (the tracker keeps
+it in the state's ``manoeuvre``, as :mod:`.modes` does). Each particle of the proposal draws its mode
+from pi_t and moves by it; the filter's window is centred at the mixture's mean
+c_{t-1} + pi_t(0) v dt + pi_t(1) d. The likelihood picks the mode.
 
-The flow is used only when it is coherent (:func:`.coherence.coherent`: half the points tracked both
-ways, median forward-backward error within 10 px, median NCC at least 0.5) and the target was judged
-present on the last frame; else the prior is the constant-velocity one alone, as with ``flow_mix`` 0.
+The match is used only when it is reliable (:meth:`Match.reliable`): NCC at least ``MIN_NCC``, and
+Lowe's ratio test (IJCV 2004, sec. 7.1) against the best placement half a box or more away, at Lowe's
+0.8 on distances (``flow_ratio`` = 0.64 on the squared distances 2 (1 - NCC)): a box that matches a
+look-alike, a repeated texture or mostly its own background as well as itself says nothing of where
+the target went. Only when the target was judged present on the last frame; else the prior is the
+constant-velocity one alone, as with ``flow_mix`` 0.
 
-Departures: Median Flow moves its box by the flow alone; here the flow only proposes and the filter's
-likelihood weighs. Isard & Blake's modes are two dynamics learnt from training motion; here the second
-is a measurement of this frame, and the mode's posterior is collapsed after each frame (IMM's mixing,
-as :mod:`.modes`).
+Departures: Median Flow (Kalal et al., ICPR 2010) moves its box by the median flow of a grid of
+points; here the box's displacement is one match of the whole box (the grid of 11 px Lucas-Kanade windows
+of :mod:`.coherence` misses a 30 x 36 px target that moved 20 px on a textured background, the windows'
+background outweighing it: ``tests/core/test_dcf_flow.py``), and it
+only proposes: the filter's likelihood weighs. Isard & Blake's modes are two dynamics learnt from
+training motion; here the second is a measurement of this frame, and the mode's posterior is collapsed
+after each frame (IMM's mixing, as :mod:`.modes`).
 
 Off by default: over the nine shared sequences and five variants of them (three seeds each) it gains
-on fast motion and blur but loses single runs on noisy and grey frames, where the flow of a textureless
-or JPEG-blocked box is coherent and wrong (``docs/dcf-development.md``).
+at every 3rd frame and loses on the sequences as they are and on noisy frames (``docs/dcf-development.md``,
+"The target's own displacement as a second motion mode").
 """
 
 from __future__ import annotations

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from gflow_core.dcf import flowpred as fp
+from gflow_core.dcf.coherence import coherent, flow
 from gflow_core.dcf import modes as mm
 from gflow_core.dcf.params import DCFParams
 from gflow_core.dcf.state import DCFObservation, from_arrays, to_arrays
@@ -33,6 +34,17 @@ def test_the_last_box_is_found_where_it_moved(speed: float) -> None:
     assert m is not None and m.reliable(LOWE)
     true = np.round(np.array(sc.truth(1)[:2])) - np.round(np.array(sc.truth(0)[:2]))
     np.testing.assert_allclose(m.shift, true, atol=0.5)
+
+
+def test_the_whole_box_finds_a_jump_that_a_grid_of_points_misses() -> None:
+    """A 20 px jump on a textured background: the grid of 11 px Lucas-Kanade windows (Median Flow's, the
+    confirm check's) is refused or misses it by 10 px or more; the whole box's match finds it."""
+    sc = _moving(20.0)
+    f = flow(sc.frame(0), sc.frame(1), sc.truth(0))
+    true = np.round(np.array(sc.truth(1)[:2])) - np.round(np.array(sc.truth(0)[:2]))
+    assert not coherent(f) or np.hypot(*(f.shift - true)) >= 10.0
+    m = fp.matched(sc.frame(0), sc.frame(1), sc.truth(0))
+    assert m is not None and np.hypot(*(m.shift - true)) < 0.5
 
 
 def test_a_match_among_look_alikes_or_in_noise_is_not_used() -> None:
