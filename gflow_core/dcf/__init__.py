@@ -63,6 +63,9 @@ BACF and CSRT learn theirs:
   mean velocity, the target's speed as the noise) by a Markov chain, each particle drawing its mode and
   the likelihood picking it (:mod:`.modes`; Isard & Blake's mixed-state Condensation, ICCV 1998, with
   the modes collapsed to one probability a frame as in Blom & Bar-Shalom's IMM).
+  With ``flow_mix`` > 0 (off) the second mode is the last box's own displacement to this frame, matched
+  by NCC under Lowe's ratio test (:mod:`.flowpred`): the frames say where the target went when it moved
+  faster than the velocity predicts.
 * **Scale** (:mod:`.scale`): DSST's 1-D scale filter (17 scales 2 % apart, as fDSST samples) at the
   estimate, on confident frames; the particles carry the scale it finds.
 * **Is it the target?** Two cues, each a distance rho = 1 - y at the estimate: the filter's
@@ -168,6 +171,10 @@ together (docs/trackers.md):
   the modes collapsed to one probability a frame, one velocity shared), and the filter's rate may
   follow the distance's rise (``rate_adapt``, :mod:`.rates`: the innovation's variance from running
   means, not a window's sample covariance); both lose more fast-motion cases than they get back.
+  The target's displacement matched frame to frame may be the motion's second mode (``flow_mix``,
+  :mod:`.flowpred`; Median Flow, Kalal et al. 2010, moves its box by such a displacement, here it only
+  proposes and the likelihood weighs): more AUC at every 3rd frame, less on the sequences as they are
+  and on noisy frames.
   With ``scale_anchor`` the scale filter detects, as the translation filter does, with its first
   frame's filter mixed in at ``anchor_weight`` (:mod:`.scale`; DSST has no anchor): more AUC on
   blurred and half-size footage, less at every 3rd frame and fewer stress cases back.
@@ -189,7 +196,8 @@ together (docs/trackers.md):
 
 Modules: :mod:`.params` (``DCFParams``), :mod:`.features`, :mod:`.filter`, :mod:`.constrained`,
 :mod:`.histogram`, :mod:`.scale`, :mod:`.model` (the window, the target model, responses, search),
-:mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
+:mod:`.dynamics` (the proposal's walk), :mod:`.modes` (the motion's two modes), :mod:`.flowpred` (the target's
+own displacement as the second mode), :mod:`.cues` (a cue that may fail), :mod:`.longterm` (the long-term filter),
 :mod:`.reacquire` (the search's candidates and place prior), :mod:`.gate` (which frames teach the model),
 :mod:`.verify` (a re-detection checked by the first filter), :mod:`.augment` (the first filter's warped copies), :mod:`.sizeprior` (a prior on the size), :mod:`.rates` (the young filter's rate), :mod:`.confirm` (a tentative
 track), :mod:`.rotation` (the target's roll), :mod:`.camera` (the camera's own motion, ``camera_motion``), :mod:`.reliability` (CSR-DCF's spatial reliability map, ``segment``), :mod:`.channels` (CSR-DCF's channel reliability, ``channel_weights``), :mod:`.state` (frozen states, snapshots), :mod:`.tracker`

@@ -54,13 +54,15 @@ class Motion:
     """The two modes' predictions of a frame: ``pi`` (2,) the modes' prior probabilities pi_t, ``pred``
     (2, 2) each mode's predicted centre (rows: mode), ``std`` (2, 2) each mode's prior std (sx, sy) px,
     ``noise`` (2,) the std of each mode's own share of the particles' noise (px), ``mean`` (2,) the
-    mixture's mean prediction (the window's centre)."""
+    mixture's mean prediction (the window's centre), ``origin`` (2,) the last estimate c_{t-1}, about which
+    the proposal walked (a mode's particles move by pred_m - origin)."""
 
     pi: np.ndarray
     pred: np.ndarray
     std: np.ndarray
     noise: np.ndarray
     mean: np.ndarray
+    origin: np.ndarray
 
 
 def predict(p: DCFParams, mu: float, centre: np.ndarray, velocity: np.ndarray, box: tuple[float, float],
@@ -80,7 +82,7 @@ def predict(p: DCFParams, mu: float, centre: np.ndarray, velocity: np.ndarray, b
     std = np.hypot(base[None, :] + noise[:, None], spread)
     # the mixture's mean: c_{t-1} + pi_t(0) v dt
     mean = centre + pi[0] * velocity * dt
-    return Motion(pi, pred, std, noise, mean)
+    return Motion(pi, pred, std, noise, mean, pred[1])
 
 
 def draw(m: Motion, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -93,7 +95,7 @@ def move(m: Motion, walked: np.ndarray, modes: np.ndarray, rng: np.random.Genera
     v dt + beta |v| dt w, the manoeuvring ones by |v| dt w (w ~ N(0, I_2))."""
     w = rng.standard_normal((len(walked), 2))
     # c_t = c~_t + (pred_m - c_{t-1}) + noise_m w
-    return walked + (m.pred[modes] - m.pred[1]) + m.noise[modes][:, None] * w
+    return walked + (m.pred[modes] - m.origin) + m.noise[modes][:, None] * w
 
 
 def _log_modes(m: Motion, xy: np.ndarray) -> np.ndarray:

@@ -68,6 +68,13 @@ class DCFParams:
     motion_fit: float = param(0.0, "the motion's gain g of the prediction c + g v dt is learnt from the tracked "
                                    "displacements at this rate, by regression with the prior g ~ N(1, 1) "
                                    "(gflow_core.dcf.motion_fit; 0: g = 1, constant velocity)")
+    flow_mix: float = param(0.0, "the motion prior is a mixture of the constant-velocity prediction and the last box's "
+                                 "displacement measured by its points' Lucas-Kanade flow (when coherent), the mode "
+                                 "switching with this probability a frame and the likelihood picking it "
+                                 "(gflow_core.dcf.flowpred; 0: constant velocity only; not with motion_switch)")
+    flow_ratio: float = param(0.64, "with flow_mix, the last box's match is used only when its 1 - NCC is at most this "
+                                   "times the runner-up's (Lowe's ratio test on squared distances; 0.64 is Lowe's 0.8 "
+                                   "on distances)")
     motion_prior: float = param(0.25, "std of the motion prior about the prediction, in box sizes, plus the speed's share")
     target_rate: float = param(0.05, "rate of the running moments of the target's score distribution")
     clutter_rate: float = param(0.05, "rate of the running moments of the clutter's score distribution")
@@ -332,7 +339,8 @@ class DCFParams:
                              f"{self.reappear}")
 
     def _check_motion_size_and_support(self) -> None:
-        """``detect_peaks`` >= 1, ``motion_switch`` and ``motion_fit`` in [0, 1), ``rate_adapt`` a rate in [0, 1],
+        """``detect_peaks`` >= 1, ``motion_switch``, ``motion_fit`` and ``flow_mix`` in [0, 1) (not both
+        ``flow_mix`` and ``motion_switch``), ``rate_adapt`` a rate in [0, 1],
         ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior), the filter's
         support (:meth:`_check_segment`) and ``channel_weights`` and ``channel_intensity`` bools."""
         self._check_segment()
@@ -345,6 +353,12 @@ class DCFParams:
             raise ValueError(f"motion_switch must be in [0, 1), got {self.motion_switch}")
         if not 0 <= self.motion_fit < 1:
             raise ValueError(f"motion_fit must be in [0, 1), got {self.motion_fit}")
+        if not 0 <= self.flow_mix < 1:
+            raise ValueError(f"flow_mix must be in [0, 1), got {self.flow_mix}")
+        if not 0 < self.flow_ratio <= 1:
+            raise ValueError(f"flow_ratio must be in (0, 1], got {self.flow_ratio}")
+        if self.flow_mix > 0 and self.motion_switch > 0:
+            raise ValueError("flow_mix and motion_switch are two uses of one second motion mode: set one of them")
         if not 0 <= self.rate_adapt <= 1:
             raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):

@@ -37,6 +37,7 @@ from .features import is_grey
 from .gate import within
 from . import modes as mm
 from . import motion_fit
+from . import flowpred
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .proposal import assign, detections
@@ -132,15 +133,21 @@ def _velocity(st: DCFState, p: DCFParams) -> np.ndarray:
     return st.velocity if p.motion_fit <= 0 else motion_fit.gain(st.motion_fit) * st.velocity
 
 
-def _motion(st: DCFState, p: DCFParams, bw: float, bh: float, dt: float
+def _motion(st: DCFState, obs: DCFObservation, p: DCFParams, bw: float, bh: float, dt: float
             ) -> tuple[np.ndarray, float, float, float, mm.Motion | None]:
     """The motion's prediction of frame t (the window's centre), the speed's share beta |v| dt of the noise,
-    the motion prior's std (sx, sy) px, and with ``motion_switch`` the two modes' prior (:mod:`.modes`)."""
+    the motion prior's std (sx, sy) px, and with ``motion_switch`` the two modes' prior (:mod:`.modes`), with
+    ``flow_mix`` and a coherent flow of the last box to ``obs`` the flow's mixture (:mod:`.flowpred`)."""
     extra = speed_noise(p, st.velocity, dt)
     # the motion prior N(x; pred, diag(sx^2, sy^2)), sx = prior w sqrt(dt) + beta |v| dt, widened while the
     # target is unseen by the spread its place has gathered since (added in quadrature)
     sx = float(np.hypot(p.motion_prior * bw * math.sqrt(dt) + extra, st.spread))
     sy = float(np.hypot(p.motion_prior * bh * math.sqrt(dt) + extra, st.spread))
+    shift = flowpred.observed(st, obs, p.flow_ratio) if p.flow_mix > 0 else None
+    if shift is not None:
+        # the flow's mode beside constant velocity: the window at c_{t-1} + pi_t(0) v dt + pi_t(1) d (.flowpred)
+        mot = flowpred.mixture(p, st.manoeuvre, st.centre, _velocity(st, p), shift, (bw, bh), extra, st.spread, dt)
+        return mot.mean, extra, sx, sy, mot
     if p.motion_switch <= 0:
         # constant velocity: the prediction c_{t-1} + v dt (g v dt with motion_fit)
         return st.centre + _velocity(st, p) * dt, extra, sx, sy, None
@@ -592,7 +599,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     Hh, Ww = obs.grey.shape
     s = float(np.exp(st.log_s))
     bw, bh = geom.size0[0] * s, geom.size0[1] * s
-    pred, extra, sx, sy, mot = _motion(st, p, bw, bh, dt)
+    pred, extra, sx, sy, mot = _motion(st, obs, p, bw, bh, dt)
     lt = _longterm_of(st, p)
     resp, st = _respond(st, obs, p, pred, lt)
     parts = _particles(st, proposed, detections(resp, (0.5 * bw, 0.5 * bh), p.detect_peaks), extra, p, rng, dt,
@@ -674,9 +681,9 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
 
 
 def _last_grey(target: ChiSquare, obs: DCFObservation, p: DCFParams) -> np.ndarray | None:
-    """The frame's grey levels kept for the next frame: always with ``camera_motion`` (:mod:`.camera`), else
-    while a tentative track's flow needs them (:func:`.confirm.remember`)."""
-    return cam.grey8(obs.grey) if p.camera_motion else remember(target, obs, p)
+    """The frame's grey levels kept for the next frame: always with ``camera_motion`` (:mod:`.camera`) and
+    ``flow_mix`` (:mod:`.flowpred`), else while a tentative track's flow needs them (:func:`.confirm.remember`)."""
+    return cam.grey8(obs.grey) if p.camera_motion or p.flow_mix > 0 else remember(target, obs, p)
 
 
 def initialise(obs: DCFObservation, box: Box, p: DCFParams, rng: np.random.Generator) -> DCFState:
