@@ -69,8 +69,8 @@ class DCFParams:
                                    "displacements at this rate, by regression with the prior g ~ N(1, 1) "
                                    "(gflow_core.dcf.motion_fit; 0: g = 1, constant velocity)")
     flow_mix: float = param(0.0, "the motion prior is a mixture of the constant-velocity prediction and the last box's "
-                                 "displacement measured by its points' Lucas-Kanade flow (when coherent), the mode "
-                                 "switching with this probability a frame and the likelihood picking it "
+                                 "displacement to this frame, matched by NCC (when flow_ratio accepts the match), the "
+                                 "mode switching with this probability a frame and the likelihood picking it "
                                  "(gflow_core.dcf.flowpred; 0: constant velocity only; not with motion_switch)")
     flow_ratio: float = param(0.64, "with flow_mix, the last box's match is used only when its 1 - NCC is at most this "
                                    "times the runner-up's (Lowe's ratio test on squared distances; 0.64 is Lowe's 0.8 "

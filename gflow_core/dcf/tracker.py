@@ -137,7 +137,7 @@ def _motion(st: DCFState, obs: DCFObservation, p: DCFParams, bw: float, bh: floa
             ) -> tuple[np.ndarray, float, float, float, mm.Motion | None]:
     """The motion's prediction of frame t (the window's centre), the speed's share beta |v| dt of the noise,
     the motion prior's std (sx, sy) px, and with ``motion_switch`` the two modes' prior (:mod:`.modes`), with
-    ``flow_mix`` and a coherent flow of the last box to ``obs`` the flow's mixture (:mod:`.flowpred`)."""
+    ``flow_mix`` and a reliable match of the last box in ``obs`` the displacement's mixture (:mod:`.flowpred`)."""
     extra = speed_noise(p, st.velocity, dt)
     # the motion prior N(x; pred, diag(sx^2, sy^2)), sx = prior w sqrt(dt) + beta |v| dt, widened while the
     # target is unseen by the spread its place has gathered since (added in quadrature)
@@ -145,7 +145,7 @@ def _motion(st: DCFState, obs: DCFObservation, p: DCFParams, bw: float, bh: floa
     sy = float(np.hypot(p.motion_prior * bh * math.sqrt(dt) + extra, st.spread))
     shift = flowpred.observed(st, obs, p.flow_ratio) if p.flow_mix > 0 else None
     if shift is not None:
-        # the flow's mode beside constant velocity: the window at c_{t-1} + pi_t(0) v dt + pi_t(1) d (.flowpred)
+        # the displacement's mode beside constant velocity: the window at c + pi_0 v dt + pi_1 d (.flowpred)
         mot = flowpred.mixture(p, st.manoeuvre, st.centre, _velocity(st, p), shift, (bw, bh), extra, st.spread, dt)
         return mot.mean, extra, sx, sy, mot
     if p.motion_switch <= 0:
