@@ -5,8 +5,9 @@ estimate, and publishes ``count`` Estimate messages of its own on that topic, on
 
     python tests/outsider_peer.py COUNT [INTERVAL]
 
-It prints ``published N on TOPIC`` and exits 0, or exits 1 when no run or no estimate came
-within 60 s.
+It prints ``ready`` once its imports are done and it is about to look for the run (so a test can start the
+run only then, and the outsider's own start-up does not race the run's frames), then ``published N on TOPIC``
+and exits 0, or exits 1 when no run or no estimate came within 60 s.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ BOX = (5.0, 5.0, 30.0, 79.0)
 
 
 def main(count: int, interval: float) -> int:
+    print("ready", flush=True)
     deadline = time.monotonic() + 60
     while not (found := [r for r in running() if r.get("kind") == "pipeline"]):
         if time.monotonic() > deadline:

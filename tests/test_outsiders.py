@@ -36,13 +36,17 @@ def test_estimates_from_outside_the_run_are_left_out_and_reported(tmp_path: Path
                           str(FRAMES), "--out", "ref.csv", "--inline", "--no-record", "-q"], cwd=tmp_path, env=env,
                          capture_output=True, text=True, timeout=120)
     assert ref.returncode == 0, ref.stderr
+    # the outsider is started first and the run only once it says it is ready: on a busy machine its own
+    # start-up (python, numpy, zenoh) took longer than the run's 60 frames, and it published after the run ended
+    peer = subprocess.Popen([sys.executable, str(ROOT / "tests" / "outsider_peer.py"), str(FRAMES + 40), "0.005"],
+                            cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert peer.stdout is not None and peer.stdout.readline().strip() == "ready", peer.communicate(timeout=60)
     track = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", INIT,
                               "--stop", str(FRAMES), "--realtime", "--out", "run.csv", "--record", "run.mcap"],
                              cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    outsider = subprocess.run([sys.executable, str(ROOT / "tests" / "outsider_peer.py"), str(FRAMES + 40), "0.005"],
-                              cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    peer_out, peer_err = peer.communicate(timeout=120)
     out, err = track.communicate(timeout=120)
-    assert outsider.returncode == 0 and "published" in outsider.stdout, (outsider.stdout, outsider.stderr)
+    assert peer.returncode == 0 and "published" in peer_out, (peer_out, peer_err)
     assert track.returncode == 0, err[-2000:]
     got, want = rows(tmp_path / "run.csv"), rows(tmp_path / "ref.csv")
     assert sorted(got) == list(range(FRAMES)), f"{len(got)} rows for {FRAMES} frames"
