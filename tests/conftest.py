@@ -109,16 +109,39 @@ def caviar1() -> Path:
     return data_dir("caviar1")
 
 
+def made_once(tmp_path_factory, name: str, make) -> Path:
+    """The folder ``name`` that ``make(folder)`` fills, made once for the whole test run: under xdist the
+    workers' base temps (``.../popen-gwN``) share a parent that is the run's own, and the first worker to
+    ask makes the folder there while the other waits on a lock, then both read it. ``make`` failing leaves
+    no folder marked done, so the next to ask makes it again (and fails the same way)."""
+    import fcntl
+
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base
+    folder = shared / f"made-once-{name}"
+    with open(shared / f"made-once-{name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (folder / ".done").exists():
+            shutil.rmtree(folder, ignore_errors=True)
+            folder.mkdir()
+            make(folder)
+            (folder / ".done").touch()
+    return folder
+
+
 @pytest.fixture(scope="session")
 def caviar1_m2_model(tmp_path_factory) -> Path:
-    """A small contour model (K = 4) learned by `gflow learn m2` from caviar1 frames 0-59."""
+    """A small contour model (K = 4) learned by `gflow learn m2` from caviar1 frames 0-59; learned once for
+    the test run, both xdist workers reading the one file (:func:`made_once`): five test files use it."""
     caviar1 = data_dir("caviar1")
-    out = tmp_path_factory.mktemp("m2-model") / "caviar1-k4.npz"
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", str(caviar1), "--boxes",
-                        str(caviar1 / "groundtruth.csv"), "--frames", "0:60", "-K", "4", "--max-points", "80",
-                        "--out", str(out)], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
-    return out
+
+    def learn(folder: Path) -> None:
+        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", str(caviar1), "--boxes",
+                            str(caviar1 / "groundtruth.csv"), "--frames", "0:60", "-K", "4", "--max-points", "80",
+                            "--out", str(folder / "caviar1-k4.npz")], capture_output=True, text=True, timeout=600)
+        assert r.returncode == 0, r.stderr
+
+    return made_once(tmp_path_factory, "m2-model", learn) / "caviar1-k4.npz"
 
 
 def synthetic_sequence(folder: Path, seed: int, frames: int, move=None) -> Path:
