@@ -162,12 +162,15 @@ def synthetic_sequence(folder: Path, seed: int, frames: int, move=None) -> Path:
 
 @pytest.fixture(scope="session")
 def demo8(tmp_path_factory) -> Path:
-    """The recording of `gflow demo --frames 8 --inline` (the synthetic scene): a small real run to read."""
-    d = tmp_path_factory.mktemp("demo8")
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "demo", "--frames", "8", "--inline", "--record",
-                        "demo.mcap"], cwd=d, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
-    assert r.returncode == 0, r.stderr
-    return d / "demo.mcap"
+    """The recording of `gflow demo --frames 8 --inline` (the synthetic scene): a small real run to read (made
+    once for the test run, :func:`made_once`; the tests only read it)."""
+
+    def demo(d: Path) -> None:
+        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "demo", "--frames", "8", "--inline", "--record",
+                            "demo.mcap"], cwd=d, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+        assert r.returncode == 0, r.stderr
+
+    return made_once(tmp_path_factory, "demo8", demo) / "demo.mcap"
 
 
 @pytest.fixture
