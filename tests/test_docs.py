@@ -23,6 +23,7 @@ the way a user reads it, and:
 from __future__ import annotations
 
 import contextlib
+import functools
 import io
 import os
 import re
@@ -201,14 +202,21 @@ def serves_until_stopped(args: list[str]) -> tuple[str, int] | None:
     return None
 
 
-def parse_error(args: list[str]) -> str:
-    """What gflow's argument parser says about ``gflow ARGS`` ('' if it parses)."""
+@functools.lru_cache(maxsize=1)
+def whole_parser():
+    """gflow's parser of every command, built once (building it takes about 0.15 s, and the pages give
+    dozens of lines that are parsed, not run); parsing leaves it as it was."""
     from pipeline.cli.main import build_parser
 
+    return build_parser()
+
+
+def parse_error(args: list[str]) -> str:
+    """What gflow's argument parser says about ``gflow ARGS`` ('' if it parses)."""
     err = io.StringIO()
     try:
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
-            build_parser().parse_args(args)
+            whole_parser().parse_args(args)
     except SystemExit as e:
         if e.code not in (0, None):
             return err.getvalue().strip() or f"exit {e.code}"
