@@ -60,14 +60,15 @@ def data_dir(name: str) -> Path:
 # over a minute) to the end, where one worker runs them while the other has nothing left to do. Handed
 # out first, they run while the other worker works through the many short files, and both end
 # together. A name that is no longer a test file is simply not found; files not named keep xdist's order.
-LONGEST_FIRST = ("test_real_tracking", "test_doc_figures", "test_docs", "test_python_api", "test_faults_restart",
-                 "test_dcf_lookalike", "test_gflow_guard_online", "test_types", "test_stress_benchmark",
-                 "test_dcf_rotation", "test_m2_pipeline", "test_run_equals_track", "test_cli_errors", "test_live_streams",
-                 "test_benchmark_seeds", "test_deployment", "test_m2_transfer", "test_gflow_lost_witness",
-                 "core/test_dcf_track_score", "test_trax", "test_stress_skip", "test_live_input", "test_recording_tools",
-                 "test_benchmark", "test_faults_recording", "test_dcf_pipeline", "test_cli_trust", "test_trust",
-                 "test_live_tools", "test_security", "core/test_appearance", "test_live", "test_recordings_kept",
-                 "test_faults_hostile", "core/test_dcf_scale_anchor", "test_gflow_rerun", "test_outsiders")
+LONGEST_FIRST = ("test_cli_errors", "test_python_api", "test_doc_figures", "test_docs", "test_faults_restart",
+                 "test_real_tracking", "test_deployment", "test_dcf_lookalike", "test_stress_benchmark",
+                 "test_gflow_lost_witness", "test_trax", "test_live_streams", "test_recording_tools",
+                 "test_m2_pipeline", "test_m2_transfer", "test_gflow_guard_online", "test_dcf_rotation",
+                 "test_run_equals_track", "test_types", "test_benchmark", "test_trust", "test_live_input",
+                 "test_cli_audit", "test_faults_recording", "test_stress_skip", "core/test_dcf_track_score",
+                 "core/test_appearance", "test_benchmark_seeds", "test_gflow_rerun", "test_dcf_pipeline",
+                 "test_live_tools", "test_live", "test_cli_trust", "test_gflow_face", "test_security",
+                 "test_recordings_kept", "test_track_options", "test_faults_hostile", "test_own_tracker")
 
 
 def pytest_collection_modifyitems(config, items):
