@@ -86,7 +86,8 @@ def cmd_eval(args) -> int:
     s = _score(gt, pred, failed, args.threshold)
     split = _split(gt, pred)
     if args.json:
-        extra: dict[str, float | int | None] = {"absent_frames": absent, "empty_predictions": failed, **split}
+        extra: dict[str, float | int | None] = {"absent_frames": absent, "empty_predictions": failed,
+                                                **{k: round(v, 4) for k, v in split.items()}}
         if s.cle != s.cle:  # no frame with both boxes: null, not JSON's missing NaN
             extra["cle_px"] = None
         print(json.dumps(dict(s.to_json(), **extra, **({"state": states.to_json()} if states else {}))))
@@ -129,8 +130,7 @@ def _split(gt: dict, pred: dict) -> dict[str, float]:
     from gflow_core.evaluation.metrics import auc, place_and_size
 
     place, size = place_and_size(gt, pred)
-    return {"auc": round(auc(gt, pred), 4), "auc_size_right": round(auc(gt, place), 4),
-            "auc_place_right": round(auc(gt, size), 4)}
+    return {"auc": auc(gt, pred), "auc_size_right": auc(gt, place), "auc_place_right": auc(gt, size)}
 
 
 def _score(gt: dict, pred: dict, failed: int, threshold: float):
