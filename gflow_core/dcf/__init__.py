@@ -137,7 +137,7 @@ together (docs/trackers.md):
 * fHOG here bins each pixel to its own cell (no bilinear spatial vote) and takes the grey level's
   gradient (fHOG takes the colour channel of largest gradient).
 * The scale filter takes the argmax over 17 scales (no interpolation to 33, no sub-step: a
-  parabola's sub-step drifted the box on fixed-size ground truth).
+  parabola's sub-step, ``scale_refine``, off, drifted the box on fixed-size ground truth).
 * Nothing in the papers says whether the target is there; the visibility model, the search and
   the place prior are this project's (as the appearance tracker's), here with the filter's and the
   colour's scores as cues. TLD learns its negatives as patches for a classifier; here only

@@ -53,6 +53,9 @@ class DCFParams:
     scale_anchor: bool = param(False, "the scale filter detects with the first frame's scale filter mixed in at "
                                       "anchor_weight, as the translation filter does, so the box's size stays tied to "
                                       "the first box's (gflow_core.dcf.scale; false: DSST's running filter alone)")
+    scale_refine: bool = param(False, "the scale filter's peak is refined between its scales by the parabola through it "
+                                      "and its neighbours, as fDSST interpolates its scale response (false: the best of "
+                                      "the scales, steps of scale_step; gflow_core.dcf.scale)")
     scale_upsample: bool = param(True, "a target smaller than scale_area pixels is resampled up to it for the scale "
                                        "filter's sample, as larger ones are resampled down (false: sampled at its own "
                                        "size, DSST's rule)", before=False)

@@ -7,18 +7,24 @@ dimension, D channels; the same closed form as the translation filter, DSST eq. 
 learns to answer with a Gaussian peaked at the middle row, so its response to a new sample
 peaks at the row of the target's present scale.
 
-Departures: 17 scales, as fDSST (Danelljan et al., PAMI 2017) samples, without its PCA and
-interpolation of the response to 33; the peak is refined by a parabola through its
-neighbours (sub-step). DSST resamples a target larger than its model area down to it and samples
-a smaller one at its own size; with ``scale_upsample`` (off by default) a smaller one is resampled
-up to the model area too. A target of 16 x 18 px at its own size gives a sample of 4 x 4 cells of
+Departures: 17 scales, as fDSST (Danelljan et al., PAMI 2017) samples, without its PCA. fDSST
+interpolates the response to 33 scales and takes their best, a half step; DSST takes the best of its
+own. Here the best of the 17 is taken, whole steps of ``scale_step`` (2 %), unless ``scale_refine``
+(off by default) refines the peak by the parabola through it and its neighbours, to any size between
+them: a size that changes slowly (a walker going away, 0.1 % a frame) is then followed rather than
+held until it has changed by a step, but so is a drift of the running filter's idea of the size,
+which the whole steps hold back; it stays off because on the shared sequences it loses more than it
+gains (docs/dcf-development.md, "The scale filter's peak between its scales"). DSST resamples a
+target larger than its model area down to it and samples a smaller one at its own size; with
+``scale_upsample`` (on by default; off, DSST's rule) a smaller one is resampled up to the model area
+too. A target of 16 x 18 px at its own size gives a sample of 4 x 4 cells of
 4 px, in which a step of 2 % in scale moves an edge by a third of a pixel: the response over the
 scales is all but flat and its peak wanders from frame to frame, walking the size (on the shared
 sequences at half size, ``gflow benchmark --variant small``, the surfer's box grew from 16 x 18 to 24 x 26 with
 its centre within 5 px, and jumping's face shrank from 19 to 14 px as it grew). Resampled to the
-model area, every target is seen at the same number of cells; it stays off because on the stress
-cases of crossing's 17 px wide pedestrian and jumping's face (920 px) it did worse
-(docs/dcf-development.md). With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
+model area, every target is seen at the same number of cells (docs/dcf-development.md, "A small
+target's size" and "Colour names, a small target's size and the roll at detection on by default").
+With a prior (``scale_prior``, :mod:`.sizeprior`) the pick is the mode of
 the response read as a likelihood times a Gaussian prior on the log size (:func:`size_posterior`);
 DSST has no prior on the size.
 
@@ -134,9 +140,10 @@ def detect_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float],
                  prior: tuple[float, float, float] | None = None, anchor: float = 0.0) -> tuple[float, np.ndarray]:
     """The log-scale change at ``centre`` and the response over the scales (S,).
 
-    y = F^-1 { sum_d conj(A_d) Z_d / (B + lambda) } (DSST eq. 6) over the scale index; its peak,
-    refined by a parabola through the neighbours, gives the change n* log a. With ``prior`` =
-    (log s, sigma, kappa) the peak is that of :func:`size_posterior` instead (the held box's log size
+    y = F^-1 { sum_d conj(A_d) Z_d / (B + lambda) } (DSST eq. 6) over the scale index; its peak n*
+    gives the change n* log a, a whole number of steps, or with ``refine`` the vertex of the parabola
+    through the peak and its neighbours (``scale_refine``). With ``prior`` =
+    (log s, sigma, kappa) the peak (and the parabola) is that of :func:`size_posterior` instead (the held box's log size
     log s relative to the first box, a Gaussian prior of std sigma on it, the response's sharpness kappa).
     With ``anchor`` w > 0 (and the first frame's filter kept), A and B are (1 - w) the running ones plus
     w the first frame's (module docstring)."""
@@ -150,10 +157,11 @@ def detect_scale(sf: ScaleFilter, grey: np.ndarray, centre: tuple[float, float],
     # sum_d conj(A_d) Z_d (einsum: a fixed order of summation)
     s = np.einsum("sd,sd->s", np.conj(num), z)
     y = np.fft.ifft(s / (den + lam)).real
-    i = int(np.argmax(y)) if prior is None else int(np.argmax(size_posterior(y, step, *prior)))
+    score = y if prior is None else size_posterior(y, step, *prior)
+    i = int(np.argmax(score))
     d = float(i - (n - 1) // 2)
     if refine and 0 < i < n - 1:
-        a, b, c = y[i - 1], y[i], y[i + 1]
+        a, b, c = score[i - 1], score[i], score[i + 1]
         den = a - 2.0 * b + c
         if den < 0:
             # the vertex of the parabola through (i - 1, a), (i, b), (i + 1, c)

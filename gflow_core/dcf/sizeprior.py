@@ -34,5 +34,5 @@ def scale_change(model: TargetModel, grey: np.ndarray, centre: tuple[float, floa
         return 0.0
     s = float(np.exp(log_s))
     d, _ = detect_scale(model.scale, grey, centre, (geom.size0[0] * s, geom.size0[1] * s), p.scale_step, p.cell,
-                        p.scale_lam, prior=(log_s, p.scale_prior, p.kappa), anchor=scale_anchor(p))
+                        p.scale_lam, prior=(log_s, p.scale_prior, p.kappa), anchor=scale_anchor(p), refine=p.scale_refine)
     return d

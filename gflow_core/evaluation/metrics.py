@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve",
-           "size_kept", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score",
+           "size_kept", "auc", "place_and_size", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score",
            "CONFIDENCE_BANDS", "band_json", "band_text"]
 
 #: overlap thresholds of the OTB success plot (Wu, Lim & Yang, CVPR 2013); its AUC is the mean over them
@@ -136,6 +136,28 @@ def size_kept(gt: dict[int, tuple], pred: dict[int, tuple], factor: float = 2.0)
     # a / a* = (w h) / (w* h*)
     ratio = (p[on, 2] * p[on, 3]) / np.maximum(g[on, 2] * g[on, 3], 1e-12)
     return float(np.mean((ratio >= 1.0 / factor) & (ratio <= factor)))
+
+
+def auc(gt: dict[int, tuple], pred: dict[int, tuple]) -> float:
+    """The area under the success plot (the OTB headline): the mean of :func:`success_curve` over
+    ``OVERLAP_THRESHOLDS``."""
+    return float(success_curve(gt, pred).mean())
+
+
+def place_and_size(gt: dict[int, tuple], pred: dict[int, tuple]) -> tuple[dict[int, tuple], dict[int, tuple]]:
+    """The predicted boxes with one of their two errors taken away, to tell which costs the overlap: (the truth's
+    size at each predicted centre: the place's error alone, the predicted size at the truth's centre: the size's
+    error alone), on the frames that have both a true and a predicted box. Scored by :func:`auc`, each is the AUC the
+    tracker would have with its size, or its place, right."""
+    place: dict[int, tuple] = {}
+    size: dict[int, tuple] = {}
+    for f in sorted(gt.keys() & pred.keys()):
+        gx, gy, gw, gh = (float(v) for v in gt[f])
+        px, py, pw, ph = (float(v) for v in pred[f])
+        # centres c = (x + w / 2, y + h / 2); a box of size (w', h') at centre c is (c_x - w' / 2, c_y - h' / 2, w', h')
+        place[f] = (px + pw / 2.0 - gw / 2.0, py + ph / 2.0 - gh / 2.0, gw, gh)
+        size[f] = (gx + gw / 2.0 - pw / 2.0, gy + gh / 2.0 - ph / 2.0, pw, ph)
+    return place, size
 
 
 #: the target states a tracker reports: seen in its box, hidden where it is expected, searched for

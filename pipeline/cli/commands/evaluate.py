@@ -84,8 +84,10 @@ def cmd_eval(args) -> int:
     # the states of every row, those of no box too (NaN or w, h 0: a miss for the boxes, as read above)
     states = _state_score(args, gt, pred, read_track(args.pred, allow_nan=True)) if args.visibility else None
     s = _score(gt, pred, failed, args.threshold)
+    split = _split(gt, pred)
     if args.json:
-        extra: dict[str, int | None] = {"absent_frames": absent, "empty_predictions": failed}
+        extra: dict[str, float | int | None] = {"absent_frames": absent, "empty_predictions": failed,
+                                                **{k: round(v, 4) for k, v in split.items()}}
         if s.cle != s.cle:  # no frame with both boxes: null, not JSON's missing NaN
             extra["cle_px"] = None
         print(json.dumps(dict(s.to_json(), **extra, **({"state": states.to_json()} if states else {}))))
@@ -98,6 +100,8 @@ def cmd_eval(args) -> int:
               "centre location error (CLE): none (no frame with ground truth has a predicted box)")
         print(f"mean overlap (IoU):          {s.mean_overlap:.3f}")
         print(f"success rate (IoU > {args.threshold}):   {s.success:.3f}")
+        print(f"success-plot AUC:            {split['auc']:.3f} (with the true size at each centre "
+              f"{split['auc_size_right']:.3f}; with the true centre, each box's size {split['auc_place_right']:.3f})")
         if states:
             print(f"state right when hidden:     {_rate(states.hidden_right, states.hidden)} (occluded or lost on "
                   f"{states.hidden_right} of {states.hidden} hidden frames, past the first 5 of each stretch)")
@@ -118,6 +122,15 @@ def cmd_eval(args) -> int:
 
 def _rate(a: int, n: int) -> str:
     return "-" if n == 0 else f"{a / n:.3f}"
+
+
+def _split(gt: dict, pred: dict) -> dict[str, float]:
+    """The success plot's AUC, and what it would be with each box's size right (the truth's size at its centre)
+    and with its place right (its size at the truth's centre): which of the two errors costs the overlap."""
+    from gflow_core.evaluation.metrics import auc, place_and_size
+
+    place, size = place_and_size(gt, pred)
+    return {"auc": auc(gt, pred), "auc_size_right": auc(gt, place), "auc_place_right": auc(gt, size)}
 
 
 def _score(gt: dict, pred: dict, failed: int, threshold: float):
@@ -155,8 +168,10 @@ def register(sub) -> None:
     from pipeline.evaluation.scored_boxes import CONVENTION
 
     p = sub.add_parser("eval", help="score predicted boxes (or face points) against ground truth",
-                       description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU) "
-                                   "and success rate (IoU > 0.5); with --visibility, how often the reported state was "
+                       description="Boxes (--gt, --pred): centre location error (px), mean overlap (IoU), "
+                                   "success rate (IoU > 0.5) and the success plot's AUC, beside the AUC with each box's "
+                                   "size made the truth's and with its centre made the truth's (which of the two errors "
+                                   "costs the overlap); with --visibility, how often the reported state was "
                                    "right, how often a box off the target was still reported tracked, and how often "
                                    "the box was on the target at each level of confidence. Face points (--landmarks, "
                                    "--points): the mean distance of the eye corners "
