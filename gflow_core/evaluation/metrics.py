@@ -11,8 +11,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 __all__ = ["centre_error", "iou", "TrackScore", "score", "OVERLAP_THRESHOLDS", "success_curve", "precision_curve",
-           "size_kept", "auc", "place_and_size", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover", "StateScore", "state_score",
-           "CONFIDENCE_BANDS", "band_json", "band_text"]
+           "size_kept", "auc", "place_and_size", "TARGET_STATES", "HIDDEN_BELOW", "overlaps", "frames_to_recover",
+           "StateScore", "state_score", "CONFIDENCE_BANDS", "band_json", "band_text"]
 
 #: overlap thresholds of the OTB success plot (Wu, Lim & Yang, CVPR 2013); its AUC is the mean over them
 OVERLAP_THRESHOLDS = np.linspace(0.0, 1.0, 21)
