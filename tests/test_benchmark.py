@@ -79,6 +79,7 @@ def test_inline_scores_equal_gflow_eval(seq, inline_run):
         row = _row(rows, name)
         ev = _eval(seq / "groundtruth.csv", row["boxes"])
         assert ev.pop("absent_frames") == 0 and ev.pop("empty_predictions") == 0, name  # no box of no size here
+        ev.pop("auc_size_right"), ev.pop("auc_place_right")  # eval's own split of the AUC, not in a benchmark's row
         assert {k: row[k] for k in ev} == ev, name
         assert row["auc"] == pytest.approx(np.mean(row["success_curve"]), abs=1e-4)
         assert row["success_curve"][10] == pytest.approx(row["success_rate_0.5"], abs=1e-4)  # threshold 0.5
