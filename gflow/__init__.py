@@ -15,11 +15,26 @@ seed the boxes are those of ``gflow track --seed SEED`` bit for bit. Errors are 
 See ``docs/python-api.md``.
 """
 
-from gflow_core.tracker import Estimate
+import sys as _sys
+import warnings as _warnings
 
-from .errors import GflowError, UnknownParameter, UnusableFrameError
-from .track import track
-from .tracker import Tracker, trackers
+from pipeline.runtime.instruction_sets import cpu_flags as _cpu_flags
+from pipeline.runtime.instruction_sets import hold as _hold
+
+# numpy, OpenCV and OpenBLAS held to the instruction sets of x86-64-v3 before they load, as in every
+# gflow command, so the API's boxes are the commands' bit for bit on any machine
+# (pipeline/runtime/instruction_sets.py); too late for a numpy imported already
+_numpy_first = "numpy" in _sys.modules
+if _hold() and _numpy_first and "avx512f" in _cpu_flags():
+    _warnings.warn("numpy was imported before gflow on this machine with AVX-512: its kernels may differ in the "
+                   "last bits from those of gflow's commands; import gflow first for the same boxes",
+                   RuntimeWarning, stacklevel=2)
+
+from gflow_core.tracker import Estimate  # noqa: E402
+
+from .errors import GflowError, UnknownParameter, UnusableFrameError  # noqa: E402
+from .track import track  # noqa: E402
+from .tracker import Tracker, trackers  # noqa: E402
 
 
 def __getattr__(name: str) -> object:

@@ -14,6 +14,12 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.runtime.instruction_sets import hold
+
+# before numpy, OpenCV or OpenBLAS loads in a test or a process a test starts: the kernels every gflow
+# command uses (pipeline/runtime/instruction_sets.py), so the tests' own tracking equals the commands'
+hold()
+
 ROOT = Path(__file__).resolve().parent.parent
 
 # The tests press Ctrl-C (SIGINT) on the processes they start, as a user at a terminal does. A suite

@@ -76,8 +76,8 @@ def default_tracker() -> str:
 
 def measured_on(block: str) -> str | None:
     """The system a figure block was measured on, as its line "Measured on ..." names it (``Linux 6.18.44-fc-v657
-    x86_64``: :func:`pipeline.cli.versions.versions`' ``os``), or None."""
-    m = re.search(r"; ([^;()]+)\), \d+ cores", block)
+    x86_64; SIMD held to x86-64-v3``: :func:`pipeline.cli.versions.versions`' ``os`` and ``simd``), or None."""
+    m = re.search(r"; ([^;()]+(?:; SIMD [^;()]+)?)\), \d+ cores", block)
     return m.group(1) if m else None
 
 
@@ -86,7 +86,8 @@ def test_the_fast_trackers_reproduce_the_shared_sequence_table():
 
     data = data_dir(SUBSET[0]).parent
     block = blocks(ROOT / "docs" / "accuracy.md")["shared"]
-    here, there = versions()["os"], measured_on(block)
+    v = versions()
+    here, there = f"{v['os']}; {v['simd']}", measured_on(block)
     assert there, "docs/accuracy.md's shared table does not say what system it was measured on"
     if here != there:
         # a particle filter amplifies the last bits, and machines of another kind round differently (other SIMD

@@ -17,7 +17,11 @@ from __future__ import annotations
 import os
 import sys
 
-from pipeline.runtime.zygote import start_early
+from pipeline.runtime.instruction_sets import hold
+
+hold()  # before numpy, OpenCV or OpenBLAS loads here or in a stage: the same bits on every machine
+
+from pipeline.runtime.zygote import start_early  # noqa: E402
 
 if sys.argv and sys.argv[0].endswith(("gflow", "pipeline/cli/__main__.py", "pipeline/cli/main.py")):
     # first, before the imports below: a command that starts stage processes forks their zygote

@@ -10,6 +10,8 @@ from __future__ import annotations
 import platform
 import sys
 
+from pipeline.runtime.instruction_sets import described
+
 __all__ = ["versions", "version_text"]
 
 #: distribution names of the Python packages that decide the figures, in the order printed
@@ -38,16 +40,20 @@ def _opencv() -> str:
 
 def versions() -> dict[str, str]:
     """``{"gflow": ..., "python": ..., "numpy": ..., "opencv": ..., "scipy": ..., "zenoh": ..., "mcap": ...,
-    "msgspec": ..., "os": ...}``."""
+    "msgspec": ..., "os": ..., "simd": ...}``: ``simd`` says whether the libraries' SIMD kernels are held to
+    x86-64-v3 (:mod:`pipeline.runtime.instruction_sets`), which decides their last bits as much as their versions."""
     out = {"gflow": _dist("gflow"), "python": ".".join(map(str, sys.version_info[:3]))}
     for key, dist in PACKAGES:
         out[key] = _opencv() if dist is None else _dist(dist)
     out["os"] = f"{platform.system()} {platform.release()} {platform.machine()}"
+    out["simd"] = described()
     return out
 
 
 def version_text(v: dict[str, str] | None = None) -> str:
-    """``gflow 0.1.0 (python 3.11.7, numpy 2.4.6, opencv 5.0.0, ...; Linux 6.8 x86_64)``: one line."""
+    """``gflow 0.1.0 (python 3.11.7, numpy 2.4.6, opencv 5.0.0, ...; Linux 6.8 x86_64; SIMD held to x86-64-v3)``:
+    one line (versions written before ``simd`` was recorded end at the system)."""
     v = versions() if v is None else v
     libs = ", ".join(f"{k} {v[k]}" for k in ["python", *(key for key, _ in PACKAGES)])
-    return f"gflow {v['gflow']} ({libs}; {v['os']})"
+    simd = f"; {v['simd']}" if v.get("simd") else ""
+    return f"gflow {v['gflow']} ({libs}; {v['os']}{simd})"
