@@ -136,14 +136,21 @@ def test_trax_boxes_are_gflow_track_inline_byte_for_byte(caviar1, tmp_path):
     and what crossed the wire is within TraX's 4 decimals of it."""
     files = sorted((caviar1 / "frames").iterdir())[:40]
     init = "129,71,30,79"  # caviar1's frame-0 ground truth
-    track = subprocess.run([sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", init, "--stop", "40",
-                            "--inline", "--seed", "5", "--no-record", "-q", "--out", str(tmp_path / "track.csv")],
-                           capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert track.returncode == 0, track.stderr
-    with session("--seed", "5", "--out", str(tmp_path / "trax.csv")) as s:
-        got = [s.initialize(FileImage.create(str(files[0])), Rectangle.create(129, 71, 30, 79))]
-        got += [s.frame(FileImage.create(str(f))) for f in files[1:]]
-        assert s.end()[0] == 0
+    # gflow track runs while the server is driven (two processes side by side), then both files are compared
+    track = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", init, "--stop", "40",
+                              "--inline", "--seed", "5", "--no-record", "-q", "--out", str(tmp_path / "track.csv")],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        with session("--seed", "5", "--out", str(tmp_path / "trax.csv")) as s:
+            got = [s.initialize(FileImage.create(str(files[0])), Rectangle.create(129, 71, 30, 79))]
+            got += [s.frame(FileImage.create(str(f))) for f in files[1:]]
+            assert s.end()[0] == 0
+        _, err = track.communicate(timeout=300)
+    finally:
+        if track.poll() is None:
+            track.kill()
+            track.wait()
+    assert track.returncode == 0, err
     assert (tmp_path / "trax.csv").read_bytes() == (tmp_path / "track.csv").read_bytes()
     rows = read_track(tmp_path / "track.csv")
     assert len(got) == len(rows.boxes) == 40
