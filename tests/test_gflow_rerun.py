@@ -10,6 +10,10 @@ import pytest
 from conftest import data_dir
 from pipeline.recording.results import read_boxes
 
+# david_indoor's first 45 frames: the snapshot at frame 25 (the graph's snapshot_every) before the frame 40
+# the tests start from, and frames after 40 to step on to
+FRAMES = 45
+
 
 @pytest.fixture(scope="module")
 def gflow_run(tmp_path_factory):
@@ -20,7 +24,7 @@ def gflow_run(tmp_path_factory):
     init = ",".join(str(v) for v in read_boxes(seq / "groundtruth.csv")[0])
     rec = tmp / "gflow.mcap"
     cmd = [sys.executable, "-m", "pipeline.cli.main", "track", str(seq), "--tracker", "gflow", "--init", init,
-           "--stop", "60", "--experts", "6", "--samples", "4", "--background", "--out", str(tmp / "b.csv"),
+           "--stop", str(FRAMES), "--experts", "6", "--samples", "4", "--background", "--out", str(tmp / "b.csv"),
            "--record", str(rec), "-q"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr

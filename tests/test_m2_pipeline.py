@@ -154,12 +154,12 @@ def test_m2_recording_reruns_bit_for_bit(caviar1_model, tmp_path, gflow_cmd) -> 
     init = ",".join(str(v) for v in gt[TEST[0]])
     rec = tmp_path / "m2.mcap"
     _run([*gflow_cmd, "track", str(caviar1), "--tracker", "m2", "--model", str(model), "--init", init, "--start",
-          str(TEST[0]), "--stop", str(TEST[0] + 40), "--out", str(tmp_path / "b.csv"), "--record", str(rec), "-q",
-          "--particles", "200"])
+          str(TEST[0]), "--stop", str(TEST[0] + 30), "--out", str(tmp_path / "b.csv"), "--record", str(rec), "-q",
+          "--particles", "200"])  # 30 frames: the filter's snapshot at +25 (snapshot_every) and frames after it
     for stage in ("preprocess", "proposal", "filter"):
         out = _run([*gflow_cmd, "rerun", str(rec), "--stage", stage, "--check"])
         assert "all identical bit for bit" in out.stdout
-    out = _run([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--from", str(TEST[0] + 30), "--check"])
+    out = _run([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--from", str(TEST[0] + 28), "--check"])
     assert f"from the snapshot at frame {TEST[0] + 25}" in out.stdout and "all identical" in out.stdout
     bad = subprocess.run([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--set", "particles=150", "--check"],
                          capture_output=True, text=True, timeout=300)

@@ -22,9 +22,15 @@ from pipeline.io.mcap_io import iter_records
 from pipeline.runtime.transport import ZenohSettings, free_port
 from tests.conftest import read_mcap_js as _read_js
 
+# crossing's first 80 frames (of 120): four filter snapshots (every 20 frames), the middle ones the
+# tests restore from (60) and feed a late input to (30), and a third fewer frames for the many re-runs
+FRAMES = 80
+
+
 @pytest.fixture(scope="module")
 def crossing_run(tmp_path_factory, gflow_cmd_module):
-    """A real multi-process run of the chamfer tracker on crossing, with filter snapshots every 20 frames."""
+    """A real multi-process run of the chamfer tracker on crossing's first FRAMES frames, with filter snapshots
+    every 20 frames."""
     from tests.conftest import data_dir
     from pipeline.recording.results import read_boxes
 
@@ -38,7 +44,7 @@ def crossing_run(tmp_path_factory, gflow_cmd_module):
     rec = tmp / "run.mcap"
     out = subprocess.run([*gflow_cmd_module, "track", str(seq), "--init", init, "--out", str(tmp / "b.csv"),
                           "--record", str(rec), "--graph", str(graph), "--tracker", "chamfer", "-q",
-                          "--stream", "cam0"],  # the topic names the tests look for (default: a run id)
+                          "--stop", str(FRAMES), "--stream", "cam0"],  # the topic names the tests look for (default: a run id)
                          capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     return rec
@@ -152,9 +158,9 @@ def test_one_reading_answers_what_the_readers_of_the_whole_file_do(crossing_run,
                 w.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, type_name=r.type, source="0badc0de")
     run = read_run(rec, frames_topic="gflow/cam0/frames", errors_stream="cam0")
     est, sessions = run_estimates(rec)
-    assert run.estimates == est and len(est) == 120 and run.sessions == sessions and sessions.lines()
+    assert run.estimates == est and len(est) == FRAMES and run.sessions == sessions and sessions.lines()
     assert run.sent == {r.seq for r in iter_records(rec, topics=["gflow/cam0/frames"]) if r.type == "Frame"}
-    assert run.sent == set(range(120))
+    assert run.sent == set(range(FRAMES))
     assert run.reported == reported_frames(str(rec), "cam0") == {3, 17}
     assert read_run(rec).reported == reported_frames(str(rec)) == {3, 17, 40}
     assert run.tracking_seconds == tracking_seconds(rec) and run.tracking_seconds > 0

@@ -108,9 +108,12 @@ def test_concurrent_runs_keep_every_recording(tmp_path: Path) -> None:
     assert len(recs) == len(cmds), recs
     for r in recs:
         assert any(x.topic.endswith("/estimate") for x in iter_records(r, strict=True)), r
-        chk = subprocess.run([*GFLOW, "rerun", str(r), "--stage", "filter", "--check"], cwd=tmp_path, env=env,
-                             capture_output=True, text=True, timeout=120)
-        assert chk.returncode == 0 and "identical" in chk.stdout, (r, chk.stdout, chk.stderr)
+    # the re-runs side by side too (each reads its own file): the same checks, not one after another
+    checks = [subprocess.Popen([*GFLOW, "rerun", str(r), "--stage", "filter", "--check"], cwd=tmp_path, env=env,
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for r in recs]
+    for r, chk in zip(recs, checks):
+        out, err = chk.communicate(timeout=120)
+        assert chk.returncode == 0 and "identical" in out, (r, out, err)
     assert time.time() - t0 < 170
 
 

@@ -34,9 +34,8 @@ WIRE = 2e-4
 class Session:
     """A server process and the client talking to it over its stdin / stdout."""
 
-    def __init__(self, cmd: list[str]):
-        self.proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     bufsize=0, cwd=ROOT)
+    def __init__(self, cmd: list[str], proc: subprocess.Popen | None = None):
+        self.proc = proc if proc is not None else _spawn(cmd)
         self.log: list[str] = []  # kept alive as long as the client: the library calls it at cleanup
         self.client = Client((self.proc.stdin.fileno(), self.proc.stdout.fileno()), log=self.log.append)
 
@@ -59,10 +58,17 @@ class Session:
         return code, err
 
 
+def _spawn(cmd: list[str]) -> subprocess.Popen:
+    """A server process, its stdin / stdout the TraX channel (the client's handshake comes later)."""
+    return subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0,
+                            cwd=ROOT)
+
+
 @contextmanager
-def session(*args: str, via_gflow: bool = False) -> Iterator[Session]:
+def session(*args: str, via_gflow: bool = False, proc: subprocess.Popen | None = None) -> Iterator[Session]:
+    """A session with a new server (or with ``proc``, a server started by :func:`_spawn` with ``args``)."""
     cmd = [sys.executable, "-m", "pipeline.cli", "trax"] if via_gflow else [sys.executable, "-m", "gflow.trax"]
-    s = Session(cmd + list(args))
+    s = Session(cmd + list(args), proc)
     try:
         yield s
     finally:
@@ -130,14 +136,21 @@ def test_trax_boxes_are_gflow_track_inline_byte_for_byte(caviar1, tmp_path):
     and what crossed the wire is within TraX's 4 decimals of it."""
     files = sorted((caviar1 / "frames").iterdir())[:40]
     init = "129,71,30,79"  # caviar1's frame-0 ground truth
-    track = subprocess.run([sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", init, "--stop", "40",
-                            "--inline", "--seed", "5", "--no-record", "-q", "--out", str(tmp_path / "track.csv")],
-                           capture_output=True, text=True, timeout=300, cwd=ROOT)
-    assert track.returncode == 0, track.stderr
-    with session("--seed", "5", "--out", str(tmp_path / "trax.csv")) as s:
-        got = [s.initialize(FileImage.create(str(files[0])), Rectangle.create(129, 71, 30, 79))]
-        got += [s.frame(FileImage.create(str(f))) for f in files[1:]]
-        assert s.end()[0] == 0
+    # gflow track runs while the server is driven (two processes side by side), then both files are compared
+    track = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "track", str(caviar1), "--init", init, "--stop", "40",
+                              "--inline", "--seed", "5", "--no-record", "-q", "--out", str(tmp_path / "track.csv")],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        with session("--seed", "5", "--out", str(tmp_path / "trax.csv")) as s:
+            got = [s.initialize(FileImage.create(str(files[0])), Rectangle.create(129, 71, 30, 79))]
+            got += [s.frame(FileImage.create(str(f))) for f in files[1:]]
+            assert s.end()[0] == 0
+        _, err = track.communicate(timeout=300)
+    finally:
+        if track.poll() is None:
+            track.kill()
+            track.wait()
+    assert track.returncode == 0, err
     assert (tmp_path / "trax.csv").read_bytes() == (tmp_path / "track.csv").read_bytes()
     rows = read_track(tmp_path / "track.csv")
     assert len(got) == len(rows.boxes) == 40
@@ -145,9 +158,9 @@ def test_trax_boxes_are_gflow_track_inline_byte_for_byte(caviar1, tmp_path):
         assert np.abs(np.subtract(box, rows.boxes[k])).max() <= 0.005 + WIRE  # the CSV has 2 decimals
 
 
-def _refused(tmp_path, requests, *args: str) -> tuple[str, int, str]:
+def _refused(tmp_path, requests, *args: str, proc: subprocess.Popen | None = None) -> tuple[str, int, str]:
     """Send requests until the server refuses one: (the client's exception, exit code, stderr)."""
-    with session(*args) as s:
+    with session(*args, proc=proc) as s:
         with pytest.raises(TraxException) as e:
             for kind, image, region in requests:
                 s.initialize(image, region) if kind == "initialize" else s.frame(image)
@@ -173,8 +186,16 @@ def test_a_request_the_server_cannot_serve_gets_a_trax_error(tmp_path):
         ([("frame", FileImage.create(str(good)), None)], "a frame before any initialize"),
         ([("initialize", FileImage.create(str(good)), box), ("frame", rgb(frame[:100, :100]), None)], "size changed"),
     ]
-    for requests, says in cases:
-        told, code, err = _refused(tmp_path, requests)
+    # one server per case, all started at once (each loads the tracker before its handshake), then each driven
+    servers = [_spawn([sys.executable, "-m", "gflow.trax"]) for _ in cases]
+    try:
+        answers = [_refused(tmp_path, requests, proc=server) for (requests, _), server in zip(cases, servers)]
+    finally:
+        for server in servers:
+            if server.poll() is None:
+                server.kill()
+                server.wait()
+    for (requests, says), (told, code, err) in zip(cases, answers):
         if requests[0][0] == "initialize":  # (a client that never initialised reads the quit as its own error)
             assert told.startswith("Server terminated the session: ") and says in told, told
         assert code == 1
@@ -216,25 +237,40 @@ def test_a_uniform_first_image_waits_for_a_usable_one_as_gflow_track_does(tmp_pa
 def test_bad_options_and_a_missing_library_are_one_line_errors(tmp_path):
     """A mistyped parameter or a missing model fails before the handshake; without vot-trax both
     commands say how to install it."""
-    for cmd, says in (
+    wrong = (
         ([sys.executable, "-m", "gflow.trax", "--set", "partcles=500"], "partcles"),
         ([sys.executable, "-m", "gflow.trax", "--tracker", "m2"], "needs --model"),
         ([sys.executable, "-m", "pipeline.cli", "trax", "--tracker", "chamfer", "--model", "x.npz"],
          "--model is an option of --tracker gflow / m2"),
         ([sys.executable, "-m", "pipeline.cli", "trax", "--set", "particles"], "--set expects NAME=VALUE"),
-    ):
-        r = subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=ROOT, stdin=subprocess.DEVNULL)
+    )
+    hide = "import sys; sys.modules['trax'] = None; "
+    missing = [[sys.executable, "-c", hide + "from pipeline.cli.main import main; sys.exit(main(['trax']))"],
+               [sys.executable, "-c", hide + "from gflow.trax import main; sys.exit(main([]))"]]
+    # the six commands side by side (each is a Python start-up and an import of gflow), then each checked
+    done = _run_together([cmd for cmd, _ in wrong] + missing)
+    for (cmd, says), r in zip(wrong, done):
         assert r.returncode == 2 and r.stdout == "", (cmd, r)
         lines = r.stderr.strip().splitlines()
         assert len(lines) == 1 and lines[0].startswith("gflow trax: error: ") and says in lines[0], r.stderr
-    hide = "import sys; sys.modules['trax'] = None; "
-    for code in (hide + "from pipeline.cli.main import main; sys.exit(main(['trax']))",
-                 hide + "from gflow.trax import main; sys.exit(main([]))"):
-        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, cwd=ROOT,
-                           stdin=subprocess.DEVNULL)
+    for r in done[len(wrong):]:
         assert r.returncode == 2 and r.stdout == ""
         assert r.stderr.strip() == ("gflow trax: error: the TraX library (package vot-trax) is not installed: "
                                     "pip install 'gflow[vot]' (or pip install vot-trax)")
+
+
+def _run_together(cmds: list[list[str]]) -> list[subprocess.CompletedProcess]:
+    """Run the commands at once (stdin empty, in the repository) and wait for them all: what each gave."""
+    procs = [subprocess.Popen(c, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                              cwd=ROOT) for c in cmds]
+    try:
+        outs = [p.communicate(timeout=120) for p in procs]
+        return [subprocess.CompletedProcess(c, p.returncode, *out) for c, p, out in zip(cmds, procs, outs)]
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+                p.wait()
 
 
 def test_vot_test_passes_for_the_default_tracker(tmp_path):
