@@ -39,6 +39,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from pipeline.runtime.instruction_sets import hold  # noqa: E402
+
+hold()  # the kernels of the gflow commands this runs, so the versions line says what they ran with
 from _util import scratch  # noqa: E402
 
 #: the model m2 runs with: learned on caviar1 frames 0-149 ({m2} is the file)
