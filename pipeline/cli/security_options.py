@@ -28,9 +28,12 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline.cli.endpoints import parse_endpoint
-from pipeline.runtime.security import Security, SecurityError, load_run_key
+
+if TYPE_CHECKING:  # imported where used: a command's options are added without hashlib, ssl and secrets
+    from pipeline.runtime.security import Security
 
 __all__ = ["add_security_args", "apply_security", "SECURITY_FILE_KEYS"]
 
@@ -54,6 +57,8 @@ def add_security_args(g) -> None:
 
 def _load_file(path: str) -> dict:
     import yaml
+
+    from pipeline.runtime.security import SecurityError
 
     p = Path(path)
     try:
@@ -110,6 +115,8 @@ def _load_file(path: str) -> dict:
 
 def _endpoint(text: str, tls: bool) -> str:
     """``HOST:PORT`` -> ``tls/HOST:PORT`` (with TLS options) or ``tcp/HOST:PORT``; others unchanged."""
+    from pipeline.runtime.security import SecurityError
+
     if "/" not in text:
         text = ("tls/" if tls else "tcp/") + text
     try:
@@ -121,6 +128,8 @@ def _endpoint(text: str, tls: bool) -> str:
 def apply_security(args) -> Security | None:
     """Read ``--security FILE`` and the options into ``args`` (once), check the files, turn bare
     ``HOST:PORT`` endpoints into zenoh's, and return the :class:`Security` (None: none given)."""
+    from pipeline.runtime.security import Security, SecurityError, load_run_key
+
     if getattr(args, "_security_done", False):
         return getattr(args, "_security", None)
     get = lambda name: getattr(args, name, None)  # noqa: E731 (a Namespace built by hand may lack options)
