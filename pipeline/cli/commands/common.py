@@ -194,10 +194,10 @@ def check_new_picture(path: str, option: str = "OUT") -> None:
 def refuse_recording(path: str, option: str) -> None:
     """Refuse to write over a recording: ``path`` is an existing file that begins as an MCAP file
     does (whatever its name), so a CSV, model or picture written there would destroy it."""
-    from pipeline.io.mcap_writer import MAGIC
-
     try:
         with open(path, "rb") as f:
+            from pipeline.io.mcap_writer import MAGIC  # (mcap) only when there is a file to look at
+
             head = f.read(len(MAGIC))
     except OSError:
         return  # no such file (or not readable: check_writable names it)
