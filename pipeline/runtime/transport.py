@@ -27,12 +27,11 @@ import socket
 import struct
 import time
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Callable, Literal
+from typing import Callable, Literal
 
 import zenoh
 
-if TYPE_CHECKING:  # imported where used: a command makes its settings without ssl, hashlib and secrets
-    from pipeline.runtime.security import Security, Signer
+from pipeline.runtime.security import Security, Signer, explain_refusal
 
 __all__ = ["ZenohSettings", "SessionError", "open_session", "open_reaching", "reached", "Bus", "topic_key", "free_port", "pack_attachment", "unpack_attachment",
            "sample_source", "check_key_expr"]
@@ -92,8 +91,6 @@ class ZenohSettings:
 
     @classmethod
     def from_json(cls, d: dict) -> "ZenohSettings":
-        from pipeline.runtime.security import Security
-
         return cls(mode=d.get("mode", "peer"), listen=tuple(d.get("listen", ("tcp/127.0.0.1:0",))),
                    connect=tuple(d.get("connect", ())), multicast=bool(d.get("multicast", False)),
                    shm_pool_mb=int(d.get("shm_pool_mb", 16)), shm=bool(d.get("shm", True)),
@@ -113,8 +110,6 @@ class SessionError(RuntimeError):
 
 def open_session(settings: ZenohSettings) -> zenoh.Session:
     """Open a zenoh session; errors name the endpoints that failed (and why, when it can be told)."""
-    from pipeline.runtime.security import explain_refusal
-
     try:
         session = zenoh.open(settings.to_config())
         if settings.mode == "peer" and settings.connect and settings.security is not None:
@@ -134,8 +129,6 @@ def _check_linked(session: zenoh.Session, settings: ZenohSettings, wait: float =
     """In peer mode zenoh opens a session even when every ``connect`` endpoint refused it (a TLS or
     login mismatch): with security settings, that is an error, said in one line. (An endpoint where
     nothing listens yet is not: zenoh keeps trying it, as without security.)"""
-    from pipeline.runtime.security import explain_refusal
-
     end = time.monotonic() + wait
     while not (list(session.info.peers_zid()) or list(session.info.routers_zid())):
         if time.monotonic() > end:
