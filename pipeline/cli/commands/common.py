@@ -15,7 +15,8 @@ from pipeline.cli.security_options import add_security_args, apply_security
 
 if TYPE_CHECKING:  # imported when first asked for (__getattr__ below)
     from pipeline.runtime.graph import Plan
-    from pipeline.runtime.transport import ZenohSettings  # imported where used: zenoh costs every command ~0.1 s
+    from pipeline.runtime.transport import ZenohSettings  # imported where used: the transport (zenoh, ssl) cost
+    # every command ~0.1 s of CPU
     from pipeline.app import (DEFAULT_ENDPOINT, check_stage_values, parse_sets, sets_as_given,
                               temporary_recording)
     from pipeline.cli.commands._recording import Recording

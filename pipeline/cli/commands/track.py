@@ -31,8 +31,8 @@ from pipeline.cli.commands.common import (CliError, add_placement_args, add_reco
                                           check_outputs, launcher_zenoh, nonnegative_int, parse_box,
                                           positive_float, positive_int)
 
-if TYPE_CHECKING:  # imported where used: the application layer (numpy, cv2, zenoh, mcap, the stages) is not needed
-    # to build the options, nor by a mistake in them (about 0.3 s of CPU at every start of gflow track)
+if TYPE_CHECKING:  # imported where used: the application layer (cv2, msgspec, mcap, the graph loader, the stages) is
+    # not needed to build the options, nor to say a mistake in them (bench/startup.py measures the start-up)
     from pipeline.app import TrackPlan, TrackRequest, TrackResult
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
