@@ -44,10 +44,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-import cv2
-import numpy as np
-
-from gflow_core.evaluation.stress import motion_kernel
+import numpy as np  # cv2 (and the stress cases' kernel) imported where used: gflow benchmark's --help lists
+# the variants without OpenCV
 
 __all__ = ["Variant", "VARIANTS", "grey", "blur", "half", "noise", "same", "select_variant", "combine"]
 
@@ -69,6 +67,8 @@ NOISE_SEED = 0x7015E
 def grey(image: np.ndarray, index: int = 0) -> np.ndarray:
     """The grey levels of a frame: (H, W) uint8 of (H, W, 3) BGR uint8 (or of (H, W), returned as is).
     ``index`` (the frame's) is not used."""
+    import cv2
+
     if image.ndim == 2:
         return image
     _check_frame(image)
@@ -82,6 +82,10 @@ def blur(image: np.ndarray, index: int) -> np.ndarray:
     The length is uniform on :data:`BLUR_LENGTH`, the direction uniform on [0, 180) degrees, both
     from ``np.random.default_rng((BLUR_SEED, index))``: the same frame is blurred the same way on
     every run. Edges are mirrored (OpenCV's ``BORDER_REFLECT101``)."""
+    import cv2
+
+    from gflow_core.evaluation.stress import motion_kernel
+
     if image.ndim != 2:
         _check_frame(image)
     if index < 0:
@@ -95,6 +99,8 @@ def blur(image: np.ndarray, index: int) -> np.ndarray:
 def half(image: np.ndarray, index: int = 0) -> np.ndarray:
     """A frame at half its width and height, (H, W[, 3]) -> (round(H/2), round(W/2)[, 3]), by area
     interpolation (each pixel the mean of the 2 x 2 it covers). ``index`` is not used."""
+    import cv2
+
     if image.ndim != 2:
         _check_frame(image)
     h, w = image.shape[:2]
@@ -109,6 +115,8 @@ def noise(image: np.ndarray, index: int) -> np.ndarray:
     The noise is N(0, NOISE_SHOT I + NOISE_READ^2) per pixel and channel (one draw for the three channels of a
     frame whose channels are equal), from ``np.random.default_rng((NOISE_SEED, index))``; the result, rounded and
     clipped to 0..255, is JPEG-encoded at :data:`JPEG_QUALITY` and decoded."""
+    import cv2
+
     if image.ndim != 2:
         _check_frame(image)
     if index < 0:

@@ -30,8 +30,8 @@ if TYPE_CHECKING:  # imported when first asked for (__getattr__ below)
     from pipeline.app.request import (TrackPlan, TrackRequest, check_stage_values, parse_sets, plan_track,
                                       sets_as_given, source_params)
     from pipeline.app.recording_target import RecordingTarget, temporary_recording
-    from pipeline.app.graph_run import (DEFAULT_ENDPOINT, EstimateSink, RunStop, default_listen, default_zenoh, place,
-                                        run_graph)
+    from pipeline.app.graph_run import EstimateSink, RunStop, place, run_graph
+    from pipeline.app.network import DEFAULT_ENDPOINT, default_listen, default_zenoh
     from pipeline.app.track_run import TrackResult, run, track
 
 #: name -> the module of this package that defines it. A module is imported when one of its names is
@@ -41,8 +41,8 @@ _WHERE = {"RequestError": "errors",
           **dict.fromkeys(("TrackPlan", "TrackRequest", "check_stage_values", "parse_sets", "plan_track",
                            "sets_as_given", "source_params"), "request"),
           **dict.fromkeys(("RecordingTarget", "temporary_recording"), "recording_target"),
-          **dict.fromkeys(("DEFAULT_ENDPOINT", "EstimateSink", "RunStop", "default_listen", "default_zenoh", "place",
-                           "run_graph"), "graph_run"),
+          **dict.fromkeys(("EstimateSink", "RunStop", "place", "run_graph"), "graph_run"),
+          **dict.fromkeys(("DEFAULT_ENDPOINT", "default_listen", "default_zenoh"), "network"),
           **dict.fromkeys(("TrackResult", "run", "track"), "track_run")}
 
 __all__ = ["RequestError", "TrackRequest", "TrackPlan", "TrackResult", "EstimateSink", "RunStop", "plan_track", "run",

@@ -16,11 +16,9 @@ from pipeline.runtime.graph import Plan
 from pipeline.runtime.transport import SessionError, ZenohSettings, free_port
 from pipeline.app.request import RequestError
 from pipeline.app.recording_target import temporary_recording
+from pipeline.app.network import DEFAULT_ENDPOINT, default_listen, default_zenoh
 
 __all__ = ["run_graph", "place", "EstimateSink", "RunStop", "default_listen", "default_zenoh", "DEFAULT_ENDPOINT"]
-
-DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-
 
 # -- running a graph --------------------------------------------------------------------------------
 
@@ -247,21 +245,3 @@ class RunStop:
             self.event.set()
             for launcher in self._launchers:
                 launcher.request_stop()
-
-
-def default_listen() -> tuple[str, ...]:
-    """Where a launcher listens unless told: 7447 on loopback (so `gflow topics` finds the run), or
-    a free port when 7447 is busy."""
-    import socket
-
-    with socket.socket() as s:
-        try:
-            s.bind(("127.0.0.1", 7447))
-            return (DEFAULT_ENDPOINT,)
-        except OSError:
-            return (f"tcp/127.0.0.1:{free_port()}",)
-
-
-def default_zenoh() -> ZenohSettings:
-    """A run's zenoh settings when none are given: peer mode on loopback, multicast scouting off."""
-    return ZenohSettings(mode="peer", listen=default_listen(), connect=(), multicast=False, security=None)

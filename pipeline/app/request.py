@@ -8,15 +8,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Iterable, Mapping
+from typing import TYPE_CHECKING, Any, Iterable, Mapping
 
-import msgspec
-
-from stages.source import SourceParams
-
-from pipeline.runtime.graph import Plan, load_graph
-from pipeline.runtime.transport import ZenohSettings
 from pipeline.app.errors import RequestError
+
+if TYPE_CHECKING:  # imported where used: a request is made, and a missing source refused, without msgspec, the
+    # stages, the graph loader or zenoh (every gflow track that stops at a mistake paid for them)
+    from pipeline.runtime.graph import Plan
+    from pipeline.runtime.transport import ZenohSettings
 
 __all__ = ["RequestError", "TrackRequest", "TrackPlan", "plan_track", "source_params", "check_stage_values",
            "sets_as_given", "parse_sets", "Box"]
@@ -99,7 +98,7 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
     does not have is left to the graph's own error. The same line as ``gflow track --particles 0``,
     with no graph path. A parameter of the graph's tracker block is given as ``tracker.PARAM``
     (:func:`pipeline.runtime.tracker_checks.check_tracker_values`)."""
-    from pipeline.runtime.graph import GraphError, params_error
+    from pipeline.runtime.graph import GraphError, load_graph, params_error
     from pipeline.runtime.tracker_checks import check_tracker_values
 
     if not given:
@@ -211,6 +210,8 @@ class TrackPlan:
 
 def _graph_plan(request: TrackRequest, tracker: Any, source: dict) -> Plan:
     """The tracker's graph for ``request`` with every override, its source stage given ``source``."""
+    from pipeline.runtime.graph import load_graph
+
     graph, overrides = tracker.overrides(request.options())
     overrides.setdefault("source", {}).update(source)
     check_stage_values(request.graph or graph, sets_as_given(request.sets), overrides)
@@ -226,11 +227,15 @@ def plan_track(request: TrackRequest, tracker: Any) -> TrackPlan:
     """The plan of ``request`` for ``tracker`` (its module: ``overrides(options)``, maybe
     ``make_plan``). Bad options, stage values, sources or initial boxes raise
     :class:`RequestError` here, before anything starts."""
+    source = source_params(request)  # a source that is not there: said before the imports below (OpenCV, the stages)
+    import msgspec
+
+    from stages.source import SourceParams
     from pipeline.io.frame_readers import count_frames
     from pipeline.runtime.preflight import check_source
     from pipeline.runtime.zygote import preload
 
-    plan = _graph_plan(request, tracker, source_params(request))
+    plan = _graph_plan(request, tracker, source)
     if not request.inline:  # the stage processes' zygote imports their modules meanwhile
         preload(s.kind for s in plan.stages.values())
     sp = msgspec.convert(plan.stages["source"].params, SourceParams)

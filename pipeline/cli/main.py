@@ -33,7 +33,6 @@ if sys.argv and sys.argv[0].endswith(("gflow", "pipeline/cli/__main__.py", "pipe
     bind_early(sys.argv[1:])
 
 import argparse  # noqa: E402
-import logging  # noqa: E402
 import re  # noqa: E402
 from typing import NoReturn  # noqa: E402
 
@@ -237,6 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse(ap, argv)
     mark("cli parsed")
     _take_sigint_back()
+    import logging  # here: --help and a usage mistake, said by parse, need no logging (nor its traceback, linecache...)
+
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
                         format="%(levelname)s %(name)s: %(message)s")
     if args.command is None:

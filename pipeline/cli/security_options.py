@@ -28,9 +28,12 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline.cli.endpoints import parse_endpoint
-from pipeline.runtime.security import Security, SecurityError, load_run_key
+
+if TYPE_CHECKING:  # imported where used: a command's options are added without hashlib, ssl and secrets
+    from pipeline.runtime.security import Security
 
 __all__ = ["add_security_args", "apply_security", "SECURITY_FILE_KEYS"]
 
@@ -52,6 +55,14 @@ def add_security_args(g) -> None:
                         "of this run only, or a key file shared by the hosts of a deployment")
 
 
+def _refused(message: str) -> Exception:
+    """A :class:`pipeline.runtime.security.SecurityError` saying ``message``: its module is imported only when one
+    is raised (it brings ssl, hashlib and secrets, which a command given no security option does not need)."""
+    from pipeline.runtime.security import SecurityError as error
+
+    return error(message)
+
+
 def _load_file(path: str) -> dict:
     import yaml
 
@@ -59,51 +70,51 @@ def _load_file(path: str) -> dict:
     try:
         data = yaml.safe_load(p.read_text())
     except FileNotFoundError:
-        raise SecurityError(f"security file not found: {path}") from None
+        raise _refused(f"security file not found: {path}") from None
     except IsADirectoryError:
-        raise SecurityError(f"{path} is a folder, not a security file (give a .yaml file)") from None
+        raise _refused(f"{path} is a folder, not a security file (give a .yaml file)") from None
     except OSError as e:
-        raise SecurityError(f"security file {path}: {e.strerror or e}") from None
+        raise _refused(f"security file {path}: {e.strerror or e}") from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark is not None else ""
-        raise SecurityError(f"{path}{where}: not valid YAML ({getattr(e, 'problem', None) or e})") from None
+        raise _refused(f"{path}{where}: not valid YAML ({getattr(e, 'problem', None) or e})") from None
     if data is None:
         return {}
     if not isinstance(data, dict):
-        raise SecurityError(f"{path}: expected a mapping of {', '.join(SECURITY_FILE_KEYS)}")
+        raise _refused(f"{path}: expected a mapping of {', '.join(SECURITY_FILE_KEYS)}")
     bad = sorted(set(data) - set(SECURITY_FILE_KEYS))
     if bad:
-        raise SecurityError(f"{path}: unknown key {bad[0]!r} (expected {', '.join(SECURITY_FILE_KEYS)})")
+        raise _refused(f"{path}: unknown key {bad[0]!r} (expected {', '.join(SECURITY_FILE_KEYS)})")
     base = p.resolve().parent
 
     def rel(v, key: str) -> str:
         if not isinstance(v, str) or not v:
-            raise SecurityError(f"{path}: {key} must be a file name, got {v!r}")
+            raise _refused(f"{path}: {key} must be a file name, got {v!r}")
         return v if key == "run_key" and v == "auto" else str((base / v).resolve())
 
     out: dict = {}
     tls = data.get("tls")
     if tls is not None:
         if not isinstance(tls, dict) or set(tls) - set(_TLS_KEYS):
-            raise SecurityError(f"{path}: tls must be a mapping of {', '.join(_TLS_KEYS)}, got {tls!r}")
+            raise _refused(f"{path}: tls must be a mapping of {', '.join(_TLS_KEYS)}, got {tls!r}")
         out.update({f"tls_{k}": rel(v, f"tls.{k}") for k, v in tls.items()})
     for k in ("password_file", "run_key"):
         if k in data:
             out[k] = rel(data[k], k)
     if "user" in data:
         if not isinstance(data["user"], str) or not data["user"]:
-            raise SecurityError(f"{path}: user must be a name, got {data['user']!r}")
+            raise _refused(f"{path}: user must be a name, got {data['user']!r}")
         out["user"] = data["user"]
     for k in ("connect", "listen"):
         if k in data:
             v = [data[k]] if isinstance(data[k], str) else data[k]
             if not isinstance(v, list) or not all(isinstance(e, str) for e in v):
-                raise SecurityError(f"{path}: {k} must be a list of endpoints, got {data[k]!r}")
+                raise _refused(f"{path}: {k} must be a list of endpoints, got {data[k]!r}")
             out[k] = v
     if "mode" in data:
         if data["mode"] not in ("peer", "client"):
-            raise SecurityError(f"{path}: mode must be peer or client, got {data['mode']!r}")
+            raise _refused(f"{path}: mode must be peer or client, got {data['mode']!r}")
         out["mode"] = data["mode"]
     return out
 
@@ -115,7 +126,7 @@ def _endpoint(text: str, tls: bool) -> str:
     try:
         return parse_endpoint(text)
     except argparse.ArgumentTypeError as e:
-        raise SecurityError(str(e)) from None
+        raise _refused(str(e)) from None
 
 
 def apply_security(args) -> Security | None:
@@ -134,9 +145,9 @@ def apply_security(args) -> Security | None:
         try:
             password = Path(pw_file).read_text().strip()
         except OSError as e:
-            raise SecurityError(f"password file {pw_file}: {e.strerror or e}") from None
+            raise _refused(f"password file {pw_file}: {e.strerror or e}") from None
         if not password:
-            raise SecurityError(f"password file {pw_file} is empty")
+            raise _refused(f"password file {pw_file} is empty")
     elif user:
         password = os.environ.get("GFLOW_ZENOH_PASSWORD", "")
     run_key = get("run_key") or f.get("run_key", "")
@@ -153,10 +164,12 @@ def apply_security(args) -> Security | None:
         args.listen = [_endpoint(e, tls) for e in args.listen]
     eps = list(get("connect") or ()) + list(get("listen") or ())
     if tls and eps and not any(e.startswith(("tls/", "quic/")) for e in eps):
-        raise SecurityError(f"TLS options are given but no endpoint is tls/ ({', '.join(eps)}): the link would not be "
-                            f"encrypted; write tls/HOST:PORT, or just HOST:PORT")
+        raise _refused(f"TLS options are given but no endpoint is tls/ ({', '.join(eps)}): the link would not be "
+                       f"encrypted; write tls/HOST:PORT, or just HOST:PORT")
     sec = None
     if ca or cert or key or user or run_key:
+        from pipeline.runtime.security import Security, load_run_key
+
         sec = Security(tls_ca=ca, tls_cert=cert, tls_key=key, user=user, password=password,
                        run_key=load_run_key(run_key) if run_key else "")
         sec.check(listening_tls=any(e.startswith("tls/") for e in (get("listen") or ())))

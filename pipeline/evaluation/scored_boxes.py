@@ -13,8 +13,6 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-from pipeline.recording.results import box_rows
-
 __all__ = ["ScoredBoxes", "read_scored_boxes", "has_size", "CONVENTION"]
 
 Box = tuple[float, float, float, float]
@@ -47,6 +45,8 @@ class ScoredBoxes:
 def read_scored_boxes(path: str | Path) -> ScoredBoxes:
     """Read ``frame,x,y,w,h`` rows (columns after the fifth are not read) as :class:`ScoredBoxes`. Errors name the
     file and line: a value not a number, an infinite one, a negative width or height, a frame given twice."""
+    from pipeline.recording.results import box_rows
+
     p = Path(path)
     boxes: dict[int, Box] = {}
     empty: set[int] = set()

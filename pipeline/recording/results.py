@@ -7,16 +7,16 @@ import csv
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, TypeVar
+from typing import TYPE_CHECKING, Any, Mapping, TypeVar
 
-from gflow_core.evaluation.metrics import TARGET_STATES
 from gflow_core.params import format_value
-from gflow_msgs.messages import ErrorReport, Estimate, Frame, MessageError, PoseEstimate, decode
 
 from pipeline.io.csv_rows import csv_rows
-from pipeline.io.mcap_io import iter_records
 from pipeline.io.run_sessions import RunSessions
-from pipeline.recording.edgeless import EdgelessFrames, edgeless_frames
+
+if TYPE_CHECKING:  # imported where used: reading a box file needs neither the messages, mcap nor OpenCV
+    from gflow_msgs.messages import Estimate, PoseEstimate
+    from pipeline.recording.edgeless import EdgelessFrames
 
 __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_columns", "read_visibility",
            "write_visibility", "estimates", "run_estimates", "truth_boxes", "frame_ranges", "completeness",
@@ -115,6 +115,8 @@ def _confidence(p: Path, lineno: int, row: list[str], box: Box) -> float:
 
 def _state(p: Path, lineno: int, row: list[str]) -> str:
     """The target state (column 7) of a row, one of :data:`TARGET_STATES`."""
+    from gflow_core.evaluation.metrics import TARGET_STATES
+
     s = row[6].strip()
     if s not in TARGET_STATES:
         raise ValueError(f"{p}:{lineno}: unknown state {s!r} (column 7; known: {', '.join(TARGET_STATES)})")
@@ -249,6 +251,9 @@ def read_run(recording: str | Path, stream: str | None = None, frames_topic: str
     frames_topic : the topic whose Frame messages are the frames sent.
     errors_stream : the stream whose errors topic :func:`reported_frames` reads (None: any ``*/errors``).
     """
+    from gflow_msgs.messages import ErrorReport, Estimate, MessageError, PoseEstimate, decode
+    from pipeline.io.mcap_io import iter_records
+
     sessions = RunSessions()
     found: list[tuple[str, str, Estimate | PoseEstimate]] = []
     sent: set[int] = set()
@@ -289,6 +294,9 @@ def read_run(recording: str | Path, stream: str | None = None, frames_topic: str
 
 def truth_boxes(recording: str | Path) -> dict[int, Box]:
     """Ground-truth boxes carried by Frame messages (synthetic scenes)."""
+    from gflow_msgs.messages import Frame, MessageError, decode
+    from pipeline.io.mcap_io import iter_records
+
     out: dict[int, Box] = {}
     for r in iter_records(recording):
         if r.type != "Frame":
@@ -318,6 +326,9 @@ def frame_ranges(frames) -> str:
 
 def reported_frames(recording: str | None, stream: str | None = None) -> set[int]:
     """The frames a stage reported a problem with (an ``ErrorReport`` on ``gflow/<stream>/errors``)."""
+    from gflow_msgs.messages import ErrorReport, MessageError, decode
+    from pipeline.io.mcap_io import iter_records
+
     if not recording or not Path(recording).is_file():
         return set()
     out: set[int] = set()
@@ -415,6 +426,10 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
     itself ({frame: message}; default: those of ``info["estimates"]``), kept before the
     recording's; ``reported`` the frames a stage reported a problem with, beside those the
     recording holds."""
+    from gflow_msgs.messages import Estimate, MessageError, PoseEstimate, decode
+    from pipeline.io.mcap_io import iter_records
+    from pipeline.recording.edgeless import edgeless_frames
+
     src = next((s for s in plan.stages.values() if s.is_source()), None)
     topic = src.outputs.get("frames", "") if src is not None else ""
     read = read_run(recording, frames_topic=topic, errors_stream=plan.stream) if recording and Path(

@@ -13,8 +13,10 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from stages.source import RawFrame, SourceParams
+if TYPE_CHECKING:  # imported where used: check_writable, which every command's outputs go through, needs no stage
+    from stages.source import RawFrame, SourceParams
 
 __all__ = ["PreflightError", "check_writable", "first_frame", "check_box_in_image", "check_source"]
 
@@ -65,6 +67,7 @@ def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawF
     Raises :class:`PreflightError` when the source cannot be opened, holds no frame at or
     after ``start``, or its first frame cannot be decoded (the error names that frame).
     """
+    from stages.source import SourceParams
     from pipeline.io.frame_readers import count_frames, open_reader
 
     where = params.path or "the synthetic scene"

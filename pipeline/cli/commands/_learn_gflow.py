@@ -12,10 +12,12 @@ import argparse
 import sys
 import textwrap
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from pipeline.cli.commands.common import CliError
+
+if TYPE_CHECKING:  # numpy is imported where used: the command's options and --help need none
+    import numpy as np
 
 #: default number of vertices kept (farthest-point sampling of the 468 landmarks)
 DEFAULT_VERTICES = 160
@@ -23,6 +25,8 @@ DEFAULT_VERTICES = 160
 
 def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
     """(frames, 4) boxes of a landmark file's frames (NaN rows where the box file has none)."""
+    import numpy as np
+
     from pipeline.evaluation.scored_boxes import read_scored_boxes
 
     path = Path(box_file) if box_file else source.parent / "groundtruth.csv"
@@ -37,6 +41,8 @@ def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
 
 
 def cmd_learn_gflow(args) -> int:
+    import numpy as np
+
     from gflow_core.gflow.morphable_learn import learn_morphable
 
     from pipeline.cli.commands.common import check_model_out, frame_range, start_work
@@ -105,6 +111,8 @@ def _refuse_other_layout(path, n: int) -> None:
 def _check_enough(tracks: list[np.ndarray], boxes: list[np.ndarray], k: int, frames: str | None) -> None:
     """The training frames enough for ``-k`` (and, with --boxes, one with a box): a mistake in the command
     (exit 2), said before the learning begins, rather than the learning's failure."""
+    import numpy as np
+
     where = f" in --frames {frames}" if frames else ""
     good = [np.isfinite(t).all(axis=(1, 2)) for t in tracks]
     n = int(sum(g.sum() for g in good))

@@ -17,10 +17,13 @@ import copy
 import json
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from pipeline.app import TrackRequest
 from pipeline.cli.trackers import TRACKERS, spec_of
 from pipeline.cli.commands.common import CliError, check_new_picture, frame_range, nonnegative_int, start_work
+
+if TYPE_CHECKING:  # imported where used: the application layer is not needed to parse the options
+    from pipeline.app import TrackRequest
 
 
 def model_options() -> dict[str, str]:
@@ -95,6 +98,8 @@ def check_models(args) -> None:
 def _request(args, seq, name: str, start: int, stop: int | None, folder: Path) -> tuple[str, TrackRequest]:
     """Where this benchmark run writes its boxes, and the request it is (the box of frame ``start``,
     one seed), as ``gflow track`` would make it of the same options."""
+    from pipeline.app import TrackRequest
+
     folder.mkdir(parents=True, exist_ok=True)  # the benchmark's own folder (gflow track makes none)
     params = {}
     model = model_given(args, name)

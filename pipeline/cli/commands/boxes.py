@@ -6,14 +6,16 @@ from __future__ import annotations
 
 ORDER = 57
 
-from pipeline.io.mcap_io import Damaged, damage_told, iter_records, segments
-from pipeline.recording.live_record import live_summary
-from pipeline.recording.results import (blank_rule, completeness, estimate_columns, renumber, reported_frames,
-                                       run_estimates, write_boxes)
 from pipeline.cli.commands.common import CliError, check_new_file, stream_name
 
 
 def cmd_boxes(args) -> int:
+    # imported here: the recording's readers (mcap, the messages, OpenCV) are not needed to parse the options
+    from pipeline.io.mcap_io import Damaged, damage_told, iter_records, segments
+    from pipeline.recording.live_record import live_summary
+    from pipeline.recording.results import (completeness, estimate_columns, renumber, reported_frames, run_estimates,
+                                           write_boxes)
+
     check_new_file(out=args.out)  # before reading: a folder, or a file it would write over
     torn: list[str] = []
     list(iter_records(args.recording, topics=["-"], on_truncated=torn.append))  # checks the file; notes a torn end
@@ -60,6 +62,7 @@ def _blank_rule(recording: str) -> str:
     the plain words when the recording's plan cannot be read (made by another tool, or a stage kind
     not installed here)."""
     from pipeline.recording.rerun import recorded_plan
+    from pipeline.recording.results import blank_rule
     from pipeline.runtime.graph import GraphError
 
     try:

@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import dataclasses  # noqa: F401 (common.dataclasses: tests replace a run's settings with it)
 from typing import TYPE_CHECKING, Any
 
-import numpy as np
-
-from pipeline.runtime.transport import ZenohSettings
 from pipeline.app.errors import RequestError as CliError  # a user error: printed as one line, exit status 2
 from pipeline.cli.endpoints import parse_endpoint
 from pipeline.cli.security_options import add_security_args, apply_security
 
 if TYPE_CHECKING:  # imported when first asked for (__getattr__ below)
     from pipeline.runtime.graph import Plan
+    from pipeline.runtime.transport import ZenohSettings  # imported where used: the transport (zenoh, ssl) cost
+    # every command ~0.1 s of CPU
     from pipeline.app import (DEFAULT_ENDPOINT, check_stage_values, parse_sets, sets_as_given,
                               temporary_recording)
     from pipeline.cli.commands._recording import Recording
@@ -83,7 +83,7 @@ def parse_box(text: str) -> tuple[float, float, float, float]:
         raise argparse.ArgumentTypeError(f"expected X,Y,W,H numbers, got {text!r}") from None
     if len(vals) != 4:
         raise argparse.ArgumentTypeError(f"expected 4 numbers X,Y,W,H, got {len(vals)}")
-    if not all(np.isfinite(vals)):
+    if not all(math.isfinite(v) for v in vals):
         raise argparse.ArgumentTypeError("box has NaN or inf")
     if vals[2] <= 0 or vals[3] <= 0:
         raise argparse.ArgumentTypeError(f"box width and height must be positive, got W={vals[2]}, H={vals[3]}")
@@ -98,8 +98,8 @@ def _at_least(text: str, kind: type, least: float, inclusive: bool) -> float:
         v = kind(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected {'a whole number' if whole else 'a number'}, got {text!r}") from None
-    # a whole number is finite however large (np.isfinite overflows on one past 64 bits)
-    if not ((whole or np.isfinite(v)) and (v >= least if inclusive else v > least)):
+    # a whole number is finite however large (math.isfinite overflows on one past a float's range)
+    if not ((whole or math.isfinite(v)) and (v >= least if inclusive else v > least)):
         raise argparse.ArgumentTypeError(f"must be {'' if whole else 'a number '}{'>=' if inclusive else '>'} "
                                          f"{least:g}, got {text.strip()}")
     return v
@@ -195,10 +195,10 @@ def check_new_picture(path: str, option: str = "OUT") -> None:
 def refuse_recording(path: str, option: str) -> None:
     """Refuse to write over a recording: ``path`` is an existing file that begins as an MCAP file
     does (whatever its name), so a CSV, model or picture written there would destroy it."""
-    from pipeline.io.mcap_writer import MAGIC
-
     try:
         with open(path, "rb") as f:
+            from pipeline.io.mcap_writer import MAGIC  # (mcap) only when there is a file to look at
+
             head = f.read(len(MAGIC))
     except OSError:
         return  # no such file (or not readable: check_writable names it)
@@ -207,6 +207,8 @@ def refuse_recording(path: str, option: str) -> None:
 
 
 def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:
+    from pipeline.runtime.transport import ZenohSettings
+
     security = apply_security(args)
     listen = tuple(args.listen or ())
     connect = tuple(args.connect or ())
@@ -228,6 +230,7 @@ def tool_zenoh(args, stream: str | None = None, require: bool = True) -> tuple[Z
     a :class:`CliError` saying so.
     """
     from pipeline.runtime.running import describe_none, running
+    from pipeline.runtime.transport import ZenohSettings
 
     security = apply_security(args)
     if args.connect or args.mode == "router" or args.multicast:
@@ -251,6 +254,7 @@ def stream_of(key: str) -> str | None:
 def launcher_zenoh(args) -> ZenohSettings:
     """The launcher listens on 7447 (so `gflow topics` finds it) unless busy or told otherwise."""
     from pipeline.app import default_listen
+    from pipeline.runtime.transport import ZenohSettings
 
     security = apply_security(args)
     listen = tuple(args.listen) if args.listen else default_listen()

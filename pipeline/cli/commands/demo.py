@@ -6,11 +6,9 @@ ORDER = 10
 
 import sys
 
-from pipeline.runtime.build import apply_defaults
-from pipeline.runtime.graph import load_graph
 from pipeline.cli.security_options import apply_security
-from pipeline.cli.commands.common import (Recording, add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          check_stage_values, positive_int, run_plan)
+from pipeline.cli.commands.common import (add_placement_args, add_record_args, add_zenoh_args, check_outputs,
+                                          positive_int, run_plan)
 
 
 def cmd_demo(args) -> int:
@@ -19,6 +17,9 @@ def cmd_demo(args) -> int:
     from gflow_core.synthetic import SyntheticScene
 
     from pipeline.recording.results import estimates
+    from pipeline.runtime.build import apply_defaults
+    from pipeline.runtime.graph import load_graph
+    from pipeline.cli.commands.common import Recording, check_stage_values
 
     check_outputs(record=args.record)
     apply_security(args)  # read when zenoh opens; --inline opens none, and a bad file is refused all the same

@@ -5,12 +5,13 @@ from __future__ import annotations
 import json
 import sys
 
-import numpy as np
 
 ORDER = 54
 
 
 def cmd_diff(args) -> int:
+    import numpy as np
+
     from pipeline.io.mcap_io import recorded_topics
     from pipeline.recording.diff import diff_recordings
     from pipeline.recording.topics import TopicError, select_topics, stream_prefix

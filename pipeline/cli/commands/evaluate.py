@@ -59,8 +59,6 @@ def cmd_eval_landmarks(args) -> int:
 
 
 def cmd_eval(args) -> int:
-    from gflow_core.evaluation.metrics import band_text
-
     from pipeline.evaluation.scored_boxes import read_scored_boxes
     from pipeline.recording.results import read_track
 
@@ -70,6 +68,8 @@ def cmd_eval(args) -> int:
         raise CliError("gflow eval needs --gt GT.csv --pred PRED.csv (boxes), or --landmarks REF.npz --points P.csv "
                        "(face points)")
     truth, boxes = read_scored_boxes(args.gt), read_scored_boxes(args.pred)  # damage said before any scoring
+    from gflow_core.evaluation.metrics import band_text  # here: a missing or damaged file is said without numpy
+
     if args.frames:
         lo, hi = frame_range(args.frames)
         truth = truth.frames(lo, hi)

@@ -29,11 +29,12 @@ import sys
 import textwrap
 import time
 from pathlib import Path
-from typing import Callable
-
-import numpy as np
+from typing import TYPE_CHECKING, Callable
 
 from pipeline.cli.commands.common import CliError, nonnegative_float, nonnegative_int, positive_float, positive_int
+
+if TYPE_CHECKING:  # numpy is imported where used: the command's options and --help need none
+    import numpy as np
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -140,6 +141,8 @@ def _log(args, msg: str) -> None:
 def _box_array(path: str, index: np.ndarray) -> np.ndarray:
     """(frames, 4) boxes of the training frames ``index``, NaN where the file has none or a row of no box (the
     target absent: w or h 0, or NaN, as ``gflow eval`` reads the truth); a negative size is refused."""
+    import numpy as np
+
     from pipeline.evaluation.scored_boxes import read_scored_boxes
 
     gt = read_scored_boxes(path).boxes
@@ -187,6 +190,8 @@ def training_set(args):
     The grey frames are those of the training items, in item order (None where the items
     are not contours cut from boxes): the appearance exemplars are learned from them.
     """
+    import numpy as np
+
     pairs = _sources_and_boxes(args)
     if len(pairs) == 1:
         return _training_set_one(args, *pairs[0], sequence=0, ref_size=None)
@@ -244,6 +249,8 @@ def _read_frames_of(path, start: int, stop: int | None, option: str, given: str 
 
 def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, ref_size):
     """One training sequence: (TrainingSet, metadata, grey frames of the items or None)."""
+    import numpy as np
+
     from gflow_core.features import to_grey
     from gflow_core.m2 import training
     from gflow_core.m2.distances import METRICS
@@ -392,6 +399,8 @@ def check_values(args) -> None:
 
 
 def cmd_learn(args) -> int:
+    import numpy as np
+
     from pipeline.cli.commands.common import check_model_out, start_work
 
     check_metric_options(args)

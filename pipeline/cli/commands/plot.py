@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
-
-import numpy as np
+from typing import TYPE_CHECKING
 
 from pipeline.cli.commands.common import CliError
+
+if TYPE_CHECKING:  # numpy is imported where used: the command's options and --help need none
+    import numpy as np
 
 ORDER = 59
 
@@ -14,6 +16,8 @@ ORDER = 59
 def stage_latency(path: str) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per stage: (frame, latency in ms) where latency is the time from the last input that
     reached the stage's topics before an output to that output (publish times)."""
+    import numpy as np
+
     from pipeline.io.mcap_io import iter_records
     from pipeline.recording.rerun import recorded_plan
 
@@ -78,6 +82,8 @@ def error_series(seqs: list[int], truth, boxes: dict) -> tuple[np.ndarray, np.nd
     without one is not in the series). The error is NaN, a gap in the line rather than a line drawn straight across,
     where the target is absent (a truth row of no size, left out as ``gflow eval`` leaves it out) and where there is
     no estimate or one of no size (``boxes``: box by frame; ``miss`` True there: a miss, out of the mean)."""
+    import numpy as np
+
     from gflow_core.evaluation.metrics import centre_error
 
     from pipeline.evaluation.scored_boxes import has_size
@@ -96,6 +102,8 @@ def error_series(seqs: list[int], truth, boxes: dict) -> tuple[np.ndarray, np.nd
 def _error_panel(ax, seqs: list[int], truth, est: dict) -> str:
     """Plot the centre error (:func:`error_series`): a gap in the line where the target is absent or the estimate
     missing or of no size (w or h <= 0, or NaN: a miss, out of the mean). Returns the panel's title."""
+    import numpy as np
+
     frames, err, miss = error_series(seqs, truth, {s: e.box for s, e in est.items()})
     ax.plot(frames, err, lw=1.2, color="C3")
     ok = np.isfinite(err)
@@ -110,6 +118,8 @@ def _error_panel(ax, seqs: list[int], truth, est: dict) -> str:
 
 
 def cmd_plot(args) -> int:
+    import numpy as np
+
     import matplotlib
 
     matplotlib.use("Agg")

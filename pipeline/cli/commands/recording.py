@@ -69,9 +69,9 @@ DESCRIBERS[".npz"] = describe_model
 
 
 def cmd_info(args) -> int:
-    from pipeline.cli.trackers import TRACKERS
+    from pipeline.cli.trackers import TRACKERS  # the registry: imported (with numpy) when asked for, below
 
-    if args.file in TRACKERS and not Path(args.file).is_file():
+    if not Path(args.file).is_file() and args.file in TRACKERS:
         from pipeline.cli.tracker_info import print_tracker
 
         print_tracker(args.file, args.json)

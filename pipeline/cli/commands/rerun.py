@@ -6,9 +6,7 @@ import sys
 import time
 from pathlib import Path
 
-import yaml
-
-from pipeline.cli.commands.common import CliError, parse_sets
+from pipeline.cli.commands.common import CliError
 
 ORDER = 52
 
@@ -16,6 +14,8 @@ ORDER = 52
 def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
     """{param: value} of ``--set`` for a re-run of ``stage``: ``PARAM=V``, ``STAGE.PARAM=V`` or
     ``tracker.PARAM=V``; a value named for another stage is an error (it would set ``stage``'s)."""
+    import yaml
+
     out: dict[str, object] = {}
     for it in items or []:
         if "=" not in it:
@@ -98,13 +98,13 @@ def _check_from(path: str, topics: set[str], from_seq: int) -> None:
 
 
 def cmd_rerun(args) -> int:
+    if not Path(args.file).is_file():  # said before the re-run's imports (the stages, the recording's readers)
+        raise CliError(f"{args.file} is a folder, not a recording file (give an .mcap file)" if Path(args.file).is_dir()
+                       else f"recording not found: {args.file}")
     from pipeline.recording.rerun import (check_outputs, ends_note, recorded_outputs, recorded_plan, rerun_graph, rerun_stage,
                          write_rerun)
 
-    if not Path(args.file).is_file():
-        raise CliError(f"{args.file} is a folder, not a recording file (give an .mcap file)" if Path(args.file).is_dir()
-                       else f"recording not found: {args.file}")
-    from pipeline.cli.commands.common import check_outputs as check_output_paths, warn_if_torn
+    from pipeline.cli.commands.common import check_outputs as check_output_paths, parse_sets, warn_if_torn
 
     check_output_paths(out=args.out)
     if args.out:  # a recording never overwrites a file

@@ -6,17 +6,18 @@ ORDER = 40
 
 import sys
 
-from pipeline.runtime.build import apply_defaults, check_stages
-from pipeline.runtime.graph import builtin_graphs, load_graph
-from pipeline.runtime.live_plan import listen_early, prepare_live
-from pipeline.runtime.placement import local_stages
 from pipeline.cli.security_options import apply_security
-from pipeline.cli.commands.common import (CliError, Recording, add_placement_args, add_record_args, add_zenoh_args,
-                                          check_outputs, check_stage_values, parse_sets, run_plan,
-                                          sets_as_given)
+from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args,
+                                          check_outputs, run_plan)
 
 
 def cmd_run(args) -> int:
+    from pipeline.runtime.build import apply_defaults, check_stages
+    from pipeline.runtime.graph import load_graph
+    from pipeline.runtime.live_plan import listen_early, prepare_live
+    from pipeline.runtime.placement import local_stages
+    from pipeline.cli.commands.common import Recording, check_stage_values, parse_sets, sets_as_given
+
     check_outputs(record=args.record)
     apply_security(args)  # read when zenoh opens; --inline opens none, and a bad file is refused all the same
     check_stage_values(args.graph, sets_as_given(args.set))
@@ -71,6 +72,8 @@ def _check_initial_boxes(plan, local) -> None:
 
 
 def register(sub) -> None:
+    from pipeline.runtime.graph import builtin_graphs  # the graph files' names, in the description
+
     p = sub.add_parser("run", help="run a graph file (every stage its own process, or --inline)",
                        description=f"Run a YAML graph. Built-in graphs: {', '.join(builtin_graphs())}.")
     p.add_argument("graph", help="graph file, or the name of a built-in graph")

@@ -20,9 +20,8 @@ import argparse
 import dataclasses
 import sys
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
-from pipeline.app import TrackPlan, TrackRequest, TrackResult, plan_track, track
 from gflow_core.builtin_trackers import BUILTIN
 
 from pipeline.cli.trackers import TRACKERS, OptionClash
@@ -31,6 +30,10 @@ from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_new_file,
                                           check_outputs, launcher_zenoh, nonnegative_int, parse_box,
                                           positive_float, positive_int)
+
+if TYPE_CHECKING:  # imported where used: the application layer (cv2, msgspec, mcap, the graph loader, the stages) is
+    # not needed to build the options, nor to say a mistake in them (bench/startup.py measures the start-up)
+    from pipeline.app import TrackPlan, TrackRequest, TrackResult
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)
 _OWN_OPTIONS: dict[str, dict[str, tuple[str, object]]] = {}
@@ -129,7 +132,7 @@ def source_of(args) -> str:
 def source_params(source: str, args) -> dict:
     """Source stage parameters for ``source`` with the source options of ``args`` (``fps``,
     ``realtime``, ``start``, ``stop``, ``reconnect``, ``open_timeout``): :func:`pipeline.app.source_params`."""
-    from pipeline.app import source_params as params_of
+    from pipeline.app import TrackRequest, source_params as params_of
 
     return params_of(TrackRequest(source, (0.0, 0.0, 1.0, 1.0), fps=args.fps, realtime=args.realtime, start=args.start,
                                   stop=args.stop, reconnect=getattr(args, "reconnect", None),
@@ -143,6 +146,8 @@ def tracker_params(args) -> dict:
 
 def track_request(args) -> TrackRequest:
     """The :class:`pipeline.app.TrackRequest` of ``gflow track``'s options."""
+    from pipeline.app import TrackRequest
+
     if args.inline:  # zenoh is not opened, but a bad --security file or TLS option is refused all the same
         apply_security(args)
     return TrackRequest(source=source_of(args), init=tuple(args.init), tracker=args.tracker, params=tracker_params(args),
@@ -187,6 +192,8 @@ def option_defaults() -> dict[str, object]:
 
 
 def _planned(request: TrackRequest) -> TrackPlan:
+    from pipeline.app import plan_track
+
     tp = plan_track(request, TRACKERS[request.tracker])
     if request.tracker == "m2" and tp.first_image_shape is not None and request.params.get("crop") != "box":
         check_whole_frame_model(str(request.params["model"]), request.source, tp.first_image_shape)
@@ -196,6 +203,7 @@ def _planned(request: TrackRequest) -> TrackPlan:
 def run_track(args, plan: TrackPlan | None = None) -> TrackResult:
     """Run the tracker of ``args`` (inline or as processes) and gather its estimates from the run,
     whatever happened (:func:`pipeline.app.track`)."""
+    from pipeline.app import track
     from pipeline.cli.commands.common import start_work
 
     tp = plan or track_plan(args)

@@ -19,14 +19,15 @@ import copy
 import dataclasses
 import difflib
 from pathlib import Path
-
-import yaml
+from typing import TYPE_CHECKING
 
 from gflow_core.gflow.params import ELLIPSOID as ELLIPSOID_SETTINGS
 from gflow_core.gflow.params import GFlowParams
 from gflow_core.params import defaults
 
-from pipeline.runtime.graph import GRAPHS_DIR, GraphError, Plan, load_graph, parse_graph
+if TYPE_CHECKING:  # yaml and the graph (msgspec, zenoh, the stages) are imported where used: gflow track's options,
+    # which every start of it builds, need neither
+    from pipeline.runtime.graph import Plan
 
 NAME = "gflow"
 GRAPH = "gflow"
@@ -54,6 +55,8 @@ def add_args(g) -> None:
 
 
 def _gflow_sets(items: list[str] | None) -> dict:
+    import yaml
+
     from pipeline.cli.commands.common import CliError
 
     out: dict = {}
@@ -135,6 +138,8 @@ def make_plan(graph: str, over: dict[str, dict]) -> Plan:
     ``proposals{k}``) and the filter gets inputs ``proposals0 .. proposals{K-1}``;
     overrides for ``proposal`` apply to every shard.
     """
+    from pipeline.runtime.graph import GRAPHS_DIR, GraphError, load_graph, parse_graph
+
     shards = int(over.get(FILTER, {}).get("shards", 1))
     if shards == 1:
         return load_graph(graph, overrides=over)
@@ -150,6 +155,10 @@ def make_plan(graph: str, over: dict[str, dict]) -> Plan:
 
 def sharded_graph_text(text: str, shards: int, filename: str = "<graph>") -> str:
     """The YAML of a G-flow graph with its ``proposal`` stage split into ``shards`` stages."""
+    import yaml
+
+    from pipeline.runtime.graph import GraphError
+
     doc = yaml.safe_load(text)
     stages = doc.get("stages") if isinstance(doc, dict) else None
     if not isinstance(stages, dict) or PROPOSAL not in stages or FILTER not in stages:
