@@ -1,7 +1,7 @@
 """What ``gflow`` imports before it can say ``--help`` or a mistake in the command: not OpenCV, zenoh, mcap, the
 stages, the graph loader or the recording and run machinery (each ``gflow`` start paid ~0.3-0.5 s of CPU for them,
 and the test suite starts hundreds). A module that imports one of them at its top, on the way to parsing the
-options or to the first check, fails here, naming the command and the modules; ``bench/startup.py`` measures the
+options or to the first check, fails here, naming the command and the modules; ``bench/bench_command_startup.py`` measures the
 time."""
 
 from __future__ import annotations

@@ -32,7 +32,7 @@ from pipeline.cli.commands.common import (CliError, add_placement_args, add_reco
                                           positive_float, positive_int)
 
 if TYPE_CHECKING:  # imported where used: the application layer (cv2, msgspec, mcap, the graph loader, the stages) is
-    # not needed to build the options, nor to say a mistake in them (bench/startup.py measures the start-up)
+    # not needed to build the options, nor to say a mistake in them (bench/bench_command_startup.py measures the start-up)
     from pipeline.app import TrackPlan, TrackRequest, TrackResult
 
 #: tracker name -> {dest: (option, default)} of the options its ``add_args`` adds (filled by register)

@@ -13,8 +13,8 @@ command first, so no run compiles it, whether or not PYTHONDONTWRITEBYTECODE is 
 ``--compare DIR`` runs the same commands on the code in DIR (another worktree or checkout, e.g. the base of a
 change) alternately with this one, and prints both and the ratio of their CPU.
 
-    python bench/startup.py
-    python bench/startup.py --runs 9 --compare /path/to/base/checkout
+    python bench/bench_command_startup.py
+    python bench/bench_command_startup.py --runs 9 --compare /path/to/base/checkout
 """
 
 from __future__ import annotations
