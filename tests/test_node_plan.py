@@ -29,6 +29,7 @@ USER_VARIABLES = {
     "GFLOW_LATE_S": "seconds before a late input is given up (read by the launcher, sent in the plan)",
     "GFLOW_DRAIN_S": "seconds a finished stage waits for its messages to arrive (read by the launcher)",
     "GFLOW_RECORDINGS_WARN_MB": "the recordings folder's size above which a run says so (0 never)",
+    "GFLOW_SIMD": "native leaves numpy's, OpenCV's and OpenBLAS's SIMD kernels to them (not held to x86-64-v3)",
 }
 
 
