@@ -195,11 +195,16 @@ def test_stream_faster_than_the_tracker_skips_and_keeps_latency_bounded(tmp_path
     # bounded latency: a frame waits at most for the step in progress, then takes its own step, so
     # no estimate comes later than a few steps after its capture. The step is measured in this run
     # (the gap between estimates), since the machine may be loaded; queued frames would instead
-    # wait for every frame before them, and the run would last until all n were tracked. (The 90th
-    # percentile: queued, latency would grow frame after frame; one stall of a loaded machine does not.)
+    # wait for every frame before them, and the run would last until all n were tracked. Queued, latency
+    # would grow frame after frame: its median would be seconds (the n frames would take n steps, about
+    # 16 s for the appearance tracker against a 1.5 s stream), and its 90th percentile longer than the
+    # whole stream. One stall of a loaded machine moves the median little and the 90th percentile by no
+    # more than itself: on a loaded machine a run tracked 5 frames, one of them 0.9 s late, and the 90th
+    # percentile of the five was 0.76 s against a bound of 0.66 s made of the 54 ms step.
     logged = sorted(x.log_ns for x in recs if x.type in ("Estimate", "PoseEstimate"))
     step_ms = float(np.median(np.diff(logged))) / 1e6 if len(logged) > 1 else 1000.0
-    assert np.percentile(s.latency_ms, 90) < 3 * step_ms + 500.0, (s.latency_ms, step_ms)
+    assert np.median(s.latency_ms) < 3 * step_ms + 500.0, (s.latency_ms, step_ms)
+    assert np.percentile(s.latency_ms, 90) < 1000.0 * n / fps + 3 * step_ms, (s.latency_ms, step_ms)
     frames = sum(1 for x in recs if x.type == "Frame" and x.topic.endswith("/frames"))
     kept = sum(1 for x in recs if x.type == "Frame" and x.topic.endswith("/skipped"))
     assert frames == s.sent and frames + kept == n  # every frame captured is in the recording
