@@ -88,3 +88,12 @@ def test_the_command_and_what_it_starts_run_held_and_quietly():
     native = subprocess.run([sys.executable, "-m", "pipeline.cli", "--version"], capture_output=True, text=True,
                             env=dict(env, GFLOW_SIMD="native"), cwd=ROOT, timeout=60)
     assert native.stdout.rstrip().endswith("; SIMD native (GFLOW_SIMD=native))"), native.stdout
+
+
+def test_a_mistyped_gflow_simd_is_a_one_line_mistake_before_any_work(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "eval", "--gt", "x.csv", "--pred", "y.csv"],
+                       capture_output=True, text=True, env=dict(os.environ, GFLOW_SIMD="nativ"), cwd=tmp_path,
+                       timeout=60)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "GFLOW_SIMD must be 'native'" in lines[0] and "'nativ'" in lines[0], r.stderr
+    assert "Traceback" not in r.stderr

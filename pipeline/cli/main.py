@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 import sys
 
-from pipeline.runtime.instruction_sets import hold
+from pipeline.runtime.instruction_sets import check_setting, hold
 
 hold()  # before numpy, OpenCV or OpenBLAS loads here or in a stage: the same bits on every machine
 
@@ -247,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     start_work(False)  # main may run several commands in one process (the tests do)
     damage_notes.defer()  # damage inside a recording: said once, by the command's last line or after it
     try:
+        check_setting()  # GFLOW_SIMD mistyped: said before any work (the kernels were held meanwhile)
         rc = int(args.func(args) or 0)
     except _user_errors() as e:
         msg = " ".join(str(e).split())  # one line, whatever the library wrote

@@ -34,7 +34,7 @@ import sys
 from collections.abc import MutableMapping
 from pathlib import Path
 
-__all__ = ["hold", "cpu_flags", "HELD", "described"]
+__all__ = ["hold", "cpu_flags", "HELD", "described", "check_setting"]
 
 # numpy >= 2.4 names its x86 dispatch targets by level: X86_V4 is AVX-512 (Skylake-X), the other two
 # later AVX-512 generations
@@ -90,10 +90,20 @@ def _numpy_names_levels() -> bool:
     return False
 
 
+def check_setting(environ: MutableMapping[str, str] | None = None) -> None:
+    """A ValueError naming ``GFLOW_SIMD`` when it is set to anything but ``native`` (a mistyped value would
+    otherwise hold the kernels without a word)."""
+    value = (os.environ if environ is None else environ).get("GFLOW_SIMD", "").strip()
+    if value and value.lower() != "native":
+        raise ValueError(f"GFLOW_SIMD must be 'native' (or unset, to hold the SIMD kernels), got {value!r}")
+
+
 def hold(environ: MutableMapping[str, str] | None = None, flags: frozenset[str] | None = None,
          machine: str | None = None) -> dict[str, str]:
     """Set the four switches (see the module's docstring) in ``environ`` (``os.environ``: this process
-    and those it starts), each only where it is not set already. Returns what it set."""
+    and those it starts), each only where it is not set already. Returns what it set. A ``GFLOW_SIMD`` other
+    than ``native`` holds them too; :func:`check_setting` says it is a mistake (the ``gflow`` command does, before
+    any work)."""
     env = os.environ if environ is None else environ
     if env.get("GFLOW_SIMD", "").strip().lower() == "native":
         return {}
