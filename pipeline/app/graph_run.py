@@ -13,6 +13,7 @@ from typing import Any, Callable, Iterable
 from gflow_msgs.messages import ErrorReport, Estimate, MessageError, PoseEstimate, decode
 
 from pipeline.runtime.graph import Plan
+from pipeline.runtime.run_metadata import run_metadata
 from pipeline.runtime.transport import SessionError, ZenohSettings, free_port
 from pipeline.app.request import RequestError
 from pipeline.app.recording_target import temporary_recording
@@ -76,8 +77,7 @@ def _run_inline(plan: Plan, recording: str | None, total: int | None, quiet: boo
             last[:] = [now, 1.0]
             console.progress(line(n))
 
-    md = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
-          "gflow.config": plan.config_metadata()}
+    md = run_metadata(plan)
     try:
         r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink,
                        stop=stop.event if stop is not None else None)

@@ -31,6 +31,7 @@ from stages.registry import STAGES
 from pipeline.runtime.build import make_stage
 from pipeline.recording.compare import FieldDiff, first_field_diff
 from pipeline.runtime.graph import GraphError, Plan, validate_params
+from pipeline.runtime.run_metadata import CONFIG, GRAPH, run_metadata
 from pipeline.runtime.live_plan import recorded_source
 from pipeline.runtime.stage_host import StageHost
 from pipeline.io.mcap_io import Record, iter_records, read_metadata
@@ -73,7 +74,7 @@ class RerunResult:
 def recorded_plan(path: str | Path) -> Plan:
     """The plan (graph, parameters, wiring) a recording was made with."""
     md = read_metadata(path)
-    if "gflow.config" not in md:
+    if CONFIG not in md:
         from pipeline.io.mcap_io import damage_cause, torn_cause
 
         torn = torn_cause(path)  # cut before its metadata: gflow's, but torn, which "not written by gflow" hides
@@ -83,7 +84,7 @@ def recorded_plan(path: str | Path) -> Plan:
         raise GraphError(f"{path} holds no gflow.config metadata: {torn}" if torn else
                          f"no gflow.config metadata can be read: {damage}" if damage else
                          f"{path} has no gflow.config metadata: it was not written by gflow's recorder")
-    return Plan.from_metadata(md.get("gflow.graph", {}), md["gflow.config"])
+    return Plan.from_metadata(md.get(GRAPH, {}), md[CONFIG])
 
 
 def apply_sets(plan: Plan, stage: str, sets: dict[str, object]) -> None:
@@ -317,9 +318,9 @@ def ends_note(recorded: list[tuple[str, int, bytes]]) -> str:
 def write_rerun(path_in: str | Path, path_out: str | Path, plan: Plan, result: RerunResult, sets: dict) -> None:
     """A new recording with the stage's inputs (as recorded) and its new outputs, for `gflow diff`."""
     md = read_metadata(path_in)
-    meta = {"gflow.graph": md.get("gflow.graph", {}), "gflow.config": plan.config_metadata(),
-            "gflow.rerun": {"from": str(path_in), "stage": result.stage,
-                            "set": ", ".join(f"{k}={v}" for k, v in sets.items())}}
+    # the versions are this process's, which computed the new outputs
+    meta = run_metadata(plan, md.get(GRAPH, {}), **{"gflow.rerun": {
+        "from": str(path_in), "stage": result.stage, "set": ", ".join(f"{k}={v}" for k, v in sets.items())}})
     now = time.time_ns()
     with McapRecorder(path_out, metadata=meta) as rec:
         for r in result.inputs:
@@ -339,5 +340,5 @@ def rerun_graph(path: str | Path, out: str | Path, sets: dict[str, dict] | None 
         apply_sets(plan, stage, kv)
     src = next(s for s in plan.stages.values() if s.is_source())
     src.params = validate_params("source", recorded_source(src.params, str(Path(path).resolve())), "recorded source")
-    md = {"gflow.graph": read_metadata(path).get("gflow.graph", {}), "gflow.config": plan.config_metadata()}
+    md = run_metadata(plan, read_metadata(path).get(GRAPH, {}))
     return plan, run_inline(plan, recording=str(out), metadata=md)

@@ -92,14 +92,14 @@ class RecorderNode(NodeBase):
 
     def serve(self) -> int:
         from pipeline.io.recorder import DiskFull, McapRecorder  # the recorder's own import (mcap)
+        from pipeline.runtime.run_metadata import run_metadata
 
         plan = self.plan
         rp = RecorderParams(**self.sp.params)
         path = self.node_plan.recording or plan.recording_path()
         assert path is not None
 
-        meta = {"gflow.graph": {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
-                "gflow.config": plan.config_metadata()}
+        meta = run_metadata(plan)
         try:
             self.recorder = rec = McapRecorder(path, flush_interval=rp.flush_interval, compression=rp.compression,
                                                chunk_size=rp.chunk_size, metadata=meta).open()

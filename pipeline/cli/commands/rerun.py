@@ -29,9 +29,24 @@ def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
     return out
 
 
-def _report(mismatches, compared: int, label: str, note: str = "") -> int:
-    if note:
-        print(f"{label}: {note}")
+def _versions_note(path: str) -> str:
+    """'' when the recording was made with the versions this re-run runs with (or does not say which), else
+    which differ and what that means for the check."""
+    from pipeline.io.mcap_io import read_metadata
+    from pipeline.runtime.run_metadata import VERSIONS, versions_differ
+
+    differ = versions_differ(read_metadata(path).get(VERSIONS))
+    if not differ:
+        return ""
+    return (f"recorded with other versions than these ({', '.join(differ)}): another release or kind of machine "
+            "rounds the last bits of floating point otherwise, and the trackers carry those into their outputs, "
+            "so a difference need not be a fault")
+
+
+def _report(mismatches, compared: int, label: str, *notes: str) -> int:
+    for note in notes:
+        if note:
+            print(f"{label}: {note}")
     if not mismatches:
         print(f"{label}: {compared} outputs compared, all identical bit for bit")
         return 0
@@ -133,7 +148,7 @@ def cmd_rerun(args) -> int:
         new = [(r.topic, r.seq, r.data) for r in iter_records(out, topics=sorted(topics)) if r.type != "ErrorReport"]
         old = recorded_outputs(args.file, topics)
         bad = check_outputs(old, new)
-        rc = _report(bad, len(old), "graph", ends_note(old)) or _damaged(args.file, "graph")
+        rc = _report(bad, len(old), "graph", ends_note(old), _versions_note(args.file)) or _damaged(args.file, "graph")
         return rc if args.check else 0
     if not args.stage:
         raise CliError("say which stage to re-run with --stage NAME, or --graph for all of them")
@@ -174,7 +189,7 @@ def cmd_rerun(args) -> int:
     # names the live wait in seconds)
     new = [o for o in res.outputs if o[0] != plan.error_topic and o[0] in topics]
     bad = check_outputs(old, new, res.start_after)
-    rc = _report(bad, len(old), args.stage, ends_note(old)) or _damaged(args.file, args.stage)
+    rc = _report(bad, len(old), args.stage, ends_note(old), _versions_note(args.file)) or _damaged(args.file, args.stage)
     return rc if (args.check or not stage_sets) and rc else 0
 
 
