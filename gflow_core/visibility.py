@@ -50,7 +50,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammainc, gammaln
 
 __all__ = ["ChiSquare", "Cue", "Visibility", "visibility", "RHO_MAX"]
 
@@ -103,6 +102,8 @@ class ChiSquare:
 
     def cdf(self, rho: np.ndarray, min_std: float) -> np.ndarray:
         """P(rho' <= rho) = P(d / 2, rho / (2 sigma^2)), the regularised lower incomplete gamma."""
+        from scipy.special import gammainc  # imported where used: most processes that read this module never call it
+
         d, s2 = self.params(min_std)
         return gammainc(0.5 * d, np.maximum(np.asarray(rho, dtype=np.float64), 0.0) / (2.0 * s2))
 
@@ -115,6 +116,8 @@ class ChiSquare:
         (found on a grid of 2001 points over [0, RHO_MAX])."""
         if n <= 1.0:
             return self.log_pdf(min(rho, self.mode(min_std)), min_std)
+        from scipy.special import gammaln
+
         grid = np.linspace(0.0, RHO_MAX, 2001)[1:]
         d, s2 = self.params(min_std)
         x = grid / s2

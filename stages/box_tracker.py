@@ -104,6 +104,12 @@ class BoxFilterStage(Stage[SeedBoxFields]):
         self.steps = 0
         self.last: dict = {}
 
+    def check_prepare(self) -> None:
+        """Also the tracker's modules, imported when a runner takes the stage (a stage process before it
+        says it is ready), not on its first frame: a stage built only to check a graph never imports them."""
+        super().check_prepare()
+        assert self.tracker is not None
+
     def required(self, seq: int) -> frozenset[str]:
         return frozenset({self.port}) if self.state is None else frozenset(self.inputs)
 

@@ -52,6 +52,21 @@ def _codec(spec: TrackerSpec) -> SnapshotCodec:
         raise ValueError(f"tracker {spec.name}: {e}") from None
 
 
+class _Loaded:
+    """A class attribute made by ``load()`` when first read: the filter stage's tracker, whose modules (the update,
+    SciPy for some) are imported when the stage runs, not when a graph that names the stage is checked (every
+    ``gflow track`` and ``gflow run`` parses its graph, also to find a mistake in the command, and its launcher
+    never runs the tracker)."""
+
+    def __init__(self, load: Any) -> None:
+        self._load, self._value = load, None
+
+    def __get__(self, obj: object, owner: type | None = None) -> Any:
+        if self._value is None:
+            self._value = self._load()
+        return self._value
+
+
 def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
     """The proposal stage (``kind == spec.proposal_kind``) or the filter stage (``spec.filter_kind``)
     of ``spec``'s tracker."""
@@ -61,7 +76,7 @@ def spec_stage_class(spec: TrackerSpec, kind: str) -> type[Stage]:
     fields: type[SeedBoxFields]
     if kind == spec.filter_kind:
         role, base, fields = "Filter", BoxFilterStage, SeedBoxFields
-        what = {"tracker": spec.tracker(), "codec": _codec(spec)}
+        what = {"tracker": _Loaded(spec.tracker), "codec": _codec(spec)}
     elif kind == spec.proposal_kind:
         role, base, fields, what = "Proposal", BoxProposalStage, SpecProposalFields, {}
     else:

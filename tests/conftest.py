@@ -60,21 +60,23 @@ def data_dir(name: str) -> Path:
     return p
 
 
-# The test files that take longest (seconds of wall time on 2 busy cores, --durations), longest first.
+# The test files that take longest (seconds of wall time on 2 busy cores, --durations), longest first: every
+# file of 40 s or more in a run of the whole suite at load 12 (--durations=0, the times of a file's tests summed).
 # `-n 2 --dist loadfile` hands whole files to the two workers; by default xdist hands out the files
 # with the most tests first, which leaves the long files with few tests (test_doc_figures: 3 tests,
 # over a minute) to the end, where one worker runs them while the other has nothing left to do. Handed
 # out first, they run while the other worker works through the many short files, and both end
 # together. A name that is no longer a test file is simply not found; files not named keep xdist's order.
-LONGEST_FIRST = ("test_cli_errors", "test_python_api", "test_doc_figures", "test_docs", "test_faults_restart",
-                 "test_real_tracking", "test_deployment", "test_dcf_lookalike", "test_stress_benchmark",
-                 "test_gflow_lost_witness", "test_trax", "test_live_streams", "test_recording_tools",
-                 "test_m2_pipeline", "test_m2_transfer", "test_gflow_guard_online", "test_dcf_rotation",
-                 "test_run_equals_track", "test_types", "test_benchmark", "test_trust", "test_live_input",
-                 "test_cli_audit", "test_faults_recording", "test_stress_skip", "core/test_dcf_track_score",
-                 "core/test_appearance", "test_benchmark_seeds", "test_gflow_rerun", "test_dcf_pipeline",
-                 "test_live_tools", "test_live", "test_cli_trust", "test_gflow_face", "test_security",
-                 "test_recordings_kept", "test_track_options", "test_faults_hostile", "test_own_tracker")
+LONGEST_FIRST = ("test_cli_errors", "test_doc_figures", "core/test_appearance", "test_live_streams", "test_types",
+                 "test_cli_audit", "test_real_tracking", "test_docs", "test_stress_benchmark", "test_faults_restart",
+                 "test_recording_tools", "test_dcf_rotation", "test_benchmark_seeds", "test_live_input",
+                 "test_m2_pipeline", "test_run_equals_track", "test_python_api", "test_gflow_rerun", "test_benchmark",
+                 "test_m2_transfer", "test_dcf_pipeline", "core/test_dcf_track_score", "test_gflow_guard_online",
+                 "test_deployment", "test_trust", "test_stress_skip", "test_gflow_lost_witness", "test_gflow_face",
+                 "test_own_tracker", "test_track_options", "test_live_tools", "test_trax", "test_gflow_pipeline",
+                 "test_faults_recording", "test_dcf_lookalike", "test_cli_trust", "core/test_dcf_tracker",
+                 "test_eval_empty_boxes", "test_live", "test_placement", "test_recordings_kept", "test_dcf_start",
+                 "test_cli_small", "core/test_dcf_scale_anchor", "test_truthful_reports", "core/test_dcf_scale_prior")
 
 
 def pytest_collection_modifyitems(config, items):
