@@ -204,7 +204,9 @@ def checked_sets(items: list[str]) -> None:
         except yaml.YAMLError:
             raise SystemExit(f"--gflow-set {it}: {value!r} is not a value") from None
     try:
-        msgspec.convert(values, GFlowParams)
+        # as `gflow track` converts them (pipeline.runtime.tracker_block: not strict), so 3e-3, which YAML
+        # reads as a string, is the number it is there too
+        msgspec.convert(values, GFlowParams, strict=False)
     except (msgspec.ValidationError, ValueError, TypeError) as e:
         raise SystemExit(f"--gflow-set {' '.join(items)}: {plain_type_error(str(e), values)}") from None
 
