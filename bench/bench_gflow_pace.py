@@ -204,7 +204,9 @@ def checked_sets(items: list[str]) -> None:
         except yaml.YAMLError:
             raise SystemExit(f"--gflow-set {it}: {value!r} is not a value") from None
     try:
-        msgspec.convert(values, GFlowParams)
+        # as `gflow track` converts them (pipeline.runtime.tracker_block: not strict), so 3e-3, which YAML
+        # reads as a string, is the number it is there too
+        msgspec.convert(values, GFlowParams, strict=False)
     except (msgspec.ValidationError, ValueError, TypeError) as e:
         raise SystemExit(f"--gflow-set {' '.join(items)}: {plain_type_error(str(e), values)}") from None
 
@@ -243,6 +245,7 @@ def main() -> None:
         raise SystemExit(f"{DATA} not found: this benchmark needs ../shared/data/david_indoor")
     tmp = scratch("gflow-pace-")
     rows = []
+    raw: list[tuple[int, float]] = []  # (k, landmark NME) unrounded: the goal is judged on these
     for k in everies:
         rec = tmp / f"david-every{k}.mcap"
         n = derive(DATA, k, rec)
@@ -262,6 +265,7 @@ def main() -> None:
             success = bx["success_rate_0.5"] * bx["frames"] / max(played, 1)
             win = window_nme(DATA / "landmarks.npz", points, lo, hi)
             size = size_ratio(DATA / "landmarks.npz", points, slo, shi)
+            raw.append((k, float(lm["nme"])))
             rows.append([k, n, seed, lm["frames"] - lm["missing"], f"{lm['nme']:.3f}", f"{win:.3f}", f"{size:.3f}",
                          f"{lm['px']:.2f}", f"{bx['cle_px']:.2f}", f"{success:.3f}"])
             print(f"  every {k}th frame, seed {seed}: NME {lm['nme']:.3f}, CLE {bx['cle_px']:.2f} px", file=sys.stderr)
@@ -270,11 +274,13 @@ def main() -> None:
     print(table(rows, ["k", "frames played", "seed", "with landmarks", "landmark NME", f"NME {lo}-{hi - 1}",
                        f"size {slo}-{shi - 1}", "landmark px", "box CLE px", "success"]))
     for k in dict.fromkeys(r[0] for r in rows):
-        nme = [float(r[4]) for r in rows if r[0] == k]
+        nme = [v for kk, v in raw if kk == k]
         if len(nme) > 1:
             # the turn is a matter of chance: over many seeds, how often a run stays within the goal
+            # (judged on the unrounded figures: 0.1002 prints as 0.100 but is not within 0.10)
             print(f"every {k}th frame, {len(nme)} seeds: mean landmark NME {np.mean(nme):.3f}, "
-                  f"at most {GOAL} on {sum(v <= GOAL for v in nme)} of {len(nme)}")
+                  f"at most {GOAL} on {sum(v <= GOAL for v in nme)} of {len(nme)} "
+                  f"(unrounded: {' / '.join(f'{v:.4f}' for v in nme)})")
 
 
 if __name__ == "__main__":

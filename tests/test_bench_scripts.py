@@ -52,3 +52,13 @@ def test_the_pace_benchmark_refuses_a_bad_gflow_setting_in_one_line_before_any_w
         assert r.returncode != 0 and says in r.stderr, (setting, r.stderr)
         assert "Traceback" not in r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
         assert not r.stdout.strip(), r.stdout
+
+
+def test_the_pace_benchmark_takes_a_number_in_e_notation_as_gflow_track_does() -> None:
+    """``--gflow-set psi_v=3e-3`` (YAML reads ``3e-3`` as a string) is the number 0.003 to ``gflow track``; the
+    pace benchmark's check before any work accepts it too (it refused it as "not a number")."""
+    code = ("import sys; sys.path.insert(0, 'bench'); import bench_gflow_pace as b; "
+            "b.checked_sets(['psi_v=3e-3', 'psi_b=1e-2']); print('accepted')")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                       stdin=subprocess.DEVNULL)
+    assert r.returncode == 0 and r.stdout.strip() == "accepted", (r.stdout, r.stderr)
