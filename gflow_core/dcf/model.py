@@ -287,11 +287,13 @@ class Response:
     cf: np.ndarray | None = None
     colour: np.ndarray | None = None
     lt: np.ndarray | None = None
+    an: np.ndarray | None = None
 
     def at(self, xy: np.ndarray, part: str = "y") -> np.ndarray:
         """(N,) the response (``part`` "y"; "cf": the filter's alone; "colour": the colour score; "lt": the
-        long-term filter's, :mod:`.longterm`) at image points ``xy`` (N, 2); the map's minimum outside it."""
-        m = {"y": self.y, "cf": self.cf, "colour": self.colour, "lt": self.lt}[part]
+        long-term filter's, :mod:`.longterm`; "an": the anchor's alone, :mod:`.drift`) at image points ``xy``
+        (N, 2); the map's minimum outside it."""
+        m = {"y": self.y, "cf": self.cf, "colour": self.colour, "lt": self.lt, "an": self.an}[part]
         assert m is not None
         u = ((xy[:, 0] - self.origin[0]) * self.q[0]).astype(np.float32).reshape(-1, 1)
         v = ((xy[:, 1] - self.origin[1]) * self.q[1]).astype(np.float32).reshape(-1, 1)
@@ -355,11 +357,13 @@ def upright(y: np.ndarray, k: tuple[float, float], angle: float) -> np.ndarray:
 
 
 def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
-            geom: Geometry, p: DCFParams, second: np.ndarray | None = None, angle: float = 0.0) -> Response:
+            geom: Geometry, p: DCFParams, second: np.ndarray | None = None, angle: float = 0.0,
+            anchor: bool = False) -> Response:
     """The response over the window centred at ``centre`` at scale exp(``log_s``) (module docstring);
     with ``second``, a second detection filter (hc, wc // 2 + 1, C) complex, its response on the same
-    window as the map ``lt``. With ``angle``, the window is rolled by it (the target's roll,
-    :mod:`.rotation`) and the maps are turned back onto the unrolled window's grid (:func:`upright`)."""
+    window as the map ``lt``; with ``anchor``, the first frame's filter's alone as the map ``an``
+    (:mod:`.drift`). With ``angle``, the window is rolled by it (the target's roll, :mod:`.rotation`)
+    and the maps are turned back onto the unrolled window's grid (:func:`upright`)."""
     k = geom.k(log_s)
     win = window(image, grey, centre, geom.template, k, geom.cell, model.colour_mode, angle,
                  names_of(model.colour_mode, p))
@@ -369,6 +373,7 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
     wc, hc = geom.cells
     y_cf = cf.centred(cf.upsample(y_hat, (hc, wc), geom.cell))
     y_lt = None if second is None else cf.centred(cf.upsample(cf.respond(second, z_hat), (hc, wc), geom.cell))
+    y_an = cf.centred(cf.upsample(cf.respond(model.anchor, z_hat), (hc, wc), geom.cell)) if anchor else None
     col = _colour_cells(model, win, geom)
     y_col = None if col is None else cf.centred(cf.upsample(np.fft.rfft2(np.fft.ifftshift(col)), (hc, wc), geom.cell))
     # y = (1 - alpha) y_cf + alpha y_hist                                      (Staple eq. 2)
@@ -376,11 +381,12 @@ def respond(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tup
         # the maps of the rolled window on the unrolled window's grid
         y_cf = upright(y_cf, k, angle)
         y_lt = None if y_lt is None else upright(y_lt, k, angle)
+        y_an = None if y_an is None else upright(y_an, k, angle)
         y_col = None if y_col is None else upright(y_col, k, angle)
     y = y_cf if y_col is None else (1.0 - p.colour_weight) * y_cf + p.colour_weight * y_col
     # index (h // 2, w // 2) is displacement 0: the target at the window's centre
     origin = (win.centre[0] - (y.shape[1] // 2) / k[0], win.centre[1] - (y.shape[0] // 2) / k[1])
-    return Response(y, origin, k, cf=y_cf, colour=y_col, lt=y_lt)
+    return Response(y, origin, k, cf=y_cf, colour=y_col, lt=y_lt, an=y_an)
 
 
 def learn(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,

@@ -239,10 +239,21 @@ class DCFParams:
                                          "the target's distance than the clutter's (a look-alike beside the target) "
                                          "teaches nothing: the filters, colour model, size, clutter and velocity are not "
                                          "updated from it (LMCF's multimodal response; gflow_core.dcf.lookalike)")
+    drift_correct: float = param(0.0, "template update with drift correction (Matthews et al. 2004): on a confident "
+                                      "frame the estimate moves to the first frame's filter's peak when that lies "
+                                      "within this many sqrt(w h) of it (0: off; gflow_core.dcf.drift)")
+    drift_gate: float = param(0.0, "with drift_correct, the first frame's filter's peak is taken only where its distance "
+                                   "is within this many standard deviations of the target's under it and likelier the "
+                                   "target's than clutter's (its distributions learnt on confident frames, as verify's; "
+                                   "0: always)")
+    drift_hold: bool = param(False, "with drift_correct, a confident frame whose first-frame peak lies farther "
+                                    "teaches the filter nothing (the paper's rule)")
 
     def __post_init__(self) -> None:
         if self.particles < 1:
             raise ValueError(f"particles must be >= 1, got {self.particles}")
+        if not (math.isfinite(self.drift_correct) and self.drift_correct >= 0):
+            raise ValueError(f"drift_correct must be finite and >= 0, got {self.drift_correct}")
         if self.cell < 1:
             raise ValueError(f"cell must be >= 1, got {self.cell}")
         if not (math.isfinite(self.padding) and self.padding >= 0):

@@ -29,6 +29,7 @@ from ..particles import LogWeights, systematic_resample
 from ..tracker import Box, Estimate, FrameRng, UnusableFrame, box_estimate, box_step_estimate
 from ..visibility import ChiSquare, Cue, visibility
 from . import camera as cam
+from . import drift
 from . import model as tm
 from .confirm import remember, taken, tentative
 from .cues import may_fail
@@ -383,8 +384,8 @@ def _learn(st: DCFState, obs: DCFObservation, p: DCFParams, centre: np.ndarray, 
         learnt["model"] = tm.learn(mdl, obs.image, obs.grey, c, log_s, st.geom, p,
                                    adapted(p, filter_rate(p, st.target.n - p.prior_count), st.target,
                                            learnt.get("recent", 0.0)), angle=angle)
-        if p.verify > 0:
-            # with verify, the anchor's distances at the target and about it on confident frames (.verify)
+        if p.verify > 0 or p.drift_gate > 0:
+            # with verify (or drift_gate), the anchor's distances at the target and about it on confident frames (.verify)
             learnt["vtarget"], learnt["vclutter"] = learn_conservative(*_conservative_of(st, p), conservative(
                 mdl, obs.image, obs.grey, c, log_s, angle, st.geom, p), p)
     return log_s, learnt
@@ -504,6 +505,25 @@ def _take_found(st: DCFState, found: Any, p: DCFParams, parts: np.ndarray, mean:
     return centre, log_s, spread
 
 
+def _drift_corrected(st: DCFState, resp: tm.Response, centre: np.ndarray, parts: np.ndarray, p: DCFParams,
+                     bw: float, bh: float) -> tuple[np.ndarray, bool]:
+    """The estimate after drift correction (:mod:`.drift`) and whether the frame may teach the model:
+    the first frame's filter's alignment p* within epsilon = drift_correct sqrt(w h) of ``centre`` is
+    the estimate (``parts`` (N, 3), resampled, move with it, in place); beyond, the estimate stays and,
+    with ``drift_hold``, the frame teaches nothing (Matthews et al. 2004, strategy 3)."""
+    # epsilon = drift_correct sqrt(w h)
+    star = drift.aligned(resp, centre, p.drift_correct * math.sqrt(bw * bh))
+    if star is not None and p.drift_gate > 0:
+        # with drift_gate, the peak only where the first frame's filter sees the target (.verify's rule)
+        vt, vc = _conservative_of(st, p)
+        star = star if drift.recognised(vt, vc, 1.0 - float(resp.at(star[None, :], "an")[0]), p.drift_gate,
+                                        p.min_std) else None
+    if star is None:
+        return centre, not p.drift_hold
+    parts[:, :2] += star - centre
+    return star, True
+
+
 def _respond(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, lt: LongTerm | None
              ) -> tuple[tm.Response, DCFState]:
     """The response of the window at the prediction ``pred`` rolled by the held roll; with ``roll_detect``
@@ -513,7 +533,7 @@ def _respond(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, 
 
     def respond(angle: float) -> tm.Response:
         return tm.respond(st.model, obs.image, obs.grey, c, st.log_s, st.geom, p, None if lt is None else lt.det,
-                          angle)
+                          angle, anchor=p.drift_correct > 0)
 
     resp = respond(st.angle)
     if not p.roll_detect or tentative(st.target, p):
@@ -649,6 +669,9 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     elif doubt:  # a look-alike beside it: tracked, but the model, size, clutter and velocity learn nothing
         velocity, state = st.velocity, "tracked"
     else:
+        if p.drift_correct > 0 and confident:
+            # with drift_correct, the estimate re-aligned with the first frame's filter (.drift)
+            centre, confident = _drift_corrected(st, resp, centre, new_parts, p, bw, bh)
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
