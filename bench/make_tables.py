@@ -155,7 +155,7 @@ def speed_table(res: dict) -> str:
 
 def measure(fig: Figures, m2: str) -> str:
     """Run the table's command; the block to write (without its marker lines)."""
-    from pipeline.cli.versions import version_text
+    from pipeline.runtime.versions import version_text
 
     argv = [a.replace("{m2}", m2) for a in fig.argv]
     for opt in ("--plot", "--precision-plot"):

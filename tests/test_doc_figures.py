@@ -77,7 +77,7 @@ def default_tracker() -> str:
 
 def measured_on(block: str) -> str | None:
     """The system a figure block was measured on, as its line "Measured on ..." names it (``Linux 6.18.44-fc-v657
-    x86_64; SIMD held to x86-64-v3``: :func:`pipeline.cli.versions.versions`' ``os`` and ``simd``), or None."""
+    x86_64; SIMD held to x86-64-v3``: :func:`pipeline.runtime.versions.versions`' ``os`` and ``simd``), or None."""
     m = re.search(r"; ([^;()]+(?:; SIMD [^;()]+)?)\), \d+ cores", block)
     return m.group(1) if m else None
 
@@ -90,7 +90,7 @@ def kernels_of(block: str) -> str | None:
 
 
 def test_the_fast_trackers_reproduce_the_shared_sequence_table():
-    from pipeline.cli.versions import versions
+    from pipeline.runtime.versions import versions
 
     data = data_dir(SUBSET[0]).parent
     block = blocks(ROOT / "docs" / "accuracy.md")["shared"]

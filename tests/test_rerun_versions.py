@@ -11,7 +11,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from pipeline.cli.versions import versions
+from pipeline.runtime.versions import versions
 from pipeline.io.mcap_io import iter_records, read_metadata
 from pipeline.io.recorder import McapRecorder
 from pipeline.runtime.run_metadata import VERSIONS, versions_differ

@@ -46,7 +46,7 @@ __all__ = ["main", "build_parser"]
 
 class _Version(argparse.Action):
     """``--version``: gflow, Python, the libraries that decide the figures and the OS
-    (:func:`pipeline.cli.versions.version_text`), looked up only when asked (reading the
+    (:func:`pipeline.runtime.versions.version_text`), looked up only when asked (reading the
     installed packages' metadata took ~45 ms of CPU at every start of ``gflow``)."""
 
     def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS,
@@ -54,7 +54,7 @@ class _Version(argparse.Action):
         super().__init__(option_strings=option_strings, dest=dest, default=default, nargs=0, help=help)
 
     def __call__(self, parser, namespace, values, option_string=None):
-        from pipeline.cli.versions import version_text
+        from pipeline.runtime.versions import version_text
 
         print(version_text())
         parser.exit()

@@ -2,7 +2,7 @@
 
 A recording holds, as MCAP metadata records: ``gflow.graph`` (the graph's name, stream and YAML),
 ``gflow.config`` (every stage's resolved plan, :meth:`pipeline.runtime.graph.Plan.config_metadata`)
-and ``gflow.versions`` (:func:`pipeline.cli.versions.versions`: gflow, Python, numpy, OpenCV, ... the
+and ``gflow.versions`` (:func:`pipeline.runtime.versions.versions`: gflow, Python, numpy, OpenCV, ... the
 system and whether the SIMD kernels were held). The last decides whether a re-run can be identical:
 the trackers' particle filters carry the last bits of floating point into their outputs, and another
 release of numpy or OpenCV, or another kind of machine, rounds some of them otherwise (dcf on
@@ -27,7 +27,7 @@ def run_metadata(plan: Any, graph: dict[str, str] | None = None, **extra: dict[s
     """The metadata records of a recording of ``plan`` (a :class:`pipeline.runtime.graph.Plan`):
     ``graph`` (a recorded ``gflow.graph`` to keep) or the plan's own, its config, this process's versions,
     and ``extra`` records by name."""
-    from pipeline.cli.versions import versions
+    from pipeline.runtime.versions import versions
 
     md = {GRAPH: graph if graph is not None else {"name": plan.name, "stream": plan.stream, "yaml": plan.source_text},
           CONFIG: plan.config_metadata(), VERSIONS: versions()}
@@ -47,7 +47,7 @@ def versions_differ(recorded: dict[str, str] | None, here: dict[str, str] | None
     if not recorded:
         return []
     if here is None:
-        from pipeline.cli.versions import versions
+        from pipeline.runtime.versions import versions
 
         here = versions()
     out = []

@@ -393,7 +393,7 @@ def _first_frames(args, seqs, first_frame: int) -> dict[str, int]:
 
 def cmd_benchmark(args) -> int:
     from pipeline.evaluation.sequence_benchmark import find_sequences, note
-    from pipeline.cli.versions import versions
+    from pipeline.runtime.versions import versions
     names = _names(args.trackers, sorted(TRACKERS), "trackers", "tracker")
     _refuse_unused_models(args, names)
     if args.list_cases:
@@ -478,7 +478,7 @@ def _report(args, runs: list[list], seeds: list[int], meta: dict) -> None:
     """The benchmark's tables (text, Markdown or JSON) on stdout, and its plots unless interrupted. With
     several seeds: each tracker's AUC with every seed first, then the tables and plots of the means over
     the seeds (:mod:`pipeline.evaluation.seed_means`); the JSON holds every seed's run and the means."""
-    from pipeline.cli.versions import version_text
+    from pipeline.runtime.versions import version_text
     from pipeline.evaluation.benchmark_tables import format_tables, to_json
     from pipeline.evaluation.seed_means import format_seed_tables, mean_rows, seeds_json
     from pipeline.evaluation.sequence_benchmark import note, plot_precision, plot_success

@@ -1,7 +1,7 @@
 """The versions a measured figure or a bug report depends on: gflow, Python, the libraries, the OS.
 
 ``gflow --version`` prints them, and ``gflow benchmark`` writes them beside its tables, so a
-figure in the docs says what it ran on. Looked up only when asked: reading the installed
+figure in the docs says what it ran on, and a recording keeps them (:mod:`pipeline.runtime.run_metadata`). Looked up only when asked: reading the installed
 packages' metadata and importing OpenCV cost tens of milliseconds at every start of ``gflow``.
 """
 
