@@ -1,8 +1,9 @@
 """The versions a measured figure or a bug report depends on: gflow, Python, the libraries, the OS.
 
-``gflow --version`` prints them, and ``gflow benchmark`` writes them beside its tables, so a
-figure in the docs says what it ran on, and a recording keeps them (:mod:`pipeline.runtime.run_metadata`). Looked up only when asked: reading the installed
-packages' metadata and importing OpenCV cost tens of milliseconds at every start of ``gflow``.
+``gflow --version`` prints them, ``gflow benchmark`` writes them beside its tables, so a figure
+in the docs says what it ran on, and a recording keeps them (:mod:`pipeline.runtime.run_metadata`).
+Looked up only when asked: reading the installed packages' metadata and importing OpenCV cost tens
+of milliseconds at every start of ``gflow``.
 """
 
 from __future__ import annotations
