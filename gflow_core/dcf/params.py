@@ -252,8 +252,6 @@ class DCFParams:
     def __post_init__(self) -> None:
         if self.particles < 1:
             raise ValueError(f"particles must be >= 1, got {self.particles}")
-        if not (math.isfinite(self.drift_correct) and self.drift_correct >= 0):
-            raise ValueError(f"drift_correct must be finite and >= 0, got {self.drift_correct}")
         if self.cell < 1:
             raise ValueError(f"cell must be >= 1, got {self.cell}")
         if not (math.isfinite(self.padding) and self.padding >= 0):
@@ -355,7 +353,8 @@ class DCFParams:
     def _check_motion_size_and_support(self) -> None:
         """``detect_peaks`` >= 1, ``motion_switch``, ``motion_fit`` and ``flow_mix`` in [0, 1) (not both
         ``flow_mix`` and ``motion_switch``), ``rate_adapt`` a rate in [0, 1],
-        ``scale_prior`` (gflow_core.dcf.sizeprior) a std: finite and >= 0 (0: no prior), the filter's
+        ``scale_prior`` (gflow_core.dcf.sizeprior) a std and ``drift_correct``, ``drift_gate`` (gflow_core.dcf.drift):
+        finite and >= 0 (0: off), the filter's
         support (:meth:`_check_segment`) and ``channel_weights`` and ``channel_intensity`` bools."""
         self._check_segment()
         for name in ("channel_weights", "channel_intensity"):
@@ -377,6 +376,9 @@ class DCFParams:
             raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
+        for name in ("drift_correct", "drift_gate"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
 
     def _check_segment(self) -> None:
         """``segment`` and ``segment_cover`` fractions in [0, 1]; the map needs the masked filter and the colour

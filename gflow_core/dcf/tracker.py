@@ -506,11 +506,14 @@ def _take_found(st: DCFState, found: Any, p: DCFParams, parts: np.ndarray, mean:
 
 
 def _drift_corrected(st: DCFState, resp: tm.Response, centre: np.ndarray, parts: np.ndarray, p: DCFParams,
-                     bw: float, bh: float) -> tuple[np.ndarray, bool]:
-    """The estimate after drift correction (:mod:`.drift`) and whether the frame may teach the model:
-    the first frame's filter's alignment p* within epsilon = drift_correct sqrt(w h) of ``centre`` is
-    the estimate (``parts`` (N, 3), resampled, move with it, in place); beyond, the estimate stays and,
-    with ``drift_hold``, the frame teaches nothing (Matthews et al. 2004, strategy 3)."""
+                     bw: float, bh: float, confident: bool) -> tuple[np.ndarray, bool]:
+    """The estimate after drift correction (:mod:`.drift`) and whether the frame may teach the model. With
+    ``drift_correct`` on a ``confident`` frame, the first frame's filter's alignment p* within epsilon =
+    drift_correct sqrt(w h) of ``centre`` is the estimate (``parts`` (N, 3), resampled, move with it, in
+    place); beyond, the estimate stays and, with ``drift_hold``, the frame teaches nothing (Matthews et
+    al. 2004, strategy 3). Otherwise (``centre``, ``confident``) as they are."""
+    if p.drift_correct <= 0 or not confident:
+        return centre, confident
     # epsilon = drift_correct sqrt(w h)
     star = drift.aligned(resp, centre, p.drift_correct * math.sqrt(bw * bh))
     if star is not None and p.drift_gate > 0:
@@ -605,8 +608,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
 
     Parameters
     ----------
-    st : the posterior after frame t-1.
-    obs : frame t.
+    st, obs : the posterior after frame t-1, and frame t.
     proposed : (N, 3) float64 particles (x, y, log s) of the proposal's random walk about the posterior
         of t-1; the velocity and the speed's share of the noise are added here (:mod:`.dynamics`).
     rng, dt : the update's generator of frame t, and the frame periods since frame t-1.
@@ -669,9 +671,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     elif doubt:  # a look-alike beside it: tracked, but the model, size, clutter and velocity learn nothing
         velocity, state = st.velocity, "tracked"
     else:
-        if p.drift_correct > 0 and confident:
-            # with drift_correct, the estimate re-aligned with the first frame's filter (.drift)
-            centre, confident = _drift_corrected(st, resp, centre, new_parts, p, bw, bh)
+        centre, confident = _drift_corrected(st, resp, centre, new_parts, p, bw, bh, confident)  # .drift
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
