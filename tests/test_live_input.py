@@ -67,25 +67,38 @@ def truth(caviar1: Path) -> dict[int, tuple[float, ...]]:
 def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
                         ) -> tuple[subprocess.CompletedProcess, str]:
     """Start ``gflow track URL``; once it announces itself (as ``gflow ps`` sees it), start the
-    sender; wait for both. Returns the track's result and what the sender printed."""
+    sender; wait for both. Returns the track's result and what the sender printed. A TCP sender is
+    the server: it is started first and listening before the track starts, since the source stage
+    connects once while the pipeline starts and a refused connection is an error of the run."""
     env = env_for(tmp_path)
+    cmd = [sys.executable, str(ROOT / "tests" / "ts_sender.py"), *sender]
+    server = None
+    if sender[1] == "tcp":
+        server = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert server.stdout is not None and server.stdout.readline().strip() == "listening", server.communicate()
     track = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "track", url, "--init", INIT, "--out",
                               "b.csv", "--record", "r.mcap", "--reconnect", "0", *extra], cwd=tmp_path, env=env,
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 60
-        while not list((tmp_path / "runtime").glob("*.json")):
-            assert track.poll() is None, track.communicate()
-            assert time.monotonic() < deadline, "gflow track never announced itself"
-            time.sleep(0.02)
-        sent = subprocess.run([sys.executable, str(ROOT / "tests" / "ts_sender.py"), *sender], env=env,
-                              capture_output=True, text=True, timeout=120)
+        if server is None:
+            deadline = time.monotonic() + 60
+            while not list((tmp_path / "runtime").glob("*.json")):
+                assert track.poll() is None, track.communicate()
+                assert time.monotonic() < deadline, "gflow track never announced itself"
+                time.sleep(0.02)
+            sent = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
         out, err = track.communicate(timeout=120)
+        if server is not None:
+            if track.returncode != 0:  # it will not connect now: the run's error is the one to show
+                server.kill()
+            rest, err_s = server.communicate(timeout=120)
+            sent = subprocess.CompletedProcess(cmd, server.returncode, "listening\n" + rest, err_s)
     finally:
-        if track.poll() is None:
-            track.kill()
-    assert sent.returncode == 0, sent.stderr
+        for proc in (track, server):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
     assert track.returncode == 0, err[-3000:]
+    assert sent.returncode == 0, sent.stderr
     assert "Traceback" not in err
     return subprocess.CompletedProcess(track.args, track.returncode, out, err), sent.stdout
 
