@@ -25,11 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..visibility import ChiSquare
-from .gate import within
 from .model import Response
 
-__all__ = ["aligned", "recognised"]
+__all__ = ["aligned"]
 
 
 def aligned(resp: Response, centre: np.ndarray, radius: float) -> np.ndarray | None:
@@ -52,12 +50,3 @@ def aligned(resp: Response, centre: np.ndarray, radius: float) -> np.ndarray | N
         return None
     return np.array([xs[j], ys[i]])
 
-
-def recognised(vt: ChiSquare, vc: ChiSquare, rho: float, level: float, min_std: float) -> bool:
-    """Whether the first frame's filter sees the target at its alignment, whose distance is ``rho``: rho <=
-    E[rho] + ``level`` sd[rho] under the target's distribution ``vt`` and p_t(max(rho, mode_t)) >=
-    p_c(min(rho, mode_c)) against the clutter's ``vc`` (:func:`.verify.accepted`'s rule)."""
-    if not within(vt, rho, level, min_std):
-        return False
-    # log p_t(max(rho, mode_t)) >= log p_c(min(rho, mode_c))
-    return vt.log_pdf(max(rho, vt.mode(min_std)), min_std) >= vc.log_pdf(min(rho, vc.mode(min_std)), min_std)

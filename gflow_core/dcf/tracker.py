@@ -50,7 +50,7 @@ from . import trackscore as ts
 from .rotation import angle_change, detect, held
 from . import sizeprior
 from .state import DCFObservation, DCFProposal, DCFState
-from .verify import accepted, conservative, learn_conservative
+from .verify import accepted, conservative, learn_conservative, recognised
 
 __all__ = ["DCFTracker", "TRACKER", "StepResult", "Search", "step", "box_of", "PURPOSE_INIT", "PURPOSE_STEP"]
 
@@ -517,9 +517,9 @@ def _drift_corrected(st: DCFState, resp: tm.Response, centre: np.ndarray, parts:
     # epsilon = drift_correct sqrt(w h)
     star = drift.aligned(resp, centre, p.drift_correct * math.sqrt(bw * bh))
     if star is not None and p.drift_gate > 0:
-        # with drift_gate, the peak only where the first frame's filter sees the target (.verify's rule)
+        # with drift_gate, the peak only where the first frame's filter sees the target (.verify.recognised)
         vt, vc = _conservative_of(st, p)
-        star = star if drift.recognised(vt, vc, 1.0 - float(resp.at(star[None, :], "an")[0]), p.drift_gate,
+        star = star if recognised(vt, vc, 1.0 - float(resp.at(star[None, :], "an")[0]), p.drift_gate,
                                         p.min_std) else None
     if star is None:
         return centre, not p.drift_hold

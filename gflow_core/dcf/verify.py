@@ -61,7 +61,7 @@ from .gate import within
 from .model import Geometry, TargetModel, names_of, window
 from .params import DCFParams
 
-__all__ = ["conservative", "accepted", "learn_conservative"]
+__all__ = ["conservative", "accepted", "recognised", "learn_conservative"]
 
 
 def conservative(model: TargetModel, image: np.ndarray, grey: np.ndarray, centre: tuple[float, float], log_s: float,
@@ -89,13 +89,17 @@ def accepted(vt: ChiSquare, vc: ChiSquare, rho_c: float, p: DCFParams) -> bool:
     """Whether a candidate whose anchor distance is ``rho_c`` may be taken: without ``verify``, always; with
     it, rho_c <= E[rho_c] + ``verify`` sd[rho_c] of the target's distribution ``vt`` and
     p_t(max(rho_c, mode_t)) >= p_c(min(rho_c, mode_c)) against the clutter's ``vc`` (one-sided densities)."""
-    if p.verify <= 0:
-        return True
-    ms = p.min_std
-    if not within(vt, rho_c, p.verify, ms):
+    return p.verify <= 0 or recognised(vt, vc, rho_c, p.verify, p.min_std)
+
+
+def recognised(vt: ChiSquare, vc: ChiSquare, rho: float, level: float, min_std: float) -> bool:
+    """Whether the first frame's filter sees the target where its distance is ``rho``: rho <= E[rho] +
+    ``level`` sd[rho] under the target's distribution ``vt`` and p_t(max(rho, mode_t)) >= p_c(min(rho, mode_c))
+    against the clutter's ``vc`` (one-sided densities)."""
+    if not within(vt, rho, level, min_std):
         return False
     # log p_t(max(rho, mode_t)) >= log p_c(min(rho, mode_c)): the target at least as likely as clutter
-    return vt.log_pdf(max(rho_c, vt.mode(ms)), ms) >= vc.log_pdf(min(rho_c, vc.mode(ms)), ms)
+    return vt.log_pdf(max(rho, vt.mode(min_std)), min_std) >= vc.log_pdf(min(rho, vc.mode(min_std)), min_std)
 
 
 def learn_conservative(vt: ChiSquare, vc: ChiSquare, seen: tuple[float, float], p: DCFParams
