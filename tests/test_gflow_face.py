@@ -274,7 +274,7 @@ def test_scale_walk_is_relative_to_the_initial_face() -> None:
         std = s.cfg.prior_std(k)[COEF]
         assert std[0] == pytest.approx(0.01 * c1)
         stds.append(std[0])
-        plain = model_setup(GFlowParams(), box, (240, 320), model).cfg.prior_std(k)[COEF]
+        plain = model_setup(GFlowParams(scale_walk=0.0), box, (240, 320), model).cfg.prior_std(k)[COEF]
         assert plain[0] == pytest.approx(0.2) and np.array_equal(std[1:], plain[1:])
     assert stds[1] == pytest.approx(2.0 * stds[0], rel=0.02)
     for bad in (-0.01, float("inf"), float("nan")):

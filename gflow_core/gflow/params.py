@@ -63,13 +63,14 @@ class GFlowParams:
     object_mask: Literal["hull", "vertices"] = param("hull", "pixels the object covers, kept out of the "
                                                              "background update: its hull or its vertices")
     object_mask_margin: float = param(0.2, "the hull enlarged by this fraction about its centre")
-    prior_std_rotation: float | tuple[float, ...] = param(0.05, "std of the pose random walk per frame, rotation "
-                                                                "(radians; one or 3 numbers; inf: none)")
+    prior_std_rotation: float | tuple[float, ...] = param((0.024, 0.035, 0.020), "std of the pose random walk per "
+                                                          "frame, rotation about x, y, z (radians; one or 3 numbers; "
+                                                          "inf: none)")
     prior_std_translation: float | tuple[float, ...] = param(5.0, "std of the pose random walk per frame, "
                                                                   "translation (px; one or 2 numbers)")
     prior_std_coefficients: float | tuple[float, ...] = param(0.2, "std of the pose random walk per frame, morph "
                                                                    "coefficients (one or k numbers)")
-    scale_walk: float = param(0.0, "std of the pose random walk per frame of the scale c_1, a fraction of the "
+    scale_walk: float = param(0.01, "std of the pose random walk per frame of the scale c_1, a fraction of the "
                                    "initial box's |c_1| (a relative walk of the face's size; replaces "
                                    "prior_std_coefficients' c_1 value; 0: that value)")
     resample_ess_fraction: float = param(1.0, "resample the experts when their ESS < this fraction of E "
@@ -102,7 +103,7 @@ class GFlowParams:
     texel_noise_adapt: bool = param(False, "each expert's texel update (eq. 7, 8) observes the frame with the noise its "
                                            "fit shows, max(sigma_w, mean inlier residual^2 - texel variance) (False: "
                                            "sigma_w, the paper's)")
-    local_background: float = param(0.0, "the data term is weighed against a local background at the vertices: every "
+    local_background: float = param(5.0, "the data term is weighed against a local background at the vertices: every "
                                           "pixel N(mean, variance of the frame in a Gaussian window of this std, px, "
                                           "about it) (eq. 14's two background terms; 0: the paper's uninformative "
                                           "background)")
@@ -245,14 +246,15 @@ PAPER: Mapping[str, Any] = MappingProxyType({
     "prior_std_coefficients": 2.0, "prior_rotation_decay": 1.0, "pyramid_levels": 1, "search_radius": 0.0,
     "search_step": 4.0, "max_rotation_deg": math.inf, "outlier_sigmas": math.inf, "max_scale_change": math.inf,
     "texture_decay": 1.0, "reset_rate": 0.0, "morph_prior": math.inf, "contrast_sigma": 0.0, "model": "",
-    "lost_guard": False,
+    "lost_guard": False, "local_background": 0.0, "scale_walk": 0.0,
 })
 
 #: the generic rigid head fitted into the box (``--model ellipsoid``): a flatter head, the paper's grey levels
 #: with a gain and bias per frame, texels as a random walk, rotation within 30 degrees
 ELLIPSOID: Mapping[str, Any] = MappingProxyType({
     "model": "", "depth_ratio": 0.6, "sigma_w": 1e-3, "psi_v": 3e-4, "texture_decay": 1.0, "contrast_sigma": 0.0,
-    "photometric": True, "reset_rate": 0.0, "max_rotation_deg": 30.0,
+    "photometric": True, "reset_rate": 0.0, "max_rotation_deg": 30.0, "prior_std_rotation": 0.05,
+    "local_background": 0.0, "scale_walk": 0.0,
 })
 
 
