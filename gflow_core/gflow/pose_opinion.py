@@ -333,6 +333,17 @@ def local_background(image: np.ndarray, sigma: float, floor: float) -> np.ndarra
     return d * d / v + np.log(v)
 
 
+def local_background_of(fd: FrameData, sigma: float, floor: float) -> np.ndarray:
+    """:func:`local_background` of ``fd.image``, flat ``(H*W,)``: computed once per frame and
+    ``(sigma, floor)`` and kept in ``fd.derived`` (the chains' objective and the importance weights
+    read the same image; a stage computes it ahead, :meth:`.tracker.GFlowTracker.with_pyramid`)."""
+    key = ("local_background", float(sigma), float(floor))
+    got = fd.derived.get(key)
+    if got is None:
+        got = fd.derived[key] = local_background(fd.image, sigma, floor).reshape(-1)
+    return got
+
+
 def _flat(stack):
     """An ``(R, H, W)`` stack as a flat array for :class:`BilinearStencil` (an ndarray, or
     :class:`.background.TiledTexels` read tile by tile)."""
@@ -635,8 +646,7 @@ class _Fit:
         self.max_rotation, self.outlier_sq, self.scale = max_rotation, outlier_sq, scale
         self.walls = np.isfinite(max_rotation) or scale is not None
         self.generic = generic_background(fd.image) if tv.generic else None
-        self.local = (local_background(fd.image, tv.local * level_scale, sigma_w).reshape(-1) if tv.local > 0
-                      else None)
+        self.local = local_background_of(fd, tv.local * level_scale, sigma_w) if tv.local > 0 else None
         self.mu = tv.mean
         self.w = _fg_weights(tv, sigma_w)  # (E, n)
         self.vis = tv.vis
@@ -1477,7 +1487,7 @@ def log_likelihood(
         fg = fg - gw * (one * (y - gm) ** 2).sum(axis=-1)
     if tv.local > 0:
         # the local background at the vertices, both its terms (its variance changes with the pose)
-        fg = fg - (one * st.sample(local_background(fd.image, tv.local, sigma_w).reshape(-1))).sum(axis=-1)
+        fg = fg - (one * st.sample(local_background_of(fd, tv.local, sigma_w))).sum(axis=-1)
     logdet_v = np.sum(np.log(vv), axis=-1)
     if not tv.has_background:
         return -0.5 * n * _LOG_2PI - 0.5 * (fg + logdet_v[:, None])
