@@ -211,6 +211,14 @@ def checked_sets(items: list[str]) -> None:
         raise SystemExit(f"--gflow-set {' '.join(items)}: {plain_type_error(str(e), values)}") from None
 
 
+def every(k: int) -> str:
+    """``every frame``, ``every 2nd frame``, ``every 3rd frame``, ``every 4th frame``, ..."""
+    if k == 1:
+        return "every frame"
+    suffix = "th" if 10 <= k % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(k % 10, "th")
+    return f"every {k}{suffix} frame"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--every", default="1,3", help="play every k-th frame, for each k listed (default 1,3)")
@@ -268,7 +276,7 @@ def main() -> None:
             raw.append((k, float(lm["nme"])))
             rows.append([k, n, seed, lm["frames"] - lm["missing"], f"{lm['nme']:.3f}", f"{win:.3f}", f"{size:.3f}",
                          f"{lm['px']:.2f}", f"{bx['cle_px']:.2f}", f"{success:.3f}"])
-            print(f"  every {k}th frame, seed {seed}: NME {lm['nme']:.3f}, CLE {bx['cle_px']:.2f} px", file=sys.stderr)
+            print(f"  {every(k)}, seed {seed}: NME {lm['nme']:.3f}, CLE {bx['cle_px']:.2f} px", file=sys.stderr)
     sets = f", --gflow-set {' '.join(args.gflow_set)}" if args.gflow_set else ""
     print(f"\nG-flow on david_indoor at every k-th frame (dt = k), {'inline' if args.inline else 'processes'}{sets}")
     print(table(rows, ["k", "frames played", "seed", "with landmarks", "landmark NME", f"NME {lo}-{hi - 1}",
@@ -278,7 +286,7 @@ def main() -> None:
         if len(nme) > 1:
             # the turn is a matter of chance: over many seeds, how often a run stays within the goal
             # (judged on the unrounded figures: 0.1002 prints as 0.100 but is not within 0.10)
-            print(f"every {k}th frame, {len(nme)} seeds: mean landmark NME {np.mean(nme):.3f}, "
+            print(f"{every(k)}, {len(nme)} seeds: mean landmark NME {np.mean(nme):.3f}, "
                   f"at most {GOAL} on {sum(v <= GOAL for v in nme)} of {len(nme)} "
                   f"(unrounded: {' / '.join(f'{v:.4f}' for v in nme)})")
 

@@ -234,3 +234,24 @@ def test_the_generic_proposal_takes_the_random_walk_of_chamfer_params_alone() ->
         msgspec.convert({"lam": 0.3}, ProposalParams)
     with pytest.raises(TypeError, match="has no field"):
         stage_params("Bad", ChamferParams, ProposalFields, __name__, only=("std_xy", "std_z"))
+
+
+def test_gflow_settings_made_default_later_are_read_from_an_older_plan_as_they_were() -> None:
+    """G-flow's local background and its size walk, on by default since they were measured, were off in
+    every recording made before they existed: a recorded gflow plan that lacks them is read with both
+    off, so it re-runs bit for bit, while a new graph takes today's defaults."""
+    from gflow_core.gflow.params import GFlowParams
+    from gflow_core.params import added_later
+    from pipeline.runtime.graph import Plan
+
+    assert {"local_background": 0.0, "scale_walk": 0.0}.items() <= added_later(GFlowParams).items()
+    plan = load_graph("gflow", overrides={"proposal": {"init": [10.0, 10.0, 20.0, 20.0]},
+                                          "filter": {"init": [10.0, 10.0, 20.0, 20.0]}})
+    assert plan.tracker is not None
+    assert (plan.tracker.params["local_background"], plan.tracker.params["scale_walk"]) == (5.0, 0.01)
+    meta = plan.config_metadata()
+    block = json.loads(meta["tracker"])
+    for name in ("local_background", "scale_walk"):
+        del block["params"][name]
+    old = Plan.from_metadata({}, {**meta, "tracker": json.dumps(block)})
+    assert (old.tracker.params["local_background"], old.tracker.params["scale_walk"]) == (0.0, 0.0)

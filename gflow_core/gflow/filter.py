@@ -47,8 +47,8 @@ Departures from the paper
   the rotation decay, the texels' prediction and the frontal reset; :func:`propose` takes ``dt``
   and the :class:`Proposals` carry it to :func:`update`. ``dt = 1`` is the one-period model, bit
   for bit.
-* ``scale_walk`` (:class:`.params.GFlowParams`, off by default; the paper leaves the pose
-  transition open, sec. 2): the scale ``c_1``'s walk is a fraction of the first box's ``|c_1|``
+* ``scale_walk`` (:class:`.params.GFlowParams`, 0.01 by default, 0 in the paper's preset; the
+  paper leaves the pose transition open, sec. 2): the scale ``c_1``'s walk is a fraction of the first box's ``|c_1|``
   a period instead of ``prior_std_coefficients``' absolute 0.2 (0.2-0.5 % of the nine shared
   sequences' first boxes, against the 1-3 % a period their size-varying boxes and david_indoor's
   landmarks change by); measured over ten seeds in docs/gflow-development.md, "The size's walk".

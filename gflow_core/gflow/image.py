@@ -14,7 +14,8 @@ quantised to 1/32 pixel, too coarse for Gauss-Newton and finite-difference tests
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -71,12 +72,17 @@ class FrameData:
     flat, gx, gy : (H*W,) float64
         Intensity and its central-difference derivatives along x (columns) and
         y (rows), one-sided at the border (``numpy.gradient``).
+    derived : dict
+        Images computed from this one alone, each once, by whoever needs it first (a stage makes
+        them ahead, while it waits for the experts): ``{key: array}``, e.g. the local background
+        (:func:`.pose_opinion.local_background_of`). Not part of the frame's identity.
     """
 
     image: np.ndarray
     flat: np.ndarray
     gx: np.ndarray
     gy: np.ndarray
+    derived: dict[Any, np.ndarray] = field(default_factory=dict, compare=False, repr=False)
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -72,7 +72,7 @@ class GFlowParams:
                                                                    "coefficients (one or k numbers)")
     scale_walk: float = param(0.01, "std of the pose random walk per frame of the scale c_1, a fraction of the "
                                    "initial box's |c_1| (a relative walk of the face's size; replaces "
-                                   "prior_std_coefficients' c_1 value; 0: that value)")
+                                   "prior_std_coefficients' c_1 value; 0: that value)", before=0.0)
     resample_ess_fraction: float = param(1.0, "resample the experts when their ESS < this fraction of E "
                                               "(1: every frame, sec. 3.4)")
     prior_rotation_decay: float = param(0.98, "the prior's mean rotation decays toward the initial one at this "
@@ -106,7 +106,7 @@ class GFlowParams:
     local_background: float = param(5.0, "the data term is weighed against a local background at the vertices: every "
                                           "pixel N(mean, variance of the frame in a Gaussian window of this std, px, "
                                           "about it) (eq. 14's two background terms; 0: the paper's uninformative "
-                                          "background)")
+                                          "background)", before=0.0)
     self_occlusion: float = param(0.0, "vertices the head itself hides: a vertex whose normal faces the camera with a "
                                        "cosine below this counts cos / this of its texture term and texel update "
                                        "(none edge-on or beyond; 0: every vertex visible, the paper's)")

@@ -46,6 +46,7 @@ from .geometry import COEF, TRANS, project, rotation_matrices
 from .head_model import MorphableModel, bounding_box, fit_head_model_to_box, pose_for_box
 from .mixture import detector_starts, mixture_proposals
 from .image import FrameData, frame_pyramid, local_contrast, prepare_frame
+from .pose_opinion import local_background_of
 from .params import GFlowParams
 
 __all__ = ["GFlowTracker", "GFlowState", "GFlowObservation", "ModelSetup", "model_setup", "clip_box",
@@ -274,7 +275,11 @@ class GFlowTracker:
         ``pyramid_levels - 1`` coarser levels, :func:`.image.frame_pyramid`)."""
         if obs.pyramid is not None:
             return obs
-        return dataclasses.replace(obs, pyramid=tuple(frame_pyramid(prepare_frame(obs.y), params.pyramid_levels)))
+        pyramid = tuple(frame_pyramid(prepare_frame(obs.y), params.pyramid_levels))
+        if params.local_background > 0:
+            # the local background the proposal reads at level 0 (its chains' objective and the weights), made ahead
+            local_background_of(pyramid[0], params.local_background, params.sigma_w)
+        return dataclasses.replace(obs, pyramid=pyramid)
 
     def with_channels(self, params: GFlowParams, obs: GFlowObservation) -> GFlowObservation:
         """``obs`` with the lost guard's orientation channels of the grey frame (none without the guard)."""

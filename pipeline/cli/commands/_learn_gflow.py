@@ -41,14 +41,9 @@ def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
 
 
 def cmd_learn_gflow(args) -> int:
-    import numpy as np
-
-    from gflow_core.gflow.morphable_learn import learn_morphable
-
     from pipeline.cli.commands.common import check_model_out, frame_range, start_work
-    from pipeline.io.landmarks import read_landmarks, resolve_landmarks
-    from pipeline.io.modelfile import save_model
 
+    # the options first: a mistyped one fails before the learning's modules (SciPy) are imported
     check_model_out(args.out)
     if args.k < 1:
         raise CliError(f"-k must be a positive number of morph bases, got {args.k}")
@@ -57,6 +52,13 @@ def cmd_learn_gflow(args) -> int:
     if args.boxes is not None and args.boxes and len(args.boxes) != len(args.sources):
         raise CliError(f"--boxes: give one box file per source ({len(args.sources)}), or none to use each source's "
                        f"groundtruth.csv")
+
+    import numpy as np
+
+    from gflow_core.gflow.morphable_learn import learn_morphable
+
+    from pipeline.io.landmarks import read_landmarks, resolve_landmarks
+    from pipeline.io.modelfile import save_model
     from pipeline.cli.commands.common import refuse_same_source
 
     refuse_same_source([resolve_landmarks(src) for src in args.sources], list(args.sources), "landmark source")

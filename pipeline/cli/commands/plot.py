@@ -118,6 +118,14 @@ def _error_panel(ax, seqs: list[int], truth, est: dict) -> str:
 
 
 def cmd_plot(args) -> int:
+    from pipeline.cli.commands.common import check_new_picture, check_outputs
+
+    # the output is checked before matplotlib is imported (a second of CPU), so a mistyped --out fails at once
+    if Path(args.out).is_dir():
+        check_outputs(OUT=args.out)  # says it is a folder
+    out = args.out if Path(args.out).suffix else args.out + ".png"
+    check_new_picture(out)
+
     import numpy as np
 
     import matplotlib
@@ -127,15 +135,10 @@ def cmd_plot(args) -> int:
 
     from pipeline.evaluation.scored_boxes import read_scored_boxes
     from pipeline.recording.results import estimates
-    from pipeline.cli.commands.common import check_new_picture, check_outputs
 
-    if Path(args.out).is_dir():
-        check_outputs(OUT=args.out)  # says it is a folder
-    out = args.out if Path(args.out).suffix else args.out + ".png"
     if Path(out).suffix.lower().lstrip(".") not in plt.gcf().canvas.get_supported_filetypes():
         raise CliError(f"{args.out}: matplotlib cannot write {Path(out).suffix!r} files (use .png, .svg or .pdf)")
     plt.close("all")
-    check_new_picture(out)
     from pipeline.cli.commands.common import warn_if_torn
 
     warn_if_torn(args.file)
