@@ -66,6 +66,10 @@ BACF and CSRT learn theirs:
   With ``flow_mix`` > 0 (off) the second mode is the last box's own displacement to this frame, matched
   by NCC under Lowe's ratio test (:mod:`.flowpred`): the frames say where the target went when it moved
   faster than the velocity predicts.
+  With ``motion_tail`` = nu > 0 (off) the motion prior is the bivariate Student-t of the same scale, or with
+  ``motion_tail_weight`` < 1 its mixture with the Gaussian, the weight learnt from the track's innovations
+  with ``motion_tail_rate`` (:mod:`.heavytail`; heavy-tailed process noise, Roth et al. 2013): a target
+  that turned is not priced quadratically in its distance from the prediction.
 * **Scale** (:mod:`.scale`): DSST's 1-D scale filter (17 scales 2 % apart, as fDSST samples) at the
   estimate, on confident frames; the particles carry the scale it finds.
 * **Is it the target?** Two cues, each a distance rho = 1 - y at the estimate: the filter's

@@ -79,6 +79,14 @@ class DCFParams:
                                    "times the runner-up's (Lowe's ratio test on squared distances; 0.64 is Lowe's 0.8 "
                                    "on distances)")
     motion_prior: float = param(0.25, "std of the motion prior about the prediction, in box sizes, plus the speed's share")
+    motion_tail: float = param(0.0, "degrees of freedom nu of a Student-t motion prior of the same scale, whose cost "
+                                    "grows as the log of the distance from the prediction, not its square, so a "
+                                    "target that turned is not outweighed by clutter at the prediction "
+                                    "(gflow_core.dcf.heavytail; 0: the Gaussian)")
+    motion_tail_weight: float = param(1.0, "with motion_tail, the prior is (1 - pi) the Gaussian + pi the t, pi this "
+                                           "weight (1: the t alone); with motion_tail_rate, the weight it starts at")
+    motion_tail_rate: float = param(0.0, "with motion_tail, the t's weight is learnt from the tracked frames' "
+                                         "innovations by online EM at this rate (gflow_core.dcf.heavytail; 0: held)")
     target_rate: float = param(0.05, "rate of the running moments of the target's score distribution")
     clutter_rate: float = param(0.05, "rate of the running moments of the clutter's score distribution")
     min_std: float = param(0.02, "floor on the spread of both score distributions")
@@ -351,7 +359,8 @@ class DCFParams:
                              f"{self.reappear}")
 
     def _check_motion_size_and_support(self) -> None:
-        """``detect_peaks`` >= 1, ``motion_switch``, ``motion_fit`` and ``flow_mix`` in [0, 1) (not both
+        """``detect_peaks`` >= 1, ``motion_switch``, ``motion_fit``, ``motion_tail_rate`` and ``flow_mix`` in [0, 1)
+        (``motion_tail`` finite and >= 0, ``motion_tail_weight`` in [0, 1]; not both
         ``flow_mix`` and ``motion_switch``), ``rate_adapt`` a rate in [0, 1],
         ``scale_prior`` (gflow_core.dcf.sizeprior) a std and ``drift_correct``, ``drift_gate`` (gflow_core.dcf.drift):
         finite and >= 0 (0: off), the filter's
@@ -366,6 +375,13 @@ class DCFParams:
             raise ValueError(f"motion_switch must be in [0, 1), got {self.motion_switch}")
         if not 0 <= self.motion_fit < 1:
             raise ValueError(f"motion_fit must be in [0, 1), got {self.motion_fit}")
+        if not 0 <= self.motion_tail < float("inf"):
+            raise ValueError(f"motion_tail must be 0 (a Gaussian prior) or a positive number of degrees of freedom, "
+                             f"got {self.motion_tail}")
+        if not 0 <= self.motion_tail_weight <= 1:
+            raise ValueError(f"motion_tail_weight must be in [0, 1], got {self.motion_tail_weight}")
+        if not 0 <= self.motion_tail_rate < 1:
+            raise ValueError(f"motion_tail_rate must be in [0, 1), got {self.motion_tail_rate}")
         if not 0 <= self.flow_mix < 1:
             raise ValueError(f"flow_mix must be in [0, 1), got {self.flow_mix}")
         if not 0 < self.flow_ratio <= 1:

@@ -88,6 +88,8 @@ class DCFState:
         :mod:`.trackscore`; None without).
     motion_fit : the sums (A, B) of the motion model's learnt gain (``motion_fit``; :mod:`.motion_fit`; (0, 0)
         without).
+    tail : the learnt weight of the motion prior's heavy tail (``motion_tail_rate``; :mod:`.heavytail`; 0 before
+        the first tracked frame and without).
     """
 
     geom: Geometry
@@ -116,6 +118,7 @@ class DCFState:
     vclutter: ChiSquare = ChiSquare()
     track: Track | None = None
     motion_fit: tuple[float, float] = (0.0, 0.0)
+    tail: float = 0.0
 
 
 def _pair(v: Sequence[float]) -> tuple[float, float]:
@@ -211,6 +214,8 @@ def to_arrays(st: DCFState) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         values["recent"] = float(st.recent)
     if any(st.motion_fit):
         values["motion_fit"] = [float(v) for v in st.motion_fit]
+    if st.tail:
+        values["tail"] = float(st.tail)
     if st.vtarget.n:
         values["vtarget"] = _chi_values(st.vtarget)
         values["vclutter"] = _chi_values(st.vclutter)
@@ -264,7 +269,7 @@ def from_arrays(arrays: Mapping[str, np.ndarray], values: Mapping[str, Any], p: 
                     spread=float(values["spread"]), longterm=longterm, speed2=float(values.get("speed2", 0.0)),
                     angle=float(values.get("angle", 0.0)), manoeuvre=float(values.get("manoeuvre", 0.0)),
                     recent=float(values.get("recent", 0.0)),
-                    motion_fit=_pair(values.get("motion_fit", (0.0, 0.0))),
+                    motion_fit=_pair(values.get("motion_fit", (0.0, 0.0))), tail=float(values.get("tail", 0.0)),
                     vtarget=chi("vtarget"), vclutter=chi("vclutter"),
                     negatives=from_array(arrays["negatives"]) if "negatives" in arrays else (),
                     last_grey=np.asarray(arrays["last_grey"]).astype(np.uint8) if "last_grey" in arrays else None,

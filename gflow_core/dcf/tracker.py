@@ -39,6 +39,7 @@ from .gate import within
 from . import modes as mm
 from . import motion_fit
 from . import flowpred
+from . import heavytail
 from .longterm import LongTerm, init_longterm, learn_longterm, reliable, view
 from .params import DCFParams
 from .proposal import assign, detections
@@ -90,12 +91,27 @@ class StepResult:
     redetected: bool
 
 
-def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float, area: float) -> float:
+def _tail(st: DCFState, p: DCFParams) -> float:
+    """The weight pi of the motion prior's t (:mod:`.heavytail`): the learnt one with ``motion_tail_rate`` once a
+    frame was tracked, else ``motion_tail_weight``."""
+    return st.tail if p.motion_tail_rate > 0 and st.tail > 0 else p.motion_tail_weight
+
+
+def _innovation(resp: Any, centre: np.ndarray, pred: np.ndarray, bw: float, bh: float) -> np.ndarray:
+    """(2,) px the frame's innovation: the response's peak less the prediction where the peak is within half
+    a box of the estimate (the measurement, not pulled by the prior), else the estimate less it."""
+    peak, _ = resp.peak()
+    at = peak if abs(peak[0] - centre[0]) <= 0.5 * bw and abs(peak[1] - centre[1]) <= 0.5 * bh else centre
+    return np.asarray(at, dtype=np.float64) - pred
+
+
+def _log_place(c: np.ndarray, pred: np.ndarray, sx: float, sy: float, area: float, nu: float = 0.0,
+               pi: float = 1.0) -> float:
     """log N(c; pred, diag(sx^2, sy^2)) - log(1 / area): how much likelier the target's motion prior puts
-    it at ``c`` than clutter, which is anywhere in the ``area`` (px^2) searched."""
+    it at ``c`` than clutter, which is anywhere in the ``area`` (px^2) searched (with ``nu`` > 0 the
+    Student-t of the same scale in N's place, or their mixture of weight ``pi``: :mod:`.heavytail`)."""
     # log N = -((c_x - pred_x)^2 / 2 sx^2 + (c_y - pred_y)^2 / 2 sy^2) - log(2 pi sx sy)
-    log_n = -((c[0] - pred[0]) ** 2 / (2.0 * sx * sx) + (c[1] - pred[1]) ** 2 / (2.0 * sy * sy)) \
-        - math.log(2.0 * math.pi * sx * sy)
+    log_n = heavytail.log_density(float(c[0] - pred[0]), float(c[1] - pred[1]), sx, sy, nu, pi)
     return log_n + math.log(area)
 
 
@@ -157,14 +173,14 @@ def _motion(st: DCFState, obs: DCFObservation, p: DCFParams, bw: float, bh: floa
     return mot.mean, extra, sx, sy, mot
 
 
-def _log_prior(parts: np.ndarray, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None
-               ) -> tuple[np.ndarray, np.ndarray | None]:
+def _log_prior(parts: np.ndarray, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None,
+               nu: float = 0.0, pi: float = 1.0) -> tuple[np.ndarray, np.ndarray | None]:
     """(N,) the motion prior's log density of the (N, 3) particles up to a constant: -d^2 / 2 about ``pred``
-    of std (sx, sy), or with the modes ``mot`` the mixture's log sum_m pi_m N(x; pred_m, S_m), and then (N,)
-    the manoeuvre's responsibility of each (else None)."""
+    of std (sx, sy) (with ``nu`` > 0 the Student-t's, or their mixture of weight ``pi``: :mod:`.heavytail`), or with the modes ``mot`` the
+    mixture's log sum_m pi_m N(x; pred_m, S_m), and then (N,) the manoeuvre's responsibility of each (else None)."""
     if mot is None:
-        d2 = (parts[:, 0] - pred[0]) ** 2 / (2.0 * sx * sx) + (parts[:, 1] - pred[1]) ** 2 / (2.0 * sy * sy)
-        return -d2, None
+        # -d^2 / 2, d^2 = (x - pred_x)^2 / sx^2 + (y - pred_y)^2 / sy^2; the t: -(nu + 2) / 2 log(1 + d^2 / nu)
+        return heavytail.log_kernel(parts[:, 0] - pred[0], parts[:, 1] - pred[1], sx, sy, nu, pi), None
     return mm.log_prior(mot, parts[:, :2])
 
 
@@ -288,7 +304,7 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
             # distance is the best of that many clutter draws, anywhere in the area searched by every
             # template; under "visible" the candidate is placed by the target's prior: log N(x; pred, S) + log A
             trials = len(templates) * cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
-            place = _log_place(cand.centre, pred, sx, sy, cand.area) + log_z
+            place = _log_place(cand.centre, pred, sx, sy, cand.area, p.motion_tail, _tail(st, p)) + log_z
             if k > 0:
                 # the size's prior against clutter's, uniform over the sizes searched (as the place's):
                 # log N(log f; 0, size_sd^2) + log((2 k + 1) step); with search_size_volume, log step alone:
@@ -601,6 +617,26 @@ def _compensate(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFP
                    velocity=mo.linear @ st.velocity, angle=angle), moved
 
 
+def _learn_motion(st: DCFState, p: DCFParams, resp: Any, centre: np.ndarray, velocity: np.ndarray, pred: np.ndarray,
+                  sxy: tuple[float, float], box: tuple[float, float], dt: float) -> dict[str, Any]:
+    """What a tracked frame teaches the motion model: with ``motion_fit`` the velocity's gain (.motion_fit), with
+    ``motion_tail_rate`` the weight of the prior's heavy tail (.heavytail), with ``redetect_speed`` E|v|^2."""
+    sx, sy = sxy
+    learnt: dict[str, Any] = {}
+    if p.motion_fit > 0:
+        # the regression d_t = g v_{t-1} dt + e, e ~ N(0, sx sy I), at rate motion_fit (.motion_fit)
+        learnt["motion_fit"] = motion_fit.update(st.motion_fit, centre - st.centre, st.velocity * dt, sx * sy,
+                                                 p.motion_fit)
+    if p.motion_tail > 0 and p.motion_tail_rate > 0:
+        # pi <- (1 - a) pi + a r, r the t's responsibility for the innovation (.heavytail)
+        learnt["tail"] = heavytail.learn(_tail(st, p), _innovation(resp, centre, pred, *box), sx, sy,
+                                         p.motion_tail, p.motion_tail_rate)
+    if p.redetect_speed:
+        # E|v|^2 <- (1 - a) E|v|^2 + a |v|^2 on tracked frames, a = target_rate
+        learnt["speed2"] = (1.0 - p.target_rate) * st.speed2 + p.target_rate * float(velocity @ velocity)
+    return learnt
+
+
 def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, rng: np.random.Generator,
          dt: float = 1.0) -> StepResult:
     """One frame: the response at the prediction, the particles weighed, the estimate, the target's
@@ -629,7 +665,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     y = resp.at(parts[:, :2])
     # log p(z | X) = kappa y(X): the response read at the particle
     log_lik = p.kappa * y
-    log_prior, resp1 = _log_prior(parts, pred, sx, sy, mot)
+    log_prior, resp1 = _log_prior(parts, pred, sx, sy, mot, p.motion_tail, _tail(st, p))
     lw = LogWeights(log_lik + log_prior)
     W = lw.W
     # weighted sums by einsum, not BLAS: the same bits in one thread and in many
@@ -645,7 +681,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     hidden_before = st.hidden_run >= p.hidden_after
     # the estimate's place under the target's motion prior against clutter's, uniform over the window:
     # log N(c; pred, S) + log A (a place of a likelier prior and a wider window both favour the target)
-    log_place = _log_place(centre, pred, sx, sy, resp.area()) if mot is None else mm.log_place(mot, centre, resp.area())
+    log_place = _log_place(centre, pred, sx, sy, resp.area(), p.motion_tail, _tail(st, p)) if mot is None else mm.log_place(mot, centre, resp.area())
     prior = _hidden_prior(float(st.back), p.reappear) if hidden_before else (1.0, 1.0, 1.0)
     vis = visibility(1.0 - r_est, st.target, st.clutter, p.min_std, prior=prior, log_place=log_place, cues=cues)
     present = vis.present or taken(st, obs, p)  # a tentative track's frame in doubt, if its box moved (.confirm)
@@ -676,13 +712,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
         log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
-        if p.motion_fit > 0:
-            # the regression d_t = g v_{t-1} dt + e, e ~ N(0, sx sy I), at rate motion_fit (.motion_fit)
-            learnt["motion_fit"] = motion_fit.update(st.motion_fit, centre - st.centre, st.velocity * dt, sx * sy,
-                                                     p.motion_fit)
-        if p.redetect_speed:
-            # E|v|^2 <- (1 - a) E|v|^2 + a |v|^2 on tracked frames, a = target_rate
-            learnt["speed2"] = (1.0 - p.target_rate) * st.speed2 + p.target_rate * float(velocity @ velocity)
+        learnt.update(_learn_motion(st, p, resp, centre, velocity, pred, (sx, sy), (bw, bh), dt))
     if present and not doubt:
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
     if p.search_clutter:
