@@ -44,3 +44,19 @@ def every_nth(series: dict, frames: int, fmt, step: int = 20) -> list[list]:
         rows.append([f] + [fmt(np.array([e[f] for e in runs])) for runs in series.values()])
     return rows
 
+
+
+def gflow_plan(source: dict, params: dict, **filter_extra):
+    """The plan of the built-in gflow graph on ``source``: the G-flow parameters among ``params`` go to
+    its tracker block (set once for every stage, as ``--set tracker.NAME=V`` sets them), the others
+    (``init``, ``seed``) to the proposal and filter stages; ``filter_extra`` (``shards``) to the filter."""
+    import dataclasses
+
+    from gflow_core.gflow import GFlowParams
+    from pipeline.cli.trackers.gflow import make_plan
+
+    names = {f.name for f in dataclasses.fields(GFlowParams)}
+    block = {k: v for k, v in params.items() if k in names}
+    stage = {k: v for k, v in params.items() if k not in names}
+    return make_plan("gflow", {"source": source, "tracker": block, "proposal": dict(stage),
+                               "filter": dict(stage, **filter_extra)})

@@ -30,12 +30,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import every_nth, scratch, table  # noqa: E402
+from _util import every_nth, gflow_plan, scratch, table  # noqa: E402
 
 from gflow_core.evaluation.metrics import centre_error, score  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
 from pipeline.recording.results import estimates, read_boxes  # noqa: E402
-from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
 
@@ -59,7 +58,7 @@ def perturbed_box(box, seed: int) -> list[float]:
 def run(params: dict, box, seed: int, frames: int, tmp: Path) -> dict[int, tuple]:
     shared = dict(params, init=[float(v) for v in box], seed=seed)
     src = {"kind": "folder", "path": str(DATA / "frames"), "stop": frames}
-    plan = make_plan("gflow", {"source": src, "proposal": dict(shared), "filter": dict(shared)})
+    plan = gflow_plan(src, shared)
     rec = tmp / f"run-{time.monotonic_ns()}.mcap"
     run_inline(plan, recording=str(rec))
     out = {k: tuple(v.box) for k, v in estimates(rec).items()}

@@ -36,12 +36,11 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import every_nth, scratch, table  # noqa: E402
+from _util import every_nth, gflow_plan, scratch, table  # noqa: E402
 from bench_gflow_david import OPTIC_FLOW, perturbed_box  # noqa: E402  (the special case, the same start errors)
 
 from gflow_core.gflow.landmark_error import SCORED_LANDMARKS, landmark_score  # noqa: E402
 from gflow_core.evaluation.metrics import score  # noqa: E402
-from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
 from pipeline.io.landmarks import read_landmarks  # noqa: E402
 from pipeline.recording.results import estimates, read_boxes  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
@@ -56,8 +55,7 @@ def run(params: dict, box, seed: int, frames: int, tmp: Path):
     shared = dict(params, init=[float(v) for v in box], seed=seed)
     src = {"kind": "folder", "path": str(DATA / "frames"), "stop": frames}
     rec = tmp / f"run-{time.monotonic_ns()}.mcap"
-    run_inline(make_plan("gflow", {"source": src, "proposal": dict(shared), "filter": dict(shared)}),
-               recording=str(rec))
+    run_inline(gflow_plan(src, shared), recording=str(rec))
     est = estimates(rec)
     rec.unlink()
     boxes = {k: tuple(v.box) for k, v in est.items()}
@@ -90,7 +88,8 @@ def _per_frame(s, frames: int) -> np.ndarray:
 
 
 def smooth(v: np.ndarray, width: int = 21) -> np.ndarray:
-    """NaN-aware moving average."""
+    """NaN-aware moving average over ``width`` frames (fewer, and odd, on a shorter series), of v's length."""
+    width = min(width, v.size - (v.size + 1) % 2)
     ok = np.isfinite(v)
     k = np.ones(width)
     num = np.convolve(np.where(ok, v, 0.0), k, mode="same")

@@ -31,13 +31,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import gflow_plan, scratch, table  # noqa: E402
 
 from gflow_core.gflow.synthetic_head import synthetic_sequence  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
 from pipeline.runtime.launcher import Launcher  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402
-from pipeline.cli.trackers.gflow import make_plan  # noqa: E402
 from pipeline.runtime.transport import ZenohSettings, free_port  # noqa: E402
 
 SIZE_TYPES = ("Frame", "Features", "ExpertStates", "PoseProposals", "PoseEstimate")
@@ -65,8 +64,7 @@ def david_frames(folder: Path, n: int) -> np.ndarray:
 
 def plan(folder: Path, box, experts: int, background: bool, shards: int):
     shared = {"init": [float(v) for v in box], "n_experts": experts, "background": background, "seed": 0}
-    return make_plan("gflow", {"source": {"kind": "folder", "path": str(folder)}, "proposal": dict(shared),
-                               "filter": dict(shared, shards=shards)})
+    return gflow_plan({"kind": "folder", "path": str(folder)}, shared, shards=shards)
 
 
 def measure(path: str) -> tuple[int, float, dict[str, float]]:
