@@ -382,6 +382,9 @@ class DCFParams:
             raise ValueError(f"motion_tail_weight must be in [0, 1], got {self.motion_tail_weight}")
         if not 0 <= self.motion_tail_rate < 1:
             raise ValueError(f"motion_tail_rate must be in [0, 1), got {self.motion_tail_rate}")
+        if self.motion_tail > 0 and (self.motion_switch > 0 or self.flow_mix > 0):
+            raise ValueError("motion_tail shapes the one-mode prior; with motion_switch or flow_mix the prior is their "
+                             "mixture of Gaussians: set one of them")
         if not 0 <= self.flow_mix < 1:
             raise ValueError(f"flow_mix must be in [0, 1), got {self.flow_mix}")
         if not 0 < self.flow_ratio <= 1:

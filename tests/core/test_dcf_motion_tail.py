@@ -50,6 +50,12 @@ def test_many_degrees_of_freedom_give_the_gaussian_and_few_a_cheap_far_tail() ->
     assert abs(far + 1.5 * math.log(26.0)) < 1e-12 and far > -12.5 + 7.0
 
 
+def test_a_tail_with_a_second_motion_mode_is_refused_not_ignored() -> None:
+    for other in ({"motion_switch": 0.1}, {"flow_mix": 0.1}):
+        with pytest.raises(ValueError, match="motion_tail shapes the one-mode prior"):
+            DCFParams(motion_tail=1.0, **other)
+
+
 @pytest.mark.parametrize("bad", [-1.0, float("inf"), float("nan")])
 def test_a_negative_or_infinite_nu_is_refused(bad: float) -> None:
     with pytest.raises(ValueError, match="motion_tail"):
