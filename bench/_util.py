@@ -60,3 +60,36 @@ def gflow_plan(source: dict, params: dict, **filter_extra):
     stage = {k: v for k, v in params.items() if k not in names}
     return make_plan("gflow", {"source": source, "tracker": block, "proposal": dict(stage),
                                "filter": dict(stage, **filter_extra)})
+
+
+def gflow_sets(items: list[str]) -> dict:
+    """The G-flow parameters of ``--gflow-set NAME=VALUE`` items (values read as YAML scalars, converted as
+    ``gflow track`` converts them); one that is not NAME=VALUE, names no G-flow parameter or gives it a
+    value G-flow refuses (the settings together) exits with a one-line error, before any work."""
+    import dataclasses
+
+    import msgspec
+    import yaml
+
+    from gflow_core.gflow import GFlowParams
+    from pipeline.runtime.tracker_block import plain_type_error
+
+    known = {f.name for f in dataclasses.fields(GFlowParams)}
+    values = {}
+    for it in items:
+        name, eq, value = it.partition("=")
+        if not eq:
+            raise SystemExit(f"--gflow-set expects NAME=VALUE, got {it!r}")
+        if name.strip() not in known:
+            raise SystemExit(f"--gflow-set {it}: G-flow has no parameter {name.strip()!r} (`gflow info gflow` lists them)")
+        try:
+            values[name.strip()] = yaml.safe_load(value)
+        except yaml.YAMLError:
+            raise SystemExit(f"--gflow-set {it}: {value!r} is not a value") from None
+    try:
+        # as `gflow track` converts them (pipeline.runtime.tracker_block: not strict), so 3e-3, which YAML
+        # reads as a string, is the number it is there too
+        converted = msgspec.convert(values, GFlowParams, strict=False)
+    except (msgspec.ValidationError, ValueError, TypeError) as e:
+        raise SystemExit(f"--gflow-set {' '.join(items)}: {plain_type_error(str(e), values)}") from None
+    return {k: getattr(converted, k) for k in values}

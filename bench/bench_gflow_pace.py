@@ -32,26 +32,22 @@ counts little there) and over the 9 periods from 3 to 12 (``sqrt((MS(12) - MS(3)
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import subprocess
 import sys
 from pathlib import Path
 
 import cv2
-import msgspec
 import numpy as np
-import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import gflow_sets, scratch, table  # noqa: E402
 
 from gflow_core.gflow import GFlowParams  # noqa: E402
 from gflow_core.gflow.landmark_error import landmark_score  # noqa: E402
 from pipeline.io.recorder import McapRecorder  # noqa: E402
-from pipeline.runtime.tracker_block import plain_type_error  # noqa: E402
 from gflow_msgs.messages import Capture, Frame, Header, NDArray, encode  # noqa: E402
 
 DATA = Path(__file__).resolve().parent.parent.parent / "shared" / "data" / "david_indoor"
@@ -188,29 +184,6 @@ def whole_numbers(option: str, text: str, least: int) -> list[int]:
     return values
 
 
-def checked_sets(items: list[str]) -> None:
-    """Refuse, in one line, a ``--gflow-set`` that is not NAME=VALUE, names no G-flow parameter or gives it a
-    value G-flow refuses (the settings together), before any frame is written or run."""
-    known = {f.name for f in dataclasses.fields(GFlowParams)}
-    values = {}
-    for it in items:
-        name, eq, value = it.partition("=")
-        if not eq:
-            raise SystemExit(f"--gflow-set expects NAME=VALUE, got {it!r}")
-        if name.strip() not in known:
-            raise SystemExit(f"--gflow-set {it}: G-flow has no parameter {name.strip()!r} (`gflow info gflow` lists them)")
-        try:
-            values[name.strip()] = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise SystemExit(f"--gflow-set {it}: {value!r} is not a value") from None
-    try:
-        # as `gflow track` converts them (pipeline.runtime.tracker_block: not strict), so 3e-3, which YAML
-        # reads as a string, is the number it is there too
-        msgspec.convert(values, GFlowParams, strict=False)
-    except (msgspec.ValidationError, ValueError, TypeError) as e:
-        raise SystemExit(f"--gflow-set {' '.join(items)}: {plain_type_error(str(e), values)}") from None
-
-
 def every(k: int) -> str:
     """``every frame``, ``every 2nd frame``, ``every 3rd frame``, ``every 4th frame``, ..."""
     if k == 1:
@@ -248,7 +221,7 @@ def main() -> None:
     except ValueError:
         raise SystemExit(f"--size-window must be A:B (two frame numbers), got {args.size_window!r}") from None
     everies, seeds = whole_numbers("--every", args.every, 1), whole_numbers("--seeds", args.seeds, 0)
-    checked_sets(args.gflow_set)
+    gflow_sets(args.gflow_set)
     if not DATA.is_dir():
         raise SystemExit(f"{DATA} not found: this benchmark needs ../shared/data/david_indoor")
     tmp = scratch("gflow-pace-")

@@ -31,7 +31,9 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import gflow_plan, scratch, table  # noqa: E402
+from _util import gflow_plan, gflow_sets, scratch, table  # noqa: E402
+
+from gflow_core.gflow.params import ELLIPSOID  # noqa: E402
 
 from gflow_core.gflow.synthetic_head import synthetic_sequence  # noqa: E402
 from pipeline.runtime.inline import run_inline  # noqa: E402
@@ -62,21 +64,12 @@ def david_frames(folder: Path, n: int) -> np.ndarray:
     return np.array([float(v) for v in first[1:5]])
 
 
-def plan(folder: Path, box, experts: int, background: bool, shards: int):
-    shared = {"init": [float(v) for v in box], "n_experts": experts, "background": background, "seed": 0}
+def plan(folder: Path, box, experts: int, background: bool, shards: int, settings: dict | None = None):
+    """The graph's plan on the frames in ``folder``; ``settings`` are G-flow parameters (a model's preset
+    and ``--gflow-set`` values) over the graph's."""
+    shared = {**(settings or {}), "init": [float(v) for v in box], "n_experts": experts, "background": background,
+              "seed": 0}
     return gflow_plan({"kind": "folder", "path": str(folder)}, shared, shards=shards)
-
-
-def measure(path: str) -> tuple[int, float, dict[str, float]]:
-    """(tracked frames, fps from first to last estimate, mean payload bytes per message type)."""
-    t, sizes = [], {}
-    for r in iter_records(path):
-        if r.type == "PoseEstimate":
-            t.append(r.log_ns)
-        if r.type in SIZE_TYPES:
-            sizes.setdefault(r.type, []).append(len(r.data))
-    fps = (len(t) - 1) / ((max(t) - min(t)) / 1e9) if len(t) > 1 else float("nan")
-    return len(t), fps, {k: float(np.mean(v)) for k, v in sizes.items()}
 
 
 BUDGET_MB = 250
@@ -129,14 +122,21 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="folder for frames and recordings (default: a temporary one)")
     ap.add_argument("--source", choices=("synthetic", "david"), default="synthetic",
                     help="a rendered head (default) or the first frames of ../shared/data/david_indoor")
+    ap.add_argument("--model", choices=("face", "ellipsoid"), default="face",
+                    help="the built-in face model with the graph's settings (default) or the generic ellipsoid "
+                         "head with its own (gflow_core.gflow.params.ELLIPSOID), as `gflow track --model`")
+    ap.add_argument("--gflow-set", action="append", default=[], metavar="NAME=VALUE",
+                    help="a G-flow parameter over the model's settings (repeatable), as `gflow track --gflow-set`")
     ap.add_argument("--background", default="off,on", help="background model: off, on or off,on (default)")
     args = ap.parse_args()
+    settings = {**(ELLIPSOID if args.model == "ellipsoid" else {}), **gflow_sets(args.gflow_set)}
     tmp = scratch("gflow-bench-", keep=args.out)
     if args.source == "david":
         box = david_frames(tmp / "frames", args.frames)
     else:
         box = render(tmp / "frames", args.frames)
-    print(f"G-flow pipeline, 320x240, {args.source} frames, {args.frames} frames, the graph's settings; load "
+    print(f"G-flow pipeline, 320x240, {args.source} frames, {args.frames} frames, the {args.model} model with the graph's "
+          f"settings{''.join(' ' + v for v in args.gflow_set)}; load "
           f"average {os.getloadavg()[0]:.1f} at the start; {tmp}")
     rows, size_rows, mem_rows = [], [], []
     for E in (int(v) for v in args.experts.split(",")):
@@ -146,7 +146,7 @@ def main() -> None:
                 if shards > E:
                     continue
                 rec = str(tmp / f"E{E}-bg{int(bg)}-{mode}.mcap")
-                p = plan(tmp / "frames", box, E, bg, shards)
+                p = plan(tmp / "frames", box, E, bg, shards, settings)
                 if mode == "inline":
                     c0 = os.times()
                     run_inline(p, recording=rec)

@@ -57,8 +57,8 @@ def test_the_pace_benchmark_refuses_a_bad_gflow_setting_in_one_line_before_any_w
 def test_the_pace_benchmark_takes_a_number_in_e_notation_as_gflow_track_does() -> None:
     """``--gflow-set psi_v=3e-3`` (YAML reads ``3e-3`` as a string) is the number 0.003 to ``gflow track``; the
     pace benchmark's check before any work accepts it too (it refused it as "not a number")."""
-    code = ("import sys; sys.path.insert(0, 'bench'); import bench_gflow_pace as b; "
-            "b.checked_sets(['psi_v=3e-3', 'psi_b=1e-2']); print('accepted')")
+    code = ("import sys; sys.path.insert(0, 'bench'); import _util as b; "
+            "b.gflow_sets(['psi_v=3e-3', 'psi_b=1e-2']); print('accepted')")
     r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120,
                        stdin=subprocess.DEVNULL)
     assert r.returncode == 0 and r.stdout.strip() == "accepted", (r.stdout, r.stderr)
@@ -82,3 +82,24 @@ def test_the_gflow_benches_set_gflow_parameters_in_the_graphs_tracker_block(tmp_
                          shards=2)
     assert sharded.tracker.params["n_experts"] == 20 and {"proposal0", "proposal1"} <= set(sharded.stages)
     assert all(sharded.stage_params(s)["seed"] == 0 for s in ("proposal0", "proposal1", "filter"))
+
+
+def test_the_pipeline_benchmark_runs_the_ellipsoid_head_with_its_own_settings(tmp_path: Path) -> None:
+    """``bench_gflow_pipeline.py --model ellipsoid --gflow-set lost_guard=false`` builds the graph's plan
+    with the ellipsoid's preset and the setting over it, in the tracker block (how its speed was traced
+    against the face model's)."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    try:
+        from _util import gflow_sets
+        from bench_gflow_pipeline import plan
+    finally:
+        sys.path.remove(str(ROOT / "bench"))
+    from gflow_core.gflow.params import ELLIPSOID
+
+    settings = {**ELLIPSOID, **gflow_sets(["lost_guard=false", "reset_rate=0"])}
+    p = plan(tmp_path, [1.0, 2.0, 30.0, 40.0], 20, False, 1, settings)
+    block = p.tracker.params
+    assert block["model"] == "" and block["photometric"] is True and block["lost_guard"] is False
+    assert block["reset_rate"] == 0 and block["n_experts"] == 20
+    face = plan(tmp_path, [1.0, 2.0, 30.0, 40.0], 20, False, 1).tracker.params
+    assert face.get("model", "face") != "" and face.get("lost_guard", True) is not False
