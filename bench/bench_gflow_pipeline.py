@@ -72,6 +72,18 @@ def plan(folder: Path, box, experts: int, background: bool, shards: int, setting
     return gflow_plan({"kind": "folder", "path": str(folder)}, shared, shards=shards)
 
 
+def measure(path: str) -> tuple[int, float, dict[str, float]]:
+    """(tracked frames, fps from first to last estimate, mean payload bytes per message type)."""
+    t, sizes = [], {}
+    for r in iter_records(path):
+        if r.type == "PoseEstimate":
+            t.append(r.log_ns)
+        if r.type in SIZE_TYPES:
+            sizes.setdefault(r.type, []).append(len(r.data))
+    fps = (len(t) - 1) / ((max(t) - min(t)) / 1e9) if len(t) > 1 else float("nan")
+    return len(t), fps, {k: float(np.mean(v)) for k, v in sizes.items()}
+
+
 BUDGET_MB = 250
 
 

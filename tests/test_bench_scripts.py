@@ -103,3 +103,18 @@ def test_the_pipeline_benchmark_runs_the_ellipsoid_head_with_its_own_settings(tm
     assert block["reset_rate"] == 0 and block["n_experts"] == 20
     face = plan(tmp_path, [1.0, 2.0, 30.0, 40.0], 20, False, 1).tracker.params
     assert face.get("model", "face") != "" and face.get("lost_guard", True) is not False
+
+
+def test_the_pipeline_benchmark_runs_to_its_tables(tmp_path: Path) -> None:
+    """A few frames of the rendered head through ``bench_gflow_pipeline.py`` inline, to its tables (a helper
+    it needs once went missing in a change that ``--help`` and the plan's check did not reach); its scratch
+    folder, given with ``--out``, holds the recording it measured."""
+    r = subprocess.run([sys.executable, "bench/bench_gflow_pipeline.py", "--experts", "2", "--frames", "4",
+                        "--modes", "inline", "--background", "off", "--model", "ellipsoid",
+                        "--out", str(tmp_path / "out")], cwd=ROOT, capture_output=True, text=True, timeout=300,
+                       stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stderr[-2000:]
+    row = next(ln for ln in r.stdout.splitlines() if ln.startswith("2 ") and "inline" in ln)
+    assert row.split()[3] == "4", row  # every frame tracked
+    assert float(row.split()[4]) > 0, row
+    assert (tmp_path / "out" / "E2-bg0-inline.mcap").is_file()
