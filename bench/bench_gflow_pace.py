@@ -45,7 +45,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _util import gflow_sets, scratch, table  # noqa: E402
 
-from gflow_core.gflow import GFlowParams  # noqa: E402
 from gflow_core.gflow.landmark_error import landmark_score  # noqa: E402
 from pipeline.io.recorder import McapRecorder  # noqa: E402
 from gflow_msgs.messages import Capture, Frame, Header, NDArray, encode  # noqa: E402

@@ -102,7 +102,7 @@ def test_the_pipeline_benchmark_runs_the_ellipsoid_head_with_its_own_settings(tm
     assert block["model"] == "" and block["photometric"] is True and block["lost_guard"] is False
     assert block["reset_rate"] == 0 and block["n_experts"] == 20
     face = plan(tmp_path, [1.0, 2.0, 30.0, 40.0], 20, False, 1).tracker.params
-    assert face.get("model", "face") != "" and face.get("lost_guard", True) is not False
+    assert face["model"] == "face" and face["photometric"] is False and face["lost_guard"] is True
 
 
 def test_the_pipeline_benchmark_runs_to_its_tables(tmp_path: Path) -> None:
