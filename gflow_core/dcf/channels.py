@@ -59,7 +59,6 @@ Departures:
 from __future__ import annotations
 
 import numpy as np
-from scipy.ndimage import maximum_filter
 
 __all__ = ["responses", "learning", "detection", "combine", "blend", "scaled", "DETECTION_FLOOR"]
 
@@ -92,7 +91,7 @@ def detection(y: np.ndarray) -> np.ndarray:
     flat = span <= 0
     n = (y - lo) / np.where(flat, 1.0, span)
     # the local maxima: cells at least as high as every neighbour (the response is cyclic)
-    peaks = n >= maximum_filter(n, size=(3, 3, 1), mode="wrap")
+    peaks = n >= _cyclic_max3(n)
     c = n.shape[-1]
     first = np.argmax(n.reshape(-1, c), axis=0)
     peaks.reshape(-1, c)[first, np.arange(c)] = False
@@ -100,6 +99,13 @@ def detection(y: np.ndarray) -> np.ndarray:
     # det_d = 1 - min(rho_2 / rho_1, 1/2),  rho_1 = 1                   (CSR-DCF sec. 3.2, the authors' code)
     out = 1.0 - np.minimum(rho2, 1.0 - DETECTION_FLOOR)
     return np.where(flat, 1.0, out)
+
+
+def _cyclic_max3(n: np.ndarray) -> np.ndarray:
+    """(h, w, C) each cell's maximum over its 3 x 3 neighbourhood, cyclic, channel by channel (scipy's
+    ``maximum_filter(n, size=(3, 3, 1), mode="wrap")``, without importing scipy)."""
+    rows = np.maximum(np.maximum(n, np.roll(n, 1, axis=0)), np.roll(n, -1, axis=0))
+    return np.maximum(np.maximum(rows, np.roll(rows, 1, axis=1)), np.roll(rows, -1, axis=1))
 
 
 def combine(lrn: np.ndarray, det: np.ndarray | None = None) -> np.ndarray:
