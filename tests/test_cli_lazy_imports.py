@@ -88,3 +88,14 @@ def test_the_probe_sees_what_a_command_imports(tmp_path: Path) -> None:
     out = loaded_by(["verify", "none.mcap"], HEAVY, tmp_path)
     assert out["rc"] == 1 and "none.mcap" in out["err"], out
     assert "mcap" in out["loaded"], out
+
+
+def test_the_default_tracker_imports_no_scipy() -> None:
+    """scipy costs a process about 0.4 s of CPU at import (its array-API layer), and the default tracker's stage,
+    inline run or benchmark needs none of it: its transforms are numpy's (gflow_core/dcf/filter.py)."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    code = ("import sys, stages.box_tracker, gflow_core.dcf.tracker, gflow_core.builtin_trackers\n"
+            "print(sorted(m for m in sys.modules if m == 'scipy' or m.startswith('scipy.'))[:3])")
+    r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip() == "[]", f"the default tracker imported scipy: {r.stdout.strip()}"

@@ -153,3 +153,12 @@ def test_detection_weights_the_running_filter_by_the_running_weights() -> None:
     d = tm.detection_filter(m, 0.0, False)
     assert np.array_equal(d[..., 5], 31.0 * st.model.det[..., 5]) and np.array_equal(d[..., 31], st.model.det[..., 31])
     assert not d[..., :5].any() and not d[..., 6:31].any()
+
+
+def test_the_local_maxima_are_scipys_cyclic_3x3_maximum() -> None:
+    ndimage = pytest.importorskip("scipy.ndimage")
+    rng = np.random.default_rng(5)
+    for _ in range(50):
+        n = rng.normal(size=(int(rng.integers(1, 30)), int(rng.integers(1, 30)), int(rng.integers(1, 6))))
+        n[rng.random(n.shape) < 0.2] = 0.5  # ties
+        assert np.array_equal(ch._cyclic_max3(n), ndimage.maximum_filter(n, size=(3, 3, 1), mode="wrap"))
