@@ -281,3 +281,10 @@ class StderrLines:
         while not self._q.empty():
             self.seen.append(self._q.get())
         return self.seen
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Stop the ``gflow`` fork server this test process started, if it started one (tests/cli_fork.py)."""
+    import cli_fork
+
+    cli_fork.close()

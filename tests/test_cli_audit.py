@@ -11,22 +11,21 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import cli_fork
 from conftest import damaged_copy
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def gflow(*args: str, cwd: Path, timeout: float = 60.0, stdin: str | None = None) -> subprocess.CompletedProcess:
+    """``gflow ARGS`` in a process of its own, forked from one that has imported the command line (:mod:`cli_fork`)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout, input=stdin if stdin is not None else "",
-                          stdin=None)
+    return cli_fork.run(list(args), cwd=cwd, env=env, timeout=timeout, input=stdin if stdin is not None else "")
 
 
 def error_line(r: subprocess.CompletedProcess, *words: str, rc: int | None = None) -> str:

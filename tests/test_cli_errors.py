@@ -1,8 +1,10 @@
 """A user's mistakes on the real ``gflow`` command line: each is one line on stderr naming what
 was wrong, a non-zero exit, no traceback, and nothing run or written before it is found.
 
-Every case runs the CLI as a subprocess, as a user would; the sources are tiny image folders
-written into tmp_path, so no case needs ../shared/data.
+Every case runs the CLI in a process of its own, as a user would: forked from one that has imported the
+command line once (``tests/cli_fork.py``: a new interpreter's start and imports were most of each case's
+CPU), or a new interpreter where a case limits the process (its file sizes). The sources are tiny image
+folders written into tmp_path, so no case needs ../shared/data.
 """
 
 from __future__ import annotations
@@ -17,12 +19,18 @@ import cv2
 import numpy as np
 import pytest
 
+import cli_fork
+
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def gflow(*args: str, cwd: Path, timeout: float = 60.0, env: dict[str, str] | None = None,
           **popen) -> subprocess.CompletedProcess:
+    """``gflow ARGS`` in a process of its own: forked from a process that has imported the command line
+    (:mod:`cli_fork`), or, given ``subprocess.run`` options (``preexec_fn``...), a new interpreter."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""), **(env or {}))
+    if not popen:
+        return cli_fork.run(list(args), cwd=cwd, env=env, timeout=timeout)
     return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
                           text=True, timeout=timeout, **popen)
 

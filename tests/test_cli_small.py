@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+import cli_fork
 from pipeline.runtime.build import apply_defaults
 from pipeline.recording.compare import field_diffs
 from pipeline.runtime.graph import load_graph
@@ -22,9 +22,9 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def gflow(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    """``gflow ARGS`` in a process of its own, forked from one that has imported the command line (:mod:`cli_fork`)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=120)
+    return cli_fork.run(list(args), cwd=cwd, env=env, timeout=120)
 
 
 def _particles(alpha: np.ndarray) -> bytes:

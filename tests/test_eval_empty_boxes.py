@@ -7,20 +7,20 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+import cli_fork
 ROOT = Path(__file__).resolve().parents[1]
 
 GT = "frame,x,y,w,h\n0,10,10,20,20\n1,10,10,20,20\n2,10,10,20,20\n3,10,10,20,20\n"
 
 
 def gflow(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """``gflow ARGS`` in a process of its own, forked from one that has imported the command line (:mod:`cli_fork`)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=120, stdin=subprocess.DEVNULL)
+    return cli_fork.run(list(args), cwd=cwd, env=env, timeout=120)
 
 
 def one_line_error(r: subprocess.CompletedProcess, *words: str, rc: int) -> None:

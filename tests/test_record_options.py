@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import os
 import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
+import cli_fork
 from pipeline.io.mcap_io import summarize
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -19,8 +19,7 @@ def gflow(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
                TMPDIR=str(cwd / "tmp"))
     (cwd / "tmp").mkdir(exist_ok=True)
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=120)
+    return cli_fork.run(list(args), cwd=cwd, env=env, timeout=120)
 
 
 def test_record_topics_keeps_only_those_and_the_diagnostics(tmp_path: Path) -> None:
