@@ -5,8 +5,8 @@ NAME -->`` and is written by ``python bench/make_tables.py`` (one command rewrit
 with the command that made it and the versions it ran on. Here:
 
 * the shared-sequence figures of the fast trackers (the default tracker and chamfer, inline,
-  seed 1) are measured again on a subset of the shared sequences (:data:`SUBSET`: two
-  pedestrians, a fast face and a grey target labelled every 5th frame; about 40 s on 2 cores)
+  seed 1) are measured again on a subset of the shared sequences (:data:`SUBSET`: a
+  pedestrian, a fast face and a grey target labelled every 5th frame; about 30 s on 2 cores)
   and must equal the figures docs/accuracy.md prints (AUC, precision at 20 px, CLE, success, at
   the precision printed). After a change that moves them, regenerate the table: ``python
   bench/make_tables.py --only shared``. This holds on a machine of the architecture the table's line
@@ -35,7 +35,7 @@ from conftest import data_dir
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the shared sequences re-measured (the table has all of them): see the module docstring
-SUBSET = ("caviar1", "crossing", "jumping", "dollar")
+SUBSET = ("crossing", "jumping", "dollar")
 #: a table's column, the JSON field it prints and the decimals it prints
 COLUMNS = (("AUC", "auc", 3), ("prec@20", "precision_20", 3), ("CLE px", "cle_px", 2), ("success", "success_rate_0.5", 3))
 
