@@ -175,3 +175,17 @@ def close() -> None:
     if _SERVER is not None:
         _SERVER.close()
         _SERVER = None
+
+
+def run_command(cmd: list[str], **kw) -> subprocess.CompletedProcess:
+    """``subprocess.run(cmd, capture_output=True, text=True, ...)`` for ``cmd`` = ``[python, -m, pipeline.cli.main,
+    ARGS...]`` (or ``pipeline.cli``), forked as :func:`run` does; any other command, or options :func:`run` does
+    not stand in for, go to ``subprocess.run`` unchanged."""
+    cli = len(cmd) >= 3 and cmd[0] == sys.executable and cmd[1] == "-m" and cmd[2] in ("pipeline.cli.main",
+                                                                                        "pipeline.cli")
+    plain = kw.get("capture_output") is True and kw.get("text") is True and kw.get("stdin", subprocess.DEVNULL) in (
+        subprocess.DEVNULL, None) and set(kw) <= {"capture_output", "text", "timeout", "env", "cwd", "input", "stdin"}
+    if not (cli and plain) or (kw.get("stdin") is None and "stdin" in kw and kw.get("input") is None):
+        return subprocess.run(cmd, **kw)
+    return run(cmd[3:], cwd=Path(kw.get("cwd") or os.getcwd()), env=kw.get("env"), timeout=kw.get("timeout") or 600.0,
+               input=kw.get("input"))

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import subprocess
 import sys
@@ -20,6 +19,7 @@ from pipeline.cli.main import main
 from pipeline.io.datasets import write_frames
 from pipeline.recording.results import read_boxes, write_boxes
 
+import cli_fork
 from conftest import StderrLines, data_dir
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
@@ -41,11 +41,11 @@ def seq(tmp_path_factory) -> Path:
 
 
 def _run(args: list[str], timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([*GFLOW, "benchmark", *args], capture_output=True, text=True, timeout=timeout)
+    return cli_fork.run_command([*GFLOW, "benchmark", *args], capture_output=True, text=True, timeout=timeout)
 
 
 def _eval(gt: Path, pred: str) -> dict:
-    out = subprocess.run([*GFLOW, "eval", "--gt", str(gt), "--pred", pred, "--json"], capture_output=True, text=True,
+    out = cli_fork.run_command([*GFLOW, "eval", "--gt", str(gt), "--pred", pred, "--json"], capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 0, out.stderr
     return json.loads(out.stdout)

@@ -10,6 +10,7 @@ import time
 
 import pytest
 
+import cli_fork
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.inline import run_inline
@@ -36,12 +37,12 @@ def test_rerun_check_on_a_torn_recording_compares_what_it_has(demo_recording, tm
     torn.write_bytes(data[: int(len(data) * 0.6)])
     n = len(estimates(torn))
     assert 5 < n < 40
-    out = subprocess.run([*GFLOW, "rerun", str(torn), "--stage", "filter", "--check"], capture_output=True, text=True,
+    out = cli_fork.run_command([*GFLOW, "rerun", str(torn), "--stage", "filter", "--check"], capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "ends early" in out.stdout and f"{n - 1} on estimate" in out.stdout, out.stdout
     # and a real difference is still found in what the recording has
-    out = subprocess.run([*GFLOW, "rerun", str(torn), "--stage", "filter", "--set", "seed=7", "--check"],
+    out = cli_fork.run_command([*GFLOW, "rerun", str(torn), "--stage", "filter", "--set", "seed=7", "--check"],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 1 and "differ" in out.stdout
 
@@ -58,7 +59,7 @@ def test_rerun_check_on_an_interrupted_run(tmp_path):
     p.send_signal(signal.SIGINT)
     p.communicate(timeout=60)
     for args in (["--stage", "filter"], ["--stage", "preprocess"], ["--graph", "--out", str(tmp_path / "g.mcap")]):
-        out = subprocess.run([*GFLOW, "rerun", str(rec), *args, "--check"], capture_output=True, text=True,
+        out = cli_fork.run_command([*GFLOW, "rerun", str(rec), *args, "--check"], capture_output=True, text=True,
                              timeout=180)
         assert out.returncode == 0, (args, out.stdout + out.stderr)
         assert "all identical" in out.stdout
@@ -81,15 +82,15 @@ def test_segments_read_as_one_recording(demo_recording, tmp_path):
     _split(demo_recording, dest, 0.5)
     assert segments(dest) == [dest, tmp_path / "seg.part1.mcap"]
     assert sorted(estimates(dest)) == sorted(estimates(demo_recording)) == list(range(40))
-    out = subprocess.run([*GFLOW, "boxes", str(dest), "--out", str(tmp_path / "b.csv")], capture_output=True,
+    out = cli_fork.run_command([*GFLOW, "boxes", str(dest), "--out", str(tmp_path / "b.csv")], capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "from 2 segments" in out.stdout
     boxes = read_boxes(tmp_path / "b.csv")
     assert boxes == {k: tuple(round(v, 2) for v in e.box) for k, e in estimates(demo_recording).items()}
-    info = subprocess.run([*GFLOW, "info", str(dest)], capture_output=True, text=True, timeout=60)
+    info = cli_fork.run_command([*GFLOW, "info", str(dest)], capture_output=True, text=True, timeout=60)
     assert info.returncode == 0 and "seg.part1.mcap" in info.stdout
-    out = subprocess.run([*GFLOW, "rerun", str(dest), "--stage", "filter", "--check"], capture_output=True, text=True,
+    out = cli_fork.run_command([*GFLOW, "rerun", str(dest), "--stage", "filter", "--check"], capture_output=True, text=True,
                          timeout=120)
     assert out.returncode == 0 and "all identical" in out.stdout, out.stdout + out.stderr
 
@@ -98,12 +99,12 @@ def test_boxes_from_a_torn_recording_names_what_is_missing(demo_recording, tmp_p
     torn = tmp_path / "torn.mcap"
     data = demo_recording.read_bytes()
     torn.write_bytes(data[: int(len(data) * 0.5)])
-    out = subprocess.run([*GFLOW, "boxes", str(torn), "--out", str(tmp_path / "b.csv")], capture_output=True,
+    out = cli_fork.run_command([*GFLOW, "boxes", str(torn), "--out", str(tmp_path / "b.csv")], capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "ends early" in out.stdout
     assert sorted(read_boxes(tmp_path / "b.csv")) == sorted(estimates(torn))
-    bad = subprocess.run([*GFLOW, "boxes", str(tmp_path / "nothing.mcap"), "--out", str(tmp_path / "c.csv")],
+    bad = cli_fork.run_command([*GFLOW, "boxes", str(tmp_path / "nothing.mcap"), "--out", str(tmp_path / "c.csv")],
                          capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "not found" in bad.stderr and "Traceback" not in bad.stderr
 
@@ -121,7 +122,7 @@ def test_a_recording_cut_anywhere_reads_to_its_cut_and_info_says_so(demo_recordi
         notes: list[str] = []
         n = sum(1 for _ in iter_records(torn, on_truncated=notes.append))
         assert n <= whole and notes and "not closed properly" in notes[0], (cut, notes)
-        r = subprocess.run([*GFLOW, "info", str(torn)], capture_output=True, text=True, timeout=60)
+        r = cli_fork.run_command([*GFLOW, "info", str(torn)], capture_output=True, text=True, timeout=60)
         # a cut before the first message leaves nothing readable: exit 1; after it, a warning
         assert r.returncode == (1 if n == 0 else 0), (cut, n, r.returncode, r.stderr)
         assert "internal error" not in r.stderr and "Traceback" not in r.stderr, (cut, r.stderr)

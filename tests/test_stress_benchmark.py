@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from pipeline.recording.results import read_boxes, read_track, read_visibility, write_boxes
+import cli_fork
 from conftest import synthetic_sequence
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray
 from gflow_msgs.annotations import MAGENTA, ORANGE, annotations_for
@@ -33,7 +34,7 @@ def data(tmp_path_factory) -> Path:
 
 
 def _gflow(*args: str, env: dict | None = None, timeout: float = 240) -> subprocess.CompletedProcess:
-    return subprocess.run([*GFLOW, *args], capture_output=True, text=True, timeout=timeout,
+    return cli_fork.run_command([*GFLOW, *args], capture_output=True, text=True, timeout=timeout,
                           env=None if env is None else dict(os.environ, **env))
 
 
