@@ -46,6 +46,8 @@ COMMANDS: list[tuple[str, list[str] | None, str, int]] = [
     ("gflow eval --gt x.csv --pred y.csv (no such files)", ["eval", "--gt", "x.csv", "--pred", "y.csv"], "", 2),
     ("gflow info demo.mcap (8 frames)", ["info", "demo.mcap"], "", 0),
     ("a stage process's imports (import pipeline.runtime.node)", None, "import pipeline.runtime.node", 0),
+    ("the default tracker's stage (import stages.box_tracker, gflow_core.dcf.tracker)", None,
+     "import stages.box_tracker, gflow_core.dcf.tracker", 0),
 ]
 
 #: ``gflow ARGS`` where there is no console script: what it runs
