@@ -93,3 +93,14 @@ def gflow_sets(items: list[str]) -> dict:
     except (msgspec.ValidationError, ValueError, TypeError) as e:
         raise SystemExit(f"--gflow-set {' '.join(items)}: {plain_type_error(str(e), values)}") from None
     return {k: getattr(converted, k) for k in values}
+
+
+def checkout(ap, path: str):
+    """``--compare DIR`` resolved, or ``ap.error`` (one line, before any work) when DIR is not a gflow checkout:
+    a run there would import the installed gflow instead and compare this code with itself."""
+    from pathlib import Path
+
+    p = Path(path).resolve()
+    if not (p / "pipeline" / "cli" / "main.py").is_file():
+        ap.error(f"--compare {path}: not a gflow checkout (no pipeline/cli/main.py there)")
+    return p

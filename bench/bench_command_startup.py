@@ -33,7 +33,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import checkout, scratch, table  # noqa: E402
 
 #: label -> the arguments of ``gflow`` (None: the Python line below instead), and the exit status expected
 COMMANDS: list[tuple[str, list[str] | None, str, int]] = [
@@ -113,7 +113,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.runs < 1:
         ap.error("--runs must be >= 1")
-    codes = {"this": str(ROOT)} | ({"compare": str(Path(args.compare).resolve())} if args.compare else {})
+    codes = {"this": str(ROOT)} | ({"compare": str(checkout(ap, args.compare))} if args.compare else {})
     counted = become_subreaper()
     out = scratch("gflow-bench-startup-")
     make_recording(out, str(ROOT))

@@ -31,6 +31,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data" / "david_indoor"
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from _util import checkout  # noqa: E402
 
 
 def measure(frames: int) -> dict:
@@ -110,6 +113,7 @@ def main() -> None:
     ap.add_argument("--compare", metavar="DIR", help="another checkout to run alternately with this one")
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    codes = [("this", ROOT)] + ([("compare", checkout(ap, args.compare))] if args.compare else [])
     if not DATA.is_dir():
         raise SystemExit(f"{DATA} not found: this benchmark needs ../shared/data/david_indoor")
     if args.child:
@@ -118,7 +122,6 @@ def main() -> None:
         cv2.setNumThreads(1)  # as in a stage process (pipeline/runtime/stage_host.py)
         print(json.dumps(measure(args.frames)))
         return
-    codes = [("this", ROOT)] + ([("compare", Path(args.compare).resolve())] if args.compare else [])
     results: dict[str, list[dict]] = {name: [] for name, _ in codes}
     for _ in range(args.repeat):
         for name, code in codes:

@@ -30,7 +30,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import checkout, scratch, table  # noqa: E402
 
 from gflow_core.gflow.landmark_error import landmark_score  # noqa: E402
 from gflow_core.evaluation.metrics import iou  # noqa: E402
@@ -91,6 +91,7 @@ def main() -> None:
     ap.add_argument("--compare", metavar="DIR", help="another checkout to run alternately with this one")
     ap.add_argument("--cache", metavar="DIR", help="keep the derived frames here (the stress benchmark's layout)")
     args = ap.parse_args()
+    codes = [ROOT] + ([checkout(ap, args.compare)] if args.compare else [])
     seqs, _ = find_sequences([str(DATA)])
     names = [s.name for s in seqs]
     if "david_indoor" not in names:
@@ -105,7 +106,6 @@ def main() -> None:
     root = Path(args.cache) if args.cache else tmp / "derived"
     derived = [derive(david, cases[c], donor, root, args.seed, 30, 60) for c in args.cases.split(",")]
     reference = read_landmarks(DATA / "david_indoor" / "landmarks.npz")
-    codes = [ROOT] + ([Path(args.compare).resolve()] if args.compare else [])
     results = {str(c): run_code(c, derived, reference, tmp, args.seed) for c in codes}
     head = ["case", "NME before the window", f"NME from {AFTER} frames after", "box success after"]
     for code in codes:

@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from _util import scratch, table  # noqa: E402
+from _util import checkout, scratch, table  # noqa: E402
 
 from pipeline.cli.commands.track import DEFAULT_TRACKER  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402
@@ -105,12 +105,12 @@ def main() -> None:
     ap.add_argument("--compare", metavar="DIR", help="another checkout to alternate with (e.g. the base)")
     ap.add_argument("--out", default=None, help="keep recordings and traces here (default: a temporary folder)")
     args = ap.parse_args()
+    codes = {"this": str(ROOT)} | ({"compare": str(checkout(ap, args.compare))} if args.compare else {})
     seq = DATA / "caviar1"
     if not seq.is_dir():
         sys.exit(f"bench_startup: {seq} not found (set GFLOW_DATA)")
     init = ",".join(f"{v:g}" for v in read_boxes(seq / "groundtruth.csv")[0])
     out = scratch("gflow-bench-startup-", keep=args.out)
-    codes = {"this": str(ROOT)} | ({"compare": str(Path(args.compare).resolve())} if args.compare else {})
     print(f"load before: {' '.join(f'{x:.2f}' for x in psutil.getloadavg())} on {psutil.cpu_count()} cores")
     runs: dict[str, list[dict]] = {c: [] for c in codes}
     k = 0

@@ -54,6 +54,17 @@ def test_the_pace_benchmark_refuses_a_bad_gflow_setting_in_one_line_before_any_w
         assert not r.stdout.strip(), r.stdout
 
 
+def test_a_compare_folder_that_is_no_checkout_is_refused_in_one_line_before_any_work(tmp_path: Path) -> None:
+    """``--compare DIR`` of a folder that holds no gflow: a run there would import the installed gflow and
+    compare this code with itself (it did, and printed ratios near 1), or end in a traceback."""
+    for bench in ("bench_command_startup.py", "bench_startup.py", "bench_gflow_cycle.py",
+                  "bench_gflow_stress_points.py"):
+        r = subprocess.run([sys.executable, f"bench/{bench}", "--compare", str(tmp_path)], cwd=ROOT,
+                           capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+        assert r.returncode == 2 and "not a gflow checkout" in r.stderr, (bench, r.stderr[-500:])
+        assert "Traceback" not in r.stderr and not r.stdout.strip(), (bench, r.stdout[-300:], r.stderr[-300:])
+
+
 def test_the_pace_benchmark_takes_a_number_in_e_notation_as_gflow_track_does() -> None:
     """``--gflow-set psi_v=3e-3`` (YAML reads ``3e-3`` as a string) is the number 0.003 to ``gflow track``; the
     pace benchmark's check before any work accepts it too (it refused it as "not a number")."""
