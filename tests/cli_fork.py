@@ -10,7 +10,9 @@ it forks the stage zygote and binds an early UDP port as the command does at sta
 :func:`pipeline.cli.main.main`, runs the exit handlers and exits with the command's status (an exception that
 escapes ``main`` prints its traceback and exits 1, as the interpreter does).
 
-What the server never imports (OpenCV, zenoh, mcap and the stages: they start threads, and a process with threads
+The server also imports what a launching command's stage zygote imports (``pipeline.runtime.node``: zenoh, msgspec,
+the runtime; pipeline/runtime/zygote.py), which starts no thread with BLAS held to one, so that zygote, forked from
+the child, starts warm. What the server never imports (OpenCV starts a thread at import, and a process with threads
 must not fork) the child imports as the command does. :func:`run` falls back to a new interpreter where the fork
 server cannot stand in (not Linux, or ``GFLOW_TEST_FORK=0``).
 """
@@ -36,6 +38,7 @@ import pipeline.cli.main as cli_main
 import numpy  # noqa: F401
 from pipeline.cli.commands import command_modules
 command_modules()  # every command's module (they import neither OpenCV nor zenoh at their top)
+import pipeline.runtime.node  # noqa: F401  (what a command's stage zygote imports: zenoh, msgspec, the runtime)
 assert len(os.listdir("/proc/self/task")) == 1, "the fork server has threads"
 reply = os.fdopen(int(sys.argv[1]), "w", buffering=1)
 for line in sys.stdin:
@@ -152,6 +155,14 @@ def usable() -> bool:
     return sys.platform.startswith("linux") and os.environ.get("GFLOW_TEST_FORK", "1") != "0"
 
 
+def _same_path(env: dict[str, str]) -> bool:
+    """Whether ``env``'s PYTHONPATH names only what the server's does (this checkout, this process's PYTHONPATH): a
+    command given a folder of its own to import from (a tracker of the user's) needs a new interpreter."""
+    have = {str(ROOT), *filter(None, os.environ.get("PYTHONPATH", "").split(os.pathsep))}
+    return {str(Path(p).resolve()) if p else "" for p in env.get("PYTHONPATH", "").split(os.pathsep)} - {""} <= {
+        str(Path(p).resolve()) for p in have}
+
+
 def run(argv: list[str], cwd: Path, env: dict[str, str] | None = None, timeout: float = 60.0,
         input: str | None = None) -> subprocess.CompletedProcess:
     """``gflow ARGV`` in ``cwd`` with environment ``env`` (default: this process's) and ``input`` on its stdin
@@ -159,7 +170,7 @@ def run(argv: list[str], cwd: Path, env: dict[str, str] | None = None, timeout: 
     text=True)``'s result)."""
     global _SERVER
     env = dict(os.environ if env is None else env)
-    if not usable():
+    if not usable() or not _same_path(env):
         env["PYTHONPATH"] = str(ROOT) + os.pathsep + env.get("PYTHONPATH", "")
         return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *argv], cwd=cwd, env=env, input=input,
                               capture_output=True, text=True, timeout=timeout,
