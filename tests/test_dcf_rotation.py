@@ -297,9 +297,9 @@ def test_bad_roll_parameters_are_refused_in_one_line_naming_them(name: str, valu
 
 def test_on_caviar1_rolled_to_35_degrees_it_holds_the_target_the_upright_filter_loses() -> None:
     """caviar1's target (a disc around it) rolled to 35 degrees and back over 40 frames (the stress case
-    ``roll-target-35``, rendered as the benchmark renders it but not written to JPEG): with ``roll_step``
-    and the best roll taken (``roll_explain`` 0) the box is on the target (IoU > 0.5) on 90 % of the
-    labelled frames after the roll; the upright filter's is on it on fewer. So is it with ``roll_explain``
+    ``roll-target-35``, rendered as the benchmark renders it but not written to JPEG, its first 100 of 130
+    frames): with ``roll_step`` and the best roll taken (``roll_explain`` 0) the box is on the target
+    (IoU > 0.5) on 90 % of the 30 labelled frames after the roll; the upright filter's is on it on fewer. So is it with ``roll_explain``
     and ``roll_best`` (the best of the rolls that explain the frame); with ``roll_explain`` alone it is
     not: the held upright window stays within the target's learnt spread as the target rolls away, so
     H0 is never refused (docs/dcf-development.md). Those four without the roll at detection; the default,
@@ -316,8 +316,9 @@ def test_on_caviar1_rolled_to_35_degrees_it_holds_the_target_the_upright_filter_
     first = cv2.imread(str(files[0]))
     plan = plan_case(case, boxes, (first.shape[1], first.shape[0]), np.random.default_rng(0),
                      labelled=labelled)
-    frames = [render_frame(cv2.imread(str(files[int(s)])), plan, i) for i, s in enumerate(plan.source)]
-    after = [i for i in range(plan.window[1], len(plan)) if plan.labelled[i]]
+    end = plan.window[1] + 30  # 30 frames after the roll: the upright filter is off the target on most
+    frames = [render_frame(cv2.imread(str(files[int(s)])), plan, i) for i, s in enumerate(plan.source[:end])]
+    after = [i for i in range(plan.window[1], end) if plan.labelled[i]]
     truth = plan.boxes[after]
     on = []
     for p in (DCFParams(roll_step=10.0, roll_explain=0.0, roll_detect=False), DCFParams(roll_step=0.0),
