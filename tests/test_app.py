@@ -15,6 +15,7 @@ from conftest import data_dir
 from pipeline.app import RequestError, TrackRequest, plan_track, run, track
 from pipeline.cli.trackers import TRACKERS
 from pipeline.recording.results import estimates, read_track
+import cli_fork
 
 INIT = (204.0, 150.0, 17.0, 50.0)
 
@@ -109,11 +110,10 @@ def test_run_yields_each_estimate_while_the_source_still_reads(tmp_path, monkeyp
 
 
 def _recording_is_read(rec) -> None:
-    import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "info", str(rec)], capture_output=True, text=True,
-                       timeout=120)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "info", str(rec)], capture_output=True, text=True,
+                             timeout=120)
     assert r.returncode == 0 and "estimate" in r.stdout, r.stdout + r.stderr
 
 

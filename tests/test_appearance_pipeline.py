@@ -5,7 +5,6 @@ the recording re-runs bit for bit, and it beats a box that never moves."""
 from __future__ import annotations
 
 import json
-import subprocess
 
 import msgspec
 import numpy as np
@@ -17,6 +16,7 @@ from pipeline.recording.results import read_boxes
 from stages.base import StageContext
 from stages.registry import get_stage_class
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
+import cli_fork
 
 # the two stages are made from the tracker's spec (stages.registry, stages.spec_box)
 AppearanceFilterStage = get_stage_class("appearance.filter")
@@ -141,8 +141,8 @@ def test_crossing_processes_equal_inline_and_rerun_is_bit_exact(crossing, tmp_pa
         csv = tmp_path / f"{mode}.csv"
         cmd = [*gflow_cmd, "track", str(crossing), "--tracker", "appearance", "--init", init, "--seed", "1", "--out",
                str(csv), "--record", str(tmp_path / f"{mode}.mcap"), "-q", "--stop", "60"]
-        r = subprocess.run(cmd + (["--inline"] if mode == "inline" else []), capture_output=True, text=True,
-                           timeout=300)
+        r = cli_fork.run_command(cmd + (["--inline"] if mode == "inline" else []), capture_output=True, text=True,
+                                 timeout=300)
         assert r.returncode == 0, r.stderr
         outs[mode] = csv.read_bytes()
     assert outs["mp"] == outs["inline"]
@@ -151,8 +151,8 @@ def test_crossing_processes_equal_inline_and_rerun_is_bit_exact(crossing, tmp_pa
     sc = score({k: gt[k] for k in pred}, pred)
     still = score({k: gt[k] for k in pred}, {k: gt[0] for k in pred})
     assert sc.cle < still.cle / 5 and sc.success > 0.9
-    r = subprocess.run([*gflow_cmd, "rerun", str(tmp_path / "mp.mcap"), "--stage", "filter", "--check"],
-                       capture_output=True, text=True, timeout=300)
+    r = cli_fork.run_command([*gflow_cmd, "rerun", str(tmp_path / "mp.mcap"), "--stage", "filter", "--check"],
+                             capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "differ" not in r.stdout.replace("no output differs", "")
 

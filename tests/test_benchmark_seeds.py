@@ -22,6 +22,7 @@ from pipeline.io.datasets import write_frames
 from pipeline.recording.results import write_boxes
 
 from conftest import StderrLines
+import cli_fork
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 FRAMES = 30
@@ -40,7 +41,7 @@ def seq(tmp_path_factory) -> Path:
 
 
 def _bench(*args: str) -> dict:
-    r = subprocess.run([*GFLOW, "benchmark", *args], capture_output=True, text=True, timeout=240)
+    r = cli_fork.run_command([*GFLOW, "benchmark", *args], capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stderr
     assert "Traceback" not in r.stderr
     return json.loads(r.stdout)
@@ -71,8 +72,8 @@ def test_each_seed_is_the_run_of_that_seed_and_the_mean_is_theirs(seq, tmp_path)
 
 
 def test_the_text_shows_every_seed_then_the_means(seq):
-    r = subprocess.run([*GFLOW, "benchmark", str(seq), *RUN[:-1], "--seeds", "1-3", "--markdown", "--no-fps"],
-                       capture_output=True, text=True, timeout=240)
+    r = cli_fork.run_command([*GFLOW, "benchmark", str(seq), *RUN[:-1], "--seeds", "1-3", "--markdown", "--no-fps"],
+                             capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     assert lines[0] == "**chamfer** (AUC with each seed: 1, 2, 3)"
@@ -136,8 +137,8 @@ def test_stress_runs_each_seed(seq, tmp_path):
             for r in both["runs"][1]["rows"]] == timeless
     assert sorted(p.name for p in (tmp_path / "runs").iterdir()) == ["seed-1", "seed-2"]
     # as text: each seed's tables, then the summaries side by side, each figure the seed's JSON's
-    r = subprocess.run([*GFLOW, "benchmark", str(seq), *stress[:-1], "--seeds", "1,2", "--markdown"],
-                       capture_output=True, text=True, timeout=240)
+    r = cli_fork.run_command([*GFLOW, "benchmark", str(seq), *stress[:-1], "--seeds", "1,2", "--markdown"],
+                             capture_output=True, text=True, timeout=240)
     assert r.returncode == 0, r.stderr
     lines = r.stdout.splitlines()
     assert "## seed 1" in lines and "## seed 2" in lines and "## every seed" in lines

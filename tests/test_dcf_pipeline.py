@@ -6,7 +6,6 @@ snapshot."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import cv2
@@ -23,6 +22,7 @@ from pipeline.recording.results import read_boxes
 from stages.base import StageContext
 from stages.registry import get_stage_class
 from gflow_msgs.messages import Estimate, Frame, Header, NDArray, Particles, decode, encode
+import cli_fork
 
 # the tracker's stages, made from its spec (stages.registry, stages.spec_box)
 DCFFilterStage, DCFProposalStage = get_stage_class("dcf.filter"), get_stage_class("dcf.proposal")
@@ -135,8 +135,8 @@ def test_processes_equal_inline_the_api_agrees_and_rerun_is_bit_exact(crossing, 
         csv = tmp_path / f"{mode}.csv"
         cmd = [*gflow_cmd, "track", str(crossing), "--tracker", "dcf", "--init", init, "--seed", "1", "--out",
                str(csv), "--record", str(tmp_path / f"{mode}.mcap"), "-q", "--stop", "40"]
-        r = subprocess.run(cmd + (["--inline"] if mode == "inline" else []), capture_output=True, text=True,
-                           timeout=300)
+        r = cli_fork.run_command(cmd + (["--inline"] if mode == "inline" else []), capture_output=True, text=True,
+                                 timeout=300)
         assert r.returncode == 0, r.stderr
         outs[mode] = csv.read_bytes()
     assert outs["mp"] == outs["inline"]
@@ -146,8 +146,8 @@ def test_processes_equal_inline_the_api_agrees_and_rerun_is_bit_exact(crossing, 
     still = score({k: gt[k] for k in pred}, {k: gt[0] for k in pred})
     assert sc.cle < still.cle / 5 and sc.success > 0.9
     for extra in (["--stage", "filter"], ["--stage", "filter", "--from", "30"], ["--graph"]):
-        r = subprocess.run([*gflow_cmd, "rerun", str(tmp_path / "mp.mcap"), *extra, "--check"], capture_output=True,
-                           text=True, timeout=300)
+        r = cli_fork.run_command([*gflow_cmd, "rerun", str(tmp_path / "mp.mcap"), *extra, "--check"], capture_output=True,
+                                 text=True, timeout=300)
         assert r.returncode == 0, r.stdout + r.stderr
         assert "all identical bit for bit" in r.stdout
     recorded = {r.seq: decode(r.data) for r in iter_records(tmp_path / "mp.mcap") if r.type == "Estimate"}
@@ -159,15 +159,15 @@ def test_processes_equal_inline_the_api_agrees_and_rerun_is_bit_exact(crossing, 
 
 
 def test_gflow_info_and_track_name_the_tracker(gflow_cmd, tmp_path, frames):
-    r = subprocess.run([*gflow_cmd, "info", "dcf"], capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*gflow_cmd, "info", "dcf"], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and "DCFParams" in r.stdout and "padding" in r.stdout
     folder = tmp_path / "frames"
     folder.mkdir()
     for t in range(3):
         cv2.imwrite(str(folder / f"{t:06d}.png"), frames[1][t].image.array())
-    r = subprocess.run([*gflow_cmd, "track", str(folder), "--tracker", "dcf", "--init", "1,1,5,5", "--set",
-                        "tracker.scales=4", "--inline", "--no-record", "--stop", "3", "--out", str(tmp_path / "b.csv")],
-                       capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([*gflow_cmd, "track", str(folder), "--tracker", "dcf", "--init", "1,1,5,5", "--set",
+                              "tracker.scales=4", "--inline", "--no-record", "--stop", "3", "--out", str(tmp_path / "b.csv")],
+                             capture_output=True, text=True, timeout=120)
     assert r.returncode != 0 and "scales must be odd" in r.stderr and "Traceback" not in r.stderr
 
 

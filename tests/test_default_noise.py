@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import csv
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -16,15 +15,16 @@ import cv2
 import numpy as np
 
 from gflow_core.dcf.params import DCFParams
+import cli_fork
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def track(tmp_path: Path, source: Path, init: str, stop: int) -> list[list[str]]:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(source), "--tracker", "dcf", "--init", init, "--out",
-                        "b.csv", "--stop", str(stop), "--inline", "--no-record", "-q"], cwd=tmp_path, env=env,
-                       capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", str(source), "--tracker", "dcf", "--init", init, "--out",
+                              "b.csv", "--stop", str(stop), "--inline", "--no-record", "-q"], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     with open(tmp_path / "b.csv") as f:
         return list(csv.reader(f))[1:]

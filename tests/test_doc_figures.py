@@ -25,13 +25,13 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
 
 from conftest import data_dir
+import cli_fork
 
 ROOT = Path(__file__).resolve().parent.parent
 #: the shared sequences re-measured (the table has all of them): see the module docstring
@@ -128,9 +128,9 @@ def test_the_fast_trackers_reproduce_the_shared_sequence_table():
     missing = [n for n in names if n not in tables]
     assert not missing, (f"docs/accuracy.md's shared table has no {missing[0]} (the default tracker and chamfer are "
                          "re-measured): regenerate it with `python bench/make_tables.py --only shared`")
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "benchmark", str(data), "--sequences", ",".join(SUBSET),
-                        "--trackers", ",".join(names), "--inline", "--seed", "1", "--json", "-q"],
-                       capture_output=True, text=True, timeout=600, cwd=ROOT)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli", "benchmark", str(data), "--sequences", ",".join(SUBSET),
+                              "--trackers", ",".join(names), "--inline", "--seed", "1", "--json", "-q"],
+                             capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert r.returncode == 0, r.stderr
     rows = {(row["sequence"], row["tracker"]): row for row in json.loads(r.stdout)["rows"]}
     differ = []

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import cli_fork
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -23,8 +24,8 @@ VIS = "frame,visible\n0,1\n1,1\n2,1\n3,1\n"
 
 def gflow(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=120, stdin=subprocess.DEVNULL)
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
+                                text=True, timeout=120, stdin=subprocess.DEVNULL)
 
 
 def one_line_error(r: subprocess.CompletedProcess, *words: str, rc: int = 2) -> None:

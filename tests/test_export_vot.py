@@ -20,13 +20,14 @@ import yaml
 from gflow_core.evaluation.metrics import iou
 from gflow_core.synthetic import SyntheticScene
 from pipeline.recording.results import read_boxes
+import cli_fork
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def gflow(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True, timeout=300,
-                          cwd=cwd, stdin=subprocess.DEVNULL)
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True, timeout=300,
+                                cwd=cwd, stdin=subprocess.DEVNULL)
 
 
 def make_sequence(folder: Path, n: int = 12, labelled=lambda t: t >= 2 and t % 2 == 0, ext: str = ".png") -> dict:
@@ -176,8 +177,8 @@ def test_the_toolkit_evaluates_the_export_and_agrees_with_gflows_overlap(tmp_pat
     env = dict(os.environ, PYTHONPATH=str(ROOT), VOT_RESULTS_BINARY="0")
     for cmd in (["evaluate", "--workspace", str(tmp_path / "ws"), "gflow-dcf"],
                 ["analysis", "--workspace", str(tmp_path / "ws"), "gflow-dcf", "--name", "a"]):
-        r = subprocess.run([vot, *cmd], capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env,
-                           stdin=subprocess.DEVNULL)
+        r = cli_fork.run_command([vot, *cmd], capture_output=True, text=True, timeout=600, cwd=tmp_path, env=env,
+                                 stdin=subprocess.DEVNULL)
         assert r.returncode == 0 and "rror" not in r.stdout + r.stderr, (r.stdout + r.stderr)[-3000:]
     # the toolkit's trajectory (line k is frame k - 1): the boxes gflow track gives
     lines = (tmp_path / "ws" / "results" / "gflow-dcf" / "baseline" / "syn" / "syn_001.txt").read_text().split()

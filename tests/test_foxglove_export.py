@@ -12,14 +12,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 from mcap.reader import make_reader
+import cli_fork
 
 ROOT = Path(__file__).resolve().parent.parent
 
 
 def gflow(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=120)
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
+                                text=True, timeout=120)
 
 
 def test_export_has_sdk_images_and_overlays_and_json_estimates(tmp_path: Path) -> None:

@@ -3,7 +3,6 @@ appearance exemplars; bad combinations of sources and box files get a one-line e
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 
 import cv2
@@ -12,6 +11,7 @@ import numpy as np
 from gflow_core.synthetic import SyntheticScene
 from pipeline.io.modelfile import load_meta, load_model
 from pipeline.recording.results import write_boxes
+import cli_fork
 
 N = 12
 
@@ -28,8 +28,8 @@ def _dataset(root: Path, seed: int) -> Path:
 def test_learn_from_two_sequences_with_each_folders_boxes(tmp_path, gflow_cmd) -> None:
     a, b = _dataset(tmp_path / "a", 3), _dataset(tmp_path / "b", 5)
     out = tmp_path / "m.npz"
-    r = subprocess.run([*gflow_cmd, "learn", "m2", str(a), str(b), "--boxes", "-K", "4", "--max-points", "60",
-                        "--out", str(out), "-q"], capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([*gflow_cmd, "learn", "m2", str(a), str(b), "--boxes", "-K", "4", "--max-points", "60",
+                              "--out", str(out), "-q"], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "appearance d'_k median" in r.stdout
     m = load_model(out)
@@ -38,11 +38,11 @@ def test_learn_from_two_sequences_with_each_folders_boxes(tmp_path, gflow_cmd) -
     assert meta["sequences"] == 2 and meta["source"].count(";") == 1
     assert meta["boxes"] == f"{a / 'groundtruth.csv'};{b / 'groundtruth.csv'}"
     # one box file per source works the same; a count that matches neither is a one-line error
-    r = subprocess.run([*gflow_cmd, "learn", "m2", str(a), str(b), "--boxes", str(a / "groundtruth.csv"),
-                        "--out", str(tmp_path / "x.npz")], capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*gflow_cmd, "learn", "m2", str(a), str(b), "--boxes", str(a / "groundtruth.csv"),
+                              "--out", str(tmp_path / "x.npz")], capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "--boxes lists 1 file(s) for 2 source(s)" in r.stderr
     assert "Traceback" not in r.stderr and not (tmp_path / "x.npz").exists()
     (tmp_path / "c" / "frames").mkdir(parents=True)
-    r = subprocess.run([*gflow_cmd, "learn", "m2", str(a), str(tmp_path / "c"), "--boxes", "--out",
-                        str(tmp_path / "x.npz")], capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*gflow_cmd, "learn", "m2", str(a), str(tmp_path / "c"), "--boxes", "--out",
+                              str(tmp_path / "x.npz")], capture_output=True, text=True, timeout=60)
     assert r.returncode != 0 and "groundtruth.csv" in r.stderr and "Traceback" not in r.stderr

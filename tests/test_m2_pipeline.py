@@ -16,13 +16,14 @@ from gflow_core.evaluation.metrics import score
 from pipeline.io.datasets import read_avletters, write_frames
 from pipeline.io.modelfile import load_model
 from pipeline.recording.results import estimates, read_boxes, write_boxes
+import cli_fork
 
 TRAIN = (0, 150)
 TEST = (150, 200)
 
 
 def _run(cmd: list[str], timeout: float = 300) -> subprocess.CompletedProcess:
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+    r = cli_fork.run_command(cmd, capture_output=True, text=True, timeout=timeout)
     assert r.returncode == 0, f"{' '.join(cmd)}\n{r.stdout}\n{r.stderr}"
     return r
 
@@ -161,8 +162,8 @@ def test_m2_recording_reruns_bit_for_bit(caviar1_model, tmp_path, gflow_cmd) -> 
         assert "all identical bit for bit" in out.stdout
     out = _run([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--from", str(TEST[0] + 28), "--check"])
     assert f"from the snapshot at frame {TEST[0] + 25}" in out.stdout and "all identical" in out.stdout
-    bad = subprocess.run([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--set", "particles=150", "--check"],
-                         capture_output=True, text=True, timeout=300)
+    bad = cli_fork.run_command([*gflow_cmd, "rerun", str(rec), "--stage", "filter", "--set", "particles=150", "--check"],
+                               capture_output=True, text=True, timeout=300)
     assert bad.returncode == 1 and f"first difference at frame {TEST[0]}" in bad.stdout
 
 

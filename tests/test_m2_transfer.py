@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from gflow_core.m2.curves import Curves
 from gflow_core.m2.dynamics import random_walk
 from gflow_core.m2.kernel import fit_kernels
 from gflow_core.m2.model import M2Model
+import cli_fork
 
 
 def _outline(scale: int) -> np.ndarray:
@@ -114,9 +114,9 @@ def test_a_cluster_at_the_pixel_floor_gets_the_pooled_kernel() -> None:
 def _learn(seq: Path, out: Path, *more: str) -> M2Model:
     from pipeline.io.modelfile import load_model
 
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", str(seq), "--boxes",
-                        str(seq / "groundtruth.csv"), "-K", "20", "--out", str(out), "-q", *more],
-                       capture_output=True, text=True, timeout=600)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", str(seq), "--boxes",
+                              str(seq / "groundtruth.csv"), "-K", "20", "--out", str(out), "-q", *more],
+                             capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     m = load_model(out)
     assert isinstance(m, M2Model)
@@ -176,10 +176,10 @@ def test_match_resolution_is_the_same_through_the_api_and_gflow_track(caviar1, c
         return [t.init(cv2.imread(str(files[0][1])), box).box] + [t.update(cv2.imread(str(f))).box for _, f in files[1:]]
 
     out = tmp_path / "boxes.csv"
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--tracker", "m2", "--model",
-                        str(caviar1_m2_model), "--init", ",".join(f"{v:g}" for v in box), "--seed", "1", "--inline",
-                        "--stop", "20", "--out", str(out), "-q", "--set", "preprocess.match_resolution=true"],
-                       capture_output=True, text=True, timeout=600)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--tracker", "m2", "--model",
+                              str(caviar1_m2_model), "--init", ",".join(f"{v:g}" for v in box), "--seed", "1", "--inline",
+                              "--stop", "20", "--out", str(out), "-q", "--set", "preprocess.match_resolution=true"],
+                             capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     cli = read_boxes(out)
     on = api(True)

@@ -14,6 +14,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+import cli_fork
 
 ROOT = Path(__file__).resolve().parent.parent
 INIT = "129,71,30,79"
@@ -32,9 +33,9 @@ def rows(path: Path) -> dict[int, list[str]]:
 
 def test_estimates_from_outside_the_run_are_left_out_and_reported(tmp_path: Path, caviar1: Path) -> None:
     env = env_for(tmp_path)
-    ref = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", INIT, "--stop",
-                          str(FRAMES), "--out", "ref.csv", "--inline", "--no-record", "-q"], cwd=tmp_path, env=env,
-                         capture_output=True, text=True, timeout=120)
+    ref = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", INIT, "--stop",
+                                str(FRAMES), "--out", "ref.csv", "--inline", "--no-record", "-q"], cwd=tmp_path, env=env,
+                               capture_output=True, text=True, timeout=120)
     assert ref.returncode == 0, ref.stderr
     # the outsider is started first and the run only once it says it is ready: on a busy machine its own
     # start-up (python, numpy, zenoh) took longer than the run's 60 frames, and it published after the run ended
@@ -60,12 +61,12 @@ def test_estimates_from_outside_the_run_are_left_out_and_reported(tmp_path: Path
     est = [r for r in iter_records(tmp_path / "run.mcap") if r.type == "Estimate"]
     assert len(est) == FRAMES + FRAMES + 40
     assert sorted(estimates(tmp_path / "run.mcap")) == list(range(FRAMES))
-    boxes = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "boxes", "run.mcap", "--out", "b.csv"],
-                           cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
+    boxes = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "boxes", "run.mcap", "--out", "b.csv"],
+                                 cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
     assert boxes.returncode == 0, boxes.stderr
     assert rows(tmp_path / "b.csv") == want
-    info = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "info", "run.mcap"], cwd=tmp_path, env=env,
-                          capture_output=True, text=True, timeout=60)
+    info = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "info", "run.mcap"], cwd=tmp_path, env=env,
+                                capture_output=True, text=True, timeout=60)
     assert info.returncode == 0, info.stderr
     line = [ln for ln in info.stdout.splitlines() if "outside the run" in ln]
     assert line and str(FRAMES + 40) in line[0], info.stdout

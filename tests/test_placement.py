@@ -10,6 +10,7 @@ import pytest
 from pipeline.runtime.graph import GraphError, load_graph, parse_graph
 from pipeline.runtime.placement import describe_hosts, host_labels, local_stages
 from pipeline.runtime.runid import choose_stream
+import cli_fork
 
 
 def test_host_picks_the_stages_placed_there():
@@ -52,13 +53,12 @@ def test_every_run_gets_its_own_stream_and_keeps_its_random_draws():
                                   ["pub", "gflow/x/_control", "Control", '{"command": "stop"}', "--wait", "1"]])
 def test_live_tools_that_reach_nothing_say_so(tool, tmp_path):
     """Each in the same words, exit 2 (pub said it with exit 1, as if a wait for a subscriber had run out)."""
-    import subprocess
     import sys
 
     from pipeline.runtime.transport import free_port
 
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", *tool, "--connect", f"tcp/127.0.0.1:{free_port()}"],
-                       cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *tool, "--connect", f"tcp/127.0.0.1:{free_port()}"],
+                             cwd=tmp_path, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "reached nothing at tcp/127.0.0.1:" in r.stderr, r.stderr
     assert r.stderr.startswith(f"gflow {tool[0]}: error: ") and "within 3 s (is a gflow pipeline" in r.stderr, r.stderr
@@ -77,8 +77,8 @@ def test_a_recorder_only_graph_records_until_the_end_of_stream(tmp_path):
     gflow = [sys.executable, "-m", "pipeline.cli.main"]
     env = dict(os.environ, GFLOW_RUNTIME_DIR=str(tmp_path / "rt"))
     base = tmp_path / "base.mcap"
-    r = subprocess.run([*gflow, "run", "demo", "--inline", "--set", "source.frames=10", "--set", "filter.particles=50",
-                        "--record", str(base)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([*gflow, "run", "demo", "--inline", "--set", "source.frames=10", "--set", "filter.particles=50",
+                              "--record", str(base)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     (tmp_path / "rec.yaml").write_text("name: rec\nstream: demo\nexternal: {frames: Frame, estimate: Estimate}\n"
                                        "stages:\n  recorder:\n    kind: recorder\n")
@@ -90,8 +90,8 @@ def test_a_recorder_only_graph_records_until_the_end_of_stream(tmp_path):
         while not out.exists():  # the recorder opens its file after declaring its subscriber
             assert p.poll() is None and time.monotonic() < deadline, p.stderr.read() if p.poll() is not None else ""
             time.sleep(0.05)
-        rp = subprocess.run([*gflow, "replay", str(base), "--max", "--topics", "gflow/demo/frames",
-                             "gflow/demo/estimate"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+        rp = cli_fork.run_command([*gflow, "replay", str(base), "--max", "--topics", "gflow/demo/frames",
+                                   "gflow/demo/estimate"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
         assert rp.returncode == 0, rp.stderr
         _, err = p.communicate(timeout=60)
     finally:
@@ -126,8 +126,8 @@ def test_a_tool_given_the_graphs_stream_finds_the_one_run_of_it(tmp_path):
             time.sleep(0.05)
         info = json.loads(next(rt.glob("*.json")).read_text())
         assert info["stream"].startswith("demo-") and info["camera"] == "demo"
-        r = subprocess.run([*gflow, "echo", "gflow/demo/estimate", "-n", "1", "--timeout", "60"], env=env,
-                           capture_output=True, text=True, timeout=120)
+        r = cli_fork.run_command([*gflow, "echo", "gflow/demo/estimate", "-n", "1", "--timeout", "60"], env=env,
+                                 capture_output=True, text=True, timeout=120)
         assert r.returncode == 0, r.stderr
         assert f"(stream demo: the running run {info['stream']})" in r.stderr
         assert r.stdout.startswith(f"gflow/{info['stream']}/estimate: Estimate seq=")
@@ -139,12 +139,11 @@ def test_a_tool_given_the_graphs_stream_finds_the_one_run_of_it(tmp_path):
 def test_record_on_a_host_without_the_recorder_is_refused_before_anything_starts(tmp_path):
     """`--record` on a host whose stages do not include the recorder used to be ignored
     without a word; now it is a one-line error naming the recorder's host."""
-    import subprocess
     import sys
 
     root = Path(__file__).resolve().parent.parent
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "run", "demo_hosts", "--host", "cam",
-                        "--record", str(tmp_path / "x.mcap")], cwd=root, capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli", "run", "demo_hosts", "--host", "cam",
+                              "--record", str(tmp_path / "x.mcap")], cwd=root, capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert "recorder runs on host ops" in r.stderr and r.stderr.count("\n") == 1, r.stderr
     assert not (tmp_path / "x.mcap").exists()

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from pipeline.evaluation.scored_boxes import ScoredBoxes
+import cli_fork
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,8 +45,8 @@ def test_error_series_of_no_estimate_or_no_truth_is_empty() -> None:
 
 def gflow(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=120, stdin=subprocess.DEVNULL)
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
+                                text=True, timeout=120, stdin=subprocess.DEVNULL)
 
 
 @pytest.fixture
@@ -85,8 +86,8 @@ def test_matplotlib_caches_its_fonts_in_this_test_process_own_folder(tmp_path: P
     own = Path(os.environ["MPLCONFIGDIR"])
     assert own.is_dir() and f"gflow-mpl-{os.getpid()}-" in own.name
     assert Path(matplotlib.get_cachedir()) == own
-    r = subprocess.run([sys.executable, "-c", "import matplotlib; print(matplotlib.get_cachedir())"],
-                       capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([sys.executable, "-c", "import matplotlib; print(matplotlib.get_cachedir())"],
+                             capture_output=True, text=True, timeout=60)
     assert r.returncode == 0 and Path(r.stdout.strip()) == own, (r.stdout, r.stderr)
     assert [p for p in own.parent.glob(f"gflow-mpl-{os.getpid()}-*")] == [own]
 
@@ -96,8 +97,8 @@ def test_a_script_importing_conftest_leaves_no_matplotlib_folder_behind(tmp_path
     the temporary folder: it was removed only by pytest_unconfigure, which such a script never runs."""
     env = dict(os.environ, TMPDIR=str(tmp_path))
     env.pop("MPLCONFIGDIR")
-    r = subprocess.run([sys.executable, "-c", "import os, sys; sys.path.insert(0, sys.argv[1]); import conftest; "
-                        "print(os.environ['MPLCONFIGDIR'])", str(ROOT / "tests")], capture_output=True, text=True,
-                       timeout=60, env=env)
+    r = cli_fork.run_command([sys.executable, "-c", "import os, sys; sys.path.insert(0, sys.argv[1]); import conftest; "
+                              "print(os.environ['MPLCONFIGDIR'])", str(ROOT / "tests")], capture_output=True, text=True,
+                             timeout=60, env=env)
     assert r.returncode == 0 and Path(r.stdout.strip()).parent == tmp_path, (r.stdout, r.stderr)
     assert not list(tmp_path.iterdir())

@@ -3,7 +3,6 @@ bit for bit, errors as exceptions with the command line's messages."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import cv2
@@ -15,13 +14,14 @@ from pipeline.io.frame_readers import folder_frames
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.results import read_boxes
 from gflow_msgs.messages import decode
+import cli_fork
 
 
 def cli_estimates(cmd: list[str], tmp_path, name: str = "run") -> dict[int, object]:
     """Run a gflow command that records, and return its estimate messages by frame."""
     rec = tmp_path / f"{name}.mcap"
-    out = subprocess.run([sys.executable, "-m", "pipeline.cli.main", *cmd, "--record", str(rec)],
-                         capture_output=True, text=True, timeout=900)
+    out = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *cmd, "--record", str(rec)],
+                               capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr
     return {r.seq: decode(r.data) for r in iter_records(rec) if r.type in ("Estimate", "PoseEstimate")}
 
@@ -67,8 +67,8 @@ def test_the_api_over_caviar1_gives_gflow_tracks_boxes(caviar1, tmp_path, tracke
 
 
 def _learn(cmd: list[str]) -> None:
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", *cmd, "-q"], capture_output=True,
-                       text=True, timeout=300)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", *cmd, "-q"], capture_output=True,
+                             text=True, timeout=300)
     assert r.returncode == 0, r.stderr
 
 
@@ -216,8 +216,8 @@ def test_errors_are_exceptions_with_the_command_lines_messages(tmp_path, caviar1
     with pytest.raises(GflowError, match="tracker m2 needs model=MODEL.npz"):
         Tracker("m2")
     # the box and the source: the very lines gflow track prints
-    bad = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", "400,10,20,20",
-                          "--out", str(tmp_path / "b.csv"), "--inline", "-q"], capture_output=True, text=True)
+    bad = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", "400,10,20,20",
+                                "--out", str(tmp_path / "b.csv"), "--inline", "-q"], capture_output=True, text=True)
     assert bad.returncode == 2
     with pytest.raises(GflowError) as e:
         next(track(caviar1, init=(400, 10, 20, 20)))

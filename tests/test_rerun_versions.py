@@ -15,6 +15,7 @@ from pipeline.runtime.versions import versions
 from pipeline.io.mcap_io import iter_records, read_metadata
 from pipeline.io.recorder import McapRecorder
 from pipeline.runtime.run_metadata import VERSIONS, versions_differ
+import cli_fork
 
 
 def _with_versions(src: Path, out: Path, changed: dict[str, str] | None) -> Path:
@@ -31,8 +32,8 @@ def _with_versions(src: Path, out: Path, changed: dict[str, str] | None) -> Path
 
 
 def _rerun(path: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", "rerun", str(path), "--stage", "filter", "--check"],
-                          capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "rerun", str(path), "--stage", "filter", "--check"],
+                                capture_output=True, text=True, timeout=300, stdin=subprocess.DEVNULL)
 
 
 def test_a_recording_names_the_versions_it_ran_with(demo8):

@@ -3,20 +3,20 @@ seed give the same boxes: the graph files run the trackers' own defaults."""
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import pytest
 
 from pipeline.io.mcap_io import iter_records
 from gflow_msgs.messages import decode
+import cli_fork
 
 FRAMES = 40
 
 
 def estimates(args: list[str], rec) -> dict[int, tuple]:
-    out = subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args, "--inline", "--record", str(rec)],
-                         capture_output=True, text=True, timeout=600)
+    out = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args, "--inline", "--record", str(rec)],
+                               capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     return {r.seq: (tuple((m := decode(r.data)).box), m.confidence, m.target_state)
             for r in iter_records(rec) if r.type in ("Estimate", "PoseEstimate")}

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from conftest import synthetic_sequence
+import cli_fork
 
 FRAMES = 60
 STRESS = ["--stress", "--cases", "none,distract", "--lead", "8", "--tail", "20", "--trackers", "appearance",
@@ -29,8 +30,8 @@ def data(tmp_path_factory) -> Path:
 
 
 def _gflow(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], capture_output=True, text=True,
-                          timeout=240, stdin=subprocess.DEVNULL)
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args], capture_output=True, text=True,
+                                timeout=240, stdin=subprocess.DEVNULL)
 
 
 def test_a_distract_case_that_cannot_be_made_is_skipped_not_the_end_of_the_run(data: Path, tmp_path: Path) -> None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
-import subprocess
 import sys
 import typing
 from contextlib import redirect_stdout
@@ -22,6 +21,7 @@ from gflow_core.tracker import TrackingFilter
 from pipeline.cli.trackers import TRACKERS
 from pipeline.runtime.graph import load_graph
 from stages.registry import get_stage_class
+import cli_fork
 
 #: tracker name -> its parameter dataclass (the trackers whose parameters live in one)
 WITH_PARAMS = {name: mod.PARAMS for name, mod in TRACKERS.items() if getattr(mod, "PARAMS", None) is not None}
@@ -67,8 +67,8 @@ def test_a_stage_refuses_what_the_dataclass_refuses_with_its_message(cls, graph,
 
 
 def test_the_command_lines_options_show_the_dataclass_help_and_default() -> None:
-    help_text = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", "--help"], capture_output=True,
-                               text=True, env={"COLUMNS": "400", "PATH": ""}).stdout
+    help_text = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", "--help"], capture_output=True,
+                                     text=True, env={"COLUMNS": "400", "PATH": ""}).stdout
     flat = " ".join(help_text.split())
     n = 0
     for cls in WITH_PARAMS.values():
@@ -123,7 +123,7 @@ def test_the_command_line_reads_the_parameters_without_importing_the_mathematics
     code = ("import sys; from pipeline.cli.commands.track import add_track_args; import argparse; "
             "add_track_args(argparse.ArgumentParser()); "
             "print(sorted(m for m in ('gflow_core.gflow.filter', 'gflow_core.appearance.filter', 'scipy') if m in sys.modules))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    out = cli_fork.run_command([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]", out.stdout
 
 

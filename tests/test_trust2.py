@@ -27,6 +27,7 @@ from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.launcher import Launcher
 from pipeline.runtime.transport import ZenohSettings, free_port
+import cli_fork
 
 
 @pytest.fixture(scope="module")
@@ -125,8 +126,8 @@ def test_no_command_writes_over_a_recording(files: Path, tmp_path: Path, monkeyp
     x.write_bytes(before)
     args = [a.replace("{d}", str(files)).replace("{x}", str(x)) for a in argv]
     if argv[0] == "trax":
-        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], capture_output=True, text=True,
-                           timeout=60, stdin=subprocess.DEVNULL)
+        r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args], capture_output=True, text=True,
+                                 timeout=60, stdin=subprocess.DEVNULL)
         rc, err = r.returncode, r.stderr
     else:
         rc, err = cli(args, capsys)
@@ -273,8 +274,8 @@ def test_damage_inside_a_recording_is_said(files: Path, tmp_path: Path) -> None:
     from conftest import damaged_copy
 
     bad = damaged_copy(files / "demo.mcap", tmp_path / "bad.mcap")
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "plot", str(bad), str(tmp_path / "p.png")],
-                       capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "plot", str(bad), str(tmp_path / "p.png")],
+                             capture_output=True, text=True, timeout=120)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     # the plot of what came before the damage is kept, but not reported as the whole run's (exit 1), in one line
     assert r.returncode == 1 and (tmp_path / "p.png").is_file(), r.stderr
@@ -286,7 +287,7 @@ def test_trax_checks_the_values_it_is_given(tmp_path: Path) -> None:
     """gflow trax --set particles=abc started the TraX server, which ended in a traceback."""
     if importlib.util.find_spec("trax") is None:
         pytest.skip("gflow trax needs the vot-trax package")
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "trax", "--set", "particles=abc"],
-                       capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=tmp_path)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "trax", "--set", "particles=abc"],
+                             capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL, cwd=tmp_path)
     one_line_error(r.returncode, r.stderr, "--set particles=abc", "particles must be a whole number")
     assert "@@TRAX" not in r.stdout, "refused before the server starts"

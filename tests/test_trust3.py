@@ -9,7 +9,6 @@ written into tmp folders.
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 import pytest
 
 from pipeline.cli.main import main
+import cli_fork
 
 
 @pytest.fixture(scope="module")
@@ -106,9 +106,9 @@ def test_damage_inside_a_recording_is_said_once_by_a_multi_process_track(files: 
     from conftest import damaged_copy
 
     bad = damaged_copy(files / "demo.mcap", tmp_path / "bad.mcap")
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(bad), "--init", "100,80,40,40",
-                        "--out", str(tmp_path / "b.csv"), "--no-record"], capture_output=True, text=True,
-                       timeout=120, cwd=tmp_path)
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", str(bad), "--init", "100,80,40,40",
+                              "--out", str(tmp_path / "b.csv"), "--no-record"], capture_output=True, text=True,
+                             timeout=120, cwd=tmp_path)
     said = [ln for ln in (r.stdout + r.stderr).splitlines() if "recording is damaged at byte" in ln]
     assert r.returncode == 0 and len(said) == 1 and "bad.mcap" in said[0], r.stdout + r.stderr
     assert 0 < len(rows(tmp_path / "b.csv")) < 10  # the frames before the damage were tracked

@@ -15,6 +15,7 @@ from mcap.reader import make_reader
 from pipeline.cli.main import main
 from pipeline.io.mcap_io import iter_records
 from gflow_msgs.messages import Estimate, decode
+import cli_fork
 
 
 @pytest.fixture(scope="module")
@@ -93,11 +94,11 @@ def test_a_demo_stopped_early_is_scored_over_the_frames_it_ran(tmp_path: Path) -
             assert demo.poll() is None and time.monotonic() < deadline, "the demo did not start"
             time.sleep(0.1)
         stream = json.loads(next(rt.glob("*.json")).read_text())["stream"]
-        echo = subprocess.run([*cmd, "echo", "estimate", "-n", "20", "--timeout", "60"], env=env, capture_output=True,
-                              text=True, timeout=90)  # tracking: then stop it
+        echo = cli_fork.run_command([*cmd, "echo", "estimate", "-n", "20", "--timeout", "60"], env=env, capture_output=True,
+                                    text=True, timeout=90)  # tracking: then stop it
         assert echo.returncode == 0, echo.stderr
-        pub = subprocess.run([*cmd, "pub", f"gflow/{stream}/_control", "Control", '{"command": "stop"}', "--wait",
-                              "30"], env=env, capture_output=True, text=True, timeout=60)
+        pub = cli_fork.run_command([*cmd, "pub", f"gflow/{stream}/_control", "Control", '{"command": "stop"}', "--wait",
+                                    "30"], env=env, capture_output=True, text=True, timeout=60)
         assert pub.returncode == 0, pub.stderr
         out, err = demo.communicate(timeout=120)
     finally:
@@ -174,7 +175,6 @@ def stream_frames() -> Path:
 
 def test_a_stream_that_ends_is_no_error(tmp_path: Path, stream_frames: Path) -> None:
     import os
-    import subprocess
     import sys
 
     from tests.stream_server import StreamServer
@@ -182,15 +182,15 @@ def test_a_stream_that_ends_is_no_error(tmp_path: Path, stream_frames: Path) -> 
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
     cmd = [sys.executable, "-m", "pipeline.cli.main", "track"]
     with StreamServer(stream_frames, fps=25, count=40) as srv:
-        r = subprocess.run([*cmd, srv.url, "--init", "204,150,17,50", "--out", "a.csv", "--reconnect", "0",
-                            "--record", "a.mcap"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+        r = cli_fork.run_command([*cmd, srv.url, "--init", "204,150,17,50", "--out", "a.csv", "--reconnect", "0",
+                                  "--record", "a.mcap"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "error from source" not in r.stderr and "source: " + srv.url in r.stderr, r.stderr
     assert "errors reported" not in r.stdout and "stream_ended:" in r.stdout, r.stdout
     assert "s the stream was tracked" in r.stdout, r.stdout
     with StreamServer(stream_frames, fps=50, count=30) as srv:
-        r = subprocess.run([*cmd, srv.url, "--init", "204,150,17,50", "--out", "b.csv", "--inline", "--stop", "150",
-                            "--reconnect", "0", "--no-record"], cwd=tmp_path, env=env, capture_output=True,
-                           text=True, timeout=120)
+        r = cli_fork.run_command([*cmd, srv.url, "--init", "204,150,17,50", "--out", "b.csv", "--inline", "--stop", "150",
+                                  "--reconnect", "0", "--no-record"], cwd=tmp_path, env=env, capture_output=True,
+                                 text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "errors reported" not in r.stdout and "WARNING" not in r.stderr, (r.stdout, r.stderr)

@@ -19,6 +19,7 @@ from pipeline.io.mcap_io import iter_records
 from gflow_msgs.messages import Frame, decode
 
 from conftest import data_dir
+import cli_fork
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 
@@ -44,8 +45,8 @@ def test_grey_is_the_luma_of_every_pixel():
 
 
 def test_bad_variant_is_a_one_line_error():
-    r = subprocess.run([*GFLOW, "benchmark", "no/such/folder", "--variant", "gray"], capture_output=True, text=True,
-                       timeout=60)
+    r = cli_fork.run_command([*GFLOW, "benchmark", "no/such/folder", "--variant", "gray"], capture_output=True, text=True,
+                             timeout=60)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == ["gflow benchmark: error: unknown variant 'gray' in --variant (known: grey, "
                                              "blur, fast, small, noise, or several joined by '+')"]
@@ -56,9 +57,9 @@ def test_grey_variant_tracks_grey_frames_and_prints_the_table(tmp_path):
     original = cv2.imread(str(dict(folder_frames(crossing / "frames"))[0]), cv2.IMREAD_COLOR)
     assert original[..., 0].tolist() != original[..., 1].tolist()  # a colour sequence: the check below can fail
     out = tmp_path / "out"
-    r = subprocess.run([*GFLOW, "benchmark", str(crossing), "--variant", "grey", "--trackers", "dcf", "--opencv",
-                        "none", "--frames", "0:6", "--inline", "--seed", "1", "--markdown", "--no-fps", "-q",
-                        "--out-dir", str(out)], capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([*GFLOW, "benchmark", str(crossing), "--variant", "grey", "--trackers", "dcf", "--opencv",
+                              "none", "--frames", "0:6", "--inline", "--seed", "1", "--markdown", "--no-fps", "-q",
+                              "--out-dir", str(out)], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "| crossing | 6 |" in r.stdout and "**static box**" in r.stdout
     assert "inline, seed 1, the grey variant of every sequence" in r.stdout
@@ -107,9 +108,9 @@ def test_small_halves_frames_and_boxes_and_fast_keeps_every_third_frame_numbered
 
 
 def _benchmark(seq: Path, variant: str, frames: str, out: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([*GFLOW, "benchmark", str(seq), "--variant", variant, "--trackers", "dcf", "--opencv",
-                           "none", "--frames", frames, "--inline", "--seed", "1", "--json", "--no-fps", "-q",
-                           "--out-dir", str(out)], capture_output=True, text=True, timeout=120)
+    return cli_fork.run_command([*GFLOW, "benchmark", str(seq), "--variant", variant, "--trackers", "dcf", "--opencv",
+                                 "none", "--frames", frames, "--inline", "--seed", "1", "--json", "--no-fps", "-q",
+                                 "--out-dir", str(out)], capture_output=True, text=True, timeout=120)
 
 
 def _frames_given(recording: Path) -> list[np.ndarray]:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import re
-import subprocess
 import sys
 from pathlib import Path
 
@@ -17,6 +16,7 @@ from mcap.reader import make_reader
 from pipeline.cli.main import main
 from pipeline.io.recorder import McapRecorder
 from tests.test_recordings_kept import small_recording  # noqa: F401  (a short real run, recorded)
+import cli_fork
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 
@@ -112,8 +112,8 @@ def test_bad_and_missing_files_are_one_line_errors(small_recording: Path, tmp_pa
     empty = tmp_path / "empty.mcap"
     empty.write_bytes(b"")
     missing = tmp_path / "missing.mcap"
-    r = subprocess.run([*GFLOW, "verify", str(not_mcap), str(missing), str(empty), str(small_recording)],
-                       capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*GFLOW, "verify", str(not_mcap), str(missing), str(empty), str(small_recording)],
+                             capture_output=True, text=True, timeout=60)
     assert r.returncode == 1
     assert "Traceback" not in r.stderr + r.stdout
     errors = r.stderr.strip().splitlines()
