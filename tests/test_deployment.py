@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+import cli_fork
 from netns import Net, available, wait_for
 
 from pipeline.io.mcap_io import iter_records
@@ -48,8 +49,8 @@ def net():
 def baseline(tmp_path_factory) -> Path:
     """The same graph on one host, in one process (same stream: the random draws are keyed by it)."""
     d = tmp_path_factory.mktemp("base")
-    r = subprocess.run([*GFLOW, "run", "demo_hosts", "--inline", *SETS, "--record", str(d / "base.mcap")],
-                       cwd=d, env=_env(), capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([*GFLOW, "run", "demo_hosts", "--inline", *SETS, "--record", str(d / "base.mcap")],
+                             cwd=d, env=_env(), capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     return d / "base.mcap"
 
@@ -120,8 +121,8 @@ def _check_complete(rec: Path, baseline: Path) -> None:
 
 
 def test_unknown_host_label_is_one_line_naming_the_graphs_hosts(tmp_path):
-    r = subprocess.run([*GFLOW, "run", "demo_hosts", "--host", "edg"], cwd=tmp_path, env=_env(),
-                       capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*GFLOW, "run", "demo_hosts", "--host", "edg"], cwd=tmp_path, env=_env(),
+                             capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "cam, edge, ops" in r.stderr, r.stderr
 
