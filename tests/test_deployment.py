@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pytest
 
+import cli_fork
 from netns import Net, available, wait_for
 
 from pipeline.io.mcap_io import iter_records
@@ -48,8 +49,8 @@ def net():
 def baseline(tmp_path_factory) -> Path:
     """The same graph on one host, in one process (same stream: the random draws are keyed by it)."""
     d = tmp_path_factory.mktemp("base")
-    r = subprocess.run([*GFLOW, "run", "demo_hosts", "--inline", *SETS, "--record", str(d / "base.mcap")],
-                       cwd=d, env=_env(), capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([*GFLOW, "run", "demo_hosts", "--inline", *SETS, "--record", str(d / "base.mcap")],
+                             cwd=d, env=_env(), capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     return d / "base.mcap"
 
@@ -120,16 +121,30 @@ def _check_complete(rec: Path, baseline: Path) -> None:
 
 
 def test_unknown_host_label_is_one_line_naming_the_graphs_hosts(tmp_path):
-    r = subprocess.run([*GFLOW, "run", "demo_hosts", "--host", "edg"], cwd=tmp_path, env=_env(),
-                       capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*GFLOW, "run", "demo_hosts", "--host", "edg"], cwd=tmp_path, env=_env(),
+                             capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert len(r.stderr.strip().splitlines()) == 1 and "cam, edge, ops" in r.stderr, r.stderr
 
 
-def test_three_hosts_give_the_one_host_boxes_and_every_message(net, baseline, tmp_path):
-    _finish(_start(net, tmp_path, "demo"))
-    _check_complete(tmp_path / "ops.mcap", baseline)
-    assert _estimates(tmp_path / "ops.mcap") == _estimates(baseline)
+@pytest.fixture(scope="module")
+def two_runs(net, tmp_path_factory) -> Path:
+    """Two runs of the graph placed on the three hosts, through one router at once: ``runa`` (the baseline's
+    random draws) and ``runb`` (filter.seed=7), recorded on ops in ``a.mcap`` and ``b.mcap`` of the folder
+    returned. One pair of runs for the two tests that read them."""
+    tmp = tmp_path_factory.mktemp("two")
+    a = _start(net, tmp, "runa", record="a.mcap")
+    b = _start(net, tmp, "runb", record="b.mcap", extra=["--set", "filter.seed=7"])
+    _finish(a, timeout=150)
+    _finish(b, timeout=150)
+    return tmp
+
+
+def test_three_hosts_give_the_one_host_boxes_and_every_message(two_runs, baseline):
+    """Run ``runa`` of :func:`two_runs` (three hosts, the baseline's draws): every message of the one-host run,
+    and its boxes."""
+    _check_complete(two_runs / "a.mcap", baseline)
+    assert _estimates(two_runs / "a.mcap") == _estimates(baseline)
 
 
 def test_a_link_cut_for_2_s_loses_nothing(net, baseline, tmp_path):
@@ -193,17 +208,13 @@ def test_one_percent_loss_and_20_ms_each_way_complete_with_identical_output(net,
     assert relayed > 40 * 320 * 240, (relayed, took)
 
 
-def test_two_runs_on_one_router_stay_apart(net, baseline, tmp_path):
-    a = _start(net, tmp_path, "runa", record="a.mcap")
-    b = _start(net, tmp_path, "runb", record="b.mcap", extra=["--set", "filter.seed=7"])
-    _finish(a, timeout=150)
-    _finish(b, timeout=150)
-    for rec, stream in ((tmp_path / "a.mcap", "runa"), (tmp_path / "b.mcap", "runb")):
+def test_two_runs_on_one_router_stay_apart(two_runs, baseline):
+    for rec, stream in ((two_runs / "a.mcap", "runa"), (two_runs / "b.mcap", "runb")):
         assert {r.topic.split("/")[1] for r in iter_records(rec)} == {stream}
         _check_complete(rec, baseline)
     # same graph stream (the random draws), so run a is the baseline; run b's other seed differs
-    assert _estimates(tmp_path / "a.mcap") == _estimates(baseline)
-    assert _estimates(tmp_path / "b.mcap") != _estimates(baseline)
+    assert _estimates(two_runs / "a.mcap") == _estimates(baseline)
+    assert _estimates(two_runs / "b.mcap") != _estimates(baseline)
 
 
 def test_a_host_that_dies_is_named_and_the_others_stop_cleanly(net, tmp_path):

@@ -13,6 +13,8 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
+import cli_fork
+
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import parse_graph
 from pipeline.runtime.launcher import Launcher
@@ -80,15 +82,16 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
     launcher, th, result, port, rec = _start(tmp_path, frames=3000)
     conn = ["--connect", f"tcp/127.0.0.1:{port}"]
     # each tool listens as long as its assertion needs: topics from the first message, hz to its first report
-    topics = subprocess.run([*gflow_cmd, "topics", "--duration", "1", *conn], capture_output=True, text=True, timeout=60)
+    topics = cli_fork.run_command([*gflow_cmd, "topics", "--duration", "1", *conn], capture_output=True, text=True,
+                                  timeout=60)
     assert "gflow/demo/features" in topics.stdout and "Features" in topics.stdout, topics.stdout
-    echo = subprocess.run([*gflow_cmd, "echo", "gflow/demo/estimate", "-n", "3", "--timeout", "20", *conn],
-                          capture_output=True, text=True, timeout=60)
+    echo = cli_fork.run_command([*gflow_cmd, "echo", "gflow/demo/estimate", "-n", "3", "--timeout", "20", *conn],
+                                capture_output=True, text=True, timeout=60)
     assert echo.returncode == 0, echo.stderr
     lines = [ln for ln in echo.stdout.splitlines() if ln.startswith("gflow/demo/estimate: Estimate seq=")]
     assert len(lines) == 3, echo.stdout
-    hz = subprocess.run([*gflow_cmd, "hz", "gflow/demo/frames", "--duration", "1.5", *conn],
-                        capture_output=True, text=True, timeout=60)
+    hz = cli_fork.run_command([*gflow_cmd, "hz", "gflow/demo/frames", "--duration", "1.5", *conn],
+                              capture_output=True, text=True, timeout=60)
     assert hz.returncode == 0 and "average rate" in hz.stdout, hz.stdout + hz.stderr
     rate = float(hz.stdout.splitlines()[-1].split("average rate ")[1].split(" Hz")[0])
     assert 2 < rate < 60  # the source plays at 30 fps in real time: never above; loose below for a busy machine
@@ -104,8 +107,8 @@ def test_topics_echo_hz_and_replay(tmp_path, gflow_cmd):
     s = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port2}",)))
     q: queue.SimpleQueue = queue.SimpleQueue()
     Bus(s).subscribe("gflow/demo/estimate", lambda k, p, ns, seq: q.put(p))
-    rp = subprocess.run([*gflow_cmd, "replay", str(rec), "--max", "--topics", "gflow/demo/estimate",
-                         "--connect", f"tcp/127.0.0.1:{port2}"], capture_output=True, text=True, timeout=120)
+    rp = cli_fork.run_command([*gflow_cmd, "replay", str(rec), "--max", "--topics", "gflow/demo/estimate",
+                               "--connect", f"tcp/127.0.0.1:{port2}"], capture_output=True, text=True, timeout=120)
     assert rp.returncode == 0, rp.stderr
     want = [r.data for r in iter_records(rec, topics=["gflow/demo/estimate"])]
     got = []

@@ -1,7 +1,8 @@
 """Live input that is damaged or missing is reported, and the CSV's ``frame`` stays the camera's.
 
 Real streams on loopback from a sender process (``tests/ts_sender.py``): caviar1's frames as
-constant-rate H.264 in MPEG-TS, a keyframe a second, sent in real time over TCP or UDP. What a
+constant-rate H.264 in MPEG-TS, a keyframe a second, sent in real time over TCP or UDP (6 s of
+stream where an outage must fall in its middle, 3 s where nothing is cut out of it). What a
 network does is done to the bytes: 300 inverted bytes (a damaged link), 2.2 s of the stream never
 sent (an outage), a sender started as soon as ``gflow track`` says it is running. Every test
 waits for conditions (the run's announcement, the processes' ends), not for fixed times.
@@ -21,12 +22,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import cli_fork
 from stream_server import ffmpeg_exe, free_port
 from ts_sender import corrupt, encode_cbr
 
 ROOT = Path(__file__).resolve().parent.parent
 INIT = "129,71,30,79"  # caviar1's ground-truth box of frame 0
 N = 150  # frames sent: 6 s of stream
+SHORT = 75  # frames sent where no outage is cut out of the stream: 3 s
 KEYFRAME_EVERY = 25  # frames: the stream has a keyframe a second
 
 pytestmark = pytest.mark.skipif(ffmpeg_exe() is None,
@@ -41,6 +44,16 @@ def stream(tmp_path_factory) -> Path:
     exe = ffmpeg_exe()
     assert exe is not None
     return encode_cbr(exe, data_dir("caviar1") / "frames", tmp_path_factory.mktemp("ts") / "caviar1.ts", N)
+
+
+@pytest.fixture(scope="module")
+def short_stream(tmp_path_factory) -> Path:
+    """caviar1 frames 0-74 as constant-rate H.264 in MPEG-TS (keyframes at frames 0, 25 and 50)."""
+    from conftest import data_dir
+
+    exe = ffmpeg_exe()
+    assert exe is not None
+    return encode_cbr(exe, data_dir("caviar1") / "frames", tmp_path_factory.mktemp("ts") / "short.ts", SHORT)
 
 
 def env_for(tmp_path: Path) -> dict[str, str]:
@@ -104,20 +117,20 @@ def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
 
 
 def test_udp_sender_started_with_the_run_loses_nothing_and_init_is_its_first_frame(tmp_path: Path, caviar1: Path,
-                                                                                   stream: Path) -> None:
+                                                                                   short_stream: Path) -> None:
     """The sender starts as soon as the run is announced, seconds before the source stage would
     have opened the port: the port was bound first thing, so every frame arrives, frame 0 is the
     sender's first (the one --init describes), and the run says when the first data came."""
     port = free_port()
-    r, _ = track_while_sending(tmp_path, f"udp://127.0.0.1:{port}", [str(stream), "udp", str(port)])
+    r, _ = track_while_sending(tmp_path, f"udp://127.0.0.1:{port}", [str(short_stream), "udp", str(port)])
     rows = read_rows(tmp_path / "b.csv")
     from pipeline.recording.live_record import live_summary
 
     s = live_summary(tmp_path / "r.mcap")
-    assert s is not None and s.captured == N, s and s.captured  # every frame sent arrived
+    assert s is not None and s.captured == SHORT, s and s.captured  # every frame sent arrived
     assert s.missed == 0
     gt = truth(caviar1)
-    assert min(rows) == 0 and max(rows) == N - 1
+    assert min(rows) == 0 and max(rows) == SHORT - 1
     err = np.mean([cle(tuple(float(v) for v in row[:4]), gt[k]) for k, row in rows.items()])
     assert err < 3.0, err  # each row is the camera's frame: --init went on the frame it describes
     assert "listened from before the pipeline started" in r.stdout and "the first data arrived" in r.stdout
@@ -242,16 +255,17 @@ def recorded_frames(path: Path):
 
 def rerun_source_is_identical(tmp_path: Path) -> None:
     """The source re-run from the recording says what it said live (frames missed, damage), bit for bit."""
-    rr = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "rerun", "r.mcap", "--stage", "source", "--check"],
-                        cwd=tmp_path, env=env_for(tmp_path), capture_output=True, text=True, timeout=120)
+    rr = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "rerun", "r.mcap", "--stage", "source",
+                               "--check"], cwd=tmp_path, env=env_for(tmp_path), capture_output=True, text=True,
+                              timeout=120)
     assert rr.returncode == 0 and "identical bit for bit" in rr.stdout, (rr.stdout, rr.stderr)
 
 
-def test_corrupted_h264_is_reported_frame_by_frame(tmp_path: Path, caviar1: Path, stream: Path) -> None:
+def test_corrupted_h264_is_reported_frame_by_frame(tmp_path: Path, caviar1: Path, short_stream: Path) -> None:
     """300 damaged bytes in the H.264 stream: FFmpeg's messages are read, the frames decoded from
     damaged data (until the next keyframe) are counted and reported, and marked in the CSV's
     input column; every tracked frame that differs from the clean stream's is among them."""
-    bad = corrupt(stream, tmp_path / "bad.ts", stream.stat().st_size // 2, 300)
+    bad = corrupt(short_stream, tmp_path / "bad.ts", short_stream.stat().st_size // 2, 300)
     port = free_port()
     r, _ = track_while_sending(tmp_path, f"tcp://127.0.0.1:{port}", [str(bad), "tcp", str(port)])
     rows = read_rows(tmp_path / "b.csv")
@@ -262,15 +276,15 @@ def test_corrupted_h264_is_reported_frame_by_frame(tmp_path: Path, caviar1: Path
     # the frames that really differ from the clean stream are the ones marked
     from pipeline.recording.live_record import live_summary
 
-    clean = clean_frames(stream)
+    clean = clean_frames(short_stream)
     s = live_summary(tmp_path / "r.mcap")
     assert s is not None and s.damaged >= len(damaged)
     differ = {s.frames[seq] for seq, image in recorded_frames(tmp_path / "r.mcap")
               if np.abs(image - clean[s.frames[seq]]).mean() > 0.5}
     assert differ, "the corruption damaged no frame: the test proves nothing"
     assert differ <= damaged, sorted(differ - damaged)
-    info = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "info", "r.mcap"], cwd=tmp_path,
-                          env=env_for(tmp_path), capture_output=True, text=True, timeout=60)
+    info = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "info", "r.mcap"], cwd=tmp_path,
+                                env=env_for(tmp_path), capture_output=True, text=True, timeout=60)
     assert "decoded from damaged data" in info.stdout, info.stdout
     rerun_source_is_identical(tmp_path)
 

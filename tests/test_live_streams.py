@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import cli_fork
 from stream_server import StreamServer, ffmpeg_exe, free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -30,9 +31,11 @@ pytestmark = pytest.mark.skipif(ffmpeg_exe() is None,
 
 
 def gflow(*args: str, cwd: Path, timeout: float = 120.0) -> subprocess.CompletedProcess:
+    """``gflow ARGS`` run to its end in ``cwd`` (forked from a process that has imported the command line:
+    tests/cli_fork.py)."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env, capture_output=True,
-                          text=True, timeout=timeout)
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args], cwd=cwd, env=env,
+                                capture_output=True, text=True, timeout=timeout)
 
 
 def read_csv(path: Path) -> dict[int, tuple[float, ...]]:
@@ -84,14 +87,10 @@ def test_track_tcp_mpegts_matches_the_file_run(tmp_path: Path, caviar1: Path) ->
     assert sorted(s.frames.values()) == rows
     assert any(kind == "stream_ended" for kind, _ in s.reports), s.reports
     assert "stream_ended" in r.stdout and "captured" in r.stdout  # the run says why it ended
-    # the skips are in the recording: the stages re-run bit for bit (the two re-runs side by side)
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    reruns = [subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "rerun", "live.mcap", "--stage", stage,
-                                "--check"], cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                               text=True) for stage in ("proposal", "filter")]
-    for rr in reruns:
-        out, err = rr.communicate(timeout=120)
-        assert rr.returncode == 0 and "identical bit for bit" in out, (rr.args, out, err)
+    # the skips are in the recording: the stages re-run bit for bit
+    for stage in ("proposal", "filter"):
+        rr = gflow("rerun", "live.mcap", "--stage", stage, "--check", cwd=tmp_path)
+        assert rr.returncode == 0 and "identical bit for bit" in rr.stdout, (rr.args, rr.stdout, rr.stderr)
 
 
 def test_http_mjpeg_inline_accounts_for_every_frame(tmp_path: Path, caviar1: Path) -> None:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 
+import cli_fork
 from pipeline.cli.live import rate_stats
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -26,8 +27,10 @@ def _env(rt: Path) -> dict:
 
 
 def _gflow(rt: Path, *args: str, timeout: float = 90) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "pipeline.cli.main", *args], env=_env(rt), capture_output=True,
-                          text=True, timeout=timeout)
+    """``gflow ARGS`` run to its end with runtime folder ``rt`` (forked from a process that has imported the
+    command line: tests/cli_fork.py)."""
+    return cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", *args], env=_env(rt),
+                                capture_output=True, text=True, timeout=timeout)
 
 
 def _wait(cond, what: str, timeout: float = 60.0):

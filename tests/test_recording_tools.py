@@ -8,13 +8,13 @@ import json
 import os
 import shutil
 import signal
-import subprocess
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
+import cli_fork
 from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.launcher import Launcher
@@ -42,10 +42,11 @@ def crossing_run(tmp_path_factory, gflow_cmd_module):
     assert "snapshot_every: 25" in text
     graph.write_text(text.replace("snapshot_every: 25", "snapshot_every: 20"))
     rec = tmp / "run.mcap"
-    out = subprocess.run([*gflow_cmd_module, "track", str(seq), "--init", init, "--out", str(tmp / "b.csv"),
-                          "--record", str(rec), "--graph", str(graph), "--tracker", "chamfer", "-q",
-                          "--stop", str(FRAMES), "--stream", "cam0"],  # the topic names the tests look for (default: a run id)
-                         capture_output=True, text=True, timeout=300)
+    out = cli_fork.run_command([*gflow_cmd_module, "track", str(seq), "--init", init, "--out", str(tmp / "b.csv"),
+                                "--record", str(rec), "--graph", str(graph), "--tracker", "chamfer", "-q",
+                                # the topic names the tests look for (default: a run id)
+                                "--stop", str(FRAMES), "--stream", "cam0"],
+                               capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     return rec
 
@@ -59,8 +60,8 @@ def gflow_cmd_module():
 
 @pytest.mark.parametrize("stage", ["source", "preprocess", "proposal", "filter"])
 def test_rerun_check_passes_for_every_stage(crossing_run, gflow_cmd, stage):
-    out = subprocess.run([*gflow_cmd, "rerun", str(crossing_run), "--stage", stage, "--check"],
-                         capture_output=True, text=True, timeout=300)
+    out = cli_fork.run_command([*gflow_cmd, "rerun", str(crossing_run), "--stage", stage, "--check"],
+                               capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "all identical bit for bit" in out.stdout
 
@@ -82,18 +83,19 @@ def test_rerun_from_a_middle_frame_matches_the_full_rerun(crossing_run, caplog):
 
 
 def test_changing_a_parameter_fails_the_check_and_names_the_first_frame(crossing_run, gflow_cmd, tmp_path):
-    out = subprocess.run([*gflow_cmd, "rerun", str(crossing_run), "--stage", "filter", "--set", "lam=0.5", "--check",
-                          "--out", str(tmp_path / "lam.mcap")], capture_output=True, text=True, timeout=300)
+    out = cli_fork.run_command([*gflow_cmd, "rerun", str(crossing_run), "--stage", "filter", "--set", "lam=0.5",
+                                "--check", "--out", str(tmp_path / "lam.mcap")], capture_output=True, text=True,
+                               timeout=300)
     assert out.returncode == 1, out.stdout
     assert "first difference at frame 1" in out.stdout and "gflow/cam0/particles seq 1: field alpha" in out.stdout
-    diff = subprocess.run([*gflow_cmd, "diff", str(crossing_run), str(tmp_path / "lam.mcap"),
-                           "--topics", "gflow/cam0/estimate"], capture_output=True, text=True, timeout=120)
+    diff = cli_fork.run_command([*gflow_cmd, "diff", str(crossing_run), str(tmp_path / "lam.mcap"),
+                                 "--topics", "gflow/cam0/estimate"], capture_output=True, text=True, timeout=120)
     assert diff.returncode == 1 and "first divergence" in diff.stdout and "frame 1" in diff.stdout
 
 
 def test_whole_graph_rerun_is_bit_exact(crossing_run, gflow_cmd, tmp_path):
-    out = subprocess.run([*gflow_cmd, "rerun", str(crossing_run), "--graph", "--check", "--out", str(tmp_path / "g.mcap")],
-                         capture_output=True, text=True, timeout=300)
+    out = cli_fork.run_command([*gflow_cmd, "rerun", str(crossing_run), "--graph", "--check", "--out",
+                                str(tmp_path / "g.mcap")], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
 
 
@@ -119,7 +121,8 @@ def test_sigkilled_recorder_is_recovered(tmp_path, gflow_cmd):
     os.kill(launcher.pids["recorder"][0], signal.SIGKILL)
     th.join(120)
     fixed = tmp_path / "fixed.mcap"
-    out = subprocess.run([*gflow_cmd, "recover", str(rec), str(fixed)], capture_output=True, text=True, timeout=120)
+    out = cli_fork.run_command([*gflow_cmd, "recover", str(rec), str(fixed)], capture_output=True, text=True,
+                               timeout=120)
     assert out.returncode == 0, out.stderr
     assert "the writer was killed" in out.stdout
     frames = [r for r in iter_records(fixed) if r.topic == "gflow/demo/frames"]
@@ -188,63 +191,81 @@ def _copy_recording(src: Path, dst: Path, records) -> None:
             rec.write(r.topic, r.data, r.seq, publish_ns=r.publish_ns, log_ns=r.log_ns, type_name=r.type)
 
 
-def test_an_input_given_up_as_late_is_given_up_again_by_the_rerun(crossing_run, tmp_path):
-    """A live filter that gave up frame 30's features as late stepped frame 30 without them and
-    dropped them when they came. In the recording they come later and the filter's late_input
-    report names them: the re-run must step frame 30 without them too, as if they had never come."""
-    from pipeline.recording.rerun import check_outputs, rerun_stage
-    from gflow_msgs.messages import ErrorReport, Header, encode
+@dataclasses.dataclass
+class LateFeatures:
+    """crossing_run's records with frame 30's features moved to come 4 frames late, and the filter's
+    outputs re-run on a copy where they never come (what a live filter that gave them up made)."""
+
+    late: object  # frame 30's features
+    at: int  # where they come in ``moved``: after the features of frame 34
+    moved: list
+    never: list[tuple[str, int, bytes]]  # the filter's outputs without them
+
+
+@pytest.fixture(scope="module")
+def late_features(crossing_run, tmp_path_factory) -> LateFeatures:
+    """The filter re-run without frame 30's features, once for the two tests of an input given up as late."""
+    from pipeline.recording.rerun import rerun_stage
 
     recs = list(iter_records(crossing_run))
     feats = "gflow/cam0/features"
     [late] = [r for r in recs if r.topic == feats and r.seq == 30]
     at = next(i for i, r in enumerate(recs) if r.topic == feats and r.seq == 34)  # it comes 4 frames late
     moved = [r for r in recs[:at] if r is not late] + [late] + recs[at:]
+    never = tmp_path_factory.mktemp("late") / "never.mcap"
+    _copy_recording(crossing_run, never, [r for r in recs if r is not late])
+    return LateFeatures(late, at, moved, rerun_stage(never, "filter").outputs)
+
+
+def test_an_input_given_up_as_late_is_given_up_again_by_the_rerun(crossing_run, late_features, tmp_path):
+    """A live filter that gave up frame 30's features as late stepped frame 30 without them and
+    dropped them when they came. In the recording they come later and the filter's late_input
+    report names them: the re-run must step frame 30 without them too, as if they had never come."""
+    from pipeline.recording.rerun import check_outputs, rerun_stage
+    from gflow_msgs.messages import ErrorReport, Header, encode
+
+    late, at, moved = late_features.late, late_features.at, late_features.moved
+    feats = "gflow/cam0/features"
     report = ErrorReport(header=Header("cam0", 30, 0), stage="filter", kind="late_input", topic=feats,
                          message="frame 30: no features after 3.0 s while the stream is ahead; going on without")
     rep = dataclasses.replace(late, topic="gflow/cam0/errors", type="ErrorReport", data=encode(report))
     with_report = moved[:at] + [rep] + moved[at:]  # the report, before the features came
     _copy_recording(crossing_run, tmp_path / "late.mcap", with_report)
     _copy_recording(crossing_run, tmp_path / "moved.mcap", moved)
-    _copy_recording(crossing_run, tmp_path / "never.mcap", [r for r in recs if r is not late])
 
     replayed = rerun_stage(tmp_path / "late.mcap", "filter").outputs
-    never = rerun_stage(tmp_path / "never.mcap", "filter").outputs
+    never = late_features.never
     used = rerun_stage(tmp_path / "moved.mcap", "filter").outputs
     assert check_outputs(never, replayed) == []
     # without the report the re-run waits for the features and uses them: frame 30 differs
     assert [m.seq for m in check_outputs(never, used)][:1] == [30]
 
 
-def test_rerun_check_passes_on_a_run_whose_filter_gave_an_input_up(crossing_run, gflow_cmd, tmp_path):
+def test_rerun_check_passes_on_a_run_whose_filter_gave_an_input_up(crossing_run, late_features, gflow_cmd, tmp_path):
     """The recording a live filter makes when it gives frame 30's features up as late: its outputs
     are those of stepping without them, its errors topic has its late_input and missing_features
     reports. `gflow rerun --check` re-makes the missing_features report; reports are diagnostics,
     left out of the comparison on both sides, so the check passes (it failed on such a run when
     the re-run's reports were compared against a recording whose reports were not)."""
-    from pipeline.recording.rerun import recorded_plan, rerun_stage
+    from pipeline.recording.rerun import recorded_plan
     from pipeline.io.recorder import peek_type
     from gflow_msgs.messages import ErrorReport, Header, encode
 
     plan = recorded_plan(crossing_run)
     outs = set(plan.stages["filter"].outputs.values()) | {plan.snapshot_topic("filter")}
-    recs = list(iter_records(crossing_run))
+    late, at, moved = late_features.late, late_features.at, late_features.moved
     feats = "gflow/cam0/features"
-    [late] = [r for r in recs if r.topic == feats and r.seq == 30]
-    at = next(i for i, r in enumerate(recs) if r.topic == feats and r.seq == 34)
-    moved = [r for r in recs[:at] if r is not late] + [late] + recs[at:]
     report = ErrorReport(header=Header("cam0", 30, 0), stage="filter", kind="late_input", topic=feats,
                          message="frame 30: no features after 3.0 s while the stream is ahead; going on without")
     rep = dataclasses.replace(late, topic=plan.error_topic, type="ErrorReport", data=encode(report))
     inputs = [r for r in moved[:at] + [rep] + moved[at:] if r.topic not in outs]
-    _copy_recording(crossing_run, tmp_path / "never.mcap", [r for r in recs if r is not late])
-    stepped = rerun_stage(tmp_path / "never.mcap", "filter").outputs  # the live filter's outputs
+    stepped = late_features.never  # the live filter's outputs
     assert any(t == plan.error_topic for t, _, _ in stepped), "stepping without features is reported"
     ns = inputs[-1].log_ns
     made = [dataclasses.replace(late, topic=t, seq=q, data=d, type=peek_type(d), log_ns=ns + i + 1,
                                 publish_ns=ns + i + 1) for i, (t, q, d) in enumerate(stepped)]
     _copy_recording(crossing_run, tmp_path / "live.mcap", inputs + made)
-    out = subprocess.run([*gflow_cmd, "rerun", str(tmp_path / "live.mcap"), "--stage", "filter", "--check"],
-                         capture_output=True, text=True, timeout=300)
+    out = cli_fork.run_command([*gflow_cmd, "rerun", str(tmp_path / "live.mcap"), "--stage", "filter", "--check"],
+                               capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "all identical bit for bit" in out.stdout
