@@ -16,15 +16,17 @@ from pathlib import Path
 import psutil
 import pytest
 
+import cli_fork
 from pipeline.io.mcap_io import segments
 from pipeline.recording.results import estimates
 
 STOP = 60  # frames: enough to kill mid-run, few enough to keep the test fast
 KILL_AT = 20  # estimates in the recording when the stage is killed
 WINDOW = 8  # the source's flow-control window: at most this many frames are in flight
-# the G-flow runs (a tracker several times slower than chamfer): the kill comes at frame 15 and at least
-# 25 frames follow it, more than the window in flight, so the resumed filter/proposal track frames of their own
-GFLOW_STOP = 40
+# the G-flow runs (a tracker several times slower than chamfer): the kill comes at frame GFLOW_KILL_AT and at
+# least 20 frames follow it, more than the window in flight, so the resumed filter/proposal track frames of their own
+GFLOW_STOP = 30
+GFLOW_KILL_AT = 10
 # what is under test is the restart; an input given up as late (GFLOW_LATE_S, default 3 s) on a heavily
 # loaded machine is another mechanism, whose coasting frames differ from the undisturbed run's
 ENV = {**os.environ, "GFLOW_LATE_S": "60"}
@@ -60,7 +62,9 @@ def undisturbed(tmp_path_factory) -> dict[int, tuple[str, ...]]:
 
     caviar1 = data_dir("caviar1")
     tmp = tmp_path_factory.mktemp("undisturbed")
-    out = subprocess.run([*_track(caviar1, tmp, "base"), "-q"], capture_output=True, text=True, timeout=300, env=ENV)
+    # inline: an undisturbed run's results are the processes' bit for bit, without starting five processes
+    out = cli_fork.run_command([*_track(caviar1, tmp, "base"), "-q", "--inline"], capture_output=True, text=True,
+                               timeout=300, env=ENV)
     assert out.returncode == 0, out.stderr
     return _rows(tmp / "base.csv")
 
@@ -137,21 +141,23 @@ def test_a_killed_gflow_stage_resumes_and_the_result_is_unchanged(tmp_path, stag
     cmd = [sys.executable, "-m", "pipeline.cli.main", "track", str(david), "--tracker", "gflow", "--init", "169,76,46,60",
            "--stop", str(GFLOW_STOP), "--listen", "tcp/127.0.0.1:0", *extra]
     env = ENV
-    base = subprocess.run([*cmd, "--out", str(tmp_path / "base.csv"), "--record", str(tmp_path / "base.mcap"), "-q"],
-                          capture_output=True, text=True, timeout=300, env=env)
+    # the undisturbed run inline (its results are the processes' bit for bit; starting them is most of a run's CPU)
+    base = cli_fork.run_command([*cmd, "--out", str(tmp_path / "base.csv"), "--record", str(tmp_path / "base.mcap"),
+                                 "-q", "--inline"], capture_output=True, text=True, timeout=300, env=env)
     assert base.returncode == 0, base.stderr
     rec = tmp_path / "run.mcap"
     p = subprocess.Popen([*cmd, "--out", str(tmp_path / "run.csv"), "--record", str(rec)], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, text=True, env=env)
     deadline = time.monotonic() + 120
-    # frame 15 recorded (the recording trails by up to its 0.5 s flush): 25 frames left for the kill
-    while not (rec.exists() and rec.stat().st_size > 64 and len(estimates(rec)) >= 15):
+    # frame GFLOW_KILL_AT recorded (the recording trails by up to its 0.5 s flush): 20 frames left for the kill
+    while not (rec.exists() and rec.stat().st_size > 64 and len(estimates(rec)) >= GFLOW_KILL_AT):
         assert time.monotonic() < deadline and p.poll() is None, "the pipeline did not get going"
         time.sleep(0.1)
     [victim] = [c for c in psutil.Process(p.pid).children() if c.cmdline()[-1] == stage]
     victim.send_signal(signal.SIGKILL)
     out, err = p.communicate(timeout=300)
     assert p.returncode == 0, out + err
+    assert f"stage {stage} was restarted 1 time(s)" in out, out
     # no input fed twice: neither the resend of its last outputs nor the recorded inputs it caught
     # up on before its checkpoint (the proposal's state port joins frame t + 1)
     assert "duplicate_seq" not in out + err and "old_seq" not in out + err, out + err

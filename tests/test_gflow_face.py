@@ -22,11 +22,14 @@ SCORED = (33, 133, 362, 263, 61, 291)
 
 @pytest.fixture
 def gflow(gflow_cmd):
-    """Run the gflow command line: ``gflow("learn", ...)`` -> CompletedProcess (text)."""
+    """Run the gflow command line: ``gflow("learn", ...)`` -> CompletedProcess (text), in a process of its own
+    forked from one that has already imported the command line (tests/cli_fork.py)."""
     import subprocess
 
+    import cli_fork
+
     def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run([*gflow_cmd, *args], capture_output=True, text=True, timeout=120)
+        return cli_fork.run_command([*gflow_cmd, *args], capture_output=True, text=True, timeout=120)
 
     return run
 

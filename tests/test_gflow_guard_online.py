@@ -145,14 +145,14 @@ def test_off_by_default_and_bad_settings_refused() -> None:
 
 def test_david_indoors_turning_face_stays_tracked() -> None:
     """david_indoor frames 312-335: the face turns and walks into bright light; the lost guard's edges call
-    most of them occluded or lost (frames 312-318 and 322-335 without the online model); the online model,
-    which has learnt the face as it turned, vouches for the experts' box. Tracked from frame 120's
-    ground-truth box (the face frontal, as in frame 0; started there, the edges alone call all of frames
-    312-335 occluded or lost), so the run is frames 120-335, the online model learning on nearly all of them."""
+    many of them occluded or lost (11 of frames 312-335 without the online model); the online model,
+    which has learnt the face as it turned, vouches for the experts' box. Tracked from frame 170's
+    ground-truth box (started at frame 220 instead, the edges alone keep the face tracked there and the case
+    tests nothing), so the run is frames 170-335, the online model learning on nearly all of them."""
     from gflow import Tracker
     from tests.conftest import data_dir
 
-    start = 120
+    start = 170
     d = data_dir("david_indoor")
     frames = sorted(glob.glob(str(d / "frames" / "*")))[:336]
     gt = np.loadtxt(d / "groundtruth.csv", delimiter=",", skiprows=1)[:336, 1:]
