@@ -27,6 +27,29 @@ def test_a_source_or_recorder_process_does_not_import_scipy():
     assert out == "[]", f"scipy imported at start-up: {out[:300]}"
 
 
+def test_the_zygote_can_preload_every_stage_kind_and_still_fork():
+    """The zygote forks a stage only while it has one thread, and it imports each kind its run will start
+    (``_preload``) first: a kind whose import starts a thread (OpenCV's workers, which a colour conversion at
+    import starts) leaves every stage of its runs to a new interpreter, about 0.9 s of CPU each (G-flow's,
+    until dcf's colour-name table was made on first use rather than at import). Each kind and the recorder
+    are preloaded in one fresh process, held to one BLAS thread as the zygote is, the threads counted after each."""
+    out = _fresh("import os\n"
+                 "for var in ('OMP_NUM_THREADS', 'OPENBLAS_NUM_THREADS', 'MKL_NUM_THREADS'):\n"
+                 "    os.environ[var] = '1'\n"
+                 "import pipeline.runtime.node\n"
+                 "from pipeline.runtime.zygote import _preload\n"
+                 "from stages.registry import STAGES\n"
+                 "threads = lambda: len(os.listdir('/proc/self/task'))\n"
+                 "started = []\n"
+                 "for kind in [*STAGES, 'recorder']:\n"
+                 "    _preload([kind])\n"
+                 "    if threads() > 1 and not started:\n"
+                 "        started.append(kind)\n"
+                 "print(len(list(STAGES)), started)")
+    n, started = out.split(" ", 1)
+    assert int(n) >= 10 and started == "[]", f"importing a stage kind started a thread: {started}"
+
+
 def test_every_kind_resolves_lazily_to_its_stage_class():
     from stages.base import Stage
     from stages.registry import STAGES, get_stage_class

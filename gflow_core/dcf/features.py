@@ -28,6 +28,7 @@ centre.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import cv2
@@ -135,24 +136,26 @@ def intensity(patches: np.ndarray, cell: int) -> np.ndarray:
 _NAME_RGB = np.array([[0, 0, 0], [40, 70, 200], [130, 80, 40], [128, 128, 128], [40, 160, 60], [245, 135, 30],
                       [245, 165, 195], [130, 50, 160], [215, 30, 35], [255, 255, 255], [240, 220, 40]], np.float32)
 N_NAMES = len(_NAME_RGB)
-#: the prototypes in CIELab (L 0-100), and the spread of a name about its prototype (Lab units)
-_NAME_LAB = cv2.cvtColor((_NAME_RGB[None, :, ::-1] / 255.0).astype(np.float32), cv2.COLOR_BGR2Lab)[0]
+#: the spread of a name about its prototype (Lab units)
 _NAME_SIGMA = 20.0
 
 
+@functools.cache
 def _name_table() -> np.ndarray:
     """(32^3, 11) float32: each colour bin's membership of the names (:func:`colour_bins`' bins of a colour frame,
-    the bin's centre colour), centred -- a table as the CN tracker's, indexed by 32 levels a channel."""
+    the bin's centre colour), centred -- a table as the CN tracker's, indexed by 32 levels a channel. Made on
+    first use, not at import: OpenCV's colour conversion of 32^3 colours starts its worker threads, and a
+    process that imports this module before it forks (the stage processes' zygote, pipeline/runtime/zygote.py)
+    must have none."""
+    # the prototypes in CIELab (L 0-100)
+    name_lab = cv2.cvtColor((_NAME_RGB[None, :, ::-1] / 255.0).astype(np.float32), cv2.COLOR_BGR2Lab)[0]
     q = (np.arange(32, dtype=np.float32) * 8.0 + 3.5) / 255.0
     b, g, r = np.meshgrid(q, q, q, indexing="ij")  # bin (B >> 3) * 1024 + (G >> 3) * 32 + (R >> 3)
     lab = cv2.cvtColor(np.stack([b, g, r], axis=-1).reshape(1, -1, 3), cv2.COLOR_BGR2Lab)[0]
     # d2_n = |lab - lab_n|^2, p_n = exp(-d2_n / 2 sigma^2) / sum_m exp(-d2_m / 2 sigma^2)
-    d2 = ((lab[:, None, :] - _NAME_LAB[None, :, :]) ** 2).sum(-1)
+    d2 = ((lab[:, None, :] - name_lab[None, :, :]) ** 2).sum(-1)
     e = np.exp(-(d2 - d2.min(-1, keepdims=True)) / (2.0 * _NAME_SIGMA ** 2))
     return (e / e.sum(-1, keepdims=True) - 1.0 / N_NAMES).astype(np.float32)
-
-
-_NAME_TABLE = _name_table()
 
 
 def colour_names(patch: np.ndarray, cell: int) -> np.ndarray:
@@ -165,7 +168,7 @@ def colour_names(patch: np.ndarray, cell: int) -> np.ndarray:
     pixel to the 11 names by van de Weijer et al.'s table learnt from images (TIP 2009); here by soft
     nearness to a prototype of each name in CIELab."""
     h, w = patch.shape[:2]
-    pn = _NAME_TABLE[colour_bins(patch, grey=False)]
+    pn = _name_table()[colour_bins(patch, grey=False)]
     return pn.reshape(h // cell, cell, w // cell, cell, N_NAMES).mean(axis=(1, 3), dtype=np.float32)
 
 
