@@ -1,5 +1,6 @@
-"""Start-up of ``gflow track`` (the default tracker, processes) on caviar1: N cold starts
-of a new ``python -m pipeline.cli track ... --stop 5`` process, each timed from just before the
+"""Start-up of ``gflow track`` (the default tracker, or ``--tracker NAME``, processes) on caviar1 (or ``--sequence
+NAME`` of ../shared/data, from its first labelled box): N cold starts of a new ``python -m pipeline.cli track ...
+--stop 5`` process, each timed from just before the
 process is started to the first estimate in its recording (the recorder's receive time).
 
 The breakdown comes from ``GFLOW_STARTUP_TRACE`` (``pipeline/runtime/trace.py``): the CLI, the
@@ -12,6 +13,7 @@ there only the total to the first estimate and the CPU are known (no trace marks
 
     python bench/bench_startup.py --runs 5
     python bench/bench_startup.py --runs 5 --compare /path/to/base/worktree
+    python bench/bench_startup.py --runs 5 --tracker gflow --sequence david_indoor
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _util import checkout, scratch, table  # noqa: E402
 
 from pipeline.cli.commands.track import DEFAULT_TRACKER  # noqa: E402
+from pipeline.cli.trackers import TRACKERS  # noqa: E402
 from pipeline.io.mcap_io import iter_records  # noqa: E402
 from pipeline.recording.results import read_boxes  # noqa: E402
 
@@ -57,14 +60,14 @@ def first_estimate_ns(path: str) -> int | None:
     return min(t) if t else None
 
 
-def one_run(code: str, out: Path, k: int, init: str, seq: Path) -> dict | None:
+def one_run(code: str, out: Path, k: int, init: str, seq: Path, tracker: str) -> dict | None:
     """One cold start of ``gflow track`` with the code in ``code``; the trace, the total and the CPU."""
     rec, trace = out / f"run-{k}.mcap", out / f"trace-{k}.txt"
     env = dict(os.environ, PYTHONPATH=code, GFLOW_STARTUP_TRACE=str(trace))
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.time_ns()
     r = subprocess.run([sys.executable, "-m", "pipeline.cli", "track", str(seq), "--init", init, "--stop", "5",
-                        "--record", str(rec), "--out", str(out / f"run-{k}.csv"), "-q"],
+                        "--tracker", tracker, "--record", str(rec), "--out", str(out / f"run-{k}.csv"), "-q"],
                        capture_output=True, text=True, env=env, cwd=out)
     wall = (time.time_ns() - t0) / 1e9
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -104,9 +107,13 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--compare", metavar="DIR", help="another checkout to alternate with (e.g. the base)")
     ap.add_argument("--out", default=None, help="keep recordings and traces here (default: a temporary folder)")
+    ap.add_argument("--tracker", default=DEFAULT_TRACKER, help=f"the tracker to start (default: {DEFAULT_TRACKER})")
+    ap.add_argument("--sequence", default="caviar1", help="a sequence of the shared data (default: caviar1)")
     args = ap.parse_args()
+    if args.tracker not in TRACKERS:
+        ap.error(f"--tracker {args.tracker}: not a tracker; choose from {', '.join(sorted(TRACKERS))}")
     codes = {"this": str(ROOT)} | ({"compare": str(checkout(ap, args.compare))} if args.compare else {})
-    seq = DATA / "caviar1"
+    seq = DATA / args.sequence
     if not seq.is_dir():
         sys.exit(f"bench_startup: {seq} not found (set GFLOW_DATA)")
     init = ",".join(f"{v:g}" for v in read_boxes(seq / "groundtruth.csv")[0])
@@ -116,7 +123,7 @@ def main() -> None:
     k = 0
     for _ in range(args.runs):
         for c, code in codes.items():
-            r = one_run(code, out, k, init, seq)
+            r = one_run(code, out, k, init, seq, args.tracker)
             k += 1
             if r is not None:
                 runs[c].append(r)
@@ -127,7 +134,8 @@ def main() -> None:
                      f"{statistics.median(firsts):.2f}" if firsts else "-",
                      f"{statistics.median(r['wall'] for r in rs):.2f}" if rs else "-",
                      f"{statistics.median(r['cpu'] for r in rs):.2f}" if rs else "-"])
-    print(f"`gflow track caviar1 --stop 5` ({DEFAULT_TRACKER}, the default tracker, processes): new process to the first "
+    what = "the default tracker" if args.tracker == DEFAULT_TRACKER else "not the default"
+    print(f"`gflow track {args.sequence} --stop 5` ({args.tracker}, {what}, processes): new process to the first "
           "estimate recorded")
     print(table(rows, ["code", "path", "runs", "to first estimate s", "median s", "median wall s (to exit)",
                        "median CPU s (all processes)"]))
