@@ -1,7 +1,7 @@
-"""Start-up of ``gflow track`` (the default tracker, or ``--tracker NAME``, processes) on caviar1 (or ``--sequence
-NAME`` of ../shared/data, from its first labelled box): N cold starts of a new ``python -m pipeline.cli track ...
---stop 5`` process, each timed from just before the
-process is started to the first estimate in its recording (the recorder's receive time).
+"""Start-up of ``gflow track`` (the default tracker, or ``--tracker NAME``, processes) on caviar1 (or
+``--sequence NAME`` of ../shared/data, from its first labelled box): N cold starts of a new
+``python -m pipeline.cli track ... --stop 5`` process, each timed from just before the process is
+started to the first estimate in its recording (the recorder's receive time).
 
 The breakdown comes from ``GFLOW_STARTUP_TRACE`` (``pipeline/runtime/trace.py``): the CLI, the
 launcher and every stage process write a timestamp at each step of the start-up. Printed: the
