@@ -39,6 +39,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+import cli_fork
+
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", ROOT / "CHANGELOG.md", *sorted((ROOT / "docs").glob("*.md")),
          ROOT / "bench" / "README.md", ROOT / "recordings" / "README.md"]
@@ -167,6 +169,16 @@ def gflow_args(segment: str) -> list[str] | None:
             "pipeline.cli", "pipeline.cli.main"):
         return words[3:]
     return None
+
+
+def one_command(line: str) -> list[str] | None:
+    """``gflow ARGS``'s ARGS when the line is that one command and uses nothing of the shell's (no pipe,
+    redirection, variable, wildcard or second command; a trailing comment is fine), else None."""
+    code = line.split(" #")[0]
+    if re.search(r"[|&;<>$*?`(){}\\[\]~'\"\\]", code):
+        return None
+    words = code.split()
+    return words[1:] if words[:1] == ["gflow"] else None
 
 
 def installs_this_project(segment: str) -> bool:
@@ -299,8 +311,13 @@ class PageRun:
             self.serve(where, line, *serves)
             return
         try:
-            r = subprocess.run(["bash", "-o", "pipefail", "-c", line], env=self.env, cwd=self.tmp,
-                               capture_output=True, text=True, timeout=TIMEOUT, stdin=subprocess.DEVNULL)
+            alone = one_command(line)
+            if alone is not None:
+                # one gflow command and nothing of the shell's: forked as the command would start (tests/cli_fork.py)
+                r = cli_fork.run(alone, self.tmp, self.env, timeout=TIMEOUT)
+            else:
+                r = subprocess.run(["bash", "-o", "pipefail", "-c", line], env=self.env, cwd=self.tmp,
+                                   capture_output=True, text=True, timeout=TIMEOUT, stdin=subprocess.DEVNULL)
         except subprocess.TimeoutExpired:
             self.fail(where, line, f"still running after {TIMEOUT} s")
             return
