@@ -88,8 +88,8 @@ def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
     A UDP sender starts right after the track, and sends once the port is bound (``--when-bound``);
     it says which of zenoh, msgspec and cv2 the track's process had loaded by then, which must be
     none of them (``gflow track udp://...`` binds the port before those imports: ``bind_early`` in
-    pipeline/io/udp_relay.py), unless the port was already bound at the sender's first look, which
-    then says nothing of when. A TCP sender is the server: it is started first and listening before
+    pipeline/io/udp_relay.py); only if the port was already bound at the sender's first look can a
+    module it finds loaded have come after the bind. A TCP sender is the server: it is started first and listening before
     the track starts, since the source stage connects once while the pipeline starts and a refused
     connection is an error of the run."""
     env = env_for(tmp_path)

@@ -15,8 +15,8 @@ connected), ``outage`` / ``back`` around a gap, and ``done`` at the end, each wi
 With ``--when-bound`` a UDP sender first waits until something has bound the port (polling
 ``/proc/net/udp`` and ``/proc/net/udp6``, for at most ``--deadline`` seconds) and prints
 ``bound TIME after N polls``; with ``--watch-pid`` the line goes on with ``loaded: ...``, which
-of zenoh, msgspec and cv2 that process had loaded then (N = 0: it was bound before the first
-poll, and what was loaded then says nothing of when it was bound).
+of zenoh, msgspec and cv2 that process had loaded then (``none`` shows the port was bound before
+they loaded; with N = 0 it was bound before the first poll, so a module loaded then shows nothing).
 """
 
 from __future__ import annotations
