@@ -9,6 +9,7 @@ are the contract between the readers and the stage, below both, like the message
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -35,10 +36,11 @@ class SourceParams(Params, frozen=True):
     the trackers' time step (:mod:`stages.time_step`).
     Live sources only: ``live_ahead`` frames may be in flight ahead of the slowest stage (the
     newest frame wins beyond them); ``reconnect``: seconds to keep reopening a lost stream;
-    ``open_timeout``: seconds an open may take; ``keep_skipped``: send the skipped frames on
-    port ``skipped`` (for the recording); ``stop``: end after this many frames decoded;
-    ``relay``: where to read ``path``'s bytes instead (a UDP port bound before the pipeline
-    started, served on loopback: :mod:`pipeline.io.udp_relay`).
+    ``open_timeout``: seconds an open may take; ``read_timeout``: seconds without a new frame
+    before the stream is taken as lost (then reopened for ``reconnect`` seconds, or ended);
+    ``keep_skipped``: send the skipped frames on port ``skipped`` (for the recording); ``stop``:
+    end after this many frames decoded; ``relay``: where to read ``path``'s bytes instead (a UDP
+    port bound before the pipeline started, served on loopback: :mod:`pipeline.io.udp_relay`).
     """
 
     kind: Literal["synthetic", "folder", "video", "mcap", "live"] = "synthetic"
@@ -61,6 +63,7 @@ class SourceParams(Params, frozen=True):
     live_ahead: int = 1
     reconnect: float = 5.0
     open_timeout: float = 10.0
+    read_timeout: float = 5.0
     keep_skipped: bool = False
     relay: str = ""
 
@@ -83,9 +86,11 @@ class SourceParams(Params, frozen=True):
                              "runs at the camera's pace (no clock: media, start or realtime)")
         if self.clock == "host" and self.kind not in ("live", "mcap"):
             raise ValueError(f"clock: host is for live sources and their recordings, not kind {self.kind!r}")
-        if self.live_ahead < 1 or self.reconnect < 0 or not self.open_timeout > 0:
+        if self.live_ahead < 1 or not self.reconnect >= 0 or not self.open_timeout > 0:  # `not >=`: NaN too
             raise ValueError(f"need live_ahead >= 1, reconnect >= 0 and open_timeout > 0, got {self.live_ahead}, "
                              f"{self.reconnect}, {self.open_timeout}")
+        if not 0 < self.read_timeout < math.inf:
+            raise ValueError(f"read_timeout must be a positive, finite number of seconds, got {self.read_timeout}")
 
 
 @dataclass(frozen=True)

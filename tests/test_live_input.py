@@ -4,8 +4,10 @@ Real streams on loopback from a sender process (``tests/ts_sender.py``): caviar1
 constant-rate H.264 in MPEG-TS, a keyframe a second, sent in real time over TCP or UDP (6 s of
 stream where an outage must fall in its middle, 3 s where nothing is cut out of it). What a
 network does is done to the bytes: 300 inverted bytes (a damaged link), 2.2 s of the stream never
-sent (an outage), a sender started as soon as ``gflow track`` says it is running. Every test
-waits for conditions (the run's announcement, the processes' ends), not for fixed times.
+sent (an outage). A UDP sender starts together with ``gflow track`` and sends as soon as the port
+is bound. The runs take the stream as ended 2 s after its last frame (``source.read_timeout``;
+3.5 s where a 2.2 s outage must not end it) rather than the default 5 s. Every test waits for
+conditions (a bound port, the processes' ends), not for fixed times.
 """
 
 from __future__ import annotations
@@ -24,13 +26,14 @@ import pytest
 
 import cli_fork
 from stream_server import ffmpeg_exe, free_port
-from ts_sender import corrupt, encode_cbr
+from ts_sender import HEAVY_MODULES, corrupt, encode_cbr
 
 ROOT = Path(__file__).resolve().parent.parent
 INIT = "129,71,30,79"  # caviar1's ground-truth box of frame 0
 N = 150  # frames sent: 6 s of stream
 SHORT = 75  # frames sent where no outage is cut out of the stream: 3 s
 KEYFRAME_EVERY = 25  # frames: the stream has a keyframe a second
+READ_TIMEOUT = 2.0  # s without a frame before a run's stream is taken as ended (the default, 5 s, is a wait per test)
 
 pytestmark = pytest.mark.skipif(ffmpeg_exe() is None,
                                 reason="no FFmpeg to encode streams: pip install imageio-ffmpeg (a test extra)")
@@ -77,50 +80,59 @@ def truth(caviar1: Path) -> dict[int, tuple[float, ...]]:
         return {int(r[0]): tuple(float(v) for v in r[1:5]) for r in list(csv.reader(f))[1:]}
 
 
-def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
+def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str, read_timeout: float = READ_TIMEOUT
                         ) -> tuple[subprocess.CompletedProcess, str]:
-    """Start ``gflow track URL``; once it announces itself (as ``gflow ps`` sees it), start the
-    sender; wait for both. Returns the track's result and what the sender printed. A TCP sender is
-    the server: it is started first and listening before the track starts, since the source stage
-    connects once while the pipeline starts and a refused connection is an error of the run."""
+    """Run ``gflow track URL`` (``source.read_timeout`` ``read_timeout`` s) with the sender; wait for
+    both. Returns the track's result and what the sender printed.
+
+    A UDP sender starts right after the track, and sends once the port is bound (``--when-bound``);
+    it says which of zenoh, msgspec and cv2 the track's process had loaded by then, which must be
+    none of them (``gflow track udp://...`` binds the port before those imports: ``bind_early`` in
+    pipeline/io/udp_relay.py); only if the port was already bound at the sender's first look can a
+    module it finds loaded have come after the bind. A TCP sender is the server: it is started first and listening before
+    the track starts, since the source stage connects once while the pipeline starts and a refused
+    connection is an error of the run."""
     env = env_for(tmp_path)
     cmd = [sys.executable, str(ROOT / "tests" / "ts_sender.py"), *sender]
-    server = None
-    if sender[1] == "tcp":
-        server = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert server.stdout is not None and server.stdout.readline().strip() == "listening", server.communicate()
+    udp = sender[1] == "udp"
+    peer = None
+    if not udp:
+        peer = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert peer.stdout is not None and peer.stdout.readline().strip() == "listening", peer.communicate()
     track = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "track", url, "--init", INIT, "--out",
-                              "b.csv", "--record", "r.mcap", "--reconnect", "0", *extra], cwd=tmp_path, env=env,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                              "b.csv", "--record", "r.mcap", "--reconnect", "0",
+                              "--set", f"source.read_timeout={read_timeout:g}", *extra],
+                             cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        if server is None:
-            deadline = time.monotonic() + 60
-            while not list((tmp_path / "runtime").glob("*.json")):
-                assert track.poll() is None, track.communicate()
-                assert time.monotonic() < deadline, "gflow track never announced itself"
-                time.sleep(0.02)
-            sent = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=120)
+        if peer is None:
+            peer = subprocess.Popen([*cmd, "--when-bound", "--watch-pid", str(track.pid)], env=env,
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         out, err = track.communicate(timeout=120)
-        if server is not None:
-            if track.returncode != 0:  # it will not connect now: the run's error is the one to show
-                server.kill()
-            rest, err_s = server.communicate(timeout=120)
-            sent = subprocess.CompletedProcess(cmd, server.returncode, "listening\n" + rest, err_s)
+        if track.returncode != 0:  # it will not connect or bind now: the run's error is the one to show
+            peer.kill()
+        said, err_s = peer.communicate(timeout=120)
+        sent = subprocess.CompletedProcess(cmd, peer.returncode, said if udp else "listening\n" + said, err_s)
     finally:
-        for proc in (track, server):
+        for proc in (track, peer):
             if proc is not None and proc.poll() is None:
                 proc.kill()
     assert track.returncode == 0, err[-3000:]
     assert sent.returncode == 0, sent.stderr
     assert "Traceback" not in err
+    if udp:
+        bound = next(ln for ln in sent.stdout.splitlines() if ln.startswith("bound "))
+        polls = int(bound.split(" after ")[1].split()[0])
+        loaded = bound.split("loaded: ")[1]
+        assert polls == 0 or loaded == "none", (bound, HEAVY_MODULES)  # bound before those imports
     return subprocess.CompletedProcess(track.args, track.returncode, out, err), sent.stdout
 
 
 def test_udp_sender_started_with_the_run_loses_nothing_and_init_is_its_first_frame(tmp_path: Path, caviar1: Path,
                                                                                    short_stream: Path) -> None:
-    """The sender starts as soon as the run is announced, seconds before the source stage would
-    have opened the port: the port was bound first thing, so every frame arrives, frame 0 is the
-    sender's first (the one --init describes), and the run says when the first data came."""
+    """The sender starts with the run and sends as soon as the port is bound, seconds before the
+    source stage would have opened it: the port was bound first thing, so every frame arrives,
+    frame 0 is the sender's first (the one --init describes), and the run says when the first data
+    came."""
     port = free_port()
     r, _ = track_while_sending(tmp_path, f"udp://127.0.0.1:{port}", [str(short_stream), "udp", str(port)])
     rows = read_rows(tmp_path / "b.csv")
@@ -139,12 +151,12 @@ def test_udp_sender_started_with_the_run_loses_nothing_and_init_is_its_first_fra
 
 def test_udp_outage_is_reported_and_frame_numbers_stay_the_cameras(tmp_path: Path, caviar1: Path,
                                                                   stream: Path) -> None:
-    """2.2 s of the stream never arrive (under the 5 s read timeout, so no reconnect): the gap is
-    reported with the frames missed, counted by the stream's timestamps, and the rows after it
-    keep the camera's frame numbers."""
+    """2.2 s of the stream never arrive (under the run's 3.5 s read timeout, so no reconnect): the
+    gap is reported with the frames missed, counted by the stream's timestamps, and the rows after
+    it keep the camera's frame numbers."""
     port = free_port()
     r, said = track_while_sending(tmp_path, f"udp://127.0.0.1:{port}",
-                                  [str(stream), "udp", str(port), "--outage", "2:2.2"])
+                                  [str(stream), "udp", str(port), "--outage", "2:2.2"], read_timeout=3.5)
     assert "outage" in said
     rows = read_rows(tmp_path / "b.csv")
     assert max(rows) == N - 1, max(rows)  # the last frame is the camera's last, not 55 short
@@ -202,7 +214,8 @@ def test_an_outage_in_the_backlog_of_a_late_source_keeps_the_cameras_frame_numbe
     missed = 0
     try:
         assert "outage" in sender.communicate(timeout=60)[0]  # all of it sent, and waiting in the relay
-        cap = LiveCapture(relay.url, url=relay.relay_url, reconnect=0, keep_skipped=True).open()
+        cap = LiveCapture(relay.url, url=relay.relay_url, reconnect=0, keep_skipped=True,
+                          read_timeout=READ_TIMEOUT).open()  # all of it is in the relay: no gap to wait out
         try:
             while N - 1 not in numbered:  # the camera's last frame (a capture that numbers short ends by its timeout)
                 f = cap.take(timeout=30)
@@ -315,3 +328,42 @@ def test_a_stream_joined_after_it_began_is_reported(stream: Path) -> None:
             assert "the stream had begun before the port was bound" in line and "first frame received" in line, line
         else:
             assert "had begun" not in line, line
+
+
+def test_the_stream_ends_read_timeout_after_its_last_datagram(tmp_path: Path, stream: Path) -> None:
+    """With ``source.read_timeout`` 2 s and no reconnect, the run's ``stream_ended`` report is
+    recorded about 2 s after the sender's last datagram (the default, 5 s, is outside the bounds).
+    The 6 s stream leaves the source time to open while it is sent, so it reads the end live, not
+    from a backlog the relay kept. (The last frame is not the reference: the demuxer hands it over
+    only when the read times out.)"""
+    from gflow_msgs.messages import Capture, ErrorReport, decode
+    from pipeline.io.mcap_io import iter_records
+
+    port = free_port()
+    _, said = track_while_sending(tmp_path, f"udp://127.0.0.1:{port}", [str(stream), "udp", str(port)])
+    done = float(next(ln for ln in said.splitlines() if ln.startswith("done ")).split()[1])
+    stamps, ended = [], []
+    for rec in iter_records(tmp_path / "r.mcap"):
+        if rec.type in ("Capture", "ErrorReport"):
+            m = decode(rec.data)
+            if isinstance(m, Capture):  # a frame sent: its capture stamp
+                stamps.append(m.header.stamp_ns / 1e9)
+            elif isinstance(m, ErrorReport) and m.kind == "stream_ended":
+                ended.append(rec.log_ns / 1e9)
+    assert len(ended) == 1, ended
+    assert stamps and min(stamps) < done - 1.0, ("the source opened after the stream was sent", min(stamps), done)
+    assert 1.5 <= ended[0] - done <= 4.5, (ended[0] - done, max(stamps) - done)
+
+
+@pytest.mark.parametrize("setting", ["source.read_timeout=nan", "source.read_timeout=0", "source.read_timeout=inf",
+                                     "source.reconnect=nan"])
+def test_a_bad_read_timeout_or_reconnect_is_one_line_of_error(tmp_path: Path, setting: str) -> None:
+    """A read timeout that is not a positive, finite number of seconds (or a NaN reconnect) is
+    refused before anything runs: one line naming the field, a non-zero exit, no traceback."""
+    r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", f"udp://127.0.0.1:{free_port()}",
+                              "--init", INIT, "--out", "b.csv", "--set", setting], cwd=tmp_path,
+                             env=env_for(tmp_path), capture_output=True, text=True, timeout=120)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode != 0 and len(lines) == 1, (r.returncode, r.stderr)
+    assert setting.split("=")[0].split(".")[1] in lines[0] and "Traceback" not in r.stderr, lines
+    assert not (tmp_path / "b.csv").exists()

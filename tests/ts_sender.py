@@ -8,9 +8,15 @@ camera goes on, the packets are lost), ``--stall T:D`` stops sending at T for D 
 on where it stopped (nothing lost). Run as a process::
 
     python tests/ts_sender.py FILE.ts udp PORT --rate 125000 [--outage 3:2.2] [--stall 3:1]
+        [--when-bound [--watch-pid PID]]
 
 It prints ``sending`` when it sends its first byte (for UDP: at once; for TCP: when the client
 connected), ``outage`` / ``back`` around a gap, and ``done`` at the end, each with the time.
+With ``--when-bound`` a UDP sender first waits until something has bound the port (polling
+``/proc/net/udp`` and ``/proc/net/udp6``, for at most ``--deadline`` seconds) and prints
+``bound TIME after N polls``; with ``--watch-pid`` the line goes on with ``loaded: ...``, which
+of zenoh, msgspec and cv2 that process had loaded then (``none`` shows the port was bound before
+they loaded; with N = 0 it was bound before the first poll, so a module loaded then shows nothing).
 """
 
 from __future__ import annotations
@@ -22,11 +28,13 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["encode_cbr", "corrupt", "MUXRATE"]
+__all__ = ["encode_cbr", "corrupt", "udp_port_bound", "loaded_modules", "MUXRATE", "HEAVY_MODULES"]
 
 #: the TS's constant rate in bits/s (x264 at 800 kbit/s padded to 1 Mbit/s)
 MUXRATE = 1_000_000
 DATAGRAM = 7 * 188
+#: the modules whose load a command's early UDP bind comes before (pipeline/io/udp_relay.py)
+HEAVY_MODULES = ("zenoh", "msgspec", "cv2")
 
 
 def encode_cbr(ffmpeg: str, frames_dir: Path, out: Path, count: int, fps: float = 25.0, gop: int = 25) -> Path:
@@ -59,6 +67,46 @@ def corrupt(src: Path, dst: Path, offset: int, n: int) -> Path:
     return dst
 
 
+def udp_port_bound(port: int) -> bool:
+    """Whether some socket on this host has bound UDP ``port`` (IPv4 or IPv6), as ``/proc/net`` lists them."""
+    suffix = f":{port:04X}"
+    for table in ("/proc/net/udp", "/proc/net/udp6"):
+        try:
+            with open(table) as f:
+                lines = f.readlines()[1:]
+        except FileNotFoundError:  # no IPv6 here
+            continue
+        if any(line.split()[1].endswith(suffix) for line in lines if len(line.split()) > 1):
+            return True
+    return False
+
+
+def loaded_modules(pid: int) -> list[str]:
+    """Which of :data:`HEAVY_MODULES` process ``pid`` has loaded: their shared libraries in its memory map."""
+    try:
+        with open(f"/proc/{pid}/maps") as f:
+            paths = {line.split()[-1] for line in f if "/" in line}
+    except OSError:
+        return []
+    # each is a package directory with a compiled extension (zenoh/, msgspec/, cv2/)
+    return [m for m in HEAVY_MODULES if any(f"/{m}/" in p and ".so" in p for p in paths)]
+
+
+def wait_bound(port: int, deadline_s: float, pid: int | None) -> str | None:
+    """Poll until UDP ``port`` is bound (every 2 ms, for ``deadline_s``); the line to print, or None."""
+    end = time.monotonic() + deadline_s
+    polls = 0
+    while not udp_port_bound(port):
+        if time.monotonic() > end:
+            return None
+        polls += 1
+        time.sleep(0.002)
+    line = f"bound {time.time():.3f} after {polls} polls"
+    if pid is not None:
+        line += f"; loaded: {','.join(loaded_modules(pid)) or 'none'}"
+    return line
+
+
 def _window(text: str | None) -> tuple[float, float] | None:
     if not text:
         return None
@@ -74,7 +122,12 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--rate", type=float, default=MUXRATE / 8, help="bytes per second")
     ap.add_argument("--outage", help="T:D: the stream's seconds T to T + D are lost")
     ap.add_argument("--stall", help="T:D: at T, stop sending for D seconds, then go on")
+    ap.add_argument("--when-bound", action="store_true", help="UDP: send once something has bound the port")
+    ap.add_argument("--deadline", type=float, default=60.0, help="seconds --when-bound waits at most")
+    ap.add_argument("--watch-pid", type=int, help="with --when-bound: say what this process had loaded then")
     a = ap.parse_args(argv)
+    if a.when_bound and a.proto != "udp":
+        ap.error("--when-bound is for UDP (a TCP sender is the server)")
     data = Path(a.file).read_bytes()
     outage, stall = _window(a.outage), _window(a.stall)
     if a.proto == "tcp":
@@ -86,6 +139,12 @@ def main(argv: list[str]) -> int:
         conn, _ = srv.accept()
         send = conn.sendall
     else:
+        if a.when_bound:
+            said = wait_bound(a.port, a.deadline, a.watch_pid)
+            if said is None:
+                print(f"ts_sender: nothing bound UDP port {a.port} within {a.deadline:g} s", file=sys.stderr)
+                return 1
+            print(said, flush=True)
         udp = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
 
         def send(b: bytes) -> None:

@@ -201,7 +201,7 @@ def read_live(capture: LiveCapture, p: SourceParams, first_seq: int = 0) -> Gene
 def open_live(p: SourceParams) -> LiveCapture:
     """Open the live source of ``p`` (raises :class:`LiveSourceError` in one line)."""
     return LiveCapture(p.path, fps=p.fps, open_timeout=p.open_timeout, reconnect=p.reconnect,
-                       keep_skipped=p.keep_skipped, stop=p.stop, url=p.relay).open()
+                       keep_skipped=p.keep_skipped, stop=p.stop, url=p.relay, read_timeout=p.read_timeout).open()
 
 
 def open_reader(p: SourceParams, base_dir: str | os.PathLike = ".") -> Iterator[RawFrame]:

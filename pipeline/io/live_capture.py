@@ -24,10 +24,10 @@ the frame the tracker starts on, the one ``--init`` describes.
   probe), so every open runs with FFmpeg's own open timeout and on a helper thread that is
   abandoned after ``open_timeout`` plus a second. A failure is a :class:`LiveSourceError`
   of one line naming the source and what FFmpeg said (:mod:`pipeline.io.ffmpeg_messages`).
-* **Reconnecting.** A read that fails (the server closed, a read timeout of
-  ``READ_TIMEOUT_S``) is retried with back-off (0.25 s doubling to 1 s) for ``reconnect``
-  seconds; the next frame taken carries the gap (seconds, frames missed at the nominal
-  rate). Not back in time, the capture ends and says why.
+* **Reconnecting.** A read that fails (the server closed, nothing for ``read_timeout``
+  seconds, by default ``READ_TIMEOUT_S``) is retried with back-off (0.25 s doubling to 1 s)
+  for ``reconnect`` seconds; the next frame taken carries the gap (seconds, frames missed at
+  the nominal rate). Not back in time, the capture ends and says why.
 
 Sources: ``rtsp://``, ``rtmp://``, ``http(s)://``, ``tcp://``, ``udp://``, ``srt://``, ``rtp://``
 URLs, and V4L2 devices ``/dev/videoN`` (``--camera N``).
@@ -52,7 +52,7 @@ __all__ = ["LiveCapture", "LiveFrame", "LiveSourceError", "is_live_source", "cam
 
 #: URL schemes that are opened as live streams through FFmpeg
 LIVE_SCHEMES = ("rtsp", "rtsps", "rtmp", "rtmps", "http", "https", "tcp", "udp", "srt", "rtp")
-#: a stream that delivers nothing for this long is taken as lost (FFmpeg's read timeout)
+#: by default, a stream that delivers nothing for this long is taken as lost (FFmpeg's read timeout)
 READ_TIMEOUT_S = 5.0
 #: back-off between reconnection attempts: first wait, and the most it grows to
 BACKOFF_FIRST_S, BACKOFF_MAX_S = 0.25, 1.0
@@ -137,6 +137,7 @@ class LiveCapture:
         declare its own.
     open_timeout : seconds an open (and its first frame) may take.
     reconnect : seconds to keep trying after the stream is lost (0: end at once).
+    read_timeout : seconds without a new frame before the stream is taken as lost.
     keep_skipped : keep the images of skipped frames (for the recording).
     stop : end after this many frames (None: when the stream ends).
     url : where to open ``source``'s stream instead, when it is relayed (:mod:`pipeline.io.udp_relay`);
@@ -144,12 +145,14 @@ class LiveCapture:
     """
 
     def __init__(self, source: str, fps: float = 25.0, open_timeout: float = 10.0, reconnect: float = 5.0,
-                 keep_skipped: bool = False, stop: int | None = None, url: str = "") -> None:
+                 keep_skipped: bool = False, stop: int | None = None, url: str = "",
+                 read_timeout: float = READ_TIMEOUT_S) -> None:
         self.source = source
         self.url, self._kept_since = kept_since(url or source)  # a relay's URL says since when it kept the stream
         self.fps = fps
         self.open_timeout = open_timeout
         self.reconnect = reconnect
+        self.read_timeout = read_timeout
         self.keep_skipped = keep_skipped
         self.stop = stop
         self.captured = 0  # frames decoded since the open
@@ -212,7 +215,7 @@ class LiveCapture:
                     ms = int(max(timeout, 0.1) * 1000)
                     cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG,
                                            [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms,
-                                            cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(READ_TIMEOUT_S * 1000)])
+                                            cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(self.read_timeout * 1000)])
                 if not cap.isOpened():
                     timed_out = time.monotonic() - t0 >= 0.95 * timeout
                     box["error"] = f"nothing received within {timeout:g} s" if timed_out else "could not be opened"
@@ -410,7 +413,7 @@ class LiveCapture:
             self._cond.notify_all()
         t = self._thread
         if t is not None and t is not threading.current_thread():
-            t.join(timeout=READ_TIMEOUT_S + 1.0)
+            t.join(timeout=self.read_timeout + 1.0)
         self._stop_listening()
         self._thread = None
         if self._cap is not None and (t is None or not t.is_alive()):
