@@ -13,11 +13,17 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+import msgspec
 import numpy as np
 
 from .params import Params
 
-__all__ = ["SourceParams", "RawFrame"]
+__all__ = ["SourceParams", "RawFrame", "FOREVER_S"]
+
+#: ``reconnect`` or ``open_timeout`` of ``inf`` ("until the stream is back or Ctrl-C") is held as this many
+#: seconds (about 32 years): JSON, which carries the plan to each stage and the parameters into the recording,
+#: has no infinity (msgspec writes it as null, which no stage could read back).
+FOREVER_S = 1e9
 
 
 class SourceParams(Params, frozen=True):
@@ -73,6 +79,9 @@ class SourceParams(Params, frozen=True):
         return self.clock == "host" or (self.clock == "auto" and self.kind == "live")
 
     def __post_init__(self) -> None:
+        for name in ("reconnect", "open_timeout"):
+            if getattr(self, name) == math.inf:
+                msgspec.structs.force_setattr(self, name, FOREVER_S)
         if not self.fps > 0:
             raise ValueError(f"fps must be positive, got {self.fps}")
         if self.start < 0 or (self.stop is not None and self.stop <= self.start):

@@ -100,7 +100,7 @@ def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
         peer = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert peer.stdout is not None and peer.stdout.readline().strip() == "listening", peer.communicate()
     track = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "track", url, "--init", INIT, "--out",
-                              "b.csv", "--record", "r.mcap", "--reconnect", "0",
+                              "b.csv", "--record", "r.mcap", *([] if "--reconnect" in extra else ["--reconnect", "0"]),
                               "--set", f"source.read_timeout={read_timeout:g}", *extra],
                              cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -367,3 +367,15 @@ def test_a_bad_read_timeout_or_reconnect_is_one_line_of_error(tmp_path: Path, se
     assert r.returncode != 0 and len(lines) == 1, (r.returncode, r.stderr)
     assert setting.split("=")[0].split(".")[1] in lines[0] and "Traceback" not in r.stderr, lines
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("opts", [["--reconnect", "inf"], ["--set", "source.open_timeout=inf"]])
+def test_an_endless_reconnect_or_open_reaches_the_stages(tmp_path: Path, short_stream: Path, opts: list[str]) -> None:
+    """``--reconnect inf`` (documented: until the stream is back or Ctrl-C) and an endless open
+    survive the plan's JSON to the stage processes (JSON has no infinity: they are held as
+    ``FOREVER_S``) and OpenCV's timeouts (a C int of milliseconds): the run tracks the stream it
+    is sent and ends on ``--stop``. An infinity written as JSON's null failed every stage's start."""
+    port = free_port()
+    r, _ = track_while_sending(tmp_path, f"udp://127.0.0.1:{port}", [str(short_stream), "udp", str(port)],
+                               "--stop", "10", *opts)
+    assert len(read_rows(tmp_path / "b.csv")) >= 2 and "stopped after frame" in r.stdout + r.stderr, r.stderr

@@ -67,6 +67,12 @@ class LiveSourceError(ValueError):
     """A live source that cannot be opened: one line naming it and what FFmpeg (or the OS) said."""
 
 
+def _msec(seconds: float) -> int:
+    """``seconds`` as OpenCV's capture properties take a timeout: whole milliseconds in a C int (a longer wait,
+    such as ``--reconnect inf``'s, is held to about 24.8 days; a larger number fails the call)."""
+    return min(int(seconds * 1000), 2**31 - 1)
+
+
 def is_live_source(text: str) -> bool:
     """True for a stream URL (``scheme://...`` with a scheme of :data:`LIVE_SCHEMES`) or a V4L2 device."""
     scheme = text.split("://", 1)[0].lower() if "://" in text else ""
@@ -212,10 +218,9 @@ class LiveCapture:
                 if _DEVICE.match(self.source):
                     cap = cv2.VideoCapture(self.source, cv2.CAP_V4L2)
                 else:
-                    ms = int(max(timeout, 0.1) * 1000)
                     cap = cv2.VideoCapture(self.url, cv2.CAP_FFMPEG,
-                                           [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, ms,
-                                            cv2.CAP_PROP_READ_TIMEOUT_MSEC, int(self.read_timeout * 1000)])
+                                           [cv2.CAP_PROP_OPEN_TIMEOUT_MSEC, _msec(max(timeout, 0.1)),
+                                            cv2.CAP_PROP_READ_TIMEOUT_MSEC, _msec(self.read_timeout)])
                 if not cap.isOpened():
                     timed_out = time.monotonic() - t0 >= 0.95 * timeout
                     box["error"] = f"nothing received within {timeout:g} s" if timed_out else "could not be opened"
