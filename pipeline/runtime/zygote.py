@@ -78,7 +78,7 @@ _STOPS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
 #: the exit code of a stage stopped before its node started (128 + SIGINT, as a shell reports it)
 STOPPED_BEFORE_START = 130
 #: commands of ``gflow`` that start stage processes
-LAUNCHING = ("track", "run", "demo")
+LAUNCHING = ("track", "run", "demo", "benchmark")
 
 _HELD: "Zygote | None" = None  # the process's zygote while no run holds it
 _LEASED = False  # whether a run holds it
