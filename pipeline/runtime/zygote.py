@@ -69,9 +69,10 @@ PR_GET_CHILD_SUBREAPER = 37
 ONE_THREAD = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 #: the prefixes of the environment variables that the zygote's start-up (its imports) or a stage's
 #: reads before its environment is set can depend on: an early zygote forks only for a lease whose
-#: environment has the same ones (OpenCV's are not among them: the zygote never imports it)
+#: environment has the same ones. Not OpenCV's (the zygote never imports it) nor the loader's
+#: (``LD_*``: read when a program starts, which a fork does not; importing cv2 sets LD_LIBRARY_PATH)
 STARTUP_VARS = ("GFLOW_", "ZENOH", "RUST_", "PYTHON", "OMP_", "OPENBLAS_", "MKL_", "NPY_", "BLIS_",
-                "VECLIB_", "NUMEXPR_", "LD_", "MALLOC_")
+                "VECLIB_", "NUMEXPR_", "MALLOC_")
 #: the signals that stop a stage (pipeline.runtime.signals.STOP_SIGNALS, not imported here: the
 #: zygote imports as little as it can before it forks)
 _STOPS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
@@ -84,6 +85,13 @@ _HELD: "Zygote | None" = None  # the process's zygote while no run holds it
 _LEASED = False  # whether a run holds it
 _LOCK = threading.Lock()
 _AT_EXIT = False
+
+
+def _mark(label: str) -> None:
+    """A start-up trace line (pipeline/runtime/trace.py: imports nothing but ``os`` and ``time``)."""
+    from pipeline.runtime.trace import mark
+
+    mark(label)
 
 
 def _prctl(option: int, arg: int) -> bool:
@@ -314,6 +322,7 @@ class Zygote:
                 code = 1
             os._exit(code)
         theirs.close()
+        _mark(f"zygote forked {pid}")
         return cls(pid, ours, env, whole=False)
 
     @classmethod
@@ -331,6 +340,7 @@ class Zygote:
             return None
         finally:
             theirs.close()
+        _mark(f"zygote started {popen.pid}")
         return cls(popen.pid, ours, env, whole=True, popen=popen)
 
     def fits(self, env: Mapping[str, str]) -> bool:
