@@ -79,8 +79,10 @@ def _spawned(lines: list[str]) -> list[int]:
 
 def test_two_runs_of_the_python_api_fork_every_stage_from_one_zygote(tmp_path):
     """A process that forked no zygote at start-up starts one (a new interpreter) on its first run and
-    keeps it: the second run's stages fork from it too."""
-    out, lines = _script("track_once(); a = zygote.held_pid()\n"
+    keeps it: the second run's stages fork from it too (the first run in a thread of its own, which
+    ends before the second: the zygote outlives it)."""
+    out, lines = _script("assert len(list(run(plan_track(request(), TRACKERS['dcf'])))) == 4\n"
+                         "a = zygote.held_pid()\n"
                          "track_once(); b = zygote.held_pid()\n"
                          "print(json.dumps([a, b]))\n", tmp_path)
     a, b = out

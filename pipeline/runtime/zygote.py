@@ -330,7 +330,10 @@ class Zygote:
         """A zygote in a new interpreter with environment ``env``: ``python -m pipeline.runtime.zygote FD``."""
         import subprocess
 
-        ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        try:
+            ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
+        except OSError:
+            return None
         try:
             popen = subprocess.Popen([sys.executable, "-m", "pipeline.runtime.zygote", str(theirs.fileno()),
                                       str(os.getpid())], env=dict(env), pass_fds=[theirs.fileno()],
@@ -409,13 +412,17 @@ def _recv_exact(sock: socket.socket, n: int) -> bytes:
     return data
 
 
-def _serve(sock: socket.socket, parent: int) -> None:
-    """The zygote: import what every stage needs, then fork one stage per request until the socket ends."""
+def _serve(sock: socket.socket, parent: int, die_with_thread: bool = True) -> None:
+    """The zygote: import what every stage needs, then fork one stage per request until the socket
+    ends (when ``parent`` closes it or exits). ``die_with_thread``: killed too when the thread that
+    forked it ends (``PR_SET_PDEATHSIG`` is a thread's): the early zygote's, forked by the main
+    thread; not a new interpreter's, which a run's thread may start and outlive."""
     try:
-        os.setsid()
+        os.setsid()  # out of the terminal's process group: Ctrl-C goes to the launcher, which stops the run
     except OSError:  # already a session's leader
-        pass  # out of the terminal's process group: Ctrl-C goes to the launcher, which stops the run
-    _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+        pass
+    if die_with_thread:
+        _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() != parent:
         return
     for var in ONE_THREAD:  # before numpy: BLAS starts no thread, as in every stage process
@@ -553,7 +560,7 @@ def main(argv: list[str]) -> int:
         print("usage: python -m pipeline.runtime.zygote FD [PARENT]", file=sys.stderr)
         return 2
     try:
-        _serve(sock, parent)
+        _serve(sock, parent, die_with_thread=False)
     except Exception:  # noqa: BLE001  (the launcher sees the socket end and starts stages itself)
         return 1
     return 0
