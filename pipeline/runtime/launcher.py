@@ -49,7 +49,7 @@ from pipeline.runtime.supervision import StageExit, StageLost, Supervisor
 from pipeline.runtime.trace import mark
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 from pipeline.runtime.user_settings import seconds
-from pipeline.runtime.zygote import take
+from pipeline.runtime.zygote import lease, release, stage_environment
 
 __all__ = ["Launcher", "LaunchResult", "StageExit", "run_dir_parent"]
 
@@ -209,9 +209,12 @@ class Launcher:
                              recording=self.recording or None, late_s=self.late_s, drain_s=self.drain_s,
                              cv_threads=self.threads_per_stage)
         finished = interrupted = False
+        zygote = None
         try:
-            # the stage processes fork from the zygote the gflow command started first, when there is one
-            sup.start(recorder + workers, node_plan, take() if self.threads_per_stage == 1 else None)
+            # the stage processes fork from this process's zygote, leased for the run (pipeline/runtime/zygote.py)
+            if self.threads_per_stage == 1:
+                zygote = lease(stage_environment(os.environ, 1), {plan.stages[n].kind for n in recorder + workers})
+            sup.start(recorder + workers, node_plan, zygote)
             if recorder and self.recording and self.say_recording:
                 self.console.say(f"recording to {self.recording}")
             self._await_heartbeats(watch, t0)
@@ -235,6 +238,8 @@ class Launcher:
             if recorder:
                 stop_recorder(sup, bus, plan, recorder)
             sup.record_exits()
+            sup.reap_orphans(every=0.0)
+            release(zygote, sup.zygote_broken)  # this process is no longer a subreaper
             # a stage's last heartbeat leaves just before its process exits: hear it before the
             # session closes (under load it can arrive after the exit is seen)
             monitor.await_final([n for n, e in sup.exits.items() if e.returncode == 0], 2.0)

@@ -1,8 +1,8 @@
 """Supervision: the stage processes of one launcher, started, watched and restarted.
 
 * Each stage runs ``python -m pipeline.runtime.node NODE_PLAN NAME`` in its own process group
-  (forked from the warm zygote when the ``gflow`` command started one, with the same command
-  line, parent and process group: ``pipeline/runtime/zygote.py``), so a Ctrl-C in the terminal
+  (forked from the warm zygote the run leased, with the same command line, parent and process
+  group: ``pipeline/runtime/zygote.py``), so a Ctrl-C in the terminal
   reaches the launcher only, which then stops the stages in order.
 * Its node plan (:class:`pipeline.runtime.node_plan.NodePlan`) is written to the run's folder
   before it starts: the same plan for every stage but for the stage's name, its restart count,
@@ -24,7 +24,6 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Callable, Iterable, Protocol
 
 import msgspec
@@ -33,7 +32,7 @@ from pipeline.io.mcap_io import segment_path
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.node_plan import EXIT_DISK_FULL, NodePlan, write_node_plan
 from pipeline.runtime.trace import mark
-from pipeline.runtime.zygote import ForkedStage, Zygote
+from pipeline.runtime.zygote import ForkedStage, Zygote, reap_orphans, stage_environment
 
 __all__ = ["Supervisor", "StageExit", "StageProcess", "StageLost"]
 
@@ -117,13 +116,15 @@ class Supervisor:
         self.pids: dict[str, list[int]] = {}
         self.exits: dict[str, StageExit] = {}
         self._zygote: Zygote | None = None
+        self.zygote_broken = False  # the zygote failed a fork: the run gives it back broken
+        self._reaped_at = 0.0
 
     # -- starting ----------------------------------------------------------------------------
     def start(self, names: list[str], node_plan: NodePlan, zygote: Zygote | None) -> None:
-        """Start a process for each of ``names``, forked from ``zygote`` when there is one (it is
-        closed afterwards: restarts start ``python -m pipeline.runtime.node``). ``node_plan`` is
-        what every stage process is handed, but for ``stage``, ``restarts``, ``peers`` and a
-        restarted recorder's ``recording``, which :meth:`spawn` fills in."""
+        """Start a process for each of ``names``, forked from ``zygote`` when there is one (the
+        run's lease: the launcher gives it back; restarts start ``python -m pipeline.runtime.node``).
+        ``node_plan`` is what every stage process is handed, but for ``stage``, ``restarts``,
+        ``peers`` and a restarted recorder's ``recording``, which :meth:`spawn` fills in."""
         self.node_plan = node_plan
         self._zygote = zygote
         try:
@@ -131,7 +132,7 @@ class Supervisor:
                 self.procs[n] = self.spawn(n)
                 mark(f"launcher spawned {n} {self.procs[n].popen.pid}")
         finally:
-            self._close_zygote()
+            self._zygote = None
 
     def _plan_of(self, name: str, restarts: int) -> NodePlan:
         """What stage ``name`` is handed (its ``restarts``-th restart; 0: its first start)."""
@@ -161,7 +162,7 @@ class Supervisor:
             try:
                 pid = self._zygote.spawn(plan_file, name, env, w)
             except OSError as e:
-                self._close_zygote()
+                self._zygote, self.zygote_broken = None, True
                 os.close(r)
                 mark(f"launcher zygote failed: {e}")
             else:
@@ -181,18 +182,18 @@ class Supervisor:
         process unless the user says otherwise. Parallelism comes from the stage processes:
         several processes each running a thread per core for BLAS / OpenMP oversubscribe the
         cores (measured: every stage 2-3x slower than inline on 2 cores). The run's own state
-        goes in the node plan, never here."""
-        env = dict(os.environ)
-        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-            env.setdefault(var, str(threads))
-        root = str(Path(__file__).resolve().parents[2])
-        env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
-        return env
+        goes in the node plan, never here (:func:`pipeline.runtime.zygote.stage_environment`)."""
+        return stage_environment(os.environ, threads)
 
-    def _close_zygote(self) -> None:
-        if self._zygote is not None:
-            z, self._zygote = self._zygote, None
-            z.close()
+    def reap_orphans(self, every: float = 0.5) -> None:
+        """Reap the exited orphans of the stage processes (re-parented to this process while it
+        holds a zygote's lease), at most once every ``every`` s."""
+        now = time.monotonic()
+        if now - self._reaped_at < every:
+            return
+        self._reaped_at = now
+        pids = [p for ps in self.pids.values() for p in ps]
+        reap_orphans(pids, pids)
 
     # -- watching ----------------------------------------------------------------------------
     def alive(self, name: str) -> bool:
@@ -209,6 +210,7 @@ class Supervisor:
         Raises :class:`StageLost` when a stage is gone for good (a recorder that stopped at all
         is restarted or lost: it stops only when told to)."""
         running = False
+        self.reap_orphans()
         for n in recorder + workers:
             p = self.procs[n]
             rc = p.popen.poll()
