@@ -56,6 +56,10 @@ def test_every_stage_process_gets_its_plan_and_no_gflow_variable_from_the_launch
             try:
                 env = Path(f"/proc/{st.pid}/environ").read_bytes().split(b"\0")
                 argv = [a for a in Path(f"/proc/{st.pid}/cmdline").read_bytes().decode().split("\0") if a]
+                if len(argv) == 1:  # forked from a zygote: its title is one string (zygote.py, _set_title)
+                    argv = argv[0].split()
+                if argv[-1:] != [name]:  # forked, it takes its title a moment after it starts
+                    continue
                 node = read_node_plan(argv[-2])  # in the run folder, removed at the end of the run
             except OSError:
                 continue
