@@ -65,8 +65,10 @@ def test_an_intact_recording_is_ok_with_infos_message_count(small_recording: Pat
 
 def test_flipped_bytes_inside_a_chunk_name_the_chunk_and_its_offset(small_recording: Path, tmp_path: Path,  # noqa: F811
                                                                     capsys) -> None:
+    """verify names the chunk; recover leaves out that chunk alone, and keeps every chunk after it."""
     chunks = _chunks(small_recording)
-    k = len(chunks) // 2  # a chunk after the first, so some messages come before it
+    k = len(chunks) // 2  # a chunk after the first, so some messages come before it and some after
+    assert 0 < k < len(chunks) - 1, chunks
     offset, length = chunks[k]
     data = bytearray(small_recording.read_bytes())
     for i in range(offset + length // 2, offset + length // 2 + 16):
@@ -77,10 +79,32 @@ def test_flipped_bytes_inside_a_chunk_name_the_chunk_and_its_offset(small_record
     out = capsys.readouterr().out
     assert out.startswith(f"{bad}: DAMAGED: chunk {k + 1} at byte {offset}: "), out
     n = _readable(out)
-    assert n == _recovered(bad, tmp_path / "fixed.mcap", capsys)
-    assert (n > 0) == (k > 0)
+    held = _messages_in_chunk(small_recording, offset)
+    total = _total(small_recording)
+    assert n == sum(_messages_in_chunk(small_recording, o) for o, _ in chunks[:k]) > 0
+    assert f"can salvage {total - held} messages" in out, out
+    assert _recovered(bad, tmp_path / "fixed.mcap", capsys) == total - held > n  # the chunks after it too
     assert main(["verify", str(tmp_path / "fixed.mcap")]) == 0  # what recover wrote is intact
-    assert f"OK: {n} messages" in capsys.readouterr().out
+    assert f"OK: {total - held} messages" in capsys.readouterr().out
+
+
+def _total(path: Path) -> int:
+    with open(path, "rb") as f:
+        s = make_reader(f).get_summary()
+    assert s is not None and s.statistics is not None
+    return s.statistics.message_count
+
+
+def _messages_in_chunk(path: Path, offset: int) -> int:
+    """The messages of the chunk at ``offset`` of an intact file."""
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    with open(path, "rb") as f:
+        f.seek(offset)
+        rec = next(iter(StreamReader(f, skip_magic=True, emit_chunks=True).records))
+    assert isinstance(rec, Chunk)
+    return sum(isinstance(r, Message) for r in breakup_chunk(rec))
 
 
 def test_a_truncated_copy_says_how_many_messages_recover_salvages(small_recording: Path, tmp_path: Path,  # noqa: F811
@@ -103,7 +127,8 @@ def test_a_message_that_does_not_decode_as_its_type_is_named(tmp_path: Path, cap
     assert main(["verify", str(path)]) == 1
     out = capsys.readouterr().out
     assert "chunk 1 at byte" in out and "gflow/cam0/estimate (seq 1) does not decode as gflow.Estimate" in out, out
-    assert "0 messages readable before it; nothing to salvage" in out
+    # recover copies bytes, not meanings: the one message is what it would save
+    assert f"0 messages readable before it; gflow recover {path} FIXED.mcap can salvage 1 message" in out, out
 
 
 def test_bad_and_missing_files_are_one_line_errors(small_recording: Path, tmp_path: Path) -> None:  # noqa: F811
@@ -170,13 +195,80 @@ def test_a_summary_that_disagrees_with_the_file_is_damaged(small_recording: Path
 
 def test_a_damaged_record_length_in_a_closed_file_is_not_taken_for_a_torn_end(small_recording: Path,  # noqa: F811
                                                                               tmp_path: Path, capsys) -> None:
+    """A chunk's record length damaged: verify says so; recover reads the chunk by its own fields (its CRC
+    still holds) and loses nothing."""
     import struct
 
-    offset, _ = _chunks(small_recording)[-1]
+    offset, length = _chunks(small_recording)[-1]
     data = bytearray(small_recording.read_bytes())
     struct.pack_into("<Q", data, offset + 1, 10**9)  # the last chunk's record length: past the end of the file
     bad = tmp_path / "length.mcap"
     bad.write_bytes(bytes(data))
     assert main(["verify", str(bad)]) == 1
     out = capsys.readouterr().out
-    assert f"DAMAGED: byte {offset}: a record runs to or past the end of the file" in out and "no summary" not in out
+    k = len(_chunks(small_recording))
+    assert f"DAMAGED: chunk {k} at byte {offset}: its record length says 1000000000 bytes; its fields take " \
+           f"{length - 9} (the length is damaged)" in out and "no summary" not in out, out
+    total = _total(small_recording)
+    assert _recovered(bad, tmp_path / "fixed.mcap", capsys) == total
+    assert main(["verify", str(tmp_path / "fixed.mcap")]) == 0
+
+
+def test_damage_outside_the_messages_costs_no_message(small_recording: Path, tmp_path: Path, capsys) -> None:  # noqa: F811
+    """A metadata record's contents damaged (its frame intact): verify names the record and says the
+    records after it can be read; recover keeps every message and the other metadata."""
+    import struct
+
+    from mcap.records import Metadata
+    from mcap.stream_reader import StreamReader
+
+    data = bytearray(small_recording.read_bytes())
+    with open(small_recording, "rb") as f:
+        at, meta = 8, []
+        for rec in StreamReader(f, emit_chunks=True).records:
+            if isinstance(rec, Metadata):
+                meta.append(at)
+            at = f.tell()
+    first = meta[0]
+    struct.pack_into("<I", data, first + 9, 10**6)  # the name's length: past the record's end
+    bad = tmp_path / "meta.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert f"DAMAGED: byte {first}: the metadata record: its contents cannot be read" in out, out
+    assert "the records after it can still be read" in out and "runs to or past the end" not in out, out
+    total = _total(small_recording)
+    assert f"can salvage {total} messages" in out, out
+    main(["recover", str(bad), str(tmp_path / "fixed.mcap")])
+    said = capsys.readouterr().out
+    assert f"recovered {total} messages" in said and f"and {len(meta) - 1} metadata records" in said, said
+    assert f"left out the metadata record at byte {first}" in said, said
+    assert main(["verify", str(tmp_path / "fixed.mcap")]) == 0
+
+
+def test_a_damaged_opcode_is_passed_by_the_summarys_chunk_index(small_recording: Path, tmp_path: Path,  # noqa: F811
+                                                                 capsys) -> None:
+    """The first chunk's opcode damaged, so the chain of records breaks there: recover goes on at the
+    next chunk the summary lists, and the channels the lost chunk defined come from the summary."""
+    chunks = _chunks(small_recording)
+    offset = chunks[0][0]
+    data = bytearray(small_recording.read_bytes())
+    data[offset] = 0x77
+    bad = tmp_path / "opcode.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["verify", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert f"DAMAGED: byte {offset}: 0x77 is no MCAP record's opcode" in out, out
+    kept = _total(small_recording) - _messages_in_chunk(small_recording, offset)
+    assert kept > 0 and f"can salvage {kept} messages" in out, out
+    main(["recover", str(bad), str(tmp_path / "fixed.mcap")])
+    said = capsys.readouterr().out
+    assert f"recovered {kept} messages of the {_total(small_recording)} its summary lists" in said, said
+    assert f"the walk went on at the chunk at byte {chunks[1][0]}" in said, said
+    with open(tmp_path / "fixed.mcap", "rb") as f:
+        topics = {c.topic for c in make_reader(f).get_summary().channels.values()}
+    with open(small_recording, "rb") as f:
+        s = make_reader(f).get_summary()
+        later = {s.channels[cid].topic for ci in s.chunk_indexes[1:] for cid in ci.message_index_offsets}
+    assert later <= topics, later - topics  # defined in the lost chunk, taken from the summary
+    assert main(["verify", str(tmp_path / "fixed.mcap")]) == 0

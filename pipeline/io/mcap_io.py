@@ -184,11 +184,12 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             why = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__  # EndOfFile has no message
             if pos < size:  # bytes after the record that failed: the file is damaged, not just cut short
                 text = Damaged(f"{p}: recording is damaged at byte {pos} of {size} ({why}); "
-                               f"nothing after it can be read (`gflow recover` keeps what is before it)")
+                               f"nothing after it can be read here (`gflow recover` copies every intact chunk, before "
+                               f"and after it)")
             elif _closed(p):  # a damaged length had the reader run to the end of a file that was closed
                 text = Damaged(f"{p}: recording is damaged: a record cannot be read ({why}), yet the file ends as "
                                f"a closed recording does; nothing after the damage can be read (`gflow verify` "
-                               f"says where it is, `gflow recover` keeps what is before it)")
+                               f"says where it is, `gflow recover` copies every intact chunk)")
             else:
                 text = f"{p}: recording ends early ({why}); it was not closed properly (try `gflow recover`)"
             _tell(text, strict, on_truncated)

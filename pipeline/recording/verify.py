@@ -3,6 +3,8 @@
 :func:`verify` reads every record of an MCAP file in order with ``mcap.stream_reader.StreamReader``
 (chunks kept whole, so each is located by its byte offset) and checks, stopping at the first fault:
 
+* every record's opcode is one MCAP defines, and every chunk's record length is the one its fields
+  take (the reader goes by the fields; a reader that seeks by the length would fail);
 * every chunk decompresses and matches its CRC (where the file has one), and its messages' log
   times lie within the times the chunk states;
 * the data-section CRC (where the file has one), checked by the reader at the data end;
@@ -17,7 +19,10 @@
   indexes against what the data section holds; the closing magic and nothing after it.
 
 A file that ends inside a record (a killed writer, or one still writing) has no summary: it is
-reported as torn, with the number of messages of its complete chunks (what ``gflow recover`` keeps).
+reported as torn, with the number of messages of its complete chunks. A record that fails to parse is
+read again by its framing alone (:mod:`pipeline.io.mcap_framing`), to tell damaged contents (the
+records after it can still be read) from a damaged length. ``gflow recover`` copies every intact chunk,
+after the damage too (:func:`pipeline.recording.recover.salvageable` counts them).
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, M
                           MetadataIndex, Schema, Statistics)
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
+from pipeline.io.mcap_framing import OPCODE_NAMES, chunk_length, record_at
 from pipeline.io.mcap_io import TORN_END_ERRORS, check_recording
 from pipeline.io.mcap_writer import MAGIC, crc32
 from pipeline.io.recorder import SCHEMA_PREFIX
@@ -305,6 +311,27 @@ class _Walk:
                              f"such metadata record starts")
 
 
+def _check_opcode(f, at: int) -> None:
+    """The record at byte ``at`` has an opcode MCAP defines (the reader would skip any other unread)."""
+    f.seek(at)
+    op = f.read(1)
+    f.seek(at)
+    if op and op[0] not in OPCODE_NAMES:
+        raise _Fault(f"byte {at}: {op[0]:#04x} is no MCAP record's opcode (the record's frame is damaged)")
+
+
+def _check_chunk_length(f, at: int, end: int, size: int, number: int) -> None:
+    """The record length of the chunk at byte ``at`` is the one its fields take: the reader reads a chunk by
+    its fields, but a reader that goes by the record's length (an index, a seek) fails where they differ."""
+    own = chunk_length(f, at, size)
+    f.seek(at + 1)
+    (length,) = struct.unpack("<Q", f.read(8))
+    f.seek(end)
+    if length != own:
+        raise _Fault(f"chunk {number} at byte {at}: its record length says {length} bytes; its fields take {own} "
+                     f"(the length is damaged)")
+
+
 def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
     """Read and check every record of one MCAP file (see the module docstring).
 
@@ -323,6 +350,8 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
         try:
             while True:
                 at = f.tell() if w.n_records else 8
+                if w.n_records and footer is None:  # (before the first record the reader reads the magic bytes)
+                    _check_opcode(f, at)
                 try:
                     rec = next(records)
                 except StopIteration:
@@ -337,7 +366,14 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
                 except TORN_END_ERRORS as e:
                     if footer is not None:
                         raise _Fault(f"byte {at}: the closing magic bytes are wrong") from None
-                    if f.tell() >= size:  # a record cut short by the end of the file
+                    past = f.tell() >= size
+                    fr = record_at(f, at, size)  # the record read by its framing alone
+                    if fr.record is not None and fr.damage:  # a chunk whose length is damaged, read by its fields
+                        raise _Fault(f"byte {at}: the {fr.kind} record: {fr.damage}") from None
+                    if fr.damage and not (fr.torn or fr.broken_frame):  # its length is right, its contents are not
+                        raise _Fault(f"byte {at}: the {fr.kind} record: {fr.damage}; its frame is intact, so the "
+                                     f"records after it can still be read") from None
+                    if past:  # a record cut short by the end of the file
                         raise EndOfFile() from None
                     raise _Fault(f"byte {at}: a record cannot be read ({type(e).__name__}: "
                                  f"{' '.join(str(e).split())})") from None
@@ -347,6 +383,7 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
                 if w.n_records == 1 and not isinstance(rec, Header):
                     raise _Fault(f"byte {at}: the file does not start with a header record")
                 if isinstance(rec, Chunk):
+                    _check_chunk_length(f, at, end, size, len(w.chunks) + 1)
                     w.chunk(rec, at, end, records)
                     if progress is not None:
                         progress(end, size, r.messages)

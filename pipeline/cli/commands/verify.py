@@ -52,7 +52,11 @@ def verify_line(path: str, busy: dict[Path, dict], quiet: bool) -> tuple[bool, s
         return True, "" if quiet else (f"{path}: OK: {r.messages} messages, {r.channels} channels, "
                                        f"{r.duration_s:.3f} seconds"
                                        + (f" (the recording goes on in {', '.join(more)})" if more else ""))
-    salvage = (f"gflow recover {path} FIXED.mcap can salvage them" if r.messages else "nothing to salvage")
+    from pipeline.recording.recover import salvageable
+
+    n = salvageable(path).messages  # every intact chunk, before the damage and after it
+    many = "them" if n == r.messages else f"{n} message{'s' * (n != 1)}"
+    salvage = f"gflow recover {path} FIXED.mcap can salvage {many}" if n else "nothing to salvage"
     return False, f"{path}: DAMAGED: {r.damage}; {r.messages} messages readable before it; {salvage}"
 
 

@@ -1,0 +1,233 @@
+"""An MCAP file walked record by record by its framing, so that one damaged record costs only itself.
+
+Every MCAP record is framed as ``opcode (1 byte) | length (8 bytes, little endian) | body (length
+bytes)``. ``mcap.stream_reader.StreamReader`` parses each body straight from the file, so a body whose
+contents are damaged (a string length inside a metadata record, a chunk whose CRC or compression fails)
+stops the reader, and everything after it is lost to every tool that reads through it. Here each body is
+read as ``length`` bytes first and parsed from those bytes alone: a body that does not parse is reported
+as damaged and the walk goes on at the next record, which its framing locates.
+
+Only a damaged frame (an opcode MCAP does not define, or a length that runs past the end of the file)
+breaks the chain. If the file was closed (it ends with the closing magic bytes after a readable footer),
+its summary's chunk indexes say where every chunk starts, and the walk resumes at the first chunk after
+the damage; otherwise the walk stops there. A file with no closing magic whose last record runs past its
+end is torn (its writer was killed, or is still writing), not damaged.
+"""
+
+from __future__ import annotations
+
+import io
+import struct
+from dataclasses import dataclass
+from typing import IO, Any, Iterator
+
+from mcap.data_stream import ReadDataStream
+from mcap.exceptions import EndOfFile
+from mcap.opcode import Opcode
+from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message,
+                          MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
+
+__all__ = ["Framed", "framed_records", "record_at", "chunk_length", "read_summary", "Summary", "OPCODE_NAMES"]
+
+MAGIC = b"\x89MCAP0\r\n"
+_FRAME = struct.Struct("<BQ")
+
+_RECORD_TYPES: dict[int, Any] = {
+    Opcode.HEADER: Header, Opcode.FOOTER: Footer, Opcode.SCHEMA: Schema, Opcode.CHANNEL: Channel,
+    Opcode.MESSAGE: Message, Opcode.CHUNK: Chunk, Opcode.MESSAGE_INDEX: MessageIndex,
+    Opcode.CHUNK_INDEX: ChunkIndex, Opcode.ATTACHMENT: Attachment, Opcode.ATTACHMENT_INDEX: AttachmentIndex,
+    Opcode.STATISTICS: Statistics, Opcode.METADATA: Metadata, Opcode.METADATA_INDEX: MetadataIndex,
+    Opcode.SUMMARY_OFFSET: SummaryOffset, Opcode.DATA_END: DataEnd,
+}
+
+#: the record kinds by opcode, as messages name them ("a metadata record")
+OPCODE_NAMES: dict[int, str] = {
+    Opcode.HEADER: "header", Opcode.FOOTER: "footer", Opcode.SCHEMA: "schema", Opcode.CHANNEL: "channel",
+    Opcode.MESSAGE: "message", Opcode.CHUNK: "chunk", Opcode.MESSAGE_INDEX: "message index",
+    Opcode.CHUNK_INDEX: "chunk index", Opcode.ATTACHMENT: "attachment", Opcode.ATTACHMENT_INDEX: "attachment index",
+    Opcode.STATISTICS: "statistics", Opcode.METADATA: "metadata", Opcode.METADATA_INDEX: "metadata index",
+    Opcode.SUMMARY_OFFSET: "summary offset", Opcode.DATA_END: "data end",
+}
+
+
+@dataclass
+class Framed:
+    """One step of the walk.
+
+    ``record`` is the parsed record, or None with ``damage`` saying why (its body does not parse, or the
+    frame itself is damaged). ``skipped_to`` is set on a damaged frame the walk resumed after: the offset of
+    the chunk it resumed at (0: it stopped). ``torn``: the file ends inside this record (no damage to its
+    bytes; its writer was killed or is still writing)."""
+
+    offset: int
+    opcode: int
+    length: int
+    record: Any = None
+    damage: str = ""
+    skipped_to: int = 0
+    torn: bool = False
+    broken_frame: bool = False  # the opcode or the length is damaged: the next record could not be located
+
+    @property
+    def kind(self) -> str:
+        return OPCODE_NAMES.get(self.opcode, f"opcode {self.opcode:#04x}")
+
+
+def _parse(opcode: int, body: bytes) -> Any:
+    """The record of ``opcode`` parsed from its ``body`` alone (reading past it raises)."""
+    stream = ReadDataStream(io.BytesIO(body))
+    typ = _RECORD_TYPES[opcode]
+    rec = typ.read(stream, len(body)) if typ is Message else typ.read(stream)
+    if typ is Chunk:  # Chunk.read takes the compressed bytes by their own length: it must fill the body
+        if stream.count != len(body):
+            raise ValueError(f"its fields take {stream.count} of its {len(body)} bytes")
+    return rec
+
+
+@dataclass
+class Summary:
+    """What the summary section of a closed file says: every chunk's start (sorted), the schemas and
+    channels it repeats (by id) and how many messages the file holds."""
+
+    chunk_offsets: list[int]
+    schemas: dict[int, Schema]
+    channels: dict[int, Channel]
+    messages: int = -1  # the statistics' message count (-1: none readable)
+
+
+def read_summary(f: IO[bytes], size: int) -> Summary:
+    """The summary of a closed file, each of its records read by its framing (a damaged one is left out);
+    empty when the file has no readable footer or summary (a torn file)."""
+    out = Summary([], {}, {})
+    foot_len = 9 + 20 + len(MAGIC)
+    if size < len(MAGIC) + foot_len:
+        return out
+    f.seek(size - foot_len)
+    tail = f.read(foot_len)
+    if tail[-len(MAGIC):] != MAGIC or tail[0] != Opcode.FOOTER:
+        return out
+    try:
+        start = _parse(Opcode.FOOTER, tail[9:29]).summary_start
+    except Exception:  # noqa: BLE001  (a damaged footer: no summary to go by)
+        return out
+    end = size - foot_len
+    if not len(MAGIC) <= start < end:
+        return out
+    f.seek(start)
+    at = start
+    while at + 9 <= end:
+        opcode, length = _FRAME.unpack(f.read(9))
+        if at + 9 + length > end or opcode not in _RECORD_TYPES:
+            break
+        body = f.read(length)
+        at += 9 + length
+        try:
+            rec = _parse(opcode, body)
+        except Exception:  # noqa: BLE001  (one damaged record: the others still count)
+            continue
+        if isinstance(rec, ChunkIndex) and len(MAGIC) <= rec.chunk_start_offset < start:
+            out.chunk_offsets.append(rec.chunk_start_offset)
+        elif isinstance(rec, Schema):
+            out.schemas[rec.id] = rec
+        elif isinstance(rec, Channel):
+            out.channels[rec.id] = rec
+        elif isinstance(rec, Statistics):
+            out.messages = rec.message_count
+    out.chunk_offsets.sort()
+    return out
+
+
+def record_at(f: IO[bytes], at: int, size: int) -> Framed:
+    """The record whose frame starts at byte ``at`` of the file ``f`` (``size`` bytes), read by its framing
+    alone: parsed, or with ``damage`` (and ``torn`` or ``broken_frame``) saying what is wrong."""
+    f.seek(at)
+    head = f.read(9)
+    if len(head) < 9:
+        return Framed(at, head[0] if head else 0, 0, torn=True, damage="the file ends inside a record's frame")
+    opcode, length = _FRAME.unpack(head)
+    if opcode == Opcode.CHUNK:
+        own = chunk_length(f, at, size)
+        if own and own != length:  # the frame's length is damaged; the chunk's own fields (and its CRC) hold
+            fr = record_at_length(f, at, own)
+            if fr.record is not None:
+                fr.damage = (f"its frame is damaged (its length says {length} bytes; the chunk's own fields "
+                             f"take {own}, and it is read by them)")
+                return fr
+    if at + 9 + length > size or opcode not in _RECORD_TYPES:
+        if opcode in _RECORD_TYPES and not _closed(f, size):
+            return Framed(at, opcode, length, torn=True,
+                          damage=f"the file ends inside the {OPCODE_NAMES[opcode]} record at byte {at}")
+        what = ("its length runs past the end of the file" if opcode in _RECORD_TYPES
+                else f"{opcode:#04x} is no record's opcode")
+        return Framed(at, opcode, length, damage=f"the record's frame is damaged ({what})", broken_frame=True)
+    return record_at_length(f, at, length, opcode)
+
+
+def chunk_length(f: IO[bytes], at: int, size: int) -> int:
+    """The body length the fields of the chunk record at byte ``at`` give it (0: they run past the end of
+    the file): times, sizes, CRC, compression name, then the compressed data's own length."""
+    f.seek(at + 9 + 28)
+    raw = f.read(4)
+    if len(raw) < 4:
+        return 0
+    (clen,) = struct.unpack("<I", raw)
+    f.seek(at + 9 + 32 + clen)
+    raw = f.read(8)
+    if len(raw) < 8:
+        return 0
+    own = 32 + clen + 8 + struct.unpack("<Q", raw)[0]
+    return own if at + 9 + own <= size else 0
+
+
+def record_at_length(f: IO[bytes], at: int, length: int, opcode: int | None = None) -> Framed:
+    """The record at byte ``at`` parsed from the ``length`` bytes of its body (``opcode``: the one in its
+    frame, read again when not given)."""
+    if opcode is None:
+        f.seek(at)
+        opcode = f.read(1)[0]
+    f.seek(at + 9)
+    body = f.read(length)
+    try:
+        return Framed(at, opcode, length, record=_parse(opcode, body))
+    except Exception as e:  # noqa: BLE001  (whatever a damaged body makes the parser raise)
+        why = (f"{type(e).__name__}: {' '.join(str(e).split())}" if str(e).strip() else
+               "its fields run past its length" if isinstance(e, EndOfFile) else type(e).__name__)
+        return Framed(at, opcode, length, damage=f"its contents cannot be read ({why})")
+
+
+def framed_records(f: IO[bytes], size: int) -> Iterator[Framed]:
+    """Every record of the MCAP file ``f`` (``size`` bytes, its magic already checked), in file order, up
+    to and including the footer (module docstring). A torn end is the last item, with ``torn`` set."""
+    at = len(MAGIC)
+    resume_at: list[int] | None = None  # the summary's chunk offsets, read at the first damaged frame
+    suspect = 0  # the offset of the record before, when its body did not parse (its length may be wrong too)
+    floor = 0  # the walk never resumes at or before a chunk it has resumed at already
+    while at < size:
+        fr = record_at(f, at, size)
+        if fr.torn:
+            yield fr
+            return
+        if fr.broken_frame:
+            if resume_at is None:
+                resume_at = read_summary(f, size).chunk_offsets
+            # a record whose body did not parse may have had a wrong length, which led here: resume after it
+            fr.skipped_to = next((o for o in resume_at if o > max(suspect or at, floor)), 0)
+            yield fr
+            if not fr.skipped_to:
+                return
+            at = floor = fr.skipped_to
+            suspect = 0
+            continue
+        yield fr
+        if fr.opcode == Opcode.FOOTER and not fr.damage:
+            return
+        suspect = at if fr.damage else 0
+        at += 9 + fr.length
+
+
+def _closed(f: IO[bytes], size: int) -> bool:
+    """The file ends with the closing magic bytes."""
+    if size < 2 * len(MAGIC):
+        return False
+    f.seek(size - len(MAGIC))
+    return f.read(len(MAGIC)) == MAGIC
