@@ -176,13 +176,19 @@ class _Copy:
             return Skipped(offset, f"{where}: its {rec.compression or 'uncompressed'} data cannot be read "
                                    f"({type(e).__name__}: {' '.join(str(e).split())})")
         for r in inner:
-            if isinstance(r, Schema):
-                self.schema(r)
-            elif isinstance(r, Channel):
-                self.channel(r)
-            elif isinstance(r, Message):
-                self.message(r)
+            self.record(r)
         return None
+
+    def record(self, rec: Any) -> None:
+        """Copy a schema, channel, message or metadata record (any other kind is not copied)."""
+        if isinstance(rec, Schema):
+            self.schema(rec)
+        elif isinstance(rec, Channel):
+            self.channel(rec)
+        elif isinstance(rec, Message):
+            self.message(rec)
+        elif isinstance(rec, Metadata):
+            self.metadata(rec)
 
     def metadata(self, rec: Metadata) -> None:
         self.w.add_metadata(rec.name, dict(rec.metadata))
@@ -229,16 +235,10 @@ def _copy(fin: IO[bytes], size: int, w: Any) -> RecoverResult:
             lost = c.chunk(rec, f"chunk {n_chunks} at byte {fr.offset}", fr.offset)
             if lost is not None:
                 skipped.append(lost)
-        elif isinstance(rec, Schema):
-            c.schema(rec)
-        elif isinstance(rec, Channel):
-            c.channel(rec)
-        elif isinstance(rec, Message):
-            c.message(rec)
-        elif isinstance(rec, Metadata):
-            c.metadata(rec)
         elif isinstance(rec, DataEnd):  # the summary after it repeats what the data section said
             break
+        else:
+            c.record(rec)
     else:  # the walk came to the end of the file before the data section's end: it was never closed
         why = why or UNCLOSED
     return RecoverResult(messages=c.n, channels=len(c.channels), metadata=c.n_meta,
