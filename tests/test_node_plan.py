@@ -44,7 +44,11 @@ def test_the_code_names_only_variables_a_user_sets():
     assert {"GFLOW_ZYGOTE", "GFLOW_LATE_S"} <= set(named)  # the scan sees the code
 
 
-def test_every_stage_process_gets_its_plan_and_no_gflow_variable_from_the_launcher(tmp_path):
+def test_every_stage_process_gets_its_plan_and_no_gflow_variable_from_the_launcher(tmp_path, monkeypatch):
+    """Read from /proc/PID/environ, so the stages are started as new interpreters (GFLOW_ZYGOTE=0): a stage
+    forked from the zygote sets its environment in os.environ, which /proc/PID/environ does not show (it
+    shows the zygote's own, its start overwritten by the process title setproctitle writes)."""
+    monkeypatch.setenv("GFLOW_ZYGOTE", "0")
     plan = apply_defaults(load_graph("demo", overrides={"source": {"frames": 20, "fps": 20.0, "realtime": True},
                                                         "filter": {"particles": 100}}))
     seen: dict[str, tuple[set[str], list[str], NodePlan]] = {}
@@ -64,6 +68,7 @@ def test_every_stage_process_gets_its_plan_and_no_gflow_variable_from_the_launch
             except OSError:
                 continue
             keys = {e.split(b"=", 1)[0].decode() for e in env if e}
+            assert "PATH" in keys, f"{name}: /proc/{st.pid}/environ is not the environment it was given: {keys}"
             seen[name] = ({k for k in keys if k.startswith("GFLOW_")}, argv, node)
 
     z = ZenohSettings(listen=(f"tcp/127.0.0.1:{free_port()}",))
