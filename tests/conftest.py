@@ -106,6 +106,12 @@ def _compile_the_project_once() -> None:
 def pytest_configure(config):
     if not hasattr(config, "workerinput"):
         _compile_the_project_once()
+    # pytest keeps each test module as it rewrote its asserts in tests/__pycache__ (ignored by git) and reads it
+    # back while the module is unchanged, but with PYTHONDONTWRITEBYTECODE set it never writes it: every test process
+    # (both xdist workers) would parse and rewrite all the test modules again, about 6 s of CPU each, at every run.
+    # Written here, as _compile_the_project_once writes the project's; only this process's flag: the processes the
+    # tests start keep the environment's setting.
+    sys.dont_write_bytecode = False
     if getattr(config.option, "dist", "no") == "loadfile":
         config.option.loadscopereorder = False  # the order is pytest_collection_modifyitems'
 
