@@ -106,6 +106,12 @@ def _compile_the_project_once() -> None:
 def pytest_configure(config):
     if not hasattr(config, "workerinput"):
         _compile_the_project_once()
+    # pytest keeps each test module as it rewrote its asserts in tests/__pycache__ (ignored by git) and reads it
+    # back while the module is unchanged, but with PYTHONDONTWRITEBYTECODE set it never writes it: every test process
+    # (both xdist workers) would parse and rewrite all the test modules again, about 6 s of CPU each, at every run.
+    # Written here, as _compile_the_project_once writes the project's; only this process's flag: the processes the
+    # tests start keep the environment's setting.
+    sys.dont_write_bytecode = False
     if getattr(config.option, "dist", "no") == "loadfile":
         config.option.loadscopereorder = False  # the order is pytest_collection_modifyitems'
 
@@ -161,9 +167,11 @@ def caviar1_m2_model(tmp_path_factory) -> Path:
     caviar1 = data_dir("caviar1")
 
     def learn(folder: Path) -> None:
-        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", str(caviar1), "--boxes",
-                            str(caviar1 / "groundtruth.csv"), "--frames", "0:60", "-K", "4", "--max-points", "80",
-                            "--out", str(folder / "caviar1-k4.npz")], capture_output=True, text=True, timeout=600)
+        import cli_fork  # forked from this test process's warm `gflow` (tests/cli_fork.py), not a new interpreter
+
+        r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "learn", "m2", str(caviar1), "--boxes",
+                                  str(caviar1 / "groundtruth.csv"), "--frames", "0:60", "-K", "4", "--max-points", "80",
+                                  "--out", str(folder / "caviar1-k4.npz")], capture_output=True, text=True, timeout=600)
         assert r.returncode == 0, r.stderr
 
     return made_once(tmp_path_factory, "m2-model", learn) / "caviar1-k4.npz"
@@ -189,8 +197,11 @@ def demo8(tmp_path_factory) -> Path:
     once for the test run, :func:`made_once`; the tests only read it)."""
 
     def demo(d: Path) -> None:
-        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "demo", "--frames", "8", "--inline", "--record",
-                            "demo.mcap"], cwd=d, capture_output=True, text=True, timeout=120, stdin=subprocess.DEVNULL)
+        import cli_fork  # forked from this test process's warm `gflow` (tests/cli_fork.py), not a new interpreter
+
+        r = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "demo", "--frames", "8", "--inline",
+                                  "--record", "demo.mcap"], cwd=d, capture_output=True, text=True, timeout=120,
+                                 stdin=subprocess.DEVNULL)
         assert r.returncode == 0, r.stderr
 
     return made_once(tmp_path_factory, "demo8", demo) / "demo.mcap"

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import shutil
-import subprocess
 import threading
 import time
 from pathlib import Path
@@ -20,6 +19,7 @@ from pipeline.io.mcap_io import iter_records
 from pipeline.recording.results import estimates, read_boxes
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
 from gflow_msgs.messages import ErrorReport, decode
+import cli_fork
 
 
 def _errors(path) -> list[ErrorReport]:
@@ -40,8 +40,8 @@ def test_corrupt_and_missing_images_in_a_folder(crossing, tmp_path, gflow_cmd):
     (frames / "000015.jpg").unlink()
     init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
     rec = tmp_path / "run.mcap"
-    out = subprocess.run([*gflow_cmd, "track", str(frames), "--init", init, "--out", str(tmp_path / "b.csv"),
-                          "--record", str(rec), "-q"], capture_output=True, text=True, timeout=300)
+    out = cli_fork.run_command([*gflow_cmd, "track", str(frames), "--init", init, "--out", str(tmp_path / "b.csv"),
+                                "--record", str(rec), "-q"], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     errs = _errors(rec)
     texts = [f"{e.stage}:{e.kind}:{e.message}" for e in errs]
@@ -64,8 +64,8 @@ def test_truncated_video(crossing, tmp_path, gflow_cmd):
     video.write_bytes(data[: int(len(data) * 0.5)])
     init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
     rec = tmp_path / "run.mcap"
-    out = subprocess.run([*gflow_cmd, "track", str(video), "--init", init, "--out", str(tmp_path / "b.csv"),
-                          "--record", str(rec), "-q", "--inline"], capture_output=True, text=True, timeout=300)
+    out = cli_fork.run_command([*gflow_cmd, "track", str(video), "--init", init, "--out", str(tmp_path / "b.csv"),
+                                "--record", str(rec), "-q", "--inline"], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     est = estimates(rec)
     assert 5 <= len(est) < 40  # what could be decoded was tracked
@@ -117,7 +117,7 @@ def test_graph_with_a_typo_fails_before_launch(tmp_path, gflow_cmd):
     text = (Path(__file__).parent.parent / "pipeline" / "graphs" / "demo.yaml").read_text()
     bad = tmp_path / "bad.yaml"
     bad.write_text(text.replace("kind: particle.filter", "kind: particle.filtre"))
-    out = subprocess.run([*gflow_cmd, "run", str(bad)], capture_output=True, text=True, timeout=60)
+    out = cli_fork.run_command([*gflow_cmd, "run", str(bad)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "bad.yaml:" in out.stderr and "particle.filtre" in out.stderr and "known:" in out.stderr
 

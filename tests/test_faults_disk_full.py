@@ -12,6 +12,7 @@ import pytest
 from mcap.reader import make_reader
 
 from pipeline.recording.results import estimates, read_boxes
+import cli_fork
 
 _CHILD = r"""
 import resource, signal, sys
@@ -65,9 +66,10 @@ def small_disk(tmp_path):
 
 def test_a_full_disk_stops_the_pipeline_cleanly(caviar1, tmp_path, small_disk):
     rec = small_disk / "run.mcap"
-    out = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init", "129,71,30,79",
-                          "--tracker", "chamfer", "--out", str(tmp_path / "b.csv"), "--record", str(rec), "--stop", "120",
-                          "--listen", "tcp/127.0.0.1:0"], capture_output=True, text=True, timeout=180)
+    out = cli_fork.run_command([sys.executable, "-m", "pipeline.cli.main", "track", str(caviar1), "--init",
+                                "129,71,30,79", "--tracker", "chamfer", "--out", str(tmp_path / "b.csv"), "--record",
+                                str(rec), "--stop", "120", "--listen", "tcp/127.0.0.1:0"], capture_output=True, text=True,
+                               timeout=180)
     assert out.returncode == 3, out.stdout + out.stderr
     assert "the recording's disk is full" in out.stderr and "Traceback" not in out.stderr
     with open(rec, "rb") as f:

@@ -3,7 +3,6 @@ ever leaves the filter."""
 
 from __future__ import annotations
 
-import subprocess
 
 import cv2
 import numpy as np
@@ -16,6 +15,7 @@ from pipeline.runtime.inline import run_inline
 from pipeline.io.mcap_io import iter_records
 from pipeline.io.modelfile import save_model
 from gflow_msgs.messages import decode
+import cli_fork
 
 FRAMES = 10
 
@@ -72,8 +72,8 @@ def test_zero_size_box_is_refused_before_anything_runs(scene, tmp_path, gflow_cm
     folder, _ = scene
     with pytest.raises(GraphError, match="positive width and height"):
         plan_for(folder, (10, 10, 0, 20), **SYNTH)
-    out = subprocess.run([*gflow_cmd, "track", str(folder), "--tracker", "gflow", "--init", "10,10,0,5", "--out",
-                          str(tmp_path / "b.csv")], capture_output=True, text=True, timeout=60)
+    out = cli_fork.run_command([*gflow_cmd, "track", str(folder), "--tracker", "gflow", "--init", "10,10,0,5", "--out",
+                                str(tmp_path / "b.csv")], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "width and height must be positive" in out.stderr
 
 
@@ -143,8 +143,8 @@ def test_model_files(scene, tmp_path, gflow_cmd) -> None:
     init = ",".join(f"{v:.2f}" for v in seq.box)
     bad = tmp_path / "corrupt.npz"
     bad.write_bytes(b"PK\x03\x04 this is not a model")
-    out = subprocess.run([*gflow_cmd, "track", str(folder), "--tracker", "gflow", "--init", init, "--model", str(bad),
-                          "--out", str(tmp_path / "b.csv")], capture_output=True, text=True, timeout=60)
+    out = cli_fork.run_command([*gflow_cmd, "track", str(folder), "--tracker", "gflow", "--init", init, "--model",
+                                str(bad), "--out", str(tmp_path / "b.csv")], capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert str(bad) in out.stderr and "not a readable model file" in out.stderr, out.stderr
     # a good user model file (here: the generic head, 7 x 5 vertices) is placed in the box and tracked

@@ -3,7 +3,6 @@ exactly the estimates and states of the inline run with one proposal stage, and 
 
 from __future__ import annotations
 
-import subprocess
 
 import numpy as np
 
@@ -12,6 +11,7 @@ from pipeline.runtime.inline import run_inline
 from pipeline.runtime.launcher import Launcher
 from pipeline.recording.results import read_boxes
 from pipeline.runtime.transport import ZenohSettings, free_port
+import cli_fork
 
 FRAMES = 12
 
@@ -41,11 +41,11 @@ def test_processes_with_two_shards_equal_inline_with_one(tmp_path) -> None:
 def test_gflow_track_command(tmp_path, gflow_cmd) -> None:
     seq, _ = render_folder(tmp_path / "frames", 8)
     init = ",".join(f"{v:.2f}" for v in seq.box)
-    out = subprocess.run([*gflow_cmd, "track", str(tmp_path / "frames"), "--tracker", "gflow", "--init", init,
-                          "--out", str(tmp_path / "b.csv"), "--record", str(tmp_path / "r.mcap"), "--inline", "-q",
-                          "--experts", "6", "--samples", "4", "--alpha", "0.5", "--no-background",
-                          "--gflow-set", "psi_v=1e-5", "--model", "ellipsoid"], capture_output=True, text=True,
-                         timeout=120)
+    out = cli_fork.run_command([*gflow_cmd, "track", str(tmp_path / "frames"), "--tracker", "gflow", "--init", init,
+                                "--out", str(tmp_path / "b.csv"), "--record", str(tmp_path / "r.mcap"), "--inline",
+                                "-q", "--experts", "6", "--samples", "4", "--alpha", "0.5", "--no-background",
+                                "--gflow-set", "psi_v=1e-5", "--model", "ellipsoid"], capture_output=True, text=True,
+                               timeout=120)
     assert out.returncode == 0, out.stderr
     boxes = read_boxes(tmp_path / "b.csv")
     assert sorted(boxes) == list(range(8))

@@ -15,6 +15,7 @@ from pipeline.runtime.inline import run_inline
 from pipeline.runtime.launcher import Launcher
 from pipeline.io.mcap_io import iter_records, summarize
 from pipeline.runtime.transport import ZenohSettings, free_port
+import cli_fork
 
 FRAMES = 30
 
@@ -63,8 +64,6 @@ def test_recording_holds_every_topic_with_consecutive_seqs(mp_run):
 
 
 def test_mcap_library_and_gflow_info_read_the_recording(mp_run, gflow_cmd):
-    import subprocess
-
     _, path = mp_run
     with open(path, "rb") as f:
         reader = make_reader(f)
@@ -74,7 +73,7 @@ def test_mcap_library_and_gflow_info_read_the_recording(mp_run, gflow_cmd):
         assert {"gflow.Frame", "gflow.Features", "gflow.Particles", "gflow.Estimate"} <= names
         meta = {m.name: m.metadata for m in reader.iter_metadata()}
     assert "gflow.graph" in meta and "stage.filter" in meta["gflow.config"]
-    out = subprocess.run([*gflow_cmd, "info", str(path)], capture_output=True, text=True, timeout=60)
+    out = cli_fork.run_command([*gflow_cmd, "info", str(path)], capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "gflow/demo/estimate" in out.stdout and "gflow.Particles" in out.stdout
     s = summarize(path)

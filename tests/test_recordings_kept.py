@@ -19,6 +19,7 @@ from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.inline import run_inline
 from tests.conftest import data_dir
+import cli_fork
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 
@@ -142,8 +143,8 @@ def test_csv_files_end_lines_with_lf(tmp_path: Path) -> None:
 def test_no_record_names_no_recording(tmp_path: Path) -> None:
     seq = data_dir("crossing")
     env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parent.parent))
-    r = subprocess.run([*GFLOW, "track", str(seq), "--init", "204,150,17,50", "--out", "b.csv", "--stop", "5",
-                        "--no-record"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    r = cli_fork.run_command([*GFLOW, "track", str(seq), "--init", "204,150,17,50", "--out", "b.csv", "--stop", "5",
+                              "--no-record"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     assert "recording: none (--no-record)" in r.stdout
     assert "recording to" not in r.stderr and "gflow-norecord" not in r.stderr + r.stdout, r.stderr

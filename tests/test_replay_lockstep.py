@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
 import threading
 
 import yaml
@@ -14,6 +13,7 @@ from pipeline.runtime.launcher import Launcher
 from pipeline.io.mcap_io import iter_records
 from pipeline.recording.rerun import recorded_plan
 from pipeline.runtime.transport import ZenohSettings, free_port
+import cli_fork
 
 
 def test_lockstep_replay_into_live_stages_reproduces_the_recording(tmp_path, gflow_cmd):
@@ -42,9 +42,9 @@ def test_lockstep_replay_into_live_stages_reproduces_the_recording(tmp_path, gfl
     th.start()
     while set(launcher.status) < set(live.stages):
         th.join(0.05)
-    rep = subprocess.run([*gflow_cmd, "replay", str(original), "--max", "--topics", "gflow/demo/frames",
-                          "--lockstep", "preprocess,filter", "--connect", f"tcp/127.0.0.1:{port}"],
-                         capture_output=True, text=True, timeout=120)
+    rep = cli_fork.run_command([*gflow_cmd, "replay", str(original), "--max", "--topics", "gflow/demo/frames",
+                                "--lockstep", "preprocess,filter", "--connect", f"tcp/127.0.0.1:{port}"],
+                               capture_output=True, text=True, timeout=120)
     assert rep.returncode == 0, rep.stderr
     th.join(120)
     assert result["r"].ok, result["r"].exits
@@ -69,9 +69,10 @@ def test_replay_window_and_loop(tmp_path, gflow_cmd):
     s = open_session(ZenohSettings(listen=(f"tcp/127.0.0.1:{port}",)))
     q: queue.SimpleQueue = queue.SimpleQueue()
     Bus(s).subscribe("gflow/demo/estimate", lambda k, p, ns, seq: q.put(seq))
-    rep = subprocess.run([*gflow_cmd, "replay", str(original), "--max", "--topics", "gflow/demo/estimate",
-                          "--from-seq", "5", "--to-seq", "9", "--loop", "2", "--connect", f"tcp/127.0.0.1:{port}"],
-                         capture_output=True, text=True, timeout=60)
+    rep = cli_fork.run_command([*gflow_cmd, "replay", str(original), "--max", "--topics", "gflow/demo/estimate",
+                                "--from-seq", "5", "--to-seq", "9", "--loop", "2", "--connect",
+                                f"tcp/127.0.0.1:{port}"],
+                               capture_output=True, text=True, timeout=60)
     assert rep.returncode == 0, rep.stderr
     got = []
     try:  # the ten sent, however long the machine takes to deliver them; then anything more already here

@@ -16,6 +16,7 @@ from pipeline.runtime.build import apply_defaults
 from pipeline.runtime.graph import load_graph
 from pipeline.runtime.inline import run_inline
 from pipeline.runtime.transport import Bus, ZenohSettings, free_port, open_session
+import cli_fork
 
 FRAMES = 8
 
@@ -56,8 +57,8 @@ def _drain(q: queue.SimpleQueue, n: int, timeout: float = 20.0) -> list[tuple[st
 
 def test_a_replay_into_a_running_pipelines_stream_is_refused(recording: Path, live, gflow_cmd) -> None:
     endpoint, heard = live
-    r = subprocess.run([*gflow_cmd, "replay", str(recording), "--max", "--topics", "estimate", "--connect", endpoint],
-                       capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*gflow_cmd, "replay", str(recording), "--max", "--topics", "estimate", "--connect",
+                              endpoint], capture_output=True, text=True, timeout=60)
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1, r.stderr
     assert "stream 'demo' is in use" in lines[0] and "stage preprocess" in lines[0] and "--stream" in lines[0]
@@ -75,14 +76,14 @@ def test_a_replay_beside_it_keeps_to_its_own_stream_and_into_it_on_purpose(recor
                                                                             gflow_cmd) -> None:
     endpoint, heard = live
     recorded = [r.data for r in iter_records(recording, topics=["gflow/demo/estimate"])]
-    r = subprocess.run([*gflow_cmd, "replay", str(recording), "--max", "--topics", "estimate", "--stream", "again",
-                        "--connect", endpoint], capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*gflow_cmd, "replay", str(recording), "--max", "--topics", "estimate", "--stream",
+                              "again", "--connect", endpoint], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     got = _drain(heard, len(recorded))
     assert {k for k, _ in got} == {"gflow/again/estimate"}  # nothing on the live run's topics
     assert [p for _, p in got] == recorded  # byte for byte, under the new stream
-    r = subprocess.run([*gflow_cmd, "replay", str(recording), "--max", "--topics", "estimate", "--stream", "demo",
-                        "--connect", endpoint], capture_output=True, text=True, timeout=60)
+    r = cli_fork.run_command([*gflow_cmd, "replay", str(recording), "--max", "--topics", "estimate", "--stream",
+                              "demo", "--connect", endpoint], capture_output=True, text=True, timeout=60)
     assert r.returncode == 0, r.stderr
     got = _drain(heard, len(recorded))
     assert [k for k, _ in got] == ["gflow/demo/estimate"] * len(recorded)
@@ -99,8 +100,8 @@ def test_a_pipeline_started_on_a_stream_a_replay_publishes_on_is_refused(recordi
         assert replay.stderr is not None
         line = replay.stderr.readline()  # printed once the replay is announced and its token declared
         assert line.startswith("replaying"), line
-        r = subprocess.run([*gflow_cmd, "run", "demo", "--stream", "demo", "--connect", f"tcp/127.0.0.1:{port}",
-                            "--no-record"], capture_output=True, text=True, timeout=120)
+        r = cli_fork.run_command([*gflow_cmd, "run", "demo", "--stream", "demo", "--connect", f"tcp/127.0.0.1:{port}",
+                                  "--no-record"], capture_output=True, text=True, timeout=120)
         error = [ln for ln in r.stderr.splitlines() if "error" in ln]  # one line, no traceback
         assert r.returncode == 2 and len(error) == 1 and "Traceback" not in r.stderr, r.stderr
         assert "stream 'demo' is in use" in error[0] and f"gflow replay (pid {replay.pid})" in error[0], error[0]
