@@ -6,8 +6,9 @@ stream where an outage must fall in its middle, 3 s where nothing is cut out of 
 network does is done to the bytes: 300 inverted bytes (a damaged link), 2.2 s of the stream never
 sent (an outage). A UDP sender starts together with ``gflow track`` and sends as soon as the port
 is bound. The runs take the stream as ended 2 s after its last frame (``source.read_timeout``;
-3.5 s where a 2.2 s outage must not end it) rather than the default 5 s. Every test waits for
-conditions (a bound port, the processes' ends), not for fixed times.
+3.5 s where a 2.2 s outage must not end it; 60 s where a TCP sender holds the stream, which
+ends when the sender closes it) rather than the default 5 s. Every test waits for
+conditions (a bound port, a damaged frame taken, the processes' ends), not for fixed times.
 """
 
 from __future__ import annotations
