@@ -6,8 +6,9 @@ stream where an outage must fall in its middle, 3 s where nothing is cut out of 
 network does is done to the bytes: 300 inverted bytes (a damaged link), 2.2 s of the stream never
 sent (an outage). A UDP sender starts together with ``gflow track`` and sends as soon as the port
 is bound. The runs take the stream as ended 2 s after its last frame (``source.read_timeout``;
-3.5 s where a 2.2 s outage must not end it) rather than the default 5 s. Every test waits for
-conditions (a bound port, the processes' ends), not for fixed times.
+3.5 s where a 2.2 s outage must not end it; 60 s where a TCP sender holds the stream, which
+ends when the sender closes it) rather than the default 5 s. Every test waits for
+conditions (a bound port, a damaged frame taken, the processes' ends), not for fixed times.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -26,7 +28,7 @@ import pytest
 
 import cli_fork
 from stream_server import ffmpeg_exe, free_port
-from ts_sender import HEAVY_MODULES, corrupt, encode_cbr
+from ts_sender import HEAVY_MODULES, corrupt, encode_cbr, frame_offset
 
 ROOT = Path(__file__).resolve().parent.parent
 INIT = "129,71,30,79"  # caviar1's ground-truth box of frame 0
@@ -34,6 +36,7 @@ N = 150  # frames sent: 6 s of stream
 SHORT = 75  # frames sent where no outage is cut out of the stream: 3 s
 KEYFRAME_EVERY = 25  # frames: the stream has a keyframe a second
 READ_TIMEOUT = 2.0  # s without a frame before a run's stream is taken as ended (the default, 5 s, is a wait per test)
+HOLD_READ_TIMEOUT = 60.0  # s a run waits for a TCP stream its sender holds (the sender's close ends the stream)
 
 pytestmark = pytest.mark.skipif(ffmpeg_exe() is None,
                                 reason="no FFmpeg to encode streams: pip install imageio-ffmpeg (a test extra)")
@@ -80,8 +83,8 @@ def truth(caviar1: Path) -> dict[int, tuple[float, ...]]:
         return {int(r[0]): tuple(float(v) for v in r[1:5]) for r in list(csv.reader(f))[1:]}
 
 
-def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str, read_timeout: float = READ_TIMEOUT
-                        ) -> tuple[subprocess.CompletedProcess, str]:
+def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str, read_timeout: float = READ_TIMEOUT,
+                        release_when: str = "") -> tuple[subprocess.CompletedProcess, str]:
     """Run ``gflow track URL`` (``source.read_timeout`` ``read_timeout`` s) with the sender; wait for
     both. Returns the track's result and what the sender printed.
 
@@ -91,13 +94,17 @@ def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
     pipeline/io/udp_relay.py); only if the port was already bound at the sender's first look can a
     module it finds loaded have come after the bind. A TCP sender is the server: it is started first and listening before
     the track starts, since the source stage connects once while the pipeline starts and a refused
-    connection is an error of the run."""
+    connection is an error of the run.
+
+    With ``release_when``, a sender that holds the stream (``--hold-at-frame``) is told to go on
+    once the track has said that text (on either stream, as it runs), or has ended."""
     env = env_for(tmp_path)
     cmd = [sys.executable, str(ROOT / "tests" / "ts_sender.py"), *sender]
     udp = sender[1] == "udp"
     peer = None
     if not udp:
-        peer = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        peer = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                stdin=subprocess.PIPE if release_when else None)
         assert peer.stdout is not None and peer.stdout.readline().strip() == "listening", peer.communicate()
     track = subprocess.Popen([sys.executable, "-m", "pipeline.cli.main", "track", url, "--init", INIT, "--out",
                               "b.csv", "--record", "r.mcap", *([] if "--reconnect" in extra else ["--reconnect", "0"]),
@@ -107,7 +114,11 @@ def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
         if peer is None:
             peer = subprocess.Popen([*cmd, "--when-bound", "--watch-pid", str(track.pid)], env=env,
                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        out, err = track.communicate(timeout=120)
+        if release_when:
+            assert peer.stdin is not None
+            out, err = output_releasing(track, release_when, peer.stdin)
+        else:
+            out, err = track.communicate(timeout=120)
         if track.returncode != 0:  # it will not connect or bind now: the run's error is the one to show
             peer.kill()
         said, err_s = peer.communicate(timeout=120)
@@ -125,6 +136,36 @@ def track_while_sending(tmp_path: Path, url: str, sender: list[str], *extra: str
         loaded = bound.split("loaded: ")[1]
         assert polls == 0 or loaded == "none", (bound, HEAVY_MODULES)  # bound before those imports
     return subprocess.CompletedProcess(track.args, track.returncode, out, err), sent.stdout
+
+
+def output_releasing(track: subprocess.Popen, text: str, release) -> tuple[str, str]:
+    """The track's stdout and stderr, read as it runs; a line to ``release`` (a held sender's stdin)
+    once ``text`` is said or the track has ended, whichever comes first. Fails after 120 s."""
+    said = threading.Event()
+    got: dict[str, list[str]] = {"out": [], "err": []}
+
+    def read(stream, into: list[str]) -> None:
+        for line in stream:
+            into.append(line)
+            if text in line:
+                said.set()
+
+    readers = [threading.Thread(target=read, args=(track.stdout, got["out"]), daemon=True),
+               threading.Thread(target=read, args=(track.stderr, got["err"]), daemon=True)]
+    for t in readers:
+        t.start()
+    deadline = time.monotonic() + 120
+    while not said.wait(0.05) and track.poll() is None and time.monotonic() < deadline:
+        pass
+    try:
+        release.write("go\n")
+        release.flush()  # (the sender's communicate() closes it)
+    except BrokenPipeError:  # the sender is gone: its status says why
+        pass
+    track.wait(timeout=max(1.0, deadline - time.monotonic()))
+    for t in readers:
+        t.join(timeout=10)
+    return "".join(got["out"]), "".join(got["err"])
 
 
 def test_udp_sender_started_with_the_run_loses_nothing_and_init_is_its_first_frame(tmp_path: Path, caviar1: Path,
@@ -277,10 +318,24 @@ def rerun_source_is_identical(tmp_path: Path) -> None:
 def test_corrupted_h264_is_reported_frame_by_frame(tmp_path: Path, caviar1: Path, short_stream: Path) -> None:
     """300 damaged bytes in the H.264 stream: FFmpeg's messages are read, the frames decoded from
     damaged data (until the next keyframe) are counted and reported, and marked in the CSV's
-    input column; every tracked frame that differs from the clean stream's is among them."""
-    bad = corrupt(short_stream, tmp_path / "bad.ts", short_stream.stat().st_size // 2, 300)
+    input column; every tracked frame that differs from the clean stream's is among them.
+
+    The damaged run (frames 36-49, about half a second) is short next to what a busy machine
+    skips: the frames decoded while the pipeline starts (FFmpeg's probe alone takes the first
+    second of the stream) and while the tracker is busy. So the sender holds the stream before
+    the keyframe that ends the run until the run says a damaged frame was taken: the newest frame
+    decoded meanwhile is damaged and waits for the source, so a damaged frame is tracked however
+    slow the machine. A TCP stream ends when the sender closes it, so the run's read timeout is
+    raised to outlast the hold rather than to end the stream."""
+    offset = short_stream.stat().st_size // 2
+    bad = corrupt(short_stream, tmp_path / "bad.ts", offset, 300)
+    ends_run = 2 * KEYFRAME_EVERY  # the keyframe after the damage
+    assert frame_offset(bad.read_bytes(), ends_run - KEYFRAME_EVERY // 2) > offset + 300  # damage well before the hold
     port = free_port()
-    r, _ = track_while_sending(tmp_path, f"tcp://127.0.0.1:{port}", [str(bad), "tcp", str(port)])
+    r, said = track_while_sending(tmp_path, f"tcp://127.0.0.1:{port}",
+                                  [str(bad), "tcp", str(port), "--hold-at-frame", str(ends_run)],
+                                  read_timeout=HOLD_READ_TIMEOUT, release_when="decoded from damaged data")
+    assert "held " in said and "released " in said, said
     rows = read_rows(tmp_path / "b.csv")
     damaged = {k for k, row in rows.items() if row[6] == "damaged"}
     assert damaged and {row[6] for row in rows.values()} <= {"ok", "damaged"}

@@ -8,7 +8,7 @@ camera goes on, the packets are lost), ``--stall T:D`` stops sending at T for D 
 on where it stopped (nothing lost). Run as a process::
 
     python tests/ts_sender.py FILE.ts udp PORT --rate 125000 [--outage 3:2.2] [--stall 3:1]
-        [--when-bound [--watch-pid PID]]
+        [--when-bound [--watch-pid PID]] [--hold-at-frame N]
 
 It prints ``sending`` when it sends its first byte (for UDP: at once; for TCP: when the client
 connected), ``outage`` / ``back`` around a gap, and ``done`` at the end, each with the time.
@@ -17,6 +17,10 @@ With ``--when-bound`` a UDP sender first waits until something has bound the por
 ``bound TIME after N polls``; with ``--watch-pid`` the line goes on with ``loaded: ...``, which
 of zenoh, msgspec and cv2 that process had loaded then (``none`` shows the port was bound before
 they loaded; with N = 0 it was bound before the first poll, so a module loaded then shows nothing).
+With ``--hold-at-frame N`` the sender stops before the first byte of the stream's frame N (the TS
+packet that starts its PES), prints ``held TIME`` and waits for a line on its standard input (or its
+end), then prints ``released TIME`` and goes on at the stream's pace from there (nothing lost): the
+receiver has every frame before N and nothing after, for as long as the test needs.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ import sys
 import time
 from pathlib import Path
 
-__all__ = ["encode_cbr", "corrupt", "udp_port_bound", "loaded_modules", "MUXRATE", "HEAVY_MODULES"]
+__all__ = ["encode_cbr", "corrupt", "frame_offset", "udp_port_bound", "loaded_modules", "MUXRATE", "HEAVY_MODULES"]
 
 #: the TS's constant rate in bits/s (x264 at 800 kbit/s padded to 1 Mbit/s)
 MUXRATE = 1_000_000
@@ -65,6 +69,20 @@ def corrupt(src: Path, dst: Path, offset: int, n: int) -> Path:
         pos += 188
     dst.write_bytes(bytes(data))
     return dst
+
+
+def frame_offset(data: bytes, n: int) -> int:
+    """The byte offset of the TS packet that starts video frame ``n`` (0-based) of ``data``: the
+    (n+1)-th packet of the video PID (0x100, FFmpeg's) with payload_unit_start set (FFmpeg's muxer
+    puts one frame in each video PES)."""
+    seen = 0
+    for pos in range(0, len(data) - 187, 188):
+        pid = ((data[pos + 1] & 0x1F) << 8) | data[pos + 2]
+        if data[pos] == 0x47 and pid == 0x100 and data[pos + 1] & 0x40:
+            if seen == n:
+                return pos
+            seen += 1
+    raise ValueError(f"the stream has {seen} video frames, not {n + 1}")
 
 
 def udp_port_bound(port: int) -> bool:
@@ -125,11 +143,13 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--when-bound", action="store_true", help="UDP: send once something has bound the port")
     ap.add_argument("--deadline", type=float, default=60.0, help="seconds --when-bound waits at most")
     ap.add_argument("--watch-pid", type=int, help="with --when-bound: say what this process had loaded then")
+    ap.add_argument("--hold-at-frame", type=int, help="stop before frame N until a line on standard input")
     a = ap.parse_args(argv)
     if a.when_bound and a.proto != "udp":
         ap.error("--when-bound is for UDP (a TCP sender is the server)")
     data = Path(a.file).read_bytes()
     outage, stall = _window(a.outage), _window(a.stall)
+    hold = None if a.hold_at_frame is None else frame_offset(data, a.hold_at_frame)
     if a.proto == "tcp":
         srv = socket.socket()
         srv.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -156,6 +176,7 @@ def main(argv: list[str]) -> int:
     print(f"sending {time.time():.3f}", flush=True)
     t0 = time.monotonic()
     paused = 0.0
+    held = 0.0  # seconds the sender waited at --hold-at-frame
     in_outage = False
     for off in range(0, len(data), DATAGRAM):
         at = off / a.rate  # the stream's second of this datagram
@@ -164,7 +185,7 @@ def main(argv: list[str]) -> int:
             time.sleep(stall[1])
             paused = stall[1]
             print(f"back {time.time():.3f}", flush=True)
-        due = t0 + paused + at
+        due = t0 + paused + held + at
         delay = due - time.monotonic()
         if delay > 0:
             time.sleep(delay)
@@ -176,8 +197,17 @@ def main(argv: list[str]) -> int:
         if in_outage:
             in_outage = False
             print(f"back {time.time():.3f}", flush=True)
+        chunk = data[off:off + DATAGRAM]
         try:
-            send(data[off:off + DATAGRAM])
+            if hold is not None and off <= hold < off + DATAGRAM:
+                send(chunk[:hold - off])  # every byte before frame N
+                print(f"held {time.time():.3f}", flush=True)
+                t_held = time.monotonic()
+                sys.stdin.readline()
+                held = time.monotonic() - t_held  # the rest goes at the stream's pace from here
+                print(f"released {time.time():.3f}", flush=True)
+                chunk = chunk[hold - off:]
+            send(chunk)
         except (BrokenPipeError, ConnectionResetError):
             break
     print(f"done {time.time():.3f}", flush=True)
