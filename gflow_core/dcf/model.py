@@ -521,5 +521,32 @@ def search(model: TargetModel, image: np.ndarray, grey: np.ndarray, hold: np.nda
         i, j, v = cf.peak(r.cf)
         xy = r.point(i, j)
         area += r.area()
-        out.append(Candidate(v, xy, float(lf), 0.0, None if r.colour is None else float(r.colour[i, j])))
+        c = Candidate(v, xy, float(lf), 0.0, None if r.colour is None else float(r.colour[i, j]))
+        out.append(refine(model, image, grey, c, log_s, geom, p) if p.search_refine else c)
     return [Candidate(c.r, c.centre, c.log_f, area, c.r_colour) for c in out]
+
+
+def refine(model: TargetModel, image: np.ndarray, grey: np.ndarray, c: "Candidate", log_s: float, geom: Geometry,
+           p: DCFParams) -> "Candidate":
+    """``c`` moved to the best of the placements half a cell about it, each scored by a window of its own.
+
+    The search scores placements on the lattice of its region's cells, so the target lies up to half a cell
+    from the nearest one, and its HOG cells straddle the filter's: the response falls, where a tracked frame's
+    window is read at the target. Each of the 8 placements half a cell away (each way, both axes) is scored
+    by a window centred on it (:func:`respond_region` with no margin), and the best of the 9 is kept: a
+    coarse-to-fine search (the refinement of a detector's peak)."""
+    kx, ky = geom.k(log_s + c.log_f)
+    step = np.array([0.5 * geom.cell / kx, 0.5 * geom.cell / ky])
+    best = c
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dx == 0 and dy == 0:
+                continue
+            at = c.centre + step * np.array([dx, dy])
+            r = respond_region(model, image, grey, at, (0.0, 0.0), log_s + c.log_f, geom, p)
+            if r is None or r.cf is None or r.cf.shape != (1, 1):
+                continue
+            v = float(r.cf[0, 0])
+            if v > best.r:
+                best = Candidate(v, r.point(0, 0), c.log_f, c.area, None if r.colour is None else float(r.colour[0, 0]))
+    return best

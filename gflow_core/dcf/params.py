@@ -149,6 +149,8 @@ class DCFParams:
     search_colour_outlier: float = param(0.1, "probability the colour cue fails on a search candidate, if above "
                                               "colour_outlier: the colour model is learnt against the target's "
                                               "surroundings, not the places the search looks", before=0.0)
+    search_refine: bool = param(False, "the search's best placement of each size moved to the best of the 8 half a "
+                                       "cell about it, each scored by a window of its own (gflow_core.dcf.model.refine)")
     redetect_speed: bool = param(True, "after the search finds a target judged hidden its velocity is unknown: "
                                        "the next frame's motion prior is widened by the target's typical speed, "
                                        "learnt on the frames it was tracked", before=False)

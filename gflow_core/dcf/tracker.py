@@ -304,6 +304,10 @@ def _search(st: DCFState, obs: DCFObservation, p: DCFParams, pred: np.ndarray, s
             # distance is the best of that many clutter draws, anywhere in the area searched by every
             # template; under "visible" the candidate is placed by the target's prior: log N(x; pred, S) + log A
             trials = len(templates) * cand.area / clutter_seen[1] if clutter_seen is not None else 1.0
+            if p.search_refine:
+                # the refined placement is the best of a lattice half a cell apart near the peak: four times
+                # the placements a lattice of whole cells has, each a draw of clutter under "hidden"
+                trials *= 4.0
             place = _log_place(cand.centre, pred, sx, sy, cand.area, p.motion_tail, _tail(st, p)) + log_z
             if k > 0:
                 # the size's prior against clutter's, uniform over the sizes searched (as the place's):
