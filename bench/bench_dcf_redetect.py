@@ -29,6 +29,13 @@ target is back. It prints, per sequence:
   filter's absolute score cannot give (a ratio test: the frame's best match is unique); one seen as
   often among clutter is none.
 
+With ``--colour``, each searched frame also gets the colour score (the mean of Staple's beta over
+the box) at the true centre and at the search's best placement, three ways: with the model's histograms
+as they are (rho_B learnt about the box where it was tracked); with rho_B taken from the ring about that
+placement in this frame (the placement's own surroundings, as DAT's surrounding model is); and with the
+histograms as they were on the last frame before the window. A colour cue that refuses the target
+because its model was learnt against other surroundings scores it higher the second way.
+
 A case whose target is never the best placement needs another search; one whose target is the best
 placement but whose terms add up to less than the prior's odds needs other evidence.
 """
@@ -53,6 +60,7 @@ from _util import scratch, table  # noqa: E402
 from gflow_core.dcf import model as tm  # noqa: E402
 from gflow_core.dcf import tracker as T  # noqa: E402
 from gflow_core.dcf.cues import may_fail  # noqa: E402
+from gflow_core.dcf.histogram import ColourModel, box_mask, histograms  # noqa: E402
 from gflow_core.dcf.params import DCFParams  # noqa: E402
 from gflow_core.evaluation.stress import CASES  # noqa: E402
 from gflow_core.tracker import FrameRng, stream_hash  # noqa: E402
@@ -95,7 +103,28 @@ def at_truth(st, obs, p, centre: np.ndarray, log_f: float, like) -> tm.Candidate
     return tm.Candidate(float(r.at(centre[None], "cf")[0]), centre, log_f, like.area, col)
 
 
-def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: bool) -> dict:
+def colour_scores(st, obs, centre: np.ndarray, before) -> tuple[float, float, float] | None:
+    """The mean of beta = rho_O / (rho_O + rho_B) over the box at ``centre`` (held size, upright, template
+    pixels in the frame): with the model's rho_B, with rho_B of the ring about the box in its own window, and
+    with the histograms ``before`` (a :class:`ColourModel`); None without a colour model."""
+    g, col = st.geom, st.model.colour
+    win = tm.window(obs.image, obs.grey, (float(centre[0]), float(centre[1])), g.template, g.k(st.log_s), g.cell,
+                    st.model.colour_mode)
+    if col is None or win.bins is None or win.valid is None:
+        return None
+    box = (g.size0[0] * g.k0[0], g.size0[1] * g.k0[1])
+    own = histograms(win.bins, win.valid, box, len(col.fg))
+    inside = win.bins[box_mask(win.bins.shape, box) & win.valid]
+
+    def mean_beta(fg: np.ndarray, bg: np.ndarray) -> float:
+        # beta(b) = rho_O(b) / (rho_O(b) + rho_B(b))                                  (Staple eq. 11)
+        den = fg + bg
+        return float(np.divide(fg, den, out=np.zeros_like(fg), where=den > 0)[inside].mean())
+
+    return mean_beta(col.fg, col.bg), mean_beta(col.fg, own.bg), mean_beta(before.fg, before.bg)
+
+
+def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: bool, colour: bool = False) -> dict:
     """Step dcf over the derived sequence in ``folder``; the search's terms after ``window``."""
     frames = sorted((folder / "frames").glob("*"))
     gt = {int(r[0]): tuple(r[1:]) for r in np.loadtxt(folder / "groundtruth.csv", delimiter=",", skiprows=1)}
@@ -127,9 +156,10 @@ def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: b
 
     T._log_joint, tm.search = spy, spy_search
     out = {"searched": 0, "best_on": 0, "best": [], "held": [], "true": [], "taken": None, "lead_on": [],
-           "lead_hidden": []}
+           "lead_hidden": [], "colour": []}
     try:
         st = None
+        before: ColourModel | None = None
         h = stream_hash("cam0")
         for t, f in enumerate(frames):
             obs = T.TRACKER.observe(p, cv2.imread(str(f)))
@@ -140,6 +170,8 @@ def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: b
             judged.clear()
             leads.clear()
             prev = st
+            if t == window[0] - 1:
+                before = st.model.colour  # the colour model of the last frame before the window
             prop = T.TRACKER.propose(p, st, obs, rng)
             res = T.step(st, obs, prop.particles, p, rng.stream(T.PURPOSE_STEP), 1.0)
             st = res.state
@@ -168,11 +200,18 @@ def run(folder: Path, window: tuple[int, int], p: DCFParams, seed: int, every: b
                     row[key] = (lf, 1.0 - c.r, out[key][-1])
             if res.redetected and out["taken"] is None:
                 out["taken"] = (t, on)
+            cs = [colour_scores(prev, obs, c, before) for c in (gc, cand.centre)] if colour and before is not None else []
+            if cs and None not in cs:
+                out["colour"].append(cs)
             if every:
                 fs = lambda x: " ".join(f"{y:+.1f}" for y in x)  # noqa: E731
                 print(f"  {t:4d} best IoU>0.5 {on!s:5s} rho {1 - cand.r:.3f} [{fs(out['best'][-1])}] "
                       f"P {v:.3f}" + "".join(f" | {k} lf {r[0]:+.2f} rho {r[1]:.3f} [{fs(r[2])}]"
                                               for k, r in row.items()))
+                if cs and None not in cs:
+                    print("        colour at truth: model {:.3f} own {:.3f} before {:.3f}; at best: model {:.3f} "
+                          "own {:.3f} before {:.3f}; the target's mean {:.3f}".format(
+                              *cs[0], *cs[1], 1.0 - prev.ctarget.mean()))
     finally:
         T._log_joint, tm.search = orig, search
     return out
@@ -189,6 +228,9 @@ def main() -> int:
     ap.add_argument("--sequences", default="", help="only these sequences (comma-separated)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=V", help="a dcf parameter")
     ap.add_argument("--frames", action="store_true", help="print every searched frame after the window")
+    ap.add_argument("--colour", action="store_true", help="also the colour score at the truth and "
+                                                              "at the best placement, against the model's surroundings, "
+                                                              "the placement's own, and the model before the window")
     ap.add_argument("--variant", default="", help="measure every frame of this variant of the footage (fast, "
                                                   "blur, fast+blur, ...: gflow benchmark --variant) instead of --case")
     args = ap.parse_args()
@@ -236,7 +278,12 @@ def main() -> int:
             folder, window = d.seq.path, d.plan.window
         if args.frames:
             print(seq.name)
-        m = run(folder, window, p, args.seed, args.frames)
+        m = run(folder, window, p, args.seed, args.frames, args.colour)
+        if m["colour"]:
+            med = np.median(np.array(m["colour"]), axis=0)
+            print(f"  {seq.name}: colour, medians over {len(m['colour'])} frames: at truth model {med[0][0]:.3f} own "
+                  f"{med[0][1]:.3f} before {med[0][2]:.3f}; at best model {med[1][0]:.3f} own {med[1][1]:.3f} "
+                  f"before {med[1][2]:.3f}")
         on = float(np.median(m["lead_on"])) if m["lead_on"] else None
         hid = m["lead_hidden"]
         taken = "-" if m["taken"] is None else f"{m['taken'][0]} ({'on' if m['taken'][1] else 'off'} target)"

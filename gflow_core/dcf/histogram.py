@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-__all__ = ["ColourModel", "histograms", "learn_colour", "colour_score"]
+__all__ = ["ColourModel", "box_mask", "histograms", "learn_colour", "colour_score"]
 
 
 @dataclass(frozen=True)
@@ -40,7 +40,7 @@ class ColourModel:
     bg: np.ndarray
 
 
-def _box_mask(shape: tuple[int, int], box: tuple[float, float]) -> np.ndarray:
+def box_mask(shape: tuple[int, int], box: tuple[float, float]) -> np.ndarray:
     """(h, w) bool: the centred box of (bw, bh) pixels in a window of ``shape`` (rows, cols)."""
     h, w = shape
     bw, bh = box
@@ -54,7 +54,7 @@ def _box_mask(shape: tuple[int, int], box: tuple[float, float]) -> np.ndarray:
 def histograms(bins: np.ndarray, valid: np.ndarray, box: tuple[float, float], n_bins: int) -> ColourModel:
     """The histograms of one window: ``bins`` (h, w) int32 bin of every pixel, ``valid`` (h, w) bool
     (the pixel lies in the frame), ``box`` (bw, bh) the target's size in window pixels, centred."""
-    inside = _box_mask(bins.shape, box)
+    inside = box_mask(bins.shape, box)
     fg = np.bincount(bins[inside & valid], minlength=n_bins).astype(np.float64)
     bg = np.bincount(bins[~inside & valid], minlength=n_bins).astype(np.float64)
     return ColourModel(fg / max(fg.sum(), 1.0), bg / max(bg.sum(), 1.0))
