@@ -78,6 +78,11 @@ def test_flipped_bytes_inside_a_chunk_name_the_chunk_and_its_offset(small_record
     assert main(["verify", "--quiet", str(bad)]) == 1
     out = capsys.readouterr().out
     assert out.startswith(f"{bad}: DAMAGED: chunk {k + 1} at byte {offset}: "), out
+    # a tool that reads the messages names the same chunk and byte: the reader stops at the chunk's end
+    main(["info", str(bad)])
+    said = capsys.readouterr()
+    assert (f"recording is damaged at byte {offset} of {len(data)}, in chunk {k + 1} "
+            f"(bytes {offset}-{offset + length})") in said.out + said.err, said
     n = _readable(out)
     held = _messages_in_chunk(small_recording, offset)
     total = _total(small_recording)

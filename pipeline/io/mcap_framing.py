@@ -27,7 +27,8 @@ from mcap.opcode import Opcode
 from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message,
                           MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
 
-__all__ = ["Framed", "framed_records", "record_at", "chunk_length", "read_summary", "Summary", "OPCODE_NAMES"]
+__all__ = ["Framed", "framed_records", "record_at", "chunk_length", "read_summary", "Summary", "OPCODE_NAMES",
+           "Located", "locate"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _FRAME = struct.Struct("<BQ")
@@ -161,6 +162,40 @@ def record_at(f: IO[bytes], at: int, size: int) -> Framed:
                 else f"{opcode:#04x} is no record's opcode")
         return Framed(at, opcode, length, damage=f"the record's frame is damaged ({what})", broken_frame=True)
     return record_at_length(f, at, length, opcode)
+
+
+@dataclass(frozen=True)
+class Located:
+    """Where a reader stopped, by the records' framing: the record that holds the byte (or whose frame is
+    broken before it), its ``offset`` and ``end`` (the byte after it), its ``opcode``, and ``number``, its
+    place among the file's records of that kind (1: the first chunk), as ``gflow verify`` numbers them."""
+
+    offset: int
+    end: int
+    opcode: int
+    number: int
+
+    def describe(self) -> str:
+        """'chunk 7 (bytes 11674447-13774486)'."""
+        return f"{OPCODE_NAMES.get(self.opcode, f'opcode {self.opcode:#04x}')} {self.number} " \
+               f"(bytes {self.offset}-{self.end})"
+
+
+def locate(f: IO[bytes], size: int, pos: int) -> Located | None:
+    """The record of the file ``f`` (``size`` bytes) whose frame holds byte ``pos - 1`` -- the last byte a
+    reader that stopped at ``pos`` took -- found by reading the frames alone (9 bytes each) from the start;
+    the first record whose frame is broken (an opcode MCAP does not define, a length past the end) if the
+    chain breaks before it; None when ``pos`` lies in the magic bytes or past every record."""
+    at, counts = len(MAGIC), {}
+    while at + 9 <= size:
+        f.seek(at)
+        opcode, length = _FRAME.unpack(f.read(9))
+        counts[opcode] = counts.get(opcode, 0) + 1
+        end = at + 9 + length
+        if end >= pos or end > size or opcode not in _RECORD_TYPES:
+            return Located(at, min(end, size), opcode, counts[opcode])
+        at = end
+    return None
 
 
 def chunk_length(f: IO[bytes], at: int, size: int) -> int:

@@ -22,6 +22,7 @@ from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
 
 from pipeline.io import damage_notes
+from pipeline.io.mcap_framing import locate
 from pipeline.io.mcap_writer import MAGIC
 from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
@@ -183,9 +184,9 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             text: str
             why = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__  # EndOfFile has no message
             if pos < size:  # bytes after the record that failed: the file is damaged, not just cut short
-                text = Damaged(f"{p}: recording is damaged at byte {pos} of {size} ({why}); "
-                               f"nothing after it can be read here (`gflow recover` copies every intact chunk, before "
-                               f"and after it)")
+                at, which = _damaged_record(f, pos, size)
+                text = Damaged(f"{p}: recording is damaged at byte {at} of {size}{which} ({why}); nothing after it "
+                               f"can be read here (`gflow recover` copies every intact chunk, before and after it)")
             elif _closed(p):  # a damaged length had the reader run to the end of a file that was closed
                 text = Damaged(f"{p}: recording is damaged: a record cannot be read ({why}), yet the file ends as "
                                f"a closed recording does; nothing after the damage can be read (`gflow verify` "
@@ -201,6 +202,17 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             if pos < size:  # bytes after the footer (two writers on one file, a copy appended): not read
                 _tell(Damaged(f"{p}: recording is damaged: {size - pos} bytes after its closing magic bytes at byte "
                               f"{pos}; they are not read (`gflow verify` says more)"), strict, on_truncated)
+
+
+def _damaged_record(f, pos: int, size: int) -> tuple[int, str]:
+    """Where the damage is that stopped a reader at byte ``pos``: the start of the record that holds it and
+    which record that is, as ``gflow verify`` names it (11674447, ', in chunk 7 (bytes 11674447-13774486)');
+    else (``pos``, '')."""
+    try:
+        where = locate(f, size, pos)
+    except (OSError, ValueError, struct.error):
+        where = None
+    return (pos, "") if where is None else (where.offset, f", in {where.describe()}")
 
 
 def _tell(text: str, strict: bool, on_truncated) -> None:
