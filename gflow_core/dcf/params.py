@@ -256,6 +256,15 @@ class DCFParams:
                                    "is within this many standard deviations of the target's under it and likelier the "
                                    "target's than clutter's (its distributions learnt on confident frames, as verify's; "
                                    "0: always)")
+    estimate_mode: bool = param(False, "the estimate the model learns at (and the box) is the posterior's mode read on "
+                                       "the response map, the maximum of kappa y(x) + log prior(x), not the particles' "
+                                       "weighted mean, which carries their Monte Carlo noise into what the model learns "
+                                       "(gflow_core.dcf.tracker._mode)")
+    estimate_local: bool = param(False, "with estimate_mode, the mode is the local maximum reached by climbing the map from "
+                                        "the particles' mean (a mean-shift step), not the map's global maximum")
+    estimate_reach: float = param(0.0, "with estimate_local, the climb's end is the estimate only when it lies within this "
+                                       "many of the particles' standard deviations of their mean (each axis; a posterior "
+                                       "too broad for its mode to mean much keeps the mean; 0: always)")
     drift_hold: bool = param(False, "with drift_correct, a confident frame whose first-frame peak lies farther "
                                     "teaches the filter nothing (the paper's rule)")
 

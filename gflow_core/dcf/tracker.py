@@ -184,6 +184,39 @@ def _log_prior(parts: np.ndarray, pred: np.ndarray, sx: float, sy: float, mot: m
     return mm.log_prior(mot, parts[:, :2])
 
 
+def _mode(resp: tm.Response, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None, p: DCFParams,
+          pi: float, frame: tuple[int, int], start: np.ndarray | None = None) -> np.ndarray:
+    """(2,) the posterior's mode over the response map's positions within the frame: the maximum of
+    log p(z | x) + log p(x) = kappa y(x) + the motion prior's log density (:func:`_log_prior`), the
+    particles' target density read exactly where the map is computed (``estimate_mode``)."""
+    h, w = resp.y.shape
+    xs = resp.origin[0] + np.arange(w) / resp.q[0]
+    ys = resp.origin[1] + np.arange(h) / resp.q[1]
+    gx, gy = np.meshgrid(xs, ys)
+    pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
+    lp, _ = _log_prior(pts, pred, sx, sy, mot, p.motion_tail, pi)
+    # argmax_x kappa y(x) + log p(x), over the positions whose centre lies in the frame
+    score = p.kappa * resp.y.ravel() + lp
+    inside = (pts[:, 0] >= 0) & (pts[:, 0] <= frame[0] - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= frame[1] - 1)
+    if not inside.any():
+        return np.array([np.clip(pred[0], 0.0, frame[0] - 1.0), np.clip(pred[1], 0.0, frame[1] - 1.0)])
+    score = np.where(inside, score, -np.inf)
+    if start is None:
+        return pts[int(np.argmax(score))].copy()
+    # from the map position nearest ``start``, to the best of its 8 neighbours until none is better
+    m = score.reshape(h, w)
+    i = int(np.clip(round((start[1] - resp.origin[1]) * resp.q[1]), 0, h - 1))
+    j = int(np.clip(round((start[0] - resp.origin[0]) * resp.q[0]), 0, w - 1))
+    while True:
+        nb = m[max(i - 1, 0): i + 2, max(j - 1, 0): j + 2]
+        a, b = np.unravel_index(int(np.argmax(nb)), nb.shape)
+        ni, nj = max(i - 1, 0) + int(a), max(j - 1, 0) + int(b)
+        if not m[ni, nj] > m[i, j]:  # a strict ascent: a plateau ends the climb
+            break
+        i, j = ni, nj
+    return np.array([xs[j], ys[i]]) if np.isfinite(m[i, j]) else start.copy()
+
+
 def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
     """Forward filtering over (visible, partial, hidden): after a hidden frame the prior that the target
     is back is ``reappear``, plus the probability ``back`` that it was present on the last frame."""
@@ -676,6 +709,12 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     mean = np.einsum("i,ij->j", W, parts)
     std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
     centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
+    if p.estimate_mode:
+        mode = _mode(resp, pred, sx, sy, mot, p, _tail(st, p), (Ww, Hh), centre if p.estimate_local else None)
+        # with estimate_reach, a climb that ends beyond reach std of the mean keeps the mean
+        far = p.estimate_local and p.estimate_reach > 0 and bool(np.any(
+            np.abs(mode - centre) > p.estimate_reach * np.maximum(std[:2], 1e-9)))
+        centre = centre if far else mode
     log_s = st.log_s
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)

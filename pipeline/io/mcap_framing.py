@@ -186,7 +186,7 @@ def locate(f: IO[bytes], size: int, pos: int) -> Located | None:
     reader that stopped at ``pos`` took -- found by reading the frames alone (9 bytes each) from the start;
     the first record whose frame is broken (an opcode MCAP does not define, a length past the end) if the
     chain breaks before it; None when ``pos`` lies in the magic bytes or past every record."""
-    at, counts = len(MAGIC), {}
+    at, counts = len(MAGIC), dict[int, int]()
     while at + 9 <= size:
         f.seek(at)
         opcode, length = _FRAME.unpack(f.read(9))
