@@ -406,7 +406,7 @@ class DCFParams:
             raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
-        for name in ("drift_correct", "drift_gate"):
+        for name in ("drift_correct", "drift_gate", "estimate_reach"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")
 

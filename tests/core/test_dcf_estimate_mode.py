@@ -7,6 +7,7 @@ the prior is wide), and never leaves the frame."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from gflow_core.dcf import model as tm
 from gflow_core.dcf.params import DCFParams
@@ -46,3 +47,9 @@ def test_the_local_mode_is_the_peak_climbed_to_from_the_mean() -> None:
     # a wide prior makes the far peak the global mode; from a mean beside the near one, the climb stops there
     assert np.allclose(_mode(resp, pred, 30.0, 30.0, None, p, 1.0, (200, 200), np.array([43.2, 38.6])), [40.0, 40.0])
     assert np.allclose(_mode(resp, pred, 30.0, 30.0, None, p, 1.0, (200, 200), np.array([66.0, 41.0])), [70.0, 40.0])
+
+
+def test_the_reach_must_be_a_finite_non_negative_number() -> None:
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="estimate_reach"):
+            DCFParams(estimate_reach=bad)
