@@ -260,6 +260,12 @@ class DCFParams:
                                        "the response map, the maximum of kappa y(x) + log prior(x), not the particles' "
                                        "weighted mean, which carries their Monte Carlo noise into what the model learns "
                                        "(gflow_core.dcf.tracker._mode)")
+    estimate_mean: bool = param(False, "the estimate the model learns at (and the box) is the posterior's mean computed "
+                                       "over the response map's positions (quadrature), not by the particles' weighted "
+                                       "sum: the same MMSE estimate without the sampler's noise "
+                                       "(gflow_core.dcf.tracker._map_mean; not with estimate_mode)")
+    estimate_learn: bool = param(False, "with estimate_mode, the mode is only where the model learns; the box, the "
+                                        "velocity and the judgement of the frame stay at the particles' mean")
     estimate_local: bool = param(False, "with estimate_mode, the mode is the local maximum reached by climbing the map from "
                                         "the particles' mean (a mean-shift step), not the map's global maximum")
     estimate_reach: float = param(0.0, "with estimate_local, the climb's end is the estimate only when it lies within this "
@@ -406,6 +412,13 @@ class DCFParams:
             raise ValueError(f"rate_adapt must be in [0, 1], got {self.rate_adapt}")
         if not (math.isfinite(self.scale_prior) and self.scale_prior >= 0):
             raise ValueError(f"scale_prior must be finite and >= 0, got {self.scale_prior}")
+        for name in ("estimate_local", "estimate_learn"):
+            if getattr(self, name) and not self.estimate_mode:
+                raise ValueError(f"{name} needs estimate_mode (it changes how the mode is used)")
+        if self.estimate_reach > 0 and not self.estimate_local:
+            raise ValueError("estimate_reach needs estimate_local (it bounds the climb)")
+        if self.estimate_mean and self.estimate_mode:
+            raise ValueError("estimate_mean and estimate_mode are two estimates: set one of them")
         for name in ("drift_correct", "drift_gate", "estimate_reach"):
             if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise ValueError(f"{name} must be finite and >= 0, got {getattr(self, name)}")

@@ -184,23 +184,51 @@ def _log_prior(parts: np.ndarray, pred: np.ndarray, sx: float, sy: float, mot: m
     return mm.log_prior(mot, parts[:, :2])
 
 
-def _mode(resp: tm.Response, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None, p: DCFParams,
-          pi: float, frame: tuple[int, int], start: np.ndarray | None = None) -> np.ndarray:
-    """(2,) the posterior's mode over the response map's positions within the frame: the maximum of
-    log p(z | x) + log p(x) = kappa y(x) + the motion prior's log density (:func:`_log_prior`), the
-    particles' target density read exactly where the map is computed (``estimate_mode``)."""
+def _map_posterior(resp: tm.Response, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None, p: DCFParams,
+                   pi: float, frame: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The particles' target density read exactly at the response map's positions: (h, w) the map's x
+    and (h, w) y in image px, (h * w, 2) the positions, and (h * w,) the log density kappa y(x) + the
+    motion prior's log density (:func:`_log_prior`), -inf at a position whose centre is outside the frame."""
     h, w = resp.y.shape
     xs = resp.origin[0] + np.arange(w) / resp.q[0]
     ys = resp.origin[1] + np.arange(h) / resp.q[1]
     gx, gy = np.meshgrid(xs, ys)
     pts = np.stack([gx.ravel(), gy.ravel()], axis=1)
     lp, _ = _log_prior(pts, pred, sx, sy, mot, p.motion_tail, pi)
-    # argmax_x kappa y(x) + log p(x), over the positions whose centre lies in the frame
+    # log p(x | z) + const = kappa y(x) + log p(x), over the positions whose centre lies in the frame
     score = p.kappa * resp.y.ravel() + lp
     inside = (pts[:, 0] >= 0) & (pts[:, 0] <= frame[0] - 1) & (pts[:, 1] >= 0) & (pts[:, 1] <= frame[1] - 1)
-    if not inside.any():
-        return np.array([np.clip(pred[0], 0.0, frame[0] - 1.0), np.clip(pred[1], 0.0, frame[1] - 1.0)])
-    score = np.where(inside, score, -np.inf)
+    return xs, ys, pts, np.where(inside, score, -np.inf)
+
+
+def _in_frame(pred: np.ndarray, frame: tuple[int, int]) -> np.ndarray:
+    """(2,) ``pred`` clipped to the frame: the estimate when no map position lies in it."""
+    return np.array([np.clip(pred[0], 0.0, frame[0] - 1.0), np.clip(pred[1], 0.0, frame[1] - 1.0)])
+
+
+def _map_mean(resp: tm.Response, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None, p: DCFParams,
+              pi: float, frame: tuple[int, int]) -> np.ndarray:
+    """(2,) the posterior's mean over the response map's positions within the frame (``estimate_mean``):
+    the particles' weighted mean (the MMSE estimate) computed by quadrature on the map instead of by
+    Monte Carlo, so the estimate keeps the mean's averaging over a broad posterior without the sampler's
+    noise."""
+    _, _, pts, score = _map_posterior(resp, pred, sx, sy, mot, p, pi, frame)
+    if not np.isfinite(score).any():
+        return _in_frame(pred, frame)
+    # E[x | z] = sum_x x exp(score(x)) / sum_x exp(score(x)), in einsum for the same bits in every thread
+    wts = np.exp(score - score.max())
+    return np.einsum("i,ij->j", wts / wts.sum(), pts)
+
+
+def _mode(resp: tm.Response, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None, p: DCFParams,
+          pi: float, frame: tuple[int, int], start: np.ndarray | None = None) -> np.ndarray:
+    """(2,) the posterior's mode over the response map's positions within the frame: the maximum of
+    log p(z | x) + log p(x) = kappa y(x) + the motion prior's log density (:func:`_log_prior`), the
+    particles' target density read exactly where the map is computed (``estimate_mode``)."""
+    h, w = resp.y.shape
+    xs, ys, pts, score = _map_posterior(resp, pred, sx, sy, mot, p, pi, frame)
+    if not np.isfinite(score).any():
+        return _in_frame(pred, frame)
     if start is None:
         return pts[int(np.argmax(score))].copy()
     # from the map position nearest ``start``, to the best of its 8 neighbours until none is better
@@ -709,12 +737,17 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     mean = np.einsum("i,ij->j", W, parts)
     std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
     centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
-    if p.estimate_mode:
+    if p.estimate_mean:
+        centre = learn_at = _map_mean(resp, pred, sx, sy, mot, p, _tail(st, p), (Ww, Hh))
+    elif p.estimate_mode:
         mode = _mode(resp, pred, sx, sy, mot, p, _tail(st, p), (Ww, Hh), centre if p.estimate_local else None)
         # with estimate_reach, a climb that ends beyond reach std of the mean keeps the mean
         far = p.estimate_local and p.estimate_reach > 0 and bool(np.any(
             np.abs(mode - centre) > p.estimate_reach * np.maximum(std[:2], 1e-9)))
-        centre = centre if far else mode
+        learn_at = centre if far else mode
+        centre = centre if far or p.estimate_learn else mode
+    else:
+        learn_at = centre
     log_s = st.log_s
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)
@@ -754,7 +787,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
-        log_s, learnt = _learn(st, obs, p, centre, r_est, colour_seen, confident)
+        log_s, learnt = _learn(st, obs, p, learn_at if p.estimate_learn else centre, r_est, colour_seen, confident)
         learnt.update(_learn_motion(st, p, resp, centre, velocity, pred, (sx, sy), (bw, bh), dt))
     if present and not doubt:
         learnt.update(_learn_clutter(st, clutter_seen, colour_seen, p.clutter_rate))
