@@ -245,6 +245,27 @@ def _mode(resp: tm.Response, pred: np.ndarray, sx: float, sy: float, mot: mm.Mot
     return np.array([xs[j], ys[i]]) if np.isfinite(m[i, j]) else start.copy()
 
 
+def _estimate(resp: tm.Response, pred: np.ndarray, spread: tuple[float, float], mot: mm.Motion | None,
+              p: DCFParams, pi: float, frame: tuple[int, int], mean: np.ndarray, std: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """(2,) the frame's estimate and (2,) where the model learns: the particles' weighted ``mean`` (2,) for
+    both by default; with ``estimate_mean`` the posterior's mean on the map (:func:`_map_mean`); with
+    ``estimate_mode`` its mode (:func:`_mode`, climbed to from the mean with ``estimate_local``), for the
+    model alone with ``estimate_learn``. ``std`` (3,) the particles' spread."""
+    sx, sy = spread
+    if p.estimate_mean:
+        exact = _map_mean(resp, pred, sx, sy, mot, p, pi, frame)
+        return exact, exact
+    if not p.estimate_mode:
+        return mean, mean
+    mode = _mode(resp, pred, sx, sy, mot, p, pi, frame, mean if p.estimate_local else None)
+    # with estimate_reach, a climb that ends beyond reach std of the mean keeps the mean
+    if p.estimate_local and p.estimate_reach > 0 and bool(np.any(
+            np.abs(mode - mean) > p.estimate_reach * np.maximum(std[:2], 1e-9))):
+        return mean, mean
+    return (mean, mode) if p.estimate_learn else (mode, mode)
+
+
 def _hidden_prior(back: float, reappear: float) -> tuple[float, float, float]:
     """Forward filtering over (visible, partial, hidden): after a hidden frame the prior that the target
     is back is ``reappear``, plus the probability ``back`` that it was present on the last frame."""
@@ -737,17 +758,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
     mean = np.einsum("i,ij->j", W, parts)
     std = np.sqrt(np.maximum(np.einsum("i,ij->j", W, (parts - mean) ** 2), 0.0))
     centre = np.array([np.clip(mean[0], 0.0, Ww - 1.0), np.clip(mean[1], 0.0, Hh - 1.0)])
-    if p.estimate_mean:
-        centre = learn_at = _map_mean(resp, pred, sx, sy, mot, p, _tail(st, p), (Ww, Hh))
-    elif p.estimate_mode:
-        mode = _mode(resp, pred, sx, sy, mot, p, _tail(st, p), (Ww, Hh), centre if p.estimate_local else None)
-        # with estimate_reach, a climb that ends beyond reach std of the mean keeps the mean
-        far = p.estimate_local and p.estimate_reach > 0 and bool(np.any(
-            np.abs(mode - centre) > p.estimate_reach * np.maximum(std[:2], 1e-9)))
-        learn_at = centre if far else mode
-        centre = centre if far or p.estimate_learn else mode
-    else:
-        learn_at = centre
+    centre, learn_at = _estimate(resp, pred, (sx, sy), mot, p, _tail(st, p), (Ww, Hh), centre, std)
     log_s = st.log_s
     # is the estimate the target? two cues (the filter's response, the colour score): _scores
     r_est, clutter_seen, colour_seen = _scores(resp, centre, bw, bh)
@@ -787,6 +798,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
+        # the model learns at the estimate, or at the mode with estimate_learn (after drift_correct's move)
         log_s, learnt = _learn(st, obs, p, learn_at if p.estimate_learn else centre, r_est, colour_seen, confident)
         learnt.update(_learn_motion(st, p, resp, centre, velocity, pred, (sx, sy), (bw, bh), dt))
     if present and not doubt:
