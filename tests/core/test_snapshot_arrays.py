@@ -52,3 +52,33 @@ def test_bad_arrays_are_refused() -> None:
     odd = msgspec.msgpack.encode({"version": 1, "a": {"dtype": "object", "shape": [1], "data": b"\0" * 8}})
     with pytest.raises(msgspec.ValidationError, match="not an array"):
         decode(odd)
+
+
+class _Loose(msgspec.Struct, frozen=True):
+    a: np.ndarray
+    extra: object = None
+
+
+def test_a_value_that_is_no_array_is_not_encoded() -> None:
+    """A value of a type the snapshot does not hold is refused by the encoder with a TypeError naming the
+    type, instead of written as something a decoder could not read back."""
+    enc, _ = snapshot_codec(_Loose)
+    with pytest.raises(TypeError, match="object is not part of a snapshot"):
+        enc(_Loose(a=np.zeros(2), extra=object()))
+    assert enc(_Loose(a=np.zeros(2), extra=3))  # a value msgspec encodes itself never reaches the hook
+
+
+class _Odd:
+    pass
+
+
+class _WithOdd(msgspec.Struct, frozen=True):
+    a: np.ndarray
+    odd: _Odd | None = None
+
+
+def test_a_field_of_a_type_that_is_no_array_is_a_decode_error_naming_it() -> None:
+    _, dec = snapshot_codec(_WithOdd)
+    data = msgspec.msgpack.encode({"a": {"dtype": "uint8", "shape": [1], "data": b"\0"}, "odd": {"x": 1}})
+    with pytest.raises(msgspec.ValidationError, match=r"not part of a snapshot - at `\$\.odd`"):
+        dec(data)
