@@ -186,8 +186,8 @@ def _log_prior(parts: np.ndarray, pred: np.ndarray, sx: float, sy: float, mot: m
 
 def _map_posterior(resp: tm.Response, pred: np.ndarray, sx: float, sy: float, mot: mm.Motion | None, p: DCFParams,
                    pi: float, frame: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The particles' target density read exactly at the response map's positions: (h, w) the map's x
-    and (h, w) y in image px, (h * w, 2) the positions, and (h * w,) the log density kappa y(x) + the
+    """The particles' target density read exactly at the response map's positions: (w,) the map's x
+    and (h,) y in image px, (h * w, 2) the positions, and (h * w,) the log density kappa y(x) + the
     motion prior's log density (:func:`_log_prior`), -inf at a position whose centre is outside the frame."""
     h, w = resp.y.shape
     xs = resp.origin[0] + np.arange(w) / resp.q[0]
@@ -798,7 +798,7 @@ def step(st: DCFState, obs: DCFObservation, proposed: np.ndarray, p: DCFParams, 
         # v <- m v + (1 - m) (c_t - c_{t-1}) / dt
         velocity = p.velocity_memory * st.velocity + (1.0 - p.velocity_memory) * (centre - st.centre) / dt
         state = "tracked"
-        # the model learns at the estimate, or at the mode with estimate_learn (after drift_correct's move)
+        # the model learns at the estimate; with estimate_learn at the mode (drift_correct moves the estimate only)
         log_s, learnt = _learn(st, obs, p, learn_at if p.estimate_learn else centre, r_est, colour_seen, confident)
         learnt.update(_learn_motion(st, p, resp, centre, velocity, pred, (sx, sy), (bw, bh), dt))
     if present and not doubt:
