@@ -11,6 +11,7 @@ import re
 import sys
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 from pipeline.cli.main import main
@@ -277,6 +278,52 @@ def test_a_damaged_opcode_is_passed_by_the_summarys_chunk_index(small_recording:
         later = {s.channels[cid].topic for ci in s.chunk_indexes[1:] for cid in ci.message_index_offsets}
     assert later <= topics, later - topics  # defined in the lost chunk, taken from the summary
     assert main(["verify", str(tmp_path / "fixed.mcap")]) == 0
+
+
+def _frames_recorded(path: Path) -> Path:
+    """Twelve 8x8 frames written by the recorder, a chunk closed every two or three messages."""
+    import numpy as np
+
+    from gflow_msgs.messages import Frame, Header, NDArray, encode
+
+    with McapRecorder(path, chunk_size=512) as w:
+        for i in range(12):
+            frame = Frame(Header("cam0", i, 1000 * (i + 1)), NDArray.of(np.full((8, 8, 3), i, np.uint8)))
+            w.write("gflow/cam0/frames", encode(frame), i, log_ns=1000 * (i + 1), type_name="Frame")
+    return path
+
+
+@pytest.mark.parametrize("record, opcode", [("chunk", 0x06), ("message index", 0x07)])
+def test_info_calls_a_damaged_opcode_damage_where_verify_does(tmp_path: Path, record: str, opcode: int) -> None:
+    """The reader skips a record whose opcode MCAP does not define: `gflow info` of a file whose second chunk's
+    opcode was damaged listed the other chunks' messages and exited 0, with no word of damage, while
+    `gflow verify` called it damaged."""
+    good = _frames_recorded(tmp_path / "good.mcap")
+    with open(good, "rb") as f:
+        s = make_reader(f).get_summary()
+    assert s is not None and len(s.chunk_indexes) >= 3, s
+    second = sorted(s.chunk_indexes, key=lambda ci: ci.chunk_start_offset)[1]
+    offset = second.chunk_start_offset if record == "chunk" else min(second.message_index_offsets.values())
+    data = bytearray(good.read_bytes())
+    assert data[offset] == opcode, (record, data[offset])
+    data[offset] = 0x77
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    where = f"byte {offset}: 0x77 is no MCAP record's opcode"
+    v = cli_fork.run_command([*GFLOW, "verify", str(bad)], capture_output=True, text=True, timeout=60)
+    assert v.returncode == 1 and f"DAMAGED: {where}" in v.stdout, v.stdout + v.stderr
+    r = cli_fork.run_command([*GFLOW, "info", str(bad)], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert f"WARNING:   {bad}: recording is damaged: {where}" in r.stdout, r.stdout
+    assert r.stderr.startswith(f"gflow info: {bad}: the recording is damaged ("), r.stderr
+    assert "Traceback" not in r.stdout + r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    j = cli_fork.run_command([*GFLOW, "info", str(bad), "--json"], capture_output=True, text=True, timeout=60)
+    said = json.loads(j.stdout)
+    assert j.returncode == 1 and said["unreadable"] and where in said["truncated"], j.stdout
+    ok = cli_fork.run_command([*GFLOW, "info", str(good)], capture_output=True, text=True, timeout=60)
+    assert ok.returncode == 0 and ok.stderr == "", ok.stderr
+    told = ok.stdout.replace(str(good), "GOOD")  # (the test's folder is named after it: "...damaged_opcode...")
+    assert "damaged" not in told and "WARNING" not in told and "12 msgs" in told, ok.stdout
 
 
 def test_whatever_the_damage_verify_and_recover_answer_and_what_is_kept_is_intact(small_recording: Path,  # noqa: F811

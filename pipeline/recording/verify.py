@@ -45,7 +45,7 @@ from pipeline.io.recorder import SCHEMA_PREFIX
 from gflow_msgs.messages import MESSAGE_TYPES, MessageError, decode, decode_as
 from gflow_msgs.foxglove import FOXGLOVE_SCHEMAS
 
-__all__ = ["verify", "VerifyResult", "Progress"]
+__all__ = ["verify", "VerifyResult", "Progress", "recording_damage"]
 
 _FOXGLOVE_BY_SCHEMA: dict[str, type] = {name: typ for typ, name in FOXGLOVE_SCHEMAS.items()}
 
@@ -68,7 +68,7 @@ class VerifyResult:
     start_ns: int = 0
     end_ns: int = 0
     damage: str = ""  # the first fault: what and where ("" when intact)
-    torn: bool = False  # the file ends inside a record: no summary, no footer
+    torn: bool = False  # the file ends inside a record (no summary, no footer) or inside its closing magic bytes
 
     @property
     def ok(self) -> bool:
@@ -428,7 +428,25 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
                 r.torn = True
                 r.damage = (f"the file ends at byte {size}, inside the record that starts at byte {at}, with no "
                             f"summary or footer (its writer was killed, or is still writing)")
-        except _Fault as e:
-            r.damage = str(e)
+        except _Fault as e:  # cut after its footer, before its closing magic bytes end: torn (as the readers say)
+            r.damage, r.torn = str(e), footer is not None and size - at < len(MAGIC)
     r.channels = len(w.channels)
     return r
+
+
+def recording_damage(path: str | Path) -> str:
+    """The first damage :func:`verify` finds in recording ``path`` or a segment of it, as one line naming the
+    file, what is wrong and where ("" when none is found). A segment that only ends early (torn: its writer was
+    killed, or is still writing) is left to the readers, which say so themselves.
+
+    For the commands that describe a recording (``gflow info``) without reading every record as ``gflow verify``
+    does: the reader skips a record whose opcode MCAP does not define, so a chunk with a damaged opcode is
+    passed over without a word, and its messages are missing from what the command counts.
+    """
+    from pipeline.io.mcap_io import segments
+
+    for seg in segments(path):
+        r = verify(seg)
+        if r.damage and not r.torn:
+            return f"{seg}: recording is damaged: {r.damage} (`gflow recover` copies every intact chunk)"
+    return ""

@@ -21,6 +21,12 @@ def describe_recording(path: str, as_json: bool) -> int:
     from pipeline.recording.live_record import live_summary
 
     s = summarize(path)
+    if not s.damaged:  # damage the reader passes over (a record's opcode): found as `gflow verify` finds it
+        from pipeline.recording.verify import recording_damage
+
+        found = recording_damage(path)
+        if found:
+            s.truncated, s.damaged = "; ".join(t for t in (found, s.truncated) if t), True
     live = live_summary(path)  # None unless a live source made it
     bad = s.unreadable
     if as_json:
