@@ -169,6 +169,52 @@ def test_an_orphan_of_a_run_is_reaped_by_the_lessee_and_not_after(tmp_path):
     assert out == [True, True, True], out
 
 
+#: a stage process that starts a helper (as a stage may start a decoder or a plug-in's tool), says its pid and runs
+#: on until it is killed
+STAGE = ("import signal, subprocess, sys\n"
+         "helper = subprocess.Popen([sys.executable, '-c', 'import signal; signal.pause()'],\n"
+         "                          stdout=subprocess.DEVNULL)\n"
+         "print(helper.pid, flush=True)\n"
+         "signal.pause()\n")
+
+
+def test_the_supervisor_loop_reaps_an_orphan_of_a_killed_stage_and_no_other_child(tmp_path):
+    """A stage process killed (a crash, the OOM killer) leaves its helper behind: the helper comes to the
+    process holding the lease, and when it exits it stays a zombie of that process unless the supervisor's
+    loop (``Supervisor.check``) reaps it. A child of the process that is not the run's (another session) is
+    left for its own ``wait``."""
+    code = (f"STAGE = {STAGE!r}\n"
+            "import subprocess\n"
+            "from pathlib import Path\n"
+            "from pipeline.runtime.graph import parse_graph\n"
+            "from pipeline.runtime.supervision import Supervisor\n"
+            "def state(pid):\n"
+            "    try:\n"
+            "        fields = open(f'/proc/{pid}/stat').read().rsplit(')', 1)[1].split()\n"
+            "    except FileNotFoundError:\n"
+            "        return None, None\n"
+            "    return fields[0], int(fields[1])\n"
+            "graph = Path(zygote.__file__).parents[1] / 'graphs' / 'demo.yaml'\n"
+            "sup = Supervisor(parse_graph(graph.read_text(), str(graph)), say=print)\n"
+            "z = zygote.lease(zygote.stage_environment(os.environ, 1), ())\n"
+            "assert z is not None and subreaper() == 1\n"
+            "stage = subprocess.Popen([sys.executable, '-c', STAGE], stdout=subprocess.PIPE, text=True,\n"
+            "                         start_new_session=True)\n"
+            "sup.pids['source'] = [stage.pid]  # as Supervisor.spawn notes the process of a stage it starts\n"
+            "helper = int(stage.stdout.readline())\n"
+            "stage.kill(); stage.wait()\n"
+            "wait_for(lambda: state(helper)[1] == os.getpid(), 'the helper did not come to the lessee')\n"
+            "mine = subprocess.Popen([sys.executable, '-c', 'pass'], start_new_session=True)\n"
+            "os.kill(helper, signal.SIGTERM)\n"
+            "wait_for(lambda: state(helper)[0] == 'Z' and state(mine.pid)[0] == 'Z', 'the children did not exit')\n"
+            "running = sup.check([], [])\n"
+            "after = [state(helper)[0], state(mine.pid)[0], mine.wait()]\n"
+            "zygote.release(z, False)\n"
+            "print(json.dumps([running, after]))\n")
+    out, _ = _script(code, tmp_path)
+    assert out == [False, [None, "Z", 0]], out  # the orphan is gone; our own child waited for its wait
+
+
 def test_benchmark_forks_every_stage_of_every_run_from_one_zygote(tmp_path):
     """``gflow benchmark`` with two sequences: one zygote, forked at start-up, forks all its stages."""
     trace = tmp_path / "trace.txt"
