@@ -49,7 +49,9 @@ def test_bad_variant_is_a_one_line_error():
                              timeout=60)
     assert r.returncode == 2
     assert r.stderr.strip().splitlines() == ["gflow benchmark: error: unknown variant 'gray' in --variant (known: grey, "
-                                             "blur, fast, small, noise, or several joined by '+')"]
+                                             "blur, fast, small, noise, or several joined by '+'); 'none' is the "
+                                             "sequences as they are, 'all' every kind (none, grey, blur, fast, small, "
+                                             "noise, fast+blur)"]
 
 
 def test_grey_variant_tracks_grey_frames_and_prints_the_table(tmp_path):

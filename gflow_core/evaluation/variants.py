@@ -47,7 +47,7 @@ from typing import Callable
 import numpy as np  # cv2 (and the stress cases' kernel) imported where used: gflow benchmark's --help lists
 # the variants without OpenCV
 
-__all__ = ["Variant", "VARIANTS", "grey", "blur", "half", "noise", "same", "select_variant", "combine"]
+__all__ = ["Variant", "VARIANTS", "SUITE", "grey", "blur", "half", "noise", "same", "select_variant", "combine"]
 
 Box = tuple[float, float, float, float]
 
@@ -204,6 +204,10 @@ VARIANTS: dict[str, Variant] = {
                               f"for each frame) and JPEG at quality {JPEG_QUALITY}: a cheap camera in poor light, "
                               "streamed", noise),
 }
+
+#: the kinds of footage ``--variant all`` runs, in order: the sequences as they are (``none``), each
+#: variant, and fast motion with blur (the kinds the tuning is judged on together, docs/accuracy.md)
+SUITE: tuple[str, ...] = ("none", *VARIANTS, "fast+blur")
 
 
 def select_variant(name: str) -> Variant:

@@ -15,6 +15,7 @@ ORDER = 31
 
 import copy
 import json
+import shutil
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -156,14 +157,16 @@ def _check_paths(args) -> None:
         raise CliError(f"--out-dir {args.out_dir} is a file, not a folder")
 
 
-def _refuse_earlier_runs(args, seqs, names: list[str], cv_names: list[str], seeds: list[int]) -> None:
+def _refuse_earlier_runs(args, seqs, names: list[str], cv_names: list[str], seeds: list[int],
+                         folders: list[Path]) -> None:
     """An --out-dir used before: refuse, before any work, a run whose boxes (DIR/SEQUENCE/NAME.csv,
-    DIR/seed-S/SEQUENCE/NAME.csv with several seeds) or recording would replace an earlier run's (the
-    boxes were written over without a word)."""
+    DIR/seed-S/SEQUENCE/NAME.csv with several seeds, under DIR/KIND with several kinds of footage; ``folders``
+    the kinds' folders) or recording would replace an earlier run's (the boxes were written over without a
+    word)."""
     files = [f"{n}.{ext}" for n in names for ext in ("mcap", "csv")] + [f"opencv_{c}.csv" for c in cv_names]
-    for seq, seed in ((q, s) for q in seqs for s in seeds):
+    for root, seq, seed in ((d, q, s) for d in folders for q in seqs for s in seeds):
         for f in files + ["static_box.csv"]:
-            path = _seed_dir(Path(args.out_dir), seed, seeds) / seq.name / f
+            path = _seed_dir(root, seed, seeds) / seq.name / f
             if path.exists():
                 raise CliError(f"--out-dir {args.out_dir}: {path} exists (an earlier run's); a run's boxes and "
                                f"recording are never overwritten: give a new folder")
@@ -203,16 +206,21 @@ def _stress_plan_of(args):
     return plan_of
 
 
-def _variant(text: str | None):
-    """The variant ``--variant`` names (None: the sequences as they are)."""
-    from gflow_core.evaluation.variants import select_variant
+def _kinds(text: str | None) -> list[tuple[str, object]]:
+    """The kinds of footage ``--variant`` names, each (name, its variant; None for ``none``, the sequences as
+    they are): one variant, several separated by commas, or ``all`` (:data:`.variants.SUITE`); [("none",
+    None)] without it. A CliError (one line) for an unknown or repeated one."""
+    from gflow_core.evaluation.variants import SUITE, select_variant
 
     if text is None:
-        return None
+        return [("none", None)]
+    names = list(SUITE) if text.strip() == "all" else [t.strip() for t in text.split(",")]
+    if len(set(names)) != len(names):
+        raise CliError(f"--variant {text}: a kind of footage is named twice")
     try:
-        return select_variant(text)
+        return [(n, None if n == "none" else select_variant(n)) for n in names]
     except ValueError as e:
-        raise CliError(str(e)) from None
+        raise CliError(f"{e}; 'none' is the sequences as they are, 'all' every kind ({', '.join(SUITE)})") from None
 
 
 def _pick_sequences(seqs, text: str | None):
@@ -413,9 +421,10 @@ def cmd_benchmark(args) -> int:
     parse_sets(args.set)  # a --set not of the form stage.param=value, before any folder is read
     seeds = _seeds(args)
     args.seed = seeds[0]
-    variant = _variant(args.variant)
+    kinds = _kinds(args.variant)
+    several = len(kinds) > 1
     if args.stress:
-        if variant is not None:
+        if args.variant is not None:
             raise CliError("--variant is not used with --stress (run one, then the other)")
         _check_paths(args)
         seqs, skipped = find_sequences(args.datasets)
@@ -423,6 +432,8 @@ def cmd_benchmark(args) -> int:
     for opt, default in (("cases", None), ("stress_cache", None), ("lead", 30), ("tail", 60)):
         if getattr(args, opt) != default:
             raise CliError(f"--{opt.replace('_', '-')} is an option of --stress")
+    if several and (args.plot or args.precision_plot):
+        raise CliError("--plot and --precision-plot draw one kind of footage: give one --variant")
     cv_names = _opencv_names(args.opencv)
     first_frame, stop = frame_range(args.frames)
     _check_paths(args)
@@ -432,46 +443,121 @@ def cmd_benchmark(args) -> int:
     cv_missing = _opencv_missing(cv_names)
     cv_run = [c for c in cv_names if c not in cv_missing]
     if args.out_dir:
-        _refuse_earlier_runs(args, seqs, names, cv_run, seeds)
-    runs: list[list] = []
+        _refuse_earlier_runs(args, seqs, names, cv_run, seeds,
+                             [_kind_dir(Path(args.out_dir), k, several) for k, _ in kinds])
+    done: list[tuple[str, list[list]]] = []
     interrupted = False
     with tempfile.TemporaryDirectory(prefix="gflow-benchmark-") as tmp:
         work = Path(args.out_dir) if args.out_dir else Path(tmp)
-        # every tracker's options and model files checked in a folder of this run's own, before the variant is
+        # every tracker's options and model files checked in a folder of this run's own, before a variant is
         # written (a bad --set was said after its note and the work of writing every frame) or --out-dir is
         # touched (a refused benchmark left DIR/SEQUENCE folders behind)
-        _plans(args, seqs, names, first, stop, Path(tmp) / "check")
-        if variant is not None:
-            from pipeline.evaluation.variant_benchmark import derive_variant
-
-            note(f"writing the {variant.name} variant of {len(seqs)} sequence(s)")
-            try:
-                seqs = [derive_variant(seq, variant, Path(tmp) / "variant", first[seq.name], stop) for seq in seqs]
-            except (ValueError, OSError) as e:
-                raise CliError(f"--variant {variant.name}: {e}") from None
-        # every seed's plans first: a bad option or model fails before any tracking
-        planned = {k: _plans(_with_seed(args, k), seqs, names, first, stop, _seed_dir(work, k, seeds)) for k in seeds}
+        check = _plans(args, seqs, names, first, stop, Path(tmp) / "check")
         start_work()  # every check done: a bad value met from here on is the benchmark failing (exit 1)
         for s in skipped:  # once every check has passed: a mistake's error is the one line on stderr
             note(s)
-        count = [0, sum(len(p[0]) for p in planned.values()) + len(seeds) * len(seqs) * len(cv_run)]
-        for seed in seeds:
-            rows, interrupted = _run_seed(_with_seed(args, seed), seqs, names, (cv_names, cv_missing), first, stop,
-                                          _seed_dir(work, seed, seeds), planned[seed], count)
-            runs.append(rows)
+        count = [0, len(kinds) * len(seeds) * (len(check[0]) + len(seqs) * len(cv_run))]
+        for kind, variant in kinds:
+            if several:
+                note(f"footage: {_kind_words(kind)}")
+            runs, interrupted = _run_kind(args, variant, seqs, names, (cv_names, cv_missing), first, stop, seeds,
+                                          (_kind_dir(work, kind, several), Path(tmp) / f"variant-{kind}"), count)
+            if runs:
+                done.append((kind, runs))
             if interrupted:
                 break
     meta = {"datasets": list(args.datasets), "sequences": [s.name for s in seqs],
             "frames": [first_frame if args.frames else None, stop], "seed": args.seed,
-            "mode": "inline" if args.inline else "processes", "variant": variant.name if variant else None,
-            "skipped": skipped, "interrupted": interrupted, "versions": versions()}
-    if interrupted and len(runs) > 1:
-        # a seed stopped midway is left out of the means: the tables hold the seeds that finished
-        note(f"seed {seeds[len(runs) - 1]} was interrupted: the tables hold seeds "
-             f"{', '.join(map(str, seeds[:len(runs) - 1]))}")
-        runs = runs[:-1]
-    _report(args, runs, seeds[:len(runs)], meta)
+            "mode": "inline" if args.inline else "processes", "skipped": skipped, "interrupted": interrupted,
+            "versions": versions()}
+    _report_kinds(args, done, seeds, meta, several)
     return 130 if interrupted else 0
+
+
+def _kind_dir(work: Path, kind: str, several: bool) -> Path:
+    """Where a kind of footage's runs write: ``work`` itself with one kind, ``work/KIND`` with several."""
+    return work / kind if several else work
+
+
+def _kind_words(kind: str) -> str:
+    return "the sequences as they are" if kind == "none" else f"the {kind} variant of every sequence"
+
+
+def _run_kind(args, variant, seqs, names: list[str], cv: tuple[list[str], dict[str, str]], first: dict[str, int],
+              stop: int | None, seeds: list[int], folders: tuple[Path, Path], count: list[int]
+              ) -> tuple[list[list], bool]:
+    """One kind of footage: its variant's frames written (under ``folders[1]``, removed after its runs; None:
+    the sequences as they are), then every seed's benchmark writing under ``folders[0]``; each finished
+    seed's rows, and whether the user interrupted (a seed stopped midway is left out of the means)."""
+    from pipeline.evaluation.sequence_benchmark import note
+
+    work, derived = folders
+    if variant is not None:
+        from pipeline.evaluation.variant_benchmark import derive_variant
+
+        note(f"writing the {variant.name} variant of {len(seqs)} sequence(s)")
+        try:
+            seqs = [derive_variant(seq, variant, derived, first[seq.name], stop) for seq in seqs]
+        except (ValueError, OSError) as e:
+            raise CliError(f"--variant {variant.name}: {e}") from None
+    try:
+        # every seed's plans first: a bad option or model fails before any tracking
+        planned = {k: _plans(_with_seed(args, k), seqs, names, first, stop, _seed_dir(work, k, seeds)) for k in seeds}
+        runs: list[list] = []
+        for seed in seeds:
+            rows, interrupted = _run_seed(_with_seed(args, seed), seqs, names, cv, first, stop,
+                                          _seed_dir(work, seed, seeds), planned[seed], count)
+            runs.append(rows)
+            if interrupted:
+                if len(runs) > 1:
+                    note(f"seed {seed} was interrupted: the tables hold seeds "
+                         f"{', '.join(map(str, seeds[:len(runs) - 1]))}")
+                    runs = runs[:-1]
+                return runs, True
+        return runs, False
+    finally:
+        if variant is not None:
+            shutil.rmtree(derived, ignore_errors=True)  # a variant's frames take room: gone once its runs are
+
+
+def _report_kinds(args, done: list[tuple[str, list[list]]], seeds: list[int], meta: dict, several: bool) -> None:
+    """The report of one kind of footage as it always was; of several, each kind's report under a heading
+    line, then the summary over every kind (:mod:`pipeline.evaluation.kinds_summary`); with --json one
+    object, ``kinds`` (each kind's benchmark) and ``summary``."""
+    from pipeline.evaluation.kinds_summary import format_kinds_summary, kinds_json
+
+    if not done:
+        return
+    if not several:
+        kind, runs = done[0]
+        _report(args, runs, seeds[:len(runs)], dict(meta, variant=None if kind == "none" else kind))
+        return
+    full = [(k, r) for k, r in done if len(r) == len(seeds)]  # a kind cut short by an interruption is not summed
+    if args.json:
+        print(json.dumps({"kinds": [dict(_json_of(runs, seeds[:len(runs)], dict(meta, variant=kind)), kind=kind)
+                                    for kind, runs in done],
+                          "summary": kinds_json(full, seeds), "seeds": seeds}))
+        return
+    for kind, runs in done:
+        print(("## " if args.markdown else "== ") + _kind_words(kind) + "\n")
+        _report(args, runs, seeds[:len(runs)], dict(meta, variant=None if kind == "none" else kind))
+        print()
+    print(("## " if args.markdown else "== ") + "every kind of footage\n")
+    print(format_kinds_summary(full, seeds, markdown=args.markdown))
+    if len(full) < len(done):
+        print(f"\n{done[-1][0]} was interrupted and is left out of the summary")
+
+
+def _json_of(runs: list[list], seeds: list[int], meta: dict) -> dict:
+    """One kind's benchmark as JSON: of one seed as :func:`.benchmark_tables.to_json` gives it, of several
+    as :func:`.seed_means.seeds_json`."""
+    from pipeline.evaluation.benchmark_tables import to_json
+    from pipeline.evaluation.seed_means import seeds_json
+
+    if len(seeds) > 1:
+        common = {k: v for k, v in meta.items() if k != "seed"}
+        return seeds_json(runs, [dict(common, seed=s) for s in seeds], seeds, common)
+    return to_json(runs[0], meta)
 
 
 def _report(args, runs: list[list], seeds: list[int], meta: dict) -> None:
@@ -479,16 +565,14 @@ def _report(args, runs: list[list], seeds: list[int], meta: dict) -> None:
     several seeds: each tracker's AUC with every seed first, then the tables and plots of the means over
     the seeds (:mod:`pipeline.evaluation.seed_means`); the JSON holds every seed's run and the means."""
     from pipeline.runtime.versions import version_text
-    from pipeline.evaluation.benchmark_tables import format_tables, to_json
-    from pipeline.evaluation.seed_means import format_seed_tables, mean_rows, seeds_json
+    from pipeline.evaluation.benchmark_tables import format_tables
+    from pipeline.evaluation.seed_means import format_seed_tables, mean_rows
     from pipeline.evaluation.sequence_benchmark import note, plot_precision, plot_success
 
     several = len(seeds) > 1
     rows = mean_rows(runs, seeds) if several else runs[0]
     if args.json:
-        common = {k: v for k, v in meta.items() if k != "seed"}
-        print(json.dumps(seeds_json(runs, [dict(common, seed=s) for s in seeds], seeds, common) if several
-                         else to_json(rows, meta)))
+        print(json.dumps(_json_of(runs, seeds, meta)))
     else:
         if several:
             print(format_seed_tables(runs, seeds, markdown=args.markdown) + "\n")
@@ -520,7 +604,9 @@ def register(sub) -> None:
                     "which gets its own table too. --json has every row (also the mean overlap and 'size within "
                     "2x') and the means.",
         epilog="examples: gflow benchmark ../shared/data --trackers chamfer --plot success.png; "
-               "gflow benchmark ../shared/data --stress --trackers appearance --inline --markdown")
+               "gflow benchmark ../shared/data --stress --trackers appearance --inline --markdown; "
+               "gflow benchmark ../shared/data --variant all --trackers dcf --opencv csrt,kcf --inline --seeds 1-3 "
+               "(every kind of footage, summed up per tracker)")
     p.add_argument("datasets", nargs="*", metavar="DATASET",
                    help="a sequence folder (frames/ + groundtruth.csv) or a folder of them")
     p.add_argument("--trackers", metavar="NAME,...",
@@ -553,14 +639,19 @@ def register(sub) -> None:
                         "default: a temporary folder, removed at the end")
     p.add_argument("-q", "--quiet", action="store_true", help="no per-frame progress (one line per run still)")
     p.add_argument("--sequences", metavar="NAME,...", help="only these sequences of the datasets (default all)")
-    from gflow_core.evaluation.variants import VARIANTS
+    from gflow_core.evaluation.variants import SUITE, VARIANTS
 
-    p.add_argument("--variant", metavar="NAME",
+    p.add_argument("--variant", metavar="NAME[,NAME...]",
                    help="run every tracker, OpenCV tracker and the box that never moves on a variant of every "
                         "sequence instead of the sequence itself, its frames written to a temporary folder removed "
                         "at the end (published results are left out: they were made on the originals). "
                         + "; ".join(f"{v.name}: {v.describe}" for v in VARIANTS.values())
-                        + ". Several join with '+' and apply in turn: fast+blur is fast motion with blur")
+                        + ". Several join with '+' and apply in turn: fast+blur is fast motion with blur. Several "
+                          "kinds of footage separated by commas run one after another ('none': the sequences as "
+                          f"they are; 'all': {', '.join(SUITE)}), each reported as its own run would be (with "
+                          "--out-dir under DIR/KIND), then a summary per tracker: its mean AUC on each kind and "
+                          "the cells (sequence x seed) where it is below an OpenCV tracker or at or below the "
+                          "box that never moves")
     s = p.add_argument_group("stress benchmark (docs/stress.md)")
     s.add_argument("--stress", action="store_true",
                    help="run the trackers on stress cases derived from every sequence (occlusion, roll, change of "
