@@ -46,14 +46,11 @@ def plan_for(tracker: str, particles: int | None):
     if seq.is_dir():
         init = list(read_boxes(seq / "groundtruth.csv")[0])
         src = {"kind": "folder", "path": str(seq / "frames")}
-        if tracker == "chamfer":
-            return "caviar1", load_graph("chamfer", overrides={
-                "source": src, "filter": {"init": init, "particles": particles or 500},
-                "preprocess": {"calibrate_box": init}})
-        from pipeline.cli.trackers import appearance
+        from pipeline.cli.trackers import appearance, chamfer
 
+        # the overrides `gflow track --tracker T` gives (the particles go to the graph's tracker block)
         ns = argparse.Namespace(init=init, particles=particles, seed=0)
-        graph, ov = appearance.overrides(ns)
+        graph, ov = (chamfer if tracker == "chamfer" else appearance).overrides(ns)
         ov["source"] = src
         return "caviar1", load_graph(graph, overrides=ov)
     print(f"note: {seq} not found; using the synthetic scene (chamfer graph)", file=sys.stderr)
