@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -315,7 +316,7 @@ def test_info_calls_a_damaged_opcode_damage_where_verify_does(tmp_path: Path, re
     r = cli_fork.run_command([*GFLOW, "info", str(bad)], capture_output=True, text=True, timeout=60)
     assert r.returncode == 1, r.stdout + r.stderr
     assert f"WARNING:   {bad}: recording is damaged: {where}" in r.stdout, r.stdout
-    assert r.stderr.startswith(f"gflow info: {bad}: the recording is damaged ("), r.stderr
+    assert r.stderr.startswith(f"gflow info: {bad}: the recording is damaged at byte {offset} ("), r.stderr
     assert "Traceback" not in r.stdout + r.stderr and len(r.stderr.strip().splitlines()) == 1, r.stderr
     j = cli_fork.run_command([*GFLOW, "info", str(bad), "--json"], capture_output=True, text=True, timeout=60)
     said = json.loads(j.stdout)
@@ -324,6 +325,103 @@ def test_info_calls_a_damaged_opcode_damage_where_verify_does(tmp_path: Path, re
     assert ok.returncode == 0 and ok.stderr == "", ok.stderr
     told = ok.stdout.replace(str(good), "GOOD")  # (the test's folder is named after it: "...damaged_opcode...")
     assert "damaged" not in told and "WARNING" not in told and "12 msgs" in told, ok.stdout
+
+
+def _damaged(good: Path, bad: Path, edits: dict[int, int], cut: int | None = None) -> Path:
+    """A copy of ``good`` with the byte at each offset of ``edits`` set to its value, cut at byte ``cut``."""
+    data = bytearray(good.read_bytes())
+    for at, value in edits.items():
+        data[at] = value
+    bad.write_bytes(bytes(data[:cut]))
+    return bad
+
+
+def _info(path: Path) -> tuple[subprocess.CompletedProcess, dict]:
+    """`gflow info` of ``path`` (text), and `gflow info --json`'s answer, run as the CLI."""
+    r = cli_fork.run_command([*GFLOW, "info", str(path)], capture_output=True, text=True, timeout=60)
+    j = cli_fork.run_command([*GFLOW, "info", str(path), "--json"], capture_output=True, text=True, timeout=60)
+    assert j.returncode == r.returncode, j.stdout + j.stderr
+    assert "Traceback" not in r.stdout + r.stderr + j.stderr, r.stderr
+    assert len(r.stderr.strip().splitlines()) == (r.returncode != 0), r.stderr  # one line, when it fails
+    return r, json.loads(j.stdout)
+
+
+def _second_chunk(good: Path) -> tuple[int, int, int]:
+    """(offset, its message index's offset, the next chunk's offset) of the second chunk of ``good``."""
+    with open(good, "rb") as f:
+        s = make_reader(f).get_summary()
+    assert s is not None and len(s.chunk_indexes) == 7, s  # 12 frames in 7 chunks: 1, 2, 2, 2, 2, 2, 1
+    cis = sorted(s.chunk_indexes, key=lambda ci: ci.chunk_start_offset)
+    return cis[1].chunk_start_offset, min(cis[1].message_index_offsets.values()), cis[2].chunk_start_offset
+
+
+@pytest.mark.parametrize("also_its_index", [False, True])
+def test_info_counts_the_chunk_it_passed_over_and_says_where(tmp_path: Path, capsys, also_its_index: bool) -> None:
+    """A chunk whose opcode was damaged is passed over by the reader: `gflow info` counted the other chunks'
+    10 messages as if they were all, and its line on stderr did not say where the damage is. It now says the
+    byte, as verify does, and how many chunks and messages it did not read: 2, as the chunk's message index
+    lists them (or, that index damaged too, as the statistics' 12 less the 10 read), as recover counts them."""
+    good = _frames_recorded(tmp_path / "good.mcap")
+    offset, index, _ = _second_chunk(good)
+    bad = _damaged(good, tmp_path / "bad.mcap", {offset: 0x77, **({index: 0x77} if also_its_index else {})})
+    r, said = _info(bad)
+    assert r.returncode == 1, r.stdout + r.stderr
+    assert r.stderr == (f"gflow info: {bad}: the recording is damaged at byte {offset} (10 messages read; 1 chunk "
+                        f"with 2 messages not read)\n"), r.stderr
+    assert "messages:  10 " in r.stdout, r.stdout
+    assert (f"not read:  1 chunk (at byte {offset}) with 2 messages; 10 of the 12 messages the summary lists were "
+            f"read\n") in r.stdout, r.stdout
+    assert said["messages"] == 10 and said["not_read"] == {
+        "chunks": 1, "more_chunks": False, "chunks_at": [{"file": str(bad), "byte": offset}], "messages": 2,
+        "messages_exact": True, "listed": 12}, said
+    main(["recover", str(bad), str(tmp_path / "fixed.mcap")])  # the same count as recover's
+    assert "recovered 10 messages of the 12 its summary lists" in capsys.readouterr().out
+
+
+def test_info_of_a_damaged_message_index_says_no_chunk_was_lost(tmp_path: Path) -> None:
+    """Only a message index's opcode damaged: every message is read, and info says so rather than leave the
+    reader to wonder whether its count is short."""
+    good = _frames_recorded(tmp_path / "good.mcap")
+    _, index, _ = _second_chunk(good)
+    bad = _damaged(good, tmp_path / "bad.mcap", {index: 0x77})
+    r, said = _info(bad)
+    assert r.returncode == 1 and r.stderr == (f"gflow info: {bad}: the recording is damaged at byte {index} "
+                                              f"(12 messages read; every chunk read)\n"), r.stderr
+    assert "not read:  no chunk: every chunk was read; 12 of the 12 messages the summary lists were read" in r.stdout
+    assert said["not_read"]["chunks"] == 0 and said["not_read"]["messages"] == 0, said
+    ok, fine = _info(good)
+    assert ok.returncode == 0 and "not read" not in ok.stdout and fine["not_read"] is None, ok.stdout
+
+
+def test_info_stopped_by_a_damaged_chunk_counts_the_intact_chunks_after_it(tmp_path: Path) -> None:
+    """A chunk whose compressed data is damaged stops the reader: nothing after it is read. info says where
+    (the chunk's byte, not the byte where the reader stopped) and that the 6 chunks from there, with the 11
+    messages the file holds beyond the one read, were not read, while recover saves all but the damaged 2."""
+    good = _frames_recorded(tmp_path / "good.mcap")
+    offset, _, _ = _second_chunk(good)
+    data = good.read_bytes()
+    bad = _damaged(good, tmp_path / "bad.mcap", {offset + 60: data[offset + 60] ^ 0xFF})
+    r, said = _info(bad)
+    assert r.returncode == 1 and r.stderr == (f"gflow info: {bad}: the recording is damaged at byte {offset} "
+                                              f"(1 messages read; 6 chunks with 11 messages not read)\n"), r.stderr
+    assert said["messages"] + said["not_read"]["messages"] == said["not_read"]["listed"] == 12, said
+    assert said["not_read"]["chunks_at"][0] == {"file": str(bad), "byte": offset}, said
+    v = cli_fork.run_command([*GFLOW, "verify", str(bad)], capture_output=True, text=True, timeout=60)
+    assert f"DAMAGED: chunk 2 at byte {offset}: " in v.stdout and "can salvage 10 messages" in v.stdout, v.stdout
+
+
+def test_info_of_a_damaged_torn_file_says_at_least(tmp_path: Path) -> None:
+    """No summary (the file was cut) and a chunk's opcode damaged: the chunk itself says it held 2 messages,
+    but what the cut-off end held cannot be known, so info says "at least", never a total."""
+    good = _frames_recorded(tmp_path / "good.mcap")
+    offset, _, _ = _second_chunk(good)
+    bad = _damaged(good, tmp_path / "bad.mcap", {offset: 0x77}, cut=good.stat().st_size - 300)
+    r, said = _info(bad)
+    assert r.returncode == 1 and f"the recording is damaged at byte {offset} (" in r.stderr, r.stderr
+    assert "at least 1 chunk with at least 2 messages not read)" in r.stderr, r.stderr
+    assert f"not read:  at least 1 chunk (at byte {offset}) with at least 2 messages\n" in r.stdout, r.stdout
+    assert said["not_read"] == {"chunks": 1, "more_chunks": True, "chunks_at": [{"file": str(bad), "byte": offset}],
+                                "messages": 2, "messages_exact": False, "listed": None}, said
 
 
 def test_whatever_the_damage_verify_and_recover_answer_and_what_is_kept_is_intact(small_recording: Path,  # noqa: F811

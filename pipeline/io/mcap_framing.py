@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import io
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import IO, Any, Iterator
 
 from mcap.data_stream import ReadDataStream
@@ -88,12 +88,13 @@ def _parse(opcode: int, body: bytes) -> Any:
 @dataclass
 class Summary:
     """What the summary section of a closed file says: every chunk's start (sorted), the schemas and
-    channels it repeats (by id) and how many messages the file holds."""
+    channels it repeats (by id), how many messages the file holds and each chunk's index (by its offset)."""
 
     chunk_offsets: list[int]
     schemas: dict[int, Schema]
     channels: dict[int, Channel]
     messages: int = -1  # the statistics' message count (-1: none readable)
+    chunk_indexes: dict[int, ChunkIndex] = field(default_factory=dict)
 
 
 def read_summary(f: IO[bytes], size: int) -> Summary:
@@ -128,6 +129,7 @@ def read_summary(f: IO[bytes], size: int) -> Summary:
             continue
         if isinstance(rec, ChunkIndex) and len(MAGIC) <= rec.chunk_start_offset < start:
             out.chunk_offsets.append(rec.chunk_start_offset)
+            out.chunk_indexes[rec.chunk_start_offset] = rec
         elif isinstance(rec, Schema):
             out.schemas[rec.id] = rec
         elif isinstance(rec, Channel):

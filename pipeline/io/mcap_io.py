@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import struct
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -29,7 +30,7 @@ from pipeline.io.run_sessions import RunSessions
 
 __all__ = ["Record", "iter_records", "recorded_topics", "segments", "segment_path", "read_metadata", "summarize",
            "RecordingSummary", "TruncatedRecording", "Damaged", "SOURCE_KEY", "torn_segments", "torn_cause",
-           "check_recording", "damage_cause", "damage_told"]
+           "check_recording", "damage_cause", "damage_told", "damage_place"]
 
 
 class TruncatedRecording(Exception):
@@ -55,6 +56,21 @@ def damage_cause(path: str | Path) -> str:
         if str(seg) in _DAMAGE_FOUND:
             return _DAMAGE_FOUND[str(seg)]
     return ""
+
+
+#: a place a damage report names: "byte 1297", "bytes 8..3012", "bytes 1297-1588"
+_PLACE = re.compile(r"\bbytes? \d+(?:(?:\.\.|-)\d+)?")
+
+
+def damage_place(text: str, path: str | Path) -> str:
+    """Where the damage a one-line report ``text`` ("FILE: recording is damaged...", a reader's or
+    :func:`pipeline.recording.verify.recording_damage`'s) lies: its first byte offset ("byte 1297"), with the
+    segment named when it is not recording ``path`` ("byte 30 of REC.part1.mcap"); "" when it names none."""
+    seg, sep, what = text.partition(": recording is damaged")
+    m = _PLACE.search(what) if sep else None
+    if m is None:
+        return ""
+    return m.group(0) + ("" if seg == str(path) else f" of {seg}")
 
 
 def damage_told(text: str) -> None:
@@ -345,6 +361,7 @@ class RecordingSummary:
     segments: list[str] = field(default_factory=list)  # the files of the recording, when more than one
     sessions: RunSessions = field(default_factory=RunSessions)  # the run's zenoh sessions and what came from outside
     damaged: bool = False  # a record failed to read before the end of the file
+    damage: str = ""  # the first damage found, as the one line that says it (what, where)
 
     @property
     def unreadable(self) -> str:
@@ -401,4 +418,5 @@ def summarize(path: str | Path) -> RecordingSummary:
     segs = segments(path)
     return RecordingSummary(str(path), n, start, end, topics, schemas, read_metadata(path),
                             "; ".join(truncated), [str(p) for p in segs] if len(segs) > 1 else [], sessions,
-                            damaged=any(isinstance(t, Damaged) for t in truncated))
+                            damaged=any(isinstance(t, Damaged) for t in truncated),
+                            damage=next((t for t in truncated if isinstance(t, Damaged)), ""))

@@ -7,15 +7,22 @@ ORDER = 50
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_float, nonnegative_int, positive_float,
                                           stream_name, tool_zenoh)
+
+if TYPE_CHECKING:
+    from pipeline.io.mcap_io import RecordingSummary
+    from pipeline.recording.unread import NotRead
 
 # file suffix -> callable(path, as_json) printing a description; other modules add to it
 DESCRIBERS: dict = {}
 
 
 def describe_recording(path: str, as_json: bool) -> int:
+    """Print what recording ``path`` holds (text, or JSON with ``as_json``); 1 when it cannot be trusted as a
+    record of its run (damaged, or no message read), with one line on stderr saying why and where."""
     from pipeline.io.mcap_io import summarize
 
     from pipeline.recording.live_record import live_summary
@@ -26,15 +33,22 @@ def describe_recording(path: str, as_json: bool) -> int:
 
         found = recording_damage(path)
         if found:
-            s.truncated, s.damaged = "; ".join(t for t in (found, s.truncated) if t), True
+            s.truncated, s.damaged, s.damage = "; ".join(t for t in (found, s.truncated) if t), True, found
+    missed = None
+    if s.damaged:  # the chunks the count leaves out, and their messages, as far as the file tells
+        from pipeline.recording.unread import not_read
+
+        missed = not_read(path)
     live = live_summary(path)  # None unless a live source made it
     bad = s.unreadable
     if as_json:
         print(json.dumps(dict(s.to_json(), **({"live": live.to_json()} if live else {}),
-                              unreadable=bad or None), indent=1))
+                              unreadable=bad or None, not_read=missed.to_json() if missed else None), indent=1))
         return 1 if bad else 0
     print(f"file:      {s.path}")
     print(f"messages:  {s.messages}   duration: {s.duration_s:.3f} s")
+    if missed is not None:
+        print(f"not read:  {missed.line(path, s.messages)}")
     if s.segments:
         print(f"segments:  {', '.join(s.segments)} (a restarted recorder; read as one recording)")
     if s.truncated:
@@ -57,9 +71,25 @@ def describe_recording(path: str, as_json: bool) -> int:
         from pipeline.io.mcap_io import damage_cause, damage_told
 
         damage_told(damage_cause(path))  # said above, in the WARNING line of the summary
-        print(f"gflow info: {path}: {bad} ({s.messages} messages read)", file=sys.stderr)
+        print(_unreadable_line(path, s, missed), file=sys.stderr)
         return 1
     return 0
+
+
+def _unreadable_line(path: str, s: RecordingSummary, missed: NotRead | None) -> str:
+    """info's one line on stderr for a recording it cannot vouch for: why, where the damage is (its byte, as the
+    WARNING line and `gflow verify` name it), the messages read and what was not read."""
+    from pipeline.io.mcap_io import damage_place
+
+    place = ""
+    if s.damaged:
+        place = damage_place(s.damage, path)
+        if not place:  # a reader's report that names no byte (a damaged length ran a record to the file's end)
+            from pipeline.recording.verify import recording_damage
+
+            place = damage_place(recording_damage(path), path)
+    lost = f"; {missed.short()}" if missed is not None else ""
+    return f"gflow info: {path}: {s.unreadable}{f' at {place}' if place else ''} ({s.messages} messages read{lost})"
 
 
 DESCRIBERS[".mcap"] = describe_recording
