@@ -4,6 +4,7 @@ would be, and a summary of where each tracker is behind; the real CLI on ../shar
 from __future__ import annotations
 
 import json
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -12,12 +13,15 @@ import numpy as np
 import pytest
 
 from gflow_core.evaluation.metrics import TrackScore
+from gflow_core.synthetic import SyntheticScene
 from gflow_core.evaluation.variants import SUITE, VARIANTS
 from pipeline.evaluation.kinds_summary import behind, format_kinds_summary, kinds_json
 from pipeline.evaluation.sequence_benchmark import PRECISION_THRESHOLDS, Row
+from pipeline.io.datasets import write_frames
+from pipeline.recording.results import write_boxes
 
 import cli_fork
-from conftest import data_dir
+from conftest import StderrLines, data_dir
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 
@@ -137,3 +141,34 @@ def test_several_kinds_print_each_kinds_tables_then_the_summary():
     assert out.count("**dcf** (") >= 3  # each kind's table, then the summary's
     assert "| every kind (2) |" in out
     assert "footage: the small variant of every sequence" in r.stderr
+
+
+def test_a_kind_interrupted_midway_is_left_out_of_the_summary(tmp_path):
+    """SIGINT during the second kind: exit 130; the first kind whole, the second marked interrupted, the summary
+    over the first alone."""
+    seq = tmp_path / "synth"
+    scene = SyntheticScene(n_frames=30, seed=3, period=60)
+    write_frames(seq / "frames", [scene.render(t) for t in range(30)])
+    write_boxes(seq / "groundtruth.csv", {t: scene.truth_box(t) for t in range(30)})
+    # frames paced at 10 fps, so the second kind's run is still going when the signal comes
+    p = subprocess.Popen([*GFLOW, "benchmark", str(seq), "--variant", "none,grey", "--trackers", "chamfer", "--opencv",
+                          "none", "--json", "--set", "source.realtime=true", "--set", "source.fps=10"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    err = StderrLines(p)
+
+    def second_kind_going(seen: list[str]) -> bool:
+        at = next((i for i, ln in enumerate(seen) if "footage: the grey variant" in ln), None)
+        return at is not None and any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen[at:])
+
+    err.until(second_kind_going, 120)
+    p.send_signal(signal.SIGINT)
+    p.wait(timeout=60)
+    out = p.stdout.read()  # type: ignore[union-attr]
+    seen = err.rest()
+    assert p.returncode == 130, "".join(seen)
+    res = json.loads(out)
+    assert [k["kind"] for k in res["kinds"]] == ["none", "grey"]
+    assert [k["interrupted"] for k in res["kinds"]] == [False, True]
+    first = {q["tracker"]: q for q in res["kinds"][0]["rows"]}
+    assert first["chamfer"]["frames"] == 30  # the first kind's run, whole
+    assert [k["kind"] for k in res["summary"]["chamfer"]] == ["none"]

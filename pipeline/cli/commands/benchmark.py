@@ -532,15 +532,18 @@ def _report_kinds(args, done: list[tuple[str, list[list]]], seeds: list[int], me
         kind, runs = done[0]
         _report(args, runs, seeds[:len(runs)], dict(meta, variant=None if kind == "none" else kind))
         return
-    full = [(k, r) for k, r in done if len(r) == len(seeds)]  # a kind cut short by an interruption is not summed
+    full = done[:-1] if meta["interrupted"] else done  # a kind cut short by an interruption is not summed
     if args.json:
-        print(json.dumps({"kinds": [dict(_json_of(runs, seeds[:len(runs)], dict(meta, variant=kind)), kind=kind)
-                                    for kind, runs in done],
+        last = len(done) - 1  # only the last kind run can have been interrupted
+        print(json.dumps({"kinds": [dict(_json_of(runs, seeds[:len(runs)], dict(
+                              meta, variant=kind, interrupted=meta["interrupted"] and i == last)), kind=kind)
+                                    for i, (kind, runs) in enumerate(done)],
                           "summary": kinds_json(full, seeds), "seeds": seeds}))
         return
-    for kind, runs in done:
+    for i, (kind, runs) in enumerate(done):
         print(("## " if args.markdown else "== ") + _kind_words(kind) + "\n")
-        _report(args, runs, seeds[:len(runs)], dict(meta, variant=None if kind == "none" else kind))
+        _report(args, runs, seeds[:len(runs)], dict(meta, variant=None if kind == "none" else kind,
+                                                   interrupted=meta["interrupted"] and i == len(done) - 1))
         print()
     print(("## " if args.markdown else "== ") + "every kind of footage\n")
     print(format_kinds_summary(full, seeds, markdown=args.markdown))
