@@ -294,6 +294,25 @@ class StderrLines:
         return self.seen
 
 
+
+def interrupt_after(cmd: list[str], marker: str, timeout: float = 120) -> tuple[int, str, list[str]]:
+    """Run ``cmd`` (text mode), wait until a stderr line holds ``marker`` and, after it, a source's progress line
+    with frames sent (so a run is going), send SIGINT; (exit status, stdout, every stderr line)."""
+    import signal
+
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    err = StderrLines(p)
+
+    def going(seen: list[str]) -> bool:
+        at = next((i for i, ln in enumerate(seen) if marker in ln), None)
+        return at is not None and any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen[at:])
+
+    err.until(going, timeout)
+    p.send_signal(signal.SIGINT)
+    p.wait(timeout=60)
+    out = p.stdout.read()  # type: ignore[union-attr]
+    return p.returncode, out, err.rest()
+
 def pytest_sessionfinish(session, exitstatus):
     """Stop the ``gflow`` fork server this test process started, if it started one (tests/cli_fork.py)."""
     import cli_fork

@@ -4,7 +4,6 @@ would be, and a summary of where each tracker is behind; the real CLI on ../shar
 from __future__ import annotations
 
 import json
-import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -21,7 +20,7 @@ from pipeline.io.datasets import write_frames
 from pipeline.recording.results import write_boxes
 
 import cli_fork
-from conftest import StderrLines, data_dir
+from conftest import data_dir, interrupt_after
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
 
@@ -151,21 +150,10 @@ def test_a_kind_interrupted_midway_is_left_out_of_the_summary(tmp_path):
     write_frames(seq / "frames", [scene.render(t) for t in range(30)])
     write_boxes(seq / "groundtruth.csv", {t: scene.truth_box(t) for t in range(30)})
     # frames paced at 10 fps, so the second kind's run is still going when the signal comes
-    p = subprocess.Popen([*GFLOW, "benchmark", str(seq), "--variant", "none,grey", "--trackers", "chamfer", "--opencv",
-                          "none", "--json", "--set", "source.realtime=true", "--set", "source.fps=10"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    err = StderrLines(p)
-
-    def second_kind_going(seen: list[str]) -> bool:
-        at = next((i for i, ln in enumerate(seen) if "footage: the grey variant" in ln), None)
-        return at is not None and any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen[at:])
-
-    err.until(second_kind_going, 120)
-    p.send_signal(signal.SIGINT)
-    p.wait(timeout=60)
-    out = p.stdout.read()  # type: ignore[union-attr]
-    seen = err.rest()
-    assert p.returncode == 130, "".join(seen)
+    rc, out, seen = interrupt_after([*GFLOW, "benchmark", str(seq), "--variant", "none,grey", "--trackers", "chamfer",
+                                     "--opencv", "none", "--json", "--set", "source.realtime=true", "--set",
+                                     "source.fps=10"], "footage: the grey variant")
+    assert rc == 130, "".join(seen)
     res = json.loads(out)
     assert [k["kind"] for k in res["kinds"]] == ["none", "grey"]
     assert [k["interrupted"] for k in res["kinds"]] == [False, True]

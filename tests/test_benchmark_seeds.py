@@ -4,8 +4,6 @@ seed's rows equal to a run with ``--seed`` alone, and the means over the seeds."
 from __future__ import annotations
 
 import json
-import signal
-import subprocess
 import sys
 from pathlib import Path
 
@@ -21,7 +19,7 @@ from pipeline.evaluation.sequence_benchmark import Row
 from pipeline.io.datasets import write_frames
 from pipeline.recording.results import write_boxes
 
-from conftest import StderrLines
+from conftest import interrupt_after
 import cli_fork
 
 GFLOW = [sys.executable, "-m", "pipeline.cli.main"]
@@ -161,22 +159,10 @@ def test_stress_seeds_table_marks_what_a_seed_lacks():
 def test_a_seed_interrupted_midway_is_left_out(seq):
     """SIGINT during the second seed: exit 130, and the tables hold the first seed, which finished."""
     # frames paced at 10 fps, so the second seed's run is still going when the signal comes
-    p = subprocess.Popen([*GFLOW, "benchmark", str(seq), "--trackers", "chamfer", "--opencv", "none", "--json", "--seeds",
-                          "1,2", "--set", "source.realtime=true", "--set", "source.fps=10"],
-                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    err = StderrLines(p)
-
-    def second_seed_going(seen: list[str]) -> bool:
-        """The second seed's progress line, then a source line with frames sent."""
-        at = next((i for i, ln in enumerate(seen) if "seed 2" in ln), None)
-        return at is not None and any(ln.startswith("source: ") and not ln.startswith("source: 0") for ln in seen[at:])
-
-    err.until(second_seed_going, 120)
-    p.send_signal(signal.SIGINT)
-    p.wait(timeout=60)
-    out = p.stdout.read()  # type: ignore[union-attr]
-    seen = err.rest()
-    assert p.returncode == 130, "".join(seen)
+    rc, out, seen = interrupt_after([*GFLOW, "benchmark", str(seq), "--trackers", "chamfer", "--opencv", "none", "--json",
+                                     "--seeds", "1,2", "--set", "source.realtime=true", "--set", "source.fps=10"],
+                                    "seed 2")
+    assert rc == 130, "".join(seen)
     res = json.loads(out)
     assert res["seed"] == 1 and res["interrupted"] is True and "seeds" not in res
     assert _row(res, "chamfer")["frames"] == FRAMES  # seed 1's run, whole
