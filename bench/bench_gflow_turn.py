@@ -2,7 +2,8 @@
 reference's, the landmark NME, the lost guard's verdict and the edge correlation it judges by, at the
 estimate's box and at the ground-truth box (docs/faces.md "At a camera's pace").
 
-One command: ``python bench/bench_gflow_turn.py [--every 3] [--seed 1] [--frames 290:420] [--set NAME=VALUE]``
+One command: ``python bench/bench_gflow_turn.py [--every 3] [--seed 1] [--frames 290:420] [--set NAME=VALUE]
+[--sequence david_indoor]``
 
 G-flow is driven in one process through :class:`gflow_core.gflow.GFlowTracker` (observe, propose with
 ``dt = k``, update: the inline pipeline's calls, without its messages; so the figures are those of
@@ -22,7 +23,16 @@ one run of the tracker, not bit for bit the pipeline's), on every k-th frame of
   misfit against the guard's distributions of it on found frames (what ``lost_witness`` judges by,
   :func:`gflow_core.gflow.guard.witnessed`, with the fit beside it).
 
-``--set NAME=VALUE`` (repeatable) sets a G-flow parameter (``self_occlusion=0.2``, say). Writes nothing.
+With ``lost_guard=false`` there is no guard to judge by, so no frame's row is printed. Over every
+frame tracked it also prints the fraction of vertices the frame explains as the face, as
+the filter counts it whatever the guard makes of it (``inlier_fraction``, ``inlier_count`` of
+:class:`gflow_core.gflow.filter.Estimate`): the expected fraction, which is the confidence without the
+guard, and the hard count, the vertices in the image within ``outlier_sigmas`` standard deviations of
+their texel; the median and the lowest of each, with the frame.
+
+``--sequence NAME`` tracks another shared sequence from its first ground-truth box (``jumping``, say;
+without ``landmarks.npz`` the NME and the reference's angles are NaN). ``--set NAME=VALUE``
+(repeatable) sets a G-flow parameter (``self_occlusion=0.2``, say). Writes nothing.
 """
 
 from __future__ import annotations
@@ -52,8 +62,7 @@ from gflow_core.visibility import visibility  # noqa: E402
 from pipeline.io.modelfile import load_model  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-DATA = ROOT.parent / "shared" / "data" / "david_indoor"
-INIT = (169.0, 76.0, 46.0, 60.0)
+SHARED = ROOT.parent / "shared" / "data"
 
 
 def reference_rotation(ref: np.ndarray, mean_shape: np.ndarray) -> np.ndarray | None:
@@ -65,6 +74,28 @@ def reference_rotation(ref: np.ndarray, mean_shape: np.ndarray) -> np.ndarray | 
     u, _, vt = np.linalg.svd(b.T @ a)
     d = np.sign(np.linalg.det(u @ vt))
     return (u @ np.diag([1.0, 1.0, d]) @ vt).T
+
+
+def fit_summary(fits: list[tuple[int, float, float]]) -> str:
+    """The expected fraction of vertices explained and the hard count over the frames ``(t, expected, hard)``:
+    median and lowest of each, with the lowest's frame."""
+    if not fits:
+        return "fraction of vertices explained: no frame tracked"
+    t, exp, hard = (np.array(v) for v in zip(*fits))
+    i, j = int(np.argmin(exp)), int(np.argmin(hard))
+    return (f"fraction of vertices explained over frames {t[0]}-{t[-1]} ({t.size} tracked): expected median "
+            f"{np.median(exp):.3f}, lowest {exp[i]:.3f} (frame {t[i]}); hard count median {np.median(hard):.3f}, "
+            f"lowest {hard[j]:.3f} (frame {t[j]}); frames below 0.95: {int((hard < 0.95).sum())}")
+
+
+def read_sequence(folder: Path, every: int) -> tuple[list[Path], np.ndarray, np.ndarray]:
+    """Every ``every``-th frame file, the ground-truth boxes (frames, 4) and the reference landmarks
+    (frames, 468, 3; NaN where there is none, or for every frame without ``landmarks.npz``)."""
+    files = sorted(p for p in (folder / "frames").iterdir() if p.suffix.lower() in (".jpg", ".png"))
+    gt = np.loadtxt(folder / "groundtruth.csv", delimiter=",", skiprows=1)[:, 1:]
+    lm = folder / "landmarks.npz"
+    ref = np.load(lm)["landmarks"] if lm.is_file() else np.full((len(files), 468, 3), np.nan)
+    return files[::every], gt, ref
 
 
 def parse_value(default, text: str):
@@ -80,9 +111,12 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--frames", default="290:420", metavar="A:B", help="print frames A <= frame < B (default 290:420)")
     ap.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="a G-flow parameter")
+    ap.add_argument("--sequence", default="david_indoor", help="shared sequence (default david_indoor)")
     args = ap.parse_args()
-    if not DATA.is_dir():
-        raise SystemExit(f"{DATA} not found: this benchmark needs ../shared/data/david_indoor")
+    data = SHARED / args.sequence
+    if not (data / "frames").is_dir():
+        raise SystemExit(f"{data} (frames, groundtruth.csv) not found: this benchmark needs "
+                         f"../shared/data/{args.sequence}")
     try:
         lo, hi = (int(v) for v in args.frames.split(":"))
     except ValueError:
@@ -99,14 +133,12 @@ def main() -> None:
     except ValueError as e:
         raise SystemExit(f"--set: {e}") from None
     model = load_model(ROOT / "pipeline" / "models" / "face.npz")
-    ref = np.load(DATA / "landmarks.npz")["landmarks"]
-    gt = np.loadtxt(DATA / "groundtruth.csv", delimiter=",", skiprows=1)[:, 1:]
-    files = sorted(p for p in (DATA / "frames").iterdir() if p.suffix.lower() in (".jpg", ".png"))[:: args.every]
+    files, gt, ref = read_sequence(data, args.every)
     order = list(model.landmarks)
     scored = [order.index(j) for j in SCORED_LANDMARKS]
     tr, sh, state = GFlowTracker(), zlib.crc32(b"cam0"), None
     gp = guard_params(params, float(args.every))
-    rows, nmes = [], []
+    rows, nmes, fits = [], [], []
     for i, f in enumerate(files):
         t = i * args.every
         if t >= hi:
@@ -114,10 +146,11 @@ def main() -> None:
         obs = tr.observe(params, cv2.imread(str(f)))
         rng = FrameRng(args.seed, sh, i)
         if state is None:
-            state, _ = tr.init(params, obs, INIT, rng, {"model": model})
+            state, _ = tr.init(params, obs, tuple(float(v) for v in gt[0]), rng, {"model": model})
             continue
         obs = tr.with_channels(params, tr.with_pyramid(params, obs))
         state, est = tr.update(params, state, tr.propose(params, state, obs, rng, dt=float(args.every)), obs, rng)
+        fits.append((t, est.extras["inlier_fraction"], est.extras["inlier_count"]))
         pts = np.asarray(est.extras["mean_points"])
         r6 = ref[t, list(SCORED_LANDMARKS), :2]
         eye = np.linalg.norm(ref[t, NORMALISING_PAIR[0], :2] - ref[t, NORMALISING_PAIR[1], :2])
@@ -140,10 +173,13 @@ def main() -> None:
                      "-" if seen.clutter is None else f"{seen.clutter[0]:.3f}", f"{look:.3f}", f"{ring:.3f}",
                      f"{wv.visible:.3f}", f"{wv.present:.3f}"])
     sets = f", {' '.join(args.set)}" if args.set else ""
-    print(f"G-flow on david_indoor at every {args.every}th frame, seed {args.seed}, one process{sets}")
-    print(table(rows, ["frame", "yaw/pitch/roll", "reference", "NME", "state", "confidence", "r estimate",
-                       "r truth", "r clutter", "look", "look clutter", "look P(visible)", "look P(present)"]))
-    print(f"landmark NME over frames 0-{hi - 1}: {np.nanmean(nmes):.3f}")
+    print(f"G-flow on {args.sequence} at every {args.every}th frame, seed {args.seed}, one process{sets}")
+    if rows:
+        print(table(rows, ["frame", "yaw/pitch/roll", "reference", "NME", "state", "confidence", "r estimate",
+                           "r truth", "r clutter", "look", "look clutter", "look P(visible)", "look P(present)"]))
+    with np.errstate(all="ignore"):
+        print(f"landmark NME over frames 0-{hi - 1}: {np.nanmean(nmes) if np.isfinite(nmes).any() else np.nan:.3f}")
+    print(fit_summary(fits))
 
 
 if __name__ == "__main__":

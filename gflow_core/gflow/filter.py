@@ -626,6 +626,10 @@ class Estimate:
         its standardised residual (eq. 13) and ``tau`` = ``outlier_sigmas`` (3 if infinite): the
         outlier process of the likelihood, whose density is the object's at ``tau`` standard
         deviations (0 for a vertex outside the image).
+    inlier_count : float
+        The hard count of the same test: the credibility-weighted fraction of the vertices in the
+        image and within ``tau`` standard deviations of their texel (those whose probability is
+        above one half).
     """
 
     pose: np.ndarray
@@ -640,6 +644,7 @@ class Estimate:
     parents: np.ndarray
     resampled: bool
     inlier_fraction: float = 1.0
+    inlier_count: float = 1.0
 
 
 def expert_rngs(seed: int, stream_hash: int, t: int, indices: Sequence[int]) -> list[np.random.Generator]:
@@ -1007,6 +1012,7 @@ def update(
         parents=_ro(parents),
         resampled=resampled,
         inlier_fraction=float(W @ p_in.mean(axis=1) / W.sum()),
+        inlier_count=float(W @ (p_in > 0.5).mean(axis=1) / W.sum()),
     )
     return new_state, est
 

@@ -409,7 +409,7 @@ class GFlowTracker:
             seated = dataclasses.replace(seated, bg_mean=bg_mean, bg_var=bg_var)
         out = GFlowState(s, seated, g.confidence, g.target_state, state.anchor, g.lost, g.level, g.look_clutter,
                          online)
-        return out, self.summary_estimate(out, rng.t, g.phase)
+        return out, _with_fit(self.summary_estimate(out, rng.t, g.phase), est)
 
     def _with_cue(self, setup: ModelSetup, proposal: Proposals, resp: Any, op: online_guard.OnlineParams
                   ) -> Proposals:
@@ -471,9 +471,9 @@ class GFlowTracker:
                      box: tuple[float, float, float, float] | None = None) -> Estimate:
         """:meth:`estimate` of :func:`.filter.update`'s estimate ``est``, with ``box`` reported instead
         of the posterior's when given (the lost guard's held box)."""
-        return self.estimate(state, t, phase, est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
-                             est.expert_points, est.mean_points, est.bbox, est.log_credibility, est.parents,
-                             est.resampled, box=box)
+        return _with_fit(self.estimate(state, t, phase, est.pose, est.pose_std, est.rotation, est.spread_px, est.ess,
+                                       est.expert_points, est.mean_points, est.bbox, est.log_credibility,
+                                       est.parents, est.resampled, box=box), est)
 
     def _hold(self, setup: ModelSetup, experts: ExpertState, held: tuple[float, ...], reach: float) -> ExpertState:
         """The experts kept near the face while the lost guard holds it where it was last found: each
@@ -502,9 +502,9 @@ class GFlowTracker:
         ``box`` and the held ``pose`` (P,) with its rotation and projected points; the experts' spread,
         points and credibilities as they are."""
         mean_pts = project(state.setup.model.bases, pose)
-        return self.estimate(state, t, "lost", pose, est.pose_std, rotation_matrices(pose), est.spread_px, est.ess,
-                             est.expert_points, mean_pts, bounding_box(mean_pts), est.log_credibility, est.parents,
-                             est.resampled, box=box)
+        return _with_fit(self.estimate(state, t, "lost", pose, est.pose_std, rotation_matrices(pose), est.spread_px,
+                                       est.ess, est.expert_points, mean_pts, bounding_box(mean_pts),
+                                       est.log_credibility, est.parents, est.resampled, box=box), est)
 
     @staticmethod
     def _box(setup: ModelSetup, pose: np.ndarray, bbox: np.ndarray) -> tuple[float, float, float, float]:
@@ -587,7 +587,10 @@ class GFlowTracker:
         * ``expert_points`` (E, n, 2), ``mean_points`` (n, 2): projected vertices (the paper's fig. 2);
         * ``log_credibility`` (E,), ``parents`` (E,) int64, ``resampled`` bool;
         * ``landmarks`` (n,) int or None: a learned face's reference landmark of each vertex;
-        * ``yaw_pitch_roll`` (3,) degrees and ``expression`` (k - 1,) (:mod:`.face_pose`).
+        * ``yaw_pitch_roll`` (3,) degrees and ``expression`` (k - 1,) (:mod:`.face_pose`);
+        * after an update (:meth:`update`), also ``inlier_fraction`` and ``inlier_count``
+          (:class:`.filter.Estimate`): the fraction of vertices the frame explains as the object,
+          expected and counted.
         """
         setup = state.setup
         model = setup.model
@@ -603,6 +606,14 @@ class GFlowTracker:
         }
         return Estimate(frame=int(t), box=(box[0], box[1], box[2], box[3]), confidence=float(state.confidence),
                         target_state=state.target_state, phase=phase, extras=extras)
+
+
+def _with_fit(out: Estimate, est: Any) -> Estimate:
+    """``out`` with the fraction of vertices the frame explains as the object, expected and counted, of
+    :func:`.filter.update`'s estimate ``est`` in its extras (``inlier_fraction``, ``inlier_count``): the
+    frame's fit as the experts' texels saw it, whatever the lost guard made of it. Not recorded."""
+    return dataclasses.replace(out, extras={**out.extras, "inlier_fraction": float(est.inlier_fraction),
+                                            "inlier_count": float(est.inlier_count)})
 
 
 #: the one instance (it keeps no state)
