@@ -281,13 +281,13 @@ def test_a_damaged_opcode_is_passed_by_the_summarys_chunk_index(small_recording:
     assert main(["verify", str(tmp_path / "fixed.mcap")]) == 0
 
 
-def _frames_recorded(path: Path) -> Path:
+def _frames_recorded(path: Path, compression: str = "lz4") -> Path:
     """Twelve 8x8 frames written by the recorder, a chunk closed every two or three messages."""
     import numpy as np
 
     from gflow_msgs.messages import Frame, Header, NDArray, encode
 
-    with McapRecorder(path, chunk_size=512) as w:
+    with McapRecorder(path, chunk_size=512, compression=compression) as w:
         for i in range(12):
             frame = Frame(Header("cam0", i, 1000 * (i + 1)), NDArray.of(np.full((8, 8, 3), i, np.uint8)))
             w.write("gflow/cam0/frames", encode(frame), i, log_ns=1000 * (i + 1), type_name="Frame")
@@ -464,3 +464,109 @@ def test_whatever_the_damage_verify_and_recover_answer_and_what_is_kept_is_intac
 
     damaged()
     assert any(lost_any)  # the damage did cost messages somewhere: the test reached the chunks
+
+
+def _chunk_field(data: bytes, offset: int, field: str) -> int:
+    """The byte where the 8-byte ``field`` of the chunk record at ``offset`` starts: the record's length (after its
+    opcode), its uncompressed size, or its compressed size (after its compression's name)."""
+    import struct
+
+    name_len = struct.unpack_from("<I", data, offset + 9 + 28)[0]
+    return {"record length": offset + 1, "uncompressed size": offset + 9 + 16,
+            "compressed size": offset + 9 + 32 + name_len}[field]
+
+
+@pytest.mark.parametrize("field, value, compression", [
+    ("record length", 2**62, "lz4"), ("record length", 2**64 - 1, "lz4"), ("record length", "past", "lz4"),
+    ("compressed size", 2**62, "lz4"), ("compressed size", 2**64 - 1, "zstd"), ("compressed size", 2**62, "none"),
+    ("compressed size", "past", "lz4"),
+    ("uncompressed size", 2**62, "lz4"), ("uncompressed size", 2**64 - 1, "zstd"), ("uncompressed size", 2**62, "none"),
+])
+def test_a_chunk_length_damaged_to_a_huge_value_is_damage_not_an_internal_error(
+        tmp_path: Path, field: str, value: int | str, compression: str) -> None:
+    """A chunk's record length, compressed size or uncompressed size damaged to 2**62 or 2**64 - 1 had `gflow info`
+    and `gflow verify` ask the file for that many bytes (or zstd for that big a buffer): "internal error:
+    MemoryError" (or OverflowError). "past": a length a few bytes past the end of the file. Now each command says
+    the recording is damaged at the chunk's byte, and recover reads the chunk by its other, intact lengths: all 12
+    messages, in a file that verifies."""
+    import struct
+
+    good = _frames_recorded(tmp_path / "good.mcap", compression)
+    offset, _, _ = _second_chunk(good)
+    data = bytearray(good.read_bytes())
+    at = _chunk_field(bytes(data), offset, field)
+    if value == "past":  # the record's end, or its data's, 5 bytes past the end of the file
+        value = len(data) - (at + 8) + 5 if field == "compressed size" else len(data) - (offset + 9) + 5
+    struct.pack_into("<Q", data, at, value)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    r, said = _info(bad)
+    told = r.stdout + r.stderr
+    assert "internal error" not in told and "MemoryError" not in told and "OverflowError" not in told, told
+    assert r.returncode == 1 and said["unreadable"], told
+    assert r.stderr.startswith(f"gflow info: {bad}: the recording is damaged at byte {offset} ("), r.stderr
+    assert f"WARNING:   {bad}: recording is damaged" in r.stdout and f"byte {offset}" in r.stdout, r.stdout
+    v = cli_fork.run_command([*GFLOW, "verify", str(bad)], capture_output=True, text=True, timeout=60)
+    assert v.returncode == 1 and v.stderr == "", v.stdout + v.stderr
+    assert v.stdout.startswith(f"{bad}: DAMAGED: ") and f"byte {offset}: " in v.stdout, v.stdout
+    what = {"record length": "length says", "compressed size": f"its compressed size ({value} bytes) runs past the "
+            f"end of its record", "uncompressed size": f"its uncompressed size says {value} bytes"}[field]
+    assert what in v.stdout and "can salvage 12 messages" in v.stdout, v.stdout
+    fixed = tmp_path / "fixed.mcap"
+    c = cli_fork.run_command([*GFLOW, "recover", str(bad), str(fixed)], capture_output=True, text=True, timeout=60)
+    assert c.returncode == 0 and c.stderr == "", c.stdout + c.stderr
+    assert c.stdout.startswith("recovered 12 messages ") and "the file was complete" not in c.stdout, c.stdout
+    assert f"read despite damage: chunk 2 at byte {offset}: " in c.stdout, c.stdout
+    from pipeline.recording.verify import verify
+
+    assert verify(fixed).ok and verify(fixed).messages == 12
+
+
+def test_no_length_damaged_anywhere_makes_a_reader_raise_what_damage_does_not(tmp_path: Path) -> None:
+    """Any 8-byte length or size of any record of a recorder-written file set to a huge or a slightly too large
+    value: verify, recover, info's count of what it did not read and the messages' reader answer (the reader by
+    saying the recording is damaged), never with MemoryError or OverflowError, and recover keeps what verifies."""
+    import shutil
+    import struct
+
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from mcap.stream_reader import StreamReader
+
+    from pipeline.io.mcap_io import summarize
+    from pipeline.recording.recover import recover
+    from pipeline.recording.unread import not_read
+    from pipeline.recording.verify import verify
+
+    good = _frames_recorded(tmp_path / "good.mcap", "zstd")
+    data = good.read_bytes()
+    lengths, sizes, at = [], [], 8
+    with open(good, "rb") as f:
+        for _ in StreamReader(f, emit_chunks=True).records:
+            lengths.append(at + 1)  # every record's length
+            if data[at] == 0x06:
+                sizes += [_chunk_field(data, at, "uncompressed size"), _chunk_field(data, at, "compressed size")]
+            at = f.tell()
+
+    @settings(max_examples=40, deadline=None, derandomize=True,
+              suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(at=st.one_of(st.sampled_from(sizes), st.sampled_from(lengths)), value=st.one_of(
+        st.sampled_from([2**62, 2**63, 2**64 - 1, 2**32 - 1, 2**31]), st.integers(len(data) - 8, len(data) + 64),
+        st.integers(0, 2**64 - 1)))
+    def damaged(at: int, value: int) -> None:
+        d = bytearray(data)
+        struct.pack_into("<Q", d, at, value)
+        work = tmp_path / "fuzz"
+        shutil.rmtree(work, ignore_errors=True)
+        work.mkdir()
+        bad = work / "bad.mcap"
+        bad.write_bytes(bytes(d))
+        verify(bad)
+        not_read(bad)
+        summarize(bad)
+        got = recover(bad, work / "fixed.mcap")
+        assert got.messages <= 12
+        if got.messages:
+            assert verify(work / "fixed.mcap").ok, (at, value)
+
+    damaged()

@@ -7,6 +7,11 @@ stops the reader, and everything after it is lost to every tool that reads throu
 read as ``length`` bytes first and parsed from those bytes alone: a body that does not parse is reported
 as damaged and the walk goes on at the next record, which its framing locates.
 
+A length damaged to a huge value is found before anything is read by it: a chunk whose compressed size
+runs past the end of its record is read by its record's length (and one whose record length is wrong by its
+fields), each saying so; the mcap readers gflow hands a file to read it through :class:`Bounded`, which never
+asks for more bytes than the file holds (a length of 2**62 would have them allocate that much).
+
 Only a damaged frame (an opcode MCAP does not define, or a length that runs past the end of the file)
 breaks the chain. If the file was closed (it ends with the closing magic bytes after a readable footer),
 its summary's chunk indexes say where every chunk starts, and the walk resumes at the first chunk after
@@ -17,9 +22,10 @@ end is torn (its writer was killed, or is still writing), not damaged.
 from __future__ import annotations
 
 import io
+import os
 import struct
 from dataclasses import dataclass, field
-from typing import IO, Any, Iterator
+from typing import IO, Any, Iterator, cast
 
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import EndOfFile
@@ -28,7 +34,7 @@ from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkInde
                           MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
 
 __all__ = ["Framed", "framed_records", "record_at", "chunk_length", "read_summary", "Summary", "OPCODE_NAMES",
-           "Located", "locate"]
+           "Located", "locate", "Bounded", "bounded", "PastEnd", "chunk_size_damage", "compressed_size_damage"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _FRAME = struct.Struct("<BQ")
@@ -74,8 +80,72 @@ class Framed:
         return OPCODE_NAMES.get(self.opcode, f"opcode {self.opcode:#04x}")
 
 
+class PastEnd(EndOfFile):
+    """A read of ``asked`` bytes at byte ``at`` of a file of ``size`` bytes: past its end, by a length that only
+    damage (or a cut far inside a record) can give. An :class:`~mcap.exceptions.EndOfFile`, so the readers
+    take it as they take the end of a file; the file is left at its end, as a read to its end leaves it."""
+
+    def __init__(self, at: int, asked: int, size: int) -> None:
+        super().__init__(f"a length of {asked} bytes, read from byte {at}, runs past the end of the file "
+                         f"({size} bytes)")
+        self.at, self.asked, self.size = at, asked, size
+
+
+class Bounded:
+    """A binary file whose ``read(n)`` never asks for more bytes than the file holds from where it is.
+
+    mcap's readers read a record's body, a chunk's compressed data or a string by the length the file states:
+    a length damaged to 2**62 had them ask the file for that many bytes, which raises MemoryError (2**64 - 1:
+    OverflowError) before a byte is read. Here a read of more than :attr:`BIG` bytes that runs past the end of
+    the file raises :class:`PastEnd` instead, before anything is allocated; a smaller one is the file's own (a
+    short read at its end). Everything but ``read`` is the file's own."""
+
+    BIG = 1 << 20  # a read of more bytes than this looks at the file's size first (a small one cannot hurt)
+
+    def __init__(self, f: IO[bytes]) -> None:
+        self._f = f
+
+    def read(self, n: int | None = -1) -> bytes:
+        """At most ``n`` bytes (all the rest when ``n`` is None or negative); see the class docstring."""
+        if n is not None and n > self.BIG:
+            at, size = self._f.tell(), os.fstat(self._f.fileno()).st_size
+            if at + n > size:
+                self._f.seek(size)
+                raise PastEnd(at, n, size)
+        return self._f.read(-1 if n is None else n)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._f, name)
+
+
+def bounded(f: IO[bytes]) -> IO[bytes]:
+    """``f`` read through :class:`Bounded`, typed as the file it stands for (what mcap's readers take)."""
+    return cast(IO[bytes], Bounded(f))
+
+
+def compressed_size_damage(body: bytes | bytearray, length: int | None = None) -> str:
+    """What is wrong with the compressed size a chunk's ``body`` states ("" when its data fits in the body): a
+    size that runs past the end of its record (a reader would try to read that many bytes). ``length``: the
+    body's length, when ``body`` is only its start (its fields, up to and with the compressed size)."""
+    length = len(body) if length is None else length
+    if len(body) < 32:
+        return ""
+    (clen,) = struct.unpack_from("<I", body, 28)
+    if 32 + clen + 8 > min(len(body), length):
+        return ""  # the compression name's own length runs past the record: the parser says so
+    (stated,) = struct.unpack_from("<Q", body, 32 + clen)
+    room = length - (32 + clen + 8)
+    if stated <= room:
+        return ""
+    return (f"its compressed size ({stated} bytes) runs past the end of its record ({room} bytes after its "
+            f"fields)")
+
+
 def _parse(opcode: int, body: bytes) -> Any:
     """The record of ``opcode`` parsed from its ``body`` alone (reading past it raises)."""
+    why = compressed_size_damage(body) if opcode == Opcode.CHUNK else ""
+    if why:
+        raise ValueError(why)
     stream = ReadDataStream(io.BytesIO(body))
     typ = _RECORD_TYPES[opcode]
     rec = typ.read(stream, len(body)) if typ is Message else typ.read(stream)
@@ -156,6 +226,9 @@ def record_at(f: IO[bytes], at: int, size: int) -> Framed:
                 fr.damage = (f"its frame is damaged (its length says {length} bytes; the chunk's own fields "
                              f"take {own}, and it is read by them)")
                 return fr
+        by_length = _chunk_by_its_length(f, at, length) if at + 9 + length <= size else None
+        if by_length is not None:
+            return by_length
     if at + 9 + length > size or opcode not in _RECORD_TYPES:
         if opcode in _RECORD_TYPES and not _closed(f, size):
             return Framed(at, opcode, length, torn=True,
@@ -214,6 +287,66 @@ def chunk_length(f: IO[bytes], at: int, size: int) -> int:
         return 0
     own = 32 + clen + 8 + struct.unpack("<Q", raw)[0]
     return own if at + 9 + own <= size else 0
+
+
+def _chunk_by_its_length(f: IO[bytes], at: int, length: int) -> Framed | None:
+    """The chunk at byte ``at`` read by its record's ``length`` (which the file holds) when the compressed size
+    it states runs past the end of that record: the size is damaged, the data is the rest of the record (its CRC,
+    checked when it is decompressed, says whether it is whole); None when the size fits (nothing to repair)."""
+    f.seek(at + 9)
+    body = bytearray(f.read(length))
+    why = compressed_size_damage(body)
+    if not why:
+        return None
+    (clen,) = struct.unpack_from("<I", body, 28)
+    struct.pack_into("<Q", body, 32 + clen, length - (32 + clen + 8))
+    try:
+        rec = _parse(Opcode.CHUNK, bytes(body))
+    except Exception:  # noqa: BLE001  (its other fields are damaged too: it cannot be read)
+        return Framed(at, Opcode.CHUNK, length, damage=f"its contents cannot be read ({why})")
+    return Framed(at, Opcode.CHUNK, length, record=rec,
+                  damage=f"{why}: the size is damaged, and the chunk is read by its record's length")
+
+
+def chunk_size_damage(chunk: Chunk) -> tuple[Chunk | None, str]:
+    """``chunk`` with the uncompressed size its compressed data states, and what is wrong with the size the
+    chunk's own field gives ("" and ``chunk`` itself when nothing is): a size other than its data's (an
+    uncompressed chunk's length, the size an lz4 or zstd frame header gives), or one no decompressor can take.
+    zstd allocates the size the field gives when its frame gives none (2**62: MemoryError; 2**63 and more:
+    OverflowError), so a chunk is only decompressed once this has said nothing, or with the size it returns;
+    None when it cannot be (zstd data that gives no size, and a size more than it can hold)."""
+    stated = chunk.uncompressed_size
+    own = -1  # the size the data gives (-1: it gives none)
+    if chunk.compression == "":
+        own = len(chunk.data)
+    elif chunk.compression == "lz4":
+        try:
+            import lz4.frame
+
+            own = lz4.frame.get_frame_info(chunk.data).get("content_size") or -1
+        except Exception:  # noqa: BLE001  (a damaged frame header: the decompressor says so)
+            own = -1
+    elif chunk.compression == "zstd":
+        try:
+            import zstandard
+
+            own = zstandard.frame_content_size(chunk.data)
+        except Exception:  # noqa: BLE001  (a damaged frame header: the decompressor says so)
+            own = -1
+    if own >= 0 and own != stated:
+        fixed = Chunk(compression=chunk.compression, data=chunk.data, message_end_time=chunk.message_end_time,
+                      message_start_time=chunk.message_start_time, uncompressed_crc=chunk.uncompressed_crc,
+                      uncompressed_size=own)
+        what = "its data holds" if chunk.compression == "" else f"its {chunk.compression} data's header says"
+        return fixed, f"its uncompressed size says {stated} bytes; {what} {own} (the size is damaged)"
+    if own < 0 and chunk.compression == "zstd" and stated > _ZSTD_MAX_RATIO * len(chunk.data) + (1 << 17):
+        return None, (f"its uncompressed size says {stated} bytes, more than its {len(chunk.data)} bytes of zstd "
+                      f"data can hold (the size is damaged)")
+    return chunk, ""
+
+
+#: no zstd data expands more than this (a 128 KiB block from a 4-byte run-length block, less its header)
+_ZSTD_MAX_RATIO = 1 << 15
 
 
 def record_at_length(f: IO[bytes], at: int, length: int, opcode: int | None = None) -> Framed:

@@ -21,9 +21,10 @@ from typing import Iterator
 
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Chunk
 
 from pipeline.io import damage_notes
-from pipeline.io.mcap_framing import locate
+from pipeline.io.mcap_framing import PastEnd, bounded, chunk_size_damage, framed_records, locate, record_at
 from pipeline.io.mcap_writer import MAGIC
 from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
@@ -92,8 +93,10 @@ def _say_damage(text: str) -> None:
 
 # What reading a torn or corrupt file raises: the mcap reader's own errors, struct's (a file torn
 # inside a record's opcode and length), and the decompressors' (lz4 raises RuntimeError on an
-# incomplete frame; zstandard ZstdError).
-TORN_END_ERRORS: tuple[type[BaseException], ...] = (McapError, EOFError, ValueError, RuntimeError, struct.error)
+# incomplete frame; zstandard ZstdError, and OverflowError for a chunk whose uncompressed size is
+# damaged to 2**63 or more).
+TORN_END_ERRORS: tuple[type[BaseException], ...] = (McapError, EOFError, ValueError, RuntimeError, struct.error,
+                                                    OverflowError)
 try:
     import zstandard as _zstd
 
@@ -183,7 +186,7 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
     p = check_recording(path)
     want = set(topics) if topics else None
     with open(p, "rb") as f:
-        reader = NonSeekingReader(f, validate_crcs=True)
+        reader = NonSeekingReader(bounded(f), validate_crcs=True)
         try:
             for schema, channel, msg in reader.iter_messages(log_time_order=False):
                 if want is not None and channel.topic not in want:
@@ -201,13 +204,13 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             why = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__  # EndOfFile has no message
             if pos < size:  # bytes after the record that failed: the file is damaged, not just cut short
                 at, which = _damaged_record(f, pos, size)
+                why = _size_damage(f, at, size) or why
                 text = Damaged(f"{p}: recording is damaged at byte {at} of {size}{which} ({why}); nothing after it "
                                f"can be read here (`gflow recover` copies every intact chunk, before and after it)")
             elif _closed(p):  # a damaged length had the reader run to the end of a file that was closed
-                text = Damaged(f"{p}: recording is damaged: a record cannot be read ({why}), yet the file ends as "
-                               f"a closed recording does; nothing after the damage can be read (`gflow verify` "
-                               f"says where it is, `gflow recover` copies every intact chunk)")
+                text = _closed_damage(p, f, e, why, size)
             else:
+                why = "EndOfFile" if isinstance(e, PastEnd) else why  # a record cut short, as a short read says
                 text = f"{p}: recording ends early ({why}); it was not closed properly (try `gflow recover`)"
             _tell(text, strict, on_truncated)
         else:
@@ -218,6 +221,38 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             if pos < size:  # bytes after the footer (two writers on one file, a copy appended): not read
                 _tell(Damaged(f"{p}: recording is damaged: {size - pos} bytes after its closing magic bytes at byte "
                               f"{pos}; they are not read (`gflow verify` says more)"), strict, on_truncated)
+
+
+def _closed_damage(p: Path, f, e: BaseException, why: str, size: int) -> Damaged:
+    """What stopped a reader that ran to the end of the closed file ``p`` (``size`` bytes): a damaged length, in
+    the record that holds the byte it was read from (:class:`~pipeline.io.mcap_framing.PastEnd`) or else in the
+    first record the file's framing finds damaged (its byte, and which record, as ``gflow verify`` names them)."""
+    at, which = -1, ""
+    try:
+        if isinstance(e, PastEnd):
+            at, which = _damaged_record(f, e.at + 1, size)
+        else:
+            first = next((fr for fr in framed_records(f, size) if fr.damage and not fr.torn), None)
+            if first is not None:
+                at, which = first.offset, f", in the {first.kind} record: {first.damage}"
+    except (OSError, ValueError, struct.error):
+        at = -1
+    if at < 0:
+        return Damaged(f"{p}: recording is damaged: a record cannot be read ({why}), yet the file ends as a closed "
+                       f"recording does; nothing after the damage can be read (`gflow verify` says where it is, "
+                       f"`gflow recover` copies every intact chunk)")
+    return Damaged(f"{p}: recording is damaged at byte {at} of {size}{which} ({why}); nothing after it can be read "
+                   f"here (`gflow recover` copies every intact chunk, before and after it)")
+
+
+def _size_damage(f, at: int, size: int) -> str:
+    """What is wrong with the uncompressed size of the chunk at byte ``at``, when that is what stopped the reader
+    (zstd cannot take a size of 2**63 or more: OverflowError); "" when it is not a chunk, or its size is right."""
+    try:
+        fr = record_at(f, at, size)
+    except (OSError, ValueError, struct.error):
+        return ""
+    return chunk_size_damage(fr.record)[1] if isinstance(fr.record, Chunk) else ""
 
 
 def _damaged_record(f, pos: int, size: int) -> tuple[int, str]:
@@ -296,7 +331,7 @@ def recorded_topics(path: str | Path) -> list[str]:
         summary = None
         with open(p, "rb") as f:
             try:
-                summary = make_reader(f).get_summary()
+                summary = make_reader(bounded(f)).get_summary()
             except _NO_FOOTER_ERRORS:
                 summary = None
         if summary is not None and summary.channels:
@@ -312,7 +347,7 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
     out: dict[str, dict[str, str]] = {}
     with open(p, "rb") as f:
         try:
-            for md in make_reader(f).iter_metadata():
+            for md in make_reader(bounded(f)).iter_metadata():
                 out[md.name] = dict(md.metadata)
             return out
         except _NO_FOOTER_ERRORS:  # no footer (a killed writer): fall back to reading the records
@@ -322,7 +357,7 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
 
     with open(p, "rb") as f:
         try:
-            for rec in StreamReader(f).records:
+            for rec in StreamReader(bounded(f)).records:
                 if isinstance(rec, Metadata):
                     out[rec.name] = dict(rec.metadata)
         except TORN_END_ERRORS:  # the torn end of a truncated file

@@ -22,7 +22,7 @@ from mcap.records import Channel, Chunk, DataEnd, Message, MessageIndex, Metadat
 from mcap.stream_reader import CRCValidationError, breakup_chunk
 from mcap.writer import CompressionType, Writer
 
-from pipeline.io.mcap_framing import framed_records, read_summary
+from pipeline.io.mcap_framing import chunk_size_damage, framed_records, read_summary
 from pipeline.io.mcap_io import TORN_END_ERRORS, check_recording
 from pipeline.io.recording_files import create_beside, move_new
 
@@ -232,7 +232,11 @@ def _copy(fin: IO[bytes], size: int, w: Any) -> RecoverResult:
             lost = skipped[-1] if fr.opcode == Opcode.CHUNK else None
             continue
         if isinstance(rec, Chunk):
-            lost = c.chunk(rec, f"chunk {n_chunks} at byte {fr.offset}", fr.offset)
+            sized, why = chunk_size_damage(rec)  # a damaged uncompressed size: its data's own (its CRC then checked)
+            where = f"chunk {n_chunks} at byte {fr.offset}"
+            if why and sized is not None:
+                repaired.append(f"{where}: {why}, and it is read by its data's")
+            lost = c.chunk(sized, where, fr.offset) if sized is not None else Skipped(fr.offset, f"{where}: {why}")
             if lost is not None:
                 skipped.append(lost)
         elif isinstance(rec, DataEnd):  # the summary after it repeats what the data section said

@@ -27,7 +27,8 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, MessageIndex
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from pipeline.io.mcap_framing import OPCODE_NAMES, Summary, framed_records, read_summary, record_at, record_at_length
+from pipeline.io.mcap_framing import (OPCODE_NAMES, Summary, bounded, chunk_size_damage, framed_records, read_summary,
+                                      record_at, record_at_length)
 from pipeline.io.mcap_io import TORN_END_ERRORS, segments
 from pipeline.io.mcap_writer import MAGIC
 
@@ -125,7 +126,9 @@ def _skipped(f: IO[bytes], at: int, out: dict[int, int]) -> int:
         out[at] = -1
         if isinstance(fr.record, Chunk):
             try:
-                out[at] = sum(isinstance(r, Message) for r in breakup_chunk(fr.record, validate_crc=True))
+                sized = chunk_size_damage(fr.record)[0]
+                if sized is not None:
+                    out[at] = sum(isinstance(r, Message) for r in breakup_chunk(sized, validate_crc=True))
             except TORN_END_ERRORS:
                 pass
         if out[at] < 0 and isinstance(record_at_length(f, at, length, Opcode.MESSAGE_INDEX).record, MessageIndex):
@@ -140,7 +143,7 @@ def _reader_pass(f: IO[bytes]) -> _ReaderPass:
     opcode MCAP does not define is skipped, and the reading stops at the first record, chunk or message it
     cannot read (a message of a channel it has not met)."""
     f.seek(0)
-    records = iter(StreamReader(f, emit_chunks=True, validate_crcs=True).records)
+    records = iter(StreamReader(bounded(f), emit_chunks=True, validate_crcs=True).records)
     out = _ReaderPass()
     channels: set[int] = set()
     at = len(MAGIC)
@@ -216,9 +219,11 @@ def _chunk_counts(f: IO[bytes], size: int, summary: Summary) -> tuple[dict[int, 
         counts[fr.offset] = (0, False)
         if isinstance(fr.record, Chunk):
             try:
-                counts[fr.offset] = (sum(isinstance(r, Message) for r in breakup_chunk(fr.record, validate_crc=True)),
-                                     True)
-                continue
+                sized = chunk_size_damage(fr.record)[0]  # as recover reads it
+                if sized is not None:
+                    counts[fr.offset] = (sum(isinstance(r, Message) for r in breakup_chunk(sized, validate_crc=True)),
+                                         True)
+                    continue
             except TORN_END_ERRORS:  # its CRC or its compressed data is damaged
                 pass
         after = fr.offset

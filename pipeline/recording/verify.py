@@ -38,7 +38,8 @@ from mcap.records import (Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, M
                           MetadataIndex, Schema, Statistics)
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 
-from pipeline.io.mcap_framing import OPCODE_NAMES, chunk_length, record_at
+from pipeline.io.mcap_framing import (OPCODE_NAMES, bounded, chunk_length, chunk_size_damage, compressed_size_damage,
+                                      record_at)
 from pipeline.io.mcap_io import TORN_END_ERRORS, check_recording
 from pipeline.io.mcap_writer import MAGIC, crc32
 from pipeline.io.recorder import SCHEMA_PREFIX
@@ -213,6 +214,9 @@ class _Walk:
         """Check one chunk; ``following`` (the records after it) names the topics of one that cannot be read."""
         k = len(self.chunks) + 1
         where = f"chunk {k} at byte {offset}"
+        why = chunk_size_damage(ch)[1]  # before it is decompressed: zstd would allocate the size it states
+        if why:
+            raise _Fault(f"{where}: {why}")
         try:
             inner = breakup_chunk(ch, validate_crc=True)
         except CRCValidationError as e:
@@ -320,6 +324,36 @@ def _check_opcode(f, at: int) -> None:
         raise _Fault(f"byte {at}: {op[0]:#04x} is no MCAP record's opcode (the record's frame is damaged)")
 
 
+def _check_frame(f, at: int, size: int, number: int) -> None:
+    """The record at byte ``at``, before the reader reads it: its opcode is one MCAP defines, and, when it is chunk
+    ``number``, no length of it runs past the end of the file or of its record, which the reader would ask for
+    that many bytes (2**62: MemoryError): a record length past the end of the file whose fields the file holds
+    (the length is damaged), or a compressed size past the end of a record the file holds (the size is damaged).
+    A chunk the file ends inside (a torn end) is left to the reader."""
+    _check_opcode(f, at)
+    f.seek(at)
+    head = f.read(9 + 32)
+    f.seek(at)
+    if len(head) < 9 + 32 or head[0] != Opcode.CHUNK:
+        return
+    (length,) = struct.unpack_from("<Q", head, 1)
+    if at + 9 + length > size:
+        own = chunk_length(f, at, size)
+        f.seek(at)
+        if own:
+            raise _Fault(f"chunk {number} at byte {at}: its record length says {length} bytes; its fields take "
+                         f"{own} (the length is damaged)")
+        return
+    (clen,) = struct.unpack_from("<I", head, 9 + 28)
+    if 32 + clen + 8 > length:
+        return  # its compression's name runs past its record: the reader says so
+    f.seek(at + 9)
+    why = compressed_size_damage(f.read(32 + clen + 8), length)
+    f.seek(at)
+    if why:
+        raise _Fault(f"chunk {number} at byte {at}: {why} (the size is damaged; the record's length holds)")
+
+
 def _check_chunk_length(f, at: int, end: int, size: int, number: int) -> None:
     """The record length of the chunk at byte ``at`` is the one its fields take: the reader reads a chunk by
     its fields, but a reader that goes by the record's length (an index, a seek) fails where they differ."""
@@ -343,15 +377,14 @@ def verify(path: str | Path, progress: Progress | None = None) -> VerifyResult:
     r = VerifyResult(str(path), size=size)
     w = _Walk(r)
     with open(p, "rb") as f:
-        records = iter(StreamReader(f, emit_chunks=True, validate_crcs=True).records)
-        at = last_at = 0
+        records = iter(StreamReader(bounded(f), emit_chunks=True, validate_crcs=True).records)
+        at, last_at, in_summary = 0, 0, False
         footer: tuple[Footer, int] | None = None
-        in_summary = False
         try:
             while True:
                 at = f.tell() if w.n_records else 8
                 if w.n_records and footer is None:  # (before the first record the reader reads the magic bytes)
-                    _check_opcode(f, at)
+                    _check_frame(f, at, size, len(w.chunks) + 1)
                 try:
                     rec = next(records)
                 except StopIteration:
