@@ -47,6 +47,7 @@ from gflow_core.m2.tracking import ParticleCloud
 from gflow_core.tracker import Estimate as TrackerEstimate
 from gflow_core.spec import BoxStages
 from gflow_core.tracker import Box, FilterSide, FrameRng, UnusableFrame, unseen
+from gflow_core.visibility import load_gamma
 
 from .base import Output, Stage, StageContext, StageInputError
 from gflow_msgs.messages import (Estimate, Features, Frame, Header, Message, MessageError, Particles,
@@ -87,6 +88,8 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     codec: ClassVar[SnapshotCodec | None] = None
     #: whether the tracker needs the initial box (a patch model's may crop the whole frame)
     needs_init: ClassVar[bool] = True
+    #: whether the tracker judges visibility (ChiSquare's SciPy gamma functions, imported with its modules)
+    judges_visibility: ClassVar[bool] = True
     #: the input port of the frame's observation (its message type is ``inputs[port]``)
     port: ClassVar[str] = "frames"
     inputs = {"frames": Frame, "proposals": Particles}
@@ -106,9 +109,13 @@ class BoxFilterStage(Stage[SeedBoxFields]):
 
     def check_prepare(self) -> None:
         """Also the tracker's modules, imported when a runner takes the stage (a stage process before it
-        says it is ready), not on its first frame: a stage built only to check a graph never imports them."""
+        says it is ready), not on its first frame: a stage built only to check a graph never imports them.
+        SciPy's gamma functions too, for a tracker that judges visibility: they are imported where they
+        are called, which was otherwise on the frame of the first judgement (about 0.25 s of CPU)."""
         super().check_prepare()
         assert self.tracker is not None
+        if self.judges_visibility:
+            load_gamma()
 
     def required(self, seq: int) -> frozenset[str]:
         return frozenset({self.port}) if self.state is None else frozenset(self.inputs)
