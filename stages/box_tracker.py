@@ -88,8 +88,10 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     codec: ClassVar[SnapshotCodec | None] = None
     #: whether the tracker needs the initial box (a patch model's may crop the whole frame)
     needs_init: ClassVar[bool] = True
-    #: whether the tracker judges visibility (ChiSquare's SciPy gamma functions, imported with its modules)
-    judges_visibility: ClassVar[bool] = True
+    #: whether the tracker calls SciPy's gamma functions (ChiSquare's) on ordinary frames, so that they are imported
+    #: with its modules: chamfer's lost guard does within a few dozen frames. The default tracker (dcf) calls them only
+    #: in a search for a hidden target, and keeps SciPy out of its start-up (tests/test_cli_lazy_imports.py)
+    preload_gamma: ClassVar[bool] = False
     #: the input port of the frame's observation (its message type is ``inputs[port]``)
     port: ClassVar[str] = "frames"
     inputs = {"frames": Frame, "proposals": Particles}
@@ -110,11 +112,11 @@ class BoxFilterStage(Stage[SeedBoxFields]):
     def check_prepare(self) -> None:
         """Also the tracker's modules, imported when a runner takes the stage (a stage process before it
         says it is ready), not on its first frame: a stage built only to check a graph never imports them.
-        SciPy's gamma functions too, for a tracker that judges visibility: they are imported where they
-        are called, which was otherwise on the frame of the first judgement (about 0.25 s of CPU)."""
+        SciPy's gamma functions too, with ``preload_gamma``: they are imported where they are called, which
+        was otherwise on the frame of the first judgement (about 0.25 s of CPU)."""
         super().check_prepare()
         assert self.tracker is not None
-        if self.judges_visibility:
+        if self.preload_gamma:
             load_gamma()
 
     def required(self, seq: int) -> frozenset[str]:

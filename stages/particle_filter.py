@@ -78,6 +78,8 @@ class FilterStage(FeaturesFilterStage):
     tracker = FEATURE_FILTER
     #: whether the stage needs a learned model (the ``model`` resource)
     needs_model: ClassVar[bool] = False
+    #: chamfer's lost guard judges visibility within a few dozen frames (:attr:`BoxFilterStage.preload_gamma`)
+    preload_gamma: ClassVar[bool] = True
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
         super().__init__(params, ctx)

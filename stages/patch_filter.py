@@ -72,7 +72,6 @@ class PatchFilterStage(FeaturesFilterStage):
     Params = PatchFilterParams
     tracker = PATCH
     needs_init = False
-    judges_visibility = False
 
     def __init__(self, params: Any, ctx: StageContext) -> None:
         super().__init__(params, ctx)

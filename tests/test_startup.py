@@ -30,17 +30,22 @@ def test_a_source_or_recorder_process_does_not_import_scipy():
 def test_a_filter_stage_imports_scipy_when_a_runner_takes_it_not_on_a_frame():
     """SciPy's gamma functions are imported where visibility is judged, so a process that only reads
     gflow_core.visibility does not import them; a filter stage that judges it imports them when a runner
-    takes it (``check_prepare``), not on the frame of its first judgement. m2's patch filter judges none."""
+    takes it (``check_prepare``), not on the frame of its first judgement. m2's patch filter judges none, and
+    the default tracker's stage leaves SciPy out of its start-up (it judges with them only in a search)."""
     out = _fresh("import sys, pipeline.runtime.node\n"
                  "from stages.base import StageContext\n"
                  "from stages.registry import get_stage_class\n"
+                 "dcf = get_stage_class('dcf.filter')\n"
+                 "d = dcf(dcf.Params(init=(10, 10, 20, 20), seed=1), StageContext('filter', 't'))\n"
+                 "d.check_prepare()\n"
+                 "after_dcf = 'scipy.special' in sys.modules\n"
                  "cls = get_stage_class('chamfer.filter')\n"
                  "st = cls(cls.Params(init=(10, 10, 20, 20), seed=1), StageContext('filter', 't'))\n"
                  "before = 'scipy.special' in sys.modules\n"
                  "st.check_prepare()\n"
                  "from stages.patch_filter import PatchFilterStage\n"
-                 "print(before, 'scipy.special' in sys.modules, PatchFilterStage.judges_visibility)")
-    assert out == "False True False"
+                 "print(after_dcf, before, 'scipy.special' in sys.modules, PatchFilterStage.preload_gamma)")
+    assert out == "False False True False"
 
 
 def test_the_zygote_can_preload_every_stage_kind_and_still_fork():
