@@ -19,17 +19,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.evaluation.benchmark_tables import mean_of, names_of, scored, table, title
+from pipeline.evaluation.benchmark_tables import _short, mean_of, names_of, scored, table, title
+from pipeline.evaluation.seed_means import _cell
 from pipeline.evaluation.sequence_benchmark import Row
 
 __all__ = ["Kind", "behind", "format_kinds_summary", "kinds_json"]
 
 #: a kind of footage and its runs: (name, one list of rows per seed)
 Kind = tuple[str, list[list[Row]]]
-
-
-def _short(name: str) -> str:
-    return name.removeprefix("opencv ").upper() if name.startswith("opencv ") else name
 
 
 def behind(rows: list[Row], tracker: str) -> list[tuple[str, float | None, str, float | None]]:
@@ -56,10 +53,6 @@ def _mean_auc(rows: list[Row], tracker: str) -> float | None:
     mine = [r for r in rows if r.tracker == tracker]
     m = mean_of(mine, len(mine))
     return None if m is None or m.sequences < len(mine) else m.auc
-
-
-def _cell(v: float | None) -> str:
-    return "-" if v is None else f"{v:.3f}"
 
 
 def _where(cells: list[tuple[int, tuple[str, float | None, str, float | None]]], several: bool) -> str:
