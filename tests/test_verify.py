@@ -32,7 +32,7 @@ def _chunks(path: Path) -> list[tuple[int, int]]:
 
 
 def _readable(out: str) -> int:
-    m = re.search(r"; (\d+) messages readable before it; ", out)
+    m = re.search(r"; (\d+) messages? readable before it; ", out)
     assert m, out
     return int(m.group(1))
 
@@ -403,7 +403,7 @@ def test_info_stopped_by_a_damaged_chunk_counts_the_intact_chunks_after_it(tmp_p
     bad = _damaged(good, tmp_path / "bad.mcap", {offset + 60: data[offset + 60] ^ 0xFF})
     r, said = _info(bad)
     assert r.returncode == 1 and r.stderr == (f"gflow info: {bad}: the recording is damaged at byte {offset} "
-                                              f"(1 messages read; 6 chunks with 11 messages not read)\n"), r.stderr
+                                              f"(1 message read; 6 chunks with 11 messages not read)\n"), r.stderr
     assert said["messages"] + said["not_read"]["messages"] == said["not_read"]["listed"] == 12, said
     assert said["not_read"]["chunks_at"][0] == {"file": str(bad), "byte": offset}, said
     v = cli_fork.run_command([*GFLOW, "verify", str(bad)], capture_output=True, text=True, timeout=60)
@@ -520,6 +520,54 @@ def test_a_chunk_length_damaged_to_a_huge_value_is_damage_not_an_internal_error(
     from pipeline.recording.verify import verify
 
     assert verify(fixed).ok and verify(fixed).messages == 12
+
+
+@pytest.mark.parametrize("data_damaged", [False, True])
+def test_a_zstd_chunk_whose_frame_states_no_size_is_not_decompressed_by_a_damaged_size(
+        tmp_path: Path, monkeypatch, data_damaged: bool) -> None:
+    """zstd data may leave its size out of its frame (streaming writers do); zstd then allocates the size the
+    chunk states. Such a chunk's uncompressed size damaged to 2**40 had `gflow info` (and every command that reads
+    messages) say "internal error: MemoryError", and recover leave the chunk out. Now the size is learnt from the
+    data, decompressed as a stream: every reader reads all 12 messages, verify and info call the file damaged at the
+    chunk's byte, and recover keeps all 12. With the data damaged too, the reading stops at that chunk, as at any
+    chunk it cannot read, and recover keeps the other 10."""
+    import struct
+
+    import zstandard
+
+    from pipeline.io import mcap_writer
+    from pipeline.io.mcap_framing import _parse
+    from pipeline.io.mcap_io import iter_records
+    from pipeline.recording.verify import verify
+
+    monkeypatch.setitem(mcap_writer.COMPRESSIONS, "zstd",
+                        lambda d: zstandard.ZstdCompressor(write_content_size=False).compress(d))
+    good = _frames_recorded(tmp_path / "good.mcap", "zstd")
+    offset, index_at, _ = _second_chunk(good)
+    data = bytearray(good.read_bytes())
+    chunk = _parse(0x06, bytes(data[offset + 9:index_at]))
+    assert zstandard.frame_content_size(chunk.data) == -1  # the frame states no size: zstd goes by the chunk's
+    struct.pack_into("<Q", data, _chunk_field(bytes(data), offset, "uncompressed size"), 2**40)
+    if data_damaged:
+        start = index_at - len(chunk.data)
+        data[start + 6:start + 40] = bytes(b ^ 0xFF for b in data[start + 6:start + 40])
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    r, said = _info(bad)
+    told = r.stdout + r.stderr
+    assert "internal error" not in told and "MemoryError" not in told, told
+    read = 1 if data_damaged else 12
+    assert r.returncode == 1 and said["messages"] == read, told
+    assert r.stderr.startswith(f"gflow info: {bad}: the recording is damaged at byte {offset} ({read} "), r.stderr
+    assert sum(1 for _ in iter_records(bad, on_truncated=lambda text: None)) == read
+    v = cli_fork.run_command([*GFLOW, "verify", str(bad)], capture_output=True, text=True, timeout=60)
+    assert v.returncode == 1 and f"chunk 2 at byte {offset}: its uncompressed size says {2**40} bytes" in v.stdout, \
+        v.stdout + v.stderr
+    assert (f"; they hold {chunk.uncompressed_size} (the size is damaged)" in v.stdout) is not data_damaged, v.stdout
+    fixed = tmp_path / "fixed.mcap"
+    c = cli_fork.run_command([*GFLOW, "recover", str(bad), str(fixed)], capture_output=True, text=True, timeout=60)
+    assert c.returncode == 0 and c.stdout.startswith(f"recovered {10 if data_damaged else 12} messages "), c.stdout
+    assert verify(fixed).ok
 
 
 def test_no_length_damaged_anywhere_makes_a_reader_raise_what_damage_does_not(tmp_path: Path) -> None:

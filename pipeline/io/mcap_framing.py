@@ -28,13 +28,15 @@ from dataclasses import dataclass, field
 from typing import IO, Any, Iterator, cast
 
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import EndOfFile
+from mcap.exceptions import EndOfFile, McapError
 from mcap.opcode import Opcode
 from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, DataEnd, Footer, Header, Message,
                           MessageIndex, Metadata, MetadataIndex, Schema, Statistics, SummaryOffset)
+from mcap.stream_reader import breakup_chunk
 
 __all__ = ["Framed", "framed_records", "record_at", "chunk_length", "read_summary", "Summary", "OPCODE_NAMES",
-           "Located", "locate", "Bounded", "bounded", "PastEnd", "chunk_size_damage", "compressed_size_damage"]
+           "Located", "locate", "Bounded", "bounded", "PastEnd", "chunk_size_damage", "compressed_size_damage",
+           "chunk_records", "ChunkSizeDamaged"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _FRAME = struct.Struct("<BQ")
@@ -334,15 +336,51 @@ def chunk_size_damage(chunk: Chunk) -> tuple[Chunk | None, str]:
         except Exception:  # noqa: BLE001  (a damaged frame header: the decompressor says so)
             own = -1
     if own >= 0 and own != stated:
-        fixed = Chunk(compression=chunk.compression, data=chunk.data, message_end_time=chunk.message_end_time,
-                      message_start_time=chunk.message_start_time, uncompressed_crc=chunk.uncompressed_crc,
-                      uncompressed_size=own)
+        fixed = _resized(chunk, own)
         what = "its data holds" if chunk.compression == "" else f"its {chunk.compression} data's header says"
         return fixed, f"its uncompressed size says {stated} bytes; {what} {own} (the size is damaged)"
     if own < 0 and chunk.compression == "zstd" and stated > _ZSTD_MAX_RATIO * len(chunk.data) + (1 << 17):
-        return None, (f"its uncompressed size says {stated} bytes, more than its {len(chunk.data)} bytes of zstd "
-                      f"data can hold (the size is damaged)")
+        held = _zstd_streamed_size(chunk.data)  # no frame size to go by: decompress it to learn its size
+        if held < 0:
+            return None, (f"its uncompressed size says {stated} bytes, more than its {len(chunk.data)} bytes of zstd "
+                          f"data can hold (the size is damaged)")
+        return _resized(chunk, held), (f"its uncompressed size says {stated} bytes, more than its {len(chunk.data)} "
+                                       f"bytes of zstd data can hold; they hold {held} (the size is damaged)")
     return chunk, ""
+
+
+def _resized(chunk: Chunk, size: int) -> Chunk:
+    """``chunk`` with ``size`` as its uncompressed size."""
+    return Chunk(compression=chunk.compression, data=chunk.data, message_end_time=chunk.message_end_time,
+                 message_start_time=chunk.message_start_time, uncompressed_crc=chunk.uncompressed_crc,
+                 uncompressed_size=size)
+
+
+def _zstd_streamed_size(data: bytes) -> int:
+    """How many bytes the zstd ``data`` (whose frame states no size) decompress to, decompressed as a stream (no
+    buffer of a stated size is allocated; at most :data:`_ZSTD_MAX_RATIO` times ``data``); -1 when they do not
+    decompress."""
+    try:
+        import zstandard
+
+        return len(zstandard.ZstdDecompressor().decompressobj().decompress(data))
+    except Exception:  # noqa: BLE001  (damaged data: the size cannot be learnt from it)
+        return -1
+
+
+class ChunkSizeDamaged(McapError):
+    """A chunk whose uncompressed size is damaged beyond what its data can say (:func:`chunk_size_damage`): a
+    reader stops at it, as at any record it cannot read, rather than have zstd allocate the size it states."""
+
+
+def chunk_records(chunk: Chunk) -> Iterator[Any]:
+    """The records inside ``chunk``, its CRC checked, decompressed by the uncompressed size its data gives where
+    its own field is damaged (:func:`chunk_size_damage`); raises :class:`ChunkSizeDamaged` when no size can be
+    trusted. What every reader of gflow's uses in place of ``mcap.stream_reader.breakup_chunk``."""
+    sized, why = chunk_size_damage(chunk)
+    if sized is None:
+        raise ChunkSizeDamaged(why)
+    return iter(breakup_chunk(sized, validate_crc=True))
 
 
 #: no zstd data expands more than this (a 128 KiB block from a 4-byte run-length block, less its header)

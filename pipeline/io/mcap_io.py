@@ -1,8 +1,10 @@
 """Reading gflow recordings: records in file order, metadata, and a summary for ``gflow info``.
 
 A recording whose writer was killed has no footer; ``make_reader`` recovers nothing from
-it, so :func:`iter_records` falls back to ``NonSeekingReader`` which yields every complete
-chunk before the torn end (and reports that it stopped early).
+it, so :func:`iter_records` reads the records in file order, as mcap's ``NonSeekingReader``
+does, and yields every complete chunk before the torn end (and reports that it stopped
+early). Each chunk is read by :func:`pipeline.io.mcap_framing.chunk_records`, never by the
+uncompressed size it states alone: zstd would allocate that size.
 
 A recorder restarted after a crash writes the rest of the run to a new segment file beside
 the first one, ``NAME.part1.mcap``, ``NAME.part2.mcap``, ...; :func:`iter_records` reads a
@@ -20,11 +22,13 @@ from pathlib import Path
 from typing import Iterator
 
 from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader, make_reader
-from mcap.records import Chunk
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader
 
 from pipeline.io import damage_notes
-from pipeline.io.mcap_framing import PastEnd, bounded, chunk_size_damage, framed_records, locate, record_at
+from pipeline.io.mcap_framing import (PastEnd, bounded, chunk_records, chunk_size_damage, framed_records, locate,
+                                      record_at)
 from pipeline.io.mcap_writer import MAGIC
 from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
@@ -186,9 +190,8 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
     p = check_recording(path)
     want = set(topics) if topics else None
     with open(p, "rb") as f:
-        reader = NonSeekingReader(bounded(f), validate_crcs=True)
         try:
-            for schema, channel, msg in reader.iter_messages(log_time_order=False):
+            for schema, channel, msg in _messages(f):
                 if want is not None and channel.topic not in want:
                     continue
                 yield Record(channel.topic, channel.metadata.get("gflow.type", schema.name if schema else ""),
@@ -221,6 +224,29 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             if pos < size:  # bytes after the footer (two writers on one file, a copy appended): not read
                 _tell(Damaged(f"{p}: recording is damaged: {size - pos} bytes after its closing magic bytes at byte "
                               f"{pos}; they are not read (`gflow verify` says more)"), strict, on_truncated)
+
+
+def _messages(f) -> Iterator[tuple[Schema | None, Channel, Message]]:
+    """Every message of the MCAP file ``f`` in file order, with its schema and channel, as mcap's
+    ``NonSeekingReader`` reads them (CRCs checked; a record of an opcode MCAP does not define skipped; a message of
+    a channel not yet met is an error), each chunk read by :func:`~pipeline.io.mcap_framing.chunk_records`: a
+    damaged uncompressed size stops the reading, as other damage does, where mcap's reader would have zstd allocate
+    the size it states."""
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    for rec in StreamReader(bounded(f), emit_chunks=True, validate_crcs=True).records:
+        for r in chunk_records(rec) if isinstance(rec, Chunk) else (rec,):
+            if isinstance(r, Schema):
+                schemas[r.id] = r
+            elif isinstance(r, Channel):
+                if r.schema_id != 0 and r.schema_id not in schemas:
+                    raise McapError(f"no schema record found with id {r.schema_id}")
+                channels[r.id] = r
+            elif isinstance(r, Message):
+                if r.channel_id not in channels:
+                    raise McapError(f"no channel record found with id {r.channel_id}")
+                channel = channels[r.channel_id]
+                yield (schemas[channel.schema_id] if channel.schema_id else None), channel, r
 
 
 def _closed_damage(p: Path, f, e: BaseException, why: str, size: int) -> Damaged:
@@ -353,11 +379,10 @@ def read_metadata(path: str | Path) -> dict[str, dict[str, str]]:
         except _NO_FOOTER_ERRORS:  # no footer (a killed writer): fall back to reading the records
             out.clear()
     from mcap.records import Metadata
-    from mcap.stream_reader import StreamReader
 
     with open(p, "rb") as f:
-        try:
-            for rec in StreamReader(bounded(f)).records:
+        try:  # metadata are never inside a chunk: chunks are passed over, not decompressed
+            for rec in StreamReader(bounded(f), emit_chunks=True).records:
                 if isinstance(rec, Metadata):
                     out[rec.name] = dict(rec.metadata)
         except TORN_END_ERRORS:  # the torn end of a truncated file

@@ -27,8 +27,8 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, MessageIndex
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from pipeline.io.mcap_framing import (OPCODE_NAMES, Summary, bounded, chunk_size_damage, framed_records, read_summary,
-                                      record_at, record_at_length)
+from pipeline.io.mcap_framing import (OPCODE_NAMES, Summary, bounded, chunk_records, chunk_size_damage, framed_records,
+                                      read_summary, record_at, record_at_length)
 from pipeline.io.mcap_io import TORN_END_ERRORS, segments
 from pipeline.io.mcap_writer import MAGIC
 
@@ -159,7 +159,7 @@ def _reader_pass(f: IO[bytes]) -> _ReaderPass:
         inner = [rec]
         if isinstance(rec, Chunk):
             try:
-                inner = list(breakup_chunk(rec, validate_crc=True))
+                inner = list(chunk_records(rec))  # as the reader reads it
             except TORN_END_ERRORS:
                 break
         for r in inner:

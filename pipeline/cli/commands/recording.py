@@ -89,7 +89,8 @@ def _unreadable_line(path: str, s: RecordingSummary, missed: NotRead | None) -> 
 
             place = damage_place(recording_damage(path), path)
     lost = f"; {missed.short()}" if missed is not None else ""
-    return f"gflow info: {path}: {s.unreadable}{f' at {place}' if place else ''} ({s.messages} messages read{lost})"
+    return (f"gflow info: {path}: {s.unreadable}{f' at {place}' if place else ''} ({s.messages} "
+            f"message{'s' * (s.messages != 1)} read{lost})")
 
 
 DESCRIBERS[".mcap"] = describe_recording

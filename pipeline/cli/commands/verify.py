@@ -57,7 +57,8 @@ def verify_line(path: str, busy: dict[Path, dict], quiet: bool) -> tuple[bool, s
     n = salvageable(path).messages  # every intact chunk, before the damage and after it
     many = "them" if n == r.messages else f"{n} message{'s' * (n != 1)}"
     salvage = f"gflow recover {path} FIXED.mcap can salvage {many}" if n else "nothing to salvage"
-    return False, f"{path}: DAMAGED: {r.damage}; {r.messages} messages readable before it; {salvage}"
+    return False, (f"{path}: DAMAGED: {r.damage}; {r.messages} message{'s' * (r.messages != 1)} readable before it; "
+                   f"{salvage}")
 
 
 def cmd_verify(args) -> int:
