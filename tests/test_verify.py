@@ -373,7 +373,7 @@ def test_info_counts_the_chunk_it_passed_over_and_says_where(tmp_path: Path, cap
             f"read\n") in r.stdout, r.stdout
     assert said["messages"] == 10 and said["not_read"] == {
         "chunks": 1, "more_chunks": False, "chunks_at": [{"file": str(bad), "byte": offset}], "messages": 2,
-        "messages_exact": True, "listed": 12}, said
+        "messages_exact": True, "listed": 12, "cut": []}, said
     main(["recover", str(bad), str(tmp_path / "fixed.mcap")])  # the same count as recover's
     assert "recovered 10 messages of the 12 its summary lists" in capsys.readouterr().out
 
@@ -410,6 +410,55 @@ def test_info_stopped_by_a_damaged_chunk_counts_the_intact_chunks_after_it(tmp_p
     assert f"DAMAGED: chunk 2 at byte {offset}: " in v.stdout and "can salvage 10 messages" in v.stdout, v.stdout
 
 
+@pytest.mark.parametrize("where", ["inside a chunk", "inside a frame", "after a whole record"])
+def test_info_of_a_torn_file_names_the_record_it_ends_inside(tmp_path: Path, where: str) -> None:
+    """A file cut where its writer was killed said only "recording ends early (EndOfFile)", and no `not read:`
+    line. Now the WARNING and the `not read:` line name the record the file ends inside, at its byte, and how
+    much of it the file holds (found by the frames alone), and `--json` gives it; the messages before the cut are
+    all read and the file is not called damaged."""
+    good = _frames_recorded(tmp_path / "good.mcap")
+    (third, length), = [c for c in _chunks(good)][2:3]
+    size = {"inside a chunk": third + length // 2, "inside a frame": third + 5,  # length: with its frame
+            "after a whole record": third}[where]
+    torn = tmp_path / "torn.mcap"
+    torn.write_bytes(good.read_bytes()[:size])
+    r, said = _info(torn)
+    assert r.returncode == 0 and r.stderr == "", r.stdout + r.stderr
+    before = _messages_before(good, stop_at=third)
+    assert said["messages"] == before and said["unreadable"] is None, said
+    cut = said["not_read"]["cut"]
+    assert [(c["byte"], c["bytes_held"]) for c in cut] == [(third if size > third else size, size - third)], cut
+    if where == "inside a chunk":
+        assert (f"the file ends inside chunk 3 at byte {third}, {size - third} of whose {length} bytes it "
+                f"holds); it was not closed properly") in r.stdout, r.stdout
+        assert (f"not read:  chunk 3 at byte {third}, cut short by the file's end (the file holds {size - third} "
+                f"of its {length} bytes) with an unknown number of messages\n") in r.stdout, r.stdout
+        assert said["not_read"]["messages"] is None and cut[0]["record"] == "chunk", said
+    elif where == "inside a frame":
+        assert f"the file ends inside a record's frame at byte {third}, 5 of whose 9 bytes it holds" in r.stdout
+        assert f"not read:  a record at byte {third}, cut short by the file's end" in r.stdout, r.stdout
+    else:
+        assert f"the file ends at byte {third}, after a whole record); it was not closed" in r.stdout, r.stdout
+        assert (f"not read:  no chunk: every chunk was read; the file ends at byte {third}, after a whole record\n"
+                in r.stdout), r.stdout
+        assert said["not_read"]["messages"] == 0 and said["not_read"]["messages_exact"], said
+
+
+def _messages_before(path: Path, stop_at: int) -> int:
+    """How many messages the chunks of ``path`` that end by byte ``stop_at`` hold."""
+    from mcap.records import Chunk, Message
+    from mcap.stream_reader import StreamReader, breakup_chunk
+
+    n = 0
+    with open(path, "rb") as f:
+        for rec in StreamReader(f, emit_chunks=True).records:
+            if f.tell() > stop_at:
+                break
+            if isinstance(rec, Chunk):
+                n += sum(isinstance(m, Message) for m in breakup_chunk(rec))
+    return n
+
+
 def test_info_of_a_damaged_torn_file_says_at_least(tmp_path: Path) -> None:
     """No summary (the file was cut) and a chunk's opcode damaged: the chunk itself says it held 2 messages,
     but what the cut-off end held cannot be known, so info says "at least", never a total."""
@@ -421,7 +470,7 @@ def test_info_of_a_damaged_torn_file_says_at_least(tmp_path: Path) -> None:
     assert "at least 1 chunk with at least 2 messages not read)" in r.stderr, r.stderr
     assert f"not read:  at least 1 chunk (at byte {offset}) with at least 2 messages\n" in r.stdout, r.stdout
     assert said["not_read"] == {"chunks": 1, "more_chunks": True, "chunks_at": [{"file": str(bad), "byte": offset}],
-                                "messages": 2, "messages_exact": False, "listed": None}, said
+                                "messages": 2, "messages_exact": False, "listed": None, "cut": []}, said
 
 
 def test_whatever_the_damage_verify_and_recover_answer_and_what_is_kept_is_intact(small_recording: Path,  # noqa: F811

@@ -36,7 +36,7 @@ from mcap.stream_reader import breakup_chunk
 
 __all__ = ["Framed", "framed_records", "record_at", "chunk_length", "read_summary", "Summary", "OPCODE_NAMES",
            "Located", "locate", "Bounded", "bounded", "PastEnd", "chunk_size_damage", "compressed_size_damage",
-           "chunk_records", "ChunkSizeDamaged"]
+           "chunk_records", "ChunkSizeDamaged", "Cut", "torn_at"]
 
 MAGIC = b"\x89MCAP0\r\n"
 _FRAME = struct.Struct("<BQ")
@@ -273,6 +273,72 @@ def locate(f: IO[bytes], size: int, pos: int) -> Located | None:
             return Located(at, min(end, size), opcode, counts[opcode])
         at = end
     return None
+
+
+@dataclass(frozen=True)
+class Cut:
+    """Where a torn file (no closing magic bytes) ends: inside the record at ``offset``, of ``opcode``, whose
+    frame gives its body ``length`` bytes (-1: the file ends inside the frame itself; ``offset == size``: after a
+    whole record), ``number`` its place among the file's records of its kind (1: the first chunk); ``size`` is
+    the file's."""
+
+    offset: int
+    opcode: int
+    length: int
+    number: int
+    size: int
+
+    @property
+    def holds_messages(self) -> bool:
+        """A chunk or a message cut short (or a frame too short to say which): what it held is not known."""
+        return self.offset < self.size and (self.length < 0 or self.opcode in (Opcode.CHUNK, Opcode.MESSAGE))
+
+    def describe(self) -> str:
+        """'the file ends inside chunk 3 at byte 1880, 211 of whose 264 bytes it holds', '... inside a record's
+        frame at byte 4090, 3 of whose 9 bytes it holds' or 'the file ends at byte 1880, after a whole record'."""
+        if self.offset >= self.size:
+            return f"the file ends at byte {self.size}, after a whole record"
+        if self.length < 0:
+            return (f"the file ends inside a record's frame at byte {self.offset}, {self.size - self.offset} of "
+                    f"whose 9 bytes it holds")
+        return (f"the file ends inside {OPCODE_NAMES[self.opcode]} {self.number} at byte {self.offset}, "
+                f"{self.size - self.offset} of whose {9 + self.length} bytes it holds")
+
+
+    def part(self) -> str:
+        """The record cut short, as a part of what was not read: 'chunk 3 at byte 1880, cut short by the file's
+        end (the file holds 211 of its 264 bytes)'."""
+        if self.offset >= self.size or not self.holds_messages:
+            return self.describe()
+        what = "a record" if self.length < 0 else f"{OPCODE_NAMES[self.opcode]} {self.number}"
+        whole = 9 if self.length < 0 else 9 + self.length
+        return (f"{what} at byte {self.offset}, cut short by the file's end (the file holds {self.size - self.offset} "
+                f"of its {whole} bytes)")
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON of ``gflow info --json``'s ``not_read.cut``."""
+        return {"byte": self.offset, "record": OPCODE_NAMES.get(self.opcode) if self.length >= 0 else None,
+                "bytes_held": self.size - self.offset, "bytes": 9 + self.length if self.length >= 0 else None,
+                "holds_messages": self.holds_messages}
+
+
+def torn_at(f: IO[bytes], size: int) -> Cut | None:
+    """Where the file ``f`` (``size`` bytes, with no closing magic bytes) ends, found by its frames alone (9 bytes
+    read each); None when a frame before the end is broken (an opcode MCAP does not define): what follows that is
+    damage, which :func:`framed_records` reports, not a cut."""
+    at, counts = len(MAGIC), dict[int, int]()
+    while at < size:
+        if at + 9 > size:
+            return Cut(at, 0, -1, 0, size)
+        f.seek(at)
+        opcode, length = _FRAME.unpack(f.read(9))
+        if opcode not in _RECORD_TYPES:
+            return None
+        counts[opcode] = counts.get(opcode, 0) + 1
+        if at + 9 + length > size:
+            return Cut(at, opcode, length, counts[opcode], size)
+        at += 9 + length
+    return Cut(size, 0, 0, 0, size)
 
 
 def chunk_length(f: IO[bytes], at: int, size: int) -> int:

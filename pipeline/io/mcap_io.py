@@ -28,7 +28,7 @@ from mcap.stream_reader import StreamReader
 
 from pipeline.io import damage_notes
 from pipeline.io.mcap_framing import (PastEnd, bounded, chunk_records, chunk_size_damage, framed_records, locate,
-                                      record_at)
+                                      record_at, torn_at)
 from pipeline.io.mcap_writer import MAGIC
 from pipeline.io.path_errors import FolderForFile, MissingPath
 from pipeline.io.run_sessions import RunSessions
@@ -213,7 +213,7 @@ def _iter_file(path: str | Path, topics: list[str] | None = None, *, strict: boo
             elif _closed(p):  # a damaged length had the reader run to the end of a file that was closed
                 text = _closed_damage(p, f, e, why, size)
             else:
-                why = "EndOfFile" if isinstance(e, PastEnd) else why  # a record cut short, as a short read says
+                why = _cut_short(f, size) or ("EndOfFile" if isinstance(e, PastEnd) else why)
                 text = f"{p}: recording ends early ({why}); it was not closed properly (try `gflow recover`)"
             _tell(text, strict, on_truncated)
         else:
@@ -247,6 +247,16 @@ def _messages(f) -> Iterator[tuple[Schema | None, Channel, Message]]:
                     raise McapError(f"no channel record found with id {r.channel_id}")
                 channel = channels[r.channel_id]
                 yield (schemas[channel.schema_id] if channel.schema_id else None), channel, r
+
+
+def _cut_short(f, size: int) -> str:
+    """Where a torn file of ``size`` bytes ends: inside which record, and how much of it the file holds ('the file
+    ends inside chunk 3 at byte 1880, 211 of whose 264 bytes it holds'; "" when the frames do not say)."""
+    try:
+        cut = torn_at(f, size)
+    except (OSError, ValueError, struct.error):
+        return ""
+    return cut.describe() if cut is not None else ""
 
 
 def _closed_damage(p: Path, f, e: BaseException, why: str, size: int) -> Damaged:

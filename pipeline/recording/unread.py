@@ -27,12 +27,12 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, MessageIndex
 from mcap.stream_reader import StreamReader, breakup_chunk
 
-from pipeline.io.mcap_framing import (OPCODE_NAMES, Summary, bounded, chunk_records, chunk_size_damage, framed_records,
-                                      read_summary, record_at, record_at_length)
-from pipeline.io.mcap_io import TORN_END_ERRORS, segments
+from pipeline.io.mcap_framing import (OPCODE_NAMES, Cut, Summary, bounded, chunk_records, chunk_size_damage,
+                                      framed_records, read_summary, record_at, record_at_length, torn_at)
+from pipeline.io.mcap_io import TORN_END_ERRORS, segments, torn_segments
 from pipeline.io.mcap_writer import MAGIC
 
-__all__ = ["NotRead", "not_read"]
+__all__ = ["NotRead", "not_read", "cut_short"]
 
 #: at most this many chunks are named by their byte offset in a line
 NAMED = 5
@@ -56,6 +56,7 @@ class NotRead:
     listed: int = -1
     read: int = 0
     files: int = 1  # the recording's files: its segments
+    cuts: list[tuple[str, Cut]] = field(default_factory=list)  # (file, where it ends) of each torn file
 
     def where(self, path: str) -> str:
         """'byte 1297', 'bytes 1297, 1588', a segment's as 'byte 30 of REC.part1.mcap' (the first NAMED)."""
@@ -72,29 +73,38 @@ class NotRead:
     def line(self, path: str, read: int) -> str:
         """What was not read, for ``gflow info``'s ``not read:`` line (``read``: the messages it counted)."""
         n = len(self.chunks)
-        if not self.chunks and not self.more_chunks:
-            text = "no chunk: every chunk was read"
-        elif not self.chunks:
-            text = "chunks after a damaged frame, whose place no summary gives, with an unknown number of messages"
-        else:
-            text = (f"{'at least ' * self.more_chunks}{n} chunk{'s' * (n != 1)} (at {self.where(path)}) with "
-                    f"{self.held()}")
+        parts = [f"{'at least ' * self.more_chunks}{n} chunk{'s' * (n != 1)} (at {self.where(path)})"] if n else []
+        if not n and self.more_chunks:
+            parts.append("chunks after a damaged frame, whose place no summary gives")
+        parts += [self._cut(seg, cut, path) for seg, cut in self.cuts if cut.holds_messages]
+        text = " and ".join(parts) + f" with {self.held()}" if parts else "no chunk: every chunk was read"
+        text += "".join(f"; {self._cut(seg, cut, path)}" for seg, cut in self.cuts if not cut.holds_messages)
         lists = "the summary lists" if self.files == 1 else "their summaries list"
         return text + (f"; {read} of the {self.listed} messages {lists} were read" if self.listed >= 0 else "")
 
+    @staticmethod
+    def _cut(seg: str, cut: Cut, path: str) -> str:
+        """Where the torn file ``seg`` ends ('the chunk the file ends inside, chunk 3 at byte 1880, ...')."""
+        return cut.part() + ("" if seg == str(path) else f" ({seg})")
+
     def short(self) -> str:
         """What was not read, for ``gflow info``'s line on stderr: '1 chunk with 2 messages not read'."""
-        if not self.chunks:
+        n, cut = len(self.chunks), [c for _, c in self.cuts if c.holds_messages]
+        if not n and not cut:
             return "chunks after the damage not read, how many unknown" if self.more_chunks else "every chunk read"
-        n = len(self.chunks)
-        return f"{'at least ' * self.more_chunks}{n} chunk{'s' * (n != 1)} with {self.held()} not read"
+        parts = [f"{'at least ' * self.more_chunks}{n} chunk{'s' * (n != 1)}"] if n else []
+        if cut:
+            what = "chunk" if all(c.opcode == Opcode.CHUNK and c.length >= 0 for c in cut) else "record"
+            parts.append(f"{len(cut)} {what}{'s' * (len(cut) != 1)} cut short")
+        return f"{' and '.join(parts)} with {self.held()} not read"
 
     def to_json(self) -> dict[str, Any]:
         """The JSON of ``gflow info --json``'s ``not_read``."""
         return {"chunks": len(self.chunks), "more_chunks": self.more_chunks,
                 "chunks_at": [{"file": seg, "byte": off} for seg, off in self.chunks],
                 "messages": self.messages if self.exact or self.messages else None, "messages_exact": self.exact,
-                "listed": self.listed if self.listed >= 0 else None}
+                "listed": self.listed if self.listed >= 0 else None,
+                "cut": [dict(cut.to_json(), file=seg) for seg, cut in self.cuts]}
 
 
 @dataclass
@@ -248,16 +258,36 @@ def _segment(seg: Path) -> NotRead:
         counts, hidden = _chunk_counts(f, size, summary)
         f.seek(max(0, size - len(MAGIC)))
         torn = size <= 2 * len(MAGIC) or f.read() != MAGIC  # what its last, unfinished record held is unknown
+        cut = torn_at(f, size) if torn and size >= len(MAGIC) else None
+    if cut is not None:
+        counts.pop(cut.offset, None)  # named as the record the file ends inside, not as a chunk passed over
     unknown = False  # a record the reader skipped that may be a chunk (no summary lists the chunks)
     for off, n in reader.skipped.items():  # a chunk whose opcode alone is damaged, which the walk stopped at
         if n >= 0 and not counts.get(off, (0, False))[1]:
             counts[off] = (n, True)
         unknown = unknown or (n < 0 and not summary.chunk_indexes)
     lost = sorted(set(counts) - reader.read)
-    more = torn or unknown or (hidden >= 0 and not reader.complete)
+    more = (torn and cut is None) or unknown or (hidden >= 0 and not reader.complete)
     return NotRead(chunks=[(str(seg), off) for off in lost], messages=sum(counts[off][0] for off in lost),
-                   exact=all(counts[off][1] for off in lost) and not more, more_chunks=more,
-                   listed=summary.messages, read=reader.messages)
+                   exact=all(counts[off][1] for off in lost) and not more and not (cut and cut.holds_messages),
+                   more_chunks=more, listed=summary.messages, read=reader.messages,
+                   cuts=[(str(seg), cut)] if cut is not None else [])
+
+
+def cut_short(path: str | Path, read: int) -> NotRead | None:
+    """What a torn recording ``path`` that is not damaged leaves unread: the record each torn file (segment) ends
+    inside, found by the frames alone (9 bytes read a record, not the whole file again, as :func:`not_read`
+    reads it); ``read`` is the messages the reader took. None when no file is torn."""
+    cuts: list[tuple[str, Cut]] = []
+    for seg in torn_segments(path):
+        with open(seg, "rb") as f:
+            cut = torn_at(f, f.seek(0, 2))
+        if cut is not None:
+            cuts.append((seg, cut))
+    if not cuts:
+        return None
+    return NotRead(exact=not any(cut.holds_messages for _, cut in cuts), read=read, files=len(segments(path)),
+                   cuts=cuts)
 
 
 def not_read(path: str | Path) -> NotRead:
@@ -270,7 +300,7 @@ def not_read(path: str | Path) -> NotRead:
     total = NotRead(chunks=[c for p in parts for c in p.chunks], messages=sum(p.messages for p in parts),
                     exact=all(p.exact for p in parts), more_chunks=any(p.more_chunks for p in parts),
                     listed=sum(p.listed for p in parts) if all(p.listed >= 0 for p in parts) else -1,
-                    read=sum(p.read for p in parts), files=len(parts))
+                    read=sum(p.read for p in parts), files=len(parts), cuts=[c for p in parts for c in p.cuts])
     if not total.exact and total.listed >= total.read + total.messages:
         total.messages, total.exact = total.listed - total.read, True  # as the statistics list them
     return total

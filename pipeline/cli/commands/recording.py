@@ -39,6 +39,10 @@ def describe_recording(path: str, as_json: bool) -> int:
         from pipeline.recording.unread import not_read
 
         missed = not_read(path)
+    elif s.truncated:  # torn, and read to the cut: the record it ends inside
+        from pipeline.recording.unread import cut_short
+
+        missed = cut_short(path, s.messages)
     live = live_summary(path)  # None unless a live source made it
     bad = s.unreadable
     if as_json:
