@@ -97,3 +97,29 @@ def test_a_mistyped_gflow_simd_is_a_one_line_mistake_before_any_work(tmp_path):
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 2 and len(lines) == 1 and "GFLOW_SIMD must be 'native'" in lines[0] and "'nativ'" in lines[0], r.stderr
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.skipif("avx512f" not in cpu_flags(), reason="this CPU has no AVX-512: no library can load with kernels "
+                    "other than the held ones, so there is nothing to name")
+def test_a_library_loaded_before_gflow_is_named_in_the_kernels_a_run_records():
+    """numpy or OpenCV imported before gflow keeps the AVX-512 kernels it loaded with (each reads its switch when it
+    loads), yet ``versions()['simd']``, which a recording keeps, said "SIMD held to x86-64-v3" all the same: a
+    recording made so through the API re-ran under the commands with float differences, and `gflow rerun` saw no
+    difference of versions to explain them. Now the loaded libraries are asked, and the difference is named."""
+    env = {k: v for k, v in os.environ.items() if k not in HELD and k != "GFLOW_SIMD"}
+
+    def simd(imports: str) -> str:
+        code = f"{imports}; from pipeline.runtime.versions import versions; print(versions()['simd'])"
+        r = subprocess.run([sys.executable, "-W", "ignore", "-c", code], capture_output=True, text=True, env=env,
+                           cwd=ROOT, timeout=60)
+        assert r.returncode == 0, r.stderr
+        return r.stdout.strip()
+
+    both_first, numpy_first, held = simd("import numpy, cv2, gflow"), simd("import numpy, gflow, cv2"), simd(
+        "import gflow, numpy, cv2")
+    assert both_first == "SIMD held to x86-64-v3, but numpy and OpenCV loaded before with AVX-512 kernels"
+    assert numpy_first == "SIMD held to x86-64-v3, but numpy loaded before with AVX-512 kernels"
+    assert held == "SIMD held to x86-64-v3"
+    from pipeline.runtime.run_metadata import versions_differ
+
+    assert versions_differ({"simd": numpy_first}, {"simd": held}) == [f"simd {numpy_first} -> {held}"]

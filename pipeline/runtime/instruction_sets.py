@@ -34,7 +34,7 @@ import sys
 from collections.abc import MutableMapping
 from pathlib import Path
 
-__all__ = ["hold", "cpu_flags", "HELD", "described", "check_setting"]
+__all__ = ["hold", "cpu_flags", "HELD", "described", "check_setting", "loaded_unheld"]
 
 # numpy >= 2.4 names its x86 dispatch targets by level: X86_V4 is AVX-512 (Skylake-X), the other two
 # later AVX-512 generations
@@ -127,11 +127,39 @@ def hold(environ: MutableMapping[str, str] | None = None, flags: frozenset[str] 
 
 
 def described(environ: MutableMapping[str, str] | None = None) -> str:
-    """One line for ``gflow --version`` and the figures' "Measured on" lines: ``x86-64-v3 held`` where
-    :func:`hold` holds the libraries, ``native`` where it was told not to, else what is set."""
+    """One line for ``gflow --version``, the figures' "Measured on" lines and a recording's ``gflow.versions``:
+    ``x86-64-v3 held`` where :func:`hold` holds the libraries (and which loaded before it with AVX-512 kernels
+    all the same: :func:`loaded_unheld`), ``native`` where it was told not to, else what is set."""
     env = os.environ if environ is None else environ
     if env.get("GFLOW_SIMD", "").strip().lower() == "native":
         return "SIMD native (GFLOW_SIMD=native)"
     if env.get("OPENBLAS_CORETYPE") == "Haswell" and env.get("OPENCV_IPP") == "avx2":
+        early = loaded_unheld()
+        if early:  # the switches came after these loaded: their kernels are the CPU's own
+            return f"SIMD held to x86-64-v3, but {' and '.join(early)} loaded before with AVX-512 kernels"
         return "SIMD held to x86-64-v3"
     return "SIMD as the libraries choose"
+
+
+def loaded_unheld() -> list[str]:
+    """The libraries this process has loaded already whose AVX-512 kernels are on (["numpy", "OpenCV"]): each reads
+    its switch when it loads, so one imported before :func:`hold` ran keeps the kernels the CPU offers, whatever
+    the switches now say (``import numpy`` before ``import gflow``). Asks the loaded libraries themselves
+    (numpy's ``__cpu_features__``, OpenCV's ``checkHardwareSupport``) and imports none; [] on a CPU without
+    AVX-512."""
+    out = []
+    np_core = sys.modules.get("numpy._core._multiarray_umath") or sys.modules.get("numpy.core._multiarray_umath")
+    if np_core is not None and getattr(np_core, "__cpu_features__", {}).get("AVX512_SKX"):
+        out.append("numpy")
+    cv2 = sys.modules.get("cv2")
+    check = getattr(cv2, "checkHardwareSupport", None)
+    try:
+        if check is not None and check(_CV_CPU_AVX_512F):
+            out.append("OpenCV")
+    except Exception:  # noqa: BLE001  (an OpenCV without the check: nothing known, nothing claimed)
+        pass
+    return out
+
+
+#: OpenCV's ``CPU_AVX_512F`` (modules/core/include/opencv2/core/cvdef.h), which its Python module does not export
+_CV_CPU_AVX_512F = 13
