@@ -373,7 +373,7 @@ def test_info_counts_the_chunk_it_passed_over_and_says_where(tmp_path: Path, cap
             f"read\n") in r.stdout, r.stdout
     assert said["messages"] == 10 and said["not_read"] == {
         "chunks": 1, "more_chunks": False, "chunks_at": [{"file": str(bad), "byte": offset}], "messages": 2,
-        "messages_exact": True, "listed": 12, "cut": []}, said
+        "messages_exact": True, "listed": 12, "cut": [], "summary_damaged": False}, said
     main(["recover", str(bad), str(tmp_path / "fixed.mcap")])  # the same count as recover's
     assert "recovered 10 messages of the 12 its summary lists" in capsys.readouterr().out
 
@@ -459,6 +459,37 @@ def _messages_before(path: Path, stop_at: int) -> int:
     return n
 
 
+def test_a_summary_that_fails_its_crc_gives_no_count(tmp_path: Path) -> None:
+    """The statistics' message count damaged to 10000: `gflow info`'s `not read:` line said "12 of the 10000
+    messages the summary lists were read", and recover "recovered 12 messages of the 10000 its summary lists ...;
+    the file was complete", from a summary whose CRC does not match. Now neither uses its counts, and each says
+    why; the copy's summary is written anew and verifies."""
+    import struct
+
+    good = _frames_recorded(tmp_path / "good.mcap")
+    data = bytearray(good.read_bytes())
+    at = 8
+    while data[at] != 0x0B:  # the statistics record
+        at += 9 + struct.unpack_from("<Q", data, at + 1)[0]
+    assert struct.unpack_from("<Q", data, at + 9)[0] == 12
+    struct.pack_into("<Q", data, at + 9, 10000)
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    r, said = _info(bad)
+    assert r.returncode == 1 and "the 10000" not in r.stdout + r.stderr, r.stdout + r.stderr
+    assert ("not read:  no chunk: every chunk was read; 12 messages read (no count of the summary's is used: its CRC "
+            "does not match)\n") in r.stdout, r.stdout
+    assert said["not_read"]["listed"] is None and said["not_read"]["summary_damaged"], said
+    fixed = tmp_path / "fixed.mcap"
+    c = cli_fork.run_command([*GFLOW, "recover", str(bad), str(fixed)], capture_output=True, text=True, timeout=60)
+    assert c.returncode == 0 and "the 10000" not in c.stdout, c.stdout + c.stderr
+    assert c.stdout.startswith("recovered 12 messages on 1 channels") and "its summary is damaged (its CRC does not " \
+        "match) and is written anew" in c.stdout and "the file was complete" not in c.stdout, c.stdout
+    from pipeline.recording.verify import verify
+
+    assert verify(fixed).ok and verify(fixed).messages == 12
+
+
 def test_info_of_a_damaged_torn_file_says_at_least(tmp_path: Path) -> None:
     """No summary (the file was cut) and a chunk's opcode damaged: the chunk itself says it held 2 messages,
     but what the cut-off end held cannot be known, so info says "at least", never a total."""
@@ -470,7 +501,7 @@ def test_info_of_a_damaged_torn_file_says_at_least(tmp_path: Path) -> None:
     assert "at least 1 chunk with at least 2 messages not read)" in r.stderr, r.stderr
     assert f"not read:  at least 1 chunk (at byte {offset}) with at least 2 messages\n" in r.stdout, r.stdout
     assert said["not_read"] == {"chunks": 1, "more_chunks": True, "chunks_at": [{"file": str(bad), "byte": offset}],
-                                "messages": 2, "messages_exact": False, "listed": None, "cut": []}, said
+                                "messages": 2, "messages_exact": False, "listed": None, "cut": [], "summary_damaged": False}, said
 
 
 def test_whatever_the_damage_verify_and_recover_answer_and_what_is_kept_is_intact(small_recording: Path,  # noqa: F811

@@ -24,6 +24,7 @@ from __future__ import annotations
 import io
 import os
 import struct
+import zlib
 from dataclasses import dataclass, field
 from typing import IO, Any, Iterator, cast
 
@@ -166,6 +167,7 @@ class Summary:
     schemas: dict[int, Schema]
     channels: dict[int, Channel]
     messages: int = -1  # the statistics' message count (-1: none readable)
+    intact: bool = True  # its CRC matches (or the footer gives none): False, and its counts are not to be believed
     chunk_indexes: dict[int, ChunkIndex] = field(default_factory=dict)
 
 
@@ -181,12 +183,15 @@ def read_summary(f: IO[bytes], size: int) -> Summary:
     if tail[-len(MAGIC):] != MAGIC or tail[0] != Opcode.FOOTER:
         return out
     try:
-        start = _parse(Opcode.FOOTER, tail[9:29]).summary_start
+        footer = _parse(Opcode.FOOTER, tail[9:29])
     except Exception:  # noqa: BLE001  (a damaged footer: no summary to go by)
         return out
-    end = size - foot_len
+    start, end = footer.summary_start, size - foot_len
     if not len(MAGIC) <= start < end:
         return out
+    if footer.summary_crc:  # a CRC of the summary up to the footer's summary_crc field
+        f.seek(start)
+        out.intact = zlib.crc32(f.read(size - len(MAGIC) - 4 - start)) == footer.summary_crc
     f.seek(start)
     at = start
     while at + 9 <= end:

@@ -60,7 +60,8 @@ class RecoverResult:
     last_log_ns: int
     skipped: list[Skipped] = field(default_factory=list)
     orphans: int = 0  # messages on a channel defined nowhere readable: left out
-    stated: int = -1  # the messages the file's summary says it holds (-1: no readable summary)
+    stated: int = -1  # the messages the file's summary says it holds (-1: no readable summary, or a damaged one)
+    summary_damaged: bool = False  # the file's summary fails its CRC (the copy's is written anew)
     repaired: list[str] = field(default_factory=list)  # damaged frames read past by a chunk's own fields
 
     @property
@@ -247,4 +248,5 @@ def _copy(fin: IO[bytes], size: int, w: Any) -> RecoverResult:
         why = why or UNCLOSED
     return RecoverResult(messages=c.n, channels=len(c.channels), metadata=c.n_meta,
                          complete=not (why or skipped or repaired), stopped_because=why, last_log_ns=c.last,
-                         skipped=skipped, orphans=c.orphans, stated=summary.messages, repaired=repaired)
+                         skipped=skipped, orphans=c.orphans, stated=summary.messages if summary.intact else -1,
+                         repaired=repaired, summary_damaged=not summary.intact)

@@ -57,6 +57,7 @@ class NotRead:
     read: int = 0
     files: int = 1  # the recording's files: its segments
     cuts: list[tuple[str, Cut]] = field(default_factory=list)  # (file, where it ends) of each torn file
+    summary_damaged: bool = False  # a summary's CRC does not match: its statistics' count is not used
 
     def where(self, path: str) -> str:
         """'byte 1297', 'bytes 1297, 1588', a segment's as 'byte 30 of REC.part1.mcap' (the first NAMED)."""
@@ -80,6 +81,8 @@ class NotRead:
         text = " and ".join(parts) + f" with {self.held()}" if parts else "no chunk: every chunk was read"
         text += "".join(f"; {self._cut(seg, cut, path)}" for seg, cut in self.cuts if not cut.holds_messages)
         lists = "the summary lists" if self.files == 1 else "their summaries list"
+        if self.summary_damaged:
+            return text + f"; {read} messages read (no count of the summary's is used: its CRC does not match)"
         return text + (f"; {read} of the {self.listed} messages {lists} were read" if self.listed >= 0 else "")
 
     @staticmethod
@@ -103,7 +106,7 @@ class NotRead:
         return {"chunks": len(self.chunks), "more_chunks": self.more_chunks,
                 "chunks_at": [{"file": seg, "byte": off} for seg, off in self.chunks],
                 "messages": self.messages if self.exact or self.messages else None, "messages_exact": self.exact,
-                "listed": self.listed if self.listed >= 0 else None,
+                "listed": self.listed if self.listed >= 0 else None, "summary_damaged": self.summary_damaged,
                 "cut": [dict(cut.to_json(), file=seg) for seg, cut in self.cuts]}
 
 
@@ -270,7 +273,8 @@ def _segment(seg: Path) -> NotRead:
     more = (torn and cut is None) or unknown or (hidden >= 0 and not reader.complete)
     return NotRead(chunks=[(str(seg), off) for off in lost], messages=sum(counts[off][0] for off in lost),
                    exact=all(counts[off][1] for off in lost) and not more and not (cut and cut.holds_messages),
-                   more_chunks=more, listed=summary.messages, read=reader.messages,
+                   more_chunks=more, listed=summary.messages if summary.intact else -1, read=reader.messages,
+                   summary_damaged=not summary.intact,
                    cuts=[(str(seg), cut)] if cut is not None else [])
 
 
@@ -300,7 +304,8 @@ def not_read(path: str | Path) -> NotRead:
     total = NotRead(chunks=[c for p in parts for c in p.chunks], messages=sum(p.messages for p in parts),
                     exact=all(p.exact for p in parts), more_chunks=any(p.more_chunks for p in parts),
                     listed=sum(p.listed for p in parts) if all(p.listed >= 0 for p in parts) else -1,
-                    read=sum(p.read for p in parts), files=len(parts), cuts=[c for p in parts for c in p.cuts])
+                    read=sum(p.read for p in parts), files=len(parts), cuts=[c for p in parts for c in p.cuts],
+                    summary_damaged=any(p.summary_damaged for p in parts))
     if not total.exact and total.listed >= total.read + total.messages:
         total.messages, total.exact = total.listed - total.read, True  # as the statistics list them
     return total

@@ -35,7 +35,9 @@ def cmd_recover(args) -> int:
               file=sys.stderr)
         return 1
     of = f" of the {r.stated} its summary lists" if 0 <= r.stated != r.messages else ""
-    state = ("the file was complete" if r.complete else
+    state = ("every record before its summary was intact; its summary is damaged (its CRC does not match) and "
+             "is written anew" if r.complete and r.summary_damaged else
+             "the file was complete" if r.complete else
              f"the file ends early ({r.stopped_because})" if r.torn_end else
              f"the copy stopped early ({r.stopped_because})" if r.stopped_because else "the rest of the file was intact")
     print(f"recovered {r.messages} messages{of} on {r.channels} channels and {r.metadata} metadata records "
