@@ -17,7 +17,10 @@ the way a user reads it, and:
 * every graph in a ```yaml block is validated as ``gflow run`` validates it;
 * every relative link and #anchor resolves, every repository path named in backticks exists,
   the parameter tables of docs/trackers.md give the shipped graphs' values, and the README
-  stays a short manual.
+  stays a short manual;
+* a gflow command written in a sentence names options its command has, and every table of
+  measured figures on the user's pages says just above it what command made it (or that no
+  command of this version reproduces it).
 """
 
 from __future__ import annotations
@@ -592,3 +595,111 @@ def test_benchmark_commands_exist():
             bad += [f"{page.relative_to(ROOT)}: {cmd[0]} has no option {o}" for o in opts
                     if o not in ("-h", "--help") and f'"{o}"' not in src]
     assert not bad, "\n".join(bad)
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures and the commands beside them
+
+
+def prose(text: str) -> str:
+    """A page's text with its fenced code blocks blanked (their lines kept, so line numbers hold)."""
+    return re.sub(r"^\s*(`{3,}|~{3,}).*?^\s*\1", lambda m: "\n" * m.group(0).count("\n"), text, flags=re.S | re.M)
+
+
+def unknown_options(command: str) -> list[str]:
+    """What is wrong with the command and options of ``gflow WORDS`` named in prose: a command gflow
+    does not have, or an option its command does not take. Values and placeholders are not judged
+    (the code blocks' lines are parsed whole by test_page_code_runs)."""
+    import argparse
+
+    def commands(parser) -> dict:
+        subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+        return subs[0].choices if subs else {}
+
+    words = command.split()[1:]
+    parser = whole_parser()
+    while words and commands(parser) and re.fullmatch(r"[a-z][\w-]*", words[0]):
+        if words[0] not in commands(parser):
+            return [f"no command {words[0]!r}"]
+        parser, words = commands(parser)[words[0]], words[1:]
+    # a group named without its command (`gflow learn --out`): an option of any of its commands
+    known = set(parser._option_string_actions).union(*(c._option_string_actions for c in commands(parser).values()))
+    return [w for w in (w.split("=")[0] for w in words if re.match(r"^--?[A-Za-z]", w)) if w not in known]
+
+
+def test_commands_in_prose_name_options_that_exist():
+    """A `gflow COMMAND --option ...` written in a sentence (as the figures' commands are) names a
+    command gflow has and options that command takes: a renamed option fails here, as it does in
+    a code block."""
+    assert unknown_options("gflow benchmark ../shared/data --seeds 1-3 --inline") == []
+    assert unknown_options("gflow benchmark DATA --seed-list 1") == ["--seed-list"]  # the check can fail
+    assert unknown_options("gflow learn m3 X") == ["no command 'm3'"]
+    bad, n = [], 0
+    for page in (p for p in PAGES if p.name != "CHANGELOG.md"):
+        text = prose(page.read_text())
+        for m in re.finditer(r"`(gflow [^`]+)`", text):
+            cmd = " ".join(m.group(1).split())
+            if re.match(r"gflow [a-z-]+:", cmd):
+                continue  # a message gflow prints ("gflow trax: error: ..."), not a command
+            n += 1
+            for what in unknown_options(cmd):
+                bad.append(f"{page.relative_to(ROOT)}:{text[:m.start()].count(chr(10)) + 1}: {cmd}: {what}")
+    assert not bad, "\n".join(bad)
+    assert n >= 100
+
+
+# The pages whose tables of measured figures each say, just above, what made them (the development
+# pages give their commands in the running text between tables and are not held to it).
+FIGURE_PAGES = ["README.md", "docs/accuracy.md", "docs/stress.md", "docs/recovery.md", "docs/trackers.md",
+                "docs/live.md", "docs/deployment.md", "docs/vot.md", "docs/own_tracker.md", "docs/python-api.md",
+                "docs/architecture.md", "docs/security.md"]
+# a cell that is a figure: 0.875, 13 ms, 360 / 382, 0.98 (417 / 440), 1.35 / 1.41 / 1.40, 0.47-0.50
+FIGURE = re.compile(r"[-+]?\d[\d.,]*(?:-\d[\d.,]*)?(?: ?(?:ms|px|s|MB|%))?(?: ?/ ?\d[\d.,]*(?:-\d[\d.,]*)?(?: ?(?:ms|px|s|MB|%))?)*"
+                    r"(?: \([^)]*\))?")
+MADE_BY = re.compile(r"`[^`]*(?:gflow [a-z]|python bench/|bench/\w+\.py|pytest)[^`]*`|\bno command\b"
+                     r"|^\s*(?:\$ )?\S*(?:gflow [a-z]|python (?:bench/|-m pytest))", re.M)  # inline, or a code block's line
+
+
+def tables_without_a_command(text: str) -> list[tuple[int, str]]:
+    """(line, header) of each table of measured figures (three or more cells such as 0.875, 13 ms or
+    360 / 382) outside the ``<!-- figures: NAME -->`` blocks (which bench/make_tables.py writes with
+    their command) whose lead -- the lines above it, up to a heading or another table and at most 25 -- neither gives a
+    command (`gflow ...`, `python bench/...`, `pytest ...`) nor says that no command reproduces it."""
+    lines, raw = prose(text).splitlines(), text.splitlines()
+    out: list[tuple[int, str]] = []
+    in_block, i = False, 0
+    while i < len(lines):
+        line = lines[i]
+        if line.startswith("<!-- figures:"):
+            in_block = True
+        elif line.startswith("<!-- end figures:"):
+            in_block = False
+        if not (line.startswith("|") and i + 1 < len(lines) and re.fullmatch(r"\|[-| :]+\|", lines[i + 1].strip())):
+            i += 1
+            continue
+        end = i + 2
+        while end < len(lines) and lines[end].startswith("|"):
+            end += 1
+        cells = [c for row in lines[i + 2:end] for c in row.strip().strip("|").split("|")]
+        settings = re.match(r"\|\s*parameter\b", line)  # the trackers' parameter tables: settings, not figures
+        if not in_block and not settings and sum(bool(FIGURE.fullmatch(c)) and bool(re.search(r"[./a-z%]", c))
+                                             for c in (c.strip().strip("*`") for c in cells)) >= 3:  # not a count alone
+            lead: list[str] = []
+            k = i - 1
+            while k >= 0 and len(lead) < 25 and not lines[k].startswith(("#", "|")):
+                lead.append(raw[k])
+                k -= 1
+            if not MADE_BY.search("\n".join(reversed(lead))):
+                out.append((i + 1, line.strip()[:80]))
+        i = end
+    return out
+
+
+def test_every_table_of_figures_says_what_made_it():
+    table = "| a | b |\n|---|---|\n| 0.875 | 0.910 |\n| 1.18 | 0.77 |\n"
+    assert tables_without_a_command("## Scores\n\nMeasured on a quiet day:\n\n" + table) == [(5, "| a | b |")]
+    assert tables_without_a_command("Measured by `gflow benchmark DATA --seed 1`:\n\n" + table) == []
+    bad = [f"{name}:{n}: {head}" for name in FIGURE_PAGES
+           for n, head in tables_without_a_command((ROOT / name).read_text())]
+    assert not bad, ("a table of figures whose lead gives no command that prints them (give it, or say that "
+                     "no command of this version reproduces them):\n" + "\n".join(bad))
