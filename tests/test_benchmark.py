@@ -213,7 +213,8 @@ def test_means_over_sequences(tmp_path):
 
 
 @pytest.mark.parametrize("case", ["missing", "no_frames", "no_truth", "tracker", "opencv", "model", "frames",
-                                  "no_first_box", "plot_folder", "plot_format", "set_stage", "set_unknown"])
+                                  "no_first_box", "plot_folder", "plot_format", "set_stage", "set_unknown",
+                                  "set_unknown_every_tracker", "set_bad_value_every_tracker"])
 def test_bad_input_is_one_line(case, seq, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -232,11 +233,16 @@ def test_bad_input_is_one_line(case, seq, tmp_path, capsys):
             "plot_format": [str(seq), "--plot", str(tmp_path / "s.xyz")],
             # a --set no selected tracker takes would skip every run: an error, not a table of skips
             "set_stage": [str(seq), "--trackers", "chamfer", "--set", "filter.particles=50"],
-            "set_unknown": [str(seq), "--trackers", "chamfer", "--set", "tracker.nope=1"]}[case]
+            "set_unknown": [str(seq), "--trackers", "chamfer", "--set", "tracker.nope=1"],
+            # each tracker refusing it in words of its own (the default --trackers; m2 skipped for want of a
+            # model) was a table of skips and exit 0
+            "set_unknown_every_tracker": [str(seq), "--set", "tracker.nope=1"],
+            "set_bad_value_every_tracker": [str(seq), "--trackers", "dcf,gflow", "--set", "tracker.particles=abc"]}[case]
     want = {"missing": "not found", "no_frames": "no frames/", "no_truth": "no groundtruth.csv", "tracker": "nosuch",
             "opencv": "unknown OpenCV tracker 'nosuch' in --opencv", "model": "missing.npz", "frames": "20:10", "no_first_box": f"frame {FRAMES + 5}",
             "plot_folder": "does not exist", "plot_format": ".png", "set_stage": "--set tracker.particles=VALUE",
-            "set_unknown": "has no parameter 'nope'"}[case]
+            "set_unknown": "has no parameter 'nope'", "set_unknown_every_tracker": "has no parameter 'nope'",
+            "set_bad_value_every_tracker": "particles must be a whole number, got 'abc'"}[case]
     assert main(["benchmark", *argv, "--inline"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("gflow benchmark: error:") and want in err[0], err

@@ -188,11 +188,23 @@ def _plans(args, seqs, names: list[str], first: dict[str, int], stop: int | None
                 skip[seq.name, name] = planned
             else:
                 plans[seq.name, name] = planned
-    reasons = set(skip.values())
-    if not plans and len(reasons) == 1 and not next(iter(reasons)).startswith("skipped: needs "):
-        # one mistake (a --set no selected tracker takes, a bad option) that would skip every run
-        raise CliError(next(iter(reasons)).removeprefix("skipped: "))
+    if not plans:
+        _refuse_a_mistake_that_skips_every_run(skip)
     return plans, skip
+
+
+def _refuse_a_mistake_that_skips_every_run(skip: dict[tuple[str, str], str]) -> None:
+    """Raise the mistake (a --set no selected tracker takes, a bad value, an option of another tracker) that
+    skips every run, rather than print a table of skips and exit 0. With several trackers each refused in
+    words of its own (``--set tracker.nosuch=1`` with the default ``--trackers``), the first is named; runs
+    skipped only for a model nobody gave are a note, not a mistake (``--trackers m2`` alone)."""
+    mistakes = list(dict.fromkeys(w for w in skip.values() if not w.startswith("skipped: needs ")))
+    if not mistakes:
+        return
+    first = mistakes[0].removeprefix("skipped: ")
+    if len(set(skip.values())) == 1:
+        raise CliError(first)
+    raise CliError(f"{first}; no selected tracker would run")
 
 
 def _stress_plan_of(args):
