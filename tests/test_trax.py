@@ -243,11 +243,16 @@ def test_bad_options_and_a_missing_library_are_one_line_errors(tmp_path):
         ([sys.executable, "-m", "pipeline.cli", "trax", "--tracker", "chamfer", "--model", "x.npz"],
          "--model is an option of --tracker gflow / m2"),
         ([sys.executable, "-m", "pipeline.cli", "trax", "--set", "particles"], "--set expects NAME=VALUE"),
+        # the default tracker's refusals listed its hundred and ten parameters on the one line
+        ([sys.executable, "-m", "pipeline.cli", "trax", "--model", "x.npz"],
+         "--model is an option of --tracker gflow / m2, not of --tracker dcf"),
+        ([sys.executable, "-m", "pipeline.cli", "trax", "--set", "partcles=500"],
+         "--set partcles=500: DCFParams has no parameter 'partcles' (did you mean 'particles'?"),
     )
     hide = "import sys; sys.modules['trax'] = None; "
     missing = [[sys.executable, "-c", hide + "from pipeline.cli.main import main; sys.exit(main(['trax']))"],
                [sys.executable, "-c", hide + "from gflow.trax import main; sys.exit(main([]))"]]
-    # the six commands side by side (each is a Python start-up and an import of gflow), then each checked
+    # the eight commands side by side (each is a Python start-up and an import of gflow), then each checked
     done = _run_together([cmd for cmd, _ in wrong] + missing)
     for (cmd, says), r in zip(wrong, done):
         assert r.returncode == 2 and r.stdout == "", (cmd, r)

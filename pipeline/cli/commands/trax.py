@@ -58,8 +58,11 @@ def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
     specs = trackers()
     if args.model is not None:
         takes = [n for n, s in specs.items() if s.model_option]  # the trackers that take a model
-        if args.tracker is not None and args.tracker not in takes:
-            raise CliError(f"--model is an option of --tracker {' / '.join(takes)}, not of --tracker {args.tracker}")
+        from pipeline.cli.commands.track import DEFAULT_TRACKER
+
+        tracker = args.tracker or DEFAULT_TRACKER  # the default's (dcf) refusal listed its hundred parameters
+        if tracker not in takes:
+            raise CliError(f"--model is an option of --tracker {' / '.join(takes)}, not of --tracker {tracker}")
         if "model" in out:
             raise CliError("give the model once: --model FILE or --set model=FILE")
         out["model"] = args.model
@@ -81,12 +84,31 @@ def _check_values(params: dict[str, Any], spec) -> None:
 
     if spec is None:
         return
+    _refuse_unknown(params, spec)
     mine = {k: v for k, v in params.items() if k in tracker_fields(spec.params)}
     try:
         block_values(spec.params, mine)
     except ValueError as e:
         how = " ".join(f"--set {k}={v}" for k, v in mine.items() if k in str(e)) or "--set"
         raise CliError(f"{how}: {e}") from None
+
+
+def _refuse_unknown(params: dict[str, Any], spec) -> None:
+    """A name in ``params`` the tracker does not take, said as gflow track says it: the closest names and
+    where to find them all (the tracker's own refusal listed every parameter, a hundred for dcf, on the
+    one line)."""
+    import difflib
+
+    from pipeline.runtime.tracker_block import tracker_fields
+
+    known = tracker_fields(spec.params)
+    for name in params:
+        if name in known or (name == "model" and spec.model_option):
+            continue
+        close = difflib.get_close_matches(name, known, n=3)
+        hint = f"did you mean {', '.join(map(repr, close))}? " if close else ""
+        raise CliError(f"--set {name}={params[name]}: {spec.params.__name__} has no parameter {name!r} ({hint}`gflow info "
+                       f"{spec.name}` lists all {len(known)})")
 
 
 def argv_of(args: argparse.Namespace) -> list[str]:
