@@ -102,7 +102,7 @@ def check_tracker_options(args) -> None:
             if args.tracker in users:
                 continue
             if getattr(args, dest, default) != default:
-                raise CliError(f"{opt} is an option of --tracker {' / '.join(users)}, not of --tracker "
+                raise CliError(f"{opt} is an option of --tracker {' / '.join(sorted(users))}, not of --tracker "
                                f"{args.tracker}")
     from pipeline.cli.tracker_options import check_param_values
 

@@ -1,0 +1,45 @@
+"""A sweep of every ``gflow`` command with the bad input a user would plausibly give, the faults it found: each
+case is one line on stderr naming what was wrong, a non-zero exit, no traceback, before any work.
+
+Every case runs the CLI in a process of its own (``tests/cli_fork.py``), or a new interpreter where a case needs
+its own hash seed; the sources are tiny files written into tmp_path.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from test_cli_errors import assert_one_line_error, gflow
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture()
+def frames(tmp_path: Path) -> Path:
+    """Five 64x48 textured frames in a folder."""
+    d = tmp_path / "frames"
+    d.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(5):
+        cv2.imwrite(str(d / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
+    return d
+
+
+def test_an_option_of_other_trackers_names_them_in_one_order(tmp_path: Path, frames: Path) -> None:
+    """The trackers an option belongs to came from a set: their order changed with the hash seed of the run."""
+    said = set()
+    for seed in ("0", "1", "2"):
+        env = dict(os.environ, PYTHONHASHSEED=seed, PYTHONPATH=str(ROOT))
+        r = subprocess.run([sys.executable, "-m", "pipeline.cli.main", "track", str(frames), "--init", "1,1,5,5",
+                            "--out", "b.csv", "--no-record", "--tracker", "gflow", "--particles", "9"], cwd=tmp_path,
+                           env=env, capture_output=True, text=True, timeout=60)
+        said.add(assert_one_line_error(r, "--particles is an option of --tracker appearance / chamfer / dcf / m2, "
+                                          "not of --tracker gflow"))
+    assert len(said) == 1, said
