@@ -8,6 +8,7 @@ its own hash seed; the sources are tiny files written into tmp_path.
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -43,3 +44,29 @@ def test_an_option_of_other_trackers_names_them_in_one_order(tmp_path: Path, fra
         said.add(assert_one_line_error(r, "--particles is an option of --tracker appearance / chamfer / dcf / m2, "
                                           "not of --tracker gflow"))
     assert len(said) == 1, said
+
+
+@pytest.mark.parametrize("delay", [0.1, 0.2, 0.3])
+def test_ctrl_c_while_gflow_starts_is_one_line_not_a_traceback(tmp_path: Path, frames: Path, delay: float) -> None:
+    """SIGINT to the terminal's process group while ``gflow track`` imports its modules (numpy, the trackers:
+    the first few tenths of a second) printed a KeyboardInterrupt traceback from inside an import. Later, it
+    is the run's own interruption: exit status 130 and its last line says so, as before."""
+    script = Path(sys.executable).parent / "gflow"
+    if not script.is_file():
+        pytest.skip("no gflow console script beside this Python")
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    p = subprocess.Popen([str(script), "track", str(frames), "--init", "1,1,20,20", "--out", "b.csv", "--no-record",
+                          "--realtime", "--fps", "1", "-q"], cwd=tmp_path, env=env,
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        import time
+
+        time.sleep(delay)
+        os.killpg(p.pid, signal.SIGINT)
+        out, err = p.communicate(timeout=30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+    assert p.returncode == 130, (p.returncode, err)
+    assert "Traceback" not in err, err
+    assert "interrupted" in err.strip().splitlines()[-1], err

@@ -32,6 +32,24 @@ if sys.argv and sys.argv[0].endswith(("gflow", "pipeline/cli/__main__.py", "pipe
 
     bind_early(sys.argv[1:])
 
+
+def _interrupted_at_start(signum: int, frame: object) -> None:
+    """Ctrl-C while ``gflow`` is still starting (importing its modules, parsing its options): nothing has
+    begun, so there is nothing to close; one line and exit status 130, as a command interrupted later says
+    it (:func:`main`), not a ``KeyboardInterrupt`` traceback from inside an import. :func:`main` gives
+    SIGINT back to Python before the command's work starts (:func:`_take_sigint_back`)."""
+    word = next((a for a in sys.argv[1:] if not a.startswith("-")), "")
+    os.write(2, f"gflow{' ' + word if word else ''}: interrupted\n".encode())
+    os._exit(130)
+
+
+if sys.argv and os.path.basename(sys.argv[0]) == "gflow":  # the command, not a module importing this one
+    import signal  # noqa: E402
+
+    # after the zygote's fork (it keeps Python's handler); SIGINT ignored (nohup ... &) is left as it is
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _interrupted_at_start)
+
 import argparse  # noqa: E402
 import re  # noqa: E402
 from typing import NoReturn  # noqa: E402
@@ -204,7 +222,8 @@ def _take_sigint_back() -> None:
     import signal
     import threading
 
-    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    if threading.current_thread() is threading.main_thread() and \
+            signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, _interrupted_at_start):
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
@@ -235,7 +254,6 @@ def main(argv: list[str] | None = None) -> int:
     ap = build_parser(command_word(sys.argv[1:] if argv is None else argv))
     args = parse(ap, argv)
     mark("cli parsed")
-    _take_sigint_back()
     import logging  # here: --help and a usage mistake, said by parse, need no logging (nor its traceback, linecache...)
 
     logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)],
@@ -247,6 +265,7 @@ def main(argv: list[str] | None = None) -> int:
     start_work(False)  # main may run several commands in one process (the tests do)
     damage_notes.defer()  # damage inside a recording: said once, by the command's last line or after it
     try:
+        _take_sigint_back()  # from here on a Ctrl-C is a KeyboardInterrupt the command may clean up after
         check_setting()  # GFLOW_SIMD mistyped: said before any work (the kernels were held meanwhile)
         rc = int(args.func(args) or 0)
     except _user_errors() as e:
