@@ -70,3 +70,37 @@ def test_ctrl_c_while_gflow_starts_is_one_line_not_a_traceback(tmp_path: Path, f
     assert p.returncode == 130, (p.returncode, err)
     assert "Traceback" not in err, err
     assert "interrupted" in err.strip().splitlines()[-1], err
+
+
+@pytest.fixture(scope="module")
+def demo_mcap(tmp_path_factory) -> Path:
+    """A closed recording of 20 frames of the synthetic scene (``gflow demo --inline``)."""
+    where = tmp_path_factory.mktemp("demo")
+    r = gflow("demo", "--frames", "20", "--inline", "--record", "demo.mcap", cwd=where)
+    assert r.returncode == 0, r.stderr
+    return where / "demo.mcap"
+
+
+@pytest.mark.parametrize("extra", [["--check"], ["--out", "new.mcap"]])
+def test_rerun_graph_interrupted_is_no_verdict(tmp_path: Path, demo_mcap: Path, monkeypatch, capsys,
+                                               extra: list[str]) -> None:
+    """A whole-graph re-run stopped by Ctrl-C (its inline run ends as at its source's end) was compared as if
+    whole: every later output 'recorded, but the re-run did not produce it', exit 1 with --check and 0
+    without. It is an interruption: exit 130, one line, nothing compared."""
+    import pipeline.recording.rerun as rerun
+    from pipeline.cli.main import main
+
+    real = rerun.rerun_graph
+
+    def stopped_midway(*a, **kw):
+        plan, res = real(*a, **kw)
+        res.interrupted = True  # as run_inline says a Ctrl-C
+        return plan, res
+
+    monkeypatch.setattr(rerun, "rerun_graph", stopped_midway)
+    monkeypatch.chdir(tmp_path)
+    assert main(["rerun", str(demo_mcap), "--graph", *extra]) == 130
+    out, err = capsys.readouterr()
+    assert "compared" not in out and "did not produce" not in out, out
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("gflow rerun: interrupted after ") and "nothing compared" in lines[0]

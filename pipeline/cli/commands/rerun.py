@@ -141,6 +141,10 @@ def cmd_rerun(args) -> int:
         out = args.out or str(unique_path(str(Path(args.file).with_suffix("")) + "-rerun.mcap"))
         t0 = time.perf_counter()
         plan, res = rerun_graph(args.file, out, sets)
+        if res.interrupted:  # the frames so far are no re-run to check (every later output was "not produced")
+            print(f"gflow rerun: interrupted after {res.frames} frames: nothing compared; the re-run so far: {out}",
+                  file=sys.stderr)
+            return 130
         print(f"re-ran the whole graph from the recorded frames: {res.frames} frames in {time.perf_counter() - t0:.2f} s; "
               f"new recording: {out}")
         from pipeline.io.mcap_io import iter_records
