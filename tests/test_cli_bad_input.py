@@ -104,3 +104,14 @@ def test_rerun_graph_interrupted_is_no_verdict(tmp_path: Path, demo_mcap: Path, 
     assert "compared" not in out and "did not produce" not in out, out
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("gflow rerun: interrupted after ") and "nothing compared" in lines[0]
+
+
+def test_plot_of_a_recording_without_stage_inputs_prints_no_matplotlib_warning(tmp_path: Path) -> None:
+    """A recording kept with --record-topics holds no stage's inputs and outputs both, so no latency line: the
+    plot was written, with matplotlib's 'No artists with labels found to put in legend' warning (its file
+    and line) on stderr."""
+    r = gflow("demo", "--frames", "5", "--inline", "--record", "est.mcap", "--record-topics", "estimate", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = gflow("plot", "est.mcap", "p.png", cwd=tmp_path)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+    assert (tmp_path / "p.png").stat().st_size > 0

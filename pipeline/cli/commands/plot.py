@@ -179,15 +179,7 @@ def cmd_plot(args) -> int:
     ax.set_ylim(0, 1.05)
     ax.set_title("effective sample size before resampling")
     ax.grid(alpha=0.3)
-    ax = axes[2]
-    for name, (f, lat) in stage_latency(args.file).items():
-        ax.plot(f, lat, lw=1.0, label=f"{name} (median {np.median(lat):.1f} ms)")
-    ax.set_ylabel("latency (ms)")
-    ax.set_xlabel("frame")
-    ax.set_yscale("log")
-    ax.set_title("per-stage latency: last input to output (publish times)")
-    ax.legend(loc="upper right", fontsize=8)
-    ax.grid(alpha=0.3)
+    _latency_panel(axes[2], args.file)
     fig.suptitle(Path(args.file).name)
     fig.tight_layout()
     fig.savefig(out, dpi=args.dpi)
@@ -195,6 +187,26 @@ def cmd_plot(args) -> int:
     from pipeline.cli.commands.common import partial_if_damaged
 
     return partial_if_damaged(args.file, "plot", out)
+
+
+def _latency_panel(ax, path: str) -> None:
+    """The per-stage latency panel: a line per stage whose input and output topics are both in the recording,
+    or a title saying there is none (a recording kept with --record-topics: matplotlib's "No artists with
+    labels found to put in legend" warning, file and line, was printed under the command's answer)."""
+    import numpy as np
+
+    lines = stage_latency(path)
+    for name, (f, lat) in lines.items():
+        ax.plot(f, lat, lw=1.0, label=f"{name} (median {np.median(lat):.1f} ms)")
+    ax.set_ylabel("latency (ms)")
+    ax.set_xlabel("frame")
+    ax.grid(alpha=0.3)
+    if not lines:
+        ax.set_title("per-stage latency: none to show (no stage has both its input and output topics recorded)")
+        return
+    ax.set_yscale("log")
+    ax.set_title("per-stage latency: last input to output (publish times)")
+    ax.legend(loc="upper right", fontsize=8)
 
 
 def register(sub) -> None:
