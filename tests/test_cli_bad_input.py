@@ -115,3 +115,13 @@ def test_plot_of_a_recording_without_stage_inputs_prints_no_matplotlib_warning(t
     r = gflow("plot", "est.mcap", "p.png", cwd=tmp_path)
     assert r.returncode == 0 and r.stderr == "", r.stderr
     assert (tmp_path / "p.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("box", ["1,1,1e308,5", "1,1,641,5", "1,1,5,481"])
+def test_an_init_box_many_times_the_image_is_refused_first(tmp_path: Path, frames: Path, box: str) -> None:
+    """A box ten times the 64x48 image or more is a typing mistake: 1e308 ran, every frame an error report,
+    'tracked 0 frames' and exit 0; 1e6 grew the dcf stage's arrays until it was killed and the run stalled."""
+    r = gflow("track", str(frames), "--init", box, "--out", "b.csv", "--no-record", cwd=tmp_path)
+    assert_one_line_error(r, "--init box", "more than 10 times the size of the 64x48 image",
+                          "W at most 640, H at most 480")
+    assert not (tmp_path / "b.csv").exists()

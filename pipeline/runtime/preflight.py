@@ -103,13 +103,23 @@ def _torn(params: SourceParams) -> str:
     return f": {torn}" if torn else ""
 
 
+#: how many times the image's width (height) a box's width (height) may be: past it, a box is a typing mistake
+#: (``--init 1,1,1e6,5``), which grew dcf's arrays until its stage was killed, the run stalled for 30 s
+MAX_BOX_TIMES_IMAGE = 10
+
+
 def check_box_in_image(box, width: int, height: int, what: str = "--init") -> None:
-    """Refuse a box with no overlap with a ``width`` x ``height`` image (partly outside is fine)."""
+    """Refuse a box with no overlap with a ``width`` x ``height`` image (partly outside is fine), or one more
+    than :data:`MAX_BOX_TIMES_IMAGE` times the image's size."""
     x, y, w, h = (float(v) for v in box)
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} lies outside the {width}x{height} image "
                              f"(x in 0..{width - 1}, y in 0..{height - 1}; `gflow frame SOURCE N out.png` "
                              f"draws a frame with a pixel grid)")
+    k = MAX_BOX_TIMES_IMAGE
+    if w > k * width or h > k * height:
+        raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} is more than {k} times the size of the "
+                             f"{width}x{height} image (W at most {k * width}, H at most {k * height})")
 
 
 def check_source(params: SourceParams, box=None, base_dir: str | os.PathLike = ".") -> RawFrame:
