@@ -447,12 +447,14 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
     lost = [seq for seq in heard if seq not in est]  # what the recording lost
     est.update(heard)
     if read is not None:  # the frames sent and the frames reported, from the same reading
-        sent = read.sent if est and topic else set()
+        sent = read.sent if topic else set()
         reported = read.reported | set(reported)
     else:
         sent = ({r.seq for r in iter_records(recording, topics=[topic]) if r.type == "Frame"}
-                if est and topic and recording else set())
+                if topic and recording else set())
         reported = reported_frames(recording, plan.stream) | set(reported)
+    # the frames sent are expected even when no estimate came at all (a run whose filter failed on every frame
+    # was 'tracked 0 frames' and complete, exit 0); not those reported (a live stream's end is a report past it)
     expected = range(start, max(sent | set(est), default=start - 1) + 1)
     coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
     lines = completeness(est, expected, reported, edgeless_frames(plan, coasted), blank_rule(plan)) + sessions.lines()
