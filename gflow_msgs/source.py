@@ -24,6 +24,9 @@ __all__ = ["SourceParams", "RawFrame", "FOREVER_S"]
 #: seconds (about 32 years): JSON, which carries the plan to each stage and the parameters into the recording,
 #: has no infinity (msgspec writes it as null, which no stage could read back).
 FOREVER_S = 1e9
+#: the slowest frame rate: a frame every 1000 s. A file's frame is stamped ``index * 1e9 / fps`` ns, which at a
+#: rate of 1e-300 (a mistyped exponent) was no integer and ended the source in an OverflowError
+MIN_FPS = 1e-3
 
 
 class SourceParams(Params, frozen=True):
@@ -84,6 +87,9 @@ class SourceParams(Params, frozen=True):
                 msgspec.structs.force_setattr(self, name, FOREVER_S)
         if not self.fps > 0:
             raise ValueError(f"fps must be positive, got {self.fps}")
+        if not MIN_FPS <= self.fps < math.inf:
+            raise ValueError(f"fps must be a finite rate of at least {MIN_FPS:g} frames/s (a frame every "
+                             f"{1 / MIN_FPS:g} s), got {self.fps}")
         if self.start < 0 or (self.stop is not None and self.stop <= self.start):
             raise ValueError(f"need 0 <= start < stop, got start={self.start}, stop={self.stop}")
         if self.kind != "synthetic" and not self.path:

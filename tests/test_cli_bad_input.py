@@ -141,3 +141,29 @@ def test_a_track_run_with_no_estimate_at_all_is_incomplete(tmp_path: Path, frame
     out, err = capsys.readouterr()
     assert rc == 3, (out, err)
     assert "5 frame(s) have no estimate: 0-4" in out and "the run is incomplete" in err, (out, err)
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["track", "{frames}", "--init", "1,1,20,20", "--out", "b.csv", "--no-record", "--inline", "--fps", "1e-300"],
+     ["gflow track: error: argument --fps: must be a number >= 0.001, got 1e-300"]),
+    (["run", "{graph}", "--inline", "--no-record", "--set", "source.fps=1e-300"],
+     ["--set source.fps=1e-300", "at least 0.001 frames/s"]),
+    (["render", "{rec}", "v.mp4", "--fps", "1e-300"], ["argument --fps: must be a number >= 0.01, got 1e-300"]),
+    (["render", "{rec}", "v.avi", "--fps", "2000"], ["argument --fps: a video's frame rate is 0.01-1000, got 2000"]),
+])
+def test_a_frame_rate_past_what_can_be_used_is_refused_as_the_option(tmp_path: Path, frames: Path, demo_mcap: Path,
+                                                                      argv: list[str], words: list[str]) -> None:
+    """A source's rate of 1e-300 stamped its frames past any integer: 'internal error: OverflowError'. A video's
+    rate OpenCV cannot write printed OpenCV's own error lines and blamed the file's kind (.mp4), or asked
+    about a full disk (.avi past 1000 frames/s)."""
+    graph = tmp_path / "g.yaml"
+    graph.write_text("name: g\nstream: g\ntracker: dcf\nstages:\n  source:\n    kind: source\n"
+                     f"    params: {{kind: folder, path: {frames}, fps: 25}}\n"
+                     "  proposal:\n    kind: dcf.proposal\n    inputs: {particles: particles}\n"
+                     "    params: {seed: 0, init: [1, 1, 20, 20]}\n"
+                     "  filter:\n    kind: dcf.filter\n    inputs: {frames: frames, proposals: proposals}\n"
+                     "    params: {seed: 0, init: [1, 1, 20, 20]}\n")
+    args = [a.format(frames=frames, graph=graph, rec=demo_mcap) for a in argv]
+    r = gflow(*args, cwd=tmp_path)
+    assert_one_line_error(r, *words)
+    assert not list(tmp_path.glob("v.*")) and not (tmp_path / "b.csv").exists()

@@ -110,6 +110,29 @@ def positive_float(text: str) -> float:
     return float(_at_least(text, float, 0, inclusive=False))
 
 
+def source_rate(text: str) -> float:
+    """A source's frame rate (argparse type): a finite number of at least ``gflow_msgs.source.MIN_FPS`` frames/s
+    (a rate of 1e-300 stamped frames past any integer: the source failed in an OverflowError)."""
+    from gflow_msgs.source import MIN_FPS
+
+    return float(_at_least(text, float, MIN_FPS, inclusive=True))
+
+
+#: the frame rates a video file is written at (``gflow render --fps``): outside them OpenCV's writer would not
+#: open an .mp4 (and said so in lines of its own, before an error that blamed the file's kind), and an .avi past
+#: 1000 frames/s read back short (an error that asked about a full disk)
+VIDEO_FPS = (0.01, 1000.0)
+
+
+def video_rate(text: str) -> float:
+    """A video file's frame rate (argparse type): a number in :data:`VIDEO_FPS`."""
+    low, high = VIDEO_FPS
+    v = float(_at_least(text, float, low, inclusive=True))
+    if v > high:
+        raise argparse.ArgumentTypeError(f"a video's frame rate is {low:g}-{high:g}, got {text.strip()}")
+    return v
+
+
 def nonnegative_float(text: str) -> float:
     """A finite number >= 0 (argparse type)."""
     return float(_at_least(text, float, 0, inclusive=True))

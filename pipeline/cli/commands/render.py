@@ -6,7 +6,7 @@ import errno
 import sys
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError, frame_range, positive_float, positive_int
+from pipeline.cli.commands.common import CliError, frame_range, positive_int, video_rate
 
 ORDER = 58
 
@@ -202,7 +202,7 @@ def register(sub) -> None:
     p.add_argument("out", help="OUT.mp4 / OUT.avi for a video, or a folder for PNG frames")
     p.add_argument("--frames", metavar="A:B", help="only frames A..B-1 (A alone: frame A)")
     p.add_argument("--scale", type=positive_int, default=2, help="upscale factor (default 2)")
-    p.add_argument("--fps", type=positive_float, default=25.0, help="video frame rate (default 25)")
+    p.add_argument("--fps", type=video_rate, default=25.0, help="video frame rate (default 25; 0.01-1000)")
     p.add_argument("--no-particles", dest="particles", action="store_false", help="do not draw the particles")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     p.set_defaults(func=cmd_render)

@@ -29,7 +29,7 @@ from pipeline.runtime.trace import mark
 from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args, check_new_file,
                                           check_outputs, launcher_zenoh, nonnegative_int, parse_box,
-                                          positive_float, positive_int)
+                                          positive_float, positive_int, source_rate)
 
 if TYPE_CHECKING:  # imported where used: the application layer (cv2, msgspec, mcap, the graph loader, the stages) is
     # not needed to build the options, nor to say a mistake in them (bench/bench_command_startup.py measures the start-up)
@@ -296,7 +296,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=nonnegative_int, default=1, help="random seed (default 1, as gflow benchmark and the docs' figures)")
     add_record_args(p, "recordings/track-TIME-RUNID.mcap")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
-    p.add_argument("--fps", type=positive_float, default=25.0,
+    p.add_argument("--fps", type=source_rate, default=25.0,
                    help="source frame rate, for time stamps and --realtime; of a live source, the nominal rate "
                         "the trackers measure time in (default 25)")
     p.add_argument("--realtime", action="store_true", help="play the source at --fps instead of as fast as possible")
