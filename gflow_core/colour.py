@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from .features import to_uint8
+from .remap import remap_points
 
 __all__ = ["N_BINS", "Scan", "bins", "is_grey", "stride_for", "histogram", "bhattacharyya", "scan", "SAMPLES_PER_BOX"]
 
@@ -118,8 +119,7 @@ class Scan:
         that lies wholly in the frame."""
         u = ((x - self.xs[0]) / self.stride).astype(np.float32).reshape(-1, 1)
         v = ((y - self.ys[0]) / self.stride).astype(np.float32).reshape(-1, 1)
-        return cv2.remap(self.raw.astype(np.float32), u, v, cv2.INTER_LINEAR,
-                         borderMode=cv2.BORDER_REPLICATE).ravel().astype(np.float64)
+        return remap_points(self.raw.astype(np.float32), u, v, cv2.INTER_LINEAR, cv2.BORDER_REPLICATE).astype(np.float64)
 
     def best(self, mask: np.ndarray | None = None) -> tuple[float, np.ndarray] | None:
         """The best BC (over ``mask`` if given) and its centre (2,); None when nothing was scanned."""

@@ -167,3 +167,31 @@ def test_a_frame_rate_past_what_can_be_used_is_refused_as_the_option(tmp_path: P
     r = gflow(*args, cwd=tmp_path)
     assert_one_line_error(r, *words)
     assert not list(tmp_path.glob("v.*")) and not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("tracker", ["dcf", "appearance"])
+def test_particles_past_opencvs_row_limit_are_tracked(tmp_path: Path, frames: Path, tracker: str) -> None:
+    """40000 particles (OpenCV's remap writes fewer than 32767 rows): the filter failed on the first frame after
+    the first (a 'stage_exception' with OpenCV's assertion), one frame of five tracked, exit 0."""
+    r = gflow("track", str(frames), "--init", "1,1,20,20", "--out", "b.csv", "--no-record", "--inline", "-q",
+              "--tracker", tracker, "--set", "tracker.particles=40000", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "errors reported" not in r.stdout and "WARNING" not in r.stderr, (r.stdout, r.stderr)
+    assert len((tmp_path / "b.csv").read_text().splitlines()) == 6
+
+
+def test_remap_points_in_blocks_is_the_one_call_below_the_limit() -> None:
+    """Past :data:`gflow_core.remap.MAX_ROWS` points, the blocks give each point the value a call of its own would."""
+    import cv2
+
+    from gflow_core.remap import MAX_ROWS, remap_points
+
+    rng = np.random.default_rng(1)
+    src = rng.random((40, 50)).astype(np.float32)
+    u = rng.uniform(-5, 55, MAX_ROWS * 2 + 7).astype(np.float32)
+    v = rng.uniform(-5, 45, u.size).astype(np.float32)
+    got = remap_points(src, u, v, cv2.INTER_LINEAR, cv2.BORDER_CONSTANT, -1.0)
+    want = np.concatenate([cv2.remap(src, u[a:a + 1000].reshape(-1, 1), v[a:a + 1000].reshape(-1, 1), cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0).ravel()
+                           for a in range(0, u.size, 1000)])
+    assert got.shape == (u.size,) and np.array_equal(got, want)

@@ -175,6 +175,7 @@ from .. import redetect
 from .params import AppearanceParams
 from ..orientation import orientation_channels
 from ..particles import LogWeights, systematic_resample
+from ..remap import remap_points
 from ..regions import region
 from ..visibility import ChiSquare, Cue, Visibility, visibility
 
@@ -372,7 +373,7 @@ def _lookup(levels: list[_Level], parts: np.ndarray, recent: bool = False, level
             continue
         u = ((parts[m, 0] - lv.origin[0]) * lv.k).astype(np.float32).reshape(-1, 1)
         v = ((parts[m, 1] - lv.origin[1]) * lv.k).astype(np.float32).reshape(-1, 1)
-        resp[m] = cv2.remap(lv.r_recent if recent else lv.r, u, v, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0).ravel()
+        resp[m] = remap_points(lv.r_recent if recent else lv.r, u, v, cv2.INTER_LINEAR, cv2.BORDER_CONSTANT, -1.0)
     return resp
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from . import channels as ch
 from . import filter as cf
+from ..remap import remap_points
 from .augment import first_sample
 from .constrained import box_mask, solve_masked
 from .features import colour_bins, colour_names, cosine_window, hog, intensity, sample, N_COLOUR_BINS, N_GREY_BINS
@@ -298,8 +299,8 @@ class Response:
         u = ((xy[:, 0] - self.origin[0]) * self.q[0]).astype(np.float32).reshape(-1, 1)
         v = ((xy[:, 1] - self.origin[1]) * self.q[1]).astype(np.float32).reshape(-1, 1)
         lo = float(m.min())
-        out = cv2.remap(m.astype(np.float32), u, v, cv2.INTER_CUBIC if self.cubic else cv2.INTER_LINEAR,
-                        borderMode=cv2.BORDER_CONSTANT, borderValue=lo).ravel().astype(np.float64)
+        out = remap_points(m.astype(np.float32), u, v, cv2.INTER_CUBIC if self.cubic else cv2.INTER_LINEAR,
+                           cv2.BORDER_CONSTANT, lo).astype(np.float64)
         # bicubic interpolation overshoots a little between samples: keep it within the map's range
         return np.clip(out, lo, float(m.max())) if self.cubic else out
 
