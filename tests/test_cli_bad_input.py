@@ -195,3 +195,15 @@ def test_remap_points_in_blocks_is_the_one_call_below_the_limit() -> None:
                                      borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0).ravel()
                            for a in range(0, u.size, 1000)])
     assert got.shape == (u.size,) and np.array_equal(got, want)
+
+
+@pytest.mark.parametrize("endpoint,why", [("tcp/999.1.1.1:7447", "cannot listen on tcp/999.1.1.1:7447"),
+                                          ("tcp/10.255.255.1:7447", "Cannot assign requested address")])
+def test_listen_where_this_machine_cannot_is_refused_before_saying_it_listens(tmp_path: Path, frames: Path,
+                                                                             endpoint: str, why: str) -> None:
+    """A --listen host that does not resolve, or an address not this machine's: 'dcf: listening on ENDPOINT' was
+    printed, then zenoh's error (two lines, the first untrue)."""
+    r = gflow("track", str(frames), "--init", "1,1,20,20", "--out", "b.csv", "--no-record", "--listen", endpoint,
+              cwd=tmp_path)
+    assert_one_line_error(r, "gflow track: error: cannot listen on", why)
+    assert "listening on" not in r.stderr

@@ -114,6 +114,12 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
     preload(s.kind for s in plan.stages.values())  # the stage processes' zygote imports their modules (once)
 
     settings = zenoh()
+    from pipeline.runtime.preflight import PreflightError, check_listen
+
+    try:  # before the line that says where the run listens
+        check_listen(settings.listen)
+    except PreflightError as e:
+        raise RequestError(str(e)) from None
     while True:
         launcher = Launcher(plan, zenoh=settings, recording=recording, progress=not quiet,
                             total_frames=total, hosts=hosts, say_recording=not temporary_recording(recording))

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Iterable
 
 if TYPE_CHECKING:  # imported where used: check_writable, which every command's outputs go through, needs no stage
     from stages.source import RawFrame, SourceParams
 
-__all__ = ["PreflightError", "check_writable", "first_frame", "check_box_in_image", "check_source"]
+__all__ = ["PreflightError", "check_writable", "first_frame", "check_box_in_image", "check_source", "check_listen"]
 
 # FFmpeg's own log ("moov atom not found") would precede our one-line error; silence it in
 # this process (the stage processes report decoding problems on the errors topic).
@@ -130,3 +130,25 @@ def check_source(params: SourceParams, box=None, base_dir: str | os.PathLike = "
         h, w = frame.image.shape[:2]
         check_box_in_image(box, w, h)
     return frame
+
+
+def check_listen(endpoints: Iterable[str]) -> None:
+    """Refuse an endpoint of ``--listen`` this machine cannot listen on (a host that does not resolve, or an address
+    that is not one of its own), before a run says it listens there: ``tcp/999.1.1.1:7447`` printed "listening on
+    tcp/999.1.1.1:7447", then zenoh's error. A port in use is left to the run (it may pick another)."""
+    import errno
+    import socket
+
+    for ep in endpoints:
+        proto, _, addr = ep.partition("/")
+        host, sep, port = addr.split("?")[0].split("#")[0].rpartition(":")
+        if proto not in ("tcp", "tls", "udp", "quic") or not sep or not port.isdigit():
+            continue
+        kind = socket.SOCK_DGRAM if proto in ("udp", "quic") else socket.SOCK_STREAM
+        try:
+            family, _, _, _, where = socket.getaddrinfo(host.strip("[]"), int(port), type=kind)[0]
+            with socket.socket(family, kind) as s:
+                s.bind(where)
+        except OSError as e:
+            if e.errno != errno.EADDRINUSE:
+                raise PreflightError(f"cannot listen on {ep}: {e.strerror or e}") from None
