@@ -46,11 +46,12 @@ def test_an_option_of_other_trackers_names_them_in_one_order(tmp_path: Path, fra
     assert len(said) == 1, said
 
 
-@pytest.mark.parametrize("delay", [0.1, 0.2, 0.3])
+@pytest.mark.parametrize("delay", [0.1, 0.2, 0.3, 0.5, 0.8])
 def test_ctrl_c_while_gflow_starts_is_one_line_not_a_traceback(tmp_path: Path, frames: Path, delay: float) -> None:
     """SIGINT to the terminal's process group while ``gflow track`` imports its modules (numpy, the trackers:
     the first few tenths of a second) printed a KeyboardInterrupt traceback from inside an import. Later, it
-    is the run's own interruption: exit status 130 and its last line says so, as before."""
+    is the run's own interruption: exit status 130 and it says so; a stage that the Ctrl-C stopped before its node
+    started was also said as 'stage filter exited with status 130: ' (no reason), a line per stage."""
     script = Path(sys.executable).parent / "gflow"
     if not script.is_file():
         pytest.skip("no gflow console script beside this Python")
@@ -69,7 +70,7 @@ def test_ctrl_c_while_gflow_starts_is_one_line_not_a_traceback(tmp_path: Path, f
             p.kill()
     assert p.returncode == 130, (p.returncode, err)
     assert "Traceback" not in err, err
-    assert "interrupted" in err.strip().splitlines()[-1], err
+    assert "interrupted" in err and "exited with status 130" not in err, err
 
 
 @pytest.fixture(scope="module")

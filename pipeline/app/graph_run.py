@@ -153,8 +153,12 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
         break
     if res.interrupted:
         print("interrupted: stages stopped, recording closed", file=sys.stderr)
+    from pipeline.runtime.zygote import STOPPED_BEFORE_START
+
     for n, ex in res.exits.items():
-        if ex.returncode != 0:
+        # a stage that Ctrl-C stopped before its node started is the interruption just said, not a stage failing
+        # ("stage filter exited with status 130: ", a line per stage, under "interrupted")
+        if ex.returncode != 0 and not (res.interrupted and ex.returncode == STOPPED_BEFORE_START and not ex.last_error):
             print(f"stage {n} exited with status {ex.returncode}: {ex.last_error}", file=sys.stderr)
     src = next((n for n, s in plan.stages.items() if s.is_source()), None)  # a graph fed from outside has none
     frames = res.status[src].steps if src in res.status else 0
