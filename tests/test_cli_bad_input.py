@@ -208,3 +208,13 @@ def test_listen_where_this_machine_cannot_is_refused_before_saying_it_listens(tm
               cwd=tmp_path)
     assert_one_line_error(r, "gflow track: error: cannot listen on", why)
     assert "listening on" not in r.stderr
+
+
+@pytest.mark.parametrize("vis,words", [("nosuch.csv", ["visibility file not found: nosuch.csv"]),
+                                       ("afolder", ["afolder is a folder, not a visibility file"])])
+def test_eval_names_a_missing_visibility_file_as_itself(tmp_path: Path, vis: str, words: list[str]) -> None:
+    """With predictions of no state column, a missing --visibility file was said as 'PRED has no state column'."""
+    (tmp_path / "afolder").mkdir()
+    (tmp_path / "b.csv").write_text("frame,x,y,w,h\n0,1,1,5,5\n1,1,1,5,5\n")
+    r = gflow("eval", "--gt", "b.csv", "--pred", "b.csv", "--visibility", vis, cwd=tmp_path)
+    assert_one_line_error(r, *words)

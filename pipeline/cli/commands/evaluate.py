@@ -149,10 +149,10 @@ def _state_score(args, gt: dict, pred: dict, track):
 
     from pipeline.recording.results import read_visibility
 
+    vis, pert = read_visibility(args.visibility)  # first: a missing or damaged file is named as itself
     if track.states is None:
         raise CliError(f"{args.pred} has no state column (frame,x,y,w,h,confidence,state), so --visibility "
                        "has nothing to score")
-    vis, pert = read_visibility(args.visibility)
     frames = sorted(gt)
     missing = [f for f in frames if f not in vis]
     if missing:
