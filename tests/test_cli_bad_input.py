@@ -218,3 +218,12 @@ def test_eval_names_a_missing_visibility_file_as_itself(tmp_path: Path, vis: str
     (tmp_path / "b.csv").write_text("frame,x,y,w,h\n0,1,1,5,5\n1,1,1,5,5\n")
     r = gflow("eval", "--gt", "b.csv", "--pred", "b.csv", "--visibility", vis, cwd=tmp_path)
     assert_one_line_error(r, *words)
+
+
+@pytest.mark.parametrize("box", ["0.1,0.2,0.05,0.1", "10,10,0.5,5"])
+def test_an_init_box_smaller_than_a_pixel_is_refused_first(tmp_path: Path, frames: Path, box: str) -> None:
+    """A box given in fractions of the image: every frame an error report of the trackers' stages (chamfer's
+    preprocess, appearance's filter...), 'tracked 0 frames', exit 0."""
+    r = gflow("track", str(frames), "--init", box, "--out", "b.csv", "--no-record", "--tracker", "chamfer", cwd=tmp_path)
+    assert_one_line_error(r, f"--init box {box}", "is smaller than a pixel", "64x48 image")
+    assert not (tmp_path / "b.csv").exists()

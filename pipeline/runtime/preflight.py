@@ -109,13 +109,17 @@ MAX_BOX_TIMES_IMAGE = 10
 
 
 def check_box_in_image(box, width: int, height: int, what: str = "--init") -> None:
-    """Refuse a box with no overlap with a ``width`` x ``height`` image (partly outside is fine), or one more
-    than :data:`MAX_BOX_TIMES_IMAGE` times the image's size."""
+    """Refuse a box with no overlap with a ``width`` x ``height`` image (partly outside is fine), one smaller than a
+    pixel (a box given in the image's fractions, 0.1,0.2,0.05,0.1: every frame an error report, exit 0), or one
+    more than :data:`MAX_BOX_TIMES_IMAGE` times the image's size."""
     x, y, w, h = (float(v) for v in box)
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} lies outside the {width}x{height} image "
                              f"(x in 0..{width - 1}, y in 0..{height - 1}; `gflow frame SOURCE N out.png` "
                              f"draws a frame with a pixel grid)")
+    if w < 1 or h < 1:
+        raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} is smaller than a pixel: a box is in pixels of "
+                             f"the {width}x{height} image (X,Y the top-left corner, W,H at least 1)")
     k = MAX_BOX_TIMES_IMAGE
     if w > k * width or h > k * height:
         raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} is more than {k} times the size of the "
