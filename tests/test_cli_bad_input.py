@@ -129,16 +129,19 @@ def test_an_init_box_many_times_the_image_is_refused_first(tmp_path: Path, frame
 
 
 
-def test_a_track_run_with_no_estimate_at_all_is_incomplete(tmp_path: Path, frames: Path, monkeypatch, capsys) -> None:
+@pytest.mark.parametrize("record", [["--record", "r.mcap"], ["--no-record"]])
+def test_a_track_run_with_no_estimate_at_all_is_incomplete(tmp_path: Path, frames: Path, monkeypatch, capsys,
+                                                           record: list[str]) -> None:
     """Every frame sent and recorded, the filter failing on each (here a box too large for it, let past the
     check of --init), no estimate at all: the frames expected were counted only if some estimate came, so the
-    run was 'tracked 0 frames', complete, exit 0. It is incomplete (exit 3), every frame named."""
+    run was 'tracked 0 frames', complete, exit 0. It is incomplete (exit 3), every frame named; with --no-record
+    (no recording of the frames sent) the frames the stages reported are those expected."""
     import pipeline.runtime.preflight as preflight
     from pipeline.cli.main import main
 
     monkeypatch.setattr(preflight, "MAX_BOX_TIMES_IMAGE", float("inf"))
     monkeypatch.chdir(tmp_path)
-    rc = main(["track", str(frames), "--init", "1,1,1e308,5", "--out", "b.csv", "--record", "r.mcap", "--inline", "-q"])
+    rc = main(["track", str(frames), "--init", "1,1,1e308,5", "--out", "b.csv", *record, "--inline", "-q"])
     out, err = capsys.readouterr()
     assert rc == 3, (out, err)
     assert "5 frame(s) have no estimate: 0-4" in out and "the run is incomplete" in err, (out, err)

@@ -454,8 +454,9 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
                 if topic and recording else set())
         reported = reported_frames(recording, plan.stream) | set(reported)
     # the frames sent are expected even when no estimate came at all (a run whose filter failed on every frame
-    # was 'tracked 0 frames' and complete, exit 0); not those reported (a live stream's end is a report past it)
-    expected = range(start, max(sent | set(est), default=start - 1) + 1)
+    # was 'tracked 0 frames' and complete, exit 0); not those reported (a live stream's end is a report past it),
+    # unless nothing else says a frame was sent (--no-record: no recording of the frames) and no estimate came
+    expected = range(start, max(sent | set(est) or set(reported), default=start - 1) + 1)
     coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
     lines = completeness(est, expected, reported, edgeless_frames(plan, coasted), blank_rule(plan)) + sessions.lines()
     if lost and recording:
