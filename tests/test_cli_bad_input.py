@@ -17,20 +17,9 @@ import cv2
 import numpy as np
 import pytest
 
-from test_cli_errors import assert_one_line_error, gflow
+from test_cli_errors import assert_one_line_error, frames, gflow  # noqa: F401  (frames: a fixture)
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-@pytest.fixture()
-def frames(tmp_path: Path) -> Path:
-    """Five 64x48 textured frames in a folder."""
-    d = tmp_path / "frames"
-    d.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(5):
-        cv2.imwrite(str(d / f"{i:04d}.png"), rng.integers(0, 255, (48, 64, 3), dtype=np.uint8))
-    return d
 
 
 def test_an_option_of_other_trackers_names_them_in_one_order(tmp_path: Path, frames: Path) -> None:
@@ -186,7 +175,6 @@ def test_particles_past_opencvs_row_limit_are_tracked(tmp_path: Path, frames: Pa
 
 def test_remap_points_in_blocks_is_the_one_call_below_the_limit() -> None:
     """Past :data:`gflow_core.remap.MAX_ROWS` points, the blocks give each point the value a call of its own would."""
-    import cv2
 
     from gflow_core.remap import MAX_ROWS, remap_points
 
