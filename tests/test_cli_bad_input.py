@@ -175,7 +175,6 @@ def test_particles_past_opencvs_row_limit_are_tracked(tmp_path: Path, frames: Pa
 
 def test_remap_points_in_blocks_is_the_one_call_below_the_limit() -> None:
     """Past :data:`gflow_core.remap.MAX_ROWS` points, the blocks give each point the value a call of its own would."""
-
     from gflow_core.remap import MAX_ROWS, remap_points
 
     rng = np.random.default_rng(1)
