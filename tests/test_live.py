@@ -11,6 +11,7 @@ import threading
 import time
 from pathlib import Path
 
+import pytest
 from mcap.reader import make_reader
 
 import cli_fork
@@ -149,12 +150,16 @@ def test_topics_waits_for_a_pipeline_that_is_slow_to_come_up(gflow_cmd):
     assert "gflow/slow/_status/source" in out, out
 
 
-def test_replay_stopped_by_ctrl_c_after_its_ready_line_exits_cleanly(demo8, gflow_cmd):
-    """The ready line is printed once the session is open: a Ctrl-C any time after it ends the replay
-    with exit 0 and the count sent, never a traceback or exit 130. (The recording: conftest's ``demo8``,
-    a small demo recording made once for the test run.)"""
+@pytest.mark.parametrize("loops", ["0", "1"])
+def test_replay_stopped_by_ctrl_c_after_its_ready_line_exits_cleanly(demo8, gflow_cmd, loops):
+    """The ready line is printed once the session is open: a Ctrl-C any time after it ends the replay with the count
+    sent, never a traceback. With ``--loop 0`` that is how a replay ends: exit 0. One asked to play the file once
+    (slowed so that it is still playing) said "replayed N messages" and exited 0 too, taken for the whole file: it
+    now says it was interrupted after N of the messages it had to send, and exits 130. (The recording: conftest's
+    ``demo8``, a small demo recording made once for the test run.)"""
     rec = demo8
-    p = subprocess.Popen([*gflow_cmd, "replay", str(rec), "--loop", "0", "--max",
+    pace = ["--max"] if loops == "0" else ["--speed", "0.01"]
+    p = subprocess.Popen([*gflow_cmd, "replay", str(rec), "--loop", loops, *pace,
                           "--listen", f"tcp/127.0.0.1:{free_port()}"], stderr=subprocess.PIPE, text=True)
     try:
         line = p.stderr.readline()
@@ -162,8 +167,12 @@ def test_replay_stopped_by_ctrl_c_after_its_ready_line_exits_cleanly(demo8, gflo
         p.send_signal(signal.SIGINT)
         rc = p.wait(60)
         err = p.stderr.read()
-        assert rc == 0 and "Traceback" not in err, err
-        assert err.strip().splitlines()[-1].startswith("replayed "), err
+        last = err.strip().splitlines()[-1]
+        assert "Traceback" not in err, err
+        if loops == "0":
+            assert rc == 0 and last.startswith("replayed ") and last.endswith(" (until interrupted)"), err
+        else:
+            assert rc == 130 and last.startswith("gflow replay: interrupted after ") and " of the " in last, err
     finally:
         if p.poll() is None:
             p.kill()

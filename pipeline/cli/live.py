@@ -375,16 +375,26 @@ def _held(records: list) -> str:
     return f"no frame; the messages chosen carry sequence numbers {min(seqs)}..{max(seqs)}"
 
 
+@dataclass
+class Replayed:
+    """What a replay sent: ``sent`` messages of the ``planned`` its plays hold (0: played until interrupted), and
+    whether a Ctrl-C ended it (``interrupted``) before they were all sent."""
+
+    sent: int
+    planned: int
+    interrupted: bool = False
+
+
 def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO = sys.stderr,
-           announce_endpoints: list[str] | None = None, ready: Callable[[], None] | None = None) -> int:
+           announce_endpoints: list[str] | None = None, ready: Callable[[], None] | None = None) -> Replayed:
     """Republish a recording on zenoh, byte for byte, on its recorded topics with its sequence numbers.
 
-    Returns the number of messages sent. Heartbeats and control messages of the recorded
+    Returns what was sent (:class:`Replayed`). Heartbeats and control messages of the recorded
     pipeline are never replayed (they would confuse a live one). With ``announce_endpoints``
     the replay announces itself (:mod:`pipeline.runtime.running`) there while it plays, so
     ``gflow topics`` and friends find it without a launcher. ``ready`` is called once the session is
     open and the replay announced, just before the first message; a Ctrl-C from then on ends the
-    replay and returns the count sent so far.
+    replay and returns the count sent so far, marked interrupted.
 
     A replay is a run of its own: on the recorded stream while no pipeline runs on it; a stream a
     running pipeline (or another replay) holds is refused (:class:`StreamInUse`, before anything is
@@ -421,7 +431,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
 
     s = _session(settings)
     announcement = token = None
-    n = 0
+    n, interrupted = 0, False
     loop = 0
     try:  # from here on a Ctrl-C ends the replay with the count sent so far and the session closed
         bus = Bus(s, signer=Signer.of(settings.security))
@@ -465,7 +475,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
                     sent_seq = max(sent_seq, r.seq)
                 n += 1
     except KeyboardInterrupt:
-        pass
+        interrupted = True
     finally:
         time.sleep(0.2)
         if token is not None:
@@ -473,4 +483,4 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
         if announcement is not None:
             announcement.close()
         s.close()
-    return n
+    return Replayed(n, len(keep) * opts.loops, interrupted)

@@ -203,15 +203,20 @@ def cmd_replay(args) -> int:
     if not args.listen and settings.mode != "client":
         settings = dataclasses.replace(settings, listen=(f"tcp/127.0.0.1:{free_port()}",))
     where = [e for e in settings.listen if not e.endswith(":0")]
-    def ready() -> None:  # printed once the session is open: a Ctrl-C after this line exits 0
+    def ready() -> None:  # printed once the session is open: a Ctrl-C after this line ends the replay
         print(f"replaying {args.file}; listening on {', '.join(where)}"
               + (f"; joined {', '.join(str(i['pid']) for i in found)}" if found else ""), file=sys.stderr, flush=True)
 
     try:
-        n = replay(settings, args.file, opts, announce_endpoints=where, ready=ready)
+        done = replay(settings, args.file, opts, announce_endpoints=where, ready=ready)
     except (TimeoutError, StreamInUse) as e:
         raise CliError(str(e)) from None
-    print(f"replayed {n} messages from {args.file}", file=sys.stderr)
+    if done.interrupted and done.planned:  # cut short: not taken for the whole of what was asked
+        print(f"gflow replay: interrupted after {done.sent} of the {done.planned} messages to replay from "
+              f"{args.file}", file=sys.stderr)
+        return 130
+    until = " (until interrupted)" if done.interrupted else ""
+    print(f"replayed {done.sent} messages from {args.file}{until}", file=sys.stderr)
     from pipeline.cli.commands.common import partial_if_damaged
 
     return partial_if_damaged(args.file, "replay", "the replay")
