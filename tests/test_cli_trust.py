@@ -283,7 +283,7 @@ def test_a_stop_past_the_end_of_the_frames_is_said(files: Path, tmp_path: Path, 
     (["--start", "4", "--stop", "2"], ["--start 4 --stop 2", "no frame to track"]),
     (["--stop", "0"], ["--stop", ">= 1"]),
     (["--start=-1"], ["--start", ">= 0"]),
-    (["--fps", "0"], ["--fps", "> 0"]),
+    (["--fps", "0"], ["--fps", ">= 0.001"]),
 ])
 def test_a_frame_range_or_rate_out_of_range_names_the_option(files: Path, tmp_path: Path, capsys, extra: list[str],
                                                              words: list[str]) -> None:

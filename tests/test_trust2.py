@@ -69,7 +69,7 @@ def one_line_error(rc: int, err: str, *words: str) -> str:
     (["replay", "{d}/demo.mcap", "--max", "--start", "nan"], ["--start", ">= 0"]),
     (["replay", "{d}/demo.mcap", "--max", "--lockstep", "filter", "--ack-timeout", "-1"], ["--ack-timeout"]),
     (["render", "{d}/demo.mcap", "o.mp4", "--scale", "0", "-q"], ["--scale", ">= 1"]),
-    (["render", "{d}/demo.mcap", "o.mp4", "--fps", "nan", "-q"], ["--fps", "> 0"]),
+    (["render", "{d}/demo.mcap", "o.mp4", "--fps", "nan", "-q"], ["--fps", ">= 0.01"]),
     (["foxglove", "{d}/demo.mcap", "f.mcap", "--quality", "0"], ["--quality", "1-100"]),
     (["foxglove", "{d}/demo.mcap", "f.mcap", "--quality", "101"], ["--quality", "1-100"]),
     (["frame", "{d}/frames", "0", "f.xyz"], ["f.xyz", "'.xyz'"]),
