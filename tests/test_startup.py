@@ -48,6 +48,24 @@ def test_a_filter_stage_imports_scipy_when_a_runner_takes_it_not_on_a_frame():
     assert out == "False False True False"
 
 
+def test_the_appearance_tracker_imports_scipy_when_taken_not_on_a_frame():
+    """The appearance filter judges visibility first on a frame deep in a run (caviar1's frame 111): its stage
+    and the Python API import SciPy's gamma functions when they take the tracker, before the first frame."""
+    out = _fresh("import sys, pipeline.runtime.node\n"
+                 "from stages.base import StageContext\n"
+                 "from stages.registry import get_stage_class\n"
+                 "cls = get_stage_class('appearance.filter')\n"
+                 "st = cls(cls.Params(init=(10, 10, 20, 20), seed=1), StageContext('filter', 't'))\n"
+                 "before = 'scipy.special' in sys.modules\n"
+                 "st.check_prepare()\n"
+                 "print(before, 'scipy.special' in sys.modules)")
+    assert out == "False True"
+    out = _fresh("import sys, gflow\n"
+                 "gflow.Tracker('appearance', seed=1)\n"
+                 "print('scipy.special' in sys.modules)")
+    assert out == "True"
+
+
 def test_the_zygote_can_preload_every_stage_kind_and_still_fork():
     """The zygote forks a stage only while it has one thread, and it imports each kind its run will start
     (``_preload``) first: a kind whose import starts a thread (OpenCV's workers, which a colour conversion at
