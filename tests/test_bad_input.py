@@ -53,7 +53,10 @@ def test_corrupt_and_missing_images_in_a_folder(crossing, tmp_path, gflow_cmd):
     assert est[10].state == "coast" and est[15].state == "coast" and est[20].state == "track"
 
 
-def test_truncated_video(crossing, tmp_path, gflow_cmd):
+@pytest.mark.parametrize("inline", [True, False], ids=["inline", "processes"])
+def test_truncated_video(crossing, tmp_path, gflow_cmd, inline):
+    """What could be decoded is tracked, and the truncation is said on the console even with -q (which leaves out
+    progress, not what went wrong), by a process run as by an inline one."""
     video = tmp_path / "clip.avi"
     w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (360, 240))
     assert w.isOpened(), "OpenCV cannot write MJPG video here"
@@ -65,12 +68,14 @@ def test_truncated_video(crossing, tmp_path, gflow_cmd):
     init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
     rec = tmp_path / "run.mcap"
     out = cli_fork.run_command([*gflow_cmd, "track", str(video), "--init", init, "--out", str(tmp_path / "b.csv"),
-                                "--record", str(rec), "-q", "--inline"], capture_output=True, text=True, timeout=300)
+                                "--record", str(rec), "-q", *(["--inline"] if inline else [])],
+                               capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     est = estimates(rec)
     assert 5 <= len(est) < 40  # what could be decoded was tracked
     msgs = [e.message for e in _errors(rec)]
     assert any("truncated or corrupt" in m for m in msgs), msgs
+    assert "truncated or corrupt" in out.stdout + out.stderr, (out.stdout, out.stderr)
 
 
 def test_malformed_messages_injected_on_a_live_topic(tmp_path):

@@ -134,12 +134,15 @@ class ProgressMonitor:
             with self.lock:
                 self.errors.append(msg)
                 n = sum(e.kind not in NOTICE_KINDS for e in self.errors)
+            # errors and damaged input are said with -q too (it drops progress, not what went wrong), as an
+            # --inline run's log says them
             if msg.kind in NOTICE_KINDS:  # a live stream's reconnect or end: news, not an error
                 self.console.say(f"{msg.stage}: {msg.message}", always=msg.kind == "damaged_input")
             elif n <= PRINTED_ERRORS:
-                self.console.say(f"error from {msg.stage} [{msg.kind}] {msg.message}")
+                self.console.say(f"error from {msg.stage} [{msg.kind}] {msg.message}", always=True)
             elif n == PRINTED_ERRORS + 1:
-                self.console.say("more errors: counting them without printing (see the recording's errors topic)")
+                self.console.say("more errors: counting them without printing (see the recording's errors topic)",
+                                 always=True)
 
     def _on_estimate(self, key: str, payload: bytes, pub_ns: int, seq: int, type_name: str, source: str = "") -> None:
         if source not in self.sessions:  # another zenoh session on the run's estimate topic: not the run's
