@@ -136,6 +136,43 @@ def test_a_track_run_with_no_estimate_at_all_is_incomplete(tmp_path: Path, frame
     assert "5 frame(s) have no estimate: 0-4" in out and "the run is incomplete" in err, (out, err)
 
 
+#: a tracker of its own package (the example ``tests/plugins/gflow_ncc``) whose filter fails on every frame from
+#: frame 3 on: a stage failing midway, in a run inline or as processes alike
+FAILING = """
+from dataclasses import replace
+from gflow_ncc import SPEC as NCC, NCCTracker
+
+class Failing(NCCTracker):
+    name = "failing"
+
+    def update(self, p, st, prop, obs, rng):
+        if rng.t >= 3:
+            raise RuntimeError("fails from frame 3")
+        return super().update(p, st, prop, obs, rng)
+
+SPEC = replace(NCC, name="failing", tracker=Failing)
+"""
+
+
+@pytest.mark.parametrize("mode", [["--inline", "--record", "r.mcap"], ["--inline", "--no-record"],
+                                  ["--listen", "tcp/127.0.0.1:0", "--no-record"]])
+def test_frames_after_a_stage_failed_midway_have_no_estimate_without_a_recording(tmp_path: Path, frames: Path,
+                                                                                 mode: list[str]) -> None:
+    """The filter failing from frame 3 of 5: recorded, frames 3-4 were named as having no estimate (exit 3); with
+    --no-record the frames expected ended at the last estimate, so the run was 'tracked 3 frames', complete, exit 0.
+    Without a recording the frames expected run to the last frame the source sent, as with one."""
+    from test_own_tracker import PLUGIN, install
+
+    site = install(tmp_path / "site", "gflow-failing", {"failing": "gflow_failing:SPEC"}, PLUGIN / "gflow_ncc")
+    (site / "gflow_failing.py").write_text(FAILING)
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", "track", str(frames), "--init", "10,10,20,20",
+                        "--tracker", "failing", "--out", "b.csv", "-q", *mode], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=120, env=dict(os.environ, PYTHONPATH=f"{site}{os.pathsep}{ROOT}"))
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    assert "tracked 3 frames" in r.stdout and "2 frame(s) have no estimate: 3-4" in r.stdout, r.stdout
+    assert "the run is incomplete: 2 frame(s) have no estimate: 3-4" in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("argv,words", [
     (["track", "{frames}", "--init", "1,1,20,20", "--out", "b.csv", "--no-record", "--inline", "--fps", "1e-300"],
      ["gflow track: error: argument --fps: must be a number >= 0.001, got 1e-300"]),

@@ -90,7 +90,7 @@ def _run_inline(plan: Plan, recording: str | None, total: int | None, quiet: boo
     if r.interrupted:  # as a multi-process run's Ctrl-C: what was tracked is kept
         print("interrupted: stages closed, recording closed", file=sys.stderr)
     return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad,
-                                              "interrupted": r.interrupted}
+                                              "interrupted": r.interrupted, "last_sent": r.last_sent}
 
 
 def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], listen_given: bool,
@@ -167,7 +167,9 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
     info = {"mode": "processes", "ok": res.ok, "pids": res.pids, "peak_rss_mb": res.peak_rss_mb,
             "errors": sum(e.kind not in LIVE_REPORTS for e in res.errors), "fps": {n: s.fps for n, s in res.status.items()},
             "interrupted": res.interrupted, "stall": res.stall,
-            "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates}
+            "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates,
+            # the last frame the source sent (its heartbeat's last_seq): what a run without a recording expected
+            "last_sent": res.status[src].last_seq if src in res.status else -1}
     if sink is not None:  # what the launcher heard of the run: its estimates and its error reports
         for seq, payload in sorted(res.estimates.items()):
             sink.take(payload)

@@ -420,9 +420,10 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
                 reported: set[int] | frozenset[int] = frozenset()) -> RunOutcome:
     """Gather a finished run's estimates and say what is missing.
 
-    ``info`` is what ``run_plan`` returns (``ok``, ``estimates`` heard live, ``restarts``). The
-    frames expected are those the source sent (a truncated video sends fewer than its header
-    says), from ``start`` to the last frame seen. ``heard`` are the estimates taken from the run
+    ``info`` is what ``run_plan`` returns (``ok``, ``estimates`` heard live, ``restarts``, and
+    ``last_sent``, the last frame the source sent). The frames expected are those the source sent
+    (a truncated video sends fewer than its header says), from ``start`` to the last frame seen,
+    whether or not a recording holds them. ``heard`` are the estimates taken from the run
     itself ({frame: message}; default: those of ``info["estimates"]``), kept before the
     recording's; ``reported`` the frames a stage reported a problem with, beside those the
     recording holds."""
@@ -454,8 +455,11 @@ def run_outcome(recording: str | None, plan, info: dict, start: int = 0, heard: 
                 if topic and recording else set())
         reported = reported_frames(recording, plan.stream) | set(reported)
     # the frames sent are expected even when no estimate came at all (a run whose filter failed on every frame
-    # was 'tracked 0 frames' and complete, exit 0); not those reported (a live stream's end is a report past it),
-    # unless nothing else says a frame was sent (--no-record: no recording of the frames) and no estimate came
+    # was 'tracked 0 frames' and complete, exit 0), and without a recording of them (--no-record: the last frame
+    # the source said it sent; a stage that failed midway left those after its last estimate uncounted); not
+    # those reported (a live stream's end is a report past it), unless nothing else says a frame was sent
+    if info.get("last_sent", -1) >= start:
+        sent = sent | {info["last_sent"]}
     expected = range(start, max(sent | set(est) or set(reported), default=start - 1) + 1)
     coasted = [f for f, e in est.items() if getattr(e, "state", "") == "coast" and f not in reported]
     lines = completeness(est, expected, reported, edgeless_frames(plan, coasted), blank_rule(plan)) + sessions.lines()

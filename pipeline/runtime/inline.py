@@ -39,6 +39,7 @@ class InlineResult:
     errors: dict[str, int] = field(default_factory=dict)
     messages: int = 0
     interrupted: bool = False  # Ctrl-C ended the source early
+    last_sent: int = -1  # the last frame the source sent (its sequence number; -1: none)
 
     @property
     def fps(self) -> float:
@@ -102,6 +103,7 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
 
     t0 = time.perf_counter()
     frames = 0
+    last_sent = -1
     interrupted = False
     opened = False  # the source gave something: before that, a failure is its opening's (removed below)
     try:
@@ -113,7 +115,9 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
                 outs = src_stage.emit(raw)
                 src_host._flush_reports()
                 src_host._emit(outs)
-                frames += sum(port == "frames" for port, _ in outs)  # not a live source's captures
+                sent = [m.header.seq for port, m in outs if port == "frames"]  # not a live source's captures
+                frames += len(sent)
+                last_sent = max([last_sent, *sent])
                 drain()
                 if progress is not None:
                     progress(frames)
@@ -141,4 +145,4 @@ def run_inline(plan: Plan, progress: Callable[[int], None] | None = None, record
     return InlineResult(frames=frames, seconds=dt, recording=path if rec else None,
                         steps={n: h.stats.steps for n, h in hosts.items()},
                         errors={n: h.stats.errors for n, h in hosts.items()}, interrupted=interrupted,
-                        messages=rec.messages if rec else 0)
+                        messages=rec.messages if rec else 0, last_sent=last_sent)
