@@ -138,6 +138,20 @@ def test_view_started_with_sigint_ignored_stops_on_it(files: Path, replaying: st
 
 
 
+@pytest.mark.parametrize("tool", [["echo", "{s}/estimate", "--timeout", "120"], ["hz", "{s}/estimate", "--wait", "120"],
+                                  ["view", "--stream", "{s}", "--port", "{port}"]])
+def test_ctrl_c_while_waiting_for_a_pipeline_is_an_interruption(files: Path, tool: list[str]) -> None:
+    """Ctrl-C while ``gflow view`` waited for a pipeline to start said 'no pipeline started' and exited 1, as if
+    a --duration had run out; echo and hz waiting said 'interrupted', exit 130. All three say it alike."""
+    if tool[0] == "view":
+        pytest.importorskip("foxglove")
+    stream = f"notyet{os.getpid()}"  # started by no one: the tool waits until the SIGINT
+    rc, err = _stops_on_sigint([a.format(s=stream, port=free_port()) for a in tool], "waiting", files)
+    lines = err.strip().splitlines()
+    assert rc == 130 and lines[-1] == f"gflow {tool[0]}: interrupted", err
+    assert "no pipeline started" not in err and "Traceback" not in err, err
+
+
 @pytest.mark.parametrize("argv,kept", [
     (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "old.csv", "--inline", "--no-record", "-q"],
      "old.csv"),

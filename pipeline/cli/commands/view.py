@@ -35,17 +35,16 @@ def _refuse_port_in_use(host: str, port: int) -> None:
 def _await_run(args, end: float | None) -> bool:
     """Wait for a pipeline (of ``--stream``: the run's stream or its graph's) to be announced on
     this machine, until ``end`` (None: until Ctrl-C); True when one runs. With ``--connect`` the
-    user's endpoints are used as they are."""
+    user's endpoints are used as they are. A Ctrl-C meanwhile is an interruption (``gflow view:
+    interrupted``, exit status 130, as ``gflow echo`` and ``gflow hz`` waiting say), not a wait
+    that ran out."""
     from pipeline.runtime.running import await_running
 
     if args.connect or args.mode == "router" or args.multicast or await_running(args.stream, until=time.monotonic()):
         return True
     print("gflow view: waiting for a pipeline to start" + (f" with stream {args.stream}" if args.stream else "")
           + " (Ctrl-C stops)", file=sys.stderr, flush=True)
-    try:
-        return await_running(args.stream, until=end)
-    except KeyboardInterrupt:
-        return False
+    return await_running(args.stream, until=end)
 
 
 def cmd_view(args) -> int:
