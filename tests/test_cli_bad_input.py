@@ -199,6 +199,56 @@ def test_a_frame_rate_past_what_can_be_used_is_refused_as_the_option(tmp_path: P
     assert not list(tmp_path.glob("v.*")) and not (tmp_path / "b.csv").exists()
 
 
+@pytest.mark.parametrize("argv,words", [
+    (["track", "{frames}", "--init", "1,1,20,20", "--out", "b.csv", "--particles", "abc"],
+     "argument --particles: expected a whole number, got 'abc'"),
+    (["track", "{frames}", "--init", "1,1,20,20", "--out", "b.csv", "--tracker", "gflow", "--shards", "1.5"],
+     "argument --shards: expected a whole number, got '1.5'"),
+    (["track", "{frames}", "--init", "1,1,20,20", "--out", "b.csv", "--blank-std", "abc"],
+     "argument --blank-std: expected a number, got 'abc'"),
+    (["demo", "--seed", "abc"], "argument --seed: expected a whole number, got 'abc'"),
+    (["frame", "{frames}", "abc", "f.png"], "argument index: expected a whole number, got 'abc'"),
+    (["rerun", "{rec}", "--from", "abc"], "argument --from: expected a whole number, got 'abc'"),
+    (["hz", "demo/frames", "--window", "abc"], "argument --window: expected a whole number, got 'abc'"),
+    (["learn", "m2", "{frames}", "-K", "abc", "--out", "m.npz"], "argument -K: expected a whole number, got 'abc'"),
+])
+def test_a_number_that_is_not_one_is_said_as_every_command_says_it(tmp_path: Path, frames: Path, demo_mcap: Path,
+                                                                    argv: list[str], words: str) -> None:
+    """argparse's own 'invalid int value: 'abc'' (or 'invalid float value') for the options read with int or
+    float, where every other option says 'expected a whole number' (or 'expected a number')."""
+    r = gflow(*[a.format(frames=frames, rec=demo_mcap) for a in argv], cwd=tmp_path)
+    line = assert_one_line_error(r, words)
+    assert r.returncode == 2 and "invalid" not in line, line
+
+
+def test_every_option_of_every_command_reads_its_numbers_as_the_others_do() -> None:
+    """Every option (and argument) of every command and tracker that reads a value through a type refuses a
+    value it cannot read with its own words (an ``argparse.ArgumentTypeError``), never with argparse's
+    'invalid int value' (a ValueError of ``int`` or ``float``)."""
+    import argparse
+
+    from pipeline.cli.main import build_parser
+
+    def typed(parser: argparse.ArgumentParser, words: str):
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for name, sub in a.choices.items():
+                    yield from typed(sub, f"{words} {name}")
+            elif a.type is not None:
+                yield f"{words} {max(a.option_strings, key=len) if a.option_strings else a.dest}", a.type
+
+    bad = []
+    for where, kind in typed(build_parser(), "gflow"):
+        for text in ("abc", "1.5", "nan", "1e999"):
+            try:
+                kind(text)
+            except argparse.ArgumentTypeError:
+                pass
+            except (ValueError, TypeError) as e:
+                bad.append(f"{where} {text}: {type(e).__name__}: {e}")
+    assert not bad, "\n".join(bad)
+
+
 @pytest.mark.parametrize("tracker", ["dcf", "appearance"])
 def test_particles_past_opencvs_row_limit_are_tracked(tmp_path: Path, frames: Path, tracker: str) -> None:
     """40000 particles (OpenCV's remap writes fewer than 32767 rows): the filter failed on the first frame after

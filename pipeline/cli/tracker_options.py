@@ -40,7 +40,11 @@ def add_param_options(group: Any, cls: type, tracker: str, notes: dict[str, str]
                       skip: frozenset[str] = frozenset()) -> None:
     """Add an option for every parameter of ``cls`` that names one (but those in ``skip``); its
     default is None (not given), its help the dataclass's with the default appended (and
-    ``notes[name]``, for an option other trackers read too)."""
+    ``notes[name]``, for an option other trackers read too). A number's option reads it as every
+    command does ("expected a whole number"); its range is the dataclass's (:func:`check_param_values`)."""
+    from pipeline.cli.commands.common import number, whole_number
+
+    read = {int: whole_number, float: number}
     for info in describe(cls):
         if info.option is None or info.option in skip:
             continue
@@ -53,7 +57,7 @@ def add_param_options(group: Any, cls: type, tracker: str, notes: dict[str, str]
             group.add_argument(info.option, dest=option_dest(info), action=argparse.BooleanOptionalAction,
                                default=None, help=help_)
         else:
-            group.add_argument(info.option, dest=option_dest(info), type=kind, default=None,
+            group.add_argument(info.option, dest=option_dest(info), type=read.get(kind, kind), default=None,
                                metavar=info.name.upper(), help=help_)
 
 

@@ -14,7 +14,7 @@ import textwrap
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, whole_number
 
 if TYPE_CHECKING:  # numpy is imported where used: the command's options and --help need none
     import numpy as np
@@ -161,8 +161,8 @@ def add_parser(models) -> None:
     q.add_argument("sources", nargs="+", metavar="LANDMARKS",
                    help="landmark file (.npz, (frames, 468, 3) under --key) or a dataset folder holding landmarks.npz")
     q.add_argument("--out", required=True, metavar="MODEL.npz", help="model file to write")
-    q.add_argument("-k", type=int, default=5, help="morph bases, the first being the mean shape (default 5, as in "
-                                                   "the paper)")
+    q.add_argument("-k", type=whole_number, default=5,
+                   help="morph bases, the first being the mean shape (default 5, as in the paper)")
     q.add_argument("--vertices", default=str(DEFAULT_VERTICES), metavar="N",
                    help=f"vertices kept, or 'all' (default {DEFAULT_VERTICES}: evenly spread over the face)")
     q.add_argument("--boxes", metavar="GT.csv", nargs="*",

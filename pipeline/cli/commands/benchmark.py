@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.cli.trackers import TRACKERS, spec_of
-from pipeline.cli.commands.common import CliError, check_new_picture, frame_range, nonnegative_int, start_work
+from pipeline.cli.commands.common import (CliError, check_new_picture, frame_range, nonnegative_int, start_work,
+                                          whole_number)
 
 if TYPE_CHECKING:  # imported where used: the application layer is not needed to parse the options
     from pipeline.app import TrackRequest
@@ -677,9 +678,9 @@ def register(sub) -> None:
                    help="only these stress cases (a name, or a kind such as occlude or roll-camera; see --list-cases)")
     s.add_argument("--list-cases", action="store_true", help="print the stress cases (with --cases, those it names) "
                                                              "and exit")
-    s.add_argument("--lead", type=int, default=30, metavar="N",
+    s.add_argument("--lead", type=whole_number, default=30, metavar="N",
                    help="frames tracked before each stress window (default 30)")
-    s.add_argument("--tail", type=int, default=60, metavar="N",
+    s.add_argument("--tail", type=whole_number, default=60, metavar="N",
                    help="frames tracked after each stress window (default 60; the 'after' score starts 10 frames "
                         "after the window)")
     s.add_argument("--stress-cache", metavar="DIR",

@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
+__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -102,6 +102,28 @@ def _at_least(text: str, kind: type, least: float, inclusive: bool) -> float:
     if not ((whole or math.isfinite(v)) and (v >= least if inclusive else v > least)):
         raise argparse.ArgumentTypeError(f"must be {'' if whole else 'a number '}{'>=' if inclusive else '>'} "
                                          f"{least:g}, got {text.strip()}")
+    return v
+
+
+def whole_number(text: str) -> int:
+    """A whole number of any sign (argparse type), for an option whose range the command checks itself
+    (naming the option and why); not one (``abc``, ``1.5``): "expected a whole number", as the bounded types
+    say it, not argparse's "invalid int value"."""
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def number(text: str) -> float:
+    """A finite number of any sign (argparse type), for an option whose range the command checks itself;
+    not one: "expected a number" (not argparse's "invalid float value"), and NaN or infinity is refused."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(v):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text.strip()}")
     return v
 
 

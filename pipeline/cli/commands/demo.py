@@ -8,7 +8,7 @@ import sys
 
 from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          positive_int, run_plan)
+                                          positive_int, run_plan, whole_number)
 
 
 def cmd_demo(args) -> int:
@@ -74,8 +74,9 @@ def register(sub) -> None:
                                    "recordings/demo-*.mcap, and prints the tracking error and throughput.")
     # checked as typed: the scene's own check names no option ("synthetic scene needs at least one frame")
     p.add_argument("--frames", type=positive_int, default=120, help="number of frames (default 120)")
-    p.add_argument("--particles", type=int, default=500, help="number of particles (default 500)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the filter and proposal stages (default 0)")
+    p.add_argument("--particles", type=whole_number, default=500, help="number of particles (default 500)")
+    p.add_argument("--seed", type=whole_number, default=0,
+                   help="random seed of the filter and proposal stages (default 0)")
     p.add_argument("--inline", action="store_true", help="run all stages in this process, without zenoh")
     add_record_args(p, "recordings/demo-TIME-RUNID.mcap")
     add_placement_args(p, hosts=False)

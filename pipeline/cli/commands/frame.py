@@ -9,7 +9,7 @@ import sys
 from pathlib import Path
 from typing import Literal
 
-from pipeline.cli.commands.common import CliError, check_new_picture, positive_int, write_picture
+from pipeline.cli.commands.common import CliError, check_new_picture, positive_int, whole_number, write_picture
 
 
 #: the longest side of the picture written, in pixels (PNG and JPEG viewers' common limit)
@@ -109,7 +109,7 @@ def register(sub) -> None:
                                    "X,Y,W,H of `gflow track --init` can be read off it.",
                        epilog="example: gflow frame clip.mp4 0 first.png")
     p.add_argument("source", help="image folder (or dataset folder with frames/), video file or .mcap recording")
-    p.add_argument("index", type=int, help="frame index (0 = the first)")
+    p.add_argument("index", type=whole_number, help="frame index (0 = the first)")
     p.add_argument("out", help="picture to write (.png or .jpg)")
     p.add_argument("--grid", type=positive_int, metavar="PX", help="grid spacing in source pixels (default by image size)")
     p.add_argument("--scale", type=positive_int, help="magnification (default 3 for small images, 2, or 1 for large)")

@@ -16,7 +16,7 @@ import time
 from typing import Any, cast
 
 from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_int, positive_float, positive_int,
-                                          stream_name, stream_of, tool_zenoh)
+                                          stream_name, stream_of, tool_zenoh, whole_number)
 
 
 def _run_stream(stream: str) -> str:
@@ -425,7 +425,7 @@ def register(sub) -> None:
     p.add_argument("topic", help="the name in the stream (frames), the full name with or without the run id "
                                  "(gflow/cam0/frames), or a pattern")
     p.add_argument("--duration", type=positive_float, help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--window", type=int, metavar="N", help="statistics over the last N gaps (default: all)")
+    p.add_argument("--window", type=whole_number, metavar="N", help="statistics over the last N gaps (default: all)")
     p.add_argument("--wait", type=positive_float, default=10.0, metavar="S",
                    help="wait up to S seconds in all for the first message, counted from the start, a wait for the "
                         "pipeline to start when none runs yet included (default 10)")

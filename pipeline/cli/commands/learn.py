@@ -31,7 +31,8 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from pipeline.cli.commands.common import CliError, nonnegative_float, nonnegative_int, positive_float, positive_int
+from pipeline.cli.commands.common import (CliError, nonnegative_float, nonnegative_int, positive_float, positive_int,
+                                          whole_number)
 
 if TYPE_CHECKING:  # numpy is imported where used: the command's options and --help need none
     import numpy as np
@@ -475,7 +476,7 @@ def register(sub) -> None:
     q.add_argument("--frames", metavar="A:B", help="train on frames A <= index < B (default: all)")
     q.add_argument("--metric", choices=["chamfer", "shuffle", "l2"], default="chamfer",
                    help="distance: chamfer on edge curves (default), shuffle or l2 on grey patches")
-    q.add_argument("-K", type=int, default=20, help="number of exemplars (default 20)")
+    q.add_argument("-K", type=whole_number, default=20, help="number of exemplars (default 20)")
     q.add_argument("--kernel", choices=["moments", "mle"], default="moments",
                    help="estimator of d_k, sigma_k: moments (eq. 10, default) or MLE with integer d (eq. 11)")
     q.add_argument("--patch-size", action=_Given, metavar="WxH",

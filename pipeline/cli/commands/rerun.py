@@ -6,7 +6,7 @@ import sys
 import time
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, whole_number
 
 ORDER = 52
 
@@ -227,7 +227,7 @@ def register(sub) -> None:
     g.add_argument("--graph", action="store_true", help="re-run every stage inline from the recorded source frames")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
                    help="new parameter (STAGE.KEY=VALUE with --graph), e.g. seed=3")
-    p.add_argument("--from", dest="from_seq", type=int, metavar="SEQ",
+    p.add_argument("--from", dest="from_seq", type=whole_number, metavar="SEQ",
                    help="start from the nearest snapshot before frame SEQ")
     p.add_argument("--out", metavar="NEW.mcap", help="write the re-run to a new recording")
     p.add_argument("--check", action="store_true", help="exit 1 at any difference from the recorded outputs")

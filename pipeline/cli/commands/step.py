@@ -140,6 +140,8 @@ def cmd_step(args) -> int:
 
 
 def register(sub) -> None:
+    from pipeline.cli.commands.common import whole_number
+
     p = sub.add_parser("step", help="step a stage through a recording, one frame at a time (interactive)",
                        description="Rebuilds a stage with its recorded configuration and feeds it its recorded "
                                    "inputs one frame at a time, printing the inputs it joined, its outputs and its "
@@ -147,7 +149,7 @@ def register(sub) -> None:
                                    + HELP, formatter_class=__import__("argparse").RawDescriptionHelpFormatter)
     p.add_argument("file", help="MCAP recording made by gflow")
     p.add_argument("--stage", required=True, help="stage to step (e.g. filter)")
-    p.add_argument("--start", type=int, help="jump to this frame first")
+    p.add_argument("--start", type=whole_number, help="jump to this frame first")
     p.add_argument("--topics", nargs="+", metavar="TOPIC",
                    help="show only these outputs: the name in the stream (estimate), the full name with or without "
                         "the run id, or a shell pattern")

@@ -44,10 +44,11 @@ DEFAULT_MODEL, ELLIPSOID = defaults(GFlowParams)["model"], "ellipsoid"
 def add_args(g) -> None:
     """The options of G-flow's parameters that have one (``--experts``, ...; from
     :class:`gflow_core.gflow.GFlowParams`, with its help and default), ``--shards`` and ``--gflow-set``."""
+    from pipeline.cli.commands.common import whole_number
     from pipeline.cli.tracker_options import add_param_options
 
     add_param_options(g, GFlowParams, NAME)
-    g.add_argument("--shards", type=int, default=1, metavar="K",
+    g.add_argument("--shards", type=whole_number, default=1, metavar="K",
                    help="gflow: split the experts across K proposal processes (default 1)")
     g.add_argument("--gflow-set", action="append", metavar="NAME=VALUE", default=None,
                    help="gflow: set a G-flow parameter of the tracker block (every proposal stage and the filter), "
