@@ -310,6 +310,45 @@ def test_a_frame_range_or_rate_out_of_range_names_the_option(files: Path, tmp_pa
     assert not (tmp_path / "b.csv").exists()
 
 
+@pytest.mark.parametrize("argv,what", [
+    (["boxes", "{d}/demo.mcap", "--out", "{link}"], "--out"),
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "{link}", "--inline", "--no-record", "-q"], "--out"),
+    (["track", "{d}/frames", "--init", "10,10,20,20", "--out", "b.csv", "--record", "{link}", "--inline", "-q"],
+     "--record"),
+    (["demo", "--frames", "3", "--inline", "--record", "{link}"], "--record"),
+    (["rerun", "{d}/demo.mcap", "--graph", "--out", "{link}"], "--out"),
+    (["recover", "{d}/demo.mcap", "{link}"], "FIXED"),
+    (["foxglove", "{d}/demo.mcap", "{link}"], "OUT"),
+    (["render", "{d}/demo.mcap", "{link}.mp4"], "OUT"),
+    (["render", "{d}/demo.mcap", "{link}"], "OUT"),  # a folder of PNG frames
+    (["plot", "{d}/demo.mcap", "{link}.png"], "OUT"),
+    (["frame", "{d}/frames", "0", "{link}.png"], "OUT"),
+    (["learn", "m2", "{d}/frames", "--boxes", "{d}/gt.csv", "-K", "2", "--out", "{link}.npz", "-q"], "--out"),
+    (["learn", "gflow", "{d}/nothing.npz", "--out", "{link}.npz", "-q"], "--out"),
+    (["benchmark", "{d}/frames", "--plot", "{link}.png"], "--plot"),
+    (["benchmark", "{d}/frames", "--out-dir", "{link}"], "--out-dir"),
+    (["export", "vot", "{d}/frames", "{link}"], "OUT"),
+    (["trax", "--out", "{link}"], "--out"),  # refused before the server starts (its folder is not there either)
+])
+def test_an_output_named_by_a_dangling_link_is_refused_as_one(files: Path, tmp_path: Path, monkeypatch, capsys,
+                                                             argv: list[str], what: str) -> None:
+    """An output path that is a symbolic link to nothing was refused with the system's 'File exists' (of a file
+    that is not there), or, for a folder, as 'folder . does not exist' or a failed run. It is named as a
+    dangling symbolic link, with where it points, before any work; nothing is written through it."""
+    if argv[0] == "trax":
+        pytest.importorskip("trax")
+    monkeypatch.chdir(tmp_path)
+    args = [a.replace("{d}", str(files)).replace("{link}", "out") for a in argv]
+    link = next(a for a in args if a.startswith("out"))
+    (tmp_path / link).symlink_to(tmp_path / "gone" / "nothing")
+    rc, err = cli(args, capsys)
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert rc == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert f"{what} {link} is a dangling symbolic link (to {tmp_path / 'gone' / 'nothing'}" in lines[0], lines[0]
+    assert "File exists" not in lines[0] and (tmp_path / link).is_symlink() and not (tmp_path / "gone").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == [link], list(tmp_path.iterdir())
+
+
 def test_a_frame_past_the_end_of_a_torn_recording_says_it_is_torn(files: Path, tmp_path: Path, capsys) -> None:
     """It said only that there is no such frame, as of a recording that ended there (then after a
     warning line that the file was torn: the error itself says it now, in one line)."""

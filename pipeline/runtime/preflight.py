@@ -37,9 +37,13 @@ def check_writable(path: str | os.PathLike, what: str = "output", make_folder: b
     program's own default places, such as ``recordings/``) it is created instead, so the check
     is the same one the writer will face later.
     """
+    from pipeline.io.path_errors import dangling_link
+
     p = Path(path)
     if str(path).endswith(("/", os.sep)) or p.is_dir():
         raise PreflightError(f"{what} {path} is a folder; give a file name")
+    if dangling_link(str(path), what):  # 'File exists' below, of a file that is not there
+        raise PreflightError(dangling_link(str(path), what))
     parent = p.parent if str(p.parent) else Path(".")
     if not make_folder and not parent.exists():
         raise PreflightError(f"{what} {path}: the folder {parent} does not exist (create it first, or give another "

@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.cli.trackers import TRACKERS, spec_of
-from pipeline.cli.commands.common import (CliError, check_new_picture, frame_range, nonnegative_int, start_work,
-                                          whole_number)
+from pipeline.cli.commands.common import (CliError, check_new_picture, frame_range, nonnegative_int,
+                                          refuse_dangling_link, start_work, whole_number)
 
 if TYPE_CHECKING:  # imported where used: the application layer is not needed to parse the options
     from pipeline.app import TrackRequest
@@ -150,10 +150,12 @@ def _check_paths(args) -> None:
         v = getattr(args, opt)
         if v and Path(v).suffix.lower() not in (".png", ".pdf", ".svg", ".jpg", ".jpeg"):
             raise CliError(f"--{opt.replace('_', '-')} {v}: give a .png (or .pdf, .svg, .jpg) file name")
+        refuse_dangling_link(v, f"--{opt.replace('_', '-')}")  # before its folder, where the link points
         if v and not Path(v).resolve().parent.is_dir():
             raise CliError(f"--{opt.replace('_', '-')} {v}: folder {Path(v).parent} does not exist")
         if v:
             check_new_picture(v, opt)  # an earlier plot
+    refuse_dangling_link(args.out_dir, "--out-dir")
     if args.out_dir and Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
         raise CliError(f"--out-dir {args.out_dir} is a file, not a folder")
 

@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording",
+__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -235,6 +235,17 @@ def check_new_picture(path: str, option: str = "OUT") -> None:
     if os.path.lexists(path):
         raise CliError(f"{path} exists; gflow never writes over a picture or video: give another name "
                        f"(or remove it first)")
+
+
+def refuse_dangling_link(path: str | None, option: str) -> None:
+    """Refuse an output ``path`` that is a symbolic link to nothing, naming ``option`` and where the link points
+    (:func:`pipeline.io.path_errors.dangling_link`): for the outputs :func:`check_outputs` does not see (a folder
+    to write into, a file written by another program)."""
+    from pipeline.io.path_errors import dangling_link
+
+    why = dangling_link(path, option) if path else ""
+    if why:
+        raise CliError(why)
 
 
 def refuse_recording(path: str, option: str) -> None:

@@ -16,7 +16,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError
+from pipeline.cli.commands.common import CliError, refuse_dangling_link
 
 
 def _is_sequence(folder: Path) -> bool:
@@ -35,6 +35,7 @@ def _wanted(text: str) -> list[str]:
 
 
 def _check_out(out: Path) -> None:
+    refuse_dangling_link(str(out), "OUT")
     if out.exists() and not out.is_dir():
         raise CliError(f"{out} is a file; give a new folder for the workspace")
     if out.is_dir() and any(out.iterdir()):

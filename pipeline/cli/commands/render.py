@@ -6,7 +6,7 @@ import errno
 import sys
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError, frame_range, positive_int, video_rate
+from pipeline.cli.commands.common import CliError, frame_range, positive_int, refuse_dangling_link, video_rate
 
 ORDER = 58
 
@@ -48,8 +48,10 @@ def cmd_render(args) -> int:
         from pipeline.cli.commands.common import check_new_picture
 
         check_new_picture(args.out)
-    elif out.exists() and not out.is_dir():
-        raise CliError(f"{args.out} exists and is not a folder")
+    else:
+        refuse_dangling_link(args.out, "OUT")  # a folder for the frames
+        if out.exists() and not out.is_dir():
+            raise CliError(f"{args.out} exists and is not a folder")
     first, end = frame_range(args.frames)  # a reversed range refused before the reading
     from pipeline.cli.commands.common import warn_if_torn
 

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from pipeline.cli.commands.common import CliError, nonnegative_int, refuse_recording
+from pipeline.cli.commands.common import CliError, nonnegative_int, refuse_dangling_link, refuse_recording
 from pipeline.cli.trackers import TRACKERS
 #: what to run when the ``trax`` module is missing (``gflow.trax.INSTALL_HINT`` says the same)
 INSTALL_HINT = "pip install 'gflow[vot]' (or pip install vot-trax)"
@@ -129,6 +129,7 @@ def cmd_trax(args: argparse.Namespace) -> int:
     tracker_params(args)  # a mistyped option fails here, in one line
     if args.seed < 0:
         raise CliError(f"--seed must be >= 0, got {args.seed}")
+    refuse_dangling_link(args.out, "--out")  # before its folder, where the link points
     if args.out and not Path(args.out).resolve().parent.is_dir():
         raise CliError(f"--out {args.out}: folder {Path(args.out).parent} does not exist")
     if args.out:
