@@ -96,6 +96,26 @@ def test_rerun_graph_interrupted_is_no_verdict(tmp_path: Path, demo_mcap: Path, 
     assert len(lines) == 1 and lines[0].startswith("gflow rerun: interrupted after ") and "nothing compared" in lines[0]
 
 
+@pytest.mark.parametrize("stage", ["filter", "proposal"])
+def test_rerun_and_step_name_the_frames_a_recording_holds_not_one_more(tmp_path: Path, demo_mcap: Path,
+                                                                      stage: str) -> None:
+    """20 frames recorded (0..19): the proposals of frame t + 1, sent once frame t was tracked, carry 20, so
+    rerun and step said the recording 'holds frames 0..20' and rerun took --from 20 (re-ran, compared, exit 0).
+    Both name frames 0..19 and refuse frame 20 in one line; frame 19 is still there to start from."""
+    r = gflow("rerun", str(demo_mcap), "--stage", stage, "--from", "20", "--check", cwd=tmp_path)
+    assert_one_line_error(r, f"gflow rerun: error: --from 20: {demo_mcap} holds frames 0..19 for stage {stage}")
+    assert r.returncode == 2 and not r.stdout, r.stdout
+    r = gflow("rerun", str(demo_mcap), "--stage", stage, "--from", "19", "--check", cwd=tmp_path)
+    assert r.returncode == 0 and "identical bit for bit" in r.stdout, (r.stdout, r.stderr)
+    r = gflow("step", str(demo_mcap), "--stage", stage, "--start", "20", cwd=tmp_path)
+    assert_one_line_error(r, f"gflow step: error: --start: no frame 20 to jump to: {demo_mcap} holds frames 0..19 "
+                             f"for stage {stage}")
+    r = gflow("step", str(demo_mcap), "--stage", stage, cwd=tmp_path, input="j 20\nn\n")
+    assert_one_line_error(r, "standard input line 1: no frame 20 to jump to", "holds frames 0..19")
+    r = gflow("step", str(demo_mcap), "--stage", stage, "--start", "19", cwd=tmp_path, input="n\n")
+    assert r.returncode == 0 and "jumped to frame 19" in r.stdout and "--- frame 19 " in r.stdout, r.stdout
+
+
 def test_plot_of_a_recording_without_stage_inputs_prints_no_matplotlib_warning(tmp_path: Path) -> None:
     """A recording kept with --record-topics holds no stage's inputs and outputs both, so no latency line: the
     plot was written, with matplotlib's 'No artists with labels found to put in legend' warning (its file

@@ -94,8 +94,8 @@ def test_no_command_replaces_an_existing_recording(recording: Path, tmp_path: Pa
                                                                         f"sequence numbers 0..{FRAMES - 1}"]),
     (["replay", "--max", "--from-seq", "5", "--to-seq", "3"], ["--from-seq 5, --to-seq 3"]),
     (["replay", "--max", "--start", "1000"], ["--start 1000"]),
-    (["rerun", "--stage", "filter", "--from", "500"], ["--from 500", f"frames 0..{FRAMES}"]),
-    (["step", "--stage", "filter", "--start", "500"], ["--start", "no frame 500", f"frames 0..{FRAMES}"]),
+    (["rerun", "--stage", "filter", "--from", "500"], ["--from 500", f"frames 0..{FRAMES - 1} for stage filter"]),
+    (["step", "--stage", "filter", "--start", "500"], ["--start", "no frame 500", f"frames 0..{FRAMES - 1} for stage"]),
     (["render", "OUT.mp4", "--frames", "500:600"], ["--frames 500:600", "no frame to draw"]),
     (["render", "OUT.mp4", "--frames", "x:3"], ["--frames x:3", "A:B"]),
 ])

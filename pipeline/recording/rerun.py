@@ -23,7 +23,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterable
 
 from gflow_msgs.messages import EndOfStream, ErrorReport, MessageError, Snapshot, decode
 from stages.registry import STAGES
@@ -38,7 +38,7 @@ from pipeline.io.mcap_io import Record, iter_records, read_metadata
 from pipeline.io.recorder import McapRecorder, peek_type
 from pipeline.io.frame_readers import open_reader
 
-__all__ = ["recorded_plan", "rerun_stage", "rerun_graph", "check_outputs", "RerunResult", "Mismatch"]
+__all__ = ["recorded_plan", "rerun_stage", "rerun_graph", "check_outputs", "stage_frames", "RerunResult", "Mismatch"]
 
 
 @dataclass(frozen=True)
@@ -226,6 +226,21 @@ def rerun_stage(path: str | Path, stage: str, sets: dict[str, object] | None = N
         host.close("end")
     return RerunResult(stage=stage, outputs=outputs, start_after=start_after, seconds=time.perf_counter() - t0,
                        steps=host.stats.steps, inputs=consumed, restored_from=restored, note=note)
+
+
+def stage_frames(plan: Plan, stage: str, records: Iterable[Record]) -> list[int]:
+    """The frames a recording holds for ``stage`` to step, ascending, from its ``records`` (any of its topics):
+    the frames the messages of its driver ports join (after each port's ``input_offsets``; ends of stream and
+    error reports left out). Every input counted alike gave one frame more than the recording holds: a
+    proposal stage sends the proposals of frame t + 1 once frame t is tracked, so its last ones are for a frame
+    never recorded. A stage without inputs (a source): the frames of its outputs."""
+    sp = plan.stages[stage]
+    cls = STAGES[sp.kind]
+    drivers = frozenset(sp.inputs) if cls.drivers is None else cls.drivers
+    offsets = {t: cls.input_offsets.get(p, 0) for p, t in sp.inputs.items() if p in drivers} or \
+        {t: cls.input_offsets.get(p, 0) for p, t in sp.inputs.items()} or dict.fromkeys(sp.outputs.values(), 0)
+    return sorted({r.seq + offsets[r.topic] for r in records
+                   if r.topic in offsets and r.type not in ("EndOfStream", "ErrorReport")})
 
 
 def recorded_outputs(path: str | Path, topics: set[str], start_after: int = -1) -> list[tuple[str, int, bytes]]:

@@ -19,7 +19,7 @@ from pipeline.runtime.graph import GraphError
 from pipeline.runtime.stage_host import StageHost
 from pipeline.recording.plain import describe
 from pipeline.io.mcap_io import Record, iter_records
-from pipeline.recording.rerun import recorded_plan
+from pipeline.recording.rerun import recorded_plan, stage_frames
 
 __all__ = ["Stepper", "StepView"]
 
@@ -107,10 +107,10 @@ class Stepper:
         """Position the stage so that the next step is frame ``seq`` (or the first one after it).
 
         A frame outside the recorded inputs' range is a ValueError naming the range."""
-        seqs = [r.seq for r in self.records if r.type not in ("EndOfStream", "ErrorReport")]
-        if not seqs or not min(seqs) <= seq <= max(seqs):
-            held = f"frames {min(seqs)}..{max(seqs)}" if seqs else "no frame"
-            raise ValueError(f"no frame {seq} to jump to: {self.path} holds {held} of {self.name}'s inputs")
+        frames = stage_frames(self.plan, self.name, self.records)  # not a frame its inputs run ahead to
+        if not frames or not frames[0] <= seq <= frames[-1]:
+            held = f"frames {frames[0]}..{frames[-1]}" if frames else "no frame"
+            raise ValueError(f"no frame {seq} to jump to: {self.path} holds {held} for stage {self.name}")
         usable = [s for s in self.snapshots if s < seq]
         how = "from the start"
         if usable:

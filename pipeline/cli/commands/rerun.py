@@ -98,18 +98,22 @@ def _chosen(args, outputs: set[str]) -> set[str]:
         raise CliError(str(e)) from None
 
 
-def _check_from(path: str, topics: set[str], from_seq: int) -> None:
-    """Refuse a ``--from`` frame the stage never saw in the recording (one line naming the frames it holds)."""
+def _check_from(path: str, plan, stage: str, from_seq: int) -> None:
+    """Refuse a ``--from`` frame the recording holds nothing of for ``stage`` to step (one line naming the frames
+    it holds: :func:`pipeline.recording.rerun.stage_frames`, not a frame its inputs run ahead to)."""
     from pipeline.io.mcap_io import iter_records
+    from pipeline.recording.rerun import stage_frames
 
-    seqs = [r.seq for r in iter_records(path, topics=sorted(topics)) if r.type not in ("EndOfStream", "ErrorReport")]
-    if not seqs:
+    sp = plan.stages[stage]
+    topics = set(sp.inputs.values()) or set(sp.outputs.values())
+    frames = stage_frames(plan, stage, iter_records(path, topics=sorted(topics)))
+    if not frames:
         from pipeline.io.mcap_io import torn_cause
 
         torn = torn_cause(path)
         raise CliError(f"{path} holds no input of the stage to re-run" + (f": {torn}" if torn else ""))
-    if not min(seqs) <= from_seq <= max(seqs):
-        raise CliError(f"--from {from_seq}: {path} holds frames {min(seqs)}..{max(seqs)} of the stage's inputs")
+    if not frames[0] <= from_seq <= frames[-1]:
+        raise CliError(f"--from {from_seq}: {path} holds frames {frames[0]}..{frames[-1]} for stage {stage}")
 
 
 def cmd_rerun(args) -> int:
@@ -166,7 +170,7 @@ def cmd_rerun(args) -> int:
         topics = set(sp.outputs.values()) | ({plan.snapshot_topic(args.stage)} if sp.snapshot_every else set())
         topics = _chosen(args, topics)  # before the re-run: a name that fits no output is the first thing to say
         if args.from_seq is not None:
-            _check_from(args.file, set(sp.inputs.values()) or set(sp.outputs.values()), args.from_seq)
+            _check_from(args.file, plan, args.stage, args.from_seq)
         warn_if_torn(args.file)  # re-run only up to where it ends: said before any verdict (a check's error says it)
     res = rerun_stage(args.file, args.stage, stage_sets, args.from_seq)
     if not res.inputs and not res.steps and args.from_seq is None:  # "0 of 0 outputs" is no check of it
