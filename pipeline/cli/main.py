@@ -17,7 +17,26 @@ from __future__ import annotations
 import os
 import sys
 
-from pipeline.runtime.instruction_sets import check_setting, hold
+
+def _interrupted_at_start(signum: int, frame: object) -> None:
+    """Ctrl-C while ``gflow`` is still starting (importing its modules, parsing its options): nothing has
+    begun, so there is nothing to close; one line and exit status 130, as a command interrupted later says
+    it (:func:`main`), not a ``KeyboardInterrupt`` traceback from inside an import. :func:`main` gives
+    SIGINT back to Python before the command's work starts (:func:`_take_sigint_back`)."""
+    word = next((a for a in sys.argv[1:] if not a.startswith("-")), "")
+    os.write(2, f"gflow{' ' + word if word else ''}: interrupted\n".encode())
+    os._exit(130)
+
+
+if sys.argv and os.path.basename(sys.argv[0]) == "gflow":  # the command, not a module importing this one
+    import signal
+
+    # first of all, before the zygote's fork (which takes Python's handler back in the zygote:
+    # pipeline/runtime/zygote.py) and every import below; SIGINT ignored (nohup ... &) is left as it is
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _interrupted_at_start)
+
+from pipeline.runtime.instruction_sets import check_setting, hold  # noqa: E402
 
 hold()  # before numpy, OpenCV or OpenBLAS loads here or in a stage: the same bits on every machine
 
@@ -32,23 +51,6 @@ if sys.argv and sys.argv[0].endswith(("gflow", "pipeline/cli/__main__.py", "pipe
 
     bind_early(sys.argv[1:])
 
-
-def _interrupted_at_start(signum: int, frame: object) -> None:
-    """Ctrl-C while ``gflow`` is still starting (importing its modules, parsing its options): nothing has
-    begun, so there is nothing to close; one line and exit status 130, as a command interrupted later says
-    it (:func:`main`), not a ``KeyboardInterrupt`` traceback from inside an import. :func:`main` gives
-    SIGINT back to Python before the command's work starts (:func:`_take_sigint_back`)."""
-    word = next((a for a in sys.argv[1:] if not a.startswith("-")), "")
-    os.write(2, f"gflow{' ' + word if word else ''}: interrupted\n".encode())
-    os._exit(130)
-
-
-if sys.argv and os.path.basename(sys.argv[0]) == "gflow":  # the command, not a module importing this one
-    import signal  # noqa: E402
-
-    # after the zygote's fork (it keeps Python's handler); SIGINT ignored (nohup ... &) is left as it is
-    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
-        signal.signal(signal.SIGINT, _interrupted_at_start)
 
 import argparse  # noqa: E402
 import re  # noqa: E402

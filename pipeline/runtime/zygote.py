@@ -312,15 +312,19 @@ class Zygote:
         env = stage_environment(os.environ, 1)  # what a stage of a run of this command gets, by default
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_STREAM)
         parent = os.getpid()
+        # a Ctrl-C to the terminal's process group while the fork is made is the command's alone: held until the
+        # child has left the group (in the child, a KeyboardInterrupt inside the fork's own hooks was a traceback)
+        mask = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         pid = os.fork()
         if pid == 0:
             ours.close()
             code = 0
             try:
-                _serve(theirs, parent)
+                _serve(theirs, parent, sigint_mask=mask)
             except BaseException:  # noqa: BLE001  (never back into the caller's code)
                 code = 1
             os._exit(code)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)  # one sent meanwhile lands here, in the command's handler
         theirs.close()
         _mark(f"zygote forked {pid}")
         return cls(pid, ours, env, whole=False)
@@ -412,15 +416,24 @@ def _recv_exact(sock: socket.socket, n: int) -> bytes:
     return data
 
 
-def _serve(sock: socket.socket, parent: int, die_with_thread: bool = True) -> None:
+def _serve(sock: socket.socket, parent: int, die_with_thread: bool = True,
+           sigint_mask: set[signal.Signals] | None = None) -> None:
     """The zygote: import what every stage needs, then fork one stage per request until the socket
     ends (when ``parent`` closes it or exits). ``die_with_thread``: killed too when the thread that
     forked it ends (``PR_SET_PDEATHSIG`` is a thread's): the early zygote's, forked by the main
-    thread; not a new interpreter's, which a run's thread may start and outlive."""
+    thread; not a new interpreter's, which a run's thread may start and outlive. ``sigint_mask``: the
+    early zygote's, forked with SIGINT blocked, the mask to go back to once it has left the terminal's
+    process group (a SIGINT sent to the group before is dropped, and Python's handler is taken back
+    from the command's start-up one)."""
     try:
         os.setsid()  # out of the terminal's process group: Ctrl-C goes to the launcher, which stops the run
     except OSError:  # already a session's leader
         pass
+    if sigint_mask is not None:
+        ignored = signal.getsignal(signal.SIGINT) == signal.SIG_IGN  # (nohup ... &): left ignored
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a pending SIGINT, the command's, is discarded
+        signal.pthread_sigmask(signal.SIG_SETMASK, sigint_mask)
+        signal.signal(signal.SIGINT, signal.SIG_IGN if ignored else signal.default_int_handler)
     if die_with_thread:
         _prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() != parent:
