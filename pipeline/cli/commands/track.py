@@ -311,7 +311,7 @@ def add_track_args(p: argparse.ArgumentParser) -> None:
                    help="seconds opening the stream may take before it is an error (default 10)")
     p.add_argument("--graph", help="graph file to use instead of the tracker's built-in one")
     p.add_argument("--set", action="append", metavar="STAGE.PARAM=VALUE", help="a parameter of the tracker, once for all its stages (tracker.particles=1000), or of one stage (source.stop=100); repeatable")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress output (errors and damaged input are still said)")
     add_placement_args(p, hosts=False)
     add_zenoh_args(p)
     builtin = {s.name for s in BUILTIN}
