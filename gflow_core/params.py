@@ -9,19 +9,24 @@ arguments of the Python API.
 
 A dataclass validates itself in ``__post_init__`` and raises :class:`ValueError` with a one-line
 message naming the parameter; :func:`make` also refuses unknown names, in one line listing the
-known ones.
+known ones. A parameter whose value sets the size of the run's arrays (the particles, dcf's
+template) declares the memory it costs (:class:`Memory`), and :func:`check_memory`, called from
+``__post_init__``, refuses a value that needs more than the machine has: such a run would spend its
+time growing arrays until a stage died, never tracking a frame.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import os
 import typing
 from dataclasses import dataclass
 from typing import Any, Mapping, TypeVar, cast
 
 __all__ = ["param", "ParamInfo", "describe", "defaults", "make", "UnknownParameter", "format_value", "added_later",
-           "as_recorded"]
+           "as_recorded", "Memory", "machine_memory", "check_memory"]
 
 T = TypeVar("T")
 
@@ -33,7 +38,36 @@ class UnknownParameter(TypeError):
 _NOT_LATER = object()
 
 
-def param(default: Any, help: str, *, option: str | None = None, before: Any = _NOT_LATER) -> Any:
+@dataclass(frozen=True)
+class Memory:
+    """The memory a parameter's value costs a run: ``per`` bytes for each of ``value ** power`` ``unit``.
+
+    ``per`` is measured, not derived: the slope of the peak resident memory of ``gflow track --inline``
+    (every stage, and the messages between them, in one process) between two large values, so it
+    counts what the whole pipeline holds, and is a floor of what a run needs with every other
+    setting at its default.
+    """
+
+    per: float
+    unit: str
+    power: int = 1
+
+    def need(self, value: float) -> float:
+        """Bytes a run needs for ``value`` (inf past a float's range)."""
+        try:
+            return self.per * float(value) ** self.power
+        except OverflowError:
+            return math.inf
+
+    def most(self, have: float) -> int:
+        """The largest value whose need is within ``have`` bytes, to two significant figures (rounded down)."""
+        v = int((have / self.per) ** (1.0 / self.power))
+        digits = max(len(str(v)) - 2, 0)
+        return v // 10 ** digits * 10 ** digits
+
+
+def param(default: Any, help: str, *, option: str | None = None, before: Any = _NOT_LATER,
+          memory: Memory | None = None) -> Any:
     """A dataclass field with its default, its help text and, optionally, its command-line option.
 
     Parameters
@@ -44,11 +78,44 @@ def param(default: Any, help: str, *, option: str | None = None, before: Any = _
     before : for a parameter added after recordings were made, and on by default, the value that
         is what the code did before it existed: a recorded plan without the parameter is read
         with it (:func:`as_recorded`), so the recording re-runs bit for bit.
+    memory : what the value costs in memory, for a parameter that sizes the run's arrays: a value
+        needing more than the machine has is refused (:func:`check_memory`).
     """
-    meta = {"help": help, "option": option}
+    meta: dict[str, Any] = {"help": help, "option": option}
     if before is not _NOT_LATER:
         meta["before"] = before
+    if memory is not None:
+        meta["memory"] = memory
     return dataclasses.field(default=default, metadata=meta)
+
+
+@functools.cache
+def machine_memory() -> float:
+    """Bytes of physical memory of this machine (inf where the system does not say: no bound)."""
+    try:
+        return float(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):
+        return math.inf
+
+
+def _bytes(n: float) -> str:
+    """``25.3 GB``, ``8.1 MB``."""
+    return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.1f} MB"
+
+
+def check_memory(obj: Any, have: float | None = None) -> None:
+    """Refuse a parameter of the dataclass ``obj`` declared with a :class:`Memory` whose value needs
+    more than ``have`` bytes (default: the machine's physical memory, :func:`machine_memory`), as a
+    ``ValueError`` naming the parameter, its value and the largest value that fits."""
+    have = machine_memory() if have is None else have
+    for f in dataclasses.fields(obj):
+        m = f.metadata.get("memory")
+        v = getattr(obj, f.name)
+        if m is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not m.need(v) > have:
+            continue
+        each = f"{m.per:g} bytes a {m.unit}" + (f", {f.name}^{m.power} of them" if m.power > 1 else "")
+        raise ValueError(f"{f.name} must be at most {m.most(have)} on this machine (about {each}; it has "
+                         f"{_bytes(have)} of memory), got {format_value(v)}")
 
 
 def added_later(cls: type) -> dict[str, Any]:
