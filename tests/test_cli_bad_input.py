@@ -344,3 +344,36 @@ def test_an_init_box_smaller_than_a_pixel_is_refused_first(tmp_path: Path, frame
     r = gflow("track", str(frames), "--init", box, "--out", "b.csv", "--no-record", "--tracker", "chamfer", cwd=tmp_path)
     assert_one_line_error(r, f"--init box {box}", "is smaller than a pixel", "64x48 image")
     assert not (tmp_path / "b.csv").exists()
+
+
+#: a value past any machine's memory (the bound itself is the machine's: no figure of it is written here)
+HUGE = "10000000000000"
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--set", "tracker.template=1e9"],
+     ["--set tracker.template=1e9: template must be at most", "template pixel", "got 1000000000"]),
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--particles", HUGE],
+     [f"--particles {HUGE}: particles must be at most", "bytes a particle", f"got {HUGE}"]),
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--tracker", "chamfer",
+      "--set", f"tracker.particles={HUGE}"], [f"--set tracker.particles={HUGE}: particles must be at most"]),
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--tracker", "appearance",
+      "--particles", HUGE], [f"--particles {HUGE}: particles must be at most"]),
+    (["benchmark", "{seq}", "--trackers", "dcf", "--set", "tracker.template=1e9"],
+     ["--set tracker.template=1e9: template must be at most"]),
+    (["trax", "--set", "template=1e9"], ["--set template=1e9: template must be at most"]),
+])
+def test_a_value_needing_more_memory_than_the_machine_has_is_refused_first(tmp_path: Path, frames: Path,
+                                                                          argv: list[str], said: list[str]) -> None:
+    """--set tracker.template=1e9 or --particles 1e8 passed every check, then the stages grew their arrays for
+    about 40 s until one died or the run stalled: exit 3. A value whose arrays need more memory than the machine
+    has is refused before any work, as a bad value (exit 2), naming the largest that fits."""
+    seq = tmp_path / "seq"
+    (seq / "frames").mkdir(parents=True)
+    for f in sorted(frames.iterdir()):
+        (seq / "frames" / f.name).write_bytes(f.read_bytes())
+    (seq / "groundtruth.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(5)))
+    r = gflow(*(a.format(frames=frames, seq=seq) for a in argv), cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, *said, "on this machine", "GB of memory")
+    assert not (tmp_path / "b.csv").exists()

@@ -198,6 +198,19 @@ def test_a_uniform_frame_cannot_start_a_track_and_is_coasted_over_later() -> Non
     assert t.coast().frame == 2 and t.update(scene.render(3)).phase == "track"
 
 
+def test_a_value_needing_more_memory_than_the_machine_has_is_refused_by_the_constructor() -> None:
+    """Tracker("dcf", template=10**9) was made, then its first frame grew arrays until the process died; the
+    constructor refuses it as gflow track does, one line naming the value and the largest that fits."""
+    for name, kw, says in (("dcf", {"template": 10**9}, "template must be at most"),
+                           ("dcf", {"particles": 10**13}, "particles must be at most"),
+                           ("appearance", {"particles": 10**13}, "particles must be at most"),
+                           ("chamfer", {"particles": 10**13}, "particles must be at most")):
+        with pytest.raises(GflowError, match=says) as e:
+            Tracker(name, **kw)
+        assert "on this machine" in str(e.value) and "\n" not in str(e.value)
+        assert str(e.value).endswith(f"got {next(iter(kw.values()))}")
+
+
 def test_errors_are_exceptions_with_the_command_lines_messages(tmp_path, caviar1) -> None:
     with pytest.raises(UnknownParameter, match="unknown parameter n_expert of GFlowParams"):
         Tracker("gflow", n_expert=3)

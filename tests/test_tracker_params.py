@@ -255,3 +255,35 @@ def test_gflow_settings_made_default_later_are_read_from_an_older_plan_as_they_w
         del block["params"][name]
     old = Plan.from_metadata({}, {**meta, "tracker": json.dumps(block)})
     assert (old.tracker.params["local_background"], old.tracker.params["scale_walk"]) == (0.0, 0.0)
+
+
+def test_a_value_is_refused_past_the_memory_it_declares() -> None:
+    """A parameter that sizes the run's arrays declares their memory (gflow_core.params.Memory); a value needing
+    more than the memory at hand is refused naming the largest value that fits, which itself passes. The memory
+    is given here, so nothing depends on this machine's."""
+    import math
+
+    from gflow_core.dcf.params import DCFParams
+    from gflow_core.params import Memory, check_memory
+
+    assert Memory(100.0, "particle").most(1e6) == 10000 and Memory(400.0, "pixel", power=2).most(1.6e9) == 2000
+    assert Memory(100.0, "particle").most(123456789.0) == 1200000  # two figures, rounded down
+    assert Memory(360.0, "template pixel", power=2).need(10**400) == math.inf
+    check_memory(DCFParams())  # the defaults fit this machine
+    have = 150 ** 2 * 360 - 1.0  # one byte short of the default template's
+    with pytest.raises(ValueError) as e:
+        check_memory(DCFParams(), have)
+    assert str(e.value) == ("template must be at most 140 on this machine (about 360 bytes a template pixel, "
+                            "template^2 of them; it has 8.1 MB of memory), got 150")
+    check_memory(DCFParams(template=140), have)
+    check_memory(DCFParams(particles=2_200_000), 1e9)
+    with pytest.raises(ValueError, match=r"^particles must be at most 2200000 on this machine .* got 3000000$"):
+        check_memory(DCFParams(particles=3_000_000), 1e9)
+
+
+@pytest.mark.parametrize("name", sorted(WITH_PARAMS))
+def test_every_trackers_particles_declare_their_memory(name) -> None:
+    """What sizes a run's arrays is bounded by the machine's memory for every tracker that has particles."""
+    fields = {f.name: f for f in dataclasses.fields(WITH_PARAMS[name])}
+    if "particles" in fields:
+        assert fields["particles"].metadata.get("memory") is not None

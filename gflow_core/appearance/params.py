@@ -23,7 +23,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any, Mapping
 
-from ..params import param
+from ..params import Memory, check_memory, param
 
 __all__ = ["AppearanceParams", "TRACK_SCALE", "FIXED_SIZE"]
 
@@ -34,7 +34,9 @@ class AppearanceParams:
     sequences together). Each field's help text is in its declaration; ``gflow info appearance``
     prints them all. Raises ``ValueError`` naming the first parameter it refuses."""
 
-    particles: int = param(300, "number of particles N", option="--particles")
+    # memory: the peak resident memory of `gflow track caviar1 --tracker appearance --inline --stop 4` grows by 397
+    # bytes a particle (--particles 1e6 to 2e6), 2026-12-05
+    particles: int = param(300, "number of particles N", option="--particles", memory=Memory(390, "particle"))
     lam: float = param(30.0, "lambda = 1 / (2 sigma^2) of the likelihood exp(-lambda rho) (eq. 7)")
     max_area: int = param(1000, "exemplar resolution: at most this many pixels")
     update_rate: float = param(0.02, "rate of the running exemplar's update on every frame the target is present")
@@ -134,6 +136,7 @@ class AppearanceParams:
             raise ValueError(f"std_xy_rel must be finite and >= 0, got {self.std_xy_rel}")
         if self.max_area < 36:
             raise ValueError(f"max_area must be >= 36 pixels, got {self.max_area}")
+        check_memory(self)
 
     def walk_std(self, box: tuple[float, float, float, float]) -> float:
         """The std (px) of the proposal's random walk of the centre for the initial ``box`` (x, y, w, h):

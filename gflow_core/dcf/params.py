@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from ..params import param
+from ..params import Memory, check_memory, param
 
 __all__ = ["DCFParams"]
 
@@ -29,10 +29,13 @@ class DCFParams:
     """Every setting of the correlation-filter tracker. Each field's help text is in its declaration;
     ``gflow info dcf`` prints them all. Raises ``ValueError`` naming the first parameter it refuses."""
 
-    particles: int = param(200, "number of particles N over (x, y, log s)")
+    # memory: the peak resident memory of `gflow track caviar1 --inline --stop 4` grows by 442 bytes a particle
+    # (--particles 2e6 to 4e6) and 365 a template pixel (--set tracker.template=1200 to 2400), 2026-12-05
+    particles: int = param(200, "number of particles N over (x, y, log s)", memory=Memory(440, "particle"))
     cell: int = param(4, "HOG cell size in pixels")
     padding: float = param(3.0, "the filter's window: the target plus this many times its mean side")
-    template: int = param(150, "sqrt of the window's area in template pixels (the window is resampled to it)")
+    template: int = param(150, "sqrt of the window's area in template pixels (the window is resampled to it)",
+                          memory=Memory(360, "template pixel", power=2))
     mask: float = param(1.0, "the filter's support: a box of the target's size times this (0: the whole window, "
                              "closed form)")
     mu: float = param(0.03, "the ADMM penalty mu of the masked filter at its first iteration, relative to the "
@@ -275,14 +278,7 @@ class DCFParams:
                                     "teaches the filter nothing (the paper's rule)")
 
     def __post_init__(self) -> None:
-        if self.particles < 1:
-            raise ValueError(f"particles must be >= 1, got {self.particles}")
-        if self.cell < 1:
-            raise ValueError(f"cell must be >= 1, got {self.cell}")
-        if not (math.isfinite(self.padding) and self.padding >= 0):
-            raise ValueError(f"padding must be finite and >= 0, got {self.padding}")
-        if self.template < 8 * self.cell:
-            raise ValueError(f"template must be at least 8 cells ({8 * self.cell} px), got {self.template}")
+        self._check_sizes()
         if not (math.isfinite(self.mask) and self.mask >= 0) or not self.mu > 0 or self.admm_iterations < 1:
             raise ValueError(f"mask must be >= 0, mu positive and admm_iterations >= 1, got {self.mask}, {self.mu}, "
                              f"{self.admm_iterations}")
@@ -374,6 +370,20 @@ class DCFParams:
         if self.hidden_after < 1 or not 0 < self.reappear < 1:
             raise ValueError(f"hidden_after must be >= 1 and reappear in (0, 1), got {self.hidden_after}, "
                              f"{self.reappear}")
+
+    def _check_sizes(self) -> None:
+        """The cloud's and the window's sizes: ``particles`` >= 1, ``cell`` >= 1, ``padding`` finite and >= 0,
+        ``template`` at least 8 cells, and the memory ``particles`` and ``template`` need within the machine's
+        (:func:`gflow_core.params.check_memory`)."""
+        if self.particles < 1:
+            raise ValueError(f"particles must be >= 1, got {self.particles}")
+        if self.cell < 1:
+            raise ValueError(f"cell must be >= 1, got {self.cell}")
+        if not (math.isfinite(self.padding) and self.padding >= 0):
+            raise ValueError(f"padding must be finite and >= 0, got {self.padding}")
+        if self.template < 8 * self.cell:
+            raise ValueError(f"template must be at least 8 cells ({8 * self.cell} px), got {self.template}")
+        check_memory(self)
 
     def _check_motion_size_and_support(self) -> None:
         """``detect_peaks`` >= 1, ``motion_switch``, ``motion_fit``, ``motion_tail_rate`` and ``flow_mix`` in [0, 1)
