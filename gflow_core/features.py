@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 __all__ = ["to_grey", "to_uint8", "gradients", "gaussian_blur", "edge_map", "auto_canny_thresholds", "distance_transform", "chamfer_image",
-           "canny_calibrated", "edges_and_chamfer", "resampled_edges", "resample_grey", "resampled_size",
+           "canny_calibrated", "box_pixels", "MIN_CALIBRATION_SIDE", "edges_and_chamfer", "resampled_edges", "resample_grey", "resampled_size",
            "upsample_to", "PROFILES"]
 
 PROFILES = ("linear", "quadratic", "truncated")
@@ -92,6 +92,18 @@ def gradients(grey: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return gx, gy
 
 
+#: the pixels a side of the image the box the Canny thresholds are calibrated on must cover
+MIN_CALIBRATION_SIDE = 2
+
+
+def box_pixels(box: tuple[float, float, float, float], width: int, height: int) -> tuple[int, int, int, int]:
+    """(c0, r0, c1, r1): the columns c0..c1 - 1 and rows r0..r1 - 1 of a ``width`` x ``height`` image that the box
+    (x, y, w, h) covers, a pixel counted when the box reaches into it (c1 - c0 <= 0: none)."""
+    x, y, w, h = box
+    c0, r0 = max(int(x), 0), max(int(y), 0)
+    return c0, r0, min(int(np.ceil(x + w)), width), min(int(np.ceil(y + h)), height)
+
+
 def auto_canny_thresholds(grey: np.ndarray, percentile: float = 85.0, ratio: float = 0.4,
                           box: tuple[float, float, float, float] | None = None) -> tuple[float, float]:
     """Adaptive Canny thresholds: ``high`` is a percentile of the Sobel gradient magnitude
@@ -107,12 +119,13 @@ def auto_canny_thresholds(grey: np.ndarray, percentile: float = 85.0, ratio: flo
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1, ksize=3)
     mag = cv2.magnitude(gx, gy)
     if box is not None:
-        x, y, w, h = box
         H, W = mag.shape
-        c0, r0 = max(int(x), 0), max(int(y), 0)
-        c1, r1 = min(int(np.ceil(x + w)), W), min(int(np.ceil(y + h)), H)
-        if c1 - c0 < 2 or r1 - r0 < 2:
-            raise ValueError(f"calibration box {box} does not overlap the {W}x{H} image")
+        c0, r0, c1, r1 = box_pixels(box, W, H)
+        m = MIN_CALIBRATION_SIDE
+        if c1 - c0 < m or r1 - r0 < m:
+            raise ValueError(f"the box {','.join(f'{v:g}' for v in box)} covers {max(c1 - c0, 0)}x{max(r1 - r0, 0)} "
+                             f"pixels of the {W}x{H} image: the edges' thresholds are calibrated on at least {m}x{m} "
+                             f"of its pixels")
         mag = mag[r0:r1, c0:c1]
     high = max(float(np.percentile(mag, percentile)), 1.0)
     return ratio * high, high
