@@ -43,6 +43,11 @@ class StageFields(Params, frozen=True):
     def check(self, tracker: Any) -> None:
         """Checks of the stage's own fields against the tracker's parameters (``ValueError``)."""
 
+    def box_needs(self) -> tuple[int, str]:
+        """(pixels a side of the first frame the initial box must cover for this stage, what they are for):
+        checked against the first frame before a run starts. ``(1, "")``: any pixel will do."""
+        return 1, ""
+
 
 class SeedBoxFields(StageFields, frozen=True):
     """The fields most tracker stages add: ``seed`` (frame ``t`` draws from ``[seed, crc32(stream), t,

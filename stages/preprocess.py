@@ -46,6 +46,14 @@ class PreprocessFields(StageFields, frozen=True):
     edges: bool = True
     colour: bool = False
 
+    def box_needs(self) -> tuple[int, str]:
+        """The pixels a side the thresholds are calibrated on (:data:`gflow_core.features.MIN_CALIBRATION_SIDE`)
+        when they are calibrated on ``calibrate_box``, the initial box."""
+        fixed = getattr(self, "canny_low", None) is not None and getattr(self, "canny_high", None) is not None
+        if self.edges and self.calibrate_box is not None and not fixed:
+            return features.MIN_CALIBRATION_SIDE, "its edges' thresholds are calibrated on the box's pixels"
+        return 1, ""
+
 
 #: the preprocess stage's settings: every field of EdgeParams and those of :class:`PreprocessFields`
 #: (not a stage of a tracker: a graph's tracker block does not feed it, its tracker's

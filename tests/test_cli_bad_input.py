@@ -377,3 +377,32 @@ def test_a_value_needing_more_memory_than_the_machine_has_is_refused_first(tmp_p
     assert r.returncode == 2, r.stderr
     assert_one_line_error(r, *said, "on this machine", "GB of memory")
     assert not (tmp_path / "b.csv").exists()
+
+
+@pytest.mark.parametrize("box, covers", [("10,10,1,20", "1x20"), ("10,10,20,1", "20x1"), ("10.5,10,1.4,20", "2x20")])
+def test_a_box_narrower_than_chamfers_calibration_is_refused_first(tmp_path: Path, frames: Path, box: str,
+                                                                  covers: str) -> None:
+    """A 1-pixel-wide box passed the check of a box smaller than a pixel, then chamfer's preprocess refused every
+    frame ('calibration box ... does not overlap the image', a box that does), 'tracked 0 frames', exit 3: its
+    edges' thresholds are calibrated on at least 2x2 of the box's pixels. The tracker's minimum is said before
+    any work. A box reaching into two pixels a side is enough, however narrow."""
+    r = gflow("track", str(frames), "--init", box, "--out", "b.csv", "--no-record", "--tracker", "chamfer", "--inline",
+              "-q", cwd=tmp_path)
+    if covers == "2x20":
+        assert r.returncode == 0, r.stderr
+        return
+    assert_one_line_error(r, f"--init box {box} covers {covers} pixels of the 64x48 image: chamfer needs at least 2x2",
+                          "calibrated on the box's pixels")
+    assert r.returncode == 2 and not (tmp_path / "b.csv").exists()
+
+
+def test_a_tracker_that_needs_no_more_than_a_pixel_takes_a_one_pixel_wide_box(tmp_path: Path, frames: Path) -> None:
+    """The minimum is the tracker's: dcf, whose window is padded about the box, tracks from a 1-pixel-wide box; so
+    does chamfer with fixed thresholds (nothing calibrated on the box)."""
+    r = gflow("track", str(frames), "--init", "10,10,1,20", "--out", "b.csv", "--no-record", "--inline", "-q",
+              cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    r = gflow("track", str(frames), "--init", "10,10,1,20", "--out", "c.csv", "--no-record", "--inline", "-q",
+              "--tracker", "chamfer", "--set", "preprocess.canny_low=10", "--set", "preprocess.canny_high=30",
+              cwd=tmp_path)
+    assert r.returncode == 0, r.stderr

@@ -211,6 +211,17 @@ def test_a_value_needing_more_memory_than_the_machine_has_is_refused_by_the_cons
         assert str(e.value).endswith(f"got {next(iter(kw.values()))}")
 
 
+def test_a_box_narrower_than_chamfers_calibration_is_said_as_such() -> None:
+    """A 1-pixel-wide box was 'calibration box ... does not overlap the 64x48 image', of a box that does: it covers
+    fewer pixels than the edges' thresholds are calibrated on."""
+    frame = np.random.default_rng(0).integers(0, 255, (48, 64, 3), dtype=np.uint8)
+    with pytest.raises(GflowError) as e:
+        Tracker("chamfer").init(frame, (10, 10, 1, 20))
+    assert str(e.value) == ("frame 0: the box 10,10,1,20 covers 1x20 pixels of the 64x48 image: the edges' thresholds "
+                            "are calibrated on at least 2x2 of its pixels")
+    Tracker("dcf").init(frame, (10, 10, 1, 20))  # no calibration on the box's pixels
+
+
 def test_errors_are_exceptions_with_the_command_lines_messages(tmp_path, caviar1) -> None:
     with pytest.raises(UnknownParameter, match="unknown parameter n_expert of GFlowParams"):
         Tracker("gflow", n_expert=3)

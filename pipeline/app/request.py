@@ -232,7 +232,7 @@ def plan_track(request: TrackRequest, tracker: Any) -> TrackPlan:
 
     from stages.source import SourceParams
     from pipeline.io.frame_readers import count_frames
-    from pipeline.runtime.preflight import check_source
+    from pipeline.runtime.preflight import box_needs, check_source
     from pipeline.runtime.zygote import preload
 
     plan = _graph_plan(request, tracker, source)
@@ -241,6 +241,7 @@ def plan_track(request: TrackRequest, tracker: Any) -> TrackPlan:
     sp = msgspec.convert(plan.stages["source"].params, SourceParams)
     if sp.kind == "live":  # opened once, by the source stage (a camera or a listen=1 server serves one client)
         return TrackPlan(request, plan, None)
-    first = check_source(sp, request.init)  # readable, start inside it, init on the image: before anything starts
+    # readable, start inside it, init on the image and as large as the stages need: before anything starts
+    first = check_source(sp, request.init, needs=box_needs(plan))
     shape = first.image.shape if first.image is not None else None
     return TrackPlan(request, plan, count_frames(sp), shape)

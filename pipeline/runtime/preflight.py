@@ -6,7 +6,8 @@
 * :func:`first_frame`: decode the first frame the source would produce, which proves the
   file is readable (a text file named ``.mp4`` is refused here, without FFmpeg's noise) and
   that ``start`` is inside the source, and gives the image size.
-* :func:`check_box_in_image`: an initial box that does not overlap the first frame.
+* :func:`check_box_in_image`: an initial box that does not overlap the first frame, or covers fewer
+  of its pixels than a stage of the run needs (:func:`box_needs`).
 """
 
 from __future__ import annotations
@@ -17,8 +18,10 @@ from typing import TYPE_CHECKING, Iterable
 
 if TYPE_CHECKING:  # imported where used: check_writable, which every command's outputs go through, needs no stage
     from stages.source import RawFrame, SourceParams
+    from pipeline.runtime.graph import Plan
 
-__all__ = ["PreflightError", "check_writable", "first_frame", "check_box_in_image", "check_source", "check_listen"]
+__all__ = ["PreflightError", "check_writable", "first_frame", "check_box_in_image", "check_source", "check_listen",
+           "box_needs"]
 
 # FFmpeg's own log ("moov atom not found") would precede our one-line error; silence it in
 # this process (the stage processes report decoding problems on the errors topic).
@@ -112,10 +115,12 @@ def _torn(params: SourceParams) -> str:
 MAX_BOX_TIMES_IMAGE = 10
 
 
-def check_box_in_image(box, width: int, height: int, what: str = "--init") -> None:
+def check_box_in_image(box, width: int, height: int, what: str = "--init",
+                       needs: tuple[int, str, str] = (1, "", "")) -> None:
     """Refuse a box with no overlap with a ``width`` x ``height`` image (partly outside is fine), one smaller than a
-    pixel (a box given in the image's fractions, 0.1,0.2,0.05,0.1: every frame an error report, exit 0), or one
-    more than :data:`MAX_BOX_TIMES_IMAGE` times the image's size."""
+    pixel (a box given in the image's fractions, 0.1,0.2,0.05,0.1: every frame an error report, exit 0), one
+    more than :data:`MAX_BOX_TIMES_IMAGE` times the image's size, or one covering fewer than ``needs`` = (pixels a
+    side, who needs them, why: :func:`box_needs`) of the image's pixels."""
     x, y, w, h = (float(v) for v in box)
     if x >= width or y >= height or x + w <= 0 or y + h <= 0:
         raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} lies outside the {width}x{height} image "
@@ -128,15 +133,47 @@ def check_box_in_image(box, width: int, height: int, what: str = "--init") -> No
     if w > k * width or h > k * height:
         raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} is more than {k} times the size of the "
                              f"{width}x{height} image (W at most {k * width}, H at most {k * height})")
+    side, who, why = needs
+    if side > 1:
+        from gflow_core.features import box_pixels
+
+        c0, r0, c1, r1 = box_pixels((x, y, w, h), width, height)
+        if c1 - c0 < side or r1 - r0 < side:
+            raise PreflightError(f"{what} box {x:g},{y:g},{w:g},{h:g} covers {c1 - c0}x{r1 - r0} pixels of the "
+                                 f"{width}x{height} image: {who} needs at least {side}x{side} ({why}; W and H at "
+                                 f"least {side}, inside the image)")
 
 
-def check_source(params: SourceParams, box=None, base_dir: str | os.PathLike = ".") -> RawFrame:
-    """:func:`first_frame`, and the box against its size when given."""
+def box_needs(plan: Plan) -> tuple[int, str, str]:
+    """(pixels a side of the first frame the initial box must cover, who needs them, why) for the stages of
+    ``plan``: the most any of them asks (:meth:`gflow_msgs.params.StageFields.box_needs`), ``(1, "", "")`` when
+    none asks for more than a pixel. ``who`` is the graph's tracker (chamfer: its preprocess calibrates the
+    edges' thresholds on the box)."""
+    import msgspec
+
+    from gflow_msgs.params import StageFields
+    from stages.registry import STAGES
+
+    side, why = 1, ""
+    who = plan.tracker.name if plan.tracker is not None else plan.name
+    for name, sp in plan.stages.items():
+        cls = STAGES[sp.kind].Params if sp.kind in STAGES else None
+        if cls is None or not issubclass(cls, StageFields):
+            continue
+        n, what = msgspec.convert(plan.stage_params(name), cls, strict=False).box_needs()
+        if n > side:
+            side, why = n, what
+    return side, who if side > 1 else "", why
+
+
+def check_source(params: SourceParams, box=None, base_dir: str | os.PathLike = ".",
+                 needs: tuple[int, str, str] = (1, "", "")) -> RawFrame:
+    """:func:`first_frame`, and the box against its size when given (with ``needs``: :func:`check_box_in_image`)."""
     frame = first_frame(params, base_dir)
     if box is not None:
         assert frame.image is not None  # first_frame refuses a frame without an image
         h, w = frame.image.shape[:2]
-        check_box_in_image(box, w, h)
+        check_box_in_image(box, w, h, needs=needs)
     return frame
 
 
