@@ -40,7 +40,9 @@ _NOT_LATER = object()
 
 @dataclass(frozen=True)
 class Memory:
-    """The memory a parameter's value costs a run: ``per`` bytes for each of ``value ** power`` ``unit``.
+    """The memory a parameter's value costs a run: ``per`` bytes for each of ``value ** power`` ``unit``,
+    times the values of the parameters named in ``times`` (G-flow's pose samples: ``n_samples`` of each of
+    ``n_experts``; both declare it, and a value too large is said of the one furthest above its default).
 
     ``per`` is measured, not derived: the slope of the peak resident memory of ``gflow track --inline``
     (every stage, and the messages between them, in one process) between two large values, so it
@@ -51,17 +53,19 @@ class Memory:
     per: float
     unit: str
     power: int = 1
+    times: tuple[str, ...] = ()
 
-    def need(self, value: float) -> float:
-        """Bytes a run needs for ``value`` (inf past a float's range)."""
+    def need(self, value: float, times: float = 1.0) -> float:
+        """Bytes a run needs for ``value``, ``times`` the product of the ``times`` parameters' values (inf past a
+        float's range)."""
         try:
-            return self.per * float(value) ** self.power
+            return self.per * times * _float(value) ** self.power
         except OverflowError:
             return math.inf
 
-    def most(self, have: float) -> int:
+    def most(self, have: float, times: float = 1.0) -> int:
         """The largest value whose need is within ``have`` bytes, to two significant figures (rounded down)."""
-        v = int((have / self.per) ** (1.0 / self.power))
+        v = int((have / (self.per * times)) ** (1.0 / self.power))
         digits = max(len(str(v)) - 2, 0)
         return v // 10 ** digits * 10 ** digits
 
@@ -103,18 +107,33 @@ def _bytes(n: float) -> str:
     return f"{n / 1e9:.1f} GB" if n >= 1e9 else f"{n / 1e6:.1f} MB"
 
 
+def _float(v: float) -> float:
+    """``float(v)``, inf for an integer past a float's range."""
+    try:
+        return float(v)
+    except OverflowError:
+        return math.inf
+
+
 def check_memory(obj: Any, have: float | None = None) -> None:
     """Refuse a parameter of the dataclass ``obj`` declared with a :class:`Memory` whose value needs
     more than ``have`` bytes (default: the machine's physical memory, :func:`machine_memory`), as a
-    ``ValueError`` naming the parameter, its value and the largest value that fits."""
+    ``ValueError`` naming the parameter, its value and the largest value that fits (of those refused,
+    the one furthest above its default: the one the user made large)."""
     have = machine_memory() if have is None else have
+    refused = []
     for f in dataclasses.fields(obj):
-        m = f.metadata.get("memory")
-        v = getattr(obj, f.name)
-        if m is None or isinstance(v, bool) or not isinstance(v, (int, float)) or not m.need(v) > have:
+        m, v = f.metadata.get("memory"), getattr(obj, f.name)
+        if m is None or isinstance(v, bool) or not isinstance(v, (int, float)):
             continue
-        each = f"{m.per:g} bytes a {m.unit}" + (f", {f.name}^{m.power} of them" if m.power > 1 else "")
-        raise ValueError(f"{f.name} must be at most {m.most(have)} on this machine (about {each}; it has "
+        times = math.prod(_float(getattr(obj, n)) for n in m.times)
+        if m.need(v, times) > have:
+            refused.append((_float(v) / max(_float(f.default), 1.0), f.name, m, v, times))
+    if refused:
+        _, name, m, v, times = max(refused, key=lambda r: r[0])
+        count = " x ".join((name if m.power == 1 else f"{name}^{m.power}", *m.times))
+        each = f"{m.per:g} bytes a {m.unit}" + (f", {count} of them" if count != name else "")
+        raise ValueError(f"{name} must be at most {m.most(have, times)} on this machine (about {each}; it has "
                          f"{_bytes(have)} of memory), got {format_value(v)}")
 
 

@@ -362,6 +362,8 @@ HUGE = "10000000000000"
     (["benchmark", "{seq}", "--trackers", "dcf", "--set", "tracker.template=1e9"],
      ["--set tracker.template=1e9: template must be at most"]),
     (["trax", "--set", "template=1e9"], ["--set template=1e9: template must be at most"]),
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--tracker", "gflow",
+      "--experts", HUGE], [f"--experts {HUGE}: n_experts must be at most", "n_experts x n_samples of them"]),
 ])
 def test_a_value_needing_more_memory_than_the_machine_has_is_refused_first(tmp_path: Path, frames: Path,
                                                                           argv: list[str], said: list[str]) -> None:
@@ -406,3 +408,4 @@ def test_a_tracker_that_needs_no_more_than_a_pixel_takes_a_one_pixel_wide_box(tm
               "--tracker", "chamfer", "--set", "preprocess.canny_low=10", "--set", "preprocess.canny_high=30",
               cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+

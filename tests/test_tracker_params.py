@@ -281,9 +281,29 @@ def test_a_value_is_refused_past_the_memory_it_declares() -> None:
         check_memory(DCFParams(particles=3_000_000), 1e9)
 
 
-@pytest.mark.parametrize("name", sorted(WITH_PARAMS))
-def test_every_trackers_particles_declare_their_memory(name) -> None:
-    """What sizes a run's arrays is bounded by the machine's memory for every tracker that has particles."""
-    fields = {f.name: f for f in dataclasses.fields(WITH_PARAMS[name])}
-    if "particles" in fields:
-        assert fields["particles"].metadata.get("memory") is not None
+def test_a_product_of_two_parameters_is_said_of_the_one_made_large() -> None:
+    """G-flow's memory is a pose sample's times n_experts x n_samples: a value too large is said of the parameter
+    furthest above its default, with the bound holding the other at its value."""
+    from gflow_core.params import check_memory
+
+    have = 20 * 10 * 22_000 * 100.0  # a hundred times the defaults' pose samples
+    check_memory(GFlowParams(), have)
+    with pytest.raises(ValueError, match=r"^n_experts must be at most 2000 on this machine \(about 22000 bytes a pose "
+                                         r"sample, n_experts x n_samples of them; .* got 5000$"):
+        check_memory(GFlowParams(n_experts=5000), have)
+    with pytest.raises(ValueError, match=r"^n_samples must be at most 1000 .* got 5000$"):
+        check_memory(GFlowParams(n_samples=5000), have)
+    with pytest.raises(ValueError, match=r"^n_experts must be at most 1000 .* got 5000$"):
+        check_memory(GFlowParams(n_experts=5000, n_samples=20), have)
+
+
+@pytest.mark.parametrize("name", sorted(WITH_PARAMS) + ["m2 patch"])
+def test_what_sizes_every_trackers_arrays_declares_its_memory(name) -> None:
+    """What sizes a run's arrays is bounded by the machine's memory for every tracker: its particles (or G-flow's
+    experts and their pose samples)."""
+    from gflow_core.m2.patch_params import PatchParams
+
+    cls = PatchParams if name == "m2 patch" else WITH_PARAMS[name]
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    sized = [n for n in ("particles", "n_experts", "n_samples") if n in fields]
+    assert sized and all(fields[n].metadata.get("memory") is not None for n in sized), name

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, Literal, Mapping
 
-from ..params import make, param
+from ..params import Memory, check_memory, make, param
 
 if TYPE_CHECKING:  # the filter is imported when a configuration is made, not with the parameters
     import numpy as np
@@ -45,8 +45,12 @@ class GFlowParams:
     all. Raises ``ValueError`` naming the first parameter it refuses.
     """
 
-    n_experts: int = param(20, "number of experts E", option="--experts")
-    n_samples: int = param(10, "pose samples s per expert (sec. 3.2.2)", option="--samples")
+    # memory: the peak resident memory of `gflow track caviar1 --tracker gflow --inline --stop 3` grows by 22.2 KB a
+    # pose sample of an expert (--samples 100 to 400 with 20 experts; 22.6 KB --samples 20 to 80 with 200), 2026-12-05
+    n_experts: int = param(20, "number of experts E", option="--experts",
+                           memory=Memory(22_000, "pose sample", times=("n_samples",)))
+    n_samples: int = param(10, "pose samples s per expert (sec. 3.2.2)", option="--samples",
+                           memory=Memory(22_000, "pose sample", times=("n_experts",)))
     alpha: float = param(1.0, "sharpness of the Laplace proposal N(u_hat, alpha Sigma_hat); 0 = the peak",
                          option="--alpha")
     gn_iterations: int = param(5, "Gauss-Newton steps per frame (eq. 14)")
@@ -199,6 +203,7 @@ class GFlowParams:
         if not 0.0 <= self.lost_below <= self.occluded_below <= 1.0:
             raise ValueError(f"need 0 <= lost_below <= occluded_below <= 1, got {self.lost_below}, "
                              f"{self.occluded_below}")
+        check_memory(self)
 
     def config(self, model: MorphableModel | None = None, pose0: np.ndarray | None = None) -> GFlowConfig:
         """The filter's configuration; with the model and its initial pose ``(P,)``, the settings that

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Literal, Mapping
 
-from ..params import param
+from ..params import Memory, check_memory, param
 
 __all__ = ["PatchParams", "crop_of", "CROPS"]
 
@@ -31,7 +31,10 @@ class PatchParams:
     crop: Literal["frame", "box"] = param("frame", "how the observed patch is cut from the frame: frame (the whole "
                                                    "frame resized) or box (the initial box resampled)",
                                   option="--crop")
-    particles: int = param(500, "number of particles N")
+    # memory: the peak resident memory of `gflow track --tracker m2 --model M --inline --stop 4` with a whole-frame
+    # shuffle model of 80x60 frames (as tests/test_m2_patch_cli.py learns it) grows by 443 bytes a particle
+    # (--particles 5e5 to 1e6), 2026-12-05
+    particles: int = param(500, "number of particles N", memory=Memory(440, "particle"))
     blank_std: float = param(1.0, "frames whose grey levels have a smaller standard deviation carry no evidence",
                              option="--blank-std")
 
@@ -42,6 +45,7 @@ class PatchParams:
             raise ValueError(f"particles must be an integer >= 1, got {self.particles!r}")
         if not self.blank_std >= 0:
             raise ValueError(f"blank_std must be >= 0, got {self.blank_std}")
+        check_memory(self)
 
 
 def crop_of(meta: Mapping[str, Any]) -> Literal["frame", "box"]:
