@@ -7,6 +7,7 @@ its own hash seed; the sources are tiny files written into tmp_path.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -409,3 +410,18 @@ def test_a_tracker_that_needs_no_more_than_a_pixel_takes_a_one_pixel_wide_box(tm
               cwd=tmp_path)
     assert r.returncode == 0, r.stderr
 
+
+def test_two_options_that_fit_alone_but_not_together_are_named_together(tmp_path: Path, frames: Path) -> None:
+    """G-flow's pose samples are n_experts x n_samples: --experts and --samples that each fit the machine's memory
+    but not together were said as the graph file's line (gflow.yaml:26: tracker gflow: ...), not as the options.
+    The values are this machine's: each a little over the square root of what its memory holds (n_samples, the
+    further above its default, is the one named)."""
+    from gflow_core.gflow import GFlowParams
+    from gflow_core.params import machine_memory
+
+    m = next(f.metadata["memory"] for f in dataclasses.fields(GFlowParams) if f.name == "n_samples")
+    n = int((machine_memory() / m.per) ** 0.5) + 1
+    r = gflow("track", str(frames), "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--tracker", "gflow",
+              "--experts", str(n), "--samples", str(n), cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, f"--experts {n} --samples {n}: n_samples must be at most", "on this machine")

@@ -73,11 +73,13 @@ def param_values(args: argparse.Namespace, cls: type) -> dict[str, Any]:
 def check_param_values(args: argparse.Namespace, classes: list[type], cls: type) -> None:
     """Refuse a value the options of ``classes`` were given that ``cls`` (the tracker that runs)
     would refuse, as ``ValueError("--OPTION VALUE: why")``: the dataclass's own check, in one line,
-    before a graph is built from it (an option declared on one tracker's parameters and read by
+    of each value alone, then of all of them together (``--experts 10000 --samples 1000``), before a
+    graph is built from it (an option declared on one tracker's parameters and read by
     another, as ``--particles``, is checked against the one that runs)."""
     from gflow_core.params import make
 
     fields = {i.name for i in describe(cls)}
+    given: dict[str, tuple[str, Any]] = {}
     for other in classes:
         for info in describe(other):
             if info.option is None or info.name not in fields:
@@ -89,6 +91,11 @@ def check_param_values(args: argparse.Namespace, classes: list[type], cls: type)
                 make(cls, {info.name: value})
             except ValueError as e:
                 raise ValueError(f"{info.option} {format_value(value)}: {e}") from None
+            given[info.name] = (f"{info.option} {format_value(value)}", value)
+    try:  # each fits alone, not together (--experts and --samples: the memory of their product)
+        make(cls, {name: value for name, (_, value) in given.items()})
+    except ValueError as e:
+        raise ValueError(f"{' '.join(how for how, _ in given.values())}: {e}") from None
 
 
 def _type_name(tp: Any) -> str:
