@@ -363,6 +363,12 @@ HUGE = "10000000000000"
     (["benchmark", "{seq}", "--trackers", "dcf", "--set", "tracker.template=1e9"],
      ["--set tracker.template=1e9: template must be at most"]),
     (["trax", "--set", "template=1e9"], ["--set template=1e9: template must be at most"]),
+    # the scale filter's samples: scales x scale_area pixels (scales=1000000001 stalled the run, exit 3)
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--set",
+      "tracker.scales=1000000000001"], ["--set tracker.scales=1000000000001: scales must be at most",
+                                        "scales x scale_area of them"]),
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--set",
+      f"tracker.scale_area={HUGE}"], [f"--set tracker.scale_area={HUGE}: scale_area must be at most"]),
     (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--no-record", "--tracker", "gflow",
       "--experts", HUGE], [f"--experts {HUGE}: n_experts must be at most", "n_experts x n_samples of them"]),
 ])

@@ -203,6 +203,7 @@ def test_a_value_needing_more_memory_than_the_machine_has_is_refused_by_the_cons
     constructor refuses it as gflow track does, one line naming the value and the largest that fits."""
     for name, kw, says in (("dcf", {"template": 10**9}, "template must be at most"),
                            ("dcf", {"particles": 10**13}, "particles must be at most"),
+                           ("dcf", {"scales": 10**12 + 1}, "scales must be at most"),
                            ("appearance", {"particles": 10**13}, "particles must be at most"),
                            ("chamfer", {"particles": 10**13}, "particles must be at most")):
         with pytest.raises(GflowError, match=says) as e:

@@ -48,11 +48,15 @@ class DCFParams:
     colour_weight: float = param(0.3, "alpha: the response is (1 - alpha) filter + alpha colour model (0: no "
                                       "colour model)")
     colour_rate: float = param(0.04, "learning rate of the colour model's histograms")
-    scales: int = param(17, "scales of the 1-D scale filter (odd; 1: the box keeps its first size)")
+    # memory: `gflow track caviar1 --inline --stop 4` grows by 2605 bytes a pixel of scale_area with 17 scales, 153 a
+    # pixel of each scale's sample (--set tracker.scale_area=1e6 to 4e6), 2026-12-05
+    scales: int = param(17, "scales of the 1-D scale filter (odd; 1: the box keeps its first size)",
+                        memory=Memory(150, "pixel of a scale's sample", times=("scale_area",)))
     scale_step: float = param(1.02, "ratio between neighbouring scales of the scale filter")
     scale_rate: float = param(0.025, "learning rate of the scale filter")
     scale_lam: float = param(0.01, "lambda of the scale filter")
-    scale_area: int = param(1024, "pixels of the scale filter's sample at most")
+    scale_area: int = param(1024, "pixels of the scale filter's sample at most",
+                            memory=Memory(150, "pixel of a scale's sample", times=("scales",)))
     scale_anchor: bool = param(False, "the scale filter detects with the first frame's scale filter mixed in at "
                                       "anchor_weight, as the translation filter does, so the box's size stays tied to "
                                       "the first box's (gflow_core.dcf.scale; false: DSST's running filter alone)")
@@ -373,8 +377,8 @@ class DCFParams:
 
     def _check_sizes(self) -> None:
         """The cloud's and the window's sizes: ``particles`` >= 1, ``cell`` >= 1, ``padding`` finite and >= 0,
-        ``template`` at least 8 cells, and the memory ``particles`` and ``template`` need within the machine's
-        (:func:`gflow_core.params.check_memory`)."""
+        ``template`` at least 8 cells, and the memory ``particles``, ``template`` and the scale filter's samples
+        (``scales`` x ``scale_area``) need within the machine's (:func:`gflow_core.params.check_memory`)."""
         if self.particles < 1:
             raise ValueError(f"particles must be >= 1, got {self.particles}")
         if self.cell < 1:
