@@ -128,7 +128,8 @@ def check_memory(obj: Any, have: float | None = None) -> None:
             continue
         times = math.prod(_float(getattr(obj, n)) for n in m.times)
         if m.need(v, times) > have:
-            refused.append((_float(v) / max(_float(f.default), 1.0), f.name, m, v, times))
+            default = f.default if isinstance(f.default, (int, float)) else 1.0  # (a declared field has one)
+            refused.append((_float(v) / max(_float(default), 1.0), f.name, m, v, times))
     if refused:
         _, name, m, v, times = max(refused, key=lambda r: r[0])
         count = " x ".join((name if m.power == 1 else f"{name}^{m.power}", *m.times))
