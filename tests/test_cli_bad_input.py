@@ -431,3 +431,14 @@ def test_two_options_that_fit_alone_but_not_together_are_named_together(tmp_path
               "--experts", str(n), "--samples", str(n), cwd=tmp_path)
     assert r.returncode == 2, r.stderr
     assert_one_line_error(r, f"--experts {n} --samples {n}: n_samples must be at most", "on this machine")
+
+
+def test_a_graph_run_checks_the_box_against_what_its_stages_need(tmp_path: Path, frames: Path) -> None:
+    """gflow run of the chamfer graph with a 1-pixel-wide box calibrated on: every frame refused by its preprocess,
+    as gflow track's was. Its stages' needs are checked with their initial boxes before any process starts."""
+    box = "[10, 10, 1, 20]"
+    r = gflow("run", "chamfer", "--inline", "--no-record", "--set", f"source.path={frames}",
+              "--set", f"proposal.init={box}", "--set", f"filter.init={box}", "--set", f"preprocess.calibrate_box={box}",
+              cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert_one_line_error(r, "init: box 10,10,1,20 covers 1x20 pixels of the 64x48 image: chamfer needs at least 2x2")

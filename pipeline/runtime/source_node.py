@@ -179,7 +179,7 @@ class LiveSourceNode(SourceNode):
         """Open the live source (before the first heartbeat); '' or the one-line reason it cannot run."""
         from pipeline.io.frame_readers import open_live  # the source's own import (cv2, FFmpeg)
         from pipeline.io.live_capture import LiveSourceError
-        from pipeline.runtime.preflight import PreflightError, check_box_in_image
+        from pipeline.runtime.preflight import PreflightError, box_needs, check_box_in_image
 
         p = self.params
         try:
@@ -187,11 +187,12 @@ class LiveSourceNode(SourceNode):
         except LiveSourceError as e:
             return str(e)
         h, w = cap.shape[:2]
+        needs = box_needs(self.plan)
         for sp in self.plan.stages.values():
             box = sp.params.get("init") if isinstance(sp.params, dict) else None
             if box is not None and len(box) == 4:
                 try:
-                    check_box_in_image(box, w, h)
+                    check_box_in_image(box, w, h, needs=needs)
                 except PreflightError as e:
                     cap.close()
                     return f"{p.path}: {e}"

@@ -54,7 +54,7 @@ def _check_initial_boxes(plan, local) -> None:
     import msgspec
     from stages.source import SourceParams
 
-    from pipeline.runtime.preflight import check_box_in_image, first_frame
+    from pipeline.runtime.preflight import box_needs, check_box_in_image, first_frame
 
     src = next((s for s in plan.stages.values() if s.is_source()), None)
     if src is None or src.name not in local:
@@ -67,8 +67,9 @@ def _check_initial_boxes(plan, local) -> None:
     frame = first_frame(params, plan.base_dir)
     assert frame.image is not None  # first_frame refuses a frame without an image
     h, w = frame.image.shape[:2]
+    needs = box_needs(plan)  # what the stages ask of the box (chamfer's preprocess: 2x2 pixels to calibrate on)
     for name, box in boxes.items():
-        check_box_in_image(box, w, h, what=f"stage {name!r} init:")
+        check_box_in_image(box, w, h, what=f"stage {name!r} init:", needs=needs)
 
 
 def register(sub) -> None:
