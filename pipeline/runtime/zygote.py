@@ -417,7 +417,7 @@ def _recv_exact(sock: socket.socket, n: int) -> bytes:
 
 
 def _serve(sock: socket.socket, parent: int, die_with_thread: bool = True,
-           sigint_mask: set[signal.Signals] | None = None) -> None:
+           sigint_mask: set[int | signal.Signals] | None = None) -> None:
     """The zygote: import what every stage needs, then fork one stage per request until the socket
     ends (when ``parent`` closes it or exits). ``die_with_thread``: killed too when the thread that
     forked it ends (``PR_SET_PDEATHSIG`` is a thread's): the early zygote's, forked by the main
