@@ -54,6 +54,52 @@ def test_corrupt_and_missing_images_in_a_folder(crossing, tmp_path, gflow_cmd):
 
 
 @pytest.mark.parametrize("inline", [True, False], ids=["inline", "processes"])
+def test_a_jpeg_damaged_inside_is_reported_and_tracked_as_decoded(crossing, tmp_path, gflow_cmd, inline):
+    """libjpeg decodes a JPEG whose data is damaged inside into a whole image and says so only on standard error
+    ("Corrupt JPEG data: ..."): the run reports the frame as decoded from damaged data, with libjpeg's reason,
+    in the recording and on the console (with -q too), tracks it as decoded, and prints no stray line."""
+    frames = _crossing_copy(crossing, tmp_path, n=20)
+    jpeg = frames / "000010.jpg"
+    data = bytearray(jpeg.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 200] = np.random.default_rng(1).integers(0, 256, 200, dtype=np.uint8).tobytes()
+    jpeg.write_bytes(bytes(data))
+    assert cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR) is not None, \
+        "this OpenCV no longer decodes a JPEG damaged inside: the case needs another damage"
+    init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
+    rec = tmp_path / "run.mcap"
+    out = cli_fork.run_command([*gflow_cmd, "track", str(frames), "--init", init, "--out", str(tmp_path / "b.csv"),
+                                "--record", str(rec), "-q", *(["--inline"] if inline else [])],
+                               capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    said = [e for e in _errors(rec) if e.kind == "damaged_input"]
+    assert len(said) == 1 and "000010.jpg" in said[0].message and "Corrupt JPEG data" in said[0].message, said
+    console = out.stdout + out.stderr
+    assert "000010.jpg" in console and "decoded from damaged data" in console, console
+    stray = [line for line in console.splitlines() if line.startswith("Corrupt JPEG")]
+    assert not stray, stray  # libjpeg's own line is caught, not left on the terminal
+    est = estimates(rec)
+    assert sorted(est) == list(range(20)) and est[10].state != "coast"  # tracked as decoded
+
+
+def test_a_video_whose_header_cannot_be_read_is_one_line(tmp_path, crossing, gflow_cmd):
+    """OpenCV's own reader printed what it could not read (with the file's raw bytes) before gflow's error: the
+    reason is now part of gflow's one line."""
+    video = tmp_path / "clip.avi"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (360, 240))
+    assert w.isOpened(), "OpenCV cannot write MJPG video here"
+    for i in range(5):
+        w.write(cv2.imread(str(crossing / "frames" / f"{i:06d}.jpg")))
+    w.release()
+    video.write_bytes(video.read_bytes()[:3000])
+    out = cli_fork.run_command([*gflow_cmd, "track", str(video), "--init", "1,1,20,20", "--out",
+                                str(tmp_path / "b.csv"), "--no-record"], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2, out.stderr
+    lines = [line for line in out.stderr.splitlines() if line.strip()]
+    assert len(lines) == 1 and "cannot open" in lines[0], lines
+
+
+@pytest.mark.parametrize("inline", [True, False], ids=["inline", "processes"])
 def test_truncated_video(crossing, tmp_path, gflow_cmd, inline):
     """What could be decoded is tracked, and the truncation is said on the console even with -q (which leaves out
     progress, not what went wrong), by a process run as by an inline one."""

@@ -18,6 +18,7 @@ from gflow_core.synthetic import SyntheticScene
 from gflow_msgs.messages import Capture, Frame, MessageError, decode
 from stages.source import RawFrame, SourceParams
 
+from pipeline.io.decoder_messages import decoder_messages
 from pipeline.io.live_capture import LiveCapture
 from pipeline.io.path_errors import MissingPath
 
@@ -64,9 +65,14 @@ def _read_folder(files: list[Path], start: int, stop: int | None) -> Iterator[Ra
         except OSError as e:
             yield RawFrame(i, None, f"cannot read {f.name}: {e.strerror}", name=f.name)
             continue
-        img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+        with decoder_messages() as said:
+            img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+        why = f" ({said[0]})" if said else ""
         if img is None:
-            yield RawFrame(i, None, f"{f.name} is not a decodable image ({data.size} bytes)", name=f.name)
+            yield RawFrame(i, None, f"{f.name} is not a decodable image ({data.size} bytes){why}", name=f.name)
+        elif said:  # decoded whole, from damaged data: tracked as decoded (as a live stream's damaged frames are)
+            yield RawFrame(i, img, name=f.name, events=(("damaged_input", (
+                f"frame {i} ({f.name}) decoded from damaged data{why}; tracked as decoded")),))
         else:
             yield RawFrame(i, img, name=f.name)
 
@@ -74,9 +80,10 @@ def _read_folder(files: list[Path], start: int, stop: int | None) -> Iterator[Ra
 def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
     if not path.is_file():
         raise MissingPath(f"video file not found: {path}")
-    cap = cv2.VideoCapture(str(path))
+    with decoder_messages() as said:
+        cap = cv2.VideoCapture(str(path))
     if not cap.isOpened():
-        raise ValueError(f"OpenCV cannot open {path} as a video")
+        raise ValueError(f"OpenCV cannot open {path} as a video" + (f" ({said[0]})" if said else ""))
     expected = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     try:
         i = 0

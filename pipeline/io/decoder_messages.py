@@ -1,0 +1,63 @@
+"""What a native decoder said: the warnings libjpeg, libpng and OpenCV's own AVI reader print on
+standard error while OpenCV decodes an image or opens a video, caught so that a damaged file is
+reported by the run, with the decoder's reason, rather than left as a stray line on the terminal.
+
+libjpeg decodes a JPEG whose data is damaged inside (bytes overwritten, a segment cut short) into a
+whole image whose lower part is grey or garbage, and says so only by printing "Corrupt JPEG data:
+premature end of data segment" (measured with opencv-python-headless 5.1: ``cv2.imdecode`` returns
+the image, and ``cv2.utils.logging`` does not hold these lines back). OpenCV's MJPEG AVI reader
+prints "Unexpected element. Expected: LIST. Got: ..." (with the file's raw bytes) on a header it
+cannot read, before ``VideoCapture`` says only that it did not open.
+
+:func:`decoder_messages` points file descriptor 2 at a temporary file for one call; lines a decoder
+wrote are returned (non-printing bytes shown as ``?``), and anything else written meanwhile (by
+another thread) is passed on to the real standard error afterwards, so nothing is lost.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+import tempfile
+import threading
+from contextlib import contextmanager
+from typing import Iterator
+
+__all__ = ["decoder_messages"]
+
+#: the beginnings of what libjpeg (jerror.h's warnings and errors), libpng and OpenCV's AVI container print
+_DECODER = re.compile(r"^(Corrupt JPEG data|Premature end of JPEG file|Invalid JPEG|Bogus |Unsupported JPEG|"
+                      r"Not a JPEG file|JPEG datastream|Warning: unknown JFIF|Inconsistent progression|"
+                      r"Huffman table|Invalid SOS|libpng (warning|error)|Unexpected element|"
+                      r"Can't find|Unexpected end of file)")
+_LOCK = threading.Lock()  # one redirection of descriptor 2 at a time in the process
+
+
+def _printable(line: str) -> str:
+    return "".join(c if c.isprintable() else "?" for c in line.strip())
+
+
+@contextmanager
+def decoder_messages() -> Iterator[list[str]]:
+    """``with decoder_messages() as said: cv2.imdecode(...)``: ``said`` holds, after the block, the
+    lines a decoder printed during it (empty for a clean decode)."""
+    said: list[str] = []
+    with _LOCK, tempfile.TemporaryFile() as tmp:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield said
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            passed = []
+            for line in tmp.read().decode("utf-8", "replace").splitlines(keepends=True):
+                if _DECODER.match(line.strip()):
+                    said.append(_printable(line))
+                elif line.strip():
+                    passed.append(line)
+            if passed:
+                os.write(2, "".join(passed).encode())
