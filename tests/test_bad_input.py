@@ -53,6 +53,17 @@ def test_corrupt_and_missing_images_in_a_folder(crossing, tmp_path, gflow_cmd):
     assert est[10].state == "coast" and est[15].state == "coast" and est[20].state == "track"
 
 
+def _track_quietly(gflow_cmd, source: Path, crossing: Path, tmp_path: Path, inline: bool):
+    """``gflow track SOURCE -q`` from crossing's first box, recorded: (the finished process, the recording)."""
+    init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
+    rec = tmp_path / "run.mcap"
+    out = cli_fork.run_command([*gflow_cmd, "track", str(source), "--init", init, "--out", str(tmp_path / "b.csv"),
+                                "--record", str(rec), "-q", *(["--inline"] if inline else [])],
+                               capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return out, rec
+
+
 @pytest.mark.parametrize("inline", [True, False], ids=["inline", "processes"])
 def test_a_jpeg_damaged_inside_is_reported_and_tracked_as_decoded(crossing, tmp_path, gflow_cmd, inline):
     """libjpeg decodes a JPEG whose data is damaged inside into a whole image and says so only on standard error
@@ -66,12 +77,7 @@ def test_a_jpeg_damaged_inside_is_reported_and_tracked_as_decoded(crossing, tmp_
     jpeg.write_bytes(bytes(data))
     assert cv2.imdecode(np.frombuffer(bytes(data), np.uint8), cv2.IMREAD_COLOR) is not None, \
         "this OpenCV no longer decodes a JPEG damaged inside: the case needs another damage"
-    init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
-    rec = tmp_path / "run.mcap"
-    out = cli_fork.run_command([*gflow_cmd, "track", str(frames), "--init", init, "--out", str(tmp_path / "b.csv"),
-                                "--record", str(rec), "-q", *(["--inline"] if inline else [])],
-                               capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
+    out, rec = _track_quietly(gflow_cmd, frames, crossing, tmp_path, inline)
     said = [e for e in _errors(rec) if e.kind == "damaged_input"]
     assert len(said) == 1 and "000010.jpg" in said[0].message and "Corrupt JPEG data" in said[0].message, said
     console = out.stdout + out.stderr
@@ -111,12 +117,7 @@ def test_truncated_video(crossing, tmp_path, gflow_cmd, inline):
     w.release()
     data = video.read_bytes()
     video.write_bytes(data[: int(len(data) * 0.5)])
-    init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
-    rec = tmp_path / "run.mcap"
-    out = cli_fork.run_command([*gflow_cmd, "track", str(video), "--init", init, "--out", str(tmp_path / "b.csv"),
-                                "--record", str(rec), "-q", *(["--inline"] if inline else [])],
-                               capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
+    out, rec = _track_quietly(gflow_cmd, video, crossing, tmp_path, inline)
     est = estimates(rec)
     assert 5 <= len(est) < 40  # what could be decoded was tracked
     msgs = [e.message for e in _errors(rec)]
