@@ -53,6 +53,17 @@ def test_corrupt_and_missing_images_in_a_folder(crossing, tmp_path, gflow_cmd):
     assert est[10].state == "coast" and est[15].state == "coast" and est[20].state == "track"
 
 
+def _mjpg_clip(crossing: Path, tmp_path: Path, n: int) -> Path:
+    """An MJPG AVI of crossing's first ``n`` frames."""
+    video = tmp_path / "clip.avi"
+    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (360, 240))
+    assert w.isOpened(), "OpenCV cannot write MJPG video here"
+    for i in range(n):
+        w.write(cv2.imread(str(crossing / "frames" / f"{i:06d}.jpg")))
+    w.release()
+    return video
+
+
 def _track_quietly(gflow_cmd, source: Path, crossing: Path, tmp_path: Path, inline: bool):
     """``gflow track SOURCE -q`` from crossing's first box, recorded: (the finished process, the recording)."""
     init = ",".join(str(v) for v in read_boxes(crossing / "groundtruth.csv")[0])
@@ -91,12 +102,7 @@ def test_a_jpeg_damaged_inside_is_reported_and_tracked_as_decoded(crossing, tmp_
 def test_a_video_whose_header_cannot_be_read_is_one_line(tmp_path, crossing, gflow_cmd):
     """OpenCV's own reader printed what it could not read (with the file's raw bytes) before gflow's error: the
     reason is now part of gflow's one line."""
-    video = tmp_path / "clip.avi"
-    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (360, 240))
-    assert w.isOpened(), "OpenCV cannot write MJPG video here"
-    for i in range(5):
-        w.write(cv2.imread(str(crossing / "frames" / f"{i:06d}.jpg")))
-    w.release()
+    video = _mjpg_clip(crossing, tmp_path, 5)
     video.write_bytes(video.read_bytes()[:3000])
     out = cli_fork.run_command([*gflow_cmd, "track", str(video), "--init", "1,1,20,20", "--out",
                                 str(tmp_path / "b.csv"), "--no-record"], capture_output=True, text=True, timeout=120)
@@ -109,12 +115,7 @@ def test_a_video_whose_header_cannot_be_read_is_one_line(tmp_path, crossing, gfl
 def test_truncated_video(crossing, tmp_path, gflow_cmd, inline):
     """What could be decoded is tracked, and the truncation is said on the console even with -q (which leaves out
     progress, not what went wrong), by a process run as by an inline one."""
-    video = tmp_path / "clip.avi"
-    w = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"MJPG"), 25, (360, 240))
-    assert w.isOpened(), "OpenCV cannot write MJPG video here"
-    for i in range(40):
-        w.write(cv2.imread(str(crossing / "frames" / f"{i:06d}.jpg")))
-    w.release()
+    video = _mjpg_clip(crossing, tmp_path, 40)
     data = video.read_bytes()
     video.write_bytes(data[: int(len(data) * 0.5)])
     out, rec = _track_quietly(gflow_cmd, video, crossing, tmp_path, inline)
