@@ -372,7 +372,9 @@ def test_a_whole_number_past_64_bits_is_read_as_one(tmp_path: Path) -> None:
     int past 64 bits, and argparse reported the type); it is a whole number, read as such, and a negative one is
     refused by its rule."""
     (tmp_path / "runs").mkdir()
+    (tmp_path / "runs" / "a.mcap").write_bytes(b"\x89MCAP0\r\n" + b"x" * 100)  # the beginning of a recording
     r = gflow("clean", "runs", "--keep", "9" * 26, "--dry-run", cwd=tmp_path)
-    assert r.returncode == 0 and "would remove 0 recording(s)" in r.stdout, (r.stdout, r.stderr)
+    assert r.returncode == 0 and "would remove 0 recording(s)" in r.stdout and "kept the newest 1" in r.stdout, \
+        (r.stdout, r.stderr)
     r = gflow("clean", "runs", "--keep", "-" + "9" * 26, cwd=tmp_path)
     assert r.returncode == 2 and "must be >= 0" in r.stderr and "invalid" not in r.stderr, r.stderr

@@ -184,6 +184,20 @@ def test_clean_keeps_the_newest_and_says_what_it_removed(tmp_path: Path, capsys)
     assert "--keep" in capsys.readouterr().out
 
 
+def test_clean_of_a_folder_with_no_recordings_says_so_and_where_they_are(tmp_path: Path, capsys) -> None:
+    """A folder of no recordings was 'removed 0 recording(s) ...; kept the newest 0', the same answer as a folder
+    whose recordings are all kept: it now says the folder holds none, and how many its subfolders hold (the
+    folder of `gflow benchmark --out-dir` keeps one per sequence)."""
+    (tmp_path / "empty").mkdir()
+    assert main(["clean", str(tmp_path / "empty"), "--keep", "1"]) == 0
+    assert capsys.readouterr().out.strip() == f"{tmp_path / 'empty'} holds no recordings (.mcap files); nothing removed"
+    _fake_recordings(tmp_path / "bench" / "caviar1", 2)
+    assert main(["clean", str(tmp_path / "bench"), "--keep", "0"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out.endswith("nothing removed (its subfolders hold 3: clean one of them)"), out
+    assert len(list((tmp_path / "bench").rglob("*.mcap"))) == 3
+
+
 def test_a_run_warns_when_its_recordings_folder_grows(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.chdir(tmp_path)
     _fake_recordings(tmp_path / "recordings", 3)

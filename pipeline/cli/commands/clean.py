@@ -37,6 +37,12 @@ def cmd_clean(args) -> int:
     foreign: list[StoredRecording] = []
     for r in folder_recordings(folder):  # a file named .mcap that is not one holds something else: not ours to remove
         (foreign if _not_a_recording(r.path) else recs).append(r)
+    if not recs:  # nothing to clean is not a fault (a cron job), but a folder of no recordings may be the wrong one
+        below = sum(1 for _ in folder.glob("*/**/*.mcap"))
+        print(f"{folder} holds no recordings (.mcap files); nothing removed"
+              + (f" (its subfolders hold {below}: clean one of them)" if below else ""))
+        _say_left_alone(foreign)
+        return 0
     busy = {Path(str(i["recording"])).resolve() for i in running() if i.get("recording")}
     kept = recs[:args.keep]
     drop: list[StoredRecording] = []
@@ -56,10 +62,14 @@ def cmd_clean(args) -> int:
         for r in drop:
             print(f"  {r.path} ({r.bytes / 1e6:.1f} MB{', ' + str(len(r.files)) + ' files' if len(r.files) > 1 else ''})",
                   file=sys.stderr)
+    _say_left_alone(foreign)
+    return 0
+
+
+def _say_left_alone(foreign: list) -> None:
     if foreign:
         print(f"left alone: {', '.join(str(r.path) for r in foreign)} (named .mcap, but not MCAP files)",
               file=sys.stderr)
-    return 0
 
 
 def register(sub) -> None:
