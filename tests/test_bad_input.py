@@ -99,6 +99,32 @@ def test_a_jpeg_damaged_inside_is_reported_and_tracked_as_decoded(crossing, tmp_
     assert sorted(est) == list(range(20)) and est[10].state != "coast"  # tracked as decoded
 
 
+def _damage_video_frame(video: Path, k: int) -> None:
+    """Overwrite 200 bytes inside the JPEG of frame ``k`` of an MJPG AVI (its (k + 1)-th start-of-image marker)."""
+    data = bytearray(video.read_bytes())
+    starts = [i for i in range(len(data) - 1) if data[i] == 0xFF and data[i + 1] == 0xD8]
+    at = starts[k] + 3000
+    data[at:at + 200] = np.random.default_rng(1).integers(0, 256, 200, dtype=np.uint8).tobytes()
+    video.write_bytes(bytes(data))
+
+
+def test_a_video_frame_damaged_inside_is_reported_and_tracked_as_decoded(crossing, tmp_path, gflow_cmd):
+    """FFmpeg decodes an MJPG frame whose bytes are damaged inside into a whole image and said so only on standard
+    error ("[mjpeg @ 0x55d2...] overread 8"), a stray line, so the run recorded nothing about it: the frame is now
+    reported as decoded from damaged data, with FFmpeg's words (without the address, which changes between
+    runs), and tracked as decoded."""
+    video = _mjpg_clip(crossing, tmp_path, 20)
+    _damage_video_frame(video, 10)
+    out, rec = _track_quietly(gflow_cmd, video, crossing, tmp_path, inline=True)
+    said = [e for e in _errors(rec) if e.kind == "damaged_input"]
+    assert len(said) == 1 and "frame 10 of clip.avi" in said[0].message and "[mjpeg]" in said[0].message, said
+    console = out.stdout + out.stderr
+    assert "frame 10 of clip.avi decoded from damaged data" in console, console
+    assert " @ 0x" not in console, console  # FFmpeg's own line is caught, not left on the terminal
+    est = estimates(rec)
+    assert sorted(est) == list(range(20)) and est[10].state != "coast"
+
+
 def test_a_video_whose_header_cannot_be_read_is_one_line(tmp_path, crossing, gflow_cmd):
     """OpenCV's own reader printed what it could not read (with the file's raw bytes) before gflow's error: the
     reason is now part of gflow's one line."""

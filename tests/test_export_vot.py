@@ -118,6 +118,28 @@ def test_mixed_image_formats_are_written_as_png(tmp_path):
     assert np.array_equal(back, img)
 
 
+def test_a_jpeg_damaged_inside_is_exported_with_a_warning(crossing, tmp_path):
+    """A JPEG whose data is damaged inside decodes whole (libjpeg said so only on standard error, a stray line):
+    the export names the frame and libjpeg's words in a warning, and copies it as it is, as gflow track tracks it."""
+    seq = tmp_path / "data" / "crossing"
+    (seq / "frames").mkdir(parents=True)
+    for t in range(6):
+        shutil.copy(crossing / "frames" / f"{t:06d}.jpg", seq / "frames" / f"{t:06d}.jpg")
+    rows = (crossing / "groundtruth.csv").read_text().splitlines()[:7]
+    (seq / "groundtruth.csv").write_text("\n".join(rows) + "\n")
+    jpeg = seq / "frames" / "000003.jpg"
+    data = bytearray(jpeg.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 200] = np.random.default_rng(1).integers(0, 256, 200, dtype=np.uint8).tobytes()
+    jpeg.write_bytes(bytes(data))
+    r = gflow("export", "vot", str(seq), str(tmp_path / "ws"))
+    assert r.returncode == 0, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("warning: crossing: frame 3 (000003.jpg) decoded from damaged data "
+                                                   "(Corrupt JPEG data"), r.stderr
+    assert (tmp_path / "ws" / "sequences" / "crossing" / "color" / "00000004.jpg").read_bytes() == bytes(data)
+
+
 def test_bad_input_is_a_one_line_error(tmp_path):
     def check(args: list[str], says: str) -> None:
         r = gflow("export", "vot", *args)

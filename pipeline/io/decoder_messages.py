@@ -7,7 +7,10 @@ whole image whose lower part is grey or garbage, and says so only by printing "C
 premature end of data segment" (measured with opencv-python-headless 5.1: ``cv2.imdecode`` returns
 the image, and ``cv2.utils.logging`` does not hold these lines back). OpenCV's MJPEG AVI reader
 prints "Unexpected element. Expected: LIST. Got: ..." (with the file's raw bytes) on a header it
-cannot read, before ``VideoCapture`` says only that it did not open.
+cannot read, before ``VideoCapture`` says only that it did not open. FFmpeg's decoders, reading a
+video file, decode a frame whose bytes are damaged inside into a whole image and say so only as
+"[mjpeg @ 0x...] overread 8" (measured on an MJPG AVI with 200 bytes of one frame overwritten:
+``VideoCapture.read`` returns that frame, its lower part garbage, and succeeds).
 
 :func:`decoder_messages` points file descriptor 2 at a temporary file for one call; lines a decoder
 wrote are returned (non-printing bytes shown as ``?``), and anything else written meanwhile (by
@@ -30,12 +33,20 @@ __all__ = ["decoder_messages"]
 _DECODER = re.compile(r"^(Corrupt JPEG data|Premature end of JPEG file|Invalid JPEG|Bogus |Unsupported JPEG|"
                       r"Not a JPEG file|JPEG datastream|Warning: unknown JFIF|Inconsistent progression|"
                       r"Huffman table|Invalid SOS|libpng (warning|error)|Unexpected element|"
-                      r"Can't find|Unexpected end of file)")
+                      r"Can't find|Unexpected end of file|"
+                      # FFmpeg's own lines, "[mjpeg @ 0x55d2...] overread 8": OpenCV holds FFmpeg to its error
+                      # level (AV_LOG_ERROR) unless OPENCV_FFMPEG_LOGLEVEL says otherwise, so each is an error
+                      r"\[[^\]@]+ @ 0x[0-9a-fA-F]+\] )")
 _LOCK = threading.Lock()  # one redirection of descriptor 2 at a time in the process
 
 
+_ADDRESS = re.compile(r" @ 0x[0-9a-fA-F]+\]")
+
+
 def _printable(line: str) -> str:
-    return "".join(c if c.isprintable() else "?" for c in line.strip())
+    """``line`` with non-printing bytes as ``?`` and FFmpeg's context address left out ("[mjpeg] overread 8"):
+    the address changes from run to run, and these lines go into recordings."""
+    return "".join(c if c.isprintable() else "?" for c in _ADDRESS.sub("]", line.strip()))
 
 
 @contextmanager

@@ -88,15 +88,18 @@ def _read_video(path: Path, start: int, stop: int | None) -> Iterator[RawFrame]:
     try:
         i = 0
         while stop is None or i < stop:
-            ok, img = cap.read()
+            with decoder_messages() as said:  # FFmpeg's decoder reports a frame it could not decode whole
+                ok, img = cap.read()
+            why = f" ({said[0]})" if said else ""
             if not ok:
                 if expected > 0 and i < expected and (stop is None or i < stop):
                     # a truncated or corrupt file: say so once, then end the stream cleanly
                     yield RawFrame(i, None, f"{path.name}: video ends at frame {i} but its header says {expected} "
-                                            f"frames (truncated or corrupt file)", name=f"{path.name}#{i}")
+                                            f"frames (truncated or corrupt file){why}", name=f"{path.name}#{i}")
                 break
             if i >= start:
-                yield RawFrame(i, img, name=f"{path.name}#{i}")
+                yield RawFrame(i, img, name=f"{path.name}#{i}", events=(("damaged_input", (
+                    f"frame {i} of {path.name} decoded from damaged data{why}; tracked as decoded")),) if said else ())
             i += 1
     finally:
         cap.release()
@@ -236,7 +239,8 @@ def count_frames(p: SourceParams, base_dir: str | os.PathLike = ".") -> int | No
     elif p.kind == "folder":
         n = len(_indexed(_folder_files(Path(base_dir, p.path))))
     elif p.kind == "video":
-        cap = cv2.VideoCapture(str(Path(base_dir, p.path)))
+        with decoder_messages():  # what FFmpeg says of a damaged file is said by the reader, not here
+            cap = cv2.VideoCapture(str(Path(base_dir, p.path)))
         n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
         cap.release()
         if n <= 0:

@@ -40,6 +40,7 @@ from typing import Mapping, Sequence
 import cv2
 import numpy as np
 
+from pipeline.io.decoder_messages import decoder_messages
 from pipeline.io.frame_readers import folder_frames
 
 __all__ = ["ExportedSequence", "write_sequence", "write_list", "stack_yaml", "trackers_ini", "workspace_config",
@@ -57,7 +58,8 @@ class ExportedSequence:
 
     first : the source frame index of VOT frame 1; length : frames written; labelled : of those,
     with a ground-truth box; size : (width, height); copied : frames copied byte for byte (else
-    re-encoded as PNG); pattern : ``channels.color`` of the ``sequence`` file."""
+    re-encoded as PNG); pattern : ``channels.color`` of the ``sequence`` file; damaged : a line for each frame
+    decoded from damaged data (the decoder's words), written as it decodes, as ``gflow track`` tracks it."""
 
     name: str
     first: int
@@ -66,6 +68,7 @@ class ExportedSequence:
     size: tuple[int, int]
     copied: bool
     pattern: str
+    damaged: tuple[str, ...] = ()
 
     @property
     def dense(self) -> bool:
@@ -83,16 +86,18 @@ def groundtruth_lines(groundtruth: Mapping[int, Box], first: int, length: int) -
     return [box_text(groundtruth[f]) if f in groundtruth else NAN_ROW for f in range(first, first + length)]
 
 
-def _decoded(path: Path) -> np.ndarray:
-    """A frame decoded as the source stage decodes an image folder's (3-channel BGR)."""
+def _decoded(path: Path) -> tuple[np.ndarray, list[str]]:
+    """A frame decoded as the source stage decodes an image folder's (3-channel BGR), and what the decoder said of
+    damaged data in it (empty for a clean decode)."""
     try:
         data = np.fromfile(path, dtype=np.uint8)
     except OSError as e:
         raise OSError(f"cannot read {path}: {e.strerror or e}") from None
-    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    with decoder_messages() as said:
+        img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if img is None:
         raise ValueError(f"{path} is not a decodable image ({data.size} bytes); a VOT sequence needs every frame")
-    return img
+    return img, said
 
 
 def write_sequence(folder: str | Path, name: str, frames: str | Path, groundtruth: Mapping[int, Box]) -> ExportedSequence:
@@ -139,9 +144,13 @@ def write_sequence(folder: str | Path, name: str, frames: str | Path, groundtrut
     color = out / "color"
     color.mkdir(parents=True)
     size: tuple[int, int] | None = None
+    damaged: list[str] = []
     for k, src in enumerate(paths, start=1):
         assert src is not None
-        img = _decoded(src)
+        img, said = _decoded(src)
+        if said:
+            damaged.append(f"{name}: frame {first + k - 1} ({src.name}) decoded from damaged data ({said[0]}); "
+                           f"written as it is")
         shape = (img.shape[1], img.shape[0])
         if size is None:
             size = shape
@@ -161,7 +170,7 @@ def write_sequence(folder: str | Path, name: str, frames: str | Path, groundtrut
             "length": len(order), "gflow.first_frame": first}
     (out / "sequence").write_text("".join(f"{k}={v}\n" for k, v in meta.items()))
     return ExportedSequence(name=name, first=first, length=len(order), labelled=sum(line != NAN_ROW for line in lines),
-                            size=size, copied=copied, pattern=pattern)
+                            size=size, copied=copied, pattern=pattern, damaged=tuple(damaged))
 
 
 def write_list(folder: str | Path, names: Sequence[str]) -> None:

@@ -23,9 +23,6 @@ if TYPE_CHECKING:  # imported where used: check_writable, which every command's 
 __all__ = ["PreflightError", "check_writable", "first_frame", "check_box_in_image", "check_source", "check_listen",
            "box_needs"]
 
-# FFmpeg's own log ("moov atom not found") would precede our one-line error; silence it in
-# this process (the stage processes report decoding problems on the errors topic).
-os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 
 class PreflightError(ValueError):

@@ -143,6 +143,8 @@ def _write_workspace(args, seqs: list, out: Path) -> list:
         how = "copied" if e.copied else "re-encoded as PNG"
         print(f"{e.name}: {e.length} frames from frame {e.first} ({e.labelled} with ground truth), "
               f"{e.size[0]}x{e.size[1]}, {how}")
+        for line in e.damaged:
+            print(f"warning: {line}", file=sys.stderr)
     write_list(out / "sequences", [e.name for e in done])
     sparse = [e.name for e in done if not e.dense]
     title = f"gflow export of {Path(args.data).name}: {', '.join(e.name for e in done)}"

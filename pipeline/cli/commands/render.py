@@ -161,7 +161,10 @@ def _check_video(tmp: Path, out: Path, n: int) -> None:
     size = tmp.stat().st_size
     got = 0
     if size:
-        cap = cv2.VideoCapture(str(tmp))
+        from pipeline.io.decoder_messages import decoder_messages
+
+        with decoder_messages():  # FFmpeg's words on a file not written whole: the error below says it
+            cap = cv2.VideoCapture(str(tmp))
         try:
             got = int(cap.get(cv2.CAP_PROP_FRAME_COUNT)) if cap.isOpened() else 0
         finally:
