@@ -138,7 +138,7 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
         rec = plan.recorder()
         with announce(plan.stream, endpoints, name=plan.name, stages=sorted(launcher.local, key=list(plan.stages).index),
                       camera=plan.seed_stream, no_record=no_record or temporary_recording(recording),
-                      external=plan.external,
+                      external=plan.external, graph=list(plan.stages),
                       recording=(launcher.recording if rec and rec.name in launcher.local
                                  and not temporary_recording(recording) else None)):
             try:

@@ -341,6 +341,26 @@ class StreamInUse(RuntimeError):
     """A replay would publish into the stream of a pipeline that runs: refused, in one line."""
 
 
+class NoSuchStage(RuntimeError):
+    """``--lockstep`` names a stage that no pipeline running on the stream has: refused, in one line."""
+
+
+def _check_lockstep(names: tuple[str, ...], stream: str) -> None:
+    """:class:`NoSuchStage` when the pipelines announced on this machine on ``stream`` are known and none of their
+    graphs has a stage of ``names`` (a mistyped name would otherwise wait ``--ack-timeout`` for a heartbeat that
+    never comes). With no such announcement (a pipeline on another host, or one not started yet) the replay waits
+    for the stages' heartbeats as before."""
+    from pipeline.runtime.running import running
+
+    found = [i for i in running(stream) if i.get("graph")]
+    known = {s for i in found for s in i["graph"]}
+    missing = [n for n in names if n not in known]
+    if found and missing:
+        who = ", ".join(f"{i.get('name', stream)} (pid {i.get('pid')})" for i in found)
+        raise NoSuchStage(f"--lockstep {','.join(missing)}: no such stage in the pipeline running on stream "
+                          f"{stream!r}: {who}; its stages: {', '.join(sorted(known))}")
+
+
 def _stream_holders(session, stream: str, topics: set[str]) -> list[str]:
     """What runs on ``stream`` now: the pipelines and replays announced on this machine and the
     stages holding a liveliness token on the network. Empty when nothing does (a replay there is
@@ -429,6 +449,7 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
         parts = topic.split("/", 2)
         return f"gflow/{stream}/{parts[2]}" if len(parts) == 3 and parts[1] == recorded else topic
 
+    _check_lockstep(opts.lockstep, stream)
     s = _session(settings)
     announcement = token = None
     n, interrupted = 0, False

@@ -75,17 +75,19 @@ class Announcement:
 
 def announce(stream: str, endpoints: list[str] | tuple[str, ...], *, name: str = "", stages: list[str] | None = None,
              kind: str = "pipeline", recording: str | None = None, camera: str = "",
-             no_record: bool = False, external: list[str] | None = None) -> Announcement:
+             no_record: bool = False, external: list[str] | None = None,
+             graph: list[str] | None = None) -> Announcement:
     """Write this process's file (atomically) and return the handle that removes it. ``no_record``:
     a ``--no-record`` run (its results read from a temporary file, not announced as a recording);
-    ``external``: the topics its graph takes from outside (a replay may feed them)."""
+    ``external``: the topics its graph takes from outside (a replay may feed them); ``stages``: the stages this
+    process runs, ``graph``: every stage of its graph (on other hosts too)."""
     d = runtime_dir()
     d.mkdir(parents=True, exist_ok=True, mode=0o700)
     pid = os.getpid()
     info = {"kind": kind, "name": name or stream, "stream": stream, "pid": pid,
             "endpoints": [e.replace("0.0.0.0", "127.0.0.1") for e in endpoints], "stages": list(stages or []),
             "started": time.time(), "recording": recording, "camera": camera or stream, "no_record": no_record,
-            "external": list(external or [])}
+            "external": list(external or []), "graph": list(graph or [])}
     path = d / f"{stream}-{pid}.json"
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(info))

@@ -174,7 +174,7 @@ def _lockstep(text: str | None) -> tuple[str, ...]:
 
 
 def cmd_replay(args) -> int:
-    from pipeline.cli.live import ReplayOptions, StreamInUse, replay
+    from pipeline.cli.live import NoSuchStage, ReplayOptions, StreamInUse, replay
 
     opts = ReplayOptions(speed=None if args.max else args.speed, topics=args.topics, start_seq=args.from_seq,
                          end_seq=args.to_seq, start_s=args.start, end_s=args.end, loops=args.loop,
@@ -209,7 +209,7 @@ def cmd_replay(args) -> int:
 
     try:
         done = replay(settings, args.file, opts, announce_endpoints=where, ready=ready)
-    except (TimeoutError, StreamInUse) as e:
+    except (TimeoutError, StreamInUse, NoSuchStage) as e:
         raise CliError(str(e)) from None
     if done.interrupted and done.planned:  # cut short: not taken for the whole of what was asked
         print(f"gflow replay: interrupted after {done.sent} of the {done.planned} messages to replay from "
@@ -254,7 +254,8 @@ def register(sub) -> None:
     p.add_argument("--end", type=nonnegative_float, metavar="S", help="stop this many seconds into the recording")
     p.add_argument("--loop", type=nonnegative_int, default=1, metavar="N", help="play N times (0 = until Ctrl-C; default 1)")
     p.add_argument("--lockstep", metavar="STAGE[,STAGE]",
-                   help="before each new frame, wait until these live stages acknowledge the previous one")
+                   help="before each new frame, wait until these live stages acknowledge the previous one (a name "
+                        "the pipeline running on the stream on this machine does not have is refused at once)")
     p.add_argument("--stream", metavar="NAME", type=stream_name,
                    help="publish on gflow/NAME/... instead of the recorded stream (a stream a running pipeline holds "
                         "is refused unless named here or fed with --lockstep)")
