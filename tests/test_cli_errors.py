@@ -704,6 +704,30 @@ def test_boxes_failing_midway_leaves_no_partial_csv(tmp_path: Path, demo_mcap: P
     assert len((tmp_path / "b.csv").read_text().splitlines()) == 21
 
 
+@pytest.mark.parametrize("argv,out", [
+    (["foxglove", "{rec}", "f.mcap"], "f.mcap"),
+    (["plot", "{rec}", "p.svg"], "p.svg"),
+    (["plot", "{rec}", "p.pdf"], "p.pdf"),
+])
+def test_a_copy_or_plot_failing_midway_leaves_nothing_under_its_name(tmp_path: Path, demo_mcap: Path,
+                                                                     argv: list[str], out: str) -> None:
+    """``gflow foxglove`` and ``gflow plot`` (SVG, PDF) wrote straight into OUT: stopped midway (a full disk), they
+    left the part written under its name (a copy that looks like a recording, a cut picture), and the retry was
+    refused as OUT existing. They now write beside OUT and take the name once whole."""
+    args = [a.replace("{rec}", str(demo_mcap)) for a in argv]
+    (tmp_path / "first").mkdir()  # matplotlib's font cache written first, by a run with room (it is not the test)
+    assert gflow(*args, cwd=tmp_path / "first").returncode == 0
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    r = gflow(*args, cwd=cut, preexec_fn=_files_up_to(2000))
+    assert r.returncode == 1, r.stderr
+    assert_one_line_error(r, f"gflow {argv[0]}: error: {out}: File too large")
+    assert not list(cut.iterdir()), "neither the output nor its temporary file may be left"
+    r = gflow(*args, cwd=cut)  # with room: the retry is not refused
+    assert r.returncode == 0, r.stderr
+    assert [p.name for p in cut.iterdir()] == [out]
+
+
 @pytest.mark.parametrize("argv", [
     ["eval", "--gt", "adir", "--pred", "b.csv"],
     ["eval", "--gt", "b.csv", "--pred", "adir"],

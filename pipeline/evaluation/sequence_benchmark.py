@@ -29,6 +29,7 @@ from gflow_core.evaluation.metrics import OVERLAP_THRESHOLDS, TrackScore, precis
 
 from pipeline.io.frame_readers import folder_frames
 from pipeline.io.path_errors import MissingPath
+from pipeline.io.recording_files import save_figure_new
 from pipeline.evaluation.scored_boxes import read_scored_boxes
 from pipeline.recording.results import write_boxes
 from pipeline.app import TrackPlan
@@ -373,7 +374,7 @@ def _plot(rows: list[Row], path: str, attr: str, x: np.ndarray, xlabel: str, yla
         ax.axis("off")
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100)
+    save_figure_new(fig, path, 100)  # never over a file, nothing left of a save cut short
     plt.close(fig)
 
 

@@ -24,11 +24,11 @@ import re
 import secrets
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Callable, TextIO
+from typing import IO, Any, Callable, TextIO
 
 from pipeline.io.path_errors import PathMistake
 
-__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new", "write_beside", "write_text_new",
+__all__ = ["RecordingExists", "OutputExists", "unique_path", "create_new", "create_beside", "move_new", "write_beside", "write_text_new", "save_figure_new",
            "refuse_existing",
            "StoredRecording", "folder_recordings", "size_warning", "warn_mb", "WARN_MB"]
 
@@ -227,3 +227,10 @@ def size_warning(folder: str | os.PathLike) -> str:
     return (f"note: {folder} holds {total / 1e6:.0f} MB in {len(recs)} recordings, more than "
             f"GFLOW_RECORDINGS_WARN_MB={limit:g}; `gflow clean {folder} --keep {keep} --dry-run` says what removing "
             f"all but the newest {keep} would free")
+
+
+def save_figure_new(fig: Any, path: str | os.PathLike, dpi: int) -> None:
+    """A matplotlib figure saved as ``path``'s kind (.png, .svg, .pdf), as :func:`write_beside` writes a file:
+    never over a file, and a save that fails or is interrupted midway leaves nothing under ``path``."""
+    kind = Path(path).suffix[1:].lower() or "png"
+    write_beside(path, lambda f: fig.savefig(f, format=kind, dpi=dpi))

@@ -26,6 +26,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO
 
 from gflow_msgs.messages import FOXGLOVE_TYPES, Estimate, Frame, MessageError, PoseEstimate, decode
 from gflow_msgs.annotations import estimate_annotations
@@ -53,72 +54,72 @@ class ExportSummary:
     markers: int = 0  # end-of-stream markers, not copied
 
 
-def export_for_foxglove(src: str | Path, dst: str | Path, image_format: str = "jpeg",
+def export_for_foxglove(src: str | Path, dst: IO[bytes], image_format: str = "jpeg",
                         quality: int = 90, topics: list[str] | None = None) -> ExportSummary:
-    """Write the Foxglove-readable copy of ``src`` to ``dst`` (see the module docstring); with
-    ``topics``, of those topics only (exact names)."""
+    """Write the Foxglove-readable copy of ``src`` into the binary file ``dst`` (see the module docstring);
+    with ``topics``, of those topics only (exact names). The caller names the file: ``gflow foxglove`` writes
+    it beside its name and moves it there once whole."""
     from mcap.writer import CompressionType, Writer
 
     out = ExportSummary()
-    with open(dst, "wb") as f:
-        w = Writer(f, compression=CompressionType.LZ4)
-        w.start(profile="", library="gflow foxglove export")
-        schemas: dict[str, int] = {}
-        channels: dict[tuple[str, str], int] = {}
+    w = Writer(dst, compression=CompressionType.LZ4)
+    w.start(profile="", library="gflow foxglove export")
+    schemas: dict[str, int] = {}
+    channels: dict[tuple[str, str], int] = {}
 
-        def channel(topic: str, fox: str | None) -> int:
-            key = (topic, fox or "")
-            cid = channels.get(key)
-            if cid is None:
-                sid = 0
-                if fox is not None:
-                    sid = schemas.get(fox, 0)
-                    if not sid:
-                        schema = sdk_schema(fox)
-                        sid = schemas[fox] = w.register_schema(schema.name, schema.encoding, schema.data)
-                cid = channels[key] = w.register_channel(topic, "protobuf" if fox is not None else "json", sid)
-            return cid
+    def channel(topic: str, fox: str | None) -> int:
+        key = (topic, fox or "")
+        cid = channels.get(key)
+        if cid is None:
+            sid = 0
+            if fox is not None:
+                sid = schemas.get(fox, 0)
+                if not sid:
+                    schema = sdk_schema(fox)
+                    sid = schemas[fox] = w.register_schema(schema.name, schema.encoding, schema.data)
+            cid = channels[key] = w.register_channel(topic, "protobuf" if fox is not None else "json", sid)
+        return cid
 
-        seqs: dict[int, int] = {}
+    seqs: dict[int, int] = {}
 
-        def put(topic: str, fox: str | None, data: bytes, log_ns: int, publish_ns: int) -> None:
-            cid = channel(topic, fox)
-            seqs[cid] = seqs.get(cid, -1) + 1
-            w.add_message(cid, log_time=log_ns, publish_time=publish_ns or log_ns, data=data, sequence=seqs[cid])
-            out.messages += 1
-            out.by_topic[topic] = out.by_topic.get(topic, 0) + 1
+    def put(topic: str, fox: str | None, data: bytes, log_ns: int, publish_ns: int) -> None:
+        cid = channel(topic, fox)
+        seqs[cid] = seqs.get(cid, -1) + 1
+        w.add_message(cid, log_time=log_ns, publish_time=publish_ns or log_ns, data=data, sequence=seqs[cid])
+        out.messages += 1
+        out.by_topic[topic] = out.by_topic.get(topic, 0) + 1
 
-        frames: dict[tuple[str, int], tuple[int, object]] = {}  # (stream, seq) -> the frame's stamp and truth
-        for r in iter_records(src, topics=topics):
-            data: bytes | None = None
-            fox: str | None = None
-            msg = None
-            if r.type in FOXGLOVE_TYPES or r.type == "Frame" or r.type in JSON_TYPES or r.type in ("unknown",
-                                                                                                   "EndOfStream"):
-                try:
-                    msg = decode(r.data)
-                except MessageError:
-                    msg = None
-                if isinstance(msg, Frame):
-                    frames[(msg.header.stream, msg.header.seq)] = (msg.header.stamp_ns, msg.truth)
-                    msg = frame_image(msg, image_format, quality)
-                if msg is not None and type(msg).__name__ in FOXGLOVE_TYPES:
-                    data, fox = to_sdk(msg).encode(), type(msg).__name__
-                elif msg is not None and type(msg).__name__ in JSON_TYPES:
-                    data = json.dumps(to_plain(msg), allow_nan=False, default=str).encode()
-            if data is None:
-                if type(msg).__name__ == "EndOfStream":
-                    out.markers += 1
-                else:
-                    out.left_out[r.topic] = out.left_out.get(r.topic, 0) + 1
-                continue
-            put(r.topic, fox, data, r.log_ns, r.publish_ns)
-            if isinstance(msg, (Estimate, PoseEstimate)):  # its box over its frame
-                stamp, truth = frames.pop((msg.header.stream, msg.header.seq), (msg.header.stamp_ns, None))
-                box_topic = r.topic.rsplit("/", 1)[0] + "/" + BOX_TOPIC
-                put(box_topic, "ImageAnnotations", to_sdk(estimate_annotations(msg, stamp, truth)).encode(),
-                    r.log_ns, r.publish_ns)
-        for name, md in read_metadata(src).items():
-            w.add_metadata(name, md)
-        w.finish()
+    frames: dict[tuple[str, int], tuple[int, object]] = {}  # (stream, seq) -> the frame's stamp and truth
+    for r in iter_records(src, topics=topics):
+        data: bytes | None = None
+        fox: str | None = None
+        msg = None
+        if r.type in FOXGLOVE_TYPES or r.type == "Frame" or r.type in JSON_TYPES or r.type in ("unknown",
+                                                                                               "EndOfStream"):
+            try:
+                msg = decode(r.data)
+            except MessageError:
+                msg = None
+            if isinstance(msg, Frame):
+                frames[(msg.header.stream, msg.header.seq)] = (msg.header.stamp_ns, msg.truth)
+                msg = frame_image(msg, image_format, quality)
+            if msg is not None and type(msg).__name__ in FOXGLOVE_TYPES:
+                data, fox = to_sdk(msg).encode(), type(msg).__name__
+            elif msg is not None and type(msg).__name__ in JSON_TYPES:
+                data = json.dumps(to_plain(msg), allow_nan=False, default=str).encode()
+        if data is None:
+            if type(msg).__name__ == "EndOfStream":
+                out.markers += 1
+            else:
+                out.left_out[r.topic] = out.left_out.get(r.topic, 0) + 1
+            continue
+        put(r.topic, fox, data, r.log_ns, r.publish_ns)
+        if isinstance(msg, (Estimate, PoseEstimate)):  # its box over its frame
+            stamp, truth = frames.pop((msg.header.stream, msg.header.seq), (msg.header.stamp_ns, None))
+            box_topic = r.topic.rsplit("/", 1)[0] + "/" + BOX_TOPIC
+            put(box_topic, "ImageAnnotations", to_sdk(estimate_annotations(msg, stamp, truth)).encode(),
+                r.log_ns, r.publish_ns)
+    for name, md in read_metadata(src).items():
+        w.add_metadata(name, md)
+    w.finish()
     return out

@@ -7,8 +7,12 @@ ORDER = 59
 import argparse
 import os
 import sys
+from typing import IO, TYPE_CHECKING
 
 from pipeline.cli.commands.common import CliError, check_outputs
+
+if TYPE_CHECKING:  # the export's modules are imported where used: the command's options and --help need none
+    from pipeline.recording.foxglove_export import ExportSummary
 
 
 def jpeg_quality(text: str) -> int:
@@ -22,8 +26,33 @@ def jpeg_quality(text: str) -> int:
     return v
 
 
-def cmd_foxglove(args) -> int:
+class _NothingCopied(Exception):
+    """The copy holds no message: its file is not kept (:func:`_export_beside`)."""
+
+
+def _export_beside(args: argparse.Namespace, topics: list[str] | None) -> ExportSummary:
+    """The copy written under a hidden name beside OUT and moved there once whole, never over a file; a copy
+    with no message is not kept. It was written straight into OUT: stopped midway (a full disk, Ctrl-C), it left
+    the part written, a recording that looks like one, and the retry was refused as OUT existing."""
+    from pipeline.io.recording_files import write_beside
     from pipeline.recording.foxglove_export import export_for_foxglove
+
+    done: list[ExportSummary] = []
+
+    def write(f: IO[bytes]) -> None:
+        done.append(export_for_foxglove(args.recording, f, image_format=args.image_format, quality=args.quality,
+                                        topics=topics))
+        if not done[0].messages:
+            raise _NothingCopied
+
+    try:
+        write_beside(args.out, write)
+    except _NothingCopied:
+        pass
+    return done[0]
+
+
+def cmd_foxglove(args) -> int:
     from pipeline.recording.topics import describe_topics
 
     from pipeline.io.mcap_io import check_recording
@@ -43,10 +72,8 @@ def cmd_foxglove(args) -> int:
     from pipeline.cli.commands.common import warn_if_torn
 
     warn_if_torn(args.recording)
-    s = export_for_foxglove(args.recording, args.out, image_format=args.image_format, quality=args.quality,
-                            topics=topics)
+    s = _export_beside(args, topics)
     if not s.messages:  # exit 1: the copy holds nothing to show, and is not left to look like one
-        os.remove(args.out)
         if topics and s.left_out:  # the topics chosen are all ones Foxglove cannot show: the option is the mistake
             raise CliError(f"--topics {' '.join(args.topics)}: Foxglove cannot show "
                            f"{describe_topics(s.left_out)} (binary arrays), so there is nothing to copy")
@@ -55,7 +82,7 @@ def cmd_foxglove(args) -> int:
         why = damage_cause(args.recording) or torn_cause(args.recording)
         damage_told(why)  # said in the line below: not warned again when the command ends
         print(f"gflow foxglove: no message of {args.recording} could be copied" + (f" ({why})" if why else "")
-              + f"; {args.out} removed", file=sys.stderr)
+              + f"; {args.out} not written", file=sys.stderr)
         return 1
     print(f"wrote {args.out}: {s.messages} messages on {len(s.by_topic)} topics: "
           f"{describe_topics(s.by_topic, counts=s.by_topic)}")

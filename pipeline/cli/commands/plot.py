@@ -182,7 +182,9 @@ def cmd_plot(args) -> int:
     _latency_panel(axes[2], args.file)
     fig.suptitle(Path(args.file).name)
     fig.tight_layout()
-    fig.savefig(out, dpi=args.dpi)
+    from pipeline.io.recording_files import save_figure_new
+
+    save_figure_new(fig, out, args.dpi)  # beside its name, moved there whole (an SVG cut short was left as OUT)
     print(f"wrote {out}")
     from pipeline.cli.commands.common import partial_if_damaged
 
