@@ -901,6 +901,37 @@ def test_learn_m2_frame_range_past_the_end_names_its_option(tmp_path: Path, fram
     assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
 
 
+def _letters_file(path: Path) -> Path:
+    """A small AVLetters speaker file: letters A, B, C in repetition 1, B, C in repetition 2, six 12x16 frames each."""
+    rng = np.random.default_rng(0)
+    np.savez(path, frames=rng.integers(0, 255, (30, 12, 16), dtype=np.uint8), starts=np.arange(0, 30, 6),
+             letters=np.array(list("ABCBC")), repetitions=np.array([1, 1, 1, 2, 2]))
+    return path
+
+
+@pytest.mark.parametrize("extra,named", [
+    (["--reps", "5"], "--reps 5: av.npz has no repetition 5 (its repetitions: 1, 2)"),
+    (["--reps", "1,5"], "--reps 1,5: av.npz has no repetition 5 (its repetitions: 1, 2)"),
+    (["--letters", "A,X"], "--letters A,X: av.npz has no utterance of X (its letters: A, B, C)"),
+    (["--letters", "A,D-F"], "--letters A,D-F: av.npz has no utterance of D-F (its letters: A, B, C)"),
+    (["--reps", "2", "--letters", "A"], "--reps 2 --letters A: av.npz has no utterance of those letters in those "
+                                        "repetitions (they hold letters B, C)"),
+    (["--letters", "C", "--frames", "0:4"], "--frames 0:4: no frame of the utterances chosen lies in it (they span "
+                                            "frames 12..29)"),
+])
+def test_learn_m2_names_the_utterances_a_selection_finds_none_of(tmp_path: Path, extra: list[str], named: str) -> None:
+    """``--reps 1,5`` or ``--letters A,X`` of a file without repetition 5 or letter X learned from the rest without a
+    word (exit 0); ``--reps 5`` and ``--letters X`` named neither option, and said the file's repetitions for a
+    letter it does not hold."""
+    _letters_file(tmp_path / "av.npz")
+    r = gflow("learn", "m2", "av.npz", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", *extra, cwd=tmp_path)
+    assert_one_line_error(r, f"gflow learn m2: error: {named}")
+    assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
+    whole = gflow("learn", "m2", "av.npz", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", "--reps", "1,2",
+                  "--letters", "A-Z", cwd=tmp_path)  # a range is the letters of it the file holds, as before
+    assert whole.returncode == 0 and "from 30 items" in whole.stdout, whole.stderr
+
+
 @pytest.mark.parametrize("source,extra,named", [
     ("udp://127.0.0.1:notaport", [], ["udp://127.0.0.1:notaport", "Port could not be cast"]),
     ("rtsp://127.0.0.1:99999/x", [], ["rtsp://127.0.0.1:99999/x", "Port out of range"]),

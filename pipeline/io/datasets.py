@@ -25,7 +25,7 @@ from stages.source import SourceParams
 from pipeline.io.frame_readers import IMAGE_EXTENSIONS, open_reader
 from pipeline.io.path_errors import MissingPath
 
-__all__ = ["FrameSequence", "read_frames", "resolve_source", "AVLetters", "read_avletters", "write_frames",
+__all__ = ["FrameSequence", "read_frames", "resolve_source", "AVLetters", "read_avletters", "select_utterances", "write_frames",
            "parse_range"]
 
 
@@ -179,6 +179,13 @@ def read_avletters(path: str | os.PathLike, reps: Sequence[int] | None = None,
     ``sequence`` = utterance number, ``labels`` = the letter) and the whole file.
     """
     av = AVLetters.load(path)
+    return select_utterances(av, reps, letters, where=str(path)), av
+
+
+def select_utterances(av: AVLetters, reps: Sequence[int] | None = None, letters: str | None = None,
+                      where: str = "the AVLetters file") -> FrameSequence:
+    """The frames of the utterances of ``av`` with the given repetitions and letters (as
+    :func:`read_avletters`); a ValueError naming ``where`` when none is."""
     want = _parse_letters(letters)
     reps_set = None if reps is None else {int(r) for r in reps}
     ends = av.ends
@@ -197,10 +204,10 @@ def read_avletters(path: str | os.PathLike, reps: Sequence[int] | None = None,
         seq.append(np.full(idx.size, u))
         labels.append(np.full(idx.size, str(av.letters[u])))
     if not frames:
-        raise ValueError(f"{path}: no utterance with repetitions {sorted(reps_set) if reps_set else 'any'} and "
+        raise ValueError(f"{where}: no utterance with repetitions {sorted(reps_set) if reps_set else 'any'} and "
                          f"letters {letters or 'any'} (the file has repetitions {sorted(set(av.repetitions.tolist()))})")
     return FrameSequence(frames=frames, frame_index=np.concatenate(index), sequence=np.concatenate(seq),
-                         labels=np.concatenate(labels)), av
+                         labels=np.concatenate(labels))
 
 
 def write_frames(folder: str | os.PathLike, frames: Sequence[np.ndarray], first: int = 0) -> Path:

@@ -37,6 +37,8 @@ from pipeline.cli.commands.common import (CliError, nonnegative_float, nonnegati
 if TYPE_CHECKING:  # numpy is imported where used: the command's options and --help need none
     import numpy as np
 
+    from pipeline.io.datasets import FrameSequence
+
 
 def parse_size(text: str) -> tuple[int, int]:
     """``"WxH"`` -> (rows, cols) = (H, W)."""
@@ -256,7 +258,7 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
     from gflow_core.m2 import training
     from gflow_core.m2.distances import METRICS
 
-    from pipeline.io.datasets import parse_range, read_avletters, resolve_source
+    from pipeline.io.datasets import parse_range, resolve_source
 
     kind, path = resolve_source(source)
     metric_kind = METRICS[args.metric].kind
@@ -266,14 +268,14 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
     if kind == "avletters":
         if box_csv:
             raise CliError("--boxes does not apply to an AVLetters file (its frames are cropped mouths)")
-        reps = None if not args.reps else parse_reps(args.reps)
-        seq, _ = read_avletters(path, reps, args.letters)
+        seq = _utterances(args, path)
         meta.update(reps=args.reps or "all", letters=args.letters or "all")
         if args.frames:
             keep = (seq.frame_index >= start) & (seq.frame_index < (stop if stop is not None else 1 << 62))
             idx = np.nonzero(keep)[0]
             if idx.size == 0:
-                raise CliError(f"no selected AVLetters frame lies in --frames {args.frames}")
+                raise CliError(f"--frames {args.frames}: no frame of the utterances chosen lies in it (they span "
+                               f"frames {int(seq.frame_index.min())}..{int(seq.frame_index.max())})")
             seq = type(seq)(frames=[seq.frames[i] for i in idx], frame_index=seq.frame_index[idx],
                             sequence=seq.sequence[idx], labels=None if seq.labels is None else seq.labels[idx])
     else:
@@ -361,9 +363,36 @@ def parse_reps(text: str) -> list[int]:
     return [int(r) for r in parts]
 
 
-def check_letters(text: str) -> None:
+def _utterances(args: argparse.Namespace, path: Path) -> FrameSequence:
+    """The AVLetters utterances ``--reps`` and ``--letters`` choose in the file ``path``, each repetition and letter
+    (or range of letters) named checked to be in it: ``--reps 1,5`` of a file with repetitions 1 and 2 learned from
+    repetition 1 without a word of 5, and ``--letters X`` said the file's repetitions, not its letters."""
+    from pipeline.io.datasets import AVLetters, select_utterances
+
+    av = AVLetters.load(path)
+    reps = None if not args.reps else parse_reps(args.reps)
+    held = sorted(set(av.repetitions.tolist()))
+    missing = [r for r in reps or () if r not in held]
+    if missing:
+        raise CliError(f"--reps {args.reps}: {path} has no repetition {', '.join(map(str, missing))} (its "
+                       f"repetitions: {', '.join(map(str, held))})")
+    letters = sorted(set(av.letters.tolist()))
+    for part, span in check_letters(args.letters) if args.letters else ():
+        if not set(span) & set(letters):
+            raise CliError(f"--letters {args.letters}: {path} has no utterance of {part} (its letters: "
+                           f"{', '.join(letters)})")
+    try:
+        return select_utterances(av, reps, args.letters, where=str(path))
+    except ValueError:
+        there = sorted({str(a) for a, r in zip(av.letters, av.repetitions) if int(r) in (reps or held)})
+        raise CliError(f"--reps {args.reps} --letters {args.letters}: {path} has no utterance of those letters in "
+                       f"those repetitions (they hold letters {', '.join(there)})") from None
+
+
+def check_letters(text: str) -> list[tuple[str, list[str]]]:
     """``--letters``: each letter once, a range from an earlier letter to a later one. ``A-C,B`` was read as A-C
-    without a word (B in it twice), and ``Z-A`` as no letter at all ("no utterance with ... letters Z-A")."""
+    without a word (B in it twice), and ``Z-A`` as no letter at all ("no utterance with ... letters Z-A").
+    Returns each part as typed (upper case) with the letters it names."""
     from pipeline.app.names import comma_names
 
     try:
@@ -371,6 +400,7 @@ def check_letters(text: str) -> None:
     except ValueError as e:
         raise CliError(str(e)) from None
     seen: set[str] = set()
+    spans = []
     for part in parts:
         a, _, b = part.partition("-")
         if b and len(a) == len(b) == 1 and a.isalpha() and b.isalpha() and a > b:
@@ -380,6 +410,8 @@ def check_letters(text: str) -> None:
         if twice is not None:
             raise CliError(f"--letters {text!r}: {twice} is named twice; give each letter once")
         seen.update(span)
+        spans.append((part, span))
+    return spans
 
 
 def check_values(args) -> None:
