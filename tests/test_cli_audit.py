@@ -156,8 +156,27 @@ def test_rerun_graph_with_topics_matching_nothing_is_refused_before_it_runs(rec:
     """The whole graph was re-run and its recording written beside the input, then --topics refused."""
     (tmp_path / "demo.mcap").write_bytes((rec / "demo.mcap").read_bytes())
     r = gflow("rerun", "demo.mcap", "--graph", "--topics", "nosuch", cwd=tmp_path)
-    one_line_error(r, "'nosuch'", "estimate", rc=2)
+    one_line_error(r, "--topics nosuch: ", "estimate", rc=2)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.mcap"], "no re-run recording"
+
+
+@pytest.mark.parametrize("args,where", [
+    (["replay", "{r}", "--max"], "{r}"),
+    (["foxglove", "{r}", "f.mcap"], "{r}"),
+    (["diff", "{r}", "{r}"], "{r} or {r}"),
+    (["rerun", "{r}", "--stage", "filter"], "the re-run's outputs"),
+    (["step", "{r}", "--stage", "filter"], "stage filter's outputs"),
+])
+def test_topics_matching_nothing_names_the_option_and_the_part(rec: Path, tmp_path: Path, args: list[str],
+                                                              where: str) -> None:
+    """"no topic of demo.mcap matches 'nosuch'; it holds: ..." named no option: ``--topics estimate nosuch`` did not
+    say which option the word that matched nothing was given to."""
+    (tmp_path / "demo.mcap").write_bytes((rec / "demo.mcap").read_bytes())
+    r = gflow(*[a.replace("{r}", "demo.mcap") for a in args], "--topics", "estimate", "nosuch", cwd=tmp_path)
+    line = one_line_error(r, f"--topics nosuch: no topic of {where.replace('{r}', 'demo.mcap')} matches it; it holds: ",
+                          rc=2)
+    assert "estimate" in line.split("it holds: ")[1], line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.mcap"], "nothing written"
 
 
 def test_rerun_of_a_damaged_recording_is_not_a_check(rec: Path, tmp_path: Path) -> None:

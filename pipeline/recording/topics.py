@@ -28,7 +28,12 @@ _RUN_ID = re.compile(r"-[0-9a-f]{6}$")
 
 
 class TopicError(ValueError):
-    """A topic pattern that matches none of the topics there are (the message lists them)."""
+    """A topic pattern that matches none of the topics there are (the message lists them): ``pattern`` as typed,
+    ``where`` it looked and ``held``, the topics there as :func:`describe_topics` says them."""
+
+    def __init__(self, pattern: str, where: str, held: str) -> None:
+        super().__init__(f"no topic of {where} matches {pattern!r}; it holds: {held}")
+        self.pattern, self.where, self.held = pattern, where, held
 
 
 def split_topic(topic: str) -> tuple[str, str] | None:
@@ -124,6 +129,6 @@ def select_topics(patterns: Iterable[str] | None, available: Iterable[str], wher
     for p in pats:
         hit = [t for t in avail if topic_matches(p, t)]
         if not hit:
-            raise TopicError(f"no topic of {where} matches {p!r}; it holds: {describe_topics(avail)}")
+            raise TopicError(p, where, describe_topics(avail))
         chosen.update(hit)
     return sorted(chosen)

@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link",
+__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link", "chosen_topics",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -260,6 +260,18 @@ def refuse_recording(path: str, option: str) -> None:
         return  # no such file (or not readable: check_writable names it)
     if head == MAGIC:
         raise CliError(f"{option} {path} is a recording; gflow never writes over one: give another name")
+
+
+def chosen_topics(patterns: list[str] | None, available, where: str) -> list[str]:
+    """The topics of ``available`` that ``--topics`` names (:func:`pipeline.recording.topics.select_topics`: as typed,
+    estimate, gflow/demo/estimate, patterns); a pattern matching none is a one-line error naming the option, the
+    pattern, ``where`` it looked and the topics there."""
+    from pipeline.recording.topics import TopicError, select_topics
+
+    try:
+        return select_topics(patterns, available, where=where)
+    except TopicError as e:
+        raise CliError(f"--topics {e.pattern}: no topic of {e.where} matches it; it holds: {e.held}") from None
 
 
 def zenoh_from_args(args, default_connect: bool) -> ZenohSettings:

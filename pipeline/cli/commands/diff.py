@@ -14,16 +14,13 @@ def cmd_diff(args) -> int:
 
     from pipeline.io.mcap_io import recorded_topics
     from pipeline.recording.diff import diff_recordings
-    from pipeline.recording.topics import TopicError, select_topics, stream_prefix
-    from pipeline.cli.commands.common import CliError
+    from pipeline.recording.topics import stream_prefix
+    from pipeline.cli.commands.common import CliError, chosen_topics
 
     topics = None
     if args.topics:  # as typed (estimate, gflow/demo/estimate, *): one that names nothing is an error
-        try:
-            topics = select_topics(args.topics, set(recorded_topics(args.a)) | set(recorded_topics(args.b)),
-                                   where=f"{args.a} or {args.b}")
-        except TopicError as bad:
-            raise CliError(str(bad)) from None
+        topics = chosen_topics(args.topics, set(recorded_topics(args.a)) | set(recorded_topics(args.b)),
+                               where=f"{args.a} or {args.b}")
     from pipeline.cli.commands.common import warn_if_torn
 
     for path in (args.a, args.b):

@@ -9,8 +9,8 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from pipeline.cli.commands.common import (CliError, add_zenoh_args, nonnegative_float, nonnegative_int, positive_float,
-                                          stream_name, tool_zenoh)
+from pipeline.cli.commands.common import (CliError, add_zenoh_args, chosen_topics, nonnegative_float, nonnegative_int,
+                                          positive_float, stream_name, tool_zenoh)
 
 if TYPE_CHECKING:
     from pipeline.io.mcap_io import RecordingSummary
@@ -133,12 +133,8 @@ def recording_topics(path: str, patterns: list[str]) -> list[str]:
     """The topics of recording ``path`` that ``patterns`` name (:func:`pipeline.recording.topics.select_topics`);
     a pattern matching none is a one-line error listing the recording's topics."""
     from pipeline.io.mcap_io import recorded_topics
-    from pipeline.recording.topics import TopicError, select_topics
 
-    try:
-        return select_topics(patterns, recorded_topics(path), where=path)
-    except TopicError as e:
-        raise CliError(str(e)) from None
+    return chosen_topics(patterns, recorded_topics(path), where=path)
 
 
 #: the slowest --speed: 1000 times slower than recorded (a slower one waited past what a sleep can take)

@@ -90,12 +90,9 @@ def _chosen(args, outputs: set[str]) -> set[str]:
     """The outputs ``--topics`` names (as typed: estimate, gflow/demo/estimate, patterns), or all."""
     if not args.topics:
         return outputs
-    from pipeline.recording.topics import TopicError, select_topics
+    from pipeline.cli.commands.common import chosen_topics
 
-    try:
-        return set(select_topics(args.topics, outputs, where="the re-run's outputs"))
-    except TopicError as e:
-        raise CliError(str(e)) from None
+    return set(chosen_topics(args.topics, outputs, where="the re-run's outputs"))
 
 
 def _check_from(path: str, plan, stage: str, from_seq: int) -> None:

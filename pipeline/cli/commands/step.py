@@ -54,12 +54,9 @@ def cmd_step(args) -> int:
     out = sys.stdout
     shown = None
     if args.topics:  # the outputs to show, as typed (estimate, gflow/demo/estimate, patterns)
-        from pipeline.recording.topics import TopicError, select_topics
+        from pipeline.cli.commands.common import chosen_topics
 
-        try:
-            chosen = select_topics(args.topics, st.sp.outputs.values(), where=f"stage {args.stage}'s outputs")
-        except TopicError as e:
-            raise CliError(str(e)) from None
+        chosen = chosen_topics(args.topics, st.sp.outputs.values(), where=f"stage {args.stage}'s outputs")
         shown = {t.rsplit("/", 1)[-1] for t in chosen}
     how = ""
     if args.start:
