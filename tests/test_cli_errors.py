@@ -966,6 +966,30 @@ def test_benchmark_refuses_ground_truth_past_the_last_frame(tmp_path: Path, fram
 
 
 @pytest.mark.parametrize("argv,named", [
+    (["track", "data/s/frames", "--init", "10,10,20,20", "--out", "b.csv", "--inline"], "the graph dcf has no stage "
+     "'nosuch' (its stages: source, proposal, filter, recorder; tracker.PARAM sets the tracker's parameters)"),
+    (["run", "demo", "--inline"], "the graph demo has no stage 'nosuch' (its stages: source, preprocess, proposal, "
+                                  "filter, render, recorder)"),
+    (["benchmark", "data", "--trackers", "dcf", "--inline", "-q"], "the graph dcf has no stage 'nosuch'"),
+    (["rerun", "{rec}", "--graph"], "demo.mcap has no stage 'nosuch' (its stages: source, preprocess, proposal, "
+                                    "filter, render, recorder)"),
+])
+def test_a_set_of_a_stage_the_graph_lacks_names_the_option(tmp_path: Path, frames: Path, demo_mcap: Path,
+                                                           argv: list[str], named: str) -> None:
+    """``--set nosuch.x=1`` said "/.../pipeline/graphs/dcf.yaml: override for stage 'nosuch', which the graph does
+    not have" (a file the user never named) and ``gflow rerun --graph`` "--set names stage 'nosuch', which the
+    recording does not have" (without the stages it has); neither named the value given."""
+    seq = tmp_path / "data" / "s"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("".join(f"{f},10,10,20,20\n" for f in range(5)))
+    args = [a.replace("{rec}", str(demo_mcap)) for a in argv]
+    r = gflow(*args, "--set", "nosuch.x=1", cwd=tmp_path)
+    assert_one_line_error(r, f"{argv[0]}: error: --set nosuch.x=1: ", named)
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["data"], "nothing written"
+
+
+@pytest.mark.parametrize("argv,named", [
     (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--pred", "other.csv"], "--pred given 2 times"),
     (["eval", "--gt", "gt.csv", "--pred=gt.csv", "--pr", "other.csv"], "--pred given 2 times"),
     (["learn", "m2", "frames", "--out", "a.npz", "--out", "b.npz", "-K", "2"], "--out given 2 times"),

@@ -95,7 +95,7 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
     words of the options that gave them: ``given`` = {how it was given (``--particles 0``,
     ``--set filter.particles=0``): (stage, parameter, value)}, checked together per stage, on top of
     the graph's values and ``others`` ({stage: {parameter: value}} set otherwise). A stage the graph
-    does not have is left to the graph's own error. The same line as ``gflow track --particles 0``,
+    does not have is named by the option that gave it. The same line as ``gflow track --particles 0``,
     with no graph path. A parameter of the graph's tracker block is given as ``tracker.PARAM``
     (:func:`pipeline.runtime.tracker_checks.check_tracker_values`)."""
     from pipeline.runtime.graph import GraphError, load_graph, params_error
@@ -111,6 +111,7 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
     if refused:
         raise RequestError(_unknown_tracker_param(loaded, given) or refused)
     stages = loaded.stages
+    _refuse_unknown_stages(loaded, given)
     for stage in dict.fromkeys(st for st, _, _ in given.values()):
         if stage not in stages:
             continue
@@ -120,6 +121,19 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
         if why is not None:  # named by the values refused alone, else by all of them
             alone = [how for how, (param, value) in mine.items() if params_error(stages[stage].kind, {**base, param: value})]
             raise RequestError(f"{' '.join(alone or mine)}: {why}")
+
+
+def _refuse_unknown_stages(plan: Plan, given: dict[str, tuple[str, str, Any]]) -> None:
+    """A stage of ``given`` that ``plan`` does not have, refused in the words of the option that named it: the
+    graph's own error named the graph file (``/.../pipeline/graphs/dcf.yaml: override for stage 'nosuch'``), not
+    the option."""
+    from pipeline.runtime.tracker_block import TRACKER_KEY
+
+    hint = f"; {TRACKER_KEY}.PARAM sets the tracker's parameters" if plan.tracker is not None else ""
+    for how, (stage, _, _) in given.items():
+        if stage not in plan.stages and stage != TRACKER_KEY:
+            raise RequestError(f"{how}: the graph {plan.name} has no stage {stage!r} (its stages: "
+                               f"{', '.join(plan.stages)}{hint})")
 
 
 def _unknown_tracker_param(plan: Plan, given: dict[str, tuple[str, str, Any]]) -> str:

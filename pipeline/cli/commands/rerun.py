@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pipeline.cli.commands.common import CliError, whole_number
+
+if TYPE_CHECKING:  # the recording's modules are imported where used: the command's options and --help need none
+    from pipeline.runtime.graph import Plan
 
 ORDER = 52
 
@@ -27,6 +32,16 @@ def _stage_sets(items: list[str] | None, stage: str) -> dict[str, object]:
                            f"or {name}), or re-run --stage {owner} or --graph")
         out[name] = yaml.safe_load(v)
     return out
+
+
+def _refuse_unknown_stages(args: argparse.Namespace, plan: Plan) -> None:
+    """A ``--set STAGE.PARAM=V`` of a whole-graph re-run naming a stage the recording does not have, refused naming
+    the option and the stages there are (it said "--set names stage 'nosuch', which the recording does not have")."""
+    from pipeline.cli.commands.common import sets_as_given
+
+    for how, (stage, _, _) in sets_as_given(args.set).items():
+        if stage not in plan.stages and stage != "tracker":
+            raise CliError(f"{how}: {args.file} has no stage {stage!r} (its stages: {', '.join(plan.stages)})")
 
 
 def _versions_note(path: str) -> str:
@@ -132,6 +147,7 @@ def cmd_rerun(args) -> int:
             raise CliError("--from works with --stage (a whole-graph re-run starts at the first frame)")
         sets = parse_sets(args.set)
         plan0 = recorded_plan(args.file)
+        _refuse_unknown_stages(args, plan0)
         _cannot_check(args.file, plan0, {t for s in plan0.stages.values() if s.is_source() for t in s.outputs.values()},
                       set(), "the graph")
         # before the re-run: a name that fits no output is the first thing to say (not after a recording is written)
