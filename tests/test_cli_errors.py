@@ -313,6 +313,22 @@ def test_eval_frames_a_alone_is_frame_a(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("extra,named", [
+    (["--frames", "0:2"], "(gt.csv: frames 0..1) and a prediction (p.csv: frames 2..5) in --frames 0:2; are the "),
+    ([], "(gt.csv: frames 0..5) and a prediction (p.csv: frames 10..11); are the frame numbers aligned?"),
+])
+def test_eval_of_predictions_on_no_frame_of_the_truth_names_the_frames_of_each(tmp_path: Path, extra: list[str],
+                                                                               named: str) -> None:
+    """"no frame has both a ground-truth box and a prediction (are the frame numbers aligned?)": neither the frames
+    each file holds nor the --frames that chose the truth's were said (the face points' eval says them)."""
+    (tmp_path / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in range(6)))
+    rows = range(10, 12) if not extra else range(2, 6)
+    (tmp_path / "p.csv").write_text("frame,x,y,w,h\n" + "".join(f"{i},10,10,20,20\n" for i in rows))
+    r = gflow("eval", "--gt", "gt.csv", "--pred", "p.csv", *extra, cwd=tmp_path)
+    assert_one_line_error(r, "gflow eval: error: no frame has both a ground-truth box ", named)
+    assert r.returncode == 2 and not r.stdout
+
+
+@pytest.mark.parametrize("extra,named", [
     (["--max-points", "0"], "--max-points"),
     (["--background-frames", "4:1"], "--background-frames 4:1"),
     (["--metric", "shuffle", "--shuffle-radius=-1"], "--shuffle-radius"),

@@ -80,6 +80,7 @@ def cmd_eval(args) -> int:
     if not gt:
         raise CliError(f"{args.gt}: the target is absent (w or h <= 0, or NaN) on every ground-truth frame"
                        + (f" in --frames {args.frames}" if args.frames else "") + ": nothing to score")
+    _refuse_other_frames(args, gt, boxes.boxes.keys() | boxes.empty)
     failed = len(boxes.empty & gt.keys())  # missing predictions too: overlap 0, a miss
     # the states of every row, those of no box too (NaN or w, h 0: a miss for the boxes, as read above)
     states = _state_score(args, gt, pred, read_track(args.pred, allow_nan=True)) if args.visibility else None
@@ -118,6 +119,18 @@ def cmd_eval(args) -> int:
             if bands:
                 print(f"on target by confidence:     {bands} (frames with the target in view)")
     return 0
+
+
+def _refuse_other_frames(args: argparse.Namespace, gt: dict, predicted: set[int]) -> None:
+    """Predictions on none of the ground truth's frames (those of --frames), refused naming the frames of each file
+    (as for face points): it said "no frame has both a ground-truth box and a prediction", not which frames
+    either file holds, nor --frames."""
+    if gt.keys() & predicted:
+        return
+    held = f"frames {min(predicted)}..{max(predicted)}" if predicted else "no frame"
+    raise CliError(f"no frame has both a ground-truth box ({args.gt}: frames {min(gt)}..{max(gt)}) and a prediction "
+                   f"({args.pred}: {held})" + (f" in --frames {args.frames}" if args.frames else "")
+                   + "; are the frame numbers aligned?")
 
 
 def _rate(a: int, n: int) -> str:
