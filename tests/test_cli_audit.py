@@ -202,6 +202,17 @@ def test_rerun_of_a_recording_damaged_before_its_stage_inputs_names_the_damage(r
         assert "not written by gflow" not in r.stderr
 
 
+@pytest.mark.parametrize("args", [["track", "demo.mcap", "--init", "10,10,20,20", "--out", "b.csv", "--start", "100",
+                                   "--inline"], ["frame", "demo.mcap", "100", "f.png"]])
+def test_a_frame_past_a_recordings_frames_says_which_it_holds(rec: Path, tmp_path: Path, args: list[str]) -> None:
+    """'demo.mcap: no frame at or after --start 100' (and gflow frame's 'at or after frame 100') did not say what the
+    recording holds, where an image folder's said its frames (replay, rerun, step and render say them too)."""
+    (tmp_path / "demo.mcap").write_bytes((rec / "demo.mcap").read_bytes())
+    r = gflow(*args, cwd=tmp_path)
+    one_line_error(r, "demo.mcap: no frame at or after ", " 100 (it holds frames 0..7)", rc=2)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["demo.mcap"], "nothing written"
+
+
 # -- gflow step, fed by a script ---------------------------------------------------------------------------
 
 

@@ -87,13 +87,25 @@ def first_frame(params: SourceParams, base_dir: str | os.PathLike = ".") -> RawF
             raise PreflightError(f"--start {params.start} is beyond the end of {where} ({n} frames: 0..{n - 1})")
         if params.kind == "video":
             raise PreflightError(f"{where}: no frame can be read (not a video OpenCV can decode, or empty)")
-        raise PreflightError(f"{where}: no frame at or after --start {params.start}" + _torn(params))
+        raise PreflightError(f"{where}: no frame at or after --start {params.start}" + (_torn(params) or _held(params)))
     if frame.image is None and frame.events and not frame.error:  # only reports: no frame was read
         raise PreflightError(f"{where}: no frame at or after --start {params.start}: {frame.events[0][1]}")
     if frame.image is None:
         which = f"frame {frame.index}" + (" (the first frame)" if frame.index == 0 else "")
         raise PreflightError(f"{where}: {which} cannot be read: {frame.error}")
     return frame
+
+
+def _held(params: SourceParams) -> str:
+    """`` (it holds frames 0..19)`` for a recording source with frames, so that a --start past them says what is there
+    ("" for any other source: its count is said otherwise; a torn recording says where it ends instead)."""
+    if params.kind != "mcap" or not params.path:
+        return ""
+    from pipeline.io.mcap_io import iter_records, recorded_topics
+
+    topics = [t for t in recorded_topics(params.path) if t.endswith("/frames")]
+    seqs = [r.seq for r in iter_records(params.path, topics=topics, on_truncated=lambda _: None) if r.type == "Frame"]
+    return f" (it holds frames {min(seqs)}..{max(seqs)})" if seqs else ""
 
 
 def _torn(params: SourceParams) -> str:
