@@ -1006,6 +1006,24 @@ def test_a_set_of_a_stage_the_graph_lacks_names_the_option(tmp_path: Path, frame
 
 
 @pytest.mark.parametrize("argv,named", [
+    (["benchmark", "data", "--trackers", "dcf", "--inline", "-q", "--frames", "7:9"],
+     "--frames 7:9: data/s/groundtruth.csv has no box for frame 7, the first frame to track (its boxes: frames 0..4)"),
+    (["benchmark", "--list-cases", "--cases", "occlude,nosuch"], "unknown stress case 'nosuch' in --cases (known: "),
+])
+def test_a_benchmark_filter_matching_nothing_names_its_option(tmp_path: Path, frames: Path, argv: list[str],
+                                                              named: str) -> None:
+    """``--frames 7:9`` past the ground truth said "... has no box for frame 7, the first frame to track", and
+    ``--cases occlude,nosuch`` "unknown stress case 'nosuch'": neither named the option (nor the frames there are)."""
+    seq = tmp_path / "data" / "s"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("".join(f"{f},10,10,20,20\n" for f in range(5)))
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, f"gflow benchmark: error: {named}")
+    assert r.returncode == 2 and not r.stdout and sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
+@pytest.mark.parametrize("argv,named", [
     (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--pred", "other.csv"], "--pred given 2 times"),
     (["eval", "--gt", "gt.csv", "--pred=gt.csv", "--pr", "other.csv"], "--pred given 2 times"),
     (["learn", "m2", "frames", "--out", "a.npz", "--out", "b.npz", "-K", "2"], "--out given 2 times"),

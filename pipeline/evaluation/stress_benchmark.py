@@ -81,7 +81,7 @@ def select_cases(text: str | None) -> list[StressCase]:
     for w in want:
         hit = [c.name for c in CASES if c.name == w or c.name.startswith(w + "-") or c.kind == w]
         if not hit:
-            raise ValueError(f"unknown stress case {w!r} (known: {', '.join(c.name for c in CASES)})")
+            raise ValueError(f"unknown stress case {w!r} in --cases (known: {', '.join(c.name for c in CASES)})")
         again = next((h for h in hit if h in chosen), None)
         if again is not None:  # a case and its kind (occlude-20,occlude): it was run once without a word
             raise ValueError(f"--cases {text!r}: {again} is named twice (by {chosen[again]} and by {w}); give each "

@@ -409,8 +409,10 @@ def _first_frames(args, seqs, first_frame: int) -> dict[str, int]:
     first = {seq.name: first_frame if args.frames else min(seq.groundtruth) for seq in seqs}
     for seq in seqs:
         if first[seq.name] not in seq.groundtruth:
-            raise CliError(f"{seq.path / 'groundtruth.csv'} has no box for frame {first[seq.name]}, "
-                           "the first frame to track")
+            gt = sorted(seq.groundtruth)
+            gaps = ", with gaps" if len(gt) != gt[-1] - gt[0] + 1 else ""
+            raise CliError(f"--frames {args.frames}: {seq.path / 'groundtruth.csv'} has no box for frame "
+                           f"{first[seq.name]}, the first frame to track (its boxes: frames {gt[0]}..{gt[-1]}{gaps})")
     return first
 
 
