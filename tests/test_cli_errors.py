@@ -911,9 +911,9 @@ def test_learn_m2_leaves_out_the_frames_whose_box_row_says_the_target_is_absent(
 def test_learn_m2_frame_range_past_the_end_names_its_option(tmp_path: Path, frames: Path, extra: list[str],
                                                             named: str) -> None:
     """"no decodable frame ... for frames 90:99" named neither option: --frames and --background-frames were not
-    told apart."""
+    told apart; nor did it say the frames there are."""
     r = gflow("learn", "m2", str(frames), "-K", "2", "--out", "m.npz", "-q", *extra, cwd=tmp_path)
-    assert_one_line_error(r, named)
+    assert assert_one_line_error(r, named).endswith("for frames 90:99 (it has 5 frames: 0..4)"), r.stderr
     assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
 
 

@@ -246,8 +246,23 @@ def _read_frames_of(path, start: int, stop: int | None, option: str, given: str 
         return read_frames(path, start, stop)
     except ValueError as e:
         if given:
-            raise CliError(f"{option} {given}: {e}") from None
+            raise CliError(f"{option} {given}: {e}{_frames_there(path)}") from None
         raise
+
+
+def _frames_there(source: str | Path) -> str:
+    """`` (it has 10 frames: 0..9)`` of an image folder or video whose length is known, for a range that read none
+    of them ("" otherwise)."""
+    from stages.source import SourceParams
+
+    from pipeline.io.datasets import resolve_source
+    from pipeline.io.frame_readers import count_frames
+
+    kind, path = resolve_source(source)
+    if kind == "avletters":  # its frames are chosen by utterance, not read by range
+        return ""
+    n = count_frames(SourceParams(kind=kind, path=str(path)))
+    return f" (it has {n} frames: 0..{n - 1})" if n else ""
 
 
 def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, ref_size):
