@@ -49,6 +49,19 @@ def _printable(line: str) -> str:
     return "".join(c if c.isprintable() else "?" for c in _ADDRESS.sub("]", line.strip()))
 
 
+#: OpenCV's AVI reader prints a chunk's four raw bytes ("Got: %s.\n"), read from the file or from past its end: any of
+#: them may be a newline, which split its line in two and left the second part on the terminal
+_FOURCC = re.compile(rb"(Expected: [^\n]{0,8}\. Got: )(.{0,4}?)(\.\r?\n)", re.S)
+
+
+def _lines(raw: bytes) -> list[str]:
+    """What was written to descriptor 2, a line (with its end) each: the raw bytes an AVI reader quotes made
+    printable first, and lines split at newlines only (``str.splitlines`` also splits at form feeds and the like)."""
+    raw = _FOURCC.sub(lambda m: m[1] + bytes(b if 32 <= b < 127 else 63 for b in m[2]) + m[3], raw)
+    *whole, last = raw.decode("utf-8", "replace").split("\n")
+    return [line + "\n" for line in whole] + ([last] if last else [])
+
+
 @contextmanager
 def decoder_messages() -> Iterator[list[str]]:
     """``with decoder_messages() as said: cv2.imdecode(...)``: ``said`` holds, after the block, the
@@ -65,7 +78,7 @@ def decoder_messages() -> Iterator[list[str]]:
             os.close(saved)
             tmp.seek(0)
             passed = []
-            for line in tmp.read().decode("utf-8", "replace").splitlines(keepends=True):
+            for line in _lines(tmp.read()):
                 if _DECODER.match(line.strip()):
                     said.append(_printable(line))
                 elif line.strip():
