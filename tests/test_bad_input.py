@@ -230,8 +230,8 @@ def test_nan_and_wrong_shape_features_make_the_filter_coast(tmp_path):
 
 def test_a_decoder_line_quoting_raw_bytes_stays_one_line(capfd):
     """OpenCV's AVI reader quotes four raw bytes of the file ("Got: %s.\\n"), read past its end when it is cut
-    short; a newline among them split the line, and its second part ("V.") was left on the terminal (about one run in
-    ten of the header test above). Every quoted byte comes out printable, in the one line caught."""
+    short; a newline among them split the line, and its second part ("V.") was left on the terminal (2 of 10
+    runs of the header test above). Every quoted byte comes out printable, in the one line caught."""
     import os
 
     from pipeline.io.decoder_messages import decoder_messages
