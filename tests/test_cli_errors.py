@@ -744,6 +744,43 @@ def test_a_copy_or_plot_failing_midway_leaves_nothing_under_its_name(tmp_path: P
     assert [p.name for p in cut.iterdir()] == [out]
 
 
+#: ``gflow ARGS`` with a Ctrl-C as the encoded picture's bytes are taken to be written
+_CTRL_C_AT_THE_WRITE = """
+import sys
+
+import cv2
+
+encode = cv2.imencode
+
+
+class Cut:
+    def tobytes(self):
+        raise KeyboardInterrupt
+
+
+cv2.imencode = lambda kind, pic: (encode(kind, pic)[0], Cut())
+from pipeline.cli.main import main
+
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_a_frame_picture_interrupted_midway_leaves_nothing_under_its_name(tmp_path: Path, frames: Path) -> None:
+    """``gflow frame`` opened OUT, then wrote the picture: a Ctrl-C between the two left an empty OUT, a picture no
+    viewer opens, and the retry was refused as OUT existing. It now writes beside OUT and takes the name once
+    whole, as plot and foxglove do."""
+    out = tmp_path / "out"
+    out.mkdir()
+    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    r = subprocess.run([sys.executable, "-c", _CTRL_C_AT_THE_WRITE, "frame", str(frames), "0", "f.png"], cwd=out,
+                       env=env, capture_output=True, text=True, timeout=60)
+    assert r.returncode == 130 and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    assert not list(out.iterdir()), "neither a picture cut short under its name nor its temporary file"
+    r = gflow("frame", str(frames), "0", "f.png", cwd=out)  # the retry is not refused
+    assert r.returncode == 0 and [p.name for p in out.iterdir()] == ["f.png"], r.stderr
+    assert (out / "f.png").stat().st_size > 100
+
+
 @pytest.mark.parametrize("argv", [
     ["eval", "--gt", "adir", "--pred", "b.csv"],
     ["eval", "--gt", "b.csv", "--pred", "adir"],

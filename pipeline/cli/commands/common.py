@@ -7,7 +7,7 @@ import importlib
 import math
 import os
 import dataclasses  # noqa: F401 (common.dataclasses: tests replace a run's settings with it)
-from typing import TYPE_CHECKING, Any
+from typing import IO, TYPE_CHECKING, Any
 
 from pipeline.app.errors import RequestError as CliError  # a user error: printed as one line, exit status 2
 from pipeline.cli.endpoints import parse_endpoint
@@ -437,20 +437,20 @@ def partial_if_damaged(recording: str, command: str, wrote: str, status: int = 1
 
 
 def write_picture(path: str, pic) -> None:
-    """Encode ``pic`` as ``path``'s kind (checked writable before the frame was read) and write it. A write
-    that fails (a full disk) is an OSError naming ``path`` (exit status 1: the command ran and failed) and
-    leaves no part of the picture behind; encoding in memory keeps the image library's own complaint off
-    stderr."""
+    """Encode ``pic`` as ``path``'s kind (checked writable before the frame was read) and write it beside ``path``,
+    taking the name once whole (:func:`pipeline.io.recording_files.write_beside`): never over a file, and a write
+    that fails (a full disk: an OSError naming ``path``, exit status 1) or is interrupted leaves nothing under the
+    name. Encoding in memory keeps the image library's own complaint off stderr."""
     import cv2
     from pathlib import Path
+
+    from pipeline.io.recording_files import write_beside
 
     ok, data = cv2.imencode(Path(path).suffix, pic)
     if not ok:
         raise OSError(f"{path}: OpenCV could not encode the picture")
-    try:
-        with open(path, "xb") as f:  # never over a file (check_new_picture refused one that was there)
-            f.write(data.tobytes())
-    except OSError as e:
-        if not isinstance(e, FileExistsError):
-            Path(path).unlink(missing_ok=True)
-        raise OSError(e.errno, e.strerror, path) from None
+
+    def write(f: IO[bytes]) -> None:
+        f.write(data.tobytes())
+
+    write_beside(path, write)
