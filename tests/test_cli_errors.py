@@ -65,6 +65,15 @@ def demo_mcap(tmp_path_factory) -> Path:
     return where / "demo.mcap"
 
 
+def one_sequence(tmp_path: Path, frames: Path) -> Path:
+    """``tmp_path/data/s``, a sequence folder: ``frames`` moved into it and a box of ground truth on each of them."""
+    seq = tmp_path / "data" / "s"
+    seq.mkdir(parents=True)
+    frames.rename(seq / "frames")
+    (seq / "groundtruth.csv").write_text("".join(f"{f},10,10,20,20\n" for f in range(5)))
+    return seq
+
+
 def torn_copy(rec: Path, dest: Path, size: int) -> Path:
     """The first ``size`` bytes of ``rec`` in ``dest``: a recording whose writer was killed there."""
     dest.write_bytes(rec.read_bytes()[:size])
@@ -173,6 +182,30 @@ def test_version(tmp_path: Path) -> None:
     r = gflow("--version", cwd=tmp_path)
     assert r.returncode == 0
     assert r.stdout.startswith("gflow ") and "zenoh" in r.stdout
+
+
+@pytest.mark.parametrize("argv,said", [
+    (["track", "data/s/frames", "--init", "10,10,20,20", "--out", "b.csv", "--tracker", "gflow", "--model", "nosuch"],
+     "--model nosuch: model file not found, and not a built-in model of --tracker gflow (face, ellipsoid)"),
+    (["track", "data/s/frames", "--init", "10,10,20,20", "--out", "b.csv", "--tracker", "m2", "--model", "nosuch"],
+     "--model nosuch: model file not found"),
+    (["benchmark", "data", "--trackers", "gflow", "--gflow-model", "nosuch"],
+     "--gflow-model nosuch: model file not found, and not a built-in model of --tracker gflow (face, ellipsoid)"),
+    (["export", "vot", "data", "ws", "--gflow-model", "nosuch"],
+     "--gflow-model nosuch: model file not found, and not a built-in model of --tracker gflow (face, ellipsoid)"),
+    (["trax", "--tracker", "gflow", "--model", "nosuch"],
+     "--model nosuch: model file not found, and not a built-in model of --tracker gflow (face, ellipsoid)"),
+])
+def test_a_model_that_names_nothing_names_its_option(tmp_path: Path, frames: Path, argv: list[str], said: str) -> None:
+    """``--tracker gflow --model nosuch`` said "model file not found: nosuch", naming neither the option nor the
+    built-in models (face, ellipsoid); m2's and gflow trax's said the same, and ``gflow export vot --gflow-model
+    nosuch`` wrote a workspace whose gflow tracker could never start."""
+    if argv[0] == "trax":
+        pytest.importorskip("trax")
+    one_sequence(tmp_path, frames)
+    r = gflow(*argv, cwd=tmp_path)
+    assert_one_line_error(r, f" error: {said}")
+    assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["data"], "nothing written"
 
 
 def test_whole_frame_model_on_other_video(tmp_path: Path) -> None:
@@ -1032,10 +1065,7 @@ def test_a_set_of_a_stage_the_graph_lacks_names_the_option(tmp_path: Path, frame
     """``--set nosuch.x=1`` said "/.../pipeline/graphs/dcf.yaml: override for stage 'nosuch', which the graph does
     not have" (a file the user never named) and ``gflow rerun --graph`` "--set names stage 'nosuch', which the
     recording does not have" (without the stages it has); neither named the value given."""
-    seq = tmp_path / "data" / "s"
-    seq.mkdir(parents=True)
-    frames.rename(seq / "frames")
-    (seq / "groundtruth.csv").write_text("".join(f"{f},10,10,20,20\n" for f in range(5)))
+    one_sequence(tmp_path, frames)
     args = [a.replace("{rec}", str(demo_mcap)) for a in argv]
     r = gflow(*args, "--set", "nosuch.x=1", cwd=tmp_path)
     assert_one_line_error(r, f"{argv[0]}: error: --set nosuch.x=1: ", named)
@@ -1051,10 +1081,7 @@ def test_a_benchmark_filter_matching_nothing_names_its_option(tmp_path: Path, fr
                                                               named: str) -> None:
     """``--frames 7:9`` past the ground truth said "... has no box for frame 7, the first frame to track", and
     ``--cases occlude,nosuch`` "unknown stress case 'nosuch'": neither named the option (nor the frames there are)."""
-    seq = tmp_path / "data" / "s"
-    seq.mkdir(parents=True)
-    frames.rename(seq / "frames")
-    (seq / "groundtruth.csv").write_text("".join(f"{f},10,10,20,20\n" for f in range(5)))
+    one_sequence(tmp_path, frames)
     r = gflow(*argv, cwd=tmp_path)
     assert_one_line_error(r, f"gflow benchmark: error: {named}")
     assert r.returncode == 2 and not r.stdout and sorted(p.name for p in tmp_path.iterdir()) == ["data"]

@@ -89,12 +89,14 @@ def _opencv_missing(names: list[str]) -> dict[str, str]:
 
 
 def check_models(args) -> None:
-    """Each ``--NAME-model`` given names a file, or a model by a bare word (``face``, ``ellipsoid``)
-    that its tracker checks when it is planned."""
+    """Each ``--NAME-model`` given names a file, or a built-in model of its tracker by a word (``face``,
+    ``ellipsoid``): :func:`pipeline.cli.trackers.check_model`."""
+    from pipeline.cli.trackers import check_model
+
     for name, opt in model_options().items():
         model = model_given(args, name)
-        if model and not Path(model).is_file() and not model.isidentifier():
-            raise CliError(f"{opt}: model file not found: {model}")
+        if model:
+            check_model(name, model, opt)
 
 
 def _request(args, seq, name: str, start: int, stop: int | None, folder: Path) -> tuple[str, TrackRequest]:

@@ -65,6 +65,9 @@ def tracker_params(args: argparse.Namespace) -> dict[str, Any]:
             raise CliError(f"--model is an option of --tracker {' / '.join(takes)}, not of --tracker {tracker}")
         if "model" in out:
             raise CliError("give the model once: --model FILE or --set model=FILE")
+        from pipeline.cli.trackers import check_model
+
+        check_model(tracker, args.model, "--model")
         out["model"] = args.model
     spec = specs.get(args.tracker or "")
     if spec is not None and spec.model_required and "model" not in out:

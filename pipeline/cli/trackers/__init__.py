@@ -3,7 +3,8 @@
 ``gflow.trackers``).
 
 Each entry has ``NAME``, ``GRAPH``, ``PARAMS``, ``add_args(group)``, ``overrides(args) -> (graph,
-{stage: {param: value}})`` and ``make_plan(graph, overrides) -> Plan``. A spec that names its
+{stage: {param: value}})`` and ``make_plan(graph, overrides) -> Plan``, and may have ``MODEL_NAMES``: the
+models its ``--model`` names by a word (:func:`check_model`). A spec that names its
 options module (``TrackerSpec.cli``, one module of this package per built-in tracker) gets that
 module; any other gets :class:`SpecOptions`: the options of its parameter dataclass, its stages
 given the initial box, the seed and those values, its graph the one made from the spec
@@ -21,7 +22,7 @@ from gflow_core.spec import SpecError, TrackerSpec
 
 from pipeline.cli.commands.common import CliError
 
-__all__ = ["TRACKERS", "SpecOptions", "UnknownTracker", "OptionClash", "spec_of"]
+__all__ = ["TRACKERS", "SpecOptions", "UnknownTracker", "OptionClash", "spec_of", "check_model"]
 
 
 class UnknownTracker(CliError, KeyError):
@@ -172,3 +173,20 @@ def spec_of(name: str) -> TrackerSpec:
         return get(name)
     except SpecError as e:
         raise UnknownTracker(str(e)) from None
+
+
+def check_model(name: str, model: str, option: str) -> None:
+    """Refuse a model that ``option`` gives tracker ``name`` and that names nothing: no file there, and none of the
+    tracker's built-in models (its options module's ``MODEL_NAMES``: G-flow's face and ellipsoid). It was said
+    "model file not found: nosuch", naming neither the option nor the names there are. A tracker that does not
+    list its built-in models judges a bare word itself; a path that is there (a folder, a file that is no model)
+    is judged by the reader, which names it."""
+    import os
+
+    if os.path.lexists(model):
+        return
+    names = getattr(TRACKERS[name], "MODEL_NAMES", None)
+    if model in (names or ()) or (names is None and model.isidentifier()):
+        return
+    built = f", and not a built-in model of --tracker {name} ({', '.join(names)})" if names else ""
+    raise CliError(f"{option} {model}: model file not found{built}")

@@ -39,6 +39,8 @@ PROPOSAL, FILTER = "proposal", "filter"
 #: ``--model`` names: the built-in face model (the default) and the generic ellipsoid head (its settings:
 #: ``gflow_core.gflow.params.ELLIPSOID``)
 DEFAULT_MODEL, ELLIPSOID = defaults(GFlowParams)["model"], "ellipsoid"
+#: the models ``--model`` names by a word (:func:`pipeline.cli.trackers.check_model`)
+MODEL_NAMES = (DEFAULT_MODEL, ELLIPSOID)
 
 
 def add_args(g) -> None:
@@ -114,8 +116,10 @@ def overrides(args) -> tuple[str, dict[str, dict]]:
     else:
         from gflow_core.gflow import MorphableModel
 
+        from pipeline.cli.trackers import check_model
         from pipeline.io.modelfile import BUILTIN_MODELS, load_model, model_path
 
+        check_model(NAME, model, "--model")
         path = model_path(model)
         obj = load_model(path)  # a missing or corrupt file fails here, before anything starts
         if not isinstance(obj, MorphableModel):

@@ -26,6 +26,8 @@ NAME = "m2"
 PARAMS = M2Params
 #: the built-in graph of a contour model (a patch model runs ``m2_patch``)
 GRAPH = "m2"
+#: no model is built in: ``--model`` names a file (:func:`pipeline.cli.trackers.check_model`)
+MODEL_NAMES: tuple[str, ...] = ()
 
 
 class ModelKind(NamedTuple):
@@ -86,12 +88,14 @@ def overrides(args: Any) -> tuple[str, dict[str, dict]]:
 
     from pipeline.cli.commands.common import CliError
     from pipeline.cli.tracker_options import param_values
+    from pipeline.cli.trackers import check_model
     from pipeline.io.modelfile import load_meta, load_model
 
     if not args.model:
         raise CliError("--tracker m2 needs --model MODEL.npz (learn one with `gflow learn m2`)")
+    check_model(NAME, args.model, "--model")
     path = Path(args.model)
-    model = load_model(path)  # a missing or bad file fails here, before anything starts
+    model = load_model(path)  # a bad file fails here, before anything starts
     if not isinstance(model, M2Model):
         raise CliError(f"{path} holds a {type(model).__name__}, not an M2 model")
     check_kind(args, model.kind, path)
