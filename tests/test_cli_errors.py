@@ -1072,6 +1072,22 @@ def test_a_set_of_a_stage_the_graph_lacks_names_the_option(tmp_path: Path, frame
     assert r.returncode == 2 and sorted(p.name for p in tmp_path.iterdir()) == ["data"], "nothing written"
 
 
+@pytest.mark.parametrize("item,named", [
+    ("tracker.x=1", "the graph demo has no tracker block, and its stage filter has no parameter 'x'; set a stage's "
+                    "parameter with --set STAGE.PARAM=VALUE (its stages: source, preprocess, proposal, filter, render, "
+                    "recorder)"),
+    ("tracker.particles=0", "particles must be >= 1, got 0"),
+])
+def test_a_tracker_set_of_a_graph_without_a_tracker_block_names_the_option(tmp_path: Path, item: str,
+                                                                          named: str) -> None:
+    """``gflow run demo --set tracker.x=1`` (the demo graph has no tracker block: tracker.PARAM goes to its stage
+    filter) said "/.../pipeline/graphs/demo.yaml:26: stage 'filter': bad parameter for stage kind 'particle.filter':
+    no parameter 'x' (known parameters: ...)", quoting a file the user never named."""
+    r = gflow("run", "demo", "--inline", "--set", item, cwd=tmp_path)
+    line = assert_one_line_error(r, f"gflow run: error: --set {item}: {named}")
+    assert r.returncode == 2 and "demo.yaml" not in line and not list(tmp_path.iterdir()), line
+
+
 @pytest.mark.parametrize("argv,named", [
     (["benchmark", "data", "--trackers", "dcf", "--inline", "-q", "--frames", "7:9"],
      "--frames 7:9: data/s/groundtruth.csv has no box for frame 7, the first frame to track (its boxes: frames 0..4)"),
