@@ -10,6 +10,7 @@ scene made once (``gflow demo --inline``) and copies of it cut, flipped or rewri
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 from pathlib import Path
 
@@ -277,6 +278,34 @@ def test_render_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path, ou
     r = gflow("render", str(rec / "demo.mcap"), out, "--scale", "1000", cwd=tmp_path)
     one_line_error(r, "--scale 1000", "320x240", "at most 102", rc=2)
     assert not list(tmp_path.iterdir())
+
+
+# -- ranges partly past the input ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("args,said", [
+    (["render", "demo.mcap", "v.mp4", "-q", "--frames", "5:12"], "--frames 5:12: demo.mcap holds frames 0..7; drawing 5..7"),
+    (["replay", "demo.mcap", "--max", "--to-seq", "12"], "--to-seq 12: demo.mcap holds frames 0..7; replaying 0..7"),
+    (["replay", "demo.mcap", "--max", "--from-seq", "5", "--to-seq", "12"],
+     "--from-seq 5 --to-seq 12: demo.mcap holds frames 0..7; replaying 5..7"),
+    (["replay", "demo.mcap", "--max", "--end", "1000"], "--end 1000: demo.mcap holds 0."),
+])
+def test_a_range_partly_past_the_input_says_what_it_took(rec: Path, tmp_path: Path, args: list[str], said: str) -> None:
+    """A range running past the last frame was clipped without a word (exit 0): `gflow render --frames 5:12` of 8
+    frames drew 3 and said "drew 3 frames", as if the rest were not asked for; replay --to-seq and --end
+    likewise. A note now names the option, what the input holds and what was taken; the exit is still 0,
+    and a range within the input says nothing."""
+    (tmp_path / "demo.mcap").write_bytes((rec / "demo.mcap").read_bytes())
+    r = gflow(*args, cwd=tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    notes = [ln for ln in r.stderr.splitlines() if ln.startswith("note: ")]
+    assert len(notes) == 1 and notes[0].startswith(f"note: {said}"), r.stderr
+    if "--end" in args:  # the recording's length, and the part replayed: all of it
+        assert re.fullmatch(r"note: --end 1000: demo\.mcap holds (\d+\.\d{3}) s; replaying 0\.000\.\.\1 s", notes[0]), notes
+    inside = [a.replace("12", "8").replace("1000", "0.01") for a in args]
+    inside = [a.replace("v.mp4", "w.mp4") for a in inside]
+    r = gflow(*inside, cwd=tmp_path)
+    assert r.returncode == 0 and "note: " not in r.stderr, r.stderr
 
 
 # -- gflow eval --------------------------------------------------------------------------------------------

@@ -385,14 +385,61 @@ def _window(opts: ReplayOptions) -> str:
 
 
 def _held(records: list) -> str:
-    """What a recording's ``records`` span, as a replay window names it: its frames (the sequence numbers of its
-    Frame messages), or, with none recorded, the sequence numbers of its messages (a stage's output for frame k
-    may carry k + 1: the particles it sends on for the next frame)."""
+    """What a recording's ``records`` span, as a replay window names it (:func:`_span`)."""
+    unit, seqs = _span(records)
+    if unit == "frames":
+        return f"frames {min(seqs)}..{max(seqs)}"
+    return f"no frame; the messages chosen carry sequence numbers {min(seqs)}..{max(seqs)}"
+
+
+def _span(records: list) -> tuple[str, list[int]]:
+    """What ``records`` span, as a replay window counts it: ("frames", the sequence numbers of their Frame
+    messages), or, with none, ("sequence numbers", those of their messages; [0] for none): a stage's output for
+    frame k may carry k + 1 (the particles it sends on for the next frame)."""
     frames = [r.seq for r in records if r.type == "Frame"]
     if frames:
-        return f"frames {min(frames)}..{max(frames)}"
-    seqs = [r.seq for r in records if r.type != "EndOfStream"] or [0]
-    return f"no frame; the messages chosen carry sequence numbers {min(seqs)}..{max(seqs)}"
+        return "frames", frames
+    return "sequence numbers", [r.seq for r in records if r.type != "EndOfStream"] or [0]
+
+
+def _chosen(path: str, records: list, opts: ReplayOptions) -> list:
+    """The ``records`` in the window ``opts`` asks for (the end of stream marks whatever their frames); a window
+    that selects no message is a ValueError naming it and what the recording holds."""
+    t_first = min(r.log_ns for r in records)
+    keep = []
+    for r in records:
+        rel = (r.log_ns - t_first) / 1e9
+        if opts.start_s is not None and rel < opts.start_s or opts.end_s is not None and rel >= opts.end_s:
+            continue
+        if r.type != "EndOfStream" and (opts.start_seq is not None and r.seq < opts.start_seq
+                                        or opts.end_seq is not None and r.seq >= opts.end_seq):
+            continue
+        keep.append(r)
+    if all(r.type == "EndOfStream" for r in keep):  # a window that selects no message is a mistyped one
+        raise ValueError(f"{path}: no message in the chosen window ({_window(opts)}); it holds {_held(records)} over "
+                         f"{(max(r.log_ns for r in records) - t_first) / 1e9:.3f} s")
+    return keep
+
+
+def _note_window_past(path: str, records: list, keep: list, opts: ReplayOptions) -> None:
+    """A line on stderr for each part of the window ``opts`` that runs past what ``records`` span: --from-seq
+    before their first frame or --to-seq past their last (:func:`_span`), --end past their last message's time;
+    said with what ``keep`` replays (a window clipped to the recording was replayed without a word)."""
+    from pipeline.cli.commands.common import range_note, range_past_note, say_notes
+
+    unit, held = _span(records)
+    took = _span(keep)
+    asked = [f"{name} {v}" for name, v in (("--from-seq", opts.start_seq), ("--to-seq", opts.end_seq)) if v is not None]
+    if asked and took[0] == unit:
+        start = min(held) if opts.start_seq is None else opts.start_seq
+        say_notes(range_past_note(" ".join(asked), (start, opts.end_seq), path, (min(held), max(held)),
+                                  (min(took[1]), max(took[1])), "replaying", unit))
+    t_first = min(r.log_ns for r in records)
+    last = (max(r.log_ns for r in records) - t_first) / 1e9
+    if opts.end_s is not None and opts.end_s > last:
+        rel = [(r.log_ns - t_first) / 1e9 for r in keep]
+        say_notes(range_note(f"--end {opts.end_s:g}", path, f"{last:.3f} s",
+                             f"replaying {min(rel):.3f}..{max(rel):.3f} s"))
 
 
 @dataclass
@@ -429,19 +476,8 @@ def replay(settings: ZenohSettings, path: str, opts: ReplayOptions, out: TextIO 
         why = damage_cause(path) or torn_cause(path)  # the cut, not taken for what the run recorded
         raise ValueError(f"{path}: nothing to replay" + (f" on {opts.topics}" if opts.topics else "")
                          + (f": {why}" if why else ""))
-    t_first = min(r.log_ns for r in records)
-    keep = []
-    for r in records:
-        rel = (r.log_ns - t_first) / 1e9
-        if opts.start_s is not None and rel < opts.start_s or opts.end_s is not None and rel >= opts.end_s:
-            continue
-        if r.type != "EndOfStream" and (opts.start_seq is not None and r.seq < opts.start_seq
-                                        or opts.end_seq is not None and r.seq >= opts.end_seq):
-            continue
-        keep.append(r)
-    if all(r.type == "EndOfStream" for r in keep):  # a window that selects no message is a mistyped one
-        raise ValueError(f"{path}: no message in the chosen window ({_window(opts)}); it holds {_held(records)} over "
-                         f"{(max(r.log_ns for r in records) - t_first) / 1e9:.3f} s")
+    keep = _chosen(path, records, opts)
+    _note_window_past(path, records, keep, opts)
     recorded = keep[0].topic.split("/")[1]
     stream = opts.stream or recorded
 

@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link", "chosen_topics",
+__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "range_note", "range_past_note", "say_notes", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link", "chosen_topics",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -180,6 +180,35 @@ def frame_range(text: str | None, option: str = "--frames") -> tuple[int, int | 
         return parse_range(text)
     except ValueError as e:
         raise CliError(f"{option} {text}: {e}") from None
+
+
+def range_note(asked: str, where: str, held: str, took: str) -> str:
+    """The line that says what a range option that runs past its input took: ``note: --frames 19:25: run.mcap
+    holds frames 0..19; drawing 19..19`` (``asked``: the option as typed; ``held``: what ``where`` holds;
+    ``took``: what the command does with the part it took). A range clipped to its input was taken without a
+    word, as though every frame asked for were there; one that takes nothing is an error instead."""
+    return f"note: {asked}: {where} holds {held}; {took}"
+
+
+def range_past_note(asked: str, want: tuple[int, int | None], where: str, held: tuple[int, int],
+                    took: tuple[int, int], verb: str, unit: str = "frames") -> str:
+    """:func:`range_note` when the range ``want`` (start, stop: start <= frame < stop) runs before the first or
+    past the last of the frames ``held`` (first, last) by ``where``; ``took``: the first and last frame taken,
+    said after ``verb`` ("drawing"); ``unit``: what the numbers count. "" when the range lies within them."""
+    (start, stop), (first, last) = want, held
+    if start < first or (stop is not None and stop > last + 1):
+        return range_note(asked, where, f"{unit} {first}..{last}", f"{verb} {took[0]}..{took[1]}")
+    return ""
+
+
+def say_notes(*lines: str) -> None:
+    """Each line that is not empty, on stderr (:func:`range_past_note`'s, once the command's checks are done: a
+    mistake's error is then the one line there)."""
+    import sys
+
+    for line in lines:
+        if line:
+            print(line, file=sys.stderr)
 
 
 def check_outputs(**paths: str | None) -> None:

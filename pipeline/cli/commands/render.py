@@ -6,7 +6,8 @@ import errno
 import sys
 from pathlib import Path
 
-from pipeline.cli.commands.common import CliError, frame_range, positive_int, refuse_dangling_link, video_rate
+from pipeline.cli.commands.common import (CliError, frame_range, positive_int, range_past_note, refuse_dangling_link,
+                                          say_notes, video_rate)
 
 ORDER = 58
 
@@ -64,15 +65,16 @@ def cmd_render(args) -> int:
         why = damage_cause(args.file) or torn_cause(args.file)
         raise CliError(f"{args.file} has no frame with an estimate to draw (it needs Frame and Estimate messages)"
                        + (f": {why}" if why else ""))
-    held = f"frames {seqs[0]}..{seqs[-1]}"
+    held = (seqs[0], seqs[-1])
     seqs = [s for s in seqs if s >= first and (end is None or s < end)]
     if not seqs:
-        raise CliError(f"--frames {args.frames}: no frame to draw; {args.file} holds {held}")
+        raise CliError(f"--frames {args.frames}: no frame to draw; {args.file} holds frames {held[0]}..{held[1]}")
     _refuse_scale_past_any_picture(args, frames, seqs)
     there = [out / f"{s:06d}.png" for s in seqs if not video and (out / f"{s:06d}.png").exists()]
     if there:
         raise CliError(f"{out} already holds {len(there)} of the pictures it would write ({there[0].name}, ...); "
                        f"gflow never writes over a picture: give another folder (or empty it first)")
+    say_notes(range_past_note(f"--frames {args.frames}", (first, end), args.file, held, (seqs[0], seqs[-1]), "drawing"))
     pictures = _pictures(args, frames, est, parts, seqs)
     if video:
         _write_video(out, pictures, args.fps)
