@@ -283,26 +283,40 @@ def test_render_scaled_past_any_picture_is_refused(rec: Path, tmp_path: Path, ou
 # -- ranges partly past the input ---------------------------------------------------------------------------
 
 
+def _boxes_and_points(d: Path) -> None:
+    """gt.csv (boxes of frames 0..7, as demo.mcap's) and ref.npz / pts.csv (face points of frames 0..4)."""
+    (d / "gt.csv").write_text("frame,x,y,w,h\n" + "".join(f"{f},{10 + f},10,20,20\n" for f in range(8)))
+    rng = np.random.default_rng(0)
+    np.savez(d / "ref.npz", landmarks=rng.uniform(0, 100, (5, 468, 2)))
+    (d / "pts.csv").write_text("frame,landmark,x,y\n" + "".join(f"{f},{i},1,2\n" for f in range(5)
+                                                                 for i in (33, 133, 263, 362, 61, 291)))
+
+
 @pytest.mark.parametrize("args,said", [
     (["render", "demo.mcap", "v.mp4", "-q", "--frames", "5:12"], "--frames 5:12: demo.mcap holds frames 0..7; drawing 5..7"),
     (["replay", "demo.mcap", "--max", "--to-seq", "12"], "--to-seq 12: demo.mcap holds frames 0..7; replaying 0..7"),
     (["replay", "demo.mcap", "--max", "--from-seq", "5", "--to-seq", "12"],
      "--from-seq 5 --to-seq 12: demo.mcap holds frames 0..7; replaying 5..7"),
     (["replay", "demo.mcap", "--max", "--end", "1000"], "--end 1000: demo.mcap holds 0."),
+    (["eval", "--gt", "gt.csv", "--pred", "gt.csv", "--frames", "5:12"], "--frames 5:12: gt.csv holds frames 0..7; "
+                                                                        "scoring 5..7"),
+    (["eval", "--landmarks", "ref.npz", "--points", "pts.csv", "--frames", "3:9"],
+     "--frames 3:9: ref.npz holds frames 0..4; scoring 3..4"),
 ])
 def test_a_range_partly_past_the_input_says_what_it_took(rec: Path, tmp_path: Path, args: list[str], said: str) -> None:
     """A range running past the last frame was clipped without a word (exit 0): `gflow render --frames 5:12` of 8
-    frames drew 3 and said "drew 3 frames", as if the rest were not asked for; replay --to-seq and --end
-    likewise. A note now names the option, what the input holds and what was taken; the exit is still 0,
+    frames drew 3 and said "drew 3 frames", as if the rest were not asked for; replay --to-seq and --end, and eval
+    --frames, likewise. A note now names the option, what the input holds and what was taken; the exit is still 0,
     and a range within the input says nothing."""
     (tmp_path / "demo.mcap").write_bytes((rec / "demo.mcap").read_bytes())
+    _boxes_and_points(tmp_path)
     r = gflow(*args, cwd=tmp_path)
     assert r.returncode == 0 and "Traceback" not in r.stderr, (r.returncode, r.stderr)
     notes = [ln for ln in r.stderr.splitlines() if ln.startswith("note: ")]
     assert len(notes) == 1 and notes[0].startswith(f"note: {said}"), r.stderr
     if "--end" in args:  # the recording's length, and the part replayed: all of it
         assert re.fullmatch(r"note: --end 1000: demo\.mcap holds (\d+\.\d{3}) s; replaying 0\.000\.\.\1 s", notes[0]), notes
-    inside = [a.replace("12", "8").replace("1000", "0.01") for a in args]
+    inside = [a.replace("12", "8").replace("1000", "0.01").replace("3:9", "3:5") for a in args]
     inside = [a.replace("v.mp4", "w.mp4") for a in inside]
     r = gflow(*inside, cwd=tmp_path)
     assert r.returncode == 0 and "note: " not in r.stderr, r.stderr

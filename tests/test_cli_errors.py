@@ -987,6 +987,29 @@ def test_learn_m2_frame_range_past_the_end_names_its_option(tmp_path: Path, fram
     assert r.returncode == 2 and not (tmp_path / "m.npz").exists()
 
 
+@pytest.mark.parametrize("argv,said", [
+    (["learn", "m2", "data/s/frames", "-K", "2", "--out", "m.npz", "-q", "--frames", "1:9"],
+     "--frames 1:9: data/s/frames holds frames 0..4; learning from 1..4"),
+    (["learn", "m2", "data/s/frames", "-K", "2", "--out", "m.npz", "-q", "--background-frames", "2:9"],
+     "--background-frames 2:9: data/s/frames holds frames 0..4; the background of 2..4"),
+    (["learn", "gflow", "lm.npz", "-k", "2", "--vertices", "30", "--out", "g.npz", "-q", "--frames", "2:9"],
+     "--frames 2:9: lm.npz holds frames 0..5; learning from 2..5"),
+    (["benchmark", "data", "--trackers", "dcf", "--inline", "-q", "--frames", "1:9"],
+     "--frames 1:9: data/s holds frames 0..4; tracking 1..4"),
+])
+def test_a_frame_range_partly_past_the_source_says_what_it_took(tmp_path: Path, frames: Path, argv: list[str],
+                                                                said: str) -> None:
+    """``--frames 1:9`` of five frames learned from (or tracked) frames 1..4 without a word, exit 0, as though the
+    range had been there: a model's frames or a benchmark's table could be taken for the eight asked for. A note
+    now says the option, the frames the source holds and those taken, once; the exit is still 0."""
+    one_sequence(tmp_path, frames)
+    rng = np.random.default_rng(0)  # a face's points in 6 frames, each a small change of the same shape
+    np.savez(tmp_path / "lm.npz", landmarks=rng.uniform(0, 100, (1, 468, 3)) + rng.normal(0, 1, (6, 468, 3)))
+    r = gflow(*argv, cwd=tmp_path)
+    assert r.returncode == 0 and "Traceback" not in r.stderr, (r.returncode, r.stderr)
+    assert [ln for ln in r.stderr.splitlines() if ln.startswith("note: ")] == [f"note: {said}"], r.stderr
+
+
 def _letters_file(path: Path) -> Path:
     """A small AVLetters speaker file: letters A, B, C in repetition 1, B, C in repetition 2, six 12x16 frames each."""
     rng = np.random.default_rng(0)

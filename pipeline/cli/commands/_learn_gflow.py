@@ -41,7 +41,7 @@ def _boxes_for(source: Path, frames: int, box_file: str | None) -> np.ndarray:
 
 
 def cmd_learn_gflow(args) -> int:
-    from pipeline.cli.commands.common import check_model_out, frame_range, start_work
+    from pipeline.cli.commands.common import check_model_out, frame_range, range_past_note, say_notes, start_work
 
     # the options first: a mistyped one fails before the learning's modules (SciPy) are imported
     check_model_out(args.out)
@@ -62,7 +62,7 @@ def cmd_learn_gflow(args) -> int:
     from pipeline.cli.commands.common import refuse_same_source
 
     refuse_same_source([resolve_landmarks(src) for src in args.sources], list(args.sources), "landmark source")
-    tracks, boxes, names, used = [], [], [], []
+    tracks, boxes, names, used, past = [], [], [], [], []
     for i, src in enumerate(args.sources):
         path = resolve_landmarks(src)
         lm = read_landmarks(path, key=args.key, dims=(3,))
@@ -76,10 +76,13 @@ def cmd_learn_gflow(args) -> int:
             boxes.append(_boxes_for(path, lm.shape[0], args.boxes[i] if args.boxes else None)[sel])
         names.append(str(path))  # as given (the shipped model says ../shared/data/..., not this machine's path)
         used.append(f"{frames[0]}:{frames[-1] + 1}")
+        past.append(range_past_note(f"--frames {args.frames}", (start, stop), str(path), (0, lm.shape[0] - 1),
+                                    (int(frames[0]), int(frames[-1])), "learning from"))
         if not args.quiet:
             ok = int(np.isfinite(lm[sel]).all(axis=(1, 2)).sum())
             print(f"read {path}: {lm.shape[1]} landmarks, {frames.size} frames ({ok} with a face)", file=sys.stderr)
     _check_enough(tracks, boxes, args.k, args.frames)
+    say_notes(*past)
     start_work()  # the options and training frames checked: a value the learning refuses is its failure (exit 1)
     try:
         face = learn_morphable(tracks, k=args.k, n_vertices=n_vertices, boxes=boxes if boxes else None)

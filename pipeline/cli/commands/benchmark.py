@@ -21,8 +21,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.cli.trackers import TRACKERS, spec_of
-from pipeline.cli.commands.common import (CliError, check_new_picture, frame_range, nonnegative_int,
-                                          refuse_dangling_link, start_work, whole_number)
+from pipeline.cli.commands.common import (CliError, check_new_picture, frame_range, nonnegative_int, range_past_note,
+                                          refuse_dangling_link, say_notes, source_frames, start_work, whole_number)
 
 if TYPE_CHECKING:  # imported where used: the application layer is not needed to parse the options
     from pipeline.app import TrackRequest
@@ -418,6 +418,20 @@ def _first_frames(args, seqs, first_frame: int) -> dict[str, int]:
     return first
 
 
+def _frames_past(args, seqs, first: dict[str, int], stop: int | None) -> list[str]:
+    """A note for each sequence whose frames end before B of ``--frames A:B``, with the frames it tracks
+    (:func:`range_past_note`): a run of fewer frames was reported as though every frame asked for had been there."""
+    if stop is None:
+        return []
+    lines = []
+    for seq in seqs:
+        n = source_frames(seq.path)
+        if n and first[seq.name] < n:
+            lines.append(range_past_note(f"--frames {args.frames}", (first[seq.name], stop), str(seq.path), (0, n - 1),
+                                         (first[seq.name], n - 1), "tracking"))
+    return lines
+
+
 def cmd_benchmark(args) -> int:
     from pipeline.evaluation.sequence_benchmark import find_sequences, note
     from pipeline.runtime.versions import versions
@@ -475,6 +489,7 @@ def cmd_benchmark(args) -> int:
         start_work()  # every check done: a bad value met from here on is the benchmark failing (exit 1)
         for s in skipped:  # once every check has passed: a mistake's error is the one line on stderr
             note(s)
+        say_notes(*_frames_past(args, seqs, first, stop))
         count = [0, len(kinds) * len(seeds) * (len(check[0]) + len(seqs) * len(cv_run))]
         for kind, variant in kinds:
             if several:

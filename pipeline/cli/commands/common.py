@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "range_note", "range_past_note", "say_notes", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link", "chosen_topics",
+__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "range_note", "range_past_note", "say_notes", "source_frames", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link", "chosen_topics",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -209,6 +209,20 @@ def say_notes(*lines: str) -> None:
     for line in lines:
         if line:
             print(line, file=sys.stderr)
+
+
+def source_frames(source: str | os.PathLike) -> int | None:
+    """How many frames (0..n-1) an image folder (or a dataset folder with frames/) or a video holds, when it can
+    be known without decoding them; None otherwise (an AVLetters file's frames are chosen by utterance)."""
+    from stages.source import SourceParams
+
+    from pipeline.io.datasets import resolve_source
+    from pipeline.io.frame_readers import count_frames
+
+    kind, path = resolve_source(source)
+    if kind == "avletters":
+        return None
+    return count_frames(SourceParams(kind=kind, path=str(path))) or None
 
 
 def check_outputs(**paths: str | None) -> None:

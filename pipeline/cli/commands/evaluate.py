@@ -7,7 +7,7 @@ ORDER = 30
 import argparse
 import json
 
-from pipeline.cli.commands.common import CliError, frame_range
+from pipeline.cli.commands.common import CliError, frame_range, range_past_note, say_notes
 
 
 def overlap_threshold(text: str) -> float:
@@ -33,10 +33,7 @@ def cmd_eval_landmarks(args) -> int:
         raise CliError("--landmarks REF.npz and --points P.csv go together")
     ref = read_landmarks(args.landmarks)
     pts = read_points(args.points)
-    frames = None
-    if args.frames:
-        lo, hi = frame_range(args.frames)
-        frames = range(lo, ref.shape[0] if hi is None else min(hi, ref.shape[0]))
+    frames, past = _reference_frames(args, ref.shape[0])
     try:
         s = landmark_score(ref, pts, frames=frames)
     except ValueError as e:
@@ -48,6 +45,7 @@ def cmd_eval_landmarks(args) -> int:
         raise CliError(f"no frame has both reference landmarks ({args.landmarks}: frames 0..{ref.shape[0] - 1}) and "
                        f"tracked points ({args.points}: frames {min(pts)}..{max(pts)})"
                        + (f" in --frames {args.frames}" if args.frames else "") + "; are the frame numbers aligned?")
+    say_notes(past)
     if args.json:
         print(json.dumps(s.to_json()))
     else:
@@ -56,6 +54,34 @@ def cmd_eval_landmarks(args) -> int:
               f"{NORMALISING_PAIR[0]}-{NORMALISING_PAIR[1]} distance): {s.nme:.4f}")
         print(f"landmark error: {s.px:.2f} px")
     return 0
+
+
+def _reference_frames(args, n: int) -> tuple[range | None, str]:
+    """The frames of the ``n`` reference landmarks that ``--frames`` chooses (None: every one), and the note of a range
+    that runs past them (:func:`range_past_note`; "" when none)."""
+    if not args.frames:
+        return None, ""
+    lo, hi = frame_range(args.frames)
+    frames = range(lo, n if hi is None else min(hi, n))
+    if not frames:  # said by the scoring: no frame with the scored landmarks in --frames
+        return frames, ""
+    return frames, range_past_note(f"--frames {args.frames}", (lo, hi), args.landmarks, (0, n - 1),
+                                   (frames[0], frames[-1]), "scoring")
+
+
+def _chosen_truth(args, truth):
+    """The ground truth of the frames ``--frames`` chooses (all without it), and the note of a range that runs past
+    the truth's frames (:func:`range_past_note`; "" when none); a range holding none of them is a CliError."""
+    if not args.frames:
+        return truth, ""
+    lo, hi = frame_range(args.frames)
+    held = truth.boxes.keys() | truth.empty
+    truth = truth.frames(lo, hi)
+    took = truth.boxes.keys() | truth.empty
+    if not took:
+        raise CliError(f"no ground-truth frame in --frames {args.frames}")
+    return truth, range_past_note(f"--frames {args.frames}", (lo, hi), args.gt, (min(held), max(held)),
+                                  (min(took), max(took)), "scoring")
 
 
 def cmd_eval(args) -> int:
@@ -70,11 +96,7 @@ def cmd_eval(args) -> int:
     truth, boxes = read_scored_boxes(args.gt), read_scored_boxes(args.pred)  # damage said before any scoring
     from gflow_core.evaluation.metrics import band_text  # here: a missing or damaged file is said without numpy
 
-    if args.frames:
-        lo, hi = frame_range(args.frames)
-        truth = truth.frames(lo, hi)
-        if not (truth.boxes or truth.empty):
-            raise CliError(f"no ground-truth frame in --frames {args.frames}")
+    truth, past = _chosen_truth(args, truth)
     gt, pred = truth.boxes, boxes.boxes  # the rows of no box left out: absent targets, failed predictions
     absent = len(truth.empty)
     if not gt:
@@ -86,6 +108,7 @@ def cmd_eval(args) -> int:
     states = _state_score(args, gt, pred, read_track(args.pred, allow_nan=True)) if args.visibility else None
     s = _score(gt, pred, failed, args.threshold)
     split = _split(gt, pred)
+    say_notes(past)  # once the checks are done: a mistake's error is the one line on stderr
     if args.json:
         extra: dict[str, float | int | None] = {"absent_frames": absent, "empty_predictions": failed,
                                                 **{k: round(v, 4) for k, v in split.items()}}

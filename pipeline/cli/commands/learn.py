@@ -32,7 +32,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
 from pipeline.cli.commands.common import (CliError, nonnegative_float, nonnegative_int, positive_float, positive_int,
-                                          whole_number)
+                                          range_past_note, say_notes, source_frames, whole_number)
 
 if TYPE_CHECKING:  # numpy is imported where used: the command's options and --help need none
     import numpy as np
@@ -237,31 +237,30 @@ def training_set(args):
     return ts, meta, g_all
 
 
-def _read_frames_of(path, start: int, stop: int | None, option: str, given: str | None):
+def _read_frames_of(path, start: int, stop: int | None, option: str, given: str | None, verb: str = ""):
     """:func:`pipeline.io.datasets.read_frames` of ``start:stop``; a range with no frame decoded is an error naming
-    ``option`` when the user gave it (``given``), so that --frames and --background-frames are told apart."""
+    ``option`` when the user gave it (``given``), so that --frames and --background-frames are told apart. With
+    ``verb`` ("learning from"), a range the user gave that runs past the source's frames is said with the frames
+    read (:func:`range_past_note`): they were learned from as though the range had been there."""
     from pipeline.io.datasets import read_frames
 
     try:
-        return read_frames(path, start, stop)
+        seq = read_frames(path, start, stop)
     except ValueError as e:
         if given:
             raise CliError(f"{option} {given}: {e}{_frames_there(path)}") from None
         raise
+    n = source_frames(path) if given and verb else None
+    if n:
+        say_notes(range_past_note(f"{option} {given}", (start, stop), str(path), (0, n - 1),
+                                  (int(seq.frame_index[0]), int(seq.frame_index[-1])), verb))
+    return seq
 
 
 def _frames_there(source: str | Path) -> str:
     """`` (it has 10 frames: 0..9)`` of an image folder or video whose length is known, for a range that read none
     of them ("" otherwise)."""
-    from stages.source import SourceParams
-
-    from pipeline.io.datasets import resolve_source
-    from pipeline.io.frame_readers import count_frames
-
-    kind, path = resolve_source(source)
-    if kind == "avletters":  # its frames are chosen by utterance, not read by range
-        return ""
-    n = count_frames(SourceParams(kind=kind, path=str(path)))
+    n = source_frames(source)  # None for an AVLetters file: its frames are chosen by utterance, not read by range
     return f" (it has {n} frames: 0..{n - 1})" if n else ""
 
 
@@ -296,7 +295,7 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
     else:
         if args.reps or args.letters:
             raise CliError("--reps and --letters select AVLetters utterances; the source is not an .npz file")
-        seq = _read_frames_of(path, start, stop, "--frames", args.frames)
+        seq = _read_frames_of(path, start, stop, "--frames", args.frames, "learning from")
         for i, why in seq.skipped:  # damaged input is said even with -q (which silences progress)
             print(f"warning: frame {i} skipped: {why}", file=sys.stderr, flush=True)
     meta["frames"] = f"{int(seq.frame_index[0])}:{int(seq.frame_index[-1]) + 1}"
@@ -315,7 +314,7 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
                 raise CliError("--background-frames needs a video or an image folder")
             b0, b1 = parse_range(args.background_frames)
             bg = training.median_background(_read_frames_of(path, b0, b1, "--background-frames",
-                                                            args.background_frames).frames)
+                                                            args.background_frames, "the background of").frames)
             meta["background_frames"] = args.background_frames
         else:
             bg = training.median_background(seq.frames)
