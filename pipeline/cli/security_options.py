@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from pipeline.cli.endpoints import parse_endpoint
+from pipeline.io.text_files import read_text
 
 if TYPE_CHECKING:  # imported where used: a command's options are added without hashlib, ssl and secrets
     from pipeline.runtime.security import Security
@@ -68,7 +69,7 @@ def _load_file(path: str) -> dict:
 
     p = Path(path)
     try:
-        data = yaml.safe_load(p.read_text())
+        data = yaml.safe_load(read_text(p, "security file", _refused))
     except FileNotFoundError:
         raise _refused(f"security file not found: {path}") from None
     except IsADirectoryError:
@@ -143,7 +144,7 @@ def apply_security(args) -> Security | None:
     password = ""
     if pw_file:
         try:
-            password = Path(pw_file).read_text().strip()
+            password = read_text(pw_file, "password file", _refused).strip()
         except OSError as e:
             raise _refused(f"password file {pw_file}: {e.strerror or e}") from None
         if not password:

@@ -628,7 +628,9 @@ def load_graph(path: str | Path, overrides: dict[str, dict] | None = None, base_
                              f"{', '.join(builtin_graphs())})")
         else:
             raise GraphError(f"graph file not found: {path} (built-in graphs: {', '.join(builtin_graphs())})")
-    return parse_graph(p.read_text(), str(p), base_dir or ".", overrides)
+    from pipeline.io.text_files import read_text
+
+    return parse_graph(read_text(p, "graph file", GraphError), str(p), base_dir or ".", overrides)
 
 
 def builtin_graphs() -> list[str]:

@@ -35,6 +35,7 @@ import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from pipeline.io.text_files import read_text
 from pipeline.runtime.security import SecurityError, check_pem_files
 
 __all__ = ["RouterConfig", "RouterConfigError", "load_router_config", "acl_config", "zenoh_config", "Router"]
@@ -120,7 +121,7 @@ def _read_router_file(path: str) -> tuple[dict, Path]:
     import yaml
 
     try:
-        data = yaml.safe_load(Path(path).read_text()) or {}
+        data = yaml.safe_load(read_text(path, "router config", RouterConfigError)) or {}
     except FileNotFoundError:
         raise RouterConfigError(f"router config not found: {path}") from None
     except OSError as e:
@@ -277,7 +278,7 @@ def _endpoint(e: str, where: str) -> str:
 def _read_users(path: str) -> dict[str, str]:
     users: dict[str, str] = {}
     try:
-        lines = Path(path).read_text().splitlines()
+        lines = read_text(path, "users file", RouterConfigError).splitlines()
     except OSError as e:
         raise RouterConfigError(f"users file {path}: {e.strerror or e}") from None
     for i, line in enumerate(lines, 1):

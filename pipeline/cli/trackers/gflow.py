@@ -154,7 +154,9 @@ def make_plan(graph: str, over: dict[str, dict]) -> Plan:
         if not p.is_file():
             raise GraphError(f"{graph} is a folder, not a graph file" if Path(graph).is_dir()
                              else f"graph file not found: {graph}")
-    return parse_graph(sharded_graph_text(p.read_text(), shards, str(p)), f"{p} ({shards} proposal shards)", ".",
+    from pipeline.io.text_files import read_text
+
+    return parse_graph(sharded_graph_text(read_text(p, "graph file", GraphError), shards, str(p)), f"{p} ({shards} proposal shards)", ".",
                        shard_overrides(over, shards))
 
 
