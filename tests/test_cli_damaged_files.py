@@ -36,3 +36,22 @@ def test_a_security_file_through_which_a_password_file_that_is_not_text_is_named
     (tmp_path / "security.yaml").write_text("user: u\npassword_file: pw.bin\n")
     r = gflow("run", "demo", "--inline", "--security", "security.yaml", cwd=tmp_path)
     assert_one_line_error(r, "pw.bin", "not a password file")
+
+
+#: a graph of one source stage; ``{}`` the place of a changed line
+GRAPH = "name: g\nstream: s\nstages:\n  source:\n    kind: source\n    params: {kind: synthetic, frames: 2}\n"
+
+
+@pytest.mark.parametrize("old, new, said", [
+    ("kind: source", "kind: [source]", ":5: stage 'source': unknown stage kind ['source']"),
+    ("kind: source", "kind: {a: 1}", ":5: stage 'source': unknown stage kind {'a': 1}"),
+    ("params: {kind: synthetic, frames: 2}", "params: [1, 2]", ":6: stage 'source': params must be a mapping"),
+    ("params: {kind: synthetic, frames: 2}", "params: 5", ":6: stage 'source': params must be a mapping"),
+    ("name: g", "name: [g]", ":1: name must be a word or a number, got ['g']"),
+    ("stream: s", "stream: {a: 1}", ":2: stream must be a word or a number"),
+])
+def test_a_graph_value_of_the_wrong_type_is_named_by_its_line(tmp_path: Path, old: str, new: str, said: str) -> None:
+    """A list or a mapping where a graph has a name: "internal error: TypeError: unhashable type: 'list'" for a
+    stage's kind, another for its params; a list for the graph's name named the run "['g']"."""
+    (tmp_path / "g.yaml").write_text(GRAPH.replace(old, new))
+    assert_one_line_error(gflow("run", "g.yaml", "--inline", "--no-record", cwd=tmp_path), "g.yaml" + said)

@@ -364,8 +364,8 @@ def _check_top_level(doc: dict, filename: str, overrides: dict[str, dict]) -> tu
     if on_host_lost not in ON_HOST_LOST:
         raise GraphError(f"{filename}:{_line(doc, 'on_host_lost')}: on_host_lost must be stop or wait, "
                          f"got {on_host_lost!r}")
-    name = str(doc.get("name", Path(filename).stem))
-    stream = str(doc.get("stream", "cam0"))
+    name = _name_of(doc, "name", Path(filename).stem, filename)
+    stream = _name_of(doc, "stream", "cam0", filename)
     try:
         topic_key(stream, "x")
     except ValueError as e:
@@ -402,7 +402,7 @@ def _stage_kind(sname: str, spec: Any, where: str, filename: str) -> str:
         raise GraphError(f"{filename}:{_line(spec, k)}: stage {sname!r}: unknown key {k!r} "
                          f"(expected {', '.join(sorted(_STAGE_KEYS))})")
     kind = spec.get("kind")
-    if kind != RECORDER_KIND and kind not in STAGES:
+    if not isinstance(kind, str) or (kind != RECORDER_KIND and kind not in STAGES):  # a list or mapping: no name
         known = ", ".join(sorted([*STAGES, RECORDER_KIND]))
         raise GraphError(f"{filename}:{_line(spec, 'kind')}: stage {sname!r}: unknown stage kind {kind!r} (known: {known})")
     assert isinstance(kind, str)  # the recorder's kind or a registered one
@@ -479,6 +479,24 @@ def _tracker_preprocess(block: TrackerBlock) -> dict[str, Any]:
     return dict(get(block.name).preprocess) if is_main_class(block) else {}
 
 
+def _name_of(doc: dict, key: str, default: str, filename: str) -> str:
+    """The graph's ``name`` or ``stream``: a word or a number, not a list or a mapping (whose text, "['demo']",
+    would have named the run and its topics)."""
+    v = doc.get(key, default)
+    if isinstance(v, (list, dict)) or v is None:
+        raise GraphError(f"{filename}:{_line(doc, key)}: {key} must be a word or a number, got {v!r}")
+    return str(v)
+
+
+def _params_doc(sname: str, spec: dict, filename: str) -> dict:
+    """A copy of the ``params`` of stage ``sname`` (none: empty), which must be a mapping of names to values."""
+    params = spec.get("params") or {}
+    if not isinstance(params, dict):
+        raise GraphError(f"{filename}:{_line(spec, 'params')}: stage {sname!r}: params must be a mapping name -> "
+                         f"value, got {params!r}")
+    return dict(params)
+
+
 def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides: dict[str, dict],
                  filename: str, block: TrackerBlock | None = None) -> _ParsedStage:
     """Stage ``sname`` of the graph: its kind, its parameters (with ``overrides`` applied; a stage of
@@ -486,7 +504,7 @@ def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides
     of ``stream`` and its policies."""
     where = f"{filename}:{_line(stages_doc, sname)}"
     kind = _stage_kind(sname, spec, where, filename)
-    params = dict(spec.get("params") or {})
+    params = _params_doc(sname, spec, filename)
     if kind == PREPROCESS_KIND and block is not None:
         params = {**_tracker_preprocess(block), **params}
     params.update(overrides.get(sname, {}))
