@@ -7,8 +7,10 @@ Every case runs the CLI in a process of its own (``tests/cli_fork.py``) on small
 
 from __future__ import annotations
 
+import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from test_cli_errors import assert_one_line_error, frames, gflow  # noqa: F401  (frames: a fixture)
@@ -55,3 +57,54 @@ def test_a_graph_value_of_the_wrong_type_is_named_by_its_line(tmp_path: Path, ol
     stage's kind, another for its params; a list for the graph's name named the run "['g']"."""
     (tmp_path / "g.yaml").write_text(GRAPH.replace(old, new))
     assert_one_line_error(gflow("run", "g.yaml", "--inline", "--no-record", cwd=tmp_path), "g.yaml" + said)
+
+
+@pytest.fixture(scope="module")
+def m2_model(tmp_path_factory) -> tuple[Path, Path]:
+    """An M2 contour model learned on 16 frames of a walking ellipse, and the folder of those frames."""
+    from test_m2_errors import blob_frames, write_folder
+
+    from gflow_core.m2 import training
+    from gflow_core.m2.learn import learn
+    from pipeline.io.modelfile import save_model
+
+    where = tmp_path_factory.mktemp("m2")
+    ts = training.curves_from_background(blob_frames(16), max_points=60)
+    model = save_model(where / "m.npz", learn(ts, "chamfer", K=3), meta={"canny_low": 50.0, "canny_high": 150.0})
+    return model, write_folder(where / "frames", blob_frames(4))
+
+
+def _changed(model: Path, dest: Path, **arrays) -> Path:
+    """``model`` written to ``dest`` with ``arrays`` in place of its own (None: left out)."""
+    with np.load(model, allow_pickle=False) as z:
+        a = {k: z[k] for k in z.files}
+    a.update({k: v for k, v in arrays.items() if v is not None})
+    for k in [k for k, v in arrays.items() if v is None]:
+        del a[k]
+    with open(dest, "wb") as f:
+        np.savez(f, **a)
+    return dest
+
+
+def _track_m2(model: Path, frames_dir: Path, cwd: Path) -> subprocess.CompletedProcess:
+    return gflow("track", str(frames_dir), "--tracker", "m2", "--model", str(model), "--init", "10,25,20,40",
+                 "--out", "o.csv", "--inline", "-q", "--no-record", cwd=cwd)
+
+
+@pytest.mark.parametrize("meta, said", [
+    ({"meta_canny_low": np.array([50.0])}, "canny_low must be a number >= 0 (as gflow learn m2 writes it), got [50.0]"),
+    ({"meta_canny_low": np.array(50 + 0j)}, "canny_low must be a number >= 0"),
+    ({"meta_canny_high": np.array("x")}, "canny_high must be a number >= 0 (as gflow learn m2 writes it), got 'x'"),
+    ({"meta_canny_high": np.array(np.nan)}, "canny_high must be a number >= 0"),
+    ({"meta_canny_low": np.array(-1.0)}, "canny_low must be a number >= 0"),
+    ({"meta_canny_low": np.array(200.0)}, "canny_low 200 above canny_high 150"),
+    ({"meta_canny_high": None}, "canny_low without canny_high"),
+    ({"meta_blur": np.array(np.inf)}, "blur must be a number >= 0"),
+])
+def test_an_m2_models_edge_settings_are_checked_before_tracking(tmp_path: Path, m2_model: tuple[Path, Path],
+                                                                  meta: dict, said: str) -> None:
+    """The Canny thresholds and blur an M2 model file keeps: a list or a complex number there was "internal error:
+    TypeError", text an error naming no file, NaN or a negative number a run that found no edge on any frame."""
+    bad = _changed(m2_model[0], tmp_path / "bad.npz", **meta)
+    assert_one_line_error(_track_m2(bad, m2_model[1], tmp_path), "bad.npz: the model's metadata", said)
+    assert not (tmp_path / "o.csv").exists()

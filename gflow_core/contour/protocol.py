@@ -82,11 +82,25 @@ def m2_edge_params(model: M2Model, meta: Mapping[str, Any]) -> EdgeParams:
     thresholds and blur of its file's ``meta`` (when absent, those models are learned with by
     default, :data:`gflow_core.m2.edge_settings.LEARN_EDGES`), as ``gflow track --tracker m2`` sets
     the preprocess stage."""
-    low, high = (float(meta["canny_low"]), float(meta["canny_high"])) if "canny_low" in meta and "canny_high" in meta \
-        else (CANNY_LOW, CANNY_HIGH)
+    if ("canny_low" in meta) != ("canny_high" in meta):  # the defaults for both would stand for the one given
+        raise ValueError(f"the model's metadata has canny_{'low' if 'canny_low' in meta else 'high'} without "
+                         f"canny_{'high' if 'canny_low' in meta else 'low'}: Canny's thresholds are a pair")
+    low, high = _edge_number(meta, "canny_low", CANNY_LOW), _edge_number(meta, "canny_high", CANNY_HIGH)
+    if low > high:
+        raise ValueError(f"the model's metadata has canny_low {low:g} above canny_high {high:g}")
     profile = cast(Literal["quadratic", "truncated", "linear"], model.profile)  # M2Model checks it
     return EdgeParams(profile=profile, g0=float(model.g0), canny_low=low, canny_high=high,
-                      blur=float(meta.get("blur", BLUR)))
+                      blur=_edge_number(meta, "blur", BLUR))
+
+
+def _edge_number(meta: Mapping[str, Any], key: str, default: float) -> float:
+    """The edge setting ``key`` of a model file's metadata (``default`` where it has none): a finite number >= 0,
+    as ``gflow learn m2`` writes it; anything else (text, a list, NaN, a negative number) a ValueError naming it,
+    where it would have failed as a bug or found no edge on any frame."""
+    v = meta.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 <= v < float("inf"):
+        raise ValueError(f"the model's metadata {key} must be a number >= 0 (as gflow learn m2 writes it), got {v!r}")
+    return float(v)
 
 
 class ContourTracker:

@@ -117,7 +117,10 @@ def overrides(args: Any) -> tuple[str, dict[str, dict]]:
     from gflow_core.contour.protocol import m2_edge_params
 
     # the edge settings the model was learned with, read from its file in one place (the Python API's too)
-    edges = m2_edge_params(model, meta)
+    try:
+        edges = m2_edge_params(model, meta)
+    except ValueError as e:  # the file's metadata: a one-line error naming it, before anything starts
+        raise CliError(f"{path}: {e}") from None
     # and the factor that resamples the frame to the model's resolution (applied with preprocess.match_resolution)
     pre = dict(profile=edges.profile, g0=edges.g0, canny_low=edges.canny_low, canny_high=edges.canny_high,
                blur=edges.blur, model_scale=model.match_scale(tuple(box)))
