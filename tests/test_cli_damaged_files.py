@@ -108,3 +108,14 @@ def test_an_m2_models_edge_settings_are_checked_before_tracking(tmp_path: Path, 
     bad = _changed(m2_model[0], tmp_path / "bad.npz", **meta)
     assert_one_line_error(_track_m2(bad, m2_model[1], tmp_path), "bad.npz: the model's metadata", said)
     assert not (tmp_path / "o.csv").exists()
+
+
+def test_an_m2_model_whose_dynamics_diverge_is_refused_before_tracking(tmp_path: Path,
+                                                                        m2_model: tuple[Path, Path]) -> None:
+    """An AR(1) matrix with an eigenvalue above 1 (no learned one has): the run spent minutes on each frame, its
+    particles run off to boxes of every size."""
+    A = -np.ones((4, 4)) - np.eye(4)
+    bad = _changed(m2_model[0], tmp_path / "bad.npz", ar_A=A)
+    r = _track_m2(bad, m2_model[1], tmp_path)
+    assert_one_line_error(r, "bad.npz: M2 model dynamics: ar_A has an eigenvalue of modulus 5 > 1")
+    assert_one_line_error(gflow("info", str(bad), cwd=tmp_path), "bad.npz", "would diverge")

@@ -64,6 +64,17 @@ _PATCH = ("exemplar_patches",)
 _APPEARANCE = ("app_patches", "app_sigma", "app_d")
 
 
+def _stable(dyn: ARDynamics) -> ARDynamics:
+    """``dyn``, unless its transition matrix A has an eigenvalue of modulus above 1: an AR(1) process that diverges,
+    which no learned one does (Yule-Walker's estimate has none; a random walk's A = I has 1), and whose particles
+    run off to boxes of no size or of every size, where a tracker spent minutes on each frame."""
+    radius = float(np.max(np.abs(np.linalg.eigvals(dyn.A))))
+    if radius > 1.0 + 1e-6:
+        raise ValueError(f"ar_A has an eigenvalue of modulus {radius:.3g} > 1: the AR(1) process would diverge "
+                         f"(a learned one has none above 1)")
+    return dyn
+
+
 @dataclass(frozen=True)
 class M2Model:
     """Everything learned by :func:`gflow_core.m2.learn.learn`.
@@ -350,7 +361,8 @@ class M2Model:
             appearance = AppearanceKernels(patches=get("app_patches", "f"), sigma=get("app_sigma", "fiu", (K,)),
                                            d=get("app_d", "fiu", (K,)))
         try:
-            dyn = ARDynamics(A=get("ar_A", "f", (4, 4)), mean=get("ar_mean", "f", (4,)), B=get("ar_B", "f", (4, 4)))
+            dyn = _stable(ARDynamics(A=get("ar_A", "f", (4, 4)), mean=get("ar_mean", "f", (4,)),
+                                     B=get("ar_B", "f", (4, 4))))
         except ValueError as e:
             raise ValueError(f"M2 model dynamics: {e}") from None
         return cls(metric=metric, kernel=str(scal["kernel"]), exemplars=exemplars, d=d,
