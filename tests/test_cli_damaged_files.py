@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from test_cli_errors import assert_one_line_error, frames, gflow  # noqa: F401  (frames: a fixture)
+from test_cli_errors import assert_one_line_error, frames, gflow, one_sequence  # noqa: F401  (frames: a fixture)
 
 #: bytes that are not UTF-8 text: a picture's or a recording's, given for a text file
 NOT_TEXT = bytes(range(256))
@@ -119,3 +119,19 @@ def test_an_m2_model_whose_dynamics_diverge_is_refused_before_tracking(tmp_path:
     r = _track_m2(bad, m2_model[1], tmp_path)
     assert_one_line_error(r, "bad.npz: M2 model dynamics: ar_A has an eigenvalue of modulus 5 > 1")
     assert_one_line_error(gflow("info", str(bad), cwd=tmp_path), "bad.npz", "would diverge")
+
+
+@pytest.mark.parametrize("argv", [
+    ["eval", "--gt", "data/s/groundtruth.csv", "--pred", "good.csv"],
+    ["eval", "--gt", "good.csv", "--pred", "data/s/groundtruth.csv"],
+    ["export", "vot", "data/s", "out"],
+    ["learn", "m2", "data/s/frames", "--boxes", "data/s/groundtruth.csv", "--metric", "l2", "-K", "2", "--out", "m.npz"],
+])
+def test_a_box_beyond_any_image_is_refused_by_its_line(tmp_path: Path, frames: Path, argv: list[str]) -> None:
+    """A box of 1e308 px: eval printed overflow warnings and a score, export vot wrote it, learn m2 said "internal
+    error: OverflowError"."""
+    seq = one_sequence(tmp_path, frames)
+    (tmp_path / "good.csv").write_text((seq / "groundtruth.csv").read_text())
+    (seq / "groundtruth.csv").write_text("frame,x,y,w,h\n0,10,10,1e308,1e308\n1,10,10,20,20\n")
+    assert_one_line_error(gflow(*argv, cwd=tmp_path), "groundtruth.csv:2: box value 1e+308 is beyond any image")
+    assert not (tmp_path / "out").exists() and not (tmp_path / "m.npz").exists()

@@ -23,6 +23,8 @@ __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_col
            "blank_rule", "run_outcome", "RunOutcome", "renumber", "read_run", "RecordedRun"]
 
 Box = tuple[float, float, float, float]
+#: a box value at least this far from 0 is no pixel of any image (OpenCV's sizes and coordinates are 32-bit integers)
+FARTHEST = 2.0**31
 V = TypeVar("V")
 
 
@@ -37,6 +39,9 @@ def _box_row(p: Path, lineno: int, row: list[str], allow_nan: bool) -> tuple[int
     box = (x, y, w, h)
     if any(math.isinf(v) for v in box):
         raise ValueError(f"{p}:{lineno}: box has inf")
+    if any(abs(v) >= FARTHEST for v in box):  # its area or far corner overflowed: warnings, a wrong score, a crash
+        raise ValueError(f"{p}:{lineno}: box value {max(box, key=abs):g} is beyond any image (a box's x, y, w and h "
+                         f"are pixels, within +-2^31)")
     if not allow_nan and any(math.isnan(v) for v in box):
         raise ValueError(f"{p}:{lineno}: box has NaN")
     return frame, box
