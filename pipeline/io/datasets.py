@@ -12,7 +12,6 @@
 from __future__ import annotations
 
 import os
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, Sequence
@@ -23,6 +22,7 @@ import numpy as np
 from stages.source import SourceParams
 
 from pipeline.io.frame_readers import IMAGE_EXTENSIONS, open_reader
+from pipeline.io.npz_files import read_npz
 from pipeline.io.path_errors import MissingPath
 
 __all__ = ["FrameSequence", "read_frames", "resolve_source", "AVLetters", "read_avletters", "select_utterances", "write_frames",
@@ -137,11 +137,7 @@ class AVLetters:
         p = Path(path)
         if not p.is_file():
             raise MissingPath(f"AVLetters file not found: {p}")
-        try:
-            with np.load(p, allow_pickle=False) as d:
-                arrays = {k: np.asarray(d[k]) for k in d.files}
-        except (ValueError, OSError, EOFError, KeyError, zipfile.BadZipFile) as e:
-            raise ValueError(f"{p}: not a readable AVLetters .npz ({type(e).__name__}: {e})") from None
+        arrays = read_npz(p, "AVLetters file")
         need = {"frames", "starts", "letters", "repetitions"}
         if not need <= set(arrays):
             raise ValueError(f"{p}: an AVLetters file needs arrays {sorted(need)}, got {sorted(arrays)}")

@@ -19,12 +19,12 @@ from __future__ import annotations
 import csv
 import math
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from pipeline.io.csv_rows import csv_rows
+from pipeline.io.npz_files import read_npz
 from pipeline.io.path_errors import MissingPath
 
 __all__ = ["LANDMARK_KEY", "resolve_landmarks", "read_landmarks", "read_points", "write_points"]
@@ -65,19 +65,10 @@ def read_landmarks(source: str | os.PathLike, key: str = LANDMARK_KEY, dims: tup
         With a one-line message naming the file and what is wrong.
     """
     p = resolve_landmarks(source)
-    if p.is_file() and not zipfile.is_zipfile(p):  # np.load would take it for a pickle and say so
-        raise ValueError(f"{p}: not a readable landmark file (.npz): it is not a zip archive")
-    try:
-        with np.load(p, allow_pickle=False) as z:
-            if key not in z.files:
-                raise ValueError(f"{p}: no array {key!r} (it holds {', '.join(z.files) or 'nothing'})")
-            a = np.asarray(z[key])
-    except ValueError as e:
-        if str(e).startswith(str(p)):
-            raise
-        raise ValueError(f"{p}: not a readable landmark file (.npz without pickled arrays): {e}") from None
-    except (zipfile.BadZipFile, OSError, EOFError) as e:
-        raise ValueError(f"{p}: not a readable landmark file (.npz): {type(e).__name__}: {e}") from None
+    arrays = read_npz(p, "landmark file")
+    if key not in arrays:
+        raise ValueError(f"{p}: no array {key!r} (it holds {', '.join(arrays) or 'nothing'})")
+    a = arrays[key]
     if a.ndim != 3 or a.shape[2] not in dims or a.shape[1] < 1:
         want = " or ".join(str(d) for d in dims)
         raise ValueError(f"{p}: {key!r} must have shape (frames, landmarks, {want}), got {a.shape}")

@@ -22,15 +22,14 @@ Every problem with a file (missing, truncated or corrupt, pickled arrays, no or 
 
 from __future__ import annotations
 
-import io
 import json
 import os
-import zipfile
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 
+from pipeline.io.npz_files import read_npz
 from pipeline.io.path_errors import FolderForFile, MissingPath
 
 __all__ = ["save_model", "load_model", "load_meta", "read_arrays", "describe", "KINDS", "META_PREFIX",
@@ -138,23 +137,7 @@ def read_arrays(path: str | os.PathLike) -> dict[str, np.ndarray]:
         raise FolderForFile(f"{p} is a folder, not a model file (give an .npz file)")
     if not p.is_file():
         raise MissingPath(f"model file not found: {p}")
-    with open(p, "rb") as f:
-        magic = f.read(4)
-    if magic != b"PK\x03\x04":
-        what = "an empty file" if not magic else ("a single .npy array" if magic.startswith(b"\x93NUM") else
-                                                  "not a zip archive")
-        raise ValueError(f"{p}: not a model file (.npz archive): it is {what}")
-    try:
-        with np.load(p, allow_pickle=False) as npz:
-            # read every member now: a truncated or corrupt member fails here, not later
-            return {k: np.asarray(npz[k]) for k in npz.files}
-    except ValueError as e:
-        if "allow_pickle" in str(e) or "Object arrays" in str(e) or "pickled" in str(e):
-            raise ValueError(f"{p}: holds pickled (object) arrays, which are not accepted in model files") from None
-        raise ValueError(f"{p}: not a readable model file (corrupt or truncated npz: {e})") from None
-    except (zipfile.BadZipFile, EOFError, OSError, KeyError, io.UnsupportedOperation) as e:
-        raise ValueError(f"{p}: not a readable model file (corrupt or truncated npz: "
-                         f"{type(e).__name__}: {e})") from None
+    return read_npz(p, "model file")
 
 
 def _split(path: Path, arrays: dict[str, np.ndarray]) -> tuple[str, dict[str, np.ndarray], dict[str, np.ndarray]]:
