@@ -208,3 +208,15 @@ def test_whatever_the_damage_a_model_or_landmark_file_reads_or_says_why(tmp_path
             assert str(bad) in str(e), e
 
     damaged()
+
+
+@pytest.mark.parametrize("row, said", [("-1,33,5,5", ":3: frame -1: frame and landmark numbers start at 0"),
+                                       ("0,-33,5,5", ":3: landmark -33: frame and landmark numbers start at 0")])
+def test_a_points_row_of_a_negative_frame_or_landmark_is_refused_by_its_line(tmp_path: Path, row: str,
+                                                                           said: str) -> None:
+    """A box file's negative frame was refused, a points file's was left out of the score without a word."""
+    np.savez(tmp_path / "ref.npz", landmarks=np.zeros((1, 468, 3)))
+    good = "".join(f"0,{lm},0,0\n" for lm in (33, 133, 362, 263, 61, 291))
+    (tmp_path / "p.csv").write_text(f"frame,landmark,x,y\n{good.splitlines()[0]}\n{row}\n" + good[good.index("\n") + 1:])
+    assert_one_line_error(gflow("eval", "--landmarks", "ref.npz", "--points", "p.csv", cwd=tmp_path), "p.csv" + said)
+

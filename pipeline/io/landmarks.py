@@ -120,6 +120,9 @@ def read_points(path: str | os.PathLike) -> dict[int, dict[int, tuple[float, flo
             x, y = float(row[2]), float(row[3])
         except ValueError:
             raise ValueError(f"{p}:{lineno}: not numbers: {','.join(row)}") from None
+        if frame < 0 or lm < 0:  # no source has such a frame, no face mesh such a landmark: the row was never scored
+            raise ValueError(f"{p}:{lineno}: {'frame' if frame < 0 else 'landmark'} {frame if frame < 0 else lm}: "
+                             f"frame and landmark numbers start at 0")
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ValueError(f"{p}:{lineno}: point has NaN or inf")
         if (frame, lm) in first:  # the later row would replace the earlier one without a word
