@@ -220,3 +220,13 @@ def test_a_points_row_of_a_negative_frame_or_landmark_is_refused_by_its_line(tmp
     (tmp_path / "p.csv").write_text(f"frame,landmark,x,y\n{good.splitlines()[0]}\n{row}\n" + good[good.index("\n") + 1:])
     assert_one_line_error(gflow("eval", "--landmarks", "ref.npz", "--points", "p.csv", cwd=tmp_path), "p.csv" + said)
 
+
+def test_landmarks_whose_eye_corners_coincide_are_one_line(tmp_path: Path) -> None:
+    """Eye corners 33 and 263 at one place in every frame (a landmark file of another layout, say): numpy's
+    "RuntimeWarning: invalid value encountered in divide" and its source line came before the error."""
+    lm = np.random.default_rng(0).normal(0, 50, (5, 468, 3)) + 200
+    lm[:, 263] = lm[:, 33]
+    np.savez(tmp_path / "lm.npz", landmarks=lm)
+    r = gflow("learn", "gflow", "lm.npz", "--out", "m.npz", "-k", "2", "--vertices", "20", "-q", cwd=tmp_path)
+    assert_one_line_error(r, "the eye corners 33 and 263 coincide")
+    assert not (tmp_path / "m.npz").exists()

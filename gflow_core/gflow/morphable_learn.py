@@ -183,7 +183,11 @@ def frontal_rotation(mean: np.ndarray, frontal: Sequence[int]) -> np.ndarray:
     if min(ea, eb, ma, mb) < 0 or max(ea, eb, ma, mb) >= n:
         raise ValueError(f"frontal landmarks {tuple(frontal)} must lie in [0, {n})")
     x = mean[eb] - mean[ea]
-    x /= np.linalg.norm(x)
+    nx = np.linalg.norm(x)
+    if not np.isfinite(nx) or nx <= 0:  # dividing by it printed numpy's warning before the error below
+        raise ValueError(f"the eye corners {ea} and {eb} coincide in the mean shape: cannot tell which way the face "
+                         f"looks")
+    x /= nx
     y = 0.5 * (mean[ma] + mean[mb]) - 0.5 * (mean[ea] + mean[eb])
     y -= (y @ x) * x
     ny = np.linalg.norm(y)
