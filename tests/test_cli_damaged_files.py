@@ -230,3 +230,22 @@ def test_landmarks_whose_eye_corners_coincide_are_one_line(tmp_path: Path) -> No
     r = gflow("learn", "gflow", "lm.npz", "--out", "m.npz", "-k", "2", "--vertices", "20", "-q", cwd=tmp_path)
     assert_one_line_error(r, "the eye corners 33 and 263 coincide")
     assert not (tmp_path / "m.npz").exists()
+
+
+FACE = Path(__file__).resolve().parent.parent / "pipeline" / "models" / "face.npz"
+
+
+@pytest.mark.parametrize("opt, which, said", [
+    ("--gflow-model", "m2", "holds a model of kind 'm2'; --tracker gflow needs one of kind 'morphable'"),
+    ("--m2-model", "face", "holds a model of kind 'morphable'; --tracker m2 needs one of kind 'm2'"),
+])
+def test_export_vot_refuses_a_model_of_the_other_tracker(tmp_path: Path, frames: Path, m2_model: tuple[Path, Path],
+                                                         opt: str, which: str, said: str) -> None:
+    """An M2 model given to gflow, or the face model to m2, was written into trackers.ini without a word, and found
+    only when the VOT toolkit ran the tracker."""
+    one_sequence(tmp_path, frames)
+    model = m2_model[0] if which == "m2" else FACE
+    r = gflow("export", "vot", "data/s", "out", opt, str(model), cwd=tmp_path)
+    assert_one_line_error(r, f"{opt}: {model} {said}")
+    assert not (tmp_path / "out").exists()
+

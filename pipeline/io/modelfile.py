@@ -33,7 +33,7 @@ from pipeline.io.npz_files import read_npz
 from pipeline.io.path_errors import FolderForFile, MissingPath
 
 __all__ = ["save_model", "load_model", "load_meta", "read_arrays", "describe", "KINDS", "META_PREFIX",
-           "BUILTIN_MODELS", "model_path"]
+           "BUILTIN_MODELS", "model_path", "kind_of"]
 
 #: model kinds a file may hold
 KINDS = ("m2", "morphable")
@@ -52,7 +52,8 @@ def model_path(name: str | os.PathLike, base_dir: str | os.PathLike = ".") -> Pa
     return Path(base_dir, name)
 
 
-def _kind_of(obj: Any) -> str:
+def kind_of(obj: Any) -> str:
+    """The kind (:data:`KINDS`) of a model object: ``"m2"`` for an M2Model, ``"morphable"`` for a MorphableModel."""
     from gflow_core.m2.model import M2Model
 
     if isinstance(obj, M2Model):
@@ -102,7 +103,7 @@ def save_model(path: str | os.PathLike, obj: Any, meta: Mapping[str, Any] | None
     -------
     Path of the written file.
     """
-    kind = _kind_of(obj)
+    kind = kind_of(obj)
     arrays: dict[str, Any] = _to_arrays(obj, kind)  # Any: np.savez's keywords also name its allow_pickle flag
     clash = [k for k in arrays if k == "kind" or k.startswith(META_PREFIX)]
     if clash:
@@ -266,7 +267,7 @@ def describe(path: str | os.PathLike, as_json: bool = False) -> None:
     p = Path(path)
     model = load_model(p)
     meta = load_meta(p)
-    kind = _kind_of(model)
+    kind = kind_of(model)
     info = _describe_m2(model) if kind == "m2" else _describe_morphable(model)
     info = {"file": str(p), "bytes": p.stat().st_size, **info, "meta": meta}
     if as_json:

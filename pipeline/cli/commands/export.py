@@ -45,18 +45,24 @@ def _check_out(out: Path) -> None:
 
 
 def _read_models(args) -> None:
-    """Read each model file given, as the served tracker will: a file that is not a model was written
-    into trackers.ini and found only when the toolkit ran it."""
+    """Read each model file given, as the served tracker will: a file that is not a model, or a model of the other
+    tracker's kind (an M2 model given to gflow), was written into trackers.ini and found only when the toolkit ran
+    it."""
     from pipeline.cli.commands.benchmark import model_given, model_options
-    from pipeline.io.modelfile import load_model
+    from pipeline.cli.trackers import TRACKERS
+    from pipeline.io.modelfile import kind_of, load_model
 
     for name, opt in model_options().items():
         model = model_given(args, name)
         if model and Path(model).is_file():
             try:
-                load_model(model)
+                kind = kind_of(load_model(model))
             except ValueError as e:
                 raise CliError(f"{opt}: {e}") from None
+            want = getattr(TRACKERS[name], "MODEL_KIND", kind)
+            if kind != want:
+                raise CliError(f"{opt}: {model} holds a model of kind {kind!r}; --tracker {name} needs one of kind "
+                               f"{want!r}")
 
 
 def served_trackers(args) -> dict[str, list[str]]:

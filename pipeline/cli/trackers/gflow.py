@@ -41,6 +41,8 @@ PROPOSAL, FILTER = "proposal", "filter"
 DEFAULT_MODEL, ELLIPSOID = defaults(GFlowParams)["model"], "ellipsoid"
 #: the models ``--model`` names by a word (:func:`pipeline.cli.trackers.check_model`)
 MODEL_NAMES = (DEFAULT_MODEL, ELLIPSOID)
+#: the kind of model file ``--model`` gives it (:data:`pipeline.io.modelfile.KINDS`)
+MODEL_KIND = "morphable"
 
 
 def add_args(g) -> None:

@@ -28,6 +28,8 @@ PARAMS = M2Params
 GRAPH = "m2"
 #: no model is built in: ``--model`` names a file (:func:`pipeline.cli.trackers.check_model`)
 MODEL_NAMES: tuple[str, ...] = ()
+#: the kind of model file ``--model`` gives it (:data:`pipeline.io.modelfile.KINDS`)
+MODEL_KIND = "m2"
 
 
 class ModelKind(NamedTuple):
