@@ -7,6 +7,7 @@ is used, not when the registry is read.
 from __future__ import annotations
 
 import dataclasses
+import os
 from typing import Any, Mapping
 
 from .appearance.spec import SPEC as APPEARANCE
@@ -71,7 +72,8 @@ def m2_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tu
       model's training patches were (:func:`~gflow_core.m2.patch_protocol.patch_setup`).
     """
     kw = dict(keywords)
-    model, meta = m2_model(kw.pop("model", None), load)
+    given = kw.pop("model", None)
+    model, meta = m2_model(given, load)
     if model.kind == "patch":
         from .m2.patch_protocol import patch_setup
 
@@ -79,7 +81,11 @@ def m2_setup(spec: TrackerSpec, keywords: Mapping[str, Any], load: Loader) -> tu
     from .contour.protocol import m2_edge_params
 
     # match_resolution: an edge setting (the preprocess stage's in a graph), given here among the keywords
-    edges = dataclasses.replace(m2_edge_params(model, meta), match_resolution=bool(kw.pop("match_resolution", False)))
+    try:
+        edges = m2_edge_params(model, meta)
+    except ValueError as e:  # the file's metadata: named with the file, as the other errors of a model file are
+        raise ValueError(f"{given}: {e}" if isinstance(given, (str, os.PathLike)) else str(e)) from None
+    edges = dataclasses.replace(edges, match_resolution=bool(kw.pop("match_resolution", False)))
     return make(M2Params, kw), {"model": model, "edges": edges}
 
 

@@ -249,3 +249,9 @@ def test_export_vot_refuses_a_model_of_the_other_tracker(tmp_path: Path, frames:
     assert_one_line_error(r, f"{opt}: {model} {said}")
     assert not (tmp_path / "out").exists()
 
+
+def test_trax_names_the_model_file_whose_edge_settings_it_refuses(tmp_path: Path,
+                                                                   m2_model: tuple[Path, Path]) -> None:
+    bad = _changed(m2_model[0], tmp_path / "bad.npz", meta_canny_low=np.array("x"))
+    r = gflow("trax", "--tracker", "m2", "--model", str(bad), cwd=tmp_path, input="")
+    assert_one_line_error(r, f"{bad}: the model's metadata canny_low must be a number >= 0")
