@@ -78,6 +78,15 @@ def check_init(init: tuple[float, float, float, float] | None) -> None:
             raise ValueError(f"init box must have positive width and height, got w={init[2]}, h={init[3]} in {init}")
 
 
+def refuse_nan(values: typing.Mapping[str, Any]) -> None:
+    """``ValueError`` naming the first of ``values`` that is NaN, which no parameter means: a check such as
+    ``x > 0`` is false for it only where written ``not x <= 0``, so a tracker's own checks pass it, and a graph's
+    ``.nan`` failed every frame of the run instead of the graph."""
+    for name, v in values.items():
+        if isinstance(v, float) and math.isnan(v):
+            raise ValueError(f"{name} must be a number, got nan")
+
+
 def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "", *,
                  of_tracker: bool = True, only: tuple[str, ...] | None = None) -> type[F]:
     """The ``msgspec`` struct ``name`` with every field of the dataclass ``tracker`` (type and
@@ -106,7 +115,9 @@ def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: st
     of_tracker = of_tracker and only is None
 
     def __post_init__(self: F) -> None:
-        self.check(tracker(**{f.name: getattr(self, f.name) for f in taken}))
+        values = {f.name: getattr(self, f.name) for f in taken}
+        self.check(tracker(**values))
+        refuse_nan(values)
 
     struct = msgspec.defstruct(name, spec, bases=(fields,), module=module, kw_only=True, frozen=True,
                                forbid_unknown_fields=True,

@@ -255,3 +255,20 @@ def test_trax_names_the_model_file_whose_edge_settings_it_refuses(tmp_path: Path
     bad = _changed(m2_model[0], tmp_path / "bad.npz", meta_canny_low=np.array("x"))
     r = gflow("trax", "--tracker", "m2", "--model", str(bad), cwd=tmp_path, input="")
     assert_one_line_error(r, f"{bad}: the model's metadata canny_low must be a number >= 0")
+
+
+@pytest.mark.parametrize("where, said", [
+    ("tracker: {name: appearance, params: {std_log_s: .nan}}", "g.yaml:14: tracker appearance: std_log_s must be a "
+                                                               "number, got nan"),
+    ("tracker: {name: appearance, params: {scale_step: .nan}}", "scale_step must be a number, got nan"),
+])
+def test_a_graph_parameter_of_nan_is_refused_by_its_line(tmp_path: Path, frames: Path, where: str, said: str) -> None:
+    """``.nan`` where a tracker's own checks do not look: the run failed every frame ("stage_exception: frame 0:
+    ValueError: alpha contains NaN or inf") and exited 0."""
+    graph = (Path(__file__).resolve().parent.parent / "pipeline" / "graphs" / "appearance.yaml").read_text()
+    line = next(ln for ln in graph.splitlines() if ln.startswith("tracker:"))
+    assert graph.splitlines().index(line) == 13
+    (tmp_path / "g.yaml").write_text(graph.replace(line, where))
+    r = gflow("run", "g.yaml", "--inline", "--no-record", "--set", "filter.init=[10,10,20,20]", "--set",
+              "proposal.init=[10,10,20,20]", "--set", f"source.path={frames}", cwd=tmp_path)
+    assert_one_line_error(r, said)
