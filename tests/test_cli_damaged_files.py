@@ -40,7 +40,7 @@ def test_a_security_file_through_which_a_password_file_that_is_not_text_is_named
     assert_one_line_error(r, "pw.bin", "not a password file")
 
 
-#: a graph of one source stage; ``{}`` the place of a changed line
+#: a graph of one source stage, whose lines the cases below change one at a time
 GRAPH = "name: g\nstream: s\nstages:\n  source:\n    kind: source\n    params: {kind: synthetic, frames: 2}\n"
 
 
@@ -125,7 +125,8 @@ def test_an_m2_model_whose_dynamics_diverge_is_refused_before_tracking(tmp_path:
     ["eval", "--gt", "data/s/groundtruth.csv", "--pred", "good.csv"],
     ["eval", "--gt", "good.csv", "--pred", "data/s/groundtruth.csv"],
     ["export", "vot", "data/s", "out"],
-    ["learn", "m2", "data/s/frames", "--boxes", "data/s/groundtruth.csv", "--metric", "l2", "-K", "2", "--out", "m.npz"],
+    ["learn", "m2", "data/s/frames", "--boxes", "data/s/groundtruth.csv", "--metric", "l2", "-K", "2", "--out",
+     "m.npz"],
 ])
 def test_a_box_beyond_any_image_is_refused_by_its_line(tmp_path: Path, frames: Path, argv: list[str]) -> None:
     """A box of 1e308 px: eval printed overflow warnings and a score, export vot wrote it, learn m2 said "internal
@@ -217,7 +218,8 @@ def test_a_points_row_of_a_negative_frame_or_landmark_is_refused_by_its_line(tmp
     """A box file's negative frame was refused, a points file's was left out of the score without a word."""
     np.savez(tmp_path / "ref.npz", landmarks=np.zeros((1, 468, 3)))
     good = "".join(f"0,{lm},0,0\n" for lm in (33, 133, 362, 263, 61, 291))
-    (tmp_path / "p.csv").write_text(f"frame,landmark,x,y\n{good.splitlines()[0]}\n{row}\n" + good[good.index("\n") + 1:])
+    first, rest = good.split("\n", 1)
+    (tmp_path / "p.csv").write_text(f"frame,landmark,x,y\n{first}\n{row}\n{rest}")
     assert_one_line_error(gflow("eval", "--landmarks", "ref.npz", "--points", "p.csv", cwd=tmp_path), "p.csv" + said)
 
 

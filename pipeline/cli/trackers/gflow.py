@@ -158,8 +158,8 @@ def make_plan(graph: str, over: dict[str, dict]) -> Plan:
                              else f"graph file not found: {graph}")
     from pipeline.io.text_files import read_text
 
-    return parse_graph(sharded_graph_text(read_text(p, "graph file", GraphError), shards, str(p)), f"{p} ({shards} proposal shards)", ".",
-                       shard_overrides(over, shards))
+    text = sharded_graph_text(read_text(p, "graph file", GraphError), shards, str(p))
+    return parse_graph(text, f"{p} ({shards} proposal shards)", ".", shard_overrides(over, shards))
 
 
 def sharded_graph_text(text: str, shards: int, filename: str = "<graph>") -> str:
