@@ -274,3 +274,22 @@ def test_a_graph_parameter_of_nan_is_refused_by_its_line(tmp_path: Path, frames:
     r = gflow("run", "g.yaml", "--inline", "--no-record", "--set", "filter.init=[10,10,20,20]", "--set",
               "proposal.init=[10,10,20,20]", "--set", f"source.path={frames}", cwd=tmp_path)
     assert_one_line_error(r, said)
+
+
+@pytest.mark.parametrize("argv, said", [
+    (["eval", "--landmarks", "huge.npz", "--points", "p.csv"], "huge.npz: 'landmarks' has values beyond any image"),
+    (["learn", "gflow", "huge.npz", "--out", "m.npz"], "huge.npz: 'landmarks' has values beyond any image"),
+    (["eval", "--landmarks", "ref.npz", "--points", "huge.csv"], "huge.csv:2: point 1e+308 is beyond any image"),
+])
+def test_landmarks_or_points_beyond_any_image_are_refused(tmp_path: Path, argv: list[str], said: str) -> None:
+    """Landmarks of 1e300 px: numpy's overflow warnings, then "has no frame with the scored landmarks" (eval) or
+    "SVD did not converge" (learn gflow), neither naming the file; points of 1e308 px: "no frame has both reference
+    landmarks and tracked points; are the frame numbers aligned?", as though the frames were at fault."""
+    ref = np.random.default_rng(0).normal(200, 30, (3, 468, 3))
+    np.savez(tmp_path / "ref.npz", landmarks=ref)
+    np.savez(tmp_path / "huge.npz", landmarks=ref * 1e300)
+    rows = "".join(f"{f},{lm},5,5\n" for f in range(3) for lm in (33, 133, 362, 263, 61, 291))
+    (tmp_path / "p.csv").write_text("frame,landmark,x,y\n" + rows)
+    (tmp_path / "huge.csv").write_text("frame,landmark,x,y\n0,33,1e308,5\n" + rows[rows.index("\n") + 1:])
+    assert_one_line_error(gflow(*argv, cwd=tmp_path), said)
+    assert not (tmp_path / "m.npz").exists()

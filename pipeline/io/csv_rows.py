@@ -7,7 +7,11 @@ from pathlib import Path
 
 from pipeline.io.path_errors import FolderForFile, MissingPath
 
-__all__ = ["csv_rows"]
+__all__ = ["csv_rows", "FARTHEST"]
+
+#: a coordinate at least this far from 0 is no pixel of any image (OpenCV's sizes and coordinates are 32-bit
+#: integers); the readers of boxes, points and landmarks refuse it, whose area or distances would overflow
+FARTHEST = 2.0**31
 
 
 def csv_rows(path: str | Path, columns: str, what: str):

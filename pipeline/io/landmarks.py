@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.io.csv_rows import csv_rows
+from pipeline.io.csv_rows import FARTHEST, csv_rows
 from pipeline.io.npz_files import read_npz
 from pipeline.io.path_errors import MissingPath
 
@@ -77,6 +77,9 @@ def read_landmarks(source: str | os.PathLike, key: str = LANDMARK_KEY, dims: tup
     a = np.asarray(a, dtype=np.float64)
     if np.isinf(a).any():
         raise ValueError(f"{p}: {key!r} has infinite values (use NaN for a frame without landmarks)")
+    if (np.abs(a) >= FARTHEST).any():  # as a box's or a point's: numpy's overflow warnings, then no frame scored
+        raise ValueError(f"{p}: {key!r} has values beyond any image ({np.nanmax(np.abs(a)):g}; landmarks are pixels, "
+                         f"within +-2^31)")
     return a
 
 
@@ -125,6 +128,9 @@ def read_points(path: str | os.PathLike) -> dict[int, dict[int, tuple[float, flo
                              f"frame and landmark numbers start at 0")
         if not (math.isfinite(x) and math.isfinite(y)):
             raise ValueError(f"{p}:{lineno}: point has NaN or inf")
+        if max(abs(x), abs(y)) >= FARTHEST:  # its distance from the reference overflowed: the frame was not scored
+            raise ValueError(f"{p}:{lineno}: point {max(x, y, key=abs):g} is beyond any image (x and y are pixels, "
+                             f"within +-2^31)")
         if (frame, lm) in first:  # the later row would replace the earlier one without a word
             raise ValueError(f"{p}:{lineno}: frame {frame} landmark {lm} again (first at line "
                              f"{first[frame, lm]}): one point a landmark a frame")

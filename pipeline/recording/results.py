@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any, Mapping, TypeVar
 
 from gflow_core.params import format_value
 
-from pipeline.io.csv_rows import csv_rows
+from pipeline.io.csv_rows import FARTHEST, csv_rows
 from pipeline.io.run_sessions import RunSessions
 
 if TYPE_CHECKING:  # imported where used: reading a box file needs neither the messages, mcap nor OpenCV
@@ -23,8 +23,6 @@ __all__ = ["read_boxes", "read_track", "TrackRows", "write_boxes", "estimate_col
            "blank_rule", "run_outcome", "RunOutcome", "renumber", "read_run", "RecordedRun"]
 
 Box = tuple[float, float, float, float]
-#: a box value at least this far from 0 is no pixel of any image (OpenCV's sizes and coordinates are 32-bit integers)
-FARTHEST = 2.0**31
 V = TypeVar("V")
 
 
