@@ -293,3 +293,23 @@ def test_landmarks_or_points_beyond_any_image_are_refused(tmp_path: Path, argv: 
     (tmp_path / "huge.csv").write_text("frame,landmark,x,y\n0,33,1e308,5\n" + rows[rows.index("\n") + 1:])
     assert_one_line_error(gflow(*argv, cwd=tmp_path), said)
     assert not (tmp_path / "m.npz").exists()
+
+
+@pytest.mark.parametrize("array, value, said", [
+    ("starts", np.arange(0, 30, 6) + 0.5, "starts must be whole numbers, got float64"),
+    ("repetitions", np.array(list("11122")), "repetitions must be whole numbers, got <U1"),
+    ("letters", np.arange(5), "letters must be text, got int64"),
+])
+def test_an_avletters_array_of_the_wrong_kind_is_named(tmp_path: Path, array: str, value: np.ndarray,
+                                                       said: str) -> None:
+    """Utterance starts of 0.5 were cut to whole frames without a word; repetitions written as text were read as
+    numbers where they could be and failed naming no file where not ("invalid literal for int() with base 10");
+    letters of numbers were taken for letters."""
+    from test_cli_errors import _letters_file
+
+    with np.load(_letters_file(tmp_path / "good.npz")) as z:
+        arrays = {k: z[k] for k in z.files}
+    np.savez(tmp_path / "av.npz", **{**arrays, array: value})
+    r = gflow("learn", "m2", "av.npz", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", cwd=tmp_path)
+    assert_one_line_error(r, "av.npz: " + said)
+    assert not (tmp_path / "m.npz").exists()

@@ -141,6 +141,7 @@ class AVLetters:
         need = {"frames", "starts", "letters", "repetitions"}
         if not need <= set(arrays):
             raise ValueError(f"{p}: an AVLetters file needs arrays {sorted(need)}, got {sorted(arrays)}")
+        _check_kinds(p, arrays)
         fr, st = arrays["frames"], arrays["starts"].astype(np.int64)
         let, rep = arrays["letters"].astype(str), arrays["repetitions"].astype(np.int64)
         if fr.ndim != 3 or fr.dtype != np.uint8:
@@ -150,6 +151,18 @@ class AVLetters:
         if st[0] != 0 or (np.diff(st) <= 0).any() or st[-1] >= fr.shape[0]:
             raise ValueError(f"{p}: utterance starts must increase from 0 within the {fr.shape[0]} frames")
         return cls(frames=fr, starts=st, letters=let, repetitions=rep)
+
+
+#: the kind of number or text each array of an AVLetters file holds (numpy's dtype kinds), as the files are written
+_AV_KINDS = {"starts": ("iu", "whole numbers"), "repetitions": ("iu", "whole numbers"), "letters": ("U", "text")}
+
+
+def _check_kinds(p: Path, arrays: dict[str, np.ndarray]) -> None:
+    """A ValueError naming ``p`` and the array when one holds another kind of value than :data:`_AV_KINDS` says:
+    utterance starts of 0.5 were cut to whole frames without a word, repetitions of text failed naming no file."""
+    for name, (kinds, what) in _AV_KINDS.items():
+        if arrays[name].dtype.kind not in kinds:
+            raise ValueError(f"{p}: {name} must be {what}, got {arrays[name].dtype}")
 
 
 def _parse_letters(text: str | None) -> set[str] | None:
