@@ -51,10 +51,16 @@ GRAPH = "name: g\nstream: s\nstages:\n  source:\n    kind: source\n    params: {
     ("params: {kind: synthetic, frames: 2}", "params: 5", ":6: stage 'source': params must be a mapping"),
     ("name: g", "name: [g]", ":1: name must be a word or a number, got ['g']"),
     ("stream: s", "stream: {a: 1}", ":2: stream must be a word or a number"),
+    ("frames: 2}", "frames: 2}\n    qos: 5", ":7: stage 'source': qos must be a mapping port -> reliable or drop"),
+    ("frames: 2}", "frames: 2}\n    max_restarts: x", ":7: stage 'source': max_restarts must be a whole number >= 0"),
+    ("frames: 2}", "frames: 2}\n    outputs: {frames: [f]}", ":7: stage 'source': 'frames': ['f']: a port and its "
+                                                             "topic are names"),
+    ("frames: 2}", "frames: 2}\n    outputs: {[frames]: f}", ": line 7: a key must be a name, got ['frames']"),
 ])
 def test_a_graph_value_of_the_wrong_type_is_named_by_its_line(tmp_path: Path, old: str, new: str, said: str) -> None:
     """A list or a mapping where a graph has a name: "internal error: TypeError: unhashable type: 'list'" for a
-    stage's kind, another for its params; a list for the graph's name named the run "['g']"."""
+    stage's kind or a port, another for its params or its qos; a list for the graph's name named the run "['g']",
+    for a topic the topic "gflow/s/['f']"; a max_restarts of text failed naming no file."""
     (tmp_path / "g.yaml").write_text(GRAPH.replace(old, new))
     assert_one_line_error(gflow("run", "g.yaml", "--inline", "--no-record", cwd=tmp_path), "g.yaml" + said)
 

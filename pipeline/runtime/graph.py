@@ -118,6 +118,8 @@ def _construct_mapping(loader, node) -> dict:
     mapping = _LineDict()
     for key_node, value_node in node.value:
         key = loader.construct_object(key_node, deep=True)
+        if isinstance(key, (list, dict)):  # YAML allows one ("[a]: b", "? [a]"); a dict cannot hold it
+            raise GraphError(f"line {key_node.start_mark.line + 1}: a key must be a name, got {key!r}")
         if key in mapping:
             raise GraphError(f"line {key_node.start_mark.line + 1}: duplicate key {key!r}")
         mapping[key] = loader.construct_object(value_node, deep=True)
@@ -431,7 +433,11 @@ def _stage_policy(sname: str, spec: dict, filename: str) -> tuple[str, dict, int
     restart = spec.get("restart", "never")
     if restart not in ("never", "on-failure"):
         raise GraphError(f"{filename}:{_line(spec, 'restart')}: stage {sname!r}: restart must be 'never' or 'on-failure'")
-    qos = dict(spec.get("qos") or {})
+    qos = spec.get("qos") or {}
+    if not isinstance(qos, dict):
+        raise GraphError(f"{filename}:{_line(spec, 'qos')}: stage {sname!r}: qos must be a mapping port -> reliable "
+                         f"or drop, got {qos!r}")
+    qos = dict(qos)
     for port, q in qos.items():
         if q not in ("reliable", "drop"):
             raise GraphError(f"{filename}:{_line(spec, 'qos')}: stage {sname!r}: qos of {port!r} must be reliable or drop")
@@ -444,6 +450,30 @@ def _stage_policy(sname: str, spec: dict, filename: str) -> tuple[str, dict, int
         raise GraphError(f"{filename}:{_line(spec, 'host')}: stage {sname!r}: host must be a label of letters, "
                          f"digits, '-' or '_', got {host!r}")
     return restart, qos, snap, host
+
+
+def _max_restarts(sname: str, spec: dict, filename: str) -> int:
+    """The stage's ``max_restarts`` (default 3): a whole number >= 0. Text there was "invalid literal for int()"
+    naming no file, and a negative number a policy that restarts nothing."""
+    n = spec.get("max_restarts", 3)
+    if isinstance(n, bool) or not isinstance(n, int) or n < 0:
+        raise GraphError(f"{filename}:{_line(spec, 'max_restarts')}: stage {sname!r}: max_restarts must be a whole "
+                         f"number >= 0, got {n!r}")
+    return n
+
+
+def _wiring_doc(sname: str, spec: dict, where: str, filename: str) -> tuple[dict, dict]:
+    """The stage's ``inputs`` and ``outputs``: mappings of port names to topic names (none: empty). A list or a
+    mapping for a port or a topic was an internal error, or a topic named by its text ("gflow/demo/['frames']")."""
+    docs = spec.get("inputs") or {}, spec.get("outputs") or {}
+    if not all(isinstance(d, dict) for d in docs):
+        raise GraphError(f"{where}: stage {sname!r}: inputs and outputs must be mappings port -> topic")
+    for d in docs:
+        for port, topic in d.items():
+            if not isinstance(port, str) or isinstance(topic, (list, dict)) or topic is None:
+                raise GraphError(f"{filename}:{_line(d, port) if isinstance(port, str) else _line(spec, 'inputs')}: "
+                                 f"stage {sname!r}: {port!r}: {topic!r}: a port and its topic are names")
+    return docs
 
 
 def _stage_values(sname: str, kind: str, params: dict[str, Any], block: TrackerBlock | None,
@@ -512,17 +542,14 @@ def _parse_stage(sname: str, spec: Any, stages_doc: dict, stream: str, overrides
     full, params = _stage_values(sname, kind, params, block, overrides, pwhere)
     cls = None if kind == RECORDER_KIND else STAGES[kind]
     in_types, out_types = cls.ports(msgspec.convert(full, cls.Params)) if cls else ({}, {})
-    inputs_doc = spec.get("inputs") or {}
-    outputs_doc = spec.get("outputs") or {}
-    if not isinstance(inputs_doc, dict) or not isinstance(outputs_doc, dict):
-        raise GraphError(f"{where}: stage {sname!r}: inputs and outputs must be mappings port -> topic")
+    inputs_doc, outputs_doc = _wiring_doc(sname, spec, where, filename)
     if cls is not None:
         _check_ports(sname, kind, inputs_doc, outputs_doc, in_types, out_types, where, filename)
     restart, qos, snap, host = _stage_policy(sname, spec, filename)
     outs = {p: topic_key(stream, str(outputs_doc.get(p, p))) for p in out_types}
     ins = {p: topic_key(stream, str(t)) for p, t in inputs_doc.items()}
     plan = StagePlan(name=sname, kind=kind, params=params, inputs=ins, outputs=outs, restart=restart,
-                     max_restarts=int(spec.get("max_restarts", 3)), qos=qos, snapshot_every=snap, host=host)
+                     max_restarts=_max_restarts(sname, spec, filename), qos=qos, snapshot_every=snap, host=host)
     return _ParsedStage(plan=plan, line=_line(stages_doc, sname), input_lines={p: _line(inputs_doc, p) for p in inputs_doc},
                         in_types=in_types, out_types=out_types)
 
