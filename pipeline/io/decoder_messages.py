@@ -24,8 +24,8 @@ import re
 import sys
 import tempfile
 import threading
-from contextlib import contextmanager
-from typing import Iterator
+from contextlib import contextmanager, nullcontext
+from typing import IO, Iterator
 
 __all__ = ["decoder_messages"]
 
@@ -63,25 +63,66 @@ def _lines(raw: bytes) -> list[str]:
 
 
 @contextmanager
+def _redirected(fd: int) -> Iterator[IO[bytes]]:
+    """Descriptor ``fd`` pointed at a temporary file for the block (C's buffered output flushed into it before it
+    is given back); the file is yielded, to be read (:func:`_written`) before the block ends."""
+    from pipeline.io.ffmpeg_messages import _flush_c_stdio
+
+    with tempfile.TemporaryFile() as tmp:
+        (sys.stdout if fd == 1 else sys.stderr).flush()
+        saved = os.dup(fd)
+        os.dup2(tmp.fileno(), fd)
+        try:
+            yield tmp
+        finally:
+            _flush_c_stdio()
+            os.dup2(saved, fd)
+            os.close(saved)
+
+
+def _written(tmp: IO[bytes]) -> bytes:
+    """Everything written to ``tmp`` so far, from its start (its offset, shared with the descriptor, left as is)."""
+    return os.pread(tmp.fileno(), os.fstat(tmp.fileno()).st_size, 0)
+
+
+def _sort(raw: bytes, fd: int, said: list[str]) -> None:
+    """The decoders' lines of ``raw`` (what was written to ``fd``) into ``said``; the rest written on to ``fd``.
+    On descriptor 1 only FFmpeg's lines as OpenCV prints them when ``OPENCV_FFMPEG_LOGLEVEL`` is set
+    ("[OPENCV:FFMPEG:16] overread 8") are a decoder's, and of those only errors and warnings of damage."""
+    from pipeline.io.ffmpeg_messages import _PREFIX, is_damage
+
+    passed = []
+    for line in _lines(raw):
+        routed = _PREFIX.match(line.strip()) if fd == 1 else None
+        if routed and is_damage(int(routed.group(1)), line.strip()[routed.end():]):
+            said.append("FFmpeg: " + _printable(line.strip()[routed.end():]))
+        elif fd == 2 and _DECODER.match(line.strip()):
+            said.append(_printable(line))
+        elif line.strip():
+            passed.append(line)
+    if passed:
+        os.write(fd, "".join(passed).encode())
+
+
+@contextmanager
 def decoder_messages() -> Iterator[list[str]]:
     """``with decoder_messages() as said: cv2.imdecode(...)``: ``said`` holds, after the block, the
-    lines a decoder printed during it (empty for a clean decode)."""
+    lines a decoder printed during it (empty for a clean decode). With ``OPENCV_FFMPEG_LOGLEVEL`` set (by the user,
+    or by a live source earlier in the process), OpenCV prints FFmpeg's lines on standard output instead of
+    standard error, so descriptor 1 is caught too."""
     said: list[str] = []
-    with _LOCK, tempfile.TemporaryFile() as tmp:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(tmp.fileno(), 2)
+    routed = "OPENCV_FFMPEG_LOGLEVEL" in os.environ
+    from pipeline.io.ffmpeg_messages import _flush_c_stdio
+
+    with _LOCK:
+        captured: list[tuple[int, bytes]] = []
         try:
-            yield said
+            with _redirected(2) as err, (_redirected(1) if routed else nullcontext()) as out:
+                try:
+                    yield said
+                finally:
+                    _flush_c_stdio()
+                    captured = [(2, _written(err))] + ([(1, _written(out))] if out is not None else [])
         finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-            tmp.seek(0)
-            passed = []
-            for line in _lines(tmp.read()):
-                if _DECODER.match(line.strip()):
-                    said.append(_printable(line))
-                elif line.strip():
-                    passed.append(line)
-            if passed:
-                os.write(2, "".join(passed).encode())
+            for fd, raw in captured:
+                _sort(raw, fd, said)
