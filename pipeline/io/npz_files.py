@@ -16,10 +16,10 @@ import numpy as np
 
 __all__ = ["npz_problem", "read_npz"]
 
-#: what reading a damaged archive raises: zipfile's own errors, and those of a header whose flags or method a
-#: damaged byte changed (NotImplementedError: a compression it does not read; RuntimeError: "encrypted")
-_DAMAGE = (zipfile.BadZipFile, zlib.error, EOFError, OSError, KeyError, io.UnsupportedOperation, NotImplementedError,
-           RuntimeError)
+#: what reading a damaged archive raises: zipfile's own errors, and a header whose method a damaged byte changed
+#: (NotImplementedError: a compression it does not read); a member flagged encrypted (RuntimeError) is taken apart,
+#: and an OSError is said as what it is (the disk, or an offset sent past the file), not called damage
+_DAMAGE = (zipfile.BadZipFile, zlib.error, EOFError, KeyError, io.UnsupportedOperation, NotImplementedError)
 
 
 def npz_problem(path: str | os.PathLike) -> str:
@@ -60,3 +60,9 @@ def read_npz(path: str | os.PathLike, what: str) -> dict[str, np.ndarray]:
         raise ValueError(f"{p}: not a readable {what} (corrupt or truncated npz: {e})") from None
     except _DAMAGE as e:
         raise ValueError(f"{p}: not a readable {what} (corrupt or truncated npz: {type(e).__name__}: {e})") from None
+    except RuntimeError as e:  # zipfile's only RuntimeError on reading: a member flagged encrypted
+        if "encrypted" not in str(e):
+            raise
+        raise ValueError(f"{p}: not a readable {what} (corrupt or truncated npz: {e})") from None
+    except OSError as e:  # the disk, or a damaged offset sent past the file: the file named, not called damaged
+        raise OSError(e.errno, f"{p}: cannot read the {what}: {e.strerror or e}") from None
