@@ -71,7 +71,7 @@ class Memory:
 
 
 def param(default: Any, help: str, *, option: str | None = None, before: Any = _NOT_LATER,
-          memory: Memory | None = None) -> Any:
+          memory: Memory | None = None, inf: str = "") -> Any:
     """A dataclass field with its default, its help text and, optionally, its command-line option.
 
     Parameters
@@ -84,8 +84,12 @@ def param(default: Any, help: str, *, option: str | None = None, before: Any = _
         with it (:func:`as_recorded`), so the recording re-runs bit for bit.
     memory : what the value costs in memory, for a parameter that sizes the run's arrays: a value
         needing more than the machine has is refused (:func:`check_memory`).
+    inf : what an infinite value means (``"none"``: no wall), for a parameter that takes one; a stage
+        refuses inf for every other parameter (:func:`gflow_msgs.params.refuse_nonfinite`).
     """
     meta: dict[str, Any] = {"help": help, "option": option}
+    if inf:
+        meta["inf"] = inf
     if before is not _NOT_LATER:
         meta["before"] = before
     if memory is not None:

@@ -78,13 +78,20 @@ def check_init(init: tuple[float, float, float, float] | None) -> None:
             raise ValueError(f"init box must have positive width and height, got w={init[2]}, h={init[3]} in {init}")
 
 
-def refuse_nan(values: typing.Mapping[str, Any]) -> None:
-    """``ValueError`` naming the first of ``values`` that is NaN, which no parameter means: a check such as
-    ``x > 0`` is false for it only where written ``not x <= 0``, so a tracker's own checks pass it, and a graph's
-    ``.nan`` failed every frame of the run instead of the graph."""
+def refuse_nonfinite(values: typing.Mapping[str, Any], tracker: type | None = None) -> None:
+    """``ValueError`` naming the first of ``values`` that is NaN, which no parameter means, or infinite (a number or
+    an item of a list), which only a parameter of the dataclass ``tracker`` declared to take it means (its field's
+    metadata ``inf``: what inf means, ``gflow_core.params.param``). A check such as ``x > 0`` is false for NaN only
+    where written ``not x <= 0``, and true for inf, so a tracker's own checks pass them: a graph's ``.nan`` failed
+    every frame of the run instead of the graph, and ``--set tracker.kappa=inf`` dcf's from its second frame on."""
+    takes_inf = {f.name for f in dataclasses.fields(tracker) if f.metadata.get("inf")} if tracker is not None else set()
     for name, v in values.items():
-        if isinstance(v, float) and math.isnan(v):
+        items = v if isinstance(v, (tuple, list)) else (v,)
+        if any(isinstance(x, float) and math.isnan(x) for x in items):
             raise ValueError(f"{name} must be a number, got nan")
+        if name not in takes_inf and any(isinstance(x, float) and math.isinf(x) for x in items):
+            shown = f"[{', '.join(str(x) for x in items)}]" if items is v else str(v)
+            raise ValueError(f"{name} must be a finite number, got {shown}")
 
 
 def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: str = "", *,
@@ -117,7 +124,7 @@ def stage_params(name: str, tracker: type, fields: type[F], module: str, doc: st
     def __post_init__(self: F) -> None:
         values = {f.name: getattr(self, f.name) for f in taken}
         self.check(tracker(**values))
-        refuse_nan(values)
+        refuse_nonfinite(values, tracker)
 
     struct = msgspec.defstruct(name, spec, bases=(fields,), module=module, kw_only=True, frozen=True,
                                forbid_unknown_fields=True,

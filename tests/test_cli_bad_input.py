@@ -174,7 +174,74 @@ def test_a_track_run_with_no_estimate_at_all_is_incomplete(tmp_path: Path, frame
     rc = main(["track", str(frames), "--init", "1,1,1e308,5", "--out", "b.csv", *record, "--inline", "-q"])
     out, err = capsys.readouterr()
     assert rc == 3, (out, err)
-    assert "5 frame(s) have no estimate: 0-4" in out and "the run is incomplete" in err, (out, err)
+    assert "5 frame(s) have no estimate: 0-4" in out, (out, err)
+    assert err.splitlines()[-1].startswith("every one of the 5 frames failed in stage "), err
+
+
+#: appearance's search margin of 1e300 box sizes: finite, past its checks, and every frame's step fails (OpenCV
+#: cannot size the window), the pipeline carrying on
+EVERY_FRAME_FAILS = ["--set", "tracker.search=1e300"]
+
+
+@pytest.mark.parametrize("argv", [
+    ["track", "{frames}", "--tracker", "appearance", "--init", "10,10,20,20", "--out", "b.csv", "-q", "--inline"],
+    ["track", "{frames}", "--tracker", "appearance", "--init", "10,10,20,20", "--out", "b.csv", "-q",
+     "--listen", "tcp/127.0.0.1:0"],
+    ["run", "appearance", "--inline", "--set", "source.path={frames}", "--set", "filter.init=[10,10,20,20]",
+     "--set", "proposal.init=[10,10,20,20]"],
+])
+def test_a_run_whose_every_frame_failed_says_why_and_exits_non_zero(tmp_path: Path, frames: Path,
+                                                                    argv: list[str]) -> None:
+    """Every frame's step failing (the stage reporting each, the pipeline carrying on), `gflow run` ended 'appearance:
+    5 frames in 0.07 s', exit 0, and `gflow track` 'the run is incomplete: 5 frame(s) have no estimate', saying
+    nothing of why. Each ends on one line naming the stage and its first reason, exit status 3."""
+    r = gflow(*(a.format(frames=frames) for a in argv), "--no-record", *EVERY_FRAME_FAILS, cwd=tmp_path, timeout=120)
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    last = r.stderr.splitlines()[-1]
+    assert last.startswith("every one of the 5 frames failed in stage filter: frame 0: ") and "warpAffine" in last, \
+        r.stderr
+
+
+def test_a_run_some_of_whose_frames_failed_says_how_many_and_why(tmp_path: Path, frames: Path) -> None:
+    """A filter that fails from its second frame on (a spread of 1e300 px): `gflow track` counted the error without
+    its reason, and said '--stop 4 is past the end of frames: its last frame is 0', the last estimate taken for the
+    last frame there is; `gflow run` said nothing of its errors at all."""
+    r = gflow("track", str(frames), "--tracker", "appearance", "--init", "10,10,20,20", "--out", "b.csv", "--stop", "4",
+              "--no-record", "--inline", "-q", "--set", "tracker.detect_std=1e300", cwd=tmp_path)
+    assert r.returncode == 3, (r.stdout, r.stderr)
+    assert "errors reported: 1 (filter 1); the first: frame 1: ValueError: log-weights contain NaN" in r.stdout, r.stdout
+    assert "past the end" not in r.stdout, r.stdout
+    r = gflow("run", "demo", "--inline", "--no-record", "--set", "source.frames=5", "--set",
+              "proposal.std_log_s=1e300", cwd=tmp_path)
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "errors reported: 1 by stage proposal, 4 of the 5 frames without an estimate; the first: particles 0: " \
+           "alpha contains NaN or inf" in r.stdout, r.stdout
+
+
+@pytest.mark.parametrize("argv,words", [
+    (["track", "{frames}", "--init", "10,10,20,20", "--out", "b.csv", "--set", "tracker.kappa=inf"],
+     "--set tracker.kappa=inf: kappa must be a finite number, got inf"),
+    (["run", "demo", "--set", "filter.lam=inf"], "--set filter.lam=inf: lam must be a finite number, got inf"),
+])
+def test_infinity_where_it_means_nothing_is_refused_before_the_run(tmp_path: Path, frames: Path, argv: list[str],
+                                                                   words: str) -> None:
+    """inf passes a check such as ``kappa > 0``: dcf failed every frame after the first as processes started
+    ('Expected `float`, got `null`'), inline from frame 1 ('log-weights contain NaN or +inf'); the demo's filter
+    reported every frame ('kernel widths sigma_k must be positive') and exited 0."""
+    r = gflow(*(a.format(frames=frames) for a in argv), "--no-record", "--inline", cwd=tmp_path)
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert_one_line_error(r, words)
+    assert not (tmp_path / "b.csv").exists()
+
+
+def test_infinity_where_a_parameter_says_what_it_means_runs_as_processes_too(tmp_path: Path, frames: Path) -> None:
+    """G-flow's max_rotation_deg of inf is no wall: a run as processes failed at start-up, every stage's plan
+    read with null for it."""
+    r = gflow("track", str(frames), "--tracker", "gflow", "--model", "ellipsoid", "--init", "10,10,20,20", "--out",
+              "b.csv", "--no-record", "-q", "--listen", "tcp/127.0.0.1:0", "--set", "tracker.max_rotation_deg=inf",
+              cwd=tmp_path, timeout=120)
+    assert r.returncode == 0, (r.stdout, r.stderr)
+    assert "tracked 5 frames" in r.stdout, r.stdout
 
 
 #: a tracker of its own package (the example ``tests/plugins/gflow_ncc``) whose filter fails on every frame from

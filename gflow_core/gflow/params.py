@@ -69,11 +69,13 @@ class GFlowParams:
     object_mask_margin: float = param(0.2, "the hull enlarged by this fraction about its centre")
     prior_std_rotation: float | tuple[float, ...] = param((0.024, 0.035, 0.020), "std of the pose random walk per "
                                                           "frame, rotation about x, y, z (radians; one or 3 numbers; "
-                                                          "inf: none)")
+                                                          "inf: none)", inf="none")
     prior_std_translation: float | tuple[float, ...] = param(5.0, "std of the pose random walk per frame, "
-                                                                  "translation (px; one or 2 numbers)")
+                                                                  "translation (px; one or 2 numbers; inf: none)",
+                                                             inf="none")
     prior_std_coefficients: float | tuple[float, ...] = param(0.2, "std of the pose random walk per frame, morph "
-                                                                   "coefficients (one or k numbers)")
+                                                                   "coefficients (one or k numbers; inf: none)",
+                                                              inf="none")
     scale_walk: float = param(0.01, "std of the pose random walk per frame of the scale c_1, a fraction of the "
                                    "initial box's |c_1| (a relative walk of the face's size; replaces "
                                    "prior_std_coefficients' c_1 value; 0: that value)", before=0.0)
@@ -87,12 +89,12 @@ class GFlowParams:
     photometric: bool = param(False, "a gain and bias per expert and frame (the ellipsoid's setting: on)")
     photometric_gain_max: float = param(2.0, "the gain is clamped to [1 / max, max]")
     max_rotation_deg: float = param(70.0, "soft wall on the head's rotation from its initial orientation, "
-                                          "degrees (inf: none)")
+                                          "degrees (inf: none)", inf="none")
     search_stride: int = param(1, "the translation search evaluates every this-many-th vertex")
     outlier_sigmas: float = param(3.0, "a vertex beyond this many standard deviations is an outlier: a constant "
-                                       "cost, its texel not updated (inf: none)")
+                                       "cost, its texel not updated (inf: none)", inf="none")
     max_scale_change: float = param(1.5, "soft wall on the scale outside [1 / max, max] times the initial box's "
-                                         "(inf: none)")
+                                         "(inf: none)", inf="none")
     scale_reference: tuple[float, ...] = param((), "the initial morph coefficients the scale wall is relative "
                                                    "to (empty: from the initial box)")
     morph_prior_std: tuple[float, ...] = param((), "stds of the morph prior on c_2..c_k (empty: from "
@@ -119,7 +121,8 @@ class GFlowParams:
     reset_min_deg: float = param(10.0, "experts turned at least this far also try a peak started frontal, "
                                        "degrees")
     morph_prior: float = param(0.5, "expressions held near the model's training spread: std morph_prior * "
-                                    "spread * c_1 (inf: the paper's random walk)")
+                                    "spread * c_1 (inf: the paper's random walk)",
+                               inf="the paper's random walk")
     contrast_sigma: float = param(5.0, "frames are local-contrast normalised over this many pixels (0: raw "
                                        "grey levels)")
     model: str = param("face", "the morphable model: face (built in), a file from `gflow learn gflow`, or "

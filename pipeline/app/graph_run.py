@@ -78,8 +78,15 @@ def _run_inline(plan: Plan, recording: str | None, total: int | None, quiet: boo
             console.progress(line(n))
 
     md = run_metadata(plan)
+    failures = _failure_log(plan)
+
+    def tap(topic: str, payload: bytes, seq: int, type_name: str) -> None:
+        failures.tap(topic, payload, seq, type_name)
+        if sink is not None:
+            sink(topic, payload, seq, type_name)
+
     try:
-        r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=sink,
+        r = run_inline(plan, progress=progress, recording=recording, metadata=md, tap=tap,
                        stop=stop.event if stop is not None else None)
         if last[1]:  # the line shown last is the final count, not a count the run went past
             console.progress(line(r.frames))
@@ -90,7 +97,16 @@ def _run_inline(plan: Plan, recording: str | None, total: int | None, quiet: boo
     if r.interrupted:  # as a multi-process run's Ctrl-C: what was tracked is kept
         print("interrupted: stages closed, recording closed", file=sys.stderr)
     return r.recording, r.seconds, r.frames, {"mode": "inline", "steps": r.steps, "errors": bad,
-                                              "interrupted": r.interrupted, "last_sent": r.last_sent}
+                                              "interrupted": r.interrupted, "last_sent": r.last_sent,
+                                              "failures": failures.summary(r.frames)}
+
+
+def _failure_log(plan: Plan):
+    """A :class:`pipeline.app.failures.FailureLog` of the run of ``plan``: its errors topic, its estimate topics."""
+    from pipeline.app.failures import FailureLog
+
+    return FailureLog(plan.error_topic, (t for s in plan.stages.values() if s.kind != "recorder"
+                                         for p, t in s.outputs.items() if p == "estimate"))
 
 
 def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], listen_given: bool,
@@ -170,6 +186,9 @@ def run_graph(plan: Plan, *, inline: bool, zenoh: Callable[[], ZenohSettings], l
             "restarts": {n: e.restarts for n, e in res.exits.items() if e.restarts}, "estimates": res.estimates,
             # the last frame the source sent (its heartbeat's last_seq): what a run without a recording expected
             "last_sent": res.status[src].last_seq if src in res.status else -1}
+    failures = _failure_log(plan)
+    failures.take(res.errors, res.estimates)
+    info["failures"] = failures.summary(frames)
     if sink is not None:  # what the launcher heard of the run: its estimates and its error reports
         for seq, payload in sorted(res.estimates.items()):
             sink.take(payload)

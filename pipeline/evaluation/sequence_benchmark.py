@@ -317,7 +317,10 @@ def tracker_row(row, out: str, plan: TrackPlan, gt: dict, keep: bool) -> None:
     if not keep and run.recording:  # scored and timed: a temporary recording need not wait for the run's end
         Path(run.recording).unlink(missing_ok=True)
     row.fps = len(run.estimates) / secs if secs > 0 else None
-    if run.info.get("errors"):
+    failures = run.info.get("failures")
+    if failures is not None and failures.every and not run.estimates:  # said as gflow track says it, with its reason
+        row.note = (row.note + "; " if row.note else "") + failures.line()
+    elif run.info.get("errors"):
         row.note = (row.note + "; " if row.note else "") + f"stages reported errors: {run.info['errors']}"
     note(f"{row.sequence} / {row.tracker}: {len(run.estimates)} frames in {secs:.2f} s"
          + (f" ({row.fps:.1f} fps)" if row.fps else "")

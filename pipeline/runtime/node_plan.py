@@ -13,6 +13,7 @@ when those libraries load.
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -79,9 +80,6 @@ class NodePlan(msgspec.Struct, frozen=True, forbid_unknown_fields=True, kw_only=
         return os.path.join(self.run_dir, "state") if self.run_dir else ""
 
 
-_decoder = msgspec.json.Decoder(NodePlan)
-
-
 def write_node_plan(plan: NodePlan, run_dir: str) -> str:
     """Write ``plan`` to ``run_dir/nodes/STAGE.json`` (atomically: a process never reads half of
     one) and return the path."""
@@ -89,7 +87,9 @@ def write_node_plan(plan: NodePlan, run_dir: str) -> str:
     folder.mkdir(exist_ok=True)
     path = folder / f"{plan.stage}.json"
     tmp = path.with_suffix(".tmp")
-    tmp.write_bytes(msgspec.json.encode(plan))
+    # Python's JSON, which writes inf as Infinity: msgspec's writes null, and a tracker parameter of inf that means
+    # something (G-flow's max_rotation_deg: no wall) failed every stage at start-up ("Expected `float`, got `null`")
+    tmp.write_text(json.dumps(msgspec.to_builtins(plan), separators=(",", ":")))
     os.replace(tmp, path)
     return str(path)
 
@@ -97,8 +97,8 @@ def write_node_plan(plan: NodePlan, run_dir: str) -> str:
 def read_node_plan(path: str) -> NodePlan:
     """The plan in ``path``; :class:`NodePlanError` with one line when it cannot be read."""
     try:
-        return _decoder.decode(Path(path).read_bytes())
+        return msgspec.convert(json.loads(Path(path).read_text()), NodePlan)
     except OSError as e:
         raise NodePlanError(f"cannot read the node plan {path}: {e.strerror or e}") from None
-    except (msgspec.DecodeError, msgspec.ValidationError) as e:
+    except (ValueError, msgspec.ValidationError) as e:  # json's JSONDecodeError and UnicodeDecodeError are ValueErrors
         raise NodePlanError(f"{path} is not a node plan: {e}") from None

@@ -37,7 +37,7 @@ def __getattr__(name: str) -> Any:
     globals()[name] = value
     return value
 
-__all__ = ["CliError", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "range_note", "range_past_note", "say_notes", "source_frames", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link", "chosen_topics",
+__all__ = ["CliError", "run_status", "start_work", "work_started", "refuse_same_source", "DEFAULT_ENDPOINT", "parse_box", "parse_endpoint", "positive_float", "positive_int", "nonnegative_float", "nonnegative_int", "whole_number", "number", "frame_range", "range_note", "range_past_note", "say_notes", "source_frames", "check_outputs", "check_new_file", "check_model_out", "refuse_recording", "refuse_dangling_link", "chosen_topics",
            "check_stage_values", "sets_as_given", "parse_sets", "zenoh_from_args", "tool_zenoh", "stream_of",
            "launcher_zenoh", "add_record_args", "Recording", "add_zenoh_args", "add_placement_args", "place",
            "temporary_recording", "run_plan", "torn_segments", "warn_if_torn"]
@@ -436,6 +436,25 @@ def run_plan(plan: Plan, args, recording: str | None, total: int | None, quiet: 
     return run_graph(plan, inline=getattr(args, "inline", False), zenoh=lambda: launcher_zenoh(args),
                      listen_given=bool(args.listen), recording=recording, total=total, hosts=hosts, quiet=quiet,
                      strict=strict)
+
+
+def run_status(info: dict) -> int:
+    """The exit status of ``gflow run`` and ``gflow demo`` from their run's ``info``, saying its failures: 130 when
+    interrupted; when every frame failed (:class:`pipeline.app.failures.RunFailures`), that line on stderr and
+    exit status 3 (the run made nothing: it used to end 0, 'demo: 20 frames'); when some did, how many, and 0."""
+    import sys
+
+    from pipeline.app.failures import EVERY_FRAME_FAILED, RunFailures
+
+    if info.get("interrupted"):
+        return 130
+    failures = info.get("failures") or RunFailures()
+    if failures.every:
+        print(failures.line(), file=sys.stderr)
+        return EVERY_FRAME_FAILED
+    if failures.line():
+        print(failures.line())
+    return 0
 
 
 

@@ -8,7 +8,7 @@ import sys
 
 from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (add_placement_args, add_record_args, add_zenoh_args, check_outputs,
-                                          positive_int, run_plan, whole_number)
+                                          positive_int, run_plan, run_status, whole_number)
 
 
 def cmd_demo(args) -> int:
@@ -63,7 +63,7 @@ def cmd_demo(args) -> int:
         print(f"tracking error vs ground truth: CLE {s.cle:.2f} px, mean overlap {s.mean_overlap:.3f}, "
               f"success@0.5 {s.success:.3f} over {s.frames} frames"
               + (f" ({s.missing} without an estimate)" if s.missing else ""))
-    return 130 if info.get("interrupted") else 0
+    return run_status(info)
 
 
 def register(sub) -> None:

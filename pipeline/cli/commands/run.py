@@ -8,7 +8,7 @@ import sys
 
 from pipeline.cli.security_options import apply_security
 from pipeline.cli.commands.common import (CliError, add_placement_args, add_record_args, add_zenoh_args,
-                                          check_outputs, run_plan)
+                                          check_outputs, run_plan, run_status)
 
 
 def cmd_run(args) -> int:
@@ -44,7 +44,7 @@ def cmd_run(args) -> int:
     if args.hosts and held is not None and held.host not in args.hosts:
         rec = f"on host {held.host}"
     print(f"{plan.name}{hosts}: {frames} frames in {secs:.2f} s; stream {plan.stream}; recording: {rec}")
-    return 130 if info.get("interrupted") else 0
+    return run_status(info)
 
 
 def _refuse_tracker_sets_without_block(graph: str, given: dict) -> None:

@@ -247,13 +247,20 @@ def cmd_track(args) -> int:
     for line in run.lines + _stop_past_the_end(args, run):
         print(f"  {line}")
     errs = info.get("errors")
+    failures = info.get("failures")
     if errs:  # a count (processes) or {stage: count} (inline)
         n = sum(errs.values()) if isinstance(errs, dict) else errs
         per = (" (" + ", ".join(f"{k} {v}" for k, v in sorted(errs.items())) + ")") if isinstance(errs, dict) else ""
         where = f"see `gflow info {run.recording}`" if not run.temporary else "kept in no recording: --no-record"
-        print(f"  errors reported: {n}{per}; {where}")
+        # the first reason, unless the last line says it (every frame failed)
+        first = f"; the first: {failures.first}" if failures is not None and failures.first and not failures.every \
+            else ""
+        print(f"  errors reported: {n}{per}{first}; {where}")
     if info.get("interrupted"):
         return 130
+    if failures is not None and failures.every and not run.estimates:  # the run made nothing: say why
+        print(failures.line(), file=sys.stderr)
+        return 3
     if run.incomplete:
         print(f"the run is incomplete: {run.incomplete}", file=sys.stderr)
         return 3
@@ -263,10 +270,12 @@ def cmd_track(args) -> int:
 def _stop_past_the_end(args, run: TrackResult) -> list[str]:
     """A line when a file's frames ended before ``--stop`` (the run tracked to the last one; nothing said so, and a
     --stop past the end reads as though that many frames were tracked)."""
-    if args.stop is None or run.live is not None or not run.estimates or max(run.estimates) + 1 >= args.stop:
+    sent = run.info.get("last_sent", -1)  # not the last estimate: a run that failed midway stopped short of --stop too
+    last = sent if sent >= 0 else max(run.estimates, default=-1)
+    if args.stop is None or run.live is not None or last < 0 or last + 1 >= args.stop:
         return []
-    last = max(run.estimates)
-    return [f"--stop {args.stop} is past the end of {args.source}: its last frame is {last}, tracked to it"]
+    return [f"--stop {args.stop} is past the end of {args.source}: its last frame is {last}"
+            + (", tracked to it" if last in run.estimates else "")]
 
 
 def reconnect_seconds(text: str) -> float:
