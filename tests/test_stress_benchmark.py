@@ -405,3 +405,32 @@ def test_list_cases_lists_every_case_or_those_cases_names():
                                                                   "distract-40"]
     bad = _gflow("benchmark", "--list-cases", "--cases", "nope")
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "unknown stress case 'nope'" in bad.stderr
+
+
+def test_a_damaged_cached_opencv_result_is_named_and_run_again(data, tmp_path):
+    """The cached OpenCV result (``opencv_NAME_seedS_cvV.json`` beside its boxes) was read unguarded: a truncated one
+    ended the benchmark on 'error: Expecting value: line 1 column 9 (char 8)', naming no file, a list an internal
+    error. Each damage, of the .json or of its boxes, is one line naming the file, and OpenCV runs again."""
+    args = ["--stress", "--cases", "occlude-10", "--lead", "8", "--tail", "20", "--trackers", "appearance", "--inline",
+            "-q", "--opencv", "mil", "--sequences", "synth", "--json", "--stress-cache", str(tmp_path / "cache")]
+    r = _gflow("benchmark", str(data), *args)
+    assert r.returncode == 0, r.stderr
+    if json.loads(r.stdout)["opencv_missing"]:
+        pytest.skip("this OpenCV has no MIL tracker")
+    info = next((tmp_path / "cache" / "synth").glob("occlude-10-*/opencv_mil_seed1_cv*.json"))
+    boxes = info.with_suffix(".csv")
+    for damaged, text, said in ((info, '{"fps": ', "not a cached OpenCV result (Expecting value"),
+                                (info, "[1, 2]", 'not a cached OpenCV result (expected {"fps": frames/s or null}, got '
+                                                 '[1, 2])'),
+                                (info, '{"fps": "x"}', "not a cached OpenCV result"),
+                                (boxes, "frame,x\n1,2,3\n", "expected frame,x,y,w,h, got 3 column(s)")):
+        good = damaged.read_text()
+        damaged.write_text(text)
+        r = _gflow("benchmark", str(data), *args)
+        assert r.returncode == 0 and "Traceback" not in r.stderr, r.stderr
+        assert f"benchmark: {damaged}{'' if damaged == info else ':2'}: " in r.stderr and said in r.stderr and \
+            "; running opencv mil again" in r.stderr, r.stderr
+        row = next(x for x in json.loads(r.stdout)["rows"] if x["tracker"] == "opencv mil")
+        assert row["cle_px"] is not None and row["fps"] > 0, row
+        assert damaged.read_text() != text and json.loads(info.read_text())["fps"] > 0  # written again
+        assert damaged.read_text().startswith(good[:5])

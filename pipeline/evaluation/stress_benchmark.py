@@ -584,15 +584,35 @@ def _opencv_cached(r: Row, name: str, d: Derived, out: Path, seed: int, cache: b
     kept = d.seq.path / f"opencv_{name}_seed{seed}_cv{cv2.__version__}.csv"
     info = kept.with_suffix(".json")
     if cache and kept.is_file() and info.is_file():
-        out.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(kept, out)
-        score_row(r, d.seq.groundtruth, out)
-        r.fps, r.boxes_csv = json.loads(info.read_text()).get("fps"), str(out)
-        return
+        try:
+            fps = _cached_fps(info)
+            score_row(r, d.seq.groundtruth, kept)  # a damaged file named as the cache's, not as its copy
+            out.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(kept, out)
+            r.fps, r.boxes_csv = fps, str(out)
+            return
+        except ValueError as e:  # a damaged cache is run again (and written again), as a damaged stress.json is
+            note(f"{e}; running opencv {name} again")
+            r.score = None
     opencv_row(r, name, d.seq, 0, None, d.seq.groundtruth, out, seed, True)
     if cache and r.score is not None:
         shutil.copyfile(out, kept)
         info.write_text(json.dumps({"fps": r.fps}))
+
+
+def _cached_fps(info: Path) -> float | None:
+    """The frames/s a cached OpenCV run's ``.json`` holds (``{"fps": number or null}``); ``ValueError`` in one line
+    naming the file when it cannot be read as one (truncated, not JSON, another shape): its boxes are run again."""
+    try:
+        held = json.loads(info.read_text())
+    except (OSError, ValueError) as e:  # UnicodeDecodeError and JSONDecodeError are ValueErrors
+        raise ValueError(f"{info}: not a cached OpenCV result ({getattr(e, 'strerror', None) or e})") from None
+    fps = held.get("fps") if isinstance(held, dict) else None
+    if not isinstance(held, dict) or not (fps is None or (isinstance(fps, (int, float)) and not isinstance(fps, bool)
+                                                          and math.isfinite(fps) and fps >= 0)):
+        raise ValueError(f"{info}: not a cached OpenCV result (expected {{\"fps\": frames/s or null}}, got "
+                         f"{json.dumps(held)[:60]})")
+    return fps
 
 
 def _tracker_rows(d: Derived, names: list[str], folder: Path, extra: dict, plan_of: PlanOf) -> list[StressRow]:
