@@ -131,7 +131,15 @@ def _wait(cond, timeout: float = 20.0, what: str = "condition") -> None:
     ("listen: [tls/127.0.0.1:7447]\n", "tls/ listen endpoint needs the router's certificate"),
     ("listen: [tls/127.0.0.1:7447]\ntls: {cert: router.pem}\n", "tls.cert: file not found"),
     ("listen: [tcp/127.0.0.1:7447]\ntls: {mtls: yes please}\n", "tls.mtls must be true or false"),
-    ("listen: [tcp/127.0.0.1:7447]\nusers: {gflow: ''}\n", "non-empty password"),
+    ("listen: [tcp/127.0.0.1:7447]\nusers: {gflow: ''}\n", "users.gflow: the password is empty"),
+    # a password YAML reads as another kind of value was taken as its text ("5"), or refused naming no key
+    ("listen: [tcp/127.0.0.1:7447]\nusers: {a: 5}\n", 'router.yaml: users.a: the password must be text, got 5 '
+                                                       '(quote it: a: "5")'),
+    ("listen: [tcp/127.0.0.1:7447]\nusers: {a: true}\n", 'users.a: the password must be text, got true (quote it: '
+                                                          'a: "true")'),
+    ("listen: [tcp/127.0.0.1:7447]\nusers: {a: [x]}\n", "router.yaml: users.a: the password must be text, got [x]"),
+    ("listen: [tcp/127.0.0.1:7447]\nusers: {a: null}\n", "router.yaml: users.a: the password must be text, got null"),
+    ("listen: [tcp/127.0.0.1:7447]\nusers: {5: pw}\n", "router.yaml: users: 5 is no user name"),
     ("listen: [tcp/127.0.0.1:7447]\nacl: {publishers: []}\n", "acl.publishers must list who may publish"),
     ("listen: [tcp/127.0.0.1:7447]\nacl: {publishers: [{streams: [cam0]}]}\n", "names nobody"),
     ("listen: [tcp/127.0.0.1:7447]\nacl: {publishers: [{usernames: [cam]}]}\n", "the router has no users"),

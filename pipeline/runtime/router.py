@@ -179,6 +179,13 @@ def _apply_tls(cfg: RouterConfig, tls: object, options: dict, where: str, base: 
         raise _fail(where, str(e)) from None
 
 
+def _yaml_word(v: object) -> str:
+    """A YAML value as the file wrote it: ``null``, ``true``, ``5``, ``[x]``."""
+    import yaml
+
+    return yaml.safe_dump(v, default_flow_style=True).strip().removesuffix("...").strip()
+
+
 def _users_of(data: dict, options: dict, where: str, base: Path) -> dict[str, str] | None:
     """User name -> password from ``users`` or ``users_file`` (the option wins over the file's key);
     None when neither is given."""
@@ -193,9 +200,14 @@ def _users_of(data: dict, options: dict, where: str, base: Path) -> dict[str, st
         if not isinstance(users, dict) or not users:
             raise _fail(where, f"users must be a mapping of user name -> password, got {users!r}")
         for u, pw in users.items():
-            if not isinstance(u, str) or not u or ":" in u or not isinstance(pw, (str, int)) or str(pw) == "":
-                raise _fail(where, f"users: {u!r} needs a name without ':' and a non-empty password")
-        return {u: str(pw) for u, pw in users.items()}
+            if not isinstance(u, str) or not u or ":" in u:
+                raise _fail(where, f"users: {u!r} is no user name (a name of text, without ':')")
+            if not isinstance(pw, str):  # YAML's 5, true or 1e3 were taken as the text "5", "True", "1000.0"
+                raise _fail(where, f"users.{u}: the password must be text, got {_yaml_word(pw)}"
+                                   + (f" (quote it: {u}: \"{_yaml_word(pw)}\")" if isinstance(pw, (int, float)) else ""))
+            if not pw:
+                raise _fail(where, f"users.{u}: the password is empty")
+        return dict(users)
     return None
 
 
