@@ -1041,6 +1041,21 @@ def test_learn_m2_names_the_utterances_a_selection_finds_none_of(tmp_path: Path,
     assert whole.returncode == 0 and "from 30 items" in whole.stdout, whole.stderr
 
 
+@pytest.mark.parametrize("frames,note", [
+    ("10:100", "note: --frames 10:100: av.npz (the utterances chosen) holds frames 12..29; learning from 12..29"),
+    ("0:20", "note: --frames 0:20: av.npz (the utterances chosen) holds frames 12..29; learning from 12..17"),
+    ("12:30", ""),
+])
+def test_learn_m2_says_a_frame_range_past_the_utterances_chosen(tmp_path: Path, frames: str, note: str) -> None:
+    """``--frames`` running past the frames of the utterances chosen learned from those there without a word, where a
+    range past an image folder's frames says what it took (exit 0 both)."""
+    _letters_file(tmp_path / "av.npz")
+    r = gflow("learn", "m2", "av.npz", "--metric", "l2", "-K", "2", "--out", "m.npz", "-q", "--letters", "C",
+              "--frames", frames, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert [ln for ln in r.stderr.splitlines() if ln.startswith("note: ")] == ([note] if note else []), r.stderr
+
+
 @pytest.mark.parametrize("source,extra,named", [
     ("udp://127.0.0.1:notaport", [], ["udp://127.0.0.1:notaport", "Port could not be cast"]),
     ("rtsp://127.0.0.1:99999/x", [], ["rtsp://127.0.0.1:99999/x", "Port out of range"]),

@@ -290,8 +290,13 @@ def _training_set_one(args, source: str, box_csv: str | None, *, sequence: int, 
             if idx.size == 0:
                 raise CliError(f"--frames {args.frames}: no frame of the utterances chosen lies in it (they span "
                                f"frames {int(seq.frame_index.min())}..{int(seq.frame_index.max())})")
+            first, last = int(seq.frame_index.min()), int(seq.frame_index.max())
             seq = type(seq)(frames=[seq.frames[i] for i in idx], frame_index=seq.frame_index[idx],
                             sequence=seq.sequence[idx], labels=None if seq.labels is None else seq.labels[idx])
+            # past the utterances chosen, as a range past a folder's frames is said (it was learned from silently)
+            say_notes(range_past_note(f"--frames {args.frames}", (start, stop), f"{path} (the utterances chosen)",
+                                      (first, last), (int(seq.frame_index.min()), int(seq.frame_index.max())),
+                                      "learning from"))
     else:
         if args.reps or args.letters:
             raise CliError("--reps and --letters select AVLetters utterances; the source is not an .npz file")
