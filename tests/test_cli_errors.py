@@ -1126,6 +1126,24 @@ def test_a_tracker_set_of_a_graph_without_a_tracker_block_names_the_option(tmp_p
     assert r.returncode == 2 and "demo.yaml" not in line and not list(tmp_path.iterdir()), line
 
 
+@pytest.mark.parametrize("item,named", [
+    ("tracker.x=1", "the graph demo has no tracker block, and its stage filter has no parameter 'x'; set a stage's "
+                    "parameter with --set STAGE.PARAM=VALUE (its stages: source, preprocess, proposal, filter, render, "
+                    "recorder)"),
+    ("tracker.particles=0", "particles must be >= 1, got 0"),
+])
+def test_a_tracker_set_of_a_track_graph_without_a_tracker_block_names_the_option(tmp_path: Path, frames: Path,
+                                                                                item: str, named: str) -> None:
+    """``gflow track --graph g.yaml --set tracker.x=1`` of a graph file without a tracker block said "g.yaml:26: stage
+    'filter': bad parameter for stage kind 'particle.filter': no parameter 'x' (known parameters: ...)", where `gflow
+    run` already named the option."""
+    (tmp_path / "g.yaml").write_text((ROOT / "pipeline" / "graphs" / "demo.yaml").read_text())
+    r = gflow("track", str(frames), "--graph", "g.yaml", "--init", "10,10,20,20", "--out", "b.csv", "--no-record",
+              "--inline", "--set", item, cwd=tmp_path)
+    line = assert_one_line_error(r, f"gflow track: error: --set {item}: {named}")
+    assert r.returncode == 2 and "g.yaml" not in line and not (tmp_path / "b.csv").exists(), line
+
+
 @pytest.mark.parametrize("argv,named", [
     (["benchmark", "data", "--trackers", "dcf", "--inline", "-q", "--frames", "7:9"],
      "--frames 7:9: data/s/groundtruth.csv has no box for frame 7, the first frame to track (its boxes: frames 0..4)"),

@@ -110,6 +110,7 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
     refused = check_tracker_values(loaded, given, others)
     if refused:
         raise RequestError(_unknown_tracker_param(loaded, given) or refused)
+    _refuse_tracker_sets_without_block(loaded, given, others)
     stages = loaded.stages
     _refuse_unknown_stages(loaded, given)
     for stage in dict.fromkeys(st for st, _, _ in given.values()):
@@ -121,6 +122,34 @@ def check_stage_values(graph: str, given: dict[str, tuple[str, str, Any]], other
         if why is not None:  # named by the values refused alone, else by all of them
             alone = [how for how, (param, value) in mine.items() if params_error(stages[stage].kind, {**base, param: value})]
             raise RequestError(f"{' '.join(alone or mine)}: {why}")
+
+
+def _refuse_tracker_sets_without_block(plan: Plan, given: dict[str, tuple[str, str, Any]],
+                                       others: dict[str, dict] | None) -> None:
+    """``--set tracker.PARAM=VALUE`` of a graph with no tracker block (the built-in ``demo``, a graph file of one's
+    own) goes to each of its stages of a tracker. One that such a stage refuses was reported as a bad parameter of
+    that stage, quoting the graph file's line; it is refused in the words of the option: a name no such stage has,
+    saying the graph has no tracker block and the stages whose ``--set STAGE.PARAM`` it takes; a value refused, as
+    ``--set filter.PARAM`` would be."""
+    from stages.registry import STAGES
+
+    from pipeline.runtime.graph import params_error
+    from pipeline.runtime.tracker_block import TRACKER_KEY, stage_tracker
+
+    if plan.tracker is not None:
+        return
+    mine = {how: (param, value) for how, (stage, param, value) in given.items() if stage == TRACKER_KEY}
+    takers = [n for n, s in plan.stages.items() if s.kind in STAGES and stage_tracker(STAGES[s.kind].Params)]
+    for how, (param, value) in mine.items():
+        for name in takers:
+            base = {**plan.stages[name].params, **(others or {}).get(name, {})}
+            why = params_error(plan.stages[name].kind, {**base, param: value})
+            if why is not None and why.startswith("no parameter "):
+                raise RequestError(f"{how}: the graph {plan.name} has no tracker block, and its stage {name} has no "
+                                   f"parameter {param!r}; set a stage's parameter with --set STAGE.PARAM=VALUE (its "
+                                   f"stages: {', '.join(plan.stages)})")
+            if why is not None:
+                raise RequestError(f"{how}: {why}")
 
 
 def _refuse_unknown_stages(plan: Plan, given: dict[str, tuple[str, str, Any]]) -> None:

@@ -20,7 +20,6 @@ def cmd_run(args) -> int:
 
     check_outputs(record=args.record)
     apply_security(args)  # read when zenoh opens; --inline opens none, and a bad file is refused all the same
-    _refuse_tracker_sets_without_block(args.graph, sets_as_given(args.set))
     check_stage_values(args.graph, sets_as_given(args.set))
     plan = apply_defaults(load_graph(args.graph, overrides=parse_sets(args.set)))
     held = plan.recorder()
@@ -45,38 +44,6 @@ def cmd_run(args) -> int:
         rec = f"on host {held.host}"
     print(f"{plan.name}{hosts}: {frames} frames in {secs:.2f} s; stream {plan.stream}; recording: {rec}")
     return run_status(info)
-
-
-def _refuse_tracker_sets_without_block(graph: str, given: dict) -> None:
-    """``--set tracker.PARAM=VALUE`` of a graph with no tracker block (the built-in ``demo``) goes to each of its
-    stages of a tracker. One that such a stage refuses was reported as a bad parameter of that stage, quoting the
-    graph file's line; it is refused in the words of the option: a name no such stage has, saying the graph has
-    no tracker block and the stages whose ``--set STAGE.PARAM`` it takes; a value refused, as ``--set
-    filter.PARAM`` would be. ``given``: :func:`pipeline.app.sets_as_given`'s."""
-    from stages.registry import STAGES
-
-    from pipeline.runtime.graph import GraphError, load_graph, params_error
-    from pipeline.runtime.tracker_block import TRACKER_KEY, stage_tracker
-
-    mine = {how: (param, value) for how, (stage, param, value) in given.items() if stage == TRACKER_KEY}
-    if not mine:
-        return
-    try:
-        plan = load_graph(graph)
-    except GraphError:  # the graph's own fault: said by the load that follows
-        return
-    if plan.tracker is not None:
-        return
-    takers = [n for n, s in plan.stages.items() if s.kind in STAGES and stage_tracker(STAGES[s.kind].Params)]
-    for how, (param, value) in mine.items():
-        for name in takers:
-            why = params_error(plan.stages[name].kind, {**plan.stages[name].params, param: value})
-            if why is not None and why.startswith("no parameter "):
-                raise CliError(f"{how}: the graph {plan.name} has no tracker block, and its stage {name} has no "
-                               f"parameter {param!r}; set a stage's parameter with --set STAGE.PARAM=VALUE (its "
-                               f"stages: {', '.join(plan.stages)})")
-            if why is not None:
-                raise CliError(f"{how}: {why}")
 
 
 def _check_initial_boxes(plan, local) -> None:
