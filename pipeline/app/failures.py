@@ -11,7 +11,7 @@ from typing import Iterable
 
 from gflow_msgs.messages import NOTICE_KINDS, ErrorReport, MessageError, decode
 
-__all__ = ["RunFailures", "FailureLog"]
+__all__ = ["RunFailures", "FailureLog", "error_report", "EVERY_FRAME_FAILED"]
 
 #: the status a command exits with when every frame of its run failed (as ``gflow track``'s incomplete run)
 EVERY_FRAME_FAILED = 3
@@ -53,6 +53,15 @@ class RunFailures:
                 f"without an estimate; the first: {self.first}")
 
 
+def error_report(payload: bytes) -> ErrorReport | None:
+    """The :class:`ErrorReport` a message on a run's errors topic holds (None: another message, or none at all)."""
+    try:
+        msg = decode(payload)
+    except MessageError:
+        return None
+    return msg if isinstance(msg, ErrorReport) else None
+
+
 class FailureLog:
     """The error reports and the frames with an estimate of a run, taken from its messages: as an inline run
     publishes them (:meth:`tap`) or as a process run's launcher heard them (:meth:`take`)."""
@@ -66,13 +75,8 @@ class FailureLog:
     def tap(self, topic: str, payload: bytes, seq: int, type_name: str) -> None:
         if topic in self.estimate_topics and type_name in ("Estimate", "PoseEstimate") and seq >= 0:
             self.estimated.add(seq)
-        elif topic == self.error_topic:
-            try:
-                msg = decode(payload)
-            except MessageError:
-                return
-            if isinstance(msg, ErrorReport):
-                self.take([msg])
+        elif topic == self.error_topic and (report := error_report(payload)) is not None:
+            self.take([report])
 
     def take(self, reports: Iterable[ErrorReport], estimated: Iterable[int] = ()) -> None:
         self.reports.extend(r for r in reports if r.kind not in NOTICE_KINDS)

@@ -10,8 +10,9 @@ import time
 from pathlib import Path
 from typing import Any, Callable, Iterable
 
-from gflow_msgs.messages import ErrorReport, Estimate, MessageError, PoseEstimate, decode
+from gflow_msgs.messages import Estimate, MessageError, PoseEstimate, decode
 
+from pipeline.app.failures import FailureLog, error_report
 from pipeline.runtime.graph import Plan
 from pipeline.runtime.run_metadata import run_metadata
 from pipeline.runtime.transport import SessionError, ZenohSettings, free_port
@@ -101,10 +102,8 @@ def _run_inline(plan: Plan, recording: str | None, total: int | None, quiet: boo
                                               "failures": failures.summary(r.frames)}
 
 
-def _failure_log(plan: Plan):
+def _failure_log(plan: Plan) -> FailureLog:
     """A :class:`pipeline.app.failures.FailureLog` of the run of ``plan``: its errors topic, its estimate topics."""
-    from pipeline.app.failures import FailureLog
-
     return FailureLog(plan.error_topic, (t for s in plan.stages.values() if s.kind != "recorder"
                                          for p, t in s.outputs.items() if p == "estimate"))
 
@@ -231,13 +230,8 @@ class EstimateSink:
         """One message of an inline run (the tap of :func:`pipeline.runtime.inline.run_inline`)."""
         if topic in self.topics:
             self.take(payload)
-        elif topic == self.error_topic:
-            try:
-                report = decode(payload)
-            except MessageError:
-                return
-            if isinstance(report, ErrorReport):
-                self.reported.add(report.header.seq)
+        elif topic == self.error_topic and (report := error_report(payload)) is not None:
+            self.reported.add(report.header.seq)
 
     def take(self, payload: bytes) -> None:
         """An estimate message (anything else on an estimate topic, such as its end of stream, is left)."""
